@@ -1,0 +1,135 @@
+"""Colour of a radiance-coefficient spectrum: CIE XYZ, linear sRGB, HSV and channel ratios.
+
+PHYSICS.md section 7: spectral ``beta`` at one geometry -> CIE XYZ (CIE 1931 2-degree standard
+observer, illuminant D65 unless set) -> linear sRGB, so that an ideal white diffuser (``beta = 1``)
+is RGB (1, 1, 1) -> HSV and the ratios BLUE/RED and GREEN/RED, all on the LINEAR values (the
+published reference table is only self-consistent that way: S = 0.99 goes with GREEN/RED = 0.011).
+Gamma-encoded sRGB is for display only (:func:`display_srgb`).
+
+The computation is colour-science's:
+
+.. math::
+
+    X = k \\sum_\\lambda \\beta(\\lambda) S(\\lambda) \\bar x(\\lambda) \\Delta\\lambda, \\quad
+    k = 1 / \\sum_\\lambda S(\\lambda) \\bar y(\\lambda) \\Delta\\lambda
+
+(``colour.sd_to_XYZ``, ASTM E308 method, divided by 100 so that ``Y = 1`` for ``beta = 1``), then
+``colour.XYZ_to_RGB(XYZ, "sRGB", illuminant=D65 white point)`` and ``colour.RGB_to_HSV``. With
+illuminant D65 the ideal white diffuser gives RGB (1, 1, 1) to within 2e-4 (the rounding of the
+published sRGB matrix). A spectrum measured on 390..710 nm is extended to the observer's range by
+colour-science's default constant extrapolation of its end values.
+
+References
+----------
+CIE 015:2018 Colorimetry, 4th ed.; IEC 61966-2-1:1999 (sRGB); ASTM E308-22; Mansencal et al.,
+Colour 0.4.7 (colour-science).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ColourSummary", "display_srgb", "hue_difference", "spectrum_colour"]
+
+OBSERVER = "CIE 1931 2 Degree Standard Observer"
+
+
+@dataclass(frozen=True)
+class ColourSummary:
+    """Colour of one spectrum. ``h``, ``s``, ``v`` in [0, 1] from LINEAR sRGB ``rgb``."""
+
+    h: float
+    s: float
+    v: float
+    blue_red: float
+    green_red: float
+    rgb: tuple[float, float, float]
+    xyz: tuple[float, float, float]
+    illuminant: str = "D65"
+
+    def as_dict(self) -> dict:
+        """The contract's keys (``h``, ``s``, ``v``, ``blue_red``, ``green_red``) plus ``rgb``."""
+        return {"h": self.h, "s": self.s, "v": self.v, "blue_red": self.blue_red,
+                "green_red": self.green_red, "rgb": list(self.rgb)}
+
+
+def _ratio(a: float, b: float) -> float:
+    return float(a / b) if b > 0 else float("nan")
+
+
+def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSummary:
+    """Colour summary of the spectrum ``beta(wavelength_nm)`` seen under ``illuminant``.
+
+    Parameters
+    ----------
+    wavelength_nm : array_like
+        Strictly increasing, evenly spaced wavelengths in nm (1, 5, 10 or 20 nm steps for the
+        ASTM E308 method; others are interpolated by colour-science).
+    beta : array_like
+        Radiance coefficient at those wavelengths.
+    illuminant : str
+        A key of ``colour.SDS_ILLUMINANTS`` (e.g. ``"D65"``, ``"A"``, ``"D50"``).
+
+    Returns
+    -------
+    ColourSummary
+        ``rgb`` is linear sRGB; the ratios are NaN when red is not positive.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> c = spectrum_colour(np.arange(390, 711, 10), np.full(33, 0.5))
+    >>> round(c.v, 3), round(c.s, 3)
+    (0.5, 0.0)
+    """
+    import colour
+
+    wl = np.asarray(wavelength_nm, dtype=float).ravel()
+    values = np.asarray(beta, dtype=float).ravel()
+    if wl.size != values.size:
+        raise ValueError(f"{wl.size} wavelengths but {values.size} values")
+    if wl.size < 2:
+        raise ValueError("a colour needs a spectrum of at least two wavelengths")
+    if not np.all(np.diff(wl) > 0):
+        raise ValueError("wavelengths must be strictly increasing")
+    if not np.all(np.isfinite(values)):
+        raise ValueError("the spectrum contains NaN or infinite values")
+    if illuminant not in colour.SDS_ILLUMINANTS:
+        raise ValueError(f"unknown illuminant {illuminant!r}; use a key of "
+                         "colour.SDS_ILLUMINANTS such as 'D65'")
+    sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist())), name="beta")
+    cmfs = colour.MSDS_CMFS[OBSERVER]
+    sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
+    xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0
+    white_xy = colour.CCS_ILLUMINANTS[OBSERVER][illuminant] if illuminant in \
+        colour.CCS_ILLUMINANTS[OBSERVER] else colour.XYZ_to_xy(
+            colour.sd_to_XYZ(colour.sd_ones(), cmfs, sd_illuminant))
+    rgb = colour.XYZ_to_RGB(xyz, "sRGB", illuminant=white_xy)
+    hsv = colour.RGB_to_HSV(rgb)
+    r, g, b = (float(x) for x in rgb)
+    return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
+                         blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),
+                         xyz=tuple(float(x) for x in xyz), illuminant=illuminant)
+
+
+def hue_difference(h1, h2):
+    """Signed hue difference ``h2 - h1`` on the hue circle, in [-0.5, 0.5).
+
+    Examples
+    --------
+    >>> round(float(hue_difference(0.98, 0.02)), 6)
+    0.04
+    """
+    d = np.mod(np.asarray(h2, dtype=float) - np.asarray(h1, dtype=float) + 0.5, 1.0) - 0.5
+    return d[()] if np.ndim(d) == 0 else d
+
+
+def display_srgb(rgb_linear):
+    """Gamma-encoded sRGB in [0, 1] for display (swatches); never used for the metrics."""
+    import colour
+
+    rgb = np.clip(np.asarray(rgb_linear, dtype=float), 0.0, None)
+    encoded = colour.cctf_encoding(rgb, function="sRGB")
+    return np.clip(encoded, 0.0, 1.0)

@@ -1,0 +1,703 @@
+"""Radiance-coefficient datasets: the one reader and writer of the project's data format.
+
+A dataset is a directory with two files (ARCHITECTURE.md, "The radiance-coefficient dataset"):
+
+``radiance.csv``
+    one row per (geometry, wavelength), columns in this order::
+
+        theta_i,phi_i,theta_o,phi_o,wavelength_nm,beta,u_beta,n
+
+    angles in degrees in the fabric frame (z = fabric normal, x = warp), ``theta`` in [0, 90],
+    ``phi`` in [0, 360); directions point away from the sample. ``beta`` is the radiance
+    coefficient (radiance factor, ``beta = pi f_r``), ``u_beta`` its standard uncertainty, ``n`` the
+    number of readings (or photons / rays) behind it.
+``meta.json``
+    ``{"schema": "radiance-dataset/1", "kind": "measured"|"simulated", "sample": {...},
+    "instrument"|"model": {...}, "wavelengths_nm": [...], "created": ISO-8601, "software": {...},
+    "provenance": {...}}``; free-form beyond these keys.
+
+Reading validates everything and raises :class:`DatasetError`, whose message names the file, the
+row (the line number in the file, the header being line 1), the column and the problem. Writing is
+atomic per file (temporary file, fsync, rename) and ``meta.json`` is written last and carries the
+SHA-256 of ``radiance.csv``, so a crash between the two renames is detected on reading instead of
+silently pairing new values with old metadata.
+
+Conventions decided here (the design is silent on them):
+
+- A geometry with ``theta_o = 0`` has no meaningful ``phi_o``; it is stored with
+  ``phi_o = phi_i + 180`` (the in-plane convention's ``s = 0``), so two writers cannot create two
+  rows for the same direction. The same holds for ``theta_i = 0`` only in the sense that ``phi_i``
+  is kept as given: at normal incidence ``phi_i`` names the plane in which the in-plane signed angle
+  is measured (the instrument's detector plane / sample rotation).
+- ``beta`` may be slightly negative in measured data (dark-subtracted noise); it must be finite.
+- Interpolation (:meth:`Dataset.interpolate`) is linear in wavelength and piecewise linear over the
+  data's geometries (Delaunay triangulation of (``theta_i``, ``s``) for in-plane data, of
+  (``theta_i``, ``sin theta_o cos dphi``, ``sin theta_o sin dphi``) otherwise) at a sample rotation
+  ``phi_i`` present in the data. A request outside the data is refused, never extrapolated.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import io
+import json
+import math
+import os
+import platform
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "COLUMNS",
+    "GEOMETRY",
+    "SCHEMA",
+    "Dataset",
+    "DatasetError",
+    "in_plane_geometry",
+    "make_dataset",
+    "new_meta",
+    "read_dataset",
+    "signed_angle",
+    "write_dataset",
+]
+
+SCHEMA = "radiance-dataset/1"
+COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm", "beta", "u_beta", "n")
+GEOMETRY = COLUMNS[:4]
+KINDS = ("measured", "simulated")
+CSV_NAME = "radiance.csv"
+META_NAME = "meta.json"
+
+#: Tolerance (degrees) under which two angles are the same geometry.
+ANGLE_TOL_DEG = 1e-6
+#: Wavelengths accepted (nm): the instrument's monochromator spans 380..780; simulations may go wider.
+WAVELENGTH_RANGE_NM = (200.0, 2500.0)
+_FLOAT_FORMAT = "%.10g"
+
+
+class DatasetError(ValueError):
+    """A dataset (or a request to it) is invalid. The message names file, row, column, problem."""
+
+    def __init__(self, problem: str, *, file: str | os.PathLike | None = None,
+                 row: int | None = None, column: str | None = None, hint: str | None = None):
+        self.problem = problem
+        self.file = None if file is None else str(file)
+        self.row = row
+        self.column = column
+        self.hint = hint
+        where = []
+        if self.file is not None:
+            where.append(self.file)
+        if row is not None:
+            where.append(f"row {row}")
+        if column is not None:
+            where.append(f"column '{column}'")
+        message = (": ".join([", ".join(where), problem]) if where else problem)
+        if hint:
+            message += f" ({hint})"
+        super().__init__(message)
+
+
+# --------------------------------------------------------------------------------------------
+# geometry helpers
+
+
+def signed_angle(theta_i, phi_i, theta_o, phi_o):
+    """Signed in-plane observation angle ``s`` (degrees), NaN where ``w_o`` is out of the plane.
+
+    PHYSICS.md section 1: with the source at azimuth ``phi_i``, ``s >= 0`` (mirror side) means
+    ``phi_o = phi_i + 180`` and ``s < 0`` (source side) means ``phi_o = phi_i``; ``theta_o = 0`` is
+    ``s = 0``.
+
+    Examples
+    --------
+    >>> float(signed_angle(30, 0, 40, 180)), float(signed_angle(30, 0, 40, 0))
+    (40.0, -40.0)
+    """
+    theta_i, phi_i, theta_o, phi_o = np.broadcast_arrays(
+        *(np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)))
+    dphi = np.mod(phi_o - phi_i, 360.0)
+    tol = 1e-6
+    mirror = np.abs(dphi - 180.0) < tol
+    source = (dphi < tol) | (dphi > 360.0 - tol)
+    s = np.where(mirror, theta_o, np.where(source, -theta_o, np.nan))
+    s = np.where(np.abs(theta_o) < tol, 0.0, s)
+    return s[()] if s.ndim == 0 else s
+
+
+def in_plane_geometry(theta_i, s, phi_i=0.0):
+    """``(theta_o, phi_o)`` in degrees of the in-plane direction with signed angle ``s``.
+
+    Examples
+    --------
+    >>> in_plane_geometry(30.0, -20.0, phi_i=90.0)
+    (20.0, 90.0)
+    """
+    s = np.asarray(s, dtype=float)
+    phi_i = np.asarray(phi_i, dtype=float)
+    theta_o = np.abs(s)
+    phi_o = np.mod(np.where(s >= 0.0, phi_i + 180.0, phi_i), 360.0)
+    if theta_o.ndim == 0 and phi_o.ndim == 0:
+        return float(theta_o), float(phi_o)
+    return theta_o, phi_o
+
+
+def _canonical_phi(table: pd.DataFrame) -> pd.DataFrame:
+    """phi in [0, 360); ``phi_o`` of the normal direction set to ``phi_i + 180`` (see module doc)."""
+    table = table.copy()
+    for col in ("phi_i", "phi_o"):
+        phi = np.mod(table[col].to_numpy(dtype=float), 360.0)
+        phi[np.isclose(phi, 360.0, atol=ANGLE_TOL_DEG)] = 0.0
+        table[col] = phi
+    normal_o = np.abs(table["theta_o"].to_numpy(dtype=float)) < ANGLE_TOL_DEG
+    if normal_o.any():
+        table.loc[normal_o, "phi_o"] = np.mod(table.loc[normal_o, "phi_i"] + 180.0, 360.0)
+    return table
+
+
+# --------------------------------------------------------------------------------------------
+# validation
+
+
+def _validate_table(table: pd.DataFrame, file: str | None, *, line_offset: int = 2) -> pd.DataFrame:
+    """Check columns, numbers, ranges and duplicates; return a float/int typed, sorted copy.
+
+    ``line_offset`` maps a 0-based data index to the row number users see (2 = file line, header
+    on line 1).
+    """
+    if table.shape[0] == 0:
+        raise DatasetError("no data rows", file=file,
+                           hint="a dataset needs at least one (geometry, wavelength) row")
+    columns = [str(c).strip() for c in table.columns]
+    missing = [c for c in COLUMNS if c not in columns]
+    if missing:
+        raise DatasetError(f"missing column(s) {', '.join(missing)}", file=file, row=1,
+                           hint=f"the header must be {','.join(COLUMNS)}")
+    extra = [c for c in columns if c not in COLUMNS]
+    if extra or tuple(columns) != COLUMNS:
+        raise DatasetError(
+            f"columns are {','.join(columns)}" + (f" (unknown: {', '.join(extra)})" if extra else ""),
+            file=file, row=1, hint=f"the header must be exactly {','.join(COLUMNS)} in this order")
+    table = table.copy()
+    table.columns = columns
+    out = {}
+    for col in COLUMNS:
+        raw = table[col]
+        values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            shown = raw.iloc[i]
+            shown = "empty" if (shown is None or (isinstance(shown, float) and math.isnan(shown))
+                                or str(shown).strip() == "") else repr(str(shown))
+            raise DatasetError(f"value {shown} is not a finite number", file=file,
+                               row=i + line_offset, column=col)
+        out[col] = values
+    checks = [
+        ("theta_i", lambda v: (v >= 0) & (v <= 90), "must be in [0, 90] degrees"),
+        ("theta_o", lambda v: (v >= 0) & (v <= 90), "must be in [0, 90] degrees"),
+        ("phi_i", lambda v: (v >= 0) & (v < 360), "must be in [0, 360) degrees"),
+        ("phi_o", lambda v: (v >= 0) & (v < 360), "must be in [0, 360) degrees"),
+        ("wavelength_nm", lambda v: (v >= WAVELENGTH_RANGE_NM[0]) & (v <= WAVELENGTH_RANGE_NM[1]),
+         f"must be in [{WAVELENGTH_RANGE_NM[0]:g}, {WAVELENGTH_RANGE_NM[1]:g}] nm"),
+        ("u_beta", lambda v: v >= 0, "must be >= 0"),
+        ("n", lambda v: (v >= 1) & (v == np.round(v)), "must be a whole number >= 1"),
+    ]
+    for col, ok, what in checks:
+        good = ok(out[col])
+        if not good.all():
+            i = int(np.flatnonzero(~good)[0])
+            raise DatasetError(f"value {out[col][i]:g} {what}", file=file, row=i + line_offset,
+                               column=col)
+    frame = pd.DataFrame(out, columns=list(COLUMNS))
+    frame["n"] = frame["n"].astype(np.int64)
+    frame = _canonical_phi(frame)
+    key = frame[list(GEOMETRY) + ["wavelength_nm"]].round(6)
+    dup = key.duplicated(keep=False).to_numpy()
+    if dup.any():
+        rows = np.flatnonzero(dup)
+        first = key.iloc[rows[0]]
+        same = rows[(key.iloc[rows] == first).all(axis=1).to_numpy()]
+        geometry = ", ".join(f"{c}={first[c]:g}" for c in key.columns)
+        raise DatasetError(f"duplicate geometry and wavelength ({geometry}), also on row "
+                           f"{int(same[1]) + line_offset}", file=file,
+                           row=int(same[0]) + line_offset,
+                           hint="each (geometry, wavelength) must appear once")
+    frame = frame.sort_values(list(GEOMETRY) + ["wavelength_nm"], kind="mergesort")
+    return frame.reset_index(drop=True)
+
+
+def _validate_meta(meta: Any, file: str | None) -> dict:
+    if not isinstance(meta, dict):
+        raise DatasetError("must hold a JSON object", file=file)
+    schema = meta.get("schema")
+    if schema is None:
+        raise DatasetError("missing key 'schema'", file=file, hint=f"expected \"{SCHEMA}\"")
+    if schema != SCHEMA:
+        raise DatasetError(f"unknown schema {schema!r}", file=file,
+                           hint=f"this version reads \"{SCHEMA}\"")
+    kind = meta.get("kind")
+    if kind not in KINDS:
+        raise DatasetError(f"key 'kind' is {kind!r}", file=file,
+                           hint="it must be \"measured\" or \"simulated\"")
+    if not isinstance(meta.get("sample", {}), dict):
+        raise DatasetError("key 'sample' must be an object", file=file)
+    return meta
+
+
+# --------------------------------------------------------------------------------------------
+# the dataset
+
+
+class Dataset:
+    """A validated radiance-coefficient dataset held in memory.
+
+    Create with :func:`make_dataset` or :func:`read_dataset`; the table is sorted by geometry and
+    wavelength and must not be modified in place (derive new datasets with :meth:`with_values`).
+    """
+
+    def __init__(self, table: pd.DataFrame, meta: dict, path: Path | None = None):
+        self.table = table
+        self.meta = meta
+        self.path = path
+        self._interpolators: dict = {}
+
+    # --- descriptive properties -------------------------------------------------------------
+    @property
+    def kind(self) -> str:
+        return self.meta["kind"]
+
+    @property
+    def name(self) -> str:
+        sample = self.meta.get("sample") or {}
+        name = sample.get("name") if isinstance(sample, dict) else None
+        if name:
+            return str(name)
+        return self.path.name if self.path is not None else "dataset"
+
+    @property
+    def wavelengths_nm(self) -> np.ndarray:
+        return np.unique(self.table["wavelength_nm"].to_numpy())
+
+    @property
+    def source(self) -> str:
+        """Where the data came from (path or name), for messages."""
+        return str(self.path) if self.path is not None else self.name
+
+    def __repr__(self) -> str:
+        return (f"Dataset(name={self.name!r}, kind={self.kind!r}, rows={len(self.table)}, "
+                f"geometries={len(self.geometries())}, wavelengths={len(self.wavelengths_nm)})")
+
+    def __len__(self) -> int:
+        return len(self.table)
+
+    # --- views -----------------------------------------------------------------------------
+    def geometries(self) -> pd.DataFrame:
+        """Unique geometries ``(theta_i, phi_i, theta_o, phi_o)``, sorted."""
+        return self.table[list(GEOMETRY)].drop_duplicates().reset_index(drop=True)
+
+    def to_frame(self) -> pd.DataFrame:
+        """A pandas copy of the rows with the signed in-plane angle ``s`` (NaN out of plane)."""
+        frame = self.table.copy()
+        frame["s"] = signed_angle(frame["theta_i"], frame["phi_i"], frame["theta_o"],
+                                  frame["phi_o"])
+        return frame
+
+    def spectrum(self, theta_i: float, phi_i: float, theta_o: float, phi_o: float) -> pd.DataFrame:
+        """Rows at one geometry (angles within 1e-6 degrees), sorted by wavelength."""
+        t = self.table
+        probe = _canonical_phi(pd.DataFrame({"theta_i": [theta_i], "phi_i": [phi_i],
+                                             "theta_o": [theta_o], "phi_o": [phi_o]}))
+        mask = np.ones(len(t), dtype=bool)
+        for col in GEOMETRY:
+            value = float(probe[col].iloc[0])
+            diff = np.abs(t[col].to_numpy() - value)
+            if col.startswith("phi"):
+                diff = np.minimum(diff, 360.0 - diff)
+            mask &= diff < ANGLE_TOL_DEG
+        rows = t[mask]
+        if rows.empty:
+            raise DatasetError(
+                f"no data at theta_i={theta_i:g}, phi_i={phi_i:g}, theta_o={theta_o:g}, "
+                f"phi_o={phi_o:g}", file=self.source,
+                hint="use Dataset.geometries() to list what was measured, or interpolate()")
+        return rows.reset_index(drop=True)
+
+    def in_plane(self, theta_i: float | None = None, phi_i: float | None = None,
+                 wavelength_nm: float | None = None) -> pd.DataFrame:
+        """In-plane rows with the signed observation angle ``s``, sorted by theta_i, wavelength, s."""
+        frame = self.to_frame()
+        frame = frame[np.isfinite(frame["s"].to_numpy())]
+        for col, value in (("theta_i", theta_i), ("phi_i", phi_i),
+                           ("wavelength_nm", wavelength_nm)):
+            if value is not None:
+                frame = frame[np.abs(frame[col].to_numpy() - float(value)) < ANGLE_TOL_DEG]
+        frame = frame.sort_values(["theta_i", "phi_i", "wavelength_nm", "s"], kind="mergesort")
+        return frame.reset_index(drop=True)
+
+    def colour_at(self, theta_i: float, phi_i: float, theta_o: float, phi_o: float,
+                  illuminant: str = "D65"):
+        """HSV / linear-sRGB summary of the spectrum at one geometry (see :mod:`gonio.colour`)."""
+        from gonio.colour import spectrum_colour
+
+        rows = self.spectrum(theta_i, phi_i, theta_o, phi_o)
+        return spectrum_colour(rows["wavelength_nm"].to_numpy(), rows["beta"].to_numpy(),
+                               illuminant=illuminant)
+
+    def with_values(self, beta, u_beta=None, meta_update: Mapping | None = None) -> "Dataset":
+        """A new dataset with the same rows and new ``beta`` (and ``u_beta``) values."""
+        table = self.table.copy()
+        table["beta"] = np.asarray(beta, dtype=float) * np.ones(len(table))
+        if u_beta is not None:
+            table["u_beta"] = np.asarray(u_beta, dtype=float) * np.ones(len(table))
+        meta = json.loads(json.dumps(self.meta))
+        if meta_update:
+            meta.update(meta_update)
+        return make_dataset(table, meta, source=self.source)
+
+    # --- interpolation ---------------------------------------------------------------------
+    def interpolate(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm):
+        """``(beta, u_beta)`` at arbitrary geometries and wavelengths inside the data.
+
+        Linear in wavelength between the bracketing measured wavelengths; piecewise linear over
+        the geometries of the same sample rotation ``phi_i`` (see the module docstring). Inputs
+        broadcast; the outputs have the broadcast shape. Raises :class:`DatasetError` for any
+        request outside the data (wavelength outside the range, a sample rotation not in the data,
+        an out-of-plane request on in-plane data, a geometry outside the convex hull of the data).
+        """
+        args = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
+                                     (theta_i, phi_i, theta_o, phi_o, wavelength_nm)))
+        shape = args[0].shape
+        ti, pi_, to, po, wl = (a.ravel() for a in args)
+        pi_ = np.mod(pi_, 360.0)
+        wavelengths = self.wavelengths_nm
+        outside = (wl < wavelengths[0] - 1e-9) | (wl > wavelengths[-1] + 1e-9)
+        if outside.any():
+            raise DatasetError(
+                f"wavelength {wl[outside][0]:g} nm is outside the data "
+                f"({wavelengths[0]:g}..{wavelengths[-1]:g} nm)", file=self.source,
+                hint="interpolation never extrapolates")
+        beta = np.empty(ti.size)
+        u_beta = np.empty(ti.size)
+        rotations = np.unique(self.table["phi_i"].to_numpy())
+        for rotation in np.unique(pi_):
+            sel = np.flatnonzero(np.abs(pi_ - rotation) < ANGLE_TOL_DEG)
+            match = rotations[np.abs(rotations - rotation) < ANGLE_TOL_DEG]
+            if match.size == 0:
+                raise DatasetError(f"no data at sample rotation phi_i={rotation:g}",
+                                   file=self.source,
+                                   hint=f"the data have phi_i in {sorted(set(rotations.tolist()))}")
+            interp = self._geometry_interpolator(float(match[0]))
+            spectra_b, spectra_u = interp(ti[sel], to[sel], po[sel] - rotation)
+            # linear interpolation in wavelength, row by row
+            j = np.clip(np.searchsorted(wavelengths, wl[sel]) - 1, 0, len(wavelengths) - 2) \
+                if len(wavelengths) > 1 else np.zeros(sel.size, dtype=int)
+            if len(wavelengths) > 1:
+                w0, w1 = wavelengths[j], wavelengths[j + 1]
+                f = np.clip((wl[sel] - w0) / (w1 - w0), 0.0, 1.0)
+                rows = np.arange(sel.size)
+                b = (1 - f) * spectra_b[rows, j] + f * spectra_b[rows, j + 1]
+                u = (1 - f) * spectra_u[rows, j] + f * spectra_u[rows, j + 1]
+            else:
+                b, u = spectra_b[:, 0], spectra_u[:, 0]
+            if not np.all(np.isfinite(b)):
+                k = int(np.flatnonzero(~np.isfinite(b))[0])
+                raise DatasetError(
+                    f"geometry theta_i={ti[sel][k]:g}, phi_i={rotation:g}, theta_o={to[sel][k]:g}, "
+                    f"phi_o={po[sel][k]:g} at {wl[sel][k]:g} nm is outside the measured data",
+                    file=self.source, hint="interpolation never extrapolates")
+            beta[sel] = b
+            u_beta[sel] = u
+        return beta.reshape(shape), u_beta.reshape(shape)
+
+    def _geometry_interpolator(self, rotation: float):
+        """A function (theta_i, theta_o, dphi) -> (beta spectra, u_beta spectra) for one phi_i."""
+        if rotation in self._interpolators:
+            return self._interpolators[rotation]
+        from scipy.interpolate import LinearNDInterpolator
+
+        t = self.table[np.abs(self.table["phi_i"].to_numpy() - rotation) < ANGLE_TOL_DEG]
+        wavelengths = self.wavelengths_nm
+        pivot_b = t.pivot_table(index=list(GEOMETRY), columns="wavelength_nm", values="beta",
+                                aggfunc="first").reindex(columns=wavelengths)
+        pivot_u = t.pivot_table(index=list(GEOMETRY), columns="wavelength_nm", values="u_beta",
+                                aggfunc="first").reindex(columns=wavelengths)
+        index = pivot_b.index.to_frame(index=False)
+        values_b = pivot_b.to_numpy(dtype=float)
+        values_u = pivot_u.to_numpy(dtype=float)
+        theta_i = index["theta_i"].to_numpy()
+        theta_o = index["theta_o"].to_numpy()
+        dphi = np.mod(index["phi_o"].to_numpy() - rotation, 360.0)
+        s = signed_angle(theta_i, 0.0, theta_o, dphi)
+        in_plane = bool(np.all(np.isfinite(s)))
+        source = self.source
+        n_theta_i = np.unique(theta_i).size
+
+        def coords(ti, to, dp, *, plane: bool):
+            if plane:
+                return signed_angle(ti, 0.0, to, np.mod(dp, 360.0))
+            rad_o = np.radians(to)
+            rad_d = np.radians(dp)
+            return np.sin(rad_o) * np.cos(rad_d), np.sin(rad_o) * np.sin(rad_d)
+
+        if in_plane:
+            data_xy = [s]
+        else:
+            data_xy = list(coords(theta_i, theta_o, dphi, plane=False))
+        if n_theta_i > 1:
+            data_xy = [theta_i] + data_xy
+        points = np.column_stack(data_xy)
+        stacked = np.concatenate([values_b, values_u], axis=1)
+        n_wl = values_b.shape[1]
+        if points.shape[1] == 1:
+            order = np.argsort(points[:, 0])
+            xs = points[order, 0]
+            ys = stacked[order]
+
+            def interp_points(q):
+                q = q[:, 0]
+                out = np.full((q.size, ys.shape[1]), np.nan)
+                for k in range(ys.shape[1]):
+                    out[:, k] = np.interp(q, xs, ys[:, k], left=np.nan, right=np.nan)
+                return out
+        else:
+            try:
+                lin = LinearNDInterpolator(points, stacked)
+            except Exception as exc:  # Qhull: degenerate geometry sets (e.g. collinear points)
+                lin = None
+                reason = str(exc).splitlines()[0]
+
+            def interp_points(q):
+                if lin is None:
+                    raise DatasetError(f"cannot interpolate over these geometries ({reason})",
+                                       file=source)
+                return lin(q)
+
+        single_theta_i = float(theta_i[0]) if n_theta_i == 1 else None
+
+        def interpolate(ti, to, dp):
+            ti = np.asarray(ti, dtype=float)
+            if in_plane:
+                q_s = coords(ti, to, dp, plane=True)
+                if not np.all(np.isfinite(q_s)):
+                    raise DatasetError("the data are in the plane of incidence only; an "
+                                       "out-of-plane geometry cannot be interpolated", file=source)
+                cols = [q_s]
+            else:
+                cols = list(coords(ti, to, dp, plane=False))
+            if single_theta_i is not None:
+                off = np.abs(ti - single_theta_i) > ANGLE_TOL_DEG
+                if off.any():
+                    raise DatasetError(f"incidence theta_i={ti[off][0]:g} is outside the data "
+                                       f"(only theta_i={single_theta_i:g})", file=source)
+            else:
+                cols = [ti] + cols
+            q = np.column_stack(cols)
+            out = interp_points(q)
+            return out[:, :n_wl], out[:, n_wl:]
+
+        self._interpolators[rotation] = interpolate
+        return interpolate
+
+
+# --------------------------------------------------------------------------------------------
+# construction, reading and writing
+
+
+def _software() -> dict:
+    import gonio
+
+    return {"package": "fabric-optics", "version": gonio.__version__,
+            "python": platform.python_version(), "numpy": np.__version__,
+            "pandas": pd.__version__}
+
+
+def new_meta(kind: str, sample: Mapping, source: Mapping | None = None,
+             provenance: Mapping | None = None, *, created: str | None = None,
+             **extra: Any) -> dict:
+    """Metadata for a new dataset.
+
+    ``source`` is stored under ``"instrument"`` for measured data and ``"model"`` for simulated
+    data. ``created`` defaults to now (UTC, ISO-8601); pass a fixed value for reproducible files.
+    """
+    if kind not in KINDS:
+        raise DatasetError(f"kind {kind!r} is not one of {KINDS}")
+    meta = {
+        "schema": SCHEMA,
+        "kind": kind,
+        "sample": dict(sample),
+        ("instrument" if kind == "measured" else "model"): dict(source or {}),
+        "wavelengths_nm": [],
+        "created": created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "software": _software(),
+        "provenance": dict(provenance or {}),
+    }
+    meta.update(extra)
+    return meta
+
+
+def make_dataset(table: pd.DataFrame | Mapping[str, Iterable], meta: Mapping,
+                 *, source: str | None = None) -> Dataset:
+    """Validate ``table`` (columns :data:`COLUMNS`) and ``meta``; return a :class:`Dataset`.
+
+    ``phi`` values are wrapped to [0, 360) and the normal direction's ``phi_o`` is canonicalised
+    before validation; ``meta["wavelengths_nm"]`` is filled from the table.
+    """
+    frame = pd.DataFrame(table).copy()
+    for col in ("phi_i", "phi_o"):
+        if col in frame.columns:
+            values = pd.to_numeric(frame[col], errors="coerce")
+            frame[col] = np.mod(values, 360.0)
+    if "n" in frame.columns:
+        frame["n"] = pd.to_numeric(frame["n"], errors="coerce")
+    if all(c in frame.columns for c in COLUMNS):
+        frame = frame[list(COLUMNS)]
+    meta = _validate_meta(json.loads(json.dumps(dict(meta), default=_json_default)), source)
+    frame = _validate_table(frame, source, line_offset=0)
+    meta["wavelengths_nm"] = [float(w) for w in np.unique(frame["wavelength_nm"])]
+    return Dataset(frame, meta)
+
+
+def _json_default(value):
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def _csv_bytes(table: pd.DataFrame) -> bytes:
+    buffer = io.StringIO()
+    table.to_csv(buffer, index=False, float_format=_FLOAT_FORMAT, lineterminator="\n")
+    return buffer.getvalue().encode("utf-8")
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
+    """Write ``dataset`` to ``out_dir`` (created if needed) atomically; return the directory.
+
+    ``radiance.csv`` first, then ``meta.json`` carrying its SHA-256: each file is replaced
+    atomically, and a reader detects a crash between the two. Other files in ``out_dir`` (a run's
+    journal, for example) are left alone. The CSV is formatted deterministically (``%.10g``), so
+    equal datasets give byte-identical files.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    data = _csv_bytes(dataset.table)
+    meta = json.loads(json.dumps(dataset.meta, default=_json_default))
+    meta["wavelengths_nm"] = [float(w) for w in dataset.wavelengths_nm]
+    meta["files"] = {CSV_NAME: {"sha256": hashlib.sha256(data).hexdigest(),
+                                "rows": int(len(dataset.table))}}
+    _atomic_write(out / CSV_NAME, data)
+    _atomic_write(out / META_NAME,
+                  (json.dumps(meta, indent=2, sort_keys=False, allow_nan=False) + "\n").encode())
+    _fsync_dir(out)
+    dataset.path = out
+    dataset.meta = meta
+    return out
+
+
+def read_dataset(path: str | os.PathLike) -> Dataset:
+    """Read and validate the dataset in directory ``path``; raise :class:`DatasetError`."""
+    root = Path(path)
+    if not root.exists():
+        raise DatasetError("no such dataset directory", file=root,
+                           hint=f"a dataset is a directory holding {CSV_NAME} and {META_NAME}")
+    if root.is_file():
+        if root.name in (CSV_NAME, META_NAME):
+            root = root.parent
+        else:
+            raise DatasetError("is a file, not a dataset directory", file=root,
+                               hint=f"pass the directory holding {CSV_NAME} and {META_NAME}")
+    csv_path, meta_path = root / CSV_NAME, root / META_NAME
+    for p in (csv_path, meta_path):
+        if not p.is_file():
+            raise DatasetError("file is missing", file=p,
+                               hint=f"a dataset directory holds {CSV_NAME} and {META_NAME}")
+    raw_meta = meta_path.read_bytes()
+    if not raw_meta.strip():
+        raise DatasetError("file is empty", file=meta_path)
+    try:
+        meta = json.loads(raw_meta.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"not UTF-8 text ({exc.reason})", file=meta_path) from None
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"invalid JSON: {exc.msg}", file=meta_path, row=exc.lineno) from None
+    meta = _validate_meta(meta, str(meta_path))
+    data = csv_path.read_bytes()
+    if not data.strip():
+        raise DatasetError("file is empty", file=csv_path,
+                           hint=f"expected the header {','.join(COLUMNS)} and data rows")
+    expected = (meta.get("files") or {}).get(CSV_NAME, {}).get("sha256") \
+        if isinstance(meta.get("files"), dict) else None
+    if expected and hashlib.sha256(data).hexdigest() != expected:
+        raise DatasetError(f"does not match the checksum recorded in {META_NAME}", file=csv_path,
+                           hint="the dataset was changed after writing or a write was interrupted; "
+                                "rewrite it with gonio.dataset.write_dataset (a run can be "
+                                "rebuilt from its journal)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"not UTF-8 text ({exc.reason})", file=csv_path) from None
+    try:
+        table = pd.read_csv(io.StringIO(text), dtype=str, keep_default_na=False,
+                            skipinitialspace=True)
+    except pd.errors.ParserError as exc:
+        raise DatasetError(f"not a valid CSV table ({str(exc).strip()})", file=csv_path) from None
+    except pd.errors.EmptyDataError:
+        raise DatasetError("file is empty", file=csv_path) from None
+    # pandas pads short rows with NaN/"" and rejects long ones above; name the short row precisely
+    table = _validate_table(table, str(csv_path))
+    listed = meta.get("wavelengths_nm")
+    if listed is not None:
+        try:
+            listed_arr = np.sort(np.asarray(listed, dtype=float).ravel())
+        except (TypeError, ValueError):
+            raise DatasetError("key 'wavelengths_nm' must be a list of numbers",
+                               file=meta_path) from None
+        actual = np.unique(table["wavelength_nm"].to_numpy())
+        if listed_arr.shape != actual.shape or not np.allclose(listed_arr, actual, atol=1e-6):
+            raise DatasetError(
+                f"key 'wavelengths_nm' lists {listed_arr.size} wavelengths that do not match the "
+                f"{actual.size} in {CSV_NAME}", file=meta_path,
+                hint="the two files do not belong together")
+    else:
+        meta["wavelengths_nm"] = [float(w) for w in np.unique(table["wavelength_nm"])]
+    return Dataset(table, meta, path=root)
