@@ -1,0 +1,30 @@
+"""Monte Carlo photon transport (PHYSICS.md section 3): compiled kernel, geometries, tallies.
+
+Public API: :func:`run_slab`, :func:`run_cylinder` and their result classes. The compiled
+pieces (:mod:`.kernel`, :mod:`.geometry`, :mod:`.tallies`, :mod:`.rng`) are implementation
+details that other estimators extend.
+"""
+
+from simulate.montecarlo.transport import (
+    DEFAULT_BATCH_SIZE,
+    DEFAULT_MAX_EVENTS,
+    CylinderAngular,
+    CylinderResult,
+    EnergyBalance,
+    SlabAngular,
+    SlabResult,
+    run_cylinder,
+    run_slab,
+)
+
+__all__ = [
+    "DEFAULT_BATCH_SIZE",
+    "DEFAULT_MAX_EVENTS",
+    "CylinderAngular",
+    "CylinderResult",
+    "EnergyBalance",
+    "SlabAngular",
+    "SlabResult",
+    "run_cylinder",
+    "run_slab",
+]
