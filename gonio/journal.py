@@ -1,0 +1,210 @@
+"""The acquisition journal: an append-only JSON Lines checkpoint, fsynced per record.
+
+The engine (:mod:`gonio.engine`) appends one record per event and calls ``fsync`` before it
+starts the next point, so after a crash (even ``SIGKILL`` or a power cut) the journal holds every
+point that was measured, plus at most one torn last line. Records (one JSON object a line):
+
+``start``        ``{"type": "start", "plan": name, "plan_sha256", "standard_sha256", "time", "session"}``
+``calibration``  ``{"type": "calibration", "id", "time", "plan_sha256", "standard_sha256", "idn",
+                 "darks": [step...], "reference": [reading...]}`` - dark per auto-ranging step and the
+                 white standard per wavelength
+``point``        ``{"type": "point", "index", "axes_deg": [4], "geometry": [theta_i, phi_i, theta_o,
+                 phi_o], "calibration", "readings": [reading...]}`` - one geometry, every wavelength
+``event``        ``{"type": "event", "what": str, ...}`` - resume, retries, safe stop, completion
+
+A *reading* is ``{"wavelength_nm", "itime_ms", "gain", "mean", "sem", "n", "ranging"}`` (raw
+counts; the radiance factor is computed from the journal when the dataset is written, so a
+dataset can always be rebuilt from its journal).
+
+Reading (:func:`read_journal`) validates every record and raises :class:`JournalError` naming the
+file and line for a corrupt record anywhere but at the end; a last line without its newline or
+that does not parse is reported as *torn* (the point it held is measured again on resume) and
+:meth:`Journal.open` truncates it before appending.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["JournalError", "JournalContent", "Journal", "read_journal", "parse_journal"]
+
+
+class JournalError(ValueError):
+    """The journal is corrupt or belongs to another run (message names the file and line)."""
+
+
+_NUM = (int, float)
+_READING = {"wavelength_nm": _NUM, "itime_ms": _NUM, "gain": int, "mean": _NUM, "sem": _NUM,
+            "n": int}
+_DARK = {"itime_ms": _NUM, "gain": int, "mean": _NUM, "sem": _NUM, "n": int}
+_SCHEMA: dict[str, dict[str, Any]] = {
+    "start": {"plan": str, "plan_sha256": str, "standard_sha256": str, "time": _NUM},
+    "calibration": {"id": int, "time": _NUM, "plan_sha256": str, "standard_sha256": str,
+                    "idn": str, "darks": list, "reference": list},
+    "point": {"index": int, "axes_deg": list, "geometry": list, "calibration": int,
+              "readings": list},
+    "event": {"what": str},
+}
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"non-finite number {name}")
+
+
+def _check_fields(rec: dict, spec: dict[str, Any], where: str) -> None:
+    for key, typ in spec.items():
+        if key not in rec:
+            raise JournalError(f"{where}: missing field '{key}'")
+        v = rec[key]
+        if isinstance(v, bool) or not isinstance(v, typ):
+            raise JournalError(f"{where}: field '{key}' has the wrong type ({type(v).__name__})")
+
+
+def _validate(rec: Any, where: str) -> dict:
+    if not isinstance(rec, dict):
+        raise JournalError(f"{where}: a record must be a JSON object")
+    kind = rec.get("type")
+    if not isinstance(kind, str) or kind not in _SCHEMA:
+        raise JournalError(f"{where}: unknown record type {kind!r}")
+    _check_fields(rec, _SCHEMA[kind], where)
+    if kind == "calibration":
+        for k, d in enumerate(rec["darks"]):
+            if not isinstance(d, dict):
+                raise JournalError(f"{where}: darks[{k}] must be an object")
+            _check_fields(d, _DARK, f"{where}: darks[{k}]")
+        for k, r in enumerate(rec["reference"]):
+            if not isinstance(r, dict):
+                raise JournalError(f"{where}: reference[{k}] must be an object")
+            _check_fields(r, _READING, f"{where}: reference[{k}]")
+    elif kind == "point":
+        for name, n in (("axes_deg", 4), ("geometry", 4)):
+            vals = rec[name]
+            if len(vals) != n or any(isinstance(x, bool) or not isinstance(x, _NUM) for x in vals):
+                raise JournalError(f"{where}: field '{name}' must be {n} numbers")
+        for k, r in enumerate(rec["readings"]):
+            if not isinstance(r, dict):
+                raise JournalError(f"{where}: readings[{k}] must be an object")
+            _check_fields(r, _READING, f"{where}: readings[{k}]")
+    return rec
+
+
+@dataclass
+class JournalContent:
+    """Records read from a journal; ``torn`` when the last line was incomplete."""
+
+    records: list[dict] = field(default_factory=list)
+    torn: bool = False
+    good_bytes: int = 0
+    missing_newline: bool = False
+
+    def of_type(self, kind: str) -> list[dict]:
+        """Records of one type, in journal order."""
+        return [r for r in self.records if r["type"] == kind]
+
+
+def parse_journal(data: bytes, name: str = "journal.jsonl") -> JournalContent:
+    """Parse journal bytes; raises :class:`JournalError` for anything but a torn last line."""
+    out = JournalContent()
+    pos = 0
+    lineno = 0
+    while pos < len(data):
+        lineno += 1
+        end = data.find(b"\n", pos)
+        final = end < 0
+        line = data[pos:] if final else data[pos:end]
+        where = f"{name}: line {lineno}"
+        try:
+            rec = _validate(json.loads(line.decode("utf-8"), parse_constant=_reject_constant), where)
+        except JournalError:
+            if final:
+                out.torn = True
+                return out
+            raise
+        except (ValueError, RecursionError, UnicodeDecodeError) as exc:
+            if final:
+                out.torn = True
+                return out
+            raise JournalError(f"{where}: not a valid JSON record ({exc})") from None
+        out.records.append(rec)
+        if final:
+            # a complete record that only lacks its newline: kept, the newline is added on open
+            out.torn = True
+            out.missing_newline = True
+            out.good_bytes = len(data)
+            return out
+        pos = end + 1
+        out.good_bytes = pos
+    return out
+
+
+def read_journal(path: str | os.PathLike) -> JournalContent:
+    """Read and validate a journal file (see :func:`parse_journal`)."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        return JournalContent()
+    except OSError as exc:
+        raise JournalError(f"{p}: cannot read the journal ({exc.strerror})") from None
+    return parse_journal(data, str(p))
+
+
+def _finite(obj: Any) -> bool:
+    if isinstance(obj, float):
+        return math.isfinite(obj)
+    if isinstance(obj, dict):
+        return all(_finite(v) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return all(_finite(v) for v in obj)
+    return True
+
+
+class Journal:
+    """Append-only writer; every :meth:`append` is flushed and fsynced before it returns."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._fh = None
+
+    @classmethod
+    def open(cls, path: str | os.PathLike) -> tuple["Journal", JournalContent]:
+        """Open for appending after reading what is there; a torn last line is cut off first.
+
+        A last record complete but for its newline is kept (the newline is added).
+        """
+        j = cls(path)
+        content = read_journal(j.path)
+        j.path.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(j.path, "ab")
+        if content.torn:
+            fh.truncate(content.good_bytes)
+            fh.seek(0, os.SEEK_END)
+            if content.missing_newline:
+                fh.write(b"\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        j._fh = fh
+        return j, content
+
+    def append(self, record: dict) -> None:
+        """Write one record as a JSON line, flush and fsync (the checkpoint)."""
+        if self._fh is None:
+            raise RuntimeError("journal is not open")
+        _validate(record, f"{self.path}: new record")
+        if not _finite(record):
+            raise ValueError(f"journal record has a non-finite number: {record}")
+        line = json.dumps(record, separators=(",", ":"), allow_nan=False).encode() + b"\n"
+        self._fh.write(line)
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        """Close the file (idempotent)."""
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None

@@ -1,0 +1,516 @@
+"""Acquisition plans: what to measure, read from TOML (``tomllib``).
+
+A plan is data (bluesky habit): the sample, the wavelengths, the geometries and the acquisition
+policy. The engine (:mod:`gonio.engine`) executes it; ``simulate`` evaluates its models at the
+same geometries through :meth:`Plan.geometries`.
+
+Geometry (PHYSICS.md section 1, INSTRUMENT.md axes)
+---------------------------------------------------
+The four axes are source zenith ``a0 = theta_i``, signed detector zenith ``s`` (+ = mirror side),
+detector-plane azimuth ``p`` from the plane of incidence, and sample rotation, whose reading is
+``phi_i``. :func:`gonio.protocol.axes_to_fabric` (shared with the mock) gives
+
+.. math::
+
+    \\theta_i = a_0,\\quad \\phi_i = \\rho,\\quad \\theta_o = |s|,\\quad
+    \\phi_o = \\phi_i + p + 180^\\circ [s \\ge 0]   \\pmod{360}
+
+so in plane (``p = 0``) ``s >= 0`` means ``phi_o = phi_i + 180`` and ``s < 0`` ``phi_o = phi_i``.
+Out-of-plane directions are given as ``(theta_o, phi_o - phi_i)``: a relative azimuth ``a`` in
+[180, 360) is reached with ``s = +theta_o, p = a - 180``, in [0, 180) with ``s = -theta_o, p = a``.
+
+Plan TOML schema
+----------------
+::
+
+    name = "red-cotton"                 # optional, default: the file's stem
+    description = "..."                 # optional
+
+    [sample]                            # required; free-form keys kept in the dataset's meta
+    name = "red cotton"                 # required
+
+    [wavelengths]                       # optional, default 390..710 step 10
+    start_nm = 390
+    stop_nm = 710                       # inclusive
+    step_nm = 10
+    # or: list_nm = [450, 550, 650]
+
+    [geometry]
+    incidence_deg = [0, 30, 45, 60]     # required, source zenith angles
+    sample_rotation_deg = [0]           # optional, default [0]
+    in_plane_deg = [-60, -50, 70]       # signed observation angles (+ = mirror side), or
+    in_plane = {start = -60, stop = 70, step = 10}
+    directions_deg = [[45, 90]]         # optional (theta_o, phi_o - phi_i) pairs out of the plane
+    skip_blocked = false                # true: beam-block points are expected (listed, not fatal)
+
+    [acquisition]                       # optional, defaults shown
+    itime_ms = 100                      # integration time (whole ms) every point starts from
+    gain = 3                            # gain step every point starts from (0..3 = x1, x4, x16, x64)
+    min_itime_ms = 1                    # auto-ranging floor
+    readings = 8                        # n of READ? n
+    repetitions = 1                     # READ? calls pooled per point
+    settle_ms = 20                      # wait after a move (real-speed milliseconds)
+    velocity_deg_s = 20                 # axis velocity
+    calibration_max_age_min = 120       # a journal's calibration older than this is re-measured
+
+    [calibration]                       # optional
+    white_standard = "spectralon"       # preset name or CSV file (relative to the plan's folder)
+    reference_deg = [0, 45]             # reference geometry (theta_i, theta_o), in plane
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from gonio import protocol
+
+__all__ = [
+    "PlanError",
+    "AcquisitionSettings",
+    "PlanPoint",
+    "PlanCheck",
+    "Plan",
+    "load_plan",
+    "parse_plan",
+    "resolve_plan_path",
+    "preset_names",
+    "order_points",
+    "estimate_duration_s",
+]
+
+_DEFAULT_WAVELENGTHS = np.arange(390.0, 710.0 + 1e-9, 10.0)
+_PRESET_PACKAGE = "gonio.presets"
+
+
+class PlanError(ValueError):
+    """A plan file is missing, unreadable or has an invalid field (message names file and field)."""
+
+
+@dataclass(frozen=True)
+class AcquisitionSettings:
+    """Integration time / gain policy and timing of one plan (see the module docstring)."""
+
+    itime_ms: int = 100
+    gain: int = 3
+    min_itime_ms: int = 1
+    readings: int = 8
+    repetitions: int = 1
+    settle_ms: float = 20.0
+    velocity_deg_s: float = 20.0
+    calibration_max_age_min: float = 120.0
+
+    def ladder(self) -> list[tuple[int, int]]:
+        """Auto-ranging ladder ``[(itime_ms, gain), ...]`` from the most sensitive setting down.
+
+        Every point starts at step 0; a saturated reading moves one step down: the gain first
+        (a factor 4 each), then the integration time (halved, whole milliseconds, down to
+        ``min_itime_ms``).
+        """
+        steps = [(self.itime_ms, g) for g in range(self.gain, -1, -1)]
+        itime = self.itime_ms
+        while itime // 2 >= self.min_itime_ms:
+            itime //= 2
+            steps.append((itime, 0))
+        if steps[-1][0] > self.min_itime_ms:
+            steps.append((self.min_itime_ms, 0))
+        return steps
+
+
+@dataclass(frozen=True)
+class PlanPoint:
+    """One geometry of a plan: axis positions (deg) and the fabric-frame angles (deg)."""
+
+    source_deg: float
+    detector_deg: float
+    plane_deg: float
+    rotation_deg: float
+    theta_i: float
+    phi_i: float
+    theta_o: float
+    phi_o: float
+
+    @property
+    def axes_deg(self) -> tuple[float, float, float, float]:
+        """Axis targets (source zenith, detector zenith, detector plane, sample rotation)."""
+        return (self.source_deg, self.detector_deg, self.plane_deg, self.rotation_deg)
+
+    @property
+    def key(self) -> tuple[float, float, float, float]:
+        """Fabric-frame geometry ``(theta_i, phi_i, theta_o, phi_o)``, rounded to 1e-6 deg."""
+        return tuple(round(v, 6) for v in (self.theta_i, self.phi_i, self.theta_o, self.phi_o))
+
+
+@dataclass
+class PlanCheck:
+    """Result of :meth:`Plan.check`: measurable points in motion order and the refused ones."""
+
+    ordered: list[PlanPoint]
+    blocked: list[PlanPoint]
+    out_of_limits: list[tuple[PlanPoint, str]]
+    estimated_s: float
+    blocked_expected: bool = False
+
+    @property
+    def ok(self) -> bool:
+        """True when nothing is out of limits and no beam-block point is unexpected."""
+        return not self.out_of_limits and (self.blocked_expected or not self.blocked)
+
+
+def preset_names() -> list[str]:
+    """Names of the plans shipped in :mod:`gonio.presets`."""
+    folder = resources.files(_PRESET_PACKAGE)
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def resolve_plan_path(path_or_name: str | Path) -> Path:
+    """A plan file path from a path or the name of a shipped preset (``red-cotton``, ``quick``)."""
+    p = Path(path_or_name)
+    if p.is_file():
+        return p
+    name = str(path_or_name)
+    name = name[:-5] if name.endswith(".toml") else name
+    if "/" not in name and name in preset_names():
+        return Path(str(resources.files(_PRESET_PACKAGE) / f"{name}.toml"))
+    raise PlanError(f"{path_or_name}: no such plan file and no preset of that name "
+                    f"(presets: {', '.join(preset_names())})")
+
+
+def load_plan(path_or_name: str | Path) -> Plan:
+    """Read and validate a plan file or a preset name; raises :class:`PlanError`."""
+    path = resolve_plan_path(path_or_name)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise PlanError(f"{path}: cannot read the plan ({exc.strerror})") from None
+    return parse_plan(raw, path)
+
+
+class _Fields:
+    """Typed access to a TOML table with errors naming the file and the field."""
+
+    def __init__(self, table: dict, where: str, file: str):
+        self.table, self.where, self.file = table, where, file
+        self.used: set[str] = set()
+
+    def _name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def fail(self, key: str, msg: str):
+        raise PlanError(f"{self.file}: field '{self._name(key)}': {msg}")
+
+    def get(self, key: str, default: Any = None, required: bool = False) -> Any:
+        self.used.add(key)
+        if key not in self.table:
+            if required:
+                self.fail(key, "is required")
+            return default
+        return self.table[key]
+
+    def number(self, key: str, default: float | None = None, *, lo: float | None = None,
+               hi: float | None = None, required: bool = False, integer: bool = False) -> Any:
+        v = self.get(key, default, required)
+        if v is None:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(key, f"must be a number, got {type(v).__name__}")
+        if integer and not (isinstance(v, int) or float(v).is_integer()):
+            self.fail(key, f"must be an integer, got {v}")
+        if not math.isfinite(v):
+            self.fail(key, "must be finite")
+        if lo is not None and v < lo:
+            self.fail(key, f"must be >= {lo}, got {v}")
+        if hi is not None and v > hi:
+            self.fail(key, f"must be <= {hi}, got {v}")
+        return int(v) if integer else float(v)
+
+    def numbers(self, key: str, default: list | None = None, required: bool = False) -> list[float] | None:
+        v = self.get(key, default, required)
+        if v is None:
+            return None
+        if not isinstance(v, list):
+            self.fail(key, f"must be a list of numbers, got {type(v).__name__}")
+        out = []
+        for k, x in enumerate(v):
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                self.fail(key, f"item {k} must be a finite number, got {x!r}")
+            out.append(float(x))
+        return out
+
+    def table_(self, key: str, required: bool = False) -> dict:
+        v = self.get(key, {} if not required else None, required)
+        if not isinstance(v, dict):
+            self.fail(key, f"must be a table, got {type(v).__name__}")
+        return v
+
+    def unknown(self):
+        extra = sorted(set(self.table) - self.used)
+        if extra:
+            self.fail(extra[0], "unknown field (check the spelling; see `gonio check-plan --help`)")
+
+
+def _range(f: _Fields, start: str, stop: str, step: str, what: str) -> list[float]:
+    a = f.number(start, required=True)
+    b = f.number(stop, required=True)
+    d = f.number(step, required=True)
+    if d <= 0:
+        f.fail(step, "must be > 0")
+    if b < a:
+        f.fail(stop, f"must be >= {start}")
+    n = int(math.floor((b - a) / d + 1e-9)) + 1
+    if n > 100000:
+        f.fail(step, f"gives too many {what} ({n})")
+    return [round(a + k * d, 9) for k in range(n)]
+
+
+def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
+    """Validate plan TOML text (bytes or str) and build a :class:`Plan`; raises :class:`PlanError`."""
+    file = str(path)
+    if isinstance(raw, str):
+        raw = raw.encode("utf-8", errors="surrogatepass")
+    try:
+        text = raw.decode("utf-8")
+        data = tomllib.loads(text)
+    except (UnicodeDecodeError, UnicodeEncodeError):
+        raise PlanError(f"{file}: not UTF-8 text; a plan is a TOML file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise PlanError(f"{file}: invalid TOML: {exc}") from None
+    top = _Fields(data, "", file)
+    name = top.get("name", Path(file).stem)
+    if not isinstance(name, str) or not name.strip():
+        top.fail("name", "must be a non-empty string")
+    description = top.get("description", "")
+    if not isinstance(description, str):
+        top.fail("description", "must be a string")
+
+    sample = top.table_("sample", required=True)
+    if not isinstance(sample.get("name"), str) or not sample["name"].strip():
+        _Fields(sample, "sample", file).fail("name", "is required (a non-empty string)")
+
+    wl = _Fields(top.table_("wavelengths"), "wavelengths", file)
+    if "list_nm" in wl.table:
+        wavelengths = wl.numbers("list_nm")
+        if not wavelengths:
+            wl.fail("list_nm", "must not be empty")
+    elif any(k in wl.table for k in ("start_nm", "stop_nm", "step_nm")):
+        wavelengths = _range(wl, "start_nm", "stop_nm", "step_nm", "wavelengths")
+    else:
+        wavelengths = list(_DEFAULT_WAVELENGTHS)
+    wl.unknown()
+    for k, w in enumerate(wavelengths):
+        if not 380.0 <= w <= 780.0:
+            wl.fail("list_nm" if "list_nm" in wl.table else "start_nm",
+                    f"wavelength {w} nm outside the monochromator range 380..780 nm")
+    if len(set(wavelengths)) != len(wavelengths):
+        wl.fail("list_nm", "has duplicate wavelengths")
+
+    geo = _Fields(top.table_("geometry", required=True), "geometry", file)
+    incidence = geo.numbers("incidence_deg", required=True)
+    if not incidence:
+        geo.fail("incidence_deg", "must not be empty")
+    rotations = geo.numbers("sample_rotation_deg", [0.0])
+    if not rotations:
+        geo.fail("sample_rotation_deg", "must not be empty")
+    in_plane: list[float] = []
+    if "in_plane_deg" in geo.table and "in_plane" in geo.table:
+        geo.fail("in_plane", "give either in_plane_deg (a list) or in_plane (a range), not both")
+    if "in_plane_deg" in geo.table:
+        in_plane = geo.numbers("in_plane_deg")
+    elif "in_plane" in geo.table:
+        rng = _Fields(geo.table_("in_plane"), "geometry.in_plane", file)
+        in_plane = _range(rng, "start", "stop", "step", "observation angles")
+        rng.unknown()
+    directions_raw = geo.get("directions_deg", [])
+    directions: list[tuple[float, float]] = []
+    if not isinstance(directions_raw, list):
+        geo.fail("directions_deg", "must be a list of [theta_o, phi_o - phi_i] pairs")
+    for k, d in enumerate(directions_raw):
+        if (not isinstance(d, list) or len(d) != 2
+                or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x)
+                       for x in d)):
+            geo.fail("directions_deg", f"item {k} must be a pair of numbers [theta_o, phi_o - phi_i]")
+        if not 0.0 <= d[0] <= 90.0:
+            geo.fail("directions_deg", f"item {k}: theta_o must be in 0..90, got {d[0]}")
+        directions.append((float(d[0]), float(d[1])))
+    if not in_plane and not directions:
+        geo.fail("in_plane_deg", "no observation angles: give in_plane_deg, in_plane or directions_deg")
+    skip_blocked = geo.get("skip_blocked", False)
+    if not isinstance(skip_blocked, bool):
+        geo.fail("skip_blocked", "must be true or false")
+    geo.unknown()
+
+    acq = _Fields(top.table_("acquisition"), "acquisition", file)
+    d = AcquisitionSettings()
+    settings = AcquisitionSettings(
+        itime_ms=acq.number("itime_ms", d.itime_ms, lo=1, hi=10000, integer=True),
+        gain=acq.number("gain", d.gain, lo=0, hi=3, integer=True),
+        min_itime_ms=acq.number("min_itime_ms", d.min_itime_ms, lo=1, hi=10000, integer=True),
+        readings=acq.number("readings", d.readings, lo=1, hi=10000, integer=True),
+        repetitions=acq.number("repetitions", d.repetitions, lo=1, hi=1000, integer=True),
+        settle_ms=acq.number("settle_ms", d.settle_ms, lo=0, hi=600000),
+        velocity_deg_s=acq.number("velocity_deg_s", d.velocity_deg_s, lo=0.01, hi=655.35),
+        calibration_max_age_min=acq.number("calibration_max_age_min", d.calibration_max_age_min,
+                                           lo=0, hi=1e6),
+    )
+    if settings.min_itime_ms > settings.itime_ms:
+        acq.fail("min_itime_ms", "must not exceed itime_ms")
+    acq.unknown()
+
+    cal = _Fields(top.table_("calibration"), "calibration", file)
+    standard = cal.get("white_standard", "spectralon")
+    if not isinstance(standard, str) or not standard.strip():
+        cal.fail("white_standard", "must be a preset name or a CSV file path")
+    ref = cal.numbers("reference_deg", [0.0, 45.0])
+    if len(ref) != 2:
+        cal.fail("reference_deg", "must be [theta_i, theta_o]")
+    if not 0.0 <= ref[0] <= 85.0 or not -85.0 <= ref[1] <= 85.0 or abs(ref[1]) >= 89.0:
+        cal.fail("reference_deg", f"outside the axis limits: {ref}")
+    cal.unknown()
+    top.unknown()
+
+    sha = hashlib.sha256(raw).hexdigest()
+    plan = Plan(name=name.strip(), description=description, path=Path(file), sha256=sha,
+                sample=dict(sample), wavelengths_nm=np.asarray(wavelengths, dtype=float),
+                incidence_deg=incidence, rotation_deg=rotations, in_plane_deg=in_plane,
+                directions_deg=directions, skip_blocked=skip_blocked, acquisition=settings,
+                white_standard=standard.strip(), reference_deg=(ref[0], ref[1]))
+    plan.points()  # validates the geometry now, so errors name the file at load time
+    return plan
+
+
+@dataclass
+class Plan:
+    """A validated acquisition plan (see the module docstring for the TOML schema)."""
+
+    name: str
+    description: str
+    path: Path
+    sha256: str
+    sample: dict
+    wavelengths_nm: np.ndarray
+    incidence_deg: list[float]
+    rotation_deg: list[float]
+    in_plane_deg: list[float]
+    directions_deg: list[tuple[float, float]]
+    skip_blocked: bool
+    acquisition: AcquisitionSettings
+    white_standard: str
+    reference_deg: tuple[float, float]
+    _points: list[PlanPoint] | None = field(default=None, repr=False)
+
+    def points(self) -> list[PlanPoint]:
+        """Every requested geometry, in plan order, duplicates (same fabric geometry) removed."""
+        if self._points is not None:
+            return self._points
+        axes = []
+        for rho in self.rotation_deg:
+            for ti in self.incidence_deg:
+                for s in self.in_plane_deg:
+                    axes.append((ti, s, 0.0, rho))
+                for to, dphi in self.directions_deg:
+                    rel = np.mod(dphi, 360.0)
+                    if rel >= 180.0:
+                        axes.append((ti, to, rel - 180.0, rho))
+                    else:
+                        axes.append((ti, -to if to > 0 else 0.0, rel if to > 0 else 0.0, rho))
+        out, seen = [], set()
+        for a in axes:
+            g = protocol.axes_to_fabric(*a)
+            p = PlanPoint(*(float(x) for x in a), *g)
+            if p.key not in seen:
+                seen.add(p.key)
+                out.append(p)
+        self._points = out
+        return out
+
+    def geometries(self) -> pd.DataFrame:
+        """Requested geometries: DataFrame ``theta_i, phi_i, theta_o, phi_o`` (deg, fabric frame)."""
+        pts = self.points()
+        return pd.DataFrame({
+            "theta_i": [p.theta_i for p in pts], "phi_i": [p.phi_i for p in pts],
+            "theta_o": [p.theta_o for p in pts], "phi_o": [p.phi_o for p in pts]})
+
+    @property
+    def n_measurements(self) -> int:
+        """Number of (geometry, wavelength) pairs requested."""
+        return len(self.points()) * len(self.wavelengths_nm)
+
+    def check(self, *, move_overhead_s: float = 0.05, read_overhead_s: float = 0.004) -> PlanCheck:
+        """Refuse points out of the soft limits or in the beam-block zone, order the rest.
+
+        The rules are the controller's, from :mod:`gonio.protocol` (soft limits of
+        :data:`~gonio.protocol.AXES` in whole millidegrees, :func:`~gonio.protocol.beam_blocked`).
+
+        Parameters
+        ----------
+        move_overhead_s, read_overhead_s
+            Per-move and per-command overheads for the duration estimate.
+
+        Returns
+        -------
+        PlanCheck
+            Measurable points ordered to minimise motion (by rotation, incidence and detector
+            plane, serpentine over the detector angle), refused points, and the estimated
+            duration in seconds at real speed.
+        """
+        ok, blocked, bad = [], [], []
+        for p in self.points():
+            reason = None
+            for axis, v in zip(protocol.AXES, p.axes_deg):
+                if not axis.within_limits(protocol.deg_to_mdeg(v)):
+                    reason = (f"{axis.name} at {v:g} deg outside the soft limits "
+                              f"{axis.min_mdeg / 1000:g}..{axis.max_mdeg / 1000:g} deg")
+                    break
+            if reason:
+                bad.append((p, reason))
+                continue
+            if protocol.beam_blocked(p.source_deg, p.detector_deg, p.plane_deg):
+                blocked.append(p)
+            else:
+                ok.append(p)
+        ordered = order_points(ok)
+        est = estimate_duration_s(self, ordered, move_overhead_s, read_overhead_s)
+        return PlanCheck(ordered=ordered, blocked=blocked, out_of_limits=bad, estimated_s=est,
+                         blocked_expected=self.skip_blocked)
+
+
+def order_points(points: list[PlanPoint]) -> list[PlanPoint]:
+    """Order points to minimise motion: rotation, incidence, detector plane, serpentine detector."""
+    groups: dict[tuple[float, float, float], list[PlanPoint]] = {}
+    for p in points:
+        groups.setdefault((p.rotation_deg, p.source_deg, p.plane_deg), []).append(p)
+    out: list[PlanPoint] = []
+    forward = True
+    for key in sorted(groups):
+        g = sorted(groups[key], key=lambda p: p.detector_deg, reverse=not forward)
+        out.extend(g)
+        forward = not forward
+    return out
+
+
+def estimate_duration_s(plan: Plan, ordered: list[PlanPoint], move_overhead_s: float = 0.05,
+                        read_overhead_s: float = 0.004) -> float:
+    """Estimated duration (s, real speed): homing, calibration, moves, settling and readings."""
+    a = plan.acquisition
+    v = a.velocity_deg_s
+    read_s = a.repetitions * (a.readings * a.itime_ms / 1000.0 + read_overhead_s)
+    per_wavelength = read_s + 2 * read_overhead_s
+    n_wl = len(plan.wavelengths_nm)
+    # homing (all axes from up to 180 deg) and the calibration: darks per ladder step, reference
+    total = 180.0 / v + a.readings * sum(t for t, _ in a.ladder()) / 1000.0
+    total += n_wl * per_wavelength + 90.0 / v
+    pos = np.array([plan.reference_deg[0], plan.reference_deg[1], 0.0, 0.0])
+    for p in ordered:
+        target = np.array(p.axes_deg)
+        total += float(np.max(np.abs(target - pos))) / v + a.settle_ms / 1000.0 + move_overhead_s
+        total += n_wl * per_wavelength
+        pos = target
+    return total

@@ -1,0 +1,2 @@
+"""Shipped presets: acquisition plans (``red-cotton.toml``, ``quick.toml``) and the white
+standard's calibration table (``spectralon.csv``), accepted by name wherever a path is."""
