@@ -16,8 +16,9 @@ The computation is colour-science's:
 (``colour.sd_to_XYZ``, ASTM E308 method, divided by 100 so that ``Y = 1`` for ``beta = 1``), then
 ``colour.XYZ_to_RGB(XYZ, "sRGB", illuminant=D65 white point)`` and ``colour.RGB_to_HSV``. With
 illuminant D65 the ideal white diffuser gives RGB (1, 1, 1) to within 2e-4 (the rounding of the
-published sRGB matrix). A spectrum measured on 390..710 nm is extended to the observer's range by
-colour-science's default constant extrapolation of its end values.
+published sRGB matrix). A spectrum measured on 390..710 nm is integrated over its own range (the
+observer and the illuminant are trimmed to it by colour-science, and ``k`` is computed over the same
+range), so white stays white; colour-science's warning about that trimming is silenced here.
 
 References
 ----------
@@ -27,6 +28,7 @@ Colour 0.4.7 (colour-science).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,12 +104,15 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist())), name="beta")
     cmfs = colour.MSDS_CMFS[OBSERVER]
     sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
-    xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0
-    white_xy = colour.CCS_ILLUMINANTS[OBSERVER][illuminant] if illuminant in \
-        colour.CCS_ILLUMINANTS[OBSERVER] else colour.XYZ_to_xy(
-            colour.sd_to_XYZ(colour.sd_ones(), cmfs, sd_illuminant))
-    rgb = colour.XYZ_to_RGB(xyz, "sRGB", illuminant=white_xy)
-    hsv = colour.RGB_to_HSV(rgb)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
+        xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0
+        if illuminant in colour.CCS_ILLUMINANTS[OBSERVER]:
+            white_xy = colour.CCS_ILLUMINANTS[OBSERVER][illuminant]
+        else:
+            white_xy = colour.XYZ_to_xy(colour.sd_to_XYZ(colour.sd_ones(), cmfs, sd_illuminant))
+        rgb = colour.XYZ_to_RGB(xyz, "sRGB", illuminant=white_xy)
+        hsv = colour.RGB_to_HSV(rgb)
     r, g, b = (float(x) for x in rgb)
     return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
                          blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),
