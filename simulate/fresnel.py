@@ -52,9 +52,21 @@ __all__ = [
     "snell",
     "critical_angle",
     "brewster_angle",
+    "OpticsDomainWarning",
 ]
 
 ArrayLike = npt.ArrayLike
+
+
+class OpticsDomainWarning(UserWarning):
+    """An optics-layer input lies outside the domain where the model is trustworthy.
+
+    Shared by :mod:`simulate.fresnel`, :mod:`simulate.mie`, :mod:`simulate.medium` and
+    :mod:`simulate.microfacet`: the result is still finite and bounded, but the physics it
+    stands for is doubtful (grazing limit of a microfacet model, no index contrast,
+    extrapolated spectra, dependent scattering, ...). Turn it into an error with
+    ``warnings.simplefilter("error", OpticsDomainWarning)``.
+    """
 
 
 # --------------------------------------------------------------------------------------
