@@ -36,6 +36,7 @@ from simulate.montecarlo import kernel as K
 from simulate.montecarlo import tallies as T
 
 __all__ = [
+    "ParameterError",
     "EnergyBalance",
     "SlabAngular",
     "SlabResult",
@@ -48,6 +49,11 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+class ParameterError(ValueError):
+    """An invalid run parameter (a user error; the message names the parameter)."""
+
 
 DEFAULT_BATCH_SIZE = 10_000
 DEFAULT_MAX_EVENTS = 100_000
@@ -236,20 +242,20 @@ class CylinderResult:
 def _finite_nonneg(name: str, value: float) -> float:
     v = float(value)
     if not math.isfinite(v) or v < 0.0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        raise ParameterError(f"{name} must be a finite number >= 0, got {value!r}")
     return v
 
 
 def _finite_pos(name: str, value: float) -> float:
     v = float(value)
     if not math.isfinite(v) or v <= 0.0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
     return v
 
 
 def _positive_int(name: str, value: int, upper: int = 2**62) -> int:
     if isinstance(value, bool) or int(value) != value or not 1 <= int(value) <= upper:
-        raise ValueError(f"{name} must be an integer in [1, {upper}], got {value!r}")
+        raise ParameterError(f"{name} must be an integer in [1, {upper}], got {value!r}")
     return int(value)
 
 
@@ -258,19 +264,19 @@ def _medium(mu_a: float, mu_s: float, g: float | None, phase_table: Any, n: floa
     mu_s = _finite_nonneg("mu_s", mu_s)
     n = _finite_pos("n", n)
     if phase_table is not None and g is not None:
-        raise ValueError("give either g (Henyey-Greenstein) or phase_table, not both")
+        raise ParameterError("give either g (Henyey-Greenstein) or phase_table, not both")
     if phase_table is None:
         g = 0.0 if g is None else float(g)
         if not math.isfinite(g) or not -1.0 < g < 1.0:
-            raise ValueError(f"g must be in (-1, 1), got {g!r}")
+            raise ParameterError(f"g must be in (-1, 1), got {g!r}")
         table = np.zeros(2)
         phase = K.PHASE_HG
     else:
         table = np.ascontiguousarray(getattr(phase_table, "cos_table", phase_table), dtype=np.float64)
         if table.ndim != 1 or table.size < 2:
-            raise ValueError("phase_table.cos_table must be a 1-D array of at least 2 values")
+            raise ParameterError("phase_table.cos_table must be a 1-D array of at least 2 values")
         if not np.all(np.isfinite(table)) or table[0] < -1.0 or table[-1] > 1.0 or np.any(np.diff(table) < 0):
-            raise ValueError("phase_table.cos_table must be finite, non-decreasing and within [-1, 1]")
+            raise ParameterError("phase_table.cos_table must be finite, non-decreasing and within [-1, 1]")
         g = 0.0
         phase = K.PHASE_TABLE
     medium = np.zeros(K.N_MEDIUM)
@@ -287,7 +293,7 @@ def _control(max_events: int, weight_threshold: float, survival: float) -> np.nd
     control[K.C_WEIGHT_THRESHOLD] = _finite_nonneg("weight_threshold", weight_threshold)
     s = float(survival)
     if not 0.0 < s <= 1.0:
-        raise ValueError(f"survival must be in (0, 1], got {survival!r}")
+        raise ParameterError(f"survival must be in (0, 1], got {survival!r}")
     control[K.C_SURVIVAL] = s
     control[K.C_MAX_EVENTS] = _positive_int("max_events", max_events, 2**52)
     return control
@@ -334,7 +340,7 @@ def _execute(
     if threads is not None:
         limit = numba.config.NUMBA_NUM_THREADS
         if isinstance(threads, bool) or int(threads) != threads or not 1 <= int(threads) <= limit:
-            raise ValueError(f"threads must be an integer in [1, {limit}] (this machine), got {threads!r}")
+            raise ParameterError(f"threads must be an integer in [1, {limit}] (this machine), got {threads!r}")
         numba.set_num_threads(int(threads))
     try:
         t0 = time.perf_counter()
@@ -444,8 +450,8 @@ def run_slab(
 
     Raises
     ------
-    ValueError
-        On invalid parameters (the message names the parameter).
+    ParameterError
+        (a ``ValueError``) on invalid parameters; the message names the parameter.
 
     Examples
     --------
@@ -458,12 +464,12 @@ def run_slab(
     photons = _positive_int("photons", photons)
     batch_size = _positive_int("batch_size", batch_size)
     if isinstance(seed, bool) or int(seed) != seed or not 0 <= int(seed) < 2**63:
-        raise ValueError(f"seed must be an integer in [0, 2^63), got {seed!r}")
+        raise ParameterError(f"seed must be an integer in [0, 2^63), got {seed!r}")
     theta = float(theta_i_deg)
     if not math.isfinite(theta) or not 0.0 <= theta <= 90.0:
-        raise ValueError(f"theta_i_deg must be in [0, 90) degrees, got {theta_i_deg!r}")
+        raise ParameterError(f"theta_i_deg must be in [0, 90) degrees, got {theta_i_deg!r}")
     if theta == 90.0:
-        raise ValueError(
+        raise ParameterError(
             "theta_i_deg = 90 is grazing incidence: no light crosses the surface; use an angle below 90"
         )
     control = _control(max_events, weight_threshold, survival)
@@ -560,32 +566,32 @@ def run_cylinder(
 
     Raises
     ------
-    ValueError
-        On invalid parameters (the message names the parameter).
+    ParameterError
+        (a ``ValueError``) on invalid parameters; the message names the parameter.
     """
     medium, table = _medium(mu_a, mu_s, g, phase_table, n)
     r = _finite_pos("radius", radius)
     photons = _positive_int("photons", photons)
     batch_size = _positive_int("batch_size", batch_size)
     if isinstance(seed, bool) or int(seed) != seed or not 0 <= int(seed) < 2**63:
-        raise ValueError(f"seed must be an integer in [0, 2^63), got {seed!r}")
+        raise ParameterError(f"seed must be an integer in [0, 2^63), got {seed!r}")
     w = np.asarray(direction, dtype=float)
     if w.shape != (3,) or not np.all(np.isfinite(w)) or np.linalg.norm(w) == 0.0:
-        raise ValueError(f"direction must be a finite non-zero 3-vector, got {direction!r}")
+        raise ParameterError(f"direction must be a finite non-zero 3-vector, got {direction!r}")
     w = w / np.linalg.norm(w)
     if source == "beam":
         if math.hypot(w[1], w[2]) < 1e-12:
-            raise ValueError("direction is parallel to the cylinder axis: a beam along the axis never enters")
+            raise ParameterError("direction is parallel to the cylinder axis: a beam along the axis never enters")
         mode_code = G.BEAM
     elif source == "point":
         if not w[2] > 0.0:
-            raise ValueError(
+            raise ParameterError(
                 "direction must point above the tangent plane at psi = 0 (w_z > 0) for source='point'; "
                 "w_z = 0 is grazing incidence"
             )
         mode_code = G.POINT
     else:
-        raise ValueError(f"source must be 'beam' or 'point', got {source!r}")
+        raise ParameterError(f"source must be 'beam' or 'point', got {source!r}")
     control = _control(max_events, weight_threshold, survival)
     src = np.array([float(mode_code), w[0], w[1], w[2]])
     if angular_bins is None:

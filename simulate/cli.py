@@ -1,0 +1,225 @@
+"""The ``simulate`` console script (ARCHITECTURE.md, command line contract).
+
+Subcommands are registered in :data:`COMMANDS`: each entry is a pair of functions
+``(add_arguments(parser), run(args) -> int)``; a later subcommand (``fiber``, ``fabric``,
+``sweep``) is one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
+(one line on stderr naming the flag, no traceback).
+
+``simulate slab --mua X --mus X --g X --n X --thickness X --photons N [--seed N] [--threads N] --json``
+    prints ONE JSON object ``{"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds",
+    "events_per_photon", ...}``; ``Rd`` excludes the specular surface reflection ``Rsp``.
+``simulate bench --out DIR [--quick]``
+    kernel benchmark: DIR/bench.json, DIR/bench.png and a markdown table on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+__all__ = ["main", "COMMANDS", "build_parser"]
+
+log = logging.getLogger("simulate")
+
+
+class _UsageError(Exception):
+    """A user error found after parsing (exit 2, one line)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line (``simulate slab: error: argument --mua: ...``)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+# ------------------------------------------------------------------------------------------
+# argument types (their messages name the flag through argparse: "argument --mua: ...")
+# ------------------------------------------------------------------------------------------
+
+
+def _float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _nonneg_float(text: str) -> float:
+    value = _float(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
+def _pos_float(text: str) -> float:
+    value = _float(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def _g_float(text: str) -> float:
+    value = _float(text)
+    if not -1.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"anisotropy must be in (-1, 1), got {text!r}")
+    return value
+
+
+def _angle_deg(text: str) -> float:
+    value = _float(text)
+    if not 0.0 <= value < 90.0:
+        hint = " (90 is grazing incidence: no light enters)" if value == 90.0 else ""
+        raise argparse.ArgumentTypeError(f"incidence angle must be in [0, 90) degrees, got {text!r}{hint}")
+    return value
+
+
+def _int_in(lo: int, hi: int) -> Callable[[str], int]:
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be an integer in [{lo}, {hi}], got {text!r}")
+        return value
+
+    return convert
+
+
+def _json_safe(obj: Any) -> Any:
+    """Replace non-finite floats by None (JSON has no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+# ------------------------------------------------------------------------------------------
+# simulate slab
+# ------------------------------------------------------------------------------------------
+
+
+def _slab_arguments(p: argparse.ArgumentParser) -> None:
+    import numba
+
+    p.add_argument("--mua", type=_nonneg_float, required=True, help="absorption coefficient mu_a (1/length)")
+    p.add_argument("--mus", type=_nonneg_float, required=True, help="scattering coefficient mu_s (1/length)")
+    p.add_argument("--g", type=_g_float, default=0.0, help="Henyey-Greenstein anisotropy g (default 0)")
+    p.add_argument("--n", type=_pos_float, default=1.0, help="refractive index of the slab (outside 1; default 1)")
+    p.add_argument("--thickness", type=_pos_float, required=True, help="slab thickness d (same length unit)")
+    p.add_argument("--photons", type=_int_in(1, 10**12), default=1_000_000, help="photons (default 1e6)")
+    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--threads", type=_int_in(1, numba.config.NUMBA_NUM_THREADS), default=None,
+        help="threads (default: all); results do not depend on it",
+    )
+    p.add_argument("--theta-i", type=_angle_deg, default=0.0, dest="theta_i", help="incidence angle in degrees [0, 90)")
+    p.add_argument("--max-events", type=_int_in(1, 2**52), default=None, help="event cap per photon (a guard)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _slab_run(args: argparse.Namespace) -> int:
+    from simulate.montecarlo import DEFAULT_MAX_EVENTS, run_slab
+
+    result = run_slab(
+        args.mua, args.mus, g=args.g, n=args.n, thickness=args.thickness, photons=args.photons,
+        seed=args.seed, theta_i_deg=args.theta_i, threads=args.threads,
+        max_events=args.max_events or DEFAULT_MAX_EVENTS,
+    )
+    if args.json:
+        print(json.dumps(_json_safe(result.as_dict())))
+    else:
+        print(f"Rd  = {result.Rd:.6f} +- {result.u_Rd:.6f}   (diffuse reflectance, without Rsp = {result.Rsp:.6f})")
+        print(f"Tt  = {result.Tt:.6f} +- {result.u_Tt:.6f}   (total transmittance; unscattered {result.Tu:.6f})")
+        print(f"A   = {result.absorbed:.6f}   capped photons: {result.capped}")
+        print(
+            f"{result.photons} photons in {result.seconds:.3f} s "
+            f"({result.photons / max(result.seconds, 1e-12) / 1e6:.2f} M photons/s, "
+            f"{result.events_per_photon:.2f} events/photon)"
+        )
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+# simulate bench
+# ------------------------------------------------------------------------------------------
+
+
+def _bench_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, required=True, help="output directory (bench.json, bench.png)")
+    p.add_argument("--quick", action="store_true", help="smoke test: small runs, a few seconds")
+
+
+def _bench_run(args: argparse.Namespace) -> int:
+    from simulate.bench import markdown_table, run_bench
+
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise _UsageError(f"--out {out}: exists and is not a directory; choose a directory path")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    report = run_bench(out, quick=args.quick)
+    print(markdown_table(report))
+    print(f"\nwrote {out / 'bench.json'} and {out / 'bench.png'}")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+
+COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]] = {
+    "slab": ("Monte Carlo slab: diffuse reflectance and total transmittance", _slab_arguments, _slab_run),
+    "bench": ("benchmark the Monte Carlo kernel (JSON + chart)", _bench_arguments, _bench_run),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
+    parser = _Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name, (help_text, add_arguments, _) in COMMANDS.items():
+        add_arguments(sub.add_parser(name, help=help_text, description=help_text))
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``simulate`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    from simulate.montecarlo import ParameterError
+
+    _, _, run = COMMANDS[args.command]
+    try:
+        return run(args)
+    except _UsageError as exc:
+        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except ParameterError as exc:
+        # invalid run parameters found by the library; the message names the parameter
+        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
