@@ -1,0 +1,160 @@
+"""``compare`` command line: ``compare report`` and ``compare check`` (ARCHITECTURE.md).
+
+::
+
+    compare report MEASURED_DIR SIM_DIR [SIM_DIR ...] --out REPORT_DIR
+    compare check  MEASURED_DIR SIM_DIR [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X]
+
+Exit status: 0 success (``check``: every figure within its threshold), 1 a failed check (the
+failing figures are printed), 2 a usage or input error (one line on stderr, no traceback).
+
+``check`` thresholds (defaults chosen from the reference results of PHYSICS.md section 8: the
+published model hues lie within 0.01 of the measured one, saturations within 0.01):
+
+- ``--max-nrmse`` 0.10: overall NRMSE of the normalised curves (RMSE / mean measured beta);
+- ``--max-hue-diff`` 0.02: ``|dh|`` on the hue circle (hue in [0, 1));
+- ``--max-sat-diff`` 0.05: ``|ds|``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from typing import Sequence
+
+from gonio.dataset import DatasetError, read_dataset
+
+from .comparison import compare_datasets
+from .errors import CompareError
+from .normalise import DEFAULT_WINDOW_DEG
+
+__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main"]
+
+DEFAULT_MAX_NRMSE = 0.10
+DEFAULT_MAX_HUE_DIFF = 0.02
+DEFAULT_MAX_SAT_DIFF = 0.05
+
+log = logging.getLogger("compare")
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a number >= 0")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _non_negative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("must be > 0")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="compare",
+        description="Compare simulated radiance-coefficient datasets with a measured one: "
+                    "normalise at the normal direction, curve errors, HSV colour match.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check}")
+
+    def common(p):
+        p.add_argument("--normal-window", type=_positive, default=DEFAULT_WINDOW_DEG,
+                       metavar="DEG", help="largest |s| of the normal-incidence points used to "
+                       f"estimate beta(0,0) (default {DEFAULT_WINDOW_DEG:g})")
+        p.add_argument("--illuminant", default="D65",
+                       help="illuminant of the colour match (default D65)")
+
+    rep = sub.add_parser("report", help="write report.html, metrics.json and figures/*.png",
+                         description="Compare one or more simulations with a measurement and "
+                                     "write REPORT_DIR/report.html (self-contained), "
+                                     "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.")
+    rep.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
+    rep.add_argument("simulated", metavar="SIM_DIR", nargs="+", help="simulated dataset(s)")
+    rep.add_argument("--out", required=True, metavar="REPORT_DIR", help="output directory")
+    common(rep)
+
+    chk = sub.add_parser("check", help="exit 0 when a simulation matches within thresholds, "
+                                       "1 otherwise",
+                         description="CI verdict: compare SIM_DIR with MEASURED_DIR; exit 0 "
+                                     "when within all thresholds, 1 (printing the failing "
+                                     "figures) otherwise, 2 on bad input.")
+    chk.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
+    chk.add_argument("simulated", metavar="SIM_DIR", help="simulated dataset directory")
+    chk.add_argument("--max-nrmse", type=_non_negative, default=DEFAULT_MAX_NRMSE, metavar="X",
+                     help=f"largest overall NRMSE (default {DEFAULT_MAX_NRMSE:g})")
+    chk.add_argument("--max-hue-diff", type=_non_negative, default=DEFAULT_MAX_HUE_DIFF,
+                     metavar="X", help="largest |hue difference| on the circle, hue in [0, 1) "
+                                       f"(default {DEFAULT_MAX_HUE_DIFF:g})")
+    chk.add_argument("--max-sat-diff", type=_non_negative, default=DEFAULT_MAX_SAT_DIFF,
+                     metavar="X", help=f"largest |saturation difference| "
+                                       f"(default {DEFAULT_MAX_SAT_DIFF:g})")
+    common(chk)
+    return parser
+
+
+def _report(args) -> int:
+    from .report import write_report
+
+    measured = read_dataset(args.measured)
+    simulated = [read_dataset(p) for p in args.simulated]
+    comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
+                                  illuminant=args.illuminant)
+    report = write_report(comparison, args.out)
+    for name, o in comparison.overall.items():
+        print(f"{name}: overall RMSE {o.rmse:.4g}, NRMSE {o.nrmse:.4g}")
+    print(f"report: {report}")
+    return 0
+
+
+def _check(args) -> int:
+    measured = read_dataset(args.measured)
+    simulated = read_dataset(args.simulated)
+    comparison = compare_datasets(measured, [simulated], window_deg=args.normal_window,
+                                  illuminant=args.illuminant)
+    name = next(iter(comparison.simulated))
+    sc = comparison.colour.simulated[name]
+    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse),
+               ("|hue difference|", abs(sc.dh), args.max_hue_diff),
+               ("|saturation difference|", abs(sc.ds), args.max_sat_diff)]
+    failed = False
+    print(f"compare check: '{name}' against '{measured.name}'")
+    for label, value, limit in figures:
+        ok = value <= limit  # NaN fails
+        failed |= not ok
+        print(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g} "
+              f"({'<=' if ok else 'exceeds'} {limit:g})")
+    for angle, e in comparison.curves[name].items():
+        print(f"       NRMSE at incidence {angle} deg = {e.nrmse:.4g}")
+    return 1 if failed else 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``compare`` command line; return the exit status."""
+    parser = _parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
+        return int(exc.code) if isinstance(exc.code, int) else 2
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="compare: %(levelname)s: %(message)s", stream=sys.stderr)
+    try:
+        if args.command == "report":
+            return _report(args)
+        return _check(args)
+    except (DatasetError, CompareError) as exc:
+        print(f"compare {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"compare {args.command}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,167 @@
+r"""Colour match of measured and simulated spectra at one geometry (PHYSICS.md sections 7-8).
+
+Colour is computed by :func:`gonio.colour.spectrum_colour` (CIE 1931 2-degree observer,
+illuminant D65 unless set, LINEAR sRGB, HSV and the ratios BLUE/RED and GREEN/RED), at the
+geometry closest to normal incidence and normal observation that the measured dataset and every
+simulation share: the smallest ``theta_i + theta_o``, ties broken by smaller ``theta_i``, then
+``phi_i``, then ``phi_o``. Differences are simulated minus measured: ``dh`` on the hue circle
+(:func:`gonio.colour.hue_difference`, in [-0.5, 0.5)), ``ds``, ``dv``.
+
+Which simulated values are compared
+-----------------------------------
+Not the per-wavelength normalised ones: :math:`k(\lambda)` makes the simulated spectrum equal the
+measured one at the normal direction by construction, so near the normal the colours would agree
+trivially. The simulation's own spectrum is used, scaled by ONE wavelength-independent factor, the
+ratio of the luminances of the two normal/normal spectra:
+
+.. math::
+
+    k_Y = \frac{Y[\beta_\mathrm{meas}(0,0)]}{Y[C(0,0)]}
+        = \frac{\sum_\lambda k(\lambda)\, C(0,0;\lambda)\, w_Y(\lambda)}
+               {\sum_\lambda C(0,0;\lambda)\, w_Y(\lambda)},
+
+the luminance-weighted mean of :math:`k(\lambda)` (:math:`w_Y` are the CIE ``Y`` weights, see
+:func:`luminance_weights`). Hue, saturation and the channel ratios do not depend on any scale
+factor, so they are the simulation's own; ``v`` is on the measured scale. Every figure is
+unchanged when the simulation is multiplied by a positive constant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+
+from gonio.colour import ColourSummary, hue_difference, spectrum_colour
+from gonio.dataset import GEOMETRY
+
+from .errors import CompareError
+
+__all__ = ["ColourMatch", "SimulatedColour", "colour_geometry", "colour_match",
+           "luminance_weights"]
+
+OBSERVER = "CIE 1931 2 Degree Standard Observer"
+
+
+@lru_cache(maxsize=16)
+def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
+    import colour
+
+    wl = np.asarray(wavelengths)
+    basis = colour.MultiSpectralDistributions(np.eye(wl.size), wl)
+    xyz = colour.msds_to_XYZ(basis, colour.MSDS_CMFS[OBSERVER],
+                             colour.SDS_ILLUMINANTS[illuminant], method="ASTM E308")
+    return np.asarray(xyz, dtype=float) / 100.0
+
+
+def luminance_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
+    """Weights ``w`` with ``Y = w @ beta``, the CIE ``Y`` of a spectrum on ``wavelength_nm``.
+
+    colour-science's integration (ASTM E308, as in :func:`gonio.colour.spectrum_colour`) is linear
+    in the spectrum, so ``w`` is the ``Y`` of each unit basis spectrum; ``Y = 1`` for ``beta = 1``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> w = luminance_weights(np.arange(390.0, 711.0, 10.0))
+    >>> round(float(w.sum()), 4)
+    1.0
+    """
+    wl = tuple(float(x) for x in np.asarray(wavelength_nm, dtype=float).ravel())
+    return _weights(wl, illuminant)[:, 1].copy()
+
+
+def colour_geometry(frames: Mapping[str, pd.DataFrame]) -> dict:
+    """The geometry (dict of the four angles and ``s``) closest to normal/normal in every frame.
+
+    Raises
+    ------
+    CompareError
+        When the frames share no geometry.
+    """
+    common = None
+    for frame in frames.values():
+        keys = frame[list(GEOMETRY)].round(6).drop_duplicates()
+        common = keys if common is None else common.merge(keys, how="inner")
+    if common is None or common.empty:
+        raise CompareError("the simulated datasets share no geometry with each other and the "
+                           "measured dataset, so no colour can be compared at one geometry")
+    order = common.assign(total=common["theta_i"] + common["theta_o"]).sort_values(
+        ["total", "theta_i", "phi_i", "phi_o", "theta_o"], kind="mergesort")
+    row = order.iloc[0]
+    first = next(iter(frames.values()))
+    s = first.loc[(first[list(GEOMETRY)].round(6) == row[list(GEOMETRY)]).all(axis=1), "s"]
+    geometry = {c: float(row[c]) for c in GEOMETRY}
+    s_value = float(s.iloc[0]) if len(s) else float("nan")
+    geometry["s"] = s_value if np.isfinite(s_value) else None
+    return geometry
+
+
+def _rows_at(frame: pd.DataFrame, geometry: dict) -> pd.DataFrame:
+    mask = np.ones(len(frame), dtype=bool)
+    for c in GEOMETRY:
+        mask &= np.abs(frame[c].to_numpy() - geometry[c]) < 1e-6
+    return frame[mask].sort_values("wavelength_nm")
+
+
+@dataclass(frozen=True)
+class SimulatedColour:
+    """Colour of one simulation, its scale ``k_Y`` and its differences from the measurement."""
+
+    colour: ColourSummary
+    scale: float
+    dh: float
+    ds: float
+    dv: float
+    wavelength_nm: np.ndarray
+    beta: np.ndarray
+
+
+@dataclass(frozen=True)
+class ColourMatch:
+    """Measured colour and each simulation's at :attr:`geometry`."""
+
+    geometry: dict
+    measured: ColourSummary
+    measured_wavelength_nm: np.ndarray
+    measured_beta: np.ndarray
+    simulated: dict[str, SimulatedColour]
+
+
+def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str, tuple],
+                 illuminant: str = "D65") -> ColourMatch:
+    """Colour match of every simulation against the measurement.
+
+    Parameters
+    ----------
+    frames : mapping of name -> DataFrame
+        Aligned tables (:func:`compare.align.align`), all on the same wavelength grid.
+    normal_values : mapping of name -> (beta_meas(0,0), C(0,0))
+        Normal/normal spectra on the same grid (:class:`compare.normalise.Normalisation`'s
+        ``measured_value`` and ``simulated_value``), for the luminance scale ``k_Y``.
+    illuminant : str
+        Illuminant of the colour computation.
+    """
+    geometry = colour_geometry(frames)
+    measured = None
+    simulated: dict[str, SimulatedColour] = {}
+    for name, frame in frames.items():
+        rows = _rows_at(frame, geometry)
+        wl = rows["wavelength_nm"].to_numpy()
+        if measured is None:
+            meas_beta = rows["beta_meas"].to_numpy()
+            meas_wl = wl
+            measured = spectrum_colour(wl, meas_beta, illuminant=illuminant)
+        w = luminance_weights(wl, illuminant)
+        normal_meas, normal_sim = normal_values[name]
+        scale = float(w @ normal_meas) / float(w @ normal_sim)
+        beta = rows["beta_sim_raw"].to_numpy() * scale
+        c = spectrum_colour(wl, beta, illuminant=illuminant)
+        simulated[name] = SimulatedColour(
+            colour=c, scale=scale, dh=float(hue_difference(measured.h, c.h)),
+            ds=c.s - measured.s, dv=c.v - measured.v, wavelength_nm=wl, beta=beta)
+    return ColourMatch(geometry=geometry, measured=measured, measured_wavelength_nm=meas_wl,
+                       measured_beta=meas_beta, simulated=simulated)

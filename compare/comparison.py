@@ -1,0 +1,197 @@
+"""One comparison of simulated datasets against a measured dataset, and its metrics.
+
+:func:`compare_datasets` runs the whole chain for any number of simulations:
+
+1. the shared wavelength grid (:func:`compare.align.shared_wavelengths`);
+2. the measured normal/normal value and, per simulation, its own and the factor
+   ``k(lambda)`` (:mod:`compare.normalise`);
+3. per simulation, the values at the measured geometries (:func:`compare.align.align`),
+   normalised: ``beta_sim = k * C``, ``u_sim = k * u_C``;
+4. curve errors per incidence angle and overall (:mod:`compare.metrics`);
+5. the colour match at the geometry closest to normal/normal (:mod:`compare.colourmatch`).
+
+:meth:`Comparison.metrics` gives the ``metrics.json`` document (the contract of ARCHITECTURE.md /
+the issue)::
+
+    {"normalisation": {"method": str,
+                       "factor": {name: {"per_wavelength": {"390": k, ...},
+                                         "u_per_wavelength": {...}, "median": k_med,
+                                         "luminance": k_Y}},
+                       "normal_value": {"measured": {"how": "estimated"|"measured"|"mixed",
+                                                     "per_wavelength": {...},
+                                                     "u_per_wavelength": {...}},
+                                        name: {same keys (the simulation's C(0,0))}}},
+     "curves": {name: {"0": {"rmse", "nrmse", "max_abs", "max_abs_at"}, "30": {...}, ...}},
+     "overall": {name: {"rmse", "nrmse"}},
+     "colour": {"geometry": {"theta_i", "phi_i", "theta_o", "phi_o", "s"},
+                "measured": {"h", "s", "v", "blue_red", "green_red"},
+                name: {"h", "s", "v", "blue_red", "green_red", "dh", "ds", "dv"}}}
+
+Names are the datasets' ``name`` (``meta.sample.name`` or the directory name), made unique with a
+`` (2)``, `` (3)`` suffix when they collide with each other or with the reserved keys
+``measured`` and ``geometry``. Non-finite numbers are written as ``null``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from gonio.dataset import Dataset
+
+from .align import align, shared_wavelengths
+from .colourmatch import ColourMatch, colour_match
+from .errors import CompareError
+from .metrics import CurveError, angle_key, curve_errors
+from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
+                        estimate_normal_value, normalisation_factor)
+
+__all__ = ["Comparison", "compare_datasets", "unique_names"]
+
+log = logging.getLogger(__name__)
+
+RESERVED_NAMES = ("measured", "geometry")
+
+
+def unique_names(names: Iterable[str], reserved: Iterable[str] = RESERVED_NAMES) -> list[str]:
+    """Names made unique by a `` (2)``, `` (3)``... suffix, avoiding ``reserved``.
+
+    Examples
+    --------
+    >>> unique_names(["fiber", "fiber", "measured", "classic"])
+    ['fiber', 'fiber (2)', 'measured (2)', 'classic']
+    """
+    taken = set(reserved)
+    out = []
+    for name in names:
+        candidate, k = name, 1
+        while candidate in taken:
+            k += 1
+            candidate = f"{name} ({k})"
+        taken.add(candidate)
+        out.append(candidate)
+    return out
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Everything computed by :func:`compare_datasets` (inputs kept for the report)."""
+
+    measured: Dataset
+    simulated: dict[str, Dataset]
+    wavelength_nm: np.ndarray
+    window_deg: float
+    illuminant: str
+    measured_normal: NormalValue
+    normalisations: dict[str, Normalisation]
+    frames: dict[str, pd.DataFrame]
+    curves: dict[str, dict[str, CurveError]]
+    overall: dict[str, CurveError]
+    colour: ColourMatch
+
+    def metrics(self) -> dict:
+        """The ``metrics.json`` document (see the module docstring)."""
+        def num(x):
+            x = float(x)
+            return x if math.isfinite(x) else None
+
+        def per_wl(wl, values):
+            return {angle_key(w): num(v) for w, v in zip(wl, values)}
+
+        def normal(nv: NormalValue):
+            return {"how": nv.how, "per_wavelength": per_wl(nv.wavelength_nm, nv.value),
+                    "u_per_wavelength": per_wl(nv.wavelength_nm, nv.u)}
+
+        factor = {}
+        normal_value = {"measured": normal(self.measured_normal)}
+        for name, norm in self.normalisations.items():
+            factor[name] = {"per_wavelength": per_wl(norm.wavelength_nm, norm.factor),
+                            "u_per_wavelength": per_wl(norm.wavelength_nm, norm.u_factor),
+                            "median": num(np.median(norm.factor)),
+                            "luminance": num(self.colour.simulated[name].scale)}
+            normal_value[name] = normal(norm.simulated)
+        curves = {name: {angle: {"rmse": num(e.rmse), "nrmse": num(e.nrmse),
+                                 "max_abs": num(e.max_abs),
+                                 "max_abs_at": {k: (num(v) if v is not None else None)
+                                                for k, v in e.max_abs_at.items()}}
+                         for angle, e in per_angle.items()}
+                  for name, per_angle in self.curves.items()}
+        overall = {name: {"rmse": num(e.rmse), "nrmse": num(e.nrmse)}
+                   for name, e in self.overall.items()}
+
+        def summary(c):
+            return {"h": num(c.h), "s": num(c.s), "v": num(c.v), "blue_red": num(c.blue_red),
+                    "green_red": num(c.green_red)}
+
+        colour = {"geometry": {k: (num(v) if v is not None else None)
+                               for k, v in self.colour.geometry.items()},
+                  "measured": summary(self.colour.measured)}
+        for name, sc in self.colour.simulated.items():
+            colour[name] = {**summary(sc.colour), "dh": num(sc.dh), "ds": num(sc.ds),
+                            "dv": num(sc.dv)}
+        return {"normalisation": {"method": METHOD_TEXT.format(window=self.window_deg),
+                                  "factor": factor, "normal_value": normal_value},
+                "curves": curves, "overall": overall, "colour": colour}
+
+
+def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
+                     window_deg: float = DEFAULT_WINDOW_DEG,
+                     illuminant: str = "D65") -> Comparison:
+    """Normalise each simulation at the normal direction and compare it with ``measured``.
+
+    Parameters
+    ----------
+    measured : gonio.dataset.Dataset
+        The reference (normally ``kind == "measured"``).
+    simulated : sequence of gonio.dataset.Dataset
+        One or more simulations (e.g. the fiber model and the classic model).
+    window_deg : float
+        Half-width in ``s`` of the normal/normal estimate (:mod:`compare.normalise`).
+    illuminant : str
+        Illuminant of the colour match.
+
+    Raises
+    ------
+    CompareError
+        When the datasets cannot be compared (see :mod:`compare.normalise`, :mod:`compare.align`).
+    """
+    if not simulated:
+        raise CompareError("no simulated dataset to compare with the measurement")
+    import colour
+
+    if illuminant not in colour.SDS_ILLUMINANTS:
+        raise CompareError(f"unknown illuminant {illuminant!r}; use a key of "
+                           "colour.SDS_ILLUMINANTS such as 'D65', 'D50' or 'A'")
+    if measured.kind != "measured":
+        log.warning("the reference dataset '%s' is of kind %r, not 'measured'", measured.name,
+                    measured.kind)
+    names = unique_names(ds.name for ds in simulated)
+    grid = shared_wavelengths(measured, simulated)
+    measured_normal = estimate_normal_value(measured, window_deg)
+    normalisations: dict[str, Normalisation] = {}
+    frames: dict[str, pd.DataFrame] = {}
+    curves: dict[str, dict[str, CurveError]] = {}
+    overall: dict[str, CurveError] = {}
+    for name, sim in zip(names, simulated):
+        norm = normalisation_factor(measured_normal, estimate_normal_value(sim, window_deg), grid)
+        frame = align(measured, sim, grid)
+        k = norm.factor_at(frame["wavelength_nm"].to_numpy())
+        frame["beta_sim"] = k * frame["beta_sim_raw"].to_numpy()
+        frame["u_sim"] = k * frame["u_sim_raw"].to_numpy()
+        normalisations[name] = norm
+        frames[name] = frame
+        curves[name], overall[name] = curve_errors(frame)
+        log.info("'%s': overall RMSE %.4g, NRMSE %.4g", name, overall[name].rmse,
+                 overall[name].nrmse)
+    colour = colour_match(frames, {n: (normalisations[n].measured_value,
+                                       normalisations[n].simulated_value) for n in names},
+                          illuminant=illuminant)
+    return Comparison(measured=measured, simulated=dict(zip(names, simulated)),
+                      wavelength_nm=grid, window_deg=window_deg, illuminant=illuminant,
+                      measured_normal=measured_normal, normalisations=normalisations,
+                      frames=frames, curves=curves, overall=overall, colour=colour)
