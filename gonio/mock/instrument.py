@@ -1,0 +1,250 @@
+"""The mock goniophotometer in one object: motion controller + photometer head + transports.
+
+``MockInstrument`` runs a Modbus server (TCP on loopback, or RTU over a pseudo-terminal pair)
+built on ``pymodbus.simulator.SimDevice`` and the photometer head (on a pseudo-terminal or a
+loopback socket) in a background thread with its own asyncio event loop. Both share one
+:class:`gonio.mock.motion.MotionController`, so the head knows the geometry, lamp, shutter and
+sample slot when it computes counts.
+
+Example
+-------
+>>> from gonio.mock import MockInstrument
+>>> with MockInstrument(sample="lambert:0.5") as mock:          # doctest: +SKIP
+...     print(mock.modbus_url, mock.serial_url)
+tcp://127.0.0.1:40123 /dev/pts/7
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import logging
+import threading
+from typing import Any
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from gonio import protocol as P
+from gonio.mock.faults import FaultInjector
+from gonio.mock.head import PhotometerHead
+from gonio.mock.motion import SPEED_FACTORS, ModbusFrontend, MotionController
+from gonio.mock.samples import make_sample, reference_beta
+from gonio.mock.servers import PtyBridge, serve_head_pty, serve_head_socket
+
+__all__ = ["MockInstrument", "MockConfigError", "parse_modbus_option", "parse_serial_option"]
+
+log = logging.getLogger(__name__)
+
+
+class MockConfigError(ValueError):
+    """A bad mock option (non-loopback address, unknown scheme, ...): a user error."""
+
+
+def _loopback_host(host: str | None, what: str) -> str:
+    if host in (None, ""):
+        return "127.0.0.1"
+    if host == "localhost":
+        return "127.0.0.1"
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        raise MockConfigError(f"{what}: host {host!r} is not a loopback address; the mock binds "
+                              f"to loopback only (use 127.0.0.1)") from None
+    if not ip.is_loopback:
+        raise MockConfigError(f"{what}: {host} is not a loopback address; the mock binds to "
+                              f"loopback only (use 127.0.0.1)")
+    return str(ip)
+
+
+def parse_modbus_option(value: str) -> tuple[str, str, int]:
+    """``"tcp"``, ``"tcp://127.0.0.1:PORT"`` or ``"rtu"`` -> ``(kind, host, port)``."""
+    if value == "rtu":
+        return "rtu", "", 0
+    if value == "tcp":
+        return "tcp", "127.0.0.1", 0
+    parts = urlsplit(value)
+    if parts.scheme != "tcp":
+        raise MockConfigError(f"--modbus {value!r}: expected tcp://127.0.0.1:PORT or rtu")
+    try:
+        port = parts.port or 0
+    except ValueError:
+        raise MockConfigError(f"--modbus {value!r}: bad port") from None
+    return "tcp", _loopback_host(parts.hostname, "--modbus"), port
+
+
+def parse_serial_option(value: str) -> tuple[str, str, int]:
+    """``"pty"``, ``"socket"`` or ``"socket://127.0.0.1:PORT"`` -> ``(kind, host, port)``."""
+    if value == "pty":
+        return "pty", "", 0
+    if value == "socket":
+        return "socket", "127.0.0.1", 0
+    parts = urlsplit(value)
+    if parts.scheme != "socket":
+        raise MockConfigError(f"--serial {value!r}: expected pty or socket://127.0.0.1:PORT")
+    try:
+        port = parts.port or 0
+    except ValueError:
+        raise MockConfigError(f"--serial {value!r}: bad port") from None
+    return "socket", _loopback_host(parts.hostname, "--serial"), port
+
+
+class MockInstrument:
+    """Mock goniophotometer on real protocol endpoints (loopback / pseudo-terminals only).
+
+    Parameters
+    ----------
+    sample : ``"lambert:RHO"``, ``"red-cotton"`` or a radiance-coefficient dataset directory.
+    modbus : ``"tcp"`` (ephemeral port), ``"tcp://127.0.0.1:PORT"`` or ``"rtu"`` (pty pair).
+    serial : ``"pty"``, ``"socket"`` (ephemeral port) or ``"socket://127.0.0.1:PORT"``.
+    faults : ``--faults`` SPEC (see :mod:`gonio.mock.faults`) or None.
+    speed : ``"fast"`` (motion and integration times x0.01) or ``"real"``.
+    seed : seeds the noise and the fault decisions.
+
+    Attributes (after :meth:`start`)
+    --------------------------------
+    modbus_url : ``"tcp://127.0.0.1:PORT"`` or ``"rtu:///dev/pts/N"``.
+    serial_url : ``"/dev/pts/N"`` or ``"socket://127.0.0.1:PORT"``.
+    sample : the truth object (``.beta(theta_i, phi_i, theta_o, phi_o, wavelength_nm)``).
+    controller, head : the device models (for tests).
+    """
+
+    def __init__(self, sample: str = "lambert:0.5", modbus: str = "tcp", serial: str = "pty",
+                 faults: str | None = None, speed: str = "fast", seed: int = 0):
+        if speed not in SPEED_FACTORS:
+            raise MockConfigError(f"--speed {speed!r}: expected fast or real")
+        self._modbus = parse_modbus_option(modbus)
+        self._serial = parse_serial_option(serial)
+        self.sample = make_sample(sample)
+        self.sample_spec = sample
+        self.seed = int(seed)
+        self.speed = speed
+        self.time_scale = SPEED_FACTORS[speed]
+        self.faults = FaultInjector(faults, self.seed)
+        self.controller = MotionController(time_scale=self.time_scale, faults=self.faults)
+        self.head = PhotometerHead(self.controller, self.sample, seed=self.seed, faults=self.faults,
+                                   time_scale=self.time_scale)
+        self.frontend = ModbusFrontend(self.controller, self.faults)
+        self.modbus_url: str | None = None
+        self.serial_url: str | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._closers: list = []
+        self._bridge: PtyBridge | None = None
+
+    # --- public API ---------------------------------------------------------------------------
+    @property
+    def stats(self) -> dict[str, Any]:
+        """Faults injected per kind and requests served."""
+        return {"faults": {k: int(v) for k, v in self.faults.stats.items() if v},
+                "modbus_requests": self.frontend.requests, "head_commands": self.head.commands}
+
+    @staticmethod
+    def reference_beta(wavelength_nm) -> np.ndarray:
+        """Calibrated radiance factor of the mock white standard."""
+        return reference_beta(wavelength_nm)
+
+    def start(self) -> "MockInstrument":
+        """Start the servers in a background thread; returns when both endpoints are up."""
+        if self._thread is not None:
+            return self
+        self._thread = threading.Thread(target=self._run, name="gonio-mock", daemon=True)
+        self._thread.start()
+        self._ready.wait(10.0)
+        if self._error is not None:
+            self._thread.join(2.0)
+            raise self._error
+        if not self._ready.is_set():
+            raise RuntimeError("mock instrument did not start within 10 s")
+        log.info("mock instrument: modbus %s, serial %s, sample %s", self.modbus_url, self.serial_url,
+                 self.sample.name)
+        return self
+
+    def stop(self) -> None:
+        """Stop the servers and the thread (idempotent)."""
+        if self._loop is None or self._thread is None:
+            return
+        try:
+            fut = asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop)
+            fut.result(5.0)
+        except Exception as exc:  # noqa: BLE001 - shutdown is best-effort
+            log.warning("mock shutdown: %s", exc)
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(5.0)
+        self._thread = None
+        if self._bridge is not None:
+            self._bridge.stop()
+            self._bridge = None
+
+    def __enter__(self) -> "MockInstrument":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # --- event loop ---------------------------------------------------------------------------
+    def _run(self) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        asyncio.set_event_loop(loop)
+        try:
+            loop.run_until_complete(self._startup())
+        except BaseException as exc:  # noqa: BLE001 - reported to start()
+            self._error = exc
+            self._ready.set()
+            loop.close()
+            return
+        self._ready.set()
+        try:
+            loop.run_forever()
+        finally:
+            pending = asyncio.all_tasks(loop)
+            for task in pending:
+                task.cancel()
+            if pending:
+                loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+            loop.close()
+
+    async def _startup(self) -> None:
+        from pymodbus import FramerType
+        from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+
+        lock = asyncio.Lock()
+        kind, host, port = self._modbus
+        device = self.frontend.device()
+        if kind == "tcp":
+            server = ModbusTcpServer(device, address=(host, port), ignore_missing_devices=True)
+            await server.serve_forever(background=True)
+            bound = server.transport.sockets[0].getsockname()[1]
+            self.modbus_url = f"tcp://{host}:{bound}"
+        else:
+            self._bridge = PtyBridge().start()
+            server = ModbusSerialServer(device, framer=FramerType.RTU, port=self._bridge.server_path,
+                                        baudrate=P.RTU_BAUDRATE, bytesize=P.RTU_BYTESIZE,
+                                        parity=P.RTU_PARITY, stopbits=P.RTU_STOPBITS,
+                                        ignore_missing_devices=True)
+            await server.serve_forever(background=True)
+            self.modbus_url = f"rtu://{self._bridge.client_path}"
+        self._closers.append(server.shutdown)
+        skind, shost, sport = self._serial
+        if skind == "pty":
+            path, close = await serve_head_pty(self.head, lock)
+            self.serial_url = path
+
+            async def aclose() -> None:
+                close()
+            self._closers.append(aclose)
+        else:
+            bound, close = await serve_head_socket(self.head, lock, shost, sport)
+            self.serial_url = f"socket://{shost}:{bound}"
+            self._closers.append(close)
+
+    async def _shutdown(self) -> None:
+        for closer in reversed(self._closers):
+            try:
+                await asyncio.wait_for(closer(), 3.0)
+            except Exception as exc:  # noqa: BLE001 - best-effort
+                log.warning("mock shutdown step failed: %s", exc)
+        self._closers.clear()

@@ -1,0 +1,220 @@
+"""Virtual samples of the mock goniophotometer: the "truth" an acquisition should recover.
+
+Every sample exposes ``beta(theta_i, phi_i, theta_o, phi_o, wavelength_nm)``, the radiance
+coefficient (radiance factor, ``beta = pi f_r``) in the fabric frame of PHYSICS.md section 1
+(angles in degrees, z = fabric normal, x = warp, directions pointing away from the surface),
+vectorised over broadcastable numpy arrays.
+
+Samples
+-------
+``lambert:RHO``
+    ``beta = RHO`` everywhere (an ideal diffuse reflector of reflectance RHO).
+``red-cotton``
+    An analytic fabric-like sample (not derived from ``simulate``)::
+
+        beta = beta_d + beta_s
+        beta_d = rho_d(lambda) * [A + B max(0, cos(phi_i - phi_o)) sin(a) tan(b)] * (1 + R exp(-g^2 / (2 w_r^2)))
+        beta_s = F(theta_d) / (4 a_x a_y sqrt(cos theta_i cos theta_o))
+                 * exp(-tan^2 theta_h (cos^2 phi_h / a_x^2 + sin^2 phi_h / a_y^2))
+
+    ``beta_d`` is the qualitative Oren-Nayar diffuse lobe (roughness sigma = 20 deg:
+    ``A = 1 - 0.5 s^2/(s^2 + 0.33)``, ``B = 0.45 s^2/(s^2 + 0.09)``, ``a = max(theta_i,
+    theta_o)``, ``b = min(theta_i, theta_o)``) with a mild retro-reflection (hiding) peak of
+    relative height ``R = 0.12`` and width ``w_r = 8 deg`` in the angle ``g`` between ``w_i`` and
+    ``w_o``. ``rho_d(lambda)`` is a red dye: ~0.05 in the blue/green, rising through 605 nm to
+    ~0.57 in the red. ``beta_s`` is the Ward anisotropic specular lobe (``pi`` times the Ward
+    BRDF) of the fibre surfaces, spectrally neutral, wider across the warp (``a_x = 0.22``
+    along the warp x, ``a_y = 0.38`` along the weft y), with the Schlick Fresnel factor
+    ``F = F0 + (1 - F0)(1 - cos theta_d)^5``, ``F0 = 0.045``, ``theta_d`` the angle between ``w_i``
+    and the half vector ``h``. Both terms are non-negative and reciprocal.
+``FILE``
+    A radiance-coefficient dataset directory (``gonio.dataset.read_dataset``), interpolated with
+    ``Dataset.interpolate``; a request outside the data raises ``gonio.dataset.DatasetError``.
+
+The white standard of the mock is Lambertian with a flat calibrated radiance factor
+:data:`WHITE_REFERENCE_BETA` (:func:`reference_beta`).
+
+References
+----------
+M. Oren, S. K. Nayar, "Generalization of Lambert's reflectance model", SIGGRAPH 1994.
+G. J. Ward, "Measuring and modeling anisotropic reflection", SIGGRAPH 1992.
+C. Schlick, "An inexpensive BRDF model for physically-based rendering", 1994.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+__all__ = [
+    "Sample", "LambertSample", "RedCottonSample", "DatasetSample", "WhiteReference",
+    "WHITE_REFERENCE_BETA", "reference_beta", "make_sample", "SampleError", "directions",
+]
+
+log = logging.getLogger(__name__)
+
+WHITE_REFERENCE_BETA = 0.99
+"""Calibrated radiance factor of the mock white standard (flat, Lambertian)."""
+
+
+class SampleError(ValueError):
+    """An unknown or unreadable sample specification (a user error)."""
+
+
+class Sample(Protocol):
+    """What the mock needs from a virtual sample."""
+
+    name: str
+
+    def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        """Radiance coefficient at the given fabric-frame geometry (degrees) and wavelength."""
+
+    def describe(self) -> dict:
+        """A JSON-able description for provenance."""
+
+
+def directions(theta_deg, phi_deg) -> np.ndarray:
+    """Unit vectors ``(sin t cos p, sin t sin p, cos t)`` stacked on the last axis."""
+    t = np.radians(np.asarray(theta_deg, dtype=float))
+    p = np.radians(np.asarray(phi_deg, dtype=float))
+    t, p = np.broadcast_arrays(t, p)
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+def _broadcast(*args) -> list[np.ndarray]:
+    return np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in args))
+
+
+class LambertSample:
+    """An ideal diffuse reflector: ``beta = rho`` at every geometry and wavelength."""
+
+    def __init__(self, rho: float):
+        rho = float(rho)
+        if not 0.0 <= rho <= 1.0:
+            raise SampleError(f"lambert:{rho:g}: the reflectance must be in 0..1")
+        self.rho = rho
+        self.name = f"lambert:{rho:g}"
+
+    def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        ti = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)[0]
+        return np.full(ti.shape, self.rho)
+
+    def describe(self) -> dict:
+        return {"name": self.name, "model": "lambert", "rho": self.rho}
+
+
+class WhiteReference(LambertSample):
+    """The mock white standard (Lambertian, :data:`WHITE_REFERENCE_BETA`)."""
+
+    def __init__(self, beta_ref: float = WHITE_REFERENCE_BETA):
+        super().__init__(beta_ref)
+        self.name = f"white-reference:{beta_ref:g}"
+
+
+def reference_beta(wavelength_nm) -> np.ndarray:
+    """Calibrated radiance factor of the mock white standard at ``wavelength_nm``."""
+    return np.full(np.shape(np.asarray(wavelength_nm, dtype=float)), WHITE_REFERENCE_BETA)
+
+
+class RedCottonSample:
+    """The built-in analytic red-cotton sample (see the module docstring for the equations)."""
+
+    name = "red-cotton"
+    sigma_deg = 20.0
+    retro_height = 0.12
+    retro_width_deg = 8.0
+    alpha_x = 0.22
+    alpha_y = 0.38
+    f0 = 0.045
+
+    @staticmethod
+    def rho_d(wavelength_nm) -> np.ndarray:
+        """Diffuse reflectance of the dyed fibres (red: low in blue/green, high above 600 nm)."""
+        wl = np.asarray(wavelength_nm, dtype=float)
+        return (0.045 + 0.015 * np.exp(-(((wl - 410.0) / 30.0) ** 2))
+                + 0.52 / (1.0 + np.exp(-(wl - 605.0) / 17.0)))
+
+    def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        ti, pi_, to, po, wl = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)
+        wi = directions(ti, pi_)
+        wo = directions(to, po)
+        ti_r, to_r = np.radians(ti), np.radians(to)
+        # diffuse: qualitative Oren-Nayar + retro-reflection peak
+        s2 = np.radians(self.sigma_deg) ** 2
+        a_coef = 1.0 - 0.5 * s2 / (s2 + 0.33)
+        b_coef = 0.45 * s2 / (s2 + 0.09)
+        alpha = np.maximum(ti_r, to_r)
+        beta_ang = np.minimum(ti_r, to_r)
+        cos_dphi = np.cos(np.radians(pi_ - po))
+        on = a_coef + b_coef * np.maximum(0.0, cos_dphi) * np.sin(alpha) * np.tan(beta_ang)
+        g = np.degrees(np.arccos(np.clip(np.sum(wi * wo, axis=-1), -1.0, 1.0)))
+        retro = 1.0 + self.retro_height * np.exp(-0.5 * (g / self.retro_width_deg) ** 2)
+        beta_d = self.rho_d(wl) * on * retro
+        # specular: Ward anisotropic lobe with Schlick Fresnel
+        h = wi + wo
+        h /= np.linalg.norm(h, axis=-1, keepdims=True)
+        cos_th = np.clip(h[..., 2], 1e-12, 1.0)
+        tan2_th = (1.0 - cos_th ** 2) / cos_th ** 2
+        hxy = np.hypot(h[..., 0], h[..., 1])
+        safe = np.where(hxy > 0, hxy, 1.0)
+        cos2_ph = np.where(hxy > 0, (h[..., 0] / safe) ** 2, 1.0)
+        sin2_ph = 1.0 - cos2_ph
+        cos_td = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
+        fresnel = self.f0 + (1.0 - self.f0) * (1.0 - cos_td) ** 5
+        ci = np.clip(np.cos(ti_r), 1e-6, 1.0)
+        co = np.clip(np.cos(to_r), 1e-6, 1.0)
+        beta_s = fresnel / (4.0 * self.alpha_x * self.alpha_y * np.sqrt(ci * co)) * np.exp(
+            -tan2_th * (cos2_ph / self.alpha_x ** 2 + sin2_ph / self.alpha_y ** 2))
+        return beta_d + beta_s
+
+    def describe(self) -> dict:
+        return {"name": self.name, "model": "analytic Oren-Nayar + retro + Ward (gonio.mock.samples)",
+                "sigma_deg": self.sigma_deg, "retro_height": self.retro_height,
+                "retro_width_deg": self.retro_width_deg, "alpha_x": self.alpha_x,
+                "alpha_y": self.alpha_y, "f0": self.f0}
+
+
+class DatasetSample:
+    """A sample whose truth is a radiance-coefficient dataset directory (interpolated)."""
+
+    def __init__(self, path: str | Path):
+        from gonio.dataset import DatasetError, read_dataset
+
+        self.path = Path(path)
+        try:
+            self.dataset = read_dataset(self.path)
+        except DatasetError as exc:
+            raise SampleError(f"sample {path}: {exc}") from None
+        self.name = self.dataset.name
+
+    def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        """Interpolated ``beta``; raises ``gonio.dataset.DatasetError`` outside the data."""
+        return self.dataset.interpolate(theta_i, phi_i, theta_o, phi_o, wavelength_nm)[0]
+
+    def describe(self) -> dict:
+        return {"name": self.name, "model": "dataset", "path": str(self.path)}
+
+
+def make_sample(spec: str) -> LambertSample | RedCottonSample | DatasetSample:
+    """Build a sample from ``lambert:RHO``, ``red-cotton`` or a dataset directory path.
+
+    Raises
+    ------
+    SampleError : the specification is not understood or the dataset is unreadable.
+    """
+    spec = str(spec).strip()
+    if spec.startswith("lambert:"):
+        try:
+            rho = float(spec.split(":", 1)[1])
+        except ValueError:
+            raise SampleError(f"sample {spec!r}: expected lambert:RHO with RHO a number in 0..1") from None
+        return LambertSample(rho)
+    if spec == "red-cotton":
+        return RedCottonSample()
+    path = Path(spec)
+    if path.is_dir():
+        return DatasetSample(path)
+    raise SampleError(f"unknown sample {spec!r}: use lambert:RHO, red-cotton or a dataset directory")
