@@ -77,7 +77,7 @@ from typing import Callable
 __all__ = [
     # Modbus
     "UNIT_ID", "MODBUS_TCP_PORT", "RTU_BAUDRATE", "RTU_BYTESIZE", "RTU_PARITY", "RTU_STOPBITS",
-    "FIRMWARE_VERSION", "Axis", "AXES", "N_AXES", "HOME_POSITIONS_MDEG", "IN_POSITION_TOLERANCE_MDEG",
+    "FIRMWARE_VERSION", "is_pseudo_terminal", "rtu_serial_settings", "Axis", "AXES", "N_AXES", "HOME_POSITIONS_MDEG", "IN_POSITION_TOLERANCE_MDEG",
     "DEFAULT_VELOCITY_CDEG_S", "VELOCITY_RANGE_CDEG_S", "BEAM_BLOCK_MIN_ANGLE_DEG",
     "HR_CONTROL", "HR_SAMPLE_SLOT", "IR_STATUS", "IR_FIRMWARE", "AXIS_BLOCK_BASE", "AXIS_BLOCK_STRIDE",
     "axis_target_address", "axis_velocity_address", "axis_command_address",
@@ -113,6 +113,23 @@ RTU_PARITY = "E"
 RTU_STOPBITS = 1
 FIRMWARE_VERSION = 0x0104
 """Input register 1: firmware 1.4."""
+
+
+def is_pseudo_terminal(port: str) -> bool:
+    """True for a pseudo-terminal device path (``/dev/pts/N``, ``/dev/ptyXX``, ``/dev/ttypXX``)."""
+    return str(port).startswith(("/dev/pts/", "/dev/pty", "/dev/ttyp"))
+
+
+def rtu_serial_settings(port: str) -> dict:
+    """Serial settings (pyserial keyword arguments) of the Modbus RTU line on ``port``.
+
+    19200 baud, 8 data bits, even parity, 1 stop bit - except on a pseudo-terminal, which has no
+    parity bit: recent Linux kernels refuse ``PARENB`` on a pty (``termios.error`` EINVAL), so
+    both ends of a pty use parity ``"N"`` (the framing on a pty is byte-exact anyway). The driver
+    and the mock both call this, so they always agree.
+    """
+    parity = "N" if is_pseudo_terminal(port) else RTU_PARITY
+    return {"baudrate": RTU_BAUDRATE, "bytesize": RTU_BYTESIZE, "parity": parity, "stopbits": RTU_STOPBITS}
 
 
 @dataclass(frozen=True)

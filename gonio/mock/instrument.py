@@ -155,6 +155,11 @@ class MockInstrument:
         self._ready.wait(10.0)
         if self._error is not None:
             self._thread.join(2.0)
+            self._thread = None
+            self._loop = None
+            if self._bridge is not None:
+                self._bridge.stop()
+                self._bridge = None
             raise self._error
         if not self._ready.is_set():
             raise RuntimeError("mock instrument did not start within 10 s")
@@ -221,10 +226,9 @@ class MockInstrument:
             self.modbus_url = f"tcp://{host}:{bound}"
         else:
             self._bridge = PtyBridge().start()
-            server = ModbusSerialServer(device, framer=FramerType.RTU, port=self._bridge.server_path,
-                                        baudrate=P.RTU_BAUDRATE, bytesize=P.RTU_BYTESIZE,
-                                        parity=P.RTU_PARITY, stopbits=P.RTU_STOPBITS,
-                                        ignore_missing_devices=True)
+            path = self._bridge.server_path
+            server = ModbusSerialServer(device, framer=FramerType.RTU, port=path,
+                                        **P.rtu_serial_settings(path), ignore_missing_devices=True)
             await server.serve_forever(background=True)
             self.modbus_url = f"rtu://{self._bridge.client_path}"
         self._closers.append(server.shutdown)
