@@ -1,0 +1,545 @@
+"""The two instrument devices, declared over transports from the tables of :mod:`gonio.protocol`.
+
+PyMeasure habit: a device class is mostly a list of named controls mapping to the instrument's
+query/set commands (the command table lives once, in :mod:`gonio.protocol`, shared with the mock);
+behaviour is a few methods; :meth:`shutdown` always leaves the instrument safe.
+
+- :class:`PhotometerHead` (ASCII over a :class:`~gonio.transport.SerialTransport`):
+  ``idn``, ``wavelength_nm``, ``itime_ms``, ``gain``, ``shutter_open``, ``temperature_c``,
+  ``bandwidth_nm``, :meth:`~PhotometerHead.read`, :meth:`~PhotometerHead.measure` (set + read as
+  one retryable unit), checksum mode, :meth:`~PhotometerHead.error_queue`.
+- :class:`MotionController` (Modbus over a :class:`~gonio.transport.ModbusTransport`):
+  :meth:`~MotionController.enable`, :meth:`~MotionController.home`,
+  :meth:`~MotionController.move_to` (waits for in-position), :meth:`~MotionController.stop`,
+  status and fault decoding, lamp and shutter coils, the reference slot (sample changer).
+
+Retries (:class:`RetryPolicy`) are bounded with exponential backoff
+``delay_k = min(base_s * factor**k, max_s)`` and counted per kind in a shared
+:class:`collections.Counter` (kinds: :data:`RETRY_KINDS`). What is not transient raises
+:class:`DeviceError`, whose message names the device, the command and the code.
+"""
+
+from __future__ import annotations
+
+import collections
+import itertools
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+from gonio import protocol
+from gonio.calibration import pooled_mean
+from gonio.protocol import AxisFault, AxisStatus, Control, SampleSlot
+from gonio.transport import LinkLost, LinkTimeout, ModbusExceptionResponse
+
+__all__ = ["DeviceError", "AxisFaultError", "RetryPolicy", "Measurement", "PhotometerHead",
+           "MotionController", "RETRY_KINDS", "AxisState"]
+
+log = logging.getLogger(__name__)
+
+#: Retry counter kinds (keys of the counter stored in a run's meta).
+RETRY_KINDS = ("serial_timeout", "serial_garbled", "serial_truncated", "serial_checksum",
+               "head_busy", "lamp_unstable", "modbus_busy", "modbus_no_response", "link_lost",
+               "axis_fault")
+
+_FRAMING_KIND = {
+    protocol.NoResponse: "serial_timeout",
+    protocol.TruncatedResponse: "serial_truncated",
+    protocol.ChecksumError: "serial_checksum",
+    protocol.GarbledResponse: "serial_garbled",
+    protocol.BusyError: "head_busy",
+}
+
+
+class DeviceError(RuntimeError):
+    """A device refused a command or kept failing: ``device``, ``command``, ``code``."""
+
+    def __init__(self, device: str, command: str, message: str, code: int | None = None,
+                 transient: bool = False):
+        self.device, self.command, self.code, self.transient = device, command, code, transient
+        super().__init__(f"{device}: {command}: {message}")
+
+
+class AxisFaultError(DeviceError):
+    """An axis latched a fault (``code``: :class:`gonio.protocol.AxisFault`)."""
+
+    def __init__(self, axis: int, code: int, command: str):
+        self.axis = axis
+        try:
+            name = AxisFault(code).name.lower().replace("_", " ")
+        except ValueError:
+            name = "unknown fault"
+        super().__init__("motion controller", command,
+                         f"axis {axis} ({protocol.AXES[axis].name}) fault {code} ({name})", code)
+
+
+@dataclass
+class RetryPolicy:
+    """Bounded retries with exponential backoff; ``sleep`` is injectable (replay: no wait)."""
+
+    attempts: int = 6
+    base_s: float = 0.005
+    factor: float = 2.0
+    max_s: float = 0.25
+    sleep: Callable[[float], None] = time.sleep
+    counts: collections.Counter = field(default_factory=collections.Counter)
+
+    def delay(self, k: int) -> float:
+        """Backoff before retry number ``k`` (0-based)."""
+        return min(self.base_s * self.factor**k, self.max_s)
+
+    def count(self, kind: str) -> None:
+        """Count one retry of ``kind``."""
+        self.counts[kind] += 1
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """A usable head reading: mean and standard error (counts), ``n``, or saturated."""
+
+    mean: float
+    sem: float
+    n: int
+    saturated: bool = False
+
+
+class _Control:
+    """A named head setting: ``get`` query and ``set`` command keys of ``HEAD_COMMANDS``."""
+
+    def __init__(self, get: str | None, set_: str | None, doc: str,
+                 to_wire: Callable | None = None, from_wire: Callable | None = None):
+        self.get, self.set_, self.__doc__ = get, set_, doc
+        self.to_wire, self.from_wire = to_wire, from_wire
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        if self.get is None:
+            raise AttributeError(f"{self.name} is write-only")
+        v = obj.query(self.get)
+        return self.from_wire(v) if self.from_wire else v
+
+    def __set__(self, obj, value):
+        if self.set_ is None:
+            raise AttributeError(f"{self.name} is read-only")
+        obj.query(self.set_, self.to_wire(value) if self.to_wire else value)
+
+
+class PhotometerHead:
+    """The spectro-photometer head (INSTRUMENT.md), over a line transport.
+
+    Parameters
+    ----------
+    transport : object with ``exchange(bytes) -> bytes``, ``reconnect()``, ``close()``.
+    retry : shared :class:`RetryPolicy` (its counter collects the retries).
+    checksum : turn checksum mode on at :meth:`connect` (recommended).
+    """
+
+    name = "photometer head"
+
+    wavelength_nm = _Control("WAVE?", "WAVE", "Monochromator wavelength, 380.0..780.0 nm.",
+                             to_wire=lambda v: float(round(float(v), 1)))
+    bandwidth_nm = _Control("BW?", None, "Spectral bandwidth, nm (read-only).")
+    itime_ms = _Control("ITIME?", "ITIME", "Integration time, 1..10000 ms.", to_wire=int)
+    gain = _Control("GAIN?", "GAIN", "Amplifier gain step 0..3 (x1, x4, x16, x64).", to_wire=int)
+    shutter_open = _Control("SHUTTER?", "SHUTTER", "Source shutter: True when open.",
+                            to_wire=lambda v: "OPEN" if v else "CLOSE",
+                            from_wire=lambda w: w == "OPEN")
+    temperature_c = _Control("TEMP?", None, "Detector temperature, deg C (read-only).")
+
+    def __init__(self, transport, retry: RetryPolicy | None = None, *, checksum: bool = True):
+        self.transport = transport
+        self.retry = retry or RetryPolicy()
+        self.want_checksum = checksum
+        self.chk = False
+        self.identity: protocol.Identity | None = None
+
+    # --- low level ------------------------------------------------------------------------
+    def _exchange_once(self, cmd: protocol.HeadCommand, value):
+        line = cmd.format(value)
+        raw = self.transport.exchange(line)
+        chk = self.chk or (cmd.key == "CHK" and value == "ON")
+        if cmd.key == "CHK" and value == "OFF":
+            chk = False
+        return protocol.parse_response(raw, chk=chk, expect=cmd.response)
+
+    def query(self, key: str, value=None):
+        """Send one command of the table and return its parsed reply, retrying what is transient."""
+        cmd = protocol.HEAD_COMMANDS[key]
+        try:
+            cmd.format(value)
+        except ValueError as exc:
+            raise DeviceError(self.name, cmd.syntax, f"invalid parameter {value!r}: {exc}") from None
+        return self._retrying(lambda: self._exchange_once(cmd, value), self._describe(key, value))
+
+    @staticmethod
+    def _describe(key: str, value) -> str:
+        return key if value is None else f"{key} {value}"
+
+    def _retrying(self, action: Callable, what: str):
+        last: Exception | None = None
+        for k in range(self.retry.attempts):
+            try:
+                return action()
+            except protocol.HeadError as exc:
+                if not exc.transient:
+                    raise DeviceError(self.name, what, f"ERR {exc.code} ({exc.message})",
+                                      exc.code) from None
+                last = exc
+                self.retry.count("head_busy")
+            except protocol.ProtocolError as exc:
+                last = exc
+                self.retry.count(_FRAMING_KIND.get(type(exc), "serial_garbled"))
+                self._resync()
+            except LinkLost as exc:
+                last = exc
+                self.retry.count("link_lost")
+                self._reconnect()
+            self.retry.sleep(self.retry.delay(k))
+        raise DeviceError(self.name, what, f"no valid response after {self.retry.attempts} "
+                                           f"attempts (last: {last})", transient=True)
+
+    def _resync(self) -> None:
+        """After a bad line, drop anything late still on the wire."""
+        drain = getattr(self.transport, "drain", None)
+        if drain is not None:
+            try:
+                drain()
+            except LinkLost:
+                self._reconnect()
+
+    def _reconnect(self) -> None:
+        try:
+            self.transport.reconnect()
+        except LinkLost as exc:
+            log.warning("photometer head: reconnect failed: %s", exc)
+            return
+        # a new connection may be a fresh session of the head: restore the checksum mode
+        if self.want_checksum:
+            self.chk = False
+            try:
+                self._exchange_once(protocol.HEAD_COMMANDS["CHK"], "ON")
+                self.chk = True
+            except (protocol.ProtocolError, LinkLost) as exc:
+                log.warning("photometer head: CHK ON after reconnect failed: %s", exc)
+
+    # --- behaviour ------------------------------------------------------------------------
+    def connect(self) -> protocol.Identity:
+        """Checksum mode on (when wanted), identify; returns the identity."""
+        if self.want_checksum:
+            self.query("CHK", "ON")
+            self.chk = True
+        self.identity = self.query("*IDN?")
+        return self.identity
+
+    @property
+    def idn(self) -> str:
+        """``maker,model,serial,firmware`` from ``*IDN?``."""
+        i = self.identity or self.query("*IDN?")
+        return f"{i.maker},{i.model},{i.serial},{i.firmware}"
+
+    def set_checksum(self, on: bool) -> None:
+        """Turn checksum mode on or off."""
+        self.query("CHK", "ON" if on else "OFF")
+        self.chk = on
+
+    def reset(self) -> None:
+        """``*RST``: wavelength, integration time, gain to defaults; shutter closed."""
+        self.query("*RST")
+
+    def error_queue(self) -> list[protocol.ErrorEntry]:
+        """Drain ``SYST:ERR?`` (oldest first) until it reports no error."""
+        out = []
+        for _ in range(protocol.ERROR_QUEUE_LENGTH + 1):
+            e = self.query("SYST:ERR?")
+            if e.code == 0:
+                break
+            out.append(e)
+        return out
+
+    def read(self, n: int) -> protocol.Reading:
+        """``READ? n`` -> :class:`gonio.protocol.Reading` (mean, std, n, flags)."""
+        return self.query("READ?", int(n))
+
+    def measure(self, wavelength_nm: float, itime_ms: int, gain: int, n: int,
+                repetitions: int = 1, shutter_open: bool | None = None) -> Measurement:
+        """Set (shutter,) wavelength, integration time and gain, then read: one retryable unit.
+
+        ``repetitions`` readings ``READ? n`` are pooled (:func:`gonio.calibration.pooled_mean`).
+        A transient failure anywhere (framing, busy, lamp unstable, dropped link) repeats the
+        whole unit, so the retried reading is taken in exactly the state of a first attempt.
+        ``ERR 301`` (overload) and the saturation flag give ``saturated=True``; other errors
+        raise :class:`DeviceError`.
+        """
+        what = f"measure {wavelength_nm:g} nm, {itime_ms} ms, gain {gain}, n {n}"
+
+        def unit():
+            if shutter_open is not None:
+                self._exchange_once(protocol.HEAD_COMMANDS["SHUTTER"],
+                                    "OPEN" if shutter_open else "CLOSE")
+            self._exchange_once(protocol.HEAD_COMMANDS["WAVE"], float(round(wavelength_nm, 1)))
+            self._exchange_once(protocol.HEAD_COMMANDS["ITIME"], int(itime_ms))
+            self._exchange_once(protocol.HEAD_COMMANDS["GAIN"], int(gain))
+            got = []
+            for _ in range(repetitions):
+                try:
+                    r = self._exchange_once(protocol.HEAD_COMMANDS["READ?"], int(n))
+                except protocol.DetectorOverloadError:
+                    return Measurement(math.nan, math.nan, int(n), saturated=True)
+                if r.lamp_unstable:
+                    raise _LampUnstable()
+                if r.saturated:
+                    return Measurement(r.mean_counts, r.stderr_counts, r.n, saturated=True)
+                got.append(r)
+            if len(got) == 1:
+                return Measurement(got[0].mean_counts, got[0].stderr_counts, got[0].n)
+            mean, sem, total = pooled_mean([r.mean_counts for r in got],
+                                           [r.std_counts for r in got], [r.n for r in got])
+            return Measurement(mean, sem, total)
+
+        for k in range(self.retry.attempts):
+            try:
+                return self._retrying(unit, what)
+            except _LampUnstable:
+                self.retry.count("lamp_unstable")
+                self.retry.sleep(self.retry.delay(k))
+        raise DeviceError(self.name, what, f"lamp unstable in {self.retry.attempts} readings",
+                          transient=True)
+
+    def shutdown(self) -> None:
+        """Close the shutter (best effort, never raises)."""
+        try:
+            self.query("SHUTTER", "CLOSE")
+        except Exception as exc:  # noqa: BLE001 - shutdown must not raise
+            log.warning("photometer head: closing the shutter failed: %s", exc)
+
+
+class _LampUnstable(Exception):
+    """Internal: a reading flagged lamp-unstable (retried by :meth:`PhotometerHead.measure`)."""
+
+
+@dataclass(frozen=True)
+class AxisState:
+    """Decoded axis input registers."""
+
+    position_mdeg: int
+    status: AxisStatus
+    fault: int
+
+
+class MotionController:
+    """The four-axis motion controller (INSTRUMENT.md register map, via :mod:`gonio.protocol`).
+
+    Parameters
+    ----------
+    transport : object with ``exchange(dict) -> dict``, ``reconnect()``, ``close()``.
+    retry : shared :class:`RetryPolicy`.
+    poll_s : status polling interval while waiting for motion.
+    """
+
+    name = "motion controller"
+
+    def __init__(self, transport, retry: RetryPolicy | None = None, *, poll_s: float = 0.001,
+                 move_timeout_s: float = 120.0):
+        self.transport = transport
+        self.retry = retry or RetryPolicy()
+        self.poll_s = poll_s
+        self.move_timeout_s = move_timeout_s
+        self.clock: Callable[[], float] = time.monotonic
+        self._velocity_cdeg_s: list[int | None] = [None] * protocol.N_AXES
+        self._target_mdeg: list[int | None] = [None] * protocol.N_AXES
+
+    # --- low level ------------------------------------------------------------------------
+    def call(self, request: dict, what: str) -> dict:
+        """One Modbus request with retries (busy, no response, dropped link)."""
+        last: Exception | None = None
+        for k in range(self.retry.attempts):
+            try:
+                return self.transport.exchange(request)
+            except ModbusExceptionResponse as exc:
+                if exc.code != protocol.ModbusException.DEVICE_BUSY:
+                    name = _exception_name(exc.code)
+                    raise DeviceError(self.name, what, f"Modbus exception {exc.code} ({name})",
+                                      exc.code) from None
+                last = exc
+                self.retry.count("modbus_busy")
+            except LinkTimeout as exc:
+                last = exc
+                self.retry.count("modbus_no_response")
+                self._reconnect()
+            except LinkLost as exc:
+                last = exc
+                self.retry.count("link_lost")
+                self._reconnect()
+            self.retry.sleep(self.retry.delay(k))
+        raise DeviceError(self.name, what, f"no valid response after {self.retry.attempts} "
+                                           f"attempts (last: {last})", transient=True)
+
+    def _reconnect(self) -> None:
+        try:
+            self.transport.reconnect()
+        except LinkLost as exc:
+            log.warning("motion controller: reconnect failed: %s", exc)
+
+    def read_input(self, address: int, count: int, what: str) -> list[int]:
+        """Read input registers."""
+        return self.call({"fn": "read_input_registers", "address": address, "count": count},
+                         what)["registers"]
+
+    def read_holding(self, address: int, count: int, what: str) -> list[int]:
+        """Read holding registers."""
+        return self.call({"fn": "read_holding_registers", "address": address, "count": count},
+                         what)["registers"]
+
+    def write(self, address: int, values: list[int], what: str) -> None:
+        """Write holding registers."""
+        self.call({"fn": "write_registers", "address": address, "values": [int(v) for v in values]},
+                  what)
+
+    def write_coil(self, address: int, value: bool, what: str) -> None:
+        """Write one coil."""
+        self.call({"fn": "write_coil", "address": address, "value": bool(value)}, what)
+
+    # --- status ---------------------------------------------------------------------------
+    def firmware(self) -> str:
+        """Firmware version, e.g. ``"1.4"``."""
+        v = self.read_input(protocol.IR_FIRMWARE, 1, "read firmware")[0]
+        return f"{v >> 8}.{v & 0xFF}"
+
+    def status(self) -> protocol.ControllerStatus:
+        """CONTROLLER STATUS bits."""
+        return protocol.ControllerStatus(self.read_input(protocol.IR_STATUS, 1, "read status")[0])
+
+    def axis(self, a: int) -> AxisState:
+        """ACTUAL position, STATUS and FAULT of axis ``a``."""
+        r = self.read_input(protocol.axis_actual_address(a), 4, f"read axis {a}")
+        return AxisState(protocol.registers_to_int32(r[0], r[1]), AxisStatus(r[2]), r[3])
+
+    def positions_deg(self) -> tuple[float, ...]:
+        """Actual positions of every axis, degrees."""
+        return tuple(protocol.mdeg_to_deg(self.axis(a).position_mdeg) for a in range(protocol.N_AXES))
+
+    # --- commands -------------------------------------------------------------------------
+    def enable(self) -> None:
+        """Enable the drives."""
+        self.write(protocol.HR_CONTROL, [Control.ENABLE], "enable drives")
+
+    def reset_fault(self) -> None:
+        """Clear every latched axis fault (drives stay enabled)."""
+        self.write(protocol.HR_CONTROL, [Control.ENABLE | Control.RESET_FAULT], "reset fault")
+
+    def stop(self) -> None:
+        """Stop every axis (accepted even while homing)."""
+        self.write(protocol.HR_CONTROL, [Control.ENABLE | Control.STOP_ALL], "stop all")
+
+    def home(self) -> None:
+        """Enable, home every axis and wait until all are homed and at rest."""
+        self.enable()
+        self.write(protocol.HR_CONTROL, [Control.ENABLE | Control.HOME_ALL], "home all")
+        self._target_mdeg = list(protocol.HOME_POSITIONS_MDEG)
+        self._wait(range(protocol.N_AXES), "home all", homing=True)
+
+    def set_lamp(self, on: bool) -> None:
+        """Lamp coil."""
+        self.write_coil(protocol.COIL_LAMP, on, "lamp " + ("on" if on else "off"))
+
+    def set_shutter(self, open_: bool) -> None:
+        """Shutter coil (the same shutter as the head's SHUTTER command)."""
+        self.write_coil(protocol.COIL_SHUTTER, open_, "shutter " + ("open" if open_ else "close"))
+
+    def set_slot(self, slot: SampleSlot) -> None:
+        """Put the sample or the white reference standard in the beam (sample changer)."""
+        self.write(protocol.HR_SAMPLE_SLOT, [int(slot)], f"slot {SampleSlot(slot).name.lower()}")
+
+    def move_to(self, axes_deg, velocity_deg_s: float) -> None:
+        """Move the axes to ``axes_deg`` (4 values, degrees) and wait until in position.
+
+        Only axes whose target changed are commanded (one write per axis: target, velocity,
+        move command). Raises :class:`AxisFaultError` when an axis faults.
+        """
+        v = int(round(velocity_deg_s * 100))
+        v = min(max(v, protocol.VELOCITY_RANGE_CDEG_S[0]), protocol.VELOCITY_RANGE_CDEG_S[1])
+        moving = []
+        what = "move to (" + ", ".join(f"{x:g}" for x in axes_deg) + ")"
+        targets = [protocol.deg_to_mdeg(d) for d in axes_deg]
+        changed = [a for a in range(protocol.N_AXES)
+                   if targets[a] != self._target_mdeg[a] or v != self._velocity_cdeg_s[a]]
+        for a in self._safe_order(changed, targets, what):
+            mdeg = targets[a]
+            hi, lo = protocol.int32_to_registers(mdeg)
+            self.write(protocol.axis_target_address(a), [hi, lo, v, protocol.AxisCommand.MOVE],
+                       f"{what}: axis {a}")
+            self._target_mdeg[a] = mdeg
+            self._velocity_cdeg_s[a] = v
+            moving.append(a)
+        self._wait(moving, what)
+
+    def _safe_order(self, changed: list[int], targets: list[int], what: str) -> list[int]:
+        """Order the axis commands so that no intermediate destination is in the beam-block zone.
+
+        The controller checks each move command against the destinations of all axes, so
+        commanding the source before the detector could be refused although the final geometry
+        is allowed. Unknown current targets (after a fault) are taken as the new ones.
+        """
+        current = [t if t is not None else targets[a] for a, t in enumerate(self._target_mdeg)]
+        for order in itertools.permutations(changed):
+            dest = list(current)
+            ok = True
+            for a in order:
+                dest[a] = targets[a]
+                if protocol.beam_blocked(*(protocol.mdeg_to_deg(d) for d in dest[:3])):
+                    ok = False
+                    break
+            if ok:
+                return list(order)
+        raise DeviceError(self.name, what, "destination is in the beam-block zone (the detector "
+                                           "would be within 5 deg of the source direction)",
+                          int(AxisFault.BEAM_BLOCK))
+
+    def _wait(self, axes, what: str, homing: bool = False) -> None:
+        deadline = self.clock() + self.move_timeout_s
+        pending = list(axes)
+        while pending:
+            still = []
+            for a in pending:
+                st = self.axis(a)
+                if st.status & AxisStatus.FAULT or st.fault:
+                    self._target_mdeg[a] = None
+                    raise AxisFaultError(a, st.fault, what)
+                done = bool(st.status & AxisStatus.HOMED) and not st.status & AxisStatus.MOVING
+                if not homing:
+                    done = done and bool(st.status & AxisStatus.IN_POSITION)
+                if not done:
+                    still.append(a)
+            pending = still
+            if pending:
+                if self.clock() > deadline:
+                    raise DeviceError(self.name, what, f"axes {pending} not in position after "
+                                                       f"{self.move_timeout_s:g} s")
+                self.retry.sleep(self.poll_s)
+
+    def forget_targets(self) -> None:
+        """Forget the commanded targets (after a fault or re-homing, every axis is re-sent)."""
+        self._target_mdeg = [None] * protocol.N_AXES
+        self._velocity_cdeg_s = [None] * protocol.N_AXES
+
+    def shutdown(self) -> None:
+        """Leave the instrument safe: shutter closed, drives stopped (best effort, never raises)."""
+        for action, what in ((lambda: self.set_shutter(False), "closing the shutter"),
+                             (self.stop, "stopping the drives")):
+            try:
+                action()
+            except Exception as exc:  # noqa: BLE001 - shutdown must not raise
+                log.warning("motion controller: %s failed: %s", what, exc)
+
+
+def _exception_name(code: int) -> str:
+    try:
+        return protocol.ModbusException(code).name.lower().replace("_", " ")
+    except ValueError:
+        return "unknown exception"

@@ -1,0 +1,442 @@
+"""The acquisition engine: executes a plan on the devices, checkpointing every point.
+
+bluesky habit: the plan (:mod:`gonio.plan`) is data; this engine executes it and emits records
+to storage (:mod:`gonio.journal`): ``start``, ``calibration``, one ``point`` per geometry (every
+wavelength), ``event`` records (resume, safe stop, session end with its retry counts). The dataset
+(:func:`gonio.dataset.write_dataset`, kind ``"measured"``) is computed from the journal alone, so
+a resumed run and an uninterrupted run with the same mock seed write identical ``radiance.csv``.
+
+Sequence
+--------
+1. connect (checksum mode on, ``*IDN?``, firmware), lamp on, shutter closed, sample slot, home;
+2. calibration at the reference geometry (default 0/45): dark ``D`` at every step of the
+   auto-ranging ladder (shutter closed), then the white standard ``S_ref`` per wavelength
+   (auto-ranged) with the reference slot in the beam - or, on ``--resume``, the journal's last
+   calibration when still valid (same plan and standard files, same instrument, younger than
+   ``calibration_max_age_min``; otherwise it is measured again and the reason logged);
+3. every measurable point in motion order: move (axis commands ordered around the beam-block
+   zone; after a following error or a lost homing the axes are re-homed and the move repeated),
+   settle, shutter open, and per wavelength auto-range from the same initial integration time
+   and gain (:meth:`gonio.plan.AcquisitionSettings.ladder`; a saturated reading is never
+   stored), then append the point to the journal and fsync;
+4. always: shutter closed and drives stopped (``shutdown``), a ``session_end`` event with the
+   retry counts, and the dataset written atomically from the journal (what was measured).
+
+The radiance factor and its uncertainty come from :func:`gonio.calibration.radiance_factor`.
+
+Exit status (:class:`RunResult.exit_code`): 0 complete; 1 stopped safely by an instrument
+fault that retries did not clear (the measured points are kept; continue with ``--resume``);
+2 usage or input error (plan, journal of another plan, unreachable device); 130 interrupted by
+SIGINT or SIGTERM (the measured points are kept).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from gonio import protocol
+from gonio.calibration import WhiteStandard, load_white_standard, radiance_factor
+from gonio.dataset import make_dataset, new_meta, write_dataset
+from gonio.devices import AxisFaultError, DeviceError, MotionController, PhotometerHead, RetryPolicy
+from gonio.journal import Journal, JournalContent
+from gonio.plan import Plan, PlanPoint
+
+__all__ = ["Engine", "RunResult", "AcquisitionError", "Interrupted", "EXIT_OK", "EXIT_STOPPED",
+           "EXIT_USAGE", "EXIT_INTERRUPTED", "dataset_from_journal", "JOURNAL_NAME"]
+
+log = logging.getLogger(__name__)
+
+EXIT_OK = 0
+EXIT_STOPPED = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+JOURNAL_NAME = "journal.jsonl"
+_REHOME_ATTEMPTS = 3
+
+
+class AcquisitionError(ValueError):
+    """A user error that prevents the run (bad journal, plan mismatch): exit status 2."""
+
+
+class Interrupted(Exception):
+    """Raised by a signal handler (SIGTERM) to stop the run like Ctrl-C."""
+
+
+@dataclass
+class RunResult:
+    """Outcome of :meth:`Engine.run`."""
+
+    status: str                      # "complete" | "stopped" | "interrupted"
+    exit_code: int
+    points_measured: int
+    points_total: int
+    dataset_path: Path | None
+    message: str = ""
+    retries: dict = field(default_factory=dict)
+
+
+def _versions() -> dict:
+    out = {}
+    for dist in ("fabric-optics", "pymodbus", "pyserial", "numpy"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
+def _iso(t: float) -> str:
+    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="seconds")
+
+
+class Engine:
+    """Execute ``plan`` with ``head`` and ``motion``, journaling into ``out_dir``.
+
+    Parameters
+    ----------
+    plan : the validated plan.
+    head, motion : the devices (sharing ``retry``).
+    retry : the retry policy whose counter goes into the run's meta.
+    out_dir : run directory (``journal.jsonl``, ``radiance.csv``, ``meta.json``).
+    resume : continue from the journal instead of refusing an existing one.
+    seed : the mock's seed, recorded in the meta (None for a real instrument).
+    links : URLs of the two links, recorded in the meta.
+    progress : show a tqdm bar (default: when stderr is a terminal).
+    clock : wall clock (seconds since the epoch), injectable for replay.
+    created : the dataset's ``created`` stamp (default: the journal's start time).
+    """
+
+    def __init__(self, plan: Plan, head: PhotometerHead, motion: MotionController,
+                 retry: RetryPolicy, out_dir: str | Path, *, resume: bool = False,
+                 seed: int | None = None, links: dict | None = None, progress: bool | None = None,
+                 clock: Callable[[], float] = time.time, created: str | None = None):
+        self.plan, self.head, self.motion, self.retry = plan, head, motion, retry
+        self.out_dir = Path(out_dir)
+        self.resume = resume
+        self.seed = seed
+        self.links = dict(links or {})
+        self.progress = sys.stderr.isatty() if progress is None else progress
+        self.clock = clock
+        self.created = created
+        self.settings = plan.acquisition
+        self.ladder = self.settings.ladder()
+        self.check = plan.check()
+        base = plan.path.parent if plan.path else None
+        self.standard: WhiteStandard = load_white_standard(plan.white_standard, base=base)
+        self.standard.at(plan.wavelengths_nm)   # refuse a plan outside the table now
+        self.journal: Journal | None = None
+        self.identity: str = ""
+        self.firmware: str = ""
+
+    # --- helpers ---------------------------------------------------------------------------
+    def _append(self, record: dict) -> None:
+        assert self.journal is not None
+        self.journal.append(record)
+        self.records.append(record)
+
+    def _reference_axes(self) -> tuple[float, float, float, float]:
+        ti, to = self.plan.reference_deg
+        return (ti, to, 0.0, 0.0)
+
+    def _move(self, axes_deg) -> None:
+        v = self.settings.velocity_deg_s
+        for attempt in range(_REHOME_ATTEMPTS + 1):
+            try:
+                self.motion.move_to(axes_deg, v)
+                return
+            except AxisFaultError as exc:
+                recoverable = exc.code in (protocol.AxisFault.FOLLOWING_ERROR,
+                                           protocol.AxisFault.NOT_HOMED)
+                if not recoverable or attempt == _REHOME_ATTEMPTS:
+                    raise
+                self.retry.count("axis_fault")
+                log.warning("%s; resetting the fault and re-homing", exc)
+                self.motion.forget_targets()
+                self.motion.reset_fault()
+                self.motion.home()
+
+    def _autorange(self, wavelength_nm: float, *, shutter_open: bool | None = None) -> dict | None:
+        s = self.settings
+        for step, (itime, gain) in enumerate(self.ladder):
+            m = self.head.measure(wavelength_nm, itime, gain, s.readings,
+                                  repetitions=s.repetitions, shutter_open=shutter_open)
+            if not m.saturated:
+                return {"wavelength_nm": float(wavelength_nm), "itime_ms": int(itime),
+                        "gain": int(gain), "mean": float(m.mean), "sem": float(m.sem),
+                        "n": int(m.n), "ranging": step}
+        return None
+
+    # --- calibration -----------------------------------------------------------------------
+    def _calibration_reusable(self) -> tuple[dict | None, str]:
+        cals = [r for r in self.records if r["type"] == "calibration"]
+        if not cals:
+            return None, "no calibration in the journal"
+        c = cals[-1]
+        if c["plan_sha256"] != self.plan.sha256:
+            return None, "the plan file changed"
+        if c["standard_sha256"] != self.standard.sha256:
+            return None, "the white standard table changed"
+        if c["idn"] != self.identity:
+            return None, f"another instrument ({c['idn']})"
+        age_min = (self.clock() - c["time"]) / 60.0
+        if age_min > self.settings.calibration_max_age_min or age_min < -1.0:
+            return None, (f"it is {age_min:.0f} min old (limit "
+                          f"{self.settings.calibration_max_age_min:g} min)")
+        wl = {float(r["wavelength_nm"]) for r in c["reference"]}
+        if not set(map(float, self.plan.wavelengths_nm)) <= wl:
+            return None, "it lacks some of the plan's wavelengths"
+        return c, ""
+
+    def _calibrate(self) -> dict:
+        s = self.settings
+        ids = [r["id"] for r in self.records if r["type"] == "calibration"]
+        log.info("calibration: dark at %d ranging steps, white standard at %d wavelengths",
+                 len(self.ladder), len(self.plan.wavelengths_nm))
+        self.motion.set_slot(protocol.SampleSlot.WHITE_REFERENCE)
+        self._move(self._reference_axes())
+        wl0 = float(self.plan.wavelengths_nm[0])
+        darks = []
+        for itime, gain in self.ladder:
+            m = self.head.measure(wl0, itime, gain, s.readings, repetitions=s.repetitions,
+                                  shutter_open=False)
+            darks.append({"itime_ms": int(itime), "gain": int(gain), "mean": float(m.mean),
+                          "sem": float(m.sem), "n": int(m.n)})
+        reference = []
+        self.head.query("SHUTTER", "OPEN")
+        for wl in self.plan.wavelengths_nm:
+            r = self._autorange(float(wl))
+            if r is None:
+                raise DeviceError("photometer head", f"white standard at {wl:g} nm",
+                                  "saturated at every integration time and gain")
+            reference.append(r)
+        self.head.query("SHUTTER", "CLOSE")
+        self.motion.set_slot(protocol.SampleSlot.SAMPLE)
+        rec = {"type": "calibration", "id": (max(ids) + 1) if ids else 0, "time": self.clock(),
+               "plan_sha256": self.plan.sha256, "standard_sha256": self.standard.sha256,
+               "idn": self.identity, "darks": darks, "reference": reference,
+               "reference_deg": list(self.plan.reference_deg)}
+        self._append(rec)
+        return rec
+
+    # --- run -------------------------------------------------------------------------------
+    def _open_journal(self) -> JournalContent:
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        path = self.out_dir / JOURNAL_NAME
+        if path.exists() and path.stat().st_size > 0 and not self.resume:
+            raise AcquisitionError(f"{self.out_dir}: a journal from an earlier run is there; "
+                                   "continue it with --resume or choose a new --out")
+        journal, content = Journal.open(path)
+        self.journal = journal
+        self.records = list(content.records)
+        starts = [r for r in self.records if r["type"] == "start"]
+        if self.records and not starts:
+            journal.close()
+            raise AcquisitionError(f"{path}: no start record; not a gonio journal")
+        if starts and starts[0]["plan_sha256"] != self.plan.sha256:
+            journal.close()
+            raise AcquisitionError(f"{path}: the journal was written for plan "
+                                   f"'{starts[0]['plan']}' with different contents; resume with "
+                                   "the same plan file or choose a new --out")
+        return content
+
+    def run(self) -> RunResult:
+        """Run (or resume) the acquisition; always leaves the instrument safe."""
+        content = self._open_journal()
+        ordered = self.check.ordered
+        total = len(ordered)
+        done = {tuple(r["geometry"]) for r in self.records if r["type"] == "point"}
+        done = {tuple(round(float(x), 6) for x in g) for g in done}
+        status, code, message = "complete", EXIT_OK, ""
+        bar = None
+        start_time = self.clock()
+        try:
+            ident = self.head.connect()
+            self.identity = f"{ident.maker},{ident.model},{ident.serial},{ident.firmware}"
+            self.firmware = self.motion.firmware()
+            if not any(r["type"] == "start" for r in self.records):
+                self._append({"type": "start", "plan": self.plan.name,
+                              "plan_sha256": self.plan.sha256,
+                              "standard_sha256": self.standard.sha256, "time": start_time,
+                              "seed": self.seed, "idn": self.identity})
+            else:
+                self._append({"type": "event", "what": "resume", "time": start_time,
+                              "torn_last_line": content.torn, "points_done": len(done)})
+                if content.torn:
+                    log.warning("journal: the last line was torn; that point is measured again")
+            for p in self.check.blocked:
+                log.info("unmeasurable (beam-block zone): theta_i=%g phi_i=%g theta_o=%g phi_o=%g",
+                         p.theta_i, p.phi_i, p.theta_o, p.phi_o)
+            for p, why in self.check.out_of_limits:
+                log.warning("unmeasurable (%s): theta_i=%g theta_o=%g", why, p.theta_i, p.theta_o)
+            self.motion.set_lamp(True)
+            self.motion.set_shutter(False)
+            self.motion.set_slot(protocol.SampleSlot.SAMPLE)
+            self.motion.home()
+            cal, why = self._calibration_reusable() if self.resume else (None, "")
+            if cal is None:
+                if self.resume and why != "no calibration in the journal":
+                    log.warning("calibration measured again: %s", why)
+                cal = self._calibrate()
+            else:
+                log.info("calibration %d reused from the journal", cal["id"])
+                self._append({"type": "event", "what": "calibration_reused", "id": cal["id"]})
+            todo = [p for p in ordered if p.key not in done]
+            bar = self._progress(total, total - len(todo))
+            t_first = time.monotonic()
+            for k, p in enumerate(todo):
+                self._measure_point(p, cal["id"], len(done) + k)
+                self._report(bar, k + 1, len(todo), t_first, len(done) + k + 1, total, p)
+        except (KeyboardInterrupt, Interrupted):
+            status, code, message = "interrupted", EXIT_INTERRUPTED, "interrupted; measured points kept"
+        except DeviceError as exc:
+            status, code, message = "stopped", EXIT_STOPPED, f"stopped safely: {exc}"
+        finally:
+            if bar is not None:
+                bar.close()
+            self.head.shutdown()
+            self.motion.shutdown()
+        measured = len({tuple(r["geometry"]) for r in self.records if r["type"] == "point"})
+        if status != "complete":
+            log.error("%s (%d of %d points measured)", message, measured, total)
+        retries = {k: int(v) for k, v in sorted(self.retry.counts.items()) if v}
+        self._append({"type": "event", "what": "session_end", "status": status,
+                      "message": message, "retries": retries, "time": self.clock()})
+        self.journal.close()
+        path = None
+        if measured:
+            ds = dataset_from_journal(self.records, self.plan, self.standard,
+                                      seed=self.seed, links=self.links, firmware=self.firmware,
+                                      complete=(status == "complete" and measured == total),
+                                      created=self.created)
+            write_dataset(ds, self.out_dir)
+            path = self.out_dir
+        return RunResult(status, code, measured, total, path, message, retries)
+
+    def _measure_point(self, p: PlanPoint, cal_id: int, index: int) -> None:
+        self._move(p.axes_deg)
+        if self.settings.settle_ms > 0:
+            self.retry.sleep(self.settings.settle_ms / 1000.0)
+        self.head.query("SHUTTER", "OPEN")
+        readings, saturated = [], []
+        for wl in self.plan.wavelengths_nm:
+            r = self._autorange(float(wl))
+            if r is None:
+                saturated.append(float(wl))
+                log.warning("saturated at every setting, not stored: %s at %g nm", p.key, wl)
+            else:
+                readings.append(r)
+        self._append({"type": "point", "index": index, "axes_deg": list(p.axes_deg),
+                      "geometry": list(p.key), "calibration": cal_id, "readings": readings,
+                      "saturated_nm": saturated})
+
+    def _progress(self, total: int, initial: int):
+        if not self.progress:
+            return None
+        from tqdm import tqdm
+        return tqdm(total=total, initial=initial, unit="point", desc=self.plan.name,
+                    file=sys.stderr, dynamic_ncols=True)
+
+    def _report(self, bar, k: int, n_todo: int, t0: float, done: int, total: int, p) -> None:
+        if bar is not None:
+            bar.update(1)
+            return
+        elapsed = time.monotonic() - t0
+        eta = elapsed / k * (n_todo - k)
+        log.info("point %d/%d theta_i=%g s=%g plane=%g rot=%g (ETA %.0f s)", done, total,
+                 p.source_deg, p.detector_deg, p.plane_deg, p.rotation_deg, eta)
+
+
+def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandard, *,
+                         seed: int | None = None, links: dict | None = None,
+                         firmware: str = "", complete: bool = False,
+                         created: str | None = None):
+    """Build the measured dataset from journal records (see the module docstring).
+
+    Each point uses the calibration it was measured with; a geometry journaled twice keeps its
+    first record. Returns a :class:`gonio.dataset.Dataset`.
+    """
+    cals = {r["id"]: r for r in records if r["type"] == "calibration"}
+    start = next(r for r in records if r["type"] == "start")
+    seen, cols = set(), {k: [] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm",
+                                         "S", "uS", "D", "uD", "t", "G", "Sr", "uSr", "Dr",
+                                         "uDr", "tr", "Gr", "n", "to_ref")}
+    saturated = []
+    for rec in records:
+        if rec["type"] != "point":
+            continue
+        key = tuple(round(float(x), 6) for x in rec["geometry"])
+        if key in seen:
+            continue
+        seen.add(key)
+        cal = cals[rec["calibration"]]
+        darks = {(d["itime_ms"], d["gain"]): d for d in cal["darks"]}
+        refs = {float(r["wavelength_nm"]): r for r in cal["reference"]}
+        to_ref = abs(float(cal.get("reference_deg", plan.reference_deg)[1]))
+        for sat in rec.get("saturated_nm", []):
+            saturated.append(list(key) + [sat])
+        for r in rec["readings"]:
+            wl = float(r["wavelength_nm"])
+            ref = refs[wl]
+            d = darks[(r["itime_ms"], r["gain"])]
+            dr = darks[(ref["itime_ms"], ref["gain"])]
+            for name, v in zip(("theta_i", "phi_i", "theta_o", "phi_o"), key):
+                cols[name].append(v)
+            cols["wavelength_nm"].append(wl)
+            cols["S"].append(r["mean"]); cols["uS"].append(r["sem"])
+            cols["D"].append(d["mean"]); cols["uD"].append(d["sem"])
+            cols["t"].append(r["itime_ms"]); cols["G"].append(protocol.GAIN_FACTORS[r["gain"]])
+            cols["Sr"].append(ref["mean"]); cols["uSr"].append(ref["sem"])
+            cols["Dr"].append(dr["mean"]); cols["uDr"].append(dr["sem"])
+            cols["tr"].append(ref["itime_ms"]); cols["Gr"].append(protocol.GAIN_FACTORS[ref["gain"]])
+            cols["n"].append(r["n"])
+            cols["to_ref"].append(to_ref)
+    c = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
+    beta_ref, u_beta_ref = standard.at(c["wavelength_nm"])
+    beta, u_beta = radiance_factor(c["S"], c["uS"], c["D"], c["uD"], c["t"], c["G"], c["theta_o"],
+                                   c["Sr"], c["uSr"], c["Dr"], c["uDr"], c["tr"], c["Gr"],
+                                   c["to_ref"], beta_ref, u_beta_ref)
+    table = pd.DataFrame({"theta_i": c["theta_i"], "phi_i": c["phi_i"], "theta_o": c["theta_o"],
+                          "phi_o": c["phi_o"], "wavelength_nm": c["wavelength_nm"], "beta": beta,
+                          "u_beta": u_beta, "n": c["n"].astype(int)})
+    retries: dict[str, int] = {}
+    sessions = 0
+    for r in records:
+        if r["type"] == "event" and r.get("what") == "session_end":
+            sessions += 1
+            for k, v in r.get("retries", {}).items():
+                retries[k] = retries.get(k, 0) + int(v)
+    check = plan.check()
+    links = links or {}
+    meta = new_meta(
+        "measured", sample=plan.sample,
+        source={"idn": start.get("idn", ""), "firmware": firmware,
+                "modbus": links.get("modbus"), "serial": links.get("serial")},
+        provenance={
+            "plan": {"name": plan.name, "sha256": plan.sha256, "description": plan.description},
+            "seed": seed,
+            "white_standard": {"name": standard.name, "sha256": standard.sha256},
+            "reference_deg": list(plan.reference_deg),
+            "acquisition": {k: getattr(plan.acquisition, k) for k in plan.acquisition.__dataclass_fields__},
+            "points_planned": len(check.ordered), "points_measured": len(seen),
+            "complete": bool(complete),
+            "unmeasurable": [list(p.key) for p in check.blocked]
+                            + [list(p.key) for p, _ in check.out_of_limits],
+            "saturated": saturated,
+            "retries": dict(sorted(retries.items())),
+            "sessions": sessions,
+            "calibrations": sorted(cals),
+            "versions": _versions(),
+        },
+        created=created or _iso(float(start["time"])))
+    return make_dataset(table, meta)
