@@ -142,7 +142,7 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
     }
 
     # time vs photons (linear growth expected)
-    counts = [20_000, 50_000, 100_000, 200_000] if quick else [100_000, 300_000, 1_000_000, 3_000_000]
+    counts = [50_000, 100_000, 200_000, 400_000] if quick else [100_000, 300_000, 1_000_000, 3_000_000]
     scaling = [_run(max_threads, c, 0, **VAN_DE_HULST) for c in counts]
     slope = float(np.polyfit(np.log(counts), np.log([s["seconds"] for s in scaling]), 1)[0])
 

@@ -272,7 +272,8 @@ def _medium(mu_a: float, mu_s: float, g: float | None, phase_table: Any, n: floa
         table = np.zeros(2)
         phase = K.PHASE_HG
     else:
-        table = np.ascontiguousarray(getattr(phase_table, "cos_table", phase_table), dtype=np.float64)
+        # a writeable C-contiguous copy: a read-only array would compile a second signature
+        table = np.array(getattr(phase_table, "cos_table", phase_table), dtype=np.float64, order="C", copy=True)
         if table.ndim != 1 or table.size < 2:
             raise ParameterError("phase_table.cos_table must be a 1-D array of at least 2 values")
         if not np.all(np.isfinite(table)) or table[0] < -1.0 or table[-1] > 1.0 or np.any(np.diff(table) < 0):

@@ -1,0 +1,74 @@
+"""The `simulate slab` and `simulate bench` commands."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from simulate.cli import main
+
+
+def test_slab_json(capsys):
+    code = main(["slab", "--mua", "10", "--mus", "90", "--g", "0.75", "--n", "1", "--thickness", "0.02",
+                 "--photons", "200000", "--seed", "1", "--json"])
+    assert code == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1
+    obj = json.loads(out[0])
+    for key in ("Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds", "events_per_photon", "capped", "energy"):
+        assert key in obj
+    assert obj["photons"] == 200000
+    assert abs(obj["Rd"] - 0.09739) < 4 * obj["u_Rd"] and abs(obj["Tt"] - 0.66096) < 4 * obj["u_Tt"]
+
+
+def test_slab_console_script_subprocess():
+    proc = subprocess.run(
+        [sys.executable, "-m", "simulate.cli", "slab", "--mua", "1", "--mus", "10", "--thickness", "0.1",
+         "--photons", "1000", "--json"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert set(json.loads(proc.stdout)) >= {"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds"}
+
+
+@pytest.mark.parametrize(
+    "argv, flag",
+    [
+        (["--mua", "-1", "--mus", "1", "--thickness", "1"], "--mua"),
+        (["--mua", "1", "--mus", "x", "--thickness", "1"], "--mus"),
+        (["--mua", "1", "--mus", "1", "--thickness", "0"], "--thickness"),
+        (["--mua", "1", "--mus", "1", "--thickness", "1", "--g", "1.5"], "--g"),
+        (["--mua", "1", "--mus", "1", "--thickness", "1", "--photons", "0"], "--photons"),
+        (["--mua", "1", "--mus", "1", "--thickness", "1", "--theta-i", "90"], "--theta-i"),
+        (["--mua", "1", "--mus", "1"], "--thickness"),
+    ],
+)
+def test_slab_bad_flags_exit_2_with_one_line(argv, flag, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["slab", *argv, "--json"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flag in err[0] and "Traceback" not in err[0]
+
+
+def test_bench_quick_writes_json_and_chart(tmp_path, capsys):
+    assert main(["bench", "--out", str(tmp_path / "b"), "--quick"]) == 0
+    report = json.loads((tmp_path / "b" / "bench.json").read_text())
+    tp = report["throughput"]
+    assert tp["one_thread"]["repeats"] >= 5 and tp["all_threads"]["repeats"] >= 5
+    assert tp["one_thread"]["median_photons_per_s"] > 0 and tp["speedup_median_of_paired_ratios"] > 0
+    assert 3.0 < tp["one_thread"]["median_events_per_photon"] < 5.0  # van de Hulst case: ~4
+    assert 0.6 < report["time_vs_photons"]["loglog_slope"] < 1.2  # small quick runs carry a fixed overhead
+    assert report["peak_rss_mb"] > 0
+    assert (tmp_path / "b" / "bench.png").stat().st_size > 1000
+    assert "| 1 thread, median M photons/s |" in capsys.readouterr().out
+
+
+def test_bench_out_is_a_file(tmp_path, capsys):
+    target = tmp_path / "file"
+    target.write_text("x")
+    assert main(["bench", "--out", str(target), "--quick"]) == 2
+    assert "--out" in capsys.readouterr().err
