@@ -52,8 +52,11 @@ def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
 
     wl = np.asarray(wavelengths)
     basis = colour.MultiSpectralDistributions(np.eye(wl.size), wl)
-    xyz = colour.msds_to_XYZ(basis, colour.MSDS_CMFS[OBSERVER],
-                             colour.SDS_ILLUMINANTS[illuminant], method="ASTM E308")
+    # colour-science warns while it trims/extends each basis spectrum to the observer's range,
+    # exactly as it does (silently, once) for a single spectrum in gonio.colour
+    with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
+        xyz = colour.msds_to_XYZ(basis, colour.MSDS_CMFS[OBSERVER],
+                                 colour.SDS_ILLUMINANTS[illuminant], method="ASTM E308")
     return np.asarray(xyz, dtype=float) / 100.0
 
 
