@@ -314,6 +314,10 @@ class MotionController:
         self._changed()
 
     def write_coils(self, address: int, bits: list[bool]) -> None:
+        """Lamp and shutter coils (refused with exception 6 while homing, like every write)."""
+        self.update()
+        if self.homing():
+            raise ModbusRefusal(P.ModbusException.DEVICE_BUSY, "homing in progress")
         for i, b in enumerate(bits):
             addr = address + i
             if addr == P.COIL_LAMP:

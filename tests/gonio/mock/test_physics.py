@@ -1,0 +1,155 @@
+"""Counts follow the forward model; noise is keyed by the state, not by call count."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gonio import protocol as P
+from gonio.mock import MockInstrument, reference_beta
+from gonio.mock import physics
+from gonio.mock.samples import RedCottonSample, make_sample, SampleError
+
+
+def expected_mean_and_sd(wavelength_nm, itime_ms, gain_step, f, theta_o_deg, shutter=True):
+    g = 4 ** gain_step
+    signal = physics.K_counts_per_ms(wavelength_nm) * itime_ms * g * f * math.cos(math.radians(theta_o_deg)) \
+        if shutter else 0.0
+    dark_current = physics.DARK_RATE_COUNTS_PER_MS * itime_ms * g
+    mean = physics.DARK_OFFSET_COUNTS + dark_current + signal
+    var = g * (signal + dark_current) + physics.READ_NOISE_COUNTS ** 2 + 1.0 / 12.0   # + ADC rounding
+    return float(mean), math.sqrt(var)
+
+
+@pytest.mark.parametrize("wavelength, itime, gain, slot, f", [
+    (550.0, 20, 0, 0, 0.5), (420.0, 5, 2, 0, 0.5), (650.0, 20, 0, 1, 0.99),
+])
+def test_mean_of_many_readings_matches_forward_model(mock, mb, head, tools, wavelength, itime, gain, slot, f):
+    tools.prepare(mb)                                   # home: incidence 0, detector +45 deg
+    mb.write_one(P.HR_SAMPLE_SLOT, slot)
+    head.ask(f"WAVE {wavelength}", "ok")
+    head.ask(f"ITIME {itime}", "ok")
+    head.ask(f"GAIN {gain}", "ok")
+    n = 1000
+    r = head.ask(f"READ? {n}", "reading")
+    mean, sd = expected_mean_and_sd(wavelength, itime, gain, f, 45.0)
+    assert r.flags == 0 and r.n == n
+    se = sd / math.sqrt(n)
+    assert abs(r.mean_counts - mean) < 4 * se, (r.mean_counts, mean, se)
+    se_sd = sd / math.sqrt(2 * (n - 1))
+    assert abs(r.std_counts - sd) < 4 * se_sd, (r.std_counts, sd)
+
+
+def test_dark_when_shutter_closed_and_coil_is_the_same_shutter(mock, mb, head, tools):
+    tools.prepare(mb, shutter=False)
+    assert head.ask("SHUTTER?", "word") == "CLOSED"
+    head.ask("ITIME 200", "ok")
+    r = head.ask("READ? 400", "reading")
+    mean, sd = expected_mean_and_sd(550.0, 200, 0, 0.5, 45.0, shutter=False)
+    assert abs(r.mean_counts - mean) < 4 * sd / math.sqrt(400)
+    mb.write_coils(P.COIL_SHUTTER, [True])
+    assert head.ask("SHUTTER?", "word") == "OPEN"
+    assert head.ask("READ? 10", "reading").mean_counts > mean + 1000
+
+
+def test_geometry_comes_from_the_axes(mock, mb, head, tools):
+    """Moving the detector changes the counts by cos(theta_o) for a Lambertian sample."""
+    tools.prepare(mb)
+    mb.move(0, 30000)
+    mb.move(1, 70000)
+    mb.wait_idle()
+    head.ask("ITIME 50", "ok")
+    r = head.ask("READ? 1000", "reading")
+    mean, sd = expected_mean_and_sd(550.0, 50, 0, 0.5, 70.0)
+    assert abs(r.mean_counts - mean) < 4 * sd / math.sqrt(1000)
+
+
+def test_white_reference_and_samples_truth():
+    assert np.all(reference_beta([400.0, 700.0]) == 0.99)
+    s = make_sample("lambert:0.25")
+    assert s.beta(np.zeros(3), 0, [10, 20, 30], 180, 500).tolist() == [0.25] * 3
+    with pytest.raises(SampleError):
+        make_sample("no-such-sample")
+    with pytest.raises(SampleError):
+        make_sample("lambert:2")
+
+
+def test_red_cotton_is_red_reciprocal_and_has_lobes():
+    rc = RedCottonSample()
+    wl = np.arange(400.0, 701.0, 10.0)
+    b = rc.beta(30.0, 0.0, 20.0, 0.0, wl)            # off-specular, source side
+    assert b[wl >= 650].mean() > 4 * b[wl <= 550].mean()          # red
+    assert np.all(b > 0) and np.all(np.isfinite(b))
+    rng = np.random.default_rng(1)
+    ti, to = rng.uniform(0, 85, 200), rng.uniform(0, 85, 200)
+    pi_, po = rng.uniform(0, 360, 200), rng.uniform(0, 360, 200)
+    np.testing.assert_allclose(rc.beta(ti, pi_, to, po, 550.0), rc.beta(to, po, ti, pi_, 550.0), rtol=1e-12)
+    # a specular lobe on the mirror side and a retro peak on the source side, at 450 nm
+    mirror, off = rc.beta(40.0, 0.0, 40.0, 180.0, 450.0), rc.beta(40.0, 0.0, 10.0, 180.0, 450.0)
+    assert mirror > 2 * off
+    retro, near = rc.beta(40.0, 0.0, 40.0, 0.0, 450.0), rc.beta(40.0, 0.0, 20.0, 0.0, 450.0)
+    assert retro > near
+    # anisotropic: warp and weft differ
+    assert rc.beta(40.0, 0.0, 40.0, 210.0, 450.0) != pytest.approx(rc.beta(40.0, 90.0, 40.0, 300.0, 450.0), rel=1e-3)
+
+
+def test_noise_reproducible_across_instances(tools):
+    """Same state + same repetition -> same numbers; an interrupted-then-resumed session matches."""
+
+    def session(points, mock_seed=11):
+        out = []
+        with MockInstrument(sample="red-cotton", modbus="tcp", serial="socket", seed=mock_seed) as m:
+            mb, head = tools.UmbClient(m.modbus_url), tools.HeadClient(m.serial_url)
+            tools.prepare(mb)
+            for src, det, wl in points:
+                mb.move(0, src)
+                mb.move(1, det)
+                mb.wait_idle()
+                head.ask(f"WAVE {wl}", "ok")
+                out.append((head.raw("READ? 4"), head.raw("READ? 4")))
+            mb.close()
+            head.close()
+        return out
+
+    pts = [(10000, 30000, 500.0), (20000, -50000, 650.0), (40000, 60000, 430.0)]
+    full = session(pts)
+    resumed = session(pts[2:])
+    assert full[2] == resumed[0]
+    assert full[0][0] != full[0][1]                     # repetition advances the stream
+    assert session(pts[:1], mock_seed=12)[0] != full[0]  # the seed matters
+
+
+def test_state_change_restarts_repetition(mock, mb, head, tools):
+    tools.prepare(mb)
+    first = head.raw("READ? 3")
+    second = head.raw("READ? 3")
+    assert first != second
+    head.ask("WAVE 550.0", "ok")                         # same value, but a state-changing command
+    assert head.raw("READ? 3") == first
+    head.ask("ITIME 100", "ok")
+    assert head.raw("READ? 3") == first
+
+
+def test_dataset_sample_interpolates_and_refuses_outside(tmp_path, tools):
+    from gonio.dataset import make_dataset, new_meta, write_dataset
+
+    rows = []
+    for ti in (0.0, 30.0):
+        for s in (-60.0, -30.0, 10.0, 30.0, 60.0):
+            for wl in (500.0, 600.0):
+                rows.append(dict(theta_i=ti, phi_i=0.0, theta_o=abs(s), phi_o=180.0 if s >= 0 else 0.0,
+                                 wavelength_nm=wl, beta=0.3 if wl == 500 else 0.5, u_beta=0.01, n=10))
+    import pandas as pd
+
+    ds = make_dataset(pd.DataFrame(rows), new_meta("measured", {"name": "tiny"}))
+    write_dataset(ds, tmp_path / "tiny")
+    with MockInstrument(sample=str(tmp_path / "tiny"), modbus="tcp", serial="socket") as m:
+        assert m.sample.beta(0.0, 0.0, 30.0, 180.0, 550.0) == pytest.approx(0.4)
+        mb, head = tools.UmbClient(m.modbus_url), tools.HeadClient(m.serial_url)
+        tools.prepare(mb)                                # 0/45: inside the data
+        head.ask("WAVE 550", "ok")
+        assert head.ask("READ? 2", "reading").flags == 0
+        head.ask("WAVE 700", "ok")                       # outside the data's wavelengths
+        assert head.raw("READ? 2") == b"ERR 102,Parameter out of range\r\n"
+        mb.close()
+        head.close()
