@@ -3,7 +3,7 @@ r"""Colour match of measured and simulated spectra at one geometry (PHYSICS.md s
 Colour is computed by :func:`gonio.colour.spectrum_colour` (CIE 1931 2-degree observer,
 illuminant D65 unless set, LINEAR sRGB, HSV and the ratios BLUE/RED and GREEN/RED), at the
 geometry closest to normal incidence and normal observation that the measured dataset and every
-simulation share: the smallest ``theta_i + theta_o``, ties broken by smaller ``theta_i``, then
+simulation share (exactly, not by interpolation, when there is such a geometry): the smallest ``theta_i + theta_o``, ties broken by smaller ``theta_i``, then
 ``phi_i``, then ``phi_o``. Differences are simulated minus measured: ``dh`` on the hue circle
 (:func:`gonio.colour.hue_difference`, in [-0.5, 0.5)), ``ds``, ``dv``.
 
@@ -80,15 +80,25 @@ def luminance_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
 def colour_geometry(frames: Mapping[str, pd.DataFrame]) -> dict:
     """The geometry (dict of the four angles and ``s``) closest to normal/normal in every frame.
 
+    Geometries a simulation actually holds are preferred; interpolated ones are used only when
+    the datasets share no geometry exactly.
+
     Raises
     ------
     CompareError
         When the frames share no geometry.
     """
-    common = None
-    for frame in frames.values():
-        keys = frame[list(GEOMETRY)].round(6).drop_duplicates()
-        common = keys if common is None else common.merge(keys, how="inner")
+    def shared(exact_only: bool):
+        common = None
+        for frame in frames.values():
+            rows = frame[~frame["interpolated"].to_numpy()] if exact_only else frame
+            keys = rows[list(GEOMETRY)].round(6).drop_duplicates()
+            common = keys if common is None else common.merge(keys, how="inner")
+        return common
+
+    common = shared(exact_only=True)
+    if common is None or common.empty:
+        common = shared(exact_only=False)
     if common is None or common.empty:
         raise CompareError("the simulated datasets share no geometry with each other and the "
                            "measured dataset, so no colour can be compared at one geometry")
