@@ -160,9 +160,10 @@ class PhotometerHead:
         self.identity: protocol.Identity | None = None
 
     # --- low level ------------------------------------------------------------------------
-    def _exchange_once(self, cmd: protocol.HeadCommand, value):
+    def _exchange_once(self, cmd: protocol.HeadCommand, value, timeout_s: float | None = None):
         line = cmd.format(value)
-        raw = self.transport.exchange(line)
+        raw = (self.transport.exchange(line) if timeout_s is None
+               else self.transport.exchange(line, timeout_s=timeout_s))
         chk = self.chk or (cmd.key == "CHK" and value == "ON")
         if cmd.key == "CHK" and value == "OFF":
             chk = False
@@ -195,7 +196,9 @@ class PhotometerHead:
             except protocol.ProtocolError as exc:
                 last = exc
                 self.retry.count(_FRAMING_KIND.get(type(exc), "serial_garbled"))
-                self._resync()
+                # silence or a reply without its checksum may mean the head's link was reset
+                # (checksum mode off): resynchronise and restore the checksum mode
+                self._resync(restore=isinstance(exc, (protocol.NoResponse, protocol.ChecksumError)))
             except LinkLost as exc:
                 last = exc
                 self.retry.count("link_lost")
@@ -204,14 +207,26 @@ class PhotometerHead:
         raise DeviceError(self.name, what, f"no valid response after {self.retry.attempts} "
                                            f"attempts (last: {last})", transient=True)
 
-    def _resync(self) -> None:
-        """After a bad line, drop anything late still on the wire."""
+    def _resync(self, restore: bool = False) -> None:
+        """After a bad line, drop anything late still on the wire (and restore CHK ON)."""
         drain = getattr(self.transport, "drain", None)
         if drain is not None:
             try:
                 drain()
             except LinkLost:
                 self._reconnect()
+                return
+        if restore:
+            self._restore_checksum()
+
+    def _restore_checksum(self) -> None:
+        if not self.want_checksum:
+            return
+        try:
+            self._exchange_once(protocol.HEAD_COMMANDS["CHK"], "ON")
+            self.chk = True
+        except (protocol.ProtocolError, LinkLost) as exc:
+            log.info("photometer head: CHK ON while resynchronising failed: %s", exc)
 
     def _reconnect(self) -> None:
         try:
@@ -220,13 +235,7 @@ class PhotometerHead:
             log.warning("photometer head: reconnect failed: %s", exc)
             return
         # a new connection may be a fresh session of the head: restore the checksum mode
-        if self.want_checksum:
-            self.chk = False
-            try:
-                self._exchange_once(protocol.HEAD_COMMANDS["CHK"], "ON")
-                self.chk = True
-            except (protocol.ProtocolError, LinkLost) as exc:
-                log.warning("photometer head: CHK ON after reconnect failed: %s", exc)
+        self._restore_checksum()
 
     # --- behaviour ------------------------------------------------------------------------
     def connect(self) -> protocol.Identity:
@@ -277,6 +286,9 @@ class PhotometerHead:
         raise :class:`DeviceError`.
         """
         what = f"measure {wavelength_nm:g} nm, {itime_ms} ms, gain {gain}, n {n}"
+        # a READ? takes n integration times: allow for it (at real speed) beyond the link timeout
+        base = getattr(self.transport, "timeout_s", 1.0)
+        read_timeout = base + 1.2 * n * itime_ms / 1000.0
 
         def unit():
             if shutter_open is not None:
@@ -288,7 +300,8 @@ class PhotometerHead:
             got = []
             for _ in range(repetitions):
                 try:
-                    r = self._exchange_once(protocol.HEAD_COMMANDS["READ?"], int(n))
+                    r = self._exchange_once(protocol.HEAD_COMMANDS["READ?"], int(n),
+                                            timeout_s=read_timeout)
                 except protocol.DetectorOverloadError:
                     return Measurement(math.nan, math.nan, int(n), saturated=True)
                 if r.lamp_unstable:

@@ -45,7 +45,7 @@ Plan TOML schema
 
     [acquisition]                       # optional, defaults shown
     itime_ms = 100                      # integration time (whole ms) every point starts from
-    gain = 3                            # gain step every point starts from (0..3 = x1, x4, x16, x64)
+    gain = 0                            # gain step every point starts from (0..3 = x1, x4, x16, x64)
     min_itime_ms = 1                    # auto-ranging floor
     readings = 8                        # n of READ? n
     repetitions = 1                     # READ? calls pooled per point
@@ -100,7 +100,7 @@ class AcquisitionSettings:
     """Integration time / gain policy and timing of one plan (see the module docstring)."""
 
     itime_ms: int = 100
-    gain: int = 3
+    gain: int = 0
     min_itime_ms: int = 1
     readings: int = 8
     repetitions: int = 1

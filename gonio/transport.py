@@ -182,8 +182,11 @@ class SerialTransport:
             self.close()
             raise LinkLost(self.channel, f"{self.url}: {exc}") from None
 
-    def exchange(self, line: bytes) -> bytes:
-        """Send one command line, return the raw response (``b""`` when nothing came back)."""
+    def exchange(self, line: bytes, timeout_s: float | None = None) -> bytes:
+        """Send one command line, return the raw response (``b""`` when nothing came back).
+
+        ``timeout_s`` overrides the link's timeout for this command (e.g. a long ``READ?``).
+        """
         self.open()
         port = self._port
         assert port is not None
@@ -193,7 +196,7 @@ class SerialTransport:
                 self._buf.clear()
                 log.debug("serial: discarding stale input %r", stale)
             port.write(line)
-            deadline = time.monotonic() + self.timeout_s
+            deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
             while True:
                 k = self._buf.find(protocol.LINE_TERMINATOR)
                 if k >= 0:

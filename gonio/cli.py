@@ -1,0 +1,331 @@
+"""The ``gonio`` console script: mock, acquire, replay, check-plan, demo.
+
+Exit status
+-----------
+``acquire``, ``demo``: 0 complete; 1 stopped safely by an instrument fault that retries did not
+clear (measured points kept; continue with ``--resume``); 2 usage or input error (plan, URL,
+journal of another plan, unreachable device); 130 interrupted by SIGINT/SIGTERM (measured points
+kept, shutter closed, drives stopped).
+``replay``: 0 the transcript was reproduced and the recorded run was complete; 1 the driver's
+requests differ from the transcript (the message names the request index and the difference),
+or the recorded run itself stopped; 2 usage or input error.
+``check-plan``: 0 every point is measurable (or only expected beam-block points, with
+``skip_blocked = true``); 1 some points are out of the soft limits or unexpectedly in the
+beam-block zone (all listed); 2 invalid plan.
+``mock``: see ``gonio mock --help``.
+
+A user error prints one line on stderr (``gonio <command>: ...``), never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime as _dt
+import json
+import logging
+import signal
+import sys
+import time
+from pathlib import Path
+
+from gonio.calibration import CalibrationError
+from gonio.dataset import DatasetError
+from gonio.devices import MotionController, PhotometerHead, RetryPolicy
+from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_STOPPED, EXIT_USAGE, AcquisitionError,
+                          Engine, Interrupted, RunResult)
+from gonio.journal import JournalError
+from gonio.plan import Plan, PlanError, load_plan, preset_names
+from gonio.record import (RecordingTransport, ReplayMismatch, ReplayTransport, TranscriptError,
+                          TranscriptWriter, load_transcript)
+from gonio.transport import LinkLost, ModbusTransport, SerialTransport, parse_modbus_url
+
+__all__ = ["main", "run_session"]
+
+log = logging.getLogger("gonio")
+
+_USER_ERRORS = (PlanError, CalibrationError, JournalError, AcquisitionError, TranscriptError,
+                DatasetError)
+
+
+class _UsageError(Exception):
+    """A command-line problem reported as one line, exit 2."""
+
+
+def _setup_logging(verbose: bool) -> None:
+    root = logging.getLogger()
+    if not root.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("gonio: %(message)s"))
+        root.addHandler(handler)
+    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+    # pymodbus logs every missing answer at ERROR; the driver counts and reports them itself
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
+def _software() -> dict:
+    import gonio
+    return {"gonio": gonio.__version__}
+
+
+def run_session(plan: Plan, modbus, serial_link, out: Path, *, resume: bool = False,
+                seed: int | None = None, record: Path | None = None, progress: bool | None = None,
+                retry: RetryPolicy | None = None, created: str | None = None,
+                clock=time.time) -> RunResult:
+    """Run one acquisition on two transports (live, recording or replaying).
+
+    With ``record`` the transports are wrapped in :class:`gonio.record.RecordingTransport`
+    writing to that file. SIGTERM stops the run like Ctrl-C (exit status 130).
+    """
+    writer = None
+    if record is not None:
+        created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        writer = TranscriptWriter(record, {"created": created, "seed": seed,
+                                           "modbus": modbus.url, "serial": serial_link.url,
+                                           "plan": plan.name, "plan_sha256": plan.sha256,
+                                           "software": _software()})
+        modbus = RecordingTransport(modbus, writer)
+        serial_link = RecordingTransport(serial_link, writer)
+    retry = retry or RetryPolicy()
+    head = PhotometerHead(serial_link, retry)
+    motion = MotionController(modbus, retry, poll_s=0.001 if retry.sleep is time.sleep else 0.0)
+    engine = Engine(plan, head, motion, retry, out, resume=resume, seed=seed,
+                    links={"modbus": modbus.url, "serial": serial_link.url}, progress=progress,
+                    created=created, clock=clock)
+    previous = None
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+    except ValueError:      # not the main thread
+        previous = None
+    try:
+        return engine.run()
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+        if writer is not None:
+            writer.close()
+        for link in (modbus, serial_link):
+            with contextlib.suppress(Exception):
+                link.close()
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(f"signal {signum}")
+
+
+def _open_links(args) -> tuple[ModbusTransport, SerialTransport]:
+    try:
+        parse_modbus_url(args.modbus)
+    except ValueError as exc:
+        raise _UsageError(f"--modbus {exc}") from None
+    modbus = ModbusTransport(args.modbus, timeout_s=args.timeout)
+    serial_link = SerialTransport(args.serial, timeout_s=args.timeout)
+    for link, opt in ((modbus, "--modbus"), (serial_link, "--serial")):
+        try:
+            link.open()
+        except LinkLost as exc:
+            raise _UsageError(f"{opt}: cannot reach the device: {exc} (is it on and is the URL "
+                              "right? `gonio mock` starts a mock)") from None
+    return modbus, serial_link
+
+
+def _finish(result: RunResult, command: str) -> int:
+    retries = ", ".join(f"{k} {v}" for k, v in result.retries.items()) or "none"
+    where = f"; dataset: {result.dataset_path}" if result.dataset_path else "; no dataset (nothing measured)"
+    if result.status == "complete":
+        print(f"gonio {command}: complete, {result.points_measured}/{result.points_total} points"
+              f"{where} (retries: {retries})")
+    else:
+        print(f"gonio {command}: {result.message}; {result.points_measured}/"
+              f"{result.points_total} points kept{where}", file=sys.stderr)
+    return result.exit_code
+
+
+def _cmd_acquire(args) -> int:
+    plan = load_plan(args.plan)
+    modbus, serial_link = _open_links(args)
+    result = run_session(plan, modbus, serial_link, Path(args.out), resume=args.resume,
+                         seed=args.seed, record=Path(args.record) if args.record else None,
+                         progress=False if args.no_progress else None)
+    return _finish(result, "acquire")
+
+
+def _cmd_replay(args) -> int:
+    transcript = load_transcript(args.transcript)
+    plan = load_plan(args.plan)
+    if transcript.header.get("plan_sha256") not in (None, plan.sha256):
+        log.warning("the transcript was recorded with plan '%s' (another file); expect a mismatch",
+                    transcript.header.get("plan"))
+    out = Path(args.out)
+    modbus = ReplayTransport(transcript, "modbus")
+    serial_link = ReplayTransport(transcript, "serial")
+    retry = RetryPolicy(sleep=lambda s: None)
+    clock = _ReplayClock(transcript.header.get("created"))
+    try:
+        result = run_session(plan, modbus, serial_link, out, seed=transcript.header.get("seed"),
+                             progress=False, retry=retry, created=transcript.header.get("created"),
+                             clock=clock)
+        transcript.finish()
+    except ReplayMismatch as exc:
+        print(f"gonio replay: {exc}", file=sys.stderr)
+        return 1
+    code = _finish(result, "replay")
+    return EXIT_OK if code == EXIT_OK else 1
+
+
+class _ReplayClock:
+    """Wall clock of a replay: the recording's start, so journals carry no replay-time stamps."""
+
+    def __init__(self, created: str | None):
+        try:
+            self.t = _dt.datetime.fromisoformat(created).timestamp() if created else 0.0
+        except ValueError:
+            self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _cmd_check_plan(args) -> int:
+    plan = load_plan(args.plan)
+    chk = plan.check()
+    n_wl = len(plan.wavelengths_nm)
+    print(f"plan {plan.name} ({plan.path}): {len(plan.points())} geometries x {n_wl} wavelengths")
+    print(f"measurable: {len(chk.ordered)} geometries ({len(chk.ordered) * n_wl} measurements), "
+          f"ordered by rotation, incidence, detector plane, serpentine over the detector angle")
+    if chk.blocked:
+        tag = "expected, skipped" if plan.skip_blocked else "REFUSED"
+        print(f"beam-block zone ({tag}): {len(chk.blocked)} geometries never sent to the controller")
+        for p in chk.blocked:
+            print(f"  theta_i={p.theta_i:g} phi_i={p.phi_i:g} theta_o={p.theta_o:g} phi_o={p.phi_o:g}"
+                  f"  (axes {', '.join(f'{a:g}' for a in p.axes_deg)})")
+    if chk.out_of_limits:
+        print(f"out of the soft limits (REFUSED): {len(chk.out_of_limits)} geometries")
+        for p, why in chk.out_of_limits:
+            print(f"  theta_i={p.theta_i:g} phi_i={p.phi_i:g} theta_o={p.theta_o:g} "
+                  f"phi_o={p.phi_o:g}: {why}")
+    est = chk.estimated_s
+    print(f"estimated duration at real speed: {est / 60:.1f} min ({est:.0f} s)")
+    if args.list:
+        for k, p in enumerate(chk.ordered):
+            print(f"  {k:4d}  axes {', '.join(f'{a:g}' for a in p.axes_deg)}")
+    if chk.ok:
+        print("ok")
+        return EXIT_OK
+    print("not ok: some points cannot be measured (listed above)")
+    return 1
+
+
+def _cmd_demo(args) -> int:
+    from gonio.mock import MockInstrument
+
+    out = Path(args.out)
+    for name in ("journal.jsonl", "radiance.csv", "meta.json"):
+        if (out / name).exists():
+            log.info("demo: replacing the previous demo's %s in %s", name, out)
+            (out / name).unlink()
+    plan = load_plan(args.plan)
+    t0 = time.monotonic()
+    with MockInstrument(sample="red-cotton", modbus="tcp", serial="pty", speed="fast",
+                        seed=args.seed) as mock:
+        args.modbus, args.serial = mock.modbus_url, mock.serial_url
+        modbus, serial_link = _open_links(args)
+        result = run_session(plan, modbus, serial_link, out, seed=args.seed,
+                             progress=False if args.no_progress else None)
+    code = _finish(result, "demo")
+    if code == EXIT_OK:
+        print(f"gonio demo: measured red-cotton with the embedded mock in "
+              f"{time.monotonic() - t0:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
+    return code
+
+
+def _cmd_bench(args) -> int:
+    """Driver overhead: live runs against the fast mock versus the device's own time."""
+    from gonio.driver_bench import run_bench
+
+    print(json.dumps(run_bench(args.plan, repeats=args.repeats, out=args.out), indent=2))
+    return EXIT_OK
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="gonio", description="Goniophotometer driver, mock devices and acquisition.",
+        epilog="Exit status: 0 success, 1 failed check / safe stop / replay mismatch, "
+               "2 usage or input error, 130 interrupted. Plans: a TOML file or a preset name ("
+               + ", ".join(preset_names()) + ").")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.add_parser("mock", help="serve mock devices (see `gonio mock --help`)", add_help=False)
+
+    def common(sp):
+        sp.add_argument("--timeout", type=float, default=1.0, metavar="S",
+                        help="link timeout in seconds (default 1.0; a READ? also gets its "
+                             "integration time)")
+        sp.add_argument("--no-progress", action="store_true", help="log lines instead of a progress bar")
+        sp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+
+    a = sub.add_parser("acquire", help="measure a plan",
+                       description="Home, calibrate (dark + white standard), measure every point "
+                                   "of PLAN, journal each point, write the dataset in --out.")
+    a.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name")
+    a.add_argument("--modbus", required=True, metavar="URL", help="tcp://HOST:PORT or rtu://DEVICE")
+    a.add_argument("--serial", required=True, metavar="URL", help="device path, pty or socket://HOST:PORT")
+    a.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory")
+    a.add_argument("--resume", action="store_true", help="continue the run journaled in RUN_DIR")
+    a.add_argument("--record", metavar="FILE.jsonl", help="record every request/response")
+    a.add_argument("--seed", type=int, default=None, help="the mock's seed, recorded in the meta")
+    common(a)
+
+    r = sub.add_parser("replay", help="run the driver against a recorded transcript")
+    r.add_argument("transcript", metavar="TRANSCRIPT")
+    r.add_argument("plan", metavar="PLAN")
+    r.add_argument("--out", required=True, metavar="RUN_DIR")
+    r.add_argument("-v", "--verbose", action="store_true")
+
+    c = sub.add_parser("check-plan", help="validate a plan: limits, beam-block zone, duration")
+    c.add_argument("plan", metavar="PLAN")
+    c.add_argument("--list", action="store_true", help="list the points in motion order")
+    c.add_argument("-v", "--verbose", action="store_true")
+
+    d = sub.add_parser("demo", help="embedded mock (red cotton) + the red-cotton plan")
+    d.add_argument("--out", default="gonio-demo", metavar="DIR", help="default ./gonio-demo")
+    d.add_argument("--plan", default="red-cotton", help=argparse.SUPPRESS)
+    d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    common(d)
+
+    b = sub.add_parser("bench-driver", help=argparse.SUPPRESS)
+    b.add_argument("--plan", default="quick")
+    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--out", default=None)
+    b.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``gonio`` console script; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "mock":
+        from gonio.mock.cli import main as mock_main
+        return mock_main(argv[1:])
+    parser = _parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USAGE
+    _setup_logging(getattr(args, "verbose", False))
+    handlers = {"acquire": _cmd_acquire, "replay": _cmd_replay, "check-plan": _cmd_check_plan,
+                "demo": _cmd_demo, "bench-driver": _cmd_bench}
+    try:
+        return handlers[args.command](args)
+    except (_UsageError, *_USER_ERRORS) as exc:
+        print(f"gonio {args.command}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"gonio {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,260 @@
+"""Recording and replay of the instrument links (JSON Lines transcripts).
+
+A transcript is a JSON Lines file. The first line is a header::
+
+    {"type": "header", "format": "gonio-transcript/1", "created": ISO-8601, "seed": N|null,
+     "modbus": URL, "serial": URL, "plan": name, "plan_sha256": hex, "software": {...}}
+
+then one line per message, in the order they crossed the links::
+
+    {"i": k, "t": seconds since the start, "ch": "serial"|"modbus", "dir": "tx"|"rx", "payload": ...}
+
+Every request (``tx``) is followed by its response (``rx``). Serial payloads are the raw line
+bytes as a string (bytes 0..255 mapped one-to-one to code points, i.e. latin-1), so garbled,
+truncated and empty (timeout) answers are kept exactly; Modbus payloads are the request dict of
+:class:`gonio.transport.ModbusTransport` and its response dict. Link events are requests too:
+``{"op": "reconnect"}`` and ``{"op": "drain"}`` (serial resynchronisation after a bad line).
+Failures are responses: ``{"error": "timeout"|"link_lost", "message": ...}`` and
+``{"exception": CODE}`` (a Modbus exception).
+
+:class:`RecordingTransport` wraps a live transport and writes the transcript;
+:class:`ReplayTransport` stands in for a transport and answers each request with the recorded
+response, raising :class:`ReplayMismatch` (request index, expected, got) at the first request
+that differs. Replay never sleeps and never depends on timing: the driver's decisions depend on
+responses only, so the same driver reproduces the same requests.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from gonio.transport import LinkLost, LinkTimeout, ModbusExceptionResponse, TransportError
+
+__all__ = ["TRANSCRIPT_FORMAT", "TranscriptError", "ReplayMismatch", "TranscriptWriter",
+           "RecordingTransport", "Transcript", "ReplayTransport", "load_transcript"]
+
+TRANSCRIPT_FORMAT = "gonio-transcript/1"
+
+
+class TranscriptError(ValueError):
+    """The transcript file is missing or invalid (message names the file and line)."""
+
+
+class ReplayMismatch(Exception):
+    """The driver sent a request that differs from the transcript's (first difference only)."""
+
+    def __init__(self, index: int, channel: str, expected: Any, got: Any, line: int | None = None):
+        self.index, self.channel, self.expected, self.got = index, channel, expected, got
+        where = f"request {index}" + (f" (transcript line {line})" if line else "")
+        super().__init__(f"replay: {where} differs: expected {channel_or(expected)} "
+                         f"{_show(expected)}, the driver sent {channel} {_show(got)}")
+
+
+def channel_or(expected: Any) -> str:
+    if isinstance(expected, dict) and "ch" in expected:
+        return expected["ch"]
+    return ""
+
+
+def _show(v: Any) -> str:
+    if isinstance(v, dict) and "payload" in v:
+        v = v["payload"]
+    s = json.dumps(v) if not isinstance(v, str) else repr(v)
+    return s if len(s) <= 200 else s[:200] + "..."
+
+
+def _encode(channel: str, payload: Any) -> Any:
+    if isinstance(payload, (bytes, bytearray)):
+        return bytes(payload).decode("latin-1")
+    return payload
+
+
+def _error_payload(exc: TransportError) -> dict:
+    if isinstance(exc, ModbusExceptionResponse):
+        return {"exception": exc.code}
+    if isinstance(exc, LinkTimeout):
+        return {"error": "timeout", "message": str(exc)}
+    return {"error": "link_lost", "message": str(exc)}
+
+
+class TranscriptWriter:
+    """Append transcript lines (flushed per line, so a killed run leaves a usable prefix)."""
+
+    def __init__(self, path: str | os.PathLike, header: dict):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.path, "w", encoding="utf-8")
+        self._t0 = time.monotonic()
+        self._i = 0
+        self._fh.write(json.dumps({"type": "header", "format": TRANSCRIPT_FORMAT, **header}) + "\n")
+        self._fh.flush()
+
+    def write(self, channel: str, direction: str, payload: Any) -> None:
+        """One message line."""
+        rec = {"i": self._i, "t": round(time.monotonic() - self._t0, 6), "ch": channel,
+               "dir": direction, "payload": payload}
+        self._fh.write(json.dumps(rec, separators=(",", ":")) + "\n")
+        self._fh.flush()
+        self._i += 1
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.close()
+
+
+class RecordingTransport:
+    """Wrap a transport; record every request and response (same interface as the transport)."""
+
+    def __init__(self, inner, writer: TranscriptWriter):
+        self.inner = inner
+        self.writer = writer
+        self.channel = inner.channel
+        self.url = getattr(inner, "url", "")
+        self.timeout_s = getattr(inner, "timeout_s", 1.0)
+
+    def _do(self, request_payload: Any, call):
+        self.writer.write(self.channel, "tx", request_payload)
+        try:
+            result = call()
+        except TransportError as exc:
+            self.writer.write(self.channel, "rx", _error_payload(exc))
+            raise
+        return result
+
+    def exchange(self, request, **kw):
+        out = self._do(_encode(self.channel, request), lambda: self.inner.exchange(request, **kw))
+        self.writer.write(self.channel, "rx", _encode(self.channel, out))
+        return out
+
+    def reconnect(self) -> None:
+        self._do({"op": "reconnect"}, self.inner.reconnect)
+        self.writer.write(self.channel, "rx", {"ok": True})
+
+    def drain(self) -> bytes:
+        out = self._do({"op": "drain"}, self.inner.drain)
+        self.writer.write(self.channel, "rx", {"dropped": _encode(self.channel, out)})
+        return out
+
+    def open(self) -> None:
+        self.inner.open()
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+class Transcript:
+    """A loaded transcript with one replay cursor shared by both channels."""
+
+    def __init__(self, header: dict, messages: list[dict], name: str):
+        self.header, self.messages, self.name = header, messages, name
+        self.pos = 0
+        self.requests = 0
+        self.mismatch: ReplayMismatch | None = None
+
+    def _fail(self, exc: ReplayMismatch):
+        if self.mismatch is None:
+            self.mismatch = exc
+        raise self.mismatch
+
+    def answer(self, channel: str, payload: Any) -> Any:
+        """The recorded response to ``payload`` on ``channel``; :class:`ReplayMismatch` if it differs."""
+        if self.mismatch is not None:
+            raise self.mismatch
+        index = self.requests
+        self.requests += 1
+        if self.pos >= len(self.messages):
+            self._fail(ReplayMismatch(index, channel, "<end of transcript>", payload))
+        tx = self.messages[self.pos]
+        if tx["dir"] != "tx" or tx["ch"] != channel or tx["payload"] != payload:
+            self._fail(ReplayMismatch(index, channel, tx, payload, line=self.pos + 2))
+        if self.pos + 1 >= len(self.messages) or self.messages[self.pos + 1]["dir"] != "rx":
+            self._fail(ReplayMismatch(index, channel, "<a response; the transcript ends>", payload))
+        rx = self.messages[self.pos + 1]
+        self.pos += 2
+        return rx["payload"]
+
+    def finish(self) -> None:
+        """Raise :class:`ReplayMismatch` if the driver stopped before the transcript's end."""
+        if self.mismatch is not None:
+            raise self.mismatch
+        if self.pos < len(self.messages):
+            tx = self.messages[self.pos]
+            self._fail(ReplayMismatch(self.requests, tx.get("ch", "?"), tx, "<no further request>",
+                                      line=self.pos + 2))
+
+
+def load_transcript(path: str | os.PathLike) -> Transcript:
+    """Read and validate a transcript file; raises :class:`TranscriptError`."""
+    p = Path(path)
+    try:
+        lines = p.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TranscriptError(f"{p}: cannot read the transcript ({exc})") from None
+    if not lines:
+        raise TranscriptError(f"{p}: empty file, not a transcript")
+    try:
+        header = json.loads(lines[0])
+    except (ValueError, RecursionError):
+        raise TranscriptError(f"{p}: line 1: not a transcript header") from None
+    if not isinstance(header, dict) or header.get("format") != TRANSCRIPT_FORMAT:
+        raise TranscriptError(f"{p}: line 1: not a {TRANSCRIPT_FORMAT} header")
+    messages = []
+    for k, line in enumerate(lines[1:], start=2):
+        try:
+            m = json.loads(line)
+        except (ValueError, RecursionError):
+            if k == len(lines):
+                break   # a torn last line (recording killed): ignore it
+            raise TranscriptError(f"{p}: line {k}: not valid JSON") from None
+        if (not isinstance(m, dict) or m.get("dir") not in ("tx", "rx")
+                or m.get("ch") not in ("serial", "modbus") or "payload" not in m):
+            raise TranscriptError(f"{p}: line {k}: expected a message with ch, dir and payload")
+        messages.append(m)
+    return Transcript(header, messages, str(p))
+
+
+class ReplayTransport:
+    """A transport answering from a :class:`Transcript` (same interface as the live ones)."""
+
+    def __init__(self, transcript: Transcript, channel: str):
+        self.transcript = transcript
+        self.channel = channel
+        self.url = transcript.header.get(channel, f"replay:{channel}")
+
+    def _raise_error(self, resp: Any) -> None:
+        if isinstance(resp, dict):
+            if "exception" in resp:
+                raise ModbusExceptionResponse(self._last_request, int(resp["exception"]))
+            if resp.get("error") == "timeout":
+                raise LinkTimeout(self.channel, resp.get("message", "no response (recorded)"))
+            if resp.get("error") == "link_lost":
+                raise LinkLost(self.channel, resp.get("message", "link lost (recorded)"))
+
+    def exchange(self, request, **kw):
+        self._last_request = request if isinstance(request, dict) else {}
+        resp = self.transcript.answer(self.channel, _encode(self.channel, request))
+        if self.channel == "serial":
+            if isinstance(resp, dict):
+                self._raise_error(resp)
+            return str(resp).encode("latin-1")
+        if isinstance(resp, dict) and ("exception" in resp or "error" in resp):
+            self._raise_error(resp)
+        return resp
+
+    def reconnect(self) -> None:
+        self._raise_error(self.transcript.answer(self.channel, {"op": "reconnect"}))
+
+    def drain(self) -> bytes:
+        resp = self.transcript.answer(self.channel, {"op": "drain"})
+        self._raise_error(resp)
+        return str(resp.get("dropped", "")).encode("latin-1") if isinstance(resp, dict) else b""
+
+    def open(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
