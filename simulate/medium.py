@@ -214,7 +214,8 @@ class MieMedium:
             low = v.min() if isinstance(v, Spectrum) else float(v)
             limit_ok = low > 0 if name == "particle_n" else low >= 0
             if not (limit_ok and np.isfinite(low)):
-                raise ValueError(f"MieMedium: {name} must be finite and {'> 0' if name == 'particle_n' else '>= 0'}")
+                bound = "> 0" if name == "particle_n" else ">= 0"
+                raise ValueError(f"MieMedium: {name} must be finite and {bound}")
         if int(self.phase_table_size) < 2:
             raise ValueError("MieMedium: phase_table_size must be >= 2")
         if self.volume_fraction_value > DEPENDENT_SCATTERING_VOLUME_FRACTION:

@@ -186,7 +186,9 @@ def beckmann_d(cos_h: npt.ArrayLike, m: npt.ArrayLike) -> np.ndarray:
     return np.where(pos, np.exp(log_d), 0.0)
 
 
-def vcavity_g(cos_i: npt.ArrayLike, cos_o: npt.ArrayLike, cos_h: npt.ArrayLike, o_dot_h: npt.ArrayLike) -> np.ndarray:
+def vcavity_g(
+    cos_i: npt.ArrayLike, cos_o: npt.ArrayLike, cos_h: npt.ArrayLike, o_dot_h: npt.ArrayLike
+) -> np.ndarray:
     """V-cavity masking-shadowing ``G = min(1, 2 cos_h cos_o / (o.h), 2 cos_h cos_i / (o.h))``.
 
     Parameters
