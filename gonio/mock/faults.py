@@ -22,7 +22,8 @@ this order: drop, serial_timeout, busy, garbled, truncated, checksum):
 ``garbled``         the command is executed but bytes 0x80..0xFF (never valid ASCII) replace part
                     of the reply; the ``\\r\\n`` terminator is kept.
 ``truncated``       the reply is cut and sent without its terminator.
-``checksum``        the reply carries a wrong ``*HH`` (opportunities only while CHK is ON).
+``checksum``        the reply carries a wrong ``*HH`` (one opportunity per reply sent in checksum
+                    mode that no other fault hit, the reply to ``CHK ON`` included).
 ``drop``            the link drops: no answer; on a socket the client connection is closed, on a
                     pseudo-terminal the head ignores input for a short re-initialisation time.
                     Either way the head's link settings revert (CHK OFF, error queue cleared);
@@ -149,10 +150,13 @@ class FaultInjector:
         """The stream of ``kind`` (for the fault's own details, e.g. which bytes to garble)."""
         return self._rngs[kind]
 
-    def head_fault(self, chk_on: bool) -> str | None:
-        """Decide the fault of one head command line (None = none). Every active kind is drawn."""
-        fired = [k for k in HEAD_FAULT_ORDER
-                 if (k != "checksum" or chk_on) and self.fires(k)]
+    def head_fault(self) -> str | None:
+        """Decide the fault of one head command line (None = none), checksum excepted.
+
+        Every active kind is drawn; the checksum kind is decided after the command ran, for
+        replies sent in checksum mode that no other fault hit.
+        """
+        fired = [k for k in HEAD_FAULT_ORDER if k != "checksum" and self.fires(k)]
         if len(fired) > 1:      # only the first is injected; do not count the others
             for k in fired[1:]:
                 self.stats[k] -= 1

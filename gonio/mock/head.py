@@ -93,7 +93,7 @@ class PhotometerHead:
     def handle_line(self, raw: bytes) -> HeadReply:
         """Interpret one command line (terminator stripped) and build the reply."""
         self.commands += 1
-        fault = self.faults.head_fault(self.chk) if self.faults is not None else None
+        fault = self.faults.head_fault() if self.faults is not None else None
         if fault == "drop":
             log.info("head: %r -> link dropped (injected fault)", raw[:40])
             self.link_reset()
@@ -105,6 +105,8 @@ class PhotometerHead:
             log.info("head: %r -> busy (injected fault)", raw[:40])
             return HeadReply(self._error(103))
         payload, delay, consumed, lamp_fault = self._execute(raw)
+        if fault is None and self.chk and self.faults is not None and self.faults.fires("checksum"):
+            fault = "checksum"
         if fault is None and not lamp_fault:
             self.repetition += consumed
         line = P.format_response(payload, self.chk)
@@ -241,7 +243,8 @@ class PhotometerHead:
 
     def _truncate(self, line: bytes) -> bytes:
         rng = self.faults.rng("truncated")
-        return line[: int(rng.integers(0, len(line) - 2))]
+        body_len = len(line) - len(P.LINE_TERMINATOR)
+        return line[: int(rng.integers(1, max(2, body_len)))]      # at least one byte, never the \r\n
 
     def _bad_checksum(self, line: bytes) -> bytes:
         body = line[:-2]
