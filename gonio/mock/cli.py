@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--faults", default=None, metavar="SPEC",
                    help="comma-separated kind=RATE or kind=@N; kinds: " + ", ".join(FAULT_KINDS))
     p.add_argument("--speed", default="fast", choices=("fast", "real"),
-                   help="fast scales motion and integration times by 0.01 (default: fast)")
+                   help="fast scales motion times by 0.01 and integration times by 0.001 (default: fast)")
     p.add_argument("--seed", default=0, type=int, help="seed of the noise and of the faults (default: 0)")
     p.add_argument("-v", "--verbose", action="store_true", help="log requests and faults on stderr")
     return p

@@ -58,13 +58,15 @@ class PhotometerHead:
     """State and command interpreter of the photometer head."""
 
     def __init__(self, controller: MotionController, sample, seed: int = 0,
-                 faults: FaultInjector | None = None, time_scale: float = 0.01):
+                 faults: FaultInjector | None = None, time_scale: float = 0.01,
+                 integration_scale: float = 0.001):
         self.controller = controller
         self.sample = sample
         self.reference = WhiteReference()
         self.seed = int(seed)
         self.faults = faults
         self.time_scale = float(time_scale)
+        self.integration_scale = float(integration_scale)
         self.wavelength_dnm = DEFAULTS["wavelength_dnm"]
         self.itime_ms = DEFAULTS["itime_ms"]
         self.gain_step = DEFAULTS["gain_step"]
@@ -227,7 +229,7 @@ class PhotometerHead:
             mean, std, n_out, flags = physics.summarise(perturbed)
             flags |= P.FLAG_LAMP_UNSTABLE
             log.info("head: READ? lamp unstable (injected fault)")
-        delay = n * self.itime_ms / 1000.0 * self.time_scale
+        delay = n * self.itime_ms / 1000.0 * self.integration_scale
         return f"{mean:.3f},{std:.3f},{n_out},{flags}", delay, n, lamp_fault
 
     # --- corruptions (faults) -----------------------------------------------------------------

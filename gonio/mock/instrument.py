@@ -28,7 +28,7 @@ import numpy as np
 from gonio import protocol as P
 from gonio.mock.faults import FaultInjector
 from gonio.mock.head import PhotometerHead
-from gonio.mock.motion import SPEED_FACTORS, ModbusFrontend, MotionController
+from gonio.mock.motion import INTEGRATION_FACTORS, SPEED_FACTORS, ModbusFrontend, MotionController
 from gonio.mock.samples import make_sample, reference_beta
 from gonio.mock.servers import PtyBridge, serve_head_pty, serve_head_socket
 
@@ -98,7 +98,7 @@ class MockInstrument:
     modbus : ``"tcp"`` (ephemeral port), ``"tcp://127.0.0.1:PORT"`` or ``"rtu"`` (pty pair).
     serial : ``"pty"``, ``"socket"`` (ephemeral port) or ``"socket://127.0.0.1:PORT"``.
     faults : ``--faults`` SPEC (see :mod:`gonio.mock.faults`) or None.
-    speed : ``"fast"`` (motion and integration times x0.01) or ``"real"``.
+    speed : ``"fast"`` (motion times x0.01, integration times x0.001) or ``"real"``.
     seed : seeds the noise and the fault decisions.
 
     Attributes (after :meth:`start`)
@@ -123,7 +123,7 @@ class MockInstrument:
         self.faults = FaultInjector(faults, self.seed)
         self.controller = MotionController(time_scale=self.time_scale, faults=self.faults)
         self.head = PhotometerHead(self.controller, self.sample, seed=self.seed, faults=self.faults,
-                                   time_scale=self.time_scale)
+                                   time_scale=self.time_scale, integration_scale=INTEGRATION_FACTORS[speed])
         self.frontend = ModbusFrontend(self.controller, self.faults)
         self.modbus_url: str | None = None
         self.serial_url: str | None = None

@@ -28,7 +28,7 @@ from typing import Callable
 from gonio import protocol as P
 from gonio.mock.faults import FaultInjector
 
-__all__ = ["HOMING_TIME_S", "SETTLE_TIME_S", "SPEED_FACTORS", "AxisState", "MotionController",
+__all__ = ["HOMING_TIME_S", "SETTLE_TIME_S", "SPEED_FACTORS", "INTEGRATION_FACTORS", "AxisState", "MotionController",
            "ModbusFrontend", "ModbusRefusal", "DropRequest"]
 
 log = logging.getLogger(__name__)
@@ -37,7 +37,9 @@ HOMING_TIME_S = 1.5
 SETTLE_TIME_S = 0.2
 SETTLE_OVERSHOOT_MDEG = 20
 SPEED_FACTORS = {"fast": 0.01, "real": 1.0}
-"""Multiplier of every motion time (and of the head's integration time) per ``--speed``."""
+"""Multiplier of every motion time (and of the head's link re-initialisation) per ``--speed``."""
+INTEGRATION_FACTORS = {"fast": 0.001, "real": 1.0}
+"""Multiplier of the head's integration time (how long ``READ? n`` takes) per ``--speed``."""
 
 
 class ModbusRefusal(Exception):
