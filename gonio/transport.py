@@ -15,7 +15,8 @@ for a transport because nothing else crosses this interface.
   for writes, and raises :class:`ModbusExceptionResponse` (with the Modbus exception code),
   :class:`LinkTimeout` (no response) or :class:`LinkLost` (connection dropped or refused). URLs:
   ``tcp://HOST:PORT`` (pymodbus ``ModbusTcpClient``) or ``rtu://DEVICE`` (``ModbusSerialClient``,
-  RTU framing, 19200 8E1 unless ``?baudrate=..&parity=..`` says otherwise).
+  RTU framing, :func:`gonio.protocol.rtu_serial_settings`: 19200 8E1, parity N on a
+  pseudo-terminal, unless ``?baudrate=..&parity=..`` says otherwise).
 
 pymodbus's own retries are disabled (``retries=0``): the device layer owns the retry policy, so
 retries are counted and recorded.
@@ -100,12 +101,13 @@ def parse_modbus_url(url: str) -> dict[str, Any]:
         if not device:
             raise ValueError(f"{url}: expected rtu://DEVICE, e.g. rtu:///dev/ttyUSB0")
         q = urllib.parse.parse_qs(parts.query)
+        line = protocol.rtu_serial_settings(device)     # 19200 8E1; parity N on a pty
         try:
-            baud = int(q.get("baudrate", [protocol.RTU_BAUDRATE])[0])
-            stopbits = int(q.get("stopbits", [protocol.RTU_STOPBITS])[0])
+            baud = int(q.get("baudrate", [line["baudrate"]])[0])
+            stopbits = int(q.get("stopbits", [line["stopbits"]])[0])
         except ValueError:
             raise ValueError(f"{url}: baudrate and stopbits must be integers") from None
-        parity = q.get("parity", [protocol.RTU_PARITY])[0]
+        parity = q.get("parity", [line["parity"]])[0]
         if parity not in ("N", "E", "O"):
             raise ValueError(f"{url}: parity must be N, E or O")
         return {"kind": "rtu", "device": device, "baudrate": baud, "parity": parity,
