@@ -115,3 +115,17 @@ def test_standard_error_falls_as_inverse_sqrt_n(van_de_hulst):
     # the computed standard error is the observed scatter
     ratio = np.array(computed) / np.array(spread)
     assert np.all((ratio > 0.55) & (ratio < 1.8))
+
+
+@pytest.mark.parametrize(
+    "n, ur1, ut1",
+    # adding-doubling (iadpython 0.5.3, quad_pts=32; values change by <= 2e-4 between 16, 32
+    # and 64 quadrature points): total reflectance UR1 (includes the specular part) and total
+    # transmittance UT1 of the van de Hulst layer with an index-mismatched boundary
+    [(1.4, 0.116216, 0.527044), (1.5, 0.126827, 0.493165)],
+)
+def test_index_mismatch_matches_adding_doubling(n, ur1, ut1, van_de_hulst):
+    r = run_slab(photons=1_000_000, seed=2024, **(van_de_hulst | {"n": n}))
+    assert abs(r.Rd + r.Rsp - ur1) < 3 * r.u_Rd + 3e-4
+    assert abs(r.Tt - ut1) < 3 * r.u_Tt + 3e-4
+    assert r.Rsp == pytest.approx(((n - 1) / (n + 1)) ** 2, rel=1e-9)
