@@ -1,6 +1,7 @@
 """The mock photometer head over a pseudo-terminal and over a loopback socket."""
 
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from gonio import protocol as P
 from gonio.mock import MockInstrument
@@ -83,3 +84,28 @@ def test_long_line_and_binary_are_101(both):
     assert head.raw(b"\xff\xfe\n") == b"ERR 101,Unknown command\r\n"
     assert head.raw(b"A" * 300 + b"\n") == b"ERR 101,Unknown command\r\n"
     assert head.raw("*IDN?").startswith(b"KIAM")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=120).filter(lambda b: b"\n" not in b))
+def test_any_line_gets_exactly_one_parseable_reply(line):
+    """Without faults, every line (terminator stripped) gets one reply the driver's parser accepts."""
+    from gonio.mock.motion import MotionController
+    from gonio.mock.head import PhotometerHead
+    from gonio.mock.samples import LambertSample
+
+    head = PhotometerHead(MotionController(), LambertSample(0.5), integration_scale=0.0)
+    reply = head.handle_line(line)
+    assert reply.data is not None and reply.data.endswith(b"\r\n") and reply.data.count(b"\n") == 1
+    try:
+        P.parse_response(reply.data, chk=False)
+    except P.HeadError as exc:
+        assert exc.code in P.HEAD_ERRORS
+
+
+def test_pty_reopen_like_a_reconnecting_driver(tools):
+    with MockInstrument(modbus="tcp", serial="pty") as m:
+        for _ in range(3):
+            h = tools.HeadClient(m.serial_url)
+            assert h.raw("WAVE?") == b"550.0\r\n"
+            h.close()
