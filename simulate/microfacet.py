@@ -380,16 +380,21 @@ def directional_albedo(
         u = (np.arange(n) + 0.5) / n
         u1, u2 = np.meshgrid(u, u, indexing="ij")
         h, _ = sample_microfacet_normal(u1.ravel(), u2.ravel(), m)  # (n*n, 3)
-        wi = w_i.reshape(-1, 1, 3)
-        ih = np.einsum("kj,tkj->tk", h, np.broadcast_to(wi, (wi.shape[0], h.shape[0], 3)))
-        ci = wi[..., 2]
         ch = h[None, :, 2]
-        co = 2.0 * ih * ch - ci  # z of reflect(w_i, h)
-        valid = (ci > 0) & (co > 0) & (ih > 0)
-        g = vcavity_g(ci, co, ch, ih)
-        f = reflectance_from_cos(np.clip(ih, 0.0, 1.0), 1.0, n_host) if with_fresnel else 1.0
-        w = np.where(valid, g * f * np.clip(ih, 0.0, None) / (np.where(ci > 0, ci, 1.0) * ch), 0.0)
-        return w.mean(axis=1).reshape(theta.shape)
+        wi_all = w_i.reshape(-1, 3)
+        out = np.empty(wi_all.shape[0])
+        chunk = max(1, 2_000_000 // h.shape[0])  # bound the temporaries to ~16 MB each
+        for start in range(0, wi_all.shape[0], chunk):
+            wi = wi_all[start:start + chunk, None, :]
+            ih = wi[..., 0] * h[None, :, 0] + wi[..., 2] * h[None, :, 2]  # w_i has no y component
+            ci = wi[..., 2]
+            co = 2.0 * ih * ch - ci  # z of reflect(w_i, h)
+            valid = (ci > 0) & (co > 0) & (ih > 0)
+            g = vcavity_g(ci, co, ch, ih)
+            f = reflectance_from_cos(np.clip(ih, 0.0, 1.0), 1.0, n_host) if with_fresnel else 1.0
+            w = np.where(valid, g * f * np.clip(ih, 0.0, None) / (np.where(ci > 0, ci, 1.0) * ch), 0.0)
+            out[start:start + chunk] = w.mean(axis=1)
+        return out.reshape(theta.shape)
 
     a = midpoint(int(n_grid))
     if not return_error:
