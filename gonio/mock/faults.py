@@ -31,7 +31,8 @@ this order: drop, serial_timeout, busy, garbled, truncated, checksum):
 ``lamp``            (one opportunity per ``READ?`` that would return a reading) the reading is
                     perturbed and flagged lamp unstable (flags bit1).
 
-Motion controller (one opportunity per Modbus request):
+Motion controller (one opportunity per Modbus request for both request kinds; when both fire,
+the request is dropped):
 
 ``modbus_busy``        answered with exception 6 (device busy); not executed.
 ``modbus_noresponse``  the request is dropped without an answer; not executed.

@@ -359,10 +359,15 @@ class ModbusFrontend:
 
         self.requests += 1
         if self.faults is not None:
-            if self.faults.fires("modbus_noresponse"):
+            # draw both kinds on every request (decisions depend on the request count only)
+            drop = self.faults.fires("modbus_noresponse")
+            busy = self.faults.fires("modbus_busy")
+            if drop:
+                if busy:
+                    self.faults.stats["modbus_busy"] -= 1      # not injected: the request is gone
                 log.info("modbus fc %d @%d: dropped (injected fault)", fc, address)
                 raise NoSuchIdException("request dropped (injected modbus_noresponse)")
-            if self.faults.fires("modbus_busy"):
+            if busy:
                 log.info("modbus fc %d @%d: exception 6 (injected fault)", fc, address)
                 return ExcCodes.DEVICE_BUSY
         ctl = self.controller
