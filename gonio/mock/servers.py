@@ -135,7 +135,11 @@ class HeadLink:
         while True:
             line = await self.queue.get()
             async with self.lock:
-                reply = self.head.handle_line(line)
+                try:
+                    reply = self.head.handle_line(line)
+                except Exception:       # a bug in the mock must not silence the head for good
+                    log.exception("head: command %r crashed the mock; no reply", line[:40])
+                    continue
                 if reply.delay_s > 0:
                     await asyncio.sleep(reply.delay_s)
             if reply.drop:
@@ -230,7 +234,7 @@ async def serve_head_socket(head: PhotometerHead, lock: asyncio.Lock, host: str,
             link.close()
         try:
             await asyncio.wait_for(server.wait_closed(), 1.0)
-        except (asyncio.TimeoutError, Exception):      # noqa: BLE001 - best-effort shutdown
+        except Exception:      # noqa: BLE001 - best-effort shutdown (includes the timeout)
             pass
 
     return bound, close
