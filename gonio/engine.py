@@ -151,14 +151,15 @@ class Engine:
 
     def _move(self, axes_deg) -> None:
         v = self.settings.velocity_deg_s
-        for attempt in range(_REHOME_ATTEMPTS + 1):
+        attempts = max(_REHOME_ATTEMPTS, self.retry.attempts)
+        for attempt in range(attempts + 1):
             try:
                 self.motion.move_to(axes_deg, v)
                 return
             except AxisFaultError as exc:
                 recoverable = exc.code in (protocol.AxisFault.FOLLOWING_ERROR,
                                            protocol.AxisFault.NOT_HOMED)
-                if not recoverable or attempt == _REHOME_ATTEMPTS:
+                if not recoverable or attempt == attempts:
                     raise
                 self.retry.count("axis_fault")
                 log.warning("%s; resetting the fault and re-homing", exc)
