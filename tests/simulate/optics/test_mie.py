@@ -74,6 +74,16 @@ def test_rayleigh_limit_scattering(m, x):
     assert abs(e.g) < x * x  # g = O(x^2): Rayleigh scattering is symmetric about 90 deg
 
 
+@pytest.mark.parametrize("m", [1.33, 1.5, 2.0])
+@pytest.mark.parametrize("x", [1e-2, 3e-2])
+def test_rayleigh_second_order_term(m, x):
+    # with Penndorf's x^2 term included, what is left is O(x^4): a tolerance of x^4 (relative)
+    # fails if the size parameter or the index were off by even 1e-4
+    K = (m * m - 1) / (m * m + 2)
+    ref = 8.0 / 3.0 * x**4 * K * K * (1 + 1.2 * x * x * (m * m - 2) / (m * m + 2))
+    assert mie.efficiencies(m, x).qsca == pytest.approx(ref, rel=x**4)
+
+
 def test_rayleigh_limit_absorption():
     m, x = 1.5 - 0.1j, 1e-3
     e = mie.efficiencies(m, x)
