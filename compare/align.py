@@ -55,6 +55,11 @@ def shared_wavelengths(measured: Dataset, simulated: Sequence[Dataset]) -> np.nd
         wavelengths) remain; the message names the dataset and both grids.
     """
     grid = measured.wavelengths_nm
+    if grid.size < MIN_SHARED_WAVELENGTHS:
+        raise CompareError(
+            f"measured dataset '{measured.name}' ({measured.source}) has {grid.size} "
+            f"wavelength(s); a comparison needs a spectrum of at least {MIN_SHARED_WAVELENGTHS} "
+            "(per-wavelength normalisation and colour); measure the plan's wavelength range")
     keep = np.ones(grid.size, dtype=bool)
     for sim in simulated:
         wl = sim.wavelengths_nm

@@ -181,6 +181,12 @@ def _bad_one_sided(h, d):
     return "found source side s < 0: []"
 
 
+def _bad_header_only(h, d):
+    h.unprotect(d)
+    _edit_csv(d, lambda ls: ls[:1])
+    return "no data rows"
+
+
 def _bad_missing_dir(h, d):
     shutil.rmtree(d)
     return "no such dataset directory"
@@ -189,7 +195,7 @@ def _bad_missing_dir(h, d):
 BAD = {"missing column": _bad_missing_column, "NaN": _bad_nan, "duplicate": _bad_duplicate,
        "unknown schema": _bad_schema, "empty file": _bad_empty,
        "mismatched wavelengths": _bad_wavelengths, "one-sided normal": _bad_one_sided,
-       "missing directory": _bad_missing_dir}
+       "missing directory": _bad_missing_dir, "header only": _bad_header_only}
 
 
 @pytest.mark.parametrize("command", ["check", "report"])
@@ -230,3 +236,26 @@ def test_console_script_reports_bad_input_without_traceback(h, tmp_path):
     assert proc.returncode == 2
     assert "unknown schema" in proc.stderr and "Traceback" not in proc.stderr
     assert proc.stderr.count("\n") == 1
+
+
+@pytest.mark.parametrize("which, expected", [
+    ("measured", "has 1 wavelength(s); a comparison needs a spectrum of at least 3"),
+    ("simulated", "wavelength grids cannot be reconciled"),
+])
+def test_single_point_dataset_is_refused(h, tmp_path, capsys, which, expected):
+    from gonio.dataset import make_dataset
+
+    meas, sim = _good_pair(h, tmp_path)
+    target = meas if which == "measured" else sim
+    ds = read_dataset(target)
+    write_dataset(make_dataset(ds.table.iloc[:1], ds.meta), target)
+    status, out, err = h.run_cli(["check", meas, sim], capsys)
+    assert status == 2 and expected in err and str(target) in err
+
+
+def test_report_into_a_file_is_an_input_error(h, tmp_path, capsys):
+    blocker = tmp_path / "taken"
+    blocker.write_text("not a directory")
+    status, out, err = h.run_cli(["report", h.FIXTURES / "measured_red",
+                                  h.FIXTURES / "sim_scaled", "--out", blocker], capsys)
+    assert status == 2 and str(blocker) in err and "Traceback" not in err
