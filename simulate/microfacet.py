@@ -176,8 +176,11 @@ def beckmann_d(cos_h: npt.ArrayLike, m: npt.ArrayLike) -> np.ndarray:
     >>> round(float(beckmann_d(1.0, 0.5)) * np.pi * 0.25, 12)
     1.0
     """
-    m = _check_m(m)
-    c = np.asarray(cos_h, float)
+    return _beckmann_d(np.asarray(cos_h, float), _check_m(m))
+
+
+def _beckmann_d(c: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """:func:`beckmann_d` without the argument checks (callers have checked ``m``)."""
     c, m = np.broadcast_arrays(c, m)
     pos = c > 0
     cs = np.where(pos, np.minimum(c, 1.0), 1.0)
@@ -227,7 +230,7 @@ def cook_torrance(w_i: npt.ArrayLike, w_o: npt.ArrayLike, m: float, n_host: floa
     numpy.ndarray, shape (...)
         ``f_CT``; 0 where ``cos_i <= 0`` or ``cos_o <= 0``.
     """
-    _check_m(m)
+    m_arr = _check_m(m)
     _check_n(n_host)
     w_i = np.asarray(w_i, float)
     w_o = np.asarray(w_o, float)
@@ -239,7 +242,7 @@ def cook_torrance(w_i: npt.ArrayLike, w_o: npt.ArrayLike, m: float, n_host: floa
     ch = h[..., 2]
     oh = np.sum(w_o * h, axis=-1)
     valid = (ci > 0) & (co > 0)
-    d = beckmann_d(ch, m)
+    d = _beckmann_d(ch, m_arr)
     g = vcavity_g(ci, co, ch, oh)
     f = reflectance_from_cos(np.clip(oh, 0.0, 1.0), 1.0, n_host)
     denom = 4.0 * np.where(valid, ci * co, 1.0)
@@ -281,12 +284,17 @@ def sample_microfacet_normal(
     u1, u2 = np.broadcast_arrays(np.asarray(u1, float), np.asarray(u2, float))
     if np.any(~((u1 >= 0) & (u1 < 1))) or np.any(~((u2 >= 0) & (u2 <= 1))):
         raise ValueError("sample_microfacet_normal: u1 must be in [0, 1) and u2 in [0, 1]")
+    return _sample_h(u1, u2, m_arr)
+
+
+def _sample_h(u1: np.ndarray, u2: np.ndarray, m_arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_microfacet_normal` without the argument checks."""
     tan2 = -(m_arr * m_arr) * np.log1p(-u1)
     cos_h = 1.0 / np.sqrt(1.0 + tan2)
     sin_h = np.sqrt(tan2) * cos_h
     phi = 2.0 * np.pi * u2
     h = np.stack((sin_h * np.cos(phi), sin_h * np.sin(phi), cos_h), axis=-1)
-    return h, beckmann_d(cos_h, m_arr) * cos_h
+    return h, _beckmann_d(cos_h, m_arr) * cos_h
 
 
 def sample_reflection(
@@ -366,7 +374,7 @@ def directional_albedo(
     numpy.ndarray or (numpy.ndarray, numpy.ndarray)
         ``A`` (and its error estimate), shape of ``theta_i``.
     """
-    _check_m(m)
+    m_arr = _check_m(m)
     _check_n(n_host)
     if int(n_grid) < 4 or int(n_grid) % 2:
         raise ValueError("directional_albedo: n_grid must be an even integer >= 4")
@@ -379,7 +387,7 @@ def directional_albedo(
     def midpoint(n: int) -> np.ndarray:
         u = (np.arange(n) + 0.5) / n
         u1, u2 = np.meshgrid(u, u, indexing="ij")
-        h, _ = sample_microfacet_normal(u1.ravel(), u2.ravel(), m)  # (n*n, 3)
+        h, _ = _sample_h(u1.ravel(), u2.ravel(), m_arr)  # (n*n, 3)
         ch = h[None, :, 2]
         wi_all = w_i.reshape(-1, 3)
         out = np.empty(wi_all.shape[0])
