@@ -105,7 +105,12 @@ def _report(args) -> int:
     simulated = [read_dataset(p) for p in args.simulated]
     comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
                                   illuminant=args.illuminant)
-    report = write_report(comparison, args.out)
+    try:
+        report = write_report(comparison, args.out)
+    except OSError as exc:
+        raise CompareError(f"cannot write the report into --out {args.out}: "
+                           f"{exc.strerror or exc} ({exc.filename}); choose a writable "
+                           "directory") from None
     for name, o in comparison.overall.items():
         print(f"{name}: overall RMSE {o.rmse:.4g}, NRMSE {o.nrmse:.4g}")
     print(f"report: {report}")
