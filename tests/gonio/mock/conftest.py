@@ -48,9 +48,9 @@ class UmbClient:
     def fault(self, a):
         return self.read_input(P.axis_fault_address(a), 1)[0]
 
-    def move(self, a, mdeg):
+    def move(self, a, mdeg, velocity_cdeg_s=P.DEFAULT_VELOCITY_CDEG_S):
         hi, lo = P.int32_to_registers(mdeg)
-        return self.write(P.axis_target_address(a), [hi, lo, P.DEFAULT_VELOCITY_CDEG_S, P.AxisCommand.MOVE])
+        return self.write(P.axis_target_address(a), [hi, lo, velocity_cdeg_s, P.AxisCommand.MOVE])
 
     def wait_idle(self, timeout=5.0):
         t_end = time.monotonic() + timeout

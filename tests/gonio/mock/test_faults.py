@@ -143,7 +143,7 @@ def _readings_with_retries(tools, faults, seed=4):
     with MockInstrument(sample="red-cotton", modbus="tcp", serial="socket", faults=faults, seed=seed) as m:
         mb = tools.UmbClient(m.modbus_url)
         tools.prepare(mb)
-        h = _head(tools, m, timeout=0.15)
+        h = _head(tools, m, timeout=0.3)
         for wl in (450.0, 550.0, 650.0):
             while True:
                 try:
@@ -174,3 +174,27 @@ def test_faults_never_corrupt_good_readings(tools):
     faulty, r1, stats = _readings_with_retries(tools, "garbled=0.2,busy=0.15,truncated=0.1,serial_timeout=0.1,lamp=0.2")
     assert r0 == 0 and r1 > 0 and sum(stats["faults"].values()) == r1
     assert faulty == clean                                           # bit-identical physics
+
+
+def test_rate_faults_end_to_end_deterministic_for_a_seed(tools):
+    spec = "garbled=0.25,truncated=0.15,busy=0.2,checksum=0.2,lamp=0.3,serial_timeout=0.1"
+
+    def transcript(seed):
+        with MockInstrument(sample="lambert:0.5", modbus="tcp", serial="socket", faults=spec, seed=seed) as m:
+            mb = tools.UmbClient(m.modbus_url)
+            tools.prepare(mb)
+            h = _head(tools, m, timeout=0.3)
+            lines = [h.raw("CHK ON")]
+            for i in range(30):
+                lines.append(h.raw("READ? 2" if i % 2 else f"WAVE {500 + i}"))
+                h.port.reset_input_buffer()
+            stats = m.stats["faults"]
+            h.close()
+            mb.close()
+        return lines, stats
+
+    a, stats_a = transcript(21)
+    b, stats_b = transcript(21)
+    c, _ = transcript(22)
+    assert a == b and stats_a == stats_b and a != c
+    assert {"garbled", "truncated", "busy", "checksum"} <= set(stats_a)

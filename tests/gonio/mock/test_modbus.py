@@ -35,7 +35,7 @@ def test_home_then_move_reaches_target_in_position(mb):
         assert mb.actual(a) == P.HOME_POSITIONS_MDEG[a]
         assert mb.status(a) & P.AxisStatus.HOMED
     assert mb.read_holding(P.HR_CONTROL, 1) == [P.Control.ENABLE]      # command bits self-clear
-    mb.move(0, 30000)
+    mb.move(0, 30000, velocity_cdeg_s=100)             # 30 deg at 1 deg/s: 0.3 s at fast speed
     st = mb.status(0)
     assert st & P.AxisStatus.MOVING and not st & P.AxisStatus.IN_POSITION
     mb.wait_idle()
@@ -46,18 +46,24 @@ def test_home_then_move_reaches_target_in_position(mb):
     assert mb.actual(1) == -60000 and mb.fault(1) == 0
 
 
-def test_motion_takes_time_at_the_axis_velocity(mock, mb):
-    mb.home()
-    # 80 deg at 20 deg/s = 4 s real, x0.01 -> 40 ms; halfway after ~20 ms
-    t0 = time.monotonic()
-    mb.move(3, 80000)
-    time.sleep(0.015)
-    mid = mb.actual(3)
-    elapsed = time.monotonic() - t0
-    assert 0 < mid < 80000
-    assert mid <= 20.0 * 1000 / mock.time_scale * elapsed + 20        # never faster than v
-    mb.wait_idle()
-    assert mb.actual(3) == 80000
+def test_motion_takes_time_at_the_axis_velocity(tools):
+    with MockInstrument(modbus="tcp", serial="socket", speed="real") as m:
+        mb = tools.UmbClient(m.modbus_url)
+        mb.write_one(P.HR_CONTROL, P.Control.ENABLE | P.Control.HOME_ALL)
+        time.sleep(1.6)                                          # homing takes 1.5 s at real speed
+        mb.wait_idle()
+        t0 = time.monotonic()
+        hi, lo = P.int32_to_registers(30000)
+        mb.write(P.axis_target_address(3), [hi, lo, 6000, P.AxisCommand.MOVE])    # 60 deg/s
+        time.sleep(0.1)
+        mid = mb.actual(3)
+        elapsed = time.monotonic() - t0
+        assert 0 < mid < 30000
+        assert mid <= 60.0 * 1000 * elapsed + 20                   # never faster than v
+        assert mb.status(3) & P.AxisStatus.MOVING
+        mb.wait_idle()
+        assert mb.actual(3) == 30000 and time.monotonic() - t0 >= 0.5   # 30 deg at 60 deg/s
+        mb.close()
 
 
 def test_move_before_homing_is_fault_3(mb):
@@ -134,12 +140,12 @@ def test_rtu_over_pty_with_minimalmodbus():
         inst.serial.timeout = 1.0
         assert inst.read_register(P.IR_FIRMWARE, functioncode=4) == 0x0104
         inst.write_register(P.HR_CONTROL, P.Control.ENABLE | P.Control.HOME_ALL)
-        time.sleep(0.05)
+        time.sleep(0.3)
         assert inst.read_long(P.axis_actual_address(1), functioncode=4, signed=True) == 45000
         inst.write_long(P.axis_target_address(0), 20000, signed=True)
         assert inst.read_long(P.axis_target_address(0), functioncode=3, signed=True) == 20000
         inst.write_register(P.axis_command_address(0), P.AxisCommand.MOVE)
-        time.sleep(0.05)
+        time.sleep(0.3)
         assert inst.read_long(P.axis_actual_address(0), functioncode=4, signed=True) == 20000
         assert inst.read_register(P.axis_status_address(0), functioncode=4) & P.AxisStatus.IN_POSITION
         with pytest.raises(minimalmodbus.IllegalRequestError):
