@@ -28,8 +28,9 @@ this order: drop, serial_timeout, busy, garbled, truncated, checksum):
                     pseudo-terminal the head ignores input for a short re-initialisation time.
                     Either way the head's link settings revert (CHK OFF, error queue cleared);
                     measurement settings are kept. The driver reconnects and re-sends CHK ON.
-``lamp``            (one opportunity per ``READ?`` that would return a reading) the reading is
-                    perturbed and flagged lamp unstable (flags bit1).
+``lamp``            (one opportunity per ``READ?`` with the shutter open that returns a reading,
+                    whatever else happens to the reply) the readings are perturbed and the reply
+                    is flagged lamp unstable (flags bit1). Dark readings are never affected.
 
 Motion controller (one opportunity per Modbus request for both request kinds; when both fire,
 the request is dropped):
