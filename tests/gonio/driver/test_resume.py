@@ -1,0 +1,147 @@
+"""Kill -9 and resume: the final dataset equals an uninterrupted run's; torn last line."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gonio.dataset import read_dataset
+from gonio.journal import read_journal
+from gonio.mock import MockInstrument
+
+SEED = 7
+
+
+def _gonio(*args):
+    return [sys.executable, "-m", "gonio.cli", *map(str, args)]
+
+
+@pytest.fixture
+def mock_process():
+    proc = subprocess.Popen(_gonio("mock", "--sample", "lambert:0.5", "--seed", SEED,
+                                   "--serial", "pty"),
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        line = proc.stdout.readline()
+        urls = json.loads(line)
+        yield urls
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _acquire(urls, plan, out, *extra):
+    return _gonio("acquire", plan, "--modbus", urls["modbus"], "--serial", urls["serial"],
+                  "--out", out, "--seed", SEED, "--timeout", "0.3", "--no-progress", *extra)
+
+
+def _points(out: Path):
+    return [tuple(r["geometry"]) for r in read_journal(out / "journal.jsonl").of_type("point")]
+
+
+def test_sigkill_at_random_moments_then_resume_equals_uninterrupted(drv, tmp_path, mock_process):
+    plan = drv.write_plan(tmp_path, "kill", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
+                          wavelengths=(450, 500, 550, 600, 650), itime_ms=100, readings=50)
+    ref = tmp_path / "ref"
+    t0 = time.monotonic()
+    done = subprocess.run(_acquire(mock_process, plan, ref), capture_output=True, text=True, timeout=120)
+    duration = time.monotonic() - t0
+    assert done.returncode == 0, done.stderr
+    n_total = len(_points(ref))
+    assert n_total == 12
+
+    rng = np.random.default_rng(2024)
+    out = tmp_path / "killed"
+    kills = []
+    for k in range(6):
+        args = _acquire(mock_process, plan, out, *(["--resume"] if k else []))
+        proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        delay = float(rng.uniform(0.4, max(1.0, duration)))
+        try:
+            proc.wait(delay)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+        kills.append((round(delay, 2), proc.returncode, len(_points(out)) if (out / "journal.jsonl").exists() else 0))
+    final = subprocess.run(_acquire(mock_process, plan, out, "--resume"), capture_output=True,
+                           text=True, timeout=120)
+    assert final.returncode == 0, final.stderr
+    print("duration", duration, "kills (delay, returncode, points journaled)", kills)
+    assert any(rc == -signal.SIGKILL for _, rc, _ in kills), kills
+    points = _points(out)
+    assert len(points) == len(set(points)) == n_total, kills      # none lost, none duplicated
+    assert (out / "radiance.csv").read_bytes() == (ref / "radiance.csv").read_bytes()
+    meta = read_dataset(out).meta
+    assert meta["provenance"]["complete"] is True
+    assert meta["sample"] == read_dataset(ref).meta["sample"]
+
+
+def test_torn_last_line_is_measured_again(drv, tmp_path):
+    plan = drv.write_plan(tmp_path, "torn", incidence=(0, 45), in_plane=(-30, 20),
+                          wavelengths=(450, 550), readings=8)
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        ref, out = tmp_path / "ref", tmp_path / "run"
+        assert drv.run(mock, plan, ref).exit_code == 0
+        assert drv.run(mock, plan, out).exit_code == 0
+        journal = out / "journal.jsonl"
+        lines = journal.read_bytes().split(b"\n")
+        last_point = max(i for i, ln in enumerate(lines) if b'"type":"point"' in ln)
+        torn_geometry = tuple(json.loads(lines[last_point])["geometry"])
+        # the crash happened while this point's line was being written
+        journal.write_bytes(b"\n".join(lines[:last_point]) + b"\n" + lines[last_point][:37])
+        assert read_journal(journal).torn
+        (out / "radiance.csv").unlink()
+        res = drv.run(mock, plan, out, resume=True)
+        assert res.exit_code == 0
+    content = read_journal(journal)
+    events = [r for r in content.of_type("event") if r["what"] == "resume"]
+    assert events and events[-1]["torn_last_line"] is True and events[-1]["points_done"] == 3
+    assert _points(out).count(torn_geometry) == 1 and len(_points(out)) == 4
+    reuse = [r for r in content.of_type("event") if r["what"] == "calibration_reused"]
+    assert reuse, "a fresh calibration of the same plan and standard is reused"
+    assert (out / "radiance.csv").read_bytes() == (ref / "radiance.csv").read_bytes()
+
+
+def test_stale_calibration_is_measured_again(drv, tmp_path):
+    plan = drv.write_plan(tmp_path, "stale", incidence=(0,), in_plane=(20, 40),
+                          wavelengths=(500,), readings=8,
+                          extra="calibration_max_age_min = 0.0001")
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        out = tmp_path / "run"
+        assert drv.run(mock, plan, out).exit_code == 0
+        time.sleep(0.05)
+        journal = out / "journal.jsonl"
+        lines = journal.read_bytes().split(b"\n")
+        last_point = max(i for i, ln in enumerate(lines) if b'"type":"point"' in ln)
+        journal.write_bytes(b"\n".join(lines[:last_point]) + b"\n")
+        assert drv.run(mock, plan, out, resume=True).exit_code == 0
+    cals = read_journal(journal).of_type("calibration")
+    assert [c["id"] for c in cals] == [0, 1]
+    points = read_journal(journal).of_type("point")
+    assert [p["calibration"] for p in points] == [0, 1]
+
+
+def test_resume_refuses_a_journal_of_another_plan(drv, tmp_path):
+    from gonio.cli import main
+    p1 = drv.write_plan(tmp_path, "one", incidence=(0,), in_plane=(20,), wavelengths=(500,))
+    p2 = drv.write_plan(tmp_path, "two", incidence=(0,), in_plane=(30,), wavelengths=(500,))
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        out = tmp_path / "run"
+        assert drv.run(mock, p1, out).exit_code == 0
+        args = ["--modbus", mock.modbus_url, "--serial", mock.serial_url, "--out", str(out),
+                "--no-progress"]
+        assert main(["acquire", str(p2), *args, "--resume"]) == 2
+        assert main(["acquire", str(p1), *args]) == 2          # journal there, no --resume
+        assert main(["acquire", str(p1), *args, "--resume"]) == 0   # nothing left: rewrites
