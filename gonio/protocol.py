@@ -77,7 +77,8 @@ from typing import Callable
 __all__ = [
     # Modbus
     "UNIT_ID", "MODBUS_TCP_PORT", "RTU_BAUDRATE", "RTU_BYTESIZE", "RTU_PARITY", "RTU_STOPBITS",
-    "FIRMWARE_VERSION", "is_pseudo_terminal", "rtu_serial_settings", "Axis", "AXES", "N_AXES", "HOME_POSITIONS_MDEG", "IN_POSITION_TOLERANCE_MDEG",
+    "FIRMWARE_VERSION", "is_pseudo_terminal", "rtu_serial_settings", "Axis", "AXES", "N_AXES",
+    "HOME_POSITIONS_MDEG", "IN_POSITION_TOLERANCE_MDEG",
     "DEFAULT_VELOCITY_CDEG_S", "VELOCITY_RANGE_CDEG_S", "BEAM_BLOCK_MIN_ANGLE_DEG",
     "HR_CONTROL", "HR_SAMPLE_SLOT", "IR_STATUS", "IR_FIRMWARE", "AXIS_BLOCK_BASE", "AXIS_BLOCK_STRIDE",
     "axis_target_address", "axis_velocity_address", "axis_command_address",

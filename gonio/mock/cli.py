@@ -38,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--serial", default="pty", metavar="pty|socket://127.0.0.1:PORT",
                    help="photometer head on a pseudo-terminal or a loopback socket (default: pty)")
     p.add_argument("--sample", default="red-cotton", metavar="NAME|FILE",
-                   help="lambert:RHO, red-cotton, or a radiance-coefficient dataset directory (default: red-cotton)")
+                   help="lambert:RHO, red-cotton, or a radiance-coefficient dataset directory "
+                        "(default: red-cotton)")
     p.add_argument("--faults", default=None, metavar="SPEC",
                    help="comma-separated kind=RATE or kind=@N; kinds: " + ", ".join(FAULT_KINDS))
     p.add_argument("--speed", default="fast", choices=("fast", "real"),

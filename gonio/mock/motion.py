@@ -28,7 +28,8 @@ from typing import Callable
 from gonio import protocol as P
 from gonio.mock.faults import FaultInjector
 
-__all__ = ["HOMING_TIME_S", "SETTLE_TIME_S", "SPEED_FACTORS", "INTEGRATION_FACTORS", "AxisState", "MotionController",
+__all__ = ["HOMING_TIME_S", "SETTLE_TIME_S", "SPEED_FACTORS", "INTEGRATION_FACTORS", "AxisState",
+           "MotionController",
            "ModbusFrontend", "ModbusRefusal", "DropRequest"]
 
 log = logging.getLogger(__name__)
@@ -195,7 +196,8 @@ class MotionController:
         new_velocities: dict[int, int] = {}
         commands: dict[int, int] = {}
         if P.HR_SAMPLE_SLOT in regs and regs[P.HR_SAMPLE_SLOT] not in {s.value for s in P.SampleSlot}:
-            raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, f"sample slot {regs[P.HR_SAMPLE_SLOT]} unknown")
+            raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE,
+                                f"sample slot {regs[P.HR_SAMPLE_SLOT]} unknown")
         for a, ax in enumerate(self.axes):
             base = P.axis_target_address(a)
             if base in regs or base + 1 in regs:
@@ -208,7 +210,8 @@ class MotionController:
             if base + 2 in regs:
                 v = regs[base + 2]
                 if not P.VELOCITY_RANGE_CDEG_S[0] <= v <= P.VELOCITY_RANGE_CDEG_S[1]:
-                    raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, f"axis {a} velocity {v} out of range")
+                    raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE,
+                                        f"axis {a} velocity {v} out of range")
                 new_velocities[a] = v
             if base + 3 in regs:
                 c = regs[base + 3]
@@ -227,7 +230,8 @@ class MotionController:
                 if not enabled_after:
                     raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, "drives disabled (CONTROL bit0)")
                 if ax.fault:
-                    raise ModbusRefusal(P.ModbusException.DEVICE_FAILURE, f"axis {a} in fault {ax.fault}: reset first")
+                    raise ModbusRefusal(P.ModbusException.DEVICE_FAILURE,
+                                        f"axis {a} in fault {ax.fault}: reset first")
             if c == P.AxisCommand.MOVE and ax.homed and not P.within_soft_limits(a, targets[a]):
                 raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE,
                                     f"axis {a} target {targets[a]} mdeg outside the soft limits")

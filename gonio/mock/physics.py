@@ -69,7 +69,8 @@ def K_counts_per_ms(wavelength_nm) -> np.ndarray:
 
 def dark_counts(itime_ms, gain_factor) -> np.ndarray:
     """Mean dark reading ``D0 + d t G`` (shutter closed)."""
-    return DARK_OFFSET_COUNTS + DARK_RATE_COUNTS_PER_MS * np.asarray(itime_ms, float) * np.asarray(gain_factor, float)
+    t = np.asarray(itime_ms, dtype=float)
+    return DARK_OFFSET_COUNTS + DARK_RATE_COUNTS_PER_MS * t * np.asarray(gain_factor, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,8 @@ def expected_counts(state: ReadingState, f_value: float, cos_theta_o: float) -> 
     g = state.gain_factor
     signal = 0.0
     if state.shutter_open and state.lamp_on:
-        signal = float(K_counts_per_ms(state.wavelength_nm)) * state.itime_ms * g * f_value * max(cos_theta_o, 0.0)
+        k = float(K_counts_per_ms(state.wavelength_nm))
+        signal = k * state.itime_ms * g * f_value * max(cos_theta_o, 0.0)
     return signal, float(dark_counts(state.itime_ms, g))
 
 
@@ -117,7 +119,8 @@ def simulate_readings(seed: int, state: ReadingState, f_value: float, cos_theta_
     g = state.gain_factor
     dark_current = dark - DARK_OFFSET_COUNTS
     variance = g * (signal + dark_current) + READ_NOISE_COUNTS ** 2
-    rng = np.random.Generator(np.random.Philox(np.random.SeedSequence(noise_key(seed, state, first_repetition, n))))
+    key = noise_key(seed, state, first_repetition, n)
+    rng = np.random.Generator(np.random.Philox(np.random.SeedSequence(key)))
     z = rng.standard_normal(n)
     readings = np.rint(dark + signal + np.sqrt(variance) * z)
     return np.clip(readings, 0.0, float(protocol.ADC_MAX_COUNTS))

@@ -13,7 +13,8 @@ Samples
     An analytic fabric-like sample (not derived from ``simulate``)::
 
         beta = beta_d + beta_s
-        beta_d = rho_d(lambda) * [A + B max(0, cos(phi_i - phi_o)) sin(a) tan(b)] * (1 + R exp(-g^2 / (2 w_r^2)))
+        beta_d = rho_d(lambda) * [A + B max(0, cos(phi_i - phi_o)) sin(a) tan(b)]
+                 * (1 + R exp(-g^2 / (2 w_r^2)))
         beta_s = F(theta_d) / (4 a_x a_y sqrt(cos theta_i cos theta_o))
                  * exp(-tan^2 theta_h (cos^2 phi_h / a_x^2 + sin^2 phi_h / a_y^2))
 

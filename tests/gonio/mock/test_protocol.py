@@ -215,3 +215,13 @@ def test_all_error_codes_map_to_classes():
         assert err.value.code == code and err.value.message == message
         assert type(err.value) is type(P.head_error(code))
     assert np.all([P.GAIN_FACTORS[i] == 4 ** i for i in P.GAIN_STEPS])
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import gonio.mock.faults
+
+    for module in (P, gonio.mock.faults):
+        result = doctest.testmod(module)
+        assert result.failed == 0 and result.attempted > 0
