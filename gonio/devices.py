@@ -280,8 +280,9 @@ class PhotometerHead:
         """Set (shutter,) wavelength, integration time and gain, then read: one retryable unit.
 
         ``repetitions`` readings ``READ? n`` are pooled (:func:`gonio.calibration.pooled_mean`).
-        A transient failure anywhere (framing, busy, lamp unstable, dropped link) repeats the
-        whole unit, so the retried reading is taken in exactly the state of a first attempt.
+        Each setting command is retried on its own; a transient failure of ``READ?`` (framing,
+        busy, lamp unstable, dropped link) repeats the whole unit, so the retried reading is taken
+        in exactly the state of a first attempt (the settings re-sent).
         ``ERR 301`` (overload) and the saturation flag give ``saturated=True``; other errors
         raise :class:`DeviceError`.
         """
@@ -290,13 +291,15 @@ class PhotometerHead:
         base = getattr(self.transport, "timeout_s", 1.0)
         read_timeout = base + 1.2 * n * itime_ms / 1000.0
 
+        setters = [("WAVE", float(round(wavelength_nm, 1))), ("ITIME", int(itime_ms)),
+                   ("GAIN", int(gain))]
+        if shutter_open is not None:
+            setters.insert(0, ("SHUTTER", "OPEN" if shutter_open else "CLOSE"))
+
         def unit():
-            if shutter_open is not None:
-                self._exchange_once(protocol.HEAD_COMMANDS["SHUTTER"],
-                                    "OPEN" if shutter_open else "CLOSE")
-            self._exchange_once(protocol.HEAD_COMMANDS["WAVE"], float(round(wavelength_nm, 1)))
-            self._exchange_once(protocol.HEAD_COMMANDS["ITIME"], int(itime_ms))
-            self._exchange_once(protocol.HEAD_COMMANDS["GAIN"], int(gain))
+            # setters are idempotent: each is retried on its own; a failed READ? repeats the unit
+            for key, value in setters:
+                self.query(key, value)
             got = []
             for _ in range(repetitions):
                 try:

@@ -50,14 +50,10 @@ class ReplayMismatch(Exception):
     def __init__(self, index: int, channel: str, expected: Any, got: Any, line: int | None = None):
         self.index, self.channel, self.expected, self.got = index, channel, expected, got
         where = f"request {index}" + (f" (transcript line {line})" if line else "")
-        super().__init__(f"replay: {where} differs: expected {channel_or(expected)} "
-                         f"{_show(expected)}, the driver sent {channel} {_show(got)}")
-
-
-def channel_or(expected: Any) -> str:
-    if isinstance(expected, dict) and "ch" in expected:
-        return expected["ch"]
-    return ""
+        want = (f"{expected['ch']} {_show(expected)}" if isinstance(expected, dict)
+                else str(expected))
+        super().__init__(f"replay: {where} differs: expected {want}, "
+                         f"the driver sent {channel} {_show(got)}")
 
 
 def _show(v: Any) -> str:
@@ -167,12 +163,12 @@ class Transcript:
         index = self.requests
         self.requests += 1
         if self.pos >= len(self.messages):
-            self._fail(ReplayMismatch(index, channel, "<end of transcript>", payload))
+            self._fail(ReplayMismatch(index, channel, "<the transcript ends>", payload))
         tx = self.messages[self.pos]
         if tx["dir"] != "tx" or tx["ch"] != channel or tx["payload"] != payload:
             self._fail(ReplayMismatch(index, channel, tx, payload, line=self.pos + 2))
         if self.pos + 1 >= len(self.messages) or self.messages[self.pos + 1]["dir"] != "rx":
-            self._fail(ReplayMismatch(index, channel, "<a response; the transcript ends>", payload))
+            self._fail(ReplayMismatch(index, channel, "<a response, but the transcript ends>", payload))
         rx = self.messages[self.pos + 1]
         self.pos += 2
         return rx["payload"]
