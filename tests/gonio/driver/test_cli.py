@@ -1,0 +1,104 @@
+"""The `gonio` command line: usage errors (exit 2, one line), mock dispatch, demo, Ctrl-C."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from gonio.cli import main
+from gonio.dataset import read_dataset
+from gonio.journal import read_journal
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_help_and_mock_dispatch(capsys):
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    for cmd in ("mock", "acquire", "replay", "check-plan", "demo"):
+        assert cmd in out
+    assert "bench-driver" not in out
+    assert main(["mock", "--help"]) == 0
+    assert "--faults" in capsys.readouterr().out
+    assert main([]) == 2
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["acquire", "quick", "--modbus", "udp://x", "--serial", "/dev/null", "--out", "o"], "--modbus"),
+    (["acquire", "quick", "--modbus", "tcp://127.0.0.1:{port}", "--serial", "/dev/null",
+      "--out", "o"], "cannot reach the device"),
+    (["acquire", "quick", "--modbus", "tcp://127.0.0.1:1", "--serial", "/nonexistent/tty",
+      "--out", "o"], "cannot reach the device"),
+    (["acquire", "nosuchplan", "--modbus", "tcp://127.0.0.1:1", "--serial", "x", "--out", "o"],
+     "no such plan file"),
+    (["acquire", "quick", "--serial", "x", "--out", "o"], "required"),
+    (["check-plan"], "required"),
+])
+def test_usage_errors_exit_2_with_one_line(tmp_path, capsys, argv, needle):
+    argv = [a.replace("{port}", str(_free_port())).replace("o", str(tmp_path / "o"))
+            if a == "o" or "{port}" in a else a for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err
+    assert "Traceback" not in err
+
+
+def test_demo_with_a_small_plan(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert f"dataset in {out}" in text
+    ds = read_dataset(out)
+    assert len(ds.table) == 36 and ds.meta["sample"]["name"] == "quick check sample"
+    # a second demo into the same folder replaces the first one's results
+    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress"]) == 0
+
+
+def test_sigint_stops_safely_keeping_points(drv, tmp_path):
+    from gonio.devices import MotionController, RetryPolicy
+    from gonio.transport import ModbusTransport
+
+    plan = drv.write_plan(tmp_path, "int", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
+                          wavelengths=(450, 500, 550, 600, 650), itime_ms=200, readings=100)
+    mock = subprocess.Popen([sys.executable, "-m", "gonio.cli", "mock", "--sample", "lambert:0.5",
+                             "--serial", "socket"], stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True)
+    try:
+        urls = json.loads(mock.stdout.readline())
+        out = tmp_path / "run"
+        proc = subprocess.Popen([sys.executable, "-m", "gonio.cli", "acquire", str(plan),
+                                 "--modbus", urls["modbus"], "--serial", urls["serial"],
+                                 "--out", str(out), "--no-progress"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:          # wait for two journaled points
+            if (out / "journal.jsonl").exists() and len(
+                    read_journal(out / "journal.jsonl").of_type("point")) >= 2:
+                break
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 130, err
+        assert "interrupted" in err and "Traceback" not in err
+        kept = len(read_journal(out / "journal.jsonl").of_type("point"))
+        assert 2 <= kept < 12
+        assert len(read_dataset(out).table) == 5 * kept
+        # the instrument is safe: shutter coil off, no axis moving
+        motion = MotionController(ModbusTransport(urls["modbus"], timeout_s=1.0), RetryPolicy())
+        bits = motion.call({"fn": "read_coils", "address": 0, "count": 2}, "read coils")["bits"]
+        assert bits[1] is False
+        assert all(not motion.axis(a).status & 0x2 for a in range(4))
+        motion.transport.close()
+    finally:
+        mock.send_signal(signal.SIGINT)
+        mock.wait(10)
