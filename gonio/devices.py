@@ -356,13 +356,16 @@ class MotionController:
     transport : object with ``exchange(dict) -> dict``, ``reconnect()``, ``close()``.
     retry : shared :class:`RetryPolicy`.
     poll_s : status polling interval while waiting for motion.
+    move_timeout_s : longest wait for an axis to reach its target.
+    busy_timeout_s : longest backoff spent on exception 6 (busy) for one request.
     """
 
     name = "motion controller"
 
     def __init__(self, transport, retry: RetryPolicy | None = None, *, poll_s: float = 0.001,
-                 move_timeout_s: float = 120.0):
+                 move_timeout_s: float = 120.0, busy_timeout_s: float = 30.0):
         self.transport = transport
+        self.busy_timeout_s = busy_timeout_s
         self.retry = retry or RetryPolicy()
         self.poll_s = poll_s
         self.move_timeout_s = move_timeout_s
@@ -372,9 +375,15 @@ class MotionController:
 
     # --- low level ------------------------------------------------------------------------
     def call(self, request: dict, what: str) -> dict:
-        """One Modbus request with retries (busy, no response, dropped link)."""
+        """One Modbus request with retries (busy, no response, dropped link).
+
+        Exception 6 (busy, e.g. still homing after an earlier session) is retried for up to
+        ``busy_timeout_s`` of backoff; the other transient failures ``retry.attempts`` times.
+        """
         last: Exception | None = None
-        for k in range(self.retry.attempts):
+        k = 0
+        busy_waited = 0.0
+        while k < self.retry.attempts:
             try:
                 return self.transport.exchange(request)
             except ModbusExceptionResponse as exc:
@@ -384,6 +393,12 @@ class MotionController:
                                       exc.code) from None
                 last = exc
                 self.retry.count("modbus_busy")
+                delay = self.retry.delay(k)
+                if busy_waited + delay <= self.busy_timeout_s:
+                    busy_waited += delay
+                    self.retry.sleep(delay)
+                    k = min(k + 1, self.retry.attempts - 2)   # keep retrying while busy
+                    continue
             except LinkTimeout as exc:
                 last = exc
                 self.retry.count("modbus_no_response")
@@ -393,6 +408,7 @@ class MotionController:
                 self.retry.count("link_lost")
                 self._reconnect()
             self.retry.sleep(self.retry.delay(k))
+            k += 1
         raise DeviceError(self.name, what, f"no valid response after {self.retry.attempts} "
                                            f"attempts (last: {last})", transient=True)
 

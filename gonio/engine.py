@@ -26,6 +26,7 @@ The radiance factor and its uncertainty come from :func:`gonio.calibration.radia
 
 Exit status (:class:`RunResult.exit_code`): 0 complete; 1 stopped safely by an instrument
 fault that retries did not clear (the measured points are kept; continue with ``--resume``);
+any other exception (a bug, a full disk) also stops safely and keeps the points, then propagates;
 2 usage or input error (plan, journal of another plan, unreachable device); 130 interrupted by
 SIGINT or SIGTERM (the measured points are kept).
 """
@@ -259,6 +260,7 @@ class Engine:
         done = {tuple(r["geometry"]) for r in self.records if r["type"] == "point"}
         done = {tuple(round(float(x), 6) for x in g) for g in done}
         status, code, message = "complete", EXIT_OK, ""
+        failure: Exception | None = None
         bar = None
         start_time = self.clock()
         try:
@@ -302,6 +304,11 @@ class Engine:
             status, code, message = "interrupted", EXIT_INTERRUPTED, "interrupted; measured points kept"
         except DeviceError as exc:
             status, code, message = "stopped", EXIT_STOPPED, f"stopped safely: {exc}"
+        except Exception as exc:
+            # not an instrument fault (a bug, a replay mismatch, a full disk): keep what was
+            # measured, then let the exception through
+            status, code, message = "failed", EXIT_STOPPED, f"failed: {exc!r}"
+            failure = exc
         finally:
             if bar is not None:
                 bar.close()
@@ -322,6 +329,8 @@ class Engine:
                                       created=self.created)
             write_dataset(ds, self.out_dir)
             path = self.out_dir
+        if failure is not None:
+            raise failure
         return RunResult(status, code, measured, total, path, message, retries)
 
     def _measure_point(self, p: PlanPoint, cal_id: int, index: int) -> None:
