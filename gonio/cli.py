@@ -33,7 +33,7 @@ from pathlib import Path
 from gonio.calibration import CalibrationError
 from gonio.dataset import DatasetError
 from gonio.devices import MotionController, PhotometerHead, RetryPolicy
-from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_STOPPED, EXIT_USAGE, AcquisitionError,
+from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
                           Engine, Interrupted, RunResult)
 from gonio.journal import JournalError
 from gonio.plan import Plan, PlanError, load_plan, preset_names
