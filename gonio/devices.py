@@ -447,6 +447,17 @@ class MotionController:
         """CONTROLLER STATUS bits."""
         return protocol.ControllerStatus(self.read_input(protocol.IR_STATUS, 1, "read status")[0])
 
+    def check_safe_to_move(self) -> protocol.ControllerStatus:
+        """Refuse to start when the interlock is open or the emergency stop is pressed."""
+        st = self.status()
+        if st & protocol.ControllerStatus.EMERGENCY_STOP:
+            raise DeviceError(self.name, "read status", "emergency stop pressed: release it, "
+                                                        "then start again")
+        if st & protocol.ControllerStatus.INTERLOCK_OPEN:
+            raise DeviceError(self.name, "read status", "safety interlock open: close the "
+                                                        "enclosure, then start again")
+        return st
+
     def axis(self, a: int) -> AxisState:
         """ACTUAL position, STATUS and FAULT of axis ``a``."""
         r = self.read_input(protocol.axis_actual_address(a), 4, f"read axis {a}")

@@ -8,7 +8,8 @@ a resumed run and an uninterrupted run with the same mock seed write identical `
 
 Sequence
 --------
-1. connect (checksum mode on, ``*IDN?``, firmware), lamp on, shutter closed, sample slot, home;
+1. connect (checksum mode on, ``*IDN?``, firmware), refuse an open interlock or a pressed
+   emergency stop, lamp on, shutter closed, sample slot, home;
 2. calibration at the reference geometry (default 0/45): dark ``D`` at every step of the
    auto-ranging ladder (shutter closed), then the white standard ``S_ref`` per wavelength
    (auto-ranged) with the reference slot in the beam - or, on ``--resume``, the journal's last
@@ -266,6 +267,7 @@ class Engine:
             ident = self.head.connect()
             self.identity = f"{ident.maker},{ident.model},{ident.serial},{ident.firmware}"
             self.firmware = self.motion.firmware()
+            self.motion.check_safe_to_move()
             if not any(r["type"] == "start" for r in self.records):
                 self._append({"type": "start", "plan": self.plan.name,
                               "plan_sha256": self.plan.sha256,

@@ -431,9 +431,14 @@ class Plan:
         self._points = out
         return out
 
-    def geometries(self) -> pd.DataFrame:
-        """Requested geometries: DataFrame ``theta_i, phi_i, theta_o, phi_o`` (deg, fabric frame)."""
-        pts = self.points()
+    def geometries(self, measurable_only: bool = False) -> pd.DataFrame:
+        """Requested geometries: DataFrame ``theta_i, phi_i, theta_o, phi_o`` (deg, fabric frame).
+
+        Every geometry the plan asks for, in plan order (a model can be evaluated where the
+        instrument cannot measure); ``measurable_only`` keeps only those :meth:`check` accepts,
+        in motion order.
+        """
+        pts = self.check().ordered if measurable_only else self.points()
         return pd.DataFrame({
             "theta_i": [p.theta_i for p in pts], "phi_i": [p.phi_i for p in pts],
             "theta_o": [p.theta_o for p in pts], "phi_o": [p.phi_o for p in pts]})

@@ -142,6 +142,7 @@ class _SimController:
         self.homed = False
         self.coils = [False, False]
         self.log = []
+        self.status_extra = 0
 
     def device(self):
         from pymodbus.simulator import DataType, SimData, SimDevice
@@ -169,7 +170,8 @@ class _SimController:
         elif fc == 5 and values is not None:
             self.coils[address] = bool(values[0])
         elif fc == 4:
-            image = {P.IR_STATUS: 1 if self.homed else 0, P.IR_FIRMWARE: 0x0203}
+            image = {P.IR_STATUS: (1 if self.homed else 0) | self.status_extra,
+                     P.IR_FIRMWARE: 0x0203}
             for a in range(P.N_AXES):
                 hi, lo = P.int32_to_registers(self.pos[a])
                 b = P.axis_actual_address(a)
@@ -225,3 +227,14 @@ def test_driver_talks_to_a_plain_pymodbus_simdevice(simdevice):
         motion.write(P.axis_target_address(1), [*P.int32_to_registers(95_000), 100, 1], "too far")
     motion.shutdown()
     assert sim.coils[1] is False
+
+
+@pytest.mark.parametrize("bit,needle", [(P.ControllerStatus.INTERLOCK_OPEN, "interlock open"),
+                                        (P.ControllerStatus.EMERGENCY_STOP, "emergency stop")])
+def test_open_interlock_or_emergency_stop_refuses_to_start(simdevice, bit, needle):
+    sim, url = simdevice
+    motion = MotionController(ModbusTransport(url, timeout_s=0.5), RetryPolicy(base_s=0.001))
+    assert motion.check_safe_to_move() == P.ControllerStatus(0)
+    sim.status_extra = int(bit)
+    with pytest.raises(DeviceError, match=f"motion controller: read status: .*{needle}"):
+        motion.check_safe_to_move()

@@ -175,3 +175,13 @@ def test_fuzz_plan_reader_bytes(raw):
         parse_plan(raw, "fuzz.toml")
     except PlanError as exc:
         assert "fuzz.toml" in str(exc)
+
+
+def test_geometries_for_simulation_include_unmeasurable_ones():
+    plan = load_plan("red-cotton")
+    g_all = plan.geometries()
+    g_ok = plan.geometries(measurable_only=True)
+    assert list(g_all.columns) == ["theta_i", "phi_i", "theta_o", "phi_o"]
+    assert len(g_all) == 4 * 14 and len(g_ok) == len(g_all) - 3
+    assert ((g_all.theta_i == 0) & (g_all.theta_o == 0)).sum() == 1
+    assert ((g_ok.theta_i == 0) & (g_ok.theta_o == 0)).sum() == 0
