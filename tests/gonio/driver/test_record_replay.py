@@ -38,8 +38,8 @@ def test_replay_reproduces_the_fixture_dataset(tmp_path, name, plan, capsys):
 def test_fault_fixture_exercises_the_recovery_paths():
     meta = json.loads((FIXTURES / "quick-faults" / "meta.json").read_text())
     retries = meta["provenance"]["retries"]
-    for kind in ("serial_timeout", "serial_garbled", "serial_truncated", "serial_checksum",
-                 "head_busy", "modbus_busy", "axis_fault", "lamp_unstable"):
+    from gonio.devices import RETRY_KINDS
+    for kind in RETRY_KINDS:
         assert retries.get(kind, 0) > 0, kind
     # faults never change the data: the faulted session equals the clean one of the same plan
     # up to the mock seed, so compare the structure and the values' plausibility
