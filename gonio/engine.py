@@ -50,7 +50,7 @@ from gonio import protocol
 from gonio.calibration import WhiteStandard, load_white_standard, radiance_factor
 from gonio.dataset import make_dataset, new_meta, write_dataset
 from gonio.devices import AxisFaultError, DeviceError, MotionController, PhotometerHead, RetryPolicy
-from gonio.journal import Journal, JournalContent
+from gonio.journal import Journal, JournalContent, JournalError, check_consistency
 from gonio.plan import Plan, PlanPoint
 
 __all__ = ["Engine", "RunResult", "AcquisitionError", "Interrupted", "EXIT_OK", "EXIT_STOPPED",
@@ -241,6 +241,11 @@ class Engine:
         journal, content = Journal.open(path)
         self.journal = journal
         self.records = list(content.records)
+        try:
+            check_consistency(self.records, str(path))
+        except JournalError:
+            journal.close()
+            raise
         starts = [r for r in self.records if r["type"] == "start"]
         if self.records and not starts:
             journal.close()

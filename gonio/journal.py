@@ -6,10 +6,11 @@ point that was measured, plus at most one torn last line. Records (one JSON obje
 
 ``start``        ``{"type": "start", "plan": name, "plan_sha256", "standard_sha256", "time", "session"}``
 ``calibration``  ``{"type": "calibration", "id", "time", "plan_sha256", "standard_sha256", "idn",
-                 "darks": [step...], "reference": [reading...]}`` - dark per auto-ranging step and the
-                 white standard per wavelength
+                 "darks": [step...], "reference": [reading...], "reference_deg"}`` - dark per
+                 auto-ranging step and the white standard per wavelength
 ``point``        ``{"type": "point", "index", "axes_deg": [4], "geometry": [theta_i, phi_i, theta_o,
-                 phi_o], "calibration", "readings": [reading...]}`` - one geometry, every wavelength
+                 phi_o], "calibration", "readings": [reading...], "saturated_nm": [...]}`` - one
+                 geometry, every wavelength (those saturated at every setting are listed, not stored)
 ``event``        ``{"type": "event", "what": str, ...}`` - resume, retries, safe stop, completion
 
 A *reading* is ``{"wavelength_nm", "itime_ms", "gain", "mean", "sem", "n", "ranging"}`` (raw
@@ -31,7 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["JournalError", "JournalContent", "Journal", "read_journal", "parse_journal"]
+__all__ = ["JournalError", "JournalContent", "Journal", "read_journal", "parse_journal",
+           "check_consistency"]
 
 
 class JournalError(ValueError):
@@ -68,6 +70,8 @@ def _check_fields(rec: dict, spec: dict[str, Any], where: str) -> None:
 def _validate(rec: Any, where: str) -> dict:
     if not isinstance(rec, dict):
         raise JournalError(f"{where}: a record must be a JSON object")
+    if not _finite(rec):
+        raise JournalError(f"{where}: a number is not finite or too large")
     kind = rec.get("type")
     if not isinstance(kind, str) or kind not in _SCHEMA:
         raise JournalError(f"{where}: unknown record type {kind!r}")
@@ -142,6 +146,30 @@ def parse_journal(data: bytes, name: str = "journal.jsonl") -> JournalContent:
     return out
 
 
+def check_consistency(records: list[dict], name: str = "journal.jsonl") -> None:
+    """Cross-record checks: one start record first; every point refers to an earlier
+    calibration holding a dark for each of its (integration time, gain) settings and a white
+    reference for each of its wavelengths. Raises :class:`JournalError`."""
+    if not records:
+        return
+    if records[0]["type"] != "start" or sum(r["type"] == "start" for r in records) != 1:
+        raise JournalError(f"{name}: a journal starts with exactly one start record")
+    cals: dict[int, tuple[set, set]] = {}
+    for k, r in enumerate(records, start=1):
+        if r["type"] == "calibration":
+            cals[r["id"]] = ({(d["itime_ms"], d["gain"]) for d in r["darks"]},
+                             {float(x["wavelength_nm"]) for x in r["reference"]})
+        elif r["type"] == "point":
+            if r["calibration"] not in cals:
+                raise JournalError(f"{name}: line {k}: point refers to calibration "
+                                   f"{r['calibration']}, which is not before it")
+            darks, refs = cals[r["calibration"]]
+            for x in r["readings"]:
+                if (x["itime_ms"], x["gain"]) not in darks or float(x["wavelength_nm"]) not in refs:
+                    raise JournalError(f"{name}: line {k}: a reading has no dark or white "
+                                       f"reference in calibration {r['calibration']}")
+
+
 def read_journal(path: str | os.PathLike) -> JournalContent:
     """Read and validate a journal file (see :func:`parse_journal`)."""
     p = Path(path)
@@ -155,6 +183,11 @@ def read_journal(path: str | os.PathLike) -> JournalContent:
 
 
 def _finite(obj: Any) -> bool:
+    """Every number finite (floats) and within 64 bits (integers), recursively."""
+    if isinstance(obj, bool):
+        return True
+    if isinstance(obj, int):
+        return abs(obj) < 2**63
     if isinstance(obj, float):
         return math.isfinite(obj)
     if isinstance(obj, dict):
@@ -195,9 +228,10 @@ class Journal:
         """Write one record as a JSON line, flush and fsync (the checkpoint)."""
         if self._fh is None:
             raise RuntimeError("journal is not open")
-        _validate(record, f"{self.path}: new record")
-        if not _finite(record):
-            raise ValueError(f"journal record has a non-finite number: {record}")
+        try:
+            _validate(record, f"{self.path}: new record")
+        except JournalError as exc:
+            raise ValueError(f"not a valid journal record: {exc}") from None
         line = json.dumps(record, separators=(",", ":"), allow_nan=False).encode() + b"\n"
         self._fh.write(line)
         self._fh.flush()

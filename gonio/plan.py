@@ -194,6 +194,15 @@ def load_plan(path_or_name: str | Path) -> Plan:
     return parse_plan(raw, path)
 
 
+def _finite_number(x: Any) -> bool:
+    """A real number usable as an angle, time or count (no NaN/inf, no 400-digit integers)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    if isinstance(x, int):
+        return abs(x) < 10**15
+    return math.isfinite(x) and abs(x) < 1e15
+
+
 class _Fields:
     """Typed access to a TOML table with errors naming the file and the field."""
 
@@ -222,10 +231,10 @@ class _Fields:
             return None
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(key, f"must be a number, got {type(v).__name__}")
+        if not _finite_number(v):
+            self.fail(key, f"must be a finite number of sensible size, got {v!r:.40}")
         if integer and not (isinstance(v, int) or float(v).is_integer()):
             self.fail(key, f"must be an integer, got {v}")
-        if not math.isfinite(v):
-            self.fail(key, "must be finite")
         if lo is not None and v < lo:
             self.fail(key, f"must be >= {lo}, got {v}")
         if hi is not None and v > hi:
@@ -240,8 +249,8 @@ class _Fields:
             self.fail(key, f"must be a list of numbers, got {type(v).__name__}")
         out = []
         for k, x in enumerate(v):
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
-                self.fail(key, f"item {k} must be a finite number, got {x!r}")
+            if isinstance(x, bool) or not _finite_number(x):
+                self.fail(key, f"item {k} must be a finite number, got {x!r:.40}")
             out.append(float(x))
         return out
 
@@ -265,9 +274,10 @@ def _range(f: _Fields, start: str, stop: str, step: str, what: str) -> list[floa
         f.fail(step, "must be > 0")
     if b < a:
         f.fail(stop, f"must be >= {start}")
-    n = int(math.floor((b - a) / d + 1e-9)) + 1
-    if n > 100000:
-        f.fail(step, f"gives too many {what} ({n})")
+    span = (b - a) / d
+    if not math.isfinite(span) or span > 100000:
+        f.fail(step, f"gives too many {what} (at most 100000)")
+    n = int(math.floor(span + 1e-9)) + 1
     return [round(a + k * d, 9) for k in range(n)]
 
 
@@ -333,9 +343,7 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     if not isinstance(directions_raw, list):
         geo.fail("directions_deg", "must be a list of [theta_o, phi_o - phi_i] pairs")
     for k, d in enumerate(directions_raw):
-        if (not isinstance(d, list) or len(d) != 2
-                or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x)
-                       for x in d)):
+        if not isinstance(d, list) or len(d) != 2 or not all(_finite_number(x) for x in d):
             geo.fail("directions_deg", f"item {k} must be a pair of numbers [theta_o, phi_o - phi_i]")
         if not 0.0 <= d[0] <= 90.0:
             geo.fail("directions_deg", f"item {k}: theta_o must be in 0..90, got {d[0]}")

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from gonio.calibration import (CalibrationError, load_white_standard, parse_white_standard,
                                pooled_mean, radiance_factor)
-from gonio.journal import Journal, JournalError, parse_journal, read_journal
+from gonio.journal import Journal, JournalError, check_consistency, parse_journal, read_journal
 
 _START = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 1.0}
 
@@ -75,6 +75,7 @@ def test_complete_last_record_without_newline_is_kept(tmp_path):
     (b'{"type": "bogus"}', "line 2: unknown record type"),
     (b'[1, 2]', "line 2: a record must be a JSON object"),
     (b'{"type":"event","what":NaN}', "line 2: not a valid JSON record"),
+    (b'{"type":"event","what":"x","v":1e400}', "line 2: a number is not finite"),
 ])
 def test_corruption_before_the_end_is_an_error_naming_the_line(tmp_path, middle, msg):
     path = tmp_path / "j.jsonl"
@@ -105,7 +106,7 @@ def test_fuzz_journal_reader_bytes(raw):
 
 
 _JSONISH = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(), st.text(max_size=5),
-                                  st.floats(allow_nan=False)),
+                                  st.floats(allow_nan=False), st.just(10**400)),
                         lambda c: st.one_of(st.lists(c, max_size=4),
                                             st.dictionaries(st.sampled_from(
                                                 ["type", "index", "geometry", "readings", "what",
@@ -118,9 +119,26 @@ _JSONISH = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(), st.te
 def test_fuzz_journal_reader_records(items, newline):
     raw = b"\n".join(json.dumps(x).encode() for x in items) + (b"\n" if newline else b"")
     try:
-        parse_journal(raw, "fuzz.jsonl")
+        content = parse_journal(raw, "fuzz.jsonl")
+        check_consistency(content.records, "fuzz.jsonl")
     except JournalError as exc:
-        assert "fuzz.jsonl: line" in str(exc)
+        assert str(exc).startswith("fuzz.jsonl: ")
+
+
+def test_consistency_of_points_and_calibrations():
+    cal = {"type": "calibration", "id": 0, "time": 1.0, "plan_sha256": "a", "standard_sha256": "b",
+           "idn": "x", "darks": [{"itime_ms": 10, "gain": 0, "mean": 200.0, "sem": 1.0, "n": 8}],
+           "reference": [{"wavelength_nm": 500.0, "itime_ms": 10, "gain": 0, "mean": 3e4,
+                          "sem": 5.0, "n": 8}]}
+    check_consistency([_START, cal, _point(0)])
+    with pytest.raises(JournalError, match="line 2: point refers to calibration 0"):
+        check_consistency([_START, _point(0), cal])
+    other = _point(1)
+    other["readings"][0]["itime_ms"] = 20
+    with pytest.raises(JournalError, match="line 3: a reading has no dark"):
+        check_consistency([_START, cal, other])
+    with pytest.raises(JournalError, match="exactly one start record"):
+        check_consistency([cal, _START])
 
 
 def test_radiance_factor_against_direct_evaluation_and_numeric_propagation():

@@ -134,9 +134,10 @@ _KEYS = st.sampled_from(["name", "sample", "wavelengths", "geometry", "acquisiti
                          "incidence_deg", "in_plane_deg", "in_plane", "list_nm", "start_nm",
                          "stop_nm", "step_nm", "itime_ms", "gain", "readings", "reference_deg",
                          "directions_deg", "skip_blocked", "white_standard", "start", "stop", "step"])
-_LEAF = st.one_of(st.integers(-10**6, 10**6), st.floats(allow_nan=True, allow_infinity=True),
+_LEAF = st.one_of(st.integers(-10**6, 10**6), st.integers(), st.floats(allow_nan=True, allow_infinity=True),
                   st.text(max_size=8), st.booleans(),
-                  st.lists(st.one_of(st.integers(-200, 900), st.floats(-1e3, 1e3)), max_size=6))
+                  st.lists(st.one_of(st.integers(-200, 900), st.floats(-1e3, 1e3), st.integers(),
+                                     st.floats()), max_size=6))
 _TREE = st.recursive(_LEAF, lambda c: st.one_of(st.lists(c, max_size=3),
                                                 st.dictionaries(_KEYS, c, max_size=5)),
                      max_leaves=25)
