@@ -209,6 +209,13 @@ def load_transcript(path: str | os.PathLike) -> Transcript:
         if (not isinstance(m, dict) or m.get("dir") not in ("tx", "rx")
                 or m.get("ch") not in ("serial", "modbus") or "payload" not in m):
             raise TranscriptError(f"{p}: line {k}: expected a message with ch, dir and payload")
+        payload = m["payload"]
+        if m["ch"] == "serial" and isinstance(payload, str):
+            if any(ord(c) > 255 for c in payload):
+                raise TranscriptError(f"{p}: line {k}: a serial payload holds bytes 0..255 only")
+        elif not isinstance(payload, dict):
+            raise TranscriptError(f"{p}: line {k}: the payload must be "
+                                  + ("a string or an object" if m["ch"] == "serial" else "an object"))
         messages.append(m)
     return Transcript(header, messages, str(p))
 
@@ -236,9 +243,27 @@ class ReplayTransport:
         if self.channel == "serial":
             if isinstance(resp, dict):
                 self._raise_error(resp)
+                raise TranscriptError(f"{self.transcript.name}: the recorded response to request "
+                                      f"{self.transcript.requests - 1} is not a line: {resp!r:.80}")
             return str(resp).encode("latin-1")
         if isinstance(resp, dict) and ("exception" in resp or "error" in resp):
             self._raise_error(resp)
+        return self._checked_modbus_response(request, resp)
+
+    def _checked_modbus_response(self, request: dict, resp: Any) -> dict:
+        fn = request.get("fn", "")
+        key = {"read_holding_registers": "registers", "read_input_registers": "registers",
+               "read_coils": "bits"}.get(fn)
+        ok = isinstance(resp, dict)
+        if ok and key is not None:
+            values = resp.get(key)
+            ok = (isinstance(values, list) and len(values) == int(request.get("count", -1))
+                  and all(isinstance(v, bool) if key == "bits"
+                          else (isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 0xFFFF)
+                          for v in values))
+        if not ok:
+            raise TranscriptError(f"{self.transcript.name}: the recorded response to request "
+                                  f"{self.transcript.requests - 1} ({fn}) is malformed: {resp!r:.80}")
         return resp
 
     def reconnect(self) -> None:

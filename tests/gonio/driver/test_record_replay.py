@@ -99,3 +99,20 @@ def test_bad_transcript_is_a_usage_error(tmp_path, capsys):
     p.write_text("hello\n")
     assert main(["replay", str(p), "quick", "--out", str(tmp_path / "r")]) == 2
     assert "not a transcript header" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda m: {**m, "payload": "\u20ac"} if m.get("ch") == "serial" else m, "bytes 0..255"),
+    (lambda m: {**m, "payload": [1]} if m.get("ch") == "modbus" else m, "must be an object"),
+    (lambda m: {**m, "payload": {"registers": [70000]}}
+     if m.get("ch") == "modbus" and m.get("dir") == "rx" and "registers" in m.get("payload", {})
+     else m, "is malformed"),
+])
+def test_corrupt_transcripts_are_clear_errors(tmp_path, capsys, edit, needle):
+    lines = (FIXTURES / "quick-lambert.jsonl").read_text().splitlines()
+    edited = [lines[0]] + [json.dumps(edit(json.loads(x))) for x in lines[1:]]
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("\n".join(edited) + "\n")
+    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
