@@ -268,21 +268,22 @@ class Engine:
         failure: Exception | None = None
         bar = None
         start_time = self.clock()
+        # the start record comes first, before anything can fail, so that every journal
+        # (even of a session that could not reach the instrument) can be resumed
+        if not any(r["type"] == "start" for r in self.records):
+            self._append({"type": "start", "plan": self.plan.name, "plan_sha256": self.plan.sha256,
+                          "standard_sha256": self.standard.sha256, "time": start_time,
+                          "seed": self.seed})
+        else:
+            self._append({"type": "event", "what": "resume", "time": start_time,
+                          "torn_last_line": content.torn, "points_done": len(done)})
+            if content.torn:
+                log.warning("journal: the last line was torn; that point is measured again")
         try:
             ident = self.head.connect()
             self.identity = f"{ident.maker},{ident.model},{ident.serial},{ident.firmware}"
             self.firmware = self.motion.firmware()
             self.motion.check_safe_to_move()
-            if not any(r["type"] == "start" for r in self.records):
-                self._append({"type": "start", "plan": self.plan.name,
-                              "plan_sha256": self.plan.sha256,
-                              "standard_sha256": self.standard.sha256, "time": start_time,
-                              "seed": self.seed, "idn": self.identity})
-            else:
-                self._append({"type": "event", "what": "resume", "time": start_time,
-                              "torn_last_line": content.torn, "points_done": len(done)})
-                if content.torn:
-                    log.warning("journal: the last line was torn; that point is measured again")
             for p in self.check.blocked:
                 log.info("unmeasurable (beam-block zone): theta_i=%g phi_i=%g theta_o=%g phi_o=%g",
                          p.theta_i, p.phi_i, p.theta_o, p.phi_o)
@@ -436,7 +437,7 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
     links = links or {}
     meta = new_meta(
         "measured", sample=plan.sample,
-        source={"idn": start.get("idn", ""), "firmware": firmware,
+        source={"idn": cals[max(cals)]["idn"] if cals else "", "firmware": firmware,
                 "modbus": links.get("modbus"), "serial": links.get("serial")},
         provenance={
             "plan": {"name": plan.name, "sha256": plan.sha256, "description": plan.description},

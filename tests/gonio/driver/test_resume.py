@@ -144,3 +144,23 @@ def test_resume_refuses_a_journal_of_another_plan(drv, tmp_path):
         assert main(["acquire", str(p2), *args, "--resume"]) == 2
         assert main(["acquire", str(p1), *args]) == 2          # journal there, no --resume
         assert main(["acquire", str(p1), *args, "--resume"]) == 0   # nothing left: rewrites
+
+
+def test_a_session_that_cannot_reach_the_head_leaves_a_resumable_journal(drv, tmp_path):
+    from gonio.cli import run_session
+    from gonio.devices import RetryPolicy
+    from gonio.plan import load_plan
+    from gonio.transport import ModbusTransport, SerialTransport
+
+    plan = drv.write_plan(tmp_path, "dead", incidence=(0,), in_plane=(20,), wavelengths=(500,))
+    out = tmp_path / "run"
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        dead = SerialTransport(str(tmp_path / "no-such-tty"), timeout_s=0.05)
+        res = run_session(load_plan(plan), ModbusTransport(mock.modbus_url, timeout_s=0.2), dead,
+                          out, progress=False, retry=RetryPolicy(base_s=0.001))
+        assert res.status == "stopped" and res.points_measured == 0
+        assert "photometer head" in res.message and res.dataset_path is None
+        assert mock.controller.shutter_open is False
+        res = drv.run(mock, plan, out, resume=True)
+        assert res.status == "complete" and res.points_measured == 1
+    assert read_dataset(out).meta["instrument"]["idn"].startswith("KIAM,GPS-1")
