@@ -349,7 +349,14 @@ def _parser() -> argparse.ArgumentParser:
 
     a = sub.add_parser("acquire", help="measure a plan",
                        description="Home, calibrate (dark + white standard), measure every point "
-                                   "of PLAN, journal each point, write the dataset in --out.")
+                                   "of PLAN, journal each point, write the dataset in --out.",
+                       epilog="Exit status: 0 complete; 1 stopped safely by an instrument fault "
+                              "(measured points kept: continue with --resume); 2 usage or input "
+                              "error; 130 interrupted (Ctrl-C, SIGTERM; points kept). --resume "
+                              "reuses the journal's calibration when the plan and standard files "
+                              "are unchanged, the instrument is the same and it is younger than "
+                              "the plan's calibration_max_age_min; otherwise it is measured "
+                              "again. --record writes a new transcript for this session.")
     a.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name")
     a.add_argument("--modbus", required=True, metavar="URL", help="tcp://HOST:PORT or rtu://DEVICE")
     a.add_argument("--serial", required=True, metavar="URL", help="device path, pty or socket://HOST:PORT")
@@ -359,13 +366,26 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--seed", type=int, default=None, help="the mock's seed, recorded in the meta")
     common(a)
 
-    r = sub.add_parser("replay", help="run the driver against a recorded transcript")
+    r = sub.add_parser("replay", help="run the driver against a recorded transcript",
+                       description="Run the driver with PLAN against TRANSCRIPT (from "
+                                   "`gonio acquire --record`), answering each request with the "
+                                   "recorded response; writes the dataset in --out.",
+                       epilog="Exit status: 0 reproduced (and the recorded run was complete); 1 "
+                              "the driver sent a request that differs from the transcript (the "
+                              "message names the request index and both requests), or the "
+                              "recorded run itself stopped; 2 usage or input error.")
     r.add_argument("transcript", metavar="TRANSCRIPT")
     r.add_argument("plan", metavar="PLAN")
     r.add_argument("--out", required=True, metavar="RUN_DIR")
     r.add_argument("-v", "--verbose", action="store_true")
 
-    c = sub.add_parser("check-plan", help="validate a plan: limits, beam-block zone, duration")
+    c = sub.add_parser("check-plan", help="validate a plan: limits, beam-block zone, duration",
+                       description="List the points the controller would refuse (soft limits, "
+                                   "beam-block zone: never sent), the motion order and the "
+                                   "estimated duration at real speed.",
+                       epilog="Exit status: 0 every point measurable (beam-block points allowed "
+                              "when the plan says skip_blocked = true); 1 some points refused "
+                              "(listed); 2 invalid plan.")
     c.add_argument("plan", metavar="PLAN")
     c.add_argument("--list", action="store_true", help="list the points in motion order")
     c.add_argument("-v", "--verbose", action="store_true")
