@@ -158,6 +158,9 @@ class PhotometerHead:
         self.want_checksum = checksum
         self.chk = False
         self.identity: protocol.Identity | None = None
+        # settings the head is known to hold (WAVE, ITIME, GAIN, SHUTTER), since the last
+        # forget_settings(); anything unusual (a resync, a reconnect, *RST) forgets them
+        self._known: dict[str, object] = {}
 
     # --- low level ------------------------------------------------------------------------
     def _exchange_once(self, cmd: protocol.HeadCommand, value, timeout_s: float | None = None):
@@ -176,7 +179,16 @@ class PhotometerHead:
             cmd.format(value)
         except ValueError as exc:
             raise DeviceError(self.name, cmd.syntax, f"invalid parameter {value!r}: {exc}") from None
-        return self._retrying(lambda: self._exchange_once(cmd, value), self._describe(key, value))
+        out = self._retrying(lambda: self._exchange_once(cmd, value), self._describe(key, value))
+        if key in _SETTINGS:
+            self._known[key] = value
+        elif key == "*RST":
+            self._known.clear()
+        return out
+
+    def forget_settings(self) -> None:
+        """Forget the settings the head is known to hold: the next :meth:`measure` sends all."""
+        self._known.clear()
 
     @staticmethod
     def _describe(key: str, value) -> str:
@@ -209,6 +221,7 @@ class PhotometerHead:
 
     def _resync(self, restore: bool = False) -> None:
         """After a bad line, drop anything late still on the wire (and restore CHK ON)."""
+        self._known.clear()
         drain = getattr(self.transport, "drain", None)
         if drain is not None:
             try:
@@ -229,6 +242,7 @@ class PhotometerHead:
             log.info("photometer head: CHK ON while resynchronising failed: %s", exc)
 
     def _reconnect(self) -> None:
+        self._known.clear()
         try:
             self.transport.reconnect()
         except LinkLost as exc:
@@ -280,9 +294,12 @@ class PhotometerHead:
         """Set (shutter,) wavelength, integration time and gain, then read: one retryable unit.
 
         ``repetitions`` readings ``READ? n`` are pooled (:func:`gonio.calibration.pooled_mean`).
-        Each setting command is retried on its own; a transient failure of ``READ?`` (framing,
-        busy, lamp unstable, dropped link) repeats the whole unit, so the retried reading is taken
-        in exactly the state of a first attempt (the settings re-sent).
+        ``WAVE`` is always sent; ``ITIME``, ``GAIN`` and ``SHUTTER`` only when the head is not
+        known to hold the value already (see :meth:`forget_settings`: the engine forgets at the
+        start of every point, so every point issues the same commands in a resumed run as in an
+        uninterrupted one). Each setting command is retried on its own; a transient failure of
+        ``READ?`` (framing, busy, lamp unstable, dropped link) repeats the whole unit with every
+        setting re-sent, so the retried reading is taken in exactly the state of a first attempt.
         ``ERR 301`` (overload) and the saturation flag give ``saturated=True``; other errors
         raise :class:`DeviceError`.
         """
@@ -296,9 +313,17 @@ class PhotometerHead:
         if shutter_open is not None:
             setters.insert(0, ("SHUTTER", "OPEN" if shutter_open else "CLOSE"))
 
+        attempt = [0]
+
         def unit():
             # setters are idempotent: each is retried on its own; a failed READ? repeats the unit
+            # with every setting re-sent. WAVE is always sent: it starts the head's repetition
+            # count afresh, so a reading depends on the state only, never on what came before.
+            first = attempt[0] == 0
+            attempt[0] += 1
             for key, value in setters:
+                if first and key != "WAVE" and self._known.get(key, _UNKNOWN) == value:
+                    continue
                 self.query(key, value)
             got = []
             for _ in range(repetitions):
@@ -333,6 +358,10 @@ class PhotometerHead:
             self.query("SHUTTER", "CLOSE")
         except Exception as exc:  # noqa: BLE001 - shutdown must not raise
             log.warning("photometer head: closing the shutter failed: %s", exc)
+
+
+_SETTINGS = ("WAVE", "ITIME", "GAIN", "SHUTTER")
+_UNKNOWN = object()
 
 
 class _LampUnstable(Exception):

@@ -207,6 +207,7 @@ class Engine:
                  len(self.ladder), len(self.plan.wavelengths_nm))
         self.motion.set_slot(protocol.SampleSlot.WHITE_REFERENCE)
         self._move(self._reference_axes())
+        self.head.forget_settings()
         wl0 = float(self.plan.wavelengths_nm[0])
         darks = []
         for itime, gain in self.ladder:
@@ -344,6 +345,7 @@ class Engine:
         self._move(p.axes_deg)
         if self.settings.settle_ms > 0:
             self.retry.sleep(self.settings.settle_ms / 1000.0)
+        self.head.forget_settings()       # every point starts from the same commands
         self.head.query("SHUTTER", "OPEN")
         readings, saturated = [], []
         for wl in self.plan.wavelengths_nm:
