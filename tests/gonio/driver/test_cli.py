@@ -102,3 +102,4 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
     finally:
         mock.send_signal(signal.SIGINT)
         mock.wait(10)
+        mock.stdout.close()

@@ -16,14 +16,18 @@ from gonio.transport import ModbusTransport, SerialTransport, parse_modbus_url
 @pytest.fixture
 def mock():
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=1) as m:
+        m.links = []
         yield m
+        for link in m.links:
+            link.close()
 
 
 def _devices(m):
     retry = RetryPolicy(base_s=0.001)
-    head = PhotometerHead(SerialTransport(m.serial_url, timeout_s=0.3), retry)
-    motion = MotionController(ModbusTransport(m.modbus_url, timeout_s=0.3), retry)
-    return head, motion
+    serial_link = SerialTransport(m.serial_url, timeout_s=0.3)
+    modbus = ModbusTransport(m.modbus_url, timeout_s=0.3)
+    m.links += [serial_link, modbus]
+    return PhotometerHead(serial_link, retry), MotionController(modbus, retry)
 
 
 def test_head_controls_round_trip(mock):
@@ -207,6 +211,7 @@ def simdevice():
     asyncio.run_coroutine_threadsafe(box["server"].shutdown(), loop).result(5)
     loop.call_soon_threadsafe(loop.stop)
     thread.join(5)
+    loop.close()
 
 
 def test_driver_talks_to_a_plain_pymodbus_simdevice(simdevice):
@@ -220,6 +225,8 @@ def test_driver_talks_to_a_plain_pymodbus_simdevice(simdevice):
     motion.set_lamp(True)
     motion.set_shutter(True)
     assert sim.coils == [True, True]
+    motion.transport.close()
+    motion.transport.open()
     # one write per moving axis: target (2 registers, high word first), velocity, command
     writes = [v for fc, a, v in sim.log if fc == 16 and a == P.axis_target_address(1)]
     assert writes[-1] == [0xFFFF, (-45_000) & 0xFFFF, 2000, 1]
@@ -227,6 +234,7 @@ def test_driver_talks_to_a_plain_pymodbus_simdevice(simdevice):
         motion.write(P.axis_target_address(1), [*P.int32_to_registers(95_000), 100, 1], "too far")
     motion.shutdown()
     assert sim.coils[1] is False
+    motion.transport.close()
 
 
 @pytest.mark.parametrize("bit,needle", [(P.ControllerStatus.INTERLOCK_OPEN, "interlock open"),
@@ -238,3 +246,4 @@ def test_open_interlock_or_emergency_stop_refuses_to_start(simdevice, bit, needl
     sim.status_extra = int(bit)
     with pytest.raises(DeviceError, match=f"motion controller: read status: .*{needle}"):
         motion.check_safe_to_move()
+    motion.transport.close()
