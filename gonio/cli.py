@@ -235,7 +235,7 @@ def _cmd_demo(args) -> int:
                              progress=False if args.no_progress else None)
     code = _finish(result, "demo")
     if code == EXIT_OK:
-        print(f"gonio demo: measured red-cotton with the embedded mock in "
+        print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
               f"{time.monotonic() - t0:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
     return code
 
@@ -391,7 +391,8 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("-v", "--verbose", action="store_true")
 
     d = sub.add_parser("demo", help="embedded mock (red cotton) + the red-cotton plan")
-    d.add_argument("--out", default="gonio-demo", metavar="DIR", help="default ./gonio-demo")
+    d.add_argument("--out", default="demo-out/measured", metavar="DIR",
+                   help="dataset folder (default demo-out/measured)")
     d.add_argument("--plan", default="red-cotton", help=argparse.SUPPRESS)
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
     common(d)
