@@ -7,12 +7,12 @@ same geometries through :meth:`Plan.geometries`.
 Geometry (PHYSICS.md section 1, INSTRUMENT.md axes)
 ---------------------------------------------------
 The four axes are source zenith ``a0 = theta_i``, signed detector zenith ``s`` (+ = mirror side),
-detector-plane azimuth ``p`` from the plane of incidence, and sample rotation, whose reading is
-``phi_i``. :func:`gonio.protocol.axes_to_fabric` (shared with the mock) gives
+detector-plane azimuth ``p`` from the plane of incidence, and sample rotation ``a3``, whose
+reading is ``phi_i``. :func:`gonio.protocol.axes_to_fabric` (shared with the mock) gives
 
 .. math::
 
-    \\theta_i = a_0,\\quad \\phi_i = \\rho,\\quad \\theta_o = |s|,\\quad
+    \\theta_i = a_0,\\quad \\phi_i = a_3,\\quad \\theta_o = |s|,\\quad
     \\phi_o = \\phi_i + p + 180^\\circ [s \\ge 0]   \\pmod{360}
 
 so in plane (``p = 0``) ``s >= 0`` means ``phi_o = phi_i + 180`` and ``s < 0`` ``phi_o = phi_i``.
@@ -56,6 +56,12 @@ Plan TOML schema
     [calibration]                       # optional
     white_standard = "spectralon"       # preset name or CSV file (relative to the plan's folder)
     reference_deg = [0, 45]             # reference geometry (theta_i, theta_o), in plane
+
+Auto-ranging starts every reading at ``(itime_ms, gain)`` and steps down
+(:meth:`AcquisitionSettings.ladder`) while the head reports saturation. The default gain is x1:
+the shot-noise-limited relative error ``1/sqrt(K t beta cos theta_o)`` does not depend on the
+gain (it only lifts the signal above the read noise), so a higher starting gain mostly costs
+saturated readings.
 """
 
 from __future__ import annotations
