@@ -122,3 +122,29 @@ def test_corrupt_transcripts_are_clear_errors(tmp_path, capsys, edit, needle):
     assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
+
+
+def test_refused_points_are_never_sent(drv, tmp_path):
+    """Beam-block and out-of-limit points are listed, skipped, and never reach the controller."""
+    from gonio import protocol as P
+
+    plan = drv.write_plan(tmp_path, "refuse", incidence=(30, 88), in_plane=(-32, -28, -25, 10, 87),
+                          wavelengths=(550,), readings=4)
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=9) as mock:
+        res = drv.run(mock, plan, tmp_path / "run", record=tmp_path / "t.jsonl")
+        assert mock.controller.axes[1].fault == 0
+    assert res.status == "complete" and res.points_total == 2 and res.points_measured == 2
+    messages = load_transcript(tmp_path / "t.jsonl").messages
+    targets = {0: set(), 1: set()}
+    for m in messages:
+        p = m["payload"]
+        if m["dir"] == "tx" and m["ch"] == "modbus" and p.get("fn") == "write_registers":
+            for a in (0, 1):
+                if p["address"] == P.axis_target_address(a):
+                    targets[a].add(P.registers_to_int32(p["values"][0], p["values"][1]))
+        assert not (m["dir"] == "rx" and isinstance(p, dict) and "exception" in p), p
+    assert 88_000 not in targets[0]
+    assert not targets[1] & {-32_000, -28_000, 87_000}
+    assert {-25_000, 10_000} <= targets[1]
+    meta = read_dataset(tmp_path / "run").meta["provenance"]
+    assert len(meta["unmeasurable"]) == 8 and meta["points_planned"] == 2
