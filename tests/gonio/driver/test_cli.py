@@ -103,3 +103,11 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
         mock.send_signal(signal.SIGINT)
         mock.wait(10)
         mock.stdout.close()
+
+
+def test_unwritable_output_is_a_usage_error(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["demo", "--out", str(blocker / "sub"), "--plan", "quick", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "gonio demo:" in err and "Traceback" not in err
