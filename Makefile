@@ -15,8 +15,14 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# The main job: mock acquisition of red cotton -> the reference it must recover -> comparison report.
+# (The fiber/fabric simulation joins as a second SIM_DIR once `simulate fabric` exists.)
 demo: $(STAMP)
-	$(PY) -m demo_runner --out $(DEMO_OUT)
+	$(VENV)/bin/gonio demo --out $(DEMO_OUT)/measured --no-progress
+	$(VENV)/bin/gonio truth red-cotton red-cotton --out $(DEMO_OUT)/truth
+	$(VENV)/bin/compare report $(DEMO_OUT)/measured $(DEMO_OUT)/truth --out $(DEMO_OUT)/report
+	$(VENV)/bin/compare check $(DEMO_OUT)/measured $(DEMO_OUT)/truth --max-nrmse 0.05
+	@echo "demo: report in $(DEMO_OUT)/report/report.html"
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m "not slow"
@@ -26,6 +32,7 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/simulate bench --out bench-out
+	$(VENV)/bin/gonio bench-driver --plan red-cotton --out bench-out/driver.json
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) bench-out .pytest_cache

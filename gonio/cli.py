@@ -240,6 +240,22 @@ def _cmd_demo(args) -> int:
     return code
 
 
+def _cmd_truth(args) -> int:
+    from gonio.dataset import write_dataset
+    from gonio.mock.samples import SampleError
+    from gonio.truth import truth_dataset
+
+    plan = load_plan(args.plan)
+    try:
+        dataset = truth_dataset(args.sample, plan)
+    except SampleError as exc:
+        raise _UsageError(str(exc)) from None
+    out = write_dataset(dataset, args.out)
+    print(f"gonio truth: {dataset.name}, {len(dataset)} values at the geometries of plan "
+          f"{plan.name}; dataset in {out}/")
+    return EXIT_OK
+
+
 class _TimedLink:
     """Transport wrapper accumulating the time spent waiting in ``exchange`` (bench only)."""
 
@@ -397,6 +413,17 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
     common(d)
 
+    t = sub.add_parser("truth", help="write a mock sample's true beta at a plan's geometries",
+                       description="Evaluate the mock's virtual sample (lambert:RHO, red-cotton or "
+                                   "a dataset directory) at the measurable geometries and the "
+                                   "wavelengths of PLAN and write it as a dataset (kind "
+                                   "simulated, u_beta 0): the known answer an acquisition on the "
+                                   "mock must recover.")
+    t.add_argument("sample", metavar="SAMPLE", help="lambert:RHO, red-cotton or a dataset directory")
+    t.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name")
+    t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
+    t.add_argument("-v", "--verbose", action="store_true")
+
     return p
 
 
@@ -430,7 +457,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     _setup_logging(getattr(args, "verbose", False))
     handlers = {"acquire": _cmd_acquire, "replay": _cmd_replay, "check-plan": _cmd_check_plan,
-                "demo": _cmd_demo, "bench-driver": _cmd_bench}
+                "demo": _cmd_demo, "bench-driver": _cmd_bench, "truth": _cmd_truth}
     try:
         return handlers[args.command](args)
     except (_UsageError, *_USER_ERRORS) as exc:
