@@ -17,6 +17,13 @@ Retries (:class:`RetryPolicy`) are bounded with exponential backoff
 ``delay_k = min(base_s * factor**k, max_s)`` and counted per kind in a shared
 :class:`collections.Counter` (kinds: :data:`RETRY_KINDS`). What is not transient raises
 :class:`DeviceError`, whose message names the device, the command and the code.
+
+Unanswered writes: a Modbus request that got no answer (timeout, dropped connection) may or may
+not have been executed. Reads and idempotent writes (coils, CONTROL, the sample slot, homing) are
+simply sent again after reconnecting. A move command is first checked against the controller:
+after reconnecting, the axis' TARGET, VELOCITY and COMMAND registers and its state are read back,
+and the move is re-issued unless the controller shows that very move under way or done (or
+faulted: the wait reports the fault) - it is never assumed to have happened.
 """
 
 from __future__ import annotations
@@ -40,9 +47,11 @@ __all__ = ["DeviceError", "AxisFaultError", "RetryPolicy", "Measurement", "Photo
 log = logging.getLogger(__name__)
 
 #: Retry counter kinds (keys of the counter stored in a run's meta).
+#: ``link_lost`` is the head's link, ``modbus_link_lost`` the motion controller's (a dropped
+#: Modbus TCP connection, re-established by :meth:`gonio.transport.ModbusTransport.reconnect`).
 RETRY_KINDS = ("serial_timeout", "serial_garbled", "serial_truncated", "serial_checksum",
                "head_busy", "lamp_unstable", "modbus_busy", "modbus_no_response", "link_lost",
-               "axis_fault")
+               "axis_fault", "modbus_link_lost")
 
 _FRAMING_KIND = {
     protocol.NoResponse: "serial_timeout",
@@ -403,16 +412,24 @@ class MotionController:
         self._target_mdeg: list[int | None] = [None] * protocol.N_AXES
 
     # --- low level ------------------------------------------------------------------------
-    def call(self, request: dict, what: str) -> dict:
+    def call(self, request: dict, what: str, *,
+             took_effect: Callable[[], bool] | None = None) -> dict:
         """One Modbus request with retries (busy, no response, dropped link).
 
         Exception 6 (busy, e.g. still homing after an earlier session) is retried for up to
         ``busy_timeout_s`` of backoff; the other transient failures ``retry.attempts`` times.
+        After an unanswered attempt (timeout, dropped link) and the reconnection,
+        ``took_effect()`` (when given) asks the controller whether the request was executed
+        anyway; if so it is not sent again and ``{}`` is returned.
         """
         last: Exception | None = None
         k = 0
         busy_waited = 0.0
+        unanswered = False
         while k < self.retry.attempts:
+            if unanswered and took_effect is not None and took_effect():
+                log.info("motion controller: %s: executed although unanswered; not sent again", what)
+                return {}
             try:
                 return self.transport.exchange(request)
             except ModbusExceptionResponse as exc:
@@ -429,12 +446,13 @@ class MotionController:
                     k = min(k + 1, self.retry.attempts - 2)   # keep retrying while busy
                     continue
             except LinkTimeout as exc:
-                last = exc
+                last, unanswered = exc, True
                 self.retry.count("modbus_no_response")
                 self._reconnect()
             except LinkLost as exc:
-                last = exc
-                self.retry.count("link_lost")
+                last, unanswered = exc, True
+                self.retry.count("modbus_link_lost")
+                log.info("motion controller: %s: %s; reconnecting", what, exc)
                 self._reconnect()
             self.retry.sleep(self.retry.delay(k))
             k += 1
@@ -457,10 +475,11 @@ class MotionController:
         return self.call({"fn": "read_holding_registers", "address": address, "count": count},
                          what)["registers"]
 
-    def write(self, address: int, values: list[int], what: str) -> None:
-        """Write holding registers."""
+    def write(self, address: int, values: list[int], what: str, *,
+              took_effect: Callable[[], bool] | None = None) -> None:
+        """Write holding registers (``took_effect``: see :meth:`call`)."""
         self.call({"fn": "write_registers", "address": address, "values": [int(v) for v in values]},
-                  what)
+                  what, took_effect=took_effect)
 
     def write_coil(self, address: int, value: bool, what: str) -> None:
         """Write one coil."""
@@ -545,11 +564,28 @@ class MotionController:
             mdeg = targets[a]
             hi, lo = protocol.int32_to_registers(mdeg)
             self.write(protocol.axis_target_address(a), [hi, lo, v, protocol.AxisCommand.MOVE],
-                       f"{what}: axis {a}")
+                       f"{what}: axis {a}",
+                       took_effect=lambda a=a, mdeg=mdeg: self._move_taken(a, mdeg, v, what))
             self._target_mdeg[a] = mdeg
             self._velocity_cdeg_s[a] = v
             moving.append(a)
         self._wait(moving, what)
+
+    def _move_taken(self, a: int, mdeg: int, velocity: int, what: str) -> bool:
+        """Did the controller take the move of axis ``a`` to ``mdeg`` (an unanswered write)?
+
+        True when its TARGET, VELOCITY and COMMAND registers hold this move and the axis is
+        moving, in position at the target, or faulted (the wait then reports the fault).
+        """
+        hr = self.read_holding(protocol.axis_target_address(a), 4, f"{what}: re-read axis {a}")
+        if (protocol.registers_to_int32(hr[0], hr[1]) != mdeg or hr[2] != velocity
+                or hr[3] != protocol.AxisCommand.MOVE):
+            return False
+        st = self.axis(a)
+        if st.fault or st.status & AxisStatus.FAULT or st.status & AxisStatus.MOVING:
+            return True
+        return (bool(st.status & AxisStatus.IN_POSITION)
+                and abs(st.position_mdeg - mdeg) <= protocol.IN_POSITION_TOLERANCE_MDEG)
 
     def _safe_order(self, changed: list[int], targets: list[int], what: str) -> list[int]:
         """Order the axis commands so that no intermediate destination is in the beam-block zone.

@@ -23,6 +23,14 @@ Sequence
 4. always: shutter closed and drives stopped (``shutdown``), a ``session_end`` event with the
    retry counts, and the dataset written atomically from the journal (what was measured).
 
+Retry counts survive a killed session: every ``calibration`` and ``point`` record carries the
+session's cumulative retry counter (``retries``) at its checkpoint. The meta's ``retries`` sum,
+over the sessions (a ``start`` record or a ``resume`` event opens one), each session's last
+snapshot - its ``session_end`` counts when it ended, else those of its last checkpoint (retries
+spent on a point that was never journaled are lost with that point). ``sessions`` counts every
+session, killed ones included. Journals written before the snapshots existed sum their
+``session_end`` events as before.
+
 The radiance factor and its uncertainty come from :func:`gonio.calibration.radiance_factor`.
 
 Exit status (:class:`RunResult.exit_code`): 0 complete; 1 stopped safely by an instrument
@@ -54,7 +62,7 @@ from gonio.journal import Journal, JournalContent, JournalError, check_consisten
 from gonio.plan import Plan, PlanPoint
 
 __all__ = ["Engine", "RunResult", "AcquisitionError", "Interrupted", "EXIT_OK", "EXIT_STOPPED",
-           "EXIT_USAGE", "EXIT_INTERRUPTED", "dataset_from_journal", "JOURNAL_NAME"]
+           "EXIT_USAGE", "EXIT_INTERRUPTED", "dataset_from_journal", "retry_totals", "JOURNAL_NAME"]
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +154,10 @@ class Engine:
         self.journal.append(record)
         self.records.append(record)
 
+    def _retry_snapshot(self) -> dict[str, int]:
+        """This session's cumulative retry counts (non-zero kinds, sorted)."""
+        return {k: int(v) for k, v in sorted(self.retry.counts.items()) if v}
+
     def _reference_axes(self) -> tuple[float, float, float, float]:
         ti, to = self.plan.reference_deg
         return (ti, to, 0.0, 0.0)
@@ -228,7 +240,7 @@ class Engine:
         rec = {"type": "calibration", "id": (max(ids) + 1) if ids else 0, "time": self.clock(),
                "plan_sha256": self.plan.sha256, "standard_sha256": self.standard.sha256,
                "idn": self.identity, "darks": darks, "reference": reference,
-               "reference_deg": list(self.plan.reference_deg)}
+               "reference_deg": list(self.plan.reference_deg), "retries": self._retry_snapshot()}
         self._append(rec)
         return rec
 
@@ -325,7 +337,7 @@ class Engine:
         measured = len({tuple(r["geometry"]) for r in self.records if r["type"] == "point"})
         if status != "complete":
             log.error("%s (%d of %d points measured)", message, measured, total)
-        retries = {k: int(v) for k, v in sorted(self.retry.counts.items()) if v}
+        retries = self._retry_snapshot()
         self._append({"type": "event", "what": "session_end", "status": status,
                       "message": message, "retries": retries, "time": self.clock()})
         self.journal.close()
@@ -357,7 +369,7 @@ class Engine:
                 readings.append(r)
         self._append({"type": "point", "index": index, "axes_deg": list(p.axes_deg),
                       "geometry": list(p.key), "calibration": cal_id, "readings": readings,
-                      "saturated_nm": saturated})
+                      "saturated_nm": saturated, "retries": self._retry_snapshot()})
 
     def _progress(self, total: int, initial: int):
         if not self.progress:
@@ -428,13 +440,7 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
     table = pd.DataFrame({"theta_i": c["theta_i"], "phi_i": c["phi_i"], "theta_o": c["theta_o"],
                           "phi_o": c["phi_o"], "wavelength_nm": c["wavelength_nm"], "beta": beta,
                           "u_beta": u_beta, "n": c["n"].astype(int)})
-    retries: dict[str, int] = {}
-    sessions = 0
-    for r in records:
-        if r["type"] == "event" and r.get("what") == "session_end":
-            sessions += 1
-            for k, v in r.get("retries", {}).items():
-                retries[k] = retries.get(k, 0) + int(v)
+    retries, sessions = retry_totals(records)
     check = plan.check()
     links = links or {}
     meta = new_meta(
@@ -459,3 +465,27 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
         },
         created=created or _iso(float(start["time"])))
     return make_dataset(table, meta)
+
+
+def retry_totals(records: list[dict]) -> tuple[dict[str, int], int]:
+    """``(retries summed over the sessions, number of sessions)`` of a journal.
+
+    A ``start`` record or a ``resume`` event opens a session; a session's counts are its last
+    snapshot (``retries`` of its ``session_end`` event, or of its last ``calibration`` or
+    ``point`` record when it was killed). See the module docstring.
+    """
+    snapshots: list[dict] = []
+    for r in records:
+        kind, what = r["type"], r.get("what")
+        if kind == "start" or (kind == "event" and what == "resume"):
+            snapshots.append({})
+            continue
+        if not snapshots or not isinstance(r.get("retries"), dict):
+            continue
+        if kind in ("calibration", "point") or (kind == "event" and what == "session_end"):
+            snapshots[-1] = r["retries"]
+    totals: dict[str, int] = {}
+    for snap in snapshots:
+        for k, v in snap.items():
+            totals[k] = totals.get(k, 0) + int(v)
+    return dict(sorted(totals.items())), len(snapshots)

@@ -6,12 +6,18 @@ point that was measured, plus at most one torn last line. Records (one JSON obje
 
 ``start``        ``{"type": "start", "plan": name, "plan_sha256", "standard_sha256", "time", "session"}``
 ``calibration``  ``{"type": "calibration", "id", "time", "plan_sha256", "standard_sha256", "idn",
-                 "darks": [step...], "reference": [reading...], "reference_deg"}`` - dark per
-                 auto-ranging step and the white standard per wavelength
+                 "darks": [step...], "reference": [reading...], "reference_deg", "retries"}`` -
+                 dark per auto-ranging step and the white standard per wavelength
 ``point``        ``{"type": "point", "index", "axes_deg": [4], "geometry": [theta_i, phi_i, theta_o,
-                 phi_o], "calibration", "readings": [reading...], "saturated_nm": [...]}`` - one
-                 geometry, every wavelength (those saturated at every setting are listed, not stored)
+                 phi_o], "calibration", "readings": [reading...], "saturated_nm": [...],
+                 "retries"}`` - one geometry, every wavelength (those saturated at every setting
+                 are listed, not stored)
 ``event``        ``{"type": "event", "what": str, ...}`` - resume, retries, safe stop, completion
+
+``retries`` (optional: journals written before it existed lack it) is the session's cumulative
+retry counter at that checkpoint, ``{kind: count}`` (:data:`gonio.devices.RETRY_KINDS`), so the
+counts of a session killed before its ``session_end`` event are not lost
+(:func:`gonio.engine.retry_totals`).
 
 A *reading* is ``{"wavelength_nm", "itime_ms", "gain", "mean", "sem", "n", "ranging"}`` (raw
 counts; the radiance factor is computed from the journal when the dataset is written, so a
@@ -76,6 +82,11 @@ def _validate(rec: Any, where: str) -> dict:
     if not isinstance(kind, str) or kind not in _SCHEMA:
         raise JournalError(f"{where}: unknown record type {kind!r}")
     _check_fields(rec, _SCHEMA[kind], where)
+    if "retries" in rec:
+        counts = rec["retries"]
+        if not isinstance(counts, dict) or not all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counts.values()):
+            raise JournalError(f"{where}: field 'retries' must map retry kinds to counts >= 0")
     if kind == "calibration":
         for k, d in enumerate(rec["darks"]):
             if not isinstance(d, dict):

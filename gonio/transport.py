@@ -20,6 +20,13 @@ for a transport because nothing else crosses this interface.
 
 pymodbus's own retries are disabled (``retries=0``): the device layer owns the retry policy, so
 retries are counted and recorded.
+
+A Modbus TCP connection closed by the server (or the network) shows as pymodbus'
+``ConnectionException`` on the request in flight (the client reads EOF): :meth:`ModbusTransport.exchange`
+closes the client and raises :class:`LinkLost`; the request may or may not have been executed.
+:meth:`ModbusTransport.reconnect` then connects again, retrying a refused connection with bounded
+exponential backoff ``delay_k = min(base_s * 2**k, max_s)`` for ``reconnect_attempts`` attempts
+(a controller rebooting after a power glitch takes a moment to listen again).
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from __future__ import annotations
 import logging
 import time
 import urllib.parse
-from typing import Any
+from typing import Any, Callable
 
 import serial
 from pymodbus import FramerType
@@ -223,11 +230,18 @@ class ModbusTransport:
 
     channel = "modbus"
 
-    def __init__(self, url: str, *, device_id: int = protocol.UNIT_ID, timeout_s: float = 1.0):
+    def __init__(self, url: str, *, device_id: int = protocol.UNIT_ID, timeout_s: float = 1.0,
+                 reconnect_attempts: int = 6, reconnect_base_s: float = 0.01,
+                 reconnect_max_s: float = 0.5, sleep: Callable[[float], None] = time.sleep):
         self.url = url
         self.settings = parse_modbus_url(url)
         self.device_id = device_id
         self.timeout_s = float(timeout_s)
+        self.reconnect_attempts = max(1, int(reconnect_attempts))
+        self.reconnect_base_s = float(reconnect_base_s)
+        self.reconnect_max_s = float(reconnect_max_s)
+        self.sleep = sleep
+        self.reconnects = 0          # successful reconnections (for logs and tests)
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
 
     def _make_client(self):
@@ -258,9 +272,30 @@ class ModbusTransport:
             self._client = None
 
     def reconnect(self) -> None:
-        """Drop the connection and connect again (also flushes late responses)."""
-        self.close()
-        self.open()
+        """Drop the connection and connect again (also flushes late responses).
+
+        A refused connection is retried with bounded backoff (see the module docstring); raises
+        :class:`LinkLost` when every attempt failed.
+        """
+        last: LinkLost | None = None
+        for k in range(self.reconnect_attempts):
+            self.close()
+            try:
+                self.open()
+            except LinkLost as exc:
+                last = exc
+                if k + 1 < self.reconnect_attempts:
+                    delay = min(self.reconnect_base_s * 2.0**k, self.reconnect_max_s)
+                    log.info("modbus: reconnect attempt %d failed (%s); next in %.3f s", k + 1, exc,
+                             delay)
+                    self.sleep(delay)
+                continue
+            self.reconnects += 1
+            if k:
+                log.info("modbus: reconnected to %s after %d attempts", self.url, k + 1)
+            return
+        assert last is not None
+        raise LinkLost(self.channel, f"{last} ({self.reconnect_attempts} attempts)")
 
     def exchange(self, request: dict) -> dict:
         """Execute one request (see :data:`MODBUS_FUNCTIONS`); see the module docstring."""

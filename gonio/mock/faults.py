@@ -32,17 +32,33 @@ this order: drop, serial_timeout, busy, garbled, truncated, checksum):
                     whatever else happens to the reply) the readings are perturbed and the reply
                     is flagged lamp unstable (flags bit1). Dark readings are never affected.
 
-Motion controller (one opportunity per Modbus request for both request kinds; when both fire,
-the request is dropped):
+Motion controller (one opportunity per Modbus request for the three request kinds; a request
+hit by several kinds gets the first in this order: modbus_drop, modbus_noresponse, modbus_busy):
 
 ``modbus_busy``        answered with exception 6 (device busy); not executed.
 ``modbus_noresponse``  the request is dropped without an answer; not executed.
+``modbus_drop``        the link drops at this request, which gets no answer.
+                       Modbus TCP: the server closes the client's connection (the transport of
+                       the connection that carried the request; the client reads EOF) - after
+                       executing the request or before, one draw of the kind's own stream
+                       (probability 1/2 each), so a driver can never assume that an unanswered
+                       write did, or did not, take effect. New connections are accepted at once.
+                       Modbus RTU (a serial line has no connection to close): the equivalent of
+                       a controller whose serial interface re-initialises - the request is not
+                       executed and every request arriving in the next
+                       :data:`gonio.mock.motion.LINK_SILENCE_S` (times the speed factor) is
+                       ignored without an answer; those ignored requests are no opportunities
+                       (they never reach the controller), so the decisions still depend only on
+                       the sequence of requests the controller sees.
 ``axis_fault``         (one opportunity per accepted move command) the axis stops half way
                        with fault 1 (following error); CONTROL bit3 resets it.
 
 A faulted exchange never advances the head's repetition counter (its readings are discarded),
 so a session that retries through faults measures exactly the numbers of a clean session:
-faults never corrupt a reading that is reported as good.
+faults never corrupt a reading that is reported as good. Modbus faults never touch it either: a
+Modbus request changes the head's state only through the controller (a move, a coil, the sample
+slot), and repeating such a request (after a drop that did execute it) resets the counter to the
+same zero.
 """
 
 from __future__ import annotations
@@ -53,10 +69,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FAULT_KINDS", "HEAD_FAULT_ORDER", "FaultRule", "FaultSpecError", "parse_faults", "FaultInjector"]
+__all__ = ["FAULT_KINDS", "HEAD_FAULT_ORDER", "MODBUS_FAULT_ORDER", "FaultRule", "FaultSpecError", "parse_faults", "FaultInjector"]
 
 HEAD_FAULT_ORDER = ("drop", "serial_timeout", "busy", "garbled", "truncated", "checksum")
-FAULT_KINDS = HEAD_FAULT_ORDER + ("lamp", "modbus_busy", "modbus_noresponse", "axis_fault")
+# the index of a kind keys its random stream: new kinds are appended, never inserted
+FAULT_KINDS = HEAD_FAULT_ORDER + ("lamp", "modbus_busy", "modbus_noresponse", "axis_fault",
+                                  "modbus_drop")
+MODBUS_FAULT_ORDER = ("modbus_drop", "modbus_noresponse", "modbus_busy")
 _FAULT_DOMAIN = 0x6661756C
 
 

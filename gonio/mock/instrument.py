@@ -30,7 +30,8 @@ from gonio.mock.faults import FaultInjector
 from gonio.mock.head import PhotometerHead
 from gonio.mock.motion import INTEGRATION_FACTORS, SPEED_FACTORS, ModbusFrontend, MotionController
 from gonio.mock.samples import make_sample, reference_beta
-from gonio.mock.servers import PtyBridge, serve_head_pty, serve_head_socket
+from gonio.mock.servers import (PtyBridge, drop_current_modbus_connection, make_dropping_tcp_server,
+                                serve_head_pty, serve_head_socket)
 
 __all__ = ["MockInstrument", "MockConfigError", "parse_modbus_option", "parse_serial_option"]
 
@@ -124,7 +125,7 @@ class MockInstrument:
         self.controller = MotionController(time_scale=self.time_scale, faults=self.faults)
         self.head = PhotometerHead(self.controller, self.sample, seed=self.seed, faults=self.faults,
                                    time_scale=self.time_scale, integration_scale=INTEGRATION_FACTORS[speed])
-        self.frontend = ModbusFrontend(self.controller, self.faults)
+        self.frontend = ModbusFrontend(self.controller, self.faults, link=self._modbus[0])
         self.modbus_url: str | None = None
         self.serial_url: str | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -139,7 +140,8 @@ class MockInstrument:
     def stats(self) -> dict[str, Any]:
         """Faults injected per kind and requests served."""
         return {"faults": {k: int(v) for k, v in self.faults.stats.items() if v},
-                "modbus_requests": self.frontend.requests, "head_commands": self.head.commands}
+                "modbus_requests": self.frontend.requests, "modbus_drops": self.frontend.drops,
+                "head_commands": self.head.commands}
 
     @staticmethod
     def reference_beta(wavelength_nm) -> np.ndarray:
@@ -214,13 +216,14 @@ class MockInstrument:
 
     async def _startup(self) -> None:
         from pymodbus import FramerType
-        from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+        from pymodbus.server import ModbusSerialServer
 
         lock = asyncio.Lock()
         kind, host, port = self._modbus
         device = self.frontend.device()
         if kind == "tcp":
-            server = ModbusTcpServer(device, address=(host, port), ignore_missing_devices=True)
+            server = make_dropping_tcp_server(device, address=(host, port), ignore_missing_devices=True)
+            self.frontend.drop_link = drop_current_modbus_connection
             await server.serve_forever(background=True)
             bound = server.transport.sockets[0].getsockname()[1]
             self.modbus_url = f"tcp://{host}:{bound}"

@@ -15,28 +15,34 @@ exception 3) are enforced in :meth:`MotionController.write_holding`.
 
 :class:`ModbusFrontend` maps register reads and writes of the pymodbus ``SimDevice`` action
 callback onto the controller; pymodbus' own register storage is only a mirror refreshed on
-every access.
+every access. It also injects the Modbus faults (see :mod:`gonio.mock.faults`); a dropped link
+(``modbus_drop``) is handed to the transport through the frontend's ``drop_link`` hook (TCP:
+close the connection that carried the request, :mod:`gonio.mock.servers`), or, over RTU, makes
+the controller's serial interface ignore requests for :data:`LINK_SILENCE_S` (times the speed
+factor).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable
 
 from gonio import protocol as P
-from gonio.mock.faults import FaultInjector
+from gonio.mock.faults import MODBUS_FAULT_ORDER, FaultInjector
 
-__all__ = ["HOMING_TIME_S", "SETTLE_TIME_S", "SPEED_FACTORS", "INTEGRATION_FACTORS", "AxisState",
-           "MotionController",
-           "ModbusFrontend", "ModbusRefusal", "DropRequest"]
+__all__ = ["HOMING_TIME_S", "SETTLE_TIME_S", "LINK_SILENCE_S", "SPEED_FACTORS", "INTEGRATION_FACTORS",
+           "AxisState", "MotionController", "ModbusFrontend", "ModbusRefusal", "DropRequest"]
 
 log = logging.getLogger(__name__)
 
 HOMING_TIME_S = 1.5
 SETTLE_TIME_S = 0.2
 SETTLE_OVERSHOOT_MDEG = 20
+LINK_SILENCE_S = 0.5
+"""After a ``modbus_drop`` over RTU the controller ignores requests this long (times speed)."""
 SPEED_FACTORS = {"fast": 0.01, "real": 1.0}
 """Multiplier of every motion time (and of the head's link re-initialisation) per ``--speed``."""
 INTEGRATION_FACTORS = {"fast": 0.001, "real": 1.0}
@@ -337,12 +343,31 @@ class MotionController:
 
 
 class ModbusFrontend:
-    """The pymodbus ``SimDevice`` of the controller, with fault injection and statistics."""
+    """The pymodbus ``SimDevice`` of the controller, with fault injection and statistics.
 
-    def __init__(self, controller: MotionController, faults: FaultInjector | None = None):
+    Parameters
+    ----------
+    controller : the controller model.
+    faults : the fault injector (None: no faults).
+    link : ``"tcp"`` or ``"rtu"``: how a ``modbus_drop`` shows (see :mod:`gonio.mock.faults`).
+
+    ``drop_link`` (set by the TCP server) is called inside the action of a request hit by
+    ``modbus_drop`` and closes the connection that carried it; ``requests`` counts the requests
+    that reached the controller (those ignored during an RTU silence excluded), ``drops`` the
+    links dropped.
+    """
+
+    def __init__(self, controller: MotionController, faults: FaultInjector | None = None,
+                 link: str = "tcp"):
+        if link not in ("tcp", "rtu"):
+            raise ValueError(f"link must be 'tcp' or 'rtu', not {link!r}")
         self.controller = controller
         self.faults = faults
+        self.link = link
         self.requests = 0
+        self.drops = 0
+        self.silent_until = -math.inf
+        self.drop_link: Callable[[], None] | None = None
 
     def device(self):
         """Build the ``pymodbus.simulator.SimDevice`` (non-shared blocks: c, d, h, i)."""
@@ -356,24 +381,67 @@ class ModbusFrontend:
                   for start, count in P.INPUT_REGISTER_RANGES]
         return SimDevice(id=P.UNIT_ID, simdata=(coils, discrete, holding, inputs), action=self.action)
 
+    def _decide(self) -> tuple[str | None, bool]:
+        """Draw every Modbus kind for one request: ``(fault or None, executed before a drop)``.
+
+        All three kinds are drawn on every request (so each decision depends on the request
+        count only); ``modbus_drop`` wins over ``modbus_noresponse`` over ``modbus_busy`` and the
+        losers are not counted as injected.
+        """
+        f = self.faults
+        if f is None:
+            return None, False
+        fired = [k for k in MODBUS_FAULT_ORDER if f.fires(k)]
+        for k in fired[1:]:
+            f.stats[k] -= 1
+        if not fired:
+            return None, False
+        executed = False
+        if fired[0] == "modbus_drop" and self.link == "tcp":
+            executed = bool(f.rng("modbus_drop").random() < 0.5)
+        return fired[0], executed
+
+    def _drop(self, fc: int, address: int, executed: bool):
+        """Drop the link now (no answer); returns the exception pymodbus treats as 'no answer'."""
+        from pymodbus.exceptions import NoSuchIdException
+
+        self.drops += 1
+        if self.link == "tcp":
+            log.info("modbus fc %d @%d: connection closed (injected modbus_drop, request %s)",
+                     fc, address, "executed" if executed else "not executed")
+            if self.drop_link is not None:
+                self.drop_link()
+        else:
+            self.silent_until = self.controller.now() + LINK_SILENCE_S * self.controller.time_scale
+            log.info("modbus fc %d @%d: serial interface silent (injected modbus_drop)", fc, address)
+        return NoSuchIdException("link dropped (injected modbus_drop)")
+
     async def action(self, fc: int, start: int, address: int, count: int, regs: list[int], values):
         """pymodbus simulator action: runs on every request before pymodbus touches ``regs``."""
         from pymodbus.constants import ExcCodes
         from pymodbus.exceptions import NoSuchIdException
 
+        if self.link == "rtu" and self.controller.now() < self.silent_until:
+            # re-initialising after a dropped link: the request is not seen at all
+            raise NoSuchIdException("serial interface re-initialising (injected modbus_drop)")
         self.requests += 1
-        if self.faults is not None:
-            # draw both kinds on every request (decisions depend on the request count only)
-            drop = self.faults.fires("modbus_noresponse")
-            busy = self.faults.fires("modbus_busy")
-            if drop:
-                if busy:
-                    self.faults.stats["modbus_busy"] -= 1      # not injected: the request is gone
-                log.info("modbus fc %d @%d: dropped (injected fault)", fc, address)
-                raise NoSuchIdException("request dropped (injected modbus_noresponse)")
-            if busy:
-                log.info("modbus fc %d @%d: exception 6 (injected fault)", fc, address)
-                return ExcCodes.DEVICE_BUSY
+        fault, executed = self._decide()
+        if fault == "modbus_drop" and not executed:
+            raise self._drop(fc, address, executed)
+        if fault == "modbus_noresponse":
+            log.info("modbus fc %d @%d: dropped (injected fault)", fc, address)
+            raise NoSuchIdException("request dropped (injected modbus_noresponse)")
+        if fault == "modbus_busy":
+            log.info("modbus fc %d @%d: exception 6 (injected fault)", fc, address)
+            return ExcCodes.DEVICE_BUSY
+        result = self._execute(fc, start, address, count, regs, values)
+        if fault == "modbus_drop":
+            raise self._drop(fc, address, executed)
+        return result
+
+    def _execute(self, fc: int, start: int, address: int, count: int, regs: list[int], values):
+        from pymodbus.constants import ExcCodes
+
         ctl = self.controller
         try:
             if fc in (1, 5, 15):                       # coils

@@ -7,11 +7,22 @@ server and a client can each open a ``/dev/pts/N`` path (no socat needed).
 The head is served by :class:`HeadLink`: bytes are split into lines at ``\\n`` (a preceding
 ``\\r`` is dropped), and lines are handled one at a time in order; each reply is written after
 the command's own duration (integration time) has elapsed.
+
+The Modbus TCP server is pymodbus' ``ModbusTcpServer`` with one change
+(:func:`make_dropping_tcp_server`): each connection's request handler records itself in a
+context variable while it handles a request, so the simulator action of that request
+(:meth:`gonio.mock.motion.ModbusFrontend.action`, awaited inside the handler's task) can close
+*that* connection (``handler.transport.close()``: asyncio's ``connection_lost`` then runs
+pymodbus' own clean-up, and the listener keeps accepting new connections). In pymodbus 3.16 a
+``ServerRequestHandler`` is created per connection by ``ModbusBaseServer.callback_new_connection``
+and ``handle_request`` awaits ``pdu.datastore_update`` -> ``SimCore`` -> the action; an action
+raising ``NoSuchIdException`` with ``ignore_missing_devices=True`` sends no answer.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import errno
 import logging
 import os
@@ -21,7 +32,8 @@ import tty
 
 from gonio.mock.head import DROP_SILENCE_S, MAX_LINE_BYTES, PhotometerHead
 
-__all__ = ["open_raw_pty", "PtyBridge", "HeadLink", "serve_head_pty", "serve_head_socket"]
+__all__ = ["open_raw_pty", "PtyBridge", "HeadLink", "serve_head_pty", "serve_head_socket",
+           "make_dropping_tcp_server", "drop_current_modbus_connection"]
 
 log = logging.getLogger(__name__)
 
@@ -238,3 +250,49 @@ async def serve_head_socket(head: PhotometerHead, lock: asyncio.Lock, host: str,
             pass
 
     return bound, close
+
+
+_HANDLER: contextvars.ContextVar = contextvars.ContextVar("gonio_mock_modbus_handler", default=None)
+
+
+def _handler_class():
+    from pymodbus.server.requesthandler import ServerRequestHandler
+
+    class _TrackedHandler(ServerRequestHandler):
+        """pymodbus' per-connection handler, visible to the action while it handles a request."""
+
+        async def handle_request(self):
+            token = _HANDLER.set(self)
+            try:
+                await super().handle_request()
+            finally:
+                _HANDLER.reset(token)
+
+    return _TrackedHandler
+
+
+def drop_current_modbus_connection() -> bool:
+    """Close the Modbus TCP connection whose request is being handled (from the action).
+
+    Returns False when called outside a request of a :func:`make_dropping_tcp_server` server.
+    """
+    handler = _HANDLER.get()
+    transport = getattr(handler, "transport", None) if handler is not None else None
+    if transport is None:
+        return False
+    transport.close()
+    return True
+
+
+def make_dropping_tcp_server(*args, **kwargs):
+    """A ``pymodbus.server.ModbusTcpServer`` (same arguments) whose connections the action can drop
+    (:func:`drop_current_modbus_connection`; see the module docstring)."""
+    from pymodbus.server import ModbusTcpServer
+
+    handler_cls = _handler_class()
+
+    class _Server(ModbusTcpServer):
+        def callback_new_connection(self):
+            return handler_cls(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+    return _Server(*args, **kwargs)
