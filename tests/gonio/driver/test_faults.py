@@ -27,6 +27,7 @@ MATRIX = [
     ("modbus_busy=0.08", "modbus_busy", "pty"),
     ("modbus_noresponse=0.04", "modbus_no_response", "pty"),
     ("axis_fault=0.2", "axis_fault", "pty"),
+    ("modbus_drop=0.06", "modbus_link_lost", "pty"),       # Modbus TCP (the mock's default)
 ]
 
 
@@ -67,9 +68,41 @@ def test_fault_kind(drv, tmp_path, spec, counter, serial):
     assert (tmp_path / "run" / "radiance.csv").read_bytes() == _clean(drv, tmp_path, serial)
 
 
+def test_modbus_drop_tcp_every_drop_reconnected_and_counted(drv, tmp_path, caplog):
+    """Each dropped connection is one modbus_link_lost retry; an unanswered move that the
+    controller did take is not sent again; the numbers equal a clean session's."""
+    import logging
+
+    plan = _plan(drv, tmp_path)
+    with caplog.at_level(logging.INFO, logger="gonio.devices"), \
+            MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED, faults="modbus_drop=0.1") as mock:
+        res = drv.run(mock, plan, tmp_path / "run", timeout_s=0.15)
+        drops = mock.stats["modbus_drops"]
+        assert mock.controller.shutter_open is False
+    assert res.status == "complete", res.message
+    retries = read_dataset(tmp_path / "run").meta["provenance"]["retries"]
+    assert drops >= 5 and retries == {"modbus_link_lost": drops}, (drops, retries)
+    assert any("executed although unanswered" in r.getMessage() for r in caplog.records)
+    assert (tmp_path / "run" / "radiance.csv").read_bytes() == _clean(drv, tmp_path, "pty")
+
+
+def test_modbus_drop_rtu_session_completes(drv, tmp_path):
+    """Over RTU a drop is a silent interface: timeouts, retried after re-opening the port."""
+    plan = _plan(drv, tmp_path)
+    with MockInstrument(sample="lambert:0.5", modbus="rtu", speed="fast", seed=SEED,
+                        faults="modbus_drop=0.05") as mock:
+        res = drv.run(mock, plan, tmp_path / "run", timeout_s=0.15)
+        drops = mock.stats["modbus_drops"]
+    assert res.status == "complete", res.message
+    retries = read_dataset(tmp_path / "run").meta["provenance"]["retries"]
+    assert drops > 0 and retries.get("modbus_no_response", 0) >= drops, (drops, retries)
+    # the link does not change the numbers: equal to a clean session over Modbus TCP
+    assert (tmp_path / "run" / "radiance.csv").read_bytes() == _clean(drv, tmp_path, "pty")
+
+
 def test_all_faults_at_once(drv, tmp_path):
     spec = ("serial_timeout=0.01,busy=0.03,garbled=0.03,truncated=0.02,checksum=0.03,drop=0.01,"
-            "lamp=0.03,modbus_busy=0.03,modbus_noresponse=0.01,axis_fault=0.1")
+            "lamp=0.03,modbus_busy=0.03,modbus_noresponse=0.01,axis_fault=0.1,modbus_drop=0.02")
     plan = _plan(drv, tmp_path)
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED, faults=spec) as mock:
         res = drv.run(mock, plan, tmp_path / "run", timeout_s=0.15)

@@ -2,6 +2,7 @@
 corrupts a reading reported as good."""
 
 import socket
+import time
 
 import numpy as np
 import pytest
@@ -198,3 +199,78 @@ def test_rate_faults_end_to_end_deterministic_for_a_seed(tools):
     c, _ = transcript(22)
     assert a == b and stats_a == stats_b and a != c
     assert {"garbled", "truncated", "busy", "checksum"} <= set(stats_a)
+
+
+def _mbap_read_input(transaction: int, address: int, count: int) -> bytes:
+    """A Modbus TCP request frame built by hand (MBAP header + PDU, function 4)."""
+    import struct
+    return struct.pack(">HHHBBHH", transaction, 0, 6, P.UNIT_ID, 4, address, count)
+
+
+def test_modbus_drop_tcp_closes_the_connection_at_the_request(tools):
+    with MockInstrument(modbus="tcp", serial="socket", faults="modbus_drop=@3", seed=2) as m:
+        host, port = m.modbus_url[len("tcp://"):].rsplit(":", 1)
+        sock = socket.create_connection((host, int(port)), timeout=2.0)
+        for k in (1, 2):
+            sock.sendall(_mbap_read_input(k, P.IR_FIRMWARE, 1))
+            reply = sock.recv(256)
+            assert reply[-2:] == b"\x01\x04", reply                 # firmware 1.4
+        sock.sendall(_mbap_read_input(3, P.IR_FIRMWARE, 1))
+        assert sock.recv(256) == b""                                # 3: EOF, no answer
+        sock.close()
+        mb = tools.UmbClient(m.modbus_url)                          # new connections: served
+        assert mb.read_input(P.IR_FIRMWARE, 1) == [0x0104]
+        assert mb.read_input(P.IR_FIRMWARE, 1) == [0x0104]          # once only (@3)
+        mb.close()
+        assert m.stats["faults"] == {"modbus_drop": 1}
+        assert m.stats["modbus_drops"] == 1 and m.stats["modbus_requests"] == 5
+
+
+def _dropped_write_took_effect(tools, seed: int) -> bool:
+    with MockInstrument(modbus="tcp", serial="socket", faults="modbus_drop=@1", seed=seed) as m:
+        mb = tools.UmbClient(m.modbus_url, timeout=1.0)
+        with pytest.raises(ValueError):                             # umodbus: empty reply (EOF)
+            mb.write_one(P.HR_SAMPLE_SLOT, int(P.SampleSlot.WHITE_REFERENCE))
+        mb.close()
+        mb = tools.UmbClient(m.modbus_url, timeout=1.0)
+        slot = mb.read_holding(P.HR_SAMPLE_SLOT, 1)[0]
+        mb.close()
+        assert m.controller.slot == slot
+        return slot == int(P.SampleSlot.WHITE_REFERENCE)
+
+
+def test_modbus_drop_tcp_write_may_or_may_not_have_been_executed(tools):
+    outcomes = [_dropped_write_took_effect(tools, seed) for seed in range(8)]
+    assert any(outcomes) and not all(outcomes), outcomes          # both cases occur
+    assert [_dropped_write_took_effect(tools, s) for s in (0, 1, 2)] == outcomes[:3]  # per seed
+
+
+def test_modbus_drop_rtu_is_a_silent_interface(tools):
+    import minimalmodbus
+
+    with MockInstrument(modbus="rtu", serial="pty", faults="modbus_drop=@2", speed="real") as m:
+        path = m.modbus_url[len("rtu://"):]
+        inst = minimalmodbus.Instrument(path, P.UNIT_ID)
+        for key, value in P.rtu_serial_settings(path).items():
+            setattr(inst.serial, key, value)
+        inst.serial.timeout = 0.15
+        assert inst.read_register(P.IR_FIRMWARE, functioncode=4) == 0x0104      # 1
+        with pytest.raises(minimalmodbus.NoResponseError):
+            inst.read_register(P.IR_FIRMWARE, functioncode=4)                 # 2: dropped
+        with pytest.raises(minimalmodbus.NoResponseError):                    # ignored: silent
+            inst.write_register(P.HR_SAMPLE_SLOT, int(P.SampleSlot.WHITE_REFERENCE))
+        time.sleep(0.5)                                                       # 0.5 s at real speed
+        assert inst.read_register(P.IR_FIRMWARE, functioncode=4) == 0x0104
+        assert inst.read_register(P.HR_SAMPLE_SLOT, functioncode=3) == int(P.SampleSlot.SAMPLE)
+        inst.serial.close()
+        assert m.stats["faults"] == {"modbus_drop": 1}
+        assert m.stats["modbus_requests"] == 4           # the ignored request never reached it
+
+
+def test_a_new_kind_leaves_the_other_streams_unchanged():
+    a = FaultInjector("modbus_busy=0.3,modbus_noresponse=0.2", seed=9)
+    b = FaultInjector("modbus_busy=0.3,modbus_noresponse=0.2,modbus_drop=0.4", seed=9)
+    for _ in range(200):
+        b.fires("modbus_drop")
+        assert a.fires("modbus_busy") == b.fires("modbus_busy")
+        assert a.fires("modbus_noresponse") == b.fires("modbus_noresponse")
