@@ -10,7 +10,7 @@ import pytest
 from gonio import protocol as P
 from gonio.devices import AxisFaultError, DeviceError, MotionController, PhotometerHead, RetryPolicy
 from gonio.mock import MockInstrument
-from gonio.transport import ModbusTransport, SerialTransport, parse_modbus_url
+from gonio.transport import LinkLost, ModbusTransport, SerialTransport, parse_modbus_url
 
 
 @pytest.fixture
@@ -247,3 +247,67 @@ def test_open_interlock_or_emergency_stop_refuses_to_start(simdevice, bit, needl
     with pytest.raises(DeviceError, match=f"motion controller: read status: .*{needle}"):
         motion.check_safe_to_move()
     motion.transport.close()
+
+
+class _DropOnce:
+    """Wraps a Modbus transport: the first move command of ``axis`` gets no answer - a dropped
+    connection - after being passed to the controller (``executed``) or not."""
+
+    def __init__(self, inner, axis: int, executed: bool):
+        self.inner, self.axis, self.executed = inner, axis, executed
+        self.channel, self.url, self.timeout_s = inner.channel, inner.url, inner.timeout_s
+        self.fired = False
+        self.moves_sent = 0
+        self.reconnects = 0
+
+    def exchange(self, request):
+        is_move = (request["fn"] == "write_registers"
+                   and request["address"] == P.axis_target_address(self.axis))
+        if is_move and not self.fired:
+            self.fired = True
+            if self.executed:
+                self.moves_sent += 1
+                self.inner.exchange(request)
+            self.inner.close()
+            raise LinkLost("modbus", "connection closed by the peer (test)")
+        if is_move:
+            self.moves_sent += 1
+        return self.inner.exchange(request)
+
+    def reconnect(self):
+        self.reconnects += 1
+        self.inner.reconnect()
+
+    def close(self):
+        self.inner.close()
+
+
+@pytest.mark.parametrize("executed", [True, False])
+def test_unanswered_move_is_checked_then_reissued_only_if_needed(mock, executed):
+    modbus = _DropOnce(ModbusTransport(mock.modbus_url, timeout_s=0.3), axis=3, executed=executed)
+    mock.links.append(modbus)
+    retry = RetryPolicy(base_s=0.001)
+    motion = MotionController(modbus, retry)
+    motion.home()
+    motion.move_to((0, 45, 0, 120), 60)
+    assert modbus.fired and modbus.reconnects == 1
+    assert retry.counts["modbus_link_lost"] == 1
+    # the controller was asked; the move is sent again only when it had not been taken
+    assert modbus.moves_sent == 1
+    assert mock.controller.positions_mdeg()[3] == 120000
+    assert motion.axis(3).status & P.AxisStatus.IN_POSITION
+
+
+def test_modbus_reconnect_retries_with_bounded_backoff():
+    """A refused connection is retried with min(base * 2**k, max) delays, then LinkLost."""
+    import socket
+
+    with socket.socket() as s:                   # a loopback port with nobody listening
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    slept = []
+    link = ModbusTransport(f"tcp://127.0.0.1:{port}", timeout_s=0.2, reconnect_attempts=5,
+                           reconnect_base_s=0.01, reconnect_max_s=0.03, sleep=slept.append)
+    with pytest.raises(LinkLost, match="5 attempts"):
+        link.reconnect()
+    assert slept == [0.01, 0.02, 0.03, 0.03]

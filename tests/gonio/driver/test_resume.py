@@ -165,3 +165,50 @@ def test_a_session_that_cannot_reach_the_head_leaves_a_resumable_journal(drv, tm
         res = drv.run(mock, plan, out, resume=True)
         assert res.status == "complete" and res.points_measured == 1
     assert read_dataset(out).meta["instrument"]["idn"].startswith("KIAM,GPS-1")
+
+
+def test_retry_counts_of_a_killed_session_survive_the_resume(drv, tmp_path):
+    """SIGKILL a faulted session after some points, resume: the meta's retries sum both sessions
+    (the killed one's from its last checkpoint), not only the session that ended."""
+    faults = "modbus_drop=0.05,busy=0.05"
+    mock = subprocess.Popen(_gonio("mock", "--sample", "lambert:0.5", "--seed", SEED, "--serial",
+                                   "pty", "--faults", faults),
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        urls = json.loads(mock.stdout.readline())
+        plan = drv.write_plan(tmp_path, "killret", incidence=(0, 30, 60),
+                              in_plane=(-50, -10, 20, 50), wavelengths=(450, 550, 650),
+                              itime_ms=1000, readings=40)
+        out = tmp_path / "run"
+        proc = subprocess.Popen(_acquire(urls, plan, out), stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+        t_end = time.monotonic() + 60
+        while time.monotonic() < t_end and proc.poll() is None:
+            if (out / "journal.jsonl").exists() and len(_points(out)) >= 3:
+                break
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGKILL)
+        assert proc.wait() == -signal.SIGKILL, "the session ended before it could be killed"
+        records = read_journal(out / "journal.jsonl").records
+        assert not any(r.get("what") == "session_end" for r in records)
+        killed = [r for r in records if r["type"] == "point"][-1]["retries"]
+        assert sum(killed.values()) > 0, "no retry before the kill: raise the fault rates"
+        final = subprocess.run(_acquire(urls, plan, out, "--resume"), capture_output=True,
+                               text=True, timeout=120)
+        assert final.returncode == 0, final.stderr
+    finally:
+        mock.send_signal(signal.SIGINT)
+        try:
+            mock.wait(5)
+        except subprocess.TimeoutExpired:
+            mock.kill()
+            mock.wait()
+        mock.stdout.close()
+    records = read_journal(out / "journal.jsonl").records
+    ends = [r for r in records if r.get("what") == "session_end"]
+    assert len(ends) == 1
+    expected = {k: killed.get(k, 0) + ends[0]["retries"].get(k, 0)
+                for k in set(killed) | set(ends[0]["retries"])}
+    prov = read_dataset(out).meta["provenance"]
+    assert prov["retries"] == expected and prov["sessions"] == 2
+    assert len(_points(out)) == len(set(_points(out))) == 12
