@@ -69,7 +69,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FAULT_KINDS", "HEAD_FAULT_ORDER", "MODBUS_FAULT_ORDER", "FaultRule", "FaultSpecError", "parse_faults", "FaultInjector"]
+__all__ = ["FAULT_KINDS", "HEAD_FAULT_ORDER", "MODBUS_FAULT_ORDER", "FaultRule", "FaultSpecError",
+           "parse_faults", "FaultInjector"]
 
 HEAD_FAULT_ORDER = ("drop", "serial_timeout", "busy", "garbled", "truncated", "checksum")
 # the index of a kind keys its random stream: new kinds are appended, never inserted

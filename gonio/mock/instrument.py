@@ -138,7 +138,7 @@ class MockInstrument:
     # --- public API ---------------------------------------------------------------------------
     @property
     def stats(self) -> dict[str, Any]:
-        """Faults injected per kind and requests served."""
+        """Faults injected per kind, Modbus requests served and links dropped, head commands."""
         return {"faults": {k: int(v) for k, v in self.faults.stats.items() if v},
                 "modbus_requests": self.frontend.requests, "modbus_drops": self.frontend.drops,
                 "head_commands": self.head.commands}

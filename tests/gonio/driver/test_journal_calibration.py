@@ -201,3 +201,33 @@ def test_white_standard_table(tmp_path):
             parse_white_standard(text.encode(), "t.csv")
     with pytest.raises(CalibrationError, match="no such white standard"):
         load_white_standard("nonexistent")
+
+
+def test_retry_totals_sum_every_session_killed_ones_included(tmp_path):
+    from gonio.engine import retry_totals
+
+    start = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 0}
+    point = {"type": "point", "index": 0, "axes_deg": [0, 45, 0, 0], "geometry": [0, 0, 45, 0],
+             "calibration": 0, "readings": []}
+    records = [start,
+               dict(point, retries={"head_busy": 2}),
+               dict(point, retries={"head_busy": 3, "modbus_link_lost": 1}),   # then SIGKILL
+               {"type": "event", "what": "resume", "time": 1},
+               {"type": "event", "what": "resume", "time": 2},                 # killed at once
+               dict(point, retries={"modbus_link_lost": 4}),
+               {"type": "event", "what": "session_end", "retries": {"modbus_link_lost": 5,
+                                                                    "serial_timeout": 1}}]
+    assert retry_totals(records) == ({"head_busy": 3, "modbus_link_lost": 6, "serial_timeout": 1}, 3)
+    # journals written before the per-point counts: only the session_end events, as before
+    old = [start, point, {"type": "event", "what": "session_end", "retries": {"link_lost": 2}},
+           {"type": "event", "what": "resume", "time": 1}, point,
+           {"type": "event", "what": "session_end", "retries": {"link_lost": 1}}]
+    assert retry_totals(old) == ({"link_lost": 3}, 2)
+    # the counts are validated like every field
+    j, _ = Journal.open(tmp_path / "j.jsonl")
+    with pytest.raises(ValueError, match="retries"):
+        j.append(dict(point, retries={"head_busy": -1}))
+    j.close()
+    with pytest.raises(JournalError, match="retries"):
+        parse_journal(json.dumps(dict(point, retries=[1])).encode() + b"\n"
+                      + json.dumps(start).encode() + b"\n")
