@@ -39,11 +39,12 @@ import json
 import logging
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from gonio.dataset import atomic_write
 
 from .colourmatch import luminance_weights
 from .comparison import Comparison
@@ -64,21 +65,6 @@ def _label(text: str) -> str:
     return " " + text if text.startswith("_") else text
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; a report is for sharing
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _savefig(fig, path: Path) -> bytes:
@@ -90,7 +76,7 @@ def _savefig(fig, path: Path) -> bytes:
     fig.savefig(buffer, format="png", dpi=100, metadata={"Software": None})
     plt.close(fig)
     data = buffer.getvalue()
-    _atomic_write(path, data)
+    atomic_write(path, data)
     return data
 
 
@@ -407,8 +393,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike) -> Path:
     figures["spectrum.png"] = _savefig(_spectrum_figure(comparison), fig_dir / "spectrum.png")
     figures["factor.png"] = _savefig(_factor_figure(comparison), fig_dir / "factor.png")
     figures["swatches.png"] = _savefig(_swatch_figure(comparison), fig_dir / "swatches.png")
-    _atomic_write(out / "metrics.json",
+    atomic_write(out / "metrics.json",
                   (json.dumps(metrics, indent=2, allow_nan=False) + "\n").encode("utf-8"))
     report = out / "report.html"
-    _atomic_write(report, _html(comparison, metrics, figures).encode("utf-8"))
+    atomic_write(report, _html(comparison, metrics, figures).encode("utf-8"))
     return report

@@ -58,6 +58,7 @@ __all__ = [
     "SCHEMA",
     "Dataset",
     "DatasetError",
+    "atomic_write",
     "in_plane_geometry",
     "make_dataset",
     "new_meta",
@@ -581,13 +582,22 @@ def _csv_bytes(table: pd.DataFrame) -> bytes:
     return buffer.getvalue().encode("utf-8")
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: temporary file in the same folder, fsync, rename.
+
+    The file gets the usual permissions (``0666 & ~umask``), not ``mkstemp``'s private 0600:
+    datasets and reports are meant to be shared. A crash leaves either the old file or the new one.
+    """
+    path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -625,8 +635,8 @@ def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
     meta["wavelengths_nm"] = [float(w) for w in dataset.wavelengths_nm]
     meta["files"] = {CSV_NAME: {"sha256": hashlib.sha256(data).hexdigest(),
                                 "rows": int(len(dataset.table))}}
-    _atomic_write(out / CSV_NAME, data)
-    _atomic_write(out / META_NAME,
+    atomic_write(out / CSV_NAME, data)
+    atomic_write(out / META_NAME,
                   (json.dumps(meta, indent=2, sort_keys=False, allow_nan=False) + "\n").encode())
     _fsync_dir(out)
     dataset.path = out

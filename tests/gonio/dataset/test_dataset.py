@@ -246,3 +246,14 @@ def test_fuzzed_bytes_give_only_dataset_errors(tmp_path_factory, raw, meta_raw):
     (root / "meta.json").write_bytes(meta_raw)
     with pytest.raises(DatasetError):
         read_dataset(root)
+
+
+def test_written_files_are_shareable(tmp_path):
+    """mkstemp creates 0600 files; a dataset gets the usual 0666 & ~umask permissions."""
+    umask = os.umask(0o022)
+    try:
+        out = write_dataset(make_dataset(in_plane_table(incidences=(0.0,)), meta()), tmp_path / "d")
+    finally:
+        os.umask(umask)
+    for name in ("radiance.csv", "meta.json"):
+        assert (out / name).stat().st_mode & 0o777 == 0o644
