@@ -24,6 +24,12 @@ length unit may be used (the kernel only ever multiplies lengths by ``mu_t``).
         s = (-b + sqrt(b^2 - a c)) / a      (b <= 0)
         s = -c / (b + sqrt(b^2 - a c))      (b > 0, the same root without cancellation)
 
+Both shapes are convex, so a free path from a point inside (or on the surface, heading
+inwards) stays inside exactly when its END point is strictly inside (:func:`inside`):
+the kernel tests ``p + l u`` against ``-d < z < 0`` or ``y^2 + z^2 < R^2`` -- no division
+or square root -- and computes the distance to the boundary only for the (rarer) steps
+that reach it.
+
 Sources (``source = [mode, w_x, w_y, w_z]``, ``w`` the unit vector towards the light, so
 photons travel along ``-w``):
 
@@ -49,6 +55,7 @@ __all__ = [
     "CYLINDER",
     "BEAM",
     "POINT",
+    "inside",
     "distance_to_boundary",
     "outward_normal",
     "snap_to_surface",
@@ -59,6 +66,14 @@ SLAB = 0
 CYLINDER = 1
 BEAM = 0
 POINT = 1
+
+
+@numba.njit(cache=True, inline="always")
+def inside(geometry: int, geom: np.ndarray, x: float, y: float, z: float) -> bool:
+    """True if ``(x, y, z)`` is strictly inside the shape (False for NaN coordinates)."""
+    if geometry == SLAB:
+        return z < 0.0 and z > -geom[0]
+    return y * y + z * z < geom[0] * geom[0]
 
 
 @numba.njit(cache=True, inline="always")

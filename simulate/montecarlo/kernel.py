@@ -4,7 +4,9 @@ One photon history, in the units of the caller (any consistent length unit)::
 
     entry      refraction by Snell at the entry point; weight w = 1 - F(theta_i)
                (the specular part F is the surface term and is only counted, not followed)
-    step       l = -ln(xi) / mu_t, compared with the analytic distance s_b to the boundary
+    step       l = E / mu_t with E ~ Exp(1) (ziggurat, :func:`.rng.exponential`); the step is
+               a collision when its end point p + l u is strictly inside the (convex) shape,
+               otherwise the photon moves the analytic distance s_b to the boundary
     collision  (l < s_b) implicit capture: absorbed += w mu_a / mu_t, w *= mu_s / mu_t;
                new direction from the phase function (Henyey-Greenstein or an inverse-CDF table)
     roulette   if w < w_th: survive with probability p and w /= p, else the photon ends
@@ -12,14 +14,25 @@ One photon history, in the units of the caller (any consistent length unit)::
                reflection; reflect with probability F, otherwise refract out and tally
     cap        a photon reaching ``max_events`` steps is stopped and counted (a guard only)
 
-Henyey-Greenstein sampling (g != 0)::
+Henyey-Greenstein sampling (g != 0), with the constants hoisted out of the loop::
 
     cos theta = (1 + g^2 - ((1 - g^2) / (1 - g + 2 g xi))^2) / (2 g)
 
 Table sampling: ``j = floor(xi K)``, linear interpolation between ``cos_table[j]`` and
 ``cos_table[j + 1]`` (``cos_table`` = cos theta at CDF values ``k / K``). The azimuth is
-uniform; its cosine and sine come from a point uniform in the unit disc (no trigonometric
-calls). The direction update is the standard one of MCML (Wang, Jacques & Zheng 1995, eq. 3.23).
+uniform; its cosine and sine come from a point (a, b) uniform in the unit disc (rejection
+from the square, both coordinates from one 64-bit draw; no trigonometric calls)::
+
+    cos phi = (a^2 - b^2) / r^2,  sin phi = 2 a b / r^2,  r^2 = a^2 + b^2
+
+and enter the update already multiplied by ``sin theta`` (one division for both). The
+direction update is the standard one of MCML (Wang, Jacques & Zheng 1995, eq. 3.23).
+
+Speed (van de Hulst case, one thread): the random state lives in registers (four ``uint64``
+locals), the free path needs no logarithm in 98.9 % of the draws (ziggurat), and the
+collision test needs no division; with ~3 collisions and one exit per photon the remaining
+cost is the square root and division of the MCML update, the HG division and the
+mispredicted branches (collision/exit, disc rejection).
 
 Layout: :func:`simulate_batch` runs one batch of photons on its own random stream
 ``(seed, batch)`` (see :mod:`.rng`) into that batch's accumulators; :func:`run_batches`
@@ -48,10 +61,11 @@ from simulate.montecarlo.geometry import (
     SLAB,
     distance_to_boundary,
     entry_point,
+    inside,
     outward_normal,
     snap_to_surface,
 )
-from simulate.montecarlo.rng import seed_stream, uniform, uniform_open
+from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_signed_pair, to_uniform
 
 __all__ = [
     "PHASE_HG",
@@ -89,27 +103,6 @@ N_CONTROL = 3
 
 # No 'nnan'/'ninf': infinite free paths (mu_t = 0) and distances are legitimate values.
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
-
-
-@numba.njit(cache=True, inline="always")
-def _sample_cos_theta(phase: int, g: float, table: np.ndarray, xi: float) -> float:
-    if phase == PHASE_TABLE:
-        k = table.shape[0] - 1
-        t = xi * k
-        j = int(t)
-        if j >= k:
-            j = k - 1
-        f = t - j
-        return table[j] + f * (table[j + 1] - table[j])
-    if g == 0.0:
-        return 2.0 * xi - 1.0
-    tmp = (1.0 - g * g) / (1.0 - g + 2.0 * g * xi)
-    c = (1.0 + g * g - tmp * tmp) / (2.0 * g)
-    if c < -1.0:
-        return -1.0
-    if c > 1.0:
-        return 1.0
-    return c
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
@@ -175,8 +168,16 @@ def simulate_batch(
     dy = -source[2]
     dz = -source[3]
 
-    state = np.empty(4, dtype=np.uint64)
-    seed_stream(state, seed, batch)
+    hg = phase == PHASE_HG and g != 0.0
+    hg_a = 1.0 + g * g
+    hg_b = 1.0 - g * g
+    hg_c = 1.0 - g
+    hg_d = 2.0 * g
+    hg_e = 0.5 / g if g != 0.0 else 0.0
+    n_table = table.shape[0] - 1
+    absorb = 1.0 - albedo
+
+    s0, s1, s2, s3 = seed_state(seed, batch)
 
     specular = 0.0
     entered = 0.0
@@ -198,7 +199,8 @@ def simulate_batch(
 
     for _ in range(photons):
         # --- entry: Snell refraction, weight 1 - F ---------------------------------------
-        x, y, z, nx, ny, nz = entry_point(geometry, geom, source, uniform(state))
+        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+        x, y, z, nx, ny, nz = entry_point(geometry, geom, source, to_uniform(r))
         cos_i = -(dx * nx + dy * ny + dz * nz)
         if contrast:
             f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
@@ -231,45 +233,60 @@ def simulate_batch(
                 capped_weight += w
                 break
             events += 1
-            s_b = distance_to_boundary(geometry, geom, x, y, z, ux, uy, uz)
-            step = -math.log(uniform_open(state)) * inv_mu_t
-            if step < s_b:
-                # --- collision -------------------------------------------------------
-                x += step * ux
-                y += step * uy
-                z += step * uz
+            e, s0, s1, s2, s3 = exponential(s0, s1, s2, s3)
+            step = e * inv_mu_t
+            xn = x + step * ux
+            yn = y + step * uy
+            zn = z + step * uz
+            if inside(geometry, geom, xn, yn, zn):
+                # --- collision (the end point is inside: convex shape) ------------------
+                x = xn
+                y = yn
+                z = zn
                 path += step
                 # (a next-event vertex scorer goes here: position, incoming u, w, path)
-                absorbed += w * (1.0 - albedo)
+                absorbed += w * absorb
                 w *= albedo
                 scatterings += 1
-                ct = _sample_cos_theta(phase, g, table, uniform(state))
+                r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                xi = to_uniform(r)
+                if hg:
+                    tmp = hg_b / (hg_c + hg_d * xi)
+                    ct = max(-1.0, min(1.0, (hg_a - tmp * tmp) * hg_e))
+                elif phase == PHASE_TABLE:
+                    t = xi * n_table
+                    j = min(int(t), n_table - 1)
+                    f = t - j
+                    ct = table[j] + f * (table[j + 1] - table[j])
+                else:
+                    ct = 2.0 * xi - 1.0
                 st = math.sqrt(max(1.0 - ct * ct, 0.0))
                 while True:
-                    a = 2.0 * uniform(state) - 1.0
-                    b = 2.0 * uniform(state) - 1.0
+                    r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                    a, b = to_signed_pair(r)
                     r2 = a * a + b * b
                     if r2 <= 1.0 and r2 > 0.0:
                         break
-                inv_r2 = 1.0 / r2
-                cp = (a * a - b * b) * inv_r2
-                sp = 2.0 * a * b * inv_r2
+                fr = st / r2
+                scp = (a * a - b * b) * fr  # sin(theta) cos(phi)
+                ssp = 2.0 * a * b * fr  # sin(theta) sin(phi)
                 if abs(uz) > 0.99999:
-                    ux = st * cp
-                    uy = st * sp
+                    ux = scp
+                    uy = ssp
                     uz = ct if uz > 0.0 else -ct
                 else:
                     tmp = math.sqrt(1.0 - uz * uz)
                     inv_tmp = 1.0 / tmp
-                    nux = st * (ux * uz * cp - uy * sp) * inv_tmp + ux * ct
-                    nuy = st * (uy * uz * cp + ux * sp) * inv_tmp + uy * ct
-                    uz = -st * cp * tmp + uz * ct
+                    nux = (ux * uz * scp - uy * ssp) * inv_tmp + ux * ct
+                    nuy = (uy * uz * scp + ux * ssp) * inv_tmp + uy * ct
+                    uz = -scp * tmp + uz * ct
                     ux = nux
                     uy = nuy
                 if w < w_threshold:
                     if w <= 0.0:
                         break
-                    if uniform(state) < survival:
+                    r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                    if to_uniform(r) < survival:
                         gain += w * (inv_survival - 1.0)
                         w *= inv_survival
                     else:
@@ -277,6 +294,7 @@ def simulate_batch(
                         break
             else:
                 # --- boundary --------------------------------------------------------
+                s_b = distance_to_boundary(geometry, geom, x, y, z, ux, uy, uz)
                 x += s_b * ux
                 y += s_b * uy
                 z += s_b * uz
@@ -286,16 +304,22 @@ def simulate_batch(
                 cos_i = ux * nx + uy * ny + uz * nz
                 if contrast:
                     f_out = fresnel_unpolarized(cos_i, n_in, 1.0)
-                    if f_out > 0.0 and (f_out >= 1.0 or uniform(state) < f_out):
-                        ux -= 2.0 * cos_i * nx
-                        uy -= 2.0 * cos_i * ny
-                        uz -= 2.0 * cos_i * nz
-                        norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
-                        ux *= norm
-                        uy *= norm
-                        uz *= norm
-                        reflections_total += 1
-                        continue
+                    if f_out > 0.0:
+                        if f_out >= 1.0:
+                            reflect = True
+                        else:
+                            r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                            reflect = to_uniform(r) < f_out
+                        if reflect:
+                            ux -= 2.0 * cos_i * nx
+                            uy -= 2.0 * cos_i * ny
+                            uz -= 2.0 * cos_i * nz
+                            norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
+                            ux *= norm
+                            uy *= norm
+                            uz *= norm
+                            reflections_total += 1
+                            continue
                     cos_t = refracted_cos(cos_i, n_in, 1.0)
                     k = cos_t - n_in * cos_i
                     wx = n_in * ux + k * nx
