@@ -42,7 +42,7 @@ from gonio.protocol import AxisFault, AxisStatus, Control, SampleSlot
 from gonio.transport import LinkLost, LinkTimeout, ModbusExceptionResponse
 
 __all__ = ["DeviceError", "AxisFaultError", "RetryPolicy", "Measurement", "PhotometerHead",
-           "MotionController", "RETRY_KINDS", "AxisState"]
+           "MotionController", "RETRY_KINDS", "RECOVERABLE_FAULTS", "AxisState"]
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +52,12 @@ log = logging.getLogger(__name__)
 RETRY_KINDS = ("serial_timeout", "serial_garbled", "serial_truncated", "serial_checksum",
                "head_busy", "lamp_unstable", "modbus_busy", "modbus_no_response", "link_lost",
                "axis_fault", "modbus_link_lost")
+
+#: Axis faults the driver may reset (CONTROL bit3) and recover from by re-homing: a following
+#: error (transient) and "not homed" (a move that reached an axis which had lost its homing).
+#: A beam-block fault (4) means the driver commanded a forbidden geometry: never reset blindly.
+RECOVERABLE_FAULTS = (int(AxisFault.FOLLOWING_ERROR), int(AxisFault.NOT_HOMED))
+_HOME_ATTEMPTS = 3
 
 _FRAMING_KIND = {
     protocol.NoResponse: "serial_timeout",
@@ -529,11 +535,78 @@ class MotionController:
         self.write(protocol.HR_CONTROL, [Control.ENABLE | Control.STOP_ALL], "stop all")
 
     def home(self) -> None:
-        """Enable, home every axis and wait until all are homed and at rest."""
+        """Enable, home every axis and wait until all are homed and at rest.
+
+        ``HOME_ALL`` is refused (exception 4) while an axis holds a latched fault: the faults
+        are then cleared with :meth:`clear_faults` (drives stopped first; only recoverable
+        faults are reset, anything else raises) and homing is commanded again, a bounded number
+        of times. An unanswered ``HOME_ALL`` is checked (:meth:`_homing_taken`) before it is
+        sent again, so homing is not restarted when the controller took it.
+        """
         self.enable()
-        self.write(protocol.HR_CONTROL, [Control.ENABLE | Control.HOME_ALL], "home all")
+        for k in range(_HOME_ATTEMPTS):
+            try:
+                self.write(protocol.HR_CONTROL, [Control.ENABLE | Control.HOME_ALL], "home all",
+                           took_effect=self._homing_taken)
+                break
+            except DeviceError as exc:
+                if exc.code != protocol.ModbusException.DEVICE_FAILURE or k + 1 == _HOME_ATTEMPTS:
+                    raise
+                log.warning("motion controller: home all refused (an axis holds a fault); "
+                            "clearing the faults")
+                self.clear_faults("home all")
         self._target_mdeg = list(protocol.HOME_POSITIONS_MDEG)
         self._wait(range(protocol.N_AXES), "home all", homing=True)
+
+    def _homing_taken(self) -> bool:
+        """Did the controller take an unanswered ``HOME_ALL``?
+
+        True when every axis' COMMAND register holds HOME and the axis is homing (moving, not
+        homed: a move needs a homed axis) or homed and at rest at its home position.
+        """
+        for a in range(protocol.N_AXES):
+            cmd = self.read_holding(protocol.axis_command_address(a), 1,
+                                    f"home all: re-read axis {a} command")[0]
+            if cmd != protocol.AxisCommand.HOME:
+                return False
+            st = self.axis(a)
+            homing = bool(st.status & AxisStatus.MOVING) and not st.status & AxisStatus.HOMED
+            homed = (bool(st.status & AxisStatus.HOMED) and not st.status & AxisStatus.MOVING
+                     and abs(st.position_mdeg - protocol.HOME_POSITIONS_MDEG[a])
+                     <= protocol.IN_POSITION_TOLERANCE_MDEG)
+            if not (homing or homed):
+                return False
+        return True
+
+    def clear_faults(self, what: str) -> list[int]:
+        """Bring every axis to rest and reset the latched faults that can be cleared safely.
+
+        Drives are stopped first (``STOP_ALL``) and the axes polled until none is moving: an
+        axis still moving when another faulted could latch its own fault after the reset.
+        Then every axis' FAULT code is read; following error and not homed
+        (:data:`RECOVERABLE_FAULTS`) are reset (CONTROL bit3), any other latched fault raises
+        :class:`AxisFaultError` (the engine stops safely). Returns the faulted axes.
+        """
+        self.stop()
+        deadline = self.clock() + self.move_timeout_s
+        while True:
+            states = [self.axis(a) for a in range(protocol.N_AXES)]
+            if not any(st.status & AxisStatus.MOVING for st in states):
+                break
+            if self.clock() > deadline:
+                raise DeviceError(self.name, what, f"axes still moving {self.move_timeout_s:g} s "
+                                                   "after stop all")
+            self.retry.sleep(self.poll_s)
+        faulted = [a for a, st in enumerate(states) if st.fault or st.status & AxisStatus.FAULT]
+        for a in faulted:
+            if states[a].fault not in RECOVERABLE_FAULTS:
+                raise AxisFaultError(a, states[a].fault, what)
+        if faulted:
+            log.info("motion controller: %s: resetting faults of axes %s (codes %s)", what, faulted,
+                     [states[a].fault for a in faulted])
+            self.reset_fault()
+        self.forget_targets()
+        return faulted
 
     def set_lamp(self, on: bool) -> None:
         """Lamp coil."""
@@ -563,9 +636,16 @@ class MotionController:
         for a in self._safe_order(changed, targets, what):
             mdeg = targets[a]
             hi, lo = protocol.int32_to_registers(mdeg)
-            self.write(protocol.axis_target_address(a), [hi, lo, v, protocol.AxisCommand.MOVE],
-                       f"{what}: axis {a}",
-                       took_effect=lambda a=a, mdeg=mdeg: self._move_taken(a, mdeg, v, what))
+            try:
+                self.write(protocol.axis_target_address(a), [hi, lo, v, protocol.AxisCommand.MOVE],
+                           f"{what}: axis {a}",
+                           took_effect=lambda a=a, mdeg=mdeg: self._move_taken(a, mdeg, v, what))
+            except DeviceError as exc:
+                if exc.code != protocol.ModbusException.DEVICE_FAILURE:
+                    raise
+                # exception 4: the axis holds a latched fault; report it with its code
+                self._target_mdeg[a] = None
+                raise AxisFaultError(a, self.axis(a).fault, what) from None
             self._target_mdeg[a] = mdeg
             self._velocity_cdeg_s[a] = v
             moving.append(a)
@@ -575,13 +655,25 @@ class MotionController:
         """Did the controller take the move of axis ``a`` to ``mdeg`` (an unanswered write)?
 
         True when its TARGET, VELOCITY and COMMAND registers hold this move and the axis is
-        moving, in position at the target, or faulted (the wait then reports the fault).
+        moving, in position at the target, or faulted (the wait then reports the fault). An
+        axis that is neither homed nor moving (the controller lost its homing) is never sent a
+        move: :class:`AxisFaultError` with code 3 (not homed) is raised instead, so the engine
+        re-homes.
         """
         hr = self.read_holding(protocol.axis_target_address(a), 4, f"{what}: re-read axis {a}")
+        st = self.axis(a)
+        if not st.status & AxisStatus.HOMED and not st.status & AxisStatus.MOVING:
+            # the controller lost its homing (a power glitch behind the dropped link): a move
+            # sent now would only latch fault 3; report it, the engine re-homes
+            if not st.fault:
+                log.warning("motion controller: %s: axis %d not homed after the link came back",
+                            what, a)
+                self._target_mdeg[a] = None
+                raise AxisFaultError(a, int(AxisFault.NOT_HOMED), what)
+            return True     # latched fault: the wait reports it
         if (protocol.registers_to_int32(hr[0], hr[1]) != mdeg or hr[2] != velocity
                 or hr[3] != protocol.AxisCommand.MOVE):
             return False
-        st = self.axis(a)
         if st.fault or st.status & AxisStatus.FAULT or st.status & AxisStatus.MOVING:
             return True
         return (bool(st.status & AxisStatus.IN_POSITION)

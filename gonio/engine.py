@@ -16,7 +16,8 @@ Sequence
    calibration when still valid (same plan and standard files, same instrument, younger than
    ``calibration_max_age_min``; otherwise it is measured again and the reason logged);
 3. every measurable point in motion order: move (axis commands ordered around the beam-block
-   zone; after a following error or a lost homing the axes are re-homed and the move repeated),
+   zone; after a following error or a lost homing every axis is stopped and brought to rest,
+   the recoverable faults are reset and the axes re-homed, and the move repeated),
    settle, shutter open, and per wavelength auto-range from the same initial integration time
    and gain (:meth:`gonio.plan.AcquisitionSettings.ladder`; a saturated reading is never
    stored), then append the point to the journal and fsync;
@@ -57,7 +58,8 @@ import pandas as pd
 from gonio import protocol
 from gonio.calibration import WhiteStandard, load_white_standard, radiance_factor
 from gonio.dataset import make_dataset, new_meta, write_dataset
-from gonio.devices import AxisFaultError, DeviceError, MotionController, PhotometerHead, RetryPolicy
+from gonio.devices import (RECOVERABLE_FAULTS, AxisFaultError, DeviceError, MotionController,
+                           PhotometerHead, RetryPolicy)
 from gonio.journal import Journal, JournalContent, JournalError, check_consistency
 from gonio.plan import Plan, PlanPoint
 
@@ -170,14 +172,13 @@ class Engine:
                 self.motion.move_to(axes_deg, v)
                 return
             except AxisFaultError as exc:
-                recoverable = exc.code in (protocol.AxisFault.FOLLOWING_ERROR,
-                                           protocol.AxisFault.NOT_HOMED)
-                if not recoverable or attempt == attempts:
+                if exc.code not in RECOVERABLE_FAULTS or attempt == attempts:
                     raise
                 self.retry.count("axis_fault")
-                log.warning("%s; resetting the fault and re-homing", exc)
-                self.motion.forget_targets()
-                self.motion.reset_fault()
+                log.warning("%s; stopping, resetting the fault and re-homing", exc)
+                # every axis at rest first (another axis may still be moving and fault after
+                # the reset), then reset what is recoverable, then home
+                self.motion.clear_faults("re-home")
                 self.motion.home()
 
     def _autorange(self, wavelength_nm: float, *, shutter_open: bool | None = None) -> dict | None:

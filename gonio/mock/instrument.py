@@ -138,9 +138,11 @@ class MockInstrument:
     # --- public API ---------------------------------------------------------------------------
     @property
     def stats(self) -> dict[str, Any]:
-        """Faults injected per kind, Modbus requests served and links dropped, head commands."""
+        """Faults injected per kind, Modbus requests served, links dropped (and the dropped
+        requests, ``(function code, address, executed)``), head commands."""
         return {"faults": {k: int(v) for k, v in self.faults.stats.items() if v},
                 "modbus_requests": self.frontend.requests, "modbus_drops": self.frontend.drops,
+                "modbus_dropped": list(self.frontend.dropped),
                 "head_commands": self.head.commands}
 
     @staticmethod

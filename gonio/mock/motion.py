@@ -354,7 +354,10 @@ class ModbusFrontend:
     ``drop_link`` (set by the TCP server) is called inside the action of a request hit by
     ``modbus_drop`` and closes the connection that carried it; ``requests`` counts the requests
     that reached the controller (those ignored during an RTU silence excluded), ``drops`` the
-    links dropped.
+    links dropped and ``dropped`` lists each dropped request as ``(function code, address,
+    executed)`` (so a test can check which request a ``modbus_drop=@N`` hit). ``drop_executed``
+    (tests; None = the seeded draw) forces whether a request dropped over TCP was executed; the
+    draw is made anyway, so the other decisions do not change.
     """
 
     def __init__(self, controller: MotionController, faults: FaultInjector | None = None,
@@ -366,6 +369,8 @@ class ModbusFrontend:
         self.link = link
         self.requests = 0
         self.drops = 0
+        self.dropped: list[tuple[int, int, bool]] = []
+        self.drop_executed: bool | None = None
         self.silent_until = -math.inf
         self.drop_link: Callable[[], None] | None = None
 
@@ -398,7 +403,9 @@ class ModbusFrontend:
             return None, False
         executed = False
         if fired[0] == "modbus_drop" and self.link == "tcp":
-            executed = bool(f.rng("modbus_drop").random() < 0.5)
+            executed = bool(f.rng("modbus_drop").random() < 0.5)   # always drawn
+            if self.drop_executed is not None:
+                executed = self.drop_executed
         return fired[0], executed
 
     def _drop(self, fc: int, address: int, executed: bool):
@@ -406,6 +413,7 @@ class ModbusFrontend:
         from pymodbus.exceptions import NoSuchIdException
 
         self.drops += 1
+        self.dropped.append((int(fc), int(address), bool(executed)))
         if self.link == "tcp":
             log.info("modbus fc %d @%d: connection closed (injected modbus_drop, request %s)",
                      fc, address, "executed" if executed else "not executed")
