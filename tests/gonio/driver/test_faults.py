@@ -68,21 +68,21 @@ def test_fault_kind(drv, tmp_path, spec, counter, serial):
     assert (tmp_path / "run" / "radiance.csv").read_bytes() == _clean(drv, tmp_path, serial)
 
 
-def test_modbus_drop_tcp_every_drop_reconnected_and_counted(drv, tmp_path, caplog):
-    """Each dropped connection is one modbus_link_lost retry; an unanswered move that the
-    controller did take is not sent again; the numbers equal a clean session's."""
-    import logging
-
+def test_modbus_drop_tcp_every_drop_reconnected_and_counted(drv, tmp_path):
+    """At a rate, drops hit whichever requests the timing puts there (status polling varies), so
+    only what holds for any placement is asserted: the session completes, each dropped
+    connection is exactly one modbus_link_lost retry (no busy refusal: an executed HOME_ALL is
+    not re-sent), and the numbers equal a clean session's. Which request is dropped, and whether
+    an executed move is re-sent, is tested deterministically in test_link_drops.py."""
     plan = _plan(drv, tmp_path)
-    with caplog.at_level(logging.INFO, logger="gonio.devices"), \
-            MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED, faults="modbus_drop=0.1") as mock:
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED,
+                        faults="modbus_drop=0.1") as mock:
         res = drv.run(mock, plan, tmp_path / "run", timeout_s=0.15)
         drops = mock.stats["modbus_drops"]
         assert mock.controller.shutter_open is False
     assert res.status == "complete", res.message
     retries = read_dataset(tmp_path / "run").meta["provenance"]["retries"]
-    assert drops >= 5 and retries == {"modbus_link_lost": drops}, (drops, retries)
-    assert any("executed although unanswered" in r.getMessage() for r in caplog.records)
+    assert drops > 0 and retries == {"modbus_link_lost": drops}, (drops, retries)
     assert (tmp_path / "run" / "radiance.csv").read_bytes() == _clean(drv, tmp_path, "pty")
 
 
