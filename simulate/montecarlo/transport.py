@@ -343,6 +343,9 @@ def _execute(
         if isinstance(threads, bool) or int(threads) != threads or not 1 <= int(threads) <= limit:
             raise ParameterError(f"threads must be an integer in [1, {limit}] (this machine), got {threads!r}")
         numba.set_num_threads(int(threads))
+    # dynamic scheduling, one batch per chunk: a thread slowed by other load takes fewer
+    # batches (results do not depend on which thread ran a batch)
+    previous_chunk = numba.set_parallel_chunksize(1)
     try:
         t0 = time.perf_counter()
         for first in range(0, n_batches, round_size):
@@ -357,6 +360,7 @@ def _execute(
                     bins += bins_buf[r]
         seconds = time.perf_counter() - t0
     finally:
+        numba.set_parallel_chunksize(previous_chunk)
         numba.set_num_threads(previous)
     return scal, bins, seconds
 
