@@ -60,7 +60,8 @@ from gonio.calibration import WhiteStandard, load_white_standard, radiance_facto
 from gonio.dataset import make_dataset, new_meta, write_dataset
 from gonio.devices import (RECOVERABLE_FAULTS, AxisFaultError, DeviceError, MotionController,
                            PhotometerHead, RetryPolicy)
-from gonio.journal import Journal, JournalContent, JournalError, check_consistency
+from gonio.journal import (Journal, JournalContent, JournalError, check_consistency,
+                           read_journal)
 from gonio.plan import Plan, PlanPoint
 
 __all__ = ["Engine", "RunResult", "AcquisitionError", "Interrupted", "EXIT_OK", "EXIT_STOPPED",
@@ -342,6 +343,11 @@ class Engine:
         self._append({"type": "event", "what": "session_end", "status": status,
                       "message": message, "retries": retries, "time": self.clock()})
         self.journal.close()
+        # the dataset comes from the journal as it is on disk: an interrupt (SIGINT) landing
+        # inside an append, after the line was written but before it reached self.records,
+        # must not leave a journaled point out of the dataset
+        self.records = list(read_journal(self.out_dir / JOURNAL_NAME).records)
+        measured = len({tuple(r["geometry"]) for r in self.records if r["type"] == "point"})
         path = None
         if measured:
             ds = dataset_from_journal(self.records, self.plan, self.standard,

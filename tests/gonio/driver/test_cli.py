@@ -68,7 +68,11 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
     from gonio.devices import MotionController, RetryPolicy
     from gonio.transport import ModbusTransport
 
-    plan = drv.write_plan(tmp_path, "int", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
+    # long enough (36 points, ~0.2 s each) that the SIGINT sent once two points are journaled
+    # lands before the end even when the test's polling lags under CPU load (12 points took
+    # ~2 s: a loaded machine could see the session finish first)
+    in_plane = (-60, -50, -40, -30, -20, -10, 10, 20, 30, 40, 50, 60)
+    plan = drv.write_plan(tmp_path, "int", incidence=(0, 30, 60), in_plane=in_plane,
                           wavelengths=(450, 500, 550, 600, 650), itime_ms=200, readings=100)
     mock = subprocess.Popen([sys.executable, "-m", "gonio.cli", "mock", "--sample", "lambert:0.5",
                              "--serial", "socket"], stdout=subprocess.PIPE,
@@ -91,7 +95,7 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
         assert proc.returncode == 130, err
         assert "interrupted" in err and "Traceback" not in err
         kept = len(read_journal(out / "journal.jsonl").of_type("point"))
-        assert 2 <= kept < 12
+        assert 2 <= kept < 36
         assert len(read_dataset(out).table) == 5 * kept
         # the instrument is safe: shutter coil off, no axis moving
         motion = MotionController(ModbusTransport(urls["modbus"], timeout_s=1.0), RetryPolicy())
