@@ -19,11 +19,19 @@ Retries (:class:`RetryPolicy`) are bounded with exponential backoff
 :class:`DeviceError`, whose message names the device, the command and the code.
 
 Unanswered writes: a Modbus request that got no answer (timeout, dropped connection) may or may
-not have been executed. Reads and idempotent writes (coils, CONTROL, the sample slot, homing) are
-simply sent again after reconnecting. A move command is first checked against the controller:
+not have been executed. Reads and idempotent writes (coils, CONTROL, the sample slot) are simply
+sent again after reconnecting. ``HOME_ALL`` is first checked (every axis' COMMAND is HOME and it is
+homing or homed at rest): re-sent during homing it would be refused as busy and then restart the
+homing. A move command is first checked against the controller:
 after reconnecting, the axis' TARGET, VELOCITY and COMMAND registers and its state are read back,
 and the move is re-issued unless the controller shows that very move under way or done (or
-faulted: the wait reports the fault) - it is never assumed to have happened.
+faulted: the wait reports the fault) - it is never assumed to have happened; and it is never
+re-sent to an axis that is no longer homed (a controller that rebooted behind the dropped link):
+that is reported as fault 3 (not homed) and the engine re-homes.
+
+Axis-fault recovery (:meth:`MotionController.clear_faults`): stop all, wait until no axis moves
+(an axis still moving when another one faulted may fault after a reset), read every FAULT code,
+reset only :data:`RECOVERABLE_FAULTS` (anything else raises: the engine stops safely), then home.
 """
 
 from __future__ import annotations
