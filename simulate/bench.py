@@ -4,7 +4,7 @@ Measured on the van de Hulst slab case (n = 1, mu_a = 10/cm, mu_s = 90/cm, g = 0
 d = 0.02 cm; MCML manual Table 6.1):
 
 * one thread and all threads, run alternately (side by side, the machine being noisy), after
-  a warm-up call that compiles or loads the kernel; medians of >= 5 repeats of photons/s,
+  a warm-up call that compiles or loads the kernel; medians of 7 repeats (quick: 5) of photons/s,
   events per photon and ns per event; the speed-up is the median of the paired ratios;
 * the cold compile time (first call in a fresh interpreter with an empty numba cache);
 * time vs photons (expected linear: fitted log-log slope ~1);
@@ -107,8 +107,8 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
         The report written to ``bench.json``.
     """
     max_threads = numba.config.NUMBA_NUM_THREADS
-    repeats = 5
-    photons = 200_000 if quick else 2_000_000
+    repeats = 5 if quick else 7
+    photons = 200_000 if quick else 4_000_000  # >= 0.4 s per one-thread run at ~10 M/s
     t0 = time.perf_counter()
     run_slab(photons=1000, seed=0, threads=1, **VAN_DE_HULST)
     warmup = time.perf_counter() - t0
