@@ -413,8 +413,8 @@ def run_slab(
 
     The slab ``-d <= z <= 0`` (index ``n``, outside index 1) is lit at its top face by a
     collimated beam at polar angle ``theta_i`` in the x-z plane. Each photon refracts in with
-    weight ``1 - F(theta_i)``, walks with free paths ``-ln(xi) / mu_t``, implicit capture
-    ``w *= mu_s / mu_t`` and Russian roulette, and leaves with Fresnel/Snell at the faces.
+    weight ``1 - F(theta_i)``, walks with exponential free paths (mean ``1 / mu_t``), implicit
+    capture ``w *= mu_s / mu_t`` and Russian roulette, and leaves with Fresnel/Snell at the faces.
 
     Parameters
     ----------
