@@ -38,7 +38,12 @@ photons travel along ``-w``):
   projected width ``[-R, R]`` along ``e = (x x d) / |x x d|`` and the entry point is the first
   intersection ``p = b e - sqrt(R^2 - b^2) / |d_perp| d`` (the direct beam estimator, sec. 5);
 * cylinder, ``mode = POINT``: every photon enters at the cell A (``psi = 0, v = 0``), i.e. at
-  ``(0, 0, R)`` (the BSSRDF route, sec. 4).
+  ``(0, 0, R)``;
+* cylinder, ``mode = CELL`` (``source[4] = h``, the half width of the cell A): the entry point
+  is uniform over the cell, ``psi = (2 xi - 1) h`` at ``v = 0``, under the parallel beam ``w``
+  (fixed in the fiber frame, so the local incidence varies across the cell as it does on a
+  real fiber); the kernel gives each photon the launch weight ``max(w . n(psi), 0)``, the
+  irradiance on the surface per unit beam irradiance (the BSSRDF route, sec. 4).
 
 All functions are ``numba.njit(cache=True)`` helpers inlined into the kernel.
 """
@@ -55,6 +60,7 @@ __all__ = [
     "CYLINDER",
     "BEAM",
     "POINT",
+    "CELL",
     "inside",
     "distance_to_boundary",
     "outward_normal",
@@ -66,6 +72,7 @@ SLAB = 0
 CYLINDER = 1
 BEAM = 0
 POINT = 1
+CELL = 2
 
 
 @numba.njit(cache=True, inline="always")
@@ -152,6 +159,11 @@ def entry_point(
     radius = geom[0]
     if source[0] == POINT:
         return 0.0, 0.0, radius, 0.0, 0.0, 1.0
+    if source[0] == CELL:
+        psi = (2.0 * xi - 1.0) * source[4]
+        sp = math.sin(psi)
+        cp = math.cos(psi)
+        return 0.0, -radius * sp, radius * cp, 0.0, -sp, cp
     dx = -source[1]
     dy = -source[2]
     dz = -source[3]

@@ -35,12 +35,33 @@ collision test needs no division; with ~3 collisions and one exit per photon the
 cost is the square root and division of the MCML update, the HG division and the
 mispredicted branches (collision/exit, disc rejection).
 
-Layout: :func:`simulate_batch` runs one batch of photons on its own random stream
+Layout: the inputs of a run are packed once into a :class:`KernelInputs` record (geometry,
+source, walk medium and its phase arrays, control, exit tally, vertex estimator, spectral
+targets). :func:`simulate_batch` runs one batch of photons on its own random stream
 ``(seed, batch)`` (see :mod:`.rng`) into that batch's accumulators; :func:`run_batches`
 runs consecutive batches in parallel (``prange``), each writing its own row, so the
 caller can reduce the rows in batch order: results for a fixed seed do not depend on the
-number of threads. Both functions have exactly one compiled signature (geometry, phase
-function and tally mode are run-time switches), so a fresh clone compiles them once.
+number of threads. Geometry, phase function, tallies and estimators are run-time switches
+of one compiled signature, so a fresh clone compiles the kernel once.
+
+Estimator contract (:mod:`.tallies`): every history ends in one place, where its exit
+weights, its roulette balance and its scratch tally are flushed as per-photon sums and
+squares; :func:`.tallies.score_vertex` is called at every scattering vertex and
+:func:`.tallies.score_exit` at every exit.
+
+Spectral re-weighting ("white" Monte Carlo and wavelength groups): photons walk in the walk
+medium ``(mu_a^w, mu_s^w, p^w)``; for each target wavelength ``l`` with ``(mu_a^l, mu_s^l, p^l)``
+a photon carries the likelihood ratio ``A_l`` of its path::
+
+    collision after a free path l, scattering by mu:  A_l *= (mu_s^l / mu_s^w) exp(-(mu_t^l - mu_t^w) l)
+                                                      A_l *= p^l(mu) / p^w(mu)   (new direction)
+    boundary reached after s:                         A_l *= exp(-(mu_t^l - mu_t^w) s)
+
+(implicit capture makes the walk's weight-density of a collision segment ``mu_s^w exp(-mu_t^w l)``).
+With ``mu_a^w = 0`` and ``p^l = p^w`` this is exactly white Monte Carlo, ``A_l = exp(-mu_a^l L)``
+(absorption applied afterwards along the path length ``L``); different scattering spectra
+re-weight exactly too, at a variance that grows with the mismatch (callers group
+wavelengths, :mod:`simulate.fiber`). Roulette acts on ``w max_l A_l``.
 
 References
 ----------
@@ -52,6 +73,7 @@ Henyey, L. G. & Greenstein, J. L. (1941). Diffuse radiation in the Galaxy. *Astr
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -59,6 +81,7 @@ import numpy as np
 from simulate.fresnel import fresnel_unpolarized, refracted_cos
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.geometry import (
+    CELL,
     SLAB,
     distance_to_boundary,
     entry_point,
@@ -66,7 +89,8 @@ from simulate.montecarlo.geometry import (
     outward_normal,
     snap_to_surface,
 )
-from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_signed_pair, to_uniform
+from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
+from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, phase_pdf, sample_direction
 
 __all__ = [
     "PHASE_HG",
@@ -81,14 +105,12 @@ __all__ = [
     "C_SURVIVAL",
     "C_MAX_EVENTS",
     "N_CONTROL",
+    "KernelInputs",
     "simulate_batch",
     "run_batches",
 ]
 
-PHASE_HG = 0
-PHASE_TABLE = 1
-
-# medium array slots
+# walk-medium array slots
 M_MU_A = 0
 M_MU_S = 1
 M_G = 2
@@ -106,51 +128,59 @@ N_CONTROL = 3
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
+class KernelInputs(NamedTuple):
+    """Everything a run hands to the compiled kernel, packed once.
+
+    ``spec_*`` describe the ``n_spec >= 1`` target wavelengths (see the module docstring);
+    ``reweight`` is False when the targets equal the walk medium (then ``A_l = 1``).
+    """
+
+    geometry: int  # geometry.SLAB or geometry.CYLINDER
+    geom: np.ndarray  # [d] or [R]
+    source: np.ndarray  # [mode, w_x, w_y, w_z, cell half width]
+    medium: np.ndarray  # walk medium [mu_a, mu_s, g, n, phase kind]
+    table: np.ndarray  # walk phase inverse CDF
+    pdf: np.ndarray  # walk phase density per table interval
+    lookup: np.ndarray  # walk phase interval index
+    control: np.ndarray  # [w_threshold, survival, max_events]
+    tally_mode: int
+    tally_params: np.ndarray
+    vertex_mode: int
+    outputs: np.ndarray  # float64[n_out, 8] output ranges (CYLINDER_OUTPUTS and NEE)
+    n_exit_bins: int  # geometric exit bins (vertex bins follow them)
+    reweight: bool
+    spec_mu: np.ndarray  # float64[n_spec, 2]: (mu_a, mu_s) per target wavelength
+    spec_kind: np.ndarray  # int64[n_spec]
+    spec_g: np.ndarray  # float64[n_spec]
+    spec_table: np.ndarray  # float64[n_spec, K + 1]
+    spec_pdf: np.ndarray  # float64[n_spec, K]
+    spec_lookup: np.ndarray  # int64[n_spec, M + 1]
+    spec_same_phase: np.ndarray  # bool[n_spec]: p^l == p^w (no phase ratio needed)
+
+
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
-def simulate_batch(
-    photons: int,
-    seed: int,
-    batch: int,
-    geometry: int,
-    geom: np.ndarray,
-    medium: np.ndarray,
-    table: np.ndarray,
-    source: np.ndarray,
-    control: np.ndarray,
-    tally_mode: int,
-    tally_params: np.ndarray,
-    scal: np.ndarray,
-    bins: np.ndarray,
-) -> None:
+def simulate_batch(inp: KernelInputs, photons: int, seed: int, batch: int, scal: np.ndarray,
+                   bins: np.ndarray) -> None:
     """Transport ``photons`` photons of stream ``(seed, batch)``, adding to ``scal`` and ``bins``.
 
     Parameters
     ----------
+    inp : KernelInputs
+        The packed run inputs.
     photons : int
         Photons in this batch.
     seed, batch : int
         Random stream identifiers.
-    geometry : int
-        ``geometry.SLAB`` or ``geometry.CYLINDER``.
-    geom : numpy.ndarray
-        Shape parameters (``[d]`` or ``[R]``).
-    medium : numpy.ndarray
-        ``[mu_a, mu_s, g, n, phase]`` (slots ``M_*``; ``phase`` is ``PHASE_HG`` or ``PHASE_TABLE``).
-    table : numpy.ndarray
-        Inverse-CDF table of cos theta (length K + 1 >= 2; ignored for Henyey-Greenstein).
-    source : numpy.ndarray
-        ``[mode, w_x, w_y, w_z]`` (see :mod:`.geometry`).
-    control : numpy.ndarray
-        ``[w_threshold, survival_probability, max_events]`` (slots ``C_*``).
-    tally_mode : int
-        Exit tally mode (see :mod:`.tallies`).
-    tally_params : numpy.ndarray
-        Its parameters.
     scal : numpy.ndarray
         ``float64[tallies.N_SCALARS]`` accumulators.
     bins : numpy.ndarray
-        ``float64[n_bins, 2]`` accumulators.
+        ``float64[n_bins_total, 2]`` accumulators (sum, sum of per-photon squares).
     """
+    geometry = inp.geometry
+    geom = inp.geom
+    source = inp.source
+    medium = inp.medium
+    table = inp.table
     mu_a = medium[M_MU_A]
     mu_s = medium[M_MU_S]
     g = medium[M_G]
@@ -159,29 +189,45 @@ def simulate_batch(
     mu_t = mu_a + mu_s
     inv_mu_t = 1.0 / mu_t if mu_t > 0.0 else math.inf
     albedo = mu_s / mu_t if mu_t > 0.0 else 0.0
-    w_threshold = control[C_WEIGHT_THRESHOLD]
-    survival = control[C_SURVIVAL]
+    absorb = 1.0 - albedo
+    w_threshold = inp.control[C_WEIGHT_THRESHOLD]
+    survival = inp.control[C_SURVIVAL]
     inv_survival = 1.0 / survival
-    max_events = int(control[C_MAX_EVENTS])
+    max_events = int(inp.control[C_MAX_EVENTS])
     contrast = n_in != 1.0
     eta_in = 1.0 / n_in
     dx = -source[1]
     dy = -source[2]
     dz = -source[3]
+    cell_source = geometry != SLAB and source[0] == CELL
 
-    hg = phase == PHASE_HG and g != 0.0
-    hg_a = 1.0 + g * g
-    hg_b = 1.0 - g * g
-    hg_c = 1.0 - g
-    hg_d = 2.0 * g
-    hg_e = 0.5 / g if g != 0.0 else 0.0
-    n_table = table.shape[0] - 1
-    absorb = 1.0 - albedo
+    tally_mode = inp.tally_mode
+    vertex_mode = inp.vertex_mode
+    scoring = tally_mode != T.NONE or vertex_mode != T.V_NONE
+    reweight = inp.reweight and scoring
+    n_spec = inp.spec_mu.shape[0]
+    vertex_base = inp.n_exit_bins
+    n_bins_total = bins.shape[0]
+    hist = np.zeros(n_bins_total)
+    touched = np.zeros(n_bins_total, dtype=np.int64)
+    n_touched = np.zeros(1, dtype=np.int64)
+    spec_w = np.ones(n_spec)
+    d_mu_t = np.zeros(n_spec)
+    s_ratio = np.ones(n_spec)
+    spec_mu_t = np.zeros(n_spec)
+    for l in range(n_spec):
+        spec_mu_t[l] = inp.spec_mu[l, 0] + inp.spec_mu[l, 1]
+        d_mu_t[l] = spec_mu_t[l] - mu_t
+        s_ratio[l] = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
+    if not reweight:
+        for l in range(n_spec):
+            spec_mu_t[l] = mu_t
 
     s0, s1, s2, s3 = seed_state(seed, batch)
 
     specular = 0.0
     entered = 0.0
+    launch_weight = 0.0
     exit0 = 0.0
     exit0_sq = 0.0
     exit1 = 0.0
@@ -191,6 +237,7 @@ def simulate_batch(
     absorbed = 0.0
     gain = 0.0
     killed = 0.0
+    net_sq = 0.0
     capped = 0.0
     capped_weight = 0.0
     events_total = 0
@@ -199,11 +246,14 @@ def simulate_batch(
     path_total = 0.0
 
     for _ in range(photons):
-        # --- entry: Snell refraction, weight 1 - F ---------------------------------------
+        # --- entry: Snell refraction, weight (launch weight) x (1 - F) -----------------
         r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
         x, y, z, nx, ny, nz = entry_point(geometry, geom, source, to_uniform(r))
         cos_i = -(dx * nx + dy * ny + dz * nz)
-        if contrast:
+        w0 = 1.0
+        if cell_source:
+            w0 = max(cos_i, 0.0)  # irradiance on the surface element, per unit beam irradiance
+        if contrast and w0 > 0.0:
             f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
             cos_t = refracted_cos(cos_i, 1.0, n_in)
             k = eta_in * cos_i - cos_t
@@ -219,16 +269,22 @@ def simulate_batch(
             ux = dx
             uy = dy
             uz = dz
-        w = 1.0 - f_in
-        specular += f_in
+        launch_weight += w0
+        w = w0 * (1.0 - f_in)
+        specular += w0 * f_in
         entered += w
-        if w <= 0.0:
-            continue
-
+        h_exit0 = 0.0
+        h_exit1 = 0.0
+        h_gain = 0.0
+        h_killed = 0.0
         events = 0
         scatterings = 0
         path = 0.0
-        while True:
+        if reweight:
+            for l in range(n_spec):
+                spec_w[l] = 1.0
+        alive = w > 0.0
+        while alive:
             if events >= max_events:
                 capped += 1.0
                 capped_weight += w
@@ -245,53 +301,44 @@ def simulate_batch(
                 y = yn
                 z = zn
                 path += step
-                # (a next-event vertex scorer goes here: position, incoming u, w, path)
                 absorbed += w * absorb
                 w *= albedo
                 scatterings += 1
-                r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                xi = to_uniform(r)
-                if hg:
-                    tmp = hg_b / (hg_c + hg_d * xi)
-                    ct = max(-1.0, min(1.0, (hg_a - tmp * tmp) * hg_e))
-                elif phase == PHASE_TABLE:
-                    t = xi * n_table
-                    j = min(int(t), n_table - 1)
-                    f = t - j
-                    ct = table[j] + f * (table[j + 1] - table[j])
-                else:
-                    ct = 2.0 * xi - 1.0
-                st = math.sqrt(max(1.0 - ct * ct, 0.0))
-                while True:
-                    r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                    a, b = to_signed_pair(r)
-                    r2 = a * a + b * b
-                    if r2 <= 1.0 and r2 > 0.0:
-                        break
-                inv_r2 = 1.0 / r2  # in parallel with the square root, off the HG chain
-                scp = st * ((a * a - b * b) * inv_r2)  # sin(theta) cos(phi)
-                ssp = st * (2.0 * a * b * inv_r2)  # sin(theta) sin(phi)
-                if abs(uz) > 0.99999:
-                    ux = scp
-                    uy = ssp
-                    uz = ct if uz > 0.0 else -ct
-                else:
-                    tmp = math.sqrt(1.0 - uz * uz)
-                    inv_tmp = 1.0 / tmp
-                    nux = (ux * uz * scp - uy * ssp) * inv_tmp + ux * ct
-                    nuy = (uy * uz * scp + ux * ssp) * inv_tmp + uy * ct
-                    uz = -scp * tmp + uz * ct
-                    ux = nux
-                    uy = nuy
-                if w < w_threshold:
-                    if w <= 0.0:
+                w_max = 1.0
+                if reweight:
+                    w_max = 0.0
+                    for l in range(n_spec):
+                        spec_w[l] *= s_ratio[l] * math.exp(-d_mu_t[l] * step)
+                        if spec_w[l] > w_max:
+                            w_max = spec_w[l]
+                if vertex_mode == T.V_CYLINDER_NEE:
+                    s0, s1, s2, s3 = T.score_vertex(
+                        vertex_mode, inp.outputs, vertex_base, hist, touched, n_touched, n_spec, spec_w,
+                        spec_mu_t, inp.spec_kind, inp.spec_g, inp.spec_table, inp.spec_pdf, inp.spec_lookup,
+                        geom[0], n_in, x, y, z, ux, uy, uz, w, s0, s1, s2, s3,
+                    )
+                ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, phase, g, table, s0, s1, s2, s3)
+                if reweight:
+                    p_w = 0.0
+                    w_max = 0.0
+                    for l in range(n_spec):
+                        if not inp.spec_same_phase[l]:
+                            if p_w == 0.0:
+                                p_w = phase_pdf(ct, phase, g, table, inp.pdf, inp.lookup)
+                            if p_w > 0.0:
+                                spec_w[l] *= phase_pdf(ct, inp.spec_kind[l], inp.spec_g[l], inp.spec_table[l],
+                                                       inp.spec_pdf[l], inp.spec_lookup[l]) / p_w
+                        if spec_w[l] > w_max:
+                            w_max = spec_w[l]
+                if w * w_max < w_threshold:
+                    if w <= 0.0 or w_max <= 0.0:
                         break
                     r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
                     if to_uniform(r) < survival:
-                        gain += w * (inv_survival - 1.0)
+                        h_gain += w * (inv_survival - 1.0)
                         w *= inv_survival
                     else:
-                        killed += w
+                        h_killed += w
                         break
             else:
                 # --- boundary --------------------------------------------------------
@@ -300,6 +347,9 @@ def simulate_batch(
                 y += s_b * uy
                 z += s_b * uz
                 path += s_b
+                if reweight:
+                    for l in range(n_spec):
+                        spec_w[l] *= math.exp(-d_mu_t[l] * s_b)
                 x, y, z = snap_to_surface(geometry, geom, x, y, z, uz)
                 nx, ny, nz = outward_normal(geometry, geom, x, y, z, uz)
                 cos_i = ux * nx + uy * ny + uz * nz
@@ -338,23 +388,33 @@ def simulate_batch(
                 if geometry == SLAB and nz < 0.0:
                     face = 1
                 if face == 0:
-                    exit0 += w
-                    exit0_sq += w * w
+                    h_exit0 = w
                     if scatterings == 0:
                         unscattered0 += w
                 else:
-                    exit1 += w
-                    exit1_sq += w * w
+                    h_exit1 = w
                     if scatterings == 0:
                         unscattered1 += w
                 path_total += w * path
                 if tally_mode != T.NONE:
-                    T.score_exit(tally_mode, tally_params, bins, face, x, y, z, wx, wy, wz, w, path)
+                    T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, n_spec,
+                                 spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
                 break
+        # --- the one end of every history: flush per-photon tallies -------------------
+        exit0 += h_exit0
+        exit0_sq += h_exit0 * h_exit0
+        exit1 += h_exit1
+        exit1_sq += h_exit1 * h_exit1
+        gain += h_gain
+        killed += h_killed
+        net_sq += (h_gain - h_killed) * (h_gain - h_killed)
+        if scoring:
+            T.flush_history(hist, touched, n_touched, bins)
         events_total += events
         scatterings_total += scatterings
 
     scal[T.S_LAUNCHED] += photons
+    scal[T.S_LAUNCH_WEIGHT] += launch_weight
     scal[T.S_SPECULAR] += specular
     scal[T.S_ENTERED] += entered
     scal[T.S_EXIT0] += exit0
@@ -366,6 +426,7 @@ def simulate_batch(
     scal[T.S_ABSORBED] += absorbed
     scal[T.S_ROULETTE_GAIN] += gain
     scal[T.S_ROULETTE_KILLED] += killed
+    scal[T.S_ROULETTE_NET_SQ] += net_sq
     scal[T.S_CAPPED] += capped
     scal[T.S_CAPPED_WEIGHT] += capped_weight
     scal[T.S_EVENTS] += events_total
@@ -375,23 +436,8 @@ def simulate_batch(
 
 
 @numba.njit(cache=True, parallel=True)
-def run_batches(
-    total_photons: int,
-    batch_size: int,
-    first_batch: int,
-    n_batches: int,
-    seed: int,
-    geometry: int,
-    geom: np.ndarray,
-    medium: np.ndarray,
-    table: np.ndarray,
-    source: np.ndarray,
-    control: np.ndarray,
-    tally_mode: int,
-    tally_params: np.ndarray,
-    scal: np.ndarray,
-    bins: np.ndarray,
-) -> None:
+def run_batches(inp: KernelInputs, total_photons: int, batch_size: int, first_batch: int, n_batches: int,
+                seed: int, scal: np.ndarray, bins: np.ndarray) -> None:
     """Run batches ``first_batch .. first_batch + n_batches - 1`` in parallel.
 
     Batch ``b`` holds photons ``[b * batch_size, min((b + 1) * batch_size, total_photons))``
@@ -405,7 +451,4 @@ def run_batches(
         scal[i, :] = 0.0
         bins[i, :, :] = 0.0
         if count > 0:
-            simulate_batch(
-                count, seed, b, geometry, geom, medium, table, source, control,
-                tally_mode, tally_params, scal[i], bins[i],
-            )
+            simulate_batch(inp, count, seed, b, scal[i], bins[i])

@@ -1,42 +1,53 @@
-"""Tallies of the Monte Carlo kernel: scalar bookkeeping and exit-binned estimators.
+"""Tallies of the Monte Carlo kernel: the estimator contract, bookkeeping and estimators.
 
-Every batch writes into two preallocated arrays owned by that batch:
+The contract (what :func:`simulate.montecarlo.kernel.simulate_batch` guarantees)
+---------------------------------------------------------------------------------
+* Every history ends in ONE place, after which its per-history scratch tally is flushed:
+  for every bin ``k`` the photon touched, ``bins[k, 0] += h_k`` and ``bins[k, 1] += h_k^2``
+  with ``h_k`` the photon's TOTAL score in that bin. An estimator may therefore score any
+  number of times per photon (next-event estimation scores at every vertex) and the
+  standard error ``sqrt((sum h^2 / N - mean^2) / (N - 1))`` stays right, because the
+  photons -- not the scores -- are the independent samples.
+* Two hooks: :func:`score_exit` when a photon leaves the medium (position, direction after
+  refraction, weight, path length, number of scatterings) and :func:`score_vertex` at every
+  scattering vertex (position, incoming direction, weight after implicit capture, path
+  length so far), before the new direction is drawn.
+* Spectral ("white") scoring: a photon walks in ONE medium (the walk medium) and carries a
+  weight factor ``A_l`` per wavelength ``l`` that turns its walk into the walk of wavelength
+  ``l`` (a likelihood ratio; see :mod:`.kernel`); a score ``s`` into geometric bin ``k`` adds
+  ``s A_l`` to bin ``k * n_spec + l``. Runs without spectral re-weighting have
+  ``n_spec = 1`` and ``A_0 = 1``.
 
 ``scal`` (``float64[N_SCALARS]``)
-    Energy bookkeeping and totals; the slot indices are the ``S_*`` constants below. Each
-    photon exits at most once, so its score into a face is its weight ``w`` or 0 and the
-    per-photon second moment is ``sum w^2``: the standard error of a mean score ``R`` over
-    ``N`` photons is ``sqrt((sum w^2 / N - R^2) / (N - 1))``.
-    The bookkeeping identity, exact per photon (PHYSICS.md section 3)::
+    Energy bookkeeping and totals of the walk medium; slot indices ``S_*`` below. The exit
+    weight of a photon into a face is flushed once per history, so ``S_EXIT*_SQ`` are sums
+    of per-photon squares; so is the roulette balance ``S_ROULETTE_NET_SQ`` (per photon:
+    gain minus killed), whose mean is zero in expectation. The identity, exact per photon::
 
         entered + roulette_gain = exited + absorbed + roulette_killed + capped_weight
 
-    with ``entered = sum (1 - F(theta_i))``, ``roulette_gain = sum w (1/p - 1)`` over
-    survivors and ``roulette_killed = sum w`` over the killed; ``gain - killed`` is zero in
-    expectation (unbiased roulette).
+Exit modes (``tally_mode``, parameters ``tally_params``)
+    ``NONE`` -- no bins.
+    ``SLAB_DIRECTIONS`` -- ``[n_mu, n_phi]``: face (0 top, 1 bottom) x ``mu = cos theta_out``
+    (``n_mu`` uniform bins on (0, 1], relative to the face's outward normal) x azimuth
+    ``atan2(w_y, w_x)`` (``n_phi`` bins on [-pi, pi)).
+    ``CYLINDER_DIRECTIONS`` -- ``[n_psi, n_mu, n_phi, n_v, v_max]``: surface cell of the
+    exit azimuth ``psi = atan2(-y, z)`` (``n_psi`` cells of width ``2 pi / n_psi`` CENTRED on
+    ``k 2 pi / n_psi``, cell 0 the top, ``psi = 0``) x axial position ``v = x`` (``n_v`` bins
+    on [-v_max, v_max]; the end bins also take everything beyond) x ``mu = w . n(psi)``
+    (``n_mu`` bins on (0, 1]) x local azimuth ``phi = atan2(w . b, w . t)`` (``n_phi`` bins
+    on [-pi, pi)); local frame ``(n, t, b = n x t)`` of the exit point, see :mod:`.geometry`.
+    ``CYLINDER_OUTPUTS`` -- ``[filter, n_out, (psi_lo, psi_hi, mu_lo, mu_hi, phi_lo, phi_hi)
+    x n_out]``: an exit scores into every output range containing its ``(psi, mu, phi)``;
+    ``filter`` 0 all exits, 1 unscattered exits only, 2 scattered only. The same output
+    ranges serve the next-event estimator, so both estimate the same average.
 
-``bins`` (``float64[n_bins, 2]``)
-    Column 0: ``sum w`` of the photons exiting into a bin; column 1: ``sum w^2``. The binning
-    is chosen by the tally mode and its parameters ``tally_params``:
-
-    ``NONE`` -- no bins (``n_bins = 1``, unused).
-    ``SLAB_DIRECTIONS`` -- ``params = [n_mu, n_phi]``: face (0 top / reflected, 1 bottom /
-    transmitted) x ``mu = cos(theta_out)`` relative to the face's outward normal, ``n_mu``
-    uniform bins on (0, 1] (equal solid angle ``2 pi / n_mu / n_phi`` each) x azimuth
-    ``phi_out = atan2(w_y, w_x)`` in ``n_phi`` uniform bins on [-pi, pi).
-    ``CYLINDER_DIRECTIONS`` -- ``params = [n_psi, n_mu, n_phi]``: exit azimuth ``psi`` around
-    the axis (``n_psi`` uniform bins on [-pi, pi)) x ``mu = w . n(psi)`` (``n_mu`` bins on
-    (0, 1]) x local azimuth ``phi = atan2(w . b, w . t)`` about ``n(psi)`` from the axis
-    ``t`` (``n_phi`` bins on [-pi, pi)); local frame as in :mod:`.geometry`.
-
-Extending: a new estimator is a new mode constant, its branch in :func:`score_exit` and its
-``n_bins`` in :func:`bin_count`. A next-event estimator (a contribution towards each fixed
-internal direction at every scattering vertex, weighted by the phase function, the
-attenuation to the boundary, the Fresnel transmission and ``n^2``) adds a vertex scorer
-called at the marked scattering site of :func:`simulate.montecarlo.kernel.simulate_batch`,
-where position, incoming direction, weight and path length are at hand. The exit scorer
-receives the path length ``path_length`` travelled inside the medium, so "white" Monte
-Carlo can apply ``exp(-mu_a L)`` afterwards.
+Vertex modes (``vertex_mode``, parameters ``vertex_params``)
+    ``V_NONE`` -- nothing.
+    ``V_CYLINDER_NEE`` -- ``[n_out, (psi_lo, psi_hi, mu_lo, mu_hi, phi_lo, phi_hi) x n_out]``:
+    next-event estimation of the light that leaves the cylinder through the cell
+    ``psi_lo <= psi < psi_hi`` in the local direction range (see :func:`score_vertex` for
+    the geometry). Its bins follow the exit bins in the same ``bins`` array.
 """
 
 from __future__ import annotations
@@ -46,19 +57,45 @@ import math
 import numba
 import numpy as np
 
+from simulate.fresnel import fresnel_unpolarized
+from simulate.montecarlo.rng import next_u64, to_uniform
+from simulate.montecarlo.scatter import phase_pdf
+
 __all__ = [
     "NONE",
     "SLAB_DIRECTIONS",
     "CYLINDER_DIRECTIONS",
+    "CYLINDER_OUTPUTS",
+    "V_NONE",
+    "V_CYLINDER_NEE",
+    "FILTER_ALL",
+    "FILTER_UNSCATTERED",
+    "FILTER_SCATTERED",
     "N_SCALARS",
     "SCALAR_NAMES",
+    "OUTPUT_COLUMNS",
     "bin_count",
     "score_exit",
+    "score_vertex",
+    "add_score",
+    "flush_history",
 ]
 
 NONE = 0
 SLAB_DIRECTIONS = 1
 CYLINDER_DIRECTIONS = 2
+CYLINDER_OUTPUTS = 3
+
+V_NONE = 0
+V_CYLINDER_NEE = 1
+
+FILTER_ALL = 0
+FILTER_UNSCATTERED = 1
+FILTER_SCATTERED = 2
+
+#: columns of an ``outputs`` row: cell centre (cos, sin of psi_c), cos of the cell's half
+#: width, the local direction range (mu_lo, mu_hi, phi_lo, phi_hi), unused
+OUTPUT_COLUMNS = ("cos_psi_c", "sin_psi_c", "cos_half_width", "mu_lo", "mu_hi", "phi_lo", "phi_hi", "spare")
 
 # scalar slots
 S_LAUNCHED = 0  # photons launched (weight 1 each)
@@ -79,7 +116,9 @@ S_EVENTS = 14  # free-path steps (each ends in an interaction or at the boundary
 S_SCATTERINGS = 15
 S_INTERNAL_REFLECTIONS = 16
 S_PATH_LENGTH = 17  # sum of w_exit * L over exits (mean path length of exiting light)
-N_SCALARS = 18
+S_ROULETTE_NET_SQ = 18  # sum over photons of (gain - killed)^2 of that photon
+S_LAUNCH_WEIGHT = 19  # sum of launch weights (1 per photon, cos-weighted for the cell source)
+N_SCALARS = 20
 
 SCALAR_NAMES = (
     "launched",
@@ -100,32 +139,36 @@ SCALAR_NAMES = (
     "scatterings",
     "internal_reflections",
     "path_length",
+    "roulette_net_sq",
+    "launch_weight",
 )
 
 _TWO_PI = 2.0 * math.pi
 
 
 def bin_count(mode: int, params: np.ndarray) -> int:
-    """Number of bins a tally mode needs (rows of the ``bins`` array).
+    """Number of geometric exit bins of a tally mode (before the spectral factor).
 
     Parameters
     ----------
     mode : int
-        Tally mode constant.
+        Exit tally mode constant.
     params : numpy.ndarray
         The mode's parameters.
 
     Returns
     -------
     int
-        ``n_bins >= 1``.
+        ``n_bins >= 0``.
     """
     if mode == NONE:
-        return 1
+        return 0
     if mode == SLAB_DIRECTIONS:
         return 2 * int(params[0]) * int(params[1])
     if mode == CYLINDER_DIRECTIONS:
-        return int(params[0]) * int(params[1]) * int(params[2])
+        return int(params[0]) * int(params[1]) * int(params[2]) * int(params[3])
+    if mode == CYLINDER_OUTPUTS:
+        return int(params[1])
     raise ValueError(f"unknown tally mode {mode}")
 
 
@@ -139,11 +182,45 @@ def _uniform_bin(value: float, lo: float, hi: float, count: int) -> int:
     return k
 
 
+@numba.njit(cache=True, inline="always")
+def add_score(hist: np.ndarray, touched: np.ndarray, n_touched: np.ndarray, k: int, value: float) -> None:
+    """Add ``value`` to the history's scratch bin ``k`` (remembering the bins it touched)."""
+    if value == 0.0:
+        return
+    if hist[k] == 0.0:
+        touched[n_touched[0]] = k
+        n_touched[0] += 1
+    hist[k] += value
+
+
+@numba.njit(cache=True, inline="always")
+def flush_history(hist: np.ndarray, touched: np.ndarray, n_touched: np.ndarray, bins: np.ndarray) -> None:
+    """End of a history: move its scratch scores into ``bins`` as (sum, sum of squares)."""
+    for i in range(n_touched[0]):
+        k = touched[i]
+        h = hist[k]
+        bins[k, 0] += h
+        bins[k, 1] += h * h
+        hist[k] = 0.0
+    n_touched[0] = 0
+
+
+@numba.njit(cache=True, inline="always")
+def _add_spectral(hist, touched, n_touched, base, n_spec, spec_w, value) -> None:
+    for l in range(n_spec):
+        add_score(hist, touched, n_touched, base + l, value * spec_w[l])
+
+
 @numba.njit(cache=True)
 def score_exit(
     mode: int,
     params: np.ndarray,
-    bins: np.ndarray,
+    outputs: np.ndarray,
+    hist: np.ndarray,
+    touched: np.ndarray,
+    n_touched: np.ndarray,
+    n_spec: int,
+    spec_w: np.ndarray,
     face: int,
     x: float,
     y: float,
@@ -152,18 +229,22 @@ def score_exit(
     wy: float,
     wz: float,
     weight: float,
-    path_length: float,
+    scatterings: int,
 ) -> None:
     """Score a photon leaving the medium at ``(x, y, z)`` in direction ``w`` (outside, unit).
 
     Parameters
     ----------
-    mode : int
-        Tally mode.
-    params : numpy.ndarray
-        Mode parameters (see the module docstring).
-    bins : numpy.ndarray
-        ``float64[n_bins, 2]`` accumulators (``sum w``, ``sum w^2``).
+    mode, params : int, numpy.ndarray
+        Exit tally mode and its parameters (module docstring).
+    outputs : numpy.ndarray
+        ``float64[n_out, 8]`` output ranges (``CYLINDER_OUTPUTS``; columns ``OUTPUT_COLUMNS``).
+    hist, touched, n_touched : numpy.ndarray
+        The history's scratch tally (see :func:`add_score`).
+    n_spec : int
+        Spectral factors per geometric bin.
+    spec_w : numpy.ndarray
+        ``A_l``, the photon's spectral weight factors.
     face : int
         Slab: 0 top, 1 bottom; cylinder: 0.
     x, y, z : float
@@ -171,9 +252,9 @@ def score_exit(
     wx, wy, wz : float
         Exit direction after refraction.
     weight : float
-        Photon weight leaving.
-    path_length : float
-        Geometric path length travelled inside the medium.
+        Photon weight leaving (walk medium).
+    scatterings : int
+        Scattering events of the photon (0: unscattered light).
     """
     if mode == SLAB_DIRECTIONS:
         n_mu = int(params[0])
@@ -181,22 +262,199 @@ def score_exit(
         mu = wz if face == 0 else -wz
         k = (face * n_mu + _uniform_bin(mu, 0.0, 1.0, n_mu)) * n_phi
         k += _uniform_bin(math.atan2(wy, wx), -math.pi, math.pi, n_phi)
-        bins[k, 0] += weight
-        bins[k, 1] += weight * weight
-    elif mode == CYLINDER_DIRECTIONS:
+        _add_spectral(hist, touched, n_touched, k * n_spec, n_spec, spec_w, weight)
+        return
+    if mode == NONE:
+        return
+    r = math.sqrt(y * y + z * z)
+    ny = y / r
+    nz = z / r
+    mu = wy * ny + wz * nz
+    # b = n x t = (0, n_z, -n_y): with n = (0, -sin psi, cos psi), b = (0, cos psi, sin psi)
+    wb = wy * nz - wz * ny
+    phi = math.atan2(wb, wx)
+    if mode == CYLINDER_DIRECTIONS:
         n_psi = int(params[0])
         n_mu = int(params[1])
         n_phi = int(params[2])
+        n_v = int(params[3])
         psi = math.atan2(-y, z)
-        r = math.sqrt(y * y + z * z)
-        ny = y / r
-        nz = z / r
-        mu = wy * ny + wz * nz
-        # b = n x t = (0, n_z, -n_y): with n = (0, -sin psi, cos psi), b = (0, cos psi, sin psi)
-        wb = wy * nz - wz * ny
-        phi = math.atan2(wb, wx)
-        k = (_uniform_bin(psi, -math.pi, math.pi, n_psi) * n_mu + _uniform_bin(mu, 0.0, 1.0, n_mu)) * n_phi
+        cell = int(math.floor(psi / _TWO_PI * n_psi + 0.5)) % n_psi
+        kv = _uniform_bin(x, -params[4], params[4], n_v) if n_v > 1 else 0
+        k = ((cell * n_v + kv) * n_mu + _uniform_bin(mu, 0.0, 1.0, n_mu)) * n_phi
         k += _uniform_bin(phi, -math.pi, math.pi, n_phi)
-        bins[k, 0] += weight
-        bins[k, 1] += weight * weight
+        _add_spectral(hist, touched, n_touched, k * n_spec, n_spec, spec_w, weight)
+        return
+    if mode == CYLINDER_OUTPUTS:
+        filt = int(params[0])
+        if filt == FILTER_UNSCATTERED and scatterings > 0:
+            return
+        if filt == FILTER_SCATTERED and scatterings == 0:
+            return
+        for o in range(outputs.shape[0]):
+            # n(psi) . n(psi_c) with n = (-sin, cos): -y sin_c + z cos_c over r
+            if -ny * outputs[o, 1] + nz * outputs[o, 0] < outputs[o, 2]:
+                continue
+            if mu < outputs[o, 3] or mu > outputs[o, 4] or phi < outputs[o, 5] or phi > outputs[o, 6]:
+                continue
+            _add_spectral(hist, touched, n_touched, o * n_spec, n_spec, spec_w, weight)
 
+
+@numba.njit(cache=True)
+def score_vertex(
+    mode: int,
+    outputs: np.ndarray,
+    base: int,
+    hist: np.ndarray,
+    touched: np.ndarray,
+    n_touched: np.ndarray,
+    n_spec: int,
+    spec_w: np.ndarray,
+    spec_mu_t: np.ndarray,
+    spec_kind: np.ndarray,
+    spec_g: np.ndarray,
+    spec_table: np.ndarray,
+    spec_pdf: np.ndarray,
+    spec_lookup: np.ndarray,
+    radius: float,
+    n_in: float,
+    x: float,
+    y: float,
+    z: float,
+    ux: float,
+    uy: float,
+    uz: float,
+    weight: float,
+    s0: np.uint64,
+    s1: np.uint64,
+    s2: np.uint64,
+    s3: np.uint64,
+) -> tuple[np.uint64, np.uint64, np.uint64, np.uint64]:
+    r"""Next-event estimate of the light leaving the cylinder at each output, from one vertex.
+
+    The photon (weight ``w`` after implicit capture, arriving along ``u``) scatters at ``p``.
+    For an output (cell ``C`` of the surface, local exit direction ``w_out`` -- a point, or
+    drawn in the output's range with density ``prop. to cos theta_out``, so that the
+    expectation is the projected-solid-angle average over the range), the scored quantity is
+    the energy per unit solid angle of ``w_out`` leaving through ``C`` in that LOCAL
+    direction (local frame of each exit point; the cylinder's invariance makes them
+    equivalent), divided by ``cos theta_out``:
+
+    *Internal direction.* Snell backwards at the exit: ``u_t = w_t / n``, ``u_b = w_b / n``,
+    ``u_n = sqrt(1 - u_t^2 - u_b^2)`` (``u_n = cos theta_int``), fixed in the local frame.
+    Its projection on the cross-section makes the angle ``alpha`` with the normal:
+    ``sin alpha = u_b / rho``, ``cos alpha = u_n / rho``, ``rho = sqrt(1 - u_t^2)``.
+
+    *Exit points.* A 2-D ray from ``p' = (y, z)`` reaches the circle at angle ``alpha`` to the
+    normal after the 2-D distance ``s`` with ``|p'|^2 = R^2 - 2 R s cos alpha + s^2``::
+
+        s_pm = R cos alpha +- sqrt(|p'|^2 - R^2 sin^2 alpha)      (none if |p'| < R |sin alpha|)
+
+    and the exit normal follows from ``p' = (R - s cos alpha) n - s sin alpha b``, i.e. in
+    complex form ``n = p' (a_n + i a_b) / |p'|^2`` with ``a_n = R - s cos alpha``,
+    ``a_b = -s sin alpha`` (``b`` is ``n`` turned by -90 degrees). The 3-D distance is
+    ``s / rho``.
+
+    *Internal reflections.* In a circle a chord keeps its angle to the normal, so after each
+    Fresnel reflection the ray meets the surface again with the same local direction, the
+    exit point turned by ``-(pi - 2 alpha)`` (``sin alpha > 0``; ``pi + 2 alpha`` otherwise) and
+    a further path ``2 R cos alpha / rho``: order ``k`` carries ``F^k (1 - F)``.
+
+    *Jacobian.* With the direction parametrised by ``(u_t, phi)`` (``dOmega = du_t dphi``) and
+    the local direction by ``(u_t, alpha)``, ``d alpha / d phi = 1 - s / (R cos alpha)``, since a
+    fan ``dphi`` at distance ``s`` covers ``R dpsi = s dphi / cos alpha`` of the surface::
+
+        dOmega_u / dOmega_local = R cos alpha / sqrt(|p'|^2 - R^2 sin^2 alpha)   (= J)
+
+    and across the interface ``dOmega_local = cos theta_out dOmega_out / (n^2 cos theta_int)``.
+    The score per wavelength ``l`` and order ``k`` is therefore::
+
+        w A_l p_l(u_in . u) exp(-mu_t,l (s + k c) / rho) F^k (1 - F) J / (n^2 u_n)
+
+    ``R_vol = (score per photon) x (launch normalisation) / (cell width)`` (see
+    :mod:`simulate.fiber`). ``J`` diverges (integrably) on the caustic ``|p'| = R |sin alpha|``:
+    the estimator is unbiased but its variance grows logarithmically there; cell and
+    direction ranges of finite size average it out.
+
+    Returns the advanced random state (draws are used only for ranged outputs).
+    """
+    r2 = y * y + z * z
+    if r2 <= 0.0:
+        r2 = 1e-300
+    inv_r2 = 1.0 / r2
+    n2 = n_in * n_in
+    big_r = radius
+    mu_t_min = spec_mu_t[0]
+    for l in range(1, n_spec):
+        if spec_mu_t[l] < mu_t_min:
+            mu_t_min = spec_mu_t[l]
+    for o in range(outputs.shape[0]):
+        mu_lo = outputs[o, 3]
+        mu_hi = outputs[o, 4]
+        phi_lo = outputs[o, 5]
+        phi_hi = outputs[o, 6]
+        if mu_hi > mu_lo:
+            rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+            mu = math.sqrt(mu_lo * mu_lo + to_uniform(rr) * (mu_hi * mu_hi - mu_lo * mu_lo))
+        else:
+            mu = mu_lo
+        if phi_hi > phi_lo:
+            rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+            phi = phi_lo + to_uniform(rr) * (phi_hi - phi_lo)
+        else:
+            phi = phi_lo
+        st = math.sqrt(max(1.0 - mu * mu, 0.0))
+        u_t = st * math.cos(phi) / n_in
+        u_b = st * math.sin(phi) / n_in
+        u_n = math.sqrt(max(1.0 - u_t * u_t - u_b * u_b, 0.0))
+        rho = math.sqrt(u_n * u_n + u_b * u_b)
+        if rho <= 0.0 or u_n <= 0.0:
+            continue
+        sa = u_b / rho
+        ca = u_n / rho
+        disc = r2 - big_r * big_r * sa * sa
+        if disc <= 0.0:
+            continue
+        sq = math.sqrt(disc)
+        f_out = fresnel_unpolarized(u_n, n_in, 1.0)
+        common = weight * (1.0 - f_out) * (big_r * ca / sq) / (n2 * u_n)
+        chord = 2.0 * big_r * ca / rho
+        alpha = math.atan2(sa, ca)
+        step = -(math.pi - 2.0 * alpha) if sa > 0.0 else math.pi + 2.0 * alpha
+        c_step = math.cos(step)
+        s_step = math.sin(step)
+        cos_c = outputs[o, 0]
+        sin_c = outputs[o, 1]
+        cos_h = outputs[o, 2]
+        for sol in range(2):
+            s = big_r * ca + sq if sol == 0 else big_r * ca - sq
+            if s <= 0.0:
+                continue
+            a_n = big_r - s * ca
+            a_b = -s * sa
+            # n = p' (a_n + i a_b) / |p'|^2 in (y + i z) notation
+            ny = (y * a_n - z * a_b) * inv_r2
+            nz = (y * a_b + z * a_n) * inv_r2
+            # internal direction at the first exit point: u_t t + u_n n + u_b b, b = (n_z, -n_y)
+            dy = u_n * ny + u_b * nz
+            dz = u_n * nz - u_b * ny
+            cos_s = ux * u_t + uy * dy + uz * dz
+            path = s / rho
+            fk = 1.0
+            for k in range(64):
+                # cell test: n(psi) . n(psi_c), n(psi_c) = (-sin_c, cos_c)
+                if -ny * sin_c + nz * cos_c >= cos_h:
+                    g0 = common * fk
+                    for l in range(n_spec):
+                        p_l = phase_pdf(cos_s, spec_kind[l], spec_g[l], spec_table[l], spec_pdf[l], spec_lookup[l])
+                        add_score(hist, touched, n_touched, (base + o) * n_spec + l,
+                                  g0 * spec_w[l] * p_l * math.exp(-spec_mu_t[l] * path))
+                fk *= f_out
+                path += chord
+                if fk * math.exp(-mu_t_min * (path - s / rho)) < 1e-9:
+                    break
+                # rotate the exit normal by `step` (psi -> psi + step): n = (-sin psi, cos psi)
+                t_y = ny * c_step - nz * s_step
+                nz = ny * s_step + nz * c_step
+                ny = t_y
+    return s0, s1, s2, s3

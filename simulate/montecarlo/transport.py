@@ -34,6 +34,7 @@ import numpy as np
 from simulate.montecarlo import geometry as G
 from simulate.montecarlo import kernel as K
 from simulate.montecarlo import tallies as T
+from simulate.montecarlo.scatter import PhaseArrays, phase_arrays
 
 __all__ = [
     "ParameterError",
@@ -44,6 +45,9 @@ __all__ = [
     "CylinderResult",
     "run_slab",
     "run_cylinder",
+    "make_inputs",
+    "execute",
+    "SpectralTargets",
     "DEFAULT_BATCH_SIZE",
     "DEFAULT_MAX_EVENTS",
 ]
@@ -80,6 +84,7 @@ class EnergyBalance:
     roulette_gain: float
     roulette_killed: float
     capped_weight: float
+    u_roulette_balance: float = math.nan
 
     @property
     def roulette_balance(self) -> float:
@@ -106,6 +111,7 @@ class EnergyBalance:
             "roulette_gain": self.roulette_gain,
             "roulette_killed": self.roulette_killed,
             "roulette_balance": self.roulette_balance,
+            "u_roulette_balance": self.u_roulette_balance,
             "capped_weight": self.capped_weight,
             "residual": self.residual,
         }
@@ -176,13 +182,14 @@ class SlabResult:
 class CylinderAngular:
     """Exit weight of a cylinder run per (psi, local direction) bin, fractions of launched photons.
 
-    ``exits[k, i, j]``: weight leaving through the surface at azimuth ``psi`` in
-    ``[psi_edges[k], psi_edges[k+1])`` with ``mu = w . n(psi)`` in ``[mu_edges[i], mu_edges[i+1])``
-    and local azimuth ``phi = atan2(w . b, w . t)`` in ``[phi_edges[j], phi_edges[j+1])``
-    (frame ``(n(psi), t = x, b = n x t)``, see :mod:`.geometry`); ``u_exits`` its standard error.
+    ``exits[k, i, j]``: weight leaving through the surface cell ``k`` (azimuth ``psi`` within
+    half a cell width ``2 pi / n_psi`` of ``psi_centers[k] = 2 pi k / n_psi``; cell 0 is the
+    top) with ``mu = w . n(psi)`` in ``[mu_edges[i], mu_edges[i+1])`` and local azimuth
+    ``phi = atan2(w . b, w . t)`` in ``[phi_edges[j], phi_edges[j+1])`` (frame
+    ``(n(psi), t = x, b = n x t)``, see :mod:`.geometry`); ``u_exits`` its standard error.
     """
 
-    psi_edges: np.ndarray
+    psi_centers: np.ndarray
     mu_edges: np.ndarray
     phi_edges: np.ndarray
     exits: np.ndarray
@@ -259,7 +266,7 @@ def _positive_int(name: str, value: int, upper: int = 2**62) -> int:
     return int(value)
 
 
-def _medium(mu_a: float, mu_s: float, g: float | None, phase_table: Any, n: float) -> tuple[np.ndarray, np.ndarray]:
+def _medium(mu_a: float, mu_s: float, g: float | None, phase_table: Any, n: float) -> tuple[np.ndarray, PhaseArrays]:
     mu_a = _finite_nonneg("mu_a", mu_a)
     mu_s = _finite_nonneg("mu_s", mu_s)
     n = _finite_pos("n", n)
@@ -269,24 +276,90 @@ def _medium(mu_a: float, mu_s: float, g: float | None, phase_table: Any, n: floa
         g = 0.0 if g is None else float(g)
         if not math.isfinite(g) or not -1.0 < g < 1.0:
             raise ParameterError(f"g must be in (-1, 1), got {g!r}")
-        table = np.zeros(2)
-        phase = K.PHASE_HG
+        arrays = phase_arrays(g=g)
     else:
-        # a writeable C-contiguous copy: a read-only array would compile a second signature
         table = np.array(getattr(phase_table, "cos_table", phase_table), dtype=np.float64, order="C", copy=True)
         if table.ndim != 1 or table.size < 2:
             raise ParameterError("phase_table.cos_table must be a 1-D array of at least 2 values")
         if not np.all(np.isfinite(table)) or table[0] < -1.0 or table[-1] > 1.0 or np.any(np.diff(table) < 0):
             raise ParameterError("phase_table.cos_table must be finite, non-decreasing and within [-1, 1]")
-        g = 0.0
-        phase = K.PHASE_TABLE
+        arrays = phase_arrays(cos_table=table)
     medium = np.zeros(K.N_MEDIUM)
     medium[K.M_MU_A] = mu_a
     medium[K.M_MU_S] = mu_s
-    medium[K.M_G] = g
+    medium[K.M_G] = arrays.g
     medium[K.M_N] = n
-    medium[K.M_PHASE] = phase
-    return medium, table
+    medium[K.M_PHASE] = arrays.kind
+    return medium, arrays
+
+
+@dataclass(frozen=True)
+class SpectralTargets:
+    """Target media of a re-weighted ("white") run: one row per wavelength.
+
+    Attributes
+    ----------
+    mu_a, mu_s : numpy.ndarray
+        ``[L]`` coefficients of each target wavelength.
+    phases : list of PhaseArrays
+        Phase function of each target (all of one kind and table size).
+    same_phase : numpy.ndarray
+        ``bool[L]``: the target's phase function is the walk's (no phase ratio needed).
+    """
+
+    mu_a: np.ndarray
+    mu_s: np.ndarray
+    phases: list[PhaseArrays]
+    same_phase: np.ndarray
+
+
+def _spectral_arrays(targets: SpectralTargets | None, medium: np.ndarray, walk_phase: PhaseArrays):
+    if targets is None:
+        mu = np.array([[medium[K.M_MU_A], medium[K.M_MU_S]]])
+        phases = [walk_phase]
+        same = np.ones(1, dtype=np.bool_)
+        reweight = False
+    else:
+        mu = np.ascontiguousarray(np.stack([targets.mu_a, targets.mu_s], axis=1), dtype=np.float64)
+        phases = list(targets.phases)
+        same = np.asarray(targets.same_phase, dtype=np.bool_)
+        reweight = True
+    kinds = {p.kind for p in phases}
+    if len(kinds) != 1 or len({p.table.size for p in phases}) != 1:
+        raise ParameterError("spectral targets: every phase function must be of one kind and table size")
+    kind = np.array([p.kind for p in phases], dtype=np.int64)
+    g = np.array([p.g for p in phases], dtype=np.float64)
+    table = np.ascontiguousarray(np.stack([p.table for p in phases]))
+    pdf = np.ascontiguousarray(np.stack([p.pdf for p in phases]))
+    lookup = np.ascontiguousarray(np.stack([p.lookup for p in phases]))
+    return reweight, mu, kind, g, table, pdf, lookup, np.ascontiguousarray(same)
+
+
+def make_inputs(
+    geometry: int,
+    geom: np.ndarray,
+    source: np.ndarray,
+    medium: np.ndarray,
+    walk_phase: PhaseArrays,
+    control: np.ndarray,
+    tally_mode: int = T.NONE,
+    tally_params: np.ndarray | None = None,
+    vertex_mode: int = T.V_NONE,
+    outputs: np.ndarray | None = None,
+    targets: SpectralTargets | None = None,
+) -> K.KernelInputs:
+    """Pack a run's inputs into the kernel's :class:`~.kernel.KernelInputs` record (validated upstream)."""
+    tally_params = np.zeros(1) if tally_params is None else np.ascontiguousarray(tally_params, dtype=np.float64)
+    outputs = np.zeros((0, 8)) if outputs is None else np.ascontiguousarray(outputs, dtype=np.float64)
+    reweight, mu, kind, g, table, pdf, lookup, same = _spectral_arrays(targets, medium, walk_phase)
+    src = np.zeros(5)
+    src[: len(source)] = source
+    return K.KernelInputs(
+        int(geometry), np.ascontiguousarray(geom, dtype=np.float64), src, np.ascontiguousarray(medium),
+        walk_phase.table, walk_phase.pdf, walk_phase.lookup, control, int(tally_mode), tally_params,
+        int(vertex_mode), outputs, int(T.bin_count(tally_mode, tally_params)), bool(reweight),
+        mu, kind, g, table, pdf, lookup, same,
+    )
 
 
 def _control(max_events: int, weight_threshold: float, survival: float) -> np.ndarray:
@@ -314,22 +387,24 @@ def _bins_stderr(sums: np.ndarray, sums_sq: np.ndarray, n: int) -> np.ndarray:
     return np.sqrt(np.maximum(sums_sq / n - mean * mean, 0.0) / (n - 1))
 
 
-def _execute(
+def execute(
+    inp: K.KernelInputs,
     photons: int,
     seed: int,
     threads: int | None,
     batch_size: int,
-    geometry: int,
-    geom: np.ndarray,
-    medium: np.ndarray,
-    table: np.ndarray,
-    source: np.ndarray,
-    control: np.ndarray,
-    tally_mode: int,
-    tally_params: np.ndarray,
+    first_batch: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Run all batches; return (scalar sums, bin sums [n_bins, 2], seconds)."""
-    n_bins = T.bin_count(tally_mode, tally_params)
+    """Run ``photons`` photons (batches from ``first_batch`` on); return (scalar sums, bin sums, seconds).
+
+    ``bins`` has ``n_spec x (exit bins + vertex outputs)`` rows of ``(sum, sum of squares)``.
+    Batches are numbered globally, so a run continued with ``first_batch`` = the batches done
+    so far draws fresh, reproducible streams (accuracy-controlled runs add batches this way).
+    """
+    n_spec = inp.spec_mu.shape[0]
+    n_vertex = inp.outputs.shape[0] if inp.vertex_mode != T.V_NONE else 0
+    n_bins = max((inp.n_exit_bins + n_vertex) * n_spec, 1)
+    total = first_batch * batch_size + photons
     n_batches = -(-photons // batch_size)
     per_batch = n_bins * 2 + T.N_SCALARS
     round_size = int(min(256, max(8, _ROUND_ELEMENTS // per_batch)))
@@ -346,17 +421,15 @@ def _execute(
     # dynamic scheduling, one batch per chunk: a thread slowed by other load takes fewer
     # batches (results do not depend on which thread ran a batch)
     previous_chunk = numba.set_parallel_chunksize(1)
+    scoring = inp.tally_mode != T.NONE or inp.vertex_mode != T.V_NONE
     try:
         t0 = time.perf_counter()
         for first in range(0, n_batches, round_size):
             count = min(round_size, n_batches - first)
-            K.run_batches(
-                photons, batch_size, first, count, seed, geometry, geom, medium, table, source,
-                control, tally_mode, tally_params, scal_buf, bins_buf,
-            )
+            K.run_batches(inp, total, batch_size, first_batch + first, count, seed, scal_buf, bins_buf)
             for r in range(count):  # batch order: thread-count independent sums
                 scal += scal_buf[r]
-                if tally_mode != T.NONE:
+                if scoring:
                     bins += bins_buf[r]
         seconds = time.perf_counter() - t0
     finally:
@@ -378,6 +451,7 @@ def _energy(scal: np.ndarray, faces: int) -> EnergyBalance:
         roulette_gain=scal[T.S_ROULETTE_GAIN] / n,
         roulette_killed=scal[T.S_ROULETTE_KILLED] / n,
         capped_weight=scal[T.S_CAPPED_WEIGHT] / n,
+        u_roulette_balance=_stderr(scal[T.S_ROULETTE_GAIN] - scal[T.S_ROULETTE_KILLED], scal[T.S_ROULETTE_NET_SQ], int(n)),
     )
 
 
@@ -464,7 +538,7 @@ def run_slab(
     >>> abs(r.Rd - 0.09739) < 5 * r.u_Rd and abs(r.Tt - 0.66096) < 5 * r.u_Tt
     True
     """
-    medium, table = _medium(mu_a, mu_s, g, phase_table, n)
+    medium, walk_phase = _medium(mu_a, mu_s, g, phase_table, n)
     d = _finite_pos("thickness", thickness)
     photons = _positive_int("photons", photons)
     batch_size = _positive_int("batch_size", batch_size)
@@ -485,10 +559,8 @@ def run_slab(
     else:
         n_mu, n_phi = (_positive_int("angular_bins", int(v), 100_000) for v in angular_bins)
         mode, params = T.SLAB_DIRECTIONS, np.array([float(n_mu), float(n_phi)])
-    scal, bins, seconds = _execute(
-        photons, int(seed), threads, batch_size, G.SLAB, np.array([d]), medium, table, source,
-        control, mode, params,
-    )
+    inp = make_inputs(G.SLAB, np.array([d]), source, medium, walk_phase, control, mode, params)
+    scal, bins, seconds = execute(inp, photons, int(seed), threads, batch_size)
     capped = _log_cap(scal, int(control[K.C_MAX_EVENTS]))
     angular = None
     if mode == T.SLAB_DIRECTIONS:
@@ -574,7 +646,7 @@ def run_cylinder(
     ParameterError
         (a ``ValueError``) on invalid parameters; the message names the parameter.
     """
-    medium, table = _medium(mu_a, mu_s, g, phase_table, n)
+    medium, walk_phase = _medium(mu_a, mu_s, g, phase_table, n)
     r = _finite_pos("radius", radius)
     photons = _positive_int("photons", photons)
     batch_size = _positive_int("batch_size", batch_size)
@@ -603,11 +675,9 @@ def run_cylinder(
         mode, params = T.NONE, np.zeros(1)
     else:
         n_psi, n_mu, n_phi = (_positive_int("angular_bins", int(v), 100_000) for v in angular_bins)
-        mode, params = T.CYLINDER_DIRECTIONS, np.array([float(n_psi), float(n_mu), float(n_phi)])
-    scal, bins, seconds = _execute(
-        photons, int(seed), threads, batch_size, G.CYLINDER, np.array([r]), medium, table, src,
-        control, mode, params,
-    )
+        mode, params = T.CYLINDER_DIRECTIONS, np.array([float(n_psi), float(n_mu), float(n_phi), 1.0, 1.0])
+    inp = make_inputs(G.CYLINDER, np.array([r]), src, medium, walk_phase, control, mode, params)
+    scal, bins, seconds = execute(inp, photons, int(seed), threads, batch_size)
     capped = _log_cap(scal, int(control[K.C_MAX_EVENTS]))
     angular = None
     if mode == T.CYLINDER_DIRECTIONS:
@@ -615,7 +685,7 @@ def run_cylinder(
         s = bins[:, 0].reshape(shape)
         s2 = bins[:, 1].reshape(shape)
         angular = CylinderAngular(
-            psi_edges=np.linspace(-math.pi, math.pi, shape[0] + 1),
+            psi_centers=2.0 * math.pi * np.arange(shape[0]) / shape[0],
             mu_edges=np.linspace(0.0, 1.0, shape[1] + 1),
             phi_edges=np.linspace(-math.pi, math.pi, shape[2] + 1),
             exits=s / photons,
