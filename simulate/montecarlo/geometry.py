@@ -76,29 +76,29 @@ CELL = 2
 
 
 @numba.njit(cache=True, inline="always")
-def inside(geometry: int, geom: np.ndarray, x: float, y: float, z: float) -> bool:
+def inside(geometry: int, size: float, x: float, y: float, z: float) -> bool:
     """True if ``(x, y, z)`` is strictly inside the shape (False for NaN coordinates)."""
     if geometry == SLAB:
-        return z < 0.0 and z > -geom[0]
-    return y * y + z * z < geom[0] * geom[0]
+        return z < 0.0 and z > -size
+    return y * y + z * z < size * size
 
 
 @numba.njit(cache=True, inline="always")
 def distance_to_boundary(
-    geometry: int, geom: np.ndarray, x: float, y: float, z: float, ux: float, uy: float, uz: float
+    geometry: int, size: float, x: float, y: float, z: float, ux: float, uy: float, uz: float
 ) -> float:
     """Distance from an inside point along ``u`` to the boundary (``inf`` if never reached)."""
     if geometry == SLAB:
         if uz > 0.0:
             return max(-z, 0.0) / uz
         if uz < 0.0:
-            return min(-geom[0] - z, 0.0) / uz
+            return min(-size - z, 0.0) / uz
         return math.inf
     a = uy * uy + uz * uz
     if a <= 0.0:
         return math.inf
     b = y * uy + z * uz
-    c = min(y * y + z * z - geom[0] * geom[0], 0.0)
+    c = min(y * y + z * z - size * size, 0.0)
     disc = math.sqrt(max(b * b - a * c, 0.0))
     if b <= 0.0:
         return (disc - b) / a
@@ -107,7 +107,7 @@ def distance_to_boundary(
 
 @numba.njit(cache=True, inline="always")
 def outward_normal(
-    geometry: int, geom: np.ndarray, x: float, y: float, z: float, uz: float
+    geometry: int, size: float, x: float, y: float, z: float, uz: float
 ) -> tuple[float, float, float]:
     """Outward unit normal at a boundary point (slab: the face the direction ``uz`` reaches)."""
     if geometry == SLAB:
@@ -120,21 +120,21 @@ def outward_normal(
 
 @numba.njit(cache=True, inline="always")
 def snap_to_surface(
-    geometry: int, geom: np.ndarray, x: float, y: float, z: float, uz: float
+    geometry: int, size: float, x: float, y: float, z: float, uz: float
 ) -> tuple[float, float, float]:
     """Put a point that reached the boundary exactly on it (stops rounding drift)."""
     if geometry == SLAB:
         if uz > 0.0:
             return x, y, 0.0
-        return x, y, -geom[0]
+        return x, y, -size
     r = math.sqrt(y * y + z * z)
-    f = geom[0] / r
+    f = size / r
     return x, y * f, z * f
 
 
 @numba.njit(cache=True, inline="always")
 def entry_point(
-    geometry: int, geom: np.ndarray, source: np.ndarray, xi: float
+    geometry: int, size: float, mode: int, wx: float, wy: float, wz: float, half_width: float, xi: float
 ) -> tuple[float, float, float, float, float, float]:
     """Entry point and outward normal there for a photon travelling along ``-w``.
 
@@ -142,10 +142,10 @@ def entry_point(
     ----------
     geometry : int
         ``SLAB`` or ``CYLINDER``.
-    geom : numpy.ndarray
-        ``[d]`` or ``[R]``.
-    source : numpy.ndarray
-        ``[mode, w_x, w_y, w_z]``.
+    size : float
+        ``d`` or ``R``.
+    mode, wx, wy, wz, half_width
+        The source (``source`` array unpacked): mode, ``w``, half width of the cell.
     xi : float
         Uniform random number in [0, 1) (impact parameter of the cylinder beam).
 
@@ -156,17 +156,17 @@ def entry_point(
     """
     if geometry == SLAB:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 1.0
-    radius = geom[0]
-    if source[0] == POINT:
+    radius = size
+    if mode == POINT:
         return 0.0, 0.0, radius, 0.0, 0.0, 1.0
-    if source[0] == CELL:
-        psi = (2.0 * xi - 1.0) * source[4]
+    if mode == CELL:
+        psi = (2.0 * xi - 1.0) * half_width
         sp = math.sin(psi)
         cp = math.cos(psi)
         return 0.0, -radius * sp, radius * cp, 0.0, -sp, cp
-    dx = -source[1]
-    dy = -source[2]
-    dz = -source[3]
+    dx = -wx
+    dy = -wy
+    dz = -wz
     q = math.sqrt(dy * dy + dz * dz)
     b = (2.0 * xi - 1.0) * radius
     s = -math.sqrt(max(radius * radius - b * b, 0.0)) / q

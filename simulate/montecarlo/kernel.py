@@ -90,7 +90,7 @@ from simulate.montecarlo.geometry import (
     snap_to_surface,
 )
 from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
-from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, phase_pdf, sample_direction
+from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, phase_pdf, sample_direction
 
 __all__ = [
     "PHASE_HG",
@@ -108,6 +108,9 @@ __all__ = [
     "KernelInputs",
     "simulate_batch",
     "run_batches",
+    "simulate_batch_plain",
+    "run_batches_plain",
+    "run_batches_for",
 ]
 
 # walk-medium array slots
@@ -158,297 +161,324 @@ class KernelInputs(NamedTuple):
     spec_same_phase: np.ndarray  # bool[n_spec]: p^l == p^w (no phase ratio needed)
 
 
-@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
-def simulate_batch(inp: KernelInputs, photons: int, seed: int, batch: int, scal: np.ndarray,
-                   bins: np.ndarray) -> None:
-    """Transport ``photons`` photons of stream ``(seed, batch)``, adding to ``scal`` and ``bins``.
+def _make_kernel(scoring: bool):
+    """Compile the kernel for one flavour: ``scoring`` False is the plain transport loop (totals
+    and bookkeeping only), True adds the tallies, the vertex hook and spectral re-weighting.
 
-    Parameters
-    ----------
-    inp : KernelInputs
-        The packed run inputs.
-    photons : int
-        Photons in this batch.
-    seed, batch : int
-        Random stream identifiers.
-    scal : numpy.ndarray
-        ``float64[tallies.N_SCALARS]`` accumulators.
-    bins : numpy.ndarray
-        ``float64[n_bins_total, 2]`` accumulators (sum, sum of per-photon squares).
+    ``SCORING`` is a closure constant, so numba prunes the scoring code from the plain
+    flavour: its mere presence (calls and array stores in the photon loop) costs the plain
+    slab case about 30 % of its speed. One source, two compiled flavours (both cached).
     """
-    geometry = inp.geometry
-    geom = inp.geom
-    source = inp.source
-    medium = inp.medium
-    table = inp.table
-    mu_a = medium[M_MU_A]
-    mu_s = medium[M_MU_S]
-    g = medium[M_G]
-    n_in = medium[M_N]
-    phase = int(medium[M_PHASE])
-    mu_t = mu_a + mu_s
-    inv_mu_t = 1.0 / mu_t if mu_t > 0.0 else math.inf
-    albedo = mu_s / mu_t if mu_t > 0.0 else 0.0
-    absorb = 1.0 - albedo
-    w_threshold = inp.control[C_WEIGHT_THRESHOLD]
-    survival = inp.control[C_SURVIVAL]
-    inv_survival = 1.0 / survival
-    max_events = int(inp.control[C_MAX_EVENTS])
-    contrast = n_in != 1.0
-    eta_in = 1.0 / n_in
-    dx = -source[1]
-    dy = -source[2]
-    dz = -source[3]
-    cell_source = geometry != SLAB and source[0] == CELL
+    SCORING = scoring
 
-    tally_mode = inp.tally_mode
-    vertex_mode = inp.vertex_mode
-    scoring = tally_mode != T.NONE or vertex_mode != T.V_NONE
-    reweight = inp.reweight and scoring
-    n_spec = inp.spec_mu.shape[0]
-    vertex_base = inp.n_exit_bins
-    n_bins_total = bins.shape[0]
-    hist = np.zeros(n_bins_total)
-    touched = np.zeros(n_bins_total, dtype=np.int64)
-    n_touched = np.zeros(1, dtype=np.int64)
-    spec_w = np.ones(n_spec)
-    d_mu_t = np.zeros(n_spec)
-    s_ratio = np.ones(n_spec)
-    spec_mu_t = np.zeros(n_spec)
-    for l in range(n_spec):
-        spec_mu_t[l] = inp.spec_mu[l, 0] + inp.spec_mu[l, 1]
-        d_mu_t[l] = spec_mu_t[l] - mu_t
-        s_ratio[l] = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
-    if not reweight:
+    @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+    def simulate_batch(inp: KernelInputs, photons: int, seed: int, batch: int, scal: np.ndarray,
+                       bins: np.ndarray) -> None:
+        """Transport ``photons`` photons of stream ``(seed, batch)``, adding to ``scal`` and ``bins``.
+
+        Parameters
+        ----------
+        inp : KernelInputs
+            The packed run inputs.
+        photons : int
+            Photons in this batch.
+        seed, batch : int
+            Random stream identifiers.
+        scal : numpy.ndarray
+            ``float64[tallies.N_SCALARS]`` accumulators.
+        bins : numpy.ndarray
+            ``float64[n_bins_total, 2]`` accumulators (sum, sum of per-photon squares).
+        """
+        geometry = inp.geometry
+        geom = inp.geom
+        source = inp.source
+        medium = inp.medium
+        table = inp.table
+        mu_a = medium[M_MU_A]
+        mu_s = medium[M_MU_S]
+        g = medium[M_G]
+        n_in = medium[M_N]
+        phase = int(medium[M_PHASE])
+        mu_t = mu_a + mu_s
+        inv_mu_t = 1.0 / mu_t if mu_t > 0.0 else math.inf
+        albedo = mu_s / mu_t if mu_t > 0.0 else 0.0
+        absorb = 1.0 - albedo
+        w_threshold = inp.control[C_WEIGHT_THRESHOLD]
+        survival = inp.control[C_SURVIVAL]
+        inv_survival = 1.0 / survival
+        max_events = int(inp.control[C_MAX_EVENTS])
+        contrast = n_in != 1.0
+        eta_in = 1.0 / n_in
+        dx = -source[1]
+        dy = -source[2]
+        dz = -source[3]
+        size = geom[0]
+        src_mode = int(source[0])
+        src_h = source[4]
+        cell_source = geometry != SLAB and src_mode == CELL
+        hg = hg_constants(g)
+
+        tally_mode = inp.tally_mode
+        vertex_mode = inp.vertex_mode
+        reweight = inp.reweight
+        n_spec = inp.spec_mu.shape[0]
+        vertex_base = inp.n_exit_bins
+        n_bins_total = bins.shape[0]
+        hist = np.zeros(n_bins_total)
+        touched = np.zeros(n_bins_total, dtype=np.int64)
+        n_touched = np.zeros(1, dtype=np.int64)
+        spec_w = np.ones(n_spec)
+        d_mu_t = np.zeros(n_spec)
+        s_ratio = np.ones(n_spec)
+        spec_mu_t = np.zeros(n_spec)
         for l in range(n_spec):
-            spec_mu_t[l] = mu_t
-
-    s0, s1, s2, s3 = seed_state(seed, batch)
-
-    specular = 0.0
-    entered = 0.0
-    launch_weight = 0.0
-    exit0 = 0.0
-    exit0_sq = 0.0
-    exit1 = 0.0
-    exit1_sq = 0.0
-    unscattered0 = 0.0
-    unscattered1 = 0.0
-    absorbed = 0.0
-    gain = 0.0
-    killed = 0.0
-    net_sq = 0.0
-    capped = 0.0
-    capped_weight = 0.0
-    events_total = 0
-    scatterings_total = 0
-    reflections_total = 0
-    path_total = 0.0
-
-    for _ in range(photons):
-        # --- entry: Snell refraction, weight (launch weight) x (1 - F) -----------------
-        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-        x, y, z, nx, ny, nz = entry_point(geometry, geom, source, to_uniform(r))
-        cos_i = -(dx * nx + dy * ny + dz * nz)
-        w0 = 1.0
-        if cell_source:
-            w0 = max(cos_i, 0.0)  # irradiance on the surface element, per unit beam irradiance
-        if contrast and w0 > 0.0:
-            f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
-            cos_t = refracted_cos(cos_i, 1.0, n_in)
-            k = eta_in * cos_i - cos_t
-            ux = eta_in * dx + k * nx
-            uy = eta_in * dy + k * ny
-            uz = eta_in * dz + k * nz
-            norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
-            ux *= norm
-            uy *= norm
-            uz *= norm
-        else:
-            f_in = 0.0
-            ux = dx
-            uy = dy
-            uz = dz
-        launch_weight += w0
-        w = w0 * (1.0 - f_in)
-        specular += w0 * f_in
-        entered += w
-        h_exit0 = 0.0
-        h_exit1 = 0.0
-        h_gain = 0.0
-        h_killed = 0.0
-        events = 0
-        scatterings = 0
-        path = 0.0
-        if reweight:
+            spec_mu_t[l] = inp.spec_mu[l, 0] + inp.spec_mu[l, 1]
+            d_mu_t[l] = spec_mu_t[l] - mu_t
+            s_ratio[l] = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
+        if not reweight:
             for l in range(n_spec):
-                spec_w[l] = 1.0
-        alive = w > 0.0
-        while alive:
-            if events >= max_events:
-                capped += 1.0
-                capped_weight += w
-                break
-            events += 1
-            e, s0, s1, s2, s3 = exponential(s0, s1, s2, s3)
-            step = e * inv_mu_t
-            xn = x + step * ux
-            yn = y + step * uy
-            zn = z + step * uz
-            if inside(geometry, geom, xn, yn, zn):
-                # --- collision (the end point is inside: convex shape) ------------------
-                x = xn
-                y = yn
-                z = zn
-                path += step
-                absorbed += w * absorb
-                w *= albedo
-                scatterings += 1
-                w_max = 1.0
-                if reweight:
-                    w_max = 0.0
-                    for l in range(n_spec):
-                        spec_w[l] *= s_ratio[l] * math.exp(-d_mu_t[l] * step)
-                        if spec_w[l] > w_max:
-                            w_max = spec_w[l]
-                if vertex_mode == T.V_CYLINDER_NEE:
-                    s0, s1, s2, s3 = T.score_vertex(
-                        vertex_mode, inp.outputs, vertex_base, hist, touched, n_touched, n_spec, spec_w,
-                        spec_mu_t, inp.spec_kind, inp.spec_g, inp.spec_table, inp.spec_pdf, inp.spec_lookup,
-                        geom[0], n_in, x, y, z, ux, uy, uz, w, s0, s1, s2, s3,
-                    )
-                ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, phase, g, table, s0, s1, s2, s3)
-                if reweight:
-                    p_w = 0.0
-                    w_max = 0.0
-                    for l in range(n_spec):
-                        if not inp.spec_same_phase[l]:
-                            if p_w == 0.0:
-                                p_w = phase_pdf(ct, phase, g, table, inp.pdf, inp.lookup)
-                            if p_w > 0.0:
-                                spec_w[l] *= phase_pdf(ct, inp.spec_kind[l], inp.spec_g[l], inp.spec_table[l],
-                                                       inp.spec_pdf[l], inp.spec_lookup[l]) / p_w
-                        if spec_w[l] > w_max:
-                            w_max = spec_w[l]
-                if w * w_max < w_threshold:
-                    if w <= 0.0 or w_max <= 0.0:
-                        break
-                    r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                    if to_uniform(r) < survival:
-                        h_gain += w * (inv_survival - 1.0)
-                        w *= inv_survival
-                    else:
-                        h_killed += w
-                        break
+                spec_mu_t[l] = mu_t
+
+        s0, s1, s2, s3 = seed_state(seed, batch)
+
+        specular = 0.0
+        entered = 0.0
+        launch_weight = 0.0
+        exit0 = 0.0
+        exit0_sq = 0.0
+        exit1 = 0.0
+        exit1_sq = 0.0
+        unscattered0 = 0.0
+        unscattered1 = 0.0
+        absorbed = 0.0
+        gain = 0.0
+        killed = 0.0
+        net_sq = 0.0
+        capped = 0.0
+        capped_weight = 0.0
+        events_total = 0
+        scatterings_total = 0
+        reflections_total = 0
+        path_total = 0.0
+
+        for _ in range(photons):
+            # --- entry: Snell refraction, weight (launch weight) x (1 - F) -----------------
+            r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+            x, y, z, nx, ny, nz = entry_point(geometry, size, src_mode, -dx, -dy, -dz, src_h, to_uniform(r))
+            cos_i = -(dx * nx + dy * ny + dz * nz)
+            w0 = 1.0
+            if cell_source:
+                w0 = max(cos_i, 0.0)  # irradiance on the surface element, per unit beam irradiance
+            if contrast and w0 > 0.0:
+                f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
+                cos_t = refracted_cos(cos_i, 1.0, n_in)
+                k = eta_in * cos_i - cos_t
+                ux = eta_in * dx + k * nx
+                uy = eta_in * dy + k * ny
+                uz = eta_in * dz + k * nz
+                norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
+                ux *= norm
+                uy *= norm
+                uz *= norm
             else:
-                # --- boundary --------------------------------------------------------
-                s_b = distance_to_boundary(geometry, geom, x, y, z, ux, uy, uz)
-                x += s_b * ux
-                y += s_b * uy
-                z += s_b * uz
-                path += s_b
+                f_in = 0.0
+                ux = dx
+                uy = dy
+                uz = dz
+            launch_weight += w0
+            w = w0 * (1.0 - f_in)
+            specular += w0 * f_in
+            entered += w
+            h_exit0 = 0.0
+            h_exit1 = 0.0
+            h_gain = 0.0
+            h_killed = 0.0
+            events = 0
+            scatterings = 0
+            path = 0.0
+            if SCORING:
                 if reweight:
                     for l in range(n_spec):
-                        spec_w[l] *= math.exp(-d_mu_t[l] * s_b)
-                x, y, z = snap_to_surface(geometry, geom, x, y, z, uz)
-                nx, ny, nz = outward_normal(geometry, geom, x, y, z, uz)
-                cos_i = ux * nx + uy * ny + uz * nz
-                if contrast:
-                    f_out = fresnel_unpolarized(cos_i, n_in, 1.0)
-                    if f_out > 0.0:
-                        if f_out >= 1.0:
-                            reflect = True
+                        spec_w[l] = 1.0
+            alive = w > 0.0
+            while alive:
+                if events >= max_events:
+                    capped += 1.0
+                    capped_weight += w
+                    break
+                events += 1
+                e, s0, s1, s2, s3 = exponential(s0, s1, s2, s3)
+                step = e * inv_mu_t
+                xn = x + step * ux
+                yn = y + step * uy
+                zn = z + step * uz
+                if inside(geometry, size, xn, yn, zn):
+                    # --- collision (the end point is inside: convex shape) ------------------
+                    x = xn
+                    y = yn
+                    z = zn
+                    path += step
+                    absorbed += w * absorb
+                    w *= albedo
+                    scatterings += 1
+                    w_max = 1.0
+                    if SCORING:
+                        if reweight:
+                            for l in range(n_spec):
+                                spec_w[l] *= s_ratio[l] * math.exp(-d_mu_t[l] * step)
+                        if vertex_mode == T.V_CYLINDER_NEE:
+                            s0, s1, s2, s3 = T.score_vertex(
+                                vertex_mode, inp.outputs, vertex_base, hist, touched, n_touched, n_spec, spec_w,
+                                spec_mu_t, inp.spec_kind, inp.spec_g, inp.spec_table, inp.spec_pdf, inp.spec_lookup,
+                                size, n_in, x, y, z, ux, uy, uz, w, s0, s1, s2, s3,
+                            )
+                    ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, phase, g, table, hg, s0, s1, s2, s3)
+                    if SCORING:
+                        if reweight:
+                            p_w = 0.0
+                            w_max = 0.0
+                            for l in range(n_spec):
+                                if not inp.spec_same_phase[l]:
+                                    if p_w == 0.0:
+                                        p_w = phase_pdf(ct, phase, g, table, inp.pdf, inp.lookup)
+                                    if p_w > 0.0:
+                                        spec_w[l] *= phase_pdf(ct, inp.spec_kind[l], inp.spec_g[l], inp.spec_table[l],
+                                                               inp.spec_pdf[l], inp.spec_lookup[l]) / p_w
+                                if spec_w[l] > w_max:
+                                    w_max = spec_w[l]
+                    if w * w_max < w_threshold:
+                        if w <= 0.0 or w_max <= 0.0:
+                            break
+                        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                        if to_uniform(r) < survival:
+                            h_gain += w * (inv_survival - 1.0)
+                            w *= inv_survival
                         else:
-                            r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                            reflect = to_uniform(r) < f_out
-                        if reflect:
-                            ux -= 2.0 * cos_i * nx
-                            uy -= 2.0 * cos_i * ny
-                            uz -= 2.0 * cos_i * nz
-                            norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
-                            ux *= norm
-                            uy *= norm
-                            uz *= norm
-                            reflections_total += 1
-                            continue
-                    cos_t = refracted_cos(cos_i, n_in, 1.0)
-                    k = cos_t - n_in * cos_i
-                    wx = n_in * ux + k * nx
-                    wy = n_in * uy + k * ny
-                    wz = n_in * uz + k * nz
-                    norm = 1.0 / math.sqrt(wx * wx + wy * wy + wz * wz)
-                    wx *= norm
-                    wy *= norm
-                    wz *= norm
+                            h_killed += w
+                            break
                 else:
-                    wx = ux
-                    wy = uy
-                    wz = uz
-                face = 0
-                if geometry == SLAB and nz < 0.0:
-                    face = 1
-                if face == 0:
-                    h_exit0 = w
-                    if scatterings == 0:
-                        unscattered0 += w
-                else:
-                    h_exit1 = w
-                    if scatterings == 0:
-                        unscattered1 += w
-                path_total += w * path
-                if tally_mode != T.NONE:
-                    T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, n_spec,
-                                 spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
-                break
-        # --- the one end of every history: flush per-photon tallies -------------------
-        exit0 += h_exit0
-        exit0_sq += h_exit0 * h_exit0
-        exit1 += h_exit1
-        exit1_sq += h_exit1 * h_exit1
-        gain += h_gain
-        killed += h_killed
-        net_sq += (h_gain - h_killed) * (h_gain - h_killed)
-        if scoring:
-            T.flush_history(hist, touched, n_touched, bins)
-        events_total += events
-        scatterings_total += scatterings
+                    # --- boundary --------------------------------------------------------
+                    s_b = distance_to_boundary(geometry, size, x, y, z, ux, uy, uz)
+                    x += s_b * ux
+                    y += s_b * uy
+                    z += s_b * uz
+                    path += s_b
+                    if SCORING:
+                        if reweight:
+                            for l in range(n_spec):
+                                spec_w[l] *= math.exp(-d_mu_t[l] * s_b)
+                    x, y, z = snap_to_surface(geometry, size, x, y, z, uz)
+                    nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
+                    cos_i = ux * nx + uy * ny + uz * nz
+                    if contrast:
+                        f_out = fresnel_unpolarized(cos_i, n_in, 1.0)
+                        if f_out > 0.0:
+                            if f_out >= 1.0:
+                                reflect = True
+                            else:
+                                r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                                reflect = to_uniform(r) < f_out
+                            if reflect:
+                                ux -= 2.0 * cos_i * nx
+                                uy -= 2.0 * cos_i * ny
+                                uz -= 2.0 * cos_i * nz
+                                norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
+                                ux *= norm
+                                uy *= norm
+                                uz *= norm
+                                reflections_total += 1
+                                continue
+                        cos_t = refracted_cos(cos_i, n_in, 1.0)
+                        k = cos_t - n_in * cos_i
+                        wx = n_in * ux + k * nx
+                        wy = n_in * uy + k * ny
+                        wz = n_in * uz + k * nz
+                        norm = 1.0 / math.sqrt(wx * wx + wy * wy + wz * wz)
+                        wx *= norm
+                        wy *= norm
+                        wz *= norm
+                    else:
+                        wx = ux
+                        wy = uy
+                        wz = uz
+                    face = 0
+                    if geometry == SLAB and nz < 0.0:
+                        face = 1
+                    if face == 0:
+                        h_exit0 = w
+                        if scatterings == 0:
+                            unscattered0 += w
+                    else:
+                        h_exit1 = w
+                        if scatterings == 0:
+                            unscattered1 += w
+                    path_total += w * path
+                    if SCORING:
+                        T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, n_spec,
+                                     spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
+                    break
+            # --- the one end of every history: flush per-photon tallies -------------------
+            exit0 += h_exit0
+            exit0_sq += h_exit0 * h_exit0
+            exit1 += h_exit1
+            exit1_sq += h_exit1 * h_exit1
+            gain += h_gain
+            killed += h_killed
+            net_sq += (h_gain - h_killed) * (h_gain - h_killed)
+            if SCORING:
+                T.flush_history(hist, touched, n_touched, bins)
+            events_total += events
+            scatterings_total += scatterings
 
-    scal[T.S_LAUNCHED] += photons
-    scal[T.S_LAUNCH_WEIGHT] += launch_weight
-    scal[T.S_SPECULAR] += specular
-    scal[T.S_ENTERED] += entered
-    scal[T.S_EXIT0] += exit0
-    scal[T.S_EXIT0_SQ] += exit0_sq
-    scal[T.S_EXIT1] += exit1
-    scal[T.S_EXIT1_SQ] += exit1_sq
-    scal[T.S_UNSCATTERED0] += unscattered0
-    scal[T.S_UNSCATTERED1] += unscattered1
-    scal[T.S_ABSORBED] += absorbed
-    scal[T.S_ROULETTE_GAIN] += gain
-    scal[T.S_ROULETTE_KILLED] += killed
-    scal[T.S_ROULETTE_NET_SQ] += net_sq
-    scal[T.S_CAPPED] += capped
-    scal[T.S_CAPPED_WEIGHT] += capped_weight
-    scal[T.S_EVENTS] += events_total
-    scal[T.S_SCATTERINGS] += scatterings_total
-    scal[T.S_INTERNAL_REFLECTIONS] += reflections_total
-    scal[T.S_PATH_LENGTH] += path_total
+        scal[T.S_LAUNCHED] += photons
+        scal[T.S_LAUNCH_WEIGHT] += launch_weight
+        scal[T.S_SPECULAR] += specular
+        scal[T.S_ENTERED] += entered
+        scal[T.S_EXIT0] += exit0
+        scal[T.S_EXIT0_SQ] += exit0_sq
+        scal[T.S_EXIT1] += exit1
+        scal[T.S_EXIT1_SQ] += exit1_sq
+        scal[T.S_UNSCATTERED0] += unscattered0
+        scal[T.S_UNSCATTERED1] += unscattered1
+        scal[T.S_ABSORBED] += absorbed
+        scal[T.S_ROULETTE_GAIN] += gain
+        scal[T.S_ROULETTE_KILLED] += killed
+        scal[T.S_ROULETTE_NET_SQ] += net_sq
+        scal[T.S_CAPPED] += capped
+        scal[T.S_CAPPED_WEIGHT] += capped_weight
+        scal[T.S_EVENTS] += events_total
+        scal[T.S_SCATTERINGS] += scatterings_total
+        scal[T.S_INTERNAL_REFLECTIONS] += reflections_total
+        scal[T.S_PATH_LENGTH] += path_total
 
 
-@numba.njit(cache=True, parallel=True)
-def run_batches(inp: KernelInputs, total_photons: int, batch_size: int, first_batch: int, n_batches: int,
-                seed: int, scal: np.ndarray, bins: np.ndarray) -> None:
-    """Run batches ``first_batch .. first_batch + n_batches - 1`` in parallel.
+    @numba.njit(cache=True, parallel=True)
+    def run_batches(inp: KernelInputs, total_photons: int, batch_size: int, first_batch: int, n_batches: int,
+                    seed: int, scal: np.ndarray, bins: np.ndarray) -> None:
+        """Run batches ``first_batch .. first_batch + n_batches - 1`` in parallel.
 
-    Batch ``b`` holds photons ``[b * batch_size, min((b + 1) * batch_size, total_photons))``
-    and writes row ``b - first_batch`` of ``scal`` (``float64[n_batches, N_SCALARS]``) and of
-    ``bins`` (``float64[n_batches, n_bins, 2]``), which are zeroed first.
-    """
-    for i in numba.prange(n_batches):
-        b = first_batch + i
-        start = b * batch_size
-        count = min(batch_size, total_photons - start)
-        scal[i, :] = 0.0
-        bins[i, :, :] = 0.0
-        if count > 0:
-            simulate_batch(inp, count, seed, b, scal[i], bins[i])
+        Batch ``b`` holds photons ``[b * batch_size, min((b + 1) * batch_size, total_photons))``
+        and writes row ``b - first_batch`` of ``scal`` (``float64[n_batches, N_SCALARS]``) and of
+        ``bins`` (``float64[n_batches, n_bins, 2]``), which are zeroed first.
+        """
+        for i in numba.prange(n_batches):
+            b = first_batch + i
+            start = b * batch_size
+            count = min(batch_size, total_photons - start)
+            scal[i, :] = 0.0
+            bins[i, :, :] = 0.0
+            if count > 0:
+                simulate_batch(inp, count, seed, b, scal[i], bins[i])
+
+    return simulate_batch, run_batches
+
+
+simulate_batch_plain, run_batches_plain = _make_kernel(False)
+simulate_batch, run_batches = _make_kernel(True)
+
+
+def run_batches_for(inp: KernelInputs):
+    """The compiled :func:`run_batches` flavour a run needs (plain when nothing is tallied)."""
+    if inp.tally_mode == T.NONE and inp.vertex_mode == T.V_NONE:
+        return run_batches_plain
+    return run_batches

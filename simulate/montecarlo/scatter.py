@@ -49,6 +49,7 @@ __all__ = [
     "PHASE_TABLE",
     "PhaseArrays",
     "phase_arrays",
+    "hg_constants",
     "sample_cosine",
     "sample_direction",
     "phase_pdf",
@@ -108,8 +109,18 @@ def phase_arrays(g: float | None = None, cos_table: np.ndarray | None = None) ->
 
 
 @numba.njit(cache=True, inline="always")
-def sample_cosine(kind: int, g: float, table: np.ndarray, xi: float) -> float:
-    """Scattering cosine for a uniform ``xi`` in [0, 1) (HG inverse CDF or table rule)."""
+def hg_constants(g: float) -> tuple[float, float, float, float, float]:
+    """``(1 + g^2, 1 - g^2, 1 - g, 2 g, 1 / (2 g))``: the HG inverse CDF's constants, computed once per run."""
+    return 1.0 + g * g, 1.0 - g * g, 1.0 - g, 2.0 * g, (0.5 / g if g != 0.0 else 0.0)
+
+
+@numba.njit(cache=True, inline="always")
+def sample_cosine(kind: int, g: float, table: np.ndarray, xi: float,
+                  hg: tuple[float, float, float, float, float]) -> float:
+    """Scattering cosine for a uniform ``xi`` in [0, 1) (HG inverse CDF or table rule).
+
+    ``hg`` is :func:`hg_constants` of ``g`` (hoisted out of the photon loop by the caller).
+    """
     if kind == PHASE_TABLE:
         n = table.shape[0] - 1
         t = xi * n
@@ -117,24 +128,25 @@ def sample_cosine(kind: int, g: float, table: np.ndarray, xi: float) -> float:
         f = t - j
         return table[j] + f * (table[j + 1] - table[j])
     if g != 0.0:
-        tmp = (1.0 - g * g) / (1.0 - g + 2.0 * g * xi)
-        return max(-1.0, min(1.0, (1.0 + g * g - tmp * tmp) * (0.5 / g)))
+        tmp = hg[1] / (hg[2] + hg[3] * xi)
+        return max(-1.0, min(1.0, (hg[0] - tmp * tmp) * hg[4]))
     return 2.0 * xi - 1.0
 
 
 @numba.njit(cache=True, inline="always")
 def sample_direction(
     ux: float, uy: float, uz: float, kind: int, g: float, table: np.ndarray,
+    hg: tuple[float, float, float, float, float],
     s0: np.uint64, s1: np.uint64, s2: np.uint64, s3: np.uint64,
 ) -> tuple[float, float, float, float, np.uint64, np.uint64, np.uint64, np.uint64]:
     """New direction after a scattering event: ``(ux, uy, uz, mu, s0, s1, s2, s3)``.
 
     ``mu`` is the cosine between the old and the new direction, drawn from the phase
     function; the azimuth is uniform. One uniform for ``mu``, one or more 64-bit draws for
-    the azimuth (disc rejection, acceptance pi/4).
+    the azimuth (disc rejection, acceptance pi/4). ``hg = hg_constants(g)``.
     """
     r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-    ct = sample_cosine(kind, g, table, to_uniform(r))
+    ct = sample_cosine(kind, g, table, to_uniform(r), hg)
     st = math.sqrt(max(1.0 - ct * ct, 0.0))
     while True:
         r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
@@ -185,9 +197,10 @@ def sample_directions(
 ) -> np.ndarray:
     """``count`` directions scattered from the unit vector ``u`` by :func:`sample_direction` (tests)."""
     s0, s1, s2, s3 = seed_state(seed, 0)
+    hg = hg_constants(g)
     out = np.empty((count, 3))
     for n in range(count):
-        x, y, z, _, s0, s1, s2, s3 = sample_direction(u[0], u[1], u[2], kind, g, table, s0, s1, s2, s3)
+        x, y, z, _, s0, s1, s2, s3 = sample_direction(u[0], u[1], u[2], kind, g, table, hg, s0, s1, s2, s3)
         out[n, 0] = x
         out[n, 1] = y
         out[n, 2] = z

@@ -422,11 +422,12 @@ def execute(
     # batches (results do not depend on which thread ran a batch)
     previous_chunk = numba.set_parallel_chunksize(1)
     scoring = inp.tally_mode != T.NONE or inp.vertex_mode != T.V_NONE
+    kernel = K.run_batches_for(inp)
     try:
         t0 = time.perf_counter()
         for first in range(0, n_batches, round_size):
             count = min(round_size, n_batches - first)
-            K.run_batches(inp, total, batch_size, first_batch + first, count, seed, scal_buf, bins_buf)
+            kernel(inp, total, batch_size, first_batch + first, count, seed, scal_buf, bins_buf)
             for r in range(count):  # batch order: thread-count independent sums
                 scal += scal_buf[r]
                 if scoring:
