@@ -9,7 +9,8 @@ d = 0.02 cm; MCML manual Table 6.1):
 * the cold compile time (first call in a fresh interpreter with an empty numba cache);
 * time vs photons (expected linear: fitted log-log slope ~1);
 * time vs optical thickness ``mu_t d`` at the same albedo and g;
-* the peak resident set size of the process.
+* the peak resident set size of the process;
+* (not with ``--quick``) the fiber BRDF routes, :mod:`simulate.bench_fiber`.
 
 Writes ``DIR/bench.json`` and ``DIR/bench.png`` (matplotlib, Agg); :func:`markdown_table`
 formats the headline figures.
@@ -177,6 +178,12 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
         "time_vs_optical_thickness": {"runs": thickness_rows, "albedo": 0.9, "g": 0.75, "threads": max_threads},
         "peak_rss_mb": _peak_rss_mb(),
     }
+    if not quick:
+        # the fiber routes (simulate.bench_fiber): the next-event + white headline and the three
+        # routes side by side; skipped by --quick (it takes minutes)
+        from simulate.bench_fiber import run_fiber_bench
+
+        report["fiber"] = run_fiber_bench()
     (out / "bench.json").write_text(json.dumps(report, indent=2))
     _chart(report, out / "bench.png")
     return report

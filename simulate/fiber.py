@@ -66,9 +66,12 @@ function exactly; its variance grows with the mismatch, so wavelengths are group
 would be too, but cost one walk per wavelength -- one walk per group serves the dye spectrum
 for free.
 
-Accuracy control: ``target_rel_err`` is the RMS over outputs and wavelengths of the relative
-standard error (outputs with ``R`` below 1e-3 of the largest are ignored); photons are added
-in rounds, each sized from the error reached, until the target or ``max_photons`` is met.
+Accuracy control: ``target_rel_err`` is the RMS over outputs and wavelengths of the standard
+error relative to the PEAK of that output's spectrum (a 1 % target means 1 % of the brightest
+wavelength of each curve: what a colour or a normalised curve is sensitive to; the dark,
+dye-absorbed wavelengths of a red fabric would otherwise decide the cost alone). Outputs whose
+peak is below 1e-3 of the largest are ignored. Photons are added in rounds, each sized from
+the error reached, until the target or ``max_photons`` is met; the achieved value is reported.
 
 Polarisation is ignored (unpolarised Fresnel): for a bare or weakly scattering fiber this
 misstates the first internal-reflection order by about 8 % (n = 1.5); for scattering fibers the
@@ -340,12 +343,14 @@ def _run_controlled(inp: K.KernelInputs, estimate, target_rel_err: float, max_ph
 
 
 def _rms_rel(value: np.ndarray, u: np.ndarray) -> float:
-    v = np.abs(np.asarray(value, dtype=float)).ravel()
-    uu = np.asarray(u, dtype=float).ravel()
-    if v.size == 0 or not np.any(v > 0):
+    """RMS of ``u`` relative to the peak of each output's spectrum (rows: outputs, columns: wavelengths)."""
+    v = np.abs(np.atleast_2d(np.asarray(value, dtype=float)))
+    uu = np.atleast_2d(np.asarray(u, dtype=float))
+    peak = v.max(axis=1)
+    if peak.size == 0 or not np.any(peak > 0):
         return 0.0
-    keep = v > 1e-3 * v.max()
-    return float(np.sqrt(np.mean((uu[keep] / v[keep]) ** 2)))
+    keep = peak > 1e-3 * peak.max()
+    return float(np.sqrt(np.mean((uu[keep] / peak[keep, None]) ** 2)))
 
 
 def _mean_and_error(bins: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,102 @@
+"""``simulate bench`` part 2: the fiber BRDF routes, speed against accuracy (QUALITY.md C).
+
+Case: a red-dyed fiber like the shipped red-cotton one (R = 10 um, host n = 1.557 with a
+red dye absorption spectrum, Mie particles of radius 0.25 um at f_v = 0.03 with index 1.0, i.e.
+voids), 33 wavelengths 390..710 nm, the in-plane (w_in, w_out) pairs of the red-cotton plan in
+the warp and weft fiber frames (incidence 0/30/45/60 deg, observation -60..70 deg).
+
+* ``nee`` (next-event, white): wall time to the target RMS relative error on ALL pairs and
+  wavelengths (the headline: QUALITY.md asks <= 60 s for 1 % on 2 cores);
+* all three routes side by side on one incident direction, one wavelength group and
+  direction bins of 10 x 30 degrees: wall time and achieved error at a fixed photon budget,
+  and the time each would need for 1 % (time x (err / 0.01)^2, the N^-1/2 law);
+* the peak resident set size.
+"""
+
+from __future__ import annotations
+
+import math
+import resource
+import time
+from typing import Any
+
+import numpy as np
+
+from simulate.fiber import Fiber, range_outputs, volume_brdf
+from simulate.medium import MieMedium, Spectrum
+
+__all__ = ["red_fiber", "plan_pairs", "run_fiber_bench"]
+
+
+def red_fiber() -> Fiber:
+    """The benchmark fiber (a stand-in for the red-cotton config, defined here so the bench is self-contained)."""
+    wl = np.arange(390.0, 711.0, 10.0)
+    # red dye: strong absorption below ~580 nm, weak above (1/um)
+    dye = 0.002 + 0.25 / (1.0 + np.exp((wl - 585.0) / 12.0))
+    medium = MieMedium(n_host=1.557, particle_n=1.0, radius_um=0.25, volume_fraction=0.03,
+                       mu_a_host_per_um=Spectrum(wl, dye, "dye mu_a"), phase_table_size=2048)
+    return Fiber(radius_um=10.0, n_host=1.557, medium=medium, roughness=0.3, cell_width_deg=10.0)
+
+
+def plan_pairs() -> tuple[np.ndarray, np.ndarray]:
+    """In-plane (w_in, w_out) pairs of the red-cotton plan in the warp and weft fiber frames."""
+    w_in, w_out = [], []
+    for ti in (0.0, 30.0, 45.0, 60.0):
+        for s in range(-60, 71, 10):
+            if abs(s + ti) < 5.0:  # beam-blocked (detector at the source)
+                continue
+            a, b = math.radians(ti), math.radians(s)
+            wi = np.array([math.sin(a), 0.0, math.cos(a)])  # source at phi_i = 0
+            # signed observation angle s: s >= 0 on the mirror side (phi_o = phi_i + 180), s < 0 source side
+            wo = np.array([-math.sin(b), 0.0, math.cos(b)])
+            for rot in (0.0, math.pi / 2):  # warp (fiber along x), weft (fiber along y)
+                c, sn = math.cos(rot), math.sin(rot)
+                m = np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])
+                w_in.append(m @ wi)
+                w_out.append(m @ wo)
+    return np.array(w_in), np.array(w_out)
+
+
+def run_fiber_bench(quick: bool = False, threads: int | None = None) -> dict[str, Any]:
+    """Run the fiber benchmarks; returns a JSON-ready dictionary."""
+    fiber = red_fiber()
+    wl = np.arange(390.0, 711.0, 10.0) if not quick else np.array([450.0, 550.0, 650.0])
+    w_in, w_out = plan_pairs()
+    if quick:
+        w_in, w_out = w_in[::8], w_out[::8]
+    target = 0.01 if not quick else 0.05
+    volume_brdf(fiber, w_in[:1], w_out[:1], wl[:1], target_rel_err=0.3, seed=0, threads=threads)  # compile/load
+    t0 = time.perf_counter()
+    est = volume_brdf(fiber, w_in, w_out, wl, method="nee", target_rel_err=target, seed=1, threads=threads)
+    headline = {
+        "pairs": int(w_in.shape[0]), "wavelengths": int(wl.size), "target_rel_err": target,
+        "achieved_rel_err": est.info["achieved_rel_err"], "photons": est.photons,
+        "seconds": time.perf_counter() - t0, "incident_directions": est.info["incident_directions"],
+        "wavelength_groups": len(est.info["groups"]),
+    }
+    # routes side by side: one direction, one wavelength, bins of the BSSRDF route's own grid
+    n_mu, n_phi = 9, 12
+    me = np.linspace(0, 1, n_mu + 1)
+    pe = np.linspace(-math.pi, math.pi, n_phi + 1)
+    cells = [(8, 5), (7, 5), (6, 5)]
+    out = range_outputs([me[i] for i, _ in cells], [me[i + 1] for i, _ in cells], [pe[j] for _, j in cells],
+                        [pe[j + 1] for _, j in cells], fiber.half_width)
+    win = np.tile([0.5, 0.0, math.sqrt(0.75)], (len(cells), 1))
+    routes = {}
+    reference = volume_brdf(fiber, win, None, [600.0], method="nee", outputs=out, target_rel_err=0.004 if not quick
+                            else 0.02, seed=99, threads=threads)
+    for method in ("nee", "beam", "bssrdf"):
+        t = time.perf_counter()
+        e = volume_brdf(fiber, win, None, [600.0], method=method, outputs=out, target_rel_err=0.03,
+                        max_photons=400_000 if not quick else 60_000, seed=7, threads=threads,
+                        bssrdf_bins=(n_mu, n_phi))
+        sec = time.perf_counter() - t
+        rel = float(np.sqrt(np.mean((e.u_R / e.R) ** 2)))
+        err_vs_ref = float(np.sqrt(np.mean(((e.R - reference.R) / reference.R) ** 2)))
+        routes[method] = {"seconds": sec, "photons": e.photons, "rel_stderr": rel, "rel_error_vs_reference": err_vs_ref,
+                          "seconds_to_1pct": sec * (rel / 0.01) ** 2}
+    base = routes["nee"]["seconds_to_1pct"]
+    for r in routes.values():
+        r["slower_than_nee"] = r["seconds_to_1pct"] / base
+    return {"headline": headline, "routes": routes,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
