@@ -45,6 +45,9 @@ def test_slab_console_script_subprocess():
         (["--mua", "1", "--mus", "1", "--thickness", "1", "--photons", "0"], "--photons"),
         (["--mua", "1", "--mus", "1", "--thickness", "1", "--theta-i", "90"], "--theta-i"),
         (["--mua", "1", "--mus", "1"], "--thickness"),
+        (["--mua", "1", "--mus", "1", "--thickness", "1", "--photons", "1.5"], "--photons"),
+        (["--mua", "1", "--mus", "1", "--thickness", "1", "--photons", "1e300"], "--photons"),
+        (["--mua", "1", "--mus", "1", "--thickness", "1", "--photons", "inf"], "--photons"),
     ],
 )
 def test_slab_bad_flags_exit_2_with_one_line(argv, flag, capsys):
@@ -53,6 +56,14 @@ def test_slab_bad_flags_exit_2_with_one_line(argv, flag, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and flag in err[0] and "Traceback" not in err[0]
+
+
+def test_photons_in_the_notation_of_the_help(capsys):
+    """The help says "default 1e6": integral floats are accepted as photon counts."""
+    code = main(["slab", "--mua", "1", "--mus", "10", "--thickness", "0.1", "--photons", "1e3",
+                 "--seed", "1", "--json"])
+    assert code == 0
+    assert json.loads(capsys.readouterr().out)["photons"] == 1000
 
 
 def test_bench_quick_writes_json_and_chart(tmp_path, capsys):
