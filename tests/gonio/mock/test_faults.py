@@ -2,7 +2,6 @@
 corrupts a reading reported as good."""
 
 import socket
-import time
 
 import numpy as np
 import pytest
