@@ -25,6 +25,8 @@ import datetime as _dt
 import io
 import json
 import logging
+import math
+import shlex
 import signal
 import sys
 import time
@@ -35,11 +37,13 @@ from gonio.dataset import DatasetError
 from gonio.devices import MotionController, PhotometerHead, RetryPolicy
 from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
                           Engine, Interrupted, RunResult)
-from gonio.journal import JournalError
+from gonio import protocol
+from gonio.journal import JournalError, read_journal
 from gonio.plan import Plan, PlanError, load_plan, preset_names
 from gonio.record import (RecordingTransport, ReplayMismatch, ReplayTransport, TranscriptError,
                           TranscriptWriter, load_transcript)
-from gonio.transport import LinkLost, ModbusTransport, SerialTransport, parse_modbus_url
+from gonio.transport import (LinkLost, ModbusTransport, SerialTransport, TransportError,
+                             parse_modbus_url)
 
 __all__ = ["main", "run_session"]
 
@@ -51,6 +55,22 @@ _USER_ERRORS = (PlanError, CalibrationError, JournalError, AcquisitionError, Tra
 
 class _UsageError(Exception):
     """A command-line problem reported as one line, exit 2."""
+
+
+MAX_TIMEOUT_S = 3600.0
+"""Largest ``--timeout`` accepted (an hour: longer is a typo, not a slow link)."""
+
+
+def _timeout_seconds(text: str) -> float:
+    """``--timeout``: a finite number of seconds in (0, MAX_TIMEOUT_S]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not math.isfinite(value) or not 0.0 < value <= MAX_TIMEOUT_S:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0 and at most "
+                                         f"{MAX_TIMEOUT_S:g}, got {text}")
+    return value
 
 
 def _setup_logging(verbose: bool) -> None:
@@ -127,36 +147,130 @@ def _open_links(args) -> tuple[ModbusTransport, SerialTransport]:
         except LinkLost as exc:
             raise _UsageError(f"{opt}: cannot reach the device: {exc} (is it on and is the URL "
                               "right? `gonio mock` starts a mock)") from None
+    _check_not_swapped(modbus, serial_link, args)
     return modbus, serial_link
 
 
-def _finish(result: RunResult, command: str) -> int:
+def _answers_modbus(link) -> bool:
+    """Does the endpoint answer a Modbus read of the controller's firmware register?"""
+    try:
+        link.exchange({"fn": "read_input_registers", "address": protocol.IR_FIRMWARE, "count": 1})
+        return True
+    except (TransportError, OSError, ValueError):
+        return False
+
+
+def _answers_head(link) -> bool:
+    """Does the endpoint answer ``*IDN?`` with a line of text (the photometer head does)?"""
+    try:
+        with contextlib.suppress(TransportError, OSError):
+            link.drain()
+        reply = link.exchange(b"*IDN?\n")
+    except (TransportError, OSError, ValueError):
+        return False
+    text = bytes(reply or b"").strip()
+    return bool(text) and all(32 <= b < 127 for b in text) and text.count(b",") >= 2
+
+
+def _as_serial_url(modbus_url: str) -> str | None:
+    if modbus_url.startswith("tcp://"):
+        return "socket://" + modbus_url[len("tcp://"):]
+    if modbus_url.startswith("rtu://"):
+        return modbus_url[len("rtu://"):]
+    return None
+
+
+def _as_modbus_url(serial_url: str) -> str | None:
+    if serial_url.startswith("socket://"):
+        return "tcp://" + serial_url[len("socket://"):]
+    if serial_url.startswith("/"):
+        return "rtu://" + serial_url
+    return None
+
+
+def _check_not_swapped(modbus: ModbusTransport, serial_link: SerialTransport, args) -> None:
+    """Identify both endpoints at connect time (one request each). Only when neither answers
+    as it should are the two URLs tried the other way round; if both then answer, the links
+    are swapped: say so at once instead of retrying the wrong protocol for half a minute. A
+    probe lost to a slow or faulty link never produces this message (it needs two answers)."""
+    if _answers_modbus(modbus) or _answers_head(serial_link):
+        return
+    as_serial, as_modbus = _as_serial_url(args.modbus), _as_modbus_url(args.serial)
+    if as_serial is None or as_modbus is None:
+        return
+    probe_head = SerialTransport(as_serial, timeout_s=args.timeout)
+    probe_modbus = ModbusTransport(as_modbus, timeout_s=args.timeout)
+    try:
+        # an RTU server that has just read the head's text resynchronises on the next frame
+        swapped = _answers_head(probe_head) and (_answers_modbus(probe_modbus)
+                                                 or _answers_modbus(probe_modbus))
+    finally:
+        for link in (probe_head, probe_modbus):
+            with contextlib.suppress(Exception):
+                link.close()
+    if swapped:
+        raise _UsageError(f"the links look swapped: --modbus {args.modbus} answers like the "
+                          f"photometer head and --serial {args.serial} like the motion "
+                          f"controller; exchange the two URLs")
+
+
+def _resume_command(args) -> str:
+    """The exact command that continues this acquisition."""
+    argv = ["gonio", "acquire", args.plan, "--modbus", args.modbus, "--serial", args.serial]
+    if args.timeout != 1.0:
+        argv += ["--timeout", f"{args.timeout:g}"]
+    if getattr(args, "seed", None) is not None:
+        argv += ["--seed", str(args.seed)]
+    return shlex.join(argv + ["--out", str(args.out), "--resume"])
+
+
+def _finish(result: RunResult, command: str, resume: str | None = None) -> int:
     retries = ", ".join(f"{k} {v}" for k, v in result.retries.items()) or "none"
     where = f"; dataset: {result.dataset_path}" if result.dataset_path else "; no dataset (nothing measured)"
     if result.status == "complete":
         print(f"gonio {command}: complete, {result.points_measured}/{result.points_total} points"
               f"{where} (retries: {retries})")
     else:
-        print(f"gonio {command}: {result.message}; {result.points_measured}/"
-              f"{result.points_total} points kept{where}", file=sys.stderr)
+        what = "interrupted" if result.status == "interrupted" else result.message
+        then = f"; continue with: {resume}" if resume else ""
+        print(f"gonio {command}: {what}; {result.points_measured}/{result.points_total} points "
+              f"kept{where}{then}", file=sys.stderr)
     return result.exit_code
 
 
 def _cmd_acquire(args) -> int:
     plan = load_plan(args.plan)
     modbus, serial_link = _open_links(args)
-    result = run_session(plan, modbus, serial_link, Path(args.out), resume=args.resume,
-                         seed=args.seed, record=Path(args.record) if args.record else None,
-                         progress=False if args.no_progress else None)
-    return _finish(result, "acquire")
+    out = Path(args.out)
+    try:
+        result = run_session(plan, modbus, serial_link, out, resume=args.resume,
+                             seed=args.seed, record=Path(args.record) if args.record else None,
+                             progress=False if args.no_progress else None)
+    except OSError as exc:      # a full disk, a run directory gone read-only, ...
+        raise _UsageError(_write_failure(exc, out, args)) from None
+    return _finish(result, "acquire", _resume_command(args))
+
+
+def _write_failure(exc: OSError, out: Path, args) -> str:
+    """One line for a failed write during a session: which file, and that the points are kept."""
+    target = exc.filename or out
+    journal = out / "journal.jsonl"
+    try:
+        kept = len({tuple(r["geometry"]) for r in read_journal(journal).of_type("point")})
+    except Exception:  # noqa: BLE001 - the journal may not exist; the message still helps
+        kept = 0
+    return (f"cannot write {target}: {exc.strerror or exc}; the {kept} points measured so far are "
+            f"kept in {journal}: free some space, then continue with: {_resume_command(args)}")
 
 
 def _cmd_replay(args) -> int:
     transcript = load_transcript(args.transcript)
     plan = load_plan(args.plan)
     if transcript.header.get("plan_sha256") not in (None, plan.sha256):
-        log.warning("the transcript was recorded with plan '%s' (another file); expect a mismatch",
-                    transcript.header.get("plan"))
+        raise _UsageError(f"{args.transcript} was recorded with plan '{transcript.header.get('plan')}' "
+                          f"(sha256 {str(transcript.header.get('plan_sha256'))[:12]}...), not with "
+                          f"{args.plan} (plan '{plan.name}', sha256 {plan.sha256[:12]}...): replay "
+                          "it with the plan file it was recorded with")
     out = Path(args.out)
     modbus = ReplayTransport(transcript, "modbus")
     serial_link = ReplayTransport(transcript, "serial")
@@ -168,7 +282,7 @@ def _cmd_replay(args) -> int:
                              clock=clock)
         transcript.finish()
     except ReplayMismatch as exc:
-        print(f"gonio replay: {exc}", file=sys.stderr)
+        print(f"gonio replay: {str(exc).removeprefix('replay: ')}", file=sys.stderr)
         return 1
     code = _finish(result, "replay")
     return EXIT_OK if code == EXIT_OK else 1
@@ -221,6 +335,7 @@ def _cmd_demo(args) -> int:
     from gonio.mock import MockInstrument
 
     out = Path(args.out)
+    _check_output_folder(out, "--out")
     for name in ("journal.jsonl", "radiance.csv", "meta.json"):
         if (out / name).exists():
             log.info("demo: replacing the previous demo's %s in %s", name, out)
@@ -238,6 +353,16 @@ def _cmd_demo(args) -> int:
         print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
               f"{time.monotonic() - t0:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
     return code
+
+
+def _check_output_folder(out: Path, opt: str) -> None:
+    """Refuse an output folder that cannot be one, before anything starts (the mock included)."""
+    for parent in (out, *out.parents):
+        if parent.exists():
+            if not parent.is_dir():
+                what = "is a file" if parent == out else f"is below {parent}, a file"
+                raise _UsageError(f"{opt} {out}: {what}; give a folder")
+            break
 
 
 def _cmd_truth(args) -> int:
@@ -357,9 +482,9 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("mock", help="serve mock devices (see `gonio mock --help`)", add_help=False)
 
     def common(sp):
-        sp.add_argument("--timeout", type=float, default=1.0, metavar="S",
+        sp.add_argument("--timeout", type=_timeout_seconds, default=1.0, metavar="S",
                         help="link timeout in seconds (default 1.0; a READ? also gets its "
-                             "integration time)")
+                             "integration time; at most 3600)")
         sp.add_argument("--no-progress", action="store_true", help="log lines instead of a progress bar")
         sp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 

@@ -57,6 +57,11 @@ Plan TOML schema
     white_standard = "spectralon"       # preset name or CSV file (relative to the plan's folder)
     reference_deg = [0, 45]             # reference geometry (theta_i, theta_o), in plane
 
+Size limit: a plan asks for at most :data:`MAX_MEASUREMENTS` (one million) measurements,
+geometries (``incidence x rotations x (in-plane + out-of-plane directions)``) times wavelengths -
+about a month at real speed. A larger plan is refused at load time with one line; split it into
+several plans (each its own run directory).
+
 Auto-ranging starts every reading at ``(itime_ms, gain)`` and steps down
 (:meth:`AcquisitionSettings.ladder`) while the head reports saturation. The default gain is x1:
 the shot-noise-limited relative error ``1/sqrt(K t beta cos theta_o)`` does not depend on the
@@ -91,7 +96,11 @@ __all__ = [
     "preset_names",
     "order_points",
     "estimate_duration_s",
+    "MAX_MEASUREMENTS",
 ]
+
+MAX_MEASUREMENTS = 1_000_000
+"""Largest plan accepted: geometries x wavelengths (before duplicates are removed)."""
 
 _DEFAULT_WAVELENGTHS = np.arange(390.0, 710.0 + 1e-9, 10.0)
 _PRESET_PACKAGE = "gonio.presets"
@@ -182,6 +191,9 @@ def resolve_plan_path(path_or_name: str | Path) -> Path:
     p = Path(path_or_name)
     if p.is_file():
         return p
+    if p.is_dir():
+        raise PlanError(f"{p}: is a directory, not a plan file (give the plan's .toml file, or a "
+                        f"preset: {', '.join(preset_names())})")
     name = str(path_or_name)
     name = name[:-5] if name.endswith(".toml") else name
     if "/" not in name and name in preset_names():
@@ -390,6 +402,12 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     cal.unknown()
     top.unknown()
 
+    n_geometries = len(incidence) * len(rotations) * (len(in_plane) + len(directions))
+    n_measurements = n_geometries * len(wavelengths)
+    if n_measurements > MAX_MEASUREMENTS:
+        raise PlanError(f"{file}: the plan asks for {n_measurements:,} measurements ({n_geometries:,} "
+                        f"geometries x {len(wavelengths)} wavelengths); at most {MAX_MEASUREMENTS:,} "
+                        "per plan: split it into several plans")
     sha = hashlib.sha256(raw).hexdigest()
     plan = Plan(name=name.strip(), description=description, path=Path(file), sha256=sha,
                 sample=dict(sample), wavelengths_nm=np.asarray(wavelengths, dtype=float),

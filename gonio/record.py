@@ -187,7 +187,8 @@ def load_transcript(path: str | os.PathLike) -> Transcript:
     """Read and validate a transcript file; raises :class:`TranscriptError`."""
     p = Path(path)
     try:
-        lines = p.read_text(encoding="utf-8").splitlines()
+        text = p.read_text(encoding="utf-8")
+        lines = text.splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise TranscriptError(f"{p}: cannot read the transcript ({exc})") from None
     if not lines:
@@ -203,9 +204,11 @@ def load_transcript(path: str | os.PathLike) -> Transcript:
         try:
             m = json.loads(line)
         except (ValueError, RecursionError):
-            if k == len(lines):
-                break   # a torn last line (recording killed): ignore it
-            raise TranscriptError(f"{p}: line {k}: not valid JSON") from None
+            if k == len(lines) and not text.endswith("\n"):
+                break   # a torn last line (recording killed mid-write, no newline): ignore it
+            what = "the last line" if k == len(lines) else "line"
+            raise TranscriptError(f"{p}: {what} {k}: not valid JSON (a complete line, not one "
+                                  "torn by a killed recording): the transcript is corrupt") from None
         if (not isinstance(m, dict) or m.get("dir") not in ("tx", "rx")
                 or m.get("ch") not in ("serial", "modbus") or "payload" not in m):
             raise TranscriptError(f"{p}: line {k}: expected a message with ch, dir and payload")

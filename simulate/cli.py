@@ -88,7 +88,13 @@ def _int_in(lo: int, hi: int) -> Callable[[str], int]:
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+            try:        # an integral float as the help writes it: 1e6, 2.5e5
+                f = float(text)
+            except ValueError:
+                f = math.nan
+            if not (math.isfinite(f) and f == int(f)):
+                raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+            value = int(f)
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"must be an integer in [{lo}, {hi}], got {text!r}")
         return value

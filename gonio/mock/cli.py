@@ -58,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code or 0)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="gonio mock: %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    if not args.verbose:
+        # pymodbus logs undecodable requests with their raw frames: only with -v
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     try:
         mock = MockInstrument(sample=args.sample, modbus=args.modbus, serial=args.serial,
                               faults=args.faults, speed=args.speed, seed=args.seed)
@@ -73,6 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         try:
             mock.start()
+        except MockConfigError as exc:
+            print(f"gonio mock: error: {exc}", file=sys.stderr)
+            return 2
         except OSError as exc:
             print(f"gonio mock: error: cannot open the endpoints: {exc}", file=sys.stderr)
             return 2

@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import socket
 import threading
 from typing import Any
 from urllib.parse import urlsplit
@@ -56,6 +57,26 @@ def _loopback_host(host: str | None, what: str) -> str:
         raise MockConfigError(f"{what}: {host} is not a loopback address; the mock binds to "
                               f"loopback only (use 127.0.0.1)")
     return str(ip)
+
+
+def _url_host(host: str) -> str:
+    """A host as it appears in a URL: an IPv6 address in brackets (``[::1]``)."""
+    return f"[{host}]" if ":" in host else host
+
+
+def _check_port_free(host: str, port: int, option: str, scheme: str) -> None:
+    """Refuse a port another program already listens on (one line, before any server starts)."""
+    if port == 0:
+        return
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError as exc:
+            raise MockConfigError(f"{option} {scheme}://{_url_host(host)}:{port}: cannot listen "
+                                  f"there ({exc.strerror}); pick another port, or port 0 for a "
+                                  "free one") from None
 
 
 def parse_modbus_option(value: str) -> tuple[str, str, int]:
@@ -224,11 +245,16 @@ class MockInstrument:
         kind, host, port = self._modbus
         device = self.frontend.device()
         if kind == "tcp":
+            _check_port_free(host, port, "--modbus", "tcp")
             server = make_dropping_tcp_server(device, address=(host, port), ignore_missing_devices=True)
             self.frontend.drop_link = drop_current_modbus_connection
-            await server.serve_forever(background=True)
+            try:
+                await server.serve_forever(background=True)
+            except RuntimeError:    # pymodbus: "Could not start listen" (a race with another program)
+                raise MockConfigError(f"--modbus tcp://{_url_host(host)}:{port}: cannot listen "
+                                      "there; pick another port, or port 0 for a free one") from None
             bound = server.transport.sockets[0].getsockname()[1]
-            self.modbus_url = f"tcp://{host}:{bound}"
+            self.modbus_url = f"tcp://{_url_host(host)}:{bound}"
         else:
             self._bridge = PtyBridge().start()
             path = self._bridge.server_path
@@ -246,8 +272,9 @@ class MockInstrument:
                 close()
             self._closers.append(aclose)
         else:
+            _check_port_free(shost, sport, "--serial", "socket")
             bound, close = await serve_head_socket(self.head, lock, shost, sport)
-            self.serial_url = f"socket://{shost}:{bound}"
+            self.serial_url = f"socket://{_url_host(shost)}:{bound}"
             self._closers.append(close)
 
     async def _shutdown(self) -> None:

@@ -88,18 +88,28 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
                                  "--out", str(out), "--no-progress"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 preexec_fn=_default_sigint)
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 120
         while time.monotonic() < deadline:          # wait for two journaled points
             if (out / "journal.jsonl").exists() and len(
                     read_journal(out / "journal.jsonl").of_type("point")) >= 2:
                 break
             time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=30)
+        # freeze the instrument, then interrupt: the session cannot measure past this state
+        # (at most the point whose last answer is already on the wire), wherever it is
+        mock.send_signal(signal.SIGSTOP)
+        try:
+            at_stop = len(read_journal(out / "journal.jsonl").of_type("point"))
+            proc.send_signal(signal.SIGINT)
+        finally:
+            mock.send_signal(signal.SIGCONT)
+        _, err = proc.communicate(timeout=60)
         assert proc.returncode == 130, err
-        assert "interrupted" in err and "Traceback" not in err
+        assert "Traceback" not in err
+        final = err.strip().splitlines()[-1]
+        assert final.startswith("gonio acquire: interrupted") and final.count("kept") == 1, err
+        assert f"--out {out} --resume" in final and f"gonio acquire {plan}" in final, final
         kept = len(read_journal(out / "journal.jsonl").of_type("point"))
-        assert 2 <= kept < 12
+        assert 2 <= at_stop <= kept <= at_stop + 1 and kept < 12, (at_stop, kept)
         assert len(read_dataset(out).table) == 5 * kept
         # the instrument is safe: shutter coil off, no axis moving
         motion = MotionController(ModbusTransport(urls["modbus"], timeout_s=1.0), RetryPolicy())

@@ -70,8 +70,8 @@ def test_a_different_request_fails_loudly_naming_the_index(tmp_path, capsys):
 
 def test_replay_with_another_plan_fails(tmp_path, capsys):
     assert main(["replay", str(FIXTURES / "quick-lambert.jsonl"),
-                 str(FIXTURES / "red-cotton-small.toml"), "--out", str(tmp_path / "r")]) == 1
-    assert "differs" in capsys.readouterr().err
+                 str(FIXTURES / "red-cotton-small.toml"), "--out", str(tmp_path / "r")]) == 2
+    assert "was recorded with plan 'quick'" in capsys.readouterr().err
 
 
 def test_truncated_transcript_fails(tmp_path, capsys):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -31,6 +33,7 @@ def mock_process():
     try:
         line = proc.stdout.readline()
         urls = json.loads(line)
+        urls["pid"] = proc.pid
         yield urls
     finally:
         proc.send_signal(signal.SIGINT)
@@ -51,7 +54,59 @@ def _points(out: Path):
     return [tuple(r["geometry"]) for r in read_journal(out / "journal.jsonl").of_type("point")]
 
 
+@contextlib.contextmanager
+def _instrument_frozen(pid: int):
+    """SIGSTOP the mock process: the session cannot measure past the state just observed while
+    the test signals it (at most the point whose last answer is already on the wire)."""
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        yield
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+def _wait_for_points(proc, out: Path, n: int, deadline_s: float = 120.0) -> int:
+    """Poll the journal (never a fixed sleep) until it holds ``n`` points or the run ends."""
+    t_end = time.monotonic() + deadline_s
+    while time.monotonic() < t_end and proc.poll() is None:
+        if (out / "journal.jsonl").exists() and len(_points(out)) >= n:
+            break
+        time.sleep(0.01)
+    return len(_points(out)) if (out / "journal.jsonl").exists() else 0
+
+
+def test_sigkill_after_observed_points_then_resume_equals_uninterrupted(drv, tmp_path, mock_process):
+    """Deterministic kills: each session is killed once the journal holds the next target count
+    of points (the instrument frozen meanwhile), then the last --resume completes the run."""
+    plan = drv.write_plan(tmp_path, "kill", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
+                          wavelengths=(450, 500, 550, 600, 650), itime_ms=100, readings=50)
+    ref = tmp_path / "ref"
+    done = subprocess.run(_acquire(mock_process, plan, ref), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert len(_points(ref)) == 12
+    out = tmp_path / "killed"
+    kills = []
+    for k, target in enumerate((1, 4, 7, 10)):
+        proc = subprocess.Popen(_acquire(mock_process, plan, out, *(["--resume"] if k else [])),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        seen = _wait_for_points(proc, out, target)
+        with _instrument_frozen(mock_process["pid"]):
+            proc.send_signal(signal.SIGKILL)
+            rc = proc.wait()
+        kills.append((target, seen, rc, len(_points(out))))
+        assert rc == -signal.SIGKILL and target <= seen < 12, kills
+    final = subprocess.run(_acquire(mock_process, plan, out, "--resume"), capture_output=True,
+                           text=True, timeout=300)
+    assert final.returncode == 0, final.stderr
+    points = _points(out)
+    assert len(points) == len(set(points)) == 12, kills      # none lost, none duplicated
+    assert (out / "radiance.csv").read_bytes() == (ref / "radiance.csv").read_bytes()
+    assert read_dataset(out).meta["provenance"]["complete"] is True
+
+
+@pytest.mark.slow
 def test_sigkill_at_random_moments_then_resume_equals_uninterrupted(drv, tmp_path, mock_process):
+    """Many kills at random moments (timing-dependent by design: `make test-slow`)."""
     plan = drv.write_plan(tmp_path, "kill", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
                           wavelengths=(450, 500, 550, 600, 650), itime_ms=100, readings=50)
     ref = tmp_path / "ref"
@@ -64,8 +119,8 @@ def test_sigkill_at_random_moments_then_resume_equals_uninterrupted(drv, tmp_pat
 
     rng = np.random.default_rng(2024)
     out = tmp_path / "killed"
-    kills = []
-    for k in range(6):
+    kills: list = []
+    for k in range(20):
         args = _acquire(mock_process, plan, out, *(["--resume"] if k else []))
         proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         delay = float(rng.uniform(0.4, max(1.0, duration)))
@@ -187,8 +242,9 @@ def test_retry_counts_of_a_killed_session_survive_the_resume(drv, tmp_path):
             if (out / "journal.jsonl").exists() and len(_points(out)) >= 3:
                 break
             time.sleep(0.01)
-        proc.send_signal(signal.SIGKILL)
-        assert proc.wait() == -signal.SIGKILL, "the session ended before it could be killed"
+        with _instrument_frozen(mock.pid):
+            proc.send_signal(signal.SIGKILL)
+            assert proc.wait() == -signal.SIGKILL, "the session ended before it could be killed"
         records = read_journal(out / "journal.jsonl").records
         assert not any(r.get("what") == "session_end" for r in records)
         killed = [r for r in records if r["type"] == "point"][-1]["retries"]

@@ -52,7 +52,7 @@ class UmbClient:
         hi, lo = P.int32_to_registers(mdeg)
         return self.write(P.axis_target_address(a), [hi, lo, velocity_cdeg_s, P.AxisCommand.MOVE])
 
-    def wait_idle(self, timeout=5.0):
+    def wait_idle(self, timeout=30.0):
         t_end = time.monotonic() + timeout
         while time.monotonic() < t_end:
             if not any(self.status(a) & P.AxisStatus.MOVING for a in range(P.N_AXES)):

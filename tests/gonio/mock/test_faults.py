@@ -2,7 +2,6 @@
 corrupts a reading reported as good."""
 
 import socket
-import time
 
 import numpy as np
 import pytest
@@ -35,6 +34,16 @@ def test_rates_are_deterministic_and_binomial():
     assert a.stats["garbled"] == sum(seq_a)
     t = FaultInjector("busy=@4", seed=0)
     assert [t.fires("busy") for _ in range(8)] == [False, False, False, True, False, False, False, False]
+
+
+class _ManualClock:
+    """A controller clock the test advances by hand."""
+
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self):
+        return self.t
 
 
 def _head(tools, m, timeout=0.3):
@@ -249,17 +258,24 @@ def test_modbus_drop_rtu_is_a_silent_interface(tools):
     import minimalmodbus
 
     with MockInstrument(modbus="rtu", serial="pty", faults="modbus_drop=@2", speed="real") as m:
+        # the silent window is measured on the controller's clock: frozen here, advanced below,
+        # so the requests land inside / after it whatever the machine's load
+        clock = _ManualClock()
+        m.controller.now = clock
         path = m.modbus_url[len("rtu://"):]
         inst = minimalmodbus.Instrument(path, P.UNIT_ID)
         for key, value in P.rtu_serial_settings(path).items():
             setattr(inst.serial, key, value)
-        inst.serial.timeout = 0.15
+        inst.serial.timeout = 10.0                                            # answers: no hurry
         assert inst.read_register(P.IR_FIRMWARE, functioncode=4) == 0x0104      # 1
+        inst.serial.timeout = 0.15                                            # no answer ever comes
         with pytest.raises(minimalmodbus.NoResponseError):
             inst.read_register(P.IR_FIRMWARE, functioncode=4)                 # 2: dropped
+        clock.t += 0.49                                                       # still silent
         with pytest.raises(minimalmodbus.NoResponseError):                    # ignored: silent
             inst.write_register(P.HR_SAMPLE_SLOT, int(P.SampleSlot.WHITE_REFERENCE))
-        time.sleep(0.5)                                                       # 0.5 s at real speed
+        clock.t += 0.01                                                       # 0.5 s at real speed
+        inst.serial.timeout = 10.0
         assert inst.read_register(P.IR_FIRMWARE, functioncode=4) == 0x0104
         assert inst.read_register(P.HR_SAMPLE_SLOT, functioncode=3) == int(P.SampleSlot.SAMPLE)
         inst.serial.close()

@@ -46,23 +46,39 @@ def test_home_then_move_reaches_target_in_position(mb):
     assert mb.actual(1) == -60000 and mb.fault(1) == 0
 
 
+class ManualClock:
+    """The controller's clock, advanced by the test: motion states at exact instants, whatever
+    the machine's load (the mock evaluates every motion lazily from ``controller.now``)."""
+
+    def __init__(self, t: float = 1000.0):
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+    def advance(self, dt: float) -> None:
+        self.t += dt
+
+
 def test_motion_takes_time_at_the_axis_velocity(tools):
     with MockInstrument(modbus="tcp", serial="socket", speed="real") as m:
+        clock = m.controller.now = ManualClock()
         mb = tools.UmbClient(m.modbus_url)
         mb.write_one(P.HR_CONTROL, P.Control.ENABLE | P.Control.HOME_ALL)
-        time.sleep(1.6)                                          # homing takes 1.5 s at real speed
-        mb.wait_idle()
-        t0 = time.monotonic()
+        clock.advance(1.49)                                      # homing takes 1.5 s at real speed
+        assert mb.status(0) & P.AxisStatus.MOVING and not mb.status(0) & P.AxisStatus.HOMED
+        clock.advance(0.02)
+        assert not mb.status(0) & P.AxisStatus.MOVING and mb.status(0) & P.AxisStatus.HOMED
         hi, lo = P.int32_to_registers(30000)
         mb.write(P.axis_target_address(3), [hi, lo, 6000, P.AxisCommand.MOVE])    # 60 deg/s
-        time.sleep(0.1)
-        mid = mb.actual(3)
-        elapsed = time.monotonic() - t0
-        assert 0 < mid < 30000
-        assert mid <= 60.0 * 1000 * elapsed + 20                   # never faster than v
+        clock.advance(0.1)
+        assert mb.actual(3) == 6000                              # 0.1 s at 60 deg/s
         assert mb.status(3) & P.AxisStatus.MOVING
-        mb.wait_idle()
-        assert mb.actual(3) == 30000 and time.monotonic() - t0 >= 0.5   # 30 deg at 60 deg/s
+        clock.advance(0.39)
+        assert mb.actual(3) == 29400 and mb.status(3) & P.AxisStatus.MOVING
+        clock.advance(0.01 + 1.0)                                # arrived, settled
+        assert mb.actual(3) == 30000 and not mb.status(3) & P.AxisStatus.MOVING
+        assert mb.status(3) & P.AxisStatus.IN_POSITION
         mb.close()
 
 
@@ -103,6 +119,7 @@ def test_beam_block_is_fault_4_and_exception_3(mb):
 
 def test_exception_6_while_homing(tools):
     with MockInstrument(modbus="tcp", serial="socket", speed="real") as m:
+        m.controller.now = ManualClock()                         # frozen: homing never ends
         mb = tools.UmbClient(m.modbus_url)
         mb.write_one(P.HR_CONTROL, P.Control.ENABLE | P.Control.HOME_ALL)
         assert mb.status(0) & P.AxisStatus.MOVING      # reads are served while homing
@@ -112,6 +129,7 @@ def test_exception_6_while_homing(tools):
             mb.write_coils(P.COIL_LAMP, [True])
         mb.write_one(P.HR_CONTROL, P.Control.ENABLE | P.Control.STOP_ALL)     # stop is accepted
         assert not mb.status(0) & P.AxisStatus.HOMED
+        assert not mb.status(0) & P.AxisStatus.MOVING
         mb.close()
 
 
@@ -140,14 +158,25 @@ def test_rtu_over_pty_with_minimalmodbus():
         inst.serial.timeout = 1.0
         assert inst.read_register(P.IR_FIRMWARE, functioncode=4) == 0x0104
         inst.write_register(P.HR_CONTROL, P.Control.ENABLE | P.Control.HOME_ALL)
-        time.sleep(0.3)
+        _wait_idle_rtu(inst)
         assert inst.read_long(P.axis_actual_address(1), functioncode=4, signed=True) == 45000
         inst.write_long(P.axis_target_address(0), 20000, signed=True)
         assert inst.read_long(P.axis_target_address(0), functioncode=3, signed=True) == 20000
         inst.write_register(P.axis_command_address(0), P.AxisCommand.MOVE)
-        time.sleep(0.3)
+        _wait_idle_rtu(inst)
         assert inst.read_long(P.axis_actual_address(0), functioncode=4, signed=True) == 20000
         assert inst.read_register(P.axis_status_address(0), functioncode=4) & P.AxisStatus.IN_POSITION
         with pytest.raises(minimalmodbus.IllegalRequestError):
             inst.write_long(P.axis_target_address(1), -86000, signed=True)
         inst.serial.close()
+
+
+def _wait_idle_rtu(inst, deadline_s: float = 30.0) -> None:
+    """Poll the axes' MOVING bits (a generous deadline, never a fixed sleep)."""
+    t_end = time.monotonic() + deadline_s
+    while time.monotonic() < t_end:
+        if not any(inst.read_register(P.axis_status_address(a), functioncode=4) & P.AxisStatus.MOVING
+                   for a in range(P.N_AXES)):
+            return
+        time.sleep(0.01)
+    raise AssertionError("axes still moving")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 
 import pytest
 
@@ -42,9 +41,8 @@ def test_optically_thin_slab():
 
 
 def test_optically_huge_slab_finishes_and_reports_the_cap(caplog):
-    t0 = time.perf_counter()
+    # finishing at all is the check (pytest-timeout guards a hang); its duration is a benchmark
     r = run_slab(0.0, 1e3, g=0.0, n=1.5, thickness=1.0, photons=2_000, seed=3)  # default cap
-    assert time.perf_counter() - t0 < 20
     _bounded(r)
     with caplog.at_level(logging.WARNING, logger="simulate.montecarlo.transport"):
         capped = run_slab(0.0, 1e3, g=0.0, n=1.5, thickness=1.0, photons=2_000, seed=3, max_events=200)
@@ -57,9 +55,7 @@ def test_optically_huge_slab_finishes_and_reports_the_cap(caplog):
 
 @pytest.mark.parametrize("mu_s_r", [1e-3, 1e3])
 def test_cylinder_optical_radius_extremes(mu_s_r):
-    t0 = time.perf_counter()
     r = run_cylinder(0.01 * mu_s_r, mu_s_r, g=0.8, n=1.557, radius=1.0, photons=5_000, seed=4)
-    assert time.perf_counter() - t0 < 20
     assert all(math.isfinite(v) for v in (r.exited, r.u_exited, r.absorbed, r.specular))
     assert 0.0 <= r.exited <= 1.0 and abs(r.energy.residual) < 1e-9
     r2 = run_cylinder(0.0, mu_s_r, g=0.8, n=1.557, radius=1.0, photons=5_000, seed=4, max_events=50)

@@ -1,6 +1,5 @@
 """QUALITY.md section B cells of the optics layer: finite, bounded, flagged outside the domain."""
 
-import time
 import warnings
 
 import numpy as np
@@ -71,11 +70,9 @@ def test_rough_surface_flagged_smooth_not():
 @pytest.mark.parametrize("x", [1e-3, 1e3])
 @pytest.mark.parametrize("m", [1.55, 1.33 - 0.01j, 1.0 + 1e-9])
 def test_mie_size_parameter_extremes(x, m):
-    t0 = time.process_time()  # CPU time: insensitive to other jobs sharing the cores
+    # finite and bounded is the check; how long x = 1e3 takes is a benchmark, not a test
     e = mie.efficiencies(m, x)
     table = PhaseTable.from_mie(m, x)
-    elapsed = time.process_time() - t0
-    assert elapsed < 2.0  # x = 1e3: ~1000 Mie terms on ~18000 angles, ~0.4 s measured
     assert np.isfinite([e.qext, e.qsca, e.qabs, e.qback, e.g]).all()
     assert 0 <= e.qsca <= e.qext + 1e-15 and -1 < e.g < 1
     assert np.all(np.isfinite(table.cos_table))
