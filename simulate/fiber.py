@@ -207,9 +207,9 @@ def range_outputs(mu_lo, mu_hi, phi_lo, phi_hi, half_width: float, psi_c: float 
     """Output rows for direction ranges (arrays of equal length) at the cell centred on ``psi_c``."""
     mu_lo, mu_hi, phi_lo, phi_hi = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (mu_lo, mu_hi, phi_lo, phi_hi))
     out = np.zeros((mu_lo.size, 8))
-    psi_c = np.broadcast_to(np.asarray(psi_c, dtype=float), mu_lo.shape)
-    out[:, 0] = np.cos(psi_c)
-    out[:, 1] = np.sin(psi_c)
+    centres = np.broadcast_to(np.asarray(psi_c, dtype=float), mu_lo.shape)
+    out[:, 0] = np.cos(centres)
+    out[:, 1] = np.sin(centres)
     out[:, 2] = math.cos(half_width)
     out[:, 3] = mu_lo
     out[:, 4] = mu_hi
@@ -545,7 +545,7 @@ def volume_brdf(
     fiber: Fiber,
     w_in: np.ndarray,
     w_out: np.ndarray | None = None,
-    wavelengths_nm: np.ndarray | None = None,
+    wavelengths_nm: Any = None,
     *,
     method: str = "nee",
     outputs: np.ndarray | None = None,
@@ -627,7 +627,7 @@ def volume_brdf(
     photons = 0
     capped = 0
     energy = []
-    keys = {}
+    keys: dict[tuple[float, ...], list[int]] = {}
     for p in range(P):
         keys.setdefault(tuple(np.round(w_in[p], 12)), []).append(p)
     bar = None
@@ -658,8 +658,8 @@ def volume_brdf(
                     "entered": run.scal[T.S_ENTERED] / n, "exited": run.scal[T.S_EXIT0] / n,
                     "specular": run.scal[T.S_SPECULAR] / n,
                 })
-            R[np.ix_(rows, group)] = value
-            u_R[np.ix_(rows, group)] = u
+            R[np.ix_(np.asarray(rows), group)] = value
+            u_R[np.ix_(np.asarray(rows), group)] = u
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(rel_err=f"{_rms_rel(R, u_R):.4f}")

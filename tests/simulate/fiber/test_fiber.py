@@ -6,7 +6,6 @@ Every Monte Carlo comparison is within a few COMPUTED standard errors at a fixed
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
