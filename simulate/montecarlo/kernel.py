@@ -58,6 +58,12 @@ a photon carries the likelihood ratio ``A_l`` of its path::
     boundary reached after s:                         A_l *= exp(-(mu_t^l - mu_t^w) s)
 
 (implicit capture makes the walk's weight-density of a collision segment ``mu_s^w exp(-mu_t^w l)``).
+The phase ratio ``p^l / p^w`` is read from a table of cell-averaged ratios on a grid uniform in
+``t = sqrt((1 - mu) / 2)`` (dense in the forward peak; 1025 nodes, linear interpolation, every
+wavelength's value on one cache line), so a collision costs one look-up for all wavelengths
+instead of one table search per wavelength; it re-weights towards the cell-averaged target
+density, which differs from the target's own sampling table only by that table's
+discretisation.
 With ``mu_a^w = 0`` and ``p^l = p^w`` this is exactly white Monte Carlo, ``A_l = exp(-mu_a^l L)``
 (absorption applied afterwards along the path length ``L``); different scattering spectra
 re-weight exactly too, at a variance that grows with the mismatch (callers group
@@ -90,7 +96,7 @@ from simulate.montecarlo.geometry import (
     snap_to_surface,
 )
 from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
-from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, phase_pdf, sample_direction
+from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, sample_direction
 
 __all__ = [
     "PHASE_HG",
@@ -153,12 +159,9 @@ class KernelInputs(NamedTuple):
     n_exit_bins: int  # geometric exit bins (vertex bins follow them)
     reweight: bool
     spec_mu: np.ndarray  # float64[n_spec, 2]: (mu_a, mu_s) per target wavelength
-    spec_kind: np.ndarray  # int64[n_spec]
-    spec_g: np.ndarray  # float64[n_spec]
-    spec_table: np.ndarray  # float64[n_spec, K + 1]
-    spec_pdf: np.ndarray  # float64[n_spec, K]
-    spec_lookup: np.ndarray  # int64[n_spec, M + 1]
-    spec_same_phase: np.ndarray  # bool[n_spec]: p^l == p^w (no phase ratio needed)
+    phase_ratio: bool  # some target's phase function differs from the walk's
+    spec_ratio: np.ndarray  # float64[n_grid, n_spec]: p^l / p^w on the grid t = sqrt((1 - mu)/2) uniform
+    nee_consts: np.ndarray  # float64[n_out, tallies.N_NEE]: next-event constants of point outputs
 
 
 def _make_kernel(scoring: bool):
@@ -228,6 +231,10 @@ def _make_kernel(scoring: bool):
         touched = np.zeros(n_bins_total, dtype=np.int64)
         n_touched = np.zeros(1, dtype=np.int64)
         spec_w = np.ones(n_spec)
+        nee_work = np.zeros(T.N_NEE)
+        phase_ratio = inp.phase_ratio
+        ratio = inp.spec_ratio
+        n_grid = ratio.shape[0]
         d_mu_t = np.zeros(n_spec)
         s_ratio = np.ones(n_spec)
         spec_mu_t = np.zeros(n_spec)
@@ -328,22 +335,19 @@ def _make_kernel(scoring: bool):
                                 spec_w[l] *= s_ratio[l] * math.exp(-d_mu_t[l] * step)
                         if vertex_mode == T.V_CYLINDER_NEE:
                             s0, s1, s2, s3 = T.score_vertex(
-                                vertex_mode, inp.outputs, vertex_base, hist, touched, n_touched, n_spec, spec_w,
-                                spec_mu_t, inp.spec_kind, inp.spec_g, inp.spec_table, inp.spec_pdf, inp.spec_lookup,
+                                inp.outputs, inp.nee_consts, nee_work, vertex_base, hist, touched, n_touched, n_spec,
+                                spec_w, spec_mu_t, phase_ratio, ratio, phase, g, table, inp.pdf, inp.lookup,
                                 size, n_in, x, y, z, ux, uy, uz, w, s0, s1, s2, s3,
                             )
                     ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, phase, g, table, hg, s0, s1, s2, s3)
                     if SCORING:
                         if reweight:
-                            p_w = 0.0
                             w_max = 0.0
+                            if phase_ratio:
+                                jr, fr = T.ratio_row(ct, n_grid)
+                                for l in range(n_spec):
+                                    spec_w[l] *= ratio[jr, l] + fr * (ratio[jr + 1, l] - ratio[jr, l])
                             for l in range(n_spec):
-                                if not inp.spec_same_phase[l]:
-                                    if p_w == 0.0:
-                                        p_w = phase_pdf(ct, phase, g, table, inp.pdf, inp.lookup)
-                                    if p_w > 0.0:
-                                        spec_w[l] *= phase_pdf(ct, inp.spec_kind[l], inp.spec_g[l], inp.spec_table[l],
-                                                               inp.spec_pdf[l], inp.spec_lookup[l]) / p_w
                                 if spec_w[l] > w_max:
                                     w_max = spec_w[l]
                     if w * w_max < w_threshold:

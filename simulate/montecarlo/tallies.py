@@ -77,6 +77,10 @@ __all__ = [
     "bin_count",
     "score_exit",
     "score_vertex",
+    "nee_constants",
+    "ratio_row",
+    "NEE_COLUMNS",
+    "N_NEE",
     "add_score",
     "flush_history",
 ]
@@ -300,10 +304,71 @@ def score_exit(
             _add_spectral(hist, touched, n_touched, o * n_spec, n_spec, spec_w, weight)
 
 
+#: columns of the per-output constants of the next-event estimator (:func:`nee_constants`)
+NEE_COLUMNS = ("u_t", "u_b", "u_n", "rho", "sin_alpha", "cos_alpha", "fresnel", "k_max", "cos_step", "sin_step",
+               "chord", "jacobian_factor")
+N_NEE = 12
+_ORDER_CUTOFF = 1e-7  # internal-reflection orders are followed while F^k exceeds this
+
+
+@numba.njit(cache=True)
+def nee_constants(mu: float, phi: float, n_in: float, radius: float, out: np.ndarray) -> None:
+    """Constants of a local exit direction ``(mu = cos theta_out, phi)`` for :func:`score_vertex`.
+
+    Fills ``out[:N_NEE]`` (``NEE_COLUMNS``): the internal direction in the local frame
+    (``u_t, u_b, u_n``), ``rho = sqrt(1 - u_t^2)``, ``sin/cos alpha``, the internal Fresnel
+    reflectance ``F``, the number of reflection orders with ``F^k > 1e-7``, the rotation of the
+    exit point per chord, the 3-D chord length ``2 R cos alpha / rho`` and
+    ``(1 - F) R cos alpha / (n^2 u_n)`` (the Jacobian's numerator with the interface factors).
+    ``rho = 0`` marks a direction that cannot occur.
+    """
+    st = math.sqrt(max(1.0 - mu * mu, 0.0))
+    u_t = st * math.cos(phi) / n_in
+    u_b = st * math.sin(phi) / n_in
+    u_n = math.sqrt(max(1.0 - u_t * u_t - u_b * u_b, 0.0))
+    rho = math.sqrt(u_n * u_n + u_b * u_b)
+    for i in range(N_NEE):
+        out[i] = 0.0
+    if rho <= 0.0 or u_n <= 0.0:
+        return
+    sa = u_b / rho
+    ca = u_n / rho
+    f_out = fresnel_unpolarized(u_n, n_in, 1.0)
+    k_max = 1
+    fk = f_out
+    while fk > _ORDER_CUTOFF and k_max < 64:
+        k_max += 1
+        fk *= f_out
+    alpha = math.atan2(sa, ca)
+    step = -(math.pi - 2.0 * alpha) if sa > 0.0 else math.pi + 2.0 * alpha
+    out[0] = u_t
+    out[1] = u_b
+    out[2] = u_n
+    out[3] = rho
+    out[4] = sa
+    out[5] = ca
+    out[6] = f_out
+    out[7] = k_max
+    out[8] = math.cos(step)
+    out[9] = math.sin(step)
+    out[10] = 2.0 * radius * ca / rho
+    out[11] = (1.0 - f_out) * radius * ca / (n_in * n_in * u_n)
+
+
+@numba.njit(cache=True, inline="always")
+def ratio_row(mu: float, n_grid: int) -> tuple[int, float]:
+    """Grid node and fraction of ``mu`` on the phase-ratio grid ``t = sqrt((1 - mu) / 2)`` uniform."""
+    t = math.sqrt(max(0.5 * (1.0 - mu), 0.0))
+    x = t * (n_grid - 1)
+    j = min(int(x), n_grid - 2)
+    return j, x - j
+
+
 @numba.njit(cache=True)
 def score_vertex(
-    mode: int,
     outputs: np.ndarray,
+    consts: np.ndarray,
+    work: np.ndarray,
     base: int,
     hist: np.ndarray,
     touched: np.ndarray,
@@ -311,11 +376,13 @@ def score_vertex(
     n_spec: int,
     spec_w: np.ndarray,
     spec_mu_t: np.ndarray,
-    spec_kind: np.ndarray,
-    spec_g: np.ndarray,
-    spec_table: np.ndarray,
-    spec_pdf: np.ndarray,
-    spec_lookup: np.ndarray,
+    phase_ratio: bool,
+    ratio: np.ndarray,
+    kind: int,
+    g: float,
+    table: np.ndarray,
+    pdf: np.ndarray,
+    lookup: np.ndarray,
     radius: float,
     n_in: float,
     x: float,
@@ -371,88 +438,92 @@ def score_vertex(
 
         w A_l p_l(u_in . u) exp(-mu_t,l (s + k c) / rho) F^k (1 - F) J / (n^2 u_n)
 
-    ``R_vol = (score per photon) x (launch normalisation) / (cell width)`` (see
-    :mod:`simulate.fiber`). ``J`` diverges (integrably) on the caustic ``|p'| = R |sin alpha|``:
-    the estimator is unbiased but its variance grows logarithmically there; cell and
-    direction ranges of finite size average it out.
+    with ``p_l = p_walk x (p_l / p_walk)``, the ratio read from ``ratio`` (see
+    :mod:`simulate.montecarlo.kernel`). ``R_vol = (score per photon) x (launch normalisation) /
+    (cell width)`` (see :mod:`simulate.fiber`). ``J`` diverges (integrably) on the caustic
+    ``|p'| = R |sin alpha|``: the estimator is unbiased but its variance grows logarithmically
+    there; cells and direction ranges of finite size average it out.
 
-    Returns the advanced random state (draws are used only for ranged outputs).
+    ``consts`` holds :func:`nee_constants` of point outputs (row of zeros with ``rho = 0``
+    for ranged outputs, whose direction is drawn here into ``work``). Returns the advanced
+    random state (draws are used only for ranged outputs).
     """
     r2 = y * y + z * z
     if r2 <= 0.0:
         r2 = 1e-300
     inv_r2 = 1.0 / r2
-    n2 = n_in * n_in
-    big_r = radius
-    mu_t_min = spec_mu_t[0]
-    for l in range(1, n_spec):
-        if spec_mu_t[l] < mu_t_min:
-            mu_t_min = spec_mu_t[l]
+    n_grid = ratio.shape[0]
     for o in range(outputs.shape[0]):
         mu_lo = outputs[o, 3]
         mu_hi = outputs[o, 4]
         phi_lo = outputs[o, 5]
         phi_hi = outputs[o, 6]
-        if mu_hi > mu_lo:
-            rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-            mu = math.sqrt(mu_lo * mu_lo + to_uniform(rr) * (mu_hi * mu_hi - mu_lo * mu_lo))
+        if mu_hi > mu_lo or phi_hi > phi_lo:
+            if mu_hi > mu_lo:
+                rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                mu = math.sqrt(mu_lo * mu_lo + to_uniform(rr) * (mu_hi * mu_hi - mu_lo * mu_lo))
+            else:
+                mu = mu_lo
+            if phi_hi > phi_lo:
+                rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                phi = phi_lo + to_uniform(rr) * (phi_hi - phi_lo)
+            else:
+                phi = phi_lo
+            nee_constants(mu, phi, n_in, radius, work)
+            c = work
         else:
-            mu = mu_lo
-        if phi_hi > phi_lo:
-            rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-            phi = phi_lo + to_uniform(rr) * (phi_hi - phi_lo)
-        else:
-            phi = phi_lo
-        st = math.sqrt(max(1.0 - mu * mu, 0.0))
-        u_t = st * math.cos(phi) / n_in
-        u_b = st * math.sin(phi) / n_in
-        u_n = math.sqrt(max(1.0 - u_t * u_t - u_b * u_b, 0.0))
-        rho = math.sqrt(u_n * u_n + u_b * u_b)
-        if rho <= 0.0 or u_n <= 0.0:
+            c = consts[o]
+        rho = c[3]
+        if rho <= 0.0:
             continue
-        sa = u_b / rho
-        ca = u_n / rho
-        disc = r2 - big_r * big_r * sa * sa
+        sa = c[4]
+        ca = c[5]
+        disc = r2 - radius * radius * sa * sa
         if disc <= 0.0:
             continue
         sq = math.sqrt(disc)
-        f_out = fresnel_unpolarized(u_n, n_in, 1.0)
-        common = weight * (1.0 - f_out) * (big_r * ca / sq) / (n2 * u_n)
-        chord = 2.0 * big_r * ca / rho
-        alpha = math.atan2(sa, ca)
-        step = -(math.pi - 2.0 * alpha) if sa > 0.0 else math.pi + 2.0 * alpha
-        c_step = math.cos(step)
-        s_step = math.sin(step)
+        u_t = c[0]
+        u_b = c[1]
+        u_n = c[2]
+        f_out = c[6]
+        k_max = int(c[7])
+        c_step = c[8]
+        s_step = c[9]
+        chord = c[10]
+        common = weight * c[11] / sq
         cos_c = outputs[o, 0]
         sin_c = outputs[o, 1]
         cos_h = outputs[o, 2]
         for sol in range(2):
-            s = big_r * ca + sq if sol == 0 else big_r * ca - sq
+            s = radius * ca + sq if sol == 0 else radius * ca - sq
             if s <= 0.0:
                 continue
-            a_n = big_r - s * ca
+            a_n = radius - s * ca
             a_b = -s * sa
             # n = p' (a_n + i a_b) / |p'|^2 in (y + i z) notation
             ny = (y * a_n - z * a_b) * inv_r2
             nz = (y * a_b + z * a_n) * inv_r2
-            # internal direction at the first exit point: u_t t + u_n n + u_b b, b = (n_z, -n_y)
-            dy = u_n * ny + u_b * nz
-            dz = u_n * nz - u_b * ny
-            cos_s = ux * u_t + uy * dy + uz * dz
-            path = s / rho
             fk = 1.0
-            for k in range(64):
+            p_w = -1.0
+            for k in range(k_max):
                 # cell test: n(psi) . n(psi_c), n(psi_c) = (-sin_c, cos_c)
                 if -ny * sin_c + nz * cos_c >= cos_h:
-                    g0 = common * fk
+                    if p_w < 0.0:
+                        # internal direction at the first exit point: u_t t + u_n n + u_b b, b = (n_z, -n_y)
+                        ny0 = (y * a_n - z * a_b) * inv_r2
+                        nz0 = (y * a_b + z * a_n) * inv_r2
+                        cos_s = ux * u_t + uy * (u_n * ny0 + u_b * nz0) + uz * (u_n * nz0 - u_b * ny0)
+                        p_w = phase_pdf(cos_s, kind, g, table, pdf, lookup)
+                        jr, fr = ratio_row(cos_s, n_grid)
+                    path = s / rho + k * chord
+                    g0 = common * fk * p_w
                     for l in range(n_spec):
-                        p_l = phase_pdf(cos_s, spec_kind[l], spec_g[l], spec_table[l], spec_pdf[l], spec_lookup[l])
+                        p_ratio = 1.0
+                        if phase_ratio:
+                            p_ratio = ratio[jr, l] + fr * (ratio[jr + 1, l] - ratio[jr, l])
                         add_score(hist, touched, n_touched, (base + o) * n_spec + l,
-                                  g0 * spec_w[l] * p_l * math.exp(-spec_mu_t[l] * path))
+                                  g0 * spec_w[l] * p_ratio * math.exp(-spec_mu_t[l] * path))
                 fk *= f_out
-                path += chord
-                if fk * math.exp(-mu_t_min * (path - s / rho)) < 1e-9:
-                    break
                 # rotate the exit normal by `step` (psi -> psi + step): n = (-sin psi, cos psi)
                 t_y = ny * c_step - nz * s_step
                 nz = ny * s_step + nz * c_step

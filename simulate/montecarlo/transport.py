@@ -34,7 +34,7 @@ import numpy as np
 from simulate.montecarlo import geometry as G
 from simulate.montecarlo import kernel as K
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.scatter import PhaseArrays, phase_arrays
+from simulate.montecarlo.scatter import PHASE_TABLE, PhaseArrays, phase_arrays
 
 __all__ = [
     "ParameterError",
@@ -313,26 +313,47 @@ class SpectralTargets:
     same_phase: np.ndarray
 
 
+RATIO_GRID = 1025
+
+
+def _cell_probabilities(pa: PhaseArrays, mu_edges: np.ndarray) -> np.ndarray:
+    """Probability of each ``mu`` cell under a phase function (exact CDF of the table or of HG)."""
+    if pa.kind == PHASE_TABLE:
+        K_int = pa.table.size - 1
+        cdf = np.interp(mu_edges, pa.table, np.arange(K_int + 1) / K_int)
+    elif pa.g == 0.0:
+        cdf = 0.5 * (mu_edges + 1.0)
+    else:
+        g = pa.g
+        cdf = (1 - g * g) / (2 * g) * (1 / np.sqrt(1 + g * g - 2 * g * mu_edges) - 1 / (1 + g))
+    return np.diff(cdf)
+
+
+def phase_ratio_table(walk: PhaseArrays, targets: list[PhaseArrays], n_grid: int = RATIO_GRID) -> np.ndarray:
+    """``p^l / p^w`` at the nodes ``t_j = j / (n - 1)``, ``mu = 1 - 2 t^2``, as ratios of cell probabilities.
+
+    Cell ``j`` spans the half-way points between neighbouring nodes; ``[n_grid, L]``.
+    """
+    t = np.linspace(0.0, 1.0, n_grid)
+    t_edges = np.concatenate(([0.0], 0.5 * (t[1:] + t[:-1]), [1.0]))
+    mu_edges = np.sort(1.0 - 2.0 * t_edges ** 2)  # increasing mu
+    p_w = _cell_probabilities(walk, mu_edges)[::-1]  # back to increasing t
+    out = np.ones((n_grid, len(targets)))
+    for l, pa in enumerate(targets):
+        p_l = _cell_probabilities(pa, mu_edges)[::-1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[:, l] = np.where(p_w > 0, p_l / np.where(p_w > 0, p_w, 1.0), 0.0)
+    return np.ascontiguousarray(out)
+
+
 def _spectral_arrays(targets: SpectralTargets | None, medium: np.ndarray, walk_phase: PhaseArrays):
     if targets is None:
-        mu = np.array([[medium[K.M_MU_A], medium[K.M_MU_S]]])
-        phases = [walk_phase]
-        same = np.ones(1, dtype=np.bool_)
-        reweight = False
-    else:
-        mu = np.ascontiguousarray(np.stack([targets.mu_a, targets.mu_s], axis=1), dtype=np.float64)
-        phases = list(targets.phases)
-        same = np.asarray(targets.same_phase, dtype=np.bool_)
-        reweight = True
-    kinds = {p.kind for p in phases}
-    if len(kinds) != 1 or len({p.table.size for p in phases}) != 1:
-        raise ParameterError("spectral targets: every phase function must be of one kind and table size")
-    kind = np.array([p.kind for p in phases], dtype=np.int64)
-    g = np.array([p.g for p in phases], dtype=np.float64)
-    table = np.ascontiguousarray(np.stack([p.table for p in phases]))
-    pdf = np.ascontiguousarray(np.stack([p.pdf for p in phases]))
-    lookup = np.ascontiguousarray(np.stack([p.lookup for p in phases]))
-    return reweight, mu, kind, g, table, pdf, lookup, np.ascontiguousarray(same)
+        return False, np.array([[medium[K.M_MU_A], medium[K.M_MU_S]]]), False, np.ones((2, 1))
+    mu = np.ascontiguousarray(np.stack([targets.mu_a, targets.mu_s], axis=1), dtype=np.float64)
+    same = np.asarray(targets.same_phase, dtype=np.bool_)
+    if np.all(same):
+        return True, mu, False, np.ones((2, mu.shape[0]))
+    return True, mu, True, phase_ratio_table(walk_phase, list(targets.phases))
 
 
 def make_inputs(
@@ -351,14 +372,19 @@ def make_inputs(
     """Pack a run's inputs into the kernel's :class:`~.kernel.KernelInputs` record (validated upstream)."""
     tally_params = np.zeros(1) if tally_params is None else np.ascontiguousarray(tally_params, dtype=np.float64)
     outputs = np.zeros((0, 8)) if outputs is None else np.ascontiguousarray(outputs, dtype=np.float64)
-    reweight, mu, kind, g, table, pdf, lookup, same = _spectral_arrays(targets, medium, walk_phase)
+    reweight, mu, phase_ratio, ratio = _spectral_arrays(targets, medium, walk_phase)
     src = np.zeros(5)
     src[: len(source)] = source
+    consts = np.zeros((outputs.shape[0], T.N_NEE))
+    if vertex_mode != T.V_NONE:
+        for o in range(outputs.shape[0]):
+            if outputs[o, 4] == outputs[o, 3] and outputs[o, 6] == outputs[o, 5]:  # point direction
+                T.nee_constants(outputs[o, 3], outputs[o, 5], float(medium[K.M_N]), float(geom[0]), consts[o])
     return K.KernelInputs(
         int(geometry), np.ascontiguousarray(geom, dtype=np.float64), src, np.ascontiguousarray(medium),
         walk_phase.table, walk_phase.pdf, walk_phase.lookup, control, int(tally_mode), tally_params,
         int(vertex_mode), outputs, int(T.bin_count(tally_mode, tally_params)), bool(reweight),
-        mu, kind, g, table, pdf, lookup, same,
+        mu, bool(phase_ratio), ratio, consts,
     )
 
 
