@@ -63,3 +63,8 @@ def test_hue_difference_wraps():
     assert hue_difference(0.02, 0.98) == pytest.approx(-0.04)
     assert hue_difference(0.25, 0.5) == pytest.approx(0.25)
     np.testing.assert_allclose(hue_difference([0.1, 0.9], [0.9, 0.1]), [-0.2, 0.2])
+
+
+def test_overflowing_spectrum_is_a_clear_error_not_nan():
+    with pytest.raises(ValueError, match="colour of this spectrum overflows .*1e\\+308"):
+        spectrum_colour(WL, np.full_like(WL, 1e308))
