@@ -366,6 +366,34 @@ class Dataset:
         """Where the data came from (path or name), for messages."""
         return str(self.path) if self.path is not None else self.name
 
+    @property
+    def complete(self) -> bool:
+        """False when the meta says the run is incomplete (``"complete": false`` at the top level
+        or in ``provenance``, as ``gonio acquire`` writes it for a stopped run); True otherwise."""
+        provenance = self.meta.get("provenance") or {}
+        flag = self.meta.get("complete", provenance.get("complete"))
+        return flag is not False
+
+    def completeness(self) -> str:
+        """How complete the data are, for people: ``"17 of 53 planned points (68% missing)"``."""
+        provenance = self.meta.get("provenance") or {}
+        measured, planned = provenance.get("points_measured"), provenance.get("points_planned")
+        if isinstance(measured, int) and isinstance(planned, int) and planned > 0:
+            missing = max(planned - measured, 0)
+            if missing == 0:
+                return f"all {planned} planned points measured"
+            return (f"{measured} of {planned} planned points measured "
+                    f"({missing} = {100.0 * missing / planned:.0f}% missing)")
+        return "complete" if self.complete else "marked incomplete (fraction not recorded)"
+
+    def content_sha256(self) -> str:
+        """SHA-256 of the canonical ``radiance.csv`` bytes (equal data give equal hashes)."""
+        cached = getattr(self, "_content_sha256", None)
+        if cached is None:
+            cached = hashlib.sha256(_csv_bytes(self.table)).hexdigest()
+            self._content_sha256 = cached
+        return cached
+
     def __repr__(self) -> str:
         return (f"Dataset(name={self.name!r}, kind={self.kind!r}, rows={len(self.table)}, "
                 f"geometries={len(self.geometries())}, wavelengths={len(self.wavelengths_nm)})")
