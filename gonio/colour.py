@@ -110,7 +110,7 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist())), name="beta")
     cmfs = colour.MSDS_CMFS[OBSERVER]
     sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
         xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0
         if illuminant in colour.CCS_ILLUMINANTS[OBSERVER]:
