@@ -10,7 +10,9 @@ wavelength, by
 
 where ``(0, 0)`` is normal incidence and normal observation. :math:`k` multiplies every simulated
 ``beta`` and its ``u_beta`` (the factor's own uncertainty is reported separately, not folded into
-the curves).
+the curves: it is one scale error shared by all points of a wavelength; the report shows the
+overall NRMSE at ``k - u_k`` and ``k + u_k``,
+:meth:`compare.comparison.Comparison.nrmse_with_factor_shifted`).
 
 The normal/normal value
 -----------------------

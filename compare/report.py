@@ -1,6 +1,19 @@
 """The comparison report: ``report.html`` (one self-contained file), ``figures/*.png``,
 ``metrics.json``.
 
+Written for a researcher: every figure has a caption (what is plotted, error bars and whether they
+are smaller than the markers, the shaded beam-blocked cone around the labelled retro-direction,
+the mirror direction); model lines are broken where the curve has no point (never drawn across
+the beam-blocked gap); H is given in turns and degrees; swatches are labelled with the H, S, V of
+the pixel shown; datasets are summarised in words (no link URLs with temporary ports); PNG at
+:data:`FIGURE_DPI` (150) and, on request, SVG. Incomplete data and a dataset compared with itself
+get a banner. The normalisation's uncertainty is explained and its effect on the overall NRMSE
+(``k -+ u_k``) shown; ``metrics.json`` itself is unchanged (its NRMSE uses ``k``).
+
+``write_report`` writes only into a new or empty folder or over a previous report (recognised by
+the ``<meta name="generator">`` of its ``report.html``; only that report's files are replaced, its
+figures that the new one does not draw removed); any other non-empty folder needs ``force``.
+
 Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HTML as base64 PNG):
 
 ``inplane_luminance.png``
@@ -20,7 +33,7 @@ Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HT
     The normalisation factor ``k(lambda)`` of each simulation with its standard uncertainty.
 ``swatches.png``
     Colour swatches (display sRGB) of the measurement and each simulation at the colour geometry,
-    labelled with H, S, V.
+    labelled with the H, S, V of the displayed (gamma-encoded) pixel.
 
 Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
 contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
