@@ -212,7 +212,14 @@ def _bad_huge_u(h, d):
     return "column 'u_beta': value 1e+308 is not a plausible standard uncertainty"
 
 
-BAD = {"deep meta": _bad_deep_meta, "FIFO": _bad_fifo, "huge u_beta": _bad_huge_u,
+def _bad_huge_beta(h, d):
+    h.unprotect(d)
+    _edit_csv(d, lambda ls: [ls[0]] + [",".join(x.split(",")[:5] + ["1e308"] + x.split(",")[6:])
+                                       for x in ls[1:]])
+    return "column 'beta': value 1e+308 is not a plausible radiance coefficient"
+
+
+BAD = {"deep meta": _bad_deep_meta, "every beta 1e308": _bad_huge_beta, "FIFO": _bad_fifo, "huge u_beta": _bad_huge_u,
        "missing column": _bad_missing_column, "NaN": _bad_nan, "duplicate": _bad_duplicate,
        "unknown schema": _bad_schema, "empty file": _bad_empty,
        "mismatched wavelengths": _bad_wavelengths, "one-sided normal": _bad_one_sided,
