@@ -149,15 +149,15 @@ def _check(args) -> int:
                                   illuminant=args.illuminant)
     name = next(iter(comparison.simulated))
     sc = comparison.colour.simulated[name]
-    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse),
-               ("|hue difference|", abs(sc.dh), args.max_hue_diff),
-               ("|saturation difference|", abs(sc.ds), args.max_sat_diff)]
+    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, ""),
+               ("|hue difference|", abs(sc.dh), args.max_hue_diff, " turns of the hue circle"),
+               ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
     failed = False
     print(f"compare check: '{name}' against '{measured.name}'")
-    for label, value, limit in figures:
+    for label, value, limit, unit in figures:
         ok = value <= limit  # NaN fails
         failed |= not ok
-        print(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g} "
+        print(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g}{unit} "
               f"({'<=' if ok else 'exceeds'} {limit:g})")
     for angle, e in comparison.curves[name].items():
         print(f"       NRMSE at incidence {angle} deg = {e.nrmse:.4g}")

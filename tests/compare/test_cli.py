@@ -113,7 +113,7 @@ def test_metrics_json_has_exactly_the_contract_keys(report):
     ("sim_grey", ["--max-nrmse", "1", "--max-sat-diff", "1", "--max-hue-diff", "0.3"], 0,
      "ok   |hue difference| = 0.2196"),
     ("sim_grey", ["--max-nrmse", "1", "--max-sat-diff", "1", "--max-hue-diff", "0.2"], 1,
-     "FAIL |hue difference| = 0.2196"),
+     "FAIL |hue difference| = 0.2196 turns of the hue circle (exceeds 0.2)"),
 ])
 def test_check_verdicts(h, sim, extra, status, shown):
     code, out, err = _quiet_main(["check", h.FIXTURES / "measured_red", h.FIXTURES / sim, *extra])
@@ -320,6 +320,15 @@ def test_report_of_an_incomplete_measurement_has_a_banner(h, tmp_path):
                             "--out", tmp_path / "rep2"])
     assert complete[0] == 0
     assert "class='banner'" not in (tmp_path / "rep2" / "report.html").read_text()
+
+
+def test_report_of_a_dataset_against_itself_has_a_banner(h, tmp_path):
+    code, out, err = _quiet_main(["report", h.FIXTURES / "measured_red",
+                                  h.FIXTURES / "measured_red", "--out", tmp_path / "rep"])
+    assert code == 0, out + err
+    text = (tmp_path / "rep" / "report.html").read_text()
+    assert "<p class='banner'>" in text and "is the measured dataset itself (the same directory)" \
+        in html.unescape(text)
 
 
 @pytest.mark.parametrize("how", ["same directory", "copy"])
