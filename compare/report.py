@@ -526,6 +526,7 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes,
 
 
 _PREVIOUS_FILES = re.compile(r"<meta name='report-files' content='([^']*)'>")
+_LEGACY_FIGURES = re.compile(r"<img alt='([A-Za-z0-9_.-]+\.png)' src='data:image/png")
 
 
 def _prepare_out_dir(out: Path, force: bool) -> list[Path]:
@@ -548,9 +549,15 @@ def _prepare_out_dir(out: Path, force: bool) -> list[Path]:
     if previous.is_file():
         with open(previous, "rb") as handle:
             head = handle.read(65536).decode("utf-8", errors="replace")
+    names = None
     if f"<meta name='generator' content='{GENERATOR}'>" in head:
         match = _PREVIOUS_FILES.search(head)
         names = html.unescape(match.group(1)).split() if match else []
+    elif "<title>Comparison report: " in head and "<h1>Measurement vs simulation: " in head:
+        # a report of the first version (no generator tag): its figures are named by img alt
+        text = previous.read_text(encoding="utf-8", errors="replace")
+        names = [f"figures/{n}" for n in _LEGACY_FIGURES.findall(text)]
+    if names is not None:
         return [out / n for n in names if n.startswith("figures/") and "/" not in n[8:]
                 and n[8:] not in ("", ".", "..")]
     if force:

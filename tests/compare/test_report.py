@@ -211,3 +211,20 @@ def test_write_report_refuses_in_the_library_too(h, tmp_path):
         write_report(comparison, out)
     shutil.rmtree(out)
     assert write_report(comparison, out).is_file()
+
+
+def test_a_report_of_the_first_version_is_recognised_as_a_previous_report(h, tmp_path, capsys):
+    out = tmp_path / "demo-out-report"
+    (out / "figures").mkdir(parents=True)
+    (out / "report.html").write_text(
+        "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>\n"
+        "<title>Comparison report: red cotton</title>\n<style></style></head><body>\n"
+        "<h1>Measurement vs simulation: red cotton</h1>\n"
+        "<figure><img alt='inplane_999nm.png' src='data:image/png;base64,AAAA'>"
+        "<figcaption>inplane_999nm.png</figcaption></figure>\n</body></html>\n")
+    (out / "figures" / "inplane_999nm.png").write_bytes(b"old")
+    (out / "metrics.json").write_text("{}")
+    status, _, err = _run(_argv(h, out), capsys)
+    assert status == 0, err
+    assert not (out / "figures" / "inplane_999nm.png").exists()
+    assert "fabric-optics compare report" in (out / "report.html").read_text()
