@@ -84,7 +84,9 @@ def test_the_published_red_cotton_table_is_consistent_in_linear_srgb_only():
     # had the table been gamma-encoded sRGB, those ratios would give S 0.90, not 0.99
     encoded = display_srgb(rgb_linear)
     assert colorsys.rgb_to_hsv(*encoded)[1] == pytest.approx(0.90, abs=0.01)
-    # and gonio.colour reports the linear figures: a spectrum with that colour gets them back
+    # and gonio.colour reports the linear figures: a red-dye spectrum of that colour (the mock
+    # red cotton's at theta_i = 0, theta_o = 10 deg: 0.913 = Oren-Nayar A x retro factor there,
+    # + 0.0093 of neutral gloss) gets them back, where display values would give S ~ 0.90
     wl = np.arange(390.0, 711.0, 10.0)
     red = 0.01 + 0.088 * np.exp(-0.5 * ((wl - 420) / 40) ** 2) + 0.91 / (1 + np.exp(-(wl - 594.7)
                                                                                 / 7.1))
