@@ -539,7 +539,7 @@ def _prepare_out_dir(out: Path, force: bool) -> list[Path]:
     if not out.exists():
         return []
     if not out.is_dir():
-        raise CompareError(f"--out {out} is a file, not a directory; choose a folder for the "
+        raise CompareError(f"--out {out} exists and is not a directory; choose a folder for the "
                            "report")
     entries = sorted(p.name for p in out.iterdir())
     if not entries:

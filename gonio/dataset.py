@@ -762,25 +762,34 @@ def _require_regular_file(path: Path) -> None:
             raise DatasetError("file is missing", file=path, hint=hint) from None
         raise DatasetError(f"cannot be opened ({exc.strerror})", file=path, hint=hint) from None
     if not stat.S_ISREG(st.st_mode):
-        kinds = [(stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-                 (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
-                 (stat.S_ISBLK, "a block device")]
-        what = next((name for test, name in kinds if test(st.st_mode)), "not a regular file")
-        raise DatasetError(f"is {what}, not a regular file", file=path, hint=hint)
+        raise DatasetError(f"is {_file_kind(st.st_mode)}, not a regular file", file=path,
+                           hint=hint)
+
+
+def _file_kind(mode: int) -> str:
+    kinds = [(stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+             (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISREG, "a regular file")]
+    return next((name for test, name in kinds if test(mode)), "a special file")
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:
     """Read and validate the dataset in directory ``path``; raise :class:`DatasetError`."""
     root = Path(path)
+    hint = f"a dataset is a directory holding {CSV_NAME} and {META_NAME}"
     if not root.exists():
-        raise DatasetError("no such dataset directory", file=root,
-                           hint=f"a dataset is a directory holding {CSV_NAME} and {META_NAME}")
+        if os.path.islink(root):
+            _require_regular_file(root)    # names the looping or dangling link
+        raise DatasetError("no such dataset directory", file=root, hint=hint)
     if root.is_file():
         if root.name in (CSV_NAME, META_NAME):
             root = root.parent
         else:
             raise DatasetError("is a file, not a dataset directory", file=root,
                                hint=f"pass the directory holding {CSV_NAME} and {META_NAME}")
+    elif not root.is_dir():
+        kind = _file_kind(os.stat(root).st_mode)
+        raise DatasetError(f"is {kind}, not a dataset directory", file=root, hint=hint)
     csv_path, meta_path = root / CSV_NAME, root / META_NAME
     for p in (csv_path, meta_path):
         _require_regular_file(p)

@@ -348,3 +348,15 @@ def test_a_fifo_or_a_symlink_loop_is_named_not_called_missing(dataset_dir):
     csv.mkdir()
     with pytest.raises(DatasetError, match="radiance.csv: is a directory, not a regular file"):
         read_dataset(dataset_dir)
+
+
+
+def test_a_looping_link_or_fifo_as_the_dataset_directory_is_named(tmp_path):
+    loop = tmp_path / "run"
+    os.symlink(loop, loop)
+    with pytest.raises(DatasetError, match="run: is a symbolic link that loops"):
+        read_dataset(loop)
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(DatasetError, match=r"pipe: is a FIFO \(named pipe\), not a dataset dir"):
+        read_dataset(fifo)
