@@ -8,6 +8,11 @@
 Exit status: 0 success (``check``: every figure within its threshold), 1 a failed check (the
 failing figures are printed), 2 a usage or input error (one line on stderr, no traceback).
 
+``check`` refuses (exit 1) a dataset whose meta says the run is incomplete (``"complete": false``,
+as ``gonio acquire`` writes for a stopped run), printing how many of the planned points are
+missing, unless ``--allow-incomplete``; ``report`` shows such data with a banner. Comparing a
+dataset with itself (same directory or same ``radiance.csv`` content) is warned about on stderr.
+
 ``check`` thresholds (defaults chosen from the reference results of PHYSICS.md section 8: the
 published model hues lie within 0.01 of the measured one, saturations within 0.01):
 
@@ -25,7 +30,7 @@ from typing import Sequence
 
 from gonio.dataset import DatasetError, read_dataset
 
-from .comparison import compare_datasets
+from .comparison import compare_datasets, incomplete_datasets
 from .errors import CompareError
 from .normalise import DEFAULT_WINDOW_DEG
 
@@ -76,7 +81,14 @@ def _parser() -> argparse.ArgumentParser:
                                      "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.")
     rep.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
     rep.add_argument("simulated", metavar="SIM_DIR", nargs="+", help="simulated dataset(s)")
-    rep.add_argument("--out", required=True, metavar="REPORT_DIR", help="output directory")
+    rep.add_argument("--out", required=True, metavar="REPORT_DIR",
+                     help="output directory: new, empty, or holding a previous report (only "
+                          "its files are replaced)")
+    rep.add_argument("--force", action="store_true",
+                     help="write into a non-empty folder that holds no previous report, "
+                          "replacing report.html, metrics.json and figures/ files of those names")
+    rep.add_argument("--svg", action="store_true",
+                     help="also write every figure as figures/*.svg (vector)")
     common(rep)
 
     chk = sub.add_parser("check", help="exit 0 when a simulation matches within thresholds, "
@@ -91,6 +103,9 @@ def _parser() -> argparse.ArgumentParser:
     chk.add_argument("--max-hue-diff", type=_non_negative, default=DEFAULT_MAX_HUE_DIFF,
                      metavar="X", help="largest |hue difference| on the circle, hue in [0, 1) "
                                        f"(default {DEFAULT_MAX_HUE_DIFF:g})")
+    chk.add_argument("--allow-incomplete", action="store_true",
+                     help="compare even when a dataset's meta says the run is incomplete "
+                          "(\"complete\": false; by default that fails the check)")
     chk.add_argument("--max-sat-diff", type=_non_negative, default=DEFAULT_MAX_SAT_DIFF,
                      metavar="X", help=f"largest |saturation difference| "
                                        f"(default {DEFAULT_MAX_SAT_DIFF:g})")
@@ -103,10 +118,12 @@ def _report(args) -> int:
 
     measured = read_dataset(args.measured)
     simulated = [read_dataset(p) for p in args.simulated]
+    for line in incomplete_datasets(measured, simulated):
+        log.warning("%s; the report says so in a banner", line)
     comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
                                   illuminant=args.illuminant)
     try:
-        report = write_report(comparison, args.out)
+        report = write_report(comparison, args.out, svg=args.svg, force=args.force)
     except OSError as exc:
         raise CompareError(f"cannot write the report into --out {args.out}: "
                            f"{exc.strerror or exc} ({exc.filename}); choose a writable "
@@ -120,19 +137,27 @@ def _report(args) -> int:
 def _check(args) -> int:
     measured = read_dataset(args.measured)
     simulated = read_dataset(args.simulated)
+    incomplete = incomplete_datasets(measured, [simulated])
+    if incomplete and not args.allow_incomplete:
+        for line in incomplete:
+            print(f"compare check: FAIL {line}; finish the run (gonio acquire --resume) or pass "
+                  "--allow-incomplete")
+        return 1
+    for line in incomplete:
+        print(f"compare check: note: {line} (compared anyway: --allow-incomplete)")
     comparison = compare_datasets(measured, [simulated], window_deg=args.normal_window,
                                   illuminant=args.illuminant)
     name = next(iter(comparison.simulated))
     sc = comparison.colour.simulated[name]
-    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse),
-               ("|hue difference|", abs(sc.dh), args.max_hue_diff),
-               ("|saturation difference|", abs(sc.ds), args.max_sat_diff)]
+    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, ""),
+               ("|hue difference|", abs(sc.dh), args.max_hue_diff, " turns of the hue circle"),
+               ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
     failed = False
     print(f"compare check: '{name}' against '{measured.name}'")
-    for label, value, limit in figures:
+    for label, value, limit, unit in figures:
         ok = value <= limit  # NaN fails
         failed |= not ok
-        print(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g} "
+        print(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g}{unit} "
               f"({'<=' if ok else 'exceeds'} {limit:g})")
     for angle, e in comparison.curves[name].items():
         print(f"       NRMSE at incidence {angle} deg = {e.nrmse:.4g}")

@@ -144,6 +144,13 @@ class ColourMatch:
     simulated: dict[str, SimulatedColour]
 
 
+def _colour(wl, beta, illuminant: str, what: str) -> ColourSummary:
+    try:
+        return spectrum_colour(wl, beta, illuminant=illuminant)
+    except ValueError as exc:
+        raise CompareError(f"no colour for {what}: {exc}") from None
+
+
 def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str, tuple],
                  illuminant: str = "D65") -> ColourMatch:
     """Colour match of every simulation against the measurement.
@@ -167,12 +174,12 @@ def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str,
         if measured is None:
             meas_beta = rows["beta_meas"].to_numpy()
             meas_wl = wl
-            measured = spectrum_colour(wl, meas_beta, illuminant=illuminant)
+            measured = _colour(wl, meas_beta, illuminant, "the measured dataset")
         w = luminance_weights(wl, illuminant)
         normal_meas, normal_sim = normal_values[name]
         scale = float(w @ normal_meas) / float(w @ normal_sim)
         beta = rows["beta_sim_raw"].to_numpy() * scale
-        c = spectrum_colour(wl, beta, illuminant=illuminant)
+        c = _colour(wl, beta, illuminant, f"simulated dataset '{name}' (scaled by k_Y {scale:.3g})")
         simulated[name] = SimulatedColour(
             colour=c, scale=scale, dh=float(hue_difference(measured.h, c.h)),
             ds=c.s - measured.s, dv=c.v - measured.v, wavelength_nm=wl, beta=beta)

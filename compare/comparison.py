@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -51,7 +52,8 @@ from .metrics import CurveError, angle_key, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
                         estimate_normal_value, normalisation_factor)
 
-__all__ = ["Comparison", "compare_datasets", "unique_names"]
+__all__ = ["Comparison", "compare_datasets", "incomplete_datasets", "same_dataset",
+           "unique_names"]
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +95,22 @@ class Comparison:
     curves: dict[str, dict[str, CurveError]]
     overall: dict[str, CurveError]
     colour: ColourMatch
+
+    def nrmse_with_factor_shifted(self, name: str) -> tuple[float, float]:
+        """Overall NRMSE of ``name`` with every ``k(lambda)`` moved to ``k - u_k`` and to
+        ``k + u_k``: how far the normalisation's own uncertainty (fully correlated across the
+        curve, so it does not average out) can move the curve error. Not in ``metrics.json``,
+        whose NRMSE uses ``k`` itself."""
+        frame = self.frames[name]
+        norm = self.normalisations[name]
+        wl = frame["wavelength_nm"].to_numpy()
+        k = norm.factor_at(wl)
+        u = norm.u_factor_at(wl)
+        out = []
+        for sign in (-1.0, 1.0):
+            shifted = frame.assign(beta_sim=(k + sign * u) * frame["beta_sim_raw"].to_numpy())
+            out.append(curve_errors(shifted)[1].nrmse)
+        return out[0], out[1]
 
     def metrics(self) -> dict:
         """The ``metrics.json`` document (see the module docstring)."""
@@ -139,6 +157,29 @@ class Comparison:
                 "curves": curves, "overall": overall, "colour": colour}
 
 
+def same_dataset(a: Dataset, b: Dataset) -> str:
+    """Why ``a`` and ``b`` are the same data (same directory or same content), or ``""``."""
+    if a.path is not None and b.path is not None:
+        try:
+            if Path(a.path).resolve() == Path(b.path).resolve():
+                return "the same directory"
+        except OSError:
+            pass
+    if a.content_sha256() == b.content_sha256():
+        return "the same radiance.csv content"
+    return ""
+
+
+def incomplete_datasets(measured: Dataset, simulated: Iterable[Dataset]) -> list[str]:
+    """One line per dataset whose meta says it is incomplete (``"complete": false``)."""
+    out = []
+    for role, ds in [("measured", measured)] + [("simulated", s) for s in simulated]:
+        if not ds.complete:
+            out.append(f"{role} dataset '{ds.name}' ({ds.source}) is incomplete: "
+                       f"{ds.completeness()}")
+    return out
+
+
 def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
                      window_deg: float = DEFAULT_WINDOW_DEG,
                      illuminant: str = "D65") -> Comparison:
@@ -170,6 +211,12 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
     if measured.kind != "measured":
         log.warning("the reference dataset '%s' is of kind %r, not 'measured'", measured.name,
                     measured.kind)
+    for sim in simulated:
+        same = same_dataset(measured, sim)
+        if same:
+            log.warning("comparing dataset '%s' (%s) with itself (%s): every figure will agree "
+                        "trivially; pass the simulation's directory as SIM_DIR", sim.name,
+                        sim.source, same)
     names = unique_names(ds.name for ds in simulated)
     grid = shared_wavelengths(measured, simulated)
     measured_normal = estimate_normal_value(measured, window_deg)

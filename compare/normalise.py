@@ -10,7 +10,9 @@ wavelength, by
 
 where ``(0, 0)`` is normal incidence and normal observation. :math:`k` multiplies every simulated
 ``beta`` and its ``u_beta`` (the factor's own uncertainty is reported separately, not folded into
-the curves).
+the curves: it is one scale error shared by all points of a wavelength; the report shows the
+overall NRMSE at ``k - u_k`` and ``k + u_k``,
+:meth:`compare.comparison.Comparison.nrmse_with_factor_shifted`).
 
 The normal/normal value
 -----------------------
@@ -252,14 +254,21 @@ class Normalisation:
     measured_value: np.ndarray
     simulated_value: np.ndarray
 
-    def factor_at(self, wavelength_nm) -> np.ndarray:
-        """``k`` at each of ``wavelength_nm`` (values of the comparison grid)."""
+    def _index(self, wavelength_nm) -> np.ndarray:
         wl = np.asarray(wavelength_nm, dtype=float)
         idx = np.searchsorted(self.wavelength_nm, wl - 1e-9)
         idx = np.clip(idx, 0, self.wavelength_nm.size - 1)
         if not np.allclose(self.wavelength_nm[idx], wl, atol=1e-6, rtol=0):
             raise ValueError("factor_at: wavelength not on the comparison grid")
-        return self.factor[idx]
+        return idx
+
+    def factor_at(self, wavelength_nm) -> np.ndarray:
+        """``k`` at each of ``wavelength_nm`` (values of the comparison grid)."""
+        return self.factor[self._index(wavelength_nm)]
+
+    def u_factor_at(self, wavelength_nm) -> np.ndarray:
+        """``u_k`` at each of ``wavelength_nm`` (values of the comparison grid)."""
+        return self.u_factor[self._index(wavelength_nm)]
 
 
 def normalisation_factor(measured: NormalValue, simulated: NormalValue,

@@ -1,6 +1,19 @@
 """The comparison report: ``report.html`` (one self-contained file), ``figures/*.png``,
 ``metrics.json``.
 
+Written for a researcher: every figure has a caption (what is plotted, error bars and whether they
+are smaller than the markers, the shaded beam-blocked cone around the labelled retro-direction,
+the mirror direction); model lines are broken where the curve has no point (never drawn across
+the beam-blocked gap); H is given in turns and degrees; swatches are labelled with the H, S, V of
+the pixel shown; datasets are summarised in words (no link URLs with temporary ports); PNG at
+:data:`FIGURE_DPI` (150) and, on request, SVG. Incomplete data and a dataset compared with itself
+get a banner. The normalisation's uncertainty is explained and its effect on the overall NRMSE
+(``k -+ u_k``) shown; ``metrics.json`` itself is unchanged (its NRMSE uses ``k``).
+
+``write_report`` writes only into a new or empty folder or over a previous report (recognised by
+the ``<meta name="generator">`` of its ``report.html``; only that report's files are replaced, its
+figures that the new one does not draw removed); any other non-empty folder needs ``force``.
+
 Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HTML as base64 PNG):
 
 ``inplane_luminance.png``
@@ -20,7 +33,7 @@ Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HT
     The normalisation factor ``k(lambda)`` of each simulation with its standard uncertainty.
 ``swatches.png``
     Colour swatches (display sRGB) of the measurement and each simulation at the colour geometry,
-    labelled with H, S, V.
+    labelled with the H, S, V of the displayed (gamma-encoded) pixel.
 
 Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
 contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
@@ -39,6 +52,7 @@ import json
 import logging
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -48,13 +62,22 @@ from gonio.dataset import atomic_write
 
 from .colourmatch import luminance_weights
 from .comparison import Comparison
+from .errors import CompareError
 
-__all__ = ["REPORT_WAVELENGTHS_NM", "write_report"]
+__all__ = ["FIGURE_DPI", "REPORT_WAVELENGTHS_NM", "source_summary", "swatch_entries",
+           "write_report"]
 
 log = logging.getLogger(__name__)
 
 #: Single wavelengths plotted (nearest shared ones).
 REPORT_WAVELENGTHS_NM = (450.0, 550.0, 650.0)
+#: Resolution of the PNG figures (print quality; ``--svg`` adds vector copies).
+FIGURE_DPI = 150
+#: Half-width (deg) of the cone around the source direction the detector cannot enter.
+BEAM_BLOCK_DEG = 5.0
+_MARKER_PT = 4.0
+#: ``<meta name="generator">`` of every report: how a folder holding a previous report is known.
+GENERATOR = "fabric-optics compare report"
 _MEASURED_COLOUR = "black"
 _LINESTYLES = ("-", "--", "-.", ":")
 
@@ -67,13 +90,18 @@ def _label(text: str) -> str:
 
 
 
-def _savefig(fig, path: Path) -> bytes:
+def _savefig(fig, path: Path, svg: bool = False) -> bytes:
+    """Write ``path`` (PNG at :data:`FIGURE_DPI`; also ``.svg`` beside it when ``svg``)."""
     import io
 
     import matplotlib.pyplot as plt
 
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=100, metadata={"Software": None})
+    fig.savefig(buffer, format="png", dpi=FIGURE_DPI, metadata={"Software": None})
+    if svg:
+        vector = io.BytesIO()
+        fig.savefig(vector, format="svg", metadata={"Date": None})
+        atomic_write(path.with_suffix(".svg"), vector.getvalue())
     plt.close(fig)
     data = buffer.getvalue()
     atomic_write(path, data)
@@ -144,8 +172,40 @@ def _single_wavelength(rows: pd.DataFrame, wavelength_nm: float) -> pd.DataFrame
                          "value": sel["beta"].to_numpy(), "u": sel["u_beta"].to_numpy()})
 
 
+def _gapped(s: np.ndarray, y: np.ndarray, theta_i: float) -> tuple[np.ndarray, np.ndarray]:
+    """``s, y`` with NaN inserted where a line must not be drawn: across the beam-blocked
+    retro-direction when the curve has no point there, and across holes wider than 1.5 times the
+    usual spacing (missing points are not interpolated by eye)."""
+    if s.size < 2:
+        return s, y
+    gaps = np.diff(s)
+    usual = float(np.median(gaps))
+    retro = -theta_i
+    has_retro = bool(np.any(np.abs(s - retro) < BEAM_BLOCK_DEG))
+    cut = gaps > 1.5 * usual + 1e-9
+    if not has_retro:
+        cut |= (s[:-1] < retro) & (s[1:] > retro)
+    if not cut.any():
+        return s, y
+    where = np.flatnonzero(cut) + 1
+    return (np.insert(s.astype(float), where, np.nan), np.insert(y.astype(float), where, np.nan))
+
+
+def _bars_hidden(ax, x, y, u) -> bool:
+    """True when every +-u error bar is shorter than the marker drawn over it."""
+    if len(y) == 0:
+        return False
+    fig = ax.figure
+    lo = ax.transData.transform(np.column_stack([x, y - u]))[:, 1]
+    hi = ax.transData.transform(np.column_stack([x, y + u]))[:, 1]
+    marker_px = _MARKER_PT * fig.dpi / 72.0
+    return bool(np.all(np.abs(hi - lo) < marker_px))
+
+
 def _inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], title: str,
                     ylabel: str, measured_name: str):
+    """The in-plane panels; returns ``(figure, bars_hidden)``, ``bars_hidden`` True when the
+    measured error bars are smaller than the markers in every panel."""
     import matplotlib.pyplot as plt
 
     angles = sorted(set(measured["theta_i"].round(6)))
@@ -154,19 +214,28 @@ def _inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], 
     nrows = math.ceil(n / ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(6.0 * ncols, 3.8 * nrows), squeeze=False,
                              sharey=True)
-    for ax, theta_i in zip(axes.ravel(), angles):
+    hidden = []
+    for k, (ax, theta_i) in enumerate(zip(axes.ravel(), angles)):
         m = measured[np.abs(measured["theta_i"] - theta_i) < 1e-6].sort_values("s")
-        ax.errorbar(m["s"], m["value"] / np.pi, yerr=m["u"] / np.pi, fmt="o", ms=4, capsize=2,
-                    color=_MEASURED_COLOUR, label=_label(f"{measured_name} (measured)"))
+        ax.axvspan(-theta_i - BEAM_BLOCK_DEG, -theta_i + BEAM_BLOCK_DEG, color="0.92", lw=0,
+                   label="beam-blocked (retro-direction)" if k == 0 else None)
+        ax.axvline(-theta_i, color="0.5", lw=0.8, ls=":")
+        ax.errorbar(m["s"], m["value"] / np.pi, yerr=m["u"] / np.pi, fmt="o", ms=_MARKER_PT,
+                    capsize=2, color=_MEASURED_COLOUR, label=_label(f"{measured_name} (measured)"))
         for j, (name, rows) in enumerate(simulated.items()):
             r = rows[np.abs(rows["theta_i"] - theta_i) < 1e-6].sort_values("s")
             if not r.empty:
-                ax.plot(r["s"], r["value"] / np.pi, _LINESTYLES[j % len(_LINESTYLES)],
-                        marker=".", label=_label(name))
+                xs, ys = _gapped(r["s"].to_numpy(), r["value"].to_numpy() / np.pi, theta_i)
+                ax.plot(xs, ys, _LINESTYLES[j % len(_LINESTYLES)], marker=".", label=_label(name))
         lo = min(-65.0, float(m["s"].min()) - 5 if len(m) else -65.0)
         hi = max(75.0, float(m["s"].max()) + 5 if len(m) else 75.0)
         ax.set_xlim(lo, hi)
-        ax.axvline(-theta_i, color="0.8", lw=0.8, ls=":")
+        ax.text(-theta_i, 0.97, " retro", transform=ax.get_xaxis_transform(), rotation=90,
+                ha="right", va="top", fontsize=7, color="0.35")
+        if theta_i > 0:
+            ax.axvline(theta_i, color="0.75", lw=0.8, ls="--")
+            ax.text(theta_i, 0.97, " mirror", transform=ax.get_xaxis_transform(), rotation=90,
+                    ha="right", va="top", fontsize=7, color="0.35")
         ax.set_title(f"incidence {theta_i:g} deg")
         ax.set_xlabel("signed observation angle s (deg)")
         ax.set_ylabel(ylabel)
@@ -176,7 +245,12 @@ def _inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], 
     axes[0, 0].legend(fontsize=8)
     fig.suptitle(_label(title))
     fig.tight_layout()
-    return fig
+    fig.draw_without_rendering()   # final limits and layout: the transforms below are drawn
+    for ax, theta_i in zip(axes.ravel(), angles):
+        m = measured[np.abs(measured["theta_i"] - theta_i) < 1e-6]
+        hidden.append(_bars_hidden(ax, m["s"].to_numpy(), m["value"].to_numpy() / np.pi,
+                                   m["u"].to_numpy() / np.pi))
+    return fig, bool(hidden) and all(hidden)
 
 
 def _spectrum_figure(comparison: Comparison):
@@ -230,27 +304,86 @@ def _factor_figure(comparison: Comparison):
     return fig
 
 
-def _swatch_figure(comparison: Comparison):
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Rectangle
+def swatch_entries(comparison: Comparison) -> list[tuple[str, np.ndarray, tuple]]:
+    """``(label, pixel, hsv)`` per swatch: ``pixel`` is the gamma-encoded sRGB shown on screen
+    and ``hsv`` is computed from that same pixel, so a label describes what it sits under (the
+    metrics' H, S, V are those of LINEAR sRGB; the table gives both)."""
+    import colour
 
     from gonio.colour import display_srgb
 
     cm = comparison.colour
     entries = [(f"{comparison.measured.name} (measured)", cm.measured)]
     entries += [(name, sc.colour) for name, sc in cm.simulated.items()]
-    fig, ax = plt.subplots(figsize=(2.4 * len(entries), 2.8))
-    for j, (name, c) in enumerate(entries):
-        rgb = display_srgb(c.rgb)
-        ax.add_patch(Rectangle((j + 0.05, 0.3), 0.9, 0.7, color=tuple(rgb)))
+    out = []
+    for name, c in entries:
+        pixel = np.asarray(display_srgb(c.rgb), dtype=float)
+        hsv = tuple(float(x) for x in colour.RGB_to_HSV(pixel))
+        out.append((name, pixel, hsv))
+    return out
+
+
+def _swatch_figure(comparison: Comparison):
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    entries = swatch_entries(comparison)
+    fig, ax = plt.subplots(figsize=(2.6 * len(entries), 2.9))
+    for j, (name, pixel, (h, s_, v)) in enumerate(entries):
+        ax.add_patch(Rectangle((j + 0.05, 0.3), 0.9, 0.7, color=tuple(pixel)))
         ax.text(j + 0.5, 0.22, _label(name), ha="center", va="top", fontsize=8, wrap=True)
-        ax.text(j + 0.5, 0.05, f"H {c.h:.3f} S {c.s:.3f} V {c.v:.3f}", ha="center", va="top",
-                fontsize=8)
+        ax.text(j + 0.5, 0.05, f"shown: H {h:.3f} ({360 * h:.0f} deg) S {s_:.3f} V {v:.3f}",
+                ha="center", va="top", fontsize=7)
     ax.set_xlim(0, len(entries))
     ax.set_ylim(-0.1, 1.05)
     ax.axis("off")
+    fig.suptitle("display sRGB (gamma-encoded) swatches; H, S, V of these pixels", fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def source_summary(ds) -> str:
+    """A readable one-line summary of what produced ``ds`` (no link URLs or temporary ports)."""
+    meta = ds.meta
+    parts = []
+    source = meta.get("instrument") if ds.kind == "measured" else meta.get("model")
+    source = source if isinstance(source, dict) else {}
+    if ds.kind == "measured":
+        idn = source.get("idn")
+        if idn:
+            fw = source.get("firmware")
+            parts.append(f"instrument {idn}" + (f" (firmware {fw})" if fw else ""))
+    else:
+        name = source.get("name") or source.get("method")
+        if name:
+            parts.append(f"model {name}")
+        sample = source.get("sample")
+        if isinstance(sample, dict) and sample.get("model"):
+            parts.append(str(sample["model"]))
+    prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
+    plan = prov.get("plan")
+    if isinstance(plan, dict) and plan.get("name"):
+        sha = str(plan.get("sha256") or "")[:12]
+        parts.append(f"plan {plan['name']}" + (f" (sha256 {sha}...)" if sha else ""))
+    elif isinstance(plan, str):
+        parts.append(f"plan {plan}")
+    if "seed" in prov:
+        parts.append(f"seed {prov['seed']}")
+    if "points_planned" in prov:
+        parts.append(ds.completeness())
+    elif not ds.complete:
+        parts.append("INCOMPLETE")
+    software = meta.get("software") if isinstance(meta.get("software"), dict) else {}
+    if software.get("package"):
+        parts.append(f"{software['package']} {software.get('version', '')}".strip())
+    return "; ".join(str(p) for p in parts) or "-"
+
+
+def _sample_summary(ds) -> str:
+    sample = ds.meta.get("sample") if isinstance(ds.meta.get("sample"), dict) else {}
+    fields = [f"{k}: {v}" for k, v in sample.items()
+              if k != "name" and isinstance(v, (str, int, float))]
+    return str(sample.get("name", ds.name)) + (f" ({'; '.join(fields)})" if fields else "")
 
 
 def _fmt(x, digits: int = 4) -> str:
@@ -261,33 +394,49 @@ def _fmt(x, digits: int = 4) -> str:
     return html.escape(str(x))
 
 
-def _html(comparison: Comparison, metrics: dict, figures: dict[str, bytes]) -> str:
+def _banners(comparison: Comparison) -> list[str]:
+    from .comparison import incomplete_datasets, same_dataset
+
+    out = [f"Incomplete data: {line}. Curves and colours cover only what was measured."
+           for line in incomplete_datasets(comparison.measured, comparison.simulated.values())]
+    for name, ds in comparison.simulated.items():
+        same = same_dataset(comparison.measured, ds)
+        if same:
+            out.append(f"'{name}' is the measured dataset itself ({same}): every figure agrees "
+                       "trivially.")
+    return out
+
+
+def _html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes, str]]) -> str:
     e = html.escape
     meas = comparison.measured
+    files = " ".join(f"figures/{name}" for name in figures)
     parts = ["<!DOCTYPE html>", "<html lang='en'><head><meta charset='utf-8'>",
+             f"<meta name='generator' content='{GENERATOR}'>",
+             f"<meta name='report-files' content='{e(files)}'>",
              f"<title>Comparison report: {e(meas.name)}</title>",
              "<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;}"
              "table{border-collapse:collapse;margin:0.5em 0 1.5em;}"
              "td,th{border:1px solid #bbb;padding:3px 8px;text-align:right;}"
              "th{background:#eee;} td.l,th.l{text-align:left;} img{max-width:100%;}"
-             "code{background:#f4f4f4;}</style></head><body>",
-             f"<h1>Measurement vs simulation: {e(meas.name)}</h1>",
-             "<h2>Datasets</h2><table><tr><th class='l'>role</th><th class='l'>name</th>"
-             "<th class='l'>path</th><th class='l'>sample</th><th class='l'>source</th>"
-             "<th>rows</th><th class='l'>created</th></tr>"]
-
-    def meta_text(d) -> str:
-        return json.dumps(d, ensure_ascii=False, sort_keys=True, default=str)
-
+             "code{background:#f4f4f4;} figure{margin:1.5em 0;}"
+             "figcaption{max-width:60em;font-size:0.95em;}"
+             ".banner{background:#fff3cd;border:2px solid #c77c00;padding:0.6em 1em;"
+             "font-weight:bold;}</style></head><body>",
+             f"<h1>Measurement vs simulation: {e(meas.name)}</h1>"]
+    for text in _banners(comparison):
+        parts.append(f"<p class='banner'>{e(text)}</p>")
+    parts.append("<h2>Datasets</h2><table><tr><th class='l'>role</th><th class='l'>name</th>"
+                 "<th class='l'>path</th><th class='l'>sample</th><th class='l'>source</th>"
+                 "<th>rows</th><th class='l'>created</th></tr>")
     rows = [("measured", meas.name, meas)] + [("simulated", n, ds) for n, ds in
                                              comparison.simulated.items()]
     for role, name, ds in rows:
-        source = ds.meta.get("instrument", ds.meta.get("model", {}))
         parts.append(
             f"<tr><td class='l'>{e(role)}</td><td class='l'>{e(name)}</td>"
             f"<td class='l'><code>{e(str(ds.path) if ds.path else '-')}</code></td>"
-            f"<td class='l'><code>{e(meta_text(ds.meta.get('sample', {})))}</code></td>"
-            f"<td class='l'><code>{e(meta_text(source))}</code></td>"
+            f"<td class='l'>{e(_sample_summary(ds))}</td>"
+            f"<td class='l'>{e(source_summary(ds))}</td>"
             f"<td>{len(ds.table)}</td><td class='l'>{e(str(ds.meta.get('created', '-')))}</td>"
             "</tr>")
     grid = comparison.wavelength_nm
@@ -303,17 +452,29 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, bytes]) -> s
                  f"{e(', '.join(f'{s:g}' for s in mn.s_used))} deg; median beta(0,0) = "
                  f"{np.median(mn.value):.4g}, median u = {np.median(mn.u):.2g} "
                  f"(of which model term {np.median(mn.u_model):.2g}).</p>")
+    parts.append(
+        "<p>The factor's standard uncertainty u_k = k sqrt((u_meas/beta_meas(0,0))^2 + "
+        "(u_C/C(0,0))^2) combines the uncertainty of the measured normal value (data and "
+        "model terms above) and of the simulation's. It is <b>not</b> folded into the curve "
+        "errors below (they use k itself), because it is one scale error shared by every point "
+        "of a wavelength and does not average out; instead the last column gives the overall "
+        "NRMSE with every k moved to k - u_k and to k + u_k.</p>")
     parts.append("<table><tr><th class='l'>simulation</th><th class='l'>C(0,0)</th>"
-                 "<th>median k</th><th>k range</th><th>luminance k_Y</th></tr>")
+                 "<th>median k</th><th>k range</th><th>median u_k / k</th>"
+                 "<th>luminance k_Y</th><th>overall NRMSE at k - u_k .. k + u_k</th></tr>")
     for name, n in comparison.normalisations.items():
+        lo, hi = comparison.nrmse_with_factor_shifted(name)
         parts.append(f"<tr><td class='l'>{e(name)}</td><td class='l'>{e(n.simulated.how)}</td>"
                      f"<td>{np.median(n.factor):.4g}</td>"
                      f"<td>{n.factor.min():.4g} .. {n.factor.max():.4g}</td>"
-                     f"<td>{_fmt(metrics['normalisation']['factor'][name]['luminance'])}</td></tr>")
+                     f"<td>{np.median(n.u_factor / n.factor):.2g}</td>"
+                     f"<td>{_fmt(metrics['normalisation']['factor'][name]['luminance'])}</td>"
+                     f"<td>{_fmt(lo)} .. {_fmt(hi)}</td></tr>")
     parts.append("</table>")
     parts.append("<h2>Curve errors</h2><p>Residuals k C - beta_meas over all shared geometries "
-                 "and wavelengths of each incidence angle (units of beta).</p>")
-    parts.append("<table><tr><th class='l'>simulation</th><th>theta_i</th><th>RMSE</th>"
+                 "and wavelengths of each incidence angle (units of beta; NRMSE = RMSE / mean "
+                 "measured beta). The normalisation's uncertainty is not included (see above).</p>")
+    parts.append("<table><tr><th class='l'>simulation</th><th>theta_i (deg)</th><th>RMSE</th>"
                  "<th>NRMSE</th><th>max |d|</th><th class='l'>where (theta_i, phi_i, theta_o, "
                  "phi_o; s; wavelength)</th></tr>")
     for name, per_angle in metrics["curves"].items():
@@ -335,27 +496,89 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, bytes]) -> s
         f"<p>At theta_i={geo['theta_i']:g}, phi_i={geo['phi_i']:g}, theta_o={geo['theta_o']:g}, "
         f"phi_o={geo['phi_o']:g} deg (s = {_fmt(geo['s'])}), the shared geometry closest to "
         "normal incidence and observation. Simulations scaled by k_Y (luminance ratio of the "
-        "normal/normal spectra); differences are simulated minus measured, dh on the hue circle."
-        "</p><table><tr><th class='l'>dataset</th><th>H</th><th>S</th><th>V</th>"
-        "<th>BLUE/RED</th><th>GREEN/RED</th><th>dh</th><th>ds</th><th>dv</th></tr>")
+        "normal/normal spectra); differences are simulated minus measured, dh on the hue circle. "
+        "H, S, V and the ratios are those of LINEAR sRGB (D65 white = (1, 1, 1)); <b>H is a "
+        "fraction of a full turn of the hue circle, in [0, 1)</b> (0 red, 1/3 green, 2/3 blue; "
+        "multiply by 360 for degrees), S and V in [0, 1].</p>"
+        "<table><tr><th class='l'>dataset</th><th>H (turns)</th><th>H (deg)</th><th>S</th>"
+        "<th>V</th><th>BLUE/RED</th><th>GREEN/RED</th><th>dh (turns)</th><th>ds</th>"
+        "<th>dv</th></tr>")
     for name, c in colour.items():
         if name == "geometry":
             continue
         shown = f"{meas.name} (measured)" if name == "measured" else name
-        parts.append(f"<tr><td class='l'>{e(shown)}</td>" + "".join(
-            f"<td>{_fmt(c.get(k))}</td>" for k in ("h", "s", "v", "blue_red", "green_red",
-                                                   "dh", "ds", "dv")) + "</tr>")
+        h_deg = None if c.get("h") is None else 360.0 * c["h"]
+        parts.append(f"<tr><td class='l'>{e(shown)}</td><td>{_fmt(c.get('h'))}</td>"
+                     f"<td>{_fmt(h_deg, 3)}</td>" + "".join(
+                         f"<td>{_fmt(c.get(k))}</td>" for k in ("s", "v", "blue_red",
+                                                               "green_red", "dh", "ds", "dv"))
+                     + "</tr>")
     parts.append("</table><h2>Figures</h2>")
-    for fname, data in figures.items():
+    for j, (fname, (data, caption)) in enumerate(figures.items(), start=1):
         b64 = base64.b64encode(data).decode("ascii")
-        parts.append(f"<figure><img alt='{e(fname)}' src='data:image/png;base64,{b64}'>"
-                     f"<figcaption>{e(fname)}</figcaption></figure>")
+        parts.append(f"<figure><img alt='{e(caption.split('.')[0])}' "
+                     f"src='data:image/png;base64,{b64}'>"
+                     f"<figcaption><b>Figure {j}.</b> {e(caption)} "
+                     f"<span style='color:#777'>(figures/{e(fname)})</span></figcaption>"
+                     "</figure>")
     parts.append("</body></html>")
     return "\n".join(parts) + "\n"
 
 
-def write_report(comparison: Comparison, out_dir: str | os.PathLike) -> Path:
+_PREVIOUS_FILES = re.compile(r"<meta name='report-files' content='([^']*)'>")
+_LEGACY_FIGURES = re.compile(r"<img alt='([A-Za-z0-9_.-]+\.png)' src='data:image/png")
+
+
+def _prepare_out_dir(out: Path, force: bool) -> list[Path]:
+    """Check that ``out`` may receive a report; return the previous report's figure files.
+
+    ``out`` may be missing, empty, or hold a previous report (its ``report.html`` names this
+    generator): then only the previous report's own files are replaced or removed. Any other
+    non-empty folder is refused unless ``force`` (then same-named files are replaced).
+    """
+    if not out.exists():
+        return []
+    if not out.is_dir():
+        raise CompareError(f"--out {out} exists and is not a directory; choose a folder for the "
+                           "report")
+    entries = sorted(p.name for p in out.iterdir())
+    if not entries:
+        return []
+    previous = out / "report.html"
+    head = ""
+    if previous.is_file():
+        with open(previous, "rb") as handle:
+            head = handle.read(65536).decode("utf-8", errors="replace")
+    names = None
+    if f"<meta name='generator' content='{GENERATOR}'>" in head:
+        match = _PREVIOUS_FILES.search(head)
+        names = html.unescape(match.group(1)).split() if match else []
+    elif "<title>Comparison report: " in head and "<h1>Measurement vs simulation: " in head:
+        # a report of the first version (no generator tag): its figures are named by img alt
+        text = previous.read_text(encoding="utf-8", errors="replace")
+        names = [f"figures/{n}" for n in _LEGACY_FIGURES.findall(text)]
+    if names is not None:
+        return [out / n for n in names if n.startswith("figures/") and "/" not in n[8:]
+                and n[8:] not in ("", ".", "..")]
+    if force:
+        log.warning("--force: writing the report into %s, which holds other files (%s); "
+                    "report.html, metrics.json and figures/ files of the same names are "
+                    "replaced", out, ", ".join(entries[:5]) + (" ..." if len(entries) > 5 else ""))
+        return []
+    shown = ", ".join(entries[:5]) + (f" and {len(entries) - 5} more" if len(entries) > 5 else "")
+    raise CompareError(f"--out {out} is not empty and holds no previous report ({shown}); "
+                       "choose a new or empty folder, or pass --force to write report.html, "
+                       "metrics.json and figures/ into it, replacing files of those names")
+
+
+def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: bool = False,
+                 force: bool = False) -> Path:
     """Write ``report.html``, ``metrics.json`` and ``figures/*.png`` into ``out_dir``.
+
+    ``out_dir`` must be new, empty or hold a previous report (whose files alone are replaced;
+    figures of the previous report that this one does not draw are removed); any other folder
+    is refused with a :class:`~compare.errors.CompareError` unless ``force``. ``svg`` also writes
+    ``figures/*.svg``.
 
     Returns
     -------
@@ -366,6 +589,7 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike) -> Path:
 
     matplotlib.use("Agg")
     out = Path(out_dir)
+    previous = _prepare_out_dir(out, force)
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     metrics = comparison.metrics()
@@ -373,28 +597,69 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike) -> Path:
     weights = luminance_weights(grid, comparison.illuminant)
     measured = _measured_inplane(comparison)
     simulated = {name: _sim_inplane(comparison, name) for name in comparison.simulated}
-    figures: dict[str, bytes] = {}
+    figures: dict[str, tuple[bytes, str]] = {}
+    sims = ", ".join(comparison.simulated)
+    lines = ("Lines: " + sims + " (normalised per wavelength by k), broken where a curve has "
+             "no point, e.g. across the beam-blocked cone around the retro-direction (shaded, "
+             f"|s + theta_i| < {BEAM_BLOCK_DEG:g} deg, where the detector would block the "
+             "source); the dashed line marks the mirror direction.")
+
+    def bars_note(hidden: bool, what: str) -> str:
+        if hidden:
+            return (f" The error bars ({what}) are smaller than the markers at this scale.")
+        return f" Error bars: {what}."
+
+    def inplane(fname, meas_rows, sim_rows, title, ylabel, caption):
+        fig, hidden = _inplane_figure(meas_rows, sim_rows, title, ylabel,
+                                      comparison.measured.name)
+        data = _savefig(fig, fig_dir / fname, svg)
+        figures[fname] = (data, caption + bars_note(hidden, "+-1 standard uncertainty of the "
+                                                    "measurement") + " " + lines)
+
     if not measured.empty:
-        figures["inplane_luminance.png"] = _savefig(_inplane_figure(
-            _luminance_curve(measured, grid, weights),
-            {n: _luminance_curve(r, grid, weights) for n, r in simulated.items()},
-            f"luminance-weighted radiance coefficient ({comparison.illuminant})",
-            "Y[beta] / pi  (1/sr)", comparison.measured.name), fig_dir / "inplane_luminance.png")
+        inplane("inplane_luminance.png", _luminance_curve(measured, grid, weights),
+                {n: _luminance_curve(r, grid, weights) for n, r in simulated.items()},
+                f"luminance-weighted radiance coefficient ({comparison.illuminant})",
+                "Y[beta] / pi  (1/sr)",
+                "In-plane luminance-weighted BRDF Y[beta]/pi (CIE Y under illuminant "
+                f"{comparison.illuminant}, 1 for the ideal white diffuser, divided by pi) against "
+                "the signed observation angle s, one panel per incidence angle. Points: "
+                f"the measurement '{comparison.measured.name}'.")
         picks = sorted({float(grid[np.argmin(np.abs(grid - w))]) for w in REPORT_WAVELENGTHS_NM})
         for wl in picks:
-            fname = f"inplane_{wl:g}nm.png"
-            figures[fname] = _savefig(_inplane_figure(
-                _single_wavelength(measured, wl),
-                {n: _single_wavelength(r, wl) for n, r in simulated.items()},
-                f"radiance coefficient at {wl:g} nm", "beta / pi  (1/sr)",
-                comparison.measured.name), fig_dir / fname)
+            inplane(f"inplane_{wl:g}nm.png", _single_wavelength(measured, wl),
+                    {n: _single_wavelength(r, wl) for n, r in simulated.items()},
+                    f"radiance coefficient at {wl:g} nm", "beta / pi  (1/sr)",
+                    f"In-plane BRDF beta/pi at {wl:g} nm against the signed observation angle "
+                    "s, one panel per incidence angle. Points: the measurement "
+                    f"'{comparison.measured.name}'.")
     else:
         log.warning("the measured dataset has no in-plane points: no in-plane figures")
-    figures["spectrum.png"] = _savefig(_spectrum_figure(comparison), fig_dir / "spectrum.png")
-    figures["factor.png"] = _savefig(_factor_figure(comparison), fig_dir / "factor.png")
-    figures["swatches.png"] = _savefig(_swatch_figure(comparison), fig_dir / "swatches.png")
+    geo = comparison.colour.geometry
+    figures["spectrum.png"] = (_savefig(_spectrum_figure(comparison), fig_dir / "spectrum.png",
+                                        svg),
+        f"Spectra at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
+        " deg). Points with +-1 standard uncertainty: the measurement. Left: each simulation "
+        "normalised per wavelength (equal to the measurement at the normal by construction); "
+        "right: scaled by the single luminance factor k_Y used for the colour match.")
+    figures["factor.png"] = (_savefig(_factor_figure(comparison), fig_dir / "factor.png", svg),
+        "Normalisation factor k(lambda) = beta_meas(0,0) / C(0,0) of each simulation. Error bars: "
+        "its standard uncertainty u_k = k sqrt((u_meas/beta_meas)^2 + (u_C/C)^2), from the "
+        "estimate of the measured normal value (data and quadratic-vs-linear model term) and "
+        "the simulation's normal value; not folded into the curve errors (see the "
+        "normalisation table).")
+    figures["swatches.png"] = (_savefig(_swatch_figure(comparison), fig_dir / "swatches.png",
+                                        svg),
+        "Colour swatches at the colour geometry as shown on screen (gamma-encoded sRGB); the "
+        "H, S, V printed under each are those of the displayed pixel. The table's H, S, V "
+        "are of linear sRGB, hence different numbers for the same colour.")
     atomic_write(out / "metrics.json",
                   (json.dumps(metrics, indent=2, allow_nan=False) + "\n").encode("utf-8"))
     report = out / "report.html"
     atomic_write(report, _html(comparison, metrics, figures).encode("utf-8"))
+    written = {fig_dir / name for name in figures}
+    for old in previous:
+        for stale in (old, old.with_suffix(".svg")):
+            if stale not in written and stale.suffix in (".png", ".svg") and stale.is_file():
+                stale.unlink()
     return report

@@ -79,6 +79,12 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     ColourSummary
         ``rgb`` is linear sRGB; the ratios are NaN when red is not positive.
 
+    Raises
+    ------
+    ValueError
+        Mismatched or too short inputs, unsorted wavelengths, NaN or infinite values, an
+        unknown illuminant, or values so large that XYZ overflows.
+
     Examples
     --------
     >>> import numpy as np
@@ -104,7 +110,7 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist())), name="beta")
     cmfs = colour.MSDS_CMFS[OBSERVER]
     sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
         xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0
         if illuminant in colour.CCS_ILLUMINANTS[OBSERVER]:
@@ -113,6 +119,12 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
             white_xy = colour.XYZ_to_xy(colour.sd_to_XYZ(colour.sd_ones(), cmfs, sd_illuminant))
         rgb = colour.XYZ_to_RGB(xyz, "sRGB", illuminant=white_xy)
         hsv = colour.RGB_to_HSV(rgb)
+    if not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(rgb))):
+        # finite values whose weighted sum overflows (|beta| ~ 1e308): say so rather than
+        # returning NaN
+        raise ValueError(f"the colour of this spectrum overflows (largest |beta| "
+                         f"{float(np.max(np.abs(values))):.3g}): its CIE XYZ is not finite; "
+                         "a radiance coefficient is of order 1")
     r, g, b = (float(x) for x in rgb)
     return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
                          blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),

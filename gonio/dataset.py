@@ -39,12 +39,14 @@ Conventions decided here (the design is silent on them):
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import hashlib
 import io
 import json
 import math
 import os
 import platform
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Mapping
@@ -79,6 +81,20 @@ ANGLE_TOL_DEG = 1e-6
 #: Wavelengths accepted (nm): the instrument's monochromator spans 380..780; simulations may go wider.
 WAVELENGTH_RANGE_NM = (200.0, 2500.0)
 _FLOAT_FORMAT = "%.10g"
+#: Largest ``n`` accepted: 2**53, the largest count a CSV float holds exactly (a photon budget of
+#: 9e15 is far beyond any simulation; larger values would also overflow on conversion to int64).
+N_MAX = 2 ** 53
+#: Largest ``|beta|`` accepted. A radiance factor of real surfaces is of order 1 (a mirror seen
+#: through a milliradian aperture is ~1e6, a simulation's raw scale may be larger); 1e100 leaves
+#: every use open while keeping squares and sums over a dataset finite (1e308 would overflow).
+BETA_MAX = 1e100
+#: ``u_beta`` may be at most this many times the largest ``|beta|`` of the file (or of 1, for a
+#: file whose values are all ~0): an uncertainty ten times the largest value says the value is
+#: unknown, so such a row must be left out, not stored with a made-up number.
+U_BETA_MAX_RATIO = 10.0
+#: Deepest nesting accepted in meta.json (the contract's keys are 3 levels deep; free-form
+#: provenance may go deeper, but not 10^5 levels, which would exhaust the interpreter's stack).
+META_MAX_DEPTH = 32
 
 
 class DatasetError(ValueError):
@@ -206,8 +222,14 @@ def _validate_table(table: pd.DataFrame, file: str | None, *, line_offset: int =
         ("phi_o", lambda v: (v >= 0) & (v < 360), "must be in [0, 360) degrees"),
         ("wavelength_nm", lambda v: (v >= WAVELENGTH_RANGE_NM[0]) & (v <= WAVELENGTH_RANGE_NM[1]),
          f"must be in [{WAVELENGTH_RANGE_NM[0]:g}, {WAVELENGTH_RANGE_NM[1]:g}] nm"),
+        ("beta", lambda v: np.abs(v) <= BETA_MAX,
+         f"is not a plausible radiance coefficient (|beta| must be <= {BETA_MAX:g})"),
         ("u_beta", lambda v: v >= 0, "must be >= 0"),
+        ("u_beta", lambda v: v <= U_BETA_MAX_RATIO * max(float(np.max(np.abs(out["beta"]))), 1.0),
+         f"is not a plausible standard uncertainty: it exceeds {U_BETA_MAX_RATIO:g} times the "
+         "largest |beta| of the file (or 1); leave out a point whose value is unknown"),
         ("n", lambda v: (v >= 1) & (v == np.round(v)), "must be a whole number >= 1"),
+        ("n", lambda v: v <= N_MAX, f"is out of range (a count must be <= 2^53 = {N_MAX:d})"),
     ]
     for col, ok, what in checks:
         good = ok(out[col])
@@ -233,9 +255,31 @@ def _validate_table(table: pd.DataFrame, file: str | None, *, line_offset: int =
     return frame.reset_index(drop=True)
 
 
+def _meta_depth_ok(meta: Any) -> bool:
+    """True when ``meta`` nests no deeper than :data:`META_MAX_DEPTH` (iterative: no recursion)."""
+    stack = [(meta, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if isinstance(value, (dict, list)):
+            if depth > META_MAX_DEPTH:
+                return False
+            children = value.values() if isinstance(value, dict) else value
+            stack.extend((child, depth + 1) for child in children)
+    return True
+
+
+def _type_name(value: Any) -> str:
+    return {dict: "an object", list: "a list", str: "a string", bool: "true/false",
+            type(None): "null", int: "a number", float: "a number"}.get(type(value),
+                                                                        type(value).__name__)
+
+
 def _validate_meta(meta: Any, file: str | None) -> dict:
     if not isinstance(meta, dict):
-        raise DatasetError("must hold a JSON object", file=file)
+        raise DatasetError(f"must hold a JSON object, not {_type_name(meta)}", file=file)
+    if not _meta_depth_ok(meta):
+        raise DatasetError(f"nested deeper than {META_MAX_DEPTH} levels", file=file,
+                           hint="meta.json holds a few levels of keys; regenerate it")
     schema = meta.get("schema")
     if schema is None:
         raise DatasetError("missing key 'schema'", file=file, hint=f"expected \"{SCHEMA}\"")
@@ -246,8 +290,40 @@ def _validate_meta(meta: Any, file: str | None) -> dict:
     if kind not in KINDS:
         raise DatasetError(f"key 'kind' is {kind!r}", file=file,
                            hint="it must be \"measured\" or \"simulated\"")
-    if not isinstance(meta.get("sample", {}), dict):
-        raise DatasetError("key 'sample' must be an object", file=file)
+
+    def expect(path: str, value: Any, types: tuple, what: str) -> None:
+        if not isinstance(value, types) or (bool not in types and isinstance(value, bool)):
+            raise DatasetError(f"key '{path}' must be {what}, not {_type_name(value)}", file=file,
+                               hint="fix or regenerate meta.json")
+
+    for key in ("sample", "instrument", "model", "software", "provenance", "files"):
+        if key in meta:
+            expect(key, meta[key], (dict,), "an object")
+    if "name" in meta.get("sample", {}):
+        expect("sample.name", meta["sample"]["name"], (str,), "a string")
+    if "created" in meta:
+        expect("created", meta["created"], (str,), "an ISO-8601 date string")
+    if "wavelengths_nm" in meta:
+        expect("wavelengths_nm", meta["wavelengths_nm"], (list,), "a list of numbers")
+        for j, w in enumerate(meta["wavelengths_nm"]):
+            expect(f"wavelengths_nm[{j}]", w, (int, float), "a number")
+    files = meta.get("files", {})
+    if CSV_NAME in files:
+        expect(f"files.{CSV_NAME}", files[CSV_NAME], (dict,), "an object")
+        if "sha256" in files[CSV_NAME]:
+            expect(f"files.{CSV_NAME}.sha256", files[CSV_NAME]["sha256"], (str,),
+                   "a hexadecimal string")
+    provenance = meta.get("provenance", {})
+    if "complete" in meta:
+        expect("complete", meta["complete"], (bool,), "true or false")
+    if "complete" in provenance:
+        expect("provenance.complete", provenance["complete"], (bool,), "true or false")
+    for key in ("points_planned", "points_measured"):
+        if key in provenance:
+            expect(f"provenance.{key}", provenance[key], (int,), "a whole number")
+            if provenance[key] < 0:
+                raise DatasetError(f"key 'provenance.{key}' is {provenance[key]}; it must be >= 0",
+                                   file=file)
     return meta
 
 
@@ -289,6 +365,34 @@ class Dataset:
     def source(self) -> str:
         """Where the data came from (path or name), for messages."""
         return str(self.path) if self.path is not None else self.name
+
+    @property
+    def complete(self) -> bool:
+        """False when the meta says the run is incomplete (``"complete": false`` at the top level
+        or in ``provenance``, as ``gonio acquire`` writes it for a stopped run); True otherwise."""
+        provenance = self.meta.get("provenance") or {}
+        flag = self.meta.get("complete", provenance.get("complete"))
+        return flag is not False
+
+    def completeness(self) -> str:
+        """How complete the data are, for people: ``"17 of 53 planned points (68% missing)"``."""
+        provenance = self.meta.get("provenance") or {}
+        measured, planned = provenance.get("points_measured"), provenance.get("points_planned")
+        if isinstance(measured, int) and isinstance(planned, int) and planned > 0:
+            missing = max(planned - measured, 0)
+            if missing == 0:
+                return f"all {planned} planned points measured"
+            return (f"{measured} of {planned} planned points measured "
+                    f"({missing} = {100.0 * missing / planned:.0f}% missing)")
+        return "complete" if self.complete else "marked incomplete (fraction not recorded)"
+
+    def content_sha256(self) -> str:
+        """SHA-256 of the canonical ``radiance.csv`` bytes (equal data give equal hashes)."""
+        cached = getattr(self, "_content_sha256", None)
+        if cached is None:
+            cached = hashlib.sha256(_csv_bytes(self.table)).hexdigest()
+            self._content_sha256 = cached
+        return cached
 
     def __repr__(self) -> str:
         return (f"Dataset(name={self.name!r}, kind={self.kind!r}, rows={len(self.table)}, "
@@ -644,28 +748,60 @@ def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
     return out
 
 
+def _require_regular_file(path: Path) -> None:
+    """Refuse anything but a readable regular file, saying what it is (a FIFO would block)."""
+    hint = f"a dataset directory holds the regular files {CSV_NAME} and {META_NAME}"
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        if os.path.islink(path):
+            what = ("is a symbolic link that loops" if exc.errno == errno.ELOOP
+                    else f"is a symbolic link to a missing target ({os.readlink(path)})")
+            raise DatasetError(what, file=path, hint=hint) from None
+        if exc.errno == errno.ENOENT:
+            raise DatasetError("file is missing", file=path, hint=hint) from None
+        raise DatasetError(f"cannot be opened ({exc.strerror})", file=path, hint=hint) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise DatasetError(f"is {_file_kind(st.st_mode)}, not a regular file", file=path,
+                           hint=hint)
+
+
+def _file_kind(mode: int) -> str:
+    kinds = [(stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+             (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISREG, "a regular file")]
+    return next((name for test, name in kinds if test(mode)), "a special file")
+
+
 def read_dataset(path: str | os.PathLike) -> Dataset:
     """Read and validate the dataset in directory ``path``; raise :class:`DatasetError`."""
     root = Path(path)
+    hint = f"a dataset is a directory holding {CSV_NAME} and {META_NAME}"
     if not root.exists():
-        raise DatasetError("no such dataset directory", file=root,
-                           hint=f"a dataset is a directory holding {CSV_NAME} and {META_NAME}")
+        if os.path.islink(root):
+            _require_regular_file(root)    # names the looping or dangling link
+        raise DatasetError("no such dataset directory", file=root, hint=hint)
     if root.is_file():
         if root.name in (CSV_NAME, META_NAME):
             root = root.parent
         else:
             raise DatasetError("is a file, not a dataset directory", file=root,
                                hint=f"pass the directory holding {CSV_NAME} and {META_NAME}")
+    elif not root.is_dir():
+        kind = _file_kind(os.stat(root).st_mode)
+        raise DatasetError(f"is {kind}, not a dataset directory", file=root, hint=hint)
     csv_path, meta_path = root / CSV_NAME, root / META_NAME
     for p in (csv_path, meta_path):
-        if not p.is_file():
-            raise DatasetError("file is missing", file=p,
-                               hint=f"a dataset directory holds {CSV_NAME} and {META_NAME}")
+        _require_regular_file(p)
     raw_meta = meta_path.read_bytes()
     if not raw_meta.strip():
         raise DatasetError("file is empty", file=meta_path)
     try:
         meta = json.loads(raw_meta.decode("utf-8"))
+    except RecursionError:
+        raise DatasetError("nested too deeply to be read (JSON nesting exhausts the stack)",
+                           file=meta_path,
+                           hint="meta.json holds a few levels of keys; regenerate it") from None
     except UnicodeDecodeError as exc:
         raise DatasetError(f"not UTF-8 text ({exc.reason})", file=meta_path) from None
     except json.JSONDecodeError as exc:
@@ -675,8 +811,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     if not data.strip():
         raise DatasetError("file is empty", file=csv_path,
                            hint=f"expected the header {','.join(COLUMNS)} and data rows")
-    expected = (meta.get("files") or {}).get(CSV_NAME, {}).get("sha256") \
-        if isinstance(meta.get("files"), dict) else None
+    expected = meta.get("files", {}).get(CSV_NAME, {}).get("sha256")
     if expected and hashlib.sha256(data).hexdigest() != expected:
         raise DatasetError(f"does not match the checksum recorded in {META_NAME}", file=csv_path,
                            hint="the dataset was changed after writing or a write was interrupted; "

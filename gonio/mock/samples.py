@@ -15,19 +15,37 @@ Samples
         beta = beta_d + beta_s
         beta_d = rho_d(lambda) * [A + B max(0, cos(phi_i - phi_o)) sin(a) tan(b)]
                  * (1 + R exp(-g^2 / (2 w_r^2)))
-        beta_s = F(theta_d) / (4 a_x a_y sqrt(cos theta_i cos theta_o))
+        beta_s = c_g F(theta_d) / (4 a_x a_y sqrt(cos theta_i cos theta_o))
                  * exp(-tan^2 theta_h (cos^2 phi_h / a_x^2 + sin^2 phi_h / a_y^2))
 
     ``beta_d`` is the qualitative Oren-Nayar diffuse lobe (roughness sigma = 20 deg:
     ``A = 1 - 0.5 s^2/(s^2 + 0.33)``, ``B = 0.45 s^2/(s^2 + 0.09)``, ``a = max(theta_i,
     theta_o)``, ``b = min(theta_i, theta_o)``) with a mild retro-reflection (hiding) peak of
     relative height ``R = 0.12`` and width ``w_r = 8 deg`` in the angle ``g`` between ``w_i`` and
-    ``w_o``. ``rho_d(lambda)`` is a red dye: ~0.05 in the blue/green, rising through 605 nm to
-    ~0.57 in the red. ``beta_s`` is the Ward anisotropic specular lobe (``pi`` times the Ward
-    BRDF) of the fibre surfaces, spectrally neutral, wider across the warp (``a_x = 0.22``
-    along the warp x, ``a_y = 0.38`` along the weft y), with the Schlick Fresnel factor
-    ``F = F0 + (1 - F0)(1 - cos theta_d)^5``, ``F0 = 0.045``, ``theta_d`` the angle between ``w_i``
-    and the half vector ``h``. Both terms are non-negative and reciprocal.
+    ``w_o``. ``rho_d(lambda)`` is the red dye (:meth:`RedCottonSample.rho_d`)::
+
+        rho_d = r_0 + r_b exp(-(lambda - 420 nm)^2 / (2 (40 nm)^2))
+                + (r_red - r_0) / (1 + exp(-(lambda - 594.7 nm) / 7.1 nm))
+
+    ``r_0 = 0.01`` (the dye absorbs nearly all green), a violet-blue shoulder ``r_b = 0.088`` (the
+    bluish cast of a real red dye, which makes the hue slightly magenta, H > 0.98 rather than
+    0.00) and a red plateau ``r_red = 0.92`` (undyed cotton's reflectance, the dye being
+    transparent above ~620 nm), the absorption edge a logistic of 10-90 % width 31 nm. The three
+    free numbers ``r_b``, the edge position and its width were fitted once so that the colour
+    at the report's colour geometry (normal incidence, ``theta_o = 10 deg``, gloss included)
+    matches the published measurement of red cotton (PHYSICS.md section 8, linear sRGB, D65,
+    CIE 1931 2 deg): H 0.988, S 0.989, V 0.80, BLUE/RED 0.080, GREEN/RED 0.011 (pinned by
+    ``tests/gonio/mock/test_physics.py``). ``beta_s`` is the Ward anisotropic specular lobe
+    (``pi`` times the Ward BRDF) of the fibre surfaces, spectrally neutral, wider across the
+    warp (``a_x = 0.22`` along the warp x, ``a_y = 0.38`` along the weft y), with the Schlick
+    Fresnel factor ``F = F0 + (1 - F0)(1 - cos theta_d)^5``, ``F0 = 0.045``, ``theta_d`` the
+    angle between ``w_i`` and the half vector ``h``, weighted by the gloss fraction
+    ``c_g = 0.08``: the share of the fibres' surface reflection that stays a coherent lobe at
+    the scale of the fabric. The rest is spread over the hemisphere by fibre twist, crimp and
+    hairiness; it is part of ``rho_d``. (A full-strength lobe would add ~0.12 of white to
+    every near-normal spectrum and wash the red out to S 0.70, against the published S 0.99:
+    the measurement itself bounds the near-normal gloss to about 0.01.) Both terms are
+    non-negative and reciprocal.
 ``FILE``
     A radiance-coefficient dataset directory (``gonio.dataset.read_dataset``), interpolated with
     ``Dataset.interpolate``; a request outside the data raises ``gonio.dataset.DatasetError``.
@@ -130,13 +148,20 @@ class RedCottonSample:
     alpha_x = 0.22
     alpha_y = 0.38
     f0 = 0.045
+    gloss_fraction = 0.08
+    dye_floor = 0.01
+    dye_blue = 0.088
+    dye_red = 0.92
+    dye_edge_nm = 594.7
+    dye_edge_width_nm = 7.1
 
-    @staticmethod
-    def rho_d(wavelength_nm) -> np.ndarray:
-        """Diffuse reflectance of the dyed fibres (red: low in blue/green, high above 600 nm)."""
+    @classmethod
+    def rho_d(cls, wavelength_nm) -> np.ndarray:
+        """Diffuse reflectance of the dyed fibres (the module docstring's ``rho_d``)."""
         wl = np.asarray(wavelength_nm, dtype=float)
-        return (0.045 + 0.015 * np.exp(-(((wl - 410.0) / 30.0) ** 2))
-                + 0.52 / (1.0 + np.exp(-(wl - 605.0) / 17.0)))
+        return (cls.dye_floor + cls.dye_blue * np.exp(-0.5 * ((wl - 420.0) / 40.0) ** 2)
+                + (cls.dye_red - cls.dye_floor)
+                / (1.0 + np.exp(-(wl - cls.dye_edge_nm) / cls.dye_edge_width_nm)))
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
         ti, pi_, to, po, wl = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)
@@ -167,7 +192,7 @@ class RedCottonSample:
         fresnel = self.f0 + (1.0 - self.f0) * (1.0 - cos_td) ** 5
         ci = np.clip(np.cos(ti_r), 1e-6, 1.0)
         co = np.clip(np.cos(to_r), 1e-6, 1.0)
-        beta_s = fresnel / (4.0 * self.alpha_x * self.alpha_y * np.sqrt(ci * co)) * np.exp(
+        beta_s = self.gloss_fraction * fresnel / (4.0 * self.alpha_x * self.alpha_y * np.sqrt(ci * co)) * np.exp(
             -tan2_th * (cos2_ph / self.alpha_x ** 2 + sin2_ph / self.alpha_y ** 2))
         return beta_d + beta_s
 
@@ -175,7 +200,10 @@ class RedCottonSample:
         return {"name": self.name, "model": "analytic Oren-Nayar + retro + Ward (gonio.mock.samples)",
                 "sigma_deg": self.sigma_deg, "retro_height": self.retro_height,
                 "retro_width_deg": self.retro_width_deg, "alpha_x": self.alpha_x,
-                "alpha_y": self.alpha_y, "f0": self.f0}
+                "alpha_y": self.alpha_y, "f0": self.f0, "gloss_fraction": self.gloss_fraction,
+                "dye": {"floor": self.dye_floor, "blue_420nm": self.dye_blue,
+                        "red": self.dye_red, "edge_nm": self.dye_edge_nm,
+                        "edge_width_nm": self.dye_edge_width_nm}}
 
 
 class DatasetSample:

@@ -7,6 +7,8 @@ import contextlib
 import html
 import io
 import json
+import logging
+import os
 import shutil
 import subprocess
 import sys
@@ -111,7 +113,7 @@ def test_metrics_json_has_exactly_the_contract_keys(report):
     ("sim_grey", ["--max-nrmse", "1", "--max-sat-diff", "1", "--max-hue-diff", "0.3"], 0,
      "ok   |hue difference| = 0.2196"),
     ("sim_grey", ["--max-nrmse", "1", "--max-sat-diff", "1", "--max-hue-diff", "0.2"], 1,
-     "FAIL |hue difference| = 0.2196"),
+     "FAIL |hue difference| = 0.2196 turns of the hue circle (exceeds 0.2)"),
 ])
 def test_check_verdicts(h, sim, extra, status, shown):
     code, out, err = _quiet_main(["check", h.FIXTURES / "measured_red", h.FIXTURES / sim, *extra])
@@ -191,7 +193,34 @@ def _bad_missing_dir(h, d):
     return "no such dataset directory"
 
 
-BAD = {"missing column": _bad_missing_column, "NaN": _bad_nan, "duplicate": _bad_duplicate,
+def _bad_deep_meta(h, d):
+    text = (d / "meta.json").read_text().rstrip()
+    (d / "meta.json").write_text(text[:-1] + ', "x": ' + "[" * 100000 + "]" * 100000 + "}")
+    return "meta.json: nested too deeply"
+
+
+def _bad_fifo(h, d):
+    os.unlink(d / "radiance.csv")
+    os.mkfifo(d / "radiance.csv")
+    return "radiance.csv: is a FIFO (named pipe), not a regular file"
+
+
+def _bad_huge_u(h, d):
+    h.unprotect(d)
+    _edit_csv(d, lambda ls: ls[:5] + [",".join(ls[5].split(",")[:6] + ["1e308"]
+                                               + ls[5].split(",")[7:])] + ls[6:])
+    return "column 'u_beta': value 1e+308 is not a plausible standard uncertainty"
+
+
+def _bad_huge_beta(h, d):
+    h.unprotect(d)
+    _edit_csv(d, lambda ls: [ls[0]] + [",".join(x.split(",")[:5] + ["1e308"] + x.split(",")[6:])
+                                       for x in ls[1:]])
+    return "column 'beta': value 1e+308 is not a plausible radiance coefficient"
+
+
+BAD = {"deep meta": _bad_deep_meta, "every beta 1e308": _bad_huge_beta, "FIFO": _bad_fifo, "huge u_beta": _bad_huge_u,
+       "missing column": _bad_missing_column, "NaN": _bad_nan, "duplicate": _bad_duplicate,
        "unknown schema": _bad_schema, "empty file": _bad_empty,
        "mismatched wavelengths": _bad_wavelengths, "one-sided normal": _bad_one_sided,
        "missing directory": _bad_missing_dir, "header only": _bad_header_only}
@@ -258,3 +287,61 @@ def test_report_into_a_file_is_an_input_error(h, tmp_path, capsys):
     status, out, err = h.run_cli(["report", h.FIXTURES / "measured_red",
                                   h.FIXTURES / "sim_scaled", "--out", blocker], capsys)
     assert status == 2 and str(blocker) in err and "Traceback" not in err
+
+
+def _incomplete(h, tmp_path, measured=17, planned=53):
+    ds = read_dataset(h.FIXTURES / "measured_red")
+    ds.meta = {**ds.meta, "provenance": {**ds.meta["provenance"], "complete": False,
+                                         "points_measured": measured, "points_planned": planned}}
+    return write_dataset(ds, tmp_path / "incomplete")
+
+
+def test_check_refuses_an_incomplete_measurement_saying_what_is_missing(h, tmp_path):
+    meas = _incomplete(h, tmp_path)
+    code, out, err = _quiet_main(["check", meas, h.FIXTURES / "sim_scaled"])
+    assert code == 1, out + err
+    assert "FAIL measured dataset 'analytic red lobe'" in out
+    assert "17 of 53 planned points measured (36 = 68% missing)" in out
+    assert "--allow-incomplete" in out and "ok   overall" not in out
+    code, out, err = _quiet_main(["check", meas, h.FIXTURES / "sim_scaled", "--allow-incomplete"])
+    assert code == 0, out + err
+    assert "note: measured dataset 'analytic red lobe'" in out and "ok   overall NRMSE" in out
+
+
+def test_report_of_an_incomplete_measurement_has_a_banner(h, tmp_path):
+    meas = _incomplete(h, tmp_path)
+    code, out, err = _quiet_main(["report", meas, h.FIXTURES / "sim_scaled", "--out",
+                                  tmp_path / "rep"])
+    assert code == 0, out + err
+    text = (tmp_path / "rep" / "report.html").read_text()
+    assert "class='banner'" in text
+    assert "Incomplete data" in text and "17 of 53 planned points measured" in text
+    complete = _quiet_main(["report", h.FIXTURES / "measured_red", h.FIXTURES / "sim_scaled",
+                            "--out", tmp_path / "rep2"])
+    assert complete[0] == 0
+    assert "class='banner'" not in (tmp_path / "rep2" / "report.html").read_text()
+
+
+def test_report_of_a_dataset_against_itself_has_a_banner(h, tmp_path):
+    code, out, err = _quiet_main(["report", h.FIXTURES / "measured_red",
+                                  h.FIXTURES / "measured_red", "--out", tmp_path / "rep"])
+    assert code == 0, out + err
+    text = (tmp_path / "rep" / "report.html").read_text()
+    assert "<p class='banner'>" in text and "is the measured dataset itself (the same directory)" \
+        in html.unescape(text)
+
+
+@pytest.mark.parametrize("how", ["same directory", "copy"])
+def test_comparing_a_dataset_with_itself_warns(h, tmp_path, caplog, how):
+    meas = h.FIXTURES / "measured_red"
+    other = meas if how == "same directory" else shutil.copytree(meas, tmp_path / "copy")
+    with caplog.at_level(logging.WARNING, logger="compare"):
+        code, out, err = _quiet_main(["check", meas, other])
+    assert code == 0
+    expected = "the same directory" if how == "same directory" else "the same radiance.csv content"
+    assert any("with itself" in r.getMessage() and expected in r.getMessage()
+               for r in caplog.records), caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="compare"):
+        _quiet_main(["check", meas, h.FIXTURES / "sim_scaled"])
+    assert not any("with itself" in r.getMessage() for r in caplog.records)

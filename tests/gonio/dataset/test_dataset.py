@@ -257,3 +257,106 @@ def test_written_files_are_shareable(tmp_path):
         os.umask(umask)
     for name in ("radiance.csv", "meta.json"):
         assert (out / name).stat().st_mode & 0o777 == 0o644
+
+
+# --- one clear line for hostile files (issue 9) ------------------------------------------------
+
+
+def _set_meta(dataset_dir, edit):
+    path = dataset_dir / "meta.json"
+    m = json.loads(path.read_text())
+    edit(m)
+    path.write_text(json.dumps(m))
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (lambda m: m.update(sample=["red"]), r"key 'sample' must be an object, not a list"),
+    (lambda m: m.update(provenance="seed 1"), r"key 'provenance' must be an object, not a string"),
+    (lambda m: m["sample"].update(name=7), r"key 'sample.name' must be a string, not a number"),
+    (lambda m: m.update(wavelengths_nm="390..710"), r"key 'wavelengths_nm' must be a list"),
+    (lambda m: m.update(wavelengths_nm=[390, "400"]), r"key 'wavelengths_nm\[1\]' must be a number"),
+    (lambda m: m.update(files={"radiance.csv": ["abc"]}),
+     r"key 'files.radiance.csv' must be an object, not a list"),
+    (lambda m: m["files"]["radiance.csv"].update(sha256=12),
+     r"key 'files.radiance.csv.sha256' must be a hexadecimal string"),
+    (lambda m: m["provenance"].update(complete="no"),
+     r"key 'provenance.complete' must be true or false, not a string"),
+    (lambda m: m["provenance"].update(points_planned=True),
+     r"key 'provenance.points_planned' must be a whole number, not true/false"),
+    (lambda m: m.update(created=20260101), r"key 'created' must be an ISO-8601 date string"),
+])
+def test_meta_with_wrong_types_names_the_field(dataset_dir, edit, expected):
+    _set_meta(dataset_dir, edit)
+    with pytest.raises(DatasetError, match=expected) as info:
+        read_dataset(dataset_dir)
+    assert str(info.value).startswith(str(dataset_dir / "meta.json"))
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("depth, expected", [(10 ** 5, "nested too deeply"),
+                                             (200, "nested deeper than 32 levels")])
+def test_deeply_nested_meta_is_refused_without_recursion_error(dataset_dir, depth, expected):
+    m = json.loads((dataset_dir / "meta.json").read_text())
+    text = json.dumps(m)[:-1] + ', "deep": ' + "[" * depth + "]" * depth + "}"
+    (dataset_dir / "meta.json").write_text(text)
+    with pytest.raises(DatasetError, match=f"meta.json: {expected}"):
+        read_dataset(dataset_dir)
+
+
+@pytest.mark.parametrize("column, value, expected", [
+    ("n", "1e20", r"column 'n': value 1e\+20 is out of range \(a count must be <= 2\^53"),
+    ("u_beta", "1e308", r"column 'u_beta': value 1e\+308 is not a plausible standard uncertainty"),
+    ("beta", "1e308", r"column 'beta': value 1e\+308 is not a plausible radiance coefficient"),
+])
+def test_out_of_range_values_are_refused(dataset_dir, column, value, expected):
+    lines = (dataset_dir / "radiance.csv").read_text().splitlines()
+    j = COLUMNS.index(column)
+    cells = lines[3].split(",")
+    cells[j] = value
+    lines[3] = ",".join(cells)
+    _rewrite_csv(dataset_dir, "\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match=r"radiance.csv, row 4, " + expected):
+        read_dataset(dataset_dir)
+
+
+def test_every_beta_1e308_is_refused_in_memory_too():
+    table = in_plane_table(incidences=(0.0,), wavelengths=WL[:3])
+    table["beta"] = 1e308
+    table["u_beta"] = 0.0
+    with pytest.raises(DatasetError, match="not a plausible radiance coefficient"):
+        make_dataset(table, meta())
+    # the largest counts that are accepted stay exact, never wrap to negative integers
+    table["beta"], table["n"] = 0.5, float(dsm.N_MAX)
+    assert int(make_dataset(table, meta()).table["n"].min()) == 2 ** 53
+
+
+def test_a_fifo_or_a_symlink_loop_is_named_not_called_missing(dataset_dir):
+    csv = dataset_dir / "radiance.csv"
+    csv.unlink()
+    os.mkfifo(csv)                  # reading it would block forever: it must not be opened
+    with pytest.raises(DatasetError, match=r"radiance.csv: is a FIFO \(named pipe\), not a "):
+        read_dataset(dataset_dir)
+    csv.unlink()
+    os.symlink(csv, csv)            # a link to itself: ELOOP
+    with pytest.raises(DatasetError, match="radiance.csv: is a symbolic link that loops"):
+        read_dataset(dataset_dir)
+    csv.unlink()
+    os.symlink(dataset_dir / "gone.csv", csv)
+    with pytest.raises(DatasetError, match="symbolic link to a missing target"):
+        read_dataset(dataset_dir)
+    csv.unlink()
+    csv.mkdir()
+    with pytest.raises(DatasetError, match="radiance.csv: is a directory, not a regular file"):
+        read_dataset(dataset_dir)
+
+
+
+def test_a_looping_link_or_fifo_as_the_dataset_directory_is_named(tmp_path):
+    loop = tmp_path / "run"
+    os.symlink(loop, loop)
+    with pytest.raises(DatasetError, match="run: is a symbolic link that loops"):
+        read_dataset(loop)
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(DatasetError, match=r"pipe: is a FIFO \(named pipe\), not a dataset dir"):
+        read_dataset(fifo)

@@ -1,0 +1,230 @@
+"""The report as a researcher reads it: captions, error bars, the beam-blocked gap, the
+normalisation's uncertainty, H's unit, swatch encoding, source summary, resolution, and where
+the report may be written."""
+
+from __future__ import annotations
+
+import colorsys
+import html
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from compare.cli import main
+from compare.comparison import compare_datasets
+from compare.errors import CompareError
+from compare.report import FIGURE_DPI, _gapped, _inplane_figure, swatch_entries, write_report
+from gonio.dataset import read_dataset, write_dataset
+
+
+def _run(argv, capsys):
+    status = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return status, out.out, out.err
+
+
+@pytest.fixture(scope="module")
+def demo_like(tmp_path_factory, h):
+    """measured_red with the meta a real acquisition writes (links with temporary ports)."""
+    root = tmp_path_factory.mktemp("demo_like")
+    ds = read_dataset(h.FIXTURES / "measured_red")
+    ds.meta = {**ds.meta,
+               "instrument": {"idn": "KIAM,GPS-1,MOCK0001,2.3", "firmware": "1.4",
+                              "modbus": "tcp://127.0.0.1:37371", "serial": "/dev/pts/7"},
+               "provenance": {"plan": {"name": "red-cotton", "sha256": "c2d52b3b95016bcf"},
+                              "seed": 4, "points_planned": 53, "points_measured": 53,
+                              "complete": True}}
+    meas = write_dataset(ds, root / "meas")
+    out = root / "report"
+    comparison = compare_datasets(read_dataset(meas), [read_dataset(h.FIXTURES / "sim_lambert")])
+    write_report(comparison, out, svg=True)
+    return dict(out=out, comparison=comparison, html=(out / "report.html").read_text())
+
+
+def test_figures_have_captions_not_file_names(demo_like):
+    text = demo_like["html"]
+    captions = re.findall(r"<figcaption>(.*?)</figcaption>", text, flags=re.S)
+    assert len(captions) == 7
+    for j, caption in enumerate(captions, start=1):
+        assert caption.startswith(f"<b>Figure {j}.</b> ")
+        words = re.sub(r"<[^>]+>|\(figures/[^)]*\)", " ", caption).split()
+        assert len(words) > 20, caption               # sentences, not a file name
+    alts = re.findall(r"<img alt='([^']*)'", text)
+    assert alts and not any(a.endswith(".png") for a in alts)
+    assert "Normalisation factor k(lambda)" in text and "Error bars: its standard uncertainty" \
+        in text
+
+
+def test_figures_are_150_dpi_png_and_svg_on_request(demo_like):
+    pngs = sorted((demo_like["out"] / "figures").glob("*.png"))
+    assert len(pngs) == 7 and FIGURE_DPI >= 150
+    for png in pngs:
+        dpi = Image.open(png).info["dpi"]
+        assert min(dpi) == pytest.approx(150, abs=0.5), png.name
+        svg = png.with_suffix(".svg")
+        assert svg.is_file() and b"<svg" in svg.read_bytes()[:2000]
+
+
+def test_error_bars_are_visible_or_said_to_be_hidden(h):
+    def figure(u):
+        rows = h.in_plane_table(h.red_lobe, incidence=(30.0,), wavelengths=[650.0],
+                                u_fn=lambda b: u + 0 * b)
+        ds = h.dataset(rows)
+        m = ds.in_plane().rename(columns={"beta": "value", "u_beta": "u"})
+        return _inplane_figure(m, {}, "t", "y", "m")[1]
+
+    assert figure(1e-5) is True          # +-1e-5 on a 0.4-wide axis: under a 4-pt marker
+    assert figure(0.05) is False
+
+
+def test_html_says_when_bars_are_hidden(h, tmp_path):
+    tiny = h.dataset(h.in_plane_table(h.red_lobe, u_fn=lambda b: 1e-6 + 0 * b))
+    comparison = compare_datasets(tiny, [read_dataset(h.FIXTURES / "sim_lambert")])
+    text = write_report(comparison, tmp_path / "r").read_text()
+    assert text.count("are smaller than the markers at this scale") == 4
+
+
+def test_no_line_across_the_beam_blocked_gap():
+    s = np.array([-60, -50, -40, -20, -10, 0, 10.0])
+    xs, ys = _gapped(s, s * 2, theta_i=30.0)
+    gap = np.flatnonzero(np.isnan(xs))
+    assert gap.size == 1 and xs[gap[0] - 1] == -40 and xs[gap[0] + 1] == -20
+    # a simulation that holds the retro-direction itself is drawn through it
+    with_retro = np.array([-40, -30, -20.0])
+    assert not np.isnan(_gapped(with_retro, with_retro, 30.0)[0]).any()
+    # a hole in the data is not bridged either
+    assert np.isnan(_gapped(np.array([0, 10, 20, 50.0]), np.zeros(4), 0.0)[0]).sum() == 1
+
+
+def test_the_plotted_model_line_is_broken_and_the_retro_line_labelled(h):
+    rows = h.in_plane_table(h.red_lobe, incidence=(30.0,), wavelengths=[650.0])
+    ds = h.dataset(rows)
+    m = ds.in_plane().rename(columns={"beta": "value", "u_beta": "u"})
+    fig, _ = _inplane_figure(m, {"model": m}, "t", "y", "meas")
+    ax = fig.axes[0]
+    model = [line for line in ax.get_lines() if line.get_label() == "model"]
+    assert len(model) == 1 and np.isnan(np.asarray(model[0].get_xdata(), float)).sum() == 1
+    texts = [t.get_text().strip() for t in ax.texts]
+    assert "retro" in texts and "mirror" in texts
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "beam-blocked (retro-direction)" in legend
+
+
+def test_normalisation_uncertainty_is_explained_and_carried(h, demo_like):
+    text = demo_like["html"]
+    assert "not</b> folded into the curve errors" in text
+    assert "overall NRMSE at k - u_k .. k + u_k" in text
+    # sim_scaled is the measurement times 3.7: at k it agrees exactly, at k(1 +- r) the residual
+    # is +-r beta_meas at each wavelength, so NRMSE = sqrt(mean (r beta)^2) / mean beta
+    measured = read_dataset(h.FIXTURES / "measured_red")
+    comparison = compare_datasets(measured, [read_dataset(h.FIXTURES / "sim_scaled")])
+    norm = comparison.normalisations["scaled model"]
+    r = dict(zip(norm.wavelength_nm, norm.u_factor / norm.factor))
+    beta = measured.table["beta"].to_numpy()
+    rel = np.array([r[w] for w in measured.table["wavelength_nm"]])
+    expected = np.sqrt(np.mean((rel * beta) ** 2)) / np.mean(beta)
+    lo, hi = comparison.nrmse_with_factor_shifted("scaled model")
+    assert comparison.overall["scaled model"].nrmse < 1e-9
+    assert lo == pytest.approx(expected, rel=1e-9) and hi == pytest.approx(expected, rel=1e-9)
+
+
+def test_hue_unit_is_stated(demo_like):
+    text = demo_like["html"]
+    assert "<th>H (turns)</th><th>H (deg)</th>" in text
+    assert "fraction of a full turn of the hue circle, in [0, 1)" in text
+    h_turns = demo_like["comparison"].colour.measured.h
+    assert f"<td>{360 * h_turns:.3g}</td>" in text
+
+
+def test_swatch_labels_describe_the_pixels_shown(demo_like):
+    for name, pixel, hsv in swatch_entries(demo_like["comparison"]):
+        assert hsv == pytest.approx(colorsys.rgb_to_hsv(*pixel), abs=1e-12)
+    # the pixel is the IEC 61966-2-1 encoding of the linear colour (written out here)
+    linear = np.clip(np.asarray(demo_like["comparison"].colour.measured.rgb), 0, None)
+    encoded = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    np.testing.assert_allclose(swatch_entries(demo_like["comparison"])[0][1],
+                               np.clip(encoded, 0, 1), atol=1e-6)
+
+
+def test_source_summary_is_readable_without_temporary_links(demo_like):
+    text = demo_like["html"]
+    assert "tcp://127.0.0.1" not in text and "/dev/pts" not in text
+    assert "{&quot;" not in text and '{"' not in text
+    assert ("instrument KIAM,GPS-1,MOCK0001,2.3 (firmware 1.4); plan red-cotton (sha256 "
+            "c2d52b3b9501...); seed 4; all 53 planned points measured") in html.unescape(text)
+
+
+# --- where a report may be written ---------------------------------------------------------
+
+
+def _argv(h, out, *extra):
+    return ["report", h.FIXTURES / "measured_red", h.FIXTURES / "sim_scaled", "--out", out,
+            *extra]
+
+
+def test_a_foreign_non_empty_folder_is_refused_unless_forced(h, tmp_path, capsys):
+    out = tmp_path / "thesis"
+    (out / "figures").mkdir(parents=True)
+    (out / "metrics.json").write_text("my own numbers")
+    (out / "figures" / "spectrum.png").write_bytes(b"my plot")
+    status, stdout, err = _run(_argv(h, out), capsys)
+    assert status == 2 and err.count("\n") == 1
+    assert f"--out {out} is not empty and holds no previous report" in err
+    assert "--force" in err and "figures, metrics.json" in err
+    assert (out / "metrics.json").read_text() == "my own numbers"
+    assert (out / "figures" / "spectrum.png").read_bytes() == b"my plot"
+    assert not (out / "report.html").exists()
+    status, _, err = _run(_argv(h, out, "--force"), capsys)
+    assert status == 0, err
+    assert json.loads((out / "metrics.json").read_text())["overall"]
+
+
+def test_a_previous_report_is_replaced_and_its_stale_figures_removed(h, tmp_path, capsys):
+    out = tmp_path / "rep"
+    assert _run(_argv(h, out), capsys)[0] == 0
+    # a figure the previous report wrote (and listed) that the new one will not draw
+    report = out / "report.html"
+    text = report.read_text()
+    report.write_text(text.replace("figures/swatches.png", "figures/swatches.png "
+                                   "figures/inplane_999nm.png", 1))
+    (out / "figures" / "inplane_999nm.png").write_bytes(b"old")
+    (out / "notes.txt").write_text("mine")
+    (out / "figures" / "mine.png").write_bytes(b"mine")
+    status, _, err = _run(_argv(h, out), capsys)
+    assert status == 0, err
+    assert not (out / "figures" / "inplane_999nm.png").exists()
+    assert (out / "notes.txt").read_text() == "mine"
+    assert (out / "figures" / "mine.png").read_bytes() == b"mine"
+
+
+def test_write_report_refuses_in_the_library_too(h, tmp_path):
+    out = tmp_path / "x"
+    out.mkdir()
+    (out / "data.csv").write_text("1,2\n")
+    comparison = compare_datasets(read_dataset(h.FIXTURES / "measured_red"),
+                                  [read_dataset(h.FIXTURES / "sim_scaled")])
+    with pytest.raises(CompareError, match=r"\(data.csv\)"):
+        write_report(comparison, out)
+    shutil.rmtree(out)
+    assert write_report(comparison, out).is_file()
+
+
+def test_a_report_of_the_first_version_is_recognised_as_a_previous_report(h, tmp_path, capsys):
+    out = tmp_path / "demo-out-report"
+    (out / "figures").mkdir(parents=True)
+    (out / "report.html").write_text(
+        "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>\n"
+        "<title>Comparison report: red cotton</title>\n<style></style></head><body>\n"
+        "<h1>Measurement vs simulation: red cotton</h1>\n"
+        "<figure><img alt='inplane_999nm.png' src='data:image/png;base64,AAAA'>"
+        "<figcaption>inplane_999nm.png</figcaption></figure>\n</body></html>\n")
+    (out / "figures" / "inplane_999nm.png").write_bytes(b"old")
+    (out / "metrics.json").write_text("{}")
+    status, _, err = _run(_argv(h, out), capsys)
+    assert status == 0, err
+    assert not (out / "figures" / "inplane_999nm.png").exists()
+    assert "fabric-optics compare report" in (out / "report.html").read_text()
