@@ -232,6 +232,7 @@ def _make_kernel(scoring: bool):
         n_touched = np.zeros(1, dtype=np.int64)
         spec_w = np.ones(n_spec)
         nee_work = np.zeros(T.N_NEE)
+        nee_consts = inp.nee_consts.copy()  # private: ranged outputs overwrite their row per vertex
         phase_ratio = inp.phase_ratio
         ratio = inp.spec_ratio
         n_grid = ratio.shape[0]
@@ -335,7 +336,7 @@ def _make_kernel(scoring: bool):
                                 spec_w[l] *= s_ratio[l] * math.exp(-d_mu_t[l] * step)
                         if vertex_mode == T.V_CYLINDER_NEE:
                             s0, s1, s2, s3 = T.score_vertex(
-                                inp.outputs, inp.nee_consts, nee_work, vertex_base, hist, touched, n_touched, n_spec,
+                                inp.outputs, nee_consts, nee_work, vertex_base, hist, touched, n_touched, n_spec,
                                 spec_w, spec_mu_t, phase_ratio, ratio, phase, g, table, inp.pdf, inp.lookup,
                                 size, n_in, x, y, z, ux, uy, uz, w, s0, s1, s2, s3,
                             )

@@ -308,7 +308,7 @@ def score_exit(
 NEE_COLUMNS = ("u_t", "u_b", "u_n", "rho", "sin_alpha", "cos_alpha", "fresnel", "k_max", "cos_step", "sin_step",
                "chord", "jacobian_factor")
 N_NEE = 12
-_ORDER_CUTOFF = 1e-7  # internal-reflection orders are followed while F^k exceeds this
+_ORDER_CUTOFF = 1e-6  # internal-reflection orders are followed while F^k exceeds this (bias < 1e-6 relative)
 
 
 @numba.njit(cache=True)
@@ -317,7 +317,7 @@ def nee_constants(mu: float, phi: float, n_in: float, radius: float, out: np.nda
 
     Fills ``out[:N_NEE]`` (``NEE_COLUMNS``): the internal direction in the local frame
     (``u_t, u_b, u_n``), ``rho = sqrt(1 - u_t^2)``, ``sin/cos alpha``, the internal Fresnel
-    reflectance ``F``, the number of reflection orders with ``F^k > 1e-7``, the rotation of the
+    reflectance ``F``, the number of reflection orders with ``F^k > 1e-6``, the rotation of the
     exit point per chord, the 3-D chord length ``2 R cos alpha / rho`` and
     ``(1 - F) R cos alpha / (n^2 u_n)`` (the Jacobian's numerator with the interface factors).
     ``rho = 0`` marks a direction that cannot occur.
@@ -444,8 +444,8 @@ def score_vertex(
     ``|p'| = R |sin alpha|``: the estimator is unbiased but its variance grows logarithmically
     there; cells and direction ranges of finite size average it out.
 
-    ``consts`` holds :func:`nee_constants` of point outputs (row of zeros with ``rho = 0``
-    for ranged outputs, whose direction is drawn here into ``work``). Returns the advanced
+    ``consts`` holds :func:`nee_constants` of point outputs; for ranged outputs the direction
+    is drawn here and its row of this batch's private copy of ``consts`` overwritten. Returns the advanced
     random state (draws are used only for ranged outputs).
     """
     r2 = y * y + z * z
@@ -470,27 +470,26 @@ def score_vertex(
             else:
                 phi = phi_lo
             nee_constants(mu, phi, n_in, radius, work)
-            c = work
-        else:
-            c = consts[o]
-        rho = c[3]
+            for i in range(N_NEE):
+                consts[o, i] = work[i]
+        rho = consts[o, 3]
         if rho <= 0.0:
             continue
-        sa = c[4]
-        ca = c[5]
+        sa = consts[o, 4]
+        ca = consts[o, 5]
         disc = r2 - radius * radius * sa * sa
         if disc <= 0.0:
             continue
         sq = math.sqrt(disc)
-        u_t = c[0]
-        u_b = c[1]
-        u_n = c[2]
-        f_out = c[6]
-        k_max = int(c[7])
-        c_step = c[8]
-        s_step = c[9]
-        chord = c[10]
-        common = weight * c[11] / sq
+        u_t = consts[o, 0]
+        u_b = consts[o, 1]
+        u_n = consts[o, 2]
+        f_out = consts[o, 6]
+        k_max = int(consts[o, 7])
+        c_step = consts[o, 8]
+        s_step = consts[o, 9]
+        chord = consts[o, 10]
+        common = weight * consts[o, 11] / sq
         cos_c = outputs[o, 0]
         sin_c = outputs[o, 1]
         cos_h = outputs[o, 2]
