@@ -261,7 +261,16 @@ class PhotometerHead:
         try:
             self._exchange_once(protocol.HEAD_COMMANDS["CHK"], "ON")
             self.chk = True
-        except (protocol.ProtocolError, LinkLost) as exc:
+        except protocol.ProtocolError as exc:
+            # a fault on this reply is a retry like any other: count it (the next command
+            # resynchronises again), or the counts fall short of the faults that happened
+            if not isinstance(exc, protocol.HeadError):
+                self.retry.count(_FRAMING_KIND.get(type(exc), "serial_garbled"))
+            elif exc.transient:
+                self.retry.count("head_busy")
+            log.info("photometer head: CHK ON while resynchronising failed: %s", exc)
+        except LinkLost as exc:
+            self.retry.count("link_lost")
             log.info("photometer head: CHK ON while resynchronising failed: %s", exc)
 
     def _reconnect(self) -> None:
