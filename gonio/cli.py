@@ -4,7 +4,8 @@ Exit status
 -----------
 ``acquire``, ``demo``: 0 complete; 1 stopped safely by an instrument fault that retries did not
 clear (measured points kept; continue with ``--resume``); 2 usage or input error (plan, URL,
-journal of another plan, unreachable device); 130 interrupted by SIGINT/SIGTERM (measured points
+journal of another plan, unreachable device, a run directory in use by another session, a
+``--record`` file that exists or is one of the run directory's own); 130 interrupted by SIGINT/SIGTERM (measured points
 kept, shutter closed, drives stopped).
 ``replay``: 0 the transcript was reproduced and the recorded run was complete; 1 the driver's
 requests differ from the transcript (the message names the request index and the difference),
@@ -36,9 +37,9 @@ from gonio.calibration import CalibrationError
 from gonio.dataset import DatasetError
 from gonio.devices import MotionController, PhotometerHead, RetryPolicy
 from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
-                          Engine, Interrupted, RunResult)
+                          Engine, Interrupted, RunResult, owned_by_run)
 from gonio import protocol
-from gonio.journal import JournalError, read_journal
+from gonio.journal import JournalError, RunDirLock, read_journal
 from gonio.plan import Plan, PlanError, load_plan, preset_names
 from gonio.record import (RecordingTransport, ReplayMismatch, ReplayTransport, TranscriptError,
                           TranscriptWriter, load_transcript)
@@ -96,8 +97,24 @@ def run_session(plan: Plan, modbus, serial_link, out: Path, *, resume: bool = Fa
     """Run one acquisition on two transports (live, recording or replaying).
 
     With ``record`` the transports are wrapped in :class:`gonio.record.RecordingTransport`
-    writing to that file. SIGTERM stops the run like Ctrl-C (exit status 130).
+    writing to that file (a new file, never one of the run directory's own). The run directory
+    is locked for the whole session (:class:`gonio.journal.RunDirLock`). SIGTERM stops the run
+    like Ctrl-C (exit status 130).
     """
+    if record is not None and owned_by_run(out, record):
+        raise TranscriptError(f"--record {record}: that is a file of the run directory {out}; "
+                              "record the transcript elsewhere")
+    lock = RunDirLock.acquire(out)
+    try:
+        return _locked_session(plan, modbus, serial_link, out, resume=resume, seed=seed,
+                               record=record, progress=progress, retry=retry, created=created,
+                               clock=clock)
+    finally:
+        lock.release()
+
+
+def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, progress, retry,
+                    created, clock) -> RunResult:
     writer = None
     if record is not None:
         created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")

@@ -46,6 +46,7 @@ import json
 import math
 import os
 import platform
+import re
 import stat
 import tempfile
 from pathlib import Path
@@ -65,6 +66,7 @@ __all__ = [
     "make_dataset",
     "new_meta",
     "read_dataset",
+    "remove_stale_temp_files",
     "signed_angle",
     "write_dataset",
 ]
@@ -709,6 +711,35 @@ def atomic_write(path: str | os.PathLike, data: bytes) -> None:
         except FileNotFoundError:
             pass
         raise
+
+
+#: Names of :func:`atomic_write`'s temporary files for a dataset's two files: ``mkstemp`` with
+#: prefix ``.NAME.`` and suffix ``.tmp`` puts 8 characters of ``[a-z0-9_]`` between them.
+_TEMP_NAME = re.compile(r"\.(?:radiance\.csv|meta\.json)\.[a-z0-9_]{8}\.tmp")
+
+
+def remove_stale_temp_files(out_dir: str | os.PathLike) -> list[Path]:
+    """Remove temporary files that :func:`write_dataset` left in ``out_dir`` (a killed write).
+
+    Only regular files whose names match the writer's own pattern
+    (``.radiance.csv.XXXXXXXX.tmp``, ``.meta.json.XXXXXXXX.tmp``) are removed; anything else is
+    left alone. The caller must be the only writer of ``out_dir`` (the engine holds the run
+    directory's lock). Returns the removed paths.
+    """
+    out = Path(out_dir)
+    removed = []
+    try:
+        entries = list(os.scandir(out))
+    except (FileNotFoundError, NotADirectoryError):
+        return removed
+    for entry in entries:
+        if _TEMP_NAME.fullmatch(entry.name) and entry.is_file(follow_symlinks=False):
+            try:
+                os.unlink(entry.path)
+            except FileNotFoundError:
+                continue
+            removed.append(Path(entry.path))
+    return removed
 
 
 def _fsync_dir(path: Path) -> None:

@@ -45,6 +45,8 @@ from __future__ import annotations
 
 import datetime as _dt
 import logging
+import os
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -57,7 +59,8 @@ import pandas as pd
 
 from gonio import protocol
 from gonio.calibration import WhiteStandard, load_white_standard, radiance_factor
-from gonio.dataset import make_dataset, new_meta, write_dataset
+from gonio.dataset import (CSV_NAME, META_NAME, make_dataset, new_meta, remove_stale_temp_files,
+                           write_dataset)
 from gonio.devices import (RECOVERABLE_FAULTS, AxisFaultError, DeviceError, MotionController,
                            PhotometerHead, RetryPolicy)
 from gonio.journal import (Journal, JournalContent, JournalError, check_consistency,
@@ -65,7 +68,8 @@ from gonio.journal import (Journal, JournalContent, JournalError, check_consiste
 from gonio.plan import Plan, PlanPoint
 
 __all__ = ["Engine", "RunResult", "AcquisitionError", "Interrupted", "EXIT_OK", "EXIT_STOPPED",
-           "EXIT_USAGE", "EXIT_INTERRUPTED", "dataset_from_journal", "retry_totals", "JOURNAL_NAME"]
+           "EXIT_USAGE", "EXIT_INTERRUPTED", "dataset_from_journal", "retry_totals", "JOURNAL_NAME",
+           "DEMO_MARKER", "RUN_DIR_FILES", "owned_by_run"]
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +78,10 @@ EXIT_STOPPED = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 JOURNAL_NAME = "journal.jsonl"
+#: Marker of a run directory written by ``gonio demo`` (what it may replace on the next demo).
+DEMO_MARKER = ".gonio-demo.json"
+#: Files of a run directory that a session owns (besides the dataset writer's temporary files).
+RUN_DIR_FILES = (JOURNAL_NAME, CSV_NAME, META_NAME, DEMO_MARKER)
 _REHOME_ATTEMPTS = 3
 
 
@@ -98,6 +106,17 @@ class RunResult:
     retries: dict = field(default_factory=dict)
 
 
+def owned_by_run(run_dir: str | os.PathLike, path: str | os.PathLike) -> bool:
+    """True when ``path`` is (or would be) one of the files a session owns in ``run_dir``
+    (:data:`RUN_DIR_FILES`, the dataset writer's temporary files), symlinks resolved."""
+    p, d = Path(path).resolve(), Path(run_dir).resolve()
+    return p.parent == d and (p.name in RUN_DIR_FILES
+                              or bool(_DATASET_TEMP.fullmatch(p.name)))
+
+
+_DATASET_TEMP = re.compile(r"\.(?:radiance\.csv|meta\.json)\..*\.tmp")
+
+
 def _versions() -> dict:
     out = {}
     for dist in ("fabric-optics", "pymodbus", "pyserial", "numpy"):
@@ -120,7 +139,9 @@ class Engine:
     plan : the validated plan.
     head, motion : the devices (sharing ``retry``).
     retry : the retry policy whose counter goes into the run's meta.
-    out_dir : run directory (``journal.jsonl``, ``radiance.csv``, ``meta.json``).
+    out_dir : run directory (``journal.jsonl``, ``radiance.csv``, ``meta.json``); the caller
+        holds its lock (:class:`gonio.journal.RunDirLock`, taken by :func:`gonio.cli.run_session`)
+        for the whole session.
     resume : continue from the journal instead of refusing an existing one.
     seed : the mock's seed, recorded in the meta (None for a real instrument).
     links : URLs of the two links, recorded in the meta.
@@ -144,6 +165,9 @@ class Engine:
         self.settings = plan.acquisition
         self.ladder = self.settings.ladder()
         self.check = plan.check()
+        refused = self.check.refusal(plan.name)
+        if refused is not None:     # the validation of `gonio check-plan`: never drop points
+            raise AcquisitionError(refused)
         base = plan.path.parent if plan.path else None
         self.standard: WhiteStandard = load_white_standard(plan.white_standard, base=base)
         self.standard.at(plan.wavelengths_nm)   # refuse a plan outside the table now
@@ -250,6 +274,10 @@ class Engine:
     def _open_journal(self) -> JournalContent:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         path = self.out_dir / JOURNAL_NAME
+        # the caller holds the run directory's lock: no other session writes here, so a
+        # temporary file of the dataset writer is a leftover of a killed write
+        for stale in remove_stale_temp_files(self.out_dir):
+            log.info("removed %s, left by an interrupted dataset write", stale)
         if path.exists() and path.stat().st_size > 0 and not self.resume:
             raise AcquisitionError(f"{self.out_dir}: a journal from an earlier run is there; "
                                    "continue it with --resume or choose a new --out")

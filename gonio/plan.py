@@ -62,6 +62,17 @@ geometries (``incidence x rotations x (in-plane + out-of-plane directions)``) ti
 about a month at real speed. A larger plan is refused at load time with one line; split it into
 several plans (each its own run directory).
 
+Wavelengths must lie on the monochromator's 0.1 nm grid (:data:`WAVELENGTH_STEP_NM`, the
+resolution of ``WAVE``): a finer value (``500.01``) is refused with the field and value named,
+not rounded, so that a dataset never labels a reading with a wavelength other than the one the
+head was set to (two plan wavelengths rounding to one setting would otherwise be two rows of the
+same measurement). Values within 1e-6 nm of the grid (floating-point steps) are snapped to it.
+
+Before any acquisition the plan is checked (:meth:`Plan.check`, the same rules ``gonio
+check-plan`` applies): ``gonio acquire`` refuses a plan with points out of the soft limits or in
+the beam-block zone without ``skip_blocked = true`` (:meth:`PlanCheck.refusal`), instead of
+dropping those points and reporting the run complete.
+
 Auto-ranging starts every reading at ``(itime_ms, gain)`` and steps down
 (:meth:`AcquisitionSettings.ladder`) while the head reports saturation. The default gain is x1:
 the shot-noise-limited relative error ``1/sqrt(K t beta cos theta_o)`` does not depend on the
@@ -84,7 +95,7 @@ import pandas as pd
 
 from gonio import protocol
 
-__all__ = [
+__all__ = ["WAVELENGTH_STEP_NM", 
     "PlanError",
     "AcquisitionSettings",
     "PlanPoint",
@@ -104,6 +115,10 @@ MAX_MEASUREMENTS = 1_000_000
 
 _DEFAULT_WAVELENGTHS = np.arange(390.0, 710.0 + 1e-9, 10.0)
 _PRESET_PACKAGE = "gonio.presets"
+
+
+WAVELENGTH_STEP_NM = 0.1
+"""Resolution of the head's ``WAVE`` setting (one decimal); plan wavelengths must lie on it."""
 
 
 class PlanError(ValueError):
@@ -178,6 +193,23 @@ class PlanCheck:
     def ok(self) -> bool:
         """True when nothing is out of limits and no beam-block point is unexpected."""
         return not self.out_of_limits and (self.blocked_expected or not self.blocked)
+
+    def refusal(self, plan_name: str) -> str | None:
+        """Why the plan cannot be acquired, in one line (None when :attr:`ok`).
+
+        The one validation shared by ``gonio check-plan`` (which lists the points) and
+        ``gonio acquire`` (which refuses to start).
+        """
+        if self.ok:
+            return None
+        parts = []
+        if self.out_of_limits:
+            p, why = self.out_of_limits[0]
+            parts.append(f"{len(self.out_of_limits)} out of the soft limits (first: {why})")
+        if self.blocked and not self.blocked_expected:
+            parts.append(f"{len(self.blocked)} in the beam-block zone and skip_blocked = false")
+        return (f"plan {plan_name}: {'; '.join(parts)}; `gonio check-plan` lists them: fix the "
+                "plan (or set skip_blocked = true for expected beam-block points)")
 
 
 def preset_names() -> list[str]:
@@ -333,10 +365,19 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     else:
         wavelengths = list(_DEFAULT_WAVELENGTHS)
     wl.unknown()
+    field_name = "list_nm" if "list_nm" in wl.table else "start_nm"
     for k, w in enumerate(wavelengths):
         if not 380.0 <= w <= 780.0:
-            wl.fail("list_nm" if "list_nm" in wl.table else "start_nm",
-                    f"wavelength {w} nm outside the monochromator range 380..780 nm")
+            wl.fail(field_name, f"wavelength {w} nm outside the monochromator range 380..780 nm")
+        if abs(w * 10.0 - round(w * 10.0)) > 1e-6:
+            if field_name == "start_nm" and abs(wavelengths[0] * 10.0 - round(wavelengths[0] * 10.0)) <= 1e-6:
+                field_name = "step_nm"
+            wl.fail(field_name, f"wavelength {w:.10g} nm is finer than the monochromator's "
+                                f"{WAVELENGTH_STEP_NM:g} nm step (it would be measured at "
+                                f"{round(w, 1):g} nm); give wavelengths in steps of "
+                                f"{WAVELENGTH_STEP_NM:g} nm")
+    # on the head's grid now: the plan's wavelengths are exactly what WAVE sets
+    wavelengths = [round(w, 1) for w in wavelengths]
     if len(set(wavelengths)) != len(wavelengths):
         wl.fail("list_nm", "has duplicate wavelengths")
 

@@ -83,7 +83,11 @@ class TranscriptWriter:
     def __init__(self, path: str | os.PathLike, header: dict):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "w", encoding="utf-8")
+        try:    # a new file only: an existing file (a transcript, a journal) is never replaced
+            self._fh = open(self.path, "x", encoding="utf-8")
+        except FileExistsError:
+            raise TranscriptError(f"{self.path}: the file exists; --record writes a new "
+                                  "transcript: choose a new file name") from None
         self._t0 = time.monotonic()
         self._i = 0
         self._fh.write(json.dumps({"type": "header", "format": TRANSCRIPT_FORMAT, **header}) + "\n")

@@ -8,6 +8,7 @@ import logging
 
 import pytest
 
+from gonio.cli import main
 from gonio.mock import MockInstrument
 
 SEED = 5
@@ -38,3 +39,197 @@ def test_retry_counts_equal_the_faults_injected(drv, tmp_path, spec):
     assert res.retries == counted
     meta = json.loads((tmp_path / "run" / "meta.json").read_text())
     assert meta["provenance"]["retries"] == counted
+
+
+# --- helpers ----------------------------------------------------------------------------------
+
+def _acquire_argv(mock, plan, out, *extra):
+    return ["acquire", str(plan), "--modbus", mock.modbus_url, "--serial", mock.serial_url,
+            "--out", str(out), "--timeout", "0.3", "--no-progress", "--seed", str(mock.seed),
+            *map(str, extra)]
+
+
+def _one_line_error(capsys, needle):
+    err = capsys.readouterr().err.strip()
+    assert needle in err, err
+    assert "Traceback" not in err
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def _journal_points(out):
+    from gonio.journal import read_journal
+    return read_journal(out / "journal.jsonl").of_type("point")
+
+
+# --- item 1: --record never overwrites, never names the run's own files ---------------------
+
+def test_record_refuses_an_existing_file_and_the_run_directory_files(drv, tmp_path, capsys):
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert main(_acquire_argv(mock, plan, run)) == 0
+        capsys.readouterr()
+        journal = (run / "journal.jsonl").read_bytes()
+        # the journal itself, by any spelling
+        for target in (run / "journal.jsonl", run / "." / "journal.jsonl"):
+            assert main(_acquire_argv(mock, plan, run, "--resume", "--record", target)) == 2
+            _one_line_error(capsys, "file of the run directory")
+        assert (run / "journal.jsonl").read_bytes() == journal
+        # a new run directory: its journal-to-be and dataset files are refused too
+        for name in ("journal.jsonl", "radiance.csv", "meta.json"):
+            assert main(_acquire_argv(mock, plan, tmp_path / "new", "--record",
+                                      tmp_path / "new" / name)) == 2
+            _one_line_error(capsys, "file of the run directory")
+        assert not (tmp_path / "new" / "journal.jsonl").exists()
+        # an existing transcript (any existing file) is never overwritten
+        other = tmp_path / "other.jsonl"
+        other.write_text("precious\n")
+        assert main(_acquire_argv(mock, plan, tmp_path / "run2", "--record", other)) == 2
+        _one_line_error(capsys, "the file exists")
+        assert other.read_text() == "precious\n"
+        assert not (tmp_path / "run2" / "journal.jsonl").exists()
+        # a new file in the run directory is fine
+        assert main(_acquire_argv(mock, plan, tmp_path / "run3", "--record",
+                                  tmp_path / "run3" / "session.jsonl")) == 0
+    assert (run / "journal.jsonl").read_bytes() == journal
+
+
+# --- item 2: one session per run directory ----------------------------------------------------
+
+def test_a_second_session_on_a_locked_run_directory_is_refused(drv, tmp_path, capsys):
+    from gonio.journal import RunDirLock
+
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert main(_acquire_argv(mock, plan, run)) == 0
+        capsys.readouterr()
+        journal = (run / "journal.jsonl").read_bytes()
+        requests = mock.frontend.requests
+        with RunDirLock.acquire(run):          # another session holds the run directory
+            for extra in ((), ("--resume",)):
+                assert main(_acquire_argv(mock, plan, run, *extra)) == 2
+                _one_line_error(capsys, "another gonio session is using this run directory")
+        assert mock.frontend.requests == requests       # nothing sent to the instrument
+        assert (run / "journal.jsonl").read_bytes() == journal
+        # released: --resume works again
+        assert main(_acquire_argv(mock, plan, run, "--resume")) == 0
+
+
+def test_the_lock_is_held_for_the_whole_session(drv, tmp_path):
+    """A second lock attempt fails at every exchange of a running session, dataset write
+    included (checked from inside the session, at deterministic moments)."""
+    from gonio import dataset as dataset_module
+    from gonio.cli import run_session
+    from gonio.devices import RetryPolicy
+    from gonio.journal import RunDirLock, RunDirLocked
+    from gonio.plan import load_plan
+    from gonio.transport import ModbusTransport, SerialTransport
+
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    probes = []
+
+    def probe():
+        try:
+            RunDirLock.acquire(run).release()
+            probes.append(False)
+        except RunDirLocked:
+            probes.append(True)
+
+    class Probing(SerialTransport):
+        def exchange(self, line, **kw):
+            probe()
+            return super().exchange(line, **kw)
+
+    real_write = dataset_module.write_dataset
+
+    def write_and_probe(ds, out):
+        probe()
+        return real_write(ds, out)
+
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        try:
+            import gonio.engine
+            gonio.engine.write_dataset = write_and_probe
+            res = run_session(load_plan(plan), ModbusTransport(mock.modbus_url, timeout_s=0.3),
+                              Probing(mock.serial_url, timeout_s=0.3), run, progress=False,
+                              seed=SEED, retry=RetryPolicy(base_s=0.002))
+        finally:
+            gonio.engine.write_dataset = real_write
+    assert res.exit_code == 0
+    assert len(probes) > 20 and all(probes)
+    RunDirLock.acquire(run).release()          # released at the end
+
+
+# --- item 7: acquire refuses what check-plan refuses ----------------------------------------
+
+@pytest.mark.parametrize("kw,needle", [
+    ({"incidence": (0, 1e9)}, "out of the soft limits"),
+    ({"incidence": (30,), "in_plane": (-30, 20)}, "beam-block zone and skip_blocked = false"),
+])
+def test_acquire_refuses_plans_that_check_plan_refuses(drv, tmp_path, capsys, kw, needle):
+    plan = _plan(drv, tmp_path, "refused", **kw)
+    assert main(["check-plan", str(plan)]) == 1
+    capsys.readouterr()
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert main(_acquire_argv(mock, plan, tmp_path / "run")) == 2
+        _one_line_error(capsys, needle)
+        assert mock.frontend.requests == 0
+    assert not (tmp_path / "run" / "journal.jsonl").exists()
+
+
+# --- item 8: wavelengths finer than the head's 0.1 nm step ----------------------------------
+
+@pytest.mark.parametrize("wavelengths,extra,needle", [
+    ("list_nm = [500.01, 500.04]", "", "'wavelengths.list_nm': wavelength 500.01 nm is finer"),
+    ("start_nm = 500\nstop_nm = 501\nstep_nm = 0.05", "", "'wavelengths.step_nm': wavelength 500.05"),
+    ("start_nm = 500.25\nstop_nm = 501\nstep_nm = 0.5", "", "'wavelengths.start_nm': wavelength 500.25"),
+])
+def test_wavelengths_finer_than_the_monochromator_step_are_refused(tmp_path, capsys, wavelengths,
+                                                                     extra, needle):
+    from gonio.plan import PlanError, load_plan
+
+    path = tmp_path / "fine.toml"
+    path.write_text(f'[sample]\nname = "x"\n[wavelengths]\n{wavelengths}\n'
+                    '[geometry]\nincidence_deg = [0]\nin_plane_deg = [45]\n')
+    with pytest.raises(PlanError, match=needle.replace("(", r"\(").replace(".", r"\.")):
+        load_plan(path)
+    assert main(["check-plan", str(path)]) == 2
+    _one_line_error(capsys, needle)
+
+
+def test_wavelengths_on_the_grid_are_kept_exactly(tmp_path):
+    from gonio.plan import load_plan
+
+    path = tmp_path / "grid.toml"
+    path.write_text('[sample]\nname = "x"\n[wavelengths]\nstart_nm = 500\nstop_nm = 500.5\n'
+                    'step_nm = 0.1\n[geometry]\nincidence_deg = [0]\nin_plane_deg = [45]\n')
+    assert list(load_plan(path).wavelengths_nm) == [500.0, 500.1, 500.2, 500.3, 500.4, 500.5]
+
+
+# --- item 10: the dataset writer's stale temporary files ------------------------------------
+
+def test_stale_temporary_dataset_files_are_removed_on_resume(drv, tmp_path):
+    import os
+    import tempfile
+
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert drv.run(mock, plan, run).exit_code == 0
+        # what a SIGKILL inside atomic_write leaves: mkstemp's own names
+        stale = []
+        for name in ("radiance.csv", "meta.json"):
+            fd, p = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=run)
+            os.write(fd, b"half a dataset")
+            os.close(fd)
+            stale.append(p)
+        keep = [run / ".radiance.csv.mine.tmp", run / "notes.tmp", run / "radiance.csv.tmp",
+                run / ".radiance.csv.abcdefgh.tmp.bak"]
+        for k in keep:
+            k.write_text("not the writer's")
+        assert drv.run(mock, plan, run, resume=True).exit_code == 0
+    assert not any(os.path.exists(p) for p in stale)
+    assert all(k.read_text() == "not the writer's" for k in keep)

@@ -125,11 +125,20 @@ def test_corrupt_transcripts_are_clear_errors(tmp_path, capsys, edit, needle):
 
 
 def test_refused_points_are_never_sent(drv, tmp_path):
-    """Beam-block and out-of-limit points are listed, skipped, and never reach the controller."""
+    """Expected beam-block points (skip_blocked = true) are listed, skipped, and never reach the
+    controller; a plan with out-of-limit points is refused before anything is sent (issue 9,
+    item 7: the validation of check-plan)."""
     from gonio import protocol as P
+    from gonio.engine import AcquisitionError
 
-    plan = drv.write_plan(tmp_path, "refuse", incidence=(30, 88), in_plane=(-32, -28, -25, 10, 87),
-                          wavelengths=(550,), readings=4)
+    bad = drv.write_plan(tmp_path, "refuse", incidence=(30, 88), in_plane=(-32, -28, -25, 10, 87),
+                         wavelengths=(550,), readings=4, geometry_extra="skip_blocked = true")
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=9) as mock:
+        with pytest.raises(AcquisitionError, match="out of the soft limits"):
+            drv.run(mock, bad, tmp_path / "bad", record=tmp_path / "bad.jsonl")
+        assert mock.frontend.requests == 0
+    plan = drv.write_plan(tmp_path, "skip", incidence=(30,), in_plane=(-32, -28, -25, 10),
+                          wavelengths=(550,), readings=4, geometry_extra="skip_blocked = true")
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=9) as mock:
         res = drv.run(mock, plan, tmp_path / "run", record=tmp_path / "t.jsonl")
         assert mock.controller.axes[1].fault == 0
@@ -143,8 +152,7 @@ def test_refused_points_are_never_sent(drv, tmp_path):
                 if p["address"] == P.axis_target_address(a):
                     targets[a].add(P.registers_to_int32(p["values"][0], p["values"][1]))
         assert not (m["dir"] == "rx" and isinstance(p, dict) and "exception" in p), p
-    assert 88_000 not in targets[0]
-    assert not targets[1] & {-32_000, -28_000, 87_000}
+    assert not targets[1] & {-32_000, -28_000}
     assert {-25_000, 10_000} <= targets[1]
     meta = read_dataset(tmp_path / "run").meta["provenance"]
-    assert len(meta["unmeasurable"]) == 8 and meta["points_planned"] == 2
+    assert len(meta["unmeasurable"]) == 2 and meta["points_planned"] == 2
