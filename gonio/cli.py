@@ -37,7 +37,8 @@ from gonio.calibration import CalibrationError
 from gonio.dataset import DatasetError
 from gonio.devices import MotionController, PhotometerHead, RetryPolicy
 from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
-                          Engine, Interrupted, RunResult, owned_by_run)
+                          DEMO_MARKER, JOURNAL_NAME, RUN_DIR_FILES, Engine, Interrupted,
+                          RunResult, owned_by_run)
 from gonio import protocol
 from gonio.journal import JournalError, RunDirLock, read_journal
 from gonio.plan import Plan, PlanError, load_plan, preset_names
@@ -353,11 +354,8 @@ def _cmd_demo(args) -> int:
 
     out = Path(args.out)
     _check_output_folder(out, "--out")
-    for name in ("journal.jsonl", "radiance.csv", "meta.json"):
-        if (out / name).exists():
-            log.info("demo: replacing the previous demo's %s in %s", name, out)
-            (out / name).unlink()
     plan = load_plan(args.plan)
+    _replace_previous_demo(out)
     t0 = time.monotonic()
     with MockInstrument(sample="red-cotton", modbus="tcp", serial="pty", speed="fast",
                         seed=args.seed) as mock:
@@ -365,6 +363,7 @@ def _cmd_demo(args) -> int:
         modbus, serial_link = _open_links(args)
         result = run_session(plan, modbus, serial_link, out, seed=args.seed,
                              progress=False if args.no_progress else None)
+    _mark_demo(out, done=True)
     code = _finish(result, "demo")
     if code == EXIT_OK:
         print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
@@ -380,6 +379,53 @@ def _check_output_folder(out: Path, opt: str) -> None:
                 what = "is a file" if parent == out else f"is below {parent}, a file"
                 raise _UsageError(f"{opt} {out}: {what}; give a folder")
             break
+
+
+def _replace_previous_demo(out: Path) -> None:
+    """Clear what a previous ``gonio demo`` wrote in ``out``; refuse any other run's files.
+
+    A demo marks its folder (:data:`gonio.engine.DEMO_MARKER`, with the SHA-256 of its journal's
+    start record once the run ended); only a folder so marked, whose journal is still that demo's,
+    is cleared, and only of the run's own files.
+    """
+    if out.exists() and not out.is_dir():
+        raise _UsageError(f"--out {out}: not a directory")
+    present = [n for n in RUN_DIR_FILES if n != DEMO_MARKER and (out / n).exists()]
+    if not present:
+        _mark_demo(out, done=False)
+        return
+    try:
+        marker = json.loads((out / DEMO_MARKER).read_text())
+        ours = marker.get("written_by") == "gonio demo" and marker.get("journal_start") in (
+            None, _journal_start_sha256(out))
+    except (OSError, ValueError, AttributeError):
+        ours = False
+    if not ours:
+        raise _UsageError(f"--out {out}: holds {', '.join(present)} that `gonio demo` did not "
+                          "write; nothing was changed: choose another --out")
+    for name in present:
+        log.info("demo: replacing the previous demo's %s in %s", name, out)
+        (out / name).unlink()
+    _mark_demo(out, done=False)
+
+
+def _journal_start_sha256(out: Path) -> str | None:
+    import hashlib
+
+    try:
+        with open(out / JOURNAL_NAME, "rb") as fh:
+            return hashlib.sha256(fh.readline()).hexdigest()
+    except FileNotFoundError:
+        return None
+
+
+def _mark_demo(out: Path, *, done: bool) -> None:
+    from gonio.dataset import atomic_write
+
+    out.mkdir(parents=True, exist_ok=True)
+    marker = {"written_by": "gonio demo",
+              "journal_start": _journal_start_sha256(out) if done else None}
+    atomic_write(out / DEMO_MARKER, (json.dumps(marker) + "\n").encode())
 
 
 def _cmd_truth(args) -> int:

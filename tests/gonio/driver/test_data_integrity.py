@@ -233,3 +233,29 @@ def test_stale_temporary_dataset_files_are_removed_on_resume(drv, tmp_path):
         assert drv.run(mock, plan, run, resume=True).exit_code == 0
     assert not any(os.path.exists(p) for p in stale)
     assert all(k.read_text() == "not the writer's" for k in keep)
+
+
+# --- item 5: demo replaces only a previous demo's output ------------------------------------
+
+def test_demo_replaces_only_a_previous_demo(drv, tmp_path, capsys):
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert drv.run(mock, plan, run).exit_code == 0
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    demo = ["demo", "--plan", str(plan), "--no-progress", "--out"]
+    # another run's folder: refused, nothing touched, no mock started
+    assert main(demo + [str(run)]) == 2
+    _one_line_error(capsys, "that `gonio demo` did not write")
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    # a demo folder is replaced by the next demo
+    out = tmp_path / "demo"
+    assert main(demo + [str(out)]) == 0
+    assert main(demo + [str(out)]) == 0
+    capsys.readouterr()
+    assert len(_journal_points(out)) == 6
+    # a demo folder whose journal another session replaced is not the demo's any more
+    (out / "journal.jsonl").write_bytes(before["journal.jsonl"])
+    assert main(demo + [str(out)]) == 2
+    _one_line_error(capsys, "that `gonio demo` did not write")
+    assert (out / "journal.jsonl").read_bytes() == before["journal.jsonl"]
