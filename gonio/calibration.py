@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["CalibrationError", "WhiteStandard", "load_white_standard", "radiance_factor",
-           "pooled_mean"]
+           "pooled_mean", "calibration_problem", "MIN_REFERENCE_Z"]
 
 
 class CalibrationError(ValueError):
@@ -124,6 +124,46 @@ def parse_white_standard(raw: bytes, name: str) -> WhiteStandard:
         raise CalibrationError(f"{name}: wavelengths must increase strictly")
     return WhiteStandard(name=name, wavelength_nm=arr[:, 0], beta_ref=arr[:, 1],
                          u_beta_ref=arr[:, 2], sha256=hashlib.sha256(raw).hexdigest())
+
+
+MIN_REFERENCE_Z = 5.0
+"""How many standard errors the white standard's signal must stand above the dark."""
+
+
+def calibration_problem(darks: list[dict], reference: list[dict],
+                        standard: WhiteStandard | None = None) -> str | None:
+    """Why a calibration (journal ``darks`` and ``reference`` readings) is unusable, or None.
+
+    The white standard's signal ``S_ref - D_ref`` (at the reference reading's integration time
+    and gain) is the denominator of the measurement equation. It must be finite and stand above
+    the dark by at least :data:`MIN_REFERENCE_Z` of its standard error
+    ``sqrt(u_S_ref^2 + u_D_ref^2)``: a reading with the shutter closed, the lamp off or nothing
+    in the beam equals the dark within a few standard errors (``z > 5`` by chance has
+    probability < 3e-7), and would give ``beta = inf`` or noise. Against the standard's table
+    (when ``standard`` is given): every reference wavelength lies in its range and the standard
+    is calibrated there (``beta_ref > 0``), so a positive signal is what it must give.
+    """
+    by_setting = {(d["itime_ms"], d["gain"]): d for d in darks}
+    for r in reference:
+        wl = float(r["wavelength_nm"])
+        d = by_setting.get((r["itime_ms"], r["gain"]))
+        if d is None:
+            return f"white standard at {wl:g} nm: no dark at {r['itime_ms']} ms, gain {r['gain']}"
+        signal = float(r["mean"]) - float(d["mean"])
+        u = math.hypot(float(r["sem"]), float(d["sem"]))
+        if not (math.isfinite(signal) and math.isfinite(u)) or signal <= MIN_REFERENCE_Z * u:
+            z = signal / u if u > 0 else (math.inf if signal > 0 else 0.0)
+            return (f"white standard at {wl:g} nm: {signal:.4g} +- {u:.2g} counts above the "
+                    f"dark ({z:.3g} standard errors, at least {MIN_REFERENCE_Z:g} needed): is "
+                    "the lamp on, the shutter open and the standard in the beam?")
+        if standard is not None:
+            try:
+                beta_ref, _ = standard.at([wl])
+            except CalibrationError as exc:
+                return str(exc)
+            if not beta_ref[0] > 0:
+                return f"white standard at {wl:g} nm: the table gives beta_ref <= 0"
+    return None
 
 
 def pooled_mean(means, stds, ns) -> tuple[float, float, int]:

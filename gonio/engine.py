@@ -8,13 +8,19 @@ a resumed run and an uninterrupted run with the same mock seed write identical `
 
 Sequence
 --------
+0. refuse a plan that ``gonio check-plan`` refuses (:meth:`gonio.plan.PlanCheck.refusal`), and
+   on ``--resume`` a journal holding a point that is not a measurable point of the plan;
 1. connect (checksum mode on, ``*IDN?``, firmware), refuse an open interlock or a pressed
    emergency stop, lamp on, shutter closed, sample slot, home;
 2. calibration at the reference geometry (default 0/45): dark ``D`` at every step of the
    auto-ranging ladder (shutter closed), then the white standard ``S_ref`` per wavelength
    (auto-ranged) with the reference slot in the beam - or, on ``--resume``, the journal's last
-   calibration when still valid (same plan and standard files, same instrument, younger than
-   ``calibration_max_age_min``; otherwise it is measured again and the reason logged);
+   calibration when still valid (a valid calibration, same plan and standard files, same
+   instrument, younger than ``calibration_max_age_min``; otherwise it is measured again and the
+   reason logged). A calibration is valid when the white standard stands above the dark by
+   :data:`gonio.calibration.MIN_REFERENCE_Z` standard errors at every wavelength
+   (:func:`gonio.calibration.calibration_problem`); an invalid one is never journaled (a
+   ``calibration_invalid`` event says why and the session stops safely, exit 1);
 3. every measurable point in motion order: move (axis commands ordered around the beam-block
    zone; after a following error or a lost homing every axis is stopped and brought to rest,
    the recoverable faults are reset and the axes re-homed, and the move repeated),
@@ -58,7 +64,8 @@ import numpy as np
 import pandas as pd
 
 from gonio import protocol
-from gonio.calibration import WhiteStandard, load_white_standard, radiance_factor
+from gonio.calibration import (WhiteStandard, calibration_problem, load_white_standard,
+                               radiance_factor)
 from gonio.dataset import (CSV_NAME, META_NAME, make_dataset, new_meta, remove_stale_temp_files,
                            write_dataset)
 from gonio.devices import (RECOVERABLE_FAULTS, AxisFaultError, DeviceError, MotionController,
@@ -69,7 +76,7 @@ from gonio.plan import Plan, PlanPoint
 
 __all__ = ["Engine", "RunResult", "AcquisitionError", "Interrupted", "EXIT_OK", "EXIT_STOPPED",
            "EXIT_USAGE", "EXIT_INTERRUPTED", "dataset_from_journal", "retry_totals", "JOURNAL_NAME",
-           "DEMO_MARKER", "RUN_DIR_FILES", "owned_by_run"]
+           "DEMO_MARKER", "RUN_DIR_FILES", "owned_by_run", "usable_points"]
 
 log = logging.getLogger(__name__)
 
@@ -223,6 +230,9 @@ class Engine:
         if not cals:
             return None, "no calibration in the journal"
         c = cals[-1]
+        problem = calibration_problem(c["darks"], c["reference"], self.standard)
+        if problem is not None:
+            return None, f"the journal's calibration {c['id']} is invalid ({problem})"
         if c["plan_sha256"] != self.plan.sha256:
             return None, "the plan file changed"
         if c["standard_sha256"] != self.standard.sha256:
@@ -262,6 +272,12 @@ class Engine:
                                   "saturated at every integration time and gain")
             reference.append(r)
         self.head.query("SHUTTER", "CLOSE")
+        problem = calibration_problem(darks, reference, self.standard)
+        if problem is not None:
+            # never stored: a point measured against it would be wrong (beta = inf or noise)
+            self._append({"type": "event", "what": "calibration_invalid", "message": problem,
+                          "time": self.clock()})
+            raise DeviceError("photometer head", "calibration", problem)
         self.motion.set_slot(protocol.SampleSlot.SAMPLE)
         rec = {"type": "calibration", "id": (max(ids) + 1) if ids else 0, "time": self.clock(),
                "plan_sha256": self.plan.sha256, "standard_sha256": self.standard.sha256,
@@ -298,15 +314,40 @@ class Engine:
             raise AcquisitionError(f"{path}: the journal was written for plan "
                                    f"'{starts[0]['plan']}' with different contents; resume with "
                                    "the same plan file or choose a new --out")
+        try:
+            self._check_points_in_plan(str(path))
+        except AcquisitionError:
+            journal.close()
+            raise
         return content
+
+    def _check_points_in_plan(self, name: str) -> None:
+        """Every journaled point is a measurable point of the plan (same axes, the plan's
+        wavelengths): the journal is not trusted blindly (an edited or foreign point would be
+        merged into the dataset and counted as done)."""
+        points = {p.key: p for p in self.check.ordered}
+        wavelengths = set(map(float, self.plan.wavelengths_nm))
+        for line, r in enumerate(self.records, start=1):
+            if r["type"] != "point":
+                continue
+            p = points.get(_key(r))
+            if p is None or any(abs(float(a) - b) > 1e-6 for a, b in zip(r["axes_deg"], p.axes_deg)):
+                raise AcquisitionError(
+                    f"{name}: line {line}: point at geometry "
+                    f"({', '.join(f'{float(x):g}' for x in r['geometry'])}) is not a measurable "
+                    f"point of plan '{self.plan.name}'; the journal was altered: choose a new --out")
+            extra = {float(x["wavelength_nm"]) for x in r["readings"]} - wavelengths
+            if extra:
+                raise AcquisitionError(
+                    f"{name}: line {line}: point measured at {min(extra):g} nm, not a wavelength "
+                    f"of plan '{self.plan.name}'; the journal was altered: choose a new --out")
 
     def run(self) -> RunResult:
         """Run (or resume) the acquisition; always leaves the instrument safe."""
         content = self._open_journal()
         ordered = self.check.ordered
         total = len(ordered)
-        done = {tuple(r["geometry"]) for r in self.records if r["type"] == "point"}
-        done = {tuple(round(float(x), 6) for x in g) for g in done}
+        done = {_key(r) for r in usable_points(self.records)}
         status, code, message = "complete", EXIT_OK, ""
         failure: Exception | None = None
         bar = None
@@ -364,7 +405,7 @@ class Engine:
                 bar.close()
             self.head.shutdown()
             self.motion.shutdown()
-        measured = len({tuple(r["geometry"]) for r in self.records if r["type"] == "point"})
+        measured = len({_key(r) for r in usable_points(self.records)})
         if status != "complete":
             log.error("%s (%d of %d points measured)", message, measured, total)
         retries = self._retry_snapshot()
@@ -375,7 +416,7 @@ class Engine:
         # inside an append, after the line was written but before it reached self.records,
         # must not leave a journaled point out of the dataset
         self.records = list(read_journal(self.out_dir / JOURNAL_NAME).records)
-        measured = len({tuple(r["geometry"]) for r in self.records if r["type"] == "point"})
+        measured = len({_key(r) for r in usable_points(self.records)})
         path = None
         if measured:
             ds = dataset_from_journal(self.records, self.plan, self.standard,
@@ -423,6 +464,19 @@ class Engine:
                  p.source_deg, p.detector_deg, p.plane_deg, p.rotation_deg, eta)
 
 
+def _key(point: dict) -> tuple[float, ...]:
+    return tuple(round(float(x), 6) for x in point["geometry"])
+
+
+def usable_points(records: list[dict]) -> list[dict]:
+    """The journal's point records whose calibration is valid
+    (:func:`gonio.calibration.calibration_problem`; a journal written before calibrations were
+    checked may hold an invalid one: its points are measured again on resume)."""
+    invalid = {r["id"] for r in records if r["type"] == "calibration"
+               and calibration_problem(r["darks"], r["reference"]) is not None}
+    return [r for r in records if r["type"] == "point" and r["calibration"] not in invalid]
+
+
 def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandard, *,
                          seed: int | None = None, links: dict | None = None,
                          firmware: str = "", complete: bool = False,
@@ -430,7 +484,8 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
     """Build the measured dataset from journal records (see the module docstring).
 
     Each point uses the calibration it was measured with; a geometry journaled twice keeps its
-    first record. Returns a :class:`gonio.dataset.Dataset`.
+    first record; points of an invalid calibration are left out (:func:`usable_points`).
+    Returns a :class:`gonio.dataset.Dataset`.
     """
     cals = {r["id"]: r for r in records if r["type"] == "calibration"}
     start = next(r for r in records if r["type"] == "start")
@@ -438,10 +493,8 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
                                          "S", "uS", "D", "uD", "t", "G", "Sr", "uSr", "Dr",
                                          "uDr", "tr", "Gr", "n", "to_ref")}
     saturated = []
-    for rec in records:
-        if rec["type"] != "point":
-            continue
-        key = tuple(round(float(x), 6) for x in rec["geometry"])
+    for rec in usable_points(records):
+        key = _key(rec)
         if key in seen:
             continue
         seen.add(key)

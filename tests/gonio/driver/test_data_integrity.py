@@ -259,3 +259,99 @@ def test_demo_replaces_only_a_previous_demo(drv, tmp_path, capsys):
     assert main(demo + [str(out)]) == 2
     _one_line_error(capsys, "that `gonio demo` did not write")
     assert (out / "journal.jsonl").read_bytes() == before["journal.jsonl"]
+
+
+# --- item 4: the calibration is validated, never stored or reused when invalid --------------
+
+def _session(mock, plan, out, serial_cls=None, **kw):
+    from gonio.cli import run_session
+    from gonio.devices import RetryPolicy
+    from gonio.plan import load_plan
+    from gonio.transport import ModbusTransport, SerialTransport
+
+    serial_cls = serial_cls or SerialTransport
+    return run_session(load_plan(plan), ModbusTransport(mock.modbus_url, timeout_s=0.3),
+                       serial_cls(mock.serial_url, timeout_s=0.3), out, progress=False,
+                       seed=mock.seed, retry=RetryPolicy(base_s=0.002), **kw)
+
+
+def test_white_standard_with_the_shutter_closed_is_refused_then_measured_again(drv, tmp_path,
+                                                                               caplog):
+    """The shutter stays closed during calibration (every SHUTTER OPEN becomes CLOSE on the
+    wire): the run stops safely (exit 1) without journaling that calibration; the resume
+    measures it again and the dataset equals a clean run's."""
+    from gonio.transport import SerialTransport
+
+    class ShutterStuck(SerialTransport):
+        def exchange(self, line, **kw):
+            return super().exchange(line.replace(b"SHUTTER OPEN", b"SHUTTER CLOSE"), **kw)
+
+    plan = _plan(drv, tmp_path)
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert _session(mock, plan, tmp_path / "clean").exit_code == 0
+        res = _session(mock, plan, tmp_path / "run", serial_cls=ShutterStuck)
+        assert res.exit_code == 1 and res.status == "stopped"
+        assert "white standard at 450 nm" in res.message and "shutter open" in res.message
+        assert mock.controller.shutter_open is False
+        from gonio.journal import read_journal
+        content = read_journal(tmp_path / "run" / "journal.jsonl")
+        assert content.of_type("calibration") == [] and content.of_type("point") == []
+        assert [e["what"] for e in content.of_type("event")] == ["calibration_invalid",
+                                                                  "session_end"]
+        res = _session(mock, plan, tmp_path / "run", resume=True)
+    assert res.exit_code == 0 and res.points_measured == 6
+    assert ((tmp_path / "run" / "radiance.csv").read_bytes()
+            == (tmp_path / "clean" / "radiance.csv").read_bytes())
+
+
+def test_an_invalid_journaled_calibration_is_measured_again_with_its_points(drv, tmp_path, caplog):
+    """A journal from before the check holds a calibration with the white standard at the dark
+    level (and points measured with it): resume never reuses it, measures the calibration and
+    those points again, and says why."""
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert _session(mock, plan, tmp_path / "clean").exit_code == 0
+        assert _session(mock, plan, run).exit_code == 0
+        lines = (run / "journal.jsonl").read_text().splitlines()
+        records = [json.loads(x) for x in lines]
+        cal = next(r for r in records if r["type"] == "calibration")
+        darks = {(d["itime_ms"], d["gain"]): d for d in cal["darks"]}
+        for r in cal["reference"]:
+            r["mean"] = darks[(r["itime_ms"], r["gain"])]["mean"]
+        kept = [r for r in records if r["type"] != "event"][:-2]   # last two points not measured
+        (run / "journal.jsonl").write_text("".join(json.dumps(r) + "\n" for r in kept))
+        with caplog.at_level(logging.INFO, logger="gonio"):
+            res = _session(mock, plan, run, resume=True)
+    assert res.exit_code == 0 and res.points_measured == 6
+    assert "calibration measured again: the journal's calibration 0 is invalid" in caplog.text
+    from gonio.journal import read_journal
+    content = read_journal(run / "journal.jsonl")
+    assert len(content.of_type("calibration")) == 2
+    assert len(content.of_type("point")) == 4 + 6         # every point measured again
+    assert ((run / "radiance.csv").read_bytes()
+            == (tmp_path / "clean" / "radiance.csv").read_bytes())
+
+
+# --- item 9: the journal is not trusted blindly on resume -----------------------------------
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda p: p.update(geometry=[45, 0, 33, 180]), "line 4: point at geometry (45, 0, 33, 180) "
+                                                    "is not a measurable point"),
+    (lambda p: p.update(axes_deg=[45, 33, 0, 0]), "line 4: point at geometry"),
+])
+def test_resume_refuses_a_journal_point_that_is_not_in_the_plan(drv, tmp_path, capsys, edit,
+                                                                 needle):
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert _session(mock, plan, run).exit_code == 0
+        records = [json.loads(x) for x in (run / "journal.jsonl").read_text().splitlines()]
+        points = [k for k, r in enumerate(records) if r["type"] == "point"]
+        assert points[1] == 3                       # line 4
+        edit(records[points[1]])
+        text = "".join(json.dumps(r) + "\n" for r in records)
+        (run / "journal.jsonl").write_text(text)
+        assert main(_acquire_argv(mock, plan, run, "--resume")) == 2
+        _one_line_error(capsys, needle)
+    assert (run / "journal.jsonl").read_text() == text
