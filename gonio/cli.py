@@ -9,7 +9,8 @@ journal of another plan, unreachable device, a run directory in use by another s
 kept, shutter closed, drives stopped).
 ``replay``: 0 the transcript was reproduced and the recorded run was complete; 1 the driver's
 requests differ from the transcript (the message names the request index and the difference),
-or the recorded run itself stopped; 2 usage or input error.
+the transcript fails its integrity check (an edited line, named), or the recorded run itself
+stopped; 2 usage or input error.
 ``check-plan``: 0 every point is measurable (or only expected beam-block points, with
 ``skip_blocked = true``); 1 some points are out of the soft limits or unexpectedly in the
 beam-block zone (all listed); 2 invalid plan.
@@ -43,7 +44,7 @@ from gonio import protocol
 from gonio.journal import JournalError, RunDirLock, read_journal
 from gonio.plan import Plan, PlanError, load_plan, preset_names
 from gonio.record import (RecordingTransport, ReplayMismatch, ReplayTransport, TranscriptError,
-                          TranscriptWriter, load_transcript)
+                          TranscriptIntegrityError, TranscriptWriter, load_transcript)
 from gonio.transport import (LinkLost, ModbusTransport, SerialTransport, TransportError,
                              parse_modbus_url)
 
@@ -94,13 +95,14 @@ def _software() -> dict:
 def run_session(plan: Plan, modbus, serial_link, out: Path, *, resume: bool = False,
                 seed: int | None = None, record: Path | None = None, progress: bool | None = None,
                 retry: RetryPolicy | None = None, created: str | None = None,
-                clock=time.time) -> RunResult:
+                clock=time.time, owner_token: int | None = None) -> RunResult:
     """Run one acquisition on two transports (live, recording or replaying).
 
     With ``record`` the transports are wrapped in :class:`gonio.record.RecordingTransport`
     writing to that file (a new file, never one of the run directory's own). The run directory
     is locked for the whole session (:class:`gonio.journal.RunDirLock`). SIGTERM stops the run
-    like Ctrl-C (exit status 130).
+    like Ctrl-C (exit status 130). ``owner_token`` is the session's claim on the instrument
+    (default: a new random token; replay passes the recorded one, 0 claims nothing).
     """
     if record is not None and owned_by_run(out, record):
         raise TranscriptError(f"--record {record}: that is a file of the run directory {out}; "
@@ -109,20 +111,24 @@ def run_session(plan: Plan, modbus, serial_link, out: Path, *, resume: bool = Fa
     try:
         return _locked_session(plan, modbus, serial_link, out, resume=resume, seed=seed,
                                record=record, progress=progress, retry=retry, created=created,
-                               clock=clock)
+                               clock=clock, owner_token=owner_token)
     finally:
         lock.release()
 
 
 def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, progress, retry,
-                    created, clock) -> RunResult:
+                    created, clock, owner_token) -> RunResult:
+    import secrets
+
+    if owner_token is None:
+        owner_token = secrets.randbelow(2**32 - 1) + 1
     writer = None
     if record is not None:
         created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         writer = TranscriptWriter(record, {"created": created, "seed": seed,
                                            "modbus": modbus.url, "serial": serial_link.url,
                                            "plan": plan.name, "plan_sha256": plan.sha256,
-                                           "software": _software()})
+                                           "owner_token": owner_token, "software": _software()})
         modbus = RecordingTransport(modbus, writer)
         serial_link = RecordingTransport(serial_link, writer)
     retry = retry or RetryPolicy()
@@ -130,7 +136,7 @@ def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, pro
     motion = MotionController(modbus, retry, poll_s=0.001 if retry.sleep is time.sleep else 0.0)
     engine = Engine(plan, head, motion, retry, out, resume=resume, seed=seed,
                     links={"modbus": modbus.url, "serial": serial_link.url}, progress=progress,
-                    created=created, clock=clock)
+                    created=created, clock=clock, owner_token=owner_token)
     previous = None
     try:
         previous = signal.signal(signal.SIGTERM, _raise_interrupted)
@@ -282,7 +288,11 @@ def _write_failure(exc: OSError, out: Path, args) -> str:
 
 
 def _cmd_replay(args) -> int:
-    transcript = load_transcript(args.transcript)
+    try:
+        transcript = load_transcript(args.transcript)
+    except TranscriptIntegrityError as exc:     # an edited transcript proves nothing: exit 1
+        print(f"gonio replay: {exc}", file=sys.stderr)
+        return 1
     plan = load_plan(args.plan)
     if transcript.header.get("plan_sha256") not in (None, plan.sha256):
         raise _UsageError(f"{args.transcript} was recorded with plan '{transcript.header.get('plan')}' "
@@ -297,7 +307,7 @@ def _cmd_replay(args) -> int:
     try:
         result = run_session(plan, modbus, serial_link, out, seed=transcript.header.get("seed"),
                              progress=False, retry=retry, created=transcript.header.get("created"),
-                             clock=clock)
+                             clock=clock, owner_token=int(transcript.header.get("owner_token") or 0))
         transcript.finish()
     except ReplayMismatch as exc:
         print(f"gonio replay: {str(exc).removeprefix('replay: ')}", file=sys.stderr)

@@ -29,6 +29,15 @@ faulted: the wait reports the fault) - it is never assumed to have happened; and
 re-sent to an axis that is no longer homed (a controller that rebooted behind the dropped link):
 that is reported as fault 3 (not homed) and the engine re-homes.
 
+Claiming the instrument: a session writes a random owner token into the controller's OWNER
+registers (:meth:`MotionController.claim`) and checks it before every move to a point and before
+journaling each point and the calibration (:meth:`MotionController.check_owner`); when another
+client has written its own token, :class:`InstrumentTaken` (a :class:`DeviceError`) stops the
+session safely and what was measured since the last check is not kept. :meth:`shutdown` clears
+the token if it is still ours. The head's serial line is opened exclusively where the platform
+supports it (:class:`gonio.transport.SerialTransport`), so a second client on the same line is
+refused at once.
+
 Axis-fault recovery (:meth:`MotionController.clear_faults`): stop all, wait until no axis moves
 (an axis still moving when another one faulted may fault after a reset), read every FAULT code,
 reset only :data:`RECOVERABLE_FAULTS` (anything else raises: the engine stops safely), then home.
@@ -49,7 +58,7 @@ from gonio.calibration import pooled_mean
 from gonio.protocol import AxisFault, AxisStatus, Control, SampleSlot
 from gonio.transport import LinkLost, LinkTimeout, ModbusExceptionResponse
 
-__all__ = ["DeviceError", "AxisFaultError", "RetryPolicy", "Measurement", "PhotometerHead",
+__all__ = ["DeviceError", "AxisFaultError", "InstrumentTaken", "RetryPolicy", "Measurement", "PhotometerHead",
            "MotionController", "RETRY_KINDS", "RECOVERABLE_FAULTS", "AxisState"]
 
 log = logging.getLogger(__name__)
@@ -96,6 +105,16 @@ class AxisFaultError(DeviceError):
             name = "unknown fault"
         super().__init__("motion controller", command,
                          f"axis {axis} ({protocol.AXES[axis].name}) fault {code} ({name})", code)
+
+
+class InstrumentTaken(DeviceError):
+    """Another client wrote its owner token into the controller: the instrument is not ours."""
+
+    def __init__(self, ours: int, found: int, what: str):
+        self.ours, self.found = ours, found
+        super().__init__("motion controller", what,
+                         f"another client took the instrument (owner token {found:#010x}, ours "
+                         f"{ours:#010x}); nothing measured after that is kept")
 
 
 @dataclass
@@ -433,6 +452,7 @@ class MotionController:
         self.clock: Callable[[], float] = time.monotonic
         self._velocity_cdeg_s: list[int | None] = [None] * protocol.N_AXES
         self._target_mdeg: list[int | None] = [None] * protocol.N_AXES
+        self.owner_token: int | None = None
 
     # --- low level ------------------------------------------------------------------------
     def call(self, request: dict, what: str, *,
@@ -633,6 +653,42 @@ class MotionController:
         """Shutter coil (the same shutter as the head's SHUTTER command)."""
         self.write_coil(protocol.COIL_SHUTTER, open_, "shutter " + ("open" if open_ else "close"))
 
+    def claim(self, token: int) -> None:
+        """Write our owner token into the OWNER registers (:data:`gonio.protocol.HR_OWNER`).
+
+        A token already there (another client's, or a killed session's) is taken over and
+        logged: the other client notices at its next :meth:`check_owner` and stops.
+        """
+        found = protocol.registers_to_owner(*self.read_holding(protocol.HR_OWNER, 2, "read owner"))
+        if found not in (0, token):
+            log.warning("motion controller: the instrument was claimed by another client (owner "
+                        "token %#010x); taking it over (a session still running there stops)",
+                        found)
+        self.write(protocol.HR_OWNER, list(protocol.owner_to_registers(token)), "claim")
+        self.owner_token = token
+
+    def check_owner(self, what: str) -> None:
+        """Raise :class:`InstrumentTaken` when the OWNER registers no longer hold our token."""
+        if self.owner_token is None:
+            return
+        found = protocol.registers_to_owner(*self.read_holding(protocol.HR_OWNER, 2,
+                                                                f"{what}: check owner"))
+        if found != self.owner_token:
+            raise InstrumentTaken(self.owner_token, found, what)
+
+    def release(self) -> None:
+        """Clear the OWNER registers if they still hold our token (best effort, never raises)."""
+        token, self.owner_token = self.owner_token, None
+        if token is None:
+            return
+        try:
+            found = protocol.registers_to_owner(*self.read_holding(protocol.HR_OWNER, 2,
+                                                                    "read owner"))
+            if found == token:
+                self.write(protocol.HR_OWNER, [0, 0], "release")
+        except Exception as exc:  # noqa: BLE001 - part of shutdown, must not raise
+            log.warning("motion controller: releasing the instrument failed: %s", exc)
+
     def set_slot(self, slot: SampleSlot) -> None:
         """Put the sample or the white reference standard in the beam (sample changer)."""
         self.write(protocol.HR_SAMPLE_SLOT, [int(slot)], f"slot {SampleSlot(slot).name.lower()}")
@@ -753,6 +809,7 @@ class MotionController:
                 action()
             except Exception as exc:  # noqa: BLE001 - shutdown must not raise
                 log.warning("motion controller: %s failed: %s", what, exc)
+        self.release()
 
 
 def _exception_name(code: int) -> str:

@@ -155,12 +155,15 @@ class Engine:
     progress : show a tqdm bar (default: when stderr is a terminal).
     clock : wall clock (seconds since the epoch), injectable for replay.
     created : the dataset's ``created`` stamp (default: the journal's start time).
+    owner_token : this session's claim on the instrument (written into the controller, checked
+        at every point; see :meth:`gonio.devices.MotionController.claim`); 0 claims nothing.
     """
 
     def __init__(self, plan: Plan, head: PhotometerHead, motion: MotionController,
                  retry: RetryPolicy, out_dir: str | Path, *, resume: bool = False,
                  seed: int | None = None, links: dict | None = None, progress: bool | None = None,
-                 clock: Callable[[], float] = time.time, created: str | None = None):
+                 clock: Callable[[], float] = time.time, created: str | None = None,
+                 owner_token: int = 0):
         self.plan, self.head, self.motion, self.retry = plan, head, motion, retry
         self.out_dir = Path(out_dir)
         self.resume = resume
@@ -169,6 +172,7 @@ class Engine:
         self.progress = sys.stderr.isatty() if progress is None else progress
         self.clock = clock
         self.created = created
+        self.owner_token = int(owner_token)
         self.settings = plan.acquisition
         self.ladder = self.settings.ladder()
         self.check = plan.check()
@@ -272,6 +276,7 @@ class Engine:
                                   "saturated at every integration time and gain")
             reference.append(r)
         self.head.query("SHUTTER", "CLOSE")
+        self.motion.check_owner("calibration")
         problem = calibration_problem(darks, reference, self.standard)
         if problem is not None:
             # never stored: a point measured against it would be wrong (beta = inf or noise)
@@ -368,6 +373,8 @@ class Engine:
             self.identity = f"{ident.maker},{ident.model},{ident.serial},{ident.firmware}"
             self.firmware = self.motion.firmware()
             self.motion.check_safe_to_move()
+            if self.owner_token:
+                self.motion.claim(self.owner_token)
             for p in self.check.blocked:
                 log.info("unmeasurable (beam-block zone): theta_i=%g phi_i=%g theta_o=%g phi_o=%g",
                          p.theta_i, p.phi_i, p.theta_o, p.phi_o)
@@ -430,6 +437,8 @@ class Engine:
         return RunResult(status, code, measured, total, path, message, retries)
 
     def _measure_point(self, p: PlanPoint, cal_id: int, index: int) -> None:
+        what = "point (" + ", ".join(f"{x:g}" for x in p.axes_deg) + ")"
+        self.motion.check_owner(what)           # never move another client's instrument
         self._move(p.axes_deg)
         if self.settings.settle_ms > 0:
             self.retry.sleep(self.settings.settle_ms / 1000.0)
@@ -443,6 +452,7 @@ class Engine:
                 log.warning("saturated at every setting, not stored: %s at %g nm", p.key, wl)
             else:
                 readings.append(r)
+        self.motion.check_owner(what)           # taken meanwhile: these readings are not ours
         self._append({"type": "point", "index": index, "axes_deg": list(p.axes_deg),
                       "geometry": list(p.key), "calibration": cal_id, "readings": readings,
                       "saturated_nm": saturated, "retries": self._retry_snapshot()})

@@ -21,7 +21,10 @@ Four axes; positions are signed 32-bit integers in millidegrees, two registers, 
 
 Holding registers: 0 CONTROL (bit0 enable drives, bit1 home all, bit2 stop all, bit3 reset
 fault; bits 1..3 are self-clearing commands), 10 SAMPLE_SLOT (sample changer: 0 = the sample,
-1 = the white reference standard; this project's addition to the register map), and per axis
+1 = the white reference standard; this project's addition to the register map), 20 (+1) OWNER
+(a 32-bit token, high word first, 0 = unclaimed: the client driving the instrument writes its
+token and checks it at every point, so a session notices when another client takes the
+instrument; this project's addition, plain read/write storage on the controller), and per axis
 ``100 + 20a`` (+1) TARGET int32 mdeg, ``+2`` VELOCITY centideg/s, ``+3`` COMMAND (1 move to target,
 2 home, 3 stop). Input registers: 0 CONTROLLER STATUS, 1 firmware (0x0104), per axis ``100 + 20a``
 (+1) ACTUAL int32 mdeg, ``+2`` axis STATUS, ``+3`` FAULT code. Coils: 0 lamp on, 1 shutter open.
@@ -80,7 +83,8 @@ __all__ = [
     "FIRMWARE_VERSION", "is_pseudo_terminal", "rtu_serial_settings", "Axis", "AXES", "N_AXES",
     "HOME_POSITIONS_MDEG", "IN_POSITION_TOLERANCE_MDEG",
     "DEFAULT_VELOCITY_CDEG_S", "VELOCITY_RANGE_CDEG_S", "BEAM_BLOCK_MIN_ANGLE_DEG",
-    "HR_CONTROL", "HR_SAMPLE_SLOT", "IR_STATUS", "IR_FIRMWARE", "AXIS_BLOCK_BASE", "AXIS_BLOCK_STRIDE",
+    "HR_CONTROL", "HR_SAMPLE_SLOT", "HR_OWNER", "owner_to_registers", "registers_to_owner",
+    "IR_STATUS", "IR_FIRMWARE", "AXIS_BLOCK_BASE", "AXIS_BLOCK_STRIDE",
     "axis_target_address", "axis_velocity_address", "axis_command_address",
     "axis_actual_address", "axis_status_address", "axis_fault_address",
     "HOLDING_REGISTER_RANGES", "INPUT_REGISTER_RANGES",
@@ -170,6 +174,8 @@ BEAM_BLOCK_MIN_ANGLE_DEG = 5.0
 # --- register addresses ----------------------------------------------------------------------
 HR_CONTROL = 0
 HR_SAMPLE_SLOT = 10
+HR_OWNER = 20
+"""Two holding registers: the owner token (uint32, high word first; 0 = unclaimed)."""
 IR_STATUS = 0
 IR_FIRMWARE = 1
 AXIS_BLOCK_BASE = 100
@@ -213,7 +219,7 @@ def axis_fault_address(a: int) -> int:
 
 
 HOLDING_REGISTER_RANGES: tuple[tuple[int, int], ...] = (
-    (HR_CONTROL, 1), (HR_SAMPLE_SLOT, 1),
+    (HR_CONTROL, 1), (HR_SAMPLE_SLOT, 1), (HR_OWNER, 2),
     *((axis_target_address(a), 4) for a in range(N_AXES)),
 )
 """(start, count) of every defined holding register block; other addresses answer exception 2."""
@@ -291,6 +297,30 @@ class ModbusException(enum.IntEnum):
 COIL_LAMP = 0
 COIL_SHUTTER = 1
 N_COILS = 2
+
+
+def owner_to_registers(token: int) -> tuple[int, int]:
+    """Pack an owner token (1 .. 2**32 - 1) into the OWNER registers, high word first.
+
+    Examples
+    --------
+    >>> owner_to_registers(0x12345678)
+    (4660, 22136)
+    """
+    if not 0 <= int(token) < 2**32:
+        raise ValueError(f"owner token {token!r} not in 0 .. 2**32 - 1")
+    return (int(token) >> 16) & 0xFFFF, int(token) & 0xFFFF
+
+
+def registers_to_owner(high: int, low: int) -> int:
+    """Unpack the OWNER registers into the token.
+
+    Examples
+    --------
+    >>> registers_to_owner(4660, 22136) == 0x12345678
+    True
+    """
+    return ((int(high) & 0xFFFF) << 16) | (int(low) & 0xFFFF)
 
 
 def int32_to_registers(value: int) -> tuple[int, int]:

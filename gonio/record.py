@@ -2,12 +2,22 @@
 
 A transcript is a JSON Lines file. The first line is a header::
 
-    {"type": "header", "format": "gonio-transcript/1", "created": ISO-8601, "seed": N|null,
-     "modbus": URL, "serial": URL, "plan": name, "plan_sha256": hex, "software": {...}}
+    {"type": "header", "format": "gonio-transcript/2", "created": ISO-8601, "seed": N|null,
+     "modbus": URL, "serial": URL, "plan": name, "plan_sha256": hex, "owner_token": N,
+     "software": {...}}
 
 then one line per message, in the order they crossed the links::
 
-    {"i": k, "t": seconds since the start, "ch": "serial"|"modbus", "dir": "tx"|"rx", "payload": ...}
+    {"i": k, "t": seconds since the start, "ch": "serial"|"modbus", "dir": "tx"|"rx", "payload": ...,
+     "h": hex}
+
+Integrity: ``h`` chains every line to the ones before it, ``h_k = SHA-256(h_{k-1} + body_k)``
+(hex digests; ``body_k`` is the line's exact text without its ``,"h":"..."`` field, and ``h_1``
+chains from the SHA-256 of the header line), so a transcript killed mid-recording is still a
+valid prefix, while an edited line (an edited reply with a recomputed ``*HH`` checksum, an
+edited header) breaks the chain at that line: :func:`load_transcript` raises
+:class:`TranscriptIntegrityError` naming it and ``gonio replay`` exits 1. The chain detects
+edits and corruption, it does not authenticate (anyone can recompute it: :func:`reseal`).
 
 Every request (``tx``) is followed by its response (``rx``). Serial payloads are the raw line
 bytes as a string (bytes 0..255 mapped one-to-one to code points, i.e. latin-1), so garbled,
@@ -26,22 +36,54 @@ responses only, so the same driver reproduces the same requests.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import re
 import time
 from pathlib import Path
 from typing import Any
 
 from gonio.transport import LinkLost, LinkTimeout, ModbusExceptionResponse, TransportError
 
-__all__ = ["TRANSCRIPT_FORMAT", "TranscriptError", "ReplayMismatch", "TranscriptWriter",
+__all__ = ["TRANSCRIPT_FORMAT", "TranscriptError", "TranscriptIntegrityError", "ReplayMismatch",
+           "TranscriptWriter", "reseal",
            "RecordingTransport", "Transcript", "ReplayTransport", "load_transcript"]
 
-TRANSCRIPT_FORMAT = "gonio-transcript/1"
+TRANSCRIPT_FORMAT = "gonio-transcript/2"
+_HASHED_LINE = re.compile(r'(.*),"h":"([0-9a-f]{64})"\}')
 
 
 class TranscriptError(ValueError):
     """The transcript file is missing or invalid (message names the file and line)."""
+
+
+class TranscriptIntegrityError(TranscriptError):
+    """A transcript line fails its integrity check (edited or corrupted after recording)."""
+
+
+def _chain(previous: str, body: str) -> str:
+    return hashlib.sha256((previous + body).encode("utf-8")).hexdigest()
+
+
+def _sealed(previous: str, body: str) -> tuple[str, str]:
+    """``(line, h)``: the message's JSON text ``body`` with its chained hash appended."""
+    h = _chain(previous, body)
+    return body[:-1] + ',"h":"' + h + '"}', h
+
+
+def reseal(text: str) -> str:
+    """Recompute the integrity chain of a transcript's text (tests and repair tools: an edited
+    transcript then loads as if recorded so)."""
+    lines = text.splitlines()
+    out = [lines[0]]
+    h = hashlib.sha256(lines[0].encode("utf-8")).hexdigest()
+    for line in lines[1:]:
+        m = json.loads(line)
+        m.pop("h", None)
+        sealed, h = _sealed(h, json.dumps(m, separators=(",", ":")))
+        out.append(sealed)
+    return "\n".join(out) + "\n"
 
 
 class ReplayMismatch(Exception):
@@ -90,14 +132,17 @@ class TranscriptWriter:
                                   "transcript: choose a new file name") from None
         self._t0 = time.monotonic()
         self._i = 0
-        self._fh.write(json.dumps({"type": "header", "format": TRANSCRIPT_FORMAT, **header}) + "\n")
+        line = json.dumps({"type": "header", "format": TRANSCRIPT_FORMAT, **header})
+        self._h = hashlib.sha256(line.encode("utf-8")).hexdigest()
+        self._fh.write(line + "\n")
         self._fh.flush()
 
     def write(self, channel: str, direction: str, payload: Any) -> None:
         """One message line."""
         rec = {"i": self._i, "t": round(time.monotonic() - self._t0, 6), "ch": channel,
                "dir": direction, "payload": payload}
-        self._fh.write(json.dumps(rec, separators=(",", ":")) + "\n")
+        line, self._h = _sealed(self._h, json.dumps(rec, separators=(",", ":")))
+        self._fh.write(line + "\n")
         self._fh.flush()
         self._i += 1
 
@@ -201,18 +246,40 @@ def load_transcript(path: str | os.PathLike) -> Transcript:
         header = json.loads(lines[0])
     except (ValueError, RecursionError):
         raise TranscriptError(f"{p}: line 1: not a transcript header") from None
+    if isinstance(header, dict) and header.get("format") == "gonio-transcript/1":
+        raise TranscriptError(f"{p}: line 1: a gonio-transcript/1 file has no integrity check; "
+                              f"record it again (this gonio replays {TRANSCRIPT_FORMAT})")
     if not isinstance(header, dict) or header.get("format") != TRANSCRIPT_FORMAT:
         raise TranscriptError(f"{p}: line 1: not a {TRANSCRIPT_FORMAT} header")
+    token = header.get("owner_token", 0)
+    if isinstance(token, bool) or not isinstance(token, int) or not 0 <= token < 2**32:
+        raise TranscriptError(f"{p}: line 1: owner_token must be an integer 0 .. 2**32 - 1")
     messages = []
+    h = hashlib.sha256(lines[0].encode("utf-8")).hexdigest()
     for k, line in enumerate(lines[1:], start=2):
-        try:
-            m = json.loads(line)
-        except (ValueError, RecursionError):
+        sealed = _HASHED_LINE.fullmatch(line)
+        if sealed is None:
             if k == len(lines) and not text.endswith("\n"):
                 break   # a torn last line (recording killed mid-write, no newline): ignore it
-            what = "the last line" if k == len(lines) else "line"
-            raise TranscriptError(f"{p}: {what} {k}: not valid JSON (a complete line, not one "
-                                  "torn by a killed recording): the transcript is corrupt") from None
+            try:
+                json.loads(line)
+            except (ValueError, RecursionError):
+                what = "the last line" if k == len(lines) else "line"
+                raise TranscriptError(f"{p}: {what} {k}: not valid JSON (a complete line, not one "
+                                      "torn by a killed recording): the transcript is corrupt") from None
+            raise TranscriptIntegrityError(f"{p}: line {k}: no integrity hash; the transcript "
+                                           "was edited or corrupted after recording")
+        body = sealed.group(1) + "}"
+        h_expected = _chain(h, body)
+        if sealed.group(2) != h_expected:
+            raise TranscriptIntegrityError(
+                f"{p}: line {k}: integrity check failed (SHA-256 chain broken): this line or "
+                "the header was edited after recording")
+        h = h_expected
+        try:
+            m = json.loads(body)
+        except (ValueError, RecursionError):
+            raise TranscriptError(f"{p}: line {k}: not valid JSON") from None
         if (not isinstance(m, dict) or m.get("dir") not in ("tx", "rx")
                 or m.get("ch") not in ("serial", "modbus") or "payload" not in m):
             raise TranscriptError(f"{p}: line {k}: expected a message with ch, dir and payload")

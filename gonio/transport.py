@@ -145,10 +145,14 @@ class SerialTransport:
         """Open the port (no-op when open); raises :class:`LinkLost` when it cannot."""
         if self._port is not None:
             return
+        # a device path is opened exclusively (flock on POSIX): a second client on the line is
+        # refused at once instead of interleaving its commands with ours; URL handlers
+        # (socket://) have no such notion
+        exclusive = {} if "://" in self.url else {"exclusive": True}
         try:
             self._port = serial.serial_for_url(self.url, baudrate=self.baudrate,
                                                timeout=min(0.05, self.timeout_s),
-                                               write_timeout=self.timeout_s)
+                                               write_timeout=self.timeout_s, **exclusive)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkLost(self.channel, f"cannot open {self.url}: {exc}") from None
         self._buf.clear()

@@ -92,6 +92,7 @@ class MotionController:
     axes: list[AxisState] = field(default_factory=list)
     enabled: bool = False
     slot: int = 0
+    owner: int = 0
     lamp_on: bool = False
     shutter_open: bool = False
 
@@ -169,6 +170,7 @@ class MotionController:
     # --- register images ---------------------------------------------------------------------
     def holding_image(self) -> dict[int, int]:
         img = {P.HR_CONTROL: int(P.Control.ENABLE) if self.enabled else 0, P.HR_SAMPLE_SLOT: self.slot}
+        img[P.HR_OWNER], img[P.HR_OWNER + 1] = P.owner_to_registers(self.owner)
         for a, ax in enumerate(self.axes):
             hi, lo = P.int32_to_registers(ax.target)
             base = P.axis_target_address(a)
@@ -251,6 +253,9 @@ class MotionController:
             self.axes[a].target = tgt
         for a, v in new_velocities.items():
             self.axes[a].velocity = v
+        if P.HR_OWNER in regs or P.HR_OWNER + 1 in regs:
+            hi0, lo0 = P.owner_to_registers(self.owner)
+            self.owner = P.registers_to_owner(regs.get(P.HR_OWNER, hi0), regs.get(P.HR_OWNER + 1, lo0))
         if P.HR_SAMPLE_SLOT in regs:
             self.slot = regs[P.HR_SAMPLE_SLOT]
             self._changed()

@@ -355,3 +355,62 @@ def test_resume_refuses_a_journal_point_that_is_not_in_the_plan(drv, tmp_path, c
         assert main(_acquire_argv(mock, plan, run, "--resume")) == 2
         _one_line_error(capsys, needle)
     assert (run / "journal.jsonl").read_text() == text
+
+
+# --- item 3: the instrument is claimed; another client taking it stops the session ---------
+
+def test_another_client_taking_the_instrument_stops_the_session_safely(drv, tmp_path):
+    """A second client writes its owner token while the session measures (at the 40th head
+    command, mid-point): the session stops safely (exit 1, shutter closed, drives stopped),
+    keeps the points journaled before, and stores nothing measured after the takeover."""
+    from gonio import protocol as P
+    from gonio.devices import MotionController
+    from gonio.transport import ModbusTransport, SerialTransport
+
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    seen = {}
+
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        intruder = MotionController(ModbusTransport(mock.modbus_url, timeout_s=0.3))
+
+        class Intruded(SerialTransport):
+            n = 0
+
+            def exchange(self, line, **kw):
+                Intruded.n += 1
+                if Intruded.n == 40 + 20:      # 20 commands into the points
+                    seen["points"] = len(_journal_points(run))
+                    seen["owner"] = mock.controller.owner
+                    intruder.claim(0xBEEF)
+                return super().exchange(line, **kw)
+
+        res = _session(mock, plan, run, serial_cls=Intruded)
+        assert mock.controller.shutter_open is False
+        assert all(ax.motion is None for ax in mock.controller.axes)
+        assert mock.controller.owner == 0xBEEF        # not released: not ours any more
+        intruder.transport.close()
+    assert seen["owner"] not in (0, 0xBEEF)            # the session had claimed it
+    assert 1 <= seen["points"] < 6
+    assert res.exit_code == 1 and res.status == "stopped"
+    assert "another client took the instrument" in res.message
+    assert res.points_measured == seen["points"] == len(_journal_points(run))
+
+
+def test_owner_token_released_at_the_end_and_serial_line_opened_exclusively(drv, tmp_path,
+                                                                             capsys):
+    from gonio.transport import LinkLost, SerialTransport
+
+    plan = _plan(drv, tmp_path)
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert _session(mock, plan, tmp_path / "run").exit_code == 0
+        assert mock.controller.owner == 0
+        first = SerialTransport(mock.serial_url)
+        first.open()
+        try:
+            with pytest.raises(LinkLost, match="exclusive"):
+                SerialTransport(mock.serial_url).open()
+            assert main(_acquire_argv(mock, plan, tmp_path / "second")) == 2
+            _one_line_error(capsys, "--serial: cannot reach the device")
+        finally:
+            first.close()
