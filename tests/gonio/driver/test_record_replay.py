@@ -10,7 +10,7 @@ import pytest
 from gonio.cli import main
 from gonio.dataset import read_dataset
 from gonio.mock import MockInstrument
-from gonio.record import load_transcript
+from gonio.record import load_transcript, reseal
 
 ROOT = Path(__file__).resolve().parents[3]
 FIXTURES = ROOT / "fixtures" / "recorded"
@@ -60,7 +60,7 @@ def test_a_different_request_fails_loudly_naming_the_index(tmp_path, capsys):
     k = next(i for i, ln in enumerate(src) if '"WAVE 500.0\\n"' in ln)
     src[k] = src[k].replace("WAVE 500.0", "WAVE 501.0")
     bad = tmp_path / "edited.jsonl"
-    bad.write_text("\n".join(src) + "\n")
+    bad.write_text(reseal("\n".join(src) + "\n"))      # a valid chain: the replay must notice
     assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     index = sum(1 for ln in src[1:k] if '"dir":"tx"' in ln)
@@ -118,7 +118,7 @@ def test_corrupt_transcripts_are_clear_errors(tmp_path, capsys, edit, needle):
     lines = (FIXTURES / "quick-lambert.jsonl").read_text().splitlines()
     edited = [lines[0]] + [json.dumps(edit(json.loads(x))) for x in lines[1:]]
     bad = tmp_path / "bad.jsonl"
-    bad.write_text("\n".join(edited) + "\n")
+    bad.write_text(reseal("\n".join(edited) + "\n"))
     assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
@@ -156,3 +156,48 @@ def test_refused_points_are_never_sent(drv, tmp_path):
     assert {-25_000, 10_000} <= targets[1]
     meta = read_dataset(tmp_path / "run").meta["provenance"]
     assert len(meta["unmeasurable"]) == 2 and meta["points_planned"] == 2
+
+
+def test_an_edited_reply_with_a_recomputed_checksum_fails_the_integrity_check(tmp_path, capsys):
+    """Issue 9: a reply edited with its *HH checksum recomputed replayed with exit 0; the
+    transcript's SHA-256 chain now fails at that line (exit 1, the line named)."""
+    from gonio import protocol as P
+
+    src = (FIXTURES / "quick-lambert.jsonl").read_text().splitlines()
+    k = next(i for i, ln in enumerate(src) if '"dir":"rx"' in ln and "READ" not in ln
+             and json.loads(ln)["ch"] == "serial" and "," in json.loads(ln)["payload"]
+             and json.loads(ln)["payload"][0].isdigit())
+    m = json.loads(src[k])
+    payload = m["payload"].split("*")[0]
+    mean, rest = payload.split(",", 1)
+    forged = f"{float(mean) * 1.5:.1f},{rest}"
+    m["payload"] = P.format_response(forged, True).decode("latin-1")
+    h = m.pop("h")
+    src[k] = json.dumps(m, separators=(",", ":"))[:-1] + f',"h":"{h}"}}'
+    bad = tmp_path / "forged.jsonl"
+    bad.write_text("\n".join(src) + "\n")
+    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
+    err = capsys.readouterr().err
+    assert f"line {k + 1}: integrity check failed" in err and "Traceback" not in err
+    assert not (tmp_path / "r" / "radiance.csv").exists()
+    # the same edit, chain recomputed, is replayed (the chain detects edits, it does not
+    # authenticate) - and the forged reading shows in the dataset
+    bad.write_text(reseal("\n".join(src) + "\n"))
+    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r2")]) == 0
+    assert ((tmp_path / "r2" / "radiance.csv").read_bytes()
+            != (FIXTURES / "quick-lambert" / "radiance.csv").read_bytes())
+
+
+def test_a_transcript_without_integrity_hashes_is_refused(tmp_path, capsys):
+    lines = (FIXTURES / "quick-lambert.jsonl").read_text().splitlines()
+    header = json.loads(lines[0])
+    stripped = [json.dumps({**header, "format": "gonio-transcript/1"})]
+    stripped += [json.dumps({k: v for k, v in json.loads(x).items() if k != "h"}) for x in lines[1:]]
+    bad = tmp_path / "old.jsonl"
+    bad.write_text("\n".join(stripped) + "\n")
+    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 2
+    assert "no integrity check" in capsys.readouterr().err
+    # the header kept at /2 and the hashes removed: the first message line is named
+    bad.write_text("\n".join([lines[0]] + stripped[1:]) + "\n")
+    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
+    assert "line 2: no integrity hash" in capsys.readouterr().err
