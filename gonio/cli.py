@@ -5,8 +5,9 @@ Exit status
 ``acquire``, ``demo``: 0 complete; 1 stopped safely by an instrument fault that retries did not
 clear (measured points kept; continue with ``--resume``); 2 usage or input error (plan, URL,
 journal of another plan, unreachable device, a run directory in use by another session, a
-``--record`` file that exists or is one of the run directory's own); 130 interrupted by SIGINT/SIGTERM (measured points
-kept, shutter closed, drives stopped).
+``--record`` file that exists or is one of the run directory's own, a ``demo --out`` holding
+another run); 130 interrupted by SIGINT/SIGTERM (measured points kept, shutter closed, drives
+stopped).
 ``replay``: 0 the transcript was reproduced and the recorded run was complete; 1 the driver's
 requests differ from the transcript (the message names the request index and the difference),
 the transcript fails its integrity check (an edited line, named), or the recorded run itself
@@ -38,8 +39,7 @@ from gonio.calibration import CalibrationError
 from gonio.dataset import DatasetError
 from gonio.devices import MotionController, PhotometerHead, RetryPolicy
 from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
-                          DEMO_MARKER, JOURNAL_NAME, RUN_DIR_FILES, Engine, Interrupted,
-                          RunResult, owned_by_run)
+                          Engine, Interrupted, RunResult, owned_by_run)
 from gonio import protocol
 from gonio.journal import JournalError, RunDirLock, read_journal
 from gonio.plan import Plan, PlanError, load_plan, preset_names
@@ -360,12 +360,13 @@ def _cmd_check_plan(args) -> int:
 
 
 def _cmd_demo(args) -> int:
+    from gonio.demo import mark_demo, replace_previous_demo
     from gonio.mock import MockInstrument
 
     out = Path(args.out)
     _check_output_folder(out, "--out")
     plan = load_plan(args.plan)
-    _replace_previous_demo(out)
+    replace_previous_demo(out)
     t0 = time.monotonic()
     with MockInstrument(sample="red-cotton", modbus="tcp", serial="pty", speed="fast",
                         seed=args.seed) as mock:
@@ -373,7 +374,7 @@ def _cmd_demo(args) -> int:
         modbus, serial_link = _open_links(args)
         result = run_session(plan, modbus, serial_link, out, seed=args.seed,
                              progress=False if args.no_progress else None)
-    _mark_demo(out, done=True)
+    mark_demo(out, done=True)
     code = _finish(result, "demo")
     if code == EXIT_OK:
         print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
@@ -389,53 +390,6 @@ def _check_output_folder(out: Path, opt: str) -> None:
                 what = "is a file" if parent == out else f"is below {parent}, a file"
                 raise _UsageError(f"{opt} {out}: {what}; give a folder")
             break
-
-
-def _replace_previous_demo(out: Path) -> None:
-    """Clear what a previous ``gonio demo`` wrote in ``out``; refuse any other run's files.
-
-    A demo marks its folder (:data:`gonio.engine.DEMO_MARKER`, with the SHA-256 of its journal's
-    start record once the run ended); only a folder so marked, whose journal is still that demo's,
-    is cleared, and only of the run's own files.
-    """
-    if out.exists() and not out.is_dir():
-        raise _UsageError(f"--out {out}: not a directory")
-    present = [n for n in RUN_DIR_FILES if n != DEMO_MARKER and (out / n).exists()]
-    if not present:
-        _mark_demo(out, done=False)
-        return
-    try:
-        marker = json.loads((out / DEMO_MARKER).read_text())
-        ours = marker.get("written_by") == "gonio demo" and marker.get("journal_start") in (
-            None, _journal_start_sha256(out))
-    except (OSError, ValueError, AttributeError):
-        ours = False
-    if not ours:
-        raise _UsageError(f"--out {out}: holds {', '.join(present)} that `gonio demo` did not "
-                          "write; nothing was changed: choose another --out")
-    for name in present:
-        log.info("demo: replacing the previous demo's %s in %s", name, out)
-        (out / name).unlink()
-    _mark_demo(out, done=False)
-
-
-def _journal_start_sha256(out: Path) -> str | None:
-    import hashlib
-
-    try:
-        with open(out / JOURNAL_NAME, "rb") as fh:
-            return hashlib.sha256(fh.readline()).hexdigest()
-    except FileNotFoundError:
-        return None
-
-
-def _mark_demo(out: Path, *, done: bool) -> None:
-    from gonio.dataset import atomic_write
-
-    out.mkdir(parents=True, exist_ok=True)
-    marker = {"written_by": "gonio demo",
-              "journal_start": _journal_start_sha256(out) if done else None}
-    atomic_write(out / DEMO_MARKER, (json.dumps(marker) + "\n").encode())
 
 
 def _cmd_truth(args) -> int:
