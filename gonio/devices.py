@@ -34,7 +34,8 @@ registers (:meth:`MotionController.claim`) and checks it before every move to a 
 journaling each point and the calibration (:meth:`MotionController.check_owner`); when another
 client has written its own token, :class:`InstrumentTaken` (a :class:`DeviceError`) stops the
 session safely and what was measured since the last check is not kept. :meth:`shutdown` clears
-the token if it is still ours. The head's serial line is opened exclusively where the platform
+the token if it is still ours. The engine also reads the shutter back after each point's
+readings: a shutter closed under the session (another client's safe stop) discards the point. The head's serial line is opened exclusively where the platform
 supports it (:class:`gonio.transport.SerialTransport`), so a second client on the same line is
 refused at once.
 
@@ -648,6 +649,11 @@ class MotionController:
     def set_lamp(self, on: bool) -> None:
         """Lamp coil."""
         self.write_coil(protocol.COIL_LAMP, on, "lamp " + ("on" if on else "off"))
+
+    def shutter_is_open(self, what: str = "read shutter") -> bool:
+        """The shutter coil (the same shutter as the head's ``SHUTTER``)."""
+        return bool(self.call({"fn": "read_coils", "address": protocol.COIL_SHUTTER, "count": 1},
+                              what)["bits"][0])
 
     def set_shutter(self, open_: bool) -> None:
         """Shutter coil (the same shutter as the head's SHUTTER command)."""

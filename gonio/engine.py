@@ -453,6 +453,11 @@ class Engine:
             else:
                 readings.append(r)
         self.motion.check_owner(what)           # taken meanwhile: these readings are not ours
+        if not self.motion.shutter_is_open(f"{what}: read shutter"):
+            # closed under us (another client's safe stop): some readings may be dark
+            raise DeviceError("motion controller", what, "the shutter was closed during the "
+                                                         "point (by another client?); the point "
+                                                         "is not kept")
         self._append({"type": "point", "index": index, "axes_deg": list(p.axes_deg),
                       "geometry": list(p.key), "calibration": cal_id, "readings": readings,
                       "saturated_nm": saturated, "retries": self._retry_snapshot()})

@@ -414,3 +414,36 @@ def test_owner_token_released_at_the_end_and_serial_line_opened_exclusively(drv,
             _one_line_error(capsys, "--serial: cannot reach the device")
         finally:
             first.close()
+
+
+def test_a_shutter_closed_under_the_session_discards_the_point(drv, tmp_path):
+    """Another client's safe stop closes the shutter mid-point (the session still owns the
+    instrument): the point is not journaled (its last readings would be dark), the session
+    stops safely (exit 1) and the resume completes with the data of a clean run."""
+    from gonio.devices import MotionController
+    from gonio.transport import ModbusTransport, SerialTransport
+
+    plan = _plan(drv, tmp_path)
+    run = tmp_path / "run"
+    seen = {}
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
+        assert _session(mock, plan, tmp_path / "clean").exit_code == 0
+        other = MotionController(ModbusTransport(mock.modbus_url, timeout_s=0.3))
+
+        class Interfered(SerialTransport):
+            n = 0
+
+            def exchange(self, line, **kw):
+                Interfered.n += 1
+                if Interfered.n == 60:
+                    assert not line.startswith(b"SHUTTER")     # mid-point, not reopening it
+                    seen["points"] = len(_journal_points(run))
+                    other.set_shutter(False)
+                return super().exchange(line, **kw)
+
+        res = _session(mock, plan, run, serial_cls=Interfered)
+        other.transport.close()
+        assert res.exit_code == 1 and "shutter was closed during the point" in res.message
+        assert res.points_measured == seen["points"] == len(_journal_points(run)) >= 1
+        assert _session(mock, plan, run, resume=True).exit_code == 0
+    assert (run / "radiance.csv").read_bytes() == (tmp_path / "clean" / "radiance.csv").read_bytes()
