@@ -204,7 +204,7 @@ class PlanCheck:
             return None
         parts = []
         if self.out_of_limits:
-            p, why = self.out_of_limits[0]
+            _, why = self.out_of_limits[0]
             parts.append(f"{len(self.out_of_limits)} out of the soft limits (first: {why})")
         if self.blocked and not self.blocked_expected:
             parts.append(f"{len(self.blocked)} in the beam-block zone and skip_blocked = false")
