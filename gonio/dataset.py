@@ -727,7 +727,7 @@ def remove_stale_temp_files(out_dir: str | os.PathLike) -> list[Path]:
     directory's lock). Returns the removed paths.
     """
     out = Path(out_dir)
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(os.scandir(out))
     except (FileNotFoundError, NotADirectoryError):

@@ -95,7 +95,8 @@ import pandas as pd
 
 from gonio import protocol
 
-__all__ = ["WAVELENGTH_STEP_NM", 
+__all__ = [
+    "WAVELENGTH_STEP_NM",
     "PlanError",
     "AcquisitionSettings",
     "PlanPoint",

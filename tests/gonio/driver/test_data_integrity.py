@@ -363,7 +363,6 @@ def test_another_client_taking_the_instrument_stops_the_session_safely(drv, tmp_
     """A second client writes its owner token while the session measures (at the 40th head
     command, mid-point): the session stops safely (exit 1, shutter closed, drives stopped),
     keeps the points journaled before, and stores nothing measured after the takeover."""
-    from gonio import protocol as P
     from gonio.devices import MotionController
     from gonio.transport import ModbusTransport, SerialTransport
 
