@@ -222,6 +222,11 @@ def _check_not_swapped(modbus: ModbusTransport, serial_link: SerialTransport, ar
     as_serial, as_modbus = _as_serial_url(args.modbus), _as_modbus_url(args.serial)
     if as_serial is None or as_modbus is None:
         return
+    # the probes open the same devices the other way round; a serial device is opened
+    # exclusively (by SerialTransport and by pymodbus), so ours are released first (they
+    # reopen at their next exchange)
+    for link in (modbus, serial_link):
+        link.close()
     probe_head = SerialTransport(as_serial, timeout_s=args.timeout)
     probe_modbus = ModbusTransport(as_modbus, timeout_s=args.timeout)
     try:

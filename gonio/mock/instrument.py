@@ -162,7 +162,8 @@ class MockInstrument:
         """Faults injected per kind, Modbus requests served, links dropped (and the dropped
         requests, ``(function code, address, executed)``), head commands."""
         return {"faults": {k: int(v) for k, v in self.faults.stats.items() if v},
-                "modbus_requests": self.frontend.requests, "modbus_drops": self.frontend.drops,
+                "modbus_requests": self.frontend.requests, "modbus_writes": self.frontend.writes,
+                "modbus_drops": self.frontend.drops,
                 "modbus_dropped": list(self.frontend.dropped),
                 "head_commands": self.head.commands}
 

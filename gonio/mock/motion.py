@@ -360,7 +360,8 @@ class ModbusFrontend:
     ``modbus_drop`` and closes the connection that carried it; ``requests`` counts the requests
     that reached the controller (those ignored during an RTU silence excluded), ``drops`` the
     links dropped and ``dropped`` lists each dropped request as ``(function code, address,
-    executed)`` (so a test can check which request a ``modbus_drop=@N`` hit). ``drop_executed``
+    executed)`` (so a test can check which request a ``modbus_drop=@N`` hit); ``writes`` counts
+    the write requests executed (refused ones included). ``drop_executed``
     (tests; None = the seeded draw) forces whether a request dropped over TCP was executed; the
     draw is made anyway, so the other decisions do not change.
     """
@@ -373,6 +374,7 @@ class ModbusFrontend:
         self.faults = faults
         self.link = link
         self.requests = 0
+        self.writes = 0
         self.drops = 0
         self.dropped: list[tuple[int, int, bool]] = []
         self.drop_executed: bool | None = None
@@ -456,6 +458,8 @@ class ModbusFrontend:
         from pymodbus.constants import ExcCodes
 
         ctl = self.controller
+        if values is not None:
+            self.writes += 1
         try:
             if fc in (1, 5, 15):                       # coils
                 if address + count > P.N_COILS:

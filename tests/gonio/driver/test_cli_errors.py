@@ -19,6 +19,7 @@ from gonio.dataset import read_dataset
 from gonio.journal import read_journal
 from gonio.mock import MockInstrument
 from gonio.mock.cli import main as mock_main
+from gonio.record import reseal
 from gonio.transport import parse_modbus_url
 
 FIXTURES = __import__("pathlib").Path(__file__).parents[3] / "fixtures" / "recorded"
@@ -88,7 +89,7 @@ def test_replay_mismatch_says_replay_once(tmp_path, capsys):
     k = next(i for i, ln in enumerate(src) if '"WAVE 500.0\\n"' in ln)
     src[k] = src[k].replace("WAVE 500.0", "WAVE 501.0")
     bad = tmp_path / "edited.jsonl"
-    bad.write_text("\n".join(src) + "\n")
+    bad.write_text(reseal("\n".join(src) + "\n"))     # chain recomputed: the replay must notice
     assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     assert "gonio replay: request" in err and "replay: replay:" not in err
@@ -134,7 +135,7 @@ def test_swapped_links_are_named_at_connect_time(tmp_path, capsys, modbus, seria
 
 def test_disk_full_names_the_file_and_how_to_continue(tmp_path, capsys, monkeypatch, drv):
     plan = drv.write_plan(tmp_path, "full", incidence=(0, 30), in_plane=(-30, 20),
-                          wavelengths=(500,), readings=8)
+                          wavelengths=(500,), readings=8, geometry_extra="skip_blocked = true")
     real_fsync, calls = os.fsync, {"n": 0}
 
     def fsync_until_full(fd):

@@ -57,6 +57,11 @@ def _one_line_error(capsys, needle):
     return err
 
 
+def _writes(mock) -> int:
+    """Write requests the mock controller executed (the CLI's connect-time probe only reads)."""
+    return mock.stats.get("modbus_writes", 0)
+
+
 def _journal_points(out):
     from gonio.journal import read_journal
     return read_journal(out / "journal.jsonl").of_type("point")
@@ -106,12 +111,12 @@ def test_a_second_session_on_a_locked_run_directory_is_refused(drv, tmp_path, ca
         assert main(_acquire_argv(mock, plan, run)) == 0
         capsys.readouterr()
         journal = (run / "journal.jsonl").read_bytes()
-        requests = mock.frontend.requests
+        writes = _writes(mock)
         with RunDirLock.acquire(run):          # another session holds the run directory
             for extra in ((), ("--resume",)):
                 assert main(_acquire_argv(mock, plan, run, *extra)) == 2
                 _one_line_error(capsys, "another gonio session is using this run directory")
-        assert mock.frontend.requests == requests       # nothing sent to the instrument
+        assert _writes(mock) == writes          # nothing commanded (connect-time probes aside)
         assert (run / "journal.jsonl").read_bytes() == journal
         # released: --resume works again
         assert main(_acquire_argv(mock, plan, run, "--resume")) == 0
@@ -176,7 +181,7 @@ def test_acquire_refuses_plans_that_check_plan_refuses(drv, tmp_path, capsys, kw
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
         assert main(_acquire_argv(mock, plan, tmp_path / "run")) == 2
         _one_line_error(capsys, needle)
-        assert mock.frontend.requests == 0
+        assert _writes(mock) == 0               # nothing commanded (connect-time probes aside)
     assert not (tmp_path / "run" / "journal.jsonl").exists()
 
 
