@@ -535,7 +535,8 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--serial", required=True, metavar="URL", help="device path, pty or socket://HOST:PORT")
     a.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory")
     a.add_argument("--resume", action="store_true", help="continue the run journaled in RUN_DIR")
-    a.add_argument("--record", metavar="FILE.jsonl", help="record every request/response")
+    a.add_argument("--record", metavar="FILE.jsonl",
+                   help="record every request/response to a new file (an existing file is refused)")
     a.add_argument("--seed", type=int, default=None, help="the mock's seed, recorded in the meta")
     common(a)
 
