@@ -181,9 +181,10 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
     if not quick:
         # the fiber routes (simulate.bench_fiber): the next-event + white headline and the three
         # routes side by side; skipped by --quick (it takes minutes)
-        from simulate.bench_fiber import run_fiber_bench
+        from simulate.bench_fiber import chart, run_fiber_bench
 
         report["fiber"] = run_fiber_bench()
+        chart(report["fiber"], out / "fiber.png")
     (out / "bench.json").write_text(json.dumps(report, indent=2))
     _chart(report, out / "bench.png")
     return report

@@ -7,9 +7,11 @@ the warp and weft fiber frames (incidence 0/30/45/60 deg, observation -60..70 de
 
 * ``nee`` (next-event, white): wall time to the target RMS relative error on ALL pairs and
   wavelengths (the headline: QUALITY.md asks <= 60 s for 1 % on 2 cores);
-* all three routes side by side on one incident direction, one wavelength group and
-  direction bins of 10 x 30 degrees: wall time and achieved error at a fixed photon budget,
-  and the time each would need for 1 % (time x (err / 0.01)^2, the N^-1/2 law);
+* all three routes side by side on one incident direction (30 deg off the axis' normal),
+  one wavelength and three direction bins of the BSSRDF grid (9 x 12): wall time, standard
+  error and the error against a converged next-event reference at photon budgets of 5e4,
+  2e5 and 8e5 (the speed-versus-accuracy chart), and the time each would need for 1 %
+  (time x (err / 0.01)^2, the N^-1/2 law, from the largest budget);
 * the peak resident set size.
 """
 
@@ -25,7 +27,7 @@ import numpy as np
 from simulate.fiber import Fiber, range_outputs, volume_brdf
 from simulate.medium import MieMedium, Spectrum
 
-__all__ = ["red_fiber", "plan_pairs", "run_fiber_bench"]
+__all__ = ["red_fiber", "plan_pairs", "run_fiber_bench", "chart"]
 
 
 def red_fiber() -> Fiber:
@@ -82,21 +84,50 @@ def run_fiber_bench(quick: bool = False, threads: int | None = None) -> dict[str
     out = range_outputs([me[i] for i, _ in cells], [me[i + 1] for i, _ in cells], [pe[j] for _, j in cells],
                         [pe[j + 1] for _, j in cells], fiber.half_width)
     win = np.tile([0.5, 0.0, math.sqrt(0.75)], (len(cells), 1))
-    routes = {}
+    routes: dict[str, dict[str, Any]] = {}
     reference = volume_brdf(fiber, win, None, [600.0], method="nee", outputs=out, target_rel_err=0.004 if not quick
                             else 0.02, seed=99, threads=threads)
+    budgets = [50_000, 200_000, 800_000] if not quick else [20_000, 60_000]
     for method in ("nee", "beam", "bssrdf"):
-        t = time.perf_counter()
-        e = volume_brdf(fiber, win, None, [600.0], method=method, outputs=out, target_rel_err=0.03,
-                        max_photons=400_000 if not quick else 60_000, seed=7, threads=threads,
-                        bssrdf_bins=(n_mu, n_phi))
-        sec = time.perf_counter() - t
-        rel = float(np.sqrt(np.mean((e.u_R / e.R) ** 2)))
-        err_vs_ref = float(np.sqrt(np.mean(((e.R - reference.R) / reference.R) ** 2)))
-        routes[method] = {"seconds": sec, "photons": e.photons, "rel_stderr": rel, "rel_error_vs_reference": err_vs_ref,
-                          "seconds_to_1pct": sec * (rel / 0.01) ** 2}
+        runs: list[dict[str, float]] = []
+        for budget in budgets:
+            t = time.perf_counter()
+            e = volume_brdf(fiber, win, None, [600.0], method=method, outputs=out, target_rel_err=1e-4,
+                            max_photons=budget, seed=7, threads=threads, bssrdf_bins=(n_mu, n_phi))
+            sec = time.perf_counter() - t
+            runs.append({
+                "budget": budget, "photons": e.photons, "seconds": sec,
+                "rel_stderr": float(np.sqrt(np.mean((e.u_R / e.R) ** 2))),
+                "rel_error_vs_reference": float(np.sqrt(np.mean(((e.R - reference.R) / reference.R) ** 2))),
+            })
+        last = runs[-1]
+        routes[method] = {"runs": runs, "seconds_to_1pct": last["seconds"] * (last["rel_stderr"] / 0.01) ** 2}
     base = routes["nee"]["seconds_to_1pct"]
     for r in routes.values():
         r["slower_than_nee"] = r["seconds_to_1pct"] / base
     return {"headline": headline, "routes": routes,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+
+
+def chart(report: dict[str, Any], path: Any) -> None:
+    """Speed versus accuracy of the three routes (log-log), written to ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.2), dpi=150)
+    for method, marker in (("nee", "o"), ("beam", "s"), ("bssrdf", "^")):
+        runs = report["routes"][method]["runs"]
+        ax.loglog([r["seconds"] for r in runs], [r["rel_error_vs_reference"] for r in runs], marker=marker,
+                  label=f"{method} (error vs reference)")
+        ax.loglog([r["seconds"] for r in runs], [r["rel_stderr"] for r in runs], marker=marker, linestyle=":",
+                  alpha=0.6, label=f"{method} (reported std. error)")
+    ax.axhline(0.01, color="grey", lw=0.8)
+    ax.set_xlabel("wall time (s)")
+    ax.set_ylabel("RMS relative error")
+    ax.set_title("Fiber volume BRDF: speed versus accuracy")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
