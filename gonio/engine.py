@@ -399,7 +399,7 @@ class Engine:
                 self._measure_point(p, cal["id"], len(done) + k)
                 self._report(bar, k + 1, len(todo), t_first, len(done) + k + 1, total, p)
         except (KeyboardInterrupt, Interrupted):
-            status, code, message = "interrupted", EXIT_INTERRUPTED, "interrupted; measured points kept"
+            status, code, message = "interrupted", EXIT_INTERRUPTED, "interrupted"
         except DeviceError as exc:
             status, code, message = "stopped", EXIT_STOPPED, f"stopped safely: {exc}"
         except Exception as exc:
@@ -414,7 +414,9 @@ class Engine:
             self.motion.shutdown()
         measured = len({_key(r) for r in usable_points(self.records)})
         if status != "complete":
-            log.error("%s (%d of %d points measured)", message, measured, total)
+            # INFO, not ERROR: the command line prints the one final line (what, how many points
+            # are kept, how to continue); a library caller reads RunResult
+            log.info("%s (%d of %d points measured)", message, measured, total)
         retries = self._retry_snapshot()
         self._append({"type": "event", "what": "session_end", "status": status,
                       "message": message, "retries": retries, "time": self.clock()})

@@ -107,6 +107,7 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
         assert "Traceback" not in err
         final = err.strip().splitlines()[-1]
         assert final.startswith("gonio acquire: interrupted") and final.count("kept") == 1, err
+        assert err.count("kept") == 1, err  # said once, in the final line (not also by the engine's log)
         assert f"--out {out} --resume" in final and f"gonio acquire {plan}" in final, final
         kept = len(read_journal(out / "journal.jsonl").of_type("point"))
         assert 2 <= at_stop <= kept <= at_stop + 1 and kept < 12, (at_stop, kept)
