@@ -41,7 +41,7 @@ def _plan(drv, tmp_path):
 def _clean_csv(drv, tmp_path) -> bytes:
     plan = _plan(drv, tmp_path)
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
-        res = drv.run(mock, plan, tmp_path / "clean", timeout_s=0.15)
+        res = drv.run(mock, plan, tmp_path / "clean", timeout_s=1.0)
     assert res.status == "complete", res.message
     return (tmp_path / "clean" / "radiance.csv").read_bytes()
 
@@ -58,7 +58,7 @@ def test_drop_at_session_start_and_during_homing(drv, tmp_path, caplog, n, execu
             MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED,
                            faults=f"modbus_drop=@{n}") as mock:
         mock.frontend.drop_executed = executed
-        res = drv.run(mock, plan, tmp_path / "run", timeout_s=0.15)
+        res = drv.run(mock, plan, tmp_path / "run", timeout_s=1.0)
         dropped = mock.stats["modbus_dropped"]
     assert dropped == [START[n - 1] + (executed,)], dropped      # the intended request
     assert res.status == "complete", res.message
@@ -117,7 +117,7 @@ def mock():
 
 
 def _motion(mock, match, executed, on_drop=None):
-    link = _ScriptedDrop(ModbusTransport(mock.modbus_url, timeout_s=0.3), match, executed, on_drop)
+    link = _ScriptedDrop(ModbusTransport(mock.modbus_url, timeout_s=2.0), match, executed, on_drop)
     mock.links.append(link)
     retry = RetryPolicy(base_s=0.001)
     return MotionController(link, retry), link, retry
@@ -171,7 +171,7 @@ def test_fault_recovery_stops_every_axis_before_the_reset(mock):
     while the others may still be moving; clear_faults stops them and waits at rest, so no
     fault appears after the reset and HOME_ALL is accepted."""
     mock.controller.faults = type(mock.faults)("axis_fault=1", seed=SEED)
-    link = ModbusTransport(mock.modbus_url, timeout_s=0.3)
+    link = ModbusTransport(mock.modbus_url, timeout_s=2.0)
     mock.links.append(link)
     motion = MotionController(link, RetryPolicy(base_s=0.001))
     motion.home()
@@ -192,7 +192,7 @@ def test_fault_recovery_stops_every_axis_before_the_reset(mock):
 
 def test_unrecoverable_fault_is_not_reset(mock):
     """A latched beam-block fault is never reset blindly: clear_faults raises and leaves it."""
-    link = ModbusTransport(mock.modbus_url, timeout_s=0.3)
+    link = ModbusTransport(mock.modbus_url, timeout_s=2.0)
     mock.links.append(link)
     motion = MotionController(link, RetryPolicy(base_s=0.001))
     motion.home()
