@@ -119,7 +119,7 @@ log = logging.getLogger(__name__)
 
 METHODS = ("nee", "beam", "bssrdf")
 _BATCH = 2_000
-_FIRST_ROUND = 20_000
+_FIRST_ROUND = 50_000
 _GROUP_LOG_MU_S = 0.25
 _GROUP_G = 0.03
 
