@@ -182,6 +182,8 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
                           "beta": beta.ravel(), "u_beta": u_beta.ravel(), "n": n.ravel()},
                          columns=list(COLUMNS))
     sample = dict(plan.sample)
+    # the name labels the dataset in reports: say which model and config produced it
+    sample["name"] = f"{plan.sample.get('name', plan.name)}: {method} model ({config.name})"
     sample["simulated_from"] = config.name
     model.update({"config": config.name, "rms_slope": config.rms_slope, "n_host": config.n_host,
                   "radius_um": config.radius_um, "cell_width_deg": config.cell_width_deg,
