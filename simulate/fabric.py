@@ -72,6 +72,8 @@ __all__ = [
     "summation_beta",
     "summation_from_table",
     "summation_hemispherical_albedo",
+    "hemisphere_grid",
+    "summation_albedo",
 ]
 
 log = logging.getLogger(__name__)
@@ -247,6 +249,60 @@ def summation_hemispherical_albedo(R_B: Any, theta_i_deg: float, n_theta: int = 
     f = beta / np.pi
     weight = (0.5 * 2.0 * np.pi / (n_theta * n_phi))  # (du/2) dphi summed over the grid
     return np.sum(f, axis=0) * weight
+
+
+def hemisphere_grid(n_theta: int, n_phi: int) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoint grid over the upper hemisphere, uniform in ``u = sin^2 theta`` and ``phi``.
+
+    Returns directions ``[N, 3]`` and weights ``[N]`` with ``int g(w) cos(theta) dOmega ~
+    sum_j weight_j g(w_j)`` (``cos theta dOmega = du dphi / 2``; exact for constant ``g``).
+    """
+    u = (np.arange(n_theta) + 0.5) / n_theta
+    phi = 2.0 * np.pi * (np.arange(n_phi) + 0.5) / n_phi
+    uu, pp = np.meshgrid(u, phi, indexing="ij")
+    st, ct = np.sqrt(uu.ravel()), np.sqrt(1.0 - uu.ravel())
+    w = np.stack([st * np.cos(pp.ravel()), st * np.sin(pp.ravel()), ct], axis=1)
+    return w, np.full(w.shape[0], np.pi / (n_theta * n_phi))
+
+
+def summation_albedo(fiber: Any, theta_i_deg: float, wavelengths_nm: npt.ArrayLike, *,
+                     n_theta: int = 8, n_phi: int = 16, surface: bool = True,
+                     surface_grid: tuple[int, int] = (256, 256), phi_i_deg: float = 0.0,
+                     **mc: Any) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Directional-hemispherical albedo of the summation fabric at incidence ``theta_i_deg``.
+
+    ``a(theta_i) = int f_fabric(w_i, w_o) cos(theta_o) dOmega_o``, the volume term by ONE
+    :func:`simulate.fiber.volume_brdf` call on an ``n_theta x n_phi`` :func:`hemisphere_grid`
+    (symmetry-reduced pairs), the surface term (no Monte Carlo noise) on the finer
+    ``surface_grid``. ``mc`` is passed to ``volume_brdf`` (method, target_rel_err, seed, ...).
+
+    Returns
+    -------
+    albedo, u_albedo : numpy.ndarray
+        ``[L]``; ``u`` is the correlated bound (sum of the weighted standard errors).
+    info : dict
+        ``{"volume": [L], "surface": float, "photons": int}``.
+    """
+    from simulate import fiber as fiber_mod
+
+    wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
+    w_o, weight = hemisphere_grid(n_theta, n_phi)
+    w_i = np.broadcast_to(directions_deg(theta_i_deg, phi_i_deg), w_o.shape)
+    pairs = FiberPairs.from_directions(w_i, w_o)
+    est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wl, **mc)
+    beta, u_beta = summation_from_table(pairs, est.R, est.u_R)
+    volume = weight @ (beta / np.pi)
+    u_volume = weight @ (u_beta / np.pi)
+    surf = 0.0
+    if surface:
+        ws_o, ws_weight = hemisphere_grid(*surface_grid)
+        ws_i = np.broadcast_to(directions_deg(theta_i_deg, phi_i_deg), ws_o.shape)
+        pairs_s = FiberPairs.from_directions(ws_i, ws_o)
+        r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs_s.w_in, pairs_s.w_out), float)
+        beta_s, _ = summation_from_table(pairs_s, r_surf[:, None])
+        surf = float(ws_weight @ (beta_s[:, 0] / np.pi))
+    return volume + surf, u_volume, {"volume": volume, "u_volume": u_volume, "surface": surf,
+                                     "photons": int(est.photons)}
 
 
 @dataclass

@@ -195,3 +195,22 @@ def test_classic_hemispherical_albedo_is_rho_plus_ct_albedo_and_at_most_one(thet
     a_ct = float(microfacet.directional_albedo(np.radians(theta_i), m, n))
     np.testing.assert_allclose(albedo, rho + a_ct, atol=2e-3)
     assert np.all(rho + a_ct <= 1.0)
+
+
+@pytest.mark.parametrize("theta_i", [0.0, 45.0, 80.0])
+def test_summation_albedo_of_lambert_plus_ct_fiber(fake_fiber, theta_i):
+    from simulate.config import load_config
+
+    fiber = load_config("red-cotton").fiber(WL)
+    # anisotropic fake: the volume albedo is no longer rho, but the quadrature of the volume
+    # term must agree with summation_hemispherical_albedo on a much finer grid
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        albedo, u, info = fab.summation_albedo(fiber, theta_i, WL, n_theta=64, n_phi=128)
+    fine = fab.summation_hemispherical_albedo(_R, theta_i, n_theta=256, n_phi=512)
+    np.testing.assert_allclose(info["volume"], fine, rtol=2e-3)
+    a_ct = float(microfacet.directional_albedo(np.radians(theta_i), 0.35, 1.557))
+    assert info["surface"] == pytest.approx(a_ct, abs=2e-3)
+    np.testing.assert_allclose(albedo, info["volume"] + info["surface"])
+    np.testing.assert_allclose(u, 0.02 * info["volume"], rtol=1e-10)
+    assert len(fake_fiber.volume_calls) == 1
