@@ -396,6 +396,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # the fiber Monte Carlo routes land with the fiber issue; say so in one line
         print(f"simulate {args.command}: error: not available in this build ({exc})", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(f"simulate {args.command}: interrupted (nothing written)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
