@@ -397,7 +397,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"simulate {args.command}: error: not available in this build ({exc})", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"simulate {args.command}: interrupted (nothing written)", file=sys.stderr)
+        print(f"simulate {args.command}: interrupted", file=sys.stderr)
         return 130
 
 
