@@ -42,6 +42,16 @@ differs, and ``f_CT`` the Cook-Torrance BRDF of :mod:`simulate.microfacet` in th
 The grazing limit ``theta_i = 90`` deg has ``cos(theta_i) = 0``: ``f_fabric`` is undefined there and
 such geometries are refused (:class:`FabricError`).
 
+Domain of the summation. ``R_B`` counts the light a fiber intercepts over its whole projected
+width (``2 R |w_perp|`` per unit length, light entering its side crosses it and leaves at B),
+whereas the fabric receives ``2 R cos(theta_i)`` per fiber: towards grazing incidence the weft
+fiber gathers up to ``1 / cos(theta_i)`` times its share - in a real fabric its neighbours shadow
+its side. The summation's albedo therefore grows without bound as ``theta_i -> 90`` and exceeds 1
+beyond some angle (red cotton: 0.64 at 60 deg, 0.78 at 70, 0.96 at 75, 1.2 at 80, 1.9 at 85 deg, at
+700 nm). Geometries beyond :data:`SUMMATION_GRAZING_LIMIT_DEG` raise an ``OpticsDomainWarning``
+and :func:`summation_albedo` warns whenever the albedo it finds exceeds 1 (QUALITY.md B: flagged,
+never silent). The fabric Monte Carlo (shadowing, masking) is the method for grazing incidence.
+
 References
 ----------
 PHYSICS.md sections 5-7. Cook, R. L. & Torrance, K. E. (1982). *ACM TOG* 1(1), 7-24.
@@ -50,6 +60,7 @@ PHYSICS.md sections 5-7. Cook, R. L. & Torrance, K. E. (1982). *ACM TOG* 1(1), 7
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,9 +68,11 @@ import numpy as np
 import numpy.typing as npt
 
 from simulate import microfacet
+from simulate.fresnel import OpticsDomainWarning
 
 __all__ = [
     "FabricError",
+    "SUMMATION_GRAZING_LIMIT_DEG",
     "FabricResult",
     "FiberPairs",
     "M_WARP",
@@ -77,6 +90,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: Incidence beyond which the summation's energy balance is not trusted (see the module docstring).
+SUMMATION_GRAZING_LIMIT_DEG = 70.0
 
 M_WARP = np.eye(3)
 M_WEFT = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -163,6 +179,12 @@ class FiberPairs:
         if np.any(w_i[:, 2] <= 0) or np.any(w_o[:, 2] < 0):
             raise FabricError("fabric BRDF: the incident direction must be above the fabric "
                               "(theta_i < 90 deg) and the outgoing one not below it")
+        if np.any(w_i[:, 2] < np.cos(np.radians(SUMMATION_GRAZING_LIMIT_DEG))):
+            warnings.warn(
+                f"fabric summation: incidence beyond {SUMMATION_GRAZING_LIMIT_DEG:g} deg: the fiber BRDF counts "
+                "the light entering the fiber's side, which neighbouring fibers shadow in a fabric; the "
+                "summation overestimates there and its albedo can exceed 1 (use the fabric Monte Carlo)",
+                OpticsDomainWarning, stacklevel=3)
         a_in, a_out, b_in, b_out = fiber_frame_pairs(w_i, w_o, rotation_deg)
         w_in = np.concatenate([a_in, b_in])
         w_out = np.concatenate([a_out, b_out])
@@ -298,10 +320,20 @@ def summation_albedo(fiber: Any, theta_i_deg: float, wavelengths_nm: npt.ArrayLi
         ws_o, ws_weight = hemisphere_grid(*surface_grid)
         ws_i = np.broadcast_to(directions_deg(theta_i_deg, phi_i_deg), ws_o.shape)
         pairs_s = FiberPairs.from_directions(ws_i, ws_o)
-        r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs_s.w_in, pairs_s.w_out), float)
+        with warnings.catch_warnings():
+            # the quadrature's outgoing directions approach the horizon, where Cook-Torrance warns;
+            # its values stay finite and their weight vanishes there
+            warnings.simplefilter("ignore", OpticsDomainWarning)
+            r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs_s.w_in, pairs_s.w_out), float)
         beta_s, _ = summation_from_table(pairs_s, r_surf[:, None])
         surf = float(ws_weight @ (beta_s[:, 0] / np.pi))
-    return volume + surf, u_volume, {"volume": volume, "u_volume": u_volume, "surface": surf,
+    albedo = volume + surf
+    if np.any(albedo > 1.0):
+        warnings.warn(
+            f"fabric summation: albedo {float(albedo.max()):.3g} > 1 at theta_i = {theta_i_deg:g} deg "
+            "(energy not conserved: the summation is outside its domain, see simulate.fabric)",
+            OpticsDomainWarning, stacklevel=2)
+    return albedo, u_volume, {"volume": volume, "u_volume": u_volume, "surface": surf,
                                      "photons": int(est.photons)}
 
 
