@@ -14,8 +14,9 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
     non-empty DIR is overwritten only if it holds a previous ``simulate fabric`` output.
-``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf]``
-    the fiber BRDF table (:mod:`simulate.fibertable`: npz + JSON sidecar).
+``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
+    the fiber BRDF table (:mod:`simulate.fibertable`: npz + JSON sidecar); its target error
+    defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
 """
 
 from __future__ import annotations
@@ -210,9 +211,10 @@ def _threads_arg(text: str) -> int:
     return _int_in(1, numba.config.NUMBA_NUM_THREADS)(text)
 
 
-def _run_settings_arguments(p: argparse.ArgumentParser) -> None:
+def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "the config's") -> None:
     p.add_argument("--target-rel-err", type=_rel_err, default=None, dest="target_rel_err",
-                   help="target relative standard error of the fiber Monte Carlo (default: the config's)")
+                   help="target relative standard error of the fiber Monte Carlo, relative to each "
+                        f"curve's spectral peak (default: {target_default})")
     p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
                    help="photon budget (default: the config's; none)")
     p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=None, help="random seed (default: the config's)")
@@ -323,11 +325,11 @@ def _fiber_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output directory (fiber-table.npz, fiber-table.json)")
     p.add_argument("--method", choices=("nee", "beam", "bssrdf"), default=None,
                    help="fiber route (default: the config's method.method)")
-    p.add_argument("--step-deg", type=_pos_float, default=15.0, dest="step_deg",
-                   help="polar grid step in degrees, dividing 90 (default 15)")
-    p.add_argument("--phi-step-deg", type=_pos_float, default=30.0, dest="phi_step_deg",
-                   help="azimuth grid step in degrees, dividing 90 (default 30)")
-    _run_settings_arguments(p)
+    p.add_argument("--step-deg", type=_pos_float, default=30.0, dest="step_deg",
+                   help="polar grid step in degrees, dividing 90 (default 30)")
+    p.add_argument("--phi-step-deg", type=_pos_float, default=45.0, dest="phi_step_deg",
+                   help="azimuth grid step in degrees, dividing 90 (default 45)")
+    _run_settings_arguments(p, "0.05, a coarse table")
 
 
 def _fiber_run(args: argparse.Namespace) -> int:
