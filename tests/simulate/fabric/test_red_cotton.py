@@ -38,9 +38,10 @@ def red_cotton():
 @pytest.fixture(scope="module")
 def rho_d(red_cotton):
     _, fiber = red_cotton
-    # 1 % of each spectrum's peak (simulate.fiber's accuracy measure): GREEN/RED then has a
-    # standard error of about 0.002, a third of the published range's width
-    return fiber_mod.normal_albedo(fiber, WL, target_rel_err=0.01, seed=11)
+    # 0.6 % of each spectrum's peak (simulate.fiber's accuracy measure): GREEN/RED, the most
+    # sensitive figure, then has a standard error of about 0.0012 against a published range of
+    # width 0.007 (at 1 % it is 0.002: values 0.010-0.016 over seeds, mean 0.014)
+    return fiber_mod.normal_albedo(fiber, WL, target_rel_err=0.006, seed=11)
 
 
 @pytest.fixture(scope="module")
