@@ -1,0 +1,543 @@
+"""Simulation configs: what fiber, what fabric, how accurately (TOML, read with ``tomllib``).
+
+A config names the fiber (radius, host index, host absorption spectrum = the dye), the
+scattering medium inside it (Mie particles, or a direct Henyey-Greenstein medium for
+validation), the surface roughness, the weave (kept for the fabric Monte Carlo issues), the
+method settings and the seed. ``simulate fiber`` and ``simulate fabric`` take a config path or
+the name of a shipped preset (``red-cotton``, in :mod:`simulate.configs`).
+
+Every bad field ends in ONE :class:`ConfigError` whose message names the file and the field,
+e.g. ``red.toml: fiber.radius_um must be a number > 0, got "abc"``. Unknown fields are errors
+too (a misspelt key must not be silently ignored).
+
+Schema
+------
+Lengths in micrometres, absorption/scattering coefficients in 1/um, wavelengths in nm (vacuum).
+A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], values = [...]}``
+(strictly increasing wavelengths, interpolated linearly, end values held outside)::
+
+    name = "red-cotton"                # optional, default: the file's stem
+    description = "..."                # optional
+    seed = 0                           # optional, default 0 (integer >= 0)
+
+    [fiber]                            # required
+    radius_um = 7.5                    # > 0
+    n_host = 1.557                     # real host index, >= 1
+    cell_width_deg = 10                # optional, (0, 180]: angular width of the top cell B
+
+    [fiber.dye]                        # optional: host absorption mu_a_host(lambda), 1/um; ONE of
+    wavelength_nm = [400, 500, 600]    #   a table: wavelength_nm + mu_a_per_um (>= 0)
+    mu_a_per_um = [0.1, 0.5, 0.001]
+    # curve = "gaussian-bands"         #   or a named smooth curve:
+    # baseline_per_um = 0.001          #   mu_a = baseline + sum_j peak_j exp(-(l - c_j)^2 / (2 w_j^2))
+    # bands = [{center_nm = 520, width_nm = 40, peak_per_um = 0.4}]
+    # curve = "logistic-edge"          #   mu_a = long + (short - long) / (1 + exp((l - edge) / width))
+    # short_per_um = 0.5, long_per_um = 0.001, edge_nm = 590, width_nm = 12
+
+    [particles]                        # Mie spheres in the host (exclusive with [medium])
+    n = 1.0                            # spectrum, > 0: real part of the particle index
+    k = 0.0                            # spectrum, >= 0: absorption index (index n - i k)
+    radius_um = 0.25                   # ONE of radius_um and [particles.size]
+    # size = {median_radius_um = 0.25, sigma_g = 1.5}     (log-normal number distribution)
+    volume_fraction = 0.05             # ONE of volume_fraction in [0, 1) and number_density_per_um3
+
+    [medium]                           # direct HG medium for validation (exclusive with [particles])
+    mu_s = 0.5                         # 1/um, >= 0
+    mu_a = 0.001                       # 1/um, >= 0 (total absorption: no [fiber.dye] with [medium])
+    g = 0.8                            # (-1, 1)
+
+    [surface]
+    rms_slope = 0.3                    # Beckmann RMS slope m of the fiber surface, > 0
+
+    [weave]                            # optional; used by the woven-fabric issues, types checked only
+    matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular
+    spacing_um = 250                   # > 0
+    width_um = 200                     # > 0
+    height_um = 80                     # > 0
+
+    [method]                           # optional, defaults shown
+    method = "nee"                     # fiber route: "nee" | "beam" | "bssrdf"
+    target_rel_err = 0.01              # target relative standard error, (0, 1)
+    max_photons = 0                    # photon budget; 0 = no cap
+    threads = 0                        # 0 = all available
+
+    [wavelengths]                      # optional: the wavelengths of `simulate fiber` tables
+    start_nm = 390                     # (`simulate fabric` uses the plan's wavelengths)
+    stop_nm = 710
+    step_nm = 10
+    # or: list_nm = [450, 550, 650]
+
+Exactly one of ``[particles]`` and ``[medium]`` is required.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simulate.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
+
+__all__ = [
+    "ConfigError",
+    "DyeSpectrum",
+    "ParticleSpec",
+    "SimulationConfig",
+    "load_config",
+    "parse_config",
+    "preset_names",
+    "resolve_config_path",
+]
+
+_PRESET_PACKAGE = "simulate.configs"
+_DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
+METHODS = ("nee", "beam", "bssrdf")
+DYE_CURVES = ("gaussian-bands", "logistic-edge")
+
+
+class ConfigError(ValueError):
+    """A simulation config is missing, unreadable or has a bad field (the message names both)."""
+
+
+# ------------------------------------------------------------------------------------------
+# typed field access
+
+
+def _show(value: Any) -> str:
+    text = f'"{value}"' if isinstance(value, str) else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _is_number(value: Any) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return math.isfinite(value) and abs(value) < 1e15
+
+
+class _Table:
+    """One TOML table with checks whose errors name the file and the dotted field."""
+
+    def __init__(self, data: Any, where: str, file: str):
+        self.file, self.where = file, where
+        if not isinstance(data, dict):
+            raise ConfigError(f"{file}: {where} must be a table, got {_show(data)}")
+        self.data = data
+        self.used: set[str] = set()
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def fail(self, key: str, message: str) -> ConfigError:
+        return ConfigError(f"{self.file}: {self.name(key)} {message}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = None, required: bool = False) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                raise self.fail(key, "is required")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: float | None = None, *, required: bool = False,
+               gt: float | None = None, ge: float | None = None, lt: float | None = None,
+               le: float | None = None) -> float | None:
+        value = self.raw(key, default, required)
+        if value is None:
+            return None
+        bounds = " and ".join(s for s in (
+            f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
+            f"< {lt:g}" if lt is not None else "", f"<= {le:g}" if le is not None else "") if s)
+        what = f"a number {bounds}" if bounds else "a finite number"
+        ok = _is_number(value) and not (
+            (gt is not None and not value > gt) or (ge is not None and not value >= ge)
+            or (lt is not None and not value < lt) or (le is not None and not value <= le))
+        if not ok:
+            raise self.fail(key, f"must be {what}, got {_show(value)}")
+        return float(value)
+
+    def integer(self, key: str, default: int, *, ge: int = 0, le: int = 2**63 - 1) -> int:
+        value = self.raw(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or not ge <= value <= le:
+            raise self.fail(key, f"must be an integer in [{ge}, {le}], got {_show(value)}")
+        return int(value)
+
+    def string(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
+               required: bool = False) -> str | None:
+        value = self.raw(key, default, required)
+        if value is None:
+            return None
+        if not isinstance(value, str) or not value.strip():
+            raise self.fail(key, f"must be a non-empty string, got {_show(value)}")
+        if choices is not None and value not in choices:
+            raise self.fail(key, f"must be one of {', '.join(choices)}, got {_show(value)}")
+        return value
+
+    def numbers(self, key: str, *, ge: float | None = None, required: bool = True) -> list[float]:
+        value = self.raw(key, None, required)
+        if not isinstance(value, list) or not value:
+            raise self.fail(key, f"must be a non-empty list of numbers, got {_show(value)}")
+        for k, x in enumerate(value):
+            if not _is_number(x) or (ge is not None and x < ge):
+                bound = f" >= {ge:g}" if ge is not None else ""
+                raise self.fail(key, f"item {k} must be a finite number{bound}, got {_show(x)}")
+        return [float(x) for x in value]
+
+    def sub(self, key: str, required: bool = False) -> _Table | None:
+        value = self.raw(key, None, required)
+        if value is None:
+            return None
+        if not isinstance(value, dict):
+            raise self.fail(key, f"must be a table, got {_show(value)}")
+        return _Table(value, self.name(key), self.file)
+
+    def done(self) -> None:
+        extra = sorted(set(self.data) - self.used)
+        if extra:
+            raise self.fail(extra[0], "is not a known field (check the spelling; the schema is in "
+                                      "the simulate.config docstring)")
+
+
+def _spectrum(t: _Table, key: str, default: float | None, *, gt: float | None = None,
+              ge: float | None = None, required: bool = False) -> float | Spectrum | None:
+    """A number or a ``{wavelength_nm, values}`` table (see the schema)."""
+    value = t.raw(key, default, required)
+    if value is None or not isinstance(value, dict):
+        if value is not None:
+            t.used.discard(key)
+            return t.number(key, default, gt=gt, ge=ge, required=required)
+        return None
+    sub = _Table(value, t.name(key), t.file)
+    wl = sub.numbers("wavelength_nm", ge=0.0)
+    values = sub.numbers("values")
+    sub.done()
+    if len(wl) != len(values):
+        raise sub.fail("values", f"must have as many items as wavelength_nm ({len(wl)}), got {len(values)}")
+    if any(b <= a for a, b in zip(wl, wl[1:])):
+        raise sub.fail("wavelength_nm", "must be strictly increasing")
+    for k, v in enumerate(values):
+        if (gt is not None and not v > gt) or (ge is not None and not v >= ge):
+            bound = f"> {gt:g}" if gt is not None else f">= {ge:g}"
+            raise sub.fail("values", f"item {k} must be {bound}, got {_show(v)}")
+    return Spectrum(np.asarray(wl), np.asarray(values), name=f"{t.file}: {t.name(key)}")
+
+
+# ------------------------------------------------------------------------------------------
+# the config objects
+
+
+@dataclass(frozen=True)
+class DyeSpectrum:
+    """Host absorption ``mu_a_host(lambda)`` in 1/um: a table or a named smooth curve.
+
+    ``curve = "table"``: ``params = {"wavelength_nm": [...], "mu_a_per_um": [...]}``;
+    ``"gaussian-bands"``: ``baseline_per_um + sum_j peak_per_um_j exp(-(l - center_nm_j)^2 /
+    (2 width_nm_j^2))``; ``"logistic-edge"``: ``long_per_um + (short_per_um - long_per_um) /
+    (1 + exp((l - edge_nm) / width_nm))`` (strong absorption below the edge).
+    """
+
+    curve: str
+    params: dict
+
+    def __call__(self, wavelength_nm: Any) -> np.ndarray:
+        wl = np.asarray(wavelength_nm, dtype=float)
+        p = self.params
+        if self.curve == "table":
+            return np.interp(wl, p["wavelength_nm"], p["mu_a_per_um"])
+        if self.curve == "gaussian-bands":
+            out = np.full(wl.shape, p["baseline_per_um"])
+            for band in p["bands"]:
+                out = out + band["peak_per_um"] * np.exp(
+                    -0.5 * ((wl - band["center_nm"]) / band["width_nm"]) ** 2)
+            return out
+        # logistic-edge
+        z = np.clip((wl - p["edge_nm"]) / p["width_nm"], -700.0, 700.0)
+        return p["long_per_um"] + (p["short_per_um"] - p["long_per_um"]) / (1.0 + np.exp(z))
+
+    def as_spectrum(self, wavelength_nm: np.ndarray) -> Spectrum:
+        """A :class:`~simulate.medium.Spectrum` sampled at (and exact on) ``wavelength_nm``."""
+        wl = np.unique(np.asarray(wavelength_nm, dtype=float))
+        if wl.size == 1:  # a Spectrum needs a range; a flat two-point table is exact
+            wl = np.array([wl[0] - 1.0, wl[0] + 1.0])
+            return Spectrum(wl, np.full(2, float(self(wl[0] + 1.0))), name="dye mu_a_host")
+        return Spectrum(wl, self(wl), name="dye mu_a_host")
+
+
+@dataclass(frozen=True)
+class ParticleSpec:
+    """Mie particles of the ``[particles]`` table (see the schema)."""
+
+    n: float | Spectrum
+    k: float | Spectrum
+    radius_um: float | None
+    size: LogNormalSize | None
+    volume_fraction: float | None
+    number_density_per_um3: float | None
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """A validated simulation config (see the module docstring for the schema)."""
+
+    name: str
+    description: str
+    source: str
+    text: str
+    sha256: str
+    seed: int
+    radius_um: float
+    n_host: float
+    cell_width_deg: float
+    dye: DyeSpectrum | None
+    particles: ParticleSpec | None
+    hg: tuple[float, float, float] | None
+    rms_slope: float
+    weave: dict
+    method: str
+    target_rel_err: float
+    max_photons: int | None
+    threads: int | None
+    wavelengths_nm: tuple[float, ...] = field(default=_DEFAULT_WAVELENGTHS)
+
+    def medium(self, wavelengths_nm: Any | None = None) -> MieMedium | HGMedium:
+        """The scattering medium; the dye spectrum is sampled at ``wavelengths_nm`` (exact there)."""
+        if self.hg is not None:
+            mu_s, mu_a, g = self.hg
+            return HGMedium(mu_s=mu_s, mu_a=mu_a, g=g)
+        p = self.particles
+        assert p is not None
+        wl = self.wavelengths_nm if wavelengths_nm is None else wavelengths_nm
+        mu_a_host: float | Spectrum = 0.0 if self.dye is None else self.dye.as_spectrum(np.asarray(wl))
+        return MieMedium(n_host=self.n_host, particle_n=p.n, particle_k=p.k, radius_um=p.radius_um,
+                         size_distribution=p.size, number_density_per_um3=p.number_density_per_um3,
+                         volume_fraction=p.volume_fraction, mu_a_host_per_um=mu_a_host)
+
+    def fiber(self, wavelengths_nm: Any | None = None):
+        """The :class:`simulate.fiber.Fiber` of this config (dye sampled at ``wavelengths_nm``)."""
+        from simulate.fiber import Fiber
+
+        return Fiber(radius_um=self.radius_um, n_host=self.n_host, medium=self.medium(wavelengths_nm),
+                     roughness=self.rms_slope, cell_width_deg=self.cell_width_deg)
+
+    def provenance(self) -> dict:
+        """What produced a result: the config's name, source, SHA-256 and full text."""
+        return {"name": self.name, "source": self.source, "sha256": self.sha256, "text": self.text}
+
+
+# ------------------------------------------------------------------------------------------
+# reading
+
+
+def preset_names() -> list[str]:
+    """Names of the configs shipped in :mod:`simulate.configs`."""
+    folder = resources.files(_PRESET_PACKAGE)
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def resolve_config_path(path_or_name: str | Path) -> Path:
+    """A config file path from a path or the name of a shipped preset (``red-cotton``)."""
+    p = Path(path_or_name)
+    if p.is_file():
+        return p
+    name = str(path_or_name)
+    name = name[:-5] if name.endswith(".toml") else name
+    if "/" not in name and name in preset_names():
+        return Path(str(resources.files(_PRESET_PACKAGE) / f"{name}.toml"))
+    if p.exists():
+        raise ConfigError(f"{path_or_name}: is not a file; a config is a TOML file")
+    raise ConfigError(f"{path_or_name}: no such config file and no preset of that name "
+                      f"(presets: {', '.join(preset_names())})")
+
+
+def load_config(path_or_name: str | Path) -> SimulationConfig:
+    """Read and validate a config file or a preset name; raises :class:`ConfigError`."""
+    path = resolve_config_path(path_or_name)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config ({exc.strerror})") from None
+    is_preset = not Path(path_or_name).is_file()
+    return parse_config(raw, path, source=f"preset {path.stem}" if is_preset else str(path))
+
+
+def _dye(t: _Table) -> DyeSpectrum:
+    if t.has("curve"):
+        curve = t.string("curve", choices=DYE_CURVES)
+        if curve == "gaussian-bands":
+            base = t.number("baseline_per_um", 0.0, ge=0.0)
+            bands_raw = t.raw("bands", None, required=True)
+            if not isinstance(bands_raw, list) or not bands_raw:
+                raise t.fail("bands", f"must be a non-empty list of tables, got {_show(bands_raw)}")
+            bands = []
+            for k, b in enumerate(bands_raw):
+                bt = _Table(b, f"{t.name('bands')}[{k}]", t.file)
+                bands.append({"center_nm": bt.number("center_nm", required=True, gt=0.0),
+                              "width_nm": bt.number("width_nm", required=True, gt=0.0),
+                              "peak_per_um": bt.number("peak_per_um", required=True, ge=0.0)})
+                bt.done()
+            params: dict = {"baseline_per_um": base, "bands": bands}
+        else:
+            params = {"short_per_um": t.number("short_per_um", required=True, ge=0.0),
+                      "long_per_um": t.number("long_per_um", required=True, ge=0.0),
+                      "edge_nm": t.number("edge_nm", required=True, gt=0.0),
+                      "width_nm": t.number("width_nm", required=True, gt=0.0)}
+        t.done()
+        return DyeSpectrum(curve, params)
+    wl = t.numbers("wavelength_nm", ge=0.0)
+    mu_a = t.numbers("mu_a_per_um", ge=0.0)
+    t.done()
+    if len(wl) != len(mu_a):
+        raise t.fail("mu_a_per_um", f"must have as many items as wavelength_nm ({len(wl)}), got {len(mu_a)}")
+    if any(b <= a for a, b in zip(wl, wl[1:])):
+        raise t.fail("wavelength_nm", "must be strictly increasing")
+    return DyeSpectrum("table", {"wavelength_nm": wl, "mu_a_per_um": mu_a})
+
+
+def _particles(t: _Table) -> ParticleSpec:
+    n = _spectrum(t, "n", None, gt=0.0, required=True)
+    k = _spectrum(t, "k", 0.0, ge=0.0)
+    if t.has("radius_um") == t.has("size"):
+        raise t.fail("radius_um", "or particles.size: give exactly one (a radius or a log-normal "
+                                  "size distribution)")
+    radius = size = None
+    if t.has("radius_um"):
+        radius = t.number("radius_um", gt=0.0)
+    else:
+        st = t.sub("size")
+        assert st is not None
+        median = st.number("median_radius_um", required=True, gt=0.0)
+        sigma_g = st.number("sigma_g", required=True, ge=1.0, le=5.0)
+        st.done()
+        size = LogNormalSize(median_radius_um=median, sigma_g=sigma_g)
+    if t.has("volume_fraction") == t.has("number_density_per_um3"):
+        raise t.fail("volume_fraction", "or particles.number_density_per_um3: give exactly one")
+    fv = t.number("volume_fraction", ge=0.0, lt=1.0) if t.has("volume_fraction") else None
+    nd = t.number("number_density_per_um3", ge=0.0) if t.has("number_density_per_um3") else None
+    t.done()
+    return ParticleSpec(n=n, k=k, radius_um=radius, size=size, volume_fraction=fv,
+                        number_density_per_um3=nd)
+
+
+def _weave(t: _Table) -> dict:
+    out: dict = {}
+    if t.has("matrix"):
+        m = t.raw("matrix")
+        rows_ok = isinstance(m, list) and m and all(isinstance(r, list) and r for r in m)
+        if not rows_ok or len({len(r) for r in m}) != 1 or not all(
+                x in (0, 1) and not isinstance(x, bool) and isinstance(x, int) for r in m for x in r):
+            raise t.fail("matrix", f"must be a rectangular list of rows of 0/1 integers, got {_show(m)}")
+        out["matrix"] = [list(r) for r in m]
+    for key in ("spacing_um", "width_um", "height_um"):
+        if t.has(key):
+            out[key] = t.number(key, gt=0.0)
+    t.done()
+    return out
+
+
+def _wavelengths(t: _Table) -> tuple[float, ...]:
+    if t.has("list_nm"):
+        wl = t.numbers("list_nm", ge=0.0)
+    else:
+        a = t.number("start_nm", 390.0, gt=0.0)
+        b = t.number("stop_nm", 710.0, gt=0.0)
+        d = t.number("step_nm", 10.0, gt=0.0)
+        if b < a:
+            raise t.fail("stop_nm", f"must be >= start_nm ({a:g}), got {b:g}")
+        if (b - a) / d > 10000:
+            raise t.fail("step_nm", "gives more than 10000 wavelengths")
+        wl = [round(a + k * d, 9) for k in range(int(math.floor((b - a) / d + 1e-9)) + 1)]
+    t.done()
+    for w in wl:
+        if not 200.0 <= w <= 2500.0:
+            raise t.fail("list_nm" if t.has("list_nm") else "start_nm",
+                         f"wavelength {w:g} nm outside 200..2500 nm")
+    if len(set(wl)) != len(wl) or any(b <= a for a, b in zip(wl, wl[1:])):
+        raise t.fail("list_nm", "must be strictly increasing without duplicates")
+    return tuple(wl)
+
+
+def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str | None = None) -> SimulationConfig:
+    """Validate config TOML (bytes or str) and build a :class:`SimulationConfig`.
+
+    Raises
+    ------
+    ConfigError
+        With a message naming the file (its name only, ``red.toml``) and the field.
+    """
+    file = Path(path).name
+    if isinstance(raw, str):
+        raw = raw.encode("utf-8", errors="surrogatepass")
+    try:
+        text = raw.decode("utf-8")
+        data = tomllib.loads(text)
+    except (UnicodeDecodeError, UnicodeEncodeError):
+        raise ConfigError(f"{file}: not UTF-8 text; a config is a TOML file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{file}: invalid TOML: {exc}") from None
+    top = _Table(data, "", file)
+    name = top.string("name", Path(path).stem) or Path(path).stem
+    description = top.raw("description", "")
+    if not isinstance(description, str):
+        raise top.fail("description", f"must be a string, got {_show(description)}")
+    seed = top.integer("seed", 0)
+
+    fib = top.sub("fiber", required=True)
+    assert fib is not None
+    radius = fib.number("radius_um", required=True, gt=0.0, le=1e4)
+    n_host = fib.number("n_host", required=True, ge=1.0, le=4.0)
+    cell = fib.number("cell_width_deg", 10.0, gt=0.0, le=180.0)
+    dye_t = fib.sub("dye")
+    dye = _dye(dye_t) if dye_t is not None else None
+    fib.done()
+
+    if top.has("particles") == top.has("medium"):
+        raise top.fail("particles", "or medium: give exactly one table ([particles] for Mie spheres, "
+                                    "[medium] for a direct Henyey-Greenstein medium)")
+    particles = hg = None
+    if top.has("particles"):
+        pt = top.sub("particles")
+        assert pt is not None
+        particles = _particles(pt)
+    else:
+        mt = top.sub("medium")
+        assert mt is not None
+        hg = (mt.number("mu_s", required=True, ge=0.0), mt.number("mu_a", required=True, ge=0.0),
+              mt.number("g", required=True, gt=-1.0, lt=1.0))
+        mt.done()
+        if dye is not None:
+            raise fib.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total "
+                                  "absorption of a Henyey-Greenstein medium)")
+
+    surf = top.sub("surface", required=True)
+    assert surf is not None
+    rms_slope = surf.number("rms_slope", required=True, gt=0.0, le=1.0)
+    surf.done()
+
+    weave_t = top.sub("weave")
+    weave = _weave(weave_t) if weave_t is not None else {}
+
+    mt = top.sub("method") or _Table({}, "method", file)
+    method = mt.string("method", "nee", choices=METHODS)
+    target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
+    max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
+    threads = mt.integer("threads", 0, ge=0, le=1024)
+    mt.done()
+
+    wl_t = top.sub("wavelengths")
+    wavelengths = _wavelengths(wl_t) if wl_t is not None else _DEFAULT_WAVELENGTHS
+    top.done()
+
+    return SimulationConfig(
+        name=name, description=description, source=source or str(path), text=text,
+        sha256=hashlib.sha256(raw).hexdigest(), seed=seed, radius_um=radius, n_host=n_host,
+        cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
+        method=method, target_rel_err=target, max_photons=max_photons or None,
+        threads=threads or None, wavelengths_nm=wavelengths)
