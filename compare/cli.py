@@ -28,7 +28,7 @@ import logging
 import sys
 from typing import Sequence
 
-from gonio.dataset import DatasetError, read_dataset
+from gonio.data import DatasetError, read_dataset
 
 from .comparison import compare_datasets, incomplete_datasets
 from .errors import CompareError

@@ -1,11 +1,11 @@
 r"""Colour match of measured and simulated spectra at one geometry (PHYSICS.md sections 7-8).
 
-Colour is computed by :func:`gonio.colour.spectrum_colour` (CIE 1931 2-degree observer,
+Colour is computed by :func:`gonio.data.colour.spectrum_colour` (CIE 1931 2-degree observer,
 illuminant D65 unless set, LINEAR sRGB, HSV and the ratios BLUE/RED and GREEN/RED), at the
 geometry closest to normal incidence and normal observation that the measured dataset and every
 simulation share (exactly, not by interpolation, when there is such a geometry): the smallest ``theta_i + theta_o``, ties broken by smaller ``theta_i``, then
 ``phi_i``, then ``phi_o``. Differences are simulated minus measured: ``dh`` on the hue circle
-(:func:`gonio.colour.hue_difference`, in [-0.5, 0.5)), ``ds``, ``dv``.
+(:func:`gonio.data.colour.hue_difference`, in [-0.5, 0.5)), ``ds``, ``dv``.
 
 Which simulated values are compared
 -----------------------------------
@@ -35,8 +35,8 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from gonio.colour import ColourSummary, hue_difference, spectrum_colour
-from gonio.dataset import GEOMETRY
+from gonio.data.colour import ColourSummary, hue_difference, spectrum_colour
+from gonio.data import GEOMETRY
 
 from .errors import CompareError
 
@@ -53,7 +53,7 @@ def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
     wl = np.asarray(wavelengths)
     basis = colour.MultiSpectralDistributions(np.eye(wl.size), wl)
     # colour-science warns while it trims/extends each basis spectrum to the observer's range,
-    # exactly as it does (silently, once) for a single spectrum in gonio.colour
+    # exactly as it does (silently, once) for a single spectrum in gonio.data.colour
     with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
         xyz = colour.msds_to_XYZ(basis, colour.MSDS_CMFS[OBSERVER],
                                  colour.SDS_ILLUMINANTS[illuminant], method="ASTM E308")
@@ -63,7 +63,7 @@ def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
 def luminance_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
     """Weights ``w`` with ``Y = w @ beta``, the CIE ``Y`` of a spectrum on ``wavelength_nm``.
 
-    colour-science's integration (ASTM E308, as in :func:`gonio.colour.spectrum_colour`) is linear
+    colour-science's integration (ASTM E308, as in :func:`gonio.data.colour.spectrum_colour`) is linear
     in the spectrum, so ``w`` is the ``Y`` of each unit basis spectrum; ``Y = 1`` for ``beta = 1``.
 
     Examples

@@ -43,7 +43,7 @@ from typing import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from gonio.dataset import Dataset
+from gonio.data import Dataset
 
 from .align import align, shared_wavelengths
 from .colourmatch import ColourMatch, colour_match
@@ -187,9 +187,9 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
 
     Parameters
     ----------
-    measured : gonio.dataset.Dataset
+    measured : gonio.data.Dataset
         The reference (normally ``kind == "measured"``).
-    simulated : sequence of gonio.dataset.Dataset
+    simulated : sequence of gonio.data.Dataset
         One or more simulations (e.g. the fiber model and the classic model).
     window_deg : float
         Half-width in ``s`` of the normal/normal estimate (:mod:`compare.normalise`).

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gonio.dataset import Dataset
+from gonio.data import Dataset
 
 from .errors import CompareError
 
@@ -143,7 +143,7 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
 
     Parameters
     ----------
-    dataset : gonio.dataset.Dataset
+    dataset : gonio.data.Dataset
         Measured or simulated radiance-coefficient dataset.
     window_deg : float
         Largest ``|s|`` (degrees) of the normal-incidence points used for the estimate.
@@ -161,7 +161,7 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
     Examples
     --------
     >>> import numpy as np
-    >>> from gonio.dataset import make_dataset, new_meta, in_plane_geometry
+    >>> from gonio.data import make_dataset, new_meta, in_plane_geometry
     >>> s = np.array([-20.0, -10.0, 10.0, 20.0])
     >>> theta_o, phi_o = in_plane_geometry(0.0, s)
     >>> table = dict(theta_i=0.0 * s, phi_i=0.0 * s, theta_o=theta_o, phi_o=phi_o,

@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from gonio.dataset import atomic_write
+from gonio.data import atomic_write
 
 from .colourmatch import luminance_weights
 from .comparison import Comparison
@@ -310,7 +310,7 @@ def swatch_entries(comparison: Comparison) -> list[tuple[str, np.ndarray, tuple]
     metrics' H, S, V are those of LINEAR sRGB; the table gives both)."""
     import colour
 
-    from gonio.colour import display_srgb
+    from gonio.data.colour import display_srgb
 
     cm = comparison.colour
     entries = [(f"{comparison.measured.name} (measured)", cm.measured)]

@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 
 from gonio.calibration import CalibrationError
-from gonio.dataset import DatasetError
+from gonio.data import DatasetError
 from gonio.devices import MotionController, PhotometerHead, RetryPolicy
 from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
                           Engine, Interrupted, RunResult, owned_by_run)
@@ -398,7 +398,7 @@ def _check_output_folder(out: Path, opt: str) -> None:
 
 
 def _cmd_truth(args) -> int:
-    from gonio.dataset import write_dataset
+    from gonio.data import write_dataset
     from gonio.mock.samples import SampleError
     from gonio.truth import truth_dataset
 

@@ -47,8 +47,8 @@ Samples
     the measurement itself bounds the near-normal gloss to about 0.01.) Both terms are
     non-negative and reciprocal.
 ``FILE``
-    A radiance-coefficient dataset directory (``gonio.dataset.read_dataset``), interpolated with
-    ``Dataset.interpolate``; a request outside the data raises ``gonio.dataset.DatasetError``.
+    A radiance-coefficient dataset directory (``gonio.data.read_dataset``), interpolated with
+    ``Dataset.interpolate``; a request outside the data raises ``gonio.data.DatasetError``.
 
 The white standard of the mock is Lambertian with a flat calibrated radiance factor
 :data:`WHITE_REFERENCE_BETA` (:func:`reference_beta`).
@@ -210,7 +210,7 @@ class DatasetSample:
     """A sample whose truth is a radiance-coefficient dataset directory (interpolated)."""
 
     def __init__(self, path: str | Path):
-        from gonio.dataset import DatasetError, read_dataset
+        from gonio.data import DatasetError, read_dataset
 
         self.path = Path(path)
         try:
@@ -220,7 +220,7 @@ class DatasetSample:
         self.name = self.dataset.name
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
-        """Interpolated ``beta``; raises ``gonio.dataset.DatasetError`` outside the data."""
+        """Interpolated ``beta``; raises ``gonio.data.DatasetError`` outside the data."""
         return self.dataset.interpolate(theta_i, phi_i, theta_o, phi_o, wavelength_nm)[0]
 
     def describe(self) -> dict:
