@@ -80,7 +80,9 @@ def _parser() -> argparse.ArgumentParser:
                                      "write REPORT_DIR/report.html (self-contained), "
                                      "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.")
     rep.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
-    rep.add_argument("simulated", metavar="SIM_DIR", nargs="+", help="simulated dataset(s)")
+    rep.add_argument("simulated", metavar="SIM_DIR", nargs="*",
+                     help="simulated dataset(s); none: look at MEASURED_DIR alone (curves, "
+                          "colour strips, colour table)")
     rep.add_argument("--out", required=True, metavar="REPORT_DIR",
                      help="output directory: new, empty, or holding a previous report (only "
                           "its files are replaced)")
@@ -117,6 +119,17 @@ def _report(args) -> int:
     from .report import write_report
 
     measured = read_dataset(args.measured)
+    if not args.simulated:
+        from .inspect import write_dataset_report
+
+        try:
+            report = write_dataset_report(measured, args.out, svg=args.svg, force=args.force)
+        except OSError as exc:
+            raise CompareError(f"cannot write the report into --out {args.out}: "
+                               f"{exc.strerror or exc} ({exc.filename}); choose a writable "
+                               "directory") from None
+        print(f"report: {report}")
+        return 0
     simulated = [read_dataset(p) for p in args.simulated]
     for line in incomplete_datasets(measured, simulated):
         log.warning("%s; the report says so in a banner", line)
