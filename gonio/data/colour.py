@@ -135,7 +135,7 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     r, g, b = (float(x) for x in rgb)
     return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
                          blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),
-                         xyz=tuple(float(x) for x in xyz), illuminant=illuminant)
+                         xyz=(float(xyz[0]), float(xyz[1]), float(xyz[2])), illuminant=illuminant)
 
 
 def colourspace(name: str):
@@ -156,7 +156,7 @@ def _summary(rgb_srgb, xyz, illuminant: str) -> ColourSummary:
     r, g, b = (float(x) for x in rgb_srgb)
     return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
                          blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),
-                         xyz=tuple(float(x) for x in xyz), illuminant=illuminant)
+                         xyz=(float(xyz[0]), float(xyz[1]), float(xyz[2])), illuminant=illuminant)
 
 
 def rgb_colour(channels, colour_space: str = "linear sRGB") -> ColourSummary:

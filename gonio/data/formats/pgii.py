@@ -149,12 +149,11 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
     if not rows:
         raise FormatError("no data lines", file=path)
     arr = np.asarray(rows, dtype=float)
-    theta, phi = arr[:, 0], arr[:, 1]
-    beyond = theta > 90.0          # the other half of the scan plane
-    theta = np.where(beyond, 180.0 - theta, theta)
-    phi = np.mod(np.where(beyond, phi + 180.0, phi), 360.0)
-    return PgiiFile(path, sample, float(theta_i), float(phi_i), unit, wavelengths, theta, phi,
-                    arr[:, 2:], header)
+    beyond = arr[:, 0] > 90.0          # the other half of the scan plane
+    theta_o = np.where(beyond, 180.0 - arr[:, 0], arr[:, 0])
+    phi_o = np.mod(np.where(beyond, arr[:, 1] + 180.0, arr[:, 1]), 360.0)
+    return PgiiFile(path, sample, float(theta_i), float(phi_i), unit, wavelengths, theta_o,
+                    phi_o, arr[:, 2:], header)
 
 
 def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None):

@@ -89,7 +89,7 @@ class _Marginal2D:
 
     def _lookup(self, table: np.ndarray, weights, *rest: np.ndarray) -> np.ndarray:
         """``table[params..., *rest]`` linearly interpolated over the parameters."""
-        total = 0.0
+        total: np.ndarray = np.zeros(())
         dims = len(weights)
         for corner in range(1 << dims):
             w = 1.0
