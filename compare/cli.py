@@ -19,6 +19,12 @@ published model hues lie within 0.01 of the measured one, saturations within 0.0
 - ``--max-nrmse`` 0.10: overall NRMSE of the normalised curves (RMSE / mean measured beta);
 - ``--max-hue-diff`` 0.02: ``|dh|`` on the hue circle (hue in [0, 1));
 - ``--max-sat-diff`` 0.05: ``|ds|``.
+
+An RGB measurement is compared per channel, a spectral simulation converted to its colour space
+first (:mod:`compare.bands`); the conversion is printed as a note. A photometric (Y-only)
+measurement has no colour: only the NRMSE is checked (noted). A relative measurement
+(``"relative": true``) is normalised like any other; the hue and saturation thresholds still
+apply (they do not depend on the scale), and no V is stated (noted). No threshold uses V.
 """
 
 from __future__ import annotations
@@ -161,12 +167,16 @@ def _check(args) -> int:
     comparison = compare_datasets(measured, [simulated], window_deg=args.normal_window,
                                   illuminant=args.illuminant)
     name = next(iter(comparison.simulated))
-    sc = comparison.colour.simulated[name]
-    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, ""),
-               ("|hue difference|", abs(sc.dh), args.max_hue_diff, " turns of the hue circle"),
-               ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
+    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, "")]
+    if comparison.colour is not None:
+        sc = comparison.colour.simulated[name]
+        figures += [("|hue difference|", abs(sc.dh), args.max_hue_diff,
+                     " turns of the hue circle"),
+                    ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
     failed = False
     print(f"compare check: '{name}' against '{measured.name}'")
+    for note in comparison.notes():
+        print(f"  note: {note}")
     for label, value, limit, unit in figures:
         ok = value <= limit  # NaN fails
         failed |= not ok
