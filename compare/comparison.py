@@ -59,7 +59,7 @@ from .align import align, shared_wavelengths
 from .bands import Bands, prepare
 from .colourmatch import ColourMatch, colour_match
 from .errors import CompareError
-from .metrics import CurveError, angle_key, curve_errors
+from .metrics import CurveError, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
                         estimate_normal_value, normalisation_factor)
 
@@ -127,9 +127,12 @@ class Comparison:
         ``compare check``)."""
         out = list(self.bands.conversions.values())
         if self.bands.is_rgb and not self.bands.has_colour:
-            out.append(f"the measurement is photometric (channel{'s' if len(self.bands.channels or ()) > 1 else ''} "
-                       f"{', '.join(self.bands.channels or ())}): the comparison is on Y only and "
-                       "makes no colour statement (no H, S, V)")
+            chans = ", ".join(self.bands.channels or ())
+            out.append("the measurement is photometric (channel Y): the comparison is on Y "
+                       "only and makes no colour statement (no H, S, V)"
+                       if chans == "Y" else
+                       f"the compared channels ({chans}) do not include all of R, G and B: no "
+                       "colour statement is made (no H, S, V)")
         if self.relative:
             out.append(f"measured dataset '{self.measured.name}' is relative (\"relative\": true, "
                        "raw detector units): it is normalised like any other (only shapes are "
