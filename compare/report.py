@@ -258,6 +258,8 @@ def _spectrum_figure(comparison: Comparison):
 
     cm = comparison.colour
     geo = cm.geometry
+    rgb = comparison.bands.is_rgb
+    per, k_name, style = ("channel", "k(c)", "-o") if rgb else ("wavelength", "k(lambda)", "-")
     fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
     for ax, scaled in zip(axes, (False, True)):
         first = next(iter(comparison.frames.values()))
@@ -269,15 +271,15 @@ def _spectrum_figure(comparison: Comparison):
                     label=_label(f"{comparison.measured.name} (measured)"))
         for name, sc in cm.simulated.items():
             if scaled:
-                ax.plot(sc.wavelength_nm, sc.beta, "-", label=_label(f"{name} x k_Y"))
+                ax.plot(sc.wavelength_nm, sc.beta, style, label=_label(f"{name} x k_Y"))
             else:
                 frame = comparison.frames[name]
                 r = frame[(np.abs(frame[["theta_i", "phi_i", "theta_o", "phi_o"]].to_numpy()
                                   - np.array([geo["theta_i"], geo["phi_i"], geo["theta_o"],
                                               geo["phi_o"]])) < 1e-6).all(axis=1)]
-                ax.plot(r["wavelength_nm"], r["beta_sim"], "-", label=_label(f"{name} x k(lambda)"))
+                ax.plot(r["wavelength_nm"], r["beta_sim"], style, label=_label(f"{name} x {k_name}"))
         ax.set_xlabel("wavelength (nm)")
-        ax.set_title("normalised per wavelength" if not scaled else
+        ax.set_title(f"normalised per {per}" if not scaled else
                      "scaled by the luminance factor k_Y (colour match)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
@@ -659,8 +661,10 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
                 {n: _luminance_curve(r, grid, weights) for n, r in simulated.items()},
                 f"luminance-weighted radiance coefficient ({comparison.illuminant})",
                 "Y[beta] / pi  (1/sr)",
-                "In-plane luminance-weighted BRDF Y[beta]/pi (CIE Y under illuminant "
-                f"{comparison.illuminant}, 1 for the ideal white diffuser, divided by pi) against "
+                "In-plane luminance-weighted BRDF Y[beta]/pi ("
+                + (f"the Y channel, or the luminance row of {bands.colour_space} over R, G, B"
+                   if bands.is_rgb else f"CIE Y under illuminant {comparison.illuminant}")
+                + ", 1 for the ideal white diffuser, divided by pi) against "
                 "the signed observation angle s, one panel per incidence angle. Points: "
                 f"the measurement '{comparison.measured.name}'.")
         if bands.is_rgb:
@@ -704,9 +708,10 @@ def _colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: b
     geo = comparison.colour.geometry
     figures["spectrum.png"] = (_savefig(_spectrum_figure(comparison), fig_dir / "spectrum.png",
                                         svg),
-        f"Spectra at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
+        ("Channels" if comparison.bands.is_rgb else "Spectra")
+        + f" at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
         " deg). Points with +-1 standard uncertainty: the measurement. Left: each simulation "
-        "normalised per wavelength (equal to the measurement at the normal by construction); "
+        f"normalised per {comparison.bands.noun} (equal to the measurement at the normal by construction); "
         "right: scaled by the single luminance factor k_Y used for the colour match.")
     figures["swatches.png"] = (_savefig(_swatch_figure(comparison), fig_dir / "swatches.png",
                                         svg),
