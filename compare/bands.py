@@ -13,7 +13,10 @@ is first put into the measurement's channels:
   section 7). The conversion is linear in the spectrum, so it is a matrix ``M`` (channels x
   wavelengths) built once per wavelength grid from the unit spectra, ``RGB = M beta`` and
   ``u_RGB = sqrt(M^2 u_beta^2)`` (wavelengths independent). Only geometries whose spectrum is
-  complete on the simulation's grid are converted.
+  complete on the simulation's grid are converted. Its wavelength range must carry at least
+  :data:`MIN_CHANNEL_COVERAGE` (99 %) of each channel's weight (:func:`channel_coverage`; about
+  410..690 nm for sRGB under D65), otherwise the conversion would miss part of a channel and it
+  is refused.
 - an **RGB** simulation in another linear colour space is converted through CIE XYZ
   (``colour.matrix_RGB_to_RGB``, Bradford); a ``Y`` wanted from R, G, B is the space's
   luminance row (``0.2126 R + 0.7152 G + 0.0722 B`` for sRGB).
@@ -42,12 +45,17 @@ from gonio.data.colour import spectrum_colour, spectrum_to_rgb
 
 from .errors import CompareError
 
-__all__ = ["CODES", "Bands", "conversion_matrix", "prepare"]
+__all__ = ["CODES", "MIN_CHANNEL_COVERAGE", "Bands", "channel_coverage", "conversion_matrix",
+           "prepare"]
 
 #: Band code of each channel inside the comparison (not a wavelength).
 CODES = {"R": 1.0, "G": 2.0, "B": 3.0, "Y": 4.0}
 _CHANNEL_OF = {v: k for k, v in CODES.items()}
 _TOL = 1e-6
+#: The observer's range (nm) on which the channels' weights are judged.
+FULL_RANGE_NM = np.arange(360.0, 831.0, 5.0)
+#: Least fraction of each channel's weight a converted spectrum's range must carry.
+MIN_CHANNEL_COVERAGE = 0.99
 
 
 @dataclass(frozen=True)
@@ -162,6 +170,21 @@ def conversion_matrix(wavelength_nm, channels: Sequence[str], colour_space: str 
     return _matrix(wl, tuple(channels), colour_space, illuminant).copy()
 
 
+def channel_coverage(lo_nm: float, hi_nm: float, channels: Sequence[str],
+                     colour_space: str = "linear sRGB", illuminant: str = "D65") -> np.ndarray:
+    """Fraction of each channel's weight (``sum |M|`` over the observer's 360..830 nm at 5 nm)
+    that lies inside ``[lo_nm, hi_nm]``: how much of a channel a spectrum on that range sees.
+
+    Examples
+    --------
+    >>> [round(float(x), 3) for x in channel_coverage(410.0, 690.0, ("R", "G", "B"))]
+    [0.997, 0.998, 0.992]
+    """
+    full = np.abs(conversion_matrix(FULL_RANGE_NM, channels, colour_space, illuminant))
+    inside = (FULL_RANGE_NM >= lo_nm - _TOL) & (FULL_RANGE_NM <= hi_nm + _TOL)
+    return full[:, inside].sum(axis=1) / full.sum(axis=1)
+
+
 def _convert_spectral(sim: Dataset, channels: tuple[str, ...], colour_space: str,
                       illuminant: str) -> Dataset:
     wl = sim.wavelengths_nm
@@ -169,6 +192,15 @@ def _convert_spectral(sim: Dataset, channels: tuple[str, ...], colour_space: str
         raise CompareError(
             f"simulated dataset '{sim.name}' ({sim.source}) has {wl.size} wavelength(s): a "
             "spectrum of at least two is needed to convert it to the measurement's channels")
+    coverage = channel_coverage(wl[0], wl[-1], channels, colour_space, illuminant)
+    if np.any(coverage < MIN_CHANNEL_COVERAGE):
+        k = int(np.argmin(coverage))
+        raise CompareError(
+            f"simulated dataset '{sim.name}' ({sim.source}) covers {wl[0]:g}..{wl[-1]:g} nm, "
+            f"which carries only {100 * coverage[k]:.1f}% of the weight of the measurement's "
+            f"{channels[k]} channel ({colour_space}, illuminant {illuminant}); converting a "
+            f"spectrum to the channels needs >= {100 * MIN_CHANNEL_COVERAGE:g}% of each (about "
+            "410..690 nm); simulate the visible range")
     t = sim.table
     beta = t.pivot_table(index=list(GEOMETRY), columns="wavelength_nm", values="beta",
                          aggfunc="first").reindex(columns=wl)

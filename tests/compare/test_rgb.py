@@ -264,14 +264,30 @@ def test_relative_measurement_refuses_v_with_a_note(h, pair, tmp_path, capsys, m
 def _bad(pair):
     y_sim = to_channels(pair["other"], ("Y",), name="y sim", kind="simulated")
     rgb_sim = to_channels(pair["other"], name="rgb sim", kind="simulated")
+    t = pair["other"].table
+    narrow = make_dataset(t[(t["wavelength_nm"] >= 450) & (t["wavelength_nm"] <= 650)],
+                          meta("simulated", "narrow"))
     return {"rgb measured vs Y-only simulation": (pair["rgb"], y_sim, "no channel in common"),
             "spectral measured vs RGB simulation": (pair["spectral"], rgb_sim,
-                                                    "cannot be recovered from colour channels")}
+                                                    "cannot be recovered from colour channels"),
+            # 450..650 nm sees only ~64 % of the blue channel (a silent wrong colour otherwise)
+            "rgb measured vs a spectrum too narrow for the channels": (
+                pair["rgb"], narrow, "covers 450..650 nm, which carries only 63.")}
+
+
+def test_a_spectrum_on_the_visible_range_is_enough(pair):
+    t = pair["other"].table
+    trimmed = make_dataset(t[(t["wavelength_nm"] >= 410) & (t["wavelength_nm"] <= 690)],
+                           meta("simulated", "trimmed"))
+    full = compare_datasets(pair["rgb"], [pair["other"]]).metrics()["colour"]["other dye"]
+    cut = compare_datasets(pair["rgb"], [trimmed]).metrics()["colour"]["trimmed"]
+    assert cut["h"] == pytest.approx(full["h"], abs=0.01)
 
 
 @pytest.mark.parametrize("command", ["check", "report"])
 @pytest.mark.parametrize("case", ["rgb measured vs Y-only simulation",
-                                  "spectral measured vs RGB simulation"])
+                                  "spectral measured vs RGB simulation",
+                                  "rgb measured vs a spectrum too narrow for the channels"])
 def test_incompatible_bands_exit_2_with_one_line(h, pair, tmp_path, capsys, case, command):
     meas, sim, expected = _bad(pair)[case]
     d = _write(tmp_path, meas=meas, sim=sim)
