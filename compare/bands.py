@@ -312,12 +312,19 @@ def prepare(measured: Dataset, simulated: Sequence[Dataset], names: Sequence[str
             common = tuple(channels)
             view = _convert_spectral(sim, common, space, illuminant)
             wl = sim.wavelengths_nm
+            rgb_part = [c for c in common if c in "RGB"]
+            target = (f"{space} channels {', '.join(rgb_part)}" if rgb_part else "")
+            if "Y" in common:
+                target += (" and " if target else "") + "photometric channel Y (its CIE Y)"
+            how = ("spectrum -> CIE XYZ (CIE 1931 2-degree observer, illuminant "
+                   f"{illuminant}, Y = 1 for the ideal white diffuser)")
+            if rgb_part:
+                how += (f" -> {space} (the illuminant's white adapted to the space's, "
+                        "Bradford)")
             conversions[name] = (
                 f"'{name}' is spectral ({wl[0]:g}..{wl[-1]:g} nm, {wl.size} wavelengths) and was "
-                f"converted to the measurement's {space} channels {', '.join(common)} before "
-                f"comparing: spectrum -> CIE XYZ (CIE 1931 2-degree observer, illuminant "
-                f"{illuminant}, Y = 1 for the ideal white diffuser) -> {space} (the "
-                "illuminant's white adapted to the space's, Bradford); uncertainties propagated through the same linear map "
+                f"converted to the measurement's {target} before comparing: {how}; "
+                "uncertainties propagated through the same linear map "
                 "(gonio.data.colour.spectrum_to_rgb, colour-science)")
         shared &= set(common)
         views.append(view)

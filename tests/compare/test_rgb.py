@@ -211,7 +211,9 @@ def test_photometric_measurement_is_compared_on_y_only_without_colour(h, pair, t
     status, out, _ = h.run_cli(["check", d["meas"], d["sim"]], capsys)
     assert status == 0, out
     assert "overall NRMSE" in out and "hue" not in out.replace("(no H, S, V)", "")
-    assert "photometric" in out
+    assert "converted to the measurement's the photometric channel Y" not in out
+    assert "converted to the measurement's photometric channel Y (its CIE Y)" in out
+    assert "makes no colour statement" in out
     status, _, err = h.run_cli(["report", d["meas"], d["other"], "--out", tmp_path / "r"], capsys)
     assert status == 0, err
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
