@@ -24,7 +24,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from gonio.dataset import GEOMETRY, Dataset, DatasetError, signed_angle
+from gonio.data import GEOMETRY, Dataset, DatasetError, signed_angle
 
 from .errors import CompareError
 
@@ -92,7 +92,7 @@ def align(measured: Dataset, simulated: Dataset, wavelength_nm) -> pd.DataFrame:
 
     Parameters
     ----------
-    measured, simulated : gonio.dataset.Dataset
+    measured, simulated : gonio.data.Dataset
     wavelength_nm : array_like
         Comparison grid (a subset of the measured wavelengths, inside the simulation's range).
 

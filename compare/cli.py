@@ -19,6 +19,12 @@ published model hues lie within 0.01 of the measured one, saturations within 0.0
 - ``--max-nrmse`` 0.10: overall NRMSE of the normalised curves (RMSE / mean measured beta);
 - ``--max-hue-diff`` 0.02: ``|dh|`` on the hue circle (hue in [0, 1));
 - ``--max-sat-diff`` 0.05: ``|ds|``.
+
+An RGB measurement is compared per channel, a spectral simulation converted to its colour space
+first (:mod:`compare.bands`); the conversion is printed as a note. A photometric (Y-only)
+measurement has no colour: only the NRMSE is checked (noted). A relative measurement
+(``"relative": true``) is normalised like any other; the hue and saturation thresholds still
+apply (they do not depend on the scale), and no V is stated (noted). No threshold uses V.
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ import logging
 import sys
 from typing import Sequence
 
-from gonio.dataset import DatasetError, read_dataset
+from gonio.data import DatasetError, read_dataset
 
 from .comparison import compare_datasets, incomplete_datasets
 from .errors import CompareError
@@ -80,7 +86,9 @@ def _parser() -> argparse.ArgumentParser:
                                      "write REPORT_DIR/report.html (self-contained), "
                                      "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.")
     rep.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
-    rep.add_argument("simulated", metavar="SIM_DIR", nargs="+", help="simulated dataset(s)")
+    rep.add_argument("simulated", metavar="SIM_DIR", nargs="*",
+                     help="simulated dataset(s); none: look at MEASURED_DIR alone (curves, "
+                          "colour strips, colour table)")
     rep.add_argument("--out", required=True, metavar="REPORT_DIR",
                      help="output directory: new, empty, or holding a previous report (only "
                           "its files are replaced)")
@@ -117,6 +125,17 @@ def _report(args) -> int:
     from .report import write_report
 
     measured = read_dataset(args.measured)
+    if not args.simulated:
+        from .inspect import write_dataset_report
+
+        try:
+            report = write_dataset_report(measured, args.out, svg=args.svg, force=args.force)
+        except OSError as exc:
+            raise CompareError(f"cannot write the report into --out {args.out}: "
+                               f"{exc.strerror or exc} ({exc.filename}); choose a writable "
+                               "directory") from None
+        print(f"report: {report}")
+        return 0
     simulated = [read_dataset(p) for p in args.simulated]
     for line in incomplete_datasets(measured, simulated):
         log.warning("%s; the report says so in a banner", line)
@@ -148,12 +167,16 @@ def _check(args) -> int:
     comparison = compare_datasets(measured, [simulated], window_deg=args.normal_window,
                                   illuminant=args.illuminant)
     name = next(iter(comparison.simulated))
-    sc = comparison.colour.simulated[name]
-    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, ""),
-               ("|hue difference|", abs(sc.dh), args.max_hue_diff, " turns of the hue circle"),
-               ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
+    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, "")]
+    if comparison.colour is not None:
+        sc = comparison.colour.simulated[name]
+        figures += [("|hue difference|", abs(sc.dh), args.max_hue_diff,
+                     " turns of the hue circle"),
+                    ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
     failed = False
     print(f"compare check: '{name}' against '{measured.name}'")
+    for note in comparison.notes():
+        print(f"  note: {note}")
     for label, value, limit, unit in figures:
         ok = value <= limit  # NaN fails
         failed |= not ok

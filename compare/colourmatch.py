@@ -1,11 +1,11 @@
 r"""Colour match of measured and simulated spectra at one geometry (PHYSICS.md sections 7-8).
 
-Colour is computed by :func:`gonio.colour.spectrum_colour` (CIE 1931 2-degree observer,
+Colour is computed by :func:`gonio.data.colour.spectrum_colour` (CIE 1931 2-degree observer,
 illuminant D65 unless set, LINEAR sRGB, HSV and the ratios BLUE/RED and GREEN/RED), at the
 geometry closest to normal incidence and normal observation that the measured dataset and every
 simulation share (exactly, not by interpolation, when there is such a geometry): the smallest ``theta_i + theta_o``, ties broken by smaller ``theta_i``, then
 ``phi_i``, then ``phi_o``. Differences are simulated minus measured: ``dh`` on the hue circle
-(:func:`gonio.colour.hue_difference`, in [-0.5, 0.5)), ``ds``, ``dv``.
+(:func:`gonio.data.colour.hue_difference`, in [-0.5, 0.5)), ``ds``, ``dv``.
 
 Which simulated values are compared
 -----------------------------------
@@ -24,6 +24,13 @@ the luminance-weighted mean of :math:`k(\lambda)` (:math:`w_Y` are the CIE ``Y``
 :func:`luminance_weights`). Hue, saturation and the channel ratios do not depend on any scale
 factor, so they are the simulation's own; ``v`` is on the measured scale. Every figure is
 unchanged when the simulation is multiplied by a positive constant.
+
+RGB measurements
+----------------
+In an RGB comparison (:mod:`compare.bands`) the channels are read directly
+(:func:`gonio.data.colour.rgb_colour`, from the measurement's linear colour space to linear sRGB
+and HSV); the simulations are already in that space, and :math:`k_Y` uses the space's luminance
+row (``0.2126 R + 0.7152 G + 0.0722 B`` for sRGB) in place of the CIE ``Y`` weights.
 """
 
 from __future__ import annotations
@@ -35,13 +42,13 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from gonio.colour import ColourSummary, hue_difference, spectrum_colour
-from gonio.dataset import GEOMETRY
+from gonio.data.colour import ColourSummary, colourspace, hue_difference, rgb_colour, spectrum_colour
+from gonio.data import GEOMETRY
 
 from .errors import CompareError
 
-__all__ = ["ColourMatch", "SimulatedColour", "colour_geometry", "colour_match",
-           "luminance_weights"]
+__all__ = ["ColourMatch", "SimulatedColour", "band_luminance_weights", "colour_geometry",
+           "colour_match", "luminance_weights"]
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 
@@ -53,7 +60,7 @@ def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
     wl = np.asarray(wavelengths)
     basis = colour.MultiSpectralDistributions(np.eye(wl.size), wl)
     # colour-science warns while it trims/extends each basis spectrum to the observer's range,
-    # exactly as it does (silently, once) for a single spectrum in gonio.colour
+    # exactly as it does (silently, once) for a single spectrum in gonio.data.colour
     with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
         xyz = colour.msds_to_XYZ(basis, colour.MSDS_CMFS[OBSERVER],
                                  colour.SDS_ILLUMINANTS[illuminant], method="ASTM E308")
@@ -63,7 +70,7 @@ def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
 def luminance_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
     """Weights ``w`` with ``Y = w @ beta``, the CIE ``Y`` of a spectrum on ``wavelength_nm``.
 
-    colour-science's integration (ASTM E308, as in :func:`gonio.colour.spectrum_colour`) is linear
+    colour-science's integration (ASTM E308, as in :func:`gonio.data.colour.spectrum_colour`) is linear
     in the spectrum, so ``w`` is the ``Y`` of each unit basis spectrum; ``Y = 1`` for ``beta = 1``.
 
     Examples
@@ -75,6 +82,19 @@ def luminance_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
     """
     wl = tuple(float(x) for x in np.asarray(wavelength_nm, dtype=float).ravel())
     return _weights(wl, illuminant)[:, 1].copy()
+
+
+def band_luminance_weights(bands, grid, illuminant: str = "D65") -> np.ndarray:
+    """Weights ``w`` with ``Y = w @ values`` on the comparison grid: the CIE ``Y`` weights of the
+    wavelengths, or for channels the ``Y`` channel itself when present, else the colour space's
+    luminance row over R, G, B."""
+    if bands is None or not bands.is_rgb:
+        return luminance_weights(grid, illuminant)
+    labels = [bands.label(b) for b in np.asarray(grid, dtype=float)]
+    if "Y" in labels:
+        return np.array([1.0 if c == "Y" else 0.0 for c in labels])
+    row = np.asarray(colourspace(bands.colour_space).matrix_RGB_to_XYZ, dtype=float)[1]
+    return np.array([row["RGB".index(c)] for c in labels])
 
 
 def colour_geometry(frames: Mapping[str, pd.DataFrame]) -> dict:
@@ -144,15 +164,18 @@ class ColourMatch:
     simulated: dict[str, SimulatedColour]
 
 
-def _colour(wl, beta, illuminant: str, what: str) -> ColourSummary:
+def _colour(wl, beta, illuminant: str, what: str, bands=None) -> ColourSummary:
     try:
+        if bands is not None and bands.is_rgb:
+            return rgb_colour({bands.label(b): v for b, v in zip(wl, beta)},
+                              colour_space=bands.colour_space)
         return spectrum_colour(wl, beta, illuminant=illuminant)
     except ValueError as exc:
         raise CompareError(f"no colour for {what}: {exc}") from None
 
 
 def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str, tuple],
-                 illuminant: str = "D65") -> ColourMatch:
+                 illuminant: str = "D65", bands=None) -> ColourMatch:
     """Colour match of every simulation against the measurement.
 
     Parameters
@@ -164,6 +187,8 @@ def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str,
         ``measured_value`` and ``simulated_value``), for the luminance scale ``k_Y``.
     illuminant : str
         Illuminant of the colour computation.
+    bands : compare.bands.Bands, optional
+        The comparison's bands; for channels (R, G, B present) the colour is read from them.
     """
     geometry = colour_geometry(frames)
     measured = None
@@ -174,12 +199,13 @@ def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str,
         if measured is None:
             meas_beta = rows["beta_meas"].to_numpy()
             meas_wl = wl
-            measured = _colour(wl, meas_beta, illuminant, "the measured dataset")
-        w = luminance_weights(wl, illuminant)
+            measured = _colour(wl, meas_beta, illuminant, "the measured dataset", bands)
+        w = band_luminance_weights(bands, wl, illuminant)
         normal_meas, normal_sim = normal_values[name]
         scale = float(w @ normal_meas) / float(w @ normal_sim)
         beta = rows["beta_sim_raw"].to_numpy() * scale
-        c = _colour(wl, beta, illuminant, f"simulated dataset '{name}' (scaled by k_Y {scale:.3g})")
+        c = _colour(wl, beta, illuminant,
+                    f"simulated dataset '{name}' (scaled by k_Y {scale:.3g})", bands)
         simulated[name] = SimulatedColour(
             colour=c, scale=scale, dh=float(hue_difference(measured.h, c.h)),
             ds=c.s - measured.s, dv=c.v - measured.v, wavelength_nm=wl, beta=beta)

@@ -2,7 +2,9 @@
 
 :func:`compare_datasets` runs the whole chain for any number of simulations:
 
-1. the shared wavelength grid (:func:`compare.align.shared_wavelengths`);
+0. the bands (:mod:`compare.bands`): wavelengths, or the channels of an RGB measurement, every
+   simulation converted to them first (a spectral one through CIE XYZ, as in the colour match);
+1. the shared wavelength grid (:func:`compare.align.shared_wavelengths`; the shared channels);
 2. the measured normal/normal value and, per simulation, its own and the factor
    ``k(lambda)`` (:mod:`compare.normalise`);
 3. per simulation, the values at the measured geometries (:func:`compare.align.align`),
@@ -30,25 +32,34 @@ the issue)::
 Names are the datasets' ``name`` (``meta.sample.name`` or the directory name), made unique with a
 `` (2)``, `` (3)`` suffix when they collide with each other or with the reserved keys
 ``measured`` and ``geometry``. Non-finite numbers are written as ``null``.
+
+An RGB comparison writes ``per_channel`` / ``u_per_channel`` (keys ``R``, ``G``, ``B``, ``Y``)
+in place of ``per_wavelength``, ``max_abs_at.channel`` in place of ``wavelength_nm``, and
+``"bands": {"kind": "channel", "channels", "colour_space", "conversions": {name: how it was
+converted}}``. A relative measurement adds ``"relative": true`` and has ``v`` and ``dv`` null
+(absolute colour refused); a photometric (Y-only) one has an empty ``colour`` (no colour
+statement). ``"notes"`` (sentences for a reader) is present when there is something to note. A
+spectral comparison of absolute data has exactly the four keys above.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
 
-from gonio.dataset import Dataset
+from gonio.data import Dataset
 
 from .align import align, shared_wavelengths
+from .bands import Bands, prepare
 from .colourmatch import ColourMatch, colour_match
 from .errors import CompareError
-from .metrics import CurveError, angle_key, curve_errors
+from .metrics import CurveError, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
                         estimate_normal_value, normalisation_factor)
 
@@ -82,7 +93,14 @@ def unique_names(names: Iterable[str], reserved: Iterable[str] = RESERVED_NAMES)
 
 @dataclass(frozen=True)
 class Comparison:
-    """Everything computed by :func:`compare_datasets` (inputs kept for the report)."""
+    """Everything computed by :func:`compare_datasets` (inputs kept for the report).
+
+    ``measured`` and ``simulated`` are the datasets as given; ``measured_view`` and
+    ``simulated_views`` are what was compared (the same objects for a spectral comparison; the
+    channel views of :mod:`compare.bands` for an RGB one, where ``wavelength_nm`` holds band
+    codes: name them with ``bands.label``). ``colour`` is None when there is no colour to state
+    (a photometric, Y-only, measurement).
+    """
 
     measured: Dataset
     simulated: dict[str, Dataset]
@@ -94,7 +112,42 @@ class Comparison:
     frames: dict[str, pd.DataFrame]
     curves: dict[str, dict[str, CurveError]]
     overall: dict[str, CurveError]
-    colour: ColourMatch
+    colour: ColourMatch | None
+    bands: Bands = field(default_factory=Bands)
+    measured_view: Dataset | None = None
+    simulated_views: dict[str, Dataset] = field(default_factory=dict)
+
+    @property
+    def relative(self) -> bool:
+        """True when the measurement is relative (raw units): no absolute colour statement (V)."""
+        return self.measured.relative
+
+    def notes(self) -> list[str]:
+        """What a reader must know about how the data were compared (shown in the report and by
+        ``compare check``)."""
+        out = list(self.bands.conversions.values())
+        if self.bands.is_rgb and not self.bands.has_colour:
+            chans = ", ".join(self.bands.channels or ())
+            out.append("the measurement is photometric (channel Y): the comparison is on Y "
+                       "only and makes no colour statement (no H, S, V)"
+                       if chans == "Y" else
+                       f"the compared channels ({chans}) do not include all of R, G and B: no "
+                       "colour statement is made (no H, S, V)")
+        if self.relative:
+            out.append(f"measured dataset '{self.measured.name}' is relative (\"relative\": true, "
+                       "raw detector units): it is normalised like any other (only shapes are "
+                       "needed), but no absolute colour statement is made: V and dv are refused "
+                       "(H, S and the channel ratios do not depend on the scale and are given)")
+        return out
+
+    def view(self, name: str) -> Dataset:
+        """The simulation ``name`` as compared (its channel view in an RGB comparison)."""
+        return self.simulated_views.get(name, self.simulated[name])
+
+    @property
+    def measured_compared(self) -> Dataset:
+        """The measurement as compared (its channel view in an RGB comparison)."""
+        return self.measured_view if self.measured_view is not None else self.measured
 
     def nrmse_with_factor_shifted(self, name: str) -> tuple[float, float]:
         """Overall NRMSE of ``name`` with every ``k(lambda)`` moved to ``k - u_k`` and to
@@ -118,43 +171,67 @@ class Comparison:
             x = float(x)
             return x if math.isfinite(x) else None
 
+        bands = self.bands
+        per = "per_channel" if bands.is_rgb else "per_wavelength"
+
         def per_wl(wl, values):
-            return {angle_key(w): num(v) for w, v in zip(wl, values)}
+            return {bands.key(w): num(v) for w, v in zip(wl, values)}
 
         def normal(nv: NormalValue):
-            return {"how": nv.how, "per_wavelength": per_wl(nv.wavelength_nm, nv.value),
-                    "u_per_wavelength": per_wl(nv.wavelength_nm, nv.u)}
+            return {"how": nv.how, per: per_wl(nv.wavelength_nm, nv.value),
+                    "u_" + per: per_wl(nv.wavelength_nm, nv.u)}
+
+        def where(at: dict) -> dict:
+            out = {k: (num(v) if v is not None else None) for k, v in at.items()}
+            if bands.is_rgb:
+                out["channel"] = bands.label(out.pop("wavelength_nm"))
+            return out
 
         factor = {}
         normal_value = {"measured": normal(self.measured_normal)}
         for name, norm in self.normalisations.items():
-            factor[name] = {"per_wavelength": per_wl(norm.wavelength_nm, norm.factor),
-                            "u_per_wavelength": per_wl(norm.wavelength_nm, norm.u_factor),
+            factor[name] = {per: per_wl(norm.wavelength_nm, norm.factor),
+                            "u_" + per: per_wl(norm.wavelength_nm, norm.u_factor),
                             "median": num(np.median(norm.factor)),
-                            "luminance": num(self.colour.simulated[name].scale)}
+                            "luminance": (num(self.colour.simulated[name].scale)
+                                          if self.colour is not None else None)}
             normal_value[name] = normal(norm.simulated)
         curves = {name: {angle: {"rmse": num(e.rmse), "nrmse": num(e.nrmse),
                                  "max_abs": num(e.max_abs),
-                                 "max_abs_at": {k: (num(v) if v is not None else None)
-                                                for k, v in e.max_abs_at.items()}}
+                                 "max_abs_at": where(e.max_abs_at)}
                          for angle, e in per_angle.items()}
                   for name, per_angle in self.curves.items()}
         overall = {name: {"rmse": num(e.rmse), "nrmse": num(e.nrmse)}
                    for name, e in self.overall.items()}
+        relative = self.relative
 
         def summary(c):
-            return {"h": num(c.h), "s": num(c.s), "v": num(c.v), "blue_red": num(c.blue_red),
-                    "green_red": num(c.green_red)}
+            return {"h": num(c.h), "s": num(c.s), "v": None if relative else num(c.v),
+                    "blue_red": num(c.blue_red), "green_red": num(c.green_red)}
 
-        colour = {"geometry": {k: (num(v) if v is not None else None)
-                               for k, v in self.colour.geometry.items()},
-                  "measured": summary(self.colour.measured)}
-        for name, sc in self.colour.simulated.items():
-            colour[name] = {**summary(sc.colour), "dh": num(sc.dh), "ds": num(sc.ds),
-                            "dv": num(sc.dv)}
-        return {"normalisation": {"method": METHOD_TEXT.format(window=self.window_deg),
-                                  "factor": factor, "normal_value": normal_value},
-                "curves": curves, "overall": overall, "colour": colour}
+        colour: dict = {}
+        if self.colour is not None:
+            colour = {"geometry": {k: (num(v) if v is not None else None)
+                                   for k, v in self.colour.geometry.items()},
+                      "measured": summary(self.colour.measured)}
+            for name, sc in self.colour.simulated.items():
+                colour[name] = {**summary(sc.colour), "dh": num(sc.dh), "ds": num(sc.ds),
+                                "dv": None if relative else num(sc.dv)}
+        method = METHOD_TEXT.format(window=self.window_deg)
+        if bands.is_rgb:
+            method = method.replace("per wavelength", "per channel").replace("k(lambda)", "k(c)")
+        document: dict = {"normalisation": {"method": method, "factor": factor,
+                                            "normal_value": normal_value},
+                          "curves": curves, "overall": overall, "colour": colour}
+        if bands.is_rgb:
+            document["bands"] = {"kind": bands.noun, "channels": list(bands.channels or ()),
+                                 "colour_space": bands.colour_space,
+                                 "conversions": dict(bands.conversions)}
+        if relative:
+            document["relative"] = True
+        if self.notes():
+            document["notes"] = self.notes()
+        return document
 
 
 def same_dataset(a: Dataset, b: Dataset) -> str:
@@ -187,9 +264,9 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
 
     Parameters
     ----------
-    measured : gonio.dataset.Dataset
+    measured : gonio.data.Dataset
         The reference (normally ``kind == "measured"``).
-    simulated : sequence of gonio.dataset.Dataset
+    simulated : sequence of gonio.data.Dataset
         One or more simulations (e.g. the fiber model and the classic model).
     window_deg : float
         Half-width in ``s`` of the normal/normal estimate (:mod:`compare.normalise`).
@@ -218,15 +295,17 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
                         "trivially; pass the simulation's directory as SIM_DIR", sim.name,
                         sim.source, same)
     names = unique_names(ds.name for ds in simulated)
-    grid = shared_wavelengths(measured, simulated)
-    measured_normal = estimate_normal_value(measured, window_deg)
+    measured_view, views, bands = prepare(measured, simulated, names, illuminant=illuminant)
+    grid = bands.codes() if bands.is_rgb else shared_wavelengths(measured, simulated)
+    measured_normal = estimate_normal_value(measured_view, window_deg, bands.label)
     normalisations: dict[str, Normalisation] = {}
     frames: dict[str, pd.DataFrame] = {}
     curves: dict[str, dict[str, CurveError]] = {}
     overall: dict[str, CurveError] = {}
-    for name, sim in zip(names, simulated):
-        norm = normalisation_factor(measured_normal, estimate_normal_value(sim, window_deg), grid)
-        frame = align(measured, sim, grid)
+    for name, sim in zip(names, views):
+        norm = normalisation_factor(measured_normal,
+                                    estimate_normal_value(sim, window_deg, bands.label), grid)
+        frame = align(measured_view, sim, grid)
         k = norm.factor_at(frame["wavelength_nm"].to_numpy())
         frame["beta_sim"] = k * frame["beta_sim_raw"].to_numpy()
         frame["u_sim"] = k * frame["u_sim_raw"].to_numpy()
@@ -235,10 +314,14 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
         curves[name], overall[name] = curve_errors(frame)
         log.info("'%s': overall RMSE %.4g, NRMSE %.4g", name, overall[name].rmse,
                  overall[name].nrmse)
-    colour = colour_match(frames, {n: (normalisations[n].measured_value,
-                                       normalisations[n].simulated_value) for n in names},
-                          illuminant=illuminant)
+    colour = None
+    if bands.has_colour:
+        colour = colour_match(frames, {n: (normalisations[n].measured_value,
+                                           normalisations[n].simulated_value) for n in names},
+                              illuminant=illuminant, bands=bands)
     return Comparison(measured=measured, simulated=dict(zip(names, simulated)),
                       wavelength_nm=grid, window_deg=window_deg, illuminant=illuminant,
                       measured_normal=measured_normal, normalisations=normalisations,
-                      frames=frames, curves=curves, overall=overall, colour=colour)
+                      frames=frames, curves=curves, overall=overall, colour=colour,
+                      bands=bands, measured_view=measured_view,
+                      simulated_views=dict(zip(names, views)))

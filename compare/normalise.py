@@ -1,7 +1,8 @@
 r"""Normalisation of a simulation at the normal direction (PHYSICS.md section 8).
 
 Simulated values :math:`C` are proportional to the radiance coefficient. They are scaled, per
-wavelength, by
+wavelength (per channel when the measurement is RGB: :mod:`compare.bands`; a relative measurement
+is normalised the same way, only shapes are needed), by
 
 .. math::
 
@@ -46,10 +47,11 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
-from gonio.dataset import Dataset
+from gonio.data import Dataset
 
 from .errors import CompareError
 
@@ -138,15 +140,23 @@ def _fit_intercept(s: np.ndarray, beta: np.ndarray, u_beta: np.ndarray
     return quadratic, u_data, abs(quadratic - linear)
 
 
-def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_DEG) -> NormalValue:
+def _nm(wavelength: float) -> str:
+    return f"{wavelength:g} nm"
+
+
+def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_DEG,
+                          band_label: Callable[[float], str] = _nm) -> NormalValue:
     """``beta(0, 0)`` of ``dataset`` per wavelength: the measured point, or the estimate above.
 
     Parameters
     ----------
-    dataset : gonio.dataset.Dataset
+    dataset : gonio.data.Dataset
         Measured or simulated radiance-coefficient dataset.
     window_deg : float
         Largest ``|s|`` (degrees) of the normal-incidence points used for the estimate.
+    band_label : callable
+        How a band is named in messages (``"550 nm"``; ``"channel R"`` in an RGB comparison,
+        :mod:`compare.bands`).
 
     Returns
     -------
@@ -161,7 +171,7 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
     Examples
     --------
     >>> import numpy as np
-    >>> from gonio.dataset import make_dataset, new_meta, in_plane_geometry
+    >>> from gonio.data import make_dataset, new_meta, in_plane_geometry
     >>> s = np.array([-20.0, -10.0, 10.0, 20.0])
     >>> theta_o, phi_o = in_plane_geometry(0.0, s)
     >>> table = dict(theta_i=0.0 * s, phi_i=0.0 * s, theta_o=theta_o, phi_o=phi_o,
@@ -208,9 +218,10 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
                 return "[" + ", ".join(f"{x:g}" for x in np.unique(s[mask])) + "]"
             raise CompareError(
                 f"{_describe(dataset)}: cannot estimate the normal/normal value beta(0, 0) at "
-                f"{wl:g} nm: it needs normal-incidence points within |s| <= {window_deg:g} deg on "
-                f"BOTH sides of the normal (at least {MIN_PER_SIDE} on each side, {MIN_POINTS} in "
-                f"all); found source side s < 0: {fmt(left)}, mirror side s > 0: {fmt(right)} "
+                f"{band_label(wl)}: it needs normal-incidence points within |s| <= "
+                f"{window_deg:g} deg on BOTH sides of the normal (at least {MIN_PER_SIDE} on each "
+                f"side, {MIN_POINTS} in all); found source side s < 0: {fmt(left)}, mirror side "
+                f"s > 0: {fmt(right)} "
                 "(measure e.g. s = -20, -10, 10, 20 at theta_i = 0, or widen --normal-window)")
         value[k], u_data[k], u_model[k] = _fit_intercept(s[near], beta[near], u_beta[near])
         if not s_used:
@@ -221,8 +232,8 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
         what = "measured" if measured[k] else "estimated"
         raise CompareError(
             f"{_describe(dataset)}: the {what} normal/normal value beta(0, 0) at "
-            f"{wavelengths[k]:g} nm is {value[k]:g}; it must be a positive finite number to "
-            "normalise at the normal direction (check the normal-incidence data)")
+            f"{band_label(wavelengths[k])} is {value[k]:g}; it must be a positive finite number "
+            "to normalise at the normal direction (check the normal-incidence data)")
     how = "measured" if measured.all() else ("estimated" if not measured.any() else "mixed")
     log.debug("%s: normal value %s (%s)", dataset.name, how, s_used)
     return NormalValue(wavelength_nm=wavelengths, value=value,

@@ -58,9 +58,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from gonio.dataset import atomic_write
+from gonio.data import atomic_write
 
-from .colourmatch import luminance_weights
+from .colourmatch import band_luminance_weights
 from .comparison import Comparison
 from .errors import CompareError
 
@@ -111,7 +111,7 @@ def _savefig(fig, path: Path, svg: bool = False) -> bytes:
 def _sim_inplane(comparison: Comparison, name: str) -> pd.DataFrame:
     """Normalised in-plane simulated rows (``theta_i, s, wavelength_nm, beta, u_beta``)."""
     grid = comparison.wavelength_nm
-    sim = comparison.simulated[name]
+    sim = comparison.view(name)
     norm = comparison.normalisations[name]
     sim_wl = sim.wavelengths_nm
     on_grid = np.all(np.min(np.abs(sim_wl[None, :] - grid[:, None]), axis=1) < 1e-6)
@@ -137,7 +137,7 @@ def _sim_inplane(comparison: Comparison, name: str) -> pd.DataFrame:
 
 
 def _measured_inplane(comparison: Comparison) -> pd.DataFrame:
-    rows = comparison.measured.in_plane()
+    rows = comparison.measured_compared.in_plane()
     grid = comparison.wavelength_nm
     keep = np.min(np.abs(rows["wavelength_nm"].to_numpy()[:, None] - grid[None, :]), axis=1) < 1e-6
     rows = rows[keep]
@@ -258,6 +258,8 @@ def _spectrum_figure(comparison: Comparison):
 
     cm = comparison.colour
     geo = cm.geometry
+    rgb = comparison.bands.is_rgb
+    per, k_name, style = ("channel", "k(c)", "-o") if rgb else ("wavelength", "k(lambda)", "-")
     fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
     for ax, scaled in zip(axes, (False, True)):
         first = next(iter(comparison.frames.values()))
@@ -269,20 +271,25 @@ def _spectrum_figure(comparison: Comparison):
                     label=_label(f"{comparison.measured.name} (measured)"))
         for name, sc in cm.simulated.items():
             if scaled:
-                ax.plot(sc.wavelength_nm, sc.beta, "-", label=_label(f"{name} x k_Y"))
+                ax.plot(sc.wavelength_nm, sc.beta, style, label=_label(f"{name} x k_Y"))
             else:
                 frame = comparison.frames[name]
                 r = frame[(np.abs(frame[["theta_i", "phi_i", "theta_o", "phi_o"]].to_numpy()
                                   - np.array([geo["theta_i"], geo["phi_i"], geo["theta_o"],
                                               geo["phi_o"]])) < 1e-6).all(axis=1)]
-                ax.plot(r["wavelength_nm"], r["beta_sim"], "-", label=_label(f"{name} x k(lambda)"))
+                ax.plot(r["wavelength_nm"], r["beta_sim"], style, label=_label(f"{name} x {k_name}"))
         ax.set_xlabel("wavelength (nm)")
-        ax.set_title("normalised per wavelength" if not scaled else
+        ax.set_title(f"normalised per {per}" if not scaled else
                      "scaled by the luminance factor k_Y (colour match)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     axes[0].set_ylabel("radiance coefficient beta")
-    fig.suptitle(f"spectra at theta_i={geo['theta_i']:g}, phi_i={geo['phi_i']:g}, "
+    if comparison.bands.is_rgb:
+        for ax in axes:
+            ax.set_xticks(comparison.wavelength_nm,
+                          [comparison.bands.label(b) for b in comparison.wavelength_nm])
+            ax.set_xlabel(f"channel ({comparison.bands.colour_space})")
+    fig.suptitle(f"{'channels' if comparison.bands.is_rgb else 'spectra'} at theta_i={geo['theta_i']:g}, phi_i={geo['phi_i']:g}, "
                  f"theta_o={geo['theta_o']:g}, phi_o={geo['phi_o']:g} deg")
     fig.tight_layout()
     return fig
@@ -296,6 +303,10 @@ def _factor_figure(comparison: Comparison):
         ax.errorbar(norm.wavelength_nm, norm.factor, yerr=norm.u_factor, fmt="-o", ms=3,
                     capsize=2, label=_label(name))
     ax.set_xlabel("wavelength (nm)")
+    if comparison.bands.is_rgb:
+        ax.set_xticks(comparison.wavelength_nm,
+                      [comparison.bands.label(b) for b in comparison.wavelength_nm])
+        ax.set_xlabel(f"channel ({comparison.bands.colour_space})")
     ax.set_ylabel("k = beta_meas(0,0) / C(0,0)")
     ax.set_title("normalisation factor")
     ax.grid(alpha=0.3)
@@ -310,7 +321,7 @@ def swatch_entries(comparison: Comparison) -> list[tuple[str, np.ndarray, tuple]
     metrics' H, S, V are those of LINEAR sRGB; the table gives both)."""
     import colour
 
-    from gonio.colour import display_srgb
+    from gonio.data.colour import display_srgb
 
     cm = comparison.colour
     entries = [(f"{comparison.measured.name} (measured)", cm.measured)]
@@ -421,6 +432,7 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes,
              "th{background:#eee;} td.l,th.l{text-align:left;} img{max-width:100%;}"
              "code{background:#f4f4f4;} figure{margin:1.5em 0;}"
              "figcaption{max-width:60em;font-size:0.95em;}"
+             ".note{background:#e8f1fb;border:1px solid #4a7ab5;padding:0.5em 1em;}"
              ".banner{background:#fff3cd;border:2px solid #c77c00;padding:0.6em 1em;"
              "font-weight:bold;}</style></head><body>",
              f"<h1>Measurement vs simulation: {e(meas.name)}</h1>"]
@@ -441,9 +453,18 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes,
             "</tr>")
     grid = comparison.wavelength_nm
     parts.append("</table>")
-    parts.append(f"<p>Compared on {grid.size} wavelengths, {grid[0]:g}..{grid[-1]:g} nm; "
-                 f"colour under illuminant {e(comparison.illuminant)} "
-                 "(CIE 1931 2-degree observer, linear sRGB).</p>")
+    bands = comparison.bands
+    if bands.is_rgb:
+        parts.append(f"<p>Compared per channel on {e(', '.join(bands.channels or ()))} "
+                     f"({e(str(bands.colour_space))}, the measurement's colour space)"
+                     + ("; colour read directly from the channels (linear sRGB, HSV).</p>"
+                        if bands.has_colour else "; no colour statement (photometric).</p>"))
+    else:
+        parts.append(f"<p>Compared on {grid.size} wavelengths, {grid[0]:g}..{grid[-1]:g} nm; "
+                     f"colour under illuminant {e(comparison.illuminant)} "
+                     "(CIE 1931 2-degree observer, linear sRGB).</p>")
+    for text in comparison.notes():
+        parts.append(f"<p class='note'><b>Note:</b> {e(text[0].upper() + text[1:])}.</p>")
     norm = metrics["normalisation"]
     mn = comparison.measured_normal
     parts.append("<h2>Normalisation at the normal direction</h2>")
@@ -476,12 +497,14 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes,
                  "measured beta). The normalisation's uncertainty is not included (see above).</p>")
     parts.append("<table><tr><th class='l'>simulation</th><th>theta_i (deg)</th><th>RMSE</th>"
                  "<th>NRMSE</th><th>max |d|</th><th class='l'>where (theta_i, phi_i, theta_o, "
-                 "phi_o; s; wavelength)</th></tr>")
+                 f"phi_o; s; {comparison.bands.noun})</th></tr>")
     for name, per_angle in metrics["curves"].items():
         for angle, m in per_angle.items():
             at = m["max_abs_at"]
             where = (f"{at['theta_i']:g}, {at['phi_i']:g}, {at['theta_o']:g}, {at['phi_o']:g}; "
-                     f"s={_fmt(at['s'])}; {at['wavelength_nm']:g} nm")
+                     f"s={_fmt(at['s'])}; "
+                     + (f"channel {at['channel']}" if 'channel' in at
+                        else f"{at['wavelength_nm']:g} nm"))
             parts.append(f"<tr><td class='l'>{e(name)}</td><td>{e(angle)}</td>"
                          f"<td>{_fmt(m['rmse'])}</td><td>{_fmt(m['nrmse'])}</td>"
                          f"<td>{_fmt(m['max_abs'])}</td><td class='l'>{e(where)}</td></tr>")
@@ -490,13 +513,34 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes,
                      f"<th>{_fmt(o['nrmse'])}</th><th></th><th></th></tr>")
     parts.append("</table>")
     colour = metrics["colour"]
+    if not colour:
+        parts.append("<h2>Colour match</h2><p class='note'>No colour statement: the measurement "
+                     "is photometric (Y only).</p>")
+    else:
+        _colour_html(parts, comparison, colour)
+    parts.append("<h2>Figures</h2>")
+    for j, (fname, (data, caption)) in enumerate(figures.items(), start=1):
+        b64 = base64.b64encode(data).decode("ascii")
+        parts.append(f"<figure><img alt='{e(caption.split('.')[0])}' "
+                     f"src='data:image/png;base64,{b64}'>"
+                     f"<figcaption><b>Figure {j}.</b> {e(caption)} "
+                     f"<span style='color:#777'>(figures/{e(fname)})</span></figcaption>"
+                     "</figure>")
+    parts.append("</body></html>")
+    return "\n".join(parts) + "\n"
+
+
+def _colour_html(parts: list[str], comparison: Comparison, colour: dict) -> None:
+    e = html.escape
+    meas = comparison.measured
     geo = colour["geometry"]
+    scaled = ("Simulations scaled by k_Y (luminance ratio of the normal/normal "
+              + ("channels" if comparison.bands.is_rgb else "spectra") + ")")
     parts.append(
         "<h2>Colour match</h2>"
         f"<p>At theta_i={geo['theta_i']:g}, phi_i={geo['phi_i']:g}, theta_o={geo['theta_o']:g}, "
         f"phi_o={geo['phi_o']:g} deg (s = {_fmt(geo['s'])}), the shared geometry closest to "
-        "normal incidence and observation. Simulations scaled by k_Y (luminance ratio of the "
-        "normal/normal spectra); differences are simulated minus measured, dh on the hue circle. "
+        "normal incidence and observation. " + scaled + "; differences are simulated minus measured, dh on the hue circle. "
         "H, S, V and the ratios are those of LINEAR sRGB (D65 white = (1, 1, 1)); <b>H is a "
         "fraction of a full turn of the hue circle, in [0, 1)</b> (0 red, 1/3 green, 2/3 blue; "
         "multiply by 360 for degrees), S and V in [0, 1].</p>"
@@ -513,16 +557,11 @@ def _html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes,
                          f"<td>{_fmt(c.get(k))}</td>" for k in ("s", "v", "blue_red",
                                                                "green_red", "dh", "ds", "dv"))
                      + "</tr>")
-    parts.append("</table><h2>Figures</h2>")
-    for j, (fname, (data, caption)) in enumerate(figures.items(), start=1):
-        b64 = base64.b64encode(data).decode("ascii")
-        parts.append(f"<figure><img alt='{e(caption.split('.')[0])}' "
-                     f"src='data:image/png;base64,{b64}'>"
-                     f"<figcaption><b>Figure {j}.</b> {e(caption)} "
-                     f"<span style='color:#777'>(figures/{e(fname)})</span></figcaption>"
-                     "</figure>")
-    parts.append("</body></html>")
-    return "\n".join(parts) + "\n"
+    parts.append("</table>")
+    if comparison.relative:
+        parts.append("<p class='note'><b>V and dv refused:</b> the measurement is relative (raw "
+                     "detector units), so no absolute colour statement is made; H, S and the "
+                     "ratios do not depend on the scale.</p>")
 
 
 _PREVIOUS_FILES = re.compile(r"<meta name='report-files' content='([^']*)'>")
@@ -594,7 +633,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     fig_dir.mkdir(parents=True, exist_ok=True)
     metrics = comparison.metrics()
     grid = comparison.wavelength_nm
-    weights = luminance_weights(grid, comparison.illuminant)
+    bands = comparison.bands
+    weights = band_luminance_weights(bands, grid, comparison.illuminant)
     measured = _measured_inplane(comparison)
     simulated = {name: _sim_inplane(comparison, name) for name in comparison.simulated}
     figures: dict[str, tuple[bytes, str]] = {}
@@ -621,38 +661,37 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
                 {n: _luminance_curve(r, grid, weights) for n, r in simulated.items()},
                 f"luminance-weighted radiance coefficient ({comparison.illuminant})",
                 "Y[beta] / pi  (1/sr)",
-                "In-plane luminance-weighted BRDF Y[beta]/pi (CIE Y under illuminant "
-                f"{comparison.illuminant}, 1 for the ideal white diffuser, divided by pi) against "
+                "In-plane luminance-weighted BRDF Y[beta]/pi ("
+                + (f"the Y channel, or the luminance row of {bands.colour_space} over R, G, B"
+                   if bands.is_rgb else f"CIE Y under illuminant {comparison.illuminant}")
+                + ", 1 for the ideal white diffuser, divided by pi) against "
                 "the signed observation angle s, one panel per incidence angle. Points: "
                 f"the measurement '{comparison.measured.name}'.")
-        picks = sorted({float(grid[np.argmin(np.abs(grid - w))]) for w in REPORT_WAVELENGTHS_NM})
+        if bands.is_rgb:
+            picks = [float(b) for b in grid]
+        else:
+            picks = sorted({float(grid[np.argmin(np.abs(grid - w))])
+                            for w in REPORT_WAVELENGTHS_NM})
         for wl in picks:
-            inplane(f"inplane_{wl:g}nm.png", _single_wavelength(measured, wl),
+            at = f"channel {bands.label(wl)}" if bands.is_rgb else f"{wl:g} nm"
+            fname = f"inplane_{bands.label(wl)}.png" if bands.is_rgb else f"inplane_{wl:g}nm.png"
+            inplane(fname, _single_wavelength(measured, wl),
                     {n: _single_wavelength(r, wl) for n, r in simulated.items()},
-                    f"radiance coefficient at {wl:g} nm", "beta / pi  (1/sr)",
-                    f"In-plane BRDF beta/pi at {wl:g} nm against the signed observation angle "
+                    f"radiance coefficient, {at}", "beta / pi  (1/sr)",
+                    f"In-plane BRDF beta/pi, {at}, against the signed observation angle "
                     "s, one panel per incidence angle. Points: the measurement "
                     f"'{comparison.measured.name}'.")
     else:
         log.warning("the measured dataset has no in-plane points: no in-plane figures")
-    geo = comparison.colour.geometry
-    figures["spectrum.png"] = (_savefig(_spectrum_figure(comparison), fig_dir / "spectrum.png",
-                                        svg),
-        f"Spectra at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
-        " deg). Points with +-1 standard uncertainty: the measurement. Left: each simulation "
-        "normalised per wavelength (equal to the measurement at the normal by construction); "
-        "right: scaled by the single luminance factor k_Y used for the colour match.")
+    if comparison.colour is not None:
+        _colour_figures(comparison, figures, fig_dir, svg)
     figures["factor.png"] = (_savefig(_factor_figure(comparison), fig_dir / "factor.png", svg),
-        "Normalisation factor k(lambda) = beta_meas(0,0) / C(0,0) of each simulation. Error bars: "
+        "Normalisation factor k(lambda) = beta_meas(0,0) / C(0,0) of each simulation"
+        + (" (per channel)" if bands.is_rgb else "") + ". Error bars: "
         "its standard uncertainty u_k = k sqrt((u_meas/beta_meas)^2 + (u_C/C)^2), from the "
         "estimate of the measured normal value (data and quadratic-vs-linear model term) and "
         "the simulation's normal value; not folded into the curve errors (see the "
         "normalisation table).")
-    figures["swatches.png"] = (_savefig(_swatch_figure(comparison), fig_dir / "swatches.png",
-                                        svg),
-        "Colour swatches at the colour geometry as shown on screen (gamma-encoded sRGB); the "
-        "H, S, V printed under each are those of the displayed pixel. The table's H, S, V "
-        "are of linear sRGB, hence different numbers for the same colour.")
     atomic_write(out / "metrics.json",
                   (json.dumps(metrics, indent=2, allow_nan=False) + "\n").encode("utf-8"))
     report = out / "report.html"
@@ -663,3 +702,19 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
             if stale not in written and stale.suffix in (".png", ".svg") and stale.is_file():
                 stale.unlink()
     return report
+
+
+def _colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool) -> None:
+    geo = comparison.colour.geometry
+    figures["spectrum.png"] = (_savefig(_spectrum_figure(comparison), fig_dir / "spectrum.png",
+                                        svg),
+        ("Channels" if comparison.bands.is_rgb else "Spectra")
+        + f" at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
+        " deg). Points with +-1 standard uncertainty: the measurement. Left: each simulation "
+        f"normalised per {comparison.bands.noun} (equal to the measurement at the normal by construction); "
+        "right: scaled by the single luminance factor k_Y used for the colour match.")
+    figures["swatches.png"] = (_savefig(_swatch_figure(comparison), fig_dir / "swatches.png",
+                                        svg),
+        "Colour swatches at the colour geometry as shown on screen (gamma-encoded sRGB); the "
+        "H, S, V printed under each are those of the displayed pixel. The table's H, S, V "
+        "are of linear sRGB, hence different numbers for the same colour.")

@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 
 from gonio.calibration import CalibrationError
-from gonio.dataset import DatasetError
+from gonio.data import DatasetError
 from gonio.devices import MotionController, PhotometerHead, RetryPolicy
 from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
                           Engine, Interrupted, RunResult, owned_by_run)
@@ -398,7 +398,7 @@ def _check_output_folder(out: Path, opt: str) -> None:
 
 
 def _cmd_truth(args) -> int:
-    from gonio.dataset import write_dataset
+    from gonio.data import write_dataset
     from gonio.mock.samples import SampleError
     from gonio.truth import truth_dataset
 
@@ -582,7 +582,44 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
     t.add_argument("-v", "--verbose", action="store_true")
 
+    im = sub.add_parser("import", help="convert a file of another format into a dataset",
+                        description="Read FILE (rgl-bsdf: an RGL .bsdf tensor file; pgii: one or "
+                                    "more pgII text files, one incidence each; merl: a MERL "
+                                    ".binary table) and write a radiance-coefficient dataset. "
+                                    "Tabulated BRDFs (rgl-bsdf, merl) are evaluated at the "
+                                    "geometries of --geometry PLAN, by default at in-plane "
+                                    "curves (the file's own incidence angles for rgl-bsdf).")
+    im.add_argument("format", metavar="FORMAT", choices=["rgl-bsdf", "pgii", "merl"],
+                    help="rgl-bsdf | pgii | merl")
+    im.add_argument("files", metavar="FILE", nargs="+", help="file(s) to import")
+    im.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
+    im.add_argument("--geometry", metavar="PLAN", help="plan TOML file or preset whose "
+                                                        "geometries to evaluate")
+    im.add_argument("--scale", type=float, metavar="FR_PER_UA",
+                    help="pgii [uA] files: f_r per uA of detector current (absolute values); "
+                         "without it raw currents make a relative dataset")
+    im.add_argument("-v", "--verbose", action="store_true")
+
     return p
+
+
+def _cmd_import(args) -> int:
+    from gonio.data import write_dataset
+    from gonio.data.formats import import_files
+
+    geometries = None
+    if args.geometry:
+        geometries = load_plan(args.geometry).geometries()
+    if args.scale is not None and not (args.scale > 0 and args.scale < float("inf")):
+        raise _UsageError(f"--scale {args.scale}: must be a positive number")
+    dataset = import_files(args.format, args.files, geometries, scale=args.scale)
+    _check_output_folder(Path(args.out), "--out")
+    out = write_dataset(dataset, args.out)
+    bands = (f"channels {''.join(dataset.channels)} ({dataset.colour_space})" if dataset.is_rgb
+             else f"{len(dataset.wavelengths_nm)} wavelengths")
+    print(f"gonio import: {dataset.name}, {len(dataset.geometries())} geometries, {bands}"
+          f"{', relative units' if dataset.relative else ''}; dataset in {out}/")
+    return EXIT_OK
 
 
 def _bench_parser() -> argparse.ArgumentParser:
@@ -615,7 +652,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     _setup_logging(getattr(args, "verbose", False))
     handlers = {"acquire": _cmd_acquire, "replay": _cmd_replay, "check-plan": _cmd_check_plan,
-                "demo": _cmd_demo, "bench-driver": _cmd_bench, "truth": _cmd_truth}
+                "demo": _cmd_demo, "bench-driver": _cmd_bench, "truth": _cmd_truth,
+                "import": _cmd_import}
     try:
         return handlers[args.command](args)
     except (_UsageError, *_USER_ERRORS) as exc:

@@ -14,7 +14,7 @@ import json
 import logging
 from pathlib import Path
 
-from gonio.dataset import atomic_write
+from gonio.data import atomic_write
 from gonio.engine import DEMO_MARKER, JOURNAL_NAME, RUN_DIR_FILES, AcquisitionError
 
 __all__ = ["replace_previous_demo", "mark_demo"]

@@ -3,7 +3,7 @@
 bluesky habit: the plan (:mod:`gonio.plan`) is data; this engine executes it and emits records
 to storage (:mod:`gonio.journal`): ``start``, ``calibration``, one ``point`` per geometry (every
 wavelength), ``event`` records (resume, safe stop, session end with its retry counts). The dataset
-(:func:`gonio.dataset.write_dataset`, kind ``"measured"``) is computed from the journal alone, so
+(:func:`gonio.data.write_dataset`, kind ``"measured"``) is computed from the journal alone, so
 a resumed run and an uninterrupted run with the same mock seed write identical ``radiance.csv``.
 
 Sequence
@@ -66,7 +66,7 @@ import pandas as pd
 from gonio import protocol
 from gonio.calibration import (WhiteStandard, calibration_problem, load_white_standard,
                                radiance_factor)
-from gonio.dataset import (CSV_NAME, META_NAME, make_dataset, new_meta, remove_stale_temp_files,
+from gonio.data import (CSV_NAME, META_NAME, make_dataset, new_meta, remove_stale_temp_files,
                            write_dataset)
 from gonio.devices import (RECOVERABLE_FAULTS, AxisFaultError, DeviceError, MotionController,
                            PhotometerHead, RetryPolicy)
@@ -502,7 +502,7 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
 
     Each point uses the calibration it was measured with; a geometry journaled twice keeps its
     first record; points of an invalid calibration are left out (:func:`usable_points`).
-    Returns a :class:`gonio.dataset.Dataset`.
+    Returns a :class:`gonio.data.Dataset`.
     """
     cals = {r["id"]: r for r in records if r["type"] == "calibration"}
     start = next(r for r in records if r["type"] == "start")

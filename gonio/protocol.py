@@ -77,6 +77,10 @@ import re
 from dataclasses import dataclass
 from typing import Callable
 
+from gonio.data.geometry import (BEAM_BLOCK_MIN_ANGLE_DEG, axes_to_fabric, beam_blocked,
+                                  detector_direction, fabric_to_axes,
+                                  source_detector_angle_deg, source_direction)
+
 __all__ = [
     # Modbus
     "UNIT_ID", "MODBUS_TCP_PORT", "RTU_BAUDRATE", "RTU_BYTESIZE", "RTU_PARITY", "RTU_STOPBITS",
@@ -169,7 +173,6 @@ DEFAULT_VELOCITY_CDEG_S = 2000
 """Power-on VELOCITY of every axis: 20 deg/s."""
 VELOCITY_RANGE_CDEG_S = (1, 6000)
 """Accepted VELOCITY register values (centideg/s); others answer exception 3."""
-BEAM_BLOCK_MIN_ANGLE_DEG = 5.0
 
 # --- register addresses ----------------------------------------------------------------------
 HR_CONTROL = 0
@@ -372,100 +375,7 @@ def within_soft_limits(axis: int, position_mdeg: int) -> bool:
     return AXES[_check_axis(axis)].within_limits(position_mdeg)
 
 
-# --- geometry of the axes ----------------------------------------------------------------------
-
-def source_direction(theta_i_deg: float) -> tuple[float, float, float]:
-    """Unit vector towards the source in the instrument frame.
-
-    The instrument frame has z = sample normal and x along the plane of incidence, towards the
-    source: ``w_i = (sin theta_i, 0, cos theta_i)``.
-    """
-    t = math.radians(theta_i_deg)
-    return math.sin(t), 0.0, math.cos(t)
-
-
-def detector_direction(s_deg: float, detector_plane_deg: float) -> tuple[float, float, float]:
-    """Unit vector towards the detector in the instrument frame.
-
-    ``w_o = (-sin s cos p, -sin s sin p, cos s)`` with ``s`` the signed detector zenith and ``p``
-    the detector-plane azimuth: for ``p = 0``, ``s > 0`` is the mirror side (instrument azimuth
-    180 deg) and ``s < 0`` the source side (azimuth 0).
-    """
-    s, p = math.radians(s_deg), math.radians(detector_plane_deg)
-    return -math.sin(s) * math.cos(p), -math.sin(s) * math.sin(p), math.cos(s)
-
-
-def source_detector_angle_deg(theta_i_deg: float, s_deg: float, detector_plane_deg: float) -> float:
-    """Angle in degrees between the source and detector directions (computed in 3D).
-
-    Uses ``atan2(|w_i x w_o|, w_i . w_o)``, accurate at small angles.
-    """
-    a = source_direction(theta_i_deg)
-    b = detector_direction(s_deg, detector_plane_deg)
-    cx = a[1] * b[2] - a[2] * b[1]
-    cy = a[2] * b[0] - a[0] * b[2]
-    cz = a[0] * b[1] - a[1] * b[0]
-    dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-    return math.degrees(math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), dot))
-
-
-def beam_blocked(theta_i_deg: float, s_deg: float, detector_plane_deg: float) -> bool:
-    """Beam-block rule shared by the driver (plan checks) and the controller (mock).
-
-    The configuration is blocked when the angle between the detector direction and the source
-    direction is *strictly less* than 5 degrees (:data:`BEAM_BLOCK_MIN_ANGLE_DEG`); exactly 5
-    degrees is allowed. A tolerance of 1e-9 deg absorbs floating-point error, so positions given
-    in whole millidegrees decide exactly. The sample rotation plays no part. Only destinations
-    are checked, not the path of a move.
-
-    Examples
-    --------
-    >>> beam_blocked(0.0, 0.0, 0.0)       # normal/normal: never measured
-    True
-    >>> beam_blocked(30.0, -25.0, 0.0)    # in plane, source side, exactly 5 deg apart
-    False
-    >>> beam_blocked(30.0, -26.0, 0.0)
-    True
-    """
-    return source_detector_angle_deg(theta_i_deg, s_deg, detector_plane_deg) < BEAM_BLOCK_MIN_ANGLE_DEG - 1e-9
-
-
-def axes_to_fabric(source_zenith_deg: float, detector_zenith_deg: float, detector_plane_deg: float,
-                   sample_rotation_deg: float) -> tuple[float, float, float, float]:
-    """Axis positions (degrees) to fabric-frame angles ``(theta_i, phi_i, theta_o, phi_o)``.
-
-    The sample rotation reading *is* ``phi_i`` (source azimuth from the warp, PHYSICS.md section
-    1); a direction at instrument azimuth ``a`` has fabric azimuth ``a + phi_i``. The detector is
-    at instrument azimuth ``180 + p`` for ``s >= 0`` and ``p`` for ``s < 0``. Hence, in plane
-    (``p = 0``), ``s >= 0`` gives ``phi_o = phi_i + 180`` and ``s < 0`` gives ``phi_o = phi_i``,
-    the dataset's signed-angle convention. Azimuths are returned in [0, 360); ``phi_o`` is
-    reported as ``phi_i + 180`` (mod 360) when ``theta_o = 0``.
-    """
-    theta_i = float(source_zenith_deg)
-    phi_i = float(sample_rotation_deg) % 360.0
-    s = float(detector_zenith_deg)
-    theta_o = abs(s)
-    a = (180.0 + detector_plane_deg) if s >= 0 else float(detector_plane_deg)
-    phi_o = (a + phi_i) % 360.0
-    return theta_i, phi_i, theta_o, phi_o
-
-
-def fabric_to_axes(theta_i: float, phi_i: float, theta_o: float, phi_o: float
-                   ) -> tuple[float, float, float, float]:
-    """Fabric-frame angles (degrees) to axis positions ``(source, detector, plane, rotation)``.
-
-    Inverse of :func:`axes_to_fabric` with the plane in [0, 180): the relative azimuth
-    ``a = phi_o - phi_i`` (mod 360) in [180, 360) is reached with ``s = +theta_o, p = a - 180``,
-    in [0, 180) with ``s = -theta_o, p = a``. ``theta_o = 0`` gives ``s = 0, p = 0``.
-    """
-    rot = float(phi_i) % 360.0
-    if theta_o == 0:
-        return float(theta_i), 0.0, 0.0, rot
-    a = (float(phi_o) - rot) % 360.0
-    if a >= 180.0:
-        return float(theta_i), float(theta_o), a - 180.0, rot
-    return float(theta_i), -float(theta_o), a, rot
-
+# --- geometry of the axes: gonio.data.geometry (shared with the dataset layer) ------------------
 
 # ============================================================================================
 # Photometer head (ASCII)

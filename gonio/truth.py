@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from gonio.dataset import COLUMNS, Dataset, make_dataset, new_meta
+from gonio.data import COLUMNS, Dataset, make_dataset, new_meta
 from gonio.plan import Plan
 
 __all__ = ["truth_dataset"]
@@ -24,7 +24,7 @@ def truth_dataset(sample_spec: str, plan: Plan) -> Dataset:
     """Evaluate the mock sample ``sample_spec`` at the measurable geometries of ``plan``.
 
     Raises :class:`gonio.mock.samples.SampleError` for an unknown sample and
-    :class:`gonio.dataset.DatasetError` when a dataset sample does not cover the plan.
+    :class:`gonio.data.DatasetError` when a dataset sample does not cover the plan.
     """
     from gonio.mock.samples import make_sample
 

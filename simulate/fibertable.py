@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from gonio.dataset import atomic_write
+from gonio.data.dataset import atomic_write
 from simulate.config import SimulationConfig
 
 __all__ = ["FORMAT", "JSON_NAME", "NPZ_NAME", "TableGrid", "fiber_table", "write_fiber_table",

@@ -3,7 +3,7 @@
 ``simulate fabric CONFIG --method classic|summation --out DIR [--geometry PLAN]`` (PHYSICS.md
 section 7) evaluates the chosen fabric model (:mod:`simulate.fabric`) at the geometries and
 wavelengths of an acquisition plan (:mod:`gonio.plan`; default: the shipped ``red-cotton`` plan)
-and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`gonio.dataset`:
+and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`gonio.data.dataset`:
 
 - ``beta`` = the model's radiance coefficient; ``u_beta`` = its Monte Carlo standard error,
   propagated from the fiber's ``u_R`` (summation: the correlated bound of :mod:`simulate.fabric`;
@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from gonio.dataset import COLUMNS, Dataset, make_dataset, new_meta
+from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
 from gonio.plan import Plan
 from simulate import fabric as fab
 from simulate.config import SimulationConfig
@@ -124,8 +124,8 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
 
     Returns
     -------
-    gonio.dataset.Dataset
-        Kind ``"simulated"``, not yet written (:func:`gonio.dataset.write_dataset`).
+    gonio.data.dataset.Dataset
+        Kind ``"simulated"``, not yet written (:func:`gonio.data.dataset.write_dataset`).
     """
     from simulate import fiber as fiber_mod
 

@@ -47,8 +47,15 @@ Samples
     the measurement itself bounds the near-normal gloss to about 0.01.) Both terms are
     non-negative and reciprocal.
 ``FILE``
-    A radiance-coefficient dataset directory (``gonio.dataset.read_dataset``), interpolated with
-    ``Dataset.interpolate``; a request outside the data raises ``gonio.dataset.DatasetError``.
+    A radiance-coefficient dataset directory (``gonio.data.read_dataset``; an imported one
+    too), interpolated with ``Dataset.interpolate``; a request outside the data raises
+    ``gonio.data.DatasetError``. Or an RGL ``.bsdf`` file (``gonio.data.formats.rgl_bsdf``),
+    evaluated at exactly the geometry asked for: the full measured BRDF of a real material.
+    The mock's photometer is spectral; an RGB sample answers at wavelength ``lambda`` with the
+    channel whose band holds it (:func:`channel_of_wavelength`: B below 490 nm, G 490..590 nm,
+    R above), a three-band filter-photometer view of the RGB data, so that measuring at 450,
+    550 and 650 nm recovers the file's B, G and R values. A spectral ``.bsdf`` or dataset is
+    interpolated linearly in wavelength.
 
 The white standard of the mock is Lambertian with a flat calibrated radiance factor
 :data:`WHITE_REFERENCE_BETA` (:func:`reference_beta`).
@@ -206,28 +213,83 @@ class RedCottonSample:
                         "edge_width_nm": self.dye_edge_width_nm}}
 
 
+#: Band edges (nm) of the three-band view of RGB samples: B below 490, G 490..590, R above.
+RGB_BAND_EDGES_NM = (490.0, 590.0)
+
+
+def channel_of_wavelength(wavelength_nm) -> np.ndarray:
+    """The RGB channel ("R", "G" or "B") whose band holds each wavelength.
+
+    Examples
+    --------
+    >>> channel_of_wavelength([450, 550, 650]).tolist()
+    ['B', 'G', 'R']
+    """
+    wl = np.asarray(wavelength_nm, dtype=float)
+    return np.where(wl < RGB_BAND_EDGES_NM[0], "B", np.where(wl < RGB_BAND_EDGES_NM[1], "G", "R"))
+
+
 class DatasetSample:
     """A sample whose truth is a radiance-coefficient dataset directory (interpolated)."""
 
     def __init__(self, path: str | Path):
-        from gonio.dataset import DatasetError, read_dataset
+        from gonio.data import DatasetError, read_dataset
 
         self.path = Path(path)
         try:
             self.dataset = read_dataset(self.path)
         except DatasetError as exc:
             raise SampleError(f"sample {path}: {exc}") from None
+        if self.dataset.is_rgb and not set("RGB") <= set(self.dataset.channels):
+            raise SampleError(f"sample {path}: the dataset has channels "
+                              f"{''.join(self.dataset.channels)}; the mock needs R, G and B")
         self.name = self.dataset.name
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
-        """Interpolated ``beta``; raises ``gonio.dataset.DatasetError`` outside the data."""
-        return self.dataset.interpolate(theta_i, phi_i, theta_o, phi_o, wavelength_nm)[0]
+        """Interpolated ``beta``; raises ``gonio.data.DatasetError`` outside the data."""
+        band = channel_of_wavelength(wavelength_nm) if self.dataset.is_rgb else wavelength_nm
+        return self.dataset.interpolate(theta_i, phi_i, theta_o, phi_o, band)[0]
 
     def describe(self) -> dict:
         return {"name": self.name, "model": "dataset", "path": str(self.path)}
 
 
-def make_sample(spec: str) -> LambertSample | RedCottonSample | DatasetSample:
+class BSDFSample:
+    """A sample whose truth is an RGL ``.bsdf`` file, evaluated at the geometry asked for."""
+
+    def __init__(self, path: str | Path):
+        from gonio.data import DatasetError
+        from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
+
+        self.path = Path(path)
+        try:
+            self.bsdf = read_rgl_bsdf(self.path)
+        except DatasetError as exc:
+            raise SampleError(f"sample {path}: {exc}") from None
+        self.name = self.path.stem
+
+    def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        ti, pi_, to, po, wl = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)
+        bands = self.bsdf.beta(ti, pi_, to, po)          # (..., bands)
+        if self.bsdf.is_spectral:
+            grid = self.bsdf.wavelengths_nm
+            j = np.clip(np.searchsorted(grid, wl) - 1, 0, max(grid.size - 2, 0))
+            if grid.size == 1:
+                return bands[..., 0]
+            f = np.clip((wl - grid[j]) / (grid[j + 1] - grid[j]), 0.0, 1.0)
+            lo = np.take_along_axis(bands, j[..., None], axis=-1)[..., 0]
+            hi = np.take_along_axis(bands, (j + 1)[..., None], axis=-1)[..., 0]
+            return (1 - f) * lo + f * hi
+        k = np.searchsorted(["B", "G", "R"], channel_of_wavelength(wl))   # index in B, G, R
+        index = np.array([2, 1, 0])[k]                                     # -> R, G, B order
+        return np.take_along_axis(bands, index[..., None], axis=-1)[..., 0]
+
+    def describe(self) -> dict:
+        return {"name": self.name, "model": "RGL .bsdf (Dupuy & Jakob 2018)",
+                "path": str(self.path), "description": self.bsdf.description}
+
+
+def make_sample(spec: str) -> LambertSample | RedCottonSample | DatasetSample | BSDFSample:
     """Build a sample from ``lambert:RHO``, ``red-cotton`` or a dataset directory path.
 
     Raises
@@ -246,4 +308,7 @@ def make_sample(spec: str) -> LambertSample | RedCottonSample | DatasetSample:
     path = Path(spec)
     if path.is_dir():
         return DatasetSample(path)
-    raise SampleError(f"unknown sample {spec!r}: use lambert:RHO, red-cotton or a dataset directory")
+    if path.suffix == ".bsdf" and path.is_file():
+        return BSDFSample(path)
+    raise SampleError(f"unknown sample {spec!r}: use lambert:RHO, red-cotton, a dataset "
+                      "directory or an RGL .bsdf file")

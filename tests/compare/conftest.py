@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gonio.dataset import in_plane_geometry, make_dataset, new_meta, write_dataset
+from gonio.data import in_plane_geometry, make_dataset, new_meta, write_dataset
 
 REPO = Path(__file__).resolve().parents[2]
 FIXTURES = REPO / "fixtures" / "analytic"

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from compare.cli import main
-from gonio.dataset import read_dataset, write_dataset
+from gonio.data import read_dataset, write_dataset
 
 XSS = "<script>alert(1)</script>"
 XSS2 = "<img src=x onerror=alert(2)>"
@@ -168,7 +168,7 @@ def _bad_wavelengths(h, d):
     ds = read_dataset(d)
     table = ds.table.copy()
     table["wavelength_nm"] += 400.0
-    from gonio.dataset import make_dataset
+    from gonio.data import make_dataset
     write_dataset(make_dataset(table, ds.meta), d)
     return "wavelength grids cannot be reconciled"
 
@@ -177,7 +177,7 @@ def _bad_one_sided(h, d):
     ds = read_dataset(d)
     table = ds.to_frame()
     table = table[~((table["theta_i"] == 0) & (table["s"] < 0))].drop(columns="s")
-    from gonio.dataset import make_dataset
+    from gonio.data import make_dataset
     write_dataset(make_dataset(table, ds.meta), d)
     return "found source side s < 0: []"
 
@@ -271,7 +271,7 @@ def test_console_script_reports_bad_input_without_traceback(h, tmp_path):
     ("simulated", "wavelength grids cannot be reconciled"),
 ])
 def test_single_point_dataset_is_refused(h, tmp_path, capsys, which, expected):
-    from gonio.dataset import make_dataset
+    from gonio.data import make_dataset
 
     meas, sim = _good_pair(h, tmp_path)
     target = meas if which == "measured" else sim

@@ -1,4 +1,4 @@
-"""Colour match against colour-science computed directly here (not through gonio.colour)."""
+"""Colour match against colour-science computed directly here (not through gonio.data.colour)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from compare.colourmatch import luminance_weights
 from compare.comparison import compare_datasets
-from gonio.colour import hue_difference, spectrum_colour
+from gonio.data.colour import hue_difference, spectrum_colour
 
 CMFS = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
 D65 = colour.SDS_ILLUMINANTS["D65"]

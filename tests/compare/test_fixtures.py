@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from compare.comparison import compare_datasets
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 
 C = 0.2
 CMFS = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]

@@ -18,7 +18,7 @@ from compare.cli import main
 from compare.comparison import compare_datasets
 from compare.errors import CompareError
 from compare.report import FIGURE_DPI, _gapped, _inplane_figure, swatch_entries, write_report
-from gonio.dataset import read_dataset, write_dataset
+from gonio.data import read_dataset, write_dataset
 
 
 def _run(argv, capsys):

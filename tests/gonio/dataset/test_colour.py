@@ -21,7 +21,7 @@ import colorsys
 import numpy as np
 import pytest
 
-from gonio.colour import display_srgb, hue_difference, spectrum_colour
+from gonio.data.colour import display_srgb, hue_difference, spectrum_colour
 
 WL = np.arange(390.0, 711.0, 10.0)
 WL_1NM = np.arange(360.0, 831.0, 1.0)
@@ -84,7 +84,7 @@ def test_the_published_red_cotton_table_is_consistent_in_linear_srgb_only():
     # had the table been gamma-encoded sRGB, those ratios would give S 0.90, not 0.99
     encoded = display_srgb(rgb_linear)
     assert colorsys.rgb_to_hsv(*encoded)[1] == pytest.approx(0.90, abs=0.01)
-    # and gonio.colour reports the linear figures: a red-dye spectrum of that colour (the mock
+    # and gonio.data.colour reports the linear figures: a red-dye spectrum of that colour (the mock
     # red cotton's at theta_i = 0, theta_o = 10 deg: 0.913 = Oren-Nayar A x retro factor there,
     # + 0.0093 of neutral gloss) gets them back, where display values would give S ~ 0.90
     wl = np.arange(390.0, 711.0, 10.0)

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from gonio.cli import main
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 from gonio.journal import read_journal
 
 

@@ -15,7 +15,7 @@ import sys
 import pytest
 
 from gonio.cli import main
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 from gonio.journal import read_journal
 from gonio.mock import MockInstrument
 from gonio.mock.cli import main as mock_main

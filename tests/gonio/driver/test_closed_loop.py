@@ -9,7 +9,7 @@ import pytest
 from scipy import stats
 
 from gonio.calibration import load_white_standard
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 from gonio.journal import read_journal
 from gonio.plan import load_plan
 from gonio.mock import MockInstrument

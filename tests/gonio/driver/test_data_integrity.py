@@ -127,7 +127,7 @@ def test_a_second_session_on_a_locked_run_directory_is_refused(drv, tmp_path, ca
 def test_the_lock_is_held_for_the_whole_session(drv, tmp_path):
     """A second lock attempt fails at every exchange of a running session, dataset write
     included (checked from inside the session, at deterministic moments)."""
-    from gonio import dataset as dataset_module
+    from gonio.data import dataset as dataset_module
     from gonio.cli import run_session
     from gonio.devices import RetryPolicy
     from gonio.journal import RunDirLock, RunDirLocked

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 from gonio.mock import MockInstrument
 from gonio.mock.faults import FAULT_KINDS
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gonio.cli import main
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 from gonio.mock import MockInstrument
 from gonio.record import load_transcript, reseal
 

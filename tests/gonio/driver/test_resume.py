@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 from gonio.journal import read_journal
 from gonio.mock import MockInstrument
 

@@ -132,7 +132,7 @@ def test_state_change_restarts_repetition(mock, mb, head, tools):
 
 
 def test_dataset_sample_interpolates_and_refuses_outside(tmp_path, tools):
-    from gonio.dataset import make_dataset, new_meta, write_dataset
+    from gonio.data import make_dataset, new_meta, write_dataset
 
     rows = []
     for ti in (0.0, 30.0):
@@ -169,7 +169,7 @@ PUBLISHED_RED_COTTON = {"s": (0.99, 0.005), "v": (0.8, 0.05), "blue_red": (0.08,
 def test_red_cotton_colour_is_the_published_one_near_the_normal(phi_o):
     """The truth at normal incidence, 10 deg off the normal on either side (the colour geometry
     of a red-cotton report: the nearest to normal/normal outside the beam-blocked cone)."""
-    from gonio.colour import spectrum_colour
+    from gonio.data.colour import spectrum_colour
 
     wl = np.arange(390.0, 711.0, 10.0)
     c = spectrum_colour(wl, RedCottonSample().beta(0.0, 0.0, 10.0, phi_o, wl))

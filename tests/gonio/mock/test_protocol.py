@@ -78,7 +78,7 @@ def test_beam_block_out_of_plane_3d():
 
 
 def test_axes_to_fabric_conventions():
-    from gonio.dataset import signed_angle
+    from gonio.data import signed_angle
 
     for s in (-60.0, -10.0, 0.0, 20.0, 70.0):
         for rot in (0.0, 90.0, 300.0):

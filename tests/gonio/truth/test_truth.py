@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from gonio.cli import main
-from gonio.dataset import read_dataset
+from gonio.data import read_dataset
 from gonio.mock.samples import RedCottonSample
 from gonio.plan import load_plan
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from gonio.dataset import read_dataset
+from gonio.data.dataset import read_dataset
 from simulate.cli import main
 from simulate.fibertable import JSON_NAME, NPZ_NAME, read_fiber_table
 

@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 import pytest
 
-from gonio.colour import hue_difference, spectrum_colour
+from gonio.data.colour import hue_difference, spectrum_colour
 from simulate import fabric as fab
 from simulate import fiber as fiber_mod
 from simulate import microfacet
@@ -129,7 +129,7 @@ def test_classic_albedo_at_most_one_up_to_grazing(red_cotton, rho_quick):
 
 
 def test_real_summation_dataset_small_plan(red_cotton, tmp_path):
-    from gonio.dataset import read_dataset, write_dataset
+    from gonio.data.dataset import read_dataset, write_dataset
     from gonio.plan import parse_plan
     from simulate.virtual import fabric_dataset
 

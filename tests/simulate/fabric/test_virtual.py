@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gonio.dataset import read_dataset, write_dataset
+from gonio.data.dataset import read_dataset, write_dataset
 from gonio.plan import load_plan, parse_plan
 from simulate import fabric as fab
 from simulate.config import load_config

@@ -1,4 +1,4 @@
-"""Radiance-coefficient datasets: the one reader and writer of the project's data format.
+"""Radiance-coefficient datasets: the format, its validation and its (atomic) I/O.
 
 A dataset is a directory with two files (ARCHITECTURE.md, "The radiance-coefficient dataset"):
 
@@ -30,10 +30,17 @@ Conventions decided here (the design is silent on them):
   is kept as given: at normal incidence ``phi_i`` names the plane in which the in-plane signed angle
   is measured (the instrument's detector plane / sample rotation).
 - ``beta`` may be slightly negative in measured data (dark-subtracted noise); it must be finite.
-- Interpolation (:meth:`Dataset.interpolate`) is linear in wavelength and piecewise linear over the
-  data's geometries (Delaunay triangulation of (``theta_i``, ``s``) for in-plane data, of
-  (``theta_i``, ``sin theta_o cos dphi``, ``sin theta_o sin dphi``) otherwise) at a sample rotation
-  ``phi_i`` present in the data. A request outside the data is refused, never extrapolated.
+- Interpolation (:meth:`Dataset.interpolate`) lives in :mod:`gonio.data.interpolate`.
+
+RGB datasets (ARCHITECTURE.md): a ``channel`` column (``R``, ``G``, ``B``, or ``Y`` for a
+photometric measurement) stands in place of ``wavelength_nm``::
+
+    theta_i,phi_i,theta_o,phi_o,channel,beta,u_beta,n
+
+and ``meta.json`` names the colour space (``"colour_space": "linear sRGB"`` by default; only linear
+spaces, ``"linear NAME"`` with NAME a colour-science RGB colour space) and lists the
+``"channels"``. The spectral format and its bytes are unchanged. A measurement in raw detector
+units carries ``"relative": true``: its shapes are meaningful, its absolute level is not.
 """
 
 from __future__ import annotations
@@ -55,25 +62,34 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
+from gonio.data.geometry import signed_angle
+
 __all__ = [
+    "CHANNELS",
     "COLUMNS",
+    "DEFAULT_COLOUR_SPACE",
+    "RGB_COLUMNS",
     "GEOMETRY",
     "SCHEMA",
     "Dataset",
     "DatasetError",
     "atomic_write",
-    "in_plane_geometry",
     "make_dataset",
     "new_meta",
     "read_dataset",
     "remove_stale_temp_files",
-    "signed_angle",
     "write_dataset",
 ]
 
 SCHEMA = "radiance-dataset/1"
 COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm", "beta", "u_beta", "n")
+#: Columns of an RGB (or photometric) dataset: ``channel`` in place of ``wavelength_nm``.
+RGB_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o", "channel", "beta", "u_beta", "n")
 GEOMETRY = COLUMNS[:4]
+#: Channels an RGB dataset may carry (Y: a photometric measurement), in their canonical order.
+CHANNELS = ("R", "G", "B", "Y")
+#: Colour space of an RGB dataset whose meta.json names none.
+DEFAULT_COLOUR_SPACE = "linear sRGB"
 KINDS = ("measured", "simulated")
 CSV_NAME = "radiance.csv"
 META_NAME = "meta.json"
@@ -122,50 +138,6 @@ class DatasetError(ValueError):
         super().__init__(message)
 
 
-# --------------------------------------------------------------------------------------------
-# geometry helpers
-
-
-def signed_angle(theta_i, phi_i, theta_o, phi_o):
-    """Signed in-plane observation angle ``s`` (degrees), NaN where ``w_o`` is out of the plane.
-
-    PHYSICS.md section 1: with the source at azimuth ``phi_i``, ``s >= 0`` (mirror side) means
-    ``phi_o = phi_i + 180`` and ``s < 0`` (source side) means ``phi_o = phi_i``; ``theta_o = 0`` is
-    ``s = 0``.
-
-    Examples
-    --------
-    >>> float(signed_angle(30, 0, 40, 180)), float(signed_angle(30, 0, 40, 0))
-    (40.0, -40.0)
-    """
-    theta_i, phi_i, theta_o, phi_o = np.broadcast_arrays(
-        *(np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)))
-    dphi = np.mod(phi_o - phi_i, 360.0)
-    tol = 1e-6
-    mirror = np.abs(dphi - 180.0) < tol
-    source = (dphi < tol) | (dphi > 360.0 - tol)
-    s = np.where(mirror, theta_o, np.where(source, -theta_o, np.nan))
-    s = np.where(np.abs(theta_o) < tol, 0.0, s)
-    return s[()] if s.ndim == 0 else s
-
-
-def in_plane_geometry(theta_i, s, phi_i=0.0):
-    """``(theta_o, phi_o)`` in degrees of the in-plane direction with signed angle ``s``.
-
-    Examples
-    --------
-    >>> in_plane_geometry(30.0, -20.0, phi_i=90.0)
-    (20.0, 90.0)
-    """
-    s = np.asarray(s, dtype=float)
-    phi_i = np.asarray(phi_i, dtype=float)
-    theta_o = np.abs(s)
-    phi_o = np.mod(np.where(s >= 0.0, phi_i + 180.0, phi_i), 360.0)
-    if theta_o.ndim == 0 and phi_o.ndim == 0:
-        return float(theta_o), float(phi_o)
-    return theta_o, phi_o
-
-
 def _canonical_phi(table: pd.DataFrame) -> pd.DataFrame:
     """phi in [0, 360); ``phi_o`` of the normal direction set to ``phi_i + 180`` (see module doc)."""
     table = table.copy()
@@ -193,19 +165,34 @@ def _validate_table(table: pd.DataFrame, file: str | None, *, line_offset: int =
         raise DatasetError("no data rows", file=file,
                            hint="a dataset needs at least one (geometry, wavelength) row")
     columns = [str(c).strip() for c in table.columns]
-    missing = [c for c in COLUMNS if c not in columns]
+    rgb = "channel" in columns and "wavelength_nm" not in columns
+    expected = RGB_COLUMNS if rgb else COLUMNS
+    band = expected[4]
+    missing = [c for c in expected if c not in columns]
     if missing:
         raise DatasetError(f"missing column(s) {', '.join(missing)}", file=file, row=1,
-                           hint=f"the header must be {','.join(COLUMNS)}")
-    extra = [c for c in columns if c not in COLUMNS]
-    if extra or tuple(columns) != COLUMNS:
+                           hint=f"the header must be {','.join(COLUMNS)} (or, for an RGB "
+                                f"dataset, {','.join(RGB_COLUMNS)})")
+    extra = [c for c in columns if c not in expected]
+    if extra or tuple(columns) != expected:
         raise DatasetError(
             f"columns are {','.join(columns)}" + (f" (unknown: {', '.join(extra)})" if extra else ""),
-            file=file, row=1, hint=f"the header must be exactly {','.join(COLUMNS)} in this order")
+            file=file, row=1, hint=f"the header must be exactly {','.join(expected)} in this order")
     table = table.copy()
     table.columns = columns
-    out = {}
-    for col in COLUMNS:
+    out: dict[str, Any] = {}
+    if rgb:
+        channel = table["channel"].astype(str).str.strip().to_numpy()
+        bad = ~np.isin(channel, CHANNELS)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise DatasetError(f"value {str(table['channel'].iloc[i])!r} is not a channel",
+                               file=file, row=i + line_offset, column="channel",
+                               hint=f"a channel is one of {', '.join(CHANNELS)}")
+        out["channel"] = channel.astype(object)
+    for col in expected:
+        if col == "channel":
+            continue
         raw = table[col]
         values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
         bad = ~np.isfinite(values)
@@ -234,26 +221,36 @@ def _validate_table(table: pd.DataFrame, file: str | None, *, line_offset: int =
         ("n", lambda v: v <= N_MAX, f"is out of range (a count must be <= 2^53 = {N_MAX:d})"),
     ]
     for col, ok, what in checks:
+        if col not in out:
+            continue
         good = ok(out[col])
         if not good.all():
             i = int(np.flatnonzero(~good)[0])
             raise DatasetError(f"value {out[col][i]:g} {what}", file=file, row=i + line_offset,
                                column=col)
-    frame = pd.DataFrame(out, columns=list(COLUMNS))
+    frame = pd.DataFrame(out, columns=list(expected))
     frame["n"] = frame["n"].astype(np.int64)
     frame = _canonical_phi(frame)
-    key = frame[list(GEOMETRY) + ["wavelength_nm"]].round(6)
+    key = frame[list(GEOMETRY)].round(6)
+    key[band] = frame[band]
     dup = key.duplicated(keep=False).to_numpy()
     if dup.any():
         rows = np.flatnonzero(dup)
         first = key.iloc[rows[0]]
         same = rows[(key.iloc[rows] == first).all(axis=1).to_numpy()]
-        geometry = ", ".join(f"{c}={first[c]:g}" for c in key.columns)
-        raise DatasetError(f"duplicate geometry and wavelength ({geometry}), also on row "
+        geometry = ", ".join(f"{c}={first[c]}" if c == "channel" else f"{c}={first[c]:g}"
+                             for c in key.columns)
+        raise DatasetError(f"duplicate geometry and {'channel' if rgb else 'wavelength'} "
+                           f"({geometry}), also on row "
                            f"{int(same[1]) + line_offset}", file=file,
                            row=int(same[0]) + line_offset,
                            hint="each (geometry, wavelength) must appear once")
-    frame = frame.sort_values(list(GEOMETRY) + ["wavelength_nm"], kind="mergesort")
+    if rgb:
+        frame["_order"] = [CHANNELS.index(c) for c in frame["channel"]]
+        frame = frame.sort_values(list(GEOMETRY) + ["_order"], kind="mergesort")
+        frame = frame.drop(columns="_order")
+    else:
+        frame = frame.sort_values(list(GEOMETRY) + ["wavelength_nm"], kind="mergesort")
     return frame.reset_index(drop=True)
 
 
@@ -309,6 +306,17 @@ def _validate_meta(meta: Any, file: str | None) -> dict:
         expect("wavelengths_nm", meta["wavelengths_nm"], (list,), "a list of numbers")
         for j, w in enumerate(meta["wavelengths_nm"]):
             expect(f"wavelengths_nm[{j}]", w, (int, float), "a number")
+    if "channels" in meta:
+        expect("channels", meta["channels"], (list,), "a list of channel names")
+        for j, c in enumerate(meta["channels"]):
+            if c not in CHANNELS:
+                raise DatasetError(f"key 'channels[{j}]' is {c!r}; a channel is one of "
+                                   f"{', '.join(CHANNELS)}", file=file)
+    if "colour_space" in meta:
+        expect("colour_space", meta["colour_space"], (str,), "a string such as \"linear sRGB\"")
+        _check_colour_space(meta["colour_space"], file)
+    if "relative" in meta:
+        expect("relative", meta["relative"], (bool,), "true or false")
     files = meta.get("files", {})
     if CSV_NAME in files:
         expect(f"files.{CSV_NAME}", files[CSV_NAME], (dict,), "an object")
@@ -327,6 +335,21 @@ def _validate_meta(meta: Any, file: str | None) -> dict:
                 raise DatasetError(f"key 'provenance.{key}' is {provenance[key]}; it must be >= 0",
                                    file=file)
     return meta
+
+
+def _check_colour_space(name: str, file: str | None) -> None:
+    """Accept ``"linear NAME"`` with NAME a colour-science RGB colour space (e.g. sRGB)."""
+    import colour
+
+    if not name.startswith("linear "):
+        raise DatasetError(f"key 'colour_space' is {name!r}: only linear colour spaces are "
+                           "supported", file=file,
+                           hint="name it \"linear sRGB\" (or \"linear NAME\" with NAME a "
+                                "colour-science RGB colour space) and store linear values")
+    if name[len("linear "):] not in colour.RGB_COLOURSPACES:
+        raise DatasetError(f"key 'colour_space' names an unknown colour space {name!r}",
+                           file=file, hint="use \"linear sRGB\" or \"linear NAME\" with NAME a key "
+                                           "of colour.RGB_COLOURSPACES")
 
 
 # --------------------------------------------------------------------------------------------
@@ -360,7 +383,44 @@ class Dataset:
         return self.path.name if self.path is not None else "dataset"
 
     @property
+    def is_rgb(self) -> bool:
+        """True for a dataset of colour channels (a ``channel`` column), False for spectra."""
+        return "channel" in self.table.columns
+
+    @property
+    def band_column(self) -> str:
+        """``"channel"`` for an RGB dataset, ``"wavelength_nm"`` for a spectral one."""
+        return "channel" if self.is_rgb else "wavelength_nm"
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """The channels of an RGB dataset in canonical order (R, G, B, Y); () for spectra."""
+        if not self.is_rgb:
+            return ()
+        present = set(self.table["channel"])
+        return tuple(c for c in CHANNELS if c in present)
+
+    @property
+    def bands(self):
+        """The wavelengths (spectral, a float array) or the channels (RGB, a tuple)."""
+        return self.channels if self.is_rgb else self.wavelengths_nm
+
+    @property
+    def colour_space(self) -> str | None:
+        """Colour space of an RGB dataset (``"linear sRGB"`` unless meta.json names another)."""
+        if not self.is_rgb:
+            return None
+        return str(self.meta.get("colour_space", DEFAULT_COLOUR_SPACE))
+
+    @property
+    def relative(self) -> bool:
+        """True when the values are in raw (relative) units (``"relative": true`` in meta.json)."""
+        return self.meta.get("relative") is True
+
+    @property
     def wavelengths_nm(self) -> np.ndarray:
+        if self.is_rgb:
+            return np.array([], dtype=float)
         return np.unique(self.table["wavelength_nm"].to_numpy())
 
     @property
@@ -398,7 +458,9 @@ class Dataset:
 
     def __repr__(self) -> str:
         return (f"Dataset(name={self.name!r}, kind={self.kind!r}, rows={len(self.table)}, "
-                f"geometries={len(self.geometries())}, wavelengths={len(self.wavelengths_nm)})")
+                f"geometries={len(self.geometries())}, "
+                + (f"channels={''.join(self.channels)})" if self.is_rgb
+                   else f"wavelengths={len(self.wavelengths_nm)})"))
 
     def __len__(self) -> int:
         return len(self.table)
@@ -442,17 +504,27 @@ class Dataset:
         frame = frame[np.isfinite(frame["s"].to_numpy())]
         for col, value in (("theta_i", theta_i), ("phi_i", phi_i),
                            ("wavelength_nm", wavelength_nm)):
-            if value is not None:
+            if value is not None and col == "wavelength_nm" and self.is_rgb:
+                frame = frame[frame["channel"] == str(value)]
+            elif value is not None:
                 frame = frame[np.abs(frame[col].to_numpy() - float(value)) < ANGLE_TOL_DEG]
-        frame = frame.sort_values(["theta_i", "phi_i", "wavelength_nm", "s"], kind="mergesort")
+        band = self.band_column
+        if self.is_rgb:
+            frame["_order"] = [CHANNELS.index(c) for c in frame["channel"]]
+            frame = frame.sort_values(["theta_i", "phi_i", "_order", "s"], kind="mergesort")
+            return frame.drop(columns="_order").reset_index(drop=True)
+        frame = frame.sort_values(["theta_i", "phi_i", band, "s"], kind="mergesort")
         return frame.reset_index(drop=True)
 
     def colour_at(self, theta_i: float, phi_i: float, theta_o: float, phi_o: float,
                   illuminant: str = "D65"):
-        """HSV / linear-sRGB summary of the spectrum at one geometry (see :mod:`gonio.colour`)."""
-        from gonio.colour import spectrum_colour
+        """HSV / linear-sRGB summary of the spectrum at one geometry (see :mod:`gonio.data.colour`)."""
+        from gonio.data.colour import rgb_colour, spectrum_colour
 
         rows = self.spectrum(theta_i, phi_i, theta_o, phi_o)
+        if self.is_rgb:
+            values = dict(zip(rows["channel"], rows["beta"]))
+            return rgb_colour(values, colour_space=self.colour_space or DEFAULT_COLOUR_SPACE)
         return spectrum_colour(rows["wavelength_nm"].to_numpy(), rows["beta"].to_numpy(),
                                illuminant=illuminant)
 
@@ -468,148 +540,14 @@ class Dataset:
         return make_dataset(table, meta, source=self.source)
 
     # --- interpolation ---------------------------------------------------------------------
-    def interpolate(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm):
-        """``(beta, u_beta)`` at arbitrary geometries and wavelengths inside the data.
+    def interpolate(self, theta_i, phi_i, theta_o, phi_o, band):
+        """``(beta, u_beta)`` at arbitrary geometries and wavelengths (or channels) inside the data.
 
-        Linear in wavelength between the bracketing measured wavelengths; piecewise linear over
-        the geometries of the same sample rotation ``phi_i`` (see the module docstring). Inputs
-        broadcast; the outputs have the broadcast shape. Raises :class:`DatasetError` for any
-        request outside the data (wavelength outside the range, a sample rotation not in the data,
-        an out-of-plane request on in-plane data, a geometry outside the convex hull of the data).
+        See :func:`gonio.data.interpolate.interpolate`.
         """
-        args = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in
-                                     (theta_i, phi_i, theta_o, phi_o, wavelength_nm)))
-        shape = args[0].shape
-        ti, pi_, to, po, wl = (a.ravel() for a in args)
-        pi_ = np.mod(pi_, 360.0)
-        wavelengths = self.wavelengths_nm
-        outside = (wl < wavelengths[0] - 1e-9) | (wl > wavelengths[-1] + 1e-9)
-        if outside.any():
-            raise DatasetError(
-                f"wavelength {wl[outside][0]:g} nm is outside the data "
-                f"({wavelengths[0]:g}..{wavelengths[-1]:g} nm)", file=self.source,
-                hint="interpolation never extrapolates")
-        beta = np.empty(ti.size)
-        u_beta = np.empty(ti.size)
-        rotations = np.unique(self.table["phi_i"].to_numpy())
-        for rotation in np.unique(pi_):
-            sel = np.flatnonzero(np.abs(pi_ - rotation) < ANGLE_TOL_DEG)
-            match = rotations[np.abs(rotations - rotation) < ANGLE_TOL_DEG]
-            if match.size == 0:
-                raise DatasetError(f"no data at sample rotation phi_i={rotation:g}",
-                                   file=self.source,
-                                   hint=f"the data have phi_i in {sorted(set(rotations.tolist()))}")
-            interp = self._geometry_interpolator(float(match[0]))
-            spectra_b, spectra_u = interp(ti[sel], to[sel], po[sel] - rotation)
-            # linear interpolation in wavelength, row by row
-            j = np.clip(np.searchsorted(wavelengths, wl[sel]) - 1, 0, len(wavelengths) - 2) \
-                if len(wavelengths) > 1 else np.zeros(sel.size, dtype=int)
-            if len(wavelengths) > 1:
-                w0, w1 = wavelengths[j], wavelengths[j + 1]
-                f = np.clip((wl[sel] - w0) / (w1 - w0), 0.0, 1.0)
-                rows = np.arange(sel.size)
-                b = (1 - f) * spectra_b[rows, j] + f * spectra_b[rows, j + 1]
-                u = (1 - f) * spectra_u[rows, j] + f * spectra_u[rows, j + 1]
-            else:
-                b, u = spectra_b[:, 0], spectra_u[:, 0]
-            if not np.all(np.isfinite(b)):
-                k = int(np.flatnonzero(~np.isfinite(b))[0])
-                raise DatasetError(
-                    f"geometry theta_i={ti[sel][k]:g}, phi_i={rotation:g}, theta_o={to[sel][k]:g}, "
-                    f"phi_o={po[sel][k]:g} at {wl[sel][k]:g} nm is outside the measured data",
-                    file=self.source, hint="interpolation never extrapolates")
-            beta[sel] = b
-            u_beta[sel] = u
-        return beta.reshape(shape), u_beta.reshape(shape)
+        from gonio.data.interpolate import interpolate
 
-    def _geometry_interpolator(self, rotation: float):
-        """A function (theta_i, theta_o, dphi) -> (beta spectra, u_beta spectra) for one phi_i."""
-        if rotation in self._interpolators:
-            return self._interpolators[rotation]
-        from scipy.interpolate import LinearNDInterpolator
-
-        t = self.table[np.abs(self.table["phi_i"].to_numpy() - rotation) < ANGLE_TOL_DEG]
-        wavelengths = self.wavelengths_nm
-        pivot_b = t.pivot_table(index=list(GEOMETRY), columns="wavelength_nm", values="beta",
-                                aggfunc="first").reindex(columns=wavelengths)
-        pivot_u = t.pivot_table(index=list(GEOMETRY), columns="wavelength_nm", values="u_beta",
-                                aggfunc="first").reindex(columns=wavelengths)
-        index = pivot_b.index.to_frame(index=False)
-        values_b = pivot_b.to_numpy(dtype=float)
-        values_u = pivot_u.to_numpy(dtype=float)
-        theta_i = index["theta_i"].to_numpy()
-        theta_o = index["theta_o"].to_numpy()
-        dphi = np.mod(index["phi_o"].to_numpy() - rotation, 360.0)
-        s = signed_angle(theta_i, 0.0, theta_o, dphi)
-        in_plane = bool(np.all(np.isfinite(s)))
-        source = self.source
-        n_theta_i = np.unique(theta_i).size
-
-        def coords(ti, to, dp, *, plane: bool):
-            if plane:
-                return signed_angle(ti, 0.0, to, np.mod(dp, 360.0))
-            rad_o = np.radians(to)
-            rad_d = np.radians(dp)
-            return np.sin(rad_o) * np.cos(rad_d), np.sin(rad_o) * np.sin(rad_d)
-
-        if in_plane:
-            data_xy = [s]
-        else:
-            data_xy = list(coords(theta_i, theta_o, dphi, plane=False))
-        if n_theta_i > 1:
-            data_xy = [theta_i] + data_xy
-        points = np.column_stack(data_xy)
-        stacked = np.concatenate([values_b, values_u], axis=1)
-        n_wl = values_b.shape[1]
-        if points.shape[1] == 1:
-            order = np.argsort(points[:, 0])
-            xs = points[order, 0]
-            ys = stacked[order]
-
-            def interp_points(q):
-                q = q[:, 0]
-                out = np.full((q.size, ys.shape[1]), np.nan)
-                for k in range(ys.shape[1]):
-                    out[:, k] = np.interp(q, xs, ys[:, k], left=np.nan, right=np.nan)
-                return out
-        else:
-            try:
-                lin = LinearNDInterpolator(points, stacked)
-            except Exception as exc:  # Qhull: degenerate geometry sets (e.g. collinear points)
-                lin = None
-                reason = str(exc).splitlines()[0]
-
-            def interp_points(q):
-                if lin is None:
-                    raise DatasetError(f"cannot interpolate over these geometries ({reason})",
-                                       file=source)
-                return lin(q)
-
-        single_theta_i = float(theta_i[0]) if n_theta_i == 1 else None
-
-        def interpolate(ti, to, dp):
-            ti = np.asarray(ti, dtype=float)
-            if in_plane:
-                q_s = coords(ti, to, dp, plane=True)
-                if not np.all(np.isfinite(q_s)):
-                    raise DatasetError("the data are in the plane of incidence only; an "
-                                       "out-of-plane geometry cannot be interpolated", file=source)
-                cols = [q_s]
-            else:
-                cols = list(coords(ti, to, dp, plane=False))
-            if single_theta_i is not None:
-                off = np.abs(ti - single_theta_i) > ANGLE_TOL_DEG
-                if off.any():
-                    raise DatasetError(f"incidence theta_i={ti[off][0]:g} is outside the data "
-                                       f"(only theta_i={single_theta_i:g})", file=source)
-            else:
-                cols = [ti] + cols
-            q = np.column_stack(cols)
-            out = interp_points(q)
-            return out[:, :n_wl], out[:, n_wl:]
-
-        self._interpolators[rotation] = interpolate
-        return interpolate
+        return interpolate(self, theta_i, phi_i, theta_o, phi_o, band)
 
 
 # --------------------------------------------------------------------------------------------
@@ -662,12 +600,25 @@ def make_dataset(table: pd.DataFrame | Mapping[str, Iterable], meta: Mapping,
             frame[col] = np.mod(values, 360.0)
     if "n" in frame.columns:
         frame["n"] = pd.to_numeric(frame["n"], errors="coerce")
-    if all(c in frame.columns for c in COLUMNS):
-        frame = frame[list(COLUMNS)]
+    for columns in (COLUMNS, RGB_COLUMNS):
+        if all(c in frame.columns for c in columns):
+            frame = frame[list(columns)]
     meta = _validate_meta(json.loads(json.dumps(dict(meta), default=_json_default)), source)
     frame = _validate_table(frame, source, line_offset=0)
-    meta["wavelengths_nm"] = [float(w) for w in np.unique(frame["wavelength_nm"])]
-    return Dataset(frame, meta)
+    dataset = Dataset(frame, meta)
+    _fill_band_meta(dataset)
+    return dataset
+
+
+def _fill_band_meta(dataset: "Dataset") -> None:
+    """``wavelengths_nm`` (spectral) or ``channels`` and ``colour_space`` (RGB) from the table."""
+    meta = dataset.meta
+    if dataset.is_rgb:
+        meta["wavelengths_nm"] = []
+        meta["channels"] = list(dataset.channels)
+        meta.setdefault("colour_space", DEFAULT_COLOUR_SPACE)
+    else:
+        meta["wavelengths_nm"] = [float(w) for w in dataset.wavelengths_nm]
 
 
 def _json_default(value):
@@ -768,6 +719,9 @@ def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
     data = _csv_bytes(dataset.table)
     meta = json.loads(json.dumps(dataset.meta, default=_json_default))
     meta["wavelengths_nm"] = [float(w) for w in dataset.wavelengths_nm]
+    if dataset.is_rgb:
+        meta["channels"] = list(dataset.channels)
+        meta.setdefault("colour_space", DEFAULT_COLOUR_SPACE)
     meta["files"] = {CSV_NAME: {"sha256": hashlib.sha256(data).hexdigest(),
                                 "rows": int(len(dataset.table))}}
     atomic_write(out / CSV_NAME, data)
@@ -846,7 +800,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     if expected and hashlib.sha256(data).hexdigest() != expected:
         raise DatasetError(f"does not match the checksum recorded in {META_NAME}", file=csv_path,
                            hint="the dataset was changed after writing or a write was interrupted; "
-                                "rewrite it with gonio.dataset.write_dataset (a run can be "
+                                "rewrite it with gonio.data.write_dataset (a run can be "
                                 "rebuilt from its journal)")
     try:
         text = data.decode("utf-8")
@@ -861,6 +815,18 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
         raise DatasetError("file is empty", file=csv_path) from None
     # pandas pads short rows with NaN/"" and rejects long ones above; name the short row precisely
     table = _validate_table(table, str(csv_path))
+    if "channel" in table.columns:
+        dataset = Dataset(table, meta, path=root)
+        listed_channels = meta.get("channels")
+        if listed_channels is not None and tuple(listed_channels) != dataset.channels:
+            raise DatasetError(f"key 'channels' lists {listed_channels} but {CSV_NAME} holds "
+                               f"{list(dataset.channels)}", file=meta_path,
+                               hint="the two files do not belong together")
+        if meta.get("wavelengths_nm"):
+            raise DatasetError("key 'wavelengths_nm' lists wavelengths but the data are RGB "
+                               "channels", file=meta_path, hint="the two files do not belong together")
+        _fill_band_meta(dataset)
+        return dataset
     listed = meta.get("wavelengths_nm")
     if listed is not None:
         try:

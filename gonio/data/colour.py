@@ -6,6 +6,12 @@ is RGB (1, 1, 1) -> HSV and the ratios BLUE/RED and GREEN/RED, all on the LINEAR
 published reference table is only self-consistent that way: S = 0.99 goes with GREEN/RED = 0.011).
 Gamma-encoded sRGB is for display only (:func:`display_srgb`).
 
+An RGB dataset (channels R, G, B in a named LINEAR colour space) is read directly
+(:func:`rgb_colour`): its channels are converted to linear sRGB through CIE XYZ when the space is
+not sRGB, then to HSV. A spectrum compared with an RGB measurement is first converted to the
+measurement's colour space (:func:`spectrum_to_rgb`: spectrum -> XYZ as above -> the space's RGB,
+with the chromatic adaptation of colour-science from the illuminant's white to the space's white).
+
 The computation is colour-science's:
 
 .. math::
@@ -33,7 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ColourSummary", "display_srgb", "hue_difference", "spectrum_colour"]
+__all__ = ["ColourSummary", "colourspace", "display_srgb", "hue_difference", "rgb_colour",
+           "spectrum_colour", "spectrum_to_rgb"]
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 
@@ -128,7 +135,86 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     r, g, b = (float(x) for x in rgb)
     return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
                          blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),
-                         xyz=tuple(float(x) for x in xyz), illuminant=illuminant)
+                         xyz=(float(xyz[0]), float(xyz[1]), float(xyz[2])), illuminant=illuminant)
+
+
+def colourspace(name: str):
+    """The colour-science RGB colour space of ``"linear NAME"`` (e.g. ``"linear sRGB"``)."""
+    import colour
+
+    key = name[len("linear "):] if name.startswith("linear ") else name
+    if key not in colour.RGB_COLOURSPACES:
+        raise ValueError(f"unknown colour space {name!r}; use \"linear sRGB\" or \"linear NAME\" "
+                         "with NAME a key of colour.RGB_COLOURSPACES")
+    return colour.RGB_COLOURSPACES[key]
+
+
+def _summary(rgb_srgb, xyz, illuminant: str) -> ColourSummary:
+    import colour
+
+    hsv = colour.RGB_to_HSV(np.asarray(rgb_srgb, dtype=float))
+    r, g, b = (float(x) for x in rgb_srgb)
+    return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
+                         blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),
+                         xyz=(float(xyz[0]), float(xyz[1]), float(xyz[2])), illuminant=illuminant)
+
+
+def rgb_colour(channels, colour_space: str = "linear sRGB") -> ColourSummary:
+    """Colour summary of linear RGB channel values (a mapping with keys R, G, B).
+
+    The channels are converted to linear sRGB (through CIE XYZ, colour-science, when the space is
+    not sRGB) and then to HSV and the channel ratios, as for a spectrum. A photometric (Y-only)
+    dataset has no colour: :class:`ValueError`.
+
+    Examples
+    --------
+    >>> c = rgb_colour({"R": 0.8, "G": 0.0088, "B": 0.064})
+    >>> round(c.s, 3), round(c.v, 2), round(c.green_red, 3)
+    (0.989, 0.8, 0.011)
+    """
+    import colour
+
+    missing = [c for c in "RGB" if c not in channels]
+    if missing:
+        raise ValueError(f"a colour needs the channels R, G and B (missing {', '.join(missing)})")
+    rgb = np.array([float(channels[c]) for c in "RGB"])
+    if not np.all(np.isfinite(rgb)):
+        raise ValueError("the channel values contain NaN or infinite values")
+    space = colourspace(colour_space)
+    xyz = colour.RGB_to_XYZ(rgb, space, apply_cctf_decoding=False)
+    if space.name == "sRGB":
+        srgb = rgb
+    else:
+        srgb = colour.XYZ_to_RGB(xyz, "sRGB", illuminant=space.whitepoint,
+                                 chromatic_adaptation_transform="Bradford")
+    return _summary(srgb, xyz, illuminant=f"{space.whitepoint_name} ({space.name} white)")
+
+
+def spectrum_to_rgb(wavelength_nm, beta, colour_space: str = "linear sRGB",
+                    illuminant: str = "D65") -> np.ndarray:
+    """Linear RGB of the spectrum ``beta(wavelength_nm)`` in ``colour_space`` (a 3-vector).
+
+    Spectrum -> CIE XYZ under ``illuminant`` (as :func:`spectrum_colour`, Y = 1 for the ideal
+    white) -> the space's linear RGB, adapting the illuminant's white to the space's (Bradford).
+    For linear sRGB under D65 this is exactly :func:`spectrum_colour`'s ``rgb``.
+    """
+    import colour
+
+    summary = spectrum_colour(wavelength_nm, beta, illuminant=illuminant)
+    space = colourspace(colour_space)
+    white_xy = _illuminant_xy(illuminant)
+    return np.asarray(colour.XYZ_to_RGB(np.asarray(summary.xyz), space, illuminant=white_xy,
+                                        chromatic_adaptation_transform="Bradford"), dtype=float)
+
+
+def _illuminant_xy(illuminant: str):
+    import colour
+
+    if illuminant in colour.CCS_ILLUMINANTS[OBSERVER]:
+        return colour.CCS_ILLUMINANTS[OBSERVER][illuminant]
+    cmfs = colour.MSDS_CMFS[OBSERVER]
+    return colour.XYZ_to_xy(colour.sd_to_XYZ(colour.sd_ones(), cmfs,
+                                             colour.SDS_ILLUMINANTS[illuminant]))
 
 
 def hue_difference(h1, h2):
