@@ -598,6 +598,11 @@ def _parser() -> argparse.ArgumentParser:
     im.add_argument("--scale", type=float, metavar="FR_PER_UA",
                     help="pgii [uA] files: f_r per uA of detector current (absolute values); "
                          "without it raw currents make a relative dataset")
+    im.add_argument("--white", metavar="FILE",
+                    help="pgii [uA] files: a pgII [uA] file of a diffuse white standard measured with the "
+                         "same detector (absolute values; see gonio.data.formats.pgii)")
+    im.add_argument("--white-reflectance", type=float, default=0.99, metavar="RHO",
+                    help="hemispherical reflectance of that standard (default 0.99)")
     im.add_argument("-v", "--verbose", action="store_true")
 
     return p
@@ -612,7 +617,10 @@ def _cmd_import(args) -> int:
         geometries = load_plan(args.geometry).geometries()
     if args.scale is not None and not (args.scale > 0 and args.scale < float("inf")):
         raise _UsageError(f"--scale {args.scale}: must be a positive number")
-    dataset = import_files(args.format, args.files, geometries, scale=args.scale)
+    if not (0.0 < args.white_reflectance <= 1.0):
+        raise _UsageError(f"--white-reflectance {args.white_reflectance}: must be in (0, 1]")
+    dataset = import_files(args.format, args.files, geometries, scale=args.scale, white=args.white,
+                           white_reflectance=args.white_reflectance)
     _check_output_folder(Path(args.out), "--out")
     out = write_dataset(dataset, args.out)
     bands = (f"channels {''.join(dataset.channels)} ({dataset.colour_space})" if dataset.is_rgb

@@ -26,7 +26,8 @@ FORMATS = ("rgl-bsdf", "pgii", "merl")
 
 
 def import_files(fmt: str, paths: Sequence[str | os.PathLike],
-                 geometries: pd.DataFrame | None = None, *, scale: float | None = None):
+                 geometries: pd.DataFrame | None = None, *, scale: float | None = None,
+                 white: str | os.PathLike | None = None, white_reflectance: float = 0.99):
     """Read ``paths`` of format ``fmt`` into one dataset (at ``geometries`` where applicable)."""
     if fmt not in FORMATS:
         raise FormatError(f"unknown format {fmt!r}", hint=f"use one of {', '.join(FORMATS)}")
@@ -36,7 +37,11 @@ def import_files(fmt: str, paths: Sequence[str | os.PathLike],
         if geometries is not None:
             raise FormatError("pgII files are measured at their own geometries; --geometry "
                               "does not apply", hint="leave out --geometry")
-        return pgii_dataset([read_pgii(p) for p in paths], scale=scale)
+        return pgii_dataset([read_pgii(p) for p in paths], scale=scale,
+                            white=read_pgii(white) if white is not None else None,
+                            white_reflectance=white_reflectance)
+    if white is not None:
+        raise FormatError("--white applies to pgII [uA] files only", hint="leave out --white")
     if len(paths) != 1:
         raise FormatError(f"format {fmt} takes one file, not {len(paths)}")
     if fmt == "rgl-bsdf":

@@ -12,7 +12,16 @@ A file is ``#`` header lines, then data lines ``theta phi value...`` (whitespace
 
 ``BSDF`` values are ``f_r`` (1/sr); ``DSF`` (differential scattering function) values are
 ``f_r cos theta_o``; ``[uA]`` values are raw detector currents, which make a *relative* dataset
-(``"relative": true``) unless a scale (``f_r`` per uA) is given. Without ``#lambda=`` the single
+(``"relative": true``) unless a scale (``f_r`` per uA) or a white reference is given.
+
+White reference: a ``[uA]`` pgII file of a diffuse white standard of known reflectance ``rho_w``
+(taken as Lambertian, ``f_r = rho_w / pi``), measured with the same detector and source. The
+detector reads ``I = K f_r E cos(theta_i)`` (a collimated beam on a tilted sample), so per band::
+
+    f_r(sample) = (rho_w / pi) (I / cos theta_i) / <I_w / cos theta_w>
+
+with ``<...>`` the mean over the reference's rows observed within 60 degrees of its normal (a
+real standard departs from Lambert at grazing observation). Without ``#lambda=`` the single
 value column is photometric (channel ``Y``). ``theta > 90`` is the other half of the plane:
 ``theta -> 180 - theta``, ``phi -> phi + 180`` (the instrument scans through the normal). Other
 ``#`` lines are kept in the provenance. ``beta = pi f_r``.
@@ -35,7 +44,7 @@ import pandas as pd
 
 from gonio.data.formats.errors import FormatError
 
-__all__ = ["PgiiFile", "parse_pgii", "read_pgii", "pgii_dataset"]
+__all__ = ["PgiiFile", "parse_pgii", "read_pgii", "pgii_dataset", "white_reference_scale"]
 
 UNITS = ("BSDF", "DSF", "[uA]")
 MAX_BYTES = 64 * 1024 * 1024
@@ -156,23 +165,58 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
                     phi_o, arr[:, 2:], header)
 
 
-def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None):
+def white_reference_scale(white: PgiiFile, reflectance: float, bands: int) -> np.ndarray:
+    """``(rho_w / pi) / <I_w / cos theta_w>`` per band (f_r per uA at normal incidence; see the module docstring)."""
+    if white.unit != "[uA]":
+        raise FormatError(f"the white reference must be raw detector current ([uA]), not {white.unit}",
+                          file=white.path, hint="give the standard's raw pgII export")
+    if not (0.0 < reflectance <= 1.0):
+        raise FormatError(f"white reflectance {reflectance!r} must be in (0, 1]", file=white.path)
+    if white.values.shape[1] != bands:
+        raise FormatError(f"{white.values.shape[1]} value columns, the sample files have {bands}",
+                          file=white.path, hint="measure the standard at the sample's wavelengths")
+    near = white.theta_o <= 60.0
+    if not np.any(near):
+        raise FormatError("no reference row observed within 60 degrees of the normal", file=white.path,
+                          hint="the standard must be seen near its normal")
+    mean = white.values[near].mean(axis=0) / math.cos(math.radians(white.theta_i))
+    if not np.all(mean > 0):
+        raise FormatError("the white reference reads no signal above zero in some band", file=white.path,
+                          hint="check the standard's file (shutter, detector range)")
+    return reflectance / math.pi / mean
+
+
+def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None, white: PgiiFile | None = None,
+                 white_reflectance: float = 0.99):
     """One dataset from several pgII files (one incidence each).
 
-    ``[uA]`` files need ``scale`` (``f_r`` per uA) for absolute values; without it the dataset
-    is relative. All files must share the unit and the wavelengths.
+    ``[uA]`` files need ``scale`` (``f_r`` per uA) or a ``white`` reference file (with its
+    reflectance) for absolute values; without either the dataset is relative. All files must
+    share the unit and the wavelengths.
     """
     from gonio.data.dataset import make_dataset, new_meta
 
     if not files:
         raise FormatError("no pgII files given")
+    if scale is not None and white is not None:
+        raise FormatError("give a scale or a white reference, not both", hint="drop one of them")
     first = files[0]
     for f in files[1:]:
         if f.unit != first.unit or f.wavelengths_nm != first.wavelengths_nm:
             raise FormatError(f"unit {f.unit} / wavelengths {f.wavelengths_nm} differ from "
                               f"{first.path}'s ({first.unit} / {first.wavelengths_nm})", file=f.path,
                               hint="one dataset needs files of the same format")
-    relative = first.unit == "[uA]" and scale is None
+    white_scale = None
+    if white is not None:
+        if first.unit != "[uA]":
+            raise FormatError(f"a white reference calibrates raw [uA] files; these are {first.unit}",
+                              file=first.path, hint="leave out the white reference")
+        if white.wavelengths_nm != first.wavelengths_nm:
+            raise FormatError(f"wavelengths {white.wavelengths_nm} differ from the sample's "
+                              f"{first.wavelengths_nm}", file=white.path,
+                              hint="measure the standard at the sample's wavelengths")
+        white_scale = white_reference_scale(white, white_reflectance, first.values.shape[1])
+    relative = first.unit == "[uA]" and scale is None and white_scale is None
     parts = []
     for f in files:
         cos_o = np.cos(np.radians(f.theta_o))
@@ -185,6 +229,8 @@ def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None):
             keep = np.ones(cos_o.size, dtype=bool)
         if f.unit == "[uA]" and scale is not None:
             values = values * scale
+        if f.unit == "[uA]" and white_scale is not None:
+            values = values * white_scale[None, :] / math.cos(math.radians(f.theta_i))
         beta = values if relative else np.pi * values
         bands: list = list(f.wavelengths_nm) if f.wavelengths_nm else ["Y"]
         for k, band in enumerate(bands):
@@ -199,7 +245,9 @@ def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None):
                     {"name": "PAB pgII goniophotometer", "format": "pgii", "unit": first.unit},
                     {"source_files": [Path(f.path).name for f in files],
                      "headers": {Path(f.path).name: f.header for f in files},
-                     **({"scale_fr_per_uA": scale} if scale is not None else {})},
+                     **({"scale_fr_per_uA": scale} if scale is not None else {}),
+                     **({"white_reference": Path(white.path).name, "white_reflectance": white_reflectance,
+                         "white_scale_fr_per_uA": white_scale.tolist()} if white_scale is not None else {})},
                     relative=relative)
     if not first.wavelengths_nm:
         meta["colour_space"] = "linear sRGB"

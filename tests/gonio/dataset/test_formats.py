@@ -174,6 +174,37 @@ def test_pgii_known_values(tmp_path):
     assert not dsc.relative and np.isclose(dsc.table.beta.max(), np.pi * 0.6)
 
 
+def test_pgii_white_reference_makes_raw_currents_absolute(tmp_path):
+    """A Lambertian sample of f_r = 0.2 and a white standard of reflectance 0.98 read by one
+    detector (I = K f_r cos theta_i) at different incidences: the import recovers f_r."""
+    K = 37.0
+    f_sample, rho_w = 0.2, 0.98
+    white = PGII.replace("#intheta 30", "#intheta 10").format(
+        unit="[uA]", lambda_line="#lambda=450 650\n",
+        rows="".join(f"{t} 0 {K * rho_w / np.pi * np.cos(np.radians(10)):.12g} "
+                     f"{0.5 * K * rho_w / np.pi * np.cos(np.radians(10)):.12g}\n" for t in (0, 20, 40, 75)))
+    (tmp_path / "white.txt").write_text(white)
+    sample = PGII.replace("#intheta 30", "#intheta 50").format(
+        unit="[uA]", lambda_line="#lambda=450 650\n",
+        rows="".join(f"{t} 0 {K * f_sample * np.cos(np.radians(50)):.12g} "
+                     f"{0.5 * K * f_sample * np.cos(np.radians(50)):.12g}\n" for t in (0, 30, 60)))
+    (tmp_path / "s.txt").write_text(sample)
+    out = tmp_path / "ds"
+    assert gonio_main(["import", "pgii", str(tmp_path / "s.txt"), "--white", str(tmp_path / "white.txt"),
+                       "--white-reflectance", str(rho_w), "--out", str(out)]) == 0
+    from gonio.data import read_dataset
+
+    ds = read_dataset(out)
+    assert not ds.relative
+    np.testing.assert_allclose(ds.table.beta, np.pi * f_sample, rtol=1e-9)
+    assert ds.meta["provenance"]["white_reflectance"] == rho_w
+    # the wrong unit for a reference is one clear line
+    (tmp_path / "bsdf.txt").write_text(_pgii_text("BSDF", [(0, 0, 0.1)], "#lambda=450 650\n").replace(
+        "0 0 0.1", "0 0 0.1 0.1"))
+    assert gonio_main(["import", "pgii", str(tmp_path / "s.txt"), "--white", str(tmp_path / "bsdf.txt"),
+                       "--out", str(tmp_path / "x")]) == 2
+
+
 def test_pgii_error_names_line(tmp_path, capsys):
     (tmp_path / "a.txt").write_text(_pgii_text("BSDF", [(0, 0, 1)]) + "10 20 abc\n")
     assert gonio_main(["import", "pgii", str(tmp_path / "a.txt"), "--out", str(tmp_path / "o")]) == 2
