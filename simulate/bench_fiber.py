@@ -12,6 +12,7 @@ the warp and weft fiber frames (incidence 0/30/45/60 deg, observation -60..70 de
   error and the error against a converged next-event reference at photon budgets of 5e4,
   2e5 and 8e5 (the speed-versus-accuracy chart), and the time each would need for 1 %
   (time x (err / 0.01)^2, the N^-1/2 law, from the largest budget);
+* the fabric summation's evaluations per second (:func:`summation_speed`);
 * the peak resident set size.
 """
 
@@ -105,8 +106,44 @@ def run_fiber_bench(quick: bool = False, threads: int | None = None) -> dict[str
     base = routes["nee"]["seconds_to_1pct"]
     for r in routes.values():
         r["slower_than_nee"] = r["seconds_to_1pct"] / base
-    return {"headline": headline, "routes": routes,
+    return {"headline": headline, "routes": routes, "summation": summation_speed(quick),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+
+
+def summation_speed(quick: bool = False) -> dict[str, Any]:
+    """(w_i, w_o, lambda) evaluations per second of the fabric summation (QUALITY.md C: >= 10^6/s).
+
+    Random upper-hemisphere geometries, 33 wavelengths, ``R_B`` known at the unique fiber-frame
+    pairs: (a) the gathers and the multiply alone (``summation_from_table``), (b) including
+    building the unique pairs (``FiberPairs.from_directions``). Medians of 5 repeats.
+    """
+    import statistics
+
+    from simulate.fabric import FiberPairs, summation_from_table
+
+    rng = np.random.default_rng(0)
+    g = 5_000 if quick else 50_000
+    n_wl = 33
+
+    def directions(n, max_theta_deg):
+        t = np.radians(rng.uniform(0, max_theta_deg, n))
+        p = rng.uniform(0, 2 * math.pi, n)
+        return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=1)
+
+    w_i, w_o = directions(g, 69.0), directions(g, 89.0)
+    gather, full = [], []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        pairs = FiberPairs.from_directions(w_i, w_o)
+        t1 = time.perf_counter()
+        R_B = rng.random((pairs.n_unique, n_wl))
+        t2 = time.perf_counter()
+        summation_from_table(pairs, R_B, R_B)
+        t3 = time.perf_counter()
+        gather.append(g * n_wl / (t3 - t2))
+        full.append(g * n_wl / ((t1 - t0) + (t3 - t2)))
+    return {"geometries": g, "wavelengths": n_wl, "median_evals_per_s_gather": statistics.median(gather),
+            "median_evals_per_s_with_pairs": statistics.median(full)}
 
 
 def chart(report: dict[str, Any], path: Any) -> None:
