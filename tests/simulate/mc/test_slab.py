@@ -73,11 +73,13 @@ def test_bare_slab_geometric_optics(theta_deg, mu_a, fresnel_ref):
     assert abs(r.Tt - t_ref) < 4 * r.u_Tt + 1e-12
     # exit directions: the mirror direction on top, the incident direction below
     ang = r.angular
-    i_mu = min(int(ci * 20), 19)
+    # the bin of mu = cos(theta_i); at 60 deg mu = 0.5 lies ON a bin edge, where the last bit of
+    # rounding (compiled with or without fused multiply-adds) decides the side: take both then
+    bins = sorted({min(int((ci - 1e-9) * 20), 19), min(int((ci + 1e-9) * 20), 19)})
     refl_mu = ang.reflected.sum(axis=1)
     tran_mu = ang.transmitted.sum(axis=1)
-    assert refl_mu[i_mu] == pytest.approx(r.Rd, rel=1e-12)
-    assert tran_mu[i_mu] == pytest.approx(r.Tt, rel=1e-12)
+    assert refl_mu[bins].sum() == pytest.approx(r.Rd, rel=1e-12)
+    assert tran_mu[bins].sum() == pytest.approx(r.Tt, rel=1e-12)
     if theta_deg > 0:
         # travelling towards -x: azimuth pi (first or last azimuth bin)
         edge = ang.reflected[:, 0].sum() + ang.reflected[:, -1].sum()
