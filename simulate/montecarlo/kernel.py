@@ -78,7 +78,9 @@ Henyey, L. G. & Greenstein, J. L. (1941). Diffuse radiation in the Galaxy. *Astr
 
 from __future__ import annotations
 
+import hashlib
 import math
+from pathlib import Path
 from typing import NamedTuple
 
 import numba
@@ -164,6 +166,26 @@ class KernelInputs(NamedTuple):
     nee_consts: np.ndarray  # float64[n_out, tallies.N_NEE]: next-event constants of point outputs
 
 
+def _source_stamp() -> int:
+    """A hash of every source the compiled kernel is built from (this package and fresnel.py).
+
+    numba's cache checks only the modification time of the file that defines a function, yet
+    the cached kernel contains the code of every function it inlines or calls: after a change
+    to, say, ``geometry.py`` alone, a worked-in checkout would keep running the old code. The
+    stamp is a closure constant of the kernel, and numba keys cached closures by their
+    constants, so any change to these sources compiles the kernel afresh.
+    """
+    digest = hashlib.sha256()
+    here = Path(__file__).resolve().parent
+    for path in sorted(here.glob("*.py")) + [here.parent / "fresnel.py"]:
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return int.from_bytes(digest.digest()[:7], "little")
+
+
+_SOURCE_STAMP = _source_stamp()
+
+
 def _make_kernel(scoring: bool):
     """Compile the kernel for one flavour: ``scoring`` False is the plain transport loop (totals
     and bookkeeping only), True adds the tallies, the vertex hook and spectral re-weighting.
@@ -171,8 +193,10 @@ def _make_kernel(scoring: bool):
     ``SCORING`` is a closure constant, so numba prunes the scoring code from the plain
     flavour: its mere presence (calls and array stores in the photon loop) costs the plain
     slab case about 30 % of its speed. One source, two compiled flavours (both cached).
+    ``STAMP`` (:func:`_source_stamp`) keys the cache to the sources the kernel is built from.
     """
     SCORING = scoring
+    STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
     def simulate_batch(inp: KernelInputs, photons: int, seed: int, batch: int, scal: np.ndarray,
@@ -192,6 +216,8 @@ def _make_kernel(scoring: bool):
         bins : numpy.ndarray
             ``float64[n_bins_total, 2]`` accumulators (sum, sum of per-photon squares).
         """
+        if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
+            return
         geometry = inp.geometry
         geom = inp.geom
         source = inp.source
@@ -466,6 +492,8 @@ def _make_kernel(scoring: bool):
         and writes row ``b - first_batch`` of ``scal`` (``float64[n_batches, N_SCALARS]``) and of
         ``bins`` (``float64[n_batches, n_bins, 2]``), which are zeroed first.
         """
+        if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
+            return
         for i in numba.prange(n_batches):
             b = first_batch + i
             start = b * batch_size
