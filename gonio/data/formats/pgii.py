@@ -102,6 +102,7 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
     header: dict[str, str] = {}
     sample, theta_i, phi_i, unit, wavelengths = "", None, 0.0, None, None
     rows: list[list[float]] = []
+    row_lines: list[int] = []
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         if not line:
@@ -150,6 +151,7 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
                               line=number)
         values = [_number(t, "value", path, number) for t in tokens[2:]]
         rows.append([theta, phi] + values)
+        row_lines.append(number)
     if theta_i is None:
         raise FormatError("no #intheta (or #incident_angle) header line", file=path,
                           hint="each pgII file holds one incidence angle, named in its header")
@@ -161,6 +163,16 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
     beyond = arr[:, 0] > 90.0          # the other half of the scan plane
     theta_o = np.where(beyond, 180.0 - arr[:, 0], arr[:, 0])
     phi_o = np.mod(np.where(beyond, arr[:, 1] + 180.0, arr[:, 1]), 360.0)
+    # one observation direction per line: a repeat (also theta > 90 mirrored onto a direction
+    # already given, or the normal at two azimuths) is named by its two lines
+    seen: dict[tuple[float, float], int] = {}
+    for k, (t, ph) in enumerate(zip(theta_o, phi_o)):
+        key = (round(float(t), 6), 0.0 if round(float(t), 6) == 0.0 else round(float(ph), 6) % 360.0)
+        if key in seen:
+            raise FormatError(f"observation direction theta {key[0]:g}, phi {key[1]:g} deg given twice "
+                              f"(lines {seen[key]} and {row_lines[k]})", file=path, line=row_lines[k],
+                              hint="keep one line per direction (theta > 90 is the other half of the plane)")
+        seen[key] = row_lines[k]
     return PgiiFile(path, sample, float(theta_i), float(phi_i), unit, wavelengths, theta_o,
                     phi_o, arr[:, 2:], header)
 

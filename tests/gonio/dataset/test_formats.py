@@ -205,6 +205,16 @@ def test_pgii_white_reference_makes_raw_currents_absolute(tmp_path):
                        "--out", str(tmp_path / "x")]) == 2
 
 
+def test_pgii_duplicate_direction_names_both_lines(tmp_path, capsys):
+    # line 5 (theta 20, phi 0) and line 7 (theta 160 mirrored: theta 20, phi 180) are distinct;
+    # line 8 (theta 200 - 40 = 160, phi 180 -> theta 20, phi 0) repeats line 5
+    (tmp_path / "d.txt").write_text(_pgii_text("BSDF", [(0, 0, 0.1), (20, 0, 0.2), (40, 0, 0.3), (160, 0, 0.2),
+                                                        (160, 180, 0.25)]))
+    assert gonio_main(["import", "pgii", str(tmp_path / "d.txt"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "d.txt" in err and "lines 5 and 8" in err, err
+
+
 def test_pgii_error_names_line(tmp_path, capsys):
     (tmp_path / "a.txt").write_text(_pgii_text("BSDF", [(0, 0, 1)]) + "10 20 abc\n")
     assert gonio_main(["import", "pgii", str(tmp_path / "a.txt"), "--out", str(tmp_path / "o")]) == 2
