@@ -394,10 +394,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         # invalid run parameters found by the library; the message names the parameter
         print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except NotImplementedError as exc:
-        # the fiber Monte Carlo routes land with the fiber issue; say so in one line
-        print(f"simulate {args.command}: error: not available in this build ({exc})", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print(f"simulate {args.command}: interrupted", file=sys.stderr)
         return 130

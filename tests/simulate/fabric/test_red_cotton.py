@@ -1,7 +1,6 @@
 """The real fiber model through the fabric layer: red-cotton colour, shared colour, albedo <= 1.
 
-These tests need the fiber Monte Carlo (:func:`simulate.fiber.volume_brdf`); they skip, saying
-why, on a build where it raises ``NotImplementedError``. Monte Carlo comparisons use fixed seeds
+These tests run the fiber Monte Carlo (:func:`simulate.fiber.volume_brdf`). Monte Carlo comparisons use fixed seeds
 and tolerances of a few computed standard errors (colour uncertainties are propagated from the
 spectra's standard errors through the colour transform by its Jacobian).
 """
@@ -26,13 +25,7 @@ WL = np.arange(390.0, 710.0 + 1e-9, 10.0)
 @pytest.fixture(scope="module")
 def red_cotton():
     cfg = load_config("red-cotton")
-    fiber = cfg.fiber(WL)
-    try:
-        fiber_mod.volume_brdf(fiber, np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 1.0]]),
-                              np.array([600.0]), target_rel_err=0.5, max_photons=2000)
-    except NotImplementedError:
-        pytest.skip("the fiber Monte Carlo (simulate.fiber.volume_brdf) is not in this build")
-    return cfg, fiber
+    return cfg, cfg.fiber(WL)
 
 
 @pytest.fixture(scope="module")
