@@ -10,7 +10,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     "events_per_photon", ...}``; ``Rd`` excludes the specular surface reflection ``Rsp``.
 ``simulate bench --out DIR [--quick]``
     kernel benchmark: DIR/bench.json, DIR/bench.png and a markdown table on stdout.
-``simulate fabric CONFIG --method classic|summation --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
+``simulate fabric CONFIG --method classic|summation|mc --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
     a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
     non-empty DIR is overwritten only if it holds a previous ``simulate fabric`` output.
@@ -280,8 +280,11 @@ def _progress(args: argparse.Namespace) -> bool:
 
 def _fabric_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
-    p.add_argument("--method", choices=("classic", "summation"), required=True,
-                   help="fabric model: summation over warp and weft, or the classic Lambert + Cook-Torrance")
+    p.add_argument("--method", choices=("classic", "summation", "mc"), required=True,
+                   help="fabric model: summation over warp and weft, the classic Lambert + Cook-Torrance, "
+                        "or mc (Monte Carlo ray tracing of the woven micro-element of the config's [weave])")
+    p.add_argument("--max-seconds", type=_nonneg_float, default=0.0, dest="max_seconds",
+                   help="mc: time budget per incidence in seconds (0 = none); the output says which stop ended it")
     p.add_argument("--out", type=Path, required=True, help="output dataset directory (radiance.csv, meta.json)")
     p.add_argument("--geometry", metavar="PLAN", default="red-cotton",
                    help="acquisition plan whose geometries and wavelengths are simulated (path or preset; "
@@ -307,7 +310,8 @@ def _fabric_run(args: argparse.Namespace) -> int:
     try:
         dataset = fabric_dataset(config, plan, args.method, target_rel_err=args.target_rel_err,
                                  seed=args.seed, threads=args.threads, max_photons=args.max_photons,
-                                 measurable_only=args.measurable_only, progress=_progress(args))
+                                 measurable_only=args.measurable_only, progress=_progress(args),
+                                 max_seconds=args.max_seconds)
     except FabricError as exc:
         raise _UsageError(str(exc)) from None
     write_dataset(dataset, args.out)

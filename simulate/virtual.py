@@ -1,6 +1,6 @@
 """The virtual goniophotometer: a fabric model evaluated at a plan's geometries, as a dataset.
 
-``simulate fabric CONFIG --method classic|summation --out DIR [--geometry PLAN]`` (PHYSICS.md
+``simulate fabric CONFIG --method classic|summation|mc --out DIR [--geometry PLAN]`` (PHYSICS.md
 section 7) evaluates the chosen fabric model (:mod:`simulate.fabric`) at the geometries and
 wavelengths of an acquisition plan (:mod:`gonio.plan`; default: the shipped ``red-cotton`` plan)
 and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`gonio.data.dataset`:
@@ -29,6 +29,7 @@ route's own ``info`` and the software versions.
 from __future__ import annotations
 
 import logging
+import os
 import platform
 import time
 from typing import Any
@@ -45,7 +46,7 @@ __all__ = ["FABRIC_METHODS", "GENERATOR", "fabric_dataset", "achieved_rel_err", 
 
 log = logging.getLogger(__name__)
 
-FABRIC_METHODS = ("summation", "classic")
+FABRIC_METHODS = ("summation", "classic", "mc")
 #: ``meta.json["model"]["generator"]`` of every dataset written here (``simulate fabric`` uses it
 #: to recognise its own previous output before overwriting it).
 GENERATOR = "simulate fabric"
@@ -107,14 +108,15 @@ def _fiber_photons(info: dict) -> int | None:
 def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
                    target_rel_err: float | None = None, seed: int | None = None,
                    threads: int | None = None, max_photons: int | None = None,
-                   measurable_only: bool = False, progress: bool = False) -> Dataset:
+                   measurable_only: bool = False, progress: bool = False, max_seconds: float = 0.0) -> Dataset:
     """Evaluate the fabric model ``method`` at ``plan``'s geometries and wavelengths.
 
     Parameters
     ----------
     config : SimulationConfig
     plan : gonio.plan.Plan
-    method : {"summation", "classic"}
+    method : {"summation", "classic", "mc"}
+        ``mc``: Monte Carlo ray tracing of the config's woven micro-element (:mod:`simulate.woven`).
     target_rel_err, seed, threads, max_photons
         Override the config's method settings (None: the config's).
     measurable_only : bool
@@ -162,6 +164,26 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
         fiber_info = jsonable(dict(est.info))
         fiber_seconds = float(est.seconds)
         model.update({"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
+    elif method == "mc":
+        from simulate import weave as weave_mod
+        from simulate import woven
+
+        wv = weave_mod.weave_from_config(config)
+        mesh = weave_mod.mesh(wv)
+        w_i = fab.directions_deg(theta_i, phi_i)
+        w_o = fab.directions_deg(theta_o, phi_o)
+        beta, u_beta, mc_info = woven.fabric_beta(
+            mesh, fiber, w_i, w_o, wavelengths, target_rel_err=target, max_rays=max_photons or 0,
+            seed=seed, threads=threads or (os.cpu_count() or 1), progress=progress,
+            max_seconds=max_seconds)
+        n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
+        photons = int(mc_info["table"]["photons"])
+        fiber_seconds = float(mc_info["table"]["seconds"])
+        fiber_info = jsonable(mc_info)
+        model.update({"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
+                                "height_um": wv.height_um, "crimp": wv.crimp},
+                      "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
+                      "estimator": "next-event towards each detector direction"})
     else:
         rho, u_rho = fiber_mod.normal_albedo(fiber, wavelengths, target_rel_err=target, seed=seed,
                                              threads=threads)
