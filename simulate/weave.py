@@ -479,7 +479,7 @@ def preset(name: str, **params: Any) -> Weave:
     """
     if name not in PRESETS:
         raise WeaveError(f"unknown weave preset {name!r}; choose one of {', '.join(PRESETS)}")
-    return Weave(PRESETS[name], **params)
+    return Weave(np.array(PRESETS[name], dtype=np.int8), **params)
 
 
 # ------------------------------------------------------------------------------------------
