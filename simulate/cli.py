@@ -366,6 +366,47 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callab
 }
 
 
+# ------------------------------------------------------------------------------------------
+# simulate weave CONFIG --out MESH.ply|obj [--force]
+#   the triangulated yarn tubes of the config's woven micro-element (simulate.weave); registered
+#   after COMMANDS so that this section stays self-contained
+# ------------------------------------------------------------------------------------------
+
+
+def _weave_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name); its [weave] "
+                                                     "table (default: a plain weave)")
+    p.add_argument("--out", type=Path, required=True, help="mesh file to write, .ply or .obj")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+
+
+def _weave_run(args: argparse.Namespace) -> int:
+    from simulate.config import ConfigError
+    from simulate.weave import WeaveError, mesh, weave_from_config
+
+    out: Path = args.out
+    if out.suffix.lower() not in (".ply", ".obj"):
+        raise _UsageError(f"--out {out}: unknown mesh format {out.suffix or '(no suffix)'!r}; use .ply or .obj")
+    if out.is_dir():
+        raise _UsageError(f"--out {out}: is a directory; give a mesh file name (.ply or .obj)")
+    if out.exists() and not args.force:
+        raise _UsageError(f"--out {out}: file exists; refusing to overwrite it (use --force)")
+    config = _load_config(args.config)
+    try:
+        weave = weave_from_config(config)
+        m = mesh(weave)
+        m.export(out)
+    except (ConfigError, WeaveError) as exc:
+        raise _UsageError(str(exc)) from None
+    print(f"wrote {out} ({len(m.vertices)} vertices, {len(m.faces)} faces; {weave.n_warp} warp x "
+          f"{weave.n_weft} weft yarns, micro-element {m.Lx:g} x {m.Ly:g} um, z {m.z_min:g}..{m.z_max:g} um)")
+    return 0
+
+
+COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave as a PLY/OBJ mesh",
+                     _weave_arguments, _weave_run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
     parser = _Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")

@@ -2,7 +2,7 @@
 
 A config names the fiber (radius, host index, host absorption spectrum = the dye), the
 scattering medium inside it (Mie particles, or a direct Henyey-Greenstein medium for
-validation), the surface roughness, the weave (kept for the fabric Monte Carlo issues), the
+validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.weave`), the
 method settings and the seed. ``simulate fiber`` and ``simulate fabric`` take a config path or
 the name of a shipped preset (``red-cotton``, in :mod:`simulate.configs`).
 
@@ -49,11 +49,16 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     [surface]
     rms_slope = 0.3                    # Beckmann RMS slope m of the fiber surface, > 0
 
-    [weave]                            # optional; used by the woven-fabric issues, types checked only
-    matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular
-    spacing_um = 250                   # > 0
-    width_um = 200                     # > 0
-    height_um = 80                     # > 0
+    [weave]                            # optional: the woven micro-element (simulate.weave)
+    matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular; at most ONE
+    # preset = "twill"                 #   of matrix, preset ("plain" | "twill" | "satin") and
+    # wif = "pattern.wif"              #   wif (a WIF 1.1 file, relative to this file); none: plain
+    spacing_um = 250                   # > 0   (default 300)
+    width_um = 200                     # > 0   (default 250; <= spacing_um, checked by the weave)
+    height_um = 80                     # > 0   (default 100)
+    crimp = 1.0                        # (0, 1] (default 1)
+    points_per_span = 8                # mesh intervals per crossing interval, >= 1 (default 8)
+    sides = 16                         # mesh intervals around the yarn section, >= 3 (default 16)
 
     [method]                           # optional, defaults shown
     method = "nee"                     # fiber route: "nee" | "beam" | "bssrdf"
@@ -426,8 +431,24 @@ def _particles(t: _Table) -> ParticleSpec:
                         number_density_per_um3=nd)
 
 
-def _weave(t: _Table) -> dict:
+def _weave(t: _Table, base_dir: Path) -> dict:
+    """The ``[weave]`` table as a dict of the fields present (``simulate.weave.weave_from_config``
+    fills the defaults and checks the geometry); ``wif`` is stored resolved against ``base_dir``."""
+    from simulate.weave import PRESETS
+
     out: dict = {}
+    given = [key for key in ("matrix", "preset", "wif") if t.has(key)]
+    if len(given) > 1:
+        raise t.fail(given[1], f"cannot be combined with {t.name(given[0])}: give at most one of "
+                               f"matrix, preset and wif")
+    if t.has("preset"):
+        out["preset"] = t.string("preset", choices=tuple(PRESETS))
+    if t.has("wif"):
+        wif = Path(t.string("wif") or "")
+        wif = wif if wif.is_absolute() else base_dir / wif
+        if not wif.is_file():
+            raise t.fail("wif", f"file not found: {wif} (a relative path is taken from the config's folder)")
+        out["wif"] = str(wif)
     if t.has("matrix"):
         m = t.raw("matrix")
         rows_ok = isinstance(m, list) and m and all(isinstance(r, list) and r for r in m)
@@ -438,6 +459,12 @@ def _weave(t: _Table) -> dict:
     for key in ("spacing_um", "width_um", "height_um"):
         if t.has(key):
             out[key] = t.number(key, gt=0.0)
+    if t.has("crimp"):
+        out["crimp"] = t.number("crimp", gt=0.0, le=1.0)
+    if t.has("points_per_span"):
+        out["points_per_span"] = t.integer("points_per_span", 8, ge=1, le=100_000)
+    if t.has("sides"):
+        out["sides"] = t.integer("sides", 16, ge=3, le=100_000)
     t.done()
     return out
 
@@ -522,7 +549,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     surf.done()
 
     weave_t = top.sub("weave")
-    weave = _weave(weave_t) if weave_t is not None else {}
+    weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
     mt = top.sub("method") or _Table({}, "method", file)
     method = mt.string("method", "nee", choices=METHODS)
