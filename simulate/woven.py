@@ -882,6 +882,8 @@ def trace(mesh: Any, material: Lambert | FiberSurface, w_in: Any, detectors: Any
         while True:
             jobs = [(seed, c + r) for r in range(_ROUND)]
             size = int(chunk)
+            if max_rays:   # the last round is cut so the budget is kept exactly
+                size = max(1, min(size, (int(max_rays) - total.rays) // _ROUND))
             if pool is None:
                 parts = [_chunk(setup, w_in, det, size, s) for s in jobs]
             else:

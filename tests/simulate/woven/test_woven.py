@@ -154,6 +154,9 @@ def test_budget_stops_say_which(plain, grey_table):
     r = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=1e-6, max_rays=2048, seed=1,
                 chunk=512)
     assert r.stop == "max_rays" and r.rays == 2048
+    r = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=1e-6, max_rays=3000, seed=1,
+                chunk=512)
+    assert r.stop == "max_rays" and r.rays == 3000
     r = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=0.5, seed=1, chunk=512)
     assert r.stop == "target" and r.rel_err <= 0.5
     with pytest.raises(ValueError, match="above the fabric"):
