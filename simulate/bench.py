@@ -10,7 +10,8 @@ d = 0.02 cm; MCML manual Table 6.1):
 * time vs photons (expected linear: fitted log-log slope ~1);
 * time vs optical thickness ``mu_t d`` at the same albedo and g;
 * the peak resident set size of the process;
-* (not with ``--quick``) the fiber BRDF routes, :mod:`simulate.bench_fiber`.
+* (not with ``--quick``) the fiber BRDF routes, :mod:`simulate.bench_fiber`, and the woven-fabric
+  Monte Carlo, :mod:`simulate.bench_woven`.
 
 Writes ``DIR/bench.json`` and ``DIR/bench.png`` (matplotlib, Agg); :func:`markdown_table`
 formats the headline figures.
@@ -185,6 +186,12 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
 
         report["fiber"] = run_fiber_bench()
         chart(report["fiber"], out / "fiber.png")
+        # the woven-fabric Monte Carlo (simulate.bench_woven): ray engine, red-cotton headline,
+        # where summation and classic depart from it
+        from simulate import bench_woven
+
+        report["woven"] = bench_woven.run_woven_bench()
+        bench_woven.chart(report["woven"], out / "woven.png")
     (out / "bench.json").write_text(json.dumps(report, indent=2))
     _chart(report, out / "bench.png")
     return report

@@ -82,6 +82,7 @@ __all__ = [
     "yarn_table",
     "Lambert",
     "FiberSurface",
+    "FiberBRDFAtHit",
     "MCResult",
     "flat_mesh",
     "straight_yarn_mesh",
@@ -101,6 +102,7 @@ _PEAK_FLOOR = 1e-3
 
 K_LAMBERT = 0
 K_FIBER = 1
+K_FIBER_BRDF = 2
 
 
 # ------------------------------------------------------------------------------------------
@@ -222,6 +224,25 @@ class FiberSurface:
     n_host: float
 
 
+@dataclass(frozen=True)
+class FiberBRDFAtHit:
+    """The original approximation: the fiber BRDF of section 5 applied at the hit point.
+
+    Surface term as :class:`FiberSurface`; the volume term is the fiber BRDF of the cell at the
+    hit point (the table's rows summed over the lit entry cells), so light always leaves where
+    it arrived -- it cannot cross a yarn. Because the cell's BRDF counts light that entered
+    elsewhere on the fiber, its local albedo ``a_s + A`` exceeds 1 towards grazing local
+    incidence (``A ~ 1 / cos_i``); left alone, light re-reflected between yarns then gains energy
+    without bound. Where it exceeds 1 the volume term is scaled down to ``1 - a_s``; the run
+    reports the fraction of hits so clamped and the mean unclamped albedo
+    (``info["local_albedo"]``).
+    """
+
+    table: YarnTable
+    roughness: float
+    n_host: float
+
+
 # ------------------------------------------------------------------------------------------
 # compiled shading
 # ------------------------------------------------------------------------------------------
@@ -324,14 +345,35 @@ def _pick(cdf, u):
     return lo
 
 
+@numba.njit(cache=True)
+def _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl):
+    """Reflected local direction and weight factor of the surface branch (Beckmann sampling;
+    ``m = 0``: the specular Fresnel mirror)."""
+    if m > 0.0:
+        u1 = np.random.random()
+        u2 = np.random.random()
+        tan2 = -(m * m) * math.log(1.0 - u1)
+        ch = 1.0 / math.sqrt(1.0 + tan2)
+        sh = math.sqrt(tan2) * ch
+        ph = 2.0 * math.pi * u2
+        hx, hy, hz = sh * math.cos(ph), sh * math.sin(ph), ch
+        ih = lt * hx + lb * hy + ln * hz
+        ot, ob, on = 2.0 * ih * hx - lt, 2.0 * ih * hy - lb, 2.0 * ih * hz - ln
+        if on > 0.0 and ih > 0.0:
+            g = min(1.0, min(2.0 * ch * on / ih, 2.0 * ch * ln / ih))
+            return ot, ob, on, g * fresnel_unpolarized(ih, 1.0, n_host) * ih / (ln * ch) / p_refl
+        return ot, ob, on, 0.0
+    return -lt, -lb, ln, a_s / p_refl
+
+
 @numba.njit(cache=True, nogil=True)
 def _shade(seed, prim, bu, bv, pos, dirs, weight,
            vertices, faces, normals, tangents, vertex_s, vertex_phi, face_yarn, vertex_base, n_s,
            yarn_length, sides, run_axis,
            kind, rho, m, n_host, albedo_tab,
-           T, cdf, cell_sum, c_bar, tau, nodes, dpsi, n_psi, n_v, n_mu, n_phi, v_edges,
+           T, cdf, cell_sum, c_bar, tau, nodes, dpsi, n_psi, n_v, n_mu, n_phi, v_edges, off_tot, off_bar,
            detectors,
-           out_o, out_d, out_w, nee_o, nee_c, nee_need):
+           out_o, out_d, out_w, nee_o, nee_c, nee_need, hit_albedo):
     """Scatter every hit ray once and prepare its next-event contributions (compiled).
 
     ``out_w`` rows of zeros are dead rays. ``nee_c[i, e, d, :]`` is the intensity per unit
@@ -343,6 +385,7 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
     L = weight.shape[1]
     D = detectors.shape[0]
     n_cells = n_psi * n_v * n_mu * n_phi
+    clampf = np.ones(L)
     for i in range(n):
         f = prim[i]
         ia, ib, ic = faces[f, 0], faces[f, 1], faces[f, 2]
@@ -435,6 +478,36 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
         tr = max(tau[j, kr], 1e-12)
         entry = 1.0 / tr if inside else (1.0 - fresnel_unpolarized(ln, 1.0, n_host)) / tr
         e_bar = entry * esum / wsum / cb if (wsum > 0.0 and cb > 0.0) else 0.0
+        h = n_psi // 2
+        s_bar = 0.0
+        if kind == K_FIBER_BRDF:
+            # the original approximation: the fiber BRDF of the cell at the hit point -- light
+            # entering every lit cell A = B - o (local azimuth a + o dpsi) and leaving here
+            e_bar = 0.0
+            a_max = 0.0
+            a_s0 = _interp(albedo_tab, ln) if m > 0.0 else fresnel_unpolarized(ln, 1.0, n_host)
+            for k in range(L):
+                acc = 0.0
+                for o in range(-h, n_psi - h):
+                    r = kr + o
+                    if r > k_max or r < -k_max:
+                        continue
+                    off = o % n_psi if r >= 0 else (-o) % n_psi
+                    acc += off_tot[j, abs(r), off, k]
+                alb = acc / ln
+                a_max = max(a_max, alb)
+                # energy clamp: where surface + volume would exceed 1, the volume term is scaled
+                # down to 1 - a_s (reported: the fraction of such hits and the unclamped albedo)
+                clampf[k] = min(1.0, max(1.0 - a_s0, 0.0) / alb) if alb > 0.0 else 1.0
+                e_bar += weight[i, k] * alb * clampf[k]
+            e_bar = e_bar / wsum if wsum > 0.0 else 0.0
+            for o in range(-h, n_psi - h):
+                r = kr + o
+                if r > k_max or r < -k_max:
+                    continue
+                off = o % n_psi if r >= 0 else (-o) % n_psi
+                s_bar += off_bar[j, abs(r), off]
+            hit_albedo[i] = a_max + a_s0
         if m > 0.0:
             a_s = _interp(albedo_tab, ln)
         else:
@@ -459,6 +532,95 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
                     nee_need[i, 0, d] = True
                     for k in range(L):
                         nee_c[i, 0, d, k] = weight[i, k] * val
+        if kind == K_FIBER_BRDF:
+            if inside:
+                p_refl = 0.0
+            if s_bar <= 0.0:
+                if np.random.random() < p_refl:
+                    ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
+                    out_d[i, 0] = ot * tx + ob * bx + on * nx
+                    out_d[i, 1] = ot * ty + ob * by + on * ny
+                    out_d[i, 2] = ot * tz + ob * bz + on * nz
+                    for k in range(L):
+                        out_w[i, k] = weight[i, k] * wgt
+                else:
+                    for k in range(L):
+                        out_w[i, k] = 0.0
+                continue
+            # one entry cell o, drawn in proportion to what it sends here
+            u = np.random.random() * s_bar
+            acc = 0.0
+            r_sel = 0
+            off_sel = 0
+            for o in range(-h, n_psi - h):
+                r = kr + o
+                if r > k_max or r < -k_max:
+                    continue
+                off = o % n_psi if r >= 0 else (-o) % n_psi
+                acc += off_bar[j, abs(r), off]
+                r_sel = r
+                off_sel = off
+                if acc > u:
+                    break
+            rr = abs(r_sel)
+            sbe = sb if r_sel >= 0 else -sb
+            p_o = off_bar[j, rr, off_sel] / s_bar
+            seg = n_v * n_mu * n_phi
+            dphi = 2.0 * math.pi / n_phi
+            for q in range(3):
+                nee_o[i, 1, q] = nee_o[i, 0, q]
+            for d in range(D):
+                wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
+                mu = wx * nx + wy * ny + wz * nz
+                if mu <= 0.0 or wx * gx + wy * gy + wz * gz <= 0.0:
+                    continue
+                ph = math.atan2(wx * bx + wy * by + wz * bz, wx * tx + wy * ty + wz * tz)
+                if sx < 0.0:
+                    ph = math.pi - ph
+                if sbe < 0.0:
+                    ph = -ph
+                ph = (ph + math.pi) % (2.0 * math.pi)
+                jm = min(int(mu * n_mu), n_mu - 1)
+                jp = min(int(ph / dphi), n_phi - 1)
+                om = 0.5 * (((jm + 1.0) / n_mu) ** 2 - (jm / n_mu) ** 2) * dphi
+                scale = mu / (om * p_o * ln)
+                nee_need[i, 1, d] = True
+                for k in range(L):
+                    val = 0.0
+                    for iv in range(n_v):
+                        val += T[j, rr, ((off_sel * n_v + iv) * n_mu + jm) * n_phi + jp, k]
+                    nee_c[i, 1, d, k] = weight[i, k] * val * scale * clampf[k]
+            if np.random.random() < p_refl:
+                ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
+                out_d[i, 0] = ot * tx + ob * bx + on * nx
+                out_d[i, 1] = ot * ty + ob * by + on * ny
+                out_d[i, 2] = ot * tz + ob * bz + on * nz
+                for k in range(L):
+                    out_w[i, k] = weight[i, k] * wgt
+                continue
+            c_lo = cdf[j, rr, off_sel * seg - 1] if off_sel > 0 else 0.0
+            c_hi = cdf[j, rr, off_sel * seg + seg - 1]
+            cell = _pick(cdf[j, rr], c_lo + (c_hi - c_lo) * np.random.random())
+            t_cell = cdf[j, rr, cell] - (cdf[j, rr, cell - 1] if cell > 0 else 0.0)
+            iphi = cell % n_phi
+            imu = (cell // n_phi) % n_mu
+            mlo = imu / n_mu
+            mhi = (imu + 1.0) / n_mu
+            mu = math.sqrt(mlo * mlo + (mhi * mhi - mlo * mlo) * np.random.random())
+            ph = -math.pi + (iphi + np.random.random()) * dphi
+            if sbe < 0.0:
+                ph = -ph
+            if sx < 0.0:
+                ph = math.pi - ph
+            st = math.sqrt(max(1.0 - mu * mu, 0.0))
+            ct, sp = st * math.cos(ph), st * math.sin(ph)
+            out_d[i, 0] = ct * tx + sp * bx + mu * nx
+            out_d[i, 1] = ct * ty + sp * by + mu * ny
+            out_d[i, 2] = ct * tz + sp * bz + mu * nz
+            sc = s_bar / (ln * t_cell * (1.0 - p_refl)) if t_cell > 0.0 else 0.0
+            for k in range(L):
+                out_w[i, k] = weight[i, k] * T[j, rr, cell, k] * sc * clampf[k]
+            continue
         # sample an exit (cell offset, v bin, direction bin) from the row
         cell = -1
         if total > 0.0 and cb > 0.0:
@@ -523,24 +685,7 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
                     nee_c[i, 1, d, k] = weight[i, k] * T[j, kr, c2, k] * scale
         # continuation
         if np.random.random() < p_refl:
-            if m > 0.0:
-                u1 = np.random.random()
-                u2 = np.random.random()
-                tan2 = -(m * m) * math.log(1.0 - u1)
-                ch = 1.0 / math.sqrt(1.0 + tan2)
-                sh = math.sqrt(tan2) * ch
-                ph = 2.0 * math.pi * u2
-                hx, hy, hz = sh * math.cos(ph), sh * math.sin(ph), ch
-                ih = lt * hx + lb * hy + ln * hz
-                ot, ob, on = 2.0 * ih * hx - lt, 2.0 * ih * hy - lb, 2.0 * ih * hz - ln
-                if on > 0.0 and ih > 0.0:
-                    g = min(1.0, min(2.0 * ch * on / ih, 2.0 * ch * ln / ih))
-                    wgt = g * fresnel_unpolarized(ih, 1.0, n_host) * ih / (ln * ch) / p_refl
-                else:
-                    wgt = 0.0
-            else:
-                ot, ob, on = -lt, -lb, ln
-                wgt = a_s / p_refl
+            ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
             out_d[i, 0] = ot * tx + ob * bx + on * nx
             out_d[i, 1] = ot * ty + ob * by + on * ny
             out_d[i, 2] = ot * tz + ob * bz + on * nz
@@ -616,6 +761,9 @@ class _Sums:
     lost: int = 0
     killed: int = 0
     embree_rays: int = 0
+    hits: int = 0
+    albedo_sum: float = 0.0
+    albedo_over_one: int = 0
 
     def add(self, o: "_Sums") -> None:
         for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins"):
@@ -624,6 +772,9 @@ class _Sums:
         self.lost += o.lost
         self.killed += o.killed
         self.embree_rays += o.embree_rays
+        self.hits += o.hits
+        self.albedo_sum += o.albedo_sum
+        self.albedo_over_one += o.albedo_over_one
 
 
 def _yarn_radius(mesh: Any) -> float:
@@ -657,10 +808,11 @@ class _Setup:
             z = np.zeros((1, 1, 1, n_wl))
             self.T, self.cdf, self.cell_sum = z, np.ones((1, 1, 1)), np.zeros((1, 1, n_wl))
             self.c_bar, self.tau, self.nodes = np.ones((1, 1)), np.ones((1, 1)), np.zeros(1)
+            self.off_tot, self.off_bar = np.zeros((1, 1, 1, n_wl)), np.zeros((1, 1, 1))
             self.dpsi, self.grid, self.v_edges = 1.0, (1, 1, 1, 1), np.zeros(2)
         else:
             tab = material.table
-            self.kind = K_FIBER
+            self.kind = K_FIBER_BRDF if isinstance(material, FiberBRDFAtHit) else K_FIBER
             self.rho = np.zeros(n_wl)
             self.m = float(material.roughness)
             self.n_host = float(material.n_host)
@@ -677,6 +829,9 @@ class _Setup:
             self.cell_sum = np.ascontiguousarray(tab.T.sum(axis=2))
             self.c_bar = np.ascontiguousarray(tab.c_bar)
             self.tau = np.ascontiguousarray(tab.tau)
+            per_offset = tab.T.reshape(tab.T.shape[0], tab.T.shape[1], tab.n_psi, -1, n_wl).sum(axis=3)
+            self.off_tot = np.ascontiguousarray(per_offset)
+            self.off_bar = np.ascontiguousarray(per_offset.mean(axis=3))
             self.nodes = np.asarray(tab.w_t_nodes, f64)
             self.dpsi = float(tab.dpsi)
             self.grid = (tab.n_psi, tab.n_v, tab.n_mu, tab.n_phi)
@@ -695,6 +850,7 @@ class _Setup:
         nee_o = np.zeros((n, 2, 3))
         nee_c = np.zeros((n, 2, D, L))
         nee_need = np.zeros((n, 2, D), dtype=np.bool_)
+        hit_albedo = np.zeros(n)
         me = self.mesh
         n_psi, n_v, n_mu, n_phi = self.grid
         _shade(seed, prim, u, v, pos, dirs, weight,
@@ -702,8 +858,9 @@ class _Setup:
                me.vertex_base, me.n_s, me.yarn_length, int(me.sides), self.run_axis,
                self.kind, self.rho, self.m, self.n_host, self.albedo,
                self.T, self.cdf, self.cell_sum, self.c_bar, self.tau, self.nodes, self.dpsi, n_psi, n_v, n_mu, n_phi,
-               self.v_edges, detectors, out_o, out_d, out_w, nee_o, nee_c, nee_need)
-        return out_o, out_d, out_w, nee_o, nee_c, nee_need
+               self.v_edges, self.off_tot, self.off_bar, detectors, out_o, out_d, out_w, nee_o, nee_c, nee_need,
+               hit_albedo)
+        return out_o, out_d, out_w, nee_o, nee_c, nee_need, hit_albedo
 
 
 def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...]) -> _Sums:
@@ -744,9 +901,13 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             ray = ray[:0]
             break
         sub = int(rng.integers(0, 2**62))
-        o, d, w, nee_o, nee_c, need = setup.shade(sub, hits.prim[h].astype(np.int64), hits.u[h], hits.v[h],
+        o, d, w, nee_o, nee_c, need, alb = setup.shade(sub, hits.prim[h].astype(np.int64), hits.u[h], hits.v[h],
                                                   hits.position[h], dirs[h], weight[h], detectors)
         hit_ray = ray[h]
+        if setup.kind == K_FIBER_BRDF:
+            sums.hits += int(alb.size)
+            sums.albedo_sum += float(alb.sum())
+            sums.albedo_over_one += int(np.count_nonzero(alb > 1.0))
         idx_i, idx_e, idx_d = np.nonzero(need)
         if idx_i.size:
             vis = scene.visible(nee_o[idx_i, idx_e], detectors[idx_d], stats)
@@ -829,7 +990,7 @@ def flat_mesh(lx: float = 100.0, ly: float = 100.0) -> Any:
         z_min=0.0, z_max=0.0)
 
 
-def trace(mesh: Any, material: Lambert | FiberSurface, w_in: Any, detectors: Any, n_wavelengths: int | None = None,
+def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: Any, detectors: Any, n_wavelengths: int | None = None,
           *, target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
           threads: int = 1, progress: bool = False, bins: tuple[int, int] = (9, 12),
           chunk: int = _CHUNK) -> MCResult:
@@ -839,7 +1000,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface, w_in: Any, detectors: Any
     ----------
     mesh : simulate.weave.WeaveMesh
         The micro-element (or :func:`flat_mesh`).
-    material : Lambert or FiberSurface
+    material : Lambert, FiberSurface or FiberBRDFAtHit
     w_in : (3,) array
         Unit direction towards the source, fabric frame (``z > 0``).
     detectors : (D, 3) array
@@ -862,7 +1023,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface, w_in: Any, detectors: Any
     if w_in[2] <= 0 or np.any(det[:, 2] <= 0):
         raise ValueError("trace: w_in and the detectors must point above the fabric (z > 0)")
     if n_wavelengths is None:
-        n_wavelengths = (material.table.T.shape[-1] if isinstance(material, FiberSurface)
+        n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
                          else int(np.size(material.rho)))
     setup = _Setup(mesh, material, int(n_wavelengths), bins)
     L = setup.n_wl
@@ -922,6 +1083,9 @@ def trace(mesh: Any, material: Lambert | FiberSurface, w_in: Any, detectors: Any
     f_bins = total.bins / n / omega[:, :, None]
     info = {"u_reflected_plus_transmitted": u_energy.tolist(), "lost_rays": total.lost, "killed_at_max_bounces": total.killed, "embree_rays": total.embree_rays,
             "rays_per_second": total.embree_rays / seconds if seconds > 0 else None, "chunk": int(chunk)}
+    if setup.kind == K_FIBER_BRDF:
+        info["local_albedo"] = {"hits": total.hits, "mean_max_over_wavelengths": total.albedo_sum / max(total.hits, 1),
+                                "fraction_above_one": total.albedo_over_one / max(total.hits, 1)}
     log.info("fabric MC: %d rays, %.1f s, rel. err %.3g (%s)", n, seconds, rel, stop)
     return MCResult(np.pi * mean / cos_o, np.pi * u / cos_o, refl, u_refl, trans, u_trans, f_bins, n, seconds,
                     rel, stop, info)

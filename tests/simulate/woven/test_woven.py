@@ -204,3 +204,20 @@ def test_straight_yarn_reproduces_the_fiber_brdf():
     # the table's discretisation (direction bins, azimuth rows, cell-centre sum) adds a bias of
     # up to ~1.5 % (measured with 72 cells and 10 x 24 bins); allowed on top of 3 standard errors
     assert np.all(np.abs(res.beta[:, 0] - beta) < 3 * u + 0.02 * beta), (res.beta[:, 0], beta, u)
+
+
+def test_hit_point_brdf_option_reports_its_energy_balance(plain, white_table):
+    """The original approximation (fiber BRDF at the hit point) cannot send light out of a yarn's
+    far side: with a non-absorbing fiber it loses energy where the BSSRDF transport conserves it,
+    and it says how often its local albedo exceeded 1."""
+    mesh = weave.mesh(plain)
+    kw = dict(target_rel_err=0.02, max_rays=8192, seed=12, chunk=1024)
+    exits = W.trace(mesh, W.FiberSurface(white_table, 0.35, 1.5), _dirs(20)[0], _dirs([0, 40]), **kw)
+    at_hit = W.trace(mesh, W.FiberBRDFAtHit(white_table, 0.35, 1.5), _dirs(20)[0], _dirs([0, 40]), **kw)
+    assert "local_albedo" not in exits.info
+    alb = at_hit.info["local_albedo"]
+    assert alb["hits"] > 4000 and 0.0 < alb["fraction_above_one"] < 0.5
+    lost = 1.0 - (at_hit.reflected[0] + at_hit.transmitted[0])
+    assert lost > 10 * at_hit.info["u_reflected_plus_transmitted"][0]
+    assert at_hit.transmitted[0] < exits.transmitted[0]
+    assert np.all(np.isfinite(at_hit.beta)) and np.all(at_hit.beta > 0)
