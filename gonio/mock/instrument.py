@@ -26,7 +26,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-from gonio import protocol as P
+from gonio.instrument import links as LK
 from gonio.mock.faults import FaultInjector
 from gonio.mock.head import PhotometerHead
 from gonio.mock.motion import INTEGRATION_FACTORS, SPEED_FACTORS, ModbusFrontend, MotionController
@@ -260,7 +260,7 @@ class MockInstrument:
             self._bridge = PtyBridge().start()
             path = self._bridge.server_path
             server = ModbusSerialServer(device, framer=FramerType.RTU, port=path,
-                                        **P.rtu_serial_settings(path), ignore_missing_devices=True)
+                                        **LK.rtu_serial_settings(path), ignore_missing_devices=True)
             await server.serve_forever(background=True)
             self.modbus_url = f"rtu://{self._bridge.client_path}"
         self._closers.append(server.shutdown)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gonio.calibration import load_white_standard
+from gonio.acquisition.calibration import load_white_standard
 from gonio.data import read_dataset
-from gonio.journal import read_journal
-from gonio.plan import load_plan
+from gonio.acquisition.journal import read_journal
+from gonio.acquisition.plan import load_plan
 from gonio.mock import MockInstrument
 
 WAVELENGTHS = (400, 450, 500, 550, 600, 650, 700, 750)

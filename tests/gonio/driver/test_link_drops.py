@@ -13,11 +13,11 @@ import logging
 
 import pytest
 
-from gonio import protocol as P
-from gonio.devices import AxisFaultError, MotionController, RetryPolicy
+from gonio import instrument as P
+from gonio.instrument import AxisFaultError, MotionController, RetryPolicy
 from gonio.mock import MockInstrument
 from gonio.mock.motion import AxisState as MockAxis
-from gonio.transport import LinkLost, ModbusTransport
+from gonio.instrument.transport import LinkLost, ModbusTransport
 
 SEED = 21
 
@@ -54,7 +54,7 @@ def test_drop_at_session_start_and_during_homing(drv, tmp_path, caplog, n, execu
     one reconnection, no other retry (an executed HOME_ALL is not sent again, so no busy
     refusal and no second homing), and the data of a clean session."""
     plan = _plan(drv, tmp_path)
-    with caplog.at_level(logging.INFO, logger="gonio.devices"), \
+    with caplog.at_level(logging.INFO, logger="gonio.instrument"), \
             MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED,
                            faults=f"modbus_drop=@{n}") as mock:
         mock.frontend.drop_executed = executed
@@ -127,7 +127,7 @@ def _motion(mock, match, executed, on_drop=None):
 def test_dropped_move_resent_only_when_not_executed(mock, caplog, executed):
     motion, link, retry = _motion(mock, _is_move(1), executed)
     motion.home()
-    with caplog.at_level(logging.INFO, logger="gonio.devices"):
+    with caplog.at_level(logging.INFO, logger="gonio.instrument"):
         motion.move_to((0, 30, 0, 0), 60)
     moves = [r for r in link.sent if _is_move(1)(r)]
     assert link.fired and len(moves) == 1          # executed: not re-sent; else: sent once more

@@ -8,7 +8,7 @@ import pytest
 import serial
 from umodbus import exceptions as ux
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument, parse_faults, FaultSpecError
 from gonio.mock.faults import FaultInjector
 

@@ -7,7 +7,7 @@ import minimalmodbus
 import pytest
 from umodbus import exceptions as ux
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument
 
 

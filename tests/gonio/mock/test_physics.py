@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument, reference_beta
 from gonio.mock import physics
 from gonio.mock.samples import RedCottonSample, make_sample, SampleError

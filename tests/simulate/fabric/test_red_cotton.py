@@ -123,7 +123,7 @@ def test_classic_albedo_at_most_one_up_to_grazing(red_cotton, rho_quick):
 
 def test_real_summation_dataset_small_plan(red_cotton, tmp_path):
     from gonio.data.dataset import read_dataset, write_dataset
-    from gonio.plan import parse_plan
+    from gonio.acquisition.plan import parse_plan
     from simulate.virtual import fabric_dataset
 
     cfg, _ = red_cotton

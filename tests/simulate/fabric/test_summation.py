@@ -100,7 +100,7 @@ def test_canonical_pairs_keep_values_and_land_in_the_quarter():
 
 
 def test_table_route_dedupes_and_equals_the_direct_sum():
-    from gonio.plan import load_plan
+    from gonio.acquisition.plan import load_plan
 
     plan = load_plan("red-cotton")
     g = plan.geometries()
