@@ -23,14 +23,13 @@ SEED = 21
 
 # the mock's Modbus fault opportunities at the start of a session, in order (fixed: no polling
 # before): firmware, status, owner read and claim, lamp coil, shutter coil, sample slot, enable,
-# HOME_ALL, first homing poll. pymodbus' simulator runs the action twice for a coil write (fc 5),
-# so each coil write is two opportunities (the dropped request is asserted below, so a change
-# shows at once).
+# HOME_ALL, first homing poll. Every request is one opportunity, a coil write (fc 5) included
+# (the dropped request is asserted below, so a change shows at once).
 START = [(4, P.IR_FIRMWARE), (4, P.IR_STATUS), (3, P.HR_OWNER), (16, P.HR_OWNER),
-         (5, P.COIL_LAMP), (5, P.COIL_LAMP), (5, P.COIL_SHUTTER), (5, P.COIL_SHUTTER),
+         (5, P.COIL_LAMP), (5, P.COIL_SHUTTER),
          (16, P.HR_SAMPLE_SLOT), (16, P.HR_CONTROL), (16, P.HR_CONTROL),
          (4, P.axis_actual_address(0))]
-ENABLE, HOME_ALL, HOMING_POLL = 10, 11, 12
+ENABLE, HOME_ALL, HOMING_POLL = 8, 9, 10
 
 
 def _plan(drv, tmp_path):

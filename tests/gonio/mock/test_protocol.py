@@ -222,7 +222,8 @@ def test_docstring_examples_run():
     import doctest
 
     import gonio.mock.faults
+    from gonio.instrument import head_commands, head_framing, links, modbus_map
 
-    for module in (P, gonio.mock.faults):
+    for module in (modbus_map, head_framing, links, gonio.mock.faults):
         result = doctest.testmod(module)
         assert result.failed == 0 and result.attempted > 0
