@@ -13,6 +13,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from gonio.acquisition.plan import Plan
 from gonio.acquisition.record import load_transcript
@@ -33,7 +34,8 @@ class _TimedLink:
         self.waited = 0.0
         self.count = 0
 
-    def exchange(self, request, **kw):
+    def exchange(self, request: Any, timeout_s: float | None = None) -> Any:
+        kw = {} if timeout_s is None else {"timeout_s": timeout_s}
         t = time.perf_counter()
         try:
             return self.inner.exchange(request, **kw)

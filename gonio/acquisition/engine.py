@@ -296,7 +296,7 @@ class Engine:
         """Every journaled point is a measurable point of the plan (same axes, the plan's
         wavelengths): the journal is not trusted blindly (an edited or foreign point would be
         merged into the dataset and counted as done)."""
-        points = {p.key: p for p in self.check.ordered}
+        points: dict[tuple[float, ...], PlanPoint] = {p.key: p for p in self.check.ordered}
         wavelengths = set(map(float, self.plan.wavelengths_nm))
         for line, r in enumerate(self.records, start=1):
             if r["type"] != "point":

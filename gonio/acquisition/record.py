@@ -172,7 +172,9 @@ class RecordingTransport:
             raise
         return result
 
-    def exchange(self, request, **kw):
+    def exchange(self, request: Any, timeout_s: float | None = None) -> Any:
+        # a per-command timeout exists on the line transport only (a long READ?)
+        kw = {} if timeout_s is None else {"timeout_s": timeout_s}
         out = self._do(_encode(self.channel, request), lambda: self.inner.exchange(request, **kw))
         self.writer.write(self.channel, "rx", _encode(self.channel, out))
         return out
@@ -316,7 +318,7 @@ class ReplayTransport:
             if resp.get("error") == "link_lost":
                 raise LinkLost(self.channel, resp.get("message", "link lost (recorded)"))
 
-    def exchange(self, request, **kw):
+    def exchange(self, request: Any, timeout_s: float | None = None) -> Any:
         self._last_request = request if isinstance(request, dict) else {}
         resp = self.transcript.answer(self.channel, _encode(self.channel, request))
         if self.channel == "serial":

@@ -72,7 +72,8 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
     """
     cals = {r["id"]: r for r in records if r["type"] == "calibration"}
     start = next(r for r in records if r["type"] == "start")
-    seen, cols = set(), {k: [] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm",
+    seen: set[tuple[float, ...]] = set()
+    cols: dict[str, list] = {k: [] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm",
                                          "S", "uS", "D", "uD", "t", "G", "Sr", "uSr", "Dr",
                                          "uDr", "tr", "Gr", "n", "to_ref")}
     saturated = []

@@ -52,7 +52,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 __all__ = [
     "FIRMWARE_VERSION", "Axis", "AXES", "N_AXES", "HOME_POSITIONS_MDEG", "IN_POSITION_TOLERANCE_MDEG",
@@ -110,22 +110,25 @@ AXIS_BLOCK_STRIDE = 20
 
 # --- bit fields and codes ---------------------------------------------------------------------
 
-class Control(enum.IntFlag):
-    """CONTROL holding register bits (bits 1..3 are commands, cleared by the controller)."""
+# One line a code table: the wire values are the contract (docs/instrument.md lists them).
 
-    ENABLE = 0x1
-    HOME_ALL = 0x2
-    STOP_ALL = 0x4
-    RESET_FAULT = 0x8
-
-
-class ControllerStatus(enum.IntFlag):
-    """CONTROLLER STATUS input register bits."""
-
-    READY = 0x1          # drives enabled, every axis homed, no fault, nothing homing
-    INTERLOCK_OPEN = 0x2
-    EMERGENCY_STOP = 0x4
-    ANY_FAULT = 0x8
+#: CONTROL holding register bits (bits 1..3 are commands, cleared by the controller).
+Control = enum.IntFlag("Control", {"ENABLE": 0x1, "HOME_ALL": 0x2, "STOP_ALL": 0x4, "RESET_FAULT": 0x8})
+#: CONTROLLER STATUS input register bits (READY: drives enabled, every axis homed, no fault,
+#: nothing homing).
+ControllerStatus = enum.IntFlag("ControllerStatus", {"READY": 0x1, "INTERLOCK_OPEN": 0x2,
+                                                     "EMERGENCY_STOP": 0x4, "ANY_FAULT": 0x8})
+#: Axis FAULT codes.
+AxisFault = enum.IntEnum("AxisFault", {"NONE": 0, "FOLLOWING_ERROR": 1, "LIMIT": 2, "NOT_HOMED": 3,
+                                       "BEAM_BLOCK": 4})
+#: Axis COMMAND register values (the register reads back the last command).
+AxisCommand = enum.IntEnum("AxisCommand", {"NONE": 0, "MOVE": 1, "HOME": 2, "STOP": 3})
+#: SAMPLE_SLOT holding register (sample changer): what sits in the beam.
+SampleSlot = enum.IntEnum("SampleSlot", {"SAMPLE": 0, "WHITE_REFERENCE": 1})
+#: Modbus exception codes used by the controller.
+ModbusException = enum.IntEnum("ModbusException", {"ILLEGAL_FUNCTION": 1, "ILLEGAL_ADDRESS": 2,
+                                                   "ILLEGAL_VALUE": 3, "DEVICE_FAILURE": 4,
+                                                   "DEVICE_BUSY": 6})
 
 
 class AxisStatus(enum.IntFlag):
@@ -137,42 +140,6 @@ class AxisStatus(enum.IntFlag):
     FAULT = 0x8
     PLUS_LIMIT = 0x10    # actual position at (or beyond) the upper soft limit
     MINUS_LIMIT = 0x20   # actual position at (or beyond) the lower soft limit
-
-
-class AxisFault(enum.IntEnum):
-    """Axis FAULT codes."""
-
-    NONE = 0
-    FOLLOWING_ERROR = 1
-    LIMIT = 2
-    NOT_HOMED = 3
-    BEAM_BLOCK = 4
-
-
-class AxisCommand(enum.IntEnum):
-    """Axis COMMAND register values (the register reads back the last command)."""
-
-    NONE = 0
-    MOVE = 1
-    HOME = 2
-    STOP = 3
-
-
-class SampleSlot(enum.IntEnum):
-    """SAMPLE_SLOT holding register (sample changer): what sits in the beam."""
-
-    SAMPLE = 0
-    WHITE_REFERENCE = 1
-
-
-class ModbusException(enum.IntEnum):
-    """Modbus exception codes used by the controller."""
-
-    ILLEGAL_FUNCTION = 1
-    ILLEGAL_ADDRESS = 2
-    ILLEGAL_VALUE = 3
-    DEVICE_FAILURE = 4
-    DEVICE_BUSY = 6
 
 
 def exception_name(code: int) -> str:
@@ -340,7 +307,7 @@ class Register:
     access: str
     doc: str
     per_axis: bool = False
-    kind: type | None = None
+    kind: Callable[[int], Any] | None = None
     validator: Validator | None = None
 
     def __post_init__(self) -> None:
@@ -476,21 +443,16 @@ def register_blocks(table: str) -> tuple[tuple[int, int], ...]:
 
 # Addresses by their conventional names, derived from the table (the mock, tests and tools
 # address registers directly; the driver goes through the descriptors).
-HR_CONTROL = MODBUS_MAP["CONTROL"].address
-HR_SAMPLE_SLOT = MODBUS_MAP["SAMPLE_SLOT"].address
-HR_OWNER = MODBUS_MAP["OWNER"].address
-IR_STATUS = MODBUS_MAP["STATUS"].address
-IR_FIRMWARE = MODBUS_MAP["FIRMWARE"].address
-COIL_LAMP = MODBUS_MAP["LAMP"].address
-COIL_SHUTTER = MODBUS_MAP["SHUTTER"].address
+HR_CONTROL, HR_SAMPLE_SLOT, HR_OWNER = (MODBUS_MAP[n].address for n in ("CONTROL", "SAMPLE_SLOT", "OWNER"))
+IR_STATUS, IR_FIRMWARE = (MODBUS_MAP[n].address for n in ("STATUS", "FIRMWARE"))
+COIL_LAMP, COIL_SHUTTER = (MODBUS_MAP[n].address for n in ("LAMP", "SHUTTER"))
 N_COILS = sum(1 for r in MODBUS_MAP.values() if r.table == COIL)
 HOLDING_REGISTER_RANGES = register_blocks(HOLDING)
 """(start, count) of every defined holding register block; other addresses answer exception 2."""
 INPUT_REGISTER_RANGES = register_blocks(INPUT)
 """(start, count) of every defined input register block; other addresses answer exception 2."""
-axis_target_address = MODBUS_MAP["TARGET"].address_of
-axis_velocity_address = MODBUS_MAP["VELOCITY"].address_of
-axis_command_address = MODBUS_MAP["COMMAND"].address_of
-axis_actual_address = MODBUS_MAP["ACTUAL"].address_of
-axis_status_address = MODBUS_MAP["AXIS_STATUS"].address_of
-axis_fault_address = MODBUS_MAP["FAULT"].address_of
+# the absolute address of a per-axis row for axis ``a``: ``axis_target_address(a)``
+axis_target_address, axis_velocity_address, axis_command_address = (
+    MODBUS_MAP[n].address_of for n in ("TARGET", "VELOCITY", "COMMAND"))
+axis_actual_address, axis_status_address, axis_fault_address = (
+    MODBUS_MAP[n].address_of for n in ("ACTUAL", "AXIS_STATUS", "FAULT"))

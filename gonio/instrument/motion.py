@@ -32,6 +32,7 @@ reset only :data:`RECOVERABLE_FAULTS` (anything else raises: the engine stops sa
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import time
@@ -84,19 +85,12 @@ class MotionController(ModbusDevice):
 
     name = "motion controller"
 
-    control = HoldingRegister("CONTROL")
-    sample_slot = HoldingRegister("SAMPLE_SLOT")
-    owner = HoldingRegister("OWNER")
-    target_mdeg = HoldingRegister("TARGET")
-    velocity_cdeg_s = HoldingRegister("VELOCITY")
-    axis_command = HoldingRegister("COMMAND")
-    controller_status = InputRegister("STATUS")
-    firmware_word = InputRegister("FIRMWARE")
-    actual_mdeg = InputRegister("ACTUAL")
-    axis_status = InputRegister("AXIS_STATUS")
-    axis_fault = InputRegister("FAULT")
-    lamp = Coil("LAMP")
-    shutter = Coil("SHUTTER")
+    # the register map, one attribute per row (per-axis rows index by axis: target_mdeg[2])
+    control, sample_slot, owner = HoldingRegister.rows("CONTROL", "SAMPLE_SLOT", "OWNER")
+    target_mdeg, velocity_cdeg_s, axis_command = HoldingRegister.rows("TARGET", "VELOCITY", "COMMAND")
+    controller_status, firmware_word = InputRegister.rows("STATUS", "FIRMWARE")
+    actual_mdeg, axis_status, axis_fault = InputRegister.rows("ACTUAL", "AXIS_STATUS", "FAULT")
+    lamp, shutter = Coil.rows("LAMP", "SHUTTER")
 
     def __init__(self, transport: RequestTransport, retry: RetryPolicy | None = None, *,
                  poll_s: float = 0.001, move_timeout_s: float = 120.0, busy_timeout_s: float = 30.0):
@@ -298,7 +292,7 @@ class MotionController(ModbusDevice):
             try:
                 self.write_rows(dict(zip(_AXIS_MOVE, (mdeg, v, AxisCommand.MOVE))), a,
                                 f"{what}: axis {a}",
-                                took_effect=lambda a=a, mdeg=mdeg: self._move_taken(a, mdeg, v, what))
+                                took_effect=functools.partial(self._move_taken, a, mdeg, v, what))
             except DeviceError as exc:
                 if exc.code != ModbusException.DEVICE_FAILURE:
                     raise

@@ -183,6 +183,11 @@ class _RegisterControl:
     def __set_name__(self, owner, name: str) -> None:
         self.attr = name
 
+    @classmethod
+    def rows(cls, *registers: str) -> tuple["_RegisterControl", ...]:
+        """One descriptor per named row, to unpack into class attributes."""
+        return tuple(cls(r) for r in registers)
+
     def read(self, device: ModbusDevice, axis: int | None):
         where = f" of axis {axis}" if axis is not None else ""
         return device.read_rows((self.register.name,), axis, f"read {self.attr}{where}")[self.register.name]

@@ -229,17 +229,25 @@ def channel_of_wavelength(wavelength_nm) -> np.ndarray:
     return np.where(wl < RGB_BAND_EDGES_NM[0], "B", np.where(wl < RGB_BAND_EDGES_NM[1], "G", "R"))
 
 
+def _load_truth(path: str | Path, reader):
+    """A sample's truth read from ``path`` by ``reader``; a bad file is a :class:`SampleError`
+    naming ``path`` as the user gave it."""
+    from gonio.data import DatasetError
+
+    try:
+        return reader(Path(path))
+    except DatasetError as exc:
+        raise SampleError(f"sample {path}: {exc}") from None
+
+
 class DatasetSample:
     """A sample whose truth is a radiance-coefficient dataset directory (interpolated)."""
 
     def __init__(self, path: str | Path):
-        from gonio.data import DatasetError, read_dataset
+        from gonio.data import read_dataset
 
         self.path = Path(path)
-        try:
-            self.dataset = read_dataset(self.path)
-        except DatasetError as exc:
-            raise SampleError(f"sample {path}: {exc}") from None
+        self.dataset = _load_truth(path, read_dataset)
         if self.dataset.is_rgb and not set("RGB") <= set(self.dataset.channels):
             raise SampleError(f"sample {path}: the dataset has channels "
                               f"{''.join(self.dataset.channels)}; the mock needs R, G and B")
@@ -258,14 +266,10 @@ class BSDFSample:
     """A sample whose truth is an RGL ``.bsdf`` file, evaluated at the geometry asked for."""
 
     def __init__(self, path: str | Path):
-        from gonio.data import DatasetError
         from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
 
         self.path = Path(path)
-        try:
-            self.bsdf = read_rgl_bsdf(self.path)
-        except DatasetError as exc:
-            raise SampleError(f"sample {path}: {exc}") from None
+        self.bsdf = _load_truth(path, read_rgl_bsdf)
         self.name = self.path.stem
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:

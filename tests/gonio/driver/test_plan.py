@@ -7,7 +7,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gonio import instrument as P
 from gonio.data import geometry as G
 from gonio.cli import main
 from gonio.acquisition.plan import PlanError, load_plan, parse_plan, preset_names

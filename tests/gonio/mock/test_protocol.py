@@ -222,7 +222,7 @@ def test_docstring_examples_run():
     import doctest
 
     import gonio.mock.faults
-    from gonio.instrument import head_commands, head_framing, links, modbus_map
+    from gonio.instrument import head_framing, links, modbus_map
 
     for module in (modbus_map, head_framing, links, gonio.mock.faults):
         result = doctest.testmod(module)
