@@ -3,7 +3,7 @@
 The detector sees the whole illuminated spot, so its signal is proportional to
 ``beta * cos(theta_o)``. With signal ``S`` and dark ``D`` (shutter closed) at integration time
 ``t`` and gain factor ``G``, and the white standard (calibrated radiance factor
-``beta_ref(lambda)``) measured at the reference geometry (INSTRUMENT.md, "Measurement equation"):
+``beta_ref(lambda)``) measured at the reference geometry (docs/instrument.md, "Measurement equation"):
 
 .. math::
 

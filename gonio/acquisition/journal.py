@@ -1,6 +1,7 @@
 """The acquisition journal: an append-only JSON Lines checkpoint, fsynced per record.
 
-The engine (:mod:`gonio.engine`) appends one record per event and calls ``fsync`` before it
+The engine (:mod:`gonio.acquisition.engine`) emits one record per event to the journal writer
+(:class:`gonio.acquisition.subscribers.JournalWriter`), which appends it and calls ``fsync`` before it
 starts the next point, so after a crash (even ``SIGKILL`` or a power cut) the journal holds every
 point that was measured, plus at most one torn last line. Records (one JSON object a line):
 
@@ -15,9 +16,9 @@ point that was measured, plus at most one torn last line. Records (one JSON obje
 ``event``        ``{"type": "event", "what": str, ...}`` - resume, retries, safe stop, completion
 
 ``retries`` (optional: journals written before it existed lack it) is the session's cumulative
-retry counter at that checkpoint, ``{kind: count}`` (:data:`gonio.devices.RETRY_KINDS`), so the
+retry counter at that checkpoint, ``{kind: count}`` (:data:`gonio.instrument.retry.RETRY_KINDS`), so the
 counts of a session killed before its ``session_end`` event are not lost
-(:func:`gonio.engine.retry_totals`).
+(:func:`gonio.acquisition.reduce.retry_totals`).
 
 A *reading* is ``{"wavelength_nm", "itime_ms", "gain", "mean", "sem", "n", "ranging"}`` (raw
 counts; the radiance factor is computed from the journal when the dataset is written, so a

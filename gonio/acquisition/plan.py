@@ -1,10 +1,10 @@
 """Acquisition plans: what to measure, read from TOML (``tomllib``).
 
 A plan is data (bluesky habit): the sample, the wavelengths, the geometries and the acquisition
-policy. The engine (:mod:`gonio.engine`) executes it; ``simulate`` evaluates its models at the
+policy. The engine (:mod:`gonio.acquisition.engine`) executes it; ``simulate`` evaluates its models at the
 same geometries through :meth:`Plan.geometries`.
 
-Geometry (PHYSICS.md section 1, INSTRUMENT.md axes)
+Geometry (docs/physics.md section 1, docs/instrument.md axes)
 ---------------------------------------------------
 The four axes are source zenith ``a0 = theta_i``, signed detector zenith ``s`` (+ = mirror side),
 detector-plane azimuth ``p`` from the plane of incidence, and sample rotation ``a3``, whose

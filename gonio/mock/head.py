@@ -1,4 +1,4 @@
-"""Mock spectro-photometer head: the ASCII command set of :mod:`gonio.protocol` and its physics.
+"""Mock spectro-photometer head: the ASCII command set of :mod:`gonio.instrument.head_commands` and its physics.
 
 :class:`PhotometerHead` turns one command line into one reply (or none, under an injected
 fault). It reads the geometry, lamp, shutter and sample slot from the shared

@@ -8,8 +8,8 @@ The state is evaluated lazily from a monotonic clock: a move started at ``t0`` f
 
 with a settling overshoot ``o`` of up to 20 mdeg in the direction of motion; afterwards
 ``x = x1`` exactly and the axis is in position (``|x - target| <= 5 mdeg``). Homing takes
-:data:`HOMING_TIME_S` and ends at :data:`gonio.protocol.HOME_POSITIONS_MDEG`. The rules of
-:mod:`gonio.protocol` (not homed -> fault 3, soft limits -> exception 3, beam block -> fault 4 +
+:data:`HOMING_TIME_S` and ends at :data:`gonio.instrument.modbus_map.HOME_POSITIONS_MDEG`. The rules of
+:mod:`gonio.instrument.modbus_map` (not homed -> fault 3, soft limits -> exception 3, beam block -> fault 4 +
 exception 3, busy while homing -> exception 6, faulted axis -> exception 4, drives disabled ->
 exception 3) are enforced in :meth:`MotionController.write_holding`.
 

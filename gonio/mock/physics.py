@@ -1,6 +1,6 @@
 """Forward measurement model of the mock photometer head: counts from the sample's truth.
 
-The measurement equation of INSTRUMENT.md run forwards. For integration time ``t`` (ms), gain
+The measurement equation of docs/instrument.md run forwards. For integration time ``t`` (ms), gain
 factor ``G`` (1, 4, 16, 64), wavelength ``lambda`` and the radiance coefficient ``f`` of what sits
 in the beam at ``(w_i, w_o)``::
 
@@ -22,7 +22,7 @@ reproduces an uninterrupted one exactly.
 
 References
 ----------
-CIE 15:2004 (illuminant A, Planck's law with c2 = 1.4388e-2 m K); INSTRUMENT.md.
+CIE 15:2004 (illuminant A, Planck's law with c2 = 1.4388e-2 m K); docs/instrument.md.
 """
 
 from __future__ import annotations

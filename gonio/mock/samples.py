@@ -1,7 +1,7 @@
 """Virtual samples of the mock goniophotometer: the "truth" an acquisition should recover.
 
 Every sample exposes ``beta(theta_i, phi_i, theta_o, phi_o, wavelength_nm)``, the radiance
-coefficient (radiance factor, ``beta = pi f_r``) in the fabric frame of PHYSICS.md section 1
+coefficient (radiance factor, ``beta = pi f_r``) in the fabric frame of docs/physics.md section 1
 (angles in degrees, z = fabric normal, x = warp, directions pointing away from the surface),
 vectorised over broadcastable numpy arrays.
 
@@ -33,7 +33,7 @@ Samples
     transparent above ~620 nm), the absorption edge a logistic of 10-90 % width 31 nm. The three
     free numbers ``r_b``, the edge position and its width were fitted once so that the colour
     at the report's colour geometry (normal incidence, ``theta_o = 10 deg``, gloss included)
-    matches the published measurement of red cotton (PHYSICS.md section 8, linear sRGB, D65,
+    matches the published measurement of red cotton (docs/physics.md section 8, linear sRGB, D65,
     CIE 1931 2 deg): H 0.988, S 0.989, V 0.80, BLUE/RED 0.080, GREEN/RED 0.011 (pinned by
     ``tests/gonio/mock/test_physics.py``). ``beta_s`` is the Ward anisotropic specular lobe
     (``pi`` times the Ward BRDF) of the fibre surfaces, spectrally neutral, wider across the

@@ -1,5 +1,5 @@
 """The mock motion controller speaks real Modbus: independent clients (umodbus over TCP,
-minimalmodbus over the RTU pseudo-terminal) and the controller rules of INSTRUMENT.md."""
+minimalmodbus over the RTU pseudo-terminal) and the controller rules of docs/instrument.md."""
 
 import time
 

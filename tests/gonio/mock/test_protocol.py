@@ -1,4 +1,4 @@
-"""gonio.protocol: register map helpers, geometry, command table, framing and the parser."""
+"""gonio.instrument tables: register map helpers, geometry, command table, framing and the parser."""
 
 import math
 

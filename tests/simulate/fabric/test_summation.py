@@ -1,7 +1,7 @@
 """Summation over warp and weft, sample rotation, symmetry reduction, and the classic model.
 
 A fake fiber BRDF with a known analytic form (conftest) makes every frame mapping checkable
-exactly: the expected values are written out by hand from PHYSICS.md section 6.
+exactly: the expected values are written out by hand from docs/physics.md section 6.
 """
 
 from __future__ import annotations
