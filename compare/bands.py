@@ -9,7 +9,7 @@ is first put into the measurement's channels:
   space: spectrum -> CIE XYZ (CIE 1931 2-degree observer, the comparison's illuminant, D65 by
   default, ``Y = 1`` for the ideal white diffuser) -> the space's linear RGB, adapting the
   illuminant's white to the space's (Bradford); ``Y`` is the CIE ``Y`` itself. This is
-  :func:`gonio.data.colour.spectrum_to_rgb`, the pipeline of the colour match (PHYSICS.md
+  :func:`gonio.data.colour.spectrum_to_rgb`, the pipeline of the colour match (docs/physics.md
   section 7). The conversion is linear in the spectrum, so it is a matrix ``M`` (channels x
   wavelengths) built once per wavelength grid from the unit spectra, ``RGB = M beta`` and
   ``u_RGB = sqrt(M^2 u_beta^2)`` (wavelengths independent). Only geometries whose spectrum is

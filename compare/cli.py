@@ -1,4 +1,4 @@
-"""``compare`` command line: ``compare report`` and ``compare check`` (ARCHITECTURE.md).
+"""``compare`` command line: ``compare report`` and ``compare check`` (docs/architecture.md).
 
 ::
 
@@ -13,7 +13,7 @@ as ``gonio acquire`` writes for a stopped run), printing how many of the planned
 missing, unless ``--allow-incomplete``; ``report`` shows such data with a banner. Comparing a
 dataset with itself (same directory or same ``radiance.csv`` content) is warned about on stderr.
 
-``check`` thresholds (defaults chosen from the reference results of PHYSICS.md section 8: the
+``check`` thresholds (defaults chosen from the reference results of docs/physics.md section 8: the
 published model hues lie within 0.01 of the measured one, saturations within 0.01):
 
 - ``--max-nrmse`` 0.10: overall NRMSE of the normalised curves (RMSE / mean measured beta);

@@ -1,4 +1,4 @@
-r"""Colour match of measured and simulated spectra at one geometry (PHYSICS.md sections 7-8).
+r"""Colour match of measured and simulated spectra at one geometry (docs/physics.md sections 7-8).
 
 Colour is computed by :func:`gonio.data.colour.spectrum_colour` (CIE 1931 2-degree observer,
 illuminant D65 unless set, LINEAR sRGB, HSV and the ratios BLUE/RED and GREEN/RED), at the

@@ -12,7 +12,7 @@
 4. curve errors per incidence angle and overall (:mod:`compare.metrics`);
 5. the colour match at the geometry closest to normal/normal (:mod:`compare.colourmatch`).
 
-:meth:`Comparison.metrics` gives the ``metrics.json`` document (the contract of ARCHITECTURE.md /
+:meth:`Comparison.metrics` gives the ``metrics.json`` document (the contract of docs/architecture.md /
 the issue)::
 
     {"normalisation": {"method": str,

@@ -3,7 +3,7 @@
 Draws the in-plane curves (``beta / pi`` against the signed observation angle, one panel per
 incidence; per channel for RGB data, at a few wavelengths for spectra), a colour strip per
 incidence (the colour at each observation angle, gamma-encoded for display only) and writes the
-colour table (HSV and channel ratios on linear sRGB, PHYSICS.md section 7) into ``report.html``
+colour table (HSV and channel ratios on linear sRGB, docs/physics.md section 7) into ``report.html``
 and ``metrics.json``. A relative dataset's V (absolute brightness) is not stated.
 """
 

@@ -1,4 +1,4 @@
-r"""Normalisation of a simulation at the normal direction (PHYSICS.md section 8).
+r"""Normalisation of a simulation at the normal direction (docs/physics.md section 8).
 
 Simulated values :math:`C` are proportional to the radiance coefficient. They are scaled, per
 wavelength (per channel when the measurement is RGB: :mod:`compare.bands`; a relative measurement
@@ -40,7 +40,7 @@ Points from several sample rotations (``phi_i`` planes) at normal incidence are 
 tend to the same normal/normal value. If the dataset holds the normal/normal geometry itself
 (``theta_i = theta_o = 0``), that value is used as it is (averaged over rotations; ``u`` from its
 ``u_beta``). A normal value that is zero, negative or not finite is refused: a factor cannot be
-built on it (QUALITY.md B).
+built on it (docs/quality.md B).
 """
 
 from __future__ import annotations

@@ -18,42 +18,40 @@ beam-block zone (all listed); 2 invalid plan.
 ``mock``: see ``gonio mock --help``.
 
 A user error prints one line on stderr (``gonio <command>: ...``), never a traceback.
+
+This module only parses arguments and prints; the work is done by the library:
+:func:`gonio.acquisition.session.run_session` and
+:func:`~gonio.acquisition.session.replay_session`, :func:`gonio.demo.run_demo`,
+:func:`gonio.bench.bench_driver`, :func:`gonio.mock.truth.truth_dataset`,
+:func:`gonio.data.formats.import_files`, :meth:`gonio.acquisition.plan.Plan.check`.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import datetime as _dt
-import io
 import json
 import logging
 import math
 import shlex
-import signal
 import sys
-import time
 from pathlib import Path
 
-from gonio.calibration import CalibrationError
+from gonio.acquisition.calibration import CalibrationError
+from gonio.acquisition.engine import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError, RunResult
+from gonio.acquisition.journal import JournalError, read_journal
+from gonio.acquisition.plan import PlanError, load_plan, preset_names
+from gonio.acquisition.record import (ReplayMismatch, TranscriptError, TranscriptIntegrityError,
+                                      load_transcript)
+from gonio.acquisition.session import replay_session, run_session
 from gonio.data import DatasetError
-from gonio.devices import MotionController, PhotometerHead, RetryPolicy
-from gonio.engine import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError,
-                          Engine, Interrupted, RunResult, owned_by_run)
-from gonio import protocol
-from gonio.journal import JournalError, RunDirLock, read_journal
-from gonio.plan import Plan, PlanError, load_plan, preset_names
-from gonio.record import (RecordingTransport, ReplayMismatch, ReplayTransport, TranscriptError,
-                          TranscriptIntegrityError, TranscriptWriter, load_transcript)
-from gonio.transport import (LinkLost, ModbusTransport, SerialTransport, TransportError,
-                             parse_modbus_url)
+from gonio.instrument.probe import LinkSetupError, open_links
 
-__all__ = ["main", "run_session"]
+__all__ = ["main"]
 
 log = logging.getLogger("gonio")
 
 _USER_ERRORS = (PlanError, CalibrationError, JournalError, AcquisitionError, TranscriptError,
-                DatasetError)
+                DatasetError, LinkSetupError)
 
 
 class _UsageError(Exception):
@@ -87,162 +85,6 @@ def _setup_logging(verbose: bool) -> None:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 
-def _software() -> dict:
-    import gonio
-    return {"gonio": gonio.__version__}
-
-
-def run_session(plan: Plan, modbus, serial_link, out: Path, *, resume: bool = False,
-                seed: int | None = None, record: Path | None = None, progress: bool | None = None,
-                retry: RetryPolicy | None = None, created: str | None = None,
-                clock=time.time, owner_token: int | None = None) -> RunResult:
-    """Run one acquisition on two transports (live, recording or replaying).
-
-    With ``record`` the transports are wrapped in :class:`gonio.record.RecordingTransport`
-    writing to that file (a new file, never one of the run directory's own). The run directory
-    is locked for the whole session (:class:`gonio.journal.RunDirLock`). SIGTERM stops the run
-    like Ctrl-C (exit status 130). ``owner_token`` is the session's claim on the instrument
-    (default: a new random token; replay passes the recorded one, 0 claims nothing).
-    """
-    if record is not None and owned_by_run(out, record):
-        raise TranscriptError(f"--record {record}: that is a file of the run directory {out}; "
-                              "record the transcript elsewhere")
-    lock = RunDirLock.acquire(out)
-    try:
-        return _locked_session(plan, modbus, serial_link, out, resume=resume, seed=seed,
-                               record=record, progress=progress, retry=retry, created=created,
-                               clock=clock, owner_token=owner_token)
-    finally:
-        lock.release()
-
-
-def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, progress, retry,
-                    created, clock, owner_token) -> RunResult:
-    import secrets
-
-    if owner_token is None:
-        owner_token = secrets.randbelow(2**32 - 1) + 1
-    writer = None
-    if record is not None:
-        created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        writer = TranscriptWriter(record, {"created": created, "seed": seed,
-                                           "modbus": modbus.url, "serial": serial_link.url,
-                                           "plan": plan.name, "plan_sha256": plan.sha256,
-                                           "owner_token": owner_token, "software": _software()})
-        modbus = RecordingTransport(modbus, writer)
-        serial_link = RecordingTransport(serial_link, writer)
-    retry = retry or RetryPolicy()
-    head = PhotometerHead(serial_link, retry)
-    motion = MotionController(modbus, retry, poll_s=0.001 if retry.sleep is time.sleep else 0.0)
-    engine = Engine(plan, head, motion, retry, out, resume=resume, seed=seed,
-                    links={"modbus": modbus.url, "serial": serial_link.url}, progress=progress,
-                    created=created, clock=clock, owner_token=owner_token)
-    previous = None
-    try:
-        previous = signal.signal(signal.SIGTERM, _raise_interrupted)
-    except ValueError:      # not the main thread
-        previous = None
-    try:
-        return engine.run()
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-        if writer is not None:
-            writer.close()
-        for link in (modbus, serial_link):
-            with contextlib.suppress(Exception):
-                link.close()
-
-
-def _raise_interrupted(signum, frame):
-    raise Interrupted(f"signal {signum}")
-
-
-def _open_links(args) -> tuple[ModbusTransport, SerialTransport]:
-    try:
-        parse_modbus_url(args.modbus)
-    except ValueError as exc:
-        raise _UsageError(f"--modbus {exc}") from None
-    modbus = ModbusTransport(args.modbus, timeout_s=args.timeout)
-    serial_link = SerialTransport(args.serial, timeout_s=args.timeout)
-    for link, opt in ((modbus, "--modbus"), (serial_link, "--serial")):
-        try:
-            link.open()
-        except LinkLost as exc:
-            raise _UsageError(f"{opt}: cannot reach the device: {exc} (is it on and is the URL "
-                              "right? `gonio mock` starts a mock)") from None
-    _check_not_swapped(modbus, serial_link, args)
-    return modbus, serial_link
-
-
-def _answers_modbus(link) -> bool:
-    """Does the endpoint answer a Modbus read of the controller's firmware register?"""
-    try:
-        link.exchange({"fn": "read_input_registers", "address": protocol.IR_FIRMWARE, "count": 1})
-        return True
-    except (TransportError, OSError, ValueError):
-        return False
-
-
-def _answers_head(link) -> bool:
-    """Does the endpoint answer ``*IDN?`` with a line of text (the photometer head does)?"""
-    try:
-        with contextlib.suppress(TransportError, OSError):
-            link.drain()
-        reply = link.exchange(b"*IDN?\n")
-    except (TransportError, OSError, ValueError):
-        return False
-    text = bytes(reply or b"").strip()
-    return bool(text) and all(32 <= b < 127 for b in text) and text.count(b",") >= 2
-
-
-def _as_serial_url(modbus_url: str) -> str | None:
-    if modbus_url.startswith("tcp://"):
-        return "socket://" + modbus_url[len("tcp://"):]
-    if modbus_url.startswith("rtu://"):
-        return modbus_url[len("rtu://"):]
-    return None
-
-
-def _as_modbus_url(serial_url: str) -> str | None:
-    if serial_url.startswith("socket://"):
-        return "tcp://" + serial_url[len("socket://"):]
-    if serial_url.startswith("/"):
-        return "rtu://" + serial_url
-    return None
-
-
-def _check_not_swapped(modbus: ModbusTransport, serial_link: SerialTransport, args) -> None:
-    """Identify both endpoints at connect time (one request each). Only when neither answers
-    as it should are the two URLs tried the other way round; if both then answer, the links
-    are swapped: say so at once instead of retrying the wrong protocol for half a minute. A
-    probe lost to a slow or faulty link never produces this message (it needs two answers)."""
-    if _answers_modbus(modbus) or _answers_head(serial_link):
-        return
-    as_serial, as_modbus = _as_serial_url(args.modbus), _as_modbus_url(args.serial)
-    if as_serial is None or as_modbus is None:
-        return
-    # the probes open the same devices the other way round; a serial device is opened
-    # exclusively (by SerialTransport and by pymodbus), so ours are released first (they
-    # reopen at their next exchange)
-    for link in (modbus, serial_link):
-        link.close()
-    probe_head = SerialTransport(as_serial, timeout_s=args.timeout)
-    probe_modbus = ModbusTransport(as_modbus, timeout_s=args.timeout)
-    try:
-        # an RTU server that has just read the head's text resynchronises on the next frame
-        swapped = _answers_head(probe_head) and (_answers_modbus(probe_modbus)
-                                                 or _answers_modbus(probe_modbus))
-    finally:
-        for link in (probe_head, probe_modbus):
-            with contextlib.suppress(Exception):
-                link.close()
-    if swapped:
-        raise _UsageError(f"the links look swapped: --modbus {args.modbus} answers like the "
-                          f"photometer head and --serial {args.serial} like the motion "
-                          f"controller; exchange the two URLs")
-
-
 def _resume_command(args) -> str:
     """The exact command that continues this acquisition."""
     argv = ["gonio", "acquire", args.plan, "--modbus", args.modbus, "--serial", args.serial]
@@ -269,7 +111,7 @@ def _finish(result: RunResult, command: str, resume: str | None = None) -> int:
 
 def _cmd_acquire(args) -> int:
     plan = load_plan(args.plan)
-    modbus, serial_link = _open_links(args)
+    modbus, serial_link = open_links(args.modbus, args.serial, args.timeout)
     out = Path(args.out)
     try:
         result = run_session(plan, modbus, serial_link, out, resume=args.resume,
@@ -299,39 +141,13 @@ def _cmd_replay(args) -> int:
         print(f"gonio replay: {exc}", file=sys.stderr)
         return 1
     plan = load_plan(args.plan)
-    if transcript.header.get("plan_sha256") not in (None, plan.sha256):
-        raise _UsageError(f"{args.transcript} was recorded with plan '{transcript.header.get('plan')}' "
-                          f"(sha256 {str(transcript.header.get('plan_sha256'))[:12]}...), not with "
-                          f"{args.plan} (plan '{plan.name}', sha256 {plan.sha256[:12]}...): replay "
-                          "it with the plan file it was recorded with")
-    out = Path(args.out)
-    modbus = ReplayTransport(transcript, "modbus")
-    serial_link = ReplayTransport(transcript, "serial")
-    retry = RetryPolicy(sleep=lambda s: None)
-    clock = _ReplayClock(transcript.header.get("created"))
     try:
-        result = run_session(plan, modbus, serial_link, out, seed=transcript.header.get("seed"),
-                             progress=False, retry=retry, created=transcript.header.get("created"),
-                             clock=clock, owner_token=int(transcript.header.get("owner_token") or 0))
-        transcript.finish()
+        result = replay_session(transcript, plan, Path(args.out))
     except ReplayMismatch as exc:
         print(f"gonio replay: {str(exc).removeprefix('replay: ')}", file=sys.stderr)
         return 1
     code = _finish(result, "replay")
     return EXIT_OK if code == EXIT_OK else 1
-
-
-class _ReplayClock:
-    """Wall clock of a replay: the recording's start, so journals carry no replay-time stamps."""
-
-    def __init__(self, created: str | None):
-        try:
-            self.t = _dt.datetime.fromisoformat(created).timestamp() if created else 0.0
-        except ValueError:
-            self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def _cmd_check_plan(args) -> int:
@@ -365,25 +181,17 @@ def _cmd_check_plan(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from gonio.demo import mark_demo, replace_previous_demo
-    from gonio.mock import MockInstrument
+    from gonio.demo import run_demo
 
     out = Path(args.out)
     _check_output_folder(out, "--out")
     plan = load_plan(args.plan)
-    replace_previous_demo(out)
-    t0 = time.monotonic()
-    with MockInstrument(sample="red-cotton", modbus="tcp", serial="pty", speed="fast",
-                        seed=args.seed) as mock:
-        args.modbus, args.serial = mock.modbus_url, mock.serial_url
-        modbus, serial_link = _open_links(args)
-        result = run_session(plan, modbus, serial_link, out, seed=args.seed,
-                             progress=False if args.no_progress else None)
-    mark_demo(out, done=True)
+    result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
+                                 progress=False if args.no_progress else None)
     code = _finish(result, "demo")
     if code == EXIT_OK:
         print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
-              f"{time.monotonic() - t0:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
+              f"{elapsed_s:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
     return code
 
 
@@ -400,7 +208,7 @@ def _check_output_folder(out: Path, opt: str) -> None:
 def _cmd_truth(args) -> int:
     from gonio.data import write_dataset
     from gonio.mock.samples import SampleError
-    from gonio.truth import truth_dataset
+    from gonio.mock.truth import truth_dataset
 
     plan = load_plan(args.plan)
     try:
@@ -413,91 +221,10 @@ def _cmd_truth(args) -> int:
     return EXIT_OK
 
 
-class _TimedLink:
-    """Transport wrapper accumulating the time spent waiting in ``exchange`` (bench only)."""
-
-    def __init__(self, inner, clock):
-        self.inner, self.clock = inner, clock
-        self.channel, self.url = inner.channel, inner.url
-        self.timeout_s = getattr(inner, "timeout_s", 1.0)
-        self.waited = 0.0
-        self.count = 0
-
-    def exchange(self, request, **kw):
-        t = time.perf_counter()
-        try:
-            return self.inner.exchange(request, **kw)
-        finally:
-            self.waited += time.perf_counter() - t
-            self.count += 1
-
-    def __getattr__(self, name):
-        return getattr(self.inner, name)
-
-
-def _bench_once(plan: Plan, out: Path, record: Path | None = None) -> dict:
-    from gonio.mock import MockInstrument
-
-    slept = [0.0]
-
-    def sleep(s: float) -> None:
-        t = time.perf_counter()
-        time.sleep(s)
-        slept[0] += time.perf_counter() - t
-
-    with MockInstrument(sample="red-cotton", speed="fast", seed=0) as mock:
-        modbus = _TimedLink(ModbusTransport(mock.modbus_url, timeout_s=1.0), None)
-        serial_link = _TimedLink(SerialTransport(mock.serial_url, timeout_s=1.0), None)
-        t0 = time.perf_counter()
-        result = run_session(plan, modbus, serial_link, out, seed=0, progress=False,
-                             retry=RetryPolicy(sleep=sleep), record=record)
-        wall = time.perf_counter() - t0
-    rows = result.points_measured * len(plan.wavelengths_nm)
-    driver = wall - modbus.waited - serial_link.waited - slept[0]
-    return {"wall_s": wall, "in_exchanges_s": modbus.waited + serial_link.waited,
-            "sleeping_s": slept[0], "driver_s": driver, "points": result.points_measured,
-            "rows": rows, "exchanges": modbus.count + serial_link.count,
-            "driver_ms_per_point": 1000 * driver / max(result.points_measured, 1),
-            "driver_ms_per_row": 1000 * driver / max(rows, 1)}
-
-
 def _cmd_bench(args) -> int:
-    """Driver overhead against the fast mock, and replay time (no device at all).
+    from gonio.bench import bench_driver
 
-    The driver's own time is the wall time minus the time spent waiting inside transport
-    exchanges (the device and the link) and in deliberate sleeps (polling, settling, backoff):
-    parsing, journaling (one fsync per point), dataset writing and bookkeeping.
-    """
-    import statistics
-    import tempfile
-
-    plan = load_plan(args.plan)
-    runs, replays = [], []
-    with tempfile.TemporaryDirectory() as tmp:
-        for k in range(args.repeats):
-            runs.append(_bench_once(plan, Path(tmp) / f"run{k}"))
-            record = Path(tmp) / f"t{k}.jsonl"
-            _bench_once(plan, Path(tmp) / f"rec{k}", record)
-            t0 = time.perf_counter()
-            with contextlib.redirect_stdout(io.StringIO()):
-                code = main(["replay", str(record), args.plan, "--out", str(Path(tmp) / f"replay{k}")])
-            replays.append(time.perf_counter() - t0)
-            if code != 0:
-                raise RuntimeError("bench: the replay did not reproduce the run")
-
-    def med(key):
-        return statistics.median(r[key] for r in runs)
-
-    rows = runs[0]["rows"]
-    report = {"plan": plan.name, "repeats": args.repeats, "points": runs[0]["points"], "rows": rows,
-              "exchanges": runs[0]["exchanges"],
-              "median_wall_s": med("wall_s"), "median_in_exchanges_s": med("in_exchanges_s"),
-              "median_sleeping_s": med("sleeping_s"),
-              "median_driver_ms_per_point": med("driver_ms_per_point"),
-              "median_driver_ms_per_row": med("driver_ms_per_row"),
-              "median_replay_s": statistics.median(replays),
-              "replay_ms_per_row": 1000 * statistics.median(replays) / max(rows, 1),
-              "target": "driver overhead <= 2 ms per point; demo plan <= 30 s"}
+    report = bench_driver(load_plan(args.plan), repeats=args.repeats)
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
     print(json.dumps(report, indent=2))

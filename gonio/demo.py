@@ -1,8 +1,10 @@
-"""``gonio demo``'s output folder: replace only what a previous demo wrote.
+"""``gonio demo``: the embedded mock (red cotton) measured with a plan, into a folder of its own.
 
-A demo marks its folder with :data:`gonio.engine.DEMO_MARKER` (JSON: ``written_by`` and, once
+:func:`run_demo` starts the mock, opens both links and runs the session. The output folder is
+replaced only where a previous demo wrote it: a demo marks its folder with
+:data:`gonio.acquisition.rundir.DEMO_MARKER` (JSON: ``written_by`` and, once
 the run ended, ``journal_start``: the SHA-256 of its journal's first line, the start record).
-The next demo clears the run files (:data:`gonio.engine.RUN_DIR_FILES`) of a folder so marked
+The next demo clears the run files (:data:`gonio.acquisition.rundir.RUN_DIR_FILES`) of a folder so marked
 whose journal is still that demo's (or that a killed demo left before the hash was written);
 a folder holding another run's journal or dataset is refused and left untouched.
 """
@@ -12,20 +14,46 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import time
 from pathlib import Path
 
+from gonio.acquisition.engine import AcquisitionError, RunResult
+from gonio.acquisition.plan import Plan
+from gonio.acquisition.rundir import DEMO_MARKER, JOURNAL_NAME, RUN_DIR_FILES
+from gonio.acquisition.session import run_session
 from gonio.data import atomic_write
-from gonio.engine import DEMO_MARKER, JOURNAL_NAME, RUN_DIR_FILES, AcquisitionError
+from gonio.instrument.probe import open_links
 
-__all__ = ["replace_previous_demo", "mark_demo"]
+__all__ = ["run_demo", "replace_previous_demo", "mark_demo"]
 
 log = logging.getLogger(__name__)
+
+
+def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1.0,
+             progress: bool | None = None) -> tuple[RunResult, float]:
+    """Measure ``plan`` on the embedded red-cotton mock into ``out``.
+
+    Returns the session's result and the wall time in seconds (mock start-up included).
+    Raises :class:`gonio.acquisition.engine.AcquisitionError` (nothing changed) when ``out``
+    holds run files that a demo did not write.
+    """
+    from gonio.mock import MockInstrument
+
+    out = Path(out)
+    replace_previous_demo(out)
+    t0 = time.monotonic()
+    with MockInstrument(sample="red-cotton", modbus="tcp", serial="pty", speed="fast",
+                        seed=seed) as mock:
+        modbus, serial_link = open_links(mock.modbus_url, mock.serial_url, timeout_s)
+        result = run_session(plan, modbus, serial_link, out, seed=seed, progress=progress)
+    mark_demo(out, done=True)
+    return result, time.monotonic() - t0
 
 
 def replace_previous_demo(out: str | Path) -> None:
     """Clear a previous demo's run files in ``out`` and mark it for this demo.
 
-    Raises :class:`gonio.engine.AcquisitionError` (nothing changed) when ``out`` is not a
+    Raises :class:`gonio.acquisition.engine.AcquisitionError` (nothing changed) when ``out`` is not a
     directory or holds run files that a demo did not write.
     """
     out = Path(out)

@@ -297,7 +297,7 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
 
 def _fabric_run(args: argparse.Namespace) -> int:
     from gonio.data.dataset import write_dataset
-    from gonio.plan import PlanError, load_plan
+    from gonio.acquisition.plan import PlanError, load_plan
     from simulate.fabric import FabricError
     from simulate.virtual import fabric_dataset
 

@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
-from gonio.plan import Plan
+from gonio.acquisition.plan import Plan
 from simulate import fabric as fab
 from simulate.config import SimulationConfig
 

@@ -1,6 +1,6 @@
 """Colour of a radiance-coefficient spectrum: CIE XYZ, linear sRGB, HSV and channel ratios.
 
-PHYSICS.md section 7: spectral ``beta`` at one geometry -> CIE XYZ (CIE 1931 2-degree standard
+docs/physics.md section 7: spectral ``beta`` at one geometry -> CIE XYZ (CIE 1931 2-degree standard
 observer, illuminant D65 unless set) -> linear sRGB, so that an ideal white diffuser (``beta = 1``)
 is RGB (1, 1, 1) -> HSV and the ratios BLUE/RED and GREEN/RED, all on the LINEAR values (the
 published reference table is only self-consistent that way: S = 0.99 goes with GREEN/RED = 0.011).

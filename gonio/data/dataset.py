@@ -1,6 +1,6 @@
 """Radiance-coefficient datasets: the format, its validation and its (atomic) I/O.
 
-A dataset is a directory with two files (ARCHITECTURE.md, "The radiance-coefficient dataset"):
+A dataset is a directory with two files (docs/dataset.md):
 
 ``radiance.csv``
     one row per (geometry, wavelength), columns in this order::
@@ -32,7 +32,7 @@ Conventions decided here (the design is silent on them):
 - ``beta`` may be slightly negative in measured data (dark-subtracted noise); it must be finite.
 - Interpolation (:meth:`Dataset.interpolate`) lives in :mod:`gonio.data.interpolate`.
 
-RGB datasets (ARCHITECTURE.md): a ``channel`` column (``R``, ``G``, ``B``, or ``Y`` for a
+RGB datasets (docs/dataset.md): a ``channel`` column (``R``, ``G``, ``B``, or ``Y`` for a
 photometric measurement) stands in place of ``wavelength_nm``::
 
     theta_i,phi_i,theta_o,phi_o,channel,beta,u_beta,n

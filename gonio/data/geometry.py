@@ -1,6 +1,6 @@
 """Geometry conventions of the fabric frame, shared by plans, datasets and the instrument.
 
-PHYSICS.md section 1: z = fabric normal, x = warp; a direction points AWAY from the surface
+docs/physics.md section 1: z = fabric normal, x = warp; a direction points AWAY from the surface
 (``w_i`` towards the source, ``w_o`` towards the detector) with spherical angles
 ``w = (sin t cos p, sin t sin p, cos t)``. In-plane curves use the signed observation angle ``s``:
 with the source at azimuth ``phi_i``, ``s >= 0`` (mirror side) means ``phi_o = phi_i + 180`` and
@@ -12,7 +12,7 @@ to the fabric frame with :func:`axes_to_fabric` / :func:`fabric_to_axes`; the be
 
 References
 ----------
-PHYSICS.md section 1 (frames); INSTRUMENT.md (axes and the beam-block zone).
+docs/physics.md section 1 (frames); docs/instrument.md (axes and the beam-block zone).
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def spherical_angles(w):
 def signed_angle(theta_i, phi_i, theta_o, phi_o):
     """Signed in-plane observation angle ``s`` (degrees), NaN where ``w_o`` is out of the plane.
 
-    PHYSICS.md section 1: with the source at azimuth ``phi_i``, ``s >= 0`` (mirror side) means
+    docs/physics.md section 1: with the source at azimuth ``phi_i``, ``s >= 0`` (mirror side) means
     ``phi_o = phi_i + 180`` and ``s < 0`` (source side) means ``phi_o = phi_i``; ``theta_o = 0`` is
     ``s = 0``.
 
@@ -172,7 +172,7 @@ def axes_to_fabric(source_zenith_deg: float, detector_zenith_deg: float, detecto
                    sample_rotation_deg: float) -> tuple[float, float, float, float]:
     """Axis positions (degrees) to fabric-frame angles ``(theta_i, phi_i, theta_o, phi_o)``.
 
-    The sample rotation reading *is* ``phi_i`` (source azimuth from the warp, PHYSICS.md section
+    The sample rotation reading *is* ``phi_i`` (source azimuth from the warp, docs/physics.md section
     1); a direction at instrument azimuth ``a`` has fabric azimuth ``a + phi_i``. The detector is
     at instrument azimuth ``180 + p`` for ``s >= 0`` and ``p`` for ``s < 0``. Hence, in plane
     (``p = 0``), ``s >= 0`` gives ``phi_o = phi_i + 180`` and ``s < 0`` gives ``phi_o = phi_i``,

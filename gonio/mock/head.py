@@ -1,4 +1,4 @@
-"""Mock spectro-photometer head: the ASCII command set of :mod:`gonio.protocol` and its physics.
+"""Mock spectro-photometer head: the ASCII command set of :mod:`gonio.instrument.head_commands` and its physics.
 
 :class:`PhotometerHead` turns one command line into one reply (or none, under an injected
 fault). It reads the geometry, lamp, shutter and sample slot from the shared
@@ -24,7 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gonio import protocol as P
+from gonio.data import geometry as G
+from gonio.instrument import head_commands as HC
+from gonio.instrument import head_framing as HF
+from gonio.instrument import modbus_map as MM
 from gonio.mock import physics
 from gonio.mock.faults import FaultInjector
 from gonio.mock.motion import MotionController
@@ -71,7 +74,7 @@ class PhotometerHead:
         self.itime_ms = DEFAULTS["itime_ms"]
         self.gain_step = DEFAULTS["gain_step"]
         self.chk = False
-        self.errors: deque[tuple[int, str]] = deque(maxlen=P.ERROR_QUEUE_LENGTH)
+        self.errors: deque[tuple[int, str]] = deque(maxlen=HC.ERROR_QUEUE_LENGTH)
         self.repetition = 0
         self.commands = 0
         controller.on_state_change = self.state_changed
@@ -111,7 +114,7 @@ class PhotometerHead:
             fault = "checksum"
         if fault is None and not lamp_fault:
             self.repetition += consumed
-        line = P.format_response(payload, self.chk)
+        line = HF.format_response(payload, self.chk)
         if fault == "garbled":
             line = self._garble(line)
         elif fault == "truncated":
@@ -123,37 +126,37 @@ class PhotometerHead:
         return HeadReply(line, delay_s=delay)
 
     def _error(self, code: int) -> bytes:
-        self.errors.append((code, P.HEAD_ERRORS[code]))
-        return P.format_response(f"ERR {code},{P.HEAD_ERRORS[code]}", self.chk)
+        self.errors.append((code, HC.HEAD_ERRORS[code]))
+        return HF.format_response(f"ERR {code},{HC.HEAD_ERRORS[code]}", self.chk)
 
     def _execute(self, raw: bytes) -> tuple[str, float, int, bool]:
         """Run a command: (payload, delay in s, readings delivered, lamp fault)."""
         try:
             text = raw.decode("ascii")
             if not text.isprintable():
-                raise P.head_error(101)
-            cmd, value = P.match_command(text)
+                raise HC.head_error(101)
+            cmd, value = HC.match_command(text)
         except UnicodeDecodeError:
             cmd, value, text = None, None, ""
-            err = P.head_error(101)
-        except P.HeadError as exc:
+            err = HC.head_error(101)
+        except HC.HeadError as exc:
             cmd, err = None, exc
         if cmd is None:
             self.errors.append((err.code, err.message))
             return f"ERR {err.code},{err.message}", 0.0, 0, False
         try:
             return self._run(cmd, value)
-        except P.HeadError as exc:
+        except HC.HeadError as exc:
             self.errors.append((exc.code, exc.message))
             return f"ERR {exc.code},{exc.message}", 0.0, 0, False
 
-    def _run(self, cmd: P.HeadCommand, value) -> tuple[str, float, int, bool]:
+    def _run(self, cmd: HC.HeadCommand, value) -> tuple[str, float, int, bool]:
         key = cmd.key
         c = self.controller
         if cmd.changes_state and key != "READ?":
             self.state_changed()
         if key == "*IDN?":
-            return f"{P.IDN_MAKER},{P.IDN_MODEL},{IDN_SERIAL},{IDN_FIRMWARE}", 0.0, 0, False
+            return f"{HC.IDN_MAKER},{HC.IDN_MODEL},{IDN_SERIAL},{IDN_FIRMWARE}", 0.0, 0, False
         if key == "*RST":
             self.wavelength_dnm = DEFAULTS["wavelength_dnm"]
             self.itime_ms = DEFAULTS["itime_ms"]
@@ -198,10 +201,10 @@ class PhotometerHead:
 
     def true_value(self, state: physics.ReadingState) -> tuple[float, float]:
         """``(f, cos theta_o)`` of what is in the beam at the current geometry and wavelength."""
-        pos = [P.mdeg_to_deg(p) for p in state.positions_mdeg]
-        ti, pi_, to, po = P.axes_to_fabric(*pos)
+        pos = [MM.mdeg_to_deg(p) for p in state.positions_mdeg]
+        ti, pi_, to, po = G.axes_to_fabric(*pos)
         cos_o = math.cos(math.radians(to))
-        target = self.reference if state.slot == P.SampleSlot.WHITE_REFERENCE else self.sample
+        target = self.reference if state.slot == MM.SampleSlot.WHITE_REFERENCE else self.sample
         if not (state.shutter_open and state.lamp_on):
             return 0.0, cos_o
         f = float(np.asarray(target.beta(ti, pi_, to, po, state.wavelength_nm)))
@@ -210,24 +213,24 @@ class PhotometerHead:
     def _read(self, n: int) -> tuple[str, float, int, bool]:
         state = self.reading_state()
         if state.shutter_open and not state.lamp_on:
-            raise P.head_error(201)
+            raise HC.head_error(201)
         try:
             f, cos_o = self.true_value(state)
         except ValueError as exc:      # DatasetError: request outside the sample's data
             log.warning("head: READ? refused, the sample has no value here: %s", exc)
-            raise P.head_error(102) from None
+            raise HC.head_error(102) from None
         signal, dark = physics.expected_counts(state, f, cos_o)
-        if signal + dark >= P.OVERLOAD_COUNTS:
-            raise P.head_error(301)
+        if signal + dark >= HC.OVERLOAD_COUNTS:
+            raise HC.head_error(301)
         readings = physics.simulate_readings(self.seed, state, f, cos_o, self.repetition, n)
         lamp_fault = self.faults is not None and state.shutter_open and self.faults.fires("lamp")
         mean, std, n_out, flags = physics.summarise(readings)
         if lamp_fault:
             rng = self.faults.rng("lamp")
             perturbed = np.clip(np.rint(readings * (1.0 + 0.05 * rng.standard_normal(n)) + 0.1 * signal
-                                        * (rng.random() - 0.5)), 0, P.ADC_MAX_COUNTS)
+                                        * (rng.random() - 0.5)), 0, HC.ADC_MAX_COUNTS)
             mean, std, n_out, flags = physics.summarise(perturbed)
-            flags |= P.FLAG_LAMP_UNSTABLE
+            flags |= HC.FLAG_LAMP_UNSTABLE
             log.info("head: READ? lamp unstable (injected fault)")
         delay = n * self.itime_ms / 1000.0 * self.integration_scale
         return f"{mean:.3f},{std:.3f},{n_out},{flags}", delay, n, lamp_fault
@@ -241,16 +244,16 @@ class PhotometerHead:
         k = int(rng.integers(1, max(2, len(body) // 2 + 1)))
         start = int(rng.integers(0, len(body) - k + 1)) if len(body) > k else 0
         body[start:start + k] = bytes(rng.integers(0x80, 0x100, size=k, dtype=np.uint8).tolist())
-        return bytes(body) + P.LINE_TERMINATOR
+        return bytes(body) + HF.LINE_TERMINATOR
 
     def _truncate(self, line: bytes) -> bytes:
         rng = self.faults.rng("truncated")
-        body_len = len(line) - len(P.LINE_TERMINATOR)
+        body_len = len(line) - len(HF.LINE_TERMINATOR)
         return line[: int(rng.integers(1, max(2, body_len)))]      # at least one byte, never the \r\n
 
     def _bad_checksum(self, line: bytes) -> bytes:
         body = line[:-2]
         if len(body) >= 3 and body[-3:-2] == b"*":
             good = int(body[-2:], 16)
-            return body[:-2] + f"{(good ^ 0x5A):02X}".encode() + P.LINE_TERMINATOR
+            return body[:-2] + f"{(good ^ 0x5A):02X}".encode() + HF.LINE_TERMINATOR
         return line

@@ -26,7 +26,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-from gonio import protocol as P
+from gonio.instrument import links as LK
 from gonio.mock.faults import FaultInjector
 from gonio.mock.head import PhotometerHead
 from gonio.mock.motion import INTEGRATION_FACTORS, SPEED_FACTORS, ModbusFrontend, MotionController
@@ -79,36 +79,32 @@ def _check_port_free(host: str, port: int, option: str, scheme: str) -> None:
                                   "free one") from None
 
 
-def parse_modbus_option(value: str) -> tuple[str, str, int]:
-    """``"tcp"``, ``"tcp://127.0.0.1:PORT"`` or ``"rtu"`` -> ``(kind, host, port)``."""
-    if value == "rtu":
-        return "rtu", "", 0
-    if value == "tcp":
-        return "tcp", "127.0.0.1", 0
+def _parse_link_option(value: str, option: str, local: str, network: str) -> tuple[str, str, int]:
+    """``local``, ``network`` or ``network://127.0.0.1:PORT`` -> ``(kind, host, port)``."""
+    if value == local:
+        return local, "", 0
+    if value == network:
+        return network, "127.0.0.1", 0
     parts = urlsplit(value)
-    if parts.scheme != "tcp":
-        raise MockConfigError(f"--modbus {value!r}: expected tcp://127.0.0.1:PORT or rtu")
+    if parts.scheme != network:
+        expected = (f"{network}://127.0.0.1:PORT or {local}" if option == "--modbus"
+                    else f"{local} or {network}://127.0.0.1:PORT")
+        raise MockConfigError(f"{option} {value!r}: expected {expected}")
     try:
         port = parts.port or 0
     except ValueError:
-        raise MockConfigError(f"--modbus {value!r}: bad port") from None
-    return "tcp", _loopback_host(parts.hostname, "--modbus"), port
+        raise MockConfigError(f"{option} {value!r}: bad port") from None
+    return network, _loopback_host(parts.hostname, option), port
+
+
+def parse_modbus_option(value: str) -> tuple[str, str, int]:
+    """``"tcp"``, ``"tcp://127.0.0.1:PORT"`` or ``"rtu"`` -> ``(kind, host, port)``."""
+    return _parse_link_option(value, "--modbus", "rtu", "tcp")
 
 
 def parse_serial_option(value: str) -> tuple[str, str, int]:
     """``"pty"``, ``"socket"`` or ``"socket://127.0.0.1:PORT"`` -> ``(kind, host, port)``."""
-    if value == "pty":
-        return "pty", "", 0
-    if value == "socket":
-        return "socket", "127.0.0.1", 0
-    parts = urlsplit(value)
-    if parts.scheme != "socket":
-        raise MockConfigError(f"--serial {value!r}: expected pty or socket://127.0.0.1:PORT")
-    try:
-        port = parts.port or 0
-    except ValueError:
-        raise MockConfigError(f"--serial {value!r}: bad port") from None
-    return "socket", _loopback_host(parts.hostname, "--serial"), port
+    return _parse_link_option(value, "--serial", "pty", "socket")
 
 
 class MockInstrument:
@@ -260,7 +256,7 @@ class MockInstrument:
             self._bridge = PtyBridge().start()
             path = self._bridge.server_path
             server = ModbusSerialServer(device, framer=FramerType.RTU, port=path,
-                                        **P.rtu_serial_settings(path), ignore_missing_devices=True)
+                                        **LK.rtu_serial_settings(path), ignore_missing_devices=True)
             await server.serve_forever(background=True)
             self.modbus_url = f"rtu://{self._bridge.client_path}"
         self._closers.append(server.shutdown)

@@ -8,8 +8,8 @@ The state is evaluated lazily from a monotonic clock: a move started at ``t0`` f
 
 with a settling overshoot ``o`` of up to 20 mdeg in the direction of motion; afterwards
 ``x = x1`` exactly and the axis is in position (``|x - target| <= 5 mdeg``). Homing takes
-:data:`HOMING_TIME_S` and ends at :data:`gonio.protocol.HOME_POSITIONS_MDEG`. The rules of
-:mod:`gonio.protocol` (not homed -> fault 3, soft limits -> exception 3, beam block -> fault 4 +
+:data:`HOMING_TIME_S` and ends at :data:`gonio.instrument.modbus_map.HOME_POSITIONS_MDEG`. The rules of
+:mod:`gonio.instrument.modbus_map` (not homed -> fault 3, soft limits -> exception 3, beam block -> fault 4 +
 exception 3, busy while homing -> exception 6, faulted axis -> exception 4, drives disabled ->
 exception 3) are enforced in :meth:`MotionController.write_holding`.
 
@@ -30,7 +30,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from gonio import protocol as P
+from gonio.data import geometry as G
+from gonio.instrument import links as LK
+from gonio.instrument import modbus_map as MM
 from gonio.mock.faults import MODBUS_FAULT_ORDER, FaultInjector
 
 __all__ = ["HOMING_TIME_S", "SETTLE_TIME_S", "LINK_SILENCE_S", "SPEED_FACTORS", "INTEGRATION_FACTORS",
@@ -47,6 +49,10 @@ SPEED_FACTORS = {"fast": 0.01, "real": 1.0}
 """Multiplier of every motion time (and of the head's link re-initialisation) per ``--speed``."""
 INTEGRATION_FACTORS = {"fast": 0.001, "real": 1.0}
 """Multiplier of the head's integration time (how long ``READ? n`` takes) per ``--speed``."""
+
+
+_SINGLE_WRITES = (5, 6)
+"""Function codes pymodbus' simulator completes with a read-back call of the action."""
 
 
 class ModbusRefusal(Exception):
@@ -68,7 +74,7 @@ class AxisState:
     index: int
     position: float
     target: int = 0
-    velocity: int = P.DEFAULT_VELOCITY_CDEG_S
+    velocity: int = MM.DEFAULT_VELOCITY_CDEG_S
     command: int = 0
     homed: bool = False
     fault: int = 0
@@ -98,8 +104,8 @@ class MotionController:
 
     def __post_init__(self):
         if not self.axes:
-            self.axes = [AxisState(a, float(P.HOME_POSITIONS_MDEG[a]), target=P.HOME_POSITIONS_MDEG[a])
-                         for a in range(P.N_AXES)]
+            self.axes = [AxisState(a, float(MM.HOME_POSITIONS_MDEG[a]), target=MM.HOME_POSITIONS_MDEG[a])
+                         for a in range(MM.N_AXES)]
 
     # --- evaluation ------------------------------------------------------------------------
     def update(self) -> None:
@@ -112,7 +118,7 @@ class MotionController:
             if t_fault is not None and t >= t_fault:
                 ax.position = self._position_at(ax, t_fault)
                 ax.motion = None
-                ax.fault = P.AxisFault.FOLLOWING_ERROR
+                ax.fault = MM.AxisFault.FOLLOWING_ERROR
                 log.info("axis %d: following error at %.0f mdeg (injected fault)", ax.index, ax.position)
                 continue
             if t >= t_end:
@@ -145,46 +151,60 @@ class MotionController:
         ax = self.axes[a]
         s = 0
         if ax.homed:
-            s |= P.AxisStatus.HOMED
+            s |= MM.AxisStatus.HOMED
         if ax.motion is not None:
-            s |= P.AxisStatus.MOVING
-        elif ax.homed and abs(ax.position - ax.target) <= P.IN_POSITION_TOLERANCE_MDEG:
-            s |= P.AxisStatus.IN_POSITION
+            s |= MM.AxisStatus.MOVING
+        elif ax.homed and abs(ax.position - ax.target) <= MM.IN_POSITION_TOLERANCE_MDEG:
+            s |= MM.AxisStatus.IN_POSITION
         if ax.fault:
-            s |= P.AxisStatus.FAULT
-        spec = P.AXES[a]
+            s |= MM.AxisStatus.FAULT
+        spec = MM.AXES[a]
         if ax.position >= spec.max_mdeg:
-            s |= P.AxisStatus.PLUS_LIMIT
+            s |= MM.AxisStatus.PLUS_LIMIT
         if ax.position <= spec.min_mdeg:
-            s |= P.AxisStatus.MINUS_LIMIT
+            s |= MM.AxisStatus.MINUS_LIMIT
         return int(s)
 
     def controller_status(self) -> int:
         s = 0
         if any(ax.fault for ax in self.axes):
-            s |= P.ControllerStatus.ANY_FAULT
+            s |= MM.ControllerStatus.ANY_FAULT
         elif self.enabled and all(ax.homed for ax in self.axes) and not self.homing():
-            s |= P.ControllerStatus.READY
+            s |= MM.ControllerStatus.READY
         return int(s)
 
     # --- register images ---------------------------------------------------------------------
-    def holding_image(self) -> dict[int, int]:
-        img = {P.HR_CONTROL: int(P.Control.ENABLE) if self.enabled else 0, P.HR_SAMPLE_SLOT: self.slot}
-        img[P.HR_OWNER], img[P.HR_OWNER + 1] = P.owner_to_registers(self.owner)
+    def register_values(self) -> dict[tuple[str, int | None], int]:
+        """The value of every register of the map, keyed ``(name, axis or None)``.
+
+        Evaluated as the state stands (call :meth:`update` first for the current time)."""
+        values: dict[tuple[str, int | None], int] = {
+            ("CONTROL", None): int(MM.Control.ENABLE) if self.enabled else 0,
+            ("SAMPLE_SLOT", None): self.slot, ("OWNER", None): self.owner,
+            ("STATUS", None): self.controller_status(), ("FIRMWARE", None): MM.FIRMWARE_VERSION,
+            ("LAMP", None): int(self.lamp_on), ("SHUTTER", None): int(self.shutter_open)}
         for a, ax in enumerate(self.axes):
-            hi, lo = P.int32_to_registers(ax.target)
-            base = P.axis_target_address(a)
-            img.update({base: hi, base + 1: lo, base + 2: ax.velocity, base + 3: ax.command})
+            values.update({("TARGET", a): ax.target, ("VELOCITY", a): ax.velocity,
+                           ("COMMAND", a): ax.command, ("ACTUAL", a): int(round(ax.position)),
+                           ("AXIS_STATUS", a): self.axis_status(a), ("FAULT", a): int(ax.fault)})
+        return values
+
+    def _image(self, table: str) -> dict[int, int]:
+        """Address -> word of every register of ``table``, encoded by its row of the map."""
+        img: dict[int, int] = {}
+        for (name, axis), value in self.register_values().items():
+            row = MM.MODBUS_MAP[name]
+            if row.table == table:
+                start = row.address_of(axis)
+                img.update({start + k: w for k, w in enumerate(row.encode(value))})
         return img
+
+    def holding_image(self) -> dict[int, int]:
+        return self._image(MM.HOLDING)
 
     def input_image(self) -> dict[int, int]:
         self.update()
-        img = {P.IR_STATUS: self.controller_status(), P.IR_FIRMWARE: P.FIRMWARE_VERSION}
-        for a, ax in enumerate(self.axes):
-            hi, lo = P.int32_to_registers(int(round(ax.position)))
-            base = P.axis_actual_address(a)
-            img.update({base: hi, base + 1: lo, base + 2: self.axis_status(a), base + 3: int(ax.fault)})
-        return img
+        return self._image(MM.INPUT)
 
     # --- writes ----------------------------------------------------------------------------
     def _changed(self) -> None:
@@ -196,83 +216,81 @@ class MotionController:
         self.update()
         regs = {address + i: int(v) & 0xFFFF for i, v in enumerate(values)}
         if self.homing():
-            ctl = regs.get(P.HR_CONTROL)
-            if not (len(regs) == 1 and ctl is not None and ctl & P.Control.STOP_ALL):
-                raise ModbusRefusal(P.ModbusException.DEVICE_BUSY, "homing in progress")
+            ctl = regs.get(MM.HR_CONTROL)
+            if not (len(regs) == 1 and ctl is not None and ctl & MM.Control.STOP_ALL):
+                raise ModbusRefusal(MM.ModbusException.DEVICE_BUSY, "homing in progress")
         # validate everything before changing anything
         new_targets: dict[int, int] = {}
         new_velocities: dict[int, int] = {}
         commands: dict[int, int] = {}
-        if P.HR_SAMPLE_SLOT in regs and regs[P.HR_SAMPLE_SLOT] not in {s.value for s in P.SampleSlot}:
-            raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE,
-                                f"sample slot {regs[P.HR_SAMPLE_SLOT]} unknown")
+        self._refuse_invalid(MM.MODBUS_MAP["SAMPLE_SLOT"], regs.get(MM.HR_SAMPLE_SLOT))
         for a, ax in enumerate(self.axes):
-            base = P.axis_target_address(a)
+            base = MM.axis_target_address(a)
             if base in regs or base + 1 in regs:
-                hi0, lo0 = P.int32_to_registers(ax.target)
-                tgt = P.registers_to_int32(regs.get(base, hi0), regs.get(base + 1, lo0))
-                if base in regs and base + 1 in regs and not P.within_soft_limits(a, tgt):
-                    raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE,
-                                        f"axis {a} target {tgt} mdeg outside the soft limits")
+                hi0, lo0 = MM.int32_to_registers(ax.target)
+                tgt = MM.registers_to_int32(regs.get(base, hi0), regs.get(base + 1, lo0))
+                if base in regs and base + 1 in regs:
+                    self._refuse_invalid(MM.MODBUS_MAP["TARGET"], tgt, a)
                 new_targets[a] = tgt
-            if base + 2 in regs:
-                v = regs[base + 2]
-                if not P.VELOCITY_RANGE_CDEG_S[0] <= v <= P.VELOCITY_RANGE_CDEG_S[1]:
-                    raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE,
-                                        f"axis {a} velocity {v} out of range")
-                new_velocities[a] = v
-            if base + 3 in regs:
-                c = regs[base + 3]
-                if c not in (P.AxisCommand.NONE, P.AxisCommand.MOVE, P.AxisCommand.HOME, P.AxisCommand.STOP):
-                    raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, f"axis {a} command {c} unknown")
-                commands[a] = c
-        ctl = regs.get(P.HR_CONTROL)
-        if ctl is not None and ctl & ~0xF:
-            raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, f"CONTROL value {ctl:#x} has unknown bits")
+            velocity_at = MM.axis_velocity_address(a)
+            if velocity_at in regs:
+                self._refuse_invalid(MM.MODBUS_MAP["VELOCITY"], regs[velocity_at], a)
+                new_velocities[a] = regs[velocity_at]
+            command_at = MM.axis_command_address(a)
+            if command_at in regs:
+                self._refuse_invalid(MM.MODBUS_MAP["COMMAND"], regs[command_at], a)
+                commands[a] = regs[command_at]
+        ctl = regs.get(MM.HR_CONTROL)
+        self._refuse_invalid(MM.MODBUS_MAP["CONTROL"], ctl)
         # pre-check the commands with the new targets (so a refused write changes nothing)
         targets = [new_targets.get(a, ax.target) for a, ax in enumerate(self.axes)]
-        enabled_after = bool(ctl & P.Control.ENABLE) if ctl is not None else self.enabled
+        enabled_after = bool(ctl & MM.Control.ENABLE) if ctl is not None else self.enabled
         for a, c in commands.items():
             ax = self.axes[a]
-            if c in (P.AxisCommand.MOVE, P.AxisCommand.HOME):
+            if c in (MM.AxisCommand.MOVE, MM.AxisCommand.HOME):
                 if not enabled_after:
-                    raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, "drives disabled (CONTROL bit0)")
+                    raise ModbusRefusal(MM.ModbusException.ILLEGAL_VALUE, "drives disabled (CONTROL bit0)")
                 if ax.fault:
-                    raise ModbusRefusal(P.ModbusException.DEVICE_FAILURE,
+                    raise ModbusRefusal(MM.ModbusException.DEVICE_FAILURE,
                                         f"axis {a} in fault {ax.fault}: reset first")
-            if c == P.AxisCommand.MOVE and ax.homed and not P.within_soft_limits(a, targets[a]):
-                raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE,
-                                    f"axis {a} target {targets[a]} mdeg outside the soft limits")
-        if ctl is not None and ctl & P.Control.HOME_ALL:
+            if c == MM.AxisCommand.MOVE and ax.homed:
+                self._refuse_invalid(MM.MODBUS_MAP["TARGET"], targets[a], a)
+        if ctl is not None and ctl & MM.Control.HOME_ALL:
             if not enabled_after:
-                raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, "drives disabled (CONTROL bit0)")
-            if any(ax.fault for ax in self.axes) and not ctl & P.Control.RESET_FAULT:
-                raise ModbusRefusal(P.ModbusException.DEVICE_FAILURE, "axis fault: reset first")
+                raise ModbusRefusal(MM.ModbusException.ILLEGAL_VALUE, "drives disabled (CONTROL bit0)")
+            if any(ax.fault for ax in self.axes) and not ctl & MM.Control.RESET_FAULT:
+                raise ModbusRefusal(MM.ModbusException.DEVICE_FAILURE, "axis fault: reset first")
         # apply
         for a, tgt in new_targets.items():
             self.axes[a].target = tgt
         for a, v in new_velocities.items():
             self.axes[a].velocity = v
-        if P.HR_OWNER in regs or P.HR_OWNER + 1 in regs:
-            hi0, lo0 = P.owner_to_registers(self.owner)
-            self.owner = P.registers_to_owner(regs.get(P.HR_OWNER, hi0), regs.get(P.HR_OWNER + 1, lo0))
-        if P.HR_SAMPLE_SLOT in regs:
-            self.slot = regs[P.HR_SAMPLE_SLOT]
+        if MM.HR_OWNER in regs or MM.HR_OWNER + 1 in regs:
+            hi0, lo0 = MM.owner_to_registers(self.owner)
+            self.owner = MM.registers_to_owner(regs.get(MM.HR_OWNER, hi0), regs.get(MM.HR_OWNER + 1, lo0))
+        if MM.HR_SAMPLE_SLOT in regs:
+            self.slot = regs[MM.HR_SAMPLE_SLOT]
             self._changed()
         if ctl is not None:
             self._control(ctl)
         for a, c in commands.items():
             self._command(a, c)
 
+    @staticmethod
+    def _refuse_invalid(row: MM.Register, value: int | None, axis: int | None = None) -> None:
+        """Exception 3 for a written value the register's row refuses (None: not written)."""
+        if value is not None and (why := row.refusal(value, axis)) is not None:
+            raise ModbusRefusal(MM.ModbusException.ILLEGAL_VALUE, why)
+
     def _control(self, ctl: int) -> None:
-        self.enabled = bool(ctl & P.Control.ENABLE)
-        if ctl & P.Control.RESET_FAULT:
+        self.enabled = bool(ctl & MM.Control.ENABLE)
+        if ctl & MM.Control.RESET_FAULT:
             for ax in self.axes:
                 ax.fault = 0
-        if ctl & P.Control.STOP_ALL or not self.enabled:
+        if ctl & MM.Control.STOP_ALL or not self.enabled:
             for ax in self.axes:
                 self._stop(ax)
-        if ctl & P.Control.HOME_ALL:
+        if ctl & MM.Control.HOME_ALL:
             for ax in self.axes:
                 self._start_home(ax)
             self._changed()
@@ -287,35 +305,35 @@ class MotionController:
 
     def _start_home(self, ax: AxisState) -> None:
         t = self.now()
-        x1 = float(P.HOME_POSITIONS_MDEG[ax.index])
+        x1 = float(MM.HOME_POSITIONS_MDEG[ax.index])
         dur = HOMING_TIME_S * self.time_scale
         ax.homed = False
-        ax.command = P.AxisCommand.HOME
+        ax.command = MM.AxisCommand.HOME
         ax.motion = (t, ax.position, x1, t + 0.8 * dur, t + dur, "home", None)
 
     def _command(self, a: int, c: int) -> None:
         ax = self.axes[a]
         ax.command = c
-        if c == P.AxisCommand.STOP:
+        if c == MM.AxisCommand.STOP:
             self._stop(ax)
-        elif c == P.AxisCommand.HOME:
+        elif c == MM.AxisCommand.HOME:
             self._start_home(ax)
             self._changed()
-        elif c == P.AxisCommand.MOVE:
+        elif c == MM.AxisCommand.MOVE:
             self._move(ax)
 
     def _move(self, ax: AxisState) -> None:
         a = ax.index
         if not ax.homed:
-            ax.fault = P.AxisFault.NOT_HOMED
+            ax.fault = MM.AxisFault.NOT_HOMED
             log.info("axis %d: move refused, not homed (fault 3)", a)
             return
         dest = [other.destination() for other in self.axes]
         dest[a] = ax.target
-        if P.beam_blocked(P.mdeg_to_deg(dest[0]), P.mdeg_to_deg(dest[1]), P.mdeg_to_deg(dest[2])):
-            ax.fault = P.AxisFault.BEAM_BLOCK
+        if G.beam_blocked(MM.mdeg_to_deg(dest[0]), MM.mdeg_to_deg(dest[1]), MM.mdeg_to_deg(dest[2])):
+            ax.fault = MM.AxisFault.BEAM_BLOCK
             log.info("axis %d: move to %d mdeg refused, beam-block zone (fault 4)", a, ax.target)
-            raise ModbusRefusal(P.ModbusException.ILLEGAL_VALUE, "beam-block zone")
+            raise ModbusRefusal(MM.ModbusException.ILLEGAL_VALUE, "beam-block zone")
         t = self.now()
         x0 = ax.position
         x1 = float(ax.target)
@@ -334,17 +352,18 @@ class MotionController:
         """Lamp and shutter coils (refused with exception 6 while homing, like every write)."""
         self.update()
         if self.homing():
-            raise ModbusRefusal(P.ModbusException.DEVICE_BUSY, "homing in progress")
+            raise ModbusRefusal(MM.ModbusException.DEVICE_BUSY, "homing in progress")
         for i, b in enumerate(bits):
             addr = address + i
-            if addr == P.COIL_LAMP:
+            if addr == MM.COIL_LAMP:
                 self.lamp_on = bool(b)
-            elif addr == P.COIL_SHUTTER:
+            elif addr == MM.COIL_SHUTTER:
                 self.shutter_open = bool(b)
         self._changed()
 
     def coil_image(self) -> list[bool]:
-        return [self.lamp_on, self.shutter_open]
+        img = self._image(MM.COIL)
+        return [bool(img[k]) for k in range(MM.N_COILS)]
 
 
 class ModbusFrontend:
@@ -388,10 +407,10 @@ class ModbusFrontend:
         coils = [SimData(0, values=[False] * 16, datatype=DataType.BITS)]
         discrete = [SimData(0, values=[False] * 16, datatype=DataType.BITS)]
         holding = [SimData(start, count=count, values=0, datatype=DataType.REGISTERS)
-                   for start, count in P.HOLDING_REGISTER_RANGES]
+                   for start, count in MM.HOLDING_REGISTER_RANGES]
         inputs = [SimData(start, count=count, values=0, datatype=DataType.REGISTERS)
-                  for start, count in P.INPUT_REGISTER_RANGES]
-        return SimDevice(id=P.UNIT_ID, simdata=(coils, discrete, holding, inputs), action=self.action)
+                  for start, count in MM.INPUT_REGISTER_RANGES]
+        return SimDevice(id=LK.UNIT_ID, simdata=(coils, discrete, holding, inputs), action=self.action)
 
     def _decide(self) -> tuple[str | None, bool]:
         """Draw every Modbus kind for one request: ``(fault or None, executed before a drop)``.
@@ -436,6 +455,10 @@ class ModbusFrontend:
         from pymodbus.constants import ExcCodes
         from pymodbus.exceptions import NoSuchIdException
 
+        if values is None and fc in _SINGLE_WRITES:
+            # pymodbus answers a single write by reading the value back through this action
+            # again: the same request, not a second fault opportunity (nor a second request)
+            return self._execute(fc, start, address, count, regs, None)
         if self.link == "rtu" and self.controller.now() < self.silent_until:
             # re-initialising after a dropped link: the request is not seen at all
             raise NoSuchIdException("serial interface re-initialising (injected modbus_drop)")
@@ -462,7 +485,7 @@ class ModbusFrontend:
             self.writes += 1
         try:
             if fc in (1, 5, 15):                       # coils
-                if address + count > P.N_COILS:
+                if address + count > MM.N_COILS:
                     return ExcCodes.ILLEGAL_ADDRESS
                 if values is not None:
                     ctl.write_coils(address, [bool(v) for v in values])

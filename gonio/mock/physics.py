@@ -1,6 +1,6 @@
 """Forward measurement model of the mock photometer head: counts from the sample's truth.
 
-The measurement equation of INSTRUMENT.md run forwards. For integration time ``t`` (ms), gain
+The measurement equation of docs/instrument.md run forwards. For integration time ``t`` (ms), gain
 factor ``G`` (1, 4, 16, 64), wavelength ``lambda`` and the radiance coefficient ``f`` of what sits
 in the beam at ``(w_i, w_o)``::
 
@@ -22,7 +22,7 @@ reproduces an uninterrupted one exactly.
 
 References
 ----------
-CIE 15:2004 (illuminant A, Planck's law with c2 = 1.4388e-2 m K); INSTRUMENT.md.
+CIE 15:2004 (illuminant A, Planck's law with c2 = 1.4388e-2 m K); docs/instrument.md.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gonio import protocol
+from gonio.instrument import head_commands as HC
 
 __all__ = [
     "K_counts_per_ms", "dark_counts", "DARK_OFFSET_COUNTS", "DARK_RATE_COUNTS_PER_MS",
@@ -58,7 +58,7 @@ def _shape(wavelength_nm):
     return _planck_relative(wl) * response
 
 
-_GRID = np.linspace(protocol.WAVE_RANGE_NM[0], protocol.WAVE_RANGE_NM[1], 401)
+_GRID = np.linspace(HC.WAVE_RANGE_NM[0], HC.WAVE_RANGE_NM[1], 401)
 _SHAPE_MAX = float(np.max(_shape(_GRID)))
 
 
@@ -91,7 +91,7 @@ class ReadingState:
 
     @property
     def gain_factor(self) -> int:
-        return protocol.GAIN_FACTORS[self.gain_step]
+        return HC.GAIN_FACTORS[self.gain_step]
 
 
 def expected_counts(state: ReadingState, f_value: float, cos_theta_o: float) -> tuple[float, float]:
@@ -123,7 +123,7 @@ def simulate_readings(seed: int, state: ReadingState, f_value: float, cos_theta_
     rng = np.random.Generator(np.random.Philox(np.random.SeedSequence(key)))
     z = rng.standard_normal(n)
     readings = np.rint(dark + signal + np.sqrt(variance) * z)
-    return np.clip(readings, 0.0, float(protocol.ADC_MAX_COUNTS))
+    return np.clip(readings, 0.0, float(HC.ADC_MAX_COUNTS))
 
 
 def summarise(readings: np.ndarray) -> tuple[float, float, int, int]:
@@ -131,5 +131,5 @@ def summarise(readings: np.ndarray) -> tuple[float, float, int, int]:
     n = int(readings.size)
     mean = float(np.mean(readings))
     std = float(np.std(readings, ddof=1)) if n > 1 else 0.0
-    flags = protocol.FLAG_SATURATED if np.any(readings >= protocol.SATURATION_COUNTS) else 0
+    flags = HC.FLAG_SATURATED if np.any(readings >= HC.SATURATION_COUNTS) else 0
     return mean, std, n, flags

@@ -1,7 +1,7 @@
 """Virtual samples of the mock goniophotometer: the "truth" an acquisition should recover.
 
 Every sample exposes ``beta(theta_i, phi_i, theta_o, phi_o, wavelength_nm)``, the radiance
-coefficient (radiance factor, ``beta = pi f_r``) in the fabric frame of PHYSICS.md section 1
+coefficient (radiance factor, ``beta = pi f_r``) in the fabric frame of docs/physics.md section 1
 (angles in degrees, z = fabric normal, x = warp, directions pointing away from the surface),
 vectorised over broadcastable numpy arrays.
 
@@ -33,7 +33,7 @@ Samples
     transparent above ~620 nm), the absorption edge a logistic of 10-90 % width 31 nm. The three
     free numbers ``r_b``, the edge position and its width were fitted once so that the colour
     at the report's colour geometry (normal incidence, ``theta_o = 10 deg``, gloss included)
-    matches the published measurement of red cotton (PHYSICS.md section 8, linear sRGB, D65,
+    matches the published measurement of red cotton (docs/physics.md section 8, linear sRGB, D65,
     CIE 1931 2 deg): H 0.988, S 0.989, V 0.80, BLUE/RED 0.080, GREEN/RED 0.011 (pinned by
     ``tests/gonio/mock/test_physics.py``). ``beta_s`` is the Ward anisotropic specular lobe
     (``pi`` times the Ward BRDF) of the fibre surfaces, spectrally neutral, wider across the
@@ -229,17 +229,25 @@ def channel_of_wavelength(wavelength_nm) -> np.ndarray:
     return np.where(wl < RGB_BAND_EDGES_NM[0], "B", np.where(wl < RGB_BAND_EDGES_NM[1], "G", "R"))
 
 
+def _load_truth(path: str | Path, reader):
+    """A sample's truth read from ``path`` by ``reader``; a bad file is a :class:`SampleError`
+    naming ``path`` as the user gave it."""
+    from gonio.data import DatasetError
+
+    try:
+        return reader(Path(path))
+    except DatasetError as exc:
+        raise SampleError(f"sample {path}: {exc}") from None
+
+
 class DatasetSample:
     """A sample whose truth is a radiance-coefficient dataset directory (interpolated)."""
 
     def __init__(self, path: str | Path):
-        from gonio.data import DatasetError, read_dataset
+        from gonio.data import read_dataset
 
         self.path = Path(path)
-        try:
-            self.dataset = read_dataset(self.path)
-        except DatasetError as exc:
-            raise SampleError(f"sample {path}: {exc}") from None
+        self.dataset = _load_truth(path, read_dataset)
         if self.dataset.is_rgb and not set("RGB") <= set(self.dataset.channels):
             raise SampleError(f"sample {path}: the dataset has channels "
                               f"{''.join(self.dataset.channels)}; the mock needs R, G and B")
@@ -258,14 +266,10 @@ class BSDFSample:
     """A sample whose truth is an RGL ``.bsdf`` file, evaluated at the geometry asked for."""
 
     def __init__(self, path: str | Path):
-        from gonio.data import DatasetError
         from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
 
         self.path = Path(path)
-        try:
-            self.bsdf = read_rgl_bsdf(self.path)
-        except DatasetError as exc:
-            raise SampleError(f"sample {path}: {exc}") from None
+        self.bsdf = _load_truth(path, read_rgl_bsdf)
         self.name = self.path.stem
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:

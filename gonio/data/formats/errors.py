@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 from gonio.data.dataset import DatasetError
 
-__all__ = ["FormatError"]
+__all__ = ["FormatError", "read_file_bytes"]
 
 
 class FormatError(DatasetError):
@@ -22,3 +23,11 @@ class FormatError(DatasetError):
         self.offset = offset
         self.line = line
         super().__init__(where + problem, file=file, hint=hint)
+
+
+def read_file_bytes(path: str | os.PathLike) -> bytes:
+    """The bytes of a file to import; :class:`FormatError` naming the file when unreadable."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise FormatError(f"cannot be read ({exc.strerror})", file=path) from None

@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from gonio.data.formats.errors import FormatError
+from gonio.data.formats.errors import FormatError, read_file_bytes
 
 __all__ = ["MERL_SHAPE", "MERL_SCALE", "MerlBRDF", "half_diff", "read_merl", "write_merl"]
 
@@ -115,10 +115,7 @@ class MerlBRDF:
 def read_merl(path: str | os.PathLike) -> MerlBRDF:
     """Read a MERL ``.binary`` file; raise :class:`FormatError` naming the byte offset."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(f"cannot be read ({exc.strerror})", file=path) from None
+    data = read_file_bytes(path)
     if len(data) < _HEADER:
         raise FormatError(f"file is {len(data)} bytes, shorter than the 12-byte header",
                           file=path, offset=0, hint="expected a MERL .binary BRDF file")

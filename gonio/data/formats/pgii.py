@@ -42,7 +42,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from gonio.data.formats.errors import FormatError
+from gonio.data.formats.errors import FormatError, read_file_bytes
 
 __all__ = ["PgiiFile", "parse_pgii", "read_pgii", "pgii_dataset", "white_reference_scale"]
 
@@ -70,10 +70,7 @@ class PgiiFile:
 
 def read_pgii(path: str | os.PathLike) -> PgiiFile:
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(f"cannot be read ({exc.strerror})", file=path) from None
+    data = read_file_bytes(path)
     if len(data) > MAX_BYTES:
         raise FormatError(f"file is {len(data)} bytes; a pgII file of one incidence is far "
                           "smaller", file=path)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.data.formats.errors import FormatError
+from gonio.data.formats.errors import FormatError, read_file_bytes
 
 __all__ = ["read_tensor_file"]
 
@@ -39,10 +39,7 @@ def read_tensor_file(path: str | os.PathLike) -> dict[str, np.ndarray]:
         Naming the file, the byte offset and the problem, for any malformed content.
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(f"cannot be read ({exc.strerror})", file=path) from None
+    data = read_file_bytes(path)
     return parse_tensor_bytes(data, path)
 
 

@@ -10,7 +10,7 @@ References for the constants below:
   function; D65 white -> RGB (1, 1, 1).
 - HSV: A. R. Smith, "Color gamut transform pairs", SIGGRAPH 1978 (V = max, S = (max - min) / max,
   H in turns); Python's ``colorsys`` implements it independently of colour-science.
-- The red-cotton table (PHYSICS.md section 8): H 0.98, S 0.99, V 0.8, BLUE/RED 0.08,
+- The red-cotton table (docs/physics.md section 8): H 0.98, S 0.99, V 0.8, BLUE/RED 0.08,
   GREEN/RED 0.011 on LINEAR sRGB.
 """
 

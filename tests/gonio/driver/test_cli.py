@@ -13,7 +13,7 @@ import pytest
 
 from gonio.cli import main
 from gonio.data import read_dataset
-from gonio.journal import read_journal
+from gonio.acquisition.journal import read_journal
 
 
 def _free_port() -> int:
@@ -72,8 +72,8 @@ def _default_sigint() -> None:
 
 
 def test_sigint_stops_safely_keeping_points(drv, tmp_path):
-    from gonio.devices import MotionController, RetryPolicy
-    from gonio.transport import ModbusTransport
+    from gonio.instrument import MotionController, RetryPolicy
+    from gonio.instrument.transport import ModbusTransport
 
     plan = drv.write_plan(tmp_path, "int", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
                           wavelengths=(450, 500, 550, 600, 650), itime_ms=200, readings=100)

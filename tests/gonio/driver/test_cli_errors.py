@@ -16,11 +16,11 @@ import pytest
 
 from gonio.cli import main
 from gonio.data import read_dataset
-from gonio.journal import read_journal
+from gonio.acquisition.journal import read_journal
 from gonio.mock import MockInstrument
 from gonio.mock.cli import main as mock_main
-from gonio.record import reseal
-from gonio.transport import parse_modbus_url
+from gonio.acquisition.record import reseal
+from gonio.instrument.transport import parse_modbus_url
 
 FIXTURES = __import__("pathlib").Path(__file__).parents[3] / "fixtures" / "recorded"
 

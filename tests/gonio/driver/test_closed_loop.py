@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gonio.calibration import load_white_standard
+from gonio.acquisition.calibration import load_white_standard
 from gonio.data import read_dataset
-from gonio.journal import read_journal
-from gonio.plan import load_plan
+from gonio.acquisition.journal import read_journal
+from gonio.acquisition.plan import load_plan
 from gonio.mock import MockInstrument
 
 WAVELENGTHS = (400, 450, 500, 550, 600, 650, 700, 750)
@@ -31,7 +31,7 @@ SEEDS = (1, 2, 3, 4)
 def _shared_relative_variance(run: Path, plan_path: Path) -> dict[float, float]:
     """Relative variance of the factor every point of a wavelength shares: the white-standard
     reading above its dark, and the standard's table value (the ``rel_ref`` term of
-    :func:`gonio.calibration.radiance_factor`), from the journal's calibration record."""
+    :func:`gonio.acquisition.calibration.radiance_factor`), from the journal's calibration record."""
     cal = read_journal(run / "journal.jsonl").of_type("calibration")
     assert len(cal) == 1, "one calibration per run: its factor is shared by all the points"
     darks = {(d["itime_ms"], d["gain"]): d for d in cal[0]["darks"]}

@@ -65,7 +65,7 @@ def _writes(mock) -> int:
 
 
 def _journal_points(out):
-    from gonio.journal import read_journal
+    from gonio.acquisition.journal import read_journal
     return read_journal(out / "journal.jsonl").of_type("point")
 
 
@@ -105,7 +105,7 @@ def test_record_refuses_an_existing_file_and_the_run_directory_files(drv, tmp_pa
 # --- item 2: one session per run directory ----------------------------------------------------
 
 def test_a_second_session_on_a_locked_run_directory_is_refused(drv, tmp_path, capsys):
-    from gonio.journal import RunDirLock
+    from gonio.acquisition.rundir import RunDirLock
 
     plan = _plan(drv, tmp_path)
     run = tmp_path / "run"
@@ -128,11 +128,11 @@ def test_the_lock_is_held_for_the_whole_session(drv, tmp_path):
     """A second lock attempt fails at every exchange of a running session, dataset write
     included (checked from inside the session, at deterministic moments)."""
     from gonio.data import dataset as dataset_module
-    from gonio.cli import run_session
-    from gonio.devices import RetryPolicy
-    from gonio.journal import RunDirLock, RunDirLocked
-    from gonio.plan import load_plan
-    from gonio.transport import ModbusTransport, SerialTransport
+    from gonio.acquisition.session import run_session
+    from gonio.instrument import RetryPolicy
+    from gonio.acquisition.rundir import RunDirLock, RunDirLocked
+    from gonio.acquisition.plan import load_plan
+    from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     plan = _plan(drv, tmp_path)
     run = tmp_path / "run"
@@ -158,13 +158,13 @@ def test_the_lock_is_held_for_the_whole_session(drv, tmp_path):
 
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
         try:
-            import gonio.engine
-            gonio.engine.write_dataset = write_and_probe
+            import gonio.acquisition.subscribers
+            gonio.acquisition.subscribers.write_dataset = write_and_probe
             res = run_session(load_plan(plan), ModbusTransport(mock.modbus_url, timeout_s=0.3),
                               Probing(mock.serial_url, timeout_s=0.3), run, progress=False,
                               seed=SEED, retry=RetryPolicy(base_s=0.002))
         finally:
-            gonio.engine.write_dataset = real_write
+            gonio.acquisition.subscribers.write_dataset = real_write
     assert res.exit_code == 0
     assert len(probes) > 20 and all(probes)
     RunDirLock.acquire(run).release()          # released at the end
@@ -196,7 +196,7 @@ def test_acquire_refuses_plans_that_check_plan_refuses(drv, tmp_path, capsys, kw
 ])
 def test_wavelengths_finer_than_the_monochromator_step_are_refused(tmp_path, capsys, wavelengths,
                                                                      extra, needle):
-    from gonio.plan import PlanError, load_plan
+    from gonio.acquisition.plan import PlanError, load_plan
 
     path = tmp_path / "fine.toml"
     path.write_text(f'[sample]\nname = "x"\n[wavelengths]\n{wavelengths}\n'
@@ -208,7 +208,7 @@ def test_wavelengths_finer_than_the_monochromator_step_are_refused(tmp_path, cap
 
 
 def test_wavelengths_on_the_grid_are_kept_exactly(tmp_path):
-    from gonio.plan import load_plan
+    from gonio.acquisition.plan import load_plan
 
     path = tmp_path / "grid.toml"
     path.write_text('[sample]\nname = "x"\n[wavelengths]\nstart_nm = 500\nstop_nm = 500.5\n'
@@ -271,10 +271,10 @@ def test_demo_replaces_only_a_previous_demo(drv, tmp_path, capsys):
 # --- item 4: the calibration is validated, never stored or reused when invalid --------------
 
 def _session(mock, plan, out, serial_cls=None, **kw):
-    from gonio.cli import run_session
-    from gonio.devices import RetryPolicy
-    from gonio.plan import load_plan
-    from gonio.transport import ModbusTransport, SerialTransport
+    from gonio.acquisition.session import run_session
+    from gonio.instrument import RetryPolicy
+    from gonio.acquisition.plan import load_plan
+    from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     serial_cls = serial_cls or SerialTransport
     return run_session(load_plan(plan), ModbusTransport(mock.modbus_url, timeout_s=0.3),
@@ -287,7 +287,7 @@ def test_white_standard_with_the_shutter_closed_is_refused_then_measured_again(d
     """The shutter stays closed during calibration (every SHUTTER OPEN becomes CLOSE on the
     wire): the run stops safely (exit 1) without journaling that calibration; the resume
     measures it again and the dataset equals a clean run's."""
-    from gonio.transport import SerialTransport
+    from gonio.instrument.transport import SerialTransport
 
     class ShutterStuck(SerialTransport):
         def exchange(self, line, **kw):
@@ -300,7 +300,7 @@ def test_white_standard_with_the_shutter_closed_is_refused_then_measured_again(d
         assert res.exit_code == 1 and res.status == "stopped"
         assert "white standard at 450 nm" in res.message and "shutter open" in res.message
         assert mock.controller.shutter_open is False
-        from gonio.journal import read_journal
+        from gonio.acquisition.journal import read_journal
         content = read_journal(tmp_path / "run" / "journal.jsonl")
         assert content.of_type("calibration") == [] and content.of_type("point") == []
         assert [e["what"] for e in content.of_type("event")] == ["calibration_invalid",
@@ -332,7 +332,7 @@ def test_an_invalid_journaled_calibration_is_measured_again_with_its_points(drv,
             res = _session(mock, plan, run, resume=True)
     assert res.exit_code == 0 and res.points_measured == 6
     assert "calibration measured again: the journal's calibration 0 is invalid" in caplog.text
-    from gonio.journal import read_journal
+    from gonio.acquisition.journal import read_journal
     content = read_journal(run / "journal.jsonl")
     assert len(content.of_type("calibration")) == 2
     assert len(content.of_type("point")) == 4 + 6         # every point measured again
@@ -370,8 +370,8 @@ def test_another_client_taking_the_instrument_stops_the_session_safely(drv, tmp_
     """A second client writes its owner token while the session measures (at the 40th head
     command, mid-point): the session stops safely (exit 1, shutter closed, drives stopped),
     keeps the points journaled before, and stores nothing measured after the takeover."""
-    from gonio.devices import MotionController
-    from gonio.transport import ModbusTransport, SerialTransport
+    from gonio.instrument import MotionController
+    from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     plan = _plan(drv, tmp_path)
     run = tmp_path / "run"
@@ -405,7 +405,7 @@ def test_another_client_taking_the_instrument_stops_the_session_safely(drv, tmp_
 
 def test_owner_token_released_at_the_end_and_serial_line_opened_exclusively(drv, tmp_path,
                                                                              capsys):
-    from gonio.transport import LinkLost, SerialTransport
+    from gonio.instrument.transport import LinkLost, SerialTransport
 
     plan = _plan(drv, tmp_path)
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
@@ -426,8 +426,8 @@ def test_a_shutter_closed_under_the_session_discards_the_point(drv, tmp_path):
     """Another client's safe stop closes the shutter mid-point (the session still owns the
     instrument): the point is not journaled (its last readings would be dark), the session
     stops safely (exit 1) and the resume completes with the data of a clean run."""
-    from gonio.devices import MotionController
-    from gonio.transport import ModbusTransport, SerialTransport
+    from gonio.instrument import MotionController
+    from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     plan = _plan(drv, tmp_path)
     run = tmp_path / "run"

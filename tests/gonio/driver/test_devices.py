@@ -7,10 +7,10 @@ import threading
 
 import pytest
 
-from gonio import protocol as P
-from gonio.devices import AxisFaultError, DeviceError, MotionController, PhotometerHead, RetryPolicy
+from gonio import instrument as P
+from gonio.instrument import AxisFaultError, DeviceError, MotionController, PhotometerHead, RetryPolicy
 from gonio.mock import MockInstrument
-from gonio.transport import LinkLost, ModbusTransport, SerialTransport, parse_modbus_url
+from gonio.instrument.transport import LinkLost, ModbusTransport, SerialTransport, parse_modbus_url
 
 
 @pytest.fixture

@@ -10,9 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gonio.calibration import (CalibrationError, load_white_standard, parse_white_standard,
-                               pooled_mean, radiance_factor)
-from gonio.journal import Journal, JournalError, check_consistency, parse_journal, read_journal
+from gonio.acquisition.calibration import (CalibrationError, load_white_standard, parse_white_standard,
+                                           radiance_factor)
+from gonio.stats import pooled_mean
+from gonio.acquisition.journal import Journal, JournalError, check_consistency, parse_journal, read_journal
 
 _START = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 1.0}
 
@@ -204,7 +205,7 @@ def test_white_standard_table(tmp_path):
 
 
 def test_retry_totals_sum_every_session_killed_ones_included(tmp_path):
-    from gonio.engine import retry_totals
+    from gonio.acquisition.reduce import retry_totals
 
     start = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 0}
     point = {"type": "point", "index": 0, "axes_deg": [0, 45, 0, 0], "geometry": [0, 0, 45, 0],

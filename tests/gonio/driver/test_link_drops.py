@@ -13,24 +13,23 @@ import logging
 
 import pytest
 
-from gonio import protocol as P
-from gonio.devices import AxisFaultError, MotionController, RetryPolicy
+from gonio import instrument as P
+from gonio.instrument import AxisFaultError, MotionController, RetryPolicy
 from gonio.mock import MockInstrument
 from gonio.mock.motion import AxisState as MockAxis
-from gonio.transport import LinkLost, ModbusTransport
+from gonio.instrument.transport import LinkLost, ModbusTransport
 
 SEED = 21
 
 # the mock's Modbus fault opportunities at the start of a session, in order (fixed: no polling
 # before): firmware, status, owner read and claim, lamp coil, shutter coil, sample slot, enable,
-# HOME_ALL, first homing poll. pymodbus' simulator runs the action twice for a coil write (fc 5),
-# so each coil write is two opportunities (the dropped request is asserted below, so a change
-# shows at once).
+# HOME_ALL, first homing poll. Every request is one opportunity, a coil write (fc 5) included
+# (the dropped request is asserted below, so a change shows at once).
 START = [(4, P.IR_FIRMWARE), (4, P.IR_STATUS), (3, P.HR_OWNER), (16, P.HR_OWNER),
-         (5, P.COIL_LAMP), (5, P.COIL_LAMP), (5, P.COIL_SHUTTER), (5, P.COIL_SHUTTER),
+         (5, P.COIL_LAMP), (5, P.COIL_SHUTTER),
          (16, P.HR_SAMPLE_SLOT), (16, P.HR_CONTROL), (16, P.HR_CONTROL),
          (4, P.axis_actual_address(0))]
-ENABLE, HOME_ALL, HOMING_POLL = 10, 11, 12
+ENABLE, HOME_ALL, HOMING_POLL = 8, 9, 10
 
 
 def _plan(drv, tmp_path):
@@ -54,7 +53,7 @@ def test_drop_at_session_start_and_during_homing(drv, tmp_path, caplog, n, execu
     one reconnection, no other retry (an executed HOME_ALL is not sent again, so no busy
     refusal and no second homing), and the data of a clean session."""
     plan = _plan(drv, tmp_path)
-    with caplog.at_level(logging.INFO, logger="gonio.devices"), \
+    with caplog.at_level(logging.INFO, logger="gonio.instrument"), \
             MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED,
                            faults=f"modbus_drop=@{n}") as mock:
         mock.frontend.drop_executed = executed
@@ -127,7 +126,7 @@ def _motion(mock, match, executed, on_drop=None):
 def test_dropped_move_resent_only_when_not_executed(mock, caplog, executed):
     motion, link, retry = _motion(mock, _is_move(1), executed)
     motion.home()
-    with caplog.at_level(logging.INFO, logger="gonio.devices"):
+    with caplog.at_level(logging.INFO, logger="gonio.instrument"):
         motion.move_to((0, 30, 0, 0), 60)
     moves = [r for r in link.sent if _is_move(1)(r)]
     assert link.fired and len(moves) == 1          # executed: not re-sent; else: sent once more

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gonio import protocol as P
+from gonio.data import geometry as G
 from gonio.cli import main
-from gonio.plan import PlanError, load_plan, parse_plan, preset_names
+from gonio.acquisition.plan import PlanError, load_plan, parse_plan, preset_names
 
 
 def test_presets_load_by_name_and_meet_the_contract():
@@ -45,7 +45,7 @@ def test_geometry_follows_the_in_plane_convention():
     # out of plane: phi_o - phi_i = 90 and 270
     assert (30, 0, 45, 90) in rows and (30, 0, 45, 270) in rows and (30, 90, 45, 0) in rows
     for p in plan.points():
-        assert P.axes_to_fabric(*p.axes_deg) == pytest.approx((p.theta_i, p.phi_i, p.theta_o, p.phi_o))
+        assert G.axes_to_fabric(*p.axes_deg) == pytest.approx((p.theta_i, p.phi_i, p.theta_o, p.phi_o))
 
 
 @pytest.mark.parametrize("text,field", [

@@ -10,7 +10,7 @@ import pytest
 from gonio.cli import main
 from gonio.data import read_dataset
 from gonio.mock import MockInstrument
-from gonio.record import load_transcript, reseal
+from gonio.acquisition.record import load_transcript, reseal
 
 ROOT = Path(__file__).resolve().parents[3]
 FIXTURES = ROOT / "fixtures" / "recorded"
@@ -44,7 +44,7 @@ def test_replay_reproduces_the_fixture_dataset(tmp_path, name, plan, capsys):
 def test_fault_fixture_exercises_the_recovery_paths():
     meta = json.loads((FIXTURES / "quick-faults" / "meta.json").read_text())
     retries = meta["provenance"]["retries"]
-    from gonio.devices import RETRY_KINDS
+    from gonio.instrument import RETRY_KINDS
     for kind in RETRY_KINDS:
         assert retries.get(kind, 0) > 0, kind
     # faults never change the data: the faulted session equals the clean one of the same plan
@@ -128,8 +128,8 @@ def test_refused_points_are_never_sent(drv, tmp_path):
     """Expected beam-block points (skip_blocked = true) are listed, skipped, and never reach the
     controller; a plan with out-of-limit points is refused before anything is sent (issue 9,
     item 7: the validation of check-plan)."""
-    from gonio import protocol as P
-    from gonio.engine import AcquisitionError
+    from gonio import instrument as P
+    from gonio.acquisition.engine import AcquisitionError
 
     bad = drv.write_plan(tmp_path, "refuse", incidence=(30, 88), in_plane=(-32, -28, -25, 10, 87),
                          wavelengths=(550,), readings=4, geometry_extra="skip_blocked = true")
@@ -161,7 +161,7 @@ def test_refused_points_are_never_sent(drv, tmp_path):
 def test_an_edited_reply_with_a_recomputed_checksum_fails_the_integrity_check(tmp_path, capsys):
     """Issue 9: a reply edited with its *HH checksum recomputed replayed with exit 0; the
     transcript's SHA-256 chain now fails at that line (exit 1, the line named)."""
-    from gonio import protocol as P
+    from gonio import instrument as P
 
     src = (FIXTURES / "quick-lambert.jsonl").read_text().splitlines()
     k = next(i for i, ln in enumerate(src) if '"dir":"rx"' in ln and "READ" not in ln

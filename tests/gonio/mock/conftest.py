@@ -10,7 +10,7 @@ import pytest
 import serial
 from umodbus.client import tcp as umb
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument
 
 

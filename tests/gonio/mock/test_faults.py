@@ -5,10 +5,11 @@ import socket
 
 import numpy as np
 import pytest
+from umodbus.client import tcp as umb
 import serial
 from umodbus import exceptions as ux
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument, parse_faults, FaultSpecError
 from gonio.mock.faults import FaultInjector
 
@@ -126,6 +127,25 @@ def test_modbus_busy_and_noresponse(tools):
             mb.read_input(P.IR_FIRMWARE, 1)
         mb.close()
         assert m.stats["faults"] == {"modbus_busy": 1, "modbus_noresponse": 1}
+
+
+@pytest.mark.parametrize("write", ["coil", "register"])
+def test_a_single_write_is_one_fault_opportunity(tools, write):
+    """pymodbus' simulator completes a single write (fc 5 coil, fc 6 register) by calling the
+    action a second time to read the value back: that is the same request, one opportunity, and
+    ``modbus_busy=@2`` hits the request after it (faults docstring: one opportunity per request)."""
+    with MockInstrument(modbus="tcp", serial="socket", faults="modbus_busy=@2") as m:
+        mb = tools.UmbClient(m.modbus_url, timeout=0.3)
+        if write == "coil":
+            mb.call(umb.write_single_coil(slave_id=P.UNIT_ID, address=P.COIL_LAMP, value=1))   # 1
+        else:
+            mb.write_one(P.HR_SAMPLE_SLOT, 1)                                                # 1
+        assert m.faults.opportunities["modbus_busy"] == 1 and m.frontend.requests == 1
+        with pytest.raises(ux.ServerDeviceBusyError):                                      # 2
+            mb.read_input(P.IR_FIRMWARE, 1)
+        mb.close()
+        assert m.stats["faults"] == {"modbus_busy": 1}
+        assert m.controller.lamp_on if write == "coil" else m.controller.slot == 1
 
 
 def test_axis_fault_mid_move(tools):

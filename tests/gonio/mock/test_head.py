@@ -3,7 +3,7 @@
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument
 
 

@@ -1,5 +1,5 @@
 """The mock motion controller speaks real Modbus: independent clients (umodbus over TCP,
-minimalmodbus over the RTU pseudo-terminal) and the controller rules of INSTRUMENT.md."""
+minimalmodbus over the RTU pseudo-terminal) and the controller rules of docs/instrument.md."""
 
 import time
 
@@ -7,7 +7,7 @@ import minimalmodbus
 import pytest
 from umodbus import exceptions as ux
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument
 
 

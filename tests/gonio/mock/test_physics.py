@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gonio import protocol as P
+from gonio import instrument as P
 from gonio.mock import MockInstrument, reference_beta
 from gonio.mock import physics
 from gonio.mock.samples import RedCottonSample, make_sample, SampleError
@@ -156,7 +156,7 @@ def test_dataset_sample_interpolates_and_refuses_outside(tmp_path, tools):
         head.close()
 
 
-# The published measurement of red cotton (PHYSICS.md section 8; linear sRGB, D65, CIE 1931 2 deg)
+# The published measurement of red cotton (docs/physics.md section 8; linear sRGB, D65, CIE 1931 2 deg)
 # and how far the mock may be from it: each tolerance is half a unit of the last published digit
 # (H 0.98 and S 0.99 to two decimals, V 0.8 to one, BLUE/RED 0.08 to two, GREEN/RED 0.011 to
 # three). H is the exception: the table's own ratios imply H = 1 - (B/R - G/R) / (6 (1 - G/R))

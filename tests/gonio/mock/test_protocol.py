@@ -1,4 +1,4 @@
-"""gonio.protocol: register map helpers, geometry, command table, framing and the parser."""
+"""gonio.instrument tables: register map helpers, geometry, command table, framing and the parser."""
 
 import math
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from gonio import protocol as P
+from gonio import instrument as P
+from gonio.data import geometry as G
 
 
 # --- Modbus data -----------------------------------------------------------------------------
@@ -59,22 +60,22 @@ def test_rtu_settings_on_pty_drop_parity():
 # --- geometry ------------------------------------------------------------------------------------
 
 def test_beam_block_in_plane_boundary():
-    assert P.beam_blocked(0, 0, 0)                 # normal/normal
-    assert P.beam_blocked(0, 4.999, 77)
-    assert not P.beam_blocked(0, 5.0, 77)          # exactly 5 deg is allowed
-    assert not P.beam_blocked(30, -25, 0)
-    assert P.beam_blocked(30, -26, 0) and P.beam_blocked(30, -34, 0)
-    assert not P.beam_blocked(30, -35, 0)
-    assert not P.beam_blocked(30, 30, 0)           # mirror side is 60 deg away
+    assert G.beam_blocked(0, 0, 0)                 # normal/normal
+    assert G.beam_blocked(0, 4.999, 77)
+    assert not G.beam_blocked(0, 5.0, 77)          # exactly 5 deg is allowed
+    assert not G.beam_blocked(30, -25, 0)
+    assert G.beam_blocked(30, -26, 0) and G.beam_blocked(30, -34, 0)
+    assert not G.beam_blocked(30, -35, 0)
+    assert not G.beam_blocked(30, 30, 0)           # mirror side is 60 deg away
 
 
 def test_beam_block_out_of_plane_3d():
     # both at zenith 30 deg, azimuths 10 deg apart: cos g = cos^2 30 + sin^2 30 cos 10 -> g = 4.995 deg
     g = math.degrees(math.acos(0.75 + 0.25 * math.cos(math.radians(10.0))))
-    assert g < 5 and P.beam_blocked(30, -30, 10)
+    assert g < 5 and G.beam_blocked(30, -30, 10)
     g2 = math.degrees(math.acos(0.75 + 0.25 * math.cos(math.radians(10.1))))
-    assert g2 > 5 and not P.beam_blocked(30, -30, 10.1)
-    assert P.source_detector_angle_deg(30, -30, 10) == pytest.approx(g, abs=1e-9)
+    assert g2 > 5 and not G.beam_blocked(30, -30, 10.1)
+    assert G.source_detector_angle_deg(30, -30, 10) == pytest.approx(g, abs=1e-9)
 
 
 def test_axes_to_fabric_conventions():
@@ -82,16 +83,16 @@ def test_axes_to_fabric_conventions():
 
     for s in (-60.0, -10.0, 0.0, 20.0, 70.0):
         for rot in (0.0, 90.0, 300.0):
-            ti, pi_, to, po = P.axes_to_fabric(40.0, s, 0.0, rot)
+            ti, pi_, to, po = G.axes_to_fabric(40.0, s, 0.0, rot)
             assert (ti, pi_, to) == (40.0, rot, abs(s))
             assert signed_angle(ti, pi_, to, po) == pytest.approx(s)
 
 
 @given(st.floats(0, 85), st.floats(0, 359.9), st.floats(0.01, 85), st.floats(0, 359.99))
 def test_fabric_axes_round_trip(ti, pi_, to, po):
-    src, det, plane, rot = P.fabric_to_axes(ti, pi_, to, po)
+    src, det, plane, rot = G.fabric_to_axes(ti, pi_, to, po)
     assert 0 <= plane < 180 + 1e-9 and -85 <= det <= 85
-    ti2, pi2, to2, po2 = P.axes_to_fabric(src, det, plane, rot)
+    ti2, pi2, to2, po2 = G.axes_to_fabric(src, det, plane, rot)
     assert ti2 == pytest.approx(ti) and to2 == pytest.approx(to)
     assert math.cos(math.radians(po2 - po)) == pytest.approx(1.0, abs=1e-9)
     assert math.cos(math.radians(pi2 - pi_)) == pytest.approx(1.0, abs=1e-9)
@@ -221,7 +222,8 @@ def test_docstring_examples_run():
     import doctest
 
     import gonio.mock.faults
+    from gonio.instrument import head_framing, links, modbus_map
 
-    for module in (P, gonio.mock.faults):
+    for module in (modbus_map, head_framing, links, gonio.mock.faults):
         result = doctest.testmod(module)
         assert result.failed == 0 and result.attempted > 0

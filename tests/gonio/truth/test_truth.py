@@ -7,7 +7,7 @@ import numpy as np
 from gonio.cli import main
 from gonio.data import read_dataset
 from gonio.mock.samples import RedCottonSample
-from gonio.plan import load_plan
+from gonio.acquisition.plan import load_plan
 
 
 def test_lambert_truth_is_flat_on_the_plan_geometries(tmp_path, capsys):

@@ -58,7 +58,7 @@ def test_fabric_writes_a_dataset_and_overwrites_only_its_own_output(fake_fiber, 
 
 
 def test_fabric_with_a_plan_path_and_measurable_only(fake_fiber, tmp_path, cfg):
-    from gonio.plan import load_plan
+    from gonio.acquisition.plan import load_plan
 
     out = tmp_path / "q"
     plan = load_plan("quick")

@@ -70,7 +70,7 @@ def test_red_cotton_colour_in_the_published_range_and_shared_by_classic_and_summ
     rho, u_rho = rho_d
     h, s, b_r, g_r = _colour_figures(rho)
     u = _colour_uncertainty(rho, u_rho)
-    # published (PHYSICS.md section 8): H 0.97-0.99, S ~ 0.99, BLUE/RED 0.05-0.25, GREEN/RED 0.01-0.017
+    # published (docs/physics.md section 8): H 0.97-0.99, S ~ 0.99, BLUE/RED 0.05-0.25, GREEN/RED 0.01-0.017
     assert 0.97 <= h <= 0.99, (h, u)
     assert 0.98 <= s <= 1.0, (s, u)
     assert 0.05 <= b_r <= 0.25, (b_r, u)
@@ -123,7 +123,7 @@ def test_classic_albedo_at_most_one_up_to_grazing(red_cotton, rho_quick):
 
 def test_real_summation_dataset_small_plan(red_cotton, tmp_path):
     from gonio.data.dataset import read_dataset, write_dataset
-    from gonio.plan import parse_plan
+    from gonio.acquisition.plan import parse_plan
     from simulate.virtual import fabric_dataset
 
     cfg, _ = red_cotton

@@ -1,7 +1,7 @@
 """Summation over warp and weft, sample rotation, symmetry reduction, and the classic model.
 
 A fake fiber BRDF with a known analytic form (conftest) makes every frame mapping checkable
-exactly: the expected values are written out by hand from PHYSICS.md section 6.
+exactly: the expected values are written out by hand from docs/physics.md section 6.
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def test_canonical_pairs_keep_values_and_land_in_the_quarter():
 
 
 def test_table_route_dedupes_and_equals_the_direct_sum():
-    from gonio.plan import load_plan
+    from gonio.acquisition.plan import load_plan
 
     plan = load_plan("red-cotton")
     g = plan.geometries()

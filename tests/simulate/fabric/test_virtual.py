@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gonio.data.dataset import read_dataset, write_dataset
-from gonio.plan import load_plan, parse_plan
+from gonio.acquisition.plan import load_plan, parse_plan
 from simulate import fabric as fab
 from simulate.config import load_config
 from simulate.virtual import GENERATOR, fabric_dataset

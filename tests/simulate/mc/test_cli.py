@@ -68,7 +68,7 @@ def test_photons_in_the_notation_of_the_help(capsys):
 
 def test_bench_quick_writes_json_and_chart(tmp_path, capsys):
     """The bench's structure, never its timings: a benchmark measures, a test does not judge
-    speed (QUALITY.md C). Keys, counts, finite positive figures, the files written."""
+    speed (docs/quality.md C). Keys, counts, finite positive figures, the files written."""
     assert main(["bench", "--out", str(tmp_path / "b"), "--quick"]) == 0
     report = json.loads((tmp_path / "b" / "bench.json").read_text())
     assert report["schema"] == "simulate-bench/1" and report["quick"] is True

@@ -1,4 +1,4 @@
-"""Fresnel/Snell validation against closed-form references (QUALITY.md section A)."""
+"""Fresnel/Snell validation against closed-form references (docs/quality.md section A)."""
 
 import numpy as np
 import pytest

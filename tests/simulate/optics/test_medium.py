@@ -1,4 +1,4 @@
-"""MieMedium / HGMedium: PHYSICS.md section 2 equations, units and flags."""
+"""MieMedium / HGMedium: docs/physics.md section 2 equations, units and flags."""
 
 import warnings
 

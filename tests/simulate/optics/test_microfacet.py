@@ -1,4 +1,4 @@
-"""Cook-Torrance validation (QUALITY.md section A): normalisation, reciprocity, albedo, mirror limit."""
+"""Cook-Torrance validation (docs/quality.md section A): normalisation, reciprocity, albedo, mirror limit."""
 
 import warnings
 
@@ -25,7 +25,7 @@ def test_projected_beckmann_area_integrates_to_one(m):
 
 
 def test_brdf_matches_the_formula_written_out():
-    """One configuration computed by hand from PHYSICS.md section 5 with scalar math."""
+    """One configuration computed by hand from docs/physics.md section 5 with scalar math."""
     m, n = 0.3, 1.557
     ti, pi_, to, po = np.radians(30.0), 0.0, np.radians(50.0), np.radians(160.0)
     wi = np.array([np.sin(ti) * np.cos(pi_), np.sin(ti) * np.sin(pi_), np.cos(ti)])

@@ -1,4 +1,4 @@
-"""Mie wrapper validation (QUALITY.md section A): published values, Rayleigh limit, host index."""
+"""Mie wrapper validation (docs/quality.md section A): published values, Rayleigh limit, host index."""
 
 import os
 import warnings

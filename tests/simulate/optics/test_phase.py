@@ -1,4 +1,4 @@
-"""Phase functions and the inverse-CDF sampling table (QUALITY.md section A: sampled g)."""
+"""Phase functions and the inverse-CDF sampling table (docs/quality.md section A: sampled g)."""
 
 import numpy as np
 import pytest

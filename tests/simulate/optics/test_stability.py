@@ -1,4 +1,4 @@
-"""QUALITY.md section B cells of the optics layer: finite, bounded, flagged outside the domain."""
+"""docs/quality.md section B cells of the optics layer: finite, bounded, flagged outside the domain."""
 
 import warnings
 

@@ -1,6 +1,7 @@
 """The acquisition journal: an append-only JSON Lines checkpoint, fsynced per record.
 
-The engine (:mod:`gonio.engine`) appends one record per event and calls ``fsync`` before it
+The engine (:mod:`gonio.acquisition.engine`) emits one record per event to the journal writer
+(:class:`gonio.acquisition.subscribers.JournalWriter`), which appends it and calls ``fsync`` before it
 starts the next point, so after a crash (even ``SIGKILL`` or a power cut) the journal holds every
 point that was measured, plus at most one torn last line. Records (one JSON object a line):
 
@@ -15,9 +16,9 @@ point that was measured, plus at most one torn last line. Records (one JSON obje
 ``event``        ``{"type": "event", "what": str, ...}`` - resume, retries, safe stop, completion
 
 ``retries`` (optional: journals written before it existed lack it) is the session's cumulative
-retry counter at that checkpoint, ``{kind: count}`` (:data:`gonio.devices.RETRY_KINDS`), so the
+retry counter at that checkpoint, ``{kind: count}`` (:data:`gonio.instrument.retry.RETRY_KINDS`), so the
 counts of a session killed before its ``session_end`` event are not lost
-(:func:`gonio.engine.retry_totals`).
+(:func:`gonio.acquisition.reduce.retry_totals`).
 
 A *reading* is ``{"wavelength_nm", "itime_ms", "gain", "mean", "sem", "n", "ranging"}`` (raw
 counts; the radiance factor is computed from the journal when the dataset is written, so a
@@ -31,7 +32,6 @@ that does not parse is reported as *torn* (the point it held is measured again o
 
 from __future__ import annotations
 
-import fcntl
 import json
 import math
 import os
@@ -40,61 +40,11 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["JournalError", "JournalContent", "Journal", "read_journal", "parse_journal",
-           "check_consistency", "RunDirLock", "RunDirLocked"]
+           "check_consistency", "RECORD_TYPES"]
 
 
 class JournalError(ValueError):
     """The journal is corrupt or belongs to another run (message names the file and line)."""
-
-
-class RunDirLocked(JournalError):
-    """Another session holds the run directory's lock (:class:`RunDirLock`)."""
-
-
-class RunDirLock:
-    """Exclusive lock on a run directory for one whole session (``fcntl.flock`` on the folder).
-
-    Two sessions on one run directory would interleave two instruments' points in one journal:
-    the second is refused at once (:meth:`acquire` never waits). The lock is advisory, held on
-    an open descriptor of the directory itself (no lock file is left behind), and the kernel
-    releases it when the process ends, however it ends (a killed session never leaves a stale
-    lock).
-    """
-
-    def __init__(self, path: Path, fd: int):
-        self.path, self._fd = path, fd
-
-    @classmethod
-    def acquire(cls, run_dir: str | os.PathLike) -> "RunDirLock":
-        """Create ``run_dir`` if needed and lock it; :class:`RunDirLocked` if it is taken."""
-        path = Path(run_dir)
-        path.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise RunDirLocked(f"{path}: another gonio session is using this run directory; "
-                               "wait until it ends, or choose another --out") from None
-        except BaseException:
-            os.close(fd)
-            raise
-        return cls(path, fd)
-
-    def release(self) -> None:
-        """Unlock (idempotent)."""
-        if self._fd is not None:
-            try:
-                fcntl.flock(self._fd, fcntl.LOCK_UN)
-            finally:
-                os.close(self._fd)
-                self._fd = None
-
-    def __enter__(self) -> "RunDirLock":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.release()
 
 
 _NUM = (int, float)
@@ -109,6 +59,8 @@ _SCHEMA: dict[str, dict[str, Any]] = {
               "readings": list},
     "event": {"what": str},
 }
+RECORD_TYPES = tuple(_SCHEMA)
+"""The journal's record types (the engine's documents that are journaled)."""
 
 
 def _reject_constant(name: str):

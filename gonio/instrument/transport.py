@@ -1,21 +1,23 @@
 """Transports: a line-oriented serial link and a Modbus client link, knowing nothing of devices.
 
 Each transport has one primitive, ``exchange(request) -> response``, plus ``open``, ``close``
-and ``reconnect``. Devices (:mod:`gonio.devices`) build requests from the protocol tables and
-interpret responses; a recording wrapper or a replaying fake (:mod:`gonio.record`) can stand in
-for a transport because nothing else crosses this interface.
+and ``reconnect``; the two interfaces are typed protocols, :class:`LineTransport` and
+:class:`RequestTransport`. Devices (:mod:`gonio.instrument.head`, :mod:`gonio.instrument.motion`)
+build requests from the protocol tables and interpret responses; a recording wrapper or a
+replaying fake (:mod:`gonio.acquisition.record`) can stand in for a transport because nothing
+else crosses these interfaces.
 
 - :class:`SerialTransport` (``channel = "serial"``): ``exchange(b"WAVE 550\\n")`` writes the
   command line and returns the raw response bytes up to and including ``\\r\\n`` - or what arrived
   before the timeout (``b""`` for no answer, a truncated line otherwise); the caller parses with
-  :func:`gonio.protocol.parse_response`. URLs are anything ``serial.serial_for_url`` opens: a
+  :func:`gonio.instrument.head_framing.parse_response`. URLs are anything ``serial.serial_for_url`` opens: a
   device path (``/dev/ttyUSB0``, a pty ``/dev/pts/5``) or ``socket://127.0.0.1:PORT``.
 - :class:`ModbusTransport` (``channel = "modbus"``): ``exchange({"fn": "read_input_registers",
   "address": 100, "count": 4})`` returns ``{"registers": [...]}``, ``{"bits": [...]}`` or ``{}``
   for writes, and raises :class:`ModbusExceptionResponse` (with the Modbus exception code),
   :class:`LinkTimeout` (no response) or :class:`LinkLost` (connection dropped or refused). URLs:
   ``tcp://HOST:PORT`` (pymodbus ``ModbusTcpClient``) or ``rtu://DEVICE`` (``ModbusSerialClient``,
-  RTU framing, :func:`gonio.protocol.rtu_serial_settings`: 19200 8E1, parity N on a
+  RTU framing, :func:`gonio.instrument.links.rtu_serial_settings`: 19200 8E1, parity N on a
   pseudo-terminal, unless ``?baudrate=..&parity=..`` says otherwise).
 
 pymodbus's own retries are disabled (``retries=0``): the device layer owns the retry policy, so
@@ -34,17 +36,20 @@ from __future__ import annotations
 import logging
 import time
 import urllib.parse
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
 
 import serial
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from gonio import protocol
+from gonio.instrument import links
+from gonio.instrument.head_framing import LINE_TERMINATOR
+from gonio.instrument.modbus_map import exception_name
 
-__all__ = ["TransportError", "LinkTimeout", "LinkLost", "ModbusExceptionResponse",
-           "SerialTransport", "ModbusTransport", "parse_modbus_url", "MODBUS_FUNCTIONS"]
+__all__ = ["TransportError", "LinkTimeout", "LinkLost", "ModbusExceptionResponse", "LineTransport",
+           "RequestTransport", "SerialTransport", "ModbusTransport", "parse_modbus_url",
+           "MODBUS_FUNCTIONS"]
 
 log = logging.getLogger(__name__)
 
@@ -80,12 +85,51 @@ class ModbusExceptionResponse(TransportError):
     def __init__(self, request: dict, code: int):
         self.request = dict(request)
         self.code = int(code)
-        try:
-            name = protocol.ModbusException(self.code).name.lower().replace("_", " ")
-        except ValueError:
-            name = "unknown exception"
         super().__init__("modbus", f"{request.get('fn')} at {request.get('address')}: "
-                                   f"exception {self.code} ({name})")
+                                   f"exception {self.code} ({exception_name(self.code)})")
+
+
+class LineTransport(Protocol):
+    """What the photometer head needs of its link (serial line, socket, recording, replay).
+
+    ``exchange`` sends one command line and returns the raw response line (``b""`` when nothing
+    came back before ``timeout_s``, or the link's own timeout); ``drain`` discards anything late
+    still on the wire; ``reconnect`` closes and opens again. Link failures raise
+    :class:`LinkLost`.
+    """
+
+    channel: str
+    url: str
+    timeout_s: float
+
+    def exchange(self, line: bytes, /, timeout_s: float | None = None) -> bytes: ...
+
+    def drain(self) -> bytes: ...
+
+    def reconnect(self) -> None: ...
+
+    def open(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class RequestTransport(Protocol):
+    """What the motion controller needs of its link (Modbus client, recording, replay).
+
+    ``exchange`` executes one request dict (:data:`MODBUS_FUNCTIONS`) and returns the response
+    dict, or raises :class:`ModbusExceptionResponse`, :class:`LinkTimeout` or :class:`LinkLost`.
+    """
+
+    channel: str
+    url: str
+
+    def exchange(self, request: dict, /) -> dict: ...
+
+    def reconnect(self) -> None: ...
+
+    def open(self) -> None: ...
+
+    def close(self) -> None: ...
 
 
 def parse_modbus_url(url: str) -> dict[str, Any]:
@@ -99,7 +143,7 @@ def parse_modbus_url(url: str) -> dict[str, Any]:
         if not parts.hostname:
             raise ValueError(f"{url}: expected tcp://HOST:PORT")
         try:
-            port = parts.port or protocol.MODBUS_TCP_PORT
+            port = parts.port or links.MODBUS_TCP_PORT
         except ValueError:
             raise ValueError(f"{url}: bad port; expected tcp://HOST:PORT") from None
         return {"kind": "tcp", "host": parts.hostname, "port": port}
@@ -108,7 +152,7 @@ def parse_modbus_url(url: str) -> dict[str, Any]:
         if not device:
             raise ValueError(f"{url}: expected rtu://DEVICE, e.g. rtu:///dev/ttyUSB0")
         q = urllib.parse.parse_qs(parts.query)
-        line = protocol.rtu_serial_settings(device)     # 19200 8E1; parity N on a pty
+        line = links.rtu_serial_settings(device)     # 19200 8E1; parity N on a pty
         try:
             baud = int(q.get("baudrate", [line["baudrate"]])[0])
             stopbits = int(q.get("stopbits", [line["stopbits"]])[0])
@@ -134,7 +178,7 @@ class SerialTransport:
 
     channel = "serial"
 
-    def __init__(self, url: str, *, timeout_s: float = 1.0, baudrate: int = protocol.HEAD_BAUDRATE):
+    def __init__(self, url: str, *, timeout_s: float = 1.0, baudrate: int = links.HEAD_BAUDRATE):
         self.url = url
         self.timeout_s = float(timeout_s)
         self.baudrate = baudrate
@@ -211,7 +255,7 @@ class SerialTransport:
             port.write(line)
             deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
             while True:
-                k = self._buf.find(protocol.LINE_TERMINATOR)
+                k = self._buf.find(LINE_TERMINATOR)
                 if k >= 0:
                     out = bytes(self._buf[:k + 2])
                     del self._buf[:k + 2]
@@ -234,7 +278,7 @@ class ModbusTransport:
 
     channel = "modbus"
 
-    def __init__(self, url: str, *, device_id: int = protocol.UNIT_ID, timeout_s: float = 1.0,
+    def __init__(self, url: str, *, device_id: int = links.UNIT_ID, timeout_s: float = 1.0,
                  reconnect_attempts: int = 6, reconnect_base_s: float = 0.01,
                  reconnect_max_s: float = 0.5, sleep: Callable[[float], None] = time.sleep):
         self.url = url
@@ -254,7 +298,7 @@ class ModbusTransport:
             return ModbusTcpClient(s["host"], port=s["port"], timeout=self.timeout_s, retries=0,
                                    reconnect_delay=0)
         return ModbusSerialClient(s["device"], framer=FramerType.RTU, baudrate=s["baudrate"],
-                                  bytesize=protocol.RTU_BYTESIZE, parity=s["parity"],
+                                  bytesize=links.RTU_BYTESIZE, parity=s["parity"],
                                   stopbits=s["stopbits"], timeout=self.timeout_s, retries=0,
                                   reconnect_delay=0)
 

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from gonio.data import COLUMNS, Dataset, make_dataset, new_meta
-from gonio.plan import Plan
+from gonio.acquisition.plan import Plan
 
 __all__ = ["truth_dataset"]
 

@@ -22,7 +22,7 @@ edits and corruption, it does not authenticate (anyone can recompute it: :func:`
 Every request (``tx``) is followed by its response (``rx``). Serial payloads are the raw line
 bytes as a string (bytes 0..255 mapped one-to-one to code points, i.e. latin-1), so garbled,
 truncated and empty (timeout) answers are kept exactly; Modbus payloads are the request dict of
-:class:`gonio.transport.ModbusTransport` and its response dict. Link events are requests too:
+:class:`gonio.instrument.transport.ModbusTransport` and its response dict. Link events are requests too:
 ``{"op": "reconnect"}`` and ``{"op": "drain"}`` (serial resynchronisation after a bad line).
 Failures are responses: ``{"error": "timeout"|"link_lost", "message": ...}`` and
 ``{"exception": CODE}`` (a Modbus exception).
@@ -44,7 +44,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gonio.transport import LinkLost, LinkTimeout, ModbusExceptionResponse, TransportError
+from gonio.instrument.transport import (LineTransport, LinkLost, LinkTimeout, ModbusExceptionResponse,
+                                        RequestTransport, TransportError)
 
 __all__ = ["TRANSCRIPT_FORMAT", "TranscriptError", "TranscriptIntegrityError", "ReplayMismatch",
            "TranscriptWriter", "reseal",
@@ -154,12 +155,13 @@ class TranscriptWriter:
 class RecordingTransport:
     """Wrap a transport; record every request and response (same interface as the transport)."""
 
-    def __init__(self, inner, writer: TranscriptWriter):
-        self.inner = inner
+    def __init__(self, inner: LineTransport | RequestTransport, writer: TranscriptWriter):
+        self.inner: Any = inner
         self.writer = writer
         self.channel = inner.channel
-        self.url = getattr(inner, "url", "")
-        self.timeout_s = getattr(inner, "timeout_s", 1.0)
+        self.url = inner.url
+        # a Modbus link has no per-line timeout; the head reads it from its line transport
+        self.timeout_s = float(getattr(inner, "timeout_s", 1.0))
 
     def _do(self, request_payload: Any, call):
         self.writer.write(self.channel, "tx", request_payload)
@@ -170,7 +172,9 @@ class RecordingTransport:
             raise
         return result
 
-    def exchange(self, request, **kw):
+    def exchange(self, request: Any, timeout_s: float | None = None) -> Any:
+        # a per-command timeout exists on the line transport only (a long READ?)
+        kw = {} if timeout_s is None else {"timeout_s": timeout_s}
         out = self._do(_encode(self.channel, request), lambda: self.inner.exchange(request, **kw))
         self.writer.write(self.channel, "rx", _encode(self.channel, out))
         return out
@@ -297,6 +301,9 @@ def load_transcript(path: str | os.PathLike) -> Transcript:
 class ReplayTransport:
     """A transport answering from a :class:`Transcript` (same interface as the live ones)."""
 
+    #: the recorded link's timeout does not matter: a replay never waits
+    timeout_s = 1.0
+
     def __init__(self, transcript: Transcript, channel: str):
         self.transcript = transcript
         self.channel = channel
@@ -311,7 +318,7 @@ class ReplayTransport:
             if resp.get("error") == "link_lost":
                 raise LinkLost(self.channel, resp.get("message", "link lost (recorded)"))
 
-    def exchange(self, request, **kw):
+    def exchange(self, request: Any, timeout_s: float | None = None) -> Any:
         self._last_request = request if isinstance(request, dict) else {}
         resp = self.transcript.answer(self.channel, _encode(self.channel, request))
         if self.channel == "serial":

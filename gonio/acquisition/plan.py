@@ -1,14 +1,14 @@
 """Acquisition plans: what to measure, read from TOML (``tomllib``).
 
 A plan is data (bluesky habit): the sample, the wavelengths, the geometries and the acquisition
-policy. The engine (:mod:`gonio.engine`) executes it; ``simulate`` evaluates its models at the
+policy. The engine (:mod:`gonio.acquisition.engine`) executes it; ``simulate`` evaluates its models at the
 same geometries through :meth:`Plan.geometries`.
 
-Geometry (PHYSICS.md section 1, INSTRUMENT.md axes)
+Geometry (docs/physics.md section 1, docs/instrument.md axes)
 ---------------------------------------------------
 The four axes are source zenith ``a0 = theta_i``, signed detector zenith ``s`` (+ = mirror side),
 detector-plane azimuth ``p`` from the plane of incidence, and sample rotation ``a3``, whose
-reading is ``phi_i``. :func:`gonio.protocol.axes_to_fabric` (shared with the mock) gives
+reading is ``phi_i``. :func:`gonio.data.geometry.axes_to_fabric` (shared with the mock) gives
 
 .. math::
 
@@ -57,6 +57,17 @@ Plan TOML schema
     white_standard = "spectralon"       # preset name or CSV file (relative to the plan's folder)
     reference_deg = [0, 45]             # reference geometry (theta_i, theta_o), in plane
 
+    [procedure]                         # optional, defaults shown
+    steps = ["home", "calibrate", "measure"]   # the session's steps, in order
+    recalibrate_every = 0               # > 0: dark + white standard again after every N points
+
+The procedure names the steps the engine runs after connecting (:data:`PROCEDURE_STEPS`):
+``home`` (home every axis), ``calibrate`` (dark and white standard at the reference geometry, or
+on ``--resume`` the journal's calibration when still valid) and ``measure`` (every measurable
+point); ``measure`` comes once, after a ``calibrate``. With ``recalibrate_every = N`` the
+calibration is measured again after every N points measured in a session, and each point uses
+the calibration it was measured with. The default is the order every recorded session used.
+
 Size limit: a plan asks for at most :data:`MAX_MEASUREMENTS` (one million) measurements,
 geometries (``incidence x rotations x (in-plane + out-of-plane directions)``) times wavelengths -
 about a month at real speed. A larger plan is refused at load time with one line; split it into
@@ -93,7 +104,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from gonio import protocol
+from gonio.data.geometry import axes_to_fabric, beam_blocked
+from gonio.instrument.modbus_map import AXES, deg_to_mdeg
 
 __all__ = [
     "WAVELENGTH_STEP_NM",
@@ -109,10 +121,15 @@ __all__ = [
     "order_points",
     "estimate_duration_s",
     "MAX_MEASUREMENTS",
+    "PROCEDURE_STEPS",
+    "Procedure",
 ]
 
 MAX_MEASUREMENTS = 1_000_000
 """Largest plan accepted: geometries x wavelengths (before duplicates are removed)."""
+
+PROCEDURE_STEPS = ("home", "calibrate", "measure")
+"""The steps a plan's ``[procedure]`` may name (the default order)."""
 
 _DEFAULT_WAVELENGTHS = np.arange(390.0, 710.0 + 1e-9, 10.0)
 _PRESET_PACKAGE = "gonio.presets"
@@ -120,6 +137,15 @@ _PRESET_PACKAGE = "gonio.presets"
 
 WAVELENGTH_STEP_NM = 0.1
 """Resolution of the head's ``WAVE`` setting (one decimal); plan wavelengths must lie on it."""
+
+
+@dataclass(frozen=True)
+class Procedure:
+    """The session's steps after connecting (see the module docstring): names of
+    :data:`PROCEDURE_STEPS` in order, and ``recalibrate_every`` points (0 = never)."""
+
+    steps: tuple[str, ...] = PROCEDURE_STEPS
+    recalibrate_every: int = 0
 
 
 class PlanError(ValueError):
@@ -332,6 +358,23 @@ def _range(f: _Fields, start: str, stop: str, step: str, what: str) -> list[floa
     return [round(a + k * d, 9) for k in range(n)]
 
 
+def _procedure(f: _Fields) -> Procedure:
+    steps = f.get("steps", list(PROCEDURE_STEPS))
+    if not isinstance(steps, list) or not steps or not all(isinstance(x, str) for x in steps):
+        f.fail("steps", f"must be a non-empty list of step names ({', '.join(PROCEDURE_STEPS)})")
+    unknown = [x for x in steps if x not in PROCEDURE_STEPS]
+    if unknown:
+        f.fail("steps", f"unknown step {unknown[0]!r} (steps: {', '.join(PROCEDURE_STEPS)})")
+    if steps.count("measure") != 1:
+        f.fail("steps", "must name 'measure' exactly once")
+    if "calibrate" not in steps[:steps.index("measure")]:
+        f.fail("steps", "'measure' needs a 'calibrate' before it (every point is measured "
+                        "against a calibration)")
+    every = f.number("recalibrate_every", 0, lo=0, hi=10**9, integer=True)
+    f.unknown()
+    return Procedure(tuple(steps), every)
+
+
 def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     """Validate plan TOML text (bytes or str) and build a :class:`Plan`; raises :class:`PlanError`."""
     file = str(path)
@@ -442,6 +485,7 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     if not 0.0 <= ref[0] <= 85.0 or not -85.0 <= ref[1] <= 85.0 or abs(ref[1]) >= 89.0:
         cal.fail("reference_deg", f"outside the axis limits: {ref}")
     cal.unknown()
+    procedure = _procedure(_Fields(top.table_("procedure"), "procedure", file))
     top.unknown()
 
     n_geometries = len(incidence) * len(rotations) * (len(in_plane) + len(directions))
@@ -455,7 +499,8 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
                 sample=dict(sample), wavelengths_nm=np.asarray(wavelengths, dtype=float),
                 incidence_deg=incidence, rotation_deg=rotations, in_plane_deg=in_plane,
                 directions_deg=directions, skip_blocked=skip_blocked, acquisition=settings,
-                white_standard=standard.strip(), reference_deg=(ref[0], ref[1]))
+                white_standard=standard.strip(), reference_deg=(ref[0], ref[1]),
+                procedure=procedure)
     plan.points()  # validates the geometry now, so errors name the file at load time
     return plan
 
@@ -478,6 +523,7 @@ class Plan:
     acquisition: AcquisitionSettings
     white_standard: str
     reference_deg: tuple[float, float]
+    procedure: Procedure = field(default_factory=Procedure)
     _points: list[PlanPoint] | None = field(default=None, repr=False)
 
     def points(self) -> list[PlanPoint]:
@@ -497,7 +543,7 @@ class Plan:
                         axes.append((ti, -to if to > 0 else 0.0, rel if to > 0 else 0.0, rho))
         out, seen = [], set()
         for a in axes:
-            g = protocol.axes_to_fabric(*a)
+            g = axes_to_fabric(*a)
             p = PlanPoint(*(float(x) for x in a), *g)
             if p.key not in seen:
                 seen.add(p.key)
@@ -525,8 +571,9 @@ class Plan:
     def check(self, *, move_overhead_s: float = 0.05, read_overhead_s: float = 0.004) -> PlanCheck:
         """Refuse points out of the soft limits or in the beam-block zone, order the rest.
 
-        The rules are the controller's, from :mod:`gonio.protocol` (soft limits of
-        :data:`~gonio.protocol.AXES` in whole millidegrees, :func:`~gonio.protocol.beam_blocked`).
+        The rules are the controller's (soft limits of
+        :data:`~gonio.instrument.modbus_map.AXES` in whole millidegrees,
+        :func:`~gonio.data.geometry.beam_blocked`).
 
         Parameters
         ----------
@@ -543,15 +590,15 @@ class Plan:
         ok, blocked, bad = [], [], []
         for p in self.points():
             reason = None
-            for axis, v in zip(protocol.AXES, p.axes_deg):
-                if not axis.within_limits(protocol.deg_to_mdeg(v)):
+            for axis, v in zip(AXES, p.axes_deg):
+                if not axis.within_limits(deg_to_mdeg(v)):
                     reason = (f"{axis.name} at {v:g} deg outside the soft limits "
                               f"{axis.min_mdeg / 1000:g}..{axis.max_mdeg / 1000:g} deg")
                     break
             if reason:
                 bad.append((p, reason))
                 continue
-            if protocol.beam_blocked(p.source_deg, p.detector_deg, p.plane_deg):
+            if beam_blocked(p.source_deg, p.detector_deg, p.plane_deg):
                 blocked.append(p)
             else:
                 ok.append(p)

@@ -3,7 +3,7 @@
 The detector sees the whole illuminated spot, so its signal is proportional to
 ``beta * cos(theta_o)``. With signal ``S`` and dark ``D`` (shutter closed) at integration time
 ``t`` and gain factor ``G``, and the white standard (calibrated radiance factor
-``beta_ref(lambda)``) measured at the reference geometry (INSTRUMENT.md, "Measurement equation"):
+``beta_ref(lambda)``) measured at the reference geometry (docs/instrument.md, "Measurement equation"):
 
 .. math::
 
@@ -40,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CalibrationError", "WhiteStandard", "load_white_standard", "radiance_factor",
-           "pooled_mean", "calibration_problem", "MIN_REFERENCE_Z"]
+__all__ = ["CalibrationError", "WhiteStandard", "load_white_standard", "parse_white_standard",
+           "radiance_factor", "calibration_problem", "MIN_REFERENCE_Z"]
 
 
 class CalibrationError(ValueError):
@@ -164,23 +164,6 @@ def calibration_problem(darks: list[dict], reference: list[dict],
             if not beta_ref[0] > 0:
                 return f"white standard at {wl:g} nm: the table gives beta_ref <= 0"
     return None
-
-
-def pooled_mean(means, stds, ns) -> tuple[float, float, int]:
-    """Pool repeated averages: ``(mean, standard error of the mean, total n)``.
-
-    The pooled variance is ``[sum (n_k - 1) s_k^2 + n_k (m_k - M)^2] / (N - 1)`` and the
-    standard error ``sqrt(var / N)``.
-    """
-    m = np.asarray(means, dtype=float)
-    s = np.asarray(stds, dtype=float)
-    n = np.asarray(ns, dtype=float)
-    total = float(n.sum())
-    mean = float(np.sum(n * m) / total)
-    if total <= 1:
-        return mean, float(s.max(initial=0.0)), int(total)
-    var = float(np.sum((n - 1) * s**2 + n * (m - mean) ** 2) / (total - 1))
-    return mean, math.sqrt(var / total), int(total)
 
 
 def radiance_factor(signal, u_signal, dark, u_dark, itime_ms, gain_factor, theta_o_deg,

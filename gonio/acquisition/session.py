@@ -1,0 +1,141 @@
+"""One acquisition session: the devices on two links, the engine and its subscribers, locked.
+
+:func:`run_session` is what ``gonio acquire``, ``gonio demo`` and ``gonio replay`` run: it locks
+the run directory (:class:`gonio.acquisition.rundir.RunDirLock`), optionally records both links
+(:class:`gonio.acquisition.record.RecordingTransport`), builds the two devices over the links
+with one shared :class:`~gonio.instrument.retry.RetryPolicy`, and runs the
+:class:`~gonio.acquisition.engine.Engine` with its subscribers (the journal, the progress display,
+the dataset writer). SIGTERM stops the run like Ctrl-C (exit status 130).
+:func:`replay_session` runs the same driver against a recorded transcript.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime as _dt
+import secrets
+import signal
+import time
+from pathlib import Path
+from typing import Callable
+
+from gonio.acquisition.engine import Engine, Interrupted, RunResult
+from gonio.acquisition.plan import Plan
+from gonio.acquisition.record import (RecordingTransport, ReplayTransport, Transcript, TranscriptError,
+                                      TranscriptWriter)
+from gonio.acquisition.rundir import RunDirLock, owned_by_run
+from gonio.acquisition.subscribers import DatasetWriter, ProgressReporter
+from gonio.instrument import MotionController, PhotometerHead, RetryPolicy
+from gonio.instrument.transport import LineTransport, RequestTransport
+
+__all__ = ["run_session", "replay_session", "ReplayClock"]
+
+
+def _software() -> dict:
+    import gonio
+    return {"gonio": gonio.__version__}
+
+
+def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport, out: Path, *,
+                resume: bool = False, seed: int | None = None, record: Path | None = None,
+                progress: bool | None = None, retry: RetryPolicy | None = None,
+                created: str | None = None, clock: Callable[[], float] = time.time,
+                owner_token: int | None = None) -> RunResult:
+    """Run one acquisition on two transports (live, recording or replaying).
+
+    With ``record`` the transports are wrapped in
+    :class:`~gonio.acquisition.record.RecordingTransport` writing to that file (a new file,
+    never one of the run directory's own). The run directory is locked for the whole session.
+    ``owner_token`` is the session's claim on the instrument (default: a new random token;
+    replay passes the recorded one, 0 claims nothing). ``created`` stamps the dataset (default:
+    the journal's start time).
+    """
+    if record is not None and owned_by_run(out, record):
+        raise TranscriptError(f"--record {record}: that is a file of the run directory {out}; "
+                              "record the transcript elsewhere")
+    lock = RunDirLock.acquire(out)
+    try:
+        return _locked_session(plan, modbus, serial_link, out, resume=resume, seed=seed,
+                               record=record, progress=progress, retry=retry, created=created,
+                               clock=clock, owner_token=owner_token)
+    finally:
+        lock.release()
+
+
+def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, progress, retry,
+                    created, clock, owner_token) -> RunResult:
+    if owner_token is None:
+        owner_token = secrets.randbelow(2**32 - 1) + 1
+    writer = None
+    if record is not None:
+        created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        writer = TranscriptWriter(record, {"created": created, "seed": seed,
+                                           "modbus": modbus.url, "serial": serial_link.url,
+                                           "plan": plan.name, "plan_sha256": plan.sha256,
+                                           "owner_token": owner_token, "software": _software()})
+        modbus = RecordingTransport(modbus, writer)
+        serial_link = RecordingTransport(serial_link, writer)
+    retry = retry or RetryPolicy()
+    head = PhotometerHead(serial_link, retry)
+    motion = MotionController(modbus, retry, poll_s=0.001 if retry.sleep is time.sleep else 0.0)
+    engine = Engine(plan, head, motion, retry, out, resume=resume, seed=seed, clock=clock,
+                    owner_token=owner_token)
+    dataset = DatasetWriter(out, plan, engine.standard, seed=seed, created=created,
+                            links={"modbus": modbus.url, "serial": serial_link.url})
+    engine.subscribers += [ProgressReporter(plan.name, progress), dataset]
+    previous = None
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+    except ValueError:      # not the main thread
+        previous = None
+    try:
+        return dataclasses.replace(engine.run(), dataset_path=dataset.path)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+        if writer is not None:
+            writer.close()
+        for link in (modbus, serial_link):
+            with contextlib.suppress(Exception):
+                link.close()
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(f"signal {signum}")
+
+
+class ReplayClock:
+    """Wall clock of a replay: the recording's start, so journals carry no replay-time stamps."""
+
+    def __init__(self, created: str | None):
+        try:
+            self.t = _dt.datetime.fromisoformat(created).timestamp() if created else 0.0
+        except ValueError:
+            self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def replay_session(transcript: Transcript, plan: Plan, out: Path) -> RunResult:
+    """Run the driver with ``plan`` against ``transcript``, writing the dataset in ``out``.
+
+    Raises :class:`~gonio.acquisition.record.ReplayMismatch` at the first request that differs
+    from the recording (or when the driver stops before the transcript's end), and
+    :class:`~gonio.acquisition.record.TranscriptError` when the transcript was recorded with
+    another plan.
+    """
+    header = transcript.header
+    if header.get("plan_sha256") not in (None, plan.sha256):
+        raise TranscriptError(f"{transcript.name} was recorded with plan '{header.get('plan')}' "
+                              f"(sha256 {str(header.get('plan_sha256'))[:12]}...), not with "
+                              f"{plan.path} (plan '{plan.name}', sha256 {plan.sha256[:12]}...): "
+                              "replay it with the plan file it was recorded with")
+    result = run_session(plan, ReplayTransport(transcript, "modbus"), ReplayTransport(transcript, "serial"),
+                         out, seed=header.get("seed"), progress=False,
+                         retry=RetryPolicy(sleep=lambda s: None), created=header.get("created"),
+                         clock=ReplayClock(header.get("created")),
+                         owner_token=int(header.get("owner_token") or 0))
+    transcript.finish()
+    return result
