@@ -1,4 +1,4 @@
-"""``simulate bench``: throughput and cost growth of the Monte Carlo kernel (QUALITY.md C).
+"""``simulate bench``: throughput and cost growth of the Monte Carlo kernel (docs/quality.md C).
 
 Measured on the van de Hulst slab case (n = 1, mu_a = 10/cm, mu_s = 90/cm, g = 0.75,
 d = 0.02 cm; MCML manual Table 6.1):

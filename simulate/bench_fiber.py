@@ -1,4 +1,4 @@
-"""``simulate bench`` part 2: the fiber BRDF routes, speed against accuracy (QUALITY.md C).
+"""``simulate bench`` part 2: the fiber BRDF routes, speed against accuracy (docs/quality.md C).
 
 Case: a red-dyed fiber like the shipped red-cotton one (R = 10 um, host n = 1.557 with a
 red dye absorption spectrum, Mie particles of radius 0.25 um at f_v = 0.03 with index 1.0, i.e.
@@ -6,7 +6,7 @@ voids), 33 wavelengths 390..710 nm, the in-plane (w_in, w_out) pairs of the red-
 the warp and weft fiber frames (incidence 0/30/45/60 deg, observation -60..70 deg).
 
 * ``nee`` (next-event, white): wall time to the target RMS relative error on ALL pairs and
-  wavelengths (the headline: QUALITY.md asks <= 60 s for 1 % on 2 cores);
+  wavelengths (the headline: docs/quality.md asks <= 60 s for 1 % on 2 cores);
 * all three routes side by side on one incident direction (30 deg off the axis' normal),
   one wavelength and three direction bins of the BSSRDF grid (9 x 12): wall time, standard
   error and the error against a converged next-event reference at photon budgets of 5e4,
@@ -111,7 +111,7 @@ def run_fiber_bench(quick: bool = False, threads: int | None = None) -> dict[str
 
 
 def summation_speed(quick: bool = False) -> dict[str, Any]:
-    """(w_i, w_o, lambda) evaluations per second of the fabric summation (QUALITY.md C: >= 10^6/s).
+    """(w_i, w_o, lambda) evaluations per second of the fabric summation (docs/quality.md C: >= 10^6/s).
 
     Random upper-hemisphere geometries, 33 wavelengths, ``R_B`` known at the unique fiber-frame
     pairs: (a) the gathers and the multiply alone (``summation_from_table``), (b) including

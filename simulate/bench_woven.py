@@ -129,7 +129,7 @@ def ray_engine_speed(mesh: Any, n_rays: int = 200_000, repeats: int = 3, alterna
 
 
 def _red_cotton_child(target: float, queue: Any) -> None:
-    from gonio.plan import load_plan
+    from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
     from simulate.virtual import fabric_dataset
 
@@ -156,7 +156,7 @@ def red_cotton_mc(target: float = 0.01) -> dict:
 
 
 def _other_models(table: dict) -> dict:
-    from gonio.plan import load_plan
+    from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
     from simulate.virtual import fabric_dataset
 

@@ -1,4 +1,4 @@
-"""The ``simulate`` console script (ARCHITECTURE.md, command line contract).
+"""The ``simulate`` console script (docs/architecture.md, command line contract).
 
 Subcommands are registered in :data:`COMMANDS`: each entry is a pair of functions
 ``(add_arguments(parser), run(args) -> int)``; a later subcommand (``fiber``, ``fabric``,

@@ -1,6 +1,6 @@
 r"""Fabric BRDF from the fiber BRDF: summation over warp and weft, and the classic baseline.
 
-Summation (PHYSICS.md section 6). With B the top cell of a fiber lying in the fabric plane and
+Summation (docs/physics.md section 6). With B the top cell of a fiber lying in the fabric plane and
 ``R_B = R_surf + R_vol`` its BRDF in the form ``L_o / E_perp`` (:mod:`simulate.fiber`)::
 
     R_fabric(w_i, w_o) = 1/2 sum_{k in warp, weft} R_B(M_k w_i, M_k w_o)
@@ -49,12 +49,12 @@ fiber gathers up to ``1 / cos(theta_i)`` times its share - in a real fabric its 
 its side. The summation's albedo therefore grows without bound as ``theta_i -> 90`` and exceeds 1
 beyond some angle (red cotton: 0.64 at 60 deg, 0.78 at 70, 0.96 at 75, 1.2 at 80, 1.9 at 85 deg, at
 700 nm). Geometries beyond :data:`SUMMATION_GRAZING_LIMIT_DEG` raise an ``OpticsDomainWarning``
-and :func:`summation_albedo` warns whenever the albedo it finds exceeds 1 (QUALITY.md B: flagged,
+and :func:`summation_albedo` warns whenever the albedo it finds exceeds 1 (docs/quality.md B: flagged,
 never silent). The fabric Monte Carlo (shadowing, masking) is the method for grazing incidence.
 
 References
 ----------
-PHYSICS.md sections 5-7. Cook, R. L. & Torrance, K. E. (1982). *ACM TOG* 1(1), 7-24.
+docs/physics.md sections 5-7. Cook, R. L. & Torrance, K. E. (1982). *ACM TOG* 1(1), 7-24.
 """
 
 from __future__ import annotations

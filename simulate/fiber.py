@@ -1,4 +1,4 @@
-r"""Fiber BRDF (PHYSICS.md sections 4-5): volume term by Monte Carlo, surface term by Cook-Torrance.
+r"""Fiber BRDF (docs/physics.md sections 4-5): volume term by Monte Carlo, surface term by Cook-Torrance.
 
 A fiber is a smooth dielectric cylinder of radius ``R`` and host index ``n`` filled with a
 scattering medium (:mod:`simulate.medium`). Frames: the fiber frame has x = the fiber axis
@@ -44,7 +44,7 @@ Routes
     Photons enter ONE cell A under a parallel beam, uniformly over the cell with launch weight
     ``max(w . n, 0)`` (the irradiance on the surface element), exits registered by cell offset
     and local direction: the BSSRDF table, stored by offset (the cylinder's invariance). Then
-    the summation of PHYSICS.md section 5 over all cells A_i with the illumination indicator::
+    the summation of docs/physics.md section 5 over all cells A_i with the illumination indicator::
 
         R_vol,B(w_in) = sum_i T(w_in^(A_i), B - A_i, bin) / Omega_proj
 
@@ -467,7 +467,7 @@ def bssrdf_table(
     cells, 0 = A itself), axial offset ``v`` (``n_v`` bins on ``[-v_max, v_max]``; 1 = summed
     out), local exit direction (``n_mu`` x ``n_phi`` uniform bins in ``cos theta`` and azimuth),
     wavelength. Values: mean exit weight per photon entering A uniformly with launch weight
-    ``max(w . n, 0)`` -- i.e. ``F_out / (E |A|)``; the PHYSICS.md BSSRDF is
+    ``max(w . n, 0)`` -- i.e. ``F_out / (E |A|)``; the docs/physics.md BSSRDF is
     ``T / (cos theta_in |B| dOmega cos theta_out)`` with ``F_in = E |A| cos theta_in``.
 
     Returns
@@ -711,7 +711,7 @@ def _bssrdf_for_beam(fiber, w_in, medium, walk_phase, targets, control, n_mu, n_
 def surface_brdf(fiber: Fiber, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
     """Surface term at B, ``R_surf = f_CT(w_in, w_out) cos(theta_in)`` (0 below B's tangent plane), ``[P]``.
 
-    Cook-Torrance with the host index and the fiber's Beckmann RMS slope (PHYSICS.md section 5);
+    Cook-Torrance with the host index and the fiber's Beckmann RMS slope (docs/physics.md section 5);
     wavelength-independent because the host index is real and constant.
     """
     w_in = _as_directions("w_in", w_in)

@@ -12,7 +12,7 @@ Bohren & Huffman 1983, sec. 2.7) give the reflectances::
 
     r_s = (n1 cos_i - n2 cos_t) / (n1 cos_i + n2 cos_t)      R_s = r_s^2
     r_p = (n2 cos_i - n1 cos_t) / (n2 cos_i + n1 cos_t)      R_p = r_p^2
-    F   = R = (R_s + R_p) / 2      (unpolarised; PHYSICS.md sections 3 and 5)
+    F   = R = (R_s + R_p) / 2      (unpolarised; docs/physics.md sections 3 and 5)
     T   = 1 - R
 
 ``R = 1`` beyond the critical angle ``asin(n2/n1)`` (``n1 > n2``), ``R_p = 0`` at

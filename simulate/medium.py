@@ -1,4 +1,4 @@
-"""Scattering media: optical coefficients of a host filled with Mie spheres (PHYSICS.md section 2).
+"""Scattering media: optical coefficients of a host filled with Mie spheres (docs/physics.md section 2).
 
 A host of real index ``n_h`` (optionally absorbing, ``mu_a_host(lambda)``) contains spheres of
 complex index ``m_p(lambda) = n_p - i k_p`` and radius ``r`` (or a log-normal distribution of
@@ -153,7 +153,7 @@ def _albedo(mu_s: float, mu_t: float) -> float:
 
 @dataclass(frozen=True, eq=False)
 class MieMedium:
-    """Host medium with Mie spheres (PHYSICS.md section 2).
+    """Host medium with Mie spheres (docs/physics.md section 2).
 
     Attributes
     ----------

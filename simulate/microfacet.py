@@ -1,4 +1,4 @@
-"""Cook-Torrance microfacet BRDF of the fiber surface (PHYSICS.md section 5).
+"""Cook-Torrance microfacet BRDF of the fiber surface (docs/physics.md section 5).
 
 Local frame: ``z`` = macroscopic surface normal ``n``. Directions are unit vectors pointing
 away from the surface, ``w_i`` towards the source and ``w_o`` towards the detector;
@@ -14,7 +14,7 @@ away from the surface, ``w_i`` towards the source and ``w_o`` towards the detect
 ``D`` is normalised so that the projected microfacet area is the macroscopic area,
 ``int D(h) cos_h dOmega_h = 1``. ``f_CT = 0`` unless ``cos_i > 0`` and ``cos_o > 0`` (the
 horizon itself included: a direction in the tangent plane sees zero projected area), so
-``R_surf = f_CT cos_i`` (PHYSICS.md section 5).
+``R_surf = f_CT cos_i`` (docs/physics.md section 5).
 
 Sampling (Walter et al. 2007, eqs. 28-29): with ``u1, u2`` uniform on [0, 1),
 ``tan^2(theta_h) = -m^2 ln(1 - u1)``, ``phi_h = 2 pi u2`` draws ``h`` with density

@@ -1,7 +1,7 @@
 """Mie scattering by homogeneous spheres in a host medium (thin wrapper of miepython).
 
 A sphere of radius ``r`` and complex index ``m_p = n_p - i k_p`` sits in a non-absorbing host
-of real index ``n_h`` and is lit at vacuum wavelength ``lambda`` (PHYSICS.md section 2). Mie
+of real index ``n_h`` and is lit at vacuum wavelength ``lambda`` (docs/physics.md section 2). Mie
 theory depends only on the relative index and the size parameter in the HOST::
 
     m = m_p / n_h                    x = 2 pi n_h r / lambda

@@ -1,7 +1,7 @@
 """Scattering phase functions and their inverse-CDF tables for Monte Carlo sampling.
 
 The phase function ``p(mu)``, ``mu = cos(theta)`` the cosine of the scattering angle, is
-normalised over the sphere (PHYSICS.md section 2)::
+normalised over the sphere (docs/physics.md section 2)::
 
     int_{4 pi} p dOmega = 2 pi int_{-1}^{1} p(mu) dmu = 1,     g = 2 pi int mu p(mu) dmu
 

@@ -1,6 +1,6 @@
 """The virtual goniophotometer: a fabric model evaluated at a plan's geometries, as a dataset.
 
-``simulate fabric CONFIG --method classic|summation|mc --out DIR [--geometry PLAN]`` (PHYSICS.md
+``simulate fabric CONFIG --method classic|summation|mc --out DIR [--geometry PLAN]`` (docs/physics.md
 section 7) evaluates the chosen fabric model (:mod:`simulate.fabric`) at the geometries and
 wavelengths of an acquisition plan (:mod:`gonio.plan`; default: the shipped ``red-cotton`` plan)
 and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`gonio.data.dataset`:
@@ -17,7 +17,7 @@ and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`
 Beam-blocked geometries. The instrument cannot observe within 5 degrees of its source, so a plan
 lists those points and the measurement skips them. A model has no detector in the beam: by
 default they are SIMULATED, because the normal/normal value is what ``compare`` normalises by
-(PHYSICS.md section 8) and the simulation's own value there is better than an interpolated one
+(docs/physics.md section 8) and the simulation's own value there is better than an interpolated one
 (``compare`` uses a dataset's normal/normal point when it has one). ``measurable_only=True``
 (``--measurable-only``) skips them exactly as the measurement does.
 
@@ -114,7 +114,7 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     Parameters
     ----------
     config : SimulationConfig
-    plan : gonio.plan.Plan
+    plan : gonio.acquisition.plan.Plan
     method : {"summation", "classic", "mc"}
         ``mc``: Monte Carlo ray tracing of the config's woven micro-element (:mod:`simulate.woven`).
     target_rel_err, seed, threads, max_photons

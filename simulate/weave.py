@@ -1,6 +1,6 @@
 """Woven-fabric geometry: the weave matrix, yarn centre lines and the yarn tubes of a micro-element.
 
-PHYSICS.md §6 (Monte Carlo ray tracing of a woven fabric, "Geometry"): the weave is a matrix
+docs/physics.md §6 (Monte Carlo ray tracing of a woven fabric, "Geometry"): the weave is a matrix
 (1 = warp over weft); it gives the control points of each yarn's centre line, a periodic cubic
 spline interpolates them with a chosen number of intermediate points, and the yarns are
 triangulated as tubes with vertex normals and the yarn tangent at each vertex (which orients the

@@ -423,9 +423,11 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
         for e in range(2):
             for d in range(D):
                 nee_need[i, e, d] = False
+        out_o[i, 0] = px + EPS_UM * gx
+        out_o[i, 1] = py + EPS_UM * gy
+        out_o[i, 2] = pz + EPS_UM * gz
         for q in range(3):
-            out_o[i, q] = px + EPS_UM * gx
-            nee_o[i, 0, q] = px + EPS_UM * gx
+            nee_o[i, 0, q] = out_o[i, q]
         if kind == K_LAMBERT:
             for d in range(D):
                 co = detectors[d, 0] * nx + detectors[d, 1] * ny + detectors[d, 2] * nz
@@ -729,8 +731,8 @@ class MCResult:
     """Fabric Monte Carlo for one incidence: next-event ``beta`` per detector and wavelength.
 
     ``beta``, ``u_beta``: ``[D, L]``. ``reflected``, ``transmitted``: energy fractions ``[L]``
-    (and their standard errors). ``bins``: escaping-ray ``f`` on the ``(cos theta, phi)`` grid
-    ``[n_mu, n_phi, L]``. ``stop``: ``"target" | "max_rays" | "max_seconds"``.
+    (and their standard errors). ``bins``, ``u_bins``: escaping-ray ``f`` on the uniform
+    ``(cos theta, phi)`` grid, ``[n_mu, n_phi, L]``, ``phi`` from -pi. ``stop``: ``"target" | "max_rays" | "max_seconds"``.
     """
 
     beta: np.ndarray
@@ -740,6 +742,7 @@ class MCResult:
     transmitted: np.ndarray
     u_transmitted: np.ndarray
     bins: np.ndarray
+    u_bins: np.ndarray
     rays: int
     seconds: float
     rel_err: float
@@ -757,6 +760,7 @@ class _Sums:
     trans2: np.ndarray
     energy2: np.ndarray
     bins: np.ndarray
+    bins2: np.ndarray
     rays: int = 0
     lost: int = 0
     killed: int = 0
@@ -766,7 +770,7 @@ class _Sums:
     albedo_over_one: int = 0
 
     def add(self, o: "_Sums") -> None:
-        for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins"):
+        for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins", "bins2"):
             getattr(self, name)[...] += getattr(o, name)
         self.rays += o.rays
         self.lost += o.lost
@@ -872,7 +876,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     stats = {"queries": 0}
     n_mu, n_phi = setup.bins
     sums = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
-                 np.zeros(L), np.zeros((n_mu, n_phi, L)), rays=n)
+                 np.zeros(L), np.zeros((n_mu, n_phi, L)), np.zeros((n_mu, n_phi, L)), rays=n)
     origins = np.column_stack([rng.uniform(0, setup.mesh.Lx, n), rng.uniform(0, setup.mesh.Ly, n),
                                np.full(n, scene.top)])
     dirs = np.broadcast_to(-np.asarray(w_in, float), (n, 3)).copy()
@@ -892,6 +896,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             imu = np.minimum((d[:, 2] * n_mu).astype(int), n_mu - 1)
             iph = np.minimum(((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_phi).astype(int), n_phi - 1)
             np.add.at(sums.bins, (imu, iph), weight[up])
+            np.add.at(sums.bins2, (imu, iph), weight[up] ** 2)   # a ray escapes once: its own square
         down = hits.prim == ESCAPED_DOWN
         if np.any(down):
             trans[ray[down]] += weight[down]
@@ -958,8 +963,8 @@ def straight_yarn_mesh(radius_um: float, lx: float, ly: float, n_s: int = 4, sid
 
     s = np.linspace(0.0, lx, n_s + 1)
     phi = np.linspace(0.0, 2.0 * np.pi, sides + 1)
-    S, P = np.meshgrid(s, phi, indexing="ij")
-    S, P = S.ravel(), P.ravel()
+    S2, P2 = np.meshgrid(s, phi, indexing="ij")
+    S, P = S2.ravel(), P2.ravel()
     v = np.column_stack([S, ly / 2 + radius_um * np.cos(P), radius_um * np.sin(P)])
     nrm = np.column_stack([np.zeros_like(S), np.cos(P), np.sin(P)])
     faces = []
@@ -1029,7 +1034,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     L = setup.n_wl
     D = det.shape[0]
     total = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
-                  np.zeros(L), np.zeros((bins[0], bins[1], L)), rays=0)
+                  np.zeros(L), np.zeros((bins[0], bins[1], L)), np.zeros((bins[0], bins[1], L)), rays=0)
     started = time.perf_counter()
     c = 0
     stop = "target"
@@ -1080,15 +1085,17 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     _, u_energy = _mean_se(total.refl + total.trans, total.energy2, n)
     mu_edges = np.linspace(0, 1, bins[0] + 1)
     omega = 0.5 * np.diff(mu_edges ** 2)[:, None] * (2 * np.pi / bins[1])
-    f_bins = total.bins / n / omega[:, :, None]
+    f_bins, u_bins = _mean_se(total.bins, total.bins2, n)
+    f_bins = f_bins / omega[:, :, None]
+    u_bins = u_bins / omega[:, :, None]
     info = {"u_reflected_plus_transmitted": u_energy.tolist(), "lost_rays": total.lost, "killed_at_max_bounces": total.killed, "embree_rays": total.embree_rays,
             "rays_per_second": total.embree_rays / seconds if seconds > 0 else None, "chunk": int(chunk)}
     if setup.kind == K_FIBER_BRDF:
         info["local_albedo"] = {"hits": total.hits, "mean_max_over_wavelengths": total.albedo_sum / max(total.hits, 1),
                                 "fraction_above_one": total.albedo_over_one / max(total.hits, 1)}
     log.info("fabric MC: %d rays, %.1f s, rel. err %.3g (%s)", n, seconds, rel, stop)
-    return MCResult(np.pi * mean / cos_o, np.pi * u / cos_o, refl, u_refl, trans, u_trans, f_bins, n, seconds,
-                    rel, stop, info)
+    return MCResult(np.pi * mean / cos_o, np.pi * u / cos_o, refl, u_refl, trans, u_trans, f_bins, u_bins, n,
+                    seconds, rel, stop, info)
 
 
 # ------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Monte Carlo photon transport (PHYSICS.md section 3): compiled kernel, geometries, tallies.
+"""Monte Carlo photon transport (docs/physics.md section 3): compiled kernel, geometries, tallies.
 
 Public API: :func:`run_slab`, :func:`run_cylinder` and their result classes. The compiled
 pieces (:mod:`.kernel`, :mod:`.geometry`, :mod:`.tallies`, :mod:`.rng`) are implementation

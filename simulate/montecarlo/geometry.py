@@ -1,7 +1,7 @@
 """Convex geometries of the Monte Carlo kernel: slab and circular cylinder.
 
 Two shapes, both with an analytic distance to the boundary along a ray from inside
-(PHYSICS.md section 3). The outside index is 1, the inside index ``n``; any consistent
+(docs/physics.md section 3). The outside index is 1, the inside index ``n``; any consistent
 length unit may be used (the kernel only ever multiplies lengths by ``mu_t``).
 
 ``SLAB`` (``geom = [d]``)

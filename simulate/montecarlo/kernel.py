@@ -1,4 +1,4 @@
-"""The compiled photon-transport kernel (PHYSICS.md section 3).
+"""The compiled photon-transport kernel (docs/physics.md section 3).
 
 One photon history, in the units of the caller (any consistent length unit)::
 

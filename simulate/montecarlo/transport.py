@@ -14,7 +14,7 @@ exits at most once, so its score is its exit weight or 0)::
     X = (1/N) sum_j X_j        u(X) = sqrt( ((1/N) sum_j X_j^2 - X^2) / (N - 1) )
 
 The slab results follow MCML: ``Rd`` is the diffuse reflectance WITHOUT the specular surface
-reflection ``Rsp = F(theta_i)`` (that is the surface term, PHYSICS.md section 5), ``Tt`` the
+reflection ``Rsp = F(theta_i)`` (that is the surface term, docs/physics.md section 5), ``Tt`` the
 total transmittance (unscattered + diffuse). Determinism: batch ``b`` always holds the same
 photons and uses stream ``(seed, b)``; rows are summed in batch order, so the numbers do not
 depend on ``threads``.
@@ -510,7 +510,7 @@ def run_slab(
     weight_threshold: float = DEFAULT_WEIGHT_THRESHOLD,
     survival: float = DEFAULT_SURVIVAL,
 ) -> SlabResult:
-    r"""Diffuse reflectance and total transmittance of a slab in air (PHYSICS.md section 3).
+    r"""Diffuse reflectance and total transmittance of a slab in air (docs/physics.md section 3).
 
     The slab ``-d <= z <= 0`` (index ``n``, outside index 1) is lit at its top face by a
     collimated beam at polar angle ``theta_i`` in the x-z plane. Each photon refracts in with

@@ -221,3 +221,35 @@ def test_hit_point_brdf_option_reports_its_energy_balance(plain, white_table):
     assert lost > 10 * at_hit.info["u_reflected_plus_transmitted"][0]
     assert at_hit.transmitted[0] < exits.transmitted[0]
     assert np.all(np.isfinite(at_hit.beta)) and np.all(at_hit.beta > 0)
+
+
+def test_next_event_agrees_with_escaping_ray_bins_on_a_woven_surface(plain):
+    """Two independent estimators of the same radiance: next-event with shadow rays through the
+    periodic micro-element, and the count of rays escaping into each direction bin. A Lambertian
+    weave (many bounces, strong shadowing at grazing angles) makes both work hard."""
+    n_mu, n_phi, sub = 3, 4, 4
+    # detectors on a sub-grid uniform in (mu^2, phi) inside each bin: their mean is the bin's
+    # projected-solid-angle average, which is what the bin estimates
+    dets, owner = [], []
+    for i in range(n_mu):
+        for j in range(n_phi):
+            for a in range(sub):
+                for b in range(sub):
+                    m2 = ((i / n_mu) ** 2 + ((i + 1) ** 2 - i ** 2) / n_mu ** 2 * (a + 0.5) / sub)
+                    phi = -np.pi + (j + (b + 0.5) / sub) * 2 * np.pi / n_phi
+                    mu = math.sqrt(m2)
+                    st = math.sqrt(1 - m2)
+                    dets.append([st * math.cos(phi), st * math.sin(phi), mu])
+                    owner.append((i, j))
+    dets = np.array(dets)
+    res = W.trace(weave.mesh(plain), W.Lambert(0.7), _dirs(40, 20)[0], dets, target_rel_err=1e-9, max_rays=65536,
+                  seed=13, bins=(n_mu, n_phi), chunk=4096)
+    f_nee = res.beta[:, 0] / np.pi
+    u_nee = res.u_beta[:, 0] / np.pi
+    for i in range(n_mu):
+        for j in range(n_phi):
+            sel = [k for k, o in enumerate(owner) if o == (i, j)]
+            mean = f_nee[sel].mean()
+            # the detectors of one bin share rays: bound their mean's error by the largest one
+            u = math.hypot(u_nee[sel].max(), res.u_bins[i, j, 0])
+            assert abs(mean - res.bins[i, j, 0]) < 4 * u + 0.02 * mean, (i, j, mean, res.bins[i, j, 0], u)
