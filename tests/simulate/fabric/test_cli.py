@@ -71,7 +71,7 @@ def test_fabric_with_a_plan_path_and_measurable_only(fake_fiber, tmp_path, cfg):
     (["--method", "summation", "--out", "{out}", "--geometry", "no-such-plan"], "--geometry"),
     (["--method", "summation", "--out", "{out}", "--target-rel-err", "2"], "--target-rel-err"),
     (["--method", "summation", "--out", "{out}", "--target-rel-err", "abc"], "--target-rel-err"),
-    (["--method", "mc", "--out", "{out}"], "--method"),
+    (["--method", "bssrdf", "--out", "{out}"], "--method"),
     (["--method", "summation", "--out", "{out}", "--seed", "-1"], "--seed"),
     (["--method", "summation", "--out", "{out}", "--threads", "0"], "--threads"),
     (["--method", "summation"], "--out"),

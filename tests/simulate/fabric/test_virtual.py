@@ -98,5 +98,5 @@ def test_classic_dataset_is_rho_plus_pi_f_ct(fake_fiber, tmp_path):
 
 
 def test_unknown_method_is_refused(fake_fiber):
-    with pytest.raises(ValueError, match="summation, classic"):
-        fabric_dataset(load_config("red-cotton"), load_plan("red-cotton"), "mc")
+    with pytest.raises(ValueError, match="summation, classic, mc"):
+        fabric_dataset(load_config("red-cotton"), load_plan("red-cotton"), "woven")
