@@ -218,6 +218,6 @@ def absorption_table(
                                                  control, target, cap, run_seed, threads, None)
             used[f"{d}:{gi}"] = int(run.photons)
             seconds += run.seconds
-            R[np.ix_(rows, group)] = value.reshape(len(rows), group.size, K)
-            u_R[np.ix_(rows, group)] = u.reshape(len(rows), group.size, K)
+            R[np.ix_(np.asarray(rows), group)] = value.reshape(len(rows), group.size, K)
+            u_R[np.ix_(np.asarray(rows), group)] = u.reshape(len(rows), group.size, K)
     return AbsorptionTable(R=R, u_R=u_R, nodes=nodes, wavelengths_nm=wl, photons=used, seconds=seconds)
