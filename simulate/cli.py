@@ -17,6 +17,8 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
     the fiber BRDF table (:mod:`simulate.fibertable`: npz + JSON sidecar); its target error
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
+``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
+    fits config parameters to a measurement (:mod:`simulate.fit`): fitted.toml, datasets, report.
 """
 
 from __future__ import annotations
@@ -356,6 +358,98 @@ def _fiber_run(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------------------------------
+# simulate fit
+# ------------------------------------------------------------------------------------------
+
+
+def _fit_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="start config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("measured", metavar="MEASURED_DIR", type=Path, help="measured radiance-coefficient dataset")
+    p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
+                   help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
+                        "dye, dye-peaks; repeatable or comma-separated); see simulate.fit")
+    p.add_argument("--out", type=Path, required=True,
+                   help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
+    p.add_argument("--method", choices=("classic", "summation"), default="classic",
+                   help="fabric model to fit (default classic)")
+    p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
+                   help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
+    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=60, dest="max_evaluations",
+                   help="objective evaluations per start (default 60)")
+    p.add_argument("--starts", type=_int_in(1, 1000), default=1,
+                   help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
+    p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
+                   help="model wavelengths for an RGB measurement (default: the config's)")
+    p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point)")
+    p.add_argument("--target-rel-err", type=_rel_err, default=0.03, dest="target_rel_err",
+                   help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
+                        "(default 0.03)")
+    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=None, help="random seed (default: the config's)")
+    p.add_argument("--threads", type=_threads_arg, default=None, help="threads; results do not depend on it")
+    p.add_argument("--no-progress", action="store_true", dest="no_progress", help="no progress bar")
+
+
+def _is_fit_output(out: Path) -> bool:
+    from simulate.fit import STATE_NAME
+
+    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file()
+
+
+def _fit_run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from gonio.data.dataset import DatasetError, read_dataset
+    from simulate.fit import FitError, FitProblem, parse_free, run_fit, write_outputs
+
+    config = _load_config(args.config)
+    try:
+        free = parse_free(args.free, config)
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    try:
+        measured = read_dataset(args.measured)
+    except DatasetError as exc:
+        raise _UsageError(f"MEASURED_DIR: {exc}") from None
+    wavelengths = None
+    if args.wavelengths:
+        try:
+            wavelengths = np.array([float(w) for w in args.wavelengths.split(",")])
+        except ValueError:
+            raise _UsageError(f"--wavelengths: expected numbers separated by commas, got {args.wavelengths!r}") from None
+    try:
+        problem = FitProblem(config, measured, free, method=args.method, colour_weight=args.colour_weight,
+                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
+                             wavelengths_nm=wavelengths)
+        problem.precheck()
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    _prepare_out(args.out, _is_fit_output, "simulate fit")
+    try:
+        result = run_fit(problem, out=args.out, resume=args.resume, max_evaluations=args.max_evaluations,
+                         starts=args.starts, progress=_progress(args))
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    except KeyboardInterrupt:
+        print(f"simulate fit: interrupted; the last accepted point is in {args.out / 'fit-state.json'} "
+              "(continue with --resume)", file=sys.stderr)
+        return 130
+    doc = write_outputs(problem, result, args.out)
+    for p in doc["parameters"]:
+        print(f"{p['name']} = {p['value']:.6g} +- {p['u']:.2g}   (start {p['start']:.6g}, bounds "
+              f"[{p['low']:g}, {p['high']:g}])")
+    for key in ("start", "fitted"):
+        c = doc[key]
+        colour = f", dh {c['dh']:+.4f}, ds {c['ds']:+.4f}" if "dh" in c else ""
+        print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}")
+    for w in doc["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+    info = doc["info"]
+    print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
+          f"{info['seconds']:.1f} s)")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
 
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]] = {
     "slab": ("Monte Carlo slab: diffuse reflectance and total transmittance", _slab_arguments, _slab_run),
@@ -363,6 +457,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callab
     "fabric": ("fabric BRDF at a plan's geometries, as a radiance-coefficient dataset", _fabric_arguments,
                _fabric_run),
     "fiber": ("fiber BRDF table over the incident sphere (npz + JSON)", _fiber_arguments, _fiber_run),
+    "fit": ("fit config parameters of a fabric model to a measurement", _fit_arguments, _fit_run),
 }
 
 
