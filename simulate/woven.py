@@ -951,9 +951,12 @@ def _mean_se(s: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray, np.ndar
 def _rel_err(value: np.ndarray, u: np.ndarray) -> float:
     """RMS over detectors and wavelengths of u / (the detector's spectral peak); dim ones ignored."""
     peak = np.abs(value).max(axis=1)
-    keep = peak > _PEAK_FLOOR * max(float(peak.max(initial=0.0)), 1e-300)
-    if not np.any(keep):
-        return float("inf")
+    if float(peak.max(initial=0.0)) == 0.0:
+        # nothing reached any detector (e.g. all of them below a black weave's horizon): the
+        # estimate 0 has no spread; stopping beats tracing for ever
+        log.warning("fabric MC: no light reached any detector direction")
+        return 0.0
+    keep = peak > _PEAK_FLOOR * float(peak.max())
     return float(np.sqrt(np.mean((u[keep] / peak[keep, None]) ** 2)))
 
 
@@ -1025,8 +1028,15 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     """
     w_in = np.asarray(w_in, float).reshape(3)
     det = np.ascontiguousarray(np.atleast_2d(np.asarray(detectors, float)))
-    if w_in[2] <= 0 or np.any(det[:, 2] <= 0):
+    # 90 deg exactly (cos 90 deg is 6e-17 in floating point) is an error, not a ray that wraps for ever
+    if w_in[2] <= 1e-12 or np.any(det[:, 2] <= 1e-12):
         raise ValueError("trace: w_in and the detectors must point above the fabric (z > 0)")
+    if min(w_in[2], float(det[:, 2].min())) < math.cos(math.radians(85.0)):
+        from simulate.microfacet import OpticsDomainWarning
+
+        warnings.warn("fabric MC: directions more than 85 deg from the normal: the next-event radiance goes "
+                      "as 1/cos(theta_o) and few rays reach the fabric at grazing incidence; the relative "
+                      "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=2)
     if n_wavelengths is None:
         n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
                          else int(np.size(material.rho)))
@@ -1057,6 +1067,9 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
             for p in parts:     # in chunk order: the sums do not depend on the threads
                 total.add(p)
             c += _ROUND
+            if total.lost > 0.5 * total.rays:
+                raise ValueError(f"trace: {total.lost} of {total.rays} rays never reached the fabric (they run "
+                                 "parallel to it through the gaps); the incidence is too grazing for this weave")
             mean, u = _mean_se(total.nee, total.nee2, total.rays)
             rel = _rel_err(mean, u)
             if bar is not None:
