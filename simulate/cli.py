@@ -10,7 +10,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     "events_per_photon", ...}``; ``Rd`` excludes the specular surface reflection ``Rsp``.
 ``simulate bench --out DIR [--quick]``
     kernel benchmark: DIR/bench.json, DIR/bench.png and a markdown table on stdout.
-``simulate fabric CONFIG --method classic|summation|mc --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
+``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
     a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
     non-empty DIR is overwritten only if it holds a previous ``simulate fabric`` output.
@@ -282,9 +282,10 @@ def _progress(args: argparse.Namespace) -> bool:
 
 def _fabric_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
-    p.add_argument("--method", choices=("classic", "summation", "mc"), required=True,
+    p.add_argument("--method", choices=("classic", "summation", "mc", "auto"), required=True,
                    help="fabric model: summation over warp and weft, the classic Lambert + Cook-Torrance, "
-                        "or mc (Monte Carlo ray tracing of the woven micro-element of the config's [weave])")
+                        "mc (Monte Carlo ray tracing of the woven micro-element of the config's [weave]), or "
+                        "auto (per geometry the cheapest whose error against mc is within the target)")
     p.add_argument("--max-seconds", type=_nonneg_float, default=0.0, dest="max_seconds",
                    help="mc: time budget per incidence in seconds (0 = none); the output says which stop ended it")
     p.add_argument("--out", type=Path, required=True, help="output dataset directory (radiance.csv, meta.json)")

@@ -46,7 +46,7 @@ __all__ = ["FABRIC_METHODS", "GENERATOR", "fabric_dataset", "achieved_rel_err", 
 
 log = logging.getLogger(__name__)
 
-FABRIC_METHODS = ("summation", "classic", "mc")
+FABRIC_METHODS = ("summation", "classic", "mc", "auto")
 #: ``meta.json["model"]["generator"]`` of every dataset written here (``simulate fabric`` uses it
 #: to recognise its own previous output before overwriting it).
 GENERATOR = "simulate fabric"
@@ -105,6 +105,53 @@ def _fiber_photons(info: dict) -> int | None:
     return None
 
 
+def _evaluate(method: str, config: SimulationConfig, fiber: Any, theta_i: np.ndarray, phi_i: np.ndarray,
+              theta_o: np.ndarray, phi_o: np.ndarray, wavelengths: np.ndarray, *, target: float, seed: int,
+              threads: Any, max_photons: Any, progress: bool, max_seconds: float):
+    """One fabric model at G geometries: ``beta, u_beta, n [G, L]``, photons, info, seconds, model fields."""
+    from simulate import fiber as fiber_mod
+
+    started = time.perf_counter()
+    if method == "summation":
+        pairs = fab.FiberPairs.from_angles(theta_i, phi_i, theta_o, phi_o)
+        log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
+                 theta_i.size, pairs.n_unique, wavelengths.size)
+        est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wavelengths, method=config.method,
+                                    target_rel_err=target, max_photons=max_photons, seed=seed,
+                                    threads=threads, progress=progress)
+        r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs.w_in, pairs.w_out), float)
+        R_B = np.asarray(est.R, float) + r_surf[:, None]
+        beta, u_beta = fab.summation_from_table(pairs, R_B, est.u_R)
+        n = np.full(beta.shape, max(int(est.photons), 1))
+        return (beta, u_beta, n, int(est.photons), jsonable(dict(est.info)), float(est.seconds),
+                {"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
+    w_i = fab.directions_deg(theta_i, phi_i)
+    w_o = fab.directions_deg(theta_o, phi_o)
+    if method == "mc":
+        from simulate import weave as weave_mod
+        from simulate import woven
+
+        wv = weave_mod.weave_from_config(config)
+        mesh = weave_mod.mesh(wv)
+        beta, u_beta, mc_info = woven.fabric_beta(
+            mesh, fiber, w_i, w_o, wavelengths, target_rel_err=target, max_rays=max_photons or 0,
+            seed=seed, threads=threads or (os.cpu_count() or 1), progress=progress, max_seconds=max_seconds)
+        n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
+        extra = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
+                           "height_um": wv.height_um, "crimp": wv.crimp},
+                 "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
+                 "estimator": "next-event towards each detector direction"}
+        return (beta, u_beta, n, int(mc_info["table"]["photons"]), jsonable(mc_info),
+                float(mc_info["table"]["seconds"]), extra)
+    rho, u_rho = fiber_mod.normal_albedo(fiber, wavelengths, target_rel_err=target, seed=seed, threads=threads)
+    rho = np.asarray(rho, float)
+    beta = fab.classic_beta(rho, w_i, w_o, config.rms_slope, config.n_host)
+    u_beta = np.broadcast_to(np.asarray(u_rho, float)[None, :], beta.shape).copy()
+    n = np.ones(beta.shape, dtype=np.int64)
+    return (beta, u_beta, n, None, {}, time.perf_counter() - started,
+            {"rho_d": rho.tolist(), "u_rho_d": np.asarray(u_rho, float).tolist()})
+
+
 def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
                    target_rel_err: float | None = None, seed: int | None = None,
                    threads: int | None = None, max_photons: int | None = None,
@@ -115,8 +162,11 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     ----------
     config : SimulationConfig
     plan : gonio.acquisition.plan.Plan
-    method : {"summation", "classic", "mc"}
+    method : {"summation", "classic", "mc", "auto"}
         ``mc``: Monte Carlo ray tracing of the config's woven micro-element (:mod:`simulate.woven`).
+        ``auto``: per geometry the cheapest method whose error against the Monte Carlo reference
+        (the bench's "where methods fail" study, :mod:`simulate.methods`) is within the target;
+        ``meta.json["model"]["method_per_geometry"]`` records which method produced each geometry.
     target_rel_err, seed, threads, max_photons
         Override the config's method settings (None: the config's).
     measurable_only : bool
@@ -129,8 +179,6 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     gonio.data.dataset.Dataset
         Kind ``"simulated"``, not yet written (:func:`gonio.data.dataset.write_dataset`).
     """
-    from simulate import fiber as fiber_mod
-
     if method not in FABRIC_METHODS:
         raise ValueError(f"method must be one of {', '.join(FABRIC_METHODS)}, got {method!r}")
     target = config.target_rel_err if target_rel_err is None else float(target_rel_err)
@@ -148,54 +196,35 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     started = time.perf_counter()
     model: dict[str, Any] = {"generator": GENERATOR, "name": f"fabric {method}", "method": method,
                              "fiber_route": config.method}
-    fiber_info: dict[str, Any] = {}
-    if method == "summation":
-        pairs = fab.FiberPairs.from_angles(theta_i, phi_i, theta_o, phi_o)
-        log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
-                 len(geometries), pairs.n_unique, wavelengths.size)
-        est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wavelengths, method=config.method,
-                                    target_rel_err=target, max_photons=max_photons, seed=seed,
-                                    threads=threads, progress=progress)
-        r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs.w_in, pairs.w_out), float)
-        R_B = np.asarray(est.R, float) + r_surf[:, None]
-        beta, u_beta = fab.summation_from_table(pairs, R_B, est.u_R)
-        n = np.full(beta.shape, max(int(est.photons), 1))
-        photons: int | None = int(est.photons)
-        fiber_info = jsonable(dict(est.info))
-        fiber_seconds = float(est.seconds)
-        model.update({"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
-    elif method == "mc":
-        from simulate import weave as weave_mod
-        from simulate import woven
+    settings: dict[str, Any] = dict(target=target, seed=seed, threads=threads, max_photons=max_photons, progress=progress,
+                    max_seconds=max_seconds)
+    if method == "auto":
+        from simulate import methods as methods_mod
 
-        wv = weave_mod.weave_from_config(config)
-        mesh = weave_mod.mesh(wv)
-        w_i = fab.directions_deg(theta_i, phi_i)
-        w_o = fab.directions_deg(theta_o, phi_o)
-        beta, u_beta, mc_info = woven.fabric_beta(
-            mesh, fiber, w_i, w_o, wavelengths, target_rel_err=target, max_rays=max_photons or 0,
-            seed=seed, threads=threads or (os.cpu_count() or 1), progress=progress,
-            max_seconds=max_seconds)
-        n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
-        photons = int(mc_info["table"]["photons"])
-        fiber_seconds = float(mc_info["table"]["seconds"])
-        fiber_info = jsonable(mc_info)
-        model.update({"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
-                                "height_um": wv.height_um, "crimp": wv.crimp},
-                      "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
-                      "estimator": "next-event towards each detector direction"})
-    else:
-        rho, u_rho = fiber_mod.normal_albedo(fiber, wavelengths, target_rel_err=target, seed=seed,
-                                             threads=threads)
-        rho = np.asarray(rho, float)
-        w_i = fab.directions_deg(theta_i, phi_i)
-        w_o = fab.directions_deg(theta_o, phi_o)
-        beta = fab.classic_beta(rho, w_i, w_o, config.rms_slope, config.n_host)
-        u_beta = np.broadcast_to(np.asarray(u_rho, float)[None, :], beta.shape).copy()
+        chosen, source = methods_mod.choose(theta_i, phi_i, theta_o, phi_o, target)
+        beta = np.zeros((theta_i.size, wavelengths.size))
+        u_beta = np.zeros_like(beta)
         n = np.ones(beta.shape, dtype=np.int64)
-        photons = None
-        fiber_seconds = time.perf_counter() - started
-        model.update({"rho_d": rho.tolist(), "u_rho_d": np.asarray(u_rho, float).tolist()})
+        photons = 0
+        fiber_seconds = 0.0
+        fiber_info = {}
+        for m in methods_mod.CHEAPEST_FIRST:
+            rows = np.nonzero(chosen == m)[0]
+            if rows.size == 0:
+                continue
+            b, u, nn, ph, info, sec, extra = _evaluate(m, config, fiber, theta_i[rows], phi_i[rows], theta_o[rows],
+                                                       phi_o[rows], wavelengths, **settings)
+            beta[rows], u_beta[rows], n[rows] = b, u, nn
+            photons += int(ph or 0)
+            fiber_seconds += sec
+            fiber_info[m] = info
+            model[m] = extra
+        model.update({"method_per_geometry": chosen.tolist(), "method_errors": source,
+                      "methods_used": {m: int(np.count_nonzero(chosen == m)) for m in methods_mod.CHEAPEST_FIRST}})
+    else:
+        beta, u_beta, n, photons, fiber_info, fiber_seconds, extra = _evaluate(
+            method, config, fiber, theta_i, phi_i, theta_o, phi_o, wavelengths, **settings)
+        model.update(extra)
     seconds = time.perf_counter() - started
 
     g = geometries.loc[geometries.index.repeat(wavelengths.size)].reset_index(drop=True)

@@ -73,3 +73,20 @@ def test_fabric_mc_ray_budget_is_reported(tmp_path, capsys):
                  "--target-rel-err", "0.01", "--max-photons", "1024", "--no-progress"]) == 0
     info = read_dataset(out).meta["provenance"]["fiber_info"]
     assert info["stop"] == "max_rays" and all(r["rays"] == 1024 for r in info["incidences"])
+
+
+def test_fabric_auto_records_the_method_of_every_geometry(tmp_path, capsys):
+    cfg = tmp_path / "grey.toml"
+    cfg.write_text(CONFIG)
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(PLAN)
+    out = tmp_path / "auto"
+    # at 12 % the shipped red-cotton study allows the cheaper models at some of these geometries only
+    assert main(["fabric", str(cfg), "--method", "auto", "--geometry", str(plan), "--out", str(out),
+                 "--target-rel-err", "0.12", "--no-progress"]) == 0
+    ds = read_dataset(out)
+    chosen = ds.meta["model"]["method_per_geometry"]
+    assert len(chosen) == 8 and len(set(chosen)) >= 2
+    assert set(chosen) <= {"classic", "summation", "mc"}
+    assert sum(ds.meta["model"]["methods_used"].values()) == 8
+    assert np.all(np.isfinite(ds.table["beta"])) and np.all(ds.table["beta"] > 0)
