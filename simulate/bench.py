@@ -192,6 +192,7 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
 
         report["woven"] = bench_woven.run_woven_bench()
         bench_woven.chart(report["woven"], out / "woven.png")
+        bench_woven.chart_speed(report["woven"], out / "speed-accuracy.png")
     (out / "bench.json").write_text(json.dumps(report, indent=2))
     _chart(report, out / "bench.png")
     return report
@@ -258,4 +259,8 @@ def markdown_table(report: dict[str, Any]) -> str:
         f"| Rd, Tt (1 thread, run 1; reference 0.09739, 0.66096) | {first['Rd']:.5f} +- {first['u_Rd']:.5f}, "
         f"{first['Tt']:.5f} +- {first['u_Tt']:.5f} |"
     )
+    if "woven" in report:
+        from simulate.bench_woven import markdown as woven_markdown
+
+        lines += ["", "woven-fabric Monte Carlo:", "", woven_markdown(report["woven"])]
     return "\n".join(lines)

@@ -181,6 +181,8 @@ def run_woven_bench(target: float = 0.01) -> dict:
     report["red_cotton"] = red_cotton_mc(target)
     report["models"] = _other_models(report["red_cotton"]["table"])
     report["departure"] = _departure(report)
+    report["speed_vs_accuracy"] = speed_vs_accuracy()
+    report["cost_growth"] = cost_growth()
     return report
 
 
@@ -272,3 +274,106 @@ def markdown(report: dict) -> str:
         lines.append(f"| {name} vs MC: departure (rms over wavelengths, of the MC peak), median / max over geometries | "
                      f"{d['median_rms_departure']:.1%} / {d['max_rms_departure']:.1%} |")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------
+# speed against accuracy, cost growth (issue: the main job's bench)
+# ------------------------------------------------------------------------------------------
+
+
+def _plan_subset(plan: Any, wavelengths: Any) -> Any:
+    """The plan with only ``wavelengths`` (cost growth with the number of wavelengths)."""
+    import dataclasses
+
+    return dataclasses.replace(plan, wavelengths_nm=np.asarray(wavelengths, float))
+
+
+def speed_vs_accuracy(budgets: tuple[float, ...] = (0.2, 0.1, 0.05, 0.02), reference_target: float = 0.005,
+                      threads: int | None = None) -> dict:
+    """Error of every method against a converged woven Monte Carlo reference, against wall time.
+
+    Error: RMS over geometries and wavelengths of ``(beta - ref) / max_lambda(ref)``, i.e. the
+    accuracy target's convention. Classic and summation converge to their own model, so their
+    error levels off at their departure from the woven fabric; the Monte Carlo's falls with its
+    budget. Each run uses a different seed from the reference.
+    """
+    from gonio.acquisition.plan import load_plan
+    from simulate.config import load_config
+    from simulate.virtual import fabric_dataset
+
+    cfg = load_config("red-cotton")
+    plan = load_plan("red-cotton")
+    threads = threads or os.cpu_count() or 1
+    t = time.perf_counter()
+    ref = fabric_dataset(cfg, plan, "mc", target_rel_err=reference_target, seed=1000, threads=threads)
+    ref_seconds = time.perf_counter() - t
+    key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
+    rt = ref.table
+
+    def error(ds) -> float:
+        j = rt.merge(ds.table, on=key, suffixes=("_r", "_m"))
+        peak = j.groupby(["theta_i", "phi_i", "theta_o", "phi_o"])["beta_r"].transform("max")
+        return float(np.sqrt(np.mean(((j["beta_m"] - j["beta_r"]) / peak) ** 2)))
+
+    runs = []
+    for method in ("classic", "summation", "mc"):
+        for k, target in enumerate(budgets):
+            t = time.perf_counter()
+            ds = fabric_dataset(cfg, plan, method, target_rel_err=target, seed=k + 1, threads=threads)
+            runs.append({"method": method, "target": target, "seconds": time.perf_counter() - t,
+                         "error": error(ds)})
+    return {"reference": {"method": "mc", "target": reference_target, "seconds": ref_seconds},
+            "runs": runs, "threads": threads}
+
+
+def cost_growth(target: float = 0.02) -> dict:
+    """Woven Monte Carlo wall time against the number of wavelengths and of threads (red cotton)."""
+    from gonio.acquisition.plan import load_plan
+    from simulate.config import load_config
+    from simulate.virtual import fabric_dataset
+
+    cfg = load_config("red-cotton")
+    plan = load_plan("red-cotton")
+    wl = np.asarray(plan.wavelengths_nm, float)
+    rows = []
+    for n in (3, 11, 33):
+        sub = _plan_subset(plan, wl[np.linspace(0, wl.size - 1, n).round().astype(int)])
+        for threads in (1, 2):
+            t = time.perf_counter()
+            ds = fabric_dataset(cfg, sub, "mc", target_rel_err=target, threads=threads)
+            info = ds.meta["provenance"]["fiber_info"]
+            rows.append({"wavelengths": n, "threads": threads, "seconds": time.perf_counter() - t,
+                         "table_cpu_seconds": info["table"]["seconds"], "rays": info["rays"]})
+    return {"target": target, "runs": rows}
+
+
+def chart_speed(report: dict, path: Path) -> None:
+    """Error vs wall time per method (log-log), and cost growth with wavelengths and threads."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sva = report["speed_vs_accuracy"]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for method, marker in (("classic", "s"), ("summation", "o"), ("mc", "^")):
+        r = [x for x in sva["runs"] if x["method"] == method]
+        a.loglog([x["seconds"] for x in r], [x["error"] for x in r], marker + "-", label=method)
+        for x in r:
+            a.annotate(f"{x['target']:g}", (x["seconds"], x["error"]), fontsize=7, xytext=(3, 3),
+                       textcoords="offset points")
+    a.set_xlabel("wall time (s)")
+    a.set_ylabel("RMS error vs converged woven MC (of its peak)")
+    a.set_title(f"speed vs accuracy (reference: MC at {sva['reference']['target']:.1%})")
+    a.legend(fontsize=8)
+    cg = report["cost_growth"]["runs"]
+    for threads, marker in ((1, "o-"), (2, "s-")):
+        r = [x for x in cg if x["threads"] == threads]
+        b.plot([x["wavelengths"] for x in r], [x["seconds"] for x in r], marker, label=f"{threads} thread(s)")
+    b.set_xlabel("wavelengths")
+    b.set_ylabel("wall time (s)")
+    b.set_title(f"woven MC cost growth (target {report['cost_growth']['target']:.0%})")
+    b.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
