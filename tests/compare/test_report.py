@@ -48,7 +48,7 @@ def demo_like(tmp_path_factory, h):
 def test_figures_have_captions_not_file_names(demo_like):
     text = demo_like["html"]
     captions = re.findall(r"<figcaption>(.*?)</figcaption>", text, flags=re.S)
-    assert len(captions) == 7
+    assert len(captions) == 8
     for j, caption in enumerate(captions, start=1):
         assert caption.startswith(f"<b>Figure {j}.</b> ")
         words = re.sub(r"<[^>]+>|\(figures/[^)]*\)", " ", caption).split()
@@ -61,7 +61,7 @@ def test_figures_have_captions_not_file_names(demo_like):
 
 def test_figures_are_150_dpi_png_and_svg_on_request(demo_like):
     pngs = sorted((demo_like["out"] / "figures").glob("*.png"))
-    assert len(pngs) == 7 and FIGURE_DPI >= 150
+    assert len(pngs) == 8 and FIGURE_DPI >= 150
     for png in pngs:
         dpi = Image.open(png).info["dpi"]
         assert min(dpi) == pytest.approx(150, abs=0.5), png.name
