@@ -501,17 +501,19 @@ def _colour_strip_figure(strips: list[dict]):
 
 
 def _hue_trend(strips: list[dict]) -> str:
-    """One sentence on how the measured hue changes along the highest-incidence curve."""
-    measured = [s for s in strips if s["measured"]]
-    if not measured:
+    """One sentence: the hue at the two ends of every dataset's strip at the highest incidence
+    (where the paper's purple-to-red change is largest), so the caption states what the strips
+    show in numbers rather than leaving it to the eye (display scaling changes the look)."""
+    if not strips:
         return ""
-    strip = max(measured, key=lambda s: s["theta_i"])
-    if strip["s"].size < 2:
+    top = max(s["theta_i"] for s in strips)
+    ends = [f"{s['label']} {360 * s['h'][0]:.1f} at s = {s['s'][0]:g} -> "
+            f"{360 * s['h'][-1]:.1f} at s = {s['s'][-1]:g}"
+            for s in strips if s["theta_i"] == top and s["s"].size >= 2]
+    if not ends:
         return ""
-    h0, h1 = float(strip["h"][0]), float(strip["h"][-1])
-    return (f" Measured at incidence {strip['theta_i']:g} deg, the hue (of linear sRGB) goes "
-            f"from {360 * h0:.0f} deg at s = {strip['s'][0]:g} to {360 * h1:.0f} deg at "
-            f"s = {strip['s'][-1]:g} (0/360 red, 300 magenta-purple).")
+    return (f" Hue of linear sRGB (deg; 0/360 red, 300 magenta) at the ends of the incidence "
+            f"{top:g} deg strips: " + "; ".join(ends) + ".")
 
 
 def source_summary(ds) -> str:
@@ -897,6 +899,6 @@ def _colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: b
             "Simulations are shown with their own spectra, not normalised per wavelength "
             "(that would force the measured colour at the normal). A missing swatch is a "
             "geometry the dataset does not hold, e.g. the beam-blocked retro-direction (dotted "
-            "line). Read left to right, the light goes from the detector's side (s < 0) to the "
-            "far side (s > 0): the paper observes red cotton turning from purple to dark red "
-            "that way." + _hue_trend(strips))
+            "line). Read left to right, the detector goes from the source's side (s < 0) to "
+            "the far side (s > 0); the paper observes red cotton turning from purple to dark "
+            "red as the light moves from the camera's side to the far side." + _hue_trend(strips))
