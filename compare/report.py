@@ -16,6 +16,11 @@ figures that the new one does not draw removed); any other non-empty folder need
 
 Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HTML as base64 PNG):
 
+The in-plane figures have the layout of the paper's Figure 7: one panel per incidence angle side
+by side, the measurement as points with error bars, each simulation as a line with its own +-1
+standard uncertainty shaded around it (``k u_C``; the luminance curve sums the wavelengths'
+uncertainties linearly, the white Monte Carlo's errors being correlated across wavelengths).
+
 ``inplane_luminance.png``
     One panel per incidence angle present (0, 30, 45, 60 deg for the red-cotton plan), the
     luminance-weighted radiance coefficient ``Y[beta] / pi`` (the CIE ``Y`` of the spectrum
@@ -34,6 +39,11 @@ Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HT
 ``swatches.png``
     Colour swatches (display sRGB) of the measurement and each simulation at the colour geometry,
     labelled with the H, S, V of the displayed (gamma-encoded) pixel.
+``colour_strips.png``
+    The colour along every in-plane curve: per incidence, one strip per dataset, one swatch per
+    observation angle (the dataset's own spectrum there -> linear sRGB via
+    :mod:`gonio.data.colour`, scaled to the strip's brightest swatch, gamma-encoded for display);
+    the caption gives the hue at both ends of each highest-incidence strip.
 
 Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
 contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
