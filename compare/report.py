@@ -16,6 +16,11 @@ figures that the new one does not draw removed); any other non-empty folder need
 
 Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HTML as base64 PNG):
 
+The in-plane figures have the layout of the paper's Figure 7: one panel per incidence angle side
+by side, the measurement as points with error bars, each simulation as a line with its own +-1
+standard uncertainty shaded around it (``k u_C``; the luminance curve sums the wavelengths'
+uncertainties linearly, the white Monte Carlo's errors being correlated across wavelengths).
+
 ``inplane_luminance.png``
     One panel per incidence angle present (0, 30, 45, 60 deg for the red-cotton plan), the
     luminance-weighted radiance coefficient ``Y[beta] / pi`` (the CIE ``Y`` of the spectrum
@@ -34,6 +39,11 @@ Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HT
 ``swatches.png``
     Colour swatches (display sRGB) of the measurement and each simulation at the colour geometry,
     labelled with the H, S, V of the displayed (gamma-encoded) pixel.
+``colour_strips.png``
+    The colour along every in-plane curve: per incidence, one strip per dataset, one swatch per
+    observation angle (the dataset's own spectrum there -> linear sRGB via
+    :mod:`gonio.data.colour`, scaled to the strip's brightest swatch, gamma-encoded for display);
+    the caption gives the hue at both ends of each highest-incidence strip.
 
 Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
 contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
@@ -147,8 +157,16 @@ def _measured_inplane(comparison: Comparison) -> pd.DataFrame:
                          "beta": rows["beta"].to_numpy(), "u_beta": rows["u_beta"].to_numpy()})
 
 
-def _luminance_curve(rows: pd.DataFrame, grid: np.ndarray, weights: np.ndarray) -> pd.DataFrame:
-    """``Y`` and ``u_Y`` per in-plane geometry (complete spectra on ``grid`` only)."""
+def _luminance_curve(rows: pd.DataFrame, grid: np.ndarray, weights: np.ndarray,
+                     correlated: bool = False) -> pd.DataFrame:
+    """``Y`` and ``u_Y`` per in-plane geometry (complete spectra on ``grid`` only).
+
+    ``u_Y`` combines the ``u_beta`` of the wavelengths in quadrature (independent errors: the
+    instrument reads each wavelength separately) or, when ``correlated``, linearly,
+    ``u_Y = sum |w| u_beta``: the simulations are "white" Monte Carlo, one set of photons
+    re-weighted for every wavelength, so their errors move together across the spectrum and the
+    quadrature sum would understate the band by up to ``sqrt(n_wavelengths)``.
+    """
     if rows.empty:
         return pd.DataFrame(columns=["theta_i", "s", "value", "u"])
     idx = np.argmin(np.abs(rows["wavelength_nm"].to_numpy()[:, None] - grid[None, :]), axis=1)
@@ -160,7 +178,10 @@ def _luminance_curve(rows: pd.DataFrame, grid: np.ndarray, weights: np.ndarray) 
     u = u.reindex(columns=range(grid.size))
     complete = b.notna().all(axis=1).to_numpy()
     values = b.to_numpy()[complete] @ weights
-    u_values = np.sqrt((u.to_numpy()[complete] ** 2) @ (weights ** 2))
+    if correlated:
+        u_values = u.to_numpy()[complete] @ np.abs(weights)
+    else:
+        u_values = np.sqrt((u.to_numpy()[complete] ** 2) @ (weights ** 2))
     index = b.index.to_frame(index=False)[complete]
     return pd.DataFrame({"theta_i": index["theta_i"].to_numpy(), "s": index["s"].to_numpy(),
                          "value": values, "u": u_values})
@@ -203,17 +224,37 @@ def _bars_hidden(ax, x, y, u) -> bool:
 
 
 def _inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], title: str,
-                    ylabel: str, measured_name: str):
+                    ylabel: str, measured_name: str, *, bands: bool = True):
     """The in-plane panels; returns ``(figure, bars_hidden)``, ``bars_hidden`` True when the
-    measured error bars are smaller than the markers in every panel."""
+    measured error bars are smaller than the markers in every panel.
+
+    The layout is the paper's Figure 7: one panel per incidence angle side by side (rows of at
+    most four), sharing the value axis, against the signed observation angle ``s`` over at least
+    -65..75 deg; the measurement as points with +-1 standard uncertainty bars, each simulation
+    as a line with, when ``bands``, its own +-1 standard uncertainty shaded around it (the
+    ``u`` column of the simulated frames).
+
+    Parameters
+    ----------
+    measured, simulated : DataFrame, dict of name -> DataFrame
+        Columns ``theta_i, s, value, u``; ``value`` and ``u`` are divided by pi when drawn.
+    title, ylabel, measured_name : str
+        Figure title, value-axis label and the measurement's name (legend).
+    bands : bool
+        Shade +-1 ``u`` around every simulated line.
+    """
     import matplotlib.pyplot as plt
 
     angles = sorted(set(measured["theta_i"].round(6)))
     n = max(len(angles), 1)
-    ncols = min(n, 2)
+    ncols = min(n, 4)
     nrows = math.ceil(n / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(6.0 * ncols, 3.8 * nrows), squeeze=False,
-                             sharey=True)
+    # one row leaves no room inside a panel for five legend entries: the legend goes under it
+    legend_below = nrows == 1 and n > 1
+    legend_in = 0.6        # height (inches) of the legend strip under a single row of panels
+    fig, axes = plt.subplots(nrows, ncols,
+                             figsize=(4.4 * ncols, 3.6 * nrows + (legend_in if legend_below else 0.0)),
+                             squeeze=False, sharey=True)
     hidden = []
     for k, (ax, theta_i) in enumerate(zip(axes.ravel(), angles)):
         m = measured[np.abs(measured["theta_i"] - theta_i) < 1e-6].sort_values("s")
@@ -221,12 +262,21 @@ def _inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], 
                    label="beam-blocked (retro-direction)" if k == 0 else None)
         ax.axvline(-theta_i, color="0.5", lw=0.8, ls=":")
         ax.errorbar(m["s"], m["value"] / np.pi, yerr=m["u"] / np.pi, fmt="o", ms=_MARKER_PT,
-                    capsize=2, color=_MEASURED_COLOUR, label=_label(f"{measured_name} (measured)"))
+                    capsize=2, color=_MEASURED_COLOUR, label=_label(f"{measured_name} (measured)"),
+                    zorder=3)
         for j, (name, rows) in enumerate(simulated.items()):
+            colour = f"C{j}"
             r = rows[np.abs(rows["theta_i"] - theta_i) < 1e-6].sort_values("s")
-            if not r.empty:
-                xs, ys = _gapped(r["s"].to_numpy(), r["value"].to_numpy() / np.pi, theta_i)
-                ax.plot(xs, ys, _LINESTYLES[j % len(_LINESTYLES)], marker=".", label=_label(name))
+            if r.empty:
+                continue
+            s = r["s"].to_numpy()
+            xs, ys = _gapped(s, r["value"].to_numpy() / np.pi, theta_i)
+            ax.plot(xs, ys, _LINESTYLES[j % len(_LINESTYLES)], marker=".", color=colour,
+                    label=_label(name))
+            if bands and "u" in r:
+                _, us = _gapped(s, r["u"].to_numpy() / np.pi, theta_i)
+                # NaN (the line's gaps) splits the band too: nothing shaded across a gap
+                ax.fill_between(xs, ys - us, ys + us, color=colour, alpha=0.22, lw=0)
         lo = min(-65.0, float(m["s"].min()) - 5 if len(m) else -65.0)
         hi = max(75.0, float(m["s"].max()) + 5 if len(m) else 75.0)
         ax.set_xlim(lo, hi)
@@ -238,13 +288,24 @@ def _inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], 
                     ha="right", va="top", fontsize=7, color="0.35")
         ax.set_title(f"incidence {theta_i:g} deg")
         ax.set_xlabel("signed observation angle s (deg)")
-        ax.set_ylabel(ylabel)
+        if k % ncols == 0:
+            ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     for ax in axes.ravel()[len(angles):]:
         ax.set_visible(False)
-    axes[0, 0].legend(fontsize=8)
     fig.suptitle(_label(title))
-    fig.tight_layout()
+    if legend_below:
+        # the first panel's legend (so it stays with the panel that owns the entries), placed in
+        # a strip reserved at the bottom of the figure and kept out of tight_layout, which would
+        # otherwise shrink the first panel to make room for it
+        legend = axes[0, 0].legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 0.0),
+                                   bbox_transform=fig.transFigure, frameon=False,
+                                   ncol=min(3, 2 + len(simulated)))
+        legend.set_in_layout(False)
+        fig.tight_layout(rect=(0.0, legend_in / fig.get_figheight(), 1.0, 1.0))
+    else:
+        axes[0, 0].legend(fontsize=8)
+        fig.tight_layout()
     fig.draw_without_rendering()   # final limits and layout: the transforms below are drawn
     for ax, theta_i in zip(axes.ravel(), angles):
         m = measured[np.abs(measured["theta_i"] - theta_i) < 1e-6]
@@ -351,6 +412,118 @@ def _swatch_figure(comparison: Comparison):
     fig.suptitle("display sRGB (gamma-encoded) swatches; H, S, V of these pixels", fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def _colour_strips(comparison: Comparison) -> list[dict]:
+    """The colour along each in-plane curve of every dataset (for :func:`_colour_strip_figure`).
+
+    One strip per (incidence, dataset), in the order measured, then the simulations; one swatch
+    per in-plane geometry the dataset holds at that incidence (and the measurement's ``phi_i``).
+    Each swatch is the colour of the dataset's own spectrum (or R, G, B channels) at that
+    geometry through the project's pipeline (:meth:`gonio.data.Dataset.colour_at`, i.e.
+    :func:`gonio.data.colour.spectrum_colour`: CIE 1931 2-degree observer, the comparison's
+    illuminant, linear sRGB). Simulations are taken as written, not normalised per wavelength:
+    ``k(lambda)`` makes every simulation's spectrum the measured one at the normal, so its
+    colour there would agree by construction; a per-strip scale (below) is all that is needed.
+
+    Returns
+    -------
+    list of dict
+        Keys ``theta_i``, ``phi_i``, ``label``, ``measured`` (bool), ``s`` (deg, sorted), ``rgb`` (linear sRGB,
+        shape (n, 3)), ``h`` (hue of the linear sRGB, turns) and ``pixel``: the displayed,
+        gamma-encoded sRGB of ``rgb * scale``, ``scale`` putting the largest channel of the
+        strip's brightest swatch at 1 (brightness compares along a strip, not across strips).
+    """
+    from gonio.data import display_srgb
+
+    datasets = [(f"{comparison.measured.name} (measured)", comparison.measured)]
+    datasets += list(comparison.simulated.items())
+    frames = {label: ds.in_plane() for label, ds in datasets}
+    measured = frames[datasets[0][0]]
+    keys = measured[["theta_i", "phi_i"]].round(6).drop_duplicates().sort_values(
+        ["theta_i", "phi_i"]).to_numpy()
+    strips = []
+    for theta_i, phi_i in keys:
+        for label, ds in datasets:
+            frame = frames[label]
+            rows = frame[(np.abs(frame["theta_i"].to_numpy() - theta_i) < 1e-6)
+                         & (np.abs(frame["phi_i"].to_numpy() - phi_i) < 1e-6)]
+            s_list, rgb_list, h_list = [], [], []
+            for s, at in rows.groupby("s", sort=True):
+                try:
+                    c = ds.colour_at(float(theta_i), float(phi_i), float(at["theta_o"].iloc[0]),
+                                     float(at["phi_o"].iloc[0]), illuminant=comparison.illuminant)
+                except ValueError:          # an incomplete spectrum here: no swatch, a gap
+                    continue
+                s_list.append(float(s))
+                rgb_list.append(c.rgb)
+                h_list.append(c.h)
+            if not s_list:
+                continue
+            rgb = np.asarray(rgb_list, dtype=float)
+            peak = float(np.max(rgb))
+            if not (math.isfinite(peak) and peak > 0):
+                continue
+            strips.append({"theta_i": float(theta_i), "phi_i": float(phi_i), "label": label,
+                           "measured": ds is comparison.measured, "s": np.asarray(s_list), "rgb": rgb, "h": np.asarray(h_list),
+                           "pixel": np.asarray(display_srgb(rgb / peak), dtype=float)})
+    return strips
+
+
+def _colour_strip_figure(strips: list[dict]):
+    """One panel per incidence (top to bottom), one strip per dataset in it, each swatch drawn
+    at its observation angle ``s`` (so the strips line up with the in-plane panels and a
+    missing geometry is a gap), the angles labelled under each panel."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    panels: dict[tuple[float, float], list[dict]] = {}
+    for strip in strips:
+        panels.setdefault((strip["theta_i"], strip["phi_i"]), []).append(strip)
+    several_phi = len({phi for _, phi in panels}) > 1
+    heights = [0.34 * len(v) + 0.95 for v in panels.values()]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(11.0, sum(heights) + 0.5), squeeze=False,
+                             gridspec_kw={"height_ratios": heights})
+    for ax, ((theta_i, phi_i), rows) in zip(axes[:, 0], panels.items()):
+        every_s = np.unique(np.concatenate([r["s"] for r in rows]))
+        step = float(np.min(np.diff(every_s))) if every_s.size > 1 else 10.0
+        for j, strip in enumerate(rows):
+            for s, pixel in zip(strip["s"], strip["pixel"]):
+                ax.add_patch(Rectangle((s - 0.45 * step, -j - 0.4), 0.9 * step, 0.8,
+                                       color=tuple(pixel), lw=0))
+        ax.axvline(-theta_i, color="0.5", lw=0.8, ls=":")
+        ax.set_xlim(float(every_s.min()) - 0.6 * step, float(every_s.max()) + 0.6 * step)
+        ax.set_ylim(-len(rows) + 0.5, 0.5)
+        ax.set_yticks([-j for j in range(len(rows))], [_label(r["label"]) for r in rows],
+                      fontsize=7)
+        ax.set_xticks(every_s, [f"{s:g}" for s in every_s], fontsize=7)
+        ax.tick_params(length=0)
+        for side in ax.spines.values():
+            side.set_visible(False)
+        ax.set_title(f"incidence {theta_i:g} deg" + (f", phi_i {phi_i:g} deg" if several_phi
+                                                      else ""), fontsize=9, loc="left")
+    axes[-1, 0].set_xlabel("signed observation angle s (deg): s < 0 detector on the source's "
+                           "side (dotted: retro-direction), s > 0 the far side", fontsize=8)
+    fig.suptitle("colour along the in-plane curves (display sRGB, each strip scaled to its "
+                 "brightest swatch)", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def _hue_trend(strips: list[dict]) -> str:
+    """One sentence: the hue at the two ends of every dataset's strip at the highest incidence
+    (where the paper's purple-to-red change is largest), so the caption states what the strips
+    show in numbers rather than leaving it to the eye (display scaling changes the look)."""
+    if not strips:
+        return ""
+    top = max(s["theta_i"] for s in strips)
+    ends = [f"{s['label']} {360 * s['h'][0]:.1f} at s = {s['s'][0]:g} -> "
+            f"{360 * s['h'][-1]:.1f} at s = {s['s'][-1]:g}"
+            for s in strips if s["theta_i"] == top and s["s"].size >= 2]
+    if not ends:
+        return ""
+    return (f" Hue of linear sRGB (deg; 0/360 red, 300 magenta) at the ends of the incidence "
+            f"{top:g} deg strips: " + "; ".join(ends) + ".")
 
 
 def source_summary(ds) -> str:
@@ -642,7 +815,10 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     lines = ("Lines: " + sims + " (normalised per wavelength by k), broken where a curve has "
              "no point, e.g. across the beam-blocked cone around the retro-direction (shaded, "
              f"|s + theta_i| < {BEAM_BLOCK_DEG:g} deg, where the detector would block the "
-             "source); the dashed line marks the mirror direction.")
+             "source); the dashed line marks the mirror direction. Shaded around each line: "
+             "+-1 standard uncertainty of that simulation (its Monte Carlo standard error "
+             "times k; for Y[beta] summed linearly over the wavelengths, since one set of "
+             "photons serves every wavelength and their errors are correlated).")
 
     def bars_note(hidden: bool, what: str) -> str:
         if hidden:
@@ -658,7 +834,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
 
     if not measured.empty:
         inplane("inplane_luminance.png", _luminance_curve(measured, grid, weights),
-                {n: _luminance_curve(r, grid, weights) for n, r in simulated.items()},
+                {n: _luminance_curve(r, grid, weights, correlated=True)
+                 for n, r in simulated.items()},
                 f"luminance-weighted radiance coefficient ({comparison.illuminant})",
                 "Y[beta] / pi  (1/sr)",
                 "In-plane luminance-weighted BRDF Y[beta]/pi ("
@@ -718,3 +895,20 @@ def _colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: b
         "Colour swatches at the colour geometry as shown on screen (gamma-encoded sRGB); the "
         "H, S, V printed under each are those of the displayed pixel. The table's H, S, V "
         "are of linear sRGB, hence different numbers for the same colour.")
+    strips = _colour_strips(comparison)
+    if strips:
+        figures["colour_strips.png"] = (
+            _savefig(_colour_strip_figure(strips), fig_dir / "colour_strips.png", svg),
+            "Colour strips: the colour of each dataset along each in-plane curve, one strip per "
+            "dataset and incidence angle, one swatch per observation angle s (labelled under "
+            "each panel, deg) placed at s. Each swatch is the dataset's spectrum at that "
+            f"geometry -> CIE XYZ (CIE 1931 2-degree observer, illuminant "
+            f"{comparison.illuminant}) -> linear sRGB (gonio.data.colour), scaled so that the "
+            "largest channel of the strip's brightest swatch is 1, then gamma-encoded for the "
+            "screen: hue and saturation compare everywhere, brightness only along a strip. "
+            "Simulations are shown with their own spectra, not normalised per wavelength "
+            "(that would force the measured colour at the normal). A missing swatch is a "
+            "geometry the dataset does not hold, e.g. the beam-blocked retro-direction (dotted "
+            "line). Read left to right, the detector goes from the source's side (s < 0) to "
+            "the far side (s > 0); the paper observes red cotton turning from purple to dark "
+            "red as the light moves from the camera's side to the far side." + _hue_trend(strips))

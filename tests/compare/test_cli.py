@@ -53,8 +53,8 @@ def test_report_writes_the_three_outputs(report):
     out = report["out"]
     assert (out / "report.html").is_file() and (out / "metrics.json").is_file()
     names = sorted(p.name for p in (out / "figures").glob("*.png"))
-    assert names == ["factor.png", "inplane_450nm.png", "inplane_550nm.png", "inplane_650nm.png",
-                     "inplane_luminance.png", "spectrum.png", "swatches.png"]
+    assert names == ["colour_strips.png", "factor.png", "inplane_450nm.png", "inplane_550nm.png",
+                     "inplane_650nm.png", "inplane_luminance.png", "spectrum.png", "swatches.png"]
     assert f"report: {out / 'report.html'}" in report["stdout"]
 
 
@@ -65,7 +65,7 @@ def test_report_is_self_contained_and_embeds_every_figure(report):
         assert data.startswith(b"\x89PNG")
         assert base64.b64encode(data).decode() in text, png.name
     assert "http://" not in text and "https://" not in text
-    assert text.count("src='data:image/png;base64,") == 7
+    assert text.count("src='data:image/png;base64,") == 8
 
 
 def test_user_strings_are_escaped_in_the_html(report):

@@ -48,7 +48,7 @@ def demo_like(tmp_path_factory, h):
 def test_figures_have_captions_not_file_names(demo_like):
     text = demo_like["html"]
     captions = re.findall(r"<figcaption>(.*?)</figcaption>", text, flags=re.S)
-    assert len(captions) == 7
+    assert len(captions) == 8
     for j, caption in enumerate(captions, start=1):
         assert caption.startswith(f"<b>Figure {j}.</b> ")
         words = re.sub(r"<[^>]+>|\(figures/[^)]*\)", " ", caption).split()
@@ -61,7 +61,7 @@ def test_figures_have_captions_not_file_names(demo_like):
 
 def test_figures_are_150_dpi_png_and_svg_on_request(demo_like):
     pngs = sorted((demo_like["out"] / "figures").glob("*.png"))
-    assert len(pngs) == 7 and FIGURE_DPI >= 150
+    assert len(pngs) == 8 and FIGURE_DPI >= 150
     for png in pngs:
         dpi = Image.open(png).info["dpi"]
         assert min(dpi) == pytest.approx(150, abs=0.5), png.name
@@ -228,3 +228,48 @@ def test_a_report_of_the_first_version_is_recognised_as_a_previous_report(h, tmp
     assert status == 0, err
     assert not (out / "figures" / "inplane_999nm.png").exists()
     assert "fabric-optics compare report" in (out / "report.html").read_text()
+
+
+def test_simulated_lines_carry_their_uncertainty_band(h):
+    from matplotlib.collections import PolyCollection
+
+    rows = h.in_plane_table(h.red_lobe, wavelengths=[650.0])
+    m = h.dataset(rows).in_plane().rename(columns={"beta": "value", "u_beta": "u"})
+    sim = m.assign(u=0.05)
+    fig, _ = _inplane_figure(m, {"model": sim}, "t", "y", "meas")
+    assert len(fig.axes) == 4 and len({ax.get_position().y0 for ax in fig.axes}) == 1  # one row
+    ax = fig.axes[1]                                     # incidence 30: the gap at s = -30
+    band = [c for c in ax.collections if isinstance(c, PolyCollection)]
+    # +-u around the line, broken like it at the beam-blocked gap (two pieces)
+    heights = [np.ptp(p.vertices[:, 1]) for c in band for p in c.get_paths()]
+    assert len(heights) == 2 and min(heights) >= 2 * 0.05 / np.pi - 1e-9
+    fig_plain, _ = _inplane_figure(m, {"model": sim}, "t", "y", "meas", bands=False)
+    assert not [c for c in fig_plain.axes[1].collections if isinstance(c, PolyCollection)]
+
+
+def test_colour_strips_one_per_dataset_and_incidence(demo_like):
+    from compare.report import _colour_strips
+
+    comparison = demo_like["comparison"]
+    strips = _colour_strips(comparison)
+    incidences = sorted(set(comparison.measured.in_plane()["theta_i"]))
+    assert len(strips) == len(incidences) * (1 + len(comparison.simulated))
+    assert [s["measured"] for s in strips[:2]] == [True, False]
+    for strip in strips:
+        # the brightest swatch of a strip shows its largest channel at full scale
+        assert strip["pixel"].max() == pytest.approx(1.0)
+        assert np.all(np.diff(strip["s"]) > 0) and strip["rgb"].shape == (strip["s"].size, 3)
+    measured = [s for s in strips if s["measured"]]
+    # the colour is the project's pipeline at that geometry: the measured red dye
+    first = measured[0]
+    c = comparison.measured.colour_at(first["theta_i"], first["phi_i"], *_in_plane_o(first))
+    assert np.allclose(first["rgb"][0], c.rgb)
+    text = demo_like["html"]
+    assert "Colour strips: the colour of each dataset along each in-plane curve" in text
+    assert "Hue of linear sRGB (deg; 0/360 red, 300 magenta) at the ends" in text
+
+
+def _in_plane_o(strip):
+    from gonio.data import in_plane_geometry
+
+    return in_plane_geometry(strip["theta_i"], float(strip["s"][0]), strip["phi_i"])
