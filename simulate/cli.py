@@ -29,6 +29,7 @@ import logging
 import math
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -557,8 +558,11 @@ def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
             raise _UsageError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
     # processes, one thread each: the kernels hold the GIL in places and numba's threads are
     # set per task (--threads); no dashboard, so that concurrent sweeps never compete for a port
-    cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                           dashboard_address=None)
+    with warnings.catch_warnings():
+        # the scheduler's HTTP server moves to a free port when 8787 is taken: nothing to tell
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
+        cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
     return Client(cluster), cluster
 
 
