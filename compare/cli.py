@@ -141,7 +141,9 @@ def _report(args) -> int:
     if any(is_sweep_dir(p) for p in args.simulated):  # a `simulate sweep` directory: compare.sweep
         if len(args.simulated) > 1:
             raise CompareError("a sweep directory must be the only SIM_DIR (compare report MEASURED SWEEP_DIR)")
-        print(f"report: {write_sweep_report(measured, args.simulated[0], args.out, svg=args.svg, force=args.force, window_deg=args.normal_window, illuminant=args.illuminant)}")
+        report = write_sweep_report(measured, args.simulated[0], args.out, svg=args.svg, force=args.force,
+                                    window_deg=args.normal_window, illuminant=args.illuminant)
+        print(f"report: {report}")
         return 0
     simulated = [read_dataset(p) for p in args.simulated]
     for line in incomplete_datasets(measured, simulated):

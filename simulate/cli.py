@@ -19,6 +19,9 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
 ``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
     fits config parameters to a measurement (:mod:`simulate.fit`): fitted.toml, datasets, report.
+``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]``
+    a parameter study on dask.distributed (:mod:`simulate.sweep`): one dataset per point, summary.csv;
+    exit 1 when a task still fails after its retries (the others are kept).
 """
 
 from __future__ import annotations

@@ -523,6 +523,9 @@ def run_sweep(spec: SweepSpec, out: Path, client: Any, *, retries: int = 2, prog
         if todo:
             from distributed import as_completed
 
+            if client is None:
+                raise ValueError(f"{len(todo)} tasks to compute and no dask client")
+
             short = spec.digest[:8]
             futures = {client.submit(evaluate_task, _task_args(spec, t), key=f"sweep-{short}-{t.id}",
                                      retries=retries, pure=False): t for t in todo}
