@@ -21,6 +21,9 @@ from simulate.sweep import SWEEP_NAME, prepare_out, run_sweep
 
 from .conftest import make_spec, plan_text, write_plan
 
+#: a cluster's scheduler HTTP server moves to a free port when another test's cluster holds 8787
+pytestmark = pytest.mark.filterwarnings("ignore:Port .* is already in use")
+
 PARAMS = ["rms_slope=0.2,0.4"]
 
 
@@ -33,7 +36,6 @@ def _summary(out: Path) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
-@pytest.mark.filterwarnings("ignore:Port .* is already in use")  # the scheduler's HTTP port: another cluster's
 def test_one_and_two_workers_give_byte_identical_datasets(tmp_path, inproc_client):
     from distributed import Client, LocalCluster
 

@@ -7,6 +7,7 @@ import html.parser
 import math
 
 import numpy as np
+import pytest
 
 from compare.cli import main as compare_main
 from gonio.acquisition.plan import load_plan
@@ -15,6 +16,9 @@ from gonio.mock.truth import truth_dataset
 from simulate.sweep import prepare_out, run_sweep
 
 from .conftest import make_spec, plan_text, write_plan
+
+#: a cluster's scheduler HTTP server moves to a free port when another test's cluster holds 8787
+pytestmark = pytest.mark.filterwarnings("ignore:Port .* is already in use")
 
 # colour needs a regular 20 nm grid (ASTM E308); three in-plane angles on each side of the normal (the normal value is estimated)
 PLAN = plan_text("start_nm = 420\nstop_nm = 700\nstep_nm = 20", in_plane="[-30, -20, -10, 10, 20, 40]")
