@@ -136,6 +136,15 @@ def _report(args) -> int:
                                "directory") from None
         print(f"report: {report}")
         return 0
+    from .sweep import is_sweep_dir, write_sweep_report
+
+    if any(is_sweep_dir(p) for p in args.simulated):  # a `simulate sweep` directory: compare.sweep
+        if len(args.simulated) > 1:
+            raise CompareError("a sweep directory must be the only SIM_DIR (compare report MEASURED SWEEP_DIR)")
+        report = write_sweep_report(measured, args.simulated[0], args.out, svg=args.svg, force=args.force,
+                                    window_deg=args.normal_window, illuminant=args.illuminant)
+        print(f"report: {report}")
+        return 0
     simulated = [read_dataset(p) for p in args.simulated]
     for line in incomplete_datasets(measured, simulated):
         log.warning("%s; the report says so in a banner", line)

@@ -19,6 +19,9 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
 ``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
     fits config parameters to a measurement (:mod:`simulate.fit`): fitted.toml, datasets, report.
+``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]``
+    a parameter study on dask.distributed (:mod:`simulate.sweep`): one dataset per point, summary.csv;
+    exit 1 when a task still fails after its retries (the others are kept).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import logging
 import math
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -501,6 +505,137 @@ def _weave_run(args: argparse.Namespace) -> int:
 
 COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave as a PLY/OBJ mesh",
                      _weave_arguments, _weave_run)
+
+
+# ------------------------------------------------------------------------------------------
+# simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
+#   a parameter study on dask.distributed (simulate.sweep)
+# ------------------------------------------------------------------------------------------
+
+
+def _sweep_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("--param", action="append", required=True, metavar="NAME=v1,v2,...",
+                   help="a swept config field (dotted path or alias volume_fraction, radius, rms_slope) and its "
+                        "values; repeat for a grid (every combination)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="sweep directory (sweep.json, tasks/, points/<name>=<value>/, summary.csv); an existing "
+                        "sweep directory of the same sweep is continued")
+    p.add_argument("--method", choices=("summation", "classic", "mc"), default="summation",
+                   help="fabric model (default summation)")
+    p.add_argument("--geometry", metavar="PLAN", default="red-cotton",
+                   help="acquisition plan whose geometries and wavelengths are simulated (default red-cotton)")
+    p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
+                   help="skip the plan's beam-blocked geometries as the measurement does")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", default=None,
+                   help="address of a running dask scheduler (default: a local cluster of --workers processes)")
+    p.add_argument("--workers", type=_int_in(1, 1024), default=None,
+                   help="local cluster: worker processes, one thread each (default: the number of CPUs)")
+    p.add_argument("--threads", type=_threads_arg, default=1,
+                   help="threads of each task's Monte Carlo (default 1: the workers are the parallelism); "
+                        "results do not depend on it")
+    p.add_argument("--retries", type=_int_in(0, 100), default=2,
+                   help="retries of a failing task before it is reported (default 2)")
+    p.add_argument("--measured", type=Path, default=None, metavar="DIR",
+                   help="measured dataset: add compare's NRMSE, dh and ds of every point to summary.csv")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the sweep in --out (it must exist; rerunning the same command does the same)")
+    p.add_argument("--target-rel-err", type=_rel_err, default=None, dest="target_rel_err",
+                   help="target relative standard error of the fiber Monte Carlo (default: the config's)")
+    p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
+                   help="photon budget per task (default: the config's; none)")
+    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=None,
+                   help="sweep seed (default: the config's); each task's seed is derived from it, the point "
+                        "and the wavelength")
+    p.add_argument("--no-progress", action="store_true", dest="no_progress",
+                   help="no progress bar (it is shown only on a terminal anyway)")
+
+
+def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
+    """``(client, cluster)``: a client of the named scheduler (cluster None) or of a new local cluster."""
+    from distributed import Client, LocalCluster
+
+    if args.scheduler:
+        try:
+            return Client(args.scheduler, timeout="20s"), None
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise _UsageError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+    # processes, one thread each: the kernels hold the GIL in places and numba's threads are
+    # set per task (--threads); no dashboard, so that concurrent sweeps never compete for a port
+    with warnings.catch_warnings():
+        # the scheduler's HTTP server moves to a free port when 8787 is taken: nothing to tell
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
+        cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+    return Client(cluster), cluster
+
+
+def _sweep_run(args: argparse.Namespace) -> int:
+    from gonio.acquisition.plan import PlanError, load_plan
+    from gonio.data.dataset import DatasetError, read_dataset
+    from simulate.sweep import SweepError, SweepSpec, finished_tasks, parse_params, prepare_out, run_sweep
+
+    config = _load_config(args.config)
+    try:
+        plan = load_plan(args.geometry)
+    except PlanError as exc:
+        raise _UsageError(f"--geometry: {exc}") from None
+    try:
+        spec = SweepSpec(config, plan, parse_params(args.param, config), method=args.method,
+                         target_rel_err=args.target_rel_err, seed=args.seed, max_photons=args.max_photons,
+                         measurable_only=args.measurable_only, threads=args.threads)
+    except SweepError as exc:
+        raise _UsageError(str(exc)) from None
+    measured = None
+    if args.measured is not None:
+        try:
+            measured = read_dataset(args.measured)
+        except DatasetError as exc:
+            raise _UsageError(f"--measured: {exc}") from None
+    try:
+        resumed = prepare_out(args.out, spec, resume=args.resume)
+    except SweepError as exc:
+        raise _UsageError(str(exc)) from None
+    if not args.verbose:
+        # distributed's own logs (cluster start/stop, each failed attempt's traceback, in the
+        # workers too: they inherit the environment) are not for users; failures are reported below
+        os.environ["DASK_LOGGING__DISTRIBUTED"] = "critical"
+    n_tasks = len(spec.tasks())
+    client = cluster = None
+    try:
+        if len(finished_tasks(args.out, spec)) < n_tasks:  # a finished sweep is only assembled again
+            client, cluster = _sweep_client(args)
+        result = run_sweep(spec, args.out, client, retries=args.retries, progress=_progress(args), measured=measured)
+    except SweepError as exc:
+        raise _UsageError(str(exc)) from None
+    except KeyboardInterrupt:
+        print(f"simulate sweep: interrupted; finished tasks are kept in {args.out / 'tasks'} (run the same command "
+              "again, or with --resume, to continue)", file=sys.stderr)
+        return 130
+    finally:
+        if client is not None:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    summary = result.summary
+    names = [p.name for p in spec.params]
+    for row in summary.to_dict("records"):
+        figures = f"{row['seconds']:.1f} s, rel. error {row['rel_err_rms']:.2%} rms"
+        if "nrmse" in row:
+            figures += f", NRMSE {row['nrmse']:.4g}, dh {row['dh']:+.4f}, ds {row['ds']:+.4f}"
+        values = ", ".join(f"{n}={row[n]:g}" for n in names)
+        print(f"  {values}: {row['status']}" + (f" ({figures})" if row["status"] == "complete" else
+                                                 f" ({row['tasks_done']} of {row['tasks']} tasks)"))
+    for line in result.failures.values():
+        print(f"simulate sweep: {line}", file=sys.stderr)
+    print(f"wrote {args.out} ({len(spec.points)} points x {len(spec.wavelengths_nm)} wavelengths = {n_tasks} tasks: "
+          f"{result.computed} computed, {result.reused} reused{', resumed' if resumed else ''}, "
+          f"{len(result.failures)} failed; summary in {args.out / 'summary.csv'})")
+    return 1 if result.failures else 0
+
+
+COMMANDS["sweep"] = ("parameter sweep of a fabric model on dask.distributed (one dataset per point)",
+                     _sweep_arguments, _sweep_run)
 
 
 def build_parser() -> argparse.ArgumentParser:
