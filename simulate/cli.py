@@ -97,6 +97,11 @@ def _angle_deg(text: str) -> float:
     return value
 
 
+#: seeds of the fiber/fabric runs: the Monte Carlo derives per-batch streams as seed * 1_000_003 + ...
+#: in 64-bit integers, so seeds stay below 2^31 (the slab command's kernel call takes any int64)
+MAX_SEED = 2**31 - 1
+
+
 def _int_in(lo: int, hi: int) -> Callable[[str], int]:
     def convert(text: str) -> int:
         try:
@@ -223,7 +228,7 @@ def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "t
                         f"curve's spectral peak (default: {target_default})")
     p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
                    help="photon budget (default: the config's; none)")
-    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=None, help="random seed (default: the config's)")
+    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
     p.add_argument("--threads", type=_threads_arg, default=None,
                    help="threads (default: the config's, else all); results do not depend on it")
     p.add_argument("--no-progress", action="store_true", dest="no_progress",
@@ -389,7 +394,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--target-rel-err", type=_rel_err, default=0.03, dest="target_rel_err",
                    help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
                         "(default 0.03)")
-    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=None, help="random seed (default: the config's)")
+    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
     p.add_argument("--threads", type=_threads_arg, default=None, help="threads; results do not depend on it")
     p.add_argument("--no-progress", action="store_true", dest="no_progress", help="no progress bar")
 
@@ -544,7 +549,7 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
                    help="target relative standard error of the fiber Monte Carlo (default: the config's)")
     p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
                    help="photon budget per task (default: the config's; none)")
-    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=None,
+    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None,
                    help="sweep seed (default: the config's); each task's seed is derived from it, the point "
                         "and the wavelength")
     p.add_argument("--no-progress", action="store_true", dest="no_progress",

@@ -514,7 +514,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     description = top.raw("description", "")
     if not isinstance(description, str):
         raise top.fail("description", f"must be a string, got {_show(description)}")
-    seed = top.integer("seed", 0)
+    seed = top.integer("seed", 0, le=2**31 - 1)   # the Monte Carlo derives 64-bit stream seeds from it
 
     fib = top.sub("fiber", required=True)
     assert fib is not None

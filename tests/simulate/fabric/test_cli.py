@@ -168,3 +168,13 @@ def test_console_script_has_no_traceback_on_a_user_error(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip() == ("simulate fabric: error: red.toml: fiber.n_host must be a number >= 1 "
                                    "and <= 4, got -2")
+
+
+def test_a_seed_beyond_the_streams_range_is_one_line(capsys, tmp_path):
+    # per-batch streams are derived as seed * 1_000_003 + ... in 64-bit integers
+    with pytest.raises(SystemExit) as info:
+        main(["fabric", "red-cotton", "--method", "classic", "--out", str(tmp_path / "o"),
+              "--seed", "100000000000000"])
+    assert info.value.code == 2
+    line = _one_error_line(capsys)
+    assert "--seed" in line
