@@ -128,7 +128,8 @@ def ray_engine_speed(mesh: Any, n_rays: int = 200_000, repeats: int = 3, alterna
             "first_hits_agree_fraction": agree}
 
 
-def _red_cotton_child(target: float, queue: Any) -> None:
+def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int | None = None,
+                      threads: int | None = None) -> None:
     from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
     from simulate.virtual import fabric_dataset
@@ -136,7 +137,7 @@ def _red_cotton_child(target: float, queue: Any) -> None:
     cfg = load_config("red-cotton")
     plan = load_plan("red-cotton")
     t = time.perf_counter()
-    ds = fabric_dataset(cfg, plan, "mc", target_rel_err=target, threads=os.cpu_count() or 1)
+    ds = fabric_dataset(cfg, plan, method, target_rel_err=target, seed=seed, threads=threads or os.cpu_count() or 1)
     wall = time.perf_counter() - t
     info = ds.meta["provenance"]["fiber_info"]
     queue.put({"wall_seconds": wall, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -144,15 +145,21 @@ def _red_cotton_child(target: float, queue: Any) -> None:
                "table": ds.table.to_dict(orient="list")})
 
 
-def red_cotton_mc(target: float = 0.01) -> dict:
-    """The headline run in a child process (its own peak memory); returns figures and the table."""
+def _in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None) -> dict:
+    """One red-cotton run in a spawned child process: its wall time (of the run only, not the
+    process start) and its own peak memory."""
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
-    p = ctx.Process(target=_red_cotton_child, args=(target, queue))
+    p = ctx.Process(target=_red_cotton_child, args=(target, queue, method, seed, threads))
     p.start()
     result = queue.get()
     p.join()
     return result
+
+
+def red_cotton_mc(target: float = 0.01) -> dict:
+    """The headline run in a child process (its own peak memory); returns figures and the table."""
+    return _in_child(target)
 
 
 def _other_models(table: dict) -> dict:
@@ -293,36 +300,31 @@ def speed_vs_accuracy(budgets: tuple[float, ...] = (0.2, 0.1, 0.05, 0.02), refer
     """Error of every method against a converged woven Monte Carlo reference, against wall time.
 
     Error: RMS over geometries and wavelengths of ``(beta - ref) / max_lambda(ref)``, i.e. the
-    accuracy target's convention. Classic and summation converge to their own model, so their
+    accuracy target's convention. Every run is a child process of its own, so its peak memory
+    is its own (``peak_rss_mb``). Classic and summation converge to their own model, so their
     error levels off at their departure from the woven fabric; the Monte Carlo's falls with its
     budget. Each run uses a different seed from the reference.
     """
-    from gonio.acquisition.plan import load_plan
-    from simulate.config import load_config
-    from simulate.virtual import fabric_dataset
+    import pandas as pd
 
-    cfg = load_config("red-cotton")
-    plan = load_plan("red-cotton")
     threads = threads or os.cpu_count() or 1
-    t = time.perf_counter()
-    ref = fabric_dataset(cfg, plan, "mc", target_rel_err=reference_target, seed=1000, threads=threads)
-    ref_seconds = time.perf_counter() - t
+    ref = _in_child(reference_target, "mc", 1000, threads)
     key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
-    rt = ref.table
+    rt = pd.DataFrame(ref["table"])
 
-    def error(ds) -> float:
-        j = rt.merge(ds.table, on=key, suffixes=("_r", "_m"))
+    def error(table: dict) -> float:
+        j = rt.merge(pd.DataFrame(table), on=key, suffixes=("_r", "_m"))
         peak = j.groupby(["theta_i", "phi_i", "theta_o", "phi_o"])["beta_r"].transform("max")
         return float(np.sqrt(np.mean(((j["beta_m"] - j["beta_r"]) / peak) ** 2)))
 
     runs = []
     for method in ("classic", "summation", "mc"):
         for k, target in enumerate(budgets):
-            t = time.perf_counter()
-            ds = fabric_dataset(cfg, plan, method, target_rel_err=target, seed=k + 1, threads=threads)
-            runs.append({"method": method, "target": target, "seconds": time.perf_counter() - t,
-                         "error": error(ds)})
-    return {"reference": {"method": "mc", "target": reference_target, "seconds": ref_seconds},
+            r = _in_child(target, method, k + 1, threads)
+            runs.append({"method": method, "target": target, "seconds": r["wall_seconds"],
+                         "peak_rss_mb": r["peak_rss_mb"], "error": error(r["table"])})
+    return {"reference": {"method": "mc", "target": reference_target, "seconds": ref["wall_seconds"],
+                          "peak_rss_mb": ref["peak_rss_mb"]},
             "runs": runs, "threads": threads}
 
 
