@@ -368,6 +368,54 @@ def _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl):
     return -lt, -lb, ln, a_s / p_refl
 
 
+@numba.njit(cache=True)
+def _table_bin(wx, wy, wz, tx, ty, tz, bx, by, bz, mu, sx, sb, n_mu, n_phi):
+    """A detector's direction bin in the table's frame (mirrors applied; they are involutions)
+    and the bin's projected solid angle ``Omega_proj``."""
+    dphi = 2.0 * math.pi / n_phi
+    ph = math.atan2(wx * bx + wy * by + wz * bz, wx * tx + wy * ty + wz * tz)
+    if sx < 0.0:
+        ph = math.pi - ph
+    if sb < 0.0:
+        ph = -ph
+    ph = (ph + math.pi) % (2.0 * math.pi)
+    jm = min(int(mu * n_mu), n_mu - 1)
+    jp = min(int(ph / dphi), n_phi - 1)
+    return jm, jp, 0.5 * (((jm + 1.0) / n_mu) ** 2 - (jm / n_mu) ** 2) * dphi
+
+
+@numba.njit(cache=True)
+def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, tx, ty, tz, bx, by, bz, nx, ny, nz):
+    """A direction uniform in projected solid angle within a table cell's direction bin, mirrored
+    back into the local frame ``(t, b, n)``, written to ``out_d[i]``."""
+    iphi = cell % n_phi
+    imu = (cell // n_phi) % n_mu
+    mlo = imu / n_mu
+    mhi = (imu + 1.0) / n_mu
+    mu = math.sqrt(mlo * mlo + (mhi * mhi - mlo * mlo) * np.random.random())
+    ph = -math.pi + (iphi + np.random.random()) * 2.0 * math.pi / n_phi
+    if sb < 0.0:
+        ph = -ph
+    if sx < 0.0:
+        ph = math.pi - ph
+    st = math.sqrt(max(1.0 - mu * mu, 0.0))
+    ct, sp = st * math.cos(ph), st * math.sin(ph)
+    out_d[i, 0] = ct * tx + sp * bx + mu * nx
+    out_d[i, 1] = ct * ty + sp * by + mu * ny
+    out_d[i, 2] = ct * tz + sp * bz + mu * nz
+
+
+@numba.njit(cache=True)
+def _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl, tx, ty, tz, bx, by, bz, nx, ny, nz):
+    """The surface branch's continuation: sampled reflection, weight factor applied."""
+    ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
+    out_d[i, 0] = ot * tx + ob * bx + on * nx
+    out_d[i, 1] = ot * ty + ob * by + on * ny
+    out_d[i, 2] = ot * tz + ob * bz + on * nz
+    for k in range(weight.shape[1]):
+        out_w[i, k] = weight[i, k] * wgt
+
+
 @numba.njit(cache=True, nogil=True)
 def _shade(seed, prim, bu, bv, pos, dirs, weight,
            vertices, faces, normals, tangents, vertex_s, vertex_phi, face_yarn, vertex_base, n_s,
@@ -382,6 +430,8 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
     incident power towards detector ``d`` of event ``e`` (0: surface, 1: volume exit) from
     origin ``nee_o[i, e]``, to be multiplied by the visibility.
     """
+    # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
+    # every call reproducible whatever thread runs it (no state is shared between calls)
     np.random.seed(seed)
     n = prim.shape[0]
     L = weight.shape[1]
@@ -541,12 +591,8 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
                 p_refl = 0.0
             if s_bar <= 0.0:
                 if np.random.random() < p_refl:
-                    ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
-                    out_d[i, 0] = ot * tx + ob * bx + on * nx
-                    out_d[i, 1] = ot * ty + ob * by + on * ny
-                    out_d[i, 2] = ot * tz + ob * bz + on * nz
-                    for k in range(L):
-                        out_w[i, k] = weight[i, k] * wgt
+                    _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
+                                 tx, ty, tz, bx, by, bz, nx, ny, nz)
                 else:
                     for k in range(L):
                         out_w[i, k] = 0.0
@@ -570,7 +616,6 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
             sbe = sb if r_sel >= 0 else -sb
             p_o = off_bar[j, rr, off_sel] / s_bar
             seg = n_v * n_mu * n_phi
-            dphi = 2.0 * math.pi / n_phi
             for q in range(3):
                 nee_o[i, 1, q] = nee_o[i, 0, q]
             for d in range(D):
@@ -578,15 +623,7 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
                 mu = wx * nx + wy * ny + wz * nz
                 if mu <= 0.0 or wx * gx + wy * gy + wz * gz <= 0.0:
                     continue
-                ph = math.atan2(wx * bx + wy * by + wz * bz, wx * tx + wy * ty + wz * tz)
-                if sx < 0.0:
-                    ph = math.pi - ph
-                if sbe < 0.0:
-                    ph = -ph
-                ph = (ph + math.pi) % (2.0 * math.pi)
-                jm = min(int(mu * n_mu), n_mu - 1)
-                jp = min(int(ph / dphi), n_phi - 1)
-                om = 0.5 * (((jm + 1.0) / n_mu) ** 2 - (jm / n_mu) ** 2) * dphi
+                jm, jp, om = _table_bin(wx, wy, wz, tx, ty, tz, bx, by, bz, mu, sx, sbe, n_mu, n_phi)
                 scale = mu / (om * p_o * ln)
                 nee_need[i, 1, d] = True
                 for k in range(L):
@@ -595,32 +632,14 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
                         val += T[j, rr, ((off_sel * n_v + iv) * n_mu + jm) * n_phi + jp, k]
                     nee_c[i, 1, d, k] = weight[i, k] * val * scale * clampf[k]
             if np.random.random() < p_refl:
-                ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
-                out_d[i, 0] = ot * tx + ob * bx + on * nx
-                out_d[i, 1] = ot * ty + ob * by + on * ny
-                out_d[i, 2] = ot * tz + ob * bz + on * nz
-                for k in range(L):
-                    out_w[i, k] = weight[i, k] * wgt
+                _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
+                             tx, ty, tz, bx, by, bz, nx, ny, nz)
                 continue
             c_lo = cdf[j, rr, off_sel * seg - 1] if off_sel > 0 else 0.0
             c_hi = cdf[j, rr, off_sel * seg + seg - 1]
             cell = _pick(cdf[j, rr], c_lo + (c_hi - c_lo) * np.random.random())
             t_cell = cdf[j, rr, cell] - (cdf[j, rr, cell - 1] if cell > 0 else 0.0)
-            iphi = cell % n_phi
-            imu = (cell // n_phi) % n_mu
-            mlo = imu / n_mu
-            mhi = (imu + 1.0) / n_mu
-            mu = math.sqrt(mlo * mlo + (mhi * mhi - mlo * mlo) * np.random.random())
-            ph = -math.pi + (iphi + np.random.random()) * dphi
-            if sbe < 0.0:
-                ph = -ph
-            if sx < 0.0:
-                ph = math.pi - ph
-            st = math.sqrt(max(1.0 - mu * mu, 0.0))
-            ct, sp = st * math.cos(ph), st * math.sin(ph)
-            out_d[i, 0] = ct * tx + sp * bx + mu * nx
-            out_d[i, 1] = ct * ty + sp * by + mu * ny
-            out_d[i, 2] = ct * tz + sp * bz + mu * nz
+            _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sbe, tx, ty, tz, bx, by, bz, nx, ny, nz)
             sc = s_bar / (ln * t_cell * (1.0 - p_refl)) if t_cell > 0.0 else 0.0
             for k in range(L):
                 out_w[i, k] = weight[i, k] * T[j, rr, cell, k] * sc * clampf[k]
@@ -630,8 +649,6 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
         if total > 0.0 and cb > 0.0:
             cell = _pick(cdf[j, kr], np.random.random() * total)
         if cell >= 0:
-            iphi = cell % n_phi
-            imu = (cell // n_phi) % n_mu
             iv = (cell // (n_phi * n_mu)) % n_v
             io = cell // (n_phi * n_mu * n_v)
             o_signed = io if io <= n_psi // 2 else io - n_psi
@@ -666,52 +683,23 @@ def _shade(seed, prim, bu, bv, pos, dirs, weight,
             c_last = c_first + n_mu * n_phi - 1
             p_ov = cdf[j, kr, c_last] - (cdf[j, kr, c_first - 1] if c_first > 0 else 0.0)
             p_ov /= total
-            dphi = 2.0 * math.pi / n_phi
             for d in range(D):
                 wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
                 mu = wx * enx + wy * eny + wz * enz
                 if mu <= 0.0:
                     continue
-                ph = math.atan2(wx * ebx + wy * eby + wz * ebz, wx * etx + wy * ety + wz * etz)
-                # into the table's frame (mirrors are involutions)
-                if sx < 0.0:
-                    ph = math.pi - ph
-                if sb < 0.0:
-                    ph = -ph
-                ph = (ph + math.pi) % (2.0 * math.pi)
-                jm = min(int(mu * n_mu), n_mu - 1)
-                jp = min(int(ph / dphi), n_phi - 1)
+                jm, jp, om = _table_bin(wx, wy, wz, etx, ety, etz, ebx, eby, ebz, mu, sx, sb, n_mu, n_phi)
                 c2 = c_first + jm * n_phi + jp
-                om = 0.5 * (((jm + 1.0) / n_mu) ** 2 - (jm / n_mu) ** 2) * dphi
                 scale = entry * mu / (om * cb * p_ov)
                 nee_need[i, 1, d] = True
                 for k in range(L):
                     nee_c[i, 1, d, k] = weight[i, k] * T[j, kr, c2, k] * scale
         # continuation
         if np.random.random() < p_refl:
-            ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
-            out_d[i, 0] = ot * tx + ob * bx + on * nx
-            out_d[i, 1] = ot * ty + ob * by + on * ny
-            out_d[i, 2] = ot * tz + ob * bz + on * nz
-            for k in range(L):
-                out_w[i, k] = weight[i, k] * wgt
+            _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
+                         tx, ty, tz, bx, by, bz, nx, ny, nz)
         elif cell >= 0:
-            # exit direction uniform in projected solid angle within the sampled bin
-            iphi = cell % n_phi
-            imu = (cell // n_phi) % n_mu
-            mlo = imu / n_mu
-            mhi = (imu + 1.0) / n_mu
-            mu = math.sqrt(mlo * mlo + (mhi * mhi - mlo * mlo) * np.random.random())
-            ph = -math.pi + (iphi + np.random.random()) * 2.0 * math.pi / n_phi
-            if sb < 0.0:
-                ph = -ph
-            if sx < 0.0:
-                ph = math.pi - ph
-            st = math.sqrt(max(1.0 - mu * mu, 0.0))
-            ct, sp = st * math.cos(ph), st * math.sin(ph)
-            out_d[i, 0] = ct * etx + sp * ebx + mu * enx
-            out_d[i, 1] = ct * ety + sp * eby + mu * eny
-            out_d[i, 2] = ct * etz + sp * ebz + mu * enz
+            _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, etx, ety, etz, ebx, eby, ebz, enx, eny, enz)
             for q in range(3):
                 out_o[i, q] = nee_o[i, 1, q]
             p_c = (cdf[j, kr, cell] - (cdf[j, kr, cell - 1] if cell > 0 else 0.0)) / total

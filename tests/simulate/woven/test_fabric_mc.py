@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from gonio.data.dataset import read_dataset
 from simulate.cli import main
@@ -38,11 +39,18 @@ in_plane_deg = [-30, 0, 30, 60]
 """
 
 
-def test_fabric_mc_writes_a_dataset_with_its_errors_and_stop(tmp_path, capsys):
+@pytest.fixture
+def inputs(tmp_path):
+    """The grey plain-weave config and the tiny plan, written as files."""
     cfg = tmp_path / "grey.toml"
     cfg.write_text(CONFIG)
     plan = tmp_path / "tiny.toml"
     plan.write_text(PLAN)
+    return cfg, plan
+
+
+def test_fabric_mc_writes_a_dataset_with_its_errors_and_stop(inputs, tmp_path, capsys):
+    cfg, plan = inputs
     out = tmp_path / "mc"
     assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
                  "--target-rel-err", "0.05", "--no-progress"]) == 0
@@ -63,11 +71,8 @@ def test_fabric_mc_writes_a_dataset_with_its_errors_and_stop(tmp_path, capsys):
     np.testing.assert_array_equal(read_dataset(out2).table["beta"].to_numpy(), t["beta"].to_numpy())
 
 
-def test_fabric_mc_ray_budget_is_reported(tmp_path, capsys):
-    cfg = tmp_path / "grey.toml"
-    cfg.write_text(CONFIG)
-    plan = tmp_path / "tiny.toml"
-    plan.write_text(PLAN)
+def test_fabric_mc_ray_budget_is_reported(inputs, tmp_path, capsys):
+    cfg, plan = inputs
     out = tmp_path / "mc"
     assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
                  "--target-rel-err", "0.01", "--max-photons", "1024", "--no-progress"]) == 0
@@ -76,11 +81,8 @@ def test_fabric_mc_ray_budget_is_reported(tmp_path, capsys):
     assert info["stop"] == "max_rays" and all(r["rays"] == 2048 for r in info["incidences"])
 
 
-def test_fabric_auto_records_the_method_of_every_geometry(tmp_path, capsys):
-    cfg = tmp_path / "grey.toml"
-    cfg.write_text(CONFIG)
-    plan = tmp_path / "tiny.toml"
-    plan.write_text(PLAN)
+def test_fabric_auto_records_the_method_of_every_geometry(inputs, tmp_path, capsys):
+    cfg, plan = inputs
     out = tmp_path / "auto"
     # at 12 % the shipped red-cotton study allows the cheaper models at some of these geometries only
     assert main(["fabric", str(cfg), "--method", "auto", "--geometry", str(plan), "--out", str(out),
