@@ -5,8 +5,8 @@ Exit status
 ``acquire``, ``demo``: 0 complete; 1 stopped safely by an instrument fault that retries did not
 clear (measured points kept; continue with ``--resume``); 2 usage or input error (plan, URL,
 journal of another plan, unreachable device, a run directory in use by another session, a
-``--record`` file that exists or is one of the run directory's own, a ``demo --out`` holding
-another run); 130 interrupted by SIGINT/SIGTERM (measured points kept, shutter closed, drives
+``--record`` file that exists or is one of the run directory's own, an ``--out`` that the
+output rule refuses: :mod:`gonio.data.outputs`); 130 interrupted by SIGINT/SIGTERM (measured points kept, shutter closed, drives
 stopped).
 ``replay``: 0 the transcript was reproduced and the recorded run was complete; 1 the driver's
 requests differ from the transcript (the message names the request index and the difference),
@@ -16,6 +16,10 @@ stopped; 2 usage or input error.
 ``skip_blocked = true``); 1 some points are out of the soft limits or unexpectedly in the
 beam-block zone (all listed); 2 invalid plan.
 ``mock``: see ``gonio mock --help``.
+
+Every command that writes follows :func:`gonio.data.outputs.check_output`: a run folder (holding
+a journal) is never replaced (only ``acquire --resume`` continues it), a previous output of the
+same command is replaced, anything else only with ``--force``.
 
 A user error prints one line on stderr (``gonio <command>: ...``), never a traceback.
 
@@ -42,8 +46,9 @@ from gonio.acquisition.journal import JournalError, read_journal
 from gonio.acquisition.plan import PlanError, load_plan, preset_names
 from gonio.acquisition.record import (ReplayMismatch, TranscriptError, TranscriptIntegrityError,
                                       load_transcript)
-from gonio.acquisition.session import replay_session, run_session
+from gonio.acquisition.session import check_run_output, replay_session, run_session
 from gonio.data import DatasetError
+from gonio.data.outputs import WRITTEN_BY, OutputRefused, check_output
 from gonio.instrument.probe import LinkSetupError, open_links
 
 __all__ = ["main"]
@@ -51,7 +56,7 @@ __all__ = ["main"]
 log = logging.getLogger("gonio")
 
 _USER_ERRORS = (PlanError, CalibrationError, JournalError, AcquisitionError, TranscriptError,
-                DatasetError, LinkSetupError)
+                DatasetError, LinkSetupError, OutputRefused)
 
 
 class _UsageError(Exception):
@@ -60,6 +65,11 @@ class _UsageError(Exception):
 
 MAX_TIMEOUT_S = 3600.0
 """Largest ``--timeout`` accepted (an hour: longer is a typo, not a slow link)."""
+
+
+_FORCE_HELP = ("replace a dataset (radiance.csv, meta.json) that another command or you wrote "
+               "(a previous output of this command is replaced without it; a run folder, one "
+               "holding a journal, never is)")
 
 
 def _timeout_seconds(text: str) -> float:
@@ -111,12 +121,13 @@ def _finish(result: RunResult, command: str, resume: str | None = None) -> int:
 
 def _cmd_acquire(args) -> int:
     plan = load_plan(args.plan)
-    modbus, serial_link = open_links(args.modbus, args.serial, args.timeout)
     out = Path(args.out)
+    check_run_output(out, writer="gonio acquire", force=args.force, resume=args.resume)
+    modbus, serial_link = open_links(args.modbus, args.serial, args.timeout)
     try:
         result = run_session(plan, modbus, serial_link, out, resume=args.resume,
                              seed=args.seed, record=Path(args.record) if args.record else None,
-                             progress=False if args.no_progress else None)
+                             progress=False if args.no_progress else None, force=args.force)
     except OSError as exc:      # a full disk, a run directory gone read-only, ...
         raise _UsageError(_write_failure(exc, out, args)) from None
     return _finish(result, "acquire", _resume_command(args))
@@ -141,8 +152,9 @@ def _cmd_replay(args) -> int:
         print(f"gonio replay: {exc}", file=sys.stderr)
         return 1
     plan = load_plan(args.plan)
+    check_run_output(Path(args.out), writer="gonio replay", force=args.force)
     try:
-        result = replay_session(transcript, plan, Path(args.out))
+        result = replay_session(transcript, plan, Path(args.out), force=args.force)
     except ReplayMismatch as exc:
         print(f"gonio replay: {str(exc).removeprefix('replay: ')}", file=sys.stderr)
         return 1
@@ -184,25 +196,14 @@ def _cmd_demo(args) -> int:
     from gonio.demo import run_demo
 
     out = Path(args.out)
-    _check_output_folder(out, "--out")
     plan = load_plan(args.plan)
     result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
-                                 progress=False if args.no_progress else None)
+                                 progress=False if args.no_progress else None, force=args.force)
     code = _finish(result, "demo")
     if code == EXIT_OK:
         print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
               f"{elapsed_s:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
     return code
-
-
-def _check_output_folder(out: Path, opt: str) -> None:
-    """Refuse an output folder that cannot be one, before anything starts (the mock included)."""
-    for parent in (out, *out.parents):
-        if parent.exists():
-            if not parent.is_dir():
-                what = "is a file" if parent == out else f"is below {parent}, a file"
-                raise _UsageError(f"{opt} {out}: {what}; give a folder")
-            break
 
 
 def _cmd_truth(args) -> int:
@@ -211,10 +212,12 @@ def _cmd_truth(args) -> int:
     from gonio.mock.truth import truth_dataset
 
     plan = load_plan(args.plan)
+    check_output(args.out, "dataset", writer="gonio truth", force=args.force)
     try:
         dataset = truth_dataset(args.sample, plan)
     except SampleError as exc:
         raise _UsageError(str(exc)) from None
+    dataset.meta[WRITTEN_BY] = "gonio truth"
     out = write_dataset(dataset, args.out)
     print(f"gonio truth: {dataset.name}, {len(dataset)} values at the geometries of plan "
           f"{plan.name}; dataset in {out}/")
@@ -223,10 +226,15 @@ def _cmd_truth(args) -> int:
 
 def _cmd_bench(args) -> int:
     from gonio.bench import bench_driver
+    from gonio.data import atomic_write
 
-    report = bench_driver(load_plan(args.plan), repeats=args.repeats)
     if args.out:
-        Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
+        check_output(args.out, "file", writer="gonio bench-driver", force=args.force)
+    report = {WRITTEN_BY: "gonio bench-driver", **bench_driver(load_plan(args.plan),
+                                                               repeats=args.repeats)}
+    if args.out:
+        check_output(args.out, "file", writer="gonio bench-driver", force=args.force)
+        atomic_write(args.out, (json.dumps(report, indent=2) + "\n").encode())
     print(json.dumps(report, indent=2))
     return EXIT_OK
 
@@ -265,6 +273,7 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--record", metavar="FILE.jsonl",
                    help="record every request/response to a new file (an existing file is refused)")
     a.add_argument("--seed", type=int, default=None, help="the mock's seed, recorded in the meta")
+    a.add_argument("--force", action="store_true", help=_FORCE_HELP)
     common(a)
 
     r = sub.add_parser("replay", help="run the driver against a recorded transcript",
@@ -278,6 +287,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("transcript", metavar="TRANSCRIPT")
     r.add_argument("plan", metavar="PLAN")
     r.add_argument("--out", required=True, metavar="RUN_DIR")
+    r.add_argument("--force", action="store_true", help=_FORCE_HELP)
     r.add_argument("-v", "--verbose", action="store_true")
 
     c = sub.add_parser("check-plan", help="validate a plan: limits, beam-block zone, duration",
@@ -296,6 +306,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="dataset folder (default demo-out/measured)")
     d.add_argument("--plan", default="red-cotton", help=argparse.SUPPRESS)
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    d.add_argument("--force", action="store_true", help=_FORCE_HELP)
     common(d)
 
     t = sub.add_parser("truth", help="write a mock sample's true beta at a plan's geometries",
@@ -307,6 +318,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("sample", metavar="SAMPLE", help="lambert:RHO, red-cotton or a dataset directory")
     t.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name")
     t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
+    t.add_argument("--force", action="store_true", help=_FORCE_HELP)
     t.add_argument("-v", "--verbose", action="store_true")
 
     im = sub.add_parser("import", help="convert a file of another format into a dataset",
@@ -320,6 +332,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="rgl-bsdf | pgii | merl")
     im.add_argument("files", metavar="FILE", nargs="+", help="file(s) to import")
     im.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
+    im.add_argument("--force", action="store_true", help=_FORCE_HELP)
     im.add_argument("--geometry", metavar="PLAN", help="plan TOML file or preset whose "
                                                         "geometries to evaluate")
     im.add_argument("--scale", type=float, metavar="FR_PER_UA",
@@ -346,9 +359,10 @@ def _cmd_import(args) -> int:
         raise _UsageError(f"--scale {args.scale}: must be a positive number")
     if not (0.0 < args.white_reflectance <= 1.0):
         raise _UsageError(f"--white-reflectance {args.white_reflectance}: must be in (0, 1]")
+    check_output(args.out, "dataset", writer="gonio import", force=args.force)
     dataset = import_files(args.format, args.files, geometries, scale=args.scale, white=args.white,
                            white_reflectance=args.white_reflectance)
-    _check_output_folder(Path(args.out), "--out")
+    dataset.meta[WRITTEN_BY] = "gonio import"
     out = write_dataset(dataset, args.out)
     bands = (f"channels {''.join(dataset.channels)} ({dataset.colour_space})" if dataset.is_rgb
              else f"{len(dataset.wavelengths_nm)} wavelengths")
@@ -364,7 +378,10 @@ def _bench_parser() -> argparse.ArgumentParser:
                                             "transcripts; prints JSON.")
     b.add_argument("--plan", default="red-cotton")
     b.add_argument("--repeats", type=int, default=3)
-    b.add_argument("--out", default=None, help="also write the JSON here")
+    b.add_argument("--out", default=None, help="also write the JSON here (a previous "
+                   "bench-driver file is replaced; any other file only with --force; never a run "
+                   "folder's own file)")
+    b.add_argument("--force", action="store_true", help="replace an existing --out file")
     b.add_argument("-v", "--verbose", action="store_true")
     return b
 

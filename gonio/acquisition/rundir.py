@@ -14,14 +14,15 @@ from pathlib import Path
 
 from gonio.acquisition.journal import JournalError
 from gonio.data import CSV_NAME, META_NAME
+from gonio.data.outputs import JOURNAL_NAME, RUN_FILES
 
 __all__ = ["JOURNAL_NAME", "DEMO_MARKER", "RUN_DIR_FILES", "owned_by_run", "RunDirLock", "RunDirLocked"]
 
-JOURNAL_NAME = "journal.jsonl"
 #: Marker of a run directory written by ``gonio demo`` (what it may replace on the next demo).
 DEMO_MARKER = ".gonio-demo.json"
 #: Files of a run directory that a session owns (besides the dataset writer's temporary files).
 RUN_DIR_FILES = (JOURNAL_NAME, CSV_NAME, META_NAME, DEMO_MARKER)
+assert set(RUN_DIR_FILES) == set(RUN_FILES), "gonio.data.outputs.RUN_FILES names the same files"
 _DATASET_TEMP = re.compile(r"\.(?:radiance\.csv|meta\.json)\..*\.tmp")
 
 

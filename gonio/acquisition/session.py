@@ -26,10 +26,11 @@ from gonio.acquisition.record import (RecordingTransport, ReplayTransport, Trans
                                       TranscriptWriter)
 from gonio.acquisition.rundir import RunDirLock, owned_by_run
 from gonio.acquisition.subscribers import DatasetWriter, ProgressReporter
+from gonio.data.outputs import check_output
 from gonio.instrument import MotionController, PhotometerHead, RetryPolicy
 from gonio.instrument.transport import LineTransport, RequestTransport
 
-__all__ = ["run_session", "replay_session", "ReplayClock"]
+__all__ = ["run_session", "replay_session", "check_run_output", "ReplayClock"]
 
 
 def _software() -> dict:
@@ -41,7 +42,8 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
                 resume: bool = False, seed: int | None = None, record: Path | None = None,
                 progress: bool | None = None, retry: RetryPolicy | None = None,
                 created: str | None = None, clock: Callable[[], float] = time.time,
-                owner_token: int | None = None) -> RunResult:
+                owner_token: int | None = None, force: bool = False,
+                writer: str = "gonio acquire") -> RunResult:
     """Run one acquisition on two transports (live, recording or replaying).
 
     With ``record`` the transports are wrapped in
@@ -49,18 +51,33 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
     never one of the run directory's own). The run directory is locked for the whole session.
     ``owner_token`` is the session's claim on the instrument (default: a new random token;
     replay passes the recorded one, 0 claims nothing). ``created`` stamps the dataset (default:
-    the journal's start time).
+    the journal's start time). ``out`` must be writable by the rule of
+    :func:`gonio.data.outputs.check_output` (checked once the lock is held; ``force`` and ``writer``
+    are its arguments): a run folder only with ``resume``, a folder holding
+    another dataset only with ``force``.
     """
     if record is not None and owned_by_run(out, record):
         raise TranscriptError(f"--record {record}: that is a file of the run directory {out}; "
                               "record the transcript elsewhere")
+    check_run_output(out, writer=writer, force=force, resume=resume)
     lock = RunDirLock.acquire(out)
     try:
+        # again under the lock: another session may have written there meanwhile
+        check_output(out, "run", writer=writer, force=force, resume=resume)
         return _locked_session(plan, modbus, serial_link, out, resume=resume, seed=seed,
                                record=record, progress=progress, retry=retry, created=created,
                                clock=clock, owner_token=owner_token)
     finally:
         lock.release()
+
+
+def check_run_output(out: Path, *, writer: str, force: bool = False, resume: bool = False) -> None:
+    """What :func:`run_session` checks first, for a command line to check before it opens any
+    link: a run folder locked by another session (:class:`RunDirLocked`), then the output rule
+    (:func:`gonio.data.outputs.check_output`)."""
+    if Path(out).is_dir():
+        RunDirLock.acquire(out).release()
+    check_output(out, "run", writer=writer, force=force, resume=resume)
 
 
 def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, progress, retry,
@@ -118,7 +135,7 @@ class ReplayClock:
         return self.t
 
 
-def replay_session(transcript: Transcript, plan: Plan, out: Path) -> RunResult:
+def replay_session(transcript: Transcript, plan: Plan, out: Path, *, force: bool = False) -> RunResult:
     """Run the driver with ``plan`` against ``transcript``, writing the dataset in ``out``.
 
     Raises :class:`~gonio.acquisition.record.ReplayMismatch` at the first request that differs
@@ -136,6 +153,7 @@ def replay_session(transcript: Transcript, plan: Plan, out: Path) -> RunResult:
                          out, seed=header.get("seed"), progress=False,
                          retry=RetryPolicy(sleep=lambda s: None), created=header.get("created"),
                          clock=ReplayClock(header.get("created")),
-                         owner_token=int(header.get("owner_token") or 0))
+                         owner_token=int(header.get("owner_token") or 0), force=force,
+                         writer="gonio replay")
     transcript.finish()
     return result

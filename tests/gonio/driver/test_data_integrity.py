@@ -253,7 +253,7 @@ def test_demo_replaces_only_a_previous_demo(drv, tmp_path, capsys):
     demo = ["demo", "--plan", str(plan), "--no-progress", "--out"]
     # another run's folder: refused, nothing touched, no mock started
     assert main(demo + [str(run)]) == 2
-    _one_line_error(capsys, "that `gonio demo` did not write")
+    _one_line_error(capsys, "a run folder is never replaced")
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before
     # a demo folder is replaced by the next demo
     out = tmp_path / "demo"
@@ -264,7 +264,7 @@ def test_demo_replaces_only_a_previous_demo(drv, tmp_path, capsys):
     # a demo folder whose journal another session replaced is not the demo's any more
     (out / "journal.jsonl").write_bytes(before["journal.jsonl"])
     assert main(demo + [str(out)]) == 2
-    _one_line_error(capsys, "that `gonio demo` did not write")
+    _one_line_error(capsys, "a run folder is never replaced")
     assert (out / "journal.jsonl").read_bytes() == before["journal.jsonl"]
 
 

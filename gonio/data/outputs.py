@@ -1,0 +1,125 @@
+"""The one rule for every ``gonio`` command that writes: what it may replace.
+
+Every command that writes (``acquire``, ``replay``, ``demo``: a run folder; ``truth``,
+``import``: a dataset folder; ``bench-driver``: a file) calls :func:`check_output` before it
+starts, and the sessions call it again once they hold the run folder's lock. The rule:
+
+1. **A run folder is never replaced.** A folder holding a non-empty journal
+   (:data:`JOURNAL_NAME`) belongs to that run: only ``gonio acquire --resume`` continues it.
+   Every other writer refuses it, ``--force`` included (its dataset is rebuilt from the journal,
+   its journal is the only copy of the measured points). A file output that is one of a run
+   folder's own files (``journal.jsonl``, ``radiance.csv``, ``meta.json``, the demo marker) is
+   refused the same way.
+2. **A previous output of the same command is replaced** (re-running a command is not a
+   surprise): a dataset whose ``meta.json`` says ``"written_by": WRITER``, a file output
+   whose JSON says so, a folder that ``gonio demo`` marked (:mod:`gonio.demo`).
+3. **Anything else is replaced only when asked** (``--force``): a ``radiance.csv`` or
+   ``meta.json`` that another command or the user wrote, an existing file.
+4. A folder where a file is expected (or a file where a folder is) is refused.
+
+Refusals raise :class:`OutputRefused` (one line naming the option, the path, why and what to do;
+the command line prints it and exits 2), before anything is changed. The lesson is the one
+``simulate fabric`` and ``compare report`` follow (their own previous output is replaced,
+anything else refused), extended by the run folder, which nothing replaces.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Callable, Literal
+
+from gonio.data.dataset import CSV_NAME, META_NAME
+
+__all__ = ["JOURNAL_NAME", "RUN_FILES", "WRITTEN_BY", "OutputRefused", "check_output",
+           "is_run_folder", "written_by"]
+
+#: The journal of an acquisition: a folder holding a non-empty one is a run folder.
+JOURNAL_NAME = "journal.jsonl"
+#: Files of a run folder that nothing but its own session writes (with the demo's marker).
+RUN_FILES = (JOURNAL_NAME, CSV_NAME, META_NAME, ".gonio-demo.json")
+#: Key of ``meta.json`` (and of a JSON file output) naming the command that wrote it.
+WRITTEN_BY = "written_by"
+
+OutputKind = Literal["run", "dataset", "file"]
+
+
+class OutputRefused(ValueError):
+    """An output that the rule of :mod:`gonio.data.outputs` does not let a command replace."""
+
+
+def is_run_folder(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a folder holding a non-empty journal."""
+    try:
+        return (Path(path) / JOURNAL_NAME).stat().st_size > 0
+    except OSError:
+        return False
+
+
+def written_by(path: str | os.PathLike) -> str | None:
+    """The ``written_by`` of a JSON file (a dataset's ``meta.json``, a report), else None."""
+    try:
+        with open(path, "rb") as fh:
+            data = json.loads(fh.read(1 << 20))
+    except (OSError, ValueError, RecursionError):
+        return None
+    value = data.get(WRITTEN_BY) if isinstance(data, dict) else None
+    return value if isinstance(value, str) else None
+
+
+def check_output(path: str | os.PathLike, kind: OutputKind, *, writer: str, force: bool = False,
+                 resume: bool = False, option: str = "--out",
+                 previous: Callable[[Path], bool] | None = None) -> None:
+    """Raise :class:`OutputRefused` unless ``writer`` may write ``path`` (see the module rule).
+
+    ``kind``: ``"run"`` (a run folder: journal and dataset), ``"dataset"`` (a dataset folder) or
+    ``"file"``. ``resume``: continue the run folder's own journal (``kind="run"`` only).
+    ``previous(path)``: True when ``path`` holds a previous output of ``writer`` recognised
+    otherwise than by ``written_by`` (the demo's marker).
+    """
+    p = Path(path)
+    where = f"{option} {p}"
+    if kind == "file":
+        _check_file(p, where, writer, force)
+        return
+    if p.exists() and not p.is_dir():
+        raise OutputRefused(f"{where}: is a file, not a folder; give a folder")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputRefused(f"{where}: is below {parent}, a file; give a folder")
+            break
+    if not p.is_dir():
+        return
+    ours = previous is not None and previous(p)
+    if is_run_folder(p):
+        if kind == "run" and (resume or ours):
+            return
+        if kind == "run":
+            raise OutputRefused(f"{where}: a journal from an earlier run is there; continue it "
+                                "with --resume or choose a new --out (a run folder is never "
+                                "replaced, not even with --force)")
+        raise OutputRefused(f"{where}: is a run folder (it holds {JOURNAL_NAME}; its dataset is "
+                            "rebuilt from that journal): choose another --out (a run folder is "
+                            "never replaced, not even with --force)")
+    present = [n for n in (CSV_NAME, META_NAME) if (p / n).exists()]
+    if not present or force or ours or written_by(p / META_NAME) == writer:
+        return
+    raise OutputRefused(f"{where}: holds {' and '.join(present)} that `{writer}` did not write; "
+                        "nothing was changed: choose another --out, or add --force to "
+                        "replace them")
+
+
+def _check_file(p: Path, where: str, writer: str, force: bool) -> None:
+    if p.is_dir():
+        raise OutputRefused(f"{where}: is a folder; give a file name")
+    if any(q.name in RUN_FILES and is_run_folder(q.parent) for q in (p, p.resolve())):
+        raise OutputRefused(f"{where}: is a file of the run folder {p.parent} (it holds "
+                            f"{JOURNAL_NAME}); a run folder's files are never replaced, not even "
+                            "with --force: choose another file")
+    if p.exists() or p.is_symlink():
+        if force or written_by(p) == writer:
+            return
+        raise OutputRefused(f"{where}: the file exists and `{writer}` did not write it; nothing "
+                            "was changed: choose another file, or add --force to replace it")
