@@ -333,6 +333,10 @@ class Engine:
                           "torn_last_line": content.torn, "points_done": len(done)})
             if content.torn:
                 log.warning("journal: the last line was torn; that point is measured again")
+            if content.unchained_lines:
+                log.warning("journal: its first %d records were written without an integrity "
+                            "chain (an older gonio): read unchecked; the records appended now "
+                            "chain them", content.unchained_lines)
         steps: dict[str, Callable[[], None]] = {
             "home": self.motion.home, "calibrate": self._step_calibrate,
             "measure": lambda: self._step_measure(done, total)}

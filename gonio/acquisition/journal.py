@@ -28,23 +28,60 @@ Reading (:func:`read_journal`) validates every record and raises :class:`Journal
 file and line for a corrupt record anywhere but at the end; a last line without its newline or
 that does not parse is reported as *torn* (the point it held is measured again on resume) and
 :meth:`Journal.open` truncates it before appending.
+
+Integrity (the transcripts' chain, :mod:`gonio.acquisition.record`): every line ends with
+``"h"``, chaining it to everything before it, ``h_k = SHA-256(h_{k-1} + body_k)`` (hex digests;
+``body_k`` is the line's exact text without its ``,"h":"..."`` field), where ``h_0`` is the
+SHA-256 of the bytes before the first chained line (of nothing, for a journal written with the
+chain). A reading edited after it was journaled (a mean multiplied by 10) breaks the chain at
+that line: :func:`read_journal` raises :class:`JournalIntegrityError` naming the line, and
+``gonio acquire --resume`` stops with that one line (exit 2) instead of merging the edited
+point into the dataset. A kill leaves at most a torn last line, which fails to parse (the chain
+is never partly written: a line and its hash are one ``write``), so crash-safety is unchanged.
+
+Journals written before the chain (no ``"h"`` on their first line) stay readable: their lines
+are read unchecked, as before (:attr:`JournalContent.unchained_lines` counts them and
+``--resume`` says so in its log); records appended to such a journal are chained, with ``h_0``
+the SHA-256 of the old lines, so from then on an edit of an old line is detected too. Once a
+journal has a chained line, every later line must be chained. The chain detects edits and
+corruption; it does not authenticate (anyone can recompute it).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import re
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["JournalError", "JournalContent", "Journal", "read_journal", "parse_journal",
+__all__ = ["JournalError", "JournalIntegrityError", "JournalContent", "Journal", "read_journal", "parse_journal",
            "check_consistency", "RECORD_TYPES"]
 
 
 class JournalError(ValueError):
     """The journal is corrupt or belongs to another run (message names the file and line)."""
+
+
+class JournalIntegrityError(JournalError):
+    """A journal line fails its integrity chain (edited or corrupted after it was written)."""
+
+
+_SEALED = re.compile(rb'(.*),"h":"([0-9a-f]{64})"\}')
+
+
+def _chain(previous: str, body: bytes) -> str:
+    return hashlib.sha256(previous.encode("ascii") + body).hexdigest()
+
+
+def _seal(previous: str, record: dict) -> tuple[bytes, str]:
+    """``(line, h)``: the record's JSON text with its chained hash (no newline)."""
+    body = json.dumps(record, separators=(",", ":"), allow_nan=False).encode()
+    h = _chain(previous, body)
+    return body[:-1] + b',"h":"' + h.encode("ascii") + b'"}', h
 
 
 _NUM = (int, float)
@@ -119,6 +156,10 @@ class JournalContent:
     torn: bool = False
     good_bytes: int = 0
     missing_newline: bool = False
+    #: records before the chain started (journals written before it existed), read unchecked
+    unchained_lines: int = 0
+    #: the chain's last hash: what the next appended record chains from
+    head: str = hashlib.sha256(b"").hexdigest()
 
     def of_type(self, kind: str) -> list[dict]:
         """Records of one type, in journal order."""
@@ -126,37 +167,67 @@ class JournalContent:
 
 
 def parse_journal(data: bytes, name: str = "journal.jsonl") -> JournalContent:
-    """Parse journal bytes; raises :class:`JournalError` for anything but a torn last line."""
+    """Parse journal bytes; raises :class:`JournalError` for anything but a torn last line
+    (:class:`JournalIntegrityError` for a line that breaks the integrity chain)."""
     out = JournalContent()
     pos = 0
     lineno = 0
+    head: str | None = None          # None until the first chained line
     while pos < len(data):
         lineno += 1
         end = data.find(b"\n", pos)
         final = end < 0
         line = data[pos:] if final else data[pos:end]
         where = f"{name}: line {lineno}"
+        sealed = _SEALED.fullmatch(line)
+        body = line
+        if sealed is not None:
+            body = sealed.group(1) + b"}"
+            previous = head if head is not None else hashlib.sha256(data[:pos]).hexdigest()
+            h = _chain(previous, body)
+            if sealed.group(2).decode("ascii") != h:
+                raise JournalIntegrityError(
+                    f"{where}: integrity check failed (SHA-256 chain broken): this record or "
+                    "one before it was edited after it was journaled; the journal cannot be "
+                    "trusted: restore the original or start a new run (choose a new --out)")
+        elif head is not None and not final:
+            raise JournalIntegrityError(f"{where}: no integrity hash although the lines before "
+                                        "have one: the record was edited or inserted after it "
+                                        "was journaled; restore the original or choose a new "
+                                        "--out")
         try:
-            rec = _validate(json.loads(line.decode("utf-8"), parse_constant=_reject_constant), where)
+            rec = _validate(json.loads(body.decode("utf-8"), parse_constant=_reject_constant), where)
         except JournalError:
             if final:
                 out.torn = True
-                return out
+                break
             raise
         except (ValueError, RecursionError, UnicodeDecodeError) as exc:
             if final:
                 out.torn = True
-                return out
+                break
             raise JournalError(f"{where}: not a valid JSON record ({exc})") from None
+        if sealed is None and head is not None:     # a complete final line without its hash
+            raise JournalIntegrityError(f"{where}: no integrity hash although the lines before "
+                                        "have one: the record was edited after it was "
+                                        "journaled; restore the original or choose a new --out")
+        if sealed is not None:
+            head = h
+        else:
+            out.unchained_lines += 1
         out.records.append(rec)
         if final:
             # a complete record that only lacks its newline: kept, the newline is added on open
             out.torn = True
             out.missing_newline = True
             out.good_bytes = len(data)
-            return out
+            break
         pos = end + 1
         out.good_bytes = pos
+    if head is None:     # no chained line yet: the chain will start from what is kept
+        kept = data[:out.good_bytes] + (b"\n" if out.missing_newline else b"")
+        head = hashlib.sha256(kept).hexdigest()
+    out.head = head
     return out
 
 
@@ -212,11 +283,13 @@ def _finite(obj: Any) -> bool:
 
 
 class Journal:
-    """Append-only writer; every :meth:`append` is flushed and fsynced before it returns."""
+    """Append-only writer; every :meth:`append` is chained (see the module's *Integrity*),
+    flushed and fsynced before it returns."""
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self._fh = None
+        self._head = hashlib.sha256(b"").hexdigest()
 
     @classmethod
     def open(cls, path: str | os.PathLike) -> tuple["Journal", JournalContent]:
@@ -236,6 +309,7 @@ class Journal:
             fh.flush()
             os.fsync(fh.fileno())
         j._fh = fh
+        j._head = content.head
         return j, content
 
     def append(self, record: dict) -> None:
@@ -246,8 +320,8 @@ class Journal:
             _validate(record, f"{self.path}: new record")
         except JournalError as exc:
             raise ValueError(f"not a valid journal record: {exc}") from None
-        line = json.dumps(record, separators=(",", ":"), allow_nan=False).encode() + b"\n"
-        self._fh.write(line)
+        line, self._head = _seal(self._head, record)
+        self._fh.write(line + b"\n")
         self._fh.flush()
         os.fsync(self._fh.fileno())
 
