@@ -343,6 +343,9 @@ def _parser() -> argparse.ArgumentParser:
                          "same detector (absolute values; see gonio.data.formats.pgii)")
     im.add_argument("--white-reflectance", type=float, default=0.99, metavar="RHO",
                     help="hemispherical reflectance of that standard (default 0.99)")
+    im.add_argument("--keep-grazing", action="store_true",
+                    help="keep incidences theta_i >= 89 deg (dropped by default: the RGL files' "
+                         "89.99999 deg tables are extrapolations; see docs/dataset.md)")
     im.add_argument("-v", "--verbose", action="store_true")
 
     return p
@@ -350,7 +353,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _cmd_import(args) -> int:
     from gonio.data import write_dataset
-    from gonio.data.formats import import_files
+    from gonio.data.formats import import_files, import_notes
 
     geometries = None
     if args.geometry:
@@ -361,13 +364,15 @@ def _cmd_import(args) -> int:
         raise _UsageError(f"--white-reflectance {args.white_reflectance}: must be in (0, 1]")
     check_output(args.out, "dataset", writer="gonio import", force=args.force)
     dataset = import_files(args.format, args.files, geometries, scale=args.scale, white=args.white,
-                           white_reflectance=args.white_reflectance)
+                           white_reflectance=args.white_reflectance, keep_grazing=args.keep_grazing)
     dataset.meta[WRITTEN_BY] = "gonio import"
     out = write_dataset(dataset, args.out)
     bands = (f"channels {''.join(dataset.channels)} ({dataset.colour_space})" if dataset.is_rgb
              else f"{len(dataset.wavelengths_nm)} wavelengths")
     print(f"gonio import: {dataset.name}, {len(dataset.geometries())} geometries, {bands}"
           f"{', relative units' if dataset.relative else ''}; dataset in {out}/")
+    for note in import_notes(dataset):
+        print(f"gonio import: note: {note}")
     return EXIT_OK
 
 

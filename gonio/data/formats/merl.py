@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from gonio.data.formats.errors import FormatError, read_file_bytes
+from gonio.data.formats.errors import FormatError, RegularFile
 
 __all__ = ["MERL_SHAPE", "MERL_SCALE", "MerlBRDF", "half_diff", "read_merl", "write_merl"]
 
@@ -115,19 +115,23 @@ class MerlBRDF:
 def read_merl(path: str | os.PathLike) -> MerlBRDF:
     """Read a MERL ``.binary`` file; raise :class:`FormatError` naming the byte offset."""
     path = Path(path)
-    data = read_file_bytes(path)
-    if len(data) < _HEADER:
-        raise FormatError(f"file is {len(data)} bytes, shorter than the 12-byte header",
-                          file=path, offset=0, hint="expected a MERL .binary BRDF file")
-    dims = struct.unpack_from("<3i", data, 0)
-    if dims != MERL_SHAPE:
-        raise FormatError(f"header gives resolutions {dims}, expected {MERL_SHAPE}", file=path,
-                          offset=0, hint="only the isotropic 90 x 90 x 180 MERL layout is read")
     expected = _HEADER + 3 * _N * 8
-    if len(data) != expected:
-        raise FormatError(f"file is {len(data)} bytes, expected {expected} "
-                          f"({'truncated' if len(data) < expected else 'trailing data'})",
-                          file=path, offset=min(len(data), expected))
+    # the size is fixed: checked (from the header and the file's size) before the body is read
+    with RegularFile(path, expected + 4096, "MERL .binary") as fh:
+        head = fh.read(0, _HEADER)
+        if len(head) < _HEADER:
+            raise FormatError(f"file is {len(head)} bytes, shorter than the 12-byte header",
+                              file=path, offset=0, hint="expected a MERL .binary BRDF file")
+        dims = struct.unpack("<3i", head)
+        if dims != MERL_SHAPE:
+            raise FormatError(f"header gives resolutions {dims}, expected {MERL_SHAPE}",
+                              file=path, offset=0,
+                              hint="only the isotropic 90 x 90 x 180 MERL layout is read")
+        if fh.size != expected:
+            raise FormatError(f"file is {fh.size} bytes, expected {expected} "
+                              f"({'truncated' if fh.size < expected else 'trailing data'})",
+                              file=path, offset=min(fh.size, expected))
+        data = fh.read_all()
     raw = np.frombuffer(data, dtype="<f8", count=3 * _N, offset=_HEADER)
     bad = ~np.isfinite(raw)
     if bad.any():

@@ -47,7 +47,11 @@ from gonio.data.formats.errors import FormatError, read_file_bytes
 __all__ = ["PgiiFile", "parse_pgii", "read_pgii", "pgii_dataset", "white_reference_scale"]
 
 UNITS = ("BSDF", "DSF", "[uA]")
-MAX_BYTES = 64 * 1024 * 1024
+#: Largest pgII file read (checked from its size before reading): one incidence at 1 degree over
+#: the hemisphere is 32 400 lines, about 13 MB with 40 wavelengths.
+MAX_BYTES = 32 * 1024 * 1024
+#: Most data lines of one file (a 0.25-degree hemisphere scan is 518 400).
+MAX_ROWS = 600_000
 
 
 class PgiiFile:
@@ -70,10 +74,7 @@ class PgiiFile:
 
 def read_pgii(path: str | os.PathLike) -> PgiiFile:
     path = Path(path)
-    data = read_file_bytes(path)
-    if len(data) > MAX_BYTES:
-        raise FormatError(f"file is {len(data)} bytes; a pgII file of one incidence is far "
-                          "smaller", file=path)
+    data = read_file_bytes(path, MAX_BYTES, "pgII text (one incidence)")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -119,7 +120,11 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
                     raise FormatError(f"#{key} {theta_i:g} must be in [0, 90] degrees", file=path,
                                       line=number)
             elif key == "inphi":
-                phi_i = _number(value.split()[0] if value else "", "#inphi", path, number) % 360.0
+                phi_i = _number(value.split()[0] if value else "", "#inphi", path, number)
+                if not 0 <= phi_i <= 360:
+                    raise FormatError(f"#inphi {phi_i:g} must be in [0, 360] degrees", file=path,
+                                      line=number)
+                phi_i %= 360.0
             elif key == "format":
                 cols = value.split()
                 if len(cols) != 3 or cols[0].lower() != "theta" or cols[1].lower() != "phi" \
@@ -147,6 +152,9 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
             raise FormatError(f"theta {theta:g} must be in [0, 180] degrees", file=path,
                               line=number)
         values = [_number(t, "value", path, number) for t in tokens[2:]]
+        if len(rows) >= MAX_ROWS:
+            raise FormatError(f"more than {MAX_ROWS} data lines", file=path, line=number,
+                              hint="a pgII file holds one incidence; split the scan")
         rows.append([theta, phi] + values)
         row_lines.append(number)
     if theta_i is None:

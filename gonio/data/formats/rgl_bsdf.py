@@ -41,11 +41,17 @@ import numpy as np
 import pandas as pd
 
 from gonio.data.formats.errors import FormatError
-from gonio.data.formats.tensor import read_tensor_file
+from gonio.data.formats.tensor import TensorHeader, read_tensor_file
 
-__all__ = ["RGLBSDF", "read_rgl_bsdf"]
+__all__ = ["RGLBSDF", "read_rgl_bsdf", "MAX_ANGLES", "MAX_ROWS"]
 
 _REQUIRED = ("theta_i", "phi_i", "ndf", "sigma", "vndf", "luminance", "description", "jacobian")
+#: Most incidence angles per axis (``theta_i``, ``phi_i``) read; the RGL files hold about ten.
+MAX_ANGLES = 1024
+#: Most rows (geometries x bands) of a converted dataset (about 200 MB as a table).
+MAX_ROWS = 2_000_000
+#: Geometries evaluated per chunk (bounds the evaluation's temporary arrays).
+_CHUNK = 1 << 16
 
 
 class _Marginal2D:
@@ -190,6 +196,12 @@ class RGLBSDF:
         self.reduction = 0
         if not self.isotropic:
             self.reduction = int(np.rint(2 * np.pi / (phi_i[-1] - phi_i[0])))
+        labels = list(self.channels) if not self.is_spectral else [f"{w:g} nm" for w in bands]
+        #: per band (channel or wavelength label): (negative stored values, stored values)
+        self.negative_values = {label: (int(np.count_nonzero(spectra[:, :, k] < 0)),
+                                        int(spectra[:, :, k].size))
+                                for k, label in enumerate(labels)
+                                if np.any(spectra[:, :, k] < 0)}
         self.description = bytes(fields["description"]).decode("utf-8", errors="replace")
         self.theta_i_deg = np.degrees(theta_i)
         self.phi_i_deg = np.degrees(phi_i)
@@ -251,11 +263,28 @@ class RGLBSDF:
         wi = direction(theta_i, phi_i)
         wo = direction(theta_o, phi_o)
         wi, wo = np.broadcast_arrays(wi, wo)
-        value = self.eval_cos(wi, wo)
+        value = np.empty(wi.shape[:-1] + (self._n_bands,))
+        flat_v = value.reshape(-1, self._n_bands)
+        flat_i, flat_o = wi.reshape(-1, 3), wo.reshape(-1, 3)
+        chunk = max(1, _CHUNK * 3 // self._n_bands)     # bounded temporaries, any band count
+        for k in range(0, flat_i.shape[0], chunk):
+            flat_v[k:k + chunk] = self.eval_cos(flat_i[k:k + chunk], flat_o[k:k + chunk])
         cos_o = wo[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             beta = np.where(cos_o[..., None] > 1e-9, np.pi * value / cos_o[..., None], 0.0)
         return beta
+
+    def _negative_provenance(self, beta: np.ndarray) -> dict[str, Any]:
+        """``{"negative_values": {band: {"stored", "of", "rows"}}}`` when the file has any."""
+        if not self.negative_values:
+            return {}
+        out = {}
+        for k, label in enumerate(_labels(self)):
+            if label in self.negative_values:
+                n, total = self.negative_values[label]
+                out[label] = {"stored": n, "of": total,
+                              "rows": int(np.count_nonzero(beta[:, k] < 0))}
+        return {"negative_values": out}
 
     def to_dataset(self, geometries: pd.DataFrame | None = None, *, s_step_deg: float = 2.0,
                    s_max_deg: float = 80.0, provenance: dict[str, Any] | None = None):
@@ -276,6 +305,10 @@ class RGLBSDF:
             to, po = in_plane_geometry(ti, ss, 0.0)
             geometries = pd.DataFrame({"theta_i": ti, "phi_i": 0.0, "theta_o": to, "phi_o": po})
         geo = geometries[["theta_i", "phi_i", "theta_o", "phi_o"]].drop_duplicates()
+        if len(geo) * self._n_bands > MAX_ROWS:
+            raise FormatError(f"{len(geo)} geometries x {self._n_bands} bands is "
+                              f"{len(geo) * self._n_bands} rows, more than {MAX_ROWS}",
+                              file=self.path, hint="evaluate at fewer geometries (--geometry)")
         beta = self.beta(*(geo[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_o",
                                                                    "phi_o")))
         rows = []
@@ -297,15 +330,37 @@ class RGLBSDF:
                          "converted_by": "gonio.data.formats.rgl_bsdf (numpy transcription of "
                                          "Mitsuba 3's measured plugin)",
                          "beta": "pi * (stored f_r cos theta_o) / cos theta_o",
+                         **self._negative_provenance(beta),
                          **(provenance or {})})
         if not self.is_spectral:
             meta["colour_space"] = "linear sRGB"
         return make_dataset(table, meta, source=self.path)
 
 
+def _labels(bsdf: RGLBSDF) -> list[str]:
+    return (list(bsdf.channels) if not bsdf.is_spectral
+            else [f"{w:g} nm" for w in np.asarray(bsdf.wavelengths_nm)])
+
+
 def read_rgl_bsdf(path: str | os.PathLike) -> RGLBSDF:
-    """Read and check an RGL ``.bsdf`` file; raise :class:`FormatError` naming what is wrong."""
-    return RGLBSDF(read_tensor_file(path), path)
+    """Read and check an RGL ``.bsdf`` file; raise :class:`FormatError` naming what is wrong.
+
+    The declared shapes are checked before any table is read (:func:`_check_header`): a file
+    declaring more incidence angles than :data:`MAX_ANGLES` per axis is refused from its header.
+    Negative stored values (measurement noise below zero) are kept and counted per band
+    (:attr:`RGLBSDF.negative_values`; ``gonio import`` says so in its summary).
+    """
+    return RGLBSDF(read_tensor_file(path, lambda headers: _check_header(headers, str(path))), path)
+
+
+def _check_header(headers: dict[str, TensorHeader], path: str) -> None:
+    """Plausibility of the declared incidence axes, before the tables are read."""
+    for name in ("theta_i", "phi_i"):
+        h = headers.get(name)
+        if h is not None and len(h.shape) == 1 and h.shape[0] > MAX_ANGLES:
+            raise FormatError(f"field '{name}' declares {h.shape[0]} incidence angles, more than "
+                              f"{MAX_ANGLES}", file=path, offset=h.start,
+                              hint="not an RGL .bsdf file (they hold about ten), or corrupt")
 
 
 def _check_structure(fields: dict[str, np.ndarray], path: str) -> None:
@@ -364,6 +419,15 @@ def _check_structure(fields: dict[str, np.ndarray], path: str) -> None:
         fail("field 'theta_i' must be in [0, pi/2] radians")
     if phi_i.size > 2 and not np.all(np.diff(phi_i) > 0):
         fail("field 'phi_i' must be increasing")
+    if phi_i.size > 2:
+        # an anisotropic table spans one period of the material's symmetry: 2 pi, pi or pi/2
+        span = float(phi_i[-1]) - float(phi_i[0])
+        reduction = 2 * np.pi / span if span > 0 else np.inf
+        if not any(abs(reduction - r) < 1e-3 * r for r in (1, 2, 4)):
+            fail(f"field 'phi_i' spans {span:.6g} rad; an anisotropic table spans 2 pi, pi or "
+                 "pi/2 (symmetry reduction 1, 2 or 4)")
+        if np.min(np.diff(phi_i)) < 1e-6:
+            fail("field 'phi_i' holds angles less than 1e-6 rad apart")
     if np.any(vndf < 0) or np.any(ndf < 0) or np.any(sigma <= 0):
         fail("fields 'vndf' and 'ndf' must be >= 0 and 'sigma' > 0")
     sums = vndf.reshape(vndf.shape[0], vndf.shape[1], -1).sum(axis=-1)
