@@ -49,6 +49,7 @@ from gonio.acquisition.record import (ReplayMismatch, TranscriptError, Transcrip
 from gonio.acquisition.session import check_run_output, replay_session, run_session
 from gonio.data import DatasetError
 from gonio.data.outputs import WRITTEN_BY, OutputRefused, check_output
+from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
 from gonio.instrument.probe import LinkSetupError, open_links
 
 __all__ = ["main"]
@@ -102,6 +103,8 @@ def _resume_command(args) -> str:
         argv += ["--timeout", f"{args.timeout:g}"]
     if getattr(args, "seed", None) is not None:
         argv += ["--seed", str(args.seed)]
+    if getattr(args, "wait_timeout", None) is not None:
+        argv += ["--wait-timeout", f"{args.wait_timeout:g}"]
     return shlex.join(argv + ["--out", str(args.out), "--resume"])
 
 
@@ -127,7 +130,8 @@ def _cmd_acquire(args) -> int:
     try:
         result = run_session(plan, modbus, serial_link, out, resume=args.resume,
                              seed=args.seed, record=Path(args.record) if args.record else None,
-                             progress=False if args.no_progress else None, force=args.force)
+                             progress=False if args.no_progress else None, force=args.force,
+                             wait_timeout_s=args.wait_timeout)
     except OSError as exc:      # a full disk, a run directory gone read-only, ...
         raise _UsageError(_write_failure(exc, out, args)) from None
     return _finish(result, "acquire", _resume_command(args))
@@ -198,7 +202,8 @@ def _cmd_demo(args) -> int:
     out = Path(args.out)
     plan = load_plan(args.plan)
     result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
-                                 progress=False if args.no_progress else None, force=args.force)
+                                 progress=False if args.no_progress else None, force=args.force,
+                             wait_timeout_s=args.wait_timeout)
     code = _finish(result, "demo")
     if code == EXIT_OK:
         print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
@@ -252,6 +257,12 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--timeout", type=_timeout_seconds, default=1.0, metavar="S",
                         help="link timeout in seconds (default 1.0; a READ? also gets its "
                              "integration time; at most 3600)")
+        sp.add_argument("--wait-timeout", type=_timeout_seconds, default=None, metavar="S",
+                        help="longest wait for a move (unless the move itself needs longer at "
+                             "its velocity) and for a controller answering busy, e.g. another "
+                             "client driving the instrument (default "
+                             f"{DEFAULT_WAIT_TIMEOUT_S:g} s; at most 3600); a takeover by a "
+                             "client that claims the instrument stops the session within 1 s")
         sp.add_argument("--no-progress", action="store_true", help="log lines instead of a progress bar")
         sp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
 

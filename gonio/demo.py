@@ -31,7 +31,8 @@ log = logging.getLogger(__name__)
 
 
 def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1.0,
-             progress: bool | None = None, force: bool = False) -> tuple[RunResult, float]:
+             progress: bool | None = None, force: bool = False,
+             wait_timeout_s: float | None = None) -> tuple[RunResult, float]:
     """Measure ``plan`` on the embedded red-cotton mock into ``out``.
 
     Returns the session's result and the wall time in seconds (mock start-up included).
@@ -48,7 +49,7 @@ def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1
                         seed=seed) as mock:
         modbus, serial_link = open_links(mock.modbus_url, mock.serial_url, timeout_s)
         result = run_session(plan, modbus, serial_link, out, seed=seed, progress=progress,
-                             force=force, writer="gonio demo")
+                             force=force, writer="gonio demo", wait_timeout_s=wait_timeout_s)
     mark_demo(out, done=True)
     return result, time.monotonic() - t0
 

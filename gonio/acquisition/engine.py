@@ -168,19 +168,27 @@ class Engine:
 
     def _move(self, axes_deg) -> None:
         v = self.settings.velocity_deg_s
-        attempts = max(_REHOME_ATTEMPTS, self.retry.attempts)
-        for attempt in range(attempts + 1):
+        # axis faults have a budget of their own, adapted like a link's (gonio.instrument.retry)
+        axes = self.retry.link("axes")
+        attempt = 0
+        while True:
             try:
                 self.motion.move_to(axes_deg, v)
+                axes.record(ok=True)
                 return
             except AxisFaultError as exc:
-                if exc.code not in RECOVERABLE_FAULTS or attempt == attempts:
+                axes.record(ok=False)
+                attempt += 1
+                if (exc.code not in RECOVERABLE_FAULTS
+                        or attempt > max(_REHOME_ATTEMPTS, self.retry.attempts_for("axes"))):
                     raise
-                self.retry.count("axis_fault")
                 log.warning("%s; stopping, resetting the fault and re-homing", exc)
                 # every axis at rest first (another axis may still be moving and fault after
-                # the reset), then reset what is recoverable, then home
-                self.motion.clear_faults("re-home")
+                # the reset), then reset what is recoverable, then home; one retry counted per
+                # faulted axis (several axes of one move may fault together)
+                faulted = self.motion.clear_faults("re-home")
+                for _ in range(max(1, len(faulted))):
+                    self.retry.count("axis_fault")
                 self.motion.home()
 
     def _autorange(self, wavelength_nm: float, *, shutter_open: bool | None = None) -> dict | None:
@@ -422,6 +430,7 @@ class Engine:
 
     def _measure_point(self, p: PlanPoint, cal_id: int, index: int) -> None:
         what = "point (" + ", ".join(f"{x:g}" for x in p.axes_deg) + ")"
+        self.retry.begin_point()
         self.motion.check_owner(what)           # never move another client's instrument
         self._move(p.axes_deg)
         if self.settings.settle_ms > 0:

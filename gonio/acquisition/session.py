@@ -28,6 +28,7 @@ from gonio.acquisition.rundir import RunDirLock, owned_by_run
 from gonio.acquisition.subscribers import DatasetWriter, ProgressReporter
 from gonio.data.outputs import check_output
 from gonio.instrument import MotionController, PhotometerHead, RetryPolicy
+from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
 from gonio.instrument.transport import LineTransport, RequestTransport
 
 __all__ = ["run_session", "replay_session", "check_run_output", "ReplayClock"]
@@ -43,7 +44,7 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
                 progress: bool | None = None, retry: RetryPolicy | None = None,
                 created: str | None = None, clock: Callable[[], float] = time.time,
                 owner_token: int | None = None, force: bool = False,
-                writer: str = "gonio acquire") -> RunResult:
+                writer: str = "gonio acquire", wait_timeout_s: float | None = None) -> RunResult:
     """Run one acquisition on two transports (live, recording or replaying).
 
     With ``record`` the transports are wrapped in
@@ -54,7 +55,8 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
     the journal's start time). ``out`` must be writable by the rule of
     :func:`gonio.data.outputs.check_output` (checked once the lock is held; ``force`` and ``writer``
     are its arguments): a run folder only with ``resume``, a folder holding
-    another dataset only with ``force``.
+    another dataset only with ``force``. ``wait_timeout_s`` bounds the wait for a move and for a
+    controller that answers busy (:data:`gonio.instrument.motion.DEFAULT_WAIT_TIMEOUT_S`).
     """
     if record is not None and owned_by_run(out, record):
         raise TranscriptError(f"--record {record}: that is a file of the run directory {out}; "
@@ -66,7 +68,7 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
         check_output(out, "run", writer=writer, force=force, resume=resume)
         return _locked_session(plan, modbus, serial_link, out, resume=resume, seed=seed,
                                record=record, progress=progress, retry=retry, created=created,
-                               clock=clock, owner_token=owner_token)
+                               clock=clock, owner_token=owner_token, wait_timeout_s=wait_timeout_s)
     finally:
         lock.release()
 
@@ -81,7 +83,7 @@ def check_run_output(out: Path, *, writer: str, force: bool = False, resume: boo
 
 
 def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, progress, retry,
-                    created, clock, owner_token) -> RunResult:
+                    created, clock, owner_token, wait_timeout_s) -> RunResult:
     if owner_token is None:
         owner_token = secrets.randbelow(2**32 - 1) + 1
     writer = None
@@ -95,7 +97,9 @@ def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, pro
         serial_link = RecordingTransport(serial_link, writer)
     retry = retry or RetryPolicy()
     head = PhotometerHead(serial_link, retry)
-    motion = MotionController(modbus, retry, poll_s=0.001 if retry.sleep is time.sleep else 0.0)
+    wait = DEFAULT_WAIT_TIMEOUT_S if wait_timeout_s is None else wait_timeout_s
+    motion = MotionController(modbus, retry, poll_s=0.001 if retry.sleep is time.sleep else 0.0,
+                              move_timeout_s=wait, busy_timeout_s=wait)
     engine = Engine(plan, head, motion, retry, out, resume=resume, seed=seed, clock=clock,
                     owner_token=owner_token)
     dataset = DatasetWriter(out, plan, engine.standard, seed=seed, created=created,

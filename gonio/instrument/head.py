@@ -26,6 +26,7 @@ from typing import Any, Callable
 
 from gonio.instrument.errors import DeviceError
 from gonio.instrument.head_commands import (ERROR_QUEUE_LENGTH, HEAD_COMMANDS, BusyError, ChecksumError,
+                                            ChecksumMissing,
                                             DetectorOverloadError, ErrorEntry, GarbledResponse,
                                             HeadCommand, HeadError, Identity, NoResponse,
                                             ProtocolError, Reading, TruncatedResponse)
@@ -39,6 +40,7 @@ __all__ = ["PhotometerHead", "Setting", "Measurement"]
 log = logging.getLogger(__name__)
 
 _FRAMING_KIND = {
+    ChecksumMissing: "checksum_mode_lost",
     NoResponse: "serial_timeout",
     TruncatedResponse: "serial_truncated",
     ChecksumError: "serial_checksum",
@@ -129,6 +131,7 @@ class PhotometerHead:
         self.want_checksum = checksum
         self.chk = False
         self.identity: Identity | None = None
+        self._unchecked_error = False       # the last ERR reply came without its *HH
         # settings the head is known to hold (WAVE, ITIME, GAIN, SHUTTER), since the last
         # forget_settings(); anything unusual (a resync, a reconnect, *RST) forgets them
         self._known: dict[str, object] = {}
@@ -141,7 +144,21 @@ class PhotometerHead:
         chk = self.chk or (cmd.key == "CHK" and value == "ON")
         if cmd.key == "CHK" and value == "OFF":
             chk = False
-        return parse_response(raw, chk=chk, expect=cmd.response)
+        self._unchecked_error = False
+        try:
+            return parse_response(raw, chk=chk, expect=cmd.response)
+        except ChecksumMissing:
+            # a complete reply without *HH: the head answers in checksum-off mode (its link
+            # was reset, or it did not execute CHK ON). An error it reported so is that error
+            # (busy: counted as busy, and the checksum mode restored before the next attempt)
+            try:
+                parse_response(raw, chk=False, expect=cmd.response)
+            except HeadError:
+                self._unchecked_error = not (cmd.key == "CHK" and value == "ON")
+                raise
+            except ProtocolError:
+                pass
+            raise
 
     def _classify(self, what: str) -> Callable[[Exception], Failure | None]:
         """How a failed exchange is retried (see the module docstring)."""
@@ -150,6 +167,8 @@ class PhotometerHead:
                 if not exc.transient:
                     raise DeviceError(self.name, what, f"ERR {exc.code} ({exc.message})",
                                       exc.code) from None
+                if self._unchecked_error:       # answered in checksum-off mode: restore it
+                    return Failure("head_busy", recover=lambda: self._resync(restore=True))
                 return Failure("head_busy")
             if isinstance(exc, ProtocolError):
                 # silence or a reply without its checksum may mean the head's link was reset
@@ -163,7 +182,8 @@ class PhotometerHead:
         return classify
 
     def _retrying(self, action: Callable, what: str):
-        return self.retry.run(action, self._classify(what), device=self.name, what=what)
+        return self.retry.run(action, self._classify(what), device=self.name, what=what,
+                              link="serial")
 
     def query(self, key: str, value=None):
         """Send one command of the table and return its parsed reply, retrying what is transient."""

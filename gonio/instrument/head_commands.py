@@ -36,6 +36,7 @@ __all__ = [
     "HeadCommand", "HEAD_COMMANDS", "match_command",
     "Reading", "Identity", "ErrorEntry",
     "ProtocolError", "NoResponse", "GarbledResponse", "TruncatedResponse", "ChecksumError",
+    "ChecksumMissing",
     "HeadError", "UnknownCommandError", "ParameterOutOfRangeError", "BusyError", "LampOffError",
     "DetectorOverloadError", "head_error",
 ]
@@ -90,6 +91,11 @@ class TruncatedResponse(ProtocolError):
 
 class ChecksumError(ProtocolError):
     """Checksum mode is on and the ``*HH`` suffix is missing or wrong."""
+
+
+class ChecksumMissing(ChecksumError):
+    """Checksum mode is on and a complete, printable reply has no ``*HH`` at all: the head
+    answered in checksum-off mode (its link was reset), not a corrupted line."""
 
 
 class HeadError(ProtocolError):

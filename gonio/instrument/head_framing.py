@@ -20,7 +20,8 @@ from __future__ import annotations
 import math
 import re
 
-from gonio.instrument.head_commands import (HEAD_ERRORS, READ_N_RANGE, ChecksumError, ErrorEntry,
+from gonio.instrument.head_commands import (HEAD_ERRORS, READ_N_RANGE, ChecksumError,
+                                            ChecksumMissing, ErrorEntry,
                                             GarbledResponse, Identity, NoResponse, Reading,
                                             TruncatedResponse, head_error)
 
@@ -127,7 +128,7 @@ def parse_response(line: bytes, chk: bool, expect: str = "text"):
     text = body.decode("ascii")
     if chk:
         if len(text) < 3 or text[-3] != "*":
-            raise ChecksumError(f"checksum mode on but no *HH in {text[:80]!r}")
+            raise ChecksumMissing(f"checksum mode on but no *HH in {text[:80]!r}")
         payload, hh = text[:-3], text[-2:]
         if hh != checksum(payload.encode("ascii")):
             raise ChecksumError(f"bad checksum *{hh} (expected *{checksum(payload.encode('ascii'))}) "

@@ -49,7 +49,7 @@ from gonio.instrument.registers import Coil, HoldingRegister, InputRegister, Mod
 from gonio.instrument.retry import RetryPolicy
 from gonio.instrument.transport import RequestTransport
 
-__all__ = ["MotionController", "AxisState", "RECOVERABLE_FAULTS"]
+__all__ = ["MotionController", "AxisState", "RECOVERABLE_FAULTS", "DEFAULT_WAIT_TIMEOUT_S"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +58,11 @@ log = logging.getLogger(__name__)
 #: A beam-block fault (4) means the driver commanded a forbidden geometry: never reset blindly.
 RECOVERABLE_FAULTS = (int(AxisFault.FOLLOWING_ERROR), int(AxisFault.NOT_HOMED))
 _HOME_ATTEMPTS = 3
+#: Longest wait for a move or homing to end (s), unless the move itself needs longer at its
+#: velocity (then 1.5 times its travel time plus 5 s): a 180-degree travel at 20 deg/s takes 9 s.
+#: Waiting longer means another client is driving the instrument (without claiming it: a claim
+#: is noticed within ``owner_check_s``) or a drive is stuck.
+DEFAULT_WAIT_TIMEOUT_S = 60.0
 _AXIS_INPUTS = ("ACTUAL", "AXIS_STATUS", "FAULT")
 _AXIS_MOVE = ("TARGET", "VELOCITY", "COMMAND")
 
@@ -79,8 +84,11 @@ class MotionController(ModbusDevice):
     transport : the Modbus link (:class:`~gonio.instrument.transport.RequestTransport`).
     retry : shared :class:`~gonio.instrument.retry.RetryPolicy`.
     poll_s : status polling interval while waiting for motion.
-    move_timeout_s : longest wait for an axis to reach its target.
-    busy_timeout_s : longest backoff spent on exception 6 (busy) for one request.
+    move_timeout_s : longest wait for the axes of one move (or homing) to come to rest in
+        position (:data:`DEFAULT_WAIT_TIMEOUT_S`; ``gonio acquire --wait-timeout``).
+    busy_timeout_s : longest backoff spent on exception 6 (busy) for one request (the same
+        limit from the command line: a controller kept busy by another client).
+    owner_check_s : while waiting for motion, the owner token is checked this often.
     """
 
     name = "motion controller"
@@ -93,10 +101,12 @@ class MotionController(ModbusDevice):
     lamp, shutter = Coil.rows("LAMP", "SHUTTER")
 
     def __init__(self, transport: RequestTransport, retry: RetryPolicy | None = None, *,
-                 poll_s: float = 0.001, move_timeout_s: float = 120.0, busy_timeout_s: float = 30.0):
+                 poll_s: float = 0.001, move_timeout_s: float | None = None,
+                 busy_timeout_s: float = 30.0, owner_check_s: float = 1.0):
         super().__init__(transport, retry, busy_timeout_s=busy_timeout_s)
         self.poll_s = poll_s
-        self.move_timeout_s = move_timeout_s
+        self.move_timeout_s = DEFAULT_WAIT_TIMEOUT_S if move_timeout_s is None else move_timeout_s
+        self.owner_check_s = owner_check_s
         self.clock: Callable[[], float] = time.monotonic
         self._velocity_cdeg_s: list[int | None] = [None] * N_AXES
         self._target_mdeg: list[int | None] = [None] * N_AXES
@@ -287,6 +297,9 @@ class MotionController(ModbusDevice):
         targets = [deg_to_mdeg(d) for d in axes_deg]
         changed = [a for a in range(N_AXES)
                    if targets[a] != self._target_mdeg[a] or v != self._velocity_cdeg_s[a]]
+        # travel (deg) of the longest commanded axis; an unknown start counts a full turn
+        travel = max((abs(targets[a] - self._target_mdeg[a]) / 1000.0
+                      if self._target_mdeg[a] is not None else 360.0 for a in changed), default=0.0)
         for a in self._safe_order(changed, targets, what):
             mdeg = targets[a]
             try:
@@ -302,7 +315,7 @@ class MotionController(ModbusDevice):
             self._target_mdeg[a] = mdeg
             self._velocity_cdeg_s[a] = v
             moving.append(a)
-        self._wait(moving, what)
+        self._wait(moving, what, travel_s=travel / (v / 100.0))
 
     def _move_taken(self, a: int, mdeg: int, velocity: int, what: str) -> bool:
         """Did the controller take the move of axis ``a`` to ``mdeg`` (an unanswered write)?
@@ -353,8 +366,20 @@ class MotionController(ModbusDevice):
                                            "would be within 5 deg of the source direction)",
                           int(AxisFault.BEAM_BLOCK))
 
-    def _wait(self, axes, what: str, homing: bool = False) -> None:
-        deadline = self.clock() + self.move_timeout_s
+    def _wait(self, axes, what: str, homing: bool = False, travel_s: float = 0.0) -> None:
+        """Poll until ``axes`` are at rest in position (homed, with ``homing``).
+
+        Bounded: the owner token is checked every :attr:`owner_check_s` of :attr:`clock` time
+        (another client that takes the instrument mid-move stops the session at once:
+        :class:`~gonio.instrument.errors.InstrumentTaken`), and the wait ends after
+        :attr:`move_timeout_s` (``gonio acquire --wait-timeout``), or 1.5 ``travel_s`` + 5 s
+        when the move needs longer, with a :class:`~gonio.instrument.errors.DeviceError` that
+        says so.
+        """
+        start = self.clock()
+        limit = max(self.move_timeout_s, 1.5 * travel_s + 5.0)
+        deadline = start + limit
+        next_owner_check = start + self.owner_check_s
         pending = list(axes)
         while pending:
             still = []
@@ -370,9 +395,16 @@ class MotionController(ModbusDevice):
                     still.append(a)
             pending = still
             if pending:
-                if self.clock() > deadline:
-                    raise DeviceError(self.name, what, f"axes {pending} not in position after "
-                                                       f"{self.move_timeout_s:g} s")
+                now = self.clock()
+                if now >= next_owner_check:
+                    self.check_owner(what)
+                    next_owner_check = now + self.owner_check_s
+                if now > deadline:
+                    raise DeviceError(self.name, what, f"axes {pending} not at rest in position "
+                                                       f"after {limit:g} s (the wait "
+                                                       "limit, --wait-timeout): another client "
+                                                       "may be moving the instrument, or a drive "
+                                                       "is stuck")
                 self.retry.sleep(self.poll_s)
 
     def forget_targets(self) -> None:

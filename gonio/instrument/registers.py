@@ -63,7 +63,8 @@ class ModbusDevice:
         """One Modbus request with retries (busy, no response, dropped link).
 
         Exception 6 (busy, e.g. still homing after an earlier session) is retried for up to
-        ``busy_timeout_s`` of backoff; the other transient failures ``retry.attempts`` times.
+        ``busy_timeout_s`` of backoff; the other transient failures as many times as the
+        adaptive budget of the ``"modbus"`` link allows (:mod:`gonio.instrument.retry`).
         After an unanswered attempt (timeout, dropped link) and the reconnection,
         ``took_effect()`` (when given) asks the controller whether the request was executed
         anyway; if so it is not sent again and ``{}`` is returned.
@@ -83,7 +84,7 @@ class ModbusDevice:
 
         return self.retry.run(lambda: self.transport.exchange(request), classify, device=self.name,
                               what=what, took_effect=took_effect,
-                              busy_timeout_s=self.busy_timeout_s, executed={})
+                              busy_timeout_s=self.busy_timeout_s, executed={}, link="modbus")
 
     def _reconnect(self) -> None:
         try:

@@ -31,6 +31,8 @@ this order: drop, serial_timeout, busy, garbled, truncated, checksum):
 ``lamp``            (one opportunity per ``READ?`` with the shutter open that returns a reading,
                     whatever else happens to the reply) the readings are perturbed and the reply
                     is flagged lamp unstable (flags bit1). Dark readings are never affected.
+                    Counted in ``stats`` only when no other fault hit the reply (a garbled,
+                    truncated or bad-checksum reply hides the flag from the driver).
 
 Motion controller (one opportunity per Modbus request for the three request kinds; a request
 hit by several kinds gets the first in this order: modbus_drop, modbus_noresponse, modbus_busy):

@@ -114,6 +114,10 @@ class PhotometerHead:
             fault = "checksum"
         if fault is None and not lamp_fault:
             self.repetition += consumed
+        if lamp_fault and fault is not None:
+            # the flagged reading never reaches the driver intact: the lamp fault is not
+            # counted (only the fault the driver can see is, as for the other kinds)
+            self.faults.stats["lamp"] -= 1
         line = HF.format_response(payload, self.chk)
         if fault == "garbled":
             line = self._garble(line)

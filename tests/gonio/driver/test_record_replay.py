@@ -46,7 +46,8 @@ def test_fault_fixture_exercises_the_recovery_paths():
     retries = meta["provenance"]["retries"]
     from gonio.instrument import RETRY_KINDS
     for kind in RETRY_KINDS:
-        assert retries.get(kind, 0) > 0, kind
+        if kind != "checksum_mode_lost":        # a consequence of a drop, not a fault kind
+            assert retries.get(kind, 0) > 0, kind
     # faults never change the data: the faulted session equals the clean one of the same plan
     # up to the mock seed, so compare the structure and the values' plausibility
     clean = read_dataset(FIXTURES / "quick-lambert")
