@@ -1,4 +1,5 @@
-"""The ``gonio`` console script: mock, acquire, replay, check-plan, demo.
+"""The ``gonio`` console script: mock, acquire, replay, check-plan, demo, truth, import,
+bench-driver.
 
 Exit status
 -----------
@@ -359,6 +360,9 @@ def _parser() -> argparse.ArgumentParser:
                          "89.99999 deg tables are extrapolations; see docs/dataset.md)")
     im.add_argument("-v", "--verbose", action="store_true")
 
+    sub.add_parser("bench-driver", add_help=False,
+                   help="driver overhead benchmark on the fast mock, with replays (JSON; see "
+                        "`gonio bench-driver --help`)")
     return p
 
 
@@ -389,7 +393,7 @@ def _cmd_import(args) -> int:
 
 def _bench_parser() -> argparse.ArgumentParser:
     b = argparse.ArgumentParser(prog="gonio bench-driver",
-                                description="Driver overhead benchmark (hidden command): live "
+                                description="Driver overhead benchmark: live "
                                             "runs against the fast mock and replays of their "
                                             "transcripts; prints JSON.")
     b.add_argument("--plan", default="red-cotton")

@@ -38,8 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--serial", default="pty", metavar="pty|socket://127.0.0.1:PORT",
                    help="photometer head on a pseudo-terminal or a loopback socket (default: pty)")
     p.add_argument("--sample", default="red-cotton", metavar="NAME|FILE",
-                   help="lambert:RHO, red-cotton, or a radiance-coefficient dataset directory "
-                        "(default: red-cotton)")
+                   help="lambert:RHO, red-cotton, a radiance-coefficient dataset directory, "
+                        "or an RGL .bsdf file (a real material of the EPFL database, e.g. "
+                        "fixtures/real/acrylic_felt_green_rgb.bsdf; default: red-cotton)")
     p.add_argument("--faults", default=None, metavar="SPEC",
                    help="comma-separated kind=RATE or kind=@N; kinds: " + ", ".join(FAULT_KINDS))
     p.add_argument("--speed", default="fast", choices=("fast", "real"),

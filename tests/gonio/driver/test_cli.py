@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import socket
 import subprocess
@@ -25,11 +26,14 @@ def _free_port() -> int:
 def test_help_and_mock_dispatch(capsys):
     assert main(["--help"]) == 0
     out = capsys.readouterr().out
-    for cmd in ("mock", "acquire", "replay", "check-plan", "demo"):
-        assert cmd in out
-    assert "bench-driver" not in out
+    for cmd in ("mock", "acquire", "replay", "check-plan", "demo", "truth", "import",
+                "bench-driver"):
+        assert re.search(rf"\n    {cmd}\s", out), cmd     # an entry of the command list each
+    assert main(["bench-driver", "--help"]) == 0
+    assert "--repeats" in capsys.readouterr().out
     assert main(["mock", "--help"]) == 0
-    assert "--faults" in capsys.readouterr().out
+    mock_help = " ".join(capsys.readouterr().out.split())
+    assert "--faults" in mock_help and "RGL .bsdf file" in mock_help
     assert main([]) == 2
 
 
