@@ -2,6 +2,9 @@
 
 One concept per module (``compare`` and ``simulate`` import only from here):
 
+``gonio.data.schema``
+    the format's constants (columns, names, limits) and :class:`DatasetError`: the leaf every
+    other module imports, importing none of them;
 ``gonio.data.dataset``
     the dataset format (spectral or RGB, absolute or relative), its validation and atomic I/O;
 ``gonio.data.geometry``
@@ -12,7 +15,9 @@ One concept per module (``compare`` and ``simulate`` import only from here):
 ``gonio.data.colour``
     CIE XYZ / linear RGB / HSV views of spectra and of RGB channels (colour-science);
 ``gonio.data.formats``
-    importers of other formats: RGL ``.bsdf`` (Dupuy & Jakob 2018), pgII text, MERL binary.
+    importers of other formats: RGL ``.bsdf`` (Dupuy & Jakob 2018), pgII text, MERL binary;
+``gonio.data.outputs``
+    the one rule of what a command that writes may replace (run folders never).
 """
 
 from gonio.data.colour import (ColourSummary, display_srgb, hue_difference, rgb_colour,

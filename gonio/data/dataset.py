@@ -57,7 +57,7 @@ import re
 import stat
 import tempfile
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 import pandas as pd
@@ -81,61 +81,12 @@ __all__ = [
     "write_dataset",
 ]
 
-SCHEMA = "radiance-dataset/1"
-COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm", "beta", "u_beta", "n")
-#: Columns of an RGB (or photometric) dataset: ``channel`` in place of ``wavelength_nm``.
-RGB_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o", "channel", "beta", "u_beta", "n")
-GEOMETRY = COLUMNS[:4]
-#: Channels an RGB dataset may carry (Y: a photometric measurement), in their canonical order.
-CHANNELS = ("R", "G", "B", "Y")
-#: Colour space of an RGB dataset whose meta.json names none.
-DEFAULT_COLOUR_SPACE = "linear sRGB"
-KINDS = ("measured", "simulated")
-CSV_NAME = "radiance.csv"
-META_NAME = "meta.json"
+from gonio.data.schema import (ANGLE_TOL_DEG, BETA_MAX, CHANNELS, COLUMNS, CSV_NAME,  # noqa: F401
+                               DEFAULT_COLOUR_SPACE, GEOMETRY, KINDS, META_MAX_DEPTH, META_NAME,
+                               N_MAX, RGB_COLUMNS, SCHEMA, U_BETA_MAX_RATIO, WAVELENGTH_RANGE_NM,
+                               DatasetError)
 
-#: Tolerance (degrees) under which two angles are the same geometry.
-ANGLE_TOL_DEG = 1e-6
-#: Wavelengths accepted (nm): the instrument's monochromator spans 380..780; simulations may go wider.
-WAVELENGTH_RANGE_NM = (200.0, 2500.0)
 _FLOAT_FORMAT = "%.10g"
-#: Largest ``n`` accepted: 2**53, the largest count a CSV float holds exactly (a photon budget of
-#: 9e15 is far beyond any simulation; larger values would also overflow on conversion to int64).
-N_MAX = 2 ** 53
-#: Largest ``|beta|`` accepted. A radiance factor of real surfaces is of order 1 (a mirror seen
-#: through a milliradian aperture is ~1e6, a simulation's raw scale may be larger); 1e100 leaves
-#: every use open while keeping squares and sums over a dataset finite (1e308 would overflow).
-BETA_MAX = 1e100
-#: ``u_beta`` may be at most this many times the largest ``|beta|`` of the file (or of 1, for a
-#: file whose values are all ~0): an uncertainty ten times the largest value says the value is
-#: unknown, so such a row must be left out, not stored with a made-up number.
-U_BETA_MAX_RATIO = 10.0
-#: Deepest nesting accepted in meta.json (the contract's keys are 3 levels deep; free-form
-#: provenance may go deeper, but not 10^5 levels, which would exhaust the interpreter's stack).
-META_MAX_DEPTH = 32
-
-
-class DatasetError(ValueError):
-    """A dataset (or a request to it) is invalid. The message names file, row, column, problem."""
-
-    def __init__(self, problem: str, *, file: str | os.PathLike | None = None,
-                 row: int | None = None, column: str | None = None, hint: str | None = None):
-        self.problem = problem
-        self.file = None if file is None else str(file)
-        self.row = row
-        self.column = column
-        self.hint = hint
-        where = []
-        if self.file is not None:
-            where.append(self.file)
-        if row is not None:
-            where.append(f"row {row}")
-        if column is not None:
-            where.append(f"column '{column}'")
-        message = (": ".join([", ".join(where), problem]) if where else problem)
-        if hint:
-            message += f" ({hint})"
-        super().__init__(message)
 
 
 def _canonical_phi(table: pd.DataFrame) -> pd.DataFrame:
@@ -367,7 +318,15 @@ class Dataset:
         self.table = table
         self.meta = meta
         self.path = path
-        self._interpolators: dict = {}
+        self._derived: dict = {}
+
+    def derived(self, key: Any, build: Callable[[], Any]) -> Any:
+        """A value computed from this dataset's table once and kept with it (``build()`` the
+        first time ``key`` is asked for): :mod:`gonio.data.interpolate` keeps its
+        triangulations here. Valid because a dataset's table is never modified in place."""
+        if key not in self._derived:
+            self._derived[key] = build()
+        return self._derived[key]
 
     # --- descriptive properties -------------------------------------------------------------
     @property

@@ -5,7 +5,7 @@ looked up, never mixed); piecewise linear over the data's geometries at a sample
 ``phi_i`` present in the data: over the signed in-plane angle ``s`` (and ``theta_i``) for
 in-plane data, otherwise over a Delaunay triangulation of (``theta_i``,
 ``sin theta_o cos dphi``, ``sin theta_o sin dphi``), ``dphi = phi_o - phi_i``. A request outside
-the data is refused with :class:`~gonio.data.dataset.DatasetError`, never extrapolated.
+the data is refused with :class:`~gonio.data.schema.DatasetError`, never extrapolated.
 
 References
 ----------
@@ -19,14 +19,12 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from gonio.data.geometry import signed_angle
+from gonio.data.schema import ANGLE_TOL_DEG, GEOMETRY, DatasetError
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:       # types only: gonio.data.dataset imports this module (Dataset.interpolate)
     from gonio.data.dataset import Dataset
 
 __all__ = ["interpolate"]
-
-#: Tolerance (degrees) under which two angles are the same geometry.
-ANGLE_TOL_DEG = 1e-6
 
 
 def interpolate(dataset: "Dataset", theta_i, phi_i, theta_o, phi_o, band):
@@ -52,8 +50,6 @@ def interpolate(dataset: "Dataset", theta_i, phi_i, theta_o, phi_o, band):
         sample rotation not in the data, an out-of-plane request on in-plane data, a geometry
         outside the convex hull of the data).
     """
-    from gonio.data.dataset import DatasetError
-
     angles = [np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)]
     band_arr = np.asarray(band, dtype=object if dataset.is_rgb else float)
     shape = np.broadcast_shapes(*(a.shape for a in angles), band_arr.shape)
@@ -115,14 +111,15 @@ def interpolate(dataset: "Dataset", theta_i, phi_i, theta_o, phi_o, band):
 
 
 def _geometry_interpolator(dataset: "Dataset", rotation: float) -> Callable:
-    """A function (theta_i, theta_o, dphi) -> (beta per band, u_beta per band) for one phi_i."""
+    """A function (theta_i, theta_o, dphi) -> (beta per band, u_beta per band) for one phi_i,
+    built once per dataset and rotation (:meth:`Dataset.derived`)."""
+    return dataset.derived(("geometry interpolator", rotation),
+                           lambda: _build_geometry_interpolator(dataset, rotation))
+
+
+def _build_geometry_interpolator(dataset: "Dataset", rotation: float) -> Callable:
     from scipy.interpolate import LinearNDInterpolator
 
-    from gonio.data.dataset import GEOMETRY, DatasetError
-
-    cache = dataset._interpolators
-    if rotation in cache:
-        return cache[rotation]
     table = dataset.table
     t = table[np.abs(table["phi_i"].to_numpy() - rotation) < ANGLE_TOL_DEG]
     band_col = dataset.band_column
@@ -203,5 +200,4 @@ def _geometry_interpolator(dataset: "Dataset", rotation: float) -> Callable:
         out = interp_points(q)
         return out[:, :n_band], out[:, n_band:]
 
-    cache[rotation] = interpolate_rotation
     return interpolate_rotation
