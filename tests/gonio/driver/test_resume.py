@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -169,23 +170,44 @@ def test_torn_last_line_is_measured_again(drv, tmp_path):
     assert (out / "radiance.csv").read_bytes() == (ref / "radiance.csv").read_bytes()
 
 
-def test_stale_calibration_is_measured_again(drv, tmp_path):
+def _clocked_run(mock, plan_path, out, now: float, resume: bool):
+    """A session whose wall clock reads ``now`` (the engine's injected clock: no waiting)."""
+    from gonio.acquisition.plan import load_plan
+    from gonio.acquisition.session import run_session
+    from gonio.instrument import RetryPolicy
+    from gonio.instrument.transport import ModbusTransport, SerialTransport
+
+    return run_session(load_plan(plan_path), ModbusTransport(mock.modbus_url, timeout_s=0.3),
+                       SerialTransport(mock.serial_url, timeout_s=0.3), out, resume=resume,
+                       progress=False, seed=mock.seed, retry=RetryPolicy(base_s=0.002),
+                       clock=lambda: now)
+
+
+@pytest.mark.parametrize("age_min,reused", [(29.0, True), (31.0, False)])
+def test_stale_calibration_is_measured_again(drv, tmp_path, caplog, age_min, reused):
+    """The calibration's age is the engine's clock at resume minus the journaled time: 29 min
+    with a 30 min limit is reused, 31 min is measured again (and says why)."""
     plan = drv.write_plan(tmp_path, "stale", incidence=(0,), in_plane=(20, 40),
-                          wavelengths=(500,), readings=8,
-                          extra="calibration_max_age_min = 0.0001")
+                          wavelengths=(500,), readings=8, extra="calibration_max_age_min = 30")
+    t0 = 1.7e9
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
         out = tmp_path / "run"
-        assert drv.run(mock, plan, out).exit_code == 0
-        time.sleep(0.05)
+        assert _clocked_run(mock, plan, out, t0, resume=False).exit_code == 0
         journal = out / "journal.jsonl"
         lines = journal.read_bytes().split(b"\n")
         last_point = max(i for i, ln in enumerate(lines) if b'"type":"point"' in ln)
         journal.write_bytes(b"\n".join(lines[:last_point]) + b"\n")
-        assert drv.run(mock, plan, out, resume=True).exit_code == 0
+        with caplog.at_level(logging.INFO, logger="gonio"):
+            assert _clocked_run(mock, plan, out, t0 + 60 * age_min, resume=True).exit_code == 0
     cals = read_journal(journal).of_type("calibration")
-    assert [c["id"] for c in cals] == [0, 1]
     points = read_journal(journal).of_type("point")
-    assert [p["calibration"] for p in points] == [0, 1]
+    if reused:
+        assert [c["id"] for c in cals] == [0] and [p["calibration"] for p in points] == [0, 0]
+        assert "calibration 0 reused from the journal" in caplog.text
+    else:
+        assert [c["id"] for c in cals] == [0, 1] and [p["calibration"] for p in points] == [0, 1]
+        assert cals[1]["time"] == t0 + 60 * age_min
+        assert "calibration measured again: it is 31 min old (limit 30 min)" in caplog.text
 
 
 def test_resume_refuses_a_journal_of_another_plan(drv, tmp_path):
