@@ -362,8 +362,7 @@ class Engine:
             status, code, message = "failed", EXIT_STOPPED, f"failed: {exc!r}"
             failure = exc
         finally:
-            self.head.shutdown()
-            self.motion.shutdown()
+            self._make_safe()
         measured = len({point_key(r) for r in usable_points(self.records)})
         if status != "complete":
             # INFO, not ERROR: the command line prints the one final line (what, how many points
@@ -402,8 +401,22 @@ class Engine:
         for p, why in self.check.out_of_limits:
             log.warning("unmeasurable (%s): theta_i=%g theta_o=%g", why, p.theta_i, p.theta_o)
         self.motion.set_lamp(True)
-        self.motion.set_shutter(False)
+        self.head.shutter_open = False          # the head owns the shutter (_make_safe)
         self.motion.set_slot(SampleSlot.SAMPLE)
+
+    def _make_safe(self) -> None:
+        """Shutter closed, drives stopped, claim released: never raises.
+
+        One owner of the shutter: the photometer head closes it; only when that failed (the
+        head's link is gone) is the controller's shutter coil written instead, and said so.
+        """
+        if not self.head.shutdown():
+            log.warning("shutter: closing it through the motion controller's coil instead")
+            try:
+                self.motion.set_shutter(False)
+            except Exception as exc:  # noqa: BLE001 - a safe stop must not raise
+                log.warning("motion controller: closing the shutter failed too: %s", exc)
+        self.motion.shutdown()
 
     def _step_calibrate(self) -> None:
         """The journal's calibration when reusable (on resume), else a new one."""

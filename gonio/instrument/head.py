@@ -343,9 +343,11 @@ class PhotometerHead:
         return self.retry.run(lambda: self._retrying(unit, what), lamp, device=self.name, what=what,
                               exhausted=f"lamp unstable in {self.retry.attempts} readings")
 
-    def shutdown(self) -> None:
-        """Close the shutter (best effort, never raises)."""
+    def shutdown(self) -> bool:
+        """Close the shutter (best effort, never raises); False when that failed."""
         try:
             self.shutter_open = False
+            return True
         except Exception as exc:  # noqa: BLE001 - shutdown must not raise
             log.warning("photometer head: closing the shutter failed: %s", exc)
+            return False

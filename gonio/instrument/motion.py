@@ -1,7 +1,13 @@
 """The four-axis motion controller, declared over the register map.
 
 The registers are attributes (descriptors of :mod:`gonio.instrument.registers`, one per row of
-:data:`gonio.instrument.modbus_map.MODBUS_MAP`); behaviour is a few methods:
+:data:`gonio.instrument.modbus_map.MODBUS_MAP`), and the methods use them: a register that
+travels alone is read and written through its descriptor (``self.owner``, ``self.lamp``,
+``type(self).control.write(...)`` where the context or an unanswered-write check is passed),
+registers that travel together in one request through their declared group (an axis' inputs
+``ACTUAL, AXIS_STATUS, FAULT``; a move's ``TARGET, VELOCITY, COMMAND``). Every write, either way,
+is validated by its row of the map before it is sent
+(:meth:`gonio.instrument.registers.ModbusDevice.write_rows`). Behaviour is a few methods:
 :meth:`~MotionController.enable`, :meth:`~MotionController.home`,
 :meth:`~MotionController.move_to` (waits for in-position), :meth:`~MotionController.stop`,
 :meth:`~MotionController.clear_faults`, the owner claim and :meth:`~MotionController.shutdown`,
@@ -115,12 +121,12 @@ class MotionController(ModbusDevice):
     # --- status ---------------------------------------------------------------------------
     def firmware(self) -> str:
         """Firmware version, e.g. ``"1.4"``."""
-        v = self.read_rows(("FIRMWARE",), None, "read firmware")["FIRMWARE"]
+        v = self.firmware_word
         return f"{v >> 8}.{v & 0xFF}"
 
     def status(self) -> ControllerStatus:
         """CONTROLLER STATUS bits."""
-        return self.read_rows(("STATUS",), None, "read status")["STATUS"]
+        return self.controller_status
 
     def check_safe_to_move(self) -> ControllerStatus:
         """Refuse to start when the interlock is open or the emergency stop is pressed."""
@@ -144,7 +150,7 @@ class MotionController(ModbusDevice):
 
     # --- commands -------------------------------------------------------------------------
     def _control(self, bits: Control, what: str, took_effect: Callable[[], bool] | None = None) -> None:
-        self.write_rows({"CONTROL": int(bits)}, None, what, took_effect=took_effect)
+        type(self).control.write(self, int(bits), None, what, took_effect=took_effect)
 
     def enable(self) -> None:
         """Enable the drives."""
@@ -188,7 +194,7 @@ class MotionController(ModbusDevice):
         homed: a move needs a homed axis) or homed and at rest at its home position.
         """
         for a in range(N_AXES):
-            cmd = self.read_rows(("COMMAND",), a, f"home all: re-read axis {a} command")["COMMAND"]
+            cmd = type(self).axis_command.read(self, a, f"home all: re-read axis {a} command")
             if cmd != AxisCommand.HOME:
                 return False
             st = self.axis(a)
@@ -232,18 +238,24 @@ class MotionController(ModbusDevice):
 
     def set_lamp(self, on: bool) -> None:
         """Lamp coil."""
-        self.write_rows({"LAMP": on}, None, "lamp " + ("on" if on else "off"))
+        type(self).lamp.write(self, on, None, "lamp " + ("on" if on else "off"))
 
     def shutter_is_open(self, what: str = "read shutter") -> bool:
         """The shutter coil (the same shutter as the head's ``SHUTTER``)."""
-        return self.read_rows(("SHUTTER",), None, what)["SHUTTER"]
+        return type(self).shutter.read(self, None, what)
 
     def set_shutter(self, open_: bool) -> None:
-        """Shutter coil (the same shutter as the head's SHUTTER command)."""
-        self.write_rows({"SHUTTER": open_}, None, "shutter " + ("open" if open_ else "close"))
+        """Shutter coil (the same shutter as the head's SHUTTER command).
+
+        One owner of the shutter: the photometer head (its ``SHUTTER`` command, part of each
+        measurement unit). A session reads this coil only as a witness (a shutter closed under a
+        point by another client) and writes it only as the fallback of a safe stop whose head
+        link failed (:meth:`gonio.acquisition.engine.Engine.run`).
+        """
+        type(self).shutter.write(self, open_, None, "shutter " + ("open" if open_ else "close"))
 
     def _read_owner(self, what: str) -> int:
-        return self.read_rows(("OWNER",), None, what)["OWNER"]
+        return type(self).owner.read(self, None, what)
 
     def claim(self, token: int) -> None:
         """Write our owner token into the OWNER registers.
@@ -256,7 +268,7 @@ class MotionController(ModbusDevice):
             log.warning("motion controller: the instrument was claimed by another client (owner "
                         "token %#010x); taking it over (a session still running there stops)",
                         found)
-        self.write_rows({"OWNER": token}, None, "claim")
+        type(self).owner.write(self, token, None, "claim")
         self.owner_token = token
 
     def check_owner(self, what: str) -> None:
@@ -275,13 +287,13 @@ class MotionController(ModbusDevice):
             return
         try:
             if self._read_owner("read owner") == token:
-                self.write_rows({"OWNER": 0}, None, "release")
+                type(self).owner.write(self, 0, None, "release")
         except Exception as exc:  # noqa: BLE001 - part of shutdown, must not raise
             log.warning("motion controller: releasing the instrument failed: %s", exc)
 
     def set_slot(self, slot: SampleSlot) -> None:
         """Put the sample or the white reference standard in the beam (sample changer)."""
-        self.write_rows({"SAMPLE_SLOT": int(slot)}, None, f"slot {SampleSlot(slot).name.lower()}")
+        type(self).sample_slot.write(self, int(slot), None, f"slot {SampleSlot(slot).name.lower()}")
 
     def move_to(self, axes_deg, velocity_deg_s: float) -> None:
         """Move the axes to ``axes_deg`` (4 values, degrees) and wait until in position.
@@ -413,11 +425,13 @@ class MotionController(ModbusDevice):
         self._velocity_cdeg_s = [None] * N_AXES
 
     def shutdown(self) -> None:
-        """Leave the instrument safe: shutter closed, drives stopped (best effort, never raises)."""
-        for action, what in ((lambda: self.set_shutter(False), "closing the shutter"),
-                             (self.stop, "stopping the drives")):
-            try:
-                action()
-            except Exception as exc:  # noqa: BLE001 - shutdown must not raise
-                log.warning("motion controller: %s failed: %s", what, exc)
+        """Leave the drives safe: stopped, and the claim released (best effort, never raises).
+
+        The shutter is not the controller's to close: the photometer head owns it (see
+        :meth:`set_shutter`).
+        """
+        try:
+            self.stop()
+        except Exception as exc:  # noqa: BLE001 - shutdown must not raise
+            log.warning("motion controller: stopping the drives failed: %s", exc)
         self.release()

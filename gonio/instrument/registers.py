@@ -142,9 +142,18 @@ class ModbusDevice:
         """Write contiguous rows (in the order given) in one request.
 
         A coil is written alone (``write_coil``); holding registers together
-        (``write_registers``). The controller validates the values (exception 3).
+        (``write_registers``). Every value is first validated by its row of the register map
+        (:meth:`~gonio.instrument.modbus_map.Register.refusal`: what the controller would refuse
+        with exception 3 is refused here, nothing sent): the one validation path of every write,
+        a descriptor's or a group's.
         """
         rows, start, _ = self._span(tuple(values), axis)
+        for r in rows:
+            if r.access != "rw":
+                raise ValueError(f"{r.name} is read-only")
+            why = r.refusal(int(values[r.name]), axis)
+            if why is not None:     # refused here: the controller would answer exception 3
+                raise DeviceError(self.name, what, why, int(ModbusException.ILLEGAL_VALUE))
         if rows[0].table == COIL:
             if len(rows) != 1:
                 raise ValueError("one coil per write")
@@ -189,18 +198,21 @@ class _RegisterControl:
         """One descriptor per named row, to unpack into class attributes."""
         return tuple(cls(r) for r in registers)
 
-    def read(self, device: ModbusDevice, axis: int | None):
+    def read(self, device: ModbusDevice, axis: int | None, what: str | None = None):
+        """The register's decoded value (``what``: the context named in an error)."""
         where = f" of axis {axis}" if axis is not None else ""
-        return device.read_rows((self.register.name,), axis, f"read {self.attr}{where}")[self.register.name]
+        return device.read_rows((self.register.name,), axis,
+                                what or f"read {self.attr}{where}")[self.register.name]
 
-    def write(self, device: ModbusDevice, value, axis: int | None) -> None:
+    def write(self, device: ModbusDevice, value, axis: int | None, what: str | None = None, *,
+              took_effect: Callable[[], bool] | None = None) -> None:
+        """Write the register (validated by :meth:`ModbusDevice.write_rows`; ``took_effect``:
+        see :meth:`ModbusDevice.call`)."""
         if self.register.access != "rw":
             raise AttributeError(f"{self.attr} is read-only")
-        why = self.register.refusal(int(value), axis)
-        if why is not None:     # refused here: the controller would answer exception 3
-            raise DeviceError(device.name, f"write {self.attr}", why, int(ModbusException.ILLEGAL_VALUE))
         where = f" of axis {axis}" if axis is not None else ""
-        device.write_rows({self.register.name: value}, axis, f"write {self.attr}{where}")
+        device.write_rows({self.register.name: value}, axis, what or f"write {self.attr}{where}",
+                          took_effect=took_effect)
 
     def __get__(self, obj, owner=None):
         if obj is None:

@@ -202,3 +202,48 @@ def test_a_transcript_without_integrity_hashes_is_refused(tmp_path, capsys):
     bad.write_text("\n".join([lines[0]] + stripped[1:]) + "\n")
     assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
     assert "line 2: no integrity hash" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["quick-lambert", "quick-faults"])
+def test_the_head_is_the_one_owner_of_the_shutter(name):
+    """A session commands the shutter through the head only (issue 18): the controller's
+    shutter coil is read (the witness of a shutter closed under a point), never written; the
+    head closes the shutter at the start and at the end."""
+    from gonio.instrument.modbus_map import COIL_SHUTTER
+
+    messages = load_transcript(FIXTURES / f"{name}.jsonl").messages
+    requests = [m for m in messages if m["dir"] == "tx"]
+    coil = [m["payload"] for m in requests if m["ch"] == "modbus"
+            and m["payload"].get("address") == COIL_SHUTTER and "coil" in m["payload"]["fn"]]
+    assert coil and all(p["fn"] == "read_coils" for p in coil)
+    serial = [m["payload"] for m in requests if m["ch"] == "serial"]
+    shutter = [p for p in serial if isinstance(p, str) and p.startswith("SHUTTER ")]
+    assert shutter[0] == "SHUTTER CLOSE\n" and shutter[-1] == "SHUTTER CLOSE\n"
+
+
+def test_a_safe_stop_closes_the_shutter_with_the_coil_only_when_the_head_failed():
+    from gonio.acquisition.engine import Engine
+
+    calls: list[str] = []
+
+    class Head:
+        def __init__(self, ok):
+            self.ok = ok
+
+        def shutdown(self):
+            calls.append("head")
+            return self.ok
+
+    class Motion:
+        def set_shutter(self, open_):
+            calls.append(f"coil {open_}")
+
+        def shutdown(self):
+            calls.append("drives")
+
+    for ok, expected in ((True, ["head", "drives"]), (False, ["head", "coil False", "drives"])):
+        calls.clear()
+        engine = Engine.__new__(Engine)
+        engine.head, engine.motion = Head(ok), Motion()
+        engine._make_safe()
+        assert calls == expected

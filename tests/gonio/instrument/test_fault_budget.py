@@ -176,11 +176,29 @@ def test_a_move_that_never_arrives_ends_at_the_wait_limit():
     with pytest.raises(DeviceError, match=r"not at rest in position after 30 s .*--wait-timeout"):
         motion.move_to((10, 20, 0, 0), 20.0)                # 20 deg at 20 deg/s: 1 s of travel
     assert 30.0 < now[0] < 30.2
-    # a slow move is given the time it needs: 1.5 x 180 s + 5 s
+    # a slow move is given the time it needs: 160 deg at 1 deg/s, 1.5 x 160 s + 5 s
     motion, now = _stuck_motion(_StuckController())
-    motion._target_mdeg = [0, 0, 0, 0]
-    with pytest.raises(DeviceError, match="after 275 s"):
-        motion.move_to((0, 180, 0, 0), 1.0)
+    motion._target_mdeg = [0, -80000, 0, 0]
+    with pytest.raises(DeviceError, match="after 245 s"):
+        motion.move_to((0, 80, 0, 0), 1.0)
+    assert 245.0 < now[0] < 245.2
+
+
+def test_every_write_is_validated_by_its_register_row_before_it_is_sent():
+    """One validation path: a descriptor's write and a group's (a move) alike."""
+    link = _StuckController()
+    sent = []
+    link_exchange = link.exchange
+    link.exchange = lambda request, timeout_s=None: sent.append(request) or link_exchange(request)
+    motion, _ = _stuck_motion(link)
+    motion._target_mdeg, motion._velocity_cdeg_s = [0] * 4, [1000] * 4   # only axis 1 moves
+    with pytest.raises(DeviceError, match="TARGET: 180000 mdeg outside the soft limits"):
+        motion.move_to((0, 180, 0, 0), 10.0)
+    with pytest.raises(DeviceError, match="SAMPLE_SLOT"):
+        motion.sample_slot = 7
+    with pytest.raises(DeviceError, match="VELOCITY"):
+        motion.velocity_cdeg_s[0] = 0
+    assert sent == []
 
 
 def test_a_takeover_during_a_move_is_noticed_within_a_second():

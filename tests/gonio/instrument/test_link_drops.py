@@ -22,14 +22,14 @@ from gonio.instrument.transport import LinkLost, ModbusTransport
 SEED = 21
 
 # the mock's Modbus fault opportunities at the start of a session, in order (fixed: no polling
-# before): firmware, status, owner read and claim, lamp coil, shutter coil, sample slot, enable,
-# HOME_ALL, first homing poll. Every request is one opportunity, a coil write (fc 5) included
-# (the dropped request is asserted below, so a change shows at once).
+# before): firmware, status, owner read and claim, lamp coil, sample slot, enable, HOME_ALL,
+# first homing poll (the shutter is closed by the head, its owner, not by the coil). Every
+# request is one opportunity, a coil write (fc 5) included (the dropped request is asserted
+# below, so a change shows at once).
 START = [(4, P.IR_FIRMWARE), (4, P.IR_STATUS), (3, P.HR_OWNER), (16, P.HR_OWNER),
-         (5, P.COIL_LAMP), (5, P.COIL_SHUTTER),
-         (16, P.HR_SAMPLE_SLOT), (16, P.HR_CONTROL), (16, P.HR_CONTROL),
+         (5, P.COIL_LAMP), (16, P.HR_SAMPLE_SLOT), (16, P.HR_CONTROL), (16, P.HR_CONTROL),
          (4, P.axis_actual_address(0))]
-ENABLE, HOME_ALL, HOMING_POLL = 8, 9, 10
+ENABLE, HOME_ALL, HOMING_POLL = 7, 8, 9
 
 
 def _plan(drv, tmp_path):
