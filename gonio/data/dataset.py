@@ -1,5 +1,9 @@
 """Radiance-coefficient datasets: the format, its validation and its (atomic) I/O.
 
+(About 800 lines, one concept: the validation, the :class:`Dataset` and its I/O share the
+private checks, and ``simulate``/``compare`` import the readers and writers from here; the
+format's constants and :class:`DatasetError` are the leaf :mod:`gonio.data.schema`.)
+
 A dataset is a directory with two files (docs/dataset.md):
 
 ``radiance.csv``
