@@ -117,8 +117,8 @@ class RetryPolicy:
     max_point_retries: int = 2000
     links: dict[str, LinkStats] = field(default_factory=dict)
     point_budget: int | None = None
-    _point_start: int = 0
-    _point_attempts: int = 0
+    _point_start: int = field(default=0, init=False, repr=False)
+    _point_attempts: int = field(default=0, init=False, repr=False)
 
     def delay(self, k: int) -> float:
         """Backoff before retry number ``k`` (0-based).
