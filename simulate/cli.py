@@ -11,16 +11,16 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate bench --out DIR [--quick]``
     kernel benchmark: DIR/bench.json, DIR/bench.png and a markdown table on stdout.
 ``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
-    a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
+    a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.products`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
     non-empty DIR is overwritten only if it holds a previous ``simulate fabric`` output.
 ``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
-    the fiber BRDF table (:mod:`simulate.fibertable`: npz + JSON sidecar); its target error
+    the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar); its target error
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
 ``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
-    fits config parameters to a measurement (:mod:`simulate.fit`): fitted.toml, datasets, report.
+    fits config parameters to a measurement (:mod:`studies.fit`): fitted.toml, datasets, report.
 ``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]``
-    a parameter study on dask.distributed (:mod:`simulate.sweep`): one dataset per point, summary.csv;
+    a parameter study on dask.distributed (:mod:`studies.sweep`): one dataset per point, summary.csv;
     exit 1 when a task still fails after its retries (the others are kept).
 """
 
@@ -189,7 +189,7 @@ def _bench_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _bench_run(args: argparse.Namespace) -> int:
-    from simulate.bench import markdown_table, run_bench
+    from studies.bench import markdown_table, run_bench
 
     out: Path = args.out
     if out.exists() and not out.is_dir():
@@ -256,7 +256,7 @@ def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> N
 
 
 def _is_fabric_output(out: Path) -> bool:
-    from simulate.virtual import GENERATOR
+    from simulate.products import GENERATOR
 
     try:
         meta = json.loads((out / "meta.json").read_text(encoding="utf-8"))
@@ -267,7 +267,7 @@ def _is_fabric_output(out: Path) -> bool:
 
 
 def _is_fiber_output(out: Path) -> bool:
-    from simulate.fibertable import FORMAT, JSON_NAME
+    from simulate.fiber.tables import FORMAT, JSON_NAME
 
     try:
         meta = json.loads((out / JSON_NAME).read_text(encoding="utf-8"))
@@ -311,7 +311,7 @@ def _fabric_run(args: argparse.Namespace) -> int:
     from gonio.data.dataset import write_dataset
     from gonio.acquisition.plan import PlanError, load_plan
     from simulate.fabric import FabricError
-    from simulate.virtual import fabric_dataset
+    from simulate.products import fabric_dataset
 
     config = _load_config(args.config)
     try:
@@ -349,7 +349,9 @@ def _fiber_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fiber_run(args: argparse.Namespace) -> int:
-    from simulate.fibertable import TableGrid, fiber_table, write_fiber_table
+    import numpy as np
+
+    from simulate.fiber.tables import TableGrid, fiber_table, write_fiber_table
 
     config = _load_config(args.config)
     try:
@@ -357,9 +359,13 @@ def _fiber_run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
     _prepare_out(args.out, _is_fiber_output, "simulate fiber")
-    arrays, sidecar = fiber_table(config, grid, method=args.method, target_rel_err=args.target_rel_err,
-                                  seed=args.seed, threads=args.threads, max_photons=args.max_photons,
-                                  progress=_progress(args))
+    wavelengths = np.asarray(config.wavelengths_nm, float)
+    arrays, sidecar = fiber_table(
+        config.fiber(wavelengths), wavelengths, grid, method=args.method or config.method,
+        target_rel_err=args.target_rel_err, seed=config.seed if args.seed is None else args.seed,
+        threads=config.threads if args.threads is None else args.threads,
+        max_photons=config.max_photons if args.max_photons is None else args.max_photons,
+        progress=_progress(args), config_provenance=config.provenance())
     write_fiber_table(args.out, arrays, sidecar)
     prov = sidecar["provenance"]
     print(f"wrote {args.out} ({math.prod(grid.shape)} direction pairs x {arrays['wavelength_nm'].size} "
@@ -377,7 +383,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("measured", metavar="MEASURED_DIR", type=Path, help="measured radiance-coefficient dataset")
     p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
                    help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
-                        "dye, dye-peaks; repeatable or comma-separated); see simulate.fit")
+                        "dye, dye-peaks; repeatable or comma-separated); see studies.fit")
     p.add_argument("--out", type=Path, required=True,
                    help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
     p.add_argument("--method", choices=("classic", "summation"), default="classic",
@@ -400,7 +406,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _is_fit_output(out: Path) -> bool:
-    from simulate.fit import STATE_NAME
+    from studies.fit import STATE_NAME
 
     return (out / STATE_NAME).is_file() or (out / "fit.json").is_file()
 
@@ -409,7 +415,7 @@ def _fit_run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from gonio.data.dataset import DatasetError, read_dataset
-    from simulate.fit import FitError, FitProblem, parse_free, run_fit, write_outputs
+    from studies.fit import FitError, FitProblem, parse_free, run_fit, write_outputs
 
     config = _load_config(args.config)
     try:
@@ -473,7 +479,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callab
 
 # ------------------------------------------------------------------------------------------
 # simulate weave CONFIG --out MESH.ply|obj [--force]
-#   the triangulated yarn tubes of the config's woven micro-element (simulate.weave); registered
+#   the triangulated yarn tubes of the config's woven micro-element (simulate.fabric.weave); registered
 #   after COMMANDS so that this section stays self-contained
 # ------------------------------------------------------------------------------------------
 
@@ -487,7 +493,8 @@ def _weave_arguments(p: argparse.ArgumentParser) -> None:
 
 def _weave_run(args: argparse.Namespace) -> int:
     from simulate.config import ConfigError
-    from simulate.weave import WeaveError, mesh, weave_from_config
+    from simulate.config import weave_from_config
+    from simulate.fabric.weave import WeaveError, mesh
 
     out: Path = args.out
     if out.suffix.lower() not in (".ply", ".obj"):
@@ -514,7 +521,7 @@ COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave 
 
 # ------------------------------------------------------------------------------------------
 # simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
-#   a parameter study on dask.distributed (simulate.sweep)
+#   a parameter study on dask.distributed (studies.sweep)
 # ------------------------------------------------------------------------------------------
 
 
@@ -578,7 +585,7 @@ def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
 def _sweep_run(args: argparse.Namespace) -> int:
     from gonio.acquisition.plan import PlanError, load_plan
     from gonio.data.dataset import DatasetError, read_dataset
-    from simulate.sweep import SweepError, SweepSpec, finished_tasks, parse_params, prepare_out, run_sweep
+    from studies.sweep import SweepError, SweepSpec, finished_tasks, parse_params, prepare_out, run_sweep
 
     config = _load_config(args.config)
     try:

@@ -2,7 +2,7 @@
 
 A config names the fiber (radius, host index, host absorption spectrum = the dye), the
 scattering medium inside it (Mie particles, or a direct Henyey-Greenstein medium for
-validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.weave`), the
+validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.fabric.weave`), the
 method settings and the seed. ``simulate fiber`` and ``simulate fabric`` take a config path or
 the name of a shipped preset (``red-cotton``, in :mod:`simulate.configs`).
 
@@ -49,7 +49,7 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     [surface]
     rms_slope = 0.3                    # Beckmann RMS slope m of the fiber surface, > 0
 
-    [weave]                            # optional: the woven micro-element (simulate.weave)
+    [weave]                            # optional: the woven micro-element (simulate.fabric.weave)
     matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular; at most ONE
     # preset = "twill"                 #   of matrix, preset ("plain" | "twill" | "satin") and
     # wif = "pattern.wif"              #   wif (a WIF 1.1 file, relative to this file); none: plain
@@ -87,7 +87,8 @@ from typing import Any
 
 import numpy as np
 
-from simulate.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
+from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset, weave_from_wif
+from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
 
 __all__ = [
     "ConfigError",
@@ -268,7 +269,7 @@ class DyeSpectrum:
         return p["long_per_um"] + (p["short_per_um"] - p["long_per_um"]) / (1.0 + np.exp(z))
 
     def as_spectrum(self, wavelength_nm: np.ndarray) -> Spectrum:
-        """A :class:`~simulate.medium.Spectrum` sampled at (and exact on) ``wavelength_nm``."""
+        """A :class:`~simulate.media.medium.Spectrum` sampled at (and exact on) ``wavelength_nm``."""
         wl = np.unique(np.asarray(wavelength_nm, dtype=float))
         if wl.size == 1:  # a Spectrum needs a range; a flat two-point table is exact
             wl = np.array([wl[0] - 1.0, wl[0] + 1.0])
@@ -432,10 +433,8 @@ def _particles(t: _Table) -> ParticleSpec:
 
 
 def _weave(t: _Table, base_dir: Path) -> dict:
-    """The ``[weave]`` table as a dict of the fields present (``simulate.weave.weave_from_config``
+    """The ``[weave]`` table as a dict of the fields present (:func:`weave_from_config`
     fills the defaults and checks the geometry); ``wif`` is stored resolved against ``base_dir``."""
-    from simulate.weave import PRESETS
-
     out: dict = {}
     given = [key for key in ("matrix", "preset", "wif") if t.has(key)]
     if len(given) > 1:
@@ -568,3 +567,42 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths)
+
+
+# ------------------------------------------------------------------------------------------
+# the [weave] table as a geometry (the config adapter of simulate.fabric.weave)
+
+
+def weave_from_config(config: SimulationConfig | str | Path) -> Weave:
+    """The :class:`simulate.fabric.weave.Weave` of a simulation config's ``[weave]`` table (or of a config path/preset).
+
+    One of ``preset``, ``wif`` (resolved against the config's directory when the config is read)
+    and ``matrix``; none: the plain weave. Missing dimensions take the defaults
+    :data:`simulate.fabric.weave.DEFAULT_SPACING_UM` (300), :data:`simulate.fabric.weave.DEFAULT_WIDTH_UM` (250), :data:`simulate.fabric.weave.DEFAULT_HEIGHT_UM`
+    (100), :data:`simulate.fabric.weave.DEFAULT_CRIMP` (1), :data:`simulate.fabric.weave.DEFAULT_POINTS_PER_SPAN` (8), :data:`simulate.fabric.weave.DEFAULT_SIDES` (16).
+
+    Raises
+    ------
+    ConfigError
+        ``red.toml: weave: <what is wrong>``, naming the config file.
+
+    Examples
+    --------
+    >>> w = weave_from_config("red-cotton")
+    >>> w.matrix.tolist(), w.spacing_um, w.width_um, w.height_um
+    ([[1, 0], [0, 1]], 300.0, 250.0, 100.0)
+    """
+    cfg = config if isinstance(config, SimulationConfig) else load_config(config)
+    source = cfg.source
+    file = f"{source[len('preset '):]}.toml" if source.startswith("preset ") else Path(source).name
+    w = cfg.weave
+    params = {key: w[key] for key in ("spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides")
+              if key in w}
+    try:
+        if "preset" in w:
+            return preset(w["preset"], **params)
+        if "wif" in w:
+            return weave_from_wif(w["wif"], **params)
+        return Weave(w.get("matrix", PRESETS["plain"]), **params)
+    except WeaveError as exc:
+        raise ConfigError(f"{file}: weave: {exc}") from None

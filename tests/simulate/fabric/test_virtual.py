@@ -9,7 +9,7 @@ from gonio.data.dataset import read_dataset, write_dataset
 from gonio.acquisition.plan import load_plan, parse_plan
 from simulate import fabric as fab
 from simulate.config import load_config
-from simulate.virtual import GENERATOR, fabric_dataset
+from simulate.products import GENERATOR, fabric_dataset
 
 from .conftest import PHOTONS, REL_ERR, fake_R, fake_rho, fake_surface
 
@@ -89,7 +89,7 @@ def test_classic_dataset_is_rho_plus_pi_f_ct(fake_fiber, tmp_path):
     t = back.table
     w_i = fab.directions_deg(t["theta_i"], t["phi_i"])
     w_o = fab.directions_deg(t["theta_o"], t["phi_o"])
-    from simulate.microfacet import cook_torrance
+    from simulate.optics.microfacet import cook_torrance
 
     expected = fake_rho(t["wavelength_nm"]) + np.pi * cook_torrance(w_i, w_o, config.rms_slope, config.n_host)
     np.testing.assert_allclose(t["beta"], expected, rtol=1e-8)

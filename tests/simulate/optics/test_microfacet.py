@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from simulate import microfacet as mf
-from simulate.fresnel import OpticsDomainWarning
+from simulate.optics import microfacet as mf
+from simulate.optics.fresnel import OpticsDomainWarning
 
 N_HOST = 1.557
 
@@ -90,7 +90,7 @@ def test_directional_albedo_by_an_independent_quadrature():
 
 
 def test_smooth_limit_approaches_mirror_fresnel():
-    from simulate.fresnel import reflectance
+    from simulate.optics.fresnel import reflectance
 
     theta = np.radians([0.0, 20.0, 45.0, 60.0, 75.0, 80.0])
     mirror = reflectance(theta, 1.0, N_HOST)

@@ -99,9 +99,9 @@ def test_the_tables_own_noise_is_in_u_beta():
     """Runs with different seeds build different BSSRDF tables: they must agree within the
     reported errors, which therefore have to include the table's noise (not only the rays')."""
     from simulate import fiber as F
-    from simulate import weave
+    from simulate.fabric import weave
     from simulate import woven as W
-    from simulate.medium import HGMedium
+    from simulate.media.medium import HGMedium
 
     fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), 0.35, 10.0)
     mesh = weave.mesh(weave.preset("plain", points_per_span=6, sides=12))

@@ -15,10 +15,10 @@ import pytest
 
 from simulate import fabric as fab
 from simulate import fiber as F
-from simulate import weave
+from simulate.fabric import weave
 from simulate import woven as W
-from simulate.medium import HGMedium
-from simulate.microfacet import OpticsDomainWarning
+from simulate.media.medium import HGMedium
+from simulate.optics.microfacet import OpticsDomainWarning
 
 
 def _d(theta, phi=0.0):

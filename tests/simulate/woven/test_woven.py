@@ -1,4 +1,4 @@
-"""Woven-fabric Monte Carlo (simulate.woven, simulate.raytrace): limits with exact answers.
+"""Woven-fabric Monte Carlo (simulate.woven, simulate.woven.scene): limits with exact answers.
 
 Every Monte Carlo comparison is within a few standard errors the code reports, with fixed
 seeds; references come from outside the tracer (the albedo itself, energy conservation,
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from simulate import fiber as F
-from simulate import weave
+from simulate.fabric import weave
 from simulate import woven as W
-from simulate.medium import HGMedium
+from simulate.media.medium import HGMedium
 
 
 def _dirs(theta_deg, phi_deg=0.0):

@@ -1,0 +1,653 @@
+r"""``simulate sweep``: parameter studies of a fabric model on dask.distributed.
+
+``simulate sweep CONFIG --param NAME=v1,v2,... [--param NAME2=...] --out DIR [--method summation|classic|mc]
+[--geometry PLAN] [--scheduler tcp://HOST:PORT] [--workers N] [--measured DIR] [--resume]``
+
+Parameters and points
+---------------------
+A swept parameter is a numeric config field named as ``simulate fit`` names its free
+parameters (the same machinery, :mod:`studies.fit`): a dotted TOML path with list indices
+(``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``, ``weave.spacing_um``) or
+one of the single-field aliases ``volume_fraction``, ``radius``, ``rms_slope``. The multi-field
+aliases ``dye``/``dye-peaks`` and the run settings (``seed``, ``method.*``, ``wavelengths.*``)
+are refused: a sweep sets one field to one value, and the run settings have their own flags.
+Several ``--param`` give the Cartesian product (the first parameter varies slowest); every
+point's config is built and validated by :func:`simulate.config.parse_config` before any work,
+so a value out of a field's range is one line naming the point and the field (exit 2).
+
+Tasks and seeds
+---------------
+One task per (parameter point, wavelength of the plan): :func:`evaluate_task` runs
+:func:`simulate.products.fabric_dataset` on a one-wavelength copy of the plan. That granularity
+spreads a sweep over as many workers as it has tasks, at the price of the work a full-spectrum
+run shares between wavelengths (the classic model's one walk, the woven mesh of ``mc``), which
+each task redoes for its wavelength. Each task's seed is :func:`task_seed` of (the sweep's seed,
+the point's index, the wavelength), independent of which worker runs it and when, so a sweep
+gives the same numbers, byte for byte, on 1 or 20 workers and in any completion order. The
+points get independent seeds (not common random numbers): each point's Monte Carlo error is
+then an honest, independent sample, as a user reading one point's dataset expects.
+
+Storage, resume and failures
+----------------------------
+``DIR/sweep.json`` is written first: the spec (config, plan, parameters, method, seed,
+accuracy, wavelengths, points) and its digest. Each finished task's result is stored by the
+client (not the worker: remote workers need no shared file system) in ``DIR/tasks/<task>.npz``
+(``p003_w0550.npz``: point 3, 550 nm), atomically (temporary file in ``DIR/tasks``, fsync,
+rename), as soon as it arrives. A sweep run again into the same ``DIR`` with the same spec --
+``--resume`` says so explicitly -- submits only the tasks without a file: a killed sweep
+recomputes nothing it had stored. A different spec in an existing sweep directory is refused
+(exit 2, naming what differs), and a non-empty ``--out`` that is not a sweep directory is never
+written into. A lock (``flock`` on ``DIR/.sweep.lock``) keeps a second sweep out of a running one.
+
+A task that raises is retried by dask (``retries``, default 2); one that still fails is reported
+(one line per task) and the sweep exits 1 at the end, after storing every task that finished
+and assembling every point whose tasks are all there.
+
+Outputs
+-------
+``DIR/points/<name>=<value>[,<name2>=<value2>]/``: one radiance-coefficient dataset per
+complete point (:func:`gonio.data.dataset.write_dataset`), assembled from the task files only
+(so a resumed sweep writes what an uninterrupted one writes); its ``meta.json`` records the
+parameter values under ``provenance.sweep``. ``DIR/summary.csv``: one row per point (parameter
+values, status, tasks done, compute seconds summed over its tasks, achieved relative error, and
+with ``measured`` the ``compare`` figures NRMSE, hue and saturation difference). ``compare
+report MEASURED DIR --out R`` charts those against the parameter (:mod:`compare.sweep`).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import fcntl
+import hashlib
+import io
+import itertools
+import json
+import logging
+import math
+import os
+import re
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from gonio.acquisition.plan import Plan
+from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta, write_dataset
+from simulate.config import ConfigError, SimulationConfig, parse_config
+from studies import paths as config_paths
+from studies.paths import toml_dumps
+from simulate.products import FABRIC_METHODS, achieved_rel_err, fabric_dataset, jsonable, software_versions
+
+__all__ = [
+    "GENERATOR",
+    "SCHEMA",
+    "SUMMARY_NAME",
+    "SWEEP_NAME",
+    "SweepError",
+    "SweepParameter",
+    "SweepPoint",
+    "SweepResult",
+    "SweepSpec",
+    "SweepTask",
+    "TaskArgs",
+    "evaluate_task",
+    "finished_tasks",
+    "parse_params",
+    "prepare_out",
+    "run_sweep",
+    "task_seed",
+]
+
+log = logging.getLogger(__name__)
+
+GENERATOR = "simulate sweep"
+SCHEMA = "simulate-sweep/1"
+SWEEP_NAME = "sweep.json"
+SUMMARY_NAME = "summary.csv"
+TASKS_DIR = "tasks"
+POINTS_DIR = "points"
+LOCK_NAME = ".sweep.lock"
+_ALIASES = ("volume_fraction", "radius", "rms_slope")
+#: temporary files of :func:`gonio.data.dataset.atomic_write` for a task file (a killed write)
+_TEMP_NAME = re.compile(r"\.p\d+_w[0-9p]+\.npz\.[a-z0-9_]{8}\.tmp")
+
+
+class SweepError(ValueError):
+    """A sweep that cannot start (bad ``--param``, bad ``--out``, another spec): one line, exit 2."""
+
+
+# ------------------------------------------------------------------------------------------
+# parameters and points
+
+
+@dataclass(frozen=True)
+class SweepParameter:
+    """One swept config field: the name as given, its dotted config path and its values."""
+
+    name: str
+    path: str
+    values: tuple[float | int, ...]
+
+
+def _value_text(v: float | int) -> str:
+    """Shortest text that reads back as the value (``0.05``, ``1e-05``, ``8``): directory names."""
+    return str(v) if isinstance(v, int) else repr(float(v))
+
+
+def _run_setting(path: str) -> bool:
+    return path == "seed" or path.startswith(("method.", "wavelengths."))
+
+
+def parse_params(specs: list[str], config: SimulationConfig) -> list[SweepParameter]:
+    """Swept parameters from ``NAME=v1,v2,...`` strings (one per ``--param``).
+
+    Raises
+    ------
+    SweepError
+        Malformed text, a value that is not a finite number, a value given twice, an unknown or non-numeric field, a multi-field alias, a run
+        setting, or one field named twice. Nothing is computed before these checks.
+    """
+    data = tomllib.loads(config.text)
+    out: list[SweepParameter] = []
+    for spec in specs:
+        name, sep, values_text = spec.partition("=")
+        name = name.strip()
+        if not sep or not name or not values_text.strip():
+            raise SweepError(f"--param {spec!r}: expected NAME=v1,v2,... (a config field and its values)")
+        if name in ("dye", "dye-peaks"):
+            raise SweepError(f"--param {name}: names several dye coefficients; a sweep sets one field, e.g. "
+                             "fiber.dye.bands[0].peak_per_um")
+        try:
+            paths = config_paths.expand(name, data) if name in _ALIASES else [name]
+            config_paths.split(paths[0])
+            current = config_paths.get(data, paths[0])
+        except (config_paths.PathError, KeyError):
+            fields = ", ".join(sorted(f for f in set(config_paths.numeric_leaves(data, "")) if not _run_setting(f)))
+            raise SweepError(f"--param {name}: unknown parameter: the config {config.name} has no such numeric "
+                             f"field (its fields: {fields}; aliases: {', '.join(_ALIASES)})") from None
+        path = paths[0]
+        if isinstance(current, bool) or not isinstance(current, (int, float)):
+            raise SweepError(f"--param {name}: {path} is not a number in the config (a table or text)")
+        if _run_setting(path):
+            raise SweepError(f"--param {name}: {path} is a run setting, not a model parameter "
+                             "(use --seed, --method, --target-rel-err; the plan gives the wavelengths)")
+        if any(p.path == path for p in out):
+            raise SweepError(f"--param {name}: {path} is swept twice")
+        values: list[float | int] = []
+        for text in values_text.split(","):
+            text = text.strip()
+            try:
+                value = float(text)
+            except ValueError:
+                raise SweepError(f"--param {name}: {text!r} is not a number "
+                                 f"(expected {name}=v1,v2,...)") from None
+            if not math.isfinite(value):
+                raise SweepError(f"--param {name}: {text!r} is not a finite number")
+            if isinstance(current, int) and value.is_integer():
+                # an integer in the config stays one (points_per_span, sides); a float where the
+                # schema wants an integer is refused by the config parser, naming the field
+                value = int(value)
+            if value in values:
+                raise SweepError(f"--param {name}: the value {text} is given twice")
+            values.append(value)
+        out.append(SweepParameter(name, path, tuple(values)))
+    if not out:
+        raise SweepError("--param: no parameter to sweep")
+    return out
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One parameter point: its index in the product, its values and its validated config."""
+
+    index: int
+    values: tuple[float | int, ...]
+    label: str
+    config: SimulationConfig = field(repr=False)
+
+    @property
+    def dir(self) -> str:
+        """The point's dataset directory, relative to the sweep directory."""
+        return f"{POINTS_DIR}/{self.label}"
+
+
+@dataclass(frozen=True)
+class SweepTask:
+    """One task: a point at one wavelength (``id`` names its file: ``p003_w0550``)."""
+
+    point: SweepPoint
+    wavelength_nm: float
+    seed: int
+
+    @property
+    def id(self) -> str:
+        wl = self.wavelength_nm
+        text = f"{int(wl):04d}" if wl == int(wl) else f"{wl:09.4f}".rstrip("0").replace(".", "p")
+        return f"p{self.point.index:03d}_w{text}"
+
+
+def task_seed(seed: int, point_index: int, wavelength_nm: float) -> int:
+    """The seed of one task, from the sweep's seed, the point's index and the wavelength.
+
+    ``numpy.random.SeedSequence`` mixes the three (the wavelength in picometres), so neighbouring
+    tasks get unrelated streams. The result is in ``[0, 2**32)``: the fiber routes derive their
+    run seeds as ``seed * 1_000_003 + ...`` in int64, which a seed near 2**63 would overflow.
+
+    Examples
+    --------
+    >>> task_seed(0, 1, 550.0) == task_seed(0, 1, 550.0) != task_seed(0, 2, 550.0)
+    True
+    """
+    ss = np.random.SeedSequence(entropy=int(seed), spawn_key=(int(point_index), int(round(wavelength_nm * 1000))))
+    return int(ss.generate_state(1, np.uint32)[0])
+
+
+def _config_path(config: SimulationConfig) -> str:
+    # a config read from a file is re-parsed under its own path: a relative [weave] wif resolves
+    return config.source if Path(config.source).is_file() else f"{config.name}.toml"
+
+
+@dataclass
+class SweepSpec:
+    """Everything that determines a sweep's numbers, its points and tasks (validated on creation).
+
+    ``target_rel_err``, ``seed`` and ``max_photons`` of None take the config's values, so a spec
+    given them explicitly equal to the config's is the same sweep (same :attr:`digest`).
+    ``threads`` (per task) does not change results and is not part of the spec.
+    """
+
+    config: SimulationConfig
+    plan: Plan
+    params: list[SweepParameter]
+    method: str = "summation"
+    target_rel_err: float | None = None
+    seed: int | None = None
+    max_photons: int | None = None
+    measurable_only: bool = False
+    threads: int | None = 1
+    points: list[SweepPoint] = field(default_factory=list, init=False)
+
+    def __post_init__(self) -> None:
+        if self.method not in FABRIC_METHODS:
+            raise SweepError(f"--method must be one of {', '.join(FABRIC_METHODS)}, got {self.method!r}")
+        if self.target_rel_err is None:
+            self.target_rel_err = self.config.target_rel_err
+        if self.seed is None:
+            self.seed = self.config.seed
+        if self.max_photons is None:
+            self.max_photons = self.config.max_photons
+        doc = tomllib.loads(self.config.text)
+        for index, values in enumerate(itertools.product(*(p.values for p in self.params))):
+            label = ",".join(f"{p.name}={_value_text(v)}" for p, v in zip(self.params, values))
+            point_doc = copy.deepcopy(doc)
+            for p, v in zip(self.params, values):
+                config_paths.set_value(point_doc, p.path, v)
+            try:
+                cfg = parse_config(toml_dumps(point_doc), _config_path(self.config),
+                                   source=f"{self.config.source} with {label}")
+            except ConfigError as exc:
+                raise SweepError(f"--param {label}: {exc}") from None
+            self.points.append(SweepPoint(index, tuple(values), label, cfg))
+
+    @property
+    def wavelengths_nm(self) -> list[float]:
+        return [float(w) for w in self.plan.wavelengths_nm]
+
+    def tasks(self) -> list[SweepTask]:
+        """Every task, point by point, wavelength by wavelength."""
+        return [SweepTask(p, wl, task_seed(int(self.seed), p.index, wl))
+                for p in self.points for wl in self.wavelengths_nm]
+
+    def identity(self) -> dict:
+        """The parts of the spec that a resumed sweep must share (see :attr:`digest`)."""
+        return {"config": self.config.sha256, "plan": self.plan.sha256,
+                "parameters": [[p.name, p.path, list(p.values)] for p in self.params],
+                "method": self.method, "seed": int(self.seed), "target_rel_err": float(self.target_rel_err),
+                "max_photons": self.max_photons, "measurable_only": bool(self.measurable_only),
+                "wavelengths_nm": self.wavelengths_nm}
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of :meth:`identity` (config and plan by their own SHA-256)."""
+        return hashlib.sha256(json.dumps(self.identity(), sort_keys=True).encode()).hexdigest()
+
+    def document(self) -> dict:
+        """The ``sweep.json`` document (:mod:`compare.sweep` reads ``parameters`` and ``points``)."""
+        import datetime as dt
+
+        return {
+            "schema": SCHEMA, "generator": GENERATOR, "digest": self.digest, "identity": self.identity(),
+            "config": {"name": self.config.name, "source": self.config.source, "sha256": self.config.sha256},
+            "plan": {"name": self.plan.name, "path": str(self.plan.path), "sha256": self.plan.sha256},
+            "method": self.method,
+            "parameters": [{"name": p.name, "path": p.path, "values": list(p.values)} for p in self.params],
+            "points": [{"index": p.index, "dir": p.dir, "label": p.label,
+                        "values": {q.name: v for q, v in zip(self.params, p.values)}} for p in self.points],
+            "wavelengths_nm": self.wavelengths_nm,
+            "tasks": len(self.points) * len(self.wavelengths_nm),
+            "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        }
+
+
+# ------------------------------------------------------------------------------------------
+# the task (runs on a worker)
+
+
+@dataclass(frozen=True)
+class TaskArgs:
+    """What a worker needs for one task (pickled to it; it writes nothing)."""
+
+    task_id: str
+    config: SimulationConfig
+    plan: Plan
+    wavelength_nm: float
+    seed: int
+    method: str
+    target_rel_err: float
+    max_photons: int | None
+    measurable_only: bool
+    threads: int | None
+
+
+def evaluate_task(args: TaskArgs) -> dict:
+    """Evaluate one point's model at one wavelength; returns ``{"columns": {...}, "meta": {...}}``.
+
+    The plan is copied with only ``args.wavelength_nm`` (the dye is sampled exactly there).
+    """
+    started = time.perf_counter()
+    plan = dataclasses.replace(args.plan, wavelengths_nm=np.array([args.wavelength_nm], float))
+    ds = fabric_dataset(args.config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
+                        threads=args.threads, max_photons=args.max_photons, measurable_only=args.measurable_only)
+    meta = jsonable(ds.meta)
+    meta["provenance"]["task"] = {"id": args.task_id, "seed": args.seed,
+                                  "seconds": time.perf_counter() - started, "worker_pid": os.getpid()}
+    return {"columns": {c: ds.table[c].to_numpy() for c in COLUMNS}, "meta": meta}
+
+
+# ------------------------------------------------------------------------------------------
+# the sweep directory
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def prepare_out(out: Path, spec: SweepSpec, resume: bool = False) -> bool:
+    """Check that ``out`` may receive ``spec``'s sweep; write ``sweep.json`` when it is new.
+
+    Returns True when ``out`` already holds this sweep (a resume). Raises :class:`SweepError`
+    for a file, a non-empty directory that is not a sweep, a sweep of a different spec (naming
+    the parts that differ), or ``resume`` without a sweep to resume.
+    """
+    if out.exists() and not out.is_dir():
+        raise SweepError(f"--out {out}: exists and is not a directory; choose a directory path")
+    previous = out / SWEEP_NAME
+    if out.is_dir() and previous.exists():
+        doc = _read_json(previous)
+        if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
+            raise SweepError(f"--out {out}: {SWEEP_NAME} is not a readable sweep description; "
+                             "remove the directory or choose a new --out")
+        if doc.get("digest") != spec.digest:
+            old = doc.get("identity") if isinstance(doc.get("identity"), dict) else {}
+            new = spec.identity()
+            differ = [k for k in new if old.get(k) != new[k]] or ["the spec"]
+            raise SweepError(f"--out {out}: holds a different sweep ({', '.join(differ)} differ); remove that "
+                             "directory or choose a new --out")
+        return True
+    if resume:
+        raise SweepError(f"--resume: {out} holds no sweep ({SWEEP_NAME} is missing); run without --resume to "
+                         "start one")
+    if out.is_dir():
+        try:
+            entries = [e.name for e in out.iterdir() if not e.name.startswith(".")]
+        except OSError as exc:
+            raise SweepError(f"--out {out}: cannot read the directory ({exc.strerror})") from None
+        if entries:
+            raise SweepError(f"--out {out}: directory is not empty and is not a sweep directory (no {SWEEP_NAME}); "
+                             "refusing to write into it (choose a new or empty directory)")
+    try:
+        (out / TASKS_DIR).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SweepError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    atomic_write(previous, (json.dumps(spec.document(), indent=1) + "\n").encode("utf-8"))
+    return False
+
+
+class _Lock:
+    """``flock`` on ``DIR/.sweep.lock`` for one run (released by the kernel if the process dies)."""
+
+    def __init__(self, out: Path):
+        self.fd = os.open(out / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(self.fd)
+            raise SweepError(f"--out {out}: another `simulate sweep` is running in this directory") from None
+
+    def release(self) -> None:
+        fcntl.flock(self.fd, fcntl.LOCK_UN)
+        os.close(self.fd)
+
+
+def _task_path(out: Path, task: SweepTask) -> Path:
+    return out / TASKS_DIR / f"{task.id}.npz"
+
+
+def _write_task(out: Path, spec: SweepSpec, task: SweepTask, result: dict) -> None:
+    buffer = io.BytesIO()
+    arrays: dict[str, Any] = {c: np.asarray(v) for c, v in result["columns"].items()}
+    arrays.update(digest=np.array(spec.digest), meta=np.array(json.dumps(result["meta"])))
+    np.savez(buffer, **arrays)
+    atomic_write(_task_path(out, task), buffer.getvalue())
+
+
+def _read_task(path: Path) -> tuple[str, pd.DataFrame, dict]:
+    with np.load(path, allow_pickle=False) as z:
+        table = pd.DataFrame({c: z[c] for c in COLUMNS})
+        return str(z["digest"]), table, json.loads(str(z["meta"]))
+
+
+def finished_tasks(out: Path, spec: SweepSpec) -> set[str]:
+    """Ids of ``spec``'s tasks whose files in ``out/tasks`` hold this sweep's results.
+
+    Temporary files of a killed write are removed first; a task file of another spec (or an
+    unreadable one) does not count and is overwritten when its task is computed.
+    """
+    folder = out / TASKS_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    for entry in os.scandir(folder):
+        if _TEMP_NAME.fullmatch(entry.name) and entry.is_file(follow_symlinks=False):
+            os.unlink(entry.path)
+    done = set()
+    for task in spec.tasks():
+        path = _task_path(out, task)
+        if not path.is_file():
+            continue
+        try:
+            digest, _, _ = _read_task(path)
+        except (OSError, ValueError, KeyError) as exc:
+            log.warning("%s is unreadable (%s): the task is computed again", path, exc)
+            continue
+        if digest == spec.digest:
+            done.add(task.id)
+        else:
+            log.warning("%s belongs to another sweep: the task is computed again", path)
+    return done
+
+
+# ------------------------------------------------------------------------------------------
+# running
+
+
+@dataclass
+class SweepResult:
+    """What :func:`run_sweep` did: the summary rows, failures (``task id -> line``), counts."""
+
+    summary: pd.DataFrame
+    failures: dict[str, str]
+    computed: int
+    reused: int
+    seconds: float
+
+
+def _task_args(spec: SweepSpec, task: SweepTask) -> TaskArgs:
+    return TaskArgs(task.id, task.point.config, spec.plan, task.wavelength_nm, task.seed, spec.method,
+                    float(spec.target_rel_err), spec.max_photons, spec.measurable_only, spec.threads)
+
+
+def run_sweep(spec: SweepSpec, out: Path, client: Any, *, retries: int = 2, progress: bool = False,
+              measured: Dataset | None = None) -> SweepResult:
+    """Run the tasks of ``spec`` without a file in ``out`` on the dask ``client``, then assemble.
+
+    ``out`` must have been prepared by :func:`prepare_out`. ``client`` is a
+    ``distributed.Client`` (any cluster) or None when every task is already stored. Results are
+    written as they complete; on KeyboardInterrupt the pending tasks are cancelled and the
+    interrupt re-raised (everything stored so far stays). ``measured`` adds the ``compare``
+    figures to the summary.
+    """
+    from tqdm import tqdm
+
+    started = time.perf_counter()
+    lock = _Lock(out)
+    try:
+        done = finished_tasks(out, spec)
+        todo = [t for t in spec.tasks() if t.id not in done]
+        failures: dict[str, str] = {}
+        if todo:
+            from distributed import as_completed
+
+            if client is None:
+                raise ValueError(f"{len(todo)} tasks to compute and no dask client")
+
+            short = spec.digest[:8]
+            futures = {client.submit(evaluate_task, _task_args(spec, t), key=f"sweep-{short}-{t.id}",
+                                     retries=retries, pure=False): t for t in todo}
+            bar = tqdm(total=len(done) + len(todo), initial=len(done), desc="sweep", unit="task",
+                       disable=not progress, leave=False)
+            try:
+                for future in as_completed(futures):
+                    task = futures[future]
+                    if future.status == "finished":
+                        _write_task(out, spec, task, future.result())
+                    else:
+                        failures[task.id] = _failure_line(task, future, retries)
+                        bar.set_postfix(failed=len(failures))
+                    future.release()
+                    bar.update(1)
+            except BaseException:
+                client.cancel(list(futures))
+                raise
+            finally:
+                bar.close()
+        summary = assemble(out, spec, measured)
+        return SweepResult(summary, failures, computed=len(todo) - len(failures), reused=len(done),
+                           seconds=time.perf_counter() - started)
+    finally:
+        lock.release()
+
+
+def _failure_line(task: SweepTask, future: Any, retries: int) -> str:
+    try:
+        exc = future.exception()
+        what = f"{type(exc).__name__}: {exc}".splitlines()[0] if exc is not None else future.status
+    except Exception as err:  # a cancelled future (lost scheduler) has no exception to fetch
+        what = f"{future.status} ({type(err).__name__})"
+    return (f"task {task.id} ({task.point.label}, {task.wavelength_nm:g} nm) failed after {retries + 1} "
+            f"attempt(s): {what}")
+
+
+# ------------------------------------------------------------------------------------------
+# assembling the points
+
+
+def _point_dataset(out: Path, spec: SweepSpec, point: SweepPoint, tasks: list[SweepTask]) -> Dataset:
+    tables, metas = [], []
+    for task in tasks:
+        _, table, meta = _read_task(_task_path(out, task))
+        tables.append(table)
+        metas.append(meta)
+    table = pd.concat(tables, ignore_index=True)
+    first = metas[0]
+    provs = [m["provenance"] for m in metas]
+    photons = [p.get("photons") for p in provs]
+    beta, u = table["beta"].to_numpy(float), table["u_beta"].to_numpy(float)
+    values = {p.name: v for p, v in zip(spec.params, point.values)}
+    prov = dict(first["provenance"])
+    prov.pop("task", None)
+    prov.update({
+        "command": GENERATOR,
+        "config": point.config.provenance(),
+        "seed": int(spec.seed),
+        "task_seeds": {f"{t.wavelength_nm:g}": t.seed for t in tasks},
+        "achieved_rel_err": achieved_rel_err(beta, u),
+        "photons": None if any(n is None for n in photons) else int(sum(photons)),
+        "seconds": float(sum(p["task"]["seconds"] for p in provs)),
+        "fiber_seconds": float(sum(p.get("fiber_seconds") or 0.0 for p in provs)),
+        "fiber_info": {f"{t.wavelength_nm:g}": p.get("fiber_info") for t, p in zip(tasks, provs)},
+        "sweep": {"parameters": values, "paths": {p.name: p.path for p in spec.params}, "point": point.index,
+                  "digest": spec.digest},
+        "versions": software_versions(),
+    })
+    sample = dict(first["sample"])
+    sample["name"] = f"{sample.get('name', spec.plan.name)}; {point.label}"
+    model = dict(first["model"])
+    model["generator"] = GENERATOR
+    if spec.method == "classic":
+        model["rho_d"] = [x for m in metas for x in m["model"].get("rho_d", [])]
+        model["u_rho_d"] = [x for m in metas for x in m["model"].get("u_rho_d", [])]
+    return make_dataset(table, new_meta("simulated", sample, model, prov))
+
+
+def assemble(out: Path, spec: SweepSpec, measured: Dataset | None = None) -> pd.DataFrame:
+    """Write the dataset of every complete point and ``summary.csv``; return the summary.
+
+    Columns: ``point``, ``dir``, one per parameter, ``status`` (``complete`` or ``incomplete``),
+    ``tasks_done``, ``tasks``, ``seconds`` (compute time summed over the point's tasks),
+    ``rel_err_rms``, ``rel_err_max`` and, with ``measured``, ``nrmse``, ``dh``, ``ds``
+    (:func:`compare.sweep.point_metrics`; NaN when the comparison is refused, logged).
+    """
+    rows = []
+    by_point: dict[int, list[SweepTask]] = {}
+    for task in spec.tasks():
+        by_point.setdefault(task.point.index, []).append(task)
+    for point in spec.points:
+        tasks = by_point[point.index]
+        n_done = sum(_task_path(out, t).is_file() for t in tasks)
+        row: dict[str, Any] = {"point": point.index, "dir": point.dir}
+        row.update({p.name: v for p, v in zip(spec.params, point.values)})
+        row.update(status="complete" if n_done == len(tasks) else "incomplete", tasks_done=n_done,
+                   tasks=len(tasks), seconds=math.nan, rel_err_rms=math.nan, rel_err_max=math.nan)
+        if measured is not None:
+            row.update(nrmse=math.nan, dh=math.nan, ds=math.nan)
+        if n_done == len(tasks):
+            ds = _point_dataset(out, spec, point, tasks)
+            write_dataset(ds, out / point.dir)
+            prov = ds.meta["provenance"]
+            err = prov["achieved_rel_err"]
+            row.update(seconds=prov["seconds"], rel_err_rms=err["rms"], rel_err_max=err["max"])
+            if measured is not None:
+                row.update(_metrics(measured, ds, point))
+        rows.append(row)
+    summary = pd.DataFrame(rows)
+    atomic_write(out / SUMMARY_NAME, summary.to_csv(index=False, float_format="%.10g", lineterminator="\n")
+                 .encode("utf-8"))
+    return summary
+
+
+def _metrics(measured: Dataset, ds: Dataset, point: SweepPoint) -> dict:
+    from compare.errors import CompareError
+    from compare.sweep import point_metrics
+
+    try:
+        return point_metrics(measured, ds)
+    except CompareError as exc:
+        log.warning("point %s: no comparison with the measurement: %s", point.label, exc)
+        return {}
