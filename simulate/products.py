@@ -22,8 +22,18 @@ default they are SIMULATED, because the normal/normal value is what ``compare`` 
 (``--measurable-only``) skips them exactly as the measurement does.
 
 Provenance in ``meta.json``: the config (name, source, SHA-256 and full text), the plan (name,
-SHA-256), the seed, the requested and achieved relative error, photons, seconds, the fiber
-route's own ``info`` and the software versions.
+SHA-256), the seed, the requested ``target_rel_err`` and the achieved ``rel_err`` (the one
+definition, :func:`simulate.montecarlo.accuracy.relative_error` over the geometries and
+wavelengths of ``beta``: RMS of ``u_beta`` relative to each geometry's spectral peak), photons,
+seconds, the fiber route's own ``info`` and the software versions.
+
+One number, one meaning: ``target_rel_err`` is that relative error for every method. For
+``summation`` and ``classic`` it is the target of the fiber Monte Carlo (the per-incidence
+control of :func:`simulate.fiber.volume_brdf`, same definition), for ``mc`` the target of the
+woven tracer, and for ``auto`` it is also the tolerated MODEL error of a cheaper method against
+the woven Monte Carlo, measured in the same convention (``(model - MC) / max_lambda(MC)``,
+:mod:`simulate.fabric.auto`): a geometry gets the cheapest method whose error, as this
+definition measures it, is within the target.
 """
 
 from __future__ import annotations
@@ -40,9 +50,10 @@ from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
 from gonio.acquisition.plan import Plan
 from simulate import fabric as fab
 from simulate.config import SimulationConfig, weave_from_config
+from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, check_target, relative_error
 from simulate.provenance import jsonable, software_versions
 
-__all__ = ["FABRIC_METHODS", "GENERATOR", "fabric_dataset", "achieved_rel_err", "jsonable", "software_versions"]
+__all__ = ["FABRIC_METHODS", "GENERATOR", "fabric_dataset"]
 
 log = logging.getLogger(__name__)
 
@@ -50,17 +61,6 @@ FABRIC_METHODS = ("summation", "classic", "mc", "auto")
 #: ``meta.json["model"]["generator"]`` of every dataset written here (``simulate fabric`` uses it
 #: to recognise its own previous output before overwriting it).
 GENERATOR = "simulate fabric"
-
-
-def achieved_rel_err(beta: np.ndarray, u_beta: np.ndarray) -> dict:
-    """RMS and largest relative standard error ``u_beta / beta`` over the values with ``beta > 0``."""
-    beta = np.asarray(beta, float)
-    u = np.asarray(u_beta, float)
-    ok = beta > 0
-    if not ok.any():
-        return {"rms": None, "max": None}
-    rel = u[ok] / beta[ok]
-    return {"rms": float(np.sqrt(np.mean(rel ** 2))), "max": float(rel.max())}
 
 
 def _fiber_photons(info: dict) -> int | None:
@@ -146,7 +146,7 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     """
     if method not in FABRIC_METHODS:
         raise ValueError(f"method must be one of {', '.join(FABRIC_METHODS)}, got {method!r}")
-    target = config.target_rel_err if target_rel_err is None else float(target_rel_err)
+    target = check_target(config.target_rel_err if target_rel_err is None else target_rel_err, "target_rel_err")
     seed = config.seed if seed is None else int(seed)
     threads = config.threads if threads is None else threads
     max_photons = config.max_photons if max_photons is None else max_photons
@@ -210,7 +210,8 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
         "plan": {"name": plan.name, "path": str(plan.path), "sha256": plan.sha256},
         "seed": seed,
         "target_rel_err": target,
-        "achieved_rel_err": achieved_rel_err(beta, u_beta),
+        "rel_err": relative_error(beta, u_beta),
+        "rel_err_definition": REL_ERR_DEFINITION,
         "photons": photons,
         "seconds": seconds,
         "fiber_seconds": fiber_seconds,

@@ -73,7 +73,7 @@ def run_fiber_bench(quick: bool = False, threads: int | None = None) -> dict[str
     est = volume_brdf(fiber, w_in, w_out, wl, method="nee", target_rel_err=target, seed=1, threads=threads)
     headline = {
         "pairs": int(w_in.shape[0]), "wavelengths": int(wl.size), "target_rel_err": target,
-        "achieved_rel_err": est.info["achieved_rel_err"], "photons": est.photons,
+        "rel_err": est.info["rel_err"], "photons": est.photons,
         "seconds": time.perf_counter() - t0, "incident_directions": est.info["incident_directions"],
         "wavelength_groups": len(est.info["groups"]),
     }

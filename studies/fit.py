@@ -681,15 +681,19 @@ def write_outputs(problem: FitProblem, result: FitResult, out: Path) -> dict:
     from compare.comparison import compare_datasets
     from compare.report import write_report
     from gonio.data.dataset import write_dataset
-    from simulate.products import jsonable, software_versions
+    from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
+    from simulate.provenance import jsonable, software_versions
 
     prov = {"command": GENERATOR, "config": problem.config.provenance(), "seed": problem.seed,
             "versions": software_versions()}
     b0, u0 = problem.model(result.start)
     b1, u1 = problem.model(result.x)
-    initial = problem.dataset(b0, u0, "initial", prov)
-    fitted = problem.dataset(b1, u1, "fitted", {**prov, "fitted": {p.name: float(v) for p, v in
-                                                                   zip(problem.free, result.x)}})
+    rel_err = {"start": relative_error(b0, u0), "fitted": relative_error(b1, u1), "definition": REL_ERR_DEFINITION}
+    initial = problem.dataset(b0, u0, "initial", {**prov, "rel_err": rel_err["start"],
+                                                  "rel_err_definition": REL_ERR_DEFINITION})
+    fitted = problem.dataset(b1, u1, "fitted", {**prov, "rel_err": rel_err["fitted"],
+                                                "rel_err_definition": REL_ERR_DEFINITION,
+                                                "fitted": {p.name: float(v) for p, v in zip(problem.free, result.x)}})
     write_dataset(initial, out / "initial")
     write_dataset(fitted, out / "fitted")
     lines = [f"{problem.config.name} fitted by `simulate fit` ({problem.method} model) to {problem.measured.source}",
@@ -705,7 +709,7 @@ def write_outputs(problem: FitProblem, result: FitResult, out: Path) -> dict:
         "measured": str(problem.measured.source),
         "objective": {"definition": "NRMSE^2 + w_c (dh^2 + ds^2)", "colour_weight": problem.colour_weight,
                       "start": result.objective_start, "fitted": result.objective},
-        "start": c0, "fitted": c1,
+        "start": c0, "fitted": c1, "rel_err": rel_err,
         "parameters": [{"name": p.name, "kind": p.kind, "low": p.low, "high": p.high, "start": p.start,
                         "value": float(v), "u": float(uu), "u_data": float(ud), "u_mc": float(um)}
                        for p, v, uu, ud, um in zip(problem.free, result.x, result.u, result.u_data, result.u_mc)],

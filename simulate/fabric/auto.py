@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from simulate.optics.microfacet import directions_deg
+
 __all__ = ["CHEAPEST_FIRST", "MATCH_DEG", "load_errors", "choose", "errors_from_report"]
 
 #: cheapest first (the order ``auto`` tries them)
@@ -40,22 +42,16 @@ def load_errors(path: Any = None) -> dict:
     return json.loads(text)
 
 
-def _dirs(theta_deg: np.ndarray, rel_phi_deg: np.ndarray) -> np.ndarray:
-    t = np.radians(theta_deg)
-    p = np.radians(rel_phi_deg)
-    return np.column_stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
-
-
 def choose(theta_i: Any, phi_i: Any, theta_o: Any, phi_o: Any, target: float,
            errors: dict | None = None) -> tuple[np.ndarray, dict]:
     """Per geometry the cheapest method within ``target``; returns the names and the study's provenance."""
     errors = load_errors() if errors is None else errors
     ti = np.asarray(theta_i, float)
     rel = np.asarray(phi_o, float) - np.asarray(phi_i, float)
-    w = _dirs(np.asarray(theta_o, float), rel)
+    w = directions_deg(np.asarray(theta_o, float), rel)
     rows = errors["geometries"]
     s_ti = np.array([r["theta_i"] for r in rows])
-    s_w = _dirs(np.array([r["theta_o"] for r in rows]), np.array([r["rel_phi_o"] for r in rows]))
+    s_w = directions_deg(np.array([r["theta_o"] for r in rows]), np.array([r["rel_phi_o"] for r in rows]))
     out = np.full(ti.size, "mc", dtype=object)
     cos_match = math.cos(math.radians(MATCH_DEG))
     for g in range(ti.size):

@@ -81,7 +81,7 @@ class BRDFEstimate:
     seconds : float
         Wall time.
     info : dict
-        Method, seed, groups, achieved relative error, energy balance, ...
+        Method, seed, groups, ``rel_err`` (:func:`simulate.montecarlo.accuracy.relative_error`), energy balance, ...
     """
 
     R: np.ndarray

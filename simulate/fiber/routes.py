@@ -222,7 +222,7 @@ def volume_brdf(
     seconds = time.perf_counter() - t0
     info = {
         "method": method, "seed": int(seed), "groups": [wl[g].tolist() for g in groups],
-        "achieved_rel_err": relative_error(R, u_R), "target_rel_err": float(target_rel_err),
+        "rel_err": relative_error(R, u_R), "target_rel_err": float(target_rel_err),
         "incident_directions": len(keys), "capped_photons": capped, "energy": energy[:8],
         "cell_width_deg": fiber.cell_width_deg,
     }

@@ -51,6 +51,7 @@ import numpy as np
 from gonio.data.dataset import atomic_write
 from simulate.fiber.model import Fiber, surface_brdf
 from simulate.fiber.routes import volume_brdf
+from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
 from simulate.optics.microfacet import directions_deg
 from simulate.provenance import jsonable, software_versions
 
@@ -123,8 +124,6 @@ def fiber_table(fiber: Fiber, wavelengths_nm: Any, grid: TableGrid, *, method: s
               "theta_out_deg": grid.theta_out_deg, "phi_out_deg": grid.phi_out_deg,
               "wavelength_nm": wavelengths, "R": R_vol + R_surf[..., None], "u_R": u_vol,
               "R_vol": R_vol, "u_R_vol": u_vol, "R_surf": R_surf}
-    positive = R_vol > 0
-    rel = u_vol[positive] / R_vol[positive] if positive.any() else np.array([np.nan])
     sidecar = {
         "format": FORMAT,
         "grid": grid.as_dict(),
@@ -137,8 +136,8 @@ def fiber_table(fiber: Fiber, wavelengths_nm: Any, grid: TableGrid, *, method: s
         "provenance": {
             "command": "simulate fiber", "config": config_provenance, "method": method,
             "seed": seed, "target_rel_err": target,
-            "achieved_rel_err": {"rms": float(np.sqrt(np.nanmean(rel ** 2))),
-                                 "max": float(np.nanmax(rel))},
+            "rel_err": relative_error(R_vol.reshape(-1, wavelengths.size), u_vol.reshape(-1, wavelengths.size)),
+            "rel_err_definition": REL_ERR_DEFINITION,
             "photons": int(est.photons), "seconds": seconds, "fiber_info": jsonable(est.info),
             "versions": software_versions(),
         },

@@ -26,13 +26,16 @@ from simulate.montecarlo import kernel as K
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.transport import ParameterError, execute
 
-__all__ = ["BATCH", "FIRST_ROUND", "Run", "relative_error", "check_target", "default_max_photons",
+__all__ = ["BATCH", "FIRST_ROUND", "REL_ERR_DEFINITION", "Run", "relative_error", "check_target", "default_max_photons",
            "run_controlled", "mean_and_error"]
 
 BATCH = 2_000
 """Photons per batch of every accuracy-controlled run (batches are the unit of the RNG streams)."""
 FIRST_ROUND = 50_000
 """Photons of the first round before the error is first measured."""
+REL_ERR_DEFINITION = ("RMS over directions and wavelengths of u / the peak of that direction's spectrum "
+                      "(directions whose peak is below 1e-3 of the brightest ignored)")
+"""What ``rel_err`` means in every output that reports it (datasets, fiber tables, sweep, fit)."""
 
 
 def relative_error(value: Any, u: Any) -> float:

@@ -79,6 +79,7 @@ from simulate.optics import microfacet
 from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
 from simulate.fiber.model import as_wavelengths
 from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
+from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.montecarlo.transport import make_control
 from simulate.optics.fresnel import fresnel_unpolarized, reflectance_from_cos
 from simulate.woven.scene import EPS_UM, ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
@@ -104,7 +105,6 @@ _ROUND = 4           # chunks per accuracy check (fixed, so results do not depen
 _MAX_BOUNCES = 200
 _ROULETTE_BELOW = 0.01
 _ROULETTE_SURVIVE = 0.1
-_PEAK_FLOOR = 1e-3
 
 K_LAMBERT = 0
 K_FIBER = 1
@@ -934,15 +934,13 @@ def _mean_se(s: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray, np.ndar
 
 
 def _rel_err(value: np.ndarray, u: np.ndarray) -> float:
-    """RMS over detectors and wavelengths of u / (the detector's spectral peak); dim ones ignored."""
-    peak = np.abs(value).max(axis=1)
-    if float(peak.max(initial=0.0)) == 0.0:
+    """:func:`simulate.montecarlo.accuracy.relative_error`, with a warning when no light reached any detector."""
+    if float(np.abs(value).max(initial=0.0)) == 0.0:
         # nothing reached any detector (e.g. all of them below a black weave's horizon): the
         # estimate 0 has no spread; stopping beats tracing for ever
         log.warning("fabric MC: no light reached any detector direction")
         return 0.0
-    keep = peak > _PEAK_FLOOR * float(peak.max())
-    return float(np.sqrt(np.mean((u[keep] / peak[keep, None]) ** 2)))
+    return relative_error(value, u)
 
 
 def straight_yarn_mesh(radius_um: float, lx: float, ly: float, n_s: int = 4, sides: int = 72) -> Any:
@@ -1011,6 +1009,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     chunk : int
         Rays per chunk (a wavefront); the error is checked after every 4 chunks.
     """
+    target_rel_err = check_target(target_rel_err)
     w_in = np.asarray(w_in, float).reshape(3)
     det = np.ascontiguousarray(np.atleast_2d(np.asarray(detectors, float)))
     # 90 deg exactly (cos 90 deg is 6e-17 in floating point) is an error, not a ray that wraps for ever
@@ -1109,7 +1108,7 @@ def table_photons(target_rel_err: float) -> int:
     budget it stays near half the target. It is not hidden: :func:`fabric_beta` builds the table
     as two independent halves and puts their difference into ``u_beta``.
     """
-    return int(min(max(4.0 / target_rel_err ** 2, 10_000), 400_000))
+    return int(min(max(4.0 / check_target(target_rel_err) ** 2, 10_000), 400_000))
 
 
 def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_nm: np.ndarray, *,

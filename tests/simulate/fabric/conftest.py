@@ -65,7 +65,7 @@ def fake_fiber(monkeypatch):
                                  "target_rel_err": target_rel_err, "seed": seed})
         R = fake_R(w_in, w_out, wavelengths_nm)
         return fiber_mod.BRDFEstimate(R=R, u_R=REL_ERR * R, photons=PHOTONS, seconds=0.01,
-                                      info={"method": method, "achieved_rel_err": REL_ERR,
+                                      info={"method": method, "rel_err": REL_ERR,
                                             "array": np.arange(3)})
 
     def surface_brdf(fiber, w_in, w_out):

@@ -58,7 +58,7 @@ def test_one_and_two_workers_give_byte_identical_datasets(tmp_path, inproc_clien
     assert ds.meta["model"]["generator"] == "simulate sweep" and len(ds.meta["provenance"]["task_seeds"]) == 3
     rows = _summary(one)
     assert [r["status"] for r in rows] == ["complete", "complete"] and all(float(r["seconds"]) > 0 for r in rows)
-    assert all(0 < float(r["rel_err_rms"]) < 0.2 for r in rows)
+    assert all(0 < float(r["rel_err"]) < 0.2 for r in rows)
 
 
 def test_killed_sweep_resumes_without_recomputing_finished_tasks(tmp_path, inproc_client):

@@ -49,7 +49,7 @@ def test_sweep_with_measurement_and_its_report(tmp_path, inproc_client, capsys):
         rows = list(csv.DictReader(fh))
     assert [float(r["rms_slope"]) for r in rows] == [0.2, 0.35, 0.5]
     for r in rows:
-        assert all(math.isfinite(float(r[k])) for k in ("nrmse", "dh", "ds", "seconds", "rel_err_rms"))
+        assert all(math.isfinite(float(r[k])) for k in ("nrmse", "dh", "ds", "seconds", "rel_err"))
         assert 0 < float(r["nrmse"]) < 1
 
     report_dir = tmp_path / "report"
