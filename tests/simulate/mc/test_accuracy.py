@@ -34,11 +34,11 @@ def test_a_target_outside_0_1_is_refused(bad):
 def test_zero_targets_never_reach_a_division():
     from simulate.fiber import Fiber, volume_brdf
     from simulate.media.medium import HGMedium
-    from simulate.woven import integrator
+    from simulate.woven import table_photons
 
     fiber = Fiber(radius_um=5.0, n_host=1.5, medium=HGMedium(mu_s=0.1, mu_a=0.0, g=0.0), roughness=0.3)
     w = np.array([[0.0, 0.0, 1.0]])
     with pytest.raises(ParameterError, match="target_rel_err"):
         volume_brdf(fiber, w, w, [500.0], target_rel_err=0.0)
     with pytest.raises(ParameterError, match="target_rel_err"):
-        integrator.table_photons(0.0)
+        table_photons(0.0)
