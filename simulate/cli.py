@@ -493,7 +493,8 @@ def _weave_arguments(p: argparse.ArgumentParser) -> None:
 def _weave_run(args: argparse.Namespace) -> int:
     from simulate.config import ConfigError
     from simulate.config import weave_from_config
-    from simulate.fabric.weave import WeaveError, mesh
+    from simulate.fabric.mesh import mesh
+    from simulate.fabric.weave import WeaveError
 
     out: Path = args.out
     if out.suffix.lower() not in (".ply", ".obj"):

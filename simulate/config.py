@@ -87,7 +87,8 @@ from typing import Any
 
 import numpy as np
 
-from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset, weave_from_wif
+from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset
+from simulate.fabric.wif import weave_from_wif
 from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
 
 __all__ = [

@@ -93,11 +93,11 @@ def _evaluate(method: str, config: SimulationConfig, fiber: Any, theta_i: np.nda
     w_i = fab.directions_deg(theta_i, phi_i)
     w_o = fab.directions_deg(theta_o, phi_o)
     if method == "mc":
-        from simulate.fabric import weave as weave_mod
+        from simulate.fabric.mesh import mesh as weave_mesh
         from simulate import woven
 
         wv = weave_from_config(config)
-        mesh = weave_mod.mesh(wv)
+        mesh = weave_mesh(wv)
         beta, u_beta, mc_info = woven.fabric_beta(
             mesh, fiber, w_i, w_o, wavelengths, target_rel_err=target, max_rays=max_photons or 0,
             seed=seed, threads=threads or (os.cpu_count() or 1), progress=progress, max_seconds=max_seconds)

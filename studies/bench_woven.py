@@ -25,6 +25,8 @@ from typing import Any
 import numba
 import numpy as np
 
+from studies.method_errors import departure, frame, model_datasets
+
 __all__ = ["ray_engine_speed", "red_cotton_mc", "run_woven_bench", "chart"]
 
 
@@ -162,62 +164,20 @@ def red_cotton_mc(target: float = 0.01) -> dict:
     return _in_child(target)
 
 
-def _other_models(table: dict) -> dict:
-    from gonio.acquisition.plan import load_plan
-    from simulate.config import load_config
-    from simulate.products import fabric_dataset
-
-    cfg = load_config("red-cotton")
-    plan = load_plan("red-cotton")
-    out = {}
-    for method in ("summation", "classic"):
-        t = time.perf_counter()
-        ds = fabric_dataset(cfg, plan, method, target_rel_err=0.01)
-        out[method] = {"seconds": time.perf_counter() - t, "table": ds.table.to_dict(orient="list")}
-    return out
-
-
 def run_woven_bench(target: float = 0.01) -> dict:
     """All three parts (minutes)."""
-    from simulate.fabric import weave
+    from simulate.fabric.mesh import mesh as weave_mesh
     from simulate.config import load_config, weave_from_config
 
-    mesh = weave.mesh(weave_from_config(load_config("red-cotton")))
+    mesh = weave_mesh(weave_from_config(load_config("red-cotton")))
     report: dict[str, Any] = {"machine": {"cpus": os.cpu_count()}, "target": target,
                               "ray_engine": ray_engine_speed(mesh)}
     report["red_cotton"] = red_cotton_mc(target)
-    report["models"] = _other_models(report["red_cotton"]["table"])
-    report["departure"] = _departure(report)
+    report["models"] = model_datasets()
+    report["departure"] = departure(report)
     report["speed_vs_accuracy"] = speed_vs_accuracy()
     report["cost_growth"] = cost_growth()
     return report
-
-
-def _frame(table: dict):
-    import pandas as pd
-
-    return pd.DataFrame(table)
-
-
-def _departure(report: dict) -> dict:
-    """Per geometry, the RMS over wavelengths of ``(model - MC) / max_lambda(MC)`` (the accuracy
-    target's spectral-peak convention) and the MC's own relative error there; median and max."""
-    mc = _frame(report["red_cotton"]["table"])
-    key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
-    out: dict[str, Any] = {}
-    for name, m in report["models"].items():
-        j = mc.merge(_frame(m["table"]), on=key, suffixes=("_mc", "_m"))
-        rows = []
-        for (ti, pi, to, po), g in j.groupby(["theta_i", "phi_i", "theta_o", "phi_o"]):
-            peak = float(g["beta_mc"].max())
-            dep = float(np.sqrt(np.mean(((g["beta_m"] - g["beta_mc"]) / peak) ** 2)))
-            se = float(np.sqrt(np.mean((g["u_beta_mc"] / peak) ** 2)))
-            rows.append({"theta_i": float(ti), "theta_o": float(to), "rel_phi_o": float((po - pi) % 360.0),
-                         "departure": dep, "mc_rel_se": se})
-        deps = np.array([r["departure"] for r in rows])
-        out[name] = {"max_rms_departure": float(deps.max()), "median_rms_departure": float(np.median(deps)),
-                     "geometries": rows}
-    return out
 
 
 def chart(report: dict, path: Path) -> None:
@@ -228,8 +188,8 @@ def chart(report: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    mc = _frame(report["red_cotton"]["table"])
-    models = {k: _frame(v["table"]) for k, v in report["models"].items()}
+    mc = frame(report["red_cotton"]["table"])
+    models = {k: frame(v["table"]) for k, v in report["models"].items()}
     wl = 620.0
     incid = sorted(mc["theta_i"].unique())
     fig, axes = plt.subplots(2, len(incid), figsize=(4 * len(incid), 6.5), sharex=True)

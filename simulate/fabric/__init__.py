@@ -1,11 +1,12 @@
 """Fabric models over the fiber BRDF: the summation and the classic model, the weave, the ``auto`` choice.
 
 Modules: :mod:`.summation` (fabric frames, the summation of the fiber BRDF over the two
-families, the classic Cook-Torrance + Lambert model), :mod:`.weave` (the woven micro-element's
-geometry and mesh, the WIF reader), :mod:`.auto` (the ``--method auto`` choice from the
-method-errors study). The woven fabric's Monte Carlo is :mod:`simulate.woven`.
+families), :mod:`.classic` (Cook-Torrance + Lambert), :mod:`.weave` (the woven micro-element's
+geometry), :mod:`.mesh` (its yarn tubes as a mesh), :mod:`.wif` (WIF drawdowns), :mod:`.auto`
+(the ``--method auto`` choice from the method-errors study). The woven fabric's Monte Carlo is :mod:`simulate.woven`.
 """
 
+from simulate.fabric.classic import classic_beta
 from simulate.fabric.summation import (
     M_WARP,
     M_WEFT,
@@ -13,7 +14,6 @@ from simulate.fabric.summation import (
     FabricError,
     FiberPairs,
     canonical_pairs,
-    classic_beta,
     directions_deg,
     fiber_frame_pairs,
     hemisphere_grid,

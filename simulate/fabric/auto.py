@@ -2,8 +2,8 @@
 
 ``simulate fabric --method auto`` evaluates, per geometry, the cheapest of classic, summation and
 the woven Monte Carlo whose error against the Monte Carlo reference is within the requested
-accuracy. The errors come from the bench's "where methods fail" study (:mod:`studies.bench_woven`,
-``simulate bench``): for every geometry of the red-cotton plan, the RMS over wavelengths of
+accuracy. The errors come from the bench's "where methods fail" study (:mod:`studies.method_errors`,
+run by ``simulate bench``): for every geometry of the red-cotton plan, the RMS over wavelengths of
 ``(model - MC) / max_lambda(MC)`` -- the same spectral-peak convention as the accuracy target.
 The shipped table (``simulate/configs/method-errors.json``, its provenance inside) is for the
 red-cotton fabric; a geometry farther than ``MATCH_DEG`` from every studied one, or another
@@ -24,7 +24,7 @@ import numpy as np
 
 from simulate.optics.microfacet import directions_deg
 
-__all__ = ["CHEAPEST_FIRST", "MATCH_DEG", "load_errors", "choose", "errors_from_report"]
+__all__ = ["CHEAPEST_FIRST", "MATCH_DEG", "load_errors", "choose"]
 
 #: cheapest first (the order ``auto`` tries them)
 CHEAPEST_FIRST = ("classic", "summation", "mc")
@@ -33,7 +33,7 @@ MATCH_DEG = 6.0
 
 
 def load_errors(path: Any = None) -> dict:
-    """The shipped study (or one written by :func:`errors_from_report`)."""
+    """The shipped study (or one written by :func:`studies.method_errors.errors_from_report`)."""
     if path is None:
         text = resources.files("simulate.configs").joinpath("method-errors.json").read_text()
     else:
@@ -67,17 +67,3 @@ def choose(theta_i: Any, phi_i: Any, theta_o: Any, phi_o: Any, target: float,
                 out[g] = m
                 break
     return out.astype(str), errors.get("provenance", {})
-
-
-def errors_from_report(report: dict) -> dict:
-    """The study table from a :func:`studies.bench_woven.run_woven_bench` report."""
-    rows: dict[tuple, dict] = {}
-    for name, d in report["departure"].items():
-        for r in d["geometries"]:
-            key = (r["theta_i"], r["theta_o"], r["rel_phi_o"])
-            rows.setdefault(key, {"theta_i": r["theta_i"], "theta_o": r["theta_o"], "rel_phi_o": r["rel_phi_o"],
-                                  "mc_rel_se": r["mc_rel_se"]})[name] = r["departure"]
-    return {"provenance": {"command": "simulate bench", "config": "red-cotton", "plan": "red-cotton",
-                           "reference": "woven Monte Carlo", "target_rel_err": report.get("target", 0.01),
-                           "machine": report.get("machine", {})},
-            "geometries": sorted(rows.values(), key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"]))}

@@ -1,4 +1,4 @@
-r"""Fabric BRDF from the fiber BRDF: summation over warp and weft, and the classic baseline.
+r"""Fabric BRDF from the fiber BRDF: summation over warp and weft (the classic baseline: :mod:`simulate.fabric.classic`).
 
 Summation (docs/physics.md section 6). With B the top cell of a fiber lying in the fabric plane and
 ``R_B = R_surf + R_vol`` its BRDF in the form ``L_o / E_perp`` (:mod:`simulate.fiber`)::
@@ -67,7 +67,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simulate.optics import microfacet
 from simulate.optics.microfacet import directions_deg
 from simulate.optics.fresnel import OpticsDomainWarning
 
@@ -78,7 +77,6 @@ __all__ = [
     "M_WARP",
     "M_WEFT",
     "canonical_pairs",
-    "classic_beta",
     "directions_deg",
     "fiber_frame_pairs",
     "rotation_z",
@@ -237,14 +235,6 @@ def summation_beta(R_B: Any, w_i: np.ndarray, w_o: np.ndarray, rotation_deg: flo
     total = np.asarray(R_B(a_in, a_out), float) + np.asarray(R_B(b_in, b_out), float)
     cos_i = w_i[:, 2].reshape((-1,) + (1,) * (total.ndim - 1))
     return 0.5 * np.pi * total / cos_i
-
-
-def classic_beta(rho_d: np.ndarray, w_i: np.ndarray, w_o: np.ndarray, rms_slope: float,
-                 n_host: float) -> np.ndarray:
-    """``beta = rho_d(lambda) + pi f_CT(w_i, w_o)`` ``[G, L]`` (fabric frame, flat surface)."""
-    rho_d = np.atleast_1d(np.asarray(rho_d, float))
-    f_ct = microfacet.cook_torrance(np.atleast_2d(w_i), np.atleast_2d(w_o), rms_slope, n_host)
-    return rho_d[None, :] + np.pi * f_ct[:, None]
 
 
 def summation_hemispherical_albedo(R_B: Any, theta_i_deg: float, n_theta: int = 24, n_phi: int = 48,

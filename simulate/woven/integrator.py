@@ -269,7 +269,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
 
     Parameters
     ----------
-    mesh : simulate.fabric.weave.WeaveMesh
+    mesh : simulate.fabric.mesh.WeaveMesh
         The micro-element (or :func:`flat_mesh`).
     material : Lambert, FiberSurface or FiberBRDFAtHit
     w_in : (3,) array
