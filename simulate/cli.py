@@ -11,7 +11,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate bench --out DIR [--quick]``
     kernel benchmark: DIR/bench.json, DIR/bench.png and a markdown table on stdout.
 ``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
-    a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.products`); CONFIG
+    a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
     non-empty DIR is overwritten only if it holds a previous ``simulate fabric`` output.
 ``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
@@ -256,7 +256,7 @@ def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> N
 
 
 def _is_fabric_output(out: Path) -> bool:
-    from simulate.products import GENERATOR
+    from simulate.virtual import GENERATOR
 
     try:
         meta = json.loads((out / "meta.json").read_text(encoding="utf-8"))
@@ -311,7 +311,7 @@ def _fabric_run(args: argparse.Namespace) -> int:
     from gonio.data.dataset import write_dataset
     from gonio.acquisition.plan import PlanError, load_plan
     from simulate.fabric import FabricError
-    from simulate.products import fabric_dataset
+    from simulate.virtual import fabric_dataset
 
     config = _load_config(args.config)
     try:

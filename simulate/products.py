@@ -1,39 +1,16 @@
-"""The virtual goniophotometer: a fabric model evaluated at a plan's geometries, as a dataset.
+"""The fabric models as a registry: name -> a function of (config, fiber, geometries, wavelengths, settings).
 
-``simulate fabric CONFIG --method classic|summation|mc --out DIR [--geometry PLAN]`` (docs/physics.md
-section 7) evaluates the chosen fabric model (:mod:`simulate.fabric`) at the geometries and
-wavelengths of an acquisition plan (:mod:`gonio.plan`; default: the shipped ``red-cotton`` plan)
-and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`gonio.data.dataset`:
+Every model returns the same typed result, :class:`FabricEstimate` (``beta``, ``u_beta``, ``n``
+as ``[G, L]``, photons, the run's ``info``, seconds and the fields it adds to the dataset's
+``model`` metadata), so the virtual goniophotometer (:func:`simulate.virtual.fabric_dataset`)
+assembles a dataset from any of them, and ``auto`` mixes them per geometry. A new model is one
+function decorated with :func:`register`; ``simulate fabric --method`` offers every registered
+name (:data:`MODELS`) plus ``auto``.
 
-- ``beta`` = the model's radiance coefficient; ``u_beta`` = its Monte Carlo standard error,
-  propagated from the fiber's ``u_R`` (summation: the correlated bound of :mod:`simulate.fabric`;
-  classic: ``u_rho_d``, the Cook-Torrance term being exact); ``n`` = photons behind the fiber
-  estimate (summation) or 1 (classic: one deterministic evaluation of ``rho_d`` + CT; the photons
-  of ``rho_d`` are in the metadata when the fiber route reports them).
-- Only what the plan needs is computed: the unique fiber-frame pairs its geometries map to (one
-  :func:`simulate.fiber.volume_brdf` call) and only its wavelengths (the dye spectrum is sampled
-  exactly there).
-
-Beam-blocked geometries. The instrument cannot observe within 5 degrees of its source, so a plan
-lists those points and the measurement skips them. A model has no detector in the beam: by
-default they are SIMULATED, because the normal/normal value is what ``compare`` normalises by
-(docs/physics.md section 8) and the simulation's own value there is better than an interpolated one
-(``compare`` uses a dataset's normal/normal point when it has one). ``measurable_only=True``
-(``--measurable-only``) skips them exactly as the measurement does.
-
-Provenance in ``meta.json``: the config (name, source, SHA-256 and full text), the plan (name,
-SHA-256), the seed, the requested ``target_rel_err`` and the achieved ``rel_err`` (the one
-definition, :func:`simulate.montecarlo.accuracy.relative_error` over the geometries and
-wavelengths of ``beta``: RMS of ``u_beta`` relative to each geometry's spectral peak), photons,
-seconds, the fiber route's own ``info`` and the software versions.
-
-One number, one meaning: ``target_rel_err`` is that relative error for every method. For
-``summation`` and ``classic`` it is the target of the fiber Monte Carlo (the per-incidence
-control of :func:`simulate.fiber.volume_brdf`, same definition), for ``mc`` the target of the
-woven tracer, and for ``auto`` it is also the tolerated MODEL error of a cheaper method against
-the woven Monte Carlo, measured in the same convention (``(model - MC) / max_lambda(MC)``,
-:mod:`simulate.fabric.auto`): a geometry gets the cheapest method whose error, as this
-definition measures it, is within the target.
+- ``summation``: the fiber BRDF summed over warp and weft (:mod:`simulate.fabric.summation`) at
+  the unique fiber-frame pairs of the geometries (one :func:`simulate.fiber.volume_brdf` call);
+- ``classic``: Cook-Torrance over the fiber's normal-incidence albedo (:mod:`simulate.fabric.classic`);
+- ``mc``: the woven micro-element's Monte Carlo (:mod:`simulate.woven`).
 """
 
 from __future__ import annotations
@@ -41,186 +18,132 @@ from __future__ import annotations
 import logging
 import os
 import time
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
-import pandas as pd
 
-from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
-from gonio.acquisition.plan import Plan
 from simulate import fabric as fab
 from simulate.config import SimulationConfig, weave_from_config
-from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, check_target, relative_error
-from simulate.provenance import jsonable, software_versions
+from simulate.provenance import jsonable
 
-__all__ = ["FABRIC_METHODS", "GENERATOR", "fabric_dataset"]
+__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "register", "evaluate"]
 
 log = logging.getLogger(__name__)
 
-FABRIC_METHODS = ("summation", "classic", "mc", "auto")
-#: ``meta.json["model"]["generator"]`` of every dataset written here (``simulate fabric`` uses it
-#: to recognise its own previous output before overwriting it).
-GENERATOR = "simulate fabric"
+
+@dataclass(frozen=True)
+class Geometries:
+    """``G`` geometries of the fabric frame: incidence and observation angles in degrees."""
+
+    theta_i: np.ndarray
+    phi_i: np.ndarray
+    theta_o: np.ndarray
+    phi_o: np.ndarray
 
 
-def _fiber_photons(info: dict) -> int | None:
-    for key in ("photons", "photons_total"):
-        if isinstance(info.get(key), (int, np.integer)):
-            return int(info[key])
-    return None
+@dataclass(frozen=True)
+class RunSettings:
+    """Accuracy and resources of a run (``target``: :func:`simulate.montecarlo.accuracy.relative_error`)."""
+
+    target: float
+    seed: int
+    threads: Any = None
+    max_photons: Any = None
+    progress: bool = False
+    max_seconds: float = 0.0
 
 
-def _evaluate(method: str, config: SimulationConfig, fiber: Any, theta_i: np.ndarray, phi_i: np.ndarray,
-              theta_o: np.ndarray, phi_o: np.ndarray, wavelengths: np.ndarray, *, target: float, seed: int,
-              threads: Any, max_photons: Any, progress: bool, max_seconds: float):
-    """One fabric model at G geometries: ``beta, u_beta, n [G, L]``, photons, info, seconds, model fields."""
+@dataclass(frozen=True)
+class FabricEstimate:
+    """A fabric model at ``G`` geometries and ``L`` wavelengths."""
+
+    beta: np.ndarray
+    u_beta: np.ndarray
+    n: np.ndarray
+    photons: int | None
+    info: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    model: dict = field(default_factory=dict)
+
+
+Model = Callable[[SimulationConfig, Any, Geometries, np.ndarray, RunSettings], FabricEstimate]
+_REGISTRY: dict[str, Model] = {}
+
+
+def register(name: str) -> Callable[[Model], Model]:
+    """Register a fabric model under ``name`` (a ``simulate fabric --method`` value)."""
+    def add(fn: Model) -> Model:
+        _REGISTRY[name] = fn
+        return fn
+    return add
+
+
+def evaluate(method: str, config: SimulationConfig, fiber: Any, geometries: Geometries, wavelengths: np.ndarray,
+             settings: RunSettings) -> FabricEstimate:
+    """The registered model ``method`` at ``geometries``."""
+    if method not in _REGISTRY:
+        raise ValueError(f"fabric model must be one of {', '.join(_REGISTRY)}, got {method!r}")
+    return _REGISTRY[method](config, fiber, geometries, np.asarray(wavelengths, float), settings)
+
+
+@register("summation")
+def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+               s: RunSettings) -> FabricEstimate:
+    from simulate import fiber as fiber_mod
+
+    pairs = fab.FiberPairs.from_angles(g.theta_i, g.phi_i, g.theta_o, g.phi_o)
+    log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
+             g.theta_i.size, pairs.n_unique, wavelengths.size)
+    est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wavelengths, method=config.method,
+                                target_rel_err=s.target, max_photons=s.max_photons, seed=s.seed,
+                                threads=s.threads, progress=s.progress)
+    r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs.w_in, pairs.w_out), float)
+    R_B = np.asarray(est.R, float) + r_surf[:, None]
+    beta, u_beta = fab.summation_from_table(pairs, R_B, est.u_R)
+    n = np.full(beta.shape, max(int(est.photons), 1))
+    return FabricEstimate(beta, u_beta, n, int(est.photons), jsonable(dict(est.info)), float(est.seconds),
+                          {"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
+
+
+@register("classic")
+def _classic(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+             s: RunSettings) -> FabricEstimate:
     from simulate import fiber as fiber_mod
 
     started = time.perf_counter()
-    if method == "summation":
-        pairs = fab.FiberPairs.from_angles(theta_i, phi_i, theta_o, phi_o)
-        log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
-                 theta_i.size, pairs.n_unique, wavelengths.size)
-        est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wavelengths, method=config.method,
-                                    target_rel_err=target, max_photons=max_photons, seed=seed,
-                                    threads=threads, progress=progress)
-        r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs.w_in, pairs.w_out), float)
-        R_B = np.asarray(est.R, float) + r_surf[:, None]
-        beta, u_beta = fab.summation_from_table(pairs, R_B, est.u_R)
-        n = np.full(beta.shape, max(int(est.photons), 1))
-        return (beta, u_beta, n, int(est.photons), jsonable(dict(est.info)), float(est.seconds),
-                {"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
-    w_i = fab.directions_deg(theta_i, phi_i)
-    w_o = fab.directions_deg(theta_o, phi_o)
-    if method == "mc":
-        from simulate.fabric.mesh import mesh as weave_mesh
-        from simulate import woven
-
-        wv = weave_from_config(config)
-        mesh = weave_mesh(wv)
-        beta, u_beta, mc_info = woven.fabric_beta(
-            mesh, fiber, w_i, w_o, wavelengths, target_rel_err=target, max_rays=max_photons or 0,
-            seed=seed, threads=threads or (os.cpu_count() or 1), progress=progress, max_seconds=max_seconds)
-        n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
-        extra = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
-                           "height_um": wv.height_um, "crimp": wv.crimp},
-                 "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
-                 "estimator": "next-event towards each detector direction"}
-        return (beta, u_beta, n, int(mc_info["table"]["photons"]), jsonable(mc_info),
-                float(mc_info["table"]["seconds"]), extra)
-    rho, u_rho = fiber_mod.normal_albedo(fiber, wavelengths, target_rel_err=target, seed=seed, threads=threads)
+    w_i = fab.directions_deg(g.theta_i, g.phi_i)
+    w_o = fab.directions_deg(g.theta_o, g.phi_o)
+    rho, u_rho = fiber_mod.normal_albedo(fiber, wavelengths, target_rel_err=s.target, seed=s.seed, threads=s.threads)
     rho = np.asarray(rho, float)
     beta = fab.classic_beta(rho, w_i, w_o, config.rms_slope, config.n_host)
     u_beta = np.broadcast_to(np.asarray(u_rho, float)[None, :], beta.shape).copy()
     n = np.ones(beta.shape, dtype=np.int64)
-    return (beta, u_beta, n, None, {}, time.perf_counter() - started,
-            {"rho_d": rho.tolist(), "u_rho_d": np.asarray(u_rho, float).tolist()})
+    return FabricEstimate(beta, u_beta, n, None, {}, time.perf_counter() - started,
+                          {"rho_d": rho.tolist(), "u_rho_d": np.asarray(u_rho, float).tolist()})
 
 
-def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
-                   target_rel_err: float | None = None, seed: int | None = None,
-                   threads: int | None = None, max_photons: int | None = None,
-                   measurable_only: bool = False, progress: bool = False, max_seconds: float = 0.0) -> Dataset:
-    """Evaluate the fabric model ``method`` at ``plan``'s geometries and wavelengths.
+@register("mc")
+def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+              s: RunSettings) -> FabricEstimate:
+    from simulate import woven
+    from simulate.fabric.mesh import mesh as weave_mesh
 
-    Parameters
-    ----------
-    config : SimulationConfig
-    plan : gonio.acquisition.plan.Plan
-    method : {"summation", "classic", "mc", "auto"}
-        ``mc``: Monte Carlo ray tracing of the config's woven micro-element (:mod:`simulate.woven`).
-        ``auto``: per geometry the cheapest method whose error against the Monte Carlo reference
-        (the bench's "where methods fail" study, :mod:`simulate.fabric.auto`) is within the target;
-        ``meta.json["model"]["method_per_geometry"]`` records which method produced each geometry.
-    target_rel_err, seed, threads, max_photons
-        Override the config's method settings (None: the config's).
-    measurable_only : bool
-        Skip the plan's beam-blocked geometries (see the module docstring).
-    progress : bool
-        Progress bar of the fiber Monte Carlo (tqdm).
+    w_i = fab.directions_deg(g.theta_i, g.phi_i)
+    w_o = fab.directions_deg(g.theta_o, g.phi_o)
+    wv = weave_from_config(config)
+    mesh = weave_mesh(wv)
+    beta, u_beta, mc_info = woven.fabric_beta(
+        mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
+        seed=s.seed, threads=s.threads or (os.cpu_count() or 1), progress=s.progress, max_seconds=s.max_seconds)
+    n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
+    extra = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
+                       "height_um": wv.height_um, "crimp": wv.crimp},
+             "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
+             "estimator": "next-event towards each detector direction"}
+    return FabricEstimate(beta, u_beta, n, int(mc_info["table"]["photons"]), jsonable(mc_info),
+                          float(mc_info["table"]["seconds"]), extra)
 
-    Returns
-    -------
-    gonio.data.dataset.Dataset
-        Kind ``"simulated"``, not yet written (:func:`gonio.data.dataset.write_dataset`).
-    """
-    if method not in FABRIC_METHODS:
-        raise ValueError(f"method must be one of {', '.join(FABRIC_METHODS)}, got {method!r}")
-    target = check_target(config.target_rel_err if target_rel_err is None else target_rel_err, "target_rel_err")
-    seed = config.seed if seed is None else int(seed)
-    threads = config.threads if threads is None else threads
-    max_photons = config.max_photons if max_photons is None else max_photons
 
-    geometries = plan.geometries(measurable_only=measurable_only)
-    wavelengths = np.asarray(plan.wavelengths_nm, float)
-    theta_i = geometries["theta_i"].to_numpy(float)
-    phi_i = geometries["phi_i"].to_numpy(float)
-    theta_o = geometries["theta_o"].to_numpy(float)
-    phi_o = geometries["phi_o"].to_numpy(float)
-    fiber = config.fiber(wavelengths)
-    started = time.perf_counter()
-    model: dict[str, Any] = {"generator": GENERATOR, "name": f"fabric {method}", "method": method,
-                             "fiber_route": config.method}
-    settings: dict[str, Any] = dict(target=target, seed=seed, threads=threads, max_photons=max_photons, progress=progress,
-                    max_seconds=max_seconds)
-    if method == "auto":
-        from simulate.fabric import auto as methods_mod
-
-        chosen, source = methods_mod.choose(theta_i, phi_i, theta_o, phi_o, target)
-        beta = np.zeros((theta_i.size, wavelengths.size))
-        u_beta = np.zeros_like(beta)
-        n = np.ones(beta.shape, dtype=np.int64)
-        photons = 0
-        fiber_seconds = 0.0
-        fiber_info = {}
-        for m in methods_mod.CHEAPEST_FIRST:
-            rows = np.nonzero(chosen == m)[0]
-            if rows.size == 0:
-                continue
-            b, u, nn, ph, info, sec, extra = _evaluate(m, config, fiber, theta_i[rows], phi_i[rows], theta_o[rows],
-                                                       phi_o[rows], wavelengths, **settings)
-            beta[rows], u_beta[rows], n[rows] = b, u, nn
-            photons += int(ph or 0)
-            fiber_seconds += sec
-            fiber_info[m] = info
-            model[m] = extra
-        model.update({"method_per_geometry": chosen.tolist(), "method_errors": source,
-                      "methods_used": {m: int(np.count_nonzero(chosen == m)) for m in methods_mod.CHEAPEST_FIRST}})
-    else:
-        beta, u_beta, n, photons, fiber_info, fiber_seconds, extra = _evaluate(
-            method, config, fiber, theta_i, phi_i, theta_o, phi_o, wavelengths, **settings)
-        model.update(extra)
-    seconds = time.perf_counter() - started
-
-    g = geometries.loc[geometries.index.repeat(wavelengths.size)].reset_index(drop=True)
-    table = pd.DataFrame({"theta_i": g["theta_i"], "phi_i": g["phi_i"], "theta_o": g["theta_o"],
-                          "phi_o": g["phi_o"], "wavelength_nm": np.tile(wavelengths, len(geometries)),
-                          "beta": beta.ravel(), "u_beta": u_beta.ravel(), "n": n.ravel()},
-                         columns=list(COLUMNS))
-    sample = dict(plan.sample)
-    # the name labels the dataset in reports: say which model and config produced it
-    sample["name"] = f"{plan.sample.get('name', plan.name)}: {method} model ({config.name})"
-    sample["simulated_from"] = config.name
-    model.update({"config": config.name, "rms_slope": config.rms_slope, "n_host": config.n_host,
-                  "radius_um": config.radius_um, "cell_width_deg": config.cell_width_deg,
-                  "polarisation": "ignored (unpolarised Fresnel at every interface)"})
-    provenance = {
-        "command": GENERATOR,
-        "config": config.provenance(),
-        "plan": {"name": plan.name, "path": str(plan.path), "sha256": plan.sha256},
-        "seed": seed,
-        "target_rel_err": target,
-        "rel_err": relative_error(beta, u_beta),
-        "rel_err_definition": REL_ERR_DEFINITION,
-        "photons": photons,
-        "seconds": seconds,
-        "fiber_seconds": fiber_seconds,
-        "threads": threads,
-        "max_photons": max_photons,
-        "geometries": int(len(geometries)),
-        "beam_blocked": "skipped" if measurable_only else "simulated",
-        "fiber_info": fiber_info,
-        "versions": software_versions(),
-    }
-    meta = new_meta("simulated", sample, model, provenance)
-    return make_dataset(table, meta)
+#: The registered fabric models, in registration order.
+MODELS: tuple[str, ...] = tuple(_REGISTRY)

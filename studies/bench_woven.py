@@ -134,7 +134,7 @@ def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int |
                       threads: int | None = None) -> None:
     from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
-    from simulate.products import fabric_dataset
+    from simulate.virtual import fabric_dataset
 
     cfg = load_config("red-cotton")
     plan = load_plan("red-cotton")
@@ -292,7 +292,7 @@ def cost_growth(target: float = 0.02) -> dict:
     """Woven Monte Carlo wall time against the number of wavelengths and of threads (red cotton)."""
     from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
-    from simulate.products import fabric_dataset
+    from simulate.virtual import fabric_dataset
 
     cfg = load_config("red-cotton")
     plan = load_plan("red-cotton")

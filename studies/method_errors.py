@@ -24,7 +24,7 @@ def model_datasets() -> dict:
     """Summation and classic on the red-cotton plan at 1 %: seconds and their tables."""
     from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
-    from simulate.products import fabric_dataset
+    from simulate.virtual import fabric_dataset
 
     cfg = load_config("red-cotton")
     plan = load_plan("red-cotton")

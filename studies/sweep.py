@@ -18,7 +18,7 @@ so a value out of a field's range is one line naming the point and the field (ex
 Tasks and seeds
 ---------------
 One task per (parameter point, wavelength of the plan): :func:`evaluate_task` runs
-:func:`simulate.products.fabric_dataset` on a one-wavelength copy of the plan. That granularity
+:func:`simulate.virtual.fabric_dataset` on a one-wavelength copy of the plan. That granularity
 spreads a sweep over as many workers as it has tasks, at the price of the work a full-spectrum
 run shares between wavelengths (the classic model's one walk, the woven mesh of ``mc``), which
 each task redoes for its wavelength.
@@ -92,7 +92,7 @@ from simulate.config import ConfigError, SimulationConfig, parse_config
 from studies import paths as config_paths
 from studies.paths import toml_dumps
 from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
-from simulate.products import FABRIC_METHODS, fabric_dataset
+from simulate.virtual import FABRIC_METHODS, fabric_dataset
 from simulate.provenance import jsonable, software_versions
 
 __all__ = [

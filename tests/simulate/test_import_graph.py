@@ -45,6 +45,7 @@ LAYERS = (
     ("simulate.config",),
     ("simulate.woven",),
     ("simulate.products",),
+    ("simulate.virtual",),
     ("simulate.cli", "simulate.__main__"),
 )
 

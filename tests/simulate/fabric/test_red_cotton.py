@@ -124,7 +124,7 @@ def test_classic_albedo_at_most_one_up_to_grazing(red_cotton, rho_quick):
 def test_real_summation_dataset_small_plan(red_cotton, tmp_path):
     from gonio.data.dataset import read_dataset, write_dataset
     from gonio.acquisition.plan import parse_plan
-    from simulate.products import fabric_dataset
+    from simulate.virtual import fabric_dataset
 
     cfg, _ = red_cotton
     plan = parse_plan('[sample]\nname = "x"\n[wavelengths]\nlist_nm = [450, 550, 650]\n'

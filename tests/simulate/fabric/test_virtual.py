@@ -9,7 +9,7 @@ from gonio.data.dataset import read_dataset, write_dataset
 from gonio.acquisition.plan import load_plan, parse_plan
 from simulate import fabric as fab
 from simulate.config import load_config
-from simulate.products import GENERATOR, fabric_dataset
+from simulate.virtual import GENERATOR, fabric_dataset
 
 from .conftest import PHOTONS, REL_ERR, fake_R, fake_rho, fake_surface
 
