@@ -22,6 +22,10 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]``
     a parameter study on dask.distributed (:mod:`studies.sweep`): one dataset per point, summary.csv;
     exit 1 when a task still fails after its retries (the others are kept).
+
+Over 500 lines for a reason: one argparse table of seven subcommands sharing their argument
+helpers and error policy (exit 2, one line); it is left whole while another engineer adds an
+``export`` subcommand to it.
 """
 
 from __future__ import annotations

@@ -87,6 +87,7 @@ from typing import Any
 
 import numpy as np
 
+from simulate.config_table import ConfigError, Table, show
 from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset
 from simulate.fabric.wif import weave_from_wif
 from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
@@ -108,112 +109,7 @@ METHODS = ("nee", "beam", "bssrdf")
 DYE_CURVES = ("gaussian-bands", "logistic-edge")
 
 
-class ConfigError(ValueError):
-    """A simulation config is missing, unreadable or has a bad field (the message names both)."""
-
-
-# ------------------------------------------------------------------------------------------
-# typed field access
-
-
-def _show(value: Any) -> str:
-    text = f'"{value}"' if isinstance(value, str) else repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
-def _is_number(value: Any) -> bool:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return False
-    return math.isfinite(value) and abs(value) < 1e15
-
-
-class _Table:
-    """One TOML table with checks whose errors name the file and the dotted field."""
-
-    def __init__(self, data: Any, where: str, file: str):
-        self.file, self.where = file, where
-        if not isinstance(data, dict):
-            raise ConfigError(f"{file}: {where} must be a table, got {_show(data)}")
-        self.data = data
-        self.used: set[str] = set()
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def fail(self, key: str, message: str) -> ConfigError:
-        return ConfigError(f"{self.file}: {self.name(key)} {message}")
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = None, required: bool = False) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if required:
-                raise self.fail(key, "is required")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: float | None = None, *, required: bool = False,
-               gt: float | None = None, ge: float | None = None, lt: float | None = None,
-               le: float | None = None) -> float | None:
-        value = self.raw(key, default, required)
-        if value is None:
-            return None
-        bounds = " and ".join(s for s in (
-            f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
-            f"< {lt:g}" if lt is not None else "", f"<= {le:g}" if le is not None else "") if s)
-        what = f"a number {bounds}" if bounds else "a finite number"
-        ok = _is_number(value) and not (
-            (gt is not None and not value > gt) or (ge is not None and not value >= ge)
-            or (lt is not None and not value < lt) or (le is not None and not value <= le))
-        if not ok:
-            raise self.fail(key, f"must be {what}, got {_show(value)}")
-        return float(value)
-
-    def integer(self, key: str, default: int, *, ge: int = 0, le: int = 2**63 - 1) -> int:
-        value = self.raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or not ge <= value <= le:
-            raise self.fail(key, f"must be an integer in [{ge}, {le}], got {_show(value)}")
-        return int(value)
-
-    def string(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
-               required: bool = False) -> str | None:
-        value = self.raw(key, default, required)
-        if value is None:
-            return None
-        if not isinstance(value, str) or not value.strip():
-            raise self.fail(key, f"must be a non-empty string, got {_show(value)}")
-        if choices is not None and value not in choices:
-            raise self.fail(key, f"must be one of {', '.join(choices)}, got {_show(value)}")
-        return value
-
-    def numbers(self, key: str, *, ge: float | None = None, required: bool = True) -> list[float]:
-        value = self.raw(key, None, required)
-        if not isinstance(value, list) or not value:
-            raise self.fail(key, f"must be a non-empty list of numbers, got {_show(value)}")
-        for k, x in enumerate(value):
-            if not _is_number(x) or (ge is not None and x < ge):
-                bound = f" >= {ge:g}" if ge is not None else ""
-                raise self.fail(key, f"item {k} must be a finite number{bound}, got {_show(x)}")
-        return [float(x) for x in value]
-
-    def sub(self, key: str, required: bool = False) -> _Table | None:
-        value = self.raw(key, None, required)
-        if value is None:
-            return None
-        if not isinstance(value, dict):
-            raise self.fail(key, f"must be a table, got {_show(value)}")
-        return _Table(value, self.name(key), self.file)
-
-    def done(self) -> None:
-        extra = sorted(set(self.data) - self.used)
-        if extra:
-            raise self.fail(extra[0], "is not a known field (check the spelling; the schema is in "
-                                      "the simulate.config docstring)")
-
-
-def _spectrum(t: _Table, key: str, default: float | None, *, gt: float | None = None,
+def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = None,
               ge: float | None = None, required: bool = False) -> float | Spectrum | None:
     """A number or a ``{wavelength_nm, values}`` table (see the schema)."""
     value = t.raw(key, default, required)
@@ -222,7 +118,7 @@ def _spectrum(t: _Table, key: str, default: float | None, *, gt: float | None = 
             t.used.discard(key)
             return t.number(key, default, gt=gt, ge=ge, required=required)
         return None
-    sub = _Table(value, t.name(key), t.file)
+    sub = Table(value, t.name(key), t.file)
     wl = sub.numbers("wavelength_nm", ge=0.0)
     values = sub.numbers("values")
     sub.done()
@@ -233,7 +129,7 @@ def _spectrum(t: _Table, key: str, default: float | None, *, gt: float | None = 
     for k, v in enumerate(values):
         if (gt is not None and not v > gt) or (ge is not None and not v >= ge):
             bound = f"> {gt:g}" if gt is not None else f">= {ge:g}"
-            raise sub.fail("values", f"item {k} must be {bound}, got {_show(v)}")
+            raise sub.fail("values", f"item {k} must be {bound}, got {show(v)}")
     return Spectrum(np.asarray(wl), np.asarray(values), name=f"{t.file}: {t.name(key)}")
 
 
@@ -375,17 +271,17 @@ def load_config(path_or_name: str | Path) -> SimulationConfig:
     return parse_config(raw, path, source=f"preset {path.stem}" if is_preset else str(path))
 
 
-def _dye(t: _Table) -> DyeSpectrum:
+def _dye(t: Table) -> DyeSpectrum:
     if t.has("curve"):
         curve = t.string("curve", choices=DYE_CURVES)
         if curve == "gaussian-bands":
             base = t.number("baseline_per_um", 0.0, ge=0.0)
             bands_raw = t.raw("bands", None, required=True)
             if not isinstance(bands_raw, list) or not bands_raw:
-                raise t.fail("bands", f"must be a non-empty list of tables, got {_show(bands_raw)}")
+                raise t.fail("bands", f"must be a non-empty list of tables, got {show(bands_raw)}")
             bands = []
             for k, b in enumerate(bands_raw):
-                bt = _Table(b, f"{t.name('bands')}[{k}]", t.file)
+                bt = Table(b, f"{t.name('bands')}[{k}]", t.file)
                 bands.append({"center_nm": bt.number("center_nm", required=True, gt=0.0),
                               "width_nm": bt.number("width_nm", required=True, gt=0.0),
                               "peak_per_um": bt.number("peak_per_um", required=True, ge=0.0)})
@@ -408,7 +304,7 @@ def _dye(t: _Table) -> DyeSpectrum:
     return DyeSpectrum("table", {"wavelength_nm": wl, "mu_a_per_um": mu_a})
 
 
-def _particles(t: _Table) -> ParticleSpec:
+def _particles(t: Table) -> ParticleSpec:
     n = _spectrum(t, "n", None, gt=0.0, required=True)
     k = _spectrum(t, "k", 0.0, ge=0.0)
     if t.has("radius_um") == t.has("size"):
@@ -433,7 +329,7 @@ def _particles(t: _Table) -> ParticleSpec:
                         number_density_per_um3=nd)
 
 
-def _weave(t: _Table, base_dir: Path) -> dict:
+def _weave(t: Table, base_dir: Path) -> dict:
     """The ``[weave]`` table as a dict of the fields present (:func:`weave_from_config`
     fills the defaults and checks the geometry); ``wif`` is stored resolved against ``base_dir``."""
     out: dict = {}
@@ -454,7 +350,7 @@ def _weave(t: _Table, base_dir: Path) -> dict:
         rows_ok = isinstance(m, list) and m and all(isinstance(r, list) and r for r in m)
         if not rows_ok or len({len(r) for r in m}) != 1 or not all(
                 x in (0, 1) and not isinstance(x, bool) and isinstance(x, int) for r in m for x in r):
-            raise t.fail("matrix", f"must be a rectangular list of rows of 0/1 integers, got {_show(m)}")
+            raise t.fail("matrix", f"must be a rectangular list of rows of 0/1 integers, got {show(m)}")
         out["matrix"] = [list(r) for r in m]
     for key in ("spacing_um", "width_um", "height_um"):
         if t.has(key):
@@ -469,7 +365,7 @@ def _weave(t: _Table, base_dir: Path) -> dict:
     return out
 
 
-def _wavelengths(t: _Table) -> tuple[float, ...]:
+def _wavelengths(t: Table) -> tuple[float, ...]:
     if t.has("list_nm"):
         wl = t.numbers("list_nm", ge=0.0)
     else:
@@ -509,11 +405,11 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         raise ConfigError(f"{file}: not UTF-8 text; a config is a TOML file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{file}: invalid TOML: {exc}") from None
-    top = _Table(data, "", file)
+    top = Table(data, "", file)
     name = top.string("name", Path(path).stem) or Path(path).stem
     description = top.raw("description", "")
     if not isinstance(description, str):
-        raise top.fail("description", f"must be a string, got {_show(description)}")
+        raise top.fail("description", f"must be a string, got {show(description)}")
     seed = top.integer("seed", 0, le=2**31 - 1)   # the Monte Carlo derives 64-bit stream seeds from it
 
     fib = top.sub("fiber", required=True)
@@ -551,7 +447,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     weave_t = top.sub("weave")
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method") or _Table({}, "method", file)
+    mt = top.sub("method") or Table({}, "method", file)
     method = mt.string("method", "nee", choices=METHODS)
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)

@@ -25,19 +25,19 @@ from simulate.fabric.summation import (
 )
 
 __all__ = [
-    "FabricError",
-    "SUMMATION_GRAZING_LIMIT_DEG",
-    "FiberPairs",
+    "classic_beta",
     "M_WARP",
     "M_WEFT",
+    "SUMMATION_GRAZING_LIMIT_DEG",
+    "FabricError",
+    "FiberPairs",
     "canonical_pairs",
-    "classic_beta",
     "directions_deg",
     "fiber_frame_pairs",
+    "hemisphere_grid",
     "rotation_z",
+    "summation_albedo",
     "summation_beta",
     "summation_from_table",
     "summation_hemispherical_albedo",
-    "hemisphere_grid",
-    "summation_albedo",
 ]

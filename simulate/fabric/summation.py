@@ -70,22 +70,6 @@ import numpy.typing as npt
 from simulate.optics.microfacet import directions_deg
 from simulate.optics.fresnel import OpticsDomainWarning
 
-__all__ = [
-    "FabricError",
-    "SUMMATION_GRAZING_LIMIT_DEG",
-    "FiberPairs",
-    "M_WARP",
-    "M_WEFT",
-    "canonical_pairs",
-    "directions_deg",
-    "fiber_frame_pairs",
-    "rotation_z",
-    "summation_beta",
-    "summation_from_table",
-    "summation_hemispherical_albedo",
-    "hemisphere_grid",
-    "summation_albedo",
-]
 
 log = logging.getLogger(__name__)
 

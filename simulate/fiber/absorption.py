@@ -44,7 +44,7 @@ from scipy.interpolate import PchipInterpolator
 from simulate.fiber.model import Fiber, as_directions, as_wavelengths
 from simulate.fiber.routes import beam_route
 from simulate.fiber.spectral import direction_keys, group_walk, run_seed, spectral_optics, wavelength_groups
-from simulate.montecarlo.accuracy import check_target, default_max_photons
+from simulate.montecarlo.accuracy import check_budget
 from simulate.montecarlo.transport import ParameterError, SpectralTargets, make_control
 
 __all__ = ["AbsorptionTable", "DEFAULT_NODES", "absorption_nodes", "absorption_table"]
@@ -192,9 +192,7 @@ def absorption_table(
         raise ParameterError("absorption table: nodes must start at 0 and increase")
     w_in = as_directions("w_in", w_in)
     outputs = np.atleast_2d(np.asarray(outputs, float))
-    target_rel_err = check_target(target_rel_err)
-    if max_photons is None:
-        max_photons = default_max_photons(target_rel_err)
+    target_rel_err, max_photons = check_budget(target_rel_err, max_photons)
     optics = spectral_optics(fiber, wl)
     groups = wavelength_groups(optics)
     control = make_control()

@@ -24,8 +24,7 @@ from simulate.fiber.spectral import direction_keys, group_walk, run_seed, spectr
 from simulate.montecarlo import geometry as G
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.accuracy import (
-    check_target,
-    default_max_photons,
+    check_budget,
     mean_and_error,
     relative_error,
     run_controlled,
@@ -169,9 +168,7 @@ def volume_brdf(
         outputs = np.atleast_2d(np.asarray(outputs, dtype=float))
         if outputs.shape != (w_in.shape[0], 8):
             raise ParameterError("outputs must have one row of 8 columns per w_in")
-    target_rel_err = check_target(target_rel_err)
-    if max_photons is None:
-        max_photons = default_max_photons(target_rel_err)
+    target_rel_err, max_photons = check_budget(target_rel_err, max_photons)
     optics = spectral_optics(fiber, wl)
     groups = wavelength_groups(optics)
     control = make_control()

@@ -26,7 +26,7 @@ from simulate.montecarlo import kernel as K
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.transport import ParameterError, execute
 
-__all__ = ["BATCH", "FIRST_ROUND", "REL_ERR_DEFINITION", "Run", "relative_error", "check_target", "default_max_photons",
+__all__ = ["BATCH", "FIRST_ROUND", "REL_ERR_DEFINITION", "Run", "relative_error", "check_target", "default_max_photons", "check_budget",
            "run_controlled", "mean_and_error"]
 
 BATCH = 2_000
@@ -67,6 +67,12 @@ def check_target(target_rel_err: Any, name: str = "target_rel_err") -> float:
 def default_max_photons(target_rel_err: float) -> int:
     """The photon budget per run when none is given: ``100 / target^2``, at least 10^6."""
     return max(int(100.0 / check_target(target_rel_err) ** 2), 1_000_000)
+
+
+def check_budget(target_rel_err: Any, max_photons: int | None) -> tuple[float, int]:
+    """The checked target and the photon budget (:func:`default_max_photons` when None)."""
+    target = check_target(target_rel_err)
+    return target, default_max_photons(target) if max_photons is None else max_photons
 
 
 @dataclass

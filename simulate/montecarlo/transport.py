@@ -18,6 +18,10 @@ reflection ``Rsp = F(theta_i)`` (that is the surface term, docs/physics.md secti
 total transmittance (unscattered + diffuse). Determinism: batch ``b`` always holds the same
 photons and uses stream ``(seed, b)``; rows are summed in batch order, so the numbers do not
 depend on ``threads``.
+
+Over 500 lines for a reason: the two public runs (slab, cylinder) share their validation, the
+KernelInputs assembly and the energy bookkeeping line for line; the compiled kernel is being
+changed beside it (numba cache) and this file is kept in one piece until that lands.
 """
 
 from __future__ import annotations

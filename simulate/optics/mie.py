@@ -54,6 +54,9 @@ Bohren, C. F. & Huffman, D. R. (1983). *Absorption and Scattering of Light by Sm
 ch. 4 and App. A. Wiley.
 Wiscombe, W. J. (1980). Improved Mie scattering algorithms. *Applied Optics* 19, 1505-1509.
 Prahl, S. miepython 3.3, https://miepython.readthedocs.io
+
+Over 500 lines for a reason: one physical concept (Mie spheres and their size distributions),
+mostly docstrings with the validation references.
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ LAYERS = (
     ("simulate.montecarlo",),
     ("simulate.fiber",),
     ("simulate.fabric",),
-    ("simulate.config",),
+    ("simulate.config", "simulate.config_table"),
     ("simulate.woven",),
     ("simulate.products",),
     ("simulate.virtual",),
