@@ -141,10 +141,11 @@ def _grid_faces(n_s: int, sides: int, base: int) -> np.ndarray:
 
 
 def mesh(weave: Weave) -> WeaveMesh:
-    """Triangulate the yarn tubes of a micro-element (layout and conventions in the module docstring).
+    """Triangulate the yarn tubes of a micro-element (layout and conventions: :mod:`simulate.fabric.weave`).
 
     Examples
     --------
+    >>> from simulate.fabric.weave import preset
     >>> m = mesh(preset("plain", points_per_span=4, sides=8))
     >>> m.vertices.shape, m.faces.shape       # 4 yarns x (8 + 1) x (8 + 1); 4 x 2 x 8 x 8
     ((324, 3), (512, 3))
