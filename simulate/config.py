@@ -2,7 +2,7 @@
 
 A config names the fiber (radius, host index, host absorption spectrum = the dye), the
 scattering medium inside it (Mie particles, or a direct Henyey-Greenstein medium for
-validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.weave`), the
+validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.fabric.weave`), the
 method settings and the seed. ``simulate fiber`` and ``simulate fabric`` take a config path or
 the name of a shipped preset (``red-cotton``, in :mod:`simulate.configs`).
 
@@ -49,7 +49,7 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     [surface]
     rms_slope = 0.3                    # Beckmann RMS slope m of the fiber surface, > 0
 
-    [weave]                            # optional: the woven micro-element (simulate.weave)
+    [weave]                            # optional: the woven micro-element (simulate.fabric.weave)
     matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular; at most ONE
     # preset = "twill"                 #   of matrix, preset ("plain" | "twill" | "satin") and
     # wif = "pattern.wif"              #   wif (a WIF 1.1 file, relative to this file); none: plain
@@ -87,7 +87,10 @@ from typing import Any
 
 import numpy as np
 
-from simulate.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
+from simulate.config_table import ConfigError, Table, show
+from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset
+from simulate.fabric.wif import weave_from_wif
+from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
 
 __all__ = [
     "ConfigError",
@@ -106,112 +109,7 @@ METHODS = ("nee", "beam", "bssrdf")
 DYE_CURVES = ("gaussian-bands", "logistic-edge")
 
 
-class ConfigError(ValueError):
-    """A simulation config is missing, unreadable or has a bad field (the message names both)."""
-
-
-# ------------------------------------------------------------------------------------------
-# typed field access
-
-
-def _show(value: Any) -> str:
-    text = f'"{value}"' if isinstance(value, str) else repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
-def _is_number(value: Any) -> bool:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return False
-    return math.isfinite(value) and abs(value) < 1e15
-
-
-class _Table:
-    """One TOML table with checks whose errors name the file and the dotted field."""
-
-    def __init__(self, data: Any, where: str, file: str):
-        self.file, self.where = file, where
-        if not isinstance(data, dict):
-            raise ConfigError(f"{file}: {where} must be a table, got {_show(data)}")
-        self.data = data
-        self.used: set[str] = set()
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def fail(self, key: str, message: str) -> ConfigError:
-        return ConfigError(f"{self.file}: {self.name(key)} {message}")
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = None, required: bool = False) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if required:
-                raise self.fail(key, "is required")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: float | None = None, *, required: bool = False,
-               gt: float | None = None, ge: float | None = None, lt: float | None = None,
-               le: float | None = None) -> float | None:
-        value = self.raw(key, default, required)
-        if value is None:
-            return None
-        bounds = " and ".join(s for s in (
-            f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
-            f"< {lt:g}" if lt is not None else "", f"<= {le:g}" if le is not None else "") if s)
-        what = f"a number {bounds}" if bounds else "a finite number"
-        ok = _is_number(value) and not (
-            (gt is not None and not value > gt) or (ge is not None and not value >= ge)
-            or (lt is not None and not value < lt) or (le is not None and not value <= le))
-        if not ok:
-            raise self.fail(key, f"must be {what}, got {_show(value)}")
-        return float(value)
-
-    def integer(self, key: str, default: int, *, ge: int = 0, le: int = 2**63 - 1) -> int:
-        value = self.raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or not ge <= value <= le:
-            raise self.fail(key, f"must be an integer in [{ge}, {le}], got {_show(value)}")
-        return int(value)
-
-    def string(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
-               required: bool = False) -> str | None:
-        value = self.raw(key, default, required)
-        if value is None:
-            return None
-        if not isinstance(value, str) or not value.strip():
-            raise self.fail(key, f"must be a non-empty string, got {_show(value)}")
-        if choices is not None and value not in choices:
-            raise self.fail(key, f"must be one of {', '.join(choices)}, got {_show(value)}")
-        return value
-
-    def numbers(self, key: str, *, ge: float | None = None, required: bool = True) -> list[float]:
-        value = self.raw(key, None, required)
-        if not isinstance(value, list) or not value:
-            raise self.fail(key, f"must be a non-empty list of numbers, got {_show(value)}")
-        for k, x in enumerate(value):
-            if not _is_number(x) or (ge is not None and x < ge):
-                bound = f" >= {ge:g}" if ge is not None else ""
-                raise self.fail(key, f"item {k} must be a finite number{bound}, got {_show(x)}")
-        return [float(x) for x in value]
-
-    def sub(self, key: str, required: bool = False) -> _Table | None:
-        value = self.raw(key, None, required)
-        if value is None:
-            return None
-        if not isinstance(value, dict):
-            raise self.fail(key, f"must be a table, got {_show(value)}")
-        return _Table(value, self.name(key), self.file)
-
-    def done(self) -> None:
-        extra = sorted(set(self.data) - self.used)
-        if extra:
-            raise self.fail(extra[0], "is not a known field (check the spelling; the schema is in "
-                                      "the simulate.config docstring)")
-
-
-def _spectrum(t: _Table, key: str, default: float | None, *, gt: float | None = None,
+def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = None,
               ge: float | None = None, required: bool = False) -> float | Spectrum | None:
     """A number or a ``{wavelength_nm, values}`` table (see the schema)."""
     value = t.raw(key, default, required)
@@ -220,7 +118,7 @@ def _spectrum(t: _Table, key: str, default: float | None, *, gt: float | None = 
             t.used.discard(key)
             return t.number(key, default, gt=gt, ge=ge, required=required)
         return None
-    sub = _Table(value, t.name(key), t.file)
+    sub = Table(value, t.name(key), t.file)
     wl = sub.numbers("wavelength_nm", ge=0.0)
     values = sub.numbers("values")
     sub.done()
@@ -231,7 +129,7 @@ def _spectrum(t: _Table, key: str, default: float | None, *, gt: float | None = 
     for k, v in enumerate(values):
         if (gt is not None and not v > gt) or (ge is not None and not v >= ge):
             bound = f"> {gt:g}" if gt is not None else f">= {ge:g}"
-            raise sub.fail("values", f"item {k} must be {bound}, got {_show(v)}")
+            raise sub.fail("values", f"item {k} must be {bound}, got {show(v)}")
     return Spectrum(np.asarray(wl), np.asarray(values), name=f"{t.file}: {t.name(key)}")
 
 
@@ -268,7 +166,7 @@ class DyeSpectrum:
         return p["long_per_um"] + (p["short_per_um"] - p["long_per_um"]) / (1.0 + np.exp(z))
 
     def as_spectrum(self, wavelength_nm: np.ndarray) -> Spectrum:
-        """A :class:`~simulate.medium.Spectrum` sampled at (and exact on) ``wavelength_nm``."""
+        """A :class:`~simulate.media.medium.Spectrum` sampled at (and exact on) ``wavelength_nm``."""
         wl = np.unique(np.asarray(wavelength_nm, dtype=float))
         if wl.size == 1:  # a Spectrum needs a range; a flat two-point table is exact
             wl = np.array([wl[0] - 1.0, wl[0] + 1.0])
@@ -373,17 +271,17 @@ def load_config(path_or_name: str | Path) -> SimulationConfig:
     return parse_config(raw, path, source=f"preset {path.stem}" if is_preset else str(path))
 
 
-def _dye(t: _Table) -> DyeSpectrum:
+def _dye(t: Table) -> DyeSpectrum:
     if t.has("curve"):
         curve = t.string("curve", choices=DYE_CURVES)
         if curve == "gaussian-bands":
             base = t.number("baseline_per_um", 0.0, ge=0.0)
             bands_raw = t.raw("bands", None, required=True)
             if not isinstance(bands_raw, list) or not bands_raw:
-                raise t.fail("bands", f"must be a non-empty list of tables, got {_show(bands_raw)}")
+                raise t.fail("bands", f"must be a non-empty list of tables, got {show(bands_raw)}")
             bands = []
             for k, b in enumerate(bands_raw):
-                bt = _Table(b, f"{t.name('bands')}[{k}]", t.file)
+                bt = Table(b, f"{t.name('bands')}[{k}]", t.file)
                 bands.append({"center_nm": bt.number("center_nm", required=True, gt=0.0),
                               "width_nm": bt.number("width_nm", required=True, gt=0.0),
                               "peak_per_um": bt.number("peak_per_um", required=True, ge=0.0)})
@@ -406,7 +304,7 @@ def _dye(t: _Table) -> DyeSpectrum:
     return DyeSpectrum("table", {"wavelength_nm": wl, "mu_a_per_um": mu_a})
 
 
-def _particles(t: _Table) -> ParticleSpec:
+def _particles(t: Table) -> ParticleSpec:
     n = _spectrum(t, "n", None, gt=0.0, required=True)
     k = _spectrum(t, "k", 0.0, ge=0.0)
     if t.has("radius_um") == t.has("size"):
@@ -431,11 +329,9 @@ def _particles(t: _Table) -> ParticleSpec:
                         number_density_per_um3=nd)
 
 
-def _weave(t: _Table, base_dir: Path) -> dict:
-    """The ``[weave]`` table as a dict of the fields present (``simulate.weave.weave_from_config``
+def _weave(t: Table, base_dir: Path) -> dict:
+    """The ``[weave]`` table as a dict of the fields present (:func:`weave_from_config`
     fills the defaults and checks the geometry); ``wif`` is stored resolved against ``base_dir``."""
-    from simulate.weave import PRESETS
-
     out: dict = {}
     given = [key for key in ("matrix", "preset", "wif") if t.has(key)]
     if len(given) > 1:
@@ -454,7 +350,7 @@ def _weave(t: _Table, base_dir: Path) -> dict:
         rows_ok = isinstance(m, list) and m and all(isinstance(r, list) and r for r in m)
         if not rows_ok or len({len(r) for r in m}) != 1 or not all(
                 x in (0, 1) and not isinstance(x, bool) and isinstance(x, int) for r in m for x in r):
-            raise t.fail("matrix", f"must be a rectangular list of rows of 0/1 integers, got {_show(m)}")
+            raise t.fail("matrix", f"must be a rectangular list of rows of 0/1 integers, got {show(m)}")
         out["matrix"] = [list(r) for r in m]
     for key in ("spacing_um", "width_um", "height_um"):
         if t.has(key):
@@ -469,7 +365,7 @@ def _weave(t: _Table, base_dir: Path) -> dict:
     return out
 
 
-def _wavelengths(t: _Table) -> tuple[float, ...]:
+def _wavelengths(t: Table) -> tuple[float, ...]:
     if t.has("list_nm"):
         wl = t.numbers("list_nm", ge=0.0)
     else:
@@ -509,11 +405,11 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         raise ConfigError(f"{file}: not UTF-8 text; a config is a TOML file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{file}: invalid TOML: {exc}") from None
-    top = _Table(data, "", file)
+    top = Table(data, "", file)
     name = top.string("name", Path(path).stem) or Path(path).stem
     description = top.raw("description", "")
     if not isinstance(description, str):
-        raise top.fail("description", f"must be a string, got {_show(description)}")
+        raise top.fail("description", f"must be a string, got {show(description)}")
     seed = top.integer("seed", 0, le=2**31 - 1)   # the Monte Carlo derives 64-bit stream seeds from it
 
     fib = top.sub("fiber", required=True)
@@ -551,7 +447,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     weave_t = top.sub("weave")
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method") or _Table({}, "method", file)
+    mt = top.sub("method") or Table({}, "method", file)
     method = mt.string("method", "nee", choices=METHODS)
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
@@ -568,3 +464,42 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths)
+
+
+# ------------------------------------------------------------------------------------------
+# the [weave] table as a geometry (the config adapter of simulate.fabric.weave)
+
+
+def weave_from_config(config: SimulationConfig | str | Path) -> Weave:
+    """The :class:`simulate.fabric.weave.Weave` of a simulation config's ``[weave]`` table (or of a config path/preset).
+
+    One of ``preset``, ``wif`` (resolved against the config's directory when the config is read)
+    and ``matrix``; none: the plain weave. Missing dimensions take the defaults
+    :data:`simulate.fabric.weave.DEFAULT_SPACING_UM` (300), :data:`simulate.fabric.weave.DEFAULT_WIDTH_UM` (250), :data:`simulate.fabric.weave.DEFAULT_HEIGHT_UM`
+    (100), :data:`simulate.fabric.weave.DEFAULT_CRIMP` (1), :data:`simulate.fabric.weave.DEFAULT_POINTS_PER_SPAN` (8), :data:`simulate.fabric.weave.DEFAULT_SIDES` (16).
+
+    Raises
+    ------
+    ConfigError
+        ``red.toml: weave: <what is wrong>``, naming the config file.
+
+    Examples
+    --------
+    >>> w = weave_from_config("red-cotton")
+    >>> w.matrix.tolist(), w.spacing_um, w.width_um, w.height_um
+    ([[1, 0], [0, 1]], 300.0, 250.0, 100.0)
+    """
+    cfg = config if isinstance(config, SimulationConfig) else load_config(config)
+    source = cfg.source
+    file = f"{source[len('preset '):]}.toml" if source.startswith("preset ") else Path(source).name
+    w = cfg.weave
+    params = {key: w[key] for key in ("spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides")
+              if key in w}
+    try:
+        if "preset" in w:
+            return preset(w["preset"], **params)
+        if "wif" in w:
+            return weave_from_wif(w["wif"], **params)
+        return Weave(w.get("matrix", PRESETS["plain"]), **params)
+    except WeaveError as exc:
+        raise ConfigError(f"{file}: weave: {exc}") from None

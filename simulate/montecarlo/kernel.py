@@ -86,7 +86,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from simulate.fresnel import fresnel_unpolarized, refracted_cos
+from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.geometry import (
     CELL,
@@ -177,7 +177,7 @@ def _source_stamp() -> int:
     """
     digest = hashlib.sha256()
     here = Path(__file__).resolve().parent
-    for path in sorted(here.glob("*.py")) + [here.parent / "fresnel.py"]:
+    for path in sorted(here.glob("*.py")) + [here.parent / "optics" / "fresnel.py"]:
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return int.from_bytes(digest.digest()[:7], "little")

@@ -2,7 +2,7 @@
 
 A phase function is handed to the kernel as a :class:`PhaseArrays` triple (see
 :func:`phase_arrays`): ``kind`` with ``g`` for Henyey-Greenstein, or the inverse-CDF
-``table`` of a :class:`simulate.phase.PhaseTable` with its density ``pdf`` and an index
+``table`` of a :class:`simulate.optics.phase.PhaseTable` with its density ``pdf`` and an index
 ``lookup`` that finds a cosine's interval in O(1). The sampler and the evaluator describe
 the SAME distribution, so an estimator that weights by ``p(mu)`` (next-event estimation,
 likelihood ratios between wavelengths) is exact with respect to what the walk samples:

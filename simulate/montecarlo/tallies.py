@@ -57,7 +57,7 @@ import math
 import numba
 import numpy as np
 
-from simulate.fresnel import fresnel_unpolarized
+from simulate.optics.fresnel import fresnel_unpolarized
 from simulate.montecarlo.rng import next_u64, to_uniform
 from simulate.montecarlo.scatter import phase_pdf
 

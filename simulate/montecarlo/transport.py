@@ -18,6 +18,10 @@ reflection ``Rsp = F(theta_i)`` (that is the surface term, docs/physics.md secti
 total transmittance (unscattered + diffuse). Determinism: batch ``b`` always holds the same
 photons and uses stream ``(seed, b)``; rows are summed in batch order, so the numbers do not
 depend on ``threads``.
+
+Over 500 lines for a reason: the two public runs (slab, cylinder) share their validation, the
+KernelInputs assembly and the energy bookkeeping line for line; the compiled kernel is being
+changed beside it (numba cache) and this file is kept in one piece until that lands.
 """
 
 from __future__ import annotations
@@ -50,6 +54,9 @@ __all__ = [
     "SpectralTargets",
     "DEFAULT_BATCH_SIZE",
     "DEFAULT_MAX_EVENTS",
+    "DEFAULT_WEIGHT_THRESHOLD",
+    "DEFAULT_SURVIVAL",
+    "make_control",
 ]
 
 log = logging.getLogger(__name__)
@@ -60,7 +67,7 @@ class ParameterError(ValueError):
 
 
 DEFAULT_BATCH_SIZE = 10_000
-DEFAULT_MAX_EVENTS = 100_000
+DEFAULT_MAX_EVENTS = 1_000_000  # the one event cap (slab, cylinder, fiber, yarn tables); a guard, rarely reached
 DEFAULT_WEIGHT_THRESHOLD = 1e-4
 DEFAULT_SURVIVAL = 0.1
 _ROUND_ELEMENTS = 1 << 22  # cap on per-round bin buffer elements (32 MB)
@@ -388,7 +395,13 @@ def make_inputs(
     )
 
 
-def _control(max_events: int, weight_threshold: float, survival: float) -> np.ndarray:
+def make_control(max_events: int = DEFAULT_MAX_EVENTS, weight_threshold: float = DEFAULT_WEIGHT_THRESHOLD,
+                 survival: float = DEFAULT_SURVIVAL) -> np.ndarray:
+    """The kernel's control row (``K.N_CONTROL``): event cap, roulette threshold and survival.
+
+    Every Monte Carlo estimator of the package builds its control here (one event cap, one
+    roulette rule); the defaults are those of all fiber, yarn-table and fabric runs.
+    """
     control = np.zeros(K.N_CONTROL)
     control[K.C_WEIGHT_THRESHOLD] = _finite_nonneg("weight_threshold", weight_threshold)
     s = float(survival)
@@ -525,7 +538,7 @@ def run_slab(
         Henyey-Greenstein asymmetry in (-1, 1); isotropic when neither ``g`` nor
         ``phase_table`` is given.
     phase_table : PhaseTable or array_like, optional
-        Inverse-CDF table ``cos_table`` (``simulate.phase.PhaseTable`` or the array itself).
+        Inverse-CDF table ``cos_table`` (``simulate.optics.phase.PhaseTable`` or the array itself).
     n : float
         Refractive index of the slab (outside: 1).
     thickness : float
@@ -578,7 +591,7 @@ def run_slab(
         raise ParameterError(
             "theta_i_deg = 90 is grazing incidence: no light crosses the surface; use an angle below 90"
         )
-    control = _control(max_events, weight_threshold, survival)
+    control = make_control(max_events, weight_threshold, survival)
     t = math.radians(theta)
     source = np.array([0.0, math.sin(t), 0.0, math.cos(t)])
     if angular_bins is None:
@@ -696,7 +709,7 @@ def run_cylinder(
         mode_code = G.POINT
     else:
         raise ParameterError(f"source must be 'beam' or 'point', got {source!r}")
-    control = _control(max_events, weight_threshold, survival)
+    control = make_control(max_events, weight_threshold, survival)
     src = np.array([float(mode_code), w[0], w[1], w[2]])
     if angular_bins is None:
         mode, params = T.NONE, np.zeros(1)

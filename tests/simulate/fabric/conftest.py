@@ -38,7 +38,7 @@ def fake_R(w_in, w_out, wavelengths_nm, a=0.3, b=0.2, c=0.25, d=-0.15) -> np.nda
 
 
 def fake_surface(w_in, w_out, m=0.35, n_host=1.557) -> np.ndarray:
-    from simulate.microfacet import cook_torrance
+    from simulate.optics.microfacet import cook_torrance
 
     return cook_torrance(w_in, w_out, m, n_host) * np.clip(np.atleast_2d(w_in)[:, 2], 0.0, None)
 
@@ -65,7 +65,7 @@ def fake_fiber(monkeypatch):
                                  "target_rel_err": target_rel_err, "seed": seed})
         R = fake_R(w_in, w_out, wavelengths_nm)
         return fiber_mod.BRDFEstimate(R=R, u_R=REL_ERR * R, photons=PHOTONS, seconds=0.01,
-                                      info={"method": method, "achieved_rel_err": REL_ERR,
+                                      info={"method": method, "rel_err": REL_ERR,
                                             "array": np.arange(3)})
 
     def surface_brdf(fiber, w_in, w_out):
@@ -80,4 +80,9 @@ def fake_fiber(monkeypatch):
     monkeypatch.setattr(fiber_mod, "volume_brdf", volume_brdf)
     monkeypatch.setattr(fiber_mod, "surface_brdf", surface_brdf)
     monkeypatch.setattr(fiber_mod, "normal_albedo", normal_albedo)
+    # the fiber-table module imports the two functions by name (simulate fiber's path)
+    from simulate.fiber import tables
+
+    monkeypatch.setattr(tables, "volume_brdf", volume_brdf)
+    monkeypatch.setattr(tables, "surface_brdf", surface_brdf)
     return rec

@@ -11,7 +11,7 @@ import pytest
 
 from gonio.data.dataset import read_dataset
 from simulate.cli import main
-from simulate.fibertable import JSON_NAME, NPZ_NAME, read_fiber_table
+from simulate.fiber.tables import JSON_NAME, NPZ_NAME, read_fiber_table
 
 from .conftest import fake_R
 

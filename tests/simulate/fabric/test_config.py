@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from simulate.config import ConfigError, load_config, parse_config, preset_names
-from simulate.medium import HGMedium, MieMedium
+from simulate.media.medium import HGMedium, MieMedium
 
 BASE = """
 name = "test"

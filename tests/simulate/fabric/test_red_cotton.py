@@ -15,9 +15,9 @@ import pytest
 from gonio.data.colour import hue_difference, spectrum_colour
 from simulate import fabric as fab
 from simulate import fiber as fiber_mod
-from simulate import microfacet
+from simulate.optics import microfacet
 from simulate.config import load_config
-from simulate.fresnel import OpticsDomainWarning
+from simulate.optics.fresnel import OpticsDomainWarning
 
 WL = np.arange(390.0, 710.0 + 1e-9, 10.0)
 

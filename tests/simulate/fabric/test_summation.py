@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from simulate import fabric as fab
-from simulate import microfacet
-from simulate.fresnel import OpticsDomainWarning
+from simulate.optics import microfacet
+from simulate.optics.fresnel import OpticsDomainWarning
 
 from .conftest import fake_R, fake_rho
 
@@ -167,7 +167,7 @@ def test_classic_is_rho_plus_pi_cook_torrance_anywhere():
     rho = fake_rho(WL)
     beta = fab.classic_beta(rho, w_i, w_o, 0.35, 1.557)
     spec = beta - rho[None, :]
-    # spectrally flat, reciprocal, non-negative, and the Cook-Torrance of simulate.microfacet
+    # spectrally flat, reciprocal, non-negative, and the Cook-Torrance of simulate.optics.microfacet
     np.testing.assert_allclose(spec, spec[:, :1] * np.ones((1, WL.size)), rtol=1e-12, atol=1e-15)
     assert np.all(spec >= 0)
     np.testing.assert_allclose(fab.classic_beta(rho, w_o, w_i, 0.35, 1.557), beta, rtol=1e-12)

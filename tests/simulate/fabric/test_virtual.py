@@ -63,7 +63,9 @@ def test_summation_dataset_has_the_plan_geometries_and_exact_values(fake_fiber, 
     assert prov["seed"] == 7 and prov["photons"] == PHOTONS
     assert prov["config"]["name"] == "red-cotton" and "[fiber]" in prov["config"]["text"]
     assert prov["plan"]["name"] == "small" and prov["beam_blocked"] == "simulated"
-    assert prov["achieved_rel_err"]["max"] <= REL_ERR + 1e-12
+    # the one relative error (u over each geometry's spectral peak) is never above the pointwise
+    # u / beta, which the fake holds at REL_ERR per fiber value
+    assert 0 < prov["rel_err"] <= REL_ERR + 1e-12 and "peak" in prov["rel_err_definition"]
     assert prov["fiber_info"]["array"] == [0, 1, 2]
     assert back.meta["model"]["generator"] == GENERATOR
 
@@ -89,7 +91,7 @@ def test_classic_dataset_is_rho_plus_pi_f_ct(fake_fiber, tmp_path):
     t = back.table
     w_i = fab.directions_deg(t["theta_i"], t["phi_i"])
     w_o = fab.directions_deg(t["theta_o"], t["phi_o"])
-    from simulate.microfacet import cook_torrance
+    from simulate.optics.microfacet import cook_torrance
 
     expected = fake_rho(t["wavelength_nm"]) + np.pi * cook_torrance(w_i, w_o, config.rms_slope, config.n_host)
     np.testing.assert_allclose(t["beta"], expected, rtol=1e-8)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from simulate.fiber import Fiber, normal_albedo, range_outputs, volume_brdf
-from simulate.medium import HGMedium, OpticalProperties
+from simulate.media.medium import HGMedium, OpticalProperties
 from simulate.montecarlo import run_slab
-from simulate.phase import PhaseTable
+from simulate.optics.phase import PhaseTable
 
 N_MU, N_PHI = 4, 6
 MU_EDGES = np.linspace(0, 1, N_MU + 1)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from simulate.fiber import Fiber, normal_albedo, range_outputs, surface_brdf, volume_brdf
-from simulate.fresnel import OpticsDomainWarning
-from simulate.medium import HGMedium, MieMedium
+from simulate.optics.fresnel import OpticsDomainWarning
+from simulate.media.medium import HGMedium, MieMedium
 from simulate.montecarlo import ParameterError
 
 

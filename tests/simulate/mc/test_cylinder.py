@@ -153,7 +153,7 @@ def test_fiber_routes_without_scatterers_give_the_bare_cylinder(w_i, fresnel_ref
     binned beam route and the next-event route (whose ranged outputs bin unscattered exits)
     must reproduce it with the normalisation R = (exit fraction) 2 |w_perp| / (dpsi Omega_proj)."""
     from simulate.fiber import Fiber, range_outputs, volume_brdf
-    from simulate.medium import HGMedium
+    from simulate.media.medium import HGMedium
 
     n, radius, mu_a, shape = 1.55, 1.0, 0.3, (6, 4, 4)
     w = np.asarray(w_i) / np.linalg.norm(w_i)

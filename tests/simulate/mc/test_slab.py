@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from simulate.montecarlo import run_slab
-from simulate.phase import PhaseTable
+from simulate.optics.phase import PhaseTable
 
 RD_REF = 0.09739
 TT_REF = 0.66096

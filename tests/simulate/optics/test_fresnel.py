@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from simulate import fresnel
-from simulate.fresnel import fresnel_unpolarized, refracted_cos
+from simulate.optics import fresnel
+from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
 
 INDEX_PAIRS = [(1.0, 1.33), (1.0, 1.5), (1.0, 1.557), (1.0, 2.7), (1.557, 1.0), (1.33, 1.0), (2.7, 1.557)]
 

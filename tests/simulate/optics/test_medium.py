@@ -5,8 +5,8 @@ import warnings
 import numpy as np
 import pytest
 
-from simulate.fresnel import OpticsDomainWarning
-from simulate.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
+from simulate.optics.fresnel import OpticsDomainWarning
+from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
 
 BH_X = 5.21282
 BH_QSCA = 3.10543
@@ -58,7 +58,7 @@ def test_absorbing_particles_and_host_spectrum():
     med = MieMedium(n_host=n_h, particle_n=1.6, particle_k=k_spec, radius_um=r,
                     number_density_per_um3=N, mu_a_host_per_um=host)
     op = med.optical_properties(lam)
-    from simulate.mie import sphere_efficiencies  # reference: the wrapper's own pieces checked elsewhere
+    from simulate.optics.mie import sphere_efficiencies  # reference: the wrapper's own pieces checked elsewhere
     e = sphere_efficiencies(1.6 - 0.15j, n_h, r, lam)  # k linearly interpolated: 0.15 at 550 nm
     assert op.mu_a == pytest.approx(N * (e.qext - e.qsca) * np.pi * r * r + 1e-3, rel=1e-12)
     assert op.mu_s == pytest.approx(N * e.qsca * np.pi * r * r, rel=1e-12)

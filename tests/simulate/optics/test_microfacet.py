@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from simulate import microfacet as mf
-from simulate.fresnel import OpticsDomainWarning
+from simulate.optics import microfacet as mf
+from simulate.optics.fresnel import OpticsDomainWarning
 
 N_HOST = 1.557
 
@@ -90,7 +90,7 @@ def test_directional_albedo_by_an_independent_quadrature():
 
 
 def test_smooth_limit_approaches_mirror_fresnel():
-    from simulate.fresnel import reflectance
+    from simulate.optics.fresnel import reflectance
 
     theta = np.radians([0.0, 20.0, 45.0, 60.0, 75.0, 80.0])
     mirror = reflectance(theta, 1.0, N_HOST)
@@ -127,3 +127,15 @@ def test_importance_sampled_albedo_agrees_with_quadrature():
         assert np.all(wo[w > 0, 2] > 0)
         se = w.std(ddof=1) / np.sqrt(n)
         assert abs(w.mean() - float(mf.directional_albedo(ti, 0.3, N_HOST))) < 4 * se
+
+
+def test_the_compiled_cook_torrance_is_the_numpy_one():
+    """One Cook-Torrance: the tracers' compiled scalar form equals the models' numpy form times cos_o."""
+    rng = np.random.default_rng(5)
+    w_in = mf.direction(rng.uniform(0, 1.45, 200), rng.uniform(-np.pi, np.pi, 200))
+    w_out = mf.direction(rng.uniform(0, 1.45, 200), rng.uniform(-np.pi, np.pi, 200))
+    for m, n_host in ((0.1, 1.5), (0.35, 1.557), (0.5, 1.33)):
+        expected = mf.cook_torrance(w_in, w_out, m, n_host) * w_out[:, 2]
+        got = np.array([mf.cook_torrance_cos_local(*a, *b, m, n_host) for a, b in zip(w_in, w_out)])
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-300)
+    assert mf.cook_torrance_cos_local(0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.3, 1.5) == 0.0  # light from below

@@ -6,8 +6,8 @@ import warnings
 import numpy as np
 import pytest
 
-from simulate import mie
-from simulate.fresnel import OpticsDomainWarning
+from simulate.optics import mie
+from simulate.optics.fresnel import OpticsDomainWarning
 
 os.environ.setdefault("MIEPYTHON_USE_JIT", "1")
 import miepython  # noqa: E402

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from simulate import mie
-from simulate.phase import PhaseTable, henyey_greenstein
+from simulate.optics import mie
+from simulate.optics.phase import PhaseTable, henyey_greenstein
 
 
 def _kernel_rule(table, u):

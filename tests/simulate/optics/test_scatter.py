@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from simulate import mie
+from simulate.optics import mie
 from simulate.montecarlo.scatter import evaluate_pdf, phase_arrays, sample_directions
-from simulate.phase import PhaseTable
+from simulate.optics.phase import PhaseTable
 
 
 def _cases():

@@ -5,11 +5,12 @@ import warnings
 import numpy as np
 import pytest
 
-from simulate import fresnel, mie
-from simulate import microfacet as mf
-from simulate.fresnel import OpticsDomainWarning, fresnel_unpolarized, refracted_cos
-from simulate.medium import MieMedium
-from simulate.phase import PhaseTable
+from simulate.optics import fresnel
+from simulate.optics import mie
+from simulate.optics import microfacet as mf
+from simulate.optics.fresnel import OpticsDomainWarning, fresnel_unpolarized, refracted_cos
+from simulate.media.medium import MieMedium
+from simulate.optics.phase import PhaseTable
 
 GRAZING_DEG = [80.0, 89.0, 89.99, 90.0]
 N_HOST = 1.557

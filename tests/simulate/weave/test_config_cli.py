@@ -9,7 +9,8 @@ import pytest
 
 from simulate.cli import main
 from simulate.config import ConfigError, load_config, parse_config
-from simulate.weave import (DEFAULT_HEIGHT_UM, DEFAULT_SPACING_UM, DEFAULT_WIDTH_UM, PRESETS, weave_from_config)
+from simulate.config import weave_from_config
+from simulate.fabric.weave import DEFAULT_HEIGHT_UM, DEFAULT_SPACING_UM, DEFAULT_WIDTH_UM, PRESETS
 
 DATA = Path(__file__).parent / "data"
 

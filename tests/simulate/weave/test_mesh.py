@@ -1,4 +1,4 @@
-"""simulate.weave.mesh: the grid-layout contract, exact periodic continuity, outward normals and
+"""simulate.fabric.mesh: the grid-layout contract, exact periodic continuity, outward normals and
 winding, tangents, and export through trimesh."""
 
 from __future__ import annotations
@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simulate.weave import PRESETS, Weave, WeaveError, mesh, preset
+from simulate.fabric.mesh import mesh
+from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset
 
 WEAVES = {
     **{name: preset(name, points_per_span=5, sides=7) for name in PRESETS},

@@ -1,11 +1,11 @@
-"""simulate.weave: the Weave's validation, presets, centre-line splines and crossing heights."""
+"""simulate.fabric.weave: the Weave's validation, presets, centre-line splines and crossing heights."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from simulate.weave import PRESETS, Weave, WeaveError, preset
+from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset
 
 DIMS = dict(spacing_um=300.0, width_um=250.0, height_um=100.0)
 

@@ -1,4 +1,4 @@
-"""simulate.weave.read_wif: drawdowns of WIF 1.1 files, and one error line naming file and line."""
+"""simulate.fabric.wif.read_wif: drawdowns of WIF 1.1 files, and one error line naming file and line."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulate.weave import WeaveError, read_wif, weave_from_wif
+from simulate.fabric.weave import WeaveError
+from simulate.fabric.wif import read_wif, weave_from_wif
 
 DATA = Path(__file__).parent / "data"
 TWILL = [[1, 0, 0, 1], [1, 1, 0, 0], [0, 1, 1, 0], [0, 0, 1, 1]]

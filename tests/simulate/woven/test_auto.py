@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simulate import methods
+from simulate.fabric import auto as methods
 
 STUDY = {
     "provenance": {"command": "test"},

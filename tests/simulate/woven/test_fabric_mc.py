@@ -99,12 +99,13 @@ def test_the_tables_own_noise_is_in_u_beta():
     """Runs with different seeds build different BSSRDF tables: they must agree within the
     reported errors, which therefore have to include the table's noise (not only the rays')."""
     from simulate import fiber as F
-    from simulate import weave
+    from simulate.fabric import weave
+    from simulate.fabric.mesh import mesh as weave_mesh
     from simulate import woven as W
-    from simulate.medium import HGMedium
+    from simulate.media.medium import HGMedium
 
     fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), 0.35, 10.0)
-    mesh = weave.mesh(weave.preset("plain", points_per_span=6, sides=12))
+    mesh = weave_mesh(weave.preset("plain", points_per_span=6, sides=12))
     t = np.radians([0.0, 30.0, 60.0])
     w_in = np.tile([np.sin(0.5), 0.0, np.cos(0.5)], (3, 1))
     w_out = np.column_stack([np.sin(t), 0 * t, np.cos(t)])

@@ -15,10 +15,11 @@ import pytest
 
 from simulate import fabric as fab
 from simulate import fiber as F
-from simulate import weave
+from simulate.fabric import weave
+from simulate.fabric.mesh import mesh as weave_mesh
 from simulate import woven as W
-from simulate.medium import HGMedium
-from simulate.microfacet import OpticsDomainWarning
+from simulate.media.medium import HGMedium
+from simulate.optics.microfacet import OpticsDomainWarning
 
 
 def _d(theta, phi=0.0):
@@ -28,7 +29,7 @@ def _d(theta, phi=0.0):
 
 @pytest.fixture(scope="module")
 def mesh():
-    return weave.mesh(weave.preset("plain", points_per_span=6, sides=12))
+    return weave_mesh(weave.preset("plain", points_per_span=6, sides=12))
 
 
 @pytest.fixture(scope="module")

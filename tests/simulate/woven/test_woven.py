@@ -1,4 +1,4 @@
-"""Woven-fabric Monte Carlo (simulate.woven, simulate.raytrace): limits with exact answers.
+"""Woven-fabric Monte Carlo (simulate.woven, simulate.woven.scene): limits with exact answers.
 
 Every Monte Carlo comparison is within a few standard errors the code reports, with fixed
 seeds; references come from outside the tracer (the albedo itself, energy conservation,
@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from simulate import fiber as F
-from simulate import weave
+from simulate.fabric import weave
+from simulate.fabric.mesh import mesh as weave_mesh
 from simulate import woven as W
-from simulate.medium import HGMedium
+from simulate.media.medium import HGMedium
 
 
 def _dirs(theta_deg, phi_deg=0.0):
@@ -74,7 +75,7 @@ def test_non_absorbing_smooth_yarns_reflect_plus_transmit_one(plain, white_table
     exact = white_table.tau * white_table.c_bar / white_table.T.sum(axis=2)[..., 0]
     assert np.max(np.abs(exact - 1.0)) < 0.05
     table = dataclasses.replace(white_table, T=white_table.T * exact[:, :, None, None])
-    mesh = weave.mesh(plain)
+    mesh = weave_mesh(plain)
     mat = W.FiberSurface(table, 0.0, 1.5)
     for theta in (0.0, 50.0):
         res = W.trace(mesh, mat, _dirs(theta, 20.0)[0], _dirs([0, 30]), target_rel_err=0.02, max_rays=16384,
@@ -89,7 +90,7 @@ def test_non_absorbing_smooth_yarns_reflect_plus_transmit_one(plain, white_table
 
 def test_rough_yarns_report_the_model_energy_balance(plain, white_table):
     # with Cook-Torrance the split is the fiber model's R_surf + R_vol: not exactly 1, but close
-    res = W.trace(weave.mesh(plain), W.FiberSurface(white_table, 0.35, 1.5), _dirs(30)[0], _dirs([0]),
+    res = W.trace(weave_mesh(plain), W.FiberSurface(white_table, 0.35, 1.5), _dirs(30)[0], _dirs([0]),
                   target_rel_err=0.02, max_rays=8192, seed=3, chunk=1024)
     total = res.reflected[0] + res.transmitted[0]
     assert 0.9 < total < 1.05
@@ -102,8 +103,8 @@ def test_periodic_wrap_makes_the_origin_irrelevant(plain, grey_table):
     mat = W.FiberSurface(grey_table, 0.35, 1.5)
     det = _dirs([0, 30, 60], [0, 90, 200])
     w_in = _dirs(45, 30)[0]
-    a = W.trace(weave.mesh(plain), mat, w_in, det, target_rel_err=0.01, max_rays=32768, seed=4, chunk=1024)
-    b = W.trace(weave.mesh(shifted), mat, w_in, det, target_rel_err=0.01, max_rays=32768, seed=5, chunk=1024)
+    a = W.trace(weave_mesh(plain), mat, w_in, det, target_rel_err=0.01, max_rays=32768, seed=4, chunk=1024)
+    b = W.trace(weave_mesh(shifted), mat, w_in, det, target_rel_err=0.01, max_rays=32768, seed=5, chunk=1024)
     z = (a.beta - b.beta) / np.hypot(a.u_beta, b.u_beta)
     assert np.max(np.abs(z)) < 4.0, z
 
@@ -116,8 +117,8 @@ def test_quarter_turn_of_a_plain_weave_swaps_warp_and_weft_only(plain, grey_tabl
     rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     det = _dirs([10, 40, 60], [0, 0, 120])
     w_in = _dirs(50, 0)[0]
-    a = W.trace(weave.mesh(plain), mat, w_in, det, target_rel_err=0.01, max_rays=32768, seed=6, chunk=1024)
-    b = W.trace(weave.mesh(turned), mat, rot @ w_in, det @ rot.T, target_rel_err=0.01, max_rays=32768, seed=7,
+    a = W.trace(weave_mesh(plain), mat, w_in, det, target_rel_err=0.01, max_rays=32768, seed=6, chunk=1024)
+    b = W.trace(weave_mesh(turned), mat, rot @ w_in, det @ rot.T, target_rel_err=0.01, max_rays=32768, seed=7,
                 chunk=1024)
     z = (a.beta - b.beta) / np.hypot(a.u_beta, b.u_beta)
     assert np.max(np.abs(z)) < 4.0, z
@@ -125,7 +126,7 @@ def test_quarter_turn_of_a_plain_weave_swaps_warp_and_weft_only(plain, grey_tabl
 
 def test_reported_error_is_honest(plain, grey_table):
     # repeated short runs against one long run: about 68 % within one reported standard error
-    mesh = weave.mesh(plain)
+    mesh = weave_mesh(plain)
     mat = W.FiberSurface(grey_table, 0.35, 1.5)
     det = _dirs([0, 25, 50], [0, 0, 180])
     w_in = _dirs(30, 0)[0]
@@ -143,24 +144,24 @@ def test_reported_error_is_honest(plain, grey_table):
 def test_same_result_with_one_or_two_threads(plain, grey_table):
     mat = W.FiberSurface(grey_table, 0.35, 1.5)
     kw = dict(target_rel_err=1e-9, max_rays=4096, seed=9, chunk=512)
-    a = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0, 40]), threads=1, **kw)
-    b = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0, 40]), threads=2, **kw)
+    a = W.trace(weave_mesh(plain), mat, _dirs(20)[0], _dirs([0, 40]), threads=1, **kw)
+    b = W.trace(weave_mesh(plain), mat, _dirs(20)[0], _dirs([0, 40]), threads=2, **kw)
     np.testing.assert_array_equal(a.beta, b.beta)
     np.testing.assert_array_equal(a.u_beta, b.u_beta)
 
 
 def test_budget_stops_say_which(plain, grey_table):
     mat = W.FiberSurface(grey_table, 0.35, 1.5)
-    r = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=1e-6, max_rays=2048, seed=1,
+    r = W.trace(weave_mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=1e-6, max_rays=2048, seed=1,
                 chunk=512)
     assert r.stop == "max_rays" and r.rays == 2048
-    r = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=1e-6, max_rays=3000, seed=1,
+    r = W.trace(weave_mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=1e-6, max_rays=3000, seed=1,
                 chunk=512)
     assert r.stop == "max_rays" and r.rays == 3000
-    r = W.trace(weave.mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=0.5, seed=1, chunk=512)
+    r = W.trace(weave_mesh(plain), mat, _dirs(20)[0], _dirs([0]), target_rel_err=0.5, seed=1, chunk=512)
     assert r.stop == "target" and r.rel_err <= 0.5
     with pytest.raises(ValueError, match="above the fabric"):
-        W.trace(weave.mesh(plain), mat, _dirs(20)[0] * [1, 1, -1], _dirs([0]))
+        W.trace(weave_mesh(plain), mat, _dirs(20)[0] * [1, 1, -1], _dirs([0]))
 
 
 @pytest.mark.slow
@@ -210,7 +211,7 @@ def test_hit_point_brdf_option_reports_its_energy_balance(plain, white_table):
     """The original approximation (fiber BRDF at the hit point) cannot send light out of a yarn's
     far side: with a non-absorbing fiber it loses energy where the BSSRDF transport conserves it,
     and it says how often its local albedo exceeded 1."""
-    mesh = weave.mesh(plain)
+    mesh = weave_mesh(plain)
     kw = dict(target_rel_err=0.02, max_rays=8192, seed=12, chunk=1024)
     exits = W.trace(mesh, W.FiberSurface(white_table, 0.35, 1.5), _dirs(20)[0], _dirs([0, 40]), **kw)
     at_hit = W.trace(mesh, W.FiberBRDFAtHit(white_table, 0.35, 1.5), _dirs(20)[0], _dirs([0, 40]), **kw)
@@ -242,7 +243,7 @@ def test_next_event_agrees_with_escaping_ray_bins_on_a_woven_surface(plain):
                     dets.append([st * math.cos(phi), st * math.sin(phi), mu])
                     owner.append((i, j))
     dets = np.array(dets)
-    res = W.trace(weave.mesh(plain), W.Lambert(0.7), _dirs(40, 20)[0], dets, target_rel_err=1e-9, max_rays=65536,
+    res = W.trace(weave_mesh(plain), W.Lambert(0.7), _dirs(40, 20)[0], dets, target_rel_err=1e-9, max_rays=65536,
                   seed=13, bins=(n_mu, n_phi), chunk=4096)
     f_nee = res.beta[:, 0] / np.pi
     u_nee = res.u_beta[:, 0] / np.pi

@@ -1,0 +1,118 @@
+"""Typed access to one TOML table whose errors name the file and the dotted field (simulate configs).
+
+``Table(data, "fiber", "red.toml").number("radius_um", gt=0)`` returns the value or raises
+:class:`ConfigError` ``red.toml: fiber.radius_um must be a number > 0, got -1``; :meth:`Table.done`
+refuses fields nobody read (a misspelt key is an error, not a silent default). The same idea as
+the acquisition plan's field reader in ``gonio.acquisition.plan``; merging the two would need a
+``gonio`` change (left to its owner).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+__all__ = ["ConfigError", "Table", "show", "is_number"]
+
+
+class ConfigError(ValueError):
+    """A simulation config is missing, unreadable or has a bad field (the message names both)."""
+
+
+def show(value: Any) -> str:
+    """A value as an error message quotes it (strings quoted, long values cut)."""
+    text = f'"{value}"' if isinstance(value, str) else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def is_number(value: Any) -> bool:
+    """A finite int or float (not a bool) below 1e15 in magnitude."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return math.isfinite(value) and abs(value) < 1e15
+
+
+class Table:
+    """One TOML table with checks whose errors name the file and the dotted field."""
+
+    def __init__(self, data: Any, where: str, file: str):
+        self.file, self.where = file, where
+        if not isinstance(data, dict):
+            raise ConfigError(f"{file}: {where} must be a table, got {show(data)}")
+        self.data = data
+        self.used: set[str] = set()
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def fail(self, key: str, message: str) -> ConfigError:
+        return ConfigError(f"{self.file}: {self.name(key)} {message}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = None, required: bool = False) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                raise self.fail(key, "is required")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: float | None = None, *, required: bool = False,
+               gt: float | None = None, ge: float | None = None, lt: float | None = None,
+               le: float | None = None) -> float | None:
+        value = self.raw(key, default, required)
+        if value is None:
+            return None
+        bounds = " and ".join(s for s in (
+            f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
+            f"< {lt:g}" if lt is not None else "", f"<= {le:g}" if le is not None else "") if s)
+        what = f"a number {bounds}" if bounds else "a finite number"
+        ok = is_number(value) and not (
+            (gt is not None and not value > gt) or (ge is not None and not value >= ge)
+            or (lt is not None and not value < lt) or (le is not None and not value <= le))
+        if not ok:
+            raise self.fail(key, f"must be {what}, got {show(value)}")
+        return float(value)
+
+    def integer(self, key: str, default: int, *, ge: int = 0, le: int = 2**63 - 1) -> int:
+        value = self.raw(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or not ge <= value <= le:
+            raise self.fail(key, f"must be an integer in [{ge}, {le}], got {show(value)}")
+        return int(value)
+
+    def string(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
+               required: bool = False) -> str | None:
+        value = self.raw(key, default, required)
+        if value is None:
+            return None
+        if not isinstance(value, str) or not value.strip():
+            raise self.fail(key, f"must be a non-empty string, got {show(value)}")
+        if choices is not None and value not in choices:
+            raise self.fail(key, f"must be one of {', '.join(choices)}, got {show(value)}")
+        return value
+
+    def numbers(self, key: str, *, ge: float | None = None, required: bool = True) -> list[float]:
+        value = self.raw(key, None, required)
+        if not isinstance(value, list) or not value:
+            raise self.fail(key, f"must be a non-empty list of numbers, got {show(value)}")
+        for k, x in enumerate(value):
+            if not is_number(x) or (ge is not None and x < ge):
+                bound = f" >= {ge:g}" if ge is not None else ""
+                raise self.fail(key, f"item {k} must be a finite number{bound}, got {show(x)}")
+        return [float(x) for x in value]
+
+    def sub(self, key: str, required: bool = False) -> Table | None:
+        value = self.raw(key, None, required)
+        if value is None:
+            return None
+        if not isinstance(value, dict):
+            raise self.fail(key, f"must be a table, got {show(value)}")
+        return Table(value, self.name(key), self.file)
+
+    def done(self) -> None:
+        extra = sorted(set(self.data) - self.used)
+        if extra:
+            raise self.fail(extra[0], "is not a known field (check the spelling; the schema is in "
+                                      "the simulate.config docstring)")

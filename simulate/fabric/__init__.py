@@ -1,0 +1,43 @@
+"""Fabric models over the fiber BRDF: the summation and the classic model, the weave, the ``auto`` choice.
+
+Modules: :mod:`.summation` (fabric frames, the summation of the fiber BRDF over the two
+families), :mod:`.classic` (Cook-Torrance + Lambert), :mod:`.weave` (the woven micro-element's
+geometry), :mod:`.mesh` (its yarn tubes as a mesh), :mod:`.wif` (WIF drawdowns), :mod:`.auto`
+(the ``--method auto`` choice from the method-errors study). The woven fabric's Monte Carlo is :mod:`simulate.woven`.
+"""
+
+from simulate.fabric.classic import classic_beta
+from simulate.fabric.summation import (
+    M_WARP,
+    M_WEFT,
+    SUMMATION_GRAZING_LIMIT_DEG,
+    FabricError,
+    FiberPairs,
+    canonical_pairs,
+    directions_deg,
+    fiber_frame_pairs,
+    hemisphere_grid,
+    rotation_z,
+    summation_albedo,
+    summation_beta,
+    summation_from_table,
+    summation_hemispherical_albedo,
+)
+
+__all__ = [
+    "classic_beta",
+    "M_WARP",
+    "M_WEFT",
+    "SUMMATION_GRAZING_LIMIT_DEG",
+    "FabricError",
+    "FiberPairs",
+    "canonical_pairs",
+    "directions_deg",
+    "fiber_frame_pairs",
+    "hemisphere_grid",
+    "rotation_z",
+    "summation_albedo",
+    "summation_beta",
+    "summation_from_table",
+    "summation_hemispherical_albedo",
+]

@@ -1,0 +1,173 @@
+"""The ``bssrdf`` route: the fiber BSSRDF stored by cell offset, and its summation (package docstring).
+
+The rows are also what the woven-fabric tracer samples exits from (:mod:`simulate.woven.yarn`):
+:func:`bssrdf_rows` and :func:`lit_rows` are public for it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from simulate.fiber.model import Fiber, as_wavelengths
+from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
+from simulate.montecarlo import geometry as G
+from simulate.montecarlo import tallies as T
+from simulate.montecarlo.accuracy import BATCH, FIRST_ROUND, mean_and_error
+from simulate.montecarlo.transport import ParameterError, execute, make_control, make_inputs
+
+__all__ = ["lit_rows", "bssrdf_rows", "bssrdf_table", "bssrdf_route", "grid_cells", "bssrdf_for_beam"]
+
+
+def lit_rows(dpsi: float) -> int:
+    """Largest ``k`` with ``|k dpsi| < 90 deg + dpsi / 2``: the local azimuths whose cell is lit in part."""
+    return int(math.floor((math.pi / 2 + dpsi / 2) / dpsi - 1e-12))
+
+
+def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, photons, seed, threads):
+    """BSSRDF table rows: CELL-source runs for the local incidences ``(w_t, azimuth k dpsi)``.
+
+    Returns ``T[len(ks), n_psi, n_v, n_mu, n_phi, n_spec]`` (mean exit weight per photon, launch
+    weight ``max(w . n, 0)``) and its standard error.
+    """
+    n_psi, n_v, v_max, n_mu, n_phi = grid
+    params = np.array([float(n_psi), float(n_mu), float(n_phi), float(n_v), float(v_max)])
+    dpsi = 2.0 * math.pi / n_psi
+    rho = math.sqrt(max(1.0 - w_t * w_t, 0.0))
+    n_spec = targets.mu_a.size
+    out = np.zeros((len(ks), n_psi, n_v, n_mu, n_phi, n_spec))
+    err = np.zeros_like(out)
+    total = 0
+    seconds = 0.0
+    for r, k in enumerate(ks):
+        # local incidence of the beam at a cell whose normal makes the angle k dpsi with w_perp:
+        # w . n = rho cos(k dpsi), w . b = -rho sin(k dpsi)  (b = n x t at the top cell is +y)
+        a = k * dpsi
+        src = np.array([float(G.CELL), w_t, -rho * math.sin(a), rho * math.cos(a), dpsi / 2.0])
+        inp = make_inputs(G.CYLINDER, np.array([fiber.radius_um]), src, medium, walk_phase, control,
+                          T.CYLINDER_DIRECTIONS, params, T.V_NONE, None, targets)
+        s, b, sec = execute(inp, photons, seed + 7919 * r, threads, BATCH)
+        mean, u = mean_and_error(b, photons)
+        out[r] = mean.reshape(n_psi, n_v, n_mu, n_phi, n_spec)
+        err[r] = u.reshape(n_psi, n_v, n_mu, n_phi, n_spec)
+        total += photons
+        seconds += sec
+    return out, err, total, seconds
+
+
+def bssrdf_table(
+    fiber: Fiber,
+    w_t: float,
+    wavelengths_nm: Any,
+    *,
+    n_mu: int = 9,
+    n_phi: int = 18,
+    n_v: int = 1,
+    v_max_um: float | None = None,
+    photons_per_row: int = 100_000,
+    seed: int = 0,
+    threads: int | None = None,
+) -> dict[str, Any]:
+    """The fiber BSSRDF stored by offset, for one axial incidence component ``w_t``.
+
+    Rows: local incident azimuths ``k dpsi`` (``|k dpsi| < 90 deg + dpsi/2``, every row lit on part
+    of its cell), i.e. incident directions ``(w_t, -rho sin(k dpsi), rho cos(k dpsi))`` in A's
+    frame, ``rho = sqrt(1 - w_t^2)``. Columns: exit cell offset (``n_psi = 360 / cell width``
+    cells, 0 = A itself), axial offset ``v`` (``n_v`` bins on ``[-v_max, v_max]``; 1 = summed
+    out), local exit direction (``n_mu`` x ``n_phi`` uniform bins in ``cos theta`` and azimuth),
+    wavelength. Values: mean exit weight per photon entering A uniformly with launch weight
+    ``max(w . n, 0)`` -- i.e. ``F_out / (E |A|)``; the docs/physics.md BSSRDF is
+    ``T / (cos theta_in |B| dOmega cos theta_out)`` with ``F_in = E |A| cos theta_in``.
+
+    Returns
+    -------
+    dict
+        ``T``, ``u_T`` (``[k, psi, v, mu, phi, lambda]``), ``k``, grid edges, photons, seconds.
+    """
+    wl = as_wavelengths(wavelengths_nm)
+    n_psi = fiber.cell_count("bssrdf route")
+    if not -1.0 < w_t < 1.0:
+        raise ParameterError(f"w_t must be in (-1, 1), got {w_t!r}")
+    dpsi = 2.0 * math.pi / n_psi
+    k_max = lit_rows(dpsi)
+    ks = list(range(-k_max, k_max + 1))
+    v_max = 10.0 * fiber.radius_um if v_max_um is None else float(v_max_um)
+    optics = spectral_optics(fiber, wl)
+    control = make_control()
+    rows = np.zeros((len(ks), n_psi, n_v, n_mu, n_phi, wl.size))
+    errs = np.zeros_like(rows)
+    photons = 0
+    seconds = 0.0
+    for group in wavelength_groups(optics):
+        medium, walk_phase, targets = group_walk(fiber, optics, group, white=True)
+        t, u, p, s = bssrdf_rows(fiber, w_t, ks, (n_psi, n_v, v_max, n_mu, n_phi), medium, walk_phase, targets,
+                                  control, photons_per_row, seed, threads)
+        rows[..., group] = t
+        errs[..., group] = u
+        photons += p
+        seconds += s
+    return {
+        "T": rows, "u_T": errs, "k": np.array(ks), "cell_width_rad": dpsi, "w_t": float(w_t),
+        "v_edges_um": np.linspace(-v_max, v_max, n_v + 1), "mu_edges": np.linspace(0, 1, n_mu + 1),
+        "phi_edges": np.linspace(-math.pi, math.pi, n_phi + 1), "wavelengths_nm": wl,
+        "photons": photons, "seconds": seconds,
+    }
+
+
+
+def bssrdf_route(fiber, w_in, outputs_grid_bins, table, omega):
+    """Summation of the BSSRDF rows for one beam (aligned azimuths exact, others interpolated)."""
+    rows, errs, ks, dpsi = table["T"], table["u_T"], table["k"], table["cell_width_rad"]
+    n_psi = rows.shape[1]
+    beta = math.atan2(-w_in[1], w_in[2])  # w_perp along n(beta)
+    x = beta / dpsi
+    j0 = math.floor(x)
+    frac = x - j0
+    total = 0.0
+    total_u2 = 0.0
+    for j, weight in ((j0, 1.0 - frac), (j0 + 1, frac)):
+        if weight == 0.0:
+            continue
+        acc = 0.0
+        acc_u2 = 0.0
+        for r, k in enumerate(ks):
+            # cell A_i = beta_j - k dpsi, i = j - k; B (offset 0) relative to A_i is offset k - j
+            offset = (k - j) % n_psi
+            mu_i, phi_i = outputs_grid_bins
+            acc = acc + rows[r, offset][:, mu_i, phi_i, :].sum(axis=0)  # v offsets summed out
+            acc_u2 = acc_u2 + (errs[r, offset][:, mu_i, phi_i, :] ** 2).sum(axis=0)
+        total = total + weight * acc
+        total_u2 = total_u2 + (weight ** 2) * acc_u2
+    return total / omega, np.sqrt(total_u2) / omega
+
+
+def grid_cells(outputs: np.ndarray, n_mu: int, n_phi: int):
+    """Map ranged outputs onto the cells of a (mu, phi) grid; refuse ranges that are not grid cells."""
+    mu_edges = np.linspace(0, 1, n_mu + 1)
+    phi_edges = np.linspace(-math.pi, math.pi, n_phi + 1)
+    mu_i = np.clip(np.searchsorted(mu_edges, 0.5 * (outputs[:, 3] + outputs[:, 4])) - 1, 0, n_mu - 1)
+    phi_i = np.clip(np.searchsorted(phi_edges, 0.5 * (outputs[:, 5] + outputs[:, 6])) - 1, 0, n_phi - 1)
+    exact = np.isclose(outputs[:, 3], mu_edges[mu_i]) & np.isclose(outputs[:, 4], mu_edges[mu_i + 1]) & \
+        np.isclose(outputs[:, 5], phi_edges[phi_i]) & np.isclose(outputs[:, 6], phi_edges[phi_i + 1])
+    if not np.all(exact):
+        raise ParameterError("bssrdf route: outputs must be cells of the BSSRDF direction grid (bssrdf_bins)")
+    omega = 0.5 * (mu_edges[mu_i + 1] ** 2 - mu_edges[mu_i] ** 2) * (phi_edges[phi_i + 1] - phi_edges[phi_i])
+    return mu_i, phi_i, omega
+
+
+def bssrdf_for_beam(fiber, w_in, medium, walk_phase, targets, control, n_mu, n_phi, target, max_photons, seed,
+                    threads):
+    """The BSSRDF rows one beam needs (its axial component), photons per row from the target."""
+    n_psi = fiber.cell_count("bssrdf route")
+    dpsi = 2.0 * math.pi / n_psi
+    k_max = lit_rows(dpsi)
+    ks = list(range(-k_max, k_max + 1))
+    # photons per row: the table's error on one bin is what the summation adds up; a fixed
+    # budget per row from the target (rows add in quadrature over ~pi/dpsi lit cells)
+    per_row = int(min(max(FIRST_ROUND, 4.0 / target ** 2 / len(ks)), max_photons))
+    per_row = int(math.ceil(per_row / BATCH) * BATCH)
+    t, u, photons, seconds = bssrdf_rows(fiber, float(w_in[0]), ks, (n_psi, 1, 1.0, n_mu, n_phi), medium,
+                                          walk_phase, targets, control, per_row, seed, threads)
+    return {"T": t, "u_T": u, "k": ks, "cell_width_rad": dpsi, "photons": photons, "seconds": seconds}

@@ -1,0 +1,127 @@
+"""Accuracy control of the Monte Carlo estimators: the one relative error and the photon rounds.
+
+The relative error (one definition for the whole toolkit: ``simulate fabric`` of every method,
+``simulate fiber``, ``sweep``, ``fit`` and the ``auto`` method's choice) is the RMS, over outputs
+(detector directions) and wavelengths, of the standard error relative to the PEAK of that
+output's spectrum::
+
+    rel_err = sqrt(mean_{o, l} (u[o, l] / max_l |value[o, l]|)^2)      outputs with a peak > 1e-3 max
+
+A 1 % target means 1 % of the brightest wavelength of each curve: what a colour or a normalised
+curve is sensitive to; the dark, dye-absorbed wavelengths of a red fabric would otherwise decide
+the cost alone. Outputs whose peak is below 1e-3 of the largest are ignored (they carry nothing
+a normalised curve shows). :func:`run_controlled` adds photons in rounds, each sized from the
+error reached (``u ~ 1/sqrt(N)``), until the target or the photon budget is met.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from simulate.montecarlo import kernel as K
+from simulate.montecarlo import tallies as T
+from simulate.montecarlo.transport import ParameterError, execute
+
+__all__ = ["BATCH", "FIRST_ROUND", "REL_ERR_DEFINITION", "Run", "relative_error", "check_target", "default_max_photons", "check_budget",
+           "run_controlled", "mean_and_error"]
+
+BATCH = 2_000
+"""Photons per batch of every accuracy-controlled run (batches are the unit of the RNG streams)."""
+FIRST_ROUND = 50_000
+"""Photons of the first round before the error is first measured."""
+REL_ERR_DEFINITION = ("RMS over directions and wavelengths of u / the peak of that direction's spectrum "
+                      "(directions whose peak is below 1e-3 of the brightest ignored)")
+"""What ``rel_err`` means in every output that reports it (datasets, fiber tables, sweep, fit)."""
+
+
+def relative_error(value: Any, u: Any) -> float:
+    """RMS of ``u`` relative to the peak of each output's spectrum (rows: outputs, columns: wavelengths).
+
+    The one definition of "relative error" (module docstring). ``value`` and ``u`` of shape
+    ``[outputs, wavelengths]`` (a 1-D array is one output).
+
+    >>> relative_error([[1.0, 0.5], [2.0, 4.0]], [[0.01, 0.01], [0.04, 0.04]])
+    0.01
+    """
+    v = np.abs(np.atleast_2d(np.asarray(value, dtype=float)))
+    uu = np.atleast_2d(np.asarray(u, dtype=float))
+    peak = v.max(axis=1) if v.size else np.zeros(0)
+    if peak.size == 0 or not np.any(peak > 0):
+        return 0.0
+    keep = peak > 1e-3 * peak.max()
+    return float(np.sqrt(np.mean((uu[keep] / peak[keep, None]) ** 2)))
+
+
+def check_target(target_rel_err: Any, name: str = "target_rel_err") -> float:
+    """``target_rel_err`` as a float in (0, 1), else :class:`ParameterError` (no zero reaches a division)."""
+    ok = isinstance(target_rel_err, (int, float, np.floating)) and not isinstance(target_rel_err, bool)
+    if not ok or not math.isfinite(float(target_rel_err)) or not 0 < float(target_rel_err) < 1:
+        raise ParameterError(f"{name} must be a number in (0, 1), got {target_rel_err!r}")
+    return float(target_rel_err)
+
+
+def default_max_photons(target_rel_err: float) -> int:
+    """The photon budget per run when none is given: ``100 / target^2``, at least 10^6."""
+    return max(int(100.0 / check_target(target_rel_err) ** 2), 1_000_000)
+
+
+def check_budget(target_rel_err: Any, max_photons: int | None) -> tuple[float, int]:
+    """The checked target and the photon budget (:func:`default_max_photons` when None)."""
+    target = check_target(target_rel_err)
+    return target, default_max_photons(target) if max_photons is None else max_photons
+
+
+@dataclass
+class Run:
+    """Sums of an accuracy-controlled run: scalars, bins, photons used, kernel seconds."""
+
+    scal: np.ndarray
+    bins: np.ndarray
+    photons: int
+    seconds: float
+
+
+def run_controlled(inp: K.KernelInputs, estimate: Callable[[np.ndarray, int], tuple[np.ndarray, np.ndarray]],
+                   target_rel_err: float, max_photons: int, seed: int, threads: int | None,
+                   min_photons: int = FIRST_ROUND, progress: Any = None) -> Run:
+    """Run batches until ``estimate(bins, photons)`` -> (value, u) reaches the target :func:`relative_error`.
+
+    ``target_rel_err`` must be > 0 (a target of 1e-12 with ``max_photons`` = N walks exactly the
+    batches of N photons: how a run is repeated with common random numbers).
+    """
+    if not target_rel_err > 0:
+        raise ParameterError(f"target_rel_err must be > 0, got {target_rel_err!r}")
+    scal = np.zeros(T.N_SCALARS)
+    bins = None
+    photons = 0
+    seconds = 0.0
+    want = min(min_photons, max_photons)
+    while True:
+        want = int(math.ceil(want / BATCH) * BATCH)
+        s, b, sec = execute(inp, want, seed, threads, BATCH, first_batch=photons // BATCH)
+        scal += s
+        bins = b if bins is None else bins + b
+        photons += want
+        seconds += sec
+        value, u = estimate(bins, photons)
+        rel = relative_error(value, u)
+        if progress is not None:
+            progress(photons, rel)
+        if rel <= target_rel_err or photons >= max_photons:
+            break
+        need = photons * (rel / target_rel_err) ** 2 * 1.1
+        want = int(min(max(need - photons, photons * 0.25), max_photons - photons, photons * 8))
+        if want <= 0:
+            break
+    return Run(scal, bins, photons, seconds)
+
+
+def mean_and_error(bins: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean per photon and its standard error from ``(sum, sum of squares)`` rows."""
+    mean = bins[:, 0] / n
+    u = np.sqrt(np.maximum(bins[:, 1] / n - mean * mean, 0.0) / max(n - 1, 1))
+    return mean, u

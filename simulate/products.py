@@ -1,0 +1,149 @@
+"""The fabric models as a registry: name -> a function of (config, fiber, geometries, wavelengths, settings).
+
+Every model returns the same typed result, :class:`FabricEstimate` (``beta``, ``u_beta``, ``n``
+as ``[G, L]``, photons, the run's ``info``, seconds and the fields it adds to the dataset's
+``model`` metadata), so the virtual goniophotometer (:func:`simulate.virtual.fabric_dataset`)
+assembles a dataset from any of them, and ``auto`` mixes them per geometry. A new model is one
+function decorated with :func:`register`; ``simulate fabric --method`` offers every registered
+name (:data:`MODELS`) plus ``auto``.
+
+- ``summation``: the fiber BRDF summed over warp and weft (:mod:`simulate.fabric.summation`) at
+  the unique fiber-frame pairs of the geometries (one :func:`simulate.fiber.volume_brdf` call);
+- ``classic``: Cook-Torrance over the fiber's normal-incidence albedo (:mod:`simulate.fabric.classic`);
+- ``mc``: the woven micro-element's Monte Carlo (:mod:`simulate.woven`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from simulate import fabric as fab
+from simulate.config import SimulationConfig, weave_from_config
+from simulate.provenance import jsonable
+
+__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "register", "evaluate"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Geometries:
+    """``G`` geometries of the fabric frame: incidence and observation angles in degrees."""
+
+    theta_i: np.ndarray
+    phi_i: np.ndarray
+    theta_o: np.ndarray
+    phi_o: np.ndarray
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Accuracy and resources of a run (``target``: :func:`simulate.montecarlo.accuracy.relative_error`)."""
+
+    target: float
+    seed: int
+    threads: Any = None
+    max_photons: Any = None
+    progress: bool = False
+    max_seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class FabricEstimate:
+    """A fabric model at ``G`` geometries and ``L`` wavelengths."""
+
+    beta: np.ndarray
+    u_beta: np.ndarray
+    n: np.ndarray
+    photons: int | None
+    info: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    model: dict = field(default_factory=dict)
+
+
+Model = Callable[[SimulationConfig, Any, Geometries, np.ndarray, RunSettings], FabricEstimate]
+_REGISTRY: dict[str, Model] = {}
+
+
+def register(name: str) -> Callable[[Model], Model]:
+    """Register a fabric model under ``name`` (a ``simulate fabric --method`` value)."""
+    def add(fn: Model) -> Model:
+        _REGISTRY[name] = fn
+        return fn
+    return add
+
+
+def evaluate(method: str, config: SimulationConfig, fiber: Any, geometries: Geometries, wavelengths: np.ndarray,
+             settings: RunSettings) -> FabricEstimate:
+    """The registered model ``method`` at ``geometries``."""
+    if method not in _REGISTRY:
+        raise ValueError(f"fabric model must be one of {', '.join(_REGISTRY)}, got {method!r}")
+    return _REGISTRY[method](config, fiber, geometries, np.asarray(wavelengths, float), settings)
+
+
+@register("summation")
+def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+               s: RunSettings) -> FabricEstimate:
+    from simulate import fiber as fiber_mod
+
+    pairs = fab.FiberPairs.from_angles(g.theta_i, g.phi_i, g.theta_o, g.phi_o)
+    log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
+             g.theta_i.size, pairs.n_unique, wavelengths.size)
+    est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wavelengths, method=config.method,
+                                target_rel_err=s.target, max_photons=s.max_photons, seed=s.seed,
+                                threads=s.threads, progress=s.progress)
+    r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs.w_in, pairs.w_out), float)
+    R_B = np.asarray(est.R, float) + r_surf[:, None]
+    beta, u_beta = fab.summation_from_table(pairs, R_B, est.u_R)
+    n = np.full(beta.shape, max(int(est.photons), 1))
+    return FabricEstimate(beta, u_beta, n, int(est.photons), jsonable(dict(est.info)), float(est.seconds),
+                          {"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
+
+
+@register("classic")
+def _classic(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+             s: RunSettings) -> FabricEstimate:
+    from simulate import fiber as fiber_mod
+
+    started = time.perf_counter()
+    w_i = fab.directions_deg(g.theta_i, g.phi_i)
+    w_o = fab.directions_deg(g.theta_o, g.phi_o)
+    rho, u_rho = fiber_mod.normal_albedo(fiber, wavelengths, target_rel_err=s.target, seed=s.seed, threads=s.threads)
+    rho = np.asarray(rho, float)
+    beta = fab.classic_beta(rho, w_i, w_o, config.rms_slope, config.n_host)
+    u_beta = np.broadcast_to(np.asarray(u_rho, float)[None, :], beta.shape).copy()
+    n = np.ones(beta.shape, dtype=np.int64)
+    return FabricEstimate(beta, u_beta, n, None, {}, time.perf_counter() - started,
+                          {"rho_d": rho.tolist(), "u_rho_d": np.asarray(u_rho, float).tolist()})
+
+
+@register("mc")
+def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+              s: RunSettings) -> FabricEstimate:
+    from simulate import woven
+    from simulate.fabric.mesh import mesh as weave_mesh
+
+    w_i = fab.directions_deg(g.theta_i, g.phi_i)
+    w_o = fab.directions_deg(g.theta_o, g.phi_o)
+    wv = weave_from_config(config)
+    mesh = weave_mesh(wv)
+    beta, u_beta, mc_info = woven.fabric_beta(
+        mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
+        seed=s.seed, threads=s.threads or (os.cpu_count() or 1), progress=s.progress, max_seconds=s.max_seconds)
+    n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
+    extra = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
+                       "height_um": wv.height_um, "crimp": wv.crimp},
+             "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
+             "estimator": "next-event towards each detector direction"}
+    return FabricEstimate(beta, u_beta, n, int(mc_info["table"]["photons"]), jsonable(mc_info),
+                          float(mc_info["table"]["seconds"]), extra)
+
+
+#: The registered fabric models, in registration order.
+MODELS: tuple[str, ...] = tuple(_REGISTRY)

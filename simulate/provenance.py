@@ -1,0 +1,49 @@
+"""Provenance of simulated results: software versions and JSON-safe metadata (a leaf: numpy only).
+
+Every file ``simulate`` writes (datasets' ``meta.json``, fiber tables, fit and sweep outputs)
+records the versions it ran with and its parameters through these two functions.
+"""
+
+from __future__ import annotations
+
+import platform
+from typing import Any
+
+import numpy as np
+
+__all__ = ["software_versions", "jsonable"]
+
+
+def software_versions() -> dict:
+    """Versions of the packages a simulation result depends on."""
+    import numba
+    import scipy
+
+    import gonio
+
+    out = {"fabric-optics": gonio.__version__, "python": platform.python_version(),
+           "numpy": np.__version__, "scipy": scipy.__version__, "numba": numba.__version__}
+    try:
+        import miepython
+
+        out["miepython"] = getattr(miepython, "__version__", "unknown")
+    except ImportError:  # pragma: no cover - a declared dependency
+        pass
+    return out
+
+
+def jsonable(obj: Any) -> Any:
+    """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None, others to str."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return jsonable(obj.item())
+    if isinstance(obj, float):
+        return obj if np.isfinite(obj) else None
+    if obj is None or isinstance(obj, (str, int, bool)):
+        return obj
+    return str(obj)

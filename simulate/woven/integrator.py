@@ -1,0 +1,375 @@
+"""The integrator of the woven-fabric tracer: wavefronts of rays through the micro-element (package docstring).
+
+:func:`trace` follows a beam from one incidence through the tiled micro-element
+(:mod:`simulate.woven.scene`), shading every hit (:mod:`simulate.woven.shading`), scoring
+next-event estimates towards every detector, escaping-ray bins and the reflected/transmitted
+energy, in fixed rounds of chunks until the target relative error
+(:func:`simulate.montecarlo.accuracy.relative_error`), the ray budget or the time budget.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from simulate.montecarlo.accuracy import check_target, relative_error
+from simulate.optics import microfacet
+from simulate.woven.materials import K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind
+from simulate.woven.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
+from simulate.woven.shading import ShadeInputs, new_outputs, shade
+
+__all__ = ["STOP_REASONS", "MCResult", "trace"]
+
+log = logging.getLogger(__name__)
+
+STOP_REASONS = ("target", "max_rays", "max_seconds")
+_CHUNK = 2048
+_ROUND = 4           # chunks per accuracy check (fixed, so results do not depend on the threads)
+_MAX_BOUNCES = 200
+_ROULETTE_BELOW = 0.01
+_ROULETTE_SURVIVE = 0.1
+
+
+@dataclass
+class MCResult:
+    """Fabric Monte Carlo for one incidence: next-event ``beta`` per detector and wavelength.
+
+    ``beta``, ``u_beta``: ``[D, L]``. ``reflected``, ``transmitted``: energy fractions ``[L]``
+    (and their standard errors). ``bins``, ``u_bins``: escaping-ray ``f`` on the uniform
+    ``(cos theta, phi)`` grid, ``[n_mu, n_phi, L]``, ``phi`` from -pi. ``stop``: ``"target" | "max_rays" | "max_seconds"``.
+    """
+
+    beta: np.ndarray
+    u_beta: np.ndarray
+    reflected: np.ndarray
+    u_reflected: np.ndarray
+    transmitted: np.ndarray
+    u_transmitted: np.ndarray
+    bins: np.ndarray
+    u_bins: np.ndarray
+    rays: int
+    seconds: float
+    rel_err: float
+    stop: str
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class _Sums:
+    nee: np.ndarray
+    nee2: np.ndarray
+    refl: np.ndarray
+    refl2: np.ndarray
+    trans: np.ndarray
+    trans2: np.ndarray
+    energy2: np.ndarray
+    bins: np.ndarray
+    bins2: np.ndarray
+    rays: int = 0
+    lost: int = 0
+    killed: int = 0
+    embree_rays: int = 0
+    hits: int = 0
+    albedo_sum: float = 0.0
+    albedo_over_one: int = 0
+
+    def add(self, o: "_Sums") -> None:
+        for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins", "bins2"):
+            getattr(self, name)[...] += getattr(o, name)
+        self.rays += o.rays
+        self.lost += o.lost
+        self.killed += o.killed
+        self.embree_rays += o.embree_rays
+        self.hits += o.hits
+        self.albedo_sum += o.albedo_sum
+        self.albedo_over_one += o.albedo_over_one
+
+
+def _yarn_radius(mesh: Any) -> float:
+    """``sqrt(a b)`` of the first yarn's cross-section (semi-axes from its first ring of vertices)."""
+    ring = np.asarray(mesh.vertices)[int(mesh.vertex_base[0]):int(mesh.vertex_base[0]) + int(mesh.sides) + 1]
+    axis = 1 if abs(float(np.asarray(mesh.tangents)[int(mesh.vertex_base[0]), 0])) >= 0.5 else 0
+    a = 0.5 * float(np.ptp(ring[:, axis]))
+    b = 0.5 * float(np.ptp(ring[:, 2]))
+    return math.sqrt(max(a * b, 1e-12))
+
+
+class _Setup:
+    """Everything the chunks share (scene, mesh arrays, material arrays)."""
+
+    def __init__(self, mesh: Any, material: Any, n_wl: int, bins: tuple[int, int]):
+        self.mesh = mesh
+        self.scene = PeriodicScene(mesh.vertices, mesh.faces, mesh.Lx, mesh.Ly)
+        self.n_wl = n_wl
+        self.bins = bins
+        f64 = np.float64
+        # the axis each yarn runs along (0: x, a warp; 1: y, a weft), from its first tangent
+        first = np.asarray(mesh.vertex_base, np.int64)
+        tan0 = np.asarray(mesh.tangents)[first]
+        self.run_axis = np.where(np.abs(tan0[:, 0]) >= np.abs(tan0[:, 1]), 0, 1).astype(np.int64)
+        self.kind = material_kind(material)
+        if isinstance(material, Lambert):
+            self.rho = np.broadcast_to(np.asarray(material.rho, f64), (n_wl,)).copy()
+            self.m = 0.0
+            self.n_host = 1.0
+            self.albedo = np.zeros(2)
+            z = np.zeros((1, 1, 1, n_wl))
+            self.T, self.cdf, self.cell_sum = z, np.ones((1, 1, 1)), np.zeros((1, 1, n_wl))
+            self.c_bar, self.tau, self.nodes = np.ones((1, 1)), np.ones((1, 1)), np.zeros(1)
+            self.off_tot, self.off_bar = np.zeros((1, 1, 1, n_wl)), np.zeros((1, 1, 1))
+            self.dpsi, self.grid, self.v_edges = 1.0, (1, 1, 1, 1), np.zeros(2)
+        else:
+            tab = material.table
+            self.rho = np.zeros(n_wl)
+            self.m = float(material.roughness)
+            self.n_host = float(material.n_host)
+            if self.m > 0.0:
+                cos = np.linspace(0.0, 1.0, 65)
+                with warnings.catch_warnings():   # the grazing end of the table is known to be rough
+                    warnings.simplefilter("ignore")
+                    self.albedo = np.asarray(microfacet.directional_albedo(np.arccos(cos), self.m, self.n_host), f64)
+            else:
+                self.albedo = np.zeros(2)
+            self.T = np.ascontiguousarray(tab.T)
+            tbar = tab.T.mean(axis=3)
+            self.cdf = np.ascontiguousarray(np.cumsum(tbar, axis=2))
+            self.cell_sum = np.ascontiguousarray(tab.T.sum(axis=2))
+            self.c_bar = np.ascontiguousarray(tab.c_bar)
+            self.tau = np.ascontiguousarray(tab.tau)
+            per_offset = tab.T.reshape(tab.T.shape[0], tab.T.shape[1], tab.n_psi, -1, n_wl).sum(axis=3)
+            self.off_tot = np.ascontiguousarray(per_offset)
+            self.off_bar = np.ascontiguousarray(per_offset.mean(axis=3))
+            self.nodes = np.asarray(tab.w_t_nodes, f64)
+            self.dpsi = float(tab.dpsi)
+            self.grid = (tab.n_psi, tab.n_v, tab.n_mu, tab.n_phi)
+            # v offsets scaled from the fiber to the yarn (similar cylinders, r_yarn = sqrt(a b))
+            r_yarn = _yarn_radius(mesh)
+            v_max = tab.v_max_R * r_yarn
+            self.v_edges = np.linspace(-v_max, v_max, tab.n_v + 1)
+
+        me = mesh
+        n_psi, n_v, n_mu, n_phi = self.grid
+        self.inputs = ShadeInputs(
+            me.vertices, me.faces, me.normals, me.tangents, me.vertex_s, me.vertex_phi, me.face_yarn,
+            me.vertex_base, me.n_s, me.yarn_length, int(me.sides), self.run_axis,
+            self.kind, self.rho, self.m, self.n_host, self.albedo,
+            self.T, self.cdf, self.cell_sum, self.c_bar, self.tau, self.nodes, self.dpsi, n_psi, n_v, n_mu, n_phi,
+            self.v_edges, self.off_tot, self.off_bar, np.zeros((0, 3)))
+
+    def shade(self, seed, prim, u, v, pos, dirs, weight, detectors):
+        """:func:`simulate.woven.shading.shade` of the hit rays; returns its outputs as a tuple."""
+        out = new_outputs(prim.size, detectors.shape[0], self.n_wl)
+        shade(seed, prim, u, v, pos, dirs, weight, self.inputs._replace(detectors=detectors), out)
+        return out
+
+
+def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...]) -> _Sums:
+    """Trace ``n`` rays of the beam from ``w_in`` through the micro-element (one wavefront)."""
+    rng = np.random.default_rng(list(seed))
+    L = setup.n_wl
+    D = detectors.shape[0]
+    scene = setup.scene
+    stats = {"queries": 0}
+    n_mu, n_phi = setup.bins
+    sums = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
+                 np.zeros(L), np.zeros((n_mu, n_phi, L)), np.zeros((n_mu, n_phi, L)), rays=n)
+    origins = np.column_stack([rng.uniform(0, setup.mesh.Lx, n), rng.uniform(0, setup.mesh.Ly, n),
+                               np.full(n, scene.top)])
+    dirs = np.broadcast_to(-np.asarray(w_in, float), (n, 3)).copy()
+    weight = np.ones((n, L))
+    ray = np.arange(n)
+    acc = np.zeros((n, D, L))
+    refl = np.zeros((n, L))
+    trans = np.zeros((n, L))
+    for bounce in range(_MAX_BOUNCES):
+        if ray.size == 0:
+            break
+        hits = scene.intersect(origins, dirs, stats)
+        up = hits.prim == ESCAPED_UP
+        if np.any(up):
+            refl[ray[up]] += weight[up]
+            d = dirs[up]
+            imu = np.minimum((d[:, 2] * n_mu).astype(int), n_mu - 1)
+            iph = np.minimum(((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_phi).astype(int), n_phi - 1)
+            np.add.at(sums.bins, (imu, iph), weight[up])
+            np.add.at(sums.bins2, (imu, iph), weight[up] ** 2)   # a ray escapes once: its own square
+        down = hits.prim == ESCAPED_DOWN
+        if np.any(down):
+            trans[ray[down]] += weight[down]
+        sums.lost += int(np.count_nonzero(hits.prim == LOST))
+        h = hits.prim >= 0
+        if not np.any(h):
+            ray = ray[:0]
+            break
+        sub = int(rng.integers(0, 2**62))
+        o, d, w, nee_o, nee_c, need, alb = setup.shade(sub, hits.prim[h].astype(np.int64), hits.u[h], hits.v[h],
+                                                  hits.position[h], dirs[h], weight[h], detectors)
+        hit_ray = ray[h]
+        if setup.kind == K_FIBER_BRDF:
+            sums.hits += int(alb.size)
+            sums.albedo_sum += float(alb.sum())
+            sums.albedo_over_one += int(np.count_nonzero(alb > 1.0))
+        idx_i, idx_e, idx_d = np.nonzero(need)
+        if idx_i.size:
+            vis = scene.visible(nee_o[idx_i, idx_e], detectors[idx_d], stats)
+            if np.any(vis):
+                np.add.at(acc, (hit_ray[idx_i[vis]], idx_d[vis]), nee_c[idx_i[vis], idx_e[vis], idx_d[vis]])
+        # Russian roulette on the largest spectral weight
+        wmax = w.max(axis=1)
+        low = (wmax < _ROULETTE_BELOW) & (wmax > 0)
+        if np.any(low):
+            survive = rng.random(int(low.sum())) < _ROULETTE_SURVIVE
+            wl = w[low]
+            wl[survive] /= _ROULETTE_SURVIVE
+            wl[~survive] = 0.0
+            w[low] = wl
+        alive = w.max(axis=1) > 0
+        origins, dirs, weight, ray = o[alive], d[alive], w[alive], hit_ray[alive]
+    sums.killed += int(ray.size)
+    tot = acc  # [n, D, L] per-ray totals
+    sums.nee += tot.sum(axis=0)
+    sums.nee2 += np.einsum("ndl,ndl->dl", tot, tot)
+    sums.refl += refl.sum(axis=0)
+    sums.refl2 += (refl ** 2).sum(axis=0)
+    sums.trans += trans.sum(axis=0)
+    sums.trans2 += (trans ** 2).sum(axis=0)
+    sums.energy2 += ((refl + trans) ** 2).sum(axis=0)
+    sums.embree_rays = stats["queries"]
+    return sums
+
+
+def _mean_se(s: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    mean = s / n
+    var = np.maximum(s2 / n - mean ** 2, 0.0) / max(n - 1, 1)
+    return mean, np.sqrt(var)
+
+
+def _rel_err(value: np.ndarray, u: np.ndarray) -> float:
+    """:func:`simulate.montecarlo.accuracy.relative_error`, with a warning when no light reached any detector."""
+    if float(np.abs(value).max(initial=0.0)) == 0.0:
+        # nothing reached any detector (e.g. all of them below a black weave's horizon): the
+        # estimate 0 has no spread; stopping beats tracing for ever
+        log.warning("fabric MC: no light reached any detector direction")
+        return 0.0
+    return relative_error(value, u)
+
+
+def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: Any, detectors: Any, n_wavelengths: int | None = None,
+          *, target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
+          threads: int = 1, progress: bool = False, bins: tuple[int, int] = (9, 12),
+          chunk: int = _CHUNK) -> MCResult:
+    """Trace the beam from ``w_in`` through the woven micro-element; next-event ``beta`` at ``detectors``.
+
+    Parameters
+    ----------
+    mesh : simulate.fabric.mesh.WeaveMesh
+        The micro-element (or :func:`flat_mesh`).
+    material : Lambert, FiberSurface or FiberBRDFAtHit
+    w_in : (3,) array
+        Unit direction towards the source, fabric frame (``z > 0``).
+    detectors : (D, 3) array
+        Unit detector directions (``z > 0``).
+    n_wavelengths : int, optional
+        Spectral size (default: the material's table, or 1 for a scalar Lambert albedo).
+    target_rel_err : float
+        Stop when the RMS relative standard error (module docstring) is at most this.
+    max_rays, max_seconds : int, float
+        Budgets (0 = none); the result's ``stop`` says which ended the run.
+    seed : int
+        Chunk ``c`` uses the stream ``(seed, c)``: results do not depend on ``threads``.
+    threads : int
+        Chunks traced concurrently (Embree and the compiled shading release the GIL).
+    chunk : int
+        Rays per chunk (a wavefront); the error is checked after every 4 chunks.
+    """
+    target_rel_err = check_target(target_rel_err)
+    w_in = np.asarray(w_in, float).reshape(3)
+    det = np.ascontiguousarray(np.atleast_2d(np.asarray(detectors, float)))
+    # 90 deg exactly (cos 90 deg is 6e-17 in floating point) is an error, not a ray that wraps for ever
+    if w_in[2] <= 1e-12 or np.any(det[:, 2] <= 1e-12):
+        raise ValueError("trace: w_in and the detectors must point above the fabric (z > 0)")
+    if min(w_in[2], float(det[:, 2].min())) < math.cos(math.radians(85.0)):
+        from simulate.optics.microfacet import OpticsDomainWarning
+
+        warnings.warn("fabric MC: directions more than 85 deg from the normal: the next-event radiance goes "
+                      "as 1/cos(theta_o) and few rays reach the fabric at grazing incidence; the relative "
+                      "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=2)
+    if n_wavelengths is None:
+        n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
+                         else int(np.size(material.rho)))
+    setup = _Setup(mesh, material, int(n_wavelengths), bins)
+    L = setup.n_wl
+    D = det.shape[0]
+    total = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
+                  np.zeros(L), np.zeros((bins[0], bins[1], L)), np.zeros((bins[0], bins[1], L)), rays=0)
+    started = time.perf_counter()
+    c = 0
+    stop = "target"
+    rel = float("inf")
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=None, unit="ray", desc="fabric MC", leave=False)
+    pool = ThreadPoolExecutor(max_workers=max(1, int(threads))) if threads and threads > 1 else None
+    try:
+        while True:
+            jobs = [(seed, c + r) for r in range(_ROUND)]
+            size = int(chunk)
+            if max_rays:   # the last round is cut so the budget is kept exactly
+                size = max(1, min(size, (int(max_rays) - total.rays) // _ROUND))
+            if pool is None:
+                parts = [_chunk(setup, w_in, det, size, s) for s in jobs]
+            else:
+                parts = list(pool.map(lambda s: _chunk(setup, w_in, det, size, s), jobs))
+            for p in parts:     # in chunk order: the sums do not depend on the threads
+                total.add(p)
+            c += _ROUND
+            if total.lost > 0.5 * total.rays:
+                raise ValueError(f"trace: {total.lost} of {total.rays} rays never reached the fabric (they run "
+                                 "parallel to it through the gaps); the incidence is too grazing for this weave")
+            mean, u = _mean_se(total.nee, total.nee2, total.rays)
+            rel = _rel_err(mean, u)
+            if bar is not None:
+                bar.update(_ROUND * size)
+                bar.set_postfix_str(f"rel. err {rel:.3%} (target {target_rel_err:.2%})")
+            if rel <= target_rel_err:
+                stop = "target"
+                break
+            if max_rays and total.rays >= max_rays:
+                stop = "max_rays"
+                break
+            if max_seconds and time.perf_counter() - started >= max_seconds:
+                stop = "max_seconds"
+                break
+    finally:
+        if pool is not None:
+            pool.shutdown()
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - started
+    n = total.rays
+    mean, u = _mean_se(total.nee, total.nee2, n)
+    cos_o = det[:, 2][:, None]
+    refl, u_refl = _mean_se(total.refl, total.refl2, n)
+    trans, u_trans = _mean_se(total.trans, total.trans2, n)
+    _, u_energy = _mean_se(total.refl + total.trans, total.energy2, n)
+    mu_edges = np.linspace(0, 1, bins[0] + 1)
+    omega = 0.5 * np.diff(mu_edges ** 2)[:, None] * (2 * np.pi / bins[1])
+    f_bins, u_bins = _mean_se(total.bins, total.bins2, n)
+    f_bins = f_bins / omega[:, :, None]
+    u_bins = u_bins / omega[:, :, None]
+    info = {"u_reflected_plus_transmitted": u_energy.tolist(), "lost_rays": total.lost, "killed_at_max_bounces": total.killed, "embree_rays": total.embree_rays,
+            "rays_per_second": total.embree_rays / seconds if seconds > 0 else None, "chunk": int(chunk)}
+    if setup.kind == K_FIBER_BRDF:
+        info["local_albedo"] = {"hits": total.hits, "mean_max_over_wavelengths": total.albedo_sum / max(total.hits, 1),
+                                "fraction_above_one": total.albedo_over_one / max(total.hits, 1)}
+    log.info("fabric MC: %d rays, %.1f s, rel. err %.3g (%s)", n, seconds, rel, stop)
+    return MCResult(np.pi * mean / cos_o, np.pi * u / cos_o, refl, u_refl, trans, u_trans, f_bins, u_bins, n,
+                    seconds, rel, stop, info)

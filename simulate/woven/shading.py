@@ -1,0 +1,522 @@
+"""Compiled shading of the woven-fabric tracer: what a ray does at a yarn hit (package docstring).
+
+Over 500 lines for a reason: one numba kernel (:func:`shade`) and the small compiled helpers it
+inlines, which numba caches together; split across modules they would cache and invalidate apart.
+
+:func:`shade` scatters every hit ray of a wavefront once and prepares its next-event
+contributions. Its inputs are packed as the Monte Carlo kernel packs its own
+(:class:`simulate.montecarlo.kernel.KernelInputs`): :class:`ShadeInputs` (the mesh, the
+material and the yarn table: fixed for a run) and :class:`ShadeOutputs` (per wavefront), both
+NamedTuples of arrays and scalars that numba passes as one argument. The surface term is
+:mod:`simulate.optics.microfacet`'s compiled Cook-Torrance (one implementation for the models
+and the tracers).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from simulate.optics.fresnel import fresnel_unpolarized
+from simulate.optics.microfacet import cook_torrance_cos_local, unit3
+from simulate.woven.materials import K_FIBER_BRDF, K_LAMBERT
+from simulate.woven.scene import EPS_UM
+
+__all__ = ["ShadeInputs", "ShadeOutputs", "shade", "new_outputs"]
+
+
+class ShadeInputs(NamedTuple):
+    """What every wavefront of a run shares: mesh arrays, material, yarn table, detectors."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    tangents: np.ndarray
+    vertex_s: np.ndarray
+    vertex_phi: np.ndarray
+    face_yarn: np.ndarray
+    vertex_base: np.ndarray
+    n_s: np.ndarray
+    yarn_length: np.ndarray
+    sides: int
+    run_axis: np.ndarray
+    kind: int
+    rho: np.ndarray
+    m: float
+    n_host: float
+    albedo_tab: np.ndarray
+    T: np.ndarray
+    cdf: np.ndarray
+    cell_sum: np.ndarray
+    c_bar: np.ndarray
+    tau: np.ndarray
+    nodes: np.ndarray
+    dpsi: float
+    n_psi: int
+    n_v: int
+    n_mu: int
+    n_phi: int
+    v_edges: np.ndarray
+    off_tot: np.ndarray
+    off_bar: np.ndarray
+    detectors: np.ndarray
+
+
+class ShadeOutputs(NamedTuple):
+    """Per hit ray: the continuing ray (origin, direction, spectral weight; a zero row is dead),
+    next-event origins, contributions and flags (event 0: surface, 1: volume exit), local albedo."""
+
+    out_o: np.ndarray
+    out_d: np.ndarray
+    out_w: np.ndarray
+    nee_o: np.ndarray
+    nee_c: np.ndarray
+    nee_need: np.ndarray
+    hit_albedo: np.ndarray
+
+
+def new_outputs(n: int, n_detectors: int, n_wavelengths: int) -> ShadeOutputs:
+    """Output arrays for ``n`` hit rays."""
+    return ShadeOutputs(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n_wavelengths)), np.zeros((n, 2, 3)),
+                        np.zeros((n, 2, n_detectors, n_wavelengths)), np.zeros((n, 2, n_detectors), dtype=np.bool_),
+                        np.zeros(n))
+
+
+@numba.njit(cache=True)
+def _interp(a, x):
+    """Linear interpolation of a table ``a`` on a uniform grid over [0, 1] (clamped)."""
+    n = a.shape[0]
+    t = min(max(x, 0.0), 1.0) * (n - 1)
+    i = min(int(t), n - 2)
+    f = t - i
+    return a[i] * (1.0 - f) + a[i + 1] * f
+
+
+@numba.njit(cache=True)
+def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yarn_length, sides):
+    """Point, normal and tangent of the tube mesh at (s, phi): the mesh's own triangles."""
+    L = yarn_length[yarn]
+    ns = n_s[yarn]
+    s = s % L
+    phi = phi % (2.0 * math.pi)
+    xs = s / L * ns
+    xp = phi / (2.0 * math.pi) * sides
+    i_s = min(int(xs), ns - 1)
+    i_p = min(int(xp), sides - 1)
+    fs = xs - i_s
+    fp = xp - i_p
+    base = vertex_base[yarn]
+    v00 = base + i_s * (sides + 1) + i_p
+    v10 = v00 + (sides + 1)
+    v11 = v10 + 1
+    v01 = v00 + 1
+    if fs >= fp:
+        a, b, c = v00, v10, v11
+        wa, wb, wc = 1.0 - fs, fs - fp, fp
+    else:
+        a, b, c = v00, v11, v01
+        wa, wb, wc = 1.0 - fp, fs, fp - fs
+    p = np.empty(3)
+    n = np.empty(3)
+    t = np.empty(3)
+    for q in range(3):
+        p[q] = wa * vertices[a, q] + wb * vertices[b, q] + wc * vertices[c, q]
+        n[q] = wa * normals[a, q] + wb * normals[b, q] + wc * normals[c, q]
+        t[q] = wa * tangents[a, q] + wb * tangents[b, q] + wc * tangents[c, q]
+    return p, n, t
+
+
+@numba.njit(cache=True)
+def _frame(n0, n1, n2, t0, t1, t2):
+    """Orthonormal (t, b, n) from an interpolated normal and tangent; b = n x t."""
+    nx, ny, nz = unit3(n0, n1, n2)
+    d = t0 * nx + t1 * ny + t2 * nz
+    tx, ty, tz = unit3(t0 - d * nx, t1 - d * ny, t2 - d * nz)
+    bx = ny * tz - nz * ty
+    by = nz * tx - nx * tz
+    bz = nx * ty - ny * tx
+    return tx, ty, tz, bx, by, bz, nx, ny, nz
+
+
+@numba.njit(cache=True)
+def _pick(cdf, u):
+    """Index i with cdf[i-1] <= u < cdf[i] (cdf increasing, last = total)."""
+    lo = 0
+    hi = cdf.shape[0] - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cdf[mid] > u:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@numba.njit(cache=True)
+def _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl):
+    """Reflected local direction and weight factor of the surface branch (Beckmann sampling;
+    ``m = 0``: the specular Fresnel mirror)."""
+    if m > 0.0:
+        u1 = np.random.random()
+        u2 = np.random.random()
+        tan2 = -(m * m) * math.log(1.0 - u1)
+        ch = 1.0 / math.sqrt(1.0 + tan2)
+        sh = math.sqrt(tan2) * ch
+        ph = 2.0 * math.pi * u2
+        hx, hy, hz = sh * math.cos(ph), sh * math.sin(ph), ch
+        ih = lt * hx + lb * hy + ln * hz
+        ot, ob, on = 2.0 * ih * hx - lt, 2.0 * ih * hy - lb, 2.0 * ih * hz - ln
+        if on > 0.0 and ih > 0.0:
+            g = min(1.0, min(2.0 * ch * on / ih, 2.0 * ch * ln / ih))
+            return ot, ob, on, g * fresnel_unpolarized(ih, 1.0, n_host) * ih / (ln * ch) / p_refl
+        return ot, ob, on, 0.0
+    return -lt, -lb, ln, a_s / p_refl
+
+
+@numba.njit(cache=True)
+def _table_bin(wx, wy, wz, tx, ty, tz, bx, by, bz, mu, sx, sb, n_mu, n_phi):
+    """A detector's direction bin in the table's frame (mirrors applied; they are involutions)
+    and the bin's projected solid angle ``Omega_proj``."""
+    dphi = 2.0 * math.pi / n_phi
+    ph = math.atan2(wx * bx + wy * by + wz * bz, wx * tx + wy * ty + wz * tz)
+    if sx < 0.0:
+        ph = math.pi - ph
+    if sb < 0.0:
+        ph = -ph
+    ph = (ph + math.pi) % (2.0 * math.pi)
+    jm = min(int(mu * n_mu), n_mu - 1)
+    jp = min(int(ph / dphi), n_phi - 1)
+    return jm, jp, 0.5 * (((jm + 1.0) / n_mu) ** 2 - (jm / n_mu) ** 2) * dphi
+
+
+@numba.njit(cache=True)
+def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, tx, ty, tz, bx, by, bz, nx, ny, nz):
+    """A direction uniform in projected solid angle within a table cell's direction bin, mirrored
+    back into the local frame ``(t, b, n)``, written to ``out_d[i]``."""
+    iphi = cell % n_phi
+    imu = (cell // n_phi) % n_mu
+    mlo = imu / n_mu
+    mhi = (imu + 1.0) / n_mu
+    mu = math.sqrt(mlo * mlo + (mhi * mhi - mlo * mlo) * np.random.random())
+    ph = -math.pi + (iphi + np.random.random()) * 2.0 * math.pi / n_phi
+    if sb < 0.0:
+        ph = -ph
+    if sx < 0.0:
+        ph = math.pi - ph
+    st = math.sqrt(max(1.0 - mu * mu, 0.0))
+    ct, sp = st * math.cos(ph), st * math.sin(ph)
+    out_d[i, 0] = ct * tx + sp * bx + mu * nx
+    out_d[i, 1] = ct * ty + sp * by + mu * ny
+    out_d[i, 2] = ct * tz + sp * bz + mu * nz
+
+
+@numba.njit(cache=True)
+def _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl, tx, ty, tz, bx, by, bz, nx, ny, nz):
+    """The surface branch's continuation: sampled reflection, weight factor applied."""
+    ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
+    out_d[i, 0] = ot * tx + ob * bx + on * nx
+    out_d[i, 1] = ot * ty + ob * by + on * ny
+    out_d[i, 2] = ot * tz + ob * bz + on * nz
+    for k in range(weight.shape[1]):
+        out_w[i, k] = weight[i, k] * wgt
+
+
+@numba.njit(cache=True, nogil=True)
+def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
+    """Scatter every hit ray once and prepare its next-event contributions (compiled).
+
+    ``out_w`` rows of zeros are dead rays. ``nee_c[i, e, d, :]`` is the intensity per unit
+    incident power towards detector ``d`` of event ``e`` (0: surface, 1: volume exit) from
+    origin ``nee_o[i, e]``, to be multiplied by the visibility.
+    """
+    vertices, faces, normals, tangents = inp.vertices, inp.faces, inp.normals, inp.tangents
+    vertex_s, vertex_phi, face_yarn, vertex_base = inp.vertex_s, inp.vertex_phi, inp.face_yarn, inp.vertex_base
+    n_s, yarn_length, sides, run_axis = inp.n_s, inp.yarn_length, inp.sides, inp.run_axis
+    kind, rho, m, n_host, albedo_tab = inp.kind, inp.rho, inp.m, inp.n_host, inp.albedo_tab
+    T, cdf, cell_sum, c_bar, tau, nodes = inp.T, inp.cdf, inp.cell_sum, inp.c_bar, inp.tau, inp.nodes
+    dpsi, n_psi, n_v, n_mu, n_phi = inp.dpsi, inp.n_psi, inp.n_v, inp.n_mu, inp.n_phi
+    v_edges, off_tot, off_bar, detectors = inp.v_edges, inp.off_tot, inp.off_bar, inp.detectors
+    out_o, out_d, out_w, nee_o, nee_c, nee_need, hit_albedo = (out.out_o, out.out_d, out.out_w, out.nee_o,
+                                                              out.nee_c, out.nee_need, out.hit_albedo)
+    # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
+    # every call reproducible whatever thread runs it (no state is shared between calls)
+    np.random.seed(seed)
+    n = prim.shape[0]
+    L = weight.shape[1]
+    D = detectors.shape[0]
+    n_cells = n_psi * n_v * n_mu * n_phi
+    clampf = np.ones(L)
+    for i in range(n):
+        f = prim[i]
+        ia, ib, ic = faces[f, 0], faces[f, 1], faces[f, 2]
+        w0 = 1.0 - bu[i] - bv[i]
+        w1 = bu[i]
+        w2 = bv[i]
+        tx, ty, tz, bx, by, bz, nx, ny, nz = _frame(
+            w0 * normals[ia, 0] + w1 * normals[ib, 0] + w2 * normals[ic, 0],
+            w0 * normals[ia, 1] + w1 * normals[ib, 1] + w2 * normals[ic, 1],
+            w0 * normals[ia, 2] + w1 * normals[ib, 2] + w2 * normals[ic, 2],
+            w0 * tangents[ia, 0] + w1 * tangents[ib, 0] + w2 * tangents[ic, 0],
+            w0 * tangents[ia, 1] + w1 * tangents[ib, 1] + w2 * tangents[ic, 1],
+            w0 * tangents[ia, 2] + w1 * tangents[ib, 2] + w2 * tangents[ic, 2])
+        # geometric normal from the winding (outward)
+        e1x = vertices[ib, 0] - vertices[ia, 0]
+        e1y = vertices[ib, 1] - vertices[ia, 1]
+        e1z = vertices[ib, 2] - vertices[ia, 2]
+        e2x = vertices[ic, 0] - vertices[ia, 0]
+        e2y = vertices[ic, 1] - vertices[ia, 1]
+        e2z = vertices[ic, 2] - vertices[ia, 2]
+        gx, gy, gz = unit3(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x)
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
+        inside = dx * gx + dy * gy + dz * gz > 0.0
+        # incident direction (towards where the light came from)
+        ix, iy, iz = -dx, -dy, -dz
+        dn = ix * nx + iy * ny + iz * nz
+        if inside or dn <= 0.0:
+            # from inside another yarn (interpenetration), or shading-normal disagreement:
+            # mirror about the tangent plane so the incidence is above it
+            ix, iy, iz = ix - 2.0 * dn * nx, iy - 2.0 * dn * ny, iz - 2.0 * dn * nz
+        lt = ix * tx + iy * ty + iz * tz
+        lb = ix * bx + iy * by + iz * bz
+        ln = max(ix * nx + iy * ny + iz * nz, 1e-9)
+        for e in range(2):
+            for d in range(D):
+                nee_need[i, e, d] = False
+        out_o[i, 0] = px + EPS_UM * gx
+        out_o[i, 1] = py + EPS_UM * gy
+        out_o[i, 2] = pz + EPS_UM * gz
+        for q in range(3):
+            nee_o[i, 0, q] = out_o[i, q]
+        if kind == K_LAMBERT:
+            for d in range(D):
+                co = detectors[d, 0] * nx + detectors[d, 1] * ny + detectors[d, 2] * nz
+                if co > 0.0 and detectors[d, 0] * gx + detectors[d, 1] * gy + detectors[d, 2] * gz > 0.0:
+                    nee_need[i, 0, d] = True
+                    for k in range(L):
+                        nee_c[i, 0, d, k] = weight[i, k] * rho[k] / math.pi * co
+            # cosine-weighted continuation about the shading normal
+            u1 = np.random.random()
+            u2 = np.random.random()
+            r = math.sqrt(u1)
+            ph = 2.0 * math.pi * u2
+            cz = math.sqrt(max(1.0 - u1, 0.0))
+            ox = r * math.cos(ph) * tx + r * math.sin(ph) * bx + cz * nx
+            oy = r * math.cos(ph) * ty + r * math.sin(ph) * by + cz * ny
+            oz = r * math.cos(ph) * tz + r * math.sin(ph) * bz + cz * nz
+            out_d[i, 0], out_d[i, 1], out_d[i, 2] = ox, oy, oz
+            for k in range(L):
+                out_w[i, k] = weight[i, k] * rho[k]
+            continue
+        # ---------------- fiber material ----------------
+        # table row by stochastic linear interpolation in |w_t| and |a|
+        sx = 1.0 if lt >= 0.0 else -1.0
+        a = math.atan2(-lb, ln)
+        sb = 1.0 if a >= 0.0 else -1.0
+        at = abs(lt)
+        j = nodes.shape[0] - 1
+        for q in range(nodes.shape[0] - 1):
+            if at < nodes[q + 1]:
+                fr = (at - nodes[q]) / (nodes[q + 1] - nodes[q])
+                j = q + 1 if np.random.random() < fr else q
+                break
+        xk = abs(a) / dpsi
+        k0 = int(xk)
+        k_max = c_bar.shape[1] - 1
+        if k0 >= k_max:
+            kr = k_max
+        else:
+            kr = k0 + 1 if np.random.random() < xk - k0 else k0
+        total = cdf[j, kr, n_cells - 1]
+        cb = c_bar[j, kr]
+        wsum = 0.0
+        esum = 0.0
+        for k in range(L):
+            wsum += weight[i, k]
+            esum += weight[i, k] * cell_sum[j, kr, k]
+        # the row gives where and how the light comes out; the entry transmission is the exact
+        # smooth-interface 1 - F at this point (the row holds its cell-average tau), and none at
+        # all for light that is inside the yarn already (interpenetration)
+        tr = max(tau[j, kr], 1e-12)
+        entry = 1.0 / tr if inside else (1.0 - fresnel_unpolarized(ln, 1.0, n_host)) / tr
+        e_bar = entry * esum / wsum / cb if (wsum > 0.0 and cb > 0.0) else 0.0
+        h = n_psi // 2
+        s_bar = 0.0
+        if kind == K_FIBER_BRDF:
+            # the original approximation: the fiber BRDF of the cell at the hit point -- light
+            # entering every lit cell A = B - o (local azimuth a + o dpsi) and leaving here
+            e_bar = 0.0
+            a_max = 0.0
+            a_s0 = _interp(albedo_tab, ln) if m > 0.0 else fresnel_unpolarized(ln, 1.0, n_host)
+            for k in range(L):
+                acc = 0.0
+                for o in range(-h, n_psi - h):
+                    r = kr + o
+                    if r > k_max or r < -k_max:
+                        continue
+                    off = o % n_psi if r >= 0 else (-o) % n_psi
+                    acc += off_tot[j, abs(r), off, k]
+                alb = acc / ln
+                a_max = max(a_max, alb)
+                # energy clamp: where surface + volume would exceed 1, the volume term is scaled
+                # down to 1 - a_s (reported: the fraction of such hits and the unclamped albedo)
+                clampf[k] = min(1.0, max(1.0 - a_s0, 0.0) / alb) if alb > 0.0 else 1.0
+                e_bar += weight[i, k] * alb * clampf[k]
+            e_bar = e_bar / wsum if wsum > 0.0 else 0.0
+            for o in range(-h, n_psi - h):
+                r = kr + o
+                if r > k_max or r < -k_max:
+                    continue
+                off = o % n_psi if r >= 0 else (-o) % n_psi
+                s_bar += off_bar[j, abs(r), off]
+            hit_albedo[i] = a_max + a_s0
+        if m > 0.0:
+            a_s = _interp(albedo_tab, ln)
+        else:
+            a_s = fresnel_unpolarized(ln, 1.0, n_host)
+        if inside:
+            p_refl = 0.0
+        elif a_s + e_bar > 0.0:
+            p_refl = a_s / (a_s + e_bar)
+        else:
+            p_refl = 1.0
+        # next event, surface term
+        if a_s > 0.0 and m > 0.0:
+            for d in range(D):
+                wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
+                if wx * gx + wy * gy + wz * gz <= 0.0:
+                    continue
+                ot = wx * tx + wy * ty + wz * tz
+                ob = wx * bx + wy * by + wz * bz
+                on = wx * nx + wy * ny + wz * nz
+                val = cook_torrance_cos_local(lt, lb, ln, ot, ob, on, m, n_host)
+                if val > 0.0:
+                    nee_need[i, 0, d] = True
+                    for k in range(L):
+                        nee_c[i, 0, d, k] = weight[i, k] * val
+        if kind == K_FIBER_BRDF:
+            if inside:
+                p_refl = 0.0
+            if s_bar <= 0.0:
+                if np.random.random() < p_refl:
+                    _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
+                                 tx, ty, tz, bx, by, bz, nx, ny, nz)
+                else:
+                    for k in range(L):
+                        out_w[i, k] = 0.0
+                continue
+            # one entry cell o, drawn in proportion to what it sends here
+            u = np.random.random() * s_bar
+            acc = 0.0
+            r_sel = 0
+            off_sel = 0
+            for o in range(-h, n_psi - h):
+                r = kr + o
+                if r > k_max or r < -k_max:
+                    continue
+                off = o % n_psi if r >= 0 else (-o) % n_psi
+                acc += off_bar[j, abs(r), off]
+                r_sel = r
+                off_sel = off
+                if acc > u:
+                    break
+            rr = abs(r_sel)
+            sbe = sb if r_sel >= 0 else -sb
+            p_o = off_bar[j, rr, off_sel] / s_bar
+            seg = n_v * n_mu * n_phi
+            for q in range(3):
+                nee_o[i, 1, q] = nee_o[i, 0, q]
+            for d in range(D):
+                wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
+                mu = wx * nx + wy * ny + wz * nz
+                if mu <= 0.0 or wx * gx + wy * gy + wz * gz <= 0.0:
+                    continue
+                jm, jp, om = _table_bin(wx, wy, wz, tx, ty, tz, bx, by, bz, mu, sx, sbe, n_mu, n_phi)
+                scale = mu / (om * p_o * ln)
+                nee_need[i, 1, d] = True
+                for k in range(L):
+                    val = 0.0
+                    for iv in range(n_v):
+                        val += T[j, rr, ((off_sel * n_v + iv) * n_mu + jm) * n_phi + jp, k]
+                    nee_c[i, 1, d, k] = weight[i, k] * val * scale * clampf[k]
+            if np.random.random() < p_refl:
+                _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
+                             tx, ty, tz, bx, by, bz, nx, ny, nz)
+                continue
+            c_lo = cdf[j, rr, off_sel * seg - 1] if off_sel > 0 else 0.0
+            c_hi = cdf[j, rr, off_sel * seg + seg - 1]
+            cell = _pick(cdf[j, rr], c_lo + (c_hi - c_lo) * np.random.random())
+            t_cell = cdf[j, rr, cell] - (cdf[j, rr, cell - 1] if cell > 0 else 0.0)
+            _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sbe, tx, ty, tz, bx, by, bz, nx, ny, nz)
+            sc = s_bar / (ln * t_cell * (1.0 - p_refl)) if t_cell > 0.0 else 0.0
+            for k in range(L):
+                out_w[i, k] = weight[i, k] * T[j, rr, cell, k] * sc * clampf[k]
+            continue
+        # sample an exit (cell offset, v bin, direction bin) from the row
+        cell = -1
+        if total > 0.0 and cb > 0.0:
+            cell = _pick(cdf[j, kr], np.random.random() * total)
+        if cell >= 0:
+            iv = (cell // (n_phi * n_mu)) % n_v
+            io = cell // (n_phi * n_mu * n_v)
+            o_signed = io if io <= n_psi // 2 else io - n_psi
+            dps = sb * (o_signed + np.random.random() - 0.5) * dpsi
+            v_lo = v_edges[iv]
+            v_hi = v_edges[iv + 1]
+            vv = sx * (v_lo + (v_hi - v_lo) * np.random.random())
+            # move on the tube: psi grows towards -b; v along +t
+            yarn = face_yarn[f]
+            s0 = w0 * vertex_s[ia] + w1 * vertex_s[ib] + w2 * vertex_s[ic]
+            f0 = w0 * vertex_phi[ia] + w1 * vertex_phi[ib] + w2 * vertex_phi[ic]
+            # d P / d phi ~ n x t-ish: find the phi direction from the neighbouring ring point
+            q_p, q_n, q_t = _tube_point(s0, f0 + 1e-3, yarn, vertices, normals, tangents, vertex_base, n_s,
+                                        yarn_length, sides)
+            r_p, r_n, r_t = _tube_point(s0, f0, yarn, vertices, normals, tangents, vertex_base, n_s,
+                                        yarn_length, sides)
+            dpb = (q_p[0] - r_p[0]) * bx + (q_p[1] - r_p[1]) * by + (q_p[2] - r_p[2]) * bz
+            sgn = -1.0 if dpb > 0.0 else 1.0
+            t_run = tx if run_axis[yarn] == 0 else ty
+            s1 = s0 + vv * t_run
+            f1 = f0 + sgn * dps
+            e_p, e_n, e_t = _tube_point(s1, f1, yarn, vertices, normals, tangents, vertex_base, n_s,
+                                        yarn_length, sides)
+            etx, ety, etz, ebx, eby, ebz, enx, eny, enz = _frame(e_n[0], e_n[1], e_n[2], e_t[0], e_t[1], e_t[2])
+            for q in range(3):
+                nee_o[i, 1, q] = e_p[q]
+            nee_o[i, 1, 0] += EPS_UM * enx
+            nee_o[i, 1, 1] += EPS_UM * eny
+            nee_o[i, 1, 2] += EPS_UM * enz
+            # marginal probability of the exit cell (offset, v): sum over its direction bins
+            c_first = (io * n_v + iv) * n_mu * n_phi
+            c_last = c_first + n_mu * n_phi - 1
+            p_ov = cdf[j, kr, c_last] - (cdf[j, kr, c_first - 1] if c_first > 0 else 0.0)
+            p_ov /= total
+            for d in range(D):
+                wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
+                mu = wx * enx + wy * eny + wz * enz
+                if mu <= 0.0:
+                    continue
+                jm, jp, om = _table_bin(wx, wy, wz, etx, ety, etz, ebx, eby, ebz, mu, sx, sb, n_mu, n_phi)
+                c2 = c_first + jm * n_phi + jp
+                scale = entry * mu / (om * cb * p_ov)
+                nee_need[i, 1, d] = True
+                for k in range(L):
+                    nee_c[i, 1, d, k] = weight[i, k] * T[j, kr, c2, k] * scale
+        # continuation
+        if np.random.random() < p_refl:
+            _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
+                         tx, ty, tz, bx, by, bz, nx, ny, nz)
+        elif cell >= 0:
+            _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, etx, ety, etz, ebx, eby, ebz, enx, eny, enz)
+            for q in range(3):
+                out_o[i, q] = nee_o[i, 1, q]
+            p_c = (cdf[j, kr, cell] - (cdf[j, kr, cell - 1] if cell > 0 else 0.0)) / total
+            sc = entry / (cb * p_c * (1.0 - p_refl))
+            for k in range(L):
+                out_w[i, k] = weight[i, k] * T[j, kr, cell, k] * sc
+        else:
+            for k in range(L):
+                out_w[i, k] = 0.0

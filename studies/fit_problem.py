@@ -1,0 +1,370 @@
+"""The inverse problem of ``simulate fit``: free parameters, the model at the measured geometries, the objective.
+
+Decisions (objective, weights, Monte Carlo noise, common random numbers): :mod:`studies.fit`'s
+docstring. This module states the problem; :mod:`studies.fit` solves it and writes the outputs.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
+from simulate import fabric as fab
+from simulate import fiber as fib
+from simulate.config import SimulationConfig, parse_config
+from simulate.fiber.absorption import DEFAULT_NODES, AbsorptionTable, absorption_nodes, absorption_table
+from studies import paths
+from studies.paths import toml_dumps
+
+__all__ = ["GENERATOR", "FitError", "FreeParameter", "default_bounds", "parse_free", "FitProblem"]
+
+log = logging.getLogger(__name__)
+
+GENERATOR = "simulate fit"
+
+
+class FitError(ValueError):
+    """A fit that cannot start (bad parameter, bounds, measurement): one line, exit 2."""
+
+
+# ------------------------------------------------------------------------------------------
+# free parameters
+
+
+@dataclass(frozen=True)
+class FreeParameter:
+    """One free config field: its dotted path, kind and bounds.
+
+    ``kind``: ``"dye"`` (re-weighted from the absorption table), ``"surface"`` (analytic
+    Cook-Torrance term) or ``"walk"`` (changes the scattering: photons are walked again).
+    """
+
+    name: str
+    start: float
+    low: float
+    high: float
+    kind: str
+
+
+def _kind(path: str) -> str:
+    if path.startswith("fiber.dye"):
+        return "dye"
+    if path == "surface.rms_slope":
+        return "surface"
+    return "walk"
+
+
+def default_bounds(path: str, start: float) -> tuple[float, float]:
+    """Default bounds of a free parameter from its field and start value.
+
+    Volume fraction ``[start/5, min(5 start, 0.5)]``; radii and widths ``[start/4, 4 start]``;
+    RMS slope ``[0.02, 0.5]``; dye amplitudes (``*_per_um``) ``[0, max(4 start, 0.01)]``; band
+    centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
+    ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0).
+    """
+    leaf = path.rsplit(".", 1)[-1]
+    if leaf == "volume_fraction":
+        return start / 5.0, min(5.0 * start, 0.5)
+    if path == "surface.rms_slope":
+        return 0.02, 0.5  # Cook-Torrance's single-scattering domain (simulate.optics.microfacet warns above)
+    if leaf.endswith("_per_um") and path.startswith("fiber.dye"):
+        return 0.0, max(4.0 * start, 0.01)
+    if leaf in ("center_nm", "edge_nm"):
+        return start - 60.0, start + 60.0
+    if leaf == "sigma_g":
+        return 1.0, 3.0
+    return start / 4.0, 4.0 * start
+
+
+def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter]:
+    """Free parameters from ``NAME[=LOW:HIGH]`` items (comma-separated in each string).
+
+    Raises
+    ------
+    FitError
+        An unknown name (the config has no such numeric field), malformed or empty bounds, bounds
+        that exclude the start value, or a parameter named twice.
+    """
+    import tomllib
+
+    data = tomllib.loads(config.text)
+    out: list[FreeParameter] = []
+    for spec in ",".join(specs).split(","):
+        spec = spec.strip()
+        if not spec:
+            continue
+        name, _, bounds = spec.partition("=")
+        try:
+            names = paths.expand(name.strip(), data)
+            for path in names:
+                paths.split(path)
+        except paths.PathError as exc:
+            raise FitError(f"--free {exc}" if name.strip() in paths.ALIASES else f"--free: {exc}") from None
+        for path in names:
+            try:
+                start = paths.get(data, path)
+            except KeyError:
+                candidates = ", ".join(sorted(set(paths.numeric_leaves(data, "")) - {"seed"})[:12])
+                raise FitError(f"--free: unknown parameter {path!r}: the config {config.name} has no such "
+                               f"numeric field (fields: {candidates}, ...; aliases: volume_fraction, radius, "
+                               "rms_slope, dye, dye-peaks)") from None
+            if isinstance(start, bool) or not isinstance(start, (int, float)):
+                raise FitError(f"--free: {path!r} is not a number in the config (a table or text); "
+                               "free one numeric field")
+            if path.startswith(("method.", "wavelengths.", "weave.")) or path == "seed":
+                raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
+            start = float(start)
+            if bounds:
+                lo_text, sep, hi_text = bounds.partition(":")
+                try:
+                    low, high = float(lo_text), float(hi_text)
+                except ValueError:
+                    low = high = math.nan
+                if not sep or not (math.isfinite(low) and math.isfinite(high)) or not low < high:
+                    raise FitError(f"--free: {spec!r}: bounds must be LOW:HIGH with LOW < HIGH, got {bounds!r}")
+            else:
+                low, high = default_bounds(path, start)
+            if not low <= start <= high:
+                raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
+                               f"[{low:g}, {high:g}]; widen the bounds or change the config")
+            if any(p.name == path for p in out):
+                raise FitError(f"--free: {path} is named twice")
+            out.append(FreeParameter(path, start, float(low), float(high), _kind(path)))
+    if not out:
+        raise FitError("--free: no parameter to fit")
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# the problem: model evaluation and objective
+
+
+def _model_geometries(measured: Dataset) -> pd.DataFrame:
+    # exactly the measured geometries: compare then estimates the model's normal/normal value from
+    # the same neighbours as the measurement's, so the estimate's own bias cancels in k(lambda)
+    # (the model's exact normal value against an estimated measured one biased the fit)
+    g = measured.table[["theta_i", "phi_i", "theta_o", "phi_o"]].drop_duplicates()
+    return g.reset_index(drop=True)
+
+
+def _dye_ceiling(config: SimulationConfig, free: list[FreeParameter], wl: np.ndarray) -> float:
+    """Largest host absorption (1/um) any dye within the bounds can reach (the table's nu_max)."""
+    if config.dye is None:
+        return 1e-3
+    p = copy.deepcopy(config.dye.params)
+    doc = {"fiber": {"dye": p}}
+    for f in free:
+        if f.kind == "dye":
+            paths.set_value(doc, f.name, f.high if f.name.endswith("_per_um") else paths.get(doc, f.name))
+    if config.dye.curve == "gaussian-bands":
+        top = p["baseline_per_um"] + sum(b["peak_per_um"] for b in p["bands"])
+    elif config.dye.curve == "logistic-edge":
+        top = max(p["short_per_um"], p["long_per_um"])
+    else:
+        top = float(np.max(config.dye(wl)))
+    return max(1.05 * top, 1e-3)
+
+
+@dataclass
+class FitProblem:
+    """Everything an evaluation needs: measurement, config, model, free parameters, settings."""
+
+    config: SimulationConfig
+    measured: Dataset
+    free: list[FreeParameter]
+    method: str = "classic"
+    colour_weight: float = 1.0
+    target_rel_err: float = 0.03
+    seed: int | None = None
+    threads: int | None = None
+    wavelengths_nm: np.ndarray | None = None
+    nodes: int = DEFAULT_NODES
+    walks: int = 0
+    walk_seconds: float = 0.0
+    evaluations: int = 0
+    photons: dict | None = None
+    _tables: dict = field(default_factory=dict)
+    _doc: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        import tomllib
+
+        if self.method not in ("classic", "summation"):
+            raise FitError(f"--method must be classic or summation, got {self.method!r}")
+        if self.method == "summation" and self.config.method == "bssrdf":
+            raise FitError("the summation fit needs the nee or beam fiber route (method.method in the config)")
+        self._doc = tomllib.loads(self.config.text)
+        if self.seed is None:
+            self.seed = self.config.seed
+        if self.wavelengths_nm is None:
+            spectral = "channel" not in self.measured.table.columns
+            self.wavelengths_nm = (np.asarray(self.measured.wavelengths_nm, float) if spectral
+                                   else np.asarray(self.config.wavelengths_nm, float))
+        self.wavelengths_nm = np.asarray(self.wavelengths_nm, float)
+        self.geometries = _model_geometries(self.measured)
+        g = self.geometries
+        self.w_i = fab.directions_deg(g["theta_i"].to_numpy(), g["phi_i"].to_numpy())
+        self.w_o = fab.directions_deg(g["theta_o"].to_numpy(), g["phi_o"].to_numpy())
+        if np.any(g["theta_i"].to_numpy() >= 90.0):
+            raise FitError("the measurement has incidences at or beyond 90 deg, which no fabric model evaluates")
+        if self.method == "summation":
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                self.pairs = fab.FiberPairs.from_angles(g["theta_i"], g["phi_i"], g["theta_o"], g["phi_o"])
+        self.nu_max = _dye_ceiling(self.config, self.free, self.wavelengths_nm)
+        self.low = np.array([p.low for p in self.free])
+        self.high = np.array([p.high for p in self.free])
+        self.start = np.array([p.start for p in self.free])
+
+    # -- parameters and configs ------------------------------------------------------------
+
+    def config_at(self, x: np.ndarray) -> SimulationConfig:
+        """The config with the free fields set to ``x`` (validated by the config parser)."""
+        doc = copy.deepcopy(self._doc)
+        for p, v in zip(self.free, x):
+            paths.set_value(doc, p.name, float(v))
+        return parse_config(toml_dumps(doc), f"{self.config.name}.toml", source=f"fit of {self.config.source}")
+
+    def fitted_toml(self, x: np.ndarray, note: str) -> str:
+        """TOML text of the fitted config (comments of the original are not kept)."""
+        doc = copy.deepcopy(self._doc)
+        for p, v in zip(self.free, x):
+            paths.set_value(doc, p.name, float(v))
+        doc["name"] = f"{self.config.name}-fitted"
+        return toml_dumps(doc, header="\n".join("# " + line for line in note.splitlines()))
+
+    # -- the model ----------------------------------------------------------------------------
+
+    def table(self, config: SimulationConfig) -> AbsorptionTable:
+        walk = tuple(round(float(paths.get(self._doc_of(config), p.name)), 12) for p in self.free if p.kind == "walk")
+        if walk in self._tables:
+            return self._tables[walk]
+        wl = self.wavelengths_nm
+        nodye = dataclasses.replace(config, dye=None).fiber(wl)
+        if self.method == "classic":
+            w_in = np.array([[0.0, 0.0, 1.0]])
+            outputs = fib.range_outputs([0.0], [1.0], [-math.pi], [math.pi], nodye.half_width)
+            route = "beam"
+        else:
+            w_in = self.pairs.w_in
+            outputs = fib.point_outputs(self.pairs.w_out, nodye.half_width)
+            route = self.config.method
+        table = absorption_table(nodye, w_in, outputs, wl, absorption_nodes(self.nu_max, self.nodes), method=route,
+                                 target_rel_err=self.target_rel_err, photons=self.photons, seed=int(self.seed or 0),
+                                 threads=self.threads)
+        if self.photons is None:
+            self.photons = dict(table.photons)
+        self.walks += 1
+        self.walk_seconds += table.seconds
+        if len(self._tables) >= 4:  # the centre and a Jacobian's columns
+            self._tables.pop(next(iter(self._tables)))
+        self._tables[walk] = table
+        return table
+
+    def _doc_of(self, config: SimulationConfig) -> dict:
+        import tomllib
+
+        return tomllib.loads(config.text)
+
+    def model(self, x: np.ndarray, mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``beta, u_beta`` ``[G, L]`` of the model at the model geometries for parameters ``x``.
+
+        ``mc_noise`` (``[P, L]`` standard normal draws) shifts the volume term by that many
+        standard errors (the uncertainty propagation of the Monte Carlo error).
+        """
+        config = self.config_at(x)
+        table = self.table(config)
+        wl = self.wavelengths_nm
+        mu_host = config.dye(wl) if config.dye is not None else np.zeros(wl.size)
+        R, u = table(mu_host)
+        if mc_noise is not None:
+            R = R + u * mc_noise
+        with warnings.catch_warnings():
+            # the domain warnings (RMS slope > 0.5, grazing) are the config's business, not once per evaluation
+            warnings.simplefilter("ignore")
+            return self._surface(config, R, u)
+
+    def _surface(self, config: SimulationConfig, R: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.method == "classic":
+            rho = R[0] * math.pi
+            beta = fab.classic_beta(rho, self.w_i, self.w_o, config.rms_slope, config.n_host)
+            u_beta = np.broadcast_to(u[0] * math.pi, beta.shape).copy()
+        else:
+            from simulate.media.medium import HGMedium
+
+            surface_fiber = fib.Fiber(config.radius_um, config.n_host, HGMedium(mu_s=0.0, mu_a=0.0, g=0.0),
+                                      config.rms_slope, config.cell_width_deg)
+            r_surf = np.asarray(fib.surface_brdf(surface_fiber, self.pairs.w_in, self.pairs.w_out), float)
+            beta, u_beta = fab.summation_from_table(self.pairs, R + r_surf[:, None], u)
+        return beta, u_beta
+
+    def dataset(self, beta: np.ndarray, u_beta: np.ndarray, label: str, extra: dict | None = None) -> Dataset:
+        """The model values as a ``"simulated"`` dataset at the model geometries."""
+        g = self.geometries
+        wl = self.wavelengths_nm
+        rep = g.loc[g.index.repeat(wl.size)].reset_index(drop=True)
+        table = pd.DataFrame({"theta_i": rep["theta_i"], "phi_i": rep["phi_i"], "theta_o": rep["theta_o"],
+                              "phi_o": rep["phi_o"], "wavelength_nm": np.tile(wl, len(g)),
+                              "beta": np.asarray(beta).ravel(), "u_beta": np.asarray(u_beta).ravel(),
+                              "n": np.ones(beta.size, dtype=np.int64)}, columns=list(COLUMNS))
+        sample = dict(self.measured.meta.get("sample") or {})
+        sample["name"] = f"{self.method} model ({label})"
+        model = {"generator": GENERATOR, "name": f"fabric {self.method} ({label})", "method": self.method,
+                 "config": self.config.name}
+        return make_dataset(table, new_meta("simulated", sample, model, extra or {}))
+
+    # -- the objective ----------------------------------------------------------------------
+
+    def compare(self, sim: Dataset, measured: Dataset | None = None):
+        """:func:`compare.comparison.compare_datasets` of the measurement and ``sim``."""
+        from compare.comparison import compare_datasets
+
+        logging.getLogger("compare").setLevel(logging.ERROR)  # per-evaluation chatter
+        return compare_datasets(self.measured if measured is None else measured, [sim])
+
+    def residuals_of(self, comparison) -> np.ndarray:
+        """The residual vector of the module docstring from a comparison of one simulation."""
+        name = next(iter(comparison.frames))
+        frame = comparison.frames[name]
+        meas = frame["beta_meas"].to_numpy(float)
+        d = frame["beta_sim"].to_numpy(float) - meas
+        parts = [d / (float(np.mean(meas)) * math.sqrt(d.size))]
+        if comparison.colour is not None:
+            c = comparison.colour.simulated[name]
+            parts.append(math.sqrt(self.colour_weight) * np.array([c.dh, c.ds]))
+        return np.concatenate(parts)
+
+    def residuals(self, x: np.ndarray, measured: Dataset | None = None,
+                  mc_noise: np.ndarray | None = None) -> np.ndarray:
+        """Residuals at parameters ``x`` (physical units)."""
+        beta, u = self.model(x, mc_noise)
+        self.evaluations += 1
+        return self.residuals_of(self.compare(self.dataset(beta, u, "trial"), measured))
+
+    def precheck(self) -> None:
+        """Everything the objective needs from the measurement, before any photon (FitError)."""
+        from compare.errors import CompareError
+
+        flat = np.full((len(self.geometries), self.wavelengths_nm.size), 0.5)
+        try:
+            self.compare(self.dataset(flat, 0.0 * flat, "check"))
+        except CompareError as exc:
+            raise FitError(f"the measurement cannot be fitted: {exc}") from None
+
+    def identity(self) -> str:
+        """Hash of what a resumed fit must share with the interrupted one."""
+        doc = {"config": self.config.sha256, "measured": self.measured.meta.get("files", {}),
+               "rows": len(self.measured), "method": self.method,
+               "free": [[p.name, p.low, p.high] for p in self.free], "seed": self.seed,
+               "wavelengths": self.wavelengths_nm.tolist(), "colour_weight": self.colour_weight}
+        return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
