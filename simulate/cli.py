@@ -19,7 +19,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
 ``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
     fits config parameters to a measurement (:mod:`studies.fit`): fitted.toml, datasets, report.
-``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]``
+``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
     a parameter study on dask.distributed (:mod:`studies.sweep`): one dataset per point, summary.csv;
     exit 1 when a task still fails after its retries (the others are kept).
 
@@ -36,7 +36,6 @@ import logging
 import math
 import os
 import sys
-import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -524,7 +523,7 @@ COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave 
 
 
 # ------------------------------------------------------------------------------------------
-# simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
+# simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]
 #   a parameter study on dask.distributed (studies.sweep)
 # ------------------------------------------------------------------------------------------
 
@@ -543,8 +542,16 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
                    help="acquisition plan whose geometries and wavelengths are simulated (default red-cotton)")
     p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
                    help="skip the plan's beam-blocked geometries as the measurement does")
-    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", default=None,
-                   help="address of a running dask scheduler (default: a local cluster of --workers processes)")
+    p.add_argument("--scheduler", metavar="tls://HOST:PORT", default=None,
+                   help="address of a running dask scheduler (default: a local cluster of --workers processes, "
+                        "behind TLS with temporary credentials)")
+    p.add_argument("--tls-ca-file", default=None, dest="tls_ca_file", metavar="FILE",
+                   help="--scheduler: CA certificate (PEM); without the three TLS files dask's "
+                        "distributed.comm.tls configuration applies")
+    p.add_argument("--tls-cert", default=None, dest="tls_cert", metavar="FILE",
+                   help="--scheduler: client certificate (PEM)")
+    p.add_argument("--tls-key", default=None, dest="tls_key", metavar="FILE",
+                   help="--scheduler: client private key (PEM)")
     p.add_argument("--workers", type=_int_in(1, 1024), default=None,
                    help="local cluster: worker processes, one thread each (default: the number of CPUs)")
     p.add_argument("--threads", type=_threads_arg, default=1,
@@ -568,22 +575,23 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
-    """``(client, cluster)``: a client of the named scheduler (cluster None) or of a new local cluster."""
-    from distributed import Client, LocalCluster
+    """``(client, cluster)``: a client of the named scheduler (cluster None) or of a new local cluster.
 
-    if args.scheduler:
-        try:
-            return Client(args.scheduler, timeout="20s"), None
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise _UsageError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
-    # processes, one thread each: the kernels hold the GIL in places and numba's threads are
-    # set per task (--threads); no dashboard, so that concurrent sweeps never compete for a port
-    with warnings.catch_warnings():
-        # the scheduler's HTTP server moves to a free port when 8787 is taken: nothing to tell
-        warnings.filterwarnings("ignore", message="Port .* is already in use")
-        cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-    return Client(cluster), cluster
+    Both behind TLS (:mod:`studies.cluster`): a local cluster with temporary credentials, a named
+    scheduler with the user's certificates.
+    """
+    from studies.cluster import ClusterError, local_cluster, remote_client
+
+    try:
+        if args.scheduler:
+            return remote_client(args.scheduler, ca_file=args.tls_ca_file, cert=args.tls_cert,
+                                 key=args.tls_key), None
+        if args.tls_ca_file or args.tls_cert or args.tls_key:
+            raise ClusterError("--tls-ca-file/--tls-cert/--tls-key go with --scheduler (a local cluster makes "
+                               "its own temporary credentials)")
+        return local_cluster(args.workers or os.cpu_count() or 1)
+    except ClusterError as exc:
+        raise _UsageError(str(exc)) from None
 
 
 def _sweep_run(args: argparse.Namespace) -> int:

@@ -1,7 +1,7 @@
 r"""``simulate sweep``: parameter studies of a fabric model on dask.distributed.
 
 ``simulate sweep CONFIG --param NAME=v1,v2,... [--param NAME2=...] --out DIR [--method summation|classic|mc]
-[--geometry PLAN] [--scheduler tcp://HOST:PORT] [--workers N] [--measured DIR] [--resume]``
+[--geometry PLAN] [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N] [--measured DIR] [--resume]``
 
 Parameters and points
 ---------------------
