@@ -45,7 +45,7 @@ def local_cluster(workers: int) -> tuple[Any, Any]:
     security = Security.temporary()
     # the scheduler always runs an HTTP server; with no routes it answers 404 to everything
     # (dashboard, /info, /json, the proxy to the workers): nothing readable without credentials
-    no_http = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+    no_http: dict[str, list[str]] = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
     with warnings.catch_warnings(), dask.config.set(no_http):
         # the scheduler's HTTP server moves to a free port when 8787 is taken: nothing to tell
         warnings.filterwarnings("ignore", message="Port .* is already in use")
