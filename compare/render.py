@@ -328,7 +328,7 @@ def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike
     caption = caption_text(images, s)
     fig.text(0.01, 0.01, caption, fontsize=6, va="bottom", wrap=True)
     fig.tight_layout(rect=(0, 0.08, 1, 1))
-    fig.savefig(out / "render_sheet.png", dpi=150)
+    fig.savefig(out / "render_sheet.png", dpi=110)
     plt.close(fig)
     info = {"sheet": "render_sheet.png", "images": files, "caption": caption, "seconds_total": round(total, 2),
             "settings": {"spp": s.spp, "cushion": [s.size[0], s.size[1]], "swatch": [s.swatch_size] * 2,

@@ -27,6 +27,8 @@ __all__ = ["ANISOTROPIC_AZIMUTHS_DEG", "EXPORT_METHODS", "export_model", "model_
 
 EXPORT_METHODS = ("classic", "summation", "mc")
 ANISOTROPIC_AZIMUTHS_DEG = (0.0, 45.0)
+#: Retro-reflection directions asked of a Monte Carlo model for the NDF (each is one run).
+RETRO_SAMPLES_MC = 8
 
 
 def _model_functions() -> dict[str, Any]:
@@ -123,4 +125,5 @@ def export_model(config: Any, method: str, out: str | os.PathLike, *, wavelength
                            theta_i_deg=incidence_nodes(incidences), res=res, azimuths_deg=azimuths,
                            description=description,
                            provenance={"model": info, "config": config.provenance()},
-                           check_pairs=check_pairs, seed=0 if seed is None else seed)
+                           check_pairs=check_pairs, seed=0 if seed is None else seed,
+                           n_retro=32 if method == "classic" else RETRO_SAMPLES_MC)

@@ -7,7 +7,8 @@ source is any *BRDF callable* ``beta(w_i, w_o) -> (N, bands)`` (the radiance coe
 (:mod:`simulate.export`) or a measured dataset (:func:`dataset_brdf`). Only the direction pairs
 the tensor needs are asked for, in two batches:
 
-1. **NDF** ``D`` (128 nodes over ``u = sqrt(2 theta / pi)``). Dupuy & Jakob's power iteration on
+1. **NDF** ``D`` (128 nodes over ``u = sqrt(2 theta / pi)``; the retro-reflection asked at 32
+   directions, 8 for Monte Carlo sources, interpolated in ``u``). Dupuy & Jakob's power iteration on
    the retro-reflection: a microfacet BRDF has ``f(w, w) = F D(w) / (4 cos(theta) sigma(w))`` with
    Smith's ``G1 = cos / sigma``, hence ``D(w) ~ f_Y(w, w) cos(theta) sigma(w)``, iterated with
    ``sigma(w) = int D(m) <w, m>+ dm`` and ``int D cos = 1`` (``f_Y``: the luminance of ``f``). A
@@ -158,15 +159,19 @@ def _projected_area(d_nodes: np.ndarray, theta: np.ndarray, n_t: int = 256, n_p:
     return out
 
 
-def fit_ndf(retro_y: Callable[[np.ndarray], np.ndarray], n: int = 128, iterations: int = 8
-            ) -> tuple[np.ndarray, np.ndarray]:
+def fit_ndf(retro_y: Callable[[np.ndarray], np.ndarray], n: int = 128, iterations: int = 8,
+            n_retro: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """NDF and projected-area tables (``n`` nodes over ``u``) by Dupuy & Jakob's power iteration.
 
-    ``retro_y(theta)``: the luminance of ``f_r(w, w)`` at zenith angles ``theta`` (radians).
+    ``retro_y(theta)``: the luminance of ``f_r(w, w)`` at zenith angles ``theta`` (radians),
+    asked at ``n_retro`` angles uniform in ``u`` and interpolated linearly in ``u`` to the ``n``
+    nodes (each retro direction is a distinct incidence: for a Monte Carlo source, a run).
     """
     u = np.linspace(0, 1, n)
     theta = _u2theta(u)
-    f = np.clip(np.asarray(retro_y(np.minimum(theta, np.radians(GRAZING_EVAL_DEG))), float), 0, None)
+    u_r = np.linspace(0, 1, max(2, min(n_retro, n)))
+    f_r = np.asarray(retro_y(np.minimum(_u2theta(u_r), np.radians(GRAZING_EVAL_DEG))), float)
+    f = np.clip(np.interp(u, u_r, f_r), 0, None)
     if not np.any(f > 0):
         raise ExportError("the source reflects nothing back towards the source (retro-reflection "
                           "is zero everywhere): no NDF can be derived")
@@ -251,7 +256,7 @@ def incidence_nodes(n: int) -> np.ndarray:
 def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
                  theta_i_deg: npt.ArrayLike | None = None, res: int = 64,
                  azimuths_deg: Sequence[float] = (0.0,), description: str = "",
-                 provenance: dict | None = None) -> tuple[dict[str, np.ndarray], int]:
+                 provenance: dict | None = None, n_retro: int = 32) -> tuple[dict[str, np.ndarray], int]:
     """The tensor fields of ``brdf`` (spectral when ``wavelengths_nm`` is given, else RGB).
 
     Returns the fields and the number of direction pairs the source was evaluated at.
@@ -283,7 +288,7 @@ def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
         w = _hemisphere_dirs(theta, 0.0)
         return f_r(w, w) @ ylum
 
-    ndf, sigma = fit_ndf(retro_y)
+    ndf, sigma = fit_ndf(retro_y, n_retro=n_retro)
     u_nodes = np.linspace(0, 1, ndf.size)
     ndf32, sigma32 = ndf.astype(np.float32), sigma.astype(np.float32)
     vndf = np.stack([_vndf_table(ndf, t) for t in nodes])[None].astype(np.float32)
@@ -384,18 +389,19 @@ def tabulation_error(brdf: BRDF, fields_or_path: dict | str | os.PathLike, *, n_
 def export_bsdf(brdf: BRDF, out: str | os.PathLike, *, wavelengths_nm: npt.ArrayLike | None = None,
                 theta_i_deg: npt.ArrayLike | None = None, res: int = 64,
                 azimuths_deg: Sequence[float] = (0.0,), description: str = "",
-                provenance: dict | None = None, check_pairs: int = 0, seed: int = 0) -> ExportResult:
+                provenance: dict | None = None, check_pairs: int = 0, seed: int = 0,
+                n_retro: int = 32) -> ExportResult:
     """Tabulate ``brdf`` (see the module docstring) and write the ``.bsdf`` file ``out``.
 
     ``check_pairs > 0``: measure the tabulation error at that many random pairs first (more
     evaluations of the source) and record it in the file's ``provenance`` field.
     """
     prov = dict(provenance or {})
-    prov.update({"writer": "gonio.data.bsdf_export", "isotropic": True,
+    prov.update({"writer": "gonio.data.bsdf_export", "isotropic": True, "retro_samples": n_retro,
                  "azimuths_averaged_deg": [float(a) for a in azimuths_deg], "value_resolution": res})
     fields, n_eval = build_fields(brdf, wavelengths_nm=wavelengths_nm, theta_i_deg=theta_i_deg,
                                   res=res, azimuths_deg=azimuths_deg, description=description,
-                                  provenance=prov)
+                                  provenance=prov, n_retro=n_retro)
     err = None
     if check_pairs > 0:
         err = tabulation_error(brdf, fields, n_pairs=check_pairs, seed=seed, azimuths_deg=azimuths_deg)

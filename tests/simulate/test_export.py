@@ -170,13 +170,14 @@ def test_cli_export_and_refusals(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["summation", "mc"])
 def test_monte_carlo_models_export_on_reduced_budgets(tmp_path, method):
-    """The summation and woven Monte Carlo models export on a small budget; the file reads back,
-    and its luminance at normal incidence is within noise of the model's (10 % at this budget)."""
+    """The summation and woven Monte Carlo models export on a small budget (8 x 8 values, 3
+    incidences, 10 % Monte Carlo error: 76 s and 40 s here); the file reads back, and at normal
+    incidence (a node) it is the model's value within noise plus the coarse tabulation (25 %)."""
     cfg = load_config("red-cotton")
     wl = np.array([650.0])
-    res = export_model(cfg, method, tmp_path / f"{method}.bsdf", wavelengths_nm=wl, res=12, incidences=4,
+    res = export_model(cfg, method, tmp_path / f"{method}.bsdf", wavelengths_nm=wl, res=8, incidences=3,
                        target_rel_err=0.1, seed=0, threads=2)
-    assert res.evaluations <= 2 * (128 + 4 * 12 * 12)      # two azimuths, only the needed pairs
+    assert res.evaluations <= 2 * (8 + 3 * 8 * 8)      # two azimuths, only the needed pairs
     tab = read_rgl_bsdf(tmp_path / f"{method}.bsdf")
     wi = np.array([[0.0, 0.0, 1.0]] * 3)
     wo = np.array([[np.sin(a), 0.0, np.cos(a)] for a in np.radians([20.0, 35.0, 50.0])])
