@@ -361,7 +361,7 @@ def _cmd_import(args) -> int:
 _EXPORT_DESCRIPTION = (
     "Tabulate a radiance-coefficient dataset as an isotropic RGL .bsdf file (Dupuy & Jakob 2018), read by "
     "Mitsuba 3's and pbrt-v4's `measured` material and by `gonio import rgl-bsdf`. The in-plane curves are "
-    "interpolated; the rule for directions the data do not cover (gonio.data.bsdf_export.dataset_brdf) is "
+    "interpolated; the rule for directions the data do not cover (gonio.data.bsdf_dataset.dataset_brdf) is "
     "written into the file.")
 
 
@@ -378,7 +378,8 @@ def _add_export_parser(sub) -> None:
 
 def _cmd_export(args) -> int:
     from gonio.data import read_dataset
-    from gonio.data.bsdf_export import dataset_brdf, export_bsdf, incidence_nodes
+    from gonio.data.bsdf_dataset import dataset_brdf
+    from gonio.data.bsdf_export import export_bsdf, incidence_nodes
 
     out = Path(args.out)
     if out.exists() and not args.force:

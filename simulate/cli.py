@@ -655,6 +655,10 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
                    help="spectral bands in nm (default: the config's wavelengths)")
     p.add_argument("--resolution", type=_int_in(4, 256), default=64, help="values per axis of the warped grid (64)")
     p.add_argument("--incidences", type=_int_in(2, 64), default=16, help="incidence nodes 0..90 deg, uniform in cos (16)")
+    p.add_argument("--anisotropic", type=int, choices=(1, 2, 4), default=0, metavar="REDUCTION",
+                   help="keep the anisotropy: incidence azimuths over 360/REDUCTION deg, the rest mirrored "
+                        "(4: mirror symmetric in x and y, as warp/weft summation; 1: none)")
+    p.add_argument("--azimuths", type=_int_in(3, 64), default=5, help="incidence azimuths with --anisotropic (5)")
     p.add_argument("--check", type=_int_in(0, 10**6), default=0, metavar="N",
                    help="measure the tabulation error at N random direction pairs (more model evaluations)")
     _run_settings_arguments(p)
@@ -685,7 +689,8 @@ def _export_run(args: argparse.Namespace) -> int:
     try:
         result = export_model(config, args.method, args.out, wavelengths_nm=wl, rgb=args.rgb, res=args.resolution,
                               incidences=args.incidences, target_rel_err=args.target_rel_err, seed=args.seed,
-                              threads=args.threads, max_photons=args.max_photons, check_pairs=args.check)
+                              threads=args.threads, max_photons=args.max_photons, check_pairs=args.check,
+                              reduction=args.anisotropic, n_phi_i=args.azimuths)
     except (ExportError, FabricError) as exc:
         raise _UsageError(str(exc)) from None
     err = result.error

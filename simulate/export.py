@@ -8,9 +8,13 @@ classic model's albedo, the summation's fiber BRDF, the woven Monte Carlo).
 
 Every import of a ``simulate`` module is inside :func:`_model_functions` (one place to re-point
 when the package layout changes). The summation and Monte Carlo models are anisotropic (warp
-along x, weft along y); the isotropic export averages them over the incidence azimuths
+along x, weft along y); the default isotropic export averages them over the incidence azimuths
 :data:`ANISOTROPIC_AZIMUTHS_DEG` (0, 45 deg: the summation is symmetric under 90 deg rotations,
 so these two span its azimuthal variation at first order) and says so in the file.
+``reduction=4`` (``--anisotropic``) keeps the anisotropy instead: the summation is symmetric
+under ``x -> -x`` and ``y -> -y`` (the fiber cylinder's mirror symmetries, docs/physics.md), so
+incidence azimuths over 90 deg suffice; the woven Monte Carlo of a plain weave is so up to its
+noise; a twill is not (use ``reduction=1``, every azimuth).
 
 Monte Carlo noise: a model value with standard error ``u`` enters the table as is; the exported
 file's error against the *exact* model is the tabulation error plus that noise.
@@ -93,14 +97,14 @@ def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err:
 def export_model(config: Any, method: str, out: str | os.PathLike, *, wavelengths_nm: Any = None,
                  rgb: bool = False, res: int = 64, incidences: int = 16,
                  target_rel_err: float | None = None, seed: int | None = None, threads: int | None = None,
-                 max_photons: int | None = None, check_pairs: int = 0):
+                 max_photons: int | None = None, check_pairs: int = 0, reduction: int = 0, n_phi_i: int = 5):
     """Tabulate and write the model (spectral at ``wavelengths_nm``, or linear sRGB if ``rgb``).
 
     Returns :class:`gonio.data.bsdf_export.ExportResult`.
     """
     import warnings
 
-    from gonio.data.bsdf_export import export_bsdf, incidence_nodes
+    from gonio.data.bsdf_export import ExportError, export_bsdf, incidence_nodes
     from gonio.data.colour import spectrum_to_rgb
 
     wl = np.asarray(config.wavelengths_nm if wavelengths_nm is None else wavelengths_nm, float)
@@ -108,15 +112,21 @@ def export_model(config: Any, method: str, out: str | os.PathLike, *, wavelength
                             threads=threads, max_photons=max_photons)
     source = beta
     if rgb:
-        # linear sRGB (D65) of a spectrum is linear in it: one 3 x L matrix
-        mat = np.stack([spectrum_to_rgb(wl, e) for e in np.eye(wl.size)], axis=1)
+        # linear sRGB (D65) of a spectrum is linear in it: one 3 x L matrix, built on a 5 nm grid
+        # (colour-science's ASTM E308 integration needs 1/5/10/20 nm steps) from the spectrum
+        # interpolated linearly between the model's wavelengths
+        fine = np.arange(np.ceil(wl[0] / 5) * 5, wl[-1] + 1e-9, 5.0)
+        if wl.size < 2 or fine.size < 3:
+            raise ExportError(f"an RGB export needs wavelengths spanning at least 10 nm, not {wl.tolist()}")
+        mat = np.stack([spectrum_to_rgb(fine, np.interp(fine, wl, e)) for e in np.eye(wl.size)], axis=1)
 
         def source(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
             return np.asarray(beta(wi, wo), float) @ mat.T
-    azimuths = (0.0,) if method == "classic" else ANISOTROPIC_AZIMUTHS_DEG
+    azimuths = (0.0,) if method == "classic" or reduction else ANISOTROPIC_AZIMUTHS_DEG
+    symmetry = (f"anisotropic, {n_phi_i} incidence azimuths, mirror symmetry {reduction}" if reduction else
+                "isotropic" + ("" if method == "classic" else ", averaged over incidence azimuths 0 and 45 deg"))
     description = (f"{config.name}: {method} fabric model (fabric-optics simulate export; "
-                   f"{'linear sRGB D65' if rgb else f'{wl.size} wavelengths'}; isotropic"
-                   f"{'' if method == 'classic' else ', averaged over incidence azimuths 0 and 45 deg'})")
+                   f"{'linear sRGB D65' if rgb else f'{wl.size} wavelengths'}; {symmetry})")
     # the grazing node is evaluated at 89.5 deg on purpose: the model's near-horizon warning
     # (Cook-Torrance shadowing unreliable there) is known and stated in the module docstring
     with warnings.catch_warnings():
@@ -126,4 +136,5 @@ def export_model(config: Any, method: str, out: str | os.PathLike, *, wavelength
                            description=description,
                            provenance={"model": info, "config": config.provenance()},
                            check_pairs=check_pairs, seed=0 if seed is None else seed,
-                           n_retro=32 if method == "classic" else RETRO_SAMPLES_MC)
+                           n_retro=32 if method == "classic" else RETRO_SAMPLES_MC,
+                           reduction=reduction, n_phi_i=n_phi_i)

@@ -1,11 +1,11 @@
-"""Export a BRDF as an RGL ``.bsdf`` file (Dupuy & Jakob 2018), isotropic, RGB or spectral.
+"""Export a BRDF as an RGL ``.bsdf`` file (Dupuy & Jakob 2018): isotropic or anisotropic, RGB or spectral.
 
 What renderers read: Mitsuba 3's ``measured`` plugin and pbrt-v4's ``measured`` material; the
 project's own reader is :mod:`gonio.data.formats.rgl_bsdf` (``gonio import rgl-bsdf``). The
 source is any *BRDF callable* ``beta(w_i, w_o) -> (N, bands)`` (the radiance coefficient
 ``beta = pi f_r`` at unit fabric-frame directions ``(N, 3)``): a fabric model evaluated on demand
-(:mod:`simulate.export`) or a measured dataset (:func:`dataset_brdf`). Only the direction pairs
-the tensor needs are asked for, in two batches:
+(:mod:`simulate.export`) or a measured dataset (:mod:`gonio.data.bsdf_dataset`). Only the
+direction pairs the tensor needs are asked for, in two batches:
 
 1. **NDF** ``D`` (128 nodes over ``u = sqrt(2 theta / pi)``; the retro-reflection asked at 32
    directions, 8 for Monte Carlo sources, interpolated in ``u``). Dupuy & Jakob's power iteration on
@@ -24,6 +24,16 @@ the tensor needs are asked for, in two batches:
    stored as 0 and flagged in ``valid`` (as the RGL files do). ``luminance`` = ``Y`` of ``S``
    (Rec. 709 weights for RGB; the CIE ``y`` bar weighting of the file's wavelengths for spectra):
    the renderer samples it before the VNDF warp, so its sampling density is ``~ Y(f_r cos)``.
+
+Anisotropic export (``reduction`` 1, 2 or 4, :func:`fit_ndf_2d`): the NDF and ``sigma`` become
+tables over the half vector's / incidence's azimuth too (33 x 128), the retro-reflection is asked
+on 16 zenith x 5 azimuth directions inside the stored azimuth range, and there are ``n_phi_i``
+incidence azimuths over ``[-pi, -pi + 2 pi / reduction]`` (Mitsuba mirrors every incidence into
+that range by ``x -> -x`` and/or ``y -> -y``: the source must have those mirror symmetries, as
+a plain weave's warp/weft summation has). Measured on an anisotropic Ward-like lobe (RMS slopes
+0.15 along x, 0.45 along y, over a red Lambertian; 12 incidences, 5 azimuths, 48 x 48 values,
+3000 random pairs): relative error RMS 2.4 %, p95 4.7 %, max 23 % (theta <= 60 deg); RMS 5.9 %
+(theta <= 80 deg); the isotropic export of the same source is off by 84 % RMS.
 
 Incidence nodes: ``theta_i`` in 0..90 deg (default 16, uniform in ``cos(theta_i)``: dense towards
 grazing, where the specular lobe and Fresnel change fastest); the 90 deg node holds the
@@ -72,7 +82,7 @@ import numpy.typing as npt
 from gonio.data.dataset import DatasetError, atomic_write
 
 __all__ = ["BRDF", "ExportError", "ExportResult", "STATED_TABULATION_ERROR", "build_fields",
-           "dataset_brdf", "export_bsdf", "incidence_nodes", "tabulation_error", "write_tensor_file"]
+           "export_bsdf", "incidence_nodes", "tabulation_error", "write_tensor_file"]
 
 #: ``beta(w_i, w_o) -> (N, bands)`` at unit fabric-frame direction arrays ``(N, 3)``.
 BRDF = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -184,18 +194,6 @@ def fit_ndf(retro_y: Callable[[np.ndarray], np.ndarray], n: int = 128, iteration
     return d, _projected_area(d, theta)
 
 
-def _vndf_table(d_nodes: np.ndarray, theta_i: float, res: tuple[int, int] = (128, 128)) -> np.ndarray:
-    """``D(m) <w_i, m>+ u sin(theta_m)`` on the ``(u_phi rows, u_theta columns)`` grid, phi_i = 0."""
-    h, w = res
-    ux = np.linspace(0, 1, w)
-    uy = np.linspace(0, 1, h)
-    tm = _u2theta(ux)[None, :]
-    pm = ((2 * uy - 1) * np.pi)[:, None]
-    dot = np.sin(theta_i) * np.sin(tm) * np.cos(pm) + np.cos(theta_i) * np.cos(tm)
-    d = np.interp(ux, np.linspace(0, 1, d_nodes.size), d_nodes)[None, :]
-    return d * np.clip(dot, 0, None) * ux[None, :] * np.sin(tm)
-
-
 def _segment(r0, r1, target):
     """``t`` in [0, 1] with ``r0 t + (r1 - r0) t^2 / 2 = target`` (stable quadratic root)."""
     disc = np.maximum(r0 * r0 + 2 * (r1 - r0) * target, 0.0)
@@ -253,12 +251,106 @@ def incidence_nodes(n: int) -> np.ndarray:
     return np.degrees(np.arccos(np.linspace(1.0, 0.0, n)))
 
 
+def _bilinear(table: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Mitsuba's ``Marginal2D.eval`` without parameters: ``table`` (H, W) at ``u`` = (x, y)."""
+    h, w = table.shape
+    pos = np.clip(u, 0.0, 1.0) * np.array([w - 1, h - 1])
+    off = np.minimum(pos.astype(np.intp), np.array([w - 2, h - 2]))
+    fx, fy = (pos - off)[..., 0], (pos - off)[..., 1]
+    ox, oy = off[..., 0], off[..., 1]
+    return ((1 - fy) * ((1 - fx) * table[oy, ox] + fx * table[oy, ox + 1])
+            + fy * ((1 - fx) * table[oy + 1, ox] + fx * table[oy + 1, ox + 1]))
+
+
+def fold(w: np.ndarray, reduction: int) -> np.ndarray:
+    """Mitsuba's mirroring of directions into the stored azimuth range (``reduction`` 2 or 4)."""
+    w = np.array(w, float, copy=True)
+    if reduction >= 2:
+        sy = w[..., 1].copy()
+        sx = w[..., 0].copy() if reduction == 4 else sy
+        w[..., 0] = np.where(sx >= 0, -w[..., 0], w[..., 0])
+        w[..., 1] = np.where(sy >= 0, -w[..., 1], w[..., 1])
+    return w
+
+
+class _Sigma2D:
+    """``sigma(w) = int D(m) <w, m>+ dm`` at fixed directions ``dirs`` (K, 3) for any NDF table.
+
+    The clipped cosines ``<w, m>+`` on the quadrature grid of ``m`` (midpoints in ``u_theta`` and
+    ``phi``) are computed once; each NDF is then one matrix-vector product.
+    """
+
+    def __init__(self, dirs: np.ndarray, n_t: int = 128, n_p: int = 64):
+        u = (np.arange(n_t) + 0.5) / n_t
+        up = (np.arange(n_p) + 0.5) / n_p
+        uu, pp = np.meshgrid(u, up, indexing="ij")
+        m = _hemisphere_dirs(_u2theta(uu), (2 * pp - 1) * np.pi).reshape(-1, 3)
+        self.u_m = np.stack([uu.ravel(), pp.ravel()], -1)
+        self.measure = np.sin(_u2theta(uu.ravel())) * np.pi * uu.ravel() / n_t * (2 * np.pi / n_p)
+        self.kernel = np.clip(np.asarray(dirs, float) @ m.T, 0, None).astype(np.float32)
+
+    def __call__(self, ndf: np.ndarray) -> np.ndarray:
+        weight = (_bilinear(ndf, self.u_m) * self.measure).astype(np.float32)
+        return (self.kernel @ weight).astype(float)
+
+
+def _grid_dirs(h: int, w: int) -> np.ndarray:
+    """Directions at the nodes of an ``(h u_phi rows, w u_theta columns)`` table, row-major."""
+    uu = np.stack(np.meshgrid(np.linspace(0, 1, w), np.linspace(0, 1, h)), -1)
+    return _hemisphere_dirs(_u2theta(uu[..., 0]), (2 * uu[..., 1] - 1) * np.pi).reshape(-1, 3)
+
+
+def fit_ndf_2d(retro_y: Callable[[np.ndarray], np.ndarray], reduction: int, shape: tuple[int, int] = (33, 128),
+               n_retro: tuple[int, int] = (16, 5), iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Anisotropic NDF and sigma tables ``(u_phi rows, u_theta columns)`` by the power iteration.
+
+    ``retro_y(w)`` (unit directions ``(K, 3)``) is asked only inside the stored azimuth range
+    (``n_retro`` = zenith x azimuth samples there); other azimuths are mirrored into it. The
+    ``sigma`` table is 17 x 32 (smooth; computed once per iteration there and interpolated).
+    """
+    from scipy.interpolate import RegularGridInterpolator
+
+    h, w = shape
+    nodes = _grid_dirs(h, w)                                        # (h * w, 3), row-major
+    u_nodes = np.stack(np.meshgrid(np.linspace(0, 1, w), np.linspace(0, 1, h)), -1).reshape(-1, 2)
+    theta_n = _u2theta(u_nodes[:, 0])
+    ur = np.linspace(0, 1, n_retro[0])
+    span = 2 * np.pi / max(reduction, 1)
+    pr = np.linspace(-np.pi, -np.pi + span, n_retro[1])
+    gt, gp = np.meshgrid(_u2theta(ur), pr, indexing="ij")
+    grid_dirs = _hemisphere_dirs(np.minimum(gt, np.radians(GRAZING_EVAL_DEG)), gp).reshape(-1, 3)
+    f_grid = np.clip(np.asarray(retro_y(grid_dirs), float).reshape(gt.shape), 0, None)
+    if not np.any(f_grid > 0):
+        raise ExportError("the source reflects nothing back towards the source: no NDF can be derived")
+    interp = RegularGridInterpolator((ur, pr), f_grid, bounds_error=False, fill_value=None)
+    fn = fold(nodes, reduction)
+    phi_f = np.clip(np.arctan2(fn[:, 1], fn[:, 0]), pr[0], pr[-1])
+    f = np.clip(interp(np.stack([u_nodes[:, 0], phi_f], -1)), 0, None)
+    # sigma is smooth: computed on a coarser table and interpolated to the NDF's nodes
+    hc, wc = 17, 32
+    sigma_of = _Sigma2D(_grid_dirs(hc, wc))
+    normal = _Sigma2D(np.array([[0.0, 0.0, 1.0]]))
+    d = np.full(h * w, 1.0 / np.pi)
+    for _ in range(iterations):
+        sig = _bilinear(sigma_of(d.reshape(h, w)).reshape(hc, wc), u_nodes)
+        d = f * np.cos(theta_n) * sig
+        d = np.maximum(d, 1e-3 * d.max())
+        d = d / normal(d.reshape(h, w))[0]
+    ndf = d.reshape(h, w)
+    return ndf, sigma_of(ndf).reshape(hc, wc)
+
+
 def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
                  theta_i_deg: npt.ArrayLike | None = None, res: int = 64,
                  azimuths_deg: Sequence[float] = (0.0,), description: str = "",
-                 provenance: dict | None = None, n_retro: int = 32) -> tuple[dict[str, np.ndarray], int]:
+                 provenance: dict | None = None, n_retro: int = 32, reduction: int = 0,
+                 n_phi_i: int = 5) -> tuple[dict[str, np.ndarray], int]:
     """The tensor fields of ``brdf`` (spectral when ``wavelengths_nm`` is given, else RGB).
 
+    ``reduction`` 0: isotropic (``phi_i = 0``, half-vector azimuth relative to the incidence,
+    values averaged over ``azimuths_deg``). 1, 2 or 4: anisotropic, ``n_phi_i`` incidence
+    azimuths over ``[-pi, -pi + 2 pi / reduction]`` (Mitsuba mirrors the rest into that range:
+    the source must have those mirror symmetries), absolute half-vector azimuths.
     Returns the fields and the number of direction pairs the source was evaluated at.
     """
     wl = None if wavelengths_nm is None else np.asarray(wavelengths_nm, float)
@@ -268,7 +360,9 @@ def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
         raise ExportError("incidence nodes must increase from 0 to 90 deg (at least 2)")
     if res < 4:
         raise ExportError(f"value resolution {res} is too small (at least 4)")
-    rot = np.radians(np.asarray(azimuths_deg, float))
+    if reduction not in (0, 1, 2, 4) or (reduction and n_phi_i < 3):
+        raise ExportError("reduction must be 0 (isotropic), 1, 2 or 4, with at least 3 incidence azimuths")
+    rot = np.radians(np.asarray(azimuths_deg if not reduction else (0.0,), float))
     evaluations = 0
 
     def f_r(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -284,54 +378,63 @@ def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
         assert total is not None
         return np.nan_to_num(total / rot.size / np.pi, nan=0.0)
 
-    def retro_y(theta: np.ndarray) -> np.ndarray:
-        w = _hemisphere_dirs(theta, 0.0)
-        return f_r(w, w) @ ylum
-
-    ndf, sigma = fit_ndf(retro_y, n_retro=n_retro)
-    u_nodes = np.linspace(0, 1, ndf.size)
+    if reduction:
+        phis = np.linspace(-np.pi, -np.pi + 2 * np.pi / reduction, n_phi_i)
+        n_r = (16, 5) if n_retro >= 32 else (max(4, n_retro // 2), 3)     # each one a run for Monte Carlo
+        ndf, sigma = fit_ndf_2d(lambda w: f_r(w, w) @ ylum, reduction, n_retro=n_r)
+    else:
+        phis = np.zeros(1)
+        d1, s1 = fit_ndf(lambda t: f_r(_hemisphere_dirs(t, 0.0), _hemisphere_dirs(t, 0.0)) @ ylum,
+                         n_retro=n_retro)
+        ndf, sigma = np.stack([d1, d1]), np.stack([s1, s1])
     ndf32, sigma32 = ndf.astype(np.float32), sigma.astype(np.float32)
-    vndf = np.stack([_vndf_table(ndf, t) for t in nodes])[None].astype(np.float32)
+    ug = np.linspace(0, 1, 128)
+    uu = np.stack(np.meshgrid(ug, ug), -1)                          # (rows u_phi, cols u_theta, 2)
+    m_grid = _hemisphere_dirs(_u2theta(uu[..., 0]), (2 * uu[..., 1] - 1) * np.pi)
+    d_grid = _bilinear(ndf, uu) * ug[None, :] * np.sin(_u2theta(ug))[None, :]
+    vndf = np.empty((phis.size, nodes.size, 128, 128), np.float32)
     g = (np.arange(res) + 0.0) / (res - 1)
     sx, sy = np.meshgrid(g, g)                       # rows: s_y, columns: s_x
     s = np.stack([sx.ravel(), sy.ravel()], axis=-1)
     pairs_i, pairs_o, where, factor = [], [], [], []
-    valid = np.zeros((1, nodes.size, res, res), bool)
-    for j, t in enumerate(nodes):
-        um = warp_forward(vndf[0, j].astype(float), s)
-        m = _hemisphere_dirs(_u2theta(um[:, 0]), (2 * um[:, 1] - 1) * np.pi)
-        wi = _hemisphere_dirs(t, 0.0)
-        wo = 2 * (m @ wi)[:, None] * m - wi
-        ok = wo[:, 2] > 1e-6
-        valid[0, j] = ok.reshape(res, res)
-        t_eval = min(t, np.radians(GRAZING_EVAL_DEG))
-        pairs_i.append(np.broadcast_to(_hemisphere_dirs(t_eval, 0.0), (int(ok.sum()), 3)))
-        pairs_o.append(wo[ok] / np.linalg.norm(wo[ok], axis=-1, keepdims=True))
-        where.append((j, np.flatnonzero(ok)))
-        d_m = np.interp(um[ok, 0], u_nodes, ndf32.astype(float))
-        sig = float(np.interp(_theta2u(t), u_nodes, sigma32.astype(float)))
-        factor.append(wo[ok, 2] * 4 * sig / np.maximum(d_m, 1e-30))
+    valid = np.zeros((phis.size, nodes.size, res, res), bool)
+    for p, phi in enumerate(phis):
+        for j, t in enumerate(nodes):
+            wi = _hemisphere_dirs(t, phi)
+            vndf[p, j] = d_grid * np.clip(m_grid @ wi, 0, None)
+            um = warp_forward(vndf[p, j].astype(float), s)
+            m = _hemisphere_dirs(_u2theta(um[:, 0]), (2 * um[:, 1] - 1) * np.pi + (0.0 if reduction else phi))
+            wo = 2 * (m @ wi)[:, None] * m - wi
+            ok = wo[:, 2] > 1e-6
+            valid[p, j] = ok.reshape(res, res)
+            wi_eval = _hemisphere_dirs(min(t, np.radians(GRAZING_EVAL_DEG)), phi)
+            pairs_i.append(np.broadcast_to(wi_eval, (int(ok.sum()), 3)))
+            pairs_o.append(wo[ok] / np.linalg.norm(wo[ok], axis=-1, keepdims=True))
+            where.append((p, j, np.flatnonzero(ok)))
+            d_m = _bilinear(ndf32.astype(float), um[ok])
+            sig = float(_bilinear(sigma32.astype(float), np.array([_theta2u(t), (phi + np.pi) / (2 * np.pi)])))
+            factor.append(wo[ok, 2] * 4 * sig / np.maximum(d_m, 1e-30))
     values = f_r(np.concatenate(pairs_i), np.concatenate(pairs_o))
     n_bands = values.shape[1]
     if wl is not None and n_bands != wl.size:
         raise ExportError(f"the source gives {n_bands} bands for {wl.size} wavelengths")
     if wl is None and n_bands != 3:
         raise ExportError(f"an RGB export needs 3 channels (R, G, B); the source gives {n_bands}")
-    table = np.zeros((1, nodes.size, n_bands, res * res))
+    table = np.zeros((phis.size, nodes.size, n_bands, res * res))
     start = 0
-    for (j, idx), fac in zip(where, factor):
-        table[0, j][:, idx] = (np.clip(values[start:start + idx.size], 0, None) * fac[:, None]).T
+    for (p, j, idx), fac in zip(where, factor):
+        table[p, j][:, idx] = (np.clip(values[start:start + idx.size], 0, None) * fac[:, None]).T
         start += idx.size
-    table = table.reshape(1, nodes.size, n_bands, res, res)
+    table = table.reshape(phis.size, nodes.size, n_bands, res, res)
     lum = np.einsum("pjbyx,b->pjyx", table, ylum)
     text = description.encode("utf-8")
     fields: dict[str, np.ndarray] = {
         "description": np.frombuffer(text, np.uint8).copy() if text else np.zeros(1, np.uint8),
         "version": np.array([1, 0], np.uint32),
-        "phi_i": np.zeros(1, np.float32),
+        "phi_i": phis.astype(np.float32),
         "theta_i": nodes.astype(np.float32),
-        "ndf": np.stack([ndf32, ndf32]),
-        "sigma": np.stack([sigma32, sigma32]),
+        "ndf": ndf32,
+        "sigma": sigma32,
         "vndf": vndf,
         "luminance": lum.astype(np.float32),
         "jacobian": np.ones(1, np.uint8),
@@ -390,18 +493,23 @@ def export_bsdf(brdf: BRDF, out: str | os.PathLike, *, wavelengths_nm: npt.Array
                 theta_i_deg: npt.ArrayLike | None = None, res: int = 64,
                 azimuths_deg: Sequence[float] = (0.0,), description: str = "",
                 provenance: dict | None = None, check_pairs: int = 0, seed: int = 0,
-                n_retro: int = 32) -> ExportResult:
+                n_retro: int = 32, reduction: int = 0, n_phi_i: int = 5) -> ExportResult:
     """Tabulate ``brdf`` (see the module docstring) and write the ``.bsdf`` file ``out``.
 
     ``check_pairs > 0``: measure the tabulation error at that many random pairs first (more
     evaluations of the source) and record it in the file's ``provenance`` field.
     """
     prov = dict(provenance or {})
-    prov.update({"writer": "gonio.data.bsdf_export", "isotropic": True, "retro_samples": n_retro,
-                 "azimuths_averaged_deg": [float(a) for a in azimuths_deg], "value_resolution": res})
+    prov.update({"writer": "gonio.data.bsdf_export", "isotropic": not reduction, "retro_samples": n_retro,
+                 "value_resolution": res})
+    if reduction:
+        prov.update({"reduction": reduction, "incidence_azimuths": n_phi_i})
+        azimuths_deg = (0.0,)
+    else:
+        prov["azimuths_averaged_deg"] = [float(a) for a in azimuths_deg]
     fields, n_eval = build_fields(brdf, wavelengths_nm=wavelengths_nm, theta_i_deg=theta_i_deg,
                                   res=res, azimuths_deg=azimuths_deg, description=description,
-                                  provenance=prov, n_retro=n_retro)
+                                  provenance=prov, n_retro=n_retro, reduction=reduction, n_phi_i=n_phi_i)
     err = None
     if check_pairs > 0:
         err = tabulation_error(brdf, fields, n_pairs=check_pairs, seed=seed, azimuths_deg=azimuths_deg)
@@ -410,73 +518,3 @@ def export_bsdf(brdf: BRDF, out: str | os.PathLike, *, wavelengths_nm: npt.Array
     write_tensor_file(out, fields)
     valid = np.unpackbits(fields["valid"])
     return ExportResult(str(out), fields, n_eval, float(valid.mean()), err, prov)
-
-
-def dataset_brdf(dataset: Any) -> tuple[BRDF, dict[str, Any]]:
-    """A measured dataset's in-plane curves as a BRDF callable, with the coverage rule stated.
-
-    Rule for the directions a measurement does not cover (``valid`` says nothing about it; the
-    returned dict and the export's provenance do): the in-plane curves ``beta(theta_i, s)`` are
-    interpolated linearly in ``theta_i`` and ``s``, clamped to the measured ranges of both (nearest
-    curve end); a pair with relative azimuth ``dphi`` between the curves is the blend
-    ``(1 + cos dphi)/2 beta(theta_i, -theta_o) + (1 - cos dphi)/2 beta(theta_i, +theta_o)``
-    (source side to mirror side). Refused: fewer than 2 incidences or fewer than 3 observation
-    angles on either side of an incidence, RGB data other than R, G, B, relative (raw) units,
-    geometries missing some of the bands.
-    """
-    from scipy.interpolate import RegularGridInterpolator
-
-    from gonio.data.geometry import signed_angle
-
-    name = getattr(dataset, "source", None) or "dataset"
-    if getattr(dataset, "relative", False):
-        raise ExportError(f"{name}: relative (raw-unit) values cannot be exported as a BRDF; "
-                          "import it with an absolute scale or a white standard first")
-    t = dataset.table
-    band_col = dataset.band_column
-    bands = list(dataset.bands)
-    if dataset.is_rgb and bands != ["R", "G", "B"]:
-        raise ExportError(f"{name}: channels {','.join(bands)} - an RGB export needs exactly R, G, B")
-    s = signed_angle(t["theta_i"].to_numpy(float), t["phi_i"].to_numpy(float),
-                     t["theta_o"].to_numpy(float), t["phi_o"].to_numpy(float))
-    inplane = t[np.isfinite(s)].assign(s=s[np.isfinite(s)])
-    pivot = inplane.pivot_table(index=["theta_i", "s"], columns=band_col, values="beta",
-                                aggfunc="mean").reindex(columns=bands)
-    if pivot.isna().to_numpy().any():
-        raise ExportError(f"{name}: some geometries lack some of the bands "
-                          f"({'channels' if dataset.is_rgb else 'wavelengths'} mixed); cannot tabulate")
-    incid = np.unique(pivot.index.get_level_values(0))
-    if incid.size < 2:
-        raise ExportError(f"{name}: {incid.size} in-plane incidence angle(s); an export needs at "
-                          "least 2 (the tensor spans 0..90 deg of incidence)")
-    grids = []
-    for ti in incid:
-        sv = pivot.loc[ti].index.to_numpy(float)
-        if np.sum(sv < 0) < 3 or np.sum(sv > 0) < 3:
-            raise ExportError(f"{name}: incidence {ti:g} deg has fewer than 3 observation angles on "
-                              "one side of the normal; cannot interpolate its curve")
-        grids.append(sv)
-    s_all = np.unique(np.concatenate(grids))
-    s_lo, s_hi = max(g.min() for g in grids), min(g.max() for g in grids)
-    s_grid = s_all[(s_all >= s_lo) & (s_all <= s_hi)]
-    cube = np.stack([np.stack([np.interp(s_grid, pivot.loc[ti].index.to_numpy(float),
-                                         pivot.loc[ti][b].to_numpy(float)) for b in bands], -1)
-                     for ti in incid])
-    interp = RegularGridInterpolator((incid, s_grid), cube, method="linear")
-
-    def beta(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-        ti = np.degrees(np.arccos(np.clip(wi[:, 2], -1, 1)))
-        to = np.degrees(np.arccos(np.clip(wo[:, 2], -1, 1)))
-        dphi = np.arctan2(wo[:, 1], wo[:, 0]) - np.arctan2(wi[:, 1], wi[:, 0])
-        tc = np.clip(ti, incid[0], incid[-1])
-        back = interp(np.stack([tc, np.clip(-to, s_grid[0], s_grid[-1])], -1))
-        fwd = interp(np.stack([tc, np.clip(to, s_grid[0], s_grid[-1])], -1))
-        w = ((1 - np.cos(dphi)) / 2)[:, None]
-        return (1 - w) * back + w * fwd
-
-    rule = {"source": "measured dataset (in-plane curves)",
-            "incidences_deg": incid.tolist(), "observation_range_deg": [float(s_lo), float(s_hi)],
-            "rule": "linear in theta_i and s, clamped to the measured ranges; out-of-plane by the "
-                    "(1 +- cos dphi)/2 blend of the source-side and mirror-side curves",
-            "extrapolated": "every incidence outside the measured range and every out-of-plane pair"}
-    return beta, rule

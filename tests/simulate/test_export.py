@@ -10,7 +10,8 @@ import pytest
 
 from gonio.cli import main as gonio_main
 from gonio.data import read_dataset
-from gonio.data.bsdf_export import STATED_TABULATION_ERROR, random_pairs, tabulation_error
+from gonio.data.bsdf_export import STATED_TABULATION_ERROR, export_bsdf, random_pairs, tabulation_error
+from gonio.data.colour import spectrum_to_rgb
 from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
 from simulate.cli import main as simulate_main
 from simulate.config import load_config
@@ -27,15 +28,25 @@ def classic(tmp_path_factory):
     cfg = load_config("red-cotton")
     d = tmp_path_factory.mktemp("export")
     spectral, rgb = d / "classic.bsdf", d / "classic_rgb.bsdf"
-    export_model(cfg, "classic", spectral, wavelengths_nm=WL, target_rel_err=TARGET, seed=0)
-    export_model(cfg, "classic", rgb, wavelengths_nm=RGB_WL, rgb=True, target_rel_err=TARGET, seed=0)
+    # the files from the model callables (export_model, its spectral and --rgb paths, is
+    # exercised by the CLI tests): one fiber Monte Carlo per wavelength set; RGB through the
+    # linear sRGB matrix
+    beta_rgb_wl, _ = model_brdf(cfg, "classic", RGB_WL, target_rel_err=TARGET, seed=0)
+    mat = np.stack([spectrum_to_rgb(RGB_WL, e) for e in np.eye(RGB_WL.size)], axis=1)
+
+    def rgb_beta(wi, wo):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return beta_rgb_wl(wi, wo) @ mat.T
+    export_bsdf(rgb_beta, rgb, description="red cotton classic, linear sRGB")
     beta, _ = model_brdf(cfg, "classic", WL, target_rel_err=TARGET, seed=0)
 
     def quiet(wi, wo):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return beta(wi, wo)
-    return {"spectral": spectral, "rgb": rgb, "beta": quiet, "dir": d}
+    export_bsdf(quiet, spectral, wavelengths_nm=WL, description="red cotton classic")
+    return {"spectral": spectral, "rgb": rgb, "beta": quiet, "rgb_beta": rgb_beta, "dir": d}
 
 
 def _rel(got, ref):
@@ -84,19 +95,13 @@ def test_mitsuba_eval_agrees_with_the_model(classic):
 
 
 def test_mitsuba_rgb_export_is_the_models_colour(classic):
-    """scalar_rgb on the RGB export: the luminance-weighted beta is the model's (its spectrum
-    through the same linear sRGB matrix), at 1000 random pairs."""
+    """scalar_rgb on the RGB export: the red channel is the model's (its spectrum through the
+    linear sRGB matrix), at 1000 random pairs."""
     pytest.importorskip("mitsuba")
     from compare.render import mitsuba_eval
-    from gonio.data.colour import spectrum_to_rgb
 
-    cfg = load_config("red-cotton")
-    beta, _ = model_brdf(cfg, "classic", RGB_WL, target_rel_err=TARGET, seed=0)
-    mat = np.stack([spectrum_to_rgb(RGB_WL, e) for e in np.eye(RGB_WL.size)], axis=1)
     wi, wo = random_pairs(np.random.default_rng(12), 1000, 60.0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        ref = beta(wi, wo) @ mat.T
+    ref = classic["rgb_beta"](wi, wo)
     got = np.pi * mitsuba_eval(classic["rgb"], wi, wo) / wo[:, 2:]
     rms, mx = _rel(got[:, 0], ref[:, 0])         # red: the bright channel of red cotton
     assert rms < STATED_TABULATION_ERROR[60.0]["rms"] and mx < STATED_TABULATION_ERROR[60.0]["max"]
@@ -159,6 +164,13 @@ def test_cli_export_and_refusals(tmp_path, capsys):
     tab = read_rgl_bsdf(out)
     assert tab.is_spectral and list(tab.wavelengths_nm) == [450.0, 550.0, 650.0]
     assert tab.theta_i_deg.size == 6
+    assert simulate_main(["export", "red-cotton", "--method", "classic", "--out", str(tmp_path / "rgb.bsdf"),
+                          "--rgb", "--wavelengths", "400:700:50", "--resolution", "16", "--incidences", "6",
+                          "--target-rel-err", "0.05", "--no-progress"]) == 0
+    rgb = read_rgl_bsdf(tmp_path / "rgb.bsdf")
+    assert not rgb.is_spectral and "linear sRGB" in rgb.description
+    red = rgb.beta(0.0, 0.0, 20.0, 180.0)
+    assert red[0] > 2 * red[1] and red[0] > 2 * red[2]             # red cotton is red (coarse 50 nm bands)
     assert simulate_main(["export", "red-cotton", "--method", "classic", "--out", str(out)]) == 2
     assert "--force" in capsys.readouterr().err
     assert simulate_main(["export", "red-cotton", "--method", "classic", "--out", str(tmp_path / "d.bsdf"),
@@ -187,3 +199,18 @@ def test_monte_carlo_models_export_on_reduced_budgets(tmp_path, method):
                                                          [0, 0, 1.0]]).T))
     got = np.pi * tab.eval_cos(wi, wo) / wo[:, 2:]
     np.testing.assert_allclose(got, ref, rtol=0.25)
+
+
+def test_cli_anisotropic_export(tmp_path, classic):
+    """--anisotropic 4: incidence azimuths stored; the (isotropic) classic model comes back the same
+    at an incidence azimuth between the stored ones as along x."""
+    out = tmp_path / "a.bsdf"
+    assert simulate_main(["export", "red-cotton", "--method", "classic", "--out", str(out), "--wavelengths",
+                          "450:650:100", "--anisotropic", "4", "--azimuths", "3", "--resolution", "24",
+                          "--incidences", "8", "--target-rel-err", str(TARGET), "--seed", "0", "--no-progress"]) == 0
+    tab = read_rgl_bsdf(out)
+    assert not tab.isotropic and tab.reduction == 4 and tab.phi_i_deg.size == 3
+    wi, wo = random_pairs(np.random.default_rng(4), 500, 50.0)
+    got = np.pi * tab.eval_cos(wi, wo) / wo[:, 2:]
+    rel = np.abs(got - classic["beta"](wi, wo)) / classic["beta"](wi, wo)
+    assert np.sqrt(np.mean(rel ** 2)) < 0.05
