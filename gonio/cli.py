@@ -372,14 +372,15 @@ def _add_export_parser(sub) -> None:
     ex.add_argument("--out", required=True, metavar="FILE.bsdf", help="file to write")
     ex.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
     ex.add_argument("--resolution", type=int, default=64, help="values per axis of the warped grid (64)")
-    ex.add_argument("--incidences", type=int, default=16, help="incidence nodes 0..90 deg (16)")
+    ex.add_argument("--incidences", type=int, default=16,
+                    help="incidence nodes 0..90 deg besides the measured incidences (16)")
     ex.add_argument("-v", "--verbose", action="store_true")
 
 
 def _cmd_export(args) -> int:
     from gonio.data import read_dataset
-    from gonio.data.bsdf_dataset import dataset_brdf
-    from gonio.data.bsdf_export import export_bsdf, incidence_nodes
+    from gonio.data.bsdf_dataset import dataset_brdf, dataset_nodes
+    from gonio.data.bsdf_export import export_bsdf
 
     out = Path(args.out)
     if out.exists() and not args.force:
@@ -389,7 +390,7 @@ def _cmd_export(args) -> int:
     dataset = read_dataset(args.dataset)
     beta, rule = dataset_brdf(dataset)
     result = export_bsdf(beta, out, wavelengths_nm=None if dataset.is_rgb else dataset.wavelengths_nm,
-                         theta_i_deg=incidence_nodes(args.incidences), res=args.resolution,
+                         theta_i_deg=dataset_nodes(rule, args.incidences), res=args.resolution,
                          description=f"{dataset.name} (fabric-optics gonio export of a measured dataset)",
                          provenance={"dataset": str(args.dataset), "coverage": rule})
     print(f"gonio export: {dataset.name} -> {out} ({result.evaluations} interpolated values; measured "

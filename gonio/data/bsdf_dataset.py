@@ -12,7 +12,7 @@ import numpy as np
 
 from gonio.data.bsdf_export import BRDF, ExportError
 
-__all__ = ["dataset_brdf"]
+__all__ = ["dataset_brdf", "dataset_nodes"]
 
 
 def dataset_brdf(dataset: Any) -> tuple[BRDF, dict[str, Any]]:
@@ -83,3 +83,14 @@ def dataset_brdf(dataset: Any) -> tuple[BRDF, dict[str, Any]]:
                     "(1 +- cos dphi)/2 blend of the source-side and mirror-side curves",
             "extrapolated": "every incidence outside the measured range and every out-of-plane pair"}
     return beta, rule
+
+
+def dataset_nodes(rule: dict[str, Any], n: int = 16, min_gap_deg: float = 2.0) -> np.ndarray:
+    """Incidence nodes for a dataset's export: the measured incidences themselves (there the file
+    holds the measured curves, not an interpolation between nodes) plus ``n`` nodes uniform in
+    ``cos(theta_i)``, dropping those within ``min_gap_deg`` of a measured one."""
+    from gonio.data.bsdf_export import incidence_nodes
+
+    measured = np.asarray(rule["incidences_deg"], float)
+    extra = [t for t in incidence_nodes(n) if np.min(np.abs(measured - t)) >= min_gap_deg]
+    return np.unique(np.concatenate([measured, extra, [0.0, 90.0]]))

@@ -78,20 +78,21 @@ def test_coarse_tables_are_measurably_worse():
 
 
 def test_measured_dataset_round_trip(tmp_path):
-    """`gonio export` of an in-plane measurement -> `gonio import rgl-bsdf` at the measured
-    geometries gives back the measured values (in-plane, within the stated error: RMS 6 %,
-    dominated by the 60 deg curve, which lies between incidence nodes)."""
+    """`gonio export` of an in-plane measurement -> the file at the measured geometries gives back
+    the measured values: measured RMS 1.8 %, median 0.2 %, p95 5 %, max 10 % over all 1749 values
+    (the measured incidences are nodes; the rest is the 64 x 64 value grid)."""
     out = tmp_path / "red.bsdf"
     assert gonio_main(["export", str(MEASURED), "--out", str(out)]) == 0
     tab = read_rgl_bsdf(out)
     assert tab.is_spectral and tab.isotropic
     data = read_dataset(MEASURED).table
-    data = data[(data.theta_o <= 60) & (data.wavelength_nm >= 450)]
+
     beta = tab.beta(data.theta_i.values, data.phi_i.values, data.theta_o.values, data.phi_o.values)
     k = np.searchsorted(tab.wavelengths_nm, data.wavelength_nm.values)
     got = beta[np.arange(len(data)), k]
     rel = np.abs(got - data.beta.values) / data.beta.values
-    assert np.sqrt(np.mean(rel ** 2)) < 0.08 and np.median(rel) < 0.03
+    assert np.sqrt(np.mean(rel ** 2)) < 0.03 and np.median(rel) < 0.005 and rel.max() < 0.15
+    assert np.allclose(tab.theta_i_deg[[0, 2, 5, 9]], [0, 30, 45, 60], atol=1e-4)   # measured = nodes
     prov = bytes(read_tensor_file(out)["provenance"]).decode()
     assert "clamped" in prov and "blend" in prov   # the coverage rule is in the file
 
