@@ -690,7 +690,7 @@ def _export_run(args: argparse.Namespace) -> int:
         result = export_model(config, args.method, args.out, wavelengths_nm=wl, rgb=args.rgb, res=args.resolution,
                               incidences=args.incidences, target_rel_err=args.target_rel_err, seed=args.seed,
                               threads=args.threads, max_photons=args.max_photons, check_pairs=args.check,
-                              reduction=args.anisotropic, n_phi_i=args.azimuths)
+                              reduction=args.anisotropic, n_phi_i=args.azimuths, progress=_progress(args))
     except (ExportError, FabricError) as exc:
         raise _UsageError(str(exc)) from None
     err = result.error

@@ -47,8 +47,8 @@ def _model_functions() -> dict[str, Any]:
 
 
 def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err: float | None = None,
-               seed: int | None = None, threads: int | None = None, max_photons: int | None = None
-               ) -> tuple[Callable[[np.ndarray, np.ndarray], np.ndarray], dict]:
+               seed: int | None = None, threads: int | None = None, max_photons: int | None = None,
+               progress: bool = False) -> tuple[Callable[[np.ndarray, np.ndarray], np.ndarray], dict]:
     """``beta(w_i, w_o) -> (N, L)`` of the fabric model ``method`` of ``config`` at ``wavelengths_nm``.
 
     The classic model's albedo ``rho_d`` is computed once (fiber Monte Carlo at
@@ -77,7 +77,7 @@ def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err:
     if method == "summation":
         def r_b(a_in: np.ndarray, a_out: np.ndarray) -> np.ndarray:
             est = fn["volume_brdf"](fib, a_in, a_out, wl, method=config.method, target_rel_err=target,
-                                    max_photons=max_photons, seed=seed, threads=threads)
+                                    max_photons=max_photons, seed=seed, threads=threads, progress=progress)
             return np.asarray(est.R, float) + np.asarray(fn["surface_brdf"](fib, a_in, a_out), float)[:, None]
 
         def summation(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -89,7 +89,7 @@ def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err:
     def mc(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
         beta, _u, _run = fn["woven_fabric_beta"](mesh, fib, wi, wo, wl, target_rel_err=target,
                                                  max_rays=max_photons or 0, seed=seed,
-                                                 threads=threads or (os.cpu_count() or 1))
+                                                 threads=threads or (os.cpu_count() or 1), progress=progress)
         return beta
     return mc, info
 
@@ -97,7 +97,8 @@ def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err:
 def export_model(config: Any, method: str, out: str | os.PathLike, *, wavelengths_nm: Any = None,
                  rgb: bool = False, res: int = 64, incidences: int = 16,
                  target_rel_err: float | None = None, seed: int | None = None, threads: int | None = None,
-                 max_photons: int | None = None, check_pairs: int = 0, reduction: int = 0, n_phi_i: int = 5):
+                 max_photons: int | None = None, check_pairs: int = 0, reduction: int = 0, n_phi_i: int = 5,
+                 progress: bool = False):
     """Tabulate and write the model (spectral at ``wavelengths_nm``, or linear sRGB if ``rgb``).
 
     Returns :class:`gonio.data.bsdf_export.ExportResult`.
@@ -109,7 +110,7 @@ def export_model(config: Any, method: str, out: str | os.PathLike, *, wavelength
 
     wl = np.asarray(config.wavelengths_nm if wavelengths_nm is None else wavelengths_nm, float)
     beta, info = model_brdf(config, method, wl, target_rel_err=target_rel_err, seed=seed,
-                            threads=threads, max_photons=max_photons)
+                            threads=threads, max_photons=max_photons, progress=progress)
     source = beta
     if rgb:
         # linear sRGB (D65) of a spectrum is linear in it: one 3 x L matrix, built on a 5 nm grid

@@ -79,6 +79,7 @@ Learned from, not copied.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import struct
 from dataclasses import dataclass, field
@@ -102,6 +103,7 @@ GRAZING_EVAL_DEG = 89.5
 STATED_TABULATION_ERROR = {60.0: {"rms": 0.01, "p95": 0.02, "max": 0.10},
                            80.0: {"rms": 0.02, "p95": 0.03, "max": 0.40}}
 REC709_Y = np.array([0.212671, 0.715160, 0.072169])
+log = logging.getLogger(__name__)
 _DTYPE_CODES = {np.dtype(np.uint8): 1, np.dtype(np.uint32): 5, np.dtype(np.float32): 10}
 
 
@@ -376,6 +378,7 @@ def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
     def f_r(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
         """``f_r`` averaged over the rotations of the pair about the normal: ``(N, bands)``."""
         nonlocal evaluations
+        log.info("bsdf export: asking the source for %d direction pairs x %d azimuth(s)", wi.shape[0], rot.size)
         total = None
         for a in rot:
             c, s = np.cos(a), np.sin(a)
