@@ -72,7 +72,7 @@ def _parser() -> argparse.ArgumentParser:
         description="Compare simulated radiance-coefficient datasets with a measured one: "
                     "normalise at the normal direction, curve errors, HSV colour match.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check,render}")
 
     def common(p):
         p.add_argument("--normal-window", type=_positive, default=DEFAULT_WINDOW_DEG,
@@ -118,7 +118,58 @@ def _parser() -> argparse.ArgumentParser:
                      metavar="X", help=f"largest |saturation difference| "
                                        f"(default {DEFAULT_MAX_SAT_DIFF:g})")
     common(chk)
+    _add_render_parser(sub)
     return parser
+
+
+# ---- compare render (issue 22): one self-contained block --------------------------------------
+def _add_render_parser(sub) -> None:
+    ren = sub.add_parser("render", help="render RGL .bsdf files with Mitsuba 3 (cushion + lit swatch)",
+                         description="Render each FILE.bsdf (e.g. `gonio export` of a measurement, "
+                                     "`simulate export` of a model) on a cushion and on a flat swatch "
+                                     "lit from four sides, side by side: DIR/render_sheet.png, one PNG "
+                                     "per image, DIR/render.json (settings, seconds). Needs the render "
+                                     "extra (mitsuba).")
+    ren.add_argument("files", metavar="FILE.bsdf", nargs="+", help="RGL .bsdf files")
+    ren.add_argument("--out", required=True, metavar="DIR", help="output folder (new, or a previous render)")
+    ren.add_argument("--label", action="append", default=None, metavar="NAME",
+                     help="a label per file, in order (default: the file's description)")
+    ren.add_argument("--spp", type=int, default=32, help="samples per pixel (32)")
+    ren.add_argument("--size", default="240x180", metavar="WxH", help="cushion image size (240x180)")
+    ren.add_argument("--swatch-size", type=int, default=112, metavar="PX", help="swatch image size (112)")
+    ren.add_argument("--force", action="store_true", help="write into a non-empty folder")
+
+
+def _render_cmd(args) -> int:
+    from pathlib import Path
+
+    from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
+
+    from .render import MitsubaMissing, RenderSettings, render_materials, require_mitsuba, write_render_set
+
+    out = Path(args.out)
+    if out.is_dir() and any(out.iterdir()) and not (out / "render.json").is_file() and not args.force:
+        raise CompareError(f"--out {out}: not empty and holds no previous render; pass --force")
+    if args.label and len(args.label) != len(args.files):
+        raise CompareError(f"--label given {len(args.label)} times for {len(args.files)} files")
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        raise CompareError(f"--size {args.size}: expected WxH, e.g. 240x180") from None
+    if not (8 <= w <= 4096 and 8 <= h <= 4096 and 8 <= args.swatch_size <= 4096 and 1 <= args.spp <= 65536):
+        raise CompareError("--size/--swatch-size must be 8..4096 px and --spp 1..65536")
+    files = [read_rgl_bsdf(f) for f in args.files]      # a malformed file: one line naming it
+    labels = args.label or [f.description[:40] or Path(f.path).stem for f in files]
+    settings = RenderSettings(spp=args.spp, size=(w, h), swatch_size=args.swatch_size)
+    try:
+        require_mitsuba()
+        images = render_materials(list(zip(labels, args.files)), settings)
+    except MitsubaMissing as exc:
+        raise CompareError(str(exc)) from None
+    info = write_render_set(images, out, settings)
+    print(f"compare render: {len(images)} images in {info['seconds_total']:.1f} s; {out / info['sheet']}")
+    return 0
+# ---- end compare render -------------------------------------------------------------------------
 
 
 def _report(args) -> int:
@@ -208,6 +259,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "report":
             return _report(args)
+        if args.command == "render":
+            return _render_cmd(args)
         return _check(args)
     except (DatasetError, CompareError) as exc:
         print(f"compare {args.command}: error: {exc}", file=sys.stderr)

@@ -363,6 +363,7 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("bench-driver", add_help=False,
                    help="driver overhead benchmark on the fast mock, with replays (JSON; see "
                         "`gonio bench-driver --help`)")
+    _add_export_parser(sub)
     return p
 
 
@@ -389,6 +390,49 @@ def _cmd_import(args) -> int:
     for note in import_notes(dataset):
         print(f"gonio import: note: {note}")
     return EXIT_OK
+
+
+# ---- gonio export (issue 22): one self-contained block -----------------------------------------
+_EXPORT_DESCRIPTION = (
+    "Tabulate a radiance-coefficient dataset as an isotropic RGL .bsdf file (Dupuy & Jakob 2018), read by "
+    "Mitsuba 3's and pbrt-v4's `measured` material and by `gonio import rgl-bsdf`. The in-plane curves are "
+    "interpolated; the rule for directions the data do not cover (gonio.data.bsdf_dataset.dataset_brdf) is "
+    "written into the file.")
+
+
+def _add_export_parser(sub) -> None:
+    ex = sub.add_parser("export", help="write a dataset as an RGL .bsdf file (Mitsuba 3 / pbrt-v4)",
+                        description=_EXPORT_DESCRIPTION)
+    ex.add_argument("dataset", metavar="DATASET", help="dataset folder")
+    ex.add_argument("--out", required=True, metavar="FILE.bsdf", help="file to write")
+    ex.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    ex.add_argument("--resolution", type=int, default=64, help="values per axis of the warped grid (64)")
+    ex.add_argument("--incidences", type=int, default=16,
+                    help="incidence nodes 0..90 deg besides the measured incidences (16)")
+    ex.add_argument("-v", "--verbose", action="store_true")
+
+
+def _cmd_export(args) -> int:
+    from gonio.data import read_dataset
+    from gonio.data.bsdf_dataset import dataset_brdf, dataset_nodes
+    from gonio.data.bsdf_export import export_bsdf
+
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise _UsageError(f"--out {out}: exists; pass --force to overwrite it")
+    if not 4 <= args.resolution <= 256:
+        raise _UsageError(f"--resolution {args.resolution}: must be in 4..256")
+    dataset = read_dataset(args.dataset)
+    beta, rule = dataset_brdf(dataset)
+    result = export_bsdf(beta, out, wavelengths_nm=None if dataset.is_rgb else dataset.wavelengths_nm,
+                         theta_i_deg=dataset_nodes(rule, args.incidences), res=args.resolution,
+                         description=f"{dataset.name} (fabric-optics gonio export of a measured dataset)",
+                         provenance={"dataset": str(args.dataset), "coverage": rule})
+    print(f"gonio export: {dataset.name} -> {out} ({result.evaluations} interpolated values; measured "
+          f"incidences {rule['incidences_deg']} deg, observation {rule['observation_range_deg']} deg: "
+          "values outside them are clamped/blended, see the file's provenance)")
+    return EXIT_OK
+# ---- end gonio export ---------------------------------------------------------------------------
 
 
 def _bench_parser() -> argparse.ArgumentParser:
@@ -425,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
     _setup_logging(getattr(args, "verbose", False))
     handlers = {"acquire": _cmd_acquire, "replay": _cmd_replay, "check-plan": _cmd_check_plan,
                 "demo": _cmd_demo, "bench-driver": _cmd_bench, "truth": _cmd_truth,
-                "import": _cmd_import}
+                "import": _cmd_import, "export": _cmd_export}
     try:
         return handlers[args.command](args)
     except (_UsageError, *_USER_ERRORS) as exc:

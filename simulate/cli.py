@@ -662,6 +662,69 @@ COMMANDS["sweep"] = ("parameter sweep of a fabric model on dask.distributed (one
                      _sweep_arguments, _sweep_run)
 
 
+# ---- simulate export (issue 22): one self-contained block -------------------------------------
+def _export_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("--method", choices=("classic", "summation", "mc"), required=True, help="fabric model")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE.bsdf", help="RGL .bsdf file to write")
+    p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    p.add_argument("--rgb", action="store_true", help="linear sRGB (D65) values instead of spectra "
+                   "(Mitsuba's RGB variants read only RGB files, its spectral variants only spectral ones)")
+    p.add_argument("--wavelengths", metavar="START:STOP:STEP", default=None,
+                   help="spectral bands in nm (default: the config's wavelengths)")
+    p.add_argument("--resolution", type=_int_in(4, 256), default=64, help="values per axis of the warped grid (64)")
+    p.add_argument("--incidences", type=_int_in(2, 64), default=16, help="incidence nodes 0..90 deg, uniform in cos (16)")
+    p.add_argument("--anisotropic", type=int, choices=(1, 2, 4), default=0, metavar="REDUCTION",
+                   help="keep the anisotropy: incidence azimuths over 360/REDUCTION deg, the rest mirrored "
+                        "(4: mirror symmetric in x and y, as warp/weft summation; 1: none)")
+    p.add_argument("--azimuths", type=_int_in(3, 64), default=5, help="incidence azimuths with --anisotropic (5)")
+    p.add_argument("--check", type=_int_in(0, 10**6), default=0, metavar="N",
+                   help="measure the tabulation error at N random direction pairs (more model evaluations)")
+    _run_settings_arguments(p)
+
+
+def _export_run(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+
+    from gonio.data.bsdf_export import ExportError
+    from simulate.export import export_model
+    from simulate.fabric import FabricError
+
+    config = _load_config(args.config)
+    if args.out.exists() and not args.force:
+        raise _UsageError(f"--out {args.out}: exists; pass --force to overwrite it")
+    wl = None
+    if args.wavelengths:
+        try:
+            a, b, c = (float(x) for x in args.wavelengths.split(":"))
+            wl = np.arange(a, b + 1e-9, c)
+            assert wl.size >= 1 and c > 0
+        except (ValueError, AssertionError):
+            raise _UsageError(f"--wavelengths {args.wavelengths}: expected START:STOP:STEP in nm, "
+                              "e.g. 400:700:10") from None
+    started = time.perf_counter()
+    try:
+        result = export_model(config, args.method, args.out, wavelengths_nm=wl, rgb=args.rgb, res=args.resolution,
+                              incidences=args.incidences, target_rel_err=args.target_rel_err, seed=args.seed,
+                              threads=args.threads, max_photons=args.max_photons, check_pairs=args.check,
+                              reduction=args.anisotropic, n_phi_i=args.azimuths, progress=_progress(args))
+    except (ExportError, FabricError) as exc:
+        raise _UsageError(str(exc)) from None
+    err = result.error
+    check = ("" if err is None else f"; tabulation error at {err['pairs']} pairs (theta <= 80 deg): "
+             f"{err['rms']:.2%} rms, {err['p95']:.2%} p95, {err['max']:.2%} max")
+    print(f"wrote {args.out} ({args.method}; {result.evaluations} model evaluations; "
+          f"{time.perf_counter() - started:.1f} s{check})")
+    return 0
+
+
+COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / pbrt-v4 `measured`)",
+                      _export_arguments, _export_run)
+# ---- end simulate export ----------------------------------------------------------------------
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
     parser = _Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
