@@ -48,6 +48,7 @@ is not positive, raises :class:`~compare.errors.CompareError` as ``compare_datas
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -183,17 +184,24 @@ class ModelResidual:
         self._view_map = self._view_matrix(template, view, bands, illuminant)
         grid = bands.codes() if bands.is_rgb else shared_wavelengths(measured, [template])
         self.grid = grid
-        # the measured side, once
-        measured_normal = estimate_normal_value(measured_view, window_deg, bands.label)
-        self._m = measured_normal.at(grid)[0]
-        # the alignment: a view whose values are the row numbers
+        self.window_deg = window_deg
+        # the alignment: both sides' values replaced by their row numbers
         n_rows = len(view.table)
-        frame = align(measured_view, _with_beta(view, np.arange(1.0, n_rows + 1.0)), grid)
+        n_meas = len(measured.table)
+        meas_index = prepare(_with_beta(measured, np.arange(1.0, n_meas + 1.0)), [template],
+                             [name], illuminant=illuminant)[0]
+        self._measured_table = measured.table[[c for c in measured.table.columns
+                                               if c not in ("beta", "u_beta", "n")]]
+        self._meas_view_src = np.rint(meas_index.table["beta"].to_numpy()).astype(int) - 1
+        self._meas_view = measured_view
+        frame = align(_with_beta(measured_view, np.arange(1.0, len(measured_view.table) + 1.0)),
+                      _with_beta(view, np.arange(1.0, n_rows + 1.0)), grid)
         self._align = self._align_matrix(frame, view, n_rows)
+        self._meas_rows = np.rint(frame["beta_meas"].to_numpy()).astype(int) - 1  # view rows
+        frame["beta_meas"] = measured_view.table["beta"].to_numpy()[self._meas_rows]
+        frame["u_meas"] = measured_view.table["u_beta"].to_numpy()[self._meas_rows]
         self.frame = frame[list(GEOMETRY) + ["s", "wavelength_nm", "beta_meas", "u_meas",
                                              "interpolated"]].copy()
-        self._meas = frame["beta_meas"].to_numpy(float)
-        self._mean = float(np.mean(self._meas))
         self._row_k = np.searchsorted(grid, frame["wavelength_nm"].to_numpy() - _TOL)
         self._angles = {angle_key(t): np.flatnonzero(frame["theta_i"].to_numpy() == t)
                         for t in np.unique(frame["theta_i"].to_numpy())}
@@ -213,9 +221,41 @@ class ModelResidual:
             rows = frame[mask].sort_values("wavelength_nm")
             self._c_rows = rows.index.to_numpy()
             self._c_wl = rows["wavelength_nm"].to_numpy()
-            self.measured_colour = colour_of(self._c_wl, rows["beta_meas"].to_numpy(), illuminant,
-                                           "the measured dataset", bands)
             self._w = band_luminance_weights(bands, self._c_wl, illuminant)
+        self._measured_side(measured_view)
+
+    def _measured_side(self, measured_view: Dataset) -> None:
+        """Everything that depends on the measured values (the measured view given)."""
+        measured_normal = estimate_normal_value(measured_view, self.window_deg, self.bands.label)
+        self._m = measured_normal.at(self.grid)[0]
+        self._meas = measured_view.table["beta"].to_numpy(float)[self._meas_rows]
+        self._mean = float(np.mean(self._meas))
+        if self.has_colour:
+            self.measured_colour = colour_of(self._c_wl, self._meas[self._c_rows], self.illuminant,
+                                             "the measured dataset", self.bands)
+
+    def with_measured(self, measured: Dataset) -> "ModelResidual":
+        """A copy against ``measured``, a dataset with the SAME rows as the one prepared (new
+        values: e.g. a noise draw of the measurement); only the measured side is recomputed.
+
+        Raises
+        ------
+        CompareError
+            ``measured`` has other rows (prepare a new :class:`ModelResidual`).
+        """
+        cols = list(self._measured_table.columns)
+        if len(measured.table) != len(self._measured_table) or not measured.table[cols].equals(
+                self._measured_table):
+            raise CompareError(f"measured dataset '{measured.name}' does not have the rows of the "
+                               "prepared one; prepare a new ModelResidual")
+        out = copy.copy(self)
+        view = self._meas_view
+        table = view.table.copy()
+        table["beta"] = measured.table["beta"].to_numpy(float)[self._meas_view_src]
+        table["u_beta"] = measured.table["u_beta"].to_numpy(float)[self._meas_view_src]
+        out._meas_view = Dataset(table, view.meta, view.path)
+        out._measured_side(out._meas_view)
+        return out
 
     # -- preparation --------------------------------------------------------------------------
 

@@ -182,3 +182,23 @@ def test_bad_values_and_bad_normal_are_refused(h):
         res.evaluate(bad)
     with pytest.raises(CompareError, match="normal/normal value"):
         res.evaluate(-beta)
+
+
+@pytest.mark.parametrize("kind", ["spectral", "rgb"])
+def test_with_measured_noise_draw_equals_a_fresh_comparison(h, kind):
+    """The fit's noise draws: same rows, new measured values, only the measured side redone."""
+    spectral = h.dataset(h.in_plane_table(h.red_lobe), name="red")
+    measured = spectral if kind == "spectral" else to_channels(spectral, name="red rgb")
+    model = read_dataset(h.FIXTURES / "sim_lambert")
+    geometries, wl, beta, u = as_model(model)
+    res = ModelResidual(measured, geometries, wl)
+    rng = np.random.default_rng(7)
+    t = measured.table.copy()
+    t["beta"] = t["beta"] * rng.uniform(0.9, 1.1, len(t))
+    noisy = make_dataset(t, measured.meta)
+    assert_same(res.with_measured(noisy), beta, u, noisy, model)
+    assert_same(res, beta, u, measured, model)          # the original is unchanged
+    other = make_dataset(t.iloc[:-3], measured.meta) if kind == "spectral" else None
+    if other is not None:
+        with pytest.raises(CompareError, match="rows of the prepared one"):
+            res.with_measured(other)
