@@ -18,7 +18,7 @@ import numpy as np
 
 from gonio.data import Dataset, atomic_write, display_srgb
 
-from .report import GENERATOR, _prepare_out_dir, _savefig
+from .report import GENERATOR, prepare_out_dir, save_figure
 
 __all__ = ["write_dataset_report"]
 
@@ -45,7 +45,7 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
     import matplotlib.pyplot as plt
 
     out = Path(out_dir)
-    old = _prepare_out_dir(out, force)
+    old = prepare_out_dir(out, force)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     frame = ds.in_plane()
     incidences = sorted(set(frame["theta_i"]))
@@ -69,7 +69,7 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
         axes[0][0].set_ylabel("beta / pi (1/sr)" + (" (relative)" if ds.relative else ""))
         axes[0][-1].legend(fontsize=7)
         fig.tight_layout()
-        _savefig(fig, out / "figures" / "inplane.png", svg)
+        save_figure(fig, out / "figures" / "inplane.png", svg)
         figures.append("figures/inplane.png")
     table = _colours(ds) if (ds.is_rgb and set("RGB") <= set(ds.channels)) or \
         (not ds.is_rgb and len(ds.wavelengths_nm) >= 2) else []
@@ -89,7 +89,7 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
             ax.set_ylabel(f"{ti:g} deg", rotation=0, labelpad=20, fontsize=8)
         axes[-1, 0].set_xlabel("signed observation angle s (deg)")
         fig.tight_layout()
-        _savefig(fig, out / "figures" / "colour_strips.png", svg)
+        save_figure(fig, out / "figures" / "colour_strips.png", svg)
         figures.append("figures/colour_strips.png")
     for path in old:
         if path.name not in {Path(f).name for f in figures} and path.is_file():
