@@ -61,6 +61,7 @@ from gonio.data.colour import hue_difference
 
 from .align import align, shared_wavelengths
 from .bands import CODES, Bands, conversion_matrix, prepare
+from .comparison import DYNAMIC_RANGE_MAX, check_values
 from .colourmatch import band_luminance_weights, colour_geometry, colour_of
 from .errors import CompareError
 from .metrics import angle_key
@@ -172,6 +173,7 @@ class ModelResidual:
         if illuminant not in colour.SDS_ILLUMINANTS:
             raise CompareError(f"unknown illuminant {illuminant!r}; use a key of "
                                "colour.SDS_ILLUMINANTS such as 'D65', 'D50' or 'A'")
+        check_values(measured, "measured")
         wl = np.asarray(wavelengths_nm, dtype=float).ravel()
         self.shape = (len(geometries), wl.size)
         self.illuminant = illuminant
@@ -380,6 +382,12 @@ class ModelResidual:
                                "(geometries x wavelengths)")
         if not np.all(np.isfinite(b)):
             raise CompareError(f"model '{self.name}': values are not all finite numbers")
+        size = np.abs(b)
+        nonzero = size[size > 0]
+        if nonzero.size and size.max() > DYNAMIC_RANGE_MAX * float(np.median(nonzero)):
+            raise CompareError(f"model '{self.name}': a value {b.flat[int(np.argmax(size))]:g} "
+                               f"is more than {DYNAMIC_RANGE_MAX:g} times the median |beta| "
+                               "(compare.comparison.check_values)")
         values = self._view_map @ b.ravel()[self._order]
         normal = self._normal @ values
         check_normal_values(self._view_ds, self._view_wl, normal, self._normal_exact,

@@ -14,8 +14,8 @@ from gonio.data import atomic_write
 
 from ..colourmatch import band_luminance_weights
 from ..comparison import Comparison
-from .curves import (BEAM_BLOCK_DEG, REPORT_WAVELENGTHS_NM, luminance_curve, measured_inplane,
-                     sim_inplane, single_wavelength)
+from .curves import (BEAM_BLOCK_DEG, GRAZING_DEG, REPORT_WAVELENGTHS_NM, beam_blocked,
+                     luminance_curve, measured_inplane, sim_inplane, single_wavelength)
 from .figures import (colour_strip_figure, colour_strips, factor_figure, hue_trend,
                       inplane_figure, save_figure, spectrum_figure, swatch_figure)
 from .outdir import prepare_out_dir
@@ -56,13 +56,22 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     simulated = {name: sim_inplane(comparison, name) for name in comparison.simulated}
     figures: dict[str, tuple[bytes, str]] = {}
     sims = ", ".join(comparison.simulated)
-    lines = ("Lines: " + sims + " (normalised per wavelength by k), broken where a curve has "
-             "no point, e.g. across the beam-blocked cone around the retro-direction (shaded, "
-             f"|s + theta_i| < {BEAM_BLOCK_DEG:g} deg, where the detector would block the "
-             "source); the dashed line marks the mirror direction. Shaded around each line: "
-             "+-1 standard uncertainty of that simulation (its Monte Carlo standard error "
-             "times k; for Y[beta] summed linearly over the wavelengths, since one set of "
-             "photons serves every wavelength and their errors are correlated).")
+    blocked = beam_blocked(measured, comparison.measured) if not measured.empty else set()
+    gap = (f"across the beam-blocked cone around the retro-direction (shaded, |s + theta_i| < "
+           f"{BEAM_BLOCK_DEG:g} deg, where the detector would block the source; drawn only at "
+           "the incidences where the measurement has that gap)" if blocked else
+           "e.g. where the measurement has no point (it has no beam-blocked gap, the "
+           "instrument's or a measurement without one: none is shaded)")
+    preface = ("Reading the in-plane figures: points are the measurement "
+               f"'{comparison.measured.name}'; lines are the simulations ({sims}), normalised "
+               f"per {bands.noun} by k, broken where a curve has no point, {gap}; the dotted "
+               "line marks the retro-direction, the dashed one the mirror direction. Shaded "
+               "around each line: +-1 standard uncertainty of that simulation (its Monte Carlo "
+               "standard error times k; for Y[beta] summed linearly over the wavelengths, since "
+               "one set of photons serves every wavelength and their errors are correlated). "
+               "Panels share one value axis except those titled 'own scale' (grazing "
+               f"incidences, >= {GRAZING_DEG:g} deg), which would flatten the others."
+               if not measured.empty else "")
 
     def bars_note(hidden: bool, what: str) -> str:
         if hidden:
@@ -71,10 +80,11 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
 
     def inplane(fname, meas_rows, sim_rows, title, ylabel, caption):
         fig, hidden = inplane_figure(meas_rows, sim_rows, title, ylabel,
-                                      comparison.measured.name)
+                                     comparison.measured.name, blocked=blocked)
         data = save_figure(fig, fig_dir / fname, svg)
         figures[fname] = (data, caption + bars_note(hidden, "+-1 standard uncertainty of the "
-                                                    "measurement") + " " + lines)
+                                                    "measurement") + " Lines and shading: see "
+                          "the note above the figures.")
 
     if not measured.empty:
         inplane("inplane_luminance.png", luminance_curve(measured, grid, weights),
@@ -101,7 +111,7 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
                     f"radiance coefficient, {at}", "beta / pi  (1/sr)",
                     f"In-plane BRDF beta/pi, {at}, against the signed observation angle "
                     "s, one panel per incidence angle. Points: the measurement "
-                    f"'{comparison.measured.name}'.")
+                    f"'{comparison.measured.name}'." + interpolated_at(comparison, wl))
     else:
         log.warning("the measured dataset has no in-plane points: no in-plane figures")
     if comparison.colour is not None:
@@ -119,7 +129,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
         for name, data in section.figures.items():
             atomic_write(fig_dir / name, data)
     report = out / "report.html"
-    atomic_write(report, page_html(comparison, metrics, figures, list(sections)).encode("utf-8"))
+    atomic_write(report, page_html(comparison, metrics, figures, list(sections),
+                                   preface).encode("utf-8"))
     written = {fig_dir / name for name in figures}
     written |= {fig_dir / name for s in sections for name in s.figures}
     for old in previous:
@@ -129,15 +140,33 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     return report
 
 
+def interpolated_at(comparison: Comparison, wavelength: float) -> str:
+    """A sentence naming the simulations that do not hold ``wavelength`` (their curve there is
+    linearly interpolated in wavelength), or ``""``."""
+    if comparison.bands.is_rgb:
+        return ""
+    names = [name for name, ds in comparison.simulated.items()
+             if not np.any(np.abs(ds.wavelengths_nm - wavelength) < 1e-6)]
+    if not names:
+        return ""
+    return (f" {', '.join(repr(n) for n in names)} "
+            + ("has" if len(names) == 1 else "have")
+            + f" no simulated value at {wavelength:g} nm: drawn from values linearly "
+            "interpolated in wavelength (see the note on interpolation).")
+
+
 def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool) -> None:
     geo = comparison.colour.geometry
     figures["spectrum.png"] = (save_figure(spectrum_figure(comparison), fig_dir / "spectrum.png",
-                                        svg),
+                                           svg),
         ("Channels" if comparison.bands.is_rgb else "Spectra")
         + f" at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
-        " deg). Points with +-1 standard uncertainty: the measurement. Left: each simulation "
-        f"normalised per {comparison.bands.noun} (equal to the measurement at the normal by construction); "
-        "right: scaled by the single luminance factor k_Y used for the colour match.")
+        " deg). Points with +-1 standard uncertainty: the measurement; each simulation scaled "
+        "by the single luminance factor k_Y used for the colour match"
+        + (" (channels as points: R, G and B are not a continuum)" if comparison.bands.is_rgb
+           else "")
+        + f". Normalised per {comparison.bands.noun} instead, every simulation would equal the "
+        "measurement here by construction, so that view is not drawn.")
     figures["swatches.png"] = (save_figure(swatch_figure(comparison), fig_dir / "swatches.png",
                                         svg),
         "Colour swatches at the colour geometry as shown on screen (gamma-encoded sRGB); the "

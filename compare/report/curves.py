@@ -13,13 +13,41 @@ import pandas as pd
 
 from ..comparison import Comparison
 
-__all__ = ["BEAM_BLOCK_DEG", "REPORT_WAVELENGTHS_NM", "gapped", "luminance_curve",
+__all__ = ["BEAM_BLOCK_DEG", "GRAZING_DEG", "REPORT_WAVELENGTHS_NM", "angle_text", "beam_blocked",
+           "gapped", "luminance_curve",
            "measured_inplane", "sim_inplane", "single_wavelength"]
 
 #: Single wavelengths plotted (nearest shared ones).
 REPORT_WAVELENGTHS_NM = (450.0, 550.0, 650.0)
 #: Half-width (deg) of the cone around the source direction the detector cannot enter.
 BEAM_BLOCK_DEG = 5.0
+#: Incidences at or beyond this (deg) are grazing: drawn in panels with their own value axis (a
+#: 90 deg curve reaching 5 would flatten every 0-60 deg curve on a shared axis).
+GRAZING_DEG = 85.0
+
+
+def angle_text(theta_deg: float) -> str:
+    """``"θi = 27.8°"``: an incidence to one decimal (no trailing ``.0``)."""
+    return f"θi = {round(float(theta_deg), 1):g}°"
+
+
+def beam_blocked(rows: pd.DataFrame, dataset=None) -> set[float]:
+    """Incidences (rounded to 1e-6) at which the measured curve has a beam-block gap: no point
+    within :data:`BEAM_BLOCK_DEG` of the retro-direction ``s = -theta_i`` but points on both
+    sides of it. A beam block is the instrument's: a dataset imported from another instrument's
+    file (meta.json ``instrument.format``: rgl-bsdf, merl, pgii, ...) has none, even where its
+    geometries (a plan's) skip the retro-direction, nor does a simulation (kind other than
+    ``measured``): empty."""
+    if dataset is not None:
+        instrument = dataset.meta.get("instrument")
+        if dataset.kind != "measured" or (isinstance(instrument, dict) and instrument.get("format")):
+            return set()
+    out = set()
+    for theta_i, r in rows.groupby(rows["theta_i"].round(6)):
+        s = r["s"].to_numpy(float) + float(theta_i)
+        if not np.any(np.abs(s) < BEAM_BLOCK_DEG) and np.any(s < 0) and np.any(s > 0):
+            out.add(float(theta_i))
+    return out
 
 
 def sim_inplane(comparison: Comparison, name: str) -> pd.DataFrame:

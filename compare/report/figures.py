@@ -15,10 +15,11 @@ import pandas as pd
 
 from gonio.data import atomic_write
 
+from ..bands import colour_at
 from ..comparison import Comparison
-from .curves import BEAM_BLOCK_DEG, gapped
+from .curves import BEAM_BLOCK_DEG, GRAZING_DEG, angle_text, beam_blocked, gapped
 
-__all__ = ["FIGURE_DPI", "colour_strip_figure", "colour_strips", "factor_figure", "hue_trend",
+__all__ = ["FIGURE_DPI", "OWN_SCALE_RATIO", "own_scale_panels", "colour_strip_figure", "colour_strips", "factor_figure", "hue_trend",
            "inplane_figure", "mpl_label", "save_figure", "spectrum_figure", "swatch_entries",
            "swatch_figure"]
 
@@ -64,8 +65,32 @@ def _bars_hidden(ax, x, y, u) -> bool:
     return bool(np.all(np.abs(hi - lo) < marker_px))
 
 
+#: A panel whose largest value exceeds this many times the median of the panels' largest
+#: values gets its own value axis (a forward peak at 79 deg would flatten the 0-60 deg curves).
+OWN_SCALE_RATIO = 2.0
+
+
+def own_scale_panels(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame],
+                     angles: list[float], ratio: float | None = OWN_SCALE_RATIO) -> set[float]:
+    """The incidences drawn on their own value axis: grazing ones (>= ``GRAZING_DEG``) and,
+    unless ``ratio`` is None, those whose peak exceeds ``ratio`` times the median panel peak."""
+    frames = [measured] + list(simulated.values())
+    peaks = []
+    for theta_i in angles:
+        values = [f.loc[np.abs(f["theta_i"] - theta_i) < 1e-6, "value"].to_numpy(float)
+                  for f in frames if len(f)]
+        both = np.concatenate(values) if values else np.array([])
+        both = both[np.isfinite(both)]
+        peaks.append(float(np.max(np.abs(both))) if both.size else 0.0)
+    typical = float(np.median([p for a, p in zip(angles, peaks) if a < GRAZING_DEG] or [0.0]))
+    return {a for a, p in zip(angles, peaks)
+            if a >= GRAZING_DEG or (ratio is not None and typical > 0 and p > ratio * typical)}
+
+
 def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], title: str,
-                    ylabel: str, measured_name: str, *, bands: bool = True):
+                    ylabel: str, measured_name: str, *, bands: bool = True,
+                    blocked: set[float] | None = None, role: str = "measured",
+                    own_scale_ratio: float | None = None):
     """The in-plane panels; returns ``(figure, bars_hidden)``, ``bars_hidden`` True when the
     measured error bars are smaller than the markers in every panel.
 
@@ -81,10 +106,23 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
         Columns ``theta_i, s, value, u``; ``value`` and ``u`` are divided by pi when drawn.
     title, ylabel, measured_name : str
         Figure title, value-axis label and the measurement's name (legend).
+    role : str
+        What the points are, in the legend after the name (``"measured"``; a single-dataset
+        report of a simulation says ``"simulated"``).
     bands : bool
         Shade +-1 ``u`` around every simulated line.
+    blocked : set of float, optional
+        Incidences whose beam-blocked cone is shaded (default: where the measurement has the
+        gap, :func:`compare.report.curves.beam_blocked`). Grazing incidences (>=
+        :data:`~compare.report.curves.GRAZING_DEG`) and, with ``own_scale_ratio``, panels far
+        above the others (:func:`own_scale_panels`) get their own value axis, said in their
+        title; the comparison report keeps the paper's shared axis for the others.
     """
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    if blocked is None:
+        blocked = beam_blocked(measured)
 
     angles = sorted(set(measured["theta_i"].round(6)))
     n = max(len(angles), 1)
@@ -95,15 +133,19 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
     legend_in = 0.6        # height (inches) of the legend strip under a single row of panels
     fig, axes = plt.subplots(nrows, ncols,
                              figsize=(4.4 * ncols, 3.6 * nrows + (legend_in if legend_below else 0.0)),
-                             squeeze=False, sharey=True)
+                             squeeze=False)
+    own = own_scale_panels(measured, simulated, angles, own_scale_ratio)
+    shared = [ax for ax, a in zip(axes.ravel(), angles) if a not in own]
+    for ax in shared[1:]:
+        ax.sharey(shared[0])
     hidden = []
     for k, (ax, theta_i) in enumerate(zip(axes.ravel(), angles)):
         m = measured[np.abs(measured["theta_i"] - theta_i) < 1e-6].sort_values("s")
-        ax.axvspan(-theta_i - BEAM_BLOCK_DEG, -theta_i + BEAM_BLOCK_DEG, color="0.92", lw=0,
-                   label="beam-blocked (retro-direction)" if k == 0 else None)
+        if round(float(theta_i), 6) in blocked:
+            ax.axvspan(-theta_i - BEAM_BLOCK_DEG, -theta_i + BEAM_BLOCK_DEG, color="0.92", lw=0)
         ax.axvline(-theta_i, color="0.5", lw=0.8, ls=":")
         ax.errorbar(m["s"], m["value"] / np.pi, yerr=m["u"] / np.pi, fmt="o", ms=MARKER_PT,
-                    capsize=2, color=MEASURED_COLOUR, label=mpl_label(f"{measured_name} (measured)"),
+                    capsize=2, color=MEASURED_COLOUR, label=mpl_label(f"{measured_name} ({role})"),
                     zorder=3)
         for j, (name, rows) in enumerate(simulated.items()):
             colour = f"C{j}"
@@ -127,25 +169,31 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
             ax.axvline(theta_i, color="0.75", lw=0.8, ls="--")
             ax.text(theta_i, 0.97, " mirror", transform=ax.get_xaxis_transform(), rotation=90,
                     ha="right", va="top", fontsize=7, color="0.35")
-        ax.set_title(f"incidence {theta_i:g} deg")
+        alone = theta_i in own
+        ax.set_title(angle_text(theta_i) + ((" (grazing: own scale)" if theta_i >= GRAZING_DEG
+                                             else " (own scale)") if alone else ""))
         ax.set_xlabel("signed observation angle s (deg)")
-        if k % ncols == 0:
+        if k % ncols == 0 or alone:
             ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     for ax in axes.ravel()[len(angles):]:
         ax.set_visible(False)
     fig.suptitle(mpl_label(title))
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    if blocked:
+        handles.insert(0, Patch(color="0.92", lw=0))
+        labels.insert(0, "beam-blocked (retro-direction)")
     if legend_below:
         # the first panel's legend (so it stays with the panel that owns the entries), placed in
         # a strip reserved at the bottom of the figure and kept out of tight_layout, which would
         # otherwise shrink the first panel to make room for it
-        legend = axes[0, 0].legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 0.0),
+        legend = axes[0, 0].legend(handles, labels, fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 0.0),
                                    bbox_transform=fig.transFigure, frameon=False,
                                    ncol=min(3, 2 + len(simulated)))
         legend.set_in_layout(False)
         fig.tight_layout(rect=(0.0, legend_in / fig.get_figheight(), 1.0, 1.0))
     else:
-        axes[0, 0].legend(fontsize=8)
+        axes[0, 0].legend(handles, labels, fontsize=8)
         fig.tight_layout()
     fig.draw_without_rendering()   # final limits and layout: the transforms below are drawn
     for ax, theta_i in zip(axes.ravel(), angles):
@@ -156,43 +204,39 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
 
 
 def spectrum_figure(comparison: Comparison):
+    """The spectra (or channels) at the colour geometry: the measurement and each simulation
+    scaled by the one luminance factor ``k_Y`` of the colour match. The per-wavelength
+    normalised view is not drawn: ``k(lambda)`` makes every simulation equal the measurement at
+    the normal by construction, so near the normal it would show the same curve for every
+    dataset. Channels are points (R, G, B are not a continuum: no line joins them)."""
     import matplotlib.pyplot as plt
 
     cm = comparison.colour
     geo = cm.geometry
     rgb = comparison.bands.is_rgb
-    per, k_name, style = ("channel", "k(c)", "-o") if rgb else ("wavelength", "k(lambda)", "-")
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
-    for ax, scaled in zip(axes, (False, True)):
-        first = next(iter(comparison.frames.values()))
-        rows = first[(np.abs(first[["theta_i", "phi_i", "theta_o", "phi_o"]].to_numpy()
-                             - np.array([geo["theta_i"], geo["phi_i"], geo["theta_o"],
-                                         geo["phi_o"]])) < 1e-6).all(axis=1)]
-        ax.errorbar(rows["wavelength_nm"], rows["beta_meas"], yerr=rows["u_meas"], fmt="o",
-                    ms=3, capsize=2, color=MEASURED_COLOUR,
-                    label=mpl_label(f"{comparison.measured.name} (measured)"))
-        for name, sc in cm.simulated.items():
-            if scaled:
-                ax.plot(sc.wavelength_nm, sc.beta, style, label=mpl_label(f"{name} x k_Y"))
-            else:
-                frame = comparison.frames[name]
-                r = frame[(np.abs(frame[["theta_i", "phi_i", "theta_o", "phi_o"]].to_numpy()
-                                  - np.array([geo["theta_i"], geo["phi_i"], geo["theta_o"],
-                                              geo["phi_o"]])) < 1e-6).all(axis=1)]
-                ax.plot(r["wavelength_nm"], r["beta_sim"], style, label=mpl_label(f"{name} x {k_name}"))
-        ax.set_xlabel("wavelength (nm)")
-        ax.set_title(f"normalised per {per}" if not scaled else
-                     "scaled by the luminance factor k_Y (colour match)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    axes[0].set_ylabel("radiance coefficient beta")
-    if comparison.bands.is_rgb:
-        for ax in axes:
-            ax.set_xticks(comparison.wavelength_nm,
-                          [comparison.bands.label(b) for b in comparison.wavelength_nm])
-            ax.set_xlabel(f"channel ({comparison.bands.colour_space})")
-    fig.suptitle(f"{'channels' if comparison.bands.is_rgb else 'spectra'} at theta_i={geo['theta_i']:g}, phi_i={geo['phi_i']:g}, "
-                 f"theta_o={geo['theta_o']:g}, phi_o={geo['phi_o']:g} deg")
+    style = "o" if rgb else "-"
+    fig, ax = plt.subplots(figsize=(7.5, 4))
+    first = next(iter(comparison.frames.values()))
+    rows = first[(np.abs(first[["theta_i", "phi_i", "theta_o", "phi_o"]].to_numpy()
+                         - np.array([geo["theta_i"], geo["phi_i"], geo["theta_o"],
+                                     geo["phi_o"]])) < 1e-6).all(axis=1)]
+    ax.errorbar(rows["wavelength_nm"], rows["beta_meas"], yerr=rows["u_meas"], fmt="o",
+                ms=3 if not rgb else 6, capsize=2, color=MEASURED_COLOUR,
+                label=mpl_label(f"{comparison.measured.name} (measured)"))
+    for j, (name, sc) in enumerate(cm.simulated.items()):
+        ax.plot(sc.wavelength_nm, sc.beta, style, ms=5, label=mpl_label(f"{name} x k_Y"))
+    ax.set_xlabel("wavelength (nm)")
+    ax.set_title("scaled by the luminance factor k_Y (colour match)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_ylabel("radiance coefficient beta")
+    if rgb:
+        ax.set_xticks(comparison.wavelength_nm,
+                      [comparison.bands.label(b) for b in comparison.wavelength_nm])
+        ax.set_xlabel(f"channel ({comparison.bands.colour_space})")
+        ax.set_xlim(comparison.wavelength_nm.min() - 0.5, comparison.wavelength_nm.max() + 0.5)
+    fig.suptitle(f"{'channels' if rgb else 'spectra'} at {angle_text(geo['theta_i'])}, "
+                 f"phi_i={geo['phi_i']:g}, theta_o={geo['theta_o']:g}, phi_o={geo['phi_o']:g} deg")
     fig.tight_layout()
     return fig
 
@@ -202,7 +246,8 @@ def factor_figure(comparison: Comparison):
 
     fig, ax = plt.subplots(figsize=(7, 3.8))
     for name, norm in comparison.normalisations.items():
-        ax.errorbar(norm.wavelength_nm, norm.factor, yerr=norm.u_factor, fmt="-o", ms=3,
+        ax.errorbar(norm.wavelength_nm, norm.factor, yerr=norm.u_factor,
+                    fmt="o" if comparison.bands.is_rgb else "-o", ms=3,
                     capsize=2, label=mpl_label(name))
     ax.set_xlabel("wavelength (nm)")
     if comparison.bands.is_rgb:
@@ -292,8 +337,8 @@ def colour_strips(comparison: Comparison) -> list[dict]:
             s_list, rgb_list, h_list = [], [], []
             for s, at in rows.groupby("s", sort=True):
                 try:
-                    c = ds.colour_at(float(theta_i), float(phi_i), float(at["theta_o"].iloc[0]),
-                                     float(at["phi_o"].iloc[0]), illuminant=comparison.illuminant)
+                    c = colour_at(ds, float(theta_i), float(phi_i), float(at["theta_o"].iloc[0]),
+                                  float(at["phi_o"].iloc[0]), illuminant=comparison.illuminant)
                 except ValueError:          # an incomplete spectrum here: no swatch, a gap
                     continue
                 s_list.append(float(s))

@@ -28,10 +28,12 @@ STYLE = ("<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;}"
          "figcaption{max-width:60em;font-size:0.95em;}"
          ".note{background:#e8f1fb;border:1px solid #4a7ab5;padding:0.5em 1em;}"
          ".banner{background:#fff3cd;border:2px solid #c77c00;padding:0.6em 1em;"
-         "font-weight:bold;}</style>")
+         "font-weight:bold;}"
+         ".howto{background:#f3f8ee;border:1px solid #6a9a4a;padding:0.2em 1em 0.6em;"
+         "margin:1em 0;}</style>")
 
 #: The standard sections of a comparison report, in order (:attr:`Section.before` names one).
-SECTION_KEYS = ("datasets", "normalisation", "curves", "colour", "figures")
+SECTION_KEYS = ("howto", "datasets", "normalisation", "curves", "colour", "figures")
 
 
 @dataclass(frozen=True)
@@ -49,8 +51,8 @@ class Section:
         ``{file name: bytes}`` written into ``figures/`` with the report and listed among the
         report's own files (replaced or removed with it by the next report in that folder).
     before : str or None
-        The standard section it goes before (``"datasets"``: right under the title and banners);
-        None: at the end.
+        The standard section it goes before (``"datasets"``: under the "how to read this" box;
+        ``"howto"``: right under the title and banners); None: at the end.
     """
 
     key: str
@@ -84,7 +86,7 @@ def order_sections(standard: list[Section], extra: list[Section]) -> list[Sectio
 
 
 def page_html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes, str]],
-              extra: list[Section] | tuple = ()) -> str:
+              extra: list[Section] | tuple = (), preface: str = "") -> str:
     """The comparison report's page: banners, the standard sections and ``extra``."""
     e = html.escape
     files = [f"figures/{name}" for name in figures]
@@ -92,10 +94,81 @@ def page_html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[by
     head = head_html(f"Comparison report: {comparison.measured.name}",
                      f"Measurement vs simulation: {comparison.measured.name}", files)
     head += [f"<p class='banner'>{e(text)}</p>" for text in banners(comparison)]
-    standard = [datasets_section(comparison), normalisation_section(comparison, metrics),
-                curves_section(comparison, metrics), colour_section(comparison, metrics),
-                figures_section(figures)]
+    standard = [howto_section(comparison, metrics), datasets_section(comparison),
+                normalisation_section(comparison, metrics), curves_section(comparison, metrics),
+                colour_section(comparison, metrics), figures_section(figures, preface)]
     return assemble(head, order_sections(standard, list(extra)))
+
+
+#: How a simulation's C(0,0) was obtained (NormalValue.how), in words that do not call a model
+#: value "measured".
+HOW_SIMULATED = {"measured": "its own s = 0 point", "estimated": "quadratic estimate",
+                 "mixed": "s = 0 point at some wavelengths, estimate at others"}
+
+
+def describe_dataset(ds) -> str:
+    """What a dataset is, read from its meta.json (kind, sample, instrument or model)."""
+    meta = ds.meta
+    sample = meta.get("sample") if isinstance(meta.get("sample"), dict) else {}
+    what = str(sample.get("name") or ds.name)
+    details = [str(sample[k]) for k in ("description", "material", "colour", "model")
+               if isinstance(sample.get(k), (str, int, float)) and str(sample[k])]
+    if details:
+        what += f" ({'; '.join(details)})"
+    model = meta.get("model") if isinstance(meta.get("model"), dict) else {}
+    instrument = meta.get("instrument") if isinstance(meta.get("instrument"), dict) else {}
+    if ds.kind == "measured":
+        by = instrument.get("name") or instrument.get("idn") or instrument.get("format")
+        text = f"a measurement of {what}" + (f", by {by}" if by else "")
+    else:
+        text = f"a {ds.kind} dataset (not a measurement) of {what}"
+    name = model.get("name") or model.get("method") or model.get("generator")
+    if name:
+        extra = [f"{k} {model[k]}" for k in ("method", "config") if model.get(k) and model[k] != name]
+        text += f", made by the model {name}" + (f" ({', '.join(extra)})" if extra else "")
+    if ds.relative:
+        text += ", in relative (raw detector) units"
+    return text
+
+
+def howto_section(comparison: Comparison, metrics: dict) -> Section:
+    """The "how to read this" box: what the reference is, what the models are, what success is."""
+    from ..metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+
+    e = html.escape
+    meas = comparison.measured
+    parts = ["<div class='howto'><h2>How to read this report</h2>",
+             f"<p><b>The reference</b> '{e(meas.name)}' is {e(describe_dataset(meas))}.</p>",
+             "<p><b>The models</b> compared with it:</p><ul>"]
+    for name, ds in comparison.simulated.items():
+        parts.append(f"<li>'{e(name)}': {e(describe_dataset(ds))}.</li>")
+    parts.append("</ul>")
+    per = comparison.bands.noun
+    colour_rule = (f", and its colour near the normal direction within |dh| &le; "
+                   f"{DEFAULT_MAX_HUE_DIFF:g} turn of the hue circle and |ds| &le; "
+                   f"{DEFAULT_MAX_SAT_DIFF:g}" if comparison.colour is not None else "")
+    parts.append(
+        f"<p><b>Success.</b> Every model is scaled per {per} so that it equals the reference at "
+        "the normal direction (so agreement there means nothing); what is judged is the SHAPE "
+        "of the curves away from the normal and the colour. A model matches (the defaults of "
+        f"<code>compare check</code>) when its overall NRMSE (curve RMSE over the mean "
+        f"reference value) is &le; {DEFAULT_MAX_NRMSE:g}{colour_rule}.</p>")
+    parts.append("<table><tr><th class='l'>model</th><th>overall NRMSE</th>"
+                 + ("<th>dh (turns)</th><th>ds</th>" if comparison.colour is not None else "")
+                 + "<th class='l'>verdict</th></tr>")
+    for name in comparison.simulated:
+        nrmse = metrics["overall"][name]["nrmse"]
+        ok = nrmse is not None and nrmse <= DEFAULT_MAX_NRMSE
+        cells = f"<td>{fmt(nrmse)}</td>"
+        if comparison.colour is not None:
+            c = metrics["colour"][name]
+            ok = ok and c["dh"] is not None and abs(c["dh"]) <= DEFAULT_MAX_HUE_DIFF
+            ok = ok and c["ds"] is not None and abs(c["ds"]) <= DEFAULT_MAX_SAT_DIFF
+            cells += f"<td>{fmt(c['dh'])}</td><td>{fmt(c['ds'])}</td>"
+        parts.append(f"<tr><td class='l'>{e(name)}</td>{cells}<td class='l'>"
+                     f"{'matches' if ok else 'does not match'}</td></tr>")
+    parts.append("</table></div>")
+    return Section("howto", "\n".join(parts))
 
 
 def datasets_section(comparison: Comparison) -> Section:
@@ -124,7 +197,12 @@ def datasets_section(comparison: Comparison) -> Section:
                      + ("; colour read directly from the channels (linear sRGB, HSV).</p>"
                         if bands.has_colour else "; no colour statement (photometric).</p>"))
     else:
-        parts.append(f"<p>Compared on {grid.size} wavelengths, {grid[0]:g}..{grid[-1]:g} nm; "
+        own = {name: comparison.simulated_wavelengths_used(name) for name in comparison.simulated}
+        partial = [f"'{name}' holds {k} of them" for name, k in own.items() if k < grid.size]
+        parts.append(f"<p>Compared on the {grid.size} measured wavelengths "
+                     f"{grid[0]:g}..{grid[-1]:g} nm"
+                     + (f" ({e('; '.join(partial))}, the others linearly interpolated in "
+                        "wavelength: see the note)" if partial else "") + "; "
                      f"colour under illuminant {e(comparison.illuminant)} "
                      "(CIE 1931 2-degree observer, linear sRGB).</p>")
     for text in comparison.notes():
@@ -150,12 +228,12 @@ def normalisation_section(comparison: Comparison, metrics: dict) -> Section:
         "errors below (they use k itself), because it is one scale error shared by every point "
         "of a wavelength and does not average out; instead the last column gives the overall "
         "NRMSE with every k moved to k - u_k and to k + u_k.</p>")
-    parts.append("<table><tr><th class='l'>simulation</th><th class='l'>C(0,0)</th>"
+    parts.append("<table><tr><th class='l'>simulation</th><th class='l'>C(0,0) from</th>"
                  "<th>median k</th><th>k range</th><th>median u_k / k</th>"
                  "<th>luminance k_Y</th><th>overall NRMSE at k - u_k .. k + u_k</th></tr>")
     for name, n in comparison.normalisations.items():
         lo, hi = comparison.nrmse_with_factor_shifted(name)
-        parts.append(f"<tr><td class='l'>{e(name)}</td><td class='l'>{e(n.simulated.how)}</td>"
+        parts.append(f"<tr><td class='l'>{e(name)}</td><td class='l'>{e(HOW_SIMULATED[n.simulated.how])}</td>"
                      f"<td>{np.median(n.factor):.4g}</td>"
                      f"<td>{n.factor.min():.4g} .. {n.factor.max():.4g}</td>"
                      f"<td>{np.median(n.u_factor / n.factor):.2g}</td>"
@@ -202,10 +280,14 @@ def colour_section(comparison: Comparison, metrics: dict) -> Section:
     return Section("colour", "\n".join(parts))
 
 
-def figures_section(figures: dict[str, tuple[bytes, str]]) -> Section:
+def figures_section(figures: dict[str, tuple[bytes, str]], preface: str = "") -> Section:
+    """The figures with numbered captions; ``preface`` (plain text) is said once above them
+    (what every in-plane figure shares)."""
     e = html.escape
     parts: list[str] = []
     parts.append("<h2>Figures</h2>")
+    if preface:
+        parts.append(f"<p class='note'>{e(preface)}</p>")
     for j, (fname, (data, caption)) in enumerate(figures.items(), start=1):
         b64 = base64.b64encode(data).decode("ascii")
         parts.append(f"<figure><img alt='{e(caption.split('.')[0])}' "
