@@ -93,6 +93,8 @@ class ResidualFigures:
         ``k C`` and ``k u_C`` at the compared points (``u_simulated`` NaN without ``u_beta``).
     factor : numpy.ndarray
         ``k`` on the comparison grid.
+    has_colour : bool
+        False for a photometric (Y-only) measurement: no colour terms.
     """
 
     residual: np.ndarray
@@ -108,11 +110,13 @@ class ResidualFigures:
     beta_simulated: np.ndarray
     u_simulated: np.ndarray
     factor: np.ndarray
+    has_colour: bool = True
 
     def vector(self, colour_weight: float = 1.0) -> np.ndarray:
-        """``residual ++ sqrt(colour_weight) [dh, ds]`` (no colour terms without colour): the
-        residual vector of ``simulate fit``, ``|r|^2 = NRMSE^2 + w (dh^2 + ds^2)``."""
-        if not math.isfinite(self.dh):
+        """``residual ++ sqrt(colour_weight) [dh, ds]`` (no colour terms when the measurement
+        has no colour, a photometric one): the residual vector of ``simulate fit``,
+        ``|r|^2 = NRMSE^2 + w (dh^2 + ds^2)``."""
+        if not self.has_colour:
             return self.residual.copy()
         return np.concatenate([self.residual,
                                math.sqrt(colour_weight) * np.array([self.dh, self.ds])])
@@ -423,4 +427,5 @@ class ModelResidual:
             dh, ds, dv = float(hue_difference(mc.h, col.h)), col.s - mc.s, col.v - mc.v
         return ResidualFigures(residual=d / (self._mean * math.sqrt(d.size)), rmse=rmse,
                                nrmse=nrmse, nrmse_per_incidence=per_angle, h=h, s=s, v=v, dh=dh,
-                               ds=ds, dv=dv, beta_simulated=sim, u_simulated=u_sim, factor=k)
+                               ds=ds, dv=dv, beta_simulated=sim, u_simulated=u_sim, factor=k,
+                               has_colour=self.has_colour)
