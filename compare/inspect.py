@@ -112,20 +112,12 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
                                      ds.name, blocked=blocked, role=ds.kind,
                                      own_scale_ratio=OWN_SCALE_RATIO)
         fname = f"inplane_{b}.png" if ds.is_rgb else f"inplane_{b:g}nm.png"
-        caption = (f"In-plane BRDF beta/pi of '{ds.name}', {at}, against the signed observation "
-                   "angle s (s < 0: detector on the source's side), one panel per incidence "
-                   "(shared value axis). "
+        caption = (f"In-plane BRDF beta/pi of '{ds.name}', {at}, one panel per incidence (how "
+                   "to read it: the note above the figures). "
                    + ("Error bars: +-1 standard uncertainty; they are smaller than the markers "
-                      "at this scale. " if hidden else "Error bars: +-1 standard uncertainty. ")
-                   + "Dotted line: the retro-direction, dashed: the mirror direction"
-                   + ("; shaded: the beam-blocked cone where the data have that gap"
-                      if blocked else "")
-                   + "."
-                   + (f" Panels titled 'own scale' (incidences {', '.join(f'{t:g}' for t in own)} "
-                      "deg: grazing ones, >= "
-                      f"{GRAZING_DEG:g} deg, and those whose values exceed {OWN_SCALE_RATIO:g} "
-                      "times the typical panel's) have their own value axis: on the shared one "
-                      "they would flatten every other curve." if own else ""))
+                      "at this scale." if hidden else "Error bars: +-1 standard uncertainty.")
+                   + (f" On their own value axis: incidences {', '.join(_deg(x) for x in own)} deg."
+                      if own else ""))
         figures[fname] = (save_figure(fig, fig_dir / fname, svg), caption)
     table = _colours(ds) if (ds.is_rgb and set("RGB") <= set(ds.channels)) or \
         (not ds.is_rgb and len(ds.wavelengths_nm) >= 2) else []
@@ -140,6 +132,16 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
             + ("; scaled so the brightest swatch is white-level 1 (relative data)"
                if ds.relative else "") + ".")
     written = {fig_dir / name for name in figures}
+    preface = ("Reading the in-plane figures: the radiance coefficient beta/pi against the "
+               "signed observation angle s (s < 0: detector on the source's side, s > 0 the far "
+               "side), one panel per incidence, the panels sharing one value axis except those "
+               f"titled 'own scale' (grazing incidences, >= {GRAZING_DEG:g} deg, and panels whose "
+               f"values exceed {OWN_SCALE_RATIO:g} times the typical panel's: on the shared axis "
+               "they would flatten every other curve). Dotted line: the retro-direction; dashed: "
+               "the mirror direction"
+               + ("; shaded: the beam-blocked cone, where the data have that gap." if blocked
+                  else "; nothing is shaded: the data have no beam-blocked gap.")
+               if figures else "")
     for path in old:
         for stale in (path, path.with_suffix(".svg")):
             if stale not in written and stale.suffix in (".png", ".svg") and stale.is_file():
@@ -155,12 +157,17 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
                "colour": [{k: v for k, v in e.items() if not (ds.relative and k == "v")}
                           for e in table]}
     atomic_write(out / "metrics.json", (json.dumps(metrics, indent=2, allow_nan=True) + "\n").encode())
-    atomic_write(out / "report.html", _page(ds, incidences, notes, table, figures).encode("utf-8"))
+    atomic_write(out / "report.html",
+                 _page(ds, incidences, notes, table, figures, preface).encode("utf-8"))
     return out / "report.html"
 
 
+def _deg(x: float) -> str:
+    return f"{round(float(x), 1):g}"
+
+
 def _page(ds: Dataset, incidences: list, notes: list[str], table: list[dict],
-          figures: dict[str, tuple[bytes, str]]) -> str:
+          figures: dict[str, tuple[bytes, str]], preface: str) -> str:
     esc = html.escape
     bands = ", ".join(str(b) for b in ds.bands) if ds.is_rgb else (
         f"{ds.wavelengths_nm[0]:g}..{ds.wavelengths_nm[-1]:g} nm, {ds.wavelengths_nm.size} "
@@ -171,7 +178,7 @@ def _page(ds: Dataset, incidences: list, notes: list[str], table: list[dict],
         "<div class='howto'><h2>What this is</h2>",
         f"<p>'{esc(ds.name)}' is {esc(describe_dataset(ds))}; read from <code>{esc(ds.source)}"
         f"</code>: {len(ds.geometries())} geometries, incidences "
-        f"{esc(', '.join(f'{t:g}' for t in incidences))} deg, {esc(bands)}.</p>",
+        f"{esc(', '.join(_deg(x) for x in incidences))} deg, {esc(bands)}.</p>",
         "<p>This page looks at the dataset alone (no model): its in-plane curves, its colour "
         "along them and a colour table. To judge a model against it, run <code>compare report "
         "MEASURED SIM_DIR --out DIR</code>.</p>"]
@@ -192,5 +199,5 @@ def _page(ds: Dataset, incidences: list, notes: list[str], table: list[dict],
         f"<th>BLUE/RED</th><th>GREEN/RED</th></tr>{rows_html}</table></details>"])
         if table else "<h2>Colour</h2><p class='note'>No colour: the dataset has no complete "
                       "spectrum or R, G, B channels at an in-plane geometry.</p>")
-    return assemble(head, [howto, figures_section(figures), colour])
+    return assemble(head, [howto, figures_section(figures, preface), colour])
 

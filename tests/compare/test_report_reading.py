@@ -69,7 +69,10 @@ def test_single_dataset_report_is_self_contained_styled_and_readable(h, tmp_path
         assert Image.open(png).size[0] <= 2700, png            # not a 3840-pixel strip
     # the 90 deg incidence is on its own scale and said so; no beam block for imported data
     g = next(c for c in captions if "channel G" in c)
-    assert "own scale" in g and "90" in g and "beam-blocked" not in g
+    assert "On their own value axis: incidences 90 deg." in g
+    assert "nothing is shaded: the data have no beam-blocked gap" in text
+    assert text.count("signed observation angle s (s &lt; 0") == 1       # said once, above
+    assert "incidences 0, 27.8, 90 deg" in _text(text)
     metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert metrics["kind"] == "measured" and metrics["colour"]
 
