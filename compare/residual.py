@@ -71,6 +71,8 @@ from .normalise import (DEFAULT_WINDOW_DEG, check_normal_values, estimate_normal
 __all__ = ["ModelResidual", "ResidualFigures"]
 
 _TOL = 1e-9
+#: Geometries whose interpolation weights are found per probe dataset (bounds its memory).
+_PROBE_BANDS = 128
 
 
 @dataclass(frozen=True)
@@ -311,28 +313,35 @@ class ModelResidual:
             row_l = np.searchsorted(bands_v, vt["wavelength_nm"].to_numpy() - _TOL)
             flat_to_row = np.full((len(geo), bands_v.size), -1)
             flat_to_row[row_g, row_l] = np.arange(len(vt))
-            # indicator spectra: "band" j of the probe is 1 at geometry j
+            # indicator spectra: "band" j of the probe is 1 at geometry j, in chunks of
+            # _PROBE_BANDS bands (memory n_g x _PROBE_BANDS, not n_g^2)
             n_g = len(geo)
-            probe_t = geo.loc[geo.index.repeat(n_g)].reset_index(drop=True)
-            probe_t["wavelength_nm"] = np.tile(np.arange(n_g, dtype=float), n_g)
-            probe_t["beta"] = (np.repeat(np.arange(n_g), n_g) == np.tile(np.arange(n_g), n_g)
-                               ).astype(float)
-            probe_t["u_beta"] = 0.0
-            probe_t["n"] = 1
-            probe = Dataset(probe_t, dict(view.meta), view.path)
-            sub = frame[interpolated]
-            for _, grp in sub.groupby(list(GEOMETRY), sort=False):
-                first = grp.iloc[0]
-                try:
-                    a, b, c, d = (np.full(n_g, float(first[col])) for col in GEOMETRY)
-                    w_geo, _ = probe.interpolate(a, b, c, d, np.arange(n_g, dtype=float))
-                except DatasetError as exc:  # align interpolated it: so must the probe
-                    raise CompareError(f"internal: geometry weights not found ({exc})") from None
+            groups = list(frame[interpolated].groupby(list(GEOMETRY), sort=False))
+            weights = np.zeros((len(groups), n_g))
+            for j0 in range(0, n_g, _PROBE_BANDS):
+                j1 = min(j0 + _PROBE_BANDS, n_g)
+                band = np.arange(j0, j1, dtype=float)
+                probe_t = geo.loc[geo.index.repeat(j1 - j0)].reset_index(drop=True)
+                probe_t["wavelength_nm"] = np.tile(band, n_g)
+                probe_t["beta"] = (np.repeat(np.arange(n_g), j1 - j0)
+                                   == np.tile(np.arange(j0, j1), n_g)).astype(float)
+                probe_t["u_beta"] = 0.0
+                probe_t["n"] = 1
+                probe = Dataset(probe_t, dict(view.meta), view.path)
+                for q, (_, grp) in enumerate(groups):
+                    first = grp.iloc[0]
+                    a, b, c, d = (np.full(j1 - j0, float(first[col])) for col in GEOMETRY)
+                    try:
+                        weights[q, j0:j1] = probe.interpolate(a, b, c, d, band)[0]
+                    except DatasetError as exc:  # align interpolated it: so must the probe
+                        raise CompareError(f"internal: geometry weights not found ({exc})") from None
+            for q, (_, grp) in enumerate(groups):
+                w_geo = weights[q]
                 nz = np.flatnonzero(w_geo != 0.0)
-                for r, band in zip(grp.index.to_numpy(), grp["wavelength_nm"].to_numpy(float)):
-                    j = int(np.clip(np.searchsorted(bands_v, band) - 1, 0, max(bands_v.size - 2, 0)))
+                for r, at in zip(grp.index.to_numpy(), grp["wavelength_nm"].to_numpy(float)):
+                    j = int(np.clip(np.searchsorted(bands_v, at) - 1, 0, max(bands_v.size - 2, 0)))
                     if bands_v.size > 1:
-                        f = float(np.clip((band - bands_v[j]) / (bands_v[j + 1] - bands_v[j]), 0, 1))
+                        f = float(np.clip((at - bands_v[j]) / (bands_v[j + 1] - bands_v[j]), 0, 1))
                         parts = [(j, 1.0 - f), (j + 1, f)]
                     else:
                         parts = [(0, 1.0)]

@@ -105,7 +105,12 @@ def gappy_measured(h):
     return h.dataset(table, name="gappy")
 
 
-def test_synthetic_with_gaps_interpolated_and_dropped(h):
+@pytest.mark.parametrize("probe_bands", [128, 7])
+def test_synthetic_with_gaps_interpolated_and_dropped(h, monkeypatch, probe_bands):
+    """probe_bands 7: the geometry weights found in several chunks (bounded memory)."""
+    import compare.residual
+
+    monkeypatch.setattr(compare.residual, "_PROBE_BANDS", probe_bands)
     measured = gappy_measured(h)
     model = h.dataset(h.in_plane_table(lambda ti, s, wl: 2.0 * h.red_lobe(ti, s, wl) + 0.01 * s,
                                        s_grid=np.arange(-60.0, 61.0, 10.0)),
