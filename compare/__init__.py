@@ -10,12 +10,28 @@ Data flow (one concept per module)::
                                          metrics      RMSE, NRMSE, largest deviation
                                          colourmatch  HSV and channel ratios at one geometry
                                          comparison   the chain above + metrics.json document
+                                         residual     the chain prepared once for one model's
+                                                      geometries (fits, sweeps): ModelResidual
                                          report       report.html, figures, metrics.json
                                          inspect      report of one dataset alone
                                          cli          `compare report`, `compare check`
 
-Library entry point: :func:`compare.comparison.compare_datasets`; errors a user can fix are
+Library entry points: :func:`compare.comparison.compare_datasets`, and for a model evaluated many
+times against one measurement :class:`compare.residual.ModelResidual` (``ModelResidual(measured,
+geometries, wavelengths_nm).evaluate(beta[G, L]) -> ResidualFigures``: NRMSE, the residual
+vector, dh, ds; the same numbers as ``compare_datasets``); errors a user can fix are
 :class:`compare.errors.CompareError` (and :class:`gonio.data.DatasetError` from reading).
 """
 
 __version__ = "0.1.0"
+
+__all__ = ["ModelResidual", "ResidualFigures"]
+
+
+def __getattr__(name: str):
+    # lazy: `import compare` (the CLI's start-up) does not load scipy.sparse and the chain
+    if name in __all__:
+        from . import residual
+
+        return getattr(residual, name)
+    raise AttributeError(f"module 'compare' has no attribute {name!r}")

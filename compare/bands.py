@@ -33,6 +33,7 @@ never written, and every label shown to a person goes through :meth:`Bands.label
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Sequence
@@ -45,8 +46,8 @@ from gonio.data.colour import spectrum_colour, spectrum_to_rgb
 
 from .errors import CompareError
 
-__all__ = ["CODES", "MIN_CHANNEL_COVERAGE", "Bands", "channel_coverage", "conversion_matrix",
-           "prepare"]
+__all__ = ["ASTM_STEPS_NM", "CODES", "COLOUR_STEP_NM", "MIN_CHANNEL_COVERAGE", "Bands",
+           "channel_coverage", "colour_at", "colour_resampling", "conversion_matrix", "prepare"]
 
 #: Band code of each channel inside the comparison (not a wavelength).
 CODES = {"R": 1.0, "G": 2.0, "B": 3.0, "Y": 4.0}
@@ -136,9 +137,62 @@ def _wide(ds: Dataset) -> pd.DataFrame:
     return out.reset_index()
 
 
+#: Wavelength steps colour-science's ASTM E308 integration accepts (evenly spaced grids only).
+ASTM_STEPS_NM = (1.0, 5.0, 10.0, 20.0)
+#: Step (nm) a spectrum on any other grid is linearly interpolated to before its colour is taken.
+COLOUR_STEP_NM = 5.0
+
+
+def colour_resampling(wavelength_nm) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(grid, L)``: the wavelengths a spectrum's colour is integrated on, and the linear
+    interpolation matrix (``grid`` x given) to them, or None when the given grid is used as it is.
+
+    ASTM E308 (colour-science's ``sd_to_XYZ``) integrates evenly spaced spectra at 1, 5, 10 or 20
+    nm and raises on others (a 50 nm simulation, an irregular grid); such a spectrum is linearly
+    interpolated to :data:`COLOUR_STEP_NM` inside its own range first (never extrapolated), which
+    the comparison notes say.
+
+    Examples
+    --------
+    >>> grid, L = colour_resampling(np.arange(400.0, 701.0, 50.0))
+    >>> float(grid[0]), float(grid[-1]), grid.size, L.shape
+    (400.0, 700.0, 61, (61, 7))
+    >>> colour_resampling(np.arange(400.0, 701.0, 10.0))[1] is None
+    True
+    """
+    wl = np.asarray(wavelength_nm, dtype=float).ravel()
+    steps = np.diff(wl)
+    if wl.size >= 2 and np.allclose(steps, steps[0], rtol=0, atol=1e-6) and any(
+            abs(steps[0] - s) < 1e-6 for s in ASTM_STEPS_NM):
+        return wl, None
+    start = math.ceil(wl[0] / COLOUR_STEP_NM - 1e-9) * COLOUR_STEP_NM
+    grid = np.arange(start, wl[-1] + 1e-6, COLOUR_STEP_NM)
+    eye = np.eye(wl.size)
+    interp = np.column_stack([np.interp(grid, wl, eye[:, j]) for j in range(wl.size)])
+    return grid, interp
+
+
+def colour_at(ds: Dataset, theta_i: float, phi_i: float, theta_o: float, phi_o: float,
+              illuminant: str = "D65"):
+    """:meth:`gonio.data.Dataset.colour_at`, a spectrum on a grid ASTM E308 does not integrate
+    first interpolated linearly (:func:`colour_resampling`); ValueError when there is none."""
+    if ds.is_rgb:
+        return ds.colour_at(theta_i, phi_i, theta_o, phi_o, illuminant=illuminant)
+    rows = ds.spectrum(theta_i, phi_i, theta_o, phi_o)
+    wl = rows["wavelength_nm"].to_numpy(float)
+    beta = rows["beta"].to_numpy(float)
+    grid, interp = colour_resampling(wl)
+    if interp is not None:
+        beta = interp @ beta
+    return spectrum_colour(grid, beta, illuminant=illuminant)
+
+
 @lru_cache(maxsize=32)
 def _matrix(wavelengths: tuple[float, ...], channels: tuple[str, ...], colour_space: str,
             illuminant: str) -> np.ndarray:
+    grid, interp = colour_resampling(wavelengths)
+    if interp is not None:
+        return _matrix(tuple(float(x) for x in grid), channels, colour_space, illuminant) @ interp
     wl = np.asarray(wavelengths)
     out = np.empty((len(channels), wl.size))
     for j in range(wl.size):
@@ -321,6 +375,9 @@ def prepare(measured: Dataset, simulated: Sequence[Dataset], names: Sequence[str
             if rgb_part:
                 how += (f" -> {space} (the illuminant's white adapted to the space's, "
                         "Bradford)")
+            if colour_resampling(wl)[1] is not None:
+                how = (f"linear interpolation in wavelength to {COLOUR_STEP_NM:g} nm steps "
+                       "(ASTM E308 integrates 1, 5, 10 or 20 nm) -> " + how)
             conversions[name] = (
                 f"'{name}' is spectral ({wl[0]:g}..{wl[-1]:g} nm, {wl.size} wavelengths) and was "
                 f"converted to the measurement's {target} before comparing: {how}; "

@@ -38,13 +38,10 @@ from gonio.data import DatasetError, read_dataset
 
 from .comparison import compare_datasets, incomplete_datasets
 from .errors import CompareError
+from .metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from .normalise import DEFAULT_WINDOW_DEG
 
 __all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main"]
-
-DEFAULT_MAX_NRMSE = 0.10
-DEFAULT_MAX_HUE_DIFF = 0.02
-DEFAULT_MAX_SAT_DIFF = 0.05
 
 log = logging.getLogger("compare")
 

@@ -48,7 +48,7 @@ from gonio.data import GEOMETRY
 from .errors import CompareError
 
 __all__ = ["ColourMatch", "SimulatedColour", "band_luminance_weights", "colour_geometry",
-           "colour_match", "luminance_weights"]
+           "colour_match", "colour_of", "luminance_weights"]
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 
@@ -164,7 +164,9 @@ class ColourMatch:
     simulated: dict[str, SimulatedColour]
 
 
-def _colour(wl, beta, illuminant: str, what: str, bands=None) -> ColourSummary:
+def colour_of(wl, beta, illuminant: str, what: str, bands=None) -> ColourSummary:
+    """The colour of values on the comparison grid (a spectrum, or the channels of ``bands``);
+    CompareError naming ``what`` when there is none."""
     try:
         if bands is not None and bands.is_rgb:
             return rgb_colour({bands.label(b): v for b, v in zip(wl, beta)},
@@ -199,12 +201,12 @@ def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str,
         if measured is None:
             meas_beta = rows["beta_meas"].to_numpy()
             meas_wl = wl
-            measured = _colour(wl, meas_beta, illuminant, "the measured dataset", bands)
+            measured = colour_of(wl, meas_beta, illuminant, "the measured dataset", bands)
         w = band_luminance_weights(bands, wl, illuminant)
         normal_meas, normal_sim = normal_values[name]
         scale = float(w @ normal_meas) / float(w @ normal_sim)
         beta = rows["beta_sim_raw"].to_numpy() * scale
-        c = _colour(wl, beta, illuminant,
+        c = colour_of(wl, beta, illuminant,
                     f"simulated dataset '{name}' (scaled by k_Y {scale:.3g})", bands)
         simulated[name] = SimulatedColour(
             colour=c, scale=scale, dh=float(hue_difference(measured.h, c.h)),

@@ -63,7 +63,8 @@ from .metrics import CurveError, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
                         estimate_normal_value, normalisation_factor)
 
-__all__ = ["Comparison", "compare_datasets", "incomplete_datasets", "same_dataset",
+__all__ = ["DYNAMIC_RANGE_MAX", "MEASURED_BETA_MAX", "Comparison", "check_values",
+           "compare_datasets", "incomplete_datasets", "same_dataset",
            "unique_names"]
 
 log = logging.getLogger(__name__)
@@ -126,6 +127,8 @@ class Comparison:
         """What a reader must know about how the data were compared (shown in the report and by
         ``compare check``)."""
         out = list(self.bands.conversions.values())
+        if not self.bands.is_rgb:
+            out += self.interpolation_notes()
         if self.bands.is_rgb and not self.bands.has_colour:
             chans = ", ".join(self.bands.channels or ())
             out.append("the measurement is photometric (channel Y): the comparison is on Y "
@@ -138,6 +141,32 @@ class Comparison:
                        "raw detector units): it is normalised like any other (only shapes are "
                        "needed), but no absolute colour statement is made: V and dv are refused "
                        "(H, S and the channel ratios do not depend on the scale and are given)")
+        return out
+
+    def simulated_wavelengths_used(self, name: str) -> int:
+        """How many of the compared wavelengths the simulation ``name`` holds itself (the others
+        were linearly interpolated in wavelength, :mod:`compare.align`)."""
+        wl = self.simulated[name].wavelengths_nm
+        grid = self.wavelength_nm
+        if wl.size == 0:
+            return 0
+        return int(np.sum(np.min(np.abs(grid[:, None] - wl[None, :]), axis=1) < 1e-6))
+
+    def interpolation_notes(self) -> list[str]:
+        """One sentence per simulation whose wavelengths are not all the compared ones."""
+        grid = self.wavelength_nm
+        out = []
+        for name, ds in self.simulated.items():
+            own = self.simulated_wavelengths_used(name)
+            if own < grid.size:
+                wl = ds.wavelengths_nm
+                out.append(
+                    f"'{name}' holds {wl.size} wavelengths ({wl[0]:g}..{wl[-1]:g} nm), {own} of "
+                    f"the {grid.size} compared (measured) ones: its values at the other "
+                    f"{grid.size - own} were linearly interpolated in wavelength between the "
+                    "bracketing simulated wavelengths (gonio.data interpolate) before "
+                    "normalising, comparing and taking colours; curves and colours at those "
+                    "wavelengths are interpolated model values, not simulated ones")
         return out
 
     def view(self, name: str) -> Dataset:
@@ -234,6 +263,52 @@ class Comparison:
         return document
 
 
+#: Largest ``|beta|`` of an absolute (not ``"relative"``) measurement: ten times the radiance
+#: coefficient of a mirror seen through a milliradian aperture (~1e6, gonio.data.dataset.BETA_MAX's
+#: note); anything larger is raw detector units (mark the dataset ``"relative": true``) or an error.
+MEASURED_BETA_MAX = 1e7
+#: Largest ratio of one ``|beta|`` to the dataset's median ``|beta|`` (nine decades: a specular
+#: peak of 1e6 over a diffuse floor of 1e-3 still passes); a larger spike is a corrupt value,
+#: which would otherwise dominate every curve error (``NRMSE 3.47e+98``) instead of being named.
+DYNAMIC_RANGE_MAX = 1e9
+
+
+def check_values(ds: Dataset, role: str) -> None:
+    """Refuse a dataset whose ``beta`` is not finite or absurd (:class:`CompareError`, one line
+    naming the dataset, the field, the row's geometry and what to do)."""
+    table = ds.table
+    beta = table["beta"].to_numpy(dtype=float)
+    band = ds.band_column
+
+    def where(i: int) -> str:
+        row = table.iloc[i]
+        b = row[band]
+        return (f"theta_i={row['theta_i']:g}, phi_i={row['phi_i']:g}, theta_o={row['theta_o']:g}, "
+                f"phi_o={row['phi_o']:g}, " + (f"channel {b}" if ds.is_rgb else f"{float(b):g} nm"))
+
+    head = f"{role} dataset '{ds.name}' ({ds.source}): field beta"
+    bad = ~np.isfinite(beta)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise CompareError(f"{head} is {beta[i]} at {where(i)}; every value must be a finite "
+                           "number (leave out a point whose value is unknown)")
+    size = np.abs(beta)
+    if role == "measured" and not ds.relative and size.max() > MEASURED_BETA_MAX:
+        i = int(np.argmax(size))
+        raise CompareError(f"{head} is {beta[i]:g} at {where(i)}, not a plausible radiance "
+                           f"coefficient (|beta| <= {MEASURED_BETA_MAX:g}); raw detector units "
+                           "need \"relative\": true in meta.json, otherwise correct the value")
+    nonzero = size[size > 0]
+    if nonzero.size:
+        typical = float(np.median(nonzero))
+        if size.max() > DYNAMIC_RANGE_MAX * typical:
+            i = int(np.argmax(size))
+            raise CompareError(f"{head} is {beta[i]:g} at {where(i)}, more than "
+                               f"{DYNAMIC_RANGE_MAX:g} times the dataset's median |beta| "
+                               f"({typical:.3g}): a corrupt value, not a reflectance; correct or "
+                               "remove that row")
+
+
 def same_dataset(a: Dataset, b: Dataset) -> str:
     """Why ``a`` and ``b`` are the same data (same directory or same content), or ``""``."""
     if a.path is not None and b.path is not None:
@@ -294,6 +369,9 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
             log.warning("comparing dataset '%s' (%s) with itself (%s): every figure will agree "
                         "trivially; pass the simulation's directory as SIM_DIR", sim.name,
                         sim.source, same)
+    check_values(measured, "measured")
+    for sim in simulated:
+        check_values(sim, "simulated")
     names = unique_names(ds.name for ds in simulated)
     measured_view, views, bands = prepare(measured, simulated, names, illuminant=illuminant)
     grid = bands.codes() if bands.is_rgb else shared_wavelengths(measured, simulated)

@@ -22,7 +22,16 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-__all__ = ["CurveError", "angle_key", "curve_error", "curve_errors"]
+__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "CurveError",
+           "angle_key", "curve_error", "curve_errors"]
+
+#: What "a match" means (``compare check``'s default thresholds, stated in every report; chosen
+#: from the reference results of docs/physics.md section 8: the published model hues lie within
+#: 0.01 of the measured one, saturations within 0.01): overall NRMSE of the normalised curves,
+#: ``|dh|`` (turns of the hue circle) and ``|ds|``.
+DEFAULT_MAX_NRMSE = 0.10
+DEFAULT_MAX_HUE_DIFF = 0.02
+DEFAULT_MAX_SAT_DIFF = 0.05
 
 
 @dataclass(frozen=True)

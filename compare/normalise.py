@@ -59,7 +59,10 @@ __all__ = [
     "DEFAULT_WINDOW_DEG",
     "Normalisation",
     "NormalValue",
+    "check_normal_values",
     "estimate_normal_value",
+    "intercept_weights",
+    "normal_selection",
     "normalisation_factor",
 ]
 
@@ -119,17 +122,68 @@ class NormalValue:
                 np.interp(wl, self.wavelength_nm, self.u))
 
 
+def _nm(wavelength: float) -> str:
+    return f"{wavelength:g} nm"
+
+
 def _describe(dataset: Dataset) -> str:
     return f"dataset '{dataset.name}' ({dataset.source})"
+
+
+def intercept_weights(s: np.ndarray) -> np.ndarray:
+    """Weights ``w`` with ``w @ beta`` the intercept of the unweighted least-squares quadratic in
+    ``s`` through ``(s, beta)`` (the estimate is linear in the values)."""
+    scale = max(float(np.max(np.abs(s))), 1.0)  # conditioning: fit in s / max|s|
+    x = s / scale
+    design = np.column_stack([np.ones_like(x), x, x * x])
+    return np.linalg.pinv(design)[0]
+
+
+def normal_selection(dataset: Dataset, s: np.ndarray, wavelength: float, window_deg: float,
+                     band_label: Callable[[float], str] = _nm) -> tuple[bool, np.ndarray]:
+    """Which normal-incidence points of one wavelength give ``beta(0, 0)``.
+
+    ``s`` are the signed observation angles of the dataset's in-plane normal-incidence rows at
+    ``wavelength``. Returns ``(True, mask)`` when the normal/normal point itself is there (its
+    mean is the value), else ``(False, mask)`` of the points of the quadratic fit. Raises
+    :class:`CompareError` when the window holds too few points (shared by
+    :func:`estimate_normal_value` and :mod:`compare.residual`).
+    """
+    exact = np.abs(s) < _S_TOL
+    if exact.any():
+        return True, exact
+    near = (np.abs(s) <= window_deg + _S_TOL)
+    left, right = near & (s < 0), near & (s > 0)
+    if left.sum() < MIN_PER_SIDE or right.sum() < MIN_PER_SIDE or near.sum() < MIN_POINTS:
+        def fmt(mask):
+            return "[" + ", ".join(f"{x:g}" for x in np.unique(s[mask])) + "]"
+        raise CompareError(
+            f"{_describe(dataset)}: cannot estimate the normal/normal value beta(0, 0) at "
+            f"{band_label(wavelength)}: it needs normal-incidence points within |s| <= "
+            f"{window_deg:g} deg on BOTH sides of the normal (at least {MIN_PER_SIDE} on each "
+            f"side, {MIN_POINTS} in all); found source side s < 0: {fmt(left)}, mirror side "
+            f"s > 0: {fmt(right)} "
+            "(measure e.g. s = -20, -10, 10, 20 at theta_i = 0, or widen --normal-window)")
+    return False, near
+
+
+def check_normal_values(dataset: Dataset, wavelengths: np.ndarray, value: np.ndarray,
+                        measured: np.ndarray, band_label: Callable[[float], str] = _nm) -> None:
+    """Refuse a normal value that is zero, negative or not finite (:class:`CompareError`)."""
+    bad = ~np.isfinite(value) | (value <= 0)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        what = "measured" if measured[k] else "estimated"
+        raise CompareError(
+            f"{_describe(dataset)}: the {what} normal/normal value beta(0, 0) at "
+            f"{band_label(wavelengths[k])} is {value[k]:g}; it must be a positive finite number "
+            "to normalise at the normal direction (check the normal-incidence data)")
 
 
 def _fit_intercept(s: np.ndarray, beta: np.ndarray, u_beta: np.ndarray
                    ) -> tuple[float, float, float]:
     """Quadratic intercept, its propagated uncertainty and the linear-vs-quadratic difference."""
-    scale = max(float(np.max(np.abs(s))), 1.0)  # conditioning: fit in s / max|s|
-    x = s / scale
-    design = np.column_stack([np.ones_like(x), x, x * x])
-    weights = np.linalg.pinv(design)[0]          # intercept = weights @ beta
+    weights = intercept_weights(s)               # intercept = weights @ beta
     quadratic = float(weights @ beta)
     u_data = float(np.sqrt(np.sum((weights * u_beta) ** 2)))
     left_s = np.max(s[s < 0])
@@ -138,10 +192,6 @@ def _fit_intercept(s: np.ndarray, beta: np.ndarray, u_beta: np.ndarray
     b_right = float(np.mean(beta[np.abs(s - right_s) < _S_TOL]))
     linear = (b_left * right_s - b_right * left_s) / (right_s - left_s)
     return quadratic, u_data, abs(quadratic - linear)
-
-
-def _nm(wavelength: float) -> str:
-    return f"{wavelength:g} nm"
 
 
 def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_DEG,
@@ -203,37 +253,20 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
     for k, wl in enumerate(wavelengths):
         sel = np.abs(wl_rows - wl) < 1e-9
         s, beta, u_beta = s_all[sel], beta_all[sel], u_all[sel]
-        exact = np.abs(s) < _S_TOL
-        if exact.any():
+        is_exact, sel_k = normal_selection(dataset, s, wl, window_deg, band_label)
+        if is_exact:
+            exact = sel_k
             value[k] = float(np.mean(beta[exact]))
             u_data[k] = float(np.sqrt(np.sum(u_beta[exact] ** 2))) / exact.sum()
             measured[k] = True
             if not s_used:
                 s_used = (0.0,)
             continue
-        near = (np.abs(s) <= window_deg + _S_TOL)
-        left, right = near & (s < 0), near & (s > 0)
-        if left.sum() < MIN_PER_SIDE or right.sum() < MIN_PER_SIDE or near.sum() < MIN_POINTS:
-            def fmt(mask):
-                return "[" + ", ".join(f"{x:g}" for x in np.unique(s[mask])) + "]"
-            raise CompareError(
-                f"{_describe(dataset)}: cannot estimate the normal/normal value beta(0, 0) at "
-                f"{band_label(wl)}: it needs normal-incidence points within |s| <= "
-                f"{window_deg:g} deg on BOTH sides of the normal (at least {MIN_PER_SIDE} on each "
-                f"side, {MIN_POINTS} in all); found source side s < 0: {fmt(left)}, mirror side "
-                f"s > 0: {fmt(right)} "
-                "(measure e.g. s = -20, -10, 10, 20 at theta_i = 0, or widen --normal-window)")
+        near = sel_k
         value[k], u_data[k], u_model[k] = _fit_intercept(s[near], beta[near], u_beta[near])
         if not s_used:
             s_used = tuple(float(x) for x in np.unique(s[near]))
-    bad = ~np.isfinite(value) | (value <= 0)
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        what = "measured" if measured[k] else "estimated"
-        raise CompareError(
-            f"{_describe(dataset)}: the {what} normal/normal value beta(0, 0) at "
-            f"{band_label(wavelengths[k])} is {value[k]:g}; it must be a positive finite number "
-            "to normalise at the normal direction (check the normal-incidence data)")
+    check_normal_values(dataset, wavelengths, value, measured, band_label)
     how = "measured" if measured.all() else ("estimated" if not measured.any() else "mixed")
     log.debug("%s: normal value %s (%s)", dataset.name, how, s_used)
     return NormalValue(wavelength_nm=wavelengths, value=value,

@@ -20,9 +20,10 @@ Decisions:
 - The usual per-dataset sections show at most :data:`MAX_CURVES` points (evenly spaced over the
   sweep, always including the first, the last and the one of lowest NRMSE): beyond that the
   in-plane panels are unreadable, and the chart already shows every point.
-- The section is inserted into the written ``report.html`` (before its first ``<h2>``) and the
-  figure added to the report's own file list, instead of a hook in :mod:`compare.report`: the
-  report's layout stays that module's business and a plain report is unchanged.
+- The section is added through the report's public section API
+  (:class:`compare.report.Section`, placed before the "Datasets" section, its figure written and
+  listed with the report's own files): the report's layout stays :mod:`compare.report`'s
+  business and a plain report is unchanged.
 - Points not yet complete (an interrupted sweep) are listed as such and not charted; a sweep
   without any complete point is refused (:class:`~compare.errors.CompareError`, exit 2).
 """
@@ -34,7 +35,6 @@ import html
 import io
 import json
 import math
-import re
 from pathlib import Path
 from typing import Any
 
@@ -187,9 +187,6 @@ def _section(doc: dict, table: pd.DataFrame, names: list[str], png: bytes, shown
     return "\n".join(parts) + "\n"
 
 
-_FILES = re.compile(r"(<meta name='report-files' content=')([^']*)(')")
-
-
 def write_sweep_report(measured: Dataset, sweep_dir: str | Path, out_dir: str | Path, *, svg: bool = False,
                        force: bool = False, window_deg: float = DEFAULT_WINDOW_DEG,
                        illuminant: str = "D65") -> Path:
@@ -197,7 +194,7 @@ def write_sweep_report(measured: Dataset, sweep_dir: str | Path, out_dir: str | 
 
     Returns the path of ``report.html``.
     """
-    from .report import write_report
+    from .report import Section, write_report
 
     sweep = Path(sweep_dir)
     doc = read_sweep(sweep)
@@ -220,17 +217,10 @@ def write_sweep_report(measured: Dataset, sweep_dir: str | Path, out_dir: str | 
     shown = [complete.loc[i, "label"] for i in _subset(complete)]
     comparison = compare_datasets(measured, [datasets[s] for s in shown], window_deg=window_deg,
                                   illuminant=illuminant)
-    report = write_report(comparison, out_dir, svg=svg, force=force)
-    out = Path(out_dir)
     png = _chart(complete, names)
-    atomic_write(out / "figures" / _FIGURE, png)
-    atomic_write(out / "sweep_metrics.csv",
+    section = Section("sweep", _section(doc, table, names, png, shown).rstrip("\n"),
+                      figures={_FIGURE: png}, before="datasets")
+    report = write_report(comparison, out_dir, svg=svg, force=force, sections=[section])
+    atomic_write(Path(out_dir) / "sweep_metrics.csv",
                  table.to_csv(index=False, float_format="%.10g", lineterminator="\n").encode("utf-8"))
-    text = report.read_text(encoding="utf-8")
-    section = _section(doc, table, names, png, shown)
-    at = text.find("<h2>")
-    text = text[:at] + section + text[at:] if at >= 0 else text.replace("</body>", section + "</body>")
-    text = _FILES.sub(lambda m: m.group(1) + (m.group(2) + f" figures/{_FIGURE}").strip() + m.group(3), text,
-                      count=1)
-    atomic_write(report, text.encode("utf-8"))
     return report

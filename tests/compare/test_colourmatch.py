@@ -117,10 +117,10 @@ def test_colour_geometry_is_the_shared_one_closest_to_normal(h):
 def test_a_colour_that_cannot_be_computed_is_a_compare_error_naming_the_dataset():
     import numpy as np
 
-    from compare.colourmatch import _colour
+    from compare.colourmatch import colour_of
     from compare.errors import CompareError
 
     wl = np.arange(390.0, 711.0, 10.0)
     with pytest.raises(CompareError, match="no colour for simulated dataset 'x': the colour of "
                                            "this spectrum overflows"):
-        _colour(wl, np.full(wl.size, 1e308), "D65", "simulated dataset 'x'")
+        colour_of(wl, np.full(wl.size, 1e308), "D65", "simulated dataset 'x'")

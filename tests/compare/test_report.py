@@ -17,7 +17,9 @@ from PIL import Image
 from compare.cli import main
 from compare.comparison import compare_datasets
 from compare.errors import CompareError
-from compare.report import FIGURE_DPI, _gapped, _inplane_figure, swatch_entries, write_report
+from compare.report import FIGURE_DPI, swatch_entries, write_report
+from compare.report.curves import gapped as _gapped
+from compare.report.figures import inplane_figure as _inplane_figure
 from gonio.data import read_dataset, write_dataset
 
 
@@ -248,7 +250,7 @@ def test_simulated_lines_carry_their_uncertainty_band(h):
 
 
 def test_colour_strips_one_per_dataset_and_incidence(demo_like):
-    from compare.report import _colour_strips
+    from compare.report.figures import colour_strips as _colour_strips
 
     comparison = demo_like["comparison"]
     strips = _colour_strips(comparison)
@@ -273,3 +275,26 @@ def _in_plane_o(strip):
     from gonio.data import in_plane_geometry
 
     return in_plane_geometry(strip["theta_i"], float(strip["s"][0]), strip["phi_i"])
+
+
+def test_a_section_added_by_api_is_placed_written_listed_and_cleaned_up(h, tmp_path):
+    """compare.report.Section: another module adds a section without splicing HTML."""
+    from compare.report import Section
+
+    comparison = compare_datasets(read_dataset(h.FIXTURES / "measured_red"),
+                                  [read_dataset(h.FIXTURES / "sim_lambert")])
+    out = tmp_path / "r"
+    extra = [Section("mine", "<h2>My section</h2><p>x &lt; y</p>", figures={"mine.png": b"\x89PNG"},
+                     before="curves"),
+             Section("last", "<h2>Last words</h2>", before=None)]
+    write_report(comparison, out, sections=extra)
+    text = (out / "report.html").read_text()
+    heads = re.findall(r"<h2>([^<]*)</h2>", text)
+    assert heads.index("My section") == heads.index("Curve errors") - 1
+    assert heads[-1] == "Last words"
+    assert (out / "figures" / "mine.png").read_bytes() == b"\x89PNG"
+    files = re.search(r"<meta name='report-files' content='([^']*)'>", text).group(1).split()
+    assert "figures/mine.png" in files
+    write_report(comparison, out)                       # the next report in the folder drops it
+    assert not (out / "figures" / "mine.png").exists()
+    assert "My section" not in (out / "report.html").read_text()

@@ -1,0 +1,191 @@
+"""``write_report``: the comparison report's orchestration (data, figures, page, folder)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from gonio.data import atomic_write
+
+from ..colourmatch import band_luminance_weights
+from ..comparison import Comparison
+from .curves import (BEAM_BLOCK_DEG, GRAZING_DEG, REPORT_WAVELENGTHS_NM, beam_blocked,
+                     luminance_curve, measured_inplane, sim_inplane, single_wavelength)
+from .figures import (colour_strip_figure, colour_strips, factor_figure, hue_trend,
+                      inplane_figure, save_figure, spectrum_figure, swatch_figure)
+from .outdir import prepare_out_dir
+from .page import Section, page_html
+
+__all__ = ["write_report"]
+
+log = logging.getLogger("compare.report")
+
+
+def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: bool = False,
+                 force: bool = False, sections: Sequence[Section] = ()) -> Path:
+    """Write ``report.html``, ``metrics.json`` and ``figures/*.png`` into ``out_dir``.
+
+    ``out_dir`` must be new, empty or hold a previous report (whose files alone are replaced;
+    figures of the previous report that this one does not draw are removed); any other folder
+    is refused with a :class:`~compare.errors.CompareError` unless ``force``. ``svg`` also writes
+    ``figures/*.svg``. ``sections`` are added to the page (each before the standard section it
+    names, :class:`compare.report.Section`), their figures written into ``figures/``.
+
+    Returns
+    -------
+    pathlib.Path
+        The path of ``report.html``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    out = Path(out_dir)
+    previous = prepare_out_dir(out, force)
+    fig_dir = out / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    metrics = comparison.metrics()
+    grid = comparison.wavelength_nm
+    bands = comparison.bands
+    weights = band_luminance_weights(bands, grid, comparison.illuminant)
+    measured = measured_inplane(comparison)
+    simulated = {name: sim_inplane(comparison, name) for name in comparison.simulated}
+    figures: dict[str, tuple[bytes, str]] = {}
+    sims = ", ".join(comparison.simulated)
+    blocked = beam_blocked(measured, comparison.measured) if not measured.empty else set()
+    gap = (f"across the beam-blocked cone around the retro-direction (shaded, |s + theta_i| < "
+           f"{BEAM_BLOCK_DEG:g} deg, where the detector would block the source; drawn only at "
+           "the incidences where the measurement has that gap)" if blocked else
+           "e.g. where the measurement has no point (it has no beam-blocked gap, the "
+           "instrument's or a measurement without one: none is shaded)")
+    preface = ("Reading the in-plane figures: points are the measurement "
+               f"'{comparison.measured.name}'; lines are the simulations ({sims}), normalised "
+               f"per {bands.noun} by k, broken where a curve has no point, {gap}; the dotted "
+               "line marks the retro-direction, the dashed one the mirror direction. Shaded "
+               "around each line: +-1 standard uncertainty of that simulation (its Monte Carlo "
+               "standard error times k; for Y[beta] summed linearly over the wavelengths, since "
+               "one set of photons serves every wavelength and their errors are correlated). "
+               "Panels share one value axis except those titled 'own scale' (grazing "
+               f"incidences, >= {GRAZING_DEG:g} deg), which would flatten the others."
+               if not measured.empty else "")
+
+    def bars_note(hidden: bool, what: str) -> str:
+        if hidden:
+            return (f" The error bars ({what}) are smaller than the markers at this scale.")
+        return f" Error bars: {what}."
+
+    def inplane(fname, meas_rows, sim_rows, title, ylabel, caption):
+        fig, hidden = inplane_figure(meas_rows, sim_rows, title, ylabel,
+                                     comparison.measured.name, blocked=blocked)
+        data = save_figure(fig, fig_dir / fname, svg)
+        figures[fname] = (data, caption + bars_note(hidden, "+-1 standard uncertainty of the "
+                                                    "measurement") + " Lines and shading: see "
+                          "the note above the figures.")
+
+    if not measured.empty:
+        inplane("inplane_luminance.png", luminance_curve(measured, grid, weights),
+                {n: luminance_curve(r, grid, weights, correlated=True)
+                 for n, r in simulated.items()},
+                f"luminance-weighted radiance coefficient ({comparison.illuminant})",
+                "Y[beta] / pi  (1/sr)",
+                "In-plane luminance-weighted BRDF Y[beta]/pi ("
+                + (f"the Y channel, or the luminance row of {bands.colour_space} over R, G, B"
+                   if bands.is_rgb else f"CIE Y under illuminant {comparison.illuminant}")
+                + ", 1 for the ideal white diffuser, divided by pi) against "
+                "the signed observation angle s, one panel per incidence angle. Points: "
+                f"the measurement '{comparison.measured.name}'.")
+        if bands.is_rgb:
+            picks = [float(b) for b in grid]
+        else:
+            picks = sorted({float(grid[np.argmin(np.abs(grid - w))])
+                            for w in REPORT_WAVELENGTHS_NM})
+        for wl in picks:
+            at = f"channel {bands.label(wl)}" if bands.is_rgb else f"{wl:g} nm"
+            fname = f"inplane_{bands.label(wl)}.png" if bands.is_rgb else f"inplane_{wl:g}nm.png"
+            inplane(fname, single_wavelength(measured, wl),
+                    {n: single_wavelength(r, wl) for n, r in simulated.items()},
+                    f"radiance coefficient, {at}", "beta / pi  (1/sr)",
+                    f"In-plane BRDF beta/pi, {at}, against the signed observation angle "
+                    "s, one panel per incidence angle. Points: the measurement "
+                    f"'{comparison.measured.name}'." + interpolated_at(comparison, wl))
+    else:
+        log.warning("the measured dataset has no in-plane points: no in-plane figures")
+    if comparison.colour is not None:
+        colour_figures(comparison, figures, fig_dir, svg)
+    figures["factor.png"] = (save_figure(factor_figure(comparison), fig_dir / "factor.png", svg),
+        "Normalisation factor k(lambda) = beta_meas(0,0) / C(0,0) of each simulation"
+        + (" (per channel)" if bands.is_rgb else "") + ". Error bars: "
+        "its standard uncertainty u_k = k sqrt((u_meas/beta_meas)^2 + (u_C/C)^2), from the "
+        "estimate of the measured normal value (data and quadratic-vs-linear model term) and "
+        "the simulation's normal value; not folded into the curve errors (see the "
+        "normalisation table).")
+    atomic_write(out / "metrics.json",
+                  (json.dumps(metrics, indent=2, allow_nan=False) + "\n").encode("utf-8"))
+    for section in sections:
+        for name, data in section.figures.items():
+            atomic_write(fig_dir / name, data)
+    report = out / "report.html"
+    atomic_write(report, page_html(comparison, metrics, figures, list(sections),
+                                   preface).encode("utf-8"))
+    written = {fig_dir / name for name in figures}
+    written |= {fig_dir / name for s in sections for name in s.figures}
+    for old in previous:
+        for stale in (old, old.with_suffix(".svg")):
+            if stale not in written and stale.suffix in (".png", ".svg") and stale.is_file():
+                stale.unlink()
+    return report
+
+
+def interpolated_at(comparison: Comparison, wavelength: float) -> str:
+    """A sentence naming the simulations that do not hold ``wavelength`` (their curve there is
+    linearly interpolated in wavelength), or ``""``."""
+    if comparison.bands.is_rgb:
+        return ""
+    names = [name for name, ds in comparison.simulated.items()
+             if not np.any(np.abs(ds.wavelengths_nm - wavelength) < 1e-6)]
+    if not names:
+        return ""
+    return (f" {', '.join(repr(n) for n in names)} "
+            + ("has" if len(names) == 1 else "have")
+            + f" no simulated value at {wavelength:g} nm: drawn from values linearly "
+            "interpolated in wavelength (see the note on interpolation).")
+
+
+def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool) -> None:
+    geo = comparison.colour.geometry
+    figures["spectrum.png"] = (save_figure(spectrum_figure(comparison), fig_dir / "spectrum.png",
+                                           svg),
+        ("Channels" if comparison.bands.is_rgb else "Spectra")
+        + f" at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
+        " deg). Points with +-1 standard uncertainty: the measurement; each simulation scaled "
+        "by the single luminance factor k_Y used for the colour match"
+        + (" (channels as points: R, G and B are not a continuum)" if comparison.bands.is_rgb
+           else "")
+        + f". Normalised per {comparison.bands.noun} instead, every simulation would equal the "
+        "measurement here by construction, so that view is not drawn.")
+    figures["swatches.png"] = (save_figure(swatch_figure(comparison), fig_dir / "swatches.png",
+                                        svg),
+        "Colour swatches at the colour geometry as shown on screen (gamma-encoded sRGB); the "
+        "H, S, V printed under each are those of the displayed pixel. The table's H, S, V "
+        "are of linear sRGB, hence different numbers for the same colour.")
+    strips = colour_strips(comparison)
+    if strips:
+        figures["colour_strips.png"] = (
+            save_figure(colour_strip_figure(strips), fig_dir / "colour_strips.png", svg),
+            "Colour strips: the colour of each dataset along each in-plane curve, one strip per "
+            "dataset and incidence angle, one swatch per observation angle s (labelled under "
+            "each panel, deg) placed at s. Each swatch is the dataset's spectrum at that "
+            f"geometry -> CIE XYZ (CIE 1931 2-degree observer, illuminant "
+            f"{comparison.illuminant}) -> linear sRGB (gonio.data.colour), scaled so that the "
+            "largest channel of the strip's brightest swatch is 1, then gamma-encoded for the "
+            "screen: hue and saturation compare everywhere, brightness only along a strip. "
+            "Simulations are shown with their own spectra, not normalised per wavelength "
+            "(that would force the measured colour at the normal). A missing swatch is a "
+            "geometry the dataset does not hold, e.g. the beam-blocked retro-direction (dotted "
+            "line). Read left to right, the detector goes from the source's side (s < 0) to "
+            "the far side (s > 0); the paper observes red cotton turning from purple to dark "
+            "red as the light moves from the camera's side to the far side." + hue_trend(strips))
