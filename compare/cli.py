@@ -30,6 +30,7 @@ apply (they do not depend on the scale), and no V is stated (noted). No threshol
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 import logging
 import sys
 from typing import Sequence
@@ -92,6 +93,8 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--force", action="store_true",
                      help="write into a non-empty folder that holds no previous report, "
                           "replacing report.html, metrics.json and figures/ files of those names")
+    rep.add_argument("--renders", metavar="RENDER_DIR", default=None,
+                     help="embed the renders of a `compare render` folder (measured and simulated side by side)")
     rep.add_argument("--svg", action="store_true",
                      help="also write every figure as figures/*.svg (vector)")
     common(rep)
@@ -198,8 +201,17 @@ def _report(args) -> int:
         log.warning("%s; the report says so in a banner", line)
     comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
                                   illuminant=args.illuminant)
+    sections = []
+    if args.renders is not None:  # a `compare render` folder: its sheet embedded, captioned (issue 22)
+        from .render import render_section
+        from .report import Section
+
+        if not Path(args.renders).is_dir():
+            raise CompareError(f"--renders {args.renders}: not a folder (make one with `compare render FILE.bsdf "
+                               "... --out DIR`)")
+        sections.append(Section("renders", render_section(args.renders), before=None))
     try:
-        report = write_report(comparison, args.out, svg=args.svg, force=args.force)
+        report = write_report(comparison, args.out, svg=args.svg, force=args.force, sections=sections)
     except OSError as exc:
         raise CompareError(f"cannot write the report into --out {args.out}: "
                            f"{exc.strerror or exc} ({exc.filename}); choose a writable "

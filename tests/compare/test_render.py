@@ -108,3 +108,21 @@ def test_cushion_fixture_is_what_the_script_makes(tmp_path):
     data = trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=True, include_attributes=False)
     assert data == (REPO / "fixtures" / "render" / "cushion.ply").read_bytes()
     assert mesh.is_watertight and mesh.volume > 0
+
+
+def test_report_embeds_a_render_folder(tmp_path, red_glossy):
+    """`compare report ... --renders DIR` puts the sheet of `compare render` into report.html."""
+    pytest.importorskip("mitsuba")
+    from compare.render import RenderSettings, render_materials, write_render_set
+
+    s = RenderSettings(spp=2, size=(32, 24), swatch_size=24)
+    renders = tmp_path / "renders"
+    write_render_set(render_materials([("red", red_glossy)], s), renders, s)
+    sims = sorted(p for p in (REPO / "fixtures" / "analytic").iterdir() if p.is_dir() and p != MEASURED)
+    out = tmp_path / "report"
+    assert compare_main(["report", str(MEASURED), str(sims[0]), "--out", str(out), "--renders", str(renders)]) == 0
+    page = (out / "report.html").read_text()
+    assert "<section id='renders'>" in page and page.count("data:image/png;base64,") >= 1
+    assert "2 spp" in page
+    assert compare_main(["report", str(MEASURED), str(sims[0]), "--out", str(tmp_path / "r2"), "--renders",
+                         str(tmp_path / "none")]) == 2
