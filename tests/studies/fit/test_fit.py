@@ -218,3 +218,21 @@ def test_recovery_of_a_walked_parameter(red_cotton):
     result = run_fit(problem, noise_draws=16, max_evaluations=8)
     assert abs(result.x[0] - 0.035) < 3.5 * result.u[0]
     assert problem.walks >= 2
+
+
+def test_objective_uses_compare_prepared_once_with_the_same_figures(base_problem):
+    """The fit's residuals (compare.residual, prepared once) equal those of a full compare_datasets run
+    of the model written as a dataset, for the measurement and for a noise draw of it (issue 21)."""
+    from tests.studies.fit.conftest import model_measurement, sibling
+
+    x0 = np.array([p.start for p in base_problem.free])
+    measured = model_measurement(base_problem, x0 * np.array([1.3, 0.8]), noise_seed=3)
+    problem = sibling(base_problem, measured)
+    noisy = model_measurement(base_problem, x0 * np.array([1.3, 0.8]), noise_seed=4)
+    for x in (x0, x0 * np.array([0.7, 1.2])):
+        beta, u = problem.model(x)
+        for target in (None, noisy):
+            full = problem.residuals_of(problem.compare(problem.dataset(beta, u, "trial"), target))
+            fast = problem.residuals(x, measured=target)
+            np.testing.assert_allclose(fast, full, rtol=1e-9, atol=1e-12)
+    assert problem.residual_model() is problem.residual_model()  # prepared once
