@@ -42,7 +42,9 @@ targets). :func:`simulate_batch` runs one batch of photons on its own random str
 runs consecutive batches in parallel (``prange``), each writing its own row, so the
 caller can reduce the rows in batch order: results for a fixed seed do not depend on the
 number of threads. Geometry, phase function, tallies and estimators are run-time switches
-of one compiled signature, so a fresh clone compiles the kernel once.
+of one compiled signature, so a fresh clone compiles the kernel once; every later process loads
+it from numba's on-disk cache, whose keys hold only constants that are the same in every process
+(see :func:`_make_runner`; ``tests/simulate/mc/test_kernel_cache.py`` checks it).
 
 Estimator contract (:mod:`.tallies`): every history ends in one place, where its exit
 weights, its roulette balance and its scratch tally are flushed as per-photon sums and
@@ -482,6 +484,28 @@ def _make_kernel(scoring: bool):
         scal[T.S_INTERNAL_REFLECTIONS] += reflections_total
         scal[T.S_PATH_LENGTH] += path_total
 
+    return simulate_batch
+
+
+simulate_batch_plain = _make_kernel(False)
+simulate_batch = _make_kernel(True)
+
+
+def _make_runner(scoring: bool):
+    """The parallel driver of one flavour, calling its :func:`simulate_batch` through a module global.
+
+    Why a global and not the closure of :func:`_make_kernel`: numba keys a cached closure on a
+    pickle of its closure cells, and a dispatcher pickles with an id unique to the process, so
+    a driver closing over the batch dispatcher got a new cache key in every process -- it
+    recompiled each time (1.5 s plain, 3-4 s with tallies) and left one more data file in the
+    cache directory per run (issue 21). The closure cells here are plain constants (``SCORING``,
+    ``STAMP``), whose pickles are the same in every process; ``SCORING`` selects the global at
+    compile time (numba prunes the constant branch). ``tests/simulate/mc/test_kernel_cache.py``
+    guards this: a second process must load every kernel from the cache and add no file.
+    numba's caching notes: https://numba.readthedocs.io/en/stable/developer/caching.html
+    """
+    SCORING = scoring
+    STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, parallel=True)
     def run_batches(inp: KernelInputs, total_photons: int, batch_size: int, first_batch: int, n_batches: int,
@@ -501,13 +525,16 @@ def _make_kernel(scoring: bool):
             scal[i, :] = 0.0
             bins[i, :, :] = 0.0
             if count > 0:
-                simulate_batch(inp, count, seed, b, scal[i], bins[i])
+                if SCORING:
+                    simulate_batch(inp, count, seed, b, scal[i], bins[i])
+                else:
+                    simulate_batch_plain(inp, count, seed, b, scal[i], bins[i])
 
-    return simulate_batch, run_batches
+    return run_batches
 
 
-simulate_batch_plain, run_batches_plain = _make_kernel(False)
-simulate_batch, run_batches = _make_kernel(True)
+run_batches_plain = _make_runner(False)
+run_batches = _make_runner(True)
 
 
 def run_batches_for(inp: KernelInputs):
