@@ -7,6 +7,9 @@ d = 0.02 cm; MCML manual Table 6.1):
   a warm-up call that compiles or loads the kernel; medians of 7 repeats (quick: 5) of photons/s,
   events per photon and ns per event; the speed-up is the median of the paired ratios;
 * the cold compile time (first call in a fresh interpreter with an empty numba cache);
+* (not with ``--quick``) whole ``simulate slab`` processes: start-up with a cold and a warm numba
+  cache, and the MCML-style case (van de Hulst slab, 3e7 photons, one thread) to set beside
+  ``time mcml`` of the user's own MCML build;
 * time vs photons (expected linear: fitted log-log slope ~1);
 * time vs optical thickness ``mu_t d`` at the same albedo and g;
 * the peak resident set size of the process;
@@ -71,6 +74,59 @@ def _cold_compile_seconds() -> dict[str, float] | None:
             return None
     import_s, first_call_s = (float(v) for v in proc.stdout.split())
     return {"import_seconds": import_s, "first_call_seconds": first_call_s}
+
+
+#: the MCML-style whole-process case: ``simulate slab`` as a user runs it, one thread, van de Hulst slab
+MCML_CASE_PHOTONS = 30_000_000
+
+
+def _slab_command(photons: int, threads: int | None = None) -> list[str]:
+    case = VAN_DE_HULST
+    cmd = [sys.executable, "-m", "simulate.cli", "slab", "--mua", str(case["mu_a"]), "--mus", str(case["mu_s"]),
+           "--g", str(case["g"]), "--n", str(case["n"]), "--thickness", str(case["thickness"]),
+           "--photons", str(photons), "--json"]
+    return cmd + (["--threads", str(threads)] if threads else [])
+
+
+def _timed_process(cmd: list[str], env: dict[str, str]) -> dict[str, Any]:
+    """Wall and CPU seconds of one whole process (its JSON output kept)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600, check=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    return {"wall_seconds": wall, "cpu_seconds": cpu, "result": json.loads(proc.stdout)}
+
+
+def _whole_process(repeats: int = 5) -> dict[str, Any] | None:
+    """Whole ``simulate slab`` processes (issue 21: in-process timings miss start-up and recompiles).
+
+    Start-up: a tiny run (10^3 photons) with an empty numba cache (cold: compiles) and then
+    ``repeats`` times on that cache (warm: loads; median). The MCML-style case: the van de Hulst
+    slab, :data:`MCML_CASE_PHOTONS` photons, one thread, warm cache (median of 3) -- compare with
+    ``time mcml`` on the same slab (MCML 1.2.2 is not part of this project).
+    """
+    with tempfile.TemporaryDirectory(prefix="numba-whole-") as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        try:
+            cold = _timed_process(_slab_command(1000), env)
+            warm = [_timed_process(_slab_command(1000), env) for _ in range(repeats)]
+            mcml = [_timed_process(_slab_command(MCML_CASE_PHOTONS, threads=1), env) for _ in range(3)]
+        except (subprocess.SubprocessError, OSError, ValueError) as exc:
+            log.warning("whole-process measurement failed: %s", exc)
+            return None
+    last = mcml[-1]["result"]
+    return {
+        "startup_cold_seconds": cold["wall_seconds"],
+        "startup_warm_median_seconds": float(statistics.median(r["wall_seconds"] for r in warm)),
+        "startup_warm_median_cpu_seconds": float(statistics.median(r["cpu_seconds"] for r in warm)),
+        "startup_warm_runs": [r["wall_seconds"] for r in warm],
+        "mcml_case": {"photons": MCML_CASE_PHOTONS, "threads": 1,
+                      "median_wall_seconds": float(statistics.median(r["wall_seconds"] for r in mcml)),
+                      "median_cpu_seconds": float(statistics.median(r["cpu_seconds"] for r in mcml)),
+                      "Rd": last["Rd"], "u_Rd": last["u_Rd"], "Tt": last["Tt"], "u_Tt": last["u_Tt"]},
+    }
 
 
 def _run(threads: int, photons: int, seed: int, **case: float) -> dict[str, float]:
@@ -159,6 +215,7 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
         thickness_rows.append(row)
 
     cold = None if quick else _cold_compile_seconds()
+    whole = None if quick else _whole_process()
 
     report: dict[str, Any] = {
         "schema": "simulate-bench/1",
@@ -174,6 +231,7 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
         },
         "warmup_seconds": warmup,
         "cold_compile": cold,
+        "whole_process": whole,
         "throughput": throughput,
         "time_vs_photons": {"runs": scaling, "loglog_slope": slope, "threads": max_threads},
         "time_vs_optical_thickness": {"runs": thickness_rows, "albedo": 0.9, "g": 0.75, "threads": max_threads},
@@ -254,6 +312,16 @@ def markdown_table(report: dict[str, Any]) -> str:
         + (f"{cold['first_call_seconds']:.2f} s (+ import {cold['import_seconds']:.2f} s) |" if cold else "not measured |"),
         f"| peak RSS | {report['peak_rss_mb']:.0f} MB |",
     ]
+    whole = report.get("whole_process")
+    if whole:
+        mc = whole["mcml_case"]
+        lines += [
+            f"| whole process `simulate slab`, 10^3 photons: cold / warm cache (median) | "
+            f"{whole['startup_cold_seconds']:.2f} s / {whole['startup_warm_median_seconds']:.2f} s |",
+            f"| whole process, {mc['photons']:.0e} photons, 1 thread (MCML-style case; median wall, CPU) | "
+            f"{mc['median_wall_seconds']:.2f} s, {mc['median_cpu_seconds']:.2f} s CPU; Rd {mc['Rd']:.5f} +- "
+            f"{mc['u_Rd']:.5f}, Tt {mc['Tt']:.5f} +- {mc['u_Tt']:.5f} |",
+        ]
     first = o["runs"][0]
     lines.append(
         f"| Rd, Tt (1 thread, run 1; reference 0.09739, 0.66096) | {first['Rd']:.5f} +- {first['u_Rd']:.5f}, "

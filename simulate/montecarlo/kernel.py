@@ -42,7 +42,9 @@ targets). :func:`simulate_batch` runs one batch of photons on its own random str
 runs consecutive batches in parallel (``prange``), each writing its own row, so the
 caller can reduce the rows in batch order: results for a fixed seed do not depend on the
 number of threads. Geometry, phase function, tallies and estimators are run-time switches
-of one compiled signature, so a fresh clone compiles the kernel once.
+of one compiled signature, so a fresh clone compiles the kernel once; every later process loads
+it from numba's on-disk cache, whose keys hold only constants that are the same in every process
+(see :func:`_make_runner`; ``tests/simulate/mc/test_kernel_cache.py`` checks it).
 
 Estimator contract (:mod:`.tallies`): every history ends in one place, where its exit
 weights, its roulette balance and its scratch tally are flushed as per-photon sums and
@@ -99,6 +101,7 @@ from simulate.montecarlo.geometry import (
 )
 from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
 from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, sample_direction
+from simulate.montecarlo.vecmath import vexp
 
 __all__ = [
     "PHASE_HG",
@@ -254,8 +257,10 @@ def _make_kernel(scoring: bool):
         vertex_base = inp.n_exit_bins
         n_bins_total = bins.shape[0]
         hist = np.zeros(n_bins_total)
-        touched = np.zeros(n_bins_total, dtype=np.int64)
+        n_blocks = max(n_bins_total // n_spec, 1)  # geometric bins, each of n_spec spectral bins
+        touched = np.zeros(n_blocks, dtype=np.int64)
         n_touched = np.zeros(1, dtype=np.int64)
+        marks = np.zeros(n_blocks, dtype=np.bool_)
         spec_w = np.ones(n_spec)
         nee_work = np.zeros(T.N_NEE)
         nee_consts = inp.nee_consts.copy()  # private: ranged outputs overwrite their row per vertex
@@ -359,10 +364,10 @@ def _make_kernel(scoring: bool):
                     if SCORING:
                         if reweight:
                             for l in range(n_spec):
-                                spec_w[l] *= s_ratio[l] * math.exp(-d_mu_t[l] * step)
+                                spec_w[l] *= s_ratio[l] * vexp(-d_mu_t[l] * step)
                         if vertex_mode == T.V_CYLINDER_NEE:
                             s0, s1, s2, s3 = T.score_vertex(
-                                inp.outputs, nee_consts, nee_work, vertex_base, hist, touched, n_touched, n_spec,
+                                inp.outputs, nee_consts, nee_work, vertex_base, hist, touched, n_touched, marks, n_spec,
                                 spec_w, spec_mu_t, phase_ratio, ratio, phase, g, table, inp.pdf, inp.lookup,
                                 size, n_in, x, y, z, ux, uy, uz, w, s0, s1, s2, s3,
                             )
@@ -372,11 +377,12 @@ def _make_kernel(scoring: bool):
                             w_max = 0.0
                             if phase_ratio:
                                 jr, fr = T.ratio_row(ct, n_grid)
+                                r0 = ratio[jr]
+                                r1 = ratio[jr + 1]
                                 for l in range(n_spec):
-                                    spec_w[l] *= ratio[jr, l] + fr * (ratio[jr + 1, l] - ratio[jr, l])
+                                    spec_w[l] *= r0[l] + fr * (r1[l] - r0[l])
                             for l in range(n_spec):
-                                if spec_w[l] > w_max:
-                                    w_max = spec_w[l]
+                                w_max = max(w_max, spec_w[l])
                     if w * w_max < w_threshold:
                         if w <= 0.0 or w_max <= 0.0:
                             break
@@ -397,7 +403,7 @@ def _make_kernel(scoring: bool):
                     if SCORING:
                         if reweight:
                             for l in range(n_spec):
-                                spec_w[l] *= math.exp(-d_mu_t[l] * s_b)
+                                spec_w[l] *= vexp(-d_mu_t[l] * s_b)
                     x, y, z = snap_to_surface(geometry, size, x, y, z, uz)
                     nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
                     cos_i = ux * nx + uy * ny + uz * nz
@@ -445,8 +451,8 @@ def _make_kernel(scoring: bool):
                             unscattered1 += w
                     path_total += w * path
                     if SCORING:
-                        T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, n_spec,
-                                     spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
+                        T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, marks,
+                                     n_spec, spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
                     break
             # --- the one end of every history: flush per-photon tallies -------------------
             exit0 += h_exit0
@@ -457,7 +463,7 @@ def _make_kernel(scoring: bool):
             killed += h_killed
             net_sq += (h_gain - h_killed) * (h_gain - h_killed)
             if SCORING:
-                T.flush_history(hist, touched, n_touched, bins)
+                T.flush_history(hist, touched, n_touched, marks, n_spec, bins)
             events_total += events
             scatterings_total += scatterings
 
@@ -482,6 +488,28 @@ def _make_kernel(scoring: bool):
         scal[T.S_INTERNAL_REFLECTIONS] += reflections_total
         scal[T.S_PATH_LENGTH] += path_total
 
+    return simulate_batch
+
+
+simulate_batch_plain = _make_kernel(False)
+simulate_batch = _make_kernel(True)
+
+
+def _make_runner(scoring: bool):
+    """The parallel driver of one flavour, calling its :func:`simulate_batch` through a module global.
+
+    Why a global and not the closure of :func:`_make_kernel`: numba keys a cached closure on a
+    pickle of its closure cells, and a dispatcher pickles with an id unique to the process, so
+    a driver closing over the batch dispatcher got a new cache key in every process -- it
+    recompiled each time (1.5 s plain, 3-4 s with tallies) and left one more data file in the
+    cache directory per run (issue 21). The closure cells here are plain constants (``SCORING``,
+    ``STAMP``), whose pickles are the same in every process; ``SCORING`` selects the global at
+    compile time (numba prunes the constant branch). ``tests/simulate/mc/test_kernel_cache.py``
+    guards this: a second process must load every kernel from the cache and add no file.
+    numba's caching notes: https://numba.readthedocs.io/en/stable/developer/caching.html
+    """
+    SCORING = scoring
+    STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, parallel=True)
     def run_batches(inp: KernelInputs, total_photons: int, batch_size: int, first_batch: int, n_batches: int,
@@ -501,13 +529,16 @@ def _make_kernel(scoring: bool):
             scal[i, :] = 0.0
             bins[i, :, :] = 0.0
             if count > 0:
-                simulate_batch(inp, count, seed, b, scal[i], bins[i])
+                if SCORING:
+                    simulate_batch(inp, count, seed, b, scal[i], bins[i])
+                else:
+                    simulate_batch_plain(inp, count, seed, b, scal[i], bins[i])
 
-    return simulate_batch, run_batches
+    return run_batches
 
 
-simulate_batch_plain, run_batches_plain = _make_kernel(False)
-simulate_batch, run_batches = _make_kernel(True)
+run_batches_plain = _make_runner(False)
+run_batches = _make_runner(True)
 
 
 def run_batches_for(inp: KernelInputs):

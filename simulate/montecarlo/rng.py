@@ -179,7 +179,10 @@ def to_signed_pair(x: np.uint64) -> tuple[float, float]:
     return float(x >> _U(32)) * _INV31 - 1.0, float(x & _LOW32) * _INV31 - 1.0
 
 
-@numba.njit(cache=True)
+# fastmath given explicitly (False): numba compiles a callee with its caller's fastmath flags unless
+# the callee sets its own, and caches whichever flavour was compiled first; this function is called
+# by the (fastmath) kernel and by stream_exponentials, so its numerics would depend on which ran first
+@numba.njit(cache=True, fastmath=False)
 def _exponential_slow(
     i: int, j: np.uint64, s0: np.uint64, s1: np.uint64, s2: np.uint64, s3: np.uint64
 ) -> tuple[float, np.uint64, np.uint64, np.uint64, np.uint64]:

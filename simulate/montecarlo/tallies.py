@@ -60,6 +60,7 @@ import numpy as np
 from simulate.optics.fresnel import fresnel_unpolarized
 from simulate.montecarlo.rng import next_u64, to_uniform
 from simulate.montecarlo.scatter import phase_pdf
+from simulate.montecarlo.vecmath import vexp
 
 __all__ = [
     "NONE",
@@ -81,7 +82,7 @@ __all__ = [
     "ratio_row",
     "NEE_COLUMNS",
     "N_NEE",
-    "add_score",
+    "touch",
     "flush_history",
 ]
 
@@ -187,32 +188,43 @@ def _uniform_bin(value: float, lo: float, hi: float, count: int) -> int:
 
 
 @numba.njit(cache=True, inline="always")
-def add_score(hist: np.ndarray, touched: np.ndarray, n_touched: np.ndarray, k: int, value: float) -> None:
-    """Add ``value`` to the history's scratch bin ``k`` (remembering the bins it touched)."""
-    if value == 0.0:
-        return
-    if hist[k] == 0.0:
-        touched[n_touched[0]] = k
+def touch(touched: np.ndarray, n_touched: np.ndarray, marks: np.ndarray, block: int) -> None:
+    """Remember that the history scored into geometric bin ``block`` (its ``n_spec`` spectral bins).
+
+    The scratch tally is kept per geometric bin, not per spectral bin: one test per score, and
+    the wavelength loops that follow are plain array arithmetic (vectorised by LLVM).
+    """
+    if not marks[block]:
+        marks[block] = True
+        touched[n_touched[0]] = block
         n_touched[0] += 1
-    hist[k] += value
 
 
 @numba.njit(cache=True, inline="always")
-def flush_history(hist: np.ndarray, touched: np.ndarray, n_touched: np.ndarray, bins: np.ndarray) -> None:
-    """End of a history: move its scratch scores into ``bins`` as (sum, sum of squares)."""
+def flush_history(hist: np.ndarray, touched: np.ndarray, n_touched: np.ndarray, marks: np.ndarray, n_spec: int,
+                  bins: np.ndarray) -> None:
+    """End of a history: move its scratch scores into ``bins`` as (sum, sum of squares).
+
+    Every spectral bin of a touched geometric bin is flushed; a bin that scored nothing adds
+    ``0`` to both sums, which leaves them unchanged.
+    """
     for i in range(n_touched[0]):
-        k = touched[i]
-        h = hist[k]
-        bins[k, 0] += h
-        bins[k, 1] += h * h
-        hist[k] = 0.0
+        block = touched[i]
+        marks[block] = False
+        for k in range(block * n_spec, (block + 1) * n_spec):
+            h = hist[k]
+            bins[k, 0] += h
+            bins[k, 1] += h * h
+            hist[k] = 0.0
     n_touched[0] = 0
 
 
 @numba.njit(cache=True, inline="always")
-def _add_spectral(hist, touched, n_touched, base, n_spec, spec_w, value) -> None:
+def _add_spectral(hist, touched, n_touched, marks, block, n_spec, spec_w, value) -> None:
+    touch(touched, n_touched, marks, block)
+    h = hist[block * n_spec:(block + 1) * n_spec]
     for l in range(n_spec):
-        add_score(hist, touched, n_touched, base + l, value * spec_w[l])
+        h[l] += value * spec_w[l]
 
 
 @numba.njit(cache=True)
@@ -223,6 +235,7 @@ def score_exit(
     hist: np.ndarray,
     touched: np.ndarray,
     n_touched: np.ndarray,
+    marks: np.ndarray,
     n_spec: int,
     spec_w: np.ndarray,
     face: int,
@@ -243,8 +256,8 @@ def score_exit(
         Exit tally mode and its parameters (module docstring).
     outputs : numpy.ndarray
         ``float64[n_out, 8]`` output ranges (``CYLINDER_OUTPUTS``; columns ``OUTPUT_COLUMNS``).
-    hist, touched, n_touched : numpy.ndarray
-        The history's scratch tally (see :func:`add_score`).
+    hist, touched, n_touched, marks : numpy.ndarray
+        The history's scratch tally (see :func:`touch`).
     n_spec : int
         Spectral factors per geometric bin.
     spec_w : numpy.ndarray
@@ -266,7 +279,7 @@ def score_exit(
         mu = wz if face == 0 else -wz
         k = (face * n_mu + _uniform_bin(mu, 0.0, 1.0, n_mu)) * n_phi
         k += _uniform_bin(math.atan2(wy, wx), -math.pi, math.pi, n_phi)
-        _add_spectral(hist, touched, n_touched, k * n_spec, n_spec, spec_w, weight)
+        _add_spectral(hist, touched, n_touched, marks, k, n_spec, spec_w, weight)
         return
     if mode == NONE:
         return
@@ -287,7 +300,7 @@ def score_exit(
         kv = _uniform_bin(x, -params[4], params[4], n_v) if n_v > 1 else 0
         k = ((cell * n_v + kv) * n_mu + _uniform_bin(mu, 0.0, 1.0, n_mu)) * n_phi
         k += _uniform_bin(phi, -math.pi, math.pi, n_phi)
-        _add_spectral(hist, touched, n_touched, k * n_spec, n_spec, spec_w, weight)
+        _add_spectral(hist, touched, n_touched, marks, k, n_spec, spec_w, weight)
         return
     if mode == CYLINDER_OUTPUTS:
         filt = int(params[0])
@@ -301,7 +314,7 @@ def score_exit(
                 continue
             if mu < outputs[o, 3] or mu > outputs[o, 4] or phi < outputs[o, 5] or phi > outputs[o, 6]:
                 continue
-            _add_spectral(hist, touched, n_touched, o * n_spec, n_spec, spec_w, weight)
+            _add_spectral(hist, touched, n_touched, marks, o, n_spec, spec_w, weight)
 
 
 #: columns of the per-output constants of the next-event estimator (:func:`nee_constants`)
@@ -311,7 +324,10 @@ N_NEE = 12
 _ORDER_CUTOFF = 1e-6  # internal-reflection orders are followed while F^k exceeds this (bias < 1e-6 relative)
 
 
-@numba.njit(cache=True)
+# fastmath=False explicitly: called from Python (transport.make_inputs) and from the fastmath kernel;
+# without its own setting numba would compile it with the flags of whichever caller came first and
+# cache that flavour (see rng._exponential_slow)
+@numba.njit(cache=True, fastmath=False)
 def nee_constants(mu: float, phi: float, n_in: float, radius: float, out: np.ndarray) -> None:
     """Constants of a local exit direction ``(mu = cos theta_out, phi)`` for :func:`score_vertex`.
 
@@ -365,21 +381,30 @@ def ratio_row(mu: float, n_grid: int) -> tuple[int, float]:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _score_spectral(hist, touched, n_touched, first, n_spec, g0, spec_w, spec_mu_t, path, phase_ratio, ratio,
+def _score_spectral(hist, touched, n_touched, marks, block, n_spec, g0, spec_w, spec_mu_t, path, phase_ratio, ratio,
                     cos_s) -> None:
-    """Add ``g0 A_l (p_l / p_walk)(cos_s) exp(-mu_t,l path)`` to bins ``first + l`` (one exit solution).
+    """Add ``g0 A_l (p_l / p_walk)(cos_s) exp(-mu_t,l path)`` to bins ``block * n_spec + l`` (one exit solution).
 
-    A separate compiled function on purpose: inlined into the vertex loop, LLVM's treatment of
-    this wavelength loop made the whole estimator about three times slower.
+    The wavelength loop reads contiguous rows (``spec_w``, ``spec_mu_t``, two rows of ``ratio``)
+    and writes one contiguous block of ``hist``, with no call and no branch in it
+    (:func:`.vecmath.vexp`): LLVM vectorises it (issue 21: with a libm ``exp`` and a touched-bin
+    test per wavelength this loop was 64 % of the summation route). A separate compiled function
+    on purpose: inlined into the vertex loop, LLVM's treatment of this loop made the whole
+    estimator about three times slower.
     """
+    touch(touched, n_touched, marks, block)
+    # slices, not hist[first + l]: a slice's index is known non-negative (no wrap-around select),
+    # which is what lets LLVM vectorise these loops
+    h = hist[block * n_spec:(block + 1) * n_spec]
     if phase_ratio:
         jr, fr = ratio_row(cos_s, ratio.shape[0])
+        r0 = ratio[jr]
+        r1 = ratio[jr + 1]
         for l in range(n_spec):
-            p_ratio = ratio[jr, l] + fr * (ratio[jr + 1, l] - ratio[jr, l])
-            add_score(hist, touched, n_touched, first + l, g0 * spec_w[l] * p_ratio * math.exp(-spec_mu_t[l] * path))
+            h[l] += g0 * spec_w[l] * (r0[l] + fr * (r1[l] - r0[l])) * vexp(-spec_mu_t[l] * path)
     else:
         for l in range(n_spec):
-            add_score(hist, touched, n_touched, first + l, g0 * spec_w[l] * math.exp(-spec_mu_t[l] * path))
+            h[l] += g0 * spec_w[l] * vexp(-spec_mu_t[l] * path)
 
 
 @numba.njit(cache=True)
@@ -391,6 +416,7 @@ def score_vertex(
     hist: np.ndarray,
     touched: np.ndarray,
     n_touched: np.ndarray,
+    marks: np.ndarray,
     n_spec: int,
     spec_w: np.ndarray,
     spec_mu_t: np.ndarray,
@@ -504,14 +530,9 @@ def score_vertex(
         if disc <= 0.0:
             continue
         sq = math.sqrt(disc)
-        u_t = consts[o, 0]
-        u_b = consts[o, 1]
-        u_n = consts[o, 2]
         f_out = consts[o, 6]
         c_step = consts[o, 8]
         s_step = consts[o, 9]
-        chord = consts[o, 10]
-        common = weight * consts[o, 11] / sq
         cos_c = outputs[o, 0]
         sin_c = outputs[o, 1]
         cos_h = outputs[o, 2]
@@ -543,10 +564,15 @@ def score_vertex(
             # cell test: n(psi) . n(psi_c), n(psi_c) = (-sin_c, cos_c)
             if -ny * sin_c + nz * cos_c < cos_h:
                 continue
+            # the light reaches the cell (most solutions do not: what they need is loaded only now)
             # internal direction at the first exit point: u_t t + u_n n + u_b b, b = (n_z, -n_y)
+            u_t = consts[o, 0]
+            u_b = consts[o, 1]
+            u_n = consts[o, 2]
             cos_s = ux * u_t + uy * (u_n * ny0 + u_b * nz0) + uz * (u_n * nz0 - u_b * ny0)
             p_w = phase_pdf(cos_s, kind, g, table, pdf, lookup)
-            path = s / rho + k * chord
-            _score_spectral(hist, touched, n_touched, (base + o) * n_spec, n_spec, common * p_w, spec_w, spec_mu_t,
+            path = s / rho + k * consts[o, 10]
+            common = weight * consts[o, 11] / sq
+            _score_spectral(hist, touched, n_touched, marks, base + o, n_spec, common * p_w, spec_w, spec_mu_t,
                             path, phase_ratio, ratio, cos_s)
     return s0, s1, s2, s3

@@ -98,3 +98,20 @@ def test_bench_out_is_a_file(tmp_path, capsys):
     target.write_text("x")
     assert main(["bench", "--out", str(target), "--quick"]) == 2
     assert "--out" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # spawns whole processes, one of them compiling into an empty numba cache
+def test_bench_whole_process_part(monkeypatch):
+    """Structure of the whole-process figures, and the MCML-style case's physics (van de Hulst Rd, Tt)."""
+    from simulate import bench
+
+    monkeypatch.setattr(bench, "MCML_CASE_PHOTONS", 200_000)
+    whole = bench._whole_process(repeats=2)
+    assert whole is not None
+    assert len(whole["startup_warm_runs"]) == 2
+    for value in (whole["startup_cold_seconds"], whole["startup_warm_median_seconds"],
+                  whole["startup_warm_median_cpu_seconds"]):
+        assert math.isfinite(value) and value > 0
+    mc = whole["mcml_case"]
+    assert mc["photons"] == 200_000 and mc["threads"] == 1
+    assert abs(mc["Rd"] - 0.09739) < 4 * mc["u_Rd"] and abs(mc["Tt"] - 0.66096) < 4 * mc["u_Tt"]
