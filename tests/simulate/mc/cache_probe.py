@@ -22,7 +22,7 @@ from numba.core.registry import CPUDispatcher
 def _routes() -> None:
     from simulate.cli import main
     from simulate.fiber import Fiber, point_outputs, range_outputs, volume_brdf
-    from simulate.medium import HGMedium
+    from simulate.media.medium import HGMedium
     from simulate.montecarlo import run_cylinder, run_slab
 
     with contextlib.redirect_stdout(io.StringIO()):  # the slab command, exactly as a user runs it
