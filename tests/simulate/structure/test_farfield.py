@@ -1,10 +1,7 @@
 """The fiber's far-field scattering function (simulate.farfield) against an independent photon trace.
 
-The brute-force tracer below shares no code with the project's kernel: photons of a parallel beam
-hit an infinite cylinder at a uniform impact parameter, are refracted with the unpolarised Fresnel
-split (the reflected part is the surface term, not traced), walk the Henyey-Greenstein medium with
-analog absorption, are reflected or refracted at the wall with probability F, and are tallied by
-their exit direction in bins of ``(w_x, atan2(w_y, w_z))`` (equal solid angles). Its per-bin mean
+The brute-force tracer (conftest.py, no code shared with the kernel) tallies the exits of a whole
+fiber by direction in bins of ``(w_x, atan2(w_y, w_z))`` (equal solid angles); its per-bin mean
 radiant intensity per unit length and unit beam irradiance is the far field averaged over the bin.
 """
 
@@ -13,7 +10,6 @@ from __future__ import annotations
 import math
 import warnings
 
-import numba
 import numpy as np
 import pytest
 
@@ -25,97 +21,6 @@ from simulate.medium import HGMedium
 R_UM, N_HOST, MU_S, MU_A, G = 10.0, 1.5, 0.4, 0.02, 0.5
 W_T = 0.3
 N_X, N_A = 6, 12
-
-
-@numba.njit(cache=True)
-def _fresnel(cos_i, n1, n2):
-    s = n1 / n2 * math.sqrt(max(0.0, 1.0 - cos_i * cos_i))
-    if s >= 1.0:
-        return 1.0, 0.0
-    cos_t = math.sqrt(1.0 - s * s)
-    rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t)
-    rp = (n1 * cos_t - n2 * cos_i) / (n1 * cos_t + n2 * cos_i)
-    return 0.5 * (rs * rs + rp * rp), cos_t
-
-
-@numba.njit(cache=True)
-def _hg(u, v, w, g, r1, r2):
-    if abs(g) < 1e-6:
-        ct = 2.0 * r1 - 1.0
-    else:
-        q = (1.0 - g * g) / (1.0 - g + 2.0 * g * r1)
-        ct = (1.0 + g * g - q * q) / (2.0 * g)
-    ct = min(1.0, max(-1.0, ct))
-    st = math.sqrt(1.0 - ct * ct)
-    ph = 2.0 * math.pi * r2
-    # any orthonormal pair perpendicular to (u, v, w)
-    if abs(w) < 0.9:
-        ax, ay, az = -v, u, 0.0
-    else:
-        ax, ay, az = 0.0, -w, v
-    na = math.sqrt(ax * ax + ay * ay + az * az)
-    ax, ay, az = ax / na, ay / na, az / na
-    bx, by, bz = v * az - w * ay, w * ax - u * az, u * ay - v * ax
-    return (ct * u + st * (math.cos(ph) * ax + math.sin(ph) * bx),
-            ct * v + st * (math.cos(ph) * ay + math.sin(ph) * by),
-            ct * w + st * (math.cos(ph) * az + math.sin(ph) * bz))
-
-
-@numba.njit(cache=True)
-def _trace(n_photons, seed, wx, wy, wz, radius, n, mu_s, mu_a, g, n_x, n_a):
-    np.random.seed(seed)
-    sums = np.zeros((n_x, n_a))
-    sq = np.zeros((n_x, n_a))
-    dx, dy, dz = -wx, -wy, -wz                       # travel direction
-    dp = math.sqrt(dy * dy + dz * dz)
-    ey, ez = -dz / dp, dy / dp                        # across the projected width (x x d / |x x d|)
-    mu_t = mu_s + mu_a
-    for _ in range(n_photons):
-        b = (2.0 * np.random.random() - 1.0) * radius
-        h = math.sqrt(radius * radius - b * b)
-        # entry point: the first intersection of the line b e + s d with the cylinder
-        py, pz = b * ey - h * dy / dp, b * ez - h * dz / dp
-        px = 0.0
-        ny, nz = py / radius, pz / radius
-        cos_i = -(dy * ny + dz * nz)
-        f, cos_t = _fresnel(cos_i, 1.0, n)
-        weight = 1.0 - f
-        eta = 1.0 / n                                  # refraction into the fiber
-        uy = eta * dy + (eta * cos_i - cos_t) * ny
-        uz = eta * dz + (eta * cos_i - cos_t) * nz
-        ux = eta * dx
-        while True:
-            s = -math.log(1.0 - np.random.random()) / mu_t
-            a = uy * uy + uz * uz
-            bb = py * uy + pz * uz
-            c = py * py + pz * pz - radius * radius
-            sb = (-bb + math.sqrt(max(bb * bb - a * c, 0.0))) / a if a > 0 else 1e300
-            if s < sb:
-                px, py, pz = px + s * ux, py + s * uy, pz + s * uz
-                if np.random.random() > mu_s / mu_t:
-                    break                              # absorbed (analog)
-                ux, uy, uz = _hg(ux, uy, uz, g, np.random.random(), np.random.random())
-                continue
-            px, py, pz = px + sb * ux, py + sb * uy, pz + sb * uz
-            rr = math.sqrt(py * py + pz * pz)
-            ny, nz = py / rr, pz / rr
-            py, pz = ny * radius, nz * radius
-            cos_in = uy * ny + uz * nz
-            f, cos_out = _fresnel(cos_in, n, 1.0)
-            if np.random.random() < f:                 # internal reflection
-                uy, uz = uy - 2.0 * cos_in * ny, uz - 2.0 * cos_in * nz
-                continue
-            ox = n * ux
-            oy = n * uy + (cos_out - n * cos_in) * ny
-            oz = n * uz + (cos_out - n * cos_in) * nz
-            no = math.sqrt(ox * ox + oy * oy + oz * oz)
-            ox, oy, oz = ox / no, oy / no, oz / no
-            ix = min(int((ox + 1.0) * 0.5 * n_x), n_x - 1)
-            ia = min(int((math.atan2(oy, oz) + math.pi) / (2.0 * math.pi) * n_a), n_a - 1)
-            sums[ix, ia] += weight
-            sq[ix, ia] += weight * weight
-            break
-    return sums, sq
 
 
 def _fiber() -> Fiber:
@@ -147,7 +52,7 @@ def table():
 
 
 @pytest.mark.parametrize("beta_deg", [20.0, 25.0])
-def test_far_field_agrees_with_brute_force_trace(table, beta_deg):
+def test_far_field_agrees_with_brute_force_trace(table, tracer, beta_deg):
     """Bin averages of the table's far field = the tracer's, within 4 combined standard errors + 3 %.
 
     beta = 20 deg is a multiple of the cell width (no interpolation); 25 deg is interpolated
@@ -156,7 +61,7 @@ def test_far_field_agrees_with_brute_force_trace(table, beta_deg):
     """
     w_in = _w_in(beta_deg)
     n = 400_000
-    sums, sq = _trace(n, 11, *w_in, R_UM, N_HOST, MU_S, MU_A, G, N_X, N_A)
+    sums, sq = tracer(n, 11, *w_in, R_UM, N_HOST, MU_S, MU_A, G, 0.0, N_X, N_A)
     omega = 4.0 * math.pi / (N_X * N_A)
     scale = 2.0 * R_UM * math.hypot(w_in[1], w_in[2]) / omega
     mean = sums / n
