@@ -45,7 +45,10 @@ Two ways to get the volume term:
     A beam at azimuth ``beta`` about the axis (``w_perp`` along ``n(beta)``) lights cell ``A_i``
     at the local azimuth ``beta - psi_i``, row ``k = (beta - psi_i) / dpsi``; azimuths between
     multiples of ``dpsi`` and ``|w_t|`` between the table's nodes are interpolated linearly
-    (as :mod:`simulate.fiber`'s ``bssrdf`` route does in ``beta``). Exit directions are binned
+    (as :mod:`simulate.fiber`'s ``bssrdf`` route does in ``beta``); in ``|w_t|`` the exit
+    distribution per unit ENTERING light is interpolated and the exact entry of the actual ``|w_t|``
+    restored (a row's launch weight ``w . n`` and its transmission ``1 - F`` belong to its node; the
+    woven Monte Carlo divides out the row's entry in the same way). Exit directions are binned
     (``n_mu x n_phi`` in the cell's local ``cos theta`` and azimuth), so the table's far field
     is the bin average of the radiance: piecewise constant in the local exit direction.
 
@@ -68,7 +71,7 @@ from typing import Any
 import numpy as np
 
 from simulate import microfacet
-from simulate.fresnel import OpticsDomainWarning
+from simulate.fresnel import OpticsDomainWarning, reflectance_from_cos
 
 __all__ = ["ExitTable", "cell_frame", "exit_table", "far_field_nee", "surface_far_field", "DEFAULT_WT_NODES"]
 
@@ -132,7 +135,7 @@ def far_field_nee(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_n
     pair, cell = np.nonzero(local[..., 2] > 1e-9)
     lo = local[pair, cell]
     phi = np.arctan2(lo[:, 1], lo[:, 0])
-    outputs = fiber_mod.range_outputs(lo[:, 2], lo[:, 2], phi, phi, dpsi / 2.0, psi[cell])
+    outputs = fiber_mod.range_outputs(lo[:, 2], lo[:, 2], phi, phi, dpsi / 2.0, psi[cell])  # type: ignore[arg-type]  # psi_c broadcasts
     mc = {"method": "nee", **mc}
     est = fiber_mod.volume_brdf(fiber, w_in[pair], None, wavelengths_nm, outputs=outputs, **mc)
     width = fiber.radius_um * dpsi * lo[:, 2]
@@ -170,6 +173,14 @@ class ExitTable:
     wavelengths_nm: np.ndarray
     photons: int = 0
     seconds: float = 0.0
+    n_host: float = 1.5
+
+    def entry(self, w_t: float) -> np.ndarray:
+        """``[K]`` each row's cell-averaged launch weight times entry transmission, ``<(w.n)(1 - F)>``, at ``|w_t|``."""
+        rho = math.sqrt(max(1.0 - w_t * w_t, 0.0))
+        sub = ((np.arange(64) + 0.5) / 64 - 0.5) * self.dpsi
+        cos = np.clip(rho * np.cos(self.k[:, None] * self.dpsi + sub[None, :]), 0.0, 1.0)
+        return np.mean(cos * (1.0 - reflectance_from_cos(cos, 1.0, self.n_host)), axis=1)
 
     @property
     def n_psi(self) -> int:
@@ -208,9 +219,13 @@ class ExitTable:
         fw = float(np.clip((wt - self.w_t[iw]) / (self.w_t[iw + 1] - self.w_t[iw]), 0.0, 1.0))
         k_min = int(self.k[0])
         out = np.zeros(self.T.shape[2:])
+        tau = self.entry(wt)
         for wi, aw in ((iw, 1.0 - fw), (iw + 1, fw)):
             if aw == 0.0:
                 continue
+            # a row carries the node's launch weight and entry transmission: interpolate the exit
+            # distribution per unit entering light and restore the exact entry of this w_t
+            scale = aw * tau / self.entry(float(self.w_t[wi]))
             for j, ab in ((j0, 1.0 - frac), (j0 + 1, frac)):
                 if ab == 0.0:
                     continue
@@ -220,7 +235,7 @@ class ExitTable:
                     if not (k_min <= k <= -k_min) or lit[i] == 0.0:
                         continue
                     # exit cell B gets the row's offset B - i
-                    out += (aw * ab * lit[i]) * np.roll(self.T[wi, k - k_min], i, axis=0)
+                    out += (scale[k - k_min] * ab * lit[i]) * np.roll(self.T[wi, k - k_min], i, axis=0)
         out /= self.omega()[None, :, None, None]
         if w_in[0] < 0:
             n_phi = self.bins[1]
@@ -278,4 +293,4 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
         ks = tab["k"]
     return ExitTable(w_t=nodes, T=np.stack(rows), u_T=np.stack(errs), k=np.asarray(ks), radius_um=fiber.radius_um,
                      wavelengths_nm=np.atleast_1d(np.asarray(wavelengths_nm, float)), photons=photons,
-                     seconds=time.perf_counter() - t0)
+                     seconds=time.perf_counter() - t0, n_host=float(fiber.n_host))

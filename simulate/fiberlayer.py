@@ -46,6 +46,7 @@ Specular reflection from woven cloth. *ACM TOG* 31(1), 11. d'Eon et al. (2011), 
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 import warnings
@@ -59,7 +60,7 @@ from simulate import microfacet
 from simulate.farfield import ExitTable, cell_frame
 from simulate.fresnel import OpticsDomainWarning
 
-__all__ = ["LayerTable", "layer_table", "layer_lookup", "visibility", "layer_G"]
+__all__ = ["LayerTable", "layer_table", "surface_table", "layer_lookup", "visibility", "visibility_any", "layer_G", "surface_Q"]
 
 
 def visibility(w: np.ndarray, psi: np.ndarray, spacing: float | None) -> np.ndarray:
@@ -86,20 +87,52 @@ def visibility(w: np.ndarray, psi: np.ndarray, spacing: float | None) -> np.ndar
     return (facing & above & free).astype(float)
 
 
-def _cell_fractions(table: ExitTable, w: np.ndarray, spacing: float | None, n_sub: int, radius: float
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell: the visible fraction of its irradiance ``[P, n_psi]`` and its visible projected width ``[P, n_psi]``."""
-    n = table.n_psi
-    dpsi = table.dpsi
-    sub = ((np.arange(n_sub) + 0.5) / n_sub - 0.5) * dpsi
-    psi = (np.arange(n) * dpsi)[:, None] + sub[None, :]          # [n, n_sub]
-    flat = psi.ravel()
-    cos = np.clip(w[:, 1:2] * -np.sin(flat)[None, :] + w[:, 2:3] * np.cos(flat)[None, :], 0.0, None)
-    vis = visibility(w, flat, spacing)
-    seen = (cos * vis).reshape(-1, n, n_sub).sum(axis=2)
-    full = cos.reshape(-1, n, n_sub).sum(axis=2)
-    frac = np.where(full > 0, seen / np.where(full > 0, full, 1.0), 0.0)
-    return frac, radius * (dpsi / n_sub) * seen
+def visibility_any(w: np.ndarray, psi: np.ndarray, spacing: float | None) -> np.ndarray:
+    """:func:`visibility` for directions above OR below the layer (the layer is symmetric about z = 0).
+
+    Below (``w_z < 0``): the mirror image, ``w -> (w_x, w_y, -w_z)`` and ``psi -> pi - psi``.
+    """
+    w = np.atleast_2d(np.asarray(w, float))
+    out = visibility(w, psi, spacing)
+    down = w[:, 2] < 0
+    if spacing is not None and down.any():
+        out[down] = visibility(w[down] * np.array([1.0, 1.0, -1.0]), math.pi - np.asarray(psi, float), spacing)
+    return out
+
+
+def cell_fractions(table: ExitTable, w: np.ndarray, spacing: float | None, n_sub: int = 0, radius: float = 1.0
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell: the unshadowed fraction of its irradiance from ``w`` ``[P, n_psi]`` and its unmasked projected
+    width towards ``w`` ``[P, n_psi]`` (um), exactly.
+
+    Projected along ``w`` onto the cross-section, a point at ``psi`` has the coordinate
+    ``s = R sin(psi - beta)`` across the beam (``n(beta)`` along ``w_perp``) and receives ``E_perp |w_perp| ds``.
+    The neighbour ``j = +-1`` that lies towards ``w`` (``j d w_y > 0``) covers ``s`` in
+    ``[-j d cos(beta) - R, -j d cos(beta) + R]`` (two disjoint disks: a line of constant ``s`` meets
+    the nearer one first); the other neighbours are behind it. Directions below the layer see
+    nothing (``spacing`` given). ``n_sub`` is not used (kept for the signature).
+    """
+    del n_sub
+    w = np.atleast_2d(np.asarray(w, float))
+    n, dpsi = table.n_psi, table.dpsi
+    wp = np.hypot(w[:, 1], w[:, 2])
+    beta = np.arctan2(-w[:, 1], w[:, 2])
+    centre = (np.arange(n) * dpsi)[None, :] - beta[:, None]
+    centre = (centre + math.pi) % (2.0 * math.pi) - math.pi
+    lo = np.clip(centre - dpsi / 2.0, -math.pi / 2.0, math.pi / 2.0)
+    hi = np.clip(centre + dpsi / 2.0, -math.pi / 2.0, math.pi / 2.0)
+    s_lo, s_hi = radius * np.sin(lo), radius * np.sin(hi)
+    full = np.clip(s_hi - s_lo, 0.0, None)
+    free = full.copy()
+    if spacing is not None:
+        d = spacing * radius
+        j = np.sign(w[:, 1])                                  # the neighbour towards w
+        mid = (-j * d * np.cos(beta))[:, None]
+        overlap = np.clip(np.minimum(s_hi, mid + radius) - np.maximum(s_lo, mid - radius), 0.0, None)
+        free = np.where((j != 0)[:, None], np.clip(full - overlap, 0.0, None), full)
+        free = np.where((w[:, 2] > 0)[:, None], free, 0.0)
+    frac = np.where(full > 0, free / np.where(full > 0, full, 1.0), 0.0)
+    return frac, wp[:, None] * free
 
 
 def layer_G(table: ExitTable, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, *, masking: bool = True,
@@ -116,19 +149,21 @@ def layer_G(table: ExitTable, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, *
     if w_in[2] <= 0:
         return out
     spacing = 2.0 * spacing_ratio if masking else None
-    lit, _ = _cell_fractions(table, w_in[None], spacing, n_sub, table.radius_um)
+    lit, _ = cell_fractions(table, w_in[None], spacing, n_sub, table.radius_um)
     radiance = table.exit_radiance(w_in, lit[0])
     R, _ = table.lookup(radiance, w_out)
-    _, width = _cell_fractions(table, w_out, spacing, n_sub, table.radius_um)
+    _, width = cell_fractions(table, w_out, spacing, n_sub, table.radius_um)
     up = w_out[:, 2] > 0
     out[up] = np.einsum("ok,okl->ol", width[up], R[up])
     if surface:
-        out[up] += _surface_Q(fiber, w_in, w_out[up], spacing, n_psi_surface)[:, None]
+        out[up] += surface_Q(fiber, w_in, w_out[up], spacing, spacing, n_psi_surface)[:, None]
     d = 2.0 * spacing_ratio * table.radius_um
     return out / d
 
 
-def _surface_Q(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, spacing: float | None, n_psi: int) -> np.ndarray:
+def surface_Q(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, spacing_in: float | None, spacing_out: float | None,
+              n_psi: int) -> np.ndarray:
+    """Surface part of ``Q`` ``[O]`` (um/sr): lit with masking ``spacing_in``, seen with ``spacing_out`` (None: facing only)."""
     dpsi = 2.0 * math.pi / n_psi
     psi = (np.arange(n_psi) + 0.5) * dpsi - math.pi
     li = cell_frame(w_in[None, :], psi)                                  # [n, 3]
@@ -140,7 +175,7 @@ def _surface_Q(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, spacing: float |
         f = microfacet.cook_torrance(np.where(ok[..., None], li_b, [0.0, 0.0, 1.0]),
                                      np.where(ok[..., None], lo, [0.0, 0.0, 1.0]), fiber.roughness, fiber.n_host)
     weight = np.where(ok, f * li_b[..., 2] * lo[..., 2], 0.0)
-    weight = weight * visibility(w_in[None], psi, spacing) * visibility(w_out, psi, spacing)
+    weight = weight * visibility(w_in[None], psi, spacing_in) * visibility_any(w_out, psi, spacing_out)
     return fiber.radius_um * dpsi * weight.sum(axis=1)
 
 
@@ -159,35 +194,84 @@ class LayerTable:
     masking: bool
     spacing_ratio: float
     seconds: float = 0.0
+    interior: Any = None
 
     def __call__(self, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
         """``G [P, L]`` at layer-frame pairs ``w_in, w_out [P, 3]`` (0 below the layer)."""
         return layer_lookup(self, w_in, w_out)
 
 
-def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_ratio: float = 1.0,
-                step_deg: float = 7.5, phi_step_deg: float = 15.0, n_sub: int = 8, surface: bool = True
-                ) -> LayerTable:
-    """Tabulate :func:`layer_G` on the layer-frame grid (module docstring)."""
-    t0 = time.perf_counter()
+def _grid(step_deg: float, phi_step_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     th = np.arange(0.0, 90.0 + 1e-9, step_deg)
     ph_i = np.arange(0.0, 90.0 + 1e-9, phi_step_deg)
     ph_o = np.arange(0.0, 360.0 + 1e-9, phi_step_deg)
     tt, pp = np.meshgrid(np.radians(th), np.radians(ph_o), indexing="ij")
     w_out = microfacet.direction(tt.ravel(), pp.ravel())
     w_out[:, 2] = np.clip(w_out[:, 2], 0.0, None)
+    return th, ph_i, ph_o, w_out
+
+
+@functools.lru_cache(maxsize=8)
+def surface_table(roughness: float, n_host: float, masking: bool, spacing_ratio: float, step_deg: float = 7.5,
+                  phi_step_deg: float = 15.0, n_psi: int = 360) -> np.ndarray:
+    """The surface part of ``G`` on the :class:`LayerTable` grid ``[Ti, Pi, To, Po]`` (independent of the
+    exit table and of the fiber radius: ``Q_surf`` and ``d`` both scale with ``R``), cached."""
+    from simulate.fiber import Fiber
+    from simulate.medium import HGMedium
+
+    fiber = Fiber(radius_um=1.0, n_host=n_host, medium=HGMedium(mu_s=0.0, mu_a=0.0, g=0.0), roughness=roughness)
+    th, ph_i, ph_o, w_out = _grid(step_deg, phi_step_deg)
+    spacing = 2.0 * spacing_ratio if masking else None
+    out = np.zeros((th.size, ph_i.size, th.size, ph_o.size))
+    for a, t_i in enumerate(th):
+        for b, p_i in enumerate(ph_i):
+            w_in = microfacet.direction(math.radians(t_i), math.radians(p_i))
+            if w_in[2] < 1e-12:
+                continue
+            q = np.zeros(w_out.shape[0])
+            up = w_out[:, 2] > 0
+            q[up] = surface_Q(fiber, w_in, w_out[up], spacing, spacing, n_psi)
+            out[a, b] = q.reshape(th.size, ph_o.size) / (2.0 * spacing_ratio)
+            if t_i == 0.0:
+                out[a, 1:] = out[a, 0]
+                break
+    out.flags.writeable = False
+    return out
+
+
+def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_ratio: float = 1.0,
+                step_deg: float = 7.5, phi_step_deg: float = 15.0, n_sub: int = 8, surface: bool = True,
+                interior: Any = None) -> LayerTable:
+    """Tabulate :func:`layer_G` on the layer-frame grid (module docstring).
+
+    The surface part comes from :func:`surface_table` (cached). ``interior`` (a
+    :class:`simulate.interior.Interior`, with ``masking``): add the light returned from inside the
+    fabric, ``A_ret(w_i) (w_i . m)(w_o . m) / pi`` (docs/physics.md section 6.3).
+    """
+    from simulate.interior import layer_energy
+
+    t0 = time.perf_counter()
+    th, ph_i, ph_o, w_out = _grid(step_deg, phi_step_deg)
     G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, table.T.shape[-1]))
     for a, t_i in enumerate(th):
         for b, p_i in enumerate(ph_i):
             w_in = microfacet.direction(math.radians(t_i), math.radians(p_i))
             if w_in[2] < 1e-12:
                 continue  # grazing incidence on the layer: no irradiance
-            G[a, b] = layer_G(table, fiber, w_in, w_out, masking=masking, spacing_ratio=spacing_ratio,
-                              n_sub=n_sub, surface=surface).reshape(th.size, ph_o.size, -1)
+            g = layer_G(table, fiber, w_in, w_out, masking=masking, spacing_ratio=spacing_ratio, n_sub=n_sub,
+                        surface=False)
+            if interior is not None:
+                ret = interior.returned(layer_energy(table, fiber, w_in, interior.classes, spacing_ratio=spacing_ratio,
+                                                     n_sub=n_sub))
+                g += ret[None, :] * w_in[2] * w_out[:, 2:3] / math.pi
+            G[a, b] = g.reshape(th.size, ph_o.size, -1)
             if t_i == 0.0:
                 G[a, 1:] = G[a, 0]   # the pole: one direction for every phi_i
                 break
-    return LayerTable(th, ph_i, th, ph_o, G, masking, float(spacing_ratio), time.perf_counter() - t0)
+    if surface:
+        G += surface_table(float(fiber.roughness), float(fiber.n_host), bool(masking), float(spacing_ratio),
+                           float(step_deg), float(phi_step_deg))[..., None]
+    return LayerTable(th, ph_i, th, ph_o, G, masking, float(spacing_ratio), time.perf_counter() - t0, interior)
 
 
 @numba.njit(cache=True)

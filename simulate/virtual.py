@@ -112,6 +112,11 @@ def _evaluate(method: str, config: SimulationConfig, fiber: Any, theta_i: np.nda
     from simulate import fiber as fiber_mod
 
     started = time.perf_counter()
+    # --- issue 19: a config with [structure] sums over the fabric's visible fibers (simulate.structure)
+    if method == "summation" and getattr(config, "structure", None) is not None:
+        return _structured(config, fiber, theta_i, phi_i, theta_o, phi_o, wavelengths, target=target, seed=seed,
+                           threads=threads, max_photons=max_photons)
+    # --- end issue 19
     if method == "summation":
         pairs = fab.FiberPairs.from_angles(theta_i, phi_i, theta_o, phi_o)
         log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
@@ -150,6 +155,23 @@ def _evaluate(method: str, config: SimulationConfig, fiber: Any, theta_i: np.nda
     n = np.ones(beta.shape, dtype=np.int64)
     return (beta, u_beta, n, None, {}, time.perf_counter() - started,
             {"rho_d": rho.tolist(), "u_rho_d": np.asarray(u_rho, float).tolist()})
+
+
+def _structured(config: SimulationConfig, fiber: Any, theta_i, phi_i, theta_o, phi_o, wavelengths, *, target: float,
+                seed: int, threads: Any, max_photons: Any):
+    """The structured summation (issue 19, :func:`simulate.structure.structured_beta`), as :func:`_evaluate` returns."""
+    from simulate import structure as st
+    from simulate import weave as weave_mod
+
+    spec = config.structure
+    fab.FiberPairs.from_angles(theta_i, phi_i, theta_o, phi_o)   # the same checks (and warnings) as the summation
+    weave = weave_mod.weave_from_config(config) if spec.kind == "woven" else None
+    beta, u_beta, info = st.structured_beta(spec, fiber, weave, fab.directions_deg(theta_i, phi_i),
+                                            fab.directions_deg(theta_o, phi_o), wavelengths, target_rel_err=target,
+                                            seed=seed, threads=threads, max_photons=max_photons, method=config.method)
+    n = np.full(beta.shape, max(int(info["photons"]), 1))
+    return (beta, u_beta, n, int(info["photons"]), jsonable(info), float(info["seconds"]),
+            {"structure": jsonable(info["structure"]), "facets": jsonable(info["facets"])})
 
 
 def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
