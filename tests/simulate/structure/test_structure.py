@@ -9,7 +9,6 @@ import pytest
 
 from gonio.acquisition.plan import parse_plan
 from simulate import farfield as FF
-from simulate import fiberlayer as FL
 from simulate import interior as IN
 from simulate import structure as ST
 from simulate import weave as WV
