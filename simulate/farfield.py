@@ -41,7 +41,8 @@ Two ways to get the volume term:
     method's table: photons entering ONE cell A under a beam, exits binned by cell offset and
     local direction) at a few axial components ``|w_t|``. Because the rows are per ENTRY cell,
     any subset of entry cells may be lit (shadowing by neighbours) and any subset of exit cells
-    seen (masking): the visible-surface average of :mod:`simulate.fiberlayer` is built on it.
+    seen (masking): the visible-surface average of :mod:`simulate.fiberlayer` is built on it. Rows
+    ``k`` and ``-k`` are averaged through the cylinder's mirror symmetry (half the variance).
     A beam at azimuth ``beta`` about the axis (``w_perp`` along ``n(beta)``) lights cell ``A_i``
     at the local azimuth ``beta - psi_i``, row ``k = (beta - psi_i) / dpsi``; azimuths between
     multiples of ``dpsi`` and ``|w_t|`` between the table's nodes are interpolated linearly
@@ -68,6 +69,7 @@ import warnings
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
 from simulate import microfacet
@@ -146,6 +148,24 @@ def far_field_nee(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_n
     s_surf = surface_far_field(fiber, w_in, w_out) if surface else np.zeros(w_in.shape[0])
     return S, u, s_surf, {"photons": int(est.photons), "seconds": est.seconds, "outputs": int(pair.size),
                           "fiber_info": est.info}
+
+
+@numba.njit(cache=True)
+def _accumulate(T, k_min, j, ab, lit, scale, out):
+    """``out[B] += scale[k] ab lit[i] T[k, B - i]`` over the lit entry cells ``i``, row ``k = j - i`` (wrapped)."""
+    n = out.shape[0]
+    inner = out[0].size
+    flat_out = out.reshape(n, inner)
+    for i in range(n):
+        k = ((j - i) + n // 2) % n - n // 2          # row azimuth in (-180, 180] deg
+        if k < k_min or k > -k_min or lit[i] == 0.0:
+            continue
+        w = scale[k - k_min] * ab * lit[i]
+        row = T[k - k_min].reshape(n, inner)
+        for b in range(n):
+            src = (b - i) % n                        # exit cell B gets the row's offset B - i
+            for q in range(inner):
+                flat_out[b, q] += w * row[src, q]
 
 
 @dataclass
@@ -229,13 +249,7 @@ class ExitTable:
             for j, ab in ((j0, 1.0 - frac), (j0 + 1, frac)):
                 if ab == 0.0:
                     continue
-                for i in range(n):
-                    k = j - i
-                    k = (k + n // 2) % n - n // 2          # row azimuth in (-180, 180] deg
-                    if not (k_min <= k <= -k_min) or lit[i] == 0.0:
-                        continue
-                    # exit cell B gets the row's offset B - i
-                    out += (scale[k - k_min] * ab * lit[i]) * np.roll(self.T[wi, k - k_min], i, axis=0)
+                _accumulate(self.T[wi], k_min, j, ab, lit, scale, out)
         out /= self.omega()[None, :, None, None]
         if w_in[0] < 0:
             n_phi = self.bins[1]
@@ -273,6 +287,20 @@ class ExitTable:
         return self.radius_um * self.dpsi * rad.sum(axis=(0, 1, 2)) / (2.0 * self.radius_um * math.hypot(w_in[1], w_in[2]))
 
 
+def _symmetrised(T: np.ndarray) -> np.ndarray:
+    """Average each row with the mirror image of its opposite: ``T[-k](o, mu, phi) = T[k](-o, mu, -phi)``.
+
+    The mirror ``b -> -b`` of the cell frame (the cylinder is symmetric about the plane through its
+    axis and the cell's normal) maps the local incidence azimuth ``a`` to ``-a``, the exit cell offset
+    to its opposite and the local exit azimuth to its opposite: exact, and it halves the variance.
+    """
+    n_psi, n_phi = T.shape[2], T.shape[4]
+    offsets = (-np.arange(n_psi)) % n_psi
+    phis = n_phi - 1 - np.arange(n_phi)
+    mirrored = T[:, ::-1][:, :, offsets][:, :, :, :, phis]
+    return np.ascontiguousarray(0.5 * (T + mirrored))
+
+
 def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, bins: tuple[int, int] = (9, 18),
                photons_per_row: int = 20_000, seed: int = 0, threads: int | None = None) -> ExitTable:
     """The :class:`ExitTable` of ``fiber`` from :func:`simulate.fiber.bssrdf_table` at each ``w_t`` node."""
@@ -291,6 +319,7 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
         errs.append(tab["u_T"][:, :, 0])
         photons += int(tab["photons"])
         ks = tab["k"]
-    return ExitTable(w_t=nodes, T=np.stack(rows), u_T=np.stack(errs), k=np.asarray(ks), radius_um=fiber.radius_um,
+    T, u_T = _symmetrised(np.stack(rows)), np.stack(errs) / math.sqrt(2.0)
+    return ExitTable(w_t=nodes, T=T, u_T=u_T, k=np.asarray(ks), radius_um=fiber.radius_um,
                      wavelengths_nm=np.atleast_1d(np.asarray(wavelengths_nm, float)), photons=photons,
                      seconds=time.perf_counter() - t0, n_host=float(fiber.n_host))

@@ -136,7 +136,7 @@ def cell_fractions(table: ExitTable, w: np.ndarray, spacing: float | None, n_sub
 
 
 def layer_G(table: ExitTable, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, *, masking: bool = True,
-            spacing_ratio: float = 1.0, n_sub: int = 8, n_psi_surface: int = 360, surface: bool = True
+            spacing_ratio: float = 1.0, n_sub: int = 8, n_psi_surface: int = 180, surface: bool = True
             ) -> np.ndarray:
     """``G(w_i, w_o) = Q / d`` ``[O, L]`` (1/sr) for ONE incident direction and ``O`` exit directions (layer frame).
 
@@ -213,7 +213,7 @@ def _grid(step_deg: float, phi_step_deg: float) -> tuple[np.ndarray, np.ndarray,
 
 @functools.lru_cache(maxsize=8)
 def surface_table(roughness: float, n_host: float, masking: bool, spacing_ratio: float, step_deg: float = 7.5,
-                  phi_step_deg: float = 15.0, n_psi: int = 360) -> np.ndarray:
+                  phi_step_deg: float = 15.0, n_psi: int = 180) -> np.ndarray:
     """The surface part of ``G`` on the :class:`LayerTable` grid ``[Ti, Pi, To, Po]`` (independent of the
     exit table and of the fiber radius: ``Q_surf`` and ``d`` both scale with ``R``), cached."""
     from simulate.fiber import Fiber

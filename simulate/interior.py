@@ -105,7 +105,7 @@ def _sphere(n_mu: int) -> tuple[np.ndarray, float]:
 
 
 def layer_energy(table: ExitTable, fiber: Any, w_in: np.ndarray, classes: np.ndarray, *, spacing_ratio: float = 1.0,
-                 n_sub: int = 8, n_psi_surface: int = 120, n_mu_surface: int = 12) -> np.ndarray:
+                 n_sub: int = 8, n_psi_surface: int = 72, n_mu_surface: int = 8) -> np.ndarray:
     """``[4, L]``: up (unmasked), down (unmasked), all light leaving the lit fibers, and the light passing
     between the fibers (spacing ratio > 1), per unit layer irradiance."""
     w_in = np.asarray(w_in, float).reshape(3)
