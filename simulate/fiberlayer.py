@@ -297,42 +297,56 @@ def _locate(nodes, v):
     return i, x - i
 
 
-@numba.njit(cache=True, parallel=False)
-def _lookup(G, ti, pi_, to, po, w_in, w_out, out):
-    n_l = G.shape[4]
-    for p in range(w_in.shape[0]):
-        ix, iy, iz = w_in[p, 0], w_in[p, 1], w_in[p, 2]
-        ox, oy, oz = w_out[p, 0], w_out[p, 1], w_out[p, 2]
-        if iz <= 0.0 or oz <= 0.0:
-            continue
+#: symmetry modes of :func:`lookup_one`: the layer's two mirrors (``w_i`` in the quadrant ``x, y >= 0``)
+#: or a fabric's turn by 180 deg about the normal (``w_i`` with ``y >= 0``, or ``y = 0`` and ``x >= 0``)
+MIRRORS, HALF_TURN = 0, 1
+
+
+@numba.njit(cache=True, inline="always")
+def lookup_one(G, ti, pi_, to, po, ix, iy, iz, ox, oy, oz, scale, sym, out_row):
+    """``out_row += scale * G(w_i, w_o)`` by multilinear interpolation (nothing below the plane)."""
+    if iz <= 0.0 or oz <= 0.0:
+        return
+    if sym == MIRRORS:
         if ix < 0.0:
             ix, ox = -ix, -ox
         if iy < 0.0:
             iy, oy = -iy, -oy
-        t_i, p_i = _angles(ix, iy, iz)
-        t_o, p_o = _angles(ox, oy, oz)
-        a, fa = _locate(ti, t_i)
-        b, fb = _locate(pi_, p_i)
-        c, fc = _locate(to, t_o)
-        d, fd = _locate(po, p_o)
-        for da in range(2):
-            wa = fa if da else 1.0 - fa
-            if wa == 0.0:
+    elif iy < 0.0 or (iy == 0.0 and ix < 0.0):
+        ix, iy, ox, oy = -ix, -iy, -ox, -oy
+    t_i, p_i = _angles(ix, iy, iz)
+    t_o, p_o = _angles(ox, oy, oz)
+    a, fa = _locate(ti, t_i)
+    b, fb = _locate(pi_, p_i)
+    c, fc = _locate(to, t_o)
+    d, fd = _locate(po, p_o)
+    n_l = G.shape[4]
+    for da in range(2):
+        wa = scale * (fa if da else 1.0 - fa)
+        if wa == 0.0:
+            continue
+        for db in range(2):
+            wb = wa * (fb if db else 1.0 - fb)
+            if wb == 0.0:
                 continue
-            for db in range(2):
-                wb = wa * (fb if db else 1.0 - fb)
-                if wb == 0.0:
+            for dc in range(2):
+                wc = wb * (fc if dc else 1.0 - fc)
+                if wc == 0.0:
                     continue
-                for dc in range(2):
-                    wc = wb * (fc if dc else 1.0 - fc)
-                    if wc == 0.0:
+                for dd in range(2):
+                    wd = wc * (fd if dd else 1.0 - fd)
+                    if wd == 0.0:
                         continue
-                    for dd in range(2):
-                        wd = wc * (fd if dd else 1.0 - fd)
-                        if wd == 0.0:
-                            continue
-                        for k in range(n_l):
-                            out[p, k] += wd * G[a + da, b + db, c + dc, d + dd, k]
+                    for k in range(n_l):
+                        out_row[k] += wd * G[a + da, b + db, c + dc, d + dd, k]
+
+
+@numba.njit(cache=True, parallel=True)
+def lookup_many(G, ti, pi_, to, po, w_in, w_out, sym, out):
+    """:func:`lookup_one` for every pair ``[P, 3]`` into ``out [P, L]`` (parallel over pairs)."""
+    for p in numba.prange(w_in.shape[0]):
+        lookup_one(G, ti, pi_, to, po, w_in[p, 0], w_in[p, 1], w_in[p, 2], w_out[p, 0], w_out[p, 1], w_out[p, 2],
+                   1.0, sym, out[p])
 
 
 def layer_lookup(lt: LayerTable, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
@@ -340,5 +354,5 @@ def layer_lookup(lt: LayerTable, w_in: np.ndarray, w_out: np.ndarray) -> np.ndar
     w_in = np.ascontiguousarray(np.atleast_2d(w_in), dtype=float)
     w_out = np.ascontiguousarray(np.atleast_2d(w_out), dtype=float)
     out = np.zeros((w_in.shape[0], lt.G.shape[-1]))
-    _lookup(lt.G, lt.theta_i, lt.phi_i, lt.theta_o, lt.phi_o, w_in, w_out, out)
+    lookup_many(lt.G, lt.theta_i, lt.phi_i, lt.theta_o, lt.phi_o, w_in, w_out, MIRRORS, out)
     return out
