@@ -179,3 +179,20 @@ def test_interior_closure_conserves_energy_for_a_white_fiber():
     assert inner.r[0] + inner.t[0] + inner.k[0] == pytest.approx(1.0, abs=0.003)
     assert 0.93 <= total <= 1.005
     assert u < 0.6                                    # without the closure most of it would be missing
+
+
+def test_structured_summation_dataset_end_to_end(tmp_path):
+    """`--method summation` with [structure]: a dataset with errors, its structure in the metadata, the twist on."""
+    from gonio.data.dataset import read_dataset, write_dataset
+    from simulate.virtual import fabric_dataset
+
+    cfg = parse_config(HG_CONFIG + "[structure]\nwarp_twist_deg = 20\nweft_twist = \"S\"\n", "hg.toml")
+    plan = parse_plan(TINY_PLAN, "tiny.toml")
+    ds = fabric_dataset(cfg, plan, "summation", target_rel_err=0.2, seed=1, threads=2)
+    write_dataset(ds, tmp_path / "d")
+    t = read_dataset(tmp_path / "d").table
+    assert len(t) == len(plan.geometries()) * 2
+    assert np.all(t["beta"] > 0) and np.all(t["u_beta"] > 0) and np.all(t["u_beta"] < 0.3 * t["beta"])
+    model = ds.meta["model"]
+    assert model["structure"]["warp_twist_deg"] == 20.0 and model["structure"]["weft_twist"] == "S"
+    assert 0.45 < model["facets"]["warp"] < 0.55
