@@ -66,6 +66,11 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     max_photons = 0                    # photon budget; 0 = no cap
     threads = 0                        # 0 = all available
 
+    [structure]                        # optional (issue 19): the summation over the fabric's visible fibers
+    kind = "woven"                     #   in all their orientations; fields and defaults in
+    warp_twist_deg = 24                #   simulate.fabric.structure.structure_from_table. Absent: the
+                                       #   summation is the carpet of top cells (docs/physics.md 6)
+
     [wavelengths]                      # optional: the wavelengths of `simulate fiber` tables
     start_nm = 390                     # (`simulate fabric` uses the plan's wavelengths)
     stop_nm = 710
@@ -209,6 +214,8 @@ class SimulationConfig:
     max_photons: int | None
     threads: int | None
     wavelengths_nm: tuple[float, ...] = field(default=_DEFAULT_WAVELENGTHS)
+    # --- issue 19 (simulate.fabric.structure): the [structure] section, None when absent
+    structure: Any = None
 
     def medium(self, wavelengths_nm: Any | None = None) -> MieMedium | HGMedium:
         """The scattering medium; the dye spectrum is sampled at ``wavelengths_nm`` (exact there)."""
@@ -456,6 +463,15 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
 
     wl_t = top.sub("wavelengths")
     wavelengths = _wavelengths(wl_t) if wl_t is not None else _DEFAULT_WAVELENGTHS
+    # --- issue 19: [structure] (simulate.fabric.structure validates it, naming the field)
+    st_t = top.sub("structure")
+    if st_t is not None:
+        from simulate.fabric.structure import structure_from_table
+
+        structure = structure_from_table(st_t)
+    else:
+        structure = None
+    # --- end issue 19
     top.done()
 
     return SimulationConfig(
@@ -463,7 +479,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         sha256=hashlib.sha256(raw).hexdigest(), seed=seed, radius_um=radius, n_host=n_host,
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
-        threads=threads or None, wavelengths_nm=wavelengths)
+        threads=threads or None, wavelengths_nm=wavelengths, structure=structure)
 
 
 # ------------------------------------------------------------------------------------------

@@ -92,6 +92,8 @@ def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths:
                s: RunSettings) -> FabricEstimate:
     from simulate import fiber as fiber_mod
 
+    if getattr(config, "structure", None) is not None:  # issue 19: the fabric's visible fibers
+        return _structured(config, fiber, g, wavelengths, s)
     pairs = fab.FiberPairs.from_angles(g.theta_i, g.phi_i, g.theta_o, g.phi_o)
     log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
              g.theta_i.size, pairs.n_unique, wavelengths.size)
@@ -104,6 +106,24 @@ def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths:
     n = np.full(beta.shape, max(int(est.photons), 1))
     return FabricEstimate(beta, u_beta, n, int(est.photons), jsonable(dict(est.info)), float(est.seconds),
                           {"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
+
+
+def _structured(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+                s: RunSettings) -> FabricEstimate:
+    """The summation over the fabric's visible fibers in all their orientations
+    (:func:`simulate.fabric.structure.structured_beta`), for a config with a ``[structure]`` section."""
+    from simulate.fabric import structure as st
+
+    spec = config.structure
+    fab.FiberPairs.from_angles(g.theta_i, g.phi_i, g.theta_o, g.phi_o)  # the summation's checks and warnings
+    weave = weave_from_config(config) if spec.kind == "woven" else None
+    beta, u_beta, info = st.structured_beta(spec, fiber, weave, fab.directions_deg(g.theta_i, g.phi_i),
+                                            fab.directions_deg(g.theta_o, g.phi_o), wavelengths,
+                                            target_rel_err=s.target, seed=s.seed, threads=s.threads,
+                                            max_photons=s.max_photons, method=config.method)
+    n = np.full(beta.shape, max(int(info["photons"]), 1))
+    return FabricEstimate(beta, u_beta, n, int(info["photons"]), jsonable(info), float(info["seconds"]),
+                          {"structure": jsonable(info["structure"]), "facets": jsonable(info["facets"])})
 
 
 @register("classic")
