@@ -44,9 +44,9 @@ def cfg(tmp_path):
     return path
 
 
-def test_fabric_writes_a_dataset_and_overwrites_only_its_own_output(fake_fiber, tmp_path, capsys):
+def test_fabric_writes_a_dataset_and_overwrites_only_its_own_output(fake_fiber, tmp_path, capsys, carpet_path):
     out = tmp_path / "sim"
-    assert main(["fabric", "red-cotton", "--method", "summation", "--out", str(out), "--seed", "5",
+    assert main(["fabric", str(carpet_path), "--method", "summation", "--out", str(out), "--seed", "5",
                  "--target-rel-err", "0.05"]) == 0
     assert "wrote" in capsys.readouterr().out
     ds = read_dataset(out)
