@@ -141,8 +141,6 @@ def _json_safe(obj: Any) -> Any:
 
 
 def _slab_arguments(p: argparse.ArgumentParser) -> None:
-    import numba
-
     p.add_argument("--mua", type=_nonneg_float, required=True, help="absorption coefficient mu_a (1/length)")
     p.add_argument("--mus", type=_nonneg_float, required=True, help="scattering coefficient mu_s (1/length)")
     p.add_argument("--g", type=_g_float, default=0.0, help="Henyey-Greenstein anisotropy g (default 0)")
@@ -151,8 +149,8 @@ def _slab_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--photons", type=_int_in(1, 10**12), default=1_000_000, help="photons (default 1e6)")
     p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="random seed (default 0)")
     p.add_argument(
-        "--threads", type=_int_in(1, numba.config.NUMBA_NUM_THREADS), default=None,
-        help="threads (default: all); results do not depend on it",
+        "--threads", type=_threads_arg, default=None,
+        help="threads (default or 0: all); results do not depend on it",
     )
     p.add_argument("--theta-i", type=_angle_deg, default=0.0, dest="theta_i", help="incidence angle in degrees [0, 90)")
     p.add_argument("--max-events", type=_int_in(1, 2**52), default=None, help="event cap per photon (a guard)")
@@ -164,7 +162,7 @@ def _slab_run(args: argparse.Namespace) -> int:
 
     result = run_slab(
         args.mua, args.mus, g=args.g, n=args.n, thickness=args.thickness, photons=args.photons,
-        seed=args.seed, theta_i_deg=args.theta_i, threads=args.threads,
+        seed=args.seed, theta_i_deg=args.theta_i, threads=args.threads or None,
         max_events=args.max_events or DEFAULT_MAX_EVENTS,
     )
     if args.json:
@@ -220,9 +218,10 @@ def _rel_err(text: str) -> float:
 
 
 def _threads_arg(text: str) -> int:
+    """``--threads N``: 1..NUMBA_NUM_THREADS, or 0 = all that numba allows, as ``threads = 0`` in a config."""
     import numba
 
-    return _int_in(1, numba.config.NUMBA_NUM_THREADS)(text)
+    return _int_in(0, numba.config.NUMBA_NUM_THREADS)(text)
 
 
 def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "the config's") -> None:
@@ -233,7 +232,7 @@ def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "t
                    help="photon budget (default: the config's; none)")
     p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
     p.add_argument("--threads", type=_threads_arg, default=None,
-                   help="threads (default: the config's, else all); results do not depend on it")
+                   help="threads, 0 = all (default: the config's, where 0 = all); results do not depend on it")
     p.add_argument("--no-progress", action="store_true", dest="no_progress",
                    help="no progress bar (it is shown only on a terminal anyway)")
 
@@ -267,6 +266,25 @@ def _is_fabric_output(out: Path) -> bool:
         return False
     return (isinstance(meta, dict) and meta.get("kind") == "simulated"
             and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR)
+
+
+def _prepare_fabric_out(out: Path) -> None:
+    """:func:`_prepare_out` for ``simulate fabric``, whose output replaces ``out`` as one folder
+    (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a previous output
+    holding anything besides the dataset's files is refused (the swap would delete it)."""
+    from gonio.data.dataset import _TEMP_NAME, CSV_NAME, META_NAME
+    from simulate.outdir import recover
+
+    try:
+        recover(out)
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot clean up after an earlier killed run ({exc.strerror})") from None
+    _prepare_out(out, _is_fabric_output, "simulate fabric")
+    others = sorted(e.name for e in out.iterdir()
+                    if e.name not in (CSV_NAME, META_NAME) and not _TEMP_NAME.fullmatch(e.name))
+    if others:
+        raise _UsageError(f"--out {out}: holds {others[0]!r} besides a dataset; the new output replaces the "
+                          f"whole directory, so move that elsewhere or choose a new directory")
 
 
 def _is_fiber_output(out: Path) -> bool:
@@ -311,9 +329,9 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fabric_run(args: argparse.Namespace) -> int:
-    from gonio.data.dataset import write_dataset
     from gonio.acquisition.plan import PlanError, load_plan
     from simulate.fabric import FabricError
+    from simulate.outdir import OutputError, write_dataset_dir
     from simulate.virtual import fabric_dataset
 
     config = _load_config(args.config)
@@ -321,7 +339,7 @@ def _fabric_run(args: argparse.Namespace) -> int:
         plan = load_plan(args.geometry)
     except PlanError as exc:
         raise _UsageError(f"--geometry: {exc}") from None
-    _prepare_out(args.out, _is_fabric_output, "simulate fabric")
+    _prepare_fabric_out(args.out)
     try:
         dataset = fabric_dataset(config, plan, args.method, target_rel_err=args.target_rel_err,
                                  seed=args.seed, threads=args.threads, max_photons=args.max_photons,
@@ -329,7 +347,10 @@ def _fabric_run(args: argparse.Namespace) -> int:
                                  max_seconds=args.max_seconds)
     except FabricError as exc:
         raise _UsageError(str(exc)) from None
-    write_dataset(dataset, args.out)
+    try:
+        write_dataset_dir(dataset, args.out)
+    except OutputError as exc:
+        raise _UsageError(str(exc)) from None
     prov = dataset.meta["provenance"]
     err_text = f"{prov['rel_err']:.2%} (rms of u / each direction's spectral peak)"
     print(f"wrote {args.out} ({len(dataset)} rows: {prov['geometries']} geometries x "
@@ -350,22 +371,40 @@ def _fiber_arguments(p: argparse.ArgumentParser) -> None:
     _run_settings_arguments(p, "0.05, a coarse table")
 
 
+#: Bound on a fiber table's size, direction pairs x wavelengths (``simulate fiber``): 10 million
+#: values, about 0.6 GiB for the table's five arrays and the Monte Carlo tallies behind them (~64
+#: bytes a value). A 5 deg x 10 deg grid at 33 wavelengths has 7.7 million; the default 432 pairs x 33.
+MAX_TABLE_VALUES = 10_000_000
+
+
+def _check_table_size(step_deg: float, phi_step_deg: float, n_wavelengths: int) -> None:
+    """Refuse a table grid over :data:`MAX_TABLE_VALUES` from its step sizes alone (nothing allocated)."""
+    pairs = (180.0 / step_deg) * (90.0 / phi_step_deg + 1) * (90.0 / step_deg) * (360.0 / phi_step_deg)
+    values = pairs * n_wavelengths
+    if values > MAX_TABLE_VALUES:
+        raise _UsageError(f"--step-deg {step_deg:g} / --phi-step-deg {phi_step_deg:g}: the table would have "
+                          f"{pairs:,.0f} direction pairs x {n_wavelengths} wavelengths = {values:.3g} values "
+                          f"(about {values * 64 / 2**30:,.3g} GiB); at most {MAX_TABLE_VALUES:,} (about "
+                          f"{MAX_TABLE_VALUES * 64 / 2**30:.1f} GiB): use a coarser step")
+
+
 def _fiber_run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from simulate.fiber.tables import TableGrid, fiber_table, write_fiber_table
 
     config = _load_config(args.config)
+    wavelengths = np.asarray(config.wavelengths_nm, float)
+    _check_table_size(args.step_deg, args.phi_step_deg, wavelengths.size)
     try:
         grid = TableGrid(args.step_deg, args.phi_step_deg)
     except ValueError as exc:
         raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
     _prepare_out(args.out, _is_fiber_output, "simulate fiber")
-    wavelengths = np.asarray(config.wavelengths_nm, float)
     arrays, sidecar = fiber_table(
         config.fiber(wavelengths), wavelengths, grid, method=args.method or config.method,
         target_rel_err=args.target_rel_err, seed=config.seed if args.seed is None else args.seed,
-        threads=config.threads if args.threads is None else args.threads,
+        threads=config.threads if args.threads is None else (args.threads or None),
         max_photons=config.max_photons if args.max_photons is None else args.max_photons,
         progress=_progress(args), config_provenance=config.provenance())
     write_fiber_table(args.out, arrays, sidecar)
@@ -403,7 +442,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
                         "(default 0.03)")
     p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
-    p.add_argument("--threads", type=_threads_arg, default=None, help="threads; results do not depend on it")
+    p.add_argument("--threads", type=_threads_arg, default=None, help="threads, 0 = all (default: all); results do not depend on it")
     p.add_argument("--no-progress", action="store_true", dest="no_progress", help="no progress bar")
 
 
@@ -436,7 +475,7 @@ def _fit_run(args: argparse.Namespace) -> int:
             raise _UsageError(f"--wavelengths: expected numbers separated by commas, got {args.wavelengths!r}") from None
     try:
         problem = FitProblem(config, measured, free, method=args.method, colour_weight=args.colour_weight,
-                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
+                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
                              wavelengths_nm=wavelengths)
         problem.precheck()
     except FitError as exc:
@@ -555,7 +594,7 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=_int_in(1, 1024), default=None,
                    help="local cluster: worker processes, one thread each (default: the number of CPUs)")
     p.add_argument("--threads", type=_threads_arg, default=1,
-                   help="threads of each task's Monte Carlo (default 1: the workers are the parallelism); "
+                   help="threads of each task's Monte Carlo, 0 = all (default 1: the workers are the parallelism); "
                         "results do not depend on it")
     p.add_argument("--retries", type=_int_in(0, 100), default=2,
                    help="retries of a failing task before it is reported (default 2)")

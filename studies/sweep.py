@@ -83,9 +83,10 @@ import numpy as np
 import pandas as pd
 
 from gonio.acquisition.plan import Plan
-from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta, write_dataset
+from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta
 from simulate.config import SimulationConfig
 from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
+from simulate.outdir import OutputError, write_dataset_dir
 from simulate.provenance import jsonable, software_versions
 from simulate.virtual import fabric_dataset
 from studies.sweep_spec import (
@@ -101,6 +102,7 @@ from studies.sweep_spec import (
     SweepSpec,
     SweepTask,
     parse_params,
+    point_dir as _point_dir,
     task_seed,
 )
 
@@ -213,7 +215,7 @@ def prepare_out(out: Path, spec: SweepSpec, resume: bool = False) -> bool:
         (out / TASKS_DIR).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SweepError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
-    atomic_write(previous, (json.dumps(spec.document(), indent=1) + "\n").encode("utf-8"))
+    _write(previous, (json.dumps(spec.document(), indent=1) + "\n").encode("utf-8"))
     return False
 
 
@@ -242,7 +244,16 @@ def _write_task(out: Path, spec: SweepSpec, task: SweepTask, result: dict) -> No
     arrays: dict[str, Any] = {c: np.asarray(v) for c, v in result["columns"].items()}
     arrays.update(digest=np.array(spec.digest), meta=np.array(json.dumps(result["meta"])))
     np.savez(buffer, **arrays)
-    atomic_write(_task_path(out, task), buffer.getvalue())
+    _write(_task_path(out, task), buffer.getvalue())
+
+
+def _write(path: Path, data: bytes) -> None:
+    """:func:`atomic_write` whose failure (a full disk) is one :class:`SweepError` naming the file."""
+    try:
+        atomic_write(path, data)
+    except OSError as exc:
+        raise SweepError(f"{path}: cannot write ({exc.strerror or exc}); the file was left as it was and the "
+                         "finished tasks are kept (free some space, then run the same command again)") from None
 
 
 def _read_task(path: Path) -> tuple[str, pd.DataFrame, dict]:
@@ -429,14 +440,17 @@ def assemble(out: Path, spec: SweepSpec, measured: Dataset | None = None) -> pd.
             row.update(nrmse=math.nan, dh=math.nan, ds=math.nan)
         if n_done == len(tasks):
             ds = _point_dataset(out, spec, point, tasks)
-            write_dataset(ds, out / point.dir)
+            try:
+                write_dataset_dir(ds, _point_dir(out, point.dir))
+            except OutputError as exc:
+                raise SweepError(f"{exc} (the finished tasks are kept; run the same command again)") from None
             prov = ds.meta["provenance"]
             row.update(seconds=prov["seconds"], rel_err=prov["rel_err"])
             if measured is not None:
                 row.update(_metrics(measured, ds, point))
         rows.append(row)
     summary = pd.DataFrame(rows)
-    atomic_write(out / SUMMARY_NAME, summary.to_csv(index=False, float_format="%.10g", lineterminator="\n")
+    _write(out / SUMMARY_NAME, summary.to_csv(index=False, float_format="%.10g", lineterminator="\n")
                  .encode("utf-8"))
     return summary
 

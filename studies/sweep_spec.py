@@ -26,7 +26,8 @@ from studies import paths as config_paths
 from studies.paths import toml_dumps
 
 __all__ = ["GENERATOR", "SCHEMA", "SWEEP_NAME", "SUMMARY_NAME", "TASKS_DIR", "POINTS_DIR", "LOCK_NAME",
-           "SweepError", "SweepParameter", "parse_params", "SweepPoint", "SweepTask", "task_seed", "SweepSpec"]
+           "SweepError", "SweepParameter", "parse_params", "SweepPoint", "SweepTask", "task_seed", "SweepSpec",
+           "point_dir"]
 
 GENERATOR = "simulate sweep"
 SCHEMA = "simulate-sweep/1"
@@ -135,6 +136,30 @@ class SweepPoint:
     def dir(self) -> str:
         """The point's dataset directory, relative to the sweep directory."""
         return f"{POINTS_DIR}/{self.label}"
+
+
+def point_dir(sweep_dir: str | Path, rel: object) -> Path:
+    """``sweep_dir / rel`` for a point's ``dir`` (``points/<label>``), refused unless it stays inside.
+
+    A point's directory is always ``points/`` followed by one name (no ``/``, not ``.`` or
+    ``..``), and must resolve (symbolic links followed) inside ``sweep_dir/points``: a crafted
+    ``sweep.json`` naming ``../..`` is a :class:`SweepError`, never followed.
+
+    Examples
+    --------
+    >>> point_dir("/s", "points/radius=0.25").as_posix()
+    '/s/points/radius=0.25'
+    """
+    base = Path(sweep_dir)
+    parts = rel.split("/") if isinstance(rel, str) else []
+    if len(parts) != 2 or parts[0] != POINTS_DIR or parts[1] in ("", ".", "..") or "\\" in parts[1] \
+            or "\0" in parts[1]:
+        raise SweepError(f"{base / SWEEP_NAME}: point dir {rel!r} is not {POINTS_DIR}/<name> inside the sweep directory")
+    path = base / POINTS_DIR / parts[1]
+    if not path.resolve().is_relative_to((base / POINTS_DIR).resolve()):
+        raise SweepError(f"{base / SWEEP_NAME}: point dir {rel!r} leads outside the sweep directory "
+                         "(a symbolic link); refusing to follow it")
+    return path
 
 
 @dataclass(frozen=True)
