@@ -306,6 +306,21 @@ def _load_config(text: str):
         raise _UsageError(str(exc)) from None
 
 
+def _check_cost(command: str, config: Any, wavelengths: Any, target: float | None, max_photons: int | None,
+                runs: int = 1) -> None:
+    """Refuse a run estimated beyond a day, warn beyond ten minutes (:mod:`simulate.budget`)."""
+    from simulate.budget import BudgetError, check_cost
+
+    target = config.target_rel_err if target is None else target
+    max_photons = config.max_photons if max_photons is None else max_photons
+    try:
+        warning = check_cost(config, wavelengths, target, max_photons, runs=runs)
+    except BudgetError as exc:
+        raise _UsageError(str(exc)) from None
+    if warning:
+        print(f"simulate {command}: warning: {warning}", file=sys.stderr)
+
+
 def _progress(args: argparse.Namespace) -> bool:
     return not args.no_progress and sys.stderr.isatty()
 
@@ -339,6 +354,7 @@ def _fabric_run(args: argparse.Namespace) -> int:
         plan = load_plan(args.geometry)
     except PlanError as exc:
         raise _UsageError(f"--geometry: {exc}") from None
+    _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
     _prepare_fabric_out(args.out)
     try:
         dataset = fabric_dataset(config, plan, args.method, target_rel_err=args.target_rel_err,
@@ -391,7 +407,7 @@ def _check_table_size(step_deg: float, phi_step_deg: float, n_wavelengths: int) 
 def _fiber_run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from simulate.fiber.tables import TableGrid, fiber_table, write_fiber_table
+    from simulate.fiber.tables import DEFAULT_TABLE_REL_ERR, TableGrid, fiber_table, write_fiber_table
 
     config = _load_config(args.config)
     wavelengths = np.asarray(config.wavelengths_nm, float)
@@ -400,6 +416,7 @@ def _fiber_run(args: argparse.Namespace) -> int:
         grid = TableGrid(args.step_deg, args.phi_step_deg)
     except ValueError as exc:
         raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
+    _check_cost("fiber", config, wavelengths, args.target_rel_err or DEFAULT_TABLE_REL_ERR, args.max_photons)
     _prepare_out(args.out, _is_fiber_output, "simulate fiber")
     arrays, sidecar = fiber_table(
         config.fiber(wavelengths), wavelengths, grid, method=args.method or config.method,
@@ -477,6 +494,10 @@ def _fit_run(args: argparse.Namespace) -> int:
         problem = FitProblem(config, measured, free, method=args.method, colour_weight=args.colour_weight,
                              target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
                              wavelengths_nm=wavelengths)
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    _check_cost("fit", config, problem.wavelengths_nm, args.target_rel_err, None)
+    try:
         problem.precheck()
     except FitError as exc:
         raise _UsageError(str(exc)) from None
@@ -633,6 +654,17 @@ def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
         raise _UsageError(str(exc)) from None
 
 
+def _check_sweep_cost(args: argparse.Namespace, spec: Any) -> None:
+    """:func:`_check_cost` of the costliest of up to 9 evenly spaced points, times the points per worker."""
+    from simulate.budget import estimate_cost
+
+    wl, target = spec.wavelengths_nm, float(spec.target_rel_err)
+    sample = spec.points[::max(1, len(spec.points) // 8)]
+    worst = max(sample, key=lambda p: estimate_cost(p.config, wl, target, spec.max_photons).seconds)
+    workers = 1 if args.scheduler else (args.workers or os.cpu_count() or 1)
+    _check_cost("sweep", worst.config, wl, target, spec.max_photons, runs=max(1, -(-len(spec.points) // workers)))
+
+
 def _sweep_run(args: argparse.Namespace) -> int:
     from gonio.acquisition.plan import PlanError, load_plan
     from gonio.data.dataset import DatasetError, read_dataset
@@ -649,6 +681,7 @@ def _sweep_run(args: argparse.Namespace) -> int:
                          measurable_only=args.measurable_only, threads=args.threads)
     except SweepError as exc:
         raise _UsageError(str(exc)) from None
+    _check_sweep_cost(args, spec)
     measured = None
     if args.measured is not None:
         try:

@@ -27,7 +27,7 @@ from studies.paths import toml_dumps
 
 __all__ = ["GENERATOR", "SCHEMA", "SWEEP_NAME", "SUMMARY_NAME", "TASKS_DIR", "POINTS_DIR", "LOCK_NAME",
            "SweepError", "SweepParameter", "parse_params", "SweepPoint", "SweepTask", "task_seed", "SweepSpec",
-           "point_dir"]
+           "point_dir", "MAX_POINTS", "MAX_TASKS"]
 
 GENERATOR = "simulate sweep"
 SCHEMA = "simulate-sweep/1"
@@ -37,6 +37,11 @@ TASKS_DIR = "tasks"
 POINTS_DIR = "points"
 LOCK_NAME = ".sweep.lock"
 _ALIASES = ("volume_fraction", "radius", "rms_slope")
+#: Bounds of a sweep, checked from the number of values before any point's config is built: 10 000
+#: points (each a validated config in memory and a dataset on disk) and 100 000 tasks (one file
+#: each in ``tasks/``; 3 000 points of the 33-wavelength red-cotton plan).
+MAX_POINTS = 10_000
+MAX_TASKS = 100_000
 
 
 class SweepError(ValueError):
@@ -227,6 +232,13 @@ class SweepSpec:
             self.seed = self.config.seed
         if self.max_photons is None:
             self.max_photons = self.config.max_photons
+        n_points = math.prod(len(p.values) for p in self.params)
+        n_tasks = n_points * len(self.plan.wavelengths_nm)
+        if n_points > MAX_POINTS or n_tasks > MAX_TASKS:
+            grid = " x ".join(str(len(p.values)) for p in self.params)
+            raise SweepError(f"--param: {grid} = {n_points:,} points x {len(self.plan.wavelengths_nm)} wavelengths = "
+                             f"{n_tasks:,} tasks; a sweep has at most {MAX_POINTS:,} points and {MAX_TASKS:,} "
+                             "tasks (each point is a config and a dataset, each task a file): sweep fewer values")
         doc = tomllib.loads(self.config.text)
         for index, values in enumerate(itertools.product(*(p.values for p in self.params))):
             label = ",".join(f"{p.name}={_value_text(v)}" for p, v in zip(self.params, values))
