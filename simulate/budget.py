@@ -29,7 +29,8 @@ photons in 41 s, achieved error 1.43 % of the fiber route):
   ``2.2 s (x / 53)^2`` for a log-normal distribution (257 sizes), ``x = 2 pi n_host r / lambda``
   at the shortest wavelength and the (median) radius (measured here, miepython with JIT).
 
-Particles at least as large as the fiber are refused outright (they cannot sit inside it).
+Particles at least as large as the fiber are refused outright (they cannot sit inside it), and so is
+a number density whose particles would fill more than the whole volume.
 """
 
 from __future__ import annotations
@@ -171,6 +172,13 @@ def check_cost(config: SimulationConfig, wavelengths: Any, target_rel_err: float
         if r >= config.radius_um:
             raise BudgetError(f"{file}: {field} = {r:g} um is not smaller than fiber.radius_um = "
                               f"{config.radius_um:g} um: the particles sit inside the fiber")
+        if p.number_density_per_um3 is not None:
+            with warnings.catch_warnings():       # the "dependent scattering" warning: refused below anyway
+                warnings.simplefilter("ignore")
+                fv = config.medium(np.atleast_1d(np.asarray(wavelengths, float))).volume_fraction_value
+            if fv >= 1.0:
+                raise BudgetError(f"{file}: particles.number_density_per_um3 = {p.number_density_per_um3:g} gives "
+                                  f"a volume fraction of {fv:.3g}: the particles cannot fit (it must be < 1)")
     est = estimate_cost(config, wavelengths, target_rel_err, max_photons)
     total = est.seconds * runs
     what = f"{runs} runs, " if runs > 1 else ""

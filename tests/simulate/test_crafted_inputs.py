@@ -169,3 +169,226 @@ def test_weave_export_interrupted_leaves_nothing(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         mesh(preset("plain", points_per_span=2, sides=3)).export(tmp_path / "m.obj")
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------
+# item 2: tracebacks
+
+
+def _rgb_measurement(folder: Path) -> Path:
+    import pandas as pd
+
+    from gonio.data import make_dataset, new_meta, write_dataset
+
+    rows = [dict(theta_i=t, phi_i=0.0, theta_o=30.0, phi_o=180.0, channel=c, beta=0.3, u_beta=0.01, n=1)
+            for t in (0.0, 45.0) for c in "RGB"]
+    write_dataset(make_dataset(pd.DataFrame(rows), new_meta("measured", {"name": "rgb"})), folder / "rgb")
+    return folder / "rgb"
+
+
+@pytest.mark.parametrize("wavelengths, needle", [
+    ("10", "10 is not a wavelength in [200, 2500] nm"),
+    ("1,nan", "1 is not a wavelength"),
+    ("500,nan", "nan is not a wavelength"),
+    ("600,500", "strictly increasing"),
+    ("500,500", "strictly increasing"),
+])
+def test_fit_wavelengths_checked_before_any_work(tmp_path, capsys, wavelengths, needle):
+    measured = _rgb_measurement(tmp_path)
+    out = tmp_path / "fit"
+    _one_line_exit_2(capsys, ["fit", "red-cotton", str(measured), "--free", "rms_slope", "--wavelengths", wavelengths,
+                              "--out", str(out)], "--wavelengths", needle)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("step", ["0.0009765625", "9.094947017729282e-13"])   # 2^-10, 2^-40: both divide 90
+def test_fiber_table_grid_bounded_before_allocation(tmp_path, capsys, step):
+    out = tmp_path / "table"
+    _one_line_exit_2(capsys, ["fiber", "red-cotton", "--out", str(out), "--step-deg", step],
+                     "--step-deg", "direction pairs", "coarser step")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("nest", ["[" * 5000 + "]" * 5000, "{a = " * 5000 + "1" + "}" * 5000])
+def test_config_nested_5000_deep_is_one_line(tmp_path, capsys, nest):
+    cfg = tmp_path / "deep.toml"
+    cfg.write_text(BASE + f"[weave]\nmatrix = {nest}\n")
+    _one_line_exit_2(capsys, ["weave", str(cfg), "--out", str(tmp_path / "m.ply")], "deep.toml", "nested too deeply")
+
+
+# ------------------------------------------------------------------------------------------
+# item 3: accepted and never finishing -> refused from the estimate, before any work
+
+
+def _red_cotton_with(tmp_path: Path, old: str, new: str) -> Path:
+    from simulate.config import resolve_config_path
+
+    text = resolve_config_path("red-cotton").read_text()
+    assert old in text
+    path = tmp_path / "variant.toml"
+    path.write_text(text.replace(old, new))
+    return path
+
+
+@pytest.fixture
+def no_fiber_work(monkeypatch):
+    """Fails the test if any fiber Monte Carlo or Mie phase function starts."""
+    from simulate import fiber as fiber_mod
+    from simulate.optics import mie
+
+    def forbidden(*a, **k):
+        raise AssertionError("work started before the cost check")
+
+    for name in ("volume_brdf", "normal_albedo"):
+        monkeypatch.setattr(fiber_mod, name, forbidden)
+    monkeypatch.setattr(mie, "ensemble_phase_function", forbidden)
+
+
+def test_particles_larger_than_the_fiber_refused(tmp_path, capsys, no_fiber_work):
+    cfg = _red_cotton_with(tmp_path, "median_radius_um = 0.10", "median_radius_um = 1e3")
+    _one_line_exit_2(capsys, ["fabric", str(cfg), "--method", "summation", "--out", str(tmp_path / "o")],
+                     "variant.toml", "particles.size.median_radius_um", "fiber.radius_um")
+
+
+def test_huge_particles_inside_a_huge_fiber_refused_for_their_mie_cost(tmp_path, capsys, no_fiber_work):
+    cfg = _red_cotton_with(tmp_path, "median_radius_um = 0.10", "median_radius_um = 1e3")
+    cfg.write_text(cfg.read_text().replace("radius_um = 10.0", "radius_um = 5000.0", 1))
+    _one_line_exit_2(capsys, ["fabric", str(cfg), "--method", "summation", "--out", str(tmp_path / "o")],
+                     "variant.toml", "Mie", "smaller particles")
+
+
+def test_number_density_beyond_packing_refused(tmp_path, capsys, no_fiber_work):
+    cfg = _red_cotton_with(tmp_path, "volume_fraction = 0.05", "number_density_per_um3 = 1e14")
+    _one_line_exit_2(capsys, ["fabric", str(cfg), "--method", "classic", "--out", str(tmp_path / "o")],
+                     "variant.toml", "number_density_per_um3 = 1e+14", "cannot fit")
+
+
+def test_dense_medium_refused_with_its_estimate(tmp_path, capsys, no_fiber_work):
+    # 1e4 scattering events per um in a 16 um fiber: every photon runs into the 1e6-event cap
+    cfg = tmp_path / "dense.toml"
+    cfg.write_text(BASE.replace("mu_s = 1.0", "mu_s = 1e4"))
+    err = _one_line_exit_2(capsys, ["fabric", str(cfg), "--method", "classic", "--out", str(tmp_path / "o")],
+                           "dense.toml", "estimated cost", "1e+06 events each")
+    assert "--max-photons" in err
+
+
+def test_tiny_target_refused_with_its_estimate(tmp_path, capsys, no_fiber_work):
+    cfg = _red_cotton_with(tmp_path, "target_rel_err = ", "target_rel_err = 1e-9 #")
+    _one_line_exit_2(capsys, ["fabric", str(cfg), "--method", "summation", "--out", str(tmp_path / "o")],
+                     "estimated cost", "target_rel_err 1e-09", "years")
+    # the flag too, for every command that runs the fiber Monte Carlo
+    _one_line_exit_2(capsys, ["fiber", "red-cotton", "--target-rel-err", "1e-9", "--out", str(tmp_path / "t")],
+                     "estimated cost")
+
+
+def test_sweep_grid_refused_before_building_configs(tmp_path, capsys, monkeypatch):
+    from studies import sweep_spec
+
+    built = []
+    real = sweep_spec.parse_config
+    monkeypatch.setattr(sweep_spec, "parse_config", lambda *a, **k: built.append(1) or real(*a, **k))
+    values = ",".join(f"{0.01 + 0.0001 * k:.4f}" for k in range(1000))
+    radii = ",".join(f"{5 + 0.001 * k:.3f}" for k in range(1000))
+    _one_line_exit_2(capsys, ["sweep", "red-cotton", "--param", f"rms_slope={values}", "--param", f"radius={radii}",
+                              "--out", str(tmp_path / "s")], "1000 x 1000 = 1,000,000 points", "at most 10,000")
+    assert built == [] and not (tmp_path / "s").exists()
+
+
+# ------------------------------------------------------------------------------------------
+# item 4: nonsense accepted
+
+
+@pytest.mark.parametrize("rel", ["../..", "points/../..", "/etc", "points/a/b", "points/..", "tasks/x", 7])
+def test_sweep_point_dirs_must_stay_inside(tmp_path, rel):
+    from studies.sweep_spec import SweepError, point_dir
+
+    with pytest.raises(SweepError, match="point dir"):
+        point_dir(tmp_path, rel)
+
+
+def test_sweep_point_dir_symlink_out_refused(tmp_path):
+    from studies.sweep_spec import SweepError, point_dir
+
+    (tmp_path / "points").mkdir()
+    (tmp_path / "points" / "x=1").symlink_to(tmp_path.parent)
+    with pytest.raises(SweepError, match="outside"):
+        point_dir(tmp_path, "points/x=1")
+    assert point_dir(tmp_path, "points/x=2") == tmp_path / "points" / "x=2"
+
+
+def test_compare_refuses_a_sweep_json_leading_outside(tmp_path):
+    import json
+
+    from compare.errors import CompareError
+    from compare.sweep import read_sweep
+
+    doc = {"parameters": [{"name": "radius"}], "points": [{"dir": "../..", "label": "radius=1", "values": {"radius": 1}}]}
+    (tmp_path / "sweep.json").write_text(json.dumps(doc))
+    with pytest.raises(CompareError, match="point dir '../..'"):
+        read_sweep(tmp_path)
+    doc["points"][0]["dir"] = "points/radius=1"
+    (tmp_path / "sweep.json").write_text(json.dumps(doc))
+    assert read_sweep(tmp_path)["points"][0]["dir"] == "points/radius=1"
+
+
+def test_threads_zero_means_all_numba_allows(monkeypatch, capsys):
+    import json
+
+    import numba
+
+    from simulate.products import all_threads
+
+    monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", 1)     # as NUMBA_NUM_THREADS=1 in the environment
+    assert all_threads(0) == all_threads(None) == 1 and all_threads(3) == 3
+    # --threads 0 is accepted where the config's threads = 0 is
+    assert main(["slab", "--mua", "0.1", "--mus", "1", "--thickness", "1", "--photons", "2000", "--threads", "0",
+                 "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["photons"] == 2000
+
+
+def test_mc_with_config_threads_zero_uses_numba_limit(monkeypatch):
+    """NUMBA_NUM_THREADS=1 and threads = 0 used to pass os.cpu_count() (2) and be refused."""
+    import numba
+
+    from simulate import woven
+    from simulate.config import load_config
+    from simulate.products import Geometries, RunSettings, evaluate
+
+    seen = {}
+
+    def fake_fabric_beta(mesh, fiber, w_i, w_o, wl, **kw):
+        seen.update(kw)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", 1)
+    monkeypatch.setattr(woven, "fabric_beta", fake_fabric_beta)
+    config = load_config("red-cotton")
+    assert config.threads is None              # threads = 0 in the shipped config
+    g = Geometries(np.array([0.0]), np.array([0.0]), np.array([30.0]), np.array([180.0]))
+    with pytest.raises(RuntimeError, match="stop here"):
+        evaluate("mc", config, config.fiber(np.array([550.0])), g, np.array([550.0]),
+                 RunSettings(target=0.1, seed=0, threads=config.threads))
+    assert seen["threads"] == 1
+
+
+@pytest.mark.parametrize("table, needle", [
+    ("[surface]\nrms_slop = 0.3\n", "surface.rms_slop is not a known field (did you mean rms_slope?)"),
+    ("[surface]\nrms_slope = 0.3\nrms_slopee = 1\n", "surface.rms_slopee is not a known field (did you mean rms_slope?)"),
+    ("[surface]\nslope = 0.3\n", "surface.slope is not a known field"),
+    ("[surfce]\nrms_slope = 0.3\n", "surfce is not a known field (did you mean surface?)"),
+])
+def test_typo_inside_a_table_is_named_before_required_fields(needle, table):
+    from simulate.config import ConfigError, parse_config
+
+    text = BASE.replace("[surface]\nrms_slope = 0.3\n", table)
+    with pytest.raises(ConfigError) as info:
+        parse_config(text, "red.toml")
+    assert str(info.value) == f"red.toml: {needle}" or str(info.value).startswith(f"red.toml: {needle}")
+
+
+def test_a_missing_field_beside_a_known_similar_one_is_still_missing():
+    # mu_a is a real field close to the missing mu_s: not to be called a typo
+    from simulate.config import ConfigError, parse_config
+
+    with pytest.raises(ConfigError, match=r"medium\.mu_s is required"):
+        parse_config(BASE.replace("mu_s = 1.0\n", ""), "red.toml")
