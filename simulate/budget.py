@@ -175,7 +175,8 @@ def check_cost(config: SimulationConfig, wavelengths: Any, target_rel_err: float
         if p.number_density_per_um3 is not None:
             with warnings.catch_warnings():       # the "dependent scattering" warning: refused below anyway
                 warnings.simplefilter("ignore")
-                fv = config.medium(np.atleast_1d(np.asarray(wavelengths, float))).volume_fraction_value
+                medium: Any = config.medium(np.atleast_1d(np.asarray(wavelengths, float)))
+            fv = float(medium.volume_fraction_value)   # a [particles] config gives a MieMedium
             if fv >= 1.0:
                 raise BudgetError(f"{file}: particles.number_density_per_um3 = {p.number_density_per_um3:g} gives "
                                   f"a volume fraction of {fv:.3g}: the particles cannot fit (it must be < 1)")

@@ -13,7 +13,11 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
     a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
-    non-empty DIR is overwritten only if it holds a previous ``simulate fabric`` output.
+    non-empty DIR is replaced only if it holds a previous ``simulate fabric`` output and nothing
+    else, as one folder (:mod:`simulate.outdir`: a kill or a full disk leaves the old output).
+    Every run-making command (fabric, fiber, fit, sweep) first estimates its cost
+    (:mod:`simulate.budget`): refused beyond a day, announced beyond ten minutes. ``--threads 0``
+    means all threads numba allows, as ``threads = 0`` in a config.
 ``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
     the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar); its target error
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.

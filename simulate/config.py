@@ -59,6 +59,8 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     crimp = 1.0                        # (0, 1] (default 1)
     points_per_span = 8                # mesh intervals per crossing interval, >= 1 (default 8)
     sides = 16                         # mesh intervals around the yarn section, >= 3 (default 16)
+                                       # the mesh: 4 sides points_per_span n_warp n_weft <= 2e6
+                                       #   triangles (simulate.fabric.weave.MAX_TRIANGLES)
 
     [method]                           # optional, defaults shown
     method = "nee"                     # fiber route: "nee" | "beam" | "bssrdf"

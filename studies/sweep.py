@@ -13,7 +13,14 @@ aliases ``dye``/``dye-peaks`` and the run settings (``seed``, ``method.*``, ``wa
 are refused: a sweep sets one field to one value, and the run settings have their own flags.
 Several ``--param`` give the Cartesian product (the first parameter varies slowest); every
 point's config is built and validated by :func:`simulate.config.parse_config` before any work,
-so a value out of a field's range is one line naming the point and the field (exit 2).
+so a value out of a field's range is one line naming the point and the field (exit 2). Before
+that, the grid is counted: at most :data:`~studies.sweep_spec.MAX_POINTS` (10 000) points and
+:data:`~studies.sweep_spec.MAX_TASKS` (100 000) tasks, and ``simulate sweep`` estimates the cost
+of the costliest of up to 9 evenly spaced points times the points per worker
+(:mod:`simulate.budget`; refused beyond a day). A point's directory is always
+``points/<label>`` inside the sweep (:func:`~studies.sweep_spec.point_dir`; ``compare`` refuses a
+``sweep.json`` whose point ``dir`` leads elsewhere). Point datasets are written as whole folders
+(:mod:`simulate.outdir`); a full disk is one line naming the file, the finished tasks kept.
 
 Tasks and seeds
 ---------------
