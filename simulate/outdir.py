@@ -32,7 +32,7 @@ from pathlib import Path
 
 from gonio.data.dataset import Dataset, write_dataset
 
-__all__ = ["OutputError", "recover", "write_dataset_dir", "side_folders"]
+__all__ = ["OutputError", "recover", "recover_all", "write_dataset_dir", "side_folders"]
 
 
 class OutputError(Exception):
@@ -40,7 +40,10 @@ class OutputError(Exception):
 
 
 def _pattern(name: str) -> re.Pattern[str]:
-    return re.compile(rf"\.{re.escape(name)}\.(\d+)\.[a-z0-9_]{{8}}\.(partial|old)")
+    return re.compile(rf"\.({re.escape(name)})\.(\d+)\.[a-z0-9_]{{8}}\.(partial|old)")
+
+
+_ANY = re.compile(r"\.(.+)\.(\d+)\.[a-z0-9_]{8}\.(partial|old)")
 
 
 def _alive(pid: int) -> bool:
@@ -55,20 +58,35 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def side_folders(out: Path) -> list[tuple[Path, int, str]]:
-    """The ``.partial``/``.old`` folders of ``out`` in its parent: ``(path, pid, kind)``."""
-    out = Path(out)
-    pattern = _pattern(out.name)
+def _scan(parent: Path, pattern: re.Pattern[str]) -> list[tuple[Path, str, int, str]]:
     found = []
     try:
-        entries = list(os.scandir(out.parent))
+        entries = list(os.scandir(parent))
     except OSError:
         return []
     for entry in entries:
         m = pattern.fullmatch(entry.name)
         if m and entry.is_dir(follow_symlinks=False):
-            found.append((Path(entry.path), int(m.group(1)), m.group(2)))
+            found.append((Path(entry.path), m.group(1), int(m.group(2)), m.group(3)))
     return found
+
+
+def side_folders(out: Path) -> list[tuple[Path, int, str]]:
+    """The ``.partial``/``.old`` folders of ``out`` in its parent: ``(path, pid, kind)``."""
+    out = Path(out)
+    return [(path, pid, kind) for path, _, pid, kind in _scan(out.parent, _pattern(out.name))]
+
+
+def _recover(parent: Path, folders: list[tuple[Path, str, int, str]]) -> list[Path]:
+    removed = []
+    dead = [f for f in folders if not _alive(f[2])]
+    for path, name, _, kind in sorted(dead, key=lambda f: f[3] != "old"):
+        if kind == "old" and not (parent / name).exists():
+            os.rename(path, parent / name)
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+        removed.append(path)
+    return removed
 
 
 def recover(out: Path) -> list[Path]:
@@ -78,15 +96,12 @@ def recover(out: Path) -> list[Path]:
     previous output comes back); its other folders are deleted.
     """
     out = Path(out)
-    removed = []
-    folders = [f for f in side_folders(out) if not _alive(f[1])]
-    for path, _, kind in sorted(folders, key=lambda f: f[2] != "old"):
-        if kind == "old" and not out.exists():
-            os.rename(path, out)
-            continue
-        shutil.rmtree(path, ignore_errors=True)
-        removed.append(path)
-    return removed
+    return _recover(out.parent, _scan(out.parent, _pattern(out.name)))
+
+
+def recover_all(parent: Path) -> list[Path]:
+    """:func:`recover` for every output in ``parent`` at once (one directory scan: a sweep's points)."""
+    return _recover(Path(parent), _scan(Path(parent), _ANY))
 
 
 def _fsync_dir(path: Path) -> None:
@@ -101,11 +116,12 @@ def _side(out: Path, kind: str) -> Path:
     return Path(tempfile.mkdtemp(prefix=f".{out.name}.{os.getpid()}.", suffix=f".{kind}", dir=out.parent))
 
 
-def write_dataset_dir(dataset: Dataset, out: str | os.PathLike) -> Path:
+def write_dataset_dir(dataset: Dataset, out: str | os.PathLike, *, recovered: bool = False) -> Path:
     """Write ``dataset`` as the directory ``out``, replacing it as one folder (module docstring).
 
     ``out`` may be missing, or a directory the caller has checked may be replaced (empty, or a
     previous output of the same command): everything in it is replaced. Returns ``out``.
+    ``recovered=True``: the caller ran :func:`recover_all` on the parent (skip the scan).
 
     Raises
     ------
@@ -119,7 +135,8 @@ def write_dataset_dir(dataset: Dataset, out: str | os.PathLike) -> Path:
     old: Path | None = None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        recover(out)
+        if not recovered:
+            recover(out)
         tmp = _side(out, "partial")
         write_dataset(dataset, tmp)
         os.chmod(tmp, 0o777 & ~_umask())     # mkdtemp's 0700 is for secrets; a dataset is shared

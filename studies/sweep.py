@@ -93,12 +93,13 @@ from gonio.acquisition.plan import Plan
 from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta
 from simulate.config import SimulationConfig
 from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
-from simulate.outdir import OutputError, write_dataset_dir
+from simulate.outdir import OutputError, recover_all, write_dataset_dir
 from simulate.provenance import jsonable, software_versions
 from simulate.virtual import fabric_dataset
 from studies.sweep_spec import (
     GENERATOR,
     LOCK_NAME,
+    POINTS_DIR,
     SCHEMA,
     SUMMARY_NAME,
     SWEEP_NAME,
@@ -433,6 +434,10 @@ def assemble(out: Path, spec: SweepSpec, measured: Dataset | None = None) -> pd.
     (:func:`compare.sweep.point_metrics`; NaN when the comparison is refused, logged).
     """
     rows = []
+    try:
+        recover_all(out / POINTS_DIR)       # folders of a killed assembly (simulate.outdir), one scan
+    except OSError as exc:
+        raise SweepError(f"{out / POINTS_DIR}: cannot clean up after a killed run ({exc.strerror})") from None
     by_point: dict[int, list[SweepTask]] = {}
     for task in spec.tasks():
         by_point.setdefault(task.point.index, []).append(task)
@@ -448,7 +453,7 @@ def assemble(out: Path, spec: SweepSpec, measured: Dataset | None = None) -> pd.
         if n_done == len(tasks):
             ds = _point_dataset(out, spec, point, tasks)
             try:
-                write_dataset_dir(ds, _point_dir(out, point.dir))
+                write_dataset_dir(ds, _point_dir(out, point.dir), recovered=True)
             except OutputError as exc:
                 raise SweepError(f"{exc} (the finished tasks are kept; run the same command again)") from None
             prov = ds.meta["provenance"]

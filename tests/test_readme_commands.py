@@ -139,7 +139,7 @@ def test_cheap_readme_commands_run(tmp_path, monkeypatch, capsys):
 
 @pytest.mark.slow
 def test_readme_demo_chain_runs_on_a_reduced_budget(tmp_path, monkeypatch):
-    """The "What make demo does" block, in order, with --target-rel-err 0.3 (about 1.5 min on 2 cores)."""
+    """The "What make demo does" block, in order, with --target-rel-err 0.3 (55 s on the shared 2-core machine)."""
     monkeypatch.chdir(tmp_path)
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     section = re.search(r"^## What `make demo` does\n(.*?)^## ", text, flags=re.S | re.M)

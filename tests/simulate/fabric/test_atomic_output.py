@@ -152,3 +152,17 @@ def test_previous_output_with_user_files_is_not_swallowed(fake_fiber, tmp_path, 
     err = capsys.readouterr().err
     assert "'notes.txt'" in err and err.count("\n") == 1
     assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_recover_all_handles_every_output_of_a_folder(tmp_path):
+    from simulate.outdir import recover_all
+
+    dead = 2**22 + 4321
+    (tmp_path / "a=1").mkdir()
+    (tmp_path / f".a=1.{dead}.abcdefgh.partial").mkdir()          # a's new output, half written
+    old_b = tmp_path / f".b=0.5.{dead}.zyxw_123.old"                # b's previous output, moved aside
+    old_b.mkdir()
+    (old_b / "meta.json").write_text("{}")
+    recover_all(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a=1", "b=0.5"]
+    assert (tmp_path / "b=0.5" / "meta.json").read_text() == "{}"   # restored, not deleted
