@@ -262,21 +262,30 @@ def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> N
 
 
 def _is_fabric_output(out: Path) -> bool:
+    """A previous ``simulate fabric`` output: its ``meta.json`` says so. Also recognised: what a
+    run of an older version killed between its two renames left, ``radiance.csv`` beside the
+    ``.meta.json.XXXXXXXX.tmp`` that says so (that version wrote file by file)."""
     from simulate.virtual import GENERATOR
 
-    try:
-        meta = json.loads((out / "meta.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    return (isinstance(meta, dict) and meta.get("kind") == "simulated"
-            and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR)
+    candidates = [out / "meta.json"]
+    if not candidates[0].exists() and (out / "radiance.csv").is_file():
+        candidates = sorted(out.glob(".meta.json.*.tmp"))
+    for path in candidates:
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if (isinstance(meta, dict) and meta.get("kind") == "simulated"
+                and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR):
+            return True
+    return False
 
 
 def _prepare_fabric_out(out: Path) -> None:
     """:func:`_prepare_out` for ``simulate fabric``, whose output replaces ``out`` as one folder
     (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a previous output
     holding anything besides the dataset's files is refused (the swap would delete it)."""
-    from gonio.data.dataset import _TEMP_NAME, CSV_NAME, META_NAME
+    from gonio.data.dataset import CSV_NAME, META_NAME, remove_stale_temp_files
     from simulate.outdir import recover
 
     try:
@@ -284,8 +293,11 @@ def _prepare_fabric_out(out: Path) -> None:
     except OSError as exc:
         raise _UsageError(f"--out {out}: cannot clean up after an earlier killed run ({exc.strerror})") from None
     _prepare_out(out, _is_fabric_output, "simulate fabric")
-    others = sorted(e.name for e in out.iterdir()
-                    if e.name not in (CSV_NAME, META_NAME) and not _TEMP_NAME.fullmatch(e.name))
+    try:
+        remove_stale_temp_files(out)         # a killed per-file write of an older version
+        others = sorted(e.name for e in out.iterdir() if e.name not in (CSV_NAME, META_NAME))
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot read the directory ({exc.strerror})") from None
     if others:
         raise _UsageError(f"--out {out}: holds {others[0]!r} besides a dataset; the new output replaces the "
                           f"whole directory, so move that elsewhere or choose a new directory")

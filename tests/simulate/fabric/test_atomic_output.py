@@ -166,3 +166,20 @@ def test_recover_all_handles_every_output_of_a_folder(tmp_path):
     recover_all(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a=1", "b=0.5"]
     assert (tmp_path / "b=0.5" / "meta.json").read_text() == "{}"   # restored, not deleted
+
+
+def test_the_state_an_older_version_left_is_recognised_and_replaced(fake_fiber, tmp_path, cfg, capsys):
+    """Issue 23: killed between its two renames, the per-file writer left radiance.csv alone with
+    its temporary files, and the rerun was refused. Now it is recognised, replaced and cleaned."""
+    out = tmp_path / "sim"
+    assert _fabric(cfg, out) == 0
+    meta = (out / "meta.json").read_bytes()
+    (out / "meta.json").unlink()
+    (out / ".meta.json.ab12cd34.tmp").write_bytes(meta)          # written, never renamed
+    (out / ".radiance.csv.zz99yy88.tmp").write_bytes(b"partial")
+    assert _fabric(cfg, out, "summation") == 0, capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["meta.json", "radiance.csv"]
+    assert read_dataset(out).meta["model"]["method"] == "summation"
+    # a lone radiance.csv without such a temporary file is still not taken for an output
+    (out / "meta.json").unlink()
+    assert _fabric(cfg, out) == 2
