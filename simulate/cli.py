@@ -337,6 +337,11 @@ def _check_cost(command: str, config: Any, wavelengths: Any, target: float | Non
         print(f"simulate {command}: warning: {warning}", file=sys.stderr)
 
 
+def _write_failed(out: Path, exc: OSError) -> str:
+    """One line for an output that could not be written (a full disk): the file and the reason."""
+    return f"{exc.filename or out}: cannot write ({exc.strerror or exc})"
+
+
 def _progress(args: argparse.Namespace) -> bool:
     return not args.no_progress and sys.stderr.isatty()
 
@@ -440,7 +445,10 @@ def _fiber_run(args: argparse.Namespace) -> int:
         threads=config.threads if args.threads is None else (args.threads or None),
         max_photons=config.max_photons if args.max_photons is None else args.max_photons,
         progress=_progress(args), config_provenance=config.provenance())
-    write_fiber_table(args.out, arrays, sidecar)
+    try:
+        write_fiber_table(args.out, arrays, sidecar)
+    except OSError as exc:
+        raise _UsageError(_write_failed(args.out, exc)) from None
     prov = sidecar["provenance"]
     print(f"wrote {args.out} ({math.prod(grid.shape)} direction pairs x {arrays['wavelength_nm'].size} "
           f"wavelengths; {prov['method']}; {prov['photons']} photons in {prov['seconds']:.1f} s)")
@@ -527,7 +535,10 @@ def _fit_run(args: argparse.Namespace) -> int:
         print(f"simulate fit: interrupted; the last accepted point is in {args.out / 'fit-state.json'} "
               "(continue with --resume)", file=sys.stderr)
         return 130
-    doc = write_outputs(problem, result, args.out)
+    try:
+        doc = write_outputs(problem, result, args.out)
+    except OSError as exc:
+        raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
     for p in doc["parameters"]:
         print(f"{p['name']} = {p['value']:.6g} +- {p['u']:.2g}   (start {p['start']:.6g}, bounds "
               f"[{p['low']:g}, {p['high']:g}])")

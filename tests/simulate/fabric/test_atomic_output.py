@@ -183,3 +183,17 @@ def test_the_state_an_older_version_left_is_recognised_and_replaced(fake_fiber, 
     # a lone radiance.csv without such a temporary file is still not taken for an output
     (out / "meta.json").unlink()
     assert _fabric(cfg, out) == 2
+
+
+def test_fiber_table_on_a_full_disk_is_one_line(fake_fiber, tmp_path, cfg, capsys, monkeypatch):
+    from simulate.fiber import tables
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(tables, "atomic_write", full)
+    out = tmp_path / "table"
+    assert main(["fiber", str(cfg), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert str(out) in err and "cannot write (No space left on device)" in err
