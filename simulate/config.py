@@ -59,6 +59,8 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     crimp = 1.0                        # (0, 1] (default 1)
     points_per_span = 8                # mesh intervals per crossing interval, >= 1 (default 8)
     sides = 16                         # mesh intervals around the yarn section, >= 3 (default 16)
+                                       # the mesh: 4 sides points_per_span n_warp n_weft <= 2e6
+                                       #   triangles (simulate.fabric.weave.MAX_TRIANGLES)
 
     [method]                           # optional, defaults shown
     method = "nee"                     # fiber route: "nee" | "beam" | "bssrdf"
@@ -112,6 +114,16 @@ _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
 METHODS = ("nee", "beam", "bssrdf")
 DYE_CURVES = ("gaussian-bands", "logistic-edge")
+#: The keys of the schema's tables (a key outside them is refused, with a suggestion, before any
+#: field is read: :class:`simulate.config_table.Table`).
+_FIELDS: dict[str, tuple[str, ...]] = {
+    "fiber": ("radius_um", "n_host", "cell_width_deg", "dye"),
+    "fiber.dye": ("wavelength_nm", "mu_a_per_um", "curve", "baseline_per_um", "bands", "short_per_um",
+                  "long_per_um", "edge_nm", "width_nm"),
+    "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
+    "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
+    "method": ("method", "target_rel_err", "max_photons", "threads"),
+}
 
 
 def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = None,
@@ -321,7 +333,7 @@ def _particles(t: Table) -> ParticleSpec:
     if t.has("radius_um"):
         radius = t.number("radius_um", gt=0.0)
     else:
-        st = t.sub("size")
+        st = t.sub("size", fields=("median_radius_um", "sigma_g"))
         assert st is not None
         median = st.number("median_radius_um", required=True, gt=0.0)
         sigma_g = st.number("sigma_g", required=True, ge=1.0, le=5.0)
@@ -412,6 +424,9 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         raise ConfigError(f"{file}: not UTF-8 text; a config is a TOML file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{file}: invalid TOML: {exc}") from None
+    except RecursionError:      # tomllib recurses once per nested array or inline table
+        raise ConfigError(f"{file}: arrays or inline tables nested too deeply for a config (the schema "
+                          f"nests at most 4 levels)") from None
     top = Table(data, "", file)
     name = top.string("name", Path(path).stem) or Path(path).stem
     description = top.raw("description", "")
@@ -419,12 +434,12 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         raise top.fail("description", f"must be a string, got {show(description)}")
     seed = top.integer("seed", 0, le=2**31 - 1)   # the Monte Carlo derives 64-bit stream seeds from it
 
-    fib = top.sub("fiber", required=True)
+    fib = top.sub("fiber", required=True, fields=_FIELDS["fiber"])
     assert fib is not None
     radius = fib.number("radius_um", required=True, gt=0.0, le=1e4)
     n_host = fib.number("n_host", required=True, ge=1.0, le=4.0)
     cell = fib.number("cell_width_deg", 10.0, gt=0.0, le=180.0)
-    dye_t = fib.sub("dye")
+    dye_t = fib.sub("dye", fields=_FIELDS["fiber.dye"])
     dye = _dye(dye_t) if dye_t is not None else None
     fib.done()
 
@@ -433,11 +448,11 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
                                     "[medium] for a direct Henyey-Greenstein medium)")
     particles = hg = None
     if top.has("particles"):
-        pt = top.sub("particles")
+        pt = top.sub("particles", fields=_FIELDS["particles"])
         assert pt is not None
         particles = _particles(pt)
     else:
-        mt = top.sub("medium")
+        mt = top.sub("medium", fields=("mu_s", "mu_a", "g"))
         assert mt is not None
         hg = (mt.number("mu_s", required=True, ge=0.0), mt.number("mu_a", required=True, ge=0.0),
               mt.number("g", required=True, gt=-1.0, lt=1.0))
@@ -446,22 +461,22 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
             raise fib.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total "
                                   "absorption of a Henyey-Greenstein medium)")
 
-    surf = top.sub("surface", required=True)
+    surf = top.sub("surface", required=True, fields=("rms_slope",))
     assert surf is not None
     rms_slope = surf.number("rms_slope", required=True, gt=0.0, le=1.0)
     surf.done()
 
-    weave_t = top.sub("weave")
+    weave_t = top.sub("weave", fields=_FIELDS["weave"])
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method") or Table({}, "method", file)
+    mt = top.sub("method", fields=_FIELDS["method"]) or Table({}, "method", file)
     method = mt.string("method", "nee", choices=METHODS)
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
     threads = mt.integer("threads", 0, ge=0, le=1024)
     mt.done()
 
-    wl_t = top.sub("wavelengths")
+    wl_t = top.sub("wavelengths", fields=("start_nm", "stop_nm", "step_nm", "list_nm"))
     wavelengths = _wavelengths(wl_t) if wl_t is not None else _DEFAULT_WAVELENGTHS
     # --- issue 19: [structure] (simulate.fabric.structure validates it, naming the field)
     st_t = top.sub("structure")

@@ -16,7 +16,6 @@ name (:data:`MODELS`) plus ``auto``.
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -27,7 +26,7 @@ from simulate import fabric as fab
 from simulate.config import SimulationConfig, weave_from_config
 from simulate.provenance import jsonable
 
-__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "register", "evaluate"]
+__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "all_threads", "register", "evaluate"]
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +39,14 @@ class Geometries:
     phi_i: np.ndarray
     theta_o: np.ndarray
     phi_o: np.ndarray
+
+
+def all_threads(threads: Any) -> int:
+    """``threads`` with 0 or None meaning "all that numba allows" (``numba.config.NUMBA_NUM_THREADS``,
+    which ``NUMBA_NUM_THREADS`` in the environment lowers), the one meaning of 0 in configs and flags."""
+    import numba
+
+    return int(threads) if threads else int(numba.config.NUMBA_NUM_THREADS)
 
 
 @dataclass(frozen=True)
@@ -155,7 +162,7 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     mesh = weave_mesh(wv)
     beta, u_beta, mc_info = woven.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
-        seed=s.seed, threads=s.threads or (os.cpu_count() or 1), progress=s.progress, max_seconds=s.max_seconds)
+        seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds)
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
     extra = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
                        "height_um": wv.height_um, "crimp": wv.crimp},
