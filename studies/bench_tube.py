@@ -12,7 +12,6 @@ the reference because the mesh converges to the smooth tube of :mod:`simulate.fa
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 

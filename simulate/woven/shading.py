@@ -324,7 +324,7 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             w0 * tangents[ia, 1] + w1 * tangents[ib, 1] + w2 * tangents[ic, 1],
             w0 * tangents[ia, 2] + w1 * tangents[ib, 2] + w2 * tangents[ic, 2])
         # the yarn's own frame (exit placement) and the fiber's (twist: the table's frame)
-        ytx, yty, ytz, ybx, yby, ybz = tx, ty, tz, bx, by, bz
+        ytx, yty, ybx, yby, ybz = tx, ty, bx, by, bz
         tw_s = twist_s[yarn]
         if tw_s != 0.0:
             tx, ty, tz, bx, by, bz = _twist(tx, ty, tz, bx, by, bz, twist_c[yarn], tw_s)
