@@ -83,8 +83,8 @@ DEFAULT_SPACING_UM = 300.0
 DEFAULT_WIDTH_UM = 250.0
 DEFAULT_HEIGHT_UM = 100.0
 DEFAULT_CRIMP = 1.0
-DEFAULT_POINTS_PER_SPAN = 8
-DEFAULT_SIDES = 16
+DEFAULT_POINTS_PER_SPAN = 16
+DEFAULT_SIDES = 48
 
 #: Named weaves (rows = warp yarns, columns = weft yarns, 1 = warp over weft).
 #: ``satin`` is the regular 5-end warp-faced satin with move (counter) 2: warp ``j`` goes under
