@@ -155,8 +155,9 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     if spec is not None and spec.kind == "nonwoven":
         from simulate.woven.felt import felt_mesh
 
-        mesh = felt_mesh(spec, float(fiber.radius_um), seed=s.seed)
-        geometry: dict = {"felt": mesh.info}
+        felt = felt_mesh(spec, float(fiber.radius_um), seed=s.seed)
+        mesh: Any = felt
+        geometry: dict = {"felt": felt.info}
     else:
         wv = weave_from_config(config)
         mesh = weave_mesh(wv)

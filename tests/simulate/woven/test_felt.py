@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from gonio.data.dataset import read_dataset
 from simulate import fabric as fab
@@ -48,6 +49,7 @@ def test_the_felt_is_reproducible_at_a_fixed_seed():
     assert np.array_equal(r1.beta, r2.beta) and r1.info["lost_rays"] == 0
 
 
+@pytest.mark.slow
 def test_felt_mc_agrees_with_the_structured_summation_at_near_normal_geometry():
     """A non-absorbing fiber (the layer's multiple scattering, not its absorption, is what the two
     models must share): at incidence 0 / observation 10 deg the felt traced as random fibers and
