@@ -57,8 +57,8 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     width_um = 200                     # > 0   (default 250; <= spacing_um, checked by the weave)
     height_um = 80                     # > 0   (default 100)
     crimp = 1.0                        # (0, 1] (default 1)
-    points_per_span = 8                # mesh intervals per crossing interval, >= 1 (default 8)
-    sides = 16                         # mesh intervals around the yarn section, >= 3 (default 16)
+    points_per_span = 16               # mesh intervals per crossing interval, >= 1 (default 16)
+    sides = 48                         # mesh intervals around the yarn section, >= 3 (default 48)
                                        # the mesh: 4 sides points_per_span n_warp n_weft <= 2e6
                                        #   triangles (simulate.fabric.weave.MAX_TRIANGLES)
 
@@ -507,7 +507,7 @@ def weave_from_config(config: SimulationConfig | str | Path) -> Weave:
     One of ``preset``, ``wif`` (resolved against the config's directory when the config is read)
     and ``matrix``; none: the plain weave. Missing dimensions take the defaults
     :data:`simulate.fabric.weave.DEFAULT_SPACING_UM` (300), :data:`simulate.fabric.weave.DEFAULT_WIDTH_UM` (250), :data:`simulate.fabric.weave.DEFAULT_HEIGHT_UM`
-    (100), :data:`simulate.fabric.weave.DEFAULT_CRIMP` (1), :data:`simulate.fabric.weave.DEFAULT_POINTS_PER_SPAN` (8), :data:`simulate.fabric.weave.DEFAULT_SIDES` (16).
+    (100), :data:`simulate.fabric.weave.DEFAULT_CRIMP` (1), :data:`simulate.fabric.weave.DEFAULT_POINTS_PER_SPAN` (16), :data:`simulate.fabric.weave.DEFAULT_SIDES` (48).
 
     Raises
     ------

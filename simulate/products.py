@@ -158,15 +158,25 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
 
     w_i = fab.directions_deg(g.theta_i, g.phi_i)
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
-    wv = weave_from_config(config)
-    mesh = weave_mesh(wv)
+    spec = getattr(config, "structure", None)       # issue 19: twist, or a felt (simulate.woven.felt)
+    if spec is not None and spec.kind == "nonwoven":
+        from simulate.woven.felt import felt_mesh
+
+        felt = felt_mesh(spec, float(fiber.radius_um), seed=s.seed)
+        mesh: Any = felt
+        geometry: dict = {"felt": felt.info}
+    else:
+        wv = weave_from_config(config)
+        mesh = weave_mesh(wv)
+        geometry = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
+                              "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
+                              "points_per_span": wv.points_per_span}}
     beta, u_beta, mc_info = woven.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
-        seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds)
+        seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
+        structure=spec)
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
-    extra = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
-                       "height_um": wv.height_um, "crimp": wv.crimp},
-             "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
+    extra = {**geometry, "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
              "estimator": "next-event towards each detector direction"}
     return FabricEstimate(beta, u_beta, n, int(mc_info["table"]["photons"]), jsonable(mc_info),
                           float(mc_info["table"]["seconds"]), extra)

@@ -85,8 +85,8 @@ DEFAULT_SPACING_UM = 300.0
 DEFAULT_WIDTH_UM = 250.0
 DEFAULT_HEIGHT_UM = 100.0
 DEFAULT_CRIMP = 1.0
-DEFAULT_POINTS_PER_SPAN = 8
-DEFAULT_SIDES = 16
+DEFAULT_POINTS_PER_SPAN = 16
+DEFAULT_SIDES = 48
 
 #: Bound on the micro-element's mesh (:func:`simulate.fabric.mesh.mesh`): a weave whose mesh would
 #: have more triangles is refused when the :class:`Weave` is made, before anything is allocated.
