@@ -119,7 +119,12 @@ def test_weave_refuses_mesh_over_the_bound_before_building():
 
 def test_weave_400_by_400_matrix_refused_by_its_mesh():
     m = np.tile(np.array(PRESETS_PLAIN), (200, 200))       # a valid 400 x 400 weave
-    with pytest.raises(WeaveError, match="81,920,000 triangles"):
+    from simulate.fabric.weave import DEFAULT_POINTS_PER_SPAN, DEFAULT_SIDES
+
+    # 4 sides points_per_span n_warp n_weft triangles with the default tube
+    expected = 4 * DEFAULT_SIDES * DEFAULT_POINTS_PER_SPAN * 400 * 400
+    assert expected > MAX_TRIANGLES
+    with pytest.raises(WeaveError, match=f"{expected:,} triangles"):
         Weave(m)
     with pytest.raises(WeaveError, match="crossings"):   # past the cell bound: refused before listing it
         Weave(np.tile(m, (2, 2)))
