@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 # of the same sample by the fiber model's summation, the classic baseline and the woven-fabric Monte
 # Carlo at the same geometries -> comparison report (measured vs truth vs summation vs classic vs
 # Monte Carlo; Figure-7 panels and colour strips) and the check of the acquisition against the truth.
-# Each step prints its own time (the Monte Carlo one about 35-45 s on 2 cores at 3 %).
+# Each step prints its own time (measured figures: README, "What `make demo` does").
 demo: $(STAMP)
 	$(VENV)/bin/gonio demo --out $(DEMO_OUT)/measured --no-progress
 	$(VENV)/bin/gonio truth red-cotton red-cotton --out $(DEMO_OUT)/truth
