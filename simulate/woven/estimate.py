@@ -15,7 +15,7 @@ import numpy as np
 from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.woven.integrator import trace
 from simulate.woven.materials import FiberSurface
-from simulate.woven.yarn import YarnTable, yarn_table
+from simulate.woven.yarn import YarnTable, table_halves
 
 __all__ = ["table_photons", "fabric_beta"]
 
@@ -36,7 +36,7 @@ def table_photons(target_rel_err: float) -> int:
 def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_nm: np.ndarray, *,
                 target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
                 threads: int = 1, progress: bool = False, tables: tuple[YarnTable, YarnTable] | None = None,
-                ) -> tuple[np.ndarray, np.ndarray, dict]:
+                cache: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -45,17 +45,17 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     standard error combines the ray tracing's (``(u_a^2 + u_b^2) / 4``) with the table's: the two
     halves differ by twice the full table's noise, so per detector ``u_table^2 = mean_lambda
     ((beta_a - beta_b) / 2)^2`` (pooled over the wavelengths, which leans conservative for the
-    dark ones). Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information.
+    dark ones). Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information. The halves
+    come from the disk cache when there (:func:`simulate.woven.table_halves`; ``cache=False``
+    or ``FABRIC_OPTICS_NO_CACHE=1``: always computed); ``info["table"]["cache"]`` says which.
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
     wl = np.asarray(wavelengths_nm, float)
     started = time.perf_counter()
     if tables is None:
-        half = table_photons(target_rel_err) // 2
-        tables = (yarn_table(fiber, wl, photons_per_row=half, seed=seed, threads=threads if threads else None),
-                  yarn_table(fiber, wl, photons_per_row=half, seed=seed + 1_000_003,
-                             threads=threads if threads else None))
+        tables = table_halves(fiber, wl, table_photons(target_rel_err) // 2, seed, threads if threads else None,
+                              cache=cache)
     mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host)) for t in tables]
     key = np.round(w_in, 9)
     incidences, inverse = np.unique(key, axis=0, return_inverse=True)
@@ -88,6 +88,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                      **{k2: v for k2, v in ra.info.items() if k2 != "u_reflected_plus_transmitted"}})
     photons = int(sum(t.photons for t in tables))
     info = {"table": {"photons": photons, "seconds": float(sum(t.seconds for t in tables)),
+                      "cache": [t.cache for t in tables],
                       "halves": 2, "photons_per_row": int(photons // max(1, tables[0].T.shape[0] * tables[0].T.shape[1])),
                       "w_t_nodes": tables[0].w_t_nodes.tolist(),
                       "grid": [tables[0].n_psi, tables[0].n_v, tables[0].n_mu, tables[0].n_phi]},
