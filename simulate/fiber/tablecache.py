@@ -34,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import hashlib
-import importlib
+import importlib.metadata
 import importlib.util
 import io
 import logging
@@ -174,9 +174,9 @@ def code_version(modules: Iterable[str]) -> str:
                 raise ValueError(f"code_version: module {name} not found")
             h.update(name.encode() + b"\0" + Path(spec.origin).read_bytes() + b"\0")
         for dist in ("numpy", "numba", "miepython"):
-            try:
-                version = importlib.import_module(dist).__version__
-            except ImportError:
+            try:   # installed versions, without importing them (miepython's import compiles)
+                version = importlib.metadata.version(dist)
+            except importlib.metadata.PackageNotFoundError:
                 version = "absent"
             h.update(f"{dist}={version}\0".encode())
         _CODE_VERSIONS[names] = h.hexdigest()

@@ -125,3 +125,30 @@ def test_surface_albedo_once_per_process(cache, monkeypatch):
     third = M.surface_albedo(0.27, 1.53)
     assert len(calls) == 1 and third.tobytes() == second.tobytes()
     assert np.all(M.surface_albedo(0.0, 1.53) == 0.0)
+
+
+_WARM_PROCESS = """
+import sys
+from simulate import fiber as F
+from simulate import woven as W
+from simulate.media.medium import MieMedium
+medium = MieMedium(n_host=1.5, particle_n=1.33, particle_k=1e-4, radius_um=0.3, volume_fraction=0.01,
+                   phase_table_size=64)
+fib = F.Fiber(10.0, 1.5, medium, 0.3, 30.0)
+a, b = W.table_halves(fib, [500.0, 600.0], 1000, seed=2, threads=1, w_t_nodes=(0.0, 0.5), n_v=1, n_mu=3, n_phi=4)
+print(a.cache, b.cache, "miepython" in sys.modules)
+"""
+
+
+def test_a_warm_process_never_imports_miepython(cache):
+    """miepython's import compiles a kernel (1-2 s): a process whose tables are cached does without it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, tc.ENV_DIR: str(cache), "PYTHONPATH": str(Path(__file__).resolve().parents[3])}
+    outs = [subprocess.run([sys.executable, "-c", _WARM_PROCESS], env=env, capture_output=True, text=True,
+                           timeout=300, check=True).stdout.split() for _ in range(2)]
+    assert outs[0] == ["miss", "miss", "True"]
+    assert outs[1] == ["hit", "hit", "False"]
