@@ -50,11 +50,17 @@ def _outcome(out: Path) -> dict[str, Any]:
     return {"rel_err": prov.get("rel_err"), "table_cache": table.get("cache"), "photons": prov.get("photons")}
 
 
+def _code_root() -> str:
+    import simulate
+
+    return str(Path(simulate.__file__).resolve().parents[1])
+
+
 def _process(cmd: list[str], env: dict[str, str]) -> dict[str, Any]:
     load = os.getloadavg()[0]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800, check=True)
+    subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800, check=True, cwd=_code_root())
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return {"wall_seconds": wall, "cpu_seconds": after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime,
@@ -92,6 +98,8 @@ def run_fabric_bench(repeats: int = 3, target: float = TARGET, config: str = CON
         warm_cache = root / "cache-warm"
         base = dict(os.environ)
         base.pop("FABRIC_OPTICS_NO_CACHE", None)
+        # the children run this process's code, wherever they start (``-m`` puts the cwd first)
+        base["PYTHONPATH"] = os.pathsep.join(filter(None, [_code_root(), base.get("PYTHONPATH", "")]))
         rows: dict[str, list[dict[str, Any]]] = {"summation": [], "mc_cold": [], "mc_warm": []}
         for i in range(repeats):
             rows["summation"].append(_process(fabric_command("summation", root / f"s{i}", target, config), base))

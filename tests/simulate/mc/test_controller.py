@@ -76,12 +76,15 @@ def test_stopping_point_does_not_depend_on_threads(monkeypatch):
     assert a.R.tobytes() == b.R.tobytes() and a.photons == b.photons
 
 
-@pytest.mark.parametrize("photons, rel, expect", [
-    (50_000, 0.0200, 2_000),          # at the target: one batch (the floor)
-    (50_000, 0.0400, 156_000),        # twice the error: 4 x 1.03 x N - N, in batches
-    (10_000, 0.5, 80_000),            # a wild early estimate: capped at 8 N
-    (100_000, 0.03, 20_000),          # capped by the budget
+@pytest.mark.parametrize("history, expect", [
+    ([(50_000, 0.0200)], 2_000),                       # at the target: one batch (the floor)
+    ([(50_000, 0.0240)], 26_000),                      # 1.44 x: straight to 1.03 x the need, in batches
+    ([(50_000, 0.0800)], 150_000),                     # 16 x: first to the geometric mean (4 x)
+    ([(10_000, 0.5)], 80_000),                         # a wild early estimate: capped at 8 N
+    ([(50_000, 0.08), (200_000, 0.02)], 6_000),        # decay measured as 1/N: need 200 000, the floor
+    ([(50_000, 0.03), (100_000, 0.0300)], 132_000),    # no decay seen: the 1/sqrt(N) law, 225 000 x 1.03
+    ([(100_000, 0.03)], 20_000),                       # capped by the budget (120 000)
 ])
-def test_next_round(photons, rel, expect):
-    budget = 120_000 if photons == 100_000 else 10**9
-    assert A.next_round(photons, rel, 0.02, budget) == expect
+def test_next_round(history, expect):
+    budget = 120_000 if history == [(100_000, 0.03)] else 10**9
+    assert A.next_round(history, 0.02, budget) == expect
