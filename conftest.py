@@ -1,10 +1,25 @@
-"""Root conftest: settings of the docstring examples collected by ``--doctest-modules``."""
+"""Root conftest: settings of the docstring examples collected by ``--doctest-modules``; a private table cache.
+
+The suite never reads or writes the user's table cache (:mod:`simulate.fiber.tablecache`): every
+test process (and the processes it starts, which inherit the environment) uses a fresh temporary
+directory, removed at exit.
+"""
 
 from __future__ import annotations
+
+import atexit
+import os
+import shutil
+import tempfile
 
 import numpy as np
 import pytest
 from _pytest.doctest import DoctestItem
+
+_TABLE_CACHE = tempfile.mkdtemp(prefix="fabric-optics-test-cache-")
+os.environ["FABRIC_OPTICS_CACHE_DIR"] = _TABLE_CACHE
+os.environ.pop("FABRIC_OPTICS_NO_CACHE", None)
+atexit.register(shutil.rmtree, _TABLE_CACHE, True)
 
 
 @pytest.fixture(autouse=True)

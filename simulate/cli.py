@@ -824,6 +824,10 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 # ---- end simulate export ----------------------------------------------------------------------
 
 
+#: Commands that may build woven yarn tables, i.e. use the table cache (simulate.fiber.tablecache).
+_TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
     parser = _Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
@@ -831,7 +835,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name, (help_text, add_arguments, _) in COMMANDS.items():
-        add_arguments(sub.add_parser(name, help=help_text, description=help_text))
+        sp = sub.add_parser(name, help=help_text, description=help_text)
+        add_arguments(sp)
+        if name in _TABLE_CACHE_COMMANDS:
+            sp.add_argument("--no-cache", action="store_true", dest="no_cache",
+                            help="neither read nor write the table cache (the woven yarn tables; default "
+                                 "~/.cache/fabric-optics or $FABRIC_OPTICS_CACHE_DIR, bounded by "
+                                 "$FABRIC_OPTICS_CACHE_MAX_BYTES, 2 GiB); also FABRIC_OPTICS_NO_CACHE=1")
     return parser
 
 
@@ -848,6 +858,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     _, _, run = COMMANDS[args.command]
     try:
+        if getattr(args, "no_cache", False):
+            os.environ["FABRIC_OPTICS_NO_CACHE"] = "1"   # inherited by the processes a sweep starts
+        if args.command in _TABLE_CACHE_COMMANDS:
+            from simulate.fiber import tablecache
+
+            tablecache.max_bytes()   # a bad FABRIC_OPTICS_CACHE_MAX_BYTES: exit 2 now, not after the run
         return run(args)
     except _UsageError as exc:
         print(f"simulate {args.command}: error: {exc}", file=sys.stderr)

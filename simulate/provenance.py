@@ -6,6 +6,7 @@ records the versions it ran with and its parameters through these two functions.
 
 from __future__ import annotations
 
+import importlib.metadata
 import platform
 from typing import Any
 
@@ -23,11 +24,9 @@ def software_versions() -> dict:
 
     out = {"fabric-optics": gonio.__version__, "python": platform.python_version(),
            "numpy": np.__version__, "scipy": scipy.__version__, "numba": numba.__version__}
-    try:
-        import miepython
-
-        out["miepython"] = getattr(miepython, "__version__", "unknown")
-    except ImportError:  # pragma: no cover - a declared dependency
+    try:  # the installed version, without importing it (its import compiles a kernel: 1-2 s)
+        out["miepython"] = importlib.metadata.version("miepython")
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - a declared dependency
         pass
     return out
 

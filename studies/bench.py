@@ -13,8 +13,10 @@ d = 0.02 cm; MCML manual Table 6.1):
 * time vs photons (expected linear: fitted log-log slope ~1);
 * time vs optical thickness ``mu_t d`` at the same albedo and g;
 * the peak resident set size of the process;
-* (not with ``--quick``) the fiber BRDF routes, :mod:`studies.bench_fiber`, and the woven-fabric
-  Monte Carlo, :mod:`studies.bench_woven`.
+* (not with ``--quick``) the fiber BRDF routes, :mod:`studies.bench_fiber`, the woven-fabric
+  Monte Carlo, :mod:`studies.bench_woven`, and ``simulate fabric red-cotton`` at 1 % by
+  summation and Monte Carlo (cold and warm table cache), whole processes and in process,
+  :mod:`studies.bench_fabric`.
 
 Writes ``DIR/bench.json`` and ``DIR/bench.png`` (matplotlib, Agg); :func:`markdown_table`
 formats the headline figures.
@@ -251,6 +253,10 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
         report["woven"] = bench_woven.run_woven_bench()
         bench_woven.chart(report["woven"], out / "woven.png")
         bench_woven.chart_speed(report["woven"], out / "speed-accuracy.png")
+        # simulate fabric red-cotton at 1 % (issue 21's targets): summation, mc cold / warm table cache
+        from studies.bench_fabric import run_fabric_bench
+
+        report["fabric"] = run_fabric_bench()
     (out / "bench.json").write_text(json.dumps(report, indent=2))
     _chart(report, out / "bench.png")
     return report
@@ -331,4 +337,8 @@ def markdown_table(report: dict[str, Any]) -> str:
         from studies.bench_woven import markdown as woven_markdown
 
         lines += ["", "woven-fabric Monte Carlo:", "", woven_markdown(report["woven"])]
+    if "fabric" in report:
+        from studies.bench_fabric import markdown as fabric_markdown
+
+        lines += ["", "simulate fabric (whole processes and in process):", "", fabric_markdown(report["fabric"])]
     return "\n".join(lines)

@@ -46,7 +46,9 @@ Non-absorbing resonant spheres converge slowly (``m_p = 2.7``, ``x = 2.7``, ``si
 ``sigma_sca`` and ``g`` against 1281 nodes) - raise ``n_nodes`` there.
 
 The JIT backend of miepython is switched on (``MIEPYTHON_USE_JIT=1``, unless already set)
-before it is imported: 37-130x faster, identical to 3e-13.
+before it is imported: 37-130x faster, identical to 3e-13. miepython is imported on first use,
+not with this module: its JIT backend compiles one kernel at every import (``_cn_dn_nb`` has no
+``cache=True``; 1-2 s), which a run whose tables come from the cache never needs (issue 21).
 
 References
 ----------
@@ -68,11 +70,17 @@ os.environ.setdefault("MIEPYTHON_USE_JIT", "1")
 import warnings  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
-import miepython  # noqa: E402
 import numpy as np  # noqa: E402
 import numpy.typing as npt  # noqa: E402
 
 from simulate.optics.fresnel import OpticsDomainWarning  # noqa: E402
+
+
+def _miepython():
+    """miepython, imported on first use (module docstring)."""
+    import miepython
+
+    return miepython
 
 __all__ = [
     "particle_index",
@@ -250,7 +258,7 @@ def efficiencies(m: npt.ArrayLike, x: npt.ArrayLike) -> MieEfficiencies:
     qback = np.empty(x_flat.size)
     g = np.empty(x_flat.size)
     for i in range(x_flat.size):
-        qext[i], qsca[i], qback[i], g[i] = miepython.efficiencies_mx(complex(m_flat[i]), float(x_flat[i]))
+        qext[i], qsca[i], qback[i], g[i] = _miepython().efficiencies_mx(complex(m_flat[i]), float(x_flat[i]))
     # a sphere without contrast scatters nothing: report exact zeros, not round-off
     none = m_flat == 1.0
     for arr in (qext, qsca, qback, g):
@@ -393,7 +401,7 @@ def phase_function(m: complex, x: float, mu: npt.ArrayLike) -> np.ndarray:
     if not qsca > 0:
         return 3.0 * (1.0 + mu_arr * mu_arr) / (16.0 * np.pi)
     flat = np.ascontiguousarray(mu_arr.ravel())
-    p = miepython.i_unpolarized(m_c, x, flat, norm="one")
+    p = _miepython().i_unpolarized(m_c, x, flat, norm="one")
     return np.asarray(p, dtype=float).reshape(mu_arr.shape)
 
 

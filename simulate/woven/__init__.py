@@ -71,11 +71,12 @@ from simulate.woven.estimate import fabric_beta, table_photons, twist_of
 from simulate.woven.integrator import STOP_REASONS, MCResult, trace
 from simulate.woven.materials import FiberBRDFAtHit, FiberSurface, Lambert
 from simulate.woven.meshes import flat_mesh, straight_yarn_mesh
-from simulate.woven.yarn import YarnTable, yarn_table
+from simulate.woven.yarn import YarnTable, table_halves, yarn_table
 
 __all__ = [
     "YarnTable",
     "yarn_table",
+    "table_halves",
     "Lambert",
     "FiberSurface",
     "FiberBRDFAtHit",

@@ -20,8 +20,7 @@ from typing import Any
 import numpy as np
 
 from simulate.montecarlo.accuracy import check_target, relative_error
-from simulate.optics import microfacet
-from simulate.woven.materials import K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind
+from simulate.woven.materials import K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind, surface_albedo
 from simulate.woven.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
 from simulate.woven.shading import ShadeInputs, new_outputs, shade
 
@@ -145,13 +144,7 @@ class _Setup:
             self.rho = np.zeros(n_wl)
             self.m = float(material.roughness)
             self.n_host = float(material.n_host)
-            if self.m > 0.0:
-                cos = np.linspace(0.0, 1.0, 65)
-                with warnings.catch_warnings():   # the grazing end of the table is known to be rough
-                    warnings.simplefilter("ignore")
-                    self.albedo = np.asarray(microfacet.directional_albedo(np.arccos(cos), self.m, self.n_host), f64)
-            else:
-                self.albedo = np.zeros(2)
+            self.albedo = surface_albedo(self.m, self.n_host)   # once per run (and cached on disk)
             self.T = np.ascontiguousarray(tab.T)
             tbar = tab.T.mean(axis=3)
             self.cdf = np.ascontiguousarray(np.cumsum(tbar, axis=2))

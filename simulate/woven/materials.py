@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
+import functools
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from simulate.fiber import tablecache
+from simulate.optics import microfacet
 from simulate.woven.yarn import YarnTable
 
-__all__ = ["K_LAMBERT", "K_FIBER", "K_FIBER_BRDF", "Lambert", "FiberSurface", "FiberBRDFAtHit", "material_kind"]
+__all__ = ["K_LAMBERT", "K_FIBER", "K_FIBER_BRDF", "ALBEDO_NODES", "Lambert", "FiberSurface", "FiberBRDFAtHit",
+           "material_kind", "surface_albedo"]
+
+#: Nodes of the surface albedo table, uniform in ``cos theta`` on [0, 1] (the shading interpolates it).
+ALBEDO_NODES = 65
 
 #: Material codes of the compiled shading (:mod:`simulate.woven.shading`).
 K_LAMBERT = 0
@@ -60,3 +70,31 @@ def material_kind(material: Any) -> int:
     if isinstance(material, Lambert):
         return K_LAMBERT
     return K_FIBER_BRDF if isinstance(material, FiberBRDFAtHit) else K_FIBER
+
+
+@functools.lru_cache(maxsize=16)
+def _albedo(roughness: float, n_host: float) -> np.ndarray:
+    inputs = {"roughness": roughness, "n_host": n_host, "nodes": ALBEDO_NODES}
+    key = tablecache.content_key("albedo", inputs, ("simulate.optics.microfacet", "simulate.optics.fresnel",
+                                                    "simulate.woven.materials"))
+
+    def compute() -> dict[str, np.ndarray]:
+        cos = np.linspace(0.0, 1.0, ALBEDO_NODES)
+        with warnings.catch_warnings():   # the grazing end of the table is known to be rough
+            warnings.simplefilter("ignore")
+            return {"albedo": np.asarray(microfacet.directional_albedo(np.arccos(cos), roughness, n_host), np.float64)}
+
+    return tablecache.cached(key, compute)[0]["albedo"]
+
+
+def surface_albedo(roughness: float, n_host: float) -> np.ndarray:
+    """The Cook-Torrance surface's directional albedo at :data:`ALBEDO_NODES` ``cos theta`` nodes (a fresh copy).
+
+    Computed once per process and (roughness, index), and kept in the table cache
+    (:mod:`simulate.fiber.tablecache`): every trace of a run shares it (it was computed per
+    trace, 8 times in a ``simulate fabric --method mc`` run). ``roughness = 0`` (the smooth
+    limit, no table): two zeros.
+    """
+    if roughness <= 0.0:
+        return np.zeros(2)
+    return _albedo(float(roughness), float(n_host)).copy()

@@ -2,23 +2,48 @@
 
 Built with the fiber's public Monte Carlo (:mod:`simulate.fiber.bssrdf`, :mod:`simulate.fiber.spectral`):
 white walks per wavelength group, rows for a grid of axial incidences, ``v`` offsets kept.
+
+Tables are cached on disk (:mod:`simulate.fiber.tablecache`) under the content hash of all they
+depend on: the fiber's radius, host index, cell width and medium, the wavelengths, the grid
+(nodes, ``n_v``, ``v_max_R``, ``n_mu``, ``n_phi``), the photons per row, the seed and the
+source of the kernel and of the modules that build the table (:data:`TABLE_MODULES`). The
+threads are not in the key: the rows do not depend on them (batches of fixed seeds). A hit is
+bit-identical to the miss that stored it; :func:`table_halves` builds the medium's optics
+(Mie: the expensive part outside the kernel) once for both halves and only when one misses.
 """
 
 from __future__ import annotations
 
+import functools
+import logging
 import math
 from dataclasses import dataclass
-from typing import Any
+import time
+from typing import Any, Callable
 
 import numpy as np
 
+from simulate.fiber import tablecache
 from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
 from simulate.fiber.model import as_wavelengths
-from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
+from simulate.fiber.spectral import SpectralOptics, group_walk, spectral_optics, wavelength_groups
 from simulate.montecarlo.transport import make_control
 from simulate.optics.fresnel import reflectance_from_cos
 
-__all__ = ["YarnTable", "yarn_table"]
+__all__ = ["TABLE_MODULES", "YarnTable", "yarn_table", "table_halves", "table_key", "HALF_SEED_STEP"]
+
+#: The modules whose source is part of every yarn table's cache key (the kernel and the table's builders).
+TABLE_MODULES = (
+    "simulate.montecarlo.kernel", "simulate.montecarlo.tallies", "simulate.montecarlo.geometry",
+    "simulate.montecarlo.scatter", "simulate.montecarlo.rng", "simulate.montecarlo.vecmath",
+    "simulate.montecarlo.transport", "simulate.montecarlo.accuracy", "simulate.fiber.bssrdf",
+    "simulate.fiber.spectral", "simulate.fiber.model", "simulate.media.medium", "simulate.optics.mie",
+    "simulate.optics.phase", "simulate.optics.fresnel", "simulate.woven.yarn",
+)
+#: Seed offset of the second of :func:`table_halves`.
+HALF_SEED_STEP = 1_000_003
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -48,6 +73,8 @@ class YarnTable:
     wavelengths_nm: np.ndarray
     photons: int
     seconds: float
+    cache: str = "off"
+    """``"hit"`` (loaded; ``seconds`` is the load time), ``"miss"`` (computed and stored) or ``"off"``."""
 
     @property
     def exit_fraction(self) -> np.ndarray:
@@ -55,24 +82,91 @@ class YarnTable:
         return self.T.sum(axis=2) / self.c_bar[:, :, None]
 
 
+def _grid(fiber: Any, w_t_nodes: Any) -> tuple[np.ndarray, int, float, list[int]]:
+    n_psi = fiber.cell_count("yarn table")
+    dpsi = 2.0 * math.pi / n_psi
+    nodes = np.asarray(w_t_nodes, float)
+    if nodes.ndim != 1 or nodes[0] != 0.0 or np.any(np.diff(nodes) <= 0) or nodes[-1] >= 1.0:
+        raise ValueError("yarn table: w_t_nodes must increase from 0 and stay below 1")
+    return nodes, n_psi, dpsi, list(range(0, lit_rows(dpsi) + 1))
+
+
+def table_key(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 0.5, 0.75, 0.95), n_v: int = 3,
+              v_max_R: float = 2.0, n_mu: int = 5, n_phi: int = 10, photons_per_row: int = 20_000,
+              seed: int = 0) -> str:
+    """The cache key of :func:`yarn_table` with these arguments (module docstring: what it covers)."""
+    inputs = {"radius_um": float(fiber.radius_um), "n_host": float(fiber.n_host),
+              "cell_width_deg": float(fiber.cell_width_deg), "medium": fiber.medium,
+              "wavelengths_nm": as_wavelengths(wavelengths_nm), "w_t_nodes": np.asarray(w_t_nodes, float),
+              "grid": (int(n_v), float(v_max_R), int(n_mu), int(n_phi)), "photons_per_row": int(photons_per_row),
+              "seed": int(seed)}
+    return tablecache.content_key("yarn", inputs, TABLE_MODULES)
+
+
 def yarn_table(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 0.5, 0.75, 0.95),
                n_v: int = 3, v_max_R: float = 2.0, n_mu: int = 5, n_phi: int = 10,
-               photons_per_row: int = 20_000, seed: int = 0, threads: int | None = None) -> YarnTable:
+               photons_per_row: int = 20_000, seed: int = 0, threads: int | None = None,
+               optics: SpectralOptics | Callable[[], SpectralOptics] | None = None, cache: bool = True) -> YarnTable:
     """Build the BSSRDF rows the woven-fabric tracer samples exits from (white Monte Carlo).
 
     Only ``w_t >= 0`` and azimuths ``k dpsi >= 0`` are walked (the mirror symmetries of the
     module docstring give the rest). Each row costs ``photons_per_row`` photons per
-    wavelength group of the medium.
+    wavelength group of the medium. ``optics``: the medium's :func:`spectral_optics` at these
+    wavelengths when the caller has it already (or a function computing it, called only on a miss). ``cache``: look the table up on disk / store it
+    (module docstring; also off with ``FABRIC_OPTICS_NO_CACHE=1``).
     """
     wl = as_wavelengths(wavelengths_nm)
-    n_psi = fiber.cell_count("yarn table")
-    dpsi = 2.0 * math.pi / n_psi
-    ks = list(range(0, lit_rows(dpsi) + 1))
-    nodes = np.asarray(w_t_nodes, float)
-    if nodes.ndim != 1 or nodes[0] != 0.0 or np.any(np.diff(nodes) <= 0) or nodes[-1] >= 1.0:
-        raise ValueError("yarn table: w_t_nodes must increase from 0 and stay below 1")
+    nodes, n_psi, dpsi, ks = _grid(fiber, w_t_nodes)
+    kw = dict(w_t_nodes=nodes, n_v=n_v, v_max_R=v_max_R, n_mu=n_mu, n_phi=n_phi, photons_per_row=photons_per_row,
+              seed=seed)
+    use = cache and tablecache.enabled()
+    started = time.perf_counter()
+    arrays: dict[str, np.ndarray] | None = None
+    key = ""
+    if use:
+        try:
+            key = table_key(fiber, wl, **kw)  # type: ignore[arg-type]
+        except TypeError as exc:  # a medium without a canonical form: no key, no cache
+            use = False
+            log.warning("yarn table: not cached (%s)", exc)
+        else:
+            arrays = tablecache.load(key)
+    if arrays is not None:
+        return _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl,
+                            time.perf_counter() - started, "hit")
+    arrays = _compute(fiber, wl, nodes, n_psi, dpsi, ks, n_v, v_max_R, n_mu, n_phi, photons_per_row, seed, threads,
+                      optics)
+    if use:
+        tablecache.store(key, arrays)
+    return _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl, float(arrays["seconds"]),
+                        "miss" if use else "off")
+
+
+def table_halves(fiber: Any, wavelengths_nm: Any, photons_per_row: int, seed: int, threads: int | None = None,
+                 cache: bool = True, **grid: Any) -> tuple[YarnTable, YarnTable]:
+    """The two independent halves of :func:`simulate.woven.fabric_beta` (seeds ``seed``, ``seed + HALF_SEED_STEP``).
+
+    The medium's optics (Mie phase functions) are computed at most once, and only if a half is
+    not in the cache.
+    """
+    wl = as_wavelengths(wavelengths_nm)
+    lazy = functools.cache(lambda: spectral_optics(fiber, wl))
+    out = []
+    for s in (seed, seed + HALF_SEED_STEP):
+        out.append(yarn_table(fiber, wl, photons_per_row=photons_per_row, seed=s, threads=threads,
+                              optics=lazy, cache=cache, **grid))
+    return out[0], out[1]
+
+
+def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: float, ks: list[int], n_v: int,
+             v_max_R: float, n_mu: int, n_phi: int, photons_per_row: int, seed: int, threads: int | None,
+             optics: Any) -> dict[str, np.ndarray]:
+    """The table's arrays (white Monte Carlo), as stored in the cache."""
+    if optics is None:
+        optics = spectral_optics(fiber, wl)
+    elif not isinstance(optics, SpectralOptics):
+        optics = optics()
     v_max = v_max_R * fiber.radius_um
-    optics = spectral_optics(fiber, wl)
     control = make_control()
     n_cells = n_psi * n_v * n_mu * n_phi
     T = np.zeros((nodes.size, len(ks), n_cells, wl.size))
@@ -96,5 +190,11 @@ def yarn_table(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 
     # the mean smooth-interface transmission of light entering the row's cell (weighted by w . n)
     transmitted = np.trapezoid(cos * (1.0 - reflectance_from_cos(cos, 1.0, fiber.n_host)), x, axis=2) / dpsi
     tau = np.where(c_bar > 0, transmitted / np.where(c_bar > 0, c_bar, 1.0), 1.0)
-    return YarnTable(T, u_T, c_bar, tau, nodes, dpsi, n_psi, n_v, n_mu, n_phi, float(v_max_R),
-                     float(fiber.radius_um), wl, photons, seconds)
+    return {"T": T, "u_T": u_T, "c_bar": c_bar, "tau": tau, "w_t_nodes": nodes, "photons": np.int64(photons),
+            "seconds": np.float64(seconds)}
+
+
+def _from_arrays(a: dict[str, np.ndarray], dpsi: float, n_psi: int, n_v: int, n_mu: int, n_phi: int, v_max_R: float,
+                 fiber: Any, wl: np.ndarray, seconds: float, cache: str) -> YarnTable:
+    return YarnTable(a["T"], a["u_T"], a["c_bar"], a["tau"], a["w_t_nodes"], dpsi, n_psi, n_v, n_mu, n_phi,
+                     float(v_max_R), float(fiber.radius_um), wl, int(a["photons"]), float(seconds), cache)

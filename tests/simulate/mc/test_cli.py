@@ -103,7 +103,7 @@ def test_bench_out_is_a_file(tmp_path, capsys):
 @pytest.mark.slow  # spawns whole processes, one of them compiling into an empty numba cache
 def test_bench_whole_process_part(monkeypatch):
     """Structure of the whole-process figures, and the MCML-style case's physics (van de Hulst Rd, Tt)."""
-    from simulate import bench
+    from studies import bench
 
     monkeypatch.setattr(bench, "MCML_CASE_PHOTONS", 200_000)
     whole = bench._whole_process(repeats=2)

@@ -1,0 +1,316 @@
+"""A content-addressed disk cache of Monte Carlo tables (the woven yarn table, the surface albedo).
+
+A table is stored under the SHA-256 of everything it depends on (:func:`content_key`): the
+inputs as canonical bytes (:func:`content_hash` walks dataclasses, arrays, numbers, strings),
+the code that computes it (:func:`code_version`: the source text of the modules named, plus the
+numpy / numba / miepython versions) and the run's photons and seed. The same key is the same
+table, so a hit returns the bit-identical arrays a miss would have computed; anything changed
+is a different key (a miss), never a stale table.
+
+Where and how much (environment variables, read at every call so a test or a CLI flag can set them):
+
+- ``FABRIC_OPTICS_CACHE_DIR``: the directory (default ``$XDG_CACHE_HOME/fabric-optics``, else
+  ``~/.cache/fabric-optics``);
+- ``FABRIC_OPTICS_CACHE_MAX_BYTES``: the size bound (default 2 GiB); after a store the least
+  recently used entries (by mtime; a hit touches its entry) are deleted until the total is below;
+- ``FABRIC_OPTICS_NO_CACHE=1`` (``simulate ... --no-cache``): neither read nor written.
+
+Safety: an entry is one file, ``MAGIC + sha256(payload) + payload`` (``payload`` an uncompressed
+``.npz`` without pickles), written to a temporary file in the same directory and moved into
+place with :func:`os.replace` (atomic on POSIX): concurrent writers of the same key each move a
+complete file, the last one stays, a reader sees one whole file or none. A reader verifies the
+checksum; a truncated or corrupted entry is deleted and reported as a miss (the caller
+recomputes and stores again). A cache that cannot be written (read-only, full disk) only logs a
+warning: the run goes on with the computed table.
+
+Design after the usual content-addressed build caches (ccache's hash of inputs + compiler
+identity; joblib.Memory's hash of arguments + function code), with git's write-then-rename for
+atomicity: https://ccache.dev/manual/latest.html#_how_ccache_works ,
+https://joblib.readthedocs.io/en/stable/memory.html .
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import hashlib
+import importlib.metadata
+import importlib.util
+import io
+import logging
+import os
+import struct
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from simulate.montecarlo.transport import ParameterError
+
+__all__ = ["ENV_DIR", "ENV_MAX_BYTES", "ENV_DISABLE", "DEFAULT_MAX_BYTES", "SUFFIX", "CacheError", "cache_dir",
+           "max_bytes", "enabled", "content_hash", "code_version", "content_key", "load", "store", "cached",
+           "entries", "evict"]
+
+log = logging.getLogger(__name__)
+
+ENV_DIR = "FABRIC_OPTICS_CACHE_DIR"
+ENV_MAX_BYTES = "FABRIC_OPTICS_CACHE_MAX_BYTES"
+ENV_DISABLE = "FABRIC_OPTICS_NO_CACHE"
+DEFAULT_MAX_BYTES = 2 * 1024 ** 3
+SUFFIX = ".fotab"
+_MAGIC = b"FOTAB\x00\x01\n"
+_DIGEST = 32
+
+
+class CacheError(ParameterError):
+    """A cache setting that cannot be used (the message names the environment variable; CLI exit 2)."""
+
+
+def cache_dir() -> Path:
+    """The cache directory (module docstring); not created here."""
+    explicit = os.environ.get(ENV_DIR, "").strip()
+    if explicit:
+        return Path(explicit).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME", "").strip()
+    base = Path(xdg).expanduser() if xdg else Path.home() / ".cache"
+    return base / "fabric-optics"
+
+
+def max_bytes() -> int:
+    """The size bound in bytes (``FABRIC_OPTICS_CACHE_MAX_BYTES``, default 2 GiB)."""
+    text = os.environ.get(ENV_MAX_BYTES, "").strip()
+    if not text:
+        return DEFAULT_MAX_BYTES
+    try:
+        value = int(float(text))
+    except ValueError:
+        raise CacheError(f"{ENV_MAX_BYTES}={text!r}: expected a number of bytes, e.g. 2147483648") from None
+    if value < 0:
+        raise CacheError(f"{ENV_MAX_BYTES}={text!r}: must be >= 0")
+    return value
+
+
+def enabled() -> bool:
+    """False when ``FABRIC_OPTICS_NO_CACHE`` is set to anything but ``""``, ``0``, ``false``, ``no``."""
+    return os.environ.get(ENV_DISABLE, "").strip().lower() in ("", "0", "false", "no")
+
+
+def _feed(h: Any, obj: Any) -> None:
+    """Feed a canonical, type-tagged byte form of ``obj`` into the hash ``h``."""
+    if obj is None or isinstance(obj, (bool, np.bool_)):
+        h.update(b"N" if obj is None else (b"T" if obj else b"F"))
+    elif isinstance(obj, (int, np.integer)):
+        h.update(b"i" + str(int(obj)).encode() + b";")
+    elif isinstance(obj, (float, np.floating)):
+        h.update(b"f" + struct.pack("<d", float(obj)))
+    elif isinstance(obj, (complex, np.complexfloating)):
+        h.update(b"c" + struct.pack("<dd", complex(obj).real, complex(obj).imag))
+    elif isinstance(obj, str):
+        b = obj.encode()
+        h.update(b"s" + str(len(b)).encode() + b":" + b)
+    elif isinstance(obj, bytes):
+        h.update(b"b" + str(len(obj)).encode() + b":" + obj)
+    elif isinstance(obj, np.ndarray):
+        if obj.dtype.hasobject:
+            raise TypeError("content_hash: object arrays have no canonical bytes")
+        a = np.ascontiguousarray(obj)
+        h.update(b"a" + a.dtype.str.encode() + repr(a.shape).encode())
+        h.update(a.tobytes())
+    elif isinstance(obj, enum.Enum):
+        h.update(b"e" + type(obj).__qualname__.encode() + b".")
+        _feed(h, obj.value)
+    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        h.update(b"D" + type(obj).__module__.encode() + b"." + type(obj).__qualname__.encode() + b"{")
+        for f in dataclasses.fields(obj):
+            _feed(h, f.name)
+            _feed(h, getattr(obj, f.name))
+        h.update(b"}")
+    elif isinstance(obj, dict):
+        h.update(b"d" + str(len(obj)).encode() + b"{")
+        for k in sorted(obj, key=repr):
+            _feed(h, k)
+            _feed(h, obj[k])
+        h.update(b"}")
+    elif isinstance(obj, (list, tuple)):
+        h.update((b"l" if isinstance(obj, list) else b"t") + str(len(obj)).encode() + b"[")
+        for x in obj:
+            _feed(h, x)
+        h.update(b"]")
+    else:
+        raise TypeError(f"content_hash: no canonical form for {type(obj).__qualname__}")
+
+
+def content_hash(obj: Any) -> str:
+    """SHA-256 (hex) of a canonical byte form of ``obj`` (dataclasses by field, arrays by dtype/shape/bytes).
+
+    Equal content gives the same hash in every process; a :class:`TypeError` for objects without
+    a canonical form (they cannot be keys).
+
+    >>> content_hash({"a": 1.0, "b": (1, 2)}) == content_hash({"b": (1, 2), "a": 1.0})
+    True
+    >>> content_hash(1.0) == content_hash(1)
+    False
+    """
+    h = hashlib.sha256()
+    _feed(h, obj)
+    return h.hexdigest()
+
+
+_CODE_VERSIONS: dict[tuple[str, ...], str] = {}
+
+
+def code_version(modules: Iterable[str]) -> str:
+    """SHA-256 of the source text of ``modules`` (dotted names) and of numpy/numba/miepython's versions.
+
+    Any edit to one of these files changes every key built with it (memoised per process).
+    """
+    names = tuple(sorted(modules))
+    if names not in _CODE_VERSIONS:
+        h = hashlib.sha256()
+        for name in names:
+            spec = importlib.util.find_spec(name)
+            if spec is None or spec.origin is None:
+                raise ValueError(f"code_version: module {name} not found")
+            h.update(name.encode() + b"\0" + Path(spec.origin).read_bytes() + b"\0")
+        for dist in ("numpy", "numba", "miepython"):
+            try:   # installed versions, without importing them (miepython's import compiles)
+                version = importlib.metadata.version(dist)
+            except importlib.metadata.PackageNotFoundError:
+                version = "absent"
+            h.update(f"{dist}={version}\0".encode())
+        _CODE_VERSIONS[names] = h.hexdigest()
+    return _CODE_VERSIONS[names]
+
+
+def content_key(kind: str, inputs: Any, modules: Iterable[str]) -> str:
+    """The key of a table: ``kind`` (a file-name-safe word) and the hash of inputs + code version."""
+    return f"{kind}-{content_hash((kind, inputs, code_version(modules)))[:40]}"
+
+
+def _path(key: str, directory: Path | None = None) -> Path:
+    if not key or "/" in key or key.startswith("."):
+        raise ValueError(f"tablecache: bad key {key!r}")
+    return (cache_dir() if directory is None else directory) / (key + SUFFIX)
+
+
+def load(key: str) -> dict[str, np.ndarray] | None:
+    """The arrays stored under ``key``, or None (absent, disabled, or corrupt: then deleted)."""
+    if not enabled():
+        return None
+    path = _path(key)
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    head = len(_MAGIC) + _DIGEST
+    payload = data[head:]
+    if len(data) < head or data[:len(_MAGIC)] != _MAGIC or hashlib.sha256(payload).digest() != data[len(_MAGIC):head]:
+        log.warning("table cache: %s is corrupt (checksum); it is recomputed", path)
+        _unlink(path)
+        return None
+    try:
+        with np.load(io.BytesIO(payload), allow_pickle=False) as z:
+            arrays = {name: z[name] for name in z.files}
+    except (ValueError, OSError, KeyError) as exc:  # a valid checksum over an unreadable payload: a bug, not luck
+        log.warning("table cache: %s unreadable (%s); it is recomputed", path, exc)
+        _unlink(path)
+        return None
+    try:
+        os.utime(path)  # recently used: the LRU order of evict()
+    except OSError:
+        pass
+    return arrays
+
+
+def store(key: str, arrays: dict[str, Any]) -> Path | None:
+    """Write ``arrays`` under ``key`` (temporary file + :func:`os.replace`), then :func:`evict`; None if disabled/failed."""
+    if not enabled():
+        return None
+    path = _path(key)
+    buf = io.BytesIO()
+    np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})  # type: ignore[arg-type]
+    payload = buf.getvalue()
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{time.monotonic_ns()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            f.write(_MAGIC + hashlib.sha256(payload).digest() + payload)
+        os.replace(tmp, path)
+    except OSError as exc:
+        log.warning("table cache: cannot write %s (%s); the run goes on without it", path, exc)
+        _unlink(tmp)
+        return None
+    evict()
+    return path
+
+
+def cached(key: str, compute: Callable[[], dict[str, Any]]) -> tuple[dict[str, np.ndarray], bool]:
+    """``(arrays, hit)``: the stored arrays of ``key``, else ``compute()`` stored and returned as loaded.
+
+    On a miss the arrays returned are those :func:`load` would give (same dtypes, numpy arrays),
+    so a later hit is bit-identical to this miss.
+    """
+    got = load(key)
+    if got is not None:
+        return got, True
+    arrays = {k: np.asarray(v) for k, v in compute().items()}
+    store(key, arrays)
+    return arrays, False
+
+
+def entries(directory: Path | None = None) -> list[tuple[float, int, Path]]:
+    """``(mtime, size, path)`` of the cache's entries, oldest first."""
+    d = cache_dir() if directory is None else directory
+    out = []
+    try:
+        it = list(d.iterdir())
+    except OSError:
+        return []
+    for p in it:
+        if p.suffix != SUFFIX or p.name.startswith("."):
+            continue
+        try:
+            st = p.stat()
+        except OSError:
+            continue
+        out.append((st.st_mtime, st.st_size, p))
+    out.sort(key=lambda e: (e[0], e[2].name))
+    return out
+
+
+def evict(limit: int | None = None) -> int:
+    """Delete the least recently used entries until the total is at most ``limit`` (default :func:`max_bytes`).
+
+    Also removes temporary files older than an hour (left by a killed writer). Returns the bytes freed.
+    """
+    limit = max_bytes() if limit is None else limit
+    d = cache_dir()
+    now = time.time()
+    try:
+        for p in d.glob(".*.tmp"):
+            try:
+                if now - p.stat().st_mtime > 3600:
+                    _unlink(p)
+            except OSError:
+                pass
+    except OSError:
+        pass
+    items = entries(d)
+    total = sum(size for _, size, _ in items)
+    freed = 0
+    for _, size, p in items:
+        if total <= limit:
+            break
+        if _unlink(p):
+            total -= size
+            freed += size
+    return freed
+
+
+def _unlink(path: Path) -> bool:
+    try:
+        path.unlink()
+        return True
+    except OSError:
+        return False

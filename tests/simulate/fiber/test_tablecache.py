@@ -1,0 +1,175 @@
+"""The table cache (simulate.fiber.tablecache): keys, hits, atomic concurrent writes, the size bound, corruption.
+
+Every test uses its own directory through ``FABRIC_OPTICS_CACHE_DIR`` (and the root conftest
+points the whole suite at a temporary one): the user's cache is never touched.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from simulate.fiber import tablecache as tc
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    d = tmp_path / "cache"
+    monkeypatch.setenv(tc.ENV_DIR, str(d))
+    monkeypatch.delenv(tc.ENV_DISABLE, raising=False)
+    monkeypatch.delenv(tc.ENV_MAX_BYTES, raising=False)
+    return d
+
+
+@dataclasses.dataclass(frozen=True)
+class _Medium:
+    mu_s: float
+    table: np.ndarray
+
+
+def test_the_suite_runs_on_a_private_cache():
+    home_cache = Path.home() / ".cache" / "fabric-optics"
+    assert tc.cache_dir() != home_cache
+    assert "fabric-optics-test-cache-" in os.environ[tc.ENV_DIR]
+
+
+def test_cache_dir_defaults_follow_xdg(monkeypatch, tmp_path):
+    monkeypatch.delenv(tc.ENV_DIR, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert tc.cache_dir() == tmp_path / "xdg" / "fabric-optics"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert tc.cache_dir() == Path.home() / ".cache" / "fabric-optics"
+
+
+def test_key_changes_with_every_input_and_not_with_equal_content():
+    mods = ("simulate.fiber.tablecache",)
+    base = {"medium": _Medium(0.8, np.array([1.0, 2.0])), "seed": 3, "grid": (3, 2.0)}
+    same = {"grid": (3, 2.0), "seed": 3, "medium": _Medium(0.8, np.array([1.0, 2.0]))}
+    k = tc.content_key("yarn", base, mods)
+    assert tc.content_key("yarn", same, mods) == k
+    changed = [
+        {**base, "medium": _Medium(0.8000001, np.array([1.0, 2.0]))},
+        {**base, "medium": _Medium(0.8, np.array([1.0, 2.5]))},
+        {**base, "medium": _Medium(0.8, np.array([1.0, 2.0], dtype=np.float32))},
+        {**base, "seed": 4},
+        {**base, "grid": (3, 2.0, 1)},
+    ]
+    keys = {tc.content_key("yarn", c, mods) for c in changed}
+    assert k not in keys and len(keys) == len(changed)
+    assert tc.content_key("albedo", base, mods) != k
+    assert tc.content_key("yarn", base, ("simulate.fiber.tablecache", "simulate.fiber.spectral")) != k
+
+
+def test_objects_without_a_canonical_form_are_refused():
+    with pytest.raises(TypeError, match="no canonical form"):
+        tc.content_hash({"f": object()})
+
+
+def test_hit_is_bit_identical_to_the_miss(cache):
+    rng = np.random.default_rng(1)
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"T": rng.random((3, 4, 5)), "n": np.int64(7), "f32": rng.random(6).astype(np.float32)}
+
+    miss, hit0 = tc.cached("yarn-abc", compute)
+    got, hit1 = tc.cached("yarn-abc", compute)
+    assert (hit0, hit1) == (False, True) and len(calls) == 1
+    for name in miss:
+        assert got[name].dtype == miss[name].dtype
+        assert got[name].tobytes() == miss[name].tobytes()
+
+
+def test_disabled_cache_neither_reads_nor_writes(cache, monkeypatch):
+    monkeypatch.setenv(tc.ENV_DISABLE, "1")
+    a, hit = tc.cached("yarn-x", lambda: {"a": np.ones(3)})
+    b, hit2 = tc.cached("yarn-x", lambda: {"a": np.zeros(3)})
+    assert not hit and not hit2 and b["a"].sum() == 0
+    assert not cache.exists() or not list(cache.iterdir())
+
+
+def test_a_corrupted_entry_is_detected_deleted_and_recomputed(cache):
+    tc.store("yarn-c", {"a": np.arange(1000.0)})
+    path = cache / ("yarn-c" + tc.SUFFIX)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01                       # one flipped bit in the payload
+    path.write_bytes(bytes(data))
+    assert tc.load("yarn-c") is None and not path.exists()
+    tc.store("yarn-c", {"a": np.arange(1000.0)})
+    path.write_bytes(path.read_bytes()[:100])          # a truncated file
+    got, hit = tc.cached("yarn-c", lambda: {"a": np.arange(1000.0) * 2})
+    assert not hit and got["a"][1] == 2.0
+    again, hit = tc.cached("yarn-c", lambda: {"a": np.zeros(1)})
+    assert hit and np.array_equal(again["a"], np.arange(1000.0) * 2)
+
+
+def test_eviction_keeps_the_bound_and_drops_the_least_recently_used(cache, monkeypatch):
+    size = len(tc._MAGIC) + 32
+    one = {"a": np.zeros(10_000)}                        # ~80 kB per entry
+    tc.store("yarn-0", one)
+    entry = tc.entries()[0][1]
+    assert entry > size
+    monkeypatch.setenv(tc.ENV_MAX_BYTES, str(int(3.5 * entry)))
+    for i in range(1, 3):
+        tc.store(f"yarn-{i}", one)
+        p = cache / f"yarn-{i}{tc.SUFFIX}"
+        os.utime(p, (1_000_000 + i, 1_000_000 + i))      # distinct, increasing mtimes
+    os.utime(cache / f"yarn-0{tc.SUFFIX}", (1_000_000, 1_000_000))
+    assert tc.load("yarn-0") is not None                 # used now: the most recent
+    for i in range(3, 5):
+        tc.store(f"yarn-{i}", one)
+        total = sum(s for _, s, _ in tc.entries())
+        assert total <= 3.5 * entry
+    names = {p.name for _, _, p in tc.entries()}
+    assert names == {f"yarn-{i}{tc.SUFFIX}" for i in (0, 3, 4)}   # 1 and 2 were the least recently used
+
+
+def test_bad_size_bound_is_one_clear_error(monkeypatch):
+    monkeypatch.setenv(tc.ENV_MAX_BYTES, "lots")
+    with pytest.raises(tc.CacheError, match="FABRIC_OPTICS_CACHE_MAX_BYTES"):
+        tc.max_bytes()
+
+
+_WRITER = textwrap.dedent("""
+    import sys, time
+    from pathlib import Path
+    import numpy as np
+    from simulate.fiber import tablecache as tc
+    ident = int(sys.argv[1])
+    gate = Path(sys.argv[3])
+    (gate.parent / f"ready-{ident}").touch()
+    while not gate.exists():                # start together (after both imports)
+        time.sleep(0.01)
+    for _ in range(int(sys.argv[2])):
+        tc.store("yarn-shared", {"a": np.full(300_000, float(ident)), "who": np.int64(ident)})
+        got = tc.load("yarn-shared")        # a reader between the writers: whole entries only
+        assert got is not None and np.all(got["a"] == got["who"]), "torn read"
+    print("ok")
+""")
+
+
+def test_concurrent_writers_leave_one_valid_entry(cache):
+    env = {**os.environ, tc.ENV_DIR: str(cache), "PYTHONPATH": str(Path(__file__).resolve().parents[3])}
+    gate = cache.parent / "go"
+    procs = [subprocess.Popen([sys.executable, "-c", _WRITER, str(i), "20", str(gate)], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in (1, 2)]
+    while not all((cache.parent / f"ready-{i}").exists() for i in (1, 2)) and all(p.poll() is None for p in procs):
+        time.sleep(0.01)
+    gate.touch()
+    outs = [p.communicate(timeout=120) for p in procs]
+    for p, (out, err) in zip(procs, outs):
+        assert p.returncode == 0, err
+        assert out.strip() == "ok"
+    files = sorted(os.listdir(cache))
+    assert files == ["yarn-shared" + tc.SUFFIX]          # no temporary file left, one entry
+    got = tc.load("yarn-shared")
+    assert got is not None and int(got["who"]) in (1, 2) and np.all(got["a"] == got["who"])

@@ -1,0 +1,154 @@
+"""The woven yarn table through the disk cache: a hit equals the miss bit for bit, any changed input
+misses, the medium's Mie optics are computed once per run (and not at all on a hit), the surface
+albedo once per process.
+
+Each test uses its own cache directory (``FABRIC_OPTICS_CACHE_DIR``); the root conftest keeps the
+suite off the user's cache anyway.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from simulate import fiber as F
+from simulate import woven as W
+from simulate.fiber import tablecache as tc
+from simulate.media.medium import HGMedium, MieMedium
+from simulate.woven import materials as M
+from simulate.woven import yarn as Y
+
+_SMALL = dict(w_t_nodes=(0.0, 0.5), n_v=1, n_mu=3, n_phi=4, photons_per_row=2000)
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    d = tmp_path / "cache"
+    monkeypatch.setenv(tc.ENV_DIR, str(d))
+    monkeypatch.delenv(tc.ENV_DISABLE, raising=False)
+    return d
+
+
+def _fiber(**medium):
+    return F.Fiber(10.0, 1.5, HGMedium(**{"mu_s": 0.8, "mu_a": 0.01, "g": 0.5, **medium}), 0.3, 30.0)
+
+
+def _fields(t):
+    return {name: getattr(t, name) for name in ("T", "u_T", "c_bar", "tau", "w_t_nodes")}
+
+
+def test_hit_is_bit_identical_to_the_miss_and_to_an_uncached_build(cache):
+    fib = _fiber()
+    miss = W.yarn_table(fib, [500.0, 600.0], seed=5, threads=1, **_SMALL)
+    hit = W.yarn_table(fib, [500.0, 600.0], seed=5, threads=2, **_SMALL)   # threads are not in the key
+    off = W.yarn_table(fib, [500.0, 600.0], seed=5, threads=1, cache=False, **_SMALL)
+    assert (miss.cache, hit.cache, off.cache) == ("miss", "hit", "off")
+    assert hit.photons == miss.photons
+    for name, a in _fields(miss).items():
+        assert a.dtype == getattr(hit, name).dtype
+        assert a.tobytes() == getattr(hit, name).tobytes(), name
+        assert a.tobytes() == getattr(off, name).tobytes(), name
+    assert len(tc.entries()) == 1
+
+
+@pytest.mark.parametrize("change", ["seed", "medium", "wavelengths", "photons", "grid", "radius"])
+def test_a_changed_input_misses(cache, change):
+    fib = _fiber()
+    kw = dict(_SMALL, seed=5)
+    W.yarn_table(fib, [550.0], threads=1, **kw)
+    wl = [550.0]
+    if change == "seed":
+        kw["seed"] = 6
+    elif change == "medium":
+        fib = _fiber(mu_a=0.011)
+    elif change == "wavelengths":
+        wl = [551.0]
+    elif change == "photons":
+        kw["photons_per_row"] = 2002
+    elif change == "grid":
+        kw["n_phi"] = 5
+    elif change == "radius":
+        fib = dataclasses.replace(fib, radius_um=11.0)
+    again = W.yarn_table(fib, wl, threads=1, **kw)
+    assert again.cache == "miss"
+    assert len(tc.entries()) == 2
+
+
+def test_no_cache_environment_computes_every_time(cache, monkeypatch):
+    monkeypatch.setenv(tc.ENV_DISABLE, "1")
+    t = W.yarn_table(_fiber(), [550.0], seed=5, threads=1, **_SMALL)
+    assert t.cache == "off" and not cache.exists()
+
+
+def _mie_fiber():
+    medium = MieMedium(n_host=1.5, particle_n=1.33, particle_k=1e-4, radius_um=0.3, volume_fraction=0.01,
+                       phase_table_size=64)
+    return F.Fiber(10.0, 1.5, medium, 0.3, 30.0)
+
+
+def test_mie_optics_once_per_run_and_not_on_a_hit(cache, monkeypatch):
+    calls = []
+    real = Y.spectral_optics
+
+    def counting(fiber, wl):
+        calls.append(1)
+        return real(fiber, wl)
+
+    monkeypatch.setattr(Y, "spectral_optics", counting)
+    fib = _mie_fiber()
+    grid = {k: v for k, v in _SMALL.items() if k != "photons_per_row"}
+    a, b = W.table_halves(fib, [500.0, 600.0], 1000, seed=2, threads=1, **grid)
+    assert len(calls) == 1 and (a.cache, b.cache) == ("miss", "miss")
+    assert a.T.tobytes() != b.T.tobytes()                      # independent halves
+    a2, b2 = W.table_halves(fib, [500.0, 600.0], 1000, seed=2, threads=1, **grid)
+    assert len(calls) == 1 and (a2.cache, b2.cache) == ("hit", "hit")
+    assert a2.T.tobytes() == a.T.tobytes() and b2.T.tobytes() == b.T.tobytes()
+
+
+def test_surface_albedo_once_per_process(cache, monkeypatch):
+    calls = []
+    real = M.microfacet.directional_albedo
+
+    def counting(*args, **kw):
+        calls.append(1)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(M.microfacet, "directional_albedo", counting)
+    M._albedo.cache_clear()
+    first = M.surface_albedo(0.27, 1.53)
+    first[0] = -1.0                                     # a caller's copy: the shared table is untouched
+    second = M.surface_albedo(0.27, 1.53)
+    assert len(calls) == 1 and second[0] != -1.0 and second.shape == (M.ALBEDO_NODES,)
+    M._albedo.cache_clear()                             # a new process: from the disk cache, not recomputed
+    third = M.surface_albedo(0.27, 1.53)
+    assert len(calls) == 1 and third.tobytes() == second.tobytes()
+    assert np.all(M.surface_albedo(0.0, 1.53) == 0.0)
+
+
+_WARM_PROCESS = """
+import sys
+from simulate import fiber as F
+from simulate import woven as W
+from simulate.media.medium import MieMedium
+medium = MieMedium(n_host=1.5, particle_n=1.33, particle_k=1e-4, radius_um=0.3, volume_fraction=0.01,
+                   phase_table_size=64)
+fib = F.Fiber(10.0, 1.5, medium, 0.3, 30.0)
+a, b = W.table_halves(fib, [500.0, 600.0], 1000, seed=2, threads=1, w_t_nodes=(0.0, 0.5), n_v=1, n_mu=3, n_phi=4)
+print(a.cache, b.cache, "miepython" in sys.modules)
+"""
+
+
+def test_a_warm_process_never_imports_miepython(cache):
+    """miepython's import compiles a kernel (1-2 s): a process whose tables are cached does without it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {**os.environ, tc.ENV_DIR: str(cache), "PYTHONPATH": str(Path(__file__).resolve().parents[3])}
+    outs = [subprocess.run([sys.executable, "-c", _WARM_PROCESS], env=env, capture_output=True, text=True,
+                           timeout=300, check=True).stdout.split() for _ in range(2)]
+    assert outs[0] == ["miss", "miss", "True"]
+    assert outs[1] == ["hit", "hit", "False"]
