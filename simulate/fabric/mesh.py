@@ -20,7 +20,7 @@ from simulate.fabric.weave import Weave, WeaveError
 if TYPE_CHECKING:
     import trimesh
 
-__all__ = ["WeaveMesh", "mesh"]
+__all__ = ["WeaveMesh", "grid_faces", "mesh"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,7 +152,7 @@ def _yarn_grid(weave: Weave, yarn: int, n_s: int) -> tuple[np.ndarray, ...]:
     return (P.reshape(-1, 3), N.reshape(-1, 3), T.reshape(-1, 3), S.reshape(-1), PHI.reshape(-1))
 
 
-def _grid_faces(n_s: int, sides: int, base: int) -> np.ndarray:
+def grid_faces(n_s: int, sides: int, base: int) -> np.ndarray:
     """Faces of one yarn's grid in the contract's order (two per quad, winding outward)."""
     i_s, i_phi = np.meshgrid(np.arange(n_s), np.arange(sides), indexing="ij")
     v00 = base + i_s * (sides + 1) + i_phi
@@ -190,7 +190,7 @@ def mesh(weave: Weave) -> WeaveMesh:
 
     parts = [_yarn_grid(weave, y, int(n_s[y])) for y in range(n_y)]
     vertices = np.concatenate([p[0] for p in parts])
-    faces = np.concatenate([_grid_faces(int(n_s[y]), weave.sides, int(vertex_base[y])) for y in range(n_y)])
+    faces = np.concatenate([grid_faces(int(n_s[y]), weave.sides, int(vertex_base[y])) for y in range(n_y)])
     return WeaveMesh(
         vertices=vertices,
         faces=faces.astype(np.int32),

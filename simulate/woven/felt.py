@@ -91,7 +91,7 @@ def _tube(c: np.ndarray, t: np.ndarray, radius: float, length: float, n_s: int, 
 def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FeltMesh:
     """The felt of ``spec`` (:class:`simulate.fabric.structure.StructureSpec`, ``kind = "nonwoven"``) for
     fibers of radius ``radius_um``: random fibers from the stream ``seed`` (module docstring)."""
-    from simulate.fabric.mesh import _grid_faces
+    from simulate.fabric.mesh import grid_faces
 
     R = float(radius_um)
     L = CELL_RADII * R
@@ -132,7 +132,7 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     ring = (n_s + 1) * (sides + 1)
     vertex_base = (np.arange(n_y) * ring).astype(np.int64)
     face_base = (np.arange(n_y) * 2 * n_s * sides).astype(np.int64)
-    faces = np.concatenate([_grid_faces(n_s, sides, int(vertex_base[y])) for y in range(n_y)]).astype(np.int32)
+    faces = np.concatenate([grid_faces(n_s, sides, int(vertex_base[y])) for y in range(n_y)]).astype(np.int32)
     vertices = np.concatenate(verts)
     return FeltMesh(
         vertices=vertices, faces=faces, normals=np.concatenate(norms), tangents=np.ascontiguousarray(np.concatenate(tans)),
