@@ -398,6 +398,9 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
                    help="model wavelengths for an RGB measurement (default: the config's)")
+    p.add_argument("--dye", choices=("config", "knots"), default="config",
+                   help="knots: replace the config's dye by 8 knots of log10 absorption (any colour; free them "
+                        "with --free dye), started from the measured colour (default: the config's dye)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point)")
     p.add_argument("--target-rel-err", type=_rel_err, default=0.03, dest="target_rel_err",
                    help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
@@ -421,10 +424,6 @@ def _fit_run(args: argparse.Namespace) -> int:
 
     config = _load_config(args.config)
     try:
-        free = parse_free(args.free, config)
-    except FitError as exc:
-        raise _UsageError(str(exc)) from None
-    try:
         measured = read_dataset(args.measured)
     except DatasetError as exc:
         raise _UsageError(f"MEASURED_DIR: {exc}") from None
@@ -434,6 +433,16 @@ def _fit_run(args: argparse.Namespace) -> int:
             wavelengths = np.array([float(w) for w in args.wavelengths.split(",")])
         except ValueError:
             raise _UsageError(f"--wavelengths: expected numbers separated by commas, got {args.wavelengths!r}") from None
+    if args.dye == "knots":
+        from studies.fit_start import knots_config
+
+        spectral = "channel" not in measured.table.columns
+        config = knots_config(config, wavelengths if wavelengths is not None else
+                              (measured.wavelengths_nm if spectral else config.wavelengths_nm))
+    try:
+        free = parse_free(args.free, config)
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
     try:
         problem = FitProblem(config, measured, free, method=args.method, colour_weight=args.colour_weight,
                              target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,

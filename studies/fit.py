@@ -98,6 +98,7 @@ import numpy as np
 from gonio.data.dataset import make_dataset
 
 from studies.fit_problem import GENERATOR, FitError, FitProblem, FreeParameter, default_bounds, parse_free
+from studies.fit_start import inverted_start
 from studies.paths import toml_dumps
 
 __all__ = [
@@ -192,7 +193,8 @@ def _with(x: np.ndarray, j: int, v: float) -> np.ndarray:
 
 
 def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = False, max_evaluations: int = 60,
-            starts: int = 1, progress: bool = False, noise_draws: int = _NOISE_DRAWS) -> FitResult:
+            starts: int = 1, progress: bool = False, noise_draws: int = _NOISE_DRAWS,
+            invert_start: bool = True) -> FitResult:
     """Fit ``problem`` with ``scipy.optimize.least_squares`` (module docstring); state in ``out``."""
     from scipy.optimize import least_squares
     from tqdm import tqdm
@@ -201,10 +203,13 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     span = problem.high - problem.low
     x0 = problem.start.copy()
     state = load_state(out, problem) if (resume and out is not None) else None
+    start_note = ""
     if state is not None:
         x0 = np.clip(np.array(state["x"], float), problem.low, problem.high)
         problem.photons = state.get("photons")
         log.info("resuming from the last accepted point (objective %.6g)", state["objective"])
+    elif invert_start:
+        x0, start_note = inverted_start(problem, x0)
     best: dict[str, Any] = {"F": math.inf, "x": x0.copy()}
     bar = tqdm(total=None, desc="fit", unit="eval", disable=not progress, leave=False)
 
@@ -284,7 +289,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
         "starts": len(starts_u), "status": [int(r.status) for r in results],
         "message": results[-1].message if results else "", "evaluations": problem.evaluations,
         "walks": problem.walks, "walk_seconds": problem.walk_seconds, "seconds": time.perf_counter() - t0,
-        "photons": problem.photons, "resumed": state is not None,
+        "photons": problem.photons, "resumed": state is not None, "start_note": start_note,
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),
     }
     if out is not None:

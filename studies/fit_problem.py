@@ -32,6 +32,8 @@ __all__ = ["GENERATOR", "FitError", "FreeParameter", "default_bounds", "parse_fr
 log = logging.getLogger(__name__)
 
 GENERATOR = "simulate fit"
+#: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
+KNOT_LOW, KNOT_HIGH = -4.0, 0.5
 
 
 class FitError(ValueError):
@@ -69,7 +71,9 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
     """Default bounds of a free parameter from its field and start value.
 
     Volume fraction ``[start/5, min(5 start, 0.5)]``; radii and widths ``[start/4, 4 start]``;
-    RMS slope ``[0.02, 0.5]``; dye amplitudes (``*_per_um``) ``[0, max(4 start, 0.01)]``; band
+    RMS slope ``[0.02, 0.5]``; dye amplitudes (``*_per_um``) ``[0, max(4 start, 0.01)]``; dye
+    knots (``log10_per_um[k]``) ``[-4, 0.5]`` (1e-4 to 3.2 /um: transparent to opaque over a
+    fiber's radius; widened to hold the start); band
     centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
     ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0).
     """
@@ -84,6 +88,8 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
         return start - 60.0, start + 60.0
     if leaf == "sigma_g":
         return 1.0, 3.0
+    if leaf.startswith("log10_per_um[") and path.startswith("fiber.dye"):
+        return min(KNOT_LOW, start), max(KNOT_HIGH, start)
     return start / 4.0, 4.0 * start
 
 
@@ -166,9 +172,11 @@ def _dye_ceiling(config: SimulationConfig, free: list[FreeParameter], wl: np.nda
     doc = {"fiber": {"dye": p}}
     for f in free:
         if f.kind == "dye":
-            paths.set_value(doc, f.name, f.high if f.name.endswith("_per_um") else paths.get(doc, f.name))
+            paths.set_value(doc, f.name, f.high if "_per_um" in f.name else paths.get(doc, f.name))
     if config.dye.curve == "gaussian-bands":
         top = p["baseline_per_um"] + sum(b["peak_per_um"] for b in p["bands"])
+    elif config.dye.curve == "knots":  # PCHIP does not overshoot: the largest knot is the maximum
+        top = 10.0 ** max(p["log10_per_um"])
     elif config.dye.curve == "logistic-edge":
         top = max(p["short_per_um"], p["long_per_um"])
     else:
@@ -285,9 +293,15 @@ class FitProblem:
         standard errors (the uncertainty propagation of the Monte Carlo error).
         """
         config = self.config_at(x)
-        table = self.table(config)
         wl = self.wavelengths_nm
         mu_host = config.dye(wl) if config.dye is not None else np.zeros(wl.size)
+        return self.model_at_host(config, mu_host, mc_noise)
+
+    def model_at_host(self, config: SimulationConfig, mu_host: np.ndarray,
+                      mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``beta, u_beta`` ``[G, L]`` of ``config``'s fiber with the host absorption ``mu_host[L]`` (1/um)
+        in place of its dye (read from the absorption table, no walk once the table exists)."""
+        table = self.table(config)
         R, u = table(mu_host)
         if mc_noise is not None:
             R = R + u * mc_noise

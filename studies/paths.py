@@ -146,6 +146,8 @@ def expand(alias: str, data: dict) -> list[str]:
             raise PathError(f"{alias}: the config's dye is "
                            f"{'absent' if dye is None else 'a table'}; a fit frees the coefficients of a "
                            "named smooth curve (fiber.dye.curve = gaussian-bands or logistic-edge)")
+        if dye["curve"] == "knots":  # the knots' values (their wavelengths stay put)
+            return [f"fiber.dye.log10_per_um[{k}]" for k in range(len(dye.get("log10_per_um", [])))]
         names = numeric_leaves(dye, "fiber.dye")
         if alias == "dye-peaks":
             names = [n for n in names if n.endswith("_per_um")]
