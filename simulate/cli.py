@@ -392,8 +392,9 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="fabric model to fit (default classic)")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
-    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=60, dest="max_evaluations",
-                   help="objective evaluations per start (default 60)")
+    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=400, dest="max_evaluations",
+                   help="objective evaluations of the search in all: steps and Jacobian columns of every start "
+                        "(default 400; the uncertainty propagation afterwards is counted apart)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
@@ -413,7 +414,22 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 def _is_fit_output(out: Path) -> bool:
     from studies.fit import STATE_NAME
 
-    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file()
+    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir()
+
+
+def _fit_left_behind(out: Path) -> str:
+    """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists)."""
+    from studies.fit import STATE_NAME
+    from studies.fit_state import WALKS_DIR
+
+    if (out / STATE_NAME).is_file():
+        return f"the last accepted point is in {out / STATE_NAME} (continue with --resume)"
+    walks = out / WALKS_DIR
+    runs = len(list(walks.glob("*.npz"))) if walks.is_dir() else 0
+    if runs:
+        return (f"no point was evaluated yet; {runs} finished Monte Carlo runs are in {walks} "
+                "(--resume continues the walk from them)")
+    return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 
 def _fit_run(args: argparse.Namespace) -> int:
@@ -457,8 +473,7 @@ def _fit_run(args: argparse.Namespace) -> int:
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
-        print(f"simulate fit: interrupted; the last accepted point is in {args.out / 'fit-state.json'} "
-              "(continue with --resume)", file=sys.stderr)
+        print(f"simulate fit: interrupted; {_fit_left_behind(args.out)}", file=sys.stderr)
         return 130
     doc = write_outputs(problem, result, args.out)
     for p in doc["parameters"]:

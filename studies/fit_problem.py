@@ -13,7 +13,8 @@ import json
 import logging
 import math
 import warnings
-from typing import Any
+from pathlib import Path
+from typing import Any, Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -202,6 +203,10 @@ class FitProblem:
     walk_seconds: float = 0.0
     evaluations: int = 0
     photons: dict | None = None
+    #: the fit's output directory: walks are checkpointed in it (studies.fit_state)
+    out: Path | None = None
+    #: ``progress(photons, run, runs)`` during walks (simulate.fiber.absorption.absorption_table)
+    walk_progress: Callable[[int, int, int], None] | None = None
     _tables: dict = field(default_factory=dict)
     _doc: dict = field(default_factory=dict)
 
@@ -220,13 +225,13 @@ class FitProblem:
             self.wavelengths_nm = (np.asarray(self.measured.wavelengths_nm, float) if spectral
                                    else np.asarray(self.config.wavelengths_nm, float))
         self.wavelengths_nm = np.asarray(self.wavelengths_nm, float)
+        self.notes: list[str] = []
+        self._drop_grazing()
         self.geometries = _model_geometries(self.measured)
         self._residual: Any = None  # compare.residual.ModelResidual, built on first use
         g = self.geometries
         self.w_i = fab.directions_deg(g["theta_i"].to_numpy(), g["phi_i"].to_numpy())
         self.w_o = fab.directions_deg(g["theta_o"].to_numpy(), g["phi_o"].to_numpy())
-        if np.any(g["theta_i"].to_numpy() >= 90.0):
-            raise FitError("the measurement has incidences at or beyond 90 deg, which no fabric model evaluates")
         if self.method == "summation":
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -235,6 +240,27 @@ class FitProblem:
         self.low = np.array([p.low for p in self.free])
         self.high = np.array([p.high for p in self.free])
         self.start = np.array([p.start for p in self.free])
+
+    def _drop_grazing(self) -> None:
+        """The grazing rule of ``gonio import`` (:data:`gonio.data.formats.GRAZING_DEG`): rows at
+        ``theta_i >= 89`` deg are left out of the fit with a note (a file imported with
+        ``--keep-grazing`` keeps them; no fabric model is meant for them: the projected area
+        vanishes, Cook-Torrance leaves its domain); a measurement with nothing else is refused."""
+        from gonio.data.dataset import Dataset
+        from gonio.data.formats import GRAZING_DEG
+
+        t = self.measured.table
+        grazing = t["theta_i"].to_numpy(float) >= GRAZING_DEG
+        if not grazing.any():
+            return
+        if grazing.all():
+            raise FitError(f"every incidence of the measurement is >= {GRAZING_DEG:g} deg (near grazing), where "
+                           "no fabric model is meant to be fitted")
+        angles = ", ".join(f"{a:.10g}" for a in np.unique(t["theta_i"].to_numpy(float)[grazing]))
+        self.notes.append(f"{int(grazing.sum())} rows of the measurement at incidence >= {GRAZING_DEG:g} deg "
+                          f"(theta_i {angles}) are left out of the fit (near grazing: the rule of gonio import)")
+        log.warning("%s", self.notes[-1])
+        self.measured = Dataset(t[~grazing].reset_index(drop=True), self.measured.meta, self.measured.path)
 
     # -- parameters and configs ------------------------------------------------------------
 
@@ -269,9 +295,17 @@ class FitProblem:
             w_in = self.pairs.w_in
             outputs = fib.point_outputs(self.pairs.w_out, nodye.half_width)
             route = self.config.method
-        table = absorption_table(nodye, w_in, outputs, wl, absorption_nodes(self.nu_max, self.nodes), method=route,
+        nodes = absorption_nodes(self.nu_max, self.nodes)
+        cache = None
+        if self.out is not None:
+            from studies.fit_state import WalkCheckpoint
+
+            cache = WalkCheckpoint(self.out, self.identity(), walk, nodes, self.photons)
+        table = absorption_table(nodye, w_in, outputs, wl, nodes, method=route,
                                  target_rel_err=self.target_rel_err, photons=self.photons, seed=int(self.seed or 0),
-                                 threads=self.threads)
+                                 threads=self.threads, progress=self.walk_progress, cache=cache)
+        if cache is not None and cache.found:
+            log.info("walk %d: %d runs read from the checkpoint %s", self.walks + 1, cache.found, cache.dir)
         if self.photons is None:
             self.photons = dict(table.photons)
         self.walks += 1

@@ -30,7 +30,6 @@ knots). The grid costs 40 table reads; the solve a few hundred cheap evaluations
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import re

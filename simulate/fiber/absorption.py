@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, Protocol
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -47,7 +47,7 @@ from simulate.fiber.spectral import direction_keys, group_walk, run_seed, spectr
 from simulate.montecarlo.accuracy import check_budget
 from simulate.montecarlo.transport import ParameterError, SpectralTargets, make_control
 
-__all__ = ["AbsorptionTable", "DEFAULT_NODES", "absorption_nodes", "absorption_table"]
+__all__ = ["AbsorptionTable", "RunCache", "DEFAULT_NODES", "absorption_nodes", "absorption_table"]
 
 #: Host-absorption nodes per wavelength (see the module docstring).
 DEFAULT_NODES = 16
@@ -71,6 +71,14 @@ def absorption_nodes(nu_max: float, count: int = DEFAULT_NODES) -> np.ndarray:
     nodes = np.exp(np.linspace(math.log(NU_0), math.log(nu_max + NU_0), count)) - NU_0
     nodes[0] = 0.0
     return nodes
+
+
+class RunCache(Protocol):
+    """Finished (direction, group) runs of a table by key ``"d:gi"`` (:func:`absorption_table`)."""
+
+    def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int] | None: ...
+
+    def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int) -> None: ...
 
 
 @dataclass
@@ -159,6 +167,8 @@ def absorption_table(
     photons: dict | None = None,
     seed: int = 0,
     threads: int | None = None,
+    progress: Callable[[int, int, int], None] | None = None,
+    cache: RunCache | None = None,
 ) -> AbsorptionTable:
     """White Monte Carlo of the volume term with the host absorption tabulated at ``nodes``.
 
@@ -183,6 +193,13 @@ def absorption_table(
         the same streams are walked again, no accuracy control (common random numbers).
     seed, threads
         As :func:`simulate.fiber.volume_brdf` (the same seeds per direction and group).
+    progress : callable, optional
+        ``progress(photons, run, runs)`` after every batch round of every (direction, group) run
+        (``photons`` walked so far in this table, ``run`` the runs finished, of ``runs``), and once
+        with 0 photons before the first: a display moves from the first photons on.
+    cache : RunCache, optional
+        Finished runs by key ``"d:gi"``: a run found there is not walked again, every walked run is
+        put there (the fit's walk checkpoint: an interrupted walk resumes at its next run).
     """
     if method not in ("nee", "beam"):
         raise ParameterError(f"absorption table: method must be nee or beam, got {method!r}")
@@ -203,21 +220,38 @@ def absorption_table(
     keys = direction_keys(w_in)
     used: dict = {}
     seconds = 0.0
+    runs = len(keys) * len(groups)
+    walked = [0]
+    if progress is not None:
+        progress(0, 0, runs)
     for d, (key, rows) in enumerate(keys.items()):
         win = np.array(key)
         for gi, group in enumerate(groups):
-            medium, walk_phase, _ = group_walk(fiber, optics, group, white=True)
-            targets = _targets(optics, group, nodes, walk_phase)
-            stream = run_seed(seed, d, gi)  # the rule of volume_brdf: the same streams
-            fixed = None if photons is None else photons.get(f"{d}:{gi}")
-            if fixed is None:
-                target, cap = target_rel_err, max_photons
-            else:  # a target never met and a cap of exactly the recorded photons: the same batches
-                target, cap = 1e-12, int(fixed)
-            value, u, run = beam_route(fiber, win, outputs[rows], medium, walk_phase, targets, method,
-                                       control, target, cap, stream, threads, None)
-            used[f"{d}:{gi}"] = int(run.photons)
-            seconds += run.seconds
+            run_key = f"{d}:{gi}"
+            found = None if cache is None else cache.get(run_key)
+            if found is not None:
+                value, u, used[run_key] = found[0], found[1], int(found[2])
+            else:
+                medium, walk_phase, _ = group_walk(fiber, optics, group, white=True)
+                targets = _targets(optics, group, nodes, walk_phase)
+                stream = run_seed(seed, d, gi)  # the rule of volume_brdf: the same streams
+                fixed = None if photons is None else photons.get(run_key)
+                if fixed is None:
+                    target, cap = target_rel_err, max_photons
+                else:  # a target never met and a cap of exactly the recorded photons: the same batches
+                    target, cap = 1e-12, int(fixed)
+                done = d * len(groups) + gi
+                report = None if progress is None else (
+                    lambda n, rel, done=done: progress(walked[0] + n, done, runs))  # type: ignore[misc]
+                value, u, run = beam_route(fiber, win, outputs[rows], medium, walk_phase, targets, method,
+                                           control, target, cap, stream, threads, report)
+                used[run_key] = int(run.photons)
+                walked[0] += int(run.photons)
+                seconds += run.seconds
+                if cache is not None:
+                    cache.put(run_key, value, u, int(run.photons))
+            if progress is not None:
+                progress(walked[0], d * len(groups) + gi + 1, runs)
             R[np.ix_(np.asarray(rows), group)] = value.reshape(len(rows), group.size, K)
             u_R[np.ix_(np.asarray(rows), group)] = u.reshape(len(rows), group.size, K)
     return AbsorptionTable(R=R, u_R=u_R, nodes=nodes, wavelengths_nm=wl, photons=used, seconds=seconds)
