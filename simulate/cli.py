@@ -487,6 +487,7 @@ def _fit_run(args: argparse.Namespace) -> int:
         print(f"warning: {w}", file=sys.stderr)
     info = doc["info"]
     print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
+          f"{info['reweighted']} re-weighted passes, "
           f"{info['seconds']:.1f} s)")
     return 0
 

@@ -56,21 +56,21 @@ class WalkCheckpoint:
         digest = hashlib.sha256(json.dumps([self._base, key, rule]).encode()).hexdigest()[:24]
         return self.dir / f"{digest}.npz"
 
-    def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int] | None:
+    def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int, float] | None:
         path = self._path(key)
         try:
             with np.load(path) as z:
-                found = (z["value"].copy(), z["u"].copy(), int(z["photons"]))
+                found = (z["value"].copy(), z["u"].copy(), int(z["photons"]), float(z["scatterings"]))
         except (OSError, ValueError, KeyError):
             return None
         self.found += 1
         return found
 
-    def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int) -> None:
+    def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
         self.dir.mkdir(parents=True, exist_ok=True)
         path = self._path(key)
         tmp = path.with_name(f".{path.stem}.tmp.npz")
-        np.savez(tmp, value=value, u=u, photons=np.int64(photons))
+        np.savez(tmp, value=value, u=u, photons=np.int64(photons), scatterings=np.float64(scatterings))
         os.replace(tmp, path)
 
     def count(self) -> int:
