@@ -1,6 +1,7 @@
 r"""``simulate fit``: fit named config parameters of a fabric model to a measurement (the inverse problem).
 
-``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
+``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]
+[--dye knots] [--max-evaluations N] [--resume]``
 
 Parameters
 ----------
@@ -10,9 +11,17 @@ indices (``particles.volume_fraction``, ``particles.size.median_radius_um``,
 alias: ``volume_fraction``, ``radius`` (the particle radius or median radius), ``rms_slope``,
 ``dye`` (every coefficient of the config's smooth dye curve: baseline, band centres, widths and
 peaks, or the logistic edge's four), ``dye-peaks`` (only the dye's amplitudes: baseline and peaks,
-or short/long). Bounds default per kind (:func:`default_bounds`); explicit ``=LOW:HIGH`` wins.
-The dye must be a named smooth curve (``gaussian-bands``/``logistic-edge``): a few coefficients
-describe a smooth spectrum, a free table would be an ill-posed fit of 30 values.
+or short/long; for a ``knots`` dye both name its knot values ``fiber.dye.log10_per_um[k]``). Bounds
+default per kind (:func:`default_bounds`); explicit ``=LOW:HIGH`` wins. The dye must be a named
+curve (``knots``/``gaussian-bands``/``logistic-edge``): a few coefficients describe a smooth
+spectrum, a free table would be an ill-posed fit of 30 values.
+
+A dye of any colour: ``--dye knots`` replaces the config's dye by 8 knots of log10 absorption
+spanning the model wavelengths (:func:`studies.fit_start.knots_config`); whenever knots are free
+the search starts from the knots inverted from the measured colour through the model's own
+absorption table (:func:`studies.fit_start.inverted_start`: the start has the measured hue and
+saturation at the colour geometry), not from the config's. Two Gaussian bands started from red
+cotton could not turn green (the felt: hue -0.044 turn, ds -0.16 left after the fit).
 
 Objective (weights)
 -------------------

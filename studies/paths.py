@@ -1,8 +1,10 @@
 """Dotted TOML paths into a config document, and the TOML writer (``simulate fit --free``, ``sweep --param``).
 
 A path names one field of a config's TOML document by its tables and list indices
-(``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``); an alias names several
-(:func:`expand`: ``volume_fraction``, ``radius``, ``rms_slope``, ``dye``, ``dye-peaks``).
+(``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``, ``fiber.dye.log10_per_um[3]``,
+``structure.twist_deg`` once a config has that table: any numeric field is a path); an alias names
+several (:func:`expand`: ``volume_fraction``, ``radius``, ``rms_slope``, ``dye``, ``dye-peaks``; for a
+``knots`` dye, ``dye`` and ``dye-peaks`` are its knot values).
 :func:`toml_dumps` writes a document back (what ``tomllib`` read), so a changed document can be
 parsed by :func:`simulate.config.parse_config` exactly as a file would be.
 """
