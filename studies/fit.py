@@ -430,10 +430,13 @@ def _colour_left_off(problem: FitProblem, x: np.ndarray) -> list[str]:
     dh_max, ds_max = COLOUR_TOLERANCE
     if abs(fig.dh) <= dh_max and abs(fig.ds) <= ds_max:
         return []
+    if any(p.kind == "dye" for p in problem.free):
+        why = ("with the dye free the objective traded colour for curve error (a larger --colour-weight trades "
+               "back; the knots' inverted start has the measured colour) or the model cannot reach it")
+    else:
+        why = "the dye is fixed: free it (--free dye; --dye knots for any colour)"
     return [f"colour left off: the fitted model's hue differs by {fig.dh:+.3f} turn and its saturation by "
-            f"{fig.ds:+.3f} from the measurement (tolerance |dh| <= {dh_max} turn, |ds| <= {ds_max}); the free "
-            "parameters cannot reach the measured colour (free the dye: --free dye, with --dye knots for any "
-            "colour)"]
+            f"{fig.ds:+.3f} from the measurement (tolerance |dh| <= {dh_max} turn, |ds| <= {ds_max}); {why}"]
 
 
 def _identifiability(problem: FitProblem, J: np.ndarray, u: np.ndarray) -> list[str]:
