@@ -73,6 +73,12 @@ def read_sweep(path: str | Path) -> dict:
           and all(isinstance(q, dict) and {"dir", "label", "values"} <= set(q) for q in doc["points"]))
     if not ok:
         raise CompareError(f"{p}: not a sweep description (parameters and points expected)")
+    for q in doc["points"]:     # a point's dir is points/<one name> inside the sweep (a crafted ../.. is refused)
+        parts = q["dir"].split("/") if isinstance(q["dir"], str) else []
+        inside = (len(parts) == 2 and parts[0] == "points" and parts[1] not in ("", ".", "..")
+                  and (Path(path) / q["dir"]).resolve().is_relative_to((Path(path) / "points").resolve()))
+        if not inside:
+            raise CompareError(f"{p}: point dir {q['dir']!r} is not points/<name> inside the sweep directory")
     return doc
 
 

@@ -13,7 +13,11 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
     a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
-    non-empty DIR is overwritten only if it holds a previous ``simulate fabric`` output.
+    non-empty DIR is replaced only if it holds a previous ``simulate fabric`` output and nothing
+    else, as one folder (:mod:`simulate.outdir`: a kill or a full disk leaves the old output).
+    Every run-making command (fabric, fiber, fit, sweep) first estimates its cost
+    (:mod:`simulate.budget`): refused beyond a day, announced beyond ten minutes. ``--threads 0``
+    means all threads numba allows, as ``threads = 0`` in a config.
 ``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
     the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar); its target error
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
@@ -141,8 +145,6 @@ def _json_safe(obj: Any) -> Any:
 
 
 def _slab_arguments(p: argparse.ArgumentParser) -> None:
-    import numba
-
     p.add_argument("--mua", type=_nonneg_float, required=True, help="absorption coefficient mu_a (1/length)")
     p.add_argument("--mus", type=_nonneg_float, required=True, help="scattering coefficient mu_s (1/length)")
     p.add_argument("--g", type=_g_float, default=0.0, help="Henyey-Greenstein anisotropy g (default 0)")
@@ -151,8 +153,8 @@ def _slab_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--photons", type=_int_in(1, 10**12), default=1_000_000, help="photons (default 1e6)")
     p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="random seed (default 0)")
     p.add_argument(
-        "--threads", type=_int_in(1, numba.config.NUMBA_NUM_THREADS), default=None,
-        help="threads (default: all); results do not depend on it",
+        "--threads", type=_threads_arg, default=None,
+        help="threads (default or 0: all); results do not depend on it",
     )
     p.add_argument("--theta-i", type=_angle_deg, default=0.0, dest="theta_i", help="incidence angle in degrees [0, 90)")
     p.add_argument("--max-events", type=_int_in(1, 2**52), default=None, help="event cap per photon (a guard)")
@@ -164,7 +166,7 @@ def _slab_run(args: argparse.Namespace) -> int:
 
     result = run_slab(
         args.mua, args.mus, g=args.g, n=args.n, thickness=args.thickness, photons=args.photons,
-        seed=args.seed, theta_i_deg=args.theta_i, threads=args.threads,
+        seed=args.seed, theta_i_deg=args.theta_i, threads=args.threads or None,
         max_events=args.max_events or DEFAULT_MAX_EVENTS,
     )
     if args.json:
@@ -220,9 +222,10 @@ def _rel_err(text: str) -> float:
 
 
 def _threads_arg(text: str) -> int:
+    """``--threads N``: 1..NUMBA_NUM_THREADS, or 0 = all that numba allows, as ``threads = 0`` in a config."""
     import numba
 
-    return _int_in(1, numba.config.NUMBA_NUM_THREADS)(text)
+    return _int_in(0, numba.config.NUMBA_NUM_THREADS)(text)
 
 
 def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "the config's") -> None:
@@ -233,7 +236,7 @@ def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "t
                    help="photon budget (default: the config's; none)")
     p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
     p.add_argument("--threads", type=_threads_arg, default=None,
-                   help="threads (default: the config's, else all); results do not depend on it")
+                   help="threads, 0 = all (default: the config's, where 0 = all); results do not depend on it")
     p.add_argument("--no-progress", action="store_true", dest="no_progress",
                    help="no progress bar (it is shown only on a terminal anyway)")
 
@@ -259,14 +262,45 @@ def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> N
 
 
 def _is_fabric_output(out: Path) -> bool:
+    """A previous ``simulate fabric`` output: its ``meta.json`` says so. Also recognised: what a
+    run of an older version killed between its two renames left, ``radiance.csv`` beside the
+    ``.meta.json.XXXXXXXX.tmp`` that says so (that version wrote file by file)."""
     from simulate.virtual import GENERATOR
 
+    candidates = [out / "meta.json"]
+    if not candidates[0].exists() and (out / "radiance.csv").is_file():
+        candidates = sorted(out.glob(".meta.json.*.tmp"))
+    for path in candidates:
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if (isinstance(meta, dict) and meta.get("kind") == "simulated"
+                and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR):
+            return True
+    return False
+
+
+def _prepare_fabric_out(out: Path) -> None:
+    """:func:`_prepare_out` for ``simulate fabric``, whose output replaces ``out`` as one folder
+    (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a previous output
+    holding anything besides the dataset's files is refused (the swap would delete it)."""
+    from gonio.data.dataset import CSV_NAME, META_NAME, remove_stale_temp_files
+    from simulate.outdir import recover
+
     try:
-        meta = json.loads((out / "meta.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    return (isinstance(meta, dict) and meta.get("kind") == "simulated"
-            and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR)
+        recover(out)
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot clean up after an earlier killed run ({exc.strerror})") from None
+    _prepare_out(out, _is_fabric_output, "simulate fabric")
+    try:
+        remove_stale_temp_files(out)         # a killed per-file write of an older version
+        others = sorted(e.name for e in out.iterdir() if e.name not in (CSV_NAME, META_NAME))
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot read the directory ({exc.strerror})") from None
+    if others:
+        raise _UsageError(f"--out {out}: holds {others[0]!r} besides a dataset; the new output replaces the "
+                          f"whole directory, so move that elsewhere or choose a new directory")
 
 
 def _is_fiber_output(out: Path) -> bool:
@@ -286,6 +320,26 @@ def _load_config(text: str):
         return load_config(text)
     except ConfigError as exc:
         raise _UsageError(str(exc)) from None
+
+
+def _check_cost(command: str, config: Any, wavelengths: Any, target: float | None, max_photons: int | None,
+                runs: int = 1) -> None:
+    """Refuse a run estimated beyond a day, warn beyond ten minutes (:mod:`simulate.budget`)."""
+    from simulate.budget import BudgetError, check_cost
+
+    target = config.target_rel_err if target is None else target
+    max_photons = config.max_photons if max_photons is None else max_photons
+    try:
+        warning = check_cost(config, wavelengths, target, max_photons, runs=runs)
+    except BudgetError as exc:
+        raise _UsageError(str(exc)) from None
+    if warning:
+        print(f"simulate {command}: warning: {warning}", file=sys.stderr)
+
+
+def _write_failed(out: Path, exc: OSError) -> str:
+    """One line for an output that could not be written (a full disk): the file and the reason."""
+    return f"{exc.filename or out}: cannot write ({exc.strerror or exc})"
 
 
 def _progress(args: argparse.Namespace) -> bool:
@@ -311,9 +365,9 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fabric_run(args: argparse.Namespace) -> int:
-    from gonio.data.dataset import write_dataset
     from gonio.acquisition.plan import PlanError, load_plan
     from simulate.fabric import FabricError
+    from simulate.outdir import OutputError, write_dataset_dir
     from simulate.virtual import fabric_dataset
 
     config = _load_config(args.config)
@@ -321,7 +375,8 @@ def _fabric_run(args: argparse.Namespace) -> int:
         plan = load_plan(args.geometry)
     except PlanError as exc:
         raise _UsageError(f"--geometry: {exc}") from None
-    _prepare_out(args.out, _is_fabric_output, "simulate fabric")
+    _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
+    _prepare_fabric_out(args.out)
     try:
         dataset = fabric_dataset(config, plan, args.method, target_rel_err=args.target_rel_err,
                                  seed=args.seed, threads=args.threads, max_photons=args.max_photons,
@@ -329,7 +384,10 @@ def _fabric_run(args: argparse.Namespace) -> int:
                                  max_seconds=args.max_seconds)
     except FabricError as exc:
         raise _UsageError(str(exc)) from None
-    write_dataset(dataset, args.out)
+    try:
+        write_dataset_dir(dataset, args.out)
+    except OutputError as exc:
+        raise _UsageError(str(exc)) from None
     prov = dataset.meta["provenance"]
     err_text = f"{prov['rel_err']:.2%} (rms of u / each direction's spectral peak)"
     print(f"wrote {args.out} ({len(dataset)} rows: {prov['geometries']} geometries x "
@@ -350,25 +408,47 @@ def _fiber_arguments(p: argparse.ArgumentParser) -> None:
     _run_settings_arguments(p, "0.05, a coarse table")
 
 
+#: Bound on a fiber table's size, direction pairs x wavelengths (``simulate fiber``): 10 million
+#: values, about 0.6 GiB for the table's five arrays and the Monte Carlo tallies behind them (~64
+#: bytes a value). A 5 deg x 10 deg grid at 33 wavelengths has 7.7 million; the default 432 pairs x 33.
+MAX_TABLE_VALUES = 10_000_000
+
+
+def _check_table_size(step_deg: float, phi_step_deg: float, n_wavelengths: int) -> None:
+    """Refuse a table grid over :data:`MAX_TABLE_VALUES` from its step sizes alone (nothing allocated)."""
+    pairs = (180.0 / step_deg) * (90.0 / phi_step_deg + 1) * (90.0 / step_deg) * (360.0 / phi_step_deg)
+    values = pairs * n_wavelengths
+    if values > MAX_TABLE_VALUES:
+        raise _UsageError(f"--step-deg {step_deg:g} / --phi-step-deg {phi_step_deg:g}: the table would have "
+                          f"{pairs:,.0f} direction pairs x {n_wavelengths} wavelengths = {values:.3g} values "
+                          f"(about {values * 64 / 2**30:,.3g} GiB); at most {MAX_TABLE_VALUES:,} (about "
+                          f"{MAX_TABLE_VALUES * 64 / 2**30:.1f} GiB): use a coarser step")
+
+
 def _fiber_run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from simulate.fiber.tables import TableGrid, fiber_table, write_fiber_table
+    from simulate.fiber.tables import DEFAULT_TABLE_REL_ERR, TableGrid, fiber_table, write_fiber_table
 
     config = _load_config(args.config)
+    wavelengths = np.asarray(config.wavelengths_nm, float)
+    _check_table_size(args.step_deg, args.phi_step_deg, wavelengths.size)
     try:
         grid = TableGrid(args.step_deg, args.phi_step_deg)
     except ValueError as exc:
         raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
+    _check_cost("fiber", config, wavelengths, args.target_rel_err or DEFAULT_TABLE_REL_ERR, args.max_photons)
     _prepare_out(args.out, _is_fiber_output, "simulate fiber")
-    wavelengths = np.asarray(config.wavelengths_nm, float)
     arrays, sidecar = fiber_table(
         config.fiber(wavelengths), wavelengths, grid, method=args.method or config.method,
         target_rel_err=args.target_rel_err, seed=config.seed if args.seed is None else args.seed,
-        threads=config.threads if args.threads is None else args.threads,
+        threads=config.threads if args.threads is None else (args.threads or None),
         max_photons=config.max_photons if args.max_photons is None else args.max_photons,
         progress=_progress(args), config_provenance=config.provenance())
-    write_fiber_table(args.out, arrays, sidecar)
+    try:
+        write_fiber_table(args.out, arrays, sidecar)
+    except OSError as exc:
+        raise _UsageError(_write_failed(args.out, exc)) from None
     prov = sidecar["provenance"]
     print(f"wrote {args.out} ({math.prod(grid.shape)} direction pairs x {arrays['wavelength_nm'].size} "
           f"wavelengths; {prov['method']}; {prov['photons']} photons in {prov['seconds']:.1f} s)")
@@ -407,7 +487,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
                         "(default 0.03)")
     p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
-    p.add_argument("--threads", type=_threads_arg, default=None, help="threads; results do not depend on it")
+    p.add_argument("--threads", type=_threads_arg, default=None, help="threads, 0 = all (default: all); results do not depend on it")
     p.add_argument("--no-progress", action="store_true", dest="no_progress", help="no progress bar")
 
 
@@ -461,8 +541,12 @@ def _fit_run(args: argparse.Namespace) -> int:
         raise _UsageError(str(exc)) from None
     try:
         problem = FitProblem(config, measured, free, method=args.method, colour_weight=args.colour_weight,
-                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
+                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
                              wavelengths_nm=wavelengths)
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    _check_cost("fit", config, problem.wavelengths_nm, args.target_rel_err, None)
+    try:
         problem.precheck()
     except FitError as exc:
         raise _UsageError(str(exc)) from None
@@ -475,7 +559,10 @@ def _fit_run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"simulate fit: interrupted; {_fit_left_behind(args.out)}", file=sys.stderr)
         return 130
-    doc = write_outputs(problem, result, args.out)
+    try:
+        doc = write_outputs(problem, result, args.out)
+    except OSError as exc:
+        raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
     for p in doc["parameters"]:
         print(f"{p['name']} = {p['value']:.6g} +- {p['u']:.2g}   (start {p['start']:.6g}, bounds "
               f"[{p['low']:g}, {p['high']:g}])")
@@ -580,7 +667,7 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=_int_in(1, 1024), default=None,
                    help="local cluster: worker processes, one thread each (default: the number of CPUs)")
     p.add_argument("--threads", type=_threads_arg, default=1,
-                   help="threads of each task's Monte Carlo (default 1: the workers are the parallelism); "
+                   help="threads of each task's Monte Carlo, 0 = all (default 1: the workers are the parallelism); "
                         "results do not depend on it")
     p.add_argument("--retries", type=_int_in(0, 100), default=2,
                    help="retries of a failing task before it is reported (default 2)")
@@ -619,6 +706,17 @@ def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
         raise _UsageError(str(exc)) from None
 
 
+def _check_sweep_cost(args: argparse.Namespace, spec: Any) -> None:
+    """:func:`_check_cost` of the costliest of up to 9 evenly spaced points, times the points per worker."""
+    from simulate.budget import estimate_cost
+
+    wl, target = spec.wavelengths_nm, float(spec.target_rel_err)
+    sample = spec.points[::max(1, len(spec.points) // 8)]
+    worst = max(sample, key=lambda p: estimate_cost(p.config, wl, target, spec.max_photons).seconds)
+    workers = 1 if args.scheduler else (args.workers or os.cpu_count() or 1)
+    _check_cost("sweep", worst.config, wl, target, spec.max_photons, runs=max(1, -(-len(spec.points) // workers)))
+
+
 def _sweep_run(args: argparse.Namespace) -> int:
     from gonio.acquisition.plan import PlanError, load_plan
     from gonio.data.dataset import DatasetError, read_dataset
@@ -635,6 +733,7 @@ def _sweep_run(args: argparse.Namespace) -> int:
                          measurable_only=args.measurable_only, threads=args.threads)
     except SweepError as exc:
         raise _UsageError(str(exc)) from None
+    _check_sweep_cost(args, spec)
     measured = None
     if args.measured is not None:
         try:

@@ -60,14 +60,21 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     width_um = 200                     # > 0   (default 250; <= spacing_um, checked by the weave)
     height_um = 80                     # > 0   (default 100)
     crimp = 1.0                        # (0, 1] (default 1)
-    points_per_span = 8                # mesh intervals per crossing interval, >= 1 (default 8)
-    sides = 16                         # mesh intervals around the yarn section, >= 3 (default 16)
+    points_per_span = 16               # mesh intervals per crossing interval, >= 1 (default 16)
+    sides = 48                         # mesh intervals around the yarn section, >= 3 (default 48)
+                                       # the mesh: 4 sides points_per_span n_warp n_weft <= 2e6
+                                       #   triangles (simulate.fabric.weave.MAX_TRIANGLES)
 
     [method]                           # optional, defaults shown
     method = "nee"                     # fiber route: "nee" | "beam" | "bssrdf"
     target_rel_err = 0.01              # target relative standard error, (0, 1)
     max_photons = 0                    # photon budget; 0 = no cap
     threads = 0                        # 0 = all available
+
+    [structure]                        # optional (issue 19): the summation over the fabric's visible fibers
+    kind = "woven"                     #   in all their orientations; fields and defaults in
+    warp_twist_deg = 24                #   simulate.fabric.structure.structure_from_table. Absent: the
+                                       #   summation is the carpet of top cells (docs/physics.md 6)
 
     [wavelengths]                      # optional: the wavelengths of `simulate fiber` tables
     start_nm = 390                     # (`simulate fabric` uses the plan's wavelengths)
@@ -112,6 +119,16 @@ METHODS = ("nee", "beam", "bssrdf")
 DYE_CURVES = ("gaussian-bands", "logistic-edge", "knots")
 #: Range of a knot of the ``knots`` dye curve: log10 of the host absorption in 1/um.
 KNOT_LOG10_RANGE = (-6.0, 2.0)
+#: The keys of the schema's tables (a key outside them is refused, with a suggestion, before any
+#: field is read: :class:`simulate.config_table.Table`).
+_FIELDS: dict[str, tuple[str, ...]] = {
+    "fiber": ("radius_um", "n_host", "cell_width_deg", "dye"),
+    "fiber.dye": ("wavelength_nm", "mu_a_per_um", "curve", "baseline_per_um", "bands", "short_per_um",
+                  "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
+    "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
+    "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
+    "method": ("method", "target_rel_err", "max_photons", "threads"),
+}
 
 
 def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = None,
@@ -220,6 +237,8 @@ class SimulationConfig:
     max_photons: int | None
     threads: int | None
     wavelengths_nm: tuple[float, ...] = field(default=_DEFAULT_WAVELENGTHS)
+    # --- issue 19 (simulate.fabric.structure): the [structure] section, None when absent
+    structure: Any = None
 
     def medium(self, wavelengths_nm: Any | None = None) -> MieMedium | HGMedium:
         """The scattering medium; the dye spectrum is sampled at ``wavelengths_nm`` (exact there)."""
@@ -355,7 +374,7 @@ def _particles(t: Table) -> ParticleSpec:
     if t.has("radius_um"):
         radius = t.number("radius_um", gt=0.0)
     else:
-        st = t.sub("size")
+        st = t.sub("size", fields=("median_radius_um", "sigma_g"))
         assert st is not None
         median = st.number("median_radius_um", required=True, gt=0.0)
         sigma_g = st.number("sigma_g", required=True, ge=1.0, le=5.0)
@@ -446,6 +465,9 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         raise ConfigError(f"{file}: not UTF-8 text; a config is a TOML file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{file}: invalid TOML: {exc}") from None
+    except RecursionError:      # tomllib recurses once per nested array or inline table
+        raise ConfigError(f"{file}: arrays or inline tables nested too deeply for a config (the schema "
+                          f"nests at most 4 levels)") from None
     top = Table(data, "", file)
     name = top.string("name", Path(path).stem) or Path(path).stem
     description = top.raw("description", "")
@@ -453,12 +475,12 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         raise top.fail("description", f"must be a string, got {show(description)}")
     seed = top.integer("seed", 0, le=2**31 - 1)   # the Monte Carlo derives 64-bit stream seeds from it
 
-    fib = top.sub("fiber", required=True)
+    fib = top.sub("fiber", required=True, fields=_FIELDS["fiber"])
     assert fib is not None
     radius = fib.number("radius_um", required=True, gt=0.0, le=1e4)
     n_host = fib.number("n_host", required=True, ge=1.0, le=4.0)
     cell = fib.number("cell_width_deg", 10.0, gt=0.0, le=180.0)
-    dye_t = fib.sub("dye")
+    dye_t = fib.sub("dye", fields=_FIELDS["fiber.dye"])
     dye = _dye(dye_t) if dye_t is not None else None
     fib.done()
 
@@ -467,11 +489,11 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
                                     "[medium] for a direct Henyey-Greenstein medium)")
     particles = hg = None
     if top.has("particles"):
-        pt = top.sub("particles")
+        pt = top.sub("particles", fields=_FIELDS["particles"])
         assert pt is not None
         particles = _particles(pt)
     else:
-        mt = top.sub("medium")
+        mt = top.sub("medium", fields=("mu_s", "mu_a", "g"))
         assert mt is not None
         hg = (mt.number("mu_s", required=True, ge=0.0), mt.number("mu_a", required=True, ge=0.0),
               mt.number("g", required=True, gt=-1.0, lt=1.0))
@@ -480,23 +502,32 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
             raise fib.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total "
                                   "absorption of a Henyey-Greenstein medium)")
 
-    surf = top.sub("surface", required=True)
+    surf = top.sub("surface", required=True, fields=("rms_slope",))
     assert surf is not None
     rms_slope = surf.number("rms_slope", required=True, gt=0.0, le=1.0)
     surf.done()
 
-    weave_t = top.sub("weave")
+    weave_t = top.sub("weave", fields=_FIELDS["weave"])
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method") or Table({}, "method", file)
+    mt = top.sub("method", fields=_FIELDS["method"]) or Table({}, "method", file)
     method = mt.string("method", "nee", choices=METHODS)
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
     threads = mt.integer("threads", 0, ge=0, le=1024)
     mt.done()
 
-    wl_t = top.sub("wavelengths")
+    wl_t = top.sub("wavelengths", fields=("start_nm", "stop_nm", "step_nm", "list_nm"))
     wavelengths = _wavelengths(wl_t) if wl_t is not None else _DEFAULT_WAVELENGTHS
+    # --- issue 19: [structure] (simulate.fabric.structure validates it, naming the field)
+    st_t = top.sub("structure")
+    if st_t is not None:
+        from simulate.fabric.structure import structure_from_table
+
+        structure = structure_from_table(st_t)
+    else:
+        structure = None
+    # --- end issue 19
     top.done()
 
     return SimulationConfig(
@@ -504,7 +535,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         sha256=hashlib.sha256(raw).hexdigest(), seed=seed, radius_um=radius, n_host=n_host,
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
-        threads=threads or None, wavelengths_nm=wavelengths)
+        threads=threads or None, wavelengths_nm=wavelengths, structure=structure)
 
 
 # ------------------------------------------------------------------------------------------
@@ -517,7 +548,7 @@ def weave_from_config(config: SimulationConfig | str | Path) -> Weave:
     One of ``preset``, ``wif`` (resolved against the config's directory when the config is read)
     and ``matrix``; none: the plain weave. Missing dimensions take the defaults
     :data:`simulate.fabric.weave.DEFAULT_SPACING_UM` (300), :data:`simulate.fabric.weave.DEFAULT_WIDTH_UM` (250), :data:`simulate.fabric.weave.DEFAULT_HEIGHT_UM`
-    (100), :data:`simulate.fabric.weave.DEFAULT_CRIMP` (1), :data:`simulate.fabric.weave.DEFAULT_POINTS_PER_SPAN` (8), :data:`simulate.fabric.weave.DEFAULT_SIDES` (16).
+    (100), :data:`simulate.fabric.weave.DEFAULT_CRIMP` (1), :data:`simulate.fabric.weave.DEFAULT_POINTS_PER_SPAN` (16), :data:`simulate.fabric.weave.DEFAULT_SIDES` (48).
 
     Raises
     ------

@@ -2,14 +2,20 @@
 
 ``Table(data, "fiber", "red.toml").number("radius_um", gt=0)`` returns the value or raises
 :class:`ConfigError` ``red.toml: fiber.radius_um must be a number > 0, got -1``; :meth:`Table.done`
-refuses fields nobody read (a misspelt key is an error, not a silent default). The same idea as
+refuses fields nobody read (a misspelt key is an error, not a silent default). A table made with
+its ``fields`` (the schema's keys) refuses unknown keys at once, BEFORE any field is read, so a typo
+(``rms_slop``) is named as such, with a suggestion from :func:`difflib.get_close_matches`
+(``red.toml: surface.rms_slop is not a known field (did you mean rms_slope?)``), instead of surfacing as
+"rms_slope is required". The same idea as
 the acquisition plan's field reader in ``gonio.acquisition.plan``; merging the two would need a
 ``gonio`` change (left to its owner).
 """
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Iterable
 from typing import Any
 
 __all__ = ["ConfigError", "Table", "show", "is_number"]
@@ -35,12 +41,16 @@ def is_number(value: Any) -> bool:
 class Table:
     """One TOML table with checks whose errors name the file and the dotted field."""
 
-    def __init__(self, data: Any, where: str, file: str):
+    def __init__(self, data: Any, where: str, file: str, fields: Iterable[str] | None = None):
         self.file, self.where = file, where
         if not isinstance(data, dict):
             raise ConfigError(f"{file}: {where} must be a table, got {show(data)}")
         self.data = data
         self.used: set[str] = set()
+        self.asked: set[str] = set()
+        self.fields = frozenset(fields) if fields is not None else None
+        if self.fields is not None:
+            self._refuse_unknown(self.fields)
 
     def name(self, key: str) -> str:
         return f"{self.where}.{key}" if self.where else key
@@ -49,6 +59,7 @@ class Table:
         return ConfigError(f"{self.file}: {self.name(key)} {message}")
 
     def has(self, key: str) -> bool:
+        self.asked.add(key)
         return key in self.data
 
     def raw(self, key: str, default: Any = None, required: bool = False) -> Any:
@@ -103,16 +114,33 @@ class Table:
                 raise self.fail(key, f"item {k} must be a finite number{bound}, got {show(x)}")
         return [float(x) for x in value]
 
-    def sub(self, key: str, required: bool = False) -> Table | None:
+    def sub(self, key: str, required: bool = False, fields: Iterable[str] | None = None) -> Table | None:
+        """The sub-table ``key``; with ``fields`` (its schema's keys) its unknown keys are refused first."""
+        if required and key not in self.data:
+            self._refuse_unknown(self.fields or (), near=key)
         value = self.raw(key, None, required)
         if value is None:
             return None
         if not isinstance(value, dict):
             raise self.fail(key, f"must be a table, got {show(value)}")
-        return Table(value, self.name(key), self.file)
+        return Table(value, self.name(key), self.file, fields)
+
+    def _refuse_unknown(self, known: Iterable[str], near: str | None = None) -> None:
+        """Refuse the first key not in ``known`` (with ``near``: only keys close to that missing one)."""
+        known = set(known)
+        for key in sorted(set(self.data) - known):
+            if near is not None and not difflib.get_close_matches(key, [near], n=1, cutoff=0.6):
+                continue
+            raise self.unknown(key, known | ({near} if near else set()))
+
+    def unknown(self, key: str, known: Iterable[str]) -> ConfigError:
+        """``FILE: where.key is not a known field (did you mean X?)``."""
+        guess = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
+        hint = (f"did you mean {guess[0]}?" if guess
+                else "check the spelling; the schema is in the simulate.config docstring")
+        return self.fail(key, f"is not a known field ({hint})")
 
     def done(self) -> None:
         extra = sorted(set(self.data) - self.used)
         if extra:
-            raise self.fail(extra[0], "is not a known field (check the spelling; the schema is in "
-                                      "the simulate.config docstring)")
+            raise self.unknown(extra[0], self.used | self.asked | (self.fields or set()))

@@ -16,7 +16,6 @@ name (:data:`MODELS`) plus ``auto``.
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -27,7 +26,7 @@ from simulate import fabric as fab
 from simulate.config import SimulationConfig, weave_from_config
 from simulate.provenance import jsonable
 
-__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "register", "evaluate"]
+__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "all_threads", "register", "evaluate"]
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +39,14 @@ class Geometries:
     phi_i: np.ndarray
     theta_o: np.ndarray
     phi_o: np.ndarray
+
+
+def all_threads(threads: Any) -> int:
+    """``threads`` with 0 or None meaning "all that numba allows" (``numba.config.NUMBA_NUM_THREADS``,
+    which ``NUMBA_NUM_THREADS`` in the environment lowers), the one meaning of 0 in configs and flags."""
+    import numba
+
+    return int(threads) if threads else int(numba.config.NUMBA_NUM_THREADS)
 
 
 @dataclass(frozen=True)
@@ -92,6 +99,8 @@ def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths:
                s: RunSettings) -> FabricEstimate:
     from simulate import fiber as fiber_mod
 
+    if getattr(config, "structure", None) is not None:  # issue 19: the fabric's visible fibers
+        return _structured(config, fiber, g, wavelengths, s)
     pairs = fab.FiberPairs.from_angles(g.theta_i, g.phi_i, g.theta_o, g.phi_o)
     log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
              g.theta_i.size, pairs.n_unique, wavelengths.size)
@@ -104,6 +113,24 @@ def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths:
     n = np.full(beta.shape, max(int(est.photons), 1))
     return FabricEstimate(beta, u_beta, n, int(est.photons), jsonable(dict(est.info)), float(est.seconds),
                           {"unique_fiber_pairs": pairs.n_unique, "symmetry_reduced": True})
+
+
+def _structured(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
+                s: RunSettings) -> FabricEstimate:
+    """The summation over the fabric's visible fibers in all their orientations
+    (:func:`simulate.fabric.structure.structured_beta`), for a config with a ``[structure]`` section."""
+    from simulate.fabric import structure as st
+
+    spec = config.structure
+    fab.FiberPairs.from_angles(g.theta_i, g.phi_i, g.theta_o, g.phi_o)  # the summation's checks and warnings
+    weave = weave_from_config(config) if spec.kind == "woven" else None
+    beta, u_beta, info = st.structured_beta(spec, fiber, weave, fab.directions_deg(g.theta_i, g.phi_i),
+                                            fab.directions_deg(g.theta_o, g.phi_o), wavelengths,
+                                            target_rel_err=s.target, seed=s.seed, threads=s.threads,
+                                            max_photons=s.max_photons, method=config.method)
+    n = np.full(beta.shape, max(int(info["photons"]), 1))
+    return FabricEstimate(beta, u_beta, n, int(info["photons"]), jsonable(info), float(info["seconds"]),
+                          {"structure": jsonable(info["structure"]), "facets": jsonable(info["facets"])})
 
 
 @register("classic")
@@ -131,15 +158,25 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
 
     w_i = fab.directions_deg(g.theta_i, g.phi_i)
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
-    wv = weave_from_config(config)
-    mesh = weave_mesh(wv)
+    spec = getattr(config, "structure", None)       # issue 19: twist, or a felt (simulate.woven.felt)
+    if spec is not None and spec.kind == "nonwoven":
+        from simulate.woven.felt import felt_mesh
+
+        felt = felt_mesh(spec, float(fiber.radius_um), seed=s.seed)
+        mesh: Any = felt
+        geometry: dict = {"felt": felt.info}
+    else:
+        wv = weave_from_config(config)
+        mesh = weave_mesh(wv)
+        geometry = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
+                              "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
+                              "points_per_span": wv.points_per_span}}
     beta, u_beta, mc_info = woven.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
-        seed=s.seed, threads=s.threads or (os.cpu_count() or 1), progress=s.progress, max_seconds=s.max_seconds)
+        seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
+        structure=spec)
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
-    extra = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
-                       "height_um": wv.height_um, "crimp": wv.crimp},
-             "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
+    extra = {**geometry, "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
              "estimator": "next-event towards each detector direction"}
     return FabricEstimate(beta, u_beta, n, int(mc_info["table"]["photons"]), jsonable(mc_info),
                           float(mc_info["table"]["seconds"]), extra)

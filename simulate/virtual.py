@@ -78,7 +78,8 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
         (the bench's "where methods fail" study, :mod:`simulate.fabric.auto`) is within the target;
         ``meta.json["model"]["method_per_geometry"]`` records which method produced each geometry.
     target_rel_err, seed, threads, max_photons
-        Override the config's method settings (None: the config's).
+        Override the config's method settings (None: the config's). ``threads`` 0 means all that
+        numba allows (``NUMBA_NUM_THREADS``), as ``threads = 0`` in a config.
     measurable_only : bool
         Skip the plan's beam-blocked geometries (see the module docstring).
     progress : bool
@@ -93,7 +94,7 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
         raise ValueError(f"method must be one of {', '.join(FABRIC_METHODS)}, got {method!r}")
     target = check_target(config.target_rel_err if target_rel_err is None else target_rel_err, "target_rel_err")
     seed = config.seed if seed is None else int(seed)
-    threads = config.threads if threads is None else threads
+    threads = config.threads if threads is None else (threads or None)   # 0 = all, as in the config
     max_photons = config.max_photons if max_photons is None else max_photons
 
     geometries = plan.geometries(measurable_only=measurable_only)

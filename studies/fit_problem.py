@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
+from gonio.data.schema import WAVELENGTH_RANGE_NM
 from simulate import fabric as fab
 from simulate import fiber as fib
 from simulate.config import SimulationConfig, parse_config
@@ -189,6 +190,23 @@ def _dye_ceiling(config: SimulationConfig, free: list[FreeParameter], wl: np.nda
     return max(1.05 * top, 1e-3)
 
 
+def _checked_wavelengths(value: object) -> np.ndarray:
+    """The model wavelengths (``--wavelengths``) as a float array: finite, in the dataset range, increasing."""
+    try:
+        wl = np.asarray(value, float).reshape(-1)
+    except (TypeError, ValueError):
+        raise FitError(f"--wavelengths: expected numbers in nm, got {value!r}") from None
+    lo, hi = WAVELENGTH_RANGE_NM
+    if wl.size == 0:
+        raise FitError("--wavelengths: no wavelength given")
+    bad = [w for w in wl if not (np.isfinite(w) and lo <= w <= hi)]
+    if bad:
+        raise FitError(f"--wavelengths: {bad[0]:g} is not a wavelength in [{lo:g}, {hi:g}] nm")
+    if np.any(np.diff(wl) <= 0):
+        raise FitError("--wavelengths: must be strictly increasing, without repeats (e.g. 400,410,...,700)")
+    return wl
+
+
 @dataclass
 class FitProblem:
     """Everything an evaluation needs: measurement, config, model, free parameters, settings."""
@@ -235,7 +253,7 @@ class FitProblem:
             spectral = "channel" not in self.measured.table.columns
             self.wavelengths_nm = (np.asarray(self.measured.wavelengths_nm, float) if spectral
                                    else np.asarray(self.config.wavelengths_nm, float))
-        self.wavelengths_nm = np.asarray(self.wavelengths_nm, float)
+        self.wavelengths_nm = _checked_wavelengths(self.wavelengths_nm)
         self.notes: list[str] = []
         self._drop_grazing()
         self.geometries = _model_geometries(self.measured)

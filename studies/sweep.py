@@ -13,7 +13,14 @@ aliases ``dye``/``dye-peaks`` and the run settings (``seed``, ``method.*``, ``wa
 are refused: a sweep sets one field to one value, and the run settings have their own flags.
 Several ``--param`` give the Cartesian product (the first parameter varies slowest); every
 point's config is built and validated by :func:`simulate.config.parse_config` before any work,
-so a value out of a field's range is one line naming the point and the field (exit 2).
+so a value out of a field's range is one line naming the point and the field (exit 2). Before
+that, the grid is counted: at most :data:`~studies.sweep_spec.MAX_POINTS` (10 000) points and
+:data:`~studies.sweep_spec.MAX_TASKS` (100 000) tasks, and ``simulate sweep`` estimates the cost
+of the costliest of up to 9 evenly spaced points times the points per worker
+(:mod:`simulate.budget`; refused beyond a day). A point's directory is always
+``points/<label>`` inside the sweep (:func:`~studies.sweep_spec.point_dir`; ``compare`` refuses a
+``sweep.json`` whose point ``dir`` leads elsewhere). Point datasets are written as whole folders
+(:mod:`simulate.outdir`); a full disk is one line naming the file, the finished tasks kept.
 
 Tasks and seeds
 ---------------
@@ -83,14 +90,16 @@ import numpy as np
 import pandas as pd
 
 from gonio.acquisition.plan import Plan
-from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta, write_dataset
+from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta
 from simulate.config import SimulationConfig
 from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
+from simulate.outdir import OutputError, recover_all, write_dataset_dir
 from simulate.provenance import jsonable, software_versions
 from simulate.virtual import fabric_dataset
 from studies.sweep_spec import (
     GENERATOR,
     LOCK_NAME,
+    POINTS_DIR,
     SCHEMA,
     SUMMARY_NAME,
     SWEEP_NAME,
@@ -101,6 +110,7 @@ from studies.sweep_spec import (
     SweepSpec,
     SweepTask,
     parse_params,
+    point_dir as _point_dir,
     task_seed,
 )
 
@@ -213,7 +223,7 @@ def prepare_out(out: Path, spec: SweepSpec, resume: bool = False) -> bool:
         (out / TASKS_DIR).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SweepError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
-    atomic_write(previous, (json.dumps(spec.document(), indent=1) + "\n").encode("utf-8"))
+    _write(previous, (json.dumps(spec.document(), indent=1) + "\n").encode("utf-8"))
     return False
 
 
@@ -242,7 +252,16 @@ def _write_task(out: Path, spec: SweepSpec, task: SweepTask, result: dict) -> No
     arrays: dict[str, Any] = {c: np.asarray(v) for c, v in result["columns"].items()}
     arrays.update(digest=np.array(spec.digest), meta=np.array(json.dumps(result["meta"])))
     np.savez(buffer, **arrays)
-    atomic_write(_task_path(out, task), buffer.getvalue())
+    _write(_task_path(out, task), buffer.getvalue())
+
+
+def _write(path: Path, data: bytes) -> None:
+    """:func:`atomic_write` whose failure (a full disk) is one :class:`SweepError` naming the file."""
+    try:
+        atomic_write(path, data)
+    except OSError as exc:
+        raise SweepError(f"{path}: cannot write ({exc.strerror or exc}); the file was left as it was and the "
+                         "finished tasks are kept (free some space, then run the same command again)") from None
 
 
 def _read_task(path: Path) -> tuple[str, pd.DataFrame, dict]:
@@ -415,6 +434,10 @@ def assemble(out: Path, spec: SweepSpec, measured: Dataset | None = None) -> pd.
     (:func:`compare.sweep.point_metrics`; NaN when the comparison is refused, logged).
     """
     rows = []
+    try:
+        recover_all(out / POINTS_DIR)       # folders of a killed assembly (simulate.outdir), one scan
+    except OSError as exc:
+        raise SweepError(f"{out / POINTS_DIR}: cannot clean up after a killed run ({exc.strerror})") from None
     by_point: dict[int, list[SweepTask]] = {}
     for task in spec.tasks():
         by_point.setdefault(task.point.index, []).append(task)
@@ -429,14 +452,17 @@ def assemble(out: Path, spec: SweepSpec, measured: Dataset | None = None) -> pd.
             row.update(nrmse=math.nan, dh=math.nan, ds=math.nan)
         if n_done == len(tasks):
             ds = _point_dataset(out, spec, point, tasks)
-            write_dataset(ds, out / point.dir)
+            try:
+                write_dataset_dir(ds, _point_dir(out, point.dir), recovered=True)
+            except OutputError as exc:
+                raise SweepError(f"{exc} (the finished tasks are kept; run the same command again)") from None
             prov = ds.meta["provenance"]
             row.update(seconds=prov["seconds"], rel_err=prov["rel_err"])
             if measured is not None:
                 row.update(_metrics(measured, ds, point))
         rows.append(row)
     summary = pd.DataFrame(rows)
-    atomic_write(out / SUMMARY_NAME, summary.to_csv(index=False, float_format="%.10g", lineterminator="\n")
+    _write(out / SUMMARY_NAME, summary.to_csv(index=False, float_format="%.10g", lineterminator="\n")
                  .encode("utf-8"))
     return summary
 

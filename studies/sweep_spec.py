@@ -26,7 +26,8 @@ from studies import paths as config_paths
 from studies.paths import toml_dumps
 
 __all__ = ["GENERATOR", "SCHEMA", "SWEEP_NAME", "SUMMARY_NAME", "TASKS_DIR", "POINTS_DIR", "LOCK_NAME",
-           "SweepError", "SweepParameter", "parse_params", "SweepPoint", "SweepTask", "task_seed", "SweepSpec"]
+           "SweepError", "SweepParameter", "parse_params", "SweepPoint", "SweepTask", "task_seed", "SweepSpec",
+           "point_dir", "MAX_POINTS", "MAX_TASKS"]
 
 GENERATOR = "simulate sweep"
 SCHEMA = "simulate-sweep/1"
@@ -36,6 +37,11 @@ TASKS_DIR = "tasks"
 POINTS_DIR = "points"
 LOCK_NAME = ".sweep.lock"
 _ALIASES = ("volume_fraction", "radius", "rms_slope")
+#: Bounds of a sweep, checked from the number of values before any point's config is built: 10 000
+#: points (each a validated config in memory and a dataset on disk) and 100 000 tasks (one file
+#: each in ``tasks/``; 3 000 points of the 33-wavelength red-cotton plan).
+MAX_POINTS = 10_000
+MAX_TASKS = 100_000
 
 
 class SweepError(ValueError):
@@ -137,6 +143,30 @@ class SweepPoint:
         return f"{POINTS_DIR}/{self.label}"
 
 
+def point_dir(sweep_dir: str | Path, rel: object) -> Path:
+    """``sweep_dir / rel`` for a point's ``dir`` (``points/<label>``), refused unless it stays inside.
+
+    A point's directory is always ``points/`` followed by one name (no ``/``, not ``.`` or
+    ``..``), and must resolve (symbolic links followed) inside ``sweep_dir/points``: a crafted
+    ``sweep.json`` naming ``../..`` is a :class:`SweepError`, never followed.
+
+    Examples
+    --------
+    >>> point_dir("/s", "points/radius=0.25").as_posix()
+    '/s/points/radius=0.25'
+    """
+    base = Path(sweep_dir)
+    parts = rel.split("/") if isinstance(rel, str) else []
+    if len(parts) != 2 or parts[0] != POINTS_DIR or parts[1] in ("", ".", "..") or "\\" in parts[1] \
+            or "\0" in parts[1]:
+        raise SweepError(f"{base / SWEEP_NAME}: point dir {rel!r} is not {POINTS_DIR}/<name> inside the sweep directory")
+    path = base / POINTS_DIR / parts[1]
+    if not path.resolve().is_relative_to((base / POINTS_DIR).resolve()):
+        raise SweepError(f"{base / SWEEP_NAME}: point dir {rel!r} leads outside the sweep directory "
+                         "(a symbolic link); refusing to follow it")
+    return path
+
+
 @dataclass(frozen=True)
 class SweepTask:
     """One task: a point at one wavelength (``id`` names its file: ``p003_w0550``)."""
@@ -202,6 +232,13 @@ class SweepSpec:
             self.seed = self.config.seed
         if self.max_photons is None:
             self.max_photons = self.config.max_photons
+        n_points = math.prod(len(p.values) for p in self.params)
+        n_tasks = n_points * len(self.plan.wavelengths_nm)
+        if n_points > MAX_POINTS or n_tasks > MAX_TASKS:
+            grid = " x ".join(str(len(p.values)) for p in self.params)
+            raise SweepError(f"--param: {grid} = {n_points:,} points x {len(self.plan.wavelengths_nm)} wavelengths = "
+                             f"{n_tasks:,} tasks; a sweep has at most {MAX_POINTS:,} points and {MAX_TASKS:,} "
+                             "tasks (each point is a config and a dataset, each task a file): sweep fewer values")
         doc = tomllib.loads(self.config.text)
         for index, values in enumerate(itertools.product(*(p.values for p in self.params))):
             label = ",".join(f"{p.name}={_value_text(v)}" for p, v in zip(self.params, values))

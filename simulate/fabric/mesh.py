@@ -7,6 +7,8 @@ vertex normals and the yarn tangent at each vertex (which orients the fiber BRDF
 
 from __future__ import annotations
 
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -77,6 +79,11 @@ class WeaveMesh:
     def export(self, path: str | Path) -> Path:
         """Write the mesh as PLY or OBJ (chosen by the suffix, through trimesh); returns the path.
 
+        The write is atomic: the mesh goes to a temporary file in the same folder
+        (``.NAME.XXXXXXXX.tmp``), is flushed to disk and renamed over ``path``; on any failure (a
+        full disk, an interrupt) the temporary file is removed and ``path`` is left as it was, so a
+        truncated mesh is never left under the requested name.
+
         Raises
         ------
         WeaveError
@@ -87,10 +94,27 @@ class WeaveMesh:
         if kind not in ("ply", "obj"):
             raise WeaveError(f"{path}: unknown mesh format {path.suffix or '(no suffix)'!r}; "
                              f"use a .ply or .obj file name")
+        tmp: str | None = None
         try:
-            self.to_trimesh().export(str(path), file_type=kind)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+            with os.fdopen(fd, "wb") as handle:
+                self.to_trimesh().export(handle, file_type=kind)
+                handle.flush()
+                os.fsync(handle.fileno())
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)     # mkstemp's 0600 is for secrets; a mesh is shared
+            os.replace(tmp, path)
+            tmp = None
         except OSError as exc:
-            raise WeaveError(f"{path}: cannot write the mesh ({exc.strerror or exc})") from None
+            raise WeaveError(f"{path}: cannot write the mesh ({exc.strerror or exc}); nothing was "
+                             f"written under that name") from None
+        finally:
+            if tmp is not None:
+                try:
+                    os.unlink(tmp)
+                except FileNotFoundError:
+                    pass
         return path
 
 
@@ -142,6 +166,10 @@ def _grid_faces(n_s: int, sides: int, base: int) -> np.ndarray:
 
 def mesh(weave: Weave) -> WeaveMesh:
     """Triangulate the yarn tubes of a micro-element (layout and conventions: :mod:`simulate.fabric.weave`).
+
+    The mesh has ``4 sides points_per_span n_warp n_weft`` triangles, at most
+    :data:`simulate.fabric.weave.MAX_TRIANGLES` (2 million, about 0.27 GiB at the peak of this
+    function): the :class:`~simulate.fabric.weave.Weave` refuses a larger one when it is made.
 
     Examples
     --------

@@ -71,6 +71,8 @@ __all__ = [
     "DEFAULT_SIDES",
     "DEFAULT_SPACING_UM",
     "DEFAULT_WIDTH_UM",
+    "MAX_TRIANGLES",
+    "MAX_WEAVE_CELLS",
     "PRESETS",
     "Weave",
     "WeaveError",
@@ -83,8 +85,47 @@ DEFAULT_SPACING_UM = 300.0
 DEFAULT_WIDTH_UM = 250.0
 DEFAULT_HEIGHT_UM = 100.0
 DEFAULT_CRIMP = 1.0
-DEFAULT_POINTS_PER_SPAN = 8
-DEFAULT_SIDES = 16
+DEFAULT_POINTS_PER_SPAN = 16
+DEFAULT_SIDES = 48
+
+#: Bound on the micro-element's mesh (:func:`simulate.fabric.mesh.mesh`): a weave whose mesh would
+#: have more triangles is refused when the :class:`Weave` is made, before anything is allocated.
+#: The mesh has ``4 x sides x points_per_span x n_warp x n_weft`` triangles (two per quad, every
+#: crossing on a warp and on a weft); building it takes about 136 bytes per triangle at its peak
+#: (measured with ``tracemalloc`` on a 32 768-triangle twill), so the bound is about 0.27 GiB for
+#: the mesh and about as much again for the tracer's trimesh/Embree copy. The shipped red-cotton
+#: weave has 2 048 triangles.
+MAX_TRIANGLES = 2_000_000
+#: Bound on the weave matrix (warp threads x picks): the largest that still meshes within
+#: :data:`MAX_TRIANGLES` with the coarsest mesh (``sides = 3``, ``points_per_span = 1``); a WIF
+#: drawdown is checked against it before its matrix is allocated.
+MAX_WEAVE_CELLS = MAX_TRIANGLES // 12
+#: Bytes per triangle at the peak of :func:`simulate.fabric.mesh.mesh` (see :data:`MAX_TRIANGLES`).
+MESH_BYTES_PER_TRIANGLE = 136
+
+
+def triangle_count(n_warp: int, n_weft: int, points_per_span: int, sides: int) -> int:
+    """Triangles of the mesh of such a weave: ``4 sides points_per_span n_warp n_weft`` (exact).
+
+    Examples
+    --------
+    >>> triangle_count(2, 2, 4, 8)        # 4 yarns x 2 x (4 x 2) x 8
+    512
+    """
+    return 4 * int(sides) * int(points_per_span) * int(n_warp) * int(n_weft)
+
+
+def check_mesh_size(n_warp: int, n_weft: int, points_per_span: int, sides: int) -> None:
+    """Refuse a weave whose mesh exceeds :data:`MAX_TRIANGLES` (a :class:`WeaveError` with the figures)."""
+    count = triangle_count(n_warp, n_weft, points_per_span, sides)
+    if count > MAX_TRIANGLES:
+        gib = count * MESH_BYTES_PER_TRIANGLE / 2**30
+        raise WeaveError(
+            f"weave mesh too large: {n_warp} x {n_weft} yarns with points_per_span = {points_per_span} and "
+            f"sides = {sides} give {count:,} triangles (about {gib:,.1f} GiB to build); the bound is "
+            f"{MAX_TRIANGLES:,} (about {MAX_TRIANGLES * MESH_BYTES_PER_TRIANGLE / 2**30:.2f} GiB): lower "
+            f"points_per_span or sides, or use a smaller repeat")
+
 
 #: Named weaves (rows = warp yarns, columns = weft yarns, 1 = warp over weft).
 #: ``satin`` is the regular 5-end warp-faced satin with move (counter) 2: warp ``j`` goes under
@@ -106,11 +147,19 @@ class WeaveError(ValueError):
 # the weave
 
 
+def _check_cells(n_warp: int, n_weft: int) -> None:
+    if n_warp * n_weft > MAX_WEAVE_CELLS:
+        raise WeaveError(f"weave matrix: {n_warp} x {n_weft} = {n_warp * n_weft:,} crossings; at most "
+                         f"{MAX_WEAVE_CELLS:,} (the largest repeat whose coarsest mesh, sides = 3 and "
+                         f"points_per_span = 1, stays within {MAX_TRIANGLES:,} triangles)")
+
+
 def _matrix(value: Any) -> np.ndarray:
     """Validate a 0/1 matrix given as nested lists or an array; an int8 array."""
     if isinstance(value, np.ndarray):
         if value.ndim != 2:
             raise WeaveError(f"weave matrix: must be 2-D (rows = warp yarns), got {value.ndim}-D")
+        _check_cells(value.shape[0], value.shape[1])
         rows = [list(r) for r in value]
     else:
         if not isinstance(value, (list, tuple)) or not all(isinstance(r, (list, tuple, np.ndarray)) for r in value):
@@ -118,6 +167,7 @@ def _matrix(value: Any) -> np.ndarray:
         rows = [list(r) for r in value]
     if not rows or not rows[0]:
         raise WeaveError("weave matrix: is empty; it needs at least 2 rows and 2 columns")
+    _check_cells(len(rows), len(rows[0]))
     for j, row in enumerate(rows):
         if len(row) != len(rows[0]):
             raise WeaveError(f"weave matrix: row {j} has {len(row)} entries, row 0 has {len(rows[0])} "
@@ -173,6 +223,10 @@ class Weave:
     sides : int
         Mesh intervals around the yarn section (>= 3).
 
+    The mesh these imply (``4 sides points_per_span n_warp n_weft`` triangles) must stay within
+    :data:`MAX_TRIANGLES` (2 million, about 0.27 GiB to build): a larger weave is refused here,
+    before anything is allocated.
+
     Raises
     ------
     WeaveError
@@ -211,6 +265,7 @@ class Weave:
                              f"neighbouring yarns of one set would overlap")
         set_(self, "points_per_span", _count("points_per_span", self.points_per_span, 1))
         set_(self, "sides", _count("sides", self.sides, 3))
+        check_mesh_size(self.n_warp, self.n_weft, self.points_per_span, self.sides)
 
     # a frozen dataclass compares and hashes its fields; an ndarray field needs array equality
     def __eq__(self, other: object) -> bool:

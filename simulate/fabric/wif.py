@@ -7,15 +7,23 @@ Ravi Nielsen et al., *Weaving Information File (WIF) Specification*, version 1.1
 
 from __future__ import annotations
 
+import os
 import re
+import stat
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from simulate.fabric.weave import Weave, WeaveError
+from simulate.fabric.weave import MAX_TRIANGLES, MAX_WEAVE_CELLS, Weave, WeaveError
 
-__all__ = ["read_wif", "weave_from_wif"]
+__all__ = ["MAX_WIF_BYTES", "read_wif", "weave_from_wif"]
+
+#: Largest WIF file read (16 MiB). The largest drawdown accepted (:data:`MAX_WEAVE_CELLS`
+#: crossings) written as a lift plan naming every raised shaft takes about 1 MB; the bound keeps a
+#: huge or endless file (``/dev/zero``) from being read whole. Only regular files are read (a FIFO
+#: would block).
+MAX_WIF_BYTES = 16 * 2**20
 
 
 _SECTION = re.compile(r"^\[([^\]]+)\]$")
@@ -29,9 +37,18 @@ class _Wif:
     def __init__(self, path: Path):
         self.name = path.name
         try:
-            raw = path.read_bytes()
+            st = os.stat(path)
+            if not stat.S_ISREG(st.st_mode):
+                raise WeaveError(f"{path}: is not a regular file; a WIF file is a text file")
+            if st.st_size > MAX_WIF_BYTES:
+                raise WeaveError(f"{path}: {st.st_size:,} bytes; a WIF file is read only up to "
+                                 f"{MAX_WIF_BYTES:,} bytes (16 MiB)")
+            with open(path, "rb") as handle:
+                raw = handle.read(MAX_WIF_BYTES + 1)
         except OSError as exc:
             raise WeaveError(f"{path}: cannot read the WIF file ({exc.strerror or exc})") from None
+        if len(raw) > MAX_WIF_BYTES:   # grew while being read
+            raise WeaveError(f"{path}: longer than {MAX_WIF_BYTES:,} bytes (16 MiB), the most a WIF file is read")
         try:
             text = raw.decode("utf-8-sig")
         except UnicodeDecodeError:  # WIF predates UTF-8: old files are Windows-1252 / Latin-1
@@ -178,13 +195,17 @@ def read_wif(path: str | Path) -> np.ndarray:
     n_weft = n_weft or max(picks, default=0)
     if n_warp == 0 or n_weft == 0:
         raise wif.error(None, "the drawdown is empty (no threaded warp thread or no pick)")
-    every = set(range(1, shafts + 1))
+    if n_warp * n_weft > MAX_WEAVE_CELLS:
+        raise wif.error(None, f"the drawdown has {n_warp:,} warp threads x {n_weft:,} picks = "
+                              f"{n_warp * n_weft:,} crossings; at most {MAX_WEAVE_CELLS:,} (the largest repeat "
+                              f"whose coarsest mesh stays within {MAX_TRIANGLES:,} triangles)")
     matrix = np.zeros((n_warp, n_weft), dtype=np.int8)
     for pick in range(1, n_weft + 1):
         listed = picks.get(pick, set())
-        raised = listed if rising else every - listed
         for thread, (on, _) in threading.items():
-            if on & raised:
+            # rising shed: the listed shafts rise; sinking shed: the others (a shaft of the
+            # thread's that is not listed), without building the set of all shafts
+            if (on & listed) if rising else (on - listed):
                 matrix[thread - 1, pick - 1] = 1
     return matrix
 

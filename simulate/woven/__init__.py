@@ -67,7 +67,7 @@ table), :mod:`.materials`, :mod:`.shading` (compiled: a ray at a yarn hit),
 entry), :mod:`.meshes` (validation meshes).
 """
 
-from simulate.woven.estimate import fabric_beta, table_photons
+from simulate.woven.estimate import fabric_beta, table_photons, twist_of
 from simulate.woven.integrator import STOP_REASONS, MCResult, trace
 from simulate.woven.materials import FiberBRDFAtHit, FiberSurface, Lambert
 from simulate.woven.meshes import flat_mesh, straight_yarn_mesh
@@ -85,5 +85,6 @@ __all__ = [
     "trace",
     "fabric_beta",
     "table_photons",
+    "twist_of",
     "STOP_REASONS",
 ]

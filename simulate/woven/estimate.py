@@ -17,7 +17,7 @@ from simulate.woven.integrator import trace
 from simulate.woven.materials import FiberSurface
 from simulate.woven.yarn import YarnTable, yarn_table
 
-__all__ = ["table_photons", "fabric_beta"]
+__all__ = ["table_photons", "fabric_beta", "twist_of"]
 
 log = logging.getLogger(__name__)
 
@@ -33,10 +33,19 @@ def table_photons(target_rel_err: float) -> int:
     return int(min(max(4.0 / check_target(target_rel_err) ** 2, 10_000), 400_000))
 
 
+def twist_of(structure: Any) -> tuple[float, float]:
+    """The signed surface twist angles (warp, weft) in degrees, ``+`` Z and ``-`` S, of a config's
+    ``[structure]`` (:class:`simulate.fabric.structure.StructureSpec`); ``(0, 0)`` without one or for a felt."""
+    if structure is None or structure.kind != "woven":
+        return (0.0, 0.0)
+    return (float(structure.warp_twist_deg) * (1.0 if structure.warp_twist == "Z" else -1.0),
+            float(structure.weft_twist_deg) * (1.0 if structure.weft_twist == "Z" else -1.0))
+
+
 def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_nm: np.ndarray, *,
                 target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
                 threads: int = 1, progress: bool = False, tables: tuple[YarnTable, YarnTable] | None = None,
-                ) -> tuple[np.ndarray, np.ndarray, dict]:
+                structure: Any = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -46,6 +55,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     halves differ by twice the full table's noise, so per detector ``u_table^2 = mean_lambda
     ((beta_a - beta_b) / 2)^2`` (pooled over the wavelengths, which leans conservative for the
     dark ones). Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information.
+    ``structure`` (a config's ``[structure]``): the yarns' twist (:func:`twist_of`).
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -57,6 +67,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                   yarn_table(fiber, wl, photons_per_row=half, seed=seed + 1_000_003,
                              threads=threads if threads else None))
     mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host)) for t in tables]
+    twist = twist_of(structure)
     key = np.round(w_in, 9)
     incidences, inverse = np.unique(key, axis=0, return_inverse=True)
     inverse = np.asarray(inverse).reshape(-1)
@@ -69,7 +80,8 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
         det_inv = np.asarray(det_inv).reshape(-1)
         det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
         ra, rb = (trace(mesh, mat, wi / np.linalg.norm(wi), det, target_rel_err=target_rel_err, max_rays=max_rays,
-                        max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress)
+                        max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress,
+                        twist_deg=twist)
                   for mat in mats)
         b = 0.5 * (ra.beta + rb.beta)
         u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
@@ -91,7 +103,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                       "halves": 2, "photons_per_row": int(photons // max(1, tables[0].T.shape[0] * tables[0].T.shape[1])),
                       "w_t_nodes": tables[0].w_t_nodes.tolist(),
                       "grid": [tables[0].n_psi, tables[0].n_v, tables[0].n_mu, tables[0].n_phi]},
-            "incidences": runs, "seconds": time.perf_counter() - started,
+            "incidences": runs, "seconds": time.perf_counter() - started, "twist_deg": list(twist),
             "rays": int(sum(r["rays"] for r in runs)),
             "stop": "target" if all(r["stop"] == "target" for r in runs) else
             next(r["stop"] for r in runs if r["stop"] != "target")}

@@ -79,6 +79,8 @@ class _Sums:
     hits: int = 0
     albedo_sum: float = 0.0
     albedo_over_one: int = 0
+    continued: int = 0
+    self_hits: int = 0
 
     def add(self, o: "_Sums") -> None:
         for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins", "bins2"):
@@ -90,10 +92,15 @@ class _Sums:
         self.hits += o.hits
         self.albedo_sum += o.albedo_sum
         self.albedo_over_one += o.albedo_over_one
+        self.continued += o.continued
+        self.self_hits += o.self_hits
 
 
 def _yarn_radius(mesh: Any) -> float:
-    """``sqrt(a b)`` of the first yarn's cross-section (semi-axes from its first ring of vertices)."""
+    """``sqrt(a b)`` of the first yarn's cross-section (semi-axes from its first ring of vertices;
+    a mesh may state it as ``yarn_radius_um``, as the felt's does)."""
+    if getattr(mesh, "yarn_radius_um", None):
+        return float(mesh.yarn_radius_um)
     ring = np.asarray(mesh.vertices)[int(mesh.vertex_base[0]):int(mesh.vertex_base[0]) + int(mesh.sides) + 1]
     axis = 1 if abs(float(np.asarray(mesh.tangents)[int(mesh.vertex_base[0]), 0])) >= 0.5 else 0
     a = 0.5 * float(np.ptp(ring[:, axis]))
@@ -104,7 +111,8 @@ def _yarn_radius(mesh: Any) -> float:
 class _Setup:
     """Everything the chunks share (scene, mesh arrays, material arrays)."""
 
-    def __init__(self, mesh: Any, material: Any, n_wl: int, bins: tuple[int, int]):
+    def __init__(self, mesh: Any, material: Any, n_wl: int, bins: tuple[int, int],
+                 twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex"):
         self.mesh = mesh
         self.scene = PeriodicScene(mesh.vertices, mesh.faces, mesh.Lx, mesh.Ly)
         self.n_wl = n_wl
@@ -114,6 +122,13 @@ class _Setup:
         first = np.asarray(mesh.vertex_base, np.int64)
         tan0 = np.asarray(mesh.tangents)[first]
         self.run_axis = np.where(np.abs(tan0[:, 0]) >= np.abs(tan0[:, 1]), 0, 1).astype(np.int64)
+        if getattr(mesh, "open_fibers", False):      # a felt's fibers: s is the arc length, no periodicity
+            self.run_axis[:] = 2
+        # twist (signed: + Z, - S) per yarn by its system: warp (x) or weft (y); none for a felt's fibers
+        angle = np.where(self.run_axis == 0, float(twist_deg[0]), float(twist_deg[1]))
+        angle = np.where(self.run_axis == 2, 0.0, angle)
+        self.twist_c = np.cos(np.radians(np.abs(angle)))
+        self.twist_s = np.sign(angle) * np.sin(np.radians(np.abs(angle)))
         self.kind = material_kind(material)
         if isinstance(material, Lambert):
             self.rho = np.broadcast_to(np.asarray(material.rho, f64), (n_wl,)).copy()
@@ -161,7 +176,8 @@ class _Setup:
             me.vertex_base, me.n_s, me.yarn_length, int(me.sides), self.run_axis,
             self.kind, self.rho, self.m, self.n_host, self.albedo,
             self.T, self.cdf, self.cell_sum, self.c_bar, self.tau, self.nodes, self.dpsi, n_psi, n_v, n_mu, n_phi,
-            self.v_edges, self.off_tot, self.off_bar, np.zeros((0, 3)))
+            self.v_edges, self.off_tot, self.off_bar, np.zeros((0, 3)), self.twist_c, self.twist_s,
+            _yarn_radius(mesh), np.asarray(me.face_base, np.int64), normals == "face")
 
     def shade(self, seed, prim, u, v, pos, dirs, weight, detectors):
         """:func:`simulate.woven.shading.shade` of the hit rays; returns its outputs as a tuple."""
@@ -185,6 +201,8 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     dirs = np.broadcast_to(-np.asarray(w_in, float), (n, 3)).copy()
     weight = np.ones((n, L))
     ray = np.arange(n)
+    last = np.full(n, -1, dtype=np.int64)   # the triangle each ray left from (-1: the beam)
+    wrap = bool(getattr(setup.mesh, "open_fibers", False))
     acc = np.zeros((n, D, L))
     refl = np.zeros((n, L))
     trans = np.zeros((n, L))
@@ -205,13 +223,18 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             trans[ray[down]] += weight[down]
         sums.lost += int(np.count_nonzero(hits.prim == LOST))
         h = hits.prim >= 0
+        sums.continued += int(np.count_nonzero(last >= 0))
+        sums.self_hits += int(np.count_nonzero(h & (hits.prim == last)))
         if not np.any(h):
             ray = ray[:0]
             break
         sub = int(rng.integers(0, 2**62))
-        o, d, w, nee_o, nee_c, need, alb = setup.shade(sub, hits.prim[h].astype(np.int64), hits.u[h], hits.v[h],
+        o, d, w, nee_o, nee_c, need, alb, left = setup.shade(sub, hits.prim[h].astype(np.int64), hits.u[h], hits.v[h],
                                                   hits.position[h], dirs[h], weight[h], detectors)
         hit_ray = ray[h]
+        if wrap:
+            nee_o[..., 0] %= setup.mesh.Lx
+            nee_o[..., 1] %= setup.mesh.Ly
         if setup.kind == K_FIBER_BRDF:
             sums.hits += int(alb.size)
             sums.albedo_sum += float(alb.sum())
@@ -231,7 +254,10 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             wl[~survive] = 0.0
             w[low] = wl
         alive = w.max(axis=1) > 0
-        origins, dirs, weight, ray = o[alive], d[alive], w[alive], hit_ray[alive]
+        origins, dirs, weight, ray, last = o[alive], d[alive], w[alive], hit_ray[alive], left[alive]
+        if wrap:     # a felt's exits may lie on a fiber's copy outside the cell: back into it
+            origins[:, 0] %= setup.mesh.Lx
+            origins[:, 1] %= setup.mesh.Ly
     sums.killed += int(ray.size)
     tot = acc  # [n, D, L] per-ray totals
     sums.nee += tot.sum(axis=0)
@@ -264,7 +290,7 @@ def _rel_err(value: np.ndarray, u: np.ndarray) -> float:
 def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: Any, detectors: Any, n_wavelengths: int | None = None,
           *, target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
           threads: int = 1, progress: bool = False, bins: tuple[int, int] = (9, 12),
-          chunk: int = _CHUNK) -> MCResult:
+          chunk: int = _CHUNK, twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex") -> MCResult:
     """Trace the beam from ``w_in`` through the woven micro-element; next-event ``beta`` at ``detectors``.
 
     Parameters
@@ -288,6 +314,13 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
         Chunks traced concurrently (Embree and the compiled shading release the GIL).
     chunk : int
         Rays per chunk (a wavefront); the error is checked after every 4 chunks.
+    twist_deg : (float, float)
+        Surface twist angle of the warp and the weft yarns, signed: ``+`` Z, ``-`` S (the yarn table
+        and the shading use the local fiber direction, :mod:`simulate.woven.shading`); ``(0, 0)``:
+        the fibers run along the yarn's axis.
+    normals : "vertex" or "face"
+        Shading normals: the mesh's interpolated vertex normals (with the adjoint shading-normal
+        rule of :mod:`simulate.woven.shading`), or the triangles' own normals (a faceted tube).
     """
     target_rel_err = check_target(target_rel_err)
     w_in = np.asarray(w_in, float).reshape(3)
@@ -304,7 +337,9 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     if n_wavelengths is None:
         n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
                          else int(np.size(material.rho)))
-    setup = _Setup(mesh, material, int(n_wavelengths), bins)
+    if normals not in ("vertex", "face"):
+        raise ValueError(f"trace: normals must be 'vertex' or 'face', got {normals!r}")
+    setup = _Setup(mesh, material, int(n_wavelengths), bins, twist_deg, normals)
     L = setup.n_wl
     D = det.shape[0]
     total = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
@@ -366,7 +401,8 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     f_bins = f_bins / omega[:, :, None]
     u_bins = u_bins / omega[:, :, None]
     info = {"u_reflected_plus_transmitted": u_energy.tolist(), "lost_rays": total.lost, "killed_at_max_bounces": total.killed, "embree_rays": total.embree_rays,
-            "rays_per_second": total.embree_rays / seconds if seconds > 0 else None, "chunk": int(chunk)}
+            "rays_per_second": total.embree_rays / seconds if seconds > 0 else None, "chunk": int(chunk),
+            "self_hit_fraction": total.self_hits / max(total.continued, 1)}
     if setup.kind == K_FIBER_BRDF:
         info["local_albedo"] = {"hits": total.hits, "mean_max_over_wavelengths": total.albedo_sum / max(total.hits, 1),
                                 "fraction_above_one": total.albedo_over_one / max(total.hits, 1)}

@@ -63,6 +63,11 @@ class ShadeInputs(NamedTuple):
     off_tot: np.ndarray
     off_bar: np.ndarray
     detectors: np.ndarray
+    twist_c: np.ndarray
+    twist_s: np.ndarray
+    r_yarn: float
+    face_base: np.ndarray
+    face_normals: bool
 
 
 class ShadeOutputs(NamedTuple):
@@ -76,13 +81,14 @@ class ShadeOutputs(NamedTuple):
     nee_c: np.ndarray
     nee_need: np.ndarray
     hit_albedo: np.ndarray
+    out_prim: np.ndarray
 
 
 def new_outputs(n: int, n_detectors: int, n_wavelengths: int) -> ShadeOutputs:
     """Output arrays for ``n`` hit rays."""
     return ShadeOutputs(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n_wavelengths)), np.zeros((n, 2, 3)),
                         np.zeros((n, 2, n_detectors, n_wavelengths)), np.zeros((n, 2, n_detectors), dtype=np.bool_),
-                        np.zeros(n))
+                        np.zeros(n), np.full(n, -1, dtype=np.int64))
 
 
 @numba.njit(cache=True)
@@ -96,11 +102,17 @@ def _interp(a, x):
 
 
 @numba.njit(cache=True)
-def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yarn_length, sides):
-    """Point, normal and tangent of the tube mesh at (s, phi): the mesh's own triangles."""
+def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yarn_length, sides, periodic,
+                face_base):
+    """Point, normal and tangent of the tube mesh at (s, phi): the mesh's own triangles; with a
+    non-empty ``face_base`` also the triangle's index and its outward geometric normal. ``periodic = False``
+    (an open fiber of a felt, :mod:`simulate.woven.felt`): ``s`` is clamped to the tube's ends."""
     L = yarn_length[yarn]
     ns = n_s[yarn]
-    s = s % L
+    if periodic:
+        s = s % L
+    else:
+        s = min(max(s, 0.0), L)
     phi = phi % (2.0 * math.pi)
     xs = s / L * ns
     xp = phi / (2.0 * math.pi) * sides
@@ -116,17 +128,46 @@ def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yar
     if fs >= fp:
         a, b, c = v00, v10, v11
         wa, wb, wc = 1.0 - fs, fs - fp, fp
+        second = 0
     else:
         a, b, c = v00, v11, v01
         wa, wb, wc = 1.0 - fp, fs, fp - fs
+        second = 1
     p = np.empty(3)
     n = np.empty(3)
     t = np.empty(3)
+    g = np.zeros(3)
     for q in range(3):
         p[q] = wa * vertices[a, q] + wb * vertices[b, q] + wc * vertices[c, q]
         n[q] = wa * normals[a, q] + wb * normals[b, q] + wc * normals[c, q]
         t[q] = wa * tangents[a, q] + wb * tangents[b, q] + wc * tangents[c, q]
-    return p, n, t
+    face = -1
+    if face_base.shape[0] > 0:
+        # the contract's faces wind (v00, v11, v10) and (v00, v01, v11): (a, c, b) here, outward
+        face = face_base[yarn] + 2 * (i_s * sides + i_p) + second
+        e1x, e1y, e1z = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
+        e2x, e2y, e2z = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], vertices[b, 2] - vertices[a, 2]
+        g[0], g[1], g[2] = unit3(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x)
+    return p, n, t, g, face
+
+
+@numba.njit(cache=True)
+def _twist(tx, ty, tz, bx, by, bz, c, s):
+    """The fiber frame of a twisted yarn: ``t_f = cos(alpha) T + s sin(alpha) (T x n)`` (``s = +1``
+    Z, ``-1`` S, :mod:`simulate.fabric.structure`); with ``T x n = -b``: ``t_f = c t - s' b``,
+    ``b_f = n x t_f = c b + s' t`` (``s' = s sin(alpha)``)."""
+    return c * tx - s * bx, c * ty - s * by, c * tz - s * bz, c * bx + s * tx, c * by + s * ty, c * bz + s * tz
+
+
+@numba.njit(cache=True)
+def _out_factor(wx, wy, wz, gx, gy, gz, nx, ny, nz):
+    """Exit half of the adjoint shading-normal factor (docs/physics.md 6): ``|w.N_g| / |w.N_s|``,
+    0 unless ``w`` is above both the geometric and the shading horizon."""
+    cg = wx * gx + wy * gy + wz * gz
+    cs = wx * nx + wy * ny + wz * nz
+    if cg <= 0.0 or cs <= 0.0:
+        return 0.0
+    return cg / cs
 
 
 @numba.njit(cache=True)
@@ -214,12 +255,15 @@ def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, tx, ty, tz, bx, by, bz, 
 
 
 @numba.njit(cache=True)
-def _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl, tx, ty, tz, bx, by, bz, nx, ny, nz):
-    """The surface branch's continuation: sampled reflection, weight factor applied."""
+def _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl, tx, ty, tz, bx, by, bz, nx, ny, nz,
+                 gx, gy, gz, corr_in):
+    """The surface branch's continuation: sampled reflection, weight factor and the adjoint
+    shading-normal factor applied (0 below the geometric horizon)."""
     ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
     out_d[i, 0] = ot * tx + ob * bx + on * nx
     out_d[i, 1] = ot * ty + ob * by + on * ny
     out_d[i, 2] = ot * tz + ob * bz + on * nz
+    wgt *= corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], gx, gy, gz, nx, ny, nz)
     for k in range(weight.shape[1]):
         out_w[i, k] = weight[i, k] * wgt
 
@@ -239,8 +283,11 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     T, cdf, cell_sum, c_bar, tau, nodes = inp.T, inp.cdf, inp.cell_sum, inp.c_bar, inp.tau, inp.nodes
     dpsi, n_psi, n_v, n_mu, n_phi = inp.dpsi, inp.n_psi, inp.n_v, inp.n_mu, inp.n_phi
     v_edges, off_tot, off_bar, detectors = inp.v_edges, inp.off_tot, inp.off_bar, inp.detectors
+    twist_c, twist_s, r_yarn, face_base = inp.twist_c, inp.twist_s, inp.r_yarn, inp.face_base
+    face_normals = inp.face_normals
     out_o, out_d, out_w, nee_o, nee_c, nee_need, hit_albedo = (out.out_o, out.out_d, out.out_w, out.nee_o,
                                                               out.nee_c, out.nee_need, out.hit_albedo)
+    out_prim = out.out_prim
     # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
     # every call reproducible whatever thread runs it (no state is shared between calls)
     np.random.seed(seed)
@@ -251,17 +298,12 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     clampf = np.ones(L)
     for i in range(n):
         f = prim[i]
+        out_prim[i] = f
+        yarn = face_yarn[f]
         ia, ib, ic = faces[f, 0], faces[f, 1], faces[f, 2]
         w0 = 1.0 - bu[i] - bv[i]
         w1 = bu[i]
         w2 = bv[i]
-        tx, ty, tz, bx, by, bz, nx, ny, nz = _frame(
-            w0 * normals[ia, 0] + w1 * normals[ib, 0] + w2 * normals[ic, 0],
-            w0 * normals[ia, 1] + w1 * normals[ib, 1] + w2 * normals[ic, 1],
-            w0 * normals[ia, 2] + w1 * normals[ib, 2] + w2 * normals[ic, 2],
-            w0 * tangents[ia, 0] + w1 * tangents[ib, 0] + w2 * tangents[ic, 0],
-            w0 * tangents[ia, 1] + w1 * tangents[ib, 1] + w2 * tangents[ic, 1],
-            w0 * tangents[ia, 2] + w1 * tangents[ib, 2] + w2 * tangents[ic, 2])
         # geometric normal from the winding (outward)
         e1x = vertices[ib, 0] - vertices[ia, 0]
         e1y = vertices[ib, 1] - vertices[ia, 1]
@@ -270,22 +312,50 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
         e2y = vertices[ic, 1] - vertices[ia, 1]
         e2z = vertices[ic, 2] - vertices[ia, 2]
         gx, gy, gz = unit3(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x)
+        if face_normals:
+            snx, sny, snz = gx, gy, gz
+        else:
+            snx = w0 * normals[ia, 0] + w1 * normals[ib, 0] + w2 * normals[ic, 0]
+            sny = w0 * normals[ia, 1] + w1 * normals[ib, 1] + w2 * normals[ic, 1]
+            snz = w0 * normals[ia, 2] + w1 * normals[ib, 2] + w2 * normals[ic, 2]
+        tx, ty, tz, bx, by, bz, nx, ny, nz = _frame(
+            snx, sny, snz,
+            w0 * tangents[ia, 0] + w1 * tangents[ib, 0] + w2 * tangents[ic, 0],
+            w0 * tangents[ia, 1] + w1 * tangents[ib, 1] + w2 * tangents[ic, 1],
+            w0 * tangents[ia, 2] + w1 * tangents[ib, 2] + w2 * tangents[ic, 2])
+        # the yarn's own frame (exit placement) and the fiber's (twist: the table's frame)
+        ytx, yty, ybx, yby, ybz = tx, ty, bx, by, bz
+        tw_s = twist_s[yarn]
+        if tw_s != 0.0:
+            tx, ty, tz, bx, by, bz = _twist(tx, ty, tz, bx, by, bz, twist_c[yarn], tw_s)
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
         px, py, pz = pos[i, 0], pos[i, 1], pos[i, 2]
         inside = dx * gx + dy * gy + dz * gz > 0.0
         # incident direction (towards where the light came from)
         ix, iy, iz = -dx, -dy, -dz
         dn = ix * nx + iy * ny + iz * nz
-        if inside or dn <= 0.0:
-            # from inside another yarn (interpenetration), or shading-normal disagreement:
-            # mirror about the tangent plane so the incidence is above it
+        for e in range(2):
+            for d in range(D):
+                nee_need[i, e, d] = False
+        # shading normals (Veach 1997, section 5.3; docs/physics.md 6): light scattered from w_in to
+        # w_out carries f |w_in.N_s| |w_out.N_g| / |w_in.N_g| (the adjoint of a camera tracer's
+        # f |w_in.N_s|), i.e. the local model times corr_in |w_out.N_g| / |w_out.N_s|. Light from
+        # outside that arrives below the shading horizon is absorbed (the BSDF is 0 there, as in
+        # Mitsuba 3 and pbrt-v4), and nothing leaves below either horizon.
+        corr_in = 1.0
+        if not inside:
+            if dn <= 0.0:
+                for k in range(L):
+                    out_w[i, k] = 0.0
+                continue
+            corr_in = dn / max(-(dx * gx + dy * gy + dz * gz), 1e-12)
+        else:
+            # from inside another yarn (interpenetration): mirror about the tangent plane so the
+            # incidence is above it
             ix, iy, iz = ix - 2.0 * dn * nx, iy - 2.0 * dn * ny, iz - 2.0 * dn * nz
         lt = ix * tx + iy * ty + iz * tz
         lb = ix * bx + iy * by + iz * bz
         ln = max(ix * nx + iy * ny + iz * nz, 1e-9)
-        for e in range(2):
-            for d in range(D):
-                nee_need[i, e, d] = False
         out_o[i, 0] = px + EPS_UM * gx
         out_o[i, 1] = py + EPS_UM * gy
         out_o[i, 2] = pz + EPS_UM * gz
@@ -294,22 +364,29 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
         if kind == K_LAMBERT:
             for d in range(D):
                 co = detectors[d, 0] * nx + detectors[d, 1] * ny + detectors[d, 2] * nz
-                if co > 0.0 and detectors[d, 0] * gx + detectors[d, 1] * gy + detectors[d, 2] * gz > 0.0:
+                cg = detectors[d, 0] * gx + detectors[d, 1] * gy + detectors[d, 2] * gz
+                if co > 0.0 and cg > 0.0:
                     nee_need[i, 0, d] = True
                     for k in range(L):
-                        nee_c[i, 0, d, k] = weight[i, k] * rho[k] / math.pi * co
-            # cosine-weighted continuation about the shading normal
+                        nee_c[i, 0, d, k] = weight[i, k] * rho[k] / math.pi * corr_in * cg
+            # cosine-weighted continuation about the GEOMETRIC normal: the adjoint weight
+            # f corr_in |w.N_g| / pdf is then rho corr_in wherever w is above the shading horizon
+            # (importance sampling of the factor; about N_s it would carry |w.N_g| / |w.N_s|)
+            tg = tx * gx + ty * gy + tz * gz
+            ux, uy, uz = unit3(tx - tg * gx, ty - tg * gy, tz - tg * gz)
+            vx, vy, vz = gy * uz - gz * uy, gz * ux - gx * uz, gx * uy - gy * ux
             u1 = np.random.random()
             u2 = np.random.random()
             r = math.sqrt(u1)
             ph = 2.0 * math.pi * u2
             cz = math.sqrt(max(1.0 - u1, 0.0))
-            ox = r * math.cos(ph) * tx + r * math.sin(ph) * bx + cz * nx
-            oy = r * math.cos(ph) * ty + r * math.sin(ph) * by + cz * ny
-            oz = r * math.cos(ph) * tz + r * math.sin(ph) * bz + cz * nz
+            ox = r * math.cos(ph) * ux + r * math.sin(ph) * vx + cz * gx
+            oy = r * math.cos(ph) * uy + r * math.sin(ph) * vy + cz * gy
+            oz = r * math.cos(ph) * uz + r * math.sin(ph) * vz + cz * gz
             out_d[i, 0], out_d[i, 1], out_d[i, 2] = ox, oy, oz
+            fac = corr_in if (cz > 0.0 and ox * nx + oy * ny + oz * nz > 0.0) else 0.0
             for k in range(L):
-                out_w[i, k] = weight[i, k] * rho[k]
+                out_w[i, k] = weight[i, k] * rho[k] * fac
             continue
         # ---------------- fiber material ----------------
         # table row by stochastic linear interpolation in |w_t| and |a|
@@ -394,6 +471,7 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
                 on = wx * nx + wy * ny + wz * nz
                 val = cook_torrance_cos_local(lt, lb, ln, ot, ob, on, m, n_host)
                 if val > 0.0:
+                    val *= corr_in * (wx * gx + wy * gy + wz * gz) / on
                     nee_need[i, 0, d] = True
                     for k in range(L):
                         nee_c[i, 0, d, k] = weight[i, k] * val
@@ -403,7 +481,7 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             if s_bar <= 0.0:
                 if np.random.random() < p_refl:
                     _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
-                                 tx, ty, tz, bx, by, bz, nx, ny, nz)
+                                 tx, ty, tz, bx, by, bz, nx, ny, nz, gx, gy, gz, corr_in)
                 else:
                     for k in range(L):
                         out_w[i, k] = 0.0
@@ -432,10 +510,11 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             for d in range(D):
                 wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
                 mu = wx * nx + wy * ny + wz * nz
-                if mu <= 0.0 or wx * gx + wy * gy + wz * gz <= 0.0:
+                cg = wx * gx + wy * gy + wz * gz
+                if mu <= 0.0 or cg <= 0.0:
                     continue
                 jm, jp, om = _table_bin(wx, wy, wz, tx, ty, tz, bx, by, bz, mu, sx, sbe, n_mu, n_phi)
-                scale = mu / (om * p_o * ln)
+                scale = corr_in * cg / (om * p_o * ln)
                 nee_need[i, 1, d] = True
                 for k in range(L):
                     val = 0.0
@@ -444,7 +523,7 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
                     nee_c[i, 1, d, k] = weight[i, k] * val * scale * clampf[k]
             if np.random.random() < p_refl:
                 _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
-                             tx, ty, tz, bx, by, bz, nx, ny, nz)
+                             tx, ty, tz, bx, by, bz, nx, ny, nz, gx, gy, gz, corr_in)
                 continue
             c_lo = cdf[j, rr, off_sel * seg - 1] if off_sel > 0 else 0.0
             c_hi = cdf[j, rr, off_sel * seg + seg - 1]
@@ -452,6 +531,7 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             t_cell = cdf[j, rr, cell] - (cdf[j, rr, cell - 1] if cell > 0 else 0.0)
             _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sbe, tx, ty, tz, bx, by, bz, nx, ny, nz)
             sc = s_bar / (ln * t_cell * (1.0 - p_refl)) if t_cell > 0.0 else 0.0
+            sc *= corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], gx, gy, gz, nx, ny, nz)
             for k in range(L):
                 out_w[i, k] = weight[i, k] * T[j, rr, cell, k] * sc * clampf[k]
             continue
@@ -467,28 +547,40 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             v_lo = v_edges[iv]
             v_hi = v_edges[iv + 1]
             vv = sx * (v_lo + (v_hi - v_lo) * np.random.random())
-            # move on the tube: psi grows towards -b; v along +t
-            yarn = face_yarn[f]
+            # move on the tube: psi grows towards -b; v along +t (the fiber's frame)
+            periodic = run_axis[yarn] < 2
             s0 = w0 * vertex_s[ia] + w1 * vertex_s[ib] + w2 * vertex_s[ic]
             f0 = w0 * vertex_phi[ia] + w1 * vertex_phi[ib] + w2 * vertex_phi[ic]
             # d P / d phi ~ n x t-ish: find the phi direction from the neighbouring ring point
-            q_p, q_n, q_t = _tube_point(s0, f0 + 1e-3, yarn, vertices, normals, tangents, vertex_base, n_s,
-                                        yarn_length, sides)
-            r_p, r_n, r_t = _tube_point(s0, f0, yarn, vertices, normals, tangents, vertex_base, n_s,
-                                        yarn_length, sides)
-            dpb = (q_p[0] - r_p[0]) * bx + (q_p[1] - r_p[1]) * by + (q_p[2] - r_p[2]) * bz
+            q_p, q_n, q_t, q_g, q_f = _tube_point(s0, f0 + 1e-3, yarn, vertices, normals, tangents, vertex_base,
+                                                  n_s, yarn_length, sides, periodic, face_base[:0])
+            r_p, r_n, r_t, r_g, r_f = _tube_point(s0, f0, yarn, vertices, normals, tangents, vertex_base, n_s,
+                                                  yarn_length, sides, periodic, face_base[:0])
+            dpb = (q_p[0] - r_p[0]) * ybx + (q_p[1] - r_p[1]) * yby + (q_p[2] - r_p[2]) * ybz
             sgn = -1.0 if dpb > 0.0 else 1.0
-            t_run = tx if run_axis[yarn] == 0 else ty
-            s1 = s0 + vv * t_run
-            f1 = f0 + sgn * dps
-            e_p, e_n, e_t = _tube_point(s1, f1, yarn, vertices, normals, tangents, vertex_base, n_s,
-                                        yarn_length, sides)
+            # s is x (warp), y (weft) or the arc length (a felt's fiber, run_axis 2)
+            t_run = ytx if run_axis[yarn] == 0 else (yty if run_axis[yarn] == 1 else 1.0)
+            if tw_s == 0.0:
+                s1 = s0 + vv * t_run
+                f1 = f0 + sgn * dps
+            else:
+                # twisted: the offset v t_f - r dps b_f on the surface, in the yarn's (t, b)
+                c_a = twist_c[yarn]
+                d_t = vv * c_a - r_yarn * dps * tw_s
+                d_b = -vv * tw_s - r_yarn * dps * c_a
+                s1 = s0 + d_t * t_run
+                f1 = f0 - sgn * d_b / r_yarn
+            e_p, e_n, e_t, e_g, e_face = _tube_point(s1, f1, yarn, vertices, normals, tangents, vertex_base, n_s,
+                                                     yarn_length, sides, periodic, face_base)
+            if face_normals:
+                e_n = e_g
             etx, ety, etz, ebx, eby, ebz, enx, eny, enz = _frame(e_n[0], e_n[1], e_n[2], e_t[0], e_t[1], e_t[2])
+            if tw_s != 0.0:
+                etx, ety, etz, ebx, eby, ebz = _twist(etx, ety, etz, ebx, eby, ebz, twist_c[yarn], tw_s)
+            egx, egy, egz = e_g[0], e_g[1], e_g[2]
+            # the exit's rays start off its triangle along the geometric normal (no re-hit of it)
             for q in range(3):
-                nee_o[i, 1, q] = e_p[q]
-            nee_o[i, 1, 0] += EPS_UM * enx
-            nee_o[i, 1, 1] += EPS_UM * eny
-            nee_o[i, 1, 2] += EPS_UM * enz
+                nee_o[i, 1, q] = e_p[q] + EPS_UM * e_g[q]
             # marginal probability of the exit cell (offset, v): sum over its direction bins
             c_first = (io * n_v + iv) * n_mu * n_phi
             c_last = c_first + n_mu * n_phi - 1
@@ -497,24 +589,27 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             for d in range(D):
                 wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
                 mu = wx * enx + wy * eny + wz * enz
-                if mu <= 0.0:
+                cg = wx * egx + wy * egy + wz * egz
+                if mu <= 0.0 or cg <= 0.0:
                     continue
                 jm, jp, om = _table_bin(wx, wy, wz, etx, ety, etz, ebx, eby, ebz, mu, sx, sb, n_mu, n_phi)
                 c2 = c_first + jm * n_phi + jp
-                scale = entry * mu / (om * cb * p_ov)
+                scale = entry * corr_in * cg / (om * cb * p_ov)
                 nee_need[i, 1, d] = True
                 for k in range(L):
                     nee_c[i, 1, d, k] = weight[i, k] * T[j, kr, c2, k] * scale
         # continuation
         if np.random.random() < p_refl:
             _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
-                         tx, ty, tz, bx, by, bz, nx, ny, nz)
+                         tx, ty, tz, bx, by, bz, nx, ny, nz, gx, gy, gz, corr_in)
         elif cell >= 0:
             _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, etx, ety, etz, ebx, eby, ebz, enx, eny, enz)
             for q in range(3):
                 out_o[i, q] = nee_o[i, 1, q]
+            out_prim[i] = e_face
             p_c = (cdf[j, kr, cell] - (cdf[j, kr, cell - 1] if cell > 0 else 0.0)) / total
             sc = entry / (cb * p_c * (1.0 - p_refl))
+            sc *= corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], egx, egy, egz, enx, eny, enz)
             for k in range(L):
                 out_w[i, k] = weight[i, k] * T[j, kr, cell, k] * sc
         else:

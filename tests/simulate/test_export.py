@@ -108,6 +108,12 @@ def test_mitsuba_rgb_export_is_the_models_colour(classic):
     assert np.all(got[:, 0] > got[:, 1])          # and it is red
 
 
+#: A valid sampler's p-value is uniform on [0, 1]: it falls below this 0.1 % of the time (the table
+#: the sampler draws from is itself Monte Carlo output, so the draw is fixed only up to that noise);
+#: a wrong density gives p < 1e-6 (test_sampling_test_detects_a_wrong_density).
+P_VALID = 1e-3
+
+
 @pytest.mark.parametrize("theta_i", [0.0, 35.0, 60.0, 75.0])
 def test_mitsuba_sample_is_a_valid_importance_sampler(classic, theta_i):
     """Chi-square of 100 000 sampled directions (20 x 40 cells of cos(theta), phi) against Mitsuba's
@@ -117,7 +123,7 @@ def test_mitsuba_sample_is_a_valid_importance_sampler(classic, theta_i):
 
     for against in ("pdf", "eval"):
         r = sampling_chi2(classic["rgb"], theta_i, n_samples=100_000, seed=int(theta_i), against=against)
-        assert r["p_value"] > 0.01, (against, r)
+        assert r["p_value"] > P_VALID, (against, r)
         assert r["weight_rel_err_max"] < 1e-4 and r["invalid_fraction"] < 0.01
 
 
@@ -128,7 +134,7 @@ def test_sampling_test_detects_a_wrong_density(classic):
 
     # sample at 60 deg, compare with the density at 0 deg by rotating the histogram's reference
     good = render.sampling_chi2(classic["rgb"], 60.0, n_samples=50_000, against="pdf")
-    assert good["p_value"] > 0.01
+    assert good["p_value"] > P_VALID
     orig = render.load_measured
 
     def shifted(path):

@@ -86,3 +86,31 @@ def fake_fiber(monkeypatch):
     monkeypatch.setattr(tables, "volume_brdf", volume_brdf)
     monkeypatch.setattr(tables, "surface_brdf", surface_brdf)
     return rec
+
+
+def carpet_text() -> str:
+    """The red-cotton preset without its ``[structure]`` section: the carpet of top cells, the
+    summation route these fake-fiber tests exercise (docs/physics.md section 6)."""
+    import re
+
+    from simulate.config import resolve_config_path
+
+    text = resolve_config_path("red-cotton").read_text()
+    carpet = re.sub(r"(?ms)^\[structure\]\n.*?(?=^\[)", "", text)
+    assert not re.search(r"(?m)^\[structure\]", carpet) and "[method]" in carpet
+    return carpet
+
+
+def carpet_config():
+    """:func:`carpet_text` parsed (name ``red-cotton``)."""
+    from simulate.config import parse_config
+
+    return parse_config(carpet_text(), "red-cotton-carpet.toml")
+
+
+@pytest.fixture
+def carpet_path(tmp_path):
+    """:func:`carpet_text` as a config file."""
+    path = tmp_path / "red-cotton-carpet.toml"
+    path.write_text(carpet_text())
+    return path

@@ -44,9 +44,9 @@ def cfg(tmp_path):
     return path
 
 
-def test_fabric_writes_a_dataset_and_overwrites_only_its_own_output(fake_fiber, tmp_path, capsys):
+def test_fabric_writes_a_dataset_and_overwrites_only_its_own_output(fake_fiber, tmp_path, capsys, carpet_path):
     out = tmp_path / "sim"
-    assert main(["fabric", "red-cotton", "--method", "summation", "--out", str(out), "--seed", "5",
+    assert main(["fabric", str(carpet_path), "--method", "summation", "--out", str(out), "--seed", "5",
                  "--target-rel-err", "0.05"]) == 0
     assert "wrote" in capsys.readouterr().out
     ds = read_dataset(out)
@@ -73,7 +73,7 @@ def test_fabric_with_a_plan_path_and_measurable_only(fake_fiber, tmp_path, cfg):
     (["--method", "summation", "--out", "{out}", "--target-rel-err", "abc"], "--target-rel-err"),
     (["--method", "bssrdf", "--out", "{out}"], "--method"),
     (["--method", "summation", "--out", "{out}", "--seed", "-1"], "--seed"),
-    (["--method", "summation", "--out", "{out}", "--threads", "0"], "--threads"),
+    (["--method", "summation", "--out", "{out}", "--threads", "-1"], "--threads"),   # 0 = all (issue 23)
     (["--method", "summation"], "--out"),
 ])
 def test_fabric_bad_arguments_exit_2_with_one_line(fake_fiber, tmp_path, capsys, argv_tail, fragment):

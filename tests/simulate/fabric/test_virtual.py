@@ -11,7 +11,7 @@ from simulate import fabric as fab
 from simulate.config import load_config
 from simulate.virtual import GENERATOR, fabric_dataset
 
-from .conftest import PHOTONS, REL_ERR, fake_R, fake_rho, fake_surface
+from .conftest import PHOTONS, REL_ERR, carpet_config, fake_R, fake_rho, fake_surface
 
 SMALL_PLAN = """
 name = "small"
@@ -34,7 +34,7 @@ def _keyed(frame):
 
 
 def test_summation_dataset_has_the_plan_geometries_and_exact_values(fake_fiber, tmp_path):
-    config = load_config("red-cotton")
+    config = carpet_config()
     plan = parse_plan(SMALL_PLAN, "small.toml")
     ds = fabric_dataset(config, plan, "summation", seed=7)
     write_dataset(ds, tmp_path / "sum")
@@ -72,7 +72,7 @@ def test_summation_dataset_has_the_plan_geometries_and_exact_values(fake_fiber, 
 
 def test_measurable_only_skips_the_beam_blocked_points(fake_fiber):
     plan = parse_plan(SMALL_PLAN, "small.toml")
-    ds = fabric_dataset(load_config("red-cotton"), plan, "summation", measurable_only=True)
+    ds = fabric_dataset(carpet_config(), plan, "summation", measurable_only=True)
     assert _keyed(ds.geometries()) == _keyed(plan.geometries(measurable_only=True))
     assert len(plan.check().blocked) > 0
     assert len(ds.geometries()) == len(plan.geometries()) - len(plan.check().blocked)

@@ -39,7 +39,7 @@ def test_red_cotton_still_loads_with_its_dict_and_weave():
     w = weave_from_config(cfg)
     assert w.matrix.tolist() == [[1, 0], [0, 1]]
     assert (w.spacing_um, w.width_um, w.height_um, w.crimp, w.points_per_span, w.sides) == (
-        300.0, 250.0, 100.0, 1.0, 8, 16)
+        300.0, 250.0, 100.0, 1.0, 16, 48)
 
 
 def test_no_weave_table_is_the_plain_weave_with_the_defaults(tmp_path):

@@ -20,7 +20,7 @@ def test_fields_properties_and_dtype():
     assert w.matrix.dtype == np.int8 and w.matrix.shape == (2, 3)
     assert (w.n_warp, w.n_weft, w.n_yarns) == (2, 3, 5)
     assert (w.Lx, w.Ly) == (600.0, 400.0)
-    assert (w.points_per_span, w.sides, w.crimp) == (8, 16, 0.5)
+    assert (w.points_per_span, w.sides, w.crimp) == (16, 48, 0.5)
     assert not w.matrix.flags.writeable            # frozen all the way down
     assert w == Weave(np.array([[1, 0, 1], [0, 1, 0]]), spacing_um=200, width_um=150, height_um=60, crimp=0.5)
     assert hash(w) == hash(Weave(w.matrix, spacing_um=200, width_um=150, height_um=60, crimp=0.5))

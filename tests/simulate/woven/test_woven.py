@@ -68,7 +68,9 @@ def test_flat_lambert_gives_rho_over_pi_in_every_direction():
 
 def test_non_absorbing_smooth_yarns_reflect_plus_transmit_one(plain, white_table):
     # roughness 0: specular Fresnel surface + a table of a non-absorbing fiber: F + (1 - F) = 1;
-    # the plain weave's yarns interpenetrate near the crossings, so the re-entry rule is exercised
+    # the plain weave's yarns interpenetrate near the crossings, so the re-entry rule is exercised.
+    # Face normals: with shading normals the adjoint rule does not conserve energy ray by ray (its
+    # loss on a coarse tube is test_shading_normal_energy_loss_vanishes_as_the_tube_is_refined's)
     # the table is itself a Monte Carlo estimate whose rows conserve energy only to within their
     # own noise (up to 2 % in the grazing rows, shared by every ray; the fiber tests check the
     # table's conservation): scale each row to conserve exactly, to test the tracer's bookkeeping
@@ -79,7 +81,7 @@ def test_non_absorbing_smooth_yarns_reflect_plus_transmit_one(plain, white_table
     mat = W.FiberSurface(table, 0.0, 1.5)
     for theta in (0.0, 50.0):
         res = W.trace(mesh, mat, _dirs(theta, 20.0)[0], _dirs([0, 30]), target_rel_err=0.02, max_rays=16384,
-                      seed=2, chunk=1024)
+                      seed=2, chunk=1024, normals="face")
         total = res.reflected + res.transmitted
         u = np.asarray(res.info["u_reflected_plus_transmitted"])
         assert res.info["lost_rays"] == 0 and res.info["killed_at_max_bounces"] == 0

@@ -91,8 +91,9 @@ def test_objective_is_compares_nrmse_and_colour(base_problem):
 
 def test_flat_direction_is_warned(red_cotton):
     """A band with zero peak: its centre changes nothing and is named as not identifiable."""
-    text = red_cotton.text.replace("center_nm = 490, width_nm = 45, peak_per_um = 0.62",
-                                   "center_nm = 490, width_nm = 45, peak_per_um = 0.0")
+    assert "center_nm = 490, width_nm = 32, peak_per_um = 0.62" in red_cotton.text  # the preset's band
+    text = red_cotton.text.replace("center_nm = 490, width_nm = 32, peak_per_um = 0.62",
+                                   "center_nm = 490, width_nm = 32, peak_per_um = 0.0")
     config = parse_config(text, "flat.toml")
     free = parse_free(["fiber.dye.bands[1].center_nm,fiber.dye.bands[0].peak_per_um=0.3:3"], config)
     probe = FitProblem(config, measurement(lambda g, wl: np.full((len(g), wl.size), 0.3), None), free,

@@ -1,0 +1,95 @@
+"""The red cotton's colour by the woven Monte Carlo with the yarns' twist, against the structured summation (issue 19).
+
+``python -m studies.bench_woven_colour [CONFIG] [--target 0.01] [--seed S] [--threads N]`` prints, at the
+report's colour geometry (incidence 0, observation 10 deg on the mirror side, as
+:mod:`studies.bench_structure`), the colour (H, S, V, BLUE/RED, GREEN/RED on linear sRGB, D65) of:
+
+1. the woven Monte Carlo, fibers along the yarn axis (twist 0);
+2. the woven Monte Carlo with the ``[structure]`` twist (default 24 deg Z, both systems) -- rows 1 and 2
+   share ONE pair of BSSRDF tables, so their difference is the twist's (a felt, ``kind = "nonwoven"``:
+   the felt Monte Carlo of :mod:`simulate.woven.felt` instead of rows 1-2);
+3. the structured summation (:func:`simulate.fabric.structure.structured_beta`) of the same structure;
+
+with each run's seconds. The config's ``[structure]`` is used if it has one, else the defaults
+(``kind = "woven"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import numpy as np
+
+from gonio.data.colour import spectrum_colour
+from simulate import fabric as fab
+from simulate import woven as W
+from simulate.config import load_config, weave_from_config
+from simulate.fabric import structure as ST
+from simulate.fabric.mesh import mesh as weave_mesh
+
+WAVELENGTHS = np.arange(390.0, 711.0, 10.0)
+
+
+def _row(name: str, beta: np.ndarray, seconds: float) -> dict:
+    c = spectrum_colour(WAVELENGTHS, beta)
+    return {"model": name, "h": c.h, "s": c.s, "v": c.v, "blue_red": c.blue_red, "green_red": c.green_red,
+            "seconds": seconds}
+
+
+def colours(config: str = "red-cotton", target: float = 0.01, seed: int = 0, threads: int | None = None) -> list[dict]:
+    cfg = load_config(config)
+    spec = cfg.structure if getattr(cfg, "structure", None) is not None else ST.StructureSpec()
+    fiber = cfg.fiber(WAVELENGTHS)
+    mesh: Any
+    if spec.kind == "nonwoven":
+        from simulate.woven.felt import felt_mesh
+
+        wv, mesh = None, felt_mesh(spec, float(fiber.radius_um), seed=seed)
+    else:
+        wv = weave_from_config(cfg)
+        mesh = weave_mesh(wv)
+    w_i, w_o = fab.directions_deg([0.0], [0.0]), fab.directions_deg([10.0], [180.0])
+    t0 = time.perf_counter()
+    half = W.table_photons(target) // 2
+    tables = (W.yarn_table(fiber, WAVELENGTHS, photons_per_row=half, seed=seed, threads=threads),
+              W.yarn_table(fiber, WAVELENGTHS, photons_per_row=half, seed=seed + 1_000_003, threads=threads))
+    t_tables = time.perf_counter() - t0
+    rows = []
+    runs = [("felt MC", spec)] if wv is None else [
+        ("woven MC, twist 0", None),
+        (f"woven MC, twist {spec.warp_twist_deg:g} {spec.warp_twist}/{spec.weft_twist_deg:g} {spec.weft_twist}", spec)]
+    for name, st in runs:
+        t = time.perf_counter()
+        beta, u, info = W.fabric_beta(mesh, fiber, w_i, w_o, WAVELENGTHS, target_rel_err=target, seed=seed,
+                                      threads=threads or 1, tables=tables, structure=st)
+        row = _row(name, beta[0], time.perf_counter() - t)
+        row["rel_err"] = info["incidences"][0]["rel_err"]
+        rows.append(row)
+    t = time.perf_counter()
+    beta, u, info = ST.structured_beta(spec, fiber, wv, w_i, w_o, WAVELENGTHS, target_rel_err=target, seed=seed,
+                                       threads=threads)
+    rows.append(_row("structured summation", beta[0], time.perf_counter() - t))
+    rows[0]["tables_seconds"] = t_tables
+    return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("config", nargs="?", default="red-cotton")
+    ap.add_argument("--target", type=float, default=0.01)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=None)
+    a = ap.parse_args(argv)
+    rows = colours(a.config, a.target, a.seed, a.threads)
+    print(f"{a.config}: incidence 0, observation 10 deg (mirror side); BSSRDF tables "
+          f"{rows[0]['tables_seconds']:.0f} s")
+    print(f"{'model':34s} {'H':>6s} {'S':>6s} {'V':>6s} {'B/R':>6s} {'G/R':>7s} {'s':>6s}")
+    for r in rows:
+        print(f"{r['model']:34s} {r['h']:6.3f} {r['s']:6.3f} {r['v']:6.3f} {r['blue_red']:6.3f} "
+              f"{r['green_red']:7.4f} {r['seconds']:6.0f}" + (f"  (rel. err {r['rel_err']:.3f})" if "rel_err" in r else ""))
+
+
+if __name__ == "__main__":
+    main()
