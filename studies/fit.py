@@ -55,18 +55,22 @@ objective (a change of mu_s moves every photon path): measured on red cotton's v
 5 % photon error, a 3 % step gave a slope of the wrong sign (the noise), 10 % the trend, and the
 walked-parameter recovery test converges with it.
 
-Scattering parameters re-weighted, not re-walked: the fit keeps its last walk as the *reference*
-and evaluates another particle volume fraction or size (``mu_s`` and the phase function per
-wavelength) by scoring the reference walk's paths -- same seeds, same photons, same groups -- for
-the new optics with the kernel's likelihood ratio (``absorption_table(..., reference=...)``), as the
-walk already does across wavelengths. The paths do not move, so the objective is smooth in these
+Scattering parameters re-weighted, not re-walked: the fit walks only at the points of a
+geometric lattice of the walked parameters (``start * exp(0.1 k)``, :meth:`FitProblem.lattice`)
+and evaluates any other particle volume fraction or size (``mu_s`` and the phase function per
+wavelength) by scoring the paths of the walk at its lattice point -- same seeds, same photons,
+same groups -- for the new optics with the kernel's likelihood ratio (``absorption_table(...,
+reference=...)``), as the walk already does across wavelengths. The lattice makes the objective a
+deterministic function of the parameters (a first version re-weighted from the *last* walk: the
+same point then took different values depending on the search's history, and a resumed fit
+found its accepted point 8 % worse). The paths do not move, so the objective is smooth in these
 parameters (exact common random numbers; the re-weighted estimate equals a fresh walk within its
 standard errors, tested). The variance bound :func:`simulate.fiber.spectral.reweight_exponent`
 (``ln E[w^2] ~= N [(r - 1)^2 + ln(1 + chi^2)]``, ``N`` the mean scatterings per photon, counted by
-the kernel) decides: a change whose bound exceeds the reference walk's own (its wavelength groups'
-spread) by more than ``ln 4`` (:data:`studies.fit_problem.REWEIGHT_LIMIT`) is walked afresh and
-becomes the new reference. On red cotton (``N`` ~ 40-55) that allows about +-10 % in volume fraction
-or particle radius; the measured standard error grew by 4-13 % there, far below the bound (scores
+the kernel) decides: a point whose bound exceeds the lattice walk's own (its wavelength groups'
+spread) by more than ``ln 4`` (:data:`studies.fit_problem.REWEIGHT_LIMIT`) is walked itself. On red
+cotton (``N`` ~ 40-55) the bound allows about +-10 % in volume fraction or particle radius (the
+lattice needs +-5 %); the measured standard error grew by 4-13 % there, far below the bound (scores
 come mostly from short paths). A re-weighted pass costs about what a walk costs (the kernel walks
 the same paths to score them): the gain is the smooth objective, not the pass. ``fit.json`` counts
 ``walks`` and ``reweighted`` passes apart.

@@ -38,6 +38,9 @@ GENERATOR = "simulate fit"
 #: evaluation may be than that of the reference walk's own wavelength groups: ``ln 4``, the standard
 #: error at most doubled by the bound (measured on red cotton: x1.1 for a 10 % volume fraction change).
 REWEIGHT_LIMIT = math.log(4.0)
+#: Step of the geometric lattice of reference walks (:meth:`FitProblem.lattice`): 10 %, so a point is
+#: at most 5 % from its reference (bound ~0.1-0.5 on red cotton, well inside the limit).
+LATTICE_STEP = 0.10
 #: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
 KNOT_LOW, KNOT_HIGH = -4.0, 0.5
 
@@ -235,7 +238,7 @@ class FitProblem:
     reweight_seconds: float = 0.0
     #: ``(bound of the last re-weighting considered, the reference walk's own)`` (diagnostics)
     last_exponent: tuple = (0.0, 0.0)
-    _reference: Any = None
+    _references: dict = field(default_factory=dict)
     _tables: dict = field(default_factory=dict)
     _doc: dict = field(default_factory=dict)
 
@@ -311,11 +314,55 @@ class FitProblem:
     # -- the model ----------------------------------------------------------------------------
 
     def table(self, config: SimulationConfig) -> AbsorptionTable:
-        walk = tuple(round(float(paths.get(self._doc_of(config), p.name)), 12) for p in self.free if p.kind == "walk")
+        """The absorption table of ``config``'s scattering: walked, or re-weighted from the walk at its
+        lattice point (:meth:`lattice`), whichever the module docstring's rule says; memoised."""
+        walk = self._walk_values(config)
         if walk in self._tables:
             return self._tables[walk]
         wl = self.wavelengths_nm
         nodye = dataclasses.replace(config, dye=None).fiber(wl)
+        lattice = self.lattice(walk)
+        table = None
+        if self.reweight and lattice != walk:
+            ref = self._references.get(lattice)
+            if ref is None:
+                doc = self._doc_of(config)
+                for p, v in zip([p for p in self.free if p.kind == "walk"], lattice):
+                    paths.set_value(doc, p.name, v)
+                ref_fiber = dataclasses.replace(parse_config(toml_dumps(doc), "lattice.toml"), dye=None).fiber(wl)
+                ref = (ref_fiber, self._run(ref_fiber, lattice, None))
+                self._references[lattice] = ref
+            if self._within_bound(ref[1], nodye, wl):
+                table = self._run(nodye, walk + ("reweighted from",) + lattice, ref)
+        if table is None:
+            table = self._run(nodye, walk, None)
+            self._references[walk] = (nodye, table)
+        if len(self._tables) >= 4:  # the centre and a Jacobian's columns
+            self._tables.pop(next(iter(self._tables)))
+        self._tables[walk] = table
+        return table
+
+    def _walk_values(self, config: SimulationConfig) -> tuple:
+        return tuple(round(float(paths.get(self._doc_of(config), p.name)), 12) for p in self.free if p.kind == "walk")
+
+    def lattice(self, walk: tuple) -> tuple:
+        """The reference point of walked values ``walk``: each positive value rounded to the geometric
+        lattice ``start * exp(LATTICE_STEP * k)`` (others kept). Evaluating every point from the walk
+        at its lattice point makes the objective a deterministic function of the parameters (not of
+        the order in which the search visited them: a resumed fit sees the same values)."""
+        starts = [p.start for p in self.free if p.kind == "walk"]
+        out = []
+        for s, v in zip(starts, walk):
+            if s > 0 and v > 0:
+                k = round(math.log(v / s) / LATTICE_STEP)
+                out.append(round(s * math.exp(LATTICE_STEP * k), 12))
+            else:
+                out.append(v)
+        return tuple(out)
+
+    def _run(self, nodye: Any, key: tuple, ref: tuple | None) -> AbsorptionTable:
+        """A fresh walk of ``nodye`` (``ref`` None) or the re-weighting of ``ref = (fiber, table)``."""
+        wl = self.wavelengths_nm
         if self.method == "classic":
             w_in = np.array([[0.0, 0.0, 1.0]])
             outputs = fib.range_outputs([0.0], [1.0], [-math.pi], [math.pi], nodye.half_width)
@@ -325,55 +372,44 @@ class FitProblem:
             outputs = fib.point_outputs(self.pairs.w_out, nodye.half_width)
             route = self.config.method
         nodes = absorption_nodes(self.nu_max, self.nodes)
-        reference = self._reweightable(nodye, wl)
-        key = walk if reference is None else walk + ("reweighted from",) + reference[0]
         cache = None
         if self.out is not None:
             from studies.fit_state import WalkCheckpoint
 
             cache = WalkCheckpoint(self.out, self.identity(), key, nodes, self.photons)
-        if reference is not None:  # the reference walk's paths, scored for this scattering
-            table = absorption_table(nodye, w_in, outputs, wl, nodes, method=route,
-                                     target_rel_err=self.target_rel_err, photons=reference[2].photons,
-                                     seed=int(self.seed or 0), threads=self.threads, progress=self.walk_progress,
-                                     cache=cache, reference=reference[1])
-            self.reweights += 1
-            self.reweight_seconds += table.seconds
-        else:
-            table = absorption_table(nodye, w_in, outputs, wl, nodes, method=route,
-                                     target_rel_err=self.target_rel_err, photons=self.photons,
-                                     seed=int(self.seed or 0), threads=self.threads, progress=self.walk_progress,
-                                     cache=cache)
-            if self.photons is None:
-                self.photons = dict(table.photons)
-            self.walks += 1
-            self.walk_seconds += table.seconds
-            self._reference = (walk, nodye, table)
+        table = absorption_table(nodye, w_in, outputs, wl, nodes, method=route, target_rel_err=self.target_rel_err,
+                                 photons=self.photons if ref is None else ref[1].photons, seed=int(self.seed or 0),
+                                 threads=self.threads, progress=self.walk_progress, cache=cache,
+                                 reference=None if ref is None else ref[0])
         if cache is not None and cache.found:
             log.info("%d Monte Carlo runs read from the checkpoint %s", cache.found, cache.dir)
-        if len(self._tables) >= 4:  # the centre and a Jacobian's columns
-            self._tables.pop(next(iter(self._tables)))
-        self._tables[walk] = table
+        if ref is not None:
+            self.reweights += 1
+            self.reweight_seconds += table.seconds
+            return table
+        if self.photons is None:
+            self.photons = dict(table.photons)
+        self.walks += 1
+        self.walk_seconds += table.seconds
+        if len(self._references) >= 8:
+            self._references.pop(next(iter(self._references)))
         return table
 
-    def _reweightable(self, nodye: Any, wl: np.ndarray) -> tuple | None:
-        """The reference walk ``(walk values, fiber, table)`` when its paths can be re-weighted to
-        ``nodye``'s scattering (:func:`simulate.fiber.spectral.reweight_exponent`: the bound grows by
-        at most :data:`REWEIGHT_LIMIT` over the walk's own wavelength groups), else None (walk)."""
+    def _within_bound(self, ref_table: AbsorptionTable, nodye: Any, wl: np.ndarray) -> bool:
+        """Whether ``ref_table``'s paths can be re-weighted to ``nodye``'s scattering
+        (:func:`simulate.fiber.spectral.reweight_exponent`: the bound grows by at most
+        :data:`REWEIGHT_LIMIT` over the walk's own wavelength groups)."""
         from simulate.fiber.spectral import reweight_exponent, spectral_optics
 
-        if not self.reweight or self._reference is None:
-            return None
-        ref_table = self._reference[2]
         n = ref_table.group_scatterings()
         own = reweight_exponent(ref_table.optics, ref_table.optics, ref_table.groups, n)
         target = reweight_exponent(ref_table.optics, spectral_optics(nodye, wl), ref_table.groups, n)
         self.last_exponent = (target, own)
         if target - own > REWEIGHT_LIMIT:
-            log.info("scattering too far from the reference walk (bound %.3g > %.3g + %.3g): walking again",
+            log.info("scattering too far from the lattice walk (bound %.3g > %.3g + %.3g): walked itself",
                      target, own, REWEIGHT_LIMIT)
-            return None
-        return self._reference
+            return False
+        return True
 
     def _doc_of(self, config: SimulationConfig) -> dict:
         import tomllib
