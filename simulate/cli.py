@@ -472,12 +472,16 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="fabric model to fit (default classic)")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
-    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=60, dest="max_evaluations",
-                   help="objective evaluations per start (default 60)")
+    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=400, dest="max_evaluations",
+                   help="objective evaluations of the search in all: steps and Jacobian columns of every start "
+                        "(default 400; the uncertainty propagation afterwards is counted apart)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
                    help="model wavelengths for an RGB measurement (default: the config's)")
+    p.add_argument("--dye", choices=("config", "knots"), default="config",
+                   help="knots: replace the config's dye by 8 knots of log10 absorption (any colour; free them "
+                        "with --free dye), started from the measured colour (default: the config's dye)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point)")
     p.add_argument("--target-rel-err", type=_rel_err, default=0.03, dest="target_rel_err",
                    help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
@@ -490,7 +494,22 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 def _is_fit_output(out: Path) -> bool:
     from studies.fit import STATE_NAME
 
-    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file()
+    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir()
+
+
+def _fit_left_behind(out: Path) -> str:
+    """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists)."""
+    from studies.fit import STATE_NAME
+    from studies.fit_state import WALKS_DIR
+
+    if (out / STATE_NAME).is_file():
+        return f"the last accepted point is in {out / STATE_NAME} (continue with --resume)"
+    walks = out / WALKS_DIR
+    runs = len(list(walks.glob("*.npz"))) if walks.is_dir() else 0
+    if runs:
+        return (f"no point was evaluated yet; {runs} finished Monte Carlo runs are in {walks} "
+                "(--resume continues the walk from them)")
+    return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 
 def _fit_run(args: argparse.Namespace) -> int:
@@ -501,10 +520,6 @@ def _fit_run(args: argparse.Namespace) -> int:
 
     config = _load_config(args.config)
     try:
-        free = parse_free(args.free, config)
-    except FitError as exc:
-        raise _UsageError(str(exc)) from None
-    try:
         measured = read_dataset(args.measured)
     except DatasetError as exc:
         raise _UsageError(f"MEASURED_DIR: {exc}") from None
@@ -514,6 +529,16 @@ def _fit_run(args: argparse.Namespace) -> int:
             wavelengths = np.array([float(w) for w in args.wavelengths.split(",")])
         except ValueError:
             raise _UsageError(f"--wavelengths: expected numbers separated by commas, got {args.wavelengths!r}") from None
+    if args.dye == "knots":
+        from studies.fit_start import knots_config
+
+        spectral = "channel" not in measured.table.columns
+        config = knots_config(config, wavelengths if wavelengths is not None else
+                              (measured.wavelengths_nm if spectral else config.wavelengths_nm))
+    try:
+        free = parse_free(args.free, config)
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
     try:
         problem = FitProblem(config, measured, free, method=args.method, colour_weight=args.colour_weight,
                              target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
@@ -532,8 +557,7 @@ def _fit_run(args: argparse.Namespace) -> int:
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
-        print(f"simulate fit: interrupted; the last accepted point is in {args.out / 'fit-state.json'} "
-              "(continue with --resume)", file=sys.stderr)
+        print(f"simulate fit: interrupted; {_fit_left_behind(args.out)}", file=sys.stderr)
         return 130
     try:
         doc = write_outputs(problem, result, args.out)
@@ -550,6 +574,7 @@ def _fit_run(args: argparse.Namespace) -> int:
         print(f"warning: {w}", file=sys.stderr)
     info = doc["info"]
     print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
+          f"{info['reweighted']} re-weighted passes, "
           f"{info['seconds']:.1f} s)")
     return 0
 

@@ -33,6 +33,9 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     # bands = [{center_nm = 520, width_nm = 40, peak_per_um = 0.4}]
     # curve = "logistic-edge"          #   mu_a = long + (short - long) / (1 + exp((l - edge) / width))
     # short_per_um = 0.5, long_per_um = 0.001, edge_nm = 590, width_nm = 12
+    # curve = "knots"                  #   any colour: log10 mu_a (1/um) at K >= 2 knot wavelengths,
+    # wavelength_nm = [400, 450, ...]  #   strictly increasing; PCHIP in log10 between knots, the end
+    # log10_per_um = [-1, -0.5, ...]   #   values held outside; each value in [-6, 2]
 
     [particles]                        # Mie spheres in the host (exclusive with [medium])
     n = 1.0                            # spectrum, > 0: real part of the particle index
@@ -113,13 +116,15 @@ __all__ = [
 _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
 METHODS = ("nee", "beam", "bssrdf")
-DYE_CURVES = ("gaussian-bands", "logistic-edge")
+DYE_CURVES = ("gaussian-bands", "logistic-edge", "knots")
+#: Range of a knot of the ``knots`` dye curve: log10 of the host absorption in 1/um.
+KNOT_LOG10_RANGE = (-6.0, 2.0)
 #: The keys of the schema's tables (a key outside them is refused, with a suggestion, before any
 #: field is read: :class:`simulate.config_table.Table`).
 _FIELDS: dict[str, tuple[str, ...]] = {
     "fiber": ("radius_um", "n_host", "cell_width_deg", "dye"),
     "fiber.dye": ("wavelength_nm", "mu_a_per_um", "curve", "baseline_per_um", "bands", "short_per_um",
-                  "long_per_um", "edge_nm", "width_nm"),
+                  "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
     "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
     "method": ("method", "target_rel_err", "max_photons", "threads"),
@@ -161,7 +166,11 @@ class DyeSpectrum:
     ``curve = "table"``: ``params = {"wavelength_nm": [...], "mu_a_per_um": [...]}``;
     ``"gaussian-bands"``: ``baseline_per_um + sum_j peak_per_um_j exp(-(l - center_nm_j)^2 /
     (2 width_nm_j^2))``; ``"logistic-edge"``: ``long_per_um + (short_per_um - long_per_um) /
-    (1 + exp((l - edge_nm) / width_nm))`` (strong absorption below the edge).
+    (1 + exp((l - edge_nm) / width_nm))`` (strong absorption below the edge); ``"knots"``:
+    ``10 ** pchip(wavelength_nm, log10_per_um)(l)`` -- a shape-preserving (PCHIP, Fritsch &
+    Carlson 1980, :class:`scipy.interpolate.PchipInterpolator`) interpolation of log10 of the
+    absorption between K knots, held at the end values outside them: any colour (docs/physics.md
+    section 2), always positive, no overshoot between knots (so the largest knot is the maximum).
     """
 
     curve: str
@@ -178,6 +187,8 @@ class DyeSpectrum:
                 out = out + band["peak_per_um"] * np.exp(
                     -0.5 * ((wl - band["center_nm"]) / band["width_nm"]) ** 2)
             return out
+        if self.curve == "knots":
+            return knots_curve(p["wavelength_nm"], p["log10_per_um"], wl)
         # logistic-edge
         z = np.clip((wl - p["edge_nm"]) / p["width_nm"], -700.0, 700.0)
         return p["long_per_um"] + (p["short_per_um"] - p["long_per_um"]) / (1.0 + np.exp(z))
@@ -290,9 +301,39 @@ def load_config(path_or_name: str | Path) -> SimulationConfig:
     return parse_config(raw, path, source=f"preset {path.stem}" if is_preset else str(path))
 
 
+def knots_curve(knots_nm: Any, log10_per_um: Any, wavelength_nm: Any) -> np.ndarray:
+    """``10 ** pchip(knots_nm, log10_per_um)(wavelength_nm)``, end values held (the ``knots`` dye)."""
+    from scipy.interpolate import PchipInterpolator
+
+    k = np.asarray(knots_nm, dtype=float)
+    v = np.asarray(log10_per_um, dtype=float)
+    wl = np.clip(np.asarray(wavelength_nm, dtype=float), k[0], k[-1])
+    return np.power(10.0, PchipInterpolator(k, v)(wl))
+
+
+def _knots(t: Table) -> dict:
+    wl = t.numbers("wavelength_nm", ge=0.0)
+    values = t.numbers("log10_per_um")
+    lo, hi = KNOT_LOG10_RANGE
+    if len(wl) < 2 or wl[0] <= 0:
+        raise t.fail("wavelength_nm", f"must list at least 2 knots > 0 nm, got {len(wl)}")
+    if any(b <= a for a, b in zip(wl, wl[1:])):
+        raise t.fail("wavelength_nm", "must be strictly increasing")
+    if len(values) != len(wl):
+        raise t.fail("log10_per_um", f"must have as many items as wavelength_nm ({len(wl)}), got {len(values)}")
+    for k, v in enumerate(values):
+        if not lo <= v <= hi:
+            raise t.fail("log10_per_um", f"item {k} must lie in [{lo:g}, {hi:g}] (log10 of 1/um), got {show(v)}")
+    return {"wavelength_nm": [float(w) for w in wl], "log10_per_um": [float(v) for v in values]}
+
+
 def _dye(t: Table) -> DyeSpectrum:
     if t.has("curve"):
         curve = t.string("curve", choices=DYE_CURVES)
+        if curve == "knots":
+            params_k = _knots(t)
+            t.done()
+            return DyeSpectrum(curve, params_k)
         if curve == "gaussian-bands":
             base = t.number("baseline_per_um", 0.0, ge=0.0)
             bands_raw = t.raw("bands", None, required=True)

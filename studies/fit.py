@@ -1,6 +1,7 @@
 r"""``simulate fit``: fit named config parameters of a fabric model to a measurement (the inverse problem).
 
-``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
+``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]
+[--dye knots] [--max-evaluations N] [--resume]``
 
 Parameters
 ----------
@@ -10,9 +11,17 @@ indices (``particles.volume_fraction``, ``particles.size.median_radius_um``,
 alias: ``volume_fraction``, ``radius`` (the particle radius or median radius), ``rms_slope``,
 ``dye`` (every coefficient of the config's smooth dye curve: baseline, band centres, widths and
 peaks, or the logistic edge's four), ``dye-peaks`` (only the dye's amplitudes: baseline and peaks,
-or short/long). Bounds default per kind (:func:`default_bounds`); explicit ``=LOW:HIGH`` wins.
-The dye must be a named smooth curve (``gaussian-bands``/``logistic-edge``): a few coefficients
-describe a smooth spectrum, a free table would be an ill-posed fit of 30 values.
+or short/long; for a ``knots`` dye both name its knot values ``fiber.dye.log10_per_um[k]``). Bounds
+default per kind (:func:`default_bounds`); explicit ``=LOW:HIGH`` wins. The dye must be a named
+curve (``knots``/``gaussian-bands``/``logistic-edge``): a few coefficients describe a smooth
+spectrum, a free table would be an ill-posed fit of 30 values.
+
+A dye of any colour: ``--dye knots`` replaces the config's dye by 8 knots of log10 absorption
+spanning the model wavelengths (:func:`studies.fit_start.knots_config`); whenever knots are free
+the search starts from the knots inverted from the measured colour through the model's own
+absorption table (:func:`studies.fit_start.inverted_start`: the start has the measured hue and
+saturation at the colour geometry), not from the config's. Two Gaussian bands started from red
+cotton could not turn green (the felt: hue -0.044 turn, ds -0.16 left after the fit).
 
 Objective (weights)
 -------------------
@@ -46,6 +55,26 @@ objective (a change of mu_s moves every photon path): measured on red cotton's v
 5 % photon error, a 3 % step gave a slope of the wrong sign (the noise), 10 % the trend, and the
 walked-parameter recovery test converges with it.
 
+Scattering parameters re-weighted, not re-walked: the fit walks only at the points of a
+geometric lattice of the walked parameters (``start * exp(0.1 k)``, :meth:`FitProblem.lattice`)
+and evaluates any other particle volume fraction or size (``mu_s`` and the phase function per
+wavelength) by scoring the paths of the walk at its lattice point -- same seeds, same photons,
+same groups -- for the new optics with the kernel's likelihood ratio (``absorption_table(...,
+reference=...)``), as the walk already does across wavelengths. The lattice makes the objective a
+deterministic function of the parameters (a first version re-weighted from the *last* walk: the
+same point then took different values depending on the search's history, and a resumed fit
+found its accepted point 8 % worse). The paths do not move, so the objective is smooth in these
+parameters (exact common random numbers; the re-weighted estimate equals a fresh walk within its
+standard errors, tested). The variance bound :func:`simulate.fiber.spectral.reweight_exponent`
+(``ln E[w^2] ~= N [(r - 1)^2 + ln(1 + chi^2)]``, ``N`` the mean scatterings per photon, counted by
+the kernel) decides: a point whose bound exceeds the lattice walk's own (its wavelength groups'
+spread) by more than ``ln 4`` (:data:`studies.fit_problem.REWEIGHT_LIMIT`) is walked itself. On red
+cotton (``N`` ~ 40-55) the bound allows about +-10 % in volume fraction or particle radius (the
+lattice needs +-5 %); the measured standard error grew by 4-13 % there, far below the bound (scores
+come mostly from short paths). A re-weighted pass costs about what a walk costs (the kernel walks
+the same paths to score them): the gain is the smooth objective, not the pass. ``fit.json`` counts
+``walks`` and ``reweighted`` passes apart.
+
 Optimiser
 ---------
 ``scipy.optimize.least_squares`` (trust-region reflective, bounded) in coordinates scaled to
@@ -68,12 +97,37 @@ covariance; correlations from it. A parameter is flagged not identifiable when t
 Jacobian has a flat direction (singular value below 10^-3 of the largest: the direction is
 named) or its uncertainty exceeds half its bound range.
 
+Warnings (each once, in ``fit.json`` and on stderr): a parameter within 10^-3 of its bound range
+from a bound ("at its lower/upper bound": the optimum may lie beyond), a flat direction or a
+too-large uncertainty (above), a fitted colour further than ``|dh| > 0.02`` turn or ``|ds| > 0.05``
+from the measured one (:data:`COLOUR_TOLERANCE`: twice the just-noticeable 0.01 turn; the model
+cannot reach the colour with these free parameters), and a search stopped by its budget.
+
+Evaluation budget
+-----------------
+``--max-evaluations N`` (default 400) bounds the objective evaluations of the *search in all*:
+the start's figure, every trust-region step and every Jacobian column, over all ``--starts``. The
+search stops before a Jacobian it cannot complete and keeps the best point evaluated (with a
+warning). The uncertainty propagation afterwards (one Jacobian and 2 x 64 noise draws, all table
+reads: no walk) is counted apart (``fit.json`` ``info.evaluations_uncertainty``).
+
+Grazing incidence
+-----------------
+Rows at ``theta_i >= 89`` deg (:data:`gonio.data.formats.GRAZING_DEG`, the rule of ``gonio
+import``, which drops them unless ``--keep-grazing``) are left out of the fit with a note
+(``fit.json`` ``info.notes``); a measurement with nothing else is refused.
+
 Interrupt and resume
 --------------------
-The last accepted point (the best objective so far: trust-region steps are accepted only when
-they lower it) is written atomically to ``DIR/fit-state.json`` after every improvement, with the
-photon counts; ``--resume`` starts from it (refused when the config, measurement, method or
-free parameters differ). Ctrl-C leaves that state behind (exit 130).
+Progress: a walk bar counts photons from the first batch round of the first run (and the runs
+done, ``run i/N``), the fit bar counts evaluations against the budget. Every finished Monte Carlo
+run is checkpointed in ``DIR/walks/`` (:mod:`studies.fit_state`), and the last accepted point (the
+best objective so far: trust-region steps are accepted only when they lower it; the start is the
+first) is written atomically to ``DIR/fit-state.json`` after every improvement, with the photon
+counts. ``--resume`` continues from the state file, or -- stopped during the first walk, before
+any point -- from the runs on disk (not walked again); it is refused, saying why, when the state
+belongs to another fit (config, measurement, method, seed or free parameters differ) or when there
+is nothing to resume. Ctrl-C says which of the two was left behind (exit 130).
 
 Outputs in DIR: ``fitted.toml`` (the fitted config, ready for ``simulate fabric``),
 ``initial/`` and ``fitted/`` (datasets of the model at the start and the fitted parameters, at
@@ -87,7 +141,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,6 +151,8 @@ import numpy as np
 from gonio.data.dataset import make_dataset
 
 from studies.fit_problem import GENERATOR, FitError, FitProblem, FreeParameter, default_bounds, parse_free
+from studies.fit_start import inverted_start
+from studies.fit_state import WALKS_DIR, WalkCheckpoint, write_json_atomic
 from studies.paths import toml_dumps
 
 __all__ = [
@@ -107,6 +162,8 @@ __all__ = [
     "FitResult",
     "GENERATOR",
     "STATE_NAME",
+    "DEFAULT_MAX_EVALUATIONS",
+    "COLOUR_TOLERANCE",
     "default_bounds",
     "parse_free",
     "run_fit",
@@ -119,6 +176,11 @@ log = logging.getLogger(__name__)
 STATE_NAME = "fit-state.json"
 STATE_SCHEMA = "simulate-fit-state/1"
 _NOISE_DRAWS = 64
+#: ``--max-evaluations`` default: objective evaluations of the search in all (module docstring)
+DEFAULT_MAX_EVALUATIONS = 400
+#: ``(|dh| turn, |ds|)`` above which the fitted colour is flagged as left off
+COLOUR_TOLERANCE = (0.02, 0.05)
+_AT_BOUND = 1e-3
 _FLAT = 1e-3
 _WALK_STEP = 0.10
 _CHEAP_STEP = 1e-3
@@ -142,15 +204,6 @@ class FitResult:
     correlation: np.ndarray
     warnings: list[str]
     info: dict
-
-
-def _write_json_atomic(path: Path, doc: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(doc, fh, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def load_state(out: Path, problem: FitProblem) -> dict | None:
@@ -191,40 +244,87 @@ def _with(x: np.ndarray, j: int, v: float) -> np.ndarray:
     return y
 
 
-def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = False, max_evaluations: int = 60,
-            starts: int = 1, progress: bool = False, noise_draws: int = _NOISE_DRAWS) -> FitResult:
-    """Fit ``problem`` with ``scipy.optimize.least_squares`` (module docstring); state in ``out``."""
+class _Budget(Exception):
+    """The evaluation budget of the search is spent."""
+
+
+def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = False,
+            max_evaluations: int = DEFAULT_MAX_EVALUATIONS, starts: int = 1, progress: bool = False,
+            noise_draws: int = _NOISE_DRAWS, invert_start: bool = True) -> FitResult:
+    """Fit ``problem`` with ``scipy.optimize.least_squares`` (module docstring); state in ``out``.
+
+    ``max_evaluations``: the objective evaluations of the search in all (the start's, every step's
+    and every Jacobian column's, over all starts); the uncertainty propagation afterwards is
+    counted apart (``info["evaluations_uncertainty"]``).
+    """
     from scipy.optimize import least_squares
     from tqdm import tqdm
 
     t0 = time.perf_counter()
+    problem.out = out
     span = problem.high - problem.low
     x0 = problem.start.copy()
-    state = load_state(out, problem) if (resume and out is not None) else None
+    state = None
+    start_note = ""
+    if resume:
+        if out is None:
+            raise FitError("--resume needs the output directory of the interrupted fit (--out)")
+        state = load_state(out, problem)
+        if state is None:
+            runs = WalkCheckpoint(out, "", (), np.zeros(1), None).count()
+            if not runs:
+                raise FitError(f"--resume: nothing to resume in {out}: no {STATE_NAME} and no finished Monte Carlo "
+                               "run (the fit was stopped before its first run finished); run without --resume")
+            start_note = (f"resumed: no point had been accepted; the finished Monte Carlo runs in "
+                          f"{out / WALKS_DIR} are read, not walked again")
     if state is not None:
         x0 = np.clip(np.array(state["x"], float), problem.low, problem.high)
         problem.photons = state.get("photons")
-        log.info("resuming from the last accepted point (objective %.6g)", state["objective"])
+        start_note = (f"resumed from the last accepted point of {out / STATE_NAME} (objective "
+                      f"{state['objective']:.6g})")
+        log.info("%s", start_note)
     best: dict[str, Any] = {"F": math.inf, "x": x0.copy()}
-    bar = tqdm(total=None, desc="fit", unit="eval", disable=not progress, leave=False)
+    walk_bar = tqdm(total=None, desc="walk 1", unit="photon", unit_scale=True, disable=not progress, leave=False)
+    bar = tqdm(total=max_evaluations, desc="fit", unit="eval", disable=not progress, leave=False)
 
-    def phys(u: np.ndarray) -> np.ndarray:
-        return problem.low + np.clip(u, 0.0, 1.0) * span
+    def walk_progress(photons: int, run: int, runs: int) -> None:
+        if photons == 0 and run == 0:
+            walk_bar.reset()
+            walk_bar.set_description(f"walk {problem.walks + 1}")
+        walk_bar.n = photons
+        walk_bar.set_postfix_str(f"run {run}/{runs}", refresh=False)
+        walk_bar.refresh()
+
+    problem.walk_progress = walk_progress if progress else None
+    ev0 = problem.evaluations
+    memo: dict[str, Any] = {"x": None, "r": None}
+
+    def used() -> int:
+        return problem.evaluations - ev0
 
     def fun_x(x: np.ndarray) -> np.ndarray:
-        return problem.residuals(x)
+        if memo["x"] is not None and np.array_equal(memo["x"], x):
+            return memo["r"]
+        if used() >= max_evaluations:
+            raise _Budget
+        r = problem.residuals(x)
+        bar.update(1)
+        memo.update(x=x.copy(), r=r)
+        return r
 
     def accept(x: np.ndarray, r: np.ndarray) -> None:
         F = float(r @ r)
-        bar.update(1)
         if F < best["F"]:
             best.update(F=F, x=x.copy())
             bar.set_postfix(objective=f"{F:.5g}", walks=problem.walks)
             if out is not None:
-                _write_json_atomic(out / STATE_NAME, {
+                write_json_atomic(out / STATE_NAME, {
                     "schema": STATE_SCHEMA, "identity": problem.identity(), "x": x.tolist(),
                     "names": [p.name for p in problem.free], "objective": F, "photons": problem.photons,
                     "evaluations": problem.evaluations})
+
+    def phys(u: np.ndarray) -> np.ndarray:
+        return problem.low + np.clip(u, 0.0, 1.0) * span
 
     def fun_u(u: np.ndarray) -> np.ndarray:
         x = phys(u)
@@ -234,27 +334,40 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
 
     def jac_u(u: np.ndarray) -> np.ndarray:
         x = phys(u)
-        J = _jacobian(problem, x, fun_x(x), fun_x)
-        bar.update(1)
-        return J * span[None, :]
+        cost = sum(1 if p.kind == "walk" else 2 for p in problem.free)
+        if used() + cost > max_evaluations:
+            raise _Budget
+        return _jacobian(problem, x, fun_x(x), fun_x) * span[None, :]
 
-    r_start = fun_x(problem.start)
-    F_start = float(r_start @ r_start)
-    starts_u = [(x0 - problem.low) / span]
-    if starts > 1 and state is None:
-        from scipy.stats import qmc
-
-        starts_u += list(qmc.LatinHypercube(d=x0.size, seed=int(problem.seed or 0)).random(starts - 1))
+    stopped = ""
     results = []
     try:
+        if state is None and invert_start:
+            x0, note = inverted_start(problem, x0)
+            start_note = f"{start_note}; {note}" if start_note else note
+        r_start = fun_x(problem.start)
+        F_start = float(r_start @ r_start)
+        accept(problem.start, r_start)
+        starts_u = [(x0 - problem.low) / span]
+        if starts > 1 and state is None:
+            from scipy.stats import qmc
+
+            starts_u += list(qmc.LatinHypercube(d=x0.size, seed=int(problem.seed or 0)).random(starts - 1))
         for su in starts_u:
             results.append(least_squares(fun_u, np.clip(su, 0.0, 1.0), jac=jac_u, bounds=(0.0, 1.0), method="trf",
                                          x_scale=1.0, max_nfev=max_evaluations, ftol=1e-8, xtol=1e-8, gtol=1e-10))
+    except _Budget:
+        stopped = (f"the search stopped at its evaluation budget (--max-evaluations {max_evaluations}) before "
+                   "converging: the result is the best point evaluated")
+        if not math.isfinite(best["F"]):
+            raise FitError(f"--max-evaluations {max_evaluations}: no evaluation was possible") from None
     finally:
         bar.close()
+        walk_bar.close()
+    search_evaluations = used()
     x_best = best["x"]
-    r_best = fun_x(x_best)
-    J = _jacobian(problem, x_best, r_best, fun_x)
+    r_best = problem.residuals(x_best)
+    J = _jacobian(problem, x_best, r_best, problem.residuals)
     pinv = np.linalg.pinv(J)
 
     # uncertainty: data noise and Monte Carlo noise propagated through the whole objective
@@ -276,25 +389,58 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(u, u)
     corr[~np.isfinite(corr)] = 0.0
-    notes = _identifiability(problem, J, u)
-    for note in notes:
-        log.warning("%s", note)
+    notes = ([stopped] if stopped else []) + _at_bounds(problem, x_best) + _identifiability(problem, J, u)
+    notes += _colour_left_off(problem, x_best)
+    for note in notes:  # printed once, by the caller (the CLI prints fit.json's warnings)
+        log.debug("%s", note)
     info = {
         "optimiser": "scipy.optimize.least_squares (trf, bounds scaled to [0, 1])",
-        "starts": len(starts_u), "status": [int(r.status) for r in results],
-        "message": results[-1].message if results else "", "evaluations": problem.evaluations,
-        "walks": problem.walks, "walk_seconds": problem.walk_seconds, "seconds": time.perf_counter() - t0,
-        "photons": problem.photons, "resumed": state is not None,
+        "starts": len(results) if results else 1, "status": [int(r.status) for r in results],
+        "message": results[-1].message if results else stopped,
+        "evaluations": search_evaluations, "max_evaluations": max_evaluations,
+        "evaluations_uncertainty": problem.evaluations - ev0 - search_evaluations,
+        "walks": problem.walks, "walk_seconds": problem.walk_seconds, "reweighted": problem.reweights,
+        "reweighted_seconds": problem.reweight_seconds, "seconds": time.perf_counter() - t0,
+        "photons": problem.photons, "resumed": resume, "start_note": start_note, "notes": list(problem.notes),
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),
     }
     if out is not None:
-        _write_json_atomic(out / STATE_NAME, {
+        write_json_atomic(out / STATE_NAME, {
             "schema": STATE_SCHEMA, "identity": problem.identity(), "x": x_best.tolist(),
             "names": [p.name for p in problem.free], "objective": float(r_best @ r_best),
             "photons": problem.photons, "evaluations": problem.evaluations, "done": True})
     return FitResult(x=x_best, start=problem.start.copy(), objective=float(r_best @ r_best), objective_start=F_start,
                      u=u, u_data=np.sqrt(np.maximum(np.diag(cov_data), 0.0)),
                      u_mc=np.sqrt(np.maximum(np.diag(cov_mc), 0.0)), correlation=corr, warnings=notes, info=info)
+
+
+def _at_bounds(problem: FitProblem, x: np.ndarray) -> list[str]:
+    """A parameter within 10^-3 of its bound range from a bound: the optimum may lie beyond."""
+    notes = []
+    for p, v in zip(problem.free, x):
+        tol = _AT_BOUND * (p.high - p.low)
+        side = "lower" if v - p.low <= tol else "upper" if p.high - v <= tol else ""
+        if side:
+            notes.append(f"at its {side} bound: {p.name} = {v:.6g} (bounds [{p.low:g}, {p.high:g}]); the best value "
+                         f"may lie beyond: widen with --free {p.name}=LOW:HIGH")
+    return notes
+
+
+def _colour_left_off(problem: FitProblem, x: np.ndarray) -> list[str]:
+    """The fitted colour further from the measured than :data:`COLOUR_TOLERANCE`."""
+    fig = problem.residual_model().evaluate(problem.model(x)[0])
+    if not fig.has_colour:
+        return []
+    dh_max, ds_max = COLOUR_TOLERANCE
+    if abs(fig.dh) <= dh_max and abs(fig.ds) <= ds_max:
+        return []
+    if any(p.kind == "dye" for p in problem.free):
+        why = ("with the dye free the objective traded colour for curve error (a larger --colour-weight trades "
+               "back; the knots' inverted start has the measured colour) or the model cannot reach it")
+    else:
+        why = "the dye is fixed: free it (--free dye; --dye knots for any colour)"
+    return [f"colour left off: the fitted model's hue differs by {fig.dh:+.3f} turn and its saturation by "
+            f"{fig.ds:+.3f} from the measurement (tolerance |dh| <= {dh_max} turn, |ds| <= {ds_max}); {why}"]
 
 
 def _identifiability(problem: FitProblem, J: np.ndarray, u: np.ndarray) -> list[str]:
@@ -370,5 +516,5 @@ def write_outputs(problem: FitProblem, result: FitResult, out: Path) -> dict:
         "correlation": result.correlation.tolist(), "warnings": result.warnings, "info": result.info,
     }
     doc = jsonable(doc)
-    _write_json_atomic(out / "fit.json", doc)
+    write_json_atomic(out / "fit.json", doc)
     return doc

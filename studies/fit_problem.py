@@ -13,7 +13,8 @@ import json
 import logging
 import math
 import warnings
-from typing import Any
+from pathlib import Path
+from typing import Any, Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +34,15 @@ __all__ = ["GENERATOR", "FitError", "FreeParameter", "default_bounds", "parse_fr
 log = logging.getLogger(__name__)
 
 GENERATOR = "simulate fit"
+#: How much larger ``ln E[w^2]`` (:func:`simulate.fiber.spectral.reweight_exponent`) of a re-weighted
+#: evaluation may be than that of the reference walk's own wavelength groups: ``ln 4``, the standard
+#: error at most doubled by the bound (measured on red cotton: x1.1 for a 10 % volume fraction change).
+REWEIGHT_LIMIT = math.log(4.0)
+#: Step of the geometric lattice of reference walks (:meth:`FitProblem.lattice`): 10 %, so a point is
+#: at most 5 % from its reference (bound ~0.1-0.5 on red cotton, well inside the limit).
+LATTICE_STEP = 0.10
+#: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
+KNOT_LOW, KNOT_HIGH = -4.0, 0.5
 
 
 class FitError(ValueError):
@@ -70,7 +80,9 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
     """Default bounds of a free parameter from its field and start value.
 
     Volume fraction ``[start/5, min(5 start, 0.5)]``; radii and widths ``[start/4, 4 start]``;
-    RMS slope ``[0.02, 0.5]``; dye amplitudes (``*_per_um``) ``[0, max(4 start, 0.01)]``; band
+    RMS slope ``[0.02, 0.5]``; dye amplitudes (``*_per_um``) ``[0, max(4 start, 0.01)]``; dye
+    knots (``log10_per_um[k]``) ``[-4, 0.5]`` (1e-4 to 3.2 /um: transparent to opaque over a
+    fiber's radius; widened to hold the start); band
     centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
     ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0).
     """
@@ -85,6 +97,8 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
         return start - 60.0, start + 60.0
     if leaf == "sigma_g":
         return 1.0, 3.0
+    if leaf.startswith("log10_per_um[") and path.startswith("fiber.dye"):
+        return min(KNOT_LOW, start), max(KNOT_HIGH, start)
     return start / 4.0, 4.0 * start
 
 
@@ -167,9 +181,11 @@ def _dye_ceiling(config: SimulationConfig, free: list[FreeParameter], wl: np.nda
     doc = {"fiber": {"dye": p}}
     for f in free:
         if f.kind == "dye":
-            paths.set_value(doc, f.name, f.high if f.name.endswith("_per_um") else paths.get(doc, f.name))
+            paths.set_value(doc, f.name, f.high if "_per_um" in f.name else paths.get(doc, f.name))
     if config.dye.curve == "gaussian-bands":
         top = p["baseline_per_um"] + sum(b["peak_per_um"] for b in p["bands"])
+    elif config.dye.curve == "knots":  # PCHIP does not overshoot: the largest knot is the maximum
+        top = 10.0 ** max(p["log10_per_um"])
     elif config.dye.curve == "logistic-edge":
         top = max(p["short_per_um"], p["long_per_um"])
     else:
@@ -212,6 +228,17 @@ class FitProblem:
     walk_seconds: float = 0.0
     evaluations: int = 0
     photons: dict | None = None
+    #: the fit's output directory: walks are checkpointed in it (studies.fit_state)
+    out: Path | None = None
+    #: ``progress(photons, run, runs)`` during walks (simulate.fiber.absorption.absorption_table)
+    walk_progress: Callable[[int, int, int], None] | None = None
+    #: re-weight the reference walk to other scattering parameters within the bound (module docstring)
+    reweight: bool = True
+    reweights: int = 0
+    reweight_seconds: float = 0.0
+    #: ``(bound of the last re-weighting considered, the reference walk's own)`` (diagnostics)
+    last_exponent: tuple = (0.0, 0.0)
+    _references: dict = field(default_factory=dict)
     _tables: dict = field(default_factory=dict)
     _doc: dict = field(default_factory=dict)
 
@@ -230,13 +257,13 @@ class FitProblem:
             self.wavelengths_nm = (np.asarray(self.measured.wavelengths_nm, float) if spectral
                                    else np.asarray(self.config.wavelengths_nm, float))
         self.wavelengths_nm = _checked_wavelengths(self.wavelengths_nm)
+        self.notes: list[str] = []
+        self._drop_grazing()
         self.geometries = _model_geometries(self.measured)
         self._residual: Any = None  # compare.residual.ModelResidual, built on first use
         g = self.geometries
         self.w_i = fab.directions_deg(g["theta_i"].to_numpy(), g["phi_i"].to_numpy())
         self.w_o = fab.directions_deg(g["theta_o"].to_numpy(), g["phi_o"].to_numpy())
-        if np.any(g["theta_i"].to_numpy() >= 90.0):
-            raise FitError("the measurement has incidences at or beyond 90 deg, which no fabric model evaluates")
         if self.method == "summation":
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -245,6 +272,27 @@ class FitProblem:
         self.low = np.array([p.low for p in self.free])
         self.high = np.array([p.high for p in self.free])
         self.start = np.array([p.start for p in self.free])
+
+    def _drop_grazing(self) -> None:
+        """The grazing rule of ``gonio import`` (:data:`gonio.data.formats.GRAZING_DEG`): rows at
+        ``theta_i >= 89`` deg are left out of the fit with a note (a file imported with
+        ``--keep-grazing`` keeps them; no fabric model is meant for them: the projected area
+        vanishes, Cook-Torrance leaves its domain); a measurement with nothing else is refused."""
+        from gonio.data.dataset import Dataset
+        from gonio.data.formats import GRAZING_DEG
+
+        t = self.measured.table
+        grazing = t["theta_i"].to_numpy(float) >= GRAZING_DEG
+        if not grazing.any():
+            return
+        if grazing.all():
+            raise FitError(f"every incidence of the measurement is >= {GRAZING_DEG:g} deg (near grazing), where "
+                           "no fabric model is meant to be fitted")
+        angles = ", ".join(f"{a:.10g}" for a in np.unique(t["theta_i"].to_numpy(float)[grazing]))
+        self.notes.append(f"{int(grazing.sum())} rows of the measurement at incidence >= {GRAZING_DEG:g} deg "
+                          f"(theta_i {angles}) are left out of the fit (near grazing: the rule of gonio import)")
+        log.warning("%s", self.notes[-1])
+        self.measured = Dataset(t[~grazing].reset_index(drop=True), self.measured.meta, self.measured.path)
 
     # -- parameters and configs ------------------------------------------------------------
 
@@ -266,11 +314,55 @@ class FitProblem:
     # -- the model ----------------------------------------------------------------------------
 
     def table(self, config: SimulationConfig) -> AbsorptionTable:
-        walk = tuple(round(float(paths.get(self._doc_of(config), p.name)), 12) for p in self.free if p.kind == "walk")
+        """The absorption table of ``config``'s scattering: walked, or re-weighted from the walk at its
+        lattice point (:meth:`lattice`), whichever the module docstring's rule says; memoised."""
+        walk = self._walk_values(config)
         if walk in self._tables:
             return self._tables[walk]
         wl = self.wavelengths_nm
         nodye = dataclasses.replace(config, dye=None).fiber(wl)
+        lattice = self.lattice(walk)
+        table = None
+        if self.reweight and lattice != walk:
+            ref = self._references.get(lattice)
+            if ref is None:
+                doc = self._doc_of(config)
+                for p, v in zip([p for p in self.free if p.kind == "walk"], lattice):
+                    paths.set_value(doc, p.name, v)
+                ref_fiber = dataclasses.replace(parse_config(toml_dumps(doc), "lattice.toml"), dye=None).fiber(wl)
+                ref = (ref_fiber, self._run(ref_fiber, lattice, None))
+                self._references[lattice] = ref
+            if self._within_bound(ref[1], nodye, wl):
+                table = self._run(nodye, walk + ("reweighted from",) + lattice, ref)
+        if table is None:
+            table = self._run(nodye, walk, None)
+            self._references[walk] = (nodye, table)
+        if len(self._tables) >= 4:  # the centre and a Jacobian's columns
+            self._tables.pop(next(iter(self._tables)))
+        self._tables[walk] = table
+        return table
+
+    def _walk_values(self, config: SimulationConfig) -> tuple:
+        return tuple(round(float(paths.get(self._doc_of(config), p.name)), 12) for p in self.free if p.kind == "walk")
+
+    def lattice(self, walk: tuple) -> tuple:
+        """The reference point of walked values ``walk``: each positive value rounded to the geometric
+        lattice ``start * exp(LATTICE_STEP * k)`` (others kept). Evaluating every point from the walk
+        at its lattice point makes the objective a deterministic function of the parameters (not of
+        the order in which the search visited them: a resumed fit sees the same values)."""
+        starts = [p.start for p in self.free if p.kind == "walk"]
+        out = []
+        for s, v in zip(starts, walk):
+            if s > 0 and v > 0:
+                k = round(math.log(v / s) / LATTICE_STEP)
+                out.append(round(s * math.exp(LATTICE_STEP * k), 12))
+            else:
+                out.append(v)
+        return tuple(out)
+
+    def _run(self, nodye: Any, key: tuple, ref: tuple | None) -> AbsorptionTable:
+        """A fresh walk of ``nodye`` (``ref`` None) or the re-weighting of ``ref = (fiber, table)``."""
+        wl = self.wavelengths_nm
         if self.method == "classic":
             w_in = np.array([[0.0, 0.0, 1.0]])
             outputs = fib.range_outputs([0.0], [1.0], [-math.pi], [math.pi], nodye.half_width)
@@ -279,17 +371,45 @@ class FitProblem:
             w_in = self.pairs.w_in
             outputs = fib.point_outputs(self.pairs.w_out, nodye.half_width)
             route = self.config.method
-        table = absorption_table(nodye, w_in, outputs, wl, absorption_nodes(self.nu_max, self.nodes), method=route,
-                                 target_rel_err=self.target_rel_err, photons=self.photons, seed=int(self.seed or 0),
-                                 threads=self.threads)
+        nodes = absorption_nodes(self.nu_max, self.nodes)
+        cache = None
+        if self.out is not None:
+            from studies.fit_state import WalkCheckpoint
+
+            cache = WalkCheckpoint(self.out, self.identity(), key, nodes, self.photons)
+        table = absorption_table(nodye, w_in, outputs, wl, nodes, method=route, target_rel_err=self.target_rel_err,
+                                 photons=self.photons if ref is None else ref[1].photons, seed=int(self.seed or 0),
+                                 threads=self.threads, progress=self.walk_progress, cache=cache,
+                                 reference=None if ref is None else ref[0])
+        if cache is not None and cache.found:
+            log.info("%d Monte Carlo runs read from the checkpoint %s", cache.found, cache.dir)
+        if ref is not None:
+            self.reweights += 1
+            self.reweight_seconds += table.seconds
+            return table
         if self.photons is None:
             self.photons = dict(table.photons)
         self.walks += 1
         self.walk_seconds += table.seconds
-        if len(self._tables) >= 4:  # the centre and a Jacobian's columns
-            self._tables.pop(next(iter(self._tables)))
-        self._tables[walk] = table
+        if len(self._references) >= 8:
+            self._references.pop(next(iter(self._references)))
         return table
+
+    def _within_bound(self, ref_table: AbsorptionTable, nodye: Any, wl: np.ndarray) -> bool:
+        """Whether ``ref_table``'s paths can be re-weighted to ``nodye``'s scattering
+        (:func:`simulate.fiber.spectral.reweight_exponent`: the bound grows by at most
+        :data:`REWEIGHT_LIMIT` over the walk's own wavelength groups)."""
+        from simulate.fiber.spectral import reweight_exponent, spectral_optics
+
+        n = ref_table.group_scatterings()
+        own = reweight_exponent(ref_table.optics, ref_table.optics, ref_table.groups, n)
+        target = reweight_exponent(ref_table.optics, spectral_optics(nodye, wl), ref_table.groups, n)
+        self.last_exponent = (target, own)
+        if target - own > REWEIGHT_LIMIT:
+            log.info("scattering too far from the lattice walk (bound %.3g > %.3g + %.3g): walked itself",
+                     target, own, REWEIGHT_LIMIT)
+            return False
+        return True
 
     def _doc_of(self, config: SimulationConfig) -> dict:
         import tomllib
@@ -303,9 +423,15 @@ class FitProblem:
         standard errors (the uncertainty propagation of the Monte Carlo error).
         """
         config = self.config_at(x)
-        table = self.table(config)
         wl = self.wavelengths_nm
         mu_host = config.dye(wl) if config.dye is not None else np.zeros(wl.size)
+        return self.model_at_host(config, mu_host, mc_noise)
+
+    def model_at_host(self, config: SimulationConfig, mu_host: np.ndarray,
+                      mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``beta, u_beta`` ``[G, L]`` of ``config``'s fiber with the host absorption ``mu_host[L]`` (1/um)
+        in place of its dye (read from the absorption table, no walk once the table exists)."""
+        table = self.table(config)
         R, u = table(mu_host)
         if mc_noise is not None:
             R = R + u * mc_noise

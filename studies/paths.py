@@ -1,8 +1,10 @@
 """Dotted TOML paths into a config document, and the TOML writer (``simulate fit --free``, ``sweep --param``).
 
 A path names one field of a config's TOML document by its tables and list indices
-(``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``); an alias names several
-(:func:`expand`: ``volume_fraction``, ``radius``, ``rms_slope``, ``dye``, ``dye-peaks``).
+(``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``, ``fiber.dye.log10_per_um[3]``,
+``structure.twist_deg`` once a config has that table: any numeric field is a path); an alias names
+several (:func:`expand`: ``volume_fraction``, ``radius``, ``rms_slope``, ``dye``, ``dye-peaks``; for a
+``knots`` dye, ``dye`` and ``dye-peaks`` are its knot values).
 :func:`toml_dumps` writes a document back (what ``tomllib`` read), so a changed document can be
 parsed by :func:`simulate.config.parse_config` exactly as a file would be.
 """
@@ -146,6 +148,8 @@ def expand(alias: str, data: dict) -> list[str]:
             raise PathError(f"{alias}: the config's dye is "
                            f"{'absent' if dye is None else 'a table'}; a fit frees the coefficients of a "
                            "named smooth curve (fiber.dye.curve = gaussian-bands or logistic-edge)")
+        if dye["curve"] == "knots":  # the knots' values (their wavelengths stay put)
+            return [f"fiber.dye.log10_per_um[{k}]" for k in range(len(dye.get("log10_per_um", [])))]
         names = numeric_leaves(dye, "fiber.dye")
         if alias == "dye-peaks":
             names = [n for n in names if n.endswith("_per_um")]

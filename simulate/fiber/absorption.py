@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, Protocol
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -45,9 +45,10 @@ from simulate.fiber.model import Fiber, as_directions, as_wavelengths
 from simulate.fiber.routes import beam_route
 from simulate.fiber.spectral import direction_keys, group_walk, run_seed, spectral_optics, wavelength_groups
 from simulate.montecarlo.accuracy import check_budget
+from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
 from simulate.montecarlo.transport import ParameterError, SpectralTargets, make_control
 
-__all__ = ["AbsorptionTable", "DEFAULT_NODES", "absorption_nodes", "absorption_table"]
+__all__ = ["AbsorptionTable", "RunCache", "DEFAULT_NODES", "absorption_nodes", "absorption_table"]
 
 #: Host-absorption nodes per wavelength (see the module docstring).
 DEFAULT_NODES = 16
@@ -71,6 +72,14 @@ def absorption_nodes(nu_max: float, count: int = DEFAULT_NODES) -> np.ndarray:
     nodes = np.exp(np.linspace(math.log(NU_0), math.log(nu_max + NU_0), count)) - NU_0
     nodes[0] = 0.0
     return nodes
+
+
+class RunCache(Protocol):
+    """Finished (direction, group) runs of a table by key ``"d:gi"`` (:func:`absorption_table`)."""
+
+    def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int, float] | None: ...
+
+    def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None: ...
 
 
 @dataclass
@@ -98,6 +107,19 @@ class AbsorptionTable:
     wavelengths_nm: np.ndarray
     photons: dict = field(default_factory=dict)
     seconds: float = 0.0
+    #: mean scatterings per walked photon of each run ``"d:gi"`` (the re-weighting bound's ``N``)
+    scatterings: dict = field(default_factory=dict)
+    #: the wavelength groups of the walk and the optics scored (for :func:`reweight_exponent`)
+    groups: list = field(default_factory=list)
+    optics: Any = None
+
+    def group_scatterings(self) -> np.ndarray:
+        """Per group, the largest mean number of scatterings over the directions."""
+        out = np.zeros(len(self.groups))
+        for key, n in self.scatterings.items():
+            gi = int(key.split(":")[1])
+            out[gi] = max(out[gi], n)
+        return out
 
     @property
     def nu_max(self) -> float:
@@ -159,6 +181,9 @@ def absorption_table(
     photons: dict | None = None,
     seed: int = 0,
     threads: int | None = None,
+    progress: Callable[[int, int, int], None] | None = None,
+    cache: RunCache | None = None,
+    reference: Fiber | None = None,
 ) -> AbsorptionTable:
     """White Monte Carlo of the volume term with the host absorption tabulated at ``nodes``.
 
@@ -183,6 +208,18 @@ def absorption_table(
         the same streams are walked again, no accuracy control (common random numbers).
     seed, threads
         As :func:`simulate.fiber.volume_brdf` (the same seeds per direction and group).
+    progress : callable, optional
+        ``progress(photons, run, runs)`` after every batch round of every (direction, group) run
+        (``photons`` walked so far in this table, ``run`` the runs finished, of ``runs``), and once
+        with 0 photons before the first: a display moves from the first photons on.
+    reference : simulate.fiber.Fiber, optional
+        Walk the photons in THIS fiber's scattering (its groups, walk media, seeds) and score them
+        for ``fiber``'s by the likelihood ratio (``mu_s`` and phase per target): other particle
+        volume fractions or sizes from the same paths (:func:`simulate.fiber.spectral.reweight_exponent`
+        bounds the variance; the caller decides). Both without dye, same geometry.
+    cache : RunCache, optional
+        Finished runs by key ``"d:gi"``: a run found there is not walked again, every walked run is
+        put there (the fit's walk checkpoint: an interrupted walk resumes at its next run).
     """
     if method not in ("nee", "beam"):
         raise ParameterError(f"absorption table: method must be nee or beam, got {method!r}")
@@ -194,7 +231,9 @@ def absorption_table(
     outputs = np.atleast_2d(np.asarray(outputs, float))
     target_rel_err, max_photons = check_budget(target_rel_err, max_photons)
     optics = spectral_optics(fiber, wl)
-    groups = wavelength_groups(optics)
+    walk_fiber = fiber if reference is None else reference
+    walk_optics = optics if reference is None else spectral_optics(reference, wl)
+    groups = wavelength_groups(walk_optics)
     control = make_control()
     K = nodes.size
     P = w_in.shape[0]
@@ -202,22 +241,43 @@ def absorption_table(
     u_R = np.zeros((P, wl.size, K))
     keys = direction_keys(w_in)
     used: dict = {}
+    scatterings: dict = {}
     seconds = 0.0
+    runs = len(keys) * len(groups)
+    walked = [0]
+    if progress is not None:
+        progress(0, 0, runs)
     for d, (key, rows) in enumerate(keys.items()):
         win = np.array(key)
         for gi, group in enumerate(groups):
-            medium, walk_phase, _ = group_walk(fiber, optics, group, white=True)
-            targets = _targets(optics, group, nodes, walk_phase)
-            stream = run_seed(seed, d, gi)  # the rule of volume_brdf: the same streams
-            fixed = None if photons is None else photons.get(f"{d}:{gi}")
-            if fixed is None:
-                target, cap = target_rel_err, max_photons
-            else:  # a target never met and a cap of exactly the recorded photons: the same batches
-                target, cap = 1e-12, int(fixed)
-            value, u, run = beam_route(fiber, win, outputs[rows], medium, walk_phase, targets, method,
-                                       control, target, cap, stream, threads, None)
-            used[f"{d}:{gi}"] = int(run.photons)
-            seconds += run.seconds
+            run_key = f"{d}:{gi}"
+            found = None if cache is None else cache.get(run_key)
+            if found is not None:
+                value, u, used[run_key] = found[0], found[1], int(found[2])
+                scatterings[run_key] = float(found[3])
+            else:
+                medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
+                targets = _targets(optics, group, nodes, walk_phase)
+                stream = run_seed(seed, d, gi)  # the rule of volume_brdf: the same streams
+                fixed = None if photons is None else photons.get(run_key)
+                if fixed is None:
+                    target, cap = target_rel_err, max_photons
+                else:  # a target never met and a cap of exactly the recorded photons: the same batches
+                    target, cap = 1e-12, int(fixed)
+                done = d * len(groups) + gi
+                report = None if progress is None else (
+                    lambda n, rel, done=done: progress(walked[0] + n, done, runs))  # type: ignore[misc]
+                value, u, run = beam_route(fiber, win, outputs[rows], medium, walk_phase, targets, method,
+                                           control, target, cap, stream, threads, report)
+                used[run_key] = int(run.photons)
+                scatterings[run_key] = float(run.scal[S_SCATTERINGS] / max(run.scal[S_LAUNCHED], 1.0))
+                walked[0] += int(run.photons)
+                seconds += run.seconds
+                if cache is not None:
+                    cache.put(run_key, value, u, int(run.photons), scatterings[run_key])
+            if progress is not None:
+                progress(walked[0], d * len(groups) + gi + 1, runs)
             R[np.ix_(np.asarray(rows), group)] = value.reshape(len(rows), group.size, K)
             u_R[np.ix_(np.asarray(rows), group)] = u.reshape(len(rows), group.size, K)
-    return AbsorptionTable(R=R, u_R=u_R, nodes=nodes, wavelengths_nm=wl, photons=used, seconds=seconds)
+    return AbsorptionTable(R=R, u_R=u_R, nodes=nodes, wavelengths_nm=wl, photons=used, seconds=seconds,
+                           scatterings=scatterings, groups=groups, optics=optics)

@@ -21,11 +21,14 @@ from simulate.montecarlo import kernel as K
 from simulate.montecarlo.scatter import PhaseArrays, phase_arrays
 from simulate.montecarlo.transport import SpectralTargets
 
-__all__ = ["GROUP_LOG_MU_S", "GROUP_G", "SpectralOptics", "spectral_optics", "wavelength_groups", "group_walk",
-           "run_seed", "direction_keys"]
+__all__ = ["GROUP_LOG_MU_S", "GROUP_G", "REWEIGHT_LIMIT", "SpectralOptics", "spectral_optics", "wavelength_groups",
+           "group_walk", "run_seed", "direction_keys", "phase_chi2", "reweight_exponent"]
 
 GROUP_LOG_MU_S = 0.25
 GROUP_G = 0.03
+#: Largest ``N (r - 1)^2 + N chi^2`` of :func:`reweight_exponent` at which a walk is re-weighted to
+#: other scattering (``ln 2``: the likelihood ratio at most doubles the variance).
+REWEIGHT_LIMIT = math.log(2.0)
 
 
 @dataclass(frozen=True)
@@ -114,3 +117,66 @@ def direction_keys(w_in: np.ndarray) -> dict[tuple[float, ...], list[int]]:
     for p in range(w_in.shape[0]):
         keys.setdefault(tuple(np.round(w_in[p], 12)), []).append(p)
     return keys
+
+
+def phase_chi2(walk: PhaseArrays, target: PhaseArrays, cells: int = 512) -> float:
+    """Chi-square divergence ``int p^2 / p0 dmu - 1`` of the target phase function from the walk's.
+
+    Binned on ``cells`` cells of equal probability under the walk's function (a lower bound that
+    converges with ``cells``): ``chi2 = K sum_i q_i^2 - 1`` with ``q_i`` the target's probability
+    of cell ``i``. Both as kernel arrays (an inverse-CDF table, or Henyey-Greenstein).
+    """
+    from simulate.optics.phase import hg_inverse_cdf
+
+    def inverse_cdf(pa: PhaseArrays, u: np.ndarray) -> np.ndarray:
+        if pa.table.size > 2:
+            return np.interp(u, np.linspace(0.0, 1.0, pa.table.size), pa.table)
+        return np.asarray(hg_inverse_cdf(u, pa.g), float)
+
+    u = np.linspace(0.0, 1.0, cells + 1)
+    edges = np.clip(inverse_cdf(walk, u), -1.0, 1.0)
+    fine = np.linspace(0.0, 1.0, 8 * cells + 1)
+    t_mu = np.clip(inverse_cdf(target, fine), -1.0, 1.0)
+    # the target's CDF at the walk's cell edges (its inverse CDF is monotone: interpolate back)
+    t_mu, idx = np.unique(t_mu, return_index=True)
+    cdf = np.interp(edges, t_mu, fine[idx])
+    q = np.diff(cdf)
+    return max(float(cells * np.sum(q * q) - 1.0), 0.0)
+
+
+def reweight_exponent(walk: SpectralOptics, target: SpectralOptics, groups: list[np.ndarray],
+                      scatterings: np.ndarray) -> float:
+    r"""The largest ``ln E[w^2]`` of the likelihood ratio ``w`` of a walk in ``walk``'s optics scored
+    for ``target``'s, over the wavelength groups.
+
+    Derivation. A path of ``n`` scatterings and length ``L`` (white: absorption is a separate
+    ``exp(-mu_a L)`` factor) walked with ``mu_s0, p0`` and scored for ``mu_s = r mu_s0, p`` has
+    ``w = r^n exp(-(r - 1) mu_s0 L) prod_i p(mu_i) / p0(mu_i)``. Given ``L``, ``n`` is Poisson with
+    mean ``mu_s0 L`` (the free flights), so ``E[r^{2n}] = exp(mu_s0 L (r^2 - 1))`` and the first two
+    factors give ``E[w^2 | L] = exp(mu_s0 L (r - 1)^2)``; each scattering multiplies by
+    ``E_p0[(p/p0)^2] = 1 + chi^2`` (:func:`phase_chi2`), independently. With ``N`` the mean number
+    of scatterings of a walked photon (the kernel counts them)::
+
+        ln E[w^2] ~= N [(r - 1)^2 + ln(1 + chi^2)]
+
+    and ``E[w] = 1`` (unbiased), so the variance of a re-weighted score is ``E[w^2]`` times that of
+    the walk's (for scores uncorrelated with ``w``; Jensen makes ``N`` a lower estimate when the
+    path lengths vary). Re-weighting is accepted while this is at most :data:`REWEIGHT_LIMIT`
+    (``ln 2``); for red cotton (``N`` ~ 10-30 in the fiber) that allows ``|r - 1|`` ~ 0.15-0.25, the
+    range of :data:`GROUP_LOG_MU_S`. Same reasoning: Hammersley & Handscomb (1964), *Monte Carlo
+    Methods*, ch. 5 (importance sampling); Sassaroli et al. (2012), perturbation Monte Carlo,
+    JOSA A 29, 2110 (the ``r^n exp(-(r-1) mu_s L)`` weight).
+
+    ``scatterings[gi]``: the mean scatterings per photon of group ``gi``'s walk (worst direction).
+    """
+    worst = 0.0
+    for gi, group in enumerate(groups):
+        ref = int(group[len(group) // 2])
+        walk_phase = walk.phases[ref]
+        mu_s0 = walk.mu_s[ref]
+        for j in group:
+            j = int(j)
+            r = target.mu_s[j] / mu_s0 if mu_s0 > 0 else (1.0 if target.mu_s[j] == 0 else math.inf)
+            chi2 = 0.0 if target.phases[j] is walk_phase else phase_chi2(walk_phase, target.phases[j])
+            worst = max(worst, float(scatterings[gi]) * ((r - 1.0) ** 2 + math.log1p(chi2)))
+    return worst

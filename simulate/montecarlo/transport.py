@@ -71,6 +71,11 @@ DEFAULT_MAX_EVENTS = 1_000_000  # the one event cap (slab, cylinder, fiber, yarn
 DEFAULT_WEIGHT_THRESHOLD = 1e-4
 DEFAULT_SURVIVAL = 0.1
 _ROUND_ELEMENTS = 1 << 22  # cap on per-round bin buffer elements (32 MB)
+#: Target wall time of one compiled round of :func:`execute` (the interrupt latency); the first
+#: round of a call is ``_FIRST_ROUND_BATCHES`` batches (at least one per thread), later ones are
+#: sized from the last's time (at least one batch per thread).
+ROUND_SECONDS = 0.25
+_FIRST_ROUND_BATCHES = 2
 
 
 @dataclass(frozen=True)
@@ -464,13 +469,21 @@ def execute(
     kernel = K.run_batches_for(inp)
     try:
         t0 = time.perf_counter()
-        for first in range(0, n_batches, round_size):
-            count = min(round_size, n_batches - first)
+        threads_now = numba.get_num_threads()
+        first, count = 0, min(round_size, max(_FIRST_ROUND_BATCHES, threads_now))
+        while first < n_batches:
+            count = min(count, n_batches - first)
+            t_round = time.perf_counter()
             kernel(inp, total, batch_size, first_batch + first, count, seed, scal_buf, bins_buf)
             for r in range(count):  # batch order: thread-count independent sums
                 scal += scal_buf[r]
                 if scoring:
                     bins += bins_buf[r]
+            first += count
+            # rounds of ~ROUND_SECONDS: a compiled round holds the interpreter, so Ctrl-C (and any
+            # progress display) waits for it; the sums do not depend on how batches are cut in rounds
+            dt = max(time.perf_counter() - t_round, 1e-6)
+            count = int(min(round_size, max(threads_now, count * ROUND_SECONDS / dt)))
         seconds = time.perf_counter() - t0
     finally:
         numba.set_parallel_chunksize(previous_chunk)

@@ -49,3 +49,19 @@ def test_random_streams_are_reproducible_and_distinct():
         assert np.sum((hist - expected) ** 2 / expected) < 45  # chi2, 19 dof, p ~ 1e-3
     # streams are uncorrelated with each other
     assert abs(np.corrcoef(a, b)[0, 1]) < 4 / np.sqrt(a.size)
+
+
+def test_identical_whatever_the_rounds(monkeypatch):
+    """execute() cuts batches into rounds of ~ROUND_SECONDS (the interrupt latency): rounds of one
+    batch per thread and rounds as large as the buffers allow give the same sums."""
+    from simulate.montecarlo import transport
+
+    kw = dict(mu_a=2.0, mu_s=40.0, g=0.8, n=1.4, thickness=0.1, photons=40_000, seed=7,
+              batch_size=2_000, angular_bins=(6, 4), weight_threshold=0.05)
+    monkeypatch.setattr(transport, "ROUND_SECONDS", 1e-9)  # every round: one batch per thread
+    a = run_slab(**kw)
+    monkeypatch.setattr(transport, "ROUND_SECONDS", 1e9)
+    monkeypatch.setattr(transport, "_FIRST_ROUND_BATCHES", 10**6)  # one round of everything
+    b = run_slab(**kw)
+    assert a.as_dict() | {"seconds": 0} == b.as_dict() | {"seconds": 0}
+    assert np.array_equal(a.angular.reflected, b.angular.reflected)

@@ -187,10 +187,11 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys, base_problem):
     out = tmp_path / "fit"
     args = ["fit", "red-cotton", str(measured), "--free", "fiber.dye.bands[0].peak_per_um=0.3:3,rms_slope=0.1:0.8",
             "--out", str(out), "--seed", "5", "--target-rel-err", "0.1", "--no-progress"]
-    assert main(args + ["--max-evaluations", "3"]) == 0
+    assert main(args + ["--max-evaluations", "12"]) == 0
     state = json.loads((out / STATE_NAME).read_text())
     doc = json.loads((out / "fit.json").read_text())
     assert doc["fitted"]["nrmse"] < doc["start"]["nrmse"]
+    assert doc["info"]["evaluations"] <= 12  # the budget of the search in all (help text)
     assert len(doc["correlation"]) == 2 and all(p["u"] > 0 for p in doc["parameters"])
     cfg = load_config(out / "fitted.toml")
     assert cfg.rms_slope == pytest.approx(doc["parameters"][1]["value"])
