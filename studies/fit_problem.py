@@ -258,6 +258,12 @@ class FitProblem:
                                    else np.asarray(self.config.wavelengths_nm, float))
         self.wavelengths_nm = _checked_wavelengths(self.wavelengths_nm)
         self.notes: list[str] = []
+        if self.method == "summation" and getattr(self.config, "structure", None) is not None:
+            # the fit's summation is built from the fiber's tables at the top cell (the carpet of
+            # docs/physics.md 6); the [structure] summation (simulate fabric's) is not fitted yet
+            self.notes.append("the fit's summation model is the carpet of top cells: the config's [structure] "
+                              "section is not used by simulate fit yet (simulate fabric uses it)")
+            log.warning("%s", self.notes[-1])
         self._drop_grazing()
         self.geometries = _model_geometries(self.measured)
         self._residual: Any = None  # compare.residual.ModelResidual, built on first use
