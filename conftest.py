@@ -21,6 +21,11 @@ os.environ["FABRIC_OPTICS_CACHE_DIR"] = _TABLE_CACHE
 os.environ.pop("FABRIC_OPTICS_NO_CACHE", None)
 atexit.register(shutil.rmtree, _TABLE_CACHE, True)
 
+# The thread-independence tests compare 1 and 2 compiled threads: numba's pool must hold at least 2
+# (set before numba is first imported; on a 1-core machine the two threads share the core).
+if int(os.environ.get("NUMBA_NUM_THREADS") or os.cpu_count() or 1) < 2:
+    os.environ["NUMBA_NUM_THREADS"] = "2"
+
 
 @pytest.fixture(autouse=True)
 def _doctest_numpy_scalars_print_as_python(request):

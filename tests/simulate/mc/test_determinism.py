@@ -9,10 +9,13 @@ import pytest
 from simulate.montecarlo import run_cylinder, run_slab
 from simulate.montecarlo.rng import stream_uniforms
 
-needs_two = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 
 
-@needs_two
+@pytest.fixture(autouse=True)
+def _two_threads():
+    assert numba.config.NUMBA_NUM_THREADS >= 2        # the root conftest guarantees a pool of 2
+
+
 def test_slab_identical_with_one_and_two_threads():
     kw = dict(mu_a=2.0, mu_s=40.0, g=0.8, n=1.4, thickness=0.1, photons=60_000, seed=99,
               batch_size=2_000, angular_bins=(6, 4), weight_threshold=0.05)
@@ -25,7 +28,6 @@ def test_slab_identical_with_one_and_two_threads():
     assert c.Rd != a.Rd  # the seed matters
 
 
-@needs_two
 def test_cylinder_identical_with_one_and_two_threads():
     kw = dict(mu_a=1.0, mu_s=20.0, g=0.7, n=1.557, radius=1.0, photons=40_000, seed=5,
               batch_size=1_000, angular_bins=(6, 3, 4))
