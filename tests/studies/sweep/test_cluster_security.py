@@ -60,7 +60,7 @@ def test_handshake_without_client_certificate_is_refused(cluster):
                     raise ConnectionError("closed")
 
 
-def _connect(address, security, seconds=5.0):
+def _connect(address, security, seconds=30.0):
     """Open a dask comm to ``address`` and exchange dask's handshake, as any client does first.
 
     ``distributed.comm.connect`` retries a failed handshake until its timeout; ``asyncio.wait_for``
