@@ -78,6 +78,7 @@ import numpy as np
 __all__ = [
     "Sample", "LambertSample", "RedCottonSample", "DatasetSample", "WhiteReference",
     "WHITE_REFERENCE_BETA", "reference_beta", "make_sample", "SampleError", "directions",
+    "KNOWN_FILES",
 ]
 
 log = logging.getLogger(__name__)
@@ -289,8 +290,25 @@ class BSDFSample:
         return np.take_along_axis(bands, index[..., None], axis=-1)[..., 0]
 
     def describe(self) -> dict:
-        return {"name": self.name, "model": "RGL .bsdf (Dupuy & Jakob 2018)",
-                "path": str(self.path), "description": self.bsdf.description}
+        """Name, model, path, the file's own description, its SHA-256 and, for a file the
+        project ships (:data:`KNOWN_FILES`), where it comes from and its licence."""
+        import hashlib
+
+        sha = hashlib.sha256(self.path.read_bytes()).hexdigest()
+        out = {"name": self.name, "model": "RGL .bsdf (Dupuy & Jakob 2018)",
+               "path": str(self.path), "description": self.bsdf.description, "sha256": sha}
+        if sha in KNOWN_FILES:
+            out["source"] = KNOWN_FILES[sha]
+        return out
+
+
+#: Real measurements the project ships (``fixtures/real/README.md``), by SHA-256: their source.
+KNOWN_FILES = {
+    "3429e2bdbe2045dca11582479fa251866ffe056b909b47e3fbf1c3c776fcb72b":
+        "RGL material database, Realistic Graphics Lab, EPFL (rgl.epfl.ch/materials): a real "
+        "measurement of green acrylic felt (Edukit A4), isotropic RGB, licence CC0 1.0; "
+        "Dupuy & Jakob, ACM TOG 37(6), 2018",
+}
 
 
 def make_sample(spec: str) -> LambertSample | RedCottonSample | DatasetSample | BSDFSample:
