@@ -74,7 +74,7 @@ def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Sec
              "<code>simulate fit</code> (objective NRMSE^2 + w_c (dh^2 + ds^2), the figures "
              "compare reports; uncertainties: standard, the measurement's u_beta and the model's "
              "Monte Carlo error propagated through the whole objective, linearised at the "
-             "solution; see the README's fit section). 'before' is the start config's figure.</p>"]
+             "solution; see the README's fit section). 'config value' and 'before' are the start config's value and figures; the search itself may start elsewhere (a --dye knots fit starts from the knots inverted from the measured colour: the start note says so).</p>"]
     for fit_dir in map(Path, fit_dirs):
         doc = read_fit(fit_dir)
         info = doc.get("info") or {}
@@ -93,7 +93,7 @@ def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Sec
                         f"<td>{_num(p.get('u'), 2)}</td><td>{_num(p.get('u_data'), 2)}</td>"
                         f"<td>{_num(p.get('u_mc'), 2)}</td>"
                         f"<td>[{_num(p.get('low'))}, {_num(p.get('high'))}]</td></tr>")
-        parts.append("<table><tr><th class='l'>parameter</th><th>start</th><th>fitted</th>"
+        parts.append("<table><tr><th class='l'>parameter</th><th>config value</th><th>fitted</th>"
                      "<th>u</th><th>u (data)</th><th>u (Monte Carlo)</th><th>bounds</th></tr>"
                      + "".join(rows) + "</table>")
         notes = [str(w) for w in doc.get("warnings") or []] + [str(n) for n in info.get("notes") or []]
