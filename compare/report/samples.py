@@ -138,8 +138,8 @@ def measured_sample_section(dataset) -> Section | None:
     model = str(mock.get("model", ""))
     if mock.get("name") == "red-cotton" or model.startswith("analytic"):
         what = ("Its sample is the mock's <b>analytic stand-in for red cotton</b> (an Oren-Nayar "
-                "lobe with a red dye spectrum, a retro-reflection peak and an anisotropic Ward "
-                "gloss lobe, gonio.mock.samples): <b>not a measurement of a real fabric</b>, so "
+                "lobe with a red dye spectrum, a retro-reflection peak, an anisotropic Ward "
+                "gloss lobe, a forward sheen and a backscatter lobe, gonio.mock.samples): <b>not a measurement of a real fabric</b>, so "
                 "these model errors say how far the models are from that formula, not from a "
                 "fabric.")
     elif model.startswith("RGL"):
