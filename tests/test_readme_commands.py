@@ -147,7 +147,8 @@ def test_cheap_readme_commands_run(tmp_path, monkeypatch, capsys):
 @pytest.mark.slow
 def test_readme_demo_chain_runs_on_a_reduced_budget(tmp_path, monkeypatch):
     """The "What make demo does" block, in order, with --target-rel-err 0.3 for `simulate fabric` and 20
-    evaluations per fit (the fits' walks keep their photons: about 2 min on the shared 2-core machine)."""
+    evaluations per fit (the fits' walks keep their photons: 3 min 50 s on the shared 2-core machine at
+    load 4-5)."""
     monkeypatch.chdir(tmp_path)
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     section = re.search(r"^## What `make demo` does\n(.*?)^## ", text, flags=re.S | re.M)
