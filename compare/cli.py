@@ -2,7 +2,8 @@
 
 ::
 
-    compare report MEASURED_DIR SIM_DIR [SIM_DIR ...] --out REPORT_DIR
+    compare report MEASURED_DIR SIM_DIR [SIM_DIR ...] --out REPORT_DIR [--fit FIT_DIR ...]
+                   [--seed-sample DATASET_DIR]
     compare check  MEASURED_DIR SIM_DIR [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X]
 
 Exit status: 0 success (``check``: every figure within its threshold), 1 a failed check (the
@@ -97,6 +98,12 @@ def _parser() -> argparse.ArgumentParser:
                      help="embed the renders of a `compare render` folder (measured and simulated side by side)")
     rep.add_argument("--svg", action="store_true",
                      help="also write every figure as figures/*.svg (vector)")
+    rep.add_argument("--fit", action="append", default=[], metavar="FIT_DIR",
+                     help="add a table of the parameters a `simulate fit` found (its --out folder: "
+                          "fit.json), with their uncertainties; repeatable")
+    rep.add_argument("--seed-sample", default=None, metavar="DATASET_DIR",
+                     help="judge a simulated red-cotton dataset against the published colour of red "
+                          "cotton at incidence 0 / observation 10 deg (printed and reported)")
     common(rep)
 
     chk = sub.add_parser("check", help="exit 0 when a simulation matches within thresholds, "
@@ -201,7 +208,7 @@ def _report(args) -> int:
         log.warning("%s; the report says so in a banner", line)
     comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
                                   illuminant=args.illuminant)
-    sections = []
+    sections = _sample_sections(args, measured, comparison)
     if args.renders is not None:  # a `compare render` folder: its sheet embedded, captioned (issue 22)
         from .render import render_section
         from .report import Section
@@ -220,6 +227,27 @@ def _report(args) -> int:
         print(f"{name}: overall RMSE {o.rmse:.4g}, NRMSE {o.nrmse:.4g}")
     print(f"report: {report}")
     return 0
+
+
+def _sample_sections(args, measured, comparison) -> list:
+    """What was measured (always, when the dataset says), the fits (``--fit``) and the seed
+    sample's published-colour check (``--seed-sample``, also printed): compare.report.samples,
+    compare.report.fits."""
+    from .report.fits import fits_section
+    from .report.samples import measured_sample_section, published_colour_check, seed_sample_section
+
+    sections = [s for s in [measured_sample_section(measured)] if s is not None]
+    if args.fit:
+        sections.append(fits_section(args.fit, comparison.simulated))
+    if args.seed_sample is not None:
+        seed = read_dataset(args.seed_sample)
+        _, checks = published_colour_check(seed)
+        print(f"seed sample '{seed.name}' against the published colour of red cotton "
+              "(incidence 0, observation 10 deg):")
+        for c in checks:
+            print(f"  {c.line()}")
+        sections.append(seed_sample_section(seed))
+    return sections
 
 
 def _check(args) -> int:

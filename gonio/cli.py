@@ -200,15 +200,22 @@ def _cmd_check_plan(args) -> int:
 def _cmd_demo(args) -> int:
     from gonio.demo import run_demo
 
+    from gonio.mock.samples import SampleError
+
     out = Path(args.out)
-    plan = load_plan(args.plan)
-    result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
-                                 progress=False if args.no_progress else None, force=args.force,
-                             wait_timeout_s=args.wait_timeout)
+    plan = load_plan(args.plan or "red-cotton")
+    try:
+        result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
+                                     progress=False if args.no_progress else None,
+                                     force=args.force, wait_timeout_s=args.wait_timeout,
+                                     sample=args.sample,
+                                     name_from_sample=args.plan is None and args.sample != "red-cotton")
+    except SampleError as exc:
+        raise _UsageError(f"--sample: {exc}") from None
     code = _finish(result, "demo")
     if code == EXIT_OK:
-        print(f"gonio demo: plan {plan.name} measured on the embedded red-cotton mock in "
-              f"{elapsed_s:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
+        print(f"gonio demo: plan {plan.name} measured on the embedded mock holding {args.sample} "
+              f"in {elapsed_s:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
     return code
 
 
@@ -313,21 +320,33 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--list", action="store_true", help="list the points in motion order")
     c.add_argument("-v", "--verbose", action="store_true")
 
-    d = sub.add_parser("demo", help="embedded mock (red cotton) + the red-cotton plan")
+    d = sub.add_parser("demo", help="embedded mock (red cotton unless --sample) + a plan (red-cotton)",
+                       description="Start the mock goniophotometer in this process (real protocol "
+                                   "endpoints on loopback and a pseudo-terminal) holding --sample, "
+                                   "and measure it with --plan into --out. The dataset's meta names "
+                                   "the mock's sample (sample.mock_sample).")
     d.add_argument("--out", default="demo-out/measured", metavar="DIR",
                    help="dataset folder (default demo-out/measured)")
-    d.add_argument("--plan", default="red-cotton", help=argparse.SUPPRESS)
+    d.add_argument("--sample", default="red-cotton", metavar="NAME|FILE",
+                   help="the mock's virtual sample, as for `gonio mock --sample`: lambert:RHO, "
+                        "red-cotton (default, an analytic stand-in), a dataset directory, or an RGL "
+                        ".bsdf file (a real material, e.g. fixtures/real/acrylic_felt_green_rgb.bsdf); "
+                        "without --plan the dataset is named after it")
+    d.add_argument("--plan", default=None, metavar="PLAN",
+                   help="plan TOML file or preset name (default red-cotton; green-felt: the same "
+                        "geometry, the felt named as its sample)")
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
     d.add_argument("--force", action="store_true", help=_FORCE_HELP)
     common(d)
 
     t = sub.add_parser("truth", help="write a mock sample's true beta at a plan's geometries",
-                       description="Evaluate the mock's virtual sample (lambert:RHO, red-cotton or "
-                                   "a dataset directory) at the measurable geometries and the "
+                       description="Evaluate the mock's virtual sample (lambert:RHO, red-cotton, "
+                                   "a dataset directory or an RGL .bsdf file) at the measurable geometries and the "
                                    "wavelengths of PLAN and write it as a dataset (kind "
                                    "simulated, u_beta 0): the known answer an acquisition on the "
                                    "mock must recover.")
-    t.add_argument("sample", metavar="SAMPLE", help="lambert:RHO, red-cotton or a dataset directory")
+    t.add_argument("sample", metavar="SAMPLE",
+                   help="lambert:RHO, red-cotton, a dataset directory or an RGL .bsdf file")
     t.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name")
     t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
     t.add_argument("--force", action="store_true", help=_FORCE_HELP)

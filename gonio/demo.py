@@ -1,6 +1,19 @@
-"""``gonio demo``: the embedded mock (red cotton) measured with a plan, into a folder of its own.
+"""``gonio demo``: the embedded mock measured with a plan, into a folder of its own.
 
-:func:`run_demo` starts the mock, opens both links and runs the session. The output folder is
+:func:`run_demo` starts the mock with a virtual sample (``sample``: the meaning of ``gonio mock
+--sample``: ``lambert:RHO``, ``red-cotton`` -- the default, the analytic stand-in --, a dataset
+directory or an RGL ``.bsdf`` file such as the real green felt
+``fixtures/real/acrylic_felt_green_rgb.bsdf``), opens both links and runs the session on the real
+protocol endpoints (Modbus TCP on loopback, the head on a pseudo-terminal).
+
+What was measured is written down: the dataset's ``sample`` (the plan's ``[sample]``) gets a
+``mock_sample`` entry, the mock sample's own description
+(:meth:`gonio.mock.samples.Sample.describe`: the analytic model, or the file, its description and
+SHA-256), so that a report can say that the measurement is the mock's and of what
+(:mod:`compare.report.samples`). A real instrument does not know its sample; the demo does.
+When the plan's ``[sample]`` names another sample than the mock holds (the default plan
+``red-cotton`` with ``sample="FILE.bsdf"``), ``name_from_sample`` replaces the plan's name and
+material by the mock sample's (the CLI does this when ``--plan`` is not given). The output folder is
 replaced only where a previous demo wrote it: a demo marks its folder with
 :data:`gonio.acquisition.rundir.DEMO_MARKER` (JSON: ``written_by`` and, once
 the run ended, ``journal_start``: the SHA-256 of its journal's first line, the start record).
@@ -11,6 +24,7 @@ a folder holding another run's journal or dataset is refused and left untouched.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -25,33 +39,56 @@ from gonio.data import atomic_write
 from gonio.data.outputs import check_output
 from gonio.instrument.probe import open_links
 
-__all__ = ["run_demo", "replace_previous_demo", "is_previous_demo", "mark_demo"]
+__all__ = ["run_demo", "replace_previous_demo", "is_previous_demo", "mark_demo", "demo_sample_meta"]
 
 log = logging.getLogger(__name__)
 
 
 def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1.0,
              progress: bool | None = None, force: bool = False,
-             wait_timeout_s: float | None = None) -> tuple[RunResult, float]:
-    """Measure ``plan`` on the embedded red-cotton mock into ``out``.
+             wait_timeout_s: float | None = None, sample: str = "red-cotton",
+             name_from_sample: bool = False) -> tuple[RunResult, float]:
+    """Measure ``plan`` on the embedded mock holding ``sample`` into ``out``.
 
     Returns the session's result and the wall time in seconds (mock start-up included).
-    Raises :class:`gonio.data.outputs.OutputRefused` (nothing changed) when ``out``
+    Raises :class:`gonio.mock.samples.SampleError` for a sample the mock cannot hold (before
+    anything is written), :class:`gonio.data.outputs.OutputRefused` (nothing changed) when ``out``
     holds run files that a demo did not write (with ``force``: a dataset without a journal is
     replaced; a run folder never is, :mod:`gonio.data.outputs`).
     """
     from gonio.mock import MockInstrument
+    from gonio.mock.samples import make_sample
 
     out = Path(out)
+    truth = make_sample(sample)        # a bad sample: one error before the folder is touched
+    plan = dataclasses.replace(plan, sample=demo_sample_meta(plan.sample, truth,
+                                                             name_from_sample=name_from_sample))
     replace_previous_demo(out, force=force)
     t0 = time.monotonic()
-    with MockInstrument(sample="red-cotton", modbus="tcp", serial="pty", speed="fast",
+    with MockInstrument(sample=sample, modbus="tcp", serial="pty", speed="fast",
                         seed=seed) as mock:
         modbus, serial_link = open_links(mock.modbus_url, mock.serial_url, timeout_s)
         result = run_session(plan, modbus, serial_link, out, seed=seed, progress=progress,
                              force=force, writer="gonio demo", wait_timeout_s=wait_timeout_s)
     mark_demo(out, done=True)
     return result, time.monotonic() - t0
+
+
+def demo_sample_meta(plan_sample: dict, truth, *, name_from_sample: bool = False) -> dict:
+    """The dataset's ``sample``: the plan's, with ``mock_sample`` (``truth.describe()``) added;
+    with ``name_from_sample`` the name and material are the mock sample's.
+
+    >>> from gonio.mock.samples import LambertSample
+    >>> demo_sample_meta({"name": "red cotton"}, LambertSample(0.5), name_from_sample=True)["name"]
+    'lambert:0.5'
+    """
+    described = truth.describe()
+    meta = dict(plan_sample)
+    if name_from_sample:
+        meta["name"] = str(described.get("description") or truth.name)
+        meta["material"] = f"the mock's virtual sample {truth.name} ({described.get('model')})"
+    meta["mock_sample"] = described
+    return meta
 
 
 def is_previous_demo(out: Path) -> bool:

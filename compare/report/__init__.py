@@ -10,6 +10,9 @@ One concept per module:
 ``page``        ``report.html`` assembled from :class:`Section` s
 ``outdir``      the output-folder policy (:func:`prepare_out_dir`)
 ``build``       :func:`write_report`: the orchestration
+``samples``     sections "What was measured" (the mock's sample, a real file's source) and the
+                seed sample's published-colour check
+``fits``        section "Fitted parameters" (``simulate fit``'s ``fit.json``)
 ==============  ===============================================================================
 
 Other code adds to a report through :func:`write_report`'s ``sections`` (a :class:`Section`:

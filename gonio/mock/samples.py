@@ -46,6 +46,26 @@ Samples
     every near-normal spectrum and wash the red out to S 0.70, against the published S 0.99:
     the measurement itself bounds the near-normal gloss to about 0.01.) Both terms are
     non-negative and reciprocal.
+
+    Angular character of a real fabric (issue 20: the real felt rises 7x towards the forward
+    grazing direction at 60 deg incidence and has a backscatter lobe): two more reciprocal,
+    non-negative terms, and the diffuse lobe giving up energy to them at grazing angles, all
+    three nothing at normal incidence or observation (``u = sin theta_i sin theta_o = 0``), so
+    the published colour near the normal is unchanged::
+
+        beta_d -> beta_d (1 - k u^2)
+        beta_f = c_f (0.3 + 0.7 rho_d) u^4 ((1 - cos(phi_i - phi_o)) / 2)^2
+        beta_b = c_b rho_d u^2 ((1 + cos(phi_i - phi_o)) / 2)^4
+
+    ``beta_f`` is the forward sheen (light scattered forward along and through the fibres at
+    grazing angles: part surface, part dyed, hence paler than the diffuse red), ``c_f = 1.5``;
+    ``beta_b`` the backscatter towards the source's side (dyed: returned by the fibre pile),
+    ``c_b = 0.5``; ``k = 0.4``. Without ``k`` the red's directional albedo (0.87 at 60 deg,
+    0.91 at 80 deg incidence before) would pass 1; with it the largest over incidences up to
+    89 deg is 0.97 at every wavelength (``tests/gonio/mock/test_physics.py``). In plane at
+    incidence 60 deg the luminance-weighted ``beta`` rises from 0.16 at s = 0 to 0.46 at
+    s = +70 (0.22 before: the ratio 2.8 against 1.3) and is 0.23 at s = -50. Chosen by hand for
+    that shape; cotton's forward rise is weaker than the felt's.
 ``FILE``
     A radiance-coefficient dataset directory (``gonio.data.read_dataset``; an imported one
     too), interpolated with ``Dataset.interpolate``; a request outside the data raises
@@ -78,6 +98,7 @@ import numpy as np
 __all__ = [
     "Sample", "LambertSample", "RedCottonSample", "DatasetSample", "WhiteReference",
     "WHITE_REFERENCE_BETA", "reference_beta", "make_sample", "SampleError", "directions",
+    "KNOWN_FILES",
 ]
 
 log = logging.getLogger(__name__)
@@ -156,6 +177,9 @@ class RedCottonSample:
     alpha_y = 0.38
     f0 = 0.045
     gloss_fraction = 0.08
+    sheen = 1.5
+    backscatter = 0.5
+    grazing_loss = 0.4
     dye_floor = 0.01
     dye_blue = 0.088
     dye_red = 0.92
@@ -201,13 +225,21 @@ class RedCottonSample:
         co = np.clip(np.cos(to_r), 1e-6, 1.0)
         beta_s = self.gloss_fraction * fresnel / (4.0 * self.alpha_x * self.alpha_y * np.sqrt(ci * co)) * np.exp(
             -tan2_th * (cos2_ph / self.alpha_x ** 2 + sin2_ph / self.alpha_y ** 2))
-        return beta_d + beta_s
+        # forward sheen and backscatter, taken from the diffuse lobe at grazing (docstring)
+        u = np.sin(ti_r) * np.sin(to_r)
+        rho = self.rho_d(wl)
+        beta_f = self.sheen * (0.3 + 0.7 * rho) * u ** 4 * (0.5 * (1.0 - cos_dphi)) ** 2
+        beta_b = self.backscatter * rho * u ** 2 * (0.5 * (1.0 + cos_dphi)) ** 4
+        return beta_d * (1.0 - self.grazing_loss * u ** 2) + beta_s + beta_f + beta_b
 
     def describe(self) -> dict:
-        return {"name": self.name, "model": "analytic Oren-Nayar + retro + Ward (gonio.mock.samples)",
+        return {"name": self.name,
+                "model": "analytic Oren-Nayar + retro + Ward + sheen + backscatter (gonio.mock.samples)",
                 "sigma_deg": self.sigma_deg, "retro_height": self.retro_height,
                 "retro_width_deg": self.retro_width_deg, "alpha_x": self.alpha_x,
                 "alpha_y": self.alpha_y, "f0": self.f0, "gloss_fraction": self.gloss_fraction,
+                "sheen": self.sheen, "backscatter": self.backscatter,
+                "grazing_loss": self.grazing_loss,
                 "dye": {"floor": self.dye_floor, "blue_420nm": self.dye_blue,
                         "red": self.dye_red, "edge_nm": self.dye_edge_nm,
                         "edge_width_nm": self.dye_edge_width_nm}}
@@ -289,8 +321,25 @@ class BSDFSample:
         return np.take_along_axis(bands, index[..., None], axis=-1)[..., 0]
 
     def describe(self) -> dict:
-        return {"name": self.name, "model": "RGL .bsdf (Dupuy & Jakob 2018)",
-                "path": str(self.path), "description": self.bsdf.description}
+        """Name, model, path, the file's own description, its SHA-256 and, for a file the
+        project ships (:data:`KNOWN_FILES`), where it comes from and its licence."""
+        import hashlib
+
+        sha = hashlib.sha256(self.path.read_bytes()).hexdigest()
+        out = {"name": self.name, "model": "RGL .bsdf (Dupuy & Jakob 2018)",
+               "path": str(self.path), "description": self.bsdf.description, "sha256": sha}
+        if sha in KNOWN_FILES:
+            out["source"] = KNOWN_FILES[sha]
+        return out
+
+
+#: Real measurements the project ships (``fixtures/real/README.md``), by SHA-256: their source.
+KNOWN_FILES = {
+    "3429e2bdbe2045dca11582479fa251866ffe056b909b47e3fbf1c3c776fcb72b":
+        "RGL material database, Realistic Graphics Lab, EPFL (rgl.epfl.ch/materials): a real "
+        "measurement of green acrylic felt (Edukit A4), isotropic RGB, licence CC0 1.0; "
+        "Dupuy & Jakob, ACM TOG 37(6), 2018",
+}
 
 
 def make_sample(spec: str) -> LambertSample | RedCottonSample | DatasetSample | BSDFSample:

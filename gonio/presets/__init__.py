@@ -1,2 +1,2 @@
-"""Shipped presets: acquisition plans (``red-cotton.toml``, ``quick.toml``) and the white
+"""Shipped presets: acquisition plans (``red-cotton.toml``, ``green-felt.toml``, ``quick.toml``) and the white
 standard's calibration table (``spectralon.csv``), accepted by name wherever a path is."""

@@ -1,0 +1,107 @@
+"""Report section "Fitted parameters": what ``simulate fit`` found, from its ``fit.json``.
+
+``fits_section(fit_dirs, simulated)`` reads ``DIR/fit.json`` of each ``simulate fit`` output folder
+(:mod:`studies.fit`: method, start config, objective, the figures before and after, every free
+parameter with its start, bounds, fitted value and standard uncertainty split into its data and
+Monte Carlo parts, warnings, evaluations, walks, seconds) and writes one table per fit. A simulated
+dataset of the report made from a fit's ``fitted.toml`` (``simulate fabric DIR/fitted.toml``: its
+``provenance.config.source``) is named under that fit: it has no fit of its own, its parameters
+are the fit's (the demo's Monte Carlo at the summation's fitted parameters). ``compare report
+--fit DIR`` adds the section (before the normalisation).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from ..errors import CompareError
+from .page import Section
+
+__all__ = ["fits_section", "read_fit"]
+
+
+def read_fit(fit_dir: str | Path) -> dict:
+    """``fit_dir/fit.json`` as a dict; :class:`CompareError` (one line) when it is not a fit."""
+    path = Path(fit_dir) / "fit.json"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise CompareError(f"--fit {fit_dir}: no fit.json there (give the --out folder of "
+                           "`simulate fit`)") from None
+    except (OSError, ValueError) as exc:
+        raise CompareError(f"--fit {fit_dir}: fit.json unreadable ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), list):
+        raise CompareError(f"--fit {fit_dir}: fit.json has no parameters list (not written by "
+                           "simulate fit)")
+    return doc
+
+
+def _num(x, digits: int = 4) -> str:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return "-"
+    return f"{v:.{digits}g}" if math.isfinite(v) else "-"
+
+
+def _figures(c: Mapping) -> str:
+    out = f"NRMSE {_num(c.get('nrmse'))}"
+    if "dh" in c:
+        out += f", dh {float(c['dh']):+.4f} turn, ds {float(c['ds']):+.4f}"
+    return out
+
+
+def _made_from(fit_dir: Path, simulated: Mapping) -> list[str]:
+    """Names of the simulated datasets whose config is ``fit_dir/fitted.toml``."""
+    target = (fit_dir / "fitted.toml").resolve()
+    names = []
+    for name, ds in simulated.items():
+        source = ((ds.meta.get("provenance") or {}).get("config") or {}).get("source")
+        if isinstance(source, str) and source and Path(source).resolve() == target:
+            names.append(name)
+    return names
+
+
+def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Section:
+    """The "Fitted parameters" section (module docstring); ``simulated``: the report's
+    simulated datasets by name."""
+    e = html.escape
+    parts = ["<h2>Fitted parameters</h2><p>Each model below was fitted to the measurement by "
+             "<code>simulate fit</code> (objective NRMSE^2 + w_c (dh^2 + ds^2), the figures "
+             "compare reports; uncertainties: standard, the measurement's u_beta and the model's "
+             "Monte Carlo error propagated through the whole objective, linearised at the "
+             "solution; see the README's fit section). 'config value' and 'before' are the start config's value and figures; the search itself may start elsewhere (a --dye knots fit starts from the knots inverted from the measured colour: the start note says so).</p>"]
+    for fit_dir in map(Path, fit_dirs):
+        doc = read_fit(fit_dir)
+        info = doc.get("info") or {}
+        method = str(doc.get("method", "?"))
+        parts.append(
+            f"<h3>{e(method)} model, fitted (<code>{e(str(fit_dir))}</code>)</h3><p>start config "
+            f"{e(str(doc.get('config', '?')))}; before {e(_figures(doc.get('start') or {}))}; "
+            f"fitted {e(_figures(doc.get('fitted') or {}))}; {e(str(info.get('evaluations', '?')))} "
+            f"evaluations (budget {e(str(info.get('max_evaluations', '?')))}), "
+            f"{e(str(info.get('walks', '?')))} Monte Carlo walks, {_num(info.get('seconds'), 3)} s."
+            + (f" Start: {e(str(info['start_note']))}." if info.get("start_note") else "") + "</p>")
+        rows = []
+        for p in doc["parameters"]:
+            rows.append(f"<tr><td class='l'><code>{e(str(p.get('name')))}</code></td>"
+                        f"<td>{_num(p.get('start'))}</td><td><b>{_num(p.get('value'))}</b></td>"
+                        f"<td>{_num(p.get('u'), 2)}</td><td>{_num(p.get('u_data'), 2)}</td>"
+                        f"<td>{_num(p.get('u_mc'), 2)}</td>"
+                        f"<td>[{_num(p.get('low'))}, {_num(p.get('high'))}]</td></tr>")
+        parts.append("<table><tr><th class='l'>parameter</th><th>config value</th><th>fitted</th>"
+                     "<th>u</th><th>u (data)</th><th>u (Monte Carlo)</th><th>bounds</th></tr>"
+                     + "".join(rows) + "</table>")
+        notes = [str(w) for w in doc.get("warnings") or []] + [str(n) for n in info.get("notes") or []]
+        if notes:
+            parts.append("<p>Warnings of the fit:</p><ul>" + "".join(f"<li>{e(n)}</li>" for n in notes)
+                         + "</ul>")
+        for name in _made_from(fit_dir, simulated):
+            parts.append(f"<p>'{e(name)}' is evaluated at these fitted parameters "
+                         f"(<code>{e(str(fit_dir / 'fitted.toml'))}</code>): no fit of its own; "
+                         "its parameters and their uncertainties are the ones above.</p>")
+    return Section("fits", "\n".join(parts), before="normalisation")
