@@ -19,7 +19,7 @@ from simulate.woven.integrator import trace
 from simulate.woven.materials import FiberSurface
 from simulate.woven.yarn import YarnTable, table_halves
 
-__all__ = ["TABLE_NOISE", "TABLE_SHARE", "table_photons", "ray_target", "fabric_beta", "twist_of"]
+__all__ = ["TABLE_NOISE", "TABLE_SHARE", "table_photons", "ray_target", "fabric_beta", "twist_of", "surface_of"]
 
 log = logging.getLogger(__name__)
 
@@ -66,10 +66,17 @@ def twist_of(structure: Any) -> tuple[float, float]:
             float(structure.weft_twist_deg) * (1.0 if structure.weft_twist == "Z" else -1.0))
 
 
+def surface_of(mesh: Any) -> str:
+    """The yarn surface of a mesh's tubes: ``"tube"`` when each is one fiber (a felt's
+    ``open_fibers``), ``"fibers"`` when each is a yarn made of fibers (a weave)."""
+    return "tube" if getattr(mesh, "open_fibers", False) else "fibers"
+
+
 def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_nm: np.ndarray, *,
                 target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
                 threads: int = 1, progress: bool = False, tables: tuple[YarnTable, YarnTable] | None = None,
-                structure: Any = None, cache: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
+                structure: Any = None, cache: bool = True, surface: str | None = None
+                ) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -81,7 +88,10 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     dark ones). Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information. The halves
     come from the disk cache when there (:func:`simulate.woven.table_halves`; ``cache=False``
     or ``FABRIC_OPTICS_NO_CACHE=1``: always computed); ``info["table"]["cache"]`` says which.
-    ``structure`` (a config's ``[structure]``): the yarns' twist (:func:`twist_of`).
+    ``structure`` (a config's ``[structure]``): the yarns' twist (:func:`twist_of`) and the fibers'
+    spacing in the yarn's surface layer. ``surface``: the yarn surface of :class:`FiberSurface`;
+    default (None) ``"fibers"`` for a weave's yarns and ``"tube"`` for a felt's fibers (each tube
+    is one fiber).
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -90,7 +100,9 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     if tables is None:
         tables = table_halves(fiber, wl, table_photons(target_rel_err) // 2, seed, threads if threads else None,
                               cache=cache)
-    mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host)) for t in tables]
+    surf = surface or surface_of(mesh)
+    spacing = float(structure.spacing_ratio) if (structure is not None and structure.kind == "woven") else 1.0
+    mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host), surf, spacing) for t in tables]
     twist = twist_of(structure)
     key = np.round(w_in, 9)
     incidences, inverse = np.unique(key, axis=0, return_inverse=True)
@@ -129,6 +141,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                       "w_t_nodes": tables[0].w_t_nodes.tolist(),
                       "grid": [tables[0].n_psi, tables[0].n_v, tables[0].n_mu, tables[0].n_phi]},
             "incidences": runs, "seconds": time.perf_counter() - started, "twist_deg": list(twist),
+            "yarn_surface": surf, "surface_spacing_ratio": spacing if surf == "fibers" else None,
             "rays": int(sum(r["rays"] for r in runs)),
             "stop": "target" if all(r["stop"] == "target" for r in runs) else
             next(r["stop"] for r in runs if r["stop"] != "target")}
