@@ -158,3 +158,41 @@ def test_fiber_surface_is_reciprocal_on_the_weave(plain):
                      normals="face")
         u = math.hypot(ab.u_beta[0, 0], ba.u_beta[0, 0])
         assert abs(ab.beta[0, 0] - ba.beta[0, 0]) < 4 * u, (ab.beta[0, 0], ba.beta[0, 0], u)
+
+
+def test_the_pile_dilutes_the_fibers_scatterers_and_dye_to_the_packing_fraction():
+    """simulate.woven.pile: phi times the scatterers and the host absorption, everything else the fiber's."""
+    from simulate.media.medium import MieMedium, Spectrum
+    from simulate.woven.pile import pile_fiber, pile_medium
+
+    hg = HGMedium(mu_s=0.8, mu_a=0.01, g=0.5)
+    p = pile_medium(hg, 0.6)
+    assert (p.mu_s, p.mu_a, p.g) == (pytest.approx(0.48), pytest.approx(0.006), 0.5)
+    dye = Spectrum(np.array([400.0, 700.0]), np.array([0.5, 1e-4]), "dye")
+    mie = MieMedium(n_host=1.557, particle_n=2.7, radius_um=0.1, volume_fraction=0.05, mu_a_host_per_um=dye)
+    pm = pile_medium(mie, 0.9)
+    assert pm.volume_fraction == pytest.approx(0.045) and pm.number_density == pytest.approx(0.9 * mie.number_density)
+    np.testing.assert_allclose(pm.mu_a_host_per_um(np.array([400.0, 550.0])), 0.9 * dye(np.array([400.0, 550.0])))
+    assert pm.n_host == mie.n_host and pm.particle_n == mie.particle_n
+    fib = F.Fiber(10.0, 1.557, mie, 0.35, 10.0)
+    yarn = pile_fiber(fib, 79.0, 0.9)
+    assert (yarn.radius_um, yarn.n_host, yarn.roughness, yarn.cell_width_deg) == (79.0, 1.557, 0.35, 10.0)
+    with pytest.raises(ValueError, match="packing_fraction"):
+        pile_medium(hg, 0.0)
+
+
+def test_yarns_are_made_of_fibers_with_a_woven_structure_only(plain):
+    """Without [structure] (as the summation's carpet) and for a felt's tubes (each one fiber) the yarn
+    stays the tube with the fiber's table; a woven [structure] makes it of fibers, at its packing."""
+    from simulate.fabric import structure as ST
+    from simulate.woven.estimate import yarn_model
+
+    mesh = weave_mesh(plain)
+    assert yarn_model(mesh, None) == ("tube", "fiber", 1.0, ST.CLOSE_PACKING)
+    assert yarn_model(mesh, ST.StructureSpec(kind="nonwoven")) == ("tube", "fiber", 1.0, ST.CLOSE_PACKING)
+    spec = ST.StructureSpec(packing_fraction=0.6)
+    surf, vol, spacing, packing = yarn_model(mesh, spec)
+    assert (surf, vol, packing) == ("fibers", "pile", 0.6) and spacing == pytest.approx(spec.spacing_ratio)
+    assert yarn_model(mesh, spec, surface="tube", volume="fiber")[:2] == ("tube", "fiber")
+    with pytest.raises(ValueError, match="volume must be"):
+        yarn_model(mesh, spec, volume="felt")
