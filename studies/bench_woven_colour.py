@@ -15,6 +15,10 @@ report's colour geometry (incidence 0, observation 10 deg on the mirror side, as
 
 (a felt, ``kind = "nonwoven"``: the felt Monte Carlo of :mod:`simulate.woven.felt` instead of rows 1-4);
 
+and, with ``--surface-only``, the surface term alone at that geometry (``beta`` of a volume that returns
+nothing: the tables' rows zeroed) of the tube, of the yarn surface made of fibers, and of the structured
+summation (its layer table with the surface part only, :func:`simulate.fabric.fiberlayer.surface_table`).
+
 with each run's seconds. The config's ``[structure]`` is used if it has one, else the defaults
 (``kind = "woven"``).
 """
@@ -83,13 +87,48 @@ def colours(config: str = "red-cotton", target: float = 0.01, seed: int = 0, thr
     return rows
 
 
+def surface_only(config: str = "red-cotton", target: float = 0.02, seed: int = 0) -> dict:
+    """The surface term's ``beta`` (grey: the same at every wavelength) at the colour geometry, three ways."""
+    import dataclasses
+
+    from simulate.fabric import fiberlayer as FL
+
+    cfg = load_config(config)
+    spec = cfg.structure if getattr(cfg, "structure", None) is not None else ST.StructureSpec()
+    wl = np.array([550.0])
+    fiber = cfg.fiber(wl)
+    wv = weave_from_config(cfg)
+    mesh = weave_mesh(wv)
+    w_i, w_o = fab.directions_deg([0.0], [0.0]), fab.directions_deg([10.0], [180.0])
+    tabs = W.table_halves(fiber, wl, 2000, seed, 1)
+    dark = tuple(dataclasses.replace(t, T=np.zeros_like(t.T)) for t in tabs)
+    out = {}
+    for surf in ("tube", "fibers"):
+        b, u, _ = W.fabric_beta(mesh, fiber, w_i, w_o, wl, target_rel_err=target, seed=seed, tables=dark,
+                                structure=spec, surface=surf)
+        out[surf] = (float(b[0, 0]), float(u[0, 0]))
+    G = FL.surface_table(float(fiber.roughness), float(fiber.n_host), True, spec.spacing_ratio)
+    # surface_table's default grid (7.5 deg in theta, 15 deg in phi), as fiberlayer's LayerTable
+    th = np.arange(0.0, 90.0 + 1e-9, 7.5)
+    ph_i = np.arange(0.0, 90.0 + 1e-9, 15.0)
+    ph_o = np.arange(0.0, 360.0 + 1e-9, 15.0)
+    lt = FL.LayerTable(th, ph_i, th, ph_o, np.ascontiguousarray(G[..., None]), True, spec.spacing_ratio)
+    out["summation"] = (float(ST.fabric_beta_from_G(lt, ST.facets_for(spec, wv), w_i, w_o)[0, 0]), 0.0)
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("config", nargs="?", default="red-cotton")
     ap.add_argument("--target", type=float, default=0.01)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--surface-only", action="store_true", help="only the surface term's beta, three ways")
     a = ap.parse_args(argv)
+    if a.surface_only:
+        for name, (b, u) in surface_only(a.config, a.target, a.seed).items():
+            print(f"surface term alone, {name:10s} beta {b:.4f}" + (f" +- {u:.4f}" if u else ""))
+        return
     rows = colours(a.config, a.target, a.seed, a.threads)
     print(f"{a.config}: incidence 0, observation 10 deg (mirror side); BSSRDF tables "
           f"{rows[0]['tables_seconds']:.0f} s")
