@@ -84,9 +84,10 @@ def test_fabric_mc_ray_budget_is_reported(inputs, tmp_path, capsys):
 def test_fabric_auto_records_the_method_of_every_geometry(inputs, tmp_path, capsys):
     cfg, plan = inputs
     out = tmp_path / "auto"
-    # at 12 % the shipped red-cotton study allows the cheaper models at some of these geometries only
+    # at 5 % the shipped red-cotton study (the summation within 3-9 % of the MC) allows the
+    # summation at some of these geometries only, the MC at the others
     assert main(["fabric", str(cfg), "--method", "auto", "--geometry", str(plan), "--out", str(out),
-                 "--target-rel-err", "0.12", "--no-progress"]) == 0
+                 "--target-rel-err", "0.05", "--no-progress"]) == 0
     ds = read_dataset(out)
     chosen = ds.meta["model"]["method_per_geometry"]
     assert len(chosen) == 8 and len(set(chosen)) >= 2
