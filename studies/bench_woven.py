@@ -27,7 +27,7 @@ import numpy as np
 
 from studies.method_errors import departure, frame, model_datasets
 
-__all__ = ["ray_engine_speed", "red_cotton_mc", "run_woven_bench", "chart"]
+__all__ = ["ray_engine_speed", "red_cotton_mc", "run_woven_bench", "chart", "in_child"]
 
 
 @numba.njit(cache=True)
@@ -147,7 +147,7 @@ def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int |
                "table": ds.table.to_dict(orient="list")})
 
 
-def _in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None) -> dict:
+def in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None) -> dict:
     """One red-cotton run in a spawned child process: its wall time (of the run only, not the
     process start) and its own peak memory."""
     ctx = mp.get_context("spawn")
@@ -161,7 +161,7 @@ def _in_child(target: float, method: str = "mc", seed: int | None = None, thread
 
 def red_cotton_mc(target: float = 0.01) -> dict:
     """The headline run in a child process (its own peak memory); returns figures and the table."""
-    return _in_child(target)
+    return in_child(target)
 
 
 def run_woven_bench(target: float = 0.01) -> dict:
@@ -268,7 +268,7 @@ def speed_vs_accuracy(budgets: tuple[float, ...] = (0.2, 0.1, 0.05, 0.02), refer
     import pandas as pd
 
     threads = threads or os.cpu_count() or 1
-    ref = _in_child(reference_target, "mc", 1000, threads)
+    ref = in_child(reference_target, "mc", 1000, threads)
     key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
     rt = pd.DataFrame(ref["table"])
 
@@ -280,7 +280,7 @@ def speed_vs_accuracy(budgets: tuple[float, ...] = (0.2, 0.1, 0.05, 0.02), refer
     runs = []
     for method in ("classic", "summation", "mc"):
         for k, target in enumerate(budgets):
-            r = _in_child(target, method, k + 1, threads)
+            r = in_child(target, method, k + 1, threads)
             runs.append({"method": method, "target": target, "seconds": r["wall_seconds"],
                          "peak_rss_mb": r["peak_rss_mb"], "error": error(r["table"])})
     return {"reference": {"method": "mc", "target": reference_target, "seconds": ref["wall_seconds"],

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> None:
     import os
     from pathlib import Path
 
-    from studies.bench_woven import _in_child, chart
+    from studies.bench_woven import in_child, chart
 
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--target", type=float, default=0.01)
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> None:
     load = os.getloadavg()
     report: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "load_at_start": [round(x, 2) for x in load]},
                               "target": a.target}
-    report["red_cotton"] = _in_child(a.target, threads=a.threads)
+    report["red_cotton"] = in_child(a.target, threads=a.threads)
     report["models"] = model_datasets()
     report["departure"] = departure(report)
     errors = errors_from_report(report)
