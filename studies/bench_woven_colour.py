@@ -101,7 +101,7 @@ def surface_only(config: str = "red-cotton", target: float = 0.02, seed: int = 0
     mesh = weave_mesh(wv)
     w_i, w_o = fab.directions_deg([0.0], [0.0]), fab.directions_deg([10.0], [180.0])
     tabs = W.table_halves(fiber, wl, 2000, seed, 1)
-    dark = tuple(dataclasses.replace(t, T=np.zeros_like(t.T)) for t in tabs)
+    dark = (dataclasses.replace(tabs[0], T=np.zeros_like(tabs[0].T)), dataclasses.replace(tabs[1], T=np.zeros_like(tabs[1].T)))
     out = {}
     for surf in ("tube", "fibers"):
         b, u, _ = W.fabric_beta(mesh, fiber, w_i, w_o, wl, target_rel_err=target, seed=seed, tables=dark,
