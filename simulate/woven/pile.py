@@ -20,8 +20,10 @@ Neglected, stated: the scattering by the fibers' own air-cellulose boundaries in
 (about ``phi / 2R`` = 0.045 /um for red cotton, against the scatterers' ``phi mu_s`` of 0.6-0.9 /um:
 under 7 %); the pile's anisotropy (its fibers run along the yarn); the total internal reflection
 at the yarn's boundary is a smooth cylinder's, where a real yarn's boundary is the fibers' curved
-surfaces. The red cotton's fabric colour with it: docs/physics.md 6 (woven Monte Carlo, "Yarn
-made of fibers").
+surfaces. The pile's table holds the scattering per narrow wavelength group (:data:`HELD_LOG_MU_S`):
+the white Monte Carlo's re-weighting of the scattering has heavy tails over a pile's hundreds of events
+per path. The red cotton's fabric colour with it: docs/physics.md 6 (woven Monte Carlo, "Yarn made of
+fibers").
 """
 
 from __future__ import annotations

@@ -196,3 +196,23 @@ def test_yarns_are_made_of_fibers_with_a_woven_structure_only(plain):
     assert yarn_model(mesh, spec, surface="tube", volume="fiber")[:2] == ("tube", "fiber")
     with pytest.raises(ValueError, match="volume must be"):
         yarn_model(mesh, spec, volume="felt")
+
+
+def test_held_scattering_groups_stay_within_their_bound_and_keep_old_table_keys():
+    """The pile's table walks wavelengths together only within ``held_log_mu_s`` of the walked one
+    (consecutive, covering all); the held table has its own cache key, the re-weighted keys are unchanged."""
+    from simulate.woven.yarn import held_groups, table_key
+
+    mu_s = 0.8 * (np.arange(390.0, 711.0, 10.0) / 550.0) ** -1.3
+    g = np.full(mu_s.size, 0.55)
+    optics = SimpleNamespace(mu_s=mu_s, g=g)
+    groups = held_groups(optics, 0.05)  # type: ignore[arg-type]
+    assert np.array_equal(np.concatenate(groups), np.arange(mu_s.size))
+    for gr in groups:
+        ref = gr[len(gr) // 2]
+        assert np.all(np.abs(np.log(mu_s[gr] / mu_s[ref])) <= 0.05)
+    assert len(groups) > 3 and max(len(gr) for gr in groups) > 1
+    fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), 0.35, 10.0)
+    plain_key = table_key(fib, [550.0])
+    assert table_key(fib, [550.0], held_log_mu_s=0.0) == plain_key
+    assert table_key(fib, [550.0], held_log_mu_s=0.05) != plain_key
