@@ -196,7 +196,8 @@ def chart(report: dict, path: Path) -> None:
     for c, ti in enumerate(incid):
         def curve(df):
             s = df[(df["theta_i"] == ti) & (df["wavelength_nm"] == wl)].copy()
-            s["signed"] = np.where(np.isclose(s["phi_o"], 180.0), -s["theta_o"], s["theta_o"])
+            # gonio.data.geometry's signed angle: s >= 0 on the mirror side (phi_o = phi_i + 180)
+            s["signed"] = np.where(np.isclose((s["phi_o"] - s["phi_i"]) % 360.0, 180.0), s["theta_o"], -s["theta_o"])
             return s.sort_values("signed")
         m = curve(mc)
         ax = axes[0, c]
@@ -208,7 +209,7 @@ def chart(report: dict, path: Path) -> None:
             axes[1, c].plot(j["signed"], j["beta"] / j["beta_mc"], "-o", ms=3, color=col, label=name)
         ax.set_title(f"incidence {ti:g} deg, {wl:g} nm")
         axes[1, c].axhline(1.0, color="k", lw=0.8)
-        axes[1, c].set_xlabel("signed observation angle (deg)")
+        axes[1, c].set_xlabel("signed observation angle (deg, + mirror side)")
     axes[0, 0].set_ylabel("beta")
     axes[1, 0].set_ylabel("model / Monte Carlo")
     axes[0, 0].legend(fontsize=8)
