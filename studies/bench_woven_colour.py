@@ -10,7 +10,8 @@ report's colour geometry (incidence 0, observation 10 deg on the mirror side, as
 3. + the yarn's surface made of fibers (:class:`simulate.woven.FiberSurface`, ``surface="fibers"``) --
    rows 1-3 share ONE pair of fiber tables, so their differences are the twist's and the surface's;
 4. + the yarn's volume the pile of its fibers (:mod:`simulate.woven.pile`; its own pair of tables):
-   the Monte Carlo of ``simulate fabric CONFIG --method mc`` with a woven ``[structure]``;
+   the Monte Carlo of ``simulate fabric CONFIG --method mc`` with a woven ``[structure]``; and the pile
+   with the tube's own surface (the two ingredients' order: each one's share without the other);
 5. the structured summation (:func:`simulate.fabric.structure.structured_beta`) of the same structure;
 
 (a felt, ``kind = "nonwoven"``: the felt Monte Carlo of :mod:`simulate.woven.felt` instead of rows 1-4);
@@ -71,7 +72,8 @@ def colours(config: str = "red-cotton", target: float = 0.01, seed: int = 0, thr
         ("woven MC: tube, fiber table, twist 0", None, "tube", tables),
         (f"woven MC: tube, fiber table, {twist}", spec, "tube", tables),
         ("+ yarn surface made of fibers", spec, "fibers", tables),
-        ("+ yarn volume the fibers' pile", spec, "fibers", None)]
+        ("+ yarn volume the fibers' pile", spec, "fibers", None),
+        ("(the pile with the tube's surface)", spec, "tube", None)]
     for name, st, surface, tabs in runs:
         t = time.perf_counter()
         beta, u, info = W.fabric_beta(mesh, fiber, w_i, w_o, WAVELENGTHS, target_rel_err=target, seed=seed,
