@@ -27,7 +27,7 @@ import numpy as np
 
 from studies.method_errors import departure, frame, model_datasets
 
-__all__ = ["ray_engine_speed", "red_cotton_mc", "run_woven_bench", "chart"]
+__all__ = ["ray_engine_speed", "red_cotton_mc", "run_woven_bench", "chart", "in_child"]
 
 
 @numba.njit(cache=True)
@@ -147,7 +147,7 @@ def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int |
                "table": ds.table.to_dict(orient="list")})
 
 
-def _in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None) -> dict:
+def in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None) -> dict:
     """One red-cotton run in a spawned child process: its wall time (of the run only, not the
     process start) and its own peak memory."""
     ctx = mp.get_context("spawn")
@@ -161,7 +161,7 @@ def _in_child(target: float, method: str = "mc", seed: int | None = None, thread
 
 def red_cotton_mc(target: float = 0.01) -> dict:
     """The headline run in a child process (its own peak memory); returns figures and the table."""
-    return _in_child(target)
+    return in_child(target)
 
 
 def run_woven_bench(target: float = 0.01) -> dict:
@@ -196,7 +196,8 @@ def chart(report: dict, path: Path) -> None:
     for c, ti in enumerate(incid):
         def curve(df):
             s = df[(df["theta_i"] == ti) & (df["wavelength_nm"] == wl)].copy()
-            s["signed"] = np.where(np.isclose(s["phi_o"], 180.0), -s["theta_o"], s["theta_o"])
+            # gonio.data.geometry's signed angle: s >= 0 on the mirror side (phi_o = phi_i + 180)
+            s["signed"] = np.where(np.isclose((s["phi_o"] - s["phi_i"]) % 360.0, 180.0), s["theta_o"], -s["theta_o"])
             return s.sort_values("signed")
         m = curve(mc)
         ax = axes[0, c]
@@ -208,7 +209,7 @@ def chart(report: dict, path: Path) -> None:
             axes[1, c].plot(j["signed"], j["beta"] / j["beta_mc"], "-o", ms=3, color=col, label=name)
         ax.set_title(f"incidence {ti:g} deg, {wl:g} nm")
         axes[1, c].axhline(1.0, color="k", lw=0.8)
-        axes[1, c].set_xlabel("signed observation angle (deg)")
+        axes[1, c].set_xlabel("signed observation angle (deg, + mirror side)")
     axes[0, 0].set_ylabel("beta")
     axes[1, 0].set_ylabel("model / Monte Carlo")
     axes[0, 0].legend(fontsize=8)
@@ -268,7 +269,7 @@ def speed_vs_accuracy(budgets: tuple[float, ...] = (0.2, 0.1, 0.05, 0.02), refer
     import pandas as pd
 
     threads = threads or os.cpu_count() or 1
-    ref = _in_child(reference_target, "mc", 1000, threads)
+    ref = in_child(reference_target, "mc", 1000, threads)
     key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
     rt = pd.DataFrame(ref["table"])
 
@@ -280,7 +281,7 @@ def speed_vs_accuracy(budgets: tuple[float, ...] = (0.2, 0.1, 0.05, 0.02), refer
     runs = []
     for method in ("classic", "summation", "mc"):
         for k, target in enumerate(budgets):
-            r = _in_child(target, method, k + 1, threads)
+            r = in_child(target, method, k + 1, threads)
             runs.append({"method": method, "target": target, "seconds": r["wall_seconds"],
                          "peak_rss_mb": r["peak_rss_mb"], "error": error(r["table"])})
     return {"reference": {"method": "mc", "target": reference_target, "seconds": ref["wall_seconds"],

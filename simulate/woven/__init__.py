@@ -16,6 +16,12 @@ cylinder about its tangent ``t``:
   ``1 - F``). An exit is sampled from it and the ray moves to that point of the yarn tube --
   light that crosses a yarn comes out on its far side.
 
+With a woven ``[structure]`` the yarn is made of fibers (docs/physics.md 6, "Yarn made of
+fibers"; :func:`simulate.woven.estimate.yarn_model`): its surface term is reflected from the
+top layer of fibers along the twisted fiber direction (``FiberSurface(surface="fibers")``: the
+point of a fiber's cross-section the ray meets, shadowing and masking by the neighbours) and its
+table is walked in the pile of its fibers (:mod:`.pile`), not in one fiber.
+
 The ray reflects with probability ``p = a_s / (a_s + e_bar)`` (``e_bar`` the exit fraction
 averaged over the ray's spectral weight) and enters otherwise, and is re-weighted by
 ``a_s / p`` or ``e(lambda) / (1 - p)``: the expected response is ``R_surf + R_vol`` as in the
@@ -64,7 +70,7 @@ estimated from the difference of the two halves' traces, to ``u_beta``.
 Modules: :mod:`.scene` (the periodic Embree scene: ray queries), :mod:`.yarn` (the yarn
 table), :mod:`.materials`, :mod:`.shading` (compiled: a ray at a yarn hit),
 :mod:`.integrator` (:func:`trace`), :mod:`.estimate` (:func:`fabric_beta`: the plan-level
-entry), :mod:`.meshes` (validation meshes).
+entry), :mod:`.pile` (the yarn's volume as its fibers' pile), :mod:`.meshes` (validation meshes).
 """
 
 from simulate.woven.estimate import fabric_beta, table_photons, twist_of

@@ -24,7 +24,7 @@ from simulate.woven.materials import K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface,
 from simulate.woven.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
 from simulate.woven.shading import ShadeInputs, new_outputs, shade
 
-__all__ = ["STOP_REASONS", "MCResult", "trace"]
+__all__ = ["STOP_REASONS", "MCResult", "trace", "yarn_radius"]
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ class _Sums:
         self.self_hits += o.self_hits
 
 
-def _yarn_radius(mesh: Any) -> float:
+def yarn_radius(mesh: Any) -> float:
     """``sqrt(a b)`` of the first yarn's cross-section (semi-axes from its first ring of vertices;
     a mesh may state it as ``yarn_radius_um``, as the felt's does)."""
     if getattr(mesh, "yarn_radius_um", None):
@@ -158,7 +158,7 @@ class _Setup:
             self.dpsi = float(tab.dpsi)
             self.grid = (tab.n_psi, tab.n_v, tab.n_mu, tab.n_phi)
             # v offsets scaled from the fiber to the yarn (similar cylinders, r_yarn = sqrt(a b))
-            r_yarn = _yarn_radius(mesh)
+            r_yarn = yarn_radius(mesh)
             v_max = tab.v_max_R * r_yarn
             self.v_edges = np.linspace(-v_max, v_max, tab.n_v + 1)
 
@@ -170,7 +170,8 @@ class _Setup:
             self.kind, self.rho, self.m, self.n_host, self.albedo,
             self.T, self.cdf, self.cell_sum, self.c_bar, self.tau, self.nodes, self.dpsi, n_psi, n_v, n_mu, n_phi,
             self.v_edges, self.off_tot, self.off_bar, np.zeros((0, 3)), self.twist_c, self.twist_s,
-            _yarn_radius(mesh), np.asarray(me.face_base, np.int64), normals == "face")
+            yarn_radius(mesh), np.asarray(me.face_base, np.int64), normals == "face",
+            float(material.layer_d) if isinstance(material, FiberSurface) else 0.0)
 
     def shade(self, seed, prim, u, v, pos, dirs, weight, detectors):
         """:func:`simulate.woven.shading.shade` of the hit rays; returns its outputs as a tuple."""

@@ -39,11 +39,38 @@ class FiberSurface:
     ``roughness = 0`` is the smooth limit: specular Fresnel reflection (the limit of
     Cook-Torrance as the RMS slope goes to 0), with which a non-absorbing yarn conserves
     energy exactly (``F + (1 - F) = 1``).
+
+    ``surface`` says what the surface term is reflected from (docs/physics.md 6, "Yarn surface"):
+
+    * ``"tube"``: the tube itself, Cook-Torrance about its (shading) normal -- a single fiber
+      traced as a tube (the felt's fibers, the straight-yarn test against the fiber BRDF);
+    * ``"fibers"``: the fibers that make the yarn. The tube's surface is the top layer of
+      parallel fibers along the local (twisted) fiber direction, at spacing ``2 R spacing_ratio``
+      (1: touching, the summation's default, :mod:`simulate.fabric.fiberlayer`). A ray meets one of
+      them at a point of its cross-section (shadowing by the neighbours exact, two-dimensional); the
+      surface term is Cook-Torrance about THAT point's normal, seen past the neighbours (masking),
+      and the entry transmission is that point's ``1 - F``. Light the surface sends towards a
+      neighbour, and light falling through a gap between fibers, enters the yarn's volume (the
+      fibers it meets there are the yarn's interior). The woven Monte Carlo's yarns use it
+      (:func:`simulate.woven.fabric_beta`).
     """
 
     table: YarnTable
     roughness: float
     n_host: float
+    surface: str = "tube"
+    spacing_ratio: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.surface not in ("tube", "fibers"):
+            raise ValueError(f"FiberSurface: surface must be 'tube' or 'fibers', not {self.surface!r}")
+        if not (self.spacing_ratio >= 1.0 and np.isfinite(self.spacing_ratio)):
+            raise ValueError(f"FiberSurface: spacing_ratio must be >= 1 (1: touching fibers), not {self.spacing_ratio!r}")
+
+    @property
+    def layer_d(self) -> float:
+        """The compiled shading's fiber spacing over radius (0: the tube's own surface)."""
+        return 2.0 * float(self.spacing_ratio) if self.surface == "fibers" else 0.0
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ import numpy as np
 
 from simulate.optics.fresnel import fresnel_unpolarized
 from simulate.optics.microfacet import cook_torrance_cos_local, unit3
-from simulate.woven.materials import K_FIBER_BRDF, K_LAMBERT
+from simulate.woven.materials import K_FIBER, K_FIBER_BRDF, K_LAMBERT
 from simulate.woven.scene import EPS_UM
 
 __all__ = ["ShadeInputs", "ShadeOutputs", "shade", "new_outputs"]
@@ -68,6 +68,7 @@ class ShadeInputs(NamedTuple):
     r_yarn: float
     face_base: np.ndarray
     face_normals: bool
+    layer_d: float = 0.0
 
 
 class ShadeOutputs(NamedTuple):
@@ -157,6 +158,63 @@ def _twist(tx, ty, tz, bx, by, bz, c, s):
     Z, ``-1`` S, :mod:`simulate.fabric.structure`); with ``T x n = -b``: ``t_f = c t - s' b``,
     ``b_f = n x t_f = c b + s' t`` (``s' = s sin(alpha)``)."""
     return c * tx - s * bx, c * ty - s * by, c * tz - s * bz, c * bx + s * tx, c * by + s * ty, c * bz + s * tz
+
+
+@numba.njit(cache=True)
+def _layer_point(uy, uz, d):
+    """Where a ray of the beam meets the top layer of a yarn's fibers (two-dimensional, fiber radius 1).
+
+    The layer: parallel unit circles at ``(j d, 0)`` in the cross-section plane ``(b, n)`` (``d = 2``
+    touching). ``(uy, uz)`` is the ray's unit propagation direction in that plane (``uz < 0``: falling on
+    the layer); the ray crosses ``z = 0`` at ``y0`` uniform over a period (a parallel beam). Returns the
+    outward normal ``(ny, nz)`` of the point it meets first -- ``n(psi) = ny b + nz n`` -- and ``True``,
+    or ``(0, 1, False)`` when it falls through a gap between the fibers (``d > 2``). The first hit along
+    the ray is the first hit in the order of the circles along its run (they do not overlap).
+    """
+    y0 = (np.random.random() - 0.5) * d
+    if uz > -1e-12:
+        uz = -1e-12
+    ye = y0 + uy / uz        # where the ray is at z = +1 ...
+    yx = y0 - uy / uz        # ... and at z = -1
+    step = 1 if uy >= 0.0 else -1
+    if step > 0:
+        j0 = int(math.floor((ye - 1.0) / d))
+        j1 = int(math.ceil((yx + 1.0) / d))
+    else:
+        j0 = int(math.ceil((ye + 1.0) / d))
+        j1 = int(math.floor((yx - 1.0) / d))
+    count = min(abs(j1 - j0) + 1, 1000)
+    j = j0
+    for _ in range(count):
+        qy = y0 - j * d
+        b = uy * qy
+        disc = b * b - (qy * qy - 1.0)
+        if disc >= 0.0:
+            t = -b - math.sqrt(disc)
+            hy, hz = qy + t * uy, t * uz
+            return hy, hz, True
+        j += step
+    return 0.0, 1.0, False
+
+
+@numba.njit(cache=True)
+def _layer_seen(vy, vz, py, pz, d):
+    """Whether the point ``(py, pz)`` of the central unit circle (outward normal the same) is seen from the
+    in-plane direction ``(vy, vz)`` (not necessarily unit): it faces it, the direction rises above the layer
+    and misses the neighbours at ``(+-d, 0)`` (for a rising ray only they can block:
+    :mod:`simulate.fabric.fiberlayer`)."""
+    if vz <= 0.0 or vy * py + vz * pz <= 0.0:
+        return False
+    nrm = math.sqrt(vy * vy + vz * vz)
+    vy /= nrm
+    vz /= nrm
+    for c in (-d, d):
+        qy = py - c
+        cc = qy * qy + pz * pz - 1.0
+        b = vy * qy + vz * pz
+        if cc > 0.0 and b < 0.0 and b * b - cc > 0.0:
+            return False
+    return True
 
 
 @numba.njit(cache=True)
@@ -284,7 +342,7 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     dpsi, n_psi, n_v, n_mu, n_phi = inp.dpsi, inp.n_psi, inp.n_v, inp.n_mu, inp.n_phi
     v_edges, off_tot, off_bar, detectors = inp.v_edges, inp.off_tot, inp.off_bar, inp.detectors
     twist_c, twist_s, r_yarn, face_base = inp.twist_c, inp.twist_s, inp.r_yarn, inp.face_base
-    face_normals = inp.face_normals
+    face_normals, layer_d = inp.face_normals, inp.layer_d
     out_o, out_d, out_w, nee_o, nee_c, nee_need, hit_albedo = (out.out_o, out.out_d, out.out_w, out.nee_o,
                                                               out.nee_c, out.nee_need, out.hit_albedo)
     out_prim = out.out_prim
@@ -418,7 +476,21 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
         # smooth-interface 1 - F at this point (the row holds its cell-average tau), and none at
         # all for light that is inside the yarn already (interpenetration)
         tr = max(tau[j, kr], 1e-12)
-        entry = 1.0 / tr if inside else (1.0 - fresnel_unpolarized(ln, 1.0, n_host)) / tr
+        # the yarn's surface made of fibers (FiberSurface(surface="fibers"), docs/physics.md 6): the ray
+        # meets the top layer of fibers at a point of a fiber's cross-section, normal fy b + fz n; the
+        # surface term and the entry transmission are that point's (a gap: straight into the volume)
+        layer = layer_d > 0.0 and kind == K_FIBER and not inside
+        fy, fz, on_fiber = 0.0, 1.0, True
+        flb, fln = lb, ln
+        if layer:
+            nrm2 = math.sqrt(lb * lb + ln * ln)
+            fy, fz, on_fiber = _layer_point(-lb / nrm2, -ln / nrm2, layer_d)
+            flb = fz * lb - fy * ln
+            fln = max(fy * lb + fz * ln, 1e-9)
+        if inside or not on_fiber:
+            entry = 1.0 / tr
+        else:
+            entry = (1.0 - fresnel_unpolarized(fln, 1.0, n_host)) / tr
         e_bar = entry * esum / wsum / cb if (wsum > 0.0 and cb > 0.0) else 0.0
         h = n_psi // 2
         s_bar = 0.0
@@ -450,17 +522,19 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
                 off = o % n_psi if r >= 0 else (-o) % n_psi
                 s_bar += off_bar[j, abs(r), off]
             hit_albedo[i] = a_max + a_s0
-        if m > 0.0:
-            a_s = _interp(albedo_tab, ln)
+        if not on_fiber:
+            a_s = 0.0
+        elif m > 0.0:
+            a_s = _interp(albedo_tab, fln)
         else:
-            a_s = fresnel_unpolarized(ln, 1.0, n_host)
+            a_s = fresnel_unpolarized(fln, 1.0, n_host)
         if inside:
             p_refl = 0.0
         elif a_s + e_bar > 0.0:
             p_refl = a_s / (a_s + e_bar)
         else:
             p_refl = 1.0
-        # next event, surface term
+        # next event, surface term (on the fibers: at the lit point, seen past the neighbours)
         if a_s > 0.0 and m > 0.0:
             for d in range(D):
                 wx, wy, wz = detectors[d, 0], detectors[d, 1], detectors[d, 2]
@@ -469,7 +543,12 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
                 ot = wx * tx + wy * ty + wz * tz
                 ob = wx * bx + wy * by + wz * bz
                 on = wx * nx + wy * ny + wz * nz
-                val = cook_torrance_cos_local(lt, lb, ln, ot, ob, on, m, n_host)
+                if layer:
+                    if not _layer_seen(ob, on, fy, fz, layer_d):
+                        continue
+                    val = cook_torrance_cos_local(lt, flb, fln, ot, fz * ob - fy * on, fy * ob + fz * on, m, n_host)
+                else:
+                    val = cook_torrance_cos_local(lt, lb, ln, ot, ob, on, m, n_host)
                 if val > 0.0:
                     val *= corr_in * (wx * gx + wy * gy + wz * gz) / on
                     nee_need[i, 0, d] = True
@@ -535,6 +614,18 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             for k in range(L):
                 out_w[i, k] = weight[i, k] * T[j, rr, cell, k] * sc * clampf[k]
             continue
+        # on the fibers: one reflection sample, for the continuation and for the light that a
+        # neighbour masks -- it meets that fiber and is taken into the yarn's volume (entry_nee)
+        escape = False
+        wr, rt, mb, mn = 0.0, 0.0, 0.0, 1.0
+        entry_nee = entry
+        if layer and on_fiber and a_s > 0.0:
+            rt, rb_, rn, wr = _sample_ct(lt, flb, fln, m, n_host, a_s, 1.0)
+            mb = rb_ * fz + rn * fy
+            mn = rn * fz - rb_ * fy
+            escape = _layer_seen(mb, mn, fy, fz, layer_d)
+            if not escape:
+                entry_nee = entry + wr / tr
         # sample an exit (cell offset, v bin, direction bin) from the row
         cell = -1
         if total > 0.0 and cb > 0.0:
@@ -594,21 +685,32 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
                     continue
                 jm, jp, om = _table_bin(wx, wy, wz, etx, ety, etz, ebx, eby, ebz, mu, sx, sb, n_mu, n_phi)
                 c2 = c_first + jm * n_phi + jp
-                scale = entry * corr_in * cg / (om * cb * p_ov)
+                scale = entry_nee * corr_in * cg / (om * cb * p_ov)
                 nee_need[i, 1, d] = True
                 for k in range(L):
                     nee_c[i, 1, d, k] = weight[i, k] * T[j, kr, c2, k] * scale
         # continuation
-        if np.random.random() < p_refl:
+        refl = np.random.random() < p_refl
+        if refl and not layer:
             _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
                          tx, ty, tz, bx, by, bz, nx, ny, nz, gx, gy, gz, corr_in)
+        elif refl and escape:
+            out_d[i, 0] = rt * tx + mb * bx + mn * nx
+            out_d[i, 1] = rt * ty + mb * by + mn * ny
+            out_d[i, 2] = rt * tz + mb * bz + mn * nz
+            wgt = wr / p_refl * corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], gx, gy, gz, nx, ny, nz)
+            for k in range(L):
+                out_w[i, k] = weight[i, k] * wgt
         elif cell >= 0:
             _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, etx, ety, etz, ebx, eby, ebz, enx, eny, enz)
             for q in range(3):
                 out_o[i, q] = nee_o[i, 1, q]
             out_prim[i] = e_face
             p_c = (cdf[j, kr, cell] - (cdf[j, kr, cell - 1] if cell > 0 else 0.0)) / total
-            sc = entry / (cb * p_c * (1.0 - p_refl))
+            if refl:     # reflected towards a neighbour: into the volume
+                sc = wr / (p_refl * tr * cb * p_c)
+            else:
+                sc = entry / (cb * p_c * (1.0 - p_refl))
             sc *= corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], egx, egy, egz, enx, eny, enz)
             for k in range(L):
                 out_w[i, k] = weight[i, k] * T[j, kr, cell, k] * sc

@@ -84,9 +84,10 @@ def test_fabric_mc_ray_budget_is_reported(inputs, tmp_path, capsys):
 def test_fabric_auto_records_the_method_of_every_geometry(inputs, tmp_path, capsys):
     cfg, plan = inputs
     out = tmp_path / "auto"
-    # at 12 % the shipped red-cotton study allows the cheaper models at some of these geometries only
+    # at 5 % the shipped red-cotton study (the summation within 3-9 % of the MC) allows the
+    # summation at some of these geometries only, the MC at the others
     assert main(["fabric", str(cfg), "--method", "auto", "--geometry", str(plan), "--out", str(out),
-                 "--target-rel-err", "0.12", "--no-progress"]) == 0
+                 "--target-rel-err", "0.05", "--no-progress"]) == 0
     ds = read_dataset(out)
     chosen = ds.meta["model"]["method_per_geometry"]
     assert len(chosen) == 8 and len(set(chosen)) >= 2
@@ -114,3 +115,33 @@ def test_the_tables_own_noise_is_in_u_beta():
     assert all(r["table_rel_err"] > 0 for r in i1["incidences"] + i2["incidences"])
     z = (b1 - b2) / np.hypot(u1, u2)
     assert np.max(np.abs(z)) < 4.0, z
+
+
+@pytest.fixture(scope="module")
+def red_cotton_mc_colour(tmp_path_factory):
+    """The red-cotton preset's colour by ``simulate fabric --method mc`` at 2 % (one run for both tests)."""
+    from gonio.data.colour import spectrum_colour
+
+    tmp_path = tmp_path_factory.mktemp("rc_mc")
+    plan = tmp_path / "colour.toml"
+    plan.write_text('name = "colour"\n[sample]\nname = "red cotton"\n[wavelengths]\nstart_nm = 390\n'
+                    'stop_nm = 710\nstep_nm = 10\n[geometry]\nincidence_deg = [0]\nin_plane_deg = [10]\n')
+    assert main(["fabric", "red-cotton", "--method", "mc", "--geometry", str(plan), "--target-rel-err", "0.02",
+                 "--no-progress", "--out", str(tmp_path / "mc")]) == 0
+    ds = read_dataset(tmp_path / "mc")
+    info = ds.meta["provenance"]["fiber_info"]
+    assert info["yarn_surface"] == "fibers" and info["yarn_volume"] == "pile"
+    t = ds.table.sort_values("wavelength_nm")
+    return spectrum_colour(t["wavelength_nm"].to_numpy(), t["beta"].to_numpy())
+
+
+@pytest.mark.slow
+def test_red_cotton_mc_colour_in_the_published_range(red_cotton_mc_colour):
+    """The shipped preset through ``simulate fabric --method mc`` at the report's colour geometry
+    (incidence 0, observation 10 deg): in the published ranges of issue 19 (H 0.97-0.99, S >= 0.97,
+    BLUE/RED 0.05-0.25, GREEN/RED 0.005-0.03) with the yarns made of fibers (docs/physics.md 6).
+    The yarn as a tube of the fiber's own table gave S 0.944, GREEN/RED 0.056 (fails here); the
+    fibers' surface alone S 0.965, GREEN/RED 0.035 (fails); the run's noise is ~0.002 in S."""
+    c = red_cotton_mc_colour
+    assert 0.97 <= c.h <= 0.99 and c.s >= 0.97, c
+    assert 0.05 <= c.blue_red <= 0.25 and 0.005 <= c.green_red <= 0.03, c
