@@ -44,6 +44,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numba
 import numpy as np
 
 from simulate.fiber.absorption import AbsorptionTable, _targets
@@ -200,43 +201,59 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
             if half == 0:
                 first = len(groups_global)
                 groups_global += [chunk[g] for g in groups]
-            rows = []
+            T = np.zeros((w_t.size, len(ks), n_psi, n_mu, n_phi, chunk.size * K))
             for i, wt in enumerate(w_t):
-                T = np.zeros((len(ks), n_psi, n_mu, n_phi, chunk.size * K))
                 for gi, group in enumerate(groups):
                     medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
                     targets = _targets(optics, group, nodes, walk_phase)
                     scal: list = []
                     t, _, p, _ = bssrdf_rows(fiber, float(wt), ks, grid, medium, walk_phase, targets, control, per_row,
                                              int(seed_of(seed, half, i, c)), threads, scal)
-                    channels = (group[:, None] * K + np.arange(K)[None, :]).ravel()
-                    T[..., channels] = t[:, :, 0]
+                    T[i, ..., int(group[0]) * K:(int(group[-1]) + 1) * K] = t[:, :, 0]   # groups: consecutive
                     photons += int(p)
                     n = max(float(s[S_SCATTERINGS]) / max(float(s[S_LAUNCHED]), 1.0) for s in scal)
                     key = f"0:{first + gi}" if half == 0 else None
                     if key is not None:
                         scatterings[key] = max(scatterings.get(key, 0.0), n)
-                rows.append(T)
                 run += 1
                 if progress is not None:
                     progress(photons, run, runs)
-            table = FF.ExitTable(w_t=w_t, T=FF._symmetrised(np.stack(rows)), u_T=np.zeros(1), k=np.array(ks),
-                                 radius_um=fiber.radius_um, wavelengths_nm=np.repeat(wl[chunk], K),
-                                 n_host=float(fiber.n_host))
-            del rows
+            _symmetrise(T)
+            table = FF.ExitTable(w_t=w_t, T=T, u_T=np.zeros(1), k=np.array(ks), radius_um=fiber.radius_um,
+                                 wavelengths_nm=np.repeat(wl[chunk], K), n_host=float(fiber.n_host))
             inner = None
             if spec.interior and spec.masking:
                 inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio)
             lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
                              surface=False)
             G[..., chunk[0] * K:(chunk[-1] + 1) * K] = lt.G
-            del table
+            del table, T
         halves.append(G)
     del walk_all
     return StructWalk(G=halves, grid=(th, ph_i, th, ph_o), masking=spec.masking, spacing_ratio=spec.spacing_ratio,
                       nodes=nodes, wavelengths_nm=wl, photons={"exit_tables": photons, "per_row": per_row},
                       seconds=time.perf_counter() - t0, scatterings=scatterings, groups=groups_global,
                       optics=optics_all, layers=n_layers)
+
+
+@numba.njit(cache=True, parallel=True)
+def _symmetrise(T):
+    """In place, :func:`simulate.fiber.farfield._symmetrised` (each row averaged with the mirror image of its
+    opposite: row ``r -> R-1-r``, exit cell ``o -> -o``, exit azimuth bin ``p -> P-1-p``) in one pass
+    without the three ``[W, K, n_psi, n_mu, n_phi, L]`` temporaries (16 s of a 133 s walk on the felt)."""
+    W, R, O, M, P, C = T.shape
+    for w in numba.prange(W):
+        for r in range(R):
+            for o in range(O):
+                for p in range(P):
+                    r2, o2, p2 = R - 1 - r, (O - o) % O, P - 1 - p
+                    if (r2, o2, p2) < (r, o, p):
+                        continue          # the pair was done from its other member
+                    for m in range(M):
+                        for c in range(C):
+                            v = 0.5 * (T[w, r, o, m, p, c] + T[w, r2, o2, m, p2, c])
+                            T[w, r, o, m, p, c] = v
+                            T[w, r2, o2, m, p2, c] = v
 
 
 def seed_of(seed: int, half: int, node: int, chunk: int) -> int:
