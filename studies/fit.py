@@ -260,6 +260,8 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     from scipy.optimize import least_squares
     from tqdm import tqdm
 
+    from compare.errors import CompareError
+
     t0 = time.perf_counter()
     problem.out = out
     span = problem.high - problem.low
@@ -307,7 +309,16 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
             return memo["r"]
         if used() >= max_evaluations:
             raise _Budget
-        r = problem.residuals(x)
+        try:
+            r = problem.residuals(x)
+        except CompareError as exc:
+            # a trial point whose model compare cannot normalise (e.g. its normal/normal estimate from the
+            # neighbours is not positive): rejected by a residual far above any other, not a traceback
+            if memo["r"] is None:
+                raise FitError(f"the model at the start cannot be compared with the measurement: {exc}") from None
+            problem.evaluations += 1
+            r = np.full(memo["r"].size, 1e3 / math.sqrt(memo["r"].size))
+            log.info("trial point rejected: %s", exc)
         bar.update(1)
         memo.update(x=x.copy(), r=r)
         return r
