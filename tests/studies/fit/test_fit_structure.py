@@ -104,8 +104,8 @@ def test_structure_parameters_parse_with_defaults_and_range():
     red = load_config("red-cotton")
     (twist,) = parse_free(["structure.warp_twist_deg"], red)   # defaulted field: the spec's default starts
     assert (twist.kind, twist.start, twist.low, twist.high) == ("structure", 24.0, 0.0, 60.0)
-    (spread,) = parse_free(["structure.felt_spread_deg=10:40"], load_config("green-felt"))
-    assert spread.kind == "structure" and (spread.low, spread.high) == (10.0, 40.0)
+    (spread,) = parse_free(["structure.felt_spread_deg=0:40"], load_config("green-felt"))
+    assert spread.kind == "structure" and (spread.low, spread.high) == (0.0, 40.0)
 
 
 @pytest.mark.parametrize("config, free, message", [
