@@ -359,6 +359,13 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
         r_start = fun_x(problem.start)
         F_start = float(r_start @ r_start)
         accept(problem.start, r_start)
+        if state is None and invert_start and not np.array_equal(x0, problem.start):
+            # a config whose dye was fitted already (a preset's knots): its own start may beat the inversion,
+            # which matches the colour only; the search starts from the better of the two
+            r_inv = fun_x(x0)
+            if float(r_inv @ r_inv) > F_start:
+                x0 = problem.start.copy()
+                start_note += "; the config's own values score better than the inverted start and start the search"
         starts_u = [(x0 - problem.low) / span]
         if starts > 1 and state is None:
             from scipy.stats import qmc
