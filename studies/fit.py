@@ -260,6 +260,8 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     from scipy.optimize import least_squares
     from tqdm import tqdm
 
+    from compare.errors import CompareError
+
     t0 = time.perf_counter()
     problem.out = out
     span = problem.high - problem.low
@@ -307,7 +309,16 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
             return memo["r"]
         if used() >= max_evaluations:
             raise _Budget
-        r = problem.residuals(x)
+        try:
+            r = problem.residuals(x)
+        except CompareError as exc:
+            # a trial point whose model compare cannot normalise (e.g. its normal/normal estimate from the
+            # neighbours is not positive): rejected by a residual far above any other, not a traceback
+            if memo["r"] is None:
+                raise FitError(f"the model at the start cannot be compared with the measurement: {exc}") from None
+            problem.evaluations += 1
+            r = np.full(memo["r"].size, 1e3 / math.sqrt(memo["r"].size))
+            log.info("trial point rejected: %s", exc)
         bar.update(1)
         memo.update(x=x.copy(), r=r)
         return r
@@ -348,6 +359,13 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
         r_start = fun_x(problem.start)
         F_start = float(r_start @ r_start)
         accept(problem.start, r_start)
+        if state is None and invert_start and not np.array_equal(x0, problem.start):
+            # a config whose dye was fitted already (a preset's knots): its own start may beat the inversion,
+            # which matches the colour only; the search starts from the better of the two
+            r_inv = fun_x(x0)
+            if float(r_inv @ r_inv) > F_start:
+                x0 = problem.start.copy()
+                start_note += "; the config's own values score better than the inverted start and start the search"
         starts_u = [(x0 - problem.low) / span]
         if starts > 1 and state is None:
             from scipy.stats import qmc

@@ -27,6 +27,7 @@ from simulate import fiber as fib
 from simulate.config import SimulationConfig, parse_config
 from simulate.fiber.absorption import DEFAULT_NODES, AbsorptionTable, absorption_nodes, absorption_table
 from studies import paths
+from studies.fit_structure import STRUCTURE_FIELDS
 from studies.paths import toml_dumps
 
 __all__ = ["GENERATOR", "FitError", "FreeParameter", "default_bounds", "parse_free", "FitProblem"]
@@ -73,6 +74,8 @@ def _kind(path: str) -> str:
         return "dye"
     if path == "surface.rms_slope":
         return "surface"
+    if path in STRUCTURE_FIELDS:
+        return "structure"
     return "walk"
 
 
@@ -84,8 +87,11 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
     knots (``log10_per_um[k]``) ``[-4, 0.5]`` (1e-4 to 3.2 /um: transparent to opaque over a
     fiber's radius; widened to hold the start); band
     centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
-    ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0).
+    ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0). Structure fields
+    (:data:`studies.fit_structure.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg.
     """
+    if path in STRUCTURE_FIELDS:
+        return STRUCTURE_FIELDS[path]
     leaf = path.rsplit(".", 1)[-1]
     if leaf == "volume_fraction":
         return start / 5.0, min(5.0 * start, 0.5)
@@ -127,9 +133,17 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
         except paths.PathError as exc:
             raise FitError(f"--free {exc}" if name.strip() in paths.ALIASES else f"--free: {exc}") from None
         for path in names:
+            if path.startswith("structure."):
+                _check_structure_field(path, config)
             try:
                 start = paths.get(data, path)
             except KeyError:
+                if path in STRUCTURE_FIELDS:   # a defaulted [structure] field: its default starts the fit
+                    start = getattr(config.structure, path.split(".", 1)[1])
+                    data["structure"][path.split(".", 1)[1]] = start
+                else:
+                    start = None
+            if start is None:
                 candidates = ", ".join(sorted(set(paths.numeric_leaves(data, "")) - {"seed"})[:12])
                 raise FitError(f"--free: unknown parameter {path!r}: the config {config.name} has no such "
                                f"numeric field (fields: {candidates}, ...; aliases: volume_fraction, radius, "
@@ -150,6 +164,11 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
                     raise FitError(f"--free: {spec!r}: bounds must be LOW:HIGH with LOW < HIGH, got {bounds!r}")
             else:
                 low, high = default_bounds(path, start)
+            if path in STRUCTURE_FIELDS:
+                lo_ok, hi_ok = STRUCTURE_FIELDS[path]
+                if low < lo_ok or high > hi_ok:
+                    raise FitError(f"--free: {path} bounds [{low:g}, {high:g}] leave the field's valid range "
+                                   f"[{lo_ok:g}, {hi_ok:g}] (simulate.fabric.structure); give bounds inside it")
             if not low <= start <= high:
                 raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
                                f"[{low:g}, {high:g}]; widen the bounds or change the config")
@@ -159,6 +178,21 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
     if not out:
         raise FitError("--free: no parameter to fit")
     return out
+
+
+def _check_structure_field(path: str, config: SimulationConfig) -> None:
+    """A ``structure.*`` parameter: the config has ``[structure]``, the field is one a fit frees, of its kind."""
+    spec = getattr(config, "structure", None)
+    if spec is None:
+        raise FitError(f"--free: {path!r}: the config {config.name} has no [structure] section (add one: "
+                       "kind = \"woven\" or \"nonwoven\")")
+    if path not in STRUCTURE_FIELDS:
+        raise FitError(f"--free: {path!r} is not a structure parameter a fit frees (free one of "
+                       f"{', '.join(sorted(STRUCTURE_FIELDS))})")
+    felt = path == "structure.felt_spread_deg"
+    if felt != (spec.kind == "nonwoven"):
+        raise FitError(f"--free: {path!r} does nothing for the config's structure kind {spec.kind!r} "
+                       f"({'felt_spread_deg' if spec.kind == 'nonwoven' else 'warp_twist_deg, weft_twist_deg'} do)")
 
 
 # ------------------------------------------------------------------------------------------
@@ -258,12 +292,18 @@ class FitProblem:
                                    else np.asarray(self.config.wavelengths_nm, float))
         self.wavelengths_nm = _checked_wavelengths(self.wavelengths_nm)
         self.notes: list[str] = []
-        if self.method == "summation" and getattr(self.config, "structure", None) is not None:
-            # the fit's summation is built from the fiber's tables at the top cell (the carpet of
-            # docs/physics.md 6); the [structure] summation (simulate fabric's) is not fitted yet
-            self.notes.append("the fit's summation model is the carpet of top cells: the config's [structure] "
-                              "section is not used by simulate fit yet (simulate fabric uses it)")
-            log.warning("%s", self.notes[-1])
+        spec = getattr(self.config, "structure", None)
+        #: the structured summation of simulate fabric (studies.fit_structure) instead of the top-cell carpet
+        self.structured = self.method == "summation" and spec is not None and spec.cells == "visible"
+        if self.method == "summation" and spec is not None and not self.structured:
+            self.notes.append("[structure] cells = \"top\": the fit's summation is the carpet of top cells")
+        if any(p.kind == "structure" for p in self.free) and not self.structured:
+            raise FitError("--free structure.*: structure parameters need --method summation and a config whose "
+                           "[structure] has cells = \"visible\"")
+        if self.structured:
+            # the interior closure's surface share is computed at the starting RMS slope (studies.fit_structure)
+            self._roughness = float(self.config.rms_slope)
+            self._facets: dict = {}
         self._drop_grazing()
         self.geometries = _model_geometries(self.measured)
         self._residual: Any = None  # compare.residual.ModelResidual, built on first use
@@ -322,6 +362,25 @@ class FitProblem:
     def table(self, config: SimulationConfig) -> AbsorptionTable:
         """The absorption table of ``config``'s scattering: walked, or re-weighted from the walk at its
         lattice point (:meth:`lattice`), whichever the module docstring's rule says; memoised."""
+        if self.structured:
+            from studies.fit_structure import structure_key
+
+            key = structure_key(config)
+            return self._walk_table(config).table(key, self._facets_of(config), self.w_i, self.w_o)
+        return self._walk_table(config)
+
+    def _facets_of(self, config: SimulationConfig) -> Any:
+        from studies.fit_structure import facets_of, structure_key
+
+        key = structure_key(config)
+        if key not in self._facets:
+            if len(self._facets) >= 8:
+                self._facets.pop(next(iter(self._facets)))
+            self._facets[key] = facets_of(config)
+        return self._facets[key]
+
+    def _walk_table(self, config: SimulationConfig) -> Any:
+        """The walk of ``config``'s scattering (an absorption table, or the structured layer tables)."""
         walk = self._walk_values(config)
         if walk in self._tables:
             return self._tables[walk]
@@ -336,12 +395,12 @@ class FitProblem:
                 for p, v in zip([p for p in self.free if p.kind == "walk"], lattice):
                     paths.set_value(doc, p.name, v)
                 ref_fiber = dataclasses.replace(parse_config(toml_dumps(doc), "lattice.toml"), dye=None).fiber(wl)
-                ref = (ref_fiber, self._run(ref_fiber, lattice, None))
+                ref = (ref_fiber, self._run(ref_fiber, lattice, None, config))
                 self._references[lattice] = ref
             if self._within_bound(ref[1], nodye, wl):
-                table = self._run(nodye, walk + ("reweighted from",) + lattice, ref)
+                table = self._run(nodye, walk + ("reweighted from",) + lattice, ref, config)
         if table is None:
-            table = self._run(nodye, walk, None)
+            table = self._run(nodye, walk, None, config)
             self._references[walk] = (nodye, table)
         if len(self._tables) >= 4:  # the centre and a Jacobian's columns
             self._tables.pop(next(iter(self._tables)))
@@ -366,9 +425,11 @@ class FitProblem:
                 out.append(v)
         return tuple(out)
 
-    def _run(self, nodye: Any, key: tuple, ref: tuple | None) -> AbsorptionTable:
+    def _run(self, nodye: Any, key: tuple, ref: tuple | None, config: SimulationConfig | None = None) -> Any:
         """A fresh walk of ``nodye`` (``ref`` None) or the re-weighting of ``ref = (fiber, table)``."""
         wl = self.wavelengths_nm
+        if self.structured:
+            return self._run_structured(nodye, ref, config or self.config)
         if self.method == "classic":
             w_in = np.array([[0.0, 0.0, 1.0]])
             outputs = fib.range_outputs([0.0], [1.0], [-math.pi], [math.pi], nodye.half_width)
@@ -401,7 +462,28 @@ class FitProblem:
             self._references.pop(next(iter(self._references)))
         return table
 
-    def _within_bound(self, ref_table: AbsorptionTable, nodye: Any, wl: np.ndarray) -> bool:
+    def _run_structured(self, nodye: Any, ref: tuple | None, config: SimulationConfig) -> Any:
+        """The structured walk (:func:`studies.fit_structure.walk_structure`); not checkpointed per run."""
+        from studies.fit_structure import walk_structure
+
+        rough = dataclasses.replace(nodye, roughness=self._roughness)
+        reference = None if ref is None else dataclasses.replace(ref[0], roughness=self._roughness)
+        walk = walk_structure(rough, config, self.wavelengths_nm, absorption_nodes(self.nu_max, self.nodes),
+                              target_rel_err=self.target_rel_err, seed=int(self.seed or 0), threads=self.threads,
+                              reference=reference, progress=self.walk_progress)
+        if ref is not None:
+            self.reweights += 1
+            self.reweight_seconds += walk.seconds
+            return walk
+        if self.photons is None:
+            self.photons = dict(walk.photons)
+        self.walks += 1
+        self.walk_seconds += walk.seconds
+        if len(self._references) >= 8:
+            self._references.pop(next(iter(self._references)))
+        return walk
+
+    def _within_bound(self, ref_table: Any, nodye: Any, wl: np.ndarray) -> bool:
         """Whether ``ref_table``'s paths can be re-weighted to ``nodye``'s scattering
         (:func:`simulate.fiber.spectral.reweight_exponent`: the bound grows by at most
         :data:`REWEIGHT_LIMIT` over the walk's own wavelength groups)."""
@@ -447,6 +529,10 @@ class FitProblem:
             return self._surface(config, R, u)
 
     def _surface(self, config: SimulationConfig, R: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.structured:
+            from studies.fit_structure import surface_beta
+
+            return R + surface_beta(config, self._facets_of(config), self.w_i, self.w_o)[:, None], u
         if self.method == "classic":
             rho = R[0] * math.pi
             beta = fab.classic_beta(rho, self.w_i, self.w_o, config.rms_slope, config.n_host)

@@ -136,11 +136,13 @@ def cell_fractions(table: ExitTable, w: np.ndarray, spacing: float | None, n_sub
 
 
 def layer_G(table: ExitTable, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, *, masking: bool = True,
-            spacing_ratio: float = 1.0, n_sub: int = 8, n_psi_surface: int = 180, surface: bool = True
-            ) -> np.ndarray:
+            spacing_ratio: float = 1.0, n_sub: int = 8, n_psi_surface: int = 180, surface: bool = True,
+            radiance: np.ndarray | None = None) -> np.ndarray:
     """``G(w_i, w_o) = Q / d`` ``[O, L]`` (1/sr) for ONE incident direction and ``O`` exit directions (layer frame).
 
-    ``f_layer = G / ((w_i . m)(w_o . m))``; 0 where either direction is below the layer.
+    ``f_layer = G / ((w_i . m)(w_o . m))``; 0 where either direction is below the layer. ``radiance``:
+    :func:`lit_radiance` of this beam when the caller has it (:func:`layer_table` shares it with the
+    interior's :func:`simulate.fabric.interior.layer_energy`).
     """
     w_in = np.asarray(w_in, float).reshape(3)
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -149,8 +151,8 @@ def layer_G(table: ExitTable, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, *
     if w_in[2] <= 0:
         return out
     spacing = 2.0 * spacing_ratio if masking else None
-    lit, _ = cell_fractions(table, w_in[None], spacing, n_sub, table.radius_um)
-    radiance = table.exit_radiance(w_in, lit[0])
+    if radiance is None:
+        radiance = lit_radiance(table, w_in, spacing, n_sub)
     R, _ = table.lookup(radiance, w_out)
     _, width = cell_fractions(table, w_out, spacing, n_sub, table.radius_um)
     up = w_out[:, 2] > 0
@@ -159,6 +161,12 @@ def layer_G(table: ExitTable, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, *
         out[up] += surface_Q(fiber, w_in, w_out[up], spacing, spacing, n_psi_surface)[:, None]
     d = 2.0 * spacing_ratio * table.radius_um
     return out / d
+
+
+def lit_radiance(table: ExitTable, w_in: np.ndarray, spacing: float | None, n_sub: int = 8) -> np.ndarray:
+    """The exit radiance of every cell and bin for the beam ``w_in``, entry cells weighted by their lit fraction."""
+    lit, _ = cell_fractions(table, np.asarray(w_in, float).reshape(1, 3), spacing, n_sub, table.radius_um)
+    return table.exit_radiance(w_in, lit[0])
 
 
 def surface_Q(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, spacing_in: float | None, spacing_out: float | None,
@@ -258,11 +266,12 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
             w_in = microfacet.direction(math.radians(t_i), math.radians(p_i))
             if w_in[2] < 1e-12:
                 continue  # grazing incidence on the layer: no irradiance
+            radiance = lit_radiance(table, w_in, 2.0 * spacing_ratio if masking else None, n_sub)
             g = layer_G(table, fiber, w_in, w_out, masking=masking, spacing_ratio=spacing_ratio, n_sub=n_sub,
-                        surface=False)
-            if interior is not None:
+                        surface=False, radiance=radiance)
+            if interior is not None:   # interior needs masking: the same lit radiance
                 ret = interior.returned(layer_energy(table, fiber, w_in, interior.classes, spacing_ratio=spacing_ratio,
-                                                     n_sub=n_sub))
+                                                     n_sub=n_sub, radiance=radiance))
                 g += ret[None, :] * w_in[2] * w_out[:, 2:3] / math.pi
             G[a, b] = g.reshape(th.size, ph_o.size, -1)
             if t_i == 0.0:

@@ -105,16 +105,18 @@ def _sphere(n_mu: int) -> tuple[np.ndarray, float]:
 
 
 def layer_energy(table: ExitTable, fiber: Any, w_in: np.ndarray, classes: np.ndarray, *, spacing_ratio: float = 1.0,
-                 n_sub: int = 8, n_psi_surface: int = 72, n_mu_surface: int = 8) -> np.ndarray:
+                 n_sub: int = 8, n_psi_surface: int = 72, n_mu_surface: int = 8,
+                 radiance: np.ndarray | None = None) -> np.ndarray:
     """``[4, L]``: up (unmasked), down (unmasked), all light leaving the lit fibers, and the light passing
-    between the fibers (spacing ratio > 1), per unit layer irradiance."""
+    between the fibers (spacing ratio > 1), per unit layer irradiance. ``radiance``: the beam's
+    :func:`simulate.fabric.fiberlayer.lit_radiance` when the caller has it (with masking)."""
     w_in = np.asarray(w_in, float).reshape(3)
     spacing = 2.0 * spacing_ratio
     d = spacing * table.radius_um
     norm = d * w_in[2]
     lit, lit_width = cell_fractions(table, w_in[None], spacing, n_sub, table.radius_um)
     gap = max(0.0, 1.0 - float(lit_width.sum()) / norm)   # passes between the fibers (spacing ratio > 1)
-    rad = table.exit_radiance(w_in, lit[0]) * table.omega()[None, :, None, None]
+    rad = (table.exit_radiance(w_in, lit[0]) if radiance is None else radiance) * table.omega()[None, :, None, None]
     width = table.radius_um * table.dpsi
     vol = np.stack([np.einsum("bmp,bmpl->l", classes[..., 0], rad), np.einsum("bmp,bmpl->l", classes[..., 1], rad),
                     rad.sum(axis=(0, 1, 2))]) * width

@@ -97,7 +97,7 @@ def structure_from_table(t: Any) -> StructureSpec:
     Schema (defaults shown; every bad value is one error naming the field)::
 
         [structure]
-        kind = "woven"              # "woven" | "nonwoven" (felt)
+        kind = "woven"              # "woven" | "nonwoven" (felt; "felt" is read as "nonwoven")
         cells = "visible"           # "visible": the fiber layer's visible average (6.1);
                                     # "top": the old carpet of top cells (regression)
         masking = true              # shadowing and masking by neighbouring fibers (6.1)
@@ -118,8 +118,9 @@ def structure_from_table(t: Any) -> StructureSpec:
             raise t.fail(key, f"must be true or false, got {value!r}")
         return value
 
+    kind = t.string("kind", "woven", choices=("woven", "nonwoven", "felt"))
     spec = StructureSpec(
-        kind=t.string("kind", "woven", choices=("woven", "nonwoven")),
+        kind="nonwoven" if kind == "felt" else kind,
         cells=t.string("cells", "visible", choices=("visible", "top")),
         masking=flag("masking", True),
         yarn_surface=flag("yarn_surface", True),

@@ -26,11 +26,12 @@ def lit_rows(dpsi: float) -> int:
     return int(math.floor((math.pi / 2 + dpsi / 2) / dpsi - 1e-12))
 
 
-def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, photons, seed, threads):
+def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, photons, seed, threads, scalars=None):
     """BSSRDF table rows: CELL-source runs for the local incidences ``(w_t, azimuth k dpsi)``.
 
     Returns ``T[len(ks), n_psi, n_v, n_mu, n_phi, n_spec]`` (mean exit weight per photon, launch
-    weight ``max(w . n, 0)``) and its standard error.
+    weight ``max(w . n, 0)``) and its standard error. ``scalars`` (a list, optional) receives each
+    row's scalar tally sums (the fit's re-weighting bound reads the scatterings from them).
     """
     n_psi, n_v, v_max, n_mu, n_phi = grid
     params = np.array([float(n_psi), float(n_mu), float(n_phi), float(n_v), float(v_max)])
@@ -49,6 +50,8 @@ def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, phot
         inp = make_inputs(G.CYLINDER, np.array([fiber.radius_um]), src, medium, walk_phase, control,
                           T.CYLINDER_DIRECTIONS, params, T.V_NONE, None, targets)
         s, b, sec = execute(inp, photons, seed + 7919 * r, threads, BATCH)
+        if scalars is not None:
+            scalars.append(s)
         mean, u = mean_and_error(b, photons)
         out[r] = mean.reshape(n_psi, n_v, n_mu, n_phi, n_spec)
         err[r] = u.reshape(n_psi, n_v, n_mu, n_phi, n_spec)

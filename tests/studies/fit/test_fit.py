@@ -238,16 +238,3 @@ def test_objective_uses_compare_prepared_once_with_the_same_figures(base_problem
             fast = problem.residuals(x, measured=target)
             np.testing.assert_allclose(fast, full, rtol=1e-9, atol=1e-12)
     assert problem.residual_model() is problem.residual_model()  # prepared once
-
-
-def test_summation_fit_says_it_does_not_use_the_structure(red_cotton):
-    """The preset's [structure] summation is not what the fit's summation evaluates: said in the notes."""
-    from tests.studies.fit.conftest import measurement
-
-    assert red_cotton.structure is not None
-    free = parse_free(["rms_slope=0.1:0.8"], red_cotton)
-    flat = measurement(lambda g, wl: np.full((len(g), wl.size), 0.3), None)
-    problem = FitProblem(red_cotton, flat, free, method="summation", target_rel_err=0.05, seed=1)
-    assert any("[structure]" in n and "carpet" in n for n in problem.notes)
-    classic = FitProblem(red_cotton, flat, free, method="classic", target_rel_err=0.05, seed=1)
-    assert not any("[structure]" in n for n in classic.notes)
