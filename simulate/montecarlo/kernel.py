@@ -69,6 +69,18 @@ With ``mu_a^w = 0`` and ``p^l = p^w`` this is exactly white Monte Carlo, ``A_l =
 re-weight exactly too, at a variance that grows with the mismatch (callers group
 wavelengths, :mod:`simulate.fiber`). Roulette acts on ``w max_l A_l``.
 
+Deferred re-weighting: the medium is homogeneous, so the free-path factors of ``n`` collisions
+and of the path ``L`` walked since the last update are one factor,
+``(mu_s^l / mu_s^w)^n exp(-(mu_t^l - mu_t^w) L) = exp(n ln(mu_s^l / mu_s^w) - (mu_t^l - mu_t^w) L)``:
+the weights are brought up to date every :data:`REWEIGHT_EVERY` collisions, at every exit, and
+at every vertex when a vertex estimator reads them; the phase ratios are applied at each
+collision. Roulette is decided at the updates only -- a roulette rule may depend on anything
+in the history so far without biasing the estimate, so deciding it every few collisions changes
+the variance by a hair and nothing else. Measured on red cotton's 21-wavelength group (cylinder,
+49 events per photon): 3.7 -> 2.1 us per photon; the tables agree with the per-collision update
+within their errors (the walks are the same photons: only rounding and the roulette moments
+differ).
+
 References
 ----------
 Wang, L., Jacques, S. L. & Zheng, L. (1995). MCML -- Monte Carlo modeling of light transport
@@ -149,6 +161,12 @@ C_MAX_EVENTS = 2
 N_CONTROL = 3
 
 # No 'nnan'/'ninf': infinite free paths (mu_t = 0) and distances are legitimate values.
+# (Fast-math 'nsz'/'reassoc' allow no rewrite that turns 0 * _LOG_ZERO into a NaN: it is finite.)
+_LOG_ZERO = -1e300
+
+#: collisions between updates of the spectral weights (and roulette decisions) when no vertex
+#: estimator reads them (module docstring, "deferred re-weighting")
+REWEIGHT_EVERY = 8
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
@@ -278,12 +296,17 @@ def _make_kernel(scoring: bool):
         ratio = inp.spec_ratio
         n_grid = ratio.shape[0]
         d_mu_t = np.zeros(n_spec)
-        s_ratio = np.ones(n_spec)
+        log_s = np.zeros(n_spec)  # ln(mu_s^l / mu_s^w), a large negative number for mu_s^l = 0
         spec_mu_t = np.zeros(n_spec)
         for l in range(n_spec):
             spec_mu_t[l] = inp.spec_mu[l, 0] + inp.spec_mu[l, 1]
             d_mu_t[l] = spec_mu_t[l] - mu_t
-            s_ratio[l] = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
+            s_ratio = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
+            log_s[l] = math.log(s_ratio) if s_ratio > 0.0 else _LOG_ZERO
+        # deferred re-weighting: the factors (mu_s^l / mu_s^w) exp(-(mu_t^l - mu_t^w) l) of the free
+        # paths since the last update are one exp of (n ln s_l - d_l L) per wavelength (module docstring)
+        pend_n = 0
+        pend_l = 0.0
         if not reweight:
             for l in range(n_spec):
                 spec_mu_t[l] = mu_t
@@ -349,6 +372,8 @@ def _make_kernel(scoring: bool):
                 if reweight:
                     for l in range(n_spec):
                         spec_w[l] = 1.0
+                    pend_n = 0
+                    pend_l = 0.0
             alive = w > 0.0
             while alive:
                 if events >= max_events:
@@ -371,10 +396,16 @@ def _make_kernel(scoring: bool):
                     w *= albedo
                     scatterings += 1
                     w_max = 1.0
+                    roulette = True
                     if SCORING:
                         if reweight:
-                            for l in range(n_spec):
-                                spec_w[l] *= s_ratio[l] * vexp(-d_mu_t[l] * step)
+                            pend_n += 1
+                            pend_l += step
+                            if vertex_mode == T.V_CYLINDER_NEE:  # the vertex estimator reads spec_w
+                                for l in range(n_spec):
+                                    spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
+                                pend_n = 0
+                                pend_l = 0.0
                         if vertex_mode == T.V_CYLINDER_NEE:
                             s0, s1, s2, s3 = T.score_vertex(
                                 inp.outputs, nee_consts, nee_work, vertex_base, hist, touched, n_touched, marks, n_spec,
@@ -384,16 +415,24 @@ def _make_kernel(scoring: bool):
                     ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, phase, g, table, hg, s0, s1, s2, s3)
                     if SCORING:
                         if reweight:
-                            w_max = 0.0
                             if phase_ratio:
                                 jr, fr = T.ratio_row(ct, n_grid)
                                 r0 = ratio[jr]
                                 r1 = ratio[jr + 1]
                                 for l in range(n_spec):
                                     spec_w[l] *= r0[l] + fr * (r1[l] - r0[l])
-                            for l in range(n_spec):
-                                w_max = max(w_max, spec_w[l])
-                    if w * w_max < w_threshold:
+                            if pend_n == 0 or pend_n >= REWEIGHT_EVERY:
+                                if pend_n > 0:
+                                    for l in range(n_spec):
+                                        spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
+                                    pend_n = 0
+                                    pend_l = 0.0
+                                w_max = 0.0
+                                for l in range(n_spec):
+                                    w_max = max(w_max, spec_w[l])
+                            else:
+                                roulette = False  # decided at the next update (any rule is unbiased)
+                    if roulette and w * w_max < w_threshold:
                         if w <= 0.0 or w_max <= 0.0:
                             break
                         r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
@@ -412,8 +451,7 @@ def _make_kernel(scoring: bool):
                     path += s_b
                     if SCORING:
                         if reweight:
-                            for l in range(n_spec):
-                                spec_w[l] *= vexp(-d_mu_t[l] * s_b)
+                            pend_l += s_b
                     x, y, z = snap_to_surface(geometry, size, x, y, z, uz)
                     nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
                     cos_i = ux * nx + uy * ny + uz * nz
@@ -464,6 +502,9 @@ def _make_kernel(scoring: bool):
                             unscattered1 += w
                     path_total += w * path
                     if SCORING:
+                        if reweight and (pend_n > 0 or pend_l > 0.0):
+                            for l in range(n_spec):
+                                spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
                         T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, marks,
                                      n_spec, spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
                     break
