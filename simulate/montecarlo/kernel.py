@@ -1,5 +1,9 @@
 """The compiled photon-transport kernel (docs/physics.md section 3).
 
+(Over 500 lines on purpose: one compiled photon loop whose two flavours are pruned from one
+source, and this docstring with the physics, the estimator contract and the speed decisions;
+split, the loop's hot state would cross function calls.)
+
 One photon history, in the units of the caller (any consistent length unit)::
 
     entry      refraction by Snell at the entry point; weight w = 1 - F(theta_i)
