@@ -325,10 +325,14 @@ def _top_cell_beta(fiber: Any, facets: Facets, w_i: np.ndarray, w_o: np.ndarray,
     return beta, u_beta, int(est.photons), {"unique_fiber_pairs": int(first.size), "fiber_info": est.info}
 
 
-#: photons per BSSRDF row of the exit table (both halves) for a 1 % RMS relative standard error of beta
-#: over the red-cotton plan (the dataset's ``achieved_rel_err``; measured with wavelength chunks of 7:
-#: 2 x 2000 per row gave 1.0-1.3 %, 0.3 % relative to each spectrum's peak; error ~ 1/sqrt(N))
-PHOTONS_PER_ROW_AT_1PCT = 6_000
+#: photons per BSSRDF row of the exit table (both halves together) that the FIRST round of the
+#: controlled tables expects to reach a 1 % relative error of beta (simulate.fiber.farfield.controlled_halves
+#: then adds photons if the error measured is above the target). Calibrated on red cotton over its
+#: plan, in the one definition of the error (RMS of u / each direction's spectral peak): 2 x 4000
+#: photons per row gave 0.21 %, so 1 % needs ~350; twice that, because at a few hundred photons per
+#: row the rare heavy weights of the spectral re-weighting make the two-halves error estimate unreliable
+#: (seeds 0-2 at 400: 0.79 %, 0.66 % -- 1.12 % by comparison with a 0.21 % run --, 1.74 % -> 3 rounds)
+PHOTONS_PER_ROW_AT_1PCT = 800
 
 
 #: above this many geometries the facet sum is tabulated over fabric-frame pairs (simulate.fabric.structtable:
@@ -342,10 +346,12 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
     """``beta, u_beta [N, L]`` of the structured summation at fabric-frame pairs, and what it took.
 
     ``cells = "top"``: the old route over the facets (:func:`_top_cell_beta`). ``"visible"``: two
-    independent exit tables (seeds ``2 seed``, ``2 seed + 1``) with ``PHOTONS_PER_ROW_AT_1PCT (0.01 /
-    target)^2 / 2`` photons per row each, their layer tables (and interior closure), ``beta`` their
-    mean and ``u_beta = |beta_1 - beta_2| / 2`` (the standard error of the mean of two independent
-    estimates: one degree of freedom per value, so its RMS over many values is the figure to read).
+    independent exit tables (seeds ``2 seed``, ``2 seed + 1``) starting at ``PHOTONS_PER_ROW_AT_1PCT
+    (0.01 / target)^2 / 2`` photons per row each, their layer tables (and interior closure), ``beta``
+    their mean and ``u_beta = |beta_1 - beta_2| / 2`` (the standard error of the mean of two independent
+    estimates: one degree of freedom per value, so its RMS over many values is the figure to read);
+    more photons are added until that error meets the target
+    (:func:`simulate.fiber.farfield.controlled_halves`).
     """
     import time
 
@@ -364,13 +370,12 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
         beta, u_beta, photons, extra = _top_cell_beta(fiber, facets, w_i, w_o, wl, mc)
         info.update(extra, photons=photons, seconds=time.perf_counter() - t0)
         return beta, u_beta, info
-    per_row = int(math.ceil(PHOTONS_PER_ROW_AT_1PCT * (0.01 / target_rel_err) ** 2 / 2.0 / 2000.0)) * 2000
+    per_row = int(math.ceil(PHOTONS_PER_ROW_AT_1PCT * (0.01 / target_rel_err) ** 2 / 2.0))
     fiber = FF.cached(fiber)       # the Mie optics once, not once per exit-table node
     n_layers = spec.layers or (10 if spec.kind == "nonwoven" or weave is None
                                else max(1, round(weave.height_um / fiber.radius_um)))
-    betas, photons, parts = [], 0, {}
-    for half in range(2):
-        table = FF.exit_table(fiber, wl, photons_per_row=per_row, seed=2 * int(seed) + half, threads=threads)
+
+    def beta_of(table: Any) -> np.ndarray:
         inner = None
         if spec.interior and spec.masking:
             from simulate.fabric.interior import interior
@@ -380,12 +385,11 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
         if w_i.shape[0] > BULK_GEOMETRIES:   # many geometries: tabulate the facet sum once, then gather
             from simulate.fabric.structtable import fabric_table
 
-            betas.append(fabric_table(lt, facets).beta(w_i, w_o))
-        else:
-            betas.append(fabric_beta_from_G(lt, facets, w_i, w_o))
-        photons += table.photons
-        parts[f"half{half}"] = {"exit_table_seconds": table.seconds, "layer_table_seconds": lt.seconds}
-    beta = 0.5 * (betas[0] + betas[1])
-    u_beta = 0.5 * np.abs(betas[0] - betas[1])
-    info.update(parts, photons=photons, photons_per_row=2 * per_row, layers=n_layers, seconds=time.perf_counter() - t0)
+            return fabric_table(lt, facets).beta(w_i, w_o)
+        return fabric_beta_from_G(lt, facets, w_i, w_o)
+
+    # the error asked for is beta's: the controller grows both tables until it is met
+    beta, u_beta, ctl = FF.controlled_halves(fiber, wl, beta_of, target_rel_err, per_row=per_row, seed=seed,
+                                             threads=threads)
+    info.update(ctl, layers=n_layers, seconds=time.perf_counter() - t0)
     return beta, u_beta, info

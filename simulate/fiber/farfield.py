@@ -67,6 +67,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass
+from dataclasses import replace as dataclasses_replace
 from typing import Any
 
 import numba
@@ -75,7 +76,8 @@ import numpy as np
 from simulate.optics import microfacet
 from simulate.optics.fresnel import OpticsDomainWarning, reflectance_from_cos
 
-__all__ = ["CachedMedium", "ExitTable", "cached", "cell_frame", "exit_table", "far_field_nee", "surface_far_field", "DEFAULT_WT_NODES"]
+__all__ = ["CachedMedium", "ExitTable", "cached", "cell_frame", "exit_table", "far_field_nee", "surface_far_field", "DEFAULT_WT_NODES",
+           "merged", "controlled_halves", "MIN_PHOTONS_PER_ROW", "MAX_ROUNDS", "ROUND_SEED_STRIDE"]
 
 #: axial components ``|w_t|`` of the exit table's rows (linear interpolation between them).
 DEFAULT_WT_NODES = (0.0, 0.26, 0.5, 0.71, 0.87, 0.97)
@@ -294,11 +296,19 @@ def _symmetrised(T: np.ndarray) -> np.ndarray:
     axis and the cell's normal) maps the local incidence azimuth ``a`` to ``-a``, the exit cell offset
     to its opposite and the local exit azimuth to its opposite: exact, and it halves the variance.
     """
-    n_psi, n_phi = T.shape[2], T.shape[4]
+    n_k, n_psi, n_mu, n_phi = T.shape[1:5]
     offsets = (-np.arange(n_psi)) % n_psi
     phis = n_phi - 1 - np.arange(n_phi)
-    mirrored = T[:, ::-1][:, :, offsets][:, :, :, :, phis]
-    return np.ascontiguousarray(0.5 * (T + mirrored))
+    # one gather per node into one C-ordered array, sums in place: red cotton's table is ~175 MB per
+    # half, and every temporary costs page faults
+    index = (np.arange(n_k)[::-1, None, None, None], offsets[None, :, None, None],
+             np.arange(n_mu)[None, None, :, None], phis[None, None, None, :])
+    out = np.empty_like(T)
+    for i in range(T.shape[0]):
+        out[i] = T[i][index]
+        out[i] += T[i]
+    out *= 0.5
+    return out
 
 
 class CachedMedium:
@@ -351,22 +361,93 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
         raise ValueError("exit_table: w_t must be increasing nodes from 0 to below 1 (at least two)")
     t0 = time.perf_counter()
     fiber = cached(fiber)
-    rows, errs, photons, ks = [], [], 0, None
+    T: np.ndarray | None = None
+    u_T = np.zeros(0)
+    photons, ks = 0, None
     wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
     chunks = np.array_split(np.arange(wl.size), int(math.ceil(wl.size / max(1, int(max_group)))))
     for i, wt in enumerate(nodes):
-        parts, part_errs = [], []
         for c, chunk in enumerate(chunks):
             tab = fiber_mod.bssrdf_table(fiber, float(wt), wl[chunk], n_mu=bins[0], n_phi=bins[1],
                                          photons_per_row=photons_per_row,
                                          seed=int(seed) * 1_000_003 + 104_729 * i + 1_009 * c, threads=threads)
-            parts.append(tab["T"][:, :, 0])
-            part_errs.append(tab["u_T"][:, :, 0])
+            if T is None:   # filled in place: no per-node copies of a table of ~10^8 bytes
+                T = np.empty((nodes.size,) + tab["T"][:, :, 0].shape[:-1] + (wl.size,))
+                u_T = np.empty_like(T)
+            T[i, ..., chunk[0]:chunk[-1] + 1] = tab["T"][:, :, 0]
+            u_T[i, ..., chunk[0]:chunk[-1] + 1] = tab["u_T"][:, :, 0]
             photons += int(tab["photons"])
             ks = tab["k"]
-        rows.append(np.concatenate(parts, axis=-1))
-        errs.append(np.concatenate(part_errs, axis=-1))
-    T, u_T = _symmetrised(np.stack(rows)), np.stack(errs) / math.sqrt(2.0)
+    assert T is not None
+    T = _symmetrised(T)
+    u_T /= math.sqrt(2.0)
     return ExitTable(w_t=nodes, T=T, u_T=u_T, k=np.asarray(ks), radius_um=fiber.radius_um,
                      wavelengths_nm=np.atleast_1d(np.asarray(wavelengths_nm, float)), photons=photons,
                      seconds=time.perf_counter() - t0, n_host=float(fiber.n_host))
+
+
+def merged(a: ExitTable, b: ExitTable, per_row_a: int, per_row_b: int) -> ExitTable:
+    """The exit table of the photons of ``a`` and ``b`` together (independent streams, same grid).
+
+    Means weighted by the photons per row, ``u = sqrt(p_a^2 u_a^2 + p_b^2 u_b^2) / (p_a + p_b)``.
+    """
+    n = float(per_row_a + per_row_b)
+    wa, wb = per_row_a / n, per_row_b / n
+    return dataclasses_replace(a, T=wa * a.T + wb * b.T, u_T=np.sqrt((wa * a.u_T) ** 2 + (wb * b.u_T) ** 2),
+                               photons=a.photons + b.photons, seconds=a.seconds + b.seconds)
+
+
+#: per-row photons of every exit-table round never fall below this (a round of a few photons per
+#: row would measure nothing)
+MIN_PHOTONS_PER_ROW = 50
+#: at most this many rounds of :func:`controlled_halves` (the first measures, the second lands)
+MAX_ROUNDS = 4
+#: seed stride between rounds: round ``m`` of half ``h`` uses ``2 seed + h + ROUND_SEED_STRIDE m``
+#: (distinct from the first round of every seed below 10^6)
+ROUND_SEED_STRIDE = 2_000_000
+
+
+def controlled_halves(fiber: Any, wavelengths_nm: Any, beta_of: Any, target_rel_err: float, *, per_row: int,
+                      seed: int = 0, threads: int | None = None, max_photons_per_row: int | None = None,
+                      ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """``beta, u_beta`` from two independent exit tables grown until ``beta`` meets the target error.
+
+    The quantity the user asked an error for is what the caller makes of the tables --
+    ``beta_of(table) -> [N, L]`` (a summation over rows, nodes, warp/weft and structure): its
+    error, not the tables', is the target. Each round adds photons per row to both halves (seeds
+    ``2 seed + h + ROUND_SEED_STRIDE m``), then ``beta`` is the mean of the halves' ``beta_of``
+    and ``u_beta = |beta_1 - beta_2| / 2`` (one degree of freedom per value; its RMS over many
+    values is the error read), :func:`simulate.montecarlo.accuracy.relative_error` of them the
+    error reached. The first round uses ``per_row``; if the error is above the target the next
+    adds photons to ``(rel / target)^2 SAFETY`` times those done (error ~ 1/sqrt(N)).
+    """
+    from simulate.montecarlo.accuracy import SAFETY, relative_error
+
+    wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
+    fiber = cached(fiber)
+    limit = max_photons_per_row or 10**9
+    tables: list[ExitTable | None] = [None, None]
+    done, rows, rel = 0, max(int(per_row), MIN_PHOTONS_PER_ROW), math.inf
+    rounds: list[dict[str, Any]] = []
+    beta = u_beta = np.zeros(0)
+    for m in range(MAX_ROUNDS):
+        t0 = time.perf_counter()
+        for h in range(2):
+            new = exit_table(fiber, wl, photons_per_row=rows, seed=2 * int(seed) + h + ROUND_SEED_STRIDE * m,
+                             threads=threads)
+            old = tables[h]
+            tables[h] = new if old is None else merged(old, new, done, rows)
+        done += rows
+        t1 = time.perf_counter()
+        betas = [beta_of(t) for t in tables]
+        beta = 0.5 * (betas[0] + betas[1])
+        u_beta = 0.5 * np.abs(betas[0] - betas[1])
+        rel = relative_error(beta, u_beta)
+        rounds.append({"photons_per_row": 2 * done, "rel_err": rel, "exit_table_seconds": t1 - t0,
+                       "layer_table_seconds": time.perf_counter() - t1})
+        if rel <= target_rel_err or done >= limit:
+            break
+        rows = min(max(int(math.ceil(done * ((rel / target_rel_err) ** 2 * SAFETY - 1.0))), MIN_PHOTONS_PER_ROW),
+                   limit - done)
+    photons = sum(t.photons for t in tables if t is not None)
+    return beta, u_beta, {"rounds": rounds, "photons": photons, "photons_per_row": 2 * done, "rel_err": rel}

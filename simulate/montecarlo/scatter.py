@@ -23,10 +23,13 @@ density it samples is piecewise constant::
 forward (at most a few steps: the lookup grid is finer than the table on average).
 
 The new direction (``mu`` = cosine to the old direction, azimuth uniform) uses the direction
-update of MCML (Wang, Jacques & Zheng 1995, eq. 3.23), with the azimuth's cosine and sine from
-a point uniform in the unit disc (no trigonometric calls)::
-
-    cos phi = (a^2 - b^2) / r^2,  sin phi = 2 a b / r^2,  r^2 = a^2 + b^2 <= 1
+update of MCML (Wang, Jacques & Zheng 1995, eq. 3.23). One 64-bit draw gives both angles: its
+top 40 bits the uniform of ``mu`` (grid 2^-40), its low 24 bits the azimuth
+``phi = 2 pi k / 2^24`` (grid 3.7e-7 rad), whose cosine and sine come from a 256-node table and
+the angle-addition formulas with short Taylor polynomials (:func:`azimuth`, within 2e-15; no
+trigonometric call, no branch). This replaced a point drawn uniformly in the unit disc by
+rejection (``cos phi = (a^2 - b^2) / r^2``): one draw instead of 2.27 on average, no division and
+no mispredicted rejection branch -- 14 % off the plain slab loop (README, speed).
 
 References
 ----------
@@ -42,7 +45,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from simulate.montecarlo.rng import next_u64, seed_state, to_signed_pair, to_uniform
+from simulate.montecarlo.rng import next_u64, seed_state
 
 __all__ = [
     "PHASE_HG",
@@ -133,6 +136,36 @@ def sample_cosine(kind: int, g: float, table: np.ndarray, xi: float,
     return 2.0 * xi - 1.0
 
 
+_U40_SHIFT = np.uint64(24)
+_INV40 = 1.0 / 1099511627776.0  # 2^-40
+_LOW24 = np.uint64(0xFFFFFF)
+_LOW16 = np.uint64(0xFFFF)
+_U16 = np.uint64(16)
+_N_AZ = 256
+_AZ_STEP = 2.0 * math.pi / _N_AZ
+_AZ_FRAC = _AZ_STEP / 65536.0
+_AZ_COS = np.cos(_AZ_STEP * np.arange(_N_AZ))
+_AZ_SIN = np.sin(_AZ_STEP * np.arange(_N_AZ))
+
+
+@numba.njit(cache=True, inline="always")
+def azimuth(r24: np.uint64) -> tuple[float, float]:
+    """``(cos phi, sin phi)`` of the azimuth ``phi = 2 pi r24 / 2^24`` (``r24 < 2^24``), branch-free.
+
+    The top 8 bits of ``r24`` pick a node ``phi_i = 2 pi i / 256`` of a table, the low 16 bits the
+    offset ``d < 2 pi / 256`` from it; the angle-addition formulas with Taylor polynomials of
+    ``cos d`` and ``sin d`` (truncation below 1.2e-15) give the pair.
+    """
+    i = int(r24 >> _U16)
+    d = float(r24 & _LOW16) * _AZ_FRAC
+    d2 = d * d
+    sd = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0)))
+    cd = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0)))
+    c0 = _AZ_COS[i]
+    s0 = _AZ_SIN[i]
+    return c0 * cd - s0 * sd, s0 * cd + c0 * sd
+
+
 @numba.njit(cache=True, inline="always")
 def sample_direction(
     ux: float, uy: float, uz: float, kind: int, g: float, table: np.ndarray,
@@ -142,21 +175,15 @@ def sample_direction(
     """New direction after a scattering event: ``(ux, uy, uz, mu, s0, s1, s2, s3)``.
 
     ``mu`` is the cosine between the old and the new direction, drawn from the phase
-    function; the azimuth is uniform. One uniform for ``mu``, one or more 64-bit draws for
-    the azimuth (disc rejection, acceptance pi/4). ``hg = hg_constants(g)``.
+    function; the azimuth is uniform. Both from one 64-bit draw (module docstring).
+    ``hg = hg_constants(g)``.
     """
     r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-    ct = sample_cosine(kind, g, table, to_uniform(r), hg)
+    ct = sample_cosine(kind, g, table, float(r >> _U40_SHIFT) * _INV40, hg)
     st = math.sqrt(max(1.0 - ct * ct, 0.0))
-    while True:
-        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-        a, b = to_signed_pair(r)
-        r2 = a * a + b * b
-        if r2 <= 1.0 and r2 > 0.0:
-            break
-    inv_r2 = 1.0 / r2
-    scp = st * ((a * a - b * b) * inv_r2)  # sin(theta) cos(phi)
-    ssp = st * (2.0 * a * b * inv_r2)  # sin(theta) sin(phi)
+    cp, sp = azimuth(r & _LOW24)
+    scp = st * cp  # sin(theta) cos(phi)
+    ssp = st * sp  # sin(theta) sin(phi)
     if abs(uz) > 0.99999:
         nx = scp
         ny = ssp

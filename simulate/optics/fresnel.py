@@ -21,7 +21,8 @@ Brewster's angle ``atan(n2/n1)``, and ``R = 0`` when ``n1 == n2`` (no interface)
 Two layers:
 
 * compiled scalar kernels for the Monte Carlo code, :func:`fresnel_unpolarized` and
-  :func:`refracted_cos` (``numba.njit(cache=True)``, taking cosines);
+  :func:`refracted_cos` (``numba.njit(cache=True, fastmath=False)``, taking cosines: their own
+  flags, not those of a fastmath caller);
 * vectorised numpy functions for everything else, taking angles in radians
   (:func:`reflectance`, :func:`reflectance_s`, :func:`reflectance_p`,
   :func:`transmittance`, :func:`snell`) or cosines (:func:`reflectance_from_cos`).
@@ -74,7 +75,11 @@ class OpticsDomainWarning(UserWarning):
 # --------------------------------------------------------------------------------------
 
 
-@numba.njit(cache=True)
+# fastmath=False explicitly: these are called from Python and from fastmath kernels (Monte Carlo,
+# woven shading); without their own setting numba compiles a callee with the flags of its first
+# caller and caches that flavour (see simulate/montecarlo/rng._exponential_slow), so their
+# numerics would depend on which caller ran first
+@numba.njit(cache=True, fastmath=False)
 def fresnel_unpolarized(cos_i: float, n1: float, n2: float) -> float:
     """Unpolarised Fresnel reflectance ``F = (R_s + R_p) / 2`` (compiled scalar kernel).
 
@@ -108,7 +113,7 @@ def fresnel_unpolarized(cos_i: float, n1: float, n2: float) -> float:
     return 0.5 * (rs * rs + rp * rp)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=False)
 def refracted_cos(cos_i: float, n1: float, n2: float) -> float:
     """Cosine of the transmitted angle by Snell's law (compiled scalar kernel).
 

@@ -69,6 +69,7 @@ os.environ.setdefault("MIEPYTHON_USE_JIT", "1")
 
 import warnings  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 import numpy.typing as npt  # noqa: E402
@@ -525,6 +526,28 @@ def _ensemble(
     return m, radii, weights, x, eff
 
 
+#: results of :func:`cross_sections` and :func:`ensemble_phase_function` by their exact inputs, in
+#: this process: a run asks for the same wavelengths more than once (``simulate fabric``'s cost
+#: estimate, then the run's medium: red cotton's 33 phase functions were 2 s each time). Cleared
+#: when it reaches :data:`_MEMO_MAX` entries. Results are immutable (the arrays are copied out).
+_MEMO: dict[tuple, Any] = {}
+_MEMO_MAX = 4096
+
+
+def _memo_key(kind: str, m_particle: complex, n_host: float, wavelength_nm: float, radius_um: float | None,
+              distribution: LogNormalSize | None, mu: npt.ArrayLike | None = None) -> tuple:
+    mu_key = None if mu is None else np.ascontiguousarray(mu, dtype=float).tobytes()
+    return (kind, complex(m_particle), float(n_host), float(wavelength_nm),
+            None if radius_um is None else float(radius_um), distribution, mu_key)
+
+
+def _remember(key: tuple, value: Any) -> Any:
+    if len(_MEMO) >= _MEMO_MAX:
+        _MEMO.clear()
+    _MEMO[key] = value
+    return value
+
+
 def cross_sections(
     m_particle: complex,
     n_host: float,
@@ -551,6 +574,9 @@ def cross_sections(
     -------
     MieCrossSections
     """
+    key = _memo_key("cs", m_particle, n_host, wavelength_nm, radius_um, distribution)
+    if key in _MEMO:
+        return _MEMO[key]
     m, radii, w, x, eff = _ensemble(m_particle, n_host, wavelength_nm, radius_um, distribution)
     area = np.pi * radii**2
 
@@ -575,7 +601,7 @@ def cross_sections(
         err = max(rel) if rel else 0.0
     x_med = float(size_parameter(radius_um if distribution is None else distribution.median_radius_um,
                                  wavelength_nm, n_host))
-    return MieCrossSections(*fine, x=x_med, m=m, quadrature_error=err)
+    return _remember(key, MieCrossSections(*fine, x=x_med, m=m, quadrature_error=err))
 
 
 def ensemble_phase_function(
@@ -605,6 +631,16 @@ def ensemble_phase_function(
     mu, p : numpy.ndarray
         The cosines used and ``p(mu)`` in 1/sr (normalised to 1 over the sphere).
     """
+    key = _memo_key("phase", m_particle, n_host, wavelength_nm, radius_um, distribution, mu)
+    if key not in _MEMO:
+        _remember(key, _ensemble_phase(m_particle, n_host, wavelength_nm, radius_um, distribution, mu))
+    mu_arr, p = _MEMO[key]
+    return mu_arr.copy(), p.copy()
+
+
+def _ensemble_phase(m_particle: complex, n_host: float, wavelength_nm: float, radius_um: float | None,
+                    distribution: LogNormalSize | None, mu: npt.ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ensemble_phase_function` without the memo."""
     m, radii, w, x, eff = _ensemble(m_particle, n_host, wavelength_nm, radius_um, distribution)
     ws = w * eff.qsca * np.pi * radii**2
     total = ws.sum()

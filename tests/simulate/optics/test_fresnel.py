@@ -114,3 +114,11 @@ def test_vectorised_shapes_and_input_errors():
         fresnel.reflectance(0.1, 1.0, -1.5)
     with pytest.raises(ValueError, match="real"):
         fresnel.reflectance(0.1, 1.0, 1.5 - 0.1j)
+
+
+def test_compiled_kernels_set_their_own_fastmath_flags():
+    # numba compiles a callee that has no flags of its own with the flags of its first caller (the
+    # fastmath Monte Carlo kernel or a Python call) and caches that flavour: the scalar kernels
+    # shared by both kinds of caller must pin theirs, or their rounding depends on the call order
+    for fn in (fresnel_unpolarized, refracted_cos):
+        assert fn.targetoptions.get("fastmath") is False, fn.__name__

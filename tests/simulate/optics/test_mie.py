@@ -171,3 +171,24 @@ def test_input_errors():
         mie.phase_grid(1000.0)
     with pytest.warns(OpticsDomainWarning, match="capped"):
         mie.phase_grid(5000.0)
+
+
+def test_memoised_results_are_exact_and_private():
+    # the memo (a second run of the same wavelength, e.g. the cost estimate then the run) returns what
+    # a computation returns, and a caller that modifies its arrays does not change the next answer
+    dist = mie.LogNormalSize(0.1, 1.4)
+    args = (complex(2.7, 0.0), 1.557, 550.0)
+    mie._MEMO.clear()
+    mu1, p1 = mie.ensemble_phase_function(*args, distribution=dist)
+    cs1 = mie.cross_sections(*args, distribution=dist)
+    p1_copy = p1.copy()
+    p1 *= 0.0
+    mu2, p2 = mie.ensemble_phase_function(*args, distribution=dist)
+    np.testing.assert_array_equal(p2, p1_copy)
+    assert mie.cross_sections(*args, distribution=dist) == cs1
+    fresh_mu, fresh_p = mie._ensemble_phase(*args, None, dist, None)
+    np.testing.assert_array_equal(mu2, fresh_mu)
+    np.testing.assert_array_equal(p2, fresh_p)
+    # a different input is a different entry
+    _, p3 = mie.ensemble_phase_function(complex(2.6, 0.0), 1.557, 550.0, distribution=dist)
+    assert not np.array_equal(p3, p2)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 from scipy import stats
 
 from simulate.optics import mie
-from simulate.montecarlo.scatter import evaluate_pdf, phase_arrays, sample_directions
+from simulate.montecarlo.scatter import azimuth, evaluate_pdf, phase_arrays, sample_directions
 from simulate.optics.phase import PhaseTable
 
 
@@ -55,3 +56,32 @@ def test_hg_density_matches_the_closed_form():
     mu = np.linspace(-1, 1, 11)
     ref = (1 - 0.36) / (4 * math.pi * (1 + 0.36 - 1.2 * mu) ** 1.5)
     np.testing.assert_allclose(evaluate_pdf(mu, pa.kind, pa.g, pa.table, pa.pdf, pa.lookup), ref, rtol=1e-12)
+
+
+@numba.njit(cache=False)
+def azimuth_pair(r):
+    return azimuth(r)
+
+
+def test_azimuth_table_matches_cos_and_sin():
+    # every table node, the last offset before the next node, and a spread of offsets between
+    k = np.unique(np.concatenate([np.arange(256) << 16, (np.arange(256) << 16) + 0xFFFF,
+                                  np.random.default_rng(5).integers(0, 2**24, 20_000)]))
+    got = np.array([azimuth_pair(np.uint64(v)) for v in k])
+    phi = 2.0 * math.pi * k / 2**24
+    np.testing.assert_allclose(got[:, 0], np.cos(phi), rtol=0, atol=3e-15)
+    np.testing.assert_allclose(got[:, 1], np.sin(phi), rtol=0, atol=3e-15)
+
+
+def test_sampled_azimuth_is_uniform_about_the_old_direction():
+    pa = phase_arrays(g=0.5)
+    u = np.array([0.3, -0.5, math.sqrt(1 - 0.34)])
+    d = sample_directions(u, 200_000, 23, pa.kind, pa.g, pa.table)
+    e1 = np.cross(u, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    phi = np.arctan2(d @ e2, d @ e1)
+    counts, _ = np.histogram(phi, bins=36, range=(-math.pi, math.pi))
+    expected = counts.sum() / 36
+    chi2 = np.sum((counts - expected) ** 2 / expected)
+    assert stats.chi2.sf(chi2, 35) > 1e-4
