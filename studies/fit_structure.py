@@ -33,8 +33,12 @@ Memory. A chunk of at most 7 wavelengths (the exit table's own chunks, so the st
 ones ``simulate fabric`` walks) times ``K = 16`` nodes is 112 channels: its exit table (~0.6 GB)
 is reduced to its layer table (~26 MB) before the next chunk is walked.
 
-Deterministic: the photons per row come from ``target_rel_err`` (no accuracy loop) and the seeds
-from the config's seed, as in :func:`simulate.fabric.structure.structured_beta`.
+Deterministic: the photons per row come from ``target_rel_err`` by :func:`photons_per_row` (no
+accuracy loop) and the seeds from the config's seed: the streams of the FIRST round of
+:func:`simulate.fiber.farfield.controlled_halves` (seeds ``2 seed + half``). ``simulate fabric
+--method summation`` grows its tables in rounds until beta's error meets the target; the fit's model
+is that summation in its fixed-photons mode, ``structured_beta(..., photons_per_row=photons_per_row(target))``
+(one round, the same streams), which is what the equality test compares with.
 """
 
 from __future__ import annotations
@@ -139,10 +143,25 @@ class StructWalk:
 
 
 def photons_per_row(target_rel_err: float) -> int:
-    """Photons per exit-table row of each half: the rule of :func:`simulate.fabric.structure.structured_beta`."""
+    """Photons per exit-table row of each half of the fit's walk: ``PHOTONS_PER_ROW_AT_1PCT (0.01 / target)^2 / 2``
+    rounded UP to a multiple of ``FIT_ROW_QUANTUM`` (so at least 2000).
+
+    The fit has no accuracy loop (its dye changes at every evaluation, so the rounds that
+    :func:`simulate.fiber.farfield.controlled_halves` would add at one dye mean nothing at another)
+    and its objective weighs residuals by the model's two-halves error, which is unreliable at a few
+    hundred photons per row (the spectral re-weighting's rare heavy weights; see
+    ``PHOTONS_PER_ROW_AT_1PCT``): hence the floor. ``simulate fabric --method summation`` evaluates the
+    same model in its fixed-photons mode, :func:`simulate.fabric.structure.structured_beta` with
+    ``photons_per_row=`` this number (one round, the first round's streams).
+    """
     from simulate.fabric.structure import PHOTONS_PER_ROW_AT_1PCT
 
-    return int(math.ceil(PHOTONS_PER_ROW_AT_1PCT * (0.01 / target_rel_err) ** 2 / 2.0 / 2000.0)) * 2000
+    raw = PHOTONS_PER_ROW_AT_1PCT * (0.01 / target_rel_err) ** 2 / 2.0
+    return int(math.ceil(raw / FIT_ROW_QUANTUM)) * FIT_ROW_QUANTUM
+
+
+#: the fit's photons per row are a multiple of this (and at least this): see :func:`photons_per_row`
+FIT_ROW_QUANTUM = 2000
 
 
 def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: np.ndarray, *,
@@ -152,7 +171,8 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     scored at every host-absorption node, and reduce them chunk by chunk to layer tables (module docstring).
 
     Streams, chunks and photons are those of :func:`simulate.fiber.farfield.exit_table` called by
-    :func:`simulate.fabric.structure.structured_beta` (seeds ``2 seed + half``). ``reference``: walk
+    :func:`simulate.fabric.structure.structured_beta` in its fixed-photons mode with ``photons_per_row(target_rel_err)``
+    (the first round of the controlled halves, seeds ``2 seed + half``). ``reference``: walk
     the photons in that fiber's scattering and score them for ``nodye``'s by the likelihood ratio.
     """
     from simulate.config import weave_from_config

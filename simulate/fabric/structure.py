@@ -342,7 +342,8 @@ BULK_GEOMETRIES = 50_000
 
 def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray, w_o: np.ndarray,
                     wavelengths_nm: Any, *, target_rel_err: float = 0.01, seed: int = 0, threads: int | None = None,
-                    max_photons: int | None = None, method: str = "nee") -> tuple[np.ndarray, np.ndarray, dict]:
+                    max_photons: int | None = None, method: str = "nee", photons_per_row: int | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta, u_beta [N, L]`` of the structured summation at fabric-frame pairs, and what it took.
 
     ``cells = "top"``: the old route over the facets (:func:`_top_cell_beta`). ``"visible"``: two
@@ -352,6 +353,12 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
     estimates: one degree of freedom per value, so its RMS over many values is the figure to read);
     more photons are added until that error meets the target
     (:func:`simulate.fiber.farfield.controlled_halves`).
+
+    ``photons_per_row``: the fixed-photons mode -- ONE round of exactly that many photons per row in
+    each half (the first round's streams, seeds ``2 seed + h``), no accuracy loop. It is the model
+    ``simulate fit --method summation`` evaluates (:mod:`studies.fit_structure`: a fit's dye changes
+    at every evaluation, so its photons cannot follow an error measured at one dye), and what the
+    fit's equality test compares with.
     """
     import time
 
@@ -371,6 +378,11 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
         info.update(extra, photons=photons, seconds=time.perf_counter() - t0)
         return beta, u_beta, info
     per_row = int(math.ceil(PHOTONS_PER_ROW_AT_1PCT * (0.01 / target_rel_err) ** 2 / 2.0))
+    fixed = None
+    if photons_per_row is not None:
+        if int(photons_per_row) < FF.MIN_PHOTONS_PER_ROW:
+            raise ValueError(f"structured_beta: photons_per_row must be at least {FF.MIN_PHOTONS_PER_ROW}")
+        per_row = fixed = int(photons_per_row)
     fiber = FF.cached(fiber)       # the Mie optics once, not once per exit-table node
     n_layers = spec.layers or (10 if spec.kind == "nonwoven" or weave is None
                                else max(1, round(weave.height_um / fiber.radius_um)))
@@ -390,6 +402,6 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
 
     # the error asked for is beta's: the controller grows both tables until it is met
     beta, u_beta, ctl = FF.controlled_halves(fiber, wl, beta_of, target_rel_err, per_row=per_row, seed=seed,
-                                             threads=threads)
+                                             threads=threads, max_photons_per_row=fixed)
     info.update(ctl, layers=n_layers, seconds=time.perf_counter() - t0)
     return beta, u_beta, info

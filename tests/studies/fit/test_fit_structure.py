@@ -13,6 +13,7 @@ from simulate.cli import main
 from simulate.config import load_config, parse_config
 from simulate.fabric import structure as st
 from simulate.fiber.absorption import absorption_nodes
+from studies import fit_structure
 from studies.fit import FitError, FitProblem, parse_free, run_fit
 from studies.paths import toml_dumps
 
@@ -50,14 +51,18 @@ def _measured(beta: np.ndarray | float, geometries=None, rel_u: float = 0.01, no
 
 @pytest.mark.slow
 def test_structured_fit_model_equals_simulate_fabric_summation():
-    """The fit's structured model is simulate fabric's structured summation at the same parameters: the
-    same exit-table streams and photons per row, scored at the absorption nodes. Not bit for bit: the
-    kernel's roulette acts on the largest target weight (node 0, no dye, is a target of the fit's walk),
-    so the two runs roulette different photons -- equal within their standard errors, without bias."""
+    """The fit's structured model is simulate fabric's structured summation at the same parameters in its
+    fixed-photons mode (one round of the fit's photons per row, the controller's first-round streams),
+    scored at the absorption nodes. Not bit for bit: the kernel's roulette acts on the largest target
+    weight (node 0, no dye, is a target of the fit's walk), so the two runs roulette different photons --
+    equal within their standard errors, without bias. 2 x 2000 photons per row: the two-halves error
+    estimate is reliable there (at a few hundred it is not, simulate.fabric.structure.PHOTONS_PER_ROW_AT_1PCT)."""
     config = _felt()
     free = parse_free(["structure.felt_spread_deg"], config)
     problem = FitProblem(config, _measured(0.3), free, method="summation", target_rel_err=0.1, seed=3)
     assert problem.structured and not any("carpet" in n for n in problem.notes)
+    per_row = fit_structure.photons_per_row(0.1)
+    assert per_row >= 2000
     nodes = absorption_nodes(problem.nu_max, problem.nodes)
     g = problem.geometries
     from simulate import fabric as fab
@@ -66,10 +71,11 @@ def test_structured_fit_model_equals_simulate_fabric_summation():
     w_o = fab.directions_deg(g["theta_o"].to_numpy(), g["phi_o"].to_numpy())
     for dye in (math.log10(nodes[9]), -1.234):        # on a node, between nodes
         other = _felt(dye_log10=dye)
-        ref, u_ref, _ = st.structured_beta(other.structure, other.fiber(WL3), None, w_i, w_o, WL3,
-                                           target_rel_err=0.1, seed=3)
+        ref, u_ref, info = st.structured_beta(other.structure, other.fiber(WL3), None, w_i, w_o, WL3,
+                                              target_rel_err=0.1, seed=3, photons_per_row=per_row)
+        assert len(info["rounds"]) == 1 and info["photons_per_row"] == 2 * per_row
         beta, u = problem.model_at_host(config, other.dye(WL3))
-        assert problem.walks == 1
+        assert problem.walks == 1 and problem.photons["per_row"] == per_row
         sigma = np.sqrt(np.mean(u ** 2, axis=0) + np.mean(u_ref ** 2, axis=0))   # per wavelength, RMS
         d = (beta - ref) / sigma
         assert float(np.max(np.abs(d))) < 4.5, d
