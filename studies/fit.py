@@ -391,15 +391,28 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     # uncertainty: data noise and Monte Carlo noise propagated through the whole objective
     rng = np.random.default_rng(20260101 + int(problem.seed or 0))
     meas = problem.measured
-    dp_data = []
+    dp_data, dp_mc, refused = [], [], 0
     for _ in range(noise_draws):
         table = meas.table.copy()
         table["beta"] = table["beta"] + rng.standard_normal(len(table)) * table["u_beta"]
         noisy = make_dataset(table, meas.meta)
-        dp_data.append(-pinv @ (problem.residuals(x_best, measured=noisy) - r_best))
+        try:
+            dp_data.append(-pinv @ (problem.residuals(x_best, measured=noisy) - r_best))
+        except CompareError:
+            # a draw whose normal/normal value is not positive (a value within ~1 u of zero, e.g. a
+            # simulated measurement's 400 nm in a strongly absorbed band) cannot be normalised: left out
+            refused += 1
     beta_shape = problem.table(problem.config_at(x_best)).R.shape[:2]
-    dp_mc = [-pinv @ (problem.residuals(x_best, mc_noise=rng.standard_normal(beta_shape)) - r_best)
-             for _ in range(noise_draws)]
+    for _ in range(noise_draws):
+        try:
+            dp_mc.append(-pinv @ (problem.residuals(x_best, mc_noise=rng.standard_normal(beta_shape)) - r_best))
+        except CompareError:
+            refused += 1
+    if refused:
+        log.warning("%d of %d noise draws left out of the uncertainty: their normal/normal value was not positive",
+                    refused, 2 * noise_draws)
+    dp_data = dp_data or [np.zeros(len(problem.free))]
+    dp_mc = dp_mc or [np.zeros(len(problem.free))]
     cov_data = np.atleast_2d(np.cov(np.array(dp_data).T, bias=True))
     cov_mc = np.atleast_2d(np.cov(np.array(dp_mc).T, bias=True))
     cov = cov_data + cov_mc
