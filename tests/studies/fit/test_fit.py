@@ -238,3 +238,24 @@ def test_objective_uses_compare_prepared_once_with_the_same_figures(base_problem
             fast = problem.residuals(x, measured=target)
             np.testing.assert_allclose(fast, full, rtol=1e-9, atol=1e-12)
     assert problem.residual_model() is problem.residual_model()  # prepared once
+
+
+def test_noise_draws_that_cannot_be_normalised_are_left_out(base_problem, caplog):
+    """A measured value within ~1 u of zero at normal incidence (a simulated measurement in a strongly
+    absorbed band, as the red felt's 400 nm): some data draws have no positive normal/normal value.
+    The fit still ends with finite uncertainties from the other draws and says how many it left out."""
+    import logging
+
+    from gonio.data import make_dataset
+
+    x_true = np.array([1.4, 0.25])
+    meas = model_measurement(base_problem, x_true, noise_seed=None)
+    table = meas.table.copy()
+    weak = (table["theta_i"] == 0.0) & (table["wavelength_nm"] == WAVELENGTHS[0])
+    table.loc[weak, "u_beta"] = 3.0 * table.loc[weak, "beta"]
+    problem = sibling(base_problem, make_dataset(table, meas.meta))
+    with caplog.at_level(logging.WARNING, logger="studies.fit"):
+        result = run_fit(problem, noise_draws=8, max_evaluations=20)
+    assert any("noise draws left out" in r.getMessage() for r in caplog.records)
+    assert np.all(np.isfinite(result.u)) and np.all(result.u > 0)
+    np.testing.assert_allclose(result.x, x_true, rtol=2e-3)
