@@ -138,6 +138,7 @@ __all__ = [
     "simulate_batch_plain",
     "run_batches_plain",
     "run_batches_for",
+    "run_rows",
 ]
 
 # numba's 'omp' threading layer (GNU libgomp) spin-waits at the end of every parallel region by
@@ -234,14 +235,17 @@ def _make_kernel(scoring: bool):
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
-    def simulate_batch(inp: KernelInputs, photons: int, seed: int, batch: int, scal: np.ndarray,
-                       bins: np.ndarray) -> None:
+    def simulate_batch(inp: KernelInputs, source: np.ndarray, photons: int, seed: int, batch: int,
+                       scal: np.ndarray, bins: np.ndarray) -> None:
         """Transport ``photons`` photons of stream ``(seed, batch)``, adding to ``scal`` and ``bins``.
 
         Parameters
         ----------
         inp : KernelInputs
-            The packed run inputs.
+            The packed run inputs (its ``source`` is not read: ``source`` is).
+        source : numpy.ndarray
+            ``float64[5]`` source row (``inp.source`` for one run; one row of many for
+            :func:`run_rows`, whose rows differ only in their source and seed).
         photons : int
             Photons in this batch.
         seed, batch : int
@@ -255,7 +259,6 @@ def _make_kernel(scoring: bool):
             return
         geometry = inp.geometry
         geom = inp.geom
-        source = inp.source
         medium = inp.medium
         table = inp.table
         mu_a = medium[M_MU_A]
@@ -588,15 +591,49 @@ def _make_runner(scoring: bool):
             bins[i, :, :] = 0.0
             if count > 0:
                 if SCORING:
-                    simulate_batch(inp, count, seed, b, scal[i], bins[i])
+                    simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
                 else:
-                    simulate_batch_plain(inp, count, seed, b, scal[i], bins[i])
+                    simulate_batch_plain(inp, inp.source, count, seed, b, scal[i], bins[i])
 
     return run_batches
 
 
 run_batches_plain = _make_runner(False)
 run_batches = _make_runner(True)
+
+
+def _make_rows_runner():
+    """The parallel driver of many runs that differ only in their source row and seed (:func:`run_rows`).
+
+    Scoring flavour only (its callers, the BSSRDF rows, tally exits). Same cache-key rule as
+    :func:`_make_runner`: the closure holds only the stamp.
+    """
+    STAMP = _SOURCE_STAMP
+
+    @numba.njit(cache=True, parallel=True)
+    def run_rows(inp: KernelInputs, sources: np.ndarray, seeds: np.ndarray, job_row: np.ndarray,
+                 job_batch: np.ndarray, total_photons: int, batch_size: int, scal: np.ndarray,
+                 bins: np.ndarray) -> None:
+        """Run jobs ``i`` = batch ``job_batch[i]`` of run ``job_row[i]`` (source ``sources[row]``, seed
+        ``seeds[row]``, ``total_photons`` photons per run) in parallel, job ``i`` into row ``i`` of
+        ``scal`` / ``bins`` (zeroed first). Each job is exactly the batch that :func:`run_batches`
+        runs for that run alone: the same stream ``(seed, batch)`` and photons."""
+        if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
+            return
+        for i in numba.prange(job_row.shape[0]):
+            row = job_row[i]
+            b = job_batch[i]
+            start = b * batch_size
+            count = min(batch_size, total_photons - start)
+            scal[i, :] = 0.0
+            bins[i, :, :] = 0.0
+            if count > 0:
+                simulate_batch(inp, sources[row], count, seeds[row], b, scal[i], bins[i])
+
+    return run_rows
+
+
+run_rows = _make_rows_runner()
 
 
 def run_batches_for(inp: KernelInputs):
