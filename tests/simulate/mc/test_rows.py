@@ -96,3 +96,29 @@ def test_table_halves_equal_each_half_built_row_by_row():
     assert a.T.sum() > 0 and a.T.tobytes() != b.T.tobytes()
     one = W.yarn_table(fib, wl, photons_per_row=1500, seed=2, threads=1, cache=False, **kw)
     assert one.T.tobytes() == a.T.tobytes() and one.photons == a.photons
+
+
+def test_held_table_with_only_the_walks_phase_functions_is_bit_identical():
+    """A held-scattering table (the pile's) computes the Mie phase functions of its groups' middle
+    wavelengths only (:func:`simulate.woven.yarn._walk_optics`); every other wavelength's is never read:
+    the table equals the one built with all of them."""
+    from simulate.media.medium import MieMedium
+
+    medium = MieMedium(n_host=1.5, particle_n=2.0, particle_k=0.0, radius_um=0.2, volume_fraction=0.01,
+                       mu_a_host_per_um=0.002)
+    fib = F.Fiber(10.0, 1.5, medium, 0.3, 30.0)
+    wl = np.array([450.0, 470.0, 600.0, 620.0, 640.0])
+    kw = dict(w_t_nodes=(0.0, 0.5), n_v=1, n_mu=3, n_phi=4, photons_per_row=1000, seed=4, threads=2, cache=False,
+              held_log_mu_s=0.05)
+    walk = Y._walk_optics(fib, wl, 0.05)
+    full = spectral_optics(fib, wl)
+    refs = [int(g[len(g) // 2]) for g in Y.held_groups(full, 0.05)]
+    assert 1 < len(refs) < wl.size                     # some phase functions are left out
+    for i in range(wl.size):
+        same = np.array_equal(walk.phases[i].table, full.phases[i].table)
+        assert same == (i in refs)
+    assert np.array_equal(walk.mu_s, full.mu_s) and np.array_equal(walk.g, full.g)
+    a = W.yarn_table(fib, wl, optics=full, **kw)
+    b = W.yarn_table(fib, wl, **kw)
+    assert a.T.sum() > 0
+    assert a.T.tobytes() == b.T.tobytes() and a.u_T.tobytes() == b.u_T.tobytes()
