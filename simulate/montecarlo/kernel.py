@@ -222,7 +222,7 @@ def _source_stamp() -> int:
 _SOURCE_STAMP = _source_stamp()
 
 
-def _make_kernel(scoring: bool):
+def _make_kernel(scoring: bool, slab: bool = False):
     """Compile the kernel for one flavour: ``scoring`` False is the plain transport loop (totals
     and bookkeeping only), True adds the tallies, the vertex hook and spectral re-weighting.
 
@@ -232,6 +232,7 @@ def _make_kernel(scoring: bool):
     ``STAMP`` (:func:`_source_stamp`) keys the cache to the sources the kernel is built from.
     """
     SCORING = scoring
+    SLAB_ONLY = slab
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
@@ -258,6 +259,8 @@ def _make_kernel(scoring: bool):
         if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
             return
         geometry = inp.geometry
+        if SLAB_ONLY:  # a constant: the geometry switches of the loop fold away
+            geometry = SLAB
         geom = inp.geom
         medium = inp.medium
         table = inp.table
@@ -553,6 +556,7 @@ def _make_kernel(scoring: bool):
 
 
 simulate_batch_plain = _make_kernel(False)
+simulate_batch_slab = _make_kernel(False, slab=True)
 simulate_batch = _make_kernel(True)
 
 
@@ -593,7 +597,10 @@ def _make_runner(scoring: bool):
                 if SCORING:
                     simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
                 else:
-                    simulate_batch_plain(inp, inp.source, count, seed, b, scal[i], bins[i])
+                    if inp.geometry == SLAB:
+                        simulate_batch_slab(inp, inp.source, count, seed, b, scal[i], bins[i])
+                    else:
+                        simulate_batch_plain(inp, inp.source, count, seed, b, scal[i], bins[i])
 
     return run_batches
 
