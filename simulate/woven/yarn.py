@@ -218,7 +218,7 @@ def held_groups(optics: SpectralOptics, max_log_mu_s: float) -> list[np.ndarray]
 
 def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: float, ks: list[int], n_v: int,
              v_max_R: float, n_mu: int, n_phi: int, photons_per_row: int, seeds: list[int], threads: int | None,
-             optics: Any, held_log_mu_s: float = 0.0) -> list[dict[str, np.ndarray]]:
+             optics: Any, held_log_mu_s: float = 0.0) -> list[dict[str, Any]]:
     """The arrays of the tables of ``seeds`` (white Monte Carlo), as stored in the cache.
 
     Row ``k`` of node ``j`` of the table of seed ``s`` is the run of seed ``s + 104729 j + 7919 r``
