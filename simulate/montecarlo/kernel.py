@@ -47,6 +47,8 @@ number of threads. Geometry, phase function, tallies and estimators are run-time
 of one compiled signature, so a fresh clone compiles the kernel once; every later process loads
 it from numba's on-disk cache, whose keys hold only constants that are the same in every process
 (see :func:`_make_runner`; ``tests/simulate/mc/test_kernel_cache.py`` checks it).
+:func:`run_rows` runs the batches of MANY runs that differ only in their source row and seed in
+one ``prange`` (the BSSRDF rows: :mod:`.rows`), each batch exactly as :func:`run_batches` would.
 
 Estimator contract (:mod:`.tallies`): every history ends in one place, where its exit
 weights, its roulette balance and its scratch tally are flushed as per-photon sums and
@@ -228,7 +230,10 @@ def _make_kernel(scoring: bool, slab: bool = False):
 
     ``SCORING`` is a closure constant, so numba prunes the scoring code from the plain
     flavour: its mere presence (calls and array stores in the photon loop) costs the plain
-    slab case about 30 % of its speed. One source, two compiled flavours (both cached).
+    slab case about 30 % of its speed. One source, three compiled flavours (all cached): ``slab``
+    True makes the plain loop's geometry the constant ``SLAB`` (``SLAB_ONLY``): LLVM folds every
+    geometry switch and drops the dead ``x, y`` updates (3-5 % of the slab loop, bit-identical;
+    :func:`run_batches_plain` picks it for slab runs).
     ``STAMP`` (:func:`_source_stamp`) keys the cache to the sources the kernel is built from.
     """
     SCORING = scoring
