@@ -16,14 +16,34 @@ from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_grou
 from simulate.montecarlo import geometry as G
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.accuracy import BATCH, FIRST_ROUND, mean_and_error
-from simulate.montecarlo.transport import ParameterError, execute, make_control, make_inputs
+from simulate.montecarlo.rows import execute_rows
+from simulate.montecarlo.transport import ParameterError, make_control, make_inputs
 
-__all__ = ["lit_rows", "bssrdf_rows", "bssrdf_table", "bssrdf_route", "grid_cells", "bssrdf_for_beam"]
+__all__ = ["lit_rows", "bssrdf_rows", "row_sources", "rows_inputs", "bssrdf_table", "bssrdf_route", "grid_cells", "bssrdf_for_beam"]
 
 
 def lit_rows(dpsi: float) -> int:
     """Largest ``k`` with ``|k dpsi| < 90 deg + dpsi / 2``: the local azimuths whose cell is lit in part."""
     return int(math.floor((math.pi / 2 + dpsi / 2) / dpsi - 1e-12))
+
+
+def row_sources(w_t: float, ks, dpsi: float) -> np.ndarray:
+    """The CELL source rows of :func:`bssrdf_rows` for the local incidences ``(w_t, azimuth k dpsi)``.
+
+    A beam at a cell whose normal makes the angle ``k dpsi`` with ``w_perp`` has
+    ``w . n = rho cos(k dpsi)``, ``w . b = -rho sin(k dpsi)`` (``b = n x t`` at the top cell is +y).
+    """
+    rho = math.sqrt(max(1.0 - w_t * w_t, 0.0))
+    return np.array([[float(G.CELL), w_t, -rho * math.sin(k * dpsi), rho * math.cos(k * dpsi), dpsi / 2.0]
+                     for k in ks]).reshape(-1, 5)
+
+
+def rows_inputs(fiber, grid, medium, walk_phase, targets, control):
+    """The kernel inputs shared by every row of :func:`bssrdf_rows` (the source is per row)."""
+    n_psi, n_v, v_max, n_mu, n_phi = grid
+    params = np.array([float(n_psi), float(n_mu), float(n_phi), float(n_v), float(v_max)])
+    return make_inputs(G.CYLINDER, np.array([fiber.radius_um]), np.zeros(5), medium, walk_phase, control,
+                       T.CYLINDER_DIRECTIONS, params, T.V_NONE, None, targets)
 
 
 def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, photons, seed, threads, scalars=None):
@@ -32,32 +52,24 @@ def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, phot
     Returns ``T[len(ks), n_psi, n_v, n_mu, n_phi, n_spec]`` (mean exit weight per photon, launch
     weight ``max(w . n, 0)``) and its standard error. ``scalars`` (a list, optional) receives each
     row's scalar tally sums (the fit's re-weighting bound reads the scatterings from them).
+    Row ``r`` is the run of seed ``seed + 7919 r``; all rows run in ONE parallel kernel call
+    (:func:`simulate.montecarlo.rows.execute_rows`: bit-identical to one call per row).
     """
     n_psi, n_v, v_max, n_mu, n_phi = grid
-    params = np.array([float(n_psi), float(n_mu), float(n_phi), float(n_v), float(v_max)])
     dpsi = 2.0 * math.pi / n_psi
-    rho = math.sqrt(max(1.0 - w_t * w_t, 0.0))
     n_spec = targets.mu_a.size
+    inp = rows_inputs(fiber, grid, medium, walk_phase, targets, control)
+    seeds = np.array([seed + 7919 * r for r in range(len(ks))], dtype=np.int64)
+    s, b, seconds = execute_rows(inp, row_sources(w_t, ks, dpsi), seeds, photons, threads, BATCH)
     out = np.zeros((len(ks), n_psi, n_v, n_mu, n_phi, n_spec))
     err = np.zeros_like(out)
-    total = 0
-    seconds = 0.0
-    for r, k in enumerate(ks):
-        # local incidence of the beam at a cell whose normal makes the angle k dpsi with w_perp:
-        # w . n = rho cos(k dpsi), w . b = -rho sin(k dpsi)  (b = n x t at the top cell is +y)
-        a = k * dpsi
-        src = np.array([float(G.CELL), w_t, -rho * math.sin(a), rho * math.cos(a), dpsi / 2.0])
-        inp = make_inputs(G.CYLINDER, np.array([fiber.radius_um]), src, medium, walk_phase, control,
-                          T.CYLINDER_DIRECTIONS, params, T.V_NONE, None, targets)
-        s, b, sec = execute(inp, photons, seed + 7919 * r, threads, BATCH)
+    for r in range(len(ks)):
         if scalars is not None:
-            scalars.append(s)
-        mean, u = mean_and_error(b, photons)
+            scalars.append(s[r])
+        mean, u = mean_and_error(b[r], photons)
         out[r] = mean.reshape(n_psi, n_v, n_mu, n_phi, n_spec)
         err[r] = u.reshape(n_psi, n_v, n_mu, n_phi, n_spec)
-        total += photons
-        seconds += sec
-    return out, err, total, seconds
+    return out, err, photons * len(ks), seconds
 
 
 def bssrdf_table(

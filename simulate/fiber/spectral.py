@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from simulate.fiber.model import Fiber
+from simulate.media.medium import MieMedium
 from simulate.montecarlo import kernel as K
 from simulate.montecarlo.scatter import PhaseArrays, phase_arrays
 from simulate.montecarlo.transport import SpectralTargets
@@ -42,12 +43,23 @@ class SpectralOptics:
 
 
 
-def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray) -> SpectralOptics:
-    """The medium's optical properties at each wavelength."""
+def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = None) -> SpectralOptics:
+    """The medium's optical properties at each wavelength.
+
+    ``phase_at`` (indices into ``wavelengths_nm``, optional): only these wavelengths get their own
+    phase table (Mie: the expensive part); the others get the Henyey-Greenstein table of their ``g``
+    (``optical_properties(..., with_phase=False)``), for callers that walk and score with the phase
+    functions of a few wavelengths only (the held-scattering tables of :mod:`simulate.woven.yarn`).
+    ``mu_s``, ``mu_a`` and ``g`` are the same either way. ``None``: every wavelength's own table.
+    """
     mu_s, mu_a, g, phases = [], [], [], []
     cache: dict[Any, PhaseArrays] = {}
-    for wl in wavelengths_nm:
-        op = fiber.medium.optical_properties(float(wl))
+    wanted = None if phase_at is None else {int(i) for i in phase_at}
+    for i, wl in enumerate(wavelengths_nm):
+        if wanted is not None and i not in wanted and isinstance(fiber.medium, MieMedium):
+            op = fiber.medium.optical_properties(float(wl), with_phase=False)
+        else:       # an HG medium has one table for all
+            op = fiber.medium.optical_properties(float(wl))
         mu_s.append(op.mu_s)
         mu_a.append(op.mu_a)
         g.append(op.g)

@@ -14,7 +14,6 @@ bit-identical to the miss that stored it; :func:`table_halves` builds the medium
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -24,10 +23,12 @@ from typing import Any, Callable
 import numpy as np
 
 from simulate.fiber import tablecache
-from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
+from simulate.fiber.bssrdf import lit_rows, row_sources, rows_inputs
 from simulate.fiber.model import as_wavelengths
 from simulate.fiber.spectral import GROUP_G, SpectralOptics, group_walk, spectral_optics, wavelength_groups
+from simulate.montecarlo.accuracy import BATCH, mean_and_error
 from simulate.montecarlo.kernel import M_MU_S
+from simulate.montecarlo.rows import execute_rows
 from simulate.montecarlo.transport import SpectralTargets, make_control
 from simulate.optics.fresnel import reflectance_from_cos
 
@@ -37,7 +38,8 @@ __all__ = ["TABLE_MODULES", "YarnTable", "yarn_table", "table_halves", "table_ke
 TABLE_MODULES = (
     "simulate.montecarlo.kernel", "simulate.montecarlo.tallies", "simulate.montecarlo.geometry",
     "simulate.montecarlo.scatter", "simulate.montecarlo.rng", "simulate.montecarlo.vecmath",
-    "simulate.montecarlo.transport", "simulate.montecarlo.accuracy", "simulate.fiber.bssrdf",
+    "simulate.montecarlo.transport", "simulate.montecarlo.accuracy", "simulate.montecarlo.rows",
+    "simulate.fiber.bssrdf",
     "simulate.fiber.spectral", "simulate.fiber.model", "simulate.media.medium", "simulate.optics.mie",
     "simulate.optics.phase", "simulate.optics.fresnel", "simulate.woven.yarn",
 )
@@ -126,31 +128,9 @@ def yarn_table(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 
     cylinder (hundreds of events per path: the yarn's pile, :mod:`simulate.woven.pile`) has heavy
     tails -- re-weighted, the pile's table noise reached 9 % of the peak at 23 000 photons per row.
     """
-    wl = as_wavelengths(wavelengths_nm)
-    nodes, n_psi, dpsi, ks = _grid(fiber, w_t_nodes)
-    kw = dict(w_t_nodes=nodes, n_v=n_v, v_max_R=v_max_R, n_mu=n_mu, n_phi=n_phi, photons_per_row=photons_per_row,
-              seed=seed, held_log_mu_s=held_log_mu_s)
-    use = cache and tablecache.enabled()
-    started = time.perf_counter()
-    arrays: dict[str, np.ndarray] | None = None
-    key = ""
-    if use:
-        try:
-            key = table_key(fiber, wl, **kw)  # type: ignore[arg-type]
-        except TypeError as exc:  # a medium without a canonical form: no key, no cache
-            use = False
-            log.warning("yarn table: not cached (%s)", exc)
-        else:
-            arrays = tablecache.load(key)
-    if arrays is not None:
-        return _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl,
-                            time.perf_counter() - started, "hit")
-    arrays = _compute(fiber, wl, nodes, n_psi, dpsi, ks, n_v, v_max_R, n_mu, n_phi, photons_per_row, seed, threads,
-                      optics, held_log_mu_s)
-    if use:
-        tablecache.store(key, arrays)
-    return _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl, float(arrays["seconds"]),
-                        "miss" if use else "off")
+    return _tables(fiber, wavelengths_nm, [seed], threads, optics, cache, w_t_nodes=w_t_nodes, n_v=n_v,
+                   v_max_R=v_max_R, n_mu=n_mu, n_phi=n_phi, photons_per_row=photons_per_row,
+                   held_log_mu_s=held_log_mu_s)[0]
 
 
 def table_halves(fiber: Any, wavelengths_nm: Any, photons_per_row: int, seed: int, threads: int | None = None,
@@ -158,15 +138,61 @@ def table_halves(fiber: Any, wavelengths_nm: Any, photons_per_row: int, seed: in
     """The two independent halves of :func:`simulate.woven.fabric_beta` (seeds ``seed``, ``seed + HALF_SEED_STEP``).
 
     The medium's optics (Mie phase functions) are computed at most once, and only if a half is
-    not in the cache.
+    not in the cache. The halves that miss are walked together (one kernel call per wavelength
+    group for all their rows: :func:`_compute`), each bit-identical to its own :func:`yarn_table`.
     """
+    a, b = _tables(fiber, wavelengths_nm, [seed, seed + HALF_SEED_STEP], threads, None, cache,
+                   photons_per_row=photons_per_row, **grid)
+    return a, b
+
+
+def _tables(fiber: Any, wavelengths_nm: Any, seeds: list[int], threads: int | None, optics: Any, cache: bool,
+            *, w_t_nodes: Any = (0.0, 0.25, 0.5, 0.75, 0.95), n_v: int = 3, v_max_R: float = 2.0, n_mu: int = 5,
+            n_phi: int = 10, photons_per_row: int = 20_000, held_log_mu_s: float = 0.0) -> list[YarnTable]:
+    """:func:`yarn_table` for each of ``seeds``: the cached ones loaded, the others computed together."""
     wl = as_wavelengths(wavelengths_nm)
-    lazy = functools.cache(lambda: spectral_optics(fiber, wl))
-    out = []
-    for s in (seed, seed + HALF_SEED_STEP):
-        out.append(yarn_table(fiber, wl, photons_per_row=photons_per_row, seed=s, threads=threads,
-                              optics=lazy, cache=cache, **grid))
-    return out[0], out[1]
+    nodes, n_psi, dpsi, ks = _grid(fiber, w_t_nodes)
+    use = cache and tablecache.enabled()
+    keys: list[str] = [""] * len(seeds)
+    found: list[Any] = [None] * len(seeds)
+    for i, seed in enumerate(seeds):
+        started = time.perf_counter()
+        if not use:
+            continue
+        try:
+            keys[i] = table_key(fiber, wl, w_t_nodes=nodes, n_v=n_v, v_max_R=v_max_R, n_mu=n_mu, n_phi=n_phi,
+                                photons_per_row=photons_per_row, seed=seed, held_log_mu_s=held_log_mu_s)
+        except TypeError as exc:  # a medium without a canonical form: no key, no cache
+            use = False
+            log.warning("yarn table: not cached (%s)", exc)
+            continue
+        arrays = tablecache.load(keys[i])
+        if arrays is not None:
+            found[i] = _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl,
+                                    time.perf_counter() - started, "hit")
+    missing = [i for i in range(len(seeds)) if found[i] is None]
+    if missing:
+        if optics is None:
+            optics = _walk_optics(fiber, wl, held_log_mu_s)
+        computed = _compute(fiber, wl, nodes, n_psi, dpsi, ks, n_v, v_max_R, n_mu, n_phi, photons_per_row,
+                            [seeds[i] for i in missing], threads, optics, held_log_mu_s)
+        for i, arrays in zip(missing, computed):
+            if use:
+                tablecache.store(keys[i], arrays)
+            found[i] = _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl,
+                                    float(arrays["seconds"]), "miss" if use else "off")
+    return found
+
+
+def _walk_optics(fiber: Any, wl: np.ndarray, held_log_mu_s: float) -> SpectralOptics:
+    """The optics a table walks with: every phase function, or for a held-scattering table only those of
+    the groups' middle wavelengths (the walks'; the others are never read: red cotton's pile, 7 of 33
+    Mie phase functions, 1.8 s less). The groups depend on ``mu_s`` and ``g`` only."""
+    if held_log_mu_s <= 0.0:
+        return spectral_optics(fiber, wl)
+    coefficients = spectral_optics(fiber, wl, phase_at=())
+    refs = [int(g[len(g) // 2]) for g in held_groups(coefficients, held_log_mu_s)]
+    return spectral_optics(fiber, wl, phase_at=refs)
 
 
 def held_groups(optics: SpectralOptics, max_log_mu_s: float) -> list[np.ndarray]:
@@ -191,32 +217,49 @@ def held_groups(optics: SpectralOptics, max_log_mu_s: float) -> list[np.ndarray]
 
 
 def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: float, ks: list[int], n_v: int,
-             v_max_R: float, n_mu: int, n_phi: int, photons_per_row: int, seed: int, threads: int | None,
-             optics: Any, held_log_mu_s: float = 0.0) -> dict[str, np.ndarray]:
-    """The table's arrays (white Monte Carlo), as stored in the cache."""
-    if optics is None:
-        optics = spectral_optics(fiber, wl)
-    elif not isinstance(optics, SpectralOptics):
+             v_max_R: float, n_mu: int, n_phi: int, photons_per_row: int, seeds: list[int], threads: int | None,
+             optics: Any, held_log_mu_s: float = 0.0) -> list[dict[str, Any]]:
+    """The arrays of the tables of ``seeds`` (white Monte Carlo), as stored in the cache.
+
+    Row ``k`` of node ``j`` of the table of seed ``s`` is the run of seed ``s + 104729 j + 7919 r``
+    (``r`` its index in ``ks``), as :func:`simulate.fiber.bssrdf.bssrdf_rows` of node ``j`` would
+    run it; all rows of all nodes and tables of one wavelength group go to ONE parallel kernel call
+    (:func:`simulate.montecarlo.rows.execute_rows`): the sums are bit-identical to one call per
+    row, without the idle thread of a one-batch call (issue 21: 700 calls for red cotton's two
+    pile-table halves, one or two batches each).
+    """
+    if not isinstance(optics, SpectralOptics):
         optics = optics()
     v_max = v_max_R * fiber.radius_um
+    grid = (n_psi, n_v, v_max, n_mu, n_phi)
     control = make_control()
     n_cells = n_psi * n_v * n_mu * n_phi
-    T = np.zeros((nodes.size, len(ks), n_cells, wl.size))
-    u_T = np.zeros_like(T)
-    photons = 0
+    n_k = len(ks)
+    sources = np.concatenate([row_sources(float(w_t), ks, dpsi) for w_t in nodes] * len(seeds))
+    run_seeds = np.array([s + 104729 * j + 7919 * r for s in seeds for j in range(nodes.size) for r in range(n_k)],
+                         dtype=np.int64)
+    groups = wavelength_groups(optics) if held_log_mu_s <= 0.0 else held_groups(optics, held_log_mu_s)
+    means: list[np.ndarray] = []
+    errors: list[np.ndarray] = []
     seconds = 0.0
-    for j, w_t in enumerate(nodes):
-        for group in (wavelength_groups(optics) if held_log_mu_s <= 0.0 else held_groups(optics, held_log_mu_s)):
-            medium, walk_phase, targets = group_walk(fiber, optics, group, white=True)
-            if held_log_mu_s > 0.0:      # the walk's scattering for every wavelength, each its own absorption
-                targets = SpectralTargets(mu_a=targets.mu_a, mu_s=np.full(group.size, float(medium[M_MU_S])),
-                                          phases=[walk_phase] * group.size, same_phase=np.ones(group.size, bool))
-            t, u, p, s = bssrdf_rows(fiber, float(w_t), ks, (n_psi, n_v, v_max, n_mu, n_phi), medium,
-                                        walk_phase, targets, control, photons_per_row, seed + 104729 * j, threads)
-            T[j][..., group] = t.reshape(len(ks), n_cells, group.size)
-            u_T[j][..., group] = u.reshape(len(ks), n_cells, group.size)
-            photons += p
-            seconds += s
+    for group in groups:
+        medium, walk_phase, targets = group_walk(fiber, optics, group, white=True)
+        if held_log_mu_s > 0.0:      # the walk's scattering for every wavelength, each its own absorption
+            targets = SpectralTargets(mu_a=targets.mu_a, mu_s=np.full(group.size, float(medium[M_MU_S])),
+                                      phases=[walk_phase] * group.size, same_phase=np.ones(group.size, bool))
+        inp = rows_inputs(fiber, grid, medium, walk_phase, targets, control)
+        _, bins, sec = execute_rows(inp, sources, run_seeds, photons_per_row, threads, BATCH)
+        mean, u = mean_and_error(bins.reshape(-1, 2), photons_per_row)
+        shape = (len(seeds), nodes.size, n_k, n_cells, group.size)
+        means.append(mean.reshape(shape))
+        errors.append(u.reshape(shape))
+        seconds += sec
+    # the groups are consecutive runs of wavelengths: one pass that writes the tables (not one strided pass each)
+    assert np.array_equal(np.concatenate(groups), np.arange(wl.size))
+    T = np.concatenate(means, axis=-1)
+    u_T = np.concatenate(errors, axis=-1)
+    del means, errors
+    photons = photons_per_row * nodes.size * n_k * len(groups)
     # mean launch weight max(w . n, 0) over a cell at azimuth k dpsi: rho <cos(a + x)>_x
     x = np.linspace(-dpsi / 2, dpsi / 2, 4001)
     rho = np.sqrt(1.0 - nodes ** 2)
@@ -225,8 +268,9 @@ def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: fl
     # the mean smooth-interface transmission of light entering the row's cell (weighted by w . n)
     transmitted = np.trapezoid(cos * (1.0 - reflectance_from_cos(cos, 1.0, fiber.n_host)), x, axis=2) / dpsi
     tau = np.where(c_bar > 0, transmitted / np.where(c_bar > 0, c_bar, 1.0), 1.0)
-    return {"T": T, "u_T": u_T, "c_bar": c_bar, "tau": tau, "w_t_nodes": nodes, "photons": np.int64(photons),
-            "seconds": np.float64(seconds)}
+    # the seconds of the joint calls, shared equally by the tables
+    return [{"T": T[i], "u_T": u_T[i], "c_bar": c_bar, "tau": tau, "w_t_nodes": nodes, "photons": np.int64(photons),
+             "seconds": np.float64(seconds / len(seeds))} for i in range(len(seeds))]
 
 
 def _from_arrays(a: dict[str, np.ndarray], dpsi: float, n_psi: int, n_v: int, n_mu: int, n_phi: int, v_max_R: float,

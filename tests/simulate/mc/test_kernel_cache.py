@@ -22,7 +22,8 @@ import pytest
 PROBE = Path(__file__).with_name("cache_probe.py")
 REPO = Path(__file__).resolve().parents[3]
 #: the kernel variants the routes run (drivers: loading one loads the batch kernel inside it)
-KERNELS = ("simulate.montecarlo.kernel.run_batches", "simulate.montecarlo.kernel.run_batches_plain")
+KERNELS = ("simulate.montecarlo.kernel.run_batches", "simulate.montecarlo.kernel.run_batches_plain",
+           "simulate.montecarlo.kernel.run_rows")
 
 
 def _probe(cache: Path) -> dict[str, dict[str, int]]:

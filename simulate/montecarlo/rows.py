@@ -1,0 +1,92 @@
+"""Many runs in one parallel kernel call: runs that differ only in their source row and seed.
+
+The BSSRDF tables (:func:`simulate.fiber.bssrdf.bssrdf_rows`, the woven fabric's yarn and pile
+tables :mod:`simulate.woven.yarn`) are made of many short runs -- one per lit row, per axial
+node, per table half -- of a few thousand photons each, i.e. one or two batches of
+:data:`simulate.montecarlo.accuracy.BATCH`. Run one at a time (:func:`.transport.execute`), each
+kernel call had fewer batches than threads: on 2 cores one thread idled in most of them, and every
+call paid its thread start and barrier (issue 21: red cotton's cold woven Monte Carlo made 700
+such calls). :func:`execute_rows` hands all batches of all runs to ONE ``prange``
+(:func:`.kernel.run_rows`, dynamic scheduling, one batch per chunk) and reduces each run's
+batches in batch order, exactly as :func:`.transport.execute` does for that run alone: every
+run's sums are bit-identical to its own call (``tests/simulate/mc/test_rows.py``).
+
+Rounds: like :func:`.transport.execute`, the jobs are cut into compiled rounds of about
+:data:`.transport.ROUND_SECONDS` (Ctrl-C latency) and of at most ``_ROUND_ELEMENTS`` buffer
+elements; how they are cut does not change any sum.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+
+from simulate.montecarlo import kernel as K
+from simulate.montecarlo import tallies as T
+from simulate.montecarlo.transport import ROUND_SECONDS, ParameterError
+
+__all__ = ["execute_rows"]
+
+_ROUND_ELEMENTS = 1 << 22  # cap on per-round bin buffer elements (32 MB), as transport.execute
+
+
+def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, photons: int, threads: int | None,
+                 batch_size: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Run ``photons`` photons for each source row ``sources[r]`` (``float64[R, 5]``) with seed ``seeds[r]``.
+
+    Returns ``scal[R, N_SCALARS]``, ``bins[R, n_bins, 2]`` -- run ``r``'s sums, bit-identical to
+    ``transport.execute(inp with source sources[r], photons, seeds[r], threads, batch_size)`` -- and
+    the seconds of the whole call. ``inp.source`` is not read. Scoring runs only (a tally or a
+    vertex estimator: the plain flavour has no rows driver).
+    """
+    sources = np.ascontiguousarray(sources, dtype=np.float64).reshape(-1, 5)
+    seeds = np.ascontiguousarray(seeds, dtype=np.int64).reshape(-1)
+    if sources.shape[0] != seeds.shape[0]:
+        raise ValueError("execute_rows: one seed per source row")
+    if inp.tally_mode == T.NONE and inp.vertex_mode == T.V_NONE:
+        raise ValueError("execute_rows: runs with a tally or a vertex estimator only")
+    n_rows = sources.shape[0]
+    n_spec = inp.spec_mu.shape[0]
+    n_vertex = inp.outputs.shape[0] if inp.vertex_mode != T.V_NONE else 0
+    n_bins = max((inp.n_exit_bins + n_vertex) * n_spec, 1)
+    n_batches = -(-photons // batch_size)
+    # jobs in (row, batch) order: a run's batches are consecutive, reduced in batch order below
+    job_row = np.repeat(np.arange(n_rows, dtype=np.int64), n_batches)
+    job_batch = np.tile(np.arange(n_batches, dtype=np.int64), n_rows)
+    n_jobs = job_row.size
+    per_job = n_bins * 2 + T.N_SCALARS
+    round_size = int(min(256, max(8, _ROUND_ELEMENTS // per_job)))
+    scal_buf = np.zeros((min(round_size, n_jobs), T.N_SCALARS))
+    bins_buf = np.zeros((min(round_size, n_jobs), n_bins, 2))
+    scal = np.zeros((n_rows, T.N_SCALARS))
+    bins = np.zeros((n_rows, n_bins, 2))
+    previous = numba.get_num_threads()
+    if threads is not None:
+        limit = numba.config.NUMBA_NUM_THREADS
+        if isinstance(threads, bool) or int(threads) != threads or not 1 <= int(threads) <= limit:
+            raise ParameterError(f"threads must be an integer in [1, {limit}] (this machine), got {threads!r}")
+        numba.set_num_threads(int(threads))
+    previous_chunk = numba.set_parallel_chunksize(1)
+    try:
+        t0 = time.perf_counter()
+        threads_now = numba.get_num_threads()
+        first, count = 0, min(round_size, max(2, threads_now))
+        while first < n_jobs:
+            count = min(count, n_jobs - first)
+            t_round = time.perf_counter()
+            K.run_rows(inp, sources, seeds, job_row[first:first + count], job_batch[first:first + count], photons,
+                       batch_size, scal_buf, bins_buf)
+            for i in range(count):  # per run, batch order: the sums of transport.execute
+                r = job_row[first + i]
+                scal[r] += scal_buf[i]
+                bins[r] += bins_buf[i]
+            first += count
+            dt = max(time.perf_counter() - t_round, 1e-6)
+            count = int(min(round_size, max(threads_now, count * ROUND_SECONDS / dt)))
+        seconds = time.perf_counter() - t0
+    finally:
+        numba.set_parallel_chunksize(previous_chunk)
+        numba.set_num_threads(previous)
+    return scal, bins, seconds
