@@ -10,10 +10,10 @@ DEMO_REL_ERR ?= 0.03
 # mock goniophotometer; the plan with the red-cotton plan's geometry that names the felt.
 DEMO_SAMPLE ?= fixtures/real/acrylic_felt_green_rgb.bsdf
 DEMO_PLAN ?= green-felt
-# The config the fits start from. Red cotton until a felt preset ships; then this one line becomes
-# DEMO_START ?= green-felt (simulate/configs/green-felt.toml). DEMO_DYE: the dye replaced by 8
+# The config the fits start from: the green-felt preset (simulate/configs/green-felt.toml: the felt
+# structure, RMS slope and scatterers fitted to this felt once). DEMO_DYE: the dye replaced by 8
 # knots started from the measured colour (any start config turns green; empty keeps the start's dye).
-DEMO_START ?= red-cotton
+DEMO_START ?= green-felt
 DEMO_DYE ?= --dye knots
 DEMO_FREE ?= dye,rms_slope
 # Evaluation budget of each fit (one walk each, then about 0.1 s per evaluation).

@@ -1,16 +1,18 @@
-"""Why the felt Monte Carlo is darker than the felt summation for an absorbing fiber (issue 19, docs/physics.md 6).
+"""The felt Monte Carlo against the felt summation, absorbing and not (issue 19, docs/physics.md 6).
 
-``python -m studies.bench_woven_felt [--mu-a 0.01,0.0068,0.005,0] [--packing 0.9069] [--target 0.015]``
-prints, for the felt of :mod:`simulate.woven.felt` (HG fiber: R 10 um, n 1.5, mu_s 0.8 /um, g 0.5,
-RMS slope 0.35; ``[structure] kind = "nonwoven"`` with that packing fraction):
+``python -m studies.bench_woven_felt [--mu-a 0.01,0.0068,0.005,0] [--packing 0.9069] [--layers 0]
+[--seed 0] [--target 0.015]`` prints, for the felt of :mod:`simulate.woven.felt` (HG fiber: R 10 um,
+n 1.5, mu_s 0.8 /um, g 0.5, RMS slope 0.35; ``[structure] kind = "nonwoven"`` with that packing
+fraction and layers; the felt and its rays from ``--seed``):
 
-1. its interpenetration: the fibers' summed volume fraction in the slab, the fraction of the slab
-   covered by at least one fiber if the centres were a Poisson process (``1 - exp(-f)``), the mean
-   number of fibers covering a covered point (their ratio), and -- counted on the mesh -- the
-   fraction of the fibers' surface that lies inside another fiber (where the tracer's
-   interpenetration rule starts a new walk of that fiber's full volume);
+1. the felt: its fibers, thickness, bulk volume fraction, and -- counted on the mesh -- the fraction
+   of the fibers' surface that lies inside another fiber (where the tracer's interpenetration rule
+   would start a new walk of that fiber's full volume: 0.48 before the fibers were deposited without
+   overlaps, 0 now);
 2. per absorption ``mu_a``: the felt Monte Carlo and the structured summation at incidence 0 /
-   observation 10 deg, and their ratio.
+   observation 10 deg, and their ratio with its standard error. ``--packing 0.11 --layers 29``
+   compares them at the deposited felt's own volume fraction with the fiber amount of 10 touching
+   layers.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
     """The fraction of the fibers' surface (in the cell) that lies inside another fiber image
     (``m`` a :class:`simulate.woven.felt.FeltMesh`; random points on random fiber images)."""
     ring = (int(m.n_s[0]) + 1) * (int(m.sides) + 1)
-    cent = np.array([m.vertices[b:b + ring].mean(axis=0) for b in m.vertex_base])
+    cent = np.array([m.vertices[b:b + ring].reshape(int(m.n_s[0]) + 1, int(m.sides) + 1, 3)[:, :-1].mean(axis=(0, 1)) for b in m.vertex_base])
     tan = m.tangents[m.vertex_base]
     ell = float(m.info["fiber_length_um"])
     rng = np.random.default_rng(seed)
@@ -63,22 +65,23 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--mu-a", default="0.01,0.0068,0.005,0")
     ap.add_argument("--packing", type=float, default=ST.CLOSE_PACKING)
+    ap.add_argument("--layers", type=int, default=0, help="[structure] layers (0: the felt's default, 10)")
     ap.add_argument("--target", type=float, default=0.015)
+    ap.add_argument("--seed", type=int, default=0, help="the felt's and the Monte Carlo's seed")
     a = ap.parse_args(argv)
-    spec = ST.StructureSpec(kind="nonwoven", packing_fraction=a.packing)
-    mesh = felt_mesh(spec, R_UM, seed=0)
-    f = float(mesh.info["volume_fraction"])
-    cover = 1.0 - math.exp(-f)
-    print(f"felt, packing {a.packing:.4f}: {mesh.info['fibers']} fibers, summed volume fraction {f:.3f}, "
-          f"Poisson covered {cover:.3f}, multiplicity {f / cover:.2f}; fiber surface inside another fiber "
-          f"{buried_fraction(mesh):.3f}")
+    spec = ST.StructureSpec(kind="nonwoven", packing_fraction=a.packing, layers=a.layers)
+    mesh = felt_mesh(spec, R_UM, seed=a.seed)
+    print(f"felt, packing {a.packing:.4f}, seed {a.seed}: {mesh.info['fibers']} fibers, {mesh.info['thickness_um']:.0f} um "
+          f"thick, bulk volume fraction {mesh.info['volume_fraction']:.3f}; fiber surface inside another fiber "
+          f"{buried_fraction(mesh):.4f}", flush=True)
     w_i, w_o = fab.directions_deg([0.0], [0.0]), fab.directions_deg([10.0], [180.0])
     for mu_a in (float(x) for x in a.mu_a.split(",")):
         fib = F.Fiber(R_UM, 1.5, HGMedium(mu_s=0.8, mu_a=mu_a, g=0.5), 0.35, 10.0)
         bs, us, _ = ST.structured_beta(spec, fib, None, w_i, w_o, [550.0], target_rel_err=0.02, seed=1, threads=1)
-        b, u, _ = W.fabric_beta(mesh, fib, w_i, w_o, np.array([550.0]), target_rel_err=a.target, seed=0, threads=1)
+        b, u, _ = W.fabric_beta(mesh, fib, w_i, w_o, np.array([550.0]), target_rel_err=a.target, seed=a.seed, threads=1)
         print(f"mu_a {mu_a:<7g} felt MC {b[0, 0]:.4f} +- {u[0, 0]:.4f}   summation {bs[0, 0]:.4f} +- {us[0, 0]:.4f}"
-              f"   ratio {b[0, 0] / bs[0, 0]:.3f}")
+              f"   ratio {b[0, 0] / bs[0, 0]:.3f} +- {b[0, 0] / bs[0, 0] * math.hypot(u[0, 0] / b[0, 0], us[0, 0] / bs[0, 0]):.3f}",
+              flush=True)
 
 
 if __name__ == "__main__":

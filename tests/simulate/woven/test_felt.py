@@ -35,7 +35,23 @@ def test_the_felts_fibers_follow_the_structures_distribution():
     # the fibers' projected area is the summation's layers of fibers at the packing's spacing
     n, R, ell = m.info["fibers"], 10.0, m.info["fiber_length_um"]
     assert n * 2 * R * ell * 0.8 < 6 * m.Lx * m.Ly / spec.spacing_ratio < n * 2 * R * ell * 1.05
-    assert m.info["layers"] == 6 and m.info["slab_um"] == 120.0
+    assert m.info["layers"] == 6
+
+
+def test_the_felts_fibers_do_not_interpenetrate(monkeypatch):
+    """Random points on the fibers' surfaces lie inside no other fiber (an independent check:
+    point-in-cylinder, not the placement's segment distance); with the contact rule switched off
+    (every fiber dropped to the floor) the same check finds them buried, so it can fail."""
+    from simulate.woven import felt
+    from studies.bench_woven_felt import buried_fraction
+
+    spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=20.0, layers=4)
+    m = felt_mesh(spec, 10.0, seed=5)
+    assert buried_fraction(m) == 0.0
+    # the straight fibers' lowest-gap deposition reaches a bulk volume fraction of ~0.11 (spread 20)
+    assert 0.06 < m.info["volume_fraction"] < 0.2 and m.info["thickness_um"] > 4 * 20.0
+    monkeypatch.setattr(felt, "CONTACT", -1.0)
+    assert buried_fraction(felt_mesh(spec, 10.0, seed=5)) > 0.05
 
 
 def test_the_felt_is_reproducible_at_a_fixed_seed():
@@ -50,20 +66,29 @@ def test_the_felt_is_reproducible_at_a_fixed_seed():
 
 
 @pytest.mark.slow
-def test_felt_mc_agrees_with_the_structured_summation_at_near_normal_geometry():
-    """A non-absorbing fiber (the layer's multiple scattering, not its absorption, is what the two
-    models must share): at incidence 0 / observation 10 deg the felt traced as random fibers and
-    the summation over the felt's facets with the interior closure agree to within 4 % (measured:
-    -1.5 % and -2.0 % for two felts; the summation's 6.3 closure and the random layer differ in
-    how deep light goes, which absorbing fibers show more: docs/physics.md 6)."""
-    fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.0, g=0.5), 0.35, 10.0)
-    spec = ST.StructureSpec(kind="nonwoven")
+def test_felt_mc_walks_absorbing_fibers_as_the_summation_does():
+    """The felt of non-interpenetrating fibers against the structured summation at its own volume
+    fraction (packing 0.11, 29 layers: the fiber amount of 10 touching layers), incidence 0 /
+    observation 10 deg, a non-absorbing and an absorbing HG fiber (mu_a 0.01 /um). Each ratio MC /
+    summation is within [0.90, 1.02] (measured 0.939 +- 0.010 and 0.937 +- 0.016: the random layer
+    and the summation's layers differ by a few % in how deep light goes), and -- what the
+    interpenetrating felt failed (0.992 vs 0.848, docs/physics.md 6) -- absorption changes the two
+    alike: the ratios agree within 3 combined standard errors."""
+    spec = ST.StructureSpec(kind="nonwoven", packing_fraction=0.11, layers=29)
+    mesh = felt_mesh(spec, 10.0, seed=0)
+    assert abs(mesh.info["volume_fraction"] - 0.11) < 0.03
     w_i, w_o = fab.directions_deg([0.0], [0.0]), fab.directions_deg([10.0], [180.0])
-    bs, us, _ = ST.structured_beta(spec, fib, None, w_i, w_o, [550.0], target_rel_err=0.02, seed=1, threads=1)
-    b, u, info = W.fabric_beta(felt_mesh(spec, 10.0, seed=0), fib, w_i, w_o, [550.0], target_rel_err=0.015, seed=0,
-                               threads=1)
-    assert info["incidences"][0]["lost_rays"] == 0
-    assert abs(b[0, 0] / bs[0, 0] - 1.0) < 0.04 + 3 * math.hypot(u[0, 0], us[0, 0]) / bs[0, 0], (b, bs, u, us)
+    ratio, u_ratio = [], []
+    for mu_a in (0.0, 0.01):
+        fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=mu_a, g=0.5), 0.35, 10.0)
+        bs, us, _ = ST.structured_beta(spec, fib, None, w_i, w_o, [550.0], target_rel_err=0.02, seed=1, threads=1)
+        b, u, info = W.fabric_beta(mesh, fib, w_i, w_o, [550.0], target_rel_err=0.015, seed=0, threads=1)
+        assert info["incidences"][0]["lost_rays"] == 0
+        r = b[0, 0] / bs[0, 0]
+        ratio.append(r)
+        u_ratio.append(r * math.hypot(u[0, 0] / b[0, 0], us[0, 0] / bs[0, 0]))
+        assert 0.90 - 3 * u_ratio[-1] < r < 1.02 + 3 * u_ratio[-1], (mu_a, b, bs, u, us)
+    assert abs(ratio[1] - ratio[0]) < 3 * math.hypot(*u_ratio), (ratio, u_ratio)
 
 
 FELT = """
