@@ -477,7 +477,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations",
                    help="objective evaluations of the search in all: steps and Jacobian columns of every start "
                         "(default 400; the uncertainty propagation afterwards is counted apart); with --method mc: "
-                        "Monte Carlo runs, the start's included (default 4, at least 2)")
+                        "Monte Carlo runs, the start's included (default 5, at least 2)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",

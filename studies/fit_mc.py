@@ -28,9 +28,14 @@ the **fine model** is the Monte Carlo at fixed seeds. Iterate ``k = 0, 1, ...``:
 3. fit ``s_k`` to the measurement with the summation fit itself (:func:`studies.fit.run_fit`: the
    same objective ``NRMSE^2 + w_c (dh^2 + ds^2)``, trust-region search from ``x_k``, its walk
    re-used: no photon walked after the first iteration) -> ``x_{k+1}`` with uncertainties;
-4. stop when the Monte Carlo objective at ``x_{k+1}`` is not below the one at ``x_k``, or when every
-   parameter step ``|x_{k+1} - x_k|`` is within its standard uncertainty (the Monte Carlo cannot
-   tell the two points apart), or when the budget of Monte Carlo runs is spent.
+4. run the Monte Carlo at ``x_{k+1}``. It is accepted when its Monte Carlo objective is below the best
+   run's; the fit has converged when every parameter step ``|x_{k+1} - x_k|`` is within its standard
+   uncertainty (the Monte Carlo cannot tell the two points apart). A run that does not improve is
+   followed by one backtracking step, half the step from the best run (:data:`MAX_HALVINGS`; the
+   trust-region idea of Bakr, Bandler, Biernacki, Chen and Madsen, "A trust region aggressive space
+   mapping algorithm for EM optimization", IEEE MTT 46(12), 2412-2425 (1998), in its simplest form);
+   the fit stops when that one does not improve either, or when half the step is within the
+   uncertainty, or when the budget of Monte Carlo runs is spent.
 
 The result is the Monte-Carlo-evaluated point of lowest Monte Carlo objective (never a point the
 Monte Carlo did not see). The design does not need the two models to agree: only their *trend* in
@@ -101,7 +106,9 @@ MC_STATE = "mc-state.json"
 MC_RUNS_DIR = "mc-runs"
 MC_SCHEMA = "simulate-fit-mc-state/1"
 #: ``--max-evaluations`` default for ``--method mc``: Monte Carlo runs, the start's included
-DEFAULT_MC_RUNS = 4
+DEFAULT_MC_RUNS = 5
+#: consecutive backtracking steps (half the step from the best run) after a run that did not improve
+MAX_HALVINGS = 1
 #: summation evaluations of each surrogate fit (studies.fit.run_fit's budget)
 INNER_EVALUATIONS = 400
 #: below this share of the geometry's spectral peak of the summation the correction is additive
@@ -359,6 +366,8 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     surrogate_evals = 0
     inner_notes: list[str] = []
     u_prev: np.ndarray | None = None
+    best: MCRun | None = None
+    halvings = 0
     try:
         for k in range(max_evaluations):
             run = state.run(k, x)
@@ -372,17 +381,27 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
             iterations.append({"k": k, **run.record(), "cached": cached,
                                "dx": None if not k else (x - runs[-2].x).tolist()})
             echo(_line(k, run, dx, cached))
-            if k and run.objective >= runs[-2].objective:
-                stop = (f"the Monte Carlo objective did not decrease at run {k} ({run.objective:.5g} >= "
-                        f"{runs[-2].objective:.5g}): the previous point is kept")
-                break
-            if k and u_prev is not None and np.all(np.abs(x - runs[-2].x) <= u_prev):
-                stop = f"converged: every parameter step of run {k} is within its standard uncertainty"
-                break
+            if best is None or run.objective < best.objective:
+                before, best, halvings = best, run, 0
+                if before is not None and u_prev is not None and np.all(np.abs(run.x - before.x) <= u_prev):
+                    stop = f"converged: every parameter step of run {k} is within its standard uncertainty"
+                    break
+            else:
+                halvings += 1
+                if halvings > MAX_HALVINGS or (u_prev is not None and np.all(np.abs(run.x - best.x) <= 2 * u_prev)):
+                    stop = (f"the Monte Carlo objective did not decrease at run {k} ({run.objective:.5g} >= "
+                            f"{best.objective:.5g}, the best run's) and a shorter step would be within the "
+                            "uncertainty or was tried: the best run is kept")
+                    break
             if k + 1 >= max_evaluations:
                 stop = f"the budget of Monte Carlo runs is spent (--max-evaluations {max_evaluations})"
                 break
             prop = state.proposal(k)
+            if prop is None and run is not best:
+                # backtrack: half the step from the best run (the correction stays the best run's)
+                prop = {"kind": "backtrack", "x": (best.x + 0.5 * (run.x - best.x)).tolist(),
+                        "u": (u_prev if u_prev is not None else np.zeros(x.size)).tolist(), "surrogate_evaluations": 0}
+                state.put_proposal(k, prop)
             if prop is None:
                 problem.set_correction(x, run.beta, run.u_beta)
                 problem.start = x.copy()
@@ -394,16 +413,17 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                 b_prop, u_b_prop = problem.model(res.x)
                 _, _, cov_prop = _uncertainty(problem, res.x, b_prop, u_b_prop, noise_draws, data=False)
                 u_prop = np.sqrt(res.u_data ** 2 + np.maximum(np.diag(cov_prop), 0.0))
-                prop = {"x": res.x.tolist(), "u": u_prop.tolist(), "surrogate_objective": res.objective,
+                prop = {"kind": "surrogate fit", "x": res.x.tolist(), "u": u_prop.tolist(),
+                        "surrogate_objective": res.objective,
                         "surrogate_evaluations": problem.evaluations - ev0, "seconds": time.perf_counter() - t1,
                         "notes": [n for n in res.warnings if not n.startswith("the search stopped")]}
                 state.put_proposal(k, prop)
             surrogate_evals += int(prop["surrogate_evaluations"])
-            inner_notes = list(prop.get("notes") or [])
+            inner_notes = list(prop.get("notes") or inner_notes)
             iterations[-1]["proposal"] = prop
             x = np.clip(np.asarray(prop["x"], float), problem.low, problem.high)
             u_prev = np.asarray(prop["u"], float)
-        best = min(runs, key=lambda r: r.objective)
+        assert best is not None
         J, cov_data, cov_mc = _uncertainty(problem, best.x, best.beta, best.u_beta, noise_draws)
     finally:
         problem.start = start
