@@ -590,7 +590,7 @@ def _fit_run(args: argparse.Namespace) -> int:
     info = doc["info"]
     if args.method == "mc":
         print(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
-              f"{info['walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
+              f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
               f"{info['seconds']:.1f} s; {info['stop']})")
         return 0
     print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "

@@ -77,7 +77,9 @@ says what is kept (exit 130).
 Outputs: as the other methods (:func:`studies.fit.write_outputs`): ``fitted.toml``, ``initial/``
 (the Monte Carlo at the start), ``fitted/`` (the Monte Carlo at the fitted point: the run of the
 search itself, not a new one), ``report/``, ``fit.json`` (``method = "mc"``; ``info.iterations``:
-per Monte Carlo run ``x``, NRMSE, dh, ds, objective, the step ``dx`` and seconds).
+per Monte Carlo run ``x``, NRMSE, dh, ds, objective, the step ``dx``, seconds and the proposal it led
+to; ``info.evaluations`` = Monte Carlo runs, ``info.walks`` = the summation's walks plus the Monte Carlo
+runs made by this invocation, ``info.surrogate_evaluations`` = summation evaluations, no photon).
 """
 
 from __future__ import annotations
@@ -448,7 +450,8 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         "evaluations": len(runs), "max_evaluations": max_evaluations, "evaluations_meaning": "Monte Carlo runs",
         "mc_runs": len(runs), "mc_runs_done": sum(1 for it in iterations if not it["cached"]),
         "mc_seconds": float(sum(r.seconds for it, r in zip(iterations, runs) if not it["cached"])),
-        "surrogate_evaluations": surrogate_evals, "walks": problem.walks, "walk_seconds": problem.walk_seconds,
+        "surrogate_evaluations": surrogate_evals, "summation_walks": problem.walks,
+        "walks": problem.walks + sum(1 for it in iterations if not it["cached"]), "walk_seconds": problem.walk_seconds,
         "reweighted": problem.reweights, "seconds": time.perf_counter() - t0, "resumed": resume,
         "best_run": next(i for i, r in enumerate(runs) if r is best), "iterations": iterations, "notes": list(problem.notes),
         "start_note": "the config's values (the Monte Carlo fit starts where the config is: a summation fit's "
