@@ -290,12 +290,13 @@ class _State:
 def left_behind(out: Path) -> str:
     """What an interrupted Monte Carlo fit left in ``out`` (only what exists)."""
     try:
-        n = len(json.loads((out / MC_STATE).read_text(encoding="utf-8")).get("iterations") or [])
+        its = json.loads((out / MC_STATE).read_text(encoding="utf-8")).get("iterations") or []
     except (OSError, ValueError):
-        n = 0
-    if n:
-        return (f"{n} finished Monte Carlo run(s) and their proposals are in {out / MC_STATE} and {out / MC_RUNS_DIR} "
-                "(continue with --resume)")
+        its = []
+    if its:
+        props = sum(1 for it in its if it.get("proposal"))
+        return (f"{len(its)} finished Monte Carlo run(s) and {props} proposal(s) fitted from them are in "
+                f"{out / MC_STATE} and {out / MC_RUNS_DIR} (continue with --resume)")
     return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 

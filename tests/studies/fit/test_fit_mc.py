@@ -149,7 +149,7 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
     state = json.loads((out / MC_STATE).read_text())
     assert len(state["iterations"]) == 1 and "proposal" in state["iterations"][0]
     assert (out / MC_RUNS_DIR / "run-0.npz").is_file()
-    assert "1 finished Monte Carlo run" in fit_mc.left_behind(out)
+    assert "1 finished Monte Carlo run(s) and 1 proposal(s)" in fit_mc.left_behind(out)
 
     calls.clear()
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
