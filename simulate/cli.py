@@ -570,9 +570,10 @@ def _fit_run(args: argparse.Namespace) -> int:
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
+        left_behind = _fit_left_behind
         if args.method == "mc":
-            from studies.fit_mc import left_behind as _fit_left_behind
-        print(f"simulate fit: interrupted; {_fit_left_behind(args.out)}", file=sys.stderr)
+            from studies.fit_mc import left_behind
+        print(f"simulate fit: interrupted; {left_behind(args.out)}", file=sys.stderr)
         return 130
     try:
         doc = write_outputs(problem, result, args.out)
