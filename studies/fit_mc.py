@@ -51,6 +51,12 @@ photons per row (fixed by the target), the ray tracer the stream ``(seed, chunk)
 four chunks its accuracy control adds -- and the felt the same fiber placement. The difference of
 two runs' objectives is then far less noisy than each.
 
+A felt is one realisation. The felt's fibers are placed by the seed (:func:`simulate.woven.felt.felt_mesh`),
+so a fixed seed fits one realisation: on the green felt two other seeds at the same parameters differ
+by 6-16 % RMS in ``beta`` (the run's ``u_beta``, ~0.9 %, does not contain it); the fit's improvement
+carried over to both (objective -17 % and -22 %, seed 0's -19 %; README fit section). ``u_mc`` is the
+error of the seed's Monte Carlo, not of the realisation.
+
 Uncertainties
 -------------
 At the final point ``x*`` the correction is formed from the Monte Carlo at ``x*`` (the surrogate
