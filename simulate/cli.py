@@ -21,8 +21,9 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
     the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar); its target error
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
-``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]``
-    fits config parameters to a measurement (:mod:`studies.fit`): fitted.toml, datasets, report.
+``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]``
+    fits config parameters to a measurement (:mod:`studies.fit`, ``mc``: :mod:`studies.fit_mc`): fitted.toml,
+    datasets, report.
 ``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
     a parameter study on dask.distributed (:mod:`studies.sweep`): one dataset per point, summary.csv;
     exit 1 when a task still fails after its retries (the others are kept).
@@ -468,13 +469,15 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                         "dye, dye-peaks; repeatable or comma-separated); see studies.fit")
     p.add_argument("--out", type=Path, required=True,
                    help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
-    p.add_argument("--method", choices=("classic", "summation"), default="classic",
-                   help="fabric model to fit (default classic)")
+    p.add_argument("--method", choices=("classic", "summation", "mc"), default="classic",
+                   help="fabric model to fit (default classic); mc: the woven/felt Monte Carlo of simulate fabric, "
+                        "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see studies.fit_mc")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
-    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=400, dest="max_evaluations",
+    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations",
                    help="objective evaluations of the search in all: steps and Jacobian columns of every start "
-                        "(default 400; the uncertainty propagation afterwards is counted apart)")
+                        "(default 400; the uncertainty propagation afterwards is counted apart); with --method mc: "
+                        "Monte Carlo runs, the start's included (default 5, at least 2)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
@@ -482,7 +485,8 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dye", choices=("config", "knots"), default="config",
                    help="knots: replace the config's dye by 8 knots of log10 absorption (any colour; free them "
                         "with --free dye), started from the measured colour (default: the config's dye)")
-    p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point)")
+    p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point; "
+                   "--method mc: from DIR/mc-state.json, the finished Monte Carlo runs)")
     p.add_argument("--target-rel-err", type=_rel_err, default=0.03, dest="target_rel_err",
                    help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
                         "(default 0.03)")
@@ -493,8 +497,10 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 
 def _is_fit_output(out: Path) -> bool:
     from studies.fit import STATE_NAME
+    from studies.fit_mc import MC_STATE
 
-    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir()
+    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir() or \
+        (out / MC_STATE).is_file()
 
 
 def _fit_left_behind(out: Path) -> str:
@@ -516,7 +522,7 @@ def _fit_run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from gonio.data.dataset import DatasetError, read_dataset
-    from studies.fit import FitError, FitProblem, parse_free, run_fit, write_outputs
+    from studies.fit import FitError, method_runner, parse_free
 
     config = _load_config(args.config)
     try:
@@ -539,8 +545,9 @@ def _fit_run(args: argparse.Namespace) -> int:
         free = parse_free(args.free, config)
     except FitError as exc:
         raise _UsageError(str(exc)) from None
+    problem_class, run_fit, write_outputs = method_runner(args.method)
     try:
-        problem = FitProblem(config, measured, free, method=args.method, colour_weight=args.colour_weight,
+        problem = problem_class(config, measured, free, method=args.method, colour_weight=args.colour_weight,
                              target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
                              wavelengths_nm=wavelengths)
     except FitError as exc:
@@ -551,13 +558,22 @@ def _fit_run(args: argparse.Namespace) -> int:
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     _prepare_out(args.out, _is_fit_output, "simulate fit")
+    max_evaluations = args.max_evaluations
+    if max_evaluations is None:
+        from studies.fit import DEFAULT_MAX_EVALUATIONS
+        from studies.fit_mc import DEFAULT_MC_RUNS
+
+        max_evaluations = DEFAULT_MC_RUNS if args.method == "mc" else DEFAULT_MAX_EVALUATIONS
     try:
-        result = run_fit(problem, out=args.out, resume=args.resume, max_evaluations=args.max_evaluations,
+        result = run_fit(problem, out=args.out, resume=args.resume, max_evaluations=max_evaluations,
                          starts=args.starts, progress=_progress(args))
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
-        print(f"simulate fit: interrupted; {_fit_left_behind(args.out)}", file=sys.stderr)
+        left_behind = _fit_left_behind
+        if args.method == "mc":
+            from studies.fit_mc import left_behind
+        print(f"simulate fit: interrupted; {left_behind(args.out)}", file=sys.stderr)
         return 130
     try:
         doc = write_outputs(problem, result, args.out)
@@ -573,6 +589,11 @@ def _fit_run(args: argparse.Namespace) -> int:
     for w in doc["warnings"]:
         print(f"warning: {w}", file=sys.stderr)
     info = doc["info"]
+    if args.method == "mc":
+        print(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
+              f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
+              f"{info['seconds']:.1f} s; {info['stop']})")
+        return 0
     print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
           f"{info['reweighted']} re-weighted passes, "
           f"{info['seconds']:.1f} s)")

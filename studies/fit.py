@@ -1,7 +1,10 @@
 r"""``simulate fit``: fit named config parameters of a fabric model to a measurement (the inverse problem).
 
-``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic]
+``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]
 [--dye knots] [--max-evaluations N] [--resume]``
+
+``--method mc`` (the woven/felt Monte Carlo, fitted by output space mapping through the structured
+summation) is :mod:`studies.fit_mc`; :func:`method_runner` dispatches to it.
 
 Parameters
 ----------
@@ -165,6 +168,7 @@ __all__ = [
     "DEFAULT_MAX_EVALUATIONS",
     "COLOUR_TOLERANCE",
     "default_bounds",
+    "method_runner",
     "parse_free",
     "run_fit",
     "toml_dumps",
@@ -443,6 +447,15 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     return FitResult(x=x_best, start=problem.start.copy(), objective=float(r_best @ r_best), objective_start=F_start,
                      u=u, u_data=np.sqrt(np.maximum(np.diag(cov_data), 0.0)),
                      u_mc=np.sqrt(np.maximum(np.diag(cov_mc), 0.0)), correlation=corr, warnings=notes, info=info)
+
+
+def method_runner(method: str) -> tuple[type, Callable, Callable]:
+    """``(problem class, run, write outputs)`` of a ``--method``: the Monte Carlo's are :mod:`studies.fit_mc`'s."""
+    if method == "mc":
+        from studies.fit_mc import MCFitProblem, run_mc_fit, write_mc_outputs
+
+        return MCFitProblem, run_mc_fit, write_mc_outputs
+    return FitProblem, run_fit, write_outputs
 
 
 def _at_bounds(problem: FitProblem, x: np.ndarray) -> list[str]:

@@ -1,0 +1,200 @@
+"""simulate fit --method mc (studies.fit_mc): output space mapping of the felt Monte Carlo through the structured
+summation -- the correction rule, recovery of a known dye from a Monte Carlo measurement, interrupt and resume,
+bad input."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+from gonio.data import make_dataset, new_meta, write_dataset
+from simulate.cli import main
+from simulate.config import load_config, parse_config
+from studies import fit_mc
+from studies.fit import parse_free
+from studies.fit_mc import MC_RUNS_DIR, MC_STATE, MCFitProblem, MCRun, correction, run_mc_fit
+from studies.paths import toml_dumps
+
+from .conftest import geometry_table
+
+#: six wavelengths at 20 nm (one exit-table chunk; the fewest for compare's colour terms)
+WL6 = np.arange(480.0, 581.0, 20.0)
+FREE = "fiber.dye.log10_per_um[0]=-3:0,fiber.dye.log10_per_um[1]=-3:0"
+
+
+def _felt(d0: float, d1: float):
+    """The green-felt preset with a two-knot dye (log10 absorption at 400 and 700 nm)."""
+    doc = tomllib.loads(load_config("green-felt").text)
+    doc["fiber"]["dye"] = {"curve": "knots", "wavelength_nm": [400.0, 700.0], "log10_per_um": [d0, d1]}
+    return parse_config(toml_dumps(doc), "felt-test.toml")
+
+
+def _measured(beta, u, geometries, wavelengths):
+    rep = geometries.loc[geometries.index.repeat(wavelengths.size)].reset_index(drop=True)
+    table = dict(theta_i=rep["theta_i"], phi_i=rep["phi_i"], theta_o=rep["theta_o"], phi_o=rep["phi_o"],
+                 wavelength_nm=np.tile(wavelengths, len(geometries)), beta=np.ravel(beta), u_beta=np.ravel(u),
+                 n=np.ones(np.size(beta), dtype=int))
+    return make_dataset(table, new_meta("measured", {"name": "synthetic felt"}))
+
+
+def _flat(wavelengths):
+    g = geometry_table()
+    return _measured(np.full((len(g), wavelengths.size), 0.3), np.full((len(g), wavelengths.size), 0.003), g,
+                     wavelengths)
+
+
+def test_correction_makes_the_surrogate_equal_the_monte_carlo():
+    s = np.array([[1.0, 0.5, 0.01, 0.0],       # peak 1: 0.01 and 0 are below 5 % of it -> additive
+                  [0.2, 0.2, 0.2, 0.2]])
+    mc = np.array([[0.8, 0.6, 0.03, 0.02],
+                   [0.1, 0.3, 0.2, 0.4]])
+    c, d = correction(s, mc)
+    np.testing.assert_allclose(s * c + d, mc, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(c, [[0.8, 1.2, 1.0, 1.0], [0.5, 1.5, 1.0, 2.0]])
+    np.testing.assert_allclose(d, [[0.0, 0.0, 0.02, 0.02], [0.0, 0.0, 0.0, 0.0]], atol=1e-15)
+    # the surrogate keeps the summation's trend: a summation twice as large doubles the multiplicative entries
+    np.testing.assert_allclose((2 * s) * c + d, [[1.6, 1.2, 0.04, 0.02], [0.2, 0.6, 0.4, 0.8]], atol=1e-15)
+
+
+@pytest.mark.slow
+def test_recovery_of_a_dye_from_the_monte_carlo_itself():
+    """A measurement made by the felt Monte Carlo at a known two-knot dye (+1 % noise; its u_beta the Monte
+    Carlo's and the noise's) is fitted back, from a start 0.3 away, within 3.5 reported standard uncertainties,
+    and the Monte Carlo's objective falls. (~60 s on 2 loaded cores: the summation's walk is ~half.)"""
+    x_true = np.array([-0.5, -2.5])
+    truth = _felt(*x_true)
+    probe = MCFitProblem(truth, _flat(WL6), parse_free([FREE], truth), target_rel_err=0.2, seed=4, wavelengths_nm=WL6)
+    ref = fit_mc.run_monte_carlo(probe, x_true)
+    rng = np.random.default_rng(3)
+    beta = ref.beta * (1.0 + 0.01 * rng.standard_normal(ref.beta.shape))
+    u = np.sqrt(ref.u_beta ** 2 + (0.01 * ref.beta) ** 2) + 1e-5
+    measured = _measured(beta, u, probe.geometries, WL6)
+    start = _felt(-0.8, -2.2)
+    problem = MCFitProblem(start, measured, parse_free([FREE], start), target_rel_err=0.2, seed=4, wavelengths_nm=WL6)
+    lines: list[str] = []
+    result = run_mc_fit(problem, max_evaluations=4, noise_draws=16, echo=lines.append)
+    info = result.info
+    assert len(lines) == info["mc_runs"] >= 2 and problem.walks == 1      # one summation walk for every iteration
+    assert result.objective < 0.1 * result.objective_start
+    z = (result.x - x_true) / result.u
+    assert np.all(np.abs(z) < 3.5), (result.x, result.u)
+    assert np.all(result.u_mc > 0) and np.all(result.u_data > 0)
+    assert np.all(np.abs(result.x - start_x(start)) > 3.0 * result.u)  # it moved off the start
+    it = info["iterations"]
+    assert [i["k"] for i in it] == list(range(len(it))) and it[info["best_run"]]["objective"] == result.objective
+
+
+def start_x(config) -> np.ndarray:
+    return np.array(tomllib.loads(config.text)["fiber"]["dye"]["log10_per_um"], float)
+
+
+def _fake_fine(calls: list):
+    """A deterministic stand-in for the Monte Carlo: the summation with a geometry-dependent 20 % tilt and an
+    offset (so the correction is not 1), counted in ``calls``."""
+    def run(problem, x, *, progress=False):
+        calls.append(np.asarray(x, float).copy())
+        corr, problem.corr = problem.corr, None
+        try:
+            s, u = problem.model(x)
+        finally:
+            problem.corr = corr
+        tilt = 1.0 + 0.2 * np.linspace(-1.0, 1.0, s.shape[0])[:, None]
+        beta = 0.9 * s * tilt + 0.002
+        fig = problem.residual_model().evaluate(beta, u)
+        r = fig.vector(problem.colour_weight)
+        return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse),
+                     float("nan"), float("nan"))
+    return run
+
+
+def _resume_problem(shared=None):
+    start = _felt(-0.9, -2.1)
+    truth = _felt(-0.5, -2.5)
+    probe = shared or MCFitProblem(truth, _flat(WL6), parse_free([FREE], truth), target_rel_err=0.5, seed=2,
+                                   wavelengths_nm=WL6)
+    beta, u = probe.model(np.array([-0.5, -2.5]))
+    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
+    problem = MCFitProblem(start, measured, parse_free([FREE], start), target_rel_err=0.5, seed=2, wavelengths_nm=WL6)
+    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    return problem, probe
+
+
+def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch):
+    """Ctrl-C in the second Monte Carlo run: the first run and its proposal are on disk; --resume does not run
+    them again and ends where an uninterrupted fit ends."""
+    import studies.fit as fit_module
+
+    calls: list = []
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
+    ref_problem, probe = _resume_problem()
+    reference = run_mc_fit(ref_problem, out=tmp_path / "ref", max_evaluations=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
+    n_ref = len(calls)
+    assert n_ref >= 2
+
+    calls.clear()
+    real_fine = fit_mc.run_monte_carlo
+
+    def interrupted(problem, x, *, progress=False):
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        return real_fine(problem, x, progress=progress)
+
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", interrupted)
+    out = tmp_path / "fit"
+    with pytest.raises(KeyboardInterrupt):
+        run_mc_fit(_resume_problem(probe)[0], out=out, max_evaluations=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
+    state = json.loads((out / MC_STATE).read_text())
+    assert len(state["iterations"]) == 1 and "proposal" in state["iterations"][0]
+    assert (out / MC_RUNS_DIR / "run-0.npz").is_file()
+    assert "1 finished Monte Carlo run(s) and 1 proposal(s)" in fit_mc.left_behind(out)
+
+    calls.clear()
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
+    monkeypatch.setattr(fit_module, "run_fit", _no_surrogate_fit_for_run_0(fit_module.run_fit, start_x(_felt(-0.9, -2.1))))
+    problem = _resume_problem(probe)[0]
+    lines: list[str] = []
+    resumed = run_mc_fit(problem, out=out, resume=True, max_evaluations=4, noise_draws=4, inner_evaluations=60, echo=lines.append)
+    assert len(calls) == n_ref - 1                      # run 0 read, not run again
+    assert "read from the checkpoint" in lines[0]
+    assert resumed.info["iterations"][0]["cached"] and resumed.info["mc_runs"] == reference.info["mc_runs"]
+    np.testing.assert_allclose(resumed.x, reference.x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(resumed.objective, reference.objective, rtol=1e-12)
+
+
+def _no_surrogate_fit_for_run_0(run_fit, x0):
+    """run_fit that fails if asked to fit from run 0's point again (its proposal is in the state)."""
+    def checked(problem, **kw):
+        assert not np.allclose(problem.start, x0), "the proposal of run 0 was fitted again"
+        return run_fit(problem, **kw)
+    return checked
+
+
+def test_resume_of_another_fit_or_of_nothing_is_refused(tmp_path):
+    start = _felt(-0.9, -2.1)
+    problem = MCFitProblem(start, _flat(WL6), parse_free([FREE], start), target_rel_err=0.2, seed=2,
+                           wavelengths_nm=WL6)     # refused before any photon: no walk
+    with pytest.raises(fit_mc.FitError, match="nothing to resume"):
+        run_mc_fit(problem, out=tmp_path, resume=True)
+    (tmp_path / MC_STATE).write_text(json.dumps({"schema": fit_mc.MC_SCHEMA, "identity": "x", "iterations": []}))
+    with pytest.raises(fit_mc.FitError, match="belongs to a different fit"):
+        run_mc_fit(problem, out=tmp_path, resume=True)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--max-evaluations", "1"], "--method mc needs at least 2 Monte Carlo runs"),
+    (["--resume"], "nothing to resume"),
+    (["--free", "structure.warp_twist_deg"], "does nothing for the config's structure kind 'nonwoven'"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
+    write_dataset(_flat(WL6), tmp_path / "m")
+    argv = ["fit", "green-felt", str(tmp_path / "m"), "--method", "mc", "--out", str(tmp_path / "f"),
+            "--no-progress"]
+    if "--free" not in args:
+        argv += ["--free", "dye"]
+    code = main(argv + args)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert message in err and len(err.strip().splitlines()) == 1, err
