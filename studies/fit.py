@@ -168,6 +168,9 @@ __all__ = [
     "DEFAULT_MAX_EVALUATIONS",
     "COLOUR_TOLERANCE",
     "default_bounds",
+    "jacobian",
+    "at_bounds",
+    "identifiability",
     "method_runner",
     "parse_free",
     "run_fit",
@@ -225,7 +228,7 @@ def load_state(out: Path, problem: FitProblem) -> dict | None:
     return state
 
 
-def _jacobian(problem: FitProblem, x: np.ndarray, r0: np.ndarray, fun: Callable) -> np.ndarray:
+def jacobian(problem: FitProblem, x: np.ndarray, r0: np.ndarray, fun: Callable) -> np.ndarray:
     """d r / d x (physical units) by finite differences (steps in the module docstring)."""
     J = np.zeros((r0.size, x.size))
     for j, p in enumerate(problem.free):
@@ -352,7 +355,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
         cost = sum(1 if p.kind == "walk" else 2 for p in problem.free)
         if used() + cost > max_evaluations:
             raise _Budget
-        return _jacobian(problem, x, fun_x(x), fun_x) * span[None, :]
+        return jacobian(problem, x, fun_x(x), fun_x) * span[None, :]
 
     stopped = ""
     results = []
@@ -389,7 +392,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     search_evaluations = used()
     x_best = best["x"]
     r_best = problem.residuals(x_best)
-    J = _jacobian(problem, x_best, r_best, problem.residuals)
+    J = jacobian(problem, x_best, r_best, problem.residuals)
     pinv = np.linalg.pinv(J)
 
     # uncertainty: data noise and Monte Carlo noise propagated through the whole objective
@@ -424,7 +427,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(u, u)
     corr[~np.isfinite(corr)] = 0.0
-    notes = ([stopped] if stopped else []) + _at_bounds(problem, x_best) + _identifiability(problem, J, u)
+    notes = ([stopped] if stopped else []) + at_bounds(problem, x_best) + identifiability(problem, J, u)
     notes += _colour_left_off(problem, x_best)
     for note in notes:  # printed once, by the caller (the CLI prints fit.json's warnings)
         log.debug("%s", note)
@@ -458,7 +461,7 @@ def method_runner(method: str) -> tuple[type, Callable, Callable]:
     return FitProblem, run_fit, write_outputs
 
 
-def _at_bounds(problem: FitProblem, x: np.ndarray) -> list[str]:
+def at_bounds(problem: FitProblem, x: np.ndarray) -> list[str]:
     """A parameter within 10^-3 of its bound range from a bound: the optimum may lie beyond."""
     notes = []
     for p, v in zip(problem.free, x):
@@ -487,7 +490,7 @@ def _colour_left_off(problem: FitProblem, x: np.ndarray) -> list[str]:
             f"{fig.ds:+.3f} from the measurement (tolerance |dh| <= {dh_max} turn, |ds| <= {ds_max}); {why}"]
 
 
-def _identifiability(problem: FitProblem, J: np.ndarray, u: np.ndarray) -> list[str]:
+def identifiability(problem: FitProblem, J: np.ndarray, u: np.ndarray) -> list[str]:
     span = problem.high - problem.low
     notes = []
     _, s, vt = np.linalg.svd(J * span[None, :], full_matrices=False)

@@ -61,7 +61,7 @@ Uncertainties
 -------------
 At the final point ``x*`` the correction is formed from the Monte Carlo at ``x*`` (the surrogate
 equals it there) and the result is linearised with the surrogate's Jacobian ``J`` (finite
-differences as :func:`studies.fit._jacobian`): ``u_data`` from 64 noise draws of the measurement's
+differences as :func:`studies.fit.jacobian`): ``u_data`` from 64 noise draws of the measurement's
 ``u_beta`` through the whole objective, ``u_mc`` from 64 draws of the Monte Carlo's ``u_beta`` at
 ``x*`` (the correction perturbed, the summation's own table noise cancels in ``S(x)/S(x*)`` to
 first order), ``u = sqrt(u_data^2 + u_mc^2)`` -- the fields of the summation fit's ``fit.json``.
@@ -315,11 +315,11 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     """``(J, cov_data, cov_mc)`` at ``x`` with the correction formed from the Monte Carlo ``beta, u_beta``
     there (module docstring); ``data=False``: the Monte Carlo part only (``cov_data`` zero)."""
     from gonio.data.dataset import make_dataset
-    from studies.fit import _jacobian
+    from studies.fit import jacobian
 
     problem.set_correction(x, beta, u_beta)
     r0 = problem.residuals(x)
-    J = _jacobian(problem, x, r0, problem.residuals)
+    J = jacobian(problem, x, r0, problem.residuals)
     pinv = np.linalg.pinv(J)
     rng = np.random.default_rng(20260101 + int(problem.seed or 0))
     meas = problem.measured
@@ -352,7 +352,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     ``max_evaluations``: Monte Carlo runs in all (the start's included, >= 2). Returns a
     :class:`studies.fit.FitResult` whose ``info["iterations"]`` lists the runs.
     """
-    from studies.fit import COLOUR_TOLERANCE, FitResult, _at_bounds, _identifiability, run_fit
+    from studies.fit import COLOUR_TOLERANCE, FitResult, at_bounds, identifiability, run_fit
 
     if max_evaluations < 2:
         raise FitError(f"--max-evaluations {max_evaluations}: --method mc needs at least 2 Monte Carlo runs "
@@ -441,7 +441,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(u, u)
     corr[~np.isfinite(corr)] = 0.0
-    notes = _at_bounds(problem, best.x) + _identifiability(problem, J, u)
+    notes = at_bounds(problem, best.x) + identifiability(problem, J, u)
     dh_max, ds_max = COLOUR_TOLERANCE
     if math.isfinite(best.dh) and (abs(best.dh) > dh_max or abs(best.ds) > ds_max):
         notes.append(f"colour left off: the fitted Monte Carlo's hue differs by {best.dh:+.3f} turn and its saturation "

@@ -51,7 +51,7 @@ from typing import Any, Callable
 import numba
 import numpy as np
 
-from simulate.fiber.absorption import AbsorptionTable, _targets
+from simulate.fiber.absorption import AbsorptionTable, absorption_targets
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
 
 __all__ = ["STRUCTURE_FIELDS", "StructWalk", "walk_structure", "facets_of", "surface_beta", "structure_key"]
@@ -79,11 +79,11 @@ def facets_of(config: Any) -> Any:
 
 def surface_beta(config: Any, facets: Any, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
     """``beta [N]`` of the layers' surface term (Cook-Torrance with masking) summed over ``facets``."""
-    from simulate.fabric.fiberlayer import LayerTable, _grid, surface_table
+    from simulate.fabric.fiberlayer import LayerTable, layer_grid, surface_table
     from simulate.fabric.structtable import facet_sum
 
     spec = config.structure
-    th, ph_i, ph_o, _ = _grid(7.5, 15.0)
+    th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
     G = surface_table(float(config.rms_slope), float(config.n_host), bool(spec.masking), float(spec.spacing_ratio),
                       7.5, 15.0)[..., None]
     lt = LayerTable(th, ph_i, th, ph_o, np.ascontiguousarray(G), spec.masking, spec.spacing_ratio)
@@ -176,7 +176,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     the photons in that fiber's scattering and score them for ``nodye``'s by the likelihood ratio.
     """
     from simulate.config import weave_from_config
-    from simulate.fabric.fiberlayer import _grid, layer_table
+    from simulate.fabric.fiberlayer import layer_grid, layer_table
     from simulate.fabric.interior import interior
     from simulate.fiber import farfield as FF
     from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
@@ -206,7 +206,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     walk_all = optics_all if reference is None else spectral_optics(walk_fiber, wl)
     groups_global: list[np.ndarray] = []
     scatterings: dict[str, float] = {}
-    th, ph_i, ph_o, _ = _grid(7.5, 15.0)
+    th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
     halves: list[np.ndarray] = []
     photons = 0
     runs, run = 2 * len(chunks) * w_t.size, 0
@@ -225,7 +225,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
             for i, wt in enumerate(w_t):
                 for gi, group in enumerate(groups):
                     medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
-                    targets = _targets(optics, group, nodes, walk_phase)
+                    targets = absorption_targets(optics, group, nodes, walk_phase)
                     scal: list = []
                     t, _, p, _ = bssrdf_rows(fiber, float(wt), ks, grid, medium, walk_phase, targets, control, per_row,
                                              int(seed_of(seed, half, i, c)), threads, scal)

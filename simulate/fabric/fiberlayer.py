@@ -60,7 +60,7 @@ from simulate.optics import microfacet
 from simulate.fiber.farfield import ExitTable, cell_frame
 from simulate.optics.fresnel import OpticsDomainWarning
 
-__all__ = ["LayerTable", "layer_table", "surface_table", "layer_lookup", "visibility", "visibility_any", "layer_G", "surface_Q"]
+__all__ = ["LayerTable", "layer_table", "surface_table", "layer_lookup", "visibility", "visibility_any", "layer_G", "surface_Q", "layer_grid"]
 
 
 def visibility(w: np.ndarray, psi: np.ndarray, spacing: float | None) -> np.ndarray:
@@ -209,7 +209,7 @@ class LayerTable:
         return layer_lookup(self, w_in, w_out)
 
 
-def _grid(step_deg: float, phi_step_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def layer_grid(step_deg: float, phi_step_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     th = np.arange(0.0, 90.0 + 1e-9, step_deg)
     ph_i = np.arange(0.0, 90.0 + 1e-9, phi_step_deg)
     ph_o = np.arange(0.0, 360.0 + 1e-9, phi_step_deg)
@@ -228,7 +228,7 @@ def surface_table(roughness: float, n_host: float, masking: bool, spacing_ratio:
     from simulate.media.medium import HGMedium
 
     fiber = Fiber(radius_um=1.0, n_host=n_host, medium=HGMedium(mu_s=0.0, mu_a=0.0, g=0.0), roughness=roughness)
-    th, ph_i, ph_o, w_out = _grid(step_deg, phi_step_deg)
+    th, ph_i, ph_o, w_out = layer_grid(step_deg, phi_step_deg)
     spacing = 2.0 * spacing_ratio if masking else None
     out = np.zeros((th.size, ph_i.size, th.size, ph_o.size))
     for a, t_i in enumerate(th):
@@ -259,7 +259,7 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
     from simulate.fabric.interior import layer_energy
 
     t0 = time.perf_counter()
-    th, ph_i, ph_o, w_out = _grid(step_deg, phi_step_deg)
+    th, ph_i, ph_o, w_out = layer_grid(step_deg, phi_step_deg)
     G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, table.T.shape[-1]))
     for a, t_i in enumerate(th):
         for b, p_i in enumerate(ph_i):

@@ -48,7 +48,7 @@ from simulate.montecarlo.accuracy import check_budget
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
 from simulate.montecarlo.transport import ParameterError, SpectralTargets, make_control
 
-__all__ = ["AbsorptionTable", "RunCache", "DEFAULT_NODES", "absorption_nodes", "absorption_table"]
+__all__ = ["AbsorptionTable", "RunCache", "DEFAULT_NODES", "absorption_nodes", "absorption_table", "absorption_targets"]
 
 #: Host-absorption nodes per wavelength (see the module docstring).
 DEFAULT_NODES = 16
@@ -156,7 +156,7 @@ class AbsorptionTable:
         return R, u
 
 
-def _targets(optics: Any, group: np.ndarray, nodes: np.ndarray, walk_phase: Any) -> SpectralTargets:
+def absorption_targets(optics: Any, group: np.ndarray, nodes: np.ndarray, walk_phase: Any) -> SpectralTargets:
     """Targets ``(wavelength j, node k)`` at index ``j_local * K + k``."""
     k = nodes.size
     idx = np.repeat(group, k)
@@ -257,7 +257,7 @@ def absorption_table(
                 scatterings[run_key] = float(found[3])
             else:
                 medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
-                targets = _targets(optics, group, nodes, walk_phase)
+                targets = absorption_targets(optics, group, nodes, walk_phase)
                 stream = run_seed(seed, d, gi)  # the rule of volume_brdf: the same streams
                 fixed = None if photons is None else photons.get(run_key)
                 if fixed is None:
