@@ -381,8 +381,11 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
     curves: dict[str, dict[str, CurveError]] = {}
     overall: dict[str, CurveError] = {}
     for name, sim in zip(names, views):
+        # like for like: a measurement without the normal/normal point gets a simulation's estimated
+        # from the same neighbours (compare.normalise.estimate_normal_value, use_exact)
         norm = normalisation_factor(measured_normal,
-                                    estimate_normal_value(sim, window_deg, bands.label), grid)
+                                    estimate_normal_value(sim, window_deg, bands.label,
+                                                          use_exact=measured_normal.how == "measured"), grid)
         frame = align(measured_view, sim, grid)
         k = norm.factor_at(frame["wavelength_nm"].to_numpy())
         frame["beta_sim"] = k * frame["beta_sim_raw"].to_numpy()

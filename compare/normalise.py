@@ -140,21 +140,25 @@ def intercept_weights(s: np.ndarray) -> np.ndarray:
 
 
 def normal_selection(dataset: Dataset, s: np.ndarray, wavelength: float, window_deg: float,
-                     band_label: Callable[[float], str] = _nm) -> tuple[bool, np.ndarray]:
+                     band_label: Callable[[float], str] = _nm, use_exact: bool = True) -> tuple[bool, np.ndarray]:
     """Which normal-incidence points of one wavelength give ``beta(0, 0)``.
 
     ``s`` are the signed observation angles of the dataset's in-plane normal-incidence rows at
     ``wavelength``. Returns ``(True, mask)`` when the normal/normal point itself is there (its
     mean is the value), else ``(False, mask)`` of the points of the quadratic fit. Raises
     :class:`CompareError` when the window holds too few points (shared by
-    :func:`estimate_normal_value` and :mod:`compare.residual`).
+    :func:`estimate_normal_value` and :mod:`compare.residual`). ``use_exact=False``: estimate even
+    where the normal/normal point exists, from the same neighbours as a measurement without it.
     """
     exact = np.abs(s) < _S_TOL
-    if exact.any():
+    if exact.any() and use_exact:
         return True, exact
-    near = (np.abs(s) <= window_deg + _S_TOL)
+    near = (np.abs(s) <= window_deg + _S_TOL) & ~exact
     left, right = near & (s < 0), near & (s > 0)
-    if left.sum() < MIN_PER_SIDE or right.sum() < MIN_PER_SIDE or near.sum() < MIN_POINTS:
+    too_few = left.sum() < MIN_PER_SIDE or right.sum() < MIN_PER_SIDE or near.sum() < MIN_POINTS
+    if too_few and exact.any():
+        return True, exact        # like for like is impossible: the dataset's own normal point
+    if too_few:
         def fmt(mask):
             return "[" + ", ".join(f"{x:g}" for x in np.unique(s[mask])) + "]"
         raise CompareError(
@@ -195,7 +199,7 @@ def _fit_intercept(s: np.ndarray, beta: np.ndarray, u_beta: np.ndarray
 
 
 def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_DEG,
-                          band_label: Callable[[float], str] = _nm) -> NormalValue:
+                          band_label: Callable[[float], str] = _nm, use_exact: bool = True) -> NormalValue:
     """``beta(0, 0)`` of ``dataset`` per wavelength: the measured point, or the estimate above.
 
     Parameters
@@ -207,6 +211,13 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
     band_label : callable
         How a band is named in messages (``"550 nm"``; ``"channel R"`` in an RGB comparison,
         :mod:`compare.bands`).
+    use_exact : bool
+        ``False``: ignore a normal/normal point and estimate from the neighbours. A simulation is
+        normalised like for like: when the measurement has no normal/normal point (the instrument
+        cannot observe there), the simulation's value is estimated from the same neighbouring
+        angles, not read at its own normal point -- a narrow backscatter peak the measurement
+        cannot see would otherwise set the whole scale (the felt Monte Carlo's retro-reflection,
+        66 % above its 10 deg neighbours, moved the demo's NRMSE from 0.17 to 0.37).
 
     Returns
     -------
@@ -253,7 +264,7 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
     for k, wl in enumerate(wavelengths):
         sel = np.abs(wl_rows - wl) < 1e-9
         s, beta, u_beta = s_all[sel], beta_all[sel], u_all[sel]
-        is_exact, sel_k = normal_selection(dataset, s, wl, window_deg, band_label)
+        is_exact, sel_k = normal_selection(dataset, s, wl, window_deg, band_label, use_exact)
         if is_exact:
             exact = sel_k
             value[k] = float(np.mean(beta[exact]))

@@ -213,8 +213,10 @@ class ModelResidual:
         self._row_k = np.searchsorted(grid, frame["wavelength_nm"].to_numpy() - _TOL)
         self._angles = {angle_key(t): np.flatnonzero(frame["theta_i"].to_numpy() == t)
                         for t in np.unique(frame["theta_i"].to_numpy())}
-        # the model's normal/normal value: structure checked by the real estimate, then weights
-        estimate_normal_value(_with_beta(view, np.ones(n_rows)), window_deg, bands.label)
+        # the model's normal/normal value: structure checked by the real estimate, then weights; like
+        # for like with the measurement (compare.normalise.estimate_normal_value, use_exact)
+        self._use_exact = estimate_normal_value(measured_view, window_deg, bands.label).how == "measured"
+        estimate_normal_value(_with_beta(view, np.ones(n_rows)), window_deg, bands.label, use_exact=self._use_exact)
         self._view_wl = view.wavelengths_nm
         self._normal, self._normal_exact = self._normal_matrix(view, window_deg, n_rows)
         self._view_ds = view
@@ -366,7 +368,7 @@ class ModelResidual:
         for k, wl in enumerate(self._view_wl):
             sel = np.abs(wl_rows - wl) < 1e-9
             s = s_all[sel]
-            exact, mask = normal_selection(view, s, wl, window_deg, self.bands.label)
+            exact, mask = normal_selection(view, s, wl, window_deg, self.bands.label, self._use_exact)
             weights = (np.full(int(mask.sum()), 1.0 / mask.sum()) if exact
                        else intercept_weights(s[mask]))
             exact_all[k] = exact
