@@ -225,8 +225,8 @@ def test_make_demo_full_budget(tmp_path):
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     assert f"demo: report in {out}/report/report.html" in run.stdout
     metrics = json.loads((out / "report" / "metrics.json").read_text())
-    assert len(metrics["overall"]) == 4        # truth, classic and summation fitted, Monte Carlo
+    assert len(metrics["overall"]) == 5        # truth, classic and summation fitted, Monte Carlo start and fitted
     assert all(math.isfinite(v["nrmse"]) for v in metrics["overall"].values())
     page = (out / "report" / "report.html").read_text(encoding="utf-8")
-    assert "real measurement" in page and page.count("fitted (<code>") == 2
+    assert "real measurement" in page and page.count("fitted (<code>") == 3
     assert "is evaluated at these fitted parameters" in page and "<h2>Seed sample" in page
