@@ -70,8 +70,11 @@ def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = No
     return SpectralOptics(np.array(mu_s), np.array(mu_a), np.array(g), phases)
 
 
-def wavelength_groups(optics: SpectralOptics) -> list[np.ndarray]:
-    """Consecutive wavelengths whose scattering is close enough to share one walk."""
+def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU_S) -> list[np.ndarray]:
+    """Consecutive wavelengths whose scattering is close enough to share one walk: ``mu_s`` within
+    ``max_log_mu_s`` (in ``log``; equal values always) and ``g`` within ``GROUP_G`` of the group's
+    middle one. The default is the re-weighted walks'; a held-scattering table passes its own
+    (:func:`simulate.woven.yarn.held_groups`)."""
     n = optics.mu_s.size
     groups: list[list[int]] = []
     current: list[int] = []
@@ -80,7 +83,7 @@ def wavelength_groups(optics: SpectralOptics) -> list[np.ndarray]:
         ref = trial[len(trial) // 2]
         ok = all(
             (optics.mu_s[j] == optics.mu_s[ref] or (optics.mu_s[j] > 0 and optics.mu_s[ref] > 0
-             and abs(math.log(optics.mu_s[j] / optics.mu_s[ref])) <= GROUP_LOG_MU_S))
+             and abs(math.log(optics.mu_s[j] / optics.mu_s[ref])) <= max_log_mu_s))
             and abs(optics.g[j] - optics.g[ref]) <= GROUP_G
             for j in trial
         )

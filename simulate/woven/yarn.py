@@ -25,7 +25,7 @@ import numpy as np
 from simulate.fiber import tablecache
 from simulate.fiber.bssrdf import lit_rows, row_sources, rows_inputs
 from simulate.fiber.model import as_wavelengths
-from simulate.fiber.spectral import GROUP_G, SpectralOptics, group_walk, spectral_optics, wavelength_groups
+from simulate.fiber.spectral import SpectralOptics, group_walk, spectral_optics, wavelength_groups
 from simulate.montecarlo.accuracy import BATCH, mean_and_error
 from simulate.montecarlo.kernel import M_MU_S
 from simulate.montecarlo.rows import execute_rows
@@ -197,23 +197,9 @@ def _walk_optics(fiber: Any, wl: np.ndarray, held_log_mu_s: float) -> SpectralOp
 
 def held_groups(optics: SpectralOptics, max_log_mu_s: float) -> list[np.ndarray]:
     """Consecutive wavelengths whose ``mu_s`` lie within ``max_log_mu_s`` (in ``log``) and ``g`` within
-    ``GROUP_G`` of the group's middle one (which walks): the groups of a held-scattering table."""
-    groups: list[list[int]] = []
-    current: list[int] = []
-    for i in range(optics.mu_s.size):
-        trial = current + [i]
-        ref = trial[len(trial) // 2]
-        ok = all(optics.mu_s[j] > 0 and optics.mu_s[ref] > 0
-                 and abs(math.log(optics.mu_s[j] / optics.mu_s[ref])) <= max_log_mu_s
-                 and abs(optics.g[j] - optics.g[ref]) <= GROUP_G for j in trial)
-        if ok or not current:
-            current = trial
-        else:
-            groups.append(current)
-            current = [i]
-    if current:
-        groups.append(current)
-    return [np.array(g) for g in groups]
+    ``GROUP_G`` of the group's middle one (which walks): the groups of a held-scattering table
+    (:func:`simulate.fiber.spectral.wavelength_groups` with this bound)."""
+    return wavelength_groups(optics, max_log_mu_s)
 
 
 def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: float, ks: list[int], n_v: int,
