@@ -162,9 +162,11 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     if spec is not None and spec.kind == "nonwoven":
         from simulate.woven.felt import felt_mesh
 
-        felt = felt_mesh(spec, float(fiber.radius_um), seed=s.seed)
-        mesh: Any = felt
-        geometry: dict = {"felt": felt.info}
+        # two realisations of the felt, one per table half: their difference puts the spread of the
+        # fibers' placement into u_beta (simulate.woven.estimate, "A felt")
+        felts = tuple(felt_mesh(spec, float(fiber.radius_um), seed=s.seed + FELT_SEED_STRIDE * h) for h in (0, 1))
+        mesh: Any = felts
+        geometry: dict = {"felt": felts[0].info, "felt_second_realisation": felts[1].info}
     else:
         wv = weave_from_config(config)
         mesh = weave_mesh(wv)
@@ -176,11 +178,15 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
         structure=spec)
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
-    extra = {**geometry, "triangles": int(mesh.faces.shape[0]), "ray_engine": "embree (embreex)",
+    meshes = mesh if isinstance(mesh, tuple) else (mesh,)
+    extra = {**geometry, "triangles": int(meshes[0].faces.shape[0]), "ray_engine": "embree (embreex)",
              "estimator": "next-event towards each detector direction"}
     return FabricEstimate(beta, u_beta, n, int(mc_info["table"]["photons"]), jsonable(mc_info),
                           float(mc_info["table"]["seconds"]), extra)
 
+
+#: The seed of a felt's second realisation is the run's seed plus this (the first's is the run's seed).
+FELT_SEED_STRIDE = 1_000_003
 
 #: The registered fabric models, in registration order.
 MODELS: tuple[str, ...] = tuple(_REGISTRY)

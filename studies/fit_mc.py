@@ -51,11 +51,12 @@ photons per row (fixed by the target), the ray tracer the stream ``(seed, chunk)
 four chunks its accuracy control adds -- and the felt the same fiber placement. The difference of
 two runs' objectives is then far less noisy than each.
 
-A felt is one realisation. The felt's fibers are placed by the seed (:func:`simulate.woven.felt.felt_mesh`),
-so a fixed seed fits one realisation: on the green felt two other seeds at the same parameters differ
-by 6-16 % RMS in ``beta`` (the run's ``u_beta``, ~0.9 %, does not contain it); the fit's improvement
-carried over to both (objective -17 % and -22 %, seed 0's -19 %; README fit section). ``u_mc`` is the
-error of the seed's Monte Carlo, not of the realisation.
+A felt is a random realisation. The felt's fibers are placed by the seed (:func:`simulate.woven.felt.felt_mesh`),
+so a fixed seed fits the same realisations at every run (each table half traced on its own, at 8 azimuths:
+:mod:`simulate.woven.estimate`, "A felt"). Before that (one realisation, one azimuth) two other seeds at
+the same parameters differed by 6-16 % RMS in ``beta`` while the run's ``u_beta`` said ~0.9 %; the
+fit's improvement carried over to both (objective -17 % and -22 %, seed 0's -19 %). ``u_beta`` now holds
+the spread between realisations, so ``u_mc`` includes it.
 
 Uncertainties
 -------------

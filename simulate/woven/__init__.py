@@ -65,7 +65,10 @@ the run stops at the target, or at the ray or time budget, and says which. :func
 standard error is that of the ray tracing *given* the BSSRDF table; :func:`fabric_beta` (the
 plan-level entry of ``simulate fabric --method mc``) builds the table as two independent halves
 (``table_photons`` per row in all, scaling with the target) and adds the table's own noise,
-estimated from the difference of the two halves' traces, to ``u_beta``.
+estimated from the difference of the two halves' traces, to ``u_beta``. A felt (a random
+realisation of its fibers) is traced at :data:`FELT_ROTATIONS` azimuths per incidence, each half on
+its own realisation: the difference of the halves then holds the spread between realisations too
+(:mod:`.estimate`).
 
 Modules: :mod:`.scene` (the periodic Embree scene: ray queries), :mod:`.yarn` (the yarn
 table), :mod:`.materials`, :mod:`.shading` (compiled: a ray at a yarn hit),
@@ -73,7 +76,7 @@ table), :mod:`.materials`, :mod:`.shading` (compiled: a ray at a yarn hit),
 entry), :mod:`.pile` (the yarn's volume as its fibers' pile), :mod:`.meshes` (validation meshes).
 """
 
-from simulate.woven.estimate import fabric_beta, table_photons, twist_of
+from simulate.woven.estimate import FELT_ROTATIONS, fabric_beta, table_photons, twist_of
 from simulate.woven.integrator import STOP_REASONS, MCResult, trace
 from simulate.woven.materials import FiberBRDFAtHit, FiberSurface, Lambert
 from simulate.woven.meshes import flat_mesh, straight_yarn_mesh
@@ -91,6 +94,7 @@ __all__ = [
     "straight_yarn_mesh",
     "trace",
     "fabric_beta",
+    "FELT_ROTATIONS",
     "table_photons",
     "twist_of",
     "STOP_REASONS",

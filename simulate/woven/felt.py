@@ -48,7 +48,9 @@ The yarn table is the fiber's own (``r_yarn = R``: the exit offsets need no scal
 
 Limits: straight fibers (a real felt's fibers curl and pack denser), a floor under the first fibers
 (the felt's bottom is flat; with 10 layers' fiber little light reaches it), a cell of 40 R (about
-20 fibers across): the spread of the fibers' structure between seeds is part of a run's reproducibility at a fixed seed, not of its reported error.
+20 fibers across): one realisation varies from the next by ~2 % of each direction's peak (green felt),
+which ``simulate fabric --method mc`` puts into ``u_beta`` by tracing each of its two table halves on
+its own realisation, at several azimuths (:mod:`simulate.woven.estimate`, "A felt").
 """
 
 from __future__ import annotations

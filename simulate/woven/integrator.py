@@ -29,7 +29,7 @@ __all__ = ["STOP_REASONS", "MCResult", "trace", "yarn_radius"]
 log = logging.getLogger(__name__)
 
 STOP_REASONS = ("target", "max_rays", "max_seconds")
-_CHUNK = 2048
+CHUNK = 2048
 _ROUND = 4           # chunks per accuracy check (fixed, so results do not depend on the threads)
 _MAX_BOUNCES = 200
 _ROULETTE_BELOW = 0.01
@@ -284,7 +284,8 @@ def _rel_err(value: np.ndarray, u: np.ndarray) -> float:
 def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: Any, detectors: Any, n_wavelengths: int | None = None,
           *, target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
           threads: int = 1, progress: bool = False, bins: tuple[int, int] = (9, 12),
-          chunk: int = _CHUNK, twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex") -> MCResult:
+          chunk: int = CHUNK, twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex",
+          setups: dict | None = None) -> MCResult:
     """Trace the beam from ``w_in`` through the woven micro-element; next-event ``beta`` at ``detectors``.
 
     Parameters
@@ -315,6 +316,9 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     normals : "vertex" or "face"
         Shading normals: the mesh's interpolated vertex normals (with the adjoint shading-normal
         rule of :mod:`simulate.woven.shading`), or the triangles' own normals (a faceted tube).
+    setups : dict, optional
+        Kept across calls by the caller: the scene and the material arrays (0.16 s for a felt of 2e5
+        triangles) are built once per mesh and material and reused (a felt traced at several rotations).
     """
     target_rel_err = check_target(target_rel_err)
     w_in = np.asarray(w_in, float).reshape(3)
@@ -333,7 +337,12 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
                          else int(np.size(material.rho)))
     if normals not in ("vertex", "face"):
         raise ValueError(f"trace: normals must be 'vertex' or 'face', got {normals!r}")
-    setup = _Setup(mesh, material, int(n_wavelengths), bins, twist_deg, normals)
+    key = (id(mesh), id(material), int(n_wavelengths), tuple(bins), tuple(twist_deg), normals)
+    setup = setups.get(key) if setups is not None else None
+    if setup is None:
+        setup = _Setup(mesh, material, int(n_wavelengths), bins, twist_deg, normals)
+        if setups is not None:
+            setups[key] = setup
     L = setup.n_wl
     D = det.shape[0]
     total = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
