@@ -221,7 +221,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
         for h, (m, mat) in enumerate(zip(meshes, mats)):
             parts = []
             for j in range(n_rot):
-                rot = _rot_z(2.0 * math.pi * (j + 0.5 * h) / n_rot)
+                rot = _rot_z(2.0 * math.pi * (j + 0.5 * h) / n_rot) if n_rot > 1 else np.eye(3)
                 parts.append(trace(m, mat, rot @ (wi / np.linalg.norm(wi)), det @ rot.T,
                                    target_rel_err=r_target * math.sqrt(n_rot), max_rays=max_rays // n_rot,
                                    max_seconds=max_seconds / n_rot, seed=seed + 7919 * k + 104_729 * j,

@@ -183,3 +183,22 @@ def test_the_felts_u_beta_holds_the_spread_between_realisations():
     ratio = float(np.mean(b.var(axis=0, ddof=1)) / np.mean(u ** 2))
     # 8 points x 3 degrees of freedom: the ratio's sampling spread is ~+-0.5 around 1
     assert 0.3 < ratio < 3.5, ratio
+
+
+def test_a_weave_is_traced_once_per_half_at_its_own_azimuth():
+    """Turning the directions is for the in-plane isotropic felt only: a weave's ``fabric_beta`` is the
+    mean of its two halves' plain traces (not turned, same streams)."""
+    from simulate.fabric.mesh import mesh as weave_mesh
+    from simulate.fabric.weave import preset
+    from simulate.woven.materials import FiberSurface
+
+    _, fib, w_i, w_o, wl, tables = _tiny_felt_case(0.2)
+    wv = preset("plain", spacing_um=300.0, width_um=250.0, height_um=100.0, points_per_span=6, sides=12)
+    m = weave_mesh(wv)
+    beta, _, info = W.fabric_beta(m, fib, w_i[:2], w_o[:2], wl, target_rel_err=0.2, seed=5, threads=1, tables=tables)
+    assert info["rotations"] == 1 and info["realisations"] == 1
+    target = W.estimate.ray_target(0.2)
+    halves = [W.trace(m, FiberSurface(t, float(fib.roughness), float(fib.n_host), "tube", 1.0), w_i[0], w_o[:2],
+                      target_rel_err=target, seed=5, threads=1) for t in tables]
+    # (to the rounding of the directions, which fabric_beta keys to 9 digits)
+    np.testing.assert_allclose(beta, 0.5 * (halves[0].beta + halves[1].beta), rtol=1e-8)
