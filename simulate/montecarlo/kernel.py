@@ -469,12 +469,7 @@ def _make_kernel(scoring: bool, slab: bool = False):
                             pend_l += s_b
                     x, y, z = snap_to_surface(geometry, size, x, y, z, uz)
                     nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
-                    if geometry == SLAB:
-                        # the same value (nx = ny = 0 exactly), but it leaves u_x, u_y unread on the
-                        # slab's plain path: LLVM then drops their updates (README, speed)
-                        cos_i = uz * nz
-                    else:
-                        cos_i = ux * nx + uy * ny + uz * nz
+                    cos_i = ux * nx + uy * ny + uz * nz
                     if contrast:
                         f_out = fresnel_unpolarized(cos_i, n_in, 1.0)
                         if f_out > 0.0:
