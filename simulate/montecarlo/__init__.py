@@ -5,7 +5,11 @@ pieces (:mod:`.kernel`, :mod:`.geometry`, :mod:`.tallies`, :mod:`.rng`) are impl
 details that other estimators extend.
 """
 
-from simulate.montecarlo.transport import (
+from simulate.montecarlo.numba_start import preload_blas_check
+
+preload_blas_check()  # before any kernel runs: numba's BLAS check without scipy.linalg (0.13 s)
+
+from simulate.montecarlo.transport import (  # noqa: E402
     DEFAULT_BATCH_SIZE,
     DEFAULT_MAX_EVENTS,
     CylinderAngular,

@@ -119,6 +119,7 @@ from simulate.montecarlo.geometry import (
 )
 from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
 from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, sample_direction
+from simulate.montecarlo.slab_lanes import simulate_batch_slab_lanes
 from simulate.montecarlo.vecmath import vexp
 
 __all__ = [
@@ -224,20 +225,17 @@ def _source_stamp() -> int:
 _SOURCE_STAMP = _source_stamp()
 
 
-def _make_kernel(scoring: bool, slab: bool = False):
+def _make_kernel(scoring: bool):
     """Compile the kernel for one flavour: ``scoring`` False is the plain transport loop (totals
     and bookkeeping only), True adds the tallies, the vertex hook and spectral re-weighting.
 
     ``SCORING`` is a closure constant, so numba prunes the scoring code from the plain
     flavour: its mere presence (calls and array stores in the photon loop) costs the plain
-    slab case about 30 % of its speed. One source, three compiled flavours (all cached): ``slab``
-    True makes the plain loop's geometry the constant ``SLAB`` (``SLAB_ONLY``): LLVM folds every
-    geometry switch and drops the dead ``x, y`` updates (3-5 % of the slab loop, bit-identical;
-    :func:`run_batches_plain` picks it for slab runs).
+    slab case about 30 % of its speed. (The plain slab runs in a loop of its own with two photons
+    in flight, :mod:`.slab_lanes`; :func:`run_batches_plain` picks it for slab runs.)
     ``STAMP`` (:func:`_source_stamp`) keys the cache to the sources the kernel is built from.
     """
     SCORING = scoring
-    SLAB_ONLY = slab
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
@@ -264,8 +262,6 @@ def _make_kernel(scoring: bool, slab: bool = False):
         if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
             return
         geometry = inp.geometry
-        if SLAB_ONLY:  # a constant: the geometry switches of the loop fold away
-            geometry = SLAB
         geom = inp.geom
         medium = inp.medium
         table = inp.table
@@ -561,7 +557,6 @@ def _make_kernel(scoring: bool, slab: bool = False):
 
 
 simulate_batch_plain = _make_kernel(False)
-simulate_batch_slab = _make_kernel(False, slab=True)
 simulate_batch = _make_kernel(True)
 
 
@@ -603,7 +598,7 @@ def _make_runner(scoring: bool):
                     simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
                 else:
                     if inp.geometry == SLAB:
-                        simulate_batch_slab(inp, inp.source, count, seed, b, scal[i], bins[i])
+                        simulate_batch_slab_lanes(inp, inp.source, count, seed, b, scal[i], bins[i])
                     else:
                         simulate_batch_plain(inp, inp.source, count, seed, b, scal[i], bins[i])
 

@@ -35,6 +35,33 @@ def test_slab_console_script_subprocess():
     assert set(json.loads(proc.stdout)) >= {"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds"}
 
 
+@pytest.mark.parametrize("argv, code", [
+    (["slab", "--mua", "1", "--mus", "10", "--thickness", "0.1", "--photons", "100", "--json"], 0),
+    (["slab", "--mua", "1", "--mus", "10"], 2),             # argparse error (SystemExit)
+    (["slab", "--mua", "1", "--mus", "10", "--thickness", "0.1", "--theta-i", "90"], 2),
+])
+def test_main_gives_the_garbage_collector_back_as_it_found_it(argv, code, capsys):
+    """main() turns the cyclic collector off for start-up (a speed measure) and back on for in-process callers."""
+    import gc
+
+    assert gc.isenabled()
+    try:
+        assert main(argv) == code
+    except SystemExit as exc:
+        assert exc.code == code
+    assert gc.isenabled()
+    gc.disable()
+    try:  # and leaves it off for a caller who had turned it off
+        try:
+            main(argv)
+        except SystemExit:
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize(
     "argv, flag",
     [
