@@ -438,6 +438,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
         "evaluations": search_evaluations, "max_evaluations": max_evaluations,
         "evaluations_uncertainty": problem.evaluations - ev0 - search_evaluations,
         "walks": problem.walks, "walk_seconds": problem.walk_seconds, "reweighted": problem.reweights,
+        "walks_from_cache": problem.cached_walks,
         "reweighted_seconds": problem.reweight_seconds, "seconds": time.perf_counter() - t0,
         "photons": problem.photons, "resumed": resume, "start_note": start_note, "notes": list(problem.notes),
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),

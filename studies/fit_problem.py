@@ -270,6 +270,9 @@ class FitProblem:
     reweight: bool = True
     reweights: int = 0
     reweight_seconds: float = 0.0
+    #: structured walks and re-weighted passes read whole from the disk cache (studies.fit_structure.walk_structure);
+    #: they are also counted in ``walks`` / ``reweights``
+    cached_walks: int = 0
     #: ``(bound of the last re-weighting considered, the reference walk's own)`` (diagnostics)
     last_exponent: tuple = (0.0, 0.0)
     _references: dict = field(default_factory=dict)
@@ -471,6 +474,8 @@ class FitProblem:
         walk = walk_structure(rough, config, self.wavelengths_nm, absorption_nodes(self.nu_max, self.nodes),
                               target_rel_err=self.target_rel_err, seed=int(self.seed or 0), threads=self.threads,
                               reference=reference, progress=self.walk_progress)
+        if walk.cache == "hit":
+            self.cached_walks += 1
         if ref is not None:
             self.reweights += 1
             self.reweight_seconds += walk.seconds
