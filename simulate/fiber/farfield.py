@@ -152,22 +152,30 @@ def far_field_nee(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_n
                           "fiber_info": est.info}
 
 
-@numba.njit(cache=True)
-def _accumulate(T, k_min, j, ab, lit, scale, out):
-    """``out[B] += scale[k] ab lit[i] T[k, B - i]`` over the lit entry cells ``i``, row ``k = j - i`` (wrapped)."""
+@numba.njit(cache=True, parallel=True)
+def _accumulate_beam(T, k_min, nodes, js, weights, scales, lit, out):
+    """``out[B] += weights[c] scales[c, k] lit[i] T[nodes[c], k, B - i]`` over the terms ``c`` (node ``nodes[c]``,
+    beam azimuth cell ``js[c]``) and the lit entry cells ``i``, row ``k = js[c] - i`` (wrapped), for ONE beam.
+
+    Parallel over the exit cells ``B``, each ``out[B]`` (one exit cell's bins and channels, ~10^5 values)
+    summed while it stays in cache. The first version looped entry cell outermost, one call per term:
+    ``out`` (~5 MB on the felt's 112 channels) streamed through memory once per lit cell and term, 30 s of
+    a 74 s fit walk. The order of the additions per value is that version's (term, then entry cell), so
+    the numbers are bit-identical."""
     n = out.shape[0]
     inner = out[0].size
     flat_out = out.reshape(n, inner)
-    for i in range(n):
-        k = ((j - i) + n // 2) % n - n // 2          # row azimuth in (-180, 180] deg
-        if k < k_min or k > -k_min or lit[i] == 0.0:
-            continue
-        w = scale[k - k_min] * ab * lit[i]
-        row = T[k - k_min].reshape(n, inner)
-        for b in range(n):
-            src = (b - i) % n                        # exit cell B gets the row's offset B - i
-            for q in range(inner):
-                flat_out[b, q] += w * row[src, q]
+    flat_T = T.reshape(T.shape[0], T.shape[1], n, inner)
+    for b in numba.prange(n):
+        for c in range(nodes.size):
+            for i in range(n):
+                k = ((js[c] - i) + n // 2) % n - n // 2      # row azimuth in (-180, 180] deg
+                if k < k_min or k > -k_min or lit[i] == 0.0:
+                    continue
+                w = scales[c, k - k_min] * weights[c] * lit[i]
+                src = (b - i) % n
+                for q in range(inner):
+                    flat_out[b, q] += w * flat_T[nodes[c], k - k_min, src, q]
 
 
 @dataclass
@@ -242,6 +250,7 @@ class ExitTable:
         k_min = int(self.k[0])
         out = np.zeros(self.T.shape[2:])
         tau = self.entry(wt)
+        nodes, js, weights, scales = [], [], [], []
         for wi, aw in ((iw, 1.0 - fw), (iw + 1, fw)):
             if aw == 0.0:
                 continue
@@ -251,7 +260,13 @@ class ExitTable:
             for j, ab in ((j0, 1.0 - frac), (j0 + 1, frac)):
                 if ab == 0.0:
                     continue
-                _accumulate(self.T[wi], k_min, j, ab, lit, scale, out)
+                nodes.append(wi)
+                js.append(j)
+                weights.append(ab)
+                scales.append(scale)
+        # one pass over the exit cells for the (up to four) node x azimuth terms
+        _accumulate_beam(np.ascontiguousarray(self.T), k_min, np.array(nodes, np.int64), np.array(js, np.int64),
+                         np.array(weights, float), np.array(scales, float).reshape(len(scales), -1), lit, out)
         out /= self.omega()[None, :, None, None]
         if w_in[0] < 0:
             n_phi = self.bins[1]
