@@ -369,7 +369,8 @@ class FitProblem:
             from studies.fit_structure import structure_key
 
             key = structure_key(config)
-            return self._walk_table(config).table(key, self._facets_of(config), self.w_i, self.w_o)
+            return self._walk_table(config).table(key, self._facets_of(config), self.w_i, self.w_o,
+                                                  self.wavelengths_nm)
         return self._walk_table(config)
 
     def _facets_of(self, config: SimulationConfig) -> Any:
@@ -467,11 +468,12 @@ class FitProblem:
 
     def _run_structured(self, nodye: Any, ref: tuple | None, config: SimulationConfig) -> Any:
         """The structured walk (:func:`studies.fit_structure.walk_structure`); not checkpointed per run."""
-        from studies.fit_structure import walk_structure
+        from studies.fit_structure import walk_structure, walk_wavelengths
 
         rough = dataclasses.replace(nodye, roughness=self._roughness)
         reference = None if ref is None else dataclasses.replace(ref[0], roughness=self._roughness)
-        walk = walk_structure(rough, config, self.wavelengths_nm, absorption_nodes(self.nu_max, self.nodes),
+        walk = walk_structure(rough, config, walk_wavelengths(self.wavelengths_nm),
+                              absorption_nodes(self.nu_max, self.nodes),
                               target_rel_err=self.target_rel_err, seed=int(self.seed or 0), threads=self.threads,
                               reference=reference, progress=self.walk_progress)
         if walk.cache == "hit":
@@ -496,7 +498,9 @@ class FitProblem:
 
         n = ref_table.group_scatterings()
         own = reweight_exponent(ref_table.optics, ref_table.optics, ref_table.groups, n)
-        target = reweight_exponent(ref_table.optics, spectral_optics(nodye, wl), ref_table.groups, n)
+        # the walk's wavelengths (a structured walk may have fewer than the model: fit_structure.walk_wavelengths)
+        target = reweight_exponent(ref_table.optics, spectral_optics(nodye, ref_table.wavelengths_nm), ref_table.groups,
+                                   n)
         self.last_exponent = (target, own)
         if target - own > REWEIGHT_LIMIT:
             log.info("scattering too far from the lattice walk (bound %.3g > %.3g + %.3g): walked itself",
