@@ -148,3 +148,46 @@ def test_an_entry_of_the_wrong_shape_is_walked_again(cache_dir, caplog):
     assert any("unexpected arrays" in r.getMessage() for r in caplog.records)
     assert tablecache.load(key)["G"].shape == walk.G[0].shape
     assert _walk(config).cache == "hit"
+
+
+def test_walk_wavelengths_keep_the_ends_and_at_most_20_nm():
+    np.testing.assert_array_equal(fit_structure.walk_wavelengths(np.arange(390.0, 711.0, 10.0)),
+                                  np.arange(390.0, 711.0, 20.0))
+    twenty = np.arange(390.0, 711.0, 20.0)
+    np.testing.assert_array_equal(fit_structure.walk_wavelengths(twenty), twenty)
+    np.testing.assert_array_equal(fit_structure.walk_wavelengths(np.arange(400.0, 421.0, 5.0)), [400.0, 420.0])
+    np.testing.assert_array_equal(fit_structure.walk_wavelengths(np.arange(400.0, 431.0, 5.0)),
+                                  [400.0, 415.0, 430.0])                 # 20 nm would lose the end: 15
+    np.testing.assert_array_equal(fit_structure.walk_wavelengths(np.arange(400.0, 431.0, 10.0)),
+                                  np.arange(400.0, 431.0, 10.0))         # no stride keeps both ends
+    uneven = np.array([400.0, 410.0, 430.0, 440.0])
+    np.testing.assert_array_equal(fit_structure.walk_wavelengths(uneven), uneven)
+
+
+@pytest.mark.slow
+def test_a_walk_at_20_nm_read_at_10_nm_equals_a_walk_at_10_nm(cache_dir):
+    """The model at every 10 nm from a walk at every 20 nm (linear in the wavelength at each absorption node)
+    equals the walk at every 10 nm within their Monte Carlo errors, without bias."""
+    from simulate import fabric as fab
+
+    config = _config()
+    wl5 = np.arange(500.0, 541.0, 10.0)
+    wl3 = fit_structure.walk_wavelengths(wl5)
+    assert wl3.tolist() == [500.0, 520.0, 540.0]
+    nodye = dataclasses.replace(config, dye=None).fiber(wl5)
+    nodes = absorption_nodes(1.0, 4)
+    walks = [fit_structure.walk_structure(nodye, config, wl, nodes, target_rel_err=TARGET, seed=2, threads=None)
+             for wl in (wl5, wl3)]
+    th = np.array([0.0, 30.0, 45.0, 60.0, 60.0, 30.0])
+    to = np.array([20.0, 10.0, 45.0, 60.0, 30.0, 50.0])
+    po = np.array([0.0, 180.0, 180.0, 180.0, 0.0, 90.0])
+    w_i, w_o = fab.directions_deg(th, np.zeros(6)), fab.directions_deg(to, po)
+    facets = fit_structure.facets_of(config)
+    full = walks[0].table("k", facets, w_i, w_o)
+    read = walks[1].table("k", facets, w_i, w_o, wl5)
+    assert read.R.shape == full.R.shape and read.wavelengths_nm.tolist() == wl5.tolist()
+    sigma = np.sqrt(full.u_R ** 2 + read.u_R ** 2) + 1e-12 * np.abs(full.R)
+    z = (read.R - full.R) / sigma
+    assert float(np.max(np.abs(z))) < 5.0, z
+    assert abs(float(np.mean(z))) < 4.0 / np.sqrt(z.size) + 0.3
+    np.testing.assert_allclose(read.R, full.R, rtol=0.1)
