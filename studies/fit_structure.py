@@ -25,9 +25,23 @@ model, split by what each free parameter changes:
   interior closure's share of the surface's Fresnel energy is computed at the config's starting
   RMS slope (the table is not rebuilt per evaluation; the returned light is diffuse and its surface
   part a few per cent of it): stated limit.
-* **scattering** (volume fraction, particle size, fiber radius): walked at the lattice points of
-  :meth:`studies.fit_problem.FitProblem.lattice` and re-weighted between them by the likelihood
-  ratio within the variance bound, as the top-cell fit does (the same rule, the same seeds).
+* **scattering** (volume fraction, particle size, fiber radius): walked at the lattice points
+  ``start * exp(0.1 k)`` and read between them multilinearly in ``log v``
+  (:meth:`studies.fit_problem.FitProblem.lattice_corners`). The top-cell fit re-weights the walk at
+  the nearest lattice point instead; here a re-weighted pass walks the same paths again (as long as a
+  walk), so only the lattice points are walked.
+* **wavelengths**: a spectral measurement finer than 20 nm is walked at every 20 nm
+  (:func:`walk_wavelengths`) and read linearly in the wavelength at each absorption node; the dye is
+  applied at every model wavelength.
+
+Disk cache. Each (half, chunk) layer table is stored in :mod:`simulate.fiber.tablecache` (its
+atomic writes, checksums and size bound) under :func:`walk_key`: the content hash of the fiber
+WITHOUT dye, the walk's part of ``[structure]``, wavelengths, nodes, photons per row, seed and the
+code (:data:`WALK_MODULES`). The walk is white, so the dye is not in the key: another colour of the
+same felt (a dye-only refit after the structure was fitted: issue 20's "structure transfer"),
+``--resume``, the Monte Carlo fit's surrogate (:mod:`studies.fit_mc`) and any re-run read it. The
+felt's walk is 17 wavelengths x 16 nodes x ~55 000 grid values x 8 bytes x 2 halves = 240 MB (the
+default bound, 2 GiB, holds 8 of them).
 
 Memory. A chunk of at most 7 wavelengths (the exit table's own chunks, so the streams are the
 ones ``simulate fabric`` walks) times ``K = 16`` nodes is 112 channels: its exit table (~0.6 GB)
@@ -43,7 +57,6 @@ is that summation in its fixed-photons mode, ``structured_beta(..., photons_per_
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -54,6 +67,7 @@ import numba
 import numpy as np
 
 from simulate.fiber.absorption import AbsorptionTable, absorption_targets
+from simulate.fiber.farfield import EXIT_TABLE_MODULES, plain_fiber
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
 
 log = logging.getLogger(__name__)
@@ -327,13 +341,8 @@ FACET_ONLY_FIELDS = ("felt_spread_deg", "warp_twist_deg", "weft_twist_deg", "war
 
 #: the modules whose source is part of every walk's key: the kernel, the exit-table and layer-table builders,
 #: the closure and this module (an edit to any of them is a miss, never a stale walk)
-WALK_MODULES = (
-    "simulate.montecarlo.kernel", "simulate.montecarlo.tallies", "simulate.montecarlo.geometry",
-    "simulate.montecarlo.scatter", "simulate.montecarlo.rng", "simulate.montecarlo.vecmath",
-    "simulate.montecarlo.transport", "simulate.montecarlo.accuracy", "simulate.montecarlo.rows",
-    "simulate.fiber.bssrdf", "simulate.fiber.spectral", "simulate.fiber.model", "simulate.fiber.absorption",
-    "simulate.fiber.farfield", "simulate.media.medium", "simulate.optics.mie", "simulate.optics.phase",
-    "simulate.optics.fresnel", "simulate.optics.microfacet", "simulate.fabric.fiberlayer",
+WALK_MODULES = EXIT_TABLE_MODULES + (
+    "simulate.fiber.absorption", "simulate.optics.microfacet", "simulate.fabric.fiberlayer",
     "simulate.fabric.interior", "simulate.fabric.structure", "studies.fit_structure",
 )
 
@@ -350,10 +359,7 @@ def walk_inputs(nodye: Any, reference: Any, config: Any, wavelengths_nm: Any, no
     from simulate.fiber.farfield import DEFAULT_WT_NODES
 
     def plain(f: Any) -> Any:
-        if f is None:
-            return None
-        medium = getattr(f.medium, "medium", f.medium)     # a CachedMedium's medium
-        return dataclasses.replace(f, medium=medium)
+        return None if f is None else plain_fiber(f)
 
     spec = config.structure
     fiber = plain(nodye)

@@ -63,6 +63,7 @@ Forum* 30(4), 1181-1187. docs/physics.md sections 4, 5 and 5.1.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 import warnings
@@ -73,8 +74,11 @@ from typing import Any
 import numba
 import numpy as np
 
+from simulate.fiber import tablecache
 from simulate.optics import microfacet
 from simulate.optics.fresnel import OpticsDomainWarning, reflectance_from_cos
+
+log = logging.getLogger(__name__)
 
 __all__ = ["CachedMedium", "ExitTable", "cached", "cell_frame", "exit_table", "far_field_nee", "surface_far_field", "DEFAULT_WT_NODES",
            "merged", "controlled_halves", "MIN_PHOTONS_PER_ROW", "MAX_ROUNDS", "ROUND_SEED_STRIDE"]
@@ -355,8 +359,13 @@ def cached(fiber: Any) -> Any:
 
 def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, bins: tuple[int, int] = (9, 18),
                photons_per_row: int = 20_000, seed: int = 0, threads: int | None = None,
-               max_group: int = 7) -> ExitTable:
+               max_group: int = 7, cache: bool = True) -> ExitTable:
     """The :class:`ExitTable` of ``fiber`` from :func:`simulate.fiber.bssrdf_table` at each ``w_t`` node.
+
+    ``cache``: read / store the table in the disk cache (:mod:`simulate.fiber.tablecache`, key
+    :func:`exit_table_key`): a second ``simulate fabric --method summation`` of the same fiber at the
+    same photons reads its tables (each round of :func:`controlled_halves` is one entry); a hit is
+    bit-identical to the walk that stored it.
 
     Streams: node ``i``, wavelength chunk ``c`` uses the seed ``seed * 1000003 + 104729 i + 1009 c``
     and its rows add ``7919 r`` (:func:`simulate.fiber.bssrdf_table`, ``r < 19``, ``c < 5``): these
@@ -369,17 +378,68 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
     wavelength; a 21-wavelength group (510-710 nm) gave rare heavy weights at 710 nm that the
     closure of :mod:`simulate.fabric.interior` amplifies.
     """
-    from simulate import fiber as fiber_mod
 
     nodes = np.asarray(w_t, float)
     if nodes.ndim != 1 or nodes.size < 2 or nodes[0] != 0.0 or np.any(np.diff(nodes) <= 0) or nodes[-1] >= 1.0:
         raise ValueError("exit_table: w_t must be increasing nodes from 0 to below 1 (at least two)")
     t0 = time.perf_counter()
+    wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
+    key = exit_table_key(fiber, wl, nodes, bins, photons_per_row, seed, max_group) if cache else None
+    if key is not None:
+        got = tablecache.load(key)
+        if got is not None and all(k in got for k in ("T", "u_T", "k", "photons")):
+            return ExitTable(w_t=nodes, T=got["T"], u_T=got["u_T"], k=got["k"], radius_um=fiber.radius_um,
+                             wavelengths_nm=wl, photons=int(got["photons"]), seconds=time.perf_counter() - t0,
+                             n_host=float(fiber.n_host))
+    table = _walked_exit_table(fiber, wl, nodes, bins, photons_per_row, seed, threads, max_group, t0)
+    if key is not None:
+        tablecache.store(key, {"T": table.T, "u_T": table.u_T, "k": table.k, "photons": np.int64(table.photons)})
+    return table
+
+
+#: the modules whose source is part of every exit table's cache key (the kernel and the table's builders)
+EXIT_TABLE_MODULES = (
+    "simulate.montecarlo.kernel", "simulate.montecarlo.tallies", "simulate.montecarlo.geometry",
+    "simulate.montecarlo.scatter", "simulate.montecarlo.rng", "simulate.montecarlo.vecmath",
+    "simulate.montecarlo.transport", "simulate.montecarlo.accuracy", "simulate.montecarlo.rows",
+    "simulate.fiber.bssrdf", "simulate.fiber.spectral", "simulate.fiber.model", "simulate.fiber.farfield",
+    "simulate.media.medium", "simulate.optics.mie", "simulate.optics.phase", "simulate.optics.fresnel",
+)
+
+
+def plain_fiber(fiber: Any) -> Any:
+    """``fiber`` with its :class:`CachedMedium` unwrapped (the dataclass a cache key hashes)."""
+    import dataclasses
+
+    return dataclasses.replace(fiber, medium=fiber.medium.medium) if isinstance(fiber.medium, CachedMedium) else fiber
+
+
+def exit_table_key(fiber: Any, wavelengths_nm: Any, w_t: Any, bins: tuple[int, int], photons_per_row: int,
+                   seed: int, max_group: int) -> str | None:
+    """The disk-cache key of :func:`exit_table` (:mod:`simulate.fiber.tablecache`; None when the cache is off or
+    the medium has no canonical form): the fiber (its dye included: this table is not white), wavelengths,
+    nodes, bins, photons per row, seed, chunking and the code. The threads are not in it (same rows)."""
+    if not tablecache.enabled():
+        return None
+    inputs = {"fiber": plain_fiber(fiber), "wavelengths_nm": np.asarray(wavelengths_nm, float),
+              "w_t": np.asarray(w_t, float), "bins": (int(bins[0]), int(bins[1])),
+              "photons_per_row": int(photons_per_row), "seed": int(seed), "max_group": int(max_group)}
+    try:
+        return tablecache.content_key("exittable", inputs, EXIT_TABLE_MODULES)
+    except TypeError as exc:
+        log.warning("exit table: not cached (%s)", exc)
+        return None
+
+
+def _walked_exit_table(fiber: Any, wl: np.ndarray, nodes: np.ndarray, bins: tuple[int, int], photons_per_row: int,
+                       seed: int, threads: int | None, max_group: int, t0: float) -> ExitTable:
+    """:func:`exit_table` walked (no cache)."""
+    from simulate import fiber as fiber_mod
+
     fiber = cached(fiber)
     T: np.ndarray | None = None
     u_T = np.zeros(0)
     photons, ks = 0, None
-    wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
     chunks = np.array_split(np.arange(wl.size), int(math.ceil(wl.size / max(1, int(max_group)))))
     for i, wt in enumerate(nodes):
         for c, chunk in enumerate(chunks):
@@ -397,8 +457,8 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
     T = _symmetrised(T)
     u_T /= math.sqrt(2.0)
     return ExitTable(w_t=nodes, T=T, u_T=u_T, k=np.asarray(ks), radius_um=fiber.radius_um,
-                     wavelengths_nm=np.atleast_1d(np.asarray(wavelengths_nm, float)), photons=photons,
-                     seconds=time.perf_counter() - t0, n_host=float(fiber.n_host))
+                     wavelengths_nm=wl, photons=photons, seconds=time.perf_counter() - t0,
+                     n_host=float(fiber.n_host))
 
 
 def merged(a: ExitTable, b: ExitTable, per_row_a: int, per_row_b: int) -> ExitTable:
