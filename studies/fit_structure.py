@@ -26,7 +26,7 @@ model, split by what each free parameter changes:
   RMS slope (the table is not rebuilt per evaluation; the returned light is diffuse and its surface
   part a few per cent of it): stated limit.
 * **scattering** (volume fraction, particle size, fiber radius): walked at the lattice points
-  ``start * exp(0.1 k)`` and read between them multilinearly in ``log v``
+  ``start * exp(0.2 k)`` and read between them multilinearly in ``log v``
   (:meth:`studies.fit_problem.FitProblem.lattice_corners`). The top-cell fit re-weights the walk at
   the nearest lattice point instead; here a re-weighted pass walks the same paths again (as long as a
   walk), so only the lattice points are walked.

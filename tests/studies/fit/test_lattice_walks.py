@@ -12,7 +12,7 @@ import pytest
 from simulate.fiber.absorption import absorption_nodes
 from studies import fit_structure
 from studies.fit import FitProblem, parse_free
-from studies.fit_problem import LATTICE_STEP
+from studies.fit_problem import STRUCTURED_LATTICE_STEP as LATTICE_STEP
 
 from .test_fit_structure import _felt, _measured
 
