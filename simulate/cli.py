@@ -603,8 +603,9 @@ def _fit_run(args: argparse.Namespace) -> int:
               f"{info['seconds']:.1f} s; {info['stop']})")
         return 0
     print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
-          f"{info['reweighted']} re-weighted passes, "
-          f"{info['seconds']:.1f} s)")
+          f"{info['reweighted']} re-weighted passes"
+          + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache") else "")
+          + f", {info['seconds']:.1f} s)")
     return 0
 
 
@@ -878,8 +879,9 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 # ---- end simulate export ----------------------------------------------------------------------
 
 
-#: Commands that may build woven yarn tables, i.e. use the table cache (simulate.fiber.tablecache).
-_TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export")
+#: Commands that may build woven yarn tables or structured-summation walks, i.e. use the table cache
+#: (simulate.fiber.tablecache; the fit's walks: studies.fit_structure.walk_structure).
+_TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -893,7 +895,8 @@ def build_parser() -> argparse.ArgumentParser:
         add_arguments(sp)
         if name in _TABLE_CACHE_COMMANDS:
             sp.add_argument("--no-cache", action="store_true", dest="no_cache",
-                            help="neither read nor write the table cache (the woven yarn tables; default "
+                            help="neither read nor write the table cache (the woven yarn tables, the fit's structured "
+                                 "walks; default "
                                  "~/.cache/fabric-optics or $FABRIC_OPTICS_CACHE_DIR, bounded by "
                                  "$FABRIC_OPTICS_CACHE_MAX_BYTES, 2 GiB); also FABRIC_OPTICS_NO_CACHE=1")
     return parser

@@ -76,7 +76,10 @@ cotton (``N`` ~ 40-55) the bound allows about +-10 % in volume fraction or parti
 lattice needs +-5 %); the measured standard error grew by 4-13 % there, far below the bound (scores
 come mostly from short paths). A re-weighted pass costs about what a walk costs (the kernel walks
 the same paths to score them): the gain is the smooth objective, not the pass. ``fit.json`` counts
-``walks`` and ``reweighted`` passes apart.
+``walks`` and ``reweighted`` passes apart. The structured summation (``[structure]``,
+:mod:`studies.fit_structure`) does not re-weight: its walks at the points of a 20 % lattice are
+blended, multilinear in ``log v`` (:meth:`FitProblem.lattice_corners`), so only lattice points are
+walked, and each walk is kept in the disk table cache (``fit.json`` ``walks_from_cache``).
 
 Optimiser
 ---------
@@ -438,6 +441,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
         "evaluations": search_evaluations, "max_evaluations": max_evaluations,
         "evaluations_uncertainty": problem.evaluations - ev0 - search_evaluations,
         "walks": problem.walks, "walk_seconds": problem.walk_seconds, "reweighted": problem.reweights,
+        "walks_from_cache": problem.cached_walks,
         "reweighted_seconds": problem.reweight_seconds, "seconds": time.perf_counter() - t0,
         "photons": problem.photons, "resumed": resume, "start_note": start_note, "notes": list(problem.notes),
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),

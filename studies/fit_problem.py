@@ -42,6 +42,12 @@ REWEIGHT_LIMIT = math.log(4.0)
 #: Step of the geometric lattice of reference walks (:meth:`FitProblem.lattice`): 10 %, so a point is
 #: at most 5 % from its reference (bound ~0.1-0.5 on red cotton, well inside the limit).
 LATTICE_STEP = 0.10
+#: Step of the structured summation's lattice of walks (:meth:`FitProblem.lattice_corners`): 20 %. Its walks are
+#: not re-weighted but blended (linear in ``log v``), so the step is not bounded by the re-weighting's variance;
+#: a cell of 20 % instead of 10 % halves the walks a search across the volume fraction needs (the felt's went
+#: 0.005 -> 0.0035: 6 walks at 10 %), and ``beta``'s curvature in ``log v`` over it stays far below the walks'
+#: Monte Carlo error (the blend's deviation from a walk at the value itself: tests/studies/fit/test_lattice_walks.py).
+STRUCTURED_LATTICE_STEP = 0.20
 #: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
 KNOT_LOW, KNOT_HIGH = -4.0, 0.5
 
@@ -270,6 +276,9 @@ class FitProblem:
     reweight: bool = True
     reweights: int = 0
     reweight_seconds: float = 0.0
+    #: structured walks and re-weighted passes read whole from the disk cache (studies.fit_structure.walk_structure);
+    #: they are also counted in ``walks`` / ``reweights``
+    cached_walks: int = 0
     #: ``(bound of the last re-weighting considered, the reference walk's own)`` (diagnostics)
     last_exponent: tuple = (0.0, 0.0)
     _references: dict = field(default_factory=dict)
@@ -363,11 +372,74 @@ class FitProblem:
         """The absorption table of ``config``'s scattering: walked, or re-weighted from the walk at its
         lattice point (:meth:`lattice`), whichever the module docstring's rule says; memoised."""
         if self.structured:
-            from studies.fit_structure import structure_key
-
-            key = structure_key(config)
-            return self._walk_table(config).table(key, self._facets_of(config), self.w_i, self.w_o)
+            return self._structured_table(config)
         return self._walk_table(config)
+
+    def _structured_table(self, config: SimulationConfig) -> AbsorptionTable:
+        """The structured summation's table of ``config``: its walk's, or -- a walked parameter between two
+        lattice points -- the interpolation of the walks at the lattice points around it (:meth:`lattice_corners`)."""
+        from studies.fit_structure import structure_key
+
+        key = structure_key(config)
+        facets = self._facets_of(config)
+        corners = self.lattice_corners(self._walk_values(config))
+        if len(corners) == 1 and corners[0][0] == self._walk_values(config):
+            return self._walk_table(config).table(key, facets, self.w_i, self.w_o, self.wavelengths_nm)
+        parts = [(w, self._lattice_walk(config, point).table(key, facets, self.w_i, self.w_o, self.wavelengths_nm))
+                 for point, w in corners]
+        first = parts[0][1]
+        R = sum(w * t.R for w, t in parts)
+        u = sum(w * t.u_R for w, t in parts)        # the correlated bound (the walks share their streams)
+        return AbsorptionTable(R=R, u_R=u, nodes=first.nodes, wavelengths_nm=first.wavelengths_nm,
+                               photons=first.photons, seconds=first.seconds, scatterings=first.scatterings,
+                               groups=first.groups, optics=None)
+
+    def lattice_corners(self, walk: tuple) -> list[tuple[tuple, float]]:
+        """The lattice points (``start * exp(STRUCTURED_LATTICE_STEP k)`` per walked parameter) around the walked values
+        ``walk`` and their multilinear weights in ``log v``: ``[(point, weight)]`` (one point, weight 1, on the
+        lattice; 2^d around it). Values that are not positive, or whose start is not, are kept as they are.
+
+        The structured summation's walked parameters are read this way instead of re-weighting the walk at the
+        nearest lattice point (:meth:`lattice`): a re-weighted pass walks the same paths again to score them
+        (as long as a walk: 9 passes of 51 evaluations were 3/4 of a 347 s fit of the felt), so the walks at
+        the lattice points are all that is walked (each in the disk cache: a refit walks nothing). The
+        objective is then continuous across lattice cells (the jumps between the walks at 10 % target,
+        docs/physics.md 6.5, become a linear blend)."""
+        starts = [p.start for p in self.free if p.kind == "walk"]
+        axes: list[list[tuple[float, float]]] = []
+        step = STRUCTURED_LATTICE_STEP
+        for s, v in zip(starts, walk):
+            if s > 0 and v > 0:
+                x = math.log(v / s) / step
+                k = math.floor(x + 1e-9)
+                f = x - k
+                lo = round(s * math.exp(step * k), 12)
+                if f < 1e-9:
+                    axes.append([(lo, 1.0)])
+                else:
+                    axes.append([(lo, 1.0 - f), (round(s * math.exp(step * (k + 1)), 12), f)])
+            else:
+                axes.append([(v, 1.0)])
+        corners: list[tuple[tuple, float]] = [((), 1.0)]
+        for axis in axes:
+            corners = [(point + (v,), w * wv) for point, w in corners for v, wv in axis]
+        return corners
+
+    def _lattice_walk(self, config: SimulationConfig, point: tuple) -> Any:
+        """The structured walk at the lattice point ``point`` of the walked parameters (walked once, memoised)."""
+        if point in self._tables:
+            return self._tables[point]
+        doc = self._doc_of(config)
+        for p, v in zip([p for p in self.free if p.kind == "walk"], point):
+            paths.set_value(doc, p.name, v)
+        at = parse_config(toml_dumps(doc), "lattice.toml")
+        nodye = dataclasses.replace(at, dye=None).fiber(self.wavelengths_nm)
+        walk = self._run(nodye, point, None, at)
+        self._references[point] = (nodye, walk)
+        if len(self._tables) >= 6:  # the 2^d corners of a step and of a Jacobian's columns
+            self._tables.pop(next(iter(self._tables)))
+        self._tables[point] = walk
+        return walk
 
     def _facets_of(self, config: SimulationConfig) -> Any:
         from studies.fit_structure import facets_of, structure_key
@@ -464,13 +536,16 @@ class FitProblem:
 
     def _run_structured(self, nodye: Any, ref: tuple | None, config: SimulationConfig) -> Any:
         """The structured walk (:func:`studies.fit_structure.walk_structure`); not checkpointed per run."""
-        from studies.fit_structure import walk_structure
+        from studies.fit_structure import walk_structure, walk_wavelengths
 
         rough = dataclasses.replace(nodye, roughness=self._roughness)
         reference = None if ref is None else dataclasses.replace(ref[0], roughness=self._roughness)
-        walk = walk_structure(rough, config, self.wavelengths_nm, absorption_nodes(self.nu_max, self.nodes),
+        walk = walk_structure(rough, config, walk_wavelengths(self.wavelengths_nm),
+                              absorption_nodes(self.nu_max, self.nodes),
                               target_rel_err=self.target_rel_err, seed=int(self.seed or 0), threads=self.threads,
                               reference=reference, progress=self.walk_progress)
+        if walk.cache == "hit":
+            self.cached_walks += 1
         if ref is not None:
             self.reweights += 1
             self.reweight_seconds += walk.seconds
@@ -491,7 +566,9 @@ class FitProblem:
 
         n = ref_table.group_scatterings()
         own = reweight_exponent(ref_table.optics, ref_table.optics, ref_table.groups, n)
-        target = reweight_exponent(ref_table.optics, spectral_optics(nodye, wl), ref_table.groups, n)
+        # the walk's wavelengths (a structured walk may have fewer than the model: fit_structure.walk_wavelengths)
+        target = reweight_exponent(ref_table.optics, spectral_optics(nodye, ref_table.wavelengths_nm), ref_table.groups,
+                                   n)
         self.last_exponent = (target, own)
         if target - own > REWEIGHT_LIMIT:
             log.info("scattering too far from the lattice walk (bound %.3g > %.3g + %.3g): walked itself",

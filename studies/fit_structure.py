@@ -25,9 +25,23 @@ model, split by what each free parameter changes:
   interior closure's share of the surface's Fresnel energy is computed at the config's starting
   RMS slope (the table is not rebuilt per evaluation; the returned light is diffuse and its surface
   part a few per cent of it): stated limit.
-* **scattering** (volume fraction, particle size, fiber radius): walked at the lattice points of
-  :meth:`studies.fit_problem.FitProblem.lattice` and re-weighted between them by the likelihood
-  ratio within the variance bound, as the top-cell fit does (the same rule, the same seeds).
+* **scattering** (volume fraction, particle size, fiber radius): walked at the lattice points
+  ``start * exp(0.2 k)`` and read between them multilinearly in ``log v``
+  (:meth:`studies.fit_problem.FitProblem.lattice_corners`). The top-cell fit re-weights the walk at
+  the nearest lattice point instead; here a re-weighted pass walks the same paths again (as long as a
+  walk), so only the lattice points are walked.
+* **wavelengths**: a spectral measurement finer than 20 nm is walked at every 20 nm
+  (:func:`walk_wavelengths`) and read linearly in the wavelength at each absorption node; the dye is
+  applied at every model wavelength.
+
+Disk cache. Each (half, chunk) layer table is stored in :mod:`simulate.fiber.tablecache` (its
+atomic writes, checksums and size bound) under :func:`walk_key`: the content hash of the fiber
+WITHOUT dye, the walk's part of ``[structure]``, wavelengths, nodes, photons per row, seed and the
+code (:data:`WALK_MODULES`). The walk is white, so the dye is not in the key: another colour of the
+same felt (a dye-only refit after the structure was fitted: issue 20's "structure transfer"),
+``--resume``, the Monte Carlo fit's surrogate (:mod:`studies.fit_mc`) and any re-run read it. The
+felt's walk is 17 wavelengths x 16 nodes x ~55 000 grid values x 8 bytes x 2 halves = 240 MB (the
+default bound, 2 GiB, holds 8 of them).
 
 Memory. A chunk of at most 7 wavelengths (the exit table's own chunks, so the streams are the
 ones ``simulate fabric`` walks) times ``K = 16`` nodes is 112 channels: its exit table (~0.6 GB)
@@ -43,6 +57,7 @@ is that summation in its fixed-photons mode, ``structured_beta(..., photons_per_
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -52,7 +67,10 @@ import numba
 import numpy as np
 
 from simulate.fiber.absorption import AbsorptionTable, absorption_targets
+from simulate.fiber.farfield import EXIT_TABLE_MODULES, plain_fiber
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
+
+log = logging.getLogger(__name__)
 
 __all__ = ["STRUCTURE_FIELDS", "StructWalk", "walk_structure", "facets_of", "surface_beta", "structure_key"]
 
@@ -108,9 +126,22 @@ class StructWalk:
     seconds: float = 0.0
     scatterings: dict = field(default_factory=dict)
     groups: list = field(default_factory=list)
-    optics: Any = None
     layers: int = 0
+    #: ``() -> SpectralOptics`` of the walked fiber (Mie), called on first use of :attr:`optics` only: a dye-only
+    #: fit read from the cache never needs it
+    optics_fn: Any = None
+    #: where the layer tables came from: "miss" (walked and stored), "hit" (read from the disk cache),
+    #: "partial" (some chunks read), "off" (no cache)
+    cache: str = "off"
+    _optics: Any = None
     _tables: dict = field(default_factory=dict)
+
+    @property
+    def optics(self) -> Any:
+        """The walked fiber's :func:`simulate.fiber.spectral.spectral_optics` (the re-weighting bound reads it)."""
+        if self._optics is None and self.optics_fn is not None:
+            self._optics = self.optics_fn()
+        return self._optics
 
     def group_scatterings(self) -> np.ndarray:
         return np.array([self.scatterings.get(f"0:{gi}", 0.0) for gi in range(len(self.groups))])
@@ -119,9 +150,14 @@ class StructWalk:
     def nu_max(self) -> float:
         return float(self.nodes[-1])
 
-    def table(self, key: tuple, facets: Any, w_i: np.ndarray, w_o: np.ndarray) -> AbsorptionTable:
+    def table(self, key: tuple, facets: Any, w_i: np.ndarray, w_o: np.ndarray,
+              wavelengths_nm: np.ndarray | None = None) -> AbsorptionTable:
         """The fabric's volume ``beta`` (and interior return) at the geometries, ``R [N, L, K]``, for ``facets``
-        (memoised by ``key``): mean of the halves, ``u`` half their difference (as ``structured_beta``)."""
+        (memoised by ``key``): mean of the halves, ``u`` half their difference (as ``structured_beta``).
+
+        ``wavelengths_nm``: the model's wavelengths, when the walk was walked at fewer
+        (:func:`walk_wavelengths`): ``R`` and ``u`` read linearly in the wavelength at every absorption
+        node (the dye is applied afterwards at each model wavelength, exactly)."""
         if key in self._tables:
             return self._tables[key]
         from simulate.fabric.fiberlayer import LayerTable
@@ -133,13 +169,53 @@ class StructWalk:
                                    w_i, w_o) for G in self.G]
         N, L, K = w_i.shape[0], self.wavelengths_nm.size, self.nodes.size
         b = [x.reshape(N, L, K) for x in betas]
-        table = AbsorptionTable(R=0.5 * (b[0] + b[1]), u_R=0.5 * np.abs(b[0] - b[1]), nodes=self.nodes,
-                                wavelengths_nm=self.wavelengths_nm, photons=self.photons, seconds=self.seconds,
-                                scatterings=self.scatterings, groups=self.groups, optics=self.optics)
+        R, u = 0.5 * (b[0] + b[1]), 0.5 * np.abs(b[0] - b[1])
+        wl = self.wavelengths_nm
+        if wavelengths_nm is not None and not np.array_equal(np.asarray(wavelengths_nm, float), wl):
+            target = np.asarray(wavelengths_nm, float)
+            if target[0] < wl[0] - 1e-9 or target[-1] > wl[-1] + 1e-9:
+                raise ValueError("StructWalk.table: model wavelengths outside the walked ones")
+            j = np.clip(np.searchsorted(wl, target, side="right") - 1, 0, wl.size - 2)
+            f = ((target - wl[j]) / (wl[j + 1] - wl[j]))[None, :, None]
+            R = (1.0 - f) * R[:, j] + f * R[:, j + 1]
+            u = (1.0 - f) * u[:, j] + f * u[:, j + 1]
+            wl = target
+        table = AbsorptionTable(R=R, u_R=u, nodes=self.nodes, wavelengths_nm=wl, photons=self.photons,
+                                seconds=self.seconds, scatterings=self.scatterings, groups=self.groups,
+                                optics=self._optics)
         if len(self._tables) >= 8:
             self._tables.pop(next(iter(self._tables)))
         self._tables[key] = table
         return table
+
+
+#: the structured walk's wavelength step (nm) for a finer measurement: see :func:`walk_wavelengths`
+WALK_STEP_NM = 20.0
+
+
+def walk_wavelengths(wavelengths_nm: Any) -> np.ndarray:
+    """The wavelengths the fit's structured walk is walked at: every ``s``-th model wavelength of a uniform
+    grid, ``s`` the largest stride with a step of at most :data:`WALK_STEP_NM` that keeps both ends (else all).
+
+    A spectral measurement at 10 nm (33 wavelengths, 390-710) is walked at 20 nm (17): the walk's cost is
+    proportional to its channels (wavelengths x absorption nodes), and between two walked wavelengths
+    only the medium's scattering (Mie of sub-micron particles: smooth, ~lambda^-3) changes -- the dye is
+    applied at every model wavelength exactly, through the absorption nodes. :meth:`StructWalk.table`
+    reads ``R`` linearly in the wavelength at each node. Measured on the felt (docs/physics.md 6.5):
+    the fit's NRMSE, hue and saturation unchanged within the Monte Carlo error. ASTM E308's 20 nm
+    table is the coarsest the colour terms use, so 20 nm is the step (an RGB measurement's model
+    wavelengths, the config's 20 nm, are walked as they are).
+    """
+    wl = np.asarray(wavelengths_nm, float)
+    if wl.size < 3:
+        return wl
+    d = np.diff(wl)
+    if not np.allclose(d, d[0], rtol=1e-9, atol=1e-9):
+        return wl
+    for stride in range(int(WALK_STEP_NM / d[0] + 1e-9), 1, -1):
+        if (wl.size - 1) % stride == 0:
+            return wl[::stride]
+    return wl
 
 
 def photons_per_row(target_rel_err: float) -> int:
@@ -166,7 +242,8 @@ FIT_ROW_QUANTUM = 2000
 
 def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: np.ndarray, *,
                    target_rel_err: float, seed: int, threads: int | None = None, reference: Any = None,
-                   progress: Callable[[int, int, int], None] | None = None, max_group: int = 7) -> StructWalk:
+                   progress: Callable[[int, int, int], None] | None = None, max_group: int = 7,
+                   cache: bool = True) -> StructWalk:
     """Walk the two exit tables of ``nodye`` (the fiber without dye; its roughness is the interior closure's)
     scored at every host-absorption node, and reduce them chunk by chunk to layer tables (module docstring).
 
@@ -174,86 +251,197 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     :func:`simulate.fabric.structure.structured_beta` in its fixed-photons mode with ``photons_per_row(target_rel_err)``
     (the first round of the controlled halves, seeds ``2 seed + half``). ``reference``: walk
     the photons in that fiber's scattering and score them for ``nodye``'s by the likelihood ratio.
+
+    ``cache``: each (half, chunk) layer table is looked up in / stored to the disk cache
+    (:mod:`simulate.fiber.tablecache`) under :func:`walk_key` -- the walk is white, so the key holds the
+    fiber without dye, the scattering, the walk's part of ``[structure]``, wavelengths, nodes, photons
+    and seed, never the dye or the facets: another colour of the same felt, ``--resume``, the Monte
+    Carlo fit's surrogate and a second run read it instead of walking (a hit is bit-identical).
     """
+    from simulate.fabric.fiberlayer import layer_grid
+    from simulate.fiber import farfield as FF
+    from simulate.fiber import tablecache
+    from simulate.fiber.spectral import spectral_optics
+
+    t0 = time.perf_counter()
+    spec = config.structure
+    wl = np.asarray(wavelengths_nm, float)
+    nodes = np.asarray(nodes, float)
+    fiber = FF.cached(nodye)
+    walk_fiber = fiber if reference is None else FF.cached(reference)
+    n_layers = walk_layers(config, fiber)
+    per_row = photons_per_row(target_rel_err)
+    K = nodes.size
+    chunks = np.array_split(np.arange(wl.size), int(math.ceil(wl.size / max(1, int(max_group)))))
+    groups_global: list[np.ndarray] = []
+    scatterings: dict[str, float] = {}
+    th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
+    halves: list[np.ndarray] = []
+    photons = hits = 0
+    n_wt = len(FF.DEFAULT_WT_NODES)
+    runs, run = 2 * len(chunks) * n_wt, 0
+    use = cache and tablecache.enabled()
+    base = None
+    if use:
+        try:
+            base = walk_inputs(nodye, reference, config, wl, nodes, per_row, seed, max_group)
+        except TypeError as exc:      # a medium without a canonical form: no key, no cache
+            log.warning("structured walk: not cached (%s)", exc)
+    if progress is not None:
+        progress(0, 0, runs)
+    for half in range(2):
+        G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, wl.size * K))
+        for c, chunk in enumerate(chunks):
+            key = None if base is None else tablecache.content_key("structwalk", (base, half, c), WALK_MODULES)
+            got = None if key is None else _entry(tablecache.load(key), G.shape[:4] + (chunk.size * K,))
+            if got is None:
+                def report(p: int, done: int) -> None:
+                    if progress is not None:
+                        progress(photons + p, run + done, runs)
+                got = _walk_chunk(fiber, walk_fiber, spec, n_layers, wl[chunk], nodes, per_row, seed, half, c,
+                                  threads, report)
+                if key is not None:
+                    tablecache.store(key, got)
+            else:
+                hits += 1
+            G[..., chunk[0] * K:(chunk[-1] + 1) * K] = got["G"]
+            photons += int(got["photons"])
+            run += n_wt
+            if progress is not None:
+                progress(photons, run, runs)
+            if half == 0:
+                sizes = np.asarray(got["group_sizes"], int)
+                local = np.split(np.asarray(got["group_index"], int), np.cumsum(sizes)[:-1])
+                for g, n in zip(local, np.asarray(got["scatterings"], float)):
+                    scatterings[f"0:{len(groups_global)}"] = float(n)
+                    groups_global.append(chunk[g])
+            del got
+        halves.append(G)
+    walk = StructWalk(G=halves, grid=(th, ph_i, th, ph_o), masking=spec.masking, spacing_ratio=spec.spacing_ratio,
+                      nodes=nodes, wavelengths_nm=wl, photons={"exit_tables": photons, "per_row": per_row},
+                      seconds=time.perf_counter() - t0, scatterings=scatterings, groups=groups_global,
+                      layers=n_layers, optics_fn=lambda: spectral_optics(fiber, wl))
+    walk.cache = "off" if base is None else ("hit" if hits == 2 * len(chunks) else ("miss" if hits == 0 else "partial"))
+    return walk
+
+
+def walk_layers(config: Any, fiber: Any) -> int:
+    """The interior closure's number of layers (``[structure] layers``, else 10 for a felt, else the weave's height)."""
     from simulate.config import weave_from_config
-    from simulate.fabric.fiberlayer import layer_grid, layer_table
+
+    spec = config.structure
+    weave = weave_from_config(config) if spec.kind == "woven" else None
+    return int(spec.layers or (10 if spec.kind == "nonwoven" or weave is None
+                               else max(1, round(weave.height_um / fiber.radius_um))))
+
+
+#: ``[structure]`` fields that change only the facets (the facet sum of :meth:`StructWalk.table`), not the walk:
+#: left out of :func:`walk_inputs`. Every other field is in the key, so a field added later is a miss, never stale.
+FACET_ONLY_FIELDS = ("felt_spread_deg", "warp_twist_deg", "weft_twist_deg", "warp_twist", "weft_twist", "samples")
+
+#: the modules whose source is part of every walk's key: the kernel, the exit-table and layer-table builders,
+#: the closure and this module (an edit to any of them is a miss, never a stale walk)
+WALK_MODULES = EXIT_TABLE_MODULES + (
+    "simulate.fiber.absorption", "simulate.optics.microfacet", "simulate.fabric.fiberlayer",
+    "simulate.fabric.interior", "simulate.fabric.structure", "studies.fit_structure",
+)
+
+
+def walk_inputs(nodye: Any, reference: Any, config: Any, wavelengths_nm: Any, nodes: Any, per_row: int, seed: int,
+                max_group: int = 7) -> dict:
+    """Everything a structured walk depends on (the content of its cache key; :func:`walk_structure`).
+
+    The fiber WITHOUT dye (radius, index, roughness, cell width, medium: particles, volume fraction, size),
+    the walked reference (re-weighted passes), the walk's part of ``[structure]`` (not
+    :data:`FACET_ONLY_FIELDS`) and its layer count, wavelengths, absorption nodes, photons per row,
+    seed and chunking. The threads are not in it: the rows do not depend on them.
+    """
+    from simulate.fiber.farfield import DEFAULT_WT_NODES
+
+    def plain(f: Any) -> Any:
+        return None if f is None else plain_fiber(f)
+
+    spec = config.structure
+    fiber = plain(nodye)
+    return {"fiber": fiber, "reference": plain(reference),
+            "structure": {k: getattr(spec, k) for k in spec.__dataclass_fields__ if k not in FACET_ONLY_FIELDS},
+            "layers": walk_layers(config, fiber), "wavelengths_nm": np.asarray(wavelengths_nm, float),
+            "nodes": np.asarray(nodes, float), "photons_per_row": int(per_row), "seed": int(seed),
+            "max_group": int(max_group), "w_t": np.asarray(DEFAULT_WT_NODES, float), "bins": (9, 18)}
+
+
+def walk_key(nodye: Any, config: Any, wavelengths_nm: Any, nodes: Any, *, target_rel_err: float, seed: int,
+             reference: Any = None, half: int = 0, chunk: int = 0, max_group: int = 7) -> str:
+    """The cache key of one (half, chunk) entry of :func:`walk_structure` with these arguments."""
+    from simulate.fiber import tablecache
+
+    base = walk_inputs(nodye, reference, config, wavelengths_nm, nodes, photons_per_row(target_rel_err), seed,
+                       max_group)
+    return tablecache.content_key("structwalk", (base, int(half), int(chunk)), WALK_MODULES)
+
+
+def _entry(arrays: dict | None, shape: tuple) -> dict | None:
+    """A loaded entry if it has every array in the expected shape (else None: recomputed and rewritten)."""
+    if arrays is None:
+        return None
+    need = ("G", "photons", "scatterings", "group_sizes", "group_index")
+    if any(k not in arrays for k in need) or tuple(arrays["G"].shape) != tuple(shape) or \
+            arrays["scatterings"].shape != arrays["group_sizes"].shape:
+        log.warning("structured walk: a cache entry has unexpected arrays; it is walked again")
+        return None
+    return arrays
+
+
+def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.ndarray, nodes: np.ndarray,
+                per_row: int, seed: int, half: int, c: int, threads: int | None,
+                report: Callable[[int, int], None]) -> dict:
+    """One (half, chunk) of :func:`walk_structure`: its exit table walked at every node, symmetrised, reduced to
+    the layer table (with the interior closure). Returns the cache entry's arrays."""
+    from simulate.fabric.fiberlayer import layer_table
     from simulate.fabric.interior import interior
     from simulate.fiber import farfield as FF
     from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
     from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
     from simulate.montecarlo.transport import make_control
 
-    t0 = time.perf_counter()
-    spec = config.structure
-    wl = np.asarray(wavelengths_nm, float)
-    fiber = FF.cached(nodye)
-    walk_fiber = fiber if reference is None else FF.cached(reference)
-    weave = weave_from_config(config) if spec.kind == "woven" else None
-    n_layers = spec.layers or (10 if spec.kind == "nonwoven" or weave is None
-                               else max(1, round(weave.height_um / fiber.radius_um)))
-    per_row = photons_per_row(target_rel_err)
     K = nodes.size
     w_t = np.asarray(FF.DEFAULT_WT_NODES, float)
     n_psi = fiber.cell_count("bssrdf route")
-    dpsi = 2.0 * math.pi / n_psi
-    k_max = lit_rows(dpsi)
+    k_max = lit_rows(2.0 * math.pi / n_psi)
     ks = list(range(-k_max, k_max + 1))
     n_mu, n_phi = 9, 18
     grid = (n_psi, 1, 10.0 * fiber.radius_um, n_mu, n_phi)
     control = make_control()
-    chunks = np.array_split(np.arange(wl.size), int(math.ceil(wl.size / max(1, int(max_group)))))
-    optics_all = spectral_optics(fiber, wl)
-    walk_all = optics_all if reference is None else spectral_optics(walk_fiber, wl)
-    groups_global: list[np.ndarray] = []
-    scatterings: dict[str, float] = {}
-    th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
-    halves: list[np.ndarray] = []
+    optics = spectral_optics(fiber, wl)
+    walk_optics = optics if walk_fiber is fiber else spectral_optics(walk_fiber, wl)
+    groups = wavelength_groups(walk_optics)
+    scatterings = np.zeros(len(groups))
     photons = 0
-    runs, run = 2 * len(chunks) * w_t.size, 0
-    if progress is not None:
-        progress(0, 0, runs)
-    for half in range(2):
-        G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, wl.size * K))
-        for c, chunk in enumerate(chunks):
-            optics = spectral_optics(fiber, wl[chunk])
-            walk_optics = optics if reference is None else spectral_optics(walk_fiber, wl[chunk])
-            groups = wavelength_groups(walk_optics)
-            if half == 0:
-                first = len(groups_global)
-                groups_global += [chunk[g] for g in groups]
-            T = np.zeros((w_t.size, len(ks), n_psi, n_mu, n_phi, chunk.size * K))
-            for i, wt in enumerate(w_t):
-                for gi, group in enumerate(groups):
-                    medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
-                    targets = absorption_targets(optics, group, nodes, walk_phase)
-                    scal: list = []
-                    t, _, p, _ = bssrdf_rows(fiber, float(wt), ks, grid, medium, walk_phase, targets, control, per_row,
-                                             int(seed_of(seed, half, i, c)), threads, scal)
-                    T[i, ..., int(group[0]) * K:(int(group[-1]) + 1) * K] = t[:, :, 0]   # groups: consecutive
-                    photons += int(p)
-                    n = max(float(s[S_SCATTERINGS]) / max(float(s[S_LAUNCHED]), 1.0) for s in scal)
-                    key = f"0:{first + gi}" if half == 0 else None
-                    if key is not None:
-                        scatterings[key] = max(scatterings.get(key, 0.0), n)
-                run += 1
-                if progress is not None:
-                    progress(photons, run, runs)
-            _symmetrise(T)
-            table = FF.ExitTable(w_t=w_t, T=T, u_T=np.zeros(1), k=np.array(ks), radius_um=fiber.radius_um,
-                                 wavelengths_nm=np.repeat(wl[chunk], K), n_host=float(fiber.n_host))
-            inner = None
-            if spec.interior and spec.masking:
-                inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio)
-            lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
-                             surface=False)
-            G[..., chunk[0] * K:(chunk[-1] + 1) * K] = lt.G
-            del table, T
-        halves.append(G)
-    del walk_all
-    return StructWalk(G=halves, grid=(th, ph_i, th, ph_o), masking=spec.masking, spacing_ratio=spec.spacing_ratio,
-                      nodes=nodes, wavelengths_nm=wl, photons={"exit_tables": photons, "per_row": per_row},
-                      seconds=time.perf_counter() - t0, scatterings=scatterings, groups=groups_global,
-                      optics=optics_all, layers=n_layers)
+    T = np.zeros((w_t.size, len(ks), n_psi, n_mu, n_phi, wl.size * K))
+    for i, wt in enumerate(w_t):
+        for gi, group in enumerate(groups):
+            medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
+            targets = absorption_targets(optics, group, nodes, walk_phase)
+            scal: list = []
+            # the means straight into the table (groups are consecutive): no per-call copies of ~10^8 bytes
+            view = T[i, :, :, None, :, :, int(group[0]) * K:(int(group[-1]) + 1) * K]
+            _, _, p, _ = bssrdf_rows(fiber, float(wt), ks, grid, medium, walk_phase, targets, control, per_row,
+                                     int(seed_of(seed, half, i, c)), threads, scal, into=view)
+            photons += int(p)
+            n = max(float(s[S_SCATTERINGS]) / max(float(s[S_LAUNCHED]), 1.0) for s in scal)
+            scatterings[gi] = max(scatterings[gi], n)
+        report(photons, i + 1)
+    _symmetrise(T)
+    table = FF.ExitTable(w_t=w_t, T=T, u_T=np.zeros(1), k=np.array(ks), radius_um=fiber.radius_um,
+                         wavelengths_nm=np.repeat(wl, K), n_host=float(fiber.n_host))
+    inner = None
+    if spec.interior and spec.masking:
+        inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio)
+    lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
+                     surface=False)
+    return {"G": lt.G, "photons": np.int64(photons), "scatterings": scatterings,
+            "group_sizes": np.array([len(g) for g in groups], np.int64),
+            "group_index": np.concatenate([np.asarray(g, np.int64) for g in groups])}
 
 
 @numba.njit(cache=True, parallel=True)

@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
 from simulate.fiber.model import Fiber, as_directions, as_wavelengths
 from simulate.fiber.routes import beam_route
@@ -139,21 +138,71 @@ class AbsorptionTable:
                                  f"(largest asked {float(np.max(mu)):g}); build the table with a larger nu_max")
         x_nodes = _x(self.nodes)
         x = _x(np.minimum(mu, self.nu_max))
-        P, L, _ = self.R.shape
-        R = np.empty((P, L))
-        u = np.empty((P, L))
-        for l in range(L):
-            vals = self.R[:, l, :]
-            positive = np.all(vals > 0, axis=1)
-            if positive.any():
-                spline = PchipInterpolator(x_nodes, np.log(np.maximum(vals[positive], _FLOOR)), axis=1)
-                R[positive, l] = np.exp(spline(x[l]))
-            if (~positive).any():  # outputs with a zero at some node (no scores): linear in R
-                R[~positive, l] = [np.interp(x[l], x_nodes, row) for row in vals[~positive]]
-            # the relative error varies slowly with nu: interpolate it, apply to the value
-            rel = np.where(vals > 0, self.u_R[:, l, :] / np.where(vals > 0, vals, 1.0), 0.0)
-            u[:, l] = R[:, l] * np.array([np.interp(x[l], x_nodes, row) for row in rel])
-        return R, u
+        vals = self.R
+        positive = np.all(vals > 0, axis=2)                       # [P, L]
+        log_r = np.exp(pchip_at(x_nodes, np.log(np.maximum(vals, _FLOOR)), x))
+        # outputs with a zero at some node (no scores): linear in R
+        R = np.where(positive, log_r, _linear_at(x_nodes, vals, x))
+        # the relative error varies slowly with nu: interpolate it, apply to the value
+        rel = np.where(vals > 0, self.u_R / np.where(vals > 0, vals, 1.0), 0.0)
+        return R, R * _linear_at(x_nodes, rel, x)
+
+
+def _interval(x_nodes: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per query ``x[L]`` its node interval ``i`` (``x_i <= x <= x_i+1``, the last one at the end) and ``s = x - x_i``."""
+    i = np.clip(np.searchsorted(x_nodes, x, side="right") - 1, 0, x_nodes.size - 2)
+    return i, x - x_nodes[i]
+
+
+def _linear_at(x_nodes: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``y[P, L, K]`` over ``x_nodes[K]`` read linearly at ``x[L]`` (one query per wavelength): ``[P, L]``
+    (``np.interp`` per row, without the loop)."""
+    i, s = _interval(x_nodes, x)
+    cols = np.arange(x.size)
+    y0, y1 = y[:, cols, i], y[:, cols, i + 1]
+    return y0 + (y1 - y0) * (s / (x_nodes[i + 1] - x_nodes[i]))
+
+
+def pchip_at(x_nodes: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The monotone cubic (PCHIP, Fritsch & Carlson 1980) of ``y[P, L, K]`` over ``x_nodes[K]`` at ``x[L]``: ``[P, L]``.
+
+    The interpolant of :class:`scipy.interpolate.PchipInterpolator` (its derivative rule, the
+    weighted harmonic mean, and its one-sided three-point ends, after ``scipy.interpolate._cubic``),
+    for all outputs and wavelengths at once: the fit reads a table at one absorption per wavelength
+    at every evaluation, and one ``PchipInterpolator`` per wavelength cost 35 ms of a 40 ms evaluation
+    on the felt (33 wavelengths). Equal to scipy's to rounding (test).
+    """
+    h = np.diff(x_nodes)                                     # [K-1]
+    m = np.diff(y, axis=2) / h                               # [P, L, K-1] slopes
+    d = np.zeros_like(y)
+    if y.shape[2] == 2:
+        d[..., 0] = d[..., 1] = m[..., 0]
+    else:
+        w1 = 2.0 * h[1:] + h[:-1]
+        w2 = h[1:] + 2.0 * h[:-1]
+        sm = np.sign(m)
+        flat = (sm[..., 1:] != sm[..., :-1]) | (m[..., 1:] == 0) | (m[..., :-1] == 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            whmean = (w1 / m[..., :-1] + w2 / m[..., 1:]) / (w1 + w2)
+            d[..., 1:-1] = np.where(flat, 0.0, 1.0 / whmean)
+        d[..., 0] = _pchip_end(h[0], h[1], m[..., 0], m[..., 1])
+        d[..., -1] = _pchip_end(h[-1], h[-2], m[..., -1], m[..., -2])
+    i, s = _interval(x_nodes, x)
+    cols = np.arange(x.size)
+    hi = h[i]
+    y0, y1 = y[:, cols, i], y[:, cols, i + 1]
+    d0, d1 = d[:, cols, i], d[:, cols, i + 1]
+    slope = (y1 - y0) / hi
+    t = (d0 + d1 - 2.0 * slope) / hi
+    c0, c1 = t / hi, (slope - d0) / hi - t                   # scipy's CubicHermiteSpline coefficients
+    return ((c0 * s + c1) * s + d0) * s + y0
+
+
+def _pchip_end(h0: float, h1: float, m0: np.ndarray, m1: np.ndarray) -> np.ndarray:
+    """PCHIP's end derivative: the one-sided three-point estimate, kept monotone (scipy's ``_edge_case``)."""
+    d = ((2.0 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
+    d = np.where(np.sign(d) != np.sign(m0), 0.0, d)
+    return np.where((np.sign(m0) != np.sign(m1)) & (np.abs(d) > 3.0 * np.abs(m0)), 3.0 * m0, d)
 
 
 def absorption_targets(optics: Any, group: np.ndarray, nodes: np.ndarray, walk_phase: Any) -> SpectralTargets:

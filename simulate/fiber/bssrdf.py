@@ -46,8 +46,13 @@ def rows_inputs(fiber, grid, medium, walk_phase, targets, control):
                        T.CYLINDER_DIRECTIONS, params, T.V_NONE, None, targets)
 
 
-def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, photons, seed, threads, scalars=None):
+def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, photons, seed, threads, scalars=None,
+                into=None):
     """BSSRDF table rows: CELL-source runs for the local incidences ``(w_t, azimuth k dpsi)``.
+
+    ``into`` (optional, ``[len(ks), n_psi, n_v, n_mu, n_phi, n_spec]``, e.g. a view of a larger table):
+    the means are written there and no standard error is computed -- returns ``(into, None, photons,
+    seconds)`` (the fit's walk keeps only the means: two ~10^8-byte arrays less per call).
 
     Returns ``T[len(ks), n_psi, n_v, n_mu, n_phi, n_spec]`` (mean exit weight per photon, launch
     weight ``max(w . n, 0)``) and its standard error. ``scalars`` (a list, optional) receives each
@@ -61,6 +66,12 @@ def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, phot
     inp = rows_inputs(fiber, grid, medium, walk_phase, targets, control)
     seeds = np.array([seed + 7919 * r for r in range(len(ks))], dtype=np.int64)
     s, b, seconds = execute_rows(inp, row_sources(w_t, ks, dpsi), seeds, photons, threads, BATCH)
+    if into is not None:
+        for r in range(len(ks)):
+            if scalars is not None:
+                scalars.append(s[r])
+            np.divide(b[r, :, 0].reshape(n_psi, n_v, n_mu, n_phi, n_spec), photons, out=into[r])  # mean_and_error's
+        return into, None, photons * len(ks), seconds
     out = np.zeros((len(ks), n_psi, n_v, n_mu, n_phi, n_spec))
     err = np.zeros_like(out)
     for r in range(len(ks)):
