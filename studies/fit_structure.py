@@ -243,7 +243,8 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
                                  wavelengths_nm=np.repeat(wl[chunk], K), n_host=float(fiber.n_host))
             inner = None
             if spec.interior and spec.masking:
-                inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio)
+                inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio,
+                                 directional=spec.interior_return == "directional")
             lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
                              surface=False)
             G[..., chunk[0] * K:(chunk[-1] + 1) * K] = lt.G
