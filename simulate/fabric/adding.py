@@ -116,7 +116,7 @@ def gap_fraction(table: Any, w: np.ndarray, spacing_ratio: float) -> np.ndarray:
 
 
 def down_operator(table: Any, fiber: Any, w_in: np.ndarray, v: np.ndarray, spacing_ratio: float, *,
-                  radiance: np.ndarray | None = None, n_psi_surface: int = 90) -> np.ndarray:
+                  radiance: np.ndarray | None = None, n_psi_surface: int = 90, surface: bool = True) -> np.ndarray:
     """``P_down(w_in -> v) [V, L]`` (1/sr) for ONE beam ``w_in`` (above) and directions ``v [V, 3]`` below the layer.
 
     Unmasked downward exits of the volume (exit table) and of the surface (Cook-Torrance), per unit
@@ -132,7 +132,8 @@ def down_operator(table: Any, fiber: Any, w_in: np.ndarray, v: np.ndarray, spaci
     n = table.n_psi
     width = width_m[:, (n // 2 - np.arange(n)) % n]         # the cell at psi seen along v is pi - psi seen along M v
     q = np.einsum("ok,okl->ol", width, R)
-    q += surface_Q(fiber, w_in, v, spacing, spacing, n_psi_surface)[:, None]
+    if surface:
+        q += surface_Q(fiber, w_in, v, spacing, spacing, n_psi_surface)[:, None]
     return q / (spacing * table.radius_um * w_in[2])
 
 
@@ -160,37 +161,43 @@ class Adding:
     hemi: Hemisphere
     spacing_ratio: float
 
-    def up_operator(self, table: Any, fiber: Any, w_out: np.ndarray) -> np.ndarray:
-        """``P_up(w -> w_out) [W, O, L]`` for every quadrature direction ``w`` (light going up) and ``w_out [O, 3]``.
+    def up_operator(self, table: Any, fiber: Any, w_out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``P_up(w -> w_out) [W, O, L]`` for every quadrature direction ``w`` (light going up) and ``w_out [O, 3]``,
+        and ``t_up [W, L]``, all the light from ``w`` that crosses the layer upwards (``int P_up dw_o + g``).
 
         ``P_up(w -> w_o) = P_down(M(-w) -> M w_o)``; ``M(-w)`` runs over the whole upper grid, computed for
         the quadrant ``x, y > 0`` and mirrored (a mirror of both directions leaves ``P_down`` unchanged).
         """
         h = self.hemi
         W, O = h.w.shape[0], w_out.shape[0]
-        L = None
         out: np.ndarray | None = None
+        t_up: np.ndarray | None = None
         ring, j = np.divmod(np.arange(W), h.n_phi)
         quadrant = np.flatnonzero(j < h.n_phi // 4)
-        src_of = h.opposite()                  # M(-w_k) = grid direction src_of[k]
-        where = np.empty(W, int)
-        where[src_of] = np.arange(W)           # grid direction q is M(-w) for w = where[q]
+        src_of = h.opposite()                  # M(-w_k) = grid direction src_of[k]; an involution
+        below = h.w * FLIP_Z
+        gaps = gap_fraction(table, h.w, self.spacing_ratio)
         for q in quadrant:
             rad = lit_radiance(table, h.w[q], 2.0 * self.spacing_ratio)
+            total = down_operator(table, fiber, h.w[q], below, self.spacing_ratio, radiance=rad).sum(axis=0) * h.d_omega
             for m, sign in enumerate(MIRROR_SIGNS):
                 # P_down(mirror_m w_q -> M w_o) = P_down(w_q -> mirror_m M w_o)
                 p = down_operator(table, fiber, h.w[q], (w_out * FLIP_Z) * sign, self.spacing_ratio, radiance=rad)
-                if out is None:
-                    L = p.shape[-1]
-                    out = np.zeros((W, O, L))
-                out[where[h.mirrored(m)[q]]] = p
-        assert out is not None
-        return out
+                if out is None or t_up is None:
+                    out = np.zeros((W, O, p.shape[-1]))
+                    t_up = np.zeros((W, p.shape[-1]))
+                k = src_of[h.mirrored(m)[q]]
+                out[k] = p
+                t_up[k] = total + gaps[q]
+        assert out is not None and t_up is not None
+        return out, t_up
 
     def term(self, table: Any, fiber: Any, single: LayerTable, w_in: np.ndarray, down: np.ndarray,
-             w_out: np.ndarray, up: np.ndarray) -> np.ndarray:
+             w_out: np.ndarray, up: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """``D [I, O, L]`` for beams ``w_in [I, 3]`` with their ``P_down`` on the grid ``down [I, V, L]`` (``v`` the
-        grid mirrored below: ``v_k = M w_k``), exits ``w_out [O, 3]`` and ``up = up_operator(w_out)``."""
+        grid mirrored below: ``v_k = M w_k``), exits ``w_out [O, 3]`` and ``up = up_operator(w_out)``; and its
+        energy ``E_D [I, L] = int D dw_o`` from the operators' totals (independent of the exit grid)."""
+        up, t_up = up
         h = self.hemi
         W = h.w.shape[0]
         dw = h.d_omega
@@ -212,7 +219,10 @@ class Adding:
         dn = np.moveaxis(down, -1, 0)          # [L, I, V]
         pb = np.moveaxis(Pb, -1, 0)            # [L, V, W]
         upl = np.moveaxis(up, -1, 0)           # [L, W, O]
-        D = (dn @ pb) @ upl * (dw * dw)        # [L, I, O]
+        mid = dn @ pb                          # [L, I, W]: light leaving the layer below towards w, per sr
+        D = mid @ upl * (dw * dw)              # [L, I, O]
+        tu = np.moveaxis(t_up, -1, 0)[:, :, None]    # [L, W, 1]
+        E = (mid @ tu)[..., 0] * (dw * dw)     # [L, I]
         g_in = gap_fraction(table, w_in, self.spacing_ratio)
         if np.any(g_in > 0):
             g_out = np.where(w_out[:, 2] > 1e-9,
@@ -225,4 +235,6 @@ class Adding:
             D += g_in[None, :, None] * (np.moveaxis(b_in, -1, 0) @ upl) * dw
             D += (dn @ np.moveaxis(b_out, -1, 0)) * dw * g_out[None, None, :]
             D += np.moveaxis(b_io, -1, 0) * g_in[None, :, None] * g_out[None, None, :]
-        return np.moveaxis(D, 0, -1)
+            # the energy: light through the gap reflected towards w, then across the top layer
+            E += g_in[None, :] * (np.moveaxis(b_in, -1, 0) @ tu)[..., 0] * dw
+        return np.moveaxis(D, 0, -1), np.moveaxis(E, 0, -1)

@@ -288,7 +288,8 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
 def _directional_layer_table(table: ExitTable, fiber: Any, interior: Any, spacing_ratio: float, step_deg: float,
                              phi_step_deg: float, n_sub: int, surface: bool, t0: float) -> LayerTable:
     """:func:`layer_table` with the interior return's first order resolved in angle (:mod:`simulate.fabric.adding`):
-    ``G = G_layer + (A_ret - C) (w_i . m)(w_o . m) / pi + (w_i . m) D``."""
+    ``G = G_layer + (A_ret - s E_D) (w_i . m)(w_o . m) / pi + s (w_i . m) D``, ``s = min(1, A_ret / E_D)`` per channel:
+    the closure fixes how much light comes back, the adding where its first order goes."""
     from simulate.fabric.adding import Adding, down_operator, hemisphere
     from simulate.fabric.interior import layer_energy
 
@@ -310,7 +311,7 @@ def _directional_layer_table(table: ExitTable, fiber: Any, interior: Any, spacin
                               surface=False, radiance=radiance).reshape(th.size, ph_o.size, -1)
             energy = layer_energy(table, fiber, w_in, interior.classes, spacing_ratio=spacing_ratio, n_sub=n_sub,
                                   radiance=radiance)
-            ret[a, b] = interior.returned(energy) - interior.first_order(energy)
+            ret[a, b] = interior.returned(energy)
             beams.append(w_in)
             downs.append(down_operator(table, fiber, w_in, below, spacing_ratio, radiance=radiance))
             nodes.append((a, b))
@@ -322,13 +323,15 @@ def _directional_layer_table(table: ExitTable, fiber: Any, interior: Any, spacin
     for a in range(th.size):          # the pole: one direction for every phi_i
         if th[a] == 0.0:
             single.G[a, 1:] = single.G[a, 0]
-    D = adding.term(table, fiber, single, np.array(beams), np.stack(downs), w_out,
-                    adding.up_operator(table, fiber, w_out))
+    D, E = adding.term(table, fiber, single, np.array(beams), np.stack(downs), w_out,
+                       adding.up_operator(table, fiber, w_out))
     D[:, w_out[:, 2] <= 0.0] = 0.0
     for n, (a, b) in enumerate(nodes):
         w_in = beams[n]
-        lam = np.clip(ret[a, b], 0.0, None)[None, :] * w_in[2] * w_out[:, 2:3] / math.pi
-        G[a, b] += (lam + w_in[2] * D[n]).reshape(th.size, ph_o.size, -1)
+        total = np.clip(ret[a, b], 0.0, None)
+        s = np.where(E[n] > total, total / np.where(E[n] > 0, E[n], 1.0), 1.0)
+        lam = (total - s * E[n])[None, :] * w_in[2] * w_out[:, 2:3] / math.pi
+        G[a, b] += (lam + w_in[2] * s[None, :] * D[n]).reshape(th.size, ph_o.size, -1)
         if th[a] == 0.0:
             G[a, 1:] = G[a, 0]
     if surface:

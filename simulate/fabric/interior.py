@@ -173,9 +173,9 @@ class Interior:
 
     def first_order(self, energy: np.ndarray) -> np.ndarray:
         """``C [L] = X_u r t``: the closure's estimate of the path down through the top layer (unmasked or between
-        its fibers), reflected unmasked by the layer below, up through the top layer -- the term
+        its fibers), reflected unmasked by the layer below, up through the top layer -- the path
         :mod:`simulate.fabric.adding` resolves in angle (one term of :meth:`returned`'s expansion, so
-        ``returned - first_order >= 0``)."""
+        ``returned - first_order >= 0``). Compared with the adding's own energy of that path in the tests."""
         _, d, _, gap = energy
         return (d + gap) * self.r * self.t
 

@@ -76,6 +76,8 @@ def test_top_cells_flat_untwisted_reproduce_the_old_summation():
     ('samples = 2', "structure.samples"),
     ('twist = 3', "structure.twist"),
     ('masking = false', "structure.interior"),
+    ('interior_return = "lambert"', "structure.interior_return"),
+    ('interior = false\ninterior_return = "directional"', "structure.interior_return"),
 ])
 def test_every_structure_field_is_validated(line, field):
     with pytest.raises(ConfigError) as exc:
