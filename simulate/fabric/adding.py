@@ -28,13 +28,14 @@ down through the top layer, reflected once by the layer below, up through the to
                   + g(w_i) int P_b(w_i -> w) P_up(w -> w_o) dw + g_up(w_o) int P_down(w_i -> v) P_b(-v -> w_o) dv
                   + g(w_i) P_b(w_i -> w_o) g_up(w_o)
 
-is added to the top layer's ``G`` as ``(w_i . z) D``. The closure's own estimate of the same path,
-``C(w_i) = X_u(w_i) r t`` (``X_u = d(w_i) + g(w_i)`` the light the top layer sends down unmasked or through
-its gaps, ``r``, ``t`` the diffuse single-layer reflectance and transmittance of the closure), is one term of
-its expansion ``A_ret = ... + X R_b t' / (1 - r' R_b)`` (all terms positive), so it is taken out of the
-Lambertian lobe: ``A_ret -> A_ret - C``. Every other order (masked light, multiple reflections between
-the layers, the layers further down) stays diffuse. Energy: ``D`` and ``C`` carry the same light; they
-differ by the angular correlations that ``C`` averages out (a white stack: tests).
+is added to the top layer's ``G`` as ``(w_i . z) D``, and its energy ``E_D = int D dw_o`` is taken out of the
+closure's Lambertian lobe: ``A_ret -> A_ret - s E_D``, ``D -> s D`` with ``s = min(1, A_ret / E_D)`` per channel.
+The closure keeps the total (a white stack returns exactly what it returned: tests), the adding decides
+where the first order goes; every other order (masked light, multiple reflections between the layers, the
+layers further down) stays diffuse. The closure's own estimate of the same path, ``C(w_i) = X_u(w_i) r t``
+(``X_u = d(w_i) + g(w_i)``; :meth:`simulate.fabric.interior.Interior.first_order`), is one positive term of its
+expansion; ``E_D`` differs from it by the angular correlations ``C`` averages out (touching white layers:
+within 10 %; a sparse layer: 0.66-1.5, docs/physics.md 6.3) -- which the closure's totals do not see.
 
 Quadrature: ``n_mu`` rings uniform in ``cos theta`` times ``n_phi`` azimuths (offset half a step, so the grid
 is closed under the layer's mirrors and the half turn ``v -> -v`` maps it onto itself). Limits, stated:
@@ -197,7 +198,7 @@ class Adding:
         """``D [I, O, L]`` for beams ``w_in [I, 3]`` with their ``P_down`` on the grid ``down [I, V, L]`` (``v`` the
         grid mirrored below: ``v_k = M w_k``), exits ``w_out [O, 3]`` and ``up = up_operator(w_out)``; and its
         energy ``E_D [I, L] = int D dw_o`` from the operators' totals (independent of the exit grid)."""
-        up, t_up = up
+        p_up, t_up = up
         h = self.hemi
         W = h.w.shape[0]
         dw = h.d_omega
@@ -218,7 +219,7 @@ class Adding:
         # D = down @ Pb @ up, per channel (batched matmul over L)
         dn = np.moveaxis(down, -1, 0)          # [L, I, V]
         pb = np.moveaxis(Pb, -1, 0)            # [L, V, W]
-        upl = np.moveaxis(up, -1, 0)           # [L, W, O]
+        upl = np.moveaxis(p_up, -1, 0)         # [L, W, O]
         mid = dn @ pb                          # [L, I, W]: light leaving the layer below towards w, per sr
         D = mid @ upl * (dw * dw)              # [L, I, O]
         tu = np.moveaxis(t_up, -1, 0)[:, :, None]    # [L, W, 1]
