@@ -41,8 +41,8 @@ Quadrature: ``n_mu`` rings uniform in ``cos theta`` times ``n_phi`` azimuths (of
 is closed under the layer's mirrors and the half turn ``v -> -v`` maps it onto itself). Limits, stated:
 one reflection between the two layers resolved; the layer below's surface at the walk's RMS slope (a fit
 re-evaluates only the top layer's surface); the layer below is not shadowed by the top one beyond what
-``P_down`` lets through; quadrature of ``12 x 24`` directions per hemisphere (7.5 deg rings near the
-horizon, 15 deg in azimuth) smooths lobes narrower than that.
+``P_down`` lets through; quadrature of ``12 x 24`` directions per hemisphere (rings 5 deg wide at the
+horizon, 24 deg at the pole; 15 deg in azimuth) smooths lobes narrower than that.
 
 References
 ----------
