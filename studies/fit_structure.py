@@ -343,7 +343,7 @@ FACET_ONLY_FIELDS = ("felt_spread_deg", "warp_twist_deg", "weft_twist_deg", "war
 #: the closure and this module (an edit to any of them is a miss, never a stale walk)
 WALK_MODULES = EXIT_TABLE_MODULES + (
     "simulate.fiber.absorption", "simulate.optics.microfacet", "simulate.fabric.fiberlayer",
-    "simulate.fabric.interior", "simulate.fabric.structure", "studies.fit_structure",
+    "simulate.fabric.interior", "simulate.fabric.adding", "simulate.fabric.structure", "studies.fit_structure",
 )
 
 
@@ -436,7 +436,8 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
                          wavelengths_nm=np.repeat(wl, K), n_host=float(fiber.n_host))
     inner = None
     if spec.interior and spec.masking:
-        inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio)
+        inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio,
+                         directional=spec.interior_return == "directional")
     lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
                      surface=False)
     return {"G": lt.G, "photons": np.int64(photons), "scatterings": scatterings,

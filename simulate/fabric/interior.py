@@ -169,6 +169,15 @@ class Interior:
     n_layers: int
     R_below: np.ndarray
     classes: np.ndarray
+    directional: bool = False
+
+    def first_order(self, energy: np.ndarray) -> np.ndarray:
+        """``C [L] = X_u r t``: the closure's estimate of the path down through the top layer (unmasked or between
+        its fibers), reflected unmasked by the layer below, up through the top layer -- the path
+        :mod:`simulate.fabric.adding` resolves in angle (one term of :meth:`returned`'s expansion, so
+        ``returned - first_order >= 0``). Compared with the adding's own energy of that path in the tests."""
+        _, d, _, gap = energy
+        return (d + gap) * self.r * self.t
 
     def returned(self, energy: np.ndarray) -> np.ndarray:
         """``A_ret [L]`` for a beam's ``layer_energy`` ``[4, L]`` (module docstring)."""
@@ -180,8 +189,11 @@ class Interior:
 
 
 def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: float = 1.0, n_theta: int = 6,
-             n_phi: int = 4) -> Interior:
-    """Diffuse layer properties by cosine-weighted quadrature over the incident quadrant (mirrors give the rest)."""
+             n_phi: int = 4, directional: bool = False) -> Interior:
+    """Diffuse layer properties by cosine-weighted quadrature over the incident quadrant (mirrors give the rest).
+
+    ``directional``: the layer table built with it resolves the return's first order in angle
+    (:mod:`simulate.fabric.adding`; ``[structure] interior_return = "directional"``)."""
     if int(n_layers) < 1:
         raise ValueError(f"interior: n_layers must be >= 1, got {n_layers!r}")
     classes = exit_classes(table, 2.0 * spacing_ratio)
@@ -197,4 +209,5 @@ def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: floa
     d = d + gap                                         # diffuse light through the gaps reaches the next layer
     share = k * (u + d) / (2.0 * (1.0 - k))
     r_eff, t_eff = u + share, d + share
-    return Interior(u, d, k, r_eff, t_eff, int(n_layers), stack_reflectance(r_eff, t_eff, int(n_layers) - 1), classes)
+    return Interior(u, d, k, r_eff, t_eff, int(n_layers), stack_reflectance(r_eff, t_eff, int(n_layers) - 1), classes,
+                    bool(directional))

@@ -84,6 +84,7 @@ class StructureSpec:
     weft_twist: str = "Z"
     felt_spread_deg: float = 20.0
     samples: int = 48
+    interior_return: str = "diffuse"
 
     @property
     def spacing_ratio(self) -> float:
@@ -111,6 +112,9 @@ def structure_from_table(t: Any) -> StructureSpec:
         weft_twist = "Z"
         felt_spread_deg = 20        # nonwoven: standard deviation of the fibers' inclination, [0, 60]
         samples = 48                # woven: surface samples per side of the micro-element, [4, 512]
+        interior_return = "diffuse" # "diffuse": the closure's Lambertian return (6.3); "directional": its first
+                                    # order (down through the top layer, reflected by the layer below, up
+                                    # again) resolved in angle (simulate.fabric.adding; needs interior)
     """
     def flag(key: str, default: bool) -> bool:
         value = t.raw(key, default)
@@ -133,10 +137,13 @@ def structure_from_table(t: Any) -> StructureSpec:
         weft_twist=t.string("weft_twist", "Z", choices=("Z", "S")),
         felt_spread_deg=t.number("felt_spread_deg", 20.0, ge=0.0, le=60.0),
         samples=t.integer("samples", 48, ge=4, le=512),
+        interior_return=t.string("interior_return", "diffuse", choices=("diffuse", "directional")),
     )
     t.done()
     if spec.interior and not spec.masking and spec.cells == "visible":
         raise t.fail("interior", "needs masking = true (the returned light is what the masking removes)")
+    if spec.interior_return == "directional" and not (spec.interior and spec.masking and spec.cells == "visible"):
+        raise t.fail("interior_return", '"directional" needs interior = true, masking = true and cells = "visible"')
     return spec
 
 
@@ -392,7 +399,8 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
         if spec.interior and spec.masking:
             from simulate.fabric.interior import interior
 
-            inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio)
+            inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio,
+                             directional=spec.interior_return == "directional")
         lt = FL.layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner)
         if w_i.shape[0] > BULK_GEOMETRIES:   # many geometries: tabulate the facet sum once, then gather
             from simulate.fabric.structtable import fabric_table

@@ -15,6 +15,8 @@ on the plane ``z = 3R`` uniformly over one period along y and hit the first cyli
 (the periodic layer maps it onto the central one); an exit ray that meets a neighbour is masked
 (dropped), one leaving downwards is dropped; bins of ``(w_z, atan2(w_y, w_x))`` over the upper
 hemisphere (equal solid angles); each photon stands for ``E_perp w_z d / N`` per unit length.
+``down = True`` (layer only): the other way round -- the exits leaving DOWNWARDS past the neighbours are
+tallied, in bins of ``(-w_z, atan2(w_y, w_x))`` over the lower hemisphere, the upward ones dropped.
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ def _hits_circle(py, pz, uy, uz, cy, radius):
 
 
 @numba.njit(cache=True)
-def trace(n_photons, seed, wx, wy, wz, radius, n, mu_s, mu_a, g, layer_d, n_1, n_2):
+def trace(n_photons, seed, wx, wy, wz, radius, n, mu_s, mu_a, g, layer_d, n_1, n_2, down=False):
     np.random.seed(seed)
     sums = np.zeros((n_1, n_2))
     sq = np.zeros((n_1, n_2))
@@ -144,10 +146,10 @@ def trace(n_photons, seed, wx, wy, wz, radius, n, mu_s, mu_a, g, layer_d, n_1, n
                 i1 = min(int((ox + 1.0) * 0.5 * n_1), n_1 - 1)
                 i2 = min(int((math.atan2(oy, oz) + math.pi) / (2.0 * math.pi) * n_2), n_2 - 1)
             else:
-                if oz <= 0.0 or _hits_circle(py, pz, oy, oz, layer_d, radius) or \
+                if (oz >= 0.0 if down else oz <= 0.0) or _hits_circle(py, pz, oy, oz, layer_d, radius) or \
                         _hits_circle(py, pz, oy, oz, -layer_d, radius):
-                    break                              # masked or downwards
-                i1 = min(int(oz * n_1), n_1 - 1)
+                    break                              # masked, or leaving on the side not tallied
+                i1 = min(int(abs(oz) * n_1), n_1 - 1)
                 i2 = min(int((math.atan2(oy, ox) + math.pi) / (2.0 * math.pi) * n_2), n_2 - 1)
             sums[i1, i2] += weight
             sq[i1, i2] += weight * weight

@@ -76,6 +76,8 @@ def test_top_cells_flat_untwisted_reproduce_the_old_summation():
     ('samples = 2', "structure.samples"),
     ('twist = 3', "structure.twist"),
     ('masking = false', "structure.interior"),
+    ('interior_return = "lambert"', "structure.interior_return"),
+    ('interior = false\ninterior_return = "directional"', "structure.interior_return"),
 ])
 def test_every_structure_field_is_validated(line, field):
     with pytest.raises(ConfigError) as exc:
@@ -196,3 +198,19 @@ def test_structured_summation_dataset_end_to_end(tmp_path):
     model = ds.meta["model"]
     assert model["structure"]["warp_twist_deg"] == 20.0 and model["structure"]["weft_twist"] == "S"
     assert 0.45 < model["facets"]["warp"] < 0.55
+
+
+def test_directional_return_through_the_config(tmp_path):
+    """`interior_return = "directional"` reaches the summation (same walk as "diffuse": only the return's angular
+    shape differs) and is recorded in the dataset's model."""
+    from simulate.virtual import fabric_dataset
+
+    plan = parse_plan(TINY_PLAN, "tiny.toml")
+    base = HG_CONFIG + '[structure]\nkind = "felt"\npacking_fraction = 0.3\n'
+    a = fabric_dataset(parse_config(base, "hg.toml"), plan, "summation", target_rel_err=0.2, seed=1, threads=2)
+    b = fabric_dataset(parse_config(base + 'interior_return = "directional"\n', "hg.toml"), plan, "summation",
+                       target_rel_err=0.2, seed=1, threads=2)
+    assert b.meta["model"]["structure"]["interior_return"] == "directional"
+    assert a.meta["model"]["structure"]["interior_return"] == "diffuse"
+    rel = np.abs(b.table["beta"] - a.table["beta"]) / a.table["beta"]
+    assert np.all(b.table["beta"] > 0) and 0.01 < rel.max() < 0.5
