@@ -136,9 +136,11 @@ def sample_cosine(kind: int, g: float, table: np.ndarray, xi: float,
     return 2.0 * xi - 1.0
 
 
-_U40_SHIFT = np.uint64(24)
-_INV40 = 1.0 / 1099511627776.0  # 2^-40
-_LOW24 = np.uint64(0xFFFFFF)
+# One 64-bit draw split in two: the top 40 bits for the scattering cosine, the low 24 for the azimuth
+# (shared with the slab loop in simulate.montecarlo.slab_lanes).
+U40_SHIFT = np.uint64(24)
+INV40 = 1.0 / 1099511627776.0  # 2^-40
+LOW24 = np.uint64(0xFFFFFF)
 _LOW16 = np.uint64(0xFFFF)
 _U16 = np.uint64(16)
 _N_AZ = 256
@@ -179,9 +181,9 @@ def sample_direction(
     ``hg = hg_constants(g)``.
     """
     r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-    ct = sample_cosine(kind, g, table, float(r >> _U40_SHIFT) * _INV40, hg)
+    ct = sample_cosine(kind, g, table, float(r >> U40_SHIFT) * INV40, hg)
     st = math.sqrt(max(1.0 - ct * ct, 0.0))
-    cp, sp = azimuth(r & _LOW24)
+    cp, sp = azimuth(r & LOW24)
     scp = st * cp  # sin(theta) cos(phi)
     ssp = st * sp  # sin(theta) sin(phi)
     if abs(uz) > 0.99999:

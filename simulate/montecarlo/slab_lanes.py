@@ -32,7 +32,7 @@ import numpy as np
 
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
-from simulate.montecarlo.scatter import _INV40, _LOW24, _U40_SHIFT, azimuth, hg_constants, sample_cosine
+from simulate.montecarlo.scatter import INV40, LOW24, U40_SHIFT, azimuth, hg_constants, sample_cosine
 from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
 
 __all__ = ["LANE_OFFSET", "simulate_batch_slab_lanes"]
@@ -149,9 +149,9 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
                 w *= albedo
                 scat += 1
                 r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                ct = sample_cosine(phase, g, table, float(r >> _U40_SHIFT) * _INV40, hg)
+                ct = sample_cosine(phase, g, table, float(r >> U40_SHIFT) * INV40, hg)
                 st = math.sqrt(max(1.0 - ct * ct, 0.0))
-                cp, _ = azimuth(r & _LOW24)
+                cp, _ = azimuth(r & LOW24)
                 if abs(uz) > 0.99999:
                     uz = ct if uz > 0.0 else -ct
                 else:
