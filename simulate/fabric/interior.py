@@ -53,7 +53,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -189,11 +189,12 @@ class Interior:
 
 
 def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: float = 1.0, n_theta: int = 6,
-             n_phi: int = 4, directional: bool = False) -> Interior:
+             n_phi: int = 4, directional: bool = False, tick: Callable[[], None] | None = None) -> Interior:
     """Diffuse layer properties by cosine-weighted quadrature over the incident quadrant (mirrors give the rest).
 
     ``directional``: the layer table built with it resolves the return's first order in angle
-    (:mod:`simulate.fabric.adding`; ``[structure] interior_return = "directional"``)."""
+    (:mod:`simulate.fabric.adding`; ``[structure] interior_return = "directional"``). ``tick``: called before
+    each incident direction (the fit's walk stops there when interrupted: :mod:`studies.walk_threads`)."""
     if int(n_layers) < 1:
         raise ValueError(f"interior: n_layers must be >= 1, got {n_layers!r}")
     classes = exit_classes(table, 2.0 * spacing_ratio)
@@ -202,6 +203,8 @@ def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: floa
     acc = np.zeros((4, table.T.shape[-1]))
     for s2 in u2:
         for p in ph:
+            if tick is not None:
+                tick()
             w = microfacet.direction(math.asin(math.sqrt(s2)), p)
             acc += layer_energy(table, fiber, w, classes, spacing_ratio=spacing_ratio)
     u, d, e, gap = acc / (n_theta * n_phi)
