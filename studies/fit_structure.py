@@ -258,6 +258,23 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     fiber without dye, the scattering, the walk's part of ``[structure]``, wavelengths, nodes, photons
     and seed, never the dye or the facets: another colour of the same felt, ``--resume``, the Monte
     Carlo fit's surrogate and a second run read it instead of walking (a hit is bit-identical).
+
+    Threads (issue 21, fifth stop). The entries are independent (own streams ``seed_of(seed, half, node,
+    chunk)``), so the ones not in the cache run two at a time on threads (:mod:`studies.walk_threads`)
+    when the budget ``threads`` (None: the cores) is 2 or more, each with ``threads // 2`` kernel threads;
+    ``threads=1`` (``--threads 1``) is the serial walk in this thread. Why threads: ~70 % of a cold walk
+    was NOT the kernel's parallel rows but one core's work per entry (exit radiance of every beam, the
+    layer table, the interior closure); processes would pickle ~10^8-byte tables both ways and re-import
+    and re-load numba per worker. Why ``nogil=True`` on the kernel's row runner, ``_accumulate_beam``,
+    :func:`_symmetrise` and the rows' reduction: a numba function holds the GIL for its whole call
+    unless compiled without it, and those are most of an entry's time (numpy's own loops release it);
+    the threading layer (``omp``/``tbb``) takes concurrent parallel calls. The numbers do not depend on
+    the thread (disjoint writes, the rows reduced in batch order), so the walk is bit-identical to the
+    serial one (``tests/studies/fit/test_walk_threads.py``). The hits are read first; the rest is
+    assembled by entry, not by completion order. Progress: one lock-guarded sum of every entry's counts
+    (monotone). Ctrl-C: the main thread re-raises at once and the workers stop at their next tick
+    (each wavelength group of each exit-table node, each incident direction of the layer table and closure); every finished
+    entry is already stored. Measured gain: docs/physics.md ("Fifth stop").
     """
     from simulate.fabric.fiberlayer import layer_grid
     from simulate.fiber import farfield as FF
@@ -437,6 +454,8 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
     T = np.zeros((w_t.size, len(ks), n_psi, n_mu, n_phi, wl.size * K))
     for i, wt in enumerate(w_t):
         for gi, group in enumerate(groups):
+            if tick is not None:
+                tick()
             medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
             targets = absorption_targets(optics, group, nodes, walk_phase)
             scal: list = []

@@ -15,7 +15,7 @@ batch order: :mod:`simulate.montecarlo.rows`), so the walk is bit-identical to t
 Interrupts (issue 20: Ctrl-C within a second, finished entries kept): signals reach only the main thread,
 which waits for the entries in an interruptible wait. On any exception there (KeyboardInterrupt, or a
 worker's error) it sets a cancel event, drops the entries not started and re-raises at once; a running
-entry stops at its next :meth:`Progress.tick` (each exit-table node, each incident direction of the
+entry stops at its next :meth:`Progress.tick` (each wavelength group of each exit-table node, each incident direction of the
 layer table and of the interior closure: well under a second apart) by raising :class:`Cancelled`, so
 the executor's exit join does not wait for a whole entry. An entry is stored by its worker as soon as it
 is done. ``workers == 1`` runs the entries in the calling thread, in order: the serial walk.
