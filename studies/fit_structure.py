@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -326,10 +327,14 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
             place(e, got)
             del got
 
+    own = threading.local()                      # each thread's spare exit-table memory (_walk_chunk), this walk only
+
     def work(e: tuple[int, int], kernel_threads: int | None) -> dict:
         half, c = e
+        if not hasattr(own, "spare"):
+            own.spare = []
         got = _walk_chunk(fiber, walk_fiber, spec, n_layers, wl[chunks[c]], nodes, per_row, seed, half, c,
-                          kernel_threads, shared.report(e), shared.tick)
+                          kernel_threads, shared.report(e), shared.tick, own.spare)
         if keys[e] is not None:
             tablecache.store(keys[e], got)      # stored when done: an interrupt keeps the finished entries
         return got
@@ -428,9 +433,14 @@ def _entry(arrays: dict | None, shape: tuple) -> dict | None:
 
 def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.ndarray, nodes: np.ndarray,
                 per_row: int, seed: int, half: int, c: int, threads: int | None,
-                report: Callable[[int, int], None], tick: Callable[[], None] | None = None) -> dict:
+                report: Callable[[int, int], None], tick: Callable[[], None] | None = None,
+                spare: list | None = None) -> dict:
     """One (half, chunk) of :func:`walk_structure`: its exit table walked at every node, symmetrised, reduced to
-    the layer table (with the interior closure). Returns the cache entry's arrays."""
+    the layer table (with the interior closure). Returns the cache entry's arrays.
+
+    ``spare``: a list of flat float64 buffers to take the exit table's memory from and give it back to (the
+    table, ~0.6 GB on the felt, is written whole by the rows -- every node, row and wavelength group -- so
+    a used buffer needs no zeroing; a fresh one per entry cost its page faults: ~1 s of system time)."""
     from simulate.fabric.fiberlayer import layer_table
     from simulate.fabric.interior import interior
     from simulate.fiber import farfield as FF
@@ -451,7 +461,14 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
     groups = wavelength_groups(walk_optics)
     scatterings = np.zeros(len(groups))
     photons = 0
-    T = np.zeros((w_t.size, len(ks), n_psi, n_mu, n_phi, wl.size * K))
+    shape = (w_t.size, len(ks), n_psi, n_mu, n_phi, wl.size * K)
+    size = int(np.prod(shape))
+    flat = next((b for b in (spare or []) if b.size >= size), None)
+    if flat is None:
+        flat = np.zeros(size)
+    else:
+        spare.remove(flat)                                   # type: ignore[union-attr]
+    T = flat[:size].reshape(shape)
     for i, wt in enumerate(w_t):
         for gi, group in enumerate(groups):
             if tick is not None:
@@ -476,6 +493,9 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
                          directional=spec.interior_return == "directional", tick=tick)
     lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
                      surface=False, tick=tick)
+    del table, T
+    if spare is not None:
+        spare.append(flat)
     return {"G": lt.G, "photons": np.int64(photons), "scatterings": scatterings,
             "group_sizes": np.array([len(g) for g in groups], np.int64),
             "group_index": np.concatenate([np.asarray(g, np.int64) for g in groups])}

@@ -26,13 +26,15 @@ and numba's "Setting the Number of Threads" (thread-local ``set_num_threads``) a
 
 from __future__ import annotations
 
+import os
 import threading
+import time
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from typing import Any, Callable, Hashable, Sequence
 
 import numba
 
-__all__ = ["Cancelled", "Progress", "plan", "run_entries", "MAX_WORKERS"]
+__all__ = ["Cancelled", "Progress", "plan", "run_entries", "idle_cores", "MAX_WORKERS"]
 
 #: at most this many entries at once: each holds its exit table (~0.6 GB on the felt's 7-wavelength chunks)
 MAX_WORKERS = 2
@@ -42,12 +44,42 @@ class Cancelled(Exception):
     """Raised in a worker at its next progress tick once the walk was interrupted in the main thread."""
 
 
+#: with ``threads=None``, a second worker only when at least this many cores were idle (:func:`idle_cores`)
+IDLE_FOR_WORKER = 0.5
+
+
+def idle_cores(seconds: float = 0.1) -> float | None:
+    """Cores left idle by every process on the machine over ``seconds`` (``/proc/stat``; None where it is not).
+
+    Measured on the 2-core machine shared with other work (docs/physics.md "Fifth stop"): two entries at
+    once finish a cold felt walk in ~15 s when the second core is free, but cost ~2 CPU s more than one
+    after the other (GIL hand-offs, page faults of two tables at once), so with the other core busy the
+    threads are ~3 s SLOWER. The choice changes no number (bit-identical either way), only the time."""
+    def sample() -> tuple[int, int]:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:]]
+        return v[3] + v[4], sum(v[:8])
+    try:
+        i0, t0 = sample()
+        time.sleep(seconds)
+        i1, t1 = sample()
+    except (OSError, ValueError, IndexError):
+        return None
+    n = os.cpu_count() or 1
+    return n * (i1 - i0) / max(t1 - t0, 1)
+
+
 def plan(threads: int | None, n_entries: int) -> tuple[int, int | None]:
     """``(workers, kernel threads per worker)`` for ``n_entries`` entries and a budget of ``threads``
-    (None: numba's thread count of the caller, i.e. the cores). One worker keeps ``threads`` as given
-    (the serial walk); ``w`` workers split the budget, ``budget // w`` each (at least 1)."""
+    (None: numba's thread count of the caller, i.e. the cores, and a second worker only if
+    :func:`idle_cores` finds a core idle). One worker keeps ``threads`` as given (the serial walk); ``w``
+    workers split the budget, ``budget // w`` each (at least 1)."""
     budget = numba.get_num_threads() if threads is None else int(threads)
     workers = max(1, min(MAX_WORKERS, budget, n_entries))
+    if workers > 1 and threads is None:
+        idle = idle_cores()
+        if idle is not None and idle < IDLE_FOR_WORKER:
+            workers = 1
     if workers == 1:
         return 1, threads
     return workers, max(1, budget // workers)

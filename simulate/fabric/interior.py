@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -120,14 +121,25 @@ def layer_energy(table: ExitTable, fiber: Any, w_in: np.ndarray, classes: np.nda
     width = table.radius_um * table.dpsi
     vol = np.stack([np.einsum("bmp,bmpl->l", classes[..., 0], rad), np.einsum("bmp,bmpl->l", classes[..., 1], rad),
                     rad.sum(axis=(0, 1, 2))]) * width
-    surf = np.array(_surface_energy(*(float(x) for x in w_in), spacing, float(fiber.roughness),
+    surf = np.array(_surface_energy(float(w_in[0]), float(w_in[1]), float(w_in[2]), spacing, float(fiber.roughness),
                                     float(fiber.n_host), n_psi_surface, n_mu_surface)) * table.radius_um
     return np.concatenate([(vol + surf[:, None]) / norm, np.full((1, vol.shape[1]), gap)])
 
 
-@functools.lru_cache(maxsize=4096)
+_SURFACE_LOCK = threading.Lock()
+
+
 def _surface_energy(wx: float, wy: float, wz: float, spacing: float, roughness: float, n_host: float, n_psi: int,
                     n_mu: int) -> tuple[float, float, float]:
+    """:func:`_surface_energy_of`, cached, computed once per key under a lock: the fit's walk builds two layer
+    tables at once on threads (:mod:`studies.walk_threads`) over the same beams, which would both miss."""
+    with _SURFACE_LOCK:
+        return _surface_energy_of(wx, wy, wz, spacing, roughness, n_host, n_psi, n_mu)
+
+
+@functools.lru_cache(maxsize=4096)
+def _surface_energy_of(wx: float, wy: float, wz: float, spacing: float, roughness: float, n_host: float, n_psi: int,
+                       n_mu: int) -> tuple[float, float, float]:
     """Surface reflection (unit radius) leaving up unmasked, down unmasked and in all, for a beam ``w`` (cached)."""
     from simulate.fiber import Fiber
     from simulate.media.medium import HGMedium

@@ -47,6 +47,23 @@ def test_plan_splits_the_budget_and_one_thread_is_serial():
     assert walk_threads.plan(2, 0) == (1, 2)
 
 
+def test_automatic_budget_takes_a_second_worker_only_on_an_idle_core(monkeypatch):
+    monkeypatch.setattr(walk_threads.numba, "get_num_threads", lambda: 2)
+    monkeypatch.setattr(walk_threads, "idle_cores", lambda: 0.1)
+    assert walk_threads.plan(None, 6) == (1, None)    # the other core busy: the serial walk
+    assert walk_threads.plan(2, 6) == (2, 1)          # asked for explicitly: two workers anyway
+    monkeypatch.setattr(walk_threads, "idle_cores", lambda: 1.2)
+    assert walk_threads.plan(None, 6) == (2, 1)
+    monkeypatch.setattr(walk_threads, "idle_cores", lambda: None)   # no /proc/stat: the budget decides
+    assert walk_threads.plan(None, 6) == (2, 1)
+
+
+def test_idle_cores_is_within_the_machine():
+    idle = walk_threads.idle_cores(0.05)
+    import os
+    assert idle is None or 0.0 <= idle <= (os.cpu_count() or 1) + 1e-9
+
+
 def test_threaded_walk_is_the_serial_walk_bit_for_bit(cache_dir):
     calls = []
     serial = _walk(1)
