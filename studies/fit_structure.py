@@ -262,8 +262,10 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
 
     Threads (issue 21, fifth stop). The entries are independent (own streams ``seed_of(seed, half, node,
     chunk)``), so the ones not in the cache run two at a time on threads (:mod:`studies.walk_threads`)
-    when the budget ``threads`` (None: the cores) is 2 or more, each with ``threads // 2`` kernel threads;
-    ``threads=1`` (``--threads 1``) is the serial walk in this thread. Why threads: ~70 % of a cold walk
+    when the budget ``threads`` is 2 or more, each with ``threads // 2`` kernel threads (None: the cores,
+    and a second worker only when a core is idle -- with the other core busy the two threads cost ~2 CPU s
+    more than the serial walk and were slower); ``threads=1`` (``--threads 1``) is the serial walk in
+    this thread. Why threads: ~70 % of a cold walk
     was NOT the kernel's parallel rows but one core's work per entry (exit radiance of every beam, the
     layer table, the interior closure); processes would pickle ~10^8-byte tables both ways and re-import
     and re-load numba per worker. Why ``nogil=True`` on the kernel's row runner, ``_accumulate_beam``,
