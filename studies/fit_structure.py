@@ -53,6 +53,9 @@ accuracy loop) and the seeds from the config's seed: the streams of the FIRST ro
 --method summation`` grows its tables in rounds until beta's error meets the target; the fit's model
 is that summation in its fixed-photons mode, ``structured_beta(..., photons_per_row=photons_per_row(target))``
 (one round, the same streams), which is what the equality test compares with.
+
+Length (~520 lines): the walk, its chunk and its cache key stay together -- this module's source is part of
+every walk's key (:data:`WALK_MODULES`); the threads' scheduling is apart (:mod:`studies.walk_threads`).
 """
 
 from __future__ import annotations
@@ -260,24 +263,16 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     and seed, never the dye or the facets: another colour of the same felt, ``--resume``, the Monte
     Carlo fit's surrogate and a second run read it instead of walking (a hit is bit-identical).
 
-    Threads (issue 21, fifth stop). The entries are independent (own streams ``seed_of(seed, half, node,
-    chunk)``), so the ones not in the cache run two at a time on threads (:mod:`studies.walk_threads`)
-    when the budget ``threads`` is 2 or more, each with ``threads // 2`` kernel threads (None: the cores,
-    and a second worker only when a core is idle -- with the other core busy the two threads cost ~2 CPU s
-    more than the serial walk and were slower); ``threads=1`` (``--threads 1``) is the serial walk in
-    this thread. Why threads: ~70 % of a cold walk
-    was NOT the kernel's parallel rows but one core's work per entry (exit radiance of every beam, the
-    layer table, the interior closure); processes would pickle ~10^8-byte tables both ways and re-import
-    and re-load numba per worker. Why ``nogil=True`` on the kernel's row runner, ``_accumulate_beam``,
-    :func:`_symmetrise` and the rows' reduction: a numba function holds the GIL for its whole call
-    unless compiled without it, and those are most of an entry's time (numpy's own loops release it);
-    the threading layer (``omp``/``tbb``) takes concurrent parallel calls. The numbers do not depend on
-    the thread (disjoint writes, the rows reduced in batch order), so the walk is bit-identical to the
-    serial one (``tests/studies/fit/test_walk_threads.py``). The hits are read first; the rest is
-    assembled by entry, not by completion order. Progress: one lock-guarded sum of every entry's counts
-    (monotone). Ctrl-C: the main thread re-raises at once and the workers stop at their next tick
-    (each wavelength group of each exit-table node, each incident direction of the layer table and closure); every finished
-    entry is already stored. Measured gain: docs/physics.md ("Fifth stop").
+    Threads (issue 21, fifth stop; details in :mod:`studies.walk_threads`). The entries not in the cache
+    run two at a time on threads, ``threads // 2`` kernel threads each (``threads=None``: the cores, and a
+    second worker only when a core is idle: with the other core busy two threads cost ~2 CPU s more and
+    were slower); ``threads=1`` is the serial walk. Why threads: ~70 % of a cold walk was one core's work
+    per entry (exit radiance, layer table, closure), and processes would pickle ~10^8-byte tables and
+    re-load numba. Why ``nogil=True`` (row runner, ``_accumulate_beam``, :func:`_symmetrise`, the rows'
+    reduction): a numba call holds the GIL unless compiled without it, and those are most of an entry.
+    The numbers do not depend on the thread: bit-identical to the serial walk (hits read first, entries
+    assembled by index; ``tests/studies/fit/test_walk_threads.py``). Progress: one lock-guarded monotone
+    sum. Ctrl-C: re-raised at once, the workers stop at their next tick, finished entries are stored.
     """
     from simulate.fabric.fiberlayer import layer_grid
     from simulate.fiber import farfield as FF
