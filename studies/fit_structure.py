@@ -53,12 +53,16 @@ accuracy loop) and the seeds from the config's seed: the streams of the FIRST ro
 --method summation`` grows its tables in rounds until beta's error meets the target; the fit's model
 is that summation in its fixed-photons mode, ``structured_beta(..., photons_per_row=photons_per_row(target))``
 (one round, the same streams), which is what the equality test compares with.
+
+Length (~520 lines): the walk, its chunk and its cache key stay together -- this module's source is part of
+every walk's key (:data:`WALK_MODULES`); the threads' scheduling is apart (:mod:`studies.walk_threads`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -69,6 +73,7 @@ import numpy as np
 from simulate.fiber.absorption import AbsorptionTable, absorption_targets
 from simulate.fiber.farfield import EXIT_TABLE_MODULES, plain_fiber
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
+from studies.walk_threads import Progress, plan, run_entries
 
 log = logging.getLogger(__name__)
 
@@ -257,6 +262,17 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     fiber without dye, the scattering, the walk's part of ``[structure]``, wavelengths, nodes, photons
     and seed, never the dye or the facets: another colour of the same felt, ``--resume``, the Monte
     Carlo fit's surrogate and a second run read it instead of walking (a hit is bit-identical).
+
+    Threads (issue 21, fifth stop; details in :mod:`studies.walk_threads`). The entries not in the cache
+    run two at a time on threads, ``threads // 2`` kernel threads each (``threads=None``: the cores, and a
+    second worker only when a core is idle: with the other core busy two threads cost ~2 CPU s more and
+    were slower); ``threads=1`` is the serial walk. Why threads: ~70 % of a cold walk was one core's work
+    per entry (exit radiance, layer table, closure), and processes would pickle ~10^8-byte tables and
+    re-load numba. Why ``nogil=True`` (row runner, ``_accumulate_beam``, :func:`_symmetrise`, the rows'
+    reduction): a numba call holds the GIL unless compiled without it, and those are most of an entry.
+    The numbers do not depend on the thread: bit-identical to the serial walk (hits read first, entries
+    assembled by index; ``tests/studies/fit/test_walk_threads.py``). Progress: one lock-guarded monotone
+    sum. Ctrl-C: re-raised at once, the workers stop at their next tick, finished entries are stored.
     """
     from simulate.fabric.fiberlayer import layer_grid
     from simulate.fiber import farfield as FF
@@ -276,10 +292,9 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     groups_global: list[np.ndarray] = []
     scatterings: dict[str, float] = {}
     th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
-    halves: list[np.ndarray] = []
-    photons = hits = 0
+    hits = 0
     n_wt = len(FF.DEFAULT_WT_NODES)
-    runs, run = 2 * len(chunks) * n_wt, 0
+    runs = 2 * len(chunks) * n_wt
     use = cache and tablecache.enabled()
     base = None
     if use:
@@ -287,36 +302,57 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
             base = walk_inputs(nodye, reference, config, wl, nodes, per_row, seed, max_group)
         except TypeError as exc:      # a medium without a canonical form: no key, no cache
             log.warning("structured walk: not cached (%s)", exc)
+    entries = [(half, c) for half in range(2) for c in range(len(chunks))]
+    halves = [np.zeros((th.size, ph_i.size, th.size, ph_o.size, wl.size * K)) for _ in range(2)]
+    keys = {e: None if base is None else tablecache.content_key("structwalk", (base, *e), WALK_MODULES) for e in entries}
+    small: dict[tuple[int, int], dict] = {}      # each entry's arrays but G (G goes into its half at once)
+    shared = Progress(progress, runs)
     if progress is not None:
         progress(0, 0, runs)
-    for half in range(2):
-        G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, wl.size * K))
-        for c, chunk in enumerate(chunks):
-            key = None if base is None else tablecache.content_key("structwalk", (base, half, c), WALK_MODULES)
-            got = None if key is None else _entry(tablecache.load(key), G.shape[:4] + (chunk.size * K,))
-            if got is None:
-                def report(p: int, done: int) -> None:
-                    if progress is not None:
-                        progress(photons + p, run + done, runs)
-                got = _walk_chunk(fiber, walk_fiber, spec, n_layers, wl[chunk], nodes, per_row, seed, half, c,
-                                  threads, report)
-                if key is not None:
-                    tablecache.store(key, got)
-            else:
-                hits += 1
-            G[..., chunk[0] * K:(chunk[-1] + 1) * K] = got["G"]
-            photons += int(got["photons"])
-            run += n_wt
-            if progress is not None:
-                progress(photons, run, runs)
-            if half == 0:
-                sizes = np.asarray(got["group_sizes"], int)
-                local = np.split(np.asarray(got["group_index"], int), np.cumsum(sizes)[:-1])
-                for g, n in zip(local, np.asarray(got["scatterings"], float)):
-                    scatterings[f"0:{len(groups_global)}"] = float(n)
-                    groups_global.append(chunk[g])
+
+    def place(e: tuple[int, int], got: dict) -> None:
+        chunk = chunks[e[1]]
+        halves[e[0]][..., chunk[0] * K:(chunk[-1] + 1) * K] = got["G"]
+        small[e] = {k: v for k, v in got.items() if k != "G"}
+        shared.finish(e, int(got["photons"]), n_wt)
+
+    for e in entries:                            # the hits first: read, never walked
+        got = None if keys[e] is None else _entry(tablecache.load(keys[e]), halves[0].shape[:4] +
+                                                    (chunks[e[1]].size * K,))
+        if got is not None:
+            hits += 1
+            place(e, got)
             del got
-        halves.append(G)
+
+    own = threading.local()                      # each thread's spare exit-table memory (_walk_chunk), this walk only
+
+    def work(e: tuple[int, int], kernel_threads: int | None) -> dict:
+        half, c = e
+        if not hasattr(own, "spare"):
+            own.spare = []
+        got = _walk_chunk(fiber, walk_fiber, spec, n_layers, wl[chunks[c]], nodes, per_row, seed, half, c,
+                          kernel_threads, shared.report(e), shared.tick, own.spare)
+        if keys[e] is not None:
+            tablecache.store(keys[e], got)      # stored when done: an interrupt keeps the finished entries
+        return got
+
+    missing = [e for e in entries if e not in small]
+    workers, kernel_threads = plan(threads, len(missing))
+    if missing:
+        # in this thread, before any worker: the Mie optics of every wavelength into the fibers' caches
+        # (FF.cached) and the lazy imports (miepython's import wraps numba.njit: not thread-safe)
+        spectral_optics(fiber, wl)
+        spectral_optics(walk_fiber, wl)
+        import simulate.fabric.fiberlayer, simulate.fabric.interior, simulate.fiber.bssrdf  # noqa: F401, E401
+    run_entries(missing, work, place, workers=workers, kernel_threads=kernel_threads, progress=shared)
+    for c, chunk in enumerate(chunks):           # half 0's groups, in chunk order
+        got = small[(0, c)]
+        sizes = np.asarray(got["group_sizes"], int)
+        local = np.split(np.asarray(got["group_index"], int), np.cumsum(sizes)[:-1])
+        for g, n in zip(local, np.asarray(got["scatterings"], float)):
+            scatterings[f"0:{len(groups_global)}"] = float(n)
+            groups_global.append(chunk[g])
+    photons = sum(int(v["photons"]) for v in small.values())
     walk = StructWalk(G=halves, grid=(th, ph_i, th, ph_o), masking=spec.masking, spacing_ratio=spec.spacing_ratio,
                       nodes=nodes, wavelengths_nm=wl, photons={"exit_tables": photons, "per_row": per_row},
                       seconds=time.perf_counter() - t0, scatterings=scatterings, groups=groups_global,
@@ -394,9 +430,14 @@ def _entry(arrays: dict | None, shape: tuple) -> dict | None:
 
 def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.ndarray, nodes: np.ndarray,
                 per_row: int, seed: int, half: int, c: int, threads: int | None,
-                report: Callable[[int, int], None]) -> dict:
+                report: Callable[[int, int], None], tick: Callable[[], None] | None = None,
+                spare: list | None = None) -> dict:
     """One (half, chunk) of :func:`walk_structure`: its exit table walked at every node, symmetrised, reduced to
-    the layer table (with the interior closure). Returns the cache entry's arrays."""
+    the layer table (with the interior closure). Returns the cache entry's arrays.
+
+    ``spare``: a list of flat float64 buffers to take the exit table's memory from and give it back to (the
+    table, ~0.6 GB on the felt, is written whole by the rows -- every node, row and wavelength group -- so
+    a used buffer needs no zeroing; a fresh one per entry cost its page faults: ~1 s of system time)."""
     from simulate.fabric.fiberlayer import layer_table
     from simulate.fabric.interior import interior
     from simulate.fiber import farfield as FF
@@ -417,9 +458,18 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
     groups = wavelength_groups(walk_optics)
     scatterings = np.zeros(len(groups))
     photons = 0
-    T = np.zeros((w_t.size, len(ks), n_psi, n_mu, n_phi, wl.size * K))
+    shape = (w_t.size, len(ks), n_psi, n_mu, n_phi, wl.size * K)
+    size = int(np.prod(shape))
+    flat = next((b for b in (spare or []) if b.size >= size), None)
+    if flat is None:
+        flat = np.zeros(size)
+    else:
+        spare.remove(flat)                                   # type: ignore[union-attr]
+    T = flat[:size].reshape(shape)
     for i, wt in enumerate(w_t):
         for gi, group in enumerate(groups):
+            if tick is not None:
+                tick()
             medium, walk_phase, _ = group_walk(walk_fiber, walk_optics, group, white=True)
             targets = absorption_targets(optics, group, nodes, walk_phase)
             scal: list = []
@@ -437,15 +487,18 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
     inner = None
     if spec.interior and spec.masking:
         inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio,
-                         directional=spec.interior_return == "directional")
+                         directional=spec.interior_return == "directional", tick=tick)
     lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
-                     surface=False)
+                     surface=False, tick=tick)
+    del table, T
+    if spare is not None:
+        spare.append(flat)
     return {"G": lt.G, "photons": np.int64(photons), "scatterings": scatterings,
             "group_sizes": np.array([len(g) for g in groups], np.int64),
             "group_index": np.concatenate([np.asarray(g, np.int64) for g in groups])}
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def _symmetrise(T):
     """In place, :func:`simulate.fiber.farfield._symmetrised` (each row averaged with the mirror image of its
     opposite: row ``r -> R-1-r``, exit cell ``o -> -o``, exit azimuth bin ``p -> P-1-p``) in one pass

@@ -51,7 +51,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numba
 import numpy as np
@@ -249,12 +249,13 @@ def surface_table(roughness: float, n_host: float, masking: bool, spacing_ratio:
 
 def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_ratio: float = 1.0,
                 step_deg: float = 7.5, phi_step_deg: float = 15.0, n_sub: int = 8, surface: bool = True,
-                interior: Any = None) -> LayerTable:
+                interior: Any = None, tick: Callable[[], None] | None = None) -> LayerTable:
     """Tabulate :func:`layer_G` on the layer-frame grid (module docstring).
 
     The surface part comes from :func:`surface_table` (cached). ``interior`` (a
     :class:`simulate.fabric.interior.Interior`, with ``masking``): add the light returned from inside the
-    fabric, ``A_ret(w_i) (w_i . m)(w_o . m) / pi`` (docs/physics.md section 6.3).
+    fabric, ``A_ret(w_i) (w_i . m)(w_o . m) / pi`` (docs/physics.md section 6.3). ``tick``: called before each
+    incident direction (the fit's walk stops there when interrupted: :mod:`studies.walk_threads`).
     """
     from simulate.fabric.interior import layer_energy
 
@@ -262,9 +263,12 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
     th, ph_i, ph_o, w_out = layer_grid(step_deg, phi_step_deg)
     G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, table.T.shape[-1]))
     if interior is not None and getattr(interior, "directional", False):
-        return _directional_layer_table(table, fiber, interior, spacing_ratio, step_deg, phi_step_deg, n_sub, surface, t0)
+        return _directional_layer_table(table, fiber, interior, spacing_ratio, step_deg, phi_step_deg, n_sub, surface, t0,
+                                        tick)
     for a, t_i in enumerate(th):
         for b, p_i in enumerate(ph_i):
+            if tick is not None:
+                tick()
             w_in = microfacet.direction(math.radians(t_i), math.radians(p_i))
             if w_in[2] < 1e-12:
                 continue  # grazing incidence on the layer: no irradiance
@@ -286,7 +290,8 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
 
 
 def _directional_layer_table(table: ExitTable, fiber: Any, interior: Any, spacing_ratio: float, step_deg: float,
-                             phi_step_deg: float, n_sub: int, surface: bool, t0: float) -> LayerTable:
+                             phi_step_deg: float, n_sub: int, surface: bool, t0: float,
+                             tick: Callable[[], None] | None = None) -> LayerTable:
     """:func:`layer_table` with the interior return's first order resolved in angle (:mod:`simulate.fabric.adding`):
     ``G = G_layer + (A_ret - s E_D) (w_i . m)(w_o . m) / pi + s (w_i . m) D``, ``s = min(1, A_ret / E_D)`` per channel:
     the closure fixes how much light comes back, the adding where its first order goes."""
@@ -303,6 +308,8 @@ def _directional_layer_table(table: ExitTable, fiber: Any, interior: Any, spacin
     spacing = 2.0 * spacing_ratio
     for a, t_i in enumerate(th):
         for b, p_i in enumerate(ph_i):
+            if tick is not None:
+                tick()
             w_in = microfacet.direction(math.radians(t_i), math.radians(p_i))
             if w_in[2] < 1e-12:
                 continue

@@ -52,8 +52,9 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -120,14 +121,25 @@ def layer_energy(table: ExitTable, fiber: Any, w_in: np.ndarray, classes: np.nda
     width = table.radius_um * table.dpsi
     vol = np.stack([np.einsum("bmp,bmpl->l", classes[..., 0], rad), np.einsum("bmp,bmpl->l", classes[..., 1], rad),
                     rad.sum(axis=(0, 1, 2))]) * width
-    surf = np.array(_surface_energy(*(float(x) for x in w_in), spacing, float(fiber.roughness),
+    surf = np.array(_surface_energy(float(w_in[0]), float(w_in[1]), float(w_in[2]), spacing, float(fiber.roughness),
                                     float(fiber.n_host), n_psi_surface, n_mu_surface)) * table.radius_um
     return np.concatenate([(vol + surf[:, None]) / norm, np.full((1, vol.shape[1]), gap)])
 
 
-@functools.lru_cache(maxsize=4096)
+_SURFACE_LOCK = threading.Lock()
+
+
 def _surface_energy(wx: float, wy: float, wz: float, spacing: float, roughness: float, n_host: float, n_psi: int,
                     n_mu: int) -> tuple[float, float, float]:
+    """:func:`_surface_energy_of`, cached, computed once per key under a lock: the fit's walk builds two layer
+    tables at once on threads (:mod:`studies.walk_threads`) over the same beams, which would both miss."""
+    with _SURFACE_LOCK:
+        return _surface_energy_of(wx, wy, wz, spacing, roughness, n_host, n_psi, n_mu)
+
+
+@functools.lru_cache(maxsize=4096)
+def _surface_energy_of(wx: float, wy: float, wz: float, spacing: float, roughness: float, n_host: float, n_psi: int,
+                       n_mu: int) -> tuple[float, float, float]:
     """Surface reflection (unit radius) leaving up unmasked, down unmasked and in all, for a beam ``w`` (cached)."""
     from simulate.fiber import Fiber
     from simulate.media.medium import HGMedium
@@ -189,11 +201,12 @@ class Interior:
 
 
 def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: float = 1.0, n_theta: int = 6,
-             n_phi: int = 4, directional: bool = False) -> Interior:
+             n_phi: int = 4, directional: bool = False, tick: Callable[[], None] | None = None) -> Interior:
     """Diffuse layer properties by cosine-weighted quadrature over the incident quadrant (mirrors give the rest).
 
     ``directional``: the layer table built with it resolves the return's first order in angle
-    (:mod:`simulate.fabric.adding`; ``[structure] interior_return = "directional"``)."""
+    (:mod:`simulate.fabric.adding`; ``[structure] interior_return = "directional"``). ``tick``: called before
+    each incident direction (the fit's walk stops there when interrupted: :mod:`studies.walk_threads`)."""
     if int(n_layers) < 1:
         raise ValueError(f"interior: n_layers must be >= 1, got {n_layers!r}")
     classes = exit_classes(table, 2.0 * spacing_ratio)
@@ -202,6 +215,8 @@ def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: floa
     acc = np.zeros((4, table.T.shape[-1]))
     for s2 in u2:
         for p in ph:
+            if tick is not None:
+                tick()
             w = microfacet.direction(math.asin(math.sqrt(s2)), p)
             acc += layer_energy(table, fiber, w, classes, spacing_ratio=spacing_ratio)
     u, d, e, gap = acc / (n_theta * n_phi)

@@ -65,13 +65,12 @@ def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, phot
     n_spec = targets.mu_a.size
     inp = rows_inputs(fiber, grid, medium, walk_phase, targets, control)
     seeds = np.array([seed + 7919 * r for r in range(len(ks))], dtype=np.int64)
-    s, b, seconds = execute_rows(inp, row_sources(w_t, ks, dpsi), seeds, photons, threads, BATCH)
-    if into is not None:
-        for r in range(len(ks)):
-            if scalars is not None:
-                scalars.append(s[r])
-            np.divide(b[r, :, 0].reshape(n_psi, n_v, n_mu, n_phi, n_spec), photons, out=into[r])  # mean_and_error's
+    if into is not None:      # the means straight into ``into`` (mean_and_error's, bit for bit): rows.execute_rows
+        s, _, seconds = execute_rows(inp, row_sources(w_t, ks, dpsi), seeds, photons, threads, BATCH, means=into)
+        if scalars is not None:
+            scalars.extend(s[r] for r in range(len(ks)))
         return into, None, photons * len(ks), seconds
+    s, b, seconds = execute_rows(inp, row_sources(w_t, ks, dpsi), seeds, photons, threads, BATCH)
     out = np.zeros((len(ks), n_psi, n_v, n_mu, n_phi, n_spec))
     err = np.zeros_like(out)
     for r in range(len(ks)):

@@ -156,7 +156,7 @@ def far_field_nee(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_n
                           "fiber_info": est.info}
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def _accumulate_beam(T, k_min, nodes, js, weights, scales, lit, out):
     """``out[B] += weights[c] scales[c, k] lit[i] T[nodes[c], k, B - i]`` over the terms ``c`` (node ``nodes[c]``,
     beam azimuth cell ``js[c]``) and the lit entry cells ``i``, row ``k = js[c] - i`` (wrapped), for ONE beam.

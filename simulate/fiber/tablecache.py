@@ -40,6 +40,7 @@ import io
 import logging
 import os
 import struct
+import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -238,7 +239,7 @@ def store(key: str, arrays: dict[str, Any]) -> Path | None:
     buf = io.BytesIO()
     np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})  # type: ignore[arg-type]
     payload = buf.getvalue()
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{time.monotonic_ns()}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.{time.monotonic_ns()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "wb") as f:

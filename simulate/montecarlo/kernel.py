@@ -617,7 +617,7 @@ def _make_rows_runner():
     """
     STAMP = _SOURCE_STAMP
 
-    @numba.njit(cache=True, parallel=True)
+    @numba.njit(cache=True, parallel=True, nogil=True)
     def run_rows(inp: KernelInputs, sources: np.ndarray, seeds: np.ndarray, job_row: np.ndarray,
                  job_batch: np.ndarray, total_photons: int, batch_size: int, scal: np.ndarray,
                  bins: np.ndarray) -> None:

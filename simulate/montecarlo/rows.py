@@ -18,6 +18,7 @@ elements; how they are cut does not change any sum.
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numba
@@ -31,15 +32,35 @@ __all__ = ["execute_rows"]
 
 _ROUND_ELEMENTS = 1 << 22  # cap on per-round bin buffer elements (32 MB), as transport.execute
 
+_scratch = threading.local()
+
+
+def _buffers(jobs: int, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """The round buffers ``scal[jobs, N_SCALARS]``, ``bins[jobs, n_bins, 2]``, kept per thread and reused while the
+    shape holds (the kernel zeroes a job's rows before it runs: no stale values). Fresh ~10^8-byte buffers at
+    every call cost their page faults: ~1 s of system time in the felt's walk (48 calls)."""
+    got = getattr(_scratch, "buffers", None)
+    if got is None or got[1].shape != (jobs, n_bins, 2):
+        got = (np.zeros((jobs, T.N_SCALARS)), np.zeros((jobs, n_bins, 2)))
+        _scratch.buffers = got
+    return got
+
 
 def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, photons: int, threads: int | None,
-                 batch_size: int) -> tuple[np.ndarray, np.ndarray, float]:
+                 batch_size: int, means: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, float]:
     """Run ``photons`` photons for each source row ``sources[r]`` (``float64[R, 5]``) with seed ``seeds[r]``.
 
     Returns ``scal[R, N_SCALARS]``, ``bins[R, n_bins, 2]`` -- run ``r``'s sums, bit-identical to
     ``transport.execute(inp with source sources[r], photons, seeds[r], threads, batch_size)`` -- and
     the seconds of the whole call. ``inp.source`` is not read. Scoring runs only (a tally or a
     vertex estimator: the plain flavour has no rows driver).
+
+    ``means`` (optional, ``float64[R, ...]`` with ``n_bins`` values a row, e.g. a view of a larger table):
+    each run's bin means ``bins[r, :, 0] / photons`` are written there (row-major order of its trailing
+    axes) and ``None`` is returned for ``bins``: no ``[R, n_bins, 2]`` array (~10^8 bytes a call on the
+    felt) and no sums of squares. The sums are accumulated in ``means`` itself by :func:`_reduce_means`,
+    the same additions in the same order as into ``bins`` (``0.0 + b_0 + b_1 ...``, then the division),
+    so the means are bit-identical to ``bins[r, :, 0] / photons``.
     """
     sources = np.ascontiguousarray(sources, dtype=np.float64).reshape(-1, 5)
     seeds = np.ascontiguousarray(seeds, dtype=np.int64).reshape(-1)
@@ -58,10 +79,14 @@ def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, ph
     n_jobs = job_row.size
     per_job = n_bins * 2 + T.N_SCALARS
     round_size = int(min(256, max(8, _ROUND_ELEMENTS // per_job)))
-    scal_buf = np.zeros((min(round_size, n_jobs), T.N_SCALARS))
-    bins_buf = np.zeros((min(round_size, n_jobs), n_bins, 2))
+    scal_buf, bins_buf = _buffers(min(round_size, n_jobs), n_bins)
     scal = np.zeros((n_rows, T.N_SCALARS))
-    bins = np.zeros((n_rows, n_bins, 2))
+    bins = np.zeros((n_rows, n_bins, 2)) if means is None else None
+    if means is not None:
+        if means.shape[0] != n_rows or means.size != n_rows * n_bins or means.dtype != np.float64:
+            raise ValueError(f"execute_rows: means must be float64 [{n_rows}, ...] with {n_bins} values a row")
+        means6 = means.reshape(means.shape[:1] + (1,) * (6 - means.ndim) + means.shape[1:]) if means.ndim < 6 \
+            else means
     previous = numba.get_num_threads()
     if threads is not None:
         limit = numba.config.NUMBA_NUM_THREADS
@@ -78,10 +103,14 @@ def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, ph
             t_round = time.perf_counter()
             K.run_rows(inp, sources, seeds, job_row[first:first + count], job_batch[first:first + count], photons,
                        batch_size, scal_buf, bins_buf)
-            for i in range(count):  # per run, batch order: the sums of transport.execute
-                r = job_row[first + i]
-                scal[r] += scal_buf[i]
-                bins[r] += bins_buf[i]
+            if bins is None:
+                _reduce_means(job_row[first:first + count], job_batch[first:first + count], n_batches, photons,
+                              scal_buf, bins_buf, scal, means6)
+            else:
+                for i in range(count):  # per run, batch order: the sums of transport.execute
+                    r = job_row[first + i]
+                    scal[r] += scal_buf[i]
+                    bins[r] += bins_buf[i]
             first += count
             dt = max(time.perf_counter() - t_round, 1e-6)
             count = int(min(round_size, max(threads_now, count * ROUND_SECONDS / dt)))
@@ -90,3 +119,39 @@ def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, ph
         numba.set_parallel_chunksize(previous_chunk)
         numba.set_num_threads(previous)
     return scal, bins, seconds
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _reduce_means(job_row, job_batch, n_batches, photons, scal_buf, bins_buf, scal, means):
+    """:func:`execute_rows`'s reduction into ``means`` (``[R, a, b, c, d, e]``, any strides): job ``i``'s scalars
+    added to its run's, its bin sums added to the run's sums held in ``means`` (``0.0 +`` the first batch,
+    as ``bins`` starts at zero), divided by ``photons`` after the run's last batch. Compiled, parallel over
+    the first bin axis (each value still sees its jobs in order) and without the GIL: the Python loop it
+    replaces held the GIL for ~2 s of the felt's walk (issue 21)."""
+    R, A, B, C, D, E = means.shape
+    for i in range(job_row.shape[0]):
+        for s in range(scal.shape[1]):
+            scal[job_row[i], s] += scal_buf[i, s]
+    for a in numba.prange(A):
+        for i in range(job_row.shape[0]):
+            r = job_row[i]
+            first = job_batch[i] == 0
+            last = job_batch[i] == n_batches - 1
+            j = a * B * C * D * E
+            for b in range(B):
+                for c in range(C):
+                    for d in range(D):
+                        row = means[r, a, b, c, d]
+                        if first and last:
+                            for e in range(E):
+                                row[e] = (0.0 + bins_buf[i, j + e, 0]) / photons
+                        elif first:
+                            for e in range(E):
+                                row[e] = 0.0 + bins_buf[i, j + e, 0]
+                        elif last:
+                            for e in range(E):
+                                row[e] = (row[e] + bins_buf[i, j + e, 0]) / photons
+                        else:
+                            for e in range(E):
+                                row[e] = row[e] + bins_buf[i, j + e, 0]
+                        j += E

@@ -61,6 +61,33 @@ def test_rows_in_one_call_are_bit_identical_to_one_call_each(threads, monkeypatc
     assert np.any(b[:, :, 0] > 0)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_means_into_a_strided_view_are_the_bins_means_bit_for_bit(threads, monkeypatch):
+    """``execute_rows(..., means=view)`` (the fit's walk: no ``[R, n_bins, 2]`` array) writes
+    ``bins[r, :, 0] / photons`` into a strided view of a larger table, bit for bit, with several batches a
+    run cut over rounds of one job (the sums held in the view between rounds) and leaves the rest alone."""
+    from simulate.montecarlo import rows as R
+
+    fib = _fiber()
+    inp = _inputs(fib)
+    dpsi = 2.0 * math.pi / fib.cell_count("test")
+    sources = np.concatenate([row_sources(0.0, [0, 1, 2], dpsi), row_sources(0.6, [1], dpsi)])
+    seeds = np.array([4, 9, 7919, 31], dtype=np.int64)
+    photons, batch = 2500, 1000             # 3 batches a run, the last one short
+    s_ref, b_ref, _ = execute_rows(inp, sources, seeds, photons, threads, batch)
+    n_psi, n_v, n_mu, n_phi, n_spec = fib.cell_count("test"), 2, 3, 4, inp.spec_mu.shape[0]
+    big = np.full((2, len(seeds), n_psi, n_v, n_mu, n_phi, n_spec + 3), -7.0)
+    view = big[1, :, :, :, :, :, 1:1 + n_spec]          # not contiguous: the channel slice of a wider table
+    monkeypatch.setattr(R, "ROUND_SECONDS", 1e-9)
+    s, b, _ = execute_rows(inp, sources, seeds, photons, threads, batch, means=view)
+    assert b is None and s.tobytes() == s_ref.tobytes()
+    want = (b_ref[:, :, 0] / photons).reshape(view.shape)
+    assert np.any(want > 0) and view.tobytes() == np.ascontiguousarray(want).tobytes()
+    assert np.all(big[0] == -7.0) and np.all(big[1][..., 0] == -7.0) and np.all(big[1][..., 1 + n_spec:] == -7.0)
+    with pytest.raises(ValueError, match="means must be"):
+        execute_rows(inp, sources, seeds, photons, threads, batch, means=view[:, :1])
+
+
 def test_rows_of_different_seeds_or_sources_differ():
     """The rows are really different runs (a driver that ran row 0 for every job would fail here)."""
     fib = _fiber()
