@@ -511,8 +511,9 @@ def _is_fit_output(out: Path) -> bool:
         (out / MC_STATE).is_file()
 
 
-def _fit_left_behind(out: Path) -> str:
-    """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists)."""
+def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
+    """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists); the structured
+    walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the fit began)."""
     from studies.fit import STATE_NAME
     from studies.fit_state import WALKS_DIR
 
@@ -523,6 +524,13 @@ def _fit_left_behind(out: Path) -> str:
     if runs:
         return (f"no point was evaluated yet; {runs} finished Monte Carlo runs are in {walks} "
                 "(--resume continues the walk from them)")
+    from simulate.fiber import tablecache
+
+    parts = tablecache.stored("structwalk") - walk_parts_before
+    if parts > 0:   # the structured walk keeps each finished (half, chunk) part in the table cache, not in DIR
+        return (f"no point was evaluated yet; {parts} finished part{'s' if parts > 1 else ''} of the structured walk "
+                f"{'are' if parts > 1 else 'is'} in the table cache {tablecache.cache_dir()} (running the same "
+                "command again, without --resume, reads them)")
     return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 
@@ -572,16 +580,21 @@ def _fit_run(args: argparse.Namespace) -> int:
         from studies.fit_mc import DEFAULT_MC_RUNS
 
         max_evaluations = DEFAULT_MC_RUNS if args.method == "mc" else DEFAULT_MAX_EVALUATIONS
+    from simulate.fiber import tablecache
+
+    walk_parts_before = tablecache.stored("structwalk")
     try:
         result = run_fit(problem, out=args.out, resume=args.resume, max_evaluations=max_evaluations,
                          starts=args.starts, progress=_progress(args))
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
-        left_behind = _fit_left_behind
         if args.method == "mc":
             from studies.fit_mc import left_behind
-        print(f"simulate fit: interrupted; {left_behind(args.out)}", file=sys.stderr)
+            said = left_behind(args.out)
+        else:
+            said = _fit_left_behind(args.out, walk_parts_before)
+        print(f"simulate fit: interrupted; {said}", file=sys.stderr)
         return 130
     try:
         doc = write_outputs(problem, result, args.out)

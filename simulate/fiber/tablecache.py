@@ -49,7 +49,7 @@ import numpy as np
 
 from simulate.montecarlo.transport import ParameterError
 
-__all__ = ["ENV_DIR", "ENV_MAX_BYTES", "ENV_DISABLE", "DEFAULT_MAX_BYTES", "SUFFIX", "CacheError", "cache_dir",
+__all__ = ["ENV_DIR", "ENV_MAX_BYTES", "ENV_DISABLE", "DEFAULT_MAX_BYTES", "SUFFIX", "CacheError", "cache_dir", "stored",
            "max_bytes", "enabled", "content_hash", "code_version", "content_key", "load", "store", "cached",
            "entries", "evict"]
 
@@ -231,6 +231,18 @@ def load(key: str) -> dict[str, np.ndarray] | None:
     return arrays
 
 
+_STORED: dict[str, int] = {}
+_STORED_LOCK = threading.Lock()
+
+
+def stored(kind: str) -> int:
+    """How many entries of ``kind`` (the first word of :func:`content_key`) this process has written.
+
+    What an interrupted command can honestly say it left behind (``simulate fit``'s Ctrl-C message)."""
+    with _STORED_LOCK:
+        return _STORED.get(kind, 0)
+
+
 def store(key: str, arrays: dict[str, Any]) -> Path | None:
     """Write ``arrays`` under ``key`` (temporary file + :func:`os.replace`), then :func:`evict`; None if disabled/failed."""
     if not enabled():
@@ -249,6 +261,9 @@ def store(key: str, arrays: dict[str, Any]) -> Path | None:
         log.warning("table cache: cannot write %s (%s); the run goes on without it", path, exc)
         _unlink(tmp)
         return None
+    with _STORED_LOCK:
+        kind = key.split("-", 1)[0]
+        _STORED[kind] = _STORED.get(kind, 0) + 1
     evict()
     return path
 

@@ -85,6 +85,41 @@ def test_ctrl_c_message_claims_only_what_exists(base_problem, tmp_path, capsys, 
     assert not (tmp_path / "f" / STATE_NAME).exists()
 
 
+def test_ctrl_c_names_the_walk_parts_this_fit_left_in_the_table_cache(base_problem, tmp_path, capsys,
+                                                                      monkeypatch):
+    """A structured walk keeps its finished parts in the table cache, not in DIR: the message says how many
+    THIS fit stored (a part stored before it began is not claimed) and where they are."""
+    import studies.fit as fit_module
+    from simulate.fiber import tablecache
+
+    monkeypatch.setenv(tablecache.ENV_DIR, str(tmp_path / "cache"))
+    write_dataset(model_measurement(base_problem, (1.4, 0.25), noise_seed=3), tmp_path / "m")
+    tablecache.store("structwalk-" + "0" * 40, {"G": np.zeros(2)})     # an earlier fit's part
+    real = fit_module.method_runner
+
+    def runner(method):
+        problem_class, _, write_outputs = real(method)
+
+        def run_fit(problem, **kwargs):
+            for i in (1, 2):       # two parts finished, then Ctrl-C in the third
+                tablecache.store(f"structwalk-{i:040d}", {"G": np.full(2, float(i))})
+            raise KeyboardInterrupt
+        return problem_class, run_fit, write_outputs
+
+    monkeypatch.setattr(fit_module, "method_runner", runner)
+    argv = ["fit", "red-cotton", str(tmp_path / "m"), "--free", "rms_slope", "--no-progress"]
+    assert main(argv + ["--out", str(tmp_path / "f")]) == 130
+    err = capsys.readouterr().err
+    assert "2 finished parts of the structured walk are in the table cache" in err
+    assert str(tmp_path / "cache") in err and "nothing was saved" not in err
+
+    def nothing(problem, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(fit_module, "method_runner", lambda method: (real(method)[0], nothing, None))
+    assert main(argv + ["--out", str(tmp_path / "g")]) == 130
+    assert "nothing was saved" in capsys.readouterr().err      # the parts stored before are not claimed
+
+
 @pytest.mark.parametrize("budget, starts", [(1, 1), (7, 1), (15, 3)])
 def test_max_evaluations_bounds_the_search_in_all(base_problem, budget, starts):
     p = _fresh(base_problem, measured=model_measurement(base_problem, (1.4, 0.25), noise_seed=3))
