@@ -144,9 +144,16 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
                           "phi_o": g["phi_o"], "wavelength_nm": np.tile(wavelengths, len(geometries)),
                           "beta": beta.ravel(), "u_beta": u_beta.ravel(), "n": n.ravel()},
                          columns=list(COLUMNS))
-    sample = dict(plan.sample)
-    # the name labels the dataset in reports: say which model and config produced it
-    sample["name"] = f"{plan.sample.get('name', plan.name)}: {method} model ({config.name})"
+    # The name labels the dataset in reports: say which model and config produced it. A plan made for this
+    # config's sample (the same name: red-cotton at red-cotton, green-felt at green-felt) names the sample;
+    # any other plan only lends its geometries and wavelengths (`--geometry` defaults to red-cotton), so the
+    # sample simulated is the config's and a green felt is not labelled "red cotton, woven cotton".
+    if plan.name == config.name:
+        sample = dict(plan.sample)
+        sample["name"] = f"{plan.sample.get('name', plan.name)}: {method} model ({config.name})"
+    else:
+        sample = {"name": f"{config.name}: {method} model", "material": config.description or config.name,
+                  "geometry_from": plan.name}
     sample["simulated_from"] = config.name
     model.update({"config": config.name, "rms_slope": config.rms_slope, "n_host": config.n_host,
                   "radius_um": config.radius_um, "cell_width_deg": config.cell_width_deg,

@@ -102,3 +102,17 @@ def test_classic_dataset_is_rho_plus_pi_f_ct(fake_fiber, tmp_path):
 def test_unknown_method_is_refused(fake_fiber):
     with pytest.raises(ValueError, match="summation, classic, mc"):
         fabric_dataset(load_config("red-cotton"), load_plan("red-cotton"), "woven")
+
+
+def test_the_sample_is_the_plans_only_when_the_plan_is_made_for_the_config(fake_fiber):
+    """`--geometry` lends a plan's geometries; a plan of another name does not name the sample simulated."""
+    import dataclasses
+
+    config = carpet_config()                                  # "red-cotton"
+    plan = parse_plan(SMALL_PLAN, "small.toml")               # "small", sample "test fabric"
+    lent = fabric_dataset(config, plan, "summation", seed=7).meta["sample"]
+    assert lent["name"] == "red-cotton: summation model" and "test fabric" not in lent["name"]
+    assert lent["material"] == config.description and lent["geometry_from"] == "small"
+    own = fabric_dataset(dataclasses.replace(config, name="small"), plan, "summation", seed=7).meta["sample"]
+    assert own["name"] == "test fabric: summation model (small)" and "geometry_from" not in own
+    assert own["simulated_from"] == "small" and lent["simulated_from"] == "red-cotton"
