@@ -40,3 +40,12 @@ def _doctest_numpy_scalars_print_as_python(request):
         yield
     finally:
         np.set_printoptions(**previous)
+
+
+@pytest.fixture
+def cache_dir(tmp_path, monkeypatch):
+    """An empty table-cache directory of this test's own, the cache switched on (not created here)."""
+    d = tmp_path / "cache"
+    monkeypatch.setenv("FABRIC_OPTICS_CACHE_DIR", str(d))
+    monkeypatch.delenv("FABRIC_OPTICS_NO_CACHE", raising=False)
+    return d

@@ -7,21 +7,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import pytest
 
 from simulate.fiber import Fiber, tablecache
 from simulate.fiber import farfield as FF
 from simulate.media.medium import HGMedium
 
 W_T = (0.0, 0.5, 0.9)
-
-
-@pytest.fixture
-def cache_dir(tmp_path, monkeypatch):
-    d = tmp_path / "cache"
-    monkeypatch.setenv(tablecache.ENV_DIR, str(d))
-    monkeypatch.delenv(tablecache.ENV_DISABLE, raising=False)
-    return d
 
 
 def _fiber(mu_a: float = 0.02, mu_s: float = 0.4) -> Fiber:

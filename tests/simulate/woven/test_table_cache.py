@@ -24,11 +24,9 @@ _SMALL = dict(w_t_nodes=(0.0, 0.5), n_v=1, n_mu=3, n_phi=4, photons_per_row=2000
 
 
 @pytest.fixture
-def cache(tmp_path, monkeypatch):
-    d = tmp_path / "cache"
-    monkeypatch.setenv(tc.ENV_DIR, str(d))
-    monkeypatch.delenv(tc.ENV_DISABLE, raising=False)
-    return d
+def cache(cache_dir):
+    """The root conftest's own empty cache directory for this test."""
+    return cache_dir
 
 
 def _fiber(**medium):

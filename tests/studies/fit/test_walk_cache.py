@@ -24,14 +24,6 @@ NODES = absorption_nodes(1.0, 3)
 TARGET = 0.1          # photons_per_row(0.1) = 2000, the fit's floor
 
 
-@pytest.fixture
-def cache_dir(tmp_path, monkeypatch):
-    d = tmp_path / "cache"
-    monkeypatch.setenv(tablecache.ENV_DIR, str(d))
-    monkeypatch.delenv(tablecache.ENV_DISABLE, raising=False)
-    return d
-
-
 def _config(**changes):
     """The green felt with ``changes`` (dotted TOML paths -> values)."""
     import tomllib

@@ -24,14 +24,6 @@ NODES = absorption_nodes(1.0, 3)
 TARGET = 0.1
 
 
-@pytest.fixture
-def cache_dir(tmp_path, monkeypatch):
-    d = tmp_path / "cache"
-    monkeypatch.setenv(tablecache.ENV_DIR, str(d))
-    monkeypatch.delenv(tablecache.ENV_DISABLE, raising=False)
-    return d
-
-
 def _walk(threads, cache=False, progress=None):
     config = load_config("green-felt")
     nodye = dataclasses.replace(config, dye=None).fiber(WL1)
