@@ -6,7 +6,7 @@ parameter with its start, bounds, fitted value and standard uncertainty split in
 Monte Carlo parts, warnings, evaluations, walks, seconds) and writes one table per fit. A simulated
 dataset of the report made from a fit's ``fitted.toml`` (``simulate fabric DIR/fitted.toml``: its
 ``provenance.config.source``) is named under that fit: it has no fit of its own, its parameters
-are the fit's (the demo's Monte Carlo at the summation's fitted parameters). ``compare report
+are the fit's. ``compare report
 --fit DIR`` adds the section (before the normalisation).
 """
 

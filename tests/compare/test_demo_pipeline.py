@@ -221,7 +221,7 @@ def test_make_demo_full_budget(tmp_path):
     out = tmp_path / "demo-out"
     env = {**os.environ, "MAKEFLAGS": ""}
     run = subprocess.run(["make", "-C", str(REPO), "demo", f"DEMO_OUT={out}"], env=env,
-                         capture_output=True, text=True, timeout=900)
+                         capture_output=True, text=True, timeout=1800)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     assert f"demo: report in {out}/report/report.html" in run.stdout
     metrics = json.loads((out / "report" / "metrics.json").read_text())
