@@ -315,6 +315,7 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
                  data: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(J, cov_data, cov_mc)`` at ``x`` with the correction formed from the Monte Carlo ``beta, u_beta``
     there (module docstring); ``data=False``: the Monte Carlo part only (``cov_data`` zero)."""
+    from compare.errors import CompareError
     from gonio.data.dataset import make_dataset
     from studies.fit import jacobian
 
@@ -324,16 +325,27 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     pinv = np.linalg.pinv(J)
     rng = np.random.default_rng(20260101 + int(problem.seed or 0))
     meas = problem.measured
-    dp_data, dp_mc = [np.zeros(x.size)], []
+    dp_data, dp_mc, refused = [np.zeros(x.size)], [np.zeros(x.size)], 0
     for _ in range(draws if data else 0):
         table = meas.table.copy()
         table["beta"] = table["beta"] + rng.standard_normal(len(table)) * table["u_beta"]
-        dp_data.append(-pinv @ (problem.residuals(x, measured=make_dataset(table, meas.meta)) - r0))
+        try:
+            dp_data.append(-pinv @ (problem.residuals(x, measured=make_dataset(table, meas.meta)) - r0))
+        except CompareError:
+            refused += 1
     for _ in range(draws):
         problem.set_correction(x, beta + u_beta * rng.standard_normal(beta.shape), u_beta)
-        dp_mc.append(-pinv @ (problem.residuals(x) - r0))
+        try:
+            dp_mc.append(-pinv @ (problem.residuals(x) - r0))
+        except CompareError:
+            # a noisy Monte Carlo (a loose --target-rel-err) can put a draw's normal/normal value at or
+            # below zero; it cannot be normalised and is left out, as in studies.fit.run_fit
+            refused += 1
     problem.set_correction(x, beta, u_beta)
-    cov = [np.atleast_2d(np.cov(np.array(dp).T, bias=True)) for dp in (dp_data[1:] or dp_data, dp_mc)]
+    if refused:
+        log.warning("%d of %d noise draws left out of the uncertainty: their normal/normal value was not positive",
+                    refused, (2 if data else 1) * draws)
+    cov = [np.atleast_2d(np.cov(np.array(dp).T, bias=True)) for dp in (dp_data[1:] or dp_data, dp_mc[1:] or dp_mc)]
     return J, cov[0], cov[1]
 
 

@@ -145,6 +145,7 @@ def test_cheap_readme_commands_run(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)       # ~4.5 min alone, longer beside the other slow tests
 def test_readme_demo_chain_runs_on_a_reduced_budget(tmp_path, monkeypatch):
     """The "What make demo does" block, in order, with --target-rel-err 0.3 for `simulate fabric`, 20
     evaluations per fit and 10 % per run of the Monte Carlo fit (the fits' walks keep their photons:

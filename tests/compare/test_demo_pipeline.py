@@ -215,6 +215,7 @@ def test_figure7_panels_and_colour_strips_are_described(demo):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)       # make demo is 4-5 min alone, twice that beside the other slow tests
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
 def test_make_demo_full_budget(tmp_path):
     """``make demo`` itself, at the shipped budgets, into a temporary folder."""

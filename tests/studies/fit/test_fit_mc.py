@@ -198,3 +198,24 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
     err = capsys.readouterr().err
     assert code == 2, err
     assert message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatch, caplog):
+    """A loose Monte Carlo (u_beta as large as beta) puts some of the uncertainty's noise draws at a normal
+    value <= 0: the fit still ends, leaves those draws out and says how many (it used to stop with a
+    CompareError after every run had been made)."""
+    calls: list = []
+    fake = _fake_fine(calls)
+
+    def noisy(problem, x, *, progress=False):
+        run = fake(problem, x, progress=progress)
+        run.u_beta = 1.0 * np.abs(run.beta) + 1e-3
+        return run
+
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", noisy)
+    problem = _resume_problem()[0]
+    with caplog.at_level("WARNING", logger="studies.fit_mc"):
+        result = run_mc_fit(problem, max_evaluations=2, noise_draws=16, inner_evaluations=20, echo=lambda s: None)
+    assert np.all(np.isfinite(result.u)) and np.all(result.u_mc > 0)
+    left_out = [r.getMessage() for r in caplog.records if "left out of the uncertainty" in r.getMessage()]
+    assert left_out and int(left_out[0].split()[0]) > 0
