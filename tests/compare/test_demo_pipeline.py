@@ -232,4 +232,4 @@ def test_make_demo_full_budget(tmp_path):
     assert "real measurement" in page and page.count("fitted (<code>") == 3
     # the Monte Carlo fit starts from its own felt preset (README "What make demo does"), not from a dataset
     # evaluated at the summation's fitted parameters
-    assert "start green-felt-mc; before NRMSE" in page and "<h2>Seed sample" in page
+    assert "start config green-felt-mc; before NRMSE" in page and "<h2>Seed sample" in page
