@@ -474,8 +474,8 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         "walks": problem.walks + sum(1 for it in iterations if not it["cached"]), "walk_seconds": problem.walk_seconds,
         "reweighted": problem.reweights, "seconds": time.perf_counter() - t0, "resumed": resume,
         "best_run": next(i for i, r in enumerate(runs) if r is best), "iterations": iterations, "notes": list(problem.notes),
-        "start_note": "the config's values (the Monte Carlo fit starts where the config is: a summation fit's "
-                      "fitted.toml)",
+        "start_note": "the config's values (the Monte Carlo fit starts where the config is: a Monte Carlo preset "
+                      "such as green-felt-mc, or a summation fit's fitted.toml where the two models agree)",
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),
         "target_rel_err": problem.target_rel_err,
     }
