@@ -150,9 +150,10 @@ def measured_sample_section(dataset) -> Section | None:
                 + (f"from the {e(str(source))}. " if source else "of unrecorded source. ")
                 + "The mock evaluates the file at every geometry it is asked (the full measured "
                 "BRDF) and, being spectral while the file is RGB, answers each wavelength with the "
-                "channel whose band holds it (B below 490 nm, G 490-590 nm, R above): a "
-                "three-band view of the real fabric, so its spectra are steps and a spectral "
-                "model cannot match every wavelength.")
+                "spectrum whose colour is the file's RGB there (the spectral primary decomposition "
+                "of Mallett and Yuksel 2019, linear in the RGB, gonio.mock.upsample): the colours "
+                "are the felt's, while the spectral shapes inside each channel are that "
+                "decomposition's assumption, not measured.")
     elif model == "lambert":
         what = f"Its sample is an ideal diffuse reflector ({e(str(mock.get('name', '')))})."
     else:

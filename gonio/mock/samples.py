@@ -72,10 +72,10 @@ Samples
     ``gonio.data.DatasetError``. Or an RGL ``.bsdf`` file (``gonio.data.formats.rgl_bsdf``),
     evaluated at exactly the geometry asked for: the full measured BRDF of a real material.
     The mock's photometer is spectral; an RGB sample answers at wavelength ``lambda`` with the
-    channel whose band holds it (:func:`channel_of_wavelength`: B below 490 nm, G 490..590 nm,
-    R above), a three-band filter-photometer view of the RGB data, so that measuring at 450,
-    550 and 650 nm recovers the file's B, G and R values. A spectral ``.bsdf`` or dataset is
-    interpolated linearly in wavelength.
+    spectrum whose colour is the file's RGB at that geometry: the spectral primary
+    decomposition of Mallett & Yuksel (2019), linear in the RGB (:mod:`gonio.mock.upsample`,
+    which says why; until the seventh stop a three-band view, whose steps were not the file's
+    colour). A spectral ``.bsdf`` or dataset is interpolated linearly in wavelength.
 
 The white standard of the mock is Lambertian with a flat calibrated radiance factor
 :data:`WHITE_REFERENCE_BETA` (:func:`reference_beta`).
@@ -94,6 +94,8 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+
+from .upsample import rgb_spectrum
 
 __all__ = [
     "Sample", "LambertSample", "RedCottonSample", "DatasetSample", "WhiteReference",
@@ -245,22 +247,6 @@ class RedCottonSample:
                         "edge_width_nm": self.dye_edge_width_nm}}
 
 
-#: Band edges (nm) of the three-band view of RGB samples: B below 490, G 490..590, R above.
-RGB_BAND_EDGES_NM = (490.0, 590.0)
-
-
-def channel_of_wavelength(wavelength_nm) -> np.ndarray:
-    """The RGB channel ("R", "G" or "B") whose band holds each wavelength.
-
-    Examples
-    --------
-    >>> channel_of_wavelength([450, 550, 650]).tolist()
-    ['B', 'G', 'R']
-    """
-    wl = np.asarray(wavelength_nm, dtype=float)
-    return np.where(wl < RGB_BAND_EDGES_NM[0], "B", np.where(wl < RGB_BAND_EDGES_NM[1], "G", "R"))
-
-
 def _load_truth(path: str | Path, reader):
     """A sample's truth read from ``path`` by ``reader``; a bad file is a :class:`SampleError`
     naming ``path`` as the user gave it."""
@@ -287,8 +273,18 @@ class DatasetSample:
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
         """Interpolated ``beta``; raises ``gonio.data.DatasetError`` outside the data."""
-        band = channel_of_wavelength(wavelength_nm) if self.dataset.is_rgb else wavelength_nm
-        return self.dataset.interpolate(theta_i, phi_i, theta_o, phi_o, band)[0]
+        if not self.dataset.is_rgb:
+            return self.dataset.interpolate(theta_i, phi_i, theta_o, phi_o, wavelength_nm)[0]
+        rgb = np.stack([self.dataset.interpolate(theta_i, phi_i, theta_o, phi_o, c)[0] for c in "RGB"], axis=-1)
+        space = self.dataset.meta.get("colour_space") or "linear sRGB"
+        if space != "linear sRGB":              # the decomposition's basis is sRGB's
+            import colour
+
+            from gonio.data.colour import colourspace
+
+            rgb = colour.RGB_to_RGB(rgb, colourspace(space), colourspace("linear sRGB"),
+                                    chromatic_adaptation_transform="Bradford")
+        return rgb_spectrum(rgb, wavelength_nm)
 
     def describe(self) -> dict:
         return {"name": self.name, "model": "dataset", "path": str(self.path)}
@@ -316,9 +312,7 @@ class BSDFSample:
             lo = np.take_along_axis(bands, j[..., None], axis=-1)[..., 0]
             hi = np.take_along_axis(bands, (j + 1)[..., None], axis=-1)[..., 0]
             return (1 - f) * lo + f * hi
-        k = np.searchsorted(["B", "G", "R"], channel_of_wavelength(wl))   # index in B, G, R
-        index = np.array([2, 1, 0])[k]                                     # -> R, G, B order
-        return np.take_along_axis(bands, index[..., None], axis=-1)[..., 0]
+        return rgb_spectrum(bands[..., :3], wl)                          # bands in R, G, B order
 
     def describe(self) -> dict:
         """Name, model, path, the file's own description, its SHA-256 and, for a file the

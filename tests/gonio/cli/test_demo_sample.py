@@ -50,9 +50,12 @@ def test_a_bad_sample_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, s
 
 def test_the_felt_measured_through_the_mock_recovers_the_file(tmp_path, capsys):
     """The real felt in the mock, a 6-geometry x 3-wavelength plan: every measured value within
-    4 of its standard uncertainties of the file's value in the channel whose band holds the
-    wavelength (B 450, G 550, R 650 nm), green at every geometry, and the dataset says what the
-    mock held (the file, its SHA-256, its source and licence)."""
+    4 of its standard uncertainties of the spectrum colour-science's Mallett-Yuksel decomposition
+    gives the file's RGB at that wavelength (the mock's view of an RGB file, gonio.mock.upsample),
+    green at every geometry, and the dataset says what the mock held (the file, its SHA-256, its
+    source and licence)."""
+    from colour.recovery import RGB_to_sd_Mallett2019
+
     from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
 
     plan = tmp_path / "tiny.toml"
@@ -66,8 +69,7 @@ def test_the_felt_measured_through_the_mock_recovers_the_file(tmp_path, capsys):
     assert len(t) == 18
     rgb = read_rgl_bsdf(FELT).beta(t["theta_i"].to_numpy(), t["phi_i"].to_numpy(),
                                    t["theta_o"].to_numpy(), t["phi_o"].to_numpy())   # R, G, B
-    column = {450.0: 2, 550.0: 1, 650.0: 0}
-    truth = rgb[np.arange(len(t)), [column[w] for w in t["wavelength_nm"]]]
+    truth = np.array([RGB_to_sd_Mallett2019(c[:3])[w] for c, w in zip(rgb, t["wavelength_nm"])])
     z = (t["beta"].to_numpy() - truth) / t["u_beta"].to_numpy()
     assert np.all(np.abs(z) < 4), z
     b, g, r = (t["beta"].to_numpy().reshape(-1, 3)[:, k] for k in range(3))
