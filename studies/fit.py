@@ -421,17 +421,15 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     if refused:
         log.warning("%d of %d noise draws left out of the uncertainty: their normal/normal value was not positive",
                     refused, 2 * noise_draws)
-    dp_data = dp_data or [np.zeros(len(problem.free))]
-    dp_mc = dp_mc or [np.zeros(len(problem.free))]
-    cov_data = np.atleast_2d(np.cov(np.array(dp_data).T, bias=True))
-    cov_mc = np.atleast_2d(np.cov(np.array(dp_mc).T, bias=True))
-    cov = cov_data + cov_mc
-    u = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    unknown = np.full((len(problem.free), len(problem.free)), np.nan)   # a part with no draw accepted
+    cov_data = np.atleast_2d(np.cov(np.array(dp_data).T, bias=True)) if dp_data else unknown
+    cov_mc = np.atleast_2d(np.cov(np.array(dp_mc).T, bias=True)) if dp_mc else unknown
+    cov, u, u_data, u_mc, u_notes = uncertainty_parts(cov_data, cov_mc)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(u, u)
     corr[~np.isfinite(corr)] = 0.0
     notes = ([stopped] if stopped else []) + at_bounds(problem, x_best) + identifiability(problem, J, u)
-    notes += _colour_left_off(problem, x_best)
+    notes += _colour_left_off(problem, x_best) + u_notes
     for note in notes:  # printed once, by the caller (the CLI prints fit.json's warnings)
         log.debug("%s", note)
     info = {
@@ -452,8 +450,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
             "names": [p.name for p in problem.free], "objective": float(r_best @ r_best),
             "photons": problem.photons, "evaluations": problem.evaluations, "done": True})
     return FitResult(x=x_best, start=problem.start.copy(), objective=float(r_best @ r_best), objective_start=F_start,
-                     u=u, u_data=np.sqrt(np.maximum(np.diag(cov_data), 0.0)),
-                     u_mc=np.sqrt(np.maximum(np.diag(cov_mc), 0.0)), correlation=corr, warnings=notes, info=info)
+                     u=u, u_data=u_data, u_mc=u_mc, correlation=corr, warnings=notes, info=info)
 
 
 def method_runner(method: str) -> tuple[type, Callable, Callable]:
@@ -463,6 +460,26 @@ def method_runner(method: str) -> tuple[type, Callable, Callable]:
 
         return MCFitProblem, run_mc_fit, write_mc_outputs
     return FitProblem, run_fit, write_outputs
+
+
+def uncertainty_parts(cov_data: np.ndarray, cov_mc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                           np.ndarray, list[str]]:
+    """``(cov, u, u_data, u_mc, notes)`` from the two parts' covariances of the parameters.
+
+    A part whose noise draws were all refused (none could be normalised) is all-NaN: it could not be
+    estimated. Its ``u_*`` is then NaN (``null`` in fit.json, "-" in the report), ``u`` holds the other
+    part alone -- a lower bound -- and a note says so (printed with the fit's warnings).
+    """
+    notes, parts = [], []
+    for name, c in (("data", cov_data), ("Monte Carlo", cov_mc)):
+        if c.size and np.all(np.isnan(c)):
+            notes.append(f"uncertainty: the {name} part could not be estimated (every noise draw was refused: "
+                         "its normal/normal value was not positive); u is the other part alone, a lower bound")
+        parts.append(np.nan_to_num(c, nan=0.0))
+    cov = parts[0] + parts[1]
+    u = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    u_data, u_mc = (np.sqrt(np.maximum(np.diag(c), 0.0)) for c in (cov_data, cov_mc))   # NaN stays NaN
+    return cov, u, u_data, u_mc, notes
 
 
 def at_bounds(problem: FitProblem, x: np.ndarray) -> list[str]:

@@ -345,7 +345,11 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     if refused:
         log.warning("%d of %d noise draws left out of the uncertainty: their normal/normal value was not positive",
                     refused, (2 if data else 1) * draws)
-    cov = [np.atleast_2d(np.cov(np.array(dp).T, bias=True)) for dp in (dp_data[1:] or dp_data, dp_mc[1:] or dp_mc)]
+    # the leading zero row stands for a part not drawn (data=False: no data part); a part drawn whose draws
+    # were all refused could not be estimated: all-NaN (studies.fit.uncertainty_parts says so)
+    unknown = np.full((x.size, x.size), np.nan)
+    cov = [unknown if attempted and len(dp) == 1 else np.atleast_2d(np.cov(np.array(dp[1:] or dp).T, bias=True))
+           for dp, attempted in ((dp_data, data and draws > 0), (dp_mc, draws > 0))]
     return J, cov[0], cov[1]
 
 
@@ -365,7 +369,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     ``max_evaluations``: Monte Carlo runs in all (the start's included, >= 2). Returns a
     :class:`studies.fit.FitResult` whose ``info["iterations"]`` lists the runs.
     """
-    from studies.fit import COLOUR_TOLERANCE, FitResult, at_bounds, identifiability, run_fit
+    from studies.fit import COLOUR_TOLERANCE, FitResult, at_bounds, identifiability, run_fit, uncertainty_parts
 
     if max_evaluations < 2:
         raise FitError(f"--max-evaluations {max_evaluations}: --method mc needs at least 2 Monte Carlo runs "
@@ -449,12 +453,11 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         J, cov_data, cov_mc = _uncertainty(problem, best.x, best.beta, best.u_beta, noise_draws)
     finally:
         problem.start = start
-    cov = cov_data + cov_mc
-    u = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    cov, u, u_data, u_mc, u_notes = uncertainty_parts(cov_data, cov_mc)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(u, u)
     corr[~np.isfinite(corr)] = 0.0
-    notes = at_bounds(problem, best.x) + identifiability(problem, J, u)
+    notes = at_bounds(problem, best.x) + identifiability(problem, J, u) + u_notes
     dh_max, ds_max = COLOUR_TOLERANCE
     if math.isfinite(best.dh) and (abs(best.dh) > dh_max or abs(best.ds) > ds_max):
         notes.append(f"colour left off: the fitted Monte Carlo's hue differs by {best.dh:+.3f} turn and its saturation "
@@ -480,8 +483,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         "target_rel_err": problem.target_rel_err,
     }
     return FitResult(x=best.x.copy(), start=start.copy(), objective=best.objective, objective_start=runs[0].objective,
-                     u=u, u_data=np.sqrt(np.maximum(np.diag(cov_data), 0.0)),
-                     u_mc=np.sqrt(np.maximum(np.diag(cov_mc), 0.0)), correlation=corr, warnings=notes, info=info)
+                     u=u, u_data=u_data, u_mc=u_mc, correlation=corr, warnings=notes, info=info)
 
 
 def write_mc_outputs(problem: MCFitProblem, result: Any, out: Path) -> dict:

@@ -219,3 +219,38 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatc
     assert np.all(np.isfinite(result.u)) and np.all(result.u_mc > 0)
     left_out = [r.getMessage() for r in caplog.records if "left out of the uncertainty" in r.getMessage()]
     assert left_out and int(left_out[0].split()[0]) > 0
+
+
+def test_a_part_whose_draws_are_all_refused_is_reported_not_estimated(monkeypatch):
+    """Every Monte Carlo noise draw refused (u_beta 50x beta: each draw has some normal value <= 0): its
+    part of the uncertainty is NaN (null in fit.json), u is the data part alone, and a warning says so
+    (it used to report u_mc = 0, as if the Monte Carlo added no uncertainty)."""
+    calls: list = []
+    fake = _fake_fine(calls)
+
+    def very_noisy(problem, x, *, progress=False):
+        run = fake(problem, x, progress=progress)
+        run.u_beta = 50.0 * np.abs(run.beta) + 1.0
+        return run
+
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", very_noisy)
+    problem = _resume_problem()[0]
+    result = run_mc_fit(problem, max_evaluations=2, noise_draws=8, inner_evaluations=20, echo=lambda s: None)
+    assert np.all(np.isnan(result.u_mc))
+    assert np.all(np.isfinite(result.u_data)) and np.all(result.u_data > 0)
+    assert np.array_equal(result.u, result.u_data)
+    notes = [n for n in result.warnings if "the Monte Carlo part could not be estimated" in n]
+    assert len(notes) == 1 and "lower bound" in notes[0]
+
+
+def test_uncertainty_parts_combines_known_parts_and_flags_unknown_ones():
+    from studies.fit import uncertainty_parts
+
+    a = np.array([[4.0, 1.0], [1.0, 9.0]])
+    b = np.array([[1.0, 0.0], [0.0, 16.0]])
+    cov, u, ud, um, notes = uncertainty_parts(a, b)
+    assert np.allclose(u, [np.sqrt(5.0), 5.0]) and np.allclose(ud, [2.0, 3.0]) and np.allclose(um, [1.0, 4.0])
+    assert notes == []
+    cov, u, ud, um, notes = uncertainty_parts(np.full((2, 2), np.nan), b)
+    assert np.allclose(u, [1.0, 4.0]) and np.all(np.isnan(ud)) and np.allclose(cov, b)
+    assert len(notes) == 1 and "the data part could not be estimated" in notes[0]
