@@ -26,8 +26,8 @@ the file's channel curves (at 450 nm 0.95 B, 0.04 G; at 550 nm 0.97 G; at 650 nm
 **Why not a smooth upsampling** (Jakob & Hanika 2019, the sigmoid spectra of Mitsuba 3's
 ``rgb2spec``, :func:`colour.recovery.XYZ_to_sd_Jakob2019`): it is non-linear, so each geometry's
 spectrum is shaped on its own and the curves of the tail wavelengths follow the sigmoid's tails
-rather than the fabric (the green felt's 700 nm curve takes the forward sheen's lower saturation
-as a tenfold change). Measured on the felt (2026-11-25): the Monte Carlo fitted to the three-band
+rather than the fabric (the green felt's forward sheen at 60 / +70 deg over its 0 / 10 deg value:
+12.6 at 700 nm in the sigmoid view, where the decomposition gives 5.7 and the G channel 4.8). Measured on the felt (2026-11-25): the Monte Carlo fitted to the three-band
 acquisition scores NRMSE 0.114 against the decomposition's view and 0.161 against the sigmoid
 view; a dye refit on the sigmoid view reached only 0.125 with the hue 0.019 turn off.
 
