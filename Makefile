@@ -28,7 +28,7 @@ DEMO_FREE ?= dye,rms_slope
 # borrows the summation's trend, does not leave it (README "What make demo does").
 DEMO_MC_START ?= green-felt-mc
 DEMO_MC_FREE ?= dye
-DEMO_MC_RUNS ?= 3
+DEMO_MC_RUNS ?= 2
 # Evaluation budget of each fit (one walk each, then about 0.1 s per evaluation).
 DEMO_FIT_EVALS ?= 200
 
