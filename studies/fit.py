@@ -421,9 +421,11 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     if refused:
         log.warning("%d of %d noise draws left out of the uncertainty: their normal/normal value was not positive",
                     refused, 2 * noise_draws)
-    unknown = np.full((len(problem.free), len(problem.free)), np.nan)   # a part with no draw accepted
-    cov_data = np.atleast_2d(np.cov(np.array(dp_data).T, bias=True)) if dp_data else unknown
-    cov_mc = np.atleast_2d(np.cov(np.array(dp_mc).T, bias=True)) if dp_mc else unknown
+    # a part drawn with no draw accepted could not be estimated (NaN); a part not drawn (noise_draws 0) is 0
+    n = len(problem.free)
+    missing = np.full((n, n), np.nan) if noise_draws > 0 else np.zeros((n, n))
+    cov_data = np.atleast_2d(np.cov(np.array(dp_data).T, bias=True)) if dp_data else missing
+    cov_mc = np.atleast_2d(np.cov(np.array(dp_mc).T, bias=True)) if dp_mc else missing
     cov, u, u_data, u_mc, u_notes = uncertainty_parts(cov_data, cov_mc)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(u, u)
