@@ -70,6 +70,10 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     target_rel_err = 0.01              # target relative standard error, (0, 1)
     max_photons = 0                    # photon budget; 0 = no cap
     threads = 0                        # 0 = all available
+    exit_bins = [5, 10]                # woven/felt Monte Carlo: the yarn table's exit directions, binned
+                                       #   in mu (uniform in cos, [2, 20]) x phi ([4, 40]) per exit cell;
+                                       #   finer resolves the fibers' short-path lobes at more trace time
+                                       #   (docs/physics.md 6, "Exit directions")
 
     [structure]                        # optional (issue 19): the summation over the fabric's visible fibers
     kind = "woven"                     #   in all their orientations; fields and defaults in
@@ -116,6 +120,9 @@ __all__ = [
 _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
 METHODS = ("nee", "beam", "bssrdf")
+#: ``[method] exit_bins``: the woven/felt Monte Carlo's yarn-table exit directions per exit cell,
+#: (bins uniform in the cosine from the local normal, bins in azimuth) (docs/physics.md 6).
+DEFAULT_EXIT_BINS = (5, 10)
 DYE_CURVES = ("gaussian-bands", "logistic-edge", "knots")
 #: Range of a knot of the ``knots`` dye curve: log10 of the host absorption in 1/um.
 KNOT_LOG10_RANGE = (-6.0, 2.0)
@@ -127,7 +134,7 @@ _FIELDS: dict[str, tuple[str, ...]] = {
                   "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
     "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
-    "method": ("method", "target_rel_err", "max_photons", "threads"),
+    "method": ("method", "target_rel_err", "max_photons", "threads", "exit_bins"),
 }
 
 
@@ -239,6 +246,8 @@ class SimulationConfig:
     wavelengths_nm: tuple[float, ...] = field(default=_DEFAULT_WAVELENGTHS)
     # --- issue 19 (simulate.fabric.structure): the [structure] section, None when absent
     structure: Any = None
+    #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell
+    exit_bins: tuple[int, int] = DEFAULT_EXIT_BINS
 
     def medium(self, wavelengths_nm: Any | None = None) -> MieMedium | HGMedium:
         """The scattering medium; the dye spectrum is sampled at ``wavelengths_nm`` (exact there)."""
@@ -515,6 +524,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
     threads = mt.integer("threads", 0, ge=0, le=1024)
+    exit_bins = _exit_bins(mt)
     mt.done()
 
     wl_t = top.sub("wavelengths", fields=("start_nm", "stop_nm", "step_nm", "list_nm"))
@@ -535,7 +545,17 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         sha256=hashlib.sha256(raw).hexdigest(), seed=seed, radius_um=radius, n_host=n_host,
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
-        threads=threads or None, wavelengths_nm=wavelengths, structure=structure)
+        threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins)
+
+
+def _exit_bins(mt: Table) -> tuple[int, int]:
+    """``[method] exit_bins``: two integers, mu bins in [2, 20] and phi bins in [4, 40]."""
+    value = mt.raw("exit_bins", list(DEFAULT_EXIT_BINS))
+    ok = (isinstance(value, list) and len(value) == 2
+          and all(isinstance(v, int) and not isinstance(v, bool) for v in value))
+    if not ok or not (2 <= value[0] <= 20 and 4 <= value[1] <= 40):
+        raise mt.fail("exit_bins", f"must be [mu bins, phi bins] with mu bins in 2..20 and phi bins in 4..40, got {value!r}")
+    return int(value[0]), int(value[1])
 
 
 # ------------------------------------------------------------------------------------------

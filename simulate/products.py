@@ -176,7 +176,7 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     beta, u_beta, mc_info = woven.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
-        structure=spec)
+        structure=spec, exit_bins=tuple(getattr(config, "exit_bins", (5, 10))))
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
     meshes = mesh if isinstance(mesh, tuple) else (mesh,)
     extra = {**geometry, "triangles": int(meshes[0].faces.shape[0]), "ray_engine": "embree (embreex)",

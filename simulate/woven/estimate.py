@@ -167,7 +167,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                 target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
                 threads: int = 1, progress: bool = False, tables: tuple[YarnTable, YarnTable] | None = None,
                 structure: Any = None, cache: bool = True, surface: str | None = None,
-                volume: str | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+                volume: str | None = None, exit_bins: tuple[int, int] = (5, 10)) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -181,7 +181,9 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     or ``FABRIC_OPTICS_NO_CACHE=1``: always computed); ``info["table"]["cache"]`` says which.
     ``structure`` (a config's ``[structure]``): the yarns' twist (:func:`twist_of`) and what they
     are made of (:func:`yarn_model`; ``surface`` and ``volume`` override it). ``tables`` given: they
-    are used as they are (``volume`` then says nothing).
+    are used as they are (``volume`` and ``exit_bins`` then say nothing). ``exit_bins``: the tables'
+    exit directions per exit cell, ``(mu bins, phi bins)`` (a config's ``[method] exit_bins``; what
+    they resolve and cost: docs/physics.md 6, "Exit directions").
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -194,9 +196,10 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
         vol = "tables given"
     else:
         walked = pile_fiber(fiber, yarn_radius(mesh), packing) if vol == "pile" else fiber
-        held = {"held_log_mu_s": HELD_LOG_MU_S} if vol == "pile" else {}
+        grid: dict[str, Any] = {"held_log_mu_s": HELD_LOG_MU_S} if vol == "pile" else {}
+        grid.update(n_mu=int(exit_bins[0]), n_phi=int(exit_bins[1]))
         tables = table_halves(walked, wl, table_photons(target_rel_err, **split) // 2, seed,
-                              threads if threads else None, cache=cache, **held)
+                              threads if threads else None, cache=cache, **grid)
     r_target = ray_target(target_rel_err, split.get("share", TABLE_SHARE))
     mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host), surf, spacing) for t in tables]
     meshes = tuple(mesh) if isinstance(mesh, (tuple, list)) else (mesh, mesh)

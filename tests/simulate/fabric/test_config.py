@@ -72,6 +72,12 @@ def test_base_config_parses_to_the_fields():
     assert len(cfg.wavelengths_nm) == 33
 
 
+def test_exit_bins_default_and_given():
+    assert parse_config(BASE, "test.toml").exit_bins == (5, 10)
+    cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [10, 20]"), "t.toml")
+    assert cfg.exit_bins == (10, 20)
+
+
 def test_hg_medium_and_tables():
     text = BASE.replace("""[particles]
 n = 2.7
@@ -145,6 +151,10 @@ BAD = [
     ("target_rel_err = 0.02", "target_rel_err = 0", "method.target_rel_err must be a number > 0 and < 1"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nmax_photons = 1.5", "method.max_photons must be an integer"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nthreads = -2", "method.threads must be an integer"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5]", "method.exit_bins must be [mu bins, phi bins]"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [1, 10]", "method.exit_bins must be [mu bins, phi bins]"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5, 10.5]", "method.exit_bins must be [mu bins, phi bins]"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5, 80]", "method.exit_bins must be [mu bins, phi bins]"),
     ("seed = 3", "seed = -1", "seed must be an integer in [0,"),
     ("seed = 3", 'seed = "x"', "seed must be an integer"),
     ('name = "test"', 'name = "test"\nfabric = 1', "fabric is not a known field"),
