@@ -246,8 +246,10 @@ class SimulationConfig:
     wavelengths_nm: tuple[float, ...] = field(default=_DEFAULT_WAVELENGTHS)
     # --- issue 19 (simulate.fabric.structure): the [structure] section, None when absent
     structure: Any = None
-    #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell
+    #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell, and whether
+    #: the config gave them (a run at the implicit default on nearly clear fibers warns)
     exit_bins: tuple[int, int] = DEFAULT_EXIT_BINS
+    exit_bins_given: bool = False
 
     def medium(self, wavelengths_nm: Any | None = None) -> MieMedium | HGMedium:
         """The scattering medium; the dye spectrum is sampled at ``wavelengths_nm`` (exact there)."""
@@ -524,6 +526,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
     threads = mt.integer("threads", 0, ge=0, le=1024)
+    exit_bins_given = mt.raw("exit_bins", None) is not None
     exit_bins = _exit_bins(mt)
     mt.done()
 
@@ -545,7 +548,8 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         sha256=hashlib.sha256(raw).hexdigest(), seed=seed, radius_um=radius, n_host=n_host,
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
-        threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins)
+        threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins,
+        exit_bins_given=exit_bins_given)
 
 
 def _exit_bins(mt: Table) -> tuple[int, int]:

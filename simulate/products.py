@@ -173,10 +173,14 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         geometry = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
                               "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
                               "points_per_span": wv.points_per_span}}
+    bins = tuple(getattr(config, "exit_bins", (5, 10)))
+    note = None if getattr(config, "exit_bins_given", False) else woven.estimate.clear_fiber_note(fiber, wavelengths, bins)
+    if note:
+        log.warning("simulate fabric --method mc: %s", note)
     beta, u_beta, mc_info = woven.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
-        structure=spec, exit_bins=tuple(getattr(config, "exit_bins", (5, 10))))
+        structure=spec, exit_bins=bins)
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
     meshes = mesh if isinstance(mesh, tuple) else (mesh,)
     extra = {**geometry, "triangles": int(meshes[0].faces.shape[0]), "ray_engine": "embree (embreex)",

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from simulate.media.medium import HGMedium
 from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.fabric.structure import CLOSE_PACKING
 from simulate.woven.integrator import CHUNK, MCResult, trace, yarn_radius
@@ -46,8 +47,8 @@ from simulate.woven.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.woven.materials import FiberSurface
 from simulate.woven.yarn import YarnTable, table_halves
 
-__all__ = ["TABLE_NOISE", "TABLE_SHARE", "PILE_TABLE", "table_photons", "ray_target", "fabric_beta", "twist_of",
-           "yarn_model"]
+__all__ = ["TABLE_NOISE", "TABLE_SHARE", "PILE_TABLE", "CLEAR_FIBER_SCATTERINGS", "clear_fiber_note", "table_photons",
+           "ray_target", "fabric_beta", "twist_of", "yarn_model"]
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +111,35 @@ FELT_ROTATIONS = 8
 def felt_rotations(mesh: Any) -> int:
     """:data:`FELT_ROTATIONS` for a felt's mesh (``open_fibers``: in-plane isotropic), 1 for a weave."""
     return FELT_ROTATIONS if getattr(mesh, "open_fibers", False) else 1
+
+
+CLEAR_FIBER_SCATTERINGS = 1.0
+"""A fiber with fewer expected scattering events than this across its diameter (``2 R mu_s``) is nearly
+clear: its exits keep to the cones refraction puts them on, which coarse azimuth bins smear
+(:func:`clear_fiber_note`)."""
+
+
+def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]) -> str | None:
+    """The warning for a run whose fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s``
+    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are the default's or coarser (36 deg
+    or more), else None. Measured: the green felt moves by more than its misfit to the measurement
+    between 10 and 20 azimuth bins, red cotton (2 R mu_s = 19) within its Monte Carlo noise
+    (docs/physics.md 6, "Exit directions")."""
+    if int(exit_bins[1]) > 10:
+        return None
+    medium = fiber.medium
+    wl = np.asarray(wavelengths_nm, float).ravel()
+    mid = float(wl[wl.size // 2]) if wl.size else 550.0
+    mu_s = float(medium.mu_s) if isinstance(medium, HGMedium) else float(
+        medium.optical_properties(mid, with_phase=False).mu_s)
+    n = 2.0 * float(fiber.radius_um) * mu_s
+    if n >= CLEAR_FIBER_SCATTERINGS:
+        return None
+    return (f"the fiber is nearly clear ({n:.2g} scattering events across its diameter at {mid:g} nm) and "
+            f"the yarn table's exit directions are binned at {int(exit_bins[1])} azimuths: its exits keep to "
+            "cones that such bins smear, and the result can move by more than a fit's misfit at finer bins; "
+            "check it with [method] exit_bins = [5, 20] or finer (docs/physics.md 6, \"Exit directions\"), "
+            "or set exit_bins to say which you mean")
 
 
 def _rot_z(a: float) -> np.ndarray:

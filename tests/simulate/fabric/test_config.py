@@ -73,9 +73,10 @@ def test_base_config_parses_to_the_fields():
 
 
 def test_exit_bins_default_and_given():
-    assert parse_config(BASE, "test.toml").exit_bins == (5, 10)
+    base = parse_config(BASE, "test.toml")
+    assert base.exit_bins == (5, 10) and not base.exit_bins_given
     cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [10, 20]"), "t.toml")
-    assert cfg.exit_bins == (10, 20)
+    assert cfg.exit_bins == (10, 20) and cfg.exit_bins_given
 
 
 def test_hg_medium_and_tables():

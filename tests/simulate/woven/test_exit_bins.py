@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from gonio.data.dataset import read_dataset
 from simulate import fiber as F
 from simulate.cli import main
 from simulate.media.medium import HGMedium
+from simulate.woven import estimate as E
 from simulate.woven.yarn import yarn_table
 
 from tests.simulate.woven.test_felt import FELT, PLAN
@@ -49,15 +52,42 @@ def test_a_clear_fibers_exits_are_not_uniform_within_the_coarse_bins():
     assert np.max(np.abs(clear[1:] - 1.0)) > 0.3, clear
 
 
-def test_simulate_fabric_traces_the_felt_with_the_configs_exit_bins(tmp_path, capsys):
+CLEAR_FELT = FELT.replace("mu_s = 0.8", "mu_s = 0.01")     # 2 R mu_s = 0.2: a nearly clear fiber
+
+
+def test_the_clear_fiber_note_names_nearly_clear_fibers_at_coarse_azimuth_bins():
+    clear = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.01, mu_a=0.0, g=0.5), 0.35, 10.0)
+    turbid = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.3, mu_a=0.0, g=0.5), 0.35, 10.0)
+    note = E.clear_fiber_note(clear, [450.0, 550.0, 650.0], (5, 10))
+    assert note is not None and "0.2 scattering events" in note and "exit_bins" in note
+    assert E.clear_fiber_note(turbid, [550.0], (5, 10)) is None        # 2 R mu_s = 6
+    assert E.clear_fiber_note(clear, [550.0], (5, 20)) is None          # azimuths finer than the default's
+
+
+def test_a_felt_of_clear_fibers_at_the_implicit_default_bins_warns(tmp_path, capsys, caplog):
     cfg = tmp_path / "felt.toml"
-    cfg.write_text(FELT + "[method]\nexit_bins = [4, 8]\n")
+    cfg.write_text(CLEAR_FELT)
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(PLAN)
+    with caplog.at_level(logging.WARNING, logger="simulate.products"):
+        assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(tmp_path / "o"),
+                     "--target-rel-err", "0.1", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert sum("nearly clear" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_simulate_fabric_traces_the_felt_with_the_configs_exit_bins(tmp_path, capsys, caplog):
+    """Bins the config gives are used, and say that the user chose them: no clear-fiber warning."""
+    cfg = tmp_path / "felt.toml"
+    cfg.write_text(CLEAR_FELT + "[method]\nexit_bins = [4, 8]\n")
     plan = tmp_path / "tiny.toml"
     plan.write_text(PLAN)
     out = tmp_path / "felt-mc"
-    assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
-                 "--target-rel-err", "0.1", "--no-progress"]) == 0
+    with caplog.at_level(logging.WARNING, logger="simulate.products"):
+        assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
+                     "--target-rel-err", "0.1", "--no-progress"]) == 0
     capsys.readouterr()
+    assert not any("nearly clear" in r.getMessage() for r in caplog.records)
     ds = read_dataset(out)
     assert np.all(ds.table["beta"] > 0)
     grid = ds.meta["provenance"]["fiber_info"]["table"]["grid"]
