@@ -174,7 +174,11 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
                               "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
                               "points_per_span": wv.points_per_span}}
     bins = tuple(getattr(config, "exit_bins", (5, 10)))
-    note = None if getattr(config, "exit_bins_given", False) else woven.estimate.clear_fiber_note(fiber, wavelengths, bins)
+    # a felt walks the fiber's own table (a weave's yarns walk the pile, simulate.woven.pile, whose exits
+    # are the yarn's): where the fiber's clearness decides whether the exit bins resolve it
+    felt = spec is not None and spec.kind == "nonwoven"
+    note = (woven.estimate.clear_fiber_note(fiber, wavelengths, bins)
+            if felt and not getattr(config, "exit_bins_given", False) else None)
     if note:
         log.warning("simulate fabric --method mc: %s", note)
     beta, u_beta, mc_info = woven.fabric_beta(
