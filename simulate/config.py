@@ -51,6 +51,9 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
 
     [surface]
     rms_slope = 0.3                    # Beckmann RMS slope m of the fiber surface, > 0
+    transmission_rms_slope = 0.0       # [0, 1]: the same surface for the light the volume walk sends
+                                       #   through it (0: smooth); the Monte Carlo (yarn tables) only
+                                       #   (simulate.montecarlo.rough, docs/physics.md 3)
 
     [weave]                            # optional: the woven micro-element (simulate.fabric.weave)
     matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular; at most ONE
@@ -250,6 +253,8 @@ class SimulationConfig:
     #: the config gave them (a run at the implicit default on nearly clear fibers warns)
     exit_bins: tuple[int, int] = DEFAULT_EXIT_BINS
     exit_bins_given: bool = False
+    #: ``[surface] transmission_rms_slope``: the boundary's roughness for light crossing it (0: smooth)
+    transmission_rms_slope: float = 0.0
 
     def medium(self, wavelengths_nm: Any | None = None) -> MieMedium | HGMedium:
         """The scattering medium; the dye spectrum is sampled at ``wavelengths_nm`` (exact there)."""
@@ -269,7 +274,8 @@ class SimulationConfig:
         from simulate.fiber import Fiber
 
         return Fiber(radius_um=self.radius_um, n_host=self.n_host, medium=self.medium(wavelengths_nm),
-                     roughness=self.rms_slope, cell_width_deg=self.cell_width_deg)
+                     roughness=self.rms_slope, cell_width_deg=self.cell_width_deg,
+                     transmission_roughness=self.transmission_rms_slope)
 
     def provenance(self) -> dict:
         """What produced a result: the config's name, source, SHA-256 and full text."""
@@ -513,9 +519,10 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
             raise fib.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total "
                                   "absorption of a Henyey-Greenstein medium)")
 
-    surf = top.sub("surface", required=True, fields=("rms_slope",))
+    surf = top.sub("surface", required=True, fields=("rms_slope", "transmission_rms_slope"))
     assert surf is not None
     rms_slope = surf.number("rms_slope", required=True, gt=0.0, le=1.0)
+    transmission_rms_slope = surf.number("transmission_rms_slope", 0.0, ge=0.0, le=1.0)
     surf.done()
 
     weave_t = top.sub("weave", fields=_FIELDS["weave"])
@@ -549,7 +556,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins,
-        exit_bins_given=exit_bins_given)
+        exit_bins_given=exit_bins_given, transmission_rms_slope=transmission_rms_slope)
 
 
 def _exit_bins(mt: Table) -> tuple[int, int]:

@@ -35,6 +35,11 @@ class Fiber:
         The scattering medium inside (coefficients in 1/um).
     roughness : float
         Beckmann RMS slope ``m`` of the fiber surface (Cook-Torrance term).
+    transmission_roughness : float
+        Beckmann RMS slope of the boundary for the light the volume walk sends through it (entry,
+        internal reflections, exit; :mod:`simulate.montecarlo.rough`); 0 (the default) is the smooth
+        interface. Only the exit-tally routes take it (the woven/felt yarn tables): the next-event
+        routes of the fiber BRDF assume the smooth boundary and refuse it.
     cell_width_deg : float
         Angular width of the surface cell B about the top of the fiber (the cell whose BRDF
         the fabric summation uses); 360 / cell_width_deg should be an integer for the
@@ -46,8 +51,12 @@ class Fiber:
     medium: MieMedium | HGMedium
     roughness: float
     cell_width_deg: float = 10.0
+    transmission_roughness: float = 0.0
 
     def __post_init__(self) -> None:
+        t = self.transmission_roughness
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or not 0.0 <= t <= 1.0:
+            raise ParameterError(f"Fiber: transmission_roughness must be a number in [0, 1], got {t!r}")
         for name in ("radius_um", "n_host", "roughness", "cell_width_deg"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:

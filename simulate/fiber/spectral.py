@@ -107,6 +107,7 @@ def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: b
     medium[K.M_G] = walk_phase.g
     medium[K.M_N] = fiber.n_host
     medium[K.M_PHASE] = walk_phase.kind
+    medium[K.M_ROUGH] = float(getattr(fiber, "transmission_roughness", 0.0))
     targets = SpectralTargets(
         mu_a=optics.mu_a[group].astype(float),
         mu_s=optics.mu_s[group].astype(float),

@@ -118,6 +118,7 @@ from simulate.montecarlo.geometry import (
     snap_to_surface,
 )
 from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
+from simulate.montecarlo.rough import rough_cross, rough_entry
 from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, sample_direction
 from simulate.montecarlo.slab_lanes import simulate_batch_slab_lanes
 from simulate.montecarlo.vecmath import vexp
@@ -130,6 +131,7 @@ __all__ = [
     "M_G",
     "M_N",
     "M_PHASE",
+    "M_ROUGH",
     "N_MEDIUM",
     "C_WEIGHT_THRESHOLD",
     "C_SURVIVAL",
@@ -160,7 +162,8 @@ M_MU_S = 1
 M_G = 2
 M_N = 3
 M_PHASE = 4
-N_MEDIUM = 5
+M_ROUGH = 5  # Beckmann RMS slope of the boundary for light crossing it (0: smooth; .rough)
+N_MEDIUM = 6
 
 # control array slots
 C_WEIGHT_THRESHOLD = 0
@@ -280,6 +283,8 @@ def _make_kernel(scoring: bool):
         max_events = int(inp.control[C_MAX_EVENTS])
         contrast = n_in != 1.0
         eta_in = 1.0 / n_in
+        m_rough = medium[M_ROUGH]
+        rough = contrast and m_rough > 0.0  # a rough boundary (.rough); else the smooth code, unchanged
         dx = -source[1]
         dy = -source[2]
         dz = -source[3]
@@ -352,7 +357,13 @@ def _make_kernel(scoring: bool):
             w0 = 1.0
             if cell_source:
                 w0 = max(cos_i, 0.0)  # irradiance on the surface element, per unit beam irradiance
-            if contrast and w0 > 0.0:
+            t_in = -1.0  # the rough entry's transmitted weight (per unit arriving); < 0: 1 - f_in
+            if rough and w0 > 0.0:
+                r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                ux, uy, uz, t_in, f_in = rough_entry(dx, dy, dz, nx, ny, nz, n_in, m_rough,
+                                                     to_uniform(r), to_uniform(r2))
+            elif contrast and w0 > 0.0:
                 f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
                 cos_t = refracted_cos(cos_i, 1.0, n_in)
                 k = eta_in * cos_i - cos_t
@@ -369,8 +380,12 @@ def _make_kernel(scoring: bool):
                 uy = dy
                 uz = dz
             launch_weight += w0
-            w = w0 * (1.0 - f_in)
-            specular += w0 * f_in
+            w = w0 * (1.0 - f_in) if t_in < 0.0 else w0 * t_in
+            specular += w0 * f_in  # rough: f_in is the facet's reflected part, masking included
+            if t_in >= 0.0:
+                # the rough entry's balance: its mean is the facets' masking loss (.rough), booked as
+                # absorbed; one facet's draw may give more or less than its mean, so this may be < 0
+                absorbed += w0 * (1.0 - t_in - f_in)
             entered += w
             h_exit0 = 0.0
             h_exit1 = 0.0
@@ -466,7 +481,29 @@ def _make_kernel(scoring: bool):
                     x, y, z = snap_to_surface(geometry, size, x, y, z, uz)
                     nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
                     cos_i = ux * nx + uy * ny + uz * nz
-                    if contrast:
+                    if rough:
+                        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                        r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                        r3, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                        ox, oy, oz, factor, crossed = rough_cross(ux, uy, uz, nx, ny, nz, n_in, 1.0, m_rough,
+                                                                  to_uniform(r), to_uniform(r2), to_uniform(r3))
+                        # the crossing's weight factor is 1 on average less the facets' masking loss
+                        # (.rough); its difference from 1 is booked as absorbed (signed: one facet's
+                        # draw may weigh more than 1), so every photon's balance stays exact
+                        absorbed += w * (1.0 - factor)
+                        if factor <= 0.0:
+                            break
+                        w *= factor
+                        if not crossed:
+                            ux = ox
+                            uy = oy
+                            uz = oz
+                            reflections_total += 1
+                            continue
+                        wx = ox
+                        wy = oy
+                        wz = oz
+                    elif contrast:
                         f_out = fresnel_unpolarized(cos_i, n_in, 1.0)
                         if f_out > 0.0:
                             if f_out >= 1.0:
@@ -597,7 +634,7 @@ def _make_runner(scoring: bool):
                 if SCORING:
                     simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
                 else:
-                    if inp.geometry == SLAB:
+                    if inp.geometry == SLAB and inp.medium[M_ROUGH] <= 0.0:
                         simulate_batch_slab_lanes(inp, inp.source, count, seed, b, scal[i], bins[i])
                     else:
                         simulate_batch_plain(inp, inp.source, count, seed, b, scal[i], bins[i])
