@@ -91,7 +91,28 @@ def evaluate(method: str, config: SimulationConfig, fiber: Any, geometries: Geom
     """The registered model ``method`` at ``geometries``."""
     if method not in _REGISTRY:
         raise ValueError(f"fabric model must be one of {', '.join(_REGISTRY)}, got {method!r}")
+    fiber = smooth_boundary_unless_mc(method, fiber)
     return _REGISTRY[method](config, fiber, geometries, np.asarray(wavelengths, float), settings)
+
+
+def smooth_boundary_unless_mc(method: str, fiber: Any) -> Any:
+    """The fiber a model walks: the Monte Carlo takes a rough boundary for transmitted light
+    (``[surface] transmission_rms_slope``, :mod:`simulate.montecarlo.rough`); the summation's and the
+    classic model's fiber routes estimate exits by next events through the smooth boundary, so they walk
+    the fiber with it smooth, and say so once per process."""
+    import dataclasses
+
+    if method == "mc" or not float(getattr(fiber, "transmission_roughness", 0.0) or 0.0) > 0.0:
+        return fiber
+    if not _SMOOTH_NOTED:
+        _SMOOTH_NOTED.append(True)
+        log.warning("--method %s walks the fiber with a smooth boundary: [surface] transmission_rms_slope "
+                    "(%.3g) is taken by --method mc only (docs/physics.md 3, \"Rough boundary\")",
+                    method, float(fiber.transmission_roughness))
+    return dataclasses.replace(fiber, transmission_roughness=0.0)
+
+
+_SMOOTH_NOTED: list[bool] = []
 
 
 @register("summation")

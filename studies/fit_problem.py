@@ -499,6 +499,12 @@ class FitProblem:
 
     def _run(self, nodye: Any, key: tuple, ref: tuple | None, config: SimulationConfig | None = None) -> Any:
         """A fresh walk of ``nodye`` (``ref`` None) or the re-weighting of ``ref = (fiber, table)``."""
+        from simulate.products import smooth_boundary_unless_mc
+
+        # the summation's and classic model's routes walk the smooth boundary (simulate.products)
+        nodye = smooth_boundary_unless_mc(self.method, nodye)
+        if ref is not None:
+            ref = (smooth_boundary_unless_mc(self.method, ref[0]), ref[1])
         wl = self.wavelengths_nm
         if self.structured:
             return self._run_structured(nodye, ref, config or self.config)

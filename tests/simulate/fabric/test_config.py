@@ -79,6 +79,13 @@ def test_exit_bins_default_and_given():
     assert cfg.exit_bins == (10, 20) and cfg.exit_bins_given
 
 
+def test_transmission_rms_slope_defaults_to_the_smooth_boundary_and_reaches_the_fiber():
+    base = parse_config(BASE, "test.toml")
+    assert base.transmission_rms_slope == 0.0 and base.fiber().transmission_roughness == 0.0
+    cfg = parse_config(_set(BASE, "rms_slope = 0.3", "rms_slope = 0.3\ntransmission_rms_slope = 0.12"), "t.toml")
+    assert cfg.fiber().transmission_roughness == 0.12 and cfg.fiber().roughness == 0.3
+
+
 def test_hg_medium_and_tables():
     text = BASE.replace("""[particles]
 n = 2.7
@@ -145,6 +152,10 @@ BAD = [
     ("[particles]", "[medium]\nmu_s = 1\nmu_a = 0\ng = 0.5\n[particles]", "particles or medium: give exactly one"),
     ("rms_slope = 0.3", "rms_slope = 0", "surface.rms_slope must be a number > 0"),
     ("rms_slope = 0.3", "rms_slope = 0.3\nroughness = 2", "surface.roughness is not a known field"),
+    ("rms_slope = 0.3", "rms_slope = 0.3\ntransmission_rms_slope = -0.1",
+     "surface.transmission_rms_slope must be a number >= 0 and <= 1"),
+    ("rms_slope = 0.3", "rms_slope = 0.3\ntransmission_rms_slope = \"rough\"",
+     "surface.transmission_rms_slope must be a number"),
     ("matrix = [[1, 0], [0, 1]]", "matrix = [[1, 0], [0]]", "weave.matrix must be a rectangular list of rows of 0/1"),
     ("matrix = [[1, 0], [0, 1]]", "matrix = [[1, 2], [0, 1]]", "weave.matrix must be a rectangular list"),
     ("spacing_um = 300", 'spacing_um = "wide"', "weave.spacing_um must be a number > 0"),

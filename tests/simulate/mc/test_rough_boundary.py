@@ -200,3 +200,27 @@ def test_the_next_event_routes_refuse_a_rough_boundary():
     with pytest.raises(ParameterError, match="transmission_rms_slope"):
         make_inputs(G.CYLINDER, np.array([1.0]), np.array([0.0, 0.0, 0.0, 1.0]), medium, phase_arrays(g=0.0),
                     make_control(), T.NONE, None, T.V_CYLINDER_NEE, np.zeros((1, 8)))
+
+
+def test_a_clear_fibers_yarn_table_spreads_its_exits_off_the_refraction_plane_when_rough():
+    """Config to kernel: a nearly clear fiber lit at normal incidence to its axis (row w_t = 0) sends
+    its exits into the plane across the axis (exit azimuth +-90 deg from the axis in the local frame);
+    through a rough boundary a share of them leaves that plane, and the table says so."""
+    import dataclasses
+
+    from simulate import fiber as F
+    from simulate import woven as W
+    from simulate.media.medium import HGMedium
+
+    smooth = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.001, mu_a=0.0, g=0.0), 0.3, 30.0)
+    rough = dataclasses.replace(smooth, transmission_roughness=0.3)
+    grid = dict(w_t_nodes=(0.0, 0.5), n_v=1, n_mu=3, n_phi=6, photons_per_row=4000, seed=2, threads=1,
+                cache=False)
+    off_plane = []
+    for fib in (smooth, rough):
+        t = W.yarn_table(fib, [550.0], **grid)
+        # T[j, k, cell, l], cell = (offset, v, mu, phi): azimuth bins of 60 deg from -180; +-90 lie in bins 1 and 4
+        T6 = t.T[0, :, :, 0].reshape(t.T.shape[1], -1, 6).sum(axis=(0, 1))
+        off_plane.append(1.0 - (T6[1] + T6[4]) / T6.sum())
+    assert off_plane[0] < 0.03          # smooth: only the scattered photons (~2 %) leave the plane
+    assert off_plane[1] > 0.2           # rough facets tilt the refracted light out of it (0.35 at m 0.3)

@@ -51,7 +51,7 @@ def test_hit_is_bit_identical_to_the_miss_and_to_an_uncached_build(cache):
     assert len(tc.entries()) == 1
 
 
-@pytest.mark.parametrize("change", ["seed", "medium", "wavelengths", "photons", "grid", "radius"])
+@pytest.mark.parametrize("change", ["seed", "medium", "wavelengths", "photons", "grid", "radius", "rough boundary"])
 def test_a_changed_input_misses(cache, change):
     fib = _fiber()
     kw = dict(_SMALL, seed=5)
@@ -69,6 +69,8 @@ def test_a_changed_input_misses(cache, change):
         kw["n_phi"] = 5
     elif change == "radius":
         fib = dataclasses.replace(fib, radius_um=11.0)
+    elif change == "rough boundary":
+        fib = dataclasses.replace(fib, transmission_roughness=0.2)
     again = W.yarn_table(fib, wl, threads=1, **kw)
     assert again.cache == "miss"
     assert len(tc.entries()) == 2
