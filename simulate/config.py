@@ -73,6 +73,11 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     target_rel_err = 0.01              # target relative standard error, (0, 1)
     max_photons = 0                    # photon budget; 0 = no cap
     threads = 0                        # 0 = all available
+    axial_nodes = 5                    # woven/felt Monte Carlo: the yarn table's rows in |w_t| (incidence
+                                       #   along the fiber), [2, 64]; 5 = 0, .25, .5, .75, .95, else uniform
+                                       #   on [0, 0.95] (docs/physics.md 6, "Axial nodes")
+    axial_shift = false                # woven/felt Monte Carlo: move a table row's exits along the fiber
+                                       #   axis to the ray's own axial incidence (docs/physics.md 6)
     exit_bins = [5, 10]                # woven/felt Monte Carlo: the yarn table's exit directions, binned
                                        #   in mu (uniform in cos, [2, 20]) x phi ([4, 40]) per exit cell;
                                        #   finer resolves the fibers' short-path lobes at more trace time
@@ -126,6 +131,17 @@ METHODS = ("nee", "beam", "bssrdf")
 #: ``[method] exit_bins``: the woven/felt Monte Carlo's yarn-table exit directions per exit cell,
 #: (bins uniform in the cosine from the local normal, bins in azimuth) (docs/physics.md 6).
 DEFAULT_EXIT_BINS = (5, 10)
+#: ``[method] axial_shift`` when not given (docs/physics.md 6, "Axial shift")
+DEFAULT_AXIAL_SHIFT = False
+#: ``[method] axial_nodes`` when not given: the yarn table's original nodes (docs/physics.md 6, "Axial nodes")
+DEFAULT_AXIAL_NODES = 5
+
+
+def axial_node_grid(n: int) -> tuple[float, ...]:
+    """``n`` yarn-table nodes in ``|w_t|``: the original (0, .25, .5, .75, .95) for 5, else uniform on [0, 0.95]."""
+    if int(n) == 5:
+        return (0.0, 0.25, 0.5, 0.75, 0.95)
+    return tuple(round(0.95 * k / (int(n) - 1), 6) for k in range(int(n)))
 DYE_CURVES = ("gaussian-bands", "logistic-edge", "knots")
 #: Range of a knot of the ``knots`` dye curve: log10 of the host absorption in 1/um.
 KNOT_LOG10_RANGE = (-6.0, 2.0)
@@ -137,7 +153,7 @@ _FIELDS: dict[str, tuple[str, ...]] = {
                   "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
     "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
-    "method": ("method", "target_rel_err", "max_photons", "threads", "exit_bins"),
+    "method": ("method", "target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes"),
 }
 
 
@@ -255,6 +271,16 @@ class SimulationConfig:
     exit_bins_given: bool = False
     #: ``[surface] transmission_rms_slope``: the boundary's roughness for light crossing it (0: smooth)
     transmission_rms_slope: float = 0.0
+    #: ``[method] axial_shift``: the woven/felt tracer moves a table row's exits along the fiber axis to
+    #: the ray's own axial incidence (docs/physics.md 6, "Axial shift")
+    axial_shift: bool = False
+    #: ``[method] axial_nodes``: the yarn table's rows in |w_t| (the component of the incidence along the
+    #: fiber), uniform on [0, 0.95]; 5 (the default) are the table's original nodes 0, .25, .5, .75, .95
+    axial_nodes: int = 5
+
+    def w_t_nodes(self) -> tuple[float, ...]:
+        """The yarn table's axial nodes of ``[method] axial_nodes``."""
+        return axial_node_grid(self.axial_nodes)
 
     def medium(self, wavelengths_nm: Any | None = None) -> MieMedium | HGMedium:
         """The scattering medium; the dye spectrum is sampled at ``wavelengths_nm`` (exact there)."""
@@ -535,6 +561,10 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     threads = mt.integer("threads", 0, ge=0, le=1024)
     exit_bins_given = mt.raw("exit_bins", None) is not None
     exit_bins = _exit_bins(mt)
+    axial_shift = mt.raw("axial_shift", DEFAULT_AXIAL_SHIFT)
+    if not isinstance(axial_shift, bool):
+        raise mt.fail("axial_shift", f"must be true or false, got {axial_shift!r}")
+    axial_nodes = mt.integer("axial_nodes", DEFAULT_AXIAL_NODES, ge=2, le=64)
     mt.done()
 
     wl_t = top.sub("wavelengths", fields=("start_nm", "stop_nm", "step_nm", "list_nm"))
@@ -556,7 +586,8 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
         method=method, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins,
-        exit_bins_given=exit_bins_given, transmission_rms_slope=transmission_rms_slope)
+        exit_bins_given=exit_bins_given, transmission_rms_slope=transmission_rms_slope, axial_shift=axial_shift,
+        axial_nodes=axial_nodes)
 
 
 def _exit_bins(mt: Table) -> tuple[int, int]:

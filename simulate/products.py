@@ -205,7 +205,8 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     beta, u_beta, mc_info = woven.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
-        structure=spec, exit_bins=bins)
+        structure=spec, exit_bins=bins, axial_shift=bool(getattr(config, "axial_shift", False)),
+        w_t_nodes=config.w_t_nodes() if hasattr(config, "w_t_nodes") else (0.0, 0.25, 0.5, 0.75, 0.95))
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
     meshes = mesh if isinstance(mesh, tuple) else (mesh,)
     extra = {**geometry, "triangles": int(meshes[0].faces.shape[0]), "ray_engine": "embree (embreex)",

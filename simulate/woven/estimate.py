@@ -197,7 +197,9 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                 target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
                 threads: int = 1, progress: bool = False, tables: tuple[YarnTable, YarnTable] | None = None,
                 structure: Any = None, cache: bool = True, surface: str | None = None,
-                volume: str | None = None, exit_bins: tuple[int, int] = (5, 10)) -> tuple[np.ndarray, np.ndarray, dict]:
+                volume: str | None = None, exit_bins: tuple[int, int] = (5, 10),
+                axial_shift: bool = False,
+                w_t_nodes: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.95)) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -227,11 +229,12 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     else:
         walked = pile_fiber(fiber, yarn_radius(mesh), packing) if vol == "pile" else fiber
         grid: dict[str, Any] = {"held_log_mu_s": HELD_LOG_MU_S} if vol == "pile" else {}
-        grid.update(n_mu=int(exit_bins[0]), n_phi=int(exit_bins[1]))
+        grid.update(n_mu=int(exit_bins[0]), n_phi=int(exit_bins[1]), w_t_nodes=tuple(float(x) for x in w_t_nodes))
         tables = table_halves(walked, wl, table_photons(target_rel_err, **split) // 2, seed,
                               threads if threads else None, cache=cache, **grid)
     r_target = ray_target(target_rel_err, split.get("share", TABLE_SHARE))
-    mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host), surf, spacing) for t in tables]
+    mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host), surf, spacing, bool(axial_shift))
+            for t in tables]
     meshes = tuple(mesh) if isinstance(mesh, (tuple, list)) else (mesh, mesh)
     if len(meshes) != 2:
         raise ValueError(f"fabric_beta: one mesh or one per table half (2), not {len(meshes)}")
@@ -282,7 +285,8 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                       "cache": [t.cache for t in tables],
                       "halves": 2, "photons_per_row": int(photons // max(1, tables[0].T.shape[0] * tables[0].T.shape[1])),
                       "w_t_nodes": tables[0].w_t_nodes.tolist(),
-                      "grid": [tables[0].n_psi, tables[0].n_v, tables[0].n_mu, tables[0].n_phi]},
+                      "grid": [tables[0].n_psi, tables[0].n_v, tables[0].n_mu, tables[0].n_phi],
+                      "axial_shift": bool(axial_shift)},
             "incidences": runs, "seconds": time.perf_counter() - started, "twist_deg": list(twist),
             "rotations": n_rot, "realisations": 2 if meshes[0] is not meshes[1] else 1,
             "yarn_surface": surf, "surface_spacing_ratio": spacing if surf == "fibers" else None,

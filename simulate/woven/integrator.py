@@ -171,7 +171,8 @@ class _Setup:
             self.T, self.cdf, self.cell_sum, self.c_bar, self.tau, self.nodes, self.dpsi, n_psi, n_v, n_mu, n_phi,
             self.v_edges, self.off_tot, self.off_bar, np.zeros((0, 3)), self.twist_c, self.twist_s,
             yarn_radius(mesh), np.asarray(me.face_base, np.int64), normals == "face",
-            float(material.layer_d) if isinstance(material, FiberSurface) else 0.0)
+            float(material.layer_d) if isinstance(material, FiberSurface) else 0.0,
+            bool(getattr(material, "axial_shift", False)))
 
     def shade(self, seed, prim, u, v, pos, dirs, weight, detectors):
         """:func:`simulate.woven.shading.shade` of the hit rays; returns its outputs as a tuple."""

@@ -60,6 +60,9 @@ class FiberSurface:
     n_host: float
     surface: str = "tube"
     spacing_ratio: float = 1.0
+    #: move each sampled exit along the fiber axis by the difference between the ray's axial incidence and
+    #: its table row's node (docs/physics.md 6, "Axial shift"; simulate.woven.shading._bin_direction)
+    axial_shift: bool = False
 
     def __post_init__(self) -> None:
         if self.surface not in ("tube", "fibers"):

@@ -69,6 +69,7 @@ class ShadeInputs(NamedTuple):
     face_base: np.ndarray
     face_normals: bool
     layer_d: float = 0.0
+    axial_shift: bool = False
 
 
 class ShadeOutputs(NamedTuple):
@@ -292,24 +293,60 @@ def _table_bin(wx, wy, wz, tx, ty, tz, bx, by, bz, mu, sx, sb, n_mu, n_phi):
 
 
 @numba.njit(cache=True)
-def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, tx, ty, tz, bx, by, bz, nx, ny, nz):
-    """A direction uniform in projected solid angle within a table cell's direction bin, mirrored
-    back into the local frame ``(t, b, n)``, written to ``out_d[i]``."""
+def _shifted_bin(wx, wy, wz, tx, ty, tz, bx, by, bz, nx, ny, nz, sx, sb, shift, n_mu, n_phi):
+    """A detector's direction bin in the table's frame when the row's exits are shifted along the axis
+    by ``shift`` (:func:`_bin_direction`): the bin of the direction's pre-image, the bin's projected
+    solid angle, and ``ratio`` = the pre-image's cosine from the normal over the direction's (the
+    density is uniform in projected solid angle at the pre-image; the shift keeps solid angle).
+    ``ratio`` 0: the direction has no pre-image (it would need ``|w_t| >= 1`` in the row)."""
+    dphi = 2.0 * math.pi / n_phi
+    wt = sx * (wx * tx + wy * ty + wz * tz)
+    wb = sb * (wx * bx + wy * by + wz * bz)
+    wn = wx * nx + wy * ny + wz * nz
+    ratio = 1.0
+    if shift != 0.0:
+        wt2 = wt - shift
+        perp = math.sqrt(max(1.0 - wt * wt, 0.0))
+        if abs(wt2) >= 1.0 or perp <= 0.0:
+            return 0, 0, 1.0, 0.0
+        ratio = math.sqrt(1.0 - wt2 * wt2) / perp
+        wt = wt2
+        wb *= ratio
+    mu = wn * ratio
+    ph = (math.atan2(wb, wt) + math.pi) % (2.0 * math.pi)
+    jm = min(int(mu * n_mu), n_mu - 1)
+    jp = min(int(ph / dphi), n_phi - 1)
+    return jm, jp, 0.5 * (((jm + 1.0) / n_mu) ** 2 - (jm / n_mu) ** 2) * dphi, ratio
+
+
+@numba.njit(cache=True)
+def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, tx, ty, tz, bx, by, bz, nx, ny, nz, shift=0.0):
+    """A direction uniform in projected solid angle within a table cell's direction bin, shifted along
+    the fiber axis by ``shift`` (its component along ``t`` in the table's frame moved by ``shift``, its
+    azimuth about the axis kept: a map that keeps solid angle), mirrored back into the local frame
+    ``(t, b, n)``, written to ``out_d[i]``. Returns False (nothing written) when the shifted direction
+    does not exist (``|w_t| >= 1``). Why the shift: docs/physics.md 6, "Axial shift"."""
     iphi = cell % n_phi
     imu = (cell // n_phi) % n_mu
     mlo = imu / n_mu
     mhi = (imu + 1.0) / n_mu
     mu = math.sqrt(mlo * mlo + (mhi * mhi - mlo * mlo) * np.random.random())
     ph = -math.pi + (iphi + np.random.random()) * 2.0 * math.pi / n_phi
-    if sb < 0.0:
-        ph = -ph
-    if sx < 0.0:
-        ph = math.pi - ph
     st = math.sqrt(max(1.0 - mu * mu, 0.0))
     ct, sp = st * math.cos(ph), st * math.sin(ph)
+    if shift != 0.0:
+        ct2 = ct + shift
+        perp = math.sqrt(sp * sp + mu * mu)
+        if abs(ct2) >= 1.0 or perp <= 0.0:
+            return False
+        f = math.sqrt(1.0 - ct2 * ct2) / perp
+        ct, sp, mu = ct2, sp * f, mu * f
+    ct *= sx
+    sp *= sb
     out_d[i, 0] = ct * tx + sp * bx + mu * nx
     out_d[i, 1] = ct * ty + sp * by + mu * ny
     out_d[i, 2] = ct * tz + sp * bz + mu * nz
+    return True
 
 
 @numba.njit(cache=True)
@@ -343,6 +380,7 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     v_edges, off_tot, off_bar, detectors = inp.v_edges, inp.off_tot, inp.off_bar, inp.detectors
     twist_c, twist_s, r_yarn, face_base = inp.twist_c, inp.twist_s, inp.r_yarn, inp.face_base
     face_normals, layer_d = inp.face_normals, inp.layer_d
+    axial_shift = inp.axial_shift
     out_o, out_d, out_w, nee_o, nee_c, nee_need, hit_albedo = (out.out_o, out.out_d, out.out_w, out.nee_o,
                                                               out.nee_c, out.nee_need, out.hit_albedo)
     out_prim = out.out_prim
@@ -465,6 +503,10 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             kr = k_max
         else:
             kr = k0 + 1 if np.random.random() < xk - k0 else k0
+        # axial shift (docs/physics.md 6, "Axial shift"): the row at node |w_t| = nodes[j] sends light that
+        # crossed the fiber without scattering onto the cone of propagation component -nodes[j] along the
+        # axis; this ray's is -|lt|. Its exits are moved along the axis by the difference (solid angle kept)
+        shift = nodes[j] - at if axial_shift else 0.0
         total = cdf[j, kr, n_cells - 1]
         cb = c_bar[j, kr]
         wsum = 0.0
@@ -683,9 +725,12 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
                 cg = wx * egx + wy * egy + wz * egz
                 if mu <= 0.0 or cg <= 0.0:
                     continue
-                jm, jp, om = _table_bin(wx, wy, wz, etx, ety, etz, ebx, eby, ebz, mu, sx, sb, n_mu, n_phi)
+                jm, jp, om, ratio = _shifted_bin(wx, wy, wz, etx, ety, etz, ebx, eby, ebz, enx, eny, enz,
+                                                 sx, sb, shift, n_mu, n_phi)
+                if ratio <= 0.0:
+                    continue
                 c2 = c_first + jm * n_phi + jp
-                scale = entry_nee * corr_in * cg / (om * cb * p_ov)
+                scale = entry_nee * corr_in * cg * ratio / (om * cb * p_ov)
                 nee_need[i, 1, d] = True
                 for k in range(L):
                     nee_c[i, 1, d, k] = weight[i, k] * T[j, kr, c2, k] * scale
@@ -702,7 +747,11 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
             for k in range(L):
                 out_w[i, k] = weight[i, k] * wgt
         elif cell >= 0:
-            _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, etx, ety, etz, ebx, eby, ebz, enx, eny, enz)
+            if not _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, etx, ety, etz, ebx, eby, ebz,
+                                  enx, eny, enz, shift):
+                for k in range(L):
+                    out_w[i, k] = 0.0
+                continue
             for q in range(3):
                 out_o[i, q] = nee_o[i, 1, q]
             out_prim[i] = e_face

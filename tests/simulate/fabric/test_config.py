@@ -86,6 +86,17 @@ def test_transmission_rms_slope_defaults_to_the_smooth_boundary_and_reaches_the_
     assert cfg.fiber().transmission_roughness == 0.12 and cfg.fiber().roughness == 0.3
 
 
+def test_axial_nodes_and_shift_default_to_the_original_table_and_reach_the_grid():
+    base = parse_config(BASE, "test.toml")
+    assert base.w_t_nodes() == (0.0, 0.25, 0.5, 0.75, 0.95) and base.axial_shift is False
+    cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\naxial_nodes = 9\naxial_shift = true"),
+                       "t.toml")
+    nodes = np.array(cfg.w_t_nodes())
+    assert nodes.size == 9 and nodes[0] == 0.0 and nodes[-1] == 0.95
+    np.testing.assert_allclose(np.diff(nodes), 0.95 / 8, atol=1e-6)
+    assert cfg.axial_shift is True
+
+
 def test_hg_medium_and_tables():
     text = BASE.replace("""[particles]
 n = 2.7
@@ -163,6 +174,9 @@ BAD = [
     ("target_rel_err = 0.02", "target_rel_err = 0", "method.target_rel_err must be a number > 0 and < 1"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nmax_photons = 1.5", "method.max_photons must be an integer"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nthreads = -2", "method.threads must be an integer"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\naxial_shift = 1", "method.axial_shift must be true or false"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\naxial_nodes = 1", "method.axial_nodes must be an integer"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\naxial_nodes = 9.5", "method.axial_nodes must be an integer"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5]", "method.exit_bins must be [mu bins, phi bins]"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [1, 10]", "method.exit_bins must be [mu bins, phi bins]"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5, 10.5]", "method.exit_bins must be [mu bins, phi bins]"),
