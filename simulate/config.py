@@ -54,6 +54,8 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     transmission_rms_slope = 0.0       # [0, 1]: the same surface for the light the volume walk sends
                                        #   through it (0: smooth); the Monte Carlo (yarn tables) only
                                        #   (simulate.montecarlo.rough, docs/physics.md 3)
+    # transmission_rms_slope_around = 0.3  # [0, 1], optional: an anisotropic boundary, the line above
+                                       #   then the slope along the fiber axis, this one about it
 
     [weave]                            # optional: the woven micro-element (simulate.fabric.weave)
     matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular; at most ONE
@@ -271,6 +273,8 @@ class SimulationConfig:
     exit_bins_given: bool = False
     #: ``[surface] transmission_rms_slope``: the boundary's roughness for light crossing it (0: smooth)
     transmission_rms_slope: float = 0.0
+    #: ``[surface] transmission_rms_slope_around``: None (isotropic) or the slope about the fiber axis
+    transmission_rms_slope_around: float | None = None
     #: ``[method] axial_shift``: the woven/felt tracer moves a table row's exits along the fiber axis to
     #: the ray's own axial incidence (docs/physics.md 6, "Axial shift")
     axial_shift: bool = False
@@ -301,7 +305,8 @@ class SimulationConfig:
 
         return Fiber(radius_um=self.radius_um, n_host=self.n_host, medium=self.medium(wavelengths_nm),
                      roughness=self.rms_slope, cell_width_deg=self.cell_width_deg,
-                     transmission_roughness=self.transmission_rms_slope)
+                     transmission_roughness=self.transmission_rms_slope,
+                     transmission_roughness_around=self.transmission_rms_slope_around)
 
     def provenance(self) -> dict:
         """What produced a result: the config's name, source, SHA-256 and full text."""
@@ -545,10 +550,13 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
             raise fib.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total "
                                   "absorption of a Henyey-Greenstein medium)")
 
-    surf = top.sub("surface", required=True, fields=("rms_slope", "transmission_rms_slope"))
+    surf = top.sub("surface", required=True, fields=("rms_slope", "transmission_rms_slope",
+                                                      "transmission_rms_slope_around"))
     assert surf is not None
     rms_slope = surf.number("rms_slope", required=True, gt=0.0, le=1.0)
     transmission_rms_slope = surf.number("transmission_rms_slope", 0.0, ge=0.0, le=1.0)
+    around = (surf.number("transmission_rms_slope_around", None, ge=0.0, le=1.0)
+              if surf.has("transmission_rms_slope_around") else None)
     surf.done()
 
     weave_t = top.sub("weave", fields=_FIELDS["weave"])
@@ -587,6 +595,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         method=method, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins,
         exit_bins_given=exit_bins_given, transmission_rms_slope=transmission_rms_slope, axial_shift=axial_shift,
+        transmission_rms_slope_around=around,
         axial_nodes=axial_nodes)
 
 

@@ -102,14 +102,16 @@ def smooth_boundary_unless_mc(method: str, fiber: Any) -> Any:
     the fiber with it smooth, and say so once per process."""
     import dataclasses
 
-    if method == "mc" or not float(getattr(fiber, "transmission_roughness", 0.0) or 0.0) > 0.0:
+    rough = max(float(getattr(fiber, "transmission_roughness", 0.0) or 0.0),
+                float(getattr(fiber, "transmission_roughness_around", 0.0) or 0.0))
+    if method == "mc" or not rough > 0.0:
         return fiber
     if not _SMOOTH_NOTED:
         _SMOOTH_NOTED.append(True)
         log.warning("--method %s walks the fiber with a smooth boundary: [surface] transmission_rms_slope "
                     "(%.3g) is taken by --method mc only (docs/physics.md 3, \"Rough boundary\")",
                     method, float(fiber.transmission_roughness))
-    return dataclasses.replace(fiber, transmission_roughness=0.0)
+    return dataclasses.replace(fiber, transmission_roughness=0.0, transmission_roughness_around=None)
 
 
 _SMOOTH_NOTED: list[bool] = []

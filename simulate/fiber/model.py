@@ -38,7 +38,10 @@ class Fiber:
     transmission_roughness : float
         Beckmann RMS slope of the boundary for the light the volume walk sends through it (entry,
         internal reflections, exit; :mod:`simulate.montecarlo.rough`); 0 (the default) is the smooth
-        interface. Only the exit-tally routes take it (the woven/felt yarn tables): the next-event
+        interface. With ``transmission_roughness_around`` (None: the same) the surface is anisotropic:
+        ``transmission_roughness`` is then the slope of facets tilted along the axis (they move the exits'
+        axial angle, the cone's opening) and ``..._around`` of those tilted about it (they spread the light
+        around the cone). Only the exit-tally routes take it (the woven/felt yarn tables): the next-event
         routes of the fiber BRDF assume the smooth boundary and refuse it.
     cell_width_deg : float
         Angular width of the surface cell B about the top of the fiber (the cell whose BRDF
@@ -52,11 +55,16 @@ class Fiber:
     roughness: float
     cell_width_deg: float = 10.0
     transmission_roughness: float = 0.0
+    transmission_roughness_around: float | None = None
 
     def __post_init__(self) -> None:
         t = self.transmission_roughness
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or not 0.0 <= t <= 1.0:
             raise ParameterError(f"Fiber: transmission_roughness must be a number in [0, 1], got {t!r}")
+        b = self.transmission_roughness_around
+        if b is not None and (isinstance(b, bool) or not isinstance(b, (int, float)) or not math.isfinite(b)
+                              or not 0.0 <= b <= 1.0):
+            raise ParameterError(f"Fiber: transmission_roughness_around must be None or a number in [0, 1], got {b!r}")
         for name in ("radius_um", "n_host", "roughness", "cell_width_deg"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:

@@ -108,6 +108,8 @@ def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: b
     medium[K.M_N] = fiber.n_host
     medium[K.M_PHASE] = walk_phase.kind
     medium[K.M_ROUGH] = float(getattr(fiber, "transmission_roughness", 0.0))
+    around = getattr(fiber, "transmission_roughness_around", None)
+    medium[K.M_ROUGH_B] = medium[K.M_ROUGH] if around is None else float(around)
     targets = SpectralTargets(
         mu_a=optics.mu_a[group].astype(float),
         mu_s=optics.mu_s[group].astype(float),

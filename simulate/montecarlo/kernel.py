@@ -132,6 +132,7 @@ __all__ = [
     "M_N",
     "M_PHASE",
     "M_ROUGH",
+    "M_ROUGH_B",
     "N_MEDIUM",
     "C_WEIGHT_THRESHOLD",
     "C_SURVIVAL",
@@ -162,8 +163,9 @@ M_MU_S = 1
 M_G = 2
 M_N = 3
 M_PHASE = 4
-M_ROUGH = 5  # Beckmann RMS slope of the boundary for light crossing it (0: smooth; .rough)
-N_MEDIUM = 6
+M_ROUGH = 5  # Beckmann RMS slope of the boundary for light crossing it, along the axis (0 with M_ROUGH_B: smooth; .rough)
+M_ROUGH_B = 6  # ... and about the axis (the same value: isotropic)
+N_MEDIUM = 7
 
 # control array slots
 C_WEIGHT_THRESHOLD = 0
@@ -284,7 +286,8 @@ def _make_kernel(scoring: bool):
         contrast = n_in != 1.0
         eta_in = 1.0 / n_in
         m_rough = medium[M_ROUGH]
-        rough = contrast and m_rough > 0.0  # a rough boundary (.rough); else the smooth code, unchanged
+        m_rough_b = medium[M_ROUGH_B]
+        rough = contrast and (m_rough > 0.0 or m_rough_b > 0.0)  # a rough boundary (.rough); else the smooth code
         dx = -source[1]
         dy = -source[2]
         dz = -source[3]
@@ -361,7 +364,7 @@ def _make_kernel(scoring: bool):
             if rough and w0 > 0.0:
                 r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
                 r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                ux, uy, uz, t_in, f_in = rough_entry(dx, dy, dz, nx, ny, nz, n_in, m_rough,
+                ux, uy, uz, t_in, f_in = rough_entry(dx, dy, dz, nx, ny, nz, n_in, m_rough, m_rough_b,
                                                      to_uniform(r), to_uniform(r2))
             elif contrast and w0 > 0.0:
                 f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
@@ -486,7 +489,8 @@ def _make_kernel(scoring: bool):
                         r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
                         r3, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
                         ox, oy, oz, factor, crossed = rough_cross(ux, uy, uz, nx, ny, nz, n_in, 1.0, m_rough,
-                                                                  to_uniform(r), to_uniform(r2), to_uniform(r3))
+                                                                  m_rough_b, to_uniform(r), to_uniform(r2),
+                                                                  to_uniform(r3))
                         # the crossing's weight factor is 1 on average less the facets' masking loss
                         # (.rough); its difference from 1 is booked as absorbed (signed: one facet's
                         # draw may weigh more than 1), so every photon's balance stays exact
@@ -634,7 +638,7 @@ def _make_runner(scoring: bool):
                 if SCORING:
                     simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
                 else:
-                    if inp.geometry == SLAB and inp.medium[M_ROUGH] <= 0.0:
+                    if inp.geometry == SLAB and inp.medium[M_ROUGH] <= 0.0 and inp.medium[M_ROUGH_B] <= 0.0:
                         simulate_batch_slab_lanes(inp, inp.source, count, seed, b, scal[i], bins[i])
                     else:
                         simulate_batch_plain(inp, inp.source, count, seed, b, scal[i], bins[i])

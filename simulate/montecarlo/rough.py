@@ -37,47 +37,58 @@ _INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
 
 @numba.njit(cache=True, inline="always")
 def smith_g1(cos_v: float, m: float) -> float:
-    """Smith's masking ``G1`` of the Beckmann surface of RMS slope ``m`` for a direction at ``|cos_v|`` to the normal."""
+    """Smith's masking ``G1`` of the Beckmann surface of RMS slope ``m`` for a direction at ``|cos_v|`` to the
+    normal (``m`` the slope in the direction's own azimuth for an anisotropic surface: :func:`slope_towards`)."""
     c = abs(cos_v)
     if c >= 1.0:
         return 1.0
     if c <= 0.0:
         return 0.0
     tan_t = math.sqrt(1.0 - c * c) / c
+    if m * tan_t <= 0.0:
+        return 1.0
     a = 1.0 / (m * tan_t)
     lam = 0.5 * (math.erf(a) - 1.0) + math.exp(-a * a) * _INV_SQRT_PI / (2.0 * a)
     return 1.0 / (1.0 + lam)
 
 
 @numba.njit(cache=True, inline="always")
-def facet_normal(nx: float, ny: float, nz: float, m: float, u1: float, u2: float):
-    """A Beckmann microfacet normal about the unit ``n``, density ``D(h)(h.n)``; returns ``h`` and ``h.n``."""
-    tan2 = -(m * m) * math.log(1.0 - u1)
-    cos_h = 1.0 / math.sqrt(1.0 + tan2)
-    sin_h = math.sqrt(max(0.0, 1.0 - cos_h * cos_h))
+def slope_towards(vx: float, vy: float, vz: float, nx: float, ny: float, nz: float, m_a: float, m_b: float) -> float:
+    """The RMS slope of the anisotropic Beckmann surface (``m_a`` along the fiber axis ``t = x``, ``m_b``
+    about it) in the azimuth of ``v``'s projection on the tangent plane (Heitz 2014, section 5.3:
+    ``alpha^2 = cos^2 phi m_a^2 + sin^2 phi m_b^2``)."""
+    if m_a == m_b:
+        return m_a
+    vn = vx * nx + vy * ny + vz * nz
+    pt = vx - vn * nx          # the projection's component along t = (1, 0, 0) (t is in the tangent plane)
+    p2 = max(1.0 - vn * vn, 0.0)
+    if p2 <= 0.0:
+        return m_a
+    c2 = min(pt * pt / p2, 1.0)
+    return math.sqrt(c2 * m_a * m_a + (1.0 - c2) * m_b * m_b)
+
+
+@numba.njit(cache=True, inline="always")
+def facet_normal(nx: float, ny: float, nz: float, m_a: float, m_b: float, u1: float, u2: float):
+    """A Beckmann microfacet normal about the unit ``n`` with density ``D(h)(h.n)``: slopes drawn from the
+    Beckmann slope distribution, RMS slope ``m_a`` along the fiber axis ``t = (1, 0, 0)`` (which lies in
+    every tangent plane of the kernel's cylinder and slab) and ``m_b`` along ``b = n x t``; returns ``h``
+    and ``h.n``."""
+    r = math.sqrt(-math.log(1.0 - u1))
     phi = 2.0 * math.pi * u2
-    # orthonormal basis about n (Duff et al. 2017)
-    sign = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (sign + nz)
-    b = nx * ny * a
-    t1x = 1.0 + sign * nx * nx * a
-    t1y = sign * b
-    t1z = -sign * nx
-    t2x = b
-    t2y = sign + ny * ny * a
-    t2z = -ny
-    cp = math.cos(phi) * sin_h
-    sp = math.sin(phi) * sin_h
-    hx = cp * t1x + sp * t2x + cos_h * nx
-    hy = cp * t1y + sp * t2y + cos_h * ny
-    hz = cp * t1z + sp * t2z + cos_h * nz
+    s_t = m_a * r * math.cos(phi)
+    s_b = m_b * r * math.sin(phi)
+    # t = (1, 0, 0); b = n x t = (0, nz, -ny)
+    hx = nx - s_t
+    hy = ny - s_b * nz
+    hz = nz + s_b * ny
     norm = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
-    return hx * norm, hy * norm, hz * norm, cos_h
+    return hx * norm, hy * norm, hz * norm, norm * (nx * nx + ny * ny + nz * nz)
 
 
 @numba.njit(cache=True, inline="always")
 def rough_cross(ux: float, uy: float, uz: float, nx: float, ny: float, nz: float, n1: float, n2: float,
-                m: float, u1: float, u2: float, u3: float):
+                m_a: float, m_b: float, u1: float, u2: float, u3: float):
     """Light along ``u`` meets a rough boundary from the side of index ``n1``; ``n`` the unit macro
     normal pointing to the side of index ``n2`` (``u.n > 0``).
 
@@ -87,11 +98,11 @@ def rough_cross(ux: float, uy: float, uz: float, nx: float, ny: float, nz: float
     whether it went through to the ``n2`` side.
     """
     cos_un = ux * nx + uy * ny + uz * nz
-    hx, hy, hz, cos_hn = facet_normal(nx, ny, nz, m, u1, u2)
+    hx, hy, hz, cos_hn = facet_normal(nx, ny, nz, m_a, m_b, u1, u2)
     uh = ux * hx + uy * hy + uz * hz
     if uh <= 0.0 or cos_un <= 0.0:
         return ux, uy, uz, 0.0, False
-    omega = uh * smith_g1(cos_un, m) / (cos_un * cos_hn)
+    omega = uh * smith_g1(cos_un, slope_towards(ux, uy, uz, nx, ny, nz, m_a, m_b)) / (cos_un * cos_hn)
     f = fresnel_unpolarized(uh, n1, n2)
     if u3 < f:
         ox = ux - 2.0 * uh * hx
@@ -100,7 +111,7 @@ def rough_cross(ux: float, uy: float, uz: float, nx: float, ny: float, nz: float
         on = ox * nx + oy * ny + oz * nz
         if on >= 0.0:
             return ox, oy, oz, 0.0, False
-        return ox, oy, oz, omega * smith_g1(on, m), False
+        return ox, oy, oz, omega * smith_g1(on, slope_towards(ox, oy, oz, nx, ny, nz, m_a, m_b)), False
     eta = n1 / n2
     cos_t = refracted_cos(uh, n1, n2)
     k = cos_t - eta * uh
@@ -114,12 +125,12 @@ def rough_cross(ux: float, uy: float, uz: float, nx: float, ny: float, nz: float
     on = ox * nx + oy * ny + oz * nz
     if on <= 0.0:
         return ox, oy, oz, 0.0, True
-    return ox, oy, oz, omega * smith_g1(on, m), True
+    return ox, oy, oz, omega * smith_g1(on, slope_towards(ox, oy, oz, nx, ny, nz, m_a, m_b)), True
 
 
 @numba.njit(cache=True, inline="always")
-def rough_entry(dx: float, dy: float, dz: float, nx: float, ny: float, nz: float, n_in: float, m: float,
-                u1: float, u2: float):
+def rough_entry(dx: float, dy: float, dz: float, nx: float, ny: float, nz: float, n_in: float, m_a: float,
+                m_b: float, u1: float, u2: float):
     """Light from outside along ``d`` enters through a rough boundary of outward normal ``n``.
 
     Both outcomes at the drawn facet are kept, as the smooth entry keeps them: returns ``(ux, uy, uz,
@@ -127,18 +138,18 @@ def rough_entry(dx: float, dy: float, dz: float, nx: float, ny: float, nz: float
     go in along it and that the facet reflects out (the specular part, counted only).
     """
     cos_dn = -(dx * nx + dy * ny + dz * nz)
-    hx, hy, hz, cos_hn = facet_normal(-nx, -ny, -nz, m, u1, u2)
+    hx, hy, hz, cos_hn = facet_normal(-nx, -ny, -nz, m_a, m_b, u1, u2)
     dh = dx * hx + dy * hy + dz * hz
     if dh <= 0.0 or cos_dn <= 0.0:
         return dx, dy, dz, 0.0, 0.0
-    omega = dh * smith_g1(cos_dn, m) / (cos_dn * cos_hn)
+    omega = dh * smith_g1(cos_dn, slope_towards(dx, dy, dz, nx, ny, nz, m_a, m_b)) / (cos_dn * cos_hn)
     f = fresnel_unpolarized(dh, 1.0, n_in)
     # the reflected part (out of the medium) and its masking
     rx = dx - 2.0 * dh * hx
     ry = dy - 2.0 * dh * hy
     rz = dz - 2.0 * dh * hz
     rn = rx * nx + ry * ny + rz * nz
-    reflected = omega * f * smith_g1(rn, m) if rn > 0.0 else 0.0
+    reflected = omega * f * smith_g1(rn, slope_towards(rx, ry, rz, nx, ny, nz, m_a, m_b)) if rn > 0.0 else 0.0
     eta = 1.0 / n_in
     cos_t = refracted_cos(dh, 1.0, n_in)
     k = cos_t - eta * dh
@@ -152,4 +163,4 @@ def rough_entry(dx: float, dy: float, dz: float, nx: float, ny: float, nz: float
     un = -(ux * nx + uy * ny + uz * nz)
     if un <= 0.0:
         return ux, uy, uz, 0.0, reflected
-    return ux, uy, uz, omega * (1.0 - f) * smith_g1(un, m), reflected
+    return ux, uy, uz, omega * (1.0 - f) * smith_g1(un, slope_towards(ux, uy, uz, nx, ny, nz, m_a, m_b)), reflected

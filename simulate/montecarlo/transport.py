@@ -387,7 +387,7 @@ def make_inputs(
     reweight, mu, phase_ratio, ratio = _spectral_arrays(targets, medium, walk_phase)
     src = np.zeros(5)
     src[: len(source)] = source
-    if vertex_mode != T.V_NONE and medium.shape[0] > K.M_ROUGH and medium[K.M_ROUGH] > 0.0:
+    if vertex_mode != T.V_NONE and medium.shape[0] > K.M_ROUGH_B and max(medium[K.M_ROUGH], medium[K.M_ROUGH_B]) > 0.0:
         raise ParameterError("a rough boundary for transmitted light (transmission_rms_slope > 0) is walked with "
                              "exit tallies only: the next-event vertex estimators assume the smooth boundary; "
                              "use the exit-tally route (the woven/felt yarn tables) or transmission_rms_slope = 0")

@@ -106,8 +106,11 @@ def table_key(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 0
     if held_log_mu_s > 0.0:      # only then: the keys of the re-weighted tables are unchanged
         inputs["held_log_mu_s"] = float(held_log_mu_s)
     rough = float(getattr(fiber, "transmission_roughness", 0.0) or 0.0)
-    if rough > 0.0:              # the rough boundary (simulate.montecarlo.rough); smooth keys unchanged
+    around = getattr(fiber, "transmission_roughness_around", None)
+    if rough > 0.0 or around is not None:   # the rough boundary (simulate.montecarlo.rough); smooth keys unchanged
         inputs["transmission_roughness"] = rough
+        if around is not None:
+            inputs["transmission_roughness_around"] = float(around)
     return tablecache.content_key("yarn", inputs, TABLE_MODULES)
 
 

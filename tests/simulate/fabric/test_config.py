@@ -84,6 +84,10 @@ def test_transmission_rms_slope_defaults_to_the_smooth_boundary_and_reaches_the_
     assert base.transmission_rms_slope == 0.0 and base.fiber().transmission_roughness == 0.0
     cfg = parse_config(_set(BASE, "rms_slope = 0.3", "rms_slope = 0.3\ntransmission_rms_slope = 0.12"), "t.toml")
     assert cfg.fiber().transmission_roughness == 0.12 and cfg.fiber().roughness == 0.3
+    assert cfg.fiber().transmission_roughness_around is None        # isotropic
+    aniso = parse_config(_set(BASE, "rms_slope = 0.3", "rms_slope = 0.3\ntransmission_rms_slope = 0.05\n"
+                              "transmission_rms_slope_around = 0.3"), "t.toml")
+    assert (aniso.fiber().transmission_roughness, aniso.fiber().transmission_roughness_around) == (0.05, 0.3)
 
 
 def test_axial_nodes_and_shift_default_to_the_original_table_and_reach_the_grid():
@@ -167,6 +171,8 @@ BAD = [
      "surface.transmission_rms_slope must be a number >= 0 and <= 1"),
     ("rms_slope = 0.3", "rms_slope = 0.3\ntransmission_rms_slope = \"rough\"",
      "surface.transmission_rms_slope must be a number"),
+    ("rms_slope = 0.3", "rms_slope = 0.3\ntransmission_rms_slope_around = 2",
+     "surface.transmission_rms_slope_around must be a number >= 0 and <= 1"),
     ("matrix = [[1, 0], [0, 1]]", "matrix = [[1, 0], [0]]", "weave.matrix must be a rectangular list of rows of 0/1"),
     ("matrix = [[1, 0], [0, 1]]", "matrix = [[1, 2], [0, 1]]", "weave.matrix must be a rectangular list"),
     ("spacing_um = 300", 'spacing_um = "wide"', "weave.spacing_um must be a number > 0"),
