@@ -23,7 +23,8 @@ DEMO_FREE ?= dye,rms_slope
 # The Monte Carlo fit (output space mapping, studies/fit_mc.py): its start config, free parameters and
 # budget of Monte Carlo runs (the start's included; its initial/ is the Monte Carlo at the start).
 # It starts from the felt as the Monte Carlo fitted it once (simulate/configs/green-felt-mc.toml:
-# clear fibers, volume fraction 0.00085), not from the summation's fit: the summation's optimum
+# clear fibers, volume fraction 0.00085, a fiber boundary rough for transmitted light, traced converged
+# at [10, 20] exit bins), not from the summation's fit: the summation's optimum
 # (volume fraction 0.003) is biased by its missing forward transport, and the space mapping, which
 # borrows the summation's trend, does not leave it (README "What make demo does").
 DEMO_MC_START ?= green-felt-mc
