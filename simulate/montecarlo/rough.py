@@ -87,6 +87,20 @@ def facet_normal(nx: float, ny: float, nz: float, m_a: float, m_b: float, u1: fl
 
 
 @numba.njit(cache=True, inline="always")
+def refract_about(ux: float, uy: float, uz: float, hx: float, hy: float, hz: float, cos_i: float, n1: float,
+                  n2: float):
+    """Snell's refraction of the unit ``u`` (``cos_i = u.h > 0``, below total internal reflection) about the
+    unit normal ``h`` pointing to the side of index ``n2``: ``eta u + (cos_t - eta cos_i) h``, ``eta = n1/n2``."""
+    eta = n1 / n2
+    k = refracted_cos(cos_i, n1, n2) - eta * cos_i
+    ox = eta * ux + k * hx
+    oy = eta * uy + k * hy
+    oz = eta * uz + k * hz
+    norm = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
+    return ox * norm, oy * norm, oz * norm
+
+
+@numba.njit(cache=True, inline="always")
 def rough_cross(ux: float, uy: float, uz: float, nx: float, ny: float, nz: float, n1: float, n2: float,
                 m_a: float, m_b: float, u1: float, u2: float, u3: float):
     """Light along ``u`` meets a rough boundary from the side of index ``n1``; ``n`` the unit macro
@@ -112,16 +126,7 @@ def rough_cross(ux: float, uy: float, uz: float, nx: float, ny: float, nz: float
         if on >= 0.0:
             return ox, oy, oz, 0.0, False
         return ox, oy, oz, omega * smith_g1(on, slope_towards(ox, oy, oz, nx, ny, nz, m_a, m_b)), False
-    eta = n1 / n2
-    cos_t = refracted_cos(uh, n1, n2)
-    k = cos_t - eta * uh
-    ox = eta * ux + k * hx
-    oy = eta * uy + k * hy
-    oz = eta * uz + k * hz
-    norm = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
-    ox *= norm
-    oy *= norm
-    oz *= norm
+    ox, oy, oz = refract_about(ux, uy, uz, hx, hy, hz, uh, n1, n2)
     on = ox * nx + oy * ny + oz * nz
     if on <= 0.0:
         return ox, oy, oz, 0.0, True
@@ -150,16 +155,7 @@ def rough_entry(dx: float, dy: float, dz: float, nx: float, ny: float, nz: float
     rz = dz - 2.0 * dh * hz
     rn = rx * nx + ry * ny + rz * nz
     reflected = omega * f * smith_g1(rn, slope_towards(rx, ry, rz, nx, ny, nz, m_a, m_b)) if rn > 0.0 else 0.0
-    eta = 1.0 / n_in
-    cos_t = refracted_cos(dh, 1.0, n_in)
-    k = cos_t - eta * dh
-    ux = eta * dx + k * hx
-    uy = eta * dy + k * hy
-    uz = eta * dz + k * hz
-    norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
-    ux *= norm
-    uy *= norm
-    uz *= norm
+    ux, uy, uz = refract_about(dx, dy, dz, hx, hy, hz, dh, 1.0, n_in)
     un = -(ux * nx + uy * ny + uz * nz)
     if un <= 0.0:
         return ux, uy, uz, 0.0, reflected

@@ -226,13 +226,9 @@ def test_hit_point_brdf_option_reports_its_energy_balance(plain, white_table):
     assert np.all(np.isfinite(at_hit.beta)) and np.all(at_hit.beta > 0)
 
 
-def test_next_event_agrees_with_escaping_ray_bins_on_a_woven_surface(plain):
-    """Two independent estimators of the same radiance: next-event with shadow rays through the
-    periodic micro-element, and the count of rays escaping into each direction bin. A Lambertian
-    weave (many bounces, strong shadowing at grazing angles) makes both work hard."""
-    n_mu, n_phi, sub = 3, 4, 4
-    # detectors on a sub-grid uniform in (mu^2, phi) inside each bin: their mean is the bin's
-    # projected-solid-angle average, which is what the bin estimates
+def _bin_detectors(n_mu, n_phi, sub):
+    """Detectors on a sub-grid uniform in (mu^2, phi) inside each escaping-ray bin, and the bin of each:
+    their mean is the bin's projected-solid-angle average, which is what the bin estimates."""
     dets, owner = [], []
     for i in range(n_mu):
         for j in range(n_phi):
@@ -240,13 +236,14 @@ def test_next_event_agrees_with_escaping_ray_bins_on_a_woven_surface(plain):
                 for b in range(sub):
                     m2 = ((i / n_mu) ** 2 + ((i + 1) ** 2 - i ** 2) / n_mu ** 2 * (a + 0.5) / sub)
                     phi = -np.pi + (j + (b + 0.5) / sub) * 2 * np.pi / n_phi
-                    mu = math.sqrt(m2)
                     st = math.sqrt(1 - m2)
-                    dets.append([st * math.cos(phi), st * math.sin(phi), mu])
+                    dets.append([st * math.cos(phi), st * math.sin(phi), math.sqrt(m2)])
                     owner.append((i, j))
-    dets = np.array(dets)
-    res = W.trace(weave_mesh(plain), W.Lambert(0.7), _dirs(40, 20)[0], dets, target_rel_err=1e-9, max_rays=65536,
-                  seed=13, bins=(n_mu, n_phi), chunk=4096)
+    return np.array(dets), owner
+
+
+def _assert_next_event_matches_bins(res, owner, n_mu, n_phi):
+    """Each bin's escaping rays against the mean of its detectors' next-event estimates."""
     f_nee = res.beta[:, 0] / np.pi
     u_nee = res.u_beta[:, 0] / np.pi
     for i in range(n_mu):
@@ -258,6 +255,17 @@ def test_next_event_agrees_with_escaping_ray_bins_on_a_woven_surface(plain):
             assert abs(mean - res.bins[i, j, 0]) < 4 * u + 0.02 * mean, (i, j, mean, res.bins[i, j, 0], u)
 
 
+def test_next_event_agrees_with_escaping_ray_bins_on_a_woven_surface(plain):
+    """Two independent estimators of the same radiance: next-event with shadow rays through the
+    periodic micro-element, and the count of rays escaping into each direction bin. A Lambertian
+    weave (many bounces, strong shadowing at grazing angles) makes both work hard."""
+    n_mu, n_phi = 3, 4
+    dets, owner = _bin_detectors(n_mu, n_phi, 4)
+    res = W.trace(weave_mesh(plain), W.Lambert(0.7), _dirs(40, 20)[0], dets, target_rel_err=1e-9, max_rays=65536,
+                  seed=13, bins=(n_mu, n_phi), chunk=4096)
+    _assert_next_event_matches_bins(res, owner, n_mu, n_phi)
+
+
 def test_axially_shifted_exits_agree_between_next_event_and_escaping_ray_bins(plain):
     """The axial shift (docs/physics.md 6, "Axial shift") moves a row's exits along the fiber axis; the
     continued rays are drawn through the shift and the next-event estimate evaluates the shifted density
@@ -267,18 +275,8 @@ def test_axially_shifted_exits_agree_between_next_event_and_escaping_ray_bins(pl
     changes the result (it is not a no-op)."""
     fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.01, mu_a=0.002, g=0.5), 0.3, 10.0)
     table = W.yarn_table(fib, [550.0], photons_per_row=3000, seed=21, threads=1, cache=False)
-    n_mu, n_phi, sub = 3, 4, 3
-    dets, owner = [], []
-    for i in range(n_mu):
-        for j in range(n_phi):
-            for a in range(sub):
-                for b in range(sub):
-                    m2 = ((i / n_mu) ** 2 + ((i + 1) ** 2 - i ** 2) / n_mu ** 2 * (a + 0.5) / sub)
-                    phi = -np.pi + (j + (b + 0.5) / sub) * 2 * np.pi / n_phi
-                    st = math.sqrt(1 - m2)
-                    dets.append([st * math.cos(phi), st * math.sin(phi), math.sqrt(m2)])
-                    owner.append((i, j))
-    dets = np.array(dets)
+    n_mu, n_phi = 3, 4
+    dets, owner = _bin_detectors(n_mu, n_phi, 3)
     mesh = weave_mesh(plain)
     runs = {}
     for shift in (False, True):
@@ -286,14 +284,7 @@ def test_axially_shifted_exits_agree_between_next_event_and_escaping_ray_bins(pl
         runs[shift] = W.trace(mesh, mat, _dirs(40, 20)[0], dets, target_rel_err=1e-9, max_rays=65536,
                               seed=13, bins=(n_mu, n_phi), chunk=4096)
     res = runs[True]
-    f_nee = res.beta[:, 0] / np.pi
-    u_nee = res.u_beta[:, 0] / np.pi
-    for i in range(n_mu):
-        for j in range(n_phi):
-            sel = [k for k, o in enumerate(owner) if o == (i, j)]
-            mean = f_nee[sel].mean()
-            u = math.hypot(u_nee[sel].max(), res.u_bins[i, j, 0])
-            assert abs(mean - res.bins[i, j, 0]) < 4 * u + 0.02 * mean, (i, j, mean, res.bins[i, j, 0], u)
+    _assert_next_event_matches_bins(res, owner, n_mu, n_phi)
     diff = runs[True].beta[:, 0] - runs[False].beta[:, 0]
     u_diff = np.hypot(runs[True].u_beta[:, 0], runs[False].u_beta[:, 0])
     # common random numbers: without the shift the two runs would be bit-identical (the same draws)
