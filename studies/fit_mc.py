@@ -67,6 +67,28 @@ differences as :func:`studies.fit.jacobian`): ``u_data`` from 64 noise draws of 
 ``x*`` (the correction perturbed, the summation's own table noise cancels in ``S(x)/S(x*)`` to
 first order), ``u = sqrt(u_data^2 + u_mc^2)`` -- the fields of the summation fit's ``fit.json``.
 
+Parameters only the Monte Carlo sees
+------------------------------------
+The boundary's roughness for transmitted light (:data:`studies.fit_problem.FINE_FIELDS`, docs/physics.md 3)
+does not exist in the summation (it walks the smooth boundary), so a zero-order correction has no trend
+to borrow for it: its surrogate Jacobian would be zero and the search would never move it. For these
+*fine* parameters the surrogate takes its first-order term from the Monte Carlo itself -- the first-order
+output space mapping of Koziel, Bandler and Madsen (2006, section III: the correction matching the fine
+model's Jacobian), restricted to the parameters the coarse model cannot see::
+
+    s_k(x) = S(x) c + d + sum_j D_j (x_j - x_k,j),     D_j = (MC(x_k + h_j e_j) - MC(x_k)) / h_j
+
+one Monte Carlo run per fine parameter at each centre whose proposal is fitted (common random numbers:
+the same seeds, felt and rays, so the difference is far less noisy than either run; ``h_j`` =
+:data:`FINE_STEP` of the value, at least :data:`FINE_STEP_SPAN` of the bounds, backwards at the upper
+bound). A linear term is trusted only near its centre: in the surrogate fit the fine parameters are held
+within :data:`FINE_TRUST` steps of ``x_k`` (a trust region; the Monte Carlo objective then decides, as
+for every proposal). These runs are Monte Carlo runs of the budget (``--max-evaluations``), are
+checkpointed like the others (``mc-runs/run-K-dJ.npz``, listed under their centre in ``mc-state.json``)
+and are candidates for the result like every run. The Monte Carlo's noise in ``D_j`` is not in ``u_mc``
+(which perturbs the correction's level only): the fine parameters' uncertainties are a lower bound, and
+the notes say so.
+
 Budget, progress, interrupt, resume
 -----------------------------------
 ``--max-evaluations N`` means **Monte Carlo runs** for ``--method mc`` (the start's included; default
@@ -122,6 +144,11 @@ MAX_HALVINGS = 1
 INNER_EVALUATIONS = 400
 #: below this share of the geometry's spectral peak of the summation the correction is additive
 TINY = 0.05
+#: a fine parameter's finite-difference step: this share of its value, at least FINE_STEP_SPAN of its bounds
+FINE_STEP = 0.25
+FINE_STEP_SPAN = 0.05
+#: the surrogate fit holds a fine parameter within this many steps of the centre (the trust region)
+FINE_TRUST = 2.0
 _NOISE_DRAWS = 64
 
 
@@ -171,10 +198,22 @@ class MCFitProblem(FitProblem):
     fine_runs: dict | None = None
     #: the Monte Carlo runs of the last :func:`run_mc_fit`, by parameters
     mc_runs: dict = field(default_factory=dict)
+    #: ``(centre x, {j: D_j [G, L]})``: the fine parameters' first-order term (module docstring)
+    slope: tuple | None = None
 
     def __post_init__(self) -> None:
         self.method = "summation"
+        self.fine_capable = True
         super().__post_init__()
+
+    def fine_indices(self) -> list[int]:
+        return [j for j, p in enumerate(self.free) if p.kind == "fine"]
+
+    def fine_step(self, j: int, x: np.ndarray) -> float:
+        """The finite-difference step of fine parameter ``j`` at ``x`` (module docstring)."""
+        p = self.free[j]
+        h = max(FINE_STEP * abs(float(x[j])), FINE_STEP_SPAN * (p.high - p.low))
+        return -h if x[j] + h > p.high else h
 
     def identity(self) -> str:
         doc = [super().identity(), "mc", self.target_rel_err]
@@ -186,6 +225,8 @@ class MCFitProblem(FitProblem):
         s, _ = self.model(x)
         c, d = correction(s, mc_beta)
         self.corr = (c, d, np.asarray(mc_u, float))
+        if self.slope is not None:
+            self.slope = (np.asarray(x, float).copy(), self.slope[1])
 
     def model(self, x: np.ndarray, mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         if self.fine_runs is not None:
@@ -195,7 +236,12 @@ class MCFitProblem(FitProblem):
         if self.corr is None:
             return beta, u
         c, d, mc_u = self.corr
-        return beta * c + d, mc_u
+        out = beta * c + d
+        if self.slope is not None:
+            centre, D = self.slope
+            for j, Dj in D.items():
+                out = out + Dj * (float(x[j]) - float(centre[j]))
+        return out, mc_u
 
 
 def _key(x: np.ndarray) -> tuple:
@@ -262,28 +308,47 @@ class _State:
         rec = self.iterations[k]
         if not np.allclose(rec["x"], x, rtol=0.0, atol=1e-12):
             return None
+        return self._load(rec)
+
+    def _load(self, rec: dict) -> MCRun | None:
         try:
-            with np.load(self.out / MC_RUNS_DIR / rec["file"]) as z:
+            with np.load(self.out / MC_RUNS_DIR / rec["file"]) as z:  # type: ignore[operator]
                 beta, u = z["beta"].copy(), z["u_beta"].copy()
-        except (OSError, ValueError, KeyError):
+        except (OSError, ValueError, KeyError, TypeError):
             return None
         return MCRun(x=np.asarray(rec["x"], float), beta=beta, u_beta=u, seconds=rec["seconds"], rays=rec["rays"],
                      rel_err=rec["rel_err"], objective=rec["objective"], nrmse=rec["nrmse"], dh=rec["dh"],
                      ds=rec["ds"])
 
-    def put_run(self, k: int, run: MCRun) -> None:
-        del self.iterations[k:]
+    def _store(self, name: str, run: MCRun) -> dict:
         rec = run.record()
         if self.out is not None:
             import os
 
             d = self.out / MC_RUNS_DIR
             d.mkdir(parents=True, exist_ok=True)
-            rec["file"] = f"run-{k}.npz"
-            tmp = d / f".run-{k}.tmp.npz"
+            rec["file"] = f"{name}.npz"
+            tmp = d / f".{name}.tmp.npz"
             np.savez(tmp, x=run.x, beta=run.beta, u_beta=run.u_beta)
             os.replace(tmp, d / rec["file"])
-        self.iterations.append(rec)
+        return rec
+
+    def put_run(self, k: int, run: MCRun) -> None:
+        del self.iterations[k:]
+        self.iterations.append(self._store(f"run-{k}", run))
+        self.save()
+
+    def fine_run(self, k: int, j: int, x: np.ndarray) -> MCRun | None:
+        """Fine parameter ``j``'s finite-difference run about centre ``k`` from the checkpoint, if made at ``x``."""
+        if self.out is None or k >= len(self.iterations):
+            return None
+        rec = (self.iterations[k].get("fine_runs") or {}).get(str(j))
+        if rec is None or not np.allclose(rec["x"], x, rtol=0.0, atol=1e-12):
+            return None
+        return self._load(rec)
+
+    def put_fine_run(self, k: int, j: int, run: MCRun) -> None:
+        self.iterations[k].setdefault("fine_runs", {})[str(j)] = self._store(f"run-{k}-d{j}", run)
         self.save()
 
     def proposal(self, k: int) -> dict | None:
@@ -394,6 +459,9 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     u_prev: np.ndarray | None = None
     best: MCRun | None = None
     halvings = 0
+    fine = problem.fine_indices()
+    fine_runs = 0
+    problem.slope = None
     try:
         for k in range(max_evaluations):
             run = state.run(k, x)
@@ -419,7 +487,8 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                             f"{best.objective:.5g}, the best run's) and a shorter step would be within the "
                             "uncertainty or was tried: the best run is kept")
                     break
-            if k + 1 >= max_evaluations:
+            used = len(runs) + fine_runs
+            if used >= max_evaluations:
                 stop = f"the budget of Monte Carlo runs is spent (--max-evaluations {max_evaluations})"
                 break
             prop = state.proposal(k)
@@ -428,13 +497,47 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                 prop = {"kind": "backtrack", "x": (best.x + 0.5 * (run.x - best.x)).tolist(),
                         "u": (u_prev if u_prev is not None else np.zeros(x.size)).tolist(), "surrogate_evaluations": 0}
                 state.put_proposal(k, prop)
+            if fine and (prop is None or prop.get("kind") == "surrogate fit"):
+                # the fine parameters' trend from the Monte Carlo itself (module docstring)
+                if prop is None and used + len(fine) + 1 > max_evaluations:
+                    stop = (f"the budget of Monte Carlo runs is spent (--max-evaluations {max_evaluations}): "
+                            f"{max_evaluations - used} left, the trend in the {len(fine)} parameter(s) only the "
+                            "Monte Carlo sees and the proposal need " f"{len(fine) + 1}")
+                    break
+                D = {}
+                for j in fine:
+                    h = problem.fine_step(j, x)
+                    xj = x.copy()
+                    xj[j] += h
+                    fr = state.fine_run(k, j, xj)
+                    fr_cached = fr is not None
+                    if fr is None:
+                        fr = run_monte_carlo(problem, xj, progress=progress)
+                        state.put_fine_run(k, j, fr)
+                    fine_runs += 1
+                    problem.mc_runs[_key(xj)] = fr
+                    D[j] = (fr.beta - run.beta) / h
+                    iterations[-1].setdefault("fine_runs", []).append(
+                        {"parameter": problem.free[j].name, "h": h, **fr.record(), "cached": fr_cached})
+                    echo(f"mc run {k}, trend in {problem.free[j].name} ({xj[j]:.4g}): "
+                         + _line(k, fr, None, fr_cached).split(": ", 1)[1])
+                    if fr.objective < best.objective:
+                        best, halvings = fr, 0
+                problem.slope = (x.copy(), D)
             if prop is None:
                 problem.set_correction(x, run.beta, run.u_beta)
                 problem.start = x.copy()
                 t1 = time.perf_counter()
                 ev0 = problem.evaluations
-                res = run_fit(problem, out=None, max_evaluations=inner_evaluations, starts=starts, progress=progress,
-                              noise_draws=noise_draws, invert_start=False)
+                low, high = problem.low.copy(), problem.high.copy()
+                for j in fine:
+                    reach = FINE_TRUST * abs(problem.fine_step(j, x))
+                    problem.low[j], problem.high[j] = max(low[j], x[j] - reach), min(high[j], x[j] + reach)
+                try:
+                    res = run_fit(problem, out=None, max_evaluations=inner_evaluations, starts=starts,
+                                  progress=progress, noise_draws=noise_draws, invert_start=False)
+                finally:
+                    problem.low, problem.high = low, high
                 # the proposal's Monte Carlo part: the surrogate's noise (the run's u_beta) at the proposal
                 b_prop, u_b_prop = problem.model(res.x)
                 _, _, cov_prop = _uncertainty(problem, res.x, b_prop, u_b_prop, noise_draws, data=False)
@@ -463,6 +566,11 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         notes.append(f"colour left off: the fitted Monte Carlo's hue differs by {best.dh:+.3f} turn and its saturation "
                      f"by {best.ds:+.3f} from the measurement (tolerance |dh| <= {dh_max} turn, |ds| <= {ds_max})")
     notes += [f"last surrogate fit: {n}" for n in inner_notes if n not in notes]
+    if fine:
+        notes.append("the uncertainty of " + ", ".join(problem.free[j].name for j in fine) + " is a lower bound: "
+                     "the Monte Carlo noise of its finite-difference trend is not in it")
+    fine_records = [f for it in iterations for f in it.get("fine_runs", [])]
+    done = sum(1 for it in iterations if not it["cached"]) + sum(1 for f in fine_records if not f["cached"])
     span = problem.high - problem.low
     info = {
         "optimiser": "output space mapping (Bandler et al. 2004; Koziel et al. 2006): the structured summation "
@@ -470,13 +578,16 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         "correction": f"multiplicative MC/S per (geometry, wavelength); additive MC - S where S <= {TINY} of the "
                       "geometry's spectral peak",
         "stop": stop, "message": stop, "starts": starts,
-        "evaluations": len(runs), "max_evaluations": max_evaluations, "evaluations_meaning": "Monte Carlo runs",
-        "mc_runs": len(runs), "mc_runs_done": sum(1 for it in iterations if not it["cached"]),
-        "mc_seconds": float(sum(r.seconds for it, r in zip(iterations, runs) if not it["cached"])),
+        "evaluations": len(runs) + fine_runs, "max_evaluations": max_evaluations,
+        "evaluations_meaning": "Monte Carlo runs", "mc_runs": len(runs) + fine_runs, "mc_runs_done": done,
+        "fine_trend_runs": fine_runs,
+        "mc_seconds": float(sum(r.seconds for it, r in zip(iterations, runs) if not it["cached"])
+                            + sum(f["seconds"] for f in fine_records if not f["cached"])),
         "surrogate_evaluations": surrogate_evals, "summation_walks": problem.walks,
-        "walks": problem.walks + sum(1 for it in iterations if not it["cached"]), "walk_seconds": problem.walk_seconds,
+        "walks": problem.walks + done, "walk_seconds": problem.walk_seconds,
         "reweighted": problem.reweights, "seconds": time.perf_counter() - t0, "resumed": resume,
-        "best_run": next(i for i, r in enumerate(runs) if r is best), "iterations": iterations, "notes": list(problem.notes),
+        "best_run": next((i for i, r in enumerate(runs) if r is best), None),
+        "best_x": best.x.tolist(), "iterations": iterations, "notes": list(problem.notes),
         "start_note": "the config's values (the Monte Carlo fit starts where the config is: a Monte Carlo preset "
                       "such as green-felt-mc, or a summation fit's fitted.toml where the two models agree)",
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),

@@ -50,6 +50,11 @@ LATTICE_STEP = 0.10
 STRUCTURED_LATTICE_STEP = 0.20
 #: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
 KNOT_LOW, KNOT_HIGH = -4.0, 0.5
+#: Fields only the Monte Carlo sees (kind ``"fine"``), with their valid range: the rough boundary for transmitted
+#: light (docs/physics.md 3). The summation and classic model walk the smooth boundary
+#: (:func:`simulate.products.smooth_boundary_unless_mc`), so a fit of theirs refuses them; the Monte Carlo fit
+#: takes their trend from Monte Carlo runs themselves (:mod:`studies.fit_mc`, "Parameters only the Monte Carlo sees").
+FINE_FIELDS = {"surface.transmission_rms_slope": (0.0, 1.0), "surface.transmission_rms_slope_around": (0.0, 1.0)}
 
 
 class FitError(ValueError):
@@ -65,7 +70,8 @@ class FreeParameter:
     """One free config field: its dotted path, kind and bounds.
 
     ``kind``: ``"dye"`` (re-weighted from the absorption table), ``"surface"`` (analytic
-    Cook-Torrance term) or ``"walk"`` (changes the scattering: photons are walked again).
+    Cook-Torrance term), ``"structure"`` (the structured summation's geometry), ``"walk"`` (changes the
+    scattering: photons are walked again) or ``"fine"`` (:data:`FINE_FIELDS`: seen by the Monte Carlo only).
     """
 
     name: str
@@ -82,6 +88,8 @@ def _kind(path: str) -> str:
         return "surface"
     if path in STRUCTURE_FIELDS:
         return "structure"
+    if path in FINE_FIELDS:
+        return "fine"
     return "walk"
 
 
@@ -94,10 +102,13 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
     fiber's radius; widened to hold the start); band
     centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
     ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0). Structure fields
-    (:data:`studies.fit_structure.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg.
+    (:data:`studies.fit_structure.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg. The boundary's
+    slopes for transmitted light (:data:`FINE_FIELDS`): ``[0, 1]``, their valid range (0 is the smooth boundary).
     """
     if path in STRUCTURE_FIELDS:
         return STRUCTURE_FIELDS[path]
+    if path in FINE_FIELDS:
+        return FINE_FIELDS[path]
     leaf = path.rsplit(".", 1)[-1]
     if leaf == "volume_fraction":
         return start / 5.0, min(5.0 * start, 0.5)
@@ -170,11 +181,11 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
                     raise FitError(f"--free: {spec!r}: bounds must be LOW:HIGH with LOW < HIGH, got {bounds!r}")
             else:
                 low, high = default_bounds(path, start)
-            if path in STRUCTURE_FIELDS:
-                lo_ok, hi_ok = STRUCTURE_FIELDS[path]
+            if path in STRUCTURE_FIELDS or path in FINE_FIELDS:
+                lo_ok, hi_ok = STRUCTURE_FIELDS.get(path) or FINE_FIELDS[path]
                 if low < lo_ok or high > hi_ok:
                     raise FitError(f"--free: {path} bounds [{low:g}, {high:g}] leave the field's valid range "
-                                   f"[{lo_ok:g}, {hi_ok:g}] (simulate.fabric.structure); give bounds inside it")
+                                   f"[{lo_ok:g}, {hi_ok:g}]; give bounds inside it")
             if not low <= start <= high:
                 raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
                                f"[{low:g}, {high:g}]; widen the bounds or change the config")
@@ -281,6 +292,8 @@ class FitProblem:
     cached_walks: int = 0
     #: ``(bound of the last re-weighting considered, the reference walk's own)`` (diagnostics)
     last_exponent: tuple = (0.0, 0.0)
+    #: whether :data:`FINE_FIELDS` may be free (the Monte Carlo fit: their trend comes from Monte Carlo runs)
+    fine_capable: bool = False
     _references: dict = field(default_factory=dict)
     _tables: dict = field(default_factory=dict)
     _doc: dict = field(default_factory=dict)
@@ -306,6 +319,10 @@ class FitProblem:
         self.structured = self.method == "summation" and spec is not None and spec.cells == "visible"
         if self.method == "summation" and spec is not None and not self.structured:
             self.notes.append("[structure] cells = \"top\": the fit's summation is the carpet of top cells")
+        fine = [p.name for p in self.free if p.kind == "fine"]
+        if fine and not self.fine_capable:
+            raise FitError(f"--free {fine[0]}: only the Monte Carlo sees the rough boundary for transmitted light "
+                           f"(the {self.method} model walks the smooth one, docs/physics.md 3); fit it with --method mc")
         if any(p.kind == "structure" for p in self.free) and not self.structured:
             raise FitError("--free structure.*: structure parameters need --method summation and a config whose "
                            "[structure] has cells = \"visible\"")

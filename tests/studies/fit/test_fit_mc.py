@@ -254,3 +254,109 @@ def test_uncertainty_parts_combines_known_parts_and_flags_unknown_ones():
     cov, u, ud, um, notes = uncertainty_parts(np.full((2, 2), np.nan), b)
     assert np.allclose(u, [1.0, 4.0]) and np.all(np.isnan(ud)) and np.allclose(cov, b)
     assert len(notes) == 1 and "the data part could not be estimated" in notes[0]
+
+
+# -- parameters only the Monte Carlo sees (the rough boundary for transmitted light) ---------------------------
+
+FREE_FINE = FREE + ",surface.transmission_rms_slope"
+T_TRUE = 0.3
+
+
+def _rough_felt(d0: float, d1: float, t: float):
+    doc = tomllib.loads(_felt(d0, d1).text)
+    doc["surface"]["transmission_rms_slope"] = t
+    return parse_config(toml_dumps(doc), "felt-test.toml")
+
+
+def _fake_rough(calls: list):
+    """A deterministic stand-in for the Monte Carlo that depends on the boundary's slope ``t``, which the
+    summation does not see: the summation tilted across the geometries by ``1.5 (t - 0.3)``."""
+    def run(problem, x, *, progress=False):
+        calls.append(np.asarray(x, float).copy())
+        j = [p.name for p in problem.free].index("surface.transmission_rms_slope")
+        saved, problem.corr, problem.slope = (problem.corr, problem.slope), None, None
+        try:
+            s, u = problem.model(x)
+        finally:
+            problem.corr, problem.slope = saved
+        tilt = 1.0 + 1.5 * (x[j] - T_TRUE) * np.linspace(-1.0, 1.0, s.shape[0])[:, None]
+        beta = 0.9 * s * tilt + 0.002
+        fig = problem.residual_model().evaluate(beta, u)
+        r = fig.vector(problem.colour_weight)
+        return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse),
+                     float("nan"), float("nan"))
+    return run
+
+
+def _rough_problem(shared=None):
+    truth = _rough_felt(-0.5, -2.5, T_TRUE)
+    probe = shared or MCFitProblem(truth, _flat(WL6), parse_free([FREE_FINE], truth), target_rel_err=0.5, seed=2,
+                                   wavelengths_nm=WL6)
+    calls: list = []
+    beta = _fake_rough(calls)(probe, np.array([-0.5, -2.5, T_TRUE])).beta
+    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
+    start = _rough_felt(-0.7, -2.3, 0.15)
+    problem = MCFitProblem(start, measured, parse_free([FREE_FINE], start), target_rel_err=0.5, seed=2,
+                           wavelengths_nm=WL6)
+    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    return problem, probe
+
+
+def test_a_parameter_only_the_monte_carlo_sees_is_fitted_by_its_own_trend(tmp_path, monkeypatch):
+    """The boundary's slope is invisible to the summation, so the zero-order correction alone would never move
+    it; with the Monte Carlo's finite-difference trend (one extra run per centre) the fit walks it from 0.15 to
+    the measurement's 0.3 through the trust region, every run counted in --max-evaluations and checkpointed.
+    An interrupted fit resumes without running any checkpointed run (the trend runs included) again."""
+    calls: list = []
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_rough(calls))
+    problem, probe = _rough_problem()
+    assert [p.kind for p in problem.free] == ["dye", "dye", "fine"]
+    lines: list[str] = []
+    result = run_mc_fit(problem, out=tmp_path / "ref", max_evaluations=8, noise_draws=4, inner_evaluations=80,
+                        echo=lines.append)
+    info = result.info
+    assert abs(result.x[2] - T_TRUE) < 0.01, result.x
+    np.testing.assert_allclose(result.x[:2], [-0.5, -2.5], atol=0.02)
+    assert info["mc_runs"] == len(calls) == len(lines) <= 8 and info["fine_trend_runs"] >= 2
+    assert sum("trend in surface.transmission_rms_slope" in line for line in lines) == info["fine_trend_runs"]
+    state = json.loads((tmp_path / "ref" / MC_STATE).read_text())
+    fine_files = [f["file"] for it in state["iterations"] for f in (it.get("fine_runs") or {}).values()]
+    assert len(fine_files) == info["fine_trend_runs"]
+    assert all((tmp_path / "ref" / MC_RUNS_DIR / f).is_file() for f in fine_files)
+    # a trust region: no step of the slope longer than FINE_TRUST of its finite-difference step
+    xs = [np.array(it["x"]) for it in info["iterations"]]
+    for a, b in zip(xs, xs[1:]):
+        assert abs(b[2] - a[2]) <= fit_mc.FINE_TRUST * max(fit_mc.FINE_STEP * a[2], fit_mc.FINE_STEP_SPAN) + 1e-12
+    assert any("lower bound" in w and "transmission_rms_slope" in w for w in result.warnings)
+
+    # interrupted at the trend run of the second centre, then resumed
+    n_ref = len(calls)
+    calls.clear()
+    fake = _fake_rough(calls)
+
+    def interrupted(problem, x, *, progress=False):
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return fake(problem, x, progress=progress)
+
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", interrupted)
+    out = tmp_path / "fit"
+    with pytest.raises(KeyboardInterrupt):
+        run_mc_fit(_rough_problem(probe)[0], out=out, max_evaluations=8, noise_draws=4, inner_evaluations=80,
+                   echo=lambda s: None)
+    calls.clear()
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_rough(calls))
+    resumed = run_mc_fit(_rough_problem(probe)[0], out=out, resume=True, max_evaluations=8, noise_draws=4,
+                         inner_evaluations=80, echo=lambda s: None)
+    assert len(calls) == n_ref - 3                      # run 0, its trend run and run 1 read, not run again
+    np.testing.assert_allclose(resumed.x, result.x, rtol=0, atol=1e-9)
+
+
+def test_the_summation_fit_refuses_a_parameter_only_the_monte_carlo_sees(tmp_path, capsys):
+    write_dataset(_flat(WL6), tmp_path / "m")
+    code = main(["fit", "green-felt-mc", str(tmp_path / "m"), "--method", "summation", "--out", str(tmp_path / "f"),
+                 "--no-progress", "--free", "dye,surface.transmission_rms_slope_around"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "only the Monte Carlo sees the rough boundary" in err and "--method mc" in err
+    assert len(err.strip().splitlines()) == 1, err
