@@ -95,18 +95,19 @@ def evaluate(method: str, config: SimulationConfig, fiber: Any, geometries: Geom
     return _REGISTRY[method](config, fiber, geometries, np.asarray(wavelengths, float), settings)
 
 
-def smooth_boundary_unless_mc(method: str, fiber: Any) -> Any:
+def smooth_boundary_unless_mc(method: str, fiber: Any, *, quiet: bool = False) -> Any:
     """The fiber a model walks: the Monte Carlo takes a rough boundary for transmitted light
     (``[surface] transmission_rms_slope``, :mod:`simulate.montecarlo.rough`); the summation's and the
     classic model's fiber routes estimate exits by next events through the smooth boundary, so they walk
-    the fiber with it smooth, and say so once per process."""
+    the fiber with it smooth, and say so once per process (``quiet``: not at all -- the Monte Carlo fit's
+    surrogate, whose docstring says how the boundary's slopes are fitted without it)."""
     import dataclasses
 
     rough = max(float(getattr(fiber, "transmission_roughness", 0.0) or 0.0),
                 float(getattr(fiber, "transmission_roughness_around", 0.0) or 0.0))
     if method == "mc" or not rough > 0.0:
         return fiber
-    if not _SMOOTH_NOTED:
+    if not _SMOOTH_NOTED and not quiet:
         _SMOOTH_NOTED.append(True)
         log.warning("--method %s walks the fiber with a smooth boundary: [surface] transmission_rms_slope "
                     "(%.3g) is taken by --method mc only (docs/physics.md 3, \"Rough boundary\")",

@@ -519,9 +519,9 @@ class FitProblem:
         from simulate.products import smooth_boundary_unless_mc
 
         # the summation's and classic model's routes walk the smooth boundary (simulate.products)
-        nodye = smooth_boundary_unless_mc(self.method, nodye)
+        nodye = smooth_boundary_unless_mc(self.method, nodye, quiet=self.fine_capable)
         if ref is not None:
-            ref = (smooth_boundary_unless_mc(self.method, ref[0]), ref[1])
+            ref = (smooth_boundary_unless_mc(self.method, ref[0], quiet=self.fine_capable), ref[1])
         wl = self.wavelengths_nm
         if self.structured:
             return self._run_structured(nodye, ref, config or self.config)
