@@ -486,6 +486,10 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="objective evaluations of the search in all: steps and Jacobian columns of every start "
                         "(default 400; the uncertainty propagation afterwards is counted apart); with --method mc: "
                         "Monte Carlo runs, the start's included (default 5, at least 2)")
+    p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
+                   help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
+                        "run per parameter and step) instead of the summation -- where the two models' trends "
+                        "disagree; the boundary's slopes for transmitted light always are (see studies.fit_mc)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
@@ -562,10 +566,16 @@ def _fit_run(args: argparse.Namespace) -> int:
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     problem_class, run_fit, write_outputs = method_runner(args.method)
+    extra = {}
+    if args.mc_trend:
+        if args.method != "mc":
+            raise _UsageError(f"--mc-trend is for --method mc (the {args.method} fit has no Monte Carlo runs); "
+                              "drop it or fit with --method mc")
+        extra["mc_trend"] = tuple(n.strip() for n in ",".join(args.mc_trend).split(",") if n.strip())
     try:
         problem = problem_class(config, measured, free, method=args.method, colour_weight=args.colour_weight,
                              target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
-                             wavelengths_nm=wavelengths)
+                             wavelengths_nm=wavelengths, **extra)
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     _check_cost("fit", config, problem.wavelengths_nm, args.target_rel_err, None)

@@ -89,6 +89,11 @@ and are candidates for the result like every run. The Monte Carlo's noise in ``D
 (which perturbs the correction's level only): the fine parameters' uncertainties are a lower bound, and
 the notes say so.
 
+``--mc-trend NAME,...`` (:attr:`MCFitProblem.mc_trend`) treats free parameters the summation does see the
+same way, for where the two models' trends disagree -- the felt's volume fraction, whose summation trend
+points the other way (``simulate/configs/green-felt-mc.toml``'s header): the surrogate then holds the
+summation at the centre in those parameters and takes their trend from the Monte Carlo alone.
+
 Budget, progress, interrupt, resume
 -----------------------------------
 ``--max-evaluations N`` means **Monte Carlo runs** for ``--method mc`` (the start's included; default
@@ -198,16 +203,25 @@ class MCFitProblem(FitProblem):
     fine_runs: dict | None = None
     #: the Monte Carlo runs of the last :func:`run_mc_fit`, by parameters
     mc_runs: dict = field(default_factory=dict)
-    #: ``(centre x, {j: D_j [G, L]})``: the fine parameters' first-order term (module docstring)
+    #: ``(centre x, {j: D_j [G, L]})``: the Monte Carlo's first-order term (module docstring)
     slope: tuple | None = None
+    #: free parameters (config paths) whose trend comes from the Monte Carlo although the summation sees them
+    #: (``--mc-trend``; module docstring)
+    mc_trend: tuple = ()
 
     def __post_init__(self) -> None:
         self.method = "summation"
         self.fine_capable = True
         super().__post_init__()
+        names = [p.name for p in self.free]
+        for name in self.mc_trend:
+            if name not in names:
+                raise FitError(f"--mc-trend {name}: not a free parameter of this fit (free: {', '.join(names)}); "
+                               "name a config path given to --free")
 
     def fine_indices(self) -> list[int]:
-        return [j for j, p in enumerate(self.free) if p.kind == "fine"]
+        """The parameters whose trend comes from Monte Carlo runs: the fine ones and ``mc_trend``."""
+        return [j for j, p in enumerate(self.free) if p.kind == "fine" or p.name in self.mc_trend]
 
     def fine_step(self, j: int, x: np.ndarray) -> float:
         """The finite-difference step of fine parameter ``j`` at ``x`` (module docstring)."""
@@ -216,7 +230,7 @@ class MCFitProblem(FitProblem):
         return -h if x[j] + h > p.high else h
 
     def identity(self) -> str:
-        doc = [super().identity(), "mc", self.target_rel_err]
+        doc = [super().identity(), "mc", self.target_rel_err] + ([sorted(self.mc_trend)] if self.mc_trend else [])
         return hashlib.sha256(json.dumps(doc).encode()).hexdigest()
 
     def set_correction(self, x: np.ndarray, mc_beta: np.ndarray, mc_u: np.ndarray) -> None:
@@ -232,9 +246,15 @@ class MCFitProblem(FitProblem):
         if self.fine_runs is not None:
             run = self.fine_runs[_key(x)]
             return run.beta, run.u_beta
-        beta, u = super().model(x, mc_noise)
         if self.corr is None:
-            return beta, u
+            return super().model(x, mc_noise)
+        xs = np.asarray(x, float)
+        if self.slope is not None:
+            # the summation held at the centre in the parameters whose trend is the Monte Carlo's
+            xs = xs.copy()
+            for j in self.slope[1]:
+                xs[j] = self.slope[0][j]
+        beta, u = super().model(xs, mc_noise)
         c, d, mc_u = self.corr
         out = beta * c + d
         if self.slope is not None:

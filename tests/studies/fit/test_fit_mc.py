@@ -360,3 +360,65 @@ def test_the_summation_fit_refuses_a_parameter_only_the_monte_carlo_sees(tmp_pat
     assert code == 2, err
     assert "only the Monte Carlo sees the rough boundary" in err and "--method mc" in err
     assert len(err.strip().splitlines()) == 1, err
+
+
+def _fake_opposite(calls: list):
+    """A stand-in Monte Carlo whose trend in the reflection's RMS slope is the summation's reversed: the summation
+    evaluated at the slope mirrored about 0.25 (so the summation's trend alone walks the wrong way)."""
+    def run(problem, x, *, progress=False):
+        calls.append(np.asarray(x, float).copy())
+        j = [p.name for p in problem.free].index("surface.rms_slope")
+        xm = np.asarray(x, float).copy()
+        xm[j] = 0.5 - xm[j]
+        saved, problem.corr, problem.slope = (problem.corr, problem.slope), None, None
+        try:
+            s, u = problem.model(xm)
+        finally:
+            problem.corr, problem.slope = saved
+        beta = 0.9 * s + 0.002
+        fig = problem.residual_model().evaluate(beta, u)
+        r = fig.vector(problem.colour_weight)
+        return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse),
+                     float("nan"), float("nan"))
+    return run
+
+
+def test_mc_trend_takes_a_parameter_s_trend_from_the_monte_carlo_where_the_summation_s_disagrees(monkeypatch):
+    """The stand-in Monte Carlo's RMS slope acts as the summation's mirrored about 0.25: a measurement made at 0.32
+    is fitted back from 0.28 only when the slope's trend comes from Monte Carlo runs (--mc-trend); with the
+    summation's trend the fit moves the other way or not at all."""
+    free = "fiber.dye.log10_per_um[0]=-3:0,surface.rms_slope=0.1:0.45"
+    truth = _rough_felt(-0.5, -2.5, 0.0)
+    doc = tomllib.loads(truth.text)
+    doc["surface"]["rms_slope"] = 0.32
+    truth = parse_config(toml_dumps(doc), "felt-test.toml")
+    probe = MCFitProblem(truth, _flat(WL6), parse_free([free], truth), target_rel_err=0.5, seed=2, wavelengths_nm=WL6)
+    beta = _fake_opposite([])(probe, np.array([-0.5, 0.32])).beta
+    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
+    doc["surface"]["rms_slope"] = 0.28
+    doc["fiber"]["dye"]["log10_per_um"] = [-0.6, -2.5]
+    start = parse_config(toml_dumps(doc), "felt-test.toml")
+    results = {}
+    for trend in ((), ("surface.rms_slope",)):
+        calls: list = []
+        monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_opposite(calls))
+        problem = MCFitProblem(start, measured, parse_free([free], start), target_rel_err=0.5, seed=2,
+                               wavelengths_nm=WL6, mc_trend=trend)
+        problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+        results[trend] = run_mc_fit(problem, max_evaluations=8, noise_draws=4, inner_evaluations=80,
+                                    echo=lambda s: None)
+    with_trend = results[("surface.rms_slope",)]
+    assert abs(with_trend.x[1] - 0.32) < 0.005, with_trend.x
+    assert with_trend.info["fine_trend_runs"] >= 1
+    assert abs(results[()].x[1] - 0.32) > 0.03, results[()].x
+    assert results[()].info["fine_trend_runs"] == 0
+
+
+def test_mc_trend_names_a_free_parameter_and_needs_the_monte_carlo(tmp_path, capsys):
+    write_dataset(_flat(WL6), tmp_path / "m")
+    base = ["fit", "green-felt-mc", str(tmp_path / "m"), "--out", str(tmp_path / "f"), "--no-progress", "--free", "dye"]
+    for extra, message in ((["--method", "mc", "--mc-trend", "volume_fraction"], "--mc-trend volume_fraction: not a free"),
+                           (["--method", "summation", "--mc-trend", "dye"], "--mc-trend is for --method mc")):
+        code = main(base + extra)
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
