@@ -829,7 +829,9 @@ def _sweep_run(args: argparse.Namespace) -> int:
                                                  f" ({row['tasks_done']} of {row['tasks']} tasks)"))
     for line in result.failures.values():
         print(f"simulate sweep: {line}", file=sys.stderr)
-    print(f"wrote {args.out} ({len(spec.points)} points x {len(spec.wavelengths_nm)} wavelengths = {n_tasks} tasks: "
+    shape = (f"{len(spec.points)} points (all {len(spec.wavelengths_nm)} wavelengths a task)" if spec.per_point else
+             f"{len(spec.points)} points x {len(spec.wavelengths_nm)} wavelengths")
+    print(f"wrote {args.out} ({shape} = {n_tasks} tasks: "
           f"{result.computed} computed, {result.reused} reused{', resumed' if resumed else ''}, "
           f"{len(result.failures)} failed; summary in {args.out / 'summary.csv'})")
     return 1 if result.failures else 0

@@ -213,11 +213,21 @@ class MCFitProblem(FitProblem):
         self.method = "summation"
         self.fine_capable = True
         super().__post_init__()
+        from studies import paths
+
         names = [p.name for p in self.free]
+        expanded: list[str] = []
         for name in self.mc_trend:
-            if name not in names:
-                raise FitError(f"--mc-trend {name}: not a free parameter of this fit (free: {', '.join(names)}); "
-                               "name a config path given to --free")
+            try:
+                full = paths.expand(name, self._doc)
+            except paths.PathError as exc:
+                raise FitError(f"--mc-trend {exc}") from None
+            for path in full:
+                if path not in names:
+                    raise FitError(f"--mc-trend {name}: not a free parameter of this fit (free: {', '.join(names)}); "
+                                   "name a parameter given to --free")
+                expanded.append(path)
+        self.mc_trend = tuple(expanded)
 
     def fine_indices(self) -> list[int]:
         """The parameters whose trend comes from Monte Carlo runs: the fine ones and ``mc_trend``."""

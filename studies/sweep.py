@@ -27,8 +27,12 @@ Tasks and seeds
 One task per (parameter point, wavelength of the plan): :func:`evaluate_task` runs
 :func:`simulate.virtual.fabric_dataset` on a one-wavelength copy of the plan. That granularity
 spreads a sweep over as many workers as it has tasks, at the price of the work a full-spectrum
-run shares between wavelengths (the classic model's one walk, the woven mesh of ``mc``), which
-each task redoes for its wavelength.
+run shares between wavelengths (the classic model's one walk), which each task redoes for its
+wavelength. The Monte Carlo (``--method mc``) is the exception: one task per point, all
+wavelengths (``tasks/p003.npz``; :attr:`~studies.sweep_spec.SweepSpec.per_point`) -- its run shares
+everything across the spectrum (rays, the felt or weave mesh, the yarn tables walked once for all
+wavelengths), so per-wavelength tasks made a 33-wavelength felt point ~33 x 40 s instead of ~70 s,
+and its accuracy control then holds the one relative error of ``simulate fabric`` itself.
 
 Accuracy: ``--target-rel-err`` means what it means for ``simulate fabric`` (the one relative
 error, :func:`simulate.montecarlo.accuracy.relative_error`: RMS of ``u`` relative to each
@@ -151,7 +155,7 @@ class TaskArgs:
     task_id: str
     config: SimulationConfig
     plan: Plan
-    wavelength_nm: float
+    wavelength_nm: float | None
     seed: int
     method: str
     target_rel_err: float
@@ -161,12 +165,14 @@ class TaskArgs:
 
 
 def evaluate_task(args: TaskArgs) -> dict:
-    """Evaluate one point's model at one wavelength; returns ``{"columns": {...}, "meta": {...}}``.
+    """Evaluate one point's model at one wavelength (or all: ``wavelength_nm`` None); returns
+    ``{"columns": {...}, "meta": {...}}``.
 
     The plan is copied with only ``args.wavelength_nm`` (the dye is sampled exactly there).
     """
     started = time.perf_counter()
-    plan = dataclasses.replace(args.plan, wavelengths_nm=np.array([args.wavelength_nm], float))
+    plan = args.plan if args.wavelength_nm is None else \
+        dataclasses.replace(args.plan, wavelengths_nm=np.array([args.wavelength_nm], float))
     ds = fabric_dataset(args.config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
                         threads=args.threads, max_photons=args.max_photons, measurable_only=args.measurable_only)
     meta = jsonable(ds.meta)
@@ -375,12 +381,16 @@ def _failure_line(task: SweepTask, future: Any, retries: int) -> str:
         what = f"{type(exc).__name__}: {exc}".splitlines()[0] if exc is not None else future.status
     except Exception as err:  # a cancelled future (lost scheduler) has no exception to fetch
         what = f"{future.status} ({type(err).__name__})"
-    return (f"task {task.id} ({task.point.label}, {task.wavelength_nm:g} nm) failed after {retries + 1} "
+    return (f"task {task.id} ({task.point.label}, {task.what}) failed after {retries + 1} "
             f"attempt(s): {what}")
 
 
 # ------------------------------------------------------------------------------------------
 # assembling the points
+
+
+def _task_key(task: SweepTask) -> str:
+    return "all" if task.wavelength_nm is None else f"{task.wavelength_nm:g}"
 
 
 def _point_dataset(out: Path, spec: SweepSpec, point: SweepPoint, tasks: list[SweepTask]) -> Dataset:
@@ -402,14 +412,14 @@ def _point_dataset(out: Path, spec: SweepSpec, point: SweepPoint, tasks: list[Sw
         "command": GENERATOR,
         "config": point.config.provenance(),
         "seed": int(spec.seed),
-        "task_seeds": {f"{t.wavelength_nm:g}": t.seed for t in tasks},
+        "task_seeds": {_task_key(t): t.seed for t in tasks},
         # the one definition over the assembled spectra ([geometry, wavelength]), not per task
         "rel_err": relative_error(spectra["beta"].to_numpy(float), spectra["u_beta"].to_numpy(float)),
         "rel_err_definition": REL_ERR_DEFINITION,
         "photons": None if any(n is None for n in photons) else int(sum(photons)),
         "seconds": float(sum(p["task"]["seconds"] for p in provs)),
         "fiber_seconds": float(sum(p.get("fiber_seconds") or 0.0 for p in provs)),
-        "fiber_info": {f"{t.wavelength_nm:g}": p.get("fiber_info") for t, p in zip(tasks, provs)},
+        "fiber_info": {_task_key(t): p.get("fiber_info") for t, p in zip(tasks, provs)},
         "sweep": {"parameters": values, "paths": {p.name: p.path for p in spec.params}, "point": point.index,
                   "digest": spec.digest},
         "versions": software_versions(),

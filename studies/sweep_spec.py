@@ -169,17 +169,25 @@ def point_dir(sweep_dir: str | Path, rel: object) -> Path:
 
 @dataclass(frozen=True)
 class SweepTask:
-    """One task: a point at one wavelength (``id`` names its file: ``p003_w0550``)."""
+    """One task: a point at one wavelength (``id`` names its file: ``p003_w0550``), or a point at all the
+    plan's wavelengths (``wavelength_nm`` None, ``p003``: the Monte Carlo's tasks, :meth:`SweepSpec.tasks`)."""
 
     point: SweepPoint
-    wavelength_nm: float
+    wavelength_nm: float | None
     seed: int
 
     @property
     def id(self) -> str:
         wl = self.wavelength_nm
+        if wl is None:
+            return f"p{self.point.index:03d}"
         text = f"{int(wl):04d}" if wl == int(wl) else f"{wl:09.4f}".rstrip("0").replace(".", "p")
         return f"p{self.point.index:03d}_w{text}"
+
+    @property
+    def what(self) -> str:
+        """The task's wavelengths in words (failure lines)."""
+        return "all wavelengths" if self.wavelength_nm is None else f"{self.wavelength_nm:g} nm"
 
 
 def task_seed(seed: int, point_index: int, wavelength_nm: float) -> int:
@@ -233,7 +241,7 @@ class SweepSpec:
         if self.max_photons is None:
             self.max_photons = self.config.max_photons
         n_points = math.prod(len(p.values) for p in self.params)
-        n_tasks = n_points * len(self.plan.wavelengths_nm)
+        n_tasks = n_points * (1 if self.per_point else len(self.plan.wavelengths_nm))
         if n_points > MAX_POINTS or n_tasks > MAX_TASKS:
             grid = " x ".join(str(len(p.values)) for p in self.params)
             raise SweepError(f"--param: {grid} = {n_points:,} points x {len(self.plan.wavelengths_nm)} wavelengths = "
@@ -256,8 +264,17 @@ class SweepSpec:
     def wavelengths_nm(self) -> list[float]:
         return [float(w) for w in self.plan.wavelengths_nm]
 
+    @property
+    def per_point(self) -> bool:
+        """One task per point (all wavelengths) instead of per (point, wavelength): the Monte Carlo
+        (``--method mc``), whose run shares its rays, felt or weave mesh and yarn tables across the
+        spectrum (one wavelength's task cost ~40 s on the felt, the whole spectrum ~70 s)."""
+        return self.method == "mc"
+
     def tasks(self) -> list[SweepTask]:
-        """Every task, point by point, wavelength by wavelength."""
+        """Every task, point by point, wavelength by wavelength (:attr:`per_point`: one per point)."""
+        if self.per_point:
+            return [SweepTask(p, None, task_seed(int(self.seed), p.index, 0.0)) for p in self.points]
         return [SweepTask(p, wl, task_seed(int(self.seed), p.index, wl))
                 for p in self.points for wl in self.wavelengths_nm]
 
@@ -267,7 +284,7 @@ class SweepSpec:
                 "parameters": [[p.name, p.path, list(p.values)] for p in self.params],
                 "method": self.method, "seed": int(self.seed), "target_rel_err": float(self.target_rel_err),
                 "max_photons": self.max_photons, "measurable_only": bool(self.measurable_only),
-                "wavelengths_nm": self.wavelengths_nm}
+                "wavelengths_nm": self.wavelengths_nm} | ({"tasks": "per point"} if self.per_point else {})
 
     @property
     def digest(self) -> str:
@@ -287,6 +304,6 @@ class SweepSpec:
             "points": [{"index": p.index, "dir": p.dir, "label": p.label,
                         "values": {q.name: v for q, v in zip(self.params, p.values)}} for p in self.points],
             "wavelengths_nm": self.wavelengths_nm,
-            "tasks": len(self.points) * len(self.wavelengths_nm),
+            "tasks": len(self.tasks()),
             "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
         }

@@ -417,7 +417,7 @@ def test_mc_trend_takes_a_parameter_s_trend_from_the_monte_carlo_where_the_summa
 def test_mc_trend_names_a_free_parameter_and_needs_the_monte_carlo(tmp_path, capsys):
     write_dataset(_flat(WL6), tmp_path / "m")
     base = ["fit", "green-felt-mc", str(tmp_path / "m"), "--out", str(tmp_path / "f"), "--no-progress", "--free", "dye"]
-    for extra, message in ((["--method", "mc", "--mc-trend", "volume_fraction"], "--mc-trend volume_fraction: not a free"),
+    for extra, message in ((["--method", "mc", "--mc-trend", "radius"], "--mc-trend radius: not a free"),
                            (["--method", "summation", "--mc-trend", "dye"], "--mc-trend is for --method mc")):
         code = main(base + extra)
         err = capsys.readouterr().err
