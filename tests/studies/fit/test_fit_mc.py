@@ -91,23 +91,29 @@ def start_x(config) -> np.ndarray:
     return np.array(tomllib.loads(config.text)["fiber"]["dye"]["log10_per_um"], float)
 
 
-def _fake_fine(calls: list):
-    """A deterministic stand-in for the Monte Carlo: the summation with a geometry-dependent 20 % tilt and an
-    offset (so the correction is not 1), counted in ``calls``."""
+def _stand_in(calls: list, beta_of):
+    """A deterministic stand-in for the Monte Carlo, counted in ``calls``: ``beta_of(problem, x, s)`` from the
+    plain summation ``s`` at ``x`` (no correction, no Monte Carlo trend term), scored as a run."""
     def run(problem, x, *, progress=False):
         calls.append(np.asarray(x, float).copy())
-        corr, problem.corr = problem.corr, None
+        saved, problem.corr, problem.slope = (problem.corr, problem.slope), None, None
         try:
-            s, u = problem.model(x)
+            s, u = problem.model(beta_of.at(problem, x) if hasattr(beta_of, "at") else x)
         finally:
-            problem.corr = corr
-        tilt = 1.0 + 0.2 * np.linspace(-1.0, 1.0, s.shape[0])[:, None]
-        beta = 0.9 * s * tilt + 0.002
+            problem.corr, problem.slope = saved
+        beta = beta_of(problem, x, s)
         fig = problem.residual_model().evaluate(beta, u)
         r = fig.vector(problem.colour_weight)
         return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse),
                      float("nan"), float("nan"))
     return run
+
+
+def _fake_fine(calls: list):
+    """The summation with a geometry-dependent 20 % tilt and an offset (so the correction is not 1)."""
+    def beta_of(problem, x, s):
+        return 0.9 * s * (1.0 + 0.2 * np.linspace(-1.0, 1.0, s.shape[0])[:, None]) + 0.002
+    return _stand_in(calls, beta_of)
 
 
 def _resume_problem(shared=None):
@@ -269,23 +275,12 @@ def _rough_felt(d0: float, d1: float, t: float):
 
 
 def _fake_rough(calls: list):
-    """A deterministic stand-in for the Monte Carlo that depends on the boundary's slope ``t``, which the
-    summation does not see: the summation tilted across the geometries by ``1.5 (t - 0.3)``."""
-    def run(problem, x, *, progress=False):
-        calls.append(np.asarray(x, float).copy())
+    """A stand-in Monte Carlo that depends on the boundary's slope ``t``, which the summation does not see:
+    the summation tilted across the geometries by ``1.5 (t - 0.3)``."""
+    def beta_of(problem, x, s):
         j = [p.name for p in problem.free].index("surface.transmission_rms_slope")
-        saved, problem.corr, problem.slope = (problem.corr, problem.slope), None, None
-        try:
-            s, u = problem.model(x)
-        finally:
-            problem.corr, problem.slope = saved
-        tilt = 1.0 + 1.5 * (x[j] - T_TRUE) * np.linspace(-1.0, 1.0, s.shape[0])[:, None]
-        beta = 0.9 * s * tilt + 0.002
-        fig = problem.residual_model().evaluate(beta, u)
-        r = fig.vector(problem.colour_weight)
-        return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse),
-                     float("nan"), float("nan"))
-    return run
+        return 0.9 * s * (1.0 + 1.5 * (x[j] - T_TRUE) * np.linspace(-1.0, 1.0, s.shape[0])[:, None]) + 0.002
+    return _stand_in(calls, beta_of)
 
 
 def _rough_problem(shared=None):
@@ -362,25 +357,24 @@ def test_the_summation_fit_refuses_a_parameter_only_the_monte_carlo_sees(tmp_pat
     assert len(err.strip().splitlines()) == 1, err
 
 
-def _fake_opposite(calls: list):
-    """A stand-in Monte Carlo whose trend in the reflection's RMS slope is the summation's reversed: the summation
-    evaluated at the slope mirrored about 0.25 (so the summation's trend alone walks the wrong way)."""
-    def run(problem, x, *, progress=False):
-        calls.append(np.asarray(x, float).copy())
+class _Mirrored:
+    """The summation evaluated at the reflection's RMS slope mirrored about 0.25."""
+
+    @staticmethod
+    def at(problem, x):
         j = [p.name for p in problem.free].index("surface.rms_slope")
         xm = np.asarray(x, float).copy()
         xm[j] = 0.5 - xm[j]
-        saved, problem.corr, problem.slope = (problem.corr, problem.slope), None, None
-        try:
-            s, u = problem.model(xm)
-        finally:
-            problem.corr, problem.slope = saved
-        beta = 0.9 * s + 0.002
-        fig = problem.residual_model().evaluate(beta, u)
-        r = fig.vector(problem.colour_weight)
-        return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse),
-                     float("nan"), float("nan"))
-    return run
+        return xm
+
+    def __call__(self, problem, x, s):
+        return 0.9 * s + 0.002
+
+
+def _fake_opposite(calls: list):
+    """A stand-in Monte Carlo whose trend in the reflection's RMS slope is the summation's reversed (so the
+    summation's trend alone walks the wrong way)."""
+    return _stand_in(calls, _Mirrored())
 
 
 def test_mc_trend_takes_a_parameter_s_trend_from_the_monte_carlo_where_the_summation_s_disagrees(monkeypatch):
