@@ -14,7 +14,7 @@ report's colour geometry (incidence 0, observation 10 deg on the mirror side, as
    with the tube's own surface (the two ingredients' order: each one's share without the other);
 5. the structured summation (:func:`simulate.fabric.structure.structured_beta`) of the same structure;
 
-(a felt, ``kind = "nonwoven"``: the felt Monte Carlo of :mod:`simulate.woven.felt` instead of rows 1-4);
+(a felt, ``kind = "nonwoven"``: the felt Monte Carlo of :mod:`simulate.nonwoven.felt` instead of rows 1-4);
 
 and, with ``--surface-only``, the surface term alone at that geometry (``beta`` of a volume that returns
 nothing: the tables' rows zeroed) of the tube, of the yarn surface made of fibers, and of the structured
@@ -54,7 +54,7 @@ def colours(config: str = "red-cotton", target: float = 0.01, seed: int = 0, thr
     fiber = cfg.fiber(WAVELENGTHS)
     mesh: Any
     if spec.kind == "nonwoven":
-        from simulate.woven.felt import felt_mesh
+        from simulate.nonwoven.felt import felt_mesh
 
         wv, mesh = None, felt_mesh(spec, float(fiber.radius_um), seed=seed)
     else:

@@ -1,7 +1,7 @@
 """The felt Monte Carlo against the felt summation, absorbing and not (issue 19, docs/physics.md 6).
 
 ``python -m studies.bench_woven_felt [--mu-a 0.01,0.0068,0.005,0] [--packing 0.9069] [--layers 0]
-[--seed 0] [--target 0.015]`` prints, for the felt of :mod:`simulate.woven.felt` (HG fiber: R 10 um,
+[--seed 0] [--target 0.015]`` prints, for the felt of :mod:`simulate.nonwoven.felt` (HG fiber: R 10 um,
 n 1.5, mu_s 0.8 /um, g 0.5, RMS slope 0.35; ``[structure] kind = "nonwoven"`` with that packing
 fraction and layers; the felt and its rays from ``--seed``):
 
@@ -28,14 +28,14 @@ from simulate import fiber as F
 from simulate import woven as W
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
-from simulate.woven.felt import felt_mesh
+from simulate.nonwoven.felt import felt_mesh
 
 R_UM = 10.0
 
 
 def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
     """The fraction of the fibers' surface (in the cell) that lies inside another fiber image
-    (``m`` a :class:`simulate.woven.felt.FeltMesh`; random points on random fiber images)."""
+    (``m`` a :class:`simulate.nonwoven.felt.FeltMesh`; random points on random fiber images)."""
     ring = (int(m.n_s[0]) + 1) * (int(m.sides) + 1)
     cent = np.array([m.vertices[b:b + ring].reshape(int(m.n_s[0]) + 1, int(m.sides) + 1, 3)[:, :-1].mean(axis=(0, 1)) for b in m.vertex_base])
     tan = m.tangents[m.vertex_base]

@@ -15,7 +15,7 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   parallel fibers at spacing ``d = 2 R spacing_ratio`` (the packing fraction's); here the fibers'
   projected area ``2 R l cos(epsilon)`` adds up to the same ``layers L^2 / spacing_ratio`` (the same
   amount of fiber per unit area).
-* **No two fibers interpenetrate** (issue 19). Fibers placed independently overlap where they cross
+* **No two fibers interpenetrate**. Fibers placed independently overlap where they cross
   (at the layers' density a covered point lay in 1.47 fibers on average), and a tracer that walks
   each fiber's volume from a table walks the shared material once per fiber: with absorbing fibers
   the felt was 16 % too dark (docs/physics.md 6). Treating the union instead would need the walk in
