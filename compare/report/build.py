@@ -20,6 +20,7 @@ from .figures import (colour_strip_figure, colour_strips, factor_figure, hue_tre
                       inplane_figure, save_figure, spectrum_figure, swatch_figure)
 from .outdir import prepare_out_dir
 from .page import Section, page_html
+from .shape import shape_section
 
 __all__ = ["write_report"]
 
@@ -129,8 +130,11 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
         for name, data in section.figures.items():
             atomic_write(fig_dir / name, data)
     report = out / "report.html"
-    atomic_write(report, page_html(comparison, metrics, figures, list(sections),
-                                   preface).encode("utf-8"))
+    extra = list(sections)
+    measured_shape = metrics["shape"]["measured"]
+    if any("per_incidence" in r for r in measured_shape.values()):
+        extra.append(shape_section(comparison, metrics))
+    atomic_write(report, page_html(comparison, metrics, figures, extra, preface).encode("utf-8"))
     written = {fig_dir / name for name in figures}
     written |= {fig_dir / name for s in sections for name in s.figures}
     for old in previous:
