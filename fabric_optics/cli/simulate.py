@@ -230,6 +230,14 @@ def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> N
         raise _UsageError(f"--out {out}: directory is not writable")
 
 
+def _refuse_previous(out: Path, force: bool, is_previous: Callable[[Path], bool], what: str) -> None:
+    """Without ``--force``, refuse an ``out`` holding a previous output of this command (a folder
+    holding something else: :func:`_prepare_out`'s message)."""
+    if not force and out.is_dir() and any(not e.name.startswith(".") for e in out.iterdir()) and is_previous(out):
+        raise _UsageError(f"--out {out}: holds a previous `{what}` output; pass --force to replace it, or choose a "
+                          "new folder")
+
+
 def _is_fabric_output(out: Path) -> bool:
     """A previous ``simulate fabric`` output: its ``meta.json`` says so. Also recognised: what a
     run of an older version killed between its two renames left, ``radiance.csv`` beside the
@@ -342,7 +350,7 @@ def _fabric_run(args: argparse.Namespace) -> int:
     except api.InputError as exc:
         raise _UsageError(f"--plan: {exc}") from None
     _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
-    refuse_existing(args.out, args.force)
+    _refuse_previous(args.out, args.force, _is_fabric_output, "simulate fabric")
     _prepare_fabric_out(args.out)
     dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
                            threads=args.threads, max_photons=args.max_photons, measurable_only=args.measurable_only,
@@ -410,8 +418,8 @@ def _fiber_run(args: argparse.Namespace) -> int:
         raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
     target = config.target_rel_err if args.target_rel_err is None else args.target_rel_err
     _check_cost("fiber", config, wavelengths, target, args.max_photons)
-    refuse_existing(args.out, args.force)
-    _prepare_out(args.out, _is_fiber_output, "simulate fiber")
+    _refuse_previous(args.out, args.force, _is_fiber_output, "simulate fiber")
+    _prepare_out(args.out, lambda out: args.force or _is_fiber_output(out), "simulate fiber")
     arrays, sidecar = fiber_table(
         config.fiber(wavelengths), wavelengths, grid, method=args.route or _config_route(config),
         target_rel_err=target, seed=config.seed if args.seed is None else args.seed,
