@@ -21,7 +21,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate fiber CONFIG --out DIR [--route nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
     the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar).
 ``simulate fit CONFIG MEASURED --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]``
-    fits config parameters to a measurement (:mod:`fabric_optics.fit.driver`, ``mc``: :mod:`fabric_optics.fit.mc`): fitted.toml,
+    fits config parameters to a measurement (:mod:`fabric_optics.fitting.driver`, ``mc``: :mod:`fabric_optics.fitting.mc`): fitted.toml,
     datasets, report.
 ``simulate sweep CONFIG [MEASURED] --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
     a parameter study on dask.distributed (:mod:`fabric_optics.sweep.runner`): one dataset per point, summary.csv;
@@ -446,13 +446,13 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("measured", metavar="MEASURED", type=Path, help="measured radiance-coefficient dataset (folder)")
     p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
                    help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
-                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fit.driver")
+                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fitting.driver")
     p.add_argument("--out", type=Path, required=True,
                    help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
     add_force(p, "an existing --out (start the fit afresh there; --resume continues it instead)")
     p.add_argument("--method", choices=("classic", "summation", "mc"), default="classic",
                    help="fabric model to fit (default classic); mc: the woven/felt Monte Carlo of simulate fabric, "
-                        "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fit.mc")
+                        "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fitting.mc")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations", metavar="N",
@@ -463,7 +463,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
                    help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
                         "run per parameter and step) instead of the summation -- where the two models' trends "
-                        "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fit.mc)")
+                        "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fitting.mc)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     add_wavelengths(p, "model wavelengths for an RGB measurement")
@@ -479,8 +479,8 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _is_fit_output(out: Path) -> bool:
-    from fabric_optics.fit.driver import STATE_NAME
-    from fabric_optics.fit.mc import MC_STATE
+    from fabric_optics.fitting.driver import STATE_NAME
+    from fabric_optics.fitting.mc import MC_STATE
 
     return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir() or \
         (out / MC_STATE).is_file()
@@ -489,8 +489,8 @@ def _is_fit_output(out: Path) -> bool:
 def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists); the structured
     walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the fit began)."""
-    from fabric_optics.fit.driver import STATE_NAME
-    from fabric_optics.fit.state import WALKS_DIR
+    from fabric_optics.fitting.driver import STATE_NAME
+    from fabric_optics.fitting.state import WALKS_DIR
 
     if (out / STATE_NAME).is_file():
         return f"the last accepted point is in {out / STATE_NAME} (continue with --resume)"
@@ -550,7 +550,7 @@ def _fit_run(args: argparse.Namespace) -> int:
         outcome = job.run(progress=_progress(args))
     except KeyboardInterrupt:
         if args.method == "mc":
-            from fabric_optics.fit.mc import left_behind
+            from fabric_optics.fitting.mc import left_behind
             said = left_behind(args.out)
         else:
             said = _fit_left_behind(args.out, walk_parts_before)
@@ -855,7 +855,7 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 
 
 #: Commands that may build woven yarn tables or structured-summation walks, i.e. use the table cache
-#: (simulate.fiber.tablecache; the fit's walks: fabric_optics.fit.structure.walk_structure).
+#: (simulate.fiber.tablecache; the fit's walks: fabric_optics.fitting.structure.walk_structure).
 _TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
 
 
