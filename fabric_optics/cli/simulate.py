@@ -409,7 +409,7 @@ def _fiber_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
     p.add_argument("--out", type=Path, required=True, help="output directory (fiber-table.npz, fiber-table.json)")
     p.add_argument("--method", choices=("nee", "beam", "bssrdf"), default=None,
-                   help="fiber route (default: the config's method.method)")
+                   help="fiber route (default: the config's fiber.route)")
     p.add_argument("--step-deg", type=_pos_float, default=30.0, dest="step_deg",
                    help="polar grid step in degrees, dividing 90 (default 30)")
     p.add_argument("--phi-step-deg", type=_pos_float, default=45.0, dest="phi_step_deg",
@@ -449,7 +449,7 @@ def _fiber_run(args: argparse.Namespace) -> int:
     _check_cost("fiber", config, wavelengths, args.target_rel_err or DEFAULT_TABLE_REL_ERR, args.max_photons)
     _prepare_out(args.out, _is_fiber_output, "simulate fiber")
     arrays, sidecar = fiber_table(
-        config.fiber(wavelengths), wavelengths, grid, method=args.method or config.method,
+        config.fiber(wavelengths), wavelengths, grid, method=args.method or config.route,
         target_rel_err=args.target_rel_err, seed=config.seed if args.seed is None else args.seed,
         threads=config.threads if args.threads is None else (args.threads or None),
         max_photons=config.max_photons if args.max_photons is None else args.max_photons,

@@ -121,7 +121,7 @@ clear: its exits keep to the cones refraction puts them on, which coarse azimuth
 
 def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]) -> str | None:
     """The warning for a run whose fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s``
-    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are the default's or coarser (36 deg
+    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are 10 or fewer (36 deg
     or more), else None. Measured: the green felt moves by more than its misfit to the measurement
     between 10 and 20 azimuth bins, red cotton (2 R mu_s = 19) within its Monte Carlo noise
     (docs/physics.md 6, "Exit directions")."""
@@ -138,8 +138,7 @@ def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]
     return (f"the fiber is nearly clear ({n:.2g} scattering events across its diameter at {mid:g} nm) and "
             f"the yarn table's exit directions are binned at {int(exit_bins[1])} azimuths: its exits keep to "
             "cones that such bins smear, and the result can move by more than a fit's misfit at finer bins; "
-            "check it with [method] exit_bins = [5, 20] or finer (docs/physics.md 6, \"Exit directions\"), "
-            "or set exit_bins to say which you mean")
+            "the default [method] exit_bins = [10, 20] resolves them (docs/physics.md 6, \"Exit directions\")")
 
 
 def _rot_z(a: float) -> np.ndarray:
