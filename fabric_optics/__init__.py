@@ -2,7 +2,7 @@
 
 - :mod:`fabric_optics.api` (re-exported here): the Python interface -- load a config or plan,
   simulate, compare and check, fit, read and write datasets, export;
-- :mod:`fabric_optics.fit`: the inverse problem behind ``simulate fit``;
+- :mod:`fabric_optics.fitting`: the inverse problem behind ``simulate fit``;
 - :mod:`fabric_optics.sweep`: parameter studies on dask.distributed behind ``simulate sweep``;
 - :mod:`fabric_optics.bench`: the benchmarks behind ``simulate bench``;
 - :mod:`fabric_optics.cli`: the three command lines ``gonio``, ``simulate`` and ``compare``.
@@ -24,11 +24,13 @@ from fabric_optics.api import (
     fit,
     load_config,
     load_plan,
+    measure_on_mock,
     read_dataset,
     simulate,
+    truth,
     write_dataset,
 )
 
 __all__ = ["FABRIC_METHODS", "FIT_METHODS", "FitOutcome", "InputError", "OutputExistsError", "ToolkitError",
-           "Verdict", "check", "compare", "export_bsdf", "fit", "load_config", "load_plan", "read_dataset",
-           "simulate", "write_dataset"]
+           "Verdict", "check", "compare", "export_bsdf", "fit", "load_config", "load_plan", "measure_on_mock",
+           "read_dataset", "simulate", "truth", "write_dataset"]

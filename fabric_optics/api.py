@@ -45,12 +45,12 @@ from simulate.config_table import ConfigError
 from simulate.fabric.summation import FabricError
 
 if TYPE_CHECKING:
-    from fabric_optics.fit.driver import FitResult
+    from fabric_optics.fitting.driver import FitResult
 
 __all__ = [
     "ToolkitError", "InputError", "OutputExistsError",
     "load_config", "load_plan", "read_dataset", "write_dataset",
-    "simulate", "compare", "check", "Verdict", "fit", "FitOutcome", "export_bsdf",
+    "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "FitOutcome", "export_bsdf",
     "FABRIC_METHODS", "FIT_METHODS",
 ]
 
@@ -83,7 +83,7 @@ def _typed_errors(fn: _F) -> _F:
     """Re-raise the libraries' input errors as :class:`InputError` (the original as ``__cause__``)."""
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from fabric_optics.fit.problem import FitError
+        from fabric_optics.fitting.problem import FitError
 
         try:
             return fn(*args, **kwargs)
@@ -247,10 +247,10 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     """
     import numpy as np
 
-    from fabric_optics.fit.driver import DEFAULT_MAX_EVALUATIONS, parse_free
-    from fabric_optics.fit.mc import DEFAULT_MC_RUNS
-    from fabric_optics.fit.methods import method_runner
-    from fabric_optics.fit.start import knots_config
+    from fabric_optics.fitting.driver import DEFAULT_MAX_EVALUATIONS, parse_free
+    from fabric_optics.fitting.mc import DEFAULT_MC_RUNS
+    from fabric_optics.fitting.methods import method_runner
+    from fabric_optics.fitting.start import knots_config
     from simulate.config import load_config as _load
 
     if method not in FIT_METHODS:
@@ -319,3 +319,39 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
     return export_model(load_config(source), method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
                         incidences=incidences, target_rel_err=target_rel_err, seed=seed, threads=threads,
                         progress=progress)
+
+
+@_typed_errors
+def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan: str | os.PathLike | Plan | None = None,
+                    seed: int = 0, force: bool = False, progress: bool = False) -> Dataset:
+    """Measure ``plan`` on the embedded mock goniophotometer holding ``sample`` (``red-cotton``, the
+    analytic stand-in; ``lambert:RHO``; a dataset folder; or an RGL ``.bsdf`` file such as
+    ``fixtures/real/acrylic_felt_green_rgb.bsdf``) through the real driver and protocols, as
+    ``gonio demo`` does; returns the measured dataset written in ``out``. Without ``plan`` the
+    red-cotton plan's geometry is used, named after the sample."""
+    from gonio.data.outputs import OutputRefused
+    from gonio.demo import run_demo
+    from gonio.mock.samples import SampleError
+
+    plan_obj = load_plan("red-cotton" if plan is None else plan)
+    try:
+        run_demo(out, plan_obj, seed=seed, force=force, progress=progress, sample=sample,
+                 name_from_sample=plan is None and sample != "red-cotton")
+    except SampleError as exc:
+        raise InputError(f"sample {sample!r}: {exc}") from exc
+    except OutputRefused as exc:
+        raise OutputExistsError(str(exc)) from exc
+    return read_dataset(out)
+
+
+@_typed_errors
+def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset:
+    """The mock sample's true radiance coefficient at ``plan``'s geometries (no instrument noise):
+    what a perfect measurement of ``sample`` gives (``gonio truth``)."""
+    from gonio.mock.samples import SampleError
+    from gonio.mock.truth import truth_dataset
+
+    try:
+        return truth_dataset(sample, load_plan(plan))
+    except SampleError as exc:
+        raise InputError(f"sample {sample!r}: {exc}") from exc

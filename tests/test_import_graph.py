@@ -45,7 +45,7 @@ LAYERS = (
 #: Layers of fabric_optics, lowest first.
 APP_LAYERS = (
     ("fabric_optics.paths",),
-    ("fabric_optics.fit",),
+    ("fabric_optics.fitting",),
     ("fabric_optics.sweep",),
     ("fabric_optics.api", "fabric_optics"),
     ("fabric_optics.bench",),

@@ -22,7 +22,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar); its target error
     defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
 ``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]``
-    fits config parameters to a measurement (:mod:`fabric_optics.fit.driver`, ``mc``: :mod:`fabric_optics.fit.mc`): fitted.toml,
+    fits config parameters to a measurement (:mod:`fabric_optics.fitting.driver`, ``mc``: :mod:`fabric_optics.fitting.mc`): fitted.toml,
     datasets, report.
 ``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
     a parameter study on dask.distributed (:mod:`fabric_optics.sweep.runner`): one dataset per point, summary.csv;
@@ -474,12 +474,12 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("measured", metavar="MEASURED_DIR", type=Path, help="measured radiance-coefficient dataset")
     p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
                    help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
-                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fit.driver")
+                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fitting.driver")
     p.add_argument("--out", type=Path, required=True,
                    help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
     p.add_argument("--method", choices=("classic", "summation", "mc"), default="classic",
                    help="fabric model to fit (default classic); mc: the woven/felt Monte Carlo of simulate fabric, "
-                        "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fit.mc")
+                        "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fitting.mc")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations",
@@ -489,7 +489,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
                    help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
                         "run per parameter and step) instead of the summation -- where the two models' trends "
-                        "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fit.mc)")
+                        "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fitting.mc)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
@@ -508,8 +508,8 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _is_fit_output(out: Path) -> bool:
-    from fabric_optics.fit.driver import STATE_NAME
-    from fabric_optics.fit.mc import MC_STATE
+    from fabric_optics.fitting.driver import STATE_NAME
+    from fabric_optics.fitting.mc import MC_STATE
 
     return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir() or \
         (out / MC_STATE).is_file()
@@ -518,8 +518,8 @@ def _is_fit_output(out: Path) -> bool:
 def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists); the structured
     walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the fit began)."""
-    from fabric_optics.fit.driver import STATE_NAME
-    from fabric_optics.fit.state import WALKS_DIR
+    from fabric_optics.fitting.driver import STATE_NAME
+    from fabric_optics.fitting.state import WALKS_DIR
 
     if (out / STATE_NAME).is_file():
         return f"the last accepted point is in {out / STATE_NAME} (continue with --resume)"
@@ -542,8 +542,8 @@ def _fit_run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from gonio.data.dataset import DatasetError, read_dataset
-    from fabric_optics.fit.driver import FitError, parse_free
-    from fabric_optics.fit.methods import method_runner
+    from fabric_optics.fitting.driver import FitError, parse_free
+    from fabric_optics.fitting.methods import method_runner
 
     config = _load_config(args.config)
     try:
@@ -557,7 +557,7 @@ def _fit_run(args: argparse.Namespace) -> int:
         except ValueError:
             raise _UsageError(f"--wavelengths: expected numbers separated by commas, got {args.wavelengths!r}") from None
     if args.dye == "knots":
-        from fabric_optics.fit.start import knots_config
+        from fabric_optics.fitting.start import knots_config
 
         spectral = "channel" not in measured.table.columns
         config = knots_config(config, wavelengths if wavelengths is not None else
@@ -587,8 +587,8 @@ def _fit_run(args: argparse.Namespace) -> int:
     _prepare_out(args.out, _is_fit_output, "simulate fit")
     max_evaluations = args.max_evaluations
     if max_evaluations is None:
-        from fabric_optics.fit.driver import DEFAULT_MAX_EVALUATIONS
-        from fabric_optics.fit.mc import DEFAULT_MC_RUNS
+        from fabric_optics.fitting.driver import DEFAULT_MAX_EVALUATIONS
+        from fabric_optics.fitting.mc import DEFAULT_MC_RUNS
 
         max_evaluations = DEFAULT_MC_RUNS if args.method == "mc" else DEFAULT_MAX_EVALUATIONS
     from simulate.fiber import tablecache
@@ -601,7 +601,7 @@ def _fit_run(args: argparse.Namespace) -> int:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
         if args.method == "mc":
-            from fabric_optics.fit.mc import left_behind
+            from fabric_optics.fitting.mc import left_behind
             said = left_behind(args.out)
         else:
             said = _fit_left_behind(args.out, walk_parts_before)
@@ -906,7 +906,7 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 
 
 #: Commands that may build woven yarn tables or structured-summation walks, i.e. use the table cache
-#: (simulate.fiber.tablecache; the fit's walks: fabric_optics.fit.structure.walk_structure).
+#: (simulate.fiber.tablecache; the fit's walks: fabric_optics.fitting.structure.walk_structure).
 _TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
 
 

@@ -30,7 +30,7 @@ closure), :func:`~simulate.fabric.structure.surface_layer_table`, :func:`~simula
   part a few per cent of it): stated limit.
 * **scattering** (volume fraction, particle size, fiber radius): walked at the lattice points
   ``start * exp(0.2 k)`` and read between them multilinearly in ``log v``
-  (:meth:`fabric_optics.fit.problem.FitProblem.lattice_corners`). The top-cell fit re-weights the walk at
+  (:meth:`fabric_optics.fitting.problem.FitProblem.lattice_corners`). The top-cell fit re-weights the walk at
   the nearest lattice point instead; here a re-weighted pass walks the same paths again (as long as a
   walk), so only the lattice points are walked.
 * **wavelengths**: a spectral measurement finer than 20 nm is walked at every 20 nm
@@ -42,7 +42,7 @@ atomic writes, checksums and size bound) under :func:`walk_key`: the content has
 WITHOUT dye, the walk's part of ``[structure]``, wavelengths, nodes, photons per row, seed and the
 code (:data:`WALK_MODULES`). The walk is white, so the dye is not in the key: another colour of the
 same felt (a dye-only refit after the structure was fitted: the "structure transfer"),
-``--resume``, the Monte Carlo fit's surrogate (:mod:`fabric_optics.fit.mc`) and any re-run read it. The
+``--resume``, the Monte Carlo fit's surrogate (:mod:`fabric_optics.fitting.mc`) and any re-run read it. The
 felt's walk is 17 wavelengths x 16 nodes x ~55 000 grid values x 8 bytes x 2 halves = 240 MB (the
 default bound, 2 GiB, holds 8 of them).
 
@@ -58,7 +58,7 @@ is that summation in its fixed-photons mode, ``structured_beta(..., photons_per_
 (one round, the same streams), which is what the equality test compares with.
 
 Length (~520 lines): the walk, its chunk and its cache key stay together -- this module's source is part of
-every walk's key (:data:`WALK_MODULES`); the threads' scheduling is apart (:mod:`fabric_optics.fit.walk_threads`).
+every walk's key (:data:`WALK_MODULES`); the threads' scheduling is apart (:mod:`fabric_optics.fitting.walk_threads`).
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ import numpy as np
 from simulate.fiber.absorption import AbsorptionTable, absorption_targets
 from simulate.fiber.farfield import EXIT_TABLE_MODULES, plain_fiber
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
-from fabric_optics.fit.walk_threads import Progress, plan, run_entries
+from fabric_optics.fitting.walk_threads import Progress, plan, run_entries
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +117,7 @@ class StructWalk:
     """Layer tables (volume and interior return, no surface) at every (wavelength, node) channel, two halves.
 
     ``G[h]`` is ``[Ti, Pi, To, Po, L * K]`` (channel ``l K + k``); ``optics``, ``groups`` and
-    ``scatterings`` are what :meth:`fabric_optics.fit.problem.FitProblem._within_bound` reads.
+    ``scatterings`` are what :meth:`fabric_optics.fitting.problem.FitProblem._within_bound` reads.
     """
 
     G: list
@@ -259,7 +259,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     and seed, never the dye or the facets: another colour of the same felt, ``--resume``, the Monte
     Carlo fit's surrogate and a second run read it instead of walking (a hit is bit-identical).
 
-    Threads (details in :mod:`fabric_optics.fit.walk_threads`). The entries not in the cache
+    Threads (details in :mod:`fabric_optics.fitting.walk_threads`). The entries not in the cache
     run two at a time on threads, ``threads // 2`` kernel threads each (``threads=None``: the cores, and a
     second worker only when a core is idle: with the other core busy two threads cost ~2 CPU s more and
     were slower); ``threads=1`` is the serial walk. Why threads: ~70 % of a cold walk was one core's work
@@ -267,7 +267,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     re-load numba. Why ``nogil=True`` (row runner, ``_accumulate_beam``, :func:`_symmetrise`, the rows'
     reduction): a numba call holds the GIL unless compiled without it, and those are most of an entry.
     The numbers do not depend on the thread: bit-identical to the serial walk (hits read first, entries
-    assembled by index; ``tests/fabric_optics/fit/test_walk_threads.py``). Progress: one lock-guarded monotone
+    assembled by index; ``tests/fabric_optics/fitting/test_walk_threads.py``). Progress: one lock-guarded monotone
     sum. Ctrl-C: re-raised at once, the workers stop at their next tick, finished entries are stored.
     """
     from simulate.fabric.fiberlayer import layer_grid
@@ -374,7 +374,7 @@ FACET_ONLY_FIELDS = ("felt_spread_deg", "warp_twist_deg", "weft_twist_deg", "war
 #: the closure and this module (an edit to any of them is a miss, never a stale walk)
 WALK_MODULES = EXIT_TABLE_MODULES + (
     "simulate.fiber.absorption", "simulate.optics.microfacet", "simulate.fabric.fiberlayer",
-    "simulate.fabric.interior", "simulate.fabric.structure", "fabric_optics.fit.structure",
+    "simulate.fabric.interior", "simulate.fabric.structure", "fabric_optics.fitting.structure",
 )
 
 

@@ -1,4 +1,4 @@
-"""The structured fit's walked parameters read between lattice walks (fabric_optics.fit.problem.FitProblem.lattice_corners):
+"""The structured fit's walked parameters read between lattice walks (fabric_optics.fitting.problem.FitProblem.lattice_corners):
 walks only at lattice points, each once, and the blend equals a walk at the value itself within errors."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from simulate.fiber.absorption import absorption_nodes
-from fabric_optics.fit import structure as fit_structure
-from fabric_optics.fit.driver import FitProblem, parse_free
-from fabric_optics.fit.problem import STRUCTURED_LATTICE_STEP as LATTICE_STEP
+from fabric_optics.fitting import structure as fit_structure
+from fabric_optics.fitting.driver import FitProblem, parse_free
+from fabric_optics.fitting.problem import STRUCTURED_LATTICE_STEP as LATTICE_STEP
 
 from .test_fit_structure import _felt, _measured
 

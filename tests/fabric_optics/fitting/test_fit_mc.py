@@ -1,4 +1,4 @@
-"""simulate fit --method mc (fabric_optics.fit.mc): output space mapping of the felt Monte Carlo through the structured
+"""simulate fit --method mc (fabric_optics.fitting.mc): output space mapping of the felt Monte Carlo through the structured
 summation -- the correction rule, recovery of a known dye from a Monte Carlo measurement, interrupt and resume,
 bad input."""
 
@@ -13,9 +13,9 @@ import pytest
 from gonio.data import make_dataset, new_meta, write_dataset
 from fabric_optics.cli.simulate import main
 from simulate.config import load_config, parse_config
-from fabric_optics.fit import mc as fit_mc
-from fabric_optics.fit.driver import parse_free
-from fabric_optics.fit.mc import MC_RUNS_DIR, MC_STATE, MCFitProblem, MCRun, correction, run_mc_fit
+from fabric_optics.fitting import mc as fit_mc
+from fabric_optics.fitting.driver import parse_free
+from fabric_optics.fitting.mc import MC_RUNS_DIR, MC_STATE, MCFitProblem, MCRun, correction, run_mc_fit
 from fabric_optics.paths import toml_dumps
 
 from .conftest import geometry_table
@@ -131,7 +131,7 @@ def _resume_problem(shared=None):
 def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     """Ctrl-C in the second Monte Carlo run: the first run and its proposal are on disk; --resume does not run
     them again and ends where an uninterrupted fit ends."""
-    import fabric_optics.fit.driver as fit_module
+    import fabric_optics.fitting.driver as fit_module
 
     calls: list = []
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
@@ -220,7 +220,7 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatc
 
     monkeypatch.setattr(fit_mc, "run_monte_carlo", noisy)
     problem = _resume_problem()[0]
-    with caplog.at_level("WARNING", logger="fabric_optics.fit.mc"):
+    with caplog.at_level("WARNING", logger="fabric_optics.fitting.mc"):
         result = run_mc_fit(problem, max_evaluations=2, noise_draws=16, inner_evaluations=20, echo=lambda s: None)
     assert np.all(np.isfinite(result.u)) and np.all(result.u_mc > 0)
     left_out = [r.getMessage() for r in caplog.records if "left out of the uncertainty" in r.getMessage()]
@@ -250,7 +250,7 @@ def test_a_part_whose_draws_are_all_refused_is_reported_not_estimated(monkeypatc
 
 
 def test_uncertainty_parts_combines_known_parts_and_flags_unknown_ones():
-    from fabric_optics.fit.driver import uncertainty_parts
+    from fabric_optics.fitting.driver import uncertainty_parts
 
     a = np.array([[4.0, 1.0], [1.0, 9.0]])
     b = np.array([[1.0, 0.0], [0.0, 16.0]])

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from fabric_optics.fit.driver import run_fit, write_outputs
-from fabric_optics.fit.mc import MCFitProblem, run_mc_fit, write_mc_outputs
-from fabric_optics.fit.problem import FitProblem
+from fabric_optics.fitting.driver import run_fit, write_outputs
+from fabric_optics.fitting.mc import MCFitProblem, run_mc_fit, write_mc_outputs
+from fabric_optics.fitting.problem import FitProblem
 
 __all__ = ["method_runner"]
 

@@ -1,7 +1,7 @@
 """The inverse problem of ``simulate fit``: free parameters, the model at the measured geometries, the objective.
 
-Decisions (objective, weights, Monte Carlo noise, common random numbers): :mod:`fabric_optics.fit.driver`'s
-docstring. This module states the problem; :mod:`fabric_optics.fit.driver` solves it and writes the outputs.
+Decisions (objective, weights, Monte Carlo noise, common random numbers): :mod:`fabric_optics.fitting.driver`'s
+docstring. This module states the problem; :mod:`fabric_optics.fitting.driver` solves it and writes the outputs.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from simulate import fiber as fib
 from simulate.config import SimulationConfig, parse_config
 from simulate.fiber.absorption import DEFAULT_NODES, AbsorptionTable, absorption_nodes, absorption_table
 from fabric_optics import paths
-from fabric_optics.fit.structure import STRUCTURE_FIELDS
+from fabric_optics.fitting.structure import STRUCTURE_FIELDS
 from fabric_optics.paths import toml_dumps
 
 __all__ = ["GENERATOR", "FitError", "FreeParameter", "default_bounds", "parse_free", "FitProblem"]
@@ -46,14 +46,14 @@ LATTICE_STEP = 0.10
 #: not re-weighted but blended (linear in ``log v``), so the step is not bounded by the re-weighting's variance;
 #: a cell of 20 % instead of 10 % halves the walks a search across the volume fraction needs (the felt's went
 #: 0.005 -> 0.0035: 6 walks at 10 %), and ``beta``'s curvature in ``log v`` over it stays far below the walks'
-#: Monte Carlo error (the blend's deviation from a walk at the value itself: tests/fabric_optics/fit/test_lattice_walks.py).
+#: Monte Carlo error (the blend's deviation from a walk at the value itself: tests/fabric_optics/fitting/test_lattice_walks.py).
 STRUCTURED_LATTICE_STEP = 0.20
 #: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
 KNOT_LOW, KNOT_HIGH = -4.0, 0.5
 #: Fields only the Monte Carlo sees (kind ``"fine"``), with their valid range: the rough boundary for transmitted
 #: light (docs/physics.md 3). The summation and classic model walk the smooth boundary
 #: (:func:`simulate.products.smooth_boundary_unless_mc`), so a fit of theirs refuses them; the Monte Carlo fit
-#: takes their trend from Monte Carlo runs themselves (:mod:`fabric_optics.fit.mc`, "Parameters only the Monte Carlo sees").
+#: takes their trend from Monte Carlo runs themselves (:mod:`fabric_optics.fitting.mc`, "Parameters only the Monte Carlo sees").
 FINE_FIELDS = {"surface.transmission_rms_slope": (0.0, 1.0), "surface.transmission_rms_slope_around": (0.0, 1.0)}
 
 
@@ -102,7 +102,7 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
     fiber's radius; widened to hold the start); band
     centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
     ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0). Structure fields
-    (:data:`fabric_optics.fit.structure.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg. The boundary's
+    (:data:`fabric_optics.fitting.structure.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg. The boundary's
     slopes for transmitted light (:data:`FINE_FIELDS`): ``[0, 1]``, their valid range (0 is the smooth boundary).
     """
     if path in STRUCTURE_FIELDS:
@@ -279,7 +279,7 @@ class FitProblem:
     walk_seconds: float = 0.0
     evaluations: int = 0
     photons: dict | None = None
-    #: the fit's output directory: walks are checkpointed in it (fabric_optics.fit.state)
+    #: the fit's output directory: walks are checkpointed in it (fabric_optics.fitting.state)
     out: Path | None = None
     #: ``progress(photons, run, runs)`` during walks (simulate.fiber.absorption.absorption_table)
     walk_progress: Callable[[int, int, int], None] | None = None
@@ -287,7 +287,7 @@ class FitProblem:
     reweight: bool = True
     reweights: int = 0
     reweight_seconds: float = 0.0
-    #: structured walks and re-weighted passes read whole from the disk cache (fabric_optics.fit.structure.walk_structure);
+    #: structured walks and re-weighted passes read whole from the disk cache (fabric_optics.fitting.structure.walk_structure);
     #: they are also counted in ``walks`` / ``reweights``
     cached_walks: int = 0
     #: ``(bound of the last re-weighting considered, the reference walk's own)`` (diagnostics)
@@ -315,19 +315,17 @@ class FitProblem:
         self.wavelengths_nm = _checked_wavelengths(self.wavelengths_nm)
         self.notes: list[str] = []
         spec = getattr(self.config, "structure", None)
-        #: the structured summation of simulate fabric (fabric_optics.fit.structure) instead of the top-cell carpet
+        #: the structured summation of simulate fabric (fabric_optics.fitting.structure) instead of the top-cell carpet
         self.structured = self.method == "summation" and spec is not None
-        if self.method == "summation" and spec is not None and not self.structured:
-            self.notes.append("[structure] cells = \"top\": the fit's summation is the carpet of top cells")
         fine = [p.name for p in self.free if p.kind == "fine"]
         if fine and not self.fine_capable:
             raise FitError(f"--free {fine[0]}: only the Monte Carlo sees the rough boundary for transmitted light "
                            f"(the {self.method} model walks the smooth one, docs/physics.md 3); fit it with --method mc")
         if any(p.kind == "structure" for p in self.free) and not self.structured:
-            raise FitError("--free structure.*: structure parameters need --method summation and a config whose "
-                           "[structure] has cells = \"visible\"")
+            raise FitError("--free structure.*: structure parameters need --method summation and a config with "
+                           "a [structure] section")
         if self.structured:
-            # the interior closure's surface share is computed at the starting RMS slope (fabric_optics.fit.structure)
+            # the interior closure's surface share is computed at the starting RMS slope (fabric_optics.fitting.structure)
             self._roughness = float(self.config.rms_slope)
             self._facets: dict = {}
         self._drop_grazing()
@@ -395,7 +393,7 @@ class FitProblem:
     def _structured_table(self, config: SimulationConfig) -> AbsorptionTable:
         """The structured summation's table of ``config``: its walk's, or -- a walked parameter between two
         lattice points -- the interpolation of the walks at the lattice points around it (:meth:`lattice_corners`)."""
-        from fabric_optics.fit.structure import structure_key
+        from fabric_optics.fitting.structure import structure_key
 
         key = structure_key(config)
         facets = self._facets_of(config)
@@ -459,7 +457,7 @@ class FitProblem:
         return walk
 
     def _facets_of(self, config: SimulationConfig) -> Any:
-        from fabric_optics.fit.structure import facets_of, structure_key
+        from fabric_optics.fitting.structure import facets_of, structure_key
 
         key = structure_key(config)
         if key not in self._facets:
@@ -536,7 +534,7 @@ class FitProblem:
         nodes = absorption_nodes(self.nu_max, self.nodes)
         cache = None
         if self.out is not None:
-            from fabric_optics.fit.state import WalkCheckpoint
+            from fabric_optics.fitting.state import WalkCheckpoint
 
             cache = WalkCheckpoint(self.out, self.identity(), key, nodes, self.photons)
         table = absorption_table(nodye, w_in, outputs, wl, nodes, method=route, target_rel_err=self.target_rel_err,
@@ -558,8 +556,8 @@ class FitProblem:
         return table
 
     def _run_structured(self, nodye: Any, ref: tuple | None, config: SimulationConfig) -> Any:
-        """The structured walk (:func:`fabric_optics.fit.structure.walk_structure`); not checkpointed per run."""
-        from fabric_optics.fit.structure import walk_structure, walk_wavelengths
+        """The structured walk (:func:`fabric_optics.fitting.structure.walk_structure`); not checkpointed per run."""
+        from fabric_optics.fitting.structure import walk_structure, walk_wavelengths
 
         rough = dataclasses.replace(nodye, roughness=self._roughness)
         reference = None if ref is None else dataclasses.replace(ref[0], roughness=self._roughness)
@@ -630,7 +628,7 @@ class FitProblem:
 
     def _surface(self, config: SimulationConfig, R: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if self.structured:
-            from fabric_optics.fit.structure import surface_beta
+            from fabric_optics.fitting.structure import surface_beta
 
             return R + surface_beta(config, self._facets_of(config), self.w_i, self.w_o)[:, None], u
         if self.method == "classic":

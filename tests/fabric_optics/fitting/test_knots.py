@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from simulate.config import ConfigError, parse_config
-from fabric_optics.fit.driver import FitProblem, parse_free, run_fit
-from fabric_optics.fit.start import inverted_start, knots_config
+from fabric_optics.fitting.driver import FitProblem, parse_free, run_fit
+from fabric_optics.fitting.start import inverted_start, knots_config
 from fabric_optics.paths import toml_dumps
 
 from .conftest import WAVELENGTHS, measurement

@@ -4,7 +4,7 @@ r"""``simulate fit``: fit named config parameters of a fabric model to a measure
 [--dye knots] [--max-evaluations N] [--resume]``
 
 ``--method mc`` (the woven/felt Monte Carlo, fitted by output space mapping through the structured
-summation) is :mod:`fabric_optics.fit.mc`; :func:`fabric_optics.fit.methods.method_runner` chooses between them.
+summation) is :mod:`fabric_optics.fitting.mc`; :func:`fabric_optics.fitting.methods.method_runner` chooses between them.
 
 Parameters
 ----------
@@ -20,9 +20,9 @@ curve (``knots``/``gaussian-bands``/``logistic-edge``): a few coefficients descr
 spectrum, a free table would be an ill-posed fit of 30 values.
 
 A dye of any colour: ``--dye knots`` replaces the config's dye by 8 knots of log10 absorption
-spanning the model wavelengths (:func:`fabric_optics.fit.start.knots_config`); whenever knots are free
+spanning the model wavelengths (:func:`fabric_optics.fitting.start.knots_config`); whenever knots are free
 the search starts from the knots inverted from the measured colour through the model's own
-absorption table (:func:`fabric_optics.fit.start.inverted_start`: the start has the measured hue and
+absorption table (:func:`fabric_optics.fitting.start.inverted_start`: the start has the measured hue and
 saturation at the colour geometry), not from the config's. Two Gaussian bands started from red
 cotton could not turn green (the felt: hue -0.044 turn, ds -0.16 left after the fit).
 
@@ -71,13 +71,13 @@ parameters (exact common random numbers; the re-weighted estimate equals a fresh
 standard errors, tested). The variance bound :func:`simulate.fiber.spectral.reweight_exponent`
 (``ln E[w^2] ~= N [(r - 1)^2 + ln(1 + chi^2)]``, ``N`` the mean scatterings per photon, counted by
 the kernel) decides: a point whose bound exceeds the lattice walk's own (its wavelength groups'
-spread) by more than ``ln 4`` (:data:`fabric_optics.fit.problem.REWEIGHT_LIMIT`) is walked itself. On red
+spread) by more than ``ln 4`` (:data:`fabric_optics.fitting.problem.REWEIGHT_LIMIT`) is walked itself. On red
 cotton (``N`` ~ 40-55) the bound allows about +-10 % in volume fraction or particle radius (the
 lattice needs +-5 %); the measured standard error grew by 4-13 % there, far below the bound (scores
 come mostly from short paths). A re-weighted pass costs about what a walk costs (the kernel walks
 the same paths to score them): the gain is the smooth objective, not the pass. ``fit.json`` counts
 ``walks`` and ``reweighted`` passes apart. The structured summation (``[structure]``,
-:mod:`fabric_optics.fit.structure`) does not re-weight: its walks at the points of a 20 % lattice are
+:mod:`fabric_optics.fitting.structure`) does not re-weight: its walks at the points of a 20 % lattice are
 blended, multilinear in ``log v`` (:meth:`FitProblem.lattice_corners`), so only lattice points are
 walked, and each walk is kept in the disk table cache (``fit.json`` ``walks_from_cache``).
 
@@ -127,7 +127,7 @@ Interrupt and resume
 --------------------
 Progress: a walk bar counts photons from the first batch round of the first run (and the runs
 done, ``run i/N``), the fit bar counts evaluations against the budget. Every finished Monte Carlo
-run is checkpointed in ``DIR/walks/`` (:mod:`fabric_optics.fit.state`), and the last accepted point (the
+run is checkpointed in ``DIR/walks/`` (:mod:`fabric_optics.fitting.state`), and the last accepted point (the
 best objective so far: trust-region steps are accepted only when they lower it; the start is the
 first) is written atomically to ``DIR/fit-state.json`` after every improvement, with the photon
 counts. ``--resume`` continues from the state file, or -- stopped during the first walk, before
@@ -156,9 +156,9 @@ import numpy as np
 
 from gonio.data.dataset import make_dataset
 
-from fabric_optics.fit.problem import GENERATOR, FitError, FitProblem, FreeParameter, default_bounds, parse_free
-from fabric_optics.fit.start import inverted_start
-from fabric_optics.fit.state import WALKS_DIR, WalkCheckpoint, write_json_atomic
+from fabric_optics.fitting.problem import GENERATOR, FitError, FitProblem, FreeParameter, default_bounds, parse_free
+from fabric_optics.fitting.start import inverted_start
+from fabric_optics.fitting.state import WALKS_DIR, WalkCheckpoint, write_json_atomic
 from fabric_optics.paths import toml_dumps
 
 __all__ = [

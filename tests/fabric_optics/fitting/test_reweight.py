@@ -16,7 +16,7 @@ from simulate.config import parse_config
 from simulate.fiber.absorption import absorption_nodes, absorption_table
 from simulate.fiber.spectral import phase_chi2, reweight_exponent, spectral_optics
 from simulate.montecarlo.scatter import phase_arrays
-from fabric_optics.fit.driver import FitProblem, parse_free
+from fabric_optics.fitting.driver import FitProblem, parse_free
 from fabric_optics.paths import toml_dumps
 
 from .conftest import WAVELENGTHS, measurement
@@ -93,7 +93,7 @@ def test_fit_problem_reweights_near_and_walks_far(red_cotton):
 
 
 def test_a_change_past_the_bound_is_walked_itself(red_cotton, monkeypatch):
-    from fabric_optics.fit import problem as fit_problem
+    from fabric_optics.fitting import problem as fit_problem
 
     monkeypatch.setattr(fit_problem, "LATTICE_STEP", 1.0)  # lattice points e-fold apart: too far to re-weight
     flat = measurement(lambda g, wl: np.full((len(g), wl.size), 0.3), None)

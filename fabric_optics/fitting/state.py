@@ -15,7 +15,7 @@ be deleted at any time.
 
 State file
 ----------
-``DIR/fit-state.json``: the last accepted point (see :mod:`fabric_optics.fit.driver`).
+``DIR/fit-state.json``: the last accepted point (see :mod:`fabric_optics.fitting.driver`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Independent walk entries run two at a time on threads, with one progress, one cancel and one thread budget.
 
-:func:`fabric_optics.fit.structure.walk_structure` is made of independent ``(half, chunk)`` entries, each seeded
+:func:`fabric_optics.fitting.structure.walk_structure` is made of independent ``(half, chunk)`` entries, each seeded
 by its own ``(seed, half, node, chunk)`` streams. Run one after the other, the parts of an entry that are
 not the kernel's parallel rows (the layer table, the interior closure, the symmetrisation: ~70 % of the
 felt's cold walk) kept ONE core busy on a 2-core machine. :func:`run_entries` runs them on a
@@ -10,7 +10,7 @@ in a worker does not change the caller's). The compiled hot loops are ``nogil=Tr
 overlap (numpy releases the GIL in its own loops). An entry's numbers do not depend on the thread that
 runs it nor on its kernel threads (every parallel loop writes disjoint elements; the rows are reduced in
 batch order: :mod:`simulate.montecarlo.rows`), so the walk is bit-identical to the serial one
-(``tests/fabric_optics/fit/test_walk_threads.py``).
+(``tests/fabric_optics/fitting/test_walk_threads.py``).
 
 Interrupts (issue 20: Ctrl-C within a second, finished entries kept): signals reach only the main thread,
 which waits for the entries in an interruptible wait. On any exception there (KeyboardInterrupt, or a

@@ -13,7 +13,7 @@ from gonio.data import read_dataset, write_dataset
 from simulate import fiber as fib
 from fabric_optics.cli.simulate import main
 from simulate.config import load_config, parse_config
-from fabric_optics.fit.driver import STATE_NAME, FitError, FitProblem, parse_free, run_fit, toml_dumps
+from fabric_optics.fitting.driver import STATE_NAME, FitError, FitProblem, parse_free, run_fit, toml_dumps
 from simulate.fiber.absorption import absorption_nodes, absorption_table
 
 from .conftest import WAVELENGTHS, measurement, model_measurement, sibling
@@ -225,7 +225,7 @@ def test_recovery_of_a_walked_parameter(red_cotton):
 def test_objective_uses_compare_prepared_once_with_the_same_figures(base_problem):
     """The fit's residuals (compare.residual, prepared once) equal those of a full compare_datasets run
     of the model written as a dataset, for the measurement and for a noise draw of it (issue 21)."""
-    from tests.fabric_optics.fit.conftest import model_measurement, sibling
+    from tests.fabric_optics.fitting.conftest import model_measurement, sibling
 
     x0 = np.array([p.start for p in base_problem.free])
     measured = model_measurement(base_problem, x0 * np.array([1.3, 0.8]), noise_seed=3)
@@ -254,7 +254,7 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out(base_problem, caplog
     weak = (table["theta_i"] == 0.0) & (table["wavelength_nm"] == WAVELENGTHS[0])
     table.loc[weak, "u_beta"] = 3.0 * table.loc[weak, "beta"]
     problem = sibling(base_problem, make_dataset(table, meas.meta))
-    with caplog.at_level(logging.WARNING, logger="fabric_optics.fit.driver"):
+    with caplog.at_level(logging.WARNING, logger="fabric_optics.fitting.driver"):
         result = run_fit(problem, noise_draws=8, max_evaluations=20)
     assert any("noise draws left out" in r.getMessage() for r in caplog.records)
     assert np.all(np.isfinite(result.u)) and np.all(result.u > 0)

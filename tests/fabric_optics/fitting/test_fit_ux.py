@@ -11,9 +11,9 @@ import pytest
 
 from gonio.data import write_dataset
 from fabric_optics.cli.simulate import main
-from fabric_optics.fit import problem as fit_problem
-from fabric_optics.fit.driver import STATE_NAME, FitError, FitProblem, run_fit
-from fabric_optics.fit.state import WALKS_DIR
+from fabric_optics.fitting import problem as fit_problem
+from fabric_optics.fitting.driver import STATE_NAME, FitError, FitProblem, run_fit
+from fabric_optics.fitting.state import WALKS_DIR
 
 from .conftest import measurement, model_measurement
 
@@ -89,7 +89,7 @@ def test_ctrl_c_names_the_walk_parts_this_fit_left_in_the_table_cache(base_probl
                                                                       monkeypatch):
     """A structured walk keeps its finished parts in the table cache, not in DIR: the message says how many
     THIS fit stored (a part stored before it began is not claimed) and where they are."""
-    import fabric_optics.fit.methods as fit_module
+    import fabric_optics.fitting.methods as fit_module
     from simulate.fiber import tablecache
 
     monkeypatch.setenv(tablecache.ENV_DIR, str(tmp_path / "cache"))

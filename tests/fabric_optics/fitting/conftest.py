@@ -8,7 +8,7 @@ import pytest
 
 from gonio.data import in_plane_geometry, make_dataset, new_meta
 from simulate.config import load_config
-from fabric_optics.fit.driver import FitProblem, parse_free
+from fabric_optics.fitting.driver import FitProblem, parse_free
 
 WAVELENGTHS = np.arange(420.0, 701.0, 20.0)  # ASTM E308 needs a 1, 5, 10 or 20 nm step
 #: the mock goniophotometer's typical relative standard uncertainty (median of the demo: 1.1 %)

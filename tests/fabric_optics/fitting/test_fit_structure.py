@@ -1,4 +1,4 @@
-"""The structured summation in simulate fit (fabric_optics.fit.structure): same numbers as simulate fabric,
+"""The structured summation in simulate fit (fabric_optics.fitting.structure): same numbers as simulate fabric,
 structure parameters free, recovered, validated."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from fabric_optics.cli.simulate import main
 from simulate.config import load_config, parse_config
 from simulate.fabric import structure as st
 from simulate.fiber.absorption import absorption_nodes
-from fabric_optics.fit import structure as fit_structure
-from fabric_optics.fit.driver import FitError, FitProblem, parse_free, run_fit
+from fabric_optics.fitting import structure as fit_structure
+from fabric_optics.fitting.driver import FitError, FitProblem, parse_free, run_fit
 from fabric_optics.paths import toml_dumps
 
 from .conftest import geometry_table
@@ -100,7 +100,7 @@ def test_recovery_of_felt_spread():
     """A synthetic felt (the model at a known spread, 1 % noise) is fitted back within 3.5 reported standard
     uncertainties, without a walk beyond the first (the spread re-runs the facet sum only).
 
-    The walked parameters' recovery is ``tests/fabric_optics/fit/test_fit.py::test_recovery_of_a_walked_parameter``.
+    The walked parameters' recovery is ``tests/fabric_optics/fitting/test_fit.py::test_recovery_of_a_walked_parameter``.
     A joint recovery of spread and volume fraction at this test's 10 % walks is not asserted: the objective
     in the volume fraction is piecewise (one walk per 10 % lattice cell) and its jumps between walks exceed
     the data noise, which the reported ``u`` does not contain (docs/physics.md 6.5)."""

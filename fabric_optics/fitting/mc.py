@@ -11,7 +11,7 @@ Bandler, Cheng, Dakroury, Mohamed, Bakr, Madsen and Sondergaard, "Space mapping:
 art", IEEE Trans. Microwave Theory Tech. 52(1), 337-361 (2004); Koziel, Bandler and Madsen, "A space
 mapping framework for engineering optimization: theory and implementation", IEEE MTT 54(10),
 3721-3730 (2006) (output space mapping, section III). The **coarse model** is the structured
-summation of the same config (:class:`fabric_optics.fit.problem.FitProblem` with ``method="summation"``:
+summation of the same config (:class:`fabric_optics.fitting.problem.FitProblem` with ``method="summation"``:
 its exit tables walked once, any dye read from their absorption nodes, no photon per evaluation);
 the **fine model** is the Monte Carlo at fixed seeds. Iterate ``k = 0, 1, ...``:
 
@@ -25,7 +25,7 @@ the **fine model** is the Monte Carlo at fixed seeds. Iterate ``k = 0, 1, ...``:
    error is the Monte Carlo's) and follows the summation's trend around it. ``TINY`` = 0.05 of the
    geometry's spectral peak (:data:`TINY`), the convention of the relative error of
    :func:`simulate.montecarlo.accuracy.relative_error`;
-3. fit ``s_k`` to the measurement with the summation fit itself (:func:`fabric_optics.fit.driver.run_fit`: the
+3. fit ``s_k`` to the measurement with the summation fit itself (:func:`fabric_optics.fitting.driver.run_fit`: the
    same objective ``NRMSE^2 + w_c (dh^2 + ds^2)``, trust-region search from ``x_k``, its walk
    re-used: no photon walked after the first iteration) -> ``x_{k+1}`` with uncertainties;
 4. run the Monte Carlo at ``x_{k+1}``. It is accepted when its Monte Carlo objective is below the best
@@ -62,14 +62,14 @@ Uncertainties
 -------------
 At the final point ``x*`` the correction is formed from the Monte Carlo at ``x*`` (the surrogate
 equals it there) and the result is linearised with the surrogate's Jacobian ``J`` (finite
-differences as :func:`fabric_optics.fit.driver.jacobian`): ``u_data`` from 64 noise draws of the measurement's
+differences as :func:`fabric_optics.fitting.driver.jacobian`): ``u_data`` from 64 noise draws of the measurement's
 ``u_beta`` through the whole objective, ``u_mc`` from 64 draws of the Monte Carlo's ``u_beta`` at
 ``x*`` (the correction perturbed, the summation's own table noise cancels in ``S(x)/S(x*)`` to
 first order), ``u = sqrt(u_data^2 + u_mc^2)`` -- the fields of the summation fit's ``fit.json``.
 
 Parameters only the Monte Carlo sees
 ------------------------------------
-The boundary's roughness for transmitted light (:data:`fabric_optics.fit.problem.FINE_FIELDS`, docs/physics.md 3)
+The boundary's roughness for transmitted light (:data:`fabric_optics.fitting.problem.FINE_FIELDS`, docs/physics.md 3)
 does not exist in the summation (it walks the smooth boundary), so a zero-order correction has no trend
 to borrow for it: its surrogate Jacobian would be zero and the search would never move it. For these
 *fine* parameters the surrogate takes its first-order term from the Monte Carlo itself -- the first-order
@@ -108,7 +108,7 @@ free parameters, seed, target) is refused. The summation's exit tables are walke
 (~1-2 min on the felt: they are not on disk). Ctrl-C stops within the current Monte Carlo batch and
 says what is kept (exit 130).
 
-Outputs: as the other methods (:func:`fabric_optics.fit.driver.write_outputs`): ``fitted.toml``, ``initial/``
+Outputs: as the other methods (:func:`fabric_optics.fitting.driver.write_outputs`): ``fitted.toml``, ``initial/``
 (the Monte Carlo at the start), ``fitted/`` (the Monte Carlo at the fitted point: the run of the
 search itself, not a new one), ``report/``, ``fit.json`` (``method = "mc"``; ``info.iterations``:
 per Monte Carlo run ``x``, NRMSE, dh, ds, objective, the step ``dx``, seconds and the proposal it led
@@ -130,8 +130,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from fabric_optics.fit.problem import FitError, FitProblem
-from fabric_optics.fit.state import write_json_atomic
+from fabric_optics.fitting.problem import FitError, FitProblem
+from fabric_optics.fitting.state import write_json_atomic
 
 __all__ = ["MC_STATE", "MC_RUNS_DIR", "DEFAULT_MC_RUNS", "INNER_EVALUATIONS", "TINY", "MCFitProblem", "MCRun",
            "correction", "run_mc_fit", "write_mc_outputs", "left_behind"]
@@ -145,7 +145,7 @@ MC_SCHEMA = "simulate-fit-mc-state/1"
 DEFAULT_MC_RUNS = 5
 #: consecutive backtracking steps (half the step from the best run) after a run that did not improve
 MAX_HALVINGS = 1
-#: summation evaluations of each surrogate fit (fabric_optics.fit.driver.run_fit's budget)
+#: summation evaluations of each surrogate fit (fabric_optics.fitting.driver.run_fit's budget)
 INNER_EVALUATIONS = 400
 #: below this share of the geometry's spectral peak of the summation the correction is additive
 TINY = 0.05
@@ -412,7 +412,7 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     there (module docstring); ``data=False``: the Monte Carlo part only (``cov_data`` zero)."""
     from compare.errors import CompareError
     from gonio.data.dataset import make_dataset
-    from fabric_optics.fit.driver import jacobian
+    from fabric_optics.fitting.driver import jacobian
 
     problem.set_correction(x, beta, u_beta)
     r0 = problem.residuals(x)
@@ -434,14 +434,14 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
             dp_mc.append(-pinv @ (problem.residuals(x) - r0))
         except CompareError:
             # a noisy Monte Carlo (a loose --target-rel-err) can put a draw's normal/normal value at or
-            # below zero; it cannot be normalised and is left out, as in fabric_optics.fit.driver.run_fit
+            # below zero; it cannot be normalised and is left out, as in fabric_optics.fitting.driver.run_fit
             refused += 1
     problem.set_correction(x, beta, u_beta)
     if refused:
         log.warning("%d of %d noise draws left out of the uncertainty: their normal/normal value was not positive",
                     refused, (2 if data else 1) * draws)
     # the leading zero row stands for a part not drawn (data=False: no data part); a part drawn whose draws
-    # were all refused could not be estimated: all-NaN (fabric_optics.fit.driver.uncertainty_parts says so)
+    # were all refused could not be estimated: all-NaN (fabric_optics.fitting.driver.uncertainty_parts says so)
     unknown = np.full((x.size, x.size), np.nan)
     cov = [unknown if attempted and len(dp) == 1 else np.atleast_2d(np.cov(np.array(dp[1:] or dp).T, bias=True))
            for dp, attempted in ((dp_data, data and draws > 0), (dp_mc, draws > 0))]
@@ -462,9 +462,9 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     """Fit the Monte Carlo to ``problem.measured`` by output space mapping (module docstring).
 
     ``max_evaluations``: Monte Carlo runs in all (the start's included, >= 2). Returns a
-    :class:`fabric_optics.fit.driver.FitResult` whose ``info["iterations"]`` lists the runs.
+    :class:`fabric_optics.fitting.driver.FitResult` whose ``info["iterations"]`` lists the runs.
     """
-    from fabric_optics.fit.driver import COLOUR_TOLERANCE, FitResult, at_bounds, identifiability, run_fit, uncertainty_parts
+    from fabric_optics.fitting.driver import COLOUR_TOLERANCE, FitResult, at_bounds, identifiability, run_fit, uncertainty_parts
 
     if max_evaluations < 2:
         raise FitError(f"--max-evaluations {max_evaluations}: --method mc needs at least 2 Monte Carlo runs "
@@ -628,9 +628,9 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
 
 
 def write_mc_outputs(problem: MCFitProblem, result: Any, out: Path) -> dict:
-    """The outputs of :func:`fabric_optics.fit.driver.write_outputs`, the datasets being the Monte Carlo runs of the fit at
+    """The outputs of :func:`fabric_optics.fitting.driver.write_outputs`, the datasets being the Monte Carlo runs of the fit at
     the start and at the fitted point (the search's own runs, not run again)."""
-    from fabric_optics.fit.driver import write_outputs
+    from fabric_optics.fitting.driver import write_outputs
 
     problem.fine_runs = problem.mc_runs
     problem.method = "mc"
