@@ -1,4 +1,4 @@
-"""Crafted inputs of issue 23: each is one line naming the file or field, exit 2, bounded memory and time.
+"""Crafted inputs: each is one line naming the file or field, exit 2, bounded memory and time.
 
 Every case here used to allocate gigabytes (or raise a traceback) before any check; the bounds
 are :data:`simulate.fabric.weave.MAX_TRIANGLES`, :data:`simulate.fabric.weave.MAX_WEAVE_CELLS`,
