@@ -173,6 +173,10 @@ def _bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output directory (bench.json, bench.png)")
     add_force(p)
     p.add_argument("--quick", action="store_true", help="smoke test: small runs, a few seconds")
+    from fabric_optics.bench.studies import STUDIES
+
+    p.add_argument("--study", choices=sorted(STUDIES), help="run this documented study instead of the benchmark: "
+                   + "; ".join(f"{k}: {v[0]}" for k, v in sorted(STUDIES.items())) + " (OUT/NAME.json)")
 
 
 def _bench_run(args: argparse.Namespace) -> int:
@@ -186,6 +190,11 @@ def _bench_run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    if args.study:
+        from fabric_optics.bench.studies import run_study
+
+        print("\n".join(run_study(args.study, out, quick=args.quick)) + f"\n\nwrote {out / (args.study + '.json')}")
+        return 0
     report = run_bench(out, quick=args.quick)
     print(markdown_table(report))
     print(f"\nwrote {out / 'bench.json'} and {out / 'bench.png'}")

@@ -15,7 +15,7 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   parallel fibers at spacing ``d = 2 R spacing_ratio`` (the packing fraction's); here the fibers'
   projected area ``2 R l cos(epsilon)`` adds up to the same ``layers L^2 / spacing_ratio`` (the same
   amount of fiber per unit area).
-* **No two fibers interpenetrate** (issue 19). Fibers placed independently overlap where they cross
+* **No two fibers interpenetrate**. Fibers placed independently overlap where they cross
   (at the layers' density a covered point lay in 1.47 fibers on average), and a tracer that walks
   each fiber's volume from a table walks the shared material once per fiber: with absorbing fibers
   the felt was 16 % too dark (docs/physics.md 6). Treating the union instead would need the walk in
@@ -30,13 +30,13 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   (``info["volume_fraction"]``, measured between the quartiles of the centres' heights). Random
   sequential addition with rejection in a slab reaches no more (it jammed at 0.14-0.19, the fibers'
   volume over their centres' slab, 20 000 tries a fiber), and picking the lowest of 4-16 positions
-  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured, 2026-11-24).
+  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured).
   The summation's layers of touching fibers (packing 0.9069) are beyond any random straight-fiber
   layer: the felt keeps the layers' *fiber amount* and the orientation distribution and takes the
   thickness the deposition gives (10 touching layers of 20-um fibers: ~1.2-1.8 mm instead of 0.2 mm).
   A requested packing below the deposition's density (< ~0.11) is not loosened further (it only sets
   the fiber count): compare with the summation at the felt's measured volume fraction
-  (``fabric_optics/bench/woven_felt.py --packing``).
+  (the felt study, :func:`fabric_optics.bench.felt.run_felt_study` with ``packing_fraction``).
 * **Ends**: the tubes are open. An end is ``R / l = 2.5 %`` of a fiber's surface; light that enters
   one meets the tube's inside and is taken into the fiber's volume (the interpenetration rule).
 * **Mesh**: the weave mesh's contract (:mod:`simulate.fabric.weave`): one "yarn" per fiber image,
