@@ -47,16 +47,56 @@ from gonio.data import GEOMETRY
 
 from .errors import CompareError
 
-__all__ = ["ColourMatch", "SimulatedColour", "band_luminance_weights", "colour_geometry",
-           "colour_match", "colour_of", "luminance_weights"]
+__all__ = ["ColourMatch", "SimulatedColour", "MAX_COLOUR_STEP_NM", "band_luminance_weights", "colour_geometry",
+           "colour_match", "colour_of", "colour_refusal", "luminance_weights"]
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
+#: the widest step between the compared wavelengths of a spectrum whose colour is stated (the spectrum is
+#: linearly interpolated to 5 nm between them: :func:`compare.bands.colour_resampling`)
+MAX_COLOUR_STEP_NM = 50.0
+
+
+def colour_refusal(wavelength_nm, illuminant: str = "D65") -> str | None:
+    """Why no colour (H, S, V) is stated for spectra on ``wavelength_nm``, or None when it is.
+
+    The rule: a colour is stated when the wavelengths span at least
+    :data:`compare.bands.MIN_CHANNEL_COVERAGE` (99 %) of each linear sRGB channel's weight under
+    ``illuminant`` (about 410..690 nm: :func:`compare.bands.channel_coverage`, the rule that converts a
+    spectrum to a measurement's channels) and are at most :data:`MAX_COLOUR_STEP_NM` apart. Outside that
+    the colour would rest on values extrapolated or interpolated across a band, e.g. the blue channel of
+    a 450/550/650 nm measurement (64 % of its weight inside 450..650 nm): the curves are compared, the
+    colour is not.
+    """
+    from .bands import MIN_CHANNEL_COVERAGE, channel_coverage
+
+    wl = np.sort(np.asarray(wavelength_nm, dtype=float).ravel())
+    if wl.size < 2:
+        return f"a colour needs a spectrum of at least two wavelengths; the comparison has {wl.size}"
+    coverage = channel_coverage(wl[0], wl[-1], ("R", "G", "B"), illuminant=illuminant)
+    if np.any(coverage < MIN_CHANNEL_COVERAGE):
+        k = int(np.argmin(coverage))
+        return (f"the compared wavelengths span {wl[0]:g}..{wl[-1]:g} nm, which carries only "
+                f"{100 * coverage[k]:.1f}% of the weight of the sRGB {'RGB'[k]} channel (illuminant {illuminant}); "
+                f"a colour is stated from spectra spanning >= {100 * MIN_CHANNEL_COVERAGE:g}% of each channel "
+                "(about 410..690 nm)")
+    step = float(np.max(np.diff(wl)))
+    if step > MAX_COLOUR_STEP_NM + 1e-9:
+        return (f"the compared wavelengths are up to {step:g} nm apart; a colour is stated from spectra sampled "
+                f"at least every {MAX_COLOUR_STEP_NM:g} nm (then interpolated linearly to 5 nm)")
+    return None
 
 
 @lru_cache(maxsize=16)
 def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
     import colour
 
+    from .bands import colour_resampling
+
+    grid, interp = colour_resampling(wavelengths)
+    if interp is not None:
+        # a grid ASTM E308 does not integrate (not 1, 5, 10 or 20 nm, or uneven): the weights of the spectrum
+        # interpolated linearly to 5 nm (compare.bands.colour_resampling), a linear map of the given values
+        return interp.T @ _weights(tuple(float(x) for x in grid), illuminant)
     wl = np.asarray(wavelengths)
     basis = colour.MultiSpectralDistributions(np.eye(wl.size), wl)
     # colour-science warns while it trims/extends each basis spectrum to the observer's range,
@@ -171,7 +211,11 @@ def colour_of(wl, beta, illuminant: str, what: str, bands=None) -> ColourSummary
         if bands is not None and bands.is_rgb:
             return rgb_colour({bands.label(b): v for b, v in zip(wl, beta)},
                               colour_space=bands.colour_space)
-        return spectrum_colour(wl, beta, illuminant=illuminant)
+        from .bands import colour_resampling
+
+        grid, interp = colour_resampling(wl)
+        values = np.asarray(beta, dtype=float)
+        return spectrum_colour(grid, values if interp is None else interp @ values, illuminant=illuminant)
     except ValueError as exc:
         raise CompareError(f"no colour for {what}: {exc}") from None
 

@@ -538,6 +538,14 @@ def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 
+def _fit_interrupted(args: argparse.Namespace, walk_parts_before: int) -> str:
+    """What an interrupted fit left for ``--resume`` (only what exists)."""
+    if args.method == "mc":
+        from studies.fit_mc import left_behind
+        return left_behind(args.out)
+    return _fit_left_behind(args.out, walk_parts_before)
+
+
 def _fit_run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -599,17 +607,16 @@ def _fit_run(args: argparse.Namespace) -> int:
     except FitError as exc:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
-        if args.method == "mc":
-            from studies.fit_mc import left_behind
-            said = left_behind(args.out)
-        else:
-            said = _fit_left_behind(args.out, walk_parts_before)
-        print(f"simulate fit: interrupted; {said}", file=sys.stderr)
+        print(f"simulate fit: interrupted; {_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
         return 130
     try:
         doc = write_outputs(problem, result, args.out)
     except OSError as exc:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
+    except KeyboardInterrupt:   # the outputs are put in place together: none of them was changed
+        print(f"simulate fit: interrupted while writing the outputs, which are unchanged in {args.out}; "
+              f"{_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
+        return 130
     for p in doc["parameters"]:
         print(f"{p['name']} = {p['value']:.6g} +- {p['u']:.2g}   (start {p['start']:.6g}, bounds "
               f"[{p['low']:g}, {p['high']:g}])")
