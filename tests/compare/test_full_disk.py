@@ -120,7 +120,7 @@ def test_a_render_set_on_a_full_disk_writes_nothing(tmp_path, monkeypatch):
 
 
 def test_simulate_export_on_a_full_disk_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
-    from simulate.cli import main
+    from fabric_optics.cli.simulate import main
 
     out = tmp_path / "c.bsdf"
     _full_after(monkeypatch, 0)

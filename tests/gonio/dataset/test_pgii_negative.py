@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from gonio.cli import main as gonio_main
+from fabric_optics.cli.gonio import main as gonio_main
 from gonio.data import read_dataset
 from gonio.data.formats import FormatError, import_notes
 from gonio.data.formats.pgii import NEGATIVE_NOISE, parse_pgii, pgii_dataset
