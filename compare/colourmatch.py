@@ -59,30 +59,26 @@ MAX_COLOUR_STEP_NM = 50.0
 def colour_refusal(wavelength_nm, illuminant: str = "D65") -> str | None:
     """Why no colour (H, S, V) is stated for spectra on ``wavelength_nm``, or None when it is.
 
-    The rule: a colour is stated when the wavelengths span at least
-    :data:`compare.bands.MIN_CHANNEL_COVERAGE` (99 %) of each linear sRGB channel's weight under
-    ``illuminant`` (about 410..690 nm: :func:`compare.bands.channel_coverage`, the rule that converts a
-    spectrum to a measurement's channels) and are at most :data:`MAX_COLOUR_STEP_NM` apart. Outside that
-    the colour would rest on values extrapolated or interpolated across a band, e.g. the blue channel of
-    a 450/550/650 nm measurement (64 % of its weight inside 450..650 nm): the curves are compared, the
-    colour is not.
+    The rule: a spectrum on an evenly spaced 1, 5, 10 or 20 nm grid is integrated as it is (ASTM E308,
+    colour-science); a spectrum on any other grid is first interpolated linearly to 5 nm
+    (:func:`compare.bands.colour_resampling`), which is stated only when its wavelengths are at most
+    :data:`MAX_COLOUR_STEP_NM` apart. Sparser samples (e.g. 450, 550 and 650 nm) do not determine a
+    colour: a band between two of them, where a dye absorbs, would be a straight line. Their curves are
+    compared all the same. ``illuminant`` is accepted for symmetry with the colour functions.
     """
-    from .bands import MIN_CHANNEL_COVERAGE, channel_coverage
+    from .bands import colour_resampling
 
     wl = np.sort(np.asarray(wavelength_nm, dtype=float).ravel())
     if wl.size < 2:
         return f"a colour needs a spectrum of at least two wavelengths; the comparison has {wl.size}"
-    coverage = channel_coverage(wl[0], wl[-1], ("R", "G", "B"), illuminant=illuminant)
-    if np.any(coverage < MIN_CHANNEL_COVERAGE):
-        k = int(np.argmin(coverage))
-        return (f"the compared wavelengths span {wl[0]:g}..{wl[-1]:g} nm, which carries only "
-                f"{100 * coverage[k]:.1f}% of the weight of the sRGB {'RGB'[k]} channel (illuminant {illuminant}); "
-                f"a colour is stated from spectra spanning >= {100 * MIN_CHANNEL_COVERAGE:g}% of each channel "
-                "(about 410..690 nm)")
+    if colour_resampling(wl)[1] is None:
+        return None
     step = float(np.max(np.diff(wl)))
     if step > MAX_COLOUR_STEP_NM + 1e-9:
-        return (f"the compared wavelengths are up to {step:g} nm apart; a colour is stated from spectra sampled "
-                f"at least every {MAX_COLOUR_STEP_NM:g} nm (then interpolated linearly to 5 nm)")
+        shown = ", ".join(f"{w:g}" for w in wl[:8]) + (" ..." if wl.size > 8 else "")
+        return (f"the compared wavelengths ({shown} nm) are up to {step:g} nm apart; a colour is computed from "
+                f"spectra on an even 1, 5, 10 or 20 nm grid, or sampled at least every {MAX_COLOUR_STEP_NM:g} nm "
+                "(then interpolated linearly to 5 nm)")
     return None
 
 
