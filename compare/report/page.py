@@ -272,7 +272,11 @@ def curves_section(comparison: Comparison, metrics: dict) -> Section:
 def colour_section(comparison: Comparison, metrics: dict) -> Section:
     parts: list[str] = []
     colour = metrics["colour"]
-    if not colour:
+    if not colour and comparison.colour_note:
+        parts.append("<h2>Colour match</h2><p class='note'>No colour statement (no H, S, V): "
+                     f"{html.escape(comparison.colour_note)}. The curves and their errors are compared "
+                     "above.</p>")
+    elif not colour:
         parts.append("<h2>Colour match</h2><p class='note'>No colour statement: the measurement "
                      "is photometric (Y only).</p>")
     else:

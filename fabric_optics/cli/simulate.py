@@ -518,6 +518,14 @@ def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 
+def _fit_interrupted(args: argparse.Namespace, walk_parts_before: int) -> str:
+    """What an interrupted fit left for ``--resume`` (only what exists)."""
+    if args.method == "mc":
+        from fabric_optics.fitting.mc import left_behind
+        return left_behind(args.out)
+    return _fit_left_behind(args.out, walk_parts_before)
+
+
 def _fit_run(args: argparse.Namespace) -> int:
     from fabric_optics import api
 
@@ -558,12 +566,11 @@ def _fit_run(args: argparse.Namespace) -> int:
     try:
         outcome = job.run(progress=_progress(args))
     except KeyboardInterrupt:
-        if args.method == "mc":
-            from fabric_optics.fitting.mc import left_behind
-            said = left_behind(args.out)
+        if getattr(job, "phase", "") == "writing":
+            print(f"simulate fit: interrupted while writing the outputs, which are unchanged in {args.out}; "
+                  f"{_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
         else:
-            said = _fit_left_behind(args.out, walk_parts_before)
-        print(f"simulate fit: interrupted; {said}", file=sys.stderr)
+            print(f"simulate fit: interrupted; {_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
         return 130
     except OSError as exc:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
