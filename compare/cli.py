@@ -284,6 +284,11 @@ def _check(args) -> int:
     return 1 if failed else 0
 
 
+def build_parser() -> argparse.ArgumentParser:
+    """The ``compare`` argument parser that :func:`main` uses."""
+    return _parser()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``compare`` command line; return the exit status."""
     parser = _parser()

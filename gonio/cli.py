@@ -469,6 +469,12 @@ def _bench_parser() -> argparse.ArgumentParser:
     return b
 
 
+def build_parser() -> argparse.ArgumentParser:
+    """The ``gonio`` argument parser that :func:`main` uses (``mock`` and ``bench-driver`` have their own:
+    :func:`gonio.mock.cli.build_parser`, :func:`_bench_parser`)."""
+    return _parser()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gonio`` console script; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
