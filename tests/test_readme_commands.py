@@ -54,11 +54,11 @@ PLACEHOLDER = re.compile(r"(?<![\w.-])[A-Z][A-Z_]{2,}(?![\w])")
 
 def _main(prog: str):
     if prog == "gonio":
-        from gonio.cli import main
+        from fabric_optics.cli.gonio import main
     elif prog == "simulate":
-        from simulate.cli import main
+        from fabric_optics.cli.simulate import main
     else:
-        from compare.cli import main
+        from fabric_optics.cli.compare import main
     return main
 
 

@@ -28,3 +28,4 @@ def test_the_manual_builds_in_strict_mode(tmp_path):
         assert (site / page).is_file(), f"the site has no {page}"
     api = (site / "reference/api/index.html").read_text(encoding="utf-8")
     assert "read_dataset" in api and "Read and validate the dataset" in api   # mkdocstrings rendered it
+    assert "measure_on_mock" in api and "simulate" in api
