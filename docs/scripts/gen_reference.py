@@ -117,7 +117,8 @@ def _option_rows(parser: argparse.ArgumentParser) -> list[str]:
         default = ""
         if action.option_strings and action.nargs != 0 and action.default not in (None, argparse.SUPPRESS, [], ""):
             default = f"`{action.default}`"
-        rows.append(f"| {_escape(name)} | {required} | {default} | {_escape(help_text)} |")
+        # a pipe inside a code span does not split a Markdown table cell: the name is left as it is
+        rows.append(f"| {name} | {required} | {default} | {_escape(help_text)} |")
     return rows
 
 
