@@ -29,3 +29,18 @@ def test_the_manual_builds_in_strict_mode(tmp_path):
     api = (site / "reference/api/index.html").read_text(encoding="utf-8")
     assert "read_dataset" in api and "Read and validate the dataset" in api   # mkdocstrings rendered it
     assert "measure_on_mock" in api and "simulate" in api
+
+
+def test_the_readmes_links_lead_somewhere():
+    """The README is read on its own (outside the site): every relative link and image it has exists."""
+    import re
+
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    targets = [t for t in re.findall(r"\]\(([^)#\s]+)", text) if not t.startswith(("http://", "https://"))]
+    assert len(targets) >= 10
+    missing = [t for t in targets if not (ROOT / t).exists()]
+    assert not missing, f"README links to missing files: {missing}"
+
+
+def test_the_readme_is_short():
+    assert len((ROOT / "README.md").read_text(encoding="utf-8").splitlines()) <= 250
