@@ -608,7 +608,7 @@ def _make_runner(scoring: bool):
     pickle of its closure cells, and a dispatcher pickles with an id unique to the process, so
     a driver closing over the batch dispatcher got a new cache key in every process -- it
     recompiled each time (1.5 s plain, 3-4 s with tallies) and left one more data file in the
-    cache directory per run (issue 21). The closure cells here are plain constants (``SCORING``,
+    cache directory per run. The closure cells here are plain constants (``SCORING``,
     ``STAMP``), whose pickles are the same in every process; ``SCORING`` selects the global at
     compile time (numba prunes the constant branch). ``tests/simulate/mc/test_kernel_cache.py``
     guards this: a second process must load every kernel from the cache and add no file.

@@ -40,13 +40,13 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   (``info["volume_fraction"]``, measured between the quartiles of the centres' heights). Random
   sequential addition with rejection in a slab reaches no more (it jammed at 0.14-0.19, the fibers'
   volume over their centres' slab, 20 000 tries a fiber), and picking the lowest of 4-16 positions
-  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured, 2026-11-24).
+  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured).
   The summation's layers of touching fibers (packing 0.9069) are beyond any random straight-fiber
   layer: the felt keeps the layers' *fiber amount* and the orientation distribution and takes the
   thickness the deposition gives (10 touching layers of 20-um fibers: ~1.2-1.8 mm instead of 0.2 mm).
   A requested packing below the deposition's density (< ~0.11) is not loosened further (it only sets
   the fiber count): compare with the summation at the felt's measured volume fraction
-  (``studies/bench_woven_felt.py --packing``).
+  (the felt study, :func:`fabric_optics.bench.felt.run_felt_study` with ``packing_fraction``).
 * **Ends**: the tubes are open. An end is ``R / l = 2.5 %`` of a fiber's surface; light that enters
   one meets the tube's inside and is taken into the fiber's volume (the interpenetration rule).
 * **Mesh**: the weave mesh's contract (:mod:`simulate.fabric.weave`): one "yarn" per fiber image,

@@ -218,7 +218,7 @@ def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: fl
     (``r`` its index in ``ks``), as :func:`simulate.fiber.bssrdf.bssrdf_rows` of node ``j`` would
     run it; all rows of all nodes and tables of one wavelength group go to ONE parallel kernel call
     (:func:`simulate.montecarlo.rows.execute_rows`): the sums are bit-identical to one call per
-    row, without the idle thread of a one-batch call (issue 21: 700 calls for red cotton's two
+    row, without the idle thread of a one-batch call (700 calls for red cotton's two
     pile-table halves, one or two batches each).
     """
     if not isinstance(optics, SpectralOptics):

@@ -1,4 +1,4 @@
-"""The demo pipeline end to end on a reduced budget (issue 12, "must show"; issue 20).
+"""The demo pipeline end to end on a reduced budget.
 
 The steps of ``make demo`` (README, "What `make demo` does"), in-process through the three
 command lines, on a reduced plan (the four incidences and the in-plane curves -60..70 deg, 16
@@ -27,9 +27,9 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from compare.cli import main as compare_main
-from gonio.cli import main as gonio_main
-from simulate.cli import main as simulate_main
+from fabric_optics.cli.compare import main as compare_main
+from fabric_optics.cli.gonio import main as gonio_main
+from fabric_optics.cli.simulate import main as simulate_main
 
 REPO = Path(__file__).resolve().parents[2]
 FELT = REPO / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"

@@ -1,4 +1,4 @@
-"""Report sections of issue 20: what was measured (the mock's sample, a real file's source), the
+"""Report sections: what was measured (the mock's sample, a real file's source), the
 fitted parameters from `simulate fit`'s fit.json, the seed sample against red cotton's published
 colour; and `compare report --fit / --seed-sample`."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compare.cli import main
+from fabric_optics.cli.compare import main
 from compare.errors import CompareError
 from compare.report.fits import fits_section
 from compare.report.samples import (measured_sample_section, published_colour_check,

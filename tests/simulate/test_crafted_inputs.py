@@ -1,4 +1,4 @@
-"""Crafted inputs of issue 23: each is one line naming the file or field, exit 2, bounded memory and time.
+"""Crafted inputs: each is one line naming the file or field, exit 2, bounded memory and time.
 
 Every case here used to allocate gigabytes (or raise a traceback) before any check; the bounds
 are :data:`simulate.fabric.weave.MAX_TRIANGLES`, :data:`simulate.fabric.weave.MAX_WEAVE_CELLS`,
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 from simulate.fabric.mesh import mesh
 from simulate.fabric.weave import MAX_TRIANGLES, MAX_WEAVE_CELLS, Weave, WeaveError, preset, triangle_count
 from simulate.fabric.wif import MAX_WIF_BYTES, read_wif
@@ -287,7 +287,7 @@ def test_tiny_target_refused_with_its_estimate(tmp_path, capsys, no_fiber_work):
 
 
 def test_sweep_grid_refused_before_building_configs(tmp_path, capsys, monkeypatch):
-    from studies import sweep_spec
+    from fabric_optics.sweep import spec as sweep_spec
 
     built = []
     real = sweep_spec.parse_config
@@ -305,14 +305,14 @@ def test_sweep_grid_refused_before_building_configs(tmp_path, capsys, monkeypatc
 
 @pytest.mark.parametrize("rel", ["../..", "points/../..", "/etc", "points/a/b", "points/..", "tasks/x", 7])
 def test_sweep_point_dirs_must_stay_inside(tmp_path, rel):
-    from studies.sweep_spec import SweepError, point_dir
+    from fabric_optics.sweep.spec import SweepError, point_dir
 
     with pytest.raises(SweepError, match="point dir"):
         point_dir(tmp_path, rel)
 
 
 def test_sweep_point_dir_symlink_out_refused(tmp_path):
-    from studies.sweep_spec import SweepError, point_dir
+    from fabric_optics.sweep.spec import SweepError, point_dir
 
     (tmp_path / "points").mkdir()
     (tmp_path / "points" / "x=1").symlink_to(tmp_path.parent)
@@ -368,7 +368,7 @@ def test_mc_with_config_threads_zero_uses_numba_limit(monkeypatch):
     monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", 1)
     monkeypatch.setattr(woven, "fabric_beta", fake_fabric_beta)
     config = load_config("red-cotton")
-    assert config.threads is None              # threads = 0 in the shipped config
+    assert config.threads is None              # the shipped config leaves threads at its default, 0
     g = Geometries(np.array([0.0]), np.array([0.0]), np.array([30.0]), np.array([180.0]))
     with pytest.raises(RuntimeError, match="stop here"):
         evaluate("mc", config, config.fiber(np.array([550.0])), g, np.array([550.0]),

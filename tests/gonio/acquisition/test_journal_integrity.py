@@ -1,4 +1,4 @@
-"""The journal's integrity chain (issue 23): an edited reading is detected on --resume with one
+"""The journal's integrity chain: an edited reading is detected on --resume with one
 line (exit 2); a kill's torn last line still is not an error; journals written before the chain
 stay readable and are chained from the next append on."""
 
@@ -12,7 +12,7 @@ import pytest
 
 from gonio.acquisition.journal import (Journal, JournalIntegrityError, parse_journal,
                                        read_journal)
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.mock import MockInstrument
 
 _START = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 1.0}

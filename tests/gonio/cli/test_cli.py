@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
 
@@ -64,8 +64,10 @@ def test_demo_with_a_small_plan(tmp_path, capsys):
     assert f"dataset in {out}" in text
     ds = read_dataset(out)
     assert len(ds.table) == 36 and ds.meta["sample"]["name"] == "quick check sample"
-    # a second demo into the same folder replaces the first one's results
-    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress"]) == 0
+    # a second demo into the same folder is refused without --force and replaces the first with it
+    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress"]) == 2
+    assert "pass --force" in capsys.readouterr().err
+    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress", "--force"]) == 0
 
 
 def _default_sigint() -> None:
@@ -81,13 +83,13 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
 
     plan = drv.write_plan(tmp_path, "int", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
                           wavelengths=(450, 500, 550, 600, 650), itime_ms=200, readings=100)
-    mock = subprocess.Popen([sys.executable, "-m", "gonio.cli", "mock", "--sample", "lambert:0.5",
+    mock = subprocess.Popen([sys.executable, "-m", "fabric_optics.cli.gonio", "mock", "--sample", "lambert:0.5",
                              "--serial", "socket"], stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, text=True, preexec_fn=_default_sigint)
     try:
         urls = json.loads(mock.stdout.readline())
         out = tmp_path / "run"
-        proc = subprocess.Popen([sys.executable, "-m", "gonio.cli", "acquire", str(plan),
+        proc = subprocess.Popen([sys.executable, "-m", "fabric_optics.cli.gonio", "acquire", str(plan),
                                  "--modbus", urls["modbus"], "--serial", urls["serial"],
                                  "--out", str(out), "--no-progress"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -112,7 +114,7 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
         final = err.strip().splitlines()[-1]
         assert final.startswith("gonio acquire: interrupted") and final.count("kept") == 1, err
         assert err.count("kept") == 1, err  # said once, in the final line (not also by the engine's log)
-        assert f"--out {out} --resume" in final and f"gonio acquire {plan}" in final, final
+        assert f"--out {out} --resume" in final and f"gonio acquire --plan {plan}" in final, final
         kept = len(read_journal(out / "journal.jsonl").of_type("point"))
         assert 2 <= at_stop <= kept <= at_stop + 1 and kept < 12, (at_stop, kept)
         assert len(read_dataset(out).table) == 5 * kept

@@ -1,4 +1,4 @@
-"""One clear line instead of a traceback or a wrong message (issue 9): the `gonio` command line,
+"""One clear line instead of a traceback or a wrong message: the `gonio` command line,
 the mock's command line and the links. Every user error: one line naming what and what to do,
 exit 2, no traceback."""
 
@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
 from gonio.mock import MockInstrument

@@ -1,5 +1,5 @@
-"""`gonio demo --sample`: the mock's virtual sample chosen like `gonio mock --sample` (issue 20:
-the demo measures the real RGL felt through the mock), bad samples refused in one line."""
+"""`gonio demo --sample`: the mock's virtual sample chosen like `gonio mock --sample`
+(the demo measures the real RGL felt through the mock), bad samples refused in one line."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 
 FELT = Path(__file__).parents[3] / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"

@@ -1,4 +1,4 @@
-"""Crafted inputs to the importers (issue 23): one line naming the file and the problem, exit 2,
+"""Crafted inputs to the importers: one line naming the file and the problem, exit 2,
 refused from the file's kind, size or header before its body is read; negative values and
 near-grazing incidences said in the import summary."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.data.formats import errors
 from gonio.data.formats.tensor import MAGIC, parse_tensor_bytes

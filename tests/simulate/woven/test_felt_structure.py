@@ -56,7 +56,7 @@ def test_the_punched_population_has_its_fraction_and_tilt():
 
 
 def test_punched_fibers_do_not_interpenetrate():
-    from studies.bench_woven_felt import buried_fraction
+    from fabric_optics.bench.felt import buried_fraction
 
     spec = ST.StructureSpec(kind="nonwoven", layers=4, felt_normal_fraction=0.4)
     assert buried_fraction(felt_mesh(spec, 10.0, seed=2)) == 0.0
