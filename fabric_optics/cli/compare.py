@@ -278,11 +278,6 @@ def _check(args) -> int:
     return 0 if verdict.passed else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``compare`` argument parser that :func:`main` uses."""
-    return _parser()
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``compare`` command line; return the exit status."""
     parser = build_parser()
