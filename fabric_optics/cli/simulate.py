@@ -478,14 +478,6 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     add_no_progress(p)
 
 
-def _is_fit_output(out: Path) -> bool:
-    from fabric_optics.fitting.driver import STATE_NAME
-    from fabric_optics.fitting.mc import MC_STATE
-
-    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir() or \
-        (out / MC_STATE).is_file()
-
-
 def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists); the structured
     walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the fit began)."""
