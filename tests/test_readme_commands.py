@@ -12,7 +12,7 @@ parsers' own.
 - Every command of docs/tutorials/ RUNS, page by page in the page's order, in a temporary folder
   holding a link to the project's ``fixtures/``, through each program's ``main`` in-process, and must
   exit 0 (a line whose comment says ``exits 1`` may also exit 1: ``compare check`` of a model outside
-  the thresholds).
+  the thresholds), and must not print a deprecation notice (a page shows the current spellings).
 
 Reduced budgets. The tutorials show the budgets a user runs; the tests run the same commands with
 the smaller budgets of :data:`REDUCED` (a flag's value replaced when the line gives it) and
@@ -190,9 +190,12 @@ def _run_tutorial(page: Path, commands: list[tuple[str, str, str]], tmp_path: Pa
         if prog == "make" or PLACEHOLDER.search(line):
             continue                                   # checked against the help above
         argv = reduced_argv(line, _help(prog, line.split()[1]))
+        capsys.readouterr()
         code = _main(prog)(argv)
+        err = capsys.readouterr().err
         allowed = {0, 1} if "exits 1" in comment else {0}
-        assert code in allowed, f"{page.name}: {line} -> {argv}: exit {code}\n{capsys.readouterr().err[-2000:]}"
+        assert code in allowed, f"{page.name}: {line} -> {argv}: exit {code}\n{err[-2000:]}"
+        assert "deprecat" not in err.lower(), f"{page.name}: {line} uses an old spelling: {err[-500:]}"
         ran += 1
     return ran
 
