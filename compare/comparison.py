@@ -27,7 +27,15 @@ the issue)::
      "overall": {name: {"rmse", "nrmse"}},
      "colour": {"geometry": {"theta_i", "phi_i", "theta_o", "phi_o", "s"},
                 "measured": {"h", "s", "v", "blue_red", "green_red"},
-                name: {"h", "s", "v", "blue_red", "green_red", "dh", "ds", "dv"}}}
+                name: {"h", "s", "v", "blue_red", "green_red", "dh", "ds", "dv"}},
+     "shape": {"measured" | name: {"opposition" | "mirror":
+                                   {"per_incidence": {"40": {"value": {"550": r, ...}, "u": {...},
+                                                            "n_points": [num, den]}}}
+                                   or {"reason": str}}}}
+
+``shape`` holds each dataset's own opposition and mirror-to-neighbours ratios
+(:mod:`compare.felt_metrics`; the normalisation cancels in them), or why the dataset lacks the
+points they need.
 
 Names are the datasets' ``name`` (``meta.sample.name`` or the directory name), made unique with a
 `` (2)``, `` (3)`` suffix when they collide with each other or with the reserved keys
@@ -39,7 +47,7 @@ in place of ``per_wavelength``, ``max_abs_at.channel`` in place of ``wavelength_
 converted}}``. A relative measurement adds ``"relative": true`` and has ``v`` and ``dv`` null
 (absolute colour refused); a photometric (Y-only) one has an empty ``colour`` (no colour
 statement). ``"notes"`` (sentences for a reader) is present when there is something to note. A
-spectral comparison of absolute data has exactly the four keys above.
+spectral comparison of absolute data has exactly the five keys above.
 """
 
 from __future__ import annotations
@@ -58,6 +66,7 @@ from gonio.data import Dataset
 from .align import align, shared_wavelengths
 from .bands import Bands, colour_resampling, prepare
 from .colourmatch import ColourMatch, colour_match, colour_refusal
+from .felt_metrics import shape_document
 from .errors import CompareError
 from .metrics import CurveError, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
@@ -257,9 +266,11 @@ class Comparison:
         method = METHOD_TEXT.format(window=self.window_deg)
         if bands.is_rgb:
             method = method.replace("per wavelength", "per channel").replace("k(lambda)", "k(c)")
+        shape = {"measured": shape_document(self.measured_compared.table, bands.key)}
+        shape.update({name: shape_document(self.view(name).table, bands.key) for name in self.simulated})
         document: dict = {"normalisation": {"method": method, "factor": factor,
                                             "normal_value": normal_value},
-                          "curves": curves, "overall": overall, "colour": colour}
+                          "curves": curves, "overall": overall, "colour": colour, "shape": shape}
         if self.colour_note:
             document["colour_note"] = f"no colour statement (no H, S, V): {self.colour_note}"
         if bands.is_rgb:

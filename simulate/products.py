@@ -181,9 +181,9 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
 
     w_i = fab.directions_deg(g.theta_i, g.phi_i)
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
-    spec = getattr(config, "structure", None)       # twist, or a felt (simulate.woven.felt)
+    spec = getattr(config, "structure", None)       # twist, or a felt (simulate.nonwoven.felt)
     if spec is not None and spec.kind == "nonwoven":
-        from simulate.woven.felt import felt_mesh
+        from simulate.nonwoven.felt import felt_mesh
 
         # two realisations of the felt, one per table half: their difference puts the spread of the
         # fibers' placement into u_beta (simulate.woven.estimate, "A felt")

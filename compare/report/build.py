@@ -21,6 +21,7 @@ from .figures import (colour_strip_figure, colour_strips, factor_figure, hue_tre
                       inplane_figure, save_figure, spectrum_figure, swatch_figure)
 from .outdir import prepare_out_dir
 from .page import Section, page_html
+from .shape import shape_section
 
 __all__ = ["write_report"]
 
@@ -133,7 +134,10 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
         for name, data in section.figures.items():
             files[fig_dir / name] = data
     report = out / "report.html"
-    files[Path("report.html")] = page_html(comparison, metrics, figures, list(sections), preface).encode("utf-8")
+    extra = list(sections)
+    if any("per_incidence" in r for r in metrics["shape"]["measured"].values()):
+        extra.append(shape_section(comparison, metrics))
+    files[Path("report.html")] = page_html(comparison, metrics, figures, extra, preface).encode("utf-8")
     write_together(out, files, "report")
     written = {out / name for name in files}
     for old in previous:

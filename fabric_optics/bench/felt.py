@@ -1,6 +1,6 @@
 """The felt study: the felt Monte Carlo against the felt's structured summation, absorbing and not.
 
-``simulate bench --study felt --out DIR [--quick]`` builds the felt of :mod:`simulate.woven.felt`
+``simulate bench --study felt --out DIR [--quick]`` builds the felt of :mod:`simulate.nonwoven.felt`
 (HG fiber: R 10 um, n 1.5, mu_s 0.8 /um, g 0.5, RMS slope 0.35; ``[structure] kind = "nonwoven"``,
 touching layers; seed 0) and reports, in ``DIR/felt.json`` and on stdout:
 
@@ -29,14 +29,14 @@ from simulate import fiber as F
 from simulate import woven as W
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
-from simulate.woven.felt import felt_mesh
+from simulate.nonwoven.felt import felt_mesh
 
 R_UM = 10.0
 
 
 def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
     """The fraction of the fibers' surface (in the cell) that lies inside another fiber image
-    (``m`` a :class:`simulate.woven.felt.FeltMesh`; random points on random fiber images)."""
+    (``m`` a :class:`simulate.nonwoven.felt.FeltMesh`; random points on random fiber images)."""
     ring = (int(m.n_s[0]) + 1) * (int(m.sides) + 1)
     cent = np.array([m.vertices[b:b + ring].reshape(int(m.n_s[0]) + 1, int(m.sides) + 1, 3)[:, :-1].mean(axis=(0, 1)) for b in m.vertex_base])
     tan = m.tangents[m.vertex_base]

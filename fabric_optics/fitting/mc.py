@@ -51,7 +51,7 @@ photons per row (fixed by the target), the ray tracer the stream ``(seed, chunk)
 four chunks its accuracy control adds -- and the felt the same fiber placement. The difference of
 two runs' objectives is then far less noisy than each.
 
-A felt is a random realisation. The felt's fibers are placed by the seed (:func:`simulate.woven.felt.felt_mesh`),
+A felt is a random realisation. The felt's fibers are placed by the seed (:func:`simulate.nonwoven.felt.felt_mesh`),
 so a fixed seed fits the same realisations at every run (each table half traced on its own, at 8 azimuths:
 :mod:`simulate.woven.estimate`, "A felt"). Before that (one realisation, one azimuth) two other seeds at
 the same parameters differed by 6-16 % RMS in ``beta`` while the run's ``u_beta`` said ~0.9 %; the

@@ -49,6 +49,7 @@ Ashikhmin et al. (2000), see :mod:`simulate.fabric.fiberlayer`.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -59,6 +60,8 @@ __all__ = ["CLOSE_PACKING", "Facets", "merged", "StructureSpec", "structure_from
            "felt_facets", "facets_for", "fabric_beta_from_G", "structured_beta", "interior_layers", "layer_table_of",
            "surface_layer_table", "mean_of_halves", "REMOVED_KEYS"]
 
+
+log = logging.getLogger(__name__)
 
 #: close packing of parallel cylinders (hexagonal): pi / (2 sqrt 3)
 CLOSE_PACKING = math.pi / (2.0 * math.sqrt(3.0))
@@ -76,6 +79,8 @@ class StructureSpec:
     weft_twist_deg: float = 24.0
     weft_twist: str = "Z"
     felt_spread_deg: float = 20.0
+    felt_normal_fraction: float = 0.0
+    felt_normal_spread_deg: float = 15.0
     samples: int = 48
 
     @property
@@ -109,6 +114,10 @@ def structure_from_table(t: Any) -> StructureSpec:
         weft_twist_deg = 24
         weft_twist = "Z"
         felt_spread_deg = 20        # nonwoven: standard deviation of the fibers' inclination, [0, 60]
+        felt_normal_fraction = 0    # nonwoven, Monte Carlo: the fraction of the fiber amount driven towards
+                                    # the normal (needle punching), [0, 0.9]; 0: every fiber in-plane as above
+        felt_normal_spread_deg = 15 # nonwoven, Monte Carlo: standard deviation of those fibers' tilt away
+                                    # from the normal, [0, 45]
         samples = 48                # woven: surface samples per side of the micro-element, [4, 512]
 
     The keys of :data:`REMOVED_KEYS` and ``kind = "felt"`` are refused with what to write instead.
@@ -127,9 +136,15 @@ def structure_from_table(t: Any) -> StructureSpec:
         weft_twist_deg=t.number("weft_twist_deg", 24.0, ge=0.0, le=60.0),
         weft_twist=t.string("weft_twist", "Z", choices=("Z", "S")),
         felt_spread_deg=t.number("felt_spread_deg", 20.0, ge=0.0, le=60.0),
+        felt_normal_fraction=t.number("felt_normal_fraction", 0.0, ge=0.0, le=0.9),
+        felt_normal_spread_deg=t.number("felt_normal_spread_deg", 15.0, ge=0.0, le=45.0),
         samples=t.integer("samples", 48, ge=4, le=512),
     )
     t.done()
+    if spec.kind != "nonwoven":
+        for key in ("felt_normal_fraction", "felt_normal_spread_deg"):
+            if key in t.data:
+                raise t.fail(key, 'is a felt\'s (kind = "nonwoven"); remove it from a woven structure')
     return spec
 
 
@@ -224,7 +239,14 @@ def woven_facets(weave: Any, spec: StructureSpec) -> Facets:
 
 
 def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Facets:
-    """Nonwoven felt: fibers of uniform in-plane direction and Gaussian inclination (module docstring)."""
+    """Nonwoven felt: fibers of uniform in-plane direction and Gaussian inclination (module docstring).
+
+    The needle-punched population (``felt_normal_fraction``) is the Monte Carlo's felt's only
+    (:mod:`simulate.nonwoven.felt`): here it is left out, and said so once per process."""
+    if spec.felt_normal_fraction > 0.0 and not _NORMAL_NOTED:
+        _NORMAL_NOTED.append(True)
+        log.warning("the summation's felt has its fibers in the plane only: [structure] felt_normal_fraction "
+                    "(%.3g) is taken by --method mc only", spec.felt_normal_fraction)
     az = (np.arange(n_azimuth) + 0.5) * math.pi / n_azimuth
     x, w = np.polynomial.hermite_e.hermegauss(n_incl)
     eps = np.radians(spec.felt_spread_deg) * x
@@ -237,6 +259,9 @@ def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Fa
     m = z[None, :] - t[:, 2:3] * t
     return Facets(weight, _frames(t, m), np.full(t.shape[0], 2),
                   {"felt": 1.0, "spread_deg": spec.felt_spread_deg, "facets": int(t.shape[0])})
+
+
+_NORMAL_NOTED: list[bool] = []
 
 
 def merged(facets: Facets, tolerance: float = 0.01) -> Facets:

@@ -6,7 +6,7 @@ noise from their difference added to ``u_beta``; the target's error shared betwe
 
 A felt
 ------
-A felt's mesh (:mod:`simulate.woven.felt`) is ONE random realisation of its fibers in a cell of
+A felt's mesh (:mod:`simulate.nonwoven.felt`) is ONE random realisation of its fibers in a cell of
 about 20 fibers across, and what is wanted is the felt's BRDF, the expectation over realisations (as
 a measurement's spot averages thousands of fibers). Traced as a weave (one mesh, one azimuth), four
 felts at fixed tables differed by 2.1 % of each direction's peak (RMS) where the runs reported 1.0 %

@@ -50,6 +50,12 @@ TINY_PLAN = ('[sample]\nname = "x"\n[wavelengths]\nlist_nm = [550, 650]\n'
     ('weft_twist_deg = "a"', "structure.weft_twist_deg"),
     ('weft_twist = "z"', "structure.weft_twist"),
     ('felt_spread_deg = -5', "structure.felt_spread_deg"),
+    ('kind = "nonwoven"\nfelt_normal_fraction = 0.95', "structure.felt_normal_fraction"),
+    ('kind = "nonwoven"\nfelt_normal_fraction = -0.1', "structure.felt_normal_fraction"),
+    ('kind = "nonwoven"\nfelt_normal_fraction = "some"', "structure.felt_normal_fraction"),
+    ('kind = "nonwoven"\nfelt_normal_spread_deg = 50', "structure.felt_normal_spread_deg"),
+    ('kind = "nonwoven"\nfelt_normal_spread_deg = true', "structure.felt_normal_spread_deg"),
+    ('felt_normal_fraction = 0.2', "structure.felt_normal_fraction"),
     ('samples = 2', "structure.samples"),
     ('twist = 3', "structure.twist"),
 ])

@@ -14,7 +14,7 @@ from simulate import woven as W
 from fabric_optics.cli.simulate import main
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
-from simulate.woven.felt import felt_mesh
+from simulate.nonwoven.felt import felt_mesh
 
 
 def test_the_felts_fibers_follow_the_structures_distribution():
@@ -42,7 +42,7 @@ def test_the_felts_fibers_do_not_interpenetrate(monkeypatch):
     """Random points on the fibers' surfaces lie inside no other fiber (an independent check:
     point-in-cylinder, not the placement's segment distance); with the contact rule switched off
     (every fiber dropped to the floor) the same check finds them buried, so it can fail."""
-    from simulate.woven import felt
+    from simulate.nonwoven import felt
     from fabric_optics.bench.felt import buried_fraction
 
     spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=20.0, layers=4)
