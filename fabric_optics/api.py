@@ -90,7 +90,7 @@ def _typed_errors(fn: _F) -> _F:
             return fn(*args, **kwargs)
         except ToolkitError:
             raise
-        except (*_INPUT_ERRORS, FitError) as exc:
+        except _INPUT_ERRORS + (FitError,) as exc:
             raise InputError(str(exc)) from exc
     return wrapper  # type: ignore[return-value]
 
@@ -103,7 +103,7 @@ def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfi
 
     if isinstance(config, SimulationConfig):
         return config
-    return _load(config)
+    return _load(config if isinstance(config, (str, Path)) else Path(config))
 
 
 @_typed_errors
@@ -113,7 +113,7 @@ def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
 
     if isinstance(plan, Plan):
         return plan
-    return _load(plan)
+    return _load(plan if isinstance(plan, (str, Path)) else Path(plan))
 
 
 def _dataset(data: str | os.PathLike | Dataset) -> Dataset:
@@ -379,6 +379,10 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
         raise InputError(f"method {method!r}: choose one of summation, classic, mc")
     if anisotropic not in (0, 1, 2, 4):
         raise InputError(f"anisotropic {anisotropic}: choose 0 (isotropic), 1, 2 or 4")
+    if threads == 0:        # 0 = all that numba allows, as in simulate()
+        import numba
+
+        threads = int(numba.config.NUMBA_NUM_THREADS)
     return export_model(load_config(source), method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
                         incidences=incidences, target_rel_err=target_rel_err, seed=seed, threads=threads,
                         max_photons=max_photons, check_pairs=check_pairs, reduction=anisotropic, n_phi_i=azimuths,
@@ -399,7 +403,7 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
 
     plan_obj = load_plan("red-cotton" if plan is None else plan)
     try:
-        run_demo(out, plan_obj, seed=seed, force=force, progress=progress, sample=sample,
+        run_demo(Path(out), plan_obj, seed=seed, force=force, progress=progress, sample=sample,
                  name_from_sample=plan is None and sample != "red-cotton")
     except SampleError as exc:
         raise InputError(f"sample {sample!r}: {exc}") from exc

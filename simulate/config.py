@@ -98,7 +98,7 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
 
 Exactly one of ``[particles]`` and ``[medium]`` is required. ``[method] method`` (the fiber route
 before it was ``[fiber] route``) is still read, with a deprecation warning; the removed ``[structure]``
-switches are refused with what to do (:data:`simulate.fabric.structure.REMOVED_KEYS`).
+switches are refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ _FIELDS: dict[str, tuple[str, ...]] = {
                   "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
     "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
-    "method": ("method", "target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes"),
+    "method": ("target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes"),
 }
 
 
@@ -460,7 +460,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     weave_t = top.sub("weave", fields=_FIELDS["weave"])
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method", fields=_FIELDS["method"]) or Table({}, "method", file)
+    mt = top.sub("method", fields=_FIELDS["method"] + ("method",)) or Table({}, "method", file)   # + the old route
     if mt.has("method"):
         if fib.has("route"):
             raise mt.fail("method", "and fiber.route both give the fiber route: delete method.method")

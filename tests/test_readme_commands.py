@@ -12,7 +12,7 @@ parsers' own.
 - Every command of docs/tutorials/ RUNS, page by page in the page's order, in a temporary folder
   holding a link to the project's ``fixtures/``, through each program's ``main`` in-process, and must
   exit 0 (a line whose comment says ``exits 1`` may also exit 1: ``compare check`` of a model outside
-  the thresholds).
+  the thresholds), and must not print a deprecation notice (a page shows the current spellings).
 
 Reduced budgets. The tutorials show the budgets a user runs; the tests run the same commands with
 the smaller budgets of :data:`REDUCED` (a flag's value replaced when the line gives it) and
@@ -36,13 +36,12 @@ ROOT = Path(__file__).resolve().parents[1]
 PROGRAMS = ("gonio", "simulate", "compare")
 GENERATED = {ROOT / "docs" / "reference" / n for n in ("cli.md", "config.md", "plans.md")}
 TUTORIALS = ROOT / "docs" / "tutorials"
-#: flag -> value the tests run instead of the page's (``--max-evaluations`` of ``--method mc`` counts
-#: Monte Carlo runs and keeps its value, at most 2)
-REDUCED = {"--target-rel-err": "0.3", "--max-evaluations": "12", "--spp": "1", "--size": "32x24",
-           "--swatch-size": "12", "--workers": "1", "--repeats": "1", "--photons": "2000"}
-#: flag -> value added where the command accepts it and the line does not give it (``--max-evaluations``
-#: of ``--method mc``: 2 runs)
-ADDED = {"--target-rel-err": "0.3", "--max-evaluations": "12", "--no-progress": None}
+#: flag -> value the tests run instead of the page's (``--max-runs``, the Monte Carlo fit's runs: at most 2)
+REDUCED = {"--target-rel-err": "0.3", "--max-evaluations": "12", "--max-runs": "2", "--spp": "1",
+           "--size": "32x24", "--swatch-size": "12", "--workers": "1", "--repeats": "1", "--photons": "2000"}
+#: flag -> value added where the command accepts it and the line does not give it (``--max-runs`` only
+#: to a Monte Carlo fit, ``--max-evaluations`` only to the others)
+ADDED = {"--target-rel-err": "0.3", "--max-evaluations": "12", "--max-runs": "2", "--no-progress": None}
 #: (tutorial page, section heading) run only by ``make test-slow``: the whole demo chain
 SLOW_SECTIONS = {("mock-lab.md", "5. The whole demo, by hand")}
 #: tutorials that run Monte Carlo simulations, fits, renders or a dask cluster: over a minute each even
@@ -152,29 +151,27 @@ def reduced_argv(line: str, helptext: str) -> list[str]:
     mc = "--method" in argv and argv[argv.index("--method") + 1] == "mc"
     for i, token in enumerate(argv[:-1]):
         if token in REDUCED:
-            if token == "--max-evaluations" and mc:
-                argv[i + 1] = str(min(int(argv[i + 1]), 2))
-            else:
-                argv[i + 1] = REDUCED[token]
+            argv[i + 1] = str(min(int(argv[i + 1]), 2)) if token == "--max-runs" else REDUCED[token]
     for flag, value in ADDED.items():
+        if (flag == "--max-runs" and not mc) or (flag == "--max-evaluations" and mc):
+            continue
         if flag not in argv and re.search(rf"(?<![\w-]){re.escape(flag)}(?![\w-])", helptext):
-            if flag == "--max-evaluations" and mc:
-                value = "2"
             argv += [flag] if value is None else [flag, value]
     return argv
 
 
 def test_reduced_argv_replaces_and_adds_budgets():
     fit = "simulate fit red-cotton felt --method classic --free dye --max-evaluations 200 --out f"
-    help_fit = "--max-evaluations --target-rel-err --no-progress"
+    help_fit = "--max-evaluations --max-runs --target-rel-err --no-progress"
     assert reduced_argv(fit, help_fit) == ["fit", "red-cotton", "felt", "--method", "classic", "--free", "dye",
                                            "--max-evaluations", "12", "--out", "f", "--target-rel-err", "0.3",
                                            "--no-progress"]
     bare = reduced_argv("simulate fit green-felt-mc m --method mc --free dye --out f", help_fit)
-    assert bare[bare.index("--max-evaluations") + 1] == "2"          # Monte Carlo runs, added
-    mc = "simulate fit green-felt-mc m --method mc --free dye --max-evaluations 5 --target-rel-err 0.03 --out f"
+    assert bare[bare.index("--max-runs") + 1] == "2" and "--max-evaluations" not in bare
+    mc = "simulate fit green-felt-mc m --method mc --free dye --max-runs 5 --target-rel-err 0.03 --out f"
     argv = reduced_argv(mc, help_fit)
-    assert argv[argv.index("--max-evaluations") + 1] == "2" and argv[argv.index("--target-rel-err") + 1] == "0.3"
+    assert argv[argv.index("--max-runs") + 1] == "2" and argv[argv.index("--target-rel-err") + 1] == "0.3"
+    assert "--max-evaluations" not in argv
     assert reduced_argv("compare check a b", "--max-nrmse") == ["check", "a", "b"]
 
 
@@ -193,9 +190,12 @@ def _run_tutorial(page: Path, commands: list[tuple[str, str, str]], tmp_path: Pa
         if prog == "make" or PLACEHOLDER.search(line):
             continue                                   # checked against the help above
         argv = reduced_argv(line, _help(prog, line.split()[1]))
+        capsys.readouterr()
         code = _main(prog)(argv)
+        err = capsys.readouterr().err
         allowed = {0, 1} if "exits 1" in comment else {0}
-        assert code in allowed, f"{page.name}: {line} -> {argv}: exit {code}\n{capsys.readouterr().err[-2000:]}"
+        assert code in allowed, f"{page.name}: {line} -> {argv}: exit {code}\n{err[-2000:]}"
+        assert "deprecat" not in err.lower(), f"{page.name}: {line} uses an old spelling: {err[-500:]}"
         ran += 1
     return ran
 
@@ -247,8 +247,8 @@ def test_the_whole_demo_chain_runs_on_a_reduced_budget(tmp_path, monkeypatch, ca
 
 
 def _makefile_demo() -> list[str]:
-    """The Makefile's demo recipe as the commands a user types (variables substituted, the console
-    scripts' path and --no-progress dropped)."""
+    """The Makefile's demo recipe as the commands a user types (variables substituted; the console
+    scripts' path, --no-progress and --force -- the Makefile re-runs into its own folder -- dropped)."""
     text = (ROOT / "Makefile").read_text(encoding="utf-8")
     variables = {k: v.strip() for k, v in re.findall(r"^(\w+)\s*[:?]?=\s*(.*)$", text, flags=re.M)}
     recipe = re.search(r"^demo:.*?\n((?:\t.*\n)+)", text, flags=re.M)
@@ -260,7 +260,7 @@ def _makefile_demo() -> list[str]:
             continue
         while re.search(r"\$\((\w+)\)", line):
             line = re.sub(r"\$\((\w+)\)", lambda m: variables[m.group(1)], line)
-        line = line.replace(".venv/bin/", "").replace(" --no-progress", "")
+        line = line.replace(".venv/bin/", "").replace(" --no-progress", "").replace(" --force", "")
         out.append(" ".join(line.split()))
     return out
 

@@ -258,8 +258,8 @@ def plans_page() -> str:
              "wavelengths, the incidence angles and observation directions, sample rotations, the integration "
              "time and gain policy, readings, repetitions, the settle time, the white standard, the reference "
              f"geometry, the calibration's largest age and the procedure's steps. Plans are TOML files or the "
-             f"names of shipped presets{names}; every command that takes `PLAN` or `--geometry PLAN` takes "
-             "either, and `gonio check-plan PLAN` validates one.\n",
+             f"names of shipped presets{names}; every command that takes `--plan PLAN` takes either, and "
+             "`gonio check-plan --plan PLAN` validates one.\n",
              f"This page is generated from the docstring of `{module.__name__}`.\n",
              "## Schema\n"]
     if intro:

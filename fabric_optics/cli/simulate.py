@@ -267,7 +267,7 @@ def _is_fabric_output(out: Path) -> bool:
     return False
 
 
-def _prepare_fabric_out(out: Path) -> None:
+def _prepare_fabric_out(out: Path, force: bool) -> None:
     """:func:`_prepare_out` for ``simulate fabric``, whose output replaces ``out`` as one folder
     (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a previous output
     holding anything besides the dataset's files is refused (the swap would delete it)."""
@@ -278,6 +278,7 @@ def _prepare_fabric_out(out: Path) -> None:
         recover(out)
     except OSError as exc:
         raise _UsageError(f"--out {out}: cannot clean up after an earlier killed run ({exc.strerror})") from None
+    _refuse_previous(out, force, _is_fabric_output, "simulate fabric")
     _prepare_out(out, _is_fabric_output, "simulate fabric")
     try:
         remove_stale_temp_files(out)         # a killed per-file write of an older version
@@ -359,8 +360,7 @@ def _fabric_run(args: argparse.Namespace) -> int:
     except api.InputError as exc:
         raise _UsageError(f"--plan: {exc}") from None
     _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
-    _refuse_previous(args.out, args.force, _is_fabric_output, "simulate fabric")
-    _prepare_fabric_out(args.out)
+    _prepare_fabric_out(args.out, args.force)
     dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
                            threads=args.threads, max_photons=args.max_photons, measurable_only=args.measurable_only,
                            progress=_progress(args), max_seconds=args.max_seconds)
@@ -485,14 +485,6 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     add_seed(p)
     add_threads(p)
     add_no_progress(p)
-
-
-def _is_fit_output(out: Path) -> bool:
-    from fabric_optics.fitting.driver import STATE_NAME
-    from fabric_optics.fitting.mc import MC_STATE
-
-    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir() or \
-        (out / MC_STATE).is_file()
 
 
 def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
@@ -770,14 +762,15 @@ def _sweep_run(args: argparse.Namespace) -> int:
             measured = read_dataset(args.measured)
         except DatasetError as exc:
             raise _UsageError(f"MEASURED: {exc}") from None
-    if not args.resume:
-        refuse_existing(args.out, args.force)
-        if args.force:
-            _clear_sweep(args.out)
+    if args.force and not args.resume:
+        _clear_sweep(args.out)
     try:
         resumed = prepare_out(args.out, spec, resume=args.resume)
     except SweepError as exc:
         raise _UsageError(str(exc)) from None
+    if resumed and not args.resume:
+        raise _UsageError(f"--out {args.out}: holds this sweep already; pass --resume to continue it (finished "
+                          "tasks are reused) or --force to compute it afresh")
     if not args.verbose:
         # distributed's own logs (cluster start/stop, each failed attempt's traceback, in the
         # workers too: they inherit the environment) are not for users; failures are reported below

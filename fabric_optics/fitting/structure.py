@@ -6,8 +6,8 @@ r"""The structured summation in ``simulate fit``: one walk per lattice point, an
 (:mod:`simulate.fabric.fiberlayer`, :mod:`simulate.fabric.interior`) and the facet sum over the
 fabric's visible fiber orientations (:mod:`simulate.fabric.structure`). The fit evaluates the SAME
 model from the same steps -- :func:`~simulate.fabric.structure.layer_table_of` (layer table with the
-closure), :func:`~simulate.fabric.structure.surface_layer_table`, :func:`~simulate.fabric.structure.fabric_beta_from_G`
-(facet sum), :func:`~simulate.fabric.structure.mean_of_halves` and
+closure), :func:`~simulate.fabric.structure.surface_layer_table`, :func:`simulate.fabric.structtable.facet_sum`
+(the facet sum of :func:`~simulate.fabric.structure.fabric_beta_from_G`), :func:`~simulate.fabric.structure.mean_of_halves` and
 :func:`~simulate.fabric.structure.interior_layers` -- split by what each free parameter changes:
 
 * **dye** (host absorption): every exit-table walk is white (absorption applied per path), so the
@@ -164,11 +164,14 @@ class StructWalk:
         if key in self._tables:
             return self._tables[key]
         from simulate.fabric.fiberlayer import LayerTable
-        from simulate.fabric.structure import fabric_beta_from_G, mean_of_halves
+        from simulate.fabric.structtable import facet_sum
+        from simulate.fabric.structure import mean_of_halves
 
+        # the compiled facet sum of simulate.fabric.structure.fabric_beta_from_G, times pi / (cos_i cos_o)
         th, ph_i, th_o, ph_o = self.grid
+        scale = math.pi / (w_i[:, 2] * w_o[:, 2])[:, None]
         N, L, K = w_i.shape[0], self.wavelengths_nm.size, self.nodes.size
-        b = [fabric_beta_from_G(LayerTable(th, ph_i, th_o, ph_o, G, True, self.spacing_ratio), facets, w_i, w_o)
+        b = [(scale * facet_sum(LayerTable(th, ph_i, th_o, ph_o, G, True, self.spacing_ratio), facets, w_i, w_o))
              .reshape(N, L, K) for G in self.G]
         R, u = mean_of_halves(b[0], b[1])
         wl = self.wavelengths_nm

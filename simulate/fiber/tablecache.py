@@ -17,10 +17,10 @@ Where and how much (environment variables, read at every call so a test or a CLI
   itself while older ones remain), and only when the run's own tables exceed the bound, which is
   then said in a warning naming the bound to raise. Every eviction is logged at INFO (``-v``):
   the entry's kind, size and last use, and the cache's total before and after.
-  Sizes: a felt fit (``green-felt``, summation) stores its structured walk's exit tables, 351 MB in
-  all; the felt Monte Carlo (``--method mc``) adds two BSSRDF yarn tables per dye, 294 MB in all,
-  so one felt fit with its Monte Carlo stores about 0.65 GB, a third of the default bound: the
-  cache keeps the tables of about three such fits before the oldest go;
+  Sizes: a summation fit of the felt (``green-felt`` on its 10 nm plan) stores six structured-walk
+  entries, 129 MB in all; a felt fit with its Monte Carlo stores exit tables (351 MB) and yarn
+  tables (294 MB), about 0.65 GB: a third of the default bound, which therefore holds one felt fit
+  with room for about two more before the oldest entries go (the bound is not raised);
 - ``FABRIC_OPTICS_NO_CACHE=1`` (``simulate ... --no-cache``): neither read nor written.
 
 Safety: an entry is one file, ``MAGIC + sha256(payload) + payload`` (``payload`` an uncompressed

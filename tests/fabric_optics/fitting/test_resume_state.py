@@ -147,3 +147,27 @@ def test_a_well_formed_mc_state_passes_and_a_run_file_of_the_wrong_shape_is_run_
     assert state.run(0, np.array([-0.9, -2.1])) is None
     np.savez(tmp_path / MC_RUNS_DIR / "run-0.npz", x=[-0.9, -2.1], beta=np.ones(shape), u_beta=np.ones(shape))
     assert state.run(0, np.array([-0.9, -2.1])).beta.shape == shape
+
+
+# --- a full disk while the fit checkpoints ---------------------------------------------------------------
+
+
+def test_a_full_disk_while_checkpointing_is_one_line_and_leaves_no_temporary_file(tmp_path, monkeypatch):
+    import errno
+
+    from fabric_optics.fitting.state import WALKS_DIR, WalkCheckpoint, write_json_atomic
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(np, "savez", full)
+    cp = WalkCheckpoint(tmp_path, "id", (), np.zeros(2), None)
+    with pytest.raises(FitError) as err:
+        cp.put("0:0", np.zeros(3), np.zeros(3), 10, 1.0)
+    assert "No space left on device" in str(err.value) and "--resume" in str(err.value)
+    assert list((tmp_path / WALKS_DIR).iterdir()) == []
+    monkeypatch.setattr(os, "fsync", full)
+    (tmp_path / STATE_NAME).write_text('{"x": [1]}')
+    with pytest.raises(FitError, match=f"{tmp_path / STATE_NAME}: cannot write \\(No space left on device\\)"):
+        write_json_atomic(tmp_path / STATE_NAME, {"x": [2]})
+    assert sorted(p.name for p in tmp_path.iterdir()) == [STATE_NAME, WALKS_DIR]    # no .fit-state.json.tmp
+    assert (tmp_path / STATE_NAME).read_text() == '{"x": [1]}'                      # the previous state kept

@@ -42,7 +42,7 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
 
 
 def _fabric(cfg: Path, out: Path, method: str = "classic") -> int:
-    return main(["fabric", str(cfg), "--method", method, "--out", str(out), "--geometry", "quick"])
+    return main(["fabric", str(cfg), "--method", method, "--out", str(out), "--plan", "quick", "--force"])
 
 
 def test_disk_full_leaves_the_previous_output_and_no_temporary_folder(fake_fiber, tmp_path, cfg, capsys,
