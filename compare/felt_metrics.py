@@ -274,7 +274,7 @@ def shape_document(table: pd.DataFrame, key) -> dict:
         x = float(x)
         return x if math.isfinite(x) else None
 
-    doc = {}
+    doc: dict[str, dict] = {}
     for name, result in (("opposition", opposition_ratios(table)), ("mirror", mirror_ratios(table))):
         if isinstance(result, Missing):
             doc[name] = {"reason": result.reason}
