@@ -58,7 +58,7 @@ def test_round_trip_through_gonio_import(classic, tmp_path):
     """export -> `gonio import rgl-bsdf --geometry red-cotton` -> the model's values at the plan's
     geometries (incidence 0/30/45/60, observation -60..70 deg), within the stated error."""
     out = tmp_path / "imported"
-    assert gonio_main(["import", "rgl-bsdf", str(classic["spectral"]), "--geometry", "red-cotton",
+    assert gonio_main(["import", "rgl-bsdf", str(classic["spectral"]), "--plan", "red-cotton",
                        "--out", str(out)]) == 0
     t = read_dataset(out).table
     geo = t[t.wavelength_nm == 550.0]

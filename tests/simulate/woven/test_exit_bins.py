@@ -70,7 +70,7 @@ def test_a_felt_of_clear_fibers_at_the_implicit_default_bins_warns(tmp_path, cap
     plan = tmp_path / "tiny.toml"
     plan.write_text(PLAN)
     with caplog.at_level(logging.WARNING, logger="simulate.products"):
-        assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(tmp_path / "o"),
+        assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(tmp_path / "o"),
                      "--target-rel-err", "0.1", "--no-progress"]) == 0
     capsys.readouterr()
     assert sum("nearly clear" in r.getMessage() for r in caplog.records) == 1
@@ -84,7 +84,7 @@ def test_simulate_fabric_traces_the_felt_with_the_configs_exit_bins(tmp_path, ca
     plan.write_text(PLAN)
     out = tmp_path / "felt-mc"
     with caplog.at_level(logging.WARNING, logger="simulate.products"):
-        assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
+        assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out),
                      "--target-rel-err", "0.1", "--no-progress"]) == 0
     capsys.readouterr()
     assert not any("nearly clear" in r.getMessage() for r in caplog.records)
