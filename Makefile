@@ -35,14 +35,14 @@ DEMO_FIT_EVALS ?= 200
 # Relative standard error of each fit's first Monte Carlo walk (the start configs' own differ).
 DEMO_FIT_REL_ERR ?= 0.03
 
-.PHONY: demo test test-slow lint bench venv clean
+.PHONY: demo test test-slow lint bench venv clean docs figures reference
 
 venv: $(STAMP)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,docs]'
 	touch $(STAMP)
 
 # The main job (README, "What `make demo` does"): the real felt measured through the mock instrument
@@ -76,9 +76,22 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy
 
+# The documentation site (docs/, mkdocs.yml) in strict mode: a broken link, a missing page or a
+# docstring reference that does not resolve fails the build. Site in site/. `make test` builds it too
+# (tests/docs/test_docs_build.py). `make reference` regenerates the command-line and config pages,
+# `make figures` the tables of measured figures from docs/data/*.json.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --site-dir site
+
+reference: $(STAMP)
+	$(PY) docs/scripts/gen_reference.py
+
+figures: $(STAMP)
+	$(PY) docs/scripts/render_figures.py
+
 bench: $(STAMP)
 	$(VENV)/bin/simulate bench --out bench-out
 	$(VENV)/bin/gonio bench-driver --plan red-cotton --out bench-out/driver.json
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) bench-out .pytest_cache
+	rm -rf $(VENV) $(DEMO_OUT) bench-out .pytest_cache site

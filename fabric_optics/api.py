@@ -245,15 +245,20 @@ class FitJob:
     resume: bool
     _run: Callable[..., Any]
     _write: Callable[..., dict]
+    #: "ready", "search", "writing" (the outputs being put in place) or "done"
+    phase: str = "ready"
 
     @_typed_errors
     def run(self, *, progress: bool = False) -> FitOutcome:
         from simulate.config import load_config as _load
 
         self.out.mkdir(parents=True, exist_ok=True)
+        self.phase = "search"
         result = self._run(self.problem, out=self.out, resume=self.resume, max_evaluations=self.budget,
                            starts=self.starts, progress=progress)
+        self.phase = "writing"      # the outputs are put in place together: an interrupt changes none of them
         summary = self._write(self.problem, result, self.out)
+        self.phase = "done"
         return FitOutcome(out=self.out, summary=summary, result=result, config=_load(self.out / "fitted.toml"))
 
 

@@ -173,6 +173,10 @@ def _bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output directory (bench.json, bench.png)")
     add_force(p)
     p.add_argument("--quick", action="store_true", help="smoke test: small runs, a few seconds")
+    from fabric_optics.bench.studies import STUDIES
+
+    p.add_argument("--study", choices=sorted(STUDIES), help="run this documented study instead of the benchmark: "
+                   + "; ".join(f"{k}: {v[0]}" for k, v in sorted(STUDIES.items())) + " (OUT/NAME.json)")
 
 
 def _bench_run(args: argparse.Namespace) -> int:
@@ -186,6 +190,11 @@ def _bench_run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    if args.study:
+        from fabric_optics.bench.studies import run_study
+
+        print("\n".join(run_study(args.study, out, quick=args.quick)) + f"\n\nwrote {out / (args.study + '.json')}")
+        return 0
     report = run_bench(out, quick=args.quick)
     print(markdown_table(report))
     print(f"\nwrote {out / 'bench.json'} and {out / 'bench.png'}")
@@ -501,6 +510,14 @@ def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 
+def _fit_interrupted(args: argparse.Namespace, walk_parts_before: int) -> str:
+    """What an interrupted fit left for ``--resume`` (only what exists)."""
+    if args.method == "mc":
+        from fabric_optics.fitting.mc import left_behind
+        return left_behind(args.out)
+    return _fit_left_behind(args.out, walk_parts_before)
+
+
 def _fit_run(args: argparse.Namespace) -> int:
     from fabric_optics import api
 
@@ -542,12 +559,11 @@ def _fit_run(args: argparse.Namespace) -> int:
     try:
         outcome = job.run(progress=_progress(args))
     except KeyboardInterrupt:
-        if args.method == "mc":
-            from fabric_optics.fitting.mc import left_behind
-            said = left_behind(args.out)
+        if getattr(job, "phase", "") == "writing":
+            print(f"simulate fit: interrupted while writing the outputs, which are unchanged in {args.out}; "
+                  f"{_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
         else:
-            said = _fit_left_behind(args.out, walk_parts_before)
-        print(f"simulate fit: interrupted; {said}", file=sys.stderr)
+            print(f"simulate fit: interrupted; {_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
         return 130
     except OSError as exc:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None

@@ -1,5 +1,5 @@
 """The one output rule (gonio.data.outputs): every gonio command that writes replaces its own
-previous output, anything else only with --force, and a run folder never (issue 23)."""
+previous output, anything else only with --force, and a run folder never."""
 
 from __future__ import annotations
 

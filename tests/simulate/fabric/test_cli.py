@@ -75,7 +75,7 @@ def test_fabric_with_a_plan_path_and_measurable_only(fake_fiber, tmp_path, cfg):
     (["--method", "summation", "--out", "{out}", "--target-rel-err", "abc"], "--target-rel-err"),
     (["--method", "bssrdf", "--out", "{out}"], "--method"),
     (["--method", "summation", "--out", "{out}", "--seed", "-1"], "--seed"),
-    (["--method", "summation", "--out", "{out}", "--threads", "-1"], "--threads"),   # 0 = all (issue 23)
+    (["--method", "summation", "--out", "{out}", "--threads", "-1"], "--threads"),   # 0 = all
     (["--method", "summation"], "--out"),
 ])
 def test_fabric_bad_arguments_exit_2_with_one_line(fake_fiber, tmp_path, capsys, argv_tail, fragment):
