@@ -816,7 +816,7 @@ COMMANDS["sweep"] = ("parameter sweep of a fabric model on dask.distributed (one
                      _sweep_arguments, _sweep_run)
 
 
-# ---- simulate export (issue 22): one self-contained block -------------------------------------
+# ---- simulate export: one self-contained block ------------------------------------------------------
 def _export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
     p.add_argument("--method", choices=("classic", "summation", "mc"), required=True, help="fabric model")
