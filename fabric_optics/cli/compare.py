@@ -135,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# ---- compare render (issue 22): one self-contained block --------------------------------------
+# ---- compare render: one self-contained block ------------------------------------------------------
 def _add_render_parser(sub) -> None:
     ren = sub.add_parser("render", help="render RGL .bsdf files with Mitsuba 3 (cushion + lit swatch)",
                          description="Render each FILE.bsdf (e.g. `gonio export` of a measurement, "
@@ -222,7 +222,7 @@ def _report(args) -> int:
     comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
                                   illuminant=args.illuminant)
     sections = _sample_sections(args, measured, comparison)
-    if args.renders is not None:  # a `compare render` folder: its sheet embedded, captioned (issue 22)
+    if args.renders is not None:  # a `compare render` folder: its sheet embedded, captioned
         from compare.render import render_section
         from compare.report import Section
 

@@ -467,7 +467,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations", metavar="N",
                    help="summation and classic fits: model evaluations of the search in all, steps and Jacobian "
                         "columns of every start (default 400; the uncertainty propagation afterwards is counted apart)")
-    p.add_argument("--max-runs", type=_int_in(2, 10**4), default=None, dest="max_runs", metavar="N",
+    p.add_argument("--max-runs", type=_int_in(1, 10**4), default=None, dest="max_runs", metavar="N",
                    help="--method mc: Monte Carlo runs, the start's included (default 5, at least 2)")
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
                    help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
@@ -527,8 +527,9 @@ def _fit_run(args: argparse.Namespace) -> int:
                               "Monte Carlo runs)")
         common.deprecated("simulate fit", "--max-evaluations with --method mc", "--max-runs")
         args.max_runs, args.max_evaluations = args.max_evaluations, None
-        if args.max_runs < 2:
-            raise _UsageError(f"--max-runs {args.max_runs}: at least 2 (the start's run and one more)")
+    if args.max_runs is not None and args.max_runs < 2:
+        raise _UsageError(f"--max-runs {args.max_runs}: --method mc needs at least 2 Monte Carlo runs (the start's "
+                          "and one more)")
     if args.max_runs is not None and args.method != "mc":
         raise _UsageError(f"--max-runs counts the Monte Carlo runs of --method mc; the {args.method} fit counts "
                           "--max-evaluations")
@@ -815,7 +816,7 @@ COMMANDS["sweep"] = ("parameter sweep of a fabric model on dask.distributed (one
                      _sweep_arguments, _sweep_run)
 
 
-# ---- simulate export (issue 22): one self-contained block -------------------------------------
+# ---- simulate export: one self-contained block ------------------------------------------------------
 def _export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
     p.add_argument("--method", choices=("classic", "summation", "mc"), required=True, help="fabric model")

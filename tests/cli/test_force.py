@@ -1,7 +1,8 @@
 """Every command that writes refuses an existing output without --force (one line, exit 2, the
 output untouched) and replaces it with --force; a run folder (a journal of measurements) is never
 replaced. The expensive work behind a command (a Monte Carlo, a fit's search, a benchmark, a
-renderer) is replaced by a stand-in where the command's own output handling is what is tested."""
+renderer, the report's figures) is replaced by a stand-in: the command's own output handling is
+what is tested."""
 
 from __future__ import annotations
 
@@ -119,6 +120,17 @@ def _stand_in_render(monkeypatch):
     monkeypatch.setattr(render, "write_render_set", write_render_set)
 
 
+def _stand_in_report(monkeypatch):
+    import compare.report
+
+    def write_report(comparison, out, *, force=False, **kwargs):
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "report.html").write_text("<html></html>")
+        return Path(out) / "report.html"
+
+    monkeypatch.setattr(compare.report, "write_report", write_report)
+
+
 #: (command, main, argv with OUT for the output, stand-in, whether --force replaces it)
 WRITERS = [
     ("gonio truth", gonio_main, ["truth", "lambert:0.5", "--plan", "quick", "--out", "OUT"], None, True),
@@ -145,7 +157,7 @@ WRITERS = [
     ("simulate export", simulate_main, ["export", "red-cotton", "--method", "classic", "--no-progress",
                                         "--out", "OUT.bsdf"], _stand_in_export, True),
     ("compare report", compare_main, ["report", str(ANALYTIC / "measured_red"), str(ANALYTIC / "sim_scaled"),
-                                      "--out", "OUT"], None, True),
+                                      "--out", "OUT"], _stand_in_report, True),
     ("compare render", compare_main, ["render", str(FELT), "--out", "OUT"], _stand_in_render, True),
 ]
 

@@ -127,12 +127,12 @@ def demo(tmp_path_factory):
     plan.write_text(PLAN)
     # loose budgets: 20 % relative error and a photon cap for the fiber Monte Carlo; one thread
     # each, since the test suite runs two workers on two cores
-    budget = ["--geometry", str(plan), "--target-rel-err", "0.2", "--threads", "1",
+    budget = ["--plan", str(plan), "--target-rel-err", "0.2", "--threads", "1",
               "--no-progress"]
     status = {
         "acquire": gonio_main(["demo", "--sample", str(FELT), "--plan", str(plan),
                                "--out", str(root / "measured"), "--no-progress"]),
-        "truth": gonio_main(["truth", str(FELT), str(plan), "--out", str(root / "truth")]),
+        "truth": gonio_main(["truth", str(FELT), "--plan", str(plan), "--out", str(root / "truth")]),
         "summation": simulate_main(["fabric", "red-cotton", "--method", "summation", *budget,
                                     "--max-photons", "20000", "--out", str(root / "summation")]),
         "classic": simulate_main(["fabric", "red-cotton", "--method", "classic", *budget,

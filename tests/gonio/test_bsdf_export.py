@@ -207,7 +207,7 @@ def test_measured_route_against_a_known_truth(tmp_path):
 
     data, out = tmp_path / "felt", tmp_path / "felt.bsdf"
     assert gonio_main(["import", "rgl-bsdf", str(REPO / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"),
-                       "--geometry", "red-cotton", "--out", str(data)]) == 0
+                       "--plan", "red-cotton", "--out", str(data)]) == 0
     assert gonio_main(["export", str(data), "--out", str(out)]) == 0
     truth, back = read_rgl_bsdf(REPO / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"), read_rgl_bsdf(out)
     ti = np.repeat(np.arange(0.0, 61.0, 5.0), 121)

@@ -58,7 +58,7 @@ def test_round_trip_through_gonio_import(classic, tmp_path):
     """export -> `gonio import rgl-bsdf --geometry red-cotton` -> the model's values at the plan's
     geometries (incidence 0/30/45/60, observation -60..70 deg), within the stated error."""
     out = tmp_path / "imported"
-    assert gonio_main(["import", "rgl-bsdf", str(classic["spectral"]), "--geometry", "red-cotton",
+    assert gonio_main(["import", "rgl-bsdf", str(classic["spectral"]), "--plan", "red-cotton",
                        "--out", str(out)]) == 0
     t = read_dataset(out).table
     geo = t[t.wavelength_nm == 550.0]
@@ -179,8 +179,10 @@ def test_cli_export_and_refusals(tmp_path, capsys):
     assert red[0] > 2 * red[1] and red[0] > 2 * red[2]             # red cotton is red (coarse 50 nm bands)
     assert simulate_main(["export", "red-cotton", "--method", "classic", "--out", str(out)]) == 2
     assert "--force" in capsys.readouterr().err
-    assert simulate_main(["export", "red-cotton", "--method", "classic", "--out", str(tmp_path / "d.bsdf"),
-                          "--wavelengths", "400-700"]) == 2
+    with pytest.raises(SystemExit) as bad:          # an argument error: argparse exits
+        simulate_main(["export", "red-cotton", "--method", "classic", "--out", str(tmp_path / "d.bsdf"),
+                       "--wavelengths", "400-700"])
+    assert bad.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "START:STOP:STEP" in err
 

@@ -190,7 +190,7 @@ def test_resume_of_another_fit_or_of_nothing_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--max-evaluations", "1"], "--method mc needs at least 2 Monte Carlo runs"),
+    (["--max-runs", "1"], "--method mc needs at least 2 Monte Carlo runs"),
     (["--resume"], "nothing to resume"),
     (["--free", "structure.warp_twist_deg"], "does nothing for the config's structure kind 'nonwoven'"),
 ])

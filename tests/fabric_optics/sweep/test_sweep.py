@@ -67,7 +67,7 @@ def test_killed_sweep_resumes_without_recomputing_finished_tasks(tmp_path, inpro
     plan = write_plan(tmp_path, plan_text("list_nm = [450, 500, 550, 600, 650, 700]"))
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "fabric_optics.cli.simulate", "sweep", "red-cotton", "--param", PARAMS[0], "--method",
-           "classic", "--geometry", str(plan), "--target-rel-err", "0.1", "--no-progress", "--out", str(out)]
+           "classic", "--plan", str(plan), "--target-rel-err", "0.1", "--no-progress", "--out", str(out)]
     proc = subprocess.Popen(cmd + ["--workers", "1"], start_new_session=True, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
     try:
@@ -124,7 +124,7 @@ def test_failed_task_is_retried_reported_and_the_rest_kept(tmp_path, monkeypatch
     monkeypatch.setattr("fabric_optics.cli.simulate._sweep_client", client)
     plan = write_plan(tmp_path)
     out = tmp_path / "s"
-    argv = ["sweep", "red-cotton", "--param", PARAMS[0], "--method", "classic", "--geometry", str(plan),
+    argv = ["sweep", "red-cotton", "--param", PARAMS[0], "--method", "classic", "--plan", str(plan),
             "--target-rel-err", "0.1", "--retries", "2", "--no-progress", "--out", str(out)]
     assert main(argv) == 1
     captured = capsys.readouterr()
@@ -170,7 +170,7 @@ def test_out_that_is_not_this_sweep_is_refused(tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
     (other / "keep.txt").write_text("mine")
-    base = ["sweep", "red-cotton", "--param", PARAMS[0], "--method", "classic", "--geometry", str(plan), "--out"]
+    base = ["sweep", "red-cotton", "--param", PARAMS[0], "--method", "classic", "--plan", str(plan), "--out"]
     assert main(base + [str(other)]) == 2
     assert "is not a sweep directory" in capsys.readouterr().err
     assert sorted(p.name for p in other.iterdir()) == ["keep.txt"]

@@ -26,7 +26,7 @@ def test_sweep_json_on_a_full_disk_is_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(sweep_mod, "atomic_write", _enospc)
     plan = write_plan(tmp_path)
     out = tmp_path / "s"
-    assert main(["sweep", "red-cotton", "--param", "rms_slope=0.2,0.4", "--method", "classic", "--geometry",
+    assert main(["sweep", "red-cotton", "--param", "rms_slope=0.2,0.4", "--method", "classic", "--plan",
                  str(plan), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err

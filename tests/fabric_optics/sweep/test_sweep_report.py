@@ -67,9 +67,9 @@ def test_sweep_with_measurement_and_its_report(tmp_path, inproc_client, capsys):
         charted = list(csv.DictReader(fh))
     np.testing.assert_allclose([float(r["nrmse"]) for r in charted], [float(r["nrmse"]) for r in rows], rtol=1e-9)
 
-    # a previous sweep report is replaced in place; a sweep directory must be the only SIM_DIR
-    assert compare_main(["report", str(measured), str(out), "--out", str(report_dir)]) == 0
+    # a previous sweep report is replaced in place with --force; a sweep directory must be the only SIMULATED
+    assert compare_main(["report", str(measured), str(out), "--out", str(report_dir), "--force"]) == 0
     capsys.readouterr()
     assert compare_main(["report", str(measured), str(out), str(out / "points" / "rms_slope=0.2"),
                          "--out", str(tmp_path / "r2")]) == 2
-    assert "must be the only SIM_DIR" in capsys.readouterr().err
+    assert "must be the only SIMULATED" in capsys.readouterr().err

@@ -188,6 +188,6 @@ def test_near_grazing_incidences_are_dropped_unless_kept(tmp_path, capsys):
     plan.write_text('name = "g"\n[sample]\nname = "g"\n[wavelengths]\nlist_nm = [550]\n'
                     '[geometry]\nincidence_deg = [89.5]\nin_plane_deg = [0, 10]\n'
                     'skip_blocked = true\n')
-    assert main(["import", "rgl-bsdf", str(FELT), "--geometry", str(plan),
+    assert main(["import", "rgl-bsdf", str(FELT), "--plan", str(plan),
                  "--out", str(tmp_path / "g")]) == 2
     assert "add --keep-grazing" in capsys.readouterr().err

@@ -164,7 +164,7 @@ def test_red_cotton_fabric_colour_in_the_published_range(tmp_path):
     carpet.write_text(re.sub(r"(?ms)^\[structure\]\n.*?(?=^\[)", "", resolve_config_path("red-cotton").read_text()))
     colours = {}
     for name, config in (("structure", "red-cotton"), ("carpet", str(carpet))):
-        assert simulate_main(["fabric", config, "--method", "summation", "--geometry", str(plan), "--target-rel-err",
+        assert simulate_main(["fabric", config, "--method", "summation", "--plan", str(plan), "--target-rel-err",
                               "0.05", "--no-progress", "--out", str(tmp_path / name)]) == 0
         t = read_dataset(tmp_path / name).table.sort_values("wavelength_nm")
         colours[name] = spectrum_colour(t["wavelength_nm"].to_numpy(), t["beta"].to_numpy())

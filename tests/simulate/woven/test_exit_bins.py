@@ -71,7 +71,7 @@ def _run_felt(tmp_path, caplog, text: str, name: str):
     plan.write_text(PLAN)
     out = tmp_path / name
     with caplog.at_level(logging.WARNING, logger="simulate.products"):
-        assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
+        assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out),
                      "--target-rel-err", "0.1", "--no-progress"]) == 0
     warned = sum("nearly clear" in r.getMessage() for r in caplog.records)
     caplog.clear()

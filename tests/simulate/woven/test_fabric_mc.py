@@ -52,7 +52,7 @@ def inputs(tmp_path):
 def test_fabric_mc_writes_a_dataset_with_its_errors_and_stop(inputs, tmp_path, capsys):
     cfg, plan = inputs
     out = tmp_path / "mc"
-    assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out),
                  "--target-rel-err", "0.05", "--no-progress"]) == 0
     assert "mc" in capsys.readouterr().out
     ds = read_dataset(out)
@@ -66,7 +66,7 @@ def test_fabric_mc_writes_a_dataset_with_its_errors_and_stop(inputs, tmp_path, c
     assert ds.meta["model"]["method"] == "mc" and ds.meta["model"]["weave"]["matrix"] == [[1, 0], [0, 1]]
     # the same seed gives the same dataset (fixed streams per chunk and incidence)
     out2 = tmp_path / "mc2"
-    assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out2),
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out2),
                  "--target-rel-err", "0.05", "--no-progress", "--threads", "1"]) == 0
     np.testing.assert_array_equal(read_dataset(out2).table["beta"].to_numpy(), t["beta"].to_numpy())
 
@@ -74,7 +74,7 @@ def test_fabric_mc_writes_a_dataset_with_its_errors_and_stop(inputs, tmp_path, c
 def test_fabric_mc_ray_budget_is_reported(inputs, tmp_path, capsys):
     cfg, plan = inputs
     out = tmp_path / "mc"
-    assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out),
                  "--target-rel-err", "0.01", "--max-photons", "1024", "--no-progress"]) == 0
     info = read_dataset(out).meta["provenance"]["fiber_info"]
     # two traces per incidence, one per half of the BSSRDF table
@@ -86,7 +86,7 @@ def test_fabric_auto_records_the_method_of_every_geometry(inputs, tmp_path, caps
     out = tmp_path / "auto"
     # at 5 % the shipped red-cotton study (the summation within 3-9 % of the MC) allows the
     # summation at some of these geometries only, the MC at the others
-    assert main(["fabric", str(cfg), "--method", "auto", "--geometry", str(plan), "--out", str(out),
+    assert main(["fabric", str(cfg), "--method", "auto", "--plan", str(plan), "--out", str(out),
                  "--target-rel-err", "0.05", "--no-progress"]) == 0
     ds = read_dataset(out)
     chosen = ds.meta["model"]["method_per_geometry"]
@@ -126,7 +126,7 @@ def red_cotton_mc_colour(tmp_path_factory):
     plan = tmp_path / "colour.toml"
     plan.write_text('name = "colour"\n[sample]\nname = "red cotton"\n[wavelengths]\nstart_nm = 390\n'
                     'stop_nm = 710\nstep_nm = 10\n[geometry]\nincidence_deg = [0]\nin_plane_deg = [10]\n')
-    assert main(["fabric", "red-cotton", "--method", "mc", "--geometry", str(plan), "--target-rel-err", "0.02",
+    assert main(["fabric", "red-cotton", "--method", "mc", "--plan", str(plan), "--target-rel-err", "0.02",
                  "--no-progress", "--out", str(tmp_path / "mc")]) == 0
     ds = read_dataset(tmp_path / "mc")
     info = ds.meta["provenance"]["fiber_info"]

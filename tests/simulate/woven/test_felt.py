@@ -125,7 +125,7 @@ def test_simulate_fabric_mc_runs_a_felt_config(tmp_path, capsys):
     plan = tmp_path / "tiny.toml"
     plan.write_text(PLAN)
     out = tmp_path / "felt-mc"
-    assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out),
                  "--target-rel-err", "0.1", "--no-progress"]) == 0
     capsys.readouterr()
     ds = read_dataset(out)
