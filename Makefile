@@ -7,9 +7,12 @@ DEMO_OUT ?= demo-out
 # Relative standard error of the fiber and fabric Monte Carlo in the demo (the bench runs 1%).
 DEMO_REL_ERR ?= 0.03
 # The measured sample: the real green felt of the RGL database (fixtures/real/, CC0), put into the
-# mock goniophotometer; the plan with the red-cotton plan's geometry that names the felt.
+# mock goniophotometer; the plan of the file's own measured incidences (0, 27.76, 40.03, 50.16, 59.52,
+# 68.77, 78.56 deg: no incidence interpolated between its tables) with green-felt's in-plane curves and
+# the retro-reflection rings 6 and 30 deg from the source (gonio.acquisition.plan.measured_plan;
+# docs/notes/fit-trust.md). green-felt asks for 30/45/60 deg, the file's interpolation.
 DEMO_SAMPLE ?= fixtures/real/acrylic_felt_green_rgb.bsdf
-DEMO_PLAN ?= green-felt
+DEMO_PLAN ?= measured
 # The config the fits start from: the green-felt preset (simulate/configs/green-felt.toml: the felt
 # structure, RMS slope and scatterers fitted to this felt once). DEMO_DYE: the dye replaced by 8
 # knots started from the measured colour (any start config turns green; empty keeps the start's dye).

@@ -4,7 +4,7 @@
 
     compare report MEASURED_DIR SIM_DIR [SIM_DIR ...] --out REPORT_DIR [--fit FIT_DIR ...]
                    [--seed-sample DATASET_DIR]
-    compare check  MEASURED_DIR SIM_DIR [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X]
+    compare check  MEASURED_DIR SIM_DIR [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X] [--max-level-ratio X]
 
 Exit status: 0 success (``check``: every figure within its threshold), 1 a failed check (the
 failing figures are printed), 2 a usage or input error (one line on stderr, no traceback).
@@ -19,7 +19,11 @@ published model hues lie within 0.01 of the measured one, saturations within 0.0
 
 - ``--max-nrmse`` 0.10: overall NRMSE of the normalised curves (RMSE / mean measured beta);
 - ``--max-hue-diff`` 0.02: ``|dh|`` on the hue circle (hue in [0, 1));
-- ``--max-sat-diff`` 0.05: ``|ds|``.
+- ``--max-sat-diff`` 0.05: ``|ds|``;
+- ``--max-level-ratio`` 1.5: the absolute level, ``max(k_Y, 1/k_Y)`` with ``k_Y`` the luminance-weighted
+  normalisation factor at the colour geometry (:class:`compare.comparison.Level`): a model scaled by 2 fails.
+  Not judged for a relative measurement. The verdict says in words when a model matches in shape but not in
+  level.
 
 An RGB measurement is compared per channel, a spectral simulation converted to its colour space
 first (:mod:`compare.bands`); the conversion is printed as a note. A photometric (Y-only)
@@ -40,7 +44,7 @@ from gonio.data import DatasetError, read_dataset
 
 from .comparison import compare_datasets, incomplete_datasets
 from .errors import CompareError
-from .metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+from .metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from .normalise import DEFAULT_WINDOW_DEG
 
 __all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main"]
@@ -124,6 +128,10 @@ def _parser() -> argparse.ArgumentParser:
     chk.add_argument("--max-sat-diff", type=_non_negative, default=DEFAULT_MAX_SAT_DIFF,
                      metavar="X", help=f"largest |saturation difference| "
                                        f"(default {DEFAULT_MAX_SAT_DIFF:g})")
+    chk.add_argument("--max-level-ratio", type=_non_negative, default=DEFAULT_MAX_LEVEL_RATIO, metavar="X",
+                     help="largest ratio between the model's absolute level and the measured one, max(k_Y, 1/k_Y) "
+                          f"at the colour geometry (default {DEFAULT_MAX_LEVEL_RATIO:g}: a model scaled by 2 fails; "
+                          "not judged for a relative measurement)")
     common(chk)
     _add_render_parser(sub)
     return parser
@@ -270,6 +278,10 @@ def _check(args) -> int:
         figures += [("|hue difference|", abs(sc.dh), args.max_hue_diff,
                      " turns of the hue circle"),
                     ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
+    level = comparison.level(name)
+    if level.judged:
+        figures.append(("level ratio max(k_Y, 1/k_Y)", level.ratio, args.max_level_ratio,
+                        f" (k_Y {level.k:.3g}, k(lambda) spread {level.spread:.3g})"))
     failed = False
     print(f"compare check: '{name}' against '{measured.name}'")
     for note in comparison.notes():
@@ -281,6 +293,7 @@ def _check(args) -> int:
               f"({'<=' if ok else 'exceeds'} {limit:g})")
     for angle, e in comparison.curves[name].items():
         print(f"       NRMSE at incidence {angle} deg = {e.nrmse:.4g}")
+    print(f"  level: {level.words(name, comparison.overall[name].nrmse, args.max_level_ratio, args.max_nrmse)}")
     return 1 if failed else 0
 
 

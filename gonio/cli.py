@@ -197,13 +197,26 @@ def _cmd_check_plan(args) -> int:
     return 1
 
 
+def _plan_for(plan: str, sample: str, what: str):
+    """The plan named ``plan``; ``measured``: the plan of the sample file's own measured incidences
+    (:func:`gonio.acquisition.plan.measured_plan`; the sample must be an RGL .bsdf file)."""
+    from gonio.acquisition.plan import MEASURED, measured_plan
+
+    if plan != MEASURED:
+        return load_plan(plan)
+    if not (str(sample).endswith(".bsdf") and Path(sample).is_file()):
+        raise _UsageError(f"--plan {MEASURED}: follows the measured incidences of an RGL .bsdf file, but {what} "
+                          f"{sample!r} is not one; give a .bsdf file or a plan")
+    return measured_plan(sample)
+
+
 def _cmd_demo(args) -> int:
     from gonio.demo import run_demo
 
     from gonio.mock.samples import SampleError
 
     out = Path(args.out)
-    plan = load_plan(args.plan or "red-cotton")
+    plan = _plan_for(args.plan or "red-cotton", args.sample, "--sample")
     try:
         result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
                                      progress=False if args.no_progress else None,
@@ -224,7 +237,7 @@ def _cmd_truth(args) -> int:
     from gonio.mock.samples import SampleError
     from gonio.mock.truth import truth_dataset
 
-    plan = load_plan(args.plan)
+    plan = _plan_for(args.plan, args.sample, "SAMPLE")
     check_output(args.out, "dataset", writer="gonio truth", force=args.force)
     try:
         dataset = truth_dataset(args.sample, plan)
@@ -334,7 +347,8 @@ def _parser() -> argparse.ArgumentParser:
                         "without --plan the dataset is named after it")
     d.add_argument("--plan", default=None, metavar="PLAN",
                    help="plan TOML file or preset name (default red-cotton; green-felt: the same "
-                        "geometry, the felt named as its sample)")
+                        "geometry, the felt named as its sample; measured: the --sample .bsdf file's own "
+                        "measured incidences and retro-reflection ring)")
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
     d.add_argument("--force", action="store_true", help=_FORCE_HELP)
     common(d)
@@ -347,7 +361,8 @@ def _parser() -> argparse.ArgumentParser:
                                    "mock must recover.")
     t.add_argument("sample", metavar="SAMPLE",
                    help="lambert:RHO, red-cotton, a dataset directory or an RGL .bsdf file")
-    t.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name")
+    t.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name; measured: the .bsdf "
+                                                 "sample's own measured incidences and retro-reflection ring")
     t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
     t.add_argument("--force", action="store_true", help=_FORCE_HELP)
     t.add_argument("-v", "--verbose", action="store_true")
@@ -365,7 +380,8 @@ def _parser() -> argparse.ArgumentParser:
     im.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
     im.add_argument("--force", action="store_true", help=_FORCE_HELP)
     im.add_argument("--geometry", metavar="PLAN", help="plan TOML file or preset whose "
-                                                        "geometries to evaluate")
+                                                        "geometries to evaluate; measured: the file's own "
+                                                        "measured incidences and its retro-reflection ring")
     im.add_argument("--scale", type=float, metavar="FR_PER_UA",
                     help="pgii [uA] files: f_r per uA of detector current (absolute values); "
                          "without it raw currents make a relative dataset")
@@ -392,7 +408,7 @@ def _cmd_import(args) -> int:
 
     geometries = None
     if args.geometry:
-        geometries = load_plan(args.geometry).geometries()
+        geometries = _plan_for(args.geometry, args.files[0], "FILE").geometries()
     if args.scale is not None and not (args.scale > 0 and args.scale < float("inf")):
         raise _UsageError(f"--scale {args.scale}: must be a positive number")
     if not (0.0 < args.white_reflectance <= 1.0):

@@ -3,7 +3,8 @@
 Subcommands are registered in :data:`COMMANDS`: each entry is a pair of functions
 ``(add_arguments(parser), run(args) -> int)``; a later subcommand (``fiber``, ``fabric``,
 ``sweep``) is one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
-(one line on stderr naming the flag, no traceback).
+(one line on stderr naming the flag, no traceback), 3 ``simulate fit`` whose fitted colour is left off
+(``studies.fit.EXIT_COLOUR_OFF``: outputs written, fit.json ``verdict.passed`` false).
 
 ``simulate slab --mua X --mus X --g X --n X --thickness X --photons N [--seed N] [--threads N] --json``
     prints ONE JSON object ``{"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds",
@@ -482,6 +483,9 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                         "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see studies.fit_mc")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
+    p.add_argument("--absolute", action="store_true",
+                   help="an absolutely calibrated measurement: fit its level too, (ln k_Y)^2 added to the objective "
+                        "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations",
                    help="objective evaluations of the search in all: steps and Jacobian columns of every start "
                         "(default 400; the uncertainty propagation afterwards is counted apart); with --method mc: "
@@ -574,6 +578,7 @@ def _fit_run(args: argparse.Namespace) -> int:
         extra["mc_trend"] = tuple(n.strip() for n in ",".join(args.mc_trend).split(",") if n.strip())
     try:
         problem = problem_class(config, measured, free, method=args.method, colour_weight=args.colour_weight,
+                                level_weight=1.0 if args.absolute else 0.0,
                              target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
                              wavelengths_nm=wavelengths, **extra)
     except FitError as exc:
@@ -610,25 +615,35 @@ def _fit_run(args: argparse.Namespace) -> int:
         doc = write_outputs(problem, result, args.out)
     except OSError as exc:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
+    from studies.fit import uncertainty_text
+
     for p in doc["parameters"]:
-        print(f"{p['name']} = {p['value']:.6g} +- {p['u']:.2g}   (start {p['start']:.6g}, bounds "
-              f"[{p['low']:g}, {p['high']:g}])")
+        u = p["u"] if p.get("u") is not None else float("nan")
+        print(f"{p['name']} = {p['value']:.6g} {uncertainty_text(u, p.get('u_status', ''))}   (start "
+              f"{p['start']:.6g}, bounds [{p['low']:g}, {p['high']:g}])")
     for key in ("start", "fitted"):
         c = doc[key]
         colour = f", dh {c['dh']:+.4f}, ds {c['ds']:+.4f}" if "dh" in c else ""
-        print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}")
+        level = f", level k_Y {c['level_k']:.3g}" if c.get("level_k") is not None else ""
+        print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}{level}")
     for w in doc["warnings"]:
-        print(f"warning: {w}", file=sys.stderr)
+        if not w.startswith("colour left off"):    # said once, as the verdict, below
+            print(f"warning: {w}", file=sys.stderr)
     info = doc["info"]
     if args.method == "mc":
         print(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
               f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
               f"{info['seconds']:.1f} s; {info['stop']})")
-        return 0
-    print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
-          f"{info['reweighted']} re-weighted passes"
-          + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache") else "")
-          + f", {info['seconds']:.1f} s)")
+    else:
+        print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
+              f"{info['reweighted']} re-weighted passes"
+              + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache")
+                 else "") + f", {info['seconds']:.1f} s)")
+    verdict = doc.get("verdict") or {}
+    if not verdict.get("passed", True):
+        # the outputs are written and labelled failing (fit.json verdict, fitted.toml header); exit 3
+        print(f"simulate fit: FAILED, {verdict.get('why', 'colour left off')}", file=sys.stderr)
+        return int(verdict.get("exit_status") or 3)
     return 0
 
 

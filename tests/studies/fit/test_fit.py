@@ -259,3 +259,76 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out(base_problem, caplog
     assert any("noise draws left out" in r.getMessage() for r in caplog.records)
     assert np.all(np.isfinite(result.u)) and np.all(result.u > 0)
     np.testing.assert_allclose(result.x, x_true, rtol=2e-3)
+
+
+def test_without_measurement_uncertainty_u_is_scaled_by_the_residual(base_problem):
+    """Known Gaussian noise (sigma 0.004 on every beta, fixed seed) but u_beta written as 0, as an RGL file's
+    import: s^2 = SSR/(n - p) recovers the noise's variance in the objective's units within its sampling error
+    (sqrt(2/dof)), and u equals the u propagated from the true sigma (the measurement stated with it) within
+    the two estimates' sampling errors -- not the Monte Carlo part alone (~1e-14 on the RMS slope)."""
+    from studies.fit import RESIDUAL_RULE
+
+    x_true = np.array([1.4, 0.25])
+    sigma = 0.004
+    beta, _ = base_problem.model(x_true)
+    noisy = beta + np.random.default_rng(11).standard_normal(beta.shape) * sigma
+    stated = measurement(lambda g, wl: noisy, None, geometries=base_problem.geometries)
+    stated.table["u_beta"] = sigma
+    bare = measurement(lambda g, wl: noisy, None, geometries=base_problem.geometries)
+    bare.table["u_beta"] = 0.0
+    draws = 256
+    ref = run_fit(sibling(base_problem, stated), noise_draws=draws)
+    problem = sibling(base_problem, bare)
+    got = run_fit(problem, noise_draws=draws)
+    rule = got.info["uncertainty"]
+    assert rule["data"] == "residual" and rule["rule"] == RESIDUAL_RULE and rule["p"] == 2
+    # the objective's units: d / (mean(beta_meas) sqrt(N)) per curve point
+    n_curve = len(problem.measured.table)
+    sigma_r2 = (sigma / (float(np.mean(noisy)) * math.sqrt(n_curve))) ** 2
+    assert abs(rule["s2"] / sigma_r2 - 1.0) < 3.0 * math.sqrt(2.0 / rule["dof"]), (rule["s2"], sigma_r2)
+    # u against the reference: s's sampling error and the reference's 256 draws' (relative 1/sqrt(2 * 256))
+    tol = 3.0 * math.hypot(math.sqrt(0.5 / rule["dof"]), math.sqrt(0.5 / draws))
+    np.testing.assert_allclose(got.u_data, ref.u_data, rtol=tol)
+    assert np.all(got.u > 10 * got.u_mc)
+    assert any("s^2 = SSR/(n - p)" in w for w in got.warnings)
+
+
+def test_a_parameter_at_its_bound_has_no_uncertainty_number(base_problem, tmp_path):
+    """The truth beyond the RMS slope's upper bound: reported "at its upper bound", u null in fit.json."""
+    from studies.fit import write_outputs
+
+    problem = sibling(base_problem, model_measurement(base_problem, (1.4, 0.6), noise_seed=2),
+                      free=parse_free(["fiber.dye.bands[0].peak_per_um=0.3:3,rms_slope=0.1:0.4"], base_problem.config))
+    result = run_fit(problem, noise_draws=4, max_evaluations=60)
+    assert result.info["u_status"] == ["", "at its upper bound"]
+    doc = write_outputs(problem, result, tmp_path)
+    slope = doc["parameters"][1]
+    assert slope["u"] is None and slope["u_status"] == "at its upper bound"
+    assert doc["parameters"][0]["u"] > 0
+    assert "at its upper bound: no uncertainty" in (tmp_path / "fitted.toml").read_text()
+
+
+def test_absolute_fit_includes_the_level(base_problem):
+    """--absolute (level_weight 1) appends sqrt(w_l) ln k_Y to the residuals, k_Y the level compare reports;
+    on a measurement 0.8 times the model's level the absolute fit moves towards the level (the shape-only fit
+    ignores it: its k_Y stays 0.8)."""
+    from compare.comparison import compare_datasets
+
+    x_true = np.array([1.4, 0.25])
+    beta, _ = base_problem.model(x_true)
+    darker = measurement(lambda g, wl: 0.8 * beta, None, geometries=base_problem.geometries)
+    shape_only = sibling(base_problem, darker)
+    absolute = sibling(base_problem, darker)
+    absolute.level_weight = 1.0
+    r = absolute.residuals(x_true)
+    assert r.size == shape_only.residuals(x_true).size + 1
+    sim = absolute.dataset(*absolute.model(x_true), "x")
+    c = compare_datasets(darker, [sim])
+    k_y = c.level(next(iter(c.frames))).k
+    assert k_y == pytest.approx(0.8, rel=1e-6) and r[-1] == pytest.approx(math.log(k_y), rel=1e-9)
+    plain = run_fit(shape_only, noise_draws=2, max_evaluations=60, invert_start=False)
+    level = run_fit(absolute, noise_draws=2, max_evaluations=60, invert_start=False)
+    fig_plain = shape_only.residual_model().evaluate(shape_only.model(plain.x)[0])
+    fig_level = absolute.residual_model().evaluate(absolute.model(level.x)[0])
+    assert abs(math.log(fig_plain.level) - math.log(0.8)) < 0.02
+    assert abs(math.log(fig_level.level)) < 0.5 * abs(math.log(fig_plain.level))
