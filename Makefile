@@ -23,7 +23,7 @@ DEMO_START ?= green-felt
 DEMO_CLASSIC_START ?= red-cotton
 DEMO_DYE ?= --dye knots
 DEMO_FREE ?= dye,rms_slope
-# The Monte Carlo fit (output space mapping, studies/fit_mc.py): its start config, free parameters and
+# The Monte Carlo fit (output space mapping, fabric_optics/fitting/mc.py): its start config, free parameters and
 # budget of Monte Carlo runs (the start's included; its initial/ is the Monte Carlo at the start).
 # It starts from the felt as the Monte Carlo fitted it once (simulate/configs/green-felt-mc.toml:
 # clear fibers, volume fraction 0.00085, a fiber boundary rough for transmitted light, traced converged

@@ -38,11 +38,11 @@ FILL = {"PLAN": "red-cotton", "CONFIG": "red-cotton", "SAMPLE": "red-cotton", "D
 
 def _main(prog: str):
     if prog == "gonio":
-        from gonio.cli import main
+        from fabric_optics.cli.gonio import main
     elif prog == "simulate":
-        from simulate.cli import main
+        from fabric_optics.cli.simulate import main
     else:
-        from compare.cli import main
+        from fabric_optics.cli.compare import main
     return main
 
 

@@ -14,15 +14,34 @@ scipy.interpolate.LinearNDInterpolator (barycentric interpolation on a Qhull tri
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from typing import Any, Callable, Protocol
 
 import numpy as np
+import pandas as pd
 
 from gonio.data.geometry import signed_angle
 from gonio.data.schema import ANGLE_TOL_DEG, GEOMETRY, DatasetError
 
-if TYPE_CHECKING:       # types only: gonio.data.dataset imports this module (Dataset.interpolate)
-    from gonio.data.dataset import Dataset
+
+
+class Dataset(Protocol):
+    """What interpolation needs of a dataset (:class:`gonio.data.dataset.Dataset` has it; that
+    module imports this one for :meth:`~gonio.data.dataset.Dataset.interpolate`, so the type is
+    structural here rather than imported)."""
+
+    table: pd.DataFrame
+    source: Any
+
+    @property
+    def is_rgb(self) -> bool: ...
+
+    @property
+    def bands(self) -> Any: ...
+
+    @property
+    def band_column(self) -> str: ...
+
+    def derived(self, key: Any, build: Callable[[], Any]) -> Any: ...
 
 __all__ = ["interpolate"]
 

@@ -2,7 +2,7 @@
 
 ``simulate fabric --method auto`` evaluates, per geometry, the cheapest of classic, summation and
 the woven Monte Carlo whose error against the Monte Carlo reference is within the requested
-accuracy. The errors come from the bench's "where methods fail" study (:mod:`studies.method_errors`,
+accuracy. The errors come from the bench's "where methods fail" study (:mod:`fabric_optics.bench.method_errors`,
 run by ``simulate bench``): for every geometry of the red-cotton plan, the RMS over wavelengths of
 ``(model - MC) / max_lambda(MC)`` -- the same spectral-peak convention as the accuracy target.
 The shipped table (``simulate/configs/method-errors.json``, its provenance inside) is for the
@@ -33,7 +33,7 @@ MATCH_DEG = 6.0
 
 
 def load_errors(path: Any = None) -> dict:
-    """The shipped study (or one written by :func:`studies.method_errors.errors_from_report`)."""
+    """The shipped study (or one written by :func:`fabric_optics.bench.method_errors.errors_from_report`)."""
     if path is None:
         text = resources.files("simulate.configs").joinpath("method-errors.json").read_text()
     else:

@@ -132,7 +132,7 @@ _SURFACE_LOCK = threading.Lock()
 def _surface_energy(wx: float, wy: float, wz: float, spacing: float, roughness: float, n_host: float, n_psi: int,
                     n_mu: int) -> tuple[float, float, float]:
     """:func:`_surface_energy_of`, cached, computed once per key under a lock: the fit's walk builds two layer
-    tables at once on threads (:mod:`studies.walk_threads`) over the same beams, which would both miss."""
+    tables at once on threads (:mod:`fabric_optics.fitting.walk_threads`) over the same beams, which would both miss."""
     with _SURFACE_LOCK:
         return _surface_energy_of(wx, wy, wz, spacing, roughness, n_host, n_psi, n_mu)
 
@@ -206,7 +206,7 @@ def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: floa
 
     ``directional``: the layer table built with it resolves the return's first order in angle
     (:mod:`simulate.fabric.adding`; ``[structure] interior_return = "directional"``). ``tick``: called before
-    each incident direction (the fit's walk stops there when interrupted: :mod:`studies.walk_threads`)."""
+    each incident direction (the fit's walk stops there when interrupted: :mod:`fabric_optics.fitting.walk_threads`)."""
     if int(n_layers) < 1:
         raise ValueError(f"interior: n_layers must be >= 1, got {n_layers!r}")
     classes = exit_classes(table, 2.0 * spacing_ratio)

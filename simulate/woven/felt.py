@@ -36,7 +36,7 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   thickness the deposition gives (10 touching layers of 20-um fibers: ~1.2-1.8 mm instead of 0.2 mm).
   A requested packing below the deposition's density (< ~0.11) is not loosened further (it only sets
   the fiber count): compare with the summation at the felt's measured volume fraction
-  (``studies/bench_woven_felt.py --packing``).
+  (``fabric_optics/bench/woven_felt.py --packing``).
 * **Ends**: the tubes are open. An end is ``R / l = 2.5 %`` of a fiber's surface; light that enters
   one meets the tube's inside and is taken into the fiber's volume (the interpenetration rule).
 * **Mesh**: the weave mesh's contract (:mod:`simulate.fabric.weave`): one "yarn" per fiber image,

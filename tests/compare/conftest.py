@@ -74,8 +74,8 @@ def write(tmp_path):
 
 
 def run_cli(argv, capsys):
-    """Run compare.cli.main in-process; return (status, stdout, stderr)."""
-    from compare.cli import main
+    """Run fabric_optics.cli.compare.main in-process; return (status, stdout, stderr)."""
+    from fabric_optics.cli.compare import main
 
     status = main([str(a) for a in argv])
     out = capsys.readouterr()

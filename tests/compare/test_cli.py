@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from compare.cli import main
+from fabric_optics.cli.compare import main
 from gonio.data import read_dataset, write_dataset
 
 XSS = "<script>alert(1)</script>"

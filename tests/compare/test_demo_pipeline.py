@@ -27,9 +27,9 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from compare.cli import main as compare_main
-from gonio.cli import main as gonio_main
-from simulate.cli import main as simulate_main
+from fabric_optics.cli.compare import main as compare_main
+from fabric_optics.cli.gonio import main as gonio_main
+from fabric_optics.cli.simulate import main as simulate_main
 
 REPO = Path(__file__).resolve().parents[2]
 FELT = REPO / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"

@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from compare.cli import main
+from fabric_optics.cli.compare import main
 from compare.comparison import compare_datasets
 from compare.metrics import DEFAULT_MAX_LEVEL_RATIO
 from gonio.data import make_dataset, new_meta, read_dataset, write_dataset

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compare.cli import main as compare_main
+from fabric_optics.cli.compare import main as compare_main
 from gonio.data.bsdf_export import export_bsdf, incidence_nodes
 
 REPO = Path(__file__).resolve().parents[2]
@@ -59,7 +59,7 @@ def test_render_set_side_by_side(tmp_path, red_glossy, capsys):
 
 def test_spectral_file_renders_in_the_spectral_variant(tmp_path, capsys):
     pytest.importorskip("mitsuba")
-    from gonio.cli import main as gonio_main
+    from fabric_optics.cli.gonio import main as gonio_main
 
     src = tmp_path / "m.bsdf"
     assert gonio_main(["export", str(MEASURED), "--out", str(src), "--resolution", "16", "--incidences", "6"]) == 0
@@ -86,7 +86,7 @@ def test_render_section_embeds_the_sheet(tmp_path, red_glossy):
 def test_without_mitsuba_one_line_how_to_install(tmp_path, red_glossy):
     """`import mitsuba` failing (simulated) -> exit 2 and one line naming the extra."""
     code = ("import sys; sys.modules['mitsuba'] = None\n"
-            "from compare.cli import main\n"
+            "from fabric_optics.cli.compare import main\n"
             f"sys.exit(main(['render', {str(red_glossy)!r}, '--out', {str(tmp_path / 'r')!r}]))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO,
                          env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})

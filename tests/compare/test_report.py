@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from compare.cli import main
+from fabric_optics.cli.compare import main
 from compare.comparison import compare_datasets
 from compare.errors import CompareError
 from compare.report import FIGURE_DPI, swatch_entries, write_report

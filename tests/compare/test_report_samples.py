@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compare.cli import main
+from fabric_optics.cli.compare import main
 from compare.errors import CompareError
 from compare.report.fits import fits_section
 from compare.report.samples import (measured_sample_section, published_colour_check,

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gonio.cli import main as gonio_main
+from fabric_optics.cli.gonio import main as gonio_main
 from gonio.data import in_plane_geometry, make_dataset, new_meta, read_dataset, write_dataset
 from gonio.data.bsdf_export import (STATED_TABULATION_ERROR, build_fields, export_bsdf, incidence_nodes,
                                     random_pairs, tabulation_error, warp_forward, write_tensor_file)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 from simulate.fabric.mesh import mesh
 from simulate.fabric.weave import MAX_TRIANGLES, MAX_WEAVE_CELLS, Weave, WeaveError, preset, triangle_count
 from simulate.fabric.wif import MAX_WIF_BYTES, read_wif
@@ -287,7 +287,7 @@ def test_tiny_target_refused_with_its_estimate(tmp_path, capsys, no_fiber_work):
 
 
 def test_sweep_grid_refused_before_building_configs(tmp_path, capsys, monkeypatch):
-    from studies import sweep_spec
+    from fabric_optics.sweep import spec as sweep_spec
 
     built = []
     real = sweep_spec.parse_config
@@ -305,14 +305,14 @@ def test_sweep_grid_refused_before_building_configs(tmp_path, capsys, monkeypatc
 
 @pytest.mark.parametrize("rel", ["../..", "points/../..", "/etc", "points/a/b", "points/..", "tasks/x", 7])
 def test_sweep_point_dirs_must_stay_inside(tmp_path, rel):
-    from studies.sweep_spec import SweepError, point_dir
+    from fabric_optics.sweep.spec import SweepError, point_dir
 
     with pytest.raises(SweepError, match="point dir"):
         point_dir(tmp_path, rel)
 
 
 def test_sweep_point_dir_symlink_out_refused(tmp_path):
-    from studies.sweep_spec import SweepError, point_dir
+    from fabric_optics.sweep.spec import SweepError, point_dir
 
     (tmp_path / "points").mkdir()
     (tmp_path / "points" / "x=1").symlink_to(tmp_path.parent)

@@ -8,7 +8,7 @@ import logging
 
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.mock import MockInstrument
 
 SEED = 5

@@ -12,7 +12,7 @@ import pytest
 
 from gonio.acquisition.journal import (Journal, JournalIntegrityError, parse_journal,
                                        read_journal)
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.mock import MockInstrument
 
 _START = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 1.0}

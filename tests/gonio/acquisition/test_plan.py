@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gonio.data import geometry as G
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.acquisition.plan import PlanError, load_plan, parse_plan, preset_names
 
 

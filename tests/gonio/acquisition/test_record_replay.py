@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.mock import MockInstrument
 from gonio.acquisition.record import load_transcript, reseal

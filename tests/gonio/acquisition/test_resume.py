@@ -23,7 +23,7 @@ SEED = 7
 
 
 def _gonio(*args):
-    return [sys.executable, "-m", "gonio.cli", *map(str, args)]
+    return [sys.executable, "-m", "fabric_optics.cli.gonio", *map(str, args)]
 
 
 @pytest.fixture
@@ -211,7 +211,7 @@ def test_stale_calibration_is_measured_again(drv, tmp_path, caplog, age_min, reu
 
 
 def test_resume_refuses_a_journal_of_another_plan(drv, tmp_path):
-    from gonio.cli import main
+    from fabric_optics.cli.gonio import main
     p1 = drv.write_plan(tmp_path, "one", incidence=(0,), in_plane=(20,), wavelengths=(500,))
     p2 = drv.write_plan(tmp_path, "two", incidence=(0,), in_plane=(30,), wavelengths=(500,))
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
 
@@ -81,13 +81,13 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
 
     plan = drv.write_plan(tmp_path, "int", incidence=(0, 30, 60), in_plane=(-50, -10, 20, 50),
                           wavelengths=(450, 500, 550, 600, 650), itime_ms=200, readings=100)
-    mock = subprocess.Popen([sys.executable, "-m", "gonio.cli", "mock", "--sample", "lambert:0.5",
+    mock = subprocess.Popen([sys.executable, "-m", "fabric_optics.cli.gonio", "mock", "--sample", "lambert:0.5",
                              "--serial", "socket"], stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, text=True, preexec_fn=_default_sigint)
     try:
         urls = json.loads(mock.stdout.readline())
         out = tmp_path / "run"
-        proc = subprocess.Popen([sys.executable, "-m", "gonio.cli", "acquire", str(plan),
+        proc = subprocess.Popen([sys.executable, "-m", "fabric_optics.cli.gonio", "acquire", str(plan),
                                  "--modbus", urls["modbus"], "--serial", urls["serial"],
                                  "--out", str(out), "--no-progress"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

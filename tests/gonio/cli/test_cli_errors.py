@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
 from gonio.mock import MockInstrument

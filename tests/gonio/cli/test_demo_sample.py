@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 
 FELT = Path(__file__).parents[3] / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.data.outputs import OutputRefused, check_output
 from gonio.mock import MockInstrument

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gonio.cli import main as gonio_main
+from fabric_optics.cli.gonio import main as gonio_main
 from gonio.data import make_dataset, new_meta, read_dataset, write_dataset
 from gonio.data.formats import FormatError
 from gonio.data.formats.merl import MERL_SHAPE, half_diff, read_merl, write_merl

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.data.formats import errors
 from gonio.data.formats.tensor import MAGIC, parse_tensor_bytes

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gonio.cli import main
+from fabric_optics.cli.gonio import main
 from gonio.data import read_dataset
 from gonio.mock.samples import RedCottonSample
 from gonio.acquisition.plan import load_plan

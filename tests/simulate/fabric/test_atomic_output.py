@@ -14,7 +14,7 @@ import pytest
 
 from gonio.data import dataset as dataset_mod
 from gonio.data.dataset import read_dataset
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 from simulate.outdir import recover, side_folders
 
 GOOD_CONFIG = """

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gonio.data.dataset import read_dataset
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 from simulate.fiber.tables import JSON_NAME, NPZ_NAME, read_fiber_table
 
 from .conftest import fake_R
@@ -163,7 +163,7 @@ def test_fiber_table_grid_values_and_sidecar(fake_fiber, tmp_path, capsys, cfg):
 def test_console_script_has_no_traceback_on_a_user_error(tmp_path):
     bad = tmp_path / "red.toml"
     bad.write_text(GOOD_CONFIG.replace("n_host = 1.557", "n_host = -2"))
-    proc = subprocess.run([sys.executable, "-m", "simulate.cli", "fabric", str(bad), "--method", "classic",
+    proc = subprocess.run([sys.executable, "-m", "fabric_optics.cli.simulate", "fabric", str(bad), "--method", "classic",
                            "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip() == ("simulate fabric: error: red.toml: fiber.n_host must be a number >= 1 "

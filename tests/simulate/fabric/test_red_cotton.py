@@ -154,7 +154,7 @@ def test_red_cotton_fabric_colour_in_the_published_range(tmp_path):
 
     from gonio.data import read_dataset
     from gonio.data.colour import spectrum_colour
-    from simulate.cli import main as simulate_main
+    from fabric_optics.cli.simulate import main as simulate_main
     from simulate.config import resolve_config_path
 
     plan = tmp_path / "colour.toml"

@@ -20,7 +20,7 @@ from numba.core.registry import CPUDispatcher
 
 
 def _routes() -> None:
-    from simulate.cli import main
+    from fabric_optics.cli.simulate import main
     from simulate.fiber import Fiber, point_outputs, range_outputs, volume_brdf
     from simulate.media.medium import HGMedium
     from simulate.montecarlo import run_cylinder, run_slab

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 
 
 def test_slab_json(capsys):
@@ -27,7 +27,7 @@ def test_slab_json(capsys):
 
 def test_slab_console_script_subprocess():
     proc = subprocess.run(
-        [sys.executable, "-m", "simulate.cli", "slab", "--mua", "1", "--mus", "10", "--thickness", "0.1",
+        [sys.executable, "-m", "fabric_optics.cli.simulate", "slab", "--mua", "1", "--mus", "10", "--thickness", "0.1",
          "--photons", "1000", "--json"],
         capture_output=True, text=True, timeout=120,
     )
@@ -130,7 +130,7 @@ def test_bench_out_is_a_file(tmp_path, capsys):
 @pytest.mark.slow  # spawns whole processes, one of them compiling into an empty numba cache
 def test_bench_whole_process_part(monkeypatch):
     """Structure of the whole-process figures, and the MCML-style case's physics (van de Hulst Rd, Tt)."""
-    from studies import bench
+    from fabric_optics.bench import suite as bench
 
     monkeypatch.setattr(bench, "MCML_CASE_PHOTONS", 200_000)
     whole = bench._whole_process(repeats=2)

@@ -87,7 +87,7 @@ def test_every_structure_field_is_validated(line, field):
 
 
 def test_bad_structure_field_is_one_line_exit_2(tmp_path, capsys):
-    from simulate.cli import main
+    from fabric_optics.cli.simulate import main
 
     path = tmp_path / "bad.toml"
     path.write_text(HG_CONFIG + "[structure]\nwarp_twist = \"Q\"\n")

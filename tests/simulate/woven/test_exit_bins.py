@@ -8,7 +8,7 @@ import numpy as np
 
 from gonio.data.dataset import read_dataset
 from simulate import fiber as F
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 from simulate.media.medium import HGMedium
 from simulate.woven import estimate as E
 from simulate.woven.yarn import yarn_table

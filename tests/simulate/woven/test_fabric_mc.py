@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gonio.data.dataset import read_dataset
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 
 CONFIG = """
 seed = 4

@@ -11,7 +11,7 @@ from gonio.data.dataset import read_dataset
 from simulate import fabric as fab
 from simulate import fiber as F
 from simulate import woven as W
-from simulate.cli import main
+from fabric_optics.cli.simulate import main
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
 from simulate.woven.felt import felt_mesh
@@ -43,7 +43,7 @@ def test_the_felts_fibers_do_not_interpenetrate(monkeypatch):
     point-in-cylinder, not the placement's segment distance); with the contact rule switched off
     (every fiber dropped to the floor) the same check finds them buried, so it can fail."""
     from simulate.woven import felt
-    from studies.bench_woven_felt import buried_fraction
+    from fabric_optics.bench.woven_felt import buried_fraction
 
     spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=20.0, layers=4)
     m = felt_mesh(spec, 10.0, seed=5)

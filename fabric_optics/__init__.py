@@ -1,0 +1,36 @@
+"""fabric-optics: the application layer above :mod:`gonio`, :mod:`simulate` and :mod:`compare`.
+
+- :mod:`fabric_optics.api` (re-exported here): the Python interface -- load a config or plan,
+  simulate, compare and check, fit, read and write datasets, export;
+- :mod:`fabric_optics.fitting`: the inverse problem behind ``simulate fit``;
+- :mod:`fabric_optics.sweep`: parameter studies on dask.distributed behind ``simulate sweep``;
+- :mod:`fabric_optics.bench`: the benchmarks behind ``simulate bench``;
+- :mod:`fabric_optics.cli`: the three command lines ``gonio``, ``simulate`` and ``compare``.
+
+Nothing in ``gonio``, ``simulate`` or ``compare`` imports this package.
+"""
+
+from fabric_optics.api import (
+    FABRIC_METHODS,
+    FIT_METHODS,
+    FitOutcome,
+    InputError,
+    OutputExistsError,
+    ToolkitError,
+    Verdict,
+    check,
+    compare,
+    export_bsdf,
+    fit,
+    load_config,
+    load_plan,
+    measure_on_mock,
+    read_dataset,
+    simulate,
+    truth,
+    write_dataset,
+)
+
+__all__ = ["FABRIC_METHODS", "FIT_METHODS", "FitOutcome", "InputError", "OutputExistsError", "ToolkitError",
+           "Verdict", "check", "compare", "export_bsdf", "fit", "load_config", "load_plan", "measure_on_mock",
+           "read_dataset", "simulate", "truth", "write_dataset"]

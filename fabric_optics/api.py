@@ -1,0 +1,357 @@
+"""The Python interface of fabric-optics: what the command lines do, as functions.
+
+Load a config or plan, simulate a fabric at a plan's geometries, compare datasets and judge the
+comparison, fit config parameters to a measurement, read and write datasets, export to a renderer.
+Every function returns the project's own objects (a :class:`gonio.data.dataset.Dataset` holds a
+pandas table in ``.table`` and its metadata in ``.meta``), raises :class:`InputError` (a
+:class:`ToolkitError`) for bad input instead of exiting, and shows a progress bar only when
+``progress=True``.
+
+>>> import fabric_optics as fo
+>>> cfg = fo.load_config("red-cotton")
+>>> cfg.name
+'red-cotton'
+>>> fo.load_config("no-such-preset")
+Traceback (most recent call last):
+...
+fabric_optics.api.InputError: ...no-such-preset...
+
+A whole chain (see ``examples/``)::
+
+    measured = fo.read_dataset("demo-out/measured")
+    sim = fo.simulate("red-cotton", plan="red-cotton", method="summation", target_rel_err=0.03)
+    verdict = fo.check(fo.compare(measured, sim))
+    print(verdict.summary())
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
+
+from compare.comparison import Comparison
+from compare.errors import CompareError
+from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+from compare.normalise import DEFAULT_WINDOW_DEG
+from gonio.acquisition.plan import Plan, PlanError
+from gonio.data.dataset import Dataset
+from gonio.data.schema import DatasetError
+from simulate.config import SimulationConfig
+from simulate.config_table import ConfigError
+from simulate.fabric.summation import FabricError
+
+if TYPE_CHECKING:
+    from fabric_optics.fitting.driver import FitResult
+
+__all__ = [
+    "ToolkitError", "InputError", "OutputExistsError",
+    "load_config", "load_plan", "read_dataset", "write_dataset",
+    "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "FitOutcome", "export_bsdf",
+    "FABRIC_METHODS", "FIT_METHODS",
+]
+
+#: The fabric models (``method=``): summation over the fabric's fibers, the classic Lambert +
+#: Cook-Torrance model, Monte Carlo ray tracing of the fabric's model, or per geometry the
+#: cheapest whose error is within the target.
+FABRIC_METHODS = ("summation", "classic", "mc", "auto")
+#: The models a fit can adjust (``auto`` is not one: its choice changes between evaluations).
+FIT_METHODS = ("summation", "classic", "mc")
+
+
+class ToolkitError(Exception):
+    """Base of the errors this interface raises."""
+
+
+class InputError(ToolkitError, ValueError):
+    """A config, plan, dataset, parameter or value that cannot be used; the message names it and
+    says what to do. The library's own error is kept as ``__cause__``."""
+
+
+class OutputExistsError(ToolkitError, FileExistsError):
+    """The output path holds something already and ``force`` was not given."""
+
+
+_INPUT_ERRORS: tuple[type[Exception], ...] = (ConfigError, PlanError, DatasetError, FabricError, CompareError)
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _typed_errors(fn: _F) -> _F:
+    """Re-raise the libraries' input errors as :class:`InputError` (the original as ``__cause__``)."""
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from fabric_optics.fitting.problem import FitError
+
+        try:
+            return fn(*args, **kwargs)
+        except ToolkitError:
+            raise
+        except (*_INPUT_ERRORS, FitError) as exc:
+            raise InputError(str(exc)) from exc
+    return wrapper  # type: ignore[return-value]
+
+
+@_typed_errors
+def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfig:
+    """A simulation config: a preset name (``"red-cotton"``, ``"green-felt"``, ...), a TOML path,
+    or a config already loaded (returned as is)."""
+    from simulate.config import load_config as _load
+
+    if isinstance(config, SimulationConfig):
+        return config
+    return _load(config)
+
+
+@_typed_errors
+def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
+    """An acquisition plan (the geometries and wavelengths): a preset name or a TOML path."""
+    from gonio.acquisition.plan import load_plan as _load
+
+    if isinstance(plan, Plan):
+        return plan
+    return _load(plan)
+
+
+def _dataset(data: str | os.PathLike | Dataset) -> Dataset:
+    return data if isinstance(data, Dataset) else read_dataset(data)
+
+
+@_typed_errors
+def read_dataset(path: str | os.PathLike) -> Dataset:
+    """A radiance-coefficient dataset folder (``radiance.csv`` + ``meta.json``, docs: dataset format)."""
+    from gonio.data.dataset import read_dataset as _read
+
+    return _read(path)
+
+
+@_typed_errors
+def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = False) -> Path:
+    """Write ``dataset`` as a folder. An existing non-empty folder is replaced only with
+    ``force=True`` (:class:`OutputExistsError` otherwise); the write is atomic per file."""
+    from gonio.data.dataset import write_dataset as _write
+
+    out = Path(path)
+    if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+        raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
+    return _write(dataset, out)
+
+
+@_typed_errors
+def simulate(config: str | os.PathLike | SimulationConfig, plan: str | os.PathLike | Plan = "red-cotton",
+             method: str = "summation", *, target_rel_err: float | None = None, seed: int | None = None,
+             threads: int | None = None, max_photons: int | None = None, measurable_only: bool = False,
+             progress: bool = False, max_seconds: float = 0.0) -> Dataset:
+    """The fabric's radiance coefficient at ``plan``'s geometries and wavelengths by ``method``
+    (one of :data:`FABRIC_METHODS`), as a simulated dataset (``u_beta`` is its Monte Carlo error).
+
+    ``target_rel_err``, ``seed``, ``threads`` and ``max_photons`` default to the config's;
+    ``threads=0`` uses every core numba may.
+    """
+    from simulate.virtual import fabric_dataset
+
+    if method not in FABRIC_METHODS:
+        raise InputError(f"method {method!r}: choose one of {', '.join(FABRIC_METHODS)}")
+    return fabric_dataset(load_config(config), load_plan(plan), method, target_rel_err=target_rel_err, seed=seed,
+                          threads=threads, max_photons=max_photons, measurable_only=measurable_only,
+                          progress=progress, max_seconds=max_seconds)
+
+
+@_typed_errors
+def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os.PathLike
+            | Sequence[Dataset | str | os.PathLike], *, window_deg: float = DEFAULT_WINDOW_DEG,
+            illuminant: str = "D65") -> Comparison:
+    """Each simulation normalised to the measurement at the normal direction and compared with it:
+    curve errors (``.overall``, ``.curves``) and the colour match (``.colour``)."""
+    from compare.comparison import compare_datasets
+
+    sims = [simulated] if isinstance(simulated, (Dataset, str, os.PathLike)) else list(simulated)
+    return compare_datasets(_dataset(measured), [_dataset(s) for s in sims], window_deg=window_deg,
+                            illuminant=illuminant)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A pass/fail judgement of one simulation against the measurement (``compare check``)."""
+
+    name: str
+    measured: str
+    #: (label, value, limit, unit) of every figure judged; a NaN value fails
+    figures: list[tuple[str, float, float, str]]
+    curves: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return all(value <= limit for _, value, limit, _ in self.figures)
+
+    def failures(self) -> list[str]:
+        return [label for label, value, limit, _ in self.figures if not value <= limit]
+
+    def summary(self) -> str:
+        """The lines ``compare check`` prints."""
+        lines = [f"'{self.name}' against '{self.measured}'"]
+        lines += [f"  note: {n}" for n in self.notes]
+        for label, value, limit, unit in self.figures:
+            ok = value <= limit
+            lines.append(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g}{unit} ({'<=' if ok else 'exceeds'} "
+                         f"{limit:g})")
+        lines += [f"       NRMSE at incidence {a} deg = {v:.4g}" for a, v in self.curves.items()]
+        return "\n".join(lines)
+
+
+def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float = DEFAULT_MAX_NRMSE,
+          max_hue_diff: float = DEFAULT_MAX_HUE_DIFF, max_sat_diff: float = DEFAULT_MAX_SAT_DIFF) -> Verdict:
+    """Judge one simulation of ``comparison`` (the first unless ``name``) against thresholds:
+    overall NRMSE, and where the colour is known, |hue difference| (turns) and |saturation difference|."""
+    name = name if name is not None else next(iter(comparison.simulated))
+    if name not in comparison.simulated:
+        raise InputError(f"no simulation named {name!r} in the comparison ({', '.join(comparison.simulated)})")
+    figures = [("overall NRMSE", comparison.overall[name].nrmse, max_nrmse, "")]
+    if comparison.colour is not None:
+        sc = comparison.colour.simulated[name]
+        figures += [("|hue difference|", abs(sc.dh), max_hue_diff, " turns of the hue circle"),
+                    ("|saturation difference|", abs(sc.ds), max_sat_diff, "")]
+    return Verdict(name=name, measured=comparison.measured.name, figures=figures,
+                   curves={a: e.nrmse for a, e in comparison.curves[name].items()}, notes=list(comparison.notes()))
+
+
+@dataclass
+class FitOutcome:
+    """A finished fit: the fitted config (``config``, also in ``out/fitted.toml``), the summary
+    written to ``out/fit.json`` (``summary``: parameters with uncertainties, the figures before
+    and after) and the optimiser's result (``result``)."""
+
+    out: Path
+    summary: dict
+    result: FitResult
+    config: SimulationConfig
+
+
+@_typed_errors
+def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLike | Dataset,
+        free: str | Sequence[str], out: str | os.PathLike, *, method: str = "summation", dye: str = "config",
+        max_evaluations: int | None = None, max_runs: int | None = None, target_rel_err: float = 0.03,
+        seed: int | None = None, threads: int | None = None, colour_weight: float = 1.0,
+        wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
+        resume: bool = False, force: bool = False, progress: bool = False) -> FitOutcome:
+    """Fit the ``free`` parameters of ``config`` (names as ``simulate fit --free``: ``"dye,rms_slope"``
+    or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`).
+
+    ``dye="knots"`` replaces the config's dye by knots started from the measured colour.
+    ``max_evaluations`` bounds the model evaluations of the summation and classic fits, ``max_runs``
+    the Monte Carlo runs of the ``mc`` fit. Everything is written to ``out`` (resumable with
+    ``resume=True``); an existing fit there is replaced only with ``force=True``.
+    """
+    import numpy as np
+
+    from fabric_optics.fitting.driver import DEFAULT_MAX_EVALUATIONS, parse_free
+    from fabric_optics.fitting.mc import DEFAULT_MC_RUNS
+    from fabric_optics.fitting.methods import method_runner
+    from fabric_optics.fitting.start import knots_config
+    from simulate.config import load_config as _load
+
+    if method not in FIT_METHODS:
+        raise InputError(f"method {method!r}: choose one of {', '.join(FIT_METHODS)}")
+    if mc_trend and method != "mc":
+        raise InputError(f"mc_trend is for method 'mc' (the {method} fit has no Monte Carlo runs)")
+    cfg = load_config(config)
+    data = _dataset(measured)
+    wavelengths = None if wavelengths_nm is None else np.asarray(wavelengths_nm, dtype=float)
+    if dye == "knots":
+        spectral = "channel" not in data.table.columns
+        cfg = knots_config(cfg, wavelengths if wavelengths is not None else
+                           (data.wavelengths_nm if spectral else cfg.wavelengths_nm))
+    elif dye != "config":
+        raise InputError(f"dye {dye!r}: choose 'config' or 'knots'")
+    names = [free] if isinstance(free, str) else list(free)
+    problem_class, run_fit, write_outputs = method_runner(method)
+    extra: dict[str, Any] = {"mc_trend": tuple(mc_trend)} if mc_trend else {}
+    problem = problem_class(cfg, data, parse_free(names, cfg), method=method, colour_weight=colour_weight,
+                            target_rel_err=target_rel_err, seed=seed, threads=threads or None,
+                            wavelengths_nm=wavelengths, **extra)
+    problem.precheck()
+    out_dir = Path(out)
+    if out_dir.exists() and any(out_dir.iterdir()) and not (resume or force):
+        raise OutputExistsError(f"{out_dir}: exists and is not empty; pass resume=True to continue a fit there "
+                                "or force=True to replace it")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    budget = (max_runs if method == "mc" else max_evaluations)
+    if budget is None:
+        budget = DEFAULT_MC_RUNS if method == "mc" else DEFAULT_MAX_EVALUATIONS
+    result = run_fit(problem, out=out_dir, resume=resume, max_evaluations=budget, starts=starts, progress=progress)
+    summary = write_outputs(problem, result, out_dir)
+    return FitOutcome(out=out_dir, summary=summary, result=result, config=_load(out_dir / "fitted.toml"))
+
+
+@_typed_errors
+def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: str | os.PathLike, *,
+                method: str = "summation", wavelengths_nm: Sequence[float] | None = None, rgb: bool = False,
+                resolution: int = 64, incidences: int = 16, target_rel_err: float | None = None,
+                seed: int | None = None, threads: int | None = None, force: bool = False,
+                progress: bool = False) -> Any:
+    """Write an RGL ``.bsdf`` file (Mitsuba 3's ``measured`` plugin, pbrt-v4) of a fabric model
+    (``source`` a config or preset, evaluated by ``method``) or of a dataset (``source`` a
+    :class:`~gonio.data.dataset.Dataset`: its values interpolated). Returns the export's result
+    (its path and tabulation figures)."""
+    out = Path(path)
+    if out.exists() and not force:
+        raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
+    if not 4 <= resolution <= 256:
+        raise InputError(f"resolution {resolution}: choose 4..256 values per axis")
+    if not 2 <= incidences <= 64:
+        raise InputError(f"incidences {incidences}: choose 2..64 incidence nodes")
+    if isinstance(source, Dataset):
+        from gonio.data.bsdf_dataset import dataset_brdf, dataset_nodes
+        from gonio.data.bsdf_export import export_bsdf as _export
+
+        beta, rule = dataset_brdf(source)
+        return _export(beta, out, wavelengths_nm=None if source.is_rgb else source.wavelengths_nm,
+                       theta_i_deg=dataset_nodes(rule, incidences), res=resolution,
+                       description=f"{source.name} (fabric-optics export of a measured dataset)",
+                       provenance={"dataset": source.name, "coverage": rule})
+    from simulate.export import export_model
+
+    if method not in ("summation", "classic", "mc"):
+        raise InputError(f"method {method!r}: choose one of summation, classic, mc")
+    return export_model(load_config(source), method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
+                        incidences=incidences, target_rel_err=target_rel_err, seed=seed, threads=threads,
+                        progress=progress)
+
+
+@_typed_errors
+def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan: str | os.PathLike | Plan | None = None,
+                    seed: int = 0, force: bool = False, progress: bool = False) -> Dataset:
+    """Measure ``plan`` on the embedded mock goniophotometer holding ``sample`` (``red-cotton``, the
+    analytic stand-in; ``lambert:RHO``; a dataset folder; or an RGL ``.bsdf`` file such as
+    ``fixtures/real/acrylic_felt_green_rgb.bsdf``) through the real driver and protocols, as
+    ``gonio demo`` does; returns the measured dataset written in ``out``. Without ``plan`` the
+    red-cotton plan's geometry is used, named after the sample."""
+    from gonio.data.outputs import OutputRefused
+    from gonio.demo import run_demo
+    from gonio.mock.samples import SampleError
+
+    plan_obj = load_plan("red-cotton" if plan is None else plan)
+    try:
+        run_demo(out, plan_obj, seed=seed, force=force, progress=progress, sample=sample,
+                 name_from_sample=plan is None and sample != "red-cotton")
+    except SampleError as exc:
+        raise InputError(f"sample {sample!r}: {exc}") from exc
+    except OutputRefused as exc:
+        raise OutputExistsError(str(exc)) from exc
+    return read_dataset(out)
+
+
+@_typed_errors
+def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset:
+    """The mock sample's true radiance coefficient at ``plan``'s geometries (no instrument noise):
+    what a perfect measurement of ``sample`` gives (``gonio truth``)."""
+    from gonio.mock.samples import SampleError
+    from gonio.mock.truth import truth_dataset
+
+    try:
+        return truth_dataset(sample, load_plan(plan))
+    except SampleError as exc:
+        raise InputError(f"sample {sample!r}: {exc}") from exc

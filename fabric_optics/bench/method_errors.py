@@ -1,0 +1,215 @@
+"""Where the cheaper fabric models depart from the woven Monte Carlo: the data behind ``--method auto``.
+
+Per geometry of the red-cotton plan, the departure of a model from the Monte Carlo reference is
+:func:`simulate.montecarlo.accuracy.relative_error` of ``model - MC`` on that geometry's
+spectrum: the RMS over wavelengths of ``(model - MC) / max_lambda(MC)``, the same definition as
+``--target-rel-err``. ``simulate bench`` runs it (:mod:`fabric_optics.bench.woven`) and
+:func:`errors_from_report` turns its report into the table that
+:func:`simulate.fabric.auto.choose` reads (``simulate/configs/method-errors.json``).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import resource
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simulate.montecarlo.accuracy import relative_error
+
+__all__ = ["model_datasets", "frame", "departure", "errors_from_report", "auto_counts", "main"]
+
+
+def model_datasets() -> dict:
+    """Summation and classic on the red-cotton plan at 1 %: seconds and their tables."""
+    from gonio.acquisition.plan import load_plan
+    from simulate.config import load_config
+    from simulate.virtual import fabric_dataset
+
+    cfg = load_config("red-cotton")
+    plan = load_plan("red-cotton")
+    out = {}
+    for method in ("summation", "classic"):
+        t = time.perf_counter()
+        ds = fabric_dataset(cfg, plan, method, target_rel_err=0.01)
+        out[method] = {"seconds": time.perf_counter() - t, "table": ds.table.to_dict(orient="list")}
+    return out
+
+
+def frame(table: dict):
+    """A report's table (dict of columns) as a DataFrame."""
+    import pandas as pd
+
+    return pd.DataFrame(table)
+
+
+def departure(report: dict) -> dict:
+    """Per geometry, the RMS over wavelengths of ``(model - MC) / max_lambda(MC)`` (the accuracy
+    target's spectral-peak convention) and the MC's own relative error there; median and max."""
+    mc = frame(report["red_cotton"]["table"])
+    key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
+    out: dict[str, Any] = {}
+    for name, m in report["models"].items():
+        j = mc.merge(frame(m["table"]), on=key, suffixes=("_mc", "_m"))
+        rows = []
+        for (ti, pi, to, po), g in j.groupby(["theta_i", "phi_i", "theta_o", "phi_o"]):
+            peak = float(g["beta_mc"].max())
+            # relative_error of the model's error on this geometry's one spectrum: the one definition
+            dep = relative_error(g["beta_mc"].to_numpy(float), (g["beta_m"] - g["beta_mc"]).to_numpy(float))
+            se = float(np.sqrt(np.mean((g["u_beta_mc"] / peak) ** 2)))
+            rows.append({"theta_i": float(ti), "theta_o": float(to), "rel_phi_o": float((po - pi) % 360.0),
+                         "departure": dep, "mc_rel_se": se})
+        deps = np.array([r["departure"] for r in rows])
+        out[name] = {"max_rms_departure": float(deps.max()), "median_rms_departure": float(np.median(deps)),
+                     "geometries": rows}
+    return out
+
+
+def errors_from_report(report: dict) -> dict:
+    """The ``--method auto`` data file (``simulate/configs/method-errors.json``) from a report with a ``departure``."""
+    rows: dict[tuple, dict] = {}
+    for name, d in report["departure"].items():
+        for r in d["geometries"]:
+            key = (r["theta_i"], r["theta_o"], r["rel_phi_o"])
+            rows.setdefault(key, {"theta_i": r["theta_i"], "theta_o": r["theta_o"], "rel_phi_o": r["rel_phi_o"],
+                                  "mc_rel_se": r["mc_rel_se"]})[name] = r["departure"]
+    return {"provenance": {"command": "simulate bench", "config": "red-cotton", "plan": "red-cotton",
+                           "reference": "woven Monte Carlo", "target_rel_err": report.get("target", 0.01),
+                           "machine": report.get("machine", {})},
+            "geometries": sorted(rows.values(), key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"]))}
+
+
+def auto_counts(errors: dict, targets: tuple[float, ...] = (0.01, 0.02, 0.05, 0.1, 0.15)) -> dict:
+    """How many of the study's geometries ``--method auto`` gives to each method, per target."""
+    from simulate.fabric.auto import choose
+
+    g = errors["geometries"]
+    ti = [r["theta_i"] for r in g]
+    to = [r["theta_o"] for r in g]
+    po = [r["rel_phi_o"] for r in g]
+    out = {}
+    for t in targets:
+        names, _ = choose(ti, [0.0] * len(g), to, po, t, errors=errors)
+        out[str(t)] = {m: int((names == m).sum()) for m in ("classic", "summation", "mc")}
+    return out
+
+
+def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int | None = None,
+                      threads: int | None = None) -> None:
+    from gonio.acquisition.plan import load_plan
+    from simulate.config import load_config
+    from simulate.virtual import fabric_dataset
+
+    cfg = load_config("red-cotton")
+    plan = load_plan("red-cotton")
+    t = time.perf_counter()
+    ds = fabric_dataset(cfg, plan, method, target_rel_err=target, seed=seed, threads=threads or os.cpu_count() or 1)
+    wall = time.perf_counter() - t
+    info = ds.meta["provenance"]["fiber_info"]
+    queue.put({"wall_seconds": wall, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+               "rel_err": ds.meta["provenance"]["rel_err"], "info": info,
+               "table": ds.table.to_dict(orient="list")})
+
+
+def in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None) -> dict:
+    """One red-cotton run in a spawned child process: its wall time (of the run only, not the
+    process start) and its own peak memory."""
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    p = ctx.Process(target=_red_cotton_child, args=(target, queue, method, seed, threads))
+    p.start()
+    result = queue.get()
+    p.join()
+    return result
+
+
+def chart(report: dict, path: Path) -> None:
+    """Four panels (incidence 0/30/45/60): beta at 620 nm of MC (error bars), summation, classic;
+    below them the ratio of each model to MC against the signed observation angle."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    mc = frame(report["red_cotton"]["table"])
+    models = {k: frame(v["table"]) for k, v in report["models"].items()}
+    wl = 620.0
+    incid = sorted(mc["theta_i"].unique())
+    fig, axes = plt.subplots(2, len(incid), figsize=(4 * len(incid), 6.5), sharex=True)
+    for c, ti in enumerate(incid):
+        def curve(df):
+            s = df[(df["theta_i"] == ti) & (df["wavelength_nm"] == wl)].copy()
+            # gonio.data.geometry's signed angle: s >= 0 on the mirror side (phi_o = phi_i + 180)
+            s["signed"] = np.where(np.isclose((s["phi_o"] - s["phi_i"]) % 360.0, 180.0), s["theta_o"], -s["theta_o"])
+            return s.sort_values("signed")
+        m = curve(mc)
+        ax = axes[0, c]
+        ax.errorbar(m["signed"], m["beta"], yerr=m["u_beta"], fmt="o", ms=3, color="k", label="Monte Carlo")
+        for (name, df), col in zip(models.items(), ("C0", "C1")):
+            s = curve(df)
+            ax.plot(s["signed"], s["beta"], "-", color=col, label=name)
+            j = s.merge(m, on="signed", suffixes=("", "_mc"))
+            axes[1, c].plot(j["signed"], j["beta"] / j["beta_mc"], "-o", ms=3, color=col, label=name)
+        ax.set_title(f"incidence {ti:g} deg, {wl:g} nm")
+        axes[1, c].axhline(1.0, color="k", lw=0.8)
+        axes[1, c].set_xlabel("signed observation angle (deg, + mirror side)")
+    axes[0, 0].set_ylabel("beta")
+    axes[1, 0].set_ylabel("model / Monte Carlo")
+    axes[0, 0].legend(fontsize=8)
+    rc = report["red_cotton"]
+    fig.suptitle(f"red cotton: woven Monte Carlo to {rc['rel_err']:.2%} rms in "
+                 f"{rc['wall_seconds']:.0f} s, {os.cpu_count()} cores")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m fabric_optics.bench.method_errors [--target 0.01] [--threads N] [--out JSON] [--chart PNG]``: the
+    where-methods-fail part of ``simulate bench`` alone (the red-cotton MC in a child process, the
+    summation and classic at 1 %), the ``--method auto`` data file and the chart."""
+    import argparse
+    import datetime
+    import json
+    import os
+    from pathlib import Path
+
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--target", type=float, default=0.01)
+    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--out", default=None, help="write the --method auto data file here")
+    ap.add_argument("--chart", default=None, help="write the model/MC chart here (PNG)")
+    a = ap.parse_args(argv)
+    load = os.getloadavg()
+    report: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "load_at_start": [round(x, 2) for x in load]},
+                              "target": a.target}
+    report["red_cotton"] = in_child(a.target, threads=a.threads)
+    report["models"] = model_datasets()
+    report["departure"] = departure(report)
+    errors = errors_from_report(report)
+    errors["provenance"]["date"] = datetime.date.today().isoformat()
+    errors["provenance"]["command"] = "python -m fabric_optics.bench.method_errors (the where-methods-fail part of simulate bench)"
+    info = report["red_cotton"]["info"]
+    errors["provenance"]["mc_model"] = {k: info.get(k) for k in ("yarn_surface", "yarn_volume", "twist_deg",
+                                                                  "pile_packing_fraction")}
+    rc = report["red_cotton"]
+    print(f"MC: {rc['wall_seconds']:.0f} s wall, rel_err {rc['rel_err']:.2%}; models: "
+          + ", ".join(f"{k} {v['seconds']:.0f} s" for k, v in report["models"].items()))
+    for name, d in report["departure"].items():
+        print(f"{name}: departure median {d['median_rms_departure']:.1%}, max {d['max_rms_departure']:.1%}")
+        for r in sorted(d["geometries"], key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"])):
+            print(f"  inc {r['theta_i']:4.0f} obs {r['theta_o']:4.0f} az {r['rel_phi_o']:5.0f}: "
+                  f"{r['departure']:6.1%} (MC se {r['mc_rel_se']:.1%})")
+    print("auto, geometries per method:", json.dumps(auto_counts(errors)))
+    if a.out:
+        Path(a.out).write_text(json.dumps(errors, indent=1) + "\n")
+    if a.chart:
+        chart(report, Path(a.chart))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""The command lines ``gonio``, ``simulate`` and ``compare`` (console scripts of the distribution)."""

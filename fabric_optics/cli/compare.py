@@ -1,0 +1,325 @@
+"""``compare`` command line: ``compare report`` and ``compare check`` (docs/architecture.md).
+
+::
+
+    compare report MEASURED_DIR SIM_DIR [SIM_DIR ...] --out REPORT_DIR [--fit FIT_DIR ...]
+                   [--seed-sample DATASET_DIR]
+    compare check  MEASURED_DIR SIM_DIR [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X] [--max-level-ratio X]
+
+Exit status: 0 success (``check``: every figure within its threshold), 1 a failed check (the
+failing figures are printed), 2 a usage or input error (one line on stderr, no traceback).
+
+``check`` refuses (exit 1) a dataset whose meta says the run is incomplete (``"complete": false``,
+as ``gonio acquire`` writes for a stopped run), printing how many of the planned points are
+missing, unless ``--allow-incomplete``; ``report`` shows such data with a banner. Comparing a
+dataset with itself (same directory or same ``radiance.csv`` content) is warned about on stderr.
+
+``check`` thresholds (defaults chosen from the reference results of docs/physics.md section 8: the
+published model hues lie within 0.01 of the measured one, saturations within 0.01):
+
+- ``--max-nrmse`` 0.10: overall NRMSE of the normalised curves (RMSE / mean measured beta);
+- ``--max-hue-diff`` 0.02: ``|dh|`` on the hue circle (hue in [0, 1));
+- ``--max-sat-diff`` 0.05: ``|ds|``;
+- ``--max-level-ratio`` 1.5: the absolute level, ``max(k_Y, 1/k_Y)`` with ``k_Y`` the luminance-weighted
+  normalisation factor at the colour geometry (:class:`compare.comparison.Level`): a model scaled by 2 fails.
+  Not judged for a relative measurement. The verdict says in words when a model matches in shape but not in
+  level.
+
+An RGB measurement is compared per channel, a spectral simulation converted to its colour space
+first (:mod:`compare.bands`); the conversion is printed as a note. A photometric (Y-only)
+measurement has no colour: only the NRMSE is checked (noted). A relative measurement
+(``"relative": true``) is normalised like any other; the hue and saturation thresholds still
+apply (they do not depend on the scale), and no V is stated (noted). No threshold uses V.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import logging
+import sys
+from typing import Sequence
+
+from gonio.data import DatasetError, read_dataset
+
+from compare.comparison import compare_datasets, incomplete_datasets
+from compare.errors import CompareError
+from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+from compare.normalise import DEFAULT_WINDOW_DEG
+
+__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main"]
+
+log = logging.getLogger("compare")
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a number >= 0")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _non_negative(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("must be > 0")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="compare",
+        description="Compare simulated radiance-coefficient datasets with a measured one: "
+                    "normalise at the normal direction, curve errors, HSV colour match.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check,render}")
+
+    def common(p):
+        p.add_argument("--normal-window", type=_positive, default=DEFAULT_WINDOW_DEG,
+                       metavar="DEG", help="largest |s| of the normal-incidence points used to "
+                       f"estimate beta(0,0) (default {DEFAULT_WINDOW_DEG:g})")
+        p.add_argument("--illuminant", default="D65",
+                       help="illuminant of the colour match (default D65)")
+
+    rep = sub.add_parser("report", help="write report.html, metrics.json and figures/*.png",
+                         description="Compare one or more simulations with a measurement and "
+                                     "write REPORT_DIR/report.html (self-contained), "
+                                     "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.")
+    rep.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
+    rep.add_argument("simulated", metavar="SIM_DIR", nargs="*",
+                     help="simulated dataset(s); none: look at MEASURED_DIR alone (curves, "
+                          "colour strips, colour table)")
+    rep.add_argument("--out", required=True, metavar="REPORT_DIR",
+                     help="output directory: new, empty, or holding a previous report (only "
+                          "its files are replaced)")
+    rep.add_argument("--force", action="store_true",
+                     help="write into a non-empty folder that holds no previous report, "
+                          "replacing report.html, metrics.json and figures/ files of those names")
+    rep.add_argument("--renders", metavar="RENDER_DIR", default=None,
+                     help="embed the renders of a `compare render` folder (measured and simulated side by side)")
+    rep.add_argument("--svg", action="store_true",
+                     help="also write every figure as figures/*.svg (vector)")
+    rep.add_argument("--fit", action="append", default=[], metavar="FIT_DIR",
+                     help="add a table of the parameters a `simulate fit` found (its --out folder: "
+                          "fit.json), with their uncertainties; repeatable")
+    rep.add_argument("--seed-sample", default=None, metavar="DATASET_DIR",
+                     help="judge a simulated red-cotton dataset against the published colour of red "
+                          "cotton at incidence 0 / observation 10 deg (printed and reported)")
+    common(rep)
+
+    chk = sub.add_parser("check", help="exit 0 when a simulation matches within thresholds, "
+                                       "1 otherwise",
+                         description="CI verdict: compare SIM_DIR with MEASURED_DIR; exit 0 "
+                                     "when within all thresholds, 1 (printing the failing "
+                                     "figures) otherwise, 2 on bad input.")
+    chk.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
+    chk.add_argument("simulated", metavar="SIM_DIR", help="simulated dataset directory")
+    chk.add_argument("--max-nrmse", type=_non_negative, default=DEFAULT_MAX_NRMSE, metavar="X",
+                     help=f"largest overall NRMSE (default {DEFAULT_MAX_NRMSE:g})")
+    chk.add_argument("--max-hue-diff", type=_non_negative, default=DEFAULT_MAX_HUE_DIFF,
+                     metavar="X", help="largest |hue difference| on the circle, hue in [0, 1) "
+                                       f"(default {DEFAULT_MAX_HUE_DIFF:g})")
+    chk.add_argument("--allow-incomplete", action="store_true",
+                     help="compare even when a dataset's meta says the run is incomplete "
+                          "(\"complete\": false; by default that fails the check)")
+    chk.add_argument("--max-sat-diff", type=_non_negative, default=DEFAULT_MAX_SAT_DIFF,
+                     metavar="X", help=f"largest |saturation difference| "
+                                       f"(default {DEFAULT_MAX_SAT_DIFF:g})")
+    chk.add_argument("--max-level-ratio", type=_non_negative, default=DEFAULT_MAX_LEVEL_RATIO, metavar="X",
+                     help="largest ratio between the model's absolute level and the measured one, max(k_Y, 1/k_Y) "
+                          f"at the colour geometry (default {DEFAULT_MAX_LEVEL_RATIO:g}: a model scaled by 2 fails; "
+                          "not judged for a relative measurement)")
+    common(chk)
+    _add_render_parser(sub)
+    return parser
+
+
+# ---- compare render (issue 22): one self-contained block --------------------------------------
+def _add_render_parser(sub) -> None:
+    ren = sub.add_parser("render", help="render RGL .bsdf files with Mitsuba 3 (cushion + lit swatch)",
+                         description="Render each FILE.bsdf (e.g. `gonio export` of a measurement, "
+                                     "`simulate export` of a model) on a cushion and on a flat swatch "
+                                     "lit from four sides, side by side: DIR/render_sheet.png, one PNG "
+                                     "per image, DIR/render.json (settings, seconds). Needs the render "
+                                     "extra (mitsuba).")
+    ren.add_argument("files", metavar="FILE.bsdf", nargs="+", help="RGL .bsdf files")
+    ren.add_argument("--out", required=True, metavar="DIR", help="output folder (new, or a previous render)")
+    ren.add_argument("--label", action="append", default=None, metavar="NAME",
+                     help="a label per file, in order (default: the file's description)")
+    ren.add_argument("--spp", type=int, default=32, help="samples per pixel (32)")
+    ren.add_argument("--size", default="240x180", metavar="WxH", help="cushion image size (240x180)")
+    ren.add_argument("--swatch-size", type=int, default=112, metavar="PX", help="swatch image size (112)")
+    ren.add_argument("--force", action="store_true", help="write into a non-empty folder")
+
+
+def _render_cmd(args) -> int:
+    from pathlib import Path
+
+    from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
+
+    from compare.render import MitsubaMissing, RenderSettings, render_materials, require_mitsuba, write_render_set
+
+    out = Path(args.out)
+    if out.is_dir() and any(out.iterdir()) and not (out / "render.json").is_file() and not args.force:
+        raise CompareError(f"--out {out}: not empty and holds no previous render; pass --force")
+    if args.label and len(args.label) != len(args.files):
+        raise CompareError(f"--label given {len(args.label)} times for {len(args.files)} files")
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        raise CompareError(f"--size {args.size}: expected WxH, e.g. 240x180") from None
+    if not (8 <= w <= 4096 and 8 <= h <= 4096 and 8 <= args.swatch_size <= 4096 and 1 <= args.spp <= 65536):
+        raise CompareError("--size/--swatch-size must be 8..4096 px and --spp 1..65536")
+    files = [read_rgl_bsdf(f) for f in args.files]      # a malformed file: one line naming it
+    labels = args.label or [f.description[:40] or Path(f.path).stem for f in files]
+    settings = RenderSettings(spp=args.spp, size=(w, h), swatch_size=args.swatch_size)
+    try:
+        require_mitsuba()
+        images = render_materials(list(zip(labels, args.files)), settings)
+    except MitsubaMissing as exc:
+        raise CompareError(str(exc)) from None
+    info = write_render_set(images, out, settings)
+    print(f"compare render: {len(images)} images in {info['seconds_total']:.1f} s; {out / info['sheet']}")
+    return 0
+# ---- end compare render -------------------------------------------------------------------------
+
+
+def _report(args) -> int:
+    from compare.report import write_report
+
+    measured = read_dataset(args.measured)
+    if not args.simulated:
+        from compare.inspect import write_dataset_report
+
+        try:
+            report = write_dataset_report(measured, args.out, svg=args.svg, force=args.force)
+        except OSError as exc:
+            raise CompareError(f"cannot write the report into --out {args.out}: "
+                               f"{exc.strerror or exc} ({exc.filename}); choose a writable "
+                               "directory") from None
+        print(f"report: {report}")
+        return 0
+    from compare.sweep import is_sweep_dir, write_sweep_report
+
+    if any(is_sweep_dir(p) for p in args.simulated):  # a `simulate sweep` directory: compare.sweep
+        if len(args.simulated) > 1:
+            raise CompareError("a sweep directory must be the only SIM_DIR (compare report MEASURED SWEEP_DIR)")
+        report = write_sweep_report(measured, args.simulated[0], args.out, svg=args.svg, force=args.force,
+                                    window_deg=args.normal_window, illuminant=args.illuminant)
+        print(f"report: {report}")
+        return 0
+    simulated = [read_dataset(p) for p in args.simulated]
+    for line in incomplete_datasets(measured, simulated):
+        log.warning("%s; the report says so in a banner", line)
+    comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
+                                  illuminant=args.illuminant)
+    sections = _sample_sections(args, measured, comparison)
+    if args.renders is not None:  # a `compare render` folder: its sheet embedded, captioned (issue 22)
+        from compare.render import render_section
+        from compare.report import Section
+
+        if not Path(args.renders).is_dir():
+            raise CompareError(f"--renders {args.renders}: not a folder (make one with `compare render FILE.bsdf "
+                               "... --out DIR`)")
+        sections.append(Section("renders", render_section(args.renders), before=None))
+    try:
+        report = write_report(comparison, args.out, svg=args.svg, force=args.force, sections=sections)
+    except OSError as exc:
+        raise CompareError(f"cannot write the report into --out {args.out}: "
+                           f"{exc.strerror or exc} ({exc.filename}); choose a writable "
+                           "directory") from None
+    for name, o in comparison.overall.items():
+        print(f"{name}: overall RMSE {o.rmse:.4g}, NRMSE {o.nrmse:.4g}")
+    print(f"report: {report}")
+    return 0
+
+
+def _sample_sections(args, measured, comparison) -> list:
+    """What was measured (always, when the dataset says), the fits (``--fit``) and the seed
+    sample's published-colour check (``--seed-sample``, also printed): compare.report.samples,
+    compare.report.fits."""
+    from compare.report.fits import fits_section
+    from compare.report.samples import measured_sample_section, published_colour_check, seed_sample_section
+
+    sections = [s for s in [measured_sample_section(measured)] if s is not None]
+    if args.fit:
+        sections.append(fits_section(args.fit, comparison.simulated))
+    if args.seed_sample is not None:
+        seed = read_dataset(args.seed_sample)
+        _, checks = published_colour_check(seed)
+        print(f"seed sample '{seed.name}' against the published colour of red cotton "
+              "(incidence 0, observation 10 deg):")
+        for c in checks:
+            print(f"  {c.line()}")
+        sections.append(seed_sample_section(seed))
+    return sections
+
+
+def _check(args) -> int:
+    measured = read_dataset(args.measured)
+    simulated = read_dataset(args.simulated)
+    incomplete = incomplete_datasets(measured, [simulated])
+    if incomplete and not args.allow_incomplete:
+        for line in incomplete:
+            print(f"compare check: FAIL {line}; finish the run (gonio acquire --resume) or pass "
+                  "--allow-incomplete")
+        return 1
+    for line in incomplete:
+        print(f"compare check: note: {line} (compared anyway: --allow-incomplete)")
+    comparison = compare_datasets(measured, [simulated], window_deg=args.normal_window,
+                                  illuminant=args.illuminant)
+    name = next(iter(comparison.simulated))
+    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, "")]
+    if comparison.colour is not None:
+        sc = comparison.colour.simulated[name]
+        figures += [("|hue difference|", abs(sc.dh), args.max_hue_diff,
+                     " turns of the hue circle"),
+                    ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
+    level = comparison.level(name)
+    if level.judged:
+        figures.append(("level ratio max(k_Y, 1/k_Y)", level.ratio, args.max_level_ratio,
+                        f" (k_Y {level.k:.3g}, k(lambda) spread {level.spread:.3g})"))
+    failed = False
+    print(f"compare check: '{name}' against '{measured.name}'")
+    for note in comparison.notes():
+        print(f"  note: {note}")
+    for label, value, limit, unit in figures:
+        ok = value <= limit  # NaN fails
+        failed |= not ok
+        print(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g}{unit} "
+              f"({'<=' if ok else 'exceeds'} {limit:g})")
+    for angle, e in comparison.curves[name].items():
+        print(f"       NRMSE at incidence {angle} deg = {e.nrmse:.4g}")
+    print(f"  level: {level.words(name, comparison.overall[name].nrmse, args.max_level_ratio, args.max_nrmse)}")
+    return 1 if failed else 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``compare`` command line; return the exit status."""
+    parser = _parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
+        return int(exc.code) if isinstance(exc.code, int) else 2
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="compare: %(levelname)s: %(message)s", stream=sys.stderr)
+    try:
+        if args.command == "report":
+            return _report(args)
+        if args.command == "render":
+            return _render_cmd(args)
+        return _check(args)
+    except (DatasetError, CompareError) as exc:
+        print(f"compare {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"compare {args.command}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

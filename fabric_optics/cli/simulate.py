@@ -1,0 +1,991 @@
+"""The ``simulate`` console script (docs/architecture.md, command line contract).
+
+Subcommands are registered in :data:`COMMANDS`: each entry is a pair of functions
+``(add_arguments(parser), run(args) -> int)``; a later subcommand (``fiber``, ``fabric``,
+``sweep``) is one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
+(one line on stderr naming the flag, no traceback), 3 ``simulate fit`` whose fitted colour is left off
+(``fabric_optics.fitting.driver.EXIT_COLOUR_OFF``: outputs written, fit.json ``verdict.passed`` false).
+
+``simulate slab --mua X --mus X --g X --n X --thickness X --photons N [--seed N] [--threads N] --json``
+    prints ONE JSON object ``{"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds",
+    "events_per_photon", ...}``; ``Rd`` excludes the specular surface reflection ``Rsp``.
+``simulate bench --out DIR [--quick]``
+    kernel benchmark: DIR/bench.json, DIR/bench.png and a markdown table on stdout.
+``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
+    a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
+    is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
+    non-empty DIR is replaced only if it holds a previous ``simulate fabric`` output and nothing
+    else, as one folder (:mod:`simulate.outdir`: a kill or a full disk leaves the old output).
+    Every run-making command (fabric, fiber, fit, sweep) first estimates its cost
+    (:mod:`simulate.budget`): refused beyond a day, announced beyond ten minutes. ``--threads 0``
+    means all threads numba allows, as ``threads = 0`` in a config.
+``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
+    the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar); its target error
+    defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
+``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]``
+    fits config parameters to a measurement (:mod:`fabric_optics.fitting.driver`, ``mc``: :mod:`fabric_optics.fitting.mc`): fitted.toml,
+    datasets, report.
+``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
+    a parameter study on dask.distributed (:mod:`fabric_optics.sweep.runner`): one dataset per point, summary.csv;
+    exit 1 when a task still fails after its retries (the others are kept).
+
+Over 500 lines for a reason: one argparse table of seven subcommands sharing their argument
+helpers and error policy (exit 2, one line); it is left whole while another engineer adds an
+``export`` subcommand to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import gc
+import json
+import logging
+import math
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+__all__ = ["main", "COMMANDS", "build_parser"]
+
+log = logging.getLogger("simulate")
+
+
+class _UsageError(Exception):
+    """A user error found after parsing (exit 2, one line)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line (``simulate slab: error: argument --mua: ...``)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+# ------------------------------------------------------------------------------------------
+# argument types (their messages name the flag through argparse: "argument --mua: ...")
+# ------------------------------------------------------------------------------------------
+
+
+def _float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _nonneg_float(text: str) -> float:
+    value = _float(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
+def _pos_float(text: str) -> float:
+    value = _float(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def _g_float(text: str) -> float:
+    value = _float(text)
+    if not -1.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"anisotropy must be in (-1, 1), got {text!r}")
+    return value
+
+
+def _angle_deg(text: str) -> float:
+    value = _float(text)
+    if not 0.0 <= value < 90.0:
+        hint = " (90 is grazing incidence: no light enters)" if value == 90.0 else ""
+        raise argparse.ArgumentTypeError(f"incidence angle must be in [0, 90) degrees, got {text!r}{hint}")
+    return value
+
+
+#: seeds of the fiber/fabric runs: the Monte Carlo derives per-batch streams as seed * 1_000_003 + ...
+#: in 64-bit integers, so seeds stay below 2^31 (the slab command's kernel call takes any int64)
+MAX_SEED = 2**31 - 1
+
+
+def _int_in(lo: int, hi: int) -> Callable[[str], int]:
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            try:        # an integral float as the help writes it: 1e6, 2.5e5
+                f = float(text)
+            except ValueError:
+                f = math.nan
+            if not (math.isfinite(f) and f == int(f)):
+                raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+            value = int(f)
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be an integer in [{lo}, {hi}], got {text!r}")
+        return value
+
+    return convert
+
+
+def _json_safe(obj: Any) -> Any:
+    """Replace non-finite floats by None (JSON has no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+# ------------------------------------------------------------------------------------------
+# simulate slab
+# ------------------------------------------------------------------------------------------
+
+
+def _slab_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mua", type=_nonneg_float, required=True, help="absorption coefficient mu_a (1/length)")
+    p.add_argument("--mus", type=_nonneg_float, required=True, help="scattering coefficient mu_s (1/length)")
+    p.add_argument("--g", type=_g_float, default=0.0, help="Henyey-Greenstein anisotropy g (default 0)")
+    p.add_argument("--n", type=_pos_float, default=1.0, help="refractive index of the slab (outside 1; default 1)")
+    p.add_argument("--thickness", type=_pos_float, required=True, help="slab thickness d (same length unit)")
+    p.add_argument("--photons", type=_int_in(1, 10**12), default=1_000_000, help="photons (default 1e6)")
+    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--threads", type=_threads_arg, default=None,
+        help="threads (default or 0: all); results do not depend on it",
+    )
+    p.add_argument("--theta-i", type=_angle_deg, default=0.0, dest="theta_i", help="incidence angle in degrees [0, 90)")
+    p.add_argument("--max-events", type=_int_in(1, 2**52), default=None, help="event cap per photon (a guard)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _slab_run(args: argparse.Namespace) -> int:
+    collecting = gc.isenabled()
+    gc.disable()  # one run that makes no cyclic garbage; its first kernel call loads numba's registries (main)
+    try:
+        from simulate.montecarlo import DEFAULT_MAX_EVENTS, run_slab
+
+        result = run_slab(
+            args.mua, args.mus, g=args.g, n=args.n, thickness=args.thickness, photons=args.photons,
+            seed=args.seed, theta_i_deg=args.theta_i, threads=args.threads or None,
+            max_events=args.max_events or DEFAULT_MAX_EVENTS,
+        )
+    finally:
+        if collecting:
+            gc.enable()
+    if args.json:
+        print(json.dumps(_json_safe(result.as_dict())))
+    else:
+        print(f"Rd  = {result.Rd:.6f} +- {result.u_Rd:.6f}   (diffuse reflectance, without Rsp = {result.Rsp:.6f})")
+        print(f"Tt  = {result.Tt:.6f} +- {result.u_Tt:.6f}   (total transmittance; unscattered {result.Tu:.6f})")
+        print(f"A   = {result.absorbed:.6f}   capped photons: {result.capped}")
+        print(
+            f"{result.photons} photons in {result.seconds:.3f} s "
+            f"({result.photons / max(result.seconds, 1e-12) / 1e6:.2f} M photons/s, "
+            f"{result.events_per_photon:.2f} events/photon)"
+        )
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+# simulate bench
+# ------------------------------------------------------------------------------------------
+
+
+def _bench_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, required=True, help="output directory (bench.json, bench.png)")
+    p.add_argument("--quick", action="store_true", help="smoke test: small runs, a few seconds")
+
+
+def _bench_run(args: argparse.Namespace) -> int:
+    from fabric_optics.bench.suite import markdown_table, run_bench
+
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise _UsageError(f"--out {out}: exists and is not a directory; choose a directory path")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    report = run_bench(out, quick=args.quick)
+    print(markdown_table(report))
+    print(f"\nwrote {out / 'bench.json'} and {out / 'bench.png'}")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+# simulate fabric / simulate fiber
+# ------------------------------------------------------------------------------------------
+
+
+def _rel_err(text: str) -> float:
+    value = _float(text)
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text!r}")
+    return value
+
+
+def _threads_arg(text: str) -> int:
+    """``--threads N``: 1..NUMBA_NUM_THREADS, or 0 = all that numba allows, as ``threads = 0`` in a config."""
+    import numba
+
+    return _int_in(0, numba.config.NUMBA_NUM_THREADS)(text)
+
+
+def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "the config's") -> None:
+    p.add_argument("--target-rel-err", type=_rel_err, default=None, dest="target_rel_err",
+                   help="target relative standard error of the fiber Monte Carlo, relative to each "
+                        f"curve's spectral peak (default: {target_default})")
+    p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
+                   help="photon budget (default: the config's; none)")
+    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
+    p.add_argument("--threads", type=_threads_arg, default=None,
+                   help="threads, 0 = all (default: the config's, where 0 = all); results do not depend on it")
+    p.add_argument("--no-progress", action="store_true", dest="no_progress",
+                   help="no progress bar (it is shown only on a terminal anyway)")
+
+
+def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> None:
+    """Refuse a non-empty --out that does not hold a previous output of this command."""
+    if out.exists() and not out.is_dir():
+        raise _UsageError(f"--out {out}: exists and is not a directory; choose a directory path")
+    if out.is_dir():
+        try:
+            entries = [e for e in out.iterdir() if not e.name.startswith(".")]
+        except OSError as exc:
+            raise _UsageError(f"--out {out}: cannot read the directory ({exc.strerror})") from None
+        if entries and not is_previous(out):
+            raise _UsageError(f"--out {out}: directory is not empty and does not hold a previous "
+                              f"`{what}` output; refusing to overwrite it (choose a new or empty directory)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    if not os.access(out, os.W_OK):
+        raise _UsageError(f"--out {out}: directory is not writable")
+
+
+def _is_fabric_output(out: Path) -> bool:
+    """A previous ``simulate fabric`` output: its ``meta.json`` says so. Also recognised: what a
+    run of an older version killed between its two renames left, ``radiance.csv`` beside the
+    ``.meta.json.XXXXXXXX.tmp`` that says so (that version wrote file by file)."""
+    from simulate.virtual import GENERATOR
+
+    candidates = [out / "meta.json"]
+    if not candidates[0].exists() and (out / "radiance.csv").is_file():
+        candidates = sorted(out.glob(".meta.json.*.tmp"))
+    for path in candidates:
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if (isinstance(meta, dict) and meta.get("kind") == "simulated"
+                and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR):
+            return True
+    return False
+
+
+def _prepare_fabric_out(out: Path) -> None:
+    """:func:`_prepare_out` for ``simulate fabric``, whose output replaces ``out`` as one folder
+    (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a previous output
+    holding anything besides the dataset's files is refused (the swap would delete it)."""
+    from gonio.data.dataset import CSV_NAME, META_NAME, remove_stale_temp_files
+    from simulate.outdir import recover
+
+    try:
+        recover(out)
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot clean up after an earlier killed run ({exc.strerror})") from None
+    _prepare_out(out, _is_fabric_output, "simulate fabric")
+    try:
+        remove_stale_temp_files(out)         # a killed per-file write of an older version
+        others = sorted(e.name for e in out.iterdir() if e.name not in (CSV_NAME, META_NAME))
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot read the directory ({exc.strerror})") from None
+    if others:
+        raise _UsageError(f"--out {out}: holds {others[0]!r} besides a dataset; the new output replaces the "
+                          f"whole directory, so move that elsewhere or choose a new directory")
+
+
+def _is_fiber_output(out: Path) -> bool:
+    from simulate.fiber.tables import FORMAT, JSON_NAME
+
+    try:
+        meta = json.loads((out / JSON_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == FORMAT
+
+
+def _load_config(text: str):
+    from simulate.config import ConfigError, load_config
+
+    try:
+        return load_config(text)
+    except ConfigError as exc:
+        raise _UsageError(str(exc)) from None
+
+
+def _check_cost(command: str, config: Any, wavelengths: Any, target: float | None, max_photons: int | None,
+                runs: int = 1) -> None:
+    """Refuse a run estimated beyond a day, warn beyond ten minutes (:mod:`simulate.budget`)."""
+    from simulate.budget import BudgetError, check_cost
+
+    target = config.target_rel_err if target is None else target
+    max_photons = config.max_photons if max_photons is None else max_photons
+    try:
+        warning = check_cost(config, wavelengths, target, max_photons, runs=runs)
+    except BudgetError as exc:
+        raise _UsageError(str(exc)) from None
+    if warning:
+        print(f"simulate {command}: warning: {warning}", file=sys.stderr)
+
+
+def _write_failed(out: Path, exc: OSError) -> str:
+    """One line for an output that could not be written (a full disk): the file and the reason."""
+    return f"{exc.filename or out}: cannot write ({exc.strerror or exc})"
+
+
+def _progress(args: argparse.Namespace) -> bool:
+    return not args.no_progress and sys.stderr.isatty()
+
+
+def _fabric_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("--method", choices=("classic", "summation", "mc", "auto"), required=True,
+                   help="fabric model: summation over warp and weft, the classic Lambert + Cook-Torrance, "
+                        "mc (Monte Carlo ray tracing of the woven micro-element of the config's [weave]), or "
+                        "auto (per geometry the cheapest whose error against mc is within the target)")
+    p.add_argument("--max-seconds", type=_nonneg_float, default=0.0, dest="max_seconds",
+                   help="mc: time budget per incidence in seconds (0 = none); the output says which stop ended it")
+    p.add_argument("--out", type=Path, required=True, help="output dataset directory (radiance.csv, meta.json)")
+    p.add_argument("--geometry", metavar="PLAN", default="red-cotton",
+                   help="acquisition plan whose geometries and wavelengths are simulated (path or preset; "
+                        "default red-cotton)")
+    p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
+                   help="skip the plan's beam-blocked geometries as the measurement does "
+                        "(default: simulate them; the normal/normal value is the normalisation point)")
+    _run_settings_arguments(p)
+
+
+def _fabric_run(args: argparse.Namespace) -> int:
+    from gonio.acquisition.plan import PlanError, load_plan
+    from simulate.fabric import FabricError
+    from simulate.outdir import OutputError, write_dataset_dir
+    from simulate.virtual import fabric_dataset
+
+    config = _load_config(args.config)
+    try:
+        plan = load_plan(args.geometry)
+    except PlanError as exc:
+        raise _UsageError(f"--geometry: {exc}") from None
+    _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
+    _prepare_fabric_out(args.out)
+    try:
+        dataset = fabric_dataset(config, plan, args.method, target_rel_err=args.target_rel_err,
+                                 seed=args.seed, threads=args.threads, max_photons=args.max_photons,
+                                 measurable_only=args.measurable_only, progress=_progress(args),
+                                 max_seconds=args.max_seconds)
+    except FabricError as exc:
+        raise _UsageError(str(exc)) from None
+    try:
+        write_dataset_dir(dataset, args.out)
+    except OutputError as exc:
+        raise _UsageError(str(exc)) from None
+    prov = dataset.meta["provenance"]
+    err_text = f"{prov['rel_err']:.2%} (rms of u / each direction's spectral peak)"
+    print(f"wrote {args.out} ({len(dataset)} rows: {prov['geometries']} geometries x "
+          f"{len(dataset.wavelengths_nm)} wavelengths; {args.method}; relative error {err_text}; "
+          f"{prov['seconds']:.1f} s)")
+    return 0
+
+
+def _fiber_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("--out", type=Path, required=True, help="output directory (fiber-table.npz, fiber-table.json)")
+    p.add_argument("--method", choices=("nee", "beam", "bssrdf"), default=None,
+                   help="fiber route (default: the config's method.method)")
+    p.add_argument("--step-deg", type=_pos_float, default=30.0, dest="step_deg",
+                   help="polar grid step in degrees, dividing 90 (default 30)")
+    p.add_argument("--phi-step-deg", type=_pos_float, default=45.0, dest="phi_step_deg",
+                   help="azimuth grid step in degrees, dividing 90 (default 45)")
+    _run_settings_arguments(p, "0.05, a coarse table")
+
+
+#: Bound on a fiber table's size, direction pairs x wavelengths (``simulate fiber``): 10 million
+#: values, about 0.6 GiB for the table's five arrays and the Monte Carlo tallies behind them (~64
+#: bytes a value). A 5 deg x 10 deg grid at 33 wavelengths has 7.7 million; the default 432 pairs x 33.
+MAX_TABLE_VALUES = 10_000_000
+
+
+def _check_table_size(step_deg: float, phi_step_deg: float, n_wavelengths: int) -> None:
+    """Refuse a table grid over :data:`MAX_TABLE_VALUES` from its step sizes alone (nothing allocated)."""
+    pairs = (180.0 / step_deg) * (90.0 / phi_step_deg + 1) * (90.0 / step_deg) * (360.0 / phi_step_deg)
+    values = pairs * n_wavelengths
+    if values > MAX_TABLE_VALUES:
+        raise _UsageError(f"--step-deg {step_deg:g} / --phi-step-deg {phi_step_deg:g}: the table would have "
+                          f"{pairs:,.0f} direction pairs x {n_wavelengths} wavelengths = {values:.3g} values "
+                          f"(about {values * 64 / 2**30:,.3g} GiB); at most {MAX_TABLE_VALUES:,} (about "
+                          f"{MAX_TABLE_VALUES * 64 / 2**30:.1f} GiB): use a coarser step")
+
+
+def _fiber_run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from simulate.fiber.tables import DEFAULT_TABLE_REL_ERR, TableGrid, fiber_table, write_fiber_table
+
+    config = _load_config(args.config)
+    wavelengths = np.asarray(config.wavelengths_nm, float)
+    _check_table_size(args.step_deg, args.phi_step_deg, wavelengths.size)
+    try:
+        grid = TableGrid(args.step_deg, args.phi_step_deg)
+    except ValueError as exc:
+        raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
+    _check_cost("fiber", config, wavelengths, args.target_rel_err or DEFAULT_TABLE_REL_ERR, args.max_photons)
+    _prepare_out(args.out, _is_fiber_output, "simulate fiber")
+    arrays, sidecar = fiber_table(
+        config.fiber(wavelengths), wavelengths, grid, method=args.method or config.method,
+        target_rel_err=args.target_rel_err, seed=config.seed if args.seed is None else args.seed,
+        threads=config.threads if args.threads is None else (args.threads or None),
+        max_photons=config.max_photons if args.max_photons is None else args.max_photons,
+        progress=_progress(args), config_provenance=config.provenance())
+    try:
+        write_fiber_table(args.out, arrays, sidecar)
+    except OSError as exc:
+        raise _UsageError(_write_failed(args.out, exc)) from None
+    prov = sidecar["provenance"]
+    print(f"wrote {args.out} ({math.prod(grid.shape)} direction pairs x {arrays['wavelength_nm'].size} "
+          f"wavelengths; {prov['method']}; {prov['photons']} photons in {prov['seconds']:.1f} s)")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+# simulate fit
+# ------------------------------------------------------------------------------------------
+
+
+def _fit_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="start config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("measured", metavar="MEASURED_DIR", type=Path, help="measured radiance-coefficient dataset")
+    p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
+                   help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
+                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fitting.driver")
+    p.add_argument("--out", type=Path, required=True,
+                   help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
+    p.add_argument("--method", choices=("classic", "summation", "mc"), default="classic",
+                   help="fabric model to fit (default classic); mc: the woven/felt Monte Carlo of simulate fabric, "
+                        "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fitting.mc")
+    p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
+                   help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
+    p.add_argument("--absolute", action="store_true",
+                   help="an absolutely calibrated measurement: fit its level too, (ln k_Y)^2 added to the objective "
+                        "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
+    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations",
+                   help="objective evaluations of the search in all: steps and Jacobian columns of every start "
+                        "(default 400; the uncertainty propagation afterwards is counted apart); with --method mc: "
+                        "Monte Carlo runs, the start's included (default 5, at least 2)")
+    p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
+                   help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
+                        "run per parameter and step) instead of the summation -- where the two models' trends "
+                        "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fitting.mc)")
+    p.add_argument("--starts", type=_int_in(1, 1000), default=1,
+                   help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
+    p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
+                   help="model wavelengths for an RGB measurement (default: the config's)")
+    p.add_argument("--dye", choices=("config", "knots"), default="config",
+                   help="knots: replace the config's dye by 8 knots of log10 absorption (any colour; free them "
+                        "with --free dye), started from the measured colour (default: the config's dye)")
+    p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point; "
+                   "--method mc: from DIR/mc-state.json, the finished Monte Carlo runs)")
+    p.add_argument("--target-rel-err", type=_rel_err, default=0.03, dest="target_rel_err",
+                   help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
+                        "(default 0.03)")
+    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
+    p.add_argument("--threads", type=_threads_arg, default=None, help="threads, 0 = all (default: all); results do not depend on it")
+    p.add_argument("--no-progress", action="store_true", dest="no_progress", help="no progress bar")
+
+
+def _is_fit_output(out: Path) -> bool:
+    from fabric_optics.fitting.driver import STATE_NAME
+    from fabric_optics.fitting.mc import MC_STATE
+
+    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir() or \
+        (out / MC_STATE).is_file()
+
+
+def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
+    """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists); the structured
+    walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the fit began)."""
+    from fabric_optics.fitting.driver import STATE_NAME
+    from fabric_optics.fitting.state import WALKS_DIR
+
+    if (out / STATE_NAME).is_file():
+        return f"the last accepted point is in {out / STATE_NAME} (continue with --resume)"
+    walks = out / WALKS_DIR
+    runs = len(list(walks.glob("*.npz"))) if walks.is_dir() else 0
+    if runs:
+        return (f"no point was evaluated yet; {runs} finished Monte Carlo runs are in {walks} "
+                "(--resume continues the walk from them)")
+    from simulate.fiber import tablecache
+
+    parts = tablecache.stored("structwalk") - walk_parts_before
+    if parts > 0:   # the structured walk keeps each finished (half, chunk) part in the table cache, not in DIR
+        return (f"no point was evaluated yet; {parts} finished part{'s' if parts > 1 else ''} of the structured walk "
+                f"{'are' if parts > 1 else 'is'} in the table cache {tablecache.cache_dir()} (running the same "
+                "command again, without --resume, reads them)")
+    return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
+
+
+def _fit_run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from gonio.data.dataset import DatasetError, read_dataset
+    from fabric_optics.fitting.driver import FitError, parse_free
+    from fabric_optics.fitting.methods import method_runner
+
+    config = _load_config(args.config)
+    try:
+        measured = read_dataset(args.measured)
+    except DatasetError as exc:
+        raise _UsageError(f"MEASURED_DIR: {exc}") from None
+    wavelengths = None
+    if args.wavelengths:
+        try:
+            wavelengths = np.array([float(w) for w in args.wavelengths.split(",")])
+        except ValueError:
+            raise _UsageError(f"--wavelengths: expected numbers separated by commas, got {args.wavelengths!r}") from None
+    if args.dye == "knots":
+        from fabric_optics.fitting.start import knots_config
+
+        spectral = "channel" not in measured.table.columns
+        config = knots_config(config, wavelengths if wavelengths is not None else
+                              (measured.wavelengths_nm if spectral else config.wavelengths_nm))
+    try:
+        free = parse_free(args.free, config)
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    problem_class, run_fit, write_outputs = method_runner(args.method)
+    extra = {}
+    if args.mc_trend:
+        if args.method != "mc":
+            raise _UsageError(f"--mc-trend is for --method mc (the {args.method} fit has no Monte Carlo runs); "
+                              "drop it or fit with --method mc")
+        extra["mc_trend"] = tuple(n.strip() for n in ",".join(args.mc_trend).split(",") if n.strip())
+    try:
+        problem = problem_class(config, measured, free, method=args.method, colour_weight=args.colour_weight,
+                                level_weight=1.0 if args.absolute else 0.0,
+                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
+                             wavelengths_nm=wavelengths, **extra)
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    _check_cost("fit", config, problem.wavelengths_nm, args.target_rel_err, None)
+    try:
+        problem.precheck()
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    _prepare_out(args.out, _is_fit_output, "simulate fit")
+    max_evaluations = args.max_evaluations
+    if max_evaluations is None:
+        from fabric_optics.fitting.driver import DEFAULT_MAX_EVALUATIONS
+        from fabric_optics.fitting.mc import DEFAULT_MC_RUNS
+
+        max_evaluations = DEFAULT_MC_RUNS if args.method == "mc" else DEFAULT_MAX_EVALUATIONS
+    from simulate.fiber import tablecache
+
+    walk_parts_before = tablecache.stored("structwalk")
+    try:
+        result = run_fit(problem, out=args.out, resume=args.resume, max_evaluations=max_evaluations,
+                         starts=args.starts, progress=_progress(args))
+    except FitError as exc:
+        raise _UsageError(str(exc)) from None
+    except KeyboardInterrupt:
+        if args.method == "mc":
+            from fabric_optics.fitting.mc import left_behind
+            said = left_behind(args.out)
+        else:
+            said = _fit_left_behind(args.out, walk_parts_before)
+        print(f"simulate fit: interrupted; {said}", file=sys.stderr)
+        return 130
+    try:
+        doc = write_outputs(problem, result, args.out)
+    except OSError as exc:
+        raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
+    from fabric_optics.fitting.driver import uncertainty_text
+
+    for p in doc["parameters"]:
+        u = p["u"] if p.get("u") is not None else float("nan")
+        print(f"{p['name']} = {p['value']:.6g} {uncertainty_text(u, p.get('u_status', ''))}   (start "
+              f"{p['start']:.6g}, bounds [{p['low']:g}, {p['high']:g}])")
+    for key in ("start", "fitted"):
+        c = doc[key]
+        colour = f", dh {c['dh']:+.4f}, ds {c['ds']:+.4f}" if "dh" in c else ""
+        level = f", level k_Y {c['level_k']:.3g}" if c.get("level_k") is not None else ""
+        print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}{level}")
+    for w in doc["warnings"]:
+        if not w.startswith("colour left off"):    # said once, as the verdict, below
+            print(f"warning: {w}", file=sys.stderr)
+    info = doc["info"]
+    if args.method == "mc":
+        print(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
+              f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
+              f"{info['seconds']:.1f} s; {info['stop']})")
+    else:
+        print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
+              f"{info['reweighted']} re-weighted passes"
+              + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache")
+                 else "") + f", {info['seconds']:.1f} s)")
+    verdict = doc.get("verdict") or {}
+    if not verdict.get("passed", True):
+        # the outputs are written and labelled failing (fit.json verdict, fitted.toml header); exit 3
+        print(f"simulate fit: FAILED, {verdict.get('why', 'colour left off')}", file=sys.stderr)
+        return int(verdict.get("exit_status") or 3)
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+
+COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]] = {
+    "slab": ("Monte Carlo slab: diffuse reflectance and total transmittance", _slab_arguments, _slab_run),
+    "bench": ("benchmark the Monte Carlo kernel (JSON + chart)", _bench_arguments, _bench_run),
+    "fabric": ("fabric BRDF at a plan's geometries, as a radiance-coefficient dataset", _fabric_arguments,
+               _fabric_run),
+    "fiber": ("fiber BRDF table over the incident sphere (npz + JSON)", _fiber_arguments, _fiber_run),
+    "fit": ("fit config parameters of a fabric model to a measurement", _fit_arguments, _fit_run),
+}
+
+
+# ------------------------------------------------------------------------------------------
+# simulate weave CONFIG --out MESH.ply|obj [--force]
+#   the triangulated yarn tubes of the config's woven micro-element (simulate.fabric.weave); registered
+#   after COMMANDS so that this section stays self-contained
+# ------------------------------------------------------------------------------------------
+
+
+def _weave_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name); its [weave] "
+                                                     "table (default: a plain weave)")
+    p.add_argument("--out", type=Path, required=True, help="mesh file to write, .ply or .obj")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+
+
+def _weave_run(args: argparse.Namespace) -> int:
+    from simulate.config import ConfigError
+    from simulate.config import weave_from_config
+    from simulate.fabric.mesh import mesh
+    from simulate.fabric.weave import WeaveError
+
+    out: Path = args.out
+    if out.suffix.lower() not in (".ply", ".obj"):
+        raise _UsageError(f"--out {out}: unknown mesh format {out.suffix or '(no suffix)'!r}; use .ply or .obj")
+    if out.is_dir():
+        raise _UsageError(f"--out {out}: is a directory; give a mesh file name (.ply or .obj)")
+    if out.exists() and not args.force:
+        raise _UsageError(f"--out {out}: file exists; refusing to overwrite it (use --force)")
+    config = _load_config(args.config)
+    try:
+        weave = weave_from_config(config)
+        m = mesh(weave)
+        m.export(out)
+    except (ConfigError, WeaveError) as exc:
+        raise _UsageError(str(exc)) from None
+    print(f"wrote {out} ({len(m.vertices)} vertices, {len(m.faces)} faces; {weave.n_warp} warp x "
+          f"{weave.n_weft} weft yarns, micro-element {m.Lx:g} x {m.Ly:g} um, z {m.z_min:g}..{m.z_max:g} um)")
+    return 0
+
+
+COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave as a PLY/OBJ mesh",
+                     _weave_arguments, _weave_run)
+
+
+# ------------------------------------------------------------------------------------------
+# simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]
+#   a parameter study on dask.distributed (fabric_optics.sweep.runner)
+# ------------------------------------------------------------------------------------------
+
+
+def _sweep_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("--param", action="append", required=True, metavar="NAME=v1,v2,...",
+                   help="a swept config field (dotted path or alias volume_fraction, radius, rms_slope) and its "
+                        "values; repeat for a grid (every combination)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="sweep directory (sweep.json, tasks/, points/<name>=<value>/, summary.csv); an existing "
+                        "sweep directory of the same sweep is continued")
+    p.add_argument("--method", choices=("summation", "classic", "mc"), default="summation",
+                   help="fabric model (default summation)")
+    p.add_argument("--geometry", metavar="PLAN", default="red-cotton",
+                   help="acquisition plan whose geometries and wavelengths are simulated (default red-cotton)")
+    p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
+                   help="skip the plan's beam-blocked geometries as the measurement does")
+    p.add_argument("--scheduler", metavar="tls://HOST:PORT", default=None,
+                   help="address of a running dask scheduler (default: a local cluster of --workers processes, "
+                        "behind TLS with temporary credentials)")
+    p.add_argument("--tls-ca-file", default=None, dest="tls_ca_file", metavar="FILE",
+                   help="--scheduler: CA certificate (PEM); without the three TLS files dask's "
+                        "distributed.comm.tls configuration applies")
+    p.add_argument("--tls-cert", default=None, dest="tls_cert", metavar="FILE",
+                   help="--scheduler: client certificate (PEM)")
+    p.add_argument("--tls-key", default=None, dest="tls_key", metavar="FILE",
+                   help="--scheduler: client private key (PEM)")
+    p.add_argument("--workers", type=_int_in(1, 1024), default=None,
+                   help="local cluster: worker processes, one thread each (default: the number of CPUs)")
+    p.add_argument("--threads", type=_threads_arg, default=1,
+                   help="threads of each task's Monte Carlo, 0 = all (default 1: the workers are the parallelism); "
+                        "results do not depend on it")
+    p.add_argument("--retries", type=_int_in(0, 100), default=2,
+                   help="retries of a failing task before it is reported (default 2)")
+    p.add_argument("--measured", type=Path, default=None, metavar="DIR",
+                   help="measured dataset: add compare's NRMSE, dh and ds of every point to summary.csv")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the sweep in --out (it must exist; rerunning the same command does the same)")
+    p.add_argument("--target-rel-err", type=_rel_err, default=None, dest="target_rel_err",
+                   help="target relative standard error of the fiber Monte Carlo (default: the config's)")
+    p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
+                   help="photon budget per task (default: the config's; none)")
+    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None,
+                   help="sweep seed (default: the config's); each task's seed is derived from it, the point "
+                        "and the wavelength")
+    p.add_argument("--no-progress", action="store_true", dest="no_progress",
+                   help="no progress bar (it is shown only on a terminal anyway)")
+
+
+def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
+    """``(client, cluster)``: a client of the named scheduler (cluster None) or of a new local cluster.
+
+    Both behind TLS (:mod:`fabric_optics.sweep.cluster`): a local cluster with temporary credentials, a named
+    scheduler with the user's certificates.
+    """
+    from fabric_optics.sweep.cluster import ClusterError, local_cluster, remote_client
+
+    try:
+        if args.scheduler:
+            return remote_client(args.scheduler, ca_file=args.tls_ca_file, cert=args.tls_cert,
+                                 key=args.tls_key), None
+        if args.tls_ca_file or args.tls_cert or args.tls_key:
+            raise ClusterError("--tls-ca-file/--tls-cert/--tls-key go with --scheduler (a local cluster makes "
+                               "its own temporary credentials)")
+        return local_cluster(args.workers or os.cpu_count() or 1)
+    except ClusterError as exc:
+        raise _UsageError(str(exc)) from None
+
+
+def _check_sweep_cost(args: argparse.Namespace, spec: Any) -> None:
+    """:func:`_check_cost` of the costliest of up to 9 evenly spaced points, times the points per worker."""
+    from simulate.budget import estimate_cost
+
+    wl, target = spec.wavelengths_nm, float(spec.target_rel_err)
+    sample = spec.points[::max(1, len(spec.points) // 8)]
+    worst = max(sample, key=lambda p: estimate_cost(p.config, wl, target, spec.max_photons).seconds)
+    workers = 1 if args.scheduler else (args.workers or os.cpu_count() or 1)
+    _check_cost("sweep", worst.config, wl, target, spec.max_photons, runs=max(1, -(-len(spec.points) // workers)))
+
+
+def _sweep_run(args: argparse.Namespace) -> int:
+    from gonio.acquisition.plan import PlanError, load_plan
+    from gonio.data.dataset import DatasetError, read_dataset
+    from fabric_optics.sweep.runner import SweepError, SweepSpec, finished_tasks, parse_params, prepare_out, run_sweep
+
+    config = _load_config(args.config)
+    try:
+        plan = load_plan(args.geometry)
+    except PlanError as exc:
+        raise _UsageError(f"--geometry: {exc}") from None
+    try:
+        spec = SweepSpec(config, plan, parse_params(args.param, config), method=args.method,
+                         target_rel_err=args.target_rel_err, seed=args.seed, max_photons=args.max_photons,
+                         measurable_only=args.measurable_only, threads=args.threads)
+    except SweepError as exc:
+        raise _UsageError(str(exc)) from None
+    _check_sweep_cost(args, spec)
+    measured = None
+    if args.measured is not None:
+        try:
+            measured = read_dataset(args.measured)
+        except DatasetError as exc:
+            raise _UsageError(f"--measured: {exc}") from None
+    try:
+        resumed = prepare_out(args.out, spec, resume=args.resume)
+    except SweepError as exc:
+        raise _UsageError(str(exc)) from None
+    if not args.verbose:
+        # distributed's own logs (cluster start/stop, each failed attempt's traceback, in the
+        # workers too: they inherit the environment) are not for users; failures are reported below
+        os.environ["DASK_LOGGING__DISTRIBUTED"] = "critical"
+    n_tasks = len(spec.tasks())
+    client = cluster = None
+    try:
+        if len(finished_tasks(args.out, spec)) < n_tasks:  # a finished sweep is only assembled again
+            client, cluster = _sweep_client(args)
+        result = run_sweep(spec, args.out, client, retries=args.retries, progress=_progress(args), measured=measured)
+    except SweepError as exc:
+        raise _UsageError(str(exc)) from None
+    except KeyboardInterrupt:
+        print(f"simulate sweep: interrupted; finished tasks are kept in {args.out / 'tasks'} (run the same command "
+              "again, or with --resume, to continue)", file=sys.stderr)
+        return 130
+    finally:
+        if client is not None:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    summary = result.summary
+    names = [p.name for p in spec.params]
+    for row in summary.to_dict("records"):
+        figures = f"{row['seconds']:.1f} s, rel_err {row['rel_err']:.2%}"
+        if "nrmse" in row:
+            figures += f", NRMSE {row['nrmse']:.4g}, dh {row['dh']:+.4f}, ds {row['ds']:+.4f}"
+        values = ", ".join(f"{n}={row[n]:g}" for n in names)
+        print(f"  {values}: {row['status']}" + (f" ({figures})" if row["status"] == "complete" else
+                                                 f" ({row['tasks_done']} of {row['tasks']} tasks)"))
+    for line in result.failures.values():
+        print(f"simulate sweep: {line}", file=sys.stderr)
+    shape = (f"{len(spec.points)} points (all {len(spec.wavelengths_nm)} wavelengths a task)" if spec.per_point else
+             f"{len(spec.points)} points x {len(spec.wavelengths_nm)} wavelengths")
+    print(f"wrote {args.out} ({shape} = {n_tasks} tasks: "
+          f"{result.computed} computed, {result.reused} reused{', resumed' if resumed else ''}, "
+          f"{len(result.failures)} failed; summary in {args.out / 'summary.csv'})")
+    return 1 if result.failures else 0
+
+
+COMMANDS["sweep"] = ("parameter sweep of a fabric model on dask.distributed (one dataset per point)",
+                     _sweep_arguments, _sweep_run)
+
+
+# ---- simulate export (issue 22): one self-contained block -------------------------------------
+def _export_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("--method", choices=("classic", "summation", "mc"), required=True, help="fabric model")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE.bsdf", help="RGL .bsdf file to write")
+    p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    p.add_argument("--rgb", action="store_true", help="linear sRGB (D65) values instead of spectra "
+                   "(Mitsuba's RGB variants read only RGB files, its spectral variants only spectral ones)")
+    p.add_argument("--wavelengths", metavar="START:STOP:STEP", default=None,
+                   help="spectral bands in nm (default: the config's wavelengths)")
+    p.add_argument("--resolution", type=_int_in(4, 256), default=64, help="values per axis of the warped grid (64)")
+    p.add_argument("--incidences", type=_int_in(2, 64), default=16, help="incidence nodes 0..90 deg, uniform in cos (16)")
+    p.add_argument("--anisotropic", type=int, choices=(1, 2, 4), default=0, metavar="REDUCTION",
+                   help="keep the anisotropy: incidence azimuths over 360/REDUCTION deg, the rest mirrored "
+                        "(4: mirror symmetric in x and y, as warp/weft summation; 1: none)")
+    p.add_argument("--azimuths", type=_int_in(3, 64), default=5, help="incidence azimuths with --anisotropic (5)")
+    p.add_argument("--check", type=_int_in(0, 10**6), default=0, metavar="N",
+                   help="measure the tabulation error at N random direction pairs (more model evaluations)")
+    _run_settings_arguments(p)
+
+
+def _export_run(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+
+    from gonio.data.bsdf_export import ExportError
+    from simulate.export import export_model
+    from simulate.fabric import FabricError
+
+    config = _load_config(args.config)
+    if args.out.exists() and not args.force:
+        raise _UsageError(f"--out {args.out}: exists; pass --force to overwrite it")
+    wl = None
+    if args.wavelengths:
+        try:
+            a, b, c = (float(x) for x in args.wavelengths.split(":"))
+            wl = np.arange(a, b + 1e-9, c)
+            assert wl.size >= 1 and c > 0
+        except (ValueError, AssertionError):
+            raise _UsageError(f"--wavelengths {args.wavelengths}: expected START:STOP:STEP in nm, "
+                              "e.g. 400:700:10") from None
+    started = time.perf_counter()
+    try:
+        result = export_model(config, args.method, args.out, wavelengths_nm=wl, rgb=args.rgb, res=args.resolution,
+                              incidences=args.incidences, target_rel_err=args.target_rel_err, seed=args.seed,
+                              threads=args.threads, max_photons=args.max_photons, check_pairs=args.check,
+                              reduction=args.anisotropic, n_phi_i=args.azimuths, progress=_progress(args))
+    except (ExportError, FabricError) as exc:
+        raise _UsageError(str(exc)) from None
+    err = result.error
+    check = ("" if err is None else f"; tabulation error at {err['pairs']} pairs (theta <= 80 deg): "
+             f"{err['rms']:.2%} rms, {err['p95']:.2%} p95, {err['max']:.2%} max")
+    print(f"wrote {args.out} ({args.method}; {result.evaluations} model evaluations; "
+          f"{time.perf_counter() - started:.1f} s{check})")
+    return 0
+
+
+COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / pbrt-v4 `measured`)",
+                      _export_arguments, _export_run)
+# ---- end simulate export ----------------------------------------------------------------------
+
+
+#: Commands that may build woven yarn tables or structured-summation walks, i.e. use the table cache
+#: (simulate.fiber.tablecache; the fit's walks: fabric_optics.fitting.structure.walk_structure).
+_TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
+    parser = _Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name, (help_text, add_arguments, _) in COMMANDS.items():
+        sp = sub.add_parser(name, help=help_text, description=help_text)
+        add_arguments(sp)
+        if name in _TABLE_CACHE_COMMANDS:
+            sp.add_argument("--no-cache", action="store_true", dest="no_cache",
+                            help="neither read nor write the table cache (the woven yarn tables, the fit's structured "
+                                 "walks; default "
+                                 "~/.cache/fabric-optics or $FABRIC_OPTICS_CACHE_DIR, bounded by "
+                                 "$FABRIC_OPTICS_CACHE_MAX_BYTES, 2 GiB); also FABRIC_OPTICS_NO_CACHE=1")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``simulate`` console script; returns the exit code."""
+    # Start-up (numba and its registries) makes ~10^5 long-lived objects and no garbage: the cyclic
+    # collector scanned them ~250 times (0.08 s CPU) and once more at exit (0.1 s). It is off while the
+    # arguments are parsed (numba is imported then); at exit gc.freeze() keeps everything out of the
+    # last collection (README, speed; https://docs.python.org/3/library/gc.html#gc.freeze).
+    atexit.unregister(gc.freeze)
+    atexit.register(gc.freeze)
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    finally:
+        if collecting:
+            gc.enable()
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    from simulate.montecarlo import ParameterError
+
+    _, _, run = COMMANDS[args.command]
+    try:
+        if getattr(args, "no_cache", False):
+            os.environ["FABRIC_OPTICS_NO_CACHE"] = "1"   # inherited by the processes a sweep starts
+        if args.command in _TABLE_CACHE_COMMANDS:
+            from simulate.fiber import tablecache
+
+            tablecache.max_bytes()   # a bad FABRIC_OPTICS_CACHE_MAX_BYTES: exit 2 now, not after the run
+        return run(args)
+    except _UsageError as exc:
+        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except ParameterError as exc:
+        # invalid run parameters found by the library; the message names the parameter
+        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"simulate {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
