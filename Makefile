@@ -33,8 +33,13 @@ DEMO_FREE ?= dye,rms_slope
 DEMO_MC_START ?= green-felt-mc
 DEMO_MC_FREE ?= dye
 DEMO_MC_RUNS ?= 2
-# Evaluation budget of each fit (one walk each, then about 0.1 s per evaluation).
-DEMO_FIT_EVALS ?= 200
+# A fit whose colour is left off exits 3 with its outputs written and labelled failing
+# (docs/notes/fit-trust.md); the demo goes on so that the report shows it. Any other failure stops it.
+FIT_VERDICT = || [ $$? -eq 3 ]
+# Evaluation budget of each fit (one walk each, then about 0.1 s per evaluation): the default. On the demo's
+# acquisition (measured plan) the classic fit converges in 287 evaluations, the summation fit in 192 (both
+# by ftol); 200 stopped the classic fit before it converged.
+DEMO_FIT_EVALS ?= 600
 
 .PHONY: demo test test-slow lint bench venv clean
 
@@ -59,9 +64,9 @@ demo: $(STAMP)
 	$(VENV)/bin/gonio truth $(DEMO_SAMPLE) $(DEMO_PLAN) --out $(DEMO_OUT)/truth
 	$(VENV)/bin/compare check $(DEMO_OUT)/measured $(DEMO_OUT)/truth --max-nrmse 0.05
 	$(VENV)/bin/simulate fabric red-cotton --method summation --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/red-cotton
-	$(VENV)/bin/simulate fit $(DEMO_CLASSIC_START) $(DEMO_OUT)/measured --method classic $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --no-progress --out $(DEMO_OUT)/fit-classic
-	$(VENV)/bin/simulate fit $(DEMO_START) $(DEMO_OUT)/measured --method summation $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --no-progress --out $(DEMO_OUT)/fit-summation
-	$(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/measured --method mc --free $(DEMO_MC_FREE) --max-evaluations $(DEMO_MC_RUNS) --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-mc
+	$(VENV)/bin/simulate fit $(DEMO_CLASSIC_START) $(DEMO_OUT)/measured --method classic $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --no-progress --out $(DEMO_OUT)/fit-classic $(FIT_VERDICT)
+	$(VENV)/bin/simulate fit $(DEMO_START) $(DEMO_OUT)/measured --method summation $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --no-progress --out $(DEMO_OUT)/fit-summation $(FIT_VERDICT)
+	$(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/measured --method mc --free $(DEMO_MC_FREE) --max-evaluations $(DEMO_MC_RUNS) --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-mc $(FIT_VERDICT)
 	$(VENV)/bin/compare report $(DEMO_OUT)/measured $(DEMO_OUT)/truth $(DEMO_OUT)/fit-classic/fitted $(DEMO_OUT)/fit-summation/fitted $(DEMO_OUT)/fit-mc/initial $(DEMO_OUT)/fit-mc/fitted --fit $(DEMO_OUT)/fit-classic --fit $(DEMO_OUT)/fit-summation --fit $(DEMO_OUT)/fit-mc --seed-sample $(DEMO_OUT)/red-cotton --out $(DEMO_OUT)/report
 	@echo "demo: report in $(DEMO_OUT)/report/report.html"
 

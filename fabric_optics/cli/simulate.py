@@ -488,7 +488,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                         "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations",
                    help="objective evaluations of the search in all: steps and Jacobian columns of every start "
-                        "(default 400; the uncertainty propagation afterwards is counted apart); with --method mc: "
+                        "(default 600; the uncertainty propagation afterwards is counted apart); with --method mc: "
                         "Monte Carlo runs, the start's included (default 5, at least 2)")
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
                    help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
