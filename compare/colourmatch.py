@@ -47,16 +47,52 @@ from gonio.data import GEOMETRY
 
 from .errors import CompareError
 
-__all__ = ["ColourMatch", "SimulatedColour", "band_luminance_weights", "colour_geometry",
-           "colour_match", "colour_of", "luminance_weights"]
+__all__ = ["ColourMatch", "SimulatedColour", "MAX_COLOUR_STEP_NM", "band_luminance_weights", "colour_geometry",
+           "colour_match", "colour_of", "colour_refusal", "luminance_weights"]
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
+#: the widest step between the compared wavelengths of a spectrum whose colour is stated (the spectrum is
+#: linearly interpolated to 5 nm between them: :func:`compare.bands.colour_resampling`)
+MAX_COLOUR_STEP_NM = 50.0
+
+
+def colour_refusal(wavelength_nm, illuminant: str = "D65") -> str | None:
+    """Why no colour (H, S, V) is stated for spectra on ``wavelength_nm``, or None when it is.
+
+    The rule: a spectrum on an evenly spaced 1, 5, 10 or 20 nm grid is integrated as it is (ASTM E308,
+    colour-science); a spectrum on any other grid is first interpolated linearly to 5 nm
+    (:func:`compare.bands.colour_resampling`), which is stated only when its wavelengths are at most
+    :data:`MAX_COLOUR_STEP_NM` apart. Sparser samples (e.g. 450, 550 and 650 nm) do not determine a
+    colour: a band between two of them, where a dye absorbs, would be a straight line. Their curves are
+    compared all the same. ``illuminant`` is accepted for symmetry with the colour functions.
+    """
+    from .bands import colour_resampling
+
+    wl = np.sort(np.asarray(wavelength_nm, dtype=float).ravel())
+    if wl.size < 2:
+        return f"a colour needs a spectrum of at least two wavelengths; the comparison has {wl.size}"
+    if colour_resampling(wl)[1] is None:
+        return None
+    step = float(np.max(np.diff(wl)))
+    if step > MAX_COLOUR_STEP_NM + 1e-9:
+        shown = ", ".join(f"{w:g}" for w in wl[:8]) + (" ..." if wl.size > 8 else "")
+        return (f"the compared wavelengths ({shown} nm) are up to {step:g} nm apart; a colour is computed from "
+                f"spectra on an even 1, 5, 10 or 20 nm grid, or sampled at least every {MAX_COLOUR_STEP_NM:g} nm "
+                "(then interpolated linearly to 5 nm)")
+    return None
 
 
 @lru_cache(maxsize=16)
 def _weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
     import colour
 
+    from .bands import colour_resampling
+
+    grid, interp = colour_resampling(wavelengths)
+    if interp is not None:
+        # a grid ASTM E308 does not integrate (not 1, 5, 10 or 20 nm, or uneven): the weights of the spectrum
+        # interpolated linearly to 5 nm (compare.bands.colour_resampling), a linear map of the given values
+        return interp.T @ _weights(tuple(float(x) for x in grid), illuminant)
     wl = np.asarray(wavelengths)
     basis = colour.MultiSpectralDistributions(np.eye(wl.size), wl)
     # colour-science warns while it trims/extends each basis spectrum to the observer's range,
@@ -171,7 +207,11 @@ def colour_of(wl, beta, illuminant: str, what: str, bands=None) -> ColourSummary
         if bands is not None and bands.is_rgb:
             return rgb_colour({bands.label(b): v for b, v in zip(wl, beta)},
                               colour_space=bands.colour_space)
-        return spectrum_colour(wl, beta, illuminant=illuminant)
+        from .bands import colour_resampling
+
+        grid, interp = colour_resampling(wl)
+        values = np.asarray(beta, dtype=float)
+        return spectrum_colour(grid, values if interp is None else interp @ values, illuminant=illuminant)
     except ValueError as exc:
         raise CompareError(f"no colour for {what}: {exc}") from None
 

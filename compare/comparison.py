@@ -28,7 +28,15 @@ the issue)::
      "overall": {name: {"rmse", "nrmse"}},
      "colour": {"geometry": {"theta_i", "phi_i", "theta_o", "phi_o", "s"},
                 "measured": {"h", "s", "v", "blue_red", "green_red"},
-                name: {"h", "s", "v", "blue_red", "green_red", "dh", "ds", "dv"}}}
+                name: {"h", "s", "v", "blue_red", "green_red", "dh", "ds", "dv"}},
+     "shape": {"measured" | name: {"opposition" | "mirror":
+                                   {"per_incidence": {"40": {"value": {"550": r, ...}, "u": {...},
+                                                            "n_points": [num, den]}}}
+                                   or {"reason": str}}}}
+
+``shape`` holds each dataset's own opposition and mirror-to-neighbours ratios
+(:mod:`compare.felt_metrics`; the normalisation cancels in them), or why the dataset lacks the
+points they need.
 
 Names are the datasets' ``name`` (``meta.sample.name`` or the directory name), made unique with a
 `` (2)``, `` (3)`` suffix when they collide with each other or with the reserved keys
@@ -40,7 +48,7 @@ in place of ``per_wavelength``, ``max_abs_at.channel`` in place of ``wavelength_
 converted}}``. A relative measurement adds ``"relative": true`` and has ``v`` and ``dv`` null
 (absolute colour refused); a photometric (Y-only) one has an empty ``colour`` (no colour
 statement). ``"notes"`` (sentences for a reader) is present when there is something to note. A
-spectral comparison of absolute data has exactly the four keys above.
+spectral comparison of absolute data has exactly the five keys above.
 """
 
 from __future__ import annotations
@@ -57,8 +65,9 @@ import pandas as pd
 from gonio.data import Dataset
 
 from .align import align, shared_wavelengths
-from .bands import Bands, prepare
-from .colourmatch import ColourMatch, colour_match
+from .bands import Bands, colour_resampling, prepare
+from .colourmatch import ColourMatch, colour_match, colour_refusal
+from .felt_metrics import shape_document
 from .errors import CompareError
 from .metrics import CurveError, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
@@ -164,6 +173,8 @@ class Comparison:
     bands: Bands = field(default_factory=Bands)
     measured_view: Dataset | None = None
     simulated_views: dict[str, Dataset] = field(default_factory=dict)
+    #: why no colour is stated for a spectral comparison (:func:`compare.colourmatch.colour_refusal`), or ""
+    colour_note: str = ""
 
     @property
     def relative(self) -> bool:
@@ -183,6 +194,12 @@ class Comparison:
                        if chans == "Y" else
                        f"the compared channels ({chans}) do not include all of R, G and B: no "
                        "colour statement is made (no H, S, V)")
+        if self.colour_note:
+            out.append(f"no colour statement (no H, S, V): {self.colour_note}")
+        if not self.bands.is_rgb and colour_resampling(self.wavelength_nm)[1] is not None:
+            out.append("the compared wavelengths are not a 1, 5, 10 or 20 nm grid (ASTM E308): CIE Y (the "
+                       "luminance curves, k_Y) and any colour are integrated from the spectrum interpolated "
+                       "linearly to 5 nm between them and held at its end values beyond them")
         if self.relative:
             out.append(f"measured dataset '{self.measured.name}' is relative (\"relative\": true, "
                        "raw detector units): it is normalised like any other (only shapes are "
@@ -311,9 +328,13 @@ class Comparison:
         if bands.is_rgb:
             method = method.replace("per wavelength", "per channel").replace("k(lambda)", "k(c)")
         level = {name: self.level(name).as_dict() for name in self.normalisations}
+        shape = {"measured": shape_document(self.measured_compared.table, bands.key)}
+        shape.update({name: shape_document(self.view(name).table, bands.key) for name in self.simulated})
         document: dict = {"normalisation": {"method": method, "factor": factor,
                                             "normal_value": normal_value, "level": level},
-                          "curves": curves, "overall": overall, "colour": colour}
+                          "curves": curves, "overall": overall, "colour": colour, "shape": shape}
+        if self.colour_note:
+            document["colour_note"] = f"no colour statement (no H, S, V): {self.colour_note}"
         if bands.is_rgb:
             document["bands"] = {"kind": bands.noun, "channels": list(bands.channels or ()),
                                  "colour_space": bands.colour_space,
@@ -458,7 +479,10 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
         log.info("'%s': overall RMSE %.4g, NRMSE %.4g", name, overall[name].rmse,
                  overall[name].nrmse)
     colour = None
-    if bands.has_colour:
+    colour_note = "" if bands.is_rgb else (colour_refusal(grid, illuminant) or "")
+    if colour_note:
+        log.warning("no colour (H, S, V) is stated: %s; the curves and their errors are compared", colour_note)
+    if bands.has_colour and not colour_note:
         colour = colour_match(frames, {n: (normalisations[n].measured_value,
                                            normalisations[n].simulated_value) for n in names},
                               illuminant=illuminant, bands=bands)
@@ -467,4 +491,4 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
                       measured_normal=measured_normal, normalisations=normalisations,
                       frames=frames, curves=curves, overall=overall, colour=colour,
                       bands=bands, measured_view=measured_view,
-                      simulated_views=dict(zip(names, views)))
+                      simulated_views=dict(zip(names, views)), colour_note=colour_note)

@@ -30,11 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gonio.data import Dataset, atomic_write, display_srgb
+from gonio.data import Dataset, display_srgb
 
 from .bands import colour_at
 from .comparison import check_values
 from .report import prepare_out_dir, save_figure
+from .report.build import write_together
 from .report.curves import GRAZING_DEG, REPORT_WAVELENGTHS_NM, angle_text, beam_blocked
 from .report.figures import OWN_SCALE_RATIO, inplane_figure, own_scale_panels
 from .report.page import Section, assemble, describe_dataset, figures_section, head_html
@@ -87,7 +88,8 @@ def _strip_figure(table: list[dict], incidences: list[float], relative: bool):
 
 def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool = False,
                          force: bool = False) -> Path:
-    """Write ``report.html``, ``metrics.json`` and ``figures/*.png`` for one dataset."""
+    """Write ``report.html``, ``metrics.json`` and ``figures/*.png`` for one dataset, together (a report that
+    cannot be written is one :class:`~compare.errors.CompareError` and leaves ``out_dir`` as it was)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -95,8 +97,8 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
     check_values(ds, ds.kind)
     out = Path(out_dir)
     old = prepare_out_dir(out, force)
-    fig_dir = out / "figures"
-    fig_dir.mkdir(parents=True, exist_ok=True)
+    fig_dir = Path("figures")
+    files: dict[Path, bytes] = {}     # written together at the end
     frame = ds.in_plane()
     incidences = sorted(set(frame["theta_i"]))
     band = ds.band_column
@@ -118,20 +120,19 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
                       "at this scale." if hidden else "Error bars: +-1 standard uncertainty.")
                    + (f" On their own value axis: incidences {', '.join(_deg(x) for x in own)} deg."
                       if own else ""))
-        figures[fname] = (save_figure(fig, fig_dir / fname, svg), caption)
+        figures[fname] = (save_figure(fig, fig_dir / fname, svg, files), caption)
     table = _colours(ds) if (ds.is_rgb and set("RGB") <= set(ds.channels)) or \
         (not ds.is_rgb and len(ds.wavelengths_nm) >= 2) else []
     if table:
         figures["colour_strips.png"] = (
             save_figure(_strip_figure(table, incidences, ds.relative),
-                        fig_dir / "colour_strips.png", svg),
+                        fig_dir / "colour_strips.png", svg, files),
             f"Colour of '{ds.name}' along each in-plane curve, one strip per incidence, from the "
             "source's side (left) to the far side: the colour at each observation angle ("
             + ("the channels" if ds.is_rgb else "spectrum -> CIE XYZ, D65 -> linear sRGB")
             + "), gamma-encoded for display only"
             + ("; scaled so the brightest swatch is white-level 1 (relative data)"
                if ds.relative else "") + ".")
-    written = {fig_dir / name for name in figures}
     preface = ("Reading the in-plane figures: the radiance coefficient beta/pi against the "
                "signed observation angle s (s < 0: detector on the source's side, s > 0 the far "
                "side), one panel per incidence, the panels sharing one value axis except those "
@@ -142,10 +143,6 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
                + ("; shaded: the beam-blocked cone, where the data have that gap." if blocked
                   else "; nothing is shaded: the data have no beam-blocked gap.")
                if figures else "")
-    for path in old:
-        for stale in (path, path.with_suffix(".svg")):
-            if stale not in written and stale.suffix in (".png", ".svg") and stale.is_file():
-                stale.unlink()
     notes = []
     if ds.relative:
         notes.append("Relative dataset (raw detector units): shapes only; V (absolute "
@@ -156,9 +153,14 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
                "bands": [str(b) for b in ds.bands], "notes": notes,
                "colour": [{k: v for k, v in e.items() if not (ds.relative and k == "v")}
                           for e in table]}
-    atomic_write(out / "metrics.json", (json.dumps(metrics, indent=2, allow_nan=True) + "\n").encode())
-    atomic_write(out / "report.html",
-                 _page(ds, incidences, notes, table, figures, preface).encode("utf-8"))
+    files[Path("metrics.json")] = (json.dumps(metrics, indent=2, allow_nan=True) + "\n").encode()
+    files[Path("report.html")] = _page(ds, incidences, notes, table, figures, preface).encode("utf-8")
+    write_together(out, files, "report")
+    written = {out / name for name in files}
+    for path in old:
+        for stale in (path, path.with_suffix(".svg")):
+            if stale not in written and stale.suffix in (".png", ".svg") and stale.is_file():
+                stale.unlink()
     return out / "report.html"
 
 

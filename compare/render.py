@@ -292,8 +292,15 @@ def to_srgb8(rgb: np.ndarray, exposure: float = 1.0) -> np.ndarray:
 
 def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike,
                      settings: RenderSettings | None = None) -> dict:
-    """Individual PNGs, one side-by-side sheet (rows: materials) and ``render.json``."""
+    """Individual PNGs, one side-by-side sheet (rows: materials) and ``render.json``, written together
+    (:func:`gonio.data.write_files_together`): a set that cannot be written (a full disk) is one
+    :class:`~compare.errors.CompareError` line and leaves ``out_dir`` as it was."""
+    import io
     import json
+
+    from gonio.data import write_files_together
+
+    from .errors import CompareError
 
     import matplotlib
     matplotlib.use("Agg")
@@ -301,13 +308,15 @@ def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike
 
     s = settings or RenderSettings()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    written: dict[str, bytes] = {}
     labels = list(dict.fromkeys(im.material for im in images))
     scenes = list(dict.fromkeys(im.scene for im in images))
     files = []
     for k, im in enumerate(images):
         name = f"{labels.index(im.material)}_{scenes.index(im.scene)}.png"
-        plt.imsave(out / name, to_srgb8(im.rgb, s.exposure))
+        buffer = io.BytesIO()
+        plt.imsave(buffer, to_srgb8(im.rgb, s.exposure), format="png")
+        written[name] = buffer.getvalue()
         files.append({"file": name, "material": im.material, "scene": im.scene, "seconds": round(im.seconds, 2),
                       "spp": im.spp, "size": [int(im.rgb.shape[1]), int(im.rgb.shape[0])]})
     widths = [2.2 if sc == "cushion" else 1.3 for sc in scenes]
@@ -328,13 +337,21 @@ def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike
     caption = caption_text(images, s)
     fig.text(0.01, 0.01, caption, fontsize=6, va="bottom", wrap=True)
     fig.tight_layout(rect=(0, 0.08, 1, 1))
-    fig.savefig(out / "render_sheet.png", dpi=110)
+    sheet = io.BytesIO()
+    fig.savefig(sheet, format="png", dpi=110)
     plt.close(fig)
+    written["render_sheet.png"] = sheet.getvalue()
     info = {"sheet": "render_sheet.png", "images": files, "caption": caption, "seconds_total": round(total, 2),
             "settings": {"spp": s.spp, "cushion": [s.size[0], s.size[1]], "swatch": [s.swatch_size] * 2,
                          "seed": s.seed, "exposure": s.exposure, "camera_zenith_deg": CAMERA_ZENITH_DEG,
                          "swatch_lights": [list(x) for x in SWATCH_LIGHTS]}}
-    (out / "render.json").write_text(json.dumps(info, indent=2) + "\n")
+    written["render.json"] = (json.dumps(info, indent=2) + "\n").encode("utf-8")
+    try:
+        write_files_together(out, written)
+    except OSError as exc:
+        raise CompareError(f"cannot write the render into {out}: {exc.strerror or exc} (writing {exc.filename}); "
+                           "nothing of it was written and the folder is as it was: free space or choose another "
+                           "--out") from exc
     return info
 
 

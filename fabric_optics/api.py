@@ -50,7 +50,8 @@ if TYPE_CHECKING:
 __all__ = [
     "ToolkitError", "InputError", "OutputExistsError",
     "load_config", "load_plan", "read_dataset", "write_dataset",
-    "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "FitOutcome", "export_bsdf",
+    "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "prepare_fit", "FitJob",
+    "FitOutcome", "export_bsdf",
     "FABRIC_METHODS", "FIT_METHODS",
 ]
 
@@ -89,7 +90,7 @@ def _typed_errors(fn: _F) -> _F:
             return fn(*args, **kwargs)
         except ToolkitError:
             raise
-        except (*_INPUT_ERRORS, FitError) as exc:
+        except _INPUT_ERRORS + (FitError,) as exc:
             raise InputError(str(exc)) from exc
     return wrapper  # type: ignore[return-value]
 
@@ -102,7 +103,7 @@ def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfi
 
     if isinstance(config, SimulationConfig):
         return config
-    return _load(config)
+    return _load(config if isinstance(config, (str, Path)) else Path(config))
 
 
 @_typed_errors
@@ -112,7 +113,7 @@ def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
 
     if isinstance(plan, Plan):
         return plan
-    return _load(plan)
+    return _load(plan if isinstance(plan, (str, Path)) else Path(plan))
 
 
 def _dataset(data: str | os.PathLike | Dataset) -> Dataset:
@@ -236,34 +237,64 @@ class FitOutcome:
     config: SimulationConfig
 
 
-@_typed_errors
-def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLike | Dataset,
-        free: str | Sequence[str], out: str | os.PathLike, *, method: str = "summation", dye: str = "config",
-        max_evaluations: int | None = None, max_runs: int | None = None, target_rel_err: float = 0.03,
-        seed: int | None = None, threads: int | None = None, colour_weight: float = 1.0,
-        wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
-        resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False) -> FitOutcome:
-    """Fit the ``free`` parameters of ``config`` (names as ``simulate fit --free``: ``"dye,rms_slope"``
-    or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`).
+@dataclass
+class FitJob:
+    """A fit checked and ready to run (:func:`prepare_fit`): ``problem`` (its ``wavelengths_nm``,
+    ``config``, ...), the output folder ``out`` and the ``budget`` (model evaluations, or Monte
+    Carlo runs of the ``mc`` fit). :meth:`run` searches, writes ``out`` and returns the outcome."""
 
-    ``dye="knots"`` replaces the config's dye by knots started from the measured colour.
-    ``max_evaluations`` bounds the model evaluations of the summation and classic fits, ``max_runs``
-    the Monte Carlo runs of the ``mc`` fit. Everything is written to ``out`` (resumable with
-    ``resume=True``); an existing fit there is replaced only with ``force=True``. ``absolute=True``: the
-    measurement is absolutely calibrated, its level is fitted too (``simulate fit --absolute``).
-    """
+    problem: Any
+    out: Path
+    method: str
+    budget: int
+    starts: int
+    resume: bool
+    _run: Callable[..., Any]
+    _write: Callable[..., dict]
+    #: "ready", "search", "writing" (the outputs being put in place) or "done"
+    phase: str = "ready"
+
+    @_typed_errors
+    def run(self, *, progress: bool = False) -> FitOutcome:
+        from simulate.config import load_config as _load
+
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.phase = "search"
+        result = self._run(self.problem, out=self.out, resume=self.resume, max_evaluations=self.budget,
+                           starts=self.starts, progress=progress)
+        self.phase = "writing"      # the outputs are put in place together: an interrupt changes none of them
+        summary = self._write(self.problem, result, self.out)
+        self.phase = "done"
+        return FitOutcome(out=self.out, summary=summary, result=result, config=_load(self.out / "fitted.toml"))
+
+
+@_typed_errors
+def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLike | Dataset,
+                free: str | Sequence[str], out: str | os.PathLike, *, method: str = "summation",
+                dye: str = "config", max_evaluations: int | None = None, max_runs: int | None = None,
+                target_rel_err: float | None = None, seed: int | None = None, threads: int | None = None,
+                colour_weight: float = 1.0, wavelengths_nm: Sequence[float] | None = None,
+                mc_trend: Sequence[str] = (), starts: int = 1, resume: bool = False,
+                force: bool = False, absolute: bool = False) -> FitJob:
+    """Everything :func:`fit` checks before its search (arguments as :func:`fit`): the config, the
+    measurement, the free parameters and their bounds, the output folder. Nothing is written."""
     import numpy as np
 
     from fabric_optics.fitting.driver import DEFAULT_MAX_EVALUATIONS, parse_free
     from fabric_optics.fitting.mc import DEFAULT_MC_RUNS
     from fabric_optics.fitting.methods import method_runner
     from fabric_optics.fitting.start import knots_config
-    from simulate.config import load_config as _load
 
     if method not in FIT_METHODS:
         raise InputError(f"method {method!r}: choose one of {', '.join(FIT_METHODS)}")
     if mc_trend and method != "mc":
         raise InputError(f"mc_trend is for method 'mc' (the {method} fit has no Monte Carlo runs)")
+    if max_runs is not None and method != "mc":
+        raise InputError(f"max_runs counts the Monte Carlo runs of method 'mc'; the {method} fit counts "
+                         "max_evaluations")
+    if max_evaluations is not None and method == "mc":
+        raise InputError("max_evaluations counts the model evaluations of the summation and classic fits; "
+                         "the mc fit counts max_runs")
     cfg = load_config(config)
     data = _dataset(measured)
     wavelengths = None if wavelengths_nm is None else np.asarray(wavelengths_nm, dtype=float)
@@ -277,32 +308,63 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     problem_class, run_fit, write_outputs = method_runner(method)
     extra: dict[str, Any] = {"mc_trend": tuple(mc_trend)} if mc_trend else {}
     problem = problem_class(cfg, data, parse_free(names, cfg), method=method, colour_weight=colour_weight,
-                            level_weight=1.0 if absolute else 0.0, target_rel_err=target_rel_err, seed=seed, threads=threads or None,
-                            wavelengths_nm=wavelengths, **extra)
+                            level_weight=1.0 if absolute else 0.0,
+                            target_rel_err=cfg.target_rel_err if target_rel_err is None else target_rel_err,
+                            seed=seed, threads=threads or None, wavelengths_nm=wavelengths, **extra)
     problem.precheck()
     out_dir = Path(out)
-    if out_dir.exists() and any(out_dir.iterdir()) and not (resume or force):
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: exists and is not a folder; choose a folder")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not (resume or force):
         raise OutputExistsError(f"{out_dir}: exists and is not empty; pass resume=True to continue a fit there "
                                 "or force=True to replace it")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    budget = (max_runs if method == "mc" else max_evaluations)
+    budget = max_runs if method == "mc" else max_evaluations
     if budget is None:
         budget = DEFAULT_MC_RUNS if method == "mc" else DEFAULT_MAX_EVALUATIONS
-    result = run_fit(problem, out=out_dir, resume=resume, max_evaluations=budget, starts=starts, progress=progress)
-    summary = write_outputs(problem, result, out_dir)
-    return FitOutcome(out=out_dir, summary=summary, result=result, config=_load(out_dir / "fitted.toml"))
+    return FitJob(problem=problem, out=out_dir, method=method, budget=budget, starts=starts, resume=resume,
+                  _run=run_fit, _write=write_outputs)
+
+
+@_typed_errors
+def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLike | Dataset,
+        free: str | Sequence[str], out: str | os.PathLike, *, method: str = "summation", dye: str = "config",
+        max_evaluations: int | None = None, max_runs: int | None = None, target_rel_err: float | None = None,
+        seed: int | None = None, threads: int | None = None, colour_weight: float = 1.0,
+        wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
+        resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False) -> FitOutcome:
+    """Fit the ``free`` parameters of ``config`` (names as ``simulate fit --free``: ``"dye,rms_slope"``
+    or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`).
+
+    ``dye="knots"`` replaces the config's dye by knots started from the measured colour.
+    ``max_evaluations`` bounds the model evaluations of the summation and classic fits, ``max_runs``
+    the Monte Carlo runs of the ``mc`` fit. ``target_rel_err`` (the first Monte Carlo walk's) and
+    ``seed`` default to the config's. Everything is written to ``out`` (resumable with
+    ``resume=True``); an existing output there is replaced only with ``force=True``. ``absolute=True``:
+    the measurement is absolutely calibrated, its level is fitted too (``simulate fit --absolute``).
+    """
+    return prepare_fit(config, measured, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
+                       max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
+                       colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
+                       starts=starts, resume=resume, force=force, absolute=absolute).run(progress=progress)
 
 
 @_typed_errors
 def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: str | os.PathLike, *,
                 method: str = "summation", wavelengths_nm: Sequence[float] | None = None, rgb: bool = False,
                 resolution: int = 64, incidences: int = 16, target_rel_err: float | None = None,
-                seed: int | None = None, threads: int | None = None, force: bool = False,
-                progress: bool = False) -> Any:
+                seed: int | None = None, threads: int | None = None, max_photons: int | None = None,
+                check_pairs: int = 0, anisotropic: int = 0, azimuths: int = 5, description: str | None = None,
+                provenance: dict | None = None, force: bool = False, progress: bool = False) -> Any:
     """Write an RGL ``.bsdf`` file (Mitsuba 3's ``measured`` plugin, pbrt-v4) of a fabric model
     (``source`` a config or preset, evaluated by ``method``) or of a dataset (``source`` a
     :class:`~gonio.data.dataset.Dataset`: its values interpolated). Returns the export's result
-    (its path and tabulation figures)."""
+    (its path and tabulation figures; ``.provenance["coverage"]``: a dataset's rule for the
+    directions it does not cover).
+
+    ``check_pairs``: measure the tabulation error at that many random direction pairs (more model
+    evaluations); ``anisotropic`` 1, 2 or 4: keep the model's anisotropy with ``azimuths``
+    incidence azimuths over 360/``anisotropic`` deg. ``description`` and ``provenance`` (merged)
+    are written into a dataset's file."""
     out = Path(path)
     if out.exists() and not force:
         raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
@@ -317,14 +379,21 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
         beta, rule = dataset_brdf(source)
         return _export(beta, out, wavelengths_nm=None if source.is_rgb else source.wavelengths_nm,
                        theta_i_deg=dataset_nodes(rule, incidences), res=resolution,
-                       description=f"{source.name} (fabric-optics export of a measured dataset)",
-                       provenance={"dataset": source.name, "coverage": rule})
+                       description=description or f"{source.name} (fabric-optics export of a measured dataset)",
+                       provenance={"dataset": source.name, **(provenance or {}), "coverage": rule})
     from simulate.export import export_model
 
     if method not in ("summation", "classic", "mc"):
         raise InputError(f"method {method!r}: choose one of summation, classic, mc")
+    if anisotropic not in (0, 1, 2, 4):
+        raise InputError(f"anisotropic {anisotropic}: choose 0 (isotropic), 1, 2 or 4")
+    if threads == 0:        # 0 = all that numba allows, as in simulate()
+        import numba
+
+        threads = int(numba.config.NUMBA_NUM_THREADS)
     return export_model(load_config(source), method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
                         incidences=incidences, target_rel_err=target_rel_err, seed=seed, threads=threads,
+                        max_photons=max_photons, check_pairs=check_pairs, reduction=anisotropic, n_phi_i=azimuths,
                         progress=progress)
 
 
@@ -342,7 +411,7 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
 
     plan_obj = load_plan("red-cotton" if plan is None else plan)
     try:
-        run_demo(out, plan_obj, seed=seed, force=force, progress=progress, sample=sample,
+        run_demo(Path(out), plan_obj, seed=seed, force=force, progress=progress, sample=sample,
                  name_from_sample=plan is None and sample != "red-cotton")
     except SampleError as exc:
         raise InputError(f"sample {sample!r}: {exc}") from exc

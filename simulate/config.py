@@ -24,6 +24,7 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     radius_um = 7.5                    # > 0
     n_host = 1.557                     # real host index, >= 1
     cell_width_deg = 10                # optional, (0, 180]: angular width of the top cell B
+    route = "nee"                      # optional: the fiber route, "nee" | "beam" | "bssrdf"
 
     [fiber.dye]                        # optional: host absorption mu_a_host(lambda), 1/um; ONE of
     wavelength_nm = [400, 500, 600]    #   a table: wavelength_nm + mu_a_per_um (>= 0)
@@ -71,22 +72,21 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
                                        #   triangles (simulate.fabric.weave.MAX_TRIANGLES)
 
     [method]                           # optional, defaults shown
-    method = "nee"                     # fiber route: "nee" | "beam" | "bssrdf"
     target_rel_err = 0.01              # target relative standard error, (0, 1)
     max_photons = 0                    # photon budget; 0 = no cap
     threads = 0                        # 0 = all available
     axial_nodes = 5                    # woven/felt Monte Carlo: the yarn table's rows in |w_t| (incidence
-                                       #   along the fiber), [2, 64]; 5 = 0, .25, .5, .75, .95, else uniform
-                                       #   on [0, 0.95] (docs/physics.md 6, "Axial nodes")
+                                       #   along the fiber), [2, 64], uniform on [0, 0.95]
+                                       #   (docs/physics.md 6, "Axial nodes")
     axial_shift = false                # woven/felt Monte Carlo: move a table row's exits along the fiber
                                        #   axis to the ray's own axial incidence (docs/physics.md 6)
-    exit_bins = [5, 10]                # woven/felt Monte Carlo: the yarn table's exit directions, binned
+    exit_bins = [10, 20]               # woven/felt Monte Carlo: the yarn table's exit directions, binned
                                        #   in mu (uniform in cos, [2, 20]) x phi ([4, 40]) per exit cell;
-                                       #   finer resolves the fibers' short-path lobes at more trace time
+                                       #   coarser bins smear a clear fiber's exit cones
                                        #   (docs/physics.md 6, "Exit directions")
 
-    [structure]                        # optional (issue 19): the summation over the fabric's visible fibers
-    kind = "woven"                     #   in all their orientations; fields and defaults in
+    [structure]                        # optional: the summation over the fabric's visible fibers in all
+    kind = "woven"                     #   their orientations; fields and defaults in
     warp_twist_deg = 24                #   simulate.fabric.structure.structure_from_table. Absent: the
                                        #   summation is the carpet of top cells (docs/physics.md 6)
 
@@ -96,12 +96,15 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     step_nm = 10
     # or: list_nm = [450, 550, 650]
 
-Exactly one of ``[particles]`` and ``[medium]`` is required.
+Exactly one of ``[particles]`` and ``[medium]`` is required. ``[method] method`` (the fiber route
+before it was ``[fiber] route``) is still read, with a deprecation warning; the removed ``[structure]``
+switches are refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -111,7 +114,9 @@ from typing import Any
 
 import numpy as np
 
+from simulate.config_dye import DyeSpectrum, dye_from_table, knots_curve
 from simulate.config_table import ConfigError, Table, show
+from simulate.fabric.structure import structure_from_table
 from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset
 from simulate.fabric.wif import weave_from_wif
 from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
@@ -121,41 +126,41 @@ __all__ = [
     "DyeSpectrum",
     "ParticleSpec",
     "SimulationConfig",
+    "knots_curve",
     "load_config",
     "parse_config",
     "preset_names",
     "resolve_config_path",
 ]
 
+log = logging.getLogger(__name__)
+
 _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
-METHODS = ("nee", "beam", "bssrdf")
+#: The fiber routes of ``[fiber] route``.
+ROUTES = ("nee", "beam", "bssrdf")
 #: ``[method] exit_bins``: the woven/felt Monte Carlo's yarn-table exit directions per exit cell,
-#: (bins uniform in the cosine from the local normal, bins in azimuth) (docs/physics.md 6).
-DEFAULT_EXIT_BINS = (5, 10)
+#: (bins uniform in the cosine from the local normal, bins in azimuth): fine enough for the exit cones
+#: of nearly clear fibers (docs/physics.md 6, "Exit directions").
+DEFAULT_EXIT_BINS = (10, 20)
 #: ``[method] axial_shift`` when not given (docs/physics.md 6, "Axial shift")
 DEFAULT_AXIAL_SHIFT = False
-#: ``[method] axial_nodes`` when not given: the yarn table's original nodes (docs/physics.md 6, "Axial nodes")
+#: ``[method] axial_nodes`` when not given (docs/physics.md 6, "Axial nodes")
 DEFAULT_AXIAL_NODES = 5
 
 
 def axial_node_grid(n: int) -> tuple[float, ...]:
-    """``n`` yarn-table nodes in ``|w_t|``: the original (0, .25, .5, .75, .95) for 5, else uniform on [0, 0.95]."""
-    if int(n) == 5:
-        return (0.0, 0.25, 0.5, 0.75, 0.95)
+    """``n`` yarn-table nodes in ``|w_t|``, uniform on [0, 0.95]."""
     return tuple(round(0.95 * k / (int(n) - 1), 6) for k in range(int(n)))
-DYE_CURVES = ("gaussian-bands", "logistic-edge", "knots")
-#: Range of a knot of the ``knots`` dye curve: log10 of the host absorption in 1/um.
-KNOT_LOG10_RANGE = (-6.0, 2.0)
 #: The keys of the schema's tables (a key outside them is refused, with a suggestion, before any
 #: field is read: :class:`simulate.config_table.Table`).
 _FIELDS: dict[str, tuple[str, ...]] = {
-    "fiber": ("radius_um", "n_host", "cell_width_deg", "dye"),
+    "fiber": ("radius_um", "n_host", "cell_width_deg", "route", "dye"),
     "fiber.dye": ("wavelength_nm", "mu_a_per_um", "curve", "baseline_per_um", "bands", "short_per_um",
                   "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
     "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
-    "method": ("method", "target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes"),
+    "method": ("target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes"),
 }
 
 
@@ -188,49 +193,6 @@ def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = N
 
 
 @dataclass(frozen=True)
-class DyeSpectrum:
-    """Host absorption ``mu_a_host(lambda)`` in 1/um: a table or a named smooth curve.
-
-    ``curve = "table"``: ``params = {"wavelength_nm": [...], "mu_a_per_um": [...]}``;
-    ``"gaussian-bands"``: ``baseline_per_um + sum_j peak_per_um_j exp(-(l - center_nm_j)^2 /
-    (2 width_nm_j^2))``; ``"logistic-edge"``: ``long_per_um + (short_per_um - long_per_um) /
-    (1 + exp((l - edge_nm) / width_nm))`` (strong absorption below the edge); ``"knots"``:
-    ``10 ** pchip(wavelength_nm, log10_per_um)(l)`` -- a shape-preserving (PCHIP, Fritsch &
-    Carlson 1980, :class:`scipy.interpolate.PchipInterpolator`) interpolation of log10 of the
-    absorption between K knots, held at the end values outside them: any colour (docs/physics.md
-    section 2), always positive, no overshoot between knots (so the largest knot is the maximum).
-    """
-
-    curve: str
-    params: dict
-
-    def __call__(self, wavelength_nm: Any) -> np.ndarray:
-        wl = np.asarray(wavelength_nm, dtype=float)
-        p = self.params
-        if self.curve == "table":
-            return np.interp(wl, p["wavelength_nm"], p["mu_a_per_um"])
-        if self.curve == "gaussian-bands":
-            out = np.full(wl.shape, p["baseline_per_um"])
-            for band in p["bands"]:
-                out = out + band["peak_per_um"] * np.exp(
-                    -0.5 * ((wl - band["center_nm"]) / band["width_nm"]) ** 2)
-            return out
-        if self.curve == "knots":
-            return knots_curve(p["wavelength_nm"], p["log10_per_um"], wl)
-        # logistic-edge
-        z = np.clip((wl - p["edge_nm"]) / p["width_nm"], -700.0, 700.0)
-        return p["long_per_um"] + (p["short_per_um"] - p["long_per_um"]) / (1.0 + np.exp(z))
-
-    def as_spectrum(self, wavelength_nm: np.ndarray) -> Spectrum:
-        """A :class:`~simulate.media.medium.Spectrum` sampled at (and exact on) ``wavelength_nm``."""
-        wl = np.unique(np.asarray(wavelength_nm, dtype=float))
-        if wl.size == 1:  # a Spectrum needs a range; a flat two-point table is exact
-            wl = np.array([wl[0] - 1.0, wl[0] + 1.0])
-            return Spectrum(wl, np.full(2, float(self(wl[0] + 1.0))), name="dye mu_a_host")
-        return Spectrum(wl, self(wl), name="dye mu_a_host")
-
-
-@dataclass(frozen=True)
 class ParticleSpec:
     """Mie particles of the ``[particles]`` table (see the schema)."""
 
@@ -260,17 +222,15 @@ class SimulationConfig:
     hg: tuple[float, float, float] | None
     rms_slope: float
     weave: dict
-    method: str
+    route: str
     target_rel_err: float
     max_photons: int | None
     threads: int | None
     wavelengths_nm: tuple[float, ...] = field(default=_DEFAULT_WAVELENGTHS)
-    # --- issue 19 (simulate.fabric.structure): the [structure] section, None when absent
+    #: the [structure] section (:class:`simulate.fabric.structure.StructureSpec`), None when absent
     structure: Any = None
-    #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell, and whether
-    #: the config gave them (a run at the implicit default on nearly clear fibers warns)
+    #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell
     exit_bins: tuple[int, int] = DEFAULT_EXIT_BINS
-    exit_bins_given: bool = False
     #: ``[surface] transmission_rms_slope``: the boundary's roughness for light crossing it (0: smooth)
     transmission_rms_slope: float = 0.0
     #: ``[surface] transmission_rms_slope_around``: None (isotropic) or the slope about the fiber axis
@@ -279,8 +239,8 @@ class SimulationConfig:
     #: the ray's own axial incidence (docs/physics.md 6, "Axial shift")
     axial_shift: bool = False
     #: ``[method] axial_nodes``: the yarn table's rows in |w_t| (the component of the incidence along the
-    #: fiber), uniform on [0, 0.95]; 5 (the default) are the table's original nodes 0, .25, .5, .75, .95
-    axial_nodes: int = 5
+    #: fiber), uniform on [0, 0.95]
+    axial_nodes: int = DEFAULT_AXIAL_NODES
 
     def w_t_nodes(self) -> tuple[float, ...]:
         """The yarn table's axial nodes of ``[method] axial_nodes``."""
@@ -347,69 +307,6 @@ def load_config(path_or_name: str | Path) -> SimulationConfig:
         raise ConfigError(f"{path}: cannot read the config ({exc.strerror})") from None
     is_preset = not Path(path_or_name).is_file()
     return parse_config(raw, path, source=f"preset {path.stem}" if is_preset else str(path))
-
-
-def knots_curve(knots_nm: Any, log10_per_um: Any, wavelength_nm: Any) -> np.ndarray:
-    """``10 ** pchip(knots_nm, log10_per_um)(wavelength_nm)``, end values held (the ``knots`` dye)."""
-    from scipy.interpolate import PchipInterpolator
-
-    k = np.asarray(knots_nm, dtype=float)
-    v = np.asarray(log10_per_um, dtype=float)
-    wl = np.clip(np.asarray(wavelength_nm, dtype=float), k[0], k[-1])
-    return np.power(10.0, PchipInterpolator(k, v)(wl))
-
-
-def _knots(t: Table) -> dict:
-    wl = t.numbers("wavelength_nm", ge=0.0)
-    values = t.numbers("log10_per_um")
-    lo, hi = KNOT_LOG10_RANGE
-    if len(wl) < 2 or wl[0] <= 0:
-        raise t.fail("wavelength_nm", f"must list at least 2 knots > 0 nm, got {len(wl)}")
-    if any(b <= a for a, b in zip(wl, wl[1:])):
-        raise t.fail("wavelength_nm", "must be strictly increasing")
-    if len(values) != len(wl):
-        raise t.fail("log10_per_um", f"must have as many items as wavelength_nm ({len(wl)}), got {len(values)}")
-    for k, v in enumerate(values):
-        if not lo <= v <= hi:
-            raise t.fail("log10_per_um", f"item {k} must lie in [{lo:g}, {hi:g}] (log10 of 1/um), got {show(v)}")
-    return {"wavelength_nm": [float(w) for w in wl], "log10_per_um": [float(v) for v in values]}
-
-
-def _dye(t: Table) -> DyeSpectrum:
-    if t.has("curve"):
-        curve = t.string("curve", choices=DYE_CURVES)
-        if curve == "knots":
-            params_k = _knots(t)
-            t.done()
-            return DyeSpectrum(curve, params_k)
-        if curve == "gaussian-bands":
-            base = t.number("baseline_per_um", 0.0, ge=0.0)
-            bands_raw = t.raw("bands", None, required=True)
-            if not isinstance(bands_raw, list) or not bands_raw:
-                raise t.fail("bands", f"must be a non-empty list of tables, got {show(bands_raw)}")
-            bands = []
-            for k, b in enumerate(bands_raw):
-                bt = Table(b, f"{t.name('bands')}[{k}]", t.file)
-                bands.append({"center_nm": bt.number("center_nm", required=True, gt=0.0),
-                              "width_nm": bt.number("width_nm", required=True, gt=0.0),
-                              "peak_per_um": bt.number("peak_per_um", required=True, ge=0.0)})
-                bt.done()
-            params: dict = {"baseline_per_um": base, "bands": bands}
-        else:
-            params = {"short_per_um": t.number("short_per_um", required=True, ge=0.0),
-                      "long_per_um": t.number("long_per_um", required=True, ge=0.0),
-                      "edge_nm": t.number("edge_nm", required=True, gt=0.0),
-                      "width_nm": t.number("width_nm", required=True, gt=0.0)}
-        t.done()
-        return DyeSpectrum(curve, params)
-    wl = t.numbers("wavelength_nm", ge=0.0)
-    mu_a = t.numbers("mu_a_per_um", ge=0.0)
-    t.done()
-    if len(wl) != len(mu_a):
-        raise t.fail("mu_a_per_um", f"must have as many items as wavelength_nm ({len(wl)}), got {len(mu_a)}")
-    if any(b <= a for a, b in zip(wl, wl[1:])):
-        raise t.fail("wavelength_nm", "must be strictly increasing")
-    return DyeSpectrum("table", {"wavelength_nm": wl, "mu_a_per_um": mu_a})
 
 
 def _particles(t: Table) -> ParticleSpec:
@@ -528,8 +425,9 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     radius = fib.number("radius_um", required=True, gt=0.0, le=1e4)
     n_host = fib.number("n_host", required=True, ge=1.0, le=4.0)
     cell = fib.number("cell_width_deg", 10.0, gt=0.0, le=180.0)
+    route = fib.string("route", "nee", choices=ROUTES)
     dye_t = fib.sub("dye", fields=_FIELDS["fiber.dye"])
-    dye = _dye(dye_t) if dye_t is not None else None
+    dye = dye_from_table(dye_t) if dye_t is not None else None
     fib.done()
 
     if top.has("particles") == top.has("medium"):
@@ -562,12 +460,16 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     weave_t = top.sub("weave", fields=_FIELDS["weave"])
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method", fields=_FIELDS["method"]) or Table({}, "method", file)
-    method = mt.string("method", "nee", choices=METHODS)
+    mt = top.sub("method", fields=_FIELDS["method"] + ("method",)) or Table({}, "method", file)   # + the old route
+    if mt.has("method"):
+        if fib.has("route"):
+            raise mt.fail("method", "and fiber.route both give the fiber route: delete method.method")
+        route = mt.string("method", "nee", choices=ROUTES) or "nee"
+        log.warning("%s: method.method is deprecated; write route = %s in [fiber] instead "
+                    "(method.method is read until the next release)", file, show(route))
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
     threads = mt.integer("threads", 0, ge=0, le=1024)
-    exit_bins_given = mt.raw("exit_bins", None) is not None
     exit_bins = _exit_bins(mt)
     axial_shift = mt.raw("axial_shift", DEFAULT_AXIAL_SHIFT)
     if not isinstance(axial_shift, bool):
@@ -577,26 +479,18 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
 
     wl_t = top.sub("wavelengths", fields=("start_nm", "stop_nm", "step_nm", "list_nm"))
     wavelengths = _wavelengths(wl_t) if wl_t is not None else _DEFAULT_WAVELENGTHS
-    # --- issue 19: [structure] (simulate.fabric.structure validates it, naming the field)
-    st_t = top.sub("structure")
-    if st_t is not None:
-        from simulate.fabric.structure import structure_from_table
-
-        structure = structure_from_table(st_t)
-    else:
-        structure = None
-    # --- end issue 19
+    st_t = top.sub("structure")        # simulate.fabric.structure validates it, naming the field
+    structure = None if st_t is None else structure_from_table(st_t)
     top.done()
 
     return SimulationConfig(
         name=name, description=description, source=source or str(path), text=text,
         sha256=hashlib.sha256(raw).hexdigest(), seed=seed, radius_um=radius, n_host=n_host,
         cell_width_deg=cell, dye=dye, particles=particles, hg=hg, rms_slope=rms_slope, weave=weave,
-        method=method, target_rel_err=target, max_photons=max_photons or None,
+        route=route, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins,
-        exit_bins_given=exit_bins_given, transmission_rms_slope=transmission_rms_slope, axial_shift=axial_shift,
-        transmission_rms_slope_around=around,
-        axial_nodes=axial_nodes)
+        transmission_rms_slope=transmission_rms_slope, axial_shift=axial_shift,
+        transmission_rms_slope_around=around, axial_nodes=axial_nodes)
 
 
 def _exit_bins(mt: Table) -> tuple[int, int]:

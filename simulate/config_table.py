@@ -6,9 +6,8 @@ refuses fields nobody read (a misspelt key is an error, not a silent default). A
 its ``fields`` (the schema's keys) refuses unknown keys at once, BEFORE any field is read, so a typo
 (``rms_slop``) is named as such, with a suggestion from :func:`difflib.get_close_matches`
 (``red.toml: surface.rms_slop is not a known field (did you mean rms_slope?)``), instead of surfacing as
-"rms_slope is required". The same idea as
-the acquisition plan's field reader in ``gonio.acquisition.plan``; merging the two would need a
-``gonio`` change (left to its owner).
+"rms_slope is required". The acquisition plan's field reader (``gonio.acquisition.plan``)
+follows the same rules.
 """
 
 from __future__ import annotations

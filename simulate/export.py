@@ -78,7 +78,7 @@ def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err:
         return classic, info
     if method == "summation":
         def r_b(a_in: np.ndarray, a_out: np.ndarray) -> np.ndarray:
-            est = fn["volume_brdf"](fib, a_in, a_out, wl, method=config.method, target_rel_err=target,
+            est = fn["volume_brdf"](fib, a_in, a_out, wl, method=config.route, target_rel_err=target,
                                     max_photons=max_photons, seed=seed, threads=threads, progress=progress)
             return np.asarray(est.R, float) + np.asarray(fn["surface_brdf"](fib, a_in, a_out), float)[:, None]
 

@@ -123,12 +123,12 @@ def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths:
                s: RunSettings) -> FabricEstimate:
     from simulate import fiber as fiber_mod
 
-    if getattr(config, "structure", None) is not None:  # issue 19: the fabric's visible fibers
+    if getattr(config, "structure", None) is not None:  # the fabric's visible fibers
         return _structured(config, fiber, g, wavelengths, s)
     pairs = fab.FiberPairs.from_angles(g.theta_i, g.phi_i, g.theta_o, g.phi_o)
     log.info("summation: %d geometries -> %d unique fiber-frame pairs x %d wavelengths",
              g.theta_i.size, pairs.n_unique, wavelengths.size)
-    est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wavelengths, method=config.method,
+    est = fiber_mod.volume_brdf(fiber, pairs.w_in, pairs.w_out, wavelengths, method=config.route,
                                 target_rel_err=s.target, max_photons=s.max_photons, seed=s.seed,
                                 threads=s.threads, progress=s.progress)
     r_surf = np.asarray(fiber_mod.surface_brdf(fiber, pairs.w_in, pairs.w_out), float)
@@ -150,8 +150,7 @@ def _structured(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths
     weave = weave_from_config(config) if spec.kind == "woven" else None
     beta, u_beta, info = st.structured_beta(spec, fiber, weave, fab.directions_deg(g.theta_i, g.phi_i),
                                             fab.directions_deg(g.theta_o, g.phi_o), wavelengths,
-                                            target_rel_err=s.target, seed=s.seed, threads=s.threads,
-                                            max_photons=s.max_photons, method=config.method)
+                                            target_rel_err=s.target, seed=s.seed, threads=s.threads)
     n = np.full(beta.shape, max(int(info["photons"]), 1))
     return FabricEstimate(beta, u_beta, n, int(info["photons"]), jsonable(info), float(info["seconds"]),
                           {"structure": jsonable(info["structure"]), "facets": jsonable(info["facets"])})
@@ -182,9 +181,9 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
 
     w_i = fab.directions_deg(g.theta_i, g.phi_i)
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
-    spec = getattr(config, "structure", None)       # issue 19: twist, or a felt (simulate.woven.felt)
+    spec = getattr(config, "structure", None)       # twist, or a felt (simulate.nonwoven.felt)
     if spec is not None and spec.kind == "nonwoven":
-        from simulate.woven.felt import felt_mesh
+        from simulate.nonwoven.felt import felt_mesh
 
         # two realisations of the felt, one per table half: their difference puts the spread of the
         # fibers' placement into u_beta (simulate.woven.estimate, "A felt")
@@ -197,12 +196,11 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         geometry = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
                               "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
                               "points_per_span": wv.points_per_span}}
-    bins = tuple(getattr(config, "exit_bins", (5, 10)))
+    bins = config.exit_bins
     # a felt walks the fiber's own table (a weave's yarns walk the pile, simulate.woven.pile, whose exits
     # are the yarn's): where the fiber's clearness decides whether the exit bins resolve it
     felt = spec is not None and spec.kind == "nonwoven"
-    note = (woven.estimate.clear_fiber_note(fiber, wavelengths, bins)
-            if felt and not getattr(config, "exit_bins_given", False) else None)
+    note = woven.estimate.clear_fiber_note(fiber, wavelengths, bins) if felt else None
     if note:
         log.warning("simulate fabric --method mc: %s", note)
     beta, u_beta, mc_info = woven.fabric_beta(

@@ -106,7 +106,7 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     fiber = config.fiber(wavelengths)
     started = time.perf_counter()
     model: dict[str, Any] = {"generator": GENERATOR, "name": f"fabric {method}", "method": method,
-                             "fiber_route": config.method}
+                             "fiber_route": config.route}
     settings = RunSettings(target=target, seed=seed, threads=threads, max_photons=max_photons, progress=progress,
                            max_seconds=max_seconds)
     if method == "auto":

@@ -10,7 +10,7 @@ Walks every module of ``gonio``, ``simulate``, ``compare`` and ``fabric_optics``
   (``fabric_optics`` is the application layer on top: the API, fit, sweep, benchmarks and the
   command lines);
 - a layer of ``simulate`` or of ``fabric_optics`` importing one above it (optics <- media <-
-  montecarlo <- fiber <- fabric <- woven <- products <- virtual; paths <- fit <- sweep <- api <-
+  montecarlo <- fiber <- fabric <- woven, nonwoven <- products <- virtual; paths <- fit <- sweep <- api <-
   bench <- cli);
 - a cycle: modules that import each other, directly or around a loop.
 """
@@ -37,7 +37,7 @@ LAYERS = (
     ("simulate.fiber",),
     ("simulate.fabric",),
     ("simulate.config", "simulate.config_table"),
-    ("simulate.woven",),
+    ("simulate.woven", "simulate.nonwoven"),
     ("simulate.products", "simulate.export"),
     ("simulate.virtual",),
 )

@@ -1,17 +1,25 @@
-"""The README cannot drift from the code: every command its code blocks show is checked.
+"""The README and the manual cannot drift from the code: every command they show is checked, and every
+command of the tutorials runs.
 
-The README is read generically (no line numbers): every line of a fenced code block that starts
-with ``gonio``, ``simulate``, ``compare`` or ``make`` is a command. For each one:
+A *command* is a line of a fenced code block, in README.md or a page of docs/, that starts with
+``gonio``, ``simulate``, ``compare`` or ``make`` (a trailing ``# comment`` is not part of it). The
+generated reference pages (docs/reference/cli.md, config.md) are left out: their usage lines are the
+parsers' own.
 
-- ``make TARGET``: the Makefile has that target;
-- ``PROG SUB ...``: ``SUB`` is listed by ``PROG --help``, every ``--flag`` the line uses is in
-  ``PROG SUB --help``, and a flag's value is one of its choices when the help lists choices;
-- the cheap ones run for real in a temporary directory, placeholders (``PLAN``, ``CONFIG``,
-  ``X``, ...) filled in and optional ``[...]`` parts left out: ``gonio check-plan``, ``gonio
-  truth``, ``gonio demo``, ``simulate weave``, ``simulate slab`` (few photons), ``compare check``;
-- the README's demo chain, with a lower accuracy target, runs end to end (``slow``).
+- Every command matches the programs: ``make TARGET`` is a Makefile target; for ``PROG SUB ...``,
+  ``SUB`` is listed by ``PROG --help``, every ``--flag`` of the line is in ``PROG SUB --help``, and a
+  flag's value is one of its choices when the help lists choices.
+- Every command of docs/tutorials/ RUNS, page by page in the page's order, in a temporary folder
+  holding a link to the project's ``fixtures/``, through each program's ``main`` in-process, and must
+  exit 0 (a line whose comment says ``exits 1`` may also exit 1: ``compare check`` of a model outside
+  the thresholds), and must not print a deprecation notice (a page shows the current spellings).
 
-Everything runs in-process through each program's ``main`` (no console-script start-up).
+Reduced budgets. The tutorials show the budgets a user runs; the tests run the same commands with
+the smaller budgets of :data:`REDUCED` (a flag's value replaced when the line gives it) and
+:data:`ADDED` (a flag added when the command accepts it and the line does not give it). A line with a
+placeholder in capitals (``tcp://HEAD:8786``, ``PLAN``) cannot run as shown and is checked against
+the help only. Sections listed in :data:`SLOW_SECTIONS` (the whole demo chain) run in
+``make test-slow``; everything else in ``make test``.
 """
 
 from __future__ import annotations
@@ -26,14 +34,21 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PROGRAMS = ("gonio", "simulate", "compare")
-#: (program, subcommand) run for real on the fast test, all well under a few seconds but gonio demo
-#: (~9 s each: the README shows the felt and the red-cotton demo)
-CHEAP = {("gonio", "check-plan"), ("gonio", "truth"), ("gonio", "demo"), ("simulate", "weave"),
-         ("simulate", "slab"), ("compare", "check")}
-#: placeholder -> value for running synopsis lines (tokens in capitals)
-FILL = {"PLAN": "red-cotton", "CONFIG": "red-cotton", "SAMPLE": "red-cotton", "DIR": "out", "RUN_DIR": "run",
-        "MESH.ply": "mesh.ply", "X": "0.5", "N": "2000", "MEASURED_DIR": "demo-out/measured",
-        "SIM_DIR": "demo-out/truth"}
+GENERATED = {ROOT / "docs" / "reference" / n for n in ("cli.md", "config.md", "plans.md")}
+TUTORIALS = ROOT / "docs" / "tutorials"
+#: flag -> value the tests run instead of the page's (``--max-runs``, the Monte Carlo fit's runs: at most 2)
+REDUCED = {"--target-rel-err": "0.3", "--max-evaluations": "12", "--max-runs": "2", "--spp": "1",
+           "--size": "32x24", "--swatch-size": "12", "--workers": "1", "--repeats": "1", "--photons": "2000"}
+#: flag -> value added where the command accepts it and the line does not give it (``--max-runs`` only
+#: to a Monte Carlo fit, ``--max-evaluations`` only to the others)
+ADDED = {"--target-rel-err": "0.3", "--max-evaluations": "12", "--max-runs": "2", "--no-progress": None}
+#: (tutorial page, section heading) run only by ``make test-slow``: the whole demo chain
+SLOW_SECTIONS = {("mock-lab.md", "5. The whole demo, by hand")}
+#: tutorials that run Monte Carlo simulations, fits, renders or a dask cluster: over a minute each even
+#: on reduced budgets, so ``make test-slow`` runs them (``make test`` checks their commands against the help)
+SLOW_PAGES = {"simulate-compare.md", "fit-felt.md", "render.md", "sweep.md"}
+#: what a placeholder looks like: a word of capitals (HEAD, PLAN, RUN_DIR), not a flag value like 8E1
+PLACEHOLDER = re.compile(r"(?<![\w.-])[A-Z][A-Z_]{2,}(?![\w])")
 
 
 def _main(prog: str):
@@ -46,19 +61,45 @@ def _main(prog: str):
     return main
 
 
-def readme_commands() -> list[str]:
-    """Every command line in the README's fenced code blocks (comments stripped)."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    out = []
-    for block in re.findall(r"^```[^\n]*\n(.*?)^```", text, flags=re.S | re.M):
-        for line in block.splitlines():
-            line = re.sub(r"\s+#.*$", "", line.strip())
-            if re.match(rf"({'|'.join(PROGRAMS)}|make)\s+\S", line):
-                out.append(line)
+def _pages() -> list[Path]:
+    return [ROOT / "README.md"] + [p for p in sorted((ROOT / "docs").rglob("*.md")) if p not in GENERATED]
+
+
+def _blocks(text: str) -> list[tuple[str, str]]:
+    """(section heading, code block) of every fenced block, in order."""
+    out, heading = [], ""
+    for m in re.finditer(r"^(#{1,6}) ([^\n]*)$|^```[^\n]*\n(.*?)^```", text, flags=re.S | re.M):
+        if m.group(1):
+            heading = m.group(2).strip()
+        elif m.group(3) is not None:
+            out.append((heading, m.group(3)))
     return out
 
 
-COMMANDS = readme_commands()
+def _command(raw: str) -> tuple[str, str] | None:
+    """(command, comment) of a code line, or None when the line is no command."""
+    line = raw.strip()
+    comment = ""
+    m = re.search(r"\s+#(.*)$", line)
+    if m:
+        line, comment = line[:m.start()], m.group(1)
+    if re.match(rf"({'|'.join(PROGRAMS)}|make)\s+[a-z][\w-]*(\s|$)", line):
+        return line, comment
+    return None
+
+
+def page_commands(path: Path) -> list[tuple[str, str, str]]:
+    """(section, command, comment) of every command on a page."""
+    out = []
+    for heading, block in _blocks(path.read_text(encoding="utf-8")):
+        for raw in block.splitlines():
+            cmd = _command(raw)
+            if cmd:
+                out.append((heading, *cmd))
+    return out
+
+
+ALL = [(p, c) for p in _pages() for _, c, _ in page_commands(p)]
 
 
 def _help(prog: str, *sub: str) -> str:
@@ -72,28 +113,31 @@ def _help(prog: str, *sub: str) -> str:
     return buffer.getvalue()
 
 
-def test_the_readme_shows_commands_of_every_program():
-    # the parser found the code blocks (a README rewritten without fences would make every check vacuous)
-    progs = {c.split()[0] for c in COMMANDS}
-    assert progs == {*PROGRAMS, "make"}, COMMANDS
-    assert len(COMMANDS) >= 10
+def test_the_readme_and_the_tutorials_show_commands_of_every_program():
+    # the parser found the code blocks (pages rewritten without fences would make every check vacuous)
+    readme = {c for p, c in ALL if p.name == "README.md"}
+    assert {"make demo", "make test"} <= readme
+    tutorial = [c for p, c in ALL if p.parent == TUTORIALS]
+    assert {c.split()[0] for c in tutorial} == set(PROGRAMS), tutorial
+    assert len(tutorial) >= 20
+    assert {p.name for p in TUTORIALS.glob("*.md")} >= {"mock-lab.md", "simulate-compare.md", "fit-felt.md",
+                                                         "render.md", "sweep.md"}
 
 
-@pytest.mark.parametrize("line", COMMANDS)
-def test_readme_command_matches_the_help(line):
+@pytest.mark.parametrize("page,line", ALL, ids=[f"{p.relative_to(ROOT)}:{c[:60]}" for p, c in ALL])
+def test_shown_command_matches_the_help(page, line):
     tokens = line.split()
     prog, sub = tokens[0], tokens[1]
     if prog == "make":
         makefile = (ROOT / "Makefile").read_text(encoding="utf-8")
-        assert re.search(rf"^{re.escape(sub)}:", makefile, flags=re.M), f"no make target {sub!r}"
+        assert re.search(rf"^{re.escape(sub)}:", makefile, flags=re.M), f"no make target {sub!r} ({page.name})"
         return
     assert re.search(rf"^\s+{re.escape(sub)}(\s|$)", _help(prog), flags=re.M), \
-        f"`{prog} --help` does not list {sub!r}"
+        f"`{prog} --help` does not list {sub!r} ({page.name})"
     helptext = _help(prog, sub)
-    flags = re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]*)", line)
-    for flag in flags:
+    for flag in re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]*)", line):
         assert re.search(rf"(?<![\w-]){re.escape(flag)}(?![\w-])", helptext), \
-            f"`{prog} {sub} --help` has no {flag} (README: {line})"
+            f"`{prog} {sub} --help` has no {flag} ({page.name}: {line})"
     # a concrete value of a flag with choices must be one of them (--method mc, not --method mcc)
     for flag, value in re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]*)\s+([a-z][\w-]*)(?=\s|$)", line):
         choices = re.search(rf"{re.escape(flag)} \{{([^}}]*)\}}", helptext)
@@ -101,74 +145,134 @@ def test_readme_command_matches_the_help(line):
             assert value in choices.group(1).split(","), f"{flag} {value}: not in {{{choices.group(1)}}}"
 
 
-def _runnable(line: str) -> list[str]:
-    """The argv of a README line with optional parts dropped, alternatives reduced to the first
-    and placeholders filled (:data:`FILL`)."""
-    while True:
-        shorter = re.sub(r"\[[^\[\]]*\]", "", line)
-        if shorter == line:
-            break
-        line = shorter
-    argv = []
-    for token in shlex.split(line)[1:]:
-        token = token.split("|")[0] if not token.startswith("--") else token
-        argv.append(_repo_path(FILL.get(token, token)))
+def reduced_argv(line: str, helptext: str) -> list[str]:
+    """The argv a test runs for ``line``: :data:`REDUCED` values in place, :data:`ADDED` flags added."""
+    argv = shlex.split(line)[1:]
+    mc = "--method" in argv and argv[argv.index("--method") + 1] == "mc"
+    for i, token in enumerate(argv[:-1]):
+        if token in REDUCED:
+            argv[i + 1] = str(min(int(argv[i + 1]), 2)) if token == "--max-runs" else REDUCED[token]
+    for flag, value in ADDED.items():
+        if (flag == "--max-runs" and not mc) or (flag == "--max-evaluations" and mc):
+            continue
+        if flag not in argv and re.search(rf"(?<![\w-]){re.escape(flag)}(?![\w-])", helptext):
+            argv += [flag] if value is None else [flag, value]
     return argv
 
 
-def _repo_path(token: str) -> str:
-    """A README path into the repository's ``fixtures/`` (the demo's felt) made absolute: the
-    commands run in a temporary directory."""
-    return str(ROOT / token) if token.startswith("fixtures/") else token
+def test_reduced_argv_replaces_and_adds_budgets():
+    fit = "simulate fit red-cotton felt --method classic --free dye --max-evaluations 200 --out f"
+    help_fit = "--max-evaluations --max-runs --target-rel-err --no-progress"
+    assert reduced_argv(fit, help_fit) == ["fit", "red-cotton", "felt", "--method", "classic", "--free", "dye",
+                                           "--max-evaluations", "12", "--out", "f", "--target-rel-err", "0.3",
+                                           "--no-progress"]
+    bare = reduced_argv("simulate fit green-felt-mc m --method mc --free dye --out f", help_fit)
+    assert bare[bare.index("--max-runs") + 1] == "2" and "--max-evaluations" not in bare
+    mc = "simulate fit green-felt-mc m --method mc --free dye --max-runs 5 --target-rel-err 0.03 --out f"
+    argv = reduced_argv(mc, help_fit)
+    assert argv[argv.index("--max-runs") + 1] == "2" and argv[argv.index("--target-rel-err") + 1] == "0.3"
+    assert "--max-evaluations" not in argv
+    assert reduced_argv("compare check a b", "--max-nrmse") == ["check", "a", "b"]
 
 
-def _cheap_lines() -> list[str]:
-    return [c for c in COMMANDS if tuple(c.split()[:2]) in CHEAP]
+def _sections(page: Path, slow: bool) -> list[tuple[str, str, str]]:
+    return [(h, c, m) for h, c, m in page_commands(page)
+            if ((page.name, h) in SLOW_SECTIONS or page.name in SLOW_PAGES) == slow]
 
 
-def test_cheap_readme_commands_run(tmp_path, monkeypatch, capsys):
-    """gonio demo first (the others read demo-out/), then every cheap line in README order."""
+def _run_tutorial(page: Path, commands: list[tuple[str, str, str]], tmp_path: Path, monkeypatch, capsys) -> int:
+    (tmp_path / "fixtures").symlink_to(ROOT / "fixtures")
     monkeypatch.chdir(tmp_path)
-    lines = sorted(_cheap_lines(), key=lambda c: not c.startswith("gonio demo"))
-    assert {tuple(c.split()[:2]) for c in lines} == CHEAP, "a cheap command left the README"
-    for line in lines:
-        argv = _runnable(line)
-        if argv[0] == "demo" and "--out" not in argv:        # the synopsis line: red cotton, apart
-            argv += ["--out", "demo-synopsis/measured"]
-        if argv[0] in ("truth",) and not Path("demo-out/truth").exists():
-            argv[argv.index("--out") + 1] = "demo-out/truth"
-        if argv[0] == "weave":
-            argv.append("--force")                       # the README shows it twice: same file
-        code = _main(line.split()[0])(argv)
-        assert code == 0, f"{line} -> {argv}: exit {code}\n{capsys.readouterr().err}"
-    assert Path("mesh.ply").stat().st_size > 0 and Path("demo-out/truth/meta.json").is_file()
+    monkeypatch.setenv("FABRIC_OPTICS_CACHE_DIR", str(tmp_path / "cache"))
+    ran = 0
+    for _, line, comment in commands:
+        prog = line.split()[0]
+        if prog == "make" or PLACEHOLDER.search(line):
+            continue                                   # checked against the help above
+        argv = reduced_argv(line, _help(prog, line.split()[1]))
+        capsys.readouterr()
+        code = _main(prog)(argv)
+        err = capsys.readouterr().err
+        allowed = {0, 1} if "exits 1" in comment else {0}
+        assert code in allowed, f"{page.name}: {line} -> {argv}: exit {code}\n{err[-2000:]}"
+        assert "deprecat" not in err.lower(), f"{page.name}: {line} uses an old spelling: {err[-500:]}"
+        ran += 1
+    return ran
+
+
+FAST = [p for p in sorted(TUTORIALS.glob("*.md")) if _sections(p, slow=False)]
+SLOW = [TUTORIALS / name for name in sorted(SLOW_PAGES)]
+
+
+def test_every_tutorial_is_run():
+    pages = {p.name for p in TUTORIALS.glob("*.md")} - {"index.md"}
+    assert pages == {p.name for p in FAST} | SLOW_PAGES, "a tutorial no test runs"
+    assert all(p.is_file() for p in SLOW)
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize("page", FAST, ids=[p.name for p in FAST])
+def test_tutorial_runs_on_reduced_budgets(page, tmp_path, monkeypatch, capsys):
+    _check_tutorial(page, _sections(page, slow=False), tmp_path, monkeypatch, capsys)
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(1800)       # ~4.5 min alone, longer beside the other slow tests
-def test_readme_demo_chain_runs_on_a_reduced_budget(tmp_path, monkeypatch):
-    """The "What make demo does" block, in order, with --target-rel-err 0.3 for `simulate fabric`, 20
-    evaluations per fit and 10 % per run of the Monte Carlo fit (the fits' walks keep their photons:
-    4 min 24 s on the 2-core machine at load 3-4)."""
-    monkeypatch.chdir(tmp_path)
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = re.search(r"^## What `make demo` does\n(.*?)^## ", text, flags=re.S | re.M)
-    assert section, "the README lost its 'What make demo does' section"
-    block = re.search(r"^```[^\n]*\n(.*?)^```", section.group(1), flags=re.S | re.M)
-    assert block
-    lines = [re.sub(r"\s+#.*$", "", x.strip()) for x in block.group(1).splitlines() if x.strip()]
-    assert lines and all(x.split()[0] in PROGRAMS for x in lines)
-    for line in lines:
-        argv = [_repo_path(a) for a in shlex.split(line)[1:]]
-        if argv[0] == "fabric":
-            argv[argv.index("--target-rel-err") + 1] = "0.3"
-            argv.append("--no-progress")
-        if argv[0] == "fit":
-            if "mc" in argv:            # its budget counts Monte Carlo runs: keep them, loosen each
-                argv[argv.index("--target-rel-err") + 1] = "0.1"
-            else:
-                argv[argv.index("--max-evaluations") + 1] = "20"
-            argv.append("--no-progress")
-        assert _main(line.split()[0])(argv) == 0, line
-    page = Path("demo-out/report/report.html").read_text(encoding="utf-8")
-    assert "What was measured" in page and "Fitted parameters" in page and "Seed sample" in page
+@pytest.mark.timeout(1800)
+@pytest.mark.parametrize("page", SLOW, ids=[p.name for p in SLOW])
+def test_long_tutorial_runs_on_reduced_budgets(page, tmp_path, monkeypatch, capsys):
+    _check_tutorial(page, _sections(page, slow=True), tmp_path, monkeypatch, capsys)
+
+
+def _check_tutorial(page, commands, tmp_path, monkeypatch, capsys):
+    ran = _run_tutorial(page, commands, tmp_path, monkeypatch, capsys)
+    assert ran >= 2, f"{page.name}: only {ran} commands ran"
+    # every dataset or report folder a command wrote is there
+    for _, line, _ in commands:
+        argv = shlex.split(line)
+        if "--out" in argv and not PLACEHOLDER.search(line):
+            assert Path(argv[argv.index("--out") + 1]).exists(), f"{page.name}: {line} wrote no --out"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+def test_the_whole_demo_chain_runs_on_a_reduced_budget(tmp_path, monkeypatch, capsys):
+    """mock-lab.md's "whole demo" block: 20 evaluations per fit is REDUCED's 12, the Monte Carlo fit keeps
+    its 2 runs at 30 % each."""
+    page = TUTORIALS / "mock-lab.md"
+    commands = [c for c in _sections(page, slow=True) if (page.name, c[0]) in SLOW_SECTIONS]
+    assert len(commands) == 8
+    _run_tutorial(page, commands, tmp_path, monkeypatch, capsys)
+    text = Path("demo-out/report/report.html").read_text(encoding="utf-8")
+    assert "What was measured" in text and "Fitted parameters" in text and "Seed sample" in text
+
+
+def _makefile_demo() -> list[str]:
+    """The Makefile's demo recipe as the commands a user types (variables substituted; the console
+    scripts' path, --no-progress and --force -- the Makefile re-runs into its own folder -- dropped)."""
+    text = (ROOT / "Makefile").read_text(encoding="utf-8")
+    variables = {k: v.strip() for k, v in re.findall(r"^(\w+)\s*[:?]?=\s*(.*)$", text, flags=re.M)}
+    recipe = re.search(r"^demo:.*?\n((?:\t.*\n)+)", text, flags=re.M)
+    assert recipe, "the Makefile lost its demo target"
+    out = []
+    for line in recipe.group(1).splitlines():
+        line = line.strip()
+        if line.startswith("@"):
+            continue
+        while re.search(r"\$\((\w+)\)", line):
+            line = re.sub(r"\$\((\w+)\)", lambda m: variables[m.group(1)], line)
+        line = line.replace(".venv/bin/", "").replace(" --no-progress", "").replace(" --force", "")
+        out.append(" ".join(line.split()))
+    return out
+
+
+def test_the_tutorials_demo_chain_is_the_makefiles():
+    shown = [" ".join(c.split()) for h, c, _ in page_commands(TUTORIALS / "mock-lab.md")
+             if ("mock-lab.md", h) in SLOW_SECTIONS]
+    assert shown == _makefile_demo()
+
+
+def test_placeholders_are_recognised():
+    assert PLACEHOLDER.search("simulate sweep red-cotton --scheduler tls://HEAD:8786 --out sweep")
+    assert not PLACEHOLDER.search("simulate fabric red-cotton --method mc --out sc/mc")
+    assert not PLACEHOLDER.search("gonio mock --faults busy=0.1 --modbus rtu")
+

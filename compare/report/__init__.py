@@ -13,6 +13,7 @@ One concept per module:
 ``samples``     sections "What was measured" (the mock's sample, a real file's source) and the
                 seed sample's published-colour check
 ``fits``        section "Fitted parameters" (``simulate fit``'s ``fit.json``)
+``shape``       section "Shape ratios": opposition and mirror ratios (:mod:`compare.felt_metrics`)
 ==============  ===============================================================================
 
 Other code adds to a report through :func:`write_report`'s ``sections`` (a :class:`Section`:

@@ -10,16 +10,18 @@ from typing import Sequence
 
 import numpy as np
 
-from gonio.data import atomic_write
+from gonio.data import write_files_together
 
 from ..colourmatch import band_luminance_weights
 from ..comparison import Comparison
+from ..errors import CompareError
 from .curves import (BEAM_BLOCK_DEG, GRAZING_DEG, REPORT_WAVELENGTHS_NM, beam_blocked,
                      luminance_curve, measured_inplane, sim_inplane, single_wavelength)
 from .figures import (colour_strip_figure, colour_strips, factor_figure, hue_trend,
                       inplane_figure, save_figure, spectrum_figure, swatch_figure)
 from .outdir import prepare_out_dir
 from .page import Section, page_html
+from .shape import shape_section
 
 __all__ = ["write_report"]
 
@@ -29,6 +31,10 @@ log = logging.getLogger("compare.report")
 def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: bool = False,
                  force: bool = False, sections: Sequence[Section] = ()) -> Path:
     """Write ``report.html``, ``metrics.json`` and ``figures/*.png`` into ``out_dir``.
+
+    All files are written together (:func:`gonio.data.write_files_together`): a report that cannot be
+    written (a full disk) is one :class:`~compare.errors.CompareError` and leaves ``out_dir`` as it was
+    (nothing of this report in it, a previous report unchanged).
 
     ``out_dir`` must be new, empty or hold a previous report (whose files alone are replaced;
     figures of the previous report that this one does not draw are removed); any other folder
@@ -46,8 +52,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     matplotlib.use("Agg")
     out = Path(out_dir)
     previous = prepare_out_dir(out, force)
-    fig_dir = out / "figures"
-    fig_dir.mkdir(parents=True, exist_ok=True)
+    fig_dir = Path("figures")
+    files: dict[Path, bytes] = {}     # written together at the end
     metrics = comparison.metrics()
     grid = comparison.wavelength_nm
     bands = comparison.bands
@@ -81,7 +87,7 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     def inplane(fname, meas_rows, sim_rows, title, ylabel, caption):
         fig, hidden = inplane_figure(meas_rows, sim_rows, title, ylabel,
                                      comparison.measured.name, blocked=blocked)
-        data = save_figure(fig, fig_dir / fname, svg)
+        data = save_figure(fig, fig_dir / fname, svg, files)
         figures[fname] = (data, caption + bars_note(hidden, "+-1 standard uncertainty of the "
                                                     "measurement") + " Lines and shading: see "
                           "the note above the figures.")
@@ -115,24 +121,25 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     else:
         log.warning("the measured dataset has no in-plane points: no in-plane figures")
     if comparison.colour is not None:
-        colour_figures(comparison, figures, fig_dir, svg)
-    figures["factor.png"] = (save_figure(factor_figure(comparison), fig_dir / "factor.png", svg),
+        colour_figures(comparison, figures, fig_dir, svg, files)
+    figures["factor.png"] = (save_figure(factor_figure(comparison), fig_dir / "factor.png", svg, files),
         "Normalisation factor k(lambda) = beta_meas(0,0) / C(0,0) of each simulation"
         + (" (per channel)" if bands.is_rgb else "") + ". Error bars: "
         "its standard uncertainty u_k = k sqrt((u_meas/beta_meas)^2 + (u_C/C)^2), from the "
         "estimate of the measured normal value (data and quadratic-vs-linear model term) and "
         "the simulation's normal value; not folded into the curve errors (see the "
         "normalisation table).")
-    atomic_write(out / "metrics.json",
-                  (json.dumps(metrics, indent=2, allow_nan=False) + "\n").encode("utf-8"))
+    files[Path("metrics.json")] = (json.dumps(metrics, indent=2, allow_nan=False) + "\n").encode("utf-8")
     for section in sections:
         for name, data in section.figures.items():
-            atomic_write(fig_dir / name, data)
+            files[fig_dir / name] = data
     report = out / "report.html"
-    atomic_write(report, page_html(comparison, metrics, figures, list(sections),
-                                   preface).encode("utf-8"))
-    written = {fig_dir / name for name in figures}
-    written |= {fig_dir / name for s in sections for name in s.figures}
+    extra = list(sections)
+    if any("per_incidence" in r for r in metrics["shape"]["measured"].values()):
+        extra.append(shape_section(comparison, metrics))
+    files[Path("report.html")] = page_html(comparison, metrics, figures, extra, preface).encode("utf-8")
+    write_together(out, files, "report")
+    written = {out / name for name in files}
     for old in previous:
         for stale in (old, old.with_suffix(".svg")):
             if stale not in written and stale.suffix in (".png", ".svg") and stale.is_file():
@@ -155,10 +162,20 @@ def interpolated_at(comparison: Comparison, wavelength: float) -> str:
             "interpolated in wavelength (see the note on interpolation).")
 
 
-def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool) -> None:
+def write_together(out: Path, files: dict, what: str) -> None:
+    """:func:`gonio.data.write_files_together`, its failure one :class:`CompareError` line."""
+    try:
+        write_files_together(out, {str(k): v for k, v in files.items()})
+    except OSError as exc:
+        raise CompareError(f"cannot write the {what} into {out}: {exc.strerror or exc} (writing {exc.filename}); "
+                           f"nothing of this {what} was written and the folder is as it was: free space or choose "
+                           "another --out") from exc
+
+
+def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool, files: dict | None = None) -> None:
     geo = comparison.colour.geometry
     figures["spectrum.png"] = (save_figure(spectrum_figure(comparison), fig_dir / "spectrum.png",
-                                           svg),
+                                           svg, files),
         ("Channels" if comparison.bands.is_rgb else "Spectra")
         + f" at the colour geometry (theta_i={geo['theta_i']:g}, theta_o={geo['theta_o']:g}"
         " deg). Points with +-1 standard uncertainty: the measurement; each simulation scaled "
@@ -168,14 +185,14 @@ def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bo
         + f". Normalised per {comparison.bands.noun} instead, every simulation would equal the "
         "measurement here by construction, so that view is not drawn.")
     figures["swatches.png"] = (save_figure(swatch_figure(comparison), fig_dir / "swatches.png",
-                                        svg),
+                                        svg, files),
         "Colour swatches at the colour geometry as shown on screen (gamma-encoded sRGB); the "
         "H, S, V printed under each are those of the displayed pixel. The table's H, S, V "
         "are of linear sRGB, hence different numbers for the same colour.")
     strips = colour_strips(comparison)
     if strips:
         figures["colour_strips.png"] = (
-            save_figure(colour_strip_figure(strips), fig_dir / "colour_strips.png", svg),
+            save_figure(colour_strip_figure(strips), fig_dir / "colour_strips.png", svg, files),
             "Colour strips: the colour of each dataset along each in-plane curve, one strip per "
             "dataset and incidence angle, one swatch per observation angle s (labelled under "
             "each panel, deg) placed at s. Each swatch is the dataset's spectrum at that "

@@ -36,21 +36,30 @@ def mpl_label(text: str) -> str:
     return " " + text if text.startswith("_") else text
 
 
-def save_figure(fig, path: Path, svg: bool = False) -> bytes:
-    """Write ``path`` (PNG at :data:`FIGURE_DPI`; also ``.svg`` beside it when ``svg``)."""
+def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -> bytes:
+    """Write ``path`` (PNG at :data:`FIGURE_DPI`; also ``.svg`` beside it when ``svg``); return the PNG.
+
+    ``files``: collect the bytes there (path -> bytes) instead of writing them, for a report written
+    together (:func:`gonio.data.write_files_together`)."""
     import io
 
     import matplotlib.pyplot as plt
 
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=FIGURE_DPI, metadata={"Software": None})
+    out = {}
     if svg:
         vector = io.BytesIO()
         fig.savefig(vector, format="svg", metadata={"Date": None})
-        atomic_write(path.with_suffix(".svg"), vector.getvalue())
+        out[path.with_suffix(".svg")] = vector.getvalue()
     plt.close(fig)
     data = buffer.getvalue()
-    atomic_write(path, data)
+    out[path] = data
+    for target, content in out.items():
+        if files is not None:
+            files[target] = content
+        else:
+            atomic_write(target, content)
     return data
 
 

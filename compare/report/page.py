@@ -17,7 +17,7 @@ from .outdir import GENERATOR
 from .prose import banners, fmt, sample_summary, source_summary
 
 __all__ = ["SECTION_KEYS", "STYLE", "Section", "assemble", "colour_html", "head_html",
-           "order_sections", "page_html"]
+           "order_sections", "page_html", "result_html", "result_sentences"]
 
 
 STYLE = ("<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;}"
@@ -29,6 +29,7 @@ STYLE = ("<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;}"
          ".note{background:#e8f1fb;border:1px solid #4a7ab5;padding:0.5em 1em;}"
          ".banner{background:#fff3cd;border:2px solid #c77c00;padding:0.6em 1em;"
          "font-weight:bold;}"
+         ".result{font-size:1.1em;border-left:4px solid #2a6f97;padding:0.2em 1em;}"
          ".howto{background:#f3f8ee;border:1px solid #6a9a4a;padding:0.2em 1em 0.6em;"
          "margin:1em 0;}</style>")
 
@@ -94,6 +95,7 @@ def page_html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[by
     head = head_html(f"Comparison report: {comparison.measured.name}",
                      f"Measurement vs simulation: {comparison.measured.name}", files)
     head += [f"<p class='banner'>{e(text)}</p>" for text in banners(comparison)]
+    head.append(result_html(comparison, metrics))
     standard = [howto_section(comparison, metrics), datasets_section(comparison),
                 normalisation_section(comparison, metrics), curves_section(comparison, metrics),
                 colour_section(comparison, metrics), figures_section(figures, preface)]
@@ -129,6 +131,98 @@ def describe_dataset(ds) -> str:
     if ds.relative:
         text += ", in relative (raw detector) units"
     return text
+
+
+#: The model name :mod:`gonio.mock.truth` writes: such a dataset is the mock sample's true value (a check
+#: of the instrument chain), not a model of the fabric, and is not ranked among the models.
+TRUTH_MODEL = "mock virtual sample"
+
+
+def _meets(metrics: dict, name: str, with_colour: bool) -> bool:
+    """Within the thresholds of ``compare check`` (its defaults)."""
+    from ..metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+
+    nrmse = metrics["overall"][name]["nrmse"]
+    ok = nrmse is not None and nrmse <= DEFAULT_MAX_NRMSE
+    if with_colour:
+        c = metrics["colour"][name]
+        ok = ok and c["dh"] is not None and abs(c["dh"]) <= DEFAULT_MAX_HUE_DIFF
+        ok = ok and c["ds"] is not None and abs(c["ds"]) <= DEFAULT_MAX_SAT_DIFF
+    return ok
+
+
+def _signed(x: float) -> str:
+    """``x`` to 3 decimals with its sign; 0.000 unsigned (no "-0.000")."""
+    return "0.000" if round(x, 3) == 0 else f"{x:+.3f}"
+
+
+def result_sentences(comparison: Comparison, metrics: dict) -> list[str]:
+    """The report's result in words, before any table: which model is closest to the measurement and
+    by how much on curve and colour, whether any meets the threshold, and what the threshold means.
+
+    Closest is the smallest ``NRMSE^2 + dh^2 + ds^2`` (the fit's objective at its default colour
+    weight; NRMSE alone when there is no colour statement). Datasets of the mock's true values
+    (:data:`TRUTH_MODEL`) are checks of the instrument chain and are not ranked. Returns ``[]`` when
+    there is no model to rank (a report of a measurement alone).
+    """
+    from ..metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+
+    with_colour = comparison.colour is not None
+
+    def is_truth(ds) -> bool:
+        model = ds.meta.get("model") if isinstance(ds.meta.get("model"), dict) else {}
+        return model.get("name") == TRUTH_MODEL
+
+    names = [n for n, ds in comparison.simulated.items() if not is_truth(ds)]
+    names = [n for n in names if metrics["overall"][n]["nrmse"] is not None]
+    if not names:
+        return []
+
+    def colour_of(name: str) -> tuple[float | None, float | None]:
+        c = metrics["colour"][name] if with_colour else {}
+        return c.get("dh"), c.get("ds")
+
+    def score(name: str) -> float:
+        dh, ds = colour_of(name)
+        extra = (dh or 0.0) ** 2 + (ds or 0.0) ** 2 if with_colour else 0.0
+        return metrics["overall"][name]["nrmse"] ** 2 + extra
+
+    ranked = sorted(names, key=score)
+    best = ranked[0]
+    nrmse = metrics["overall"][best]["nrmse"]
+    how = f"its curves are off by an overall NRMSE of {fmt(nrmse, 3)}"
+    dh, ds = colour_of(best)
+    if with_colour and dh is not None and ds is not None:
+        how += f" and its colour by {_signed(dh)} turn in hue and {_signed(ds)} in saturation"
+    lead = (f"The only model, '{best}'" if len(ranked) == 1 else f"Closest to the measurement is '{best}'")
+    first = f"{lead}: {how}"
+    if len(ranked) > 1:
+        second = ranked[1]
+        first += f" (next: '{second}', NRMSE {fmt(metrics['overall'][second]['nrmse'], 3)})"
+    first += "."
+    meeting = [n for n in ranked if _meets(metrics, n, with_colour)]
+    if not meeting:
+        verdict = ("No model meets the threshold." if len(ranked) > 1 else "It does not meet the threshold.")
+    elif len(meeting) == len(ranked):
+        verdict = "Every model meets the threshold." if len(ranked) > 1 else "It meets the threshold."
+    else:
+        verdict = f"{', '.join(repr(n) for n in meeting)} {'meets' if len(meeting) == 1 else 'meet'} the threshold."
+    colour_part = (f", its hue within {DEFAULT_MAX_HUE_DIFF:g} turn and its saturation within "
+                   f"{DEFAULT_MAX_SAT_DIFF:g} near the normal direction" if with_colour else "")
+    meaning = (f"The threshold (the defaults of compare check): after scaling to the measurement at the "
+               f"normal direction, the model's curves are within an RMS of {DEFAULT_MAX_NRMSE:g} of the "
+               f"mean measured value{colour_part}.")
+    return [first, verdict, meaning]
+
+
+def result_html(comparison: Comparison, metrics: dict) -> str:
+    """:func:`result_sentences` as the page's first paragraph (empty without a model)."""
+    sentences = result_sentences(comparison, metrics)
+    if not sentences:
+        return ""
+    e = html.escape
+    return (f"<section class='result' id='result'><p><b>{e(sentences[0])} {e(sentences[1])}</b></p>"
+            f"<p>{e(sentences[2])}</p></section>")
 
 
 def howto_section(comparison: Comparison, metrics: dict) -> Section:
@@ -292,7 +386,11 @@ def curves_section(comparison: Comparison, metrics: dict) -> Section:
 def colour_section(comparison: Comparison, metrics: dict) -> Section:
     parts: list[str] = []
     colour = metrics["colour"]
-    if not colour:
+    if not colour and comparison.colour_note:
+        parts.append("<h2>Colour match</h2><p class='note'>No colour statement (no H, S, V): "
+                     f"{html.escape(comparison.colour_note)}. The curves and their errors are compared "
+                     "above.</p>")
+    elif not colour:
         parts.append("<h2>Colour match</h2><p class='note'>No colour statement: the measurement "
                      "is photometric (Y only).</p>")
     else:

@@ -1,4 +1,4 @@
-"""Report sections that say what was measured and judge a simulated seed sample (issue 20).
+"""Report sections that say what was measured and judge a simulated seed sample.
 
 ``measured_sample_section(dataset)``
     "What was measured", right under the title: the measured dataset's sample (its ``sample``

@@ -1,4 +1,4 @@
-"""``simulate bench``: ``simulate fabric red-cotton`` at 1 % as a user runs it (issue 21's targets).
+"""``simulate bench``: ``simulate fabric red-cotton`` at 1 % as a user runs it, against time targets.
 
 Whole processes (start-up, imports, kernel loading and the table cache included; in-process
 timings miss them), median of 3, wall and CPU seconds (the children's ``getrusage``), the
@@ -12,7 +12,7 @@ achieved ``rel_err`` each run printed (its ``meta.json``, the one definition of
 
 run interleaved (summation, mc cold, mc warm, then again) so a change of load spreads over all
 three. Then the same three once in this process (imports and kernels warm): the difference is
-the start-up. Targets (issue 21, 2 cores): summation <= 15 s, Monte Carlo <= 10 s, table
+the start-up. Targets (2 cores): summation <= 15 s, Monte Carlo <= 10 s, table
 cached <= 5 s. The user's own table cache is never used.
 """
 
@@ -33,7 +33,7 @@ __all__ = ["CONFIG", "TARGET", "TARGETS_SECONDS", "fabric_command", "run_fabric_
 
 CONFIG = "red-cotton"
 TARGET = 0.01
-#: issue 21's targets (wall seconds on 2 cores); benchmarks, never asserted by tests
+#: the time targets (wall seconds on 2 cores); benchmarks, never asserted by tests
 TARGETS_SECONDS = {"summation": 15.0, "mc_cold": 10.0, "mc_warm": 5.0}
 _CACHE_ENV = "FABRIC_OPTICS_CACHE_DIR"
 

@@ -102,7 +102,7 @@ def _timed_process(cmd: list[str], env: dict[str, str]) -> dict[str, Any]:
 
 
 def _whole_process(repeats: int = 5) -> dict[str, Any] | None:
-    """Whole ``simulate slab`` processes (issue 21: in-process timings miss start-up and recompiles).
+    """Whole ``simulate slab`` processes (in-process timings miss start-up and recompiles).
 
     Start-up: a tiny run (10^3 photons) with an empty numba cache (cold: compiles) and then
     ``repeats`` times on that cache (warm: loads; median). The MCML-style case: the van de Hulst
@@ -253,7 +253,7 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
         report["woven"] = bench_woven.run_woven_bench()
         bench_woven.chart(report["woven"], out / "woven.png")
         bench_woven.chart_speed(report["woven"], out / "speed-accuracy.png")
-        # simulate fabric red-cotton at 1 % (issue 21's targets): summation, mc cold / warm table cache
+        # simulate fabric red-cotton at 1 % against its time targets: summation, mc cold / warm table cache
         from fabric_optics.bench.fabric import run_fabric_bench
 
         report["fabric"] = run_fabric_bench()

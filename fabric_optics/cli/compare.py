@@ -2,9 +2,11 @@
 
 ::
 
-    compare report MEASURED_DIR SIM_DIR [SIM_DIR ...] --out REPORT_DIR [--fit FIT_DIR ...]
-                   [--seed-sample DATASET_DIR]
-    compare check  MEASURED_DIR SIM_DIR [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X] [--max-level-ratio X]
+    compare report MEASURED [SIMULATED ...] --out REPORT_DIR [--force] [--fit FIT_DIR ...]
+                   [--seed-sample DATASET_DIR] [--renders RENDER_DIR]
+    compare check  MEASURED SIMULATED [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X]
+                   [--max-level-ratio X]
+    compare render FILE.bsdf [FILE.bsdf ...] --out DIR [--force]
 
 Exit status: 0 success (``check``: every figure within its threshold), 1 a failed check (the
 failing figures are printed), 2 a usage or input error (one line on stderr, no traceback).
@@ -46,8 +48,11 @@ from compare.comparison import compare_datasets, incomplete_datasets
 from compare.errors import CompareError
 from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
+from fabric_optics import api
+from fabric_optics.cli import common
+from fabric_optics.cli.common import Parser, UsageError, add_force, add_verbose, refuse_existing
 
-__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main"]
+__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main", "build_parser"]
 
 log = logging.getLogger("compare")
 
@@ -69,13 +74,15 @@ def _positive(text: str) -> float:
     return value
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser() -> argparse.ArgumentParser:
+    """The ``compare`` parser, every subcommand included."""
+    parser = Parser(
         prog="compare",
         description="Compare simulated radiance-coefficient datasets with a measured one: "
                     "normalise at the normal direction, curve errors, HSV colour match.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check,render}")
+    add_verbose(parser, sub=False)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check,render}",
+                                parser_class=Parser)
 
     def common(p):
         p.add_argument("--normal-window", type=_positive, default=DEFAULT_WINDOW_DEG,
@@ -83,23 +90,23 @@ def _parser() -> argparse.ArgumentParser:
                        f"estimate beta(0,0) (default {DEFAULT_WINDOW_DEG:g})")
         p.add_argument("--illuminant", default="D65",
                        help="illuminant of the colour match (default D65)")
+        add_verbose(p, sub=True)
 
     rep = sub.add_parser("report", help="write report.html, metrics.json and figures/*.png",
                          description="Compare one or more simulations with a measurement and "
                                      "write REPORT_DIR/report.html (self-contained), "
                                      "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.")
-    rep.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
-    rep.add_argument("simulated", metavar="SIM_DIR", nargs="*",
-                     help="simulated dataset(s); none: look at MEASURED_DIR alone (curves, "
-                          "colour strips, colour table)")
+    rep.add_argument("measured", metavar="MEASURED", help="measured dataset directory")
+    rep.add_argument("simulated", metavar="SIMULATED", nargs="*",
+                     help="simulated dataset(s) or a `simulate sweep` folder; none: look at MEASURED alone "
+                          "(curves, colour strips, colour table)")
     rep.add_argument("--out", required=True, metavar="REPORT_DIR",
-                     help="output directory: new, empty, or holding a previous report (only "
-                          "its files are replaced)")
-    rep.add_argument("--force", action="store_true",
-                     help="write into a non-empty folder that holds no previous report, "
-                          "replacing report.html, metrics.json and figures/ files of those names")
+                     help="output directory: new or empty (an existing report only with --force)")
+    add_force(rep, "an existing report in --out (report.html, metrics.json and figures/ files of those names; "
+                   "other files are kept)")
     rep.add_argument("--renders", metavar="RENDER_DIR", default=None,
-                     help="embed the renders of a `compare render` folder (measured and simulated side by side)")
+                     help="embed the renders of a `compare render` folder (measured and simulated side by side; "
+                          "needs a SIMULATED dataset)")
     rep.add_argument("--svg", action="store_true",
                      help="also write every figure as figures/*.svg (vector)")
     rep.add_argument("--fit", action="append", default=[], metavar="FIT_DIR",
@@ -112,11 +119,11 @@ def _parser() -> argparse.ArgumentParser:
 
     chk = sub.add_parser("check", help="exit 0 when a simulation matches within thresholds, "
                                        "1 otherwise",
-                         description="CI verdict: compare SIM_DIR with MEASURED_DIR; exit 0 "
+                         description="CI verdict: compare SIMULATED with MEASURED; exit 0 "
                                      "when within all thresholds, 1 (printing the failing "
                                      "figures) otherwise, 2 on bad input.")
-    chk.add_argument("measured", metavar="MEASURED_DIR", help="measured dataset directory")
-    chk.add_argument("simulated", metavar="SIM_DIR", help="simulated dataset directory")
+    chk.add_argument("measured", metavar="MEASURED", help="measured dataset directory")
+    chk.add_argument("simulated", metavar="SIMULATED", help="simulated dataset directory")
     chk.add_argument("--max-nrmse", type=_non_negative, default=DEFAULT_MAX_NRMSE, metavar="X",
                      help=f"largest overall NRMSE (default {DEFAULT_MAX_NRMSE:g})")
     chk.add_argument("--max-hue-diff", type=_non_negative, default=DEFAULT_MAX_HUE_DIFF,
@@ -152,7 +159,8 @@ def _add_render_parser(sub) -> None:
     ren.add_argument("--spp", type=int, default=32, help="samples per pixel (32)")
     ren.add_argument("--size", default="240x180", metavar="WxH", help="cushion image size (240x180)")
     ren.add_argument("--swatch-size", type=int, default=112, metavar="PX", help="swatch image size (112)")
-    ren.add_argument("--force", action="store_true", help="write into a non-empty folder")
+    add_force(ren, "an existing render in --out (or write into a folder that holds anything)")
+    add_verbose(ren, sub=True)
 
 
 def _render_cmd(args) -> int:
@@ -163,8 +171,7 @@ def _render_cmd(args) -> int:
     from compare.render import MitsubaMissing, RenderSettings, render_materials, require_mitsuba, write_render_set
 
     out = Path(args.out)
-    if out.is_dir() and any(out.iterdir()) and not (out / "render.json").is_file() and not args.force:
-        raise CompareError(f"--out {out}: not empty and holds no previous render; pass --force")
+    refuse_existing(out, args.force)
     if args.label and len(args.label) != len(args.files):
         raise CompareError(f"--label given {len(args.label)} times for {len(args.files)} files")
     try:
@@ -190,6 +197,13 @@ def _render_cmd(args) -> int:
 def _report(args) -> int:
     from compare.report import write_report
 
+    if args.renders is not None and not Path(args.renders).is_dir():
+        raise CompareError(f"--renders {args.renders}: not a folder (make one with `compare render FILE.bsdf "
+                           "... --out DIR`)")
+    if args.renders is not None and not args.simulated:
+        raise CompareError("--renders: the renders are set beside a simulation; give a SIMULATED dataset too "
+                           "(compare report MEASURED SIMULATED --renders DIR)")
+    refuse_existing(args.out, args.force)
     measured = read_dataset(args.measured)
     if not args.simulated:
         from compare.inspect import write_dataset_report
@@ -206,7 +220,7 @@ def _report(args) -> int:
 
     if any(is_sweep_dir(p) for p in args.simulated):  # a `simulate sweep` directory: compare.sweep
         if len(args.simulated) > 1:
-            raise CompareError("a sweep directory must be the only SIM_DIR (compare report MEASURED SWEEP_DIR)")
+            raise CompareError("a sweep directory must be the only SIMULATED (compare report MEASURED SWEEP_DIR)")
         report = write_sweep_report(measured, args.simulated[0], args.out, svg=args.svg, force=args.force,
                                     window_deg=args.normal_window, illuminant=args.illuminant)
         print(f"report: {report}")
@@ -221,9 +235,6 @@ def _report(args) -> int:
         from compare.render import render_section
         from compare.report import Section
 
-        if not Path(args.renders).is_dir():
-            raise CompareError(f"--renders {args.renders}: not a folder (make one with `compare render FILE.bsdf "
-                               "... --out DIR`)")
         sections.append(Section("renders", render_section(args.renders), before=None))
     try:
         report = write_report(comparison, args.out, svg=args.svg, force=args.force, sections=sections)
@@ -259,8 +270,8 @@ def _sample_sections(args, measured, comparison) -> list:
 
 
 def _check(args) -> int:
-    measured = read_dataset(args.measured)
-    simulated = read_dataset(args.simulated)
+    measured = api.read_dataset(args.measured)
+    simulated = api.read_dataset(args.simulated)
     incomplete = incomplete_datasets(measured, [simulated])
     if incomplete and not args.allow_incomplete:
         for line in incomplete:
@@ -269,39 +280,20 @@ def _check(args) -> int:
         return 1
     for line in incomplete:
         print(f"compare check: note: {line} (compared anyway: --allow-incomplete)")
-    comparison = compare_datasets(measured, [simulated], window_deg=args.normal_window,
-                                  illuminant=args.illuminant)
-    name = next(iter(comparison.simulated))
-    figures = [("overall NRMSE", comparison.overall[name].nrmse, args.max_nrmse, "")]
-    if comparison.colour is not None:
-        sc = comparison.colour.simulated[name]
-        figures += [("|hue difference|", abs(sc.dh), args.max_hue_diff,
-                     " turns of the hue circle"),
-                    ("|saturation difference|", abs(sc.ds), args.max_sat_diff, "")]
-    level = comparison.level(name)
-    if level.judged:
-        figures.append(("level ratio max(k_Y, 1/k_Y)", level.ratio, args.max_level_ratio,
-                        f" (k_Y {level.k:.3g}, k(lambda) spread {level.spread:.3g})"))
-    failed = False
-    print(f"compare check: '{name}' against '{measured.name}'")
-    for note in comparison.notes():
-        print(f"  note: {note}")
-    for label, value, limit, unit in figures:
-        ok = value <= limit  # NaN fails
-        failed |= not ok
-        print(f"  {'ok  ' if ok else 'FAIL'} {label} = {value:.4g}{unit} "
-              f"({'<=' if ok else 'exceeds'} {limit:g})")
-    for angle, e in comparison.curves[name].items():
-        print(f"       NRMSE at incidence {angle} deg = {e.nrmse:.4g}")
-    print(f"  level: {level.words(name, comparison.overall[name].nrmse, args.max_level_ratio, args.max_nrmse)}")
-    return 1 if failed else 0
+    comparison = api.compare(measured, simulated, window_deg=args.normal_window, illuminant=args.illuminant)
+    verdict = api.check(comparison, max_nrmse=args.max_nrmse, max_hue_diff=args.max_hue_diff,
+                        max_sat_diff=args.max_sat_diff, max_level_ratio=args.max_level_ratio)
+    print(f"compare check: {verdict.summary()}")
+    name = verdict.name
+    print(f"  level: {comparison.level(name).words(name, comparison.overall[name].nrmse, args.max_level_ratio, args.max_nrmse)}")
+    return 0 if verdict.passed else 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``compare`` command line; return the exit status."""
-    parser = _parser()
+    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = common.clean(parser.parse_args(argv))
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code) if isinstance(exc.code, int) else 2
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
@@ -312,7 +304,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "render":
             return _render_cmd(args)
         return _check(args)
-    except (DatasetError, CompareError) as exc:
+    except (DatasetError, CompareError, UsageError, api.InputError, api.OutputExistsError) as exc:
         print(f"compare {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:

@@ -18,9 +18,10 @@ stopped; 2 usage or input error.
 beam-block zone (all listed); 2 invalid plan.
 ``mock``: see ``gonio mock --help``.
 
-Every command that writes follows :func:`gonio.data.outputs.check_output`: a run folder (holding
-a journal) is never replaced (only ``acquire --resume`` continues it), a previous output of the
-same command is replaced, anything else only with ``--force``.
+Every command that writes follows :func:`gonio.data.outputs.check_output` and then the vocabulary's
+rule (:mod:`fabric_optics.cli.common`): a run folder (holding a journal) is never replaced (only
+``acquire --resume`` continues it); any other existing output, a previous output of the same
+command included, only with ``--force``.
 
 A user error prints one line on stderr (``gonio <command>: ...``), never a traceback.
 
@@ -53,25 +54,28 @@ from gonio.data.outputs import WRITTEN_BY, OutputRefused, check_output
 from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
 from gonio.instrument.probe import LinkSetupError, open_links
 
-__all__ = ["main"]
+from fabric_optics.api import InputError, OutputExistsError
+from fabric_optics.cli import common
+from fabric_optics.cli.common import (Parser, UsageError, add_force, add_no_progress, add_plan,
+                                      add_verbose, plan_of, refuse_existing)
+
+__all__ = ["main", "build_parser", "build_parsers"]
 
 log = logging.getLogger("gonio")
 
 _USER_ERRORS = (PlanError, CalibrationError, JournalError, AcquisitionError, TranscriptError,
-                DatasetError, LinkSetupError, OutputRefused)
+                DatasetError, LinkSetupError, OutputRefused, InputError, OutputExistsError)
 
-
-class _UsageError(Exception):
-    """A command-line problem reported as one line, exit 2."""
+_UsageError = UsageError
 
 
 MAX_TIMEOUT_S = 3600.0
 """Largest ``--timeout`` accepted (an hour: longer is a typo, not a slow link)."""
 
 
-_FORCE_HELP = ("replace a dataset (radiance.csv, meta.json) that another command or you wrote "
-               "(a previous output of this command is replaced without it; a run folder, one "
-               "holding a journal, never is)")
+_FORCE_HELP = ("replace an existing output: a dataset folder, or write into a folder that holds "
+               "anything (without it an existing output is refused; a run folder, one holding a "
+               "journal, is never replaced)")
 
 
 def _timeout_seconds(text: str) -> float:
@@ -99,7 +103,7 @@ def _setup_logging(verbose: bool) -> None:
 
 def _resume_command(args) -> str:
     """The exact command that continues this acquisition."""
-    argv = ["gonio", "acquire", args.plan, "--modbus", args.modbus, "--serial", args.serial]
+    argv = ["gonio", "acquire", "--plan", args.plan, "--modbus", args.modbus, "--serial", args.serial]
     if args.timeout != 1.0:
         argv += ["--timeout", f"{args.timeout:g}"]
     if getattr(args, "seed", None) is not None:
@@ -124,9 +128,11 @@ def _finish(result: RunResult, command: str, resume: str | None = None) -> int:
 
 
 def _cmd_acquire(args) -> int:
-    plan = load_plan(args.plan)
+    plan = load_plan(plan_of(args))
     out = Path(args.out)
     check_run_output(out, writer="gonio acquire", force=args.force, resume=args.resume)
+    if not args.resume:
+        refuse_existing(out, args.force)
     modbus, serial_link = open_links(args.modbus, args.serial, args.timeout)
     try:
         result = run_session(plan, modbus, serial_link, out, resume=args.resume,
@@ -156,8 +162,9 @@ def _cmd_replay(args) -> int:
     except TranscriptIntegrityError as exc:     # an edited transcript proves nothing: exit 1
         print(f"gonio replay: {exc}", file=sys.stderr)
         return 1
-    plan = load_plan(args.plan)
+    plan = load_plan(plan_of(args))
     check_run_output(Path(args.out), writer="gonio replay", force=args.force)
+    refuse_existing(args.out, args.force)
     try:
         result = replay_session(transcript, plan, Path(args.out), force=args.force)
     except ReplayMismatch as exc:
@@ -168,7 +175,7 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_check_plan(args) -> int:
-    plan = load_plan(args.plan)
+    plan = load_plan(plan_of(args))
     chk = plan.check()
     n_wl = len(plan.wavelengths_nm)
     print(f"plan {plan.name} ({plan.path}): {len(plan.points())} geometries x {n_wl} wavelengths")
@@ -216,7 +223,9 @@ def _cmd_demo(args) -> int:
     from gonio.mock.samples import SampleError
 
     out = Path(args.out)
-    plan = _plan_for(args.plan or "red-cotton", args.sample, "--sample")
+    plan = _plan_for(args.plan or common.DEFAULT_PLAN, args.sample, "--sample")
+    if out.is_dir():      # a file or a run folder there: run_demo's own message
+        refuse_existing(out, args.force)
     try:
         result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
                                      progress=False if args.no_progress else None,
@@ -237,8 +246,9 @@ def _cmd_truth(args) -> int:
     from gonio.mock.samples import SampleError
     from gonio.mock.truth import truth_dataset
 
-    plan = _plan_for(args.plan, args.sample, "SAMPLE")
+    plan = _plan_for(plan_of(args), args.sample, "SAMPLE")
     check_output(args.out, "dataset", writer="gonio truth", force=args.force)
+    refuse_existing(args.out, args.force)
     try:
         dataset = truth_dataset(args.sample, plan)
     except SampleError as exc:
@@ -256,6 +266,7 @@ def _cmd_bench(args) -> int:
 
     if args.out:
         check_output(args.out, "file", writer="gonio bench-driver", force=args.force)
+        refuse_existing(args.out, args.force)
     report = {WRITTEN_BY: "gonio bench-driver", **bench_driver(load_plan(args.plan),
                                                                repeats=args.repeats)}
     if args.out:
@@ -265,16 +276,19 @@ def _cmd_bench(args) -> int:
     return EXIT_OK
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+def build_parser() -> argparse.ArgumentParser:
+    """The ``gonio`` parser, every subcommand included (``mock`` and ``bench-driver`` parse their
+    own arguments: :func:`build_parsers`)."""
+    p = Parser(
         prog="gonio", description="Goniophotometer driver, mock devices and acquisition.",
         epilog="Exit status: 0 success, 1 failed check / safe stop / replay mismatch, "
                "2 usage or input error, 130 interrupted. Plans: a TOML file or a preset name ("
                + ", ".join(preset_names()) + ").")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    add_verbose(p, sub=False)
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.add_parser("mock", help="serve mock devices (see `gonio mock --help`)", add_help=False)
 
-    def common(sp):
+    def links(sp):
         sp.add_argument("--timeout", type=_timeout_seconds, default=1.0, metavar="S",
                         help="link timeout in seconds (default 1.0; a READ? also gets its "
                              "integration time; at most 3600)")
@@ -284,12 +298,12 @@ def _parser() -> argparse.ArgumentParser:
                              "client driving the instrument (default "
                              f"{DEFAULT_WAIT_TIMEOUT_S:g} s; at most 3600); a takeover by a "
                              "client that claims the instrument stops the session within 1 s")
-        sp.add_argument("--no-progress", action="store_true", help="log lines instead of a progress bar")
-        sp.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+        add_no_progress(sp)
+        add_verbose(sp, sub=True)
 
     a = sub.add_parser("acquire", help="measure a plan",
                        description="Home, calibrate (dark + white standard), measure every point "
-                                   "of PLAN, journal each point, write the dataset in --out.",
+                                   "of --plan, journal each point, write the dataset in --out.",
                        epilog="Exit status: 0 complete; 1 stopped safely by an instrument fault "
                               "(measured points kept: continue with --resume); 2 usage or input "
                               "error; 130 interrupted (Ctrl-C, SIGTERM; points kept). --resume "
@@ -297,19 +311,20 @@ def _parser() -> argparse.ArgumentParser:
                               "are unchanged, the instrument is the same and it is younger than "
                               "the plan's calibration_max_age_min; otherwise it is measured "
                               "again. --record writes a new transcript for this session.")
-    a.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name")
+    add_plan(a, required=True, what="to measure", positional=True)
     a.add_argument("--modbus", required=True, metavar="URL", help="tcp://HOST:PORT or rtu://DEVICE")
     a.add_argument("--serial", required=True, metavar="URL", help="device path, pty or socket://HOST:PORT")
     a.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory")
     a.add_argument("--resume", action="store_true", help="continue the run journaled in RUN_DIR")
     a.add_argument("--record", metavar="FILE.jsonl",
                    help="record every request/response to a new file (an existing file is refused)")
-    a.add_argument("--seed", type=int, default=None, help="the mock's seed, recorded in the meta")
-    a.add_argument("--force", action="store_true", help=_FORCE_HELP)
-    common(a)
+    a.add_argument("--seed", type=int, default=None, metavar="N",
+                   help="the mock's seed, recorded in the meta (default: none)")
+    add_force(a, _FORCE_HELP)
+    links(a)
 
     r = sub.add_parser("replay", help="run the driver against a recorded transcript",
-                       description="Run the driver with PLAN against TRANSCRIPT (from "
+                       description="Run the driver with --plan against TRANSCRIPT (from "
                                    "`gonio acquire --record`), answering each request with the "
                                    "recorded response; writes the dataset in --out.",
                        epilog="Exit status: 0 reproduced (and the recorded run was complete); 1 "
@@ -317,10 +332,10 @@ def _parser() -> argparse.ArgumentParser:
                               "message names the request index and both requests), or the "
                               "recorded run itself stopped; 2 usage or input error.")
     r.add_argument("transcript", metavar="TRANSCRIPT")
-    r.add_argument("plan", metavar="PLAN")
+    add_plan(r, required=True, what="of the recorded run", positional=True)
     r.add_argument("--out", required=True, metavar="RUN_DIR")
-    r.add_argument("--force", action="store_true", help=_FORCE_HELP)
-    r.add_argument("-v", "--verbose", action="store_true")
+    add_force(r, _FORCE_HELP)
+    add_verbose(r, sub=True)
 
     c = sub.add_parser("check-plan", help="validate a plan: limits, beam-block zone, duration",
                        description="List the points the controller would refuse (soft limits, "
@@ -329,9 +344,9 @@ def _parser() -> argparse.ArgumentParser:
                        epilog="Exit status: 0 every point measurable (beam-block points allowed "
                               "when the plan says skip_blocked = true); 1 some points refused "
                               "(listed); 2 invalid plan.")
-    c.add_argument("plan", metavar="PLAN")
+    add_plan(c, required=True, what="to check", positional=True)
     c.add_argument("--list", action="store_true", help="list the points in motion order")
-    c.add_argument("-v", "--verbose", action="store_true")
+    add_verbose(c, sub=True)
 
     d = sub.add_parser("demo", help="embedded mock (red cotton unless --sample) + a plan (red-cotton)",
                        description="Start the mock goniophotometer in this process (real protocol "
@@ -346,42 +361,39 @@ def _parser() -> argparse.ArgumentParser:
                         ".bsdf file (a real material, e.g. fixtures/real/acrylic_felt_green_rgb.bsdf); "
                         "without --plan the dataset is named after it")
     d.add_argument("--plan", default=None, metavar="PLAN",
-                   help="plan TOML file or preset name (default red-cotton; green-felt: the same "
-                        "geometry, the felt named as its sample; measured: the --sample .bsdf file's own "
-                        "measured incidences and retro-reflection ring)")
+                   help="acquisition plan to measure: a preset name or a TOML file (default red-cotton; "
+                        "green-felt: the same geometry, the felt named as its sample; measured: the --sample .bsdf "
+                        "file's own measured incidences and retro-reflection ring)")
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
-    d.add_argument("--force", action="store_true", help=_FORCE_HELP)
-    common(d)
+    add_force(d, _FORCE_HELP)
+    links(d)
 
     t = sub.add_parser("truth", help="write a mock sample's true beta at a plan's geometries",
                        description="Evaluate the mock's virtual sample (lambert:RHO, red-cotton, "
                                    "a dataset directory or an RGL .bsdf file) at the measurable geometries and the "
-                                   "wavelengths of PLAN and write it as a dataset (kind "
+                                   "wavelengths of --plan and write it as a dataset (kind "
                                    "simulated, u_beta 0): the known answer an acquisition on the "
                                    "mock must recover.")
     t.add_argument("sample", metavar="SAMPLE",
                    help="lambert:RHO, red-cotton, a dataset directory or an RGL .bsdf file")
-    t.add_argument("plan", metavar="PLAN", help="plan TOML file or preset name; measured: the .bsdf "
-                                                 "sample's own measured incidences and retro-reflection ring")
+    add_plan(t, required=True, what="whose geometries and wavelengths are evaluated", positional=True)
     t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
-    t.add_argument("--force", action="store_true", help=_FORCE_HELP)
-    t.add_argument("-v", "--verbose", action="store_true")
+    add_force(t, _FORCE_HELP)
+    add_verbose(t, sub=True)
 
     im = sub.add_parser("import", help="convert a file of another format into a dataset",
                         description="Read FILE (rgl-bsdf: an RGL .bsdf tensor file; pgii: one or "
                                     "more pgII text files, one incidence each; merl: a MERL "
                                     ".binary table) and write a radiance-coefficient dataset. "
                                     "Tabulated BRDFs (rgl-bsdf, merl) are evaluated at the "
-                                    "geometries of --geometry PLAN, by default at in-plane "
+                                    "geometries of --plan, by default at in-plane "
                                     "curves (the file's own incidence angles for rgl-bsdf).")
     im.add_argument("format", metavar="FORMAT", choices=["rgl-bsdf", "pgii", "merl"],
                     help="rgl-bsdf | pgii | merl")
     im.add_argument("files", metavar="FILE", nargs="+", help="file(s) to import")
     im.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
-    im.add_argument("--force", action="store_true", help=_FORCE_HELP)
-    im.add_argument("--geometry", metavar="PLAN", help="plan TOML file or preset whose "
-                                                        "geometries to evaluate; measured: the file's own "
-                                                        "measured incidences and its retro-reflection ring")
+    add_force(im, _FORCE_HELP)
+    add_plan(im, default=None, what="whose geometries to evaluate (default: in-plane curves)", geometry=True)
     im.add_argument("--scale", type=float, metavar="FR_PER_UA",
                     help="pgii [uA] files: f_r per uA of detector current (absolute values); "
                          "without it raw currents make a relative dataset")
@@ -393,7 +405,7 @@ def _parser() -> argparse.ArgumentParser:
     im.add_argument("--keep-grazing", action="store_true",
                     help="keep incidences theta_i >= 89 deg (dropped by default: the RGL files' "
                          "89.99999 deg tables are extrapolations; see docs/dataset.md)")
-    im.add_argument("-v", "--verbose", action="store_true")
+    add_verbose(im, sub=True)
 
     sub.add_parser("bench-driver", add_help=False,
                    help="driver overhead benchmark on the fast mock, with replays (JSON; see "
@@ -407,13 +419,14 @@ def _cmd_import(args) -> int:
     from gonio.data.formats import import_files, import_notes
 
     geometries = None
-    if args.geometry:
-        geometries = _plan_for(args.geometry, args.files[0], "FILE").geometries()
+    if args.plan:
+        geometries = _plan_for(args.plan, args.files[0], "FILE").geometries()
     if args.scale is not None and not (args.scale > 0 and args.scale < float("inf")):
         raise _UsageError(f"--scale {args.scale}: must be a positive number")
     if not (0.0 < args.white_reflectance <= 1.0):
         raise _UsageError(f"--white-reflectance {args.white_reflectance}: must be in (0, 1]")
     check_output(args.out, "dataset", writer="gonio import", force=args.force)
+    refuse_existing(args.out, args.force)
     dataset = import_files(args.format, args.files, geometries, scale=args.scale, white=args.white,
                            white_reflectance=args.white_reflectance, keep_grazing=args.keep_grazing)
     dataset.meta[WRITTEN_BY] = "gonio import"
@@ -427,7 +440,9 @@ def _cmd_import(args) -> int:
     return EXIT_OK
 
 
-# ---- gonio export (issue 22): one self-contained block -----------------------------------------
+
+
+# ---- gonio export: one self-contained block ---------------------------------------------------
 _EXPORT_DESCRIPTION = (
     "Tabulate a radiance-coefficient dataset as an isotropic RGL .bsdf file (Dupuy & Jakob 2018), read by "
     "Mitsuba 3's and pbrt-v4's `measured` material and by `gonio import rgl-bsdf`. The in-plane curves are "
@@ -440,29 +455,25 @@ def _add_export_parser(sub) -> None:
                         description=_EXPORT_DESCRIPTION)
     ex.add_argument("dataset", metavar="DATASET", help="dataset folder")
     ex.add_argument("--out", required=True, metavar="FILE.bsdf", help="file to write")
-    ex.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
-    ex.add_argument("--resolution", type=int, default=64, help="values per axis of the warped grid (64)")
-    ex.add_argument("--incidences", type=int, default=16,
-                    help="incidence nodes 0..90 deg besides the measured incidences (16)")
-    ex.add_argument("-v", "--verbose", action="store_true")
+    add_force(ex, "FILE.bsdf if it exists")
+    ex.add_argument("--resolution", type=common.int_in(4, 256), default=64,
+                    help="values per axis of the warped grid, 4..256 (64)")
+    ex.add_argument("--incidences", type=common.int_in(2, 64), default=16,
+                    help="incidence nodes 0..90 deg besides the measured incidences, 2..64 (16)")
+    add_verbose(ex, sub=True)
 
 
 def _cmd_export(args) -> int:
-    from gonio.data import read_dataset
-    from gonio.data.bsdf_dataset import dataset_brdf, dataset_nodes
-    from gonio.data.bsdf_export import export_bsdf
+    from fabric_optics import api
 
     out = Path(args.out)
-    if out.exists() and not args.force:
-        raise _UsageError(f"--out {out}: exists; pass --force to overwrite it")
-    if not 4 <= args.resolution <= 256:
-        raise _UsageError(f"--resolution {args.resolution}: must be in 4..256")
-    dataset = read_dataset(args.dataset)
-    beta, rule = dataset_brdf(dataset)
-    result = export_bsdf(beta, out, wavelengths_nm=None if dataset.is_rgb else dataset.wavelengths_nm,
-                         theta_i_deg=dataset_nodes(rule, args.incidences), res=args.resolution,
-                         description=f"{dataset.name} (fabric-optics gonio export of a measured dataset)",
-                         provenance={"dataset": str(args.dataset), "coverage": rule})
+    refuse_existing(out, args.force)
+    dataset = api.read_dataset(args.dataset)
+    result = api.export_bsdf(dataset, out, resolution=args.resolution, incidences=args.incidences,
+                             force=args.force, description=f"{dataset.name} (fabric-optics gonio export of a "
+                                                           "measured dataset)",
+                             provenance={"dataset": str(args.dataset)})
+    rule = result.provenance["coverage"] if hasattr(result, "provenance") else result.coverage
     print(f"gonio export: {dataset.name} -> {out} ({result.evaluations} interpolated values; measured "
           f"incidences {rule['incidences_deg']} deg, observation {rule['observation_range_deg']} deg: "
           "values outside them are clamped/blended, see the file's provenance)")
@@ -471,18 +482,25 @@ def _cmd_export(args) -> int:
 
 
 def _bench_parser() -> argparse.ArgumentParser:
-    b = argparse.ArgumentParser(prog="gonio bench-driver",
-                                description="Driver overhead benchmark: live "
-                                            "runs against the fast mock and replays of their "
-                                            "transcripts; prints JSON.")
-    b.add_argument("--plan", default="red-cotton")
-    b.add_argument("--repeats", type=int, default=3)
-    b.add_argument("--out", default=None, help="also write the JSON here (a previous "
-                   "bench-driver file is replaced; any other file only with --force; never a run "
-                   "folder's own file)")
-    b.add_argument("--force", action="store_true", help="replace an existing --out file")
-    b.add_argument("-v", "--verbose", action="store_true")
+    b = Parser(prog="gonio bench-driver",
+               description="Driver overhead benchmark: live "
+                           "runs against the fast mock and replays of their "
+                           "transcripts; prints JSON.")
+    add_plan(b, what="measured by the benchmark")
+    b.add_argument("--repeats", type=common.int_in(1, 1000), default=3, help="runs of each kind (default 3)")
+    b.add_argument("--out", default=None, help="also write the JSON here (an existing file only with --force; "
+                   "never a run folder's own file)")
+    add_force(b, "an existing --out file")
+    add_verbose(b, sub=False)
     return b
+
+
+def build_parsers() -> dict[str, argparse.ArgumentParser]:
+    """Every parser of ``gonio``: ``"gonio"`` (:func:`build_parser`, the subcommands included) and
+    the two subcommands that parse their own arguments, ``"gonio mock"`` and ``"gonio bench-driver"``."""
+    from gonio.mock.cli import build_parser as mock_parser
+
+    return {"gonio": build_parser(), "gonio mock": mock_parser(), "gonio bench-driver": _bench_parser()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -491,12 +509,13 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] == "mock":
         from gonio.mock.cli import main as mock_main
         return mock_main(argv[1:])
-    parser = _bench_parser() if argv[:1] == ["bench-driver"] else _parser()
+    bench = argv[:1] == ["bench-driver"]
+    parser = _bench_parser() if bench else build_parser()
     try:
-        args = parser.parse_args(argv[1:] if argv[:1] == ["bench-driver"] else argv)
+        args = common.clean(parser.parse_args(argv[1:] if bench else argv))
     except SystemExit as exc:
         return int(exc.code or 0)
-    if argv[:1] == ["bench-driver"]:
+    if bench:
         args.command = "bench-driver"
     if args.command is None:
         parser.print_help()

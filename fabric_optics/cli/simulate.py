@@ -11,27 +11,25 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
     "events_per_photon", ...}``; ``Rd`` excludes the specular surface reflection ``Rsp``.
 ``simulate bench --out DIR [--quick]``
     kernel benchmark: DIR/bench.json, DIR/bench.png and a markdown table on stdout.
-``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--geometry PLAN] [--target-rel-err X] [--seed N] [--threads N]``
+``simulate fabric CONFIG --method classic|summation|mc|auto --out DIR [--plan PLAN] [--target-rel-err X] [--seed N] [--threads N]``
     a radiance-coefficient dataset at the plan's geometries (:mod:`simulate.virtual`); CONFIG
     is a TOML path or a preset name (``red-cotton``), PLAN likewise (default ``red-cotton``). A
-    non-empty DIR is replaced only if it holds a previous ``simulate fabric`` output and nothing
-    else, as one folder (:mod:`simulate.outdir`: a kill or a full disk leaves the old output).
+    non-empty DIR is replaced only with ``--force`` and only if it holds a previous ``simulate fabric``
+    output and nothing else, as one folder (:mod:`simulate.outdir`: a kill or a full disk leaves the old output).
     Every run-making command (fabric, fiber, fit, sweep) first estimates its cost
     (:mod:`simulate.budget`): refused beyond a day, announced beyond ten minutes. ``--threads 0``
     means all threads numba allows, as ``threads = 0`` in a config.
-``simulate fiber CONFIG --out DIR [--method nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
-    the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar); its target error
-    defaults to 5 % (``--target-rel-err``), the config's is for ``simulate fabric``.
-``simulate fit CONFIG MEASURED_DIR --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]``
+``simulate fiber CONFIG --out DIR [--route nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
+    the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar).
+``simulate fit CONFIG MEASURED --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]``
     fits config parameters to a measurement (:mod:`fabric_optics.fitting.driver`, ``mc``: :mod:`fabric_optics.fitting.mc`): fitted.toml,
     datasets, report.
-``simulate sweep CONFIG --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
+``simulate sweep CONFIG [MEASURED] --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
     a parameter study on dask.distributed (:mod:`fabric_optics.sweep.runner`): one dataset per point, summary.csv;
     exit 1 when a task still fails after its retries (the others are kept).
 
-Over 500 lines for a reason: one argparse table of seven subcommands sharing their argument
-helpers and error policy (exit 2, one line); it is left whole while another engineer adds an
-``export`` subcommand to it.
+The names, syntax and defaults of the options are those of :mod:`fabric_optics.cli.common`;
+the work is done by :mod:`fabric_optics.api` where it has the function (fabric, fit, export).
 """
 
 from __future__ import annotations
@@ -46,22 +44,19 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
+
+from fabric_optics.cli import common
+from fabric_optics.cli.common import (Parser, UsageError, add_deprecated, add_force, add_no_progress,
+                                      add_plan, add_seed, add_target_rel_err, add_threads, add_verbose,
+                                      add_wavelengths, refuse_existing)
 
 __all__ = ["main", "COMMANDS", "build_parser"]
 
 log = logging.getLogger("simulate")
 
-
-class _UsageError(Exception):
-    """A user error found after parsing (exit 2, one line)."""
-
-
-class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose errors are one line (``simulate slab: error: argument --mua: ...``)."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message}\n")
+_UsageError = UsageError
+_Parser = Parser
 
 
 # ------------------------------------------------------------------------------------------
@@ -108,28 +103,8 @@ def _angle_deg(text: str) -> float:
     return value
 
 
-#: seeds of the fiber/fabric runs: the Monte Carlo derives per-batch streams as seed * 1_000_003 + ...
-#: in 64-bit integers, so seeds stay below 2^31 (the slab command's kernel call takes any int64)
-MAX_SEED = 2**31 - 1
-
-
-def _int_in(lo: int, hi: int) -> Callable[[str], int]:
-    def convert(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            try:        # an integral float as the help writes it: 1e6, 2.5e5
-                f = float(text)
-            except ValueError:
-                f = math.nan
-            if not (math.isfinite(f) and f == int(f)):
-                raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-            value = int(f)
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"must be an integer in [{lo}, {hi}], got {text!r}")
-        return value
-
-    return convert
+_int_in = common.int_in
+MAX_SEED = common.MAX_SEED
 
 
 def _json_safe(obj: Any) -> Any:
@@ -155,11 +130,8 @@ def _slab_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", type=_pos_float, default=1.0, help="refractive index of the slab (outside 1; default 1)")
     p.add_argument("--thickness", type=_pos_float, required=True, help="slab thickness d (same length unit)")
     p.add_argument("--photons", type=_int_in(1, 10**12), default=1_000_000, help="photons (default 1e6)")
-    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, help="random seed (default 0)")
-    p.add_argument(
-        "--threads", type=_threads_arg, default=None,
-        help="threads (default or 0: all); results do not depend on it",
-    )
+    p.add_argument("--seed", type=_int_in(0, 2**63 - 1), default=0, metavar="N", help="random seed (default: 0)")
+    add_threads(p)
     p.add_argument("--theta-i", type=_angle_deg, default=0.0, dest="theta_i", help="incidence angle in degrees [0, 90)")
     p.add_argument("--max-events", type=_int_in(1, 2**52), default=None, help="event cap per photon (a guard)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -200,7 +172,12 @@ def _slab_run(args: argparse.Namespace) -> int:
 
 def _bench_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output directory (bench.json, bench.png)")
+    add_force(p)
     p.add_argument("--quick", action="store_true", help="smoke test: small runs, a few seconds")
+    from fabric_optics.bench.studies import STUDIES
+
+    p.add_argument("--study", choices=sorted(STUDIES), help="run this documented study instead of the benchmark: "
+                   + "; ".join(f"{k}: {v[0]}" for k, v in sorted(STUDIES.items())) + " (OUT/NAME.json)")
 
 
 def _bench_run(args: argparse.Namespace) -> int:
@@ -209,10 +186,16 @@ def _bench_run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.exists() and not out.is_dir():
         raise _UsageError(f"--out {out}: exists and is not a directory; choose a directory path")
+    refuse_existing(out, args.force)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    if args.study:
+        from fabric_optics.bench.studies import run_study
+
+        print("\n".join(run_study(args.study, out, quick=args.quick)) + f"\n\nwrote {out / (args.study + '.json')}")
+        return 0
     report = run_bench(out, quick=args.quick)
     print(markdown_table(report))
     print(f"\nwrote {out / 'bench.json'} and {out / 'bench.png'}")
@@ -224,31 +207,17 @@ def _bench_run(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------------
 
 
-def _rel_err(text: str) -> float:
-    value = _float(text)
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text!r}")
-    return value
+_rel_err = common.rel_err_arg
+_threads_arg = common.threads_arg
 
 
-def _threads_arg(text: str) -> int:
-    """``--threads N``: 1..NUMBA_NUM_THREADS, or 0 = all that numba allows, as ``threads = 0`` in a config."""
-    import numba
-
-    return _int_in(0, numba.config.NUMBA_NUM_THREADS)(text)
-
-
-def _run_settings_arguments(p: argparse.ArgumentParser, target_default: str = "the config's") -> None:
-    p.add_argument("--target-rel-err", type=_rel_err, default=None, dest="target_rel_err",
-                   help="target relative standard error of the fiber Monte Carlo, relative to each "
-                        f"curve's spectral peak (default: {target_default})")
-    p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
+def _run_settings_arguments(p: argparse.ArgumentParser) -> None:
+    add_target_rel_err(p, "of the fiber Monte Carlo, relative to each curve's spectral peak")
+    p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons", metavar="N",
                    help="photon budget (default: the config's; none)")
-    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
-    p.add_argument("--threads", type=_threads_arg, default=None,
-                   help="threads, 0 = all (default: the config's, where 0 = all); results do not depend on it")
-    p.add_argument("--no-progress", action="store_true", dest="no_progress",
-                   help="no progress bar (it is shown only on a terminal anyway)")
+    add_seed(p)
+    add_threads(p)
+    add_no_progress(p)
 
 
 def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> None:
@@ -271,6 +240,14 @@ def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> N
         raise _UsageError(f"--out {out}: directory is not writable")
 
 
+def _refuse_previous(out: Path, force: bool, is_previous: Callable[[Path], bool], what: str) -> None:
+    """Without ``--force``, refuse an ``out`` holding a previous output of this command (a folder
+    holding something else: :func:`_prepare_out`'s message)."""
+    if not force and out.is_dir() and any(not e.name.startswith(".") for e in out.iterdir()) and is_previous(out):
+        raise _UsageError(f"--out {out}: holds a previous `{what}` output; pass --force to replace it, or choose a "
+                          "new folder")
+
+
 def _is_fabric_output(out: Path) -> bool:
     """A previous ``simulate fabric`` output: its ``meta.json`` says so. Also recognised: what a
     run of an older version killed between its two renames left, ``radiance.csv`` beside the
@@ -291,7 +268,7 @@ def _is_fabric_output(out: Path) -> bool:
     return False
 
 
-def _prepare_fabric_out(out: Path) -> None:
+def _prepare_fabric_out(out: Path, force: bool) -> None:
     """:func:`_prepare_out` for ``simulate fabric``, whose output replaces ``out`` as one folder
     (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a previous output
     holding anything besides the dataset's files is refused (the swap would delete it)."""
@@ -302,6 +279,7 @@ def _prepare_fabric_out(out: Path) -> None:
         recover(out)
     except OSError as exc:
         raise _UsageError(f"--out {out}: cannot clean up after an earlier killed run ({exc.strerror})") from None
+    _refuse_previous(out, force, _is_fabric_output, "simulate fabric")
     _prepare_out(out, _is_fabric_output, "simulate fabric")
     try:
         remove_stale_temp_files(out)         # a killed per-file write of an older version
@@ -352,8 +330,7 @@ def _write_failed(out: Path, exc: OSError) -> str:
     return f"{exc.filename or out}: cannot write ({exc.strerror or exc})"
 
 
-def _progress(args: argparse.Namespace) -> bool:
-    return not args.no_progress and sys.stderr.isatty()
+_progress = common.progress
 
 
 def _fabric_arguments(p: argparse.ArgumentParser) -> None:
@@ -365,9 +342,9 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-seconds", type=_nonneg_float, default=0.0, dest="max_seconds",
                    help="mc: time budget per incidence in seconds (0 = none); the output says which stop ended it")
     p.add_argument("--out", type=Path, required=True, help="output dataset directory (radiance.csv, meta.json)")
-    p.add_argument("--geometry", metavar="PLAN", default="red-cotton",
-                   help="acquisition plan whose geometries and wavelengths are simulated (path or preset; "
-                        "default red-cotton)")
+    add_force(p, "a previous `simulate fabric` output in --out (a folder holding anything else is never replaced: "
+                 "the output replaces the whole folder)")
+    add_plan(p, what="whose geometries and wavelengths are simulated", geometry=True)
     p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
                    help="skip the plan's beam-blocked geometries as the measurement does "
                         "(default: simulate them; the normal/normal value is the normalisation point)")
@@ -375,25 +352,19 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fabric_run(args: argparse.Namespace) -> int:
-    from gonio.acquisition.plan import PlanError, load_plan
-    from simulate.fabric import FabricError
+    from fabric_optics import api
     from simulate.outdir import OutputError, write_dataset_dir
-    from simulate.virtual import fabric_dataset
 
-    config = _load_config(args.config)
+    config = api.load_config(args.config)
     try:
-        plan = load_plan(args.geometry)
-    except PlanError as exc:
-        raise _UsageError(f"--geometry: {exc}") from None
+        plan = api.load_plan(args.plan)
+    except api.InputError as exc:
+        raise _UsageError(f"--plan: {exc}") from None
     _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
-    _prepare_fabric_out(args.out)
-    try:
-        dataset = fabric_dataset(config, plan, args.method, target_rel_err=args.target_rel_err,
-                                 seed=args.seed, threads=args.threads, max_photons=args.max_photons,
-                                 measurable_only=args.measurable_only, progress=_progress(args),
-                                 max_seconds=args.max_seconds)
-    except FabricError as exc:
-        raise _UsageError(str(exc)) from None
+    _prepare_fabric_out(args.out, args.force)
+    dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
+                           threads=args.threads, max_photons=args.max_photons, measurable_only=args.measurable_only,
+                           progress=_progress(args), max_seconds=args.max_seconds)
     try:
         write_dataset_dir(dataset, args.out)
     except OutputError as exc:
@@ -409,13 +380,15 @@ def _fabric_run(args: argparse.Namespace) -> int:
 def _fiber_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
     p.add_argument("--out", type=Path, required=True, help="output directory (fiber-table.npz, fiber-table.json)")
-    p.add_argument("--method", choices=("nee", "beam", "bssrdf"), default=None,
-                   help="fiber route (default: the config's method.method)")
+    add_force(p)
+    p.add_argument("--route", choices=("nee", "beam", "bssrdf"), default=None,
+                   help="fiber route of the Monte Carlo (default: the config's)")
+    add_deprecated(p, "--method", dest="route", new="--route", choices=("nee", "beam", "bssrdf"))
     p.add_argument("--step-deg", type=_pos_float, default=30.0, dest="step_deg",
                    help="polar grid step in degrees, dividing 90 (default 30)")
     p.add_argument("--phi-step-deg", type=_pos_float, default=45.0, dest="phi_step_deg",
                    help="azimuth grid step in degrees, dividing 90 (default 45)")
-    _run_settings_arguments(p, "0.05, a coarse table")
+    _run_settings_arguments(p)
 
 
 #: Bound on a fiber table's size, direction pairs x wavelengths (``simulate fiber``): 10 million
@@ -435,10 +408,16 @@ def _check_table_size(step_deg: float, phi_step_deg: float, n_wavelengths: int) 
                           f"{MAX_TABLE_VALUES * 64 / 2**30:.1f} GiB): use a coarser step")
 
 
+def _config_route(config: Any) -> str:
+    """The config's fiber route (``[fiber] route``; an older config: ``[method] method``)."""
+    route = getattr(config, "route", None)
+    return str(route if route is not None else config.method)
+
+
 def _fiber_run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from simulate.fiber.tables import DEFAULT_TABLE_REL_ERR, TableGrid, fiber_table, write_fiber_table
+    from simulate.fiber.tables import TableGrid, fiber_table, write_fiber_table
 
     config = _load_config(args.config)
     wavelengths = np.asarray(config.wavelengths_nm, float)
@@ -447,12 +426,14 @@ def _fiber_run(args: argparse.Namespace) -> int:
         grid = TableGrid(args.step_deg, args.phi_step_deg)
     except ValueError as exc:
         raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
-    _check_cost("fiber", config, wavelengths, args.target_rel_err or DEFAULT_TABLE_REL_ERR, args.max_photons)
-    _prepare_out(args.out, _is_fiber_output, "simulate fiber")
+    target = config.target_rel_err if args.target_rel_err is None else args.target_rel_err
+    _check_cost("fiber", config, wavelengths, target, args.max_photons)
+    _refuse_previous(args.out, args.force, _is_fiber_output, "simulate fiber")
+    _prepare_out(args.out, lambda out: args.force or _is_fiber_output(out), "simulate fiber")
     arrays, sidecar = fiber_table(
-        config.fiber(wavelengths), wavelengths, grid, method=args.method or config.method,
-        target_rel_err=args.target_rel_err, seed=config.seed if args.seed is None else args.seed,
-        threads=config.threads if args.threads is None else (args.threads or None),
+        config.fiber(wavelengths), wavelengths, grid, method=args.route or _config_route(config),
+        target_rel_err=target, seed=config.seed if args.seed is None else args.seed,
+        threads=args.threads or None,
         max_photons=config.max_photons if args.max_photons is None else args.max_photons,
         progress=_progress(args), config_provenance=config.provenance())
     try:
@@ -472,12 +453,13 @@ def _fiber_run(args: argparse.Namespace) -> int:
 
 def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="start config (TOML path or preset name, e.g. red-cotton)")
-    p.add_argument("measured", metavar="MEASURED_DIR", type=Path, help="measured radiance-coefficient dataset")
+    p.add_argument("measured", metavar="MEASURED", type=Path, help="measured radiance-coefficient dataset (folder)")
     p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
                    help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
                         "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fitting.driver")
     p.add_argument("--out", type=Path, required=True,
                    help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
+    add_force(p, "an existing --out (start the fit afresh there; --resume continues it instead)")
     p.add_argument("--method", choices=("classic", "summation", "mc"), default="classic",
                    help="fabric model to fit (default classic); mc: the woven/felt Monte Carlo of simulate fabric, "
                         "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fitting.mc")
@@ -486,37 +468,27 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--absolute", action="store_true",
                    help="an absolutely calibrated measurement: fit its level too, (ln k_Y)^2 added to the objective "
                         "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
-    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations",
-                   help="objective evaluations of the search in all: steps and Jacobian columns of every start "
-                        "(default 600; the uncertainty propagation afterwards is counted apart); with --method mc: "
-                        "Monte Carlo runs, the start's included (default 5, at least 2)")
+    p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations", metavar="N",
+                   help="summation and classic fits: model evaluations of the search in all, steps and Jacobian "
+                        "columns of every start (default 600; the uncertainty propagation afterwards is counted apart)")
+    p.add_argument("--max-runs", type=_int_in(2, 10**4), default=None, dest="max_runs", metavar="N",
+                   help="--method mc: Monte Carlo runs, the start's included (default 5, at least 2)")
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
                    help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
                         "run per parameter and step) instead of the summation -- where the two models' trends "
                         "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fitting.mc)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
-    p.add_argument("--wavelengths", default=None, metavar="NM,NM,...",
-                   help="model wavelengths for an RGB measurement (default: the config's)")
+    add_wavelengths(p, "model wavelengths for an RGB measurement")
     p.add_argument("--dye", choices=("config", "knots"), default="config",
                    help="knots: replace the config's dye by 8 knots of log10 absorption (any colour; free them "
                         "with --free dye), started from the measured colour (default: the config's dye)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point; "
                    "--method mc: from DIR/mc-state.json, the finished Monte Carlo runs)")
-    p.add_argument("--target-rel-err", type=_rel_err, default=0.03, dest="target_rel_err",
-                   help="relative standard error of the first Monte Carlo walk; later walks reuse its photons "
-                        "(default 0.03)")
-    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None, help="random seed (default: the config's)")
-    p.add_argument("--threads", type=_threads_arg, default=None, help="threads, 0 = all (default: all); results do not depend on it")
-    p.add_argument("--no-progress", action="store_true", dest="no_progress", help="no progress bar")
-
-
-def _is_fit_output(out: Path) -> bool:
-    from fabric_optics.fitting.driver import STATE_NAME
-    from fabric_optics.fitting.mc import MC_STATE
-
-    return (out / STATE_NAME).is_file() or (out / "fit.json").is_file() or (out / "walks").is_dir() or \
-        (out / MC_STATE).is_file()
+    add_target_rel_err(p, "of the first Monte Carlo walk; later walks reuse its photons")
+    add_seed(p)
+    add_threads(p)
+    add_no_progress(p)
 
 
 def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
@@ -542,82 +514,65 @@ def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
 
 
+def _fit_interrupted(args: argparse.Namespace, walk_parts_before: int) -> str:
+    """What an interrupted fit left for ``--resume`` (only what exists)."""
+    if args.method == "mc":
+        from fabric_optics.fitting.mc import left_behind
+        return left_behind(args.out)
+    return _fit_left_behind(args.out, walk_parts_before)
+
+
 def _fit_run(args: argparse.Namespace) -> int:
-    import numpy as np
+    from fabric_optics import api
 
-    from gonio.data.dataset import DatasetError, read_dataset
-    from fabric_optics.fitting.driver import FitError, parse_free
-    from fabric_optics.fitting.methods import method_runner
-
-    config = _load_config(args.config)
+    if args.method == "mc" and args.max_evaluations is not None:
+        if args.max_runs is not None:
+            raise _UsageError("--max-evaluations and --max-runs: give --max-runs only (--method mc counts "
+                              "Monte Carlo runs)")
+        common.deprecated("simulate fit", "--max-evaluations with --method mc", "--max-runs")
+        args.max_runs, args.max_evaluations = args.max_evaluations, None
+        if args.max_runs < 2:
+            raise _UsageError(f"--max-runs {args.max_runs}: at least 2 (the start's run and one more)")
+    if args.max_runs is not None and args.method != "mc":
+        raise _UsageError(f"--max-runs counts the Monte Carlo runs of --method mc; the {args.method} fit counts "
+                          "--max-evaluations")
+    if args.mc_trend and args.method != "mc":
+        raise _UsageError(f"--mc-trend is for --method mc (the {args.method} fit has no Monte Carlo runs); "
+                          "drop it or fit with --method mc")
+    mc_trend = tuple(n.strip() for n in ",".join(args.mc_trend or ()).split(",") if n.strip())
+    config = api.load_config(args.config)
     try:
-        measured = read_dataset(args.measured)
-    except DatasetError as exc:
-        raise _UsageError(f"MEASURED_DIR: {exc}") from None
-    wavelengths = None
-    if args.wavelengths:
-        try:
-            wavelengths = np.array([float(w) for w in args.wavelengths.split(",")])
-        except ValueError:
-            raise _UsageError(f"--wavelengths: expected numbers separated by commas, got {args.wavelengths!r}") from None
-    if args.dye == "knots":
-        from fabric_optics.fitting.start import knots_config
-
-        spectral = "channel" not in measured.table.columns
-        config = knots_config(config, wavelengths if wavelengths is not None else
-                              (measured.wavelengths_nm if spectral else config.wavelengths_nm))
-    try:
-        free = parse_free(args.free, config)
-    except FitError as exc:
-        raise _UsageError(str(exc)) from None
-    problem_class, run_fit, write_outputs = method_runner(args.method)
-    extra = {}
-    if args.mc_trend:
-        if args.method != "mc":
-            raise _UsageError(f"--mc-trend is for --method mc (the {args.method} fit has no Monte Carlo runs); "
-                              "drop it or fit with --method mc")
-        extra["mc_trend"] = tuple(n.strip() for n in ",".join(args.mc_trend).split(",") if n.strip())
-    try:
-        problem = problem_class(config, measured, free, method=args.method, colour_weight=args.colour_weight,
-                                level_weight=1.0 if args.absolute else 0.0,
-                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads or None,
-                             wavelengths_nm=wavelengths, **extra)
-    except FitError as exc:
-        raise _UsageError(str(exc)) from None
-    _check_cost("fit", config, problem.wavelengths_nm, args.target_rel_err, None)
-    try:
-        problem.precheck()
-    except FitError as exc:
-        raise _UsageError(str(exc)) from None
-    _prepare_out(args.out, _is_fit_output, "simulate fit")
-    max_evaluations = args.max_evaluations
-    if max_evaluations is None:
-        from fabric_optics.fitting.driver import DEFAULT_MAX_EVALUATIONS
-        from fabric_optics.fitting.mc import DEFAULT_MC_RUNS
-
-        max_evaluations = DEFAULT_MC_RUNS if args.method == "mc" else DEFAULT_MAX_EVALUATIONS
+        measured = api.read_dataset(args.measured)
+    except api.InputError as exc:
+        raise _UsageError(f"MEASURED: {exc}") from None
+    if args.out.exists() and not args.out.is_dir():
+        raise _UsageError(f"--out {args.out}: exists and is not a directory; choose a directory path")
+    if not (args.resume or args.force):
+        refuse_existing(args.out, False)
+    job = api.prepare_fit(config, measured, args.free, args.out, method=args.method, dye=args.dye,
+                          max_evaluations=args.max_evaluations, max_runs=args.max_runs,
+                          target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
+                          colour_weight=args.colour_weight, wavelengths_nm=args.wavelengths, mc_trend=mc_trend,
+                          starts=args.starts, resume=args.resume, force=args.force, absolute=args.absolute)
+    _check_cost("fit", config, job.problem.wavelengths_nm, job.problem.target_rel_err, None)
+    _prepare_out(args.out, lambda out: True, "simulate fit")
     from simulate.fiber import tablecache
 
     walk_parts_before = tablecache.stored("structwalk")
     try:
-        result = run_fit(problem, out=args.out, resume=args.resume, max_evaluations=max_evaluations,
-                         starts=args.starts, progress=_progress(args))
-    except FitError as exc:
-        raise _UsageError(str(exc)) from None
+        outcome = job.run(progress=_progress(args))
     except KeyboardInterrupt:
-        if args.method == "mc":
-            from fabric_optics.fitting.mc import left_behind
-            said = left_behind(args.out)
+        if getattr(job, "phase", "") == "writing":
+            print(f"simulate fit: interrupted while writing the outputs, which are unchanged in {args.out}; "
+                  f"{_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
         else:
-            said = _fit_left_behind(args.out, walk_parts_before)
-        print(f"simulate fit: interrupted; {said}", file=sys.stderr)
+            print(f"simulate fit: interrupted; {_fit_interrupted(args, walk_parts_before)}", file=sys.stderr)
         return 130
-    try:
-        doc = write_outputs(problem, result, args.out)
     except OSError as exc:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
     from fabric_optics.fitting.driver import uncertainty_text
 
+    doc = outcome.summary
     for p in doc["parameters"]:
         u = p["u"] if p.get("u") is not None else float("nan")
         print(f"{p['name']} = {p['value']:.6g} {uncertainty_text(u, p.get('u_status', ''))}   (start "
@@ -671,7 +626,7 @@ def _weave_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name); its [weave] "
                                                      "table (default: a plain weave)")
     p.add_argument("--out", type=Path, required=True, help="mesh file to write, .ply or .obj")
-    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    add_force(p, "an existing --out file")
 
 
 def _weave_run(args: argparse.Namespace) -> int:
@@ -711,16 +666,18 @@ COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave 
 
 def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
+    p.add_argument("measured", metavar="MEASURED", type=Path, nargs="?", default=None,
+                   help="measured dataset (optional): add compare's NRMSE, dh and ds of every point to summary.csv")
+    add_deprecated(p, "--measured", dest="measured", new="the positional MEASURED", type=Path, metavar="DIR")
     p.add_argument("--param", action="append", required=True, metavar="NAME=v1,v2,...",
                    help="a swept config field (dotted path or alias volume_fraction, radius, rms_slope) and its "
                         "values; repeat for a grid (every combination)")
     p.add_argument("--out", type=Path, required=True,
-                   help="sweep directory (sweep.json, tasks/, points/<name>=<value>/, summary.csv); an existing "
-                        "sweep directory of the same sweep is continued")
+                   help="sweep directory (sweep.json, tasks/, points/<name>=<value>/, summary.csv)")
+    add_force(p, "an existing --out sweep (computed afresh; --resume continues it instead)")
     p.add_argument("--method", choices=("summation", "classic", "mc"), default="summation",
                    help="fabric model (default summation)")
-    p.add_argument("--geometry", metavar="PLAN", default="red-cotton",
-                   help="acquisition plan whose geometries and wavelengths are simulated (default red-cotton)")
+    add_plan(p, what="whose geometries and wavelengths are simulated", geometry=True)
     p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
                    help="skip the plan's beam-blocked geometries as the measurement does")
     p.add_argument("--scheduler", metavar="tls://HOST:PORT", default=None,
@@ -735,24 +692,16 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
                    help="--scheduler: client private key (PEM)")
     p.add_argument("--workers", type=_int_in(1, 1024), default=None,
                    help="local cluster: worker processes, one thread each (default: the number of CPUs)")
-    p.add_argument("--threads", type=_threads_arg, default=1,
-                   help="threads of each task's Monte Carlo, 0 = all (default 1: the workers are the parallelism); "
-                        "results do not depend on it")
+    add_threads(p, default=1, note=" per task: the workers are the parallelism")
     p.add_argument("--retries", type=_int_in(0, 100), default=2,
                    help="retries of a failing task before it is reported (default 2)")
-    p.add_argument("--measured", type=Path, default=None, metavar="DIR",
-                   help="measured dataset: add compare's NRMSE, dh and ds of every point to summary.csv")
     p.add_argument("--resume", action="store_true",
-                   help="continue the sweep in --out (it must exist; rerunning the same command does the same)")
-    p.add_argument("--target-rel-err", type=_rel_err, default=None, dest="target_rel_err",
-                   help="target relative standard error of the fiber Monte Carlo (default: the config's)")
-    p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons",
+                   help="continue the sweep in --out (it must hold the same sweep)")
+    add_target_rel_err(p)
+    p.add_argument("--max-photons", type=_int_in(1, 10**15), default=None, dest="max_photons", metavar="N",
                    help="photon budget per task (default: the config's; none)")
-    p.add_argument("--seed", type=_int_in(0, MAX_SEED), default=None,
-                   help="sweep seed (default: the config's); each task's seed is derived from it, the point "
-                        "and the wavelength")
-    p.add_argument("--no-progress", action="store_true", dest="no_progress",
-                   help="no progress bar (it is shown only on a terminal anyway)")
+    add_seed(p, what="sweep seed; each task's seed is derived from it, the point and the wavelength")
+    add_no_progress(p)
 
 
 def _sweep_client(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -786,6 +735,24 @@ def _check_sweep_cost(args: argparse.Namespace, spec: Any) -> None:
     _check_cost("sweep", worst.config, wl, target, spec.max_photons, runs=max(1, -(-len(spec.points) // workers)))
 
 
+def _clear_sweep(out: Path) -> None:
+    """``--force``: remove a previous sweep's own files from ``out`` (nothing else)."""
+    import shutil
+
+    from fabric_optics.sweep.runner import POINTS_DIR, SUMMARY_NAME, SWEEP_NAME, TASKS_DIR
+
+    if not (out / SWEEP_NAME).is_file():
+        return
+    try:
+        for name in (TASKS_DIR, POINTS_DIR):
+            if (out / name).is_dir():
+                shutil.rmtree(out / name)
+        for name in (SUMMARY_NAME, SWEEP_NAME):
+            (out / name).unlink(missing_ok=True)
+    except OSError as exc:
+        raise _UsageError(f"--out {out}: cannot remove the previous sweep ({exc.strerror})") from None
+
+
 def _sweep_run(args: argparse.Namespace) -> int:
     from gonio.acquisition.plan import PlanError, load_plan
     from gonio.data.dataset import DatasetError, read_dataset
@@ -793,9 +760,9 @@ def _sweep_run(args: argparse.Namespace) -> int:
 
     config = _load_config(args.config)
     try:
-        plan = load_plan(args.geometry)
+        plan = load_plan(args.plan)
     except PlanError as exc:
-        raise _UsageError(f"--geometry: {exc}") from None
+        raise _UsageError(f"--plan: {exc}") from None
     try:
         spec = SweepSpec(config, plan, parse_params(args.param, config), method=args.method,
                          target_rel_err=args.target_rel_err, seed=args.seed, max_photons=args.max_photons,
@@ -808,11 +775,16 @@ def _sweep_run(args: argparse.Namespace) -> int:
         try:
             measured = read_dataset(args.measured)
         except DatasetError as exc:
-            raise _UsageError(f"--measured: {exc}") from None
+            raise _UsageError(f"MEASURED: {exc}") from None
+    if args.force and not args.resume:
+        _clear_sweep(args.out)
     try:
         resumed = prepare_out(args.out, spec, resume=args.resume)
     except SweepError as exc:
         raise _UsageError(str(exc)) from None
+    if resumed and not args.resume:
+        raise _UsageError(f"--out {args.out}: holds this sweep already; pass --resume to continue it (finished "
+                          "tasks are reused) or --force to compute it afresh")
     if not args.verbose:
         # distributed's own logs (cluster start/stop, each failed attempt's traceback, in the
         # workers too: they inherit the environment) are not for users; failures are reported below
@@ -827,7 +799,7 @@ def _sweep_run(args: argparse.Namespace) -> int:
         raise _UsageError(str(exc)) from None
     except KeyboardInterrupt:
         print(f"simulate sweep: interrupted; finished tasks are kept in {args.out / 'tasks'} (run the same command "
-              "again, or with --resume, to continue)", file=sys.stderr)
+              "with --resume to continue)", file=sys.stderr)
         return 130
     finally:
         if client is not None:
@@ -862,13 +834,14 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
     p.add_argument("--method", choices=("classic", "summation", "mc"), required=True, help="fabric model")
     p.add_argument("--out", type=Path, required=True, metavar="FILE.bsdf", help="RGL .bsdf file to write")
-    p.add_argument("--force", action="store_true", help="overwrite FILE if it exists")
+    add_force(p, "FILE.bsdf if it exists")
     p.add_argument("--rgb", action="store_true", help="linear sRGB (D65) values instead of spectra "
                    "(Mitsuba's RGB variants read only RGB files, its spectral variants only spectral ones)")
-    p.add_argument("--wavelengths", metavar="START:STOP:STEP", default=None,
-                   help="spectral bands in nm (default: the config's wavelengths)")
-    p.add_argument("--resolution", type=_int_in(4, 256), default=64, help="values per axis of the warped grid (64)")
-    p.add_argument("--incidences", type=_int_in(2, 64), default=16, help="incidence nodes 0..90 deg, uniform in cos (16)")
+    add_wavelengths(p, "spectral bands")
+    p.add_argument("--resolution", type=_int_in(4, 256), default=64, help="values per axis of the warped grid, "
+                   "4..256 (64)")
+    p.add_argument("--incidences", type=_int_in(2, 64), default=16, help="incidence nodes 0..90 deg, uniform in cos, "
+                   "2..64 (16)")
     p.add_argument("--anisotropic", type=int, choices=(1, 2, 4), default=0, metavar="REDUCTION",
                    help="keep the anisotropy: incidence azimuths over 360/REDUCTION deg, the rest mirrored "
                         "(4: mirror symmetric in x and y, as warp/weft summation; 1: none)")
@@ -881,32 +854,16 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
 def _export_run(args: argparse.Namespace) -> int:
     import time
 
-    import numpy as np
+    from fabric_optics import api
 
-    from gonio.data.bsdf_export import ExportError
-    from simulate.export import export_model
-    from simulate.fabric import FabricError
-
-    config = _load_config(args.config)
-    if args.out.exists() and not args.force:
-        raise _UsageError(f"--out {args.out}: exists; pass --force to overwrite it")
-    wl = None
-    if args.wavelengths:
-        try:
-            a, b, c = (float(x) for x in args.wavelengths.split(":"))
-            wl = np.arange(a, b + 1e-9, c)
-            assert wl.size >= 1 and c > 0
-        except (ValueError, AssertionError):
-            raise _UsageError(f"--wavelengths {args.wavelengths}: expected START:STOP:STEP in nm, "
-                              "e.g. 400:700:10") from None
+    config = api.load_config(args.config)
+    refuse_existing(args.out, args.force)
     started = time.perf_counter()
-    try:
-        result = export_model(config, args.method, args.out, wavelengths_nm=wl, rgb=args.rgb, res=args.resolution,
-                              incidences=args.incidences, target_rel_err=args.target_rel_err, seed=args.seed,
-                              threads=args.threads, max_photons=args.max_photons, check_pairs=args.check,
-                              reduction=args.anisotropic, n_phi_i=args.azimuths, progress=_progress(args))
-    except (ExportError, FabricError) as exc:
-        raise _UsageError(str(exc)) from None
+    result = api.export_bsdf(config, args.out, method=args.method, wavelengths_nm=args.wavelengths, rgb=args.rgb,
+                             resolution=args.resolution, incidences=args.incidences,
+                             target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
+                             max_photons=args.max_photons, check_pairs=args.check, anisotropic=args.anisotropic,
+                             azimuths=args.azimuths, force=args.force, progress=_progress(args))
     err = result.error
     check = ("" if err is None else f"; tabulation error at {err['pairs']} pairs (theta <= 80 deg): "
              f"{err['rms']:.2%} rms, {err['p95']:.2%} p95, {err['max']:.2%} max")
@@ -927,13 +884,14 @@ _TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
-    parser = _Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    parser = Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
+    add_verbose(parser, sub=False)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
     for name, (help_text, add_arguments, _) in COMMANDS.items():
         sp = sub.add_parser(name, help=help_text, description=help_text)
         add_arguments(sp)
+        add_verbose(sp, sub=True)
         if name in _TABLE_CACHE_COMMANDS:
             sp.add_argument("--no-cache", action="store_true", dest="no_cache",
                             help="neither read nor write the table cache (the woven yarn tables, the fit's structured "
@@ -955,7 +913,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     gc.disable()
     try:
         parser = build_parser()
-        args = parser.parse_args(argv)
+        args = common.clean(parser.parse_args(argv))
     finally:
         if collecting:
             gc.enable()
@@ -964,6 +922,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    from fabric_optics.api import InputError, OutputExistsError
     from simulate.montecarlo import ParameterError
 
     _, _, run = COMMANDS[args.command]
@@ -975,7 +934,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             tablecache.max_bytes()   # a bad FABRIC_OPTICS_CACHE_MAX_BYTES: exit 2 now, not after the run
         return run(args)
-    except _UsageError as exc:
+    except (_UsageError, InputError, OutputExistsError) as exc:
         print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except ParameterError as exc:

@@ -140,14 +140,26 @@ Outputs in DIR: ``fitted.toml`` (the fitted config, ready for ``simulate fabric`
 the measured geometries), ``report/`` (``compare report`` of measurement vs initial vs fitted),
 ``fit.json`` (parameters, uncertainties, correlations, objective, warnings, evaluations, walks,
 times) and ``fit-state.json``.
+
+The outputs are written together (:func:`write_outputs`): first all of them into a hidden folder
+``DIR/.outputs-XXXXXXXX.tmp/``, then moved into place, ``fit.json`` first, with Ctrl-C held back
+during the moves (milliseconds). An interrupt or a full disk while they are written leaves the
+previous outputs (none, or those of an earlier run) as they were and the state ``--resume``
+continues from; ``fitted.toml`` is never there without its ``fit.json``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
+import os
 import re
+import shutil
+import signal
+import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -224,18 +236,30 @@ class FitResult:
 
 
 def load_state(out: Path, problem: FitProblem) -> dict | None:
-    """The saved state of an interrupted fit of the same problem, or raise FitError."""
+    """The saved state of an interrupted fit of the same problem, checked field by field
+    (:mod:`fabric_optics.fitting.state`), or raise FitError naming the file and the field."""
+    from fabric_optics.fitting.state import check_number, check_photons, check_point, read_state_json
+
     path = out / STATE_NAME
-    try:
-        state = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    state = read_state_json(path)
+    if state is None:
         return None
-    except (OSError, ValueError) as exc:
-        raise FitError(f"--resume: cannot read {path} ({exc})") from None
     if state.get("schema") != STATE_SCHEMA or state.get("identity") != problem.identity():
         raise FitError(f"--resume: {path} belongs to a different fit (config, measurement, method, seed or "
                        "free parameters differ); use a new --out or drop --resume")
-    return state
+    names = [p.name for p in problem.free]
+    if "names" in state and state["names"] != names:
+        raise FitError(f"--resume: {path}: field 'names' does not list this fit's free parameters ({', '.join(names)}); "
+                       "delete the file or run without --resume to start afresh")
+    for name in ("x", "objective"):
+        if name not in state:
+            raise FitError(f"--resume: {path}: field {name!r} is missing; delete the file or run without --resume "
+                           "to start afresh")
+    return {**state,
+            "x": check_point(path, "x", state["x"], names, problem.low, problem.high),
+            "objective": check_number(path, "objective", state["objective"], low=0.0),
+            "photons": check_photons(path, "photons", state.get("photons")),
+            "evaluations": int(check_number(path, "evaluations", state.get("evaluations", 0), low=0, integer=True))}
 
 
 def jacobian(problem: FitProblem, x: np.ndarray, r0: np.ndarray, fun: Callable) -> np.ndarray:
@@ -297,7 +321,7 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
             start_note = (f"resumed: no point had been accepted; the finished Monte Carlo runs in "
                           f"{out / WALKS_DIR} are read, not walked again")
     if state is not None:
-        x0 = np.clip(np.array(state["x"], float), problem.low, problem.high)
+        x0 = np.array(state["x"], float)   # inside the bounds: load_state refuses a point outside
         problem.photons = state.get("photons")
         start_note = (f"resumed from the last accepted point of {out / STATE_NAME} (objective "
                       f"{state['objective']:.6g})")
@@ -595,7 +619,7 @@ def colour_left_off(problem: FitProblem, dh: float, ds: float, method: str | Non
         helps = (f"the {dye.curve if dye is not None else 'absent'} dye cannot take every colour: --dye knots "
                  "(8 knots started from the measured colour)")
     elif method == "mc":
-        helps = ("more Monte Carlo runs (--resume --max-evaluations N: each run corrects the surrogate's colour "
+        helps = ("more Monte Carlo runs (--resume --max-runs N: each run corrects the surrogate's colour "
                  "again), or start from the summation's fit of the same data (its fitted.toml as CONFIG)")
     else:
         helps = ("a larger --colour-weight (e.g. 10) trades curve error for colour; if the colour stays off, this "
@@ -665,11 +689,48 @@ def _u_fields(u: float, u_data: float, u_mc: float, status: str) -> dict:
     return {"u": float(u), "u_data": float(u_data), "u_mc": float(u_mc), "u_status": ""}
 
 
+#: the outputs of a fit in DIR, in the order they are put in place (module docstring: fit.json first)
+OUTPUT_NAMES = ("fit.json", "fitted.toml", "initial", "fitted", "report")
+_STAGE_PREFIX = ".outputs-"
+
+
+@contextlib.contextmanager
+def _interrupt_held() -> Any:
+    """Hold SIGINT back (main thread only) while the block runs; an interrupt that arrived is logged."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: got.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if got:
+        log.warning("an interrupt arrived while the outputs were being moved into place: they were completed first")
+
+
+def _put_in_place(stage: Path, out: Path) -> None:
+    """Move the staged outputs into ``out`` (module docstring); a replaced folder is moved into ``stage``."""
+    aside = stage / ".replaced"
+    aside.mkdir()
+    with _interrupt_held():
+        for name in OUTPUT_NAMES:
+            new, dest = stage / name, out / name
+            if new.is_dir() and (dest.is_dir() and not dest.is_symlink()):
+                os.replace(dest, aside / name)
+            os.replace(new, dest)
+
+
 def write_outputs(problem: FitProblem, result: FitResult, out: Path) -> dict:
-    """fitted.toml, initial/ and fitted/ datasets, report/ and fit.json in ``out``; returns fit.json."""
+    """fitted.toml, initial/ and fitted/ datasets, report/ and fit.json in ``out``; returns fit.json.
+
+    All are written into a hidden folder of ``out`` first and then moved into place together (module
+    docstring): an exception or an interrupt while writing leaves ``out``'s previous outputs unchanged."""
     from compare.comparison import compare_datasets
+    from compare.errors import CompareError
     from compare.report import write_report
-    from gonio.data.dataset import write_dataset
+    from gonio.data.dataset import atomic_write, write_dataset
     from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
     from simulate.provenance import jsonable, software_versions
 
@@ -683,47 +744,67 @@ def write_outputs(problem: FitProblem, result: FitResult, out: Path) -> dict:
     fitted = problem.dataset(b1, u1, "fitted", {**prov, "rel_err": rel_err["fitted"],
                                                 "rel_err_definition": REL_ERR_DEFINITION,
                                                 "fitted": {p.name: float(v) for p, v in zip(problem.free, result.x)}})
-    write_dataset(initial, out / "initial")
-    write_dataset(fitted, out / "fitted")
-    lines = [f"{problem.config.name} fitted by `simulate fit` ({problem.method} model) to {problem.measured.source}"]
-    fig1 = problem.residual_model().evaluate(b1, u1)
-    off = colour_left_off(problem, float(getattr(fig1, "dh", math.nan)), float(getattr(fig1, "ds", math.nan)))
-    if off:
-        lines.append(f"FAILED: {off}")
-    status = result.info.get("u_status") or [""] * len(problem.free)
-    lines.append("free parameters (value +- standard uncertainty):")
-    lines += [f"  {p.name} = {v:.6g} {uncertainty_text(uu, st)}"
-              for p, v, uu, st in zip(problem.free, result.x, result.u, status)]
-    rule = result.info.get("uncertainty") or {}
-    if rule.get("data") == "residual":
-        lines.append(f"  (no measurement uncertainty: u scaled by the residual, s^2 = SSR/(n - p) = "
-                     f"{rule['s2']:.3g})" if rule.get("s2") is not None else "  (no measurement uncertainty and "
-                     "no degree of freedom: no u)")
-    (out / "fitted.toml").write_text(problem.fitted_toml(result.x, "\n".join(lines)), encoding="utf-8")
-    comparison = compare_datasets(problem.measured, [initial, fitted])
-    write_report(comparison, out / "report", force=True)
-    c0 = _summary(problem.compare(initial))
-    c1 = _summary(problem.compare(fitted))
-    left_off = colour_left_off(problem, c1.get("dh", math.nan), c1.get("ds", math.nan))
-    dh_max, ds_max = COLOUR_TOLERANCE
-    verdict = {"passed": not left_off, "colour": "left off" if left_off else ("ok" if "dh" in c1 else "no colour"),
-               "tolerance": {"dh_turn": dh_max, "ds": ds_max}, "exit_status": EXIT_COLOUR_OFF if left_off else 0}
-    if left_off:
-        verdict["why"] = left_off
-    doc = {
-        "generator": GENERATOR, "method": problem.method, "config": problem.config.name,
-        "measured": str(problem.measured.source),
-        "objective": {"definition": "NRMSE^2 + w_c (dh^2 + ds^2)" + (" + w_l (ln k_Y)^2" if problem.level_weight else ""),
-                      "colour_weight": problem.colour_weight, "level_weight": problem.level_weight,
-                      "start": result.objective_start, "fitted": result.objective},
-        "verdict": verdict, "start": c0, "fitted": c1, "rel_err": rel_err,
-        "parameters": [{"name": p.name, "kind": p.kind, "low": p.low, "high": p.high, "start": p.start,
-                        "value": float(v), **_u_fields(uu, ud, um, st)}
-                       for p, v, uu, ud, um, st in zip(problem.free, result.x, result.u, result.u_data, result.u_mc,
-                                                       status)],
-        "uncertainty": rule,
-        "correlation": result.correlation.tolist(), "warnings": result.warnings, "info": result.info,
-    }
-    doc = jsonable(doc)
-    write_json_atomic(out / "fit.json", doc)
+    for stale in out.glob(f"{_STAGE_PREFIX}*.tmp"):   # a killed earlier write's folder
+        shutil.rmtree(stale, ignore_errors=True)
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=_STAGE_PREFIX, suffix=".tmp", dir=out))
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(out)) from None
+    try:
+        for ds, name in ((initial, "initial"), (fitted, "fitted")):
+            write_dataset(ds, stage / name)
+            ds.path = out / name          # where it will be: the report names it
+        lines = [f"{problem.config.name} fitted by `simulate fit` ({problem.method} model) to {problem.measured.source}"]
+        fig1 = problem.residual_model().evaluate(b1, u1)
+        off = colour_left_off(problem, float(getattr(fig1, "dh", math.nan)), float(getattr(fig1, "ds", math.nan)))
+        if off:
+            lines.append(f"FAILED: {off}")
+        status = result.info.get("u_status") or [""] * len(problem.free)
+        lines.append("free parameters (value +- standard uncertainty):")
+        lines += [f"  {p.name} = {v:.6g} {uncertainty_text(uu, st)}"
+                  for p, v, uu, st in zip(problem.free, result.x, result.u, status)]
+        rule = result.info.get("uncertainty") or {}
+        if rule.get("data") == "residual":
+            lines.append(f"  (no measurement uncertainty: u scaled by the residual, s^2 = SSR/(n - p) = "
+                         f"{rule['s2']:.3g})" if rule.get("s2") is not None else "  (no measurement uncertainty and "
+                         "no degree of freedom: no u)")
+        atomic_write(stage / "fitted.toml", problem.fitted_toml(result.x, "\n".join(lines)).encode("utf-8"))
+        comparison = compare_datasets(problem.measured, [initial, fitted])
+        try:
+            write_report(comparison, stage / "report", force=True)
+        except CompareError as exc:   # the report's own one-line failure (a full disk): its cause
+            if isinstance(exc.__cause__, OSError):
+                raise exc.__cause__ from None
+            raise
+        c0 = _summary(problem.compare(initial))
+        c1 = _summary(problem.compare(fitted))
+        left_off = colour_left_off(problem, c1.get("dh", math.nan), c1.get("ds", math.nan))
+        dh_max, ds_max = COLOUR_TOLERANCE
+        verdict = {"passed": not left_off,
+                   "colour": "left off" if left_off else ("ok" if "dh" in c1 else "no colour"),
+                   "tolerance": {"dh_turn": dh_max, "ds": ds_max}, "exit_status": EXIT_COLOUR_OFF if left_off else 0}
+        if left_off:
+            verdict["why"] = left_off
+        doc = {
+            "generator": GENERATOR, "method": problem.method, "config": problem.config.name,
+            "measured": str(problem.measured.source),
+            "objective": {"definition": "NRMSE^2 + w_c (dh^2 + ds^2)"
+                                        + (" + w_l (ln k_Y)^2" if problem.level_weight else ""),
+                          "colour_weight": problem.colour_weight, "level_weight": problem.level_weight,
+                          "start": result.objective_start, "fitted": result.objective},
+            "verdict": verdict, "start": c0, "fitted": c1, "rel_err": rel_err,
+            "parameters": [{"name": p.name, "kind": p.kind, "low": p.low, "high": p.high, "start": p.start,
+                            "value": float(v), **_u_fields(uu, ud, um, st)}
+                           for p, v, uu, ud, um, st in zip(problem.free, result.x, result.u, result.u_data,
+                                                           result.u_mc, status)],
+            "uncertainty": rule,
+            "correlation": result.correlation.tolist(), "warnings": result.warnings, "info": result.info,
+        }
+        doc = jsonable(doc)
+        atomic_write(stage / "fit.json", (json.dumps(doc, indent=1) + "\n").encode("utf-8"))
+        _put_in_place(stage, out)
+    except OSError as exc:   # one line naming DIR (the hidden folder is gone with what it held)
+        raise OSError(exc.errno, f"{exc.strerror or exc}; the previous outputs are unchanged", str(out)) from None
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     return doc

@@ -51,7 +51,7 @@ photons per row (fixed by the target), the ray tracer the stream ``(seed, chunk)
 four chunks its accuracy control adds -- and the felt the same fiber placement. The difference of
 two runs' objectives is then far less noisy than each.
 
-A felt is a random realisation. The felt's fibers are placed by the seed (:func:`simulate.woven.felt.felt_mesh`),
+A felt is a random realisation. The felt's fibers are placed by the seed (:func:`simulate.nonwoven.felt.felt_mesh`),
 so a fixed seed fits the same realisations at every run (each table half traced on its own, at 8 azimuths:
 :mod:`simulate.woven.estimate`, "A felt"). Before that (one realisation, one azimuth) two other seeds at
 the same parameters differed by 6-16 % RMS in ``beta`` while the run's ``u_beta`` said ~0.9 %; the
@@ -122,6 +122,7 @@ import hashlib
 import json
 import logging
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -312,29 +313,103 @@ def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = Fa
 # ------------------------------------------------------------------------------------------
 # checkpoint
 
+#: the most Monte Carlo runs a state may list (the budget's runs and their trend runs)
+MAX_STATE_RUNS = 1000
+#: the largest run file read back (a run's two tables: tens of kB on a real plan)
+MAX_RUN_BYTES = 64_000_000
+_RUN_FILE = re.compile(r"run-[0-9]{1,4}(-d[0-9]{1,3})?\.npz")
+
+
+def _check_record(path: Path, field: str, rec: Any, problem: MCFitProblem, reach: float = 0.0) -> None:
+    """One run record of the state (its point within the bounds widened by ``reach`` spans, figures, file)."""
+    from fabric_optics.fitting.state import _refuse, check_number, check_point
+
+    if not isinstance(rec, dict):
+        _refuse(path, f"field {field!r} is not an object")
+    for name in ("x", "file", "seconds", "rays", "rel_err", "objective", "nrmse", "dh", "ds"):
+        if name not in rec:
+            _refuse(path, f"field '{field}.{name}' is missing")
+    span = problem.high - problem.low
+    check_point(path, f"{field}.x", rec["x"], [p.name for p in problem.free], problem.low - reach * span,
+                problem.high + reach * span)
+    if not isinstance(rec["file"], str) or not _RUN_FILE.fullmatch(rec["file"]):
+        _refuse(path, f"field '{field}.file' is {json.dumps(rec['file'])[:40]}, not a run file name (run-K.npz)")
+    check_number(path, f"{field}.seconds", rec["seconds"], low=0.0)
+    check_number(path, f"{field}.rays", rec["rays"], low=0, integer=True)
+    check_number(path, f"{field}.objective", rec["objective"], low=0.0)
+    for name in ("rel_err", "nrmse", "dh", "ds"):
+        check_number(path, f"{field}.{name}", rec[name], allow_nan=True)
+
+
+def _check_iterations(path: Path, its: Any, problem: MCFitProblem) -> None:
+    """``mc-state.json``'s ``iterations`` (:mod:`fabric_optics.fitting.state`: refused, naming the field, unless every
+    run and proposal is one of this fit's)."""
+    from fabric_optics.fitting.state import _refuse, check_number, check_point
+
+    if not isinstance(its, list):
+        _refuse(path, f"field 'iterations' is {json.dumps(its)[:40]}, not a list of runs")
+    if len(its) > MAX_STATE_RUNS:
+        _refuse(path, f"field 'iterations' lists {len(its)} runs, more than {MAX_STATE_RUNS}")
+    names = [p.name for p in problem.free]
+    for k, rec in enumerate(its):
+        _check_record(path, f"iterations[{k}]", rec, problem)
+        fine = rec.get("fine_runs")
+        if fine is not None:
+            if not isinstance(fine, dict) or len(fine) > len(names):
+                _refuse(path, f"field 'iterations[{k}].fine_runs' is not an object of at most {len(names)} runs")
+            for j, fr in fine.items():
+                if not (j.isdigit() and int(j) < len(names)):
+                    _refuse(path, f"field 'iterations[{k}].fine_runs' names parameter {j!r}, not one of 0..{len(names) - 1}")
+                _check_record(path, f"iterations[{k}].fine_runs.{j}", fr, problem, reach=1.0)
+        prop = rec.get("proposal")
+        if prop is not None:
+            where = f"iterations[{k}].proposal"
+            if not isinstance(prop, dict) or prop.get("kind") not in ("surrogate fit", "backtrack"):
+                _refuse(path, f"field {where!r} is not a proposal (kind 'surrogate fit' or 'backtrack')")
+            for name in ("x", "u", "surrogate_evaluations"):
+                if name not in prop:
+                    _refuse(path, f"field '{where}.{name}' is missing")
+            check_point(path, f"{where}.x", prop["x"], names, problem.low, problem.high)
+            u = prop["u"]
+            if not isinstance(u, list) or len(u) != len(names):
+                _refuse(path, f"field '{where}.u' is not a list of {len(names)} uncertainties")
+            for j, v in enumerate(u):
+                check_number(path, f"{where}.u[{j}]", v, low=0.0, allow_nan=True)
+            check_number(path, f"{where}.surrogate_evaluations", prop["surrogate_evaluations"], low=0,
+                         high=10**9, integer=True)
+            notes = prop.get("notes", [])
+            if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
+                _refuse(path, f"field '{where}.notes' is not a list of texts")
+
 
 class _State:
     """``DIR/mc-state.json`` and ``DIR/mc-runs/`` (module docstring)."""
 
-    def __init__(self, out: Path | None, identity: str):
+    def __init__(self, out: Path | None, identity: str, shape: tuple | None = None):
         self.out = out
         self.identity = identity
+        #: ``(geometries, wavelengths)`` of a run's table (None: not checked)
+        self.shape = shape
         self.iterations: list[dict] = []
 
-    def load(self) -> None:
+    def load(self, problem: MCFitProblem | None = None) -> None:
+        """The finished runs of ``DIR/mc-state.json``, checked field by field against ``problem``'s free
+        parameters (:mod:`fabric_optics.fitting.state`: a malformed or out-of-bounds state is refused, not repaired)."""
+        from fabric_optics.fitting.state import read_state_json
+
         assert self.out is not None
         path = self.out / MC_STATE
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
+        doc = read_state_json(path)
+        if doc is None:
             raise FitError(f"--resume: nothing to resume in {self.out}: no {MC_STATE} (no Monte Carlo run of "
-                           "this fit had finished); run without --resume") from None
-        except (OSError, ValueError) as exc:
-            raise FitError(f"--resume: cannot read {path} ({exc})") from None
+                           "this fit had finished); run without --resume")
         if doc.get("schema") != MC_SCHEMA or doc.get("identity") != self.identity:
             raise FitError(f"--resume: {path} belongs to a different fit (config, measurement, free parameters, "
                            "seed or --target-rel-err differ); use a new --out or drop --resume")
-        self.iterations = list(doc.get("iterations") or [])
+        its = doc.get("iterations")
+        if problem is not None:
+            _check_iterations(path, its, problem)
+        self.iterations = list(its or [])
 
     def save(self) -> None:
         if self.out is not None:
@@ -351,10 +426,25 @@ class _State:
         return self._load(rec)
 
     def _load(self, rec: dict) -> MCRun | None:
+        """The run ``rec`` names, or None (it is run again) when its file is missing, unreadable, not a regular
+        file of at most :data:`MAX_RUN_BYTES`, or holds arrays that are not two equal, finite tables."""
+        import os
+        import stat
+
+        path = self.out / MC_RUNS_DIR / rec["file"]  # type: ignore[operator]
         try:
-            with np.load(self.out / MC_RUNS_DIR / rec["file"]) as z:  # type: ignore[operator]
-                beta, u = z["beta"].copy(), z["u_beta"].copy()
+            st = os.stat(path)
+            if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_RUN_BYTES:
+                log.warning("%s is not a Monte Carlo run of this fit (not a regular file of at most %d bytes): run "
+                            "again", path, MAX_RUN_BYTES)
+                return None
+            with np.load(path) as z:
+                beta, u = np.asarray(z["beta"], float).copy(), np.asarray(z["u_beta"], float).copy()
         except (OSError, ValueError, KeyError, TypeError):
+            return None
+        if beta.ndim != 2 or beta.shape != u.shape or not (np.all(np.isfinite(beta)) and np.all(np.isfinite(u))) \
+                or (self.shape is not None and beta.shape != self.shape):
+            log.warning("%s does not hold a finite Monte Carlo table of this fit's shape: run again", path)
             return None
         return MCRun(x=np.asarray(rec["x"], float), beta=beta, u_beta=u, seconds=rec["seconds"], rays=rec["rays"],
                      rel_err=rec["rel_err"], objective=rec["objective"], nrmse=rec["nrmse"], dh=rec["dh"],
@@ -365,12 +455,21 @@ class _State:
         if self.out is not None:
             import os
 
+            from fabric_optics.fitting.state import remove_quietly, write_failed
+
             d = self.out / MC_RUNS_DIR
-            d.mkdir(parents=True, exist_ok=True)
             rec["file"] = f"{name}.npz"
             tmp = d / f".{name}.tmp.npz"
-            np.savez(tmp, x=run.x, beta=run.beta, u_beta=run.u_beta)
-            os.replace(tmp, d / rec["file"])
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+                np.savez(tmp, x=run.x, beta=run.beta, u_beta=run.u_beta)
+                os.replace(tmp, d / rec["file"])
+            except OSError as exc:
+                remove_quietly(tmp)
+                raise FitError(write_failed(d / rec["file"], exc)) from None
+            except BaseException:
+                remove_quietly(tmp)
+                raise
         return rec
 
     def put_run(self, k: int, run: MCRun) -> None:
@@ -401,12 +500,16 @@ class _State:
 
 def left_behind(out: Path) -> str:
     """What an interrupted Monte Carlo fit left in ``out`` (only what exists)."""
+    from fabric_optics.fitting.state import read_state_json
+
     try:
-        its = json.loads((out / MC_STATE).read_text(encoding="utf-8")).get("iterations") or []
-    except (OSError, ValueError):
+        its = (read_state_json(out / MC_STATE) or {}).get("iterations") or []
+    except FitError:
+        its = []
+    if not isinstance(its, list):
         its = []
     if its:
-        props = sum(1 for it in its if it.get("proposal"))
+        props = sum(1 for it in its if isinstance(it, dict) and it.get("proposal"))
         return (f"{len(its)} finished Monte Carlo run(s) and {props} proposal(s) fitted from them are in "
                 f"{out / MC_STATE} and {out / MC_RUNS_DIR} (continue with --resume)")
     return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
@@ -491,11 +594,11 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     t0 = time.perf_counter()
     problem.out = out
     start = problem.start.copy()
-    state = _State(out, problem.identity())
+    state = _State(out, problem.identity(), (len(problem.geometries), problem.wavelengths_nm.size))
     if resume:
         if out is None:
             raise FitError("--resume needs the output directory of the interrupted fit (--out)")
-        state.load()
+        state.load(problem)
     runs: list[MCRun] = []
     iterations: list[dict] = []
     x = start.copy()

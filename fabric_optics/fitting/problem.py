@@ -308,8 +308,8 @@ class FitProblem:
         if self.level_weight and self.measured.relative:
             raise FitError("--absolute: the measurement is relative (\"relative\": true, raw units): it has no absolute "
                            "level to fit; drop --absolute")
-        if self.method == "summation" and self.config.method == "bssrdf":
-            raise FitError("the summation fit needs the nee or beam fiber route (method.method in the config)")
+        if self.method == "summation" and self.config.route == "bssrdf":
+            raise FitError("the summation fit needs the nee or beam fiber route (fiber.route in the config)")
         self._doc = tomllib.loads(self.config.text)
         if self.seed is None:
             self.seed = self.config.seed
@@ -321,16 +321,14 @@ class FitProblem:
         self.notes: list[str] = []
         spec = getattr(self.config, "structure", None)
         #: the structured summation of simulate fabric (fabric_optics.fitting.structure) instead of the top-cell carpet
-        self.structured = self.method == "summation" and spec is not None and spec.cells == "visible"
-        if self.method == "summation" and spec is not None and not self.structured:
-            self.notes.append("[structure] cells = \"top\": the fit's summation is the carpet of top cells")
+        self.structured = self.method == "summation" and spec is not None
         fine = [p.name for p in self.free if p.kind == "fine"]
         if fine and not self.fine_capable:
             raise FitError(f"--free {fine[0]}: only the Monte Carlo sees the rough boundary for transmitted light "
                            f"(the {self.method} model walks the smooth one, docs/physics.md 3); fit it with --method mc")
         if any(p.kind == "structure" for p in self.free) and not self.structured:
-            raise FitError("--free structure.*: structure parameters need --method summation and a config whose "
-                           "[structure] has cells = \"visible\"")
+            raise FitError("--free structure.*: structure parameters need --method summation and a config with "
+                           "a [structure] section")
         if self.structured:
             # the interior closure's surface share is computed at the starting RMS slope (fabric_optics.fitting.structure)
             self._roughness = float(self.config.rms_slope)
@@ -542,7 +540,7 @@ class FitProblem:
         else:
             w_in = self.pairs.w_in
             outputs = fib.point_outputs(self.pairs.w_out, nodye.half_width)
-            route = self.config.method
+            route = self.config.route
         nodes = absorption_nodes(self.nu_max, self.nodes)
         cache = None
         if self.out is not None:

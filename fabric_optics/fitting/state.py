@@ -15,31 +15,188 @@ be deleted at any time.
 
 State file
 ----------
-``DIR/fit-state.json``: the last accepted point (see :mod:`fabric_optics.fitting.driver`).
+``DIR/fit-state.json``: the last accepted point (see :mod:`fabric_optics.fitting.driver`); ``DIR/mc-state.json``: the
+Monte Carlo fit's finished runs (:mod:`fabric_optics.fitting.mc`).
+
+``--resume`` trusts neither blindly (:func:`read_state_json`, :func:`check_point`): the file must be a
+regular file (a symbolic link to one is followed; a FIFO, device or directory is refused without being
+opened for a blocking read) of at most :data:`MAX_STATE_BYTES`, hold a JSON object of nesting at most
+:data:`MAX_DEPTH` levels and a finite number of the right kind in every field that needs one (NaN is
+accepted only where a run records a figure it could not compute), and its point must have one finite
+value per free parameter, inside the parameter's bounds. A state that breaks any of these
+is refused with one line naming the file and the field (exit 2): a value out of bounds is not clamped
+and a malformed one is not replaced by the start, since either would resume a fit the file does not
+describe. Deleting the file (or running without ``--resume``) starts afresh.
+
+Writes
+------
+Every file is written to a temporary file beside it and renamed. A write that fails (a full disk)
+removes its temporary file and is one :class:`~fabric_optics.fitting.problem.FitError` line naming the file; what
+was written before stays (``--resume`` continues from it).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
+import stat
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-__all__ = ["WALKS_DIR", "WalkCheckpoint", "write_json_atomic"]
+__all__ = ["WALKS_DIR", "MAX_STATE_BYTES", "MAX_DEPTH", "MAX_RUN_PHOTONS", "WalkCheckpoint", "write_json_atomic",
+           "read_state_json", "check_point", "check_number", "check_photons", "write_failed", "remove_quietly"]
 
 WALKS_DIR = "walks"
+#: the largest state file ``--resume`` reads (a fit's state is a few kB; a Monte Carlo fit's tens of kB)
+MAX_STATE_BYTES = 1_000_000
+#: the deepest nesting of lists and objects a state file may have (a fit's state has 4 levels)
+MAX_DEPTH = 16
+#: the most photons one recorded run may ask for on resume: the default budget ``100 / target^2`` of a
+#: target of 0.0003, far tighter than any fit's (a fit's runs are capped by that budget of their target)
+MAX_RUN_PHOTONS = 10**9
+
+
+def remove_quietly(path: Path) -> None:
+    """Remove ``path`` if it is there (a temporary file after a failed write)."""
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def write_failed(path: Path, exc: OSError) -> str:
+    """One line for a state or checkpoint file that could not be written."""
+    return (f"{path}: cannot write ({exc.strerror or exc}); what the fit saved before is kept: free space (or "
+            "choose another --out) and continue with --resume")
 
 
 def write_json_atomic(path: Path, doc: dict) -> None:
-    """``doc`` as JSON at ``path``, written to a temporary file, fsynced and renamed."""
+    """``doc`` as JSON at ``path``, written to a temporary file, fsynced and renamed. A failed write
+    (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.problem.FitError`."""
+    from fabric_optics.fitting.problem import FitError
+
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(doc, fh, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=1)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        remove_quietly(tmp)
+        raise FitError(write_failed(path, exc)) from None
+    except BaseException:
+        remove_quietly(tmp)
+        raise
+
+
+def _refuse(path: Path, what: str) -> None:
+    from fabric_optics.fitting.problem import FitError
+
+    raise FitError(f"--resume: {path}: {what}; delete the file or run without --resume to start afresh")
+
+
+def _depth(doc: Any, limit: int) -> int:
+    """The nesting depth of ``doc`` (iterative: a deep document cannot exhaust the stack), at most ``limit + 1``."""
+    deepest, stack = 0, [(doc, 1)]
+    while stack:
+        item, d = stack.pop()
+        if isinstance(item, (list, dict)):
+            deepest = max(deepest, d)
+            if deepest > limit:
+                return deepest
+            stack.extend((v, d + 1) for v in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
+def read_state_json(path: Path) -> dict | None:
+    """The JSON object in the state file ``path`` (module docstring), None if there is none; refuses
+    anything else with :class:`~fabric_optics.fitting.problem.FitError` naming the file."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        if os.path.islink(path):
+            _refuse(path, f"is a symbolic link to a missing target ({os.readlink(path)})")
+        return None
+    except OSError as exc:
+        _refuse(path, f"cannot be opened ({exc.strerror})")
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a directory" if stat.S_ISDIR(st.st_mode)
+                    else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file")
+            _refuse(path, f"is {kind}{' (through a symbolic link)' if os.path.islink(path) else ''}, not a state file")
+        if st.st_size > MAX_STATE_BYTES:
+            _refuse(path, f"is {st.st_size:,} bytes, more than a state file's limit of {MAX_STATE_BYTES:,}")
+        with os.fdopen(fd, "rb") as fh:
+            fd = -1
+            raw = fh.read(MAX_STATE_BYTES + 1)
+    except OSError as exc:
+        _refuse(path, f"cannot be read ({exc.strerror})")
+    finally:
+        if fd >= 0:
+            os.close(fd)
+    if len(raw) > MAX_STATE_BYTES:
+        _refuse(path, f"holds more than a state file's limit of {MAX_STATE_BYTES:,} bytes")
+    try:
+        doc = json.loads(raw.decode("utf-8"))
+    except RecursionError:
+        _refuse(path, f"is nested deeper than a state file's {MAX_DEPTH} levels")
+    except (UnicodeDecodeError, ValueError) as exc:
+        _refuse(path, f"is not valid JSON ({exc})")
+    if not isinstance(doc, dict):
+        _refuse(path, f"holds a JSON {type(doc).__name__ if doc is not None else 'null'}, not the state's object")
+    if _depth(doc, MAX_DEPTH) > MAX_DEPTH:
+        _refuse(path, f"is nested deeper than a state file's {MAX_DEPTH} levels")
+    return doc
+
+
+def check_number(path: Path, field: str, value: Any, *, low: float = -math.inf, high: float = math.inf,
+                 integer: bool = False, allow_nan: bool = False) -> float:
+    """``value`` as a number in ``[low, high]`` (finite unless ``allow_nan`` lets NaN through), or refuse it
+    naming ``path`` and ``field``."""
+    kind = "an integer" if integer else "a number"
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
+        _refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not {kind}")
+    v = float(value) if not integer else value
+    if isinstance(v, float) and math.isnan(v) and allow_nan:
+        return v
+    if isinstance(v, float) and not math.isfinite(v):
+        _refuse(path, f"field {field!r} is {v}, not a finite number")
+    if not low <= v <= high:
+        _refuse(path, f"field {field!r} is {v:g}, outside [{low:g}, {high:g}]")
+    return float(v)
+
+
+def check_point(path: Path, field: str, value: Any, names: list[str], low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """``value`` as a point of the free parameters ``names``: one finite number each, inside its bounds
+    (not clamped: a point outside is refused naming ``path``, ``field`` and the parameter)."""
+    if not isinstance(value, list):
+        _refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not a list of {len(names)} number(s)")
+    if len(value) != len(names):
+        _refuse(path, f"field {field!r} has {len(value)} entries; this fit has {len(names)} free parameter(s) "
+                      f"({', '.join(names)})")
+    x = np.empty(len(names))
+    for j, (v, name, lo, hi) in enumerate(zip(value, names, low, high)):
+        x[j] = check_number(path, f"{field}[{j}] ({name})", v, low=float(lo), high=float(hi))
+    return x
+
+
+def check_photons(path: Path, field: str, value: Any) -> dict | None:
+    """The recorded photons of a state: None, or an object of run keys to photon counts (at most
+    :data:`MAX_RUN_PHOTONS` a run)."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        _refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not an object of photon counts")
+    for key, n in value.items():
+        check_number(path, f"{field}.{key}"[:60], n, low=0 if key in ("exit_tables", "per_row") else 1,
+                     high=MAX_RUN_PHOTONS if ":" in key else 10**15, integer=True)
+    return dict(value)
 
 
 class WalkCheckpoint:
@@ -67,11 +224,20 @@ class WalkCheckpoint:
         return found
 
     def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
-        self.dir.mkdir(parents=True, exist_ok=True)
+        from fabric_optics.fitting.problem import FitError
+
         path = self._path(key)
         tmp = path.with_name(f".{path.stem}.tmp.npz")
-        np.savez(tmp, value=value, u=u, photons=np.int64(photons), scatterings=np.float64(scatterings))
-        os.replace(tmp, path)
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            np.savez(tmp, value=value, u=u, photons=np.int64(photons), scatterings=np.float64(scatterings))
+            os.replace(tmp, path)
+        except OSError as exc:
+            remove_quietly(tmp)
+            raise FitError(write_failed(path, exc)) from None
+        except BaseException:
+            remove_quietly(tmp)
+            raise
 
     def count(self) -> int:
         """Runs of any walk on disk."""

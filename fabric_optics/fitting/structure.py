@@ -5,7 +5,10 @@ r"""The structured summation in ``simulate fit``: one walk per lattice point, an
 (:func:`simulate.fiber.farfield.exit_table`), their layer tables with the interior closure
 (:mod:`simulate.fabric.fiberlayer`, :mod:`simulate.fabric.interior`) and the facet sum over the
 fabric's visible fiber orientations (:mod:`simulate.fabric.structure`). The fit evaluates the SAME
-model, split by what each free parameter changes:
+model from the same steps -- :func:`~simulate.fabric.structure.layer_table_of` (layer table with the
+closure), :func:`~simulate.fabric.structure.surface_layer_table`, :func:`simulate.fabric.structtable.facet_sum`
+(the facet sum of :func:`~simulate.fabric.structure.fabric_beta_from_G`), :func:`~simulate.fabric.structure.mean_of_halves` and
+:func:`~simulate.fabric.structure.interior_layers` -- split by what each free parameter changes:
 
 * **dye** (host absorption): every exit-table walk is white (absorption applied per path), so the
   exit table is scored at the ``K`` host-absorption nodes of :mod:`simulate.fiber.absorption` at
@@ -38,7 +41,7 @@ Disk cache. Each (half, chunk) layer table is stored in :mod:`simulate.fiber.tab
 atomic writes, checksums and size bound) under :func:`walk_key`: the content hash of the fiber
 WITHOUT dye, the walk's part of ``[structure]``, wavelengths, nodes, photons per row, seed and the
 code (:data:`WALK_MODULES`). The walk is white, so the dye is not in the key: another colour of the
-same felt (a dye-only refit after the structure was fitted: issue 20's "structure transfer"),
+same felt (a dye-only refit after the structure was fitted: the "structure transfer"),
 ``--resume``, the Monte Carlo fit's surrogate (:mod:`fabric_optics.fitting.mc`) and any re-run read it. The
 felt's walk is 17 wavelengths x 16 nodes x ~55 000 grid values x 8 bytes x 2 halves = 240 MB (the
 default bound, 2 GiB, holds 8 of them).
@@ -101,16 +104,12 @@ def facets_of(config: Any) -> Any:
 
 
 def surface_beta(config: Any, facets: Any, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
-    """``beta [N]`` of the layers' surface term (Cook-Torrance with masking) summed over ``facets``."""
-    from simulate.fabric.fiberlayer import LayerTable, layer_grid, surface_table
-    from simulate.fabric.structtable import facet_sum
+    """``beta [N]`` of the layers' surface term (Cook-Torrance with masking) summed over ``facets``
+    (:func:`simulate.fabric.structure.surface_layer_table` through :func:`~simulate.fabric.structure.fabric_beta_from_G`)."""
+    from simulate.fabric.structure import fabric_beta_from_G, surface_layer_table
 
-    spec = config.structure
-    th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
-    G = surface_table(float(config.rms_slope), float(config.n_host), bool(spec.masking), float(spec.spacing_ratio),
-                      7.5, 15.0)[..., None]
-    lt = LayerTable(th, ph_i, th, ph_o, np.ascontiguousarray(G), spec.masking, spec.spacing_ratio)
-    return math.pi * facet_sum(lt, facets, w_i, w_o)[:, 0] / (w_i[:, 2] * w_o[:, 2])
+    lt = surface_layer_table(config.structure, config.rms_slope, config.n_host)
+    return fabric_beta_from_G(lt, facets, w_i, w_o)[:, 0]
 
 
 @dataclass
@@ -123,7 +122,6 @@ class StructWalk:
 
     G: list
     grid: tuple
-    masking: bool
     spacing_ratio: float
     nodes: np.ndarray
     wavelengths_nm: np.ndarray
@@ -167,14 +165,15 @@ class StructWalk:
             return self._tables[key]
         from simulate.fabric.fiberlayer import LayerTable
         from simulate.fabric.structtable import facet_sum
+        from simulate.fabric.structure import mean_of_halves
 
+        # the compiled facet sum of simulate.fabric.structure.fabric_beta_from_G, times pi / (cos_i cos_o)
         th, ph_i, th_o, ph_o = self.grid
         scale = math.pi / (w_i[:, 2] * w_o[:, 2])[:, None]
-        betas = [scale * facet_sum(LayerTable(th, ph_i, th_o, ph_o, G, self.masking, self.spacing_ratio), facets,
-                                   w_i, w_o) for G in self.G]
         N, L, K = w_i.shape[0], self.wavelengths_nm.size, self.nodes.size
-        b = [x.reshape(N, L, K) for x in betas]
-        R, u = 0.5 * (b[0] + b[1]), 0.5 * np.abs(b[0] - b[1])
+        b = [(scale * facet_sum(LayerTable(th, ph_i, th_o, ph_o, G, True, self.spacing_ratio), facets, w_i, w_o))
+             .reshape(N, L, K) for G in self.G]
+        R, u = mean_of_halves(b[0], b[1])
         wl = self.wavelengths_nm
         if wavelengths_nm is not None and not np.array_equal(np.asarray(wavelengths_nm, float), wl):
             target = np.asarray(wavelengths_nm, float)
@@ -263,7 +262,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     and seed, never the dye or the facets: another colour of the same felt, ``--resume``, the Monte
     Carlo fit's surrogate and a second run read it instead of walking (a hit is bit-identical).
 
-    Threads (issue 21, fifth stop; details in :mod:`fabric_optics.fitting.walk_threads`). The entries not in the cache
+    Threads (details in :mod:`fabric_optics.fitting.walk_threads`). The entries not in the cache
     run two at a time on threads, ``threads // 2`` kernel threads each (``threads=None``: the cores, and a
     second worker only when a core is idle: with the other core busy two threads cost ~2 CPU s more and
     were slower); ``threads=1`` is the serial walk. Why threads: ~70 % of a cold walk was one core's work
@@ -353,7 +352,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
             scatterings[f"0:{len(groups_global)}"] = float(n)
             groups_global.append(chunk[g])
     photons = sum(int(v["photons"]) for v in small.values())
-    walk = StructWalk(G=halves, grid=(th, ph_i, th, ph_o), masking=spec.masking, spacing_ratio=spec.spacing_ratio,
+    walk = StructWalk(G=halves, grid=(th, ph_i, th, ph_o), spacing_ratio=spec.spacing_ratio,
                       nodes=nodes, wavelengths_nm=wl, photons={"exit_tables": photons, "per_row": per_row},
                       seconds=time.perf_counter() - t0, scatterings=scatterings, groups=groups_global,
                       layers=n_layers, optics_fn=lambda: spectral_optics(fiber, wl))
@@ -364,11 +363,10 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
 def walk_layers(config: Any, fiber: Any) -> int:
     """The interior closure's number of layers (``[structure] layers``, else 10 for a felt, else the weave's height)."""
     from simulate.config import weave_from_config
+    from simulate.fabric.structure import interior_layers
 
     spec = config.structure
-    weave = weave_from_config(config) if spec.kind == "woven" else None
-    return int(spec.layers or (10 if spec.kind == "nonwoven" or weave is None
-                               else max(1, round(weave.height_um / fiber.radius_um))))
+    return interior_layers(spec, weave_from_config(config) if spec.kind == "woven" else None, fiber.radius_um)
 
 
 #: ``[structure]`` fields that change only the facets (the facet sum of :meth:`StructWalk.table`), not the walk:
@@ -379,7 +377,7 @@ FACET_ONLY_FIELDS = ("felt_spread_deg", "warp_twist_deg", "weft_twist_deg", "war
 #: the closure and this module (an edit to any of them is a miss, never a stale walk)
 WALK_MODULES = EXIT_TABLE_MODULES + (
     "simulate.fiber.absorption", "simulate.optics.microfacet", "simulate.fabric.fiberlayer",
-    "simulate.fabric.interior", "simulate.fabric.adding", "simulate.fabric.structure", "fabric_optics.fitting.structure",
+    "simulate.fabric.interior", "simulate.fabric.structure", "fabric_optics.fitting.structure",
 )
 
 
@@ -438,8 +436,7 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
     ``spare``: a list of flat float64 buffers to take the exit table's memory from and give it back to (the
     table, ~0.6 GB on the felt, is written whole by the rows -- every node, row and wavelength group -- so
     a used buffer needs no zeroing; a fresh one per entry cost its page faults: ~1 s of system time)."""
-    from simulate.fabric.fiberlayer import layer_table
-    from simulate.fabric.interior import interior
+    from simulate.fabric.structure import layer_table_of
     from simulate.fiber import farfield as FF
     from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
     from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
@@ -484,12 +481,7 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
     _symmetrise(T)
     table = FF.ExitTable(w_t=w_t, T=T, u_T=np.zeros(1), k=np.array(ks), radius_um=fiber.radius_um,
                          wavelengths_nm=np.repeat(wl, K), n_host=float(fiber.n_host))
-    inner = None
-    if spec.interior and spec.masking:
-        inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio,
-                         directional=spec.interior_return == "directional", tick=tick)
-    lt = layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner,
-                     surface=False, tick=tick)
+    lt = layer_table_of(spec, table, fiber, n_layers, surface=False, tick=tick)
     del table, T
     if spare is not None:
         spare.append(flat)

@@ -2,7 +2,7 @@
 
 A dask scheduler executes whatever a connected client submits, as the user who started the
 workers. A plain ``tcp://127.0.0.1`` scheduler therefore runs code for *any* local process that
-finds its port (issue 23). The rules here:
+finds its port. The rules here:
 
 - **Local cluster** (the default): :func:`local_cluster` starts the ``LocalCluster`` on
   ``tls://127.0.0.1`` with :meth:`distributed.security.Security.temporary` - a throw-away CA and

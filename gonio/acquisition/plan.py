@@ -91,8 +91,8 @@ controller's millidegree, with the in-plane curves, wavelengths and settings of 
 azimuths around the source direction at every oblique incidence), so that the opposition ratio can be
 measured. A file evaluated at such a plan is read at its measured incidences; at any other incidence
 the file is interpolated between its tables (the datasets say which, ``incidences`` in meta.json:
-:func:`gonio.data.formats.rgl_bsdf.incidence_meta`). ``gonio demo --plan measured``, ``gonio truth FILE measured`` and ``gonio
-import rgl-bsdf FILE --geometry measured`` build it from the sample file; a ``.bsdf`` path given as the
+:func:`gonio.data.formats.rgl_bsdf.incidence_meta`). ``gonio demo --plan measured``, ``gonio truth FILE --plan measured`` and ``gonio
+import rgl-bsdf FILE --plan measured`` build it from the sample file; a ``.bsdf`` path given as the
 plan does too (:func:`load_plan`).
 
 Before any acquisition the plan is checked (:meth:`Plan.check`, the same rules ``gonio

@@ -25,7 +25,8 @@ from gonio.data.colour import (ColourSummary, display_srgb, hue_difference, rgb_
 from gonio.data.dataset import (CHANNELS, COLUMNS, CSV_NAME, DEFAULT_COLOUR_SPACE, GEOMETRY,
                                 META_NAME, RGB_COLUMNS, SCHEMA, Dataset, DatasetError,
                                 atomic_write, make_dataset, new_meta, read_dataset,
-                                remove_stale_temp_files, write_dataset)
+                                remove_stale_temp_files, write_dataset,
+                                write_files_together)
 from gonio.data.geometry import (beam_blocked, direction, in_plane_geometry, signed_angle,
                                  spherical_angles)
 from gonio.data.interpolate import interpolate
@@ -36,5 +37,5 @@ __all__ = [
     "beam_blocked", "direction", "display_srgb", "hue_difference", "in_plane_geometry",
     "interpolate", "make_dataset", "new_meta", "read_dataset", "remove_stale_temp_files",
     "rgb_colour", "signed_angle", "spectrum_colour", "spectrum_to_rgb", "spherical_angles",
-    "write_dataset",
+    "write_dataset", "write_files_together",
 ]

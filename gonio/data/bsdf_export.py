@@ -526,6 +526,10 @@ def export_bsdf(brdf: BRDF, out: str | os.PathLike, *, wavelengths_nm: npt.Array
         err = tabulation_error(brdf, fields, n_pairs=check_pairs, seed=seed, azimuths_deg=azimuths_deg)
         prov["tabulation_error"] = err
         fields["provenance"] = np.frombuffer(json.dumps(prov, default=str).encode(), np.uint8).copy()
-    write_tensor_file(out, fields)
+    try:
+        write_tensor_file(out, fields)   # atomic: a failed write leaves no file and no temporary file
+    except OSError as exc:
+        raise ExportError(f"{out}: cannot write ({exc.strerror or exc}); no file was written (an existing one is "
+                          "unchanged): free space or choose another --out") from None
     valid = np.unpackbits(fields["valid"])
     return ExportResult(str(out), fields, n_eval, float(valid.mean()), err, prov)

@@ -58,6 +58,7 @@ import math
 import os
 import platform
 import re
+import shutil
 import stat
 import tempfile
 from pathlib import Path
@@ -625,6 +626,66 @@ def atomic_write(path: str | os.PathLike, data: bytes) -> None:
         except FileNotFoundError:
             pass
         raise
+
+
+def write_files_together(out_dir: str | os.PathLike, files: Mapping[str, bytes]) -> list[Path]:
+    """Write ``files`` (path relative to ``out_dir`` -> bytes) into ``out_dir`` together; return their paths.
+
+    Every file is written and fsynced into a hidden folder ``out_dir/.writing-XXXXXXXX.tmp/`` first and
+    only then renamed into place, so a write that fails (a full disk) leaves ``out_dir`` as it was:
+    the staged files are removed, as are the folders this call created; files already in ``out_dir``
+    are replaced only once every new one is on disk. The :class:`OSError` raised names the file
+    (its final path) whose write failed.
+    """
+    out = Path(out_dir)
+    rel = {Path(name): data for name, data in files.items()}
+    for r in rel:
+        if r.is_absolute() or ".." in r.parts or not r.parts:
+            raise ValueError(f"{r}: not a file name inside {out}")
+    created: list[Path] = []
+    for d in [out, *sorted({out / r.parent for r in rel if r.parent != Path(".")})]:
+        missing = [a for a in [d, *d.parents] if not a.exists()][::-1]
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            _remove_empty(created + missing)
+            raise OSError(exc.errno, exc.strerror, str(d)) from None
+        created += missing
+    umask = os.umask(0)
+    os.umask(umask)
+    stage = None
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=".writing-", suffix=".tmp", dir=out))
+        for r, data in rel.items():
+            tmp = stage / r
+            try:
+                tmp.parent.mkdir(parents=True, exist_ok=True)
+                with open(tmp, "wb") as handle:
+                    handle.write(data)
+                    handle.flush()
+                    os.fsync(handle.fileno())
+                os.chmod(tmp, 0o666 & ~umask)
+            except OSError as exc:
+                raise OSError(exc.errno, exc.strerror, str(out / r)) from None
+        for r in rel:
+            os.replace(stage / r, out / r)
+    except BaseException:
+        if stage is not None:
+            shutil.rmtree(stage, ignore_errors=True)
+        _remove_empty(created)
+        raise
+    shutil.rmtree(stage, ignore_errors=True)
+    _fsync_dir(out)
+    return [out / r for r in rel]
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove the ``folders`` (deepest first) that are empty: those a failed write created."""
+    for d in sorted(set(folders), key=lambda p: len(p.parts), reverse=True):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
 
 
 #: Names of :func:`atomic_write`'s temporary files for a dataset's two files: ``mkstemp`` with

@@ -1,6 +1,6 @@
 """One retry policy for both devices: an adaptive, bounded budget, per-link backoff, counted per kind.
 
-Adaptive budget (issue 23: with every fault kind of the mock at 0.1, about 47 % of the head's
+Adaptive budget (with every fault kind of the mock at 0.1, about 47 % of the head's
 exchanges fail, and six attempts per command ran out within a few points):
 
 - **Per link** (``"serial"``, ``"modbus"``) the policy keeps the outcomes of every attempt and

@@ -47,7 +47,7 @@ Samples
     the measurement itself bounds the near-normal gloss to about 0.01.) Both terms are
     non-negative and reciprocal.
 
-    Angular character of a real fabric (issue 20: the real felt rises 7x towards the forward
+    Angular character of a real fabric (the real felt rises 7x towards the forward
     grazing direction at 60 deg incidence and has a backscatter lobe): two more reciprocal,
     non-negative terms, and the diffuse lobe giving up energy to them at grazing angles, all
     three nothing at normal incidence or observation (``u = sin theta_i sin theta_o = 0``), so
@@ -74,8 +74,7 @@ Samples
     The mock's photometer is spectral; an RGB sample answers at wavelength ``lambda`` with the
     spectrum whose colour is the file's RGB at that geometry: the spectral primary
     decomposition of Mallett & Yuksel (2019), linear in the RGB (:mod:`gonio.mock.upsample`,
-    which says why; until the seventh stop a three-band view, whose steps were not the file's
-    colour). A spectral ``.bsdf`` or dataset is interpolated linearly in wavelength.
+    which says why; a three-band view's steps would not have the file's colour). A spectral ``.bsdf`` or dataset is interpolated linearly in wavelength.
 
 The white standard of the mock is Lambertian with a flat calibrated radiance factor
 :data:`WHITE_REFERENCE_BETA` (:func:`reference_beta`).

@@ -257,14 +257,9 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
     fabric, ``A_ret(w_i) (w_i . m)(w_o . m) / pi`` (docs/physics.md section 6.3). ``tick``: called before each
     incident direction (the fit's walk stops there when interrupted: :mod:`fabric_optics.fitting.walk_threads`).
     """
-    from simulate.fabric.interior import layer_energy
-
     t0 = time.perf_counter()
     th, ph_i, ph_o, w_out = layer_grid(step_deg, phi_step_deg)
     G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, table.T.shape[-1]))
-    if interior is not None and getattr(interior, "directional", False):
-        return _directional_layer_table(table, fiber, interior, spacing_ratio, step_deg, phi_step_deg, n_sub, surface, t0,
-                                        tick)
     for a, t_i in enumerate(th):
         for b, p_i in enumerate(ph_i):
             if tick is not None:
@@ -276,8 +271,8 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
             g = layer_G(table, fiber, w_in, w_out, masking=masking, spacing_ratio=spacing_ratio, n_sub=n_sub,
                         surface=False, radiance=radiance)
             if interior is not None:   # interior needs masking: the same lit radiance
-                ret = interior.returned(layer_energy(table, fiber, w_in, interior.classes, spacing_ratio=spacing_ratio,
-                                                     n_sub=n_sub, radiance=radiance))
+                ret = interior.returned_for_beam(table, fiber, w_in, spacing_ratio=spacing_ratio, n_sub=n_sub,
+                                                 radiance=radiance)
                 g += ret[None, :] * w_in[2] * w_out[:, 2:3] / math.pi
             G[a, b] = g.reshape(th.size, ph_o.size, -1)
             if t_i == 0.0:
@@ -287,63 +282,6 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
         G += surface_table(float(fiber.roughness), float(fiber.n_host), bool(masking), float(spacing_ratio),
                            float(step_deg), float(phi_step_deg))[..., None]
     return LayerTable(th, ph_i, th, ph_o, G, masking, float(spacing_ratio), time.perf_counter() - t0, interior)
-
-
-def _directional_layer_table(table: ExitTable, fiber: Any, interior: Any, spacing_ratio: float, step_deg: float,
-                             phi_step_deg: float, n_sub: int, surface: bool, t0: float,
-                             tick: Callable[[], None] | None = None) -> LayerTable:
-    """:func:`layer_table` with the interior return's first order resolved in angle (:mod:`simulate.fabric.adding`):
-    ``G = G_layer + (A_ret - s E_D) (w_i . m)(w_o . m) / pi + s (w_i . m) D``, ``s = min(1, A_ret / E_D)`` per channel:
-    the closure fixes how much light comes back, the adding where its first order goes."""
-    from simulate.fabric.adding import Adding, down_operator, hemisphere
-    from simulate.fabric.interior import layer_energy
-
-    th, ph_i, ph_o, w_out = layer_grid(step_deg, phi_step_deg)
-    L = table.T.shape[-1]
-    G = np.zeros((th.size, ph_i.size, th.size, ph_o.size, L))
-    ret = np.zeros((th.size, ph_i.size, L))
-    adding = Adding(hemisphere(), float(spacing_ratio))
-    below = adding.hemi.w * np.array([1.0, 1.0, -1.0])
-    beams, downs, nodes = [], [], []
-    spacing = 2.0 * spacing_ratio
-    for a, t_i in enumerate(th):
-        for b, p_i in enumerate(ph_i):
-            if tick is not None:
-                tick()
-            w_in = microfacet.direction(math.radians(t_i), math.radians(p_i))
-            if w_in[2] < 1e-12:
-                continue
-            radiance = lit_radiance(table, w_in, spacing, n_sub)
-            G[a, b] = layer_G(table, fiber, w_in, w_out, masking=True, spacing_ratio=spacing_ratio, n_sub=n_sub,
-                              surface=False, radiance=radiance).reshape(th.size, ph_o.size, -1)
-            energy = layer_energy(table, fiber, w_in, interior.classes, spacing_ratio=spacing_ratio, n_sub=n_sub,
-                                  radiance=radiance)
-            ret[a, b] = interior.returned(energy)
-            beams.append(w_in)
-            downs.append(down_operator(table, fiber, w_in, below, spacing_ratio, radiance=radiance))
-            nodes.append((a, b))
-            if t_i == 0.0:
-                break
-    surf = surface_table(float(fiber.roughness), float(fiber.n_host), True, float(spacing_ratio), float(step_deg),
-                         float(phi_step_deg))
-    single = LayerTable(th, ph_i, th, ph_o, np.ascontiguousarray(G + surf[..., None]), True, float(spacing_ratio))
-    for a in range(th.size):          # the pole: one direction for every phi_i
-        if th[a] == 0.0:
-            single.G[a, 1:] = single.G[a, 0]
-    D, E = adding.term(table, fiber, single, np.array(beams), np.stack(downs), w_out,
-                       adding.up_operator(table, fiber, w_out))
-    D[:, w_out[:, 2] <= 0.0] = 0.0
-    for n, (a, b) in enumerate(nodes):
-        w_in = beams[n]
-        total = np.clip(ret[a, b], 0.0, None)
-        s = np.where(E[n] > total, total / np.where(E[n] > 0, E[n], 1.0), 1.0)
-        lam = (total - s * E[n])[None, :] * w_in[2] * w_out[:, 2:3] / math.pi
-        G[a, b] += (lam + w_in[2] * s[None, :] * D[n]).reshape(th.size, ph_o.size, -1)
-        if th[a] == 0.0:
-            G[a, 1:] = G[a, 0]
-    if surface:
-        G += surf[..., None]
-    return LayerTable(th, ph_i, th, ph_o, G, True, float(spacing_ratio), time.perf_counter() - t0, interior)
 
 
 @numba.njit(cache=True)

@@ -181,15 +181,6 @@ class Interior:
     n_layers: int
     R_below: np.ndarray
     classes: np.ndarray
-    directional: bool = False
-
-    def first_order(self, energy: np.ndarray) -> np.ndarray:
-        """``C [L] = X_u r t``: the closure's estimate of the path down through the top layer (unmasked or between
-        its fibers), reflected unmasked by the layer below, up through the top layer -- the path
-        :mod:`simulate.fabric.adding` resolves in angle (one term of :meth:`returned`'s expansion, so
-        ``returned - first_order >= 0``). Compared with the adding's own energy of that path in the tests."""
-        _, d, _, gap = energy
-        return (d + gap) * self.r * self.t
 
     def returned(self, energy: np.ndarray) -> np.ndarray:
         """``A_ret [L]`` for a beam's ``layer_energy`` ``[4, L]`` (module docstring)."""
@@ -199,14 +190,19 @@ class Interior:
         X = d + share + gap
         return share + X * self.R_below * self.t_eff / (1.0 - self.r_eff * self.R_below)
 
+    def returned_for_beam(self, table: ExitTable, fiber: Any, w_in: np.ndarray, *, spacing_ratio: float = 1.0,
+                          n_sub: int = 8, radiance: np.ndarray | None = None) -> np.ndarray:
+        """``A_ret [L]`` for the beam ``w_in`` on the top layer of ``table`` (its :func:`layer_energy`, then
+        :meth:`returned`); ``radiance``: the beam's lit radiance when the caller has it."""
+        return self.returned(layer_energy(table, fiber, w_in, self.classes, spacing_ratio=spacing_ratio, n_sub=n_sub,
+                                          radiance=radiance))
+
 
 def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: float = 1.0, n_theta: int = 6,
-             n_phi: int = 4, directional: bool = False, tick: Callable[[], None] | None = None) -> Interior:
+             n_phi: int = 4, tick: Callable[[], None] | None = None) -> Interior:
     """Diffuse layer properties by cosine-weighted quadrature over the incident quadrant (mirrors give the rest).
 
-    ``directional``: the layer table built with it resolves the return's first order in angle
-    (:mod:`simulate.fabric.adding`; ``[structure] interior_return = "directional"``). ``tick``: called before
-    each incident direction (the fit's walk stops there when interrupted: :mod:`fabric_optics.fitting.walk_threads`)."""
+    ``tick``: called before each incident direction (an interrupted caller stops there)."""
     if int(n_layers) < 1:
         raise ValueError(f"interior: n_layers must be >= 1, got {n_layers!r}")
     classes = exit_classes(table, 2.0 * spacing_ratio)
@@ -224,5 +220,4 @@ def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: floa
     d = d + gap                                         # diffuse light through the gaps reaches the next layer
     share = k * (u + d) / (2.0 * (1.0 - k))
     r_eff, t_eff = u + share, d + share
-    return Interior(u, d, k, r_eff, t_eff, int(n_layers), stack_reflectance(r_eff, t_eff, int(n_layers) - 1), classes,
-                    bool(directional))
+    return Interior(u, d, k, r_eff, t_eff, int(n_layers), stack_reflectance(r_eff, t_eff, int(n_layers) - 1), classes)

@@ -22,8 +22,8 @@ and weft surfaces ``z = z_c(s) + (h/2) sqrt(1 - u^2)`` (``u`` the offset across 
 ``z_c'`` along the yarn and the section's curvature across it) and the yarn tangent
 ``T = (1, 0, z_c') / |.|`` (warp) or ``(0, 1, z_c') / |.|`` (weft), which is perpendicular to ``m``.
 Points over no yarn (the corner holes of an open weave) are left out and the rest renormalised.
-The fraction of the points each system wins is its visible fraction. ``yarn_surface = false``
-replaces the sampled surface by flat yarns (``m = z``; warp and weft 1/2 each).
+The fraction of the points each system wins is its visible fraction. Without a weave (a ``woven``
+structure given no ``[weave]`` geometry) the yarns are flat (``m = z``; warp and weft 1/2 each).
 
 Twist. The surface fibers of a yarn twisted with surface twist angle ``alpha`` lie on a helix about
 its centre line: ``t = cos(alpha) T + s sin(alpha) (T x m)``, ``s = +1`` for Z twist (a right-handed
@@ -39,10 +39,6 @@ out-of-plane inclination ``epsilon`` normally distributed with standard deviatio
 each fiber the top of its own layer, ``m = (z - (z.t) t) / |.|``, equal projected-area weights
 (Gauss-Hermite nodes in ``epsilon``, truncated to +-80 deg and renormalised).
 
-Regression. Flat yarns, twist 0, ``cells = "top"`` (the fiber layer replaced by the old carpet of
-top cells, ``G = R_B cos theta_o``): ``f = (R_B(M_warp ...) + R_B(M_weft ...)) / (2 cos theta_i)``,
-the summation of :mod:`simulate.fabric` (same pairs, same Monte Carlo call: the same numbers).
-
 References
 ----------
 Hearle, J. W. S., Grosberg, P. & Backer, S. (1969). *Structural Mechanics of Fibers, Yarns, and
@@ -53,6 +49,7 @@ Ashikhmin et al. (2000), see :mod:`simulate.fabric.fiberlayer`.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -60,8 +57,11 @@ from typing import Any
 import numpy as np
 
 __all__ = ["CLOSE_PACKING", "Facets", "merged", "StructureSpec", "structure_from_table", "woven_facets", "flat_facets",
-           "felt_facets", "facets_for", "fabric_beta_from_G", "structured_beta"]
+           "felt_facets", "facets_for", "fabric_beta_from_G", "structured_beta", "interior_layers", "layer_table_of",
+           "surface_layer_table", "mean_of_halves", "REMOVED_KEYS"]
 
+
+log = logging.getLogger(__name__)
 
 #: close packing of parallel cylinders (hexagonal): pi / (2 sqrt 3)
 CLOSE_PACKING = math.pi / (2.0 * math.sqrt(3.0))
@@ -72,10 +72,6 @@ class StructureSpec:
     """The ``[structure]`` section of a simulation config (fields: :func:`structure_from_table`)."""
 
     kind: str = "woven"
-    cells: str = "visible"
-    masking: bool = True
-    yarn_surface: bool = True
-    interior: bool = True
     layers: int = 0
     packing_fraction: float = CLOSE_PACKING
     warp_twist_deg: float = 24.0
@@ -83,13 +79,25 @@ class StructureSpec:
     weft_twist_deg: float = 24.0
     weft_twist: str = "Z"
     felt_spread_deg: float = 20.0
+    felt_normal_fraction: float = 0.0
+    felt_normal_spread_deg: float = 15.0
     samples: int = 48
-    interior_return: str = "diffuse"
 
     @property
     def spacing_ratio(self) -> float:
         """Fiber spacing over diameter in a layer, ``d / 2R = sqrt(close packing / packing fraction)``."""
         return math.sqrt(CLOSE_PACKING / self.packing_fraction)
+
+
+#: ``[structure]`` keys that no longer exist, with what to do instead (a config that gives one is refused
+#: with this line: the model they switched off is always on)
+REMOVED_KEYS = {
+    "cells": "the summation always uses the fiber layer's visible cells - delete the line",
+    "masking": "neighbouring fibers always shadow and mask each other - delete the line",
+    "yarn_surface": "a woven structure always follows the weave's yarn surface - delete the line",
+    "interior": "the light returned from the fiber layers below is always included - delete the line",
+    "interior_return": "the light returned from below is always the diffuse closure's - delete the line",
+}
 
 
 def structure_from_table(t: Any) -> StructureSpec:
@@ -98,12 +106,7 @@ def structure_from_table(t: Any) -> StructureSpec:
     Schema (defaults shown; every bad value is one error naming the field)::
 
         [structure]
-        kind = "woven"              # "woven" | "nonwoven" (felt; "felt" is read as "nonwoven")
-        cells = "visible"           # "visible": the fiber layer's visible average (6.1);
-                                    # "top": the old carpet of top cells (regression)
-        masking = true              # shadowing and masking by neighbouring fibers (6.1)
-        yarn_surface = true         # woven: the weave's crimped, curved yarn surface; false: flat yarns
-        interior = true             # light returned from the fiber layers below (6.3; needs masking)
+        kind = "woven"              # "woven" | "nonwoven" (a felt)
         layers = 0                  # fiber layers in the fabric's thickness, >= 1; 0: 2 h / 2R (woven), 10 (felt)
         packing_fraction = 0.9069   # fibers' area fraction in the layer, (0, 0.9069]; 0.9069 = touching
         warp_twist_deg = 24         # surface twist angle of the warp yarns, [0, 60]
@@ -111,24 +114,21 @@ def structure_from_table(t: Any) -> StructureSpec:
         weft_twist_deg = 24
         weft_twist = "Z"
         felt_spread_deg = 20        # nonwoven: standard deviation of the fibers' inclination, [0, 60]
+        felt_normal_fraction = 0    # nonwoven, Monte Carlo: the fraction of the fiber amount driven towards
+                                    # the normal (needle punching), [0, 0.9]; 0: every fiber in-plane as above
+        felt_normal_spread_deg = 15 # nonwoven, Monte Carlo: standard deviation of those fibers' tilt away
+                                    # from the normal, [0, 45]
         samples = 48                # woven: surface samples per side of the micro-element, [4, 512]
-        interior_return = "diffuse" # "diffuse": the closure's Lambertian return (6.3); "directional": its first
-                                    # order (down through the top layer, reflected by the layer below, up
-                                    # again) resolved in angle (simulate.fabric.adding; needs interior)
-    """
-    def flag(key: str, default: bool) -> bool:
-        value = t.raw(key, default)
-        if not isinstance(value, bool):
-            raise t.fail(key, f"must be true or false, got {value!r}")
-        return value
 
-    kind = t.string("kind", "woven", choices=("woven", "nonwoven", "felt"))
+    The keys of :data:`REMOVED_KEYS` and ``kind = "felt"`` are refused with what to write instead.
+    """
+    for key, instead in REMOVED_KEYS.items():
+        if t.has(key):
+            raise t.fail(key, f"was removed; {instead}")
+    if t.has("kind") and t.raw("kind") == "felt":
+        raise t.fail("kind", 'value "felt" was removed; write kind = "nonwoven" (a felt is a nonwoven)')
     spec = StructureSpec(
-        kind="nonwoven" if kind == "felt" else kind,
-        cells=t.string("cells", "visible", choices=("visible", "top")),
-        masking=flag("masking", True),
-        yarn_surface=flag("yarn_surface", True),
-        interior=flag("interior", True),
+        kind=t.string("kind", "woven", choices=("woven", "nonwoven")),
         layers=t.integer("layers", 0, ge=0, le=10_000),
         packing_fraction=t.number("packing_fraction", CLOSE_PACKING, gt=0.0, le=round(CLOSE_PACKING, 4) + 1e-12),
         warp_twist_deg=t.number("warp_twist_deg", 24.0, ge=0.0, le=60.0),
@@ -136,14 +136,15 @@ def structure_from_table(t: Any) -> StructureSpec:
         weft_twist_deg=t.number("weft_twist_deg", 24.0, ge=0.0, le=60.0),
         weft_twist=t.string("weft_twist", "Z", choices=("Z", "S")),
         felt_spread_deg=t.number("felt_spread_deg", 20.0, ge=0.0, le=60.0),
+        felt_normal_fraction=t.number("felt_normal_fraction", 0.0, ge=0.0, le=0.9),
+        felt_normal_spread_deg=t.number("felt_normal_spread_deg", 15.0, ge=0.0, le=45.0),
         samples=t.integer("samples", 48, ge=4, le=512),
-        interior_return=t.string("interior_return", "diffuse", choices=("diffuse", "directional")),
     )
     t.done()
-    if spec.interior and not spec.masking and spec.cells == "visible":
-        raise t.fail("interior", "needs masking = true (the returned light is what the masking removes)")
-    if spec.interior_return == "directional" and not (spec.interior and spec.masking and spec.cells == "visible"):
-        raise t.fail("interior_return", '"directional" needs interior = true, masking = true and cells = "visible"')
+    if spec.kind != "nonwoven":
+        for key in ("felt_normal_fraction", "felt_normal_spread_deg"):
+            if key in t.data:
+                raise t.fail(key, 'is a felt\'s (kind = "nonwoven"); remove it from a woven structure')
     return spec
 
 
@@ -238,7 +239,14 @@ def woven_facets(weave: Any, spec: StructureSpec) -> Facets:
 
 
 def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Facets:
-    """Nonwoven felt: fibers of uniform in-plane direction and Gaussian inclination (module docstring)."""
+    """Nonwoven felt: fibers of uniform in-plane direction and Gaussian inclination (module docstring).
+
+    The needle-punched population (``felt_normal_fraction``) is the Monte Carlo's felt's only
+    (:mod:`simulate.nonwoven.felt`): here it is left out, and said so once per process."""
+    if spec.felt_normal_fraction > 0.0 and not _NORMAL_NOTED:
+        _NORMAL_NOTED.append(True)
+        log.warning("the summation's felt has its fibers in the plane only: [structure] felt_normal_fraction "
+                    "(%.3g) is taken by --method mc only", spec.felt_normal_fraction)
     az = (np.arange(n_azimuth) + 0.5) * math.pi / n_azimuth
     x, w = np.polynomial.hermite_e.hermegauss(n_incl)
     eps = np.radians(spec.felt_spread_deg) * x
@@ -251,6 +259,9 @@ def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Fa
     m = z[None, :] - t[:, 2:3] * t
     return Facets(weight, _frames(t, m), np.full(t.shape[0], 2),
                   {"felt": 1.0, "spread_deg": spec.felt_spread_deg, "facets": int(t.shape[0])})
+
+
+_NORMAL_NOTED: list[bool] = []
 
 
 def merged(facets: Facets, tolerance: float = 0.01) -> Facets:
@@ -279,7 +290,7 @@ def facets_for(spec: StructureSpec, weave: Any | None) -> Facets:
     """The facets of a structure: felt, sampled weave surface, or flat yarns (near-identical ones merged)."""
     if spec.kind == "nonwoven":
         return merged(felt_facets(spec), 0.0)
-    if spec.yarn_surface and weave is not None:
+    if weave is not None:
         return merged(woven_facets(weave, spec))
     return flat_facets(spec)
 
@@ -306,32 +317,6 @@ def fabric_beta_from_G(G: Any, facets: Facets, w_i: np.ndarray, w_o: np.ndarray)
     return math.pi * total / (w_i[:, 2] * w_o[:, 2])[:, None]
 
 
-def _top_cell_beta(fiber: Any, facets: Facets, w_i: np.ndarray, w_o: np.ndarray, wavelengths: np.ndarray,
-                   mc: dict) -> tuple[np.ndarray, np.ndarray, int, dict]:
-    """The carpet of top cells over the facets: ``G = R_B (w_o . m)`` by ONE volume_brdf call on the unique pairs."""
-    from simulate import fabric as fab
-    from simulate import fiber as fiber_mod
-
-    N, K = w_i.shape[0], facets.a.size
-    li = np.einsum("kab,nb->nka", facets.M, w_i).reshape(-1, 3)
-    lo = np.einsum("kab,nb->nka", facets.M, w_o).reshape(-1, 3)
-    ok = (li[:, 2] > 0) & (lo[:, 2] > 0)
-    a_in, a_out = fab.canonical_pairs(li[ok], lo[ok])
-    key = np.round(np.concatenate([a_in, a_out], axis=1), 10) + 0.0
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    est = fiber_mod.volume_brdf(fiber, a_in[first], a_out[first], wavelengths, **mc)
-    r_surf = np.asarray(fiber_mod.surface_brdf(fiber, a_in[first], a_out[first]), float)
-    R = np.zeros((N * K, wavelengths.size))
-    u = np.zeros_like(R)
-    R[ok] = (est.R + r_surf[:, None])[inverse.ravel()] * lo[ok, 2:3]
-    u[ok] = est.u_R[inverse.ravel()] * lo[ok, 2:3]
-    weight = facets.a / facets.m_z
-    scale = math.pi / (w_i[:, 2] * w_o[:, 2])[:, None]
-    beta = scale * np.einsum("k,nkl->nl", weight, R.reshape(N, K, -1))
-    u_beta = scale * np.einsum("k,nkl->nl", weight, u.reshape(N, K, -1))   # correlated bound, as the summation's
-    return beta, u_beta, int(est.photons), {"unique_fiber_pairs": int(first.size), "fiber_info": est.info}
-
-
 #: photons per BSSRDF row of the exit table (both halves together) that the FIRST round of the
 #: controlled tables expects to reach a 1 % relative error of beta (simulate.fiber.farfield.controlled_halves
 #: then adds photons if the error measured is above the target). Calibrated on red cotton over its
@@ -347,30 +332,66 @@ PHOTONS_PER_ROW_AT_1PCT = 800
 BULK_GEOMETRIES = 50_000
 
 
+def interior_layers(spec: StructureSpec, weave: Any, radius_um: float) -> int:
+    """The interior closure's number of fiber layers: ``[structure] layers``, else 10 for a felt (or a
+    structure without a weave), else the weave's yarn height over the fiber radius (two yarn systems)."""
+    return int(spec.layers or (10 if spec.kind == "nonwoven" or weave is None
+                               else max(1, round(weave.height_um / radius_um))))
+
+
+def layer_table_of(spec: StructureSpec, table: Any, fiber: Any, n_layers: int, *, surface: bool = True,
+                   tick: Any = None) -> Any:
+    """The layer table of one exit table: the visible fiber layer with masking, plus the light the
+    interior closure returns from ``n_layers`` layers (docs/physics.md 6.1, 6.3). ``surface=False``
+    leaves out the layer's surface term (:func:`surface_layer_table` is that term on its own).
+    ``tick``: called before each incident direction (an interrupt stops there)."""
+    from simulate.fabric.fiberlayer import layer_table
+    from simulate.fabric.interior import interior
+
+    inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio, tick=tick)
+    return layer_table(table, fiber, masking=True, spacing_ratio=spec.spacing_ratio, interior=inner,
+                       surface=surface, tick=tick)
+
+
+def surface_layer_table(spec: StructureSpec, rms_slope: float, n_host: float) -> Any:
+    """The layer table of the fiber layer's surface term alone (Cook-Torrance with masking; analytic,
+    cached by :func:`simulate.fabric.fiberlayer.surface_table`): what :func:`layer_table_of` adds with
+    ``surface=True``, on the same grid."""
+    from simulate.fabric.fiberlayer import LayerTable, layer_grid, surface_table
+
+    th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
+    G = surface_table(float(rms_slope), float(n_host), True, float(spec.spacing_ratio), 7.5, 15.0)[..., None]
+    return LayerTable(th, ph_i, th, ph_o, np.ascontiguousarray(G), True, float(spec.spacing_ratio))
+
+
+def mean_of_halves(beta_0: np.ndarray, beta_1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``beta`` of two independent halves and its standard error: their mean and half their difference
+    (one degree of freedom per value; :func:`simulate.fiber.farfield.controlled_halves`)."""
+    return 0.5 * (beta_0 + beta_1), 0.5 * np.abs(beta_0 - beta_1)
+
+
 def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray, w_o: np.ndarray,
                     wavelengths_nm: Any, *, target_rel_err: float = 0.01, seed: int = 0, threads: int | None = None,
-                    max_photons: int | None = None, method: str = "nee", photons_per_row: int | None = None,
-                    ) -> tuple[np.ndarray, np.ndarray, dict]:
+                    photons_per_row: int | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta, u_beta [N, L]`` of the structured summation at fabric-frame pairs, and what it took.
 
-    ``cells = "top"``: the old route over the facets (:func:`_top_cell_beta`). ``"visible"``: two
-    independent exit tables (seeds ``2 seed``, ``2 seed + 1``) starting at ``PHOTONS_PER_ROW_AT_1PCT
-    (0.01 / target)^2 / 2`` photons per row each, their layer tables (and interior closure), ``beta``
-    their mean and ``u_beta = |beta_1 - beta_2| / 2`` (the standard error of the mean of two independent
-    estimates: one degree of freedom per value, so its RMS over many values is the figure to read);
-    more photons are added until that error meets the target
+    Two independent exit tables (seeds ``2 seed``, ``2 seed + 1``) starting at ``PHOTONS_PER_ROW_AT_1PCT
+    (0.01 / target)^2 / 2`` photons per row each, their layer tables with the interior closure
+    (:func:`layer_table_of`) summed over the facets (:func:`fabric_beta_from_G`), ``beta`` their mean and
+    ``u_beta = |beta_1 - beta_2| / 2`` (:func:`mean_of_halves`: the standard error of the mean of two
+    independent estimates, one degree of freedom per value, so its RMS over many values is the figure to
+    read); more photons are added until that error meets the target
     (:func:`simulate.fiber.farfield.controlled_halves`).
 
     ``photons_per_row``: the fixed-photons mode -- ONE round of exactly that many photons per row in
     each half (the first round's streams, seeds ``2 seed + h``), no accuracy loop. It is the model
-    ``simulate fit --method summation`` evaluates (:mod:`fabric_optics.fitting.structure`: a fit's dye changes
-    at every evaluation, so its photons cannot follow an error measured at one dye), and what the
-    fit's equality test compares with.
+    ``simulate fit --method summation`` evaluates (:mod:`fabric_optics.fitting.structure`, built from this
+    module's steps: a fit's dye changes at every evaluation, so its photons cannot follow an error
+    measured at one dye).
     """
     import time
 
     from simulate.fiber import farfield as FF
-    from simulate.fabric import fiberlayer as FL
 
     t0 = time.perf_counter()
     wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
@@ -379,11 +400,6 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
     facets = facets_for(spec, weave)
     info: dict[str, Any] = {"structure": {k: getattr(spec, k) for k in spec.__dataclass_fields__},
                             "facets": facets.info, "spacing_ratio": spec.spacing_ratio}
-    if spec.cells == "top":
-        mc = dict(method=method, target_rel_err=target_rel_err, max_photons=max_photons, seed=seed, threads=threads)
-        beta, u_beta, photons, extra = _top_cell_beta(fiber, facets, w_i, w_o, wl, mc)
-        info.update(extra, photons=photons, seconds=time.perf_counter() - t0)
-        return beta, u_beta, info
     per_row = int(math.ceil(PHOTONS_PER_ROW_AT_1PCT * (0.01 / target_rel_err) ** 2 / 2.0))
     fixed = None
     if photons_per_row is not None:
@@ -391,17 +407,10 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
             raise ValueError(f"structured_beta: photons_per_row must be at least {FF.MIN_PHOTONS_PER_ROW}")
         per_row = fixed = int(photons_per_row)
     fiber = FF.cached(fiber)       # the Mie optics once, not once per exit-table node
-    n_layers = spec.layers or (10 if spec.kind == "nonwoven" or weave is None
-                               else max(1, round(weave.height_um / fiber.radius_um)))
+    n_layers = interior_layers(spec, weave, fiber.radius_um)
 
     def beta_of(table: Any) -> np.ndarray:
-        inner = None
-        if spec.interior and spec.masking:
-            from simulate.fabric.interior import interior
-
-            inner = interior(table, fiber, n_layers, spacing_ratio=spec.spacing_ratio,
-                             directional=spec.interior_return == "directional")
-        lt = FL.layer_table(table, fiber, masking=spec.masking, spacing_ratio=spec.spacing_ratio, interior=inner)
+        lt = layer_table_of(spec, table, fiber, n_layers)
         if w_i.shape[0] > BULK_GEOMETRIES:   # many geometries: tabulate the facet sum once, then gather
             from simulate.fabric.structtable import fabric_table
 

@@ -106,7 +106,7 @@ def next_round(history: list[tuple[int, float]], target: float, max_photons: int
     at most ``MAX_GROWTH N`` and the budget, whole batches.
 
     The earlier rule (``1.1 N_need`` with ``a = 1/2`` and rounds of at least 25 %) spent 29 %
-    more photons than the target needed on red-cotton's summation (issue 21): the error after
+    more photons than the target needed on red-cotton's summation: the error after
     the first 50 000 photons overstates the 1/sqrt(N) extrapolation (it falls faster at first).
 
     >>> next_round([(50_000, 0.0110)], 0.01, 10**7)   # 1.03 * 1.21 * 50 000 = 62 315 -> 12 315 more -> batches

@@ -150,7 +150,7 @@ __all__ = [
 # numba's 'omp' threading layer (GNU libgomp) spin-waits at the end of every parallel region by
 # default. On a machine whose other cores are busy the spinning thread and the one it waits for share
 # a core: every kernel call then costs ~5 ms of CPU whatever its size (measured: an empty prange over
-# two items, 2 threads, load ~2.5 on 2 cores: 5.4 ms per call, 0.003 ms with 'passive'), which made
+# two items, 2 threads, both cores busy: 5.4 ms per call, 0.003 ms with 'passive'), which made
 # the 1368 small exit-table calls of red-cotton's summation 8.5 s of its 20 s. Passive threads sleep
 # at the barrier; long runs are unaffected. libgomp reads the variable when numba first starts its
 # threads, after this import; a value the user set is kept.
@@ -608,7 +608,7 @@ def _make_runner(scoring: bool):
     pickle of its closure cells, and a dispatcher pickles with an id unique to the process, so
     a driver closing over the batch dispatcher got a new cache key in every process -- it
     recompiled each time (1.5 s plain, 3-4 s with tallies) and left one more data file in the
-    cache directory per run (issue 21). The closure cells here are plain constants (``SCORING``,
+    cache directory per run. The closure cells here are plain constants (``SCORING``,
     ``STAMP``), whose pickles are the same in every process; ``SCORING`` selects the global at
     compile time (numba prunes the constant branch). ``tests/simulate/mc/test_kernel_cache.py``
     guards this: a second process must load every kernel from the cache and add no file.

@@ -1,4 +1,4 @@
-"""Numba's first call without importing ``scipy.linalg``: a start-up shortcut (issue 21).
+"""Numba's first call without importing ``scipy.linalg``: a start-up shortcut.
 
 The first time a process compiles or loads a cached numba function, numba imports its lowering
 registries. One of them, ``numba.np.arraymath``, checks at import time that BLAS is there by

@@ -5,7 +5,7 @@ tables :mod:`simulate.woven.yarn`) are made of many short runs -- one per lit ro
 node, per table half -- of a few thousand photons each, i.e. one or two batches of
 :data:`simulate.montecarlo.accuracy.BATCH`. Run one at a time (:func:`.transport.execute`), each
 kernel call had fewer batches than threads: on 2 cores one thread idled in most of them, and every
-call paid its thread start and barrier (issue 21: red cotton's cold woven Monte Carlo made 700
+call paid its thread start and barrier (red cotton's cold woven Monte Carlo made 700
 such calls). :func:`execute_rows` hands all batches of all runs to ONE ``prange``
 (:func:`.kernel.run_rows`, dynamic scheduling, one batch per chunk) and reduces each run's
 batches in batch order, exactly as :func:`.transport.execute` does for that run alone: every
@@ -127,7 +127,7 @@ def _reduce_means(job_row, job_batch, n_batches, photons, scal_buf, bins_buf, sc
     added to its run's, its bin sums added to the run's sums held in ``means`` (``0.0 +`` the first batch,
     as ``bins`` starts at zero), divided by ``photons`` after the run's last batch. Compiled, parallel over
     the first bin axis (each value still sees its jobs in order) and without the GIL: the Python loop it
-    replaces held the GIL for ~2 s of the felt's walk (issue 21)."""
+    replaces held the GIL for ~2 s of the felt's walk."""
     R, A, B, C, D, E = means.shape
     for i in range(job_row.shape[0]):
         for s in range(scal.shape[1]):

@@ -1,4 +1,4 @@
-"""The plain slab loop with two photons in flight: the slab's own batch kernel (issue 21, speed).
+"""The plain slab loop with two photons in flight: the slab's own batch kernel (for speed).
 
 The photon loop of :mod:`.kernel` is bound by latency: each step of a photon waits for the one
 before (the direction update feeds the next free path, whose end point decides the branch), so a

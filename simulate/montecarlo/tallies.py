@@ -387,7 +387,7 @@ def _score_spectral(hist, touched, n_touched, marks, block, n_spec, g0, spec_w, 
 
     The wavelength loop reads contiguous rows (``spec_w``, ``spec_mu_t``, two rows of ``ratio``)
     and writes one contiguous block of ``hist``, with no call and no branch in it
-    (:func:`.vecmath.vexp`): LLVM vectorises it (issue 21: with a libm ``exp`` and a touched-bin
+    (:func:`.vecmath.vexp`): LLVM vectorises it (with a libm ``exp`` and a touched-bin
     test per wavelength this loop was 64 % of the summation route). A separate compiled function
     on purpose: inlined into the vertex loop, LLVM's treatment of this loop made the whole
     estimator about three times slower.

@@ -4,7 +4,7 @@ Why: a loop over wavelengths that calls ``math.exp`` cannot be vectorised withou
 math library (numba lowers ``math.exp`` to ``llvm.exp``, which becomes one libm call per
 element unless Intel SVML is installed; it is not here and is not a dependency). The next-event
 estimator evaluates ``exp(-mu_t,l path)`` for every output x wavelength at every vertex -- most of
-the summation route's time (issue 21) -- so :func:`vexp` computes it with plain arithmetic
+the summation route's time -- so :func:`vexp` computes it with plain arithmetic
 only (no calls, no branches): LLVM turns the loop into SIMD code. The kernel's per-collision
 re-weighting ``A_l *= (mu_s^l / mu_s^w) exp(-(mu_t^l - mu_t^w) l)`` uses it too.
 

@@ -48,7 +48,7 @@ Non-absorbing resonant spheres converge slowly (``m_p = 2.7``, ``x = 2.7``, ``si
 The JIT backend of miepython is switched on (``MIEPYTHON_USE_JIT=1``, unless already set)
 before it is imported: 37-130x faster, identical to 3e-13. miepython is imported on first use,
 not with this module: its JIT backend compiles one kernel at every import (``_cn_dn_nb`` has no
-``cache=True``; 1-2 s), which a run whose tables come from the cache never needs (issue 21).
+``cache=True``; 1-2 s), which a run whose tables come from the cache never needs.
 
 References
 ----------
@@ -83,7 +83,7 @@ def _miepython():
     miepython's ``mie_jit`` compiles ``_cn_dn_nb`` eagerly (it has a signature) and without
     ``cache=True`` -- the only one of its kernels without it -- so every process that imports it
     spent 1.5-2 s compiling a function this package never calls (measured: import 2.25 s, 0.55-0.70 s
-    with the kernel loaded from numba's cache; issue 21). During the import, ``numba.njit`` is
+    with the kernel loaded from numba's cache). During the import, ``numba.njit`` is
     wrapped to default ``cache=True`` for miepython's own modules only (numba's cache is keyed by the
     function's source and signature, so this is the same compiled code; numba puts it beside
     miepython, or in ``NUMBA_CACHE_DIR`` / the user cache when that is read-only). Numba's caching

@@ -6,11 +6,11 @@ noise from their difference added to ``u_beta``; the target's error shared betwe
 
 A felt
 ------
-A felt's mesh (:mod:`simulate.woven.felt`) is ONE random realisation of its fibers in a cell of
+A felt's mesh (:mod:`simulate.nonwoven.felt`) is ONE random realisation of its fibers in a cell of
 about 20 fibers across, and what is wanted is the felt's BRDF, the expectation over realisations (as
 a measurement's spot averages thousands of fibers). Traced as a weave (one mesh, one azimuth), four
 felts at fixed tables differed by 2.1 % of each direction's peak (RMS) where the runs reported 1.0 %
-(green-felt, target 1.2 %, 56 geometries, 3 wavelengths; 2026-11-24), and a small felt's variance
+(green-felt, target 1.2 %, 56 geometries, 3 wavelengths), and a small felt's variance
 between seeds was 12 times the mean ``u_beta^2`` (``tests/simulate/woven/test_felt.py``). Two
 changes, both free in expectation:
 
@@ -63,8 +63,8 @@ TABLE_MIN_PHOTONS = 10_000
 """The fewest photons per row of the fiber's table (:func:`table_photons`)."""
 PILE_TABLE = {"noise": 0.6, "share": 0.8, "min_photons": 4_000}
 """:func:`table_photons` for the pile's table (:mod:`simulate.woven.pile`, scattering held per group): the
-photons its rows need for the FABRIC's target, not more. Measured on red cotton at 1 % (2026-11-24,
-29 387 photons per row, the two halves together): ``table_rel_err`` 0.30-0.34 % over the 4 incidences,
+photons its rows need for the FABRIC's target, not more. Measured on red cotton at 1 %
+(29 387 photons per row, the two halves together): ``table_rel_err`` 0.30-0.34 % over the 4 incidences,
 i.e. noise 0.51-0.58 (0.6 kept, leaning conservative), while the rays reached 0.40 % at their first
 round (16 384 rays, 0.35 s an incidence) against 35 s for the table: a table photon costs ~100x a
 ray's share of the error, so the table takes 0.9 of the target (the rays ``sqrt(1 - 0.81) = 0.44``,
@@ -121,7 +121,7 @@ clear: its exits keep to the cones refraction puts them on, which coarse azimuth
 
 def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]) -> str | None:
     """The warning for a run whose fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s``
-    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are the default's or coarser (36 deg
+    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are 10 or fewer (36 deg
     or more), else None. Measured: the green felt moves by more than its misfit to the measurement
     between 10 and 20 azimuth bins, red cotton (2 R mu_s = 19) within its Monte Carlo noise
     (docs/physics.md 6, "Exit directions")."""
@@ -138,8 +138,7 @@ def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]
     return (f"the fiber is nearly clear ({n:.2g} scattering events across its diameter at {mid:g} nm) and "
             f"the yarn table's exit directions are binned at {int(exit_bins[1])} azimuths: its exits keep to "
             "cones that such bins smear, and the result can move by more than a fit's misfit at finer bins; "
-            "check it with [method] exit_bins = [5, 20] or finer (docs/physics.md 6, \"Exit directions\"), "
-            "or set exit_bins to say which you mean")
+            "the default [method] exit_bins = [10, 20] resolves them (docs/physics.md 6, \"Exit directions\")")
 
 
 def _rot_z(a: float) -> np.ndarray:

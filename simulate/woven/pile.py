@@ -1,7 +1,7 @@
 r"""The yarn's volume as the pile of its fibers: the medium the woven Monte Carlo's yarn table is walked in.
 
-Before issue 19 the yarn table was the FIBER's BSSRDF (radius ``R``, the fiber's medium) with
-its offsets scaled to the yarn: light that entered a yarn 100-250 um across met the scatterers
+A yarn table that is the FIBER's BSSRDF (radius ``R``, the fiber's medium) with its offsets
+scaled to the yarn would let light that entered a yarn 100-250 um across meet the scatterers
 and the dye of ONE 20 um fiber -- a yarn as translucent as a single fiber. A yarn is tens of
 fibers across. Here its volume is the pile of those fibers, homogenised (the volumetric cloth
 models: Schroeder, Zhao & Zwicker 2011; Zhao, Jakob, Marschner & Bala 2011; Khungurn et al. 2015):

@@ -108,7 +108,7 @@ def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yar
                 face_base):
     """Point, normal and tangent of the tube mesh at (s, phi): the mesh's own triangles; with a
     non-empty ``face_base`` also the triangle's index and its outward geometric normal. ``periodic = False``
-    (an open fiber of a felt, :mod:`simulate.woven.felt`): ``s`` is clamped to the tube's ends."""
+    (an open fiber of a felt, :mod:`simulate.nonwoven.felt`): ``s`` is clamped to the tube's ends."""
     L = yarn_length[yarn]
     ns = n_s[yarn]
     if periodic:

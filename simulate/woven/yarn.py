@@ -26,7 +26,7 @@ from simulate.fiber import tablecache
 from simulate.fiber.bssrdf import lit_rows, row_sources, rows_inputs
 from simulate.fiber.model import as_wavelengths
 from simulate.fiber.spectral import SpectralOptics, group_walk, spectral_optics, wavelength_groups
-from simulate.montecarlo.accuracy import BATCH, mean_and_error
+from simulate.montecarlo.accuracy import BATCH
 from simulate.montecarlo.kernel import M_MU_S
 from simulate.montecarlo.rows import execute_rows
 from simulate.montecarlo.transport import SpectralTargets, make_control
@@ -58,11 +58,12 @@ class YarnTable:
     ``(psi offset, v bin, mu bin, phi bin)``; ``c_bar[j, k]`` the mean launch weight, so that
     ``T / c_bar`` is per unit power arriving at a point of A; ``tau[j, k]`` the mean smooth-
     interface transmission ``1 - F`` of that light (taken out again for light that is inside a
-    yarn already: the interpenetration rule).
+    yarn already: the interpenetration rule). No per-cell standard error is kept: the tracer reads
+    ``T`` only, and the table's noise is measured from two independent halves
+    (:func:`table_halves`), which halves the table's memory.
     """
 
     T: np.ndarray
-    u_T: np.ndarray
     c_bar: np.ndarray
     tau: np.ndarray
     w_t_nodes: np.ndarray
@@ -217,7 +218,7 @@ def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: fl
     (``r`` its index in ``ks``), as :func:`simulate.fiber.bssrdf.bssrdf_rows` of node ``j`` would
     run it; all rows of all nodes and tables of one wavelength group go to ONE parallel kernel call
     (:func:`simulate.montecarlo.rows.execute_rows`): the sums are bit-identical to one call per
-    row, without the idle thread of a one-batch call (issue 21: 700 calls for red cotton's two
+    row, without the idle thread of a one-batch call (700 calls for red cotton's two
     pile-table halves, one or two batches each).
     """
     if not isinstance(optics, SpectralOptics):
@@ -231,8 +232,10 @@ def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: fl
     run_seeds = np.array([s + 104729 * j + 7919 * r for s in seeds for j in range(nodes.size) for r in range(n_k)],
                          dtype=np.int64)
     groups = wavelength_groups(optics) if held_log_mu_s <= 0.0 else held_groups(optics, held_log_mu_s)
-    means: list[np.ndarray] = []
-    errors: list[np.ndarray] = []
+    # the groups are consecutive runs of wavelengths: each group's means go straight into its slice of T
+    assert np.array_equal(np.concatenate(groups), np.arange(wl.size))
+    T = np.empty((len(seeds), nodes.size, n_k, n_cells, wl.size))
+    rows6 = T.reshape(len(seeds) * nodes.size * n_k, n_psi, n_v, n_mu, n_phi, wl.size)
     seconds = 0.0
     for group in groups:
         medium, walk_phase, targets = group_walk(fiber, optics, group, white=True)
@@ -240,17 +243,11 @@ def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: fl
             targets = SpectralTargets(mu_a=targets.mu_a, mu_s=np.full(group.size, float(medium[M_MU_S])),
                                       phases=[walk_phase] * group.size, same_phase=np.ones(group.size, bool))
         inp = rows_inputs(fiber, grid, medium, walk_phase, targets, control)
-        _, bins, sec = execute_rows(inp, sources, run_seeds, photons_per_row, threads, BATCH)
-        mean, u = mean_and_error(bins.reshape(-1, 2), photons_per_row)
-        shape = (len(seeds), nodes.size, n_k, n_cells, group.size)
-        means.append(mean.reshape(shape))
-        errors.append(u.reshape(shape))
+        # the means written into T (bit-identical to accuracy.mean_and_error's): no [rows, bins, 2] sums array and no
+        # standard errors -- the tracer reads T only; the table's noise is measured from the two halves
+        _, _, sec = execute_rows(inp, sources, run_seeds, photons_per_row, threads, BATCH,
+                                 means=rows6[..., int(group[0]):int(group[-1]) + 1])
         seconds += sec
-    # the groups are consecutive runs of wavelengths: one pass that writes the tables (not one strided pass each)
-    assert np.array_equal(np.concatenate(groups), np.arange(wl.size))
-    T = np.concatenate(means, axis=-1)
-    u_T = np.concatenate(errors, axis=-1)
-    del means, errors
     photons = photons_per_row * nodes.size * n_k * len(groups)
     # mean launch weight max(w . n, 0) over a cell at azimuth k dpsi: rho <cos(a + x)>_x
     x = np.linspace(-dpsi / 2, dpsi / 2, 4001)
@@ -261,11 +258,11 @@ def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: fl
     transmitted = np.trapezoid(cos * (1.0 - reflectance_from_cos(cos, 1.0, fiber.n_host)), x, axis=2) / dpsi
     tau = np.where(c_bar > 0, transmitted / np.where(c_bar > 0, c_bar, 1.0), 1.0)
     # the seconds of the joint calls, shared equally by the tables
-    return [{"T": T[i], "u_T": u_T[i], "c_bar": c_bar, "tau": tau, "w_t_nodes": nodes, "photons": np.int64(photons),
+    return [{"T": T[i], "c_bar": c_bar, "tau": tau, "w_t_nodes": nodes, "photons": np.int64(photons),
              "seconds": np.float64(seconds / len(seeds))} for i in range(len(seeds))]
 
 
 def _from_arrays(a: dict[str, np.ndarray], dpsi: float, n_psi: int, n_v: int, n_mu: int, n_phi: int, v_max_R: float,
                  fiber: Any, wl: np.ndarray, seconds: float, cache: str) -> YarnTable:
-    return YarnTable(a["T"], a["u_T"], a["c_bar"], a["tau"], a["w_t_nodes"], dpsi, n_psi, n_v, n_mu, n_phi,
+    return YarnTable(a["T"], a["c_bar"], a["tau"], a["w_t_nodes"], dpsi, n_psi, n_v, n_mu, n_phi,
                      float(v_max_R), float(fiber.radius_um), wl, int(a["photons"]), float(seconds), cache)

@@ -1,4 +1,4 @@
-"""The demo pipeline end to end on a reduced budget (issue 12, "must show"; issue 20).
+"""The demo pipeline end to end on a reduced budget.
 
 The steps of ``make demo`` (README, "What `make demo` does"), in-process through the three
 command lines, on a reduced plan (the four incidences and the in-plane curves -60..70 deg, 16

@@ -1,4 +1,4 @@
-"""Reports a newcomer understands (issue 23): the single-dataset report at the comparison
+"""Reports a newcomer understands: the single-dataset report at the comparison
 report's standard, the "how to read this" box, honest wavelength counts, beam-block shading only
 where there is one, and absurd values refused as input errors."""
 

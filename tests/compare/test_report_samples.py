@@ -1,4 +1,4 @@
-"""Report sections of issue 20: what was measured (the mock's sample, a real file's source), the
+"""Report sections: what was measured (the mock's sample, a real file's source), the
 fitted parameters from `simulate fit`'s fit.json, the seed sample against red cotton's published
 colour; and `compare report --fit / --seed-sample`."""
 

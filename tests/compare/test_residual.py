@@ -1,4 +1,4 @@
-"""compare.residual.ModelResidual: the figures of compare_datasets, prepared once (issues 18, 21).
+"""compare.residual.ModelResidual: the figures of compare_datasets, prepared once.
 
 Every case compares ModelResidual.evaluate with compare_datasets run on the dataset holding the
 same values, to 1e-12 relative: the fixtures, an RGB and a photometric measurement (the model

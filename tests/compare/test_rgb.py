@@ -1,4 +1,4 @@
-"""compare with RGB, photometric and relative measurements (issue 11).
+"""compare with RGB, photometric and relative measurements.
 
 The RGB measurements here are made BY HAND from spectra with colour-science called directly
 (``colour.sd_to_XYZ`` -> ``colour.XYZ_to_RGB``), never through ``gonio.data.colour`` or

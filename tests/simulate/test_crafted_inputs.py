@@ -1,4 +1,4 @@
-"""Crafted inputs of issue 23: each is one line naming the file or field, exit 2, bounded memory and time.
+"""Crafted inputs: each is one line naming the file or field, exit 2, bounded memory and time.
 
 Every case here used to allocate gigabytes (or raise a traceback) before any check; the bounds
 are :data:`simulate.fabric.weave.MAX_TRIANGLES`, :data:`simulate.fabric.weave.MAX_WEAVE_CELLS`,
@@ -368,7 +368,7 @@ def test_mc_with_config_threads_zero_uses_numba_limit(monkeypatch):
     monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", 1)
     monkeypatch.setattr(woven, "fabric_beta", fake_fabric_beta)
     config = load_config("red-cotton")
-    assert config.threads is None              # threads = 0 in the shipped config
+    assert config.threads is None              # the shipped config leaves threads at its default, 0
     g = Geometries(np.array([0.0]), np.array([0.0]), np.array([30.0]), np.array([180.0]))
     with pytest.raises(RuntimeError, match="stop here"):
         evaluate("mc", config, config.fiber(np.array([550.0])), g, np.array([550.0]),

@@ -26,6 +26,17 @@ value column is photometric (channel ``Y``). ``theta > 90`` is the other half of
 ``theta -> 180 - theta``, ``phi -> phi + 180`` (the instrument scans through the normal). Other
 ``#`` lines are kept in the provenance. ``beta = pi f_r``.
 
+Negative values. A dark-subtracted detector reads values scattered around zero where there is no
+signal (grazing or back-scatter directions), so a value slightly below zero is a measurement, not
+an error, and is kept as stored; a value far below zero is not noise (a sign or column error) and
+is refused. The rule, per file and value column (wavelength or ``Y``): a negative value is kept
+when it is no further below zero than :data:`NEGATIVE_NOISE` (5 %) of the column's largest value
+in that file, and refused otherwise, naming the file, the line and the bound; a column with
+negative values and no value above zero is refused as well (nothing to compare the noise with).
+Kept negatives are counted per band in ``provenance.negative_values`` (``stored`` of ``of`` values
+of the files, ``rows`` of the dataset) and ``gonio import`` says so in a note, as for the RGL
+``.bsdf`` files (docs/dataset.md).
+
 References
 ----------
 PAB Advanced Technologies, pgII goniophotometer data export (``#format`` header convention).
@@ -33,6 +44,7 @@ PAB Advanced Technologies, pgII goniophotometer data export (``#format`` header 
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -44,7 +56,9 @@ import pandas as pd
 
 from gonio.data.formats.errors import FormatError, read_file_bytes
 
-__all__ = ["PgiiFile", "parse_pgii", "read_pgii", "pgii_dataset", "white_reference_scale"]
+__all__ = ["NEGATIVE_NOISE", "PgiiFile", "parse_pgii", "read_pgii", "pgii_dataset", "white_reference_scale"]
+
+log = logging.getLogger(__name__)
 
 UNITS = ("BSDF", "DSF", "[uA]")
 #: Largest pgII file read (checked from its size before reading): one incidence at 1 degree over
@@ -52,6 +66,9 @@ UNITS = ("BSDF", "DSF", "[uA]")
 MAX_BYTES = 32 * 1024 * 1024
 #: Most data lines of one file (a 0.25-degree hemisphere scan is 518 400).
 MAX_ROWS = 600_000
+#: A negative value is kept as noise around zero when it is within this share of its column's largest
+#: value in the file (module docstring, "Negative values"); further below zero it is refused.
+NEGATIVE_NOISE = 0.05
 
 
 class PgiiFile:
@@ -178,8 +195,31 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
                               f"(lines {seen[key]} and {row_lines[k]})", file=path, line=row_lines[k],
                               hint="keep one line per direction (theta > 90 is the other half of the plane)")
         seen[key] = row_lines[k]
+    _check_negative(arr[:, 2:], row_lines, wavelengths, path)
     return PgiiFile(path, sample, float(theta_i), float(phi_i), unit, wavelengths, theta_o,
                     phi_o, arr[:, 2:], header)
+
+
+def _check_negative(values: np.ndarray, row_lines: list[int], wavelengths: list[float] | None, path: str) -> None:
+    """Refuse a value further below zero than measurement noise (module docstring, "Negative values")."""
+    for k in range(values.shape[1]):
+        column = values[:, k]
+        if not np.any(column < 0):
+            continue
+        band = f"{wavelengths[k]:g} nm" if wavelengths else "Y"
+        peak = float(column.max())
+        if peak <= 0:
+            j = int(np.argmin(column))
+            raise FormatError(f"value {column[j]:g} ({band}) is negative and no value of that column is above zero",
+                              file=path, line=row_lines[j],
+                              hint="a column of noise around zero needs some signal to be told from an error; "
+                                   "check the file's export (sign, columns)")
+        j = int(np.argmin(column))
+        if column[j] < -NEGATIVE_NOISE * peak:
+            raise FormatError(f"value {column[j]:g} ({band}) is further below zero than measurement noise "
+                              f"(at most {NEGATIVE_NOISE:g} x the column's largest value {peak:g}, i.e. "
+                              f"{-NEGATIVE_NOISE * peak:.3g})", file=path, line=row_lines[j],
+                              hint="check the file's export (sign, dark subtraction, columns)")
 
 
 def white_reference_scale(white: PgiiFile, reflectance: float, bands: int) -> np.ndarray:
@@ -258,14 +298,32 @@ def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None, white
             part["u_beta"] = 0.0
             part["n"] = 1
             parts.append(part)
+    negative = _negative_counts(files, parts)
+    if negative:
+        log.warning("negative values kept as measurement noise around zero (each within %g of its column's "
+                    "largest value): %s", NEGATIVE_NOISE,
+                    "; ".join(f"{b}: {v['stored']} of {v['of']}" for b, v in negative.items()))
     meta = new_meta("measured", {"name": first.sample or Path(first.path).stem},
                     {"name": "PAB pgII goniophotometer", "format": "pgii", "unit": first.unit},
                     {"source_files": [Path(f.path).name for f in files],
                      "headers": {Path(f.path).name: f.header for f in files},
                      **({"scale_fr_per_uA": scale} if scale is not None else {}),
+                     **({"negative_values": negative} if negative else {}),
                      **({"white_reference": Path(white.path).name, "white_reflectance": white_reflectance,
                          "white_scale_fr_per_uA": white_scale.tolist()} if white_scale is not None else {})},
                     relative=relative)
     if not first.wavelengths_nm:
         meta["colour_space"] = "linear sRGB"
     return make_dataset(pd.concat(parts, ignore_index=True), meta, source=first.path)
+
+
+def _negative_counts(files: Sequence[PgiiFile], parts: list[pd.DataFrame]) -> dict:
+    """``{band: {"stored", "of", "rows"}}`` of the kept negative values (as :mod:`gonio.data.formats.rgl_bsdf`)."""
+    out: dict[str, dict[str, int]] = {}
+    labels = [f"{w:g}" for w in files[0].wavelengths_nm] if files[0].wavelengths_nm else ["Y"]
+    for k, label in enumerate(labels):
+        stored = sum(int(np.count_nonzero(f.values[:, k] < 0)) for f in files)
+        if stored:
+            rows = sum(int(np.count_nonzero(p["beta"].to_numpy() < 0)) for p in parts[k::len(labels)])
+            out[label] = {"stored": stored, "of": sum(int(f.values.shape[0]) for f in files), "rows": rows}
+    return out

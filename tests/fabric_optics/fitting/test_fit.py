@@ -224,7 +224,7 @@ def test_recovery_of_a_walked_parameter(red_cotton):
 
 def test_objective_uses_compare_prepared_once_with_the_same_figures(base_problem):
     """The fit's residuals (compare.residual, prepared once) equal those of a full compare_datasets run
-    of the model written as a dataset, for the measurement and for a noise draw of it (issue 21)."""
+    of the model written as a dataset, for the measurement and for a noise draw of it."""
     from tests.fabric_optics.fitting.conftest import model_measurement, sibling
 
     x0 = np.array([p.start for p in base_problem.free])

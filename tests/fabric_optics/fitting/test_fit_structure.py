@@ -32,7 +32,7 @@ def _felt(spread: float = 20.0, dye_log10: float | None = None, volume_fraction:
     doc["structure"]["felt_spread_deg"] = spread
     if volume_fraction is not None:
         doc["particles"]["volume_fraction"] = volume_fraction
-        # the felt of the second stop's preset (its dye and roughness): the recovery's setting, independent
+        # a felt preset's earlier dye and roughness: the recovery's setting, independent
         # of the preset's refits
         doc["fiber"]["dye"] = {"curve": "knots", "wavelength_nm": doc["fiber"]["dye"]["wavelength_nm"],
                                "log10_per_um": [-1.559, 0.194, 0.997, -0.939, -1.839, 0.78, 0.217, 0.768]}

@@ -1,4 +1,4 @@
-"""simulate fit as a user meets it (issue 20): walk progress, walk checkpoint and resume, Ctrl-C message,
+"""simulate fit as a user meets it: walk progress, walk checkpoint and resume, Ctrl-C message,
 the evaluation budget, warnings (bounds, colour, once each) and the grazing rule."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The ``knots`` dye (any colour) and the start inverted from the measurement's colour (issue 20)."""
+"""The ``knots`` dye (any colour) and the start inverted from the measurement's colour."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Scattering parameters from the same walk (issue 20): the likelihood-ratio re-weighting of a walk to
+"""Scattering parameters from the same walk: the likelihood-ratio re-weighting of a walk to
 another particle volume fraction equals a fresh walk within standard errors; a change past the
 variance bound walks again."""
 

@@ -1,4 +1,4 @@
-"""The sweep's local dask cluster refuses clients without its credentials (issue 23).
+"""The sweep's local dask cluster refuses clients without its credentials.
 
 A plain dask scheduler runs code for any local process that connects; ``fabric_optics.sweep.cluster`` puts the
 local cluster behind mutual TLS with temporary credentials. These tests connect as an outsider

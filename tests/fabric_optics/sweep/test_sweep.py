@@ -140,7 +140,9 @@ def test_failed_task_is_retried_reported_and_the_rest_kept(tmp_path, monkeypatch
 
     broken["on"] = False
     calls.clear()
-    assert main(argv) == 0
+    assert main(argv) == 2                          # the same command again: continue it with --resume
+    assert "--resume" in capsys.readouterr().err
+    assert main(argv + ["--resume"]) == 0
     assert dict(calls) == {(0.4, 550.0): 1}
     assert "1 computed, 5 reused, resumed, 0 failed" in capsys.readouterr().out
     assert [r["status"] for r in _summary(out)] == ["complete", "complete"]

@@ -1,4 +1,4 @@
-"""Data that could be lost or silently wrong (issue 9): retry counts, run-directory lock,
+"""Data that could be lost or silently wrong: retry counts, run-directory lock,
 instrument claim, calibration validity, demo output, plan validation, resume, transcripts."""
 
 from __future__ import annotations

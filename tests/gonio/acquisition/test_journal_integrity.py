@@ -1,4 +1,4 @@
-"""The journal's integrity chain (issue 23): an edited reading is detected on --resume with one
+"""The journal's integrity chain: an edited reading is detected on --resume with one
 line (exit 2); a kill's torn last line still is not an error; journals written before the chain
 stay readable and are chained from the next append on."""
 

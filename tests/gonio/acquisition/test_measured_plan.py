@@ -55,19 +55,19 @@ def test_a_file_without_normal_incidence_or_unreadable_is_refused(tmp_path):
 
 
 def test_datasets_say_which_incidences_are_interpolated(tmp_path, capsys):
-    assert main(["truth", str(FELT), "measured", "--out", str(tmp_path / "m")]) == 0
-    assert main(["truth", str(FELT), "green-felt", "--out", str(tmp_path / "g")]) == 0
+    assert main(["truth", str(FELT), "--plan", "measured", "--out", str(tmp_path / "m")]) == 0
+    assert main(["truth", str(FELT), "--plan", "green-felt", "--out", str(tmp_path / "g")]) == 0
     inc_m = json.loads((tmp_path / "m" / "meta.json").read_text())["sample"]["incidences"]
     inc_g = json.loads((tmp_path / "g" / "meta.json").read_text())["sample"]["incidences"]
     assert inc_m["interpolated_deg"] == [] and inc_m["source"] == FELT.name
     assert inc_g["interpolated_deg"] == [30.0, 45.0, 60.0] and "interpolated" in inc_g["note"]
-    assert main(["import", "rgl-bsdf", str(FELT), "--geometry", "measured", "--out", str(tmp_path / "i")]) == 0
+    assert main(["import", "rgl-bsdf", str(FELT), "--plan", "measured", "--out", str(tmp_path / "i")]) == 0
     inc_i = json.loads((tmp_path / "i" / "meta.json").read_text())["sample"]["incidences"]
     assert inc_i["interpolated_deg"] == []
 
 
 def test_measured_needs_a_bsdf_sample(tmp_path, capsys):
-    code = main(["truth", "red-cotton", "measured", "--out", str(tmp_path / "x")])
+    code = main(["truth", "red-cotton", "--plan", "measured", "--out", str(tmp_path / "x")])
     err = capsys.readouterr().err
     assert code == 2 and "--plan measured" in err and len(err.strip().splitlines()) == 1, err
 

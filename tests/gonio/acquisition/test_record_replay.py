@@ -127,8 +127,8 @@ def test_corrupt_transcripts_are_clear_errors(tmp_path, capsys, edit, needle):
 
 def test_refused_points_are_never_sent(drv, tmp_path):
     """Expected beam-block points (skip_blocked = true) are listed, skipped, and never reach the
-    controller; a plan with out-of-limit points is refused before anything is sent (issue 9,
-    item 7: the validation of check-plan)."""
+    controller; a plan with out-of-limit points is refused before anything is sent (the
+    validation of check-plan)."""
     from gonio import instrument as P
     from gonio.acquisition.engine import AcquisitionError
 
@@ -160,7 +160,7 @@ def test_refused_points_are_never_sent(drv, tmp_path):
 
 
 def test_an_edited_reply_with_a_recomputed_checksum_fails_the_integrity_check(tmp_path, capsys):
-    """Issue 9: a reply edited with its *HH checksum recomputed replayed with exit 0; the
+    """A reply edited with its *HH checksum recomputed replayed with exit 0; the
     transcript's SHA-256 chain now fails at that line (exit 1, the line named)."""
     from gonio import instrument as P
 
@@ -206,7 +206,7 @@ def test_a_transcript_without_integrity_hashes_is_refused(tmp_path, capsys):
 
 @pytest.mark.parametrize("name", ["quick-lambert", "quick-faults"])
 def test_the_head_is_the_one_owner_of_the_shutter(name):
-    """A session commands the shutter through the head only (issue 18): the controller's
+    """A session commands the shutter through the head only: the controller's
     shutter coil is read (the witness of a shutter closed under a point), never written; the
     head closes the shutter at the start and at the end."""
     from gonio.instrument.modbus_map import COIL_SHUTTER

@@ -64,8 +64,10 @@ def test_demo_with_a_small_plan(tmp_path, capsys):
     assert f"dataset in {out}" in text
     ds = read_dataset(out)
     assert len(ds.table) == 36 and ds.meta["sample"]["name"] == "quick check sample"
-    # a second demo into the same folder replaces the first one's results
-    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress"]) == 0
+    # a second demo into the same folder is refused without --force and replaces the first with it
+    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress"]) == 2
+    assert "pass --force" in capsys.readouterr().err
+    assert main(["demo", "--out", str(out), "--plan", "quick", "--no-progress", "--force"]) == 0
 
 
 def _default_sigint() -> None:
@@ -112,7 +114,7 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
         final = err.strip().splitlines()[-1]
         assert final.startswith("gonio acquire: interrupted") and final.count("kept") == 1, err
         assert err.count("kept") == 1, err  # said once, in the final line (not also by the engine's log)
-        assert f"--out {out} --resume" in final and f"gonio acquire {plan}" in final, final
+        assert f"--out {out} --resume" in final and f"gonio acquire --plan {plan}" in final, final
         kept = len(read_journal(out / "journal.jsonl").of_type("point"))
         assert 2 <= at_stop <= kept <= at_stop + 1 and kept < 12, (at_stop, kept)
         assert len(read_dataset(out).table) == 5 * kept

@@ -1,4 +1,4 @@
-"""One clear line instead of a traceback or a wrong message (issue 9): the `gonio` command line,
+"""One clear line instead of a traceback or a wrong message: the `gonio` command line,
 the mock's command line and the links. Every user error: one line naming what and what to do,
 exit 2, no traceback."""
 

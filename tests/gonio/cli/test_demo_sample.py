@@ -1,5 +1,5 @@
-"""`gonio demo --sample`: the mock's virtual sample chosen like `gonio mock --sample` (issue 20:
-the demo measures the real RGL felt through the mock), bad samples refused in one line."""
+"""`gonio demo --sample`: the mock's virtual sample chosen like `gonio mock --sample`
+(the demo measures the real RGL felt through the mock), bad samples refused in one line."""
 
 from __future__ import annotations
 

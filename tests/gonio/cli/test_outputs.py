@@ -1,5 +1,5 @@
 """The one output rule (gonio.data.outputs): every gonio command that writes replaces its own
-previous output, anything else only with --force, and a run folder never (issue 23)."""
+previous output, anything else only with --force, and a run folder never."""
 
 from __future__ import annotations
 
@@ -60,10 +60,13 @@ def test_check_output_rule_per_kind(tmp_path, run_folder):
         check_output(ds, "file", writer="x", force=True)
 
 
-def test_truth_replaces_its_own_output_and_nothing_else(tmp_path, capsys, run_folder):
+def test_truth_replaces_its_own_output_only_with_force(tmp_path, capsys, run_folder):
     out = tmp_path / "truth"
     assert _truth(out) == 0
-    assert _truth(out) == 0                                 # re-running the command: replaced
+    capsys.readouterr()
+    assert _truth(out) == 2                                 # re-running the command: refused
+    _one_line(capsys, "pass --force")
+    assert _truth(out, "--force") == 0                      # replaced with --force
     assert read_dataset(out).meta["written_by"] == "gonio truth"
     # a dataset another command wrote: refused, untouched; replaced with --force
     imported = tmp_path / "imported"
@@ -108,7 +111,7 @@ def test_bench_driver_never_replaces_a_run_journal(tmp_path, capsys, monkeypatch
         assert main(["bench-driver", "--plan", "quick", "--out", str(journal), *extra]) == 2
         _one_line(capsys, "a run folder's files are never replaced")
     assert journal.read_bytes() == before and not calls       # refused before the benchmark
-    # a file the user wrote: only with --force; its own previous report: replaced
+    # a file the user wrote, or its own previous report: only with --force
     mine = tmp_path / "notes.json"
     mine.write_text("mine\n")
     assert main(["bench-driver", "--plan", "quick", "--out", str(mine)]) == 2
@@ -116,7 +119,10 @@ def test_bench_driver_never_replaces_a_run_journal(tmp_path, capsys, monkeypatch
     assert mine.read_text() == "mine\n"
     report = tmp_path / "driver.json"
     assert main(["bench-driver", "--plan", "quick", "--out", str(report)]) == 0
-    assert main(["bench-driver", "--plan", "quick", "--out", str(report)]) == 0
+    capsys.readouterr()
+    assert main(["bench-driver", "--plan", "quick", "--out", str(report)]) == 2
+    _one_line(capsys, "pass --force")
+    assert main(["bench-driver", "--plan", "quick", "--out", str(report), "--force"]) == 0
     assert json.loads(report.read_text())["written_by"] == "gonio bench-driver"
     assert main(["bench-driver", "--plan", "quick", "--out", str(mine), "--force"]) == 0
     assert json.loads(mine.read_text())["plan"] == "quick"

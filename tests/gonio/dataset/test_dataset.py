@@ -259,7 +259,7 @@ def test_written_files_are_shareable(tmp_path):
         assert (out / name).stat().st_mode & 0o777 == 0o644
 
 
-# --- one clear line for hostile files (issue 9) ------------------------------------------------
+# --- one clear line for hostile files ------------------------------------------------
 
 
 def _set_meta(dataset_dir, edit):

@@ -1,4 +1,4 @@
-"""Crafted inputs to the importers (issue 23): one line naming the file and the problem, exit 2,
+"""Crafted inputs to the importers: one line naming the file and the problem, exit 2,
 refused from the file's kind, size or header before its body is read; negative values and
 near-grazing incidences said in the import summary."""
 

@@ -1,4 +1,4 @@
-"""gonio.data's import graph (issue 18): schema is a leaf, interpolate does not import dataset at
+"""gonio.data's import graph: schema is a leaf, interpolate does not import dataset at
 run time and reads no private attribute of a Dataset."""
 
 from __future__ import annotations

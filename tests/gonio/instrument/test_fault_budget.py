@@ -1,4 +1,4 @@
-"""The adaptive retry budget (issue 23): a session with every fault kind of the mock at 0.1
+"""The adaptive retry budget: a session with every fault kind of the mock at 0.1
 completes; the retry counters equal the faults injected, kind by kind; a move's wait is bounded
 (injected clock) and a takeover during it is noticed at once."""
 

@@ -200,7 +200,7 @@ def _directional_albedo(sample, theta_i: float, wavelength: float, n: int = 120)
 
 
 def test_red_cotton_has_a_forward_sheen_and_a_backscatter_lobe_and_conserves_energy():
-    """Issue 20: the angular character of a real fabric, nothing of it at normal incidence (the
+    """The angular character of a real fabric, nothing of it at normal incidence (the
     published colour test above), and never more light out than in."""
     rc, plain = RedCottonSample(), RedCottonSample()
     plain.sheen = plain.backscatter = plain.grazing_loss = 0.0      # the sample as it was

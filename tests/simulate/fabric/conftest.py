@@ -96,8 +96,8 @@ def carpet_text() -> str:
     from simulate.config import resolve_config_path
 
     text = resolve_config_path("red-cotton").read_text()
-    carpet = re.sub(r"(?ms)^\[structure\]\n.*?(?=^\[)", "", text)
-    assert not re.search(r"(?m)^\[structure\]", carpet) and "[method]" in carpet
+    carpet = re.sub(r"(?ms)^\[structure\]\n.*?(?=^\[|\Z)", "", text)
+    assert not re.search(r"(?m)^\[structure\]", carpet) and "[weave]" in carpet
     return carpet
 
 

@@ -42,7 +42,7 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
 
 
 def _fabric(cfg: Path, out: Path, method: str = "classic") -> int:
-    return main(["fabric", str(cfg), "--method", method, "--out", str(out), "--geometry", "quick"])
+    return main(["fabric", str(cfg), "--method", method, "--out", str(out), "--plan", "quick", "--force"])
 
 
 def test_disk_full_leaves_the_previous_output_and_no_temporary_folder(fake_fiber, tmp_path, cfg, capsys,
@@ -169,7 +169,7 @@ def test_recover_all_handles_every_output_of_a_folder(tmp_path):
 
 
 def test_the_state_an_older_version_left_is_recognised_and_replaced(fake_fiber, tmp_path, cfg, capsys):
-    """Issue 23: killed between its two renames, the per-file writer left radiance.csv alone with
+    """Killed between its two renames, the per-file writer left radiance.csv alone with
     its temporary files, and the rerun was refused. Now it is recognised, replaced and cleaned."""
     out = tmp_path / "sim"
     assert _fabric(cfg, out) == 0

@@ -52,8 +52,10 @@ def test_fabric_writes_a_dataset_and_overwrites_only_its_own_output(fake_fiber, 
     ds = read_dataset(out)
     assert ds.meta["provenance"]["seed"] == 5 and ds.meta["provenance"]["target_rel_err"] == 0.05
     assert fake_fiber.volume_calls[0]["target_rel_err"] == 0.05
-    # a previous simulate output is replaced
-    assert main(["fabric", "red-cotton", "--method", "classic", "--out", str(out)]) == 0
+    # a previous simulate output is replaced with --force only
+    assert main(["fabric", "red-cotton", "--method", "classic", "--out", str(out)]) == 2
+    assert "pass --force" in _one_error_line(capsys)
+    assert main(["fabric", "red-cotton", "--method", "classic", "--out", str(out), "--force"]) == 0
     assert read_dataset(out).meta["model"]["method"] == "classic"
 
 
@@ -62,18 +64,18 @@ def test_fabric_with_a_plan_path_and_measurable_only(fake_fiber, tmp_path, cfg):
 
     out = tmp_path / "q"
     plan = load_plan("quick")
-    assert main(["fabric", str(cfg), "--method", "summation", "--out", str(out), "--geometry", "quick",
+    assert main(["fabric", str(cfg), "--method", "summation", "--out", str(out), "--plan", "quick",
                  "--measurable-only"]) == 0
     assert len(read_dataset(out).geometries()) == len(plan.geometries(measurable_only=True))
 
 
 @pytest.mark.parametrize("argv_tail,fragment", [
-    (["--method", "summation", "--out", "{out}", "--geometry", "no-such-plan"], "--geometry"),
+    (["--method", "summation", "--out", "{out}", "--plan", "no-such-plan"], "--plan"),
     (["--method", "summation", "--out", "{out}", "--target-rel-err", "2"], "--target-rel-err"),
     (["--method", "summation", "--out", "{out}", "--target-rel-err", "abc"], "--target-rel-err"),
     (["--method", "bssrdf", "--out", "{out}"], "--method"),
     (["--method", "summation", "--out", "{out}", "--seed", "-1"], "--seed"),
-    (["--method", "summation", "--out", "{out}", "--threads", "-1"], "--threads"),   # 0 = all (issue 23)
+    (["--method", "summation", "--out", "{out}", "--threads", "-1"], "--threads"),   # 0 = all
     (["--method", "summation"], "--out"),
 ])
 def test_fabric_bad_arguments_exit_2_with_one_line(fake_fiber, tmp_path, capsys, argv_tail, fragment):
@@ -124,7 +126,7 @@ def test_fabric_plan_with_grazing_incidence_is_an_input_error(fake_fiber, tmp_pa
     plan.write_text('[sample]\nname = "x"\n[wavelengths]\nlist_nm = [500, 600]\n'
                     '[geometry]\nincidence_deg = [90]\nin_plane_deg = [10]\n')
     code = main(["fabric", str(cfg), "--method", "summation", "--out", str(tmp_path / "o"),
-                 "--geometry", str(plan)])
+                 "--plan", str(plan)])
     assert code == 2
     _one_error_line(capsys)
 
@@ -132,7 +134,7 @@ def test_fabric_plan_with_grazing_incidence_is_an_input_error(fake_fiber, tmp_pa
 def test_fiber_table_grid_values_and_sidecar(fake_fiber, tmp_path, capsys, cfg):
     out = tmp_path / "table"
     assert main(["fiber", str(cfg), "--out", str(out), "--step-deg", "30", "--phi-step-deg", "45",
-                 "--method", "beam"]) == 0
+                 "--route", "beam"]) == 0
     arrays, sidecar = read_fiber_table(out)
     assert sidecar["format"] == "fiber-brdf-table/1"
     np.testing.assert_array_equal(arrays["theta_in_deg"], [15, 45, 75, 105, 135, 165])
@@ -153,8 +155,8 @@ def test_fiber_table_grid_values_and_sidecar(fake_fiber, tmp_path, capsys, cfg):
     np.testing.assert_allclose(arrays["R"], arrays["R_vol"] + arrays["R_surf"][..., None])
     assert sidecar["provenance"]["method"] == "beam" and sidecar["grid"]["step_deg"] == 30
     assert (out / NPZ_NAME).is_file() and (out / JSON_NAME).is_file()
-    # its own previous output may be overwritten; a bad grid step is a usage error
-    assert main(["fiber", str(cfg), "--out", str(out), "--step-deg", "30", "--phi-step-deg", "90"]) == 0
+    # its own previous output is replaced with --force; a bad grid step is a usage error
+    assert main(["fiber", str(cfg), "--out", str(out), "--step-deg", "30", "--phi-step-deg", "90", "--force"]) == 0
     capsys.readouterr()
     assert main(["fiber", str(cfg), "--out", str(out), "--step-deg", "7"]) == 2
     assert "--step-deg" in _one_error_line(capsys, "fiber")

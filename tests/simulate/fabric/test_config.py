@@ -21,6 +21,7 @@ seed = 3
 radius_um = 8.0
 n_host = 1.557
 cell_width_deg = 10
+route = "nee"
 
 [fiber.dye]
 curve = "gaussian-bands"
@@ -41,7 +42,6 @@ matrix = [[1, 0], [0, 1]]
 spacing_um = 300
 
 [method]
-method = "nee"
 target_rel_err = 0.02
 """
 
@@ -64,7 +64,7 @@ def test_preset_red_cotton_loads_by_name():
 def test_base_config_parses_to_the_fields():
     cfg = parse_config(BASE, "test.toml")
     assert (cfg.radius_um, cfg.n_host, cfg.rms_slope, cfg.seed) == (8.0, 1.557, 0.3, 3)
-    assert cfg.method == "nee" and cfg.target_rel_err == 0.02
+    assert cfg.route == "nee" and cfg.target_rel_err == 0.02
     assert cfg.max_photons is None and cfg.threads is None
     assert cfg.weave == {"matrix": [[1, 0], [0, 1]], "spacing_um": 300.0}
     dye = cfg.dye(np.array([525.0, 605.0]))
@@ -74,9 +74,26 @@ def test_base_config_parses_to_the_fields():
 
 def test_exit_bins_default_and_given():
     base = parse_config(BASE, "test.toml")
-    assert base.exit_bins == (5, 10) and not base.exit_bins_given
-    cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [10, 20]"), "t.toml")
-    assert cfg.exit_bins == (10, 20) and cfg.exit_bins_given
+    assert base.exit_bins == (10, 20)
+    cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5, 10]"), "t.toml")
+    assert cfg.exit_bins == (5, 10)
+
+
+def test_the_old_route_key_is_read_with_one_deprecation_line(caplog):
+    """``[method] method`` still gives the fiber route for one release, with one warning line naming the new key;
+    the same config as ``[fiber] route``; both at once is an error."""
+    new = parse_config(_set(BASE, 'route = "nee"', 'route = "beam"'), "t.toml")
+    old_text = _set(_set(BASE, 'route = "nee"\n', ""), "[method]\n", '[method]\nmethod = "beam"\n')
+    with caplog.at_level("WARNING", logger="simulate.config"):
+        old = parse_config(old_text, "t.toml")
+    assert old.route == new.route == "beam"
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "\n" not in lines[0]
+    assert lines[0].startswith("t.toml: method.method is deprecated") and 'route = "beam" in [fiber]' in lines[0]
+    fields = [f for f in old.__dataclass_fields__ if f not in ("text", "sha256")]
+    assert all(getattr(old, f) == getattr(new, f) for f in fields)
+    with pytest.raises(ConfigError, match="method.method and fiber.route both give the fiber route"):
+        parse_config(_set(BASE, "[method]\n", '[method]\nmethod = "beam"\n'), "t.toml")
 
 
 def test_transmission_rms_slope_defaults_to_the_smooth_boundary_and_reaches_the_fiber():
@@ -90,9 +107,9 @@ def test_transmission_rms_slope_defaults_to_the_smooth_boundary_and_reaches_the_
     assert (aniso.fiber().transmission_roughness, aniso.fiber().transmission_roughness_around) == (0.05, 0.3)
 
 
-def test_axial_nodes_and_shift_default_to_the_original_table_and_reach_the_grid():
+def test_axial_nodes_and_shift_default_to_a_uniform_table_and_reach_the_grid():
     base = parse_config(BASE, "test.toml")
-    assert base.w_t_nodes() == (0.0, 0.25, 0.5, 0.75, 0.95) and base.axial_shift is False
+    assert base.w_t_nodes() == (0.0, 0.2375, 0.475, 0.7125, 0.95) and base.axial_shift is False
     cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\naxial_nodes = 9\naxial_shift = true"),
                        "t.toml")
     nodes = np.array(cfg.w_t_nodes())
@@ -176,7 +193,7 @@ BAD = [
     ("matrix = [[1, 0], [0, 1]]", "matrix = [[1, 0], [0]]", "weave.matrix must be a rectangular list of rows of 0/1"),
     ("matrix = [[1, 0], [0, 1]]", "matrix = [[1, 2], [0, 1]]", "weave.matrix must be a rectangular list"),
     ("spacing_um = 300", 'spacing_um = "wide"', "weave.spacing_um must be a number > 0"),
-    ('method = "nee"', 'method = "fast"', "method.method must be one of nee, beam, bssrdf"),
+    ('route = "nee"', 'route = "fast"', "fiber.route must be one of nee, beam, bssrdf"),
     ("target_rel_err = 0.02", "target_rel_err = 0", "method.target_rel_err must be a number > 0 and < 1"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nmax_photons = 1.5", "method.max_photons must be an integer"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nthreads = -2", "method.threads must be an integer"),

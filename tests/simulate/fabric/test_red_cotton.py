@@ -70,7 +70,7 @@ def test_red_cotton_colour_in_the_published_range_and_shared_by_classic_and_summ
     rho, u_rho = rho_d
     h, s, b_r, g_r = _colour_figures(rho)
     u = _colour_uncertainty(rho, u_rho)
-    # published red cotton (measured and computed by the original method; issue 19's ranges):
+    # published red cotton (measured and computed by the original method):
     # H 0.97-0.99, S >= 0.97, BLUE/RED 0.05-0.25, GREEN/RED 0.005-0.03. The dye is fitted to the
     # fabric (the [structure] summation, test_red_cotton_fabric_colour_in_the_published_range);
     # the fiber's own normal-incidence colour is in the range too

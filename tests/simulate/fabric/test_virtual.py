@@ -46,7 +46,7 @@ def test_summation_dataset_has_the_plan_geometries_and_exact_values(fake_fiber, 
     assert len(fake_fiber.volume_calls) == 1
     call = fake_fiber.volume_calls[0]
     np.testing.assert_array_equal(call["wavelengths_nm"], [450.0, 550.0, 650.0])
-    assert call["seed"] == 7 and call["method"] == config.method
+    assert call["seed"] == 7 and call["method"] == config.route
     assert call["w_in"].shape[0] < 2 * len(plan.geometries())
     # values: beta = pi/cos_i * 1/2 sum_k (R_surf + R_vol)(M_k w_i, M_k w_o), by the direct route
     t = back.table

@@ -173,3 +173,40 @@ def test_concurrent_writers_leave_one_valid_entry(cache):
     assert files == ["yarn-shared" + tc.SUFFIX]          # no temporary file left, one entry
     got = tc.load("yarn-shared")
     assert got is not None and int(got["who"]) in (1, 2) and np.all(got["a"] == got["who"])
+
+
+def test_eviction_is_logged_in_order_and_spares_this_run_s_own_tables(cache, monkeypatch, caplog):
+    """Other runs' entries go first (least recently used first), each eviction is one INFO line naming the entry,
+    its kind, size and last use; this run's own entry is kept although it is the oldest."""
+    one = {"a": np.zeros(10_000)}
+    for name in ("exit-own", "yarn-old", "yarn-new"):
+        tc.store(name, one)
+    entry = tc.entries()[0][1]
+    for name, t in (("exit-own", 1_000_000), ("yarn-old", 1_000_100), ("yarn-new", 1_000_200)):
+        os.utime(cache / f"{name}{tc.SUFFIX}", (t, t))
+    # as if another run had made the two yarn tables: only exit-own is this process's
+    monkeypatch.setattr(tc, "_USED", {str(cache / f"exit-own{tc.SUFFIX}")})
+    monkeypatch.setenv(tc.ENV_MAX_BYTES, str(int(2.5 * entry)))
+    with caplog.at_level("INFO", logger=tc.__name__):
+        tc.store("exit-next", one)                         # 4 entries over a bound of 2.5: two go
+    names = {p.name for _, _, p in tc.entries()}
+    assert names == {f"exit-own{tc.SUFFIX}", f"exit-next{tc.SUFFIX}"}
+    lines = [r.getMessage() for r in caplog.records if r.name == tc.__name__]
+    evicted = [m.split()[3] for m in lines if m.startswith("table cache: evicted ")]
+    assert evicted == [f"yarn-old{tc.SUFFIX}", f"yarn-new{tc.SUFFIX}"]          # least recently used first
+    assert f"(yarn, {entry / 1e6:,.1f} MB, last used " in lines[0] and "bound of" in lines[0]
+    assert any(m.startswith("table cache: 2 entries evicted") for m in lines)
+    assert not any(r.levelname == "WARNING" for r in caplog.records)
+
+
+def test_a_run_whose_own_tables_exceed_the_bound_says_so(cache, monkeypatch, caplog):
+    one = {"a": np.zeros(10_000)}
+    monkeypatch.setattr(tc, "_USED", set())
+    tc.store("exit-0", one)
+    entry = tc.entries()[0][1]
+    monkeypatch.setenv(tc.ENV_MAX_BYTES, str(int(1.5 * entry)))
+    with caplog.at_level("INFO", logger=tc.__name__):
+        tc.store("exit-1", one)
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and "this run's own tables" in warnings[0] and tc.ENV_MAX_BYTES in warnings[0]
+    assert str(2 * entry) in warnings[0]                   # the two tables' size: the bound to set

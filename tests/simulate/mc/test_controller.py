@@ -3,7 +3,7 @@ stops just past it, and its stopping point does not depend on the threads.
 
 "Needed" is what the run itself shows: with ``u ~ 1/sqrt(N)`` a run that ends at ``N`` photons
 with error ``rel`` needed ``N (rel / target)^2`` photons for the target. The earlier controller
-spent 29 % more than that on red-cotton's summation (issue 21).
+spent 29 % more than that on red-cotton's summation.
 """
 
 from __future__ import annotations

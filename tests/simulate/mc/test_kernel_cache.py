@@ -4,7 +4,7 @@ Two fresh processes run :mod:`cache_probe` (the slab command and the fiber route
 kernel variant they use) against the same empty ``NUMBA_CACHE_DIR``. The first compiles and
 fills the cache; the second must load every kernel from it (numba's per-dispatcher
 ``cache_hits``), compile nothing (no ``cache_misses``) and leave the cache directory exactly as
-it was (same files, same contents). Issue 21: a kernel whose cache key changed per process
+it was (same files, same contents). A kernel whose cache key changed per process
 recompiled in every process and added a data file to the cache each time.
 """
 

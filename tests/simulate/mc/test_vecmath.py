@@ -1,4 +1,4 @@
-"""The vectorisable exponential and the spectral scoring built on it (issue 21).
+"""The vectorisable exponential and the spectral scoring built on it.
 
 References are independent of the code under test: numpy's ``exp`` (libm) and the formula of
 :func:`simulate.montecarlo.tallies._score_spectral`'s docstring evaluated with numpy.

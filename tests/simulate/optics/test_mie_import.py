@@ -1,6 +1,6 @@
 """miepython through :func:`simulate.optics.mie._miepython`: its eagerly compiled kernel is cached.
 
-miepython compiles ``_cn_dn_nb`` at import without ``cache=True`` (issue 21: 1.5-2 s in every
+miepython compiles ``_cn_dn_nb`` at import without ``cache=True`` (1.5-2 s in every
 process). Two fresh processes import it through the wrapper against one empty ``NUMBA_CACHE_DIR``:
 the first compiles it into the cache, the second loads it (numba's dispatcher statistics) and
 compiles nothing; ``numba.njit`` is the original again after the import; the Mie numbers are

@@ -39,32 +39,9 @@ TINY_PLAN = ('[sample]\nname = "x"\n[wavelengths]\nlist_nm = [550, 650]\n'
              '[geometry]\nincidence_deg = [0, 45]\nin_plane_deg = [-30, 10, 40]\n')
 
 
-def test_top_cells_flat_untwisted_reproduce_the_old_summation():
-    """[structure] cells = "top", flat yarns, twist 0: the same numbers as the summation without [structure]."""
-    from simulate.virtual import fabric_dataset
-
-    old = parse_config(HG_CONFIG, "hg.toml")
-    new = parse_config(HG_CONFIG + '[structure]\ncells = "top"\nyarn_surface = false\nwarp_twist_deg = 0\n'
-                       'weft_twist_deg = 0\n', "hg.toml")
-    plan = parse_plan(TINY_PLAN, "tiny.toml")
-    a = fabric_dataset(old, plan, "summation", target_rel_err=0.1, seed=7, threads=2).table
-    b = fabric_dataset(new, plan, "summation", target_rel_err=0.1, seed=7, threads=2).table
-    assert np.all(a["beta"] > 0)
-    np.testing.assert_allclose(b["beta"], a["beta"], rtol=1e-12, atol=0)
-    np.testing.assert_allclose(b["u_beta"], a["u_beta"], rtol=1e-12, atol=0)
-    # and a twist changes them (the regression is not vacuous)
-    twisted = parse_config(HG_CONFIG + '[structure]\ncells = "top"\nyarn_surface = false\nwarp_twist_deg = 30\n',
-                           "hg.toml")
-    c = fabric_dataset(twisted, plan, "summation", target_rel_err=0.1, seed=7, threads=2).table
-    assert np.max(np.abs(c["beta"] - a["beta"]) / a["beta"]) > 0.01
-
-
 @pytest.mark.parametrize("line,field", [
     ('kind = "knit"', "structure.kind"),
-    ('cells = 3', "structure.cells"),
-    ('masking = "yes"', "structure.masking"),
-    ('yarn_surface = 1', "structure.yarn_surface"),
-    ('interior = "no"', "structure.interior"),
+    ('kind = "felt"', "structure.kind"),
     ('layers = -1', "structure.layers"),
     ('packing_fraction = 0.95', "structure.packing_fraction"),
     ('packing_fraction = 0', "structure.packing_fraction"),
@@ -73,11 +50,14 @@ def test_top_cells_flat_untwisted_reproduce_the_old_summation():
     ('weft_twist_deg = "a"', "structure.weft_twist_deg"),
     ('weft_twist = "z"', "structure.weft_twist"),
     ('felt_spread_deg = -5', "structure.felt_spread_deg"),
+    ('kind = "nonwoven"\nfelt_normal_fraction = 0.95', "structure.felt_normal_fraction"),
+    ('kind = "nonwoven"\nfelt_normal_fraction = -0.1', "structure.felt_normal_fraction"),
+    ('kind = "nonwoven"\nfelt_normal_fraction = "some"', "structure.felt_normal_fraction"),
+    ('kind = "nonwoven"\nfelt_normal_spread_deg = 50', "structure.felt_normal_spread_deg"),
+    ('kind = "nonwoven"\nfelt_normal_spread_deg = true', "structure.felt_normal_spread_deg"),
+    ('felt_normal_fraction = 0.2', "structure.felt_normal_fraction"),
     ('samples = 2', "structure.samples"),
     ('twist = 3', "structure.twist"),
-    ('masking = false', "structure.interior"),
-    ('interior_return = "lambert"', "structure.interior_return"),
-    ('interior = false\ninterior_return = "directional"', "structure.interior_return"),
 ])
 def test_every_structure_field_is_validated(line, field):
     with pytest.raises(ConfigError) as exc:
@@ -97,10 +77,31 @@ def test_bad_structure_field_is_one_line_exit_2(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("line", ['cells = "top"', "masking = false", "yarn_surface = true", "interior = true",
+                                  'interior_return = "diffuse"'])
+def test_a_removed_structure_key_is_one_line_exit_2(tmp_path, capsys, line):
+    """A switch that was removed (its model is always on) is refused by name, with what to do, exit 2 --
+    whatever value it has, and before any other field is read."""
+    from fabric_optics.cli.simulate import main
+
+    key = line.split(" =")[0]
+    path = tmp_path / "old.toml"
+    path.write_text(HG_CONFIG + "[structure]\nwarp_twist = \"Q\"\n" + line + "\n")
+    assert main(["fabric", str(path), "--method", "summation", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"old.toml: structure.{key} was removed; " in err[0] and "delete the line" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_felt_alias_is_refused_with_its_replacement():
+    with pytest.raises(ConfigError, match='structure.kind value "felt" was removed; write kind = "nonwoven"'):
+        parse_config(HG_CONFIG + '[structure]\nkind = "felt"\n', "old.toml")
+    assert parse_config(HG_CONFIG + '[structure]\nkind = "nonwoven"\n', "new.toml").structure.kind == "nonwoven"
+
+
 def test_defaults_from_the_literature():
     spec = parse_config(HG_CONFIG + "[structure]\n", "hg.toml").structure
-    assert (spec.kind, spec.cells, spec.masking, spec.warp_twist, spec.warp_twist_deg) == ("woven", "visible", True,
-                                                                                             "Z", 24.0)
+    assert (spec.kind, spec.warp_twist, spec.warp_twist_deg) == ("woven", "Z", 24.0)
     assert spec.spacing_ratio == pytest.approx(1.0)
 
 
@@ -198,19 +199,3 @@ def test_structured_summation_dataset_end_to_end(tmp_path):
     model = ds.meta["model"]
     assert model["structure"]["warp_twist_deg"] == 20.0 and model["structure"]["weft_twist"] == "S"
     assert 0.45 < model["facets"]["warp"] < 0.55
-
-
-def test_directional_return_through_the_config(tmp_path):
-    """`interior_return = "directional"` reaches the summation (same walk as "diffuse": only the return's angular
-    shape differs) and is recorded in the dataset's model."""
-    from simulate.virtual import fabric_dataset
-
-    plan = parse_plan(TINY_PLAN, "tiny.toml")
-    base = HG_CONFIG + '[structure]\nkind = "felt"\npacking_fraction = 0.3\n'
-    a = fabric_dataset(parse_config(base, "hg.toml"), plan, "summation", target_rel_err=0.2, seed=1, threads=2)
-    b = fabric_dataset(parse_config(base + 'interior_return = "directional"\n', "hg.toml"), plan, "summation",
-                       target_rel_err=0.2, seed=1, threads=2)
-    assert b.meta["model"]["structure"]["interior_return"] == "directional"
-    assert a.meta["model"]["structure"]["interior_return"] == "diffuse"
-    rel = np.abs(b.table["beta"] - a.table["beta"]) / a.table["beta"]
-    assert np.all(b.table["beta"] > 0) and 0.01 < rel.max() < 0.5

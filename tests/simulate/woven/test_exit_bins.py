@@ -64,31 +64,31 @@ def test_the_clear_fiber_note_names_nearly_clear_fibers_at_coarse_azimuth_bins()
     assert E.clear_fiber_note(clear, [550.0], (5, 20)) is None          # azimuths finer than the default's
 
 
-def test_a_felt_of_clear_fibers_at_the_implicit_default_bins_warns(tmp_path, capsys, caplog):
-    cfg = tmp_path / "felt.toml"
-    cfg.write_text(CLEAR_FELT)
+def _run_felt(tmp_path, caplog, text: str, name: str):
+    cfg = tmp_path / f"{name}.toml"
+    cfg.write_text(text)
     plan = tmp_path / "tiny.toml"
     plan.write_text(PLAN)
-    with caplog.at_level(logging.WARNING, logger="simulate.products"):
-        assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(tmp_path / "o"),
-                     "--target-rel-err", "0.1", "--no-progress"]) == 0
-    capsys.readouterr()
-    assert sum("nearly clear" in r.getMessage() for r in caplog.records) == 1
-
-
-def test_simulate_fabric_traces_the_felt_with_the_configs_exit_bins(tmp_path, capsys, caplog):
-    """Bins the config gives are used, and say that the user chose them: no clear-fiber warning."""
-    cfg = tmp_path / "felt.toml"
-    cfg.write_text(CLEAR_FELT + "[method]\nexit_bins = [4, 8]\n")
-    plan = tmp_path / "tiny.toml"
-    plan.write_text(PLAN)
-    out = tmp_path / "felt-mc"
+    out = tmp_path / name
     with caplog.at_level(logging.WARNING, logger="simulate.products"):
         assert main(["fabric", str(cfg), "--method", "mc", "--geometry", str(plan), "--out", str(out),
                      "--target-rel-err", "0.1", "--no-progress"]) == 0
-    capsys.readouterr()
-    assert not any("nearly clear" in r.getMessage() for r in caplog.records)
+    warned = sum("nearly clear" in r.getMessage() for r in caplog.records)
+    caplog.clear()
     ds = read_dataset(out)
     assert np.all(ds.table["beta"] > 0)
-    grid = ds.meta["provenance"]["fiber_info"]["table"]["grid"]
-    assert grid[2:] == [4, 8]
+    return warned, ds.meta["provenance"]["fiber_info"]["table"]["grid"]
+
+
+def test_a_felt_of_clear_fibers_at_coarse_bins_warns_once(tmp_path, capsys, caplog):
+    """Bins the config gives are used; coarse azimuth bins on nearly clear fibers say so in one warning."""
+    warned, grid = _run_felt(tmp_path, caplog, CLEAR_FELT + "[method]\nexit_bins = [4, 8]\n", "coarse")
+    capsys.readouterr()
+    assert warned == 1 and grid[2:] == [4, 8]
+
+
+def test_simulate_fabric_traces_the_felt_at_the_default_bins_without_a_warning(tmp_path, capsys, caplog):
+    """The default exit bins resolve a clear fiber's exit cones: used when the config gives none, no warning."""
+    warned, grid = _run_felt(tmp_path, caplog, CLEAR_FELT, "default")
+    capsys.readouterr()
+    assert warned == 0 and grid[2:] == [10, 20]

@@ -138,7 +138,7 @@ def red_cotton_mc_colour(tmp_path_factory):
 @pytest.mark.slow
 def test_red_cotton_mc_colour_in_the_published_range(red_cotton_mc_colour):
     """The shipped preset through ``simulate fabric --method mc`` at the report's colour geometry
-    (incidence 0, observation 10 deg): in the published ranges of issue 19 (H 0.97-0.99, S >= 0.97,
+    (incidence 0, observation 10 deg): in the published ranges (H 0.97-0.99, S >= 0.97,
     BLUE/RED 0.05-0.25, GREEN/RED 0.005-0.03) with the yarns made of fibers (docs/physics.md 6).
     The yarn as a tube of the fiber's own table gave S 0.944, GREEN/RED 0.056 (fails here); the
     fibers' surface alone S 0.965, GREEN/RED 0.035 (fails); the run's noise is ~0.002 in S."""

@@ -14,7 +14,7 @@ from simulate import woven as W
 from fabric_optics.cli.simulate import main
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
-from simulate.woven.felt import felt_mesh
+from simulate.nonwoven.felt import felt_mesh
 
 
 def test_the_felts_fibers_follow_the_structures_distribution():
@@ -42,8 +42,8 @@ def test_the_felts_fibers_do_not_interpenetrate(monkeypatch):
     """Random points on the fibers' surfaces lie inside no other fiber (an independent check:
     point-in-cylinder, not the placement's segment distance); with the contact rule switched off
     (every fiber dropped to the floor) the same check finds them buried, so it can fail."""
-    from simulate.woven import felt
-    from fabric_optics.bench.woven_felt import buried_fraction
+    from simulate.nonwoven import felt
+    from fabric_optics.bench.felt import buried_fraction
 
     spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=20.0, layers=4)
     m = felt_mesh(spec, 10.0, seed=5)
@@ -169,7 +169,7 @@ def test_each_table_half_is_traced_on_its_own_realisation_of_the_felt():
 @pytest.mark.slow
 def test_the_felts_u_beta_holds_the_spread_between_realisations():
     """Four felts (seeds) at fixed tables: the variance of beta between them is what u_beta says, not
-    ~12 times it (one realisation traced at one azimuth, the error the third stop reported:
+    ~12 times it (one realisation traced at one azimuth, with
     the rays' and the table's error only)."""
     spec, fib, w_i, w_o, wl, tables = _tiny_felt_case(0.015)
     runs = []

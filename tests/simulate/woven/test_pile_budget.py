@@ -58,7 +58,7 @@ def test_the_piles_table_and_rays_share_the_target_by_its_measured_noise(monkeyp
     pile = _requested(monkeypatch, plain_mesh, "pile", target)
     fiber = _requested(monkeypatch, plain_mesh, "fiber", target)
     # the pile's table: its own noise and share, held groups; far fewer photons than the fiber's rule
-    # the default exit bins ([method] exit_bins) and axial nodes ([method] axial_nodes)
+    # fabric_beta's own exit bins and axial nodes (a config run passes its [method] exit_bins and axial_nodes)
     grid = {"n_mu": 5, "n_phi": 10, "w_t_nodes": (0.0, 0.25, 0.5, 0.75, 0.95)}
     assert pile["held"] == {"held_log_mu_s": W.pile.HELD_LOG_MU_S, **grid} and fiber["held"] == grid
     assert pile["radius"] > 10.0 and fiber["radius"] == 10.0

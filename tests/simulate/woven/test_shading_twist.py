@@ -1,4 +1,4 @@
-"""The woven Monte Carlo's local fiber direction (twist) and its shading-normal rule (issue 19).
+"""The woven Monte Carlo's local fiber direction (twist) and its shading-normal rule.
 
 References come from outside the tracer: the summation's twist convention, a mirror symmetry, a
 quadrature of the camera-tracer (adjoint) formula over the mesh's own triangles, the faceted tube.

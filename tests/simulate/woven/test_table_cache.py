@@ -34,7 +34,7 @@ def _fiber(**medium):
 
 
 def _fields(t):
-    return {name: getattr(t, name) for name in ("T", "u_T", "c_bar", "tau", "w_t_nodes")}
+    return {name: getattr(t, name) for name in ("T", "c_bar", "tau", "w_t_nodes")}
 
 
 def test_hit_is_bit_identical_to_the_miss_and_to_an_uncached_build(cache):
@@ -152,3 +152,31 @@ def test_a_warm_process_never_imports_miepython(cache):
                            timeout=300, check=True).stdout.split() for _ in range(2)]
     assert outs[0] == ["miss", "miss", "True"]
     assert outs[1] == ["hit", "hit", "False"]
+
+
+def test_the_tables_rows_are_the_per_node_rows_bit_for_bit(cache):
+    """The table's means are written straight into its wavelength groups' slices: each node's rows equal
+    :func:`simulate.fiber.bssrdf.bssrdf_rows` of that node (its own sums and division) bit for bit, for a
+    medium whose scattering splits the wavelengths into several groups."""
+    from simulate.fiber.bssrdf import bssrdf_rows
+    from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
+    from simulate.montecarlo.transport import make_control
+
+    medium = MieMedium(n_host=1.5, particle_n=2.7, particle_k=0.0, radius_um=0.1, volume_fraction=0.003,
+                       phase_table_size=64)
+    fib = F.Fiber(10.0, 1.5, medium, 0.3, 30.0)
+    wl = np.array([420.0, 520.0, 620.0, 700.0])
+    grid = dict(w_t_nodes=(0.0, 0.5), n_v=2, n_mu=3, n_phi=4)
+    tab = W.yarn_table(fib, wl, seed=9, threads=1, photons_per_row=1500, cache=False, **grid)
+    optics = spectral_optics(fib, wl)
+    groups = wavelength_groups(optics)
+    assert len(groups) >= 2
+    n_psi, n_v, n_mu, n_phi = tab.n_psi, 2, 3, 4
+    ks = list(range(tab.T.shape[1]))
+    for j, w_t in enumerate((0.0, 0.5)):
+        for g in groups:
+            med, phase, targets = group_walk(fib, optics, g, white=True)
+            ref, _, _, _ = bssrdf_rows(fib, w_t, ks, (n_psi, n_v, 2.0 * fib.radius_um, n_mu, n_phi), med, phase,
+                                       targets, make_control(), 1500, 9 + 104729 * j, 1)
+            got = tab.T[j][..., int(g[0]):int(g[-1]) + 1]
+            assert got.tobytes() == ref.reshape(got.shape).tobytes()

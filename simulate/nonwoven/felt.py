@@ -11,11 +11,21 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   random in-plane position and a direction drawn from the distribution above. A fiber that crosses
   the cell's sides is also put in at its periodic images (shifted by ``+-L``), so the cell tiles the
   plane seamlessly.
+* **Needle-punched fibers** (``felt_normal_fraction``, ``felt_normal_spread_deg``): needle punching drives
+  part of the web's fibers from the plane towards the normal; X-ray CT of needle-punched nonwovens finds
+  fibers parallel and perpendicular to the normal and few in between (Text. Res. J., doi
+  10.1177/0040517517736470). With probability ``felt_normal_fraction`` a fiber is drawn from that
+  second population: tilted from the normal by ``|N(0, felt_normal_spread_deg)|`` (truncated at 80 deg)
+  towards a uniform azimuth, counted by its material (``2 R l``, as a fiber lying flat) in the amount
+  below. It is deposited like the others (on the floor or on the fibers below), so it stands among
+  them and may stand out of the top. The fraction 0 (the default) draws nothing more from the stream:
+  the felt is bit for bit the in-plane one. The summation's felt (6.2) has no such population (a
+  warning says so).
 * **How many**: the summation's felt is ``layers`` (``structure.layers``, default 10) layers of
   parallel fibers at spacing ``d = 2 R spacing_ratio`` (the packing fraction's); here the fibers'
   projected area ``2 R l cos(epsilon)`` adds up to the same ``layers L^2 / spacing_ratio`` (the same
   amount of fiber per unit area).
-* **No two fibers interpenetrate** (issue 19). Fibers placed independently overlap where they cross
+* **No two fibers interpenetrate**. Fibers placed independently overlap where they cross
   (at the layers' density a covered point lay in 1.47 fibers on average), and a tracer that walks
   each fiber's volume from a table walks the shared material once per fiber: with absorbing fibers
   the felt was 16 % too dark (docs/physics.md 6). Treating the union instead would need the walk in
@@ -30,13 +40,13 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   (``info["volume_fraction"]``, measured between the quartiles of the centres' heights). Random
   sequential addition with rejection in a slab reaches no more (it jammed at 0.14-0.19, the fibers'
   volume over their centres' slab, 20 000 tries a fiber), and picking the lowest of 4-16 positions
-  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured, 2026-11-24).
+  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured).
   The summation's layers of touching fibers (packing 0.9069) are beyond any random straight-fiber
   layer: the felt keeps the layers' *fiber amount* and the orientation distribution and takes the
   thickness the deposition gives (10 touching layers of 20-um fibers: ~1.2-1.8 mm instead of 0.2 mm).
   A requested packing below the deposition's density (< ~0.11) is not loosened further (it only sets
   the fiber count): compare with the summation at the felt's measured volume fraction
-  (``fabric_optics/bench/woven_felt.py --packing``).
+  (the felt study, :func:`fabric_optics.bench.felt.run_felt_study` with ``packing_fraction``).
 * **Ends**: the tubes are open. An end is ``R / l = 2.5 %`` of a fiber's surface; light that enters
   one meets the tube's inside and is taken into the fiber's volume (the interpenetration rule).
 * **Mesh**: the weave mesh's contract (:mod:`simulate.fabric.weave`): one "yarn" per fiber image,
@@ -46,7 +56,7 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
 
 The yarn table is the fiber's own (``r_yarn = R``: the exit offsets need no scaling).
 
-Limits: straight fibers (a real felt's fibers curl and pack denser), a floor under the first fibers
+Limits: straight fibers (a real felt's fibers are crimped, curl and pack denser), a floor under the first fibers
 (the felt's bottom is flat; with 10 layers' fiber little light reaches it), a cell of 40 R (about
 20 fibers across): one realisation varies from the next by ~2 % of each direction's peak (green felt),
 which ``simulate fabric --method mc`` puts into ``u_beta`` by tracing each of its two table halves on
@@ -206,20 +216,34 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     layers = int(getattr(spec, "layers", 0)) or 10
     ratio = float(getattr(spec, "spacing_ratio", 1.0))
     spread = math.radians(float(getattr(spec, "felt_spread_deg", 20.0)))
+    punched = float(getattr(spec, "felt_normal_fraction", 0.0))
+    tilt_sd = math.radians(float(getattr(spec, "felt_normal_spread_deg", 15.0)))
     rng = np.random.default_rng([int(seed), 0x7E17])
     target = layers * L * L / ratio           # the layers' projected fiber area
     area = 0.0
+    n_normal = 0
     C, T = np.zeros((0, 3)), np.zeros((0, 3))
     while area < target:
         az = rng.uniform(0.0, math.pi)
-        eps = rng.normal(0.0, spread) if spread > 0 else 0.0
-        while abs(eps) > math.radians(80.0):
-            eps = rng.normal(0.0, spread)
+        # a needle-punched fiber (drawn only when the fraction is set: today's felt keeps its stream)
+        if punched > 0.0 and rng.uniform() < punched:
+            az *= 2.0                          # the tilt's azimuth over the full circle
+            tilt = abs(rng.normal(0.0, tilt_sd)) if tilt_sd > 0 else 0.0
+            while tilt > math.radians(80.0):
+                tilt = abs(rng.normal(0.0, tilt_sd))
+            eps = 0.5 * math.pi - tilt
+            amount = 2.0 * R * ell             # its material, counted as a fiber lying flat
+            n_normal += 1
+        else:
+            eps = rng.normal(0.0, spread) if spread > 0 else 0.0
+            while abs(eps) > math.radians(80.0):
+                eps = rng.normal(0.0, spread)
+            amount = 2.0 * R * ell * math.cos(eps)
         t = np.array([math.cos(eps) * math.cos(az), math.cos(eps) * math.sin(az), math.sin(eps)])
         xy = np.array([rng.uniform(0.0, L), rng.uniform(0.0, L)])
         z = _lowest_free_height(xy, t, C, T, R, ell, L)
         C, T = np.vstack([C, [xy[0], xy[1], z]]), np.vstack([T, t])
-        area += 2.0 * R * ell * math.cos(eps)
+        area += amount
     top = float(np.max(C[:, 2] + 0.5 * ell * np.abs(T[:, 2]) + R))
     C[:, 2] -= top                             # the felt's top at z = 0
     verts, norms, tans, ss, phis, yarn_len = [], [], [], [], [], []
@@ -252,7 +276,8 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
         yarn_length=np.array(yarn_len, float), sides=int(sides), Lx=L, Ly=L,
         z_min=float(vertices[:, 2].min()), z_max=float(vertices[:, 2].max()), yarn_radius_um=R,
         info={"fibers": len(C), "images": n_y, "cell_um": L, "fiber_length_um": ell, "thickness_um": top,
-              "layers": layers, "spread_deg": math.degrees(spread), "triangles": int(faces.shape[0]),
+              "layers": layers, "spread_deg": math.degrees(spread),
+              "normal_fibers": n_normal, "triangles": int(faces.shape[0]),
               "volume_fraction": bulk_volume_fraction(C, T, R, ell, L), "seed": int(seed)})
 
 

@@ -1,0 +1,214 @@
+"""Render the measured figures of the documentation from the JSON their runs wrote.
+
+Every benchmark or validation figure the README and the manual show lives in ONE JSON file, written by
+the command that measured it and wrapped with that command and the machine it ran on. This script
+renders each into the Markdown between the markers
+
+    <!-- BEGIN FIGURE: NAME -->
+    <!-- END FIGURE: NAME -->
+
+of README.md and docs/**/*.md; prose points to those tables and never copies their numbers.
+
+    python docs/scripts/render_figures.py                 # fill every marked block
+    python docs/scripts/render_figures.py --check         # exit 1 naming the stale files, write nothing
+    python docs/scripts/render_figures.py --record NAME FILE.json --command "simulate bench --quick --out D"
+        # wrap a run's JSON as docs/data/NAME.json with its command and this machine
+
+``tests/docs/test_figures.py`` fails when a committed block differs from a fresh rendering.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import statistics
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "docs" / "data"
+REGENERATE = "python docs/scripts/render_figures.py"
+_BLOCK = re.compile(r"(<!-- BEGIN FIGURE: ([\w-]+) -->\n)(.*?)(<!-- END FIGURE: \2 -->)", re.S)
+
+
+def machine() -> dict[str, Any]:
+    """What the figures were measured on: CPU model, logical CPUs, system."""
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": model or platform.processor() or "unknown", "cpus": os.cpu_count(),
+            "system": f"{platform.system()} {platform.machine()}", "python": platform.python_version()}
+
+
+def load(name: str, path: Path | None = None) -> dict[str, Any]:
+    path = path or DATA / f"{name}.json"
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f"render_figures: {path.relative_to(ROOT)}: {exc}; produce it with the command its "
+                         f"figure names, then `{REGENERATE} --record ...`") from None
+
+
+def _machine_text(m: dict[str, Any]) -> str:
+    parts = [str(m.get("cpu") or ""), f"{m['cpus']} logical CPUs" if m.get("cpus") else "",
+             str(m.get("system") or "")]
+    return ", ".join(p for p in parts if p)
+
+
+def _source(record: dict[str, Any], extra: str = "") -> str:
+    return (f"*Produced by `{record['command']}` on {_machine_text(record['machine'])}"
+            f"{extra}. Data: `docs/data/{record['name']}.json`.*")
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def fig_slab_kernel() -> str:
+    """The Monte Carlo kernel on the van de Hulst slab (``simulate bench``)."""
+    rec = load("bench-quick")
+    d = rec["data"]
+    one, two = d["throughput"]["one_thread"], d["throughput"]["all_threads"]
+    case = d["throughput"]["case"]
+    run = one["runs"][0]
+    rows = [
+        ["photons per second, 1 thread (median)", f"{one['median_photons_per_s'] / 1e6:.2f} M"],
+        [f"photons per second, {two['threads']} threads (median)", f"{two['median_photons_per_s'] / 1e6:.2f} M"],
+        ["events per photon", f"{one['median_events_per_photon']:.3f}"],
+        ["nanoseconds per event, 1 thread", f"{one['median_ns_per_event']:.1f}"],
+        ["time against photons, log-log slope", f"{d['time_vs_photons']['loglog_slope']:.3f}"],
+        ["peak resident memory", f"{d['peak_rss_mb']:.0f} MB"],
+        ["Rd, Tt of one run", f"{run['Rd']:.5f} ± {run['u_Rd']:.5f}, {run['Tt']:.5f} ± {run['u_Tt']:.5f}"],
+        ["reference Rd, Tt (van de Hulst)", f"{case['reference_Rd']}, {case['reference_Tt']}"],
+    ]
+    note = (f" ({one['photons_per_run']:,} photons per run, {one['repeats']} repeats;"
+            " the machine was shared with other work, so speeds are a lower bound)")
+    return _table(["figure", "value"], rows) + "\n\n" + _source(rec, note)
+
+
+def fig_driver() -> str:
+    """The driver's own overhead against the fast mock (``gonio bench-driver``)."""
+    rec = load("driver")
+    d = rec["data"]
+    rows = [
+        [f"a whole acquisition of the `{d['plan']}` plan ({d['points']} geometries, {d['rows']} values) "
+         "against the fast mock", f"{d['median_wall_s']:.1f} s"],
+        ["driver time per geometry (outside the exchanges and waits)", f"{d['median_driver_ms_per_point']:.1f} ms"],
+        ["driver time per (geometry, wavelength) value", f"{d['median_driver_ms_per_row']:.2f} ms"],
+        ["replay of the recorded transcript, no device, per value", f"{d['replay_ms_per_row']:.2f} ms"],
+    ]
+    return _table(["figure", "value"], rows) + "\n\n" + _source(rec)
+
+
+def fig_method_errors() -> str:
+    """Where the cheaper models depart from the woven Monte Carlo (red cotton)."""
+    path = ROOT / "simulate" / "configs" / "method-errors.json"
+    d = load("method-errors", path)
+    prov = d["provenance"]
+    geos = d["geometries"]
+    rows = []
+    for method in ("summation", "classic"):
+        values = sorted(100 * g[method] for g in geos)
+        worst = max(geos, key=lambda g: g[method])
+        rows.append([method, f"{statistics.median(values):.1f} %", f"{values[int(0.9 * (len(values) - 1))]:.1f} %",
+                     f"{values[-1]:.1f} %",
+                     f"θi {worst['theta_i']:g}°, θo {worst['theta_o']:g}°, Δφ {worst['rel_phi_o']:g}°"])
+    mc = sorted(100 * g["mc_rel_se"] for g in geos)
+    rows.append(["woven Monte Carlo (its own standard error)", f"{statistics.median(mc):.2f} %", "", f"{mc[-1]:.2f} %", ""])
+    rec = {"command": prov["command"].split(" (")[0] + " --target 0.01 --threads 2",
+           "machine": {"cpus": prov.get("machine", {}).get("cpus"), "cpu": "", "system": ""},
+           "name": "method-errors"}
+    text = _table(["model", "median", "90th percentile", "largest", "where largest"], rows)
+    return (text + f"\n\n*RMS over wavelengths of (model − Monte Carlo) relative to the Monte Carlo's spectral "
+            f"peak, at the {len(geos)} geometries of the `{prov['plan']}` plan for the `{prov['config']}` config. "
+            f"Produced by `{rec['command']}` on a {rec['machine']['cpus']}-CPU machine. Data: "
+            "`simulate/configs/method-errors.json` (also what `simulate fabric --method auto` reads).*")
+
+
+def fig_demo_cost() -> str:
+    """Wall time and peak memory of ``make demo`` from a fresh clone."""
+    rec = load("demo")
+    d = rec["data"]
+    minutes, seconds = divmod(round(d["wall_seconds"]), 60)
+    rows = [["wall time", f"{minutes} min {seconds:02d} s"],
+            ["peak memory (largest process)", f"{d['peak_rss_mb'] / 1024:.1f} GB"]]
+    if d.get("cpu_seconds"):
+        rows.append(["CPU time (user + system)", f"{d['cpu_seconds']:.0f} s"])
+    for step, secs in d.get("steps", {}).items():
+        rows.append([f"of which `{step}`", f"{secs:.0f} s"])
+    note = f" ({d['conditions']})" if d.get("conditions") else ""
+    return _table(["figure", "value"], rows) + "\n\n" + _source(rec, note)
+
+
+FIGURES: dict[str, Callable[[], str]] = {
+    "slab-kernel": fig_slab_kernel,
+    "driver": fig_driver,
+    "method-errors": fig_method_errors,
+    "demo-cost": fig_demo_cost,
+}
+
+
+def render(text: str) -> str:
+    """``text`` with every marked block filled from its JSON."""
+    def fill(m: re.Match) -> str:
+        name = m.group(2)
+        if name not in FIGURES:
+            raise SystemExit(f"render_figures: unknown figure {name!r}; known: {', '.join(FIGURES)}")
+        return f"{m.group(1)}{FIGURES[name]().rstrip()}\n{m.group(4)}"
+    return _BLOCK.sub(fill, text)
+
+
+def pages() -> list[Path]:
+    return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+
+
+def record(name: str, source: Path, command: str) -> Path:
+    """Wrap ``source`` (a run's JSON) as ``docs/data/NAME.json`` with its command and this machine."""
+    data = json.loads(source.read_text(encoding="utf-8"))
+    out = DATA / f"{name}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"name": name, "command": command, "machine": machine(), "data": data},
+                              indent=1) + "\n", encoding="utf-8")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="Render the documentation's measured figures from docs/data/*.json.")
+    ap.add_argument("--check", action="store_true", help="exit 1 if a committed block is stale; write nothing")
+    ap.add_argument("--record", nargs=2, metavar=("NAME", "FILE.json"), help="wrap a run's JSON as docs/data/NAME.json")
+    ap.add_argument("--command", help="with --record: the command that wrote FILE.json")
+    args = ap.parse_args(argv)
+    if args.record:
+        if not args.command:
+            ap.error("--record needs --command (the command that produced the JSON)")
+        print(record(args.record[0], Path(args.record[1]), args.command))
+        return 0
+    stale = []
+    for path in pages():
+        text = path.read_text(encoding="utf-8")
+        new = render(text)
+        if new != text:
+            if args.check:
+                stale.append(str(path.relative_to(ROOT)))
+            else:
+                path.write_text(new, encoding="utf-8")
+    if stale:
+        print(f"render_figures: stale figures in {', '.join(stale)}; regenerate with `{REGENERATE}`", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,334 @@
+"""The vocabulary of the ``gonio``, ``simulate`` and ``compare`` command lines, and the argument
+helpers that all three use so that one concept has one name, one syntax and one default.
+
+=====================  ==========================================================================
+concept                spelling (every command that has the concept)
+=====================  ==========================================================================
+plan                   ``--plan PLAN``: a preset name or a TOML path. Default ``red-cotton`` where
+                       a default makes sense (``gonio demo``, ``gonio bench-driver``, ``simulate
+                       fabric``, ``simulate sweep``); required by ``gonio acquire``, ``replay``,
+                       ``truth`` and ``check-plan``; optional in ``gonio import`` (without it:
+                       the file's own geometries).
+measured dataset       the positional ``MEASURED`` (a dataset folder) wherever it is required
+                       (``simulate fit CONFIG MEASURED``, ``compare report|check MEASURED ...``);
+                       ``simulate sweep CONFIG [MEASURED]`` takes it as an optional positional.
+simulated dataset      the positional ``SIMULATED`` after ``MEASURED`` (``compare``).
+config                 the positional ``CONFIG``: a preset name or a TOML path (``simulate``).
+wavelengths            ``--wavelengths``: ``NM,NM,...`` (increasing) or ``START:STOP:STEP``
+                       (inclusive stop); finite, within the dataset schema's range
+                       (:data:`gonio.data.schema.WAVELENGTH_RANGE_NM`), at most
+                       :data:`MAX_WAVELENGTHS` values. Default: the config's.
+fabric model           ``--method summation|classic|mc|auto`` (``auto`` only in ``simulate fabric``).
+fiber route            ``--route nee|beam|bssrdf`` (``simulate fiber``; default: the config's).
+threads                ``--threads N``: 0 = all numba allows; default 0. Results do not depend on it.
+                       ``simulate sweep`` is the one exception in its default: 1 thread per task,
+                       because its worker processes are the parallelism (0 there would start
+                       workers x cores threads).
+target error           ``--target-rel-err X`` in (0, 1): default the config's ``target_rel_err``.
+seed                   ``--seed N``: default the config's (``gonio``: the mock's seed, default 0).
+output                 ``--out PATH`` and ``--force`` on every command that writes: an existing
+                       output (a file, or a folder holding anything) is replaced only with
+                       ``--force``; ``--resume`` continues a run instead (``gonio acquire``,
+                       ``simulate fit``, ``simulate sweep``). A run folder (one holding a
+                       journal of measurements) is never replaced, not even with ``--force``.
+verbosity              ``-v/--verbose``, before or after the subcommand.
+progress               ``--no-progress`` on every command that can show a progress bar (a bar
+                       is shown only on a terminal anyway).
+budgets                ``--max-evaluations N``: model evaluations of a summation or classic fit;
+                       ``--max-runs N``: Monte Carlo runs of a ``--method mc`` fit;
+                       ``--max-photons N``: the Monte Carlo's photon budget.
+=====================  ==========================================================================
+
+Old spellings keep working for one release and print exactly one line on stderr each
+(``simulate fabric: --geometry is deprecated; use --plan (same meaning)``): the positional
+``PLAN`` of ``gonio acquire|replay|truth|check-plan``, ``--geometry`` (``gonio import``,
+``simulate fabric``, ``simulate sweep``), ``--measured`` (``simulate sweep``), ``--method`` of
+``simulate fiber`` (now ``--route``) and ``--max-evaluations`` with ``simulate fit --method mc``
+(now ``--max-runs``). They are registered with :func:`add_deprecated` or announced with
+:func:`deprecated`; nothing else prints a deprecation.
+
+A usage error is one line on stderr (``PROG SUBCOMMAND: error: ...``), exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+__all__ = ["Parser", "UsageError", "MAX_WAVELENGTHS", "parse_wavelengths", "wavelengths_arg", "int_in",
+           "threads_arg", "rel_err_arg", "add_plan", "add_wavelengths", "add_threads", "add_target_rel_err",
+           "add_seed", "add_force", "add_verbose", "add_no_progress", "add_deprecated", "deprecated",
+           "plan_of", "refuse_existing", "progress", "MAX_SEED", "DEFAULT_PLAN"]
+
+#: The plan used where a command has a default plan.
+DEFAULT_PLAN = "red-cotton"
+#: Most wavelengths a ``--wavelengths`` may name (a 1 nm grid over 400..2399 nm).
+MAX_WAVELENGTHS = 2000
+#: Seeds of the fiber/fabric runs: the Monte Carlo derives per-batch streams as seed * 1_000_003 + ...
+#: in 64-bit integers, so seeds stay below 2^31.
+MAX_SEED = 2**31 - 1
+
+
+class UsageError(Exception):
+    """A command-line problem found after parsing: one line, exit 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line (``simulate fabric: error: argument --plan: ...``)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# value types (their messages name the option through argparse: "argument --wavelengths: ...")
+# ---------------------------------------------------------------------------------------------
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def int_in(lo: int, hi: int) -> Callable[[str], int]:
+    """An integer in [lo, hi]; an integral float as help texts write it (``1e6``) is accepted."""
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            try:
+                f = float(text)
+            except ValueError:
+                f = math.nan
+            if not (math.isfinite(f) and f == int(f)):
+                raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+            value = int(f)
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be an integer in [{lo}, {hi}], got {text!r}")
+        return value
+
+    return convert
+
+
+def threads_arg(text: str) -> int:
+    """``--threads N``: 1..NUMBA_NUM_THREADS, or 0 = all that numba allows."""
+    import numba
+
+    return int_in(0, numba.config.NUMBA_NUM_THREADS)(text)
+
+
+def rel_err_arg(text: str) -> float:
+    value = _number(text)
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text!r}")
+    return value
+
+
+def parse_wavelengths(text: str) -> tuple[float, ...]:
+    """``NM,NM,...`` (increasing) or ``START:STOP:STEP`` (inclusive stop) as wavelengths in nm.
+
+    Raises :class:`ValueError` with a message saying what to write instead; nothing the size of
+    the grid is allocated before its count is checked.
+    """
+    from gonio.data.schema import WAVELENGTH_RANGE_NM
+
+    lo, hi = WAVELENGTH_RANGE_NM
+    text = text.strip()
+    if ":" in text:
+        parts = text.split(":")
+        if len(parts) != 3:
+            raise ValueError(f"expected START:STOP:STEP in nm (e.g. 400:700:10), got {text!r}")
+        try:
+            start, stop, step = (float(p) for p in parts)
+        except ValueError:
+            raise ValueError(f"expected three numbers START:STOP:STEP (e.g. 400:700:10), got {text!r}") from None
+        if not all(math.isfinite(v) for v in (start, stop, step)):
+            raise ValueError(f"START, STOP and STEP must be finite numbers, got {text!r}")
+        if not step > 0:
+            raise ValueError(f"STEP must be > 0 nm, got {parts[2]!r} (e.g. 400:700:10)")
+        if stop < start:
+            raise ValueError(f"STOP {stop:g} is below START {start:g}")
+        count = math.floor((stop - start) / step * (1 + 1e-12) + 1e-9) + 1
+        if count > MAX_WAVELENGTHS:
+            raise ValueError(f"{text} makes {count:,} wavelengths; at most {MAX_WAVELENGTHS}: use a larger STEP")
+        values = tuple(start + k * step for k in range(count))
+    else:
+        try:
+            values = tuple(float(p) for p in text.split(","))
+        except ValueError:
+            raise ValueError(f"expected NM,NM,... or START:STOP:STEP in nm (e.g. 450,550,650 or 400:700:10), "
+                             f"got {text!r}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"wavelengths must be finite numbers, got {text!r}")
+        if len(values) > MAX_WAVELENGTHS:
+            raise ValueError(f"{len(values):,} wavelengths; at most {MAX_WAVELENGTHS}")
+        if any(b <= a for a, b in zip(values, values[1:])):
+            raise ValueError(f"list the wavelengths increasing, each once, got {text!r}")
+    if values[0] < lo or values[-1] > hi:
+        raise ValueError(f"wavelengths must be in [{lo:g}, {hi:g}] nm, got {values[0]:g}..{values[-1]:g}")
+    return values
+
+
+def wavelengths_arg(text: str) -> tuple[float, ...]:
+    """The argparse type of ``--wavelengths``: :func:`parse_wavelengths`."""
+    try:
+        return parse_wavelengths(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+# ---------------------------------------------------------------------------------------------
+# deprecated spellings
+# ---------------------------------------------------------------------------------------------
+
+_SEEN = "_deprecations_printed"
+
+
+def deprecated(prog: str, old: str, new: str, namespace: argparse.Namespace | None = None) -> None:
+    """Print the one line that says ``old`` is deprecated in favour of ``new`` (once per parse
+    when ``namespace`` is given)."""
+    if namespace is not None:
+        seen = namespace.__dict__.setdefault(_SEEN, set())
+        if old in seen:
+            return
+        seen.add(old)
+    print(f"{prog}: {old} is deprecated; use {new} (same meaning)", file=sys.stderr)
+
+
+class _DeprecatedAction(argparse.Action):
+    """Stores into the new spelling's ``dest`` and prints the deprecation line."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, *, old: str, new: str, **kwargs: Any) -> None:
+        self.old, self.new = old, new
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        if not self.option_strings and getattr(namespace, "_plan_given", False):
+            raise argparse.ArgumentError(self, f"give the plan once: {self.new} (the positional PLAN is deprecated)")
+        deprecated(parser.prog, self.old, self.new, namespace)
+        setattr(namespace, self.dest, values)
+
+
+def add_deprecated(parser: argparse.ArgumentParser, *flags: str, dest: str, new: str, old: str | None = None,
+                   **kwargs: Any) -> None:
+    """Register an old spelling: ``flags`` (none: a positional) store into ``dest`` as the new
+    spelling ``new`` does, with one deprecation line on stderr. Hidden from the help."""
+    if flags:
+        parser.add_argument(*flags, dest=dest, action=_DeprecatedAction, old=old or flags[0], new=new,
+                            default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)
+    else:
+        parser.add_argument(dest, nargs="?", action=_DeprecatedAction, old=old or f"the positional {dest.upper()}",
+                            new=new, default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)
+
+
+def clean(namespace: argparse.Namespace) -> argparse.Namespace:
+    """The namespace without this module's bookkeeping (what a command sees)."""
+    namespace.__dict__.pop(_SEEN, None)
+    namespace.__dict__.pop("_plan_given", None)
+    return namespace
+
+
+# ---------------------------------------------------------------------------------------------
+# the shared options
+# ---------------------------------------------------------------------------------------------
+
+
+class _PlanAction(argparse.Action):
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        namespace._plan_given = True
+        setattr(namespace, self.dest, values)
+
+
+def add_plan(p: argparse.ArgumentParser, *, required: bool = False, default: str | None = DEFAULT_PLAN,
+             what: str = "whose geometries and wavelengths are used", positional: bool = False,
+             geometry: bool = False) -> None:
+    """``--plan PLAN``; ``positional`` / ``geometry``: the deprecated positional PLAN / ``--geometry``.
+
+    A required plan is checked after parsing (:func:`plan_of`) so that the deprecated positional
+    can stand in for it."""
+    default = None if required else default
+    tail = "required" if required else ("default " + default if default else "optional")
+    p.add_argument("--plan", metavar="PLAN", default=default, action=_PlanAction,
+                   help=f"acquisition plan {what}: a preset name or a TOML file ({tail})")
+    if positional:
+        add_deprecated(p, dest="plan", new="--plan PLAN", old="the positional PLAN")
+    if geometry:
+        add_deprecated(p, "--geometry", dest="plan", new="--plan", metavar="PLAN")
+
+
+def plan_of(args: argparse.Namespace) -> str:
+    """The ``--plan`` of a command that requires one."""
+    if not getattr(args, "plan", None):
+        raise UsageError("--plan PLAN is required (a preset name or a TOML file)")
+    return str(args.plan)
+
+
+def add_wavelengths(p: argparse.ArgumentParser, what: str = "model wavelengths") -> None:
+    p.add_argument("--wavelengths", type=wavelengths_arg, default=None, metavar="NM,NM,...|START:STOP:STEP",
+                   help=f"{what} in nm: a list or an inclusive range (e.g. 450,550,650 or 400:700:10; at most "
+                        f"{MAX_WAVELENGTHS}; default: the config's)")
+
+
+def add_threads(p: argparse.ArgumentParser, default: int = 0, note: str = "") -> None:
+    p.add_argument("--threads", type=threads_arg, default=default, metavar="N",
+                   help=f"threads, 0 = all (default {default}{' = all' if default == 0 else ''}{note}); results do "
+                        "not depend on it")
+
+
+def add_target_rel_err(p: argparse.ArgumentParser, what: str = "of the fiber Monte Carlo") -> None:
+    p.add_argument("--target-rel-err", type=rel_err_arg, default=None, dest="target_rel_err", metavar="X",
+                   help=f"target relative standard error {what} (default: the config's target_rel_err)")
+
+
+def add_seed(p: argparse.ArgumentParser, default: int | None = None, what: str = "random seed") -> None:
+    tail = "the config's" if default is None else str(default)
+    p.add_argument("--seed", type=int_in(0, MAX_SEED), default=default, metavar="N", help=f"{what} (default: {tail})")
+
+
+def add_force(p: argparse.ArgumentParser, what: str = "an existing --out") -> None:
+    p.add_argument("--force", action="store_true", help=f"replace {what} (without it an existing output is refused)")
+
+
+def add_verbose(p: argparse.ArgumentParser, *, sub: bool) -> None:
+    """``-v/--verbose`` on the program (``sub=False``) and again on each subcommand (``sub=True``:
+    absent there, the program's value stands)."""
+    p.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS if sub else False,
+                   help="log progress and details to stderr")
+
+
+def add_no_progress(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-progress", action="store_true", dest="no_progress",
+                   help="no progress bar (it is shown only on a terminal anyway)")
+
+
+def progress(args: argparse.Namespace) -> bool:
+    return not getattr(args, "no_progress", False) and sys.stderr.isatty()
+
+
+def refuse_existing(out: str | os.PathLike, force: bool, *, flag: str = "--out") -> None:
+    """Refuse an existing output without ``--force``: a file, or a folder holding anything
+    (hidden files aside)."""
+    path = Path(out)
+    if force or not (path.exists() or path.is_symlink()):
+        return
+    if path.is_dir():
+        try:
+            if not any(not e.name.startswith(".") for e in path.iterdir()):
+                return
+        except OSError as exc:
+            raise UsageError(f"{flag} {path}: cannot read the folder ({exc.strerror})") from None
+        raise UsageError(f"{flag} {path}: the folder is not empty; pass --force to replace its output, "
+                         "or choose a new folder")
+    raise UsageError(f"{flag} {path}: exists; pass --force to replace it, or choose a new name")

@@ -1,0 +1,46 @@
+"""`make test` builds the manual: `mkdocs build --strict` into a temporary folder must succeed with no
+warning (a broken link, a page missing from the navigation, an unresolved docstring reference)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.timeout(300)
+def test_the_manual_builds_in_strict_mode(tmp_path):
+    site = tmp_path / "site"
+    env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}     # the theme's notice about its successor
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
+                         cwd=ROOT, capture_output=True, text=True, env=env)
+    log = run.stdout + run.stderr
+    assert run.returncode == 0, f"mkdocs build --strict failed:\n{log[-4000:]}"
+    warnings = [line for line in log.splitlines() if line.startswith("WARNING")]
+    assert not warnings, "\n".join(warnings)
+    for page in ("index.html", "tutorials/mock-lab/index.html", "reference/cli/index.html",
+                 "reference/config/index.html", "reference/plans/index.html", "reference/api/index.html", "explanation/felt-note/index.html"):
+        assert (site / page).is_file(), f"the site has no {page}"
+    api = (site / "reference/api/index.html").read_text(encoding="utf-8")
+    assert "read_dataset" in api and "Read and validate the dataset" in api   # mkdocstrings rendered it
+    assert "measure_on_mock" in api and "simulate" in api
+
+
+def test_the_readmes_links_lead_somewhere():
+    """The README is read on its own (outside the site): every relative link and image it has exists."""
+    import re
+
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    targets = [t for t in re.findall(r"\]\(([^)#\s]+)", text) if not t.startswith(("http://", "https://"))]
+    assert len(targets) >= 10
+    missing = [t for t in targets if not (ROOT / t).exists()]
+    assert not missing, f"README links to missing files: {missing}"
+
+
+def test_the_readme_is_short():
+    assert len((ROOT / "README.md").read_text(encoding="utf-8").splitlines()) <= 250

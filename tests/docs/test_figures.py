@@ -1,0 +1,71 @@
+"""Every measured figure of the README and the manual is rendered from the JSON its run wrote: the
+committed tables must equal a fresh rendering, and each names its command and machine."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _render():
+    spec = importlib.util.spec_from_file_location("render_figures", ROOT / "docs" / "scripts" / "render_figures.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["render_figures"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_committed_figures_are_a_fresh_rendering():
+    r = _render()
+    stale = [str(p.relative_to(ROOT)) for p in r.pages() if r.render(p.read_text(encoding="utf-8"))
+             != p.read_text(encoding="utf-8")]
+    assert not stale, f"stale figures in {stale}: regenerate with `{r.REGENERATE}`"
+
+
+def test_every_figure_is_used_and_names_its_command_and_machine():
+    r = _render()
+    text = "\n".join(p.read_text(encoding="utf-8") for p in r.pages())
+    used = set(re.findall(r"<!-- BEGIN FIGURE: ([\w-]+) -->\n", text))
+    assert set(r.FIGURES) <= used, f"figures never shown: {set(r.FIGURES) - used}"
+    for name, make in r.FIGURES.items():
+        out = make()
+        assert "Produced by `" in out and ("CPU" in out or "logical CPUs" in out), name
+
+
+def test_the_readme_cost_is_the_demo_json():
+    r = _render()
+    data = json.loads((r.DATA / "demo.json").read_text(encoding="utf-8"))
+    block = re.search(r"<!-- BEGIN FIGURE: demo-cost -->\n(.*?)<!-- END FIGURE", (ROOT / "README.md").read_text(
+        encoding="utf-8"), flags=re.S).group(1)
+    minutes, seconds = divmod(round(data["data"]["wall_seconds"]), 60)
+    assert f"{minutes} min {seconds:02d} s" in block
+    assert data["command"] in block
+
+
+def test_a_changed_json_shows_as_stale(tmp_path, monkeypatch):
+    r = _render()
+    data = json.loads((r.DATA / "driver.json").read_text(encoding="utf-8"))
+    data["data"]["median_wall_s"] += 100.0
+    (tmp_path / "driver.json").write_text(json.dumps(data), encoding="utf-8")
+    for other in r.DATA.glob("*.json"):
+        if other.name != "driver.json":
+            (tmp_path / other.name).write_text(other.read_text(encoding="utf-8"), encoding="utf-8")
+    monkeypatch.setattr(r, "DATA", tmp_path)
+    page = ROOT / "docs" / "reference" / "figures.md"
+    assert r.render(page.read_text(encoding="utf-8")) != page.read_text(encoding="utf-8")
+
+
+def test_record_wraps_a_run_with_its_command_and_machine(tmp_path, monkeypatch):
+    r = _render()
+    monkeypatch.setattr(r, "DATA", tmp_path / "data")
+    run = tmp_path / "run.json"
+    run.write_text('{"x": 1}', encoding="utf-8")
+    out = r.record("probe", run, "simulate bench --quick --out b")
+    saved = json.loads(out.read_text(encoding="utf-8"))
+    assert saved["command"] == "simulate bench --quick --out b" and saved["data"] == {"x": 1}
+    assert saved["machine"]["cpus"] and saved["machine"]["cpu"]

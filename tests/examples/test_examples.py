@@ -1,0 +1,56 @@
+"""The three runnable examples of ``examples/``, run on reduced budgets (their own options), and
+their printed figures checked against the datasets they wrote."""
+
+from __future__ import annotations
+
+import json
+import re
+import runpy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compare.comparison import compare_datasets
+from gonio.data.dataset import read_dataset
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def _main(name: str):
+    return runpy.run_path(str(EXAMPLES / name), run_name="example")["main"]
+
+
+def test_mock_vs_simulation_prints_the_verdict_of_the_datasets_it_wrote(tmp_path, capsys):
+    code = _main("mock_vs_simulation.py")([str(tmp_path), "--target-rel-err", "0.2"])
+    out = capsys.readouterr().out
+    measured, simulated = read_dataset(tmp_path / "measured"), read_dataset(tmp_path / "simulated")
+    assert measured.meta["kind"] == "measured" and simulated.meta["kind"] == "simulated"
+    nrmse = compare_datasets(measured, [simulated]).overall
+    printed = float(re.search(r"overall NRMSE = ([0-9.]+)", out).group(1))
+    assert printed == pytest.approx(next(iter(nrmse.values())).nrmse, rel=1e-3)
+    assert code == (0 if printed <= 0.1 and "FAIL" not in out else 1)
+
+
+def test_methods_speed_error_writes_one_row_per_method(tmp_path, capsys):
+    out_json = tmp_path / "methods.json"
+    assert _main("methods_speed_error.py")(["--target-rel-err", "0.2", "--json", str(out_json)]) == 0
+    rows = {r["method"]: r for r in json.loads(out_json.read_text())["runs"]}
+    assert set(rows) == {"mc", "summation", "classic"}
+    assert rows["mc"]["nrmse_vs_mc"] == 0.0 and 0 < rows["mc"]["rel_err"] <= 0.2
+    for name in ("summation", "classic"):
+        assert np.isfinite(rows[name]["nrmse_vs_mc"]) and rows[name]["nrmse_vs_mc"] > 0
+        assert rows[name]["seconds"] > 0
+    printed = capsys.readouterr().out
+    assert all(name in printed for name in rows)
+
+
+@pytest.mark.timeout(900)
+def test_refit_felt_dye_prints_the_figures_of_its_fit(tmp_path, capsys):
+    assert _main("refit_felt_dye.py")([str(tmp_path), "--max-evaluations", "3", "--target-rel-err", "0.2"]) == 0
+    summary = json.loads((tmp_path / "fit" / "fit.json").read_text())
+    out = capsys.readouterr().out
+    for key in ("start", "fitted"):
+        printed = float(re.search(rf"{key}: NRMSE ([0-9.]+)", out).group(1))
+        assert printed == pytest.approx(summary[key]["nrmse"], abs=1e-4)
+    assert (tmp_path / "fit" / "fitted.toml").is_file()

@@ -1,0 +1,72 @@
+"""Code comments, docstrings and messages say what the code does: no issue numbers, no diary.
+
+Every ``.py`` file of the four packages and of the tests is read as text and refused if it names an
+issue by number, a project stop ("the seventh stop"), or a run date. The acquisition's *session* and
+the accuracy loop's *rounds* are the code's own terms and are not matched.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+FOLDERS = ("gonio", "simulate", "compare", "fabric_optics", "tests")
+
+_ORDINALS = "first|second|third|fourth|fifth|sixth|seventh|eighth|ninth|tenth|eleventh|twelfth"
+#: an issue by number; an ordinal project stop, "stop N" or "before-stop"; an ISO date (a run's); a machine load
+HISTORY = re.compile(
+    r"\bissues?\s+#?\d+" "|" r"\bissue\s+#\d+" "|"
+    rf"\b(?:{_ORDINALS})[- ]stop\b" "|" r"\bstop\s+\d+\b" "|" r"\bbefore-stop\b" "|"
+    r"\b20\d\d-[01]\d-[0-3]\d\b" "|" r"\bmachine load\b|\bload(?: average)? ~?\d|\bat load \d",
+    re.IGNORECASE)
+
+#: folders whose comments are rewritten last (by their owner); excluded until then -- delete an entry
+#: when its folder is clean
+EXCLUDED = ("fabric_optics/cli/", "fabric_optics/fitting/")
+#: the vocabulary tests themselves (their examples are the vocabulary)
+EXEMPT = {Path(__file__).resolve(), ROOT / "tests" / "docs" / "test_history_vocabulary.py"}
+
+
+def _files() -> list[Path]:
+    out = []
+    for folder in FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            rel = path.relative_to(ROOT).as_posix()
+            if not rel.startswith(EXCLUDED):
+                out.append(path)
+    return out
+
+
+@pytest.mark.parametrize("text", [
+    "see issue 21", "(issues 18, 21)", "Issue 9: a reply", "until the seventh stop", "the ninth-stop preset",
+    "stop 3 measured", "the before-stop review", "measured 2026-11-24", "issue #12", "load ~2.5 on 2 cores",
+    "at load 3-4",
+])
+def test_the_pattern_finds_history(text):
+    assert HISTORY.search(text)
+
+
+@pytest.mark.parametrize("text", [
+    "one acquisition session", "round 0 is the same photons", "stop_nm = 710", "the stop reason",
+    "stops at its next tick", "a round(x, 2) value", "an issue with the link", "version 2026.1",
+    "refused at load time", "a Client could hang under load",
+])
+def test_the_pattern_leaves_the_codes_own_words(text):
+    assert not HISTORY.search(text)
+
+
+def test_no_history_in_code():
+    files = _files()
+    assert len(files) > 200            # the walk sees the packages
+    bad = []
+    for path in files:
+        if path.resolve() in EXEMPT:
+            continue
+        for no, line in enumerate(path.read_text().splitlines(), 1):
+            m = HISTORY.search(line)
+            if m:
+                bad.append(f"{path.relative_to(ROOT)}:{no}: {m.group(0)!r}")
+    assert not bad, "history in code (state what the code does instead):\n" + "\n".join(bad)
