@@ -420,7 +420,8 @@ def _cmd_import(args) -> int:
 
     geometries = None
     if args.plan:
-        geometries = _plan_for(args.plan, args.files[0], "FILE").geometries()
+        # the measured plan: what the instrument measures (the acquisition's geometries, no beam-blocked point)
+        geometries = _plan_for(args.plan, args.files[0], "FILE").geometries(measurable_only=args.plan == "measured")
     if args.scale is not None and not (args.scale > 0 and args.scale < float("inf")):
         raise _UsageError(f"--scale {args.scale}: must be a positive number")
     if not (0.0 < args.white_reflectance <= 1.0):

@@ -526,7 +526,7 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     without ``u_beta`` gets the data part scaled by the residual (:func:`fabric_optics.fitting.driver.residual_covariance`)."""
     from compare.errors import CompareError
     from gonio.data.dataset import make_dataset
-    from fabric_optics.fitting.driver import jacobian, measurement_has_u, residual_covariance, unweighted_rows
+    from fabric_optics.fitting.driver import jacobian, measurement_has_u, residual_scaled_draws
 
     problem.set_correction(x, beta, u_beta)
     r0 = problem.residuals(x)
@@ -562,7 +562,7 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
            for dp, attempted in ((dp_data, data and with_u and draws > 0), (dp_mc, draws > 0))]
     rule: dict = {"data": "u_beta", "rule": "the measurement's u_beta propagated by noise draws"}
     if data and not with_u:
-        cov[0], rule = residual_covariance(J, r0, unweighted_rows(problem))
+        cov[0], rule = residual_scaled_draws(problem, x, r0, J, rng, draws)
     return J, cov[0], cov[1], rule
 
 
