@@ -76,13 +76,15 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     max_photons = 0                    # photon budget; 0 = no cap
     threads = 0                        # 0 = all available
     axial_nodes = 5                    # woven/felt Monte Carlo: the yarn table's rows in |w_t| (incidence
-                                       #   along the fiber), [2, 64], uniform on [0, 0.95]
+                                       #   along the fiber), [2, 64], steps of 1/(N-1) from 0, the last at 0.95
                                        #   (docs/physics.md 6, "Axial nodes")
     axial_shift = false                # woven/felt Monte Carlo: move a table row's exits along the fiber
                                        #   axis to the ray's own axial incidence (docs/physics.md 6)
     exit_bins = [10, 20]               # woven/felt Monte Carlo: the yarn table's exit directions, binned
-                                       #   in mu (uniform in cos, [2, 20]) x phi ([4, 40]) per exit cell;
-                                       #   coarser bins smear a clear fiber's exit cones
+                                       #   in mu (uniform in cos, [2, 20]) x phi ([4, 40]) per exit cell.
+                                       #   Default: [10, 20] for a felt of nearly clear fibers (coarser
+                                       #   bins smear their exit cones), [5, 10] otherwise (turbid fibers
+                                       #   and woven yarns converge there at half the trace time)
                                        #   (docs/physics.md 6, "Exit directions")
 
     [structure]                        # optional: the summation over the fabric's visible fibers in all
@@ -139,10 +141,11 @@ _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
 #: The fiber routes of ``[fiber] route``.
 ROUTES = ("nee", "beam", "bssrdf")
-#: ``[method] exit_bins``: the woven/felt Monte Carlo's yarn-table exit directions per exit cell,
-#: (bins uniform in the cosine from the local normal, bins in azimuth): fine enough for the exit cones
-#: of nearly clear fibers (docs/physics.md 6, "Exit directions").
-DEFAULT_EXIT_BINS = (10, 20)
+#: ``[method] exit_bins`` when not given: None, chosen per run by
+#: :func:`simulate.woven.estimate.default_exit_bins` ([10, 20] for a felt of nearly clear fibers,
+#: whose exit cones coarser bins smear; [5, 10] for turbid fibers and woven yarns, which converge
+#: there at half the trace time; docs/physics.md 6, "Exit directions").
+DEFAULT_EXIT_BINS = None
 #: ``[method] axial_shift`` when not given (docs/physics.md 6, "Axial shift")
 DEFAULT_AXIAL_SHIFT = False
 #: ``[method] axial_nodes`` when not given (docs/physics.md 6, "Axial nodes")
@@ -150,8 +153,15 @@ DEFAULT_AXIAL_NODES = 5
 
 
 def axial_node_grid(n: int) -> tuple[float, ...]:
-    """``n`` yarn-table nodes in ``|w_t|``, uniform on [0, 0.95]."""
-    return tuple(round(0.95 * k / (int(n) - 1), 6) for k in range(int(n)))
+    """``n`` yarn-table nodes in ``|w_t|``: steps of ``1 / (n - 1)`` from 0, the last node at 0.95
+    instead of 1 (light travelling exactly along the fiber axis does not enter its side).
+
+    >>> axial_node_grid(5)
+    (0.0, 0.25, 0.5, 0.75, 0.95)
+    """
+    n = int(n)
+    return tuple(round(k / (n - 1), 6) for k in range(n - 1)) + (0.95,)
+
 #: The keys of the schema's tables (a key outside them is refused, with a suggestion, before any
 #: field is read: :class:`simulate.config_table.Table`).
 _FIELDS: dict[str, tuple[str, ...]] = {
@@ -229,8 +239,9 @@ class SimulationConfig:
     wavelengths_nm: tuple[float, ...] = field(default=_DEFAULT_WAVELENGTHS)
     #: the [structure] section (:class:`simulate.fabric.structure.StructureSpec`), None when absent
     structure: Any = None
-    #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell
-    exit_bins: tuple[int, int] = DEFAULT_EXIT_BINS
+    #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell; None: by
+    #: the fiber (:func:`simulate.woven.estimate.default_exit_bins`)
+    exit_bins: tuple[int, int] | None = DEFAULT_EXIT_BINS
     #: ``[surface] transmission_rms_slope``: the boundary's roughness for light crossing it (0: smooth)
     transmission_rms_slope: float = 0.0
     #: ``[surface] transmission_rms_slope_around``: None (isotropic) or the slope about the fiber axis
@@ -239,7 +250,7 @@ class SimulationConfig:
     #: the ray's own axial incidence (docs/physics.md 6, "Axial shift")
     axial_shift: bool = False
     #: ``[method] axial_nodes``: the yarn table's rows in |w_t| (the component of the incidence along the
-    #: fiber), uniform on [0, 0.95]
+    #: fiber), steps of 1/(N-1) from 0, the last at 0.95
     axial_nodes: int = DEFAULT_AXIAL_NODES
 
     def w_t_nodes(self) -> tuple[float, ...]:
@@ -493,9 +504,11 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         transmission_rms_slope_around=around, axial_nodes=axial_nodes)
 
 
-def _exit_bins(mt: Table) -> tuple[int, int]:
-    """``[method] exit_bins``: two integers, mu bins in [2, 20] and phi bins in [4, 40]."""
-    value = mt.raw("exit_bins", list(DEFAULT_EXIT_BINS))
+def _exit_bins(mt: Table) -> tuple[int, int] | None:
+    """``[method] exit_bins``: two integers, mu bins in [2, 20] and phi bins in [4, 40]; None when not given."""
+    value = mt.raw("exit_bins", None)
+    if value is None:
+        return None
     ok = (isinstance(value, list) and len(value) == 2
           and all(isinstance(v, int) and not isinstance(v, bool) for v in value))
     if not ok or not (2 <= value[0] <= 20 and 4 <= value[1] <= 40):

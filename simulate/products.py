@@ -196,10 +196,12 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         geometry = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
                               "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
                               "points_per_span": wv.points_per_span}}
-    bins = config.exit_bins
     # a felt walks the fiber's own table (a weave's yarns walk the pile, simulate.woven.pile, whose exits
     # are the yarn's): where the fiber's clearness decides whether the exit bins resolve it
     felt = spec is not None and spec.kind == "nonwoven"
+    bins = config.exit_bins
+    if bins is None:
+        bins = woven.estimate.default_exit_bins(fiber, wavelengths, felt)
     note = woven.estimate.clear_fiber_note(fiber, wavelengths, bins) if felt else None
     if note:
         log.warning("simulate fabric --method mc: %s", note)

@@ -322,18 +322,18 @@ _RUN_FILE = re.compile(r"run-[0-9]{1,4}(-d[0-9]{1,3})?\.npz")
 
 def _check_record(path: Path, field: str, rec: Any, problem: MCFitProblem, reach: float = 0.0) -> None:
     """One run record of the state (its point within the bounds widened by ``reach`` spans, figures, file)."""
-    from fabric_optics.fitting.state import _refuse, check_number, check_point
+    from fabric_optics.fitting.state import refuse, check_number, check_point
 
     if not isinstance(rec, dict):
-        _refuse(path, f"field {field!r} is not an object")
+        refuse(path, f"field {field!r} is not an object")
     for name in ("x", "file", "seconds", "rays", "rel_err", "objective", "nrmse", "dh", "ds"):
         if name not in rec:
-            _refuse(path, f"field '{field}.{name}' is missing")
+            refuse(path, f"field '{field}.{name}' is missing")
     span = problem.high - problem.low
     check_point(path, f"{field}.x", rec["x"], [p.name for p in problem.free], problem.low - reach * span,
                 problem.high + reach * span)
     if not isinstance(rec["file"], str) or not _RUN_FILE.fullmatch(rec["file"]):
-        _refuse(path, f"field '{field}.file' is {json.dumps(rec['file'])[:40]}, not a run file name (run-K.npz)")
+        refuse(path, f"field '{field}.file' is {json.dumps(rec['file'])[:40]}, not a run file name (run-K.npz)")
     check_number(path, f"{field}.seconds", rec["seconds"], low=0.0)
     check_number(path, f"{field}.rays", rec["rays"], low=0, integer=True)
     check_number(path, f"{field}.objective", rec["objective"], low=0.0)
@@ -344,42 +344,42 @@ def _check_record(path: Path, field: str, rec: Any, problem: MCFitProblem, reach
 def _check_iterations(path: Path, its: Any, problem: MCFitProblem) -> None:
     """``mc-state.json``'s ``iterations`` (:mod:`fabric_optics.fitting.state`: refused, naming the field, unless every
     run and proposal is one of this fit's)."""
-    from fabric_optics.fitting.state import _refuse, check_number, check_point
+    from fabric_optics.fitting.state import refuse, check_number, check_point
 
     if not isinstance(its, list):
-        _refuse(path, f"field 'iterations' is {json.dumps(its)[:40]}, not a list of runs")
+        refuse(path, f"field 'iterations' is {json.dumps(its)[:40]}, not a list of runs")
     if len(its) > MAX_STATE_RUNS:
-        _refuse(path, f"field 'iterations' lists {len(its)} runs, more than {MAX_STATE_RUNS}")
+        refuse(path, f"field 'iterations' lists {len(its)} runs, more than {MAX_STATE_RUNS}")
     names = [p.name for p in problem.free]
     for k, rec in enumerate(its):
         _check_record(path, f"iterations[{k}]", rec, problem)
         fine = rec.get("fine_runs")
         if fine is not None:
             if not isinstance(fine, dict) or len(fine) > len(names):
-                _refuse(path, f"field 'iterations[{k}].fine_runs' is not an object of at most {len(names)} runs")
+                refuse(path, f"field 'iterations[{k}].fine_runs' is not an object of at most {len(names)} runs")
             for j, fr in fine.items():
                 if not (j.isdigit() and int(j) < len(names)):
-                    _refuse(path, f"field 'iterations[{k}].fine_runs' names parameter {j!r}, not one of 0..{len(names) - 1}")
+                    refuse(path, f"field 'iterations[{k}].fine_runs' names parameter {j!r}, not one of 0..{len(names) - 1}")
                 _check_record(path, f"iterations[{k}].fine_runs.{j}", fr, problem, reach=1.0)
         prop = rec.get("proposal")
         if prop is not None:
             where = f"iterations[{k}].proposal"
             if not isinstance(prop, dict) or prop.get("kind") not in ("surrogate fit", "backtrack"):
-                _refuse(path, f"field {where!r} is not a proposal (kind 'surrogate fit' or 'backtrack')")
+                refuse(path, f"field {where!r} is not a proposal (kind 'surrogate fit' or 'backtrack')")
             for name in ("x", "u", "surrogate_evaluations"):
                 if name not in prop:
-                    _refuse(path, f"field '{where}.{name}' is missing")
+                    refuse(path, f"field '{where}.{name}' is missing")
             check_point(path, f"{where}.x", prop["x"], names, problem.low, problem.high)
             u = prop["u"]
             if not isinstance(u, list) or len(u) != len(names):
-                _refuse(path, f"field '{where}.u' is not a list of {len(names)} uncertainties")
+                refuse(path, f"field '{where}.u' is not a list of {len(names)} uncertainties")
             for j, v in enumerate(u):
                 check_number(path, f"{where}.u[{j}]", v, low=0.0, allow_nan=True)
             check_number(path, f"{where}.surrogate_evaluations", prop["surrogate_evaluations"], low=0,
                          high=10**9, integer=True)
             notes = prop.get("notes", [])
             if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
-                _refuse(path, f"field '{where}.notes' is not a list of texts")
+                refuse(path, f"field '{where}.notes' is not a list of texts")
 
 
 class _State:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from fabric_optics.fitting.errors import FitError
 from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
 from gonio.data.schema import WAVELENGTH_RANGE_NM
 from simulate import fabric as fab
@@ -56,9 +57,6 @@ KNOT_LOW, KNOT_HIGH = -4.0, 0.5
 #: takes their trend from Monte Carlo runs themselves (:mod:`fabric_optics.fitting.mc`, "Parameters only the Monte Carlo sees").
 FINE_FIELDS = {"surface.transmission_rms_slope": (0.0, 1.0), "surface.transmission_rms_slope_around": (0.0, 1.0)}
 
-
-class FitError(ValueError):
-    """A fit that cannot start (bad parameter, bounds, measurement): one line, exit 2."""
 
 
 # ------------------------------------------------------------------------------------------

@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["WALKS_DIR", "MAX_STATE_BYTES", "MAX_DEPTH", "MAX_RUN_PHOTONS", "WalkCheckpoint", "write_json_atomic",
+__all__ = ["WALKS_DIR", "refuse", "MAX_STATE_BYTES", "MAX_DEPTH", "MAX_RUN_PHOTONS", "WalkCheckpoint", "write_json_atomic",
            "read_state_json", "check_point", "check_number", "check_photons", "write_failed", "remove_quietly"]
 
 WALKS_DIR = "walks"
@@ -77,7 +77,7 @@ def write_failed(path: Path, exc: OSError) -> str:
 def write_json_atomic(path: Path, doc: dict) -> None:
     """``doc`` as JSON at ``path``, written to a temporary file, fsynced and renamed. A failed write
     (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.problem.FitError`."""
-    from fabric_optics.fitting.problem import FitError
+    from fabric_optics.fitting.errors import FitError
 
     tmp = path.with_name(f".{path.name}.tmp")
     try:
@@ -94,8 +94,8 @@ def write_json_atomic(path: Path, doc: dict) -> None:
         raise
 
 
-def _refuse(path: Path, what: str) -> None:
-    from fabric_optics.fitting.problem import FitError
+def refuse(path: Path, what: str) -> None:
+    from fabric_optics.fitting.errors import FitError
 
     raise FitError(f"--resume: {path}: {what}; delete the file or run without --resume to start afresh")
 
@@ -120,38 +120,38 @@ def read_state_json(path: Path) -> dict | None:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         if os.path.islink(path):
-            _refuse(path, f"is a symbolic link to a missing target ({os.readlink(path)})")
+            refuse(path, f"is a symbolic link to a missing target ({os.readlink(path)})")
         return None
     except OSError as exc:
-        _refuse(path, f"cannot be opened ({exc.strerror})")
+        refuse(path, f"cannot be opened ({exc.strerror})")
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a directory" if stat.S_ISDIR(st.st_mode)
                     else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file")
-            _refuse(path, f"is {kind}{' (through a symbolic link)' if os.path.islink(path) else ''}, not a state file")
+            refuse(path, f"is {kind}{' (through a symbolic link)' if os.path.islink(path) else ''}, not a state file")
         if st.st_size > MAX_STATE_BYTES:
-            _refuse(path, f"is {st.st_size:,} bytes, more than a state file's limit of {MAX_STATE_BYTES:,}")
+            refuse(path, f"is {st.st_size:,} bytes, more than a state file's limit of {MAX_STATE_BYTES:,}")
         with os.fdopen(fd, "rb") as fh:
             fd = -1
             raw = fh.read(MAX_STATE_BYTES + 1)
     except OSError as exc:
-        _refuse(path, f"cannot be read ({exc.strerror})")
+        refuse(path, f"cannot be read ({exc.strerror})")
     finally:
         if fd >= 0:
             os.close(fd)
     if len(raw) > MAX_STATE_BYTES:
-        _refuse(path, f"holds more than a state file's limit of {MAX_STATE_BYTES:,} bytes")
+        refuse(path, f"holds more than a state file's limit of {MAX_STATE_BYTES:,} bytes")
     try:
         doc = json.loads(raw.decode("utf-8"))
     except RecursionError:
-        _refuse(path, f"is nested deeper than a state file's {MAX_DEPTH} levels")
+        refuse(path, f"is nested deeper than a state file's {MAX_DEPTH} levels")
     except (UnicodeDecodeError, ValueError) as exc:
-        _refuse(path, f"is not valid JSON ({exc})")
+        refuse(path, f"is not valid JSON ({exc})")
     if not isinstance(doc, dict):
-        _refuse(path, f"holds a JSON {type(doc).__name__ if doc is not None else 'null'}, not the state's object")
+        refuse(path, f"holds a JSON {type(doc).__name__ if doc is not None else 'null'}, not the state's object")
     if _depth(doc, MAX_DEPTH) > MAX_DEPTH:
-        _refuse(path, f"is nested deeper than a state file's {MAX_DEPTH} levels")
+        refuse(path, f"is nested deeper than a state file's {MAX_DEPTH} levels")
     return doc
 
 
@@ -161,14 +161,14 @@ def check_number(path: Path, field: str, value: Any, *, low: float = -math.inf, 
     naming ``path`` and ``field``."""
     kind = "an integer" if integer else "a number"
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
-        _refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not {kind}")
+        refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not {kind}")
     v = float(value) if not integer else value
     if isinstance(v, float) and math.isnan(v) and allow_nan:
         return v
     if isinstance(v, float) and not math.isfinite(v):
-        _refuse(path, f"field {field!r} is {v}, not a finite number")
+        refuse(path, f"field {field!r} is {v}, not a finite number")
     if not low <= v <= high:
-        _refuse(path, f"field {field!r} is {v:g}, outside [{low:g}, {high:g}]")
+        refuse(path, f"field {field!r} is {v:g}, outside [{low:g}, {high:g}]")
     return float(v)
 
 
@@ -176,9 +176,9 @@ def check_point(path: Path, field: str, value: Any, names: list[str], low: np.nd
     """``value`` as a point of the free parameters ``names``: one finite number each, inside its bounds
     (not clamped: a point outside is refused naming ``path``, ``field`` and the parameter)."""
     if not isinstance(value, list):
-        _refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not a list of {len(names)} number(s)")
+        refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not a list of {len(names)} number(s)")
     if len(value) != len(names):
-        _refuse(path, f"field {field!r} has {len(value)} entries; this fit has {len(names)} free parameter(s) "
+        refuse(path, f"field {field!r} has {len(value)} entries; this fit has {len(names)} free parameter(s) "
                       f"({', '.join(names)})")
     x = np.empty(len(names))
     for j, (v, name, lo, hi) in enumerate(zip(value, names, low, high)):
@@ -192,7 +192,7 @@ def check_photons(path: Path, field: str, value: Any) -> dict | None:
     if value is None:
         return None
     if not isinstance(value, dict):
-        _refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not an object of photon counts")
+        refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not an object of photon counts")
     for key, n in value.items():
         check_number(path, f"{field}.{key}"[:60], n, low=0 if key in ("exit_tables", "per_row") else 1,
                      high=MAX_RUN_PHOTONS if ":" in key else 10**15, integer=True)
@@ -224,7 +224,7 @@ class WalkCheckpoint:
         return found
 
     def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
-        from fabric_optics.fitting.problem import FitError
+        from fabric_optics.fitting.errors import FitError
 
         path = self._path(key)
         tmp = path.with_name(f".{path.stem}.tmp.npz")

@@ -119,6 +119,26 @@ clear: its exits keep to the cones refraction puts them on, which coarse azimuth
 (:func:`clear_fiber_note`)."""
 
 
+def fiber_scatterings(fiber: Any, wavelengths_nm: Any) -> float:
+    """``2 R mu_s`` at the middle of ``wavelengths_nm``: the expected scattering events across the fiber."""
+    medium = fiber.medium
+    wl = np.asarray(wavelengths_nm, float).ravel()
+    mid = float(wl[wl.size // 2]) if wl.size else 550.0
+    mu_s = float(medium.mu_s) if isinstance(medium, HGMedium) else float(
+        medium.optical_properties(mid, with_phase=False).mu_s)
+    return 2.0 * float(fiber.radius_um) * mu_s
+
+
+def default_exit_bins(fiber: Any, wavelengths_nm: Any, felt: bool) -> tuple[int, int]:
+    """The exit bins of a config that gives none: ``(10, 20)`` for a felt whose fiber is nearly clear
+    (fewer than :data:`CLEAR_FIBER_SCATTERINGS` scattering events across it: its exits keep to cones
+    that coarser bins smear), ``(5, 10)`` otherwise -- turbid fibers, and woven yarns, whose table is
+    the yarn pile's (:mod:`simulate.woven.pile`), converge there at about half the trace time."""
+    if felt and fiber_scatterings(fiber, wavelengths_nm) < CLEAR_FIBER_SCATTERINGS:
+        return (10, 20)
+    return (5, 10)
+
+
 def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]) -> str | None:
     """The warning for a run whose fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s``
     below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are 10 or fewer (36 deg
@@ -127,18 +147,15 @@ def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]
     (docs/physics.md 6, "Exit directions")."""
     if int(exit_bins[1]) > 10:
         return None
-    medium = fiber.medium
     wl = np.asarray(wavelengths_nm, float).ravel()
     mid = float(wl[wl.size // 2]) if wl.size else 550.0
-    mu_s = float(medium.mu_s) if isinstance(medium, HGMedium) else float(
-        medium.optical_properties(mid, with_phase=False).mu_s)
-    n = 2.0 * float(fiber.radius_um) * mu_s
+    n = fiber_scatterings(fiber, wl)
     if n >= CLEAR_FIBER_SCATTERINGS:
         return None
     return (f"the fiber is nearly clear ({n:.2g} scattering events across its diameter at {mid:g} nm) and "
             f"the yarn table's exit directions are binned at {int(exit_bins[1])} azimuths: its exits keep to "
             "cones that such bins smear, and the result can move by more than a fit's misfit at finer bins; "
-            "the default [method] exit_bins = [10, 20] resolves them (docs/physics.md 6, \"Exit directions\")")
+            "[method] exit_bins = [10, 20] (the default for such a felt) resolves them (docs/physics.md 6, \"Exit directions\")")
 
 
 def _rot_z(a: float) -> np.ndarray:
