@@ -7,9 +7,12 @@ DEMO_OUT ?= demo-out
 # Relative standard error of the fiber and fabric Monte Carlo in the demo (the bench runs 1%).
 DEMO_REL_ERR ?= 0.03
 # The measured sample: the real green felt of the RGL database (fixtures/real/, CC0), put into the
-# mock goniophotometer; the plan with the red-cotton plan's geometry that names the felt.
+# mock goniophotometer; the plan of the file's own measured incidences (0, 27.76, 40.03, 50.16, 59.52,
+# 68.77, 78.56 deg: no incidence interpolated between its tables) with green-felt's in-plane curves and
+# the retro-reflection rings 6 and 30 deg from the source (gonio.acquisition.plan.measured_plan;
+# docs/notes/fit-trust.md). green-felt asks for 30/45/60 deg, the file's interpolation.
 DEMO_SAMPLE ?= fixtures/real/acrylic_felt_green_rgb.bsdf
-DEMO_PLAN ?= green-felt
+DEMO_PLAN ?= measured
 # The config the fits start from: the green-felt preset (simulate/configs/green-felt.toml: the felt
 # structure, RMS slope and scatterers fitted to this felt once). DEMO_DYE: the dye replaced by 8
 # knots started from the measured colour (any start config turns green; empty keeps the start's dye).
@@ -30,8 +33,13 @@ DEMO_FREE ?= dye,rms_slope
 DEMO_MC_START ?= green-felt-mc
 DEMO_MC_FREE ?= dye
 DEMO_MC_RUNS ?= 2
-# Evaluation budget of each fit (one walk each, then about 0.1 s per evaluation).
-DEMO_FIT_EVALS ?= 200
+# A fit whose colour is left off exits 3 with its outputs written and labelled failing
+# (docs/notes/fit-trust.md); the demo goes on so that the report shows it. Any other failure stops it.
+FIT_VERDICT = || [ $$? -eq 3 ]
+# Evaluation budget of each fit (one walk each, then about 0.1 s per evaluation): the default. On the demo's
+# acquisition (measured plan) the classic fit converges in 287 evaluations, the summation fit in 192 (both
+# by ftol); 200 stopped the classic fit before it converged.
+DEMO_FIT_EVALS ?= 600
 # Relative standard error of each fit's first Monte Carlo walk (the start configs' own differ).
 DEMO_FIT_REL_ERR ?= 0.03
 
@@ -59,9 +67,9 @@ demo: $(STAMP)
 	$(VENV)/bin/gonio truth $(DEMO_SAMPLE) --plan $(DEMO_PLAN) --out $(DEMO_OUT)/truth --force
 	$(VENV)/bin/compare check $(DEMO_OUT)/measured $(DEMO_OUT)/truth --max-nrmse 0.05
 	$(VENV)/bin/simulate fabric red-cotton --method summation --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/red-cotton --force
-	$(VENV)/bin/simulate fit $(DEMO_CLASSIC_START) $(DEMO_OUT)/measured --method classic $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --target-rel-err $(DEMO_FIT_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-classic --force
-	$(VENV)/bin/simulate fit $(DEMO_START) $(DEMO_OUT)/measured --method summation $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --target-rel-err $(DEMO_FIT_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-summation --force
-	$(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/measured --method mc --free $(DEMO_MC_FREE) --max-runs $(DEMO_MC_RUNS) --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-mc --force
+	$(VENV)/bin/simulate fit $(DEMO_CLASSIC_START) $(DEMO_OUT)/measured --method classic $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --target-rel-err $(DEMO_FIT_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-classic --force $(FIT_VERDICT)
+	$(VENV)/bin/simulate fit $(DEMO_START) $(DEMO_OUT)/measured --method summation $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --target-rel-err $(DEMO_FIT_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-summation --force $(FIT_VERDICT)
+	$(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/measured --method mc --free $(DEMO_MC_FREE) --max-runs $(DEMO_MC_RUNS) --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-mc --force $(FIT_VERDICT)
 	$(VENV)/bin/compare report $(DEMO_OUT)/measured $(DEMO_OUT)/truth $(DEMO_OUT)/fit-classic/fitted $(DEMO_OUT)/fit-summation/fitted $(DEMO_OUT)/fit-mc/initial $(DEMO_OUT)/fit-mc/fitted --fit $(DEMO_OUT)/fit-classic --fit $(DEMO_OUT)/fit-summation --fit $(DEMO_OUT)/fit-mc --seed-sample $(DEMO_OUT)/red-cotton --out $(DEMO_OUT)/report --force
 	@echo "demo: report in $(DEMO_OUT)/report/report.html"
 

@@ -22,7 +22,8 @@ the issue)::
                        "normal_value": {"measured": {"how": "estimated"|"measured"|"mixed",
                                                      "per_wavelength": {...},
                                                      "u_per_wavelength": {...}},
-                                        name: {same keys (the simulation's C(0,0))}}},
+                                        name: {same keys (the simulation's C(0,0))}},
+                       "level": {name: {"k", "ratio", "k_min", "k_max", "spread", "cv", "judged"}}},
      "curves": {name: {"0": {"rmse", "nrmse", "max_abs", "max_abs_at"}, "30": {...}, ...}},
      "overall": {name: {"rmse", "nrmse"}},
      "colour": {"geometry": {"theta_i", "phi_i", "theta_o", "phi_o", "s"},
@@ -72,7 +73,7 @@ from .metrics import CurveError, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
                         estimate_normal_value, normalisation_factor)
 
-__all__ = ["DYNAMIC_RANGE_MAX", "MEASURED_BETA_MAX", "Comparison", "check_values",
+__all__ = ["DYNAMIC_RANGE_MAX", "MEASURED_BETA_MAX", "Comparison", "Level", "check_values",
            "compare_datasets", "incomplete_datasets", "same_dataset",
            "unique_names"]
 
@@ -99,6 +100,52 @@ def unique_names(names: Iterable[str], reserved: Iterable[str] = RESERVED_NAMES)
         taken.add(candidate)
         out.append(candidate)
     return out
+
+
+@dataclass(frozen=True)
+class Level:
+    """The absolute level of one simulation against the measurement, which the per-wavelength normalisation
+    hides (docs/notes/fit-trust.md "The level").
+
+    ``k`` is the luminance-weighted factor ``k_Y`` at the colour geometry (:mod:`compare.colourmatch`; the
+    median ``k`` of a photometric comparison): the measurement is ``k`` times the model there. ``ratio`` =
+    ``max(k, 1/k)`` is how many times brighter or darker the model is (1 at the measured level; ``compare
+    check --max-level-ratio``). ``spread`` = ``max k / min k`` over the wavelengths (channels) and ``cv`` their
+    coefficient of variation: a spread > 1 is a colour the normalisation took out at the normal. ``judged`` is
+    False for a relative measurement (raw units: no level to judge).
+    """
+
+    k: float
+    ratio: float
+    k_min: float
+    k_max: float
+    spread: float
+    cv: float
+    judged: bool
+
+    def as_dict(self) -> dict:
+        def num(x):
+            return float(x) if math.isfinite(float(x)) else None
+        return {"k": num(self.k), "ratio": num(self.ratio), "k_min": num(self.k_min), "k_max": num(self.k_max),
+                "spread": num(self.spread), "cv": num(self.cv), "judged": self.judged}
+
+    def words(self, name: str, nrmse: float, max_ratio: float, max_nrmse: float) -> str:
+        """One sentence on the level of ``name``: matched in shape but not in level, or at the level."""
+        if not self.judged:
+            return (f"'{name}': the measurement is relative (raw units), so its level is not judged; only shapes "
+                    "and colour are compared")
+        if not math.isfinite(self.ratio):
+            return f"'{name}': its level could not be computed"
+        how = "brighter" if self.k < 1 else "darker"
+        spread = f"k from {self.k_min:.3g} to {self.k_max:.3g} over the bands, spread {self.spread:.2f}"
+        if self.ratio <= max_ratio:
+            return (f"'{name}' is at the measured level: within a factor {self.ratio:.2f} (limit {max_ratio:g}) at "
+                    f"the colour geometry (k_Y {self.k:.3g}; {spread})")
+        level = f"{self.ratio:.2f} times {how} than the measurement at the colour geometry (k_Y {self.k:.3g}; {spread})"
+        shape = nrmse <= max_nrmse
+        return (f"'{name}' {'matches in shape but not in level' if shape else 'is off in level as well'}: it is "
+                f"{level}; the per-wavelength normalisation at the normal hides this (level ratio above "
+                f"{max_ratio:g})")
 
 
 @dataclass(frozen=True)
@@ -211,6 +258,20 @@ class Comparison:
             out.append(curve_errors(shifted)[1].nrmse)
         return out[0], out[1]
 
+    def level(self, name: str) -> Level:
+        """The absolute level of simulation ``name`` (:class:`Level`)."""
+        k_all = np.asarray(self.normalisations[name].factor, float)
+        if self.colour is not None:
+            k = float(self.colour.simulated[name].scale)
+        else:
+            k = float(np.median(k_all))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = max(k, 1.0 / k) if k > 0 and math.isfinite(k) else math.nan
+            spread = float(k_all.max() / k_all.min()) if k_all.size and k_all.min() > 0 else math.nan
+            cv = float(np.std(k_all) / np.mean(k_all)) if k_all.size else math.nan
+        return Level(k=k, ratio=ratio, k_min=float(k_all.min()), k_max=float(k_all.max()), spread=spread, cv=cv,
+                     judged=not self.relative)
+
     def metrics(self) -> dict:
         """The ``metrics.json`` document (see the module docstring)."""
         def num(x):
@@ -266,10 +327,11 @@ class Comparison:
         method = METHOD_TEXT.format(window=self.window_deg)
         if bands.is_rgb:
             method = method.replace("per wavelength", "per channel").replace("k(lambda)", "k(c)")
+        level = {name: self.level(name).as_dict() for name in self.normalisations}
         shape = {"measured": shape_document(self.measured_compared.table, bands.key)}
         shape.update({name: shape_document(self.view(name).table, bands.key) for name in self.simulated})
         document: dict = {"normalisation": {"method": method, "factor": factor,
-                                            "normal_value": normal_value},
+                                            "normal_value": normal_value, "level": level},
                           "curves": curves, "overall": overall, "colour": colour, "shape": shape}
         if self.colour_note:
             document["colour_note"] = f"no colour statement (no H, S, V): {self.colour_note}"

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "CurveError",
+__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_LEVEL_RATIO", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "CurveError",
            "angle_key", "curve_error", "curve_errors"]
 
 #: What "a match" means (``compare check``'s default thresholds, stated in every report; chosen
@@ -32,6 +32,11 @@ __all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", 
 DEFAULT_MAX_NRMSE = 0.10
 DEFAULT_MAX_HUE_DIFF = 0.02
 DEFAULT_MAX_SAT_DIFF = 0.05
+#: ``compare check --max-level-ratio``: largest ratio between the model's absolute level and the measured one,
+#: ``max(k_Y, 1/k_Y)`` (:class:`compare.comparison.Level`). 1.5: a model at the measured level within its
+#: Monte Carlo error and the reference's calibration (a few %) passes with a wide margin, one scaled by 2 (or
+#: 1/2) fails; the felt models fitted in shape only (k_Y 0.3, 2.85x too dark) fail, as they should.
+DEFAULT_MAX_LEVEL_RATIO = 1.5
 
 
 @dataclass(frozen=True)

@@ -113,15 +113,22 @@ class ResidualFigures:
     u_simulated: np.ndarray
     factor: np.ndarray
     has_colour: bool = True
+    #: the absolute level: ``k_Y`` at the colour geometry (median ``k`` without colour), as
+    #: :meth:`compare.comparison.Comparison.level`; 1 when the model is at the measured level
+    level: float = float("nan")
 
-    def vector(self, colour_weight: float = 1.0) -> np.ndarray:
+    def vector(self, colour_weight: float = 1.0, level_weight: float = 0.0) -> np.ndarray:
         """``residual ++ sqrt(colour_weight) [dh, ds]`` (no colour terms when the measurement
         has no colour, a photometric one): the residual vector of ``simulate fit``,
-        ``|r|^2 = NRMSE^2 + w (dh^2 + ds^2)``."""
-        if not self.has_colour:
-            return self.residual.copy()
-        return np.concatenate([self.residual,
-                               math.sqrt(colour_weight) * np.array([self.dh, self.ds])])
+        ``|r|^2 = NRMSE^2 + w (dh^2 + ds^2)``; ``level_weight > 0`` (``simulate fit --absolute``)
+        appends ``sqrt(level_weight) ln(level)``, so ``|r|^2`` gains ``w_l (ln k_Y)^2``."""
+        parts = [self.residual]
+        if self.has_colour:
+            parts.append(math.sqrt(colour_weight) * np.array([self.dh, self.ds]))
+        if level_weight > 0:
+            lv = self.level if self.level > 0 else float("nan")
+            parts.append(np.array([math.sqrt(level_weight) * math.log(lv)]))
+        return np.concatenate(parts) if len(parts) > 1 else self.residual.copy()
 
 
 def _template(geometries: pd.DataFrame, wavelengths: np.ndarray, measured: Dataset, name: str
@@ -428,8 +435,10 @@ class ModelResidual:
             r = float(np.sqrt(np.mean(dd * dd)))
             per_angle[key] = r / mean if mean > 0 else float("nan")
         h = s = v = dh = ds = dv = float("nan")
+        level = float(np.median(k))
         if self.has_colour:
             scale = float(self._w @ self._m) / float(self._w @ c)
+            level = scale
             col = colour_of(self._c_wl, raw[self._c_rows] * scale, self.illuminant,
                           f"simulated dataset '{self.name}' (scaled by k_Y {scale:.3g})",
                           self.bands)
@@ -439,4 +448,4 @@ class ModelResidual:
         return ResidualFigures(residual=d / (self._mean * math.sqrt(d.size)), rmse=rmse,
                                nrmse=nrmse, nrmse_per_incidence=per_angle, h=h, s=s, v=v, dh=dh,
                                ds=ds, dv=dv, beta_simulated=sim, u_simulated=u_sim, factor=k,
-                               has_colour=self.has_colour)
+                               has_colour=self.has_colour, level=level)

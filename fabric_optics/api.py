@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from compare.comparison import Comparison
 from compare.errors import CompareError
-from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
 from gonio.acquisition.plan import Plan, PlanError
 from gonio.data.dataset import Dataset
@@ -204,9 +204,11 @@ class Verdict:
 
 
 def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float = DEFAULT_MAX_NRMSE,
-          max_hue_diff: float = DEFAULT_MAX_HUE_DIFF, max_sat_diff: float = DEFAULT_MAX_SAT_DIFF) -> Verdict:
+          max_hue_diff: float = DEFAULT_MAX_HUE_DIFF, max_sat_diff: float = DEFAULT_MAX_SAT_DIFF,
+          max_level_ratio: float = DEFAULT_MAX_LEVEL_RATIO) -> Verdict:
     """Judge one simulation of ``comparison`` (the first unless ``name``) against thresholds:
-    overall NRMSE, and where the colour is known, |hue difference| (turns) and |saturation difference|."""
+    overall NRMSE, and where the colour is known, |hue difference| (turns) and |saturation difference|;
+    the absolute level (``max(k_Y, 1/k_Y)``) unless the measurement is relative (``compare check``)."""
     name = name if name is not None else next(iter(comparison.simulated))
     if name not in comparison.simulated:
         raise InputError(f"no simulation named {name!r} in the comparison ({', '.join(comparison.simulated)})")
@@ -215,6 +217,10 @@ def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float =
         sc = comparison.colour.simulated[name]
         figures += [("|hue difference|", abs(sc.dh), max_hue_diff, " turns of the hue circle"),
                     ("|saturation difference|", abs(sc.ds), max_sat_diff, "")]
+    level = comparison.level(name)
+    if level.judged:
+        figures.append(("level ratio max(k_Y, 1/k_Y)", level.ratio, max_level_ratio,
+                        f" (k_Y {level.k:.3g}, k(lambda) spread {level.spread:.3g})"))
     return Verdict(name=name, measured=comparison.measured.name, figures=figures,
                    curves={a: e.nrmse for a, e in comparison.curves[name].items()}, notes=list(comparison.notes()))
 
@@ -269,7 +275,7 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
                 target_rel_err: float | None = None, seed: int | None = None, threads: int | None = None,
                 colour_weight: float = 1.0, wavelengths_nm: Sequence[float] | None = None,
                 mc_trend: Sequence[str] = (), starts: int = 1, resume: bool = False,
-                force: bool = False) -> FitJob:
+                force: bool = False, absolute: bool = False) -> FitJob:
     """Everything :func:`fit` checks before its search (arguments as :func:`fit`): the config, the
     measurement, the free parameters and their bounds, the output folder. Nothing is written."""
     import numpy as np
@@ -302,6 +308,7 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
     problem_class, run_fit, write_outputs = method_runner(method)
     extra: dict[str, Any] = {"mc_trend": tuple(mc_trend)} if mc_trend else {}
     problem = problem_class(cfg, data, parse_free(names, cfg), method=method, colour_weight=colour_weight,
+                            level_weight=1.0 if absolute else 0.0,
                             target_rel_err=cfg.target_rel_err if target_rel_err is None else target_rel_err,
                             seed=seed, threads=threads or None, wavelengths_nm=wavelengths, **extra)
     problem.precheck()
@@ -324,7 +331,7 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         max_evaluations: int | None = None, max_runs: int | None = None, target_rel_err: float | None = None,
         seed: int | None = None, threads: int | None = None, colour_weight: float = 1.0,
         wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
-        resume: bool = False, force: bool = False, progress: bool = False) -> FitOutcome:
+        resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False) -> FitOutcome:
     """Fit the ``free`` parameters of ``config`` (names as ``simulate fit --free``: ``"dye,rms_slope"``
     or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`).
 
@@ -332,12 +339,13 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     ``max_evaluations`` bounds the model evaluations of the summation and classic fits, ``max_runs``
     the Monte Carlo runs of the ``mc`` fit. ``target_rel_err`` (the first Monte Carlo walk's) and
     ``seed`` default to the config's. Everything is written to ``out`` (resumable with
-    ``resume=True``); an existing output there is replaced only with ``force=True``.
+    ``resume=True``); an existing output there is replaced only with ``force=True``. ``absolute=True``:
+    the measurement is absolutely calibrated, its level is fitted too (``simulate fit --absolute``).
     """
     return prepare_fit(config, measured, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
                        max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
                        colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
-                       starts=starts, resume=resume, force=force).run(progress=progress)
+                       starts=starts, resume=resume, force=force, absolute=absolute).run(progress=progress)
 
 
 @_typed_errors

@@ -61,8 +61,13 @@ def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1
 
     out = Path(out)
     truth = make_sample(sample)        # a bad sample: one error before the folder is touched
-    plan = dataclasses.replace(plan, sample=demo_sample_meta(plan.sample, truth,
-                                                             name_from_sample=name_from_sample))
+    sample_meta = demo_sample_meta(plan.sample, truth, name_from_sample=name_from_sample)
+    measured_incidences = truth.describe().get("measured_incidence_deg")
+    if measured_incidences is not None:     # a file: which of the plan's incidences it measured, which it interpolates
+        from gonio.data.formats.rgl_bsdf import incidence_meta
+
+        sample_meta["incidences"] = incidence_meta(measured_incidences, plan.incidence_deg, Path(sample).name)
+    plan = dataclasses.replace(plan, sample=sample_meta)
     replace_previous_demo(out, force=force)
     t0 = time.monotonic()
     with MockInstrument(sample=sample, modbus="tcp", serial="pty", speed="fast",
@@ -84,6 +89,7 @@ def demo_sample_meta(plan_sample: dict, truth, *, name_from_sample: bool = False
     """
     described = truth.describe()
     meta = dict(plan_sample)
+    meta.pop("incidences", None)
     if name_from_sample:
         meta["name"] = str(described.get("description") or truth.name)
         meta["material"] = f"the mock's virtual sample {truth.name} ({described.get('model')})"

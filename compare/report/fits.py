@@ -90,12 +90,18 @@ def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Sec
         for p in doc["parameters"]:
             rows.append(f"<tr><td class='l'><code>{e(str(p.get('name')))}</code></td>"
                         f"<td>{_num(p.get('start'))}</td><td><b>{_num(p.get('value'))}</b></td>"
-                        f"<td>{_num(p.get('u'), 2)}</td><td>{_num(p.get('u_data'), 2)}</td>"
-                        f"<td>{_num(p.get('u_mc'), 2)}</td>"
-                        f"<td>[{_num(p.get('low'))}, {_num(p.get('high'))}]</td></tr>")
+                        + (f"<td colspan='3'>{e(str(p['u_status']))}: no uncertainty</td>" if p.get("u_status") else
+                           f"<td>{_num(p.get('u'), 2)}</td><td>{_num(p.get('u_data'), 2)}</td>"
+                           f"<td>{_num(p.get('u_mc'), 2)}</td>")
+                        + f"<td>[{_num(p.get('low'))}, {_num(p.get('high'))}]</td></tr>")
         parts.append("<table><tr><th class='l'>parameter</th><th>config value</th><th>fitted</th>"
                      "<th>u</th><th>u (data)</th><th>u (Monte Carlo)</th><th>bounds</th></tr>"
                      + "".join(rows) + "</table>")
+        rule = doc.get("uncertainty") or {}
+        if rule.get("data") == "residual":
+            parts.append(f"<p>{e(str(rule.get('rule', '')))}"
+                         + (f"; s^2 = {_num(rule.get('s2'), 3)} ({e(str(rule.get('dof')))} degrees of freedom)."
+                            if rule.get("s2") is not None else ": no degree of freedom left, no u.") + "</p>")
         notes = [str(w) for w in doc.get("warnings") or []] + [str(n) for n in info.get("notes") or []]
         if notes:
             parts.append("<p>Warnings of the fit:</p><ul>" + "".join(f"<li>{e(n)}</li>" for n in notes)

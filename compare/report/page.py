@@ -227,7 +227,7 @@ def result_html(comparison: Comparison, metrics: dict) -> str:
 
 def howto_section(comparison: Comparison, metrics: dict) -> Section:
     """The "how to read this" box: what the reference is, what the models are, what success is."""
-    from ..metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+    from ..metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 
     e = html.escape
     meas = comparison.measured
@@ -246,10 +246,14 @@ def howto_section(comparison: Comparison, metrics: dict) -> Section:
         "the normal direction (so agreement there means nothing); what is judged is the SHAPE "
         "of the curves away from the normal and the colour. A model matches (the defaults of "
         f"<code>compare check</code>) when its overall NRMSE (curve RMSE over the mean "
-        f"reference value) is &le; {DEFAULT_MAX_NRMSE:g}{colour_rule}.</p>")
+        f"reference value) is &le; {DEFAULT_MAX_NRMSE:g}{colour_rule}"
+        + ("" if comparison.relative else
+           f", and its absolute level, which the normalisation hides, within a factor {DEFAULT_MAX_LEVEL_RATIO:g} "
+           "of the measured one (level ratio max(k_Y, 1/k_Y) at the colour geometry)") + ".</p>")
     parts.append("<table><tr><th class='l'>model</th><th>overall NRMSE</th>"
                  + ("<th>dh (turns)</th><th>ds</th>" if comparison.colour is not None else "")
-                 + "<th class='l'>verdict</th></tr>")
+                 + "<th>level ratio</th><th class='l'>verdict</th></tr>")
+    words = []
     for name in comparison.simulated:
         nrmse = metrics["overall"][name]["nrmse"]
         ok = nrmse is not None and nrmse <= DEFAULT_MAX_NRMSE
@@ -259,9 +263,18 @@ def howto_section(comparison: Comparison, metrics: dict) -> Section:
             ok = ok and c["dh"] is not None and abs(c["dh"]) <= DEFAULT_MAX_HUE_DIFF
             ok = ok and c["ds"] is not None and abs(c["ds"]) <= DEFAULT_MAX_SAT_DIFF
             cells += f"<td>{fmt(c['dh'])}</td><td>{fmt(c['ds'])}</td>"
-        parts.append(f"<tr><td class='l'>{e(name)}</td>{cells}<td class='l'>"
-                     f"{'matches' if ok else 'does not match'}</td></tr>")
-    parts.append("</table></div>")
+        level = comparison.level(name)
+        level_ok = not level.judged or level.ratio <= DEFAULT_MAX_LEVEL_RATIO
+        cells += f"<td>{fmt(level.ratio) if level.judged else 'not judged'}</td>"
+        verdict = ("matches" if ok and level_ok else "matches in shape, not in level" if ok
+                   else "does not match")
+        parts.append(f"<tr><td class='l'>{e(name)}</td>{cells}<td class='l'>{verdict}</td></tr>")
+        if level.judged and not level_ok:
+            words.append(level.words(name, nrmse if nrmse is not None else float("nan"), DEFAULT_MAX_LEVEL_RATIO,
+                                     DEFAULT_MAX_NRMSE))
+    parts.append("</table>")
+    parts += [f"<p class='note'><b>Level:</b> {e(w)}.</p>" for w in words]
+    parts.append("</div>")
     return Section("howto", "\n".join(parts))
 
 
@@ -324,16 +337,23 @@ def normalisation_section(comparison: Comparison, metrics: dict) -> Section:
         "NRMSE with every k moved to k - u_k and to k + u_k.</p>")
     parts.append("<table><tr><th class='l'>simulation</th><th class='l'>C(0,0) from</th>"
                  "<th>median k</th><th>k range</th><th>median u_k / k</th>"
-                 "<th>luminance k_Y</th><th>overall NRMSE at k - u_k .. k + u_k</th></tr>")
+                 "<th>luminance k_Y</th><th>k spread (max/min)</th><th>k CV</th>"
+                 "<th>overall NRMSE at k - u_k .. k + u_k</th></tr>")
     for name, n in comparison.normalisations.items():
         lo, hi = comparison.nrmse_with_factor_shifted(name)
+        lv = comparison.level(name)
         parts.append(f"<tr><td class='l'>{e(name)}</td><td class='l'>{e(HOW_SIMULATED[n.simulated.how])}</td>"
                      f"<td>{np.median(n.factor):.4g}</td>"
                      f"<td>{n.factor.min():.4g} .. {n.factor.max():.4g}</td>"
                      f"<td>{np.median(n.u_factor / n.factor):.2g}</td>"
                      f"<td>{fmt(metrics['normalisation']['factor'][name]['luminance'])}</td>"
+                     f"<td>{fmt(lv.spread)}</td><td>{fmt(lv.cv)}</td>"
                      f"<td>{fmt(lo)} .. {fmt(hi)}</td></tr>")
     parts.append("</table>")
+    parts.append("<p>The factor k makes every model equal the reference at the normal, so the curve errors judge "
+                 "shape only. The level is judged apart: k_Y (the luminance-weighted k at the colour geometry) is "
+                 "how many times the measurement exceeds the model there; a k spread above 1 is a colour "
+                 "difference the normalisation took out at the normal.</p>")
     return Section("normalisation", "\n".join(parts))
 
 

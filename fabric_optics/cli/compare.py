@@ -5,6 +5,7 @@
     compare report MEASURED [SIMULATED ...] --out REPORT_DIR [--force] [--fit FIT_DIR ...]
                    [--seed-sample DATASET_DIR] [--renders RENDER_DIR]
     compare check  MEASURED SIMULATED [--max-nrmse X] [--max-hue-diff X] [--max-sat-diff X]
+                   [--max-level-ratio X]
     compare render FILE.bsdf [FILE.bsdf ...] --out DIR [--force]
 
 Exit status: 0 success (``check``: every figure within its threshold), 1 a failed check (the
@@ -20,7 +21,11 @@ published model hues lie within 0.01 of the measured one, saturations within 0.0
 
 - ``--max-nrmse`` 0.10: overall NRMSE of the normalised curves (RMSE / mean measured beta);
 - ``--max-hue-diff`` 0.02: ``|dh|`` on the hue circle (hue in [0, 1));
-- ``--max-sat-diff`` 0.05: ``|ds|``.
+- ``--max-sat-diff`` 0.05: ``|ds|``;
+- ``--max-level-ratio`` 1.5: the absolute level, ``max(k_Y, 1/k_Y)`` with ``k_Y`` the luminance-weighted
+  normalisation factor at the colour geometry (:class:`compare.comparison.Level`): a model scaled by 2 fails.
+  Not judged for a relative measurement. The verdict says in words when a model matches in shape but not in
+  level.
 
 An RGB measurement is compared per channel, a spectral simulation converted to its colour space
 first (:mod:`compare.bands`); the conversion is printed as a note. A photometric (Y-only)
@@ -41,7 +46,7 @@ from gonio.data import DatasetError, read_dataset
 
 from compare.comparison import compare_datasets, incomplete_datasets
 from compare.errors import CompareError
-from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
+from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
 from fabric_optics import api
 from fabric_optics.cli import common
@@ -130,6 +135,10 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("--max-sat-diff", type=_non_negative, default=DEFAULT_MAX_SAT_DIFF,
                      metavar="X", help=f"largest |saturation difference| "
                                        f"(default {DEFAULT_MAX_SAT_DIFF:g})")
+    chk.add_argument("--max-level-ratio", type=_non_negative, default=DEFAULT_MAX_LEVEL_RATIO, metavar="X",
+                     help="largest ratio between the model's absolute level and the measured one, max(k_Y, 1/k_Y) "
+                          f"at the colour geometry (default {DEFAULT_MAX_LEVEL_RATIO:g}: a model scaled by 2 fails; "
+                          "not judged for a relative measurement)")
     common(chk)
     _add_render_parser(sub)
     return parser
@@ -273,8 +282,10 @@ def _check(args) -> int:
         print(f"compare check: note: {line} (compared anyway: --allow-incomplete)")
     comparison = api.compare(measured, simulated, window_deg=args.normal_window, illuminant=args.illuminant)
     verdict = api.check(comparison, max_nrmse=args.max_nrmse, max_hue_diff=args.max_hue_diff,
-                        max_sat_diff=args.max_sat_diff)
+                        max_sat_diff=args.max_sat_diff, max_level_ratio=args.max_level_ratio)
     print(f"compare check: {verdict.summary()}")
+    name = verdict.name
+    print(f"  level: {comparison.level(name).words(name, comparison.overall[name].nrmse, args.max_level_ratio, args.max_nrmse)}")
     return 0 if verdict.passed else 1
 
 

@@ -204,13 +204,26 @@ def _cmd_check_plan(args) -> int:
     return 1
 
 
+def _plan_for(plan: str, sample: str, what: str):
+    """The plan named ``plan``; ``measured``: the plan of the sample file's own measured incidences
+    (:func:`gonio.acquisition.plan.measured_plan`; the sample must be an RGL .bsdf file)."""
+    from gonio.acquisition.plan import MEASURED, measured_plan
+
+    if plan != MEASURED:
+        return load_plan(plan)
+    if not (str(sample).endswith(".bsdf") and Path(sample).is_file()):
+        raise _UsageError(f"--plan {MEASURED}: follows the measured incidences of an RGL .bsdf file, but {what} "
+                          f"{sample!r} is not one; give a .bsdf file or a plan")
+    return measured_plan(sample)
+
+
 def _cmd_demo(args) -> int:
     from gonio.demo import run_demo
 
     from gonio.mock.samples import SampleError
 
     out = Path(args.out)
-    plan = load_plan(args.plan or common.DEFAULT_PLAN)
+    plan = _plan_for(args.plan or common.DEFAULT_PLAN, args.sample, "--sample")
     if out.is_dir():      # a file or a run folder there: run_demo's own message
         refuse_existing(out, args.force)
     try:
@@ -233,7 +246,7 @@ def _cmd_truth(args) -> int:
     from gonio.mock.samples import SampleError
     from gonio.mock.truth import truth_dataset
 
-    plan = load_plan(plan_of(args))
+    plan = _plan_for(plan_of(args), args.sample, "SAMPLE")
     check_output(args.out, "dataset", writer="gonio truth", force=args.force)
     refuse_existing(args.out, args.force)
     try:
@@ -349,7 +362,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "without --plan the dataset is named after it")
     d.add_argument("--plan", default=None, metavar="PLAN",
                    help="acquisition plan to measure: a preset name or a TOML file (default red-cotton; "
-                        "green-felt: the same geometry, the felt named as its sample)")
+                        "green-felt: the same geometry, the felt named as its sample; measured: the --sample .bsdf "
+                        "file's own measured incidences and retro-reflection ring)")
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
     add_force(d, _FORCE_HELP)
     links(d)
@@ -406,7 +420,8 @@ def _cmd_import(args) -> int:
 
     geometries = None
     if args.plan:
-        geometries = load_plan(args.plan).geometries()
+        # the measured plan: what the instrument measures (the acquisition's geometries, no beam-blocked point)
+        geometries = _plan_for(args.plan, args.files[0], "FILE").geometries(measurable_only=args.plan == "measured")
     if args.scale is not None and not (args.scale > 0 and args.scale < float("inf")):
         raise _UsageError(f"--scale {args.scale}: must be a positive number")
     if not (0.0 < args.white_reflectance <= 1.0):

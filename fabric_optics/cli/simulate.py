@@ -3,7 +3,8 @@
 Subcommands are registered in :data:`COMMANDS`: each entry is a pair of functions
 ``(add_arguments(parser), run(args) -> int)``; a later subcommand (``fiber``, ``fabric``,
 ``sweep``) is one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
-(one line on stderr naming the flag, no traceback).
+(one line on stderr naming the flag, no traceback), 3 ``simulate fit`` whose fitted colour is left off
+(``fabric_optics.fitting.driver.EXIT_COLOUR_OFF``: outputs written, fit.json ``verdict.passed`` false).
 
 ``simulate slab --mua X --mus X --g X --n X --thickness X --photons N [--seed N] [--threads N] --json``
     prints ONE JSON object ``{"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds",
@@ -464,9 +465,12 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                         "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fitting.mc")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
+    p.add_argument("--absolute", action="store_true",
+                   help="an absolutely calibrated measurement: fit its level too, (ln k_Y)^2 added to the objective "
+                        "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations", metavar="N",
                    help="summation and classic fits: model evaluations of the search in all, steps and Jacobian "
-                        "columns of every start (default 400; the uncertainty propagation afterwards is counted apart)")
+                        "columns of every start (default 600; the uncertainty propagation afterwards is counted apart)")
     p.add_argument("--max-runs", type=_int_in(1, 10**4), default=None, dest="max_runs", metavar="N",
                    help="--method mc: Monte Carlo runs, the start's included (default 5, at least 2)")
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
@@ -550,7 +554,7 @@ def _fit_run(args: argparse.Namespace) -> int:
                           max_evaluations=args.max_evaluations, max_runs=args.max_runs,
                           target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
                           colour_weight=args.colour_weight, wavelengths_nm=args.wavelengths, mc_trend=mc_trend,
-                          starts=args.starts, resume=args.resume, force=args.force)
+                          starts=args.starts, resume=args.resume, force=args.force, absolute=args.absolute)
     _check_cost("fit", config, job.problem.wavelengths_nm, job.problem.target_rel_err, None)
     _prepare_out(args.out, lambda out: True, "simulate fit")
     from simulate.fiber import tablecache
@@ -567,26 +571,36 @@ def _fit_run(args: argparse.Namespace) -> int:
         return 130
     except OSError as exc:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
+    from fabric_optics.fitting.driver import uncertainty_text
+
     doc = outcome.summary
     for p in doc["parameters"]:
-        print(f"{p['name']} = {p['value']:.6g} +- {p['u']:.2g}   (start {p['start']:.6g}, bounds "
-              f"[{p['low']:g}, {p['high']:g}])")
+        u = p["u"] if p.get("u") is not None else float("nan")
+        print(f"{p['name']} = {p['value']:.6g} {uncertainty_text(u, p.get('u_status', ''))}   (start "
+              f"{p['start']:.6g}, bounds [{p['low']:g}, {p['high']:g}])")
     for key in ("start", "fitted"):
         c = doc[key]
         colour = f", dh {c['dh']:+.4f}, ds {c['ds']:+.4f}" if "dh" in c else ""
-        print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}")
+        level = f", level k_Y {c['level_k']:.3g}" if c.get("level_k") is not None else ""
+        print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}{level}")
     for w in doc["warnings"]:
-        print(f"warning: {w}", file=sys.stderr)
+        if not w.startswith("colour left off"):    # said once, as the verdict, below
+            print(f"warning: {w}", file=sys.stderr)
     info = doc["info"]
     if args.method == "mc":
         print(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
               f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
               f"{info['seconds']:.1f} s; {info['stop']})")
-        return 0
-    print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
-          f"{info['reweighted']} re-weighted passes"
-          + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache") else "")
-          + f", {info['seconds']:.1f} s)")
+    else:
+        print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
+              f"{info['reweighted']} re-weighted passes"
+              + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache")
+                 else "") + f", {info['seconds']:.1f} s)")
+    verdict = doc.get("verdict") or {}
+    if not verdict.get("passed", True):
+        # the outputs are written and labelled failing (fit.json verdict, fitted.toml header); exit 3
+        print(f"simulate fit: FAILED, {verdict.get('why', 'colour left off')}", file=sys.stderr)
+        return int(verdict.get("exit_status") or 3)
     return 0
 
 

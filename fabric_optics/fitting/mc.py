@@ -253,6 +253,18 @@ class MCFitProblem(FitProblem):
         if self.slope is not None:
             self.slope = (np.asarray(x, float).copy(), self.slope[1])
 
+    def model_at_host(self, config: Any, mu_host: np.ndarray,
+                      mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The surrogate at host absorption ``mu_host``: the summation's value with the correction applied
+        (the plain summation while there is none). The colour start (:func:`fabric_optics.fitting.start.inverted_start`)
+        reads the model through this, so the Monte Carlo fit inverts the measured colour through its own
+        surrogate."""
+        beta, u = super().model_at_host(config, mu_host, mc_noise)
+        if self.corr is None:
+            return beta, u
+        c, d, mc_u = self.corr
+        return beta * c + d, mc_u
+
     def model(self, x: np.ndarray, mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         if self.fine_runs is not None:
             run = self.fine_runs[_key(x)]
@@ -265,9 +277,7 @@ class MCFitProblem(FitProblem):
             xs = xs.copy()
             for j in self.slope[1]:
                 xs[j] = self.slope[0][j]
-        beta, u = super().model(xs, mc_noise)
-        c, d, mc_u = self.corr
-        out = beta * c + d
+        out, mc_u = super().model(xs, mc_noise)   # corrected by model_at_host
         if self.slope is not None:
             centre, D = self.slope
             for j, Dj in D.items():
@@ -293,7 +303,7 @@ def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = Fa
                    RunSettings(target=problem.target_rel_err, seed=int(problem.seed or 0),
                                threads=all_threads(problem.threads), progress=progress))
     fig = problem.residual_model().evaluate(est.beta, est.u_beta)
-    r = fig.vector(problem.colour_weight)
+    r = fig.vector(problem.colour_weight, problem.level_weight)
     return MCRun(x=np.asarray(x, float).copy(), beta=np.asarray(est.beta, float), u_beta=np.asarray(est.u_beta, float),
                  seconds=time.perf_counter() - t0, rays=int(est.info.get("rays", 0)),
                  rel_err=float(relative_error(est.beta, est.u_beta)), objective=float(r @ r),
@@ -510,12 +520,13 @@ def left_behind(out: Path) -> str:
 
 
 def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta: np.ndarray, draws: int,
-                 data: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(J, cov_data, cov_mc)`` at ``x`` with the correction formed from the Monte Carlo ``beta, u_beta``
-    there (module docstring); ``data=False``: the Monte Carlo part only (``cov_data`` zero)."""
+                 data: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """``(J, cov_data, cov_mc, rule)`` at ``x`` with the correction formed from the Monte Carlo ``beta, u_beta``
+    there (module docstring); ``data=False``: the Monte Carlo part only (``cov_data`` zero). A measurement
+    without ``u_beta`` gets the data part scaled by the residual (:func:`fabric_optics.fitting.driver.residual_covariance`)."""
     from compare.errors import CompareError
     from gonio.data.dataset import make_dataset
-    from fabric_optics.fitting.driver import jacobian
+    from fabric_optics.fitting.driver import jacobian, measurement_has_u, residual_scaled_draws
 
     problem.set_correction(x, beta, u_beta)
     r0 = problem.residuals(x)
@@ -524,7 +535,8 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     rng = np.random.default_rng(20260101 + int(problem.seed or 0))
     meas = problem.measured
     dp_data, dp_mc, refused = [np.zeros(x.size)], [np.zeros(x.size)], 0
-    for _ in range(draws if data else 0):
+    with_u = measurement_has_u(meas)
+    for _ in range(draws if data and with_u else 0):
         table = meas.table.copy()
         table["beta"] = table["beta"] + rng.standard_normal(len(table)) * table["u_beta"]
         try:
@@ -547,8 +559,11 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     # were all refused could not be estimated: all-NaN (fabric_optics.fitting.driver.uncertainty_parts says so)
     unknown = np.full((x.size, x.size), np.nan)
     cov = [unknown if attempted and len(dp) == 1 else np.atleast_2d(np.cov(np.array(dp[1:] or dp).T, bias=True))
-           for dp, attempted in ((dp_data, data and draws > 0), (dp_mc, draws > 0))]
-    return J, cov[0], cov[1]
+           for dp, attempted in ((dp_data, data and with_u and draws > 0), (dp_mc, draws > 0))]
+    rule: dict = {"data": "u_beta", "rule": "the measurement's u_beta propagated by noise draws"}
+    if data and not with_u:
+        cov[0], rule = residual_scaled_draws(problem, x, r0, J, rng, draws)
+    return J, cov[0], cov[1], rule
 
 
 def _line(k: int, run: MCRun, dx: float | None, cached: bool) -> str:
@@ -567,7 +582,8 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     ``max_evaluations``: Monte Carlo runs in all (the start's included, >= 2). Returns a
     :class:`fabric_optics.fitting.driver.FitResult` whose ``info["iterations"]`` lists the runs.
     """
-    from fabric_optics.fitting.driver import COLOUR_TOLERANCE, FitResult, at_bounds, identifiability, run_fit, uncertainty_parts
+    from fabric_optics.fitting.driver import (FitResult, at_bounds, colour_left_off, identifiability, run_fit,
+                                              u_status, uncertainty_parts)
 
     if max_evaluations < 2:
         raise FitError(f"--max-evaluations {max_evaluations}: --method mc needs at least 2 Monte Carlo runs "
@@ -667,18 +683,21 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                     reach = FINE_TRUST * abs(problem.fine_step(j, x))
                     problem.low[j], problem.high[j] = max(low[j], x[j] - reach), min(high[j], x[j] + reach)
                 try:
+                    # the colour start through the surrogate (free dye knots): the measured colour inverted through
+                    # the summation corrected to this run; the search starts from it or from x_k, the better
                     res = run_fit(problem, out=None, max_evaluations=inner_evaluations, starts=starts,
-                                  progress=progress, noise_draws=noise_draws, invert_start=False)
+                                  progress=progress, noise_draws=noise_draws, invert_start=True)
                 finally:
                     problem.low, problem.high = low, high
                 # the proposal's Monte Carlo part: the surrogate's noise (the run's u_beta) at the proposal
                 b_prop, u_b_prop = problem.model(res.x)
-                _, _, cov_prop = _uncertainty(problem, res.x, b_prop, u_b_prop, noise_draws, data=False)
-                u_prop = np.sqrt(res.u_data ** 2 + np.maximum(np.diag(cov_prop), 0.0))
+                _, _, cov_prop, _ = _uncertainty(problem, res.x, b_prop, u_b_prop, noise_draws, data=False)
+                u_prop = np.sqrt(np.nan_to_num(res.u_data) ** 2 + np.maximum(np.diag(cov_prop), 0.0))
                 prop = {"kind": "surrogate fit", "x": res.x.tolist(), "u": u_prop.tolist(),
-                        "surrogate_objective": res.objective,
+                        "surrogate_objective": res.objective, "start_note": res.info.get("start_note", ""),
                         "surrogate_evaluations": problem.evaluations - ev0, "seconds": time.perf_counter() - t1,
-                        "notes": [n for n in res.warnings if not n.startswith("the search stopped")]}
+                        "notes": [n for n in res.warnings
+                                  if not n.startswith(("the search stopped", "colour left off"))]}
                 state.put_proposal(k, prop)
             surrogate_evals += int(prop["surrogate_evaluations"])
             inner_notes = list(prop.get("notes") or inner_notes)
@@ -686,18 +705,18 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
             x = np.clip(np.asarray(prop["x"], float), problem.low, problem.high)
             u_prev = np.asarray(prop["u"], float)
         assert best is not None
-        J, cov_data, cov_mc = _uncertainty(problem, best.x, best.beta, best.u_beta, noise_draws)
+        J, cov_data, cov_mc, u_rule = _uncertainty(problem, best.x, best.beta, best.u_beta, noise_draws)
     finally:
         problem.start = start
     cov, u, u_data, u_mc, u_notes = uncertainty_parts(cov_data, cov_mc)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(u, u)
     corr[~np.isfinite(corr)] = 0.0
-    notes = at_bounds(problem, best.x) + identifiability(problem, J, u) + u_notes
-    dh_max, ds_max = COLOUR_TOLERANCE
-    if math.isfinite(best.dh) and (abs(best.dh) > dh_max or abs(best.ds) > ds_max):
-        notes.append(f"colour left off: the fitted Monte Carlo's hue differs by {best.dh:+.3f} turn and its saturation "
-                     f"by {best.ds:+.3f} from the measurement (tolerance |dh| <= {dh_max} turn, |ds| <= {ds_max})")
+    bound_notes, ident_notes = at_bounds(problem, best.x), identifiability(problem, J, u)
+    notes = bound_notes + ident_notes + u_notes + ([u_rule["note"]] if "note" in u_rule else [])
+    left_off = colour_left_off(problem, best.dh, best.ds, method="mc")
+    if left_off:
+        notes.append(left_off)
     notes += [f"last surrogate fit: {n}" for n in inner_notes if n not in notes]
     if fine:
         notes.append("the uncertainty of " + ", ".join(problem.free[j].name for j in fine) + " is a lower bound: "
@@ -721,10 +740,13 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         "reweighted": problem.reweights, "seconds": time.perf_counter() - t0, "resumed": resume,
         "best_run": next((i for i, r in enumerate(runs) if r is best), None),
         "best_x": best.x.tolist(), "iterations": iterations, "notes": list(problem.notes),
-        "start_note": "the config's values (the Monte Carlo fit starts where the config is: a Monte Carlo preset "
-                      "such as green-felt-mc, or a summation fit's fitted.toml where the two models agree)",
+        "start_note": "the first Monte Carlo run is at the config's values (a Monte Carlo preset such as "
+                      "green-felt-mc, or a summation fit's fitted.toml); with free dye knots every surrogate fit "
+                      "starts from the measured colour inverted through the surrogate (the summation corrected to "
+                      "the run), or from the run's own values when they score better",
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),
         "target_rel_err": problem.target_rel_err,
+        "uncertainty": u_rule, "u_status": u_status(problem, bound_notes, ident_notes),
     }
     return FitResult(x=best.x.copy(), start=start.copy(), objective=best.objective, objective_start=runs[0].objective,
                      u=u, u_data=u_data, u_mc=u_mc, correlation=corr, warnings=notes, info=info)

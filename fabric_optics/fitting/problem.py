@@ -268,6 +268,8 @@ class FitProblem:
     free: list[FreeParameter]
     method: str = "classic"
     colour_weight: float = 1.0
+    #: weight of ``(ln k_Y)^2``, the absolute level, in the objective (``--absolute``: 1; 0: shapes and colour only)
+    level_weight: float = 0.0
     target_rel_err: float = 0.03
     seed: int | None = None
     threads: int | None = None
@@ -301,6 +303,9 @@ class FitProblem:
 
         if self.method not in ("classic", "summation"):
             raise FitError(f"--method must be classic or summation, got {self.method!r}")
+        if self.level_weight and self.measured.relative:
+            raise FitError("--absolute: the measurement is relative (\"relative\": true, raw units): it has no absolute "
+                           "level to fit; drop --absolute")
         if self.method == "summation" and self.config.route == "bssrdf":
             raise FitError("the summation fit needs the nee or beam fiber route (fiber.route in the config)")
         self._doc = tomllib.loads(self.config.text)
@@ -327,6 +332,11 @@ class FitProblem:
             self._roughness = float(self.config.rms_slope)
             self._facets: dict = {}
         self._drop_grazing()
+        incidences = (self.measured.meta.get("sample") or {}).get("incidences") or {}
+        if incidences.get("interpolated_deg"):
+            self.notes.append(f"the measurement's incidences {', '.join(f'{t:g}' for t in incidences['interpolated_deg'])} "
+                              f"deg are {incidences.get('source', 'the file')}'s interpolation between its measured "
+                              "tables, not measured (a plan of its measured incidences: --plan measured)")
         self.geometries = _model_geometries(self.measured)
         self._residual: Any = None  # compare.residual.ModelResidual, built on first use
         g = self.geometries
@@ -697,7 +707,7 @@ class FitProblem:
         in compare)."""
         beta, u = self.model(x, mc_noise)
         self.evaluations += 1
-        return self.residual_model(measured).evaluate(beta, u).vector(self.colour_weight)
+        return self.residual_model(measured).evaluate(beta, u).vector(self.colour_weight, self.level_weight)
 
     def precheck(self) -> None:
         """Everything the objective needs from the measurement, before any photon (FitError)."""
@@ -715,4 +725,6 @@ class FitProblem:
                "rows": len(self.measured), "method": self.method,
                "free": [[p.name, p.low, p.high] for p in self.free], "seed": self.seed,
                "wavelengths": self.wavelengths_nm.tolist(), "colour_weight": self.colour_weight}
+        if self.level_weight:
+            doc["level_weight"] = self.level_weight
         return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()

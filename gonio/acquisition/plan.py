@@ -41,6 +41,8 @@ Plan TOML schema
     in_plane_deg = [-60, -50, 70]       # signed observation angles (+ = mirror side), or
     in_plane = {start = -60, stop = 70, step = 10}
     directions_deg = [[45, 90]]         # optional (theta_o, phi_o - phi_i) pairs out of the plane
+    retro_ring_deg = [6, 30]            # optional: at every oblique incidence, rings this far from the
+    retro_ring_azimuths = 4             #   retro-reflection (source) direction, at 4 azimuths around it
     skip_blocked = false                # true: beam-block points are expected (listed, not fatal)
 
     [acquisition]                       # optional, defaults shown
@@ -79,6 +81,20 @@ not rounded, so that a dataset never labels a reading with a wavelength other th
 head was set to (two plan wavelengths rounding to one setting would otherwise be two rows of the
 same measurement). Values within 1e-6 nm of the grid (floating-point steps) are snapped to it.
 
+Measured geometry of a file
+---------------------------
+:func:`measured_plan` builds the plan that follows an RGL ``.bsdf`` file's own measured incidences
+(the green felt: ``theta_i`` = 0, 27.76, 40.03, 50.16, 59.52, 68.77, 78.56 deg; the file's 89.99 deg
+table is its extrapolation and is left out, :data:`gonio.data.formats.GRAZING_DEG`), rounded to the
+controller's millidegree, with the in-plane curves, wavelengths and settings of a base plan
+(``green-felt``) and the retro-reflection ring (:data:`RETRO_RING_DEG` at :data:`RETRO_RING_AZIMUTHS`
+azimuths around the source direction at every oblique incidence), so that the opposition ratio can be
+measured. A file evaluated at such a plan is read at its measured incidences; at any other incidence
+the file is interpolated between its tables (the datasets say which, ``incidences`` in meta.json:
+:func:`gonio.data.formats.rgl_bsdf.incidence_meta`). ``gonio demo --plan measured``, ``gonio truth FILE --plan measured`` and ``gonio
+import rgl-bsdf FILE --plan measured`` build it from the sample file; a ``.bsdf`` path given as the
+plan does too (:func:`load_plan`).
+
 Before any acquisition the plan is checked (:meth:`Plan.check`, the same rules ``gonio
 check-plan`` applies): ``gonio acquire`` refuses a plan with points out of the soft limits or in
 the beam-block zone without ``skip_blocked = true`` (:meth:`PlanCheck.refusal`), instead of
@@ -93,6 +109,7 @@ saturated readings.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import tomllib
@@ -123,7 +140,20 @@ __all__ = [
     "MAX_MEASUREMENTS",
     "PROCEDURE_STEPS",
     "Procedure",
+    "RETRO_RING_DEG",
+    "RETRO_RING_AZIMUTHS",
+    "MEASURED",
+    "measured_plan",
+    "retro_ring",
 ]
+
+#: ``--plan measured``: the plan of the sample file's own measured incidences (:func:`measured_plan`)
+MEASURED = "measured"
+#: angular distances (deg) from the retro-reflection direction of a measured-geometry plan's rings: 6 deg, the
+#: nearest the detector may come to the source (5 deg) with a margin, and 30 deg, outside the opposition peak
+RETRO_RING_DEG = (6.0, 30.0)
+#: points on each ring, evenly spaced in azimuth around the retro direction (0: towards the normal)
+RETRO_RING_AZIMUTHS = 4
 
 MAX_MEASUREMENTS = 1_000_000
 """Largest plan accepted: geometries x wavelengths (before duplicates are removed)."""
@@ -262,7 +292,11 @@ def resolve_plan_path(path_or_name: str | Path) -> Path:
 
 
 def load_plan(path_or_name: str | Path) -> Plan:
-    """Read and validate a plan file or a preset name; raises :class:`PlanError`."""
+    """Read and validate a plan file or a preset name; raises :class:`PlanError`. An RGL ``.bsdf`` file gives
+    the plan of its measured incidences (:func:`measured_plan`)."""
+    p = Path(path_or_name)
+    if p.suffix == ".bsdf" and p.is_file():
+        return measured_plan(p)
     path = resolve_plan_path(path_or_name)
     try:
         raw = path.read_bytes()
@@ -451,6 +485,12 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
         if not 0.0 <= d[0] <= 90.0:
             geo.fail("directions_deg", f"item {k}: theta_o must be in 0..90, got {d[0]}")
         directions.append((float(d[0]), float(d[1])))
+    ring = geo.numbers("retro_ring_deg", [])
+    for k, r in enumerate(ring or []):
+        if not 0.0 < r < 90.0:
+            geo.fail("retro_ring_deg", f"item {k}: a ring's distance from the retro direction must be in (0, 90) deg, "
+                                       f"got {r:g}")
+    ring_azimuths = geo.number("retro_ring_azimuths", RETRO_RING_AZIMUTHS, lo=1, hi=360, integer=True)
     if not in_plane and not directions:
         geo.fail("in_plane_deg", "no observation angles: give in_plane_deg, in_plane or directions_deg")
     skip_blocked = geo.get("skip_blocked", False)
@@ -488,7 +528,8 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     procedure = _procedure(_Fields(top.table_("procedure"), "procedure", file))
     top.unknown()
 
-    n_geometries = len(incidence) * len(rotations) * (len(in_plane) + len(directions))
+    n_ring = len(ring or []) * ring_azimuths * sum(1 for t in incidence if t > 0)
+    n_geometries = len(incidence) * len(rotations) * (len(in_plane) + len(directions)) + len(rotations) * n_ring
     n_measurements = n_geometries * len(wavelengths)
     if n_measurements > MAX_MEASUREMENTS:
         raise PlanError(f"{file}: the plan asks for {n_measurements:,} measurements ({n_geometries:,} "
@@ -500,7 +541,7 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
                 incidence_deg=incidence, rotation_deg=rotations, in_plane_deg=in_plane,
                 directions_deg=directions, skip_blocked=skip_blocked, acquisition=settings,
                 white_standard=standard.strip(), reference_deg=(ref[0], ref[1]),
-                procedure=procedure)
+                procedure=procedure, retro_ring_deg=list(ring or []), retro_ring_azimuths=ring_azimuths)
     plan.points()  # validates the geometry now, so errors name the file at load time
     return plan
 
@@ -524,6 +565,8 @@ class Plan:
     white_standard: str
     reference_deg: tuple[float, float]
     procedure: Procedure = field(default_factory=Procedure)
+    retro_ring_deg: list[float] = field(default_factory=list)
+    retro_ring_azimuths: int = RETRO_RING_AZIMUTHS
     _points: list[PlanPoint] | None = field(default=None, repr=False)
 
     def points(self) -> list[PlanPoint]:
@@ -535,7 +578,9 @@ class Plan:
             for ti in self.incidence_deg:
                 for s in self.in_plane_deg:
                     axes.append((ti, s, 0.0, rho))
-                for to, dphi in self.directions_deg:
+                ring = [d for r in self.retro_ring_deg for d in retro_ring(ti, r, self.retro_ring_azimuths)] \
+                    if ti > 0 else []
+                for to, dphi in list(self.directions_deg) + ring:
                     rel = np.mod(dphi, 360.0)
                     if rel >= 180.0:
                         axes.append((ti, to, rel - 180.0, rho))
@@ -606,6 +651,67 @@ class Plan:
         est = estimate_duration_s(self, ordered, move_overhead_s, read_overhead_s)
         return PlanCheck(ordered=ordered, blocked=blocked, out_of_limits=bad, estimated_s=est,
                          blocked_expected=self.skip_blocked)
+
+
+def retro_ring(theta_i_deg: float, radius_deg: float, azimuths: int = RETRO_RING_AZIMUTHS
+               ) -> list[tuple[float, float]]:
+    """``(theta_o, phi_o - phi_i)`` (deg) of ``azimuths`` directions ``radius_deg`` from the retro-reflection
+    (source) direction at incidence ``theta_i_deg``, evenly spaced around it starting towards the normal;
+    directions below 85 deg of zenith only (the detector's reach).
+
+    >>> [(round(t, 3), round(p, 3)) for t, p in retro_ring(40.0, 6.0, 2)]
+    [(34.0, 0.0), (46.0, 0.0)]
+    """
+    ti = math.radians(theta_i_deg)
+    w = np.array([math.sin(ti), 0.0, math.cos(ti)])          # towards the source, phi_i = 0
+    e1 = np.array([-math.cos(ti), 0.0, math.sin(ti)])        # in the plane of incidence, towards the normal
+    e2 = np.array([0.0, 1.0, 0.0])
+    r = math.radians(radius_deg)
+    out = []
+    for k in range(azimuths):
+        a = 2.0 * math.pi * k / azimuths
+        d = math.cos(r) * w + math.sin(r) * (math.cos(a) * e1 + math.sin(a) * e2)
+        theta_o = math.degrees(math.acos(max(-1.0, min(1.0, float(d[2])))))
+        if theta_o >= 85.0:
+            continue
+        phi = math.degrees(math.atan2(float(d[1]), float(d[0]))) if theta_o > 1e-9 else 0.0
+        out.append((round(theta_o, 6), round(phi % 360.0, 6)))
+    return out
+
+
+def measured_plan(bsdf_path: str | Path, base: str | Path = "green-felt") -> Plan:
+    """The plan of an RGL ``.bsdf`` file's own measured incidences (module docstring, "Measured geometry of
+    a file"): its ``theta_i`` below the grazing limit rounded to the millidegree, ``phi_i`` 0 (isotropic
+    files), the retro-reflection ring at every oblique incidence, the rest from ``base``.
+
+    Raises :class:`PlanError` (naming the file) when the file cannot be read.
+    """
+    from gonio.data.formats import GRAZING_DEG
+    from gonio.data.formats.errors import FormatError
+    from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
+
+    path = Path(bsdf_path)
+    try:
+        bsdf = read_rgl_bsdf(path)
+    except (FormatError, OSError) as exc:
+        raise PlanError(f"{path}: cannot build the measured-geometry plan from it ({exc})") from None
+    incidences = sorted({round(float(t), 3) for t in bsdf.theta_i_deg if t < GRAZING_DEG})
+    if not incidences or incidences[0] != 0.0:
+        raise PlanError(f"{path}: the file has no normal incidence (theta_i = 0) table, which the comparison's "
+                        "normalisation needs; give a plan with --plan")
+    plan = load_plan(base)
+    sha = hashlib.sha256(path.read_bytes() + plan.sha256.encode()).hexdigest()
+    sample = dict(plan.sample)
+    sample["name"] = path.stem
+    sample["material"] = f"{bsdf.description.strip() or path.stem} (RGL .bsdf file {path.name})"
+    out = dataclasses.replace(
+        plan, name=f"{MEASURED}-{path.stem}", sha256=sha, sample=sample, incidence_deg=incidences,
+        retro_ring_deg=list(RETRO_RING_DEG), retro_ring_azimuths=RETRO_RING_AZIMUTHS, skip_blocked=True,
+        description=(f"the measured incidences of {path.name} ({', '.join(f'{t:g}' for t in incidences)} deg), "
+                     f"{plan.name}'s in-plane curves and wavelengths, the retro-reflection rings "
+                     f"{', '.join(f'{r:g}' for r in RETRO_RING_DEG)} deg"), _points=None)
+    out.points()
+    return out
 
 
 def order_points(points: list[PlanPoint]) -> list[PlanPoint]:

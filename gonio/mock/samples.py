@@ -320,7 +320,8 @@ class BSDFSample:
 
         sha = hashlib.sha256(self.path.read_bytes()).hexdigest()
         out = {"name": self.name, "model": "RGL .bsdf (Dupuy & Jakob 2018)",
-               "path": str(self.path), "description": self.bsdf.description, "sha256": sha}
+               "path": str(self.path), "description": self.bsdf.description, "sha256": sha,
+               "measured_incidence_deg": [round(float(t), 4) for t in self.bsdf.theta_i_deg]}
         if sha in KNOWN_FILES:
             out["source"] = KNOWN_FILES[sha]
         return out

@@ -38,7 +38,14 @@ def truth_dataset(sample_spec: str, plan: Plan) -> Dataset:
     table = pd.DataFrame({"theta_i": g["theta_i"], "phi_i": g["phi_i"], "theta_o": g["theta_o"],
                           "phi_o": g["phi_o"], "wavelength_nm": wl, "beta": beta,
                           "u_beta": 0.0, "n": 1}, columns=list(COLUMNS))
-    meta = new_meta("simulated", {"name": f"mock truth ({sample_spec})"},
+    sample_meta: dict = {"name": f"mock truth ({sample_spec})"}
+    measured_incidences = sample.describe().get("measured_incidence_deg")
+    if measured_incidences is not None:
+        from gonio.data.formats.rgl_bsdf import incidence_meta
+
+        sample_meta["incidences"] = incidence_meta(measured_incidences, geometries["theta_i"].to_numpy(float),
+                                                   str(sample_spec).rsplit("/", 1)[-1])
+    meta = new_meta("simulated", sample_meta,
                     {"name": "mock virtual sample", "sample": sample.describe()},
                     {"plan": plan.name, "sample_spec": sample_spec})
     return make_dataset(table, meta)

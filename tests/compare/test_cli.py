@@ -80,7 +80,7 @@ def test_user_strings_are_escaped_in_the_html(report):
 def test_metrics_json_has_exactly_the_contract_keys(report):
     m = json.loads((report["out"] / "metrics.json").read_text())
     assert set(m) == {"normalisation", "curves", "overall", "colour", "shape"}
-    assert set(m["normalisation"]) == {"method", "factor", "normal_value"}
+    assert set(m["normalisation"]) == {"method", "factor", "normal_value", "level"}
     assert set(m["normalisation"]["factor"]) == SIM_NAMES
     for f in m["normalisation"]["factor"].values():
         assert set(f) == {"per_wavelength", "u_per_wavelength", "median", "luminance"}
@@ -104,13 +104,15 @@ def test_metrics_json_has_exactly_the_contract_keys(report):
 
 
 @pytest.mark.parametrize("sim, extra, status, shown", [
-    ("sim_scaled", [], 0, "ok   overall NRMSE"),
+    ("sim_scaled", [], 1, "FAIL level ratio max(k_Y, 1/k_Y) = 3.7"),     # the shape matches, the level does not
+    ("sim_scaled", ["--max-level-ratio", "4"], 0, "ok   overall NRMSE"),
     ("sim_lambert", [], 1, "FAIL overall NRMSE = 0.4991"),
-    ("sim_lambert", ["--max-nrmse", "0.6", "--max-sat-diff", "0.3"], 0, "ok   |saturation"),
+    ("sim_lambert", ["--max-nrmse", "0.6", "--max-sat-diff", "0.3", "--max-level-ratio", "10"], 0,
+     "ok   |saturation"),
     ("sim_lambert", ["--max-nrmse", "0.45", "--max-sat-diff", "0.3"], 1, "FAIL overall NRMSE"),
     ("sim_lambert", ["--max-nrmse", "0.6", "--max-sat-diff", "0.25"], 1,
      "FAIL |saturation difference| = 0.2535"),
-    ("sim_grey", ["--max-nrmse", "1", "--max-sat-diff", "1", "--max-hue-diff", "0.3"], 0,
+    ("sim_grey", ["--max-nrmse", "1", "--max-sat-diff", "1", "--max-hue-diff", "0.3", "--max-level-ratio", "10"], 0,
      "ok   |hue difference| = 0.2196"),
     ("sim_grey", ["--max-nrmse", "1", "--max-sat-diff", "1", "--max-hue-diff", "0.2"], 1,
      "FAIL |hue difference| = 0.2196 turns of the hue circle (exceeds 0.2)"),
@@ -303,7 +305,8 @@ def test_check_refuses_an_incomplete_measurement_saying_what_is_missing(h, tmp_p
     assert "FAIL measured dataset 'analytic red lobe'" in out
     assert "17 of 53 planned points measured (36 = 68% missing)" in out
     assert "--allow-incomplete" in out and "ok   overall" not in out
-    code, out, err = _quiet_main(["check", meas, h.FIXTURES / "sim_scaled", "--allow-incomplete"])
+    code, out, err = _quiet_main(["check", meas, h.FIXTURES / "sim_scaled", "--allow-incomplete",
+                                  "--max-level-ratio", "4"])
     assert code == 0, out + err
     assert "note: measured dataset 'analytic red lobe'" in out and "ok   overall NRMSE" in out
 

@@ -59,19 +59,23 @@ def test_write_dataset_refuses_an_existing_folder_without_force(tmp_path):
 
 
 def test_check_of_a_scaled_copy_passes_and_of_the_lambertian_model_fails_with_the_hand_computed_nrmse():
-    """sim_scaled is 3.7 x the measurement: zero curve error after normalisation; sim_lambert's
-    overall NRMSE is 0.499089 by the fixture's hand computation."""
+    """sim_scaled is 3.7 x the measurement: zero curve error after normalisation, but 3.7 times off in level
+    (fails the level check unless allowed); sim_lambert's overall NRMSE is 0.499089 by the fixture's hand
+    computation."""
     measured = ANALYTIC / "measured_red"
     scaled = fo.check(fo.compare(measured, ANALYTIC / "sim_scaled"))
-    assert scaled.passed and scaled.failures() == []
+    assert not scaled.passed and scaled.failures() == ["level ratio max(k_Y, 1/k_Y)"]
     assert scaled.figures[0][1] < 1e-9
+    assert math.isclose(scaled.figures[-1][1], 3.7, rel_tol=1e-6)
+    assert fo.check(fo.compare(measured, ANALYTIC / "sim_scaled"), max_level_ratio=4.0).passed
     comparison = fo.compare(measured, [ANALYTIC / "sim_scaled", ANALYTIC / "sim_lambert"])
     lambert_name = list(comparison.simulated)[1]
     verdict = fo.check(comparison, name=lambert_name)
     assert not verdict.passed and "overall NRMSE" in verdict.failures()
     assert math.isclose(verdict.figures[0][1], 0.499089, abs_tol=2e-6)
     assert "FAIL overall NRMSE = 0.4991" in verdict.summary()
-    loose = fo.check(comparison, name=lambert_name, max_nrmse=0.5, max_hue_diff=1.0, max_sat_diff=1.0)
+    loose = fo.check(comparison, name=lambert_name, max_nrmse=0.5, max_hue_diff=1.0, max_sat_diff=1.0,
+                     max_level_ratio=10.0)
     assert loose.passed
     with pytest.raises(fo.InputError, match="no simulation named"):
         fo.check(comparison, name="nothing")

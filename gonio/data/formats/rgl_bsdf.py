@@ -43,7 +43,7 @@ import pandas as pd
 from gonio.data.formats.errors import FormatError
 from gonio.data.formats.tensor import TensorHeader, read_tensor_file
 
-__all__ = ["RGLBSDF", "read_rgl_bsdf", "MAX_ANGLES", "MAX_ROWS"]
+__all__ = ["RGLBSDF", "read_rgl_bsdf", "incidence_meta", "MAX_ANGLES", "MAX_ROWS"]
 
 _REQUIRED = ("theta_i", "phi_i", "ndf", "sigma", "vndf", "luminance", "description", "jacobian")
 #: Most incidence angles per axis (``theta_i``, ``phi_i``) read; the RGL files hold about ten.
@@ -323,7 +323,8 @@ class RGLBSDF:
             rows.append(part)
         table = pd.concat(rows, ignore_index=True)
         name = Path(self.path).stem
-        meta = new_meta("measured", {"name": name, "description": self.description},
+        incidences = incidence_meta(self.theta_i_deg, geo["theta_i"].to_numpy(float), Path(self.path).name)
+        meta = new_meta("measured", {"name": name, "description": self.description, "incidences": incidences},
                         {"name": "RGL gonio-photometer (EPFL), adaptive parameterisation",
                          "format": "rgl-bsdf"},
                         {"source_file": Path(self.path).name,
@@ -335,6 +336,18 @@ class RGLBSDF:
         if not self.is_spectral:
             meta["colour_space"] = "linear sRGB"
         return make_dataset(table, meta, source=self.path)
+
+
+def incidence_meta(file_incidence_deg, dataset_incidence_deg, source: str) -> dict:
+    """``incidences`` of a dataset made from a file (an RGL ``.bsdf``): the file's measured incidences, and
+    which of the dataset's are the file's interpolation between them (not within 0.01 deg of a measured one)."""
+    measured = sorted({round(float(t), 4) for t in file_incidence_deg})
+    used = sorted({round(float(t), 4) for t in dataset_incidence_deg})
+    interpolated = [t for t in used if min(abs(t - m) for m in measured) > 0.01]
+    return {"source": source, "measured_deg": measured, "interpolated_deg": interpolated,
+            "note": ("every incidence is one the file measured" if not interpolated else
+                     f"incidences {', '.join(f'{t:g}' for t in interpolated)} deg are interpolated between the "
+                     "file's measured tables, not measured")}
 
 
 def _labels(bsdf: RGLBSDF) -> list[str]:

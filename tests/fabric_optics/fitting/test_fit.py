@@ -13,7 +13,7 @@ from gonio.data import read_dataset, write_dataset
 from simulate import fiber as fib
 from fabric_optics.cli.simulate import main
 from simulate.config import load_config, parse_config
-from fabric_optics.fitting.driver import STATE_NAME, FitError, FitProblem, parse_free, run_fit, toml_dumps
+from fabric_optics.fitting.driver import STATE_NAME, FitError, FitProblem, jacobian, parse_free, run_fit, toml_dumps
 from simulate.fiber.absorption import absorption_nodes, absorption_table
 
 from .conftest import WAVELENGTHS, measurement, model_measurement, sibling
@@ -259,3 +259,81 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out(base_problem, caplog
     assert any("noise draws left out" in r.getMessage() for r in caplog.records)
     assert np.all(np.isfinite(result.u)) and np.all(result.u > 0)
     np.testing.assert_allclose(result.x, x_true, rtol=2e-3)
+
+
+def test_without_measurement_uncertainty_u_is_scaled_by_the_residual(base_problem):
+    """Known Gaussian noise (sigma 0.004 on every beta, fixed seed) but u_beta written as 0, as an RGL file's
+    import: the noise level estimated from the residual recovers sigma within its sampling error (sqrt(1/(2 dof)))
+    and u equals the u propagated from the true sigma (the same data stated with u_beta = sigma, the same noise
+    draws) within it (before, the data part was 0: only the Monte Carlo part was left). The plain s^2 (J^T J)^-1, which
+    treats the residuals as independent, gives a third to a half of it here (the per-wavelength normalisation
+    correlates them)."""
+    from fabric_optics.fitting.driver import RESIDUAL_DRAWS_RULE, residual_covariance
+
+    x_true = np.array([1.4, 0.25])
+    sigma = 0.004
+    beta, _ = base_problem.model(x_true)
+    noisy = beta + np.random.default_rng(11).standard_normal(beta.shape) * sigma
+    stated = measurement(lambda g, wl: noisy, None, geometries=base_problem.geometries)
+    stated.table["u_beta"] = sigma
+    bare = measurement(lambda g, wl: noisy, None, geometries=base_problem.geometries)
+    bare.table["u_beta"] = 0.0
+    draws = 32
+    ref = run_fit(sibling(base_problem, stated), noise_draws=draws)
+    problem = sibling(base_problem, bare)
+    got = run_fit(problem, noise_draws=draws)
+    rule = got.info["uncertainty"]
+    assert rule["data"] == "residual" and rule["rule"] == RESIDUAL_DRAWS_RULE and rule["draws"] == draws
+    assert ref.info["uncertainty"]["data"] == "u_beta"
+    dof = len(problem.measured.table) - 2
+    tol = 3.0 * math.sqrt(0.5 / dof) + 0.02          # sigma's sampling error; 0.02 for the draws' nonlinearity
+    assert abs(rule["sigma_beta"] / sigma - 1.0) < tol, rule["sigma_beta"]
+    np.testing.assert_allclose(got.u_data, ref.u_data, rtol=tol)
+    assert np.all(np.isfinite(got.u_data) & (got.u_data > 0))
+    assert any("scaled by the residual" in w for w in got.warnings)
+    # the independent-residual rule falls short of the true u here
+    r = problem.residuals(got.x)
+    J = jacobian(problem, got.x, r, problem.residuals)
+    cov, _ = residual_covariance(J, r)
+    assert np.all(np.sqrt(np.diag(cov)) < 0.7 * ref.u_data)
+
+
+def test_a_parameter_at_its_bound_has_no_uncertainty_number(base_problem, tmp_path):
+    """The truth beyond the RMS slope's upper bound: reported "at its upper bound", u null in fit.json."""
+    from fabric_optics.fitting.driver import write_outputs
+
+    problem = sibling(base_problem, model_measurement(base_problem, (1.4, 0.6), noise_seed=2),
+                      free=parse_free(["fiber.dye.bands[0].peak_per_um=0.3:3,rms_slope=0.1:0.4"], base_problem.config))
+    result = run_fit(problem, noise_draws=4, max_evaluations=60)
+    assert result.info["u_status"] == ["", "at its upper bound"]
+    doc = write_outputs(problem, result, tmp_path)
+    slope = doc["parameters"][1]
+    assert slope["u"] is None and slope["u_status"] == "at its upper bound"
+    assert doc["parameters"][0]["u"] > 0
+    assert "at its upper bound: no uncertainty" in (tmp_path / "fitted.toml").read_text()
+
+
+def test_absolute_fit_includes_the_level(base_problem):
+    """--absolute (level_weight 1) appends sqrt(w_l) ln k_Y to the residuals, k_Y the level compare reports;
+    on a measurement 0.8 times the model's level the absolute fit moves towards the level (the shape-only fit
+    ignores it: its k_Y stays 0.8)."""
+    from compare.comparison import compare_datasets
+
+    x_true = np.array([1.4, 0.25])
+    beta, _ = base_problem.model(x_true)
+    darker = measurement(lambda g, wl: 0.8 * beta, None, geometries=base_problem.geometries)
+    shape_only = sibling(base_problem, darker)
+    absolute = sibling(base_problem, darker)
+    absolute.level_weight = 1.0
+    r = absolute.residuals(x_true)
+    assert r.size == shape_only.residuals(x_true).size + 1
+    sim = absolute.dataset(*absolute.model(x_true), "x")
+    c = compare_datasets(darker, [sim])
+    k_y = c.level(next(iter(c.frames))).k
+    assert k_y == pytest.approx(0.8, rel=1e-6) and r[-1] == pytest.approx(math.log(k_y), rel=1e-9)
+    plain = run_fit(shape_only, noise_draws=2, max_evaluations=60, invert_start=False)
+    level = run_fit(absolute, noise_draws=2, max_evaluations=60, invert_start=False)
+    fig_plain = shape_only.residual_model().evaluate(shape_only.model(plain.x)[0])
+    fig_level = absolute.residual_model().evaluate(absolute.model(level.x)[0])
+    assert abs(math.log(fig_plain.level) - math.log(0.8)) < 0.02
+    assert abs(math.log(fig_level.level)) < 0.5 * abs(math.log(fig_plain.level))

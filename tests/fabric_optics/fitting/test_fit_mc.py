@@ -416,3 +416,89 @@ def test_mc_trend_names_a_free_parameter_and_needs_the_monte_carlo(tmp_path, cap
         code = main(base + extra)
         err = capsys.readouterr().err
         assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+# -- the colour start: the Monte Carlo fit's dye from the measured colour --------------------------------------
+
+FREE4 = ",".join(f"fiber.dye.log10_per_um[{k}]=-3.5:0.3" for k in range(4))
+
+
+def _felt4(values):
+    doc = tomllib.loads(load_config("green-felt").text)
+    doc["fiber"]["dye"] = {"curve": "knots", "wavelength_nm": [480.0, 513.333, 546.667, 580.0],
+                           "log10_per_um": list(values)}
+    return parse_config(toml_dumps(doc), "felt-test.toml")
+
+
+def _fake_tinted(calls: list):
+    """A stand-in Monte Carlo whose colour is not the summation's at the same dye: the summation tilted across
+    the wavelengths by +-25 % (and 10 % lower), so the Monte Carlo fit must read the colour through the
+    corrected surrogate, not through the plain summation."""
+    def beta_of(problem, x, s):
+        return 0.9 * s * (1.0 + 0.25 * np.linspace(-1.0, 1.0, s.shape[1])[None, :]) + 0.001
+    return _stand_in(calls, beta_of)
+
+
+X4_TRUE = np.array([-3.0, -2.5, -0.6, -0.3])
+X4_START = [-0.3, -0.6, -2.5, -3.0]
+
+
+@pytest.fixture(scope="module")
+def felt4_probe():
+    """The felt's structured summation at the 4-knot truth (walked once for the tests below)."""
+    truth = _felt4(X4_TRUE)
+    return MCFitProblem(truth, _flat(WL6), parse_free([FREE4], truth), target_rel_err=0.5, seed=2,
+                        wavelengths_nm=WL6)
+
+
+def test_the_summation_fit_starts_its_dye_from_the_measured_colour(felt4_probe):
+    """The structured summation's colour start: knots inverted from a measurement of another colour have the
+    measured hue and saturation at the colour geometry (the start's own knots are far off)."""
+    from fabric_optics.fitting.driver import FitProblem
+    from fabric_optics.fitting.start import inverted_start
+
+    beta, _ = felt4_probe.model(X4_TRUE)
+    measured = _measured(beta, 0.01 * beta + 1e-5, felt4_probe.geometries, WL6)
+    start = _felt4(X4_START)
+    problem = FitProblem(start, measured, parse_free([FREE4], start), method="summation", target_rel_err=0.5,
+                         seed=2, wavelengths_nm=WL6)
+    problem._tables, problem._references, problem.photons = (felt4_probe._tables, felt4_probe._references,
+                                                             felt4_probe.photons)
+    fig0 = problem.residual_model().evaluate(problem.model(problem.start)[0])
+    assert abs(fig0.dh) > 0.1
+    x0, note = inverted_start(problem, problem.start)
+    assert "inverted" in note
+    fig = problem.residual_model().evaluate(problem.model(x0)[0])
+    assert abs(fig.dh) < 0.01 and abs(fig.ds) < 0.03, (fig.dh, fig.ds)
+    assert problem.walks == 0                              # read from the shared walk
+
+
+def test_the_monte_carlo_fit_starts_its_dye_from_the_measured_colour(monkeypatch, felt4_probe):
+    """A measurement of another colour (the long wavelengths absorbed, the start absorbs the short ones): the
+    surrogate fit starts from the colour inverted through the surrogate, and the fit reaches the colour
+    tolerance within 3 Monte Carlo runs (the start's included)."""
+    from fabric_optics.fitting.driver import COLOUR_TOLERANCE
+
+    calls: list = []
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_tinted(calls))
+    x_true = X4_TRUE
+    probe = felt4_probe
+    beta = _fake_tinted([])(probe, x_true).beta
+    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
+    start = _felt4(X4_START)
+    problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2,
+                           wavelengths_nm=WL6)
+    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    result = run_mc_fit(problem, max_evaluations=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+    runs = result.info["iterations"]
+    fig0 = problem.residual_model().evaluate(_run_beta(problem, runs[0]["x"]))
+    assert abs(fig0.dh) > 0.1                              # the start is another colour (else nothing is shown)
+    assert "inverted" in runs[0]["proposal"]["start_note"]
+    fig = problem.residual_model().evaluate(problem.mc_runs[fit_mc._key(result.x)].beta)
+    dh_max, ds_max = COLOUR_TOLERANCE
+    assert abs(fig.dh) <= dh_max and abs(fig.ds) <= ds_max, (fig.dh, fig.ds)
+    assert len(calls) <= 3
+
+
+def _run_beta(problem, x):
+    return problem.mc_runs[fit_mc._key(np.asarray(x, float))].beta

@@ -12,7 +12,7 @@ import pytest
 from gonio.data import write_dataset
 from fabric_optics.cli.simulate import main
 from fabric_optics.fitting import problem as fit_problem
-from fabric_optics.fitting.driver import STATE_NAME, FitError, FitProblem, run_fit
+from fabric_optics.fitting.driver import EXIT_COLOUR_OFF, STATE_NAME, FitError, FitProblem, run_fit
 from fabric_optics.fitting.state import WALKS_DIR
 
 from .conftest import measurement, model_measurement
@@ -141,12 +141,17 @@ def test_warnings_at_bound_and_colour_once_each(base_problem, tmp_path, capsys):
                  "--out", str(tmp_path / "f"), "--seed", "5", "--target-rel-err", "0.1", "--no-progress",
                  "--max-evaluations", "30"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 0
+    assert code == EXIT_COLOUR_OFF == 3                   # a failing fit, distinct from bad input (2)
     assert sum("at its lower bound: fiber.dye.bands[0].peak_per_um" in line for line in err) == 1
     assert sum("colour left off" in line for line in err) == 1
+    failed = [line for line in err if "colour left off" in line][0]
+    assert failed.startswith("simulate fit: FAILED") and "--dye knots" in failed   # what helps: any colour
     assert len(err) == len(set(err))  # nothing twice
-    doc = json.loads((tmp_path / "f" / "fit.json").read_text())
+    doc = json.loads((tmp_path / "f" / "fit.json").read_text())   # the outputs are written, labelled failing
     assert abs(doc["fitted"]["dh"]) > 0.02
+    assert doc["verdict"]["passed"] is False and doc["verdict"]["exit_status"] == 3
+    assert "FAILED: colour left off" in (tmp_path / "f" / "fitted.toml").read_text()
+    assert (tmp_path / "f" / "fitted" / "radiance.csv").is_file()
 
 
 def test_grazing_rows_are_left_out_with_a_note(base_problem):
