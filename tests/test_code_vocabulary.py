@@ -25,7 +25,7 @@ HISTORY = re.compile(
 
 #: folders whose comments are rewritten last (by their owner); excluded until then -- delete an entry
 #: when its folder is clean
-EXCLUDED = ("fabric_optics/fitting/",)
+EXCLUDED: tuple[str, ...] = ()
 #: the vocabulary tests themselves (their examples are the vocabulary)
 EXEMPT = {Path(__file__).resolve(), ROOT / "tests" / "docs" / "test_history_vocabulary.py"}
 

@@ -690,7 +690,7 @@ class FitProblem:
 
     def residual_model(self, measured: Dataset | None = None):
         """:class:`compare.residual.ModelResidual` of the measurement (or of a noise draw of it with
-        the same rows), prepared once: per evaluation only the model side is computed (issue 21)."""
+        the same rows), prepared once: per evaluation only the model side is computed."""
         from compare import ModelResidual
 
         if self._residual is None:

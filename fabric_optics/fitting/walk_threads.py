@@ -12,7 +12,7 @@ runs it nor on its kernel threads (every parallel loop writes disjoint elements;
 batch order: :mod:`simulate.montecarlo.rows`), so the walk is bit-identical to the serial one
 (``tests/fabric_optics/fitting/test_walk_threads.py``).
 
-Interrupts (issue 20: Ctrl-C within a second, finished entries kept): signals reach only the main thread,
+Interrupts (Ctrl-C answered within a second, finished entries kept): signals reach only the main thread,
 which waits for the entries in an interruptible wait. On any exception there (KeyboardInterrupt, or a
 worker's error) it sets a cancel event, drops the entries not started and re-raises at once; a running
 entry stops at its next :meth:`Progress.tick` (each wavelength group of each exit-table node, each incident direction of the
@@ -51,8 +51,8 @@ IDLE_FOR_WORKER = 0.5
 def idle_cores(seconds: float = 0.1) -> float | None:
     """Cores left idle by every process on the machine over ``seconds`` (``/proc/stat``; None where it is not).
 
-    Measured on the 2-core machine shared with other work (docs/physics.md "Fifth stop"): two entries at
-    once finish a cold felt walk in ~15 s when the second core is free, but cost ~2 CPU s more than one
+    On two cores, two entries at once finish a cold felt walk in ~15 s when the second core is free,
+    but cost ~2 CPU s more than one
     after the other (GIL hand-offs, page faults of two tables at once), so with the other core busy the
     threads are ~3 s SLOWER. The choice changes no number (bit-identical either way), only the time."""
     def sample() -> tuple[int, int]:
