@@ -197,6 +197,8 @@ def _run_tutorial(page: Path, commands: list[tuple[str, str, str]], tmp_path: Pa
         code = _main(prog)(argv)
         err = capsys.readouterr().err
         allowed = {0, 1} if "exits 1" in comment else {0}
+        if line.startswith("simulate fit") and (page.name, "5. The whole demo, by hand") in SLOW_SECTIONS:
+            allowed = {0, 3}                           # a fit labelled failing, as make demo allows
         assert code in allowed, f"{page.name}: {line} -> {argv}: exit {code}\n{err[-2000:]}"
         assert "deprecat" not in err.lower(), f"{page.name}: {line} uses an old spelling: {err[-500:]}"
         ran += 1
@@ -253,7 +255,10 @@ def _makefile_demo() -> list[str]:
     """The Makefile's demo recipe as the commands a user types (variables substituted; the console
     scripts' path, --no-progress and --force -- the Makefile re-runs into its own folder -- dropped)."""
     text = (ROOT / "Makefile").read_text(encoding="utf-8")
-    variables = {k: v.strip() for k, v in re.findall(r"^(\w+)\s*[:?]?=\s*(.*)$", text, flags=re.M)}
+    variables: dict[str, str] = {}
+    for k, v in re.findall(r"^(\w+)\s*[:?]?=\s*(.*)$", text, flags=re.M):
+        variables.setdefault(k, v.strip())
+    text = text.replace("$(FIT_VERDICT)", "")          # make's "a fit labelled failing goes on"
     recipe = re.search(r"^demo:.*?\n((?:\t.*\n)+)", text, flags=re.M)
     assert recipe, "the Makefile lost its demo target"
     out = []
