@@ -218,13 +218,14 @@ def _plan_for(plan: str, sample: str, what: str):
 
 
 def _cmd_demo(args) -> int:
-    from gonio.demo import run_demo
-
+    from gonio.data.outputs import is_run_folder
+    from gonio.demo import is_previous_demo, run_demo
     from gonio.mock.samples import SampleError
 
     out = Path(args.out)
     plan = _plan_for(args.plan or common.DEFAULT_PLAN, args.sample, "--sample")
-    if out.is_dir():      # a file or a run folder there: run_demo's own message
+    # another run's folder there: run_demo's own message (never replaced, --force included)
+    if out.is_dir() and not (is_run_folder(out) and not is_previous_demo(out)):
         refuse_existing(out, args.force)
     try:
         result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,

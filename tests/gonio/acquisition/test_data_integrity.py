@@ -46,7 +46,7 @@ def test_retry_counts_equal_the_faults_injected(drv, tmp_path, spec):
 # --- helpers ----------------------------------------------------------------------------------
 
 def _acquire_argv(mock, plan, out, *extra):
-    return ["acquire", str(plan), "--modbus", mock.modbus_url, "--serial", mock.serial_url,
+    return ["acquire", "--plan", str(plan), "--modbus", mock.modbus_url, "--serial", mock.serial_url,
             "--out", str(out), "--timeout", "0.3", "--no-progress", "--seed", str(mock.seed),
             *map(str, extra)]
 
@@ -178,7 +178,7 @@ def test_the_lock_is_held_for_the_whole_session(drv, tmp_path):
 ])
 def test_acquire_refuses_plans_that_check_plan_refuses(drv, tmp_path, capsys, kw, needle):
     plan = _plan(drv, tmp_path, "refused", **kw)
-    assert main(["check-plan", str(plan)]) == 1
+    assert main(["check-plan", "--plan", str(plan)]) == 1
     capsys.readouterr()
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
         assert main(_acquire_argv(mock, plan, tmp_path / "run")) == 2
@@ -203,7 +203,7 @@ def test_wavelengths_finer_than_the_monochromator_step_are_refused(tmp_path, cap
                     '[geometry]\nincidence_deg = [0]\nin_plane_deg = [45]\n')
     with pytest.raises(PlanError, match=needle.replace("(", r"\(").replace(".", r"\.")):
         load_plan(path)
-    assert main(["check-plan", str(path)]) == 2
+    assert main(["check-plan", "--plan", str(path)]) == 2
     _one_line_error(capsys, needle)
 
 
@@ -251,21 +251,23 @@ def test_demo_replaces_only_a_previous_demo(drv, tmp_path, capsys):
         assert drv.run(mock, plan, run).exit_code == 0
     before = {p.name: p.read_bytes() for p in run.iterdir()}
     demo = ["demo", "--plan", str(plan), "--no-progress", "--out"]
-    # another run's folder: refused, nothing touched, no mock started
-    assert main(demo + [str(run)]) == 2
-    _one_line_error(capsys, "a run folder is never replaced")
-    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
-    # a demo folder is replaced by the next demo
+    # another run's folder: refused, --force included, nothing touched, no mock started
+    for force in ((), ("--force",)):
+        assert main(demo + [str(run), *force]) == 2
+        _one_line_error(capsys, "a run folder is never replaced")
+        assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    # a demo folder is replaced by the next demo (asked with --force)
     out = tmp_path / "demo"
     assert main(demo + [str(out)]) == 0
-    assert main(demo + [str(out)]) == 0
+    assert main(demo + [str(out), "--force"]) == 0
     capsys.readouterr()
     assert len(_journal_points(out)) == 6
     # a demo folder whose journal another session replaced is not the demo's any more
     (out / "journal.jsonl").write_bytes(before["journal.jsonl"])
-    assert main(demo + [str(out)]) == 2
-    _one_line_error(capsys, "a run folder is never replaced")
-    assert (out / "journal.jsonl").read_bytes() == before["journal.jsonl"]
+    for force in ((), ("--force",)):
+        assert main(demo + [str(out), *force]) == 2
+        _one_line_error(capsys, "a run folder is never replaced")
+        assert (out / "journal.jsonl").read_bytes() == before["journal.jsonl"]
 
 
 # --- item 4: the calibration is validated, never stored or reused when invalid --------------

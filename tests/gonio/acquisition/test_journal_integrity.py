@@ -100,7 +100,7 @@ def _plan(drv, tmp_path):
 
 
 def _acquire(mock, plan, out, *extra):
-    return main(["acquire", str(plan), "--modbus", mock.modbus_url, "--serial", mock.serial_url,
+    return main(["acquire", "--plan", str(plan), "--modbus", mock.modbus_url, "--serial", mock.serial_url,
                  "--out", str(out), "--timeout", "0.5", "--no-progress", *extra])
 
 
