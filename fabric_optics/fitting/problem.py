@@ -148,6 +148,9 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
         except paths.PathError as exc:
             raise FitError(f"--free {exc}" if name.strip() in paths.ALIASES else f"--free: {exc}") from None
         for path in names:
+            # before the look-up: a run setting at its default is not written in the config
+            if path.startswith(("method.", "wavelengths.", "weave.")) or path == "seed":
+                raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
             if path.startswith("structure."):
                 _check_structure_field(path, config)
             try:
@@ -166,8 +169,6 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
             if isinstance(start, bool) or not isinstance(start, (int, float)):
                 raise FitError(f"--free: {path!r} is not a number in the config (a table or text); "
                                "free one numeric field")
-            if path.startswith(("method.", "wavelengths.", "weave.")) or path == "seed":
-                raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
             start = float(start)
             if bounds:
                 lo_text, sep, hi_text = bounds.partition(":")

@@ -89,6 +89,9 @@ def parse_params(specs: list[str], config: SimulationConfig) -> list[SweepParame
         if name in ("dye", "dye-peaks"):
             raise SweepError(f"--param {name}: names several dye coefficients; a sweep sets one field, e.g. "
                              "fiber.dye.bands[0].peak_per_um")
+        if _run_setting(name):       # refused whether or not the config writes it (defaults are not written)
+            raise SweepError(f"--param {name}: {name} is a run setting, not a model parameter "
+                             "(use --seed, --method, --target-rel-err; the plan gives the wavelengths)")
         try:
             paths = config_paths.expand(name, data) if name in _ALIASES else [name]
             config_paths.split(paths[0])

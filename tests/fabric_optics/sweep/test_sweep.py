@@ -155,6 +155,7 @@ def test_failed_task_is_retried_reported_and_the_rest_kept(tmp_path, monkeypatch
     ("rms_slope", "expected NAME=v1,v2,..."),
     ("rms_slope=0.2,0.2", "the value 0.2 is given twice"),
     ("seed=1,2", "seed is a run setting"),
+    ("method.target_rel_err=0.01,0.02", "method.target_rel_err is a run setting"),   # at its default: not written
     ("dye=1", "a sweep sets one field"),
 ])
 def test_bad_param_is_one_line_exit_2_before_any_work(tmp_path, capsys, param, message):
