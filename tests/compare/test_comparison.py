@@ -47,10 +47,18 @@ def test_scale_invariance(h, scale):
                                rtol=1e-12)
     a, b = _flatten(ref.metrics()), _flatten(cmp.metrics())
     assert a.keys() == b.keys()
+    # The level (Comparison.level) judges the absolute level, so it is not scale-invariant: the factors
+    # k, k_min, k_max scale by 1/scale, the ratio max(k, 1/k) follows from the scaled k, and only the
+    # spread and CV over the bands (ratios of factors) are invariant.
+    level = "/normalisation/level/model/"
+    k_scaled = a[level + "k"] / scale
+    assert b[level + "ratio"] == pytest.approx(max(k_scaled, 1.0 / k_scaled), rel=1e-12)
     for key, value in a.items():
         if "/factor/" in key and "per_wavelength" in key or key.endswith("/median") \
-                or key.endswith("/luminance"):
+                or key.endswith("/luminance") or key in (level + "k", level + "k_min", level + "k_max"):
             assert b[key] == pytest.approx(value / scale, rel=1e-12), key
+        elif key == level + "ratio":
+            continue  # asserted above
         elif key.startswith("/normalisation/normal_value/model/") and "per_wavelength" in key:
             assert b[key] == pytest.approx(value * scale, rel=1e-12), key
         elif isinstance(value, float):

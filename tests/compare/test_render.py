@@ -96,7 +96,10 @@ def test_without_mitsuba_one_line_how_to_install(tmp_path, red_glossy):
 
 
 def test_cushion_fixture_is_what_the_script_makes(tmp_path):
-    """The shipped mesh is reproducible byte for byte from fixtures/render/make_meshes.py."""
+    """The shipped mesh is what fixtures/render/make_meshes.py makes: the same header and faces byte for
+    byte, the same vertices and normals to float32 rounding. (The normals at the two poles are 0 in x and y
+    by symmetry; the computed ones are cancellation residue of ~1e-12 whose last bits vary with the numpy
+    build and CPU, so the vertex block is not byte-identical across machines.)"""
     import importlib.util
 
     import trimesh
@@ -106,7 +109,14 @@ def test_cushion_fixture_is_what_the_script_makes(tmp_path):
     spec.loader.exec_module(mod)
     mesh = mod.cushion()
     data = trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=True, include_attributes=False)
-    assert data == (REPO / "fixtures" / "render" / "cushion.ply").read_bytes()
+    shipped = (REPO / "fixtures" / "render" / "cushion.ply").read_bytes()
+    assert len(data) == len(shipped)
+    start = data.index(b"end_header\n") + len(b"end_header\n")
+    end = start + len(mesh.vertices) * 6 * 4                     # x y z nx ny nz, float32 each
+    assert data[:start] == shipped[:start]
+    assert data[end:] == shipped[end:]                          # the faces
+    made, kept = (np.frombuffer(d[start:end], dtype="<f4").reshape(-1, 6) for d in (data, shipped))
+    np.testing.assert_allclose(made, kept, rtol=0, atol=1e-6)
     assert mesh.is_watertight and mesh.volume > 0
 
 

@@ -175,8 +175,7 @@ def test_a_foreign_non_empty_folder_is_refused_unless_forced(h, tmp_path, capsys
     (out / "figures" / "spectrum.png").write_bytes(b"my plot")
     status, stdout, err = _run(_argv(h, out), capsys)
     assert status == 2 and err.count("\n") == 1
-    assert f"--out {out} is not empty and holds no previous report" in err
-    assert "--force" in err and "figures, metrics.json" in err
+    assert f"--out {out}: the folder is not empty; pass --force to replace its output" in err
     assert (out / "metrics.json").read_text() == "my own numbers"
     assert (out / "figures" / "spectrum.png").read_bytes() == b"my plot"
     assert not (out / "report.html").exists()
@@ -196,7 +195,10 @@ def test_a_previous_report_is_replaced_and_its_stale_figures_removed(h, tmp_path
     (out / "figures" / "inplane_999nm.png").write_bytes(b"old")
     (out / "notes.txt").write_text("mine")
     (out / "figures" / "mine.png").write_bytes(b"mine")
-    status, _, err = _run(_argv(h, out), capsys)
+    status, _, err = _run(_argv(h, out), capsys)      # an existing report too: only with --force
+    assert status == 2 and "pass --force" in err
+    assert (out / "figures" / "inplane_999nm.png").read_bytes() == b"old"
+    status, _, err = _run(_argv(h, out, "--force"), capsys)
     assert status == 0, err
     assert not (out / "figures" / "inplane_999nm.png").exists()
     assert (out / "notes.txt").read_text() == "mine"
@@ -226,7 +228,7 @@ def test_a_report_of_the_first_version_is_recognised_as_a_previous_report(h, tmp
         "<figcaption>inplane_999nm.png</figcaption></figure>\n</body></html>\n")
     (out / "figures" / "inplane_999nm.png").write_bytes(b"old")
     (out / "metrics.json").write_text("{}")
-    status, _, err = _run(_argv(h, out), capsys)
+    status, _, err = _run(_argv(h, out, "--force"), capsys)
     assert status == 0, err
     assert not (out / "figures" / "inplane_999nm.png").exists()
     assert "fabric-optics compare report" in (out / "report.html").read_text()

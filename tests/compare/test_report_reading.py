@@ -107,14 +107,18 @@ def test_how_to_read_box_names_the_reference_the_models_and_success(fixture_repo
     box = _text(text[text.index("<div class='howto'>"):text.index("</div>")])
     c = fixture_report["comparison"]
     assert f"The reference '{c.measured.name}' is a measurement of" in box
-    assert "0.1" in box and "0.02" in box and "0.05" in box              # compare check's defaults
-    verdicts = dict(re.findall(r"<tr><td class='l'>([^<]+)</td>.*?<td class='l'>(matches|does not "
-                               r"match)</td></tr>", text[:text.index("</div>")]))
+    assert "0.1" in box and "0.02" in box and "0.05" in box and "1.5" in box  # compare check's defaults
+    verdicts = dict(re.findall(r"<tr><td class='l'>([^<]+)</td>.*?<td class='l'>(matches|matches in shape, "
+                               r"not in level|does not match)</td></tr>", text[:text.index("</div>")]))
+    assert set(verdicts) == set(c.overall)
     for name, overall in c.overall.items():
         sc = c.colour.simulated[name]
         ok = overall.nrmse <= 0.1 and abs(sc.dh) <= 0.02 and abs(sc.ds) <= 0.05
-        assert verdicts[name] == ("matches" if ok else "does not match")
-    assert set(verdicts.values()) == {"matches", "does not match"}       # both cases exercised
+        level_ok = c.level(name).ratio <= 1.5
+        assert verdicts[name] == ("matches" if ok and level_ok else "matches in shape, not in level" if ok
+                                  else "does not match")
+    # the shape-matching model is 3.7 times off in level; the grey one does not match in shape
+    assert set(verdicts.values()) == {"matches in shape, not in level", "does not match"}
     assert text.index("How to read this report") < text.index("<h2>Datasets</h2>")
 
 

@@ -115,10 +115,14 @@ def test_every_compare_path_with_spectral_and_rgb_measurements(h, pair, tmp_path
     else:
         assert "bands" not in m and "notes" not in m
         assert "converted to the measurement" not in html
-    # CI check
+    # CI check: shape and colour match; the level (3 times brighter) is judged on its own
     status, out, _ = h.run_cli(["check", d["meas"], d["same"]], capsys)
+    assert status == 1, out
+    assert out.count("ok  ") == 3 and "FAIL level ratio max(k_Y, 1/k_Y) = 3 (" in out
+    assert "'scaled' matches in shape but not in level: it is 3.00 times brighter" in out
+    status, out, _ = h.run_cli(["check", d["meas"], d["same"], "--max-level-ratio", "3.5"], capsys)
     assert status == 0, out
-    assert out.count("ok  ") == 3
+    assert out.count("ok  ") == 4 and "ok   level ratio max(k_Y, 1/k_Y) = 3 (" in out
     assert ("note: 'scaled' is spectral" in out) == (measured == "rgb")
     # one-dataset report
     status, _, err = h.run_cli(["report", d["meas"], "--out", tmp_path / "one"], capsys)
@@ -170,7 +174,8 @@ def test_rgb_simulation_against_rgb_measurement(h, pair, tmp_path, capsys):
     sim = to_channels(pair["other"], name="other rgb", kind="simulated")
     d = _write(tmp_path, meas=pair["rgb"], sim=sim)
     status, out, _ = h.run_cli(["check", d["meas"], d["sim"], "--max-nrmse", "1",
-                                "--max-hue-diff", "1", "--max-sat-diff", "1"], capsys)
+                                "--max-hue-diff", "1", "--max-sat-diff", "1",
+                                "--max-level-ratio", "10"], capsys)
     assert status == 0, out
     assert "note:" not in out   # same space, same channels: nothing converted
     by_rgb = compare_datasets(pair["rgb"], [sim]).metrics()["colour"]["other rgb"]
@@ -208,8 +213,9 @@ def test_rgb_simulation_in_another_colour_space_is_converted(pair):
 
 def test_photometric_measurement_is_compared_on_y_only_without_colour(h, pair, tmp_path, capsys):
     d = _write(tmp_path, meas=pair["y"], sim=pair["scaled"], other=pair["other"])
-    status, out, _ = h.run_cli(["check", d["meas"], d["sim"]], capsys)
+    status, out, _ = h.run_cli(["check", d["meas"], d["sim"], "--max-level-ratio", "3.5"], capsys)
     assert status == 0, out
+    assert "ok   level ratio max(k_Y, 1/k_Y) = 3 (" in out   # the level is judged on Y too (3 times)
     assert "overall NRMSE" in out and "hue" not in out.replace("(no H, S, V)", "")
     assert "converted to the measurement's the photometric channel Y" not in out
     assert "converted to the measurement's photometric channel Y (its CIE Y)" in out
