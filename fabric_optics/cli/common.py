@@ -60,7 +60,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-__all__ = ["Parser", "UsageError", "MAX_WAVELENGTHS", "parse_wavelengths", "wavelengths_arg", "int_in",
+__all__ = ["Parser", "UsageError", "MAX_WAVELENGTHS", "parse_wavelengths", "wavelengths_arg", "int_in", "finite_number",
            "threads_arg", "rel_err_arg", "add_plan", "add_wavelengths", "add_threads", "add_target_rel_err",
            "add_seed", "add_force", "add_verbose", "add_no_progress", "add_deprecated", "deprecated",
            "plan_of", "refuse_existing", "progress", "MAX_SEED", "DEFAULT_PLAN"]
@@ -90,7 +90,8 @@ class Parser(argparse.ArgumentParser):
 # ---------------------------------------------------------------------------------------------
 
 
-def _number(text: str) -> float:
+def finite_number(text: str) -> float:
+    """An argparse type: a finite float."""
     try:
         value = float(text)
     except ValueError:
@@ -128,7 +129,7 @@ def threads_arg(text: str) -> int:
 
 
 def rel_err_arg(text: str) -> float:
-    value = _number(text)
+    value = finite_number(text)
     if not 0.0 < value < 1.0:
         raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text!r}")
     return value

@@ -64,14 +64,7 @@ _Parser = Parser
 # ------------------------------------------------------------------------------------------
 
 
-def _float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
+_float = common.finite_number
 
 
 def _nonneg_float(text: str) -> float:
