@@ -156,6 +156,13 @@ FINE_STEP_SPAN = 0.05
 #: the surrogate fit holds a fine parameter within this many steps of the centre (the trust region)
 FINE_TRUST = 2.0
 _NOISE_DRAWS = 64
+#: with the colour first, the surrogate's colour is held within this share of the colour tolerance (the Monte
+#: Carlo at the proposal differs from the surrogate's prediction by its noise and the correction's error)
+COLOUR_MARGIN = 0.5
+#: the colour weight's factor from one surrogate fit to the next while its colour is outside the margin
+COLOUR_WEIGHT_STEP = 10.0
+#: the largest colour weight of a surrogate fit, as a multiple of the problem's
+MAX_COLOUR_WEIGHT_FACTOR = 1000.0
 
 
 def correction(s: np.ndarray, mc: np.ndarray, tiny: float = TINY) -> tuple[np.ndarray, np.ndarray]:
@@ -566,6 +573,61 @@ def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta:
     return J, cov[0], cov[1], rule
 
 
+def _colour_first(problem: MCFitProblem) -> bool:
+    """Whether the fit puts the colour first (module docstring, "The colour first"): free dye knots, a colour
+    weight above zero and a measurement with a colour."""
+    from fabric_optics.fitting.start import knot_indices
+
+    return (problem.colour_weight > 0 and bool(knot_indices([p.name for p in problem.free]))
+            and problem.residual_model().has_colour)
+
+
+def _colour_off(dh: float, ds: float) -> float:
+    """``max(|dh|/tol_h, |ds|/tol_s)`` (:data:`fabric_optics.fitting.driver.COLOUR_TOLERANCE`); 0 without a colour."""
+    from fabric_optics.fitting.driver import COLOUR_TOLERANCE
+
+    if not (math.isfinite(dh) and math.isfinite(ds)):
+        return 0.0
+    return max(abs(dh) / COLOUR_TOLERANCE[0], abs(ds) / COLOUR_TOLERANCE[1])
+
+
+def _better(run: MCRun, best: MCRun, colour_first: bool) -> bool:
+    """Whether ``run`` replaces ``best``: the lower Monte Carlo objective; with the colour first, a run within
+    the colour tolerance beats one outside it, and of two outside it the nearer the measured colour wins (the
+    rule of the colour start, :func:`fabric_optics.fitting.driver.run_fit`)."""
+    if colour_first:
+        a, b = _colour_off(run.dh, run.ds), _colour_off(best.dh, best.ds)
+        if a > 1.0 or b > 1.0:
+            return a < b
+    return run.objective < best.objective
+
+
+def _surrogate_fit(problem: MCFitProblem, colour_first: bool, **kwargs: Any) -> tuple[Any, list[float]]:
+    """The surrogate fit of one iteration and the colour weights it used (module docstring, "The colour
+    first"): fitted at the problem's colour weight; with the colour first and the surrogate's colour further
+    than :data:`COLOUR_MARGIN` tolerances from the measured, fitted again from that point with the weight
+    :data:`COLOUR_WEIGHT_STEP` times larger, up to :data:`MAX_COLOUR_WEIGHT_FACTOR` times the problem's."""
+    from fabric_optics.fitting.driver import colour_distance, run_fit
+
+    w0 = problem.colour_weight
+    start = problem.start.copy()
+    weights = [w0]
+    try:
+        res = run_fit(problem, out=None, invert_start=True, **kwargs)
+        while (colour_first and colour_distance(problem, res.x) > COLOUR_MARGIN
+               and problem.colour_weight * COLOUR_WEIGHT_STEP <= MAX_COLOUR_WEIGHT_FACTOR * w0 * (1 + 1e-9)):
+            problem.colour_weight *= COLOUR_WEIGHT_STEP
+            weights.append(problem.colour_weight)
+            problem.start = res.x.copy()
+            log.info("surrogate colour %.3g tolerances off: fitted again at colour weight %g",
+                     colour_distance(problem, res.x), problem.colour_weight)
+            res = run_fit(problem, out=None, invert_start=True, **kwargs)
+    finally:
+        problem.colour_weight = w0
+        problem.start = start
+    return res, weights
+
+
 def _line(k: int, run: MCRun, dx: float | None, cached: bool) -> str:
     step = "" if dx is None else f", max |dx| {dx:.3g}"
     how = "read from the checkpoint" if cached else f"{run.seconds:.1f} s"
@@ -582,7 +644,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     ``max_evaluations``: Monte Carlo runs in all (the start's included, >= 2). Returns a
     :class:`fabric_optics.fitting.driver.FitResult` whose ``info["iterations"]`` lists the runs.
     """
-    from fabric_optics.fitting.driver import (FitResult, at_bounds, colour_left_off, identifiability, run_fit,
+    from fabric_optics.fitting.driver import (FitResult, at_bounds, colour_left_off, identifiability,
                                               u_status, uncertainty_parts)
 
     if max_evaluations < 2:
@@ -611,6 +673,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     fine = problem.fine_indices()
     fine_runs = 0
     problem.slope = None
+    colour_first = _colour_first(problem)
     try:
         for k in range(max_evaluations):
             run = state.run(k, x)
@@ -624,7 +687,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
             iterations.append({"k": k, **run.record(), "cached": cached,
                                "dx": None if not k else (x - runs[-2].x).tolist()})
             echo(_line(k, run, dx, cached))
-            if best is None or run.objective < best.objective:
+            if best is None or _better(run, best, colour_first):
                 before, best, halvings = best, run, 0
                 if before is not None and u_prev is not None and np.all(np.abs(run.x - before.x) <= u_prev):
                     stop = f"converged: every parameter step of run {k} is within its standard uncertainty"
@@ -670,7 +733,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                         {"parameter": problem.free[j].name, "h": h, **fr.record(), "cached": fr_cached})
                     echo(f"mc run {k}, trend in {problem.free[j].name} ({xj[j]:.4g}): "
                          + _line(k, fr, None, fr_cached).split(": ", 1)[1])
-                    if fr.objective < best.objective:
+                    if _better(fr, best, colour_first):
                         best, halvings = fr, 0
                 problem.slope = (x.copy(), D)
             if prop is None:
@@ -684,17 +747,22 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                     problem.low[j], problem.high[j] = max(low[j], x[j] - reach), min(high[j], x[j] + reach)
                 try:
                     # the colour start through the surrogate (free dye knots): the measured colour inverted through
-                    # the summation corrected to this run; the search starts from it or from x_k, the better
-                    res = run_fit(problem, out=None, max_evaluations=inner_evaluations, starts=starts,
-                                  progress=progress, noise_draws=noise_draws, invert_start=True)
+                    # the summation corrected to this run; the search starts from it or from x_k, the better; the
+                    # colour held within the margin by raising its weight (module docstring, "The colour first")
+                    res, weights = _surrogate_fit(problem, colour_first, max_evaluations=inner_evaluations,
+                                                  starts=starts, progress=progress, noise_draws=noise_draws)
                 finally:
                     problem.low, problem.high = low, high
                 # the proposal's Monte Carlo part: the surrogate's noise (the run's u_beta) at the proposal
                 b_prop, u_b_prop = problem.model(res.x)
                 _, _, cov_prop, _ = _uncertainty(problem, res.x, b_prop, u_b_prop, noise_draws, data=False)
                 u_prop = np.sqrt(np.nan_to_num(res.u_data) ** 2 + np.maximum(np.diag(cov_prop), 0.0))
+                fig_prop = problem.residual_model().evaluate(b_prop)
                 prop = {"kind": "surrogate fit", "x": res.x.tolist(), "u": u_prop.tolist(),
                         "surrogate_objective": res.objective, "start_note": res.info.get("start_note", ""),
+                        "colour_weights": weights, "surrogate_nrmse": float(fig_prop.nrmse),
+                        "surrogate_dh": float(getattr(fig_prop, "dh", math.nan)),
+                        "surrogate_ds": float(getattr(fig_prop, "ds", math.nan)),
                         "surrogate_evaluations": problem.evaluations - ev0, "seconds": time.perf_counter() - t1,
                         "notes": [n for n in res.warnings
                                   if not n.startswith(("the search stopped", "colour left off"))]}
