@@ -239,3 +239,75 @@ def test_max_events_scores_the_first_scattering_only(case):
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="max_events"):
             W.trace(mesh, W.Lambert(0.8), w_in, detectors, max_events=bad, **kw)
+
+
+# ---------------------------------------------------------------- Hapke's sphere limit (a documented comparison)
+def hapke_comparison(n_rays: int = 20_000, seed: int = 7) -> dict:
+    """The shadow-hiding factor ``1 + B(g)`` of the test's felt, measured with the reference, beside
+    Hapke's sphere-limit ``B(g) = B0 / (1 + tan(g / 2) / h)`` (opaque particles: ``B0 = 1``; equal
+    spheres at filling factor ``phi``: ``h = -(3/8) ln(1 - phi)``, Hapke 2008, Icarus 195, 918), ``phi``
+    the felt's bulk volume fraction. On the rings about the retro direction the phase angle ``g`` is the
+    ring's radius. Measured ``1 + B`` (with its standard error): the shadowed single scattering over the same with each exit seen
+    from an uncorrelated point (the hit point moved to a random place of the cell at the same depth,
+    outside the fibers), which is the independent-paths reflectance Hapke's factor multiplies.
+
+    ``python tests/simulate/woven/test_felt_shadow_hiding.py`` prints it (docs/notes/felt-structure.md 4)."""
+    spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=20.0, layers=2)
+    mesh = felt_mesh(spec, 10.0, seed=0)
+    th = math.radians(THETA_I)
+    w_in = np.array([math.sin(th), 0.0, math.cos(th)])
+    detectors = np.vstack([_ring(w_in, r, PER_RING) for r in RINGS])
+    tubes = _tubes(mesh)
+    c, a, half, radius = tubes
+    reach = half * np.abs(a[:, 2]) + radius
+    z_hi, z_lo = float((c[:, 2] + reach).max()) + 1.0, float((c[:, 2] - reach).min()) - 1.0
+    cell = float(mesh.Lx)
+    rng = np.random.default_rng(seed)
+    o = np.column_stack([rng.uniform(0.0, cell, n_rays), rng.uniform(0.0, cell, n_rays), np.full(n_rays, z_hi)])
+    which, p = _trace_periodic(o, np.tile(-w_in, (n_rays, 1)), tubes, cell, z_lo, z_hi)
+    hit = np.nonzero(which >= 0)[0]
+    j = which[hit]
+    q = p[hit] - c[j]
+    normal = q - np.einsum("ij,ij->i", q, a[j])[:, None] * a[j]
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    start = p[hit] + 1e-6 * radius * normal
+    start[:, :2] %= cell
+    moved = start.copy()                       # the same depth, a random place outside the fibers
+    todo = np.arange(len(moved))
+    while todo.size:
+        moved[todo, :2] = rng.uniform(0.0, cell, (todo.size, 2))
+        d = moved[todo, None, :] - c[None]
+        ax = np.einsum("nmk,mk->nm", d, a)
+        inside = ((np.einsum("nmk,nmk->nm", d, d) - ax * ax < radius ** 2) & (np.abs(ax) <= half)).any(axis=1)
+        todo = todo[inside]
+    cos_o = np.clip(normal @ detectors.T, 0.0, None)
+    i, k = np.nonzero(cos_o > 0.0)
+    seen = [(_trace_periodic(s[i], detectors[k], tubes, cell, z_lo, z_hi)[0] == -1) for s in (start, moved)]
+    per_ray = []                               # [hit, ring]: the ray's terms summed over the ring
+    for v in seen:
+        t = np.zeros_like(cos_o)
+        t[i, k] = cos_o[i, k] * v
+        per_ray.append(np.column_stack([t[:, :PER_RING].sum(axis=1), t[:, PER_RING:].sum(axis=1)]))
+    x = np.hstack(per_ray)                     # shadowed inner, outer; uncorrelated inner, outer
+    m, cov = x.mean(axis=0), np.cov(x, rowvar=False) / len(x)
+
+    def ratio(num, den):                       # a ratio of means of the columns and its standard error
+        r = float(np.prod(m[num]) / np.prod(m[den]))
+        g = np.zeros(4)
+        for col in num:
+            g[col] += r / m[col]
+        for col in den:
+            g[col] -= r / m[col]
+        return round(r, 4), round(float(np.sqrt(g @ cov @ g)), 4)
+
+    measured = [ratio([0], [2]), ratio([1], [3])]
+    phi = float(mesh.info["volume_fraction"])
+    h = -0.375 * math.log(1.0 - phi)
+    hapke = [1.0 + 1.0 / (1.0 + math.tan(math.radians(g) / 2.0) / h) for g in RINGS]
+    return {"theta_i": THETA_I, "volume_fraction": phi, "h": h, "rings_deg": RINGS,
+            "measured_1_plus_B": measured, "hapke_1_plus_B": [round(b, 4) for b in hapke],
+            "measured_ratio": ratio([0, 3], [1, 2]), "hapke_ratio": round(hapke[0] / hapke[1], 4)}
+
+
+if __name__ == "__main__":
+    print(hapke_comparison())
