@@ -184,7 +184,7 @@ COLOUR_MARGIN = 0.5
 #: the colour weight's factor from one surrogate fit to the next while its colour is outside the margin
 COLOUR_WEIGHT_STEP = 10.0
 #: the largest colour weight of a surrogate fit, as a multiple of the problem's
-MAX_COLOUR_WEIGHT_FACTOR = 100.0
+MAX_COLOUR_WEIGHT_FACTOR = 1000.0
 
 
 def correction(s: np.ndarray, mc: np.ndarray, tiny: float = TINY) -> tuple[np.ndarray, np.ndarray]:
