@@ -105,7 +105,7 @@ the same seeds, felt and rays, so the difference is far less noisy than either r
 :data:`FINE_STEP` of the value, at least :data:`FINE_STEP_SPAN` of the bounds, backwards at the upper
 bound). A linear term is trusted only near its centre: in the surrogate fit the fine parameters are held
 within :data:`FINE_TRUST` steps of ``x_k`` (a trust region; the Monte Carlo objective then decides, as
-for every proposal). These runs are Monte Carlo runs of the budget (``--max-evaluations``), are
+for every proposal). These runs are Monte Carlo runs of the budget (``--max-runs``), are
 checkpointed like the others (``mc-runs/run-K-dJ.npz``, listed under their centre in ``mc-state.json``)
 and are candidates for the result like every run. The Monte Carlo's noise in ``D_j`` is not in ``u_mc``
 (which perturbs the correction's level only): the fine parameters' uncertainties are a lower bound, and
@@ -118,9 +118,9 @@ summation at the centre in those parameters and takes their trend from the Monte
 
 Budget, progress, interrupt, resume
 -----------------------------------
-``--max-evaluations N`` means **Monte Carlo runs** for ``--method mc`` (the start's included; default
-:data:`DEFAULT_MC_RUNS`, at least 2: the start and one proposal); each surrogate fit has its own
-budget of :data:`INNER_EVALUATIONS` summation evaluations (table reads, no photon). One line per
+``--max-runs N`` (for ``--method mc``; the older ``--max-evaluations N`` means the same) counts
+**Monte Carlo runs** (the start's included; default :data:`DEFAULT_MC_RUNS`, at least 2: the start and one
+proposal); each surrogate fit has its own budget of :data:`INNER_EVALUATIONS` summation evaluations (table reads, no photon). One line per
 Monte Carlo run on stderr (its NRMSE, dh, ds, objective, seconds) plus the Monte Carlo's and the
 surrogate fit's progress bars. Every finished Monte Carlo run is written at once to
 ``DIR/mc-runs/run-K.npz`` (atomically) and listed in ``DIR/mc-state.json`` with its figures and,
@@ -164,7 +164,7 @@ log = logging.getLogger(__name__)
 MC_STATE = "mc-state.json"
 MC_RUNS_DIR = "mc-runs"
 MC_SCHEMA = "simulate-fit-mc-state/1"
-#: ``--max-evaluations`` default for ``--method mc``: Monte Carlo runs, the start's included
+#: ``--max-runs`` default: Monte Carlo runs, the start's included
 DEFAULT_MC_RUNS = 5
 #: consecutive backtracking steps (half the step from the best run) after a run that did not improve
 MAX_HALVINGS = 1
@@ -670,7 +670,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                                               u_status, uncertainty_parts)
 
     if max_evaluations < 2:
-        raise FitError(f"--max-evaluations {max_evaluations}: --method mc needs at least 2 Monte Carlo runs "
+        raise FitError(f"--max-runs {max_evaluations}: --method mc needs at least 2 Monte Carlo runs "
                        "(the start and one proposal)")
     if echo is None:
         def echo(text: str) -> None:
@@ -723,7 +723,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
                     break
             used = len(runs) + fine_runs
             if used >= max_evaluations:
-                stop = f"the budget of Monte Carlo runs is spent (--max-evaluations {max_evaluations})"
+                stop = f"the budget of Monte Carlo runs is spent (--max-runs {max_evaluations})"
                 break
             prop = state.proposal(k)
             if prop is None and run is not best:
@@ -734,7 +734,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
             if fine and (prop is None or prop.get("kind") == "surrogate fit"):
                 # the fine parameters' trend from the Monte Carlo itself (module docstring)
                 if prop is None and used + len(fine) + 1 > max_evaluations:
-                    stop = (f"the budget of Monte Carlo runs is spent (--max-evaluations {max_evaluations}): "
+                    stop = (f"the budget of Monte Carlo runs is spent (--max-runs {max_evaluations}): "
                             f"{max_evaluations - used} left, the trend in the {len(fine)} parameter(s) only the "
                             "Monte Carlo sees and the proposal need " f"{len(fine) + 1}")
                     break
