@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from simulate.fiber.model import Fiber, as_wavelengths
-from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
+from simulate.fiber.spectral import BLEND, blended_groups, group_walk, spectral_optics, wavelength_groups
 from simulate.montecarlo import geometry as G
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.accuracy import BATCH, FIRST_ROUND, mean_and_error
@@ -82,6 +82,11 @@ def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, phot
     return out, err, photons * len(ks), seconds
 
 
+#: seed offset between the wavelength groups of one table (the exit table's rows add ``7919 r``, its
+#: nodes ``104729 i``: :func:`simulate.fiber.farfield.exit_table`)
+GROUP_SEED_STEP = 1_009
+
+
 def bssrdf_table(
     fiber: Fiber,
     w_t: float,
@@ -94,6 +99,8 @@ def bssrdf_table(
     photons_per_row: int = 100_000,
     seed: int = 0,
     threads: int | None = None,
+    max_group: int | None = None,
+    blend: int = BLEND,
 ) -> dict[str, Any]:
     """The fiber BSSRDF stored by offset, for one axial incidence component ``w_t``.
 
@@ -105,6 +112,13 @@ def bssrdf_table(
     wavelength. Values: mean exit weight per photon entering A uniformly with launch weight
     ``max(w . n, 0)`` -- i.e. ``F_out / (E |A|)``; the docs/physics.md BSSRDF is
     ``T / (cos theta_in |B| dOmega cos theta_out)`` with ``F_in = E |A| cos theta_in``.
+
+    Wavelengths: one walk per group (:func:`simulate.fiber.spectral.wavelength_groups`, at most
+    ``max_group`` wavelengths each), group ``k`` on its own streams (``seed + GROUP_SEED_STEP * k``:
+    the groups' errors are independent); across a group boundary the two walks are blended over
+    ``blend`` wavelengths on each side (:func:`simulate.fiber.spectral.blended_groups`; 0: none), so
+    a smooth material's table has no step there: the difference of two independent walks is spread
+    over the zone. ``u_T`` of a blended value is ``sqrt(sum (w u)^2)`` over the walks.
 
     Returns
     -------
@@ -125,14 +139,16 @@ def bssrdf_table(
     errs = np.zeros_like(rows)
     photons = 0
     seconds = 0.0
-    for group in wavelength_groups(optics):
-        medium, walk_phase, targets = group_walk(fiber, optics, group, white=True)
+    groups = wavelength_groups(optics, max_size=max_group)
+    for k, (group, (scored, weight)) in enumerate(zip(groups, blended_groups(groups, blend))):
+        medium, walk_phase, targets = group_walk(fiber, optics, group, white=True, scored=scored)
         t, u, p, s = bssrdf_rows(fiber, w_t, ks, (n_psi, n_v, v_max, n_mu, n_phi), medium, walk_phase, targets,
-                                  control, photons_per_row, seed, threads)
-        rows[..., group] = t
-        errs[..., group] = u
+                                  control, photons_per_row, seed + GROUP_SEED_STEP * k, threads)
+        rows[..., scored] += t * weight
+        errs[..., scored] += (u * weight) ** 2   # variances: the groups' walks are independent
         photons += p
         seconds += s
+    np.sqrt(errs, out=errs)
     return {
         "T": rows, "u_T": errs, "k": np.array(ks), "cell_width_rad": dpsi, "w_t": float(w_t),
         "v_edges_um": np.linspace(-v_max, v_max, n_v + 1), "mu_edges": np.linspace(0, 1, n_mu + 1),

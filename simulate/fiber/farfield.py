@@ -367,16 +367,17 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
     same photons reads its tables (each round of :func:`controlled_halves` is one entry); a hit is
     bit-identical to the walk that stored it.
 
-    Streams: node ``i``, wavelength chunk ``c`` uses the seed ``seed * 1000003 + 104729 i + 1009 c``
-    and its rows add ``7919 r`` (:func:`simulate.fiber.bssrdf_table`, ``r < 19``, ``c < 5``): these
-    offsets are distinct for distinct ``(i, c, r)`` and stay below 1000003, so different seeds,
-    nodes and chunks never share a stream (two independent tables need only two seeds).
+    Streams: node ``i`` uses the seed ``seed * 1000003 + 104729 i``, its wavelength group ``k`` adds
+    ``1009 k`` and its rows ``7919 r`` (:func:`simulate.fiber.bssrdf_table`, ``r < 19``): for up to 8
+    nodes and 33 groups these offsets are distinct for distinct ``(i, k, r)`` and stay below 1000003,
+    so different seeds, nodes and groups never share a stream (two independent tables need only two
+    seeds).
 
-    Wavelengths go to :func:`simulate.fiber.bssrdf_table` in chunks of at most ``max_group``
-    consecutive ones, so that no white-Monte-Carlo group spans more (red cotton: 5 walks instead of
-    3). The spectral re-weighting's variance grows with the distance from the group's reference
-    wavelength; a 21-wavelength group (510-710 nm) gave rare heavy weights at 710 nm that the
-    closure of :mod:`simulate.fabric.interior` amplifies.
+    No white-Monte-Carlo group spans more than ``max_group`` consecutive wavelengths (red cotton:
+    5 walks instead of 3): the spectral re-weighting's variance grows with the distance from the
+    group's reference wavelength; a 21-wavelength group (510-710 nm) gave rare heavy weights at
+    710 nm that the closure of :mod:`simulate.fabric.interior` amplifies. Neighbouring groups are
+    blended across their boundary (:func:`simulate.fiber.spectral.blended_groups`).
     """
 
     nodes = np.asarray(w_t, float)
@@ -440,19 +441,17 @@ def _walked_exit_table(fiber: Any, wl: np.ndarray, nodes: np.ndarray, bins: tupl
     T: np.ndarray | None = None
     u_T = np.zeros(0)
     photons, ks = 0, None
-    chunks = np.array_split(np.arange(wl.size), int(math.ceil(wl.size / max(1, int(max_group)))))
     for i, wt in enumerate(nodes):
-        for c, chunk in enumerate(chunks):
-            tab = fiber_mod.bssrdf_table(fiber, float(wt), wl[chunk], n_mu=bins[0], n_phi=bins[1],
-                                         photons_per_row=photons_per_row,
-                                         seed=int(seed) * 1_000_003 + 104_729 * i + 1_009 * c, threads=threads)
-            if T is None:   # filled in place: no per-node copies of a table of ~10^8 bytes
-                T = np.empty((nodes.size,) + tab["T"][:, :, 0].shape[:-1] + (wl.size,))
-                u_T = np.empty_like(T)
-            T[i, ..., chunk[0]:chunk[-1] + 1] = tab["T"][:, :, 0]
-            u_T[i, ..., chunk[0]:chunk[-1] + 1] = tab["u_T"][:, :, 0]
-            photons += int(tab["photons"])
-            ks = tab["k"]
+        tab = fiber_mod.bssrdf_table(fiber, float(wt), wl, n_mu=bins[0], n_phi=bins[1],
+                                     photons_per_row=photons_per_row, seed=int(seed) * 1_000_003 + 104_729 * i,
+                                     threads=threads, max_group=max_group)
+        if T is None:   # filled in place: no per-node copies of a table of ~10^8 bytes
+            T = np.empty((nodes.size,) + tab["T"][:, :, 0].shape)
+            u_T = np.empty_like(T)
+        T[i] = tab["T"][:, :, 0]
+        u_T[i] = tab["u_T"][:, :, 0]
+        photons += int(tab["photons"])
+        ks = tab["k"]
     assert T is not None
     T = _symmetrised(T)
     u_T /= math.sqrt(2.0)

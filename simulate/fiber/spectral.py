@@ -22,14 +22,18 @@ from simulate.montecarlo import kernel as K
 from simulate.montecarlo.scatter import PhaseArrays, phase_arrays
 from simulate.montecarlo.transport import SpectralTargets
 
-__all__ = ["GROUP_LOG_MU_S", "GROUP_G", "REWEIGHT_LIMIT", "SpectralOptics", "spectral_optics", "wavelength_groups",
-           "group_walk", "run_seed", "direction_keys", "phase_chi2", "reweight_exponent"]
+__all__ = ["GROUP_LOG_MU_S", "GROUP_G", "REWEIGHT_LIMIT", "BLEND", "SpectralOptics", "spectral_optics",
+           "wavelength_groups", "blended_groups", "group_walk", "run_seed", "direction_keys", "phase_chi2",
+           "reweight_exponent"]
 
 GROUP_LOG_MU_S = 0.25
 GROUP_G = 0.03
 #: Largest ``N (r - 1)^2 + N chi^2`` of :func:`reweight_exponent` at which a walk is re-weighted to
 #: other scattering (``ln 2``: the likelihood ratio at most doubles the variance).
 REWEIGHT_LIMIT = math.log(2.0)
+#: Wavelengths on each side of a group boundary that both neighbouring walks score and
+#: :func:`blended_groups` blends linearly (docs/notes/spectral-groups.md).
+BLEND = 2
 
 
 @dataclass(frozen=True)
@@ -70,11 +74,13 @@ def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = No
     return SpectralOptics(np.array(mu_s), np.array(mu_a), np.array(g), phases)
 
 
-def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU_S) -> list[np.ndarray]:
+def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU_S,
+                      max_size: int | None = None) -> list[np.ndarray]:
     """Consecutive wavelengths whose scattering is close enough to share one walk: ``mu_s`` within
     ``max_log_mu_s`` (in ``log``; equal values always) and ``g`` within ``GROUP_G`` of the group's
     middle one. The default is the re-weighted walks'; a held-scattering table passes its own
-    (:func:`simulate.woven.yarn.held_groups`)."""
+    (:func:`simulate.woven.yarn.held_groups`). ``max_size``: a group of more wavelengths is split
+    into ``ceil(size / max_size)`` consecutive groups of near-equal size."""
     n = optics.mu_s.size
     groups: list[list[int]] = []
     current: list[int] = []
@@ -94,12 +100,53 @@ def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU
             current = [i]
     if current:
         groups.append(current)
+    if max_size is not None:
+        groups = [list(part) for gr in groups
+                  for part in np.array_split(np.array(gr), int(math.ceil(len(gr) / max(1, int(max_size)))))]
     return [np.array(gr) for gr in groups]
 
 
-def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: bool):
-    """Walk medium, walk phase and spectral targets of one wavelength group (its middle wavelength walks)."""
+def blended_groups(groups: list[np.ndarray], blend: int = BLEND) -> list[tuple[np.ndarray, np.ndarray]]:
+    """What each group's walk scores, and with which weight: ``(scored, weight)`` per group.
+
+    A boundary between groups ``A`` and ``B`` gets a transition zone of the last ``h`` wavelengths of
+    ``A`` and the first ``h`` of ``B`` (``h = min(blend, |A| // 2, |B| // 2)``; zones never overlap).
+    Both walks score the zone; its ``j``-th wavelength (``j = 0 .. 2h - 1``) takes ``t = (j + 1) /
+    (2h + 1)`` of ``B``'s walk and ``1 - t`` of ``A``'s. Every wavelength's weights add up to 1,
+    so the blend of unbiased estimates is unbiased; the difference between two walks (their Monte
+    Carlo noise) is spread over ``2h + 1`` steps instead of one step at the boundary.
+
+    >>> [(s.tolist(), w.round(2).tolist()) for s, w in blended_groups([np.arange(4), np.arange(4, 8)], 2)]
+    [([0, 1, 2, 3, 4, 5], [1.0, 1.0, 0.8, 0.6, 0.4, 0.2]), ([2, 3, 4, 5, 6, 7], [0.2, 0.4, 0.6, 0.8, 1.0, 1.0])]
+    """
+    n = sum(len(g) for g in groups)
+    first = int(groups[0][0]) if groups else 0
+    W = np.zeros((len(groups), n))
+    for k, g in enumerate(groups):
+        W[k, np.asarray(g) - first] = 1.0
+    for k in range(len(groups) - 1):
+        a, b = np.asarray(groups[k]), np.asarray(groups[k + 1])
+        h = min(int(blend), a.size // 2, b.size // 2)
+        if h <= 0:
+            continue
+        zone = np.concatenate([a[-h:], b[:h]]) - first
+        t = np.arange(1, 2 * h + 1) / (2 * h + 1)
+        W[k, zone] = 1.0 - t
+        W[k + 1, zone] = t
+    out = []
+    for k in range(len(groups)):
+        idx = np.flatnonzero(W[k] > 0.0)
+        out.append((idx + first, W[k, idx]))
+    return out
+
+
+def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: bool, scored: Any = None):
+    """Walk medium, walk phase and spectral targets of one wavelength group (its middle wavelength walks).
+
+    ``scored`` (indices, optional): the wavelengths the walk scores, if not the group's own (a blended
+    walk also scores its neighbours' transition zones: :func:`blended_groups`)."""
     ref = int(group[len(group) // 2])
+    group = np.asarray(group if scored is None else scored)
     walk_phase = optics.phases[ref]
     medium = np.zeros(K.N_MEDIUM)
     medium[K.M_MU_A] = 0.0 if white else optics.mu_a[ref]
