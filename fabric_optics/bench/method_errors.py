@@ -23,7 +23,7 @@ import numpy as np
 
 from simulate.montecarlo.accuracy import relative_error
 
-__all__ = ["STUDIES", "model_datasets", "frame", "departure", "errors_from_report", "auto_counts", "main"]
+__all__ = ["STUDIES", "run", "model_datasets", "frame", "departure", "errors_from_report", "auto_counts", "main"]
 
 
 #: the studies: config and plan (presets), the Monte Carlo's target, the table file under simulate/configs
@@ -90,7 +90,8 @@ def errors_from_report(report: dict, study: str = "red-cotton") -> dict:
             rows.setdefault(key, {"theta_i": r["theta_i"], "theta_o": r["theta_o"], "rel_phi_o": r["rel_phi_o"],
                                   "mc_rel_se": r["mc_rel_se"]})[name] = r["departure"]
     st = STUDIES[study]
-    return {"provenance": {"command": "simulate bench", "study": study, "kind": st["kind"], "config": st["config"],
+    return {"provenance": {"command": "simulate bench", "study": study, "kind": st["kind"],
+                           "config": report.get("config", st["config"]),
                            "plan": st["plan"], "reference": st["reference"],
                            "target_rel_err": report.get("target", st["target"]),
                            "machine": report.get("machine", {})},
@@ -183,58 +184,74 @@ def chart(report: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """``python -m fabric_optics.bench.method_errors [--study NAME] [--target T] [--threads N] [--out JSON]
-    [--chart PNG]``: the where-methods-fail part of ``simulate bench`` alone (the study's Monte Carlo in a
-    child process, the summation and classic at 1 %), the ``--method auto`` data file and the chart."""
-    import argparse
+def run(study: str = "red-cotton", target: float | None = None, threads: int | None = None,
+        config: str | None = None) -> tuple[dict, dict, list[str]]:
+    """The study ``study`` (:data:`STUDIES`; ``config`` in place of its own): its report, its ``--method auto``
+    table and its lines of text."""
     import datetime
     import json
-    import os
-    from pathlib import Path
+
+    st = STUDIES[study]
+    target = st["target"] if target is None else target
+    load = os.getloadavg()
+    report: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "load_at_start": [round(x, 2) for x in load]},
+                              "target": target, "study": study, "config": config or st["config"]}
+    report["mc"] = in_child(target, threads=threads, config=report["config"], plan_name=st["plan"])
+    report["models"] = model_datasets(report["config"], st["plan"])
+    report["departure"] = departure(report)
+    errors = errors_from_report(report, study)
+    errors["provenance"]["date"] = datetime.date.today().isoformat()
+    flags = (f" --study {study}" if study != "red-cotton" else "") + (f" --config {config}" if config else "")
+    errors["provenance"]["command"] = (f"python -m fabric_optics.bench.method_errors{flags} "
+                                       "(the where-methods-fail part of simulate bench)")
+    rc = report["mc"]
+    # the Monte Carlo's own error (its rays and its tables' noise) and why it ended
+    errors["provenance"]["mc_rel_err"] = rc["rel_err"]
+    info = rc["info"]
+    errors["provenance"]["mc_stop"] = info.get("stop")
+    if st["kind"] == "woven":
+        errors["provenance"]["mc_model"] = {k: info.get(k) for k in ("yarn_surface", "yarn_volume", "twist_deg",
+                                                                      "pile_packing_fraction")}
+    lines = [f"MC: {rc['wall_seconds']:.0f} s wall, rel_err {rc['rel_err']:.2%}; models: "
+             + ", ".join(f"{k} {v['seconds']:.0f} s" for k, v in report["models"].items())]
+    for name, d in report["departure"].items():
+        lines.append(f"{name}: departure median {d['median_rms_departure']:.1%}, max {d['max_rms_departure']:.1%}")
+        for r in sorted(d["geometries"], key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"])):
+            lines.append(f"  inc {r['theta_i']:4.0f} obs {r['theta_o']:4.0f} az {r['rel_phi_o']:5.0f}: "
+                         f"{r['departure']:6.1%} (MC se {r['mc_rel_se']:.1%})")
+    lines.append("auto, geometries per method: " + json.dumps(auto_counts(errors)))
+    return report, errors, lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m fabric_optics.bench.method_errors [--study NAME] [--target T] [--threads N] [--out JSON]
+    [--chart PNG] [--report JSON]``: the where-methods-fail part of ``simulate bench`` alone (the study's Monte Carlo in a
+    child process, the summation and classic at 1 %), the ``--method auto`` data file and the chart."""
+    import argparse
+    import json
 
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--study", default="red-cotton", choices=sorted(STUDIES),
                     help="the fabric: its config, plan and table file (default red-cotton)")
+    ap.add_argument("--config", default=None, help="a config in place of the study's own (same plan)")
     ap.add_argument("--target", type=float, default=None, help="the Monte Carlo's target (default: the study's)")
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--out", default=None, help="write the --method auto data file here")
     ap.add_argument("--chart", default=None, help="write the model/MC chart here (PNG)")
-    ap.add_argument("--force", action="store_true", help="overwrite an existing --out or --chart")
+    ap.add_argument("--report", default=None, help="write the whole report here (JSON: the tables of every method)")
+    ap.add_argument("--force", action="store_true", help="overwrite an existing --out, --chart or --report")
     a = ap.parse_args(argv)
-    for opt, val in (("--out", a.out), ("--chart", a.chart)):
+    for opt, val in (("--out", a.out), ("--chart", a.chart), ("--report", a.report)):
         if val and Path(val).exists() and not a.force:
             ap.error(f"{opt} {val}: exists; pass --force to overwrite it")
-    st = STUDIES[a.study]
-    target = st["target"] if a.target is None else a.target
-    load = os.getloadavg()
-    report: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "load_at_start": [round(x, 2) for x in load]},
-                              "target": target, "study": a.study}
-    report["mc"] = in_child(target, threads=a.threads, config=st["config"], plan_name=st["plan"])
-    report["models"] = model_datasets(st["config"], st["plan"])
-    report["departure"] = departure(report)
-    errors = errors_from_report(report, a.study)
-    errors["provenance"]["date"] = datetime.date.today().isoformat()
-    flags = f" --study {a.study}" if a.study != "red-cotton" else ""
-    errors["provenance"]["command"] = (f"python -m fabric_optics.bench.method_errors{flags} "
-                                       "(the where-methods-fail part of simulate bench)")
-    rc = report["mc"]
-    errors["provenance"]["mc_rel_err"] = rc["rel_err"]
-    info = rc["info"]
-    errors["provenance"]["mc_model"] = {k: info.get(k) for k in ("yarn_surface", "yarn_volume", "twist_deg",
-                                                                  "pile_packing_fraction") if k in info}
-    print(f"MC: {rc['wall_seconds']:.0f} s wall, rel_err {rc['rel_err']:.2%}; models: "
-          + ", ".join(f"{k} {v['seconds']:.0f} s" for k, v in report["models"].items()))
-    for name, d in report["departure"].items():
-        print(f"{name}: departure median {d['median_rms_departure']:.1%}, max {d['max_rms_departure']:.1%}")
-        for r in sorted(d["geometries"], key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"])):
-            print(f"  inc {r['theta_i']:4.0f} obs {r['theta_o']:4.0f} az {r['rel_phi_o']:5.0f}: "
-                  f"{r['departure']:6.1%} (MC se {r['mc_rel_se']:.1%})")
-    print("auto, geometries per method:", json.dumps(auto_counts(errors)))
+    report, errors, lines = run(a.study, a.target, a.threads, a.config)
+    print("\n".join(lines))
     if a.out:
         Path(a.out).write_text(json.dumps(errors, indent=1) + "\n")
     if a.chart:
         chart(report, Path(a.chart))
+    if a.report:
+        Path(a.report).write_text(json.dumps(report, default=str) + "\n")
 
 
 if __name__ == "__main__":
