@@ -26,8 +26,9 @@ changes, both free in expectation:
   spread (1.8 %) is then what their runs report (1.7 %), and the small felt's variance ratio
   1.6 (4 seeds, test: 0.3-3.5).
 
-Cost: the second realisation (1.3 s) and the smaller chunks: green-felt at 3 % 13.5 s of CPU
-instead of 11.0 s (relative error 2.75 % reported instead of 1.96 %).
+Cost: the second realisation (1.3 s); the rotations' smaller chunks, traced one after the other,
+cost green-felt at 3 % 13.5 s of CPU instead of 11.0 s, which tracing them as one wavefront takes
+back (green-felt-mc at 3 %: 0.60 -> 0.44 ms of CPU per ray, docs/notes/felt-structure.md 2).
 """
 
 from __future__ import annotations
