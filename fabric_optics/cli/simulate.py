@@ -460,7 +460,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
     p.add_argument("--no-colour-hold", action="store_false", dest="colour_hold",
                    help="classic and summation fits: do not hold the colour within the tolerance (the objective's "
-                        "colour hold, beyond 0.8 of |dh| 0.02 turn, |ds| 0.03); the colour then weighs by "
+                        "colour hold, beyond 0.7 of |dh| 0.02 turn, |ds| 0.03); the colour then weighs by "
                         "--colour-weight only")
     p.add_argument("--absolute", action="store_true",
                    help="an absolutely calibrated measurement: fit its level too, (ln k_Y)^2 added to the objective "

@@ -45,8 +45,8 @@ measurement has no colour terms.
 The colour hold: ``w_c (dh^2 + ds^2)`` alone trades the colour against the curve error, and where the
 model's curves and colour pull apart the curves win (the green felt's measured plan, 138 geometries:
 the classic fit ended at ds -0.207 at ``w_c`` 1, -0.074 at ``w_c`` 10). So the classic and summation
-fits append ``sqrt(W) max(0, |dh|/0.02 - 0.8)`` and ``sqrt(W) max(0, |ds|/0.03 - 0.8)``, ``W`` 10
-(:func:`fabric_optics.fitting.problem.colour_hold`): nothing inside 0.8 of :data:`COLOUR_TOLERANCE`, and
+fits append ``sqrt(W) max(0, |dh|/0.02 - 0.7)`` and ``sqrt(W) max(0, |ds|/0.03 - 0.7)``, ``W`` 1
+(:func:`fabric_optics.fitting.problem.colour_hold`): nothing inside 0.7 of :data:`COLOUR_TOLERANCE`, and
 beyond it a cost that outweighs the curve error, so the search ends within the tolerance whenever the
 model reaches the colour, and as near as the model comes otherwise (then the verdict says a larger
 weight does not help). ``--no-colour-hold`` leaves the weighted terms alone; the Monte Carlo fit's
