@@ -1,18 +1,22 @@
-"""Measure ``make demo`` (wall time, CPU time, peak memory) and record it as docs/data/demo.json.
+"""Measure ``make demo`` (wall time, CPU time, peak memory, each step's time) and record it as docs/data/demo.json.
 
     python docs/scripts/measure_demo.py [--conditions "fresh clone, idle machine"]
     python docs/scripts/render_figures.py        # then put the figures into README.md and the manual
 
-Peak memory is the largest resident set of any one process of the run (``getrusage`` of the waited-for
-children, as ``/usr/bin/time -v`` reports it). Run it from a fresh clone on an otherwise idle machine:
-that is what the README's cost figure promises a new user.
+The run is ``make demo`` step by step: ``make venv`` (the virtual environment; nothing to do when it
+exists), then each command of the demo's recipe as ``make -n demo`` prints it, run by ``sh -c`` in the
+repository, in order, stopping at the first that fails. Each step's wall time and peak memory are
+recorded; peak memory is the largest resident set of any one process (``wait4``'s resource usage of the
+step's shell, which covers its waited-for children, as ``/usr/bin/time -v`` reports it). Run it from a
+fresh clone on an otherwise idle machine: that is what the README's cost figure promises a new user.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import resource
+import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -23,19 +27,58 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from render_figures import ROOT, record  # noqa: E402
 
 
+def recipe() -> list[str]:
+    """The shell commands of ``make demo``, in order (``make -n``: printed, not run)."""
+    done = subprocess.run(["make", "-s", "-n", "demo"], cwd=ROOT, capture_output=True, text=True, check=True)
+    return [line for line in done.stdout.splitlines() if line.strip() and not line.lstrip().startswith("echo ")]
+
+
+def step_name(command: str) -> str:
+    """A short name of one demo command: its program, subcommand and method, e.g. ``simulate fit --method mc``."""
+    words = shlex.split(command.split("||")[0])
+    name = " ".join([Path(words[0]).name, *words[1:2]])
+    if "--method" in words:
+        name += f" --method {words[words.index('--method') + 1]}"
+    return name
+
+
+def timed(argv: list[str]) -> tuple[int, float, float, float]:
+    """Run ``argv`` in the repository: exit code, wall seconds, CPU seconds, peak RSS in MB."""
+    start = time.monotonic()
+    proc = subprocess.Popen(argv, cwd=ROOT)
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    return (proc.returncode, time.monotonic() - start, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--conditions", default="", help="how the run was made, e.g. 'fresh clone, idle machine'")
     args = ap.parse_args(argv)
-    start = time.monotonic()
-    code = subprocess.call(["make", "demo"], cwd=ROOT)
-    wall = time.monotonic() - start
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if code != 0:
-        print(f"measure_demo: make demo exited {code}; nothing recorded", file=sys.stderr)
+    steps: dict[str, float] = {}
+    totals = [0.0, 0.0, 0.0]  # wall, CPU, peak RSS
+
+    def step(label: str, cmd: list[str]) -> int:
+        code, secs, cpus, rss = timed(cmd)
+        if code != 0:
+            print(f"measure_demo: `{label}` exited {code}; nothing recorded", file=sys.stderr)
+            return code
+        while label in steps:
+            label += " (again)"
+        steps[label] = round(secs, 1)
+        totals[:] = [totals[0] + secs, totals[1] + cpus, max(totals[2], rss)]
+        return 0
+
+    # the recipe is read once the environment exists (before, make -n would list its build)
+    if code := step("make venv", ["make", "-s", "venv"]):
         return code
-    data = {"wall_seconds": round(wall, 1), "cpu_seconds": round(usage.ru_utime + usage.ru_stime, 1),
-            "peak_rss_mb": round(usage.ru_maxrss / 1024, 1), "conditions": args.conditions}
+    for command in recipe():
+        print(command, flush=True)
+        if code := step(step_name(command), ["sh", "-c", command]):
+            return code
+    wall, cpu, peak = totals
+    data = {"wall_seconds": round(wall, 1), "cpu_seconds": round(cpu, 1), "peak_rss_mb": round(peak, 1),
+            "steps": steps, "conditions": args.conditions}
     with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as f:
         json.dump(data, f)
     print(record("demo", Path(f.name), "make demo"))

@@ -666,7 +666,8 @@ COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave 
 def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", metavar="CONFIG", help="simulation config (TOML path or preset name, e.g. red-cotton)")
     p.add_argument("measured", metavar="MEASURED", type=Path, nargs="?", default=None,
-                   help="measured dataset (optional): add compare's NRMSE, dh and ds of every point to summary.csv")
+                   help="measured dataset (optional, right after CONFIG): add compare's NRMSE, dh and ds of every point "
+                        "to summary.csv")
     add_deprecated(p, "--measured", dest="measured", new="the positional MEASURED", type=Path, metavar="DIR")
     p.add_argument("--param", action="append", required=True, metavar="NAME=v1,v2,...",
                    help="a swept config field (dotted path or alias volume_fraction, radius, rms_slope) and its "

@@ -215,7 +215,8 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                 structure: Any = None, cache: bool = True, surface: str | None = None,
                 volume: str | None = None, exit_bins: tuple[int, int] = (5, 10),
                 axial_shift: bool = False,
-                w_t_nodes: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.95)) -> tuple[np.ndarray, np.ndarray, dict]:
+                w_t_nodes: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.95),
+                max_events: int = 0) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -231,7 +232,8 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     are made of (:func:`yarn_model`; ``surface`` and ``volume`` override it). ``tables`` given: they
     are used as they are (``volume`` and ``exit_bins`` then say nothing). ``exit_bins``: the tables'
     exit directions per exit cell, ``(mu bins, phi bins)`` (a config's ``[method] exit_bins``; what
-    they resolve and cost: docs/physics.md 6, "Exit directions").
+    they resolve and cost: docs/physics.md 6, "Exit directions"). ``max_events``: the scattering events
+    followed per ray (:func:`simulate.woven.trace`; 0: all, 1: the single scattering).
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -278,7 +280,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                                    target_rel_err=r_target * math.sqrt(n_rot), max_rays=max_rays // n_rot,
                                    max_seconds=max_seconds / n_rot, seed=seed + 7919 * k + 104_729 * j,
                                    threads=threads, progress=progress, twist_deg=twist, chunk=chunk,
-                                   setups=setups))
+                                   setups=setups, max_events=max_events))
             halves.append(_mean_of(parts))
         ra, rb = halves
         b = 0.5 * (ra.beta + rb.beta)

@@ -181,8 +181,10 @@ class _Setup:
         return out
 
 
-def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...]) -> _Sums:
-    """Trace ``n`` rays of the beam from ``w_in`` through the micro-element (one wavefront)."""
+def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...],
+           events: int = _MAX_BOUNCES) -> _Sums:
+    """Trace ``n`` rays of the beam from ``w_in`` through the micro-element (one wavefront), each for at
+    most ``events`` scattering events (the rays still going after that count as killed)."""
     rng = np.random.default_rng(list(seed))
     L = setup.n_wl
     D = detectors.shape[0]
@@ -201,7 +203,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     acc = np.zeros((n, D, L))
     refl = np.zeros((n, L))
     trans = np.zeros((n, L))
-    for bounce in range(_MAX_BOUNCES):
+    for bounce in range(events):
         if ray.size == 0:
             break
         hits = scene.intersect(origins, dirs, stats)
@@ -286,7 +288,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
           *, target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
           threads: int = 1, progress: bool = False, bins: tuple[int, int] = (9, 12),
           chunk: int = CHUNK, twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex",
-          setups: dict | None = None) -> MCResult:
+          setups: dict | None = None, max_events: int = 0) -> MCResult:
     """Trace the beam from ``w_in`` through the woven micro-element; next-event ``beta`` at ``detectors``.
 
     Parameters
@@ -320,8 +322,15 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     setups : dict, optional
         Kept across calls by the caller: the scene and the material arrays (0.16 s for a felt of 2e5
         triangles) are built once per mesh and material and reused (a felt traced at several rotations).
+    max_events : int
+        Scattering events followed per ray (0: all, up to the tracer's limit of 200). ``1`` scores the
+        single scattering only: the next-event estimates of each ray's first hit, shadow rays included
+        (the shadow-hiding reference, tests/simulate/woven/test_felt_shadow_hiding.py).
     """
     target_rel_err = check_target(target_rel_err)
+    if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 0:
+        raise ValueError(f"trace: max_events must be a whole number >= 0 (0: all events), not {max_events!r}")
+    events = min(int(max_events), _MAX_BOUNCES) if max_events else _MAX_BOUNCES
     w_in = np.asarray(w_in, float).reshape(3)
     det = np.ascontiguousarray(np.atleast_2d(np.asarray(detectors, float)))
     # 90 deg exactly (cos 90 deg is 6e-17 in floating point) is an error, not a ray that wraps for ever
@@ -364,9 +373,9 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
             if max_rays:   # the last round is cut so the budget is kept exactly
                 size = max(1, min(size, (int(max_rays) - total.rays) // _ROUND))
             if pool is None:
-                parts = [_chunk(setup, w_in, det, size, s) for s in jobs]
+                parts = [_chunk(setup, w_in, det, size, s, events) for s in jobs]
             else:
-                parts = list(pool.map(lambda s: _chunk(setup, w_in, det, size, s), jobs))
+                parts = list(pool.map(lambda s: _chunk(setup, w_in, det, size, s, events), jobs))
             for p in parts:     # in chunk order: the sums do not depend on the threads
                 total.add(p)
             c += _ROUND

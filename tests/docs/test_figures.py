@@ -69,3 +69,33 @@ def test_record_wraps_a_run_with_its_command_and_machine(tmp_path, monkeypatch):
     saved = json.loads(out.read_text(encoding="utf-8"))
     assert saved["command"] == "simulate bench --quick --out b" and saved["data"] == {"x": 1}
     assert saved["machine"]["cpus"] and saved["machine"]["cpu"]
+
+
+def _measure():
+    _render()
+    spec = importlib.util.spec_from_file_location("measure_demo", ROOT / "docs" / "scripts" / "measure_demo.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_demo_measurement_times_every_command_of_the_makefile_recipe():
+    m = _measure()
+    commands = m.recipe()
+    names = [m.step_name(c) for c in commands]
+    makefile = (ROOT / "Makefile").read_text(encoding="utf-8")
+    recipe_lines = re.search(r"^demo: .*?\n((?:\t.*\n)+)", makefile, flags=re.M).group(1).splitlines()
+    assert len(commands) == len([line for line in recipe_lines if not line.lstrip("\t").startswith("@echo")])
+    for method in ("classic", "summation", "mc"):
+        assert f"simulate fit --method {method}" in names
+    assert names[0] == "gonio demo" and names[-1] == "compare report"
+
+
+def test_the_demo_measurement_sees_the_peak_memory_of_a_step_s_child_process():
+    m = _measure()
+    grow = "import numpy; a = numpy.ones(40_000_000); print(a.sum())"  # 320 MB in a grandchild of the step
+    code, wall, cpu, peak_mb = m.timed(["sh", "-c", f"{sys.executable} -c '{grow}' > /dev/null"])
+    assert code == 0 and wall > 0 and cpu > 0
+    assert peak_mb > 300
+    code, *_ = m.timed(["sh", "-c", "exit 3"])
+    assert code == 3
