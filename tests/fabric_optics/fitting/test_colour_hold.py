@@ -79,3 +79,24 @@ def test_held_problem_states_it_and_its_identity_differs(torn):
     assert p.residuals(p.start).size == torn.residuals(p.start).size + 2   # the two hold entries
     p.colour_weight = 0.0
     assert not p.holds_colour()   # no colour in the objective: nothing to hold
+
+
+@pytest.mark.parametrize("method, hold, weight, says", [
+    ("classic", True, 1.0, ["as near as the classic model comes", "does not help", "--method summation"]),
+    ("summation", True, 1.0, ["as near as the summation model comes", "does not help", "--method mc"]),
+    ("classic", False, 1.0, ["--no-colour-hold", "drop the option"]),
+    ("summation", True, 0.0, ["--colour-weight 0"]),
+])
+def test_left_off_says_what_helps_for_the_objective_it_had(base_problem, method, hold, weight, says):
+    """Knots (any colour) and the colour held: the model's limit, not a larger weight; the hold off or
+    the colour without weight: that setting. No walk (the verdict reads the settings only)."""
+    from fabric_optics.fitting.driver import FitProblem
+    from fabric_optics.fitting.start import knots_config
+
+    config = knots_config(base_problem.config, base_problem.wavelengths_nm)
+    p = FitProblem(config, base_problem.measured, parse_free(["dye,rms_slope"], config), method=method,
+                   colour_weight=weight, hold_colour=hold, target_rel_err=0.1, seed=5)
+    line = colour_left_off(p, 0.0, -0.1)
+    assert line.startswith("colour left off") and all(s in line for s in says), line
+    assert colour_left_off(p, 0.01, -0.02) == ""   # within the tolerance: nothing to say
+    assert p.walks == 0
