@@ -180,8 +180,8 @@ import numpy as np
 
 from gonio.data.dataset import make_dataset
 
-from fabric_optics.fitting.problem import (COLOUR_TOLERANCE, GENERATOR, FitError, FitProblem, FreeParameter,
-                                           default_bounds, parse_free)
+from fabric_optics.fitting.problem import (COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, COLOUR_TOLERANCE, GENERATOR,
+                                           FitError, FitProblem, FreeParameter, default_bounds, parse_free)
 from fabric_optics.fitting.start import inverted_start
 from fabric_optics.fitting.state import WALKS_DIR, WalkCheckpoint, write_json_atomic
 from fabric_optics.paths import toml_dumps
@@ -869,6 +869,9 @@ def write_outputs(problem: FitProblem, result: FitResult, out: Path) -> dict:
                                         + (" + hold(dh, ds)" if problem.holds_colour() else "")
                                         + (" + w_l (ln k_Y)^2" if problem.level_weight else ""),
                           "colour_weight": problem.colour_weight, "level_weight": problem.level_weight,
+                          "colour_hold": ({"from": COLOUR_HOLD_FROM, "weight": COLOUR_HOLD_WEIGHT,
+                                           "rule": "hold(dh, ds) = W [max(0, |dh|/0.02 - f)^2 + max(0, |ds|/0.03 - f)^2]"}
+                                          if problem.holds_colour() else None),
                           "start": result.objective_start, "fitted": result.objective},
             "verdict": verdict, "start": c0, "fitted": c1, "rel_err": rel_err,
             "parameters": [{"name": p.name, "kind": p.kind, "low": p.low, "high": p.high, "start": p.start,

@@ -151,6 +151,8 @@ def test_warnings_at_bound_and_colour_once_each(base_problem, tmp_path, capsys):
     doc = json.loads((tmp_path / "f" / "fit.json").read_text())   # the outputs are written, labelled failing
     assert abs(doc["fitted"]["dh"]) > 0.02
     assert doc["verdict"]["passed"] is False and doc["verdict"]["exit_status"] == 3
+    assert doc["objective"]["colour_hold"]["from"] == fit_problem.COLOUR_HOLD_FROM   # the CLI holds the colour
+    assert "hold(dh, ds)" in doc["objective"]["definition"]
     assert "FAILED: colour left off" in (tmp_path / "f" / "fitted.toml").read_text()
     assert (tmp_path / "f" / "fitted" / "radiance.csv").is_file()
 
