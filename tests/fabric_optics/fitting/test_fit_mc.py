@@ -91,9 +91,10 @@ def start_x(config) -> np.ndarray:
     return np.array(tomllib.loads(config.text)["fiber"]["dye"]["log10_per_um"], float)
 
 
-def _stand_in(calls: list, beta_of):
+def _stand_in(calls: list, beta_of, colour: bool = False):
     """A deterministic stand-in for the Monte Carlo, counted in ``calls``: ``beta_of(problem, x, s)`` from the
-    plain summation ``s`` at ``x`` (no correction, no Monte Carlo trend term), scored as a run."""
+    plain summation ``s`` at ``x`` (no correction, no Monte Carlo trend term), scored as a run (``colour``: with
+    its hue and saturation differences, as a real run; else NaN)."""
     def run(problem, x, *, progress=False):
         calls.append(np.asarray(x, float).copy())
         saved, problem.corr, problem.slope = (problem.corr, problem.slope), None, None
@@ -104,8 +105,8 @@ def _stand_in(calls: list, beta_of):
         beta = beta_of(problem, x, s)
         fig = problem.residual_model().evaluate(beta, u)
         r = fig.vector(problem.colour_weight)
-        return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse),
-                     float("nan"), float("nan"))
+        dh, ds = (float(fig.dh), float(fig.ds)) if colour else (float("nan"), float("nan"))
+        return MCRun(np.asarray(x, float).copy(), beta, u, 0.01, 1, 0.01, float(r @ r), float(fig.nrmse), dh, ds)
     return run
 
 
@@ -430,13 +431,13 @@ def _felt4(values):
     return parse_config(toml_dumps(doc), "felt-test.toml")
 
 
-def _fake_tinted(calls: list):
+def _fake_tinted(calls: list, colour: bool = False):
     """A stand-in Monte Carlo whose colour is not the summation's at the same dye: the summation tilted across
     the wavelengths by +-25 % (and 10 % lower), so the Monte Carlo fit must read the colour through the
     corrected surrogate, not through the plain summation."""
     def beta_of(problem, x, s):
         return 0.9 * s * (1.0 + 0.25 * np.linspace(-1.0, 1.0, s.shape[1])[None, :]) + 0.001
-    return _stand_in(calls, beta_of)
+    return _stand_in(calls, beta_of, colour)
 
 
 X4_TRUE = np.array([-3.0, -2.5, -0.6, -0.3])
@@ -498,6 +499,66 @@ def test_the_monte_carlo_fit_starts_its_dye_from_the_measured_colour(monkeypatch
     dh_max, ds_max = COLOUR_TOLERANCE
     assert abs(fig.dh) <= dh_max and abs(fig.ds) <= ds_max, (fig.dh, fig.ds)
     assert len(calls) <= 3
+
+
+def test_the_monte_carlo_fit_puts_the_colour_first_where_the_curves_want_another(monkeypatch, felt4_probe):
+    """A measurement whose curves and colour disagree: the curves of the stand-in Monte Carlo at one dye, the
+    colour geometry's spectrum (same mean) from another dye. At colour weight 1 the surrogate's optimum trades
+    the colour away (hue ~0.05 turn off, confirmed by the Monte Carlo); with the colour first the surrogate fit
+    raises the colour weight until its colour is within half the tolerance, and the 3 runs end within it."""
+    from fabric_optics.fitting.driver import COLOUR_TOLERANCE
+
+    probe = felt4_probe
+    curves = _fake_tinted([])(probe, X4_TRUE).beta
+    spectrum = _fake_tinted([])(probe, np.array([-3.0, -1.5, -0.6, -0.3])).beta
+    g = probe.geometries
+    g_star = int(np.flatnonzero((g["theta_i"] == 0.0) & np.isclose(g["theta_o"], 10.0))[0])
+    beta = curves.copy()
+    beta[g_star] = spectrum[g_star] * curves[g_star].mean() / spectrum[g_star].mean()
+    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
+    dh_max, ds_max = COLOUR_TOLERANCE
+    figs = {}
+    for colour_first in (False, True):
+        calls: list = []
+        monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_tinted(calls, colour=True))
+        if not colour_first:
+            monkeypatch.setattr(fit_mc, "_colour_first", lambda problem: False)
+        start = _felt4(X4_START)
+        problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2,
+                               wavelengths_nm=WL6)
+        problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+        geo = problem.residual_model().colour_geometry                 # the row whose spectrum was replaced
+        assert [round(float(geo[c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")] == \
+            [round(float(g.iloc[g_star][c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")]
+        result = run_mc_fit(problem, max_evaluations=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+        monkeypatch.undo()
+        assert len(calls) <= 3
+        figs[colour_first] = problem.residual_model().evaluate(problem.mc_runs[fit_mc._key(result.x)].beta)
+        props = [it["proposal"] for it in result.info["iterations"] if "proposal" in it]
+        if colour_first:
+            assert props[0]["colour_weights"][0] == 1.0 and len(props[0]["colour_weights"]) > 1
+            assert abs(props[0]["surrogate_dh"]) <= 0.5 * dh_max and abs(props[0]["surrogate_ds"]) <= 0.5 * ds_max
+            assert problem.colour_weight == 1.0                      # the problem's weight is restored
+            assert result.warnings == [w for w in result.warnings if not w.startswith("colour left off")]
+    old, new = figs[False], figs[True]
+    assert abs(old.dh) > 2 * dh_max, old.dh                         # without the colour first: another colour
+    assert abs(new.dh) <= dh_max and abs(new.ds) <= ds_max, (new.dh, new.ds)
+    assert new.nrmse < 1.2 * old.nrmse                              # at a small cost in curve error
+
+
+def test_the_best_run_is_the_colour_s_first():
+    """With the colour first a run within the colour tolerance beats one outside it whatever their objectives,
+    of two outside the nearer colour wins, of two inside the lower objective; without, the objective alone."""
+    def run(objective, dh, ds=0.0):
+        return MCRun(np.zeros(1), np.zeros((1, 1)), np.zeros((1, 1)), 0.0, 0, 0.0, objective, 0.1, dh, ds)
+
+    inside, outside = run(0.5, 0.019, -0.029), run(0.1, 0.021)
+    assert fit_mc._better(inside, outside, True) and not fit_mc._better(outside, inside, True)
+    assert fit_mc._better(outside, inside, False)
+    assert fit_mc._better(run(0.9, 0.05), run(0.1, 0.0, 0.2), True)          # 2.5 tolerances against 6.7
+    assert fit_mc._better(run(0.1, 0.01), run(0.2, 0.0), True)               # both inside: the objective
+    assert not fit_mc._better(run(0.3, 0.0), run(0.2, 0.01), True)
+    assert fit_mc._better(run(0.1, float("nan")), run(0.2, float("nan")), True)  # no colour: the objective
 
 
 def _run_beta(problem, x):
