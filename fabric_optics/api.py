@@ -275,7 +275,7 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
                 target_rel_err: float | None = None, seed: int | None = None, threads: int | None = None,
                 colour_weight: float = 1.0, wavelengths_nm: Sequence[float] | None = None,
                 mc_trend: Sequence[str] = (), starts: int = 1, resume: bool = False,
-                force: bool = False, absolute: bool = False) -> FitJob:
+                force: bool = False, absolute: bool = False, colour_hold: bool = True) -> FitJob:
     """Everything :func:`fit` checks before its search (arguments as :func:`fit`): the config, the
     measurement, the free parameters and their bounds, the output folder. Nothing is written."""
     import numpy as np
@@ -308,7 +308,7 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
     problem_class, run_fit, write_outputs = method_runner(method)
     extra: dict[str, Any] = {"mc_trend": tuple(mc_trend)} if mc_trend else {}
     problem = problem_class(cfg, data, parse_free(names, cfg), method=method, colour_weight=colour_weight,
-                            level_weight=1.0 if absolute else 0.0,
+                            level_weight=1.0 if absolute else 0.0, hold_colour=colour_hold and method != "mc",
                             target_rel_err=cfg.target_rel_err if target_rel_err is None else target_rel_err,
                             seed=seed, threads=threads or None, wavelengths_nm=wavelengths, **extra)
     problem.precheck()
@@ -331,7 +331,8 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         max_evaluations: int | None = None, max_runs: int | None = None, target_rel_err: float | None = None,
         seed: int | None = None, threads: int | None = None, colour_weight: float = 1.0,
         wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
-        resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False) -> FitOutcome:
+        resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False,
+        colour_hold: bool = True) -> FitOutcome:
     """Fit the ``free`` parameters of ``config`` (names as ``simulate fit --free``: ``"dye,rms_slope"``
     or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`).
 
@@ -341,11 +342,14 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     ``seed`` default to the config's. Everything is written to ``out`` (resumable with
     ``resume=True``); an existing output there is replaced only with ``force=True``. ``absolute=True``:
     the measurement is absolutely calibrated, its level is fitted too (``simulate fit --absolute``).
+    ``colour_hold=False``: the classic and summation fits weigh the colour by ``colour_weight`` only, without
+    holding it within the tolerance (``simulate fit --no-colour-hold``).
     """
     return prepare_fit(config, measured, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
                        max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
                        colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
-                       starts=starts, resume=resume, force=force, absolute=absolute).run(progress=progress)
+                       starts=starts, resume=resume, force=force, absolute=absolute,
+                       colour_hold=colour_hold).run(progress=progress)
 
 
 @_typed_errors

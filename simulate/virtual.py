@@ -112,7 +112,8 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     if method == "auto":
         from simulate.fabric import auto as methods_mod
 
-        chosen, source = methods_mod.choose(theta_i, phi_i, theta_o, phi_o, target)
+        chosen, source = methods_mod.choose(theta_i, phi_i, theta_o, phi_o, target,
+                                            errors=methods_mod.errors_for(config))
         beta = np.zeros((theta_i.size, wavelengths.size))
         u_beta = np.zeros_like(beta)
         n = np.ones(beta.shape, dtype=np.int64)

@@ -112,10 +112,10 @@ def fig_driver() -> str:
     return _table(["figure", "value"], rows) + "\n\n" + _source(rec)
 
 
-def fig_method_errors() -> str:
-    """Where the cheaper models depart from the woven Monte Carlo (red cotton)."""
-    path = ROOT / "simulate" / "configs" / "method-errors.json"
-    d = load("method-errors", path)
+def _method_errors(file: str, reference: str) -> tuple[str, dict[str, Any], list[dict[str, Any]]]:
+    """The summary table of a method-errors file under simulate/configs, its provenance and rows."""
+    path = ROOT / "simulate" / "configs" / file
+    d = load(file.removesuffix(".json"), path)
     prov = d["provenance"]
     geos = d["geometries"]
     rows = []
@@ -126,15 +126,49 @@ def fig_method_errors() -> str:
                      f"{values[-1]:.1f} %",
                      f"θi {worst['theta_i']:g}°, θo {worst['theta_o']:g}°, Δφ {worst['rel_phi_o']:g}°"])
     mc = sorted(100 * g["mc_rel_se"] for g in geos)
-    rows.append(["woven Monte Carlo (its own standard error)", f"{statistics.median(mc):.2f} %", "", f"{mc[-1]:.2f} %", ""])
-    rec = {"command": prov["command"].split(" (")[0] + " --target 0.01 --threads 2",
-           "machine": {"cpus": prov.get("machine", {}).get("cpus"), "cpu": "", "system": ""},
-           "name": "method-errors"}
-    text = _table(["model", "median", "90th percentile", "largest", "where largest"], rows)
-    return (text + f"\n\n*RMS over wavelengths of (model − Monte Carlo) relative to the Monte Carlo's spectral "
+    rows.append([f"{reference} (its own standard error)", f"{statistics.median(mc):.2f} %", "", f"{mc[-1]:.2f} %",
+                 ""])
+    return _table(["model", "median", "90th percentile", "largest", "where largest"], rows), prov, geos
+
+
+def _method_errors_caption(prov: dict[str, Any], geos: list, file: str, command: str) -> str:
+    return (f"*RMS over wavelengths of (model − Monte Carlo) relative to the Monte Carlo's spectral "
             f"peak, at the {len(geos)} geometries of the `{prov['plan']}` plan for the `{prov['config']}` config. "
-            f"Produced by `{rec['command']}` on a {rec['machine']['cpus']}-CPU machine. Data: "
-            "`simulate/configs/method-errors.json` (also what `simulate fabric --method auto` reads).*")
+            f"Produced by `{command}` on a {prov.get('machine', {}).get('cpus')}-CPU machine. Data: "
+            f"`simulate/configs/{file}` (also what `simulate fabric --method auto` reads for this structure).*")
+
+
+def fig_method_errors() -> str:
+    """Where the cheaper models depart from the woven Monte Carlo (red cotton)."""
+    text, prov, geos = _method_errors("method-errors.json", "woven Monte Carlo")
+    command = prov["command"].split(" (")[0] + " --target 0.01 --threads 2"
+    return text + "\n\n" + _method_errors_caption(prov, geos, "method-errors.json", command)
+
+
+#: the felt's regions (in-plane geometries): name -> test on (theta_i, theta_o, rel_phi_o)
+FELT_REGIONS: dict[str, Callable[[float, float, float], bool]] = {
+    "forward, grazing (mirror side, θo ≥ 60°, θi ≥ 30°)": lambda ti, to, az: az == 180.0 and to >= 60 and ti >= 30,
+    "opposition (source side, within 10° of the source)": lambda ti, to, az: ti > 0 and az == 0.0
+    and abs(to - ti) <= 10,
+    "elsewhere": lambda ti, to, az: True,
+}
+
+
+def fig_method_errors_felt() -> str:
+    """Where the cheaper models depart from the felt Monte Carlo (green felt), overall and by region."""
+    file = "method-errors-felt.json"
+    text, prov, geos = _method_errors(file, "felt Monte Carlo")
+    rows, seen = [], set()
+    for name, inside in FELT_REGIONS.items():
+        sel = [g for i, g in enumerate(geos) if i not in seen and inside(g["theta_i"], g["theta_o"], g["rel_phi_o"])]
+        seen |= {i for i, g in enumerate(geos) if g in sel}
+        rows.append([name, str(len(sel))] + [f"{100 * statistics.median(g[m] for g in sel):.1f} % / "
+                                             f"{100 * max(g[m] for g in sel):.1f} %" for m in ("summation", "classic")])
+    regions = _table(["region", "geometries", "summation: median / largest", "classic: median / largest"], rows)
+    command = prov["command"].split(" (")[0]
+    return (text + "\n\n" + regions + "\n\n" + _method_errors_caption(prov, geos, file, command)[:-1]
+            + f" The felt Monte Carlo reached {100 * prov['mc_rel_err']:.1f} % (its target "
+            f"{100 * prov['target_rel_err']:g} %).*")
 
 
 def fig_demo_cost() -> str:
@@ -156,6 +190,7 @@ FIGURES: dict[str, Callable[[], str]] = {
     "slab-kernel": fig_slab_kernel,
     "driver": fig_driver,
     "method-errors": fig_method_errors,
+    "method-errors-felt": fig_method_errors_felt,
     "demo-cost": fig_demo_cost,
 }
 

@@ -1,11 +1,13 @@
 """Where the cheaper fabric models depart from the woven Monte Carlo: the data behind ``--method auto``.
 
-Per geometry of the red-cotton plan, the departure of a model from the Monte Carlo reference is
+Per geometry of a study's plan (red cotton on its plan; the green felt on the felt's plan), the departure of a model from the Monte Carlo reference is
 :func:`simulate.montecarlo.accuracy.relative_error` of ``model - MC`` on that geometry's
 spectrum: the RMS over wavelengths of ``(model - MC) / max_lambda(MC)``, the same definition as
 ``--target-rel-err``. ``simulate bench`` runs it (:mod:`fabric_optics.bench.woven`) and
 :func:`errors_from_report` turns its report into the table that
-:func:`simulate.fabric.auto.choose` reads (``simulate/configs/method-errors.json``).
+:func:`simulate.fabric.auto.choose` reads: one table per structure kind, ``simulate/configs/method-errors.json``
+(woven, red cotton) and ``simulate/configs/method-errors-felt.json`` (nonwoven, green felt), each made by
+``python -m fabric_optics.bench.method_errors --study NAME --out FILE`` (:data:`STUDIES`).
 """
 
 from __future__ import annotations
@@ -21,17 +23,27 @@ import numpy as np
 
 from simulate.montecarlo.accuracy import relative_error
 
-__all__ = ["model_datasets", "frame", "departure", "errors_from_report", "auto_counts", "main"]
+__all__ = ["STUDIES", "run", "model_datasets", "frame", "departure", "errors_from_report", "auto_counts", "main"]
 
 
-def model_datasets() -> dict:
-    """Summation and classic on the red-cotton plan at 1 %: seconds and their tables."""
+#: the studies: config and plan (presets), the Monte Carlo's target, the table file under simulate/configs
+#: and the structure kind ``--method auto`` reads it for (:func:`simulate.fabric.auto.table_for`)
+STUDIES: dict[str, dict[str, Any]] = {
+    "red-cotton": {"config": "red-cotton", "plan": "red-cotton", "target": 0.01, "kind": "woven",
+                   "file": "method-errors.json", "reference": "woven Monte Carlo"},
+    "green-felt": {"config": "green-felt-mc", "plan": "green-felt", "target": 0.03, "kind": "nonwoven",
+                   "file": "method-errors-felt.json", "reference": "felt Monte Carlo"},
+}
+
+
+def model_datasets(config: str = "red-cotton", plan_name: str = "red-cotton") -> dict:
+    """Summation and classic on the study's plan at 1 %: seconds and their tables."""
     from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
     from simulate.virtual import fabric_dataset
 
-    cfg = load_config("red-cotton")
-    plan = load_plan("red-cotton")
+    cfg = load_config(config)
+    plan = load_plan(plan_name)
     out = {}
     for method in ("summation", "classic"):
         t = time.perf_counter()
@@ -50,7 +62,7 @@ def frame(table: dict):
 def departure(report: dict) -> dict:
     """Per geometry, the RMS over wavelengths of ``(model - MC) / max_lambda(MC)`` (the accuracy
     target's spectral-peak convention) and the MC's own relative error there; median and max."""
-    mc = frame(report["red_cotton"]["table"])
+    mc = frame(report.get("mc", report.get("red_cotton"))["table"])
     key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
     out: dict[str, Any] = {}
     for name, m in report["models"].items():
@@ -69,16 +81,19 @@ def departure(report: dict) -> dict:
     return out
 
 
-def errors_from_report(report: dict) -> dict:
-    """The ``--method auto`` data file (``simulate/configs/method-errors.json``) from a report with a ``departure``."""
+def errors_from_report(report: dict, study: str = "red-cotton") -> dict:
+    """The ``--method auto`` data file of ``study`` (:data:`STUDIES`) from a report with a ``departure``."""
     rows: dict[tuple, dict] = {}
     for name, d in report["departure"].items():
         for r in d["geometries"]:
             key = (r["theta_i"], r["theta_o"], r["rel_phi_o"])
             rows.setdefault(key, {"theta_i": r["theta_i"], "theta_o": r["theta_o"], "rel_phi_o": r["rel_phi_o"],
                                   "mc_rel_se": r["mc_rel_se"]})[name] = r["departure"]
-    return {"provenance": {"command": "simulate bench", "config": "red-cotton", "plan": "red-cotton",
-                           "reference": "woven Monte Carlo", "target_rel_err": report.get("target", 0.01),
+    st = STUDIES[study]
+    return {"provenance": {"command": "simulate bench", "study": study, "kind": st["kind"],
+                           "config": report.get("config", st["config"]),
+                           "plan": st["plan"], "reference": st["reference"],
+                           "target_rel_err": report.get("target", st["target"]),
                            "machine": report.get("machine", {})},
             "geometries": sorted(rows.values(), key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"]))}
 
@@ -99,13 +114,13 @@ def auto_counts(errors: dict, targets: tuple[float, ...] = (0.01, 0.02, 0.05, 0.
 
 
 def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int | None = None,
-                      threads: int | None = None) -> None:
+                      threads: int | None = None, config: str = "red-cotton", plan_name: str = "red-cotton") -> None:
     from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
     from simulate.virtual import fabric_dataset
 
-    cfg = load_config("red-cotton")
-    plan = load_plan("red-cotton")
+    cfg = load_config(config)
+    plan = load_plan(plan_name)
     t = time.perf_counter()
     ds = fabric_dataset(cfg, plan, method, target_rel_err=target, seed=seed, threads=threads or os.cpu_count() or 1)
     wall = time.perf_counter() - t
@@ -115,12 +130,13 @@ def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int |
                "table": ds.table.to_dict(orient="list")})
 
 
-def in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None) -> dict:
-    """One red-cotton run in a spawned child process: its wall time (of the run only, not the
-    process start) and its own peak memory."""
+def in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None,
+             config: str = "red-cotton", plan_name: str = "red-cotton") -> dict:
+    """One run (red cotton unless told) in a spawned child process: its wall time (of the run only,
+    not the process start) and its own peak memory."""
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
-    p = ctx.Process(target=_red_cotton_child, args=(target, queue, method, seed, threads))
+    p = ctx.Process(target=_red_cotton_child, args=(target, queue, method, seed, threads, config, plan_name))
     p.start()
     result = queue.get()
     p.join()
@@ -135,7 +151,7 @@ def chart(report: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    mc = frame(report["red_cotton"]["table"])
+    mc = frame(report.get("mc", report.get("red_cotton"))["table"])
     models = {k: frame(v["table"]) for k, v in report["models"].items()}
     wl = 620.0
     incid = sorted(mc["theta_i"].unique())
@@ -160,55 +176,82 @@ def chart(report: dict, path: Path) -> None:
     axes[0, 0].set_ylabel("beta")
     axes[1, 0].set_ylabel("model / Monte Carlo")
     axes[0, 0].legend(fontsize=8)
-    rc = report["red_cotton"]
-    fig.suptitle(f"red cotton: woven Monte Carlo to {rc['rel_err']:.2%} rms in "
+    rc = report.get("mc", report.get("red_cotton"))
+    fig.suptitle(f"{report.get('study', 'red-cotton')}: Monte Carlo to {rc['rel_err']:.2%} rms in "
                  f"{rc['wall_seconds']:.0f} s, {os.cpu_count()} cores")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """``python -m fabric_optics.bench.method_errors [--target 0.01] [--threads N] [--out JSON] [--chart PNG]``: the
-    where-methods-fail part of ``simulate bench`` alone (the red-cotton MC in a child process, the
-    summation and classic at 1 %), the ``--method auto`` data file and the chart."""
-    import argparse
+def run(study: str = "red-cotton", target: float | None = None, threads: int | None = None,
+        config: str | None = None) -> tuple[dict, dict, list[str]]:
+    """The study ``study`` (:data:`STUDIES`; ``config`` in place of its own): its report, its ``--method auto``
+    table and its lines of text."""
     import datetime
     import json
-    import os
-    from pathlib import Path
+
+    st = STUDIES[study]
+    target = st["target"] if target is None else target
+    load = os.getloadavg()
+    report: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "load_at_start": [round(x, 2) for x in load]},
+                              "target": target, "study": study, "config": config or st["config"]}
+    report["mc"] = in_child(target, threads=threads, config=report["config"], plan_name=st["plan"])
+    report["models"] = model_datasets(report["config"], st["plan"])
+    report["departure"] = departure(report)
+    errors = errors_from_report(report, study)
+    errors["provenance"]["date"] = datetime.date.today().isoformat()
+    flags = (f" --study {study}" if study != "red-cotton" else "") + (f" --config {config}" if config else "")
+    errors["provenance"]["command"] = (f"python -m fabric_optics.bench.method_errors{flags} "
+                                       "(the where-methods-fail part of simulate bench)")
+    rc = report["mc"]
+    # the Monte Carlo's own error (its rays and its tables' noise) and why it ended
+    errors["provenance"]["mc_rel_err"] = rc["rel_err"]
+    info = rc["info"]
+    errors["provenance"]["mc_stop"] = info.get("stop")
+    if st["kind"] == "woven":
+        errors["provenance"]["mc_model"] = {k: info.get(k) for k in ("yarn_surface", "yarn_volume", "twist_deg",
+                                                                      "pile_packing_fraction")}
+    lines = [f"MC: {rc['wall_seconds']:.0f} s wall, rel_err {rc['rel_err']:.2%}; models: "
+             + ", ".join(f"{k} {v['seconds']:.0f} s" for k, v in report["models"].items())]
+    for name, d in report["departure"].items():
+        lines.append(f"{name}: departure median {d['median_rms_departure']:.1%}, max {d['max_rms_departure']:.1%}")
+        for r in sorted(d["geometries"], key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"])):
+            lines.append(f"  inc {r['theta_i']:4.0f} obs {r['theta_o']:4.0f} az {r['rel_phi_o']:5.0f}: "
+                         f"{r['departure']:6.1%} (MC se {r['mc_rel_se']:.1%})")
+    lines.append("auto, geometries per method: " + json.dumps(auto_counts(errors)))
+    return report, errors, lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m fabric_optics.bench.method_errors [--study NAME] [--target T] [--threads N] [--out JSON]
+    [--chart PNG] [--report JSON]``: the where-methods-fail part of ``simulate bench`` alone (the study's Monte Carlo in a
+    child process, the summation and classic at 1 %), the ``--method auto`` data file and the chart."""
+    import argparse
+    import json
 
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    ap.add_argument("--target", type=float, default=0.01)
+    ap.add_argument("--study", default="red-cotton", choices=sorted(STUDIES),
+                    help="the fabric: its config, plan and table file (default red-cotton)")
+    ap.add_argument("--config", default=None, help="a config in place of the study's own (same plan)")
+    ap.add_argument("--target", type=float, default=None, help="the Monte Carlo's target (default: the study's)")
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--out", default=None, help="write the --method auto data file here")
     ap.add_argument("--chart", default=None, help="write the model/MC chart here (PNG)")
+    ap.add_argument("--report", default=None, help="write the whole report here (JSON: the tables of every method)")
+    ap.add_argument("--force", action="store_true", help="overwrite an existing --out, --chart or --report")
     a = ap.parse_args(argv)
-    load = os.getloadavg()
-    report: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "load_at_start": [round(x, 2) for x in load]},
-                              "target": a.target}
-    report["red_cotton"] = in_child(a.target, threads=a.threads)
-    report["models"] = model_datasets()
-    report["departure"] = departure(report)
-    errors = errors_from_report(report)
-    errors["provenance"]["date"] = datetime.date.today().isoformat()
-    errors["provenance"]["command"] = "python -m fabric_optics.bench.method_errors (the where-methods-fail part of simulate bench)"
-    info = report["red_cotton"]["info"]
-    errors["provenance"]["mc_model"] = {k: info.get(k) for k in ("yarn_surface", "yarn_volume", "twist_deg",
-                                                                  "pile_packing_fraction")}
-    rc = report["red_cotton"]
-    print(f"MC: {rc['wall_seconds']:.0f} s wall, rel_err {rc['rel_err']:.2%}; models: "
-          + ", ".join(f"{k} {v['seconds']:.0f} s" for k, v in report["models"].items()))
-    for name, d in report["departure"].items():
-        print(f"{name}: departure median {d['median_rms_departure']:.1%}, max {d['max_rms_departure']:.1%}")
-        for r in sorted(d["geometries"], key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"])):
-            print(f"  inc {r['theta_i']:4.0f} obs {r['theta_o']:4.0f} az {r['rel_phi_o']:5.0f}: "
-                  f"{r['departure']:6.1%} (MC se {r['mc_rel_se']:.1%})")
-    print("auto, geometries per method:", json.dumps(auto_counts(errors)))
+    for opt, val in (("--out", a.out), ("--chart", a.chart), ("--report", a.report)):
+        if val and Path(val).exists() and not a.force:
+            ap.error(f"{opt} {val}: exists; pass --force to overwrite it")
+    report, errors, lines = run(a.study, a.target, a.threads, a.config)
+    print("\n".join(lines))
     if a.out:
         Path(a.out).write_text(json.dumps(errors, indent=1) + "\n")
     if a.chart:
         chart(report, Path(a.chart))
+    if a.report:
+        Path(a.report).write_text(json.dumps(report, default=str) + "\n")
 
 
 if __name__ == "__main__":

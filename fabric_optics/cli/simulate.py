@@ -458,6 +458,10 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                         "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fitting.mc")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
+    p.add_argument("--no-colour-hold", action="store_false", dest="colour_hold",
+                   help="classic and summation fits: do not hold the colour within the tolerance (the objective's "
+                        "colour hold, beyond 0.7 of |dh| 0.02 turn, |ds| 0.03); the colour then weighs by "
+                        "--colour-weight only")
     p.add_argument("--absolute", action="store_true",
                    help="an absolutely calibrated measurement: fit its level too, (ln k_Y)^2 added to the objective "
                         "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
@@ -547,7 +551,8 @@ def _fit_run(args: argparse.Namespace) -> int:
                           max_evaluations=args.max_evaluations, max_runs=args.max_runs,
                           target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
                           colour_weight=args.colour_weight, wavelengths_nm=args.wavelengths, mc_trend=mc_trend,
-                          starts=args.starts, resume=args.resume, force=args.force, absolute=args.absolute)
+                          starts=args.starts, resume=args.resume, force=args.force, absolute=args.absolute,
+                          colour_hold=args.colour_hold)
     _check_cost("fit", config, job.problem.wavelengths_nm, job.problem.target_rel_err, None)
     _prepare_out(args.out, lambda out: True, "simulate fit")
     from simulate.fiber import tablecache

@@ -16,17 +16,19 @@ changes, both free in expectation:
 
 - the felt is in-plane isotropic, so each incidence and its detectors are turned about the normal
   to :data:`FELT_ROTATIONS` azimuths (``2 pi (j + h / 2) / K`` for half ``h``) and the traces
-  averaged, each at ``sqrt K`` times the ray target with ``K`` times smaller chunks (the rays are
-  the same in number; the scene is built once per mesh): the top fibers' few orientations are
-  seen at ``K`` angles (spread 2.1 % -> 1.7 %);
+  averaged: the top fibers' few orientations are seen at ``K`` angles (spread 2.1 % -> 1.7 %).
+  The ``K`` rotations are traced as one wavefront (:func:`simulate.woven.integrator.trace_rotations`:
+  ``K`` times smaller chunks of each, every bounce one Embree query for all of them), stopped when
+  their mean reaches the ray target; the scene is built once per mesh;
 - each table half is traced on its OWN realisation (``mesh`` a pair; ``simulate fabric`` builds the
   felt at the run's seed and at seed + 1 000 003), so the halves' difference, which gives the
   table's term of ``u_beta``, holds the spread between realisations as well: the four felts'
   spread (1.8 %) is then what their runs report (1.7 %), and the small felt's variance ratio
   1.6 (4 seeds, test: 0.3-3.5).
 
-Cost: the second realisation (1.3 s) and the smaller chunks: green-felt at 3 % 13.5 s of CPU
-instead of 11.0 s (relative error 2.75 % reported instead of 1.96 %).
+Cost: the second realisation (1.3 s); the rotations' smaller chunks, traced one after the other,
+cost green-felt at 3 % 13.5 s of CPU instead of 11.0 s, which tracing them as one wavefront takes
+back (green-felt-mc at 3 %: 0.60 -> 0.44 ms of CPU per ray, docs/notes/felt-structure.md 2).
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ import numpy as np
 from simulate.media.medium import HGMedium
 from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.fabric.structure import CLOSE_PACKING
-from simulate.woven.integrator import CHUNK, MCResult, trace, yarn_radius
+from simulate.woven.integrator import CHUNK, MCResult, trace, trace_rotations, yarn_radius
 from simulate.woven.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.woven.materials import FiberSurface
 from simulate.woven.yarn import YarnTable, table_halves
@@ -158,11 +160,6 @@ def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]
             "[method] exit_bins = [10, 20] (the default for such a felt) resolves them (docs/physics.md 6, \"Exit directions\")")
 
 
-def _rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def _mean_of(parts: list[MCResult]) -> MCResult:
     """The mean of independent traces of one incidence (rotations): ``beta`` their mean, ``u`` of the mean."""
     if len(parts) == 1:
@@ -273,14 +270,16 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
         det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
         halves = []
         for h, (m, mat) in enumerate(zip(meshes, mats)):
-            parts = []
-            for j in range(n_rot):
-                rot = _rot_z(2.0 * math.pi * (j + 0.5 * h) / n_rot) if n_rot > 1 else np.eye(3)
-                parts.append(trace(m, mat, rot @ (wi / np.linalg.norm(wi)), det @ rot.T,
-                                   target_rel_err=r_target * math.sqrt(n_rot), max_rays=max_rays // n_rot,
-                                   max_seconds=max_seconds / n_rot, seed=seed + 7919 * k + 104_729 * j,
-                                   threads=threads, progress=progress, twist_deg=twist, chunk=chunk,
-                                   setups=setups, max_events=max_events))
+            if n_rot > 1:    # the rotations as one wavefront, stopped on their mean (trace_rotations)
+                parts = trace_rotations(m, mat, wi / np.linalg.norm(wi), det,
+                                        [2.0 * math.pi * (j + 0.5 * h) / n_rot for j in range(n_rot)],
+                                        target_rel_err=r_target, max_rays=max_rays, max_seconds=max_seconds,
+                                        seed=seed + 7919 * k, threads=threads, progress=progress,
+                                        twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)
+            else:
+                parts = [trace(m, mat, wi / np.linalg.norm(wi), det, target_rel_err=r_target, max_rays=max_rays,
+                               max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress,
+                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)]
             halves.append(_mean_of(parts))
         ra, rb = halves
         b = 0.5 * (ra.beta + rb.beta)

@@ -22,9 +22,9 @@ import numpy as np
 from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.woven.materials import K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind, surface_albedo
 from simulate.woven.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
-from simulate.woven.shading import ShadeInputs, new_outputs, shade
+from simulate.woven.shading import ShadeInputs, ShadeOutputs, new_outputs, shade
 
-__all__ = ["STOP_REASONS", "MCResult", "trace", "yarn_radius"]
+__all__ = ["STOP_REASONS", "MCResult", "trace", "trace_rotations", "yarn_radius"]
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +93,13 @@ class _Sums:
         self.albedo_over_one += o.albedo_over_one
         self.continued += o.continued
         self.self_hits += o.self_hits
+
+
+def _new_sums(G: int, D: int, L: int, bins: tuple[int, int]) -> _Sums:
+    """Zero sums of ``G`` groups of ``D`` detectors at ``L`` wavelengths (a leading group axis)."""
+    b = (G, int(bins[0]), int(bins[1]), L)
+    return _Sums(np.zeros((G, D, L)), np.zeros((G, D, L)), np.zeros((G, L)), np.zeros((G, L)), np.zeros((G, L)),
+                 np.zeros((G, L)), np.zeros((G, L)), np.zeros(b), np.zeros(b), rays=0)
 
 
 def yarn_radius(mesh: Any) -> float:
@@ -180,29 +187,40 @@ class _Setup:
         shade(seed, prim, u, v, pos, dirs, weight, self.inputs._replace(detectors=detectors), out)
         return out
 
+    def shade_into(self, seed, prim, u, v, pos, dirs, weight, detectors, out):
+        """:meth:`shade` into given outputs (slices of a wavefront's, :func:`new_outputs`)."""
+        shade(seed, prim, u, v, pos, dirs, weight, self.inputs._replace(detectors=detectors), out)
+
 
 def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...],
            events: int = _MAX_BOUNCES) -> _Sums:
-    """Trace ``n`` rays of the beam from ``w_in`` through the micro-element (one wavefront), each for at
-    most ``events`` scattering events (the rays still going after that count as killed)."""
+    """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element (one wavefront for all ``G``),
+    each for at most ``events`` scattering events (the rays still going after that count as killed).
+
+    ``w_in`` ``[G, 3]`` and ``detectors`` ``[G, D, 3]``: ray ``r`` belongs to group ``r // n`` and is
+    scored towards that group's detectors; the sums carry a leading group axis. The rays of every
+    group go through each bounce's Embree queries together; the shading is called once per group
+    (the rays stay ordered by group, so each group is a contiguous slice of the hits).
+    """
     rng = np.random.default_rng(list(seed))
     L = setup.n_wl
-    D = detectors.shape[0]
+    G, D = detectors.shape[0], detectors.shape[1]
     scene = setup.scene
     stats = {"queries": 0}
     n_mu, n_phi = setup.bins
-    sums = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
-                 np.zeros(L), np.zeros((n_mu, n_phi, L)), np.zeros((n_mu, n_phi, L)), rays=n)
-    origins = np.column_stack([rng.uniform(0, setup.mesh.Lx, n), rng.uniform(0, setup.mesh.Ly, n),
-                               np.full(n, scene.top)])
-    dirs = np.broadcast_to(-np.asarray(w_in, float), (n, 3)).copy()
-    weight = np.ones((n, L))
-    ray = np.arange(n)
-    last = np.full(n, -1, dtype=np.int64)   # the triangle each ray left from (-1: the beam)
+    sums = _new_sums(G, D, L, (n_mu, n_phi))
+    sums.rays = n
+    N = G * n
+    origins = np.column_stack([rng.uniform(0, setup.mesh.Lx, N), rng.uniform(0, setup.mesh.Ly, N),
+                               np.full(N, scene.top)])
+    dirs = np.repeat(-np.asarray(w_in, float), n, axis=0)
+    weight = np.ones((N, L))
+    ray = np.arange(N)
+    last = np.full(N, -1, dtype=np.int64)   # the triangle each ray left from (-1: the beam)
     wrap = bool(getattr(setup.mesh, "open_fibers", False))
-    acc = np.zeros((n, D, L))
-    refl = np.zeros((n, L))
-    trans = np.zeros((n, L))
+    acc = np.zeros((N, D, L))
+    refl = np.zeros((N, L))
+    trans = np.zeros((N, L))
     for bounce in range(events):
         if ray.size == 0:
             break
@@ -213,8 +231,9 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             d = dirs[up]
             imu = np.minimum((d[:, 2] * n_mu).astype(int), n_mu - 1)
             iph = np.minimum(((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_phi).astype(int), n_phi - 1)
-            np.add.at(sums.bins, (imu, iph), weight[up])
-            np.add.at(sums.bins2, (imu, iph), weight[up] ** 2)   # a ray escapes once: its own square
+            g_up = ray[up] // n
+            np.add.at(sums.bins, (g_up, imu, iph), weight[up])
+            np.add.at(sums.bins2, (g_up, imu, iph), weight[up] ** 2)   # a ray escapes once: its own square
         down = hits.prim == ESCAPED_DOWN
         if np.any(down):
             trans[ray[down]] += weight[down]
@@ -225,10 +244,22 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
         if not np.any(h):
             ray = ray[:0]
             break
-        sub = int(rng.integers(0, 2**62))
-        o, d, w, nee_o, nee_c, need, alb, left = setup.shade(sub, hits.prim[h].astype(np.int64), hits.u[h], hits.v[h],
-                                                  hits.position[h], dirs[h], weight[h], detectors)
         hit_ray = ray[h]
+        hit_group = hit_ray // n
+        hp, hu, hv, hpos, hd, hw = (hits.prim[h].astype(np.int64), hits.u[h], hits.v[h], hits.position[h],
+                                    dirs[h], weight[h])
+        if G == 1:
+            o, d, w, nee_o, nee_c, need, alb, left = setup.shade(int(rng.integers(0, 2**62)), hp, hu, hv, hpos, hd,
+                                                                 hw, detectors[0])
+        else:
+            out = new_outputs(hp.size, D, L)
+            cuts = np.searchsorted(hit_group, np.arange(G + 1))
+            for g in range(G):
+                a, b = int(cuts[g]), int(cuts[g + 1])
+                if b > a:
+                    setup.shade_into(int(rng.integers(0, 2**62)), hp[a:b], hu[a:b], hv[a:b], hpos[a:b], hd[a:b],
+                                     hw[a:b], detectors[g], ShadeOutputs(*(x[a:b] for x in out)))
+            o, d, w, nee_o, nee_c, need, alb, left = out
         if wrap:
             nee_o[..., 0] %= setup.mesh.Lx
             nee_o[..., 1] %= setup.mesh.Ly
@@ -238,7 +269,8 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             sums.albedo_over_one += int(np.count_nonzero(alb > 1.0))
         idx_i, idx_e, idx_d = np.nonzero(need)
         if idx_i.size:
-            vis = scene.visible(nee_o[idx_i, idx_e], detectors[idx_d], stats)
+            towards = detectors[0, idx_d] if G == 1 else detectors[hit_group[idx_i], idx_d]
+            vis = scene.visible(nee_o[idx_i, idx_e], towards, stats)
             if np.any(vis):
                 np.add.at(acc, (hit_ray[idx_i[vis]], idx_d[vis]), nee_c[idx_i[vis], idx_e[vis], idx_d[vis]])
         # Russian roulette on the largest spectral weight
@@ -256,14 +288,16 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             origins[:, 0] %= setup.mesh.Lx
             origins[:, 1] %= setup.mesh.Ly
     sums.killed += int(ray.size)
-    tot = acc  # [n, D, L] per-ray totals
-    sums.nee += tot.sum(axis=0)
-    sums.nee2 += np.einsum("ndl,ndl->dl", tot, tot)
-    sums.refl += refl.sum(axis=0)
-    sums.refl2 += (refl ** 2).sum(axis=0)
-    sums.trans += trans.sum(axis=0)
-    sums.trans2 += (trans ** 2).sum(axis=0)
-    sums.energy2 += ((refl + trans) ** 2).sum(axis=0)
+    tot = acc.reshape(G, n, D, L)  # per-ray totals
+    sums.nee += tot.sum(axis=1)
+    sums.nee2 += np.einsum("gndl,gndl->gdl", tot, tot)
+    refl = refl.reshape(G, n, L)
+    trans = trans.reshape(G, n, L)
+    sums.refl += refl.sum(axis=1)
+    sums.refl2 += (refl ** 2).sum(axis=1)
+    sums.trans += trans.sum(axis=1)
+    sums.trans2 += (trans ** 2).sum(axis=1)
+    sums.energy2 += ((refl + trans) ** 2).sum(axis=1)
     sums.embree_rays = stats["queries"]
     return sums
 
@@ -327,21 +361,66 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
         single scattering only: the next-event estimates of each ray's first hit, shadow rays included
         (the shadow-hiding reference, tests/simulate/woven/test_felt_shadow_hiding.py).
     """
+    w_in = np.asarray(w_in, float).reshape(1, 3)
+    det = np.atleast_2d(np.asarray(detectors, float))[None]
+    return _trace(mesh, material, w_in, det, n_wavelengths, target_rel_err=target_rel_err, max_rays=max_rays,
+                  max_seconds=max_seconds, seed=seed, threads=threads, progress=progress, bins=bins, chunk=chunk,
+                  twist_deg=twist_deg, normals=normals, setups=setups, max_events=max_events)[0]
+
+
+def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: Any, detectors: Any,
+                    angles: Any, n_wavelengths: int | None = None, *, target_rel_err: float = 0.01,
+                    max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0, threads: int = 1,
+                    progress: bool = False, bins: tuple[int, int] = (9, 12), chunk: int = CHUNK,
+                    twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex",
+                    setups: dict | None = None, max_events: int = 0) -> list[MCResult]:
+    """:func:`trace` of the incidence and its detectors turned about the normal by each of ``angles`` (radians).
+
+    The rotations are traced together: every chunk holds ``chunk`` rays of each rotation and each
+    bounce of all of them is one Embree query (a felt's rotations, :mod:`simulate.woven.estimate`).
+    Returns one :class:`MCResult` per rotation (``rays``: its own; ``seconds``: an equal share;
+    ``info``: the whole trace's). The run stops when the MEAN over the rotations reaches
+    ``target_rel_err`` (its standard error ``sqrt(sum u_j^2) / K``); ``max_rays`` is the budget
+    of all rotations together, ``max_seconds`` of the whole trace. Other parameters: :func:`trace`.
+    """
+    w = np.asarray(w_in, float).reshape(3)
+    det = np.atleast_2d(np.asarray(detectors, float))
+    rots = [np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+            for a in np.asarray(angles, float).reshape(-1)]
+    if not rots:
+        raise ValueError("trace_rotations: at least one angle")
+    w_all = np.stack([r @ w for r in rots])
+    det_all = np.stack([det @ r.T for r in rots])
+    return _trace(mesh, material, w_all, det_all, n_wavelengths, target_rel_err=target_rel_err,
+                  max_rays=max_rays // len(rots) if max_rays else 0, max_seconds=max_seconds, seed=seed,
+                  threads=threads, progress=progress, bins=bins, chunk=chunk, twist_deg=twist_deg,
+                  normals=normals, setups=setups, max_events=max_events, fit_last_round=True)
+
+
+def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavelengths: int | None, *,
+           target_rel_err: float, max_rays: int, max_seconds: float, seed: int, threads: int, progress: bool,
+           bins: tuple[int, int], chunk: int, twist_deg: tuple[float, float], normals: str,
+           setups: dict | None, max_events: int = 0, fit_last_round: bool = False) -> list[MCResult]:
+    """:func:`trace` of ``G`` groups (``w_in [G, 3]``, ``det [G, D, 3]``); ``max_rays`` per group;
+    stops on the mean over the groups (:func:`trace_rotations`). ``fit_last_round``: after the first
+    round, each round's chunks hold only the rays the target still needs (predicted from the error
+    so far, between ``chunk / 8`` and ``chunk`` a group), so a run overshoots its target by less
+    than a round of full chunks; the sizes follow from the sums alone (not from the threads)."""
     target_rel_err = check_target(target_rel_err)
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 0:
         raise ValueError(f"trace: max_events must be a whole number >= 0 (0: all events), not {max_events!r}")
     events = min(int(max_events), _MAX_BOUNCES) if max_events else _MAX_BOUNCES
-    w_in = np.asarray(w_in, float).reshape(3)
-    det = np.ascontiguousarray(np.atleast_2d(np.asarray(detectors, float)))
+    det = np.ascontiguousarray(det)
+    G = w_in.shape[0]
     # 90 deg exactly (cos 90 deg is 6e-17 in floating point) is an error, not a ray that wraps for ever
-    if w_in[2] <= 1e-12 or np.any(det[:, 2] <= 1e-12):
+    if np.any(w_in[:, 2] <= 1e-12) or np.any(det[..., 2] <= 1e-12):
         raise ValueError("trace: w_in and the detectors must point above the fabric (z > 0)")
-    if min(w_in[2], float(det[:, 2].min())) < math.cos(math.radians(85.0)):
+    if min(float(w_in[:, 2].min()), float(det[..., 2].min())) < math.cos(math.radians(85.0)):
         from simulate.optics.microfacet import OpticsDomainWarning
 
         warnings.warn("fabric MC: directions more than 85 deg from the normal: the next-event radiance goes "
                       "as 1/cos(theta_o) and few rays reach the fabric at grazing incidence; the relative "
-                      "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=2)
+                      "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=3)
     if n_wavelengths is None:
         n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
                          else int(np.size(material.rho)))
@@ -354,11 +433,11 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
         if setups is not None:
             setups[key] = setup
     L = setup.n_wl
-    D = det.shape[0]
-    total = _Sums(np.zeros((D, L)), np.zeros((D, L)), np.zeros(L), np.zeros(L), np.zeros(L), np.zeros(L),
-                  np.zeros(L), np.zeros((bins[0], bins[1], L)), np.zeros((bins[0], bins[1], L)), rays=0)
+    D = det.shape[1]
+    total = _new_sums(G, D, L, bins)
     started = time.perf_counter()
     c = 0
+    next_size = int(chunk)
     stop = "target"
     rel = float("inf")
     bar = None
@@ -369,7 +448,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     try:
         while True:
             jobs = [(seed, c + r) for r in range(_ROUND)]
-            size = int(chunk)
+            size = int(chunk) if c == 0 or not fit_last_round else next_size
             if max_rays:   # the last round is cut so the budget is kept exactly
                 size = max(1, min(size, (int(max_rays) - total.rays) // _ROUND))
             if pool is None:
@@ -379,13 +458,13 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
             for p in parts:     # in chunk order: the sums do not depend on the threads
                 total.add(p)
             c += _ROUND
-            if total.lost > 0.5 * total.rays:
-                raise ValueError(f"trace: {total.lost} of {total.rays} rays never reached the fabric (they run "
+            if total.lost > 0.5 * G * total.rays:
+                raise ValueError(f"trace: {total.lost} of {G * total.rays} rays never reached the fabric (they run "
                                  "parallel to it through the gaps); the incidence is too grazing for this weave")
             mean, u = _mean_se(total.nee, total.nee2, total.rays)
-            rel = _rel_err(mean, u)
+            rel = _rel_err(mean.mean(axis=0), np.sqrt((u ** 2).sum(axis=0)) / G)
             if bar is not None:
-                bar.update(_ROUND * size)
+                bar.update(_ROUND * size * G)
                 bar.set_postfix_str(f"rel. err {rel:.3%} (target {target_rel_err:.2%})")
             if rel <= target_rel_err:
                 stop = "target"
@@ -396,6 +475,9 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
             if max_seconds and time.perf_counter() - started >= max_seconds:
                 stop = "max_seconds"
                 break
+            if fit_last_round:   # the rays the target still needs (rel ~ 1 / sqrt(rays)); short: one more round
+                need = total.rays * ((rel / target_rel_err) ** 2 - 1.0) / _ROUND
+                next_size = int(min(chunk, max(chunk // 8, math.ceil(need) if math.isfinite(need) else chunk)))
     finally:
         if pool is not None:
             pool.shutdown()
@@ -403,22 +485,25 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
             bar.close()
     seconds = time.perf_counter() - started
     n = total.rays
-    mean, u = _mean_se(total.nee, total.nee2, n)
-    cos_o = det[:, 2][:, None]
-    refl, u_refl = _mean_se(total.refl, total.refl2, n)
-    trans, u_trans = _mean_se(total.trans, total.trans2, n)
-    _, u_energy = _mean_se(total.refl + total.trans, total.energy2, n)
+    cos_o = det[..., 2][..., None]
     mu_edges = np.linspace(0, 1, bins[0] + 1)
-    omega = 0.5 * np.diff(mu_edges ** 2)[:, None] * (2 * np.pi / bins[1])
-    f_bins, u_bins = _mean_se(total.bins, total.bins2, n)
-    f_bins = f_bins / omega[:, :, None]
-    u_bins = u_bins / omega[:, :, None]
-    info = {"u_reflected_plus_transmitted": u_energy.tolist(), "lost_rays": total.lost, "killed_at_max_bounces": total.killed, "embree_rays": total.embree_rays,
+    omega = (0.5 * np.diff(mu_edges ** 2)[:, None] * (2 * np.pi / bins[1]))[:, :, None]
+    info: dict[str, Any] = {"lost_rays": total.lost, "killed_at_max_bounces": total.killed, "embree_rays": total.embree_rays,
             "rays_per_second": total.embree_rays / seconds if seconds > 0 else None, "chunk": int(chunk),
             "self_hit_fraction": total.self_hits / max(total.continued, 1)}
     if setup.kind == K_FIBER_BRDF:
         info["local_albedo"] = {"hits": total.hits, "mean_max_over_wavelengths": total.albedo_sum / max(total.hits, 1),
                                 "fraction_above_one": total.albedo_over_one / max(total.hits, 1)}
-    log.info("fabric MC: %d rays, %.1f s, rel. err %.3g (%s)", n, seconds, rel, stop)
-    return MCResult(np.pi * mean / cos_o, np.pi * u / cos_o, refl, u_refl, trans, u_trans, f_bins, u_bins, n,
-                    seconds, rel, stop, info)
+    log.info("fabric MC: %d rays, %.1f s, rel. err %.3g (%s)", n * G, seconds, rel, stop)
+    out = []
+    for g in range(G):
+        mean, u = _mean_se(total.nee[g], total.nee2[g], n)
+        refl, u_refl = _mean_se(total.refl[g], total.refl2[g], n)
+        trans, u_trans = _mean_se(total.trans[g], total.trans2[g], n)
+        _, u_energy = _mean_se(total.refl[g] + total.trans[g], total.energy2[g], n)
+        f_bins, u_bins = _mean_se(total.bins[g], total.bins2[g], n)
+        out.append(MCResult(np.pi * mean / cos_o[g], np.pi * u / cos_o[g], refl, u_refl, trans, u_trans,
+                            f_bins / omega, u_bins / omega, n, seconds / G,
+                            rel if G == 1 else _rel_err(mean, u), stop,
+                            {"u_reflected_plus_transmitted": u_energy.tolist(), **info}))
+    return out

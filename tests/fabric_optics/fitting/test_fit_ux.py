@@ -142,7 +142,8 @@ def test_warnings_at_bound_and_colour_once_each(base_problem, tmp_path, capsys):
                  "--max-evaluations", "30"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == EXIT_COLOUR_OFF == 3                   # a failing fit, distinct from bad input (2)
-    assert sum("at its lower bound: fiber.dye.bands[0].peak_per_um" in line for line in err) == 1
+    # the colour held: the peak goes as far towards the measured hue as its bound lets it
+    assert sum("at its upper bound: fiber.dye.bands[0].peak_per_um" in line for line in err) == 1
     assert sum("colour left off" in line for line in err) == 1
     failed = [line for line in err if "colour left off" in line][0]
     assert failed.startswith("simulate fit: FAILED") and "--dye knots" in failed   # what helps: any colour
@@ -150,6 +151,8 @@ def test_warnings_at_bound_and_colour_once_each(base_problem, tmp_path, capsys):
     doc = json.loads((tmp_path / "f" / "fit.json").read_text())   # the outputs are written, labelled failing
     assert abs(doc["fitted"]["dh"]) > 0.02
     assert doc["verdict"]["passed"] is False and doc["verdict"]["exit_status"] == 3
+    assert doc["objective"]["colour_hold"]["from"] == fit_problem.COLOUR_HOLD_FROM   # the CLI holds the colour
+    assert "hold(dh, ds)" in doc["objective"]["definition"]
     assert "FAILED: colour left off" in (tmp_path / "f" / "fitted.toml").read_text()
     assert (tmp_path / "f" / "fitted" / "radiance.csv").is_file()
 

@@ -83,6 +83,8 @@ def test_fabric_mc_ray_budget_is_reported(inputs, tmp_path, capsys):
 
 def test_fabric_auto_records_the_method_of_every_geometry(inputs, tmp_path, capsys):
     cfg, plan = inputs
+    # a woven [structure]: auto reads the woven fabric's study (simulate.fabric.auto.table_for)
+    cfg.write_text(CONFIG + '[structure]\nkind = "woven"\n')
     out = tmp_path / "auto"
     # at 5 % the shipped red-cotton study (the summation within 3-9 % of the MC) allows the
     # summation at some of these geometries only, the MC at the others
