@@ -32,6 +32,7 @@ def test_mock_vs_simulation_prints_the_verdict_of_the_datasets_it_wrote(tmp_path
     assert code == (0 if printed <= 0.1 and "FAIL" not in out else 1)
 
 
+@pytest.mark.slow   # three fabric methods end to end (about 40 s); the bench's own tests cover the rows
 def test_methods_speed_error_writes_one_row_per_method(tmp_path, capsys):
     out_json = tmp_path / "methods.json"
     assert _main("methods_speed_error.py")(["--target-rel-err", "0.2", "--json", str(out_json)]) == 0
@@ -45,6 +46,7 @@ def test_methods_speed_error_writes_one_row_per_method(tmp_path, capsys):
     assert all(name in printed for name in rows)
 
 
+@pytest.mark.slow   # a felt fit end to end (about 70 s); tests/fabric_optics/fitting cover the fit
 @pytest.mark.timeout(900)
 def test_refit_felt_dye_prints_the_figures_of_its_fit(tmp_path, capsys):
     assert _main("refit_felt_dye.py")([str(tmp_path), "--max-evaluations", "3", "--target-rel-err", "0.2"]) == 0

@@ -378,6 +378,8 @@ def _fake_opposite(calls: list):
     return _stand_in(calls, _Mirrored())
 
 
+@pytest.mark.slow   # two space-mapping fits against a stand-in Monte Carlo (about 70 s); the fine-trend path
+#                     is also run by test_a_parameter_only_the_monte_carlo_sees_is_fitted_by_its_own_trend
 def test_mc_trend_takes_a_parameter_s_trend_from_the_monte_carlo_where_the_summation_s_disagrees(monkeypatch):
     """The stand-in Monte Carlo's RMS slope acts as the summation's mirrored about 0.25: a measurement made at 0.32
     is fitted back from 0.28 only when the slope's trend comes from Monte Carlo runs (--mc-trend); with the
