@@ -181,7 +181,7 @@ def fig_demo_cost() -> str:
     if d.get("cpu_seconds"):
         rows.append(["CPU time (user + system)", f"{d['cpu_seconds']:.0f} s"])
     for step, secs in d.get("steps", {}).items():
-        rows.append([f"of which `{step}`", f"{secs:.0f} s"])
+        rows.append([f"wall time of `{step}`", f"{secs:.0f} s"])
     note = f" ({d['conditions']})" if d.get("conditions") else ""
     return _table(["figure", "value"], rows) + "\n\n" + _source(rec, note)
 
