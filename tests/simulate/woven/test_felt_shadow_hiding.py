@@ -127,11 +127,10 @@ def _trace_periodic(o, d, tubes, cell, z_lo, z_hi, chunk=1000):
     return which, point
 
 
-def reference_single_scatter(mesh, w_in, detectors, n_rays, seed):
-    """Per ray and detector, ``beta`` of the first hit on opaque Lambertian tubes (albedo 1) with the
-    exit seen past the fibers (shadowed) and with every exit taken as free (unshadowed): the ray's
-    terms ``(w_o . N)^+ V / cos theta_o``, whose mean is ``beta = pi f`` (rays of the beam uniform over
-    the cell)."""
+def _first_hits(mesh, w_in, n_rays, seed):
+    """The beam's rays (uniform over the cell, from above the felt) to their first tube: the tubes, the
+    cell, the felt's top and bottom, the rays that hit, where, the unnormalised outward normal there,
+    and the random generator (drawn from further by the caller)."""
     tubes = _tubes(mesh)
     c, a, half, radius = tubes
     reach = half * np.abs(a[:, 2]) + radius
@@ -144,6 +143,16 @@ def reference_single_scatter(mesh, w_in, detectors, n_rays, seed):
     j = which[hit]
     q = p[hit] - c[j]
     normal = q - np.einsum("ij,ij->i", q, a[j])[:, None] * a[j]
+    return tubes, cell, z_lo, z_hi, hit, p, normal, rng
+
+
+def reference_single_scatter(mesh, w_in, detectors, n_rays, seed):
+    """Per ray and detector, ``beta`` of the first hit on opaque Lambertian tubes (albedo 1) with the
+    exit seen past the fibers (shadowed) and with every exit taken as free (unshadowed): the ray's
+    terms ``(w_o . N)^+ V / cos theta_o``, whose mean is ``beta = pi f`` (rays of the beam uniform over
+    the cell)."""
+    tubes, cell, z_lo, z_hi, hit, p, normal, rng = _first_hits(mesh, w_in, n_rays, seed)
+    c, a, half, radius = tubes
     normal /= np.linalg.norm(normal, axis=1)[:, None]        # outward (the inside wall: scattered as outside)
     cos_o = np.clip(normal @ detectors.T, 0.0, None)
     i, k = np.nonzero(cos_o > 0.0)
@@ -257,18 +266,8 @@ def hapke_comparison(n_rays: int = 20_000, seed: int = 7) -> dict:
     th = math.radians(THETA_I)
     w_in = np.array([math.sin(th), 0.0, math.cos(th)])
     detectors = np.vstack([_ring(w_in, r, PER_RING) for r in RINGS])
-    tubes = _tubes(mesh)
+    tubes, cell, z_lo, z_hi, hit, p, normal, rng = _first_hits(mesh, w_in, n_rays, seed)
     c, a, half, radius = tubes
-    reach = half * np.abs(a[:, 2]) + radius
-    z_hi, z_lo = float((c[:, 2] + reach).max()) + 1.0, float((c[:, 2] - reach).min()) - 1.0
-    cell = float(mesh.Lx)
-    rng = np.random.default_rng(seed)
-    o = np.column_stack([rng.uniform(0.0, cell, n_rays), rng.uniform(0.0, cell, n_rays), np.full(n_rays, z_hi)])
-    which, p = _trace_periodic(o, np.tile(-w_in, (n_rays, 1)), tubes, cell, z_lo, z_hi)
-    hit = np.nonzero(which >= 0)[0]
-    j = which[hit]
-    q = p[hit] - c[j]
-    normal = q - np.einsum("ij,ij->i", q, a[j])[:, None] * a[j]
     normal /= np.linalg.norm(normal, axis=1)[:, None]
     start = p[hit] + 1e-6 * radius * normal
     start[:, :2] %= cell
