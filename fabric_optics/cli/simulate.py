@@ -467,7 +467,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                         "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations", metavar="N",
                    help="summation and classic fits: model evaluations of the search in all, steps and Jacobian "
-                        "columns of every start (default 600; the uncertainty propagation afterwards is counted apart)")
+                        "columns of every start (default 800; the uncertainty propagation afterwards is counted apart)")
     p.add_argument("--max-runs", type=_int_in(1, 10**4), default=None, dest="max_runs", metavar="N",
                    help="--method mc: Monte Carlo runs, the start's included (default 5, at least 2)")
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
