@@ -26,11 +26,11 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   whose crimp can be viewed as a plane sine wave). The crimp percentage ``c`` is the straightened length
   less the crimped length over the straightened length; for a sine ``A sin(2 pi x / lambda)`` at
   ``f = 1 / lambda`` waves per unit crimped length, one wave's arc length is ``lambda / (1 - c)``, which
-  sets the amplitude ``A`` (:func:`crimp_amplitude`; 13 % at 4.4 per cm: ``lambda`` 2.27 mm, ``A`` 0.30 mm,
-  the slope up to 40 deg). A fiber of length ``l`` is the piece of arc length ``l`` of that wave about a
+  sets the amplitude ``A`` (:func:`crimp_amplitude`; 13 % at 4.4 per cm: ``lambda`` 2.27 mm, ``A`` 0.29 mm,
+  the slope up to 39 deg). A fiber of length ``l`` is the piece of arc length ``l`` of that wave about a
   uniform random phase: the direction drawn above is the wave's run, its arc's midpoint the fiber's
-  centre. At the green felt's ``l`` = 0.33 mm a fiber is a seventh of a wave: an arc whose tangent
-  turns by up to ``A (2 pi / lambda)^2 l`` (44 deg). The wave lies in the plane of its run and a
+  centre. At the green felt's ``l`` = 0.33 mm a fiber is an eighth of a wave: an arc whose tangent
+  turns by up to ``A (2 pi / lambda)^2 l`` (42 deg; 7 pieces). The wave lies in the plane of its run and a
   displacement perpendicular to it: horizontal (``"felt"``: a crimped fiber laid and pressed flat rests
   on its wave's side; for an in-plane fiber its tangents stay in the plane) or turned about the run by a
   uniform angle (``"random"``: its pieces then tilt out of the plane by up to the slope). Geometry: the
