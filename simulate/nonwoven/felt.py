@@ -484,12 +484,12 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     face_base = (np.arange(n_y) * 2 * n_s * sides).astype(np.int64)
     faces = np.concatenate([grid_faces(n_s, sides, int(vertex_base[y])) for y in range(n_y)]).astype(np.int32)
     vertices = np.concatenate(verts)
-    info = {"fibers": len(C), "images": n_y, "cell_um": L, "fiber_length_um": ell, "thickness_um": top,
-            "layers": layers, "spread_deg": math.degrees(spread),
-            "normal_fibers": n_normal, "triangles": int(faces.shape[0]),
-            "volume_fraction": (bulk_volume_fraction_pieces(C, C[:, None, :] + P0, PD, R, L) if crimp > 0.0
-                                else bulk_volume_fraction(C, T, R, ell, L)),
-            "seed": int(seed)}
+    info: dict = {"fibers": len(C), "images": n_y, "cell_um": L, "fiber_length_um": ell, "thickness_um": top,
+                  "layers": layers, "spread_deg": math.degrees(spread),
+                  "normal_fibers": n_normal, "triangles": int(faces.shape[0]),
+                  "volume_fraction": (bulk_volume_fraction_pieces(C, C[:, None, :] + P0, PD, R, L) if crimp > 0.0
+                                      else bulk_volume_fraction(C, T, R, ell, L)),
+                  "seed": int(seed)}
     if crimp > 0.0:
         info.update({"crimp_percent": crimp, "crimp_wavelength_um": wavelength, "crimp_amplitude_um": amplitude,
                      "crimp_plane": "random" if random_plane else "felt", "pieces": n_s})
