@@ -108,8 +108,8 @@ def test_crimped_fibers_do_not_interpenetrate(monkeypatch, plane):
 
 
 def test_the_crimp_plane_keeps_or_tilts_the_pieces():
-    """"felt": fibers drawn in the plane stay in it (every vertex tangent horizontal); "random": the pieces
-    tilt by up to the sine's slope."""
+    """The plane "felt": fibers drawn in the plane stay in it (every vertex tangent horizontal); "random":
+    the pieces tilt by up to the sine's slope."""
     flat = felt_mesh(_spec(felt_crimp_percent=20.0, felt_crimp_per_cm=10.0, felt_spread_deg=0.0), 10.0, seed=1)
     assert np.allclose(flat.tangents[:, 2], 0.0, atol=1e-12)
     turned = felt_mesh(_spec(felt_crimp_percent=20.0, felt_crimp_per_cm=10.0, felt_spread_deg=0.0,
