@@ -183,11 +183,13 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
     spec = getattr(config, "structure", None)       # twist, or a felt (simulate.nonwoven.felt)
     if spec is not None and spec.kind == "nonwoven":
-        from simulate.nonwoven.felt import felt_mesh
+        from simulate.nonwoven.felt import cached_felt_mesh
 
         # two realisations of the felt, one per table half: their difference puts the spread of the
-        # fibers' placement into u_beta (simulate.woven.estimate, "A felt")
-        felts = tuple(felt_mesh(spec, float(fiber.radius_um), seed=s.seed + FELT_SEED_STRIDE * h) for h in (0, 1))
+        # fibers' placement into u_beta (simulate.woven.estimate, "A felt"); from the table cache, so
+        # the runs of a fit that keeps the structure build them once
+        felts = tuple(cached_felt_mesh(spec, float(fiber.radius_um), seed=s.seed + FELT_SEED_STRIDE * h)[0]
+                      for h in (0, 1))
         mesh: Any = felts
         geometry: dict = {"felt": felts[0].info, "felt_second_realisation": felts[1].info}
     else:

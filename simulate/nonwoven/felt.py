@@ -88,12 +88,13 @@ its own realisation, at several azimuths (:mod:`simulate.woven.estimate`, "A fel
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FeltMesh", "felt_mesh", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
+__all__ = ["FeltMesh", "felt_mesh", "felt_inputs", "felt_key", "cached_felt_mesh", "CACHE_MODULES", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
 
 #: the cell's side and the fibers' length, in fiber radii
 CELL_RADII = 40.0
@@ -383,6 +384,20 @@ def _free_height(gap, span: np.ndarray, zj: np.ndarray, z: float, contact: float
     return z
 
 
+def felt_inputs(spec: object) -> dict:
+    """Every field of ``spec`` the felt is built from (:func:`felt_mesh` reads them here only), with the
+    defaults of a spec that lacks one: with the radius, the seed and the mesh's sizes, the whole of a felt's
+    inputs (the key of :func:`cached_felt_mesh`)."""
+    return {"layers": int(getattr(spec, "layers", 0)),
+            "spacing_ratio": float(getattr(spec, "spacing_ratio", 1.0)),
+            "felt_spread_deg": float(getattr(spec, "felt_spread_deg", 20.0)),
+            "felt_normal_fraction": float(getattr(spec, "felt_normal_fraction", 0.0)),
+            "felt_normal_spread_deg": float(getattr(spec, "felt_normal_spread_deg", 15.0)),
+            "felt_crimp_percent": float(getattr(spec, "felt_crimp_percent", 0.0)),
+            "felt_crimp_per_cm": float(getattr(spec, "felt_crimp_per_cm", 4.4)),
+            "felt_crimp_plane": str(getattr(spec, "felt_crimp_plane", "felt"))}
+
+
 def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FeltMesh:
     """The felt of ``spec`` (:class:`simulate.fabric.structure.StructureSpec`, ``kind = "nonwoven"``) for
     fibers of radius ``radius_um``: random fibers from the stream ``seed`` (module docstring); ``sides`` and
@@ -392,17 +407,18 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     R = float(radius_um)
     L = CELL_RADII * R
     ell = LENGTH_RADII * R
-    layers = int(getattr(spec, "layers", 0)) or 10
-    ratio = float(getattr(spec, "spacing_ratio", 1.0))
-    spread = math.radians(float(getattr(spec, "felt_spread_deg", 20.0)))
-    punched = float(getattr(spec, "felt_normal_fraction", 0.0))
-    tilt_sd = math.radians(float(getattr(spec, "felt_normal_spread_deg", 15.0)))
-    crimp = float(getattr(spec, "felt_crimp_percent", 0.0))
+    given = felt_inputs(spec)
+    layers = given["layers"] or 10
+    ratio = given["spacing_ratio"]
+    spread = math.radians(given["felt_spread_deg"])
+    punched = given["felt_normal_fraction"]
+    tilt_sd = math.radians(given["felt_normal_spread_deg"])
+    crimp = given["felt_crimp_percent"]
     wavelength, amplitude, random_plane = 1.0, 0.0, False
     if crimp > 0.0:                            # crimped fibers (drawn only then: today's felt keeps its stream)
-        wavelength = 1e4 / float(getattr(spec, "felt_crimp_per_cm", 4.4))
+        wavelength = 1e4 / given["felt_crimp_per_cm"]
         amplitude = crimp_amplitude(crimp, wavelength)
-        random_plane = str(getattr(spec, "felt_crimp_plane", "felt")) == "random"
+        random_plane = given["felt_crimp_plane"] == "random"
         n_s = _crimp_pieces(ell, R, amplitude, wavelength, n_s)
     rng = np.random.default_rng([int(seed), 0x7E17])
     target = layers * L * L / ratio           # the layers' projected fiber area
@@ -502,6 +518,41 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
         yarn_length=np.array(yarn_len, float), sides=int(sides), Lx=L, Ly=L,
         z_min=float(vertices[:, 2].min()), z_max=float(vertices[:, 2].max()), yarn_radius_um=R,
         info=info)
+
+
+#: the modules whose source a cached felt depends on (:func:`cached_felt_mesh`)
+CACHE_MODULES = ("simulate.nonwoven.felt", "simulate.fabric.mesh")
+_ARRAYS = ("vertices", "faces", "normals", "tangents", "vertex_s", "vertex_phi", "vertex_yarn", "face_yarn",
+           "vertex_base", "face_base", "n_s", "yarn_length")
+_SCALARS = ("sides", "Lx", "Ly", "z_min", "z_max", "yarn_radius_um", "open_fibers", "info")
+
+
+def felt_key(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> str:
+    """The table cache's key of a felt (:mod:`simulate.fiber.tablecache`): every input of :func:`felt_mesh`
+    (:func:`felt_inputs`, the radius, the seed, the mesh's sizes) and the source of :data:`CACHE_MODULES`."""
+    from simulate.fiber import tablecache
+
+    inputs = {"spec": felt_inputs(spec), "radius_um": float(radius_um), "seed": int(seed), "sides": int(sides),
+              "n_s": int(n_s)}
+    return tablecache.content_key("felt", inputs, CACHE_MODULES)
+
+
+def cached_felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
+                     n_s: int = 4) -> tuple[FeltMesh, bool]:
+    """``(felt, hit)``: :func:`felt_mesh` from the table cache (``FABRIC_OPTICS_CACHE_DIR``), built and stored
+    on a miss. The key (:func:`felt_key`) covers every input and the code, so a hit is the felt a build would
+    give, array for array; the runs of a fit that keeps the structure build each realisation once."""
+    from simulate.fiber import tablecache
+
+    def build() -> dict:
+        m = felt_mesh(spec, radius_um, seed, sides=sides, n_s=n_s)
+        out: dict = {name: getattr(m, name) for name in _ARRAYS}
+        out["scalars"] = np.array(json.dumps({name: getattr(m, name) for name in _SCALARS}))
+        return out
+
+    arrays, hit = tablecache.cached(felt_key(spec, radius_um, seed, sides=sides, n_s=n_s), build)
+    scalars = json.loads(str(arrays["scalars"]))
+    return FeltMesh(**{name: arrays[name] for name in _ARRAYS}, **scalars), hit
 
 
 def fiber_pieces(m: FeltMesh) -> tuple[np.ndarray, np.ndarray]:
