@@ -1,0 +1,82 @@
+"""The felt in the table cache: a hit is the built felt array for array; any changed input is a miss."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from simulate.fabric import structure as ST
+from simulate.fiber import tablecache
+from simulate.nonwoven import felt as FM
+
+
+def _spec(**kw) -> ST.StructureSpec:
+    return ST.StructureSpec(**{"kind": "nonwoven", "felt_spread_deg": 15.0, "layers": 1, **kw})
+
+
+def _assert_same(a: FM.FeltMesh, b: FM.FeltMesh) -> None:
+    for f in dataclasses.fields(FM.FeltMesh):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), f.name
+        else:
+            assert type(x) is type(y) and x == y, f.name
+
+
+@pytest.mark.parametrize("kw", [{}, {"felt_crimp_percent": 13.0}, {"felt_normal_fraction": 0.3}],
+                         ids=["straight", "crimped", "needled"])
+def test_a_hit_returns_the_felt_a_build_gives(cache_dir, kw):
+    built = FM.felt_mesh(_spec(**kw), 10.0, seed=7)
+    first, hit1 = FM.cached_felt_mesh(_spec(**kw), 10.0, seed=7)
+    second, hit2 = FM.cached_felt_mesh(_spec(**kw), 10.0, seed=7)
+    assert (hit1, hit2) == (False, True)
+    assert len(list(cache_dir.glob("felt-*" + tablecache.SUFFIX))) == 1
+    _assert_same(first, built)
+    _assert_same(second, built)
+
+
+def test_a_changed_input_is_a_miss_and_rebuilds(cache_dir):
+    a, _ = FM.cached_felt_mesh(_spec(), 10.0, seed=1)
+    b, hit = FM.cached_felt_mesh(_spec(felt_spread_deg=25.0), 10.0, seed=1)
+    assert not hit
+    assert not np.array_equal(a.tangents[a.vertex_base], b.tangents[b.vertex_base])
+    c, hit = FM.cached_felt_mesh(_spec(), 10.0, seed=2)
+    assert not hit and not np.array_equal(a.vertices[:10], c.vertices[:10])
+    assert len(list(cache_dir.glob("felt-*" + tablecache.SUFFIX))) == 3
+
+
+def test_the_key_covers_every_input_of_the_felt():
+    base = FM.felt_key(_spec(), 10.0, seed=1)
+    assert FM.felt_key(_spec(), 10.0, seed=1) == base
+    changed = {"layers": 3, "packing_fraction": 0.5, "felt_spread_deg": 16.0, "felt_normal_fraction": 0.1,
+               "felt_normal_spread_deg": 20.0, "felt_crimp_percent": 5.0, "felt_crimp_per_cm": 5.0,
+               "felt_crimp_plane": "random"}
+    # every input the felt reads is tried here (the spacing ratio through the packing fraction)
+    assert set(changed) - {"packing_fraction"} | {"spacing_ratio"} == set(FM.felt_inputs(_spec()))
+    for name, value in changed.items():
+        assert FM.felt_key(dataclasses.replace(_spec(), **{name: value}), 10.0, seed=1) != base, name
+    assert FM.felt_key(_spec(), 10.5, seed=1) != base
+    assert FM.felt_key(_spec(), 10.0, seed=2) != base
+    assert FM.felt_key(_spec(), 10.0, seed=1, sides=24) != base
+    assert FM.felt_key(_spec(), 10.0, seed=1, n_s=5) != base
+    # a field the felt does not read (a weave's twist) leaves the key as it is
+    assert FM.felt_key(dataclasses.replace(_spec(), warp_twist_deg=30.0), 10.0, seed=1) == base
+
+
+def test_the_structures_felt_fields_are_all_inputs():
+    names = {f.name for f in dataclasses.fields(ST.StructureSpec)}
+    assert {n for n in names if n.startswith("felt_")} | {"layers", "spacing_ratio"} == set(FM.felt_inputs(_spec()))
+
+
+def test_the_key_follows_the_felt_code(monkeypatch):
+    base = FM.felt_key(_spec(), 10.0, seed=1)
+    seen = []
+
+    def other_code(modules):
+        seen.append(tuple(modules))
+        return "0" * 64
+    monkeypatch.setattr(tablecache, "code_version", other_code)
+    assert FM.felt_key(_spec(), 10.0, seed=1) != base
+    assert "simulate.nonwoven.felt" in seen[0] and "simulate.fabric.mesh" in seen[0]
