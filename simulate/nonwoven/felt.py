@@ -92,6 +92,7 @@ import json
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 __all__ = ["FeltMesh", "felt_mesh", "felt_inputs", "felt_key", "cached_felt_mesh", "CACHE_MODULES", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
@@ -281,15 +282,9 @@ def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndar
     if not near.any():
         return z
     q, Tj, zj = q[near], Tj[near], zj[near]
-
-    def gap(w: np.ndarray, rows: np.ndarray | None) -> np.ndarray:   # axis distance, candidate w above j
-        qq = (q if rows is None else q[rows]).copy()
-        Tr = Tj if rows is None else Tj[rows]
-        qq[:, 2] = w
-        return _segment_distance(qq - 0.5 * ell * t, np.broadcast_to(ell * t, qq.shape), -0.5 * ell * Tr, ell * Tr)
-
+    p1 = q - 0.5 * ell * t                       # the candidate's axis, its centre w above j's (q[:, 2] = 0)
     span = 0.5 * ell * (abs(t[2]) + np.abs(Tj[:, 2])) + contact + 1.0
-    return _free_height(gap, span, zj, z, contact, iters)
+    return _free_height(p1, np.broadcast_to(ell * t, p1.shape), -0.5 * ell * Tj, ell * Tj, span, zj, z, contact, iters)
 
 
 def _lowest_free_height_pieces(xy: np.ndarray, A0: np.ndarray, AD: np.ndarray, C: np.ndarray, P0: np.ndarray,
@@ -335,53 +330,98 @@ def _lowest_free_height_pieces(xy: np.ndarray, A0: np.ndarray, AD: np.ndarray, C
     b0, bd = P0[j, ib], PD[j, ib]                   # ... over the placed piece (its fiber's centre at 0)
     zj = C[j, 2]
 
-    def gap(w: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
-        sel = slice(None) if rows is None else rows
-        p = a0[sel].copy()
-        p[:, 2] += w
-        return _segment_distance(p, ad[sel], b0[sel], bd[sel])
-
     def zext(p0: np.ndarray, pd: np.ndarray) -> np.ndarray:
         return np.maximum(np.abs(p0[:, 2]), np.abs(p0[:, 2] + pd[:, 2]))
 
     span = zext(a0, ad) + zext(b0, bd) + contact + 1.0
-    return _free_height(gap, span, zj, z, contact, iters)
+    return _free_height(a0, ad, b0, bd, span, zj, z, contact, iters)
 
 
-def _free_height(gap, span: np.ndarray, zj: np.ndarray, z: float, contact: float, iters: int) -> float:
+def _free_height(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray, span: np.ndarray, zj: np.ndarray,
+                 z: float, contact: float, iters: int) -> float:
     """The lowest height ``>= z`` outside every pair's overlap interval (:func:`_lowest_free_height`).
 
-    ``gap(w, rows)``: the pairs' axis distances (all pairs, or those of the index array ``rows``) with the
-    candidate ``w`` above the placed piece's fiber centre; ``span``: a relative height beyond which a pair
-    cannot overlap; ``zj``: the placed fibers' centre heights. A pair's overlap heights are one interval
-    (the distance is convex in ``w``): its minimum by golden section, its ends by bisection."""
-    a, b = -span, span.copy()
-    golden = 0.5 * (math.sqrt(5.0) - 1.0)
-    for _ in range(iters):
-        c1, c2 = b - golden * (b - a), a + golden * (b - a)
-        left = gap(c1, None) < gap(c2, None)
-        a, b = np.where(left, a, c1), np.where(left, c2, b)
-    w_min = 0.5 * (a + b)
-    hit = gap(w_min, None) < contact
-    if not hit.any():
-        return z
-    rows = np.flatnonzero(hit)
-    zj, w_min, span = zj[hit], w_min[hit], span[hit]
-    top_in, top_out = w_min.copy(), span.copy()          # the interval's upper end
-    bot_out, bot_in = -span, w_min.copy()                 # and its lower end
-    for _ in range(iters):
-        mid = 0.5 * (top_in + top_out)
-        inside = gap(mid, rows) < contact
-        top_in, top_out = np.where(inside, mid, top_in), np.where(inside, top_out, mid)
-        mid = 0.5 * (bot_out + bot_in)
-        inside = gap(mid, rows) < contact
-        bot_out, bot_in = np.where(inside, bot_out, mid), np.where(inside, mid, bot_in)
-    lo, hi = zj + bot_out, zj + top_out                   # both ends on the free side
+    Pair ``i``: the candidate's segment ``p1[i] + w e_z`` (``w`` its centre's height over the placed
+    piece's fiber centre) along ``d1[i]``, the placed one ``p2[i]`` along ``d2[i]``; ``span``: a relative
+    height beyond which the pair cannot overlap; ``zj``: the placed fibers' centre heights. A pair's overlap
+    heights are one interval (the distance is convex in ``w``): its minimum by golden section, its ends by
+    bisection (:func:`_overlap_intervals`, compiled)."""
+    lo, hi = _overlap_intervals(np.ascontiguousarray(p1, dtype=float), np.ascontiguousarray(d1, dtype=float),
+                                np.ascontiguousarray(p2, dtype=float), np.ascontiguousarray(d2, dtype=float),
+                                np.ascontiguousarray(span, dtype=float), np.ascontiguousarray(zj, dtype=float),
+                                float(contact), int(iters))
     for s0, e0 in zip(*(v[np.argsort(lo)] for v in (lo, hi))):
         if s0 >= z:
             break
         z = max(z, float(e0))
     return z
+
+
+@numba.njit(cache=True)
+def _pair_gap(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray, i: int, w: float) -> float:
+    """:func:`_segment_distance` of pair ``i`` with the candidate raised by ``w``: the same operations in the
+    same order, so the same bits."""
+    r0, r1, r2 = p1[i, 0] - p2[i, 0], p1[i, 1] - p2[i, 1], (p1[i, 2] + w) - p2[i, 2]
+    u0, u1, u2 = d1[i, 0], d1[i, 1], d1[i, 2]
+    v0, v1, v2 = d2[i, 0], d2[i, 1], d2[i, 2]
+    # the dot products summed as numpy's einsum sums three terms: (x0 y0 + x2 y2) + x1 y1
+    a = (u0 * u0 + u2 * u2) + u1 * u1
+    e = (v0 * v0 + v2 * v2) + v1 * v1
+    b = (u0 * v0 + u2 * v2) + u1 * v1
+    c = (u0 * r0 + u2 * r2) + u1 * r1
+    f = (v0 * r0 + v2 * r2) + v1 * r1
+    den = a * e - b * b
+    s = 0.0
+    if den > 1e-12 * a * e:                    # not parallel
+        s = min(max((b * f - c * e) / den, 0.0), 1.0)
+    t = (b * s + f) / e
+    if t < 0.0:
+        s = min(max(-c / a, 0.0), 1.0)
+    elif t > 1.0:
+        s = min(max((b - c) / a, 0.0), 1.0)
+    t = min(max(t, 0.0), 1.0)
+    x0 = r0 + s * u0 - t * v0
+    x1 = r1 + s * u1 - t * v1
+    x2 = r2 + s * u2 - t * v2
+    return math.sqrt((x0 * x0 + x2 * x2) + x1 * x1)
+
+
+@numba.njit(cache=True)
+def _overlap_intervals(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray, span: np.ndarray,
+                       zj: np.ndarray, contact: float, iters: int) -> tuple[np.ndarray, np.ndarray]:
+    """The overlap intervals ``[lo, hi]`` (absolute heights, both ends on the free side) of the pairs that
+    overlap somewhere (:func:`_free_height`), each pair's golden section and bisections in turn."""
+    golden = 0.5 * (math.sqrt(5.0) - 1.0)
+    n = len(span)
+    lo, hi = np.empty(n), np.empty(n)
+    k = 0
+    for i in range(n):
+        a, b = -span[i], span[i]
+        for _ in range(iters):
+            c1, c2 = b - golden * (b - a), a + golden * (b - a)
+            if _pair_gap(p1, d1, p2, d2, i, c1) < _pair_gap(p1, d1, p2, d2, i, c2):
+                b = c2
+            else:
+                a = c1
+        w_min = 0.5 * (a + b)
+        if not _pair_gap(p1, d1, p2, d2, i, w_min) < contact:
+            continue
+        top_in, top_out = w_min, span[i]                # the interval's upper end
+        bot_out, bot_in = -span[i], w_min               # and its lower end
+        for _ in range(iters):
+            mid = 0.5 * (top_in + top_out)
+            if _pair_gap(p1, d1, p2, d2, i, mid) < contact:
+                top_in = mid
+            else:
+                top_out = mid
+            mid = 0.5 * (bot_out + bot_in)
+            if _pair_gap(p1, d1, p2, d2, i, mid) < contact:
+                bot_in = mid
+            else:
+                bot_out = mid
+        lo[k], hi[k] = zj[i] + bot_out, zj[i] + top_out
+        k += 1
+    return lo[:k], hi[:k]
 
 
 def felt_inputs(spec: object) -> dict:

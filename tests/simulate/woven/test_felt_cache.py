@@ -80,3 +80,51 @@ def test_the_key_follows_the_felt_code(monkeypatch):
     monkeypatch.setattr(tablecache, "code_version", other_code)
     assert FM.felt_key(_spec(), 10.0, seed=1) != base
     assert "simulate.nonwoven.felt" in seen[0] and "simulate.fabric.mesh" in seen[0]
+
+
+def _free_height_numpy(p1, d1, p2, d2, span, zj, z, contact, iters):
+    """The placement's lowest free height computed with numpy over all pairs at once (the compiled kernel's
+    reference: golden section for each pair's closest height, bisection for its overlap interval's ends)."""
+    def gap(w, rows):
+        sel = slice(None) if rows is None else rows
+        p = np.array(p1[sel])
+        p[:, 2] += w
+        return FM._segment_distance(p, d1[sel], p2[sel], d2[sel])
+
+    a, b = -span, span.copy()
+    golden = 0.5 * (np.sqrt(5.0) - 1.0)
+    for _ in range(iters):
+        c1, c2 = b - golden * (b - a), a + golden * (b - a)
+        left = gap(c1, None) < gap(c2, None)
+        a, b = np.where(left, a, c1), np.where(left, c2, b)
+    w_min = 0.5 * (a + b)
+    hit = gap(w_min, None) < contact
+    rows = np.flatnonzero(hit)
+    zj, w_min, span = zj[hit], w_min[hit], span[hit]
+    top_in, top_out, bot_out, bot_in = w_min.copy(), span.copy(), -span, w_min.copy()
+    for _ in range(iters):
+        mid = 0.5 * (top_in + top_out)
+        inside = gap(mid, rows) < contact
+        top_in, top_out = np.where(inside, mid, top_in), np.where(inside, top_out, mid)
+        mid = 0.5 * (bot_out + bot_in)
+        inside = gap(mid, rows) < contact
+        bot_out, bot_in = np.where(inside, bot_out, mid), np.where(inside, mid, bot_in)
+    lo, hi = zj + bot_out, zj + top_out
+    for s0, e0 in zip(*(v[np.argsort(lo)] for v in (lo, hi))):
+        if s0 >= z:
+            break
+        z = max(z, float(e0))
+    return z
+
+
+@pytest.mark.parametrize("kw, seed", [({}, 0), ({}, 1_000_003), ({"felt_spread_deg": 5.0}, 5),
+                                      ({"felt_crimp_percent": 13.0}, 3),
+                                      ({"felt_crimp_percent": 20.0, "felt_crimp_per_cm": 10.0,
+                                        "felt_crimp_plane": "random"}, 4),
+                                      ({"felt_normal_fraction": 0.3}, 2)],
+                         ids=["seed0", "seed1000003", "seed5", "crimped", "crimped-random", "needled"])
+def test_the_compiled_placement_builds_the_felt_bit_for_bit(monkeypatch, kw, seed):
+    spec = _spec(layers=3, **kw)
+    fast = FM.felt_mesh(spec, 10.0, seed=seed)
+    monkeypatch.setattr(FM, "_free_height", _free_height_numpy)
+    _assert_same(fast, FM.felt_mesh(spec, 10.0, seed=seed))
