@@ -591,8 +591,9 @@ def cached_felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: in
         return out
 
     arrays, hit = tablecache.cached(felt_key(spec, radius_um, seed, sides=sides, n_s=n_s), build)
-    scalars = json.loads(str(arrays["scalars"]))
-    return FeltMesh(**{name: arrays[name] for name in _ARRAYS}, **scalars), hit
+    fields: dict = {name: arrays[name] for name in _ARRAYS}
+    fields.update(json.loads(str(arrays["scalars"])))
+    return FeltMesh(**fields), hit
 
 
 def fiber_pieces(m: FeltMesh) -> tuple[np.ndarray, np.ndarray]:
