@@ -77,6 +77,13 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   rays that leave from an image outside the cell back into it), vertex normals radial, vertex tangents
   the axis's (a crimped fiber's at each ring); no twist.
 
+* **Cost**: the deposition's overlap intervals (golden section and bisections per pair) are compiled
+  (:func:`_overlap_intervals`, numba), with numpy's operations in numpy's order: the felt is the one the
+  numpy placement builds, bit for bit (tested), in a ninth of its CPU (green felt: 0.68 s instead of
+  6.2 s). :func:`cached_felt_mesh` keeps a built felt in the table cache (:mod:`simulate.fiber.tablecache`,
+  16 MB for the green felt) under every input of it and this module's source: the runs of a fit that keeps
+  the structure load their two realisations (0.03 s each) instead of building them.
+
 The yarn table is the fiber's own (``r_yarn = R``: the exit offsets need no scaling).
 
 Limits: rigid fibers (a real felt's fibers bend where they cross and pack denser), a floor under the first fibers
