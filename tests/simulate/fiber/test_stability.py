@@ -51,7 +51,8 @@ def test_grazing_directions(theta_deg):
     t = math.radians(theta_deg)
     w = np.array([[math.sin(t), 0.0, math.cos(t)], [0.0, math.sin(t), math.cos(t)]])
     fiber = _fiber(1.0, 0.05)
-    est = volume_brdf(fiber, w, w[::-1], [500.0], target_rel_err=0.2, max_photons=50_000, seed=4)
+    # 10000 photons per direction: at 89.99 deg each costs ~15x one at 80 deg and the target is never reached
+    est = volume_brdf(fiber, w, w[::-1], [500.0], target_rel_err=0.2, max_photons=10_000, seed=4)
     _finite_bounded(est)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OpticsDomainWarning)
