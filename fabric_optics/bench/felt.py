@@ -29,7 +29,7 @@ from simulate import fiber as F
 from simulate import woven as W
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
-from simulate.nonwoven.felt import felt_mesh
+from simulate.nonwoven.felt import felt_mesh, fiber_pieces
 
 R_UM = 10.0
 
@@ -37,6 +37,8 @@ R_UM = 10.0
 def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
     """The fraction of the fibers' surface (in the cell) that lies inside another fiber image
     (``m`` a :class:`simulate.nonwoven.felt.FeltMesh`; random points on random fiber images)."""
+    if m.info.get("crimp_amplitude_um", 0.0) > 0.0:
+        return _buried_fraction_pieces(m, n, seed)
     ring = (int(m.n_s[0]) + 1) * (int(m.sides) + 1)
     cent = np.array([m.vertices[b:b + ring].reshape(int(m.n_s[0]) + 1, int(m.sides) + 1, 3)[:, :-1].mean(axis=(0, 1)) for b in m.vertex_base])
     tan = m.tangents[m.vertex_base]
@@ -59,6 +61,35 @@ def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
         a = d @ tan[j]
         r2 = np.einsum("ij,ij->i", d, d) - a * a
         buried |= (j != k) & (np.abs(a) <= ell / 2) & (r2 < R_UM * R_UM)
+    return float(buried.mean())
+
+
+def _buried_fraction_pieces(m: Any, n: int, seed: int) -> float:
+    """:func:`buried_fraction` of a felt of crimped fibers: random points on the pieces of the fibers'
+    polylines (:func:`simulate.nonwoven.felt.fiber_pieces`), inside another image's piece cylinder."""
+    S, D = fiber_pieces(m)
+    R = float(m.yarn_radius_um)
+    length = np.linalg.norm(D, axis=2)
+    rng = np.random.default_rng(seed)
+    k = rng.integers(0, S.shape[0], n)
+    i = rng.integers(0, S.shape[1], n)
+    f = rng.uniform(0.0, 1.0, n)
+    ph = rng.uniform(0, 2 * np.pi, n)
+    t = D[k, i] / length[k, i][:, None]
+    helper = np.where(np.abs(t[:, 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    u = np.cross(helper, t)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    v = np.cross(t, u)
+    p = S[k, i] + f[:, None] * D[k, i] + R * (np.cos(ph)[:, None] * u + np.sin(ph)[:, None] * v)
+    keep = (p[:, 0] >= 0) & (p[:, 0] < m.Lx) & (p[:, 1] >= 0) & (p[:, 1] < m.Ly)
+    p, k = p[keep], k[keep]
+    buried = np.zeros(len(p), bool)
+    for j in range(S.shape[0]):
+        e = D[j] / length[j][:, None]
+        d = p[None, :, :] - (S[j] + 0.5 * D[j])[:, None, :]
+        a = np.einsum("pij,pj->pi", d, e)
+        r2 = np.einsum("pij,pij->pi", d, d) - a * a
+        buried |= (j != k) & ((np.abs(a) <= 0.5 * length[j][:, None]) & (r2 < R * R)).any(axis=0)
     return float(buried.mean())
 
 

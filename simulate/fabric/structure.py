@@ -81,6 +81,9 @@ class StructureSpec:
     felt_spread_deg: float = 20.0
     felt_normal_fraction: float = 0.0
     felt_normal_spread_deg: float = 15.0
+    felt_crimp_percent: float = 0.0
+    felt_crimp_per_cm: float = 4.4
+    felt_crimp_plane: str = "felt"
     samples: int = 48
 
     @property
@@ -98,6 +101,11 @@ REMOVED_KEYS = {
     "interior": "the light returned from the fiber layers below is always included - delete the line",
     "interior_return": "the light returned from below is always the diffuse closure's - delete the line",
 }
+
+
+#: ``[structure]`` keys of a felt's Monte Carlo only (refused in a woven structure)
+FELT_ONLY_KEYS = ("felt_normal_fraction", "felt_normal_spread_deg", "felt_crimp_percent", "felt_crimp_per_cm",
+                  "felt_crimp_plane")
 
 
 def structure_from_table(t: Any) -> StructureSpec:
@@ -118,6 +126,15 @@ def structure_from_table(t: Any) -> StructureSpec:
                                     # the normal (needle punching), [0, 0.9]; 0: every fiber in-plane as above
         felt_normal_spread_deg = 15 # nonwoven, Monte Carlo: standard deviation of those fibers' tilt away
                                     # from the normal, [0, 45]
+        felt_crimp_percent = 0      # nonwoven, Monte Carlo: the fibers' crimp, (straightened - crimped
+                                    # length) / straightened length in %, [0, 40]; 0: straight fibers.
+                                    # A 2-denier polyester staple: 13 (crimp index, Texcoms Textile
+                                    # Technical Handbook 2023, polyester fibre characterisation)
+        felt_crimp_per_cm = 4.4     # nonwoven, Monte Carlo: crimp waves per cm of crimped fiber, (0, 20];
+                                    # 11 per 25 mm for the same fiber (ibid.)
+        felt_crimp_plane = "felt"   # nonwoven, Monte Carlo: the plane each fiber's crimp wave lies in:
+                                    # "felt" (the wave sideways, in the felt's plane: a crimped fiber
+                                    # laid and pressed flat) | "random" (turned about the fiber's axis)
         samples = 48                # woven: surface samples per side of the micro-element, [4, 512]
 
     The keys of :data:`REMOVED_KEYS` and ``kind = "felt"`` are refused with what to write instead.
@@ -138,11 +155,14 @@ def structure_from_table(t: Any) -> StructureSpec:
         felt_spread_deg=t.number("felt_spread_deg", 20.0, ge=0.0, le=60.0),
         felt_normal_fraction=t.number("felt_normal_fraction", 0.0, ge=0.0, le=0.9),
         felt_normal_spread_deg=t.number("felt_normal_spread_deg", 15.0, ge=0.0, le=45.0),
+        felt_crimp_percent=t.number("felt_crimp_percent", 0.0, ge=0.0, le=40.0),
+        felt_crimp_per_cm=t.number("felt_crimp_per_cm", 4.4, gt=0.0, le=20.0),
+        felt_crimp_plane=t.string("felt_crimp_plane", "felt", choices=("felt", "random")),
         samples=t.integer("samples", 48, ge=4, le=512),
     )
     t.done()
     if spec.kind != "nonwoven":
-        for key in ("felt_normal_fraction", "felt_normal_spread_deg"):
+        for key in FELT_ONLY_KEYS:
             if key in t.data:
                 raise t.fail(key, 'is a felt\'s (kind = "nonwoven"); remove it from a woven structure')
     return spec
@@ -241,12 +261,17 @@ def woven_facets(weave: Any, spec: StructureSpec) -> Facets:
 def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Facets:
     """Nonwoven felt: fibers of uniform in-plane direction and Gaussian inclination (module docstring).
 
-    The needle-punched population (``felt_normal_fraction``) is the Monte Carlo's felt's only
-    (:mod:`simulate.nonwoven.felt`): here it is left out, and said so once per process."""
+    The needle-punched population (``felt_normal_fraction``) and the crimp (``felt_crimp_percent``) are the
+    Monte Carlo's felt's only (:mod:`simulate.nonwoven.felt`): here they are left out, and said so once per
+    process."""
     if spec.felt_normal_fraction > 0.0 and not _NORMAL_NOTED:
         _NORMAL_NOTED.append(True)
         log.warning("the summation's felt has its fibers in the plane only: [structure] felt_normal_fraction "
                     "(%.3g) is taken by --method mc only", spec.felt_normal_fraction)
+    if spec.felt_crimp_percent > 0.0 and not _CRIMP_NOTED:
+        _CRIMP_NOTED.append(True)
+        log.warning("the summation's felt has straight fibers: [structure] felt_crimp_percent (%.3g) is taken by "
+                    "--method mc only", spec.felt_crimp_percent)
     az = (np.arange(n_azimuth) + 0.5) * math.pi / n_azimuth
     x, w = np.polynomial.hermite_e.hermegauss(n_incl)
     eps = np.radians(spec.felt_spread_deg) * x
@@ -262,6 +287,7 @@ def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Fa
 
 
 _NORMAL_NOTED: list[bool] = []
+_CRIMP_NOTED: list[bool] = []
 
 
 def merged(facets: Facets, tolerance: float = 0.01) -> Facets:

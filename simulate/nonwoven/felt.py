@@ -1,4 +1,4 @@
-r"""A nonwoven felt for the woven-fabric tracer: a random layer of straight fibers in a periodic cell.
+r"""A nonwoven felt for the woven-fabric tracer: a random layer of fibers in a periodic cell.
 
 The summation's felt (:func:`simulate.fabric.structure.felt_facets`, docs/physics.md 6.2) has fibers
 whose in-plane direction is uniform in ``[0, 180)`` deg and whose inclination ``epsilon`` out of the
@@ -7,7 +7,7 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
 
 * **Cell**: ``[0, L) x [0, L)`` with ``L = 40 R`` (``R`` the fiber radius), periodic as the weave's
   micro-element (:mod:`simulate.woven.scene`).
-* **Fibers**: straight circular tubes of radius ``R``, length ``l = 40 R``, each with a uniform
+* **Fibers**: circular tubes of radius ``R``, length ``l = 40 R`` (straight, or crimped: below), each with a uniform
   random in-plane position and a direction drawn from the distribution above. A fiber that crosses
   the cell's sides is also put in at its periodic images (shifted by ``+-L``), so the cell tiles the
   plane seamlessly.
@@ -21,6 +21,28 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   them and may stand out of the top. The fraction 0 (the default) draws nothing more from the stream:
   the felt is bit for bit the in-plane one. The summation's felt (6.2) has no such population (a
   warning says so).
+* **Crimp** (``felt_crimp_percent``, ``felt_crimp_per_cm``, ``felt_crimp_plane``): staple fibers are
+  crimped, a wave the fiber keeps in the felt (ASTM D3937 measures its frequency for manufactured staple
+  whose crimp can be viewed as a plane sine wave). The crimp percentage ``c`` is the straightened length
+  less the crimped length over the straightened length; for a sine ``A sin(2 pi x / lambda)`` at
+  ``f = 1 / lambda`` waves per unit crimped length, one wave's arc length is ``lambda / (1 - c)``, which
+  sets the amplitude ``A`` (:func:`crimp_amplitude`; 13 % at 4.4 per cm: ``lambda`` 2.27 mm, ``A`` 0.29 mm,
+  the slope up to 39 deg). A fiber of length ``l`` is the piece of arc length ``l`` of that wave about a
+  uniform random phase: the direction drawn above is the wave's run, its arc's midpoint the fiber's
+  centre. At the green felt's ``l`` = 0.33 mm a fiber is an eighth of a wave: an arc whose tangent
+  turns by up to ``A (2 pi / lambda)^2 l`` (42 deg; 7 pieces). The wave lies in the plane of its run and a
+  displacement perpendicular to it: horizontal (``"felt"``: a crimped fiber laid and pressed flat rests
+  on its wave's side; for an in-plane fiber its tangents stay in the plane) or turned about the run by a
+  uniform angle (``"random"``: its pieces then tilt out of the plane by up to the slope). Geometry: the
+  axis is a polyline of ``n_s`` pieces at uniform arc length (enough that it leaves the sine by at most
+  ``CRIMP_SAGITTA R`` between rings, at most ``MAX_PIECES``), its rings perpendicular to the sine's
+  tangent in a parallel-transported frame, so that ``(s, phi)`` stay the tube's coordinates
+  (:func:`_crimped_tube`); its images are chosen by the polyline's box. Deposition: the lowest-gap
+  argument below holds per pair of straight pieces, so a crimped fiber is placed against every placed
+  piece that can meet it (:func:`_lowest_free_height_pieces`); the volume fraction counts points in the
+  pieces' cylinders. A crimped fiber lying in the plane counts its polyline's projected area in the amount
+  below. At ``felt_crimp_percent = 0`` (the default) nothing is drawn for it: the felt is the straight
+  one bit for bit. The summation's felt (6.2) has straight fibers (a warning says so).
 * **How many**: the summation's felt is ``layers`` (``structure.layers``, default 10) layers of
   parallel fibers at spacing ``d = 2 R spacing_ratio`` (the packing fraction's); here the fibers'
   projected area ``2 R l cos(epsilon)`` adds up to the same ``layers L^2 / spacing_ratio`` (the same
@@ -52,11 +74,12 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
 * **Mesh**: the weave mesh's contract (:mod:`simulate.fabric.weave`): one "yarn" per fiber image,
   ``(n_s + 1) x (sides + 1)`` vertices, ``s`` the arc length along the fiber (``open_fibers``: the
   tracer clamps exits to the tube's ends instead of wrapping them round a periodic yarn, and puts
-  rays that leave from an image outside the cell back into it), vertex normals radial; no twist.
+  rays that leave from an image outside the cell back into it), vertex normals radial, vertex tangents
+  the axis's (a crimped fiber's at each ring); no twist.
 
 The yarn table is the fiber's own (``r_yarn = R``: the exit offsets need no scaling).
 
-Limits: straight fibers (a real felt's fibers are crimped, curl and pack denser), a floor under the first fibers
+Limits: rigid fibers (a real felt's fibers bend where they cross and pack denser), a floor under the first fibers
 (the felt's bottom is flat; with 10 layers' fiber little light reaches it), a cell of 40 R (about
 20 fibers across): one realisation varies from the next by ~2 % of each direction's peak (green felt),
 which ``simulate fabric --method mc`` puts into ``u_beta`` by tracing each of its two table halves on
@@ -70,7 +93,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FeltMesh", "felt_mesh", "CELL_RADII", "LENGTH_RADII"]
+__all__ = ["FeltMesh", "felt_mesh", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
 
 #: the cell's side and the fibers' length, in fiber radii
 CELL_RADII = 40.0
@@ -78,6 +101,10 @@ LENGTH_RADII = 40.0
 #: two fibers' axes are kept at least this many diameters apart (a margin for rounding; the mesh's
 #: polygonal tubes are inscribed in the cylinders)
 CONTACT = 1.0 + 1e-6
+#: a crimped fiber's polyline leaves its sine by at most this many fiber radii between two rings, with
+#: at most ``MAX_PIECES`` pieces (:func:`_crimp_pieces`)
+CRIMP_SAGITTA = 0.1
+MAX_PIECES = 16
 
 
 @dataclass
@@ -122,6 +149,89 @@ def _tube(c: np.ndarray, t: np.ndarray, radius: float, length: float, n_s: int, 
     pts = c + (S[..., None] - 0.5 * length) * t + radius * nrm
     PHI = np.broadcast_to(phi[None, :], S.shape)
     return pts.reshape(-1, 3), nrm.reshape(-1, 3), S.reshape(-1), PHI.reshape(-1)
+
+
+def crimp_amplitude(percent: float, wavelength: float) -> float:
+    """The amplitude ``A`` of the sine ``A sin(2 pi x / wavelength)`` whose crimp is ``percent``: one wave's
+    arc length is ``wavelength / (1 - percent / 100)`` (module docstring, "Crimp"). 0 at 0."""
+    c = float(percent) / 100.0
+    if c <= 0.0:
+        return 0.0
+    target = 1.0 / (1.0 - c)
+    u = 2.0 * math.pi * np.arange(4096) / 4096    # one period: the mean of a periodic integrand
+
+    def stretch(k: float) -> float:                  # arc length over wavelength at slope amplitude k
+        return float(np.mean(np.sqrt(1.0 + (k * np.cos(u)) ** 2)))
+
+    lo, hi = 0.0, 2.0 * target + 1.0                  # stretch(k) >= 2 k / pi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if stretch(mid) < target else (lo, mid)
+    return 0.5 * (lo + hi) * wavelength / (2.0 * math.pi)
+
+
+def crimp_axis(length: float, amplitude: float, wavelength: float, phase: float, n: int):
+    """A crimped fiber's axis in its wave's frame: ``n + 1`` points at uniform arc length over ``length``
+    on ``y = A (sin(k x + phase) - sin(phase))`` (``k = 2 pi / wavelength``), the arc's midpoint at the
+    origin. Returns ``x``, ``y`` and the slope ``dy/dx`` at the points."""
+    k = 2.0 * math.pi / wavelength
+    x = np.linspace(-0.5 * length, 0.5 * length, 4001)   # the arc is at least its chord: x within +-l/2
+    ds = np.sqrt(1.0 + (amplitude * k * np.cos(k * x + phase)) ** 2)
+    s = np.concatenate([[0.0], np.cumsum(0.5 * (ds[1:] + ds[:-1]) * np.diff(x))])
+    s -= s[2000]                                          # arc length from the midpoint x = 0
+    xk = np.interp(length * (np.arange(n + 1) / n - 0.5), s, x)
+    return (xk, amplitude * (np.sin(k * xk + phase) - math.sin(phase)),
+            amplitude * k * np.cos(k * xk + phase))
+
+
+def _crimp_pieces(ell: float, R: float, amplitude: float, wavelength: float, n_s: int) -> int:
+    """Pieces of a crimped fiber's polyline: its axis leaves the sine by at most ``CRIMP_SAGITTA R``
+    between two rings (the sagitta ``l^2 kappa / 8`` at the sine's largest curvature ``A k^2``),
+    at least ``n_s``, at most ``MAX_PIECES``."""
+    kappa = amplitude * (2.0 * math.pi / wavelength) ** 2
+    if kappa <= 0.0:
+        return n_s
+    piece = math.sqrt(8.0 * CRIMP_SAGITTA * R / kappa)
+    return int(min(max(math.ceil(ell / piece), n_s), MAX_PIECES))
+
+
+def _crimp_plane(t: np.ndarray, turn: float) -> np.ndarray:
+    """The crimp's displacement direction for a fiber along ``t``: the horizontal perpendicular ``z x t``
+    (the felt's plane), turned by ``turn`` about ``t``."""
+    h = np.cross([0.0, 0.0, 1.0], t)
+    if np.linalg.norm(h) < 1e-9:                          # a fiber along the normal: any perpendicular
+        h = np.cross([1.0, 0.0, 0.0], t)
+    h /= np.linalg.norm(h)
+    return h if turn == 0.0 else math.cos(turn) * h + math.sin(turn) * np.cross(t, h)
+
+
+def _crimped_tube(c: np.ndarray, t: np.ndarray, d: np.ndarray, radius: float, length: float, amplitude: float,
+                  wavelength: float, phase: float, n_s: int, sides: int):
+    """Vertices, normals, tangents, s and phi of one crimped tube: its axis :func:`crimp_axis` in the plane of
+    ``t`` (the wave's run) and ``d`` (its displacement, unit, perpendicular to ``t``), the arc's midpoint at
+    ``c``; rings of ``sides`` at its ``n_s + 1`` points, perpendicular to the sine's tangent there, in a
+    parallel-transported frame (``phi`` continuous along the fiber). Also the ring centres."""
+    x, y, slope = crimp_axis(length, amplitude, wavelength, phase, n_s)
+    P = c + x[:, None] * t + y[:, None] * d
+    T = t + slope[:, None] * d
+    T /= np.linalg.norm(T, axis=1)[:, None]
+    helper = np.array([0.0, 0.0, 1.0]) if abs(T[0, 2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    U = np.zeros_like(T)
+    U[0] = np.cross(helper, T[0])
+    U[0] /= np.linalg.norm(U[0])
+    for k in range(1, n_s + 1):                           # transport: drop the new tangent's component
+        u = U[k - 1] - (U[k - 1] @ T[k]) * T[k]
+        U[k] = u / np.linalg.norm(u)
+    V = np.cross(T, U)                                    # (u, v, t) right-handed, as a straight tube
+    phi = 2.0 * math.pi * np.arange(sides + 1) / sides
+    cos, sin = np.cos(phi), np.sin(phi)
+    cos[-1], sin[-1] = cos[0], sin[0]
+    nrm = cos[None, :, None] * U[:, None, :] + sin[None, :, None] * V[:, None, :]
+    pts = P[:, None, :] + radius * nrm
+    S = np.broadcast_to(np.linspace(0.0, length, n_s + 1)[:, None], nrm.shape[:2])
+    PHI = np.broadcast_to(phi[None, :], nrm.shape[:2])
+    tans = np.broadcast_to(T[:, None, :], nrm.shape)
+    return (pts.reshape(-1, 3), nrm.reshape(-1, 3), tans.reshape(-1, 3), S.reshape(-1), PHI.reshape(-1), P)
 
 
 def _segment_distance(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -> np.ndarray:
@@ -171,31 +281,99 @@ def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndar
         return z
     q, Tj, zj = q[near], Tj[near], zj[near]
 
-    def gap(w: np.ndarray) -> np.ndarray:      # axis distance, candidate's centre w above fiber j's
-        qq = q.copy()
+    def gap(w: np.ndarray, rows: np.ndarray | None) -> np.ndarray:   # axis distance, candidate w above j
+        qq = (q if rows is None else q[rows]).copy()
+        Tr = Tj if rows is None else Tj[rows]
         qq[:, 2] = w
-        return _segment_distance(qq - 0.5 * ell * t, np.broadcast_to(ell * t, qq.shape), -0.5 * ell * Tj, ell * Tj)
+        return _segment_distance(qq - 0.5 * ell * t, np.broadcast_to(ell * t, qq.shape), -0.5 * ell * Tr, ell * Tr)
 
     span = 0.5 * ell * (abs(t[2]) + np.abs(Tj[:, 2])) + contact + 1.0
+    return _free_height(gap, span, zj, z, contact, iters)
+
+
+def _lowest_free_height_pieces(xy: np.ndarray, A0: np.ndarray, AD: np.ndarray, C: np.ndarray, P0: np.ndarray,
+                               PD: np.ndarray, R: float, L: float, iters: int = 36) -> float:
+    """:func:`_lowest_free_height` for fibers made of straight pieces (a crimped fiber's polyline).
+
+    The candidate's pieces start at ``A0`` (``[n, 3]``, from its centre) with vectors ``AD``; the placed
+    fibers' centres are ``C`` (``[m, 3]``), their pieces ``P0``, ``PD`` (``[m, n, 3]``). The argument holds
+    per pair of pieces (the distance between a vertically moved segment and a fixed one is convex in the
+    move), so every pair that can meet gives one interval of forbidden heights, and the candidate goes at
+    the lowest height above the floor outside all of them. Pairs that cannot meet are left out first: whole
+    fibers by their reach in the plane, then pieces by their midpoints' distance in the plane."""
+    ends = np.concatenate([A0[:, 2], A0[:, 2] + AD[:, 2]])
+    z = R - float(ends.min())                       # resting on the floor z = 0
+    if len(C) == 0:
+        return z
+    contact = 2.0 * R * CONTACT
+    shifts = np.array([[i * L, j * L] for i in (-1, 0, 1) for j in (-1, 0, 1)])
+    dxy = xy[None, :] - C[:, :2]
+    dxy -= L * np.round(dxy / L)                    # the nearest image, then its neighbours
+    q = (dxy[:, None, :] + shifts[None]).reshape(-1, 2)
+    fiber = np.repeat(np.arange(len(C)), 9)
+
+    def reach(p0: np.ndarray, pd: np.ndarray) -> np.ndarray:     # farthest point from the centre, in the plane
+        return np.maximum(np.linalg.norm(p0[..., :2], axis=-1), np.linalg.norm((p0 + pd)[..., :2], axis=-1)).max(-1)
+
+    near = np.linalg.norm(q, axis=1) < reach(A0, AD) + reach(P0, PD)[fiber] + contact
+    if not near.any():
+        return z
+    q, fiber = q[near], fiber[near]
+    # every (image, candidate piece, placed piece) whose midpoints are close enough in the plane
+    am = A0 + 0.5 * AD                               # [n, 3]
+    bm = P0[fiber] + 0.5 * PD[fiber]                 # [K, n, 3]
+    sep = q[:, None, None, :] + am[None, :, None, :2] - bm[:, None, :, :2]
+    half = 0.5 * (np.linalg.norm(AD, axis=1)[None, :, None] + np.linalg.norm(PD[fiber], axis=2)[:, None, :])
+    img, ia, ib = np.nonzero(np.linalg.norm(sep, axis=-1) < half + contact)
+    if len(img) == 0:
+        return z
+    j = fiber[img]
+    qa = np.zeros((len(img), 3))
+    qa[:, :2] = q[img]
+    a0, ad = qa + A0[ia], AD[ia]                    # the candidate's piece, its centre at height 0 ...
+    b0, bd = P0[j, ib], PD[j, ib]                   # ... over the placed piece (its fiber's centre at 0)
+    zj = C[j, 2]
+
+    def gap(w: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+        sel = slice(None) if rows is None else rows
+        p = a0[sel].copy()
+        p[:, 2] += w
+        return _segment_distance(p, ad[sel], b0[sel], bd[sel])
+
+    def zext(p0: np.ndarray, pd: np.ndarray) -> np.ndarray:
+        return np.maximum(np.abs(p0[:, 2]), np.abs(p0[:, 2] + pd[:, 2]))
+
+    span = zext(a0, ad) + zext(b0, bd) + contact + 1.0
+    return _free_height(gap, span, zj, z, contact, iters)
+
+
+def _free_height(gap, span: np.ndarray, zj: np.ndarray, z: float, contact: float, iters: int) -> float:
+    """The lowest height ``>= z`` outside every pair's overlap interval (:func:`_lowest_free_height`).
+
+    ``gap(w, rows)``: the pairs' axis distances (all pairs, or those of the index array ``rows``) with the
+    candidate ``w`` above the placed piece's fiber centre; ``span``: a relative height beyond which a pair
+    cannot overlap; ``zj``: the placed fibers' centre heights. A pair's overlap heights are one interval
+    (the distance is convex in ``w``): its minimum by golden section, its ends by bisection."""
     a, b = -span, span.copy()
     golden = 0.5 * (math.sqrt(5.0) - 1.0)
     for _ in range(iters):
         c1, c2 = b - golden * (b - a), a + golden * (b - a)
-        left = gap(c1) < gap(c2)
+        left = gap(c1, None) < gap(c2, None)
         a, b = np.where(left, a, c1), np.where(left, c2, b)
     w_min = 0.5 * (a + b)
-    hit = gap(w_min) < contact
+    hit = gap(w_min, None) < contact
     if not hit.any():
         return z
-    q, Tj, zj, w_min, span = q[hit], Tj[hit], zj[hit], w_min[hit], span[hit]
+    rows = np.flatnonzero(hit)
+    zj, w_min, span = zj[hit], w_min[hit], span[hit]
     top_in, top_out = w_min.copy(), span.copy()          # the interval's upper end
     bot_out, bot_in = -span, w_min.copy()                 # and its lower end
     for _ in range(iters):
         mid = 0.5 * (top_in + top_out)
-        inside = gap(mid) < contact
+        inside = gap(mid, rows) < contact
         top_in, top_out = np.where(inside, mid, top_in), np.where(inside, top_out, mid)
         mid = 0.5 * (bot_out + bot_in)
-        inside = gap(mid) < contact
+        inside = gap(mid, rows) < contact
         bot_out, bot_in = np.where(inside, bot_out, mid), np.where(inside, mid, bot_in)
     lo, hi = zj + bot_out, zj + top_out                   # both ends on the free side
     for s0, e0 in zip(*(v[np.argsort(lo)] for v in (lo, hi))):
@@ -207,7 +385,8 @@ def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndar
 
 def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FeltMesh:
     """The felt of ``spec`` (:class:`simulate.fabric.structure.StructureSpec`, ``kind = "nonwoven"``) for
-    fibers of radius ``radius_um``: random fibers from the stream ``seed`` (module docstring)."""
+    fibers of radius ``radius_um``: random fibers from the stream ``seed`` (module docstring); ``sides`` and
+    ``n_s`` the tubes' sides and pieces (a crimped fiber's pieces: at least ``n_s``, :func:`_crimp_pieces`)."""
     from simulate.fabric.mesh import grid_faces
 
     R = float(radius_um)
@@ -218,11 +397,20 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     spread = math.radians(float(getattr(spec, "felt_spread_deg", 20.0)))
     punched = float(getattr(spec, "felt_normal_fraction", 0.0))
     tilt_sd = math.radians(float(getattr(spec, "felt_normal_spread_deg", 15.0)))
+    crimp = float(getattr(spec, "felt_crimp_percent", 0.0))
+    wavelength, amplitude, random_plane = 1.0, 0.0, False
+    if crimp > 0.0:                            # crimped fibers (drawn only then: today's felt keeps its stream)
+        wavelength = 1e4 / float(getattr(spec, "felt_crimp_per_cm", 4.4))
+        amplitude = crimp_amplitude(crimp, wavelength)
+        random_plane = str(getattr(spec, "felt_crimp_plane", "felt")) == "random"
+        n_s = _crimp_pieces(ell, R, amplitude, wavelength, n_s)
     rng = np.random.default_rng([int(seed), 0x7E17])
     target = layers * L * L / ratio           # the layers' projected fiber area
     area = 0.0
     n_normal = 0
     C, T = np.zeros((0, 3)), np.zeros((0, 3))
+    P0, PD = np.zeros((0, n_s, 3)), np.zeros((0, n_s, 3))   # crimped: each fiber's pieces, from its centre
+    planes, phases = [], []
     while area < target:
         az = rng.uniform(0.0, math.pi)
         # a needle-punched fiber (drawn only when the fraction is set: today's felt keeps its stream)
@@ -234,30 +422,59 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
             eps = 0.5 * math.pi - tilt
             amount = 2.0 * R * ell             # its material, counted as a fiber lying flat
             n_normal += 1
+            flat = False
         else:
             eps = rng.normal(0.0, spread) if spread > 0 else 0.0
             while abs(eps) > math.radians(80.0):
                 eps = rng.normal(0.0, spread)
             amount = 2.0 * R * ell * math.cos(eps)
+            flat = True
         t = np.array([math.cos(eps) * math.cos(az), math.cos(eps) * math.sin(az), math.sin(eps)])
         xy = np.array([rng.uniform(0.0, L), rng.uniform(0.0, L)])
-        z = _lowest_free_height(xy, t, C, T, R, ell, L)
+        if crimp > 0.0:
+            phase = rng.uniform(0.0, 2.0 * math.pi)
+            d = _crimp_plane(t, rng.uniform(0.0, 2.0 * math.pi) if random_plane else 0.0)
+            x, y, _ = crimp_axis(ell, amplitude, wavelength, phase, n_s)
+            pts = x[:, None] * t + y[:, None] * d
+            p0, pd = pts[:-1], np.diff(pts, axis=0)
+            if flat:                           # the polyline's projected area
+                amount = 2.0 * R * float(np.linalg.norm(pd[:, :2], axis=1).sum())
+            z = _lowest_free_height_pieces(xy, p0, pd, C, P0, PD, R, L)
+            P0, PD = np.concatenate([P0, p0[None]]), np.concatenate([PD, pd[None]])
+            planes.append(d)
+            phases.append(phase)
+        else:
+            z = _lowest_free_height(xy, t, C, T, R, ell, L)
         C, T = np.vstack([C, [xy[0], xy[1], z]]), np.vstack([T, t])
         area += amount
-    top = float(np.max(C[:, 2] + 0.5 * ell * np.abs(T[:, 2]) + R))
+    if crimp > 0.0:
+        ends = np.concatenate([P0[:, :, 2], P0[:, -1:, 2] + PD[:, -1:, 2]], axis=1)
+        top = float(np.max(C[:, 2] + ends.max(axis=1) + R))
+    else:
+        top = float(np.max(C[:, 2] + 0.5 * ell * np.abs(T[:, 2]) + R))
     C[:, 2] -= top                             # the felt's top at z = 0
     verts, norms, tans, ss, phis, yarn_len = [], [], [], [], [], []
-    for c, t in zip(C, T):
-        half = 0.5 * ell * np.abs(t[:2]) + R
+    for k, (c, t) in enumerate(zip(C, T)):
+        if crimp > 0.0:                        # the polyline's box (its arc midpoint at c)
+            xy_all = np.concatenate([P0[k, :, :2], P0[k, -1:, :2] + PD[k, -1:, :2]])
+            box_lo, box_hi = xy_all.min(axis=0) - R, xy_all.max(axis=0) + R
+        else:
+            half = 0.5 * ell * np.abs(t[:2]) + R
+            box_lo, box_hi = -half, half
         for i in (-1, 0, 1):
             for j in (-1, 0, 1):
                 cc = c + np.array([i * L, j * L, 0.0])
-                if np.any(cc[:2] + half < 0.0) or np.any(cc[:2] - half > L):
+                if np.any(cc[:2] + box_hi < 0.0) or np.any(cc[:2] + box_lo > L):
                     continue                   # this image does not reach into the cell
-                p, nrm, s, phi = _tube(cc, t, R, ell, n_s, sides)
+                if crimp > 0.0:
+                    p, nrm, tan, s, phi, _ = _crimped_tube(cc, t, planes[k], R, ell, amplitude, wavelength,
+                                                           phases[k], n_s, sides)
+                else:
+                    p, nrm, s, phi = _tube(cc, t, R, ell, n_s, sides)
+                    tan = np.broadcast_to(t, p.shape)
                 verts.append(p)
                 norms.append(nrm)
-                tans.append(np.broadcast_to(t, p.shape))
+                tans.append(tan)
                 ss.append(s)
                 phis.append(phi)
                 yarn_len.append(ell)
@@ -267,6 +484,15 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     face_base = (np.arange(n_y) * 2 * n_s * sides).astype(np.int64)
     faces = np.concatenate([grid_faces(n_s, sides, int(vertex_base[y])) for y in range(n_y)]).astype(np.int32)
     vertices = np.concatenate(verts)
+    info: dict = {"fibers": len(C), "images": n_y, "cell_um": L, "fiber_length_um": ell, "thickness_um": top,
+                  "layers": layers, "spread_deg": math.degrees(spread),
+                  "normal_fibers": n_normal, "triangles": int(faces.shape[0]),
+                  "volume_fraction": (bulk_volume_fraction_pieces(C, C[:, None, :] + P0, PD, R, L) if crimp > 0.0
+                                      else bulk_volume_fraction(C, T, R, ell, L)),
+                  "seed": int(seed)}
+    if crimp > 0.0:
+        info.update({"crimp_percent": crimp, "crimp_wavelength_um": wavelength, "crimp_amplitude_um": amplitude,
+                     "crimp_plane": "random" if random_plane else "felt", "pieces": n_s})
     return FeltMesh(
         vertices=vertices, faces=faces, normals=np.concatenate(norms), tangents=np.ascontiguousarray(np.concatenate(tans)),
         vertex_s=np.concatenate(ss), vertex_phi=np.concatenate(phis),
@@ -275,10 +501,15 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
         vertex_base=vertex_base, face_base=face_base, n_s=np.full(n_y, n_s, dtype=np.int32),
         yarn_length=np.array(yarn_len, float), sides=int(sides), Lx=L, Ly=L,
         z_min=float(vertices[:, 2].min()), z_max=float(vertices[:, 2].max()), yarn_radius_um=R,
-        info={"fibers": len(C), "images": n_y, "cell_um": L, "fiber_length_um": ell, "thickness_um": top,
-              "layers": layers, "spread_deg": math.degrees(spread),
-              "normal_fibers": n_normal, "triangles": int(faces.shape[0]),
-              "volume_fraction": bulk_volume_fraction(C, T, R, ell, L), "seed": int(seed)})
+        info=info)
+
+
+def fiber_pieces(m: FeltMesh) -> tuple[np.ndarray, np.ndarray]:
+    """Each fiber image's axis as straight pieces, read off its mesh (the centres of its rings): the starts
+    ``[images, n_s, 3]`` and the pieces' vectors."""
+    ns, sides = int(m.n_s[0]), int(m.sides)
+    centres = m.vertices.reshape(len(m.vertex_base), ns + 1, sides + 1, 3)[:, :, :-1].mean(axis=2)
+    return centres[:, :-1], np.diff(centres, axis=1)
 
 
 def bulk_volume_fraction(C: np.ndarray, T: np.ndarray, R: float, ell: float, L: float, n: int = 4000) -> float:
@@ -293,4 +524,23 @@ def bulk_volume_fraction(C: np.ndarray, T: np.ndarray, R: float, ell: float, L: 
         d[:, :2] -= L * np.round(d[:, :2] / L)  # nearest image (a fiber's half-projection is <= L / 2)
         a = d @ t
         inside |= (np.abs(a) <= 0.5 * ell) & (np.einsum("ij,ij->i", d, d) - a * a < R * R)
+    return float(inside.mean())
+
+
+def bulk_volume_fraction_pieces(C: np.ndarray, S: np.ndarray, D: np.ndarray, R: float, L: float, n: int = 4000) -> float:
+    """:func:`bulk_volume_fraction` for fibers of straight pieces (a crimped fiber's polyline): fiber ``j``'s
+    pieces start at ``S[j]`` (``[pieces, 3]``, absolute) with vectors ``D[j]``; a point is inside a fiber when
+    it is inside one of its pieces' cylinders (the nearest image of each piece)."""
+    rng = np.random.default_rng(0xF17)
+    z_lo, z_hi = np.quantile(C[:, 2], [0.25, 0.75])
+    p = np.stack([rng.uniform(0.0, L, n), rng.uniform(0.0, L, n), rng.uniform(z_lo, z_hi, n)], axis=-1)
+    inside = np.zeros(n, bool)
+    for s, dv in zip(S, D):
+        length = np.linalg.norm(dv, axis=1)
+        e = dv / length[:, None]
+        d = p[None, :, :] - (s + 0.5 * dv)[:, None, :]    # from each piece's midpoint
+        d[..., :2] -= L * np.round(d[..., :2] / L)        # nearest image (a piece is far shorter than L / 2)
+        a = np.einsum("pij,pj->pi", d, e)
+        hit = (np.abs(a) <= 0.5 * length[:, None]) & (np.einsum("pij,pij->pi", d, d) - a * a < R * R)
+        inside |= hit.any(axis=0)
     return float(inside.mean())

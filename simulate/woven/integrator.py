@@ -5,6 +5,23 @@
 next-event estimates towards every detector, escaping-ray bins and the reflected/transmitted
 energy, in fixed rounds of chunks until the target relative error
 (:func:`simulate.montecarlo.accuracy.relative_error`), the ray budget or the time budget.
+
+Shadow rays
+-----------
+Every hit scores a next-event estimate towards each detector its shading reaches, each needing a
+shadow ray (:meth:`simulate.woven.scene.PeriodicScene.visible`): in a felt most of a run's Embree
+queries, and most of them carry a small share of what their detector collects. They are played by
+Russian roulette on their contribution: a candidate of size ``c`` (its largest spectral value) is
+traced with probability ``p = min(1, c / c_ref)`` and, when traced and visible, scores ``1 / p`` times
+its contribution -- the same expectation, whatever ``c_ref`` is, as long as ``c_ref`` is fixed before
+the draw. ``c_ref`` is :data:`SHADOW_LEVEL` times the chunk's running mean per ray of the candidates'
+sizes towards that detector (all bounces so far, this one included): a level relative to what the
+detector collects, so it needs no setting per scene, and a candidate at least that large is always
+traced. A candidate whose contribution is exactly zero is not traced at all. The draws come from a
+stream of the chunk's own (a child of its seed), so a run stays reproducible and independent of the
+threads, and the paths are those of a run without roulette. The added variance is in the per-ray
+totals, so ``u_beta`` holds it. ``info``: ``shadow_candidates`` (next-event estimates asked for),
+``shadow_rays`` (traced), ``shadow_queries`` (their Embree queries, one per cell crossed).
 """
 
 from __future__ import annotations
@@ -34,6 +51,10 @@ _ROUND = 4           # chunks per accuracy check (fixed, so results do not depen
 _MAX_BOUNCES = 200
 _ROULETTE_BELOW = 0.01
 _ROULETTE_SURVIVE = 0.1
+SHADOW_ROULETTE = True
+"""Russian roulette on the shadow rays (module docstring); ``False`` traces every candidate."""
+SHADOW_LEVEL = 0.5
+"""``c_ref`` as a fraction of the chunk's mean per ray of the candidates' sizes towards a detector (0: all traced)."""
 
 
 @dataclass
@@ -80,6 +101,9 @@ class _Sums:
     albedo_over_one: int = 0
     continued: int = 0
     self_hits: int = 0
+    shadow_candidates: int = 0
+    shadow_rays: int = 0
+    shadow_queries: int = 0
 
     def add(self, o: "_Sums") -> None:
         for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins", "bins2"):
@@ -93,6 +117,9 @@ class _Sums:
         self.albedo_over_one += o.albedo_over_one
         self.continued += o.continued
         self.self_hits += o.self_hits
+        self.shadow_candidates += o.shadow_candidates
+        self.shadow_rays += o.shadow_rays
+        self.shadow_queries += o.shadow_queries
 
 
 def _new_sums(G: int, D: int, L: int, bins: tuple[int, int]) -> _Sums:
@@ -221,6 +248,10 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     acc = np.zeros((N, D, L))
     refl = np.zeros((N, L))
     trans = np.zeros((N, L))
+    roulette = bool(SHADOW_ROULETTE)
+    # the shadow roulette's draws: a stream of the chunk's own, so the paths stay those of a run without it
+    shadow_rng = np.random.default_rng(np.random.SeedSequence(list(seed), spawn_key=(1,)))
+    cand = np.zeros(G * D)      # the candidates' sizes so far, per group and detector
     for bounce in range(events):
         if ray.size == 0:
             break
@@ -269,10 +300,30 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             sums.albedo_over_one += int(np.count_nonzero(alb > 1.0))
         idx_i, idx_e, idx_d = np.nonzero(need)
         if idx_i.size:
-            towards = detectors[0, idx_d] if G == 1 else detectors[hit_group[idx_i], idx_d]
-            vis = scene.visible(nee_o[idx_i, idx_e], towards, stats)
-            if np.any(vis):
-                np.add.at(acc, (hit_ray[idx_i[vis]], idx_d[vis]), nee_c[idx_i[vis], idx_e[vis], idx_d[vis]])
+            sums.shadow_candidates += int(idx_i.size)
+            contrib = nee_c[idx_i, idx_e, idx_d]
+            size = contrib.max(axis=1)
+            trace_it = size > 0.0          # a zero contribution needs no shadow ray
+            p = np.ones(size.shape)
+            if roulette:
+                flat = hit_group[idx_i] * D + idx_d
+                cand += np.bincount(flat, weights=size, minlength=G * D)
+                level = SHADOW_LEVEL / n * cand[flat]
+                np.divide(size, level, out=p, where=level > size)
+                low = trace_it & (p < 1.0)
+                if np.any(low):
+                    trace_it[low] = shadow_rng.random(int(np.count_nonzero(low))) < p[low]
+            k = np.nonzero(trace_it)[0]
+            if k.size:
+                ki, ke, kd = idx_i[k], idx_e[k], idx_d[k]
+                towards = detectors[0, kd] if G == 1 else detectors[hit_group[ki], kd]
+                before = stats["queries"]
+                vis = scene.visible(nee_o[ki, ke], towards, stats)
+                sums.shadow_rays += int(k.size)
+                sums.shadow_queries += stats["queries"] - before
+                if np.any(vis):
+                    kv = k[vis]
+                    np.add.at(acc, (hit_ray[idx_i[kv]], idx_d[kv]), contrib[kv] / p[kv, None])
         # Russian roulette on the largest spectral weight
         wmax = w.max(axis=1)
         low = (wmax < _ROULETTE_BELOW) & (wmax > 0)
@@ -490,7 +541,9 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
     omega = (0.5 * np.diff(mu_edges ** 2)[:, None] * (2 * np.pi / bins[1]))[:, :, None]
     info: dict[str, Any] = {"lost_rays": total.lost, "killed_at_max_bounces": total.killed, "embree_rays": total.embree_rays,
             "rays_per_second": total.embree_rays / seconds if seconds > 0 else None, "chunk": int(chunk),
-            "self_hit_fraction": total.self_hits / max(total.continued, 1)}
+            "self_hit_fraction": total.self_hits / max(total.continued, 1),
+            "shadow_candidates": total.shadow_candidates, "shadow_rays": total.shadow_rays,
+            "shadow_queries": total.shadow_queries}
     if setup.kind == K_FIBER_BRDF:
         info["local_albedo"] = {"hits": total.hits, "mean_max_over_wavelengths": total.albedo_sum / max(total.hits, 1),
                                 "fraction_above_one": total.albedo_over_one / max(total.hits, 1)}
