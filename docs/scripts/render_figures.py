@@ -186,7 +186,60 @@ def fig_demo_cost() -> str:
     return _table(["figure", "value"], rows) + "\n\n" + _source(rec, note)
 
 
+def _pair(values: list, u: list | None = None, digits: int = 3) -> str:
+    """550 and 650 nm of a [450, 550, 650] list, with their standard errors when given."""
+    if u is None:
+        return f"{values[1]:.{digits}f} / {values[2]:.{digits}f}"
+    return f"{values[1]:.{digits}f} ± {u[1]:.{digits}f} / {values[2]:.{digits}f} ± {u[2]:.{digits}f}"
+
+
+def fig_felt_opposition() -> str:
+    """The felt Monte Carlo's opposition ratio with one parameter of ``green-felt-mc`` changed at a time."""
+    rec = load("felt-opposition")
+    d = rec["data"]
+    incid = [f"{t:g}" for t in d["settings"]["incidences_deg"]]
+    f = d["file"]["incidences"]
+    header = ["variant"] + [f"θi {t}°, {o}" for t in incid for o in ("single scattering", "all orders")]
+    rows = [["the RGL file"] + [c for t in incid for c in ("", _pair(f[t]["ratio"]))]]
+    for v in d["variants"]:
+        o = v["pooled"]
+        rows.append([v["label"]] + [_pair(o[k][t]["ratio"], o[k][t]["u_ratio"]) for t in incid for k in ("single", "all")])
+    ratios = _table(header, rows)
+    t0, t1 = incid
+    preset = next((v for v in d["variants"] if v["name"] == "preset"), None)
+    ref = preset["pooled"]["all"][t1]["normal_view"] if preset else None
+
+    def level_colour(nv: list) -> list[str]:
+        level = f"{nv[1] / ref[1]:.2f}" if ref else ""
+        return [level, f"{nv[0] / nv[1]:.2f} / {nv[2] / nv[1]:.2f}"]
+
+    header2 = ["variant", "felt: volume fraction, thickness", f"multiply scattered share of the rings, θi {t0}°",
+               f"ratio's standard error from the seeds' scatter, θi {t0}°, all orders",
+               f"β towards the normal at θi {t1}°, 550 nm, over the preset's", "its colour: β450 / β550, β650 / β550",
+               "seeds, CPU seconds"]
+    rows2 = [["the RGL file", "", "", "", *level_colour(f[t1]["normal_view"]), ""]]
+    for v in d["variants"]:
+        s, a = v["pooled"]["single"][t0], v["pooled"]["all"][t0]
+        share = [1.0 - (s["ring_6"][k] + s["ring_30"][k]) / (a["ring_6"][k] + a["ring_30"][k]) for k in range(3)]
+        felts = [r["felt"] for r in v["runs"]]
+        spread = a["u_ratio_seeds"]
+        rows2.append([v["label"], f"{statistics.mean(x for f_ in felts for x in f_['volume_fraction']):.3f}, "
+                      f"{statistics.mean(x for f_ in felts for x in f_['thickness_um']) / 1000:.2f} mm",
+                      _pair(share, digits=2), _pair(spread) if spread[1] is not None else "",
+                      *level_colour(v["pooled"]["all"][t1]["normal_view"]),
+                      f"{len(v['runs'])}, {v['cpu_seconds']:.0f}"])
+    others = _table(header2, rows2)
+    st = d["settings"]
+    note = (f" (each variant traced at {st['seeds']} seeds, each with its own felts, table and rays, at target "
+            f"{100 * st['target_rel_err']:g} % with {st['threads']} threads, {st['ring_points']} directions on each "
+            "ring; the seeds' rings pooled; 550 / 650 nm; ± one standard error, each ring point's error taken as "
+            "independent"
+            + ("" if d.get("complete") else "; the scan is incomplete: variants missing") + ")")
+    return ratios + "\n\n" + others + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
+    "felt-opposition": fig_felt_opposition,
     "slab-kernel": fig_slab_kernel,
     "driver": fig_driver,
     "method-errors": fig_method_errors,

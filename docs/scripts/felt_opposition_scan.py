@@ -1,0 +1,336 @@
+"""What raises the traced felt's opposition peak: a one-parameter-at-a-time scan from ``green-felt-mc``.
+
+    python docs/scripts/felt_opposition_scan.py                  # every variant; writes docs/data/felt-opposition.json
+    python docs/scripts/felt_opposition_scan.py --only preset,scatterers-x10 --out DIR/scan.json
+    python docs/scripts/render_figures.py                        # then the note's tables
+
+Each variant is the ``green-felt-mc`` preset with one thing changed (:data:`VARIANTS`): the fibers'
+scatterers (the delustrant's volume fraction), the dye's absorption, the surface's reflection slope,
+the boundary's roughness for transmitted light, the felt's inclination spread (which sets the
+deposited felt's volume fraction), the needle-punched fraction, the fiber amount. Each is traced by
+the felt Monte Carlo (:func:`simulate.woven.fabric_beta`, two felt realisations as ``simulate fabric
+--method mc`` builds them) at ``--seeds`` seeds (each its own felts, table and rays; the same seeds for every
+variant, so variants that keep the preset's felt are traced on the same felts) at the RGL file's incidences 40.03 and
+27.76 deg, towards 12 directions on each of the rings 6 and 30 deg from the retro direction
+(:func:`compare.felt_metrics.ring_directions`) and towards the normal, at 450, 550 and 650 nm: once
+with the single scattering only (``max_events=1``) and once with all orders. The opposition ratio
+is :func:`compare.felt_metrics.opposition_ratios` of those points (its standard error takes each
+point's error as independent; the table's share of them is common to a ring, so it is indicative); the
+seeds' rings are pooled, and the standard error of the mean of the seeds' own ratios, from their
+scatter, is kept beside it as a check.
+The file's own ratios at the same directions come from the mock sample of the file
+(:func:`gonio.mock.samples.make_sample`).
+
+The result is written after every variant (an interrupted scan keeps what it finished; ``--resume``
+adds the runs it lacks), wrapped as :func:`render_figures.record` does: the command and the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import resource
+import shlex
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from render_figures import DATA, ROOT, machine  # noqa: E402
+
+NAME = "felt-opposition"
+CONFIG = "green-felt-mc"
+SAMPLE = ROOT / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"
+INCIDENCES_DEG = (40.03, 27.76)
+WAVELENGTHS_NM = (450.0, 550.0, 650.0)
+RING_POINTS = 12
+#: the preset's exit bins, held for every variant (a turbid fiber would default to coarser ones)
+EXIT_BINS = (10, 20)
+DEFAULT_TARGET = 0.07
+DEFAULT_THREADS = 2
+DEFAULT_SEEDS = 3
+COMMAND = "python docs/scripts/felt_opposition_scan.py"
+
+
+def _scatterers(factor: float) -> Callable[[Any], dict]:
+    def change(cfg: Any) -> dict:
+        p = cfg.particles
+        return {"particles": dataclasses.replace(p, volume_fraction=p.volume_fraction * factor)}
+    return change
+
+
+def _dye(factor: float) -> Callable[[Any], dict]:
+    def change(cfg: Any) -> dict:
+        params = dict(cfg.dye.params)
+        params["log10_per_um"] = [v + math.log10(factor) for v in params["log10_per_um"]]
+        return {"dye": dataclasses.replace(cfg.dye, params=params)}
+    return change
+
+
+def _field(**values: Any) -> Callable[[Any], dict]:
+    return lambda cfg: dict(values)
+
+
+def _structure(**values: Any) -> Callable[[Any], dict]:
+    return lambda cfg: {"structure": dataclasses.replace(cfg.structure, **values)}
+
+
+#: name -> (what changes, the change of the preset's config), in the order the scan runs them
+VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
+    "preset": ("green-felt-mc as shipped", _field()),
+    "scatterers-x10": ("scatterers' volume fraction x10", _scatterers(10.0)),
+    "scatterers-x30": ("scatterers' volume fraction x30", _scatterers(30.0)),
+    "scatterers-x3": ("scatterers' volume fraction x3", _scatterers(3.0)),
+    "dye-x3": ("dye absorption x3", _dye(3.0)),
+    "dye-x0.3": ("dye absorption x0.3", _dye(0.3)),
+    "rms-slope-x2": ("reflection slope x2", lambda c: {"rms_slope": 2.0 * c.rms_slope}),
+    "rms-slope-x0.5": ("reflection slope x0.5", lambda c: {"rms_slope": 0.5 * c.rms_slope}),
+    "transmission-smooth": ("boundary smooth for transmitted light",
+                            _field(transmission_rms_slope=0.0, transmission_rms_slope_around=None)),
+    "transmission-x2": ("boundary's transmission slopes x2", lambda c: {
+        "transmission_rms_slope": 2.0 * c.transmission_rms_slope,
+        "transmission_rms_slope_around": 2.0 * c.transmission_rms_slope_around}),
+    "spread-10": ("inclination spread 10 deg", _structure(felt_spread_deg=10.0)),
+    "spread-2": ("inclination spread 2 deg", _structure(felt_spread_deg=2.0)),
+    "punched-0.2": ("needle-punched fraction 0.2", _structure(felt_normal_fraction=0.2)),
+    "layers-5": ("fiber amount halved (5 layers)", _structure(layers=5)),
+}
+
+
+def variant_config(name: str, base: Any) -> tuple[Any, dict]:
+    """The config of variant ``name`` (``base``: the preset's) and its changed fields, as JSON values."""
+    changes = VARIANTS[name][1](base)
+    shown = {}
+    for key, value in changes.items():
+        if key == "particles":
+            shown["particles.volume_fraction"] = value.volume_fraction
+        elif key == "dye":
+            shown["fiber.dye.log10_per_um"] = list(value.params["log10_per_um"])
+        elif key == "structure":
+            shown.update({f"structure.{f.name}": getattr(value, f.name) for f in dataclasses.fields(value)
+                          if getattr(value, f.name) != getattr(base.structure, f.name)})
+        else:
+            shown[f"surface.{key}"] = value
+    return dataclasses.replace(base, **changes), shown
+
+
+def detectors(theta_i: float) -> list[tuple[float, float]]:
+    """``(theta_o, phi_o)`` of one incidence: the ring at 6 deg, the ring at 30 deg, then the normal."""
+    from compare.felt_metrics import INNER_DEG, OUTER_DEG, ring_directions
+
+    return [*ring_directions(theta_i, INNER_DEG, RING_POINTS), *ring_directions(theta_i, OUTER_DEG, RING_POINTS),
+            (0.0, 0.0)]
+
+
+def geometries() -> Any:
+    """Every (incidence, detector) row: a frame of ``theta_i, phi_i, theta_o, phi_o``."""
+    import pandas as pd
+
+    return pd.DataFrame([dict(theta_i=ti, phi_i=0.0, theta_o=t, phi_o=p) for ti in INCIDENCES_DEG
+                         for t, p in detectors(ti)])
+
+
+def summarise(g: Any, beta: np.ndarray, u: np.ndarray) -> dict:
+    """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per wavelength."""
+    import pandas as pd
+    from compare.felt_metrics import opposition_ratios
+
+    wl = np.asarray(WAVELENGTHS_NM)
+    table = pd.DataFrame({c: np.repeat(g[c].to_numpy(float), wl.size) for c in g.columns})
+    table["wavelength_nm"] = np.tile(wl, len(g))
+    table["beta"], table["u_beta"] = beta.reshape(-1), u.reshape(-1)
+    ratios = opposition_ratios(table)
+    out = {}
+    for ti in INCIDENCES_DEG:
+        at = np.nonzero(np.isclose(g["theta_i"].to_numpy(float), ti))[0]
+        inner, outer, normal = at[:RING_POINTS], at[RING_POINTS:2 * RING_POINTS], at[-1]
+        r = ratios[ti]
+        out[f"{ti:g}"] = {
+            "ratio": [r.value[w] for w in wl], "u_ratio": [r.u[w] for w in wl], "points": list(r.n_points),
+            "ring_6": beta[inner].mean(0).tolist(), "u_ring_6": (np.sqrt((u[inner] ** 2).sum(0)) / inner.size).tolist(),
+            "ring_30": beta[outer].mean(0).tolist(), "u_ring_30": (np.sqrt((u[outer] ** 2).sum(0)) / outer.size).tolist(),
+            "normal_view": beta[normal].tolist(), "u_normal_view": u[normal].tolist()}
+    return out
+
+
+def file_ratios() -> dict:
+    """The RGL file's opposition ratios and view towards the normal at the scan's directions (no noise)."""
+    from gonio.mock.samples import make_sample
+
+    g = geometries()
+    wl = np.asarray(WAVELENGTHS_NM)
+    sample = make_sample(str(SAMPLE))
+    rows = g.loc[g.index.repeat(wl.size)]
+    beta = sample.beta(rows["theta_i"].to_numpy(float), rows["phi_i"].to_numpy(float), rows["theta_o"].to_numpy(float),
+                       rows["phi_o"].to_numpy(float), np.tile(wl, len(g))).reshape(len(g), wl.size)
+    return summarise(g, beta, np.zeros_like(beta))
+
+
+def run_variant(name: str, base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict) -> dict:
+    """Trace variant ``name`` at ``seed`` (its felts' and rays') with the single scattering and with all
+    orders; ``felts``: meshes by (structure, seed)."""
+    from simulate.fabric import directions_deg
+    from simulate.nonwoven.felt import felt_mesh
+    from simulate.products import FELT_SEED_STRIDE
+    from simulate.woven import fabric_beta
+
+    cfg, _ = variant_config(name, base)
+    wl = np.asarray(WAVELENGTHS_NM)
+    fiber = cfg.fiber(wl)
+    started, cpu0 = time.perf_counter(), _cpu()
+    key = (cfg.structure, seed)
+    if key not in felts:
+        felts[key] = tuple(felt_mesh(cfg.structure, fiber.radius_um, seed=seed + FELT_SEED_STRIDE * h) for h in (0, 1))
+    meshes = felts[key]
+    g = geometries()
+    w_in = directions_deg(g["theta_i"].to_numpy(float), g["phi_i"].to_numpy(float))
+    w_out = directions_deg(g["theta_o"].to_numpy(float), g["phi_o"].to_numpy(float))
+    orders = {}
+    for label, events in (("single", 1), ("all", 0)):
+        beta, u, info = fabric_beta(meshes, fiber, w_in, w_out, wl, max_events=events, target_rel_err=target,
+                                    max_rays=max_rays, seed=seed, threads=threads, structure=cfg.structure,
+                                    exit_bins=EXIT_BINS, axial_shift=bool(cfg.axial_shift), w_t_nodes=cfg.w_t_nodes())
+        orders[label] = {"incidences": summarise(g, beta, u), "rays": int(info["rays"]), "stop": info["stop"],
+                         "rel_err": {f"{math.degrees(math.acos(r['w_in'][2])):.2f}": r["rel_err"]
+                                     for r in info["incidences"]},
+                         "seconds": float(info["seconds"]), "table_cache": info["table"]["cache"]}
+    keep = ("fibers", "normal_fibers", "thickness_um", "volume_fraction")
+    return {"seed": seed, "felt": {k: [m.info[k] for m in meshes] for k in keep}, "orders": orders,
+            "wall_seconds": time.perf_counter() - started, "cpu_seconds": _cpu() - cpu0}
+
+
+def pooled(runs: list[dict]) -> dict:
+    """The runs (seeds) of one variant pooled, per order and incidence: the rings' and the normal view's
+    means over the seeds, the ratio of the pooled rings with its standard error from the points' errors
+    (independent), and the standard error of the mean of the seeds' own ratios from their scatter."""
+    out: dict = {}
+    n = len(runs)
+    for order in ("single", "all"):
+        out[order] = {}
+        for ti in runs[0]["orders"][order]["incidences"]:
+            per = [r["orders"][order]["incidences"][ti] for r in runs]
+            m = {k: np.mean([p[k] for p in per], axis=0) for k in ("ring_6", "ring_30", "normal_view")}
+            u = {k: np.sqrt(np.sum([np.square(p[f"u_{k}"]) for p in per], axis=0)) / n
+                 for k in ("ring_6", "ring_30", "normal_view")}
+            ratio = m["ring_6"] / m["ring_30"]
+            u_ratio = ratio * np.hypot(u["ring_6"] / m["ring_6"], u["ring_30"] / m["ring_30"])
+            seeds = np.array([p["ratio"] for p in per])
+            spread = seeds.std(axis=0, ddof=1) / math.sqrt(n) if n > 1 else np.full(seeds.shape[1], np.nan)
+            out[order][ti] = {"ratio": ratio.tolist(), "u_ratio": u_ratio.tolist(),
+                              "u_ratio_seeds": [None if math.isnan(x) else float(x) for x in spread],
+                              **{k: v.tolist() for k, v in m.items()}, **{f"u_{k}": v.tolist() for k, v in u.items()}}
+    return out
+
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _fail(message: str) -> SystemExit:
+    print(f"felt_opposition_scan: {message}", file=sys.stderr)
+    return SystemExit(2)
+
+
+def _write(path: Path, record: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", help=f"comma-separated variants (default: all, in order: {', '.join(VARIANTS)})")
+    ap.add_argument("--target-rel-err", type=float, default=DEFAULT_TARGET,
+                    help=f"each trace's target relative error (default {DEFAULT_TARGET})")
+    ap.add_argument("--threads", type=int, default=DEFAULT_THREADS, help=f"threads (default {DEFAULT_THREADS})")
+    ap.add_argument("--max-rays", type=int, default=0, help="ray budget per incidence and table half (0: none)")
+    ap.add_argument("--seeds", type=int, default=DEFAULT_SEEDS,
+                    help=f"runs per variant, each with its own felts, table and rays (default {DEFAULT_SEEDS})")
+    ap.add_argument("--out", type=Path, default=DATA / f"{NAME}.json",
+                    help="the JSON to write (default docs/data/felt-opposition.json)")
+    group = ap.add_mutually_exclusive_group()
+    group.add_argument("--force", action="store_true", help="replace an existing --out")
+    group.add_argument("--resume", action="store_true",
+                       help="keep the runs an existing --out holds (same settings) and add the others")
+    args = ap.parse_args(argv)
+    names = [n.strip() for n in args.only.split(",") if n.strip()] if args.only else list(VARIANTS)
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown or not names:
+        raise _fail(f"--only: unknown variant(s) {', '.join(unknown) or '(none given)'}; "
+                    f"known: {', '.join(VARIANTS)}")
+    if not 0.0 < args.target_rel_err < 1.0:
+        raise _fail(f"--target-rel-err must lie in (0, 1), got {args.target_rel_err:g}")
+    if args.threads < 1 or args.max_rays < 0 or args.seeds < 1:
+        raise _fail("--threads and --seeds must be >= 1 and --max-rays >= 0")
+    settings = {"config": CONFIG, "target_rel_err": args.target_rel_err, "max_rays": args.max_rays, "seeds": args.seeds,
+                "incidences_deg": list(INCIDENCES_DEG), "wavelengths_nm": list(WAVELENGTHS_NM),
+                "ring_points": RING_POINTS, "exit_bins": list(EXIT_BINS)}
+    done: list[dict] = []
+    invocations: list[str] = []
+    if args.out.exists():
+        if not (args.force or args.resume):
+            raise _fail(f"{args.out} exists; pass --force to replace it or --resume to add the runs it lacks")
+        if args.resume:
+            try:
+                old = json.loads(args.out.read_text(encoding="utf-8"))["data"]
+            except (OSError, ValueError, KeyError) as exc:
+                raise _fail(f"--resume: {args.out} is not a scan this script wrote ({exc})") from None
+            differs = [k for k, v in settings.items() if old.get("settings", {}).get(k) != v]
+            if differs:
+                raise _fail(f"--resume: {args.out} was run with other settings ({', '.join(differs)}); "
+                            "give the same options or --force")
+            done, invocations = old["variants"], old.get("invocations", [])
+    from simulate.config import load_config
+
+    base = load_config(CONFIG)
+    invocations.append(shlex.join([*COMMAND.split(), *(sys.argv[1:] if argv is None else argv)]))
+    canonical = [COMMAND]
+    if args.target_rel_err != DEFAULT_TARGET:
+        canonical.append(f"--target-rel-err {args.target_rel_err:g}")
+    if args.max_rays:
+        canonical.append(f"--max-rays {args.max_rays}")
+    if args.threads != DEFAULT_THREADS:
+        canonical.append(f"--threads {args.threads}")
+    if args.seeds != DEFAULT_SEEDS:
+        canonical.append(f"--seeds {args.seeds}")
+    if args.out.resolve() != (DATA / f"{NAME}.json").resolve():
+        canonical.append(f"--out {shlex.quote(str(args.out))}")
+    data = {"settings": {**settings, "threads": args.threads, "first_seed": base.seed},
+            "file": {"sample": str(SAMPLE.relative_to(ROOT)), "incidences": file_ratios()},
+            "variants": done, "invocations": invocations}
+    order = list(VARIANTS)
+    for name in names:
+        if not any(v["name"] == name for v in done):
+            done.append({"name": name, "label": VARIANTS[name][0], "changes": variant_config(name, base)[1], "runs": []})
+    done.sort(key=lambda v: order.index(v["name"]))
+    for seed in range(base.seed, base.seed + args.seeds):     # every variant at one seed before the next seed
+        felts: dict = {}
+        for name in names:
+            variant = next(v for v in done if v["name"] == name)
+            if any(r["seed"] == seed for r in variant["runs"]):
+                continue
+            print(f"felt_opposition_scan: {name} ({VARIANTS[name][0]}), seed {seed}", flush=True)
+            variant["runs"].append(run_variant(name, base, seed, args.target_rel_err, args.threads, args.max_rays,
+                                               felts))
+            variant["pooled"] = pooled(variant["runs"])
+            variant["cpu_seconds"] = sum(r["cpu_seconds"] for r in variant["runs"])
+            data["complete"] = all(any(v["name"] == n and len(v["runs"]) == args.seeds for v in done) for n in order)
+            _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
+            felts = {k: m for k, m in felts.items() if k[0] == base.structure}   # the preset's felts are reused
+    data["complete"] = all(any(v["name"] == n and len(v["runs"]) == args.seeds for v in done) for n in order)
+    _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
+    print(f"felt_opposition_scan: {len(done)} variant(s) in {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,158 @@
+"""The felt opposition scan (docs/scripts/felt_opposition_scan.py): each variant changes what it says and
+nothing else, its detectors are on the rings, and the note's command runs on a tiny budget."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+import math
+import re
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+NOTE = ROOT / "docs" / "notes" / "felt-structure.md"
+
+
+def _scan():
+    here = ROOT / "docs" / "scripts"
+    for name in ("render_figures", "felt_opposition_scan"):
+        spec = importlib.util.spec_from_file_location(name, here / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return module
+
+
+def _differences(a, b) -> set[str]:
+    out = set()
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if x is y:
+            continue
+        if dataclasses.is_dataclass(x) and dataclasses.is_dataclass(y):
+            out |= {f"{f.name}.{k}" for k in _differences(x, y)}
+        elif x != y:
+            out.add(f.name)
+    return out
+
+
+def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
+    s = _scan()
+    from simulate.config import load_config
+
+    base = load_config(s.CONFIG)
+    wl = np.array([450.0, 550.0, 650.0])
+    expected = {"preset": set(), "dye-x3": {"dye.params"}, "dye-x0.3": {"dye.params"},
+                "rms-slope-x2": {"rms_slope"}, "rms-slope-x0.5": {"rms_slope"},
+                "transmission-smooth": {"transmission_rms_slope", "transmission_rms_slope_around"},
+                "transmission-x2": {"transmission_rms_slope", "transmission_rms_slope_around"},
+                "spread-10": {"structure.felt_spread_deg"}, "spread-2": {"structure.felt_spread_deg"},
+                "punched-0.2": {"structure.felt_normal_fraction"}, "layers-5": {"structure.layers"}}
+    for name in s.VARIANTS:
+        cfg, shown = s.variant_config(name, base)
+        if name.startswith("scatterers-x"):
+            factor = float(name.removeprefix("scatterers-x"))
+            assert _differences(cfg, base) == {"particles.volume_fraction"}
+            assert cfg.particles.volume_fraction == pytest.approx(factor * base.particles.volume_fraction)
+            assert shown == {"particles.volume_fraction": cfg.particles.volume_fraction}
+            continue
+        assert _differences(cfg, base) == expected[name], name
+        assert bool(shown) == (name != "preset")
+        if name.startswith("dye-x"):
+            factor = float(name.removeprefix("dye-x"))
+            np.testing.assert_allclose(cfg.dye(wl), factor * base.dye(wl), rtol=1e-12)
+    assert s.variant_config("rms-slope-x2", base)[0].rms_slope == pytest.approx(2 * base.rms_slope)
+    assert s.variant_config("spread-10", base)[0].structure.felt_spread_deg == 10.0
+    smooth = s.variant_config("transmission-smooth", base)[0]
+    assert smooth.transmission_rms_slope == 0.0 and smooth.transmission_rms_slope_around is None
+
+
+def test_the_detectors_lie_on_the_rings_about_the_retro_direction():
+    s = _scan()
+    from simulate.fabric import directions_deg
+
+    for ti in s.INCIDENCES_DEG:
+        d = np.array(s.detectors(ti))
+        w = directions_deg(d[:, 0], d[:, 1])
+        retro = directions_deg(np.array([ti]), np.array([0.0]))[0]
+        ang = np.degrees(np.arccos(np.clip(w @ retro, -1.0, 1.0)))
+        n = s.RING_POINTS
+        np.testing.assert_allclose(ang[:n], 6.0, atol=1e-9)
+        np.testing.assert_allclose(ang[n:2 * n], 30.0, atol=1e-9)
+        np.testing.assert_allclose(w[-1], [0.0, 0.0, 1.0], atol=1e-12)
+        # spread evenly round the ring: the azimuths' mean vector vanishes
+        assert np.linalg.norm((w[:n] - math.cos(math.radians(6.0)) * retro).sum(0)) < 1e-9
+
+
+def _note_command() -> list[str]:
+    text = NOTE.read_text(encoding="utf-8")
+    lines = [line for block in re.findall(r"^```[^\n]*\n(.*?)^```", text, flags=re.S | re.M)
+             for line in block.splitlines() if line.startswith("python docs/scripts/felt_opposition_scan.py")]
+    assert lines, "the note shows the scan's command"
+    return shlex.split(lines[0].split(" #")[0])[2:]
+
+
+def test_the_note_s_command_runs_on_a_tiny_budget(tmp_path):
+    s = _scan()
+    out = tmp_path / "scan.json"
+    args = _note_command() + ["--only", "preset", "--seeds", "1", "--target-rel-err", "0.5", "--max-rays", "256",
+                              "--out", str(out)]
+    assert s.main(args) == 0
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    assert rec["name"] == "felt-opposition" and rec["command"].startswith(s.COMMAND) and rec["machine"]["cpus"]
+    d = rec["data"]
+    assert [v["name"] for v in d["variants"]] == ["preset"] and d["complete"] is False
+    assert [r["seed"] for r in d["variants"][0]["runs"]] == [0]
+    # the file's ratios at the scan's directions are the note's (section 1: 550 / 650 nm)
+    assert d["file"]["incidences"]["40.03"]["ratio"][1:] == pytest.approx([1.135, 1.194], abs=1e-3)
+    assert d["file"]["incidences"]["27.76"]["ratio"][1:] == pytest.approx([1.151, 1.236], abs=1e-3)
+    for order in ("single", "all"):
+        for ti in ("40.03", "27.76"):
+            r = d["variants"][0]["runs"][0]["orders"][order]["incidences"][ti]
+            assert d["variants"][0]["pooled"][order][ti]["ratio"] == pytest.approx(r["ratio"], rel=1e-12)
+            assert r["points"] == [12, 12]
+            assert all(x > 0 for x in r["ring_6"] + r["ring_30"] + r["u_ratio"])
+            np.testing.assert_allclose(np.divide(r["ring_6"], r["ring_30"]), r["ratio"], rtol=1e-9)
+    # the single scattering is part of all orders: less light on every ring
+    a, b = (d["variants"][0]["pooled"][o]["40.03"] for o in ("single", "all"))
+    assert all(x < y for x, y in zip(a["ring_30"], b["ring_30"]))
+
+
+def test_the_seeds_are_pooled_ring_by_ring_with_both_standard_errors():
+    s = _scan()
+
+    def run(r6, r30, u):
+        ring = {"ring_6": r6, "ring_30": r30, "normal_view": [1.0, 1.0, 1.0], "ratio": list(np.divide(r6, r30)),
+                "u_ring_6": [u] * 3, "u_ring_30": [u] * 3, "u_normal_view": [0.0] * 3}
+        return {"orders": {o: {"incidences": {"40.03": ring}} for o in ("single", "all")}}
+
+    p = s.pooled([run([1.2, 1.2, 1.2], [1.0, 1.0, 1.0], 0.02), run([1.0, 1.0, 1.0], [1.0, 1.0, 1.0], 0.02)])["all"]["40.03"]
+    # the rings pooled first (1.1 over 1.0), their errors halved by sqrt 2 ...
+    assert p["ratio"] == pytest.approx([1.1] * 3)
+    u6, u30 = 0.02 / math.sqrt(2), 0.02 / math.sqrt(2)
+    assert p["u_ratio"] == pytest.approx([1.1 * math.hypot(u6 / 1.1, u30 / 1.0)] * 3)
+    # ... and the seeds' own ratios 1.2 and 1.0: standard deviation 0.1414, over sqrt 2
+    assert p["u_ratio_seeds"] == pytest.approx([0.1] * 3)
+    one = s.pooled([run([1.2] * 3, [1.0] * 3, 0.02)])["single"]["40.03"]
+    assert one["u_ratio_seeds"] == [None] * 3 and one["ratio"] == pytest.approx([1.2] * 3)
+
+
+def test_an_existing_result_is_kept_without_force_and_bad_options_are_refused(tmp_path, capsys):
+    s = _scan()
+    out = tmp_path / "scan.json"
+    out.write_text("{}", encoding="utf-8")
+    for argv, word in ((["--out", str(out)], "--force"), (["--only", "nope", "--out", str(tmp_path / "n.json")], "--only"),
+                       (["--target-rel-err", "2", "--out", str(tmp_path / "n.json")], "--target-rel-err"),
+                       (["--resume", "--out", str(out)], "--resume")):
+        with pytest.raises(SystemExit) as exc:
+            s.main(argv)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and word in err
+    assert out.read_text(encoding="utf-8") == "{}"
