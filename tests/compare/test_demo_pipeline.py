@@ -1,7 +1,7 @@
 """The demo pipeline end to end on a reduced budget.
 
 The steps of ``make demo`` (README, "What `make demo` does"), in-process through the three
-command lines, on a reduced plan (the four incidences and the in-plane curves -60..70 deg, 16
+command lines, on a reduced plan (the four incidences, 8 in-plane angles from -60 to 70 deg, 16
 wavelengths): the real RGL felt acquired through the embedded mock (``gonio demo --sample``), the
 file itself at the plan (``gonio truth``), the fabric BRDF of the shipped ``red-cotton`` config by
 summation, classic and Monte Carlo at loose budgets (standing in for the fits of ``make demo``,
@@ -34,9 +34,11 @@ from fabric_optics.cli.simulate import main as simulate_main
 REPO = Path(__file__).resolve().parents[2]
 FELT = REPO / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"
 
-# The red-cotton plan's geometry with 16 wavelengths in place of 33: colour needs a spectrum over
+# The red-cotton plan's incidences with 16 wavelengths in place of 33: colour needs a spectrum over
 # the visible, and colour-science's ASTM E308 integration refuses steps other than 1, 5, 10 or
-# 20 nm (a 50 nm grid fails the colour match), so 20 nm is the coarsest grid that works.
+# 20 nm (a 50 nm grid fails the colour match), so 20 nm is the coarsest grid that works. 8 of its
+# 14 in-plane angles: the colour geometry (0/10 deg), the normalisation's neighbours of the normal
+# (|s| <= 20 deg, three at least) and both ends of the curves.
 PLAN = """\
 name = "red-cotton-reduced"
 description = "red-cotton geometry, 16 wavelengths: the demo pipeline test"
@@ -51,7 +53,7 @@ step_nm = 20
 
 [geometry]
 incidence_deg = [0, 30, 45, 60]
-in_plane = { start = -60, stop = 70, step = 10 }
+in_plane_deg = [-60, -40, -20, -10, 10, 20, 40, 70]
 skip_blocked = true
 
 [acquisition]

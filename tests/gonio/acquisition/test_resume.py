@@ -234,8 +234,9 @@ def test_a_session_that_cannot_reach_the_head_leaves_a_resumable_journal(drv, tm
     out = tmp_path / "run"
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=SEED) as mock:
         dead = SerialTransport(str(tmp_path / "no-such-tty"), timeout_s=0.05)
+        # backoff capped at 2 ms (default 0.25 s): the dead link's 40 attempts per command, without the waits
         res = run_session(load_plan(plan), ModbusTransport(mock.modbus_url, timeout_s=0.2), dead,
-                          out, progress=False, retry=RetryPolicy(base_s=0.001))
+                          out, progress=False, retry=RetryPolicy(base_s=0.001, max_s=0.002))
         assert res.status == "stopped" and res.points_measured == 0
         assert "photometer head" in res.message and res.dataset_path is None
         assert mock.controller.shutter_open is False

@@ -55,7 +55,8 @@ def test_the_felts_fibers_do_not_interpenetrate(monkeypatch):
 
 
 def test_the_felt_is_reproducible_at_a_fixed_seed():
-    spec = ST.StructureSpec(kind="nonwoven")
+    # four of the default's ten layers: the same random placement and deposition, 40 % of the fibers
+    spec = ST.StructureSpec(kind="nonwoven", layers=4)
     a, b, c = felt_mesh(spec, 10.0, seed=1), felt_mesh(spec, 10.0, seed=1), felt_mesh(spec, 10.0, seed=2)
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
     assert a.vertices.shape != c.vertices.shape or not np.array_equal(a.vertices, c.vertices)
