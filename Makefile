@@ -75,10 +75,10 @@ demo: $(STAMP)
 	@echo "demo: report in $(DEMO_OUT)/report/report.html"
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 -m "not slow"
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -n 2 -m slow
+	$(PY) -m pytest -q -n 2 --dist loadfile -m slow
 
 # ruff and mypy, configured in pyproject.toml (versions pinned in the test extras); .ci/run runs it
 lint: $(STAMP)
