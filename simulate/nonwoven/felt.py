@@ -263,6 +263,15 @@ def _segment_distance(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.nda
     return np.sqrt(np.einsum("...i,...i->...", d, d))
 
 
+def _image_offsets(xy: np.ndarray, C: np.ndarray, L: float) -> np.ndarray:
+    """The candidate's centre ``xy`` from each placed fiber's centre ``C[:, :2]`` in the plane: the nearest
+    periodic image and its 8 neighbours, ``[len(C) * 9, 2]`` (fiber by fiber, 9 images each)."""
+    shifts = np.array([[i * L, j * L] for i in (-1, 0, 1) for j in (-1, 0, 1)])
+    dxy = xy[None, :] - C[:, :2]
+    dxy -= L * np.round(dxy / L)               # the nearest image, then its neighbours
+    return (dxy[:, None, :] + shifts[None]).reshape(-1, 2)
+
+
 def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndarray, R: float, ell: float,
                         L: float, iters: int = 36) -> float:
     """The lowest centre height at which a fiber of direction ``t`` over ``xy`` lies on the floor or in a
@@ -278,11 +287,8 @@ def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndar
     if len(C) == 0:
         return z
     contact = 2.0 * R * CONTACT
-    shifts = np.array([[i * L, j * L] for i in (-1, 0, 1) for j in (-1, 0, 1)])
-    dxy = xy[None, :] - C[:, :2]
-    dxy -= L * np.round(dxy / L)               # the nearest image, then its neighbours
     q = np.zeros((len(C) * 9, 3))
-    q[:, :2] = (dxy[:, None, :] + shifts[None]).reshape(-1, 2)
+    q[:, :2] = _image_offsets(xy, C, L)
     Tj, zj = np.repeat(T, 9, axis=0), np.repeat(C[:, 2], 9)
     t2, Tj2 = t * [1.0, 1.0, 0.0], Tj * [1.0, 1.0, 0.0]
     near = _segment_distance(q - 0.5 * ell * t2, ell * t2, -0.5 * ell * Tj2, ell * Tj2) < contact
@@ -309,10 +315,7 @@ def _lowest_free_height_pieces(xy: np.ndarray, A0: np.ndarray, AD: np.ndarray, C
     if len(C) == 0:
         return z
     contact = 2.0 * R * CONTACT
-    shifts = np.array([[i * L, j * L] for i in (-1, 0, 1) for j in (-1, 0, 1)])
-    dxy = xy[None, :] - C[:, :2]
-    dxy -= L * np.round(dxy / L)                    # the nearest image, then its neighbours
-    q = (dxy[:, None, :] + shifts[None]).reshape(-1, 2)
+    q = _image_offsets(xy, C, L)
     fiber = np.repeat(np.arange(len(C)), 9)
 
     def reach(p0: np.ndarray, pd: np.ndarray) -> np.ndarray:     # farthest point from the centre, in the plane

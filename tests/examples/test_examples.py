@@ -13,6 +13,7 @@ import pytest
 
 from compare.comparison import compare_datasets
 from gonio.data.dataset import read_dataset
+from tests.compare.test_demo_pipeline import PLAN
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -21,34 +22,10 @@ def _main(name: str):
     return runpy.run_path(str(EXAMPLES / name), run_name="example")["main"]
 
 
-#: the example's red-cotton plan reduced for the test: colour needs a 20 nm grid over the visible (ASTM E308),
-#: the four incidences with 8 of the 14 in-plane angles (the colour geometry, 0/10 deg, and the normalisation's
-#: neighbours of the normal, |s| <= 20 deg, kept)
-REDUCED_PLAN = """\
-name = "red-cotton-reduced"
-
-[sample]
-name = "red cotton"
-
-[wavelengths]
-start_nm = 400
-stop_nm = 700
-step_nm = 20
-
-[geometry]
-incidence_deg = [0, 30, 45, 60]
-in_plane_deg = [-60, -40, -20, -10, 10, 20, 40, 70]
-skip_blocked = true
-
-[acquisition]
-itime_ms = 100
-gain = 0
-readings = 8
-
-[calibration]
-white_standard = "spectralon"
-reference_deg = [0, 45]
-"""
+#: the example's red-cotton plan reduced for the test: the demo pipeline test's reduced plan (a 20 nm grid over the
+#: visible for colour, ASTM E308; the four incidences with 8 of the 14 in-plane angles, the colour geometry and the
+#: normalisation's neighbours of the normal kept), with the example's sample
+REDUCED_PLAN = PLAN.replace('name = "green acrylic felt"', 'name = "red cotton"')
 
 
 def test_mock_vs_simulation_prints_the_verdict_of_the_datasets_it_wrote(tmp_path, capsys):
