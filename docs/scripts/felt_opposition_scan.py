@@ -116,6 +116,8 @@ VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
     "n-1.8": ("fiber's refractive index 1.8 (beyond acrylic)", _field(n_host=1.8)),
     "scatterers-x10+rms-slope-x2": ("scatterers' volume fraction x10 and reflection slope x2",
                                     _both(_scatterers(10.0), lambda c: {"rms_slope": 2.0 * c.rms_slope})),
+    "n-1.8+rms-slope-x2": ("fiber's refractive index 1.8 and reflection slope x2",
+                           _both(_field(n_host=1.8), lambda c: {"rms_slope": 2.0 * c.rms_slope})),
 }
 
 
@@ -265,7 +267,7 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
                          "rel_err": {f"{math.degrees(math.acos(r['w_in'][2])):.2f}": r["rel_err"]
                                      for r in info["incidences"]},
                          "seconds": float(info["seconds"]), "table_cache": info["table"]["cache"],
-                         "shadow_roulette": bool(integrator.SHADOW_ROULETTE)}
+                         "shadow_roulette": bool(integrator.SHADOW_ROULETTE), "threads": threads}
     keep = ("fibers", "normal_fibers", "thickness_um", "volume_fraction")
     return {"seed": seed, "felt": {k: [m.info[k] for m in meshes] for k in keep}, "orders": traced,
             "wall_seconds": time.perf_counter() - started, "cpu_seconds": _cpu() - cpu0}
@@ -344,6 +346,8 @@ def main(argv: list[str] | None = None) -> int:
                 "ring_points": RING_POINTS, "exit_bins": list(EXIT_BINS)}
     done: list[dict] = []
     invocations: list[str] = []
+    # the threads do not change a run's figures (each chunk has its own stream); each run keeps its own count
+    threads = args.threads
     if args.out.exists():
         if not (args.force or args.resume):
             raise _fail(f"{args.out} exists; pass --force to replace it or --resume to add the runs it lacks")
@@ -357,6 +361,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise _fail(f"--resume: {args.out} was run with other settings ({', '.join(differs)}); "
                             "give the same options or --force")
             done, invocations = old["variants"], old.get("invocations", [])
+            threads = old["settings"].get("threads", args.threads)
     from simulate.config import load_config
 
     base = load_config(CONFIG)
@@ -366,13 +371,11 @@ def main(argv: list[str] | None = None) -> int:
         canonical.append(f"--target-rel-err {args.target_rel_err:g}")
     if args.max_rays:
         canonical.append(f"--max-rays {args.max_rays}")
-    if args.threads != DEFAULT_THREADS:
-        canonical.append(f"--threads {args.threads}")
     if args.seeds != DEFAULT_SEEDS:
         canonical.append(f"--seeds {args.seeds}")
     if args.out.resolve() != (DATA / f"{NAME}.json").resolve():
         canonical.append(f"--out {shlex.quote(str(args.out))}")
-    data = {"settings": {**settings, "threads": args.threads, "first_seed": base.seed},
+    data: dict[str, Any] = {"settings": {**settings, "threads": threads, "first_seed": base.seed},
             "file": {"sample": str(SAMPLE.relative_to(ROOT)), "incidences": file_ratios()},
             "variants": done, "invocations": invocations}
     order = list(VARIANTS)

@@ -55,7 +55,8 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
                 "spread-10": {"structure.felt_spread_deg"}, "spread-2": {"structure.felt_spread_deg"},
                 "punched-0.2": {"structure.felt_normal_fraction"}, "layers-5": {"structure.layers"},
                 "n-1.6": {"n_host"}, "n-1.8": {"n_host"},
-                "scatterers-x10+rms-slope-x2": {"particles.volume_fraction", "rms_slope"}}
+                "scatterers-x10+rms-slope-x2": {"particles.volume_fraction", "rms_slope"},
+                "n-1.8+rms-slope-x2": {"n_host", "rms_slope"}}
     for name in s.VARIANTS:
         cfg, shown = s.variant_config(name, base)
         if name.startswith("scatterers-x") and "+" not in name:
@@ -74,6 +75,7 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
     assert both.rms_slope == pytest.approx(2 * base.rms_slope)
     assert both.particles.volume_fraction == pytest.approx(10 * base.particles.volume_fraction)
     assert set(shown) == {"particles.volume_fraction", "surface.rms_slope"}
+    assert s.variant_config("n-1.8+rms-slope-x2", base)[1] == {"fiber.n_host": 1.8, "surface.rms_slope": 2 * base.rms_slope}
     for n in (1.6, 1.8):
         cfg, shown = s.variant_config(f"n-{n:g}", base)
         assert cfg.n_host == n and cfg.fiber(wl).n_host == n and shown == {"fiber.n_host": n}
