@@ -218,7 +218,7 @@ def fig_felt_opposition() -> str:
     header2 = ["variant", "felt: volume fraction, thickness", f"multiply scattered share of the rings, θi {t0}°",
                f"ratio's standard error from the seeds' scatter, θi {t0}°, all orders",
                f"β towards the normal at θi {t1}°, 550 nm, over the preset's", "its colour: β450 / β550, β650 / β550",
-               "seeds, CPU seconds"]
+               "seeds, CPU seconds (all its traces)"]
     rows2 = [["the RGL file", "", "", "", *level_colour(f[t1]["normal_view"]), ""]]
     for v in d["variants"]:
         s, a = v["pooled"]["single"][t0], v["pooled"]["all"][t0]
@@ -233,7 +233,7 @@ def fig_felt_opposition() -> str:
     others = _table(header2, rows2)
     st = d["settings"]
     note = (f" (each variant traced at {st['seeds']} seeds, each with its own felts, table and rays, at target "
-            f"{100 * st['target_rel_err']:g} % with {st['threads']} threads, {st['ring_points']} directions on each "
+            f"{100 * st['target_rel_err']:g} %, {st['ring_points']} directions on each "
             "ring; the seeds' rings pooled; 550 / 650 nm; ± one standard error, each ring point's error taken as "
             "independent"
             + ("" if d.get("complete") else "; the scan is incomplete: variants missing") + ")")
