@@ -2,12 +2,14 @@
 
     python docs/scripts/felt_opposition_scan.py                  # every variant; writes docs/data/felt-opposition.json
     python docs/scripts/felt_opposition_scan.py --only preset,scatterers-x10 --out DIR/scan.json
+    python docs/scripts/felt_opposition_scan.py --resume --split   # add the single scattering's two parts
     python docs/scripts/render_figures.py                        # then the note's tables
 
 Each variant is the ``green-felt-mc`` preset with one thing changed (:data:`VARIANTS`): the fibers'
 scatterers (the delustrant's volume fraction), the dye's absorption, the surface's reflection slope,
 the boundary's roughness for transmitted light, the felt's inclination spread (which sets the
-deposited felt's volume fraction), the needle-punched fraction, the fiber amount. Each is traced by
+deposited felt's volume fraction), the needle-punched fraction, the fiber amount, the fiber's refractive
+index; and two combinations of those changes. Each is traced by
 the felt Monte Carlo (:func:`simulate.woven.fabric_beta`, two felt realisations as ``simulate fabric
 --method mc`` builds them) at ``--seeds`` seeds (each its own felts, table and rays; the same seeds for every
 variant, so variants that keep the preset's felt are traced on the same felts) at the RGL file's incidences 40.03 and
@@ -18,6 +20,9 @@ is :func:`compare.felt_metrics.opposition_ratios` of those points (its standard 
 point's error as independent; the table's share of them is common to a ring, so it is indicative); the
 seeds' rings are pooled, and the standard error of the mean of the seeds' own ratios, from their
 scatter, is kept beside it as a check.
+With ``--split`` the single scattering is traced twice more, scoring only the first fiber's surface
+reflection or only the light out of its volume (:func:`only_event`; the same felts, tables, seeds and
+rays, so the two parts add up to the single scattering, exactly when every shadow ray is traced).
 The file's own ratios at the same directions come from the mock sample of the file
 (:func:`gonio.mock.samples.make_sample`).
 
