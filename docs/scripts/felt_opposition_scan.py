@@ -240,9 +240,10 @@ SPLIT_ORDERS: dict[str, tuple[int, int | None]] = {"surface": (1, 0), "volume": 
 
 
 def run_variant(name: str, base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict,
-                orders: tuple[str, ...] = tuple(ORDERS)) -> dict:
+                orders: tuple[str, ...] = tuple(ORDERS), felt: dict | None = None) -> dict:
     """Trace variant ``name`` at ``seed`` (its felts' and rays') at each of ``orders`` (:data:`ORDERS`,
-    :data:`SPLIT_ORDERS`); ``felts``: meshes by (structure, seed)."""
+    :data:`SPLIT_ORDERS`); ``felts``: meshes by (structure, seed). ``felt``: the felts' figures a run
+    already holds; ValueError before any trace if the felts built now differ from them."""
     from simulate.fabric import directions_deg
     from simulate.nonwoven.felt import felt_mesh
     from simulate.products import FELT_SEED_STRIDE
@@ -257,6 +258,10 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
     if key not in felts:
         felts[key] = tuple(felt_mesh(cfg.structure, fiber.radius_um, seed=seed + FELT_SEED_STRIDE * h) for h in (0, 1))
     meshes = felts[key]
+    keep = ("fibers", "normal_fibers", "thickness_um", "volume_fraction")
+    built = {k: [m.info[k] for m in meshes] for k in keep}
+    if felt is not None and built != felt:
+        raise ValueError("the felts built now differ from those its runs were traced on")
     g = geometries()
     w_in = directions_deg(g["theta_i"].to_numpy(float), g["phi_i"].to_numpy(float))
     w_out = directions_deg(g["theta_o"].to_numpy(float), g["phi_o"].to_numpy(float))
@@ -273,8 +278,7 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
                                      for r in info["incidences"]},
                          "seconds": float(info["seconds"]), "table_cache": info["table"]["cache"],
                          "shadow_roulette": bool(integrator.SHADOW_ROULETTE), "threads": threads}
-    keep = ("fibers", "normal_fibers", "thickness_um", "volume_fraction")
-    return {"seed": seed, "felt": {k: [m.info[k] for m in meshes] for k in keep}, "orders": traced,
+    return {"seed": seed, "felt": built, "orders": traced,
             "wall_seconds": time.perf_counter() - started, "cpu_seconds": _cpu() - cpu0}
 
 
@@ -398,13 +402,14 @@ def main(argv: list[str] | None = None) -> int:
             if not missing:
                 continue
             print(f"felt_opposition_scan: {name} ({VARIANTS[name][0]}), seed {seed}: {', '.join(missing)}", flush=True)
-            new = run_variant(name, base, seed, args.target_rel_err, args.threads, args.max_rays, felts, missing)
+            try:
+                new = run_variant(name, base, seed, args.target_rel_err, args.threads, args.max_rays, felts, missing,
+                                  None if run is None else run["felt"])
+            except ValueError as exc:
+                raise _fail(f"{name}, seed {seed}: {exc} ({args.out}); trace the variant anew into another --out") from None
             if run is None:
                 variant["runs"].append(new)
                 variant["runs"].sort(key=lambda r: r["seed"])
-            elif new["felt"] != run["felt"]:
-                raise _fail(f"{name}, seed {seed}: the felts built now differ from those its runs in {args.out} were "
-                            "traced on; rerun the variant with --force")
             else:
                 run["orders"].update(new["orders"])
                 run["cpu_seconds"] += new["cpu_seconds"]

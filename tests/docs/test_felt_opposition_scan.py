@@ -170,7 +170,7 @@ def test_an_existing_result_is_kept_without_force_and_bad_options_are_refused(tm
 
 
 def test_the_single_scattering_splits_into_the_surface_s_reflection_and_the_light_through_the_fiber(tmp_path,
-                                                                                                    monkeypatch):
+                                                                                                    monkeypatch, capsys):
     s = _scan()
     from simulate.woven import integrator
 
@@ -195,6 +195,19 @@ def test_the_single_scattering_splits_into_the_surface_s_reflection_and_the_ligh
             np.testing.assert_allclose(np.add(surf[ring], vol[ring]), one[ring], rtol=1e-9)
             # ... and both carry light at 550 and 650 nm
             assert min(surf[ring][1:]) > 0 and min(vol[ring][1:]) > 0
+    # a run is added to only on the felts it was traced on: refused with one line, before any trace, file kept
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    rec["data"]["variants"][0]["runs"][0]["felt"]["thickness_um"][0] += 1.0
+    del rec["data"]["variants"][0]["runs"][0]["orders"]["surface"]
+    out.write_text(json.dumps(rec), encoding="utf-8")
+    kept = out.read_text(encoding="utf-8")
+    traced = []
+    monkeypatch.setattr("simulate.woven.fabric_beta", lambda *a, **k: traced.append(1))
+    with pytest.raises(SystemExit) as exc:
+        s.main(tiny[:-2] + ["--out", str(out), "--resume", "--split"])
+    assert exc.value.code == 2 and not traced and out.read_text(encoding="utf-8") == kept
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "felts" in err and "seed 0" in err
     # the tracer's shading is restored after each part, also when a trace fails
     before = (integrator._Setup.shade, integrator._Setup.shade_into)
     with pytest.raises(RuntimeError):
