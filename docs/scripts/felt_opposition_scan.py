@@ -164,13 +164,15 @@ def geometries() -> Any:
 def summarise(g: Any, beta: np.ndarray, u: np.ndarray) -> dict:
     """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per wavelength."""
     import pandas as pd
-    from compare.felt_metrics import opposition_ratios
+    from compare.felt_metrics import Missing, opposition_ratios
 
     wl = np.asarray(WAVELENGTHS_NM)
     table = pd.DataFrame({c: np.repeat(g[c].to_numpy(float), wl.size) for c in g.columns})
     table["wavelength_nm"] = np.tile(wl, len(g))
     table["beta"], table["u_beta"] = beta.reshape(-1), u.reshape(-1)
     ratios = opposition_ratios(table)
+    if isinstance(ratios, Missing):      # the scan's own detectors hold both rings (tested)
+        raise RuntimeError(f"felt_opposition_scan: {ratios.reason}")
     out = {}
     for ti in INCIDENCES_DEG:
         at = np.nonzero(np.isclose(g["theta_i"].to_numpy(float), ti))[0]
