@@ -165,7 +165,7 @@ def test_concurrent_writers_leave_one_valid_entry(cache):
     while not all((cache.parent / f"ready-{i}").exists() for i in (1, 2)) and all(p.poll() is None for p in procs):
         time.sleep(0.01)
     gate.touch()
-    outs = [p.communicate(timeout=120) for p in procs]
+    outs = [p.communicate(timeout=900) for p in procs]
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, err
         assert out.strip() == "ok"
