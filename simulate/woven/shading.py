@@ -25,7 +25,7 @@ from simulate.optics.microfacet import cook_torrance_cos_local, unit3
 from simulate.woven.materials import K_FIBER, K_FIBER_BRDF, K_LAMBERT
 from simulate.woven.scene import EPS_UM
 
-__all__ = ["ShadeInputs", "ShadeOutputs", "shade", "new_outputs"]
+__all__ = ["ShadeInputs", "ShadeOutputs", "shade", "shade_groups", "new_outputs"]
 
 
 class ShadeInputs(NamedTuple):
@@ -369,15 +369,32 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
 
     ``out_w`` rows of zeros are dead rays. ``nee_c[i, e, d, :]`` is the intensity per unit
     incident power towards detector ``d`` of event ``e`` (0: surface, 1: volume exit) from
-    origin ``nee_o[i, e]``, to be multiplied by the visibility.
+    origin ``nee_o[i, e]``, to be multiplied by the visibility; it is written only where
+    ``nee_need[i, e, d]`` is set (the rest of ``nee_c`` is left as it was).
     """
+    _shade_rows(seed, 0, prim.shape[0], prim, bu, bv, pos, dirs, weight, inp, inp.detectors, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def shade_groups(seeds, cuts, prim, bu, bv, pos, dirs, weight, inp, detectors, out):
+    """:func:`shade` of a wavefront whose rows ``cuts[g]:cuts[g + 1]`` belong to group ``g`` (a rotation),
+    scored towards ``detectors[g]`` from the random state ``seeds[g]``: the same as one :func:`shade` call per
+    non-empty group on its slices, in one call (compiled)."""
+    for g in range(seeds.shape[0]):
+        if cuts[g + 1] > cuts[g]:
+            _shade_rows(seeds[g], cuts[g], cuts[g + 1], prim, bu, bv, pos, dirs, weight, inp, detectors[g], out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, out):
+    """:func:`shade` of the rows ``lo:hi`` towards ``detectors``, from the random state ``seed``."""
     vertices, faces, normals, tangents = inp.vertices, inp.faces, inp.normals, inp.tangents
     vertex_s, vertex_phi, face_yarn, vertex_base = inp.vertex_s, inp.vertex_phi, inp.face_yarn, inp.vertex_base
     n_s, yarn_length, sides, run_axis = inp.n_s, inp.yarn_length, inp.sides, inp.run_axis
     kind, rho, m, n_host, albedo_tab = inp.kind, inp.rho, inp.m, inp.n_host, inp.albedo_tab
     T, cdf, cell_sum, c_bar, tau, nodes = inp.T, inp.cdf, inp.cell_sum, inp.c_bar, inp.tau, inp.nodes
     dpsi, n_psi, n_v, n_mu, n_phi = inp.dpsi, inp.n_psi, inp.n_v, inp.n_mu, inp.n_phi
-    v_edges, off_tot, off_bar, detectors = inp.v_edges, inp.off_tot, inp.off_bar, inp.detectors
+    v_edges, off_tot, off_bar = inp.v_edges, inp.off_tot, inp.off_bar
     twist_c, twist_s, r_yarn, face_base = inp.twist_c, inp.twist_s, inp.r_yarn, inp.face_base
     face_normals, layer_d = inp.face_normals, inp.layer_d
     axial_shift = inp.axial_shift
@@ -387,12 +404,11 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
     # every call reproducible whatever thread runs it (no state is shared between calls)
     np.random.seed(seed)
-    n = prim.shape[0]
     L = weight.shape[1]
     D = detectors.shape[0]
     n_cells = n_psi * n_v * n_mu * n_phi
     clampf = np.ones(L)
-    for i in range(n):
+    for i in range(lo, hi):
         f = prim[i]
         out_prim[i] = f
         yarn = face_yarn[f]
