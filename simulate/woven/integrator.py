@@ -225,7 +225,7 @@ class _Setup:
 # arithmetic (the bincount's and np.add.at's sums in input order), so a run is the same bit for bit;
 # tests/simulate/woven/test_chunk_kernels.py holds those numpy lines as the reference.
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _tally_escapes(prim, ray, last, dirs, azimuth, weight, n, n_mu, n_phi, refl, trans, bins, bins2,
                    hit_ray, hit_idx):
     """Score the rays of a bounce that escaped (up: ``refl`` and the exit bins, ``bins2`` their squares;
@@ -265,7 +265,7 @@ def _tally_escapes(prim, ray, last, dirs, azimuth, weight, n, n_mu, n_phi, refl,
     return m, lost, continued, self_hits
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _gather_hits(hit_idx, m, prim, u, v, position, dirs, weight, hp, hu, hv, hpos, hd, hw):
     """The hit rows of a wavefront (``hit_idx[:m]``) gathered into the shading's inputs."""
     L = weight.shape[1]
@@ -281,7 +281,7 @@ def _gather_hits(hit_idx, m, prim, u, v, position, dirs, weight, hp, hu, hv, hpo
             hw[j, k] = weight[i, k]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, cidx, size, p, state, binsum):
     """The next-event candidates of a bounce (``need``'s true entries in C order), their sizes (largest
     spectral value), the roulette's probabilities against the running per-detector sums ``cand`` (updated
@@ -328,7 +328,7 @@ def _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, c
     return c, draw
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _shadow_rays(c, state, p, draws, cidx, nee_o, detectors, hit_group, wrap, lx, ly, traced, origins, towards):
     """The candidates traced (state 1, or 2 and the next of ``draws`` below ``p``: in order), their
     shadow rays' origins (into the cell for a felt) and directions. Returns how many."""
@@ -355,7 +355,7 @@ def _shadow_rays(c, state, p, draws, cidx, nee_o, detectors, hit_group, wrap, lx
     return t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _score_visible(t, traced, vis, cidx, p, nee_c, hit_ray, acc):
     """Add each visible traced candidate's contribution over its probability to its ray's detector, in order."""
     L = nee_c.shape[3]
@@ -370,7 +370,7 @@ def _score_visible(t, traced, vis, cidx, p, nee_c, hit_ray, acc):
             acc[r, d, k] += nee_c[i, e, d, k] / pq
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _path_roulette(w, below, low):
     """Mark the continuing rays whose largest spectral weight is below ``below`` (and above 0) for the
     path's Russian roulette; returns how many."""
@@ -387,7 +387,7 @@ def _path_roulette(w, below, low):
     return c
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _survivors(o, d, w, left, hit_ray, low, draws, survive, wrap, lx, ly, origins, dirs, weight, ray, last):
     """Play the path's roulette (``draws`` in order over the ``low`` rows: kept with probability
     ``survive``, their weight over it) and compact the live rays (largest weight above 0) into the next

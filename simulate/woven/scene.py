@@ -91,7 +91,7 @@ def _segment_limits(origins, directions, lx, ly, z_lo, z_hi, t_out, face_out):
         face_out[i] = face
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _prepare(o, d, active, na, lx, ly, z_lo, z_hi, oa, da, ta, fa, o32, d32, dist32):
     """A wrap round's rays (``active[:na]``) gathered, their segments' limits (:func:`_segment_limits`) and
     Embree's float32 inputs (the distance at least 1e-6) (compiled)."""
@@ -108,7 +108,7 @@ def _prepare(o, d, active, na, lx, ly, z_lo, z_hi, oa, da, ta, fa, o32, d32, dis
         dist32[j] = np.float32(max(ta[j], 1e-6))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _settle(hit_prim, hit_u, hit_v, hit_t, occlusion, active, na, oa, da, ta, fa, lx, ly, prim, u, v, o,
             seg_origin):
     """Apply a wrap round's Embree answers: a hit's triangle, barycentrics and point, an escape's code and

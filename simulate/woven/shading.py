@@ -135,21 +135,24 @@ def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yar
         a, b, c = v00, v11, v01
         wa, wb, wc = 1.0 - fp, fs, fp - fs
         second = 1
-    p = np.empty(3)
-    n = np.empty(3)
-    t = np.empty(3)
-    g = np.zeros(3)
-    for q in range(3):
-        p[q] = wa * vertices[a, q] + wb * vertices[b, q] + wc * vertices[c, q]
-        n[q] = wa * normals[a, q] + wb * normals[b, q] + wc * normals[c, q]
-        t[q] = wa * tangents[a, q] + wb * tangents[b, q] + wc * tangents[c, q]
+    # tuples, not arrays: no allocation per call (three calls per volume exit)
+    p = (wa * vertices[a, 0] + wb * vertices[b, 0] + wc * vertices[c, 0],
+         wa * vertices[a, 1] + wb * vertices[b, 1] + wc * vertices[c, 1],
+         wa * vertices[a, 2] + wb * vertices[b, 2] + wc * vertices[c, 2])
+    n = (wa * normals[a, 0] + wb * normals[b, 0] + wc * normals[c, 0],
+         wa * normals[a, 1] + wb * normals[b, 1] + wc * normals[c, 1],
+         wa * normals[a, 2] + wb * normals[b, 2] + wc * normals[c, 2])
+    t = (wa * tangents[a, 0] + wb * tangents[b, 0] + wc * tangents[c, 0],
+         wa * tangents[a, 1] + wb * tangents[b, 1] + wc * tangents[c, 1],
+         wa * tangents[a, 2] + wb * tangents[b, 2] + wc * tangents[c, 2])
+    g = (0.0, 0.0, 0.0)
     face = -1
     if face_base.shape[0] > 0:
         # the contract's faces wind (v00, v11, v10) and (v00, v01, v11): (a, c, b) here, outward
         face = face_base[yarn] + 2 * (i_s * sides + i_p) + second
         e1x, e1y, e1z = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
         e2x, e2y, e2z = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], vertices[b, 2] - vertices[a, 2]
-        g[0], g[1], g[2] = unit3(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x)
+        g = unit3(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x)
     return p, n, t, g, face
 
 
