@@ -2,12 +2,14 @@
 
     python docs/scripts/felt_opposition_scan.py                  # every variant; writes docs/data/felt-opposition.json
     python docs/scripts/felt_opposition_scan.py --only preset,scatterers-x10 --out DIR/scan.json
+    python docs/scripts/felt_opposition_scan.py --resume --split   # add the single scattering's two parts
     python docs/scripts/render_figures.py                        # then the note's tables
 
 Each variant is the ``green-felt-mc`` preset with one thing changed (:data:`VARIANTS`): the fibers'
 scatterers (the delustrant's volume fraction), the dye's absorption, the surface's reflection slope,
 the boundary's roughness for transmitted light, the felt's inclination spread (which sets the
-deposited felt's volume fraction), the needle-punched fraction, the fiber amount. Each is traced by
+deposited felt's volume fraction), the needle-punched fraction, the fiber amount, the fiber's refractive
+index; and two combinations of those changes. Each is traced by
 the felt Monte Carlo (:func:`simulate.woven.fabric_beta`, two felt realisations as ``simulate fabric
 --method mc`` builds them) at ``--seeds`` seeds (each its own felts, table and rays; the same seeds for every
 variant, so variants that keep the preset's felt are traced on the same felts) at the RGL file's incidences 40.03 and
@@ -18,6 +20,9 @@ is :func:`compare.felt_metrics.opposition_ratios` of those points (its standard 
 point's error as independent; the table's share of them is common to a ring, so it is indicative); the
 seeds' rings are pooled, and the standard error of the mean of the seeds' own ratios, from their
 scatter, is kept beside it as a check.
+With ``--split`` the single scattering is traced twice more, scoring only the first fiber's surface
+reflection or only the light out of its volume (:func:`only_event`; the same felts, tables, seeds and
+rays, so the two parts add up to the single scattering, exactly when every shadow ray is traced).
 The file's own ratios at the same directions come from the mock sample of the file
 (:func:`gonio.mock.samples.make_sample`).
 
@@ -28,6 +33,7 @@ adds the runs it lacks), wrapped as :func:`render_figures.record` does: the comm
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
@@ -36,7 +42,7 @@ import resource
 import shlex
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -82,6 +88,16 @@ def _structure(**values: Any) -> Callable[[Any], dict]:
     return lambda cfg: {"structure": dataclasses.replace(cfg.structure, **values)}
 
 
+def _both(*changes: Callable[[Any], dict]) -> Callable[[Any], dict]:
+    """Several changes of different fields at once."""
+    def change(cfg: Any) -> dict:
+        out: dict = {}
+        for c in changes:
+            out.update(c(cfg))
+        return out
+    return change
+
+
 #: name -> (what changes, the change of the preset's config), in the order the scan runs them
 VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
     "preset": ("green-felt-mc as shipped", _field()),
@@ -101,6 +117,12 @@ VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
     "spread-2": ("inclination spread 2 deg", _structure(felt_spread_deg=2.0)),
     "punched-0.2": ("needle-punched fraction 0.2", _structure(felt_normal_fraction=0.2)),
     "layers-5": ("fiber amount halved (5 layers)", _structure(layers=5)),
+    "n-1.6": ("fiber's refractive index 1.6", _field(n_host=1.6)),
+    "n-1.8": ("fiber's refractive index 1.8 (beyond acrylic)", _field(n_host=1.8)),
+    "scatterers-x10+rms-slope-x2": ("scatterers' volume fraction x10 and reflection slope x2",
+                                    _both(_scatterers(10.0), lambda c: {"rms_slope": 2.0 * c.rms_slope})),
+    "n-1.8+rms-slope-x2": ("fiber's refractive index 1.8 and reflection slope x2",
+                           _both(_field(n_host=1.8), lambda c: {"rms_slope": 2.0 * c.rms_slope})),
 }
 
 
@@ -113,6 +135,8 @@ def variant_config(name: str, base: Any) -> tuple[Any, dict]:
             shown["particles.volume_fraction"] = value.volume_fraction
         elif key == "dye":
             shown["fiber.dye.log10_per_um"] = list(value.params["log10_per_um"])
+        elif key == "n_host":
+            shown["fiber.n_host"] = value
         elif key == "structure":
             shown.update({f"structure.{f.name}": getattr(value, f.name) for f in dataclasses.fields(value)
                           if getattr(value, f.name) != getattr(base.structure, f.name)})
@@ -140,13 +164,15 @@ def geometries() -> Any:
 def summarise(g: Any, beta: np.ndarray, u: np.ndarray) -> dict:
     """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per wavelength."""
     import pandas as pd
-    from compare.felt_metrics import opposition_ratios
+    from compare.felt_metrics import Missing, opposition_ratios
 
     wl = np.asarray(WAVELENGTHS_NM)
     table = pd.DataFrame({c: np.repeat(g[c].to_numpy(float), wl.size) for c in g.columns})
     table["wavelength_nm"] = np.tile(wl, len(g))
     table["beta"], table["u_beta"] = beta.reshape(-1), u.reshape(-1)
     ratios = opposition_ratios(table)
+    if isinstance(ratios, Missing):      # the scan's own detectors hold both rings (tested)
+        raise RuntimeError(f"felt_opposition_scan: {ratios.reason}")
     out = {}
     for ti in INCIDENCES_DEG:
         at = np.nonzero(np.isclose(g["theta_i"].to_numpy(float), ti))[0]
@@ -173,13 +199,58 @@ def file_ratios() -> dict:
     return summarise(g, beta, np.zeros_like(beta))
 
 
-def run_variant(name: str, base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict) -> dict:
-    """Trace variant ``name`` at ``seed`` (its felts' and rays') with the single scattering and with all
-    orders; ``felts``: meshes by (structure, seed)."""
+@contextlib.contextmanager
+def only_event(event: int) -> Iterator[None]:
+    """Within the block the felt tracer scores the next-event estimates of one shading event only: 0 the
+    fiber surface's reflection, 1 the light out of the fiber's volume (the events of
+    :func:`simulate.woven.shading.shade`). The other event's estimates are dropped after each shading call
+    (its contributions zeroed, no shadow ray asked for); the rays' paths are not changed. The tracer's
+    files are not edited: the two shading calls of :class:`simulate.woven.integrator._Setup` are wrapped for
+    the block and restored after it."""
+    from simulate.woven import integrator
+
+    if event not in (0, 1):
+        raise ValueError(f"only_event: event must be 0 (surface) or 1 (volume), got {event!r}")
+    cls = integrator._Setup
+    shade, shade_into = cls.shade, cls.shade_into
+    drop = 1 - event
+
+    def _drop(out: Any) -> None:
+        out.nee_c[:, drop] = 0.0
+        out.nee_need[:, drop] = False
+
+    def shade_one(self: Any, *args: Any) -> Any:
+        out = shade(self, *args)
+        _drop(out)
+        return out
+
+    def shade_into_one(self: Any, *args: Any) -> None:
+        shade_into(self, *args)
+        _drop(args[-1])
+
+    cls.shade, cls.shade_into = shade_one, shade_into_one     # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        cls.shade, cls.shade_into = shade, shade_into          # type: ignore[method-assign]
+
+
+#: the orders a run traces: name -> (scattering events followed, the shading event scored: None for both)
+ORDERS: dict[str, tuple[int, int | None]] = {"single": (1, None), "all": (0, None)}
+#: the single scattering's two parts (``--split``): the first fiber's surface reflection, the light through it
+SPLIT_ORDERS: dict[str, tuple[int, int | None]] = {"surface": (1, 0), "volume": (1, 1)}
+
+
+def run_variant(name: str, base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict,
+                orders: tuple[str, ...] = tuple(ORDERS), felt: dict | None = None) -> dict:
+    """Trace variant ``name`` at ``seed`` (its felts' and rays') at each of ``orders`` (:data:`ORDERS`,
+    :data:`SPLIT_ORDERS`); ``felts``: meshes by (structure, seed). ``felt``: the felts' figures a run
+    already holds; ValueError before any trace if the felts built now differ from them."""
     from simulate.fabric import directions_deg
     from simulate.nonwoven.felt import felt_mesh
     from simulate.products import FELT_SEED_STRIDE
     from simulate.woven import fabric_beta
+    from simulate.woven import integrator
 
     cfg, _ = variant_config(name, base)
     wl = np.asarray(WAVELENGTHS_NM)
@@ -189,30 +260,37 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
     if key not in felts:
         felts[key] = tuple(felt_mesh(cfg.structure, fiber.radius_um, seed=seed + FELT_SEED_STRIDE * h) for h in (0, 1))
     meshes = felts[key]
+    keep = ("fibers", "normal_fibers", "thickness_um", "volume_fraction")
+    built = {k: [m.info[k] for m in meshes] for k in keep}
+    if felt is not None and built != felt:
+        raise ValueError("the felts built now differ from those its runs were traced on")
     g = geometries()
     w_in = directions_deg(g["theta_i"].to_numpy(float), g["phi_i"].to_numpy(float))
     w_out = directions_deg(g["theta_o"].to_numpy(float), g["phi_o"].to_numpy(float))
-    orders = {}
-    for label, events in (("single", 1), ("all", 0)):
-        beta, u, info = fabric_beta(meshes, fiber, w_in, w_out, wl, max_events=events, target_rel_err=target,
-                                    max_rays=max_rays, seed=seed, threads=threads, structure=cfg.structure,
-                                    exit_bins=EXIT_BINS, axial_shift=bool(cfg.axial_shift), w_t_nodes=cfg.w_t_nodes())
-        orders[label] = {"incidences": summarise(g, beta, u), "rays": int(info["rays"]), "stop": info["stop"],
+    traced = {}
+    for label in orders:
+        events, event = {**ORDERS, **SPLIT_ORDERS}[label]
+        with contextlib.nullcontext() if event is None else only_event(event):
+            beta, u, info = fabric_beta(meshes, fiber, w_in, w_out, wl, max_events=events, target_rel_err=target,
+                                        max_rays=max_rays, seed=seed, threads=threads, structure=cfg.structure,
+                                        exit_bins=EXIT_BINS, axial_shift=bool(cfg.axial_shift),
+                                        w_t_nodes=cfg.w_t_nodes())
+        traced[label] = {"incidences": summarise(g, beta, u), "rays": int(info["rays"]), "stop": info["stop"],
                          "rel_err": {f"{math.degrees(math.acos(r['w_in'][2])):.2f}": r["rel_err"]
                                      for r in info["incidences"]},
-                         "seconds": float(info["seconds"]), "table_cache": info["table"]["cache"]}
-    keep = ("fibers", "normal_fibers", "thickness_um", "volume_fraction")
-    return {"seed": seed, "felt": {k: [m.info[k] for m in meshes] for k in keep}, "orders": orders,
+                         "seconds": float(info["seconds"]), "table_cache": info["table"]["cache"],
+                         "shadow_roulette": bool(integrator.SHADOW_ROULETTE), "threads": threads}
+    return {"seed": seed, "felt": built, "orders": traced,
             "wall_seconds": time.perf_counter() - started, "cpu_seconds": _cpu() - cpu0}
 
 
 def pooled(runs: list[dict]) -> dict:
-    """The runs (seeds) of one variant pooled, per order and incidence: the rings' and the normal view's
+    """The runs (seeds) of one variant pooled, per order (those every run holds) and incidence: the rings' and the normal view's
     means over the seeds, the ratio of the pooled rings with its standard error from the points' errors
     (independent), and the standard error of the mean of the seeds' own ratios from their scatter."""
     out: dict = {}
     n = len(runs)
-    for order in ("single", "all"):
+    for order in [o for o in (*ORDERS, *SPLIT_ORDERS) if all(o in r["orders"] for r in runs)]:
         out[order] = {}
         for ti in runs[0]["orders"][order]["incidences"]:
             per = [r["orders"][order]["incidences"][ti] for r in runs]
@@ -257,6 +335,9 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"runs per variant, each with its own felts, table and rays (default {DEFAULT_SEEDS})")
     ap.add_argument("--out", type=Path, default=DATA / f"{NAME}.json",
                     help="the JSON to write (default docs/data/felt-opposition.json)")
+    ap.add_argument("--split", action="store_true",
+                    help="also trace the single scattering's two parts, the first fiber's surface reflection and "
+                         "the light through it (with --resume: added to the runs that lack them)")
     group = ap.add_mutually_exclusive_group()
     group.add_argument("--force", action="store_true", help="replace an existing --out")
     group.add_argument("--resume", action="store_true",
@@ -276,6 +357,8 @@ def main(argv: list[str] | None = None) -> int:
                 "ring_points": RING_POINTS, "exit_bins": list(EXIT_BINS)}
     done: list[dict] = []
     invocations: list[str] = []
+    # the threads do not change a run's figures (each chunk has its own stream); each run keeps its own count
+    threads = args.threads
     if args.out.exists():
         if not (args.force or args.resume):
             raise _fail(f"{args.out} exists; pass --force to replace it or --resume to add the runs it lacks")
@@ -289,6 +372,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise _fail(f"--resume: {args.out} was run with other settings ({', '.join(differs)}); "
                             "give the same options or --force")
             done, invocations = old["variants"], old.get("invocations", [])
+            threads = old["settings"].get("threads", args.threads)
     from simulate.config import load_config
 
     base = load_config(CONFIG)
@@ -298,13 +382,11 @@ def main(argv: list[str] | None = None) -> int:
         canonical.append(f"--target-rel-err {args.target_rel_err:g}")
     if args.max_rays:
         canonical.append(f"--max-rays {args.max_rays}")
-    if args.threads != DEFAULT_THREADS:
-        canonical.append(f"--threads {args.threads}")
     if args.seeds != DEFAULT_SEEDS:
         canonical.append(f"--seeds {args.seeds}")
     if args.out.resolve() != (DATA / f"{NAME}.json").resolve():
         canonical.append(f"--out {shlex.quote(str(args.out))}")
-    data = {"settings": {**settings, "threads": args.threads, "first_seed": base.seed},
+    data: dict[str, Any] = {"settings": {**settings, "threads": threads, "first_seed": base.seed},
             "file": {"sample": str(SAMPLE.relative_to(ROOT)), "incidences": file_ratios()},
             "variants": done, "invocations": invocations}
     order = list(VARIANTS)
@@ -312,15 +394,28 @@ def main(argv: list[str] | None = None) -> int:
         if not any(v["name"] == name for v in done):
             done.append({"name": name, "label": VARIANTS[name][0], "changes": variant_config(name, base)[1], "runs": []})
     done.sort(key=lambda v: order.index(v["name"]))
+    wanted = (*ORDERS, *(SPLIT_ORDERS if args.split else ()))
     for seed in range(base.seed, base.seed + args.seeds):     # every variant at one seed before the next seed
         felts: dict = {}
         for name in names:
             variant = next(v for v in done if v["name"] == name)
-            if any(r["seed"] == seed for r in variant["runs"]):
+            run = next((r for r in variant["runs"] if r["seed"] == seed), None)
+            missing = tuple(o for o in wanted if run is None or o not in run["orders"])
+            if not missing:
                 continue
-            print(f"felt_opposition_scan: {name} ({VARIANTS[name][0]}), seed {seed}", flush=True)
-            variant["runs"].append(run_variant(name, base, seed, args.target_rel_err, args.threads, args.max_rays,
-                                               felts))
+            print(f"felt_opposition_scan: {name} ({VARIANTS[name][0]}), seed {seed}: {', '.join(missing)}", flush=True)
+            try:
+                new = run_variant(name, base, seed, args.target_rel_err, args.threads, args.max_rays, felts, missing,
+                                  None if run is None else run["felt"])
+            except ValueError as exc:
+                raise _fail(f"{name}, seed {seed}: {exc} ({args.out}); trace the variant anew into another --out") from None
+            if run is None:
+                variant["runs"].append(new)
+                variant["runs"].sort(key=lambda r: r["seed"])
+            else:
+                run["orders"].update(new["orders"])
+                run["cpu_seconds"] += new["cpu_seconds"]
+                run["wall_seconds"] += new["wall_seconds"]
             variant["pooled"] = pooled(variant["runs"])
             variant["cpu_seconds"] = sum(r["cpu_seconds"] for r in variant["runs"])
             data["complete"] = all(any(v["name"] == n and len(v["runs"]) == args.seeds for v in done) for n in order)

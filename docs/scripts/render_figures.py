@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import re
@@ -196,7 +197,8 @@ def _pair(values: list, u: list | None = None, digits: int = 3) -> str:
 def fig_felt_opposition() -> str:
     """The felt Monte Carlo's opposition ratio with one parameter of ``green-felt-mc`` changed at a time."""
     rec = load("felt-opposition")
-    d = rec["data"]
+    d = dict(rec["data"])
+    d["variants"] = [v for v in d["variants"] if v.get("pooled")]     # a scan under way lists variants not yet traced
     incid = [f"{t:g}" for t in d["settings"]["incidences_deg"]]
     f = d["file"]["incidences"]
     header = ["variant"] + [f"θi {t}°, {o}" for t in incid for o in ("single scattering", "all orders")]
@@ -216,7 +218,7 @@ def fig_felt_opposition() -> str:
     header2 = ["variant", "felt: volume fraction, thickness", f"multiply scattered share of the rings, θi {t0}°",
                f"ratio's standard error from the seeds' scatter, θi {t0}°, all orders",
                f"β towards the normal at θi {t1}°, 550 nm, over the preset's", "its colour: β450 / β550, β650 / β550",
-               "seeds, CPU seconds"]
+               "seeds, CPU seconds (all its traces)"]
     rows2 = [["the RGL file", "", "", "", *level_colour(f[t1]["normal_view"]), ""]]
     for v in d["variants"]:
         s, a = v["pooled"]["single"][t0], v["pooled"]["all"][t0]
@@ -231,11 +233,48 @@ def fig_felt_opposition() -> str:
     others = _table(header2, rows2)
     st = d["settings"]
     note = (f" (each variant traced at {st['seeds']} seeds, each with its own felts, table and rays, at target "
-            f"{100 * st['target_rel_err']:g} % with {st['threads']} threads, {st['ring_points']} directions on each "
+            f"{100 * st['target_rel_err']:g} %, {st['ring_points']} directions on each "
             "ring; the seeds' rings pooled; 550 / 650 nm; ± one standard error, each ring point's error taken as "
             "independent"
             + ("" if d.get("complete") else "; the scan is incomplete: variants missing") + ")")
-    return ratios + "\n\n" + others + "\n\n" + _source(rec, note)
+    split = _felt_split_table(d, incid)
+    if split:
+        note += (". Third table: the variants traced with `--split`; each part's share of the light on the ring 30° "
+                 "from retro and its own ratio (the all-orders ratio is the shares' weighted sum of the parts' ratios); "
+                 "the multiply scattered part is all orders less the two single-scattering parts")
+    return ratios + "\n\n" + others + ("\n\n" + split if split else "") + "\n\n" + _source(rec, note)
+
+
+def _felt_split_table(d: dict[str, Any], incid: list[str]) -> str:
+    """The opposition ratio taken apart: the first fiber's surface reflection, the light through it, the rest."""
+    rows = []
+    for v in d["variants"]:
+        o = v["pooled"]
+        if "surface" not in o or "volume" not in o:
+            continue
+        for t in incid:
+            a, s_, b = o["all"][t], o["surface"][t], o["volume"][t]
+            m6 = [a["ring_6"][k] - s_["ring_6"][k] - b["ring_6"][k] for k in range(3)]
+            m30 = [a["ring_30"][k] - s_["ring_30"][k] - b["ring_30"][k] for k in range(3)]
+            um6 = [math.sqrt(a["u_ring_6"][k] ** 2 + s_["u_ring_6"][k] ** 2 + b["u_ring_6"][k] ** 2) for k in range(3)]
+            um30 = [math.sqrt(a["u_ring_30"][k] ** 2 + s_["u_ring_30"][k] ** 2 + b["u_ring_30"][k] ** 2)
+                    for k in range(3)]
+            cells = []
+            for r6, r30, u6, u30 in ((s_["ring_6"], s_["ring_30"], s_["u_ring_6"], s_["u_ring_30"]),
+                                     (b["ring_6"], b["ring_30"], b["u_ring_6"], b["u_ring_30"]), (m6, m30, um6, um30)):
+                ratio = [r6[k] / r30[k] for k in range(3)]
+                u = [ratio[k] * math.hypot(u6[k] / r6[k], u30[k] / r30[k]) for k in range(3)]
+                share = [r30[k] / a["ring_30"][k] for k in range(3)]
+                cells += [_pair(share, digits=2), _pair(ratio, u)]
+            excess = a["ratio"][2] - a["ratio"][1]
+            cells.append(f"{_pair(a['ratio'], a['u_ratio'])}; {excess:+.3f} ± {math.hypot(a['u_ratio'][1], a['u_ratio'][2]):.3f}")
+            rows.append([v["label"], f"{t}°", *cells])
+    if not rows:
+        return ""
+    header = ["variant", "θi", "surface reflection at the first fiber: share", "its ratio",
+              "through the first fiber, out of it: share", "its ratio", "multiply scattered: share", "its ratio",
+              "all orders: ratio; 650 nm less 550 nm"]
+    return _table(header, rows)
 
 
 FIGURES: dict[str, Callable[[], str]] = {

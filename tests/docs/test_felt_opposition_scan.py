@@ -53,10 +53,13 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
                 "transmission-smooth": {"transmission_rms_slope", "transmission_rms_slope_around"},
                 "transmission-x2": {"transmission_rms_slope", "transmission_rms_slope_around"},
                 "spread-10": {"structure.felt_spread_deg"}, "spread-2": {"structure.felt_spread_deg"},
-                "punched-0.2": {"structure.felt_normal_fraction"}, "layers-5": {"structure.layers"}}
+                "punched-0.2": {"structure.felt_normal_fraction"}, "layers-5": {"structure.layers"},
+                "n-1.6": {"n_host"}, "n-1.8": {"n_host"},
+                "scatterers-x10+rms-slope-x2": {"particles.volume_fraction", "rms_slope"},
+                "n-1.8+rms-slope-x2": {"n_host", "rms_slope"}}
     for name in s.VARIANTS:
         cfg, shown = s.variant_config(name, base)
-        if name.startswith("scatterers-x"):
+        if name.startswith("scatterers-x") and "+" not in name:
             factor = float(name.removeprefix("scatterers-x"))
             assert _differences(cfg, base) == {"particles.volume_fraction"}
             assert cfg.particles.volume_fraction == pytest.approx(factor * base.particles.volume_fraction)
@@ -68,6 +71,14 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
             factor = float(name.removeprefix("dye-x"))
             np.testing.assert_allclose(cfg.dye(wl), factor * base.dye(wl), rtol=1e-12)
     assert s.variant_config("rms-slope-x2", base)[0].rms_slope == pytest.approx(2 * base.rms_slope)
+    both, shown = s.variant_config("scatterers-x10+rms-slope-x2", base)
+    assert both.rms_slope == pytest.approx(2 * base.rms_slope)
+    assert both.particles.volume_fraction == pytest.approx(10 * base.particles.volume_fraction)
+    assert set(shown) == {"particles.volume_fraction", "surface.rms_slope"}
+    assert s.variant_config("n-1.8+rms-slope-x2", base)[1] == {"fiber.n_host": 1.8, "surface.rms_slope": 2 * base.rms_slope}
+    for n in (1.6, 1.8):
+        cfg, shown = s.variant_config(f"n-{n:g}", base)
+        assert cfg.n_host == n and cfg.fiber(wl).n_host == n and shown == {"fiber.n_host": n}
     assert s.variant_config("spread-10", base)[0].structure.felt_spread_deg == 10.0
     smooth = s.variant_config("transmission-smooth", base)[0]
     assert smooth.transmission_rms_slope == 0.0 and smooth.transmission_rms_slope_around is None
@@ -156,3 +167,54 @@ def test_an_existing_result_is_kept_without_force_and_bad_options_are_refused(tm
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and word in err
     assert out.read_text(encoding="utf-8") == "{}"
+
+
+def test_the_single_scattering_splits_into_the_surface_s_reflection_and_the_light_through_the_fiber(tmp_path,
+                                                                                                    monkeypatch, capsys):
+    s = _scan()
+    from simulate.woven import integrator
+
+    # every shadow ray traced: the two parts' candidates are then exactly the single scattering's
+    monkeypatch.setattr(integrator, "SHADOW_ROULETTE", False)
+    out = tmp_path / "scan.json"
+    tiny = ["--only", "preset", "--seeds", "1", "--target-rel-err", "0.5", "--max-rays", "256", "--out", str(out)]
+    assert s.main(tiny) == 0
+    first = json.loads(out.read_text(encoding="utf-8"))["data"]["variants"][0]
+    assert set(first["runs"][0]["orders"]) == {"single", "all"}
+    # --resume --split adds the two parts to the run it holds, on the same felts
+    assert s.main(tiny[:-2] + ["--out", str(out), "--resume", "--split"]) == 0
+    v = json.loads(out.read_text(encoding="utf-8"))["data"]["variants"][0]
+    run = v["runs"][0]
+    assert len(v["runs"]) == 1 and set(run["orders"]) == {"single", "all", "surface", "volume"}
+    assert run["orders"]["single"] == first["runs"][0]["orders"]["single"]
+    assert set(v["pooled"]) == {"single", "all", "surface", "volume"}
+    for ti in ("40.03", "27.76"):
+        one, surf, vol = (run["orders"][o]["incidences"][ti] for o in ("single", "surface", "volume"))
+        for ring in ("ring_6", "ring_30"):
+            # the same paths: the parts add up to the single scattering ...
+            np.testing.assert_allclose(np.add(surf[ring], vol[ring]), one[ring], rtol=1e-9)
+            # ... and both carry light at 550 and 650 nm
+            assert min(surf[ring][1:]) > 0 and min(vol[ring][1:]) > 0
+    # a run is added to only on the felts it was traced on: refused with one line, before any trace, file kept
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    rec["data"]["variants"][0]["runs"][0]["felt"]["thickness_um"][0] += 1.0
+    del rec["data"]["variants"][0]["runs"][0]["orders"]["surface"]
+    out.write_text(json.dumps(rec), encoding="utf-8")
+    kept = out.read_text(encoding="utf-8")
+    traced = []
+    monkeypatch.setattr("simulate.woven.fabric_beta", lambda *a, **k: traced.append(1))
+    with pytest.raises(SystemExit) as exc:
+        s.main(tiny[:-2] + ["--out", str(out), "--resume", "--split"])
+    assert exc.value.code == 2 and not traced and out.read_text(encoding="utf-8") == kept
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "felts" in err and "seed 0" in err
+    # the tracer's shading is restored after each part, also when a trace fails
+    before = (integrator._Setup.shade, integrator._Setup.shade_into)
+    with pytest.raises(RuntimeError):
+        with s.only_event(0):
+            assert integrator._Setup.shade is not before[0]
+            raise RuntimeError("inside")
+    assert (integrator._Setup.shade, integrator._Setup.shade_into) == before
+    with pytest.raises(ValueError, match="event"):
+        with s.only_event(2):
+            pass
