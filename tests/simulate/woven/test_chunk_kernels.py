@@ -285,3 +285,47 @@ def test_periodic_walk_matches_numpy():
         assert stats["queries"] == ref[5] > 2 * N       # the walk wrapped
         codes = set(np.unique(got[0]).tolist())
         assert {ESCAPED_UP, ESCAPED_DOWN, LOST} <= codes and max(codes) >= 0
+
+
+# ------------------------------------------------------------------------------------------------
+# one shading call for all the groups of a bounce
+
+
+def test_shade_groups_is_one_shade_call_per_group():
+    from simulate import fiber as F
+    from simulate import woven as W
+    from simulate.fabric import structure as ST
+    from simulate.media.medium import HGMedium
+    from simulate.nonwoven.felt import felt_mesh
+    from simulate.woven.shading import ShadeOutputs, new_outputs, shade, shade_groups
+
+    fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), 0.3, 10.0)
+    table = W.yarn_table(fib, [550.0, 650.0], photons_per_row=600, seed=12, threads=1)
+    mesh = felt_mesh(ST.StructureSpec(kind="nonwoven", felt_spread_deg=15.0, layers=3), 10.0, seed=0)
+    setup = I._Setup(mesh, W.FiberSurface(table, 0.35, 1.5), 2, (9, 12))
+    rng = np.random.default_rng(8)
+    N = 600
+    origins = np.column_stack([rng.uniform(0, mesh.Lx, N), rng.uniform(0, mesh.Ly, N), np.full(N, setup.scene.top)])
+    dirs = np.tile(-np.array([0.3, 0.2, 0.93]) / np.linalg.norm([0.3, 0.2, 0.93]), (N, 1))
+    hits = setup.scene.intersect(origins, dirs)
+    h = hits.prim >= 0
+    M = int(np.count_nonzero(h))
+    assert M > 200
+    prim, u, v, pos, d = hits.prim[h].astype(np.int64), hits.u[h], hits.v[h], hits.position[h], dirs[h]
+    w = rng.random((M, 2))
+    G, D = 3, 4
+    det = rng.normal(size=(G, D, 3))
+    det[..., 2] = np.abs(det[..., 2]) + 0.2
+    det /= np.linalg.norm(det, axis=2)[..., None]
+    cuts = np.array([0, M // 3, M // 3, M])        # the middle group has no hits
+    seeds = np.array([11, 0, 13], np.int64)
+    got = new_outputs(M, D, 2)
+    shade_groups(seeds, cuts, prim, u, v, pos, d, w, setup.inputs, det, got)
+    ref = new_outputs(M, D, 2)
+    for g in (0, 2):
+        a, b = cuts[g], cuts[g + 1]
+        shade(int(seeds[g]), prim[a:b], u[a:b], v[a:b], pos[a:b], d[a:b], w[a:b],
+              setup.inputs._replace(detectors=det[g]), ShadeOutputs(*(x[a:b] for x in ref)))
+    for x, y in zip(got, ref):
+        assert np.array_equal(x, y)
+    assert np.any(got.nee_need) and np.any(got.out_w > 0)
