@@ -894,8 +894,8 @@ def build_parser() -> argparse.ArgumentParser:
         add_verbose(sp, sub=True)
         if name in _TABLE_CACHE_COMMANDS:
             sp.add_argument("--no-cache", action="store_true", dest="no_cache",
-                            help="neither read nor write the table cache (the woven yarn tables, the fit's structured "
-                                 "walks; default "
+                            help="neither read nor write the table cache (the yarn tables, the felts, the fit's "
+                                 "structured walks; default "
                                  "~/.cache/fabric-optics or $FABRIC_OPTICS_CACHE_DIR, bounded by "
                                  "$FABRIC_OPTICS_CACHE_MAX_BYTES, 2 GiB); also FABRIC_OPTICS_NO_CACHE=1")
     return parser

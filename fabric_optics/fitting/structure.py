@@ -73,6 +73,7 @@ from typing import Any, Callable
 import numba
 import numpy as np
 
+from simulate.fabric.structure import FELT_ONLY_KEYS
 from simulate.fiber.absorption import AbsorptionTable, absorption_targets
 from simulate.fiber.farfield import EXIT_TABLE_MODULES, plain_fiber
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
@@ -373,6 +374,11 @@ def walk_layers(config: Any, fiber: Any) -> int:
 #: left out of :func:`walk_inputs`. Every other field is in the key, so a field added later is a miss, never stale.
 FACET_ONLY_FIELDS = ("felt_spread_deg", "warp_twist_deg", "weft_twist_deg", "warp_twist", "weft_twist", "samples")
 
+#: ``[structure]`` fields of the felt's Monte Carlo only (:data:`simulate.fabric.structure.FELT_ONLY_KEYS`: the
+#: needle-punched population and the crimp), which the summation does not read: left out of :func:`walk_inputs`,
+#: so configs differing only in them share the walk
+MC_ONLY_FIELDS = FELT_ONLY_KEYS
+
 #: the modules whose source is part of every walk's key: the kernel, the exit-table and layer-table builders,
 #: the closure and this module (an edit to any of them is a miss, never a stale walk)
 WALK_MODULES = EXIT_TABLE_MODULES + (
@@ -387,7 +393,7 @@ def walk_inputs(nodye: Any, reference: Any, config: Any, wavelengths_nm: Any, no
 
     The fiber WITHOUT dye (radius, index, roughness, cell width, medium: particles, volume fraction, size),
     the walked reference (re-weighted passes), the walk's part of ``[structure]`` (not
-    :data:`FACET_ONLY_FIELDS`) and its layer count, wavelengths, absorption nodes, photons per row,
+    :data:`FACET_ONLY_FIELDS` nor :data:`MC_ONLY_FIELDS`) and its layer count, wavelengths, absorption nodes, photons per row,
     seed and chunking. The threads are not in it: the rows do not depend on them.
     """
     from simulate.fiber.farfield import DEFAULT_WT_NODES
@@ -398,7 +404,7 @@ def walk_inputs(nodye: Any, reference: Any, config: Any, wavelengths_nm: Any, no
     spec = config.structure
     fiber = plain(nodye)
     return {"fiber": fiber, "reference": plain(reference),
-            "structure": {k: getattr(spec, k) for k in spec.__dataclass_fields__ if k not in FACET_ONLY_FIELDS},
+            "structure": {k: getattr(spec, k) for k in spec.__dataclass_fields__ if k not in FACET_ONLY_FIELDS + MC_ONLY_FIELDS},
             "layers": walk_layers(config, fiber), "wavelengths_nm": np.asarray(wavelengths_nm, float),
             "nodes": np.asarray(nodes, float), "photons_per_row": int(per_row), "seed": int(seed),
             "max_group": int(max_group), "w_t": np.asarray(DEFAULT_WT_NODES, float), "bins": (9, 18)}

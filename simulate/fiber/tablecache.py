@@ -1,4 +1,5 @@
-"""A content-addressed disk cache of Monte Carlo tables (the woven yarn table, the surface albedo).
+"""A content-addressed disk cache of Monte Carlo tables (the woven yarn table, the surface albedo, the
+structured summation's walks, the exit tables) and of the felt Monte Carlo's built felts.
 
 A table is stored under the SHA-256 of everything it depends on (:func:`content_key`): the
 inputs as canonical bytes (:func:`content_hash` walks dataclasses, arrays, numbers, strings),
@@ -20,7 +21,10 @@ Where and how much (environment variables, read at every call so a test or a CLI
   Sizes: a summation fit of the felt (``green-felt`` on its 10 nm plan) stores six structured-walk
   entries, 129 MB in all; a felt fit with its Monte Carlo stores exit tables (351 MB) and yarn
   tables (294 MB), about 0.65 GB: a third of the default bound, which therefore holds one felt fit
-  with room for about two more before the oldest entries go (the bound is not raised);
+  with room for about two more before the oldest entries go (the bound is not raised). A felt Monte
+  Carlo run also stores its two felt realisations (``felt-*`` entries, :func:`simulate.nonwoven.felt.cached_felt_mesh`),
+  counted and evicted as any entry: 32 MB for ``green-felt-mc`` (52 MB with 13 % crimp), once per felt
+  structure (a fit freeing a ``[structure]`` field stores a pair per structure it runs);
 - ``FABRIC_OPTICS_NO_CACHE=1`` (``simulate ... --no-cache``): neither read nor written.
 
 Safety: an entry is one file, ``MAGIC + sha256(payload) + payload`` (``payload`` an uncompressed

@@ -58,7 +58,7 @@ import numba
 import numpy as np
 
 from simulate.optics.fresnel import fresnel_unpolarized
-from simulate.montecarlo.rng import next_u64, to_uniform
+from simulate.montecarlo.rng import next_u64, to_uniform, to_uniform_open
 from simulate.montecarlo.scatter import phase_pdf
 from simulate.montecarlo.vecmath import vexp
 
@@ -322,6 +322,9 @@ NEE_COLUMNS = ("u_t", "u_b", "u_n", "rho", "sin_alpha", "cos_alpha", "fresnel", 
                "chord", "jacobian_factor")
 N_NEE = 12
 _ORDER_CUTOFF = 1e-6  # internal-reflection orders are followed while F^k exceeds this (bias < 1e-6 relative)
+#: internal reflectance up to which :func:`score_vertex` draws the reflections one by one (at most ~19 expected,
+#: exits up to ~89.5 deg from the normal); above it the same geometric law is drawn at once (its inverse CDF)
+_LOOP_F = 0.95
 
 
 # fastmath=False explicitly: called from Python (transport.make_inputs) and from the fastmath kernel;
@@ -369,6 +372,46 @@ def nee_constants(mu: float, phi: float, n_in: float, radius: float, out: np.nda
     out[9] = math.sin(step)
     out[10] = 2.0 * radius * ca / rho
     out[11] = radius * ca / (n_in * n_in * u_n)
+
+
+@numba.njit(cache=True, inline="always")
+def reflection_order(f_out: float, s0: np.uint64, s1: np.uint64, s2: np.uint64,
+                     s3: np.uint64) -> tuple[int, np.uint64, np.uint64, np.uint64, np.uint64]:
+    """The number ``k`` of internal reflections before the light leaves, ``P(k) = (1 - F) F^k`` (``F = f_out < 1``).
+
+    Up to ``F =`` :data:`_LOOP_F` one draw per reflection (a reflection while ``U < F``); above it, near grazing
+    (``1 / (1 - F)`` reflections expected: 1000 at 89.99 deg), the same law by its inverse CDF in one draw:
+    ``k = floor(ln U / ln F)`` with ``U`` in (0, 1], since ``P(k >= m) = P(U <= F^m) = F^m``.
+    """
+    k = 0
+    if f_out <= _LOOP_F:
+        if f_out > 0.0:
+            while True:
+                rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+                if to_uniform(rr) >= f_out:
+                    break
+                k += 1
+        return k, s0, s1, s2, s3
+    rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+    k = int(math.floor(math.log(to_uniform_open(rr)) / math.log(f_out)))
+    return k, s0, s1, s2, s3
+
+
+@numba.njit(cache=True, inline="always")
+def turned(ny: float, nz: float, c_step: float, s_step: float, k: int, f_out: float) -> tuple[float, float]:
+    """The exit normal ``n = (-sin psi, cos psi)`` after ``k`` reflections, each turning it by ``step``
+    (``cos step, sin step``): one rotation per reflection up to ``F =`` :data:`_LOOP_F` (the orders of
+    :func:`reflection_order`'s loop), one rotation by ``k step`` above it."""
+    if f_out <= _LOOP_F:
+        for _ in range(k):
+            t_y = ny * c_step - nz * s_step
+            nz = ny * s_step + nz * c_step
+            ny = t_y
+        return ny, nz
+    turn = k * math.atan2(s_step, c_step)
+    c_k = math.cos(turn)
+    s_k = math.sin(turn)
+    return ny * c_k - nz * s_k, ny * s_k + nz * c_k
 
 
 @numba.njit(cache=True, inline="always")
@@ -473,7 +516,10 @@ def score_vertex(
     following every order, each exit solution draws its order ``k`` with probability
     ``(1 - F) F^k`` -- the number of internal reflections the light would really make -- so
     ``F^k (1 - F)`` cancels and only that order is scored (unbiased; one cell test instead of a
-    dozen, and the faint orders cost nothing unless drawn).
+    dozen, and the faint orders cost nothing unless drawn). Up to ``F = 0.95`` the order is drawn
+    one reflection at a time; above it (an exit within ~0.5 deg of grazing, where ``1 / (1 - F)``
+    reflections are expected: 1000 at 89.99 deg) by the law's inverse CDF in one draw, and the exit
+    point turned by ``k`` steps at once.
 
     *Jacobian.* With the direction parametrised by ``(u_t, phi)`` (``dOmega = du_t dphi``) and
     the local direction by ``(u_t, alpha)``, ``d alpha / d phi = 1 - s / (R cos alpha)``, since a
@@ -531,6 +577,8 @@ def score_vertex(
             continue
         sq = math.sqrt(disc)
         f_out = consts[o, 6]
+        if f_out >= 1.0:
+            continue          # an exactly grazing exit: no light leaves there
         c_step = consts[o, 8]
         s_step = consts[o, 9]
         cos_c = outputs[o, 0]
@@ -547,20 +595,8 @@ def score_vertex(
             nz0 = (y * a_b + z * a_n) * inv_r2
             # the number of internal reflections before the light leaves, k ~ P(k) = (1 - F) F^k:
             # the physical process itself, so F^k (1 - F) cancels against P(k)
-            k = 0
-            if f_out > 0.0:
-                while True:
-                    rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                    if to_uniform(rr) >= f_out:
-                        break
-                    k += 1
-            ny = ny0
-            nz = nz0
-            for _ in range(k):
-                # rotate the exit normal by `step` (psi -> psi + step): n = (-sin psi, cos psi)
-                t_y = ny * c_step - nz * s_step
-                nz = ny * s_step + nz * c_step
-                ny = t_y
+            k, s0, s1, s2, s3 = reflection_order(f_out, s0, s1, s2, s3)
+            ny, nz = turned(ny0, nz0, c_step, s_step, k, f_out)
             # cell test: n(psi) . n(psi_c), n(psi_c) = (-sin_c, cos_c)
             if -ny * sin_c + nz * cos_c < cos_h:
                 continue

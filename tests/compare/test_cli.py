@@ -262,7 +262,7 @@ def test_console_script_reports_bad_input_without_traceback(h, tmp_path):
     _bad_schema(h, sim)
     exe = Path(sys.executable).with_name("compare")
     proc = subprocess.run([str(exe), "check", str(meas), str(sim)], capture_output=True,
-                          text=True, timeout=120)
+                          text=True, timeout=900)
     assert proc.returncode == 2
     assert "unknown schema" in proc.stderr and "Traceback" not in proc.stderr
     assert proc.stderr.count("\n") == 1

@@ -210,6 +210,40 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys, base_problem):
     assert "different fit" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("method, state, extra, message", [
+    ("classic", "fit-state.json", ["--resume"], "different fit"),
+    ("mc", "mc-state.json", ["--resume"], "different fit"),
+    ("classic", "fit-state.json", [], "not empty"),
+    ("classic", None, ["--resume"], "nothing to resume"),
+])
+def test_cli_refusals_come_before_any_table(tmp_path, capsys, monkeypatch, method, state, extra, message):
+    """A refused fit (another fit's state on --resume, an existing output without --force, nothing to
+    resume) says so in one line, exit 2, without walking a photon or evaluating the model."""
+    from fabric_optics.fitting import mc as fit_mc
+    from fabric_optics.fitting import problem as fit_problem
+    from fabric_optics.fitting import structure as fit_structure
+
+    def no_work(*a, **k):
+        raise AssertionError("expensive work before the refusal")
+
+    monkeypatch.setattr(fit_problem, "absorption_table", no_work)
+    monkeypatch.setattr(fit_structure, "walk_structure", no_work)
+    monkeypatch.setattr(FitProblem, "model", no_work)
+    monkeypatch.setattr(fit_mc, "run_monte_carlo", no_work)
+    write_dataset(measurement(lambda g, wl: np.full((len(g), wl.size), 0.3), None), tmp_path / "measured")
+    out = tmp_path / "fit"
+    out.mkdir()
+    if state:
+        schema = "simulate-fit-mc-state/1" if method == "mc" else "simulate-fit-state/1"
+        (out / state).write_text(json.dumps({"schema": schema, "identity": "another fit", "x": [0.3],
+                                             "objective": 1.0, "iterations": []}))
+    code = main(["fit", "red-cotton", str(tmp_path / "measured"), "--free", "rms_slope=0.1:0.8", "--out", str(out),
+                 "--method", method, "--no-progress"] + extra)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert message in err and len(err.strip().splitlines()) == 1, err
+
+
 @pytest.mark.slow
 def test_recovery_of_a_walked_parameter(red_cotton):
     """The volume fraction (photons walked again, common random numbers) is recovered within u."""

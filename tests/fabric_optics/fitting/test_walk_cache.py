@@ -107,6 +107,24 @@ def test_the_key_follows_the_walk_not_the_dye_or_the_facets(cache_dir):
     assert _key(_config(**{"structure.felt_spread_deg": 45.0})) == base
 
 
+def test_the_key_leaves_out_the_monte_carlo_felt_s_own_fields(cache_dir):
+    """The crimp and the needle-punched population are the felt Monte Carlo's only (the summation's felt has
+    straight fibers in the plane): configs differing only in them share the walk; a field the walk reads
+    (the packing fraction, the layers) still changes the key."""
+    base = _key(_config())
+    mc_only = {"structure.felt_crimp_percent": 13.0, "structure.felt_crimp_per_cm": 9.0,
+               "structure.felt_crimp_plane": "random", "structure.felt_normal_fraction": 0.2,
+               "structure.felt_normal_spread_deg": 30.0}
+    for path, value in mc_only.items():
+        changed = _config(**{path: value})
+        assert getattr(changed.structure, path.split(".")[1]) == value
+        assert _key(changed) == base, path
+    crimped = _config(**mc_only)
+    assert _key(crimped) == base
+    assert _key(_config(**{**mc_only, "structure.packing_fraction": 0.5})) != base
+    assert _key(_config(**{**mc_only, "structure.layers": 3})) != base
+
+
 def test_a_corrupt_or_partial_entry_is_walked_again_and_rewritten(cache_dir, caplog):
     config = _config()
     first = _walk(config)

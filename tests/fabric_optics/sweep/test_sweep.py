@@ -86,7 +86,7 @@ def test_killed_sweep_resumes_without_recomputing_finished_tasks(tmp_path, inpro
     assert 2 <= len(before) < 12, "the sweep must be killed part-way"
     assert not (out / "points").exists()
 
-    done = subprocess.run(cmd + ["--workers", "1", "--resume"], capture_output=True, text=True, timeout=280)
+    done = subprocess.run(cmd + ["--workers", "1", "--resume"], capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
     assert f"{12 - len(before)} computed, {len(before)} reused, resumed, 0 failed" in done.stdout
     after = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in (out / "tasks").glob("*.npz")}

@@ -108,7 +108,7 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
             proc.send_signal(signal.SIGINT)
         finally:
             mock.send_signal(signal.SIGCONT)
-        _, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=120)
         assert proc.returncode == 130, err
         assert "Traceback" not in err
         final = err.strip().splitlines()[-1]

@@ -201,7 +201,7 @@ def test_mock_prints_no_frames_without_verbose():
             except (TimeoutError, OSError):
                 pass
         proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=30)
+        out, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()

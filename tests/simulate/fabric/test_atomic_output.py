@@ -108,7 +108,7 @@ def test_killed_between_the_steps_then_rerun(fake_fiber, tmp_path, cfg, capsys, 
     before = _snapshot(out)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     proc = subprocess.run([sys.executable, "-c", _KILL, str(out), str(at)], env=env, capture_output=True, text=True,
-                          timeout=120)
+                          timeout=900)
     assert proc.returncode == 9, proc.stderr
     kinds = sorted(kind for _, _, kind in side_folders(out))
     assert kinds == ["old", "partial"]         # at 1 the .old folder is still the empty placeholder
@@ -126,7 +126,7 @@ def test_rerun_after_a_kill_cleans_up_by_itself(fake_fiber, tmp_path, cfg):
     out = tmp_path / "sim"
     assert _fabric(cfg, out) == 0
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    assert subprocess.run([sys.executable, "-c", _KILL, str(out), "2"], env=env, timeout=120).returncode == 9
+    assert subprocess.run([sys.executable, "-c", _KILL, str(out), "2"], env=env, timeout=900).returncode == 9
     assert _fabric(cfg, out, "summation") == 0       # no manual recover()
     assert side_folders(out) == [] and read_dataset(out).meta["model"]["method"] == "summation"
 

@@ -166,7 +166,7 @@ def test_console_script_has_no_traceback_on_a_user_error(tmp_path):
     bad = tmp_path / "red.toml"
     bad.write_text(GOOD_CONFIG.replace("n_host = 1.557", "n_host = -2"))
     proc = subprocess.run([sys.executable, "-m", "fabric_optics.cli.simulate", "fabric", str(bad), "--method", "classic",
-                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=900)
     assert proc.returncode == 2
     assert proc.stderr.strip() == ("simulate fabric: error: red.toml: fiber.n_host must be a number >= 1 "
                                    "and <= 4, got -2")

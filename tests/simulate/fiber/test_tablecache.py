@@ -165,7 +165,7 @@ def test_concurrent_writers_leave_one_valid_entry(cache):
     while not all((cache.parent / f"ready-{i}").exists() for i in (1, 2)) and all(p.poll() is None for p in procs):
         time.sleep(0.01)
     gate.touch()
-    outs = [p.communicate(timeout=120) for p in procs]
+    outs = [p.communicate(timeout=900) for p in procs]
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, err
         assert out.strip() == "ok"
@@ -210,3 +210,26 @@ def test_a_run_whose_own_tables_exceed_the_bound_says_so(cache, monkeypatch, cap
     warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert len(warnings) == 1 and "this run's own tables" in warnings[0] and tc.ENV_MAX_BYTES in warnings[0]
     assert str(2 * entry) in warnings[0]                   # the two tables' size: the bound to set
+
+
+def test_the_felt_meshes_count_in_the_bound_and_are_evicted_as_any_entry(cache, monkeypatch):
+    """A felt built by simulate.nonwoven.felt.cached_felt_mesh is an entry like a table: its size is in the
+    total the bound is held to, and it is evicted least recently used first."""
+    from simulate.fabric.structure import StructureSpec
+    from simulate.nonwoven import felt as FM
+
+    monkeypatch.setattr(tc, "_USED", set())
+    felt, hit = FM.cached_felt_mesh(StructureSpec(kind="nonwoven", felt_spread_deg=15.0, layers=1), 10.0, seed=1)
+    assert not hit
+    [(_, felt_size, felt_path)] = tc.entries()
+    assert felt_path.name.startswith("felt-") and felt_size > felt.vertices.nbytes + felt.faces.nbytes
+    os.utime(felt_path, (1_000_000, 1_000_000))          # the least recently used
+    tc._USED.clear()                                     # and not this run's
+    one = {"a": np.zeros(10_000)}
+    tc.store("yarn-0", one)
+    entry = tc.entries()[-1][1]
+    # room for the felt and one table and a half: the second table is over the bound only with the felt counted
+    monkeypatch.setenv(tc.ENV_MAX_BYTES, str(felt_size + int(1.5 * entry)))
+    tc.store("yarn-1", one)
+    assert {p.name for _, _, p in tc.entries()} == {f"yarn-0{tc.SUFFIX}", f"yarn-1{tc.SUFFIX}"}
+    assert tc.evict() == 0

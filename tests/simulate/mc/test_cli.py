@@ -29,7 +29,7 @@ def test_slab_console_script_subprocess():
     proc = subprocess.run(
         [sys.executable, "-m", "fabric_optics.cli.simulate", "slab", "--mua", "1", "--mus", "10", "--thickness", "0.1",
          "--photons", "1000", "--json"],
-        capture_output=True, text=True, timeout=120,
+        capture_output=True, text=True, timeout=900,
     )
     assert proc.returncode == 0, proc.stderr
     assert set(json.loads(proc.stdout)) >= {"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds"}

@@ -46,7 +46,7 @@ def _run(code: str) -> str:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
     done = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, capture_output=True,
-                          text=True, timeout=120, check=False)
+                          text=True, timeout=900, check=False)
     assert done.returncode == 0, done.stderr
     return done.stdout
 

@@ -17,7 +17,7 @@ _PROBE = "import os, simulate.montecarlo.kernel; print(os.environ.get('OMP_WAIT_
 def _probe(**env: str) -> str:
     base = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     out = subprocess.run([sys.executable, "-c", _PROBE], env={**base, **env}, capture_output=True, text=True,
-                         check=True, timeout=120)
+                         check=True, timeout=900)
     return out.stdout.strip()
 
 

@@ -149,7 +149,7 @@ def test_a_warm_process_never_imports_miepython(cache):
 
     env = {**os.environ, tc.ENV_DIR: str(cache), "PYTHONPATH": str(Path(__file__).resolve().parents[3])}
     outs = [subprocess.run([sys.executable, "-c", _WARM_PROCESS], env=env, capture_output=True, text=True,
-                           timeout=300, check=True).stdout.split() for _ in range(2)]
+                           timeout=900, check=True).stdout.split() for _ in range(2)]
     assert outs[0] == ["miss", "miss", "True"]
     assert outs[1] == ["hit", "hit", "False"]
 
