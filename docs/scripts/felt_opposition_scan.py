@@ -215,34 +215,26 @@ def only_event(event: int) -> Iterator[None]:
     fiber surface's reflection, 1 the light out of the fiber's volume (the events of
     :func:`simulate.woven.shading.shade`). The other event's estimates are dropped after each shading call
     (its contributions zeroed, no shadow ray asked for); the rays' paths are not changed. The tracer's
-    files are not edited: the two shading calls of :class:`simulate.woven.integrator._Setup` are wrapped for
-    the block and restored after it."""
+    files are not edited: the wavefront's shading call (``shade_groups`` as
+    :mod:`simulate.woven.integrator` calls it) is wrapped for the block and restored after it."""
     from simulate.woven import integrator
 
     if event not in (0, 1):
         raise ValueError(f"only_event: event must be 0 (surface) or 1 (volume), got {event!r}")
-    cls = integrator._Setup
-    shade, shade_into = cls.shade, cls.shade_into
+    shade_groups = integrator.shade_groups
     drop = 1 - event
 
-    def _drop(out: Any) -> None:
+    def shade_groups_one(*args: Any) -> None:
+        shade_groups(*args)
+        out = args[-1]
         out.nee_c[:, drop] = 0.0
         out.nee_need[:, drop] = False
 
-    def shade_one(self: Any, *args: Any) -> Any:
-        out = shade(self, *args)
-        _drop(out)
-        return out
-
-    def shade_into_one(self: Any, *args: Any) -> None:
-        shade_into(self, *args)
-        _drop(args[-1])
-
-    cls.shade, cls.shade_into = shade_one, shade_into_one     # type: ignore[method-assign]
+    integrator.shade_groups = shade_groups_one     # type: ignore[assignment]
     try:
         yield
     finally:
-        cls.shade, cls.shade_into = shade, shade_into          # type: ignore[method-assign]
+        integrator.shade_groups = shade_groups      # type: ignore[assignment]
 
 
 #: the orders a run traces: name -> (scattering events followed, the shading event scored: None for both)

@@ -338,9 +338,25 @@ def fig_felt_opposition_lambertian() -> str:
     return curve + "\n\n" + readoff + "\n\n" + family + "\n\n" + _source(rec, note)
 
 
+def fig_felt_demo_plan() -> str:
+    """Variants of ``green-felt-mc`` traced at the demo's plan against ``gonio truth`` of the felt's file."""
+    rec = load("felt-demo-plan")
+    d = rec["data"]
+    incid = list(d["runs"][0]["nrmse_by_incidence"])
+    header = [f"run ({100 * d['target_rel_err']:g} % target)", f"NRMSE overall ({' / '.join(incid)} deg)", "dh / ds", "k_Y",
+              "CPU (user + system), peak RSS"]
+    rows = [[r["label"], f"{r['nrmse']:.3f} (" + " / ".join(f"{r['nrmse_by_incidence'][t]:.3f}" for t in incid) + ")",
+             f"{r['dh']:.3f} / {r['ds']:.3f}", f"{r['k_Y']:.2f}", f"{r['cpu_seconds']:.0f} s, {r['peak_rss_gb']:.2f} GB"]
+            for r in d["runs"]]
+    note = (f" (the file: `{d['file']}`; each run: `simulate fabric CONFIG --method mc --plan {d['plan']} "
+            f"--target-rel-err {d['target_rel_err']:g} --threads 2 --out DIR/RUN`)")
+    return _table(header, rows) + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
     "felt-opposition": fig_felt_opposition,
     "felt-opposition-lambertian": fig_felt_opposition_lambertian,
+    "felt-demo-plan": fig_felt_demo_plan,
     "slab-kernel": fig_slab_kernel,
     "driver": fig_driver,
     "method-errors": fig_method_errors,

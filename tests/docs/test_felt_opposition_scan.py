@@ -214,12 +214,12 @@ def test_the_single_scattering_splits_into_the_surface_s_reflection_and_the_ligh
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "felts" in err and "seed 0" in err
     # the tracer's shading is restored after each part, also when a trace fails
-    before = (integrator._Setup.shade, integrator._Setup.shade_into)
+    before = integrator.shade_groups
     with pytest.raises(RuntimeError):
         with s.only_event(0):
-            assert integrator._Setup.shade is not before[0]
+            assert integrator.shade_groups is not before
             raise RuntimeError("inside")
-    assert (integrator._Setup.shade, integrator._Setup.shade_into) == before
+    assert integrator.shade_groups is before
     with pytest.raises(ValueError, match="event"):
         with s.only_event(2):
             pass
