@@ -3,13 +3,14 @@
     python docs/scripts/felt_opposition_scan.py                  # every variant; writes docs/data/felt-opposition.json
     python docs/scripts/felt_opposition_scan.py --only preset,scatterers-x10 --out DIR/scan.json
     python docs/scripts/felt_opposition_scan.py --resume --split   # add the single scattering's two parts
+    python docs/scripts/felt_opposition_scan.py --resume --lambertian   # add the opaque Lambertian felt
     python docs/scripts/render_figures.py                        # then the note's tables
 
 Each variant is the ``green-felt-mc`` preset with one thing changed (:data:`VARIANTS`): the fibers'
 scatterers (the delustrant's volume fraction), the dye's absorption, the surface's reflection slope,
 the boundary's roughness for transmitted light, the felt's inclination spread (which sets the
 deposited felt's volume fraction), the needle-punched fraction, the fiber amount, the fiber's refractive
-index; and two combinations of those changes. Each is traced by
+index; and three combinations of those changes. Each is traced by
 the felt Monte Carlo (:func:`simulate.woven.fabric_beta`, two felt realisations as ``simulate fabric
 --method mc`` builds them) at ``--seeds`` seeds (each its own felts, table and rays; the same seeds for every
 variant, so variants that keep the preset's felt are traced on the same felts) at the RGL file's incidences 40.03 and
@@ -23,6 +24,12 @@ scatter, is kept beside it as a check.
 With ``--split`` the single scattering is traced twice more, scoring only the first fiber's surface
 reflection or only the light out of its volume (:func:`only_event`; the same felts, tables, seeds and
 rays, so the two parts add up to the single scattering, exactly when every shadow ray is traced).
+With ``--lambertian`` the preset's felts are traced with opaque Lambertian fibers of the albedos
+:data:`ALBEDOS` (single scattering and all orders, every albedo on the same paths: :func:`lambertian_beta`),
+and the all-orders curves are read at the file's levels (:func:`albedo_readoff`); alone it traces no variant.
+With ``--lambertian`` the preset's felts are traced with opaque Lambertian fibers of the albedos
+:data:`ALBEDOS` (single scattering and all orders, every albedo on the same paths: :func:`lambertian_beta`),
+and the all-orders curves are read at the file's levels (:func:`albedo_readoff`); alone it traces no variant.
 The file's own ratios at the same directions come from the mock sample of the file
 (:func:`gonio.mock.samples.make_sample`).
 
@@ -123,6 +130,8 @@ VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
                                     _both(_scatterers(10.0), lambda c: {"rms_slope": 2.0 * c.rms_slope})),
     "n-1.8+rms-slope-x2": ("fiber's refractive index 1.8 and reflection slope x2",
                            _both(_field(n_host=1.8), lambda c: {"rms_slope": 2.0 * c.rms_slope})),
+    "scatterers-x30+dye-x3": ("scatterers' volume fraction x30 and dye absorption x3",
+                              _both(_scatterers(30.0), _dye(3.0))),
 }
 
 
@@ -161,12 +170,13 @@ def geometries() -> Any:
                          for t, p in detectors(ti)])
 
 
-def summarise(g: Any, beta: np.ndarray, u: np.ndarray) -> dict:
-    """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per wavelength."""
+def summarise(g: Any, beta: np.ndarray, u: np.ndarray, bands: tuple[float, ...] = WAVELENGTHS_NM) -> dict:
+    """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per band
+    (``bands``: the columns of ``beta``, the wavelengths or the Lambertian felt's albedos)."""
     import pandas as pd
     from compare.felt_metrics import Missing, opposition_ratios
 
-    wl = np.asarray(WAVELENGTHS_NM)
+    wl = np.asarray(bands, float)
     table = pd.DataFrame({c: np.repeat(g[c].to_numpy(float), wl.size) for c in g.columns})
     table["wavelength_nm"] = np.tile(wl, len(g))
     table["beta"], table["u_beta"] = beta.reshape(-1), u.reshape(-1)
@@ -205,34 +215,26 @@ def only_event(event: int) -> Iterator[None]:
     fiber surface's reflection, 1 the light out of the fiber's volume (the events of
     :func:`simulate.woven.shading.shade`). The other event's estimates are dropped after each shading call
     (its contributions zeroed, no shadow ray asked for); the rays' paths are not changed. The tracer's
-    files are not edited: the two shading calls of :class:`simulate.woven.integrator._Setup` are wrapped for
-    the block and restored after it."""
+    files are not edited: the wavefront's shading call (``shade_groups`` as
+    :mod:`simulate.woven.integrator` calls it) is wrapped for the block and restored after it."""
     from simulate.woven import integrator
 
     if event not in (0, 1):
         raise ValueError(f"only_event: event must be 0 (surface) or 1 (volume), got {event!r}")
-    cls = integrator._Setup
-    shade, shade_into = cls.shade, cls.shade_into
+    shade_groups = integrator.shade_groups
     drop = 1 - event
 
-    def _drop(out: Any) -> None:
+    def shade_groups_one(*args: Any) -> None:
+        shade_groups(*args)
+        out = args[-1]
         out.nee_c[:, drop] = 0.0
         out.nee_need[:, drop] = False
 
-    def shade_one(self: Any, *args: Any) -> Any:
-        out = shade(self, *args)
-        _drop(out)
-        return out
-
-    def shade_into_one(self: Any, *args: Any) -> None:
-        shade_into(self, *args)
-        _drop(args[-1])
-
-    cls.shade, cls.shade_into = shade_one, shade_into_one     # type: ignore[method-assign]
+    integrator.shade_groups = shade_groups_one     # type: ignore[assignment]
     try:
         yield
     finally:
-        cls.shade, cls.shade_into = shade, shade_into          # type: ignore[method-assign]
+        integrator.shade_groups = shade_groups      # type: ignore[assignment]
 
 
 #: the orders a run traces: name -> (scattering events followed, the shading event scored: None for both)
@@ -282,6 +284,154 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
                          "shadow_roulette": bool(integrator.SHADOW_ROULETTE), "threads": threads}
     return {"seed": seed, "felt": built, "orders": traced,
             "wall_seconds": time.perf_counter() - started, "cpu_seconds": _cpu() - cpu0}
+
+
+#: the albedos of the opaque Lambertian fibers (``--lambertian``): one trace scores them all, on the same paths
+ALBEDOS = (0.1, 0.2, 0.35, 0.5, 0.65, 0.8, 0.9, 1.0)
+
+
+def lambertian_beta(meshes: tuple, albedos: tuple[float, ...], w_in: np.ndarray, w_out: np.ndarray, *,
+                    target: float, max_rays: int, seed: int, threads: int, max_events: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``beta [P, A]`` and its standard error of the felts ``meshes`` (two realisations) with opaque Lambertian
+    fibers of each albedo of ``albedos``, traced as :func:`simulate.woven.fabric_beta` traces a felt (the
+    rotations of each incidence as one wavefront, the two felts averaged, the same seeds and chunks) with
+    :class:`simulate.woven.Lambert` of the albedos as its spectral axis: every albedo on the same paths (the
+    path's weight is the product of the albedos it met; Russian roulette acts on the largest, so the
+    estimates stay unbiased for each). The standard error is the rays' only (no table)."""
+    from simulate.woven import Lambert
+    from simulate.woven.estimate import FELT_ROTATIONS, _mean_of
+    from simulate.woven.integrator import CHUNK, trace_rotations
+
+    material = Lambert(np.asarray(albedos, float))
+    key = np.round(w_in, 9)
+    incidences, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    beta = np.zeros((w_in.shape[0], len(albedos)))
+    u_beta = np.zeros_like(beta)
+    rays, stops, seconds = 0, [], 0.0
+    for k, wi in enumerate(incidences):
+        rows = np.nonzero(inverse == k)[0]
+        det_key, det_inv = np.unique(np.round(w_out[rows], 9), axis=0, return_inverse=True)
+        det_inv = np.asarray(det_inv).reshape(-1)
+        det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
+        halves = []
+        for h, m in enumerate(meshes):
+            parts = trace_rotations(m, material, wi / np.linalg.norm(wi), det,
+                                    [2.0 * math.pi * (j + 0.5 * h) / FELT_ROTATIONS for j in range(FELT_ROTATIONS)],
+                                    target_rel_err=target, max_rays=max_rays, seed=seed + 7919 * k, threads=threads,
+                                    chunk=max(256, CHUNK // FELT_ROTATIONS), setups={}, max_events=max_events)
+            halves.append(_mean_of(parts))
+        ra, rb = halves
+        beta[rows] = (0.5 * (ra.beta + rb.beta))[det_inv]
+        u_beta[rows] = np.sqrt(0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2))[det_inv]
+        rays += ra.rays + rb.rays
+        seconds += ra.seconds + rb.seconds
+        stops += [r.stop for r in halves]
+    stop = next((s for s in stops if s != "target"), "target")
+    return beta, u_beta, {"rays": rays, "stop": stop, "seconds": seconds}
+
+
+def run_lambertian(base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict,
+                   felt: dict | None = None) -> dict:
+    """The preset's felts at ``seed`` (as :func:`run_variant` builds them) with opaque Lambertian fibers of
+    the albedos :data:`ALBEDOS`, single scattering and all orders, summarised as a variant's run is (the
+    bands are the albedos)."""
+    from simulate.fabric import directions_deg
+    from simulate.nonwoven.felt import felt_mesh
+    from simulate.products import FELT_SEED_STRIDE
+
+    fiber = base.fiber(np.asarray(WAVELENGTHS_NM))
+    started, cpu0 = time.perf_counter(), _cpu()
+    key = (base.structure, seed)
+    if key not in felts:
+        felts[key] = tuple(felt_mesh(base.structure, fiber.radius_um, seed=seed + FELT_SEED_STRIDE * h) for h in (0, 1))
+    meshes = felts[key]
+    built = {k: [m.info[k] for m in meshes] for k in ("fibers", "normal_fibers", "thickness_um", "volume_fraction")}
+    if felt is not None and built != felt:
+        raise ValueError("the felts built now differ from those its runs were traced on")
+    g = geometries()
+    w_in = directions_deg(g["theta_i"].to_numpy(float), g["phi_i"].to_numpy(float))
+    w_out = directions_deg(g["theta_o"].to_numpy(float), g["phi_o"].to_numpy(float))
+    traced = {}
+    for label, (events, _) in ORDERS.items():
+        beta, u, info = lambertian_beta(meshes, ALBEDOS, w_in, w_out, target=target, max_rays=max_rays, seed=seed,
+                                        threads=threads, max_events=events)
+        traced[label] = {"incidences": summarise(g, beta, u, ALBEDOS), "rays": int(info["rays"]), "stop": info["stop"],
+                         "seconds": float(info["seconds"]), "threads": threads}
+    return {"seed": seed, "felt": built, "orders": traced,
+            "wall_seconds": time.perf_counter() - started, "cpu_seconds": _cpu() - cpu0}
+
+
+def _crossing(x: np.ndarray, y: np.ndarray, level: float) -> float | None:
+    """The ``x`` at which the increasing ``y(x)`` (linear between the points) reaches ``level``; None outside."""
+    if not (y[0] <= level <= y[-1]) or np.any(np.diff(y) <= 0.0):
+        return None
+    return float(np.interp(level, y, x))
+
+
+def _at(x: np.ndarray, y: np.ndarray, at: float) -> float:
+    return float(np.interp(at, x, y))
+
+
+def albedo_readoff(lamb: dict, file: dict, matched: str = "normal_view", pair: tuple[float, float] = (550.0, 650.0)) -> dict:
+    """The Lambertian felt's all-orders curves read at the file's levels, per incidence.
+
+    ``lamb``: the pooled Lambertian runs (:func:`pooled`; bands: :data:`ALBEDOS`); ``file``: the file's
+    summary (:func:`file_ratios`). For each wavelength of ``pair``, the albedo at which the felt's
+    ``matched`` beta (``normal_view``, ``ring_6`` or ``ring_30``) equals the file's, and the felt's opposition
+    ratio there (both linear between the traced albedos), its standard error from the ratio's own at the
+    neighbouring albedos and the level's (``u_level / (d beta / d a) * (d ratio / d a)``), and the red
+    excess (the second wavelength's ratio less the first's; the two errors taken as independent). Then the
+    family the file's beta ratio ``650 / 550`` alone allows: for each traced albedo ``a`` taken at 550 nm, the
+    albedo whose beta is the file's ratio times ``beta(a)`` and the excess it gives. ``None`` where a level
+    lies outside the traced albedos."""
+    a = np.asarray(ALBEDOS, float)
+    out: dict = {}
+    wl = list(WAVELENGTHS_NM)
+    for ti, curve in lamb["all"].items():
+        level = np.asarray(curve[matched])
+        u_level = np.asarray(curve[f"u_{matched}"])
+        ratio, u_ratio = np.asarray(curve["ratio"]), np.asarray(curve["u_ratio"])
+        row: dict = {"matched": matched}
+        picks: list[dict | None] = []
+        for w in pair:
+            target = file[ti][matched][wl.index(w)]
+            albedo = _crossing(a, level, target)
+            if albedo is None:
+                picks.append(None)
+                continue
+            j = int(np.clip(np.searchsorted(a, albedo) - 1, 0, a.size - 2))
+            slope_level = (level[j + 1] - level[j]) / (a[j + 1] - a[j])
+            slope_ratio = (ratio[j + 1] - ratio[j]) / (a[j + 1] - a[j])
+            u_albedo = _at(a, u_level, albedo) / slope_level
+            u = math.hypot(_at(a, u_ratio, albedo), u_albedo * slope_ratio)
+            picks.append({"wavelength_nm": w, "file_level": target, "albedo": albedo, "u_albedo": u_albedo,
+                          "ratio": _at(a, ratio, albedo), "u_ratio": u, "file_ratio": file[ti]["ratio"][wl.index(w)]})
+        row["at"] = picks
+        if all(p is not None for p in picks):
+            row["excess"] = picks[1]["ratio"] - picks[0]["ratio"]
+            row["u_excess"] = math.hypot(picks[0]["u_ratio"], picks[1]["u_ratio"])
+        else:
+            row["excess"] = row["u_excess"] = None
+        row["file_excess"] = file[ti]["ratio"][wl.index(pair[1])] - file[ti]["ratio"][wl.index(pair[0])]
+        scale = file[ti][matched][wl.index(pair[1])] / file[ti][matched][wl.index(pair[0])]
+        row["file_level_ratio"] = scale
+        family = []
+        for k, a_first in enumerate(a):
+            a_second = _crossing(a, level, scale * level[k])
+            family.append({"albedo_first": float(a_first), "albedo_second": a_second,
+                           "level_first": float(level[k]),
+                           "excess": None if a_second is None else _at(a, ratio, a_second) - float(ratio[k])})
+        row["family"] = family
+        out[ti] = row
+    return out
+
+
+def multiple_share(lamb: dict) -> dict:
+    """Per incidence and albedo: the share of each ring's and the normal view's all-orders beta that is not
+    the single scattering (``1 - single / all``; the pooled runs of :func:`pooled`)."""
+    return {ti: {k: (1.0 - np.asarray(lamb["single"][ti][k]) / np.asarray(lamb["all"][ti][k])).tolist()
+                 for k in ("ring_6", "ring_30", "normal_view")} for ti in lamb["all"]}
 
 
 def pooled(runs: list[dict]) -> dict:
@@ -338,14 +488,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", action="store_true",
                     help="also trace the single scattering's two parts, the first fiber's surface reflection and "
                          "the light through it (with --resume: added to the runs that lack them)")
+    ap.add_argument("--lambertian", action="store_true",
+                    help="also trace the preset's felts with opaque Lambertian fibers of the albedos "
+                         f"{', '.join(f'{a:g}' for a in ALBEDOS)} (with --resume: the seeds it lacks)")
     group = ap.add_mutually_exclusive_group()
     group.add_argument("--force", action="store_true", help="replace an existing --out")
     group.add_argument("--resume", action="store_true",
                        help="keep the runs an existing --out holds (same settings) and add the others")
     args = ap.parse_args(argv)
-    names = [n.strip() for n in args.only.split(",") if n.strip()] if args.only else list(VARIANTS)
+    # --lambertian alone traces the Lambertian felt only; --only names the variants traced with it
+    names = ([n.strip() for n in args.only.split(",") if n.strip()] if args.only is not None
+             else [] if args.lambertian else list(VARIANTS))
     unknown = [n for n in names if n not in VARIANTS]
-    if unknown or not names:
+    if unknown or (not names and not args.lambertian):
         raise _fail(f"--only: unknown variant(s) {', '.join(unknown) or '(none given)'}; "
                     f"known: {', '.join(VARIANTS)}")
     if not 0.0 < args.target_rel_err < 1.0:
@@ -357,6 +512,7 @@ def main(argv: list[str] | None = None) -> int:
                 "ring_points": RING_POINTS, "exit_bins": list(EXIT_BINS)}
     done: list[dict] = []
     invocations: list[str] = []
+    lamb: dict = {"albedos": list(ALBEDOS), "runs": []}
     # the threads do not change a run's figures (each chunk has its own stream); each run keeps its own count
     threads = args.threads
     if args.out.exists():
@@ -372,6 +528,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise _fail(f"--resume: {args.out} was run with other settings ({', '.join(differs)}); "
                             "give the same options or --force")
             done, invocations = old["variants"], old.get("invocations", [])
+            lamb = old.get("lambertian", lamb)
+            if lamb["albedos"] != list(ALBEDOS):
+                raise _fail(f"--resume: {args.out} holds a Lambertian felt of other albedos; --force to replace it")
             threads = old["settings"].get("threads", args.threads)
     from simulate.config import load_config
 
@@ -389,6 +548,8 @@ def main(argv: list[str] | None = None) -> int:
     data: dict[str, Any] = {"settings": {**settings, "threads": threads, "first_seed": base.seed},
             "file": {"sample": str(SAMPLE.relative_to(ROOT)), "incidences": file_ratios()},
             "variants": done, "invocations": invocations}
+    if lamb["runs"] or args.lambertian:
+        data["lambertian"] = lamb
     order = list(VARIANTS)
     for name in names:
         if not any(v["name"] == name for v in done):
@@ -421,6 +582,17 @@ def main(argv: list[str] | None = None) -> int:
             data["complete"] = all(any(v["name"] == n and len(v["runs"]) == args.seeds for v in done) for n in order)
             _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
             felts = {k: m for k, m in felts.items() if k[0] == base.structure}   # the preset's felts are reused
+        run = next((r for r in lamb["runs"] if r["seed"] == seed), None)
+        if args.lambertian and run is None:
+            print(f"felt_opposition_scan: opaque Lambertian fibers, seed {seed}", flush=True)
+            lamb["runs"].append(run_lambertian(base, seed, args.target_rel_err, args.threads, args.max_rays, felts))
+            lamb["runs"].sort(key=lambda r: r["seed"])
+            lamb["pooled"] = pooled(lamb["runs"])
+            lamb["cpu_seconds"] = sum(r["cpu_seconds"] for r in lamb["runs"])
+            lamb["readoff"] = {m: albedo_readoff(lamb["pooled"], data["file"]["incidences"], m)
+                               for m in ("normal_view", "ring_6", "ring_30")}
+            lamb["multiple_share"] = multiple_share(lamb["pooled"])
+            _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
     data["complete"] = all(any(v["name"] == n and len(v["runs"]) == args.seeds for v in done) for n in order)
     _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
     print(f"felt_opposition_scan: {len(done)} variant(s) in {args.out}")

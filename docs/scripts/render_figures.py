@@ -277,8 +277,86 @@ def _felt_split_table(d: dict[str, Any], incid: list[str]) -> str:
     return _table(header, rows)
 
 
+def fig_felt_opposition_lambertian() -> str:
+    """The preset's felts with opaque Lambertian fibers: the opposition ratio against the albedo, read at the file's levels."""
+    rec = load("felt-opposition")
+    d = rec["data"]
+    lamb = d.get("lambertian") or {}
+    if not lamb.get("pooled"):
+        return "(not traced: `python docs/scripts/felt_opposition_scan.py --resume --lambertian`)\n\n" + _source(rec)
+    incid = [f"{t:g}" for t in d["settings"]["incidences_deg"]]
+    p, share, f = lamb["pooled"], lamb["multiple_share"], d["file"]["incidences"]
+    header = ["albedo"] + [f"θi {t}°: {c}" for t in incid for c in (
+        "single scattering ratio", "all orders ratio", "multiply scattered share, ring 6° / 30°", "β towards the normal")]
+    rows = []
+    for k, a in enumerate(lamb["albedos"]):
+        row = [f"{a:g}"]
+        for t in incid:
+            s_, al = p["single"][t], p["all"][t]
+            row += [f"{s_['ratio'][k]:.3f} ± {s_['u_ratio'][k]:.3f}", f"{al['ratio'][k]:.3f} ± {al['u_ratio'][k]:.3f}",
+                    f"{share[t]['ring_6'][k]:.2f} / {share[t]['ring_30'][k]:.2f}", f"{al['normal_view'][k]:.3f}"]
+        rows.append(row)
+    rows.append(["the RGL file, 550 / 650 nm"] + [c for t in incid for c in (
+        "", _pair(f[t]["ratio"]), "", _pair(f[t]["normal_view"]))])
+    curve = _table(header, rows)
+    names = {"normal_view": "β towards the normal", "ring_6": "β on the ring 6°", "ring_30": "β on the ring 30°"}
+    header2 = ["matched to the file's", "θi", "albedo at 550 / 650 nm", "felt's ratio at 550 / 650 nm",
+               "its 650 nm less 550 nm", "the file's ratio", "the file's 650 nm less 550 nm"]
+    rows2 = []
+    for m, by in lamb["readoff"].items():
+        for t in incid:
+            r = by[t]
+            at = r["at"]
+            cells = ["outside the traced albedos"] * 3
+            if r["excess"] is not None:
+                cells = [f"{at[0]['albedo']:.3f} ± {at[0]['u_albedo']:.4f} / {at[1]['albedo']:.3f} ± {at[1]['u_albedo']:.4f}",
+                         f"{at[0]['ratio']:.3f} ± {at[0]['u_ratio']:.3f} / {at[1]['ratio']:.3f} ± {at[1]['u_ratio']:.3f}",
+                         f"{r['excess']:+.3f} ± {r['u_excess']:.3f}"]
+            rows2.append([names[m], f"{t}°", *cells, _pair(f[t]["ratio"]), f"{r['file_excess']:+.3f}"])
+    readoff = _table(header2, rows2)
+    header3 = ["albedo at 550 nm"] + [f"θi {t}°: {c}" for t in incid for c in (
+        "albedo at 650 nm", "650 nm less 550 nm", "β towards the normal at 550 nm over the file's")]
+    rows3 = []
+    for k, a in enumerate(lamb["albedos"]):
+        row = [f"{a:g}"]
+        for t in incid:
+            fam = lamb["readoff"]["normal_view"][t]["family"][k]
+            if fam["albedo_second"] is None:
+                row += ["below the traced albedos", "", ""]
+            else:
+                row += [f"{fam['albedo_second']:.3f}", f"{fam['excess']:+.3f}",
+                        f"{fam['level_first'] / f[t]['normal_view'][1]:.2f}"]
+        rows3.append(row)
+    family = _table(header3, rows3)
+    st = d["settings"]
+    ratio = {t: lamb["readoff"]["normal_view"][t]["file_level_ratio"] for t in incid}
+    note = (f" (the preset's felts at the scan's {len(lamb['runs'])} seeds, every albedo on the same paths, target "
+            f"{100 * st['target_rel_err']:g} %; {lamb.get('cpu_seconds', 0):.0f} CPU seconds; ± one standard error. "
+            "Second table: the all-orders curves read, linearly between the traced albedos, at the file's 550 and 650 nm "
+            "levels. Third table: the albedo pairs whose β towards the normal keeps the file's 650 / 550 nm ratio ("
+            + ", ".join(f"{ratio[t]:.3f} at {t}°" for t in incid) + ") whatever the level)")
+    return curve + "\n\n" + readoff + "\n\n" + family + "\n\n" + _source(rec, note)
+
+
+def fig_felt_demo_plan() -> str:
+    """Variants of ``green-felt-mc`` traced at the demo's plan against ``gonio truth`` of the felt's file."""
+    rec = load("felt-demo-plan")
+    d = rec["data"]
+    incid = list(d["runs"][0]["nrmse_by_incidence"])
+    header = [f"run ({100 * d['target_rel_err']:g} % target)", f"NRMSE overall ({' / '.join(incid)} deg)", "dh / ds", "k_Y",
+              "CPU (user + system), peak RSS"]
+    rows = [[r["label"], f"{r['nrmse']:.3f} (" + " / ".join(f"{r['nrmse_by_incidence'][t]:.3f}" for t in incid) + ")",
+             f"{r['dh']:.3f} / {r['ds']:.3f}", f"{r['k_Y']:.2f}", f"{r['cpu_seconds']:.0f} s, {r['peak_rss_gb']:.2f} GB"]
+            for r in d["runs"]]
+    note = (f" (the file: `{d['file']}`; each run: `simulate fabric CONFIG --method mc --plan {d['plan']} "
+            f"--target-rel-err {d['target_rel_err']:g} --threads 2 --out DIR/RUN`)")
+    return _table(header, rows) + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
     "felt-opposition": fig_felt_opposition,
+    "felt-opposition-lambertian": fig_felt_opposition_lambertian,
+    "felt-demo-plan": fig_felt_demo_plan,
     "slab-kernel": fig_slab_kernel,
     "driver": fig_driver,
     "method-errors": fig_method_errors,

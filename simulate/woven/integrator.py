@@ -34,12 +34,13 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 
 from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.woven.materials import K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind, surface_albedo
 from simulate.woven.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
-from simulate.woven.shading import ShadeInputs, ShadeOutputs, new_outputs, shade
+from simulate.woven.shading import ShadeInputs, ShadeOutputs, new_outputs, shade, shade_groups
 
 __all__ = ["STOP_REASONS", "MCResult", "trace", "trace_rotations", "yarn_radius"]
 
@@ -219,6 +220,208 @@ class _Setup:
         shade(seed, prim, u, v, pos, dirs, weight, self.inputs._replace(detectors=detectors), out)
 
 
+# ---- the per-bounce bookkeeping of a wavefront, compiled (:func:`_chunk`) ---------------------------
+# Each kernel does what a few numpy lines did, element by element in the same order and with the same
+# arithmetic (the bincount's and np.add.at's sums in input order), so a run is the same bit for bit;
+# tests/simulate/woven/test_chunk_kernels.py holds those numpy lines as the reference.
+
+@numba.njit(cache=True, nogil=True)
+def _tally_escapes(prim, ray, last, dirs, azimuth, weight, n, n_mu, n_phi, refl, trans, bins, bins2,
+                   hit_ray, hit_idx):
+    """Score the rays of a bounce that escaped (up: ``refl`` and the exit bins, ``bins2`` their squares;
+    down: ``trans``) and list the ones that hit (``hit_ray``: their ray, ``hit_idx``: their row in the
+    wavefront), in order. ``azimuth``: ``arctan2(dirs_y, dirs_x)`` (numpy's). Returns
+    ``(hits, lost, continued, self_hits)``."""
+    m = 0
+    lost = 0
+    continued = 0
+    self_hits = 0
+    L = weight.shape[1]
+    for i in range(prim.shape[0]):
+        p = prim[i]
+        r = ray[i]
+        if last[i] >= 0:
+            continued += 1
+        if p >= 0:
+            if p == last[i]:
+                self_hits += 1
+            hit_ray[m] = r
+            hit_idx[m] = i
+            m += 1
+        elif p == ESCAPED_UP:
+            imu = min(int(dirs[i, 2] * n_mu), n_mu - 1)
+            iph = min(int((azimuth[i] + np.pi) / (2 * np.pi) * n_phi), n_phi - 1)
+            g = r // n
+            for k in range(L):
+                x = weight[i, k]
+                refl[r, k] += x
+                bins[g, imu, iph, k] += x
+                bins2[g, imu, iph, k] += x * x
+        elif p == ESCAPED_DOWN:
+            for k in range(L):
+                trans[r, k] += weight[i, k]
+        elif p == LOST:
+            lost += 1
+    return m, lost, continued, self_hits
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_hits(hit_idx, m, prim, u, v, position, dirs, weight, hp, hu, hv, hpos, hd, hw):
+    """The hit rows of a wavefront (``hit_idx[:m]``) gathered into the shading's inputs."""
+    L = weight.shape[1]
+    for j in range(m):
+        i = hit_idx[j]
+        hp[j] = prim[i]
+        hu[j] = u[i]
+        hv[j] = v[i]
+        for q in range(3):
+            hpos[j, q] = position[i, q]
+            hd[j, q] = dirs[i, q]
+        for k in range(L):
+            hw[j, k] = weight[i, k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, cidx, size, p, state, binsum):
+    """The next-event candidates of a bounce (``need``'s true entries in C order), their sizes (largest
+    spectral value), the roulette's probabilities against the running per-detector sums ``cand`` (updated
+    with this bounce's sizes first) and their state: 0 not traced (zero), 1 traced, 2 to be drawn with ``p``.
+    Returns ``(candidates, to_draw)``."""
+    M = need.shape[0]
+    E = need.shape[1]
+    L = nee_c.shape[3]
+    c = 0
+    for j in range(binsum.shape[0]):
+        binsum[j] = 0.0
+    for i in range(M):
+        for e in range(E):
+            for d in range(D):
+                if not need[i, e, d]:
+                    continue
+                s = nee_c[i, e, d, 0]
+                for k in range(1, L):
+                    x = nee_c[i, e, d, k]
+                    if x > s:
+                        s = x
+                cidx[c, 0] = i
+                cidx[c, 1] = e
+                cidx[c, 2] = d
+                size[c] = s
+                if roulette:
+                    binsum[hit_group[i] * D + d] += s
+                c += 1
+    draw = 0
+    if roulette:
+        for j in range(binsum.shape[0]):
+            cand[j] += binsum[j]
+    for q in range(c):
+        s = size[q]
+        p[q] = 1.0
+        state[q] = 1 if s > 0.0 else 0
+        if roulette:
+            level = level_scale * cand[hit_group[cidx[q, 0]] * D + cidx[q, 2]]
+            if level > s:
+                p[q] = s / level
+            if state[q] == 1 and p[q] < 1.0:
+                state[q] = 2
+                draw += 1
+    return c, draw
+
+
+@numba.njit(cache=True, nogil=True)
+def _shadow_rays(c, state, p, draws, cidx, nee_o, detectors, hit_group, wrap, lx, ly, traced, origins, towards):
+    """The candidates traced (state 1, or 2 and the next of ``draws`` below ``p``: in order), their
+    shadow rays' origins (into the cell for a felt) and directions. Returns how many."""
+    t = 0
+    u = 0
+    for q in range(c):
+        st = state[q]
+        if st == 2:
+            st = 1 if draws[u] < p[q] else 0
+            u += 1
+        if st == 0:
+            continue
+        i, e, d = cidx[q, 0], cidx[q, 1], cidx[q, 2]
+        traced[t] = q
+        x, y, z = nee_o[i, e, 0], nee_o[i, e, 1], nee_o[i, e, 2]
+        if wrap:
+            x = x % lx
+            y = y % ly
+        origins[t, 0], origins[t, 1], origins[t, 2] = x, y, z
+        g = hit_group[i]
+        for k in range(3):
+            towards[t, k] = detectors[g, d, k]
+        t += 1
+    return t
+
+
+@numba.njit(cache=True, nogil=True)
+def _score_visible(t, traced, vis, cidx, p, nee_c, hit_ray, acc):
+    """Add each visible traced candidate's contribution over its probability to its ray's detector, in order."""
+    L = nee_c.shape[3]
+    for j in range(t):
+        if not vis[j]:
+            continue
+        q = traced[j]
+        i, e, d = cidx[q, 0], cidx[q, 1], cidx[q, 2]
+        r = hit_ray[i]
+        pq = p[q]
+        for k in range(L):
+            acc[r, d, k] += nee_c[i, e, d, k] / pq
+
+
+@numba.njit(cache=True, nogil=True)
+def _path_roulette(w, below, low):
+    """Mark the continuing rays whose largest spectral weight is below ``below`` (and above 0) for the
+    path's Russian roulette; returns how many."""
+    c = 0
+    L = w.shape[1]
+    for i in range(w.shape[0]):
+        s = w[i, 0]
+        for k in range(1, L):
+            if w[i, k] > s:
+                s = w[i, k]
+        low[i] = s < below and s > 0.0
+        if low[i]:
+            c += 1
+    return c
+
+
+@numba.njit(cache=True, nogil=True)
+def _survivors(o, d, w, left, hit_ray, low, draws, survive, wrap, lx, ly, origins, dirs, weight, ray, last):
+    """Play the path's roulette (``draws`` in order over the ``low`` rows: kept with probability
+    ``survive``, their weight over it) and compact the live rays (largest weight above 0) into the next
+    wavefront's arrays (a felt's origins back into the cell). Returns how many."""
+    L = w.shape[1]
+    u = 0
+    a = 0
+    for i in range(w.shape[0]):
+        if low[i]:
+            keep = draws[u] < survive
+            u += 1
+            for k in range(L):
+                w[i, k] = w[i, k] / survive if keep else 0.0
+        s = w[i, 0]
+        for k in range(1, L):
+            if w[i, k] > s:
+                s = w[i, k]
+        if not s > 0.0:
+            continue
+        x, y = o[i, 0], o[i, 1]
+        if wrap:
+            x = x % lx
+            y = y % ly
+        origins[a, 0], origins[a, 1], origins[a, 2] = x, y, o[i, 2]
+        for q in range(3):
+            dirs[a, q] = d[i, q]
+        for k in range(L):
+            weight[a, k] = w[i, k]
+        ray[a] = hit_ray[i]
+        last[a] = left[i]
+        a += 1
+    return a
+
+
 def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...],
            events: int = _MAX_BOUNCES) -> _Sums:
     """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element (one wavefront for all ``G``),
@@ -245,99 +448,82 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     ray = np.arange(N)
     last = np.full(N, -1, dtype=np.int64)   # the triangle each ray left from (-1: the beam)
     wrap = bool(getattr(setup.mesh, "open_fibers", False))
+    lx, ly = float(setup.mesh.Lx), float(setup.mesh.Ly)
     acc = np.zeros((N, D, L))
     refl = np.zeros((N, L))
     trans = np.zeros((N, L))
     roulette = bool(SHADOW_ROULETTE)
+    level_scale = SHADOW_LEVEL / n
     # the shadow roulette's draws: a stream of the chunk's own, so the paths stay those of a run without it
     shadow_rng = np.random.default_rng(np.random.SeedSequence(list(seed), spawn_key=(1,)))
     cand = np.zeros(G * D)      # the candidates' sizes so far, per group and detector
+    binsum = np.zeros(G * D)
+    # the wavefront's arrays, allocated once a chunk (a bounce uses their first rows); the next-event
+    # contributions are read only where the shading flags them, so they need no clearing
+    hit_ray = np.empty(N, np.int64)
+    hit_idx = np.empty(N, np.int64)
+    hp, hu, hv = np.empty(N, np.int64), np.empty(N), np.empty(N)
+    hpos, hd, hw = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L))
+    work = ShadeOutputs(np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L)), np.empty((N, 2, 3)),
+                        np.empty((N, 2, D, L)), np.zeros((N, 2, D), dtype=np.bool_), np.zeros(N),
+                        np.empty(N, np.int64))
+    cidx = np.empty((N * 2 * D, 3), np.int64)
+    csize, cp = np.empty(N * 2 * D), np.empty(N * 2 * D)
+    cstate = np.empty(N * 2 * D, np.int8)
+    traced = np.empty(N * 2 * D, np.int64)
+    s_orig, s_dir = np.empty((N * 2 * D, 3)), np.empty((N * 2 * D, 3))
+    low = np.empty(N, np.bool_)
+    nxt = (np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L)), np.empty(N, np.int64), np.empty(N, np.int64))
+    no_draws = np.empty(0)
     for bounce in range(events):
         if ray.size == 0:
             break
         hits = scene.intersect(origins, dirs, stats)
-        up = hits.prim == ESCAPED_UP
-        if np.any(up):
-            refl[ray[up]] += weight[up]
-            d = dirs[up]
-            imu = np.minimum((d[:, 2] * n_mu).astype(int), n_mu - 1)
-            iph = np.minimum(((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * n_phi).astype(int), n_phi - 1)
-            g_up = ray[up] // n
-            np.add.at(sums.bins, (g_up, imu, iph), weight[up])
-            np.add.at(sums.bins2, (g_up, imu, iph), weight[up] ** 2)   # a ray escapes once: its own square
-        down = hits.prim == ESCAPED_DOWN
-        if np.any(down):
-            trans[ray[down]] += weight[down]
-        sums.lost += int(np.count_nonzero(hits.prim == LOST))
-        h = hits.prim >= 0
-        sums.continued += int(np.count_nonzero(last >= 0))
-        sums.self_hits += int(np.count_nonzero(h & (hits.prim == last)))
-        if not np.any(h):
+        azimuth = np.arctan2(dirs[:, 1], dirs[:, 0])
+        M, lost, continued, self_hits = _tally_escapes(hits.prim, ray, last, dirs, azimuth, weight, n, n_mu, n_phi,
+                                                       refl, trans, sums.bins, sums.bins2, hit_ray, hit_idx)
+        sums.lost += lost
+        sums.continued += continued
+        sums.self_hits += self_hits
+        if M == 0:
             ray = ray[:0]
             break
-        hit_ray = ray[h]
-        hit_group = hit_ray // n
-        hp, hu, hv, hpos, hd, hw = (hits.prim[h].astype(np.int64), hits.u[h], hits.v[h], hits.position[h],
-                                    dirs[h], weight[h])
-        if G == 1:
-            o, d, w, nee_o, nee_c, need, alb, left = setup.shade(int(rng.integers(0, 2**62)), hp, hu, hv, hpos, hd,
-                                                                 hw, detectors[0])
-        else:
-            out = new_outputs(hp.size, D, L)
-            cuts = np.searchsorted(hit_group, np.arange(G + 1))
-            for g in range(G):
-                a, b = int(cuts[g]), int(cuts[g + 1])
-                if b > a:
-                    setup.shade_into(int(rng.integers(0, 2**62)), hp[a:b], hu[a:b], hv[a:b], hpos[a:b], hd[a:b],
-                                     hw[a:b], detectors[g], ShadeOutputs(*(x[a:b] for x in out)))
-            o, d, w, nee_o, nee_c, need, alb, left = out
-        if wrap:
-            nee_o[..., 0] %= setup.mesh.Lx
-            nee_o[..., 1] %= setup.mesh.Ly
+        _gather_hits(hit_idx, M, hits.prim, hits.u, hits.v, hits.position, dirs, weight, hp, hu, hv, hpos, hd, hw)
+        h_ray = hit_ray[:M]
+        hit_group = h_ray // n
+        out = ShadeOutputs(*(x[:M] for x in work))
+        if setup.kind == K_FIBER_BRDF:
+            out.hit_albedo[...] = 0.0
+        cuts = np.searchsorted(hit_group, np.arange(G + 1)) if G > 1 else np.array([0, M])
+        seeds = np.zeros(G, np.int64)
+        for g in range(G):       # a seed for each group that has hits, drawn in the groups' order
+            if cuts[g + 1] > cuts[g]:
+                seeds[g] = rng.integers(0, 2**62)
+        shade_groups(seeds, cuts, hp[:M], hu[:M], hv[:M], hpos[:M], hd[:M], hw[:M], setup.inputs, detectors, out)
+        o, d, w, nee_o, nee_c, need, alb, left = out
         if setup.kind == K_FIBER_BRDF:
             sums.hits += int(alb.size)
             sums.albedo_sum += float(alb.sum())
             sums.albedo_over_one += int(np.count_nonzero(alb > 1.0))
-        idx_i, idx_e, idx_d = np.nonzero(need)
-        if idx_i.size:
-            sums.shadow_candidates += int(idx_i.size)
-            contrib = nee_c[idx_i, idx_e, idx_d]
-            size = contrib.max(axis=1)
-            trace_it = size > 0.0          # a zero contribution needs no shadow ray
-            p = np.ones(size.shape)
-            if roulette:
-                flat = hit_group[idx_i] * D + idx_d
-                cand += np.bincount(flat, weights=size, minlength=G * D)
-                level = SHADOW_LEVEL / n * cand[flat]
-                np.divide(size, level, out=p, where=level > size)
-                low = trace_it & (p < 1.0)
-                if np.any(low):
-                    trace_it[low] = shadow_rng.random(int(np.count_nonzero(low))) < p[low]
-            k = np.nonzero(trace_it)[0]
-            if k.size:
-                ki, ke, kd = idx_i[k], idx_e[k], idx_d[k]
-                towards = detectors[0, kd] if G == 1 else detectors[hit_group[ki], kd]
+        c, n_draw = _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, cidx, csize, cp,
+                                       cstate, binsum)
+        if c:
+            sums.shadow_candidates += int(c)
+            draws = shadow_rng.random(int(n_draw)) if n_draw else no_draws
+            t = _shadow_rays(c, cstate, cp, draws, cidx, nee_o, detectors, hit_group, wrap, lx, ly, traced,
+                             s_orig, s_dir)
+            if t:
                 before = stats["queries"]
-                vis = scene.visible(nee_o[ki, ke], towards, stats)
-                sums.shadow_rays += int(k.size)
+                vis = scene.visible(s_orig[:t], s_dir[:t], stats)
+                sums.shadow_rays += int(t)
                 sums.shadow_queries += stats["queries"] - before
-                if np.any(vis):
-                    kv = k[vis]
-                    np.add.at(acc, (hit_ray[idx_i[kv]], idx_d[kv]), contrib[kv] / p[kv, None])
-        # Russian roulette on the largest spectral weight
-        wmax = w.max(axis=1)
-        low = (wmax < _ROULETTE_BELOW) & (wmax > 0)
-        if np.any(low):
-            survive = rng.random(int(low.sum())) < _ROULETTE_SURVIVE
-            wl = w[low]
-            wl[survive] /= _ROULETTE_SURVIVE
-            wl[~survive] = 0.0
-            w[low] = wl
-        alive = w.max(axis=1) > 0
-        origins, dirs, weight, ray, last = o[alive], d[alive], w[alive], hit_ray[alive], left[alive]
-        if wrap:     # a felt's exits may lie on a fiber's copy outside the cell: back into it
-            origins[:, 0] %= setup.mesh.Lx
-            origins[:, 1] %= setup.mesh.Ly
+                _score_visible(t, traced, np.ascontiguousarray(vis, dtype=np.bool_), cidx, cp, nee_c, h_ray, acc)
+        # Russian roulette on the largest spectral weight, then the live rays compacted
+        n_low = _path_roulette(w, _ROULETTE_BELOW, low)
+        draws = rng.random(int(n_low)) if n_low else no_draws
+        a = _survivors(o, d, w, left, h_ray, low, draws, _ROULETTE_SURVIVE, wrap, lx, ly, *nxt)
+        # the next wavefront: the compacted rows (written from the shading's outputs, never read from)
+        origins, dirs, weight, ray, last = (x[:a] for x in nxt)
     sums.killed += int(ray.size)
     tot = acc.reshape(G, n, D, L)  # per-ray totals
     sums.nee += tot.sum(axis=1)

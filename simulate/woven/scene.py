@@ -91,21 +91,63 @@ def _segment_limits(origins, directions, lx, ly, z_lo, z_hi, t_out, face_out):
         face_out[i] = face
 
 
-@numba.njit(cache=True)
-def _wrap(origins, directions, t, face, lx, ly):
-    """Move rays to the side face they reached and wrap them to the opposite face (compiled)."""
-    for i in range(origins.shape[0]):
-        for k in range(3):
-            origins[i, k] += t[i] * directions[i, k]
-        f = face[i]
-        if f == 3:
-            origins[i, 0] = 0.0
-        elif f == 4:
-            origins[i, 0] = lx
-        elif f == 5:
-            origins[i, 1] = 0.0
-        elif f == 6:
-            origins[i, 1] = ly
+@numba.njit(cache=True, nogil=True)
+def _prepare(o, d, active, na, lx, ly, z_lo, z_hi, oa, da, ta, fa, o32, d32, dist32):
+    """A wrap round's rays (``active[:na]``) gathered, their segments' limits (:func:`_segment_limits`) and
+    Embree's float32 inputs (the distance at least 1e-6) (compiled)."""
+    for j in range(na):
+        i = active[j]
+        for q in range(3):
+            oa[j, q] = o[i, q]
+            da[j, q] = d[i, q]
+    _segment_limits(oa[:na], da[:na], lx, ly, z_lo, z_hi, ta, fa)
+    for j in range(na):
+        for q in range(3):
+            o32[j, q] = np.float32(oa[j, q])
+            d32[j, q] = np.float32(da[j, q])
+        dist32[j] = np.float32(max(ta[j], 1e-6))
+
+
+@numba.njit(cache=True, nogil=True)
+def _settle(hit_prim, hit_u, hit_v, hit_t, occlusion, active, na, oa, da, ta, fa, lx, ly, prim, u, v, o,
+            seg_origin):
+    """Apply a wrap round's Embree answers: a hit's triangle, barycentrics and point, an escape's code and
+    exit point, and the rays that reached a side face wrapped to the opposite one, kept in ``active``
+    (in order, in place). Returns how many go on (compiled)."""
+    ns = 0
+    for j in range(na):
+        i = active[j]
+        if hit_prim[j] != -1:
+            if occlusion:
+                prim[i] = 0
+            else:
+                prim[i] = hit_prim[j]
+                u[i] = hit_u[j]
+                v[i] = hit_v[j]
+                t = np.float64(hit_t[j])
+                for q in range(3):
+                    seg_origin[i, q] = oa[j, q]
+                    o[i, q] = oa[j, q] + t * da[j, q]
+            continue
+        f = fa[j]
+        for q in range(3):
+            o[i, q] = oa[j, q] + ta[j] * da[j, q]
+        if f == 1:
+            prim[i] = ESCAPED_UP
+        elif f == 2:
+            prim[i] = ESCAPED_DOWN
+        elif f >= 3:
+            if f == 3:
+                o[i, 0] = 0.0
+            elif f == 4:
+                o[i, 0] = lx
+            elif f == 5:
+                o[i, 1] = 0.0
+            elif f == 6:
+                o[i, 1] = ly
+            active[ns] = i
+            ns += 1
+    return ns
 
 
 class PeriodicScene:
@@ -146,50 +188,27 @@ class PeriodicScene:
         v = np.zeros(n)
         seg_origin = o.copy()
         active = np.arange(n)
+        na = n
+        oa, da = np.empty((n, 3)), np.empty((n, 3))
+        o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
         t = np.empty(n)
         face = np.empty(n, dtype=np.int64)
+        dist = np.empty(n, np.float32)
+        nothing = np.empty(0, np.float32)
         for _ in range(self.max_wraps + 1):
-            if active.size == 0:
+            if na == 0:
                 break
-            oa = o[active]
-            da = d[active]
-            ta = t[:active.size]
-            fa = face[:active.size]
-            _segment_limits(oa, da, self.lx, self.ly, self.z_lo, self.z_hi, ta, fa)
+            _prepare(o, d, active, na, self.lx, self.ly, self.z_lo, self.z_hi, oa, da, t, face, o32, d32, dist)
             if stats is not None:
-                stats["queries"] = stats.get("queries", 0) + active.size
-            dists = np.maximum(ta, 1e-6).astype(np.float32)
+                stats["queries"] = stats.get("queries", 0) + na
             if occlusion:
-                res = self._scene.run(oa.astype(np.float32), da.astype(np.float32), dists=dists, query="OCCLUDED")
-                hit = res != -1
+                res = self._scene.run(o32[:na], d32[:na], dists=dist[:na], query="OCCLUDED")
+                na = _settle(np.asarray(res), nothing, nothing, nothing, True, active, na, oa, da, t, face,
+                             self.lx, self.ly, prim, u, v, o, seg_origin)
             else:
-                res = self._scene.run(oa.astype(np.float32), da.astype(np.float32), dists=dists, output=1)
-                hit = res["primID"] >= 0
-            idx = active[hit]
-            if occlusion:
-                prim[idx] = 0
-            else:
-                prim[idx] = res["primID"][hit]
-                u[idx] = res["u"][hit]
-                v[idx] = res["v"][hit]
-                tf = res["tfar"][hit].astype(np.float64)
-                seg_origin[idx] = oa[hit]
-                o[idx] = oa[hit] + tf[:, None] * da[hit]
-            miss = ~hit
-            up = miss & (fa == 1)
-            down = miss & (fa == 2)
-            for mask, code in ((up, ESCAPED_UP), (down, ESCAPED_DOWN)):
-                k = active[mask]
-                prim[k] = code
-                o[k] = oa[mask] + ta[mask, None] * da[mask]
-            side = miss & (fa >= 3)
-            if not np.any(side):
-                active = active[:0]
-                break
-            os_ = oa[side]
-            _wrap(os_, da[side], ta[side].copy(), fa[side].copy(), self.lx, self.ly)
-            o[active[side]] = os_
-            active = active[side]
+                res = self._scene.run(o32[:na], d32[:na], dists=dist[:na], output=1)
+                na = _settle(res["primID"], res["u"], res["v"], res["tfar"], False, active, na, oa, da, t, face,
+                             self.lx, self.ly, prim, u, v, o, seg_origin)
         return prim, u, v, o, seg_origin
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, stats: dict | None = None) -> Hits:

@@ -25,7 +25,7 @@ from simulate.optics.microfacet import cook_torrance_cos_local, unit3
 from simulate.woven.materials import K_FIBER, K_FIBER_BRDF, K_LAMBERT
 from simulate.woven.scene import EPS_UM
 
-__all__ = ["ShadeInputs", "ShadeOutputs", "shade", "new_outputs"]
+__all__ = ["ShadeInputs", "ShadeOutputs", "shade", "shade_groups", "new_outputs"]
 
 
 class ShadeInputs(NamedTuple):
@@ -135,21 +135,24 @@ def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yar
         a, b, c = v00, v11, v01
         wa, wb, wc = 1.0 - fp, fs, fp - fs
         second = 1
-    p = np.empty(3)
-    n = np.empty(3)
-    t = np.empty(3)
-    g = np.zeros(3)
-    for q in range(3):
-        p[q] = wa * vertices[a, q] + wb * vertices[b, q] + wc * vertices[c, q]
-        n[q] = wa * normals[a, q] + wb * normals[b, q] + wc * normals[c, q]
-        t[q] = wa * tangents[a, q] + wb * tangents[b, q] + wc * tangents[c, q]
+    # tuples, not arrays: no allocation per call (three calls per volume exit)
+    p = (wa * vertices[a, 0] + wb * vertices[b, 0] + wc * vertices[c, 0],
+         wa * vertices[a, 1] + wb * vertices[b, 1] + wc * vertices[c, 1],
+         wa * vertices[a, 2] + wb * vertices[b, 2] + wc * vertices[c, 2])
+    n = (wa * normals[a, 0] + wb * normals[b, 0] + wc * normals[c, 0],
+         wa * normals[a, 1] + wb * normals[b, 1] + wc * normals[c, 1],
+         wa * normals[a, 2] + wb * normals[b, 2] + wc * normals[c, 2])
+    t = (wa * tangents[a, 0] + wb * tangents[b, 0] + wc * tangents[c, 0],
+         wa * tangents[a, 1] + wb * tangents[b, 1] + wc * tangents[c, 1],
+         wa * tangents[a, 2] + wb * tangents[b, 2] + wc * tangents[c, 2])
+    g = (0.0, 0.0, 0.0)
     face = -1
     if face_base.shape[0] > 0:
         # the contract's faces wind (v00, v11, v10) and (v00, v01, v11): (a, c, b) here, outward
         face = face_base[yarn] + 2 * (i_s * sides + i_p) + second
         e1x, e1y, e1z = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
         e2x, e2y, e2z = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], vertices[b, 2] - vertices[a, 2]
-        g[0], g[1], g[2] = unit3(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x)
+        g = unit3(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x)
     return p, n, t, g, face
 
 
@@ -369,15 +372,32 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
 
     ``out_w`` rows of zeros are dead rays. ``nee_c[i, e, d, :]`` is the intensity per unit
     incident power towards detector ``d`` of event ``e`` (0: surface, 1: volume exit) from
-    origin ``nee_o[i, e]``, to be multiplied by the visibility.
+    origin ``nee_o[i, e]``, to be multiplied by the visibility; it is written only where
+    ``nee_need[i, e, d]`` is set (the rest of ``nee_c`` is left as it was).
     """
+    _shade_rows(seed, 0, prim.shape[0], prim, bu, bv, pos, dirs, weight, inp, inp.detectors, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def shade_groups(seeds, cuts, prim, bu, bv, pos, dirs, weight, inp, detectors, out):
+    """:func:`shade` of a wavefront whose rows ``cuts[g]:cuts[g + 1]`` belong to group ``g`` (a rotation),
+    scored towards ``detectors[g]`` from the random state ``seeds[g]``: the same as one :func:`shade` call per
+    non-empty group on its slices, in one call (compiled)."""
+    for g in range(seeds.shape[0]):
+        if cuts[g + 1] > cuts[g]:
+            _shade_rows(seeds[g], cuts[g], cuts[g + 1], prim, bu, bv, pos, dirs, weight, inp, detectors[g], out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, out):
+    """:func:`shade` of the rows ``lo:hi`` towards ``detectors``, from the random state ``seed``."""
     vertices, faces, normals, tangents = inp.vertices, inp.faces, inp.normals, inp.tangents
     vertex_s, vertex_phi, face_yarn, vertex_base = inp.vertex_s, inp.vertex_phi, inp.face_yarn, inp.vertex_base
     n_s, yarn_length, sides, run_axis = inp.n_s, inp.yarn_length, inp.sides, inp.run_axis
     kind, rho, m, n_host, albedo_tab = inp.kind, inp.rho, inp.m, inp.n_host, inp.albedo_tab
     T, cdf, cell_sum, c_bar, tau, nodes = inp.T, inp.cdf, inp.cell_sum, inp.c_bar, inp.tau, inp.nodes
     dpsi, n_psi, n_v, n_mu, n_phi = inp.dpsi, inp.n_psi, inp.n_v, inp.n_mu, inp.n_phi
-    v_edges, off_tot, off_bar, detectors = inp.v_edges, inp.off_tot, inp.off_bar, inp.detectors
+    v_edges, off_tot, off_bar = inp.v_edges, inp.off_tot, inp.off_bar
     twist_c, twist_s, r_yarn, face_base = inp.twist_c, inp.twist_s, inp.r_yarn, inp.face_base
     face_normals, layer_d = inp.face_normals, inp.layer_d
     axial_shift = inp.axial_shift
@@ -387,12 +407,11 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
     # every call reproducible whatever thread runs it (no state is shared between calls)
     np.random.seed(seed)
-    n = prim.shape[0]
     L = weight.shape[1]
     D = detectors.shape[0]
     n_cells = n_psi * n_v * n_mu * n_phi
     clampf = np.ones(L)
-    for i in range(n):
+    for i in range(lo, hi):
         f = prim[i]
         out_prim[i] = f
         yarn = face_yarn[f]

@@ -56,7 +56,8 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
                 "punched-0.2": {"structure.felt_normal_fraction"}, "layers-5": {"structure.layers"},
                 "n-1.6": {"n_host"}, "n-1.8": {"n_host"},
                 "scatterers-x10+rms-slope-x2": {"particles.volume_fraction", "rms_slope"},
-                "n-1.8+rms-slope-x2": {"n_host", "rms_slope"}}
+                "n-1.8+rms-slope-x2": {"n_host", "rms_slope"},
+                "scatterers-x30+dye-x3": {"particles.volume_fraction", "dye.params"}}
     for name in s.VARIANTS:
         cfg, shown = s.variant_config(name, base)
         if name.startswith("scatterers-x") and "+" not in name:
@@ -76,6 +77,10 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
     assert both.particles.volume_fraction == pytest.approx(10 * base.particles.volume_fraction)
     assert set(shown) == {"particles.volume_fraction", "surface.rms_slope"}
     assert s.variant_config("n-1.8+rms-slope-x2", base)[1] == {"fiber.n_host": 1.8, "surface.rms_slope": 2 * base.rms_slope}
+    turbid, shown = s.variant_config("scatterers-x30+dye-x3", base)
+    assert turbid.particles.volume_fraction == pytest.approx(30 * base.particles.volume_fraction)
+    np.testing.assert_allclose(turbid.dye(wl), 3.0 * base.dye(wl), rtol=1e-12)
+    assert set(shown) == {"particles.volume_fraction", "fiber.dye.log10_per_um"}
     for n in (1.6, 1.8):
         cfg, shown = s.variant_config(f"n-{n:g}", base)
         assert cfg.n_host == n and cfg.fiber(wl).n_host == n and shown == {"fiber.n_host": n}
@@ -209,12 +214,86 @@ def test_the_single_scattering_splits_into_the_surface_s_reflection_and_the_ligh
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "felts" in err and "seed 0" in err
     # the tracer's shading is restored after each part, also when a trace fails
-    before = (integrator._Setup.shade, integrator._Setup.shade_into)
+    before = integrator.shade_groups
     with pytest.raises(RuntimeError):
         with s.only_event(0):
-            assert integrator._Setup.shade is not before[0]
+            assert integrator.shade_groups is not before
             raise RuntimeError("inside")
-    assert (integrator._Setup.shade, integrator._Setup.shade_into) == before
+    assert integrator.shade_groups is before
     with pytest.raises(ValueError, match="event"):
         with s.only_event(2):
             pass
+
+
+def test_the_lambertian_felt_scores_every_albedo_on_the_same_paths(tmp_path):
+    """``--lambertian``: the preset's felts with opaque Lambertian fibers. The single scattering is the
+    albedo times one geometric sum, so its columns are exactly proportional to the albedos and share one
+    ratio; all orders add ``a^n`` times the n-th order's sum (the same paths), so the multiply scattered
+    share grows with the albedo, strictly."""
+    s = _scan()
+    out = tmp_path / "scan.json"
+    tiny = ["--seeds", "1", "--target-rel-err", "0.5", "--max-rays", "128", "--out", str(out), "--lambertian"]
+    assert s.main(tiny) == 0
+    d = json.loads(out.read_text(encoding="utf-8"))["data"]
+    lamb = d["lambertian"]
+    a = np.asarray(s.ALBEDOS)
+    assert d["variants"] == [] and lamb["albedos"] == list(s.ALBEDOS) and [r["seed"] for r in lamb["runs"]] == [0]
+    for ti in ("40.03", "27.76"):
+        one, every = lamb["pooled"]["single"][ti], lamb["pooled"]["all"][ti]
+        for ring in ("ring_6", "ring_30", "normal_view"):
+            np.testing.assert_allclose(np.divide(one[ring], a), one[ring][-1], rtol=1e-9)
+            assert all(x < y for x, y in zip(one[ring], every[ring]))
+            assert np.all(np.diff(lamb["multiple_share"][ti][ring]) > 0.0)
+        np.testing.assert_allclose(one["ratio"], one["ratio"][0], rtol=1e-9)
+        assert set(lamb["readoff"]) == {"normal_view", "ring_6", "ring_30"}
+    # resumed: the seed it holds is kept, not traced anew
+    traced = []
+    real = s.run_lambertian
+    s.run_lambertian = lambda *a, **k: traced.append(1) or real(*a, **k)
+    try:
+        assert s.main(tiny[:-3] + ["--out", str(out), "--resume", "--lambertian"]) == 0
+    finally:
+        s.run_lambertian = real
+    assert not traced and json.loads(out.read_text(encoding="utf-8"))["data"]["lambertian"]["runs"] == lamb["runs"]
+
+
+def _curves(level, ratio, u_level=0.01, u_ratio=0.005):
+    a = np.asarray(_scan().ALBEDOS)
+    return {"all": {"40.03": {"normal_view": list(level(a)), "u_normal_view": [u_level] * a.size,
+                              "ratio": list(ratio(a)), "u_ratio": [u_ratio] * a.size}}}
+
+
+def test_the_albedo_readoff_finds_the_file_s_levels_on_the_curve():
+    s = _scan()
+    # beta = 0.5 a, ratio = 1.3 - 0.2 a; the file: 0.25 at 550 nm (a = 0.5), 0.1 at 650 nm (a = 0.2)
+    lamb = _curves(lambda a: 0.5 * a, lambda a: 1.3 - 0.2 * a)
+    file = {"40.03": {"normal_view": [0.05, 0.25, 0.1], "ratio": [1.0, 1.13, 1.19]}}
+    r = s.albedo_readoff(lamb, file)["40.03"]
+    first, second = r["at"]
+    assert (first["albedo"], second["albedo"]) == pytest.approx((0.5, 0.2))
+    assert (first["ratio"], second["ratio"]) == pytest.approx((1.2, 1.26))
+    assert r["excess"] == pytest.approx(0.06) and r["file_excess"] == pytest.approx(0.06)
+    # the level's error moves the albedo by u / slope (0.02) and the ratio by that times its slope (0.2)
+    assert first["u_albedo"] == pytest.approx(0.02)
+    assert first["u_ratio"] == pytest.approx(math.hypot(0.005, 0.02 * 0.2))
+    assert r["u_excess"] == pytest.approx(math.hypot(first["u_ratio"], second["u_ratio"]))
+    # the family at the file's 650 / 550 ratio (0.4): 0.5 pairs with 0.2; 0.2 would need 0.08, not traced
+    assert r["file_level_ratio"] == pytest.approx(0.4)
+    fam = {f["albedo_first"]: f for f in r["family"]}
+    assert fam[0.5]["albedo_second"] == pytest.approx(0.2) and fam[0.5]["excess"] == pytest.approx(0.06)
+    assert fam[0.2]["albedo_second"] is None and fam[0.2]["excess"] is None
+    assert fam[1.0]["albedo_second"] == pytest.approx(0.4) and fam[1.0]["excess"] == pytest.approx(0.12)
+    # a level beyond the traced albedos, or a curve that does not rise, gives no albedo
+    r = s.albedo_readoff(lamb, {"40.03": {"normal_view": [0.05, 0.9, 0.1], "ratio": [1.0, 1.1, 1.2]}})["40.03"]
+    assert r["at"][0] is None and r["excess"] is None
+    flat = s.albedo_readoff(_curves(lambda a: 0.3 + 0.0 * a, lambda a: 1.2 + 0.0 * a), file)["40.03"]
+    assert flat["at"] == [None, None]
+
+
+def test_the_multiply_scattered_share_is_one_less_the_single_over_all():
+    s = _scan()
+    ring = {"ring_6": [0.5, 0.4], "ring_30": [0.2, 0.1], "normal_view": [1.0, 1.0]}
+    every = {"ring_6": [1.0, 0.5], "ring_30": [0.4, 0.4], "normal_view": [2.0, 4.0]}
+    share = s.multiple_share({"single": {"40.03": ring}, "all": {"40.03": every}})["40.03"]
+    assert share == {"ring_6": pytest.approx([0.5, 0.2]), "ring_30": pytest.approx([0.5, 0.75]),
+                     "normal_view": pytest.approx([0.5, 0.75])}

@@ -99,3 +99,18 @@ def test_the_demo_measurement_sees_the_peak_memory_of_a_step_s_child_process():
     assert peak_mb > 300
     code, *_ = m.timed(["sh", "-c", "exit 3"])
     assert code == 3
+
+
+def test_the_felt_demo_plan_table_is_its_json():
+    r = _render()
+    runs = json.loads((r.DATA / "felt-demo-plan.json").read_text(encoding="utf-8"))["data"]["runs"]
+    block = re.search(r"<!-- BEGIN FIGURE: felt-demo-plan -->\n(.*?)<!-- END FIGURE", (
+        ROOT / "docs" / "notes" / "felt-structure.md").read_text(encoding="utf-8"), flags=re.S).group(1)
+    rows = [line for line in block.splitlines() if line.startswith("| ") and not line.startswith("| run")]
+    assert len(rows) == len(runs)
+    for row, run in zip(rows, runs):
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[0] == run["label"] and cells[1].startswith(f"{run['nrmse']:.3f} (")
+        assert [float(x) for x in cells[1].split("(")[1].rstrip(")").split(" / ")] == list(
+            run["nrmse_by_incidence"].values())
+        assert cells[3] == f"{run['k_Y']:.2f}"

@@ -233,3 +233,38 @@ def test_the_felt_meshes_count_in_the_bound_and_are_evicted_as_any_entry(cache, 
     tc.store("yarn-1", one)
     assert {p.name for _, _, p in tc.entries()} == {f"yarn-0{tc.SUFFIX}", f"yarn-1{tc.SUFFIX}"}
     assert tc.evict() == 0
+
+
+def test_a_flipped_bit_anywhere_gives_a_miss_or_the_same_arrays(cache, caplog):
+    """Every bit position of a small entry: the read either refuses it (a miss, deleted) or returns
+    the stored arrays bit for bit (the flip was in bytes that do not change what is read), never
+    other arrays; and a file cut anywhere is a miss."""
+    arrays = {"T": np.arange(24.0).reshape(2, 3, 4), "F": np.asfortranarray(np.arange(6, dtype=np.int32).reshape(2, 3)),
+              "n": np.int64(7)}
+    path = tc.store("yarn-flip", arrays)
+    good = path.read_bytes()
+    got = tc.load("yarn-flip")
+    assert got is not None and set(got) == set(arrays)
+    for name, a in arrays.items():
+        assert got[name].dtype == np.asarray(a).dtype and got[name].shape == np.shape(a)
+        assert np.array_equal(got[name], a) and got[name].flags.f_contiguous == np.asarray(a).flags.f_contiguous
+    misses = same = 0
+    for i in range(len(good)):
+        for bit in (0x01, 0x80):
+            data = bytearray(good)
+            data[i] ^= bit
+            path.write_bytes(bytes(data))
+            got = tc.load("yarn-flip")
+            if got is None:
+                assert not path.exists()
+                misses += 1
+            else:
+                assert set(got) == set(arrays)
+                assert all(got[k].dtype == np.asarray(v).dtype and got[k].tobytes() == np.asarray(v).tobytes()
+                           for k, v in arrays.items())
+                same += 1
+    data_bytes = sum(np.asarray(a).nbytes for a in arrays.values())
+    assert misses >= 2 * data_bytes and same > 0     # every data byte's flips are caught; the digest's are harmless
+    for cut in range(0, len(good), 7):
+        path.write_bytes(good[:cut])
+        assert tc.load("yarn-flip") is None
