@@ -34,6 +34,7 @@ Colour 0.4.7 (colour-science).
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 
@@ -111,20 +112,12 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
         raise ValueError("wavelengths must be strictly increasing")
     if not np.all(np.isfinite(values)):
         raise ValueError("the spectrum contains NaN or infinite values")
-    if illuminant not in colour.SDS_ILLUMINANTS:
-        raise ValueError(f"unknown illuminant {illuminant!r}; use a key of "
-                         "colour.SDS_ILLUMINANTS such as 'D65'")
+    cmfs, sd_illuminant, white_xy = _illuminant_data(illuminant)
     sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist())), name="beta")
-    cmfs = colour.MSDS_CMFS[OBSERVER]
-    sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
         xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0
-        if illuminant in colour.CCS_ILLUMINANTS[OBSERVER]:
-            white_xy = colour.CCS_ILLUMINANTS[OBSERVER][illuminant]
-        else:
-            white_xy = colour.XYZ_to_xy(colour.sd_to_XYZ(colour.sd_ones(), cmfs, sd_illuminant))
-        rgb = colour.XYZ_to_RGB(xyz, "sRGB", illuminant=white_xy)
+        rgb = colour.XYZ_to_RGB(xyz, _colourspace("sRGB"), illuminant=white_xy)
         hsv = colour.RGB_to_HSV(rgb)
     if not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(rgb))):
         # finite values whose weighted sum overflows (|beta| ~ 1e308): say so rather than
@@ -140,6 +133,15 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
 
 def colourspace(name: str):
     """The colour-science RGB colour space of ``"linear NAME"`` (e.g. ``"linear sRGB"``)."""
+    if not isinstance(name, str):
+        raise ValueError(f"unknown colour space {name!r}; use \"linear sRGB\" or \"linear NAME\" "
+                         "with NAME a key of colour.RGB_COLOURSPACES")
+    return _colourspace(name)
+
+
+@functools.lru_cache(maxsize=64)
+def _colourspace(name: str):
+    """:func:`colourspace`, each accepted name looked up once (as :func:`_illuminant_entry`)."""
     import colour
 
     key = name[len("linear "):] if name.startswith("linear ") else name
@@ -185,7 +187,7 @@ def rgb_colour(channels, colour_space: str = "linear sRGB") -> ColourSummary:
     if space.name == "sRGB":
         srgb = rgb
     else:
-        srgb = colour.XYZ_to_RGB(xyz, "sRGB", illuminant=space.whitepoint,
+        srgb = colour.XYZ_to_RGB(xyz, _colourspace("sRGB"), illuminant=space.whitepoint,
                                  chromatic_adaptation_transform="Bradford")
     return _summary(srgb, xyz, illuminant=f"{space.whitepoint_name} ({space.name} white)")
 
@@ -207,14 +209,41 @@ def spectrum_to_rgb(wavelength_nm, beta, colour_space: str = "linear sRGB",
                                         chromatic_adaptation_transform="Bradford"), dtype=float)
 
 
-def _illuminant_xy(illuminant: str):
+def _illuminant_data(illuminant: str):
+    """``(cmfs, illuminant spectrum, white xy)`` of the illuminant named ``illuminant`` (a key of
+    ``colour.SDS_ILLUMINANTS``), ValueError for any other name.
+
+    colour-science's mappings compare a name with every key in several spellings (about 2 ms a
+    look-up), so the data of each accepted name are looked up once (:func:`_illuminant_entry`);
+    an unknown name is not remembered and is refused again on every call.
+    """
+    if not isinstance(illuminant, str):
+        raise ValueError(f"unknown illuminant {illuminant!r}; use a key of "
+                         "colour.SDS_ILLUMINANTS such as 'D65'")
+    return _illuminant_entry(illuminant)
+
+
+@functools.lru_cache(maxsize=64)
+def _illuminant_entry(illuminant: str):
     import colour
 
-    if illuminant in colour.CCS_ILLUMINANTS[OBSERVER]:
-        return colour.CCS_ILLUMINANTS[OBSERVER][illuminant]
+    if illuminant not in colour.SDS_ILLUMINANTS:
+        raise ValueError(f"unknown illuminant {illuminant!r}; use a key of "
+                         "colour.SDS_ILLUMINANTS such as 'D65'")
     cmfs = colour.MSDS_CMFS[OBSERVER]
-    return colour.XYZ_to_xy(colour.sd_to_XYZ(colour.sd_ones(), cmfs,
-                                             colour.SDS_ILLUMINANTS[illuminant]))
+    sd_illuminant = colour.SDS_ILLUMINANTS[illuminant]
+    if illuminant in colour.CCS_ILLUMINANTS[OBSERVER]:
+        white_xy = colour.CCS_ILLUMINANTS[OBSERVER][illuminant]
+    else:
+        with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+            warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
+            white_xy = colour.XYZ_to_xy(colour.sd_to_XYZ(colour.sd_ones(), cmfs, sd_illuminant))
+        white_xy.setflags(write=False)
+    return cmfs, sd_illuminant, white_xy
+
+
+def _illuminant_xy(illuminant: str):
+    return _illuminant_data(illuminant)[2]
 
 
 def hue_difference(h1, h2):

@@ -319,10 +319,13 @@ def test_report_of_an_incomplete_measurement_has_a_banner(h, tmp_path):
     text = (tmp_path / "rep" / "report.html").read_text()
     assert "class='banner'" in text
     assert "Incomplete data" in text and "17 of 53 planned points measured" in text
-    complete = _quiet_main(["report", h.FIXTURES / "measured_red", h.FIXTURES / "sim_scaled",
-                            "--out", tmp_path / "rep2"])
-    assert complete[0] == 0
-    assert "class='banner'" not in (tmp_path / "rep2" / "report.html").read_text()
+
+
+def test_report_of_a_complete_measurement_has_no_banner(h, report):
+    """The module's report (complete datasets, none the measured itself) has none of the banners above."""
+    assert read_dataset(h.FIXTURES / "measured_red").complete
+    assert report["status"] == 0, report["stderr"]
+    assert "class='banner'" not in (report["out"] / "report.html").read_text(encoding="utf-8")
 
 
 def test_report_of_a_dataset_against_itself_has_a_banner(h, tmp_path):
