@@ -59,7 +59,7 @@ def _decisions(config, wl, events: float) -> list[str | None]:
 
 
 def _budget_entries(cache_dir) -> list:
-    return [e for e in tablecache.entries(cache_dir) if e[2].name.startswith("budget-")]
+    return [e for e in tablecache.entries(cache_dir) if e[2].name.startswith("coeffs-")]
 
 
 @pytest.mark.parametrize("name", preset_names())
@@ -119,3 +119,19 @@ def test_a_corrupt_entry_is_computed_again(cache_dir):
     path.write_bytes(good[: len(good) // 2])
     assert budget.estimate_cost(config, wl, 0.03) == first == _estimate_computed(config, wl, 0.03)
     assert path.read_bytes() == good
+
+
+def test_the_felt_s_exit_bin_choice_reads_the_cost_check_s_coefficients(cache_dir, monkeypatch):
+    from simulate.woven.estimate import fiber_scatterings
+
+    config = load_config("green-felt-mc")
+    wl = np.asarray(config.wavelengths_nm, float)
+    fiber = config.fiber(wl)
+    mid = float(wl[wl.size // 2])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        direct = 2.0 * fiber.radius_um * fiber.medium.optical_properties(mid, with_phase=False).mu_s
+    budget.estimate_cost(config, wl, 0.03)
+    monkeypatch.setattr(mie, "cross_sections", lambda *a, **k: pytest.fail("Mie computed on a hit"))
+    assert fiber_scatterings(fiber, wl) == direct
+    assert len(_budget_entries(cache_dir)) == 1
