@@ -63,10 +63,30 @@ def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -
     return data
 
 
+def tight_layout(fig, bottom_in: float = 0.0) -> None:
+    """``fig.tight_layout()`` keeping a strip ``bottom_in`` inches high free at the bottom.
+
+    The subplot parameters of ``fig.tight_layout(rect=(0, bottom_in / height, 1, 1))`` at half
+    its cost for one row of panels: with ``rect`` matplotlib measures every panel's decorations
+    twice (once for the margins, once more inside ``rect``), two equal measurements since the
+    panels do not move in between; here they are measured once and the bottom margin moves up
+    by the strip. With several rows (whose spacing is relative to the panel height)
+    matplotlib's own ``rect`` is used."""
+    strip = bottom_in / fig.get_figheight()
+    specs = [ax.get_subplotspec() for ax in fig.axes]
+    if strip and any(spec is None or spec.get_gridspec().nrows > 1 for spec in specs):
+        fig.tight_layout(rect=(0.0, strip, 1.0, 1.0))
+        return
+    fig.tight_layout()
+    if strip:
+        fig.subplots_adjust(bottom=fig.subplotpars.bottom + strip)
+
+
 def _bars_hidden(ax, x, y, u) -> bool:
     """True when every +-u error bar is shorter than the marker drawn over it."""
     if len(y) == 0:
         return False
+    ax.get_ylim()          # the final (autoscaled) view limits: transData reads them
     fig = ax.figure
     lo = ax.transData.transform(np.column_stack([x, y - u]))[:, 1]
     hi = ax.transData.transform(np.column_stack([x, y + u]))[:, 1]
@@ -200,12 +220,18 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
                                    bbox_transform=fig.transFigure, frameon=False,
                                    ncol=min(3, 2 + len(simulated)))
         legend.set_in_layout(False)
-        fig.tight_layout(rect=(0.0, legend_in / fig.get_figheight(), 1.0, 1.0))
+        tight_layout(fig, bottom_in=legend_in)
     else:
         axes[0, 0].legend(handles, labels, fontsize=8)
-        fig.tight_layout()
-    fig.draw_without_rendering()   # final limits and layout: the transforms below are drawn
+        tight_layout(fig)
+    # the layout is final (tight_layout placed the axes) and _bars_hidden autoscales the
+    # limits: the transforms it reads are those drawn, without a draw here
     for ax, theta_i in zip(axes.ravel(), angles):
+        if not ax.yaxis.offsetText.get_text():
+            # nothing above the panel for its title to clear (no offset or power of ten on
+            # the value axis, no ticks on top): its place is fixed, which saves measuring
+            # every tick label again at each draw to find it
+            ax.set_title(ax.get_title(), y=1.0)
         m = measured[np.abs(measured["theta_i"] - theta_i) < 1e-6]
         hidden.append(_bars_hidden(ax, m["s"].to_numpy(), m["value"].to_numpy() / np.pi,
                                    m["u"].to_numpy() / np.pi))
@@ -395,8 +421,9 @@ def colour_strip_figure(strips: list[dict]):
         ax.tick_params(length=0)
         for side in ax.spines.values():
             side.set_visible(False)
+        # a fixed title place: the value axis holds labels, no offset text for it to clear
         ax.set_title(f"incidence {theta_i:g} deg" + (f", phi_i {phi_i:g} deg" if several_phi
-                                                      else ""), fontsize=9, loc="left")
+                                                      else ""), fontsize=9, loc="left", y=1.0)
     axes[-1, 0].set_xlabel("signed observation angle s (deg): s < 0 detector on the source's "
                            "side (dotted: retro-direction), s > 0 the far side", fontsize=8)
     fig.suptitle("colour along the in-plane curves (display sRGB, each strip scaled to its "

@@ -116,6 +116,48 @@ def test_the_plotted_model_line_is_broken_and_the_retro_line_labelled(h):
     assert "beam-blocked (retro-direction)" in legend
 
 
+def _inside(inner, outer, tol=0.5) -> bool:
+    return (inner.x0 >= outer.x0 - tol and inner.y0 >= outer.y0 - tol
+            and inner.x1 <= outer.x1 + tol and inner.y1 <= outer.y1 + tol)
+
+
+@pytest.mark.parametrize("incidence", [(0.0, 30.0, 45.0, 60.0), (0.0, 10.0, 20.0, 30.0, 45.0)])
+def test_inplane_layout_keeps_every_label_inside_and_the_legend_clear_of_the_panels(h, incidence):
+    """One row (legend in a strip under the panels) and two rows (legend in the first panel):
+    every panel's ticks, labels, title and texts, the suptitle and the legend lie inside the
+    figure, and a legend under the panels overlaps none of them."""
+    from compare.report.figures import tight_layout
+
+    rows = h.in_plane_table(h.red_lobe, incidence=incidence, wavelengths=[650.0])
+    m = h.dataset(rows).in_plane().rename(columns={"beta": "value", "u_beta": "u"})
+    fig, _ = _inplane_figure(m, {"model a": m, "model b": m.assign(value=m["value"] * 0.8)},
+                             "a long title", "beta / pi  (1/sr)", "meas")
+    renderer = fig.canvas.get_renderer()
+    fig.draw(renderer)
+    page = fig.bbox
+    panels = [ax.get_tightbbox(renderer) for ax in fig.axes if ax.get_visible()]
+    assert panels and all(_inside(b, page) for b in panels)
+    # the whole figure's decorations (suptitle too), in inches
+    assert _inside(fig.get_tightbbox(renderer), fig.bbox_inches, tol=0.01)
+    legend = fig.axes[0].get_legend().get_window_extent(renderer)
+    assert _inside(legend, page)
+    one_row = len(incidence) <= 4
+    if one_row:
+        assert all(legend.y1 <= b.y0 + 0.5 for b in panels)    # under every panel, not on one
+        # the panels are placed as matplotlib's tight_layout with the strip as its rect
+        def pars():
+            p = fig.subplotpars
+            return p.left, p.right, p.bottom, p.top, p.wspace
+
+        placed = pars()
+        fig.tight_layout(rect=(0.0, 0.6 / fig.get_figheight(), 1.0, 1.0))
+        assert placed == pytest.approx(pars(), abs=1e-12)
+        tight_layout(fig, bottom_in=0.6)                   # and it places them there again
+        assert pars() == pytest.approx(placed, abs=1e-12)
+    else:
+        assert len({round(b.y0) for b in panels}) == 2
+
+
 def test_normalisation_uncertainty_is_explained_and_carried(h, demo_like):
     text = demo_like["html"]
     assert "not</b> folded into the curve errors" in text
