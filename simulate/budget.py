@@ -31,6 +31,17 @@ photons in 41 s, achieved error 1.43 % of the fiber route):
 
 Particles at least as large as the fiber are refused outright (they cannot sit inside it), and so is
 a number density whose particles would fill more than the whole volume.
+
+The events per photon of a ``[particles]`` config need the medium's Mie cross sections (``mu_s``,
+``mu_a``, ``g`` at every wavelength; importing miepython and loading its compiled kernels alone
+takes ~1.2 s), although a run whose tables are in the table cache needs no Mie result otherwise.
+They are therefore kept in the table cache (:mod:`simulate.fiber.tablecache`, kind ``coeffs``, a
+file of ~1.5 kB; :func:`medium_coefficients`) under the hash of the medium (particles, host index, dye sampled at the
+wavelengths), the wavelengths and the source of the Mie and medium modules: a later check of the
+same medium reads the stored coefficients, the same float64 values a computation gives, so the
+estimate and the decision are the same to the bit. With the cache disabled
+(``FABRIC_OPTICS_NO_CACHE``, ``--no-cache``) they are computed each time, as is an entry that
+cannot be read.
 """
 
 from __future__ import annotations
@@ -44,9 +55,10 @@ from typing import Any
 import numpy as np
 
 from simulate.config import ConfigError, SimulationConfig
+from simulate.fiber import tablecache
 
 __all__ = ["BudgetError", "CostEstimate", "EVENT_RATE", "MAX_SECONDS", "WARN_SECONDS", "check_cost",
-           "estimate_cost"]
+           "estimate_cost", "medium_coefficients"]
 
 #: Estimated seconds beyond which a run without a photon budget is refused (one day).
 MAX_SECONDS = 86_400.0
@@ -110,17 +122,38 @@ def _mie_seconds(config: SimulationConfig, wavelengths: np.ndarray) -> float:
     return per * len(wavelengths)
 
 
+#: the code the stored coefficients of :func:`medium_coefficients` depend on (part of their key)
+MIE_MODULES = ("simulate.optics.mie", "simulate.media.medium", "simulate.optics.fresnel")
+
+
+def medium_coefficients(medium: Any, wavelengths: Any) -> dict[str, np.ndarray]:
+    """``mu_s``, ``mu_a``, ``g`` (1/um, 1/um, -) of a Mie ``medium`` at ``wavelengths``, through the table cache.
+
+    Kept under the hash of the medium, the wavelengths and :data:`MIE_MODULES` (module docstring):
+    a hit returns the float64 values :meth:`~simulate.media.medium.MieMedium.optical_properties`
+    gives (``with_phase=False``), without importing miepython. Shared by the cost check and the felt
+    tracer's exit-bin choice (:func:`simulate.woven.estimate.fiber_scatterings`).
+    """
+    wl = np.atleast_1d(np.asarray(wavelengths, float))
+
+    def compute() -> dict[str, np.ndarray]:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ops = [medium.optical_properties(float(w), with_phase=False) for w in wl]
+        return {a: np.array([float(getattr(op, a)) for op in ops], float) for a in ("mu_s", "mu_a", "g")}
+
+    key = tablecache.content_key("coeffs", (medium, wl), MIE_MODULES)
+    return tablecache.cached(key, compute)[0]
+
+
 def _events_per_photon(config: SimulationConfig, wavelengths: np.ndarray) -> float:
     diameter = 2.0 * config.radius_um
     if config.hg is not None:
         mu_s, mu_a, g = config.hg
         props = [(mu_s, mu_a, g)] * len(wavelengths)
     else:
-        medium: Any = config.medium(wavelengths)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            ops = [medium.optical_properties(float(w), with_phase=False) for w in wavelengths]
-        props = [(op.mu_s, op.mu_a, op.g) for op in ops]
+        coeffs = medium_coefficients(config.medium(wavelengths), wavelengths)
+        props = [(float(s), float(a), float(g)) for s, a, g in zip(coeffs["mu_s"], coeffs["mu_a"], coeffs["g"])]
     events = []
     for mu_s, mu_a, g in props:
         tau_s = mu_s * diameter

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from simulate.budget import medium_coefficients
 from simulate.media.medium import HGMedium
 from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.fabric.structure import CLOSE_PACKING
@@ -126,9 +127,12 @@ def fiber_scatterings(fiber: Any, wavelengths_nm: Any) -> float:
     """``2 R mu_s`` at the middle of ``wavelengths_nm``: the expected scattering events across the fiber."""
     medium = fiber.medium
     wl = np.asarray(wavelengths_nm, float).ravel()
-    mid = float(wl[wl.size // 2]) if wl.size else 550.0
+    if not wl.size:
+        wl = np.array([550.0])
+    # a Mie medium's coefficients at all of wavelengths_nm, through the table cache: the cost check
+    # before the run stored them (no Mie evaluation, no miepython import, in a run whose tables are cached)
     mu_s = float(medium.mu_s) if isinstance(medium, HGMedium) else float(
-        medium.optical_properties(mid, with_phase=False).mu_s)
+        medium_coefficients(medium, wl)["mu_s"][wl.size // 2])
     return 2.0 * float(fiber.radius_um) * mu_s
 
 

@@ -26,7 +26,7 @@ def test_absorption_table_interpolates_between_nodes_from_the_same_photons(red_c
     out = fib.range_outputs([0.0], [1.0], [-math.pi], [math.pi], nodye.half_width)
     win = np.array([[0.0, 0.0, 1.0]])
     nodes = absorption_nodes(2.0)
-    tab = absorption_table(nodye, win, out, wl, nodes, method="beam", target_rel_err=0.1, seed=3)
+    tab = absorption_table(nodye, win, out, wl, nodes, method="beam", target_rel_err=0.1, seed=3, max_photons=20_000)
     for star in (0.002, 0.05, 0.4):
         nodes2 = np.sort(np.r_[nodes, star])
         tab2 = absorption_table(nodye, win, out, wl, nodes2, method="beam", photons=tab.photons, seed=3)
