@@ -243,14 +243,31 @@ ORDERS: dict[str, tuple[int, int | None]] = {"single": (1, None), "all": (0, Non
 SPLIT_ORDERS: dict[str, tuple[int, int | None]] = {"surface": (1, 0), "volume": (1, 1)}
 
 
+def _felts_and_geometries(structure: Any, radius_um: float, seed: int, felts: dict, felt: dict | None) -> tuple:
+    """The two felts of ``structure`` at ``seed`` (built once into ``felts``), their figures, the plan and its
+    directions; ValueError if ``felt`` (the figures a run already holds) differs from the felts built now."""
+    from simulate.fabric import directions_deg
+    from simulate.nonwoven.felt import felt_mesh
+    from simulate.products import FELT_SEED_STRIDE
+
+    key = (structure, seed)
+    if key not in felts:
+        felts[key] = tuple(felt_mesh(structure, radius_um, seed=seed + FELT_SEED_STRIDE * h) for h in (0, 1))
+    meshes = felts[key]
+    built = {k: [m.info[k] for m in meshes] for k in ("fibers", "normal_fibers", "thickness_um", "volume_fraction")}
+    if felt is not None and built != felt:
+        raise ValueError("the felts built now differ from those its runs were traced on")
+    g = geometries()
+    w_in = directions_deg(g["theta_i"].to_numpy(float), g["phi_i"].to_numpy(float))
+    w_out = directions_deg(g["theta_o"].to_numpy(float), g["phi_o"].to_numpy(float))
+    return meshes, built, g, w_in, w_out
+
+
 def run_variant(name: str, base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict,
                 orders: tuple[str, ...] = tuple(ORDERS), felt: dict | None = None) -> dict:
     """Trace variant ``name`` at ``seed`` (its felts' and rays') at each of ``orders`` (:data:`ORDERS`,
     :data:`SPLIT_ORDERS`); ``felts``: meshes by (structure, seed). ``felt``: the felts' figures a run
     already holds; ValueError before any trace if the felts built now differ from them."""
-    from simulate.fabric import directions_deg
-    from simulate.nonwoven.felt import felt_mesh
-    from simulate.products import FELT_SEED_STRIDE
     from simulate.woven import fabric_beta
     from simulate.woven import integrator
 
@@ -258,17 +275,7 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
     wl = np.asarray(WAVELENGTHS_NM)
     fiber = cfg.fiber(wl)
     started, cpu0 = time.perf_counter(), _cpu()
-    key = (cfg.structure, seed)
-    if key not in felts:
-        felts[key] = tuple(felt_mesh(cfg.structure, fiber.radius_um, seed=seed + FELT_SEED_STRIDE * h) for h in (0, 1))
-    meshes = felts[key]
-    keep = ("fibers", "normal_fibers", "thickness_um", "volume_fraction")
-    built = {k: [m.info[k] for m in meshes] for k in keep}
-    if felt is not None and built != felt:
-        raise ValueError("the felts built now differ from those its runs were traced on")
-    g = geometries()
-    w_in = directions_deg(g["theta_i"].to_numpy(float), g["phi_i"].to_numpy(float))
-    w_out = directions_deg(g["theta_o"].to_numpy(float), g["phi_o"].to_numpy(float))
+    meshes, built, g, w_in, w_out = _felts_and_geometries(cfg.structure, fiber.radius_um, seed, felts, felt)
     traced = {}
     for label in orders:
         events, event = {**ORDERS, **SPLIT_ORDERS}[label]
@@ -336,22 +343,10 @@ def run_lambertian(base: Any, seed: int, target: float, threads: int, max_rays: 
     """The preset's felts at ``seed`` (as :func:`run_variant` builds them) with opaque Lambertian fibers of
     the albedos :data:`ALBEDOS`, single scattering and all orders, summarised as a variant's run is (the
     bands are the albedos)."""
-    from simulate.fabric import directions_deg
-    from simulate.nonwoven.felt import felt_mesh
-    from simulate.products import FELT_SEED_STRIDE
 
     fiber = base.fiber(np.asarray(WAVELENGTHS_NM))
     started, cpu0 = time.perf_counter(), _cpu()
-    key = (base.structure, seed)
-    if key not in felts:
-        felts[key] = tuple(felt_mesh(base.structure, fiber.radius_um, seed=seed + FELT_SEED_STRIDE * h) for h in (0, 1))
-    meshes = felts[key]
-    built = {k: [m.info[k] for m in meshes] for k in ("fibers", "normal_fibers", "thickness_um", "volume_fraction")}
-    if felt is not None and built != felt:
-        raise ValueError("the felts built now differ from those its runs were traced on")
-    g = geometries()
-    w_in = directions_deg(g["theta_i"].to_numpy(float), g["phi_i"].to_numpy(float))
-    w_out = directions_deg(g["theta_o"].to_numpy(float), g["phi_o"].to_numpy(float))
+    meshes, built, g, w_in, w_out = _felts_and_geometries(base.structure, fiber.radius_um, seed, felts, felt)
     traced = {}
     for label, (events, _) in ORDERS.items():
         beta, u, info = lambertian_beta(meshes, ALBEDOS, w_in, w_out, target=target, max_rays=max_rays, seed=seed,
