@@ -1,8 +1,18 @@
-"""Root conftest: settings of the docstring examples collected by ``--doctest-modules``; a private table cache.
+"""Root conftest: settings of the docstring examples collected by ``--doctest-modules``; a private table cache;
+the numba kernels compiled once before the xdist workers start.
 
-The suite never reads or writes the user's table cache (:mod:`simulate.fiber.tablecache`): every
-test process (and the processes it starts, which inherit the environment) uses a fresh temporary
-directory, removed at exit.
+The suite never reads or writes the user's table cache (:mod:`simulate.fiber.tablecache`): the test
+run (the xdist controller, or the only process of a run without workers) makes a fresh temporary
+directory, removed at its exit; the xdist workers and the processes the tests start inherit it
+through the environment, so a table one worker computed is loaded by the other. The cache is safe
+for concurrent processes (an entry is written to a temporary file and moved into place). A test
+that counts the cache's entries, hits or misses uses the ``cache_dir`` fixture: a directory of its own.
+
+With two or more xdist workers, the controller first runs ``tests/warm_kernels.py``: one process
+per group of kernels, the groups at once, each compiling its kernels into numba's on-disk cache;
+the workers then load them instead of each compiling every kernel it meets. A test that needs an
+empty numba cache (``tests/simulate/mc/test_kernel_cache.py``) sets ``NUMBA_CACHE_DIR`` for its own
+processes.
 """
 
 from __future__ import annotations
@@ -10,21 +20,69 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from _pytest.doctest import DoctestItem
 
-_TABLE_CACHE = tempfile.mkdtemp(prefix="fabric-optics-test-cache-")
+#: the test run's table cache, set by the process that made it (the xdist controller) for its workers
+_RUN_CACHE_ENV = "FABRIC_OPTICS_TEST_RUN_CACHE"
+_inherited = os.environ.get(_RUN_CACHE_ENV, "")
+if os.environ.get("PYTEST_XDIST_WORKER") and _inherited and os.path.isdir(_inherited):
+    _TABLE_CACHE = _inherited
+else:
+    _TABLE_CACHE = tempfile.mkdtemp(prefix="fabric-optics-test-cache-")
+    os.environ[_RUN_CACHE_ENV] = _TABLE_CACHE
+    atexit.register(shutil.rmtree, _TABLE_CACHE, True)
 os.environ["FABRIC_OPTICS_CACHE_DIR"] = _TABLE_CACHE
 os.environ.pop("FABRIC_OPTICS_NO_CACHE", None)
-atexit.register(shutil.rmtree, _TABLE_CACHE, True)
+
+_WARM_KERNELS = Path(__file__).with_name("tests") / "warm_kernels.py"
+_WARM_GROUPS = ("monte-carlo", "fabric")
+_warm_report: list[str] = []
 
 # The thread-independence tests compare 1 and 2 compiled threads: numba's pool must hold at least 2
 # (set before numba is first imported; on a 1-core machine the two threads share the core).
 if int(os.environ.get("NUMBA_NUM_THREADS") or os.cpu_count() or 1) < 2:
     os.environ["NUMBA_NUM_THREADS"] = "2"
+
+
+def _xdist_workers(config: pytest.Config) -> int:
+    """How many xdist workers this (controller) process starts: 0 in a worker or without xdist."""
+    if hasattr(config, "workerinput") or getattr(config.option, "dist", "no") == "no":
+        return 0
+    return len(getattr(config.option, "tx", None) or [])
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """With 2 or more workers: compile the kernels once, one process per group (module docstring).
+
+    A group that fails is reported in the summary and the run goes on (its kernels are then compiled
+    by the tests that use them, which also show the failure)."""
+    if _xdist_workers(config) < 2:
+        return
+    start = time.perf_counter()
+    env = dict(os.environ, FABRIC_OPTICS_NO_CACHE="1")
+    procs = [(group, subprocess.Popen([sys.executable, "-P", str(_WARM_KERNELS), group], env=env,
+                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
+             for group in _WARM_GROUPS]
+    lines = []
+    for group, proc in procs:
+        out, _ = proc.communicate()
+        lines.append(out.strip().splitlines()[-1] if proc.returncode == 0 and out.strip()
+                     else f"{group} failed (exit {proc.returncode}): {out.strip().splitlines()[-1:] or ''}")
+    _warm_report.append(f"numba kernels compiled before the workers start: {time.perf_counter() - start:.1f} s "
+                        f"({'; '.join(lines)})")
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    for line in _warm_report:
+        terminalreporter.write_line(line)
 
 
 @pytest.fixture(autouse=True)

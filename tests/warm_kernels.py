@@ -1,0 +1,133 @@
+"""Compile the cached numba kernels the suite uses into numba's on-disk cache, before the workers start.
+
+Run by the root ``conftest.py`` in the xdist controller (``-n 2`` or more) as ``python warm_kernels.py
+GROUP`` in one process per group, the groups at once: each group runs tiny versions of the routes
+whose kernels it compiles (the groups' kernels are disjoint, so no kernel is compiled twice), and the
+test workers then load every kernel instead of each compiling it. In a tree whose cache is already
+filled the groups only load. Nothing is written but numba's cache: the table cache is off and the
+outputs go to a temporary directory. The script prints the seconds it took.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def _monte_carlo(tmp: Path) -> None:
+    """The slab command, the slab and cylinder routes and the fiber's volume BRDF methods."""
+    import numpy as np
+
+    from fabric_optics.cli.simulate import main
+    from simulate.fiber import Fiber, point_outputs, range_outputs, volume_brdf
+    from simulate.media.medium import HGMedium
+    from simulate.montecarlo import run_cylinder, run_slab
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        main(["slab", "--mua", "1", "--mus", "9", "--g", "0.75", "--n", "1.4", "--thickness", "1",
+              "--photons", "1000", "--json"])
+    run_slab(1.0, 9.0, g=0.75, n=1.4, thickness=1.0, photons=500, angular_bins=(3, 4))
+    run_cylinder(0.1, 1.0, g=0.7, n=1.5, radius=1.0, photons=500)
+    fiber = Fiber(radius_um=10.0, n_host=1.5, medium=HGMedium(mu_s=1.0, mu_a=0.05, g=0.7), roughness=0.3,
+                  cell_width_deg=20.0)
+    w_in = np.array([[0.3, -0.2, math.sqrt(1 - 0.13)]])
+    w_out = np.array([[0.1, 0.4, math.sqrt(1 - 0.17)]])
+    ranged = range_outputs([0.5], [1.0], [-math.pi / 3], [math.pi / 3], fiber.half_width)
+    for method, outputs in (("nee", point_outputs(w_out, fiber.half_width)), ("nee", ranged), ("beam", ranged),
+                            ("bssrdf", ranged)):
+        volume_brdf(fiber, w_in, None, [450.0, 550.0, 650.0], method=method, outputs=outputs, target_rel_err=0.5,
+                    max_photons=2000, seed=1, bssrdf_bins=(2, 3))
+
+
+def _structure(tmp: Path) -> None:
+    """The structured walk of the fit (green felt, one wavelength) and a fiber's exit table and interior closure."""
+    import numpy as np
+
+    from simulate.config import load_config
+    from simulate.fabric import interior as IN
+    from simulate.fiber import Fiber
+    from simulate.fiber import farfield as FF
+    from simulate.fiber.absorption import absorption_nodes
+    from simulate.media.medium import HGMedium
+    from fabric_optics.fitting import structure as fit_structure
+
+    wl = np.array([550.0])
+    config = load_config("green-felt")
+    fit_structure.walk_structure(config.fiber(wl), config, wl, absorption_nodes(1.0, 3), target_rel_err=0.3, seed=1,
+                                 threads=1, cache=False)
+    fiber = Fiber(radius_um=10.0, n_host=1.5, medium=HGMedium(mu_s=0.4, mu_a=0.0, g=0.5), roughness=0.3,
+                  cell_width_deg=10)
+    table = FF.exit_table(fiber, [550.0], w_t=[0.0, 0.9], photons_per_row=200, seed=1, threads=1)
+    inner = IN.interior(table, fiber, 200)
+    IN.layer_energy(table, fiber, np.array([math.sin(0.4), 0.0, math.cos(0.4)]), inner.classes)
+
+
+WOVEN_CONFIG = """
+seed = 4
+[fiber]
+radius_um = 10.0
+n_host = 1.5
+[medium]
+mu_s = 0.8
+mu_a = 0.01
+g = 0.5
+[surface]
+rms_slope = 0.35
+[weave]
+preset = "plain"
+spacing_um = 300
+width_um = 250
+height_um = 100
+points_per_span = 6
+sides = 12
+"""
+
+PLAN = """
+[sample]
+name = "tiny"
+[wavelengths]
+list_nm = [550]
+[geometry]
+incidence_deg = [0, 45]
+in_plane_deg = [-30, 0, 30]
+"""
+
+
+def _fabric(tmp: Path) -> None:
+    """The woven Monte Carlo of a tiny plain weave and its structured summation, through the command line."""
+    from fabric_optics.cli.simulate import main
+
+    cfg, structured, plan = tmp / "woven.toml", tmp / "structured.toml", tmp / "plan.toml"
+    cfg.write_text(WOVEN_CONFIG)
+    structured.write_text(WOVEN_CONFIG + "[structure]\nwarp_twist_deg = 20\n")
+    plan.write_text(PLAN)
+    with contextlib.redirect_stdout(io.StringIO()):
+        main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(tmp / "mc"),
+              "--target-rel-err", "0.3", "--no-progress"])
+        main(["fabric", str(structured), "--method", "summation", "--plan", str(plan), "--out", str(tmp / "sum"),
+              "--target-rel-err", "0.3", "--no-progress"])
+
+
+#: the groups, one process each: the Monte Carlo kernels and the fit's walk; the woven scene and shading
+GROUPS = {"monte-carlo": (_monte_carlo, _structure), "fabric": (_fabric,)}
+
+
+def main(argv: list[str]) -> int:
+    (group,) = argv
+    start = time.perf_counter()
+    os.environ["FABRIC_OPTICS_NO_CACHE"] = "1"
+    with tempfile.TemporaryDirectory(prefix="warm-kernels-") as tmp:
+        for route in GROUPS[group]:
+            route(Path(tmp))
+    print(f"{group}: {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
