@@ -64,7 +64,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
     A group that fails is reported in the summary and the run goes on (its kernels are then compiled
     by the tests that use them, which also show the failure)."""
-    if _xdist_workers(config) < 2:
+    if _xdist_workers(config) < 2 or config.option.collectonly:
         return
     start = time.perf_counter()
     env = dict(os.environ, FABRIC_OPTICS_NO_CACHE="1")
