@@ -52,7 +52,7 @@ from simulate.woven.materials import K_FIBER, K_FIBER_BRDF, FiberBRDFAtHit, Fibe
 from simulate.woven.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
 from simulate.woven.shading import ShadeInputs, ShadeOutputs, new_outputs, shade, shade_groups
 
-__all__ = ["STOP_REASONS", "MCResult", "trace", "trace_rotations", "yarn_radius"]
+__all__ = ["STOP_REASONS", "MCResult", "prepare", "trace", "trace_rotations", "yarn_radius"]
 
 log = logging.getLogger(__name__)
 
@@ -735,6 +735,32 @@ def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit
                   normals=normals, setups=setups, max_events=max_events, fit_last_round=True)
 
 
+def _setup_for(mesh: Any, material: Any, n_wavelengths: int | None, bins: tuple[int, int],
+               twist_deg: tuple[float, float], normals: str, setups: dict | None) -> _Setup:
+    """The :class:`_Setup` of a trace: from ``setups`` when there, else built (and kept there)."""
+    if n_wavelengths is None:
+        n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
+                         else int(np.size(material.rho)))
+    if normals not in ("vertex", "face"):
+        raise ValueError(f"trace: normals must be 'vertex' or 'face', got {normals!r}")
+    key = (id(mesh), id(material), int(n_wavelengths), tuple(bins), tuple(twist_deg), normals)
+    setup = setups.get(key) if setups is not None else None
+    if setup is None:
+        setup = _Setup(mesh, material, int(n_wavelengths), bins, twist_deg, normals)
+        if setups is not None:
+            setups[key] = setup
+    return setup
+
+
+def prepare(mesh: Any, material: Any, setups: dict, *, n_wavelengths: int | None = None,
+            bins: tuple[int, int] = (9, 12), twist_deg: tuple[float, float] = (0.0, 0.0),
+            normals: str = "vertex") -> None:
+    """Build into ``setups`` the scene and material arrays that :func:`trace` or :func:`trace_rotations`
+    with the same arguments and ``setups`` would build at its start (e.g. on another thread while an
+    earlier mesh is traced: :func:`simulate.woven.estimate.fabric_beta`); the traces then start at once."""
+    _setup_for(mesh, material, n_wavelengths, bins, twist_deg, normals, setups)
+
+
 def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavelengths: int | None, *,
            target_rel_err: float, max_rays: int, max_seconds: float, seed: int, threads: int, progress: bool,
            bins: tuple[int, int], chunk: int, twist_deg: tuple[float, float], normals: str,
@@ -759,17 +785,7 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
         warnings.warn("fabric MC: directions more than 85 deg from the normal: the next-event radiance goes "
                       "as 1/cos(theta_o) and few rays reach the fabric at grazing incidence; the relative "
                       "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=3)
-    if n_wavelengths is None:
-        n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
-                         else int(np.size(material.rho)))
-    if normals not in ("vertex", "face"):
-        raise ValueError(f"trace: normals must be 'vertex' or 'face', got {normals!r}")
-    key = (id(mesh), id(material), int(n_wavelengths), tuple(bins), tuple(twist_deg), normals)
-    setup = setups.get(key) if setups is not None else None
-    if setup is None:
-        setup = _Setup(mesh, material, int(n_wavelengths), bins, twist_deg, normals)
-        if setups is not None:
-            setups[key] = setup
+    setup = _setup_for(mesh, material, n_wavelengths, bins, twist_deg, normals, setups)
     L = setup.n_wl
     D = det.shape[1]
     total = _new_sums(G, D, L, bins)
