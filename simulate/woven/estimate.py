@@ -317,9 +317,14 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     chunk = max(256, CHUNK // n_rot)
     setups: dict = {}
     # the second half's scene and table arrays are built on another thread while the first half's
-    # first trace runs (its traces then find them in ``setups``; no result depends on this)
+    # first trace runs (its traces then find them in ``setups``; no result depends on this); the first
+    # half's before (Embree's scene is built holding the GIL: two builds side by side take as long as
+    # one after the other, a build beside a trace takes the trace's idle GIL)
     background = ThreadPoolExecutor(max_workers=1) if threads != 1 else None
-    second = background.submit(prepare, meshes[1], mats[1], setups, twist_deg=twist) if background else None
+    second = None
+    if background is not None:
+        prepare(meshes[0], mats[0], setups, twist_deg=twist)
+        second = background.submit(prepare, meshes[1], mats[1], setups, twist_deg=twist)
     try:
         runs = _trace_incidences(incidences, inverse, w_out, meshes, mats, beta, u_beta, second, r_target=r_target,
                                  max_rays=max_rays, max_seconds=max_seconds, seed=seed, threads=threads,

@@ -208,7 +208,8 @@ def test_halves_read_side_by_side_and_a_felt_run_on_two_threads_are_the_serial_o
     for a, b, c in zip(computed, serial, side):
         for name, x in _fields(a).items():
             assert x.tobytes() == getattr(b, name).tobytes() == getattr(c, name).tobytes(), name
-    # a felt pair at two incidences: the second half's setup is built by integrator.prepare on another thread
+    # a felt pair at two incidences: the first half's setup built first, the second's by integrator.prepare on
+    # another thread
     spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=15.0, layers=3)
     meshes = (felt_mesh(spec, 10.0, seed=0), felt_mesh(spec, 10.0, seed=1))
     w_i = np.array([[0.3, 0.0, 0.954], [0.0, 0.5, 0.866], [0.3, 0.0, 0.954]])
@@ -226,6 +227,6 @@ def test_halves_read_side_by_side_and_a_felt_run_on_two_threads_are_the_serial_o
     assert prepared == []
     two = W.fabric_beta(meshes, fib, w_i, w_o, [500.0, 600.0], target_rel_err=0.3, seed=2, threads=2,
                         tables=serial)
-    assert len(prepared) == 1 and prepared[0] is meshes[1]
+    assert len(prepared) == 2 and prepared[0] is meshes[0] and prepared[1] is meshes[1]
     assert one[0].tobytes() == two[0].tobytes() and one[1].tobytes() == two[1].tobytes()
     assert np.all(one[0] > 0.0)
