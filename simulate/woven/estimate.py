@@ -29,7 +29,8 @@ changes, both free in expectation:
 Cost: the second realisation (1.3 s); the rotations' smaller chunks, traced one after the other,
 cost green-felt at 3 % 13.5 s of CPU instead of 11.0 s, which tracing them as one wavefront takes
 back (green-felt-mc at 3 %: 0.60 -> 0.44 ms of CPU per ray; 0.23 with the shadow rays played by Russian
-roulette, :mod:`simulate.woven.integrator`; 0.13 with its per-bounce work compiled; docs/notes/felt-structure.md 2).
+roulette, :mod:`simulate.woven.integrator`; 0.13 with its per-bounce work compiled; 0.11 with the roulette played on
+bounds before the spectral contributions are formed; docs/notes/felt-structure.md 2).
 """
 
 from __future__ import annotations
