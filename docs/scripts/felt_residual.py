@@ -3,6 +3,7 @@
     python docs/scripts/felt_residual.py variants --out DIR          # DIR/<variant>.toml from green-felt-mc.toml
     python docs/scripts/felt_residual.py decompose FILE RUN [RUN ...] [--max-incidence 59.52] [--json OUT]
     python docs/scripts/felt_residual.py noise FILE RUN_A RUN_B [...] # pairs of seeds of one config: the noise
+    python docs/scripts/felt_residual.py combine FILE BASE --runs DIR --out CONFIG   # every field at once
 
 ``decompose`` compares each ``RUN`` (a ``simulate fabric`` dataset) with ``FILE`` (``gonio truth`` of the felt's
 file) exactly as ``compare check`` does (:func:`compare.comparison.compare_datasets`: the per-channel factor at the
@@ -24,7 +25,11 @@ normal/normal value that sets each band's factor is in it). ``nrmse_noise_u`` is
 ``u_sim`` as if independent (it leaves out the factor's noise and its correlation with the points').
 ``nrmse_best_scale`` is the NRMSE with each band's factor the least-squares one over the kept points instead of
 the normal's (the shape error with the normalisation point taken out). ``forward_rise``: per incidence,
-``beta(s = 70) / beta(s = 30)`` in plane, file and model (:func:`forward_rise`).
+``beta(s = 70) / beta(s = 30)`` in plane, file and model (:func:`forward_rise`); ``profile``: per incidence and
+in-plane ``s``, the model over the file (band sums, :func:`profile`).
+``combine`` takes the one-at-a-time runs (``DIR/<variant>``, each field's two) and the preset's ``BASE`` run
+and writes the config with every continuous field changed at once where a separable quadratic through each
+field's three runs, fitted point by point, predicts the least NRMSE within the scanned ranges (:func:`combine`).
 Bad input (a missing dataset, an incidence limit that keeps no point) is one line naming it, exit 2.
 """
 
@@ -149,7 +154,7 @@ def region(frame: pd.DataFrame, near_deg: float = 20.0) -> np.ndarray:
 def _parts(d: np.ndarray, u: np.ndarray, meas: np.ndarray, m: float, keys: np.ndarray, order: list) -> dict[str, Any]:
     n_all = d.size
     total = float(np.sum(d * d))
-    out = {}
+    out: dict[str, dict[str, Any]] = {}
     for k in order:
         sel = keys == k
         n = int(sel.sum())
@@ -180,6 +185,18 @@ def forward_rise(frame: pd.DataFrame, low_deg: float = 30.0, high_deg: float = G
         j = lo.merge(hi, on="wavelength_nm", suffixes=("_lo", "_hi"))
         out[f"{theta_i:g}"] = {key: float(j[f"{col}_hi"].sum() / j[f"{col}_lo"].sum())
                                for key, col in (("measured", "beta_meas"), ("simulated", "beta_sim"))}
+    return out
+
+
+def profile(frame: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Per incidence and in-plane ``s``: the model over the file, each summed over the bands (the curve's shape
+    error where it lies)."""
+    rows = frame[np.isfinite(frame["s"].to_numpy(float))]
+    out: dict[str, dict[str, float]] = {}
+    for (theta_i, s), g in rows.groupby(["theta_i", "s"], sort=True):
+        meas = float(g["beta_meas"].sum())
+        if meas > 0:
+            out.setdefault(f"{theta_i:g}", {})[f"{s:g}"] = float(g["beta_sim"].sum()) / meas
     return out
 
 
@@ -221,7 +238,7 @@ def decompose_frame(frame: pd.DataFrame, near_deg: float = 20.0,
     nrmse = math.sqrt(float(np.mean(d * d))) / m
     noise = math.sqrt(float(np.mean(u * u))) / m
     return {"n": n, "mean_meas": m, "nrmse": nrmse, "nrmse_noise_u": noise,
-            "forward_rise": forward_rise(frame),
+            "forward_rise": forward_rise(frame), "profile": profile(frame),
             "nrmse_best_scale": best_scale_nrmse(frame),
             "by_incidence": _parts(d, u, meas, m, inc, incidences),
             "by_region": _parts(d, u, meas, m, reg, list(REGIONS)),
@@ -243,6 +260,37 @@ def seed_noise(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
     ua, ub = j["u_sim_a"].to_numpy(float), j["u_sim_b"].to_numpy(float)
     return {"n": int(len(j)), "nrmse_seeds": math.sqrt(float(np.mean(diff * diff)) / 2.0) / m,
             "nrmse_noise_a": math.sqrt(float(np.mean(ua * ua))) / m, "nrmse_noise_b": math.sqrt(float(np.mean(ub * ub))) / m}
+
+
+def combine(r0: np.ndarray, fields: list[tuple[str, float, float, np.ndarray, float, np.ndarray]],
+            starts: int = 20, seed: int = 0) -> tuple[list[float], float]:
+    """Every field at once from one-at-a-time runs: per field ``(name, base value, value 1, residuals 1, value 2,
+    residuals 2)`` (residual vectors over the file's mean, ``r0`` the base run's), each point's residual taken as
+    ``r0 + sum_f a_f h_f + b_f h_f^2`` (the quadratic through the field's three runs, ``h`` the change from the
+    base), and the changes within each field's scanned range that minimise its mean square. Returns the values
+    and the predicted NRMSE."""
+    from scipy.optimize import minimize
+
+    models = []
+    for _, base, v1, r1, v2, r2 in fields:
+        h1, h2 = v1 - base, v2 - base
+        coef = np.linalg.solve(np.array([[h1, h1 * h1], [h2, h2 * h2]]), np.vstack([r1 - r0, r2 - r0]))
+        models.append((base, min(h1, h2, 0.0), max(h1, h2, 0.0), coef))
+
+    def changes(z: np.ndarray) -> list[float]:
+        return [lo + (hi - lo) * float(zz) for (_, lo, hi, _), zz in zip(models, z)]
+
+    def mean_square(z: np.ndarray) -> float:
+        r = r0.copy()
+        for (_, _, _, c), h in zip(models, changes(z)):
+            r = r + c[0] * h + c[1] * h * h
+        return float(np.mean(r * r))
+
+    rng = np.random.default_rng(seed)
+    z0 = [np.array([-lo / (hi - lo) for _, lo, hi, _ in models])] + [rng.random(len(models)) for _ in range(starts)]
+    best = min((minimize(mean_square, z, bounds=[(0.0, 1.0)] * len(models), method="L-BFGS-B") for z in z0),
+               key=lambda res: res.fun)
+    return [base + h for (base, _, _, _), h in zip(models, changes(best.x))], math.sqrt(best.fun)
 
 
 # ---------------------------------------------------------------------------------------------- datasets
@@ -296,6 +344,45 @@ def _print(run: str, res: dict[str, Any]) -> None:
             f"without {v['nrmse_without']:.3f}" for k, v in res[part].items() if v["n"]))
 
 
+def _combine(args) -> int:
+    if args.out.exists() and not args.force:
+        raise InputError(f"{args.out} exists; pass --force to replace it")
+    text = args.preset.read_text(encoding="utf-8")
+    import tomllib
+    preset = tomllib.loads(text)
+    pairs: dict[tuple[str, str], list[tuple[str, Any]]] = {}
+    for name, section, key, value in VARIANTS:
+        if isinstance(value, (int, float)) and (args.runs / name / "radiance.csv").exists():
+            pairs.setdefault((section, key), []).append((name, value))
+    pairs = {k: v for k, v in pairs.items() if len(v) == 2}
+    if not pairs:
+        raise InputError(f"--runs {args.runs}: no field has both its variants' runs there (<variant>/radiance.csv)")
+    names = [args.base] + [str(args.runs / n) for v in pairs.values() for n, _ in v]
+    frames = {run: f for run, f, _ in compared(args.file, names, 90.0)}
+    meas = frames[args.base]["beta_meas"].to_numpy(float)
+    m = float(np.mean(meas))
+
+    def resid(run: str) -> np.ndarray:
+        return (frames[run]["beta_sim"].to_numpy(float) - meas) / m
+
+    fields = []
+    for (section, key), ((n1, v1), (n2, v2)) in pairs.items():
+        base = preset.get(section, {}).get(key, 0.0)
+        fields.append((f"{section}.{key}", float(base), float(v1), resid(str(args.runs / n1)), float(v2),
+                       resid(str(args.runs / n2))))
+    values, predicted = combine(resid(args.base), fields)
+    for (name, base, *_), v in zip(fields, values):
+        section, key = name.split(".", 1)
+        print(f"{name} = {v:.4g}" + (" (the preset's)" if abs(v - base) <= 1e-9 * max(1.0, abs(base)) else ""))
+        if abs(v - base) > 1e-9 * max(1.0, abs(base)):
+            text = set_field(text, section, key, float(f"{v:.4g}"))
+    text = re.sub(r'(?m)^name = ".*"$', 'name = "combined"', text, count=1)
+    args.out.write_text(text, encoding="utf-8")
+    print(f"predicted NRMSE {predicted:.4f} (the base run's {math.sqrt(float(np.mean(resid(args.base) ** 2))):.4f}); "
+          f"wrote {args.out}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="felt_residual.py", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -314,12 +401,21 @@ def main(argv: list[str] | None = None) -> int:
     n.add_argument("runs", nargs="+", help="pairs: RUN_A RUN_B [RUN_C RUN_D ...] (two seeds of one config each)")
     n.add_argument("--max-incidence", type=float, default=90.0)
     n.add_argument("--json", type=Path)
+    c = sub.add_parser("combine", help="every continuous field at once from the one-at-a-time runs")
+    c.add_argument("file")
+    c.add_argument("base", help="the preset's run (the variants' seed and target)")
+    c.add_argument("--runs", type=Path, required=True, help="folder holding each variant's run as <variant>/")
+    c.add_argument("--preset", type=Path, default=PRESET)
+    c.add_argument("--out", type=Path, required=True, help="the combined config (TOML) to write")
+    c.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     try:
         if args.cmd == "variants":
             for p in write_variants(args.preset, args.out, args.force):
                 print(p)
             return 0
+        if args.cmd == "combine":
+            return _combine(args)
         if args.cmd == "noise":
             if len(args.runs) % 2:
                 raise InputError(f"noise: {len(args.runs)} runs given; give pairs (two seeds of one config each)")

@@ -106,6 +106,10 @@ def test_best_scale_and_forward_rise_on_made_up_curves():
     assert rise["30"]["measured"] == pytest.approx(1.0)
     assert rise["30"]["simulated"] == pytest.approx(2.0)
     assert fr.best_scale_nrmse(f) > 0.1
+    prof = fr.profile(f)
+    assert prof["30"]["70"] == pytest.approx(2.0 * (3.0 + 9.0) / 3.0)
+    assert prof["30"]["-30"] == pytest.approx((3.0 + 9.0) / 3.0)
+    assert set(prof["0"]) == {"-60", "-30", "-10", "10", "30", "70"}
 
 
 def test_seed_noise_is_the_half_mean_square_difference():
@@ -117,6 +121,25 @@ def test_seed_noise_is_the_half_mean_square_difference():
     assert got["nrmse_seeds"] == pytest.approx(math.sqrt(0.04 ** 2 / 2) / a["beta_meas"].mean())
     with pytest.raises(fr.InputError, match="same points"):
         fr.seed_noise(a, b.iloc[:-1])
+
+
+def test_combine_finds_the_minimum_of_additive_quadratic_responses():
+    fr = _script()
+    r0 = np.array([1.0, -1.0, 0.5, 0.2])
+    # field a: r = r0 (1 - h), zero at h = 1 (scanned at -0.5 and 2); field b: r = r0 + (h^2 - 2h) e, with e
+    # along the first point only, least at h = 1 (scanned at 0.5 and 3), where it lowers the first point by e
+    e = np.array([0.3, 0.0, 0.0, 0.0])
+    fields = [("a", 0.0, -0.5, r0 * 1.5, 2.0, -r0),
+              ("b", 1.0, 1.5, r0 + (0.25 - 1.0) * e, 4.0, r0 + (9.0 - 6.0) * e)]
+    values, predicted = fr.combine(r0, fields)
+    assert values[0] == pytest.approx(1.0, abs=1e-4)
+    # with a at its zero, b leaves (h^2 - 2h) e: zero at h = 0 or 2 (the values 1.0 and 3.0)
+    assert min(abs(values[1] - 1.0), abs(values[1] - 3.0)) < 1e-2
+    assert predicted == pytest.approx(0.0, abs=1e-3)
+    # alone, b's optimum is its vertex h = 1, within its range
+    values_b, predicted_b = fr.combine(r0, fields[1:])
+    assert values_b[0] == pytest.approx(2.0, abs=1e-3)
+    assert predicted_b == pytest.approx(math.sqrt(np.mean((r0 - e) ** 2)), rel=1e-4)
 
 
 def test_variants_change_one_field_each(tmp_path):
