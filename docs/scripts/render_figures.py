@@ -365,7 +365,9 @@ def _residual_runs(rec: dict[str, Any]) -> str:
     incid = list(first["by_incidence"])
     rise = list(first["forward_rise"])
     has_rings = any(r["by_region"][k].get("n") for r in runs.values() for k in ("ring-6", "ring-30"))
-    parts = ("back", "near", "forward") + (("rings",) if has_rings else ())
+    has_grazing = any(r["by_region"]["grazing"].get("n") for r in runs.values())
+    plane = ("back", "near", "forward") + (("grazing",) if has_grazing else ())
+    parts = plane + (("rings",) if has_rings else ())
     header = ["run", f"NRMSE ({' / '.join(incid)} deg)", f"share of the squared error: {' / '.join(parts)}",
               f"forward rise β(70)/β(30) at {' / '.join(rise)} deg", "dh / ds / k_Y"]
     file_rise = " / ".join(f"{first['forward_rise'][t]['measured']:.2f}" for t in rise)
@@ -373,7 +375,7 @@ def _residual_runs(rec: dict[str, Any]) -> str:
     for run, r in runs.items():
         reg = r["by_region"]
         ring = sum(reg[k].get("share", 0.0) for k in ("ring-6", "ring-30"))
-        shares = " / ".join(f"{100 * reg[k].get('share', 0.0):.0f} %" for k in ("back", "near", "forward"))
+        shares = " / ".join(f"{100 * reg[k].get('share', 0.0):.0f} %" for k in plane)
         shares += f" / {100 * ring:.0f} %" if has_rings else ""
         c = r["colour"]
         rows.append([_residual_label(run),
@@ -439,13 +441,13 @@ def fig_felt_residual_measured() -> str:
     d = rec["data"]
     run, r = next(iter(d["runs"].items()))
     plane = r["by_plane"]
-    text = (f"NRMSE {r['nrmse']:.3f} over {r['n']} points; in plane {100 * plane['in plane']['share']:.0f} % of the "
+    text = (f"{_residual_label(run)}: NRMSE {r['nrmse']:.3f} over {r['n']} points; in plane {100 * plane['in plane']['share']:.0f} % of the "
             f"squared error ({plane['in plane']['n']} points), out of plane {100 * plane['out of plane']['share']:.0f} % "
             f"({plane['out of plane']['n']} points, NRMSE without them {plane['out of plane']['nrmse_without']:.3f}).")
     note = (f" (`FILE`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan measured`, cut at "
-            f"{d['max_incidence']:g} deg; the run `simulate fabric green-felt-mc --method mc --plan PLAN "
-            "--target-rel-err 0.03 --threads 1`, PLAN the file's measured plan up to 59.517 deg)")
-    return _residual_split(r) + "\n\n" + text + "\n\n" + _source(rec, note)
+            f"{d['max_incidence']:g} deg; the runs `simulate fabric green-felt-mc --method mc --plan measured59.toml "
+            "--target-rel-err T --seed S --threads 1`). Second table: the first run split by incidence and region")
+    return _residual_runs(rec) + "\n\n" + _residual_split(r) + "\n\n" + text + "\n\n" + _source(rec, note)
 
 
 def fig_felt_residual_noise() -> str:
