@@ -268,8 +268,13 @@ def _makefile_demo() -> list[str]:
             continue
         while re.search(r"\$\((\w+)\)", line):
             line = re.sub(r"\$\((\w+)\)", lambda m: variables[m.group(1)], line)
-        line = line.replace(".venv/bin/", "").replace(" --no-progress", "").replace(" --force", "")
-        out.append(" ".join(line.split()))
+        # steps side by side, ``BG & beside=$$!; FG1 && FG2; s=$$?; wait ...``: the foreground's, then the one beside
+        background, _, foreground = line.rpartition(" & beside=$$!; ")
+        steps = foreground.split("; s=$$?;")[0].split(" && ") + ([background] if background else [])
+        for step in steps:
+            step = step.strip().removeprefix("( ").removesuffix(" )")
+            step = step.replace(".venv/bin/", "").replace(" --no-progress", "").replace(" --force", "")
+            out.append(" ".join(step.split()))
     return out
 
 
