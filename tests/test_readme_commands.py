@@ -255,10 +255,10 @@ def _makefile_demo() -> list[str]:
     """The Makefile's demo recipe as the commands a user types (variables substituted; the console
     scripts' path, --no-progress and --force -- the Makefile re-runs into its own folder -- dropped)."""
     text = (ROOT / "Makefile").read_text(encoding="utf-8")
+    text = text.replace("$(FIT_VERDICT)", "")          # make's "a fit labelled failing goes on"
     variables: dict[str, str] = {}
     for k, v in re.findall(r"^(\w+)\s*[:?]?=\s*(.*)$", text, flags=re.M):
         variables.setdefault(k, v.strip())
-    text = text.replace("$(FIT_VERDICT)", "")          # make's "a fit labelled failing goes on"
     recipe = re.search(r"^demo:.*?\n((?:\t.*\n)+)", text, flags=re.M)
     assert recipe, "the Makefile lost its demo target"
     out = []
