@@ -49,8 +49,12 @@ def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -
     fig.savefig(buffer, format="png", dpi=FIGURE_DPI, metadata={"Software": None})
     out = {}
     if svg:
+        import matplotlib
+
         vector = io.BytesIO()
-        fig.savefig(vector, format="svg", metadata={"Date": None})
+        # a fixed salt for the SVG's element ids: the same figure gives the same bytes
+        with matplotlib.rc_context({"svg.hashsalt": "fabric-optics"}):
+            fig.savefig(vector, format="svg", metadata={"Date": None})
         out[path.with_suffix(".svg")] = vector.getvalue()
     plt.close(fig)
     data = buffer.getvalue()

@@ -353,7 +353,125 @@ def fig_felt_demo_plan() -> str:
     return _table(header, rows) + "\n\n" + _source(rec, note)
 
 
+def _residual_label(run: str) -> str:
+    return f"`{run.rstrip('/').rsplit('/', 1)[-1]}`"
+
+
+def _residual_runs(rec: dict[str, Any]) -> str:
+    """Per run: NRMSE overall and per incidence, the forward region's share and the forward rise."""
+    d = rec["data"]
+    runs = d["runs"]
+    first = next(iter(runs.values()))
+    incid = list(first["by_incidence"])
+    rise = list(first["forward_rise"])
+    has_rings = any(r["by_region"][k].get("n") for r in runs.values() for k in ("ring-6", "ring-30"))
+    has_grazing = any(r["by_region"]["grazing"].get("n") for r in runs.values())
+    plane = ("back", "near", "forward") + (("grazing",) if has_grazing else ())
+    parts = plane + (("rings",) if has_rings else ())
+    header = ["run", f"NRMSE ({' / '.join(incid)} deg)", f"share of the squared error: {' / '.join(parts)}",
+              f"forward rise β(70)/β(30) at {' / '.join(rise)} deg", "dh / ds / k_Y"]
+    file_rise = " / ".join(f"{first['forward_rise'][t]['measured']:.2f}" for t in rise)
+    rows = [["the file", "-", "-", file_rise, "-"]]
+    for run, r in runs.items():
+        reg = r["by_region"]
+        ring = sum(reg[k].get("share", 0.0) for k in ("ring-6", "ring-30"))
+        shares = " / ".join(f"{100 * reg[k].get('share', 0.0):.0f} %" for k in plane)
+        shares += f" / {100 * ring:.0f} %" if has_rings else ""
+        c = r["colour"]
+        rows.append([_residual_label(run),
+                     f"{r['nrmse']:.3f} (" + " / ".join(f"{r['by_incidence'][t]['nrmse_own']:.3f}" for t in incid) + ")",
+                     shares,
+                     " / ".join(f"{r['forward_rise'][t]['simulated']:.2f}" for t in rise),
+                     f"{c['dh']:+.3f} / {c['ds']:+.3f} / {c['k_Y']:.2f}"])
+    return _table(header, rows)
+
+
+def _residual_split(r: dict[str, Any]) -> str:
+    """One run's squared error by incidence and region: share, the NRMSE without it, the bias."""
+    incid = list(r["by_incidence"])
+    regions = [k for k in ("back", "near", "forward", "grazing", "ring-6", "ring-30")
+               if r["by_region"][k].get("n")]
+    header = ["theta_i", *[f"{k}: share, NRMSE without, bias" for k in regions], "all regions: share"]
+    rows = []
+    for t in incid:
+        cells = []
+        for k in regions:
+            v = r["by_incidence_region"].get(f"{t}|{k}", {"n": 0})
+            cells.append("-" if not v.get("n") else
+                         f"{100 * v['share']:.1f} %, {v['nrmse_without']:.3f}, {v['bias_rel']:+.3f}")
+        rows.append([t, *cells, f"{100 * r['by_incidence'][t]['share']:.1f} %"])
+    rows.append(["all", *[f"{100 * r['by_region'][k]['share']:.1f} %, {r['by_region'][k]['nrmse_without']:.3f}, "
+                          f"{r['by_region'][k]['bias_rel']:+.3f}" for k in regions], "100 %"])
+    return _table(header, rows)
+
+
+def _residual_profile(runs: dict[str, Any]) -> str:
+    """The model over the file in plane (band sums), mean and range over the runs, per incidence and ``s``."""
+    profs = [r["profile"] for r in runs.values()]
+    incid = list(profs[0])
+    angles = sorted({float(a) for p in profs for t in incid for a in p[t]})
+    keys = [f"{a:g}" for a in angles]
+    rows = []
+    for t in incid:
+        cells = []
+        for a in keys:
+            vals = [p[t][a] for p in profs if a in p.get(t, {})]
+            cells.append(f"{statistics.fmean(vals):.2f}" if vals else "-")
+        rows.append([t, *cells])
+    return _table(["theta_i \\ s", *keys], rows)
+
+
+def fig_felt_residual() -> str:
+    """``green-felt-mc`` against the felt's file at the demo's plan: per seed and target, and the split of one run."""
+    rec = load("felt-residual")
+    first_run, first = next(iter(rec["data"]["runs"].items()))
+    note = (f" (`FILE`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`; the runs "
+            "`simulate fabric green-felt-mc --method mc --plan green-felt --target-rel-err T --seed S --threads 1`). "
+            f"Second table: {_residual_label(first_run)} split by incidence and region (share of the squared error, "
+            "the NRMSE if those points matched exactly, the mean residual over the file's mean β). Third table: the "
+            "model over the file in plane, each summed over the wavelengths, mean of the runs (s < 0: the source's "
+            "side; the mirror direction is s = theta_i)")
+    return (_residual_runs(rec) + "\n\n" + _residual_split(first) + "\n\n" + _residual_profile(rec["data"]["runs"])
+            + "\n\n" + _source(rec, note))
+
+
+def fig_felt_residual_measured() -> str:
+    """The same split at the file's measured incidences up to 59.52 deg, with the retro rings."""
+    rec = load("felt-residual-measured")
+    d = rec["data"]
+    run, r = next(iter(d["runs"].items()))
+    plane = r["by_plane"]
+    text = (f"{_residual_label(run)}: NRMSE {r['nrmse']:.3f} over {r['n']} points; in plane {100 * plane['in plane']['share']:.0f} % of the "
+            f"squared error ({plane['in plane']['n']} points), out of plane {100 * plane['out of plane']['share']:.0f} % "
+            f"({plane['out of plane']['n']} points, NRMSE without them {plane['out of plane']['nrmse_without']:.3f}).")
+    note = (f" (`FILE`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan measured`, cut at "
+            f"{d['max_incidence']:g} deg; the runs `simulate fabric green-felt-mc --method mc --plan measured59.toml "
+            "--target-rel-err T --seed S --threads 1`). Second table: the first run split by incidence and region")
+    return _residual_runs(rec) + "\n\n" + _residual_split(r) + "\n\n" + text + "\n\n" + _source(rec, note)
+
+
+def fig_felt_residual_noise() -> str:
+    """Seed-to-seed noise of ``green-felt-mc`` in NRMSE units."""
+    rec = load("felt-residual-noise")
+    rows = [[_residual_label(p["a"]) + " / " + _residual_label(p["b"]), f"{p['nrmse_seeds']:.3f}",
+             f"{p['nrmse_noise_a']:.3f} / {p['nrmse_noise_b']:.3f}"] for p in rec["data"]["pairs"]]
+    return _table(["seeds", "noise of one run (from the pair)", "the runs' own u_sim, as if independent"], rows) + \
+        "\n\n" + _source(rec)
+
+
+def fig_felt_residual_sensitivity() -> str:
+    """One-at-a-time variants of ``green-felt-mc`` at 5 %, seed 0."""
+    rec = load("felt-residual-sensitivity")
+    note = (" (each run `simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.05 --threads 1`, "
+            "CONFIG from `python docs/scripts/felt_residual.py variants --out DIR`)")
+    return _residual_runs(rec) + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
+    "felt-residual": fig_felt_residual,
+    "felt-residual-measured": fig_felt_residual_measured,
+    "felt-residual-noise": fig_felt_residual_noise,
+    "felt-residual-sensitivity": fig_felt_residual_sensitivity,
     "felt-opposition": fig_felt_opposition,
     "felt-opposition-lambertian": fig_felt_opposition_lambertian,
     "felt-demo-plan": fig_felt_demo_plan,

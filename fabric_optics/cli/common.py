@@ -299,7 +299,7 @@ def add_seed(p: argparse.ArgumentParser, default: int | None = None, what: str =
 
 
 def add_force(p: argparse.ArgumentParser, what: str = "an existing --out") -> None:
-    p.add_argument("--force", action="store_true", help=f"replace {what} (without it an existing output is refused)")
+    p.add_argument("--force", action="store_true", help=f"replace {what}; without it an existing output is refused")
 
 
 def add_verbose(p: argparse.ArgumentParser, *, sub: bool) -> None:

@@ -73,9 +73,8 @@ MAX_TIMEOUT_S = 3600.0
 """Largest ``--timeout`` accepted (an hour: longer is a typo, not a slow link)."""
 
 
-_FORCE_HELP = ("replace an existing output: a dataset folder, or write into a folder that holds "
-               "anything (without it an existing output is refused; a run folder, one holding a "
-               "journal, is never replaced)")
+_FORCE_HELP = ("an existing dataset folder, or write into a folder that holds anything; a run "
+               "folder, one holding a journal, is never replaced")
 
 
 def _timeout_seconds(text: str) -> float:

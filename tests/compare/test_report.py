@@ -71,6 +71,17 @@ def test_figures_are_150_dpi_png_and_svg_on_request(demo_like):
         assert svg.is_file() and b"<svg" in svg.read_bytes()[:2000]
 
 
+def test_the_same_report_gives_the_same_svg_bytes(demo_like, tmp_path):
+    """The SVGs carry no random element ids: writing the same comparison again reproduces them
+    byte for byte (a report under version control changes only where its data does)."""
+    again = tmp_path / "again"
+    write_report(demo_like["comparison"], again, svg=True)
+    svgs = sorted((demo_like["out"] / "figures").glob("*.svg"))
+    assert len(svgs) == 8
+    for svg in svgs:
+        assert (again / "figures" / svg.name).read_bytes() == svg.read_bytes(), svg.name
+
+
 def test_error_bars_are_visible_or_said_to_be_hidden(h):
     def figure(u):
         rows = h.in_plane_table(h.red_lobe, incidence=(30.0,), wavelengths=[650.0],

@@ -4,6 +4,7 @@ generation, and the generation must follow the parsers."""
 from __future__ import annotations
 
 import argparse
+import re
 import importlib.util
 import sys
 from pathlib import Path
@@ -83,3 +84,11 @@ def test_a_missing_builder_names_the_list_to_update():
         assert "PARSERS" in str(exc) and "no_such_package.cli:build_parser" in str(exc)
     else:
         raise AssertionError("an unknown builder location was accepted")
+
+
+def test_the_option_help_reads_as_sentences():
+    """No option's help repeats a word, as a help string formed from two parts that both say it
+    would ("replace replace"), and --force's common tail is not a second parenthesis."""
+    page = _gen().cli_page()
+    assert not re.findall(r"\b([a-z]+) \1\b", page)
+    assert ") (without it" not in page

@@ -1,0 +1,450 @@
+"""Where a felt simulation's curve error against the felt's file lies, and the one-at-a-time variants that move it.
+
+    python docs/scripts/felt_residual.py variants --out DIR          # DIR/<variant>.toml from green-felt-mc.toml
+    python docs/scripts/felt_residual.py decompose FILE RUN [RUN ...] [--max-incidence 59.52] [--json OUT]
+    python docs/scripts/felt_residual.py noise FILE RUN_A RUN_B [...] # pairs of seeds of one config: the noise
+    python docs/scripts/felt_residual.py combine FILE BASE --runs DIR --out CONFIG   # every field at once
+
+``decompose`` compares each ``RUN`` (a ``simulate fabric`` dataset) with ``FILE`` (``gonio truth`` of the felt's
+file) exactly as ``compare check`` does (:func:`compare.comparison.compare_datasets`: the per-channel factor at the
+normal, the aligned points), keeps the points at incidences up to ``--max-incidence`` and splits the curve error
+of :mod:`compare.metrics` over them. With ``d_j`` the residual of point ``j`` (geometry x channel), ``N`` the points
+and ``m`` the file's mean ``beta`` over them, ``NRMSE^2 = sum_j d_j^2 / (N m^2)``; a set ``A`` of points contributes
+``sum_{j in A} d_j^2 / (N m^2)`` (the contributions add up to ``NRMSE^2``), and ``NRMSE without A`` is the NRMSE if
+the points of ``A`` were matched exactly (``sqrt(NRMSE^2 - contribution)``). The sets (:func:`region`):
+
+* ``back``: in plane, on the source's side beyond the near-normal window (``s < -near``; the retro direction is
+  ``s = -theta_i``), ``near``: ``|s| <= near`` (default 20 deg), ``forward``: ``s > near`` (the mirror direction
+  ``s = theta_i``), ``grazing``: ``|theta_o| > 70`` deg in plane (the felt's plans observe up to 70 deg: none);
+* ``ring-6``, ``ring-30``: out-of-plane points, by their angle from the retro direction (nearest of 6 and 30 deg);
+* per incidence, per channel (or wavelength), and the signed bias ``mean(d) / m`` of each set (+: the model high).
+
+The Monte Carlo noise part: ``noise`` takes two seeds of one config and estimates the noise one run adds to
+``NRMSE^2`` from their difference, ``mean((a - b)^2) / 2 / m^2`` (both normalised as above, so the noise of the
+normal/normal value that sets each band's factor is in it). ``nrmse_noise_u`` is the same from the points' own
+``u_sim`` as if independent (it leaves out the factor's noise and its correlation with the points').
+``nrmse_best_scale`` is the NRMSE with each band's factor the least-squares one over the kept points instead of
+the normal's (the shape error with the normalisation point taken out). ``forward_rise``: per incidence,
+``beta(s = 70) / beta(s = 30)`` in plane, file and model (:func:`forward_rise`); ``profile``: per incidence and
+in-plane ``s``, the model over the file (band sums, :func:`profile`).
+``combine`` takes the one-at-a-time runs (``DIR/<variant>``, each field's two) and the preset's ``BASE`` run
+and writes the config with every continuous field changed at once where a separable quadratic through each
+field's three runs, fitted point by point, predicts the least NRMSE within the scanned ranges (:func:`combine`).
+Bad input (a missing dataset, an incidence limit that keeps no point) is one line naming it, exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[2]
+PRESET = ROOT / "simulate" / "configs" / "green-felt-mc.toml"
+#: in-plane regions (signed observation angle ``s``), then the rings
+REGIONS = ("back", "near", "forward", "grazing", "ring-6", "ring-30")
+RINGS_DEG = (6.0, 30.0)
+GRAZING_DEG = 70.0
+
+#: (name, TOML section, key, value): one field of ``green-felt-mc.toml`` changed, each both ways where it can be
+VARIANTS: tuple[tuple[str, str, str, Any], ...] = (
+    ("scatterers-x0.5", "particles", "volume_fraction", 0.00042),
+    ("scatterers-x2", "particles", "volume_fraction", 0.00168),
+    ("radius-6", "fiber", "radius_um", 6.0),
+    ("radius-11", "fiber", "radius_um", 11.0),
+    ("rms-slope-0.2", "surface", "rms_slope", 0.2),
+    ("rms-slope-0.5", "surface", "rms_slope", 0.5),
+    ("around-0.3", "surface", "transmission_rms_slope_around", 0.3),
+    ("around-0.7", "surface", "transmission_rms_slope_around", 0.7),
+    ("spread-2", "structure", "felt_spread_deg", 2.0),
+    ("spread-10", "structure", "felt_spread_deg", 10.0),
+    ("punched-0.1", "structure", "felt_normal_fraction", 0.1),
+    ("punched-0.3", "structure", "felt_normal_fraction", 0.3),
+    ("crimp-7", "structure", "felt_crimp_percent", 7.0),
+    ("crimp-13", "structure", "felt_crimp_percent", 13.0),
+)
+
+
+class InputError(Exception):
+    """Bad input: the message is the one line a user sees."""
+
+
+# ---------------------------------------------------------------------------------------------- variants
+
+def _toml_value(v: Any) -> str:
+    return json.dumps(v) if isinstance(v, str) else repr(v)
+
+
+def set_field(text: str, section: str, key: str, value: Any) -> str:
+    """``text`` (a TOML document) with ``key`` of ``[section]`` set to ``value``: the line replaced if the section
+    has it, else added as the section's first line. Raises :class:`InputError` when the section is absent."""
+    lines = text.splitlines(keepends=True)
+    header = re.compile(r"^\s*\[([^\]]+)\]\s*(#.*)?$")
+    start = next((i for i, ln in enumerate(lines) if (m := header.match(ln)) and m.group(1).strip() == section), None)
+    if start is None:
+        raise InputError(f"the config has no [{section}] section to set {key} in")
+    end = next((i for i in range(start + 1, len(lines)) if header.match(lines[i])), len(lines))
+    line = f"{key} = {_toml_value(value)}\n"
+    own = re.compile(rf"^\s*{re.escape(key)}\s*=")
+    for i in range(start + 1, end):
+        if own.match(lines[i]):
+            lines[i] = line
+            return "".join(lines)
+    lines.insert(start + 1, line)
+    return "".join(lines)
+
+
+def write_variants(preset: Path, out: Path, force: bool = False) -> list[Path]:
+    """One config per :data:`VARIANTS` entry in ``out``, named after it (its ``name`` field too)."""
+    try:
+        text = preset.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"{preset}: cannot read the preset ({exc.strerror})") from None
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, section, key, value in VARIANTS:
+        path = out / f"{name}.toml"
+        if path.exists() and not force:
+            raise InputError(f"{path} exists; pass --force to replace it")
+        body = set_field(text, section, key, value)
+        body = re.sub(r'(?m)^name = ".*"$', f'name = "{name}"', body, count=1)
+        path.write_text(body, encoding="utf-8")
+        written.append(path)
+    return written
+
+
+# ---------------------------------------------------------------------------------------------- decomposition
+
+def _unit(theta_deg: np.ndarray, phi_deg: np.ndarray) -> np.ndarray:
+    t, p = np.radians(theta_deg), np.radians(phi_deg)
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+def retro_distance_deg(frame: pd.DataFrame) -> np.ndarray:
+    """Angle (deg) between each point's observation direction and its source (retro) direction."""
+    a = _unit(frame["theta_i"].to_numpy(float), frame["phi_i"].to_numpy(float))
+    b = _unit(frame["theta_o"].to_numpy(float), frame["phi_o"].to_numpy(float))
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1.0, 1.0)))
+
+
+def region(frame: pd.DataFrame, near_deg: float = 20.0) -> np.ndarray:
+    """The region (:data:`REGIONS`) of each point of an aligned frame (module docstring)."""
+    s = frame["s"].to_numpy(float)
+    out = np.empty(len(frame), dtype=object)
+    inplane = np.isfinite(s)
+    out[inplane & (s < -near_deg)] = "back"
+    out[inplane & (np.abs(s) <= near_deg)] = "near"
+    out[inplane & (s > near_deg)] = "forward"
+    out[inplane & (np.abs(s) > GRAZING_DEG)] = "grazing"
+    dist = retro_distance_deg(frame)
+    rings = np.asarray(RINGS_DEG)
+    nearest = rings[np.argmin(np.abs(dist[:, None] - rings[None, :]), axis=1)]
+    for r in RINGS_DEG:
+        out[~inplane & (nearest == r)] = f"ring-{r:g}"
+    return out
+
+
+def _parts(d: np.ndarray, u: np.ndarray, meas: np.ndarray, m: float, keys: np.ndarray, order: list) -> dict[str, Any]:
+    n_all = d.size
+    total = float(np.sum(d * d))
+    out: dict[str, dict[str, Any]] = {}
+    for k in order:
+        sel = keys == k
+        n = int(sel.sum())
+        if n == 0:
+            out[str(k)] = {"n": 0}
+            continue
+        s2 = float(np.sum(d[sel] ** 2))
+        out[str(k)] = {"n": n, "share": s2 / total if total > 0 else math.nan, "nrmse_own": math.sqrt(s2 / n) / float(np.mean(meas[sel])),
+                       "contribution": s2 / (n_all * m * m),
+                       "nrmse_without": math.sqrt(max(total - s2, 0.0) / n_all) / m,
+                       "rms_rel": math.sqrt(s2 / n) / m, "bias_rel": float(np.mean(d[sel])) / m,
+                       "noise_rel": math.sqrt(float(np.mean(u[sel] ** 2))) / m}
+    return out
+
+
+def forward_rise(frame: pd.DataFrame, low_deg: float = 30.0, high_deg: float = GRAZING_DEG) -> dict[str, dict]:
+    """Per incidence, the in-plane forward rise ``beta(s = high) / beta(s = low)`` of the file and of the model,
+    each the ratio of the band sums (the normalisation cancels in it); incidences lacking either point are left
+    out."""
+    out = {}
+    s = frame["s"].to_numpy(float)
+    for theta_i in sorted(frame["theta_i"].unique()):
+        rows = frame[(frame["theta_i"] == theta_i).to_numpy() & np.isfinite(s)]
+        lo = rows[np.abs(rows["s"].to_numpy(float) - low_deg) < 1e-6]
+        hi = rows[np.abs(rows["s"].to_numpy(float) - high_deg) < 1e-6]
+        if lo.empty or hi.empty:
+            continue
+        j = lo.merge(hi, on="wavelength_nm", suffixes=("_lo", "_hi"))
+        out[f"{theta_i:g}"] = {key: float(j[f"{col}_hi"].sum() / j[f"{col}_lo"].sum())
+                               for key, col in (("measured", "beta_meas"), ("simulated", "beta_sim"))}
+    return out
+
+
+def profile(frame: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """Per incidence and in-plane ``s``: the model over the file, each summed over the bands (the curve's shape
+    error where it lies)."""
+    rows = frame[np.isfinite(frame["s"].to_numpy(float))]
+    out: dict[str, dict[str, float]] = {}
+    for (theta_i, s), g in rows.groupby(["theta_i", "s"], sort=True):
+        meas = float(g["beta_meas"].sum())
+        if meas > 0:
+            out.setdefault(f"{theta_i:g}", {})[f"{s:g}"] = float(g["beta_sim"].sum()) / meas
+    return out
+
+
+def best_scale_nrmse(frame: pd.DataFrame) -> float:
+    """The NRMSE if each band's factor were the least-squares one over the frame's points instead of the normal's
+    (``k_b = sum(meas C) / sum(C^2)`` per band): the curves' shape error with the normalisation point taken out."""
+    meas = frame["beta_meas"].to_numpy(float)
+    sim = frame["beta_sim"].to_numpy(float)
+    bands = frame["wavelength_nm"].to_numpy(float)
+    fitted = np.empty_like(sim)
+    for b in np.unique(bands):
+        sel = bands == b
+        c2 = float(np.sum(sim[sel] ** 2))
+        fitted[sel] = sim[sel] * (float(np.sum(meas[sel] * sim[sel])) / c2 if c2 > 0 else 0.0)
+    return math.sqrt(float(np.mean((fitted - meas) ** 2))) / float(np.mean(meas))
+
+
+def decompose_frame(frame: pd.DataFrame, near_deg: float = 20.0,
+                    band_label=lambda b: f"{float(b):g}") -> dict[str, Any]:
+    """The curve error of an aligned, normalised frame (columns of :func:`compare.align.align` plus ``beta_sim``
+    and ``u_sim``) split by incidence, region, incidence x region, band and in plane / out of plane, with the
+    forward rise of each incidence (:func:`forward_rise`)."""
+    if frame.empty:
+        raise InputError("no point to decompose")
+    meas = frame["beta_meas"].to_numpy(float)
+    d = frame["beta_sim"].to_numpy(float) - meas
+    u = frame["u_sim"].to_numpy(float) if "u_sim" in frame else np.zeros_like(d)
+    u = np.where(np.isfinite(u), u, 0.0)
+    n, m = d.size, float(np.mean(meas))
+    if not m > 0:
+        raise InputError("the file's mean beta over the kept points is not positive: no NRMSE")
+    reg = region(frame, near_deg)
+    inc = np.array([f"{t:g}" for t in frame["theta_i"].to_numpy(float)], dtype=object)
+    incidences = sorted(set(inc), key=float)
+    bands = np.array([band_label(b) for b in frame["wavelength_nm"].to_numpy(float)], dtype=object)
+    band_order = [band_label(b) for b in sorted(set(frame["wavelength_nm"].to_numpy(float)))]
+    plane = np.where(np.isfinite(frame["s"].to_numpy(float)), "in plane", "out of plane").astype(object)
+    cross = np.array([f"{a}|{b}" for a, b in zip(inc, reg)], dtype=object)
+    nrmse = math.sqrt(float(np.mean(d * d))) / m
+    noise = math.sqrt(float(np.mean(u * u))) / m
+    return {"n": n, "mean_meas": m, "nrmse": nrmse, "nrmse_noise_u": noise,
+            "forward_rise": forward_rise(frame), "profile": profile(frame),
+            "nrmse_best_scale": best_scale_nrmse(frame),
+            "by_incidence": _parts(d, u, meas, m, inc, incidences),
+            "by_region": _parts(d, u, meas, m, reg, list(REGIONS)),
+            "by_incidence_region": _parts(d, u, meas, m, cross, [f"{a}|{b}" for a in incidences for b in REGIONS]),
+            "by_band": _parts(d, u, meas, m, bands, band_order),
+            "by_plane": _parts(d, u, meas, m, plane, ["in plane", "out of plane"])}
+
+
+def seed_noise(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
+    """The noise of one run estimated from two seeds' aligned frames of the same points: per point the difference's
+    mean square over two (the variance of one run when both have the same noise), over the file's mean ``beta``;
+    and the expected noise from the runs' own ``u_sim`` for comparison."""
+    keys = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
+    j = a.merge(b, on=keys, suffixes=("_a", "_b"))
+    if len(j) != len(a) or len(j) != len(b):
+        raise InputError("the two runs do not hold the same points; give two seeds of one config at one plan")
+    diff = j["beta_sim_a"].to_numpy(float) - j["beta_sim_b"].to_numpy(float)
+    m = float(np.mean(j["beta_meas_a"].to_numpy(float)))
+    ua, ub = j["u_sim_a"].to_numpy(float), j["u_sim_b"].to_numpy(float)
+    return {"n": int(len(j)), "nrmse_seeds": math.sqrt(float(np.mean(diff * diff)) / 2.0) / m,
+            "nrmse_noise_a": math.sqrt(float(np.mean(ua * ua))) / m, "nrmse_noise_b": math.sqrt(float(np.mean(ub * ub))) / m}
+
+
+def combine(r0: np.ndarray, fields: list[tuple[str, float, float, np.ndarray, float, np.ndarray]],
+            starts: int = 20, seed: int = 0) -> tuple[list[float], float]:
+    """Every field at once from one-at-a-time runs: per field ``(name, base value, value 1, residuals 1, value 2,
+    residuals 2)`` (residual vectors over the file's mean, ``r0`` the base run's), each point's residual taken as
+    ``r0 + sum_f a_f h_f + b_f h_f^2`` (the quadratic through the field's three runs, ``h`` the change from the
+    base), and the changes within each field's scanned range that minimise its mean square. Returns the values
+    and the predicted NRMSE."""
+    from scipy.optimize import minimize
+
+    models = []
+    for _, base, v1, r1, v2, r2 in fields:
+        h1, h2 = v1 - base, v2 - base
+        coef = np.linalg.solve(np.array([[h1, h1 * h1], [h2, h2 * h2]]), np.vstack([r1 - r0, r2 - r0]))
+        models.append((base, min(h1, h2, 0.0), max(h1, h2, 0.0), coef))
+
+    def changes(z: np.ndarray) -> list[float]:
+        return [lo + (hi - lo) * float(zz) for (_, lo, hi, _), zz in zip(models, z)]
+
+    def mean_square(z: np.ndarray) -> float:
+        r = r0.copy()
+        for (_, _, _, c), h in zip(models, changes(z)):
+            r = r + c[0] * h + c[1] * h * h
+        return float(np.mean(r * r))
+
+    rng = np.random.default_rng(seed)
+    z0 = [np.array([-lo / (hi - lo) for _, lo, hi, _ in models])] + [rng.random(len(models)) for _ in range(starts)]
+    best = min((minimize(mean_square, z, bounds=[(0.0, 1.0)] * len(models), method="L-BFGS-B") for z in z0),
+               key=lambda res: res.fun)
+    return [base + h for (base, _, _, _), h in zip(models, changes(best.x))], math.sqrt(best.fun)
+
+
+# ---------------------------------------------------------------------------------------------- datasets
+
+def _read(path: str):
+    from gonio.data import DatasetError, read_dataset
+    try:
+        return read_dataset(path)
+    except (DatasetError, OSError) as exc:
+        raise InputError(f"{path}: not a dataset ({str(exc).splitlines()[0]})") from None
+
+
+def compared(file: str, runs: list[str], max_incidence: float) -> list[tuple[str, pd.DataFrame, Any]]:
+    """``(name, frame, comparison)`` per run against ``file``, the frame cut at ``max_incidence``."""
+    import logging
+
+    from compare.comparison import compare_datasets
+    from compare.errors import CompareError
+    logging.getLogger("compare").setLevel(logging.ERROR)
+    measured = _read(file)
+    out = []
+    for run in runs:
+        sim = _read(run)
+        try:
+            cmp = compare_datasets(measured, [sim])
+        except CompareError as exc:
+            raise InputError(f"{run}: cannot be compared with {file} ({exc})") from None
+        name = next(iter(cmp.frames))
+        frame = cmp.frames[name]
+        kept = frame[frame["theta_i"] <= max_incidence + 1e-9].reset_index(drop=True)
+        if kept.empty:
+            raise InputError(f"--max-incidence {max_incidence:g}: no point of {run} at or below it")
+        out.append((run, kept, cmp))
+    return out
+
+
+def _colour(cmp) -> dict[str, float]:
+    if cmp.colour is None:
+        return {}
+    sc = next(iter(cmp.colour.simulated.values()))
+    return {"dh": float(sc.dh), "ds": float(sc.ds), "k_Y": float(sc.scale)}
+
+
+def _print(run: str, res: dict[str, Any]) -> None:
+    rise = ", ".join(f"{t}: {r['measured']:.2f}/{r['simulated']:.2f}" for t, r in res["forward_rise"].items())
+    print(f"{run}: NRMSE {res['nrmse']:.4f} over {res['n']} points (u_sim-based noise {res['nrmse_noise_u']:.4f}; "
+          f"best scale per band {res['nrmse_best_scale']:.4f}; forward rise file/model {rise})" + "".join(f", {k} {v:+.4f}" for k, v in res.get("colour", {}).items()))
+    for part in ("by_incidence", "by_region", "by_band", "by_plane", "by_incidence_region"):
+        print(f"  {part}: " + "; ".join(
+            f"{k} n{v['n']} share {100 * v['share']:.1f}% own {v['nrmse_own']:.3f} rms {v['rms_rel']:.3f} bias {v['bias_rel']:+.3f} "
+            f"without {v['nrmse_without']:.3f}" for k, v in res[part].items() if v["n"]))
+
+
+def _combine(args) -> int:
+    if args.out.exists() and not args.force:
+        raise InputError(f"{args.out} exists; pass --force to replace it")
+    text = args.preset.read_text(encoding="utf-8")
+    import tomllib
+    preset = tomllib.loads(text)
+    pairs: dict[tuple[str, str], list[tuple[str, Any]]] = {}
+    for name, section, key, value in VARIANTS:
+        if isinstance(value, (int, float)) and (args.runs / name / "radiance.csv").exists():
+            pairs.setdefault((section, key), []).append((name, value))
+    pairs = {k: v for k, v in pairs.items() if len(v) == 2}
+    if not pairs:
+        raise InputError(f"--runs {args.runs}: no field has both its variants' runs there (<variant>/radiance.csv)")
+    names = [args.base] + [str(args.runs / n) for v in pairs.values() for n, _ in v]
+    frames = {run: f for run, f, _ in compared(args.file, names, 90.0)}
+    meas = frames[args.base]["beta_meas"].to_numpy(float)
+    m = float(np.mean(meas))
+
+    def resid(run: str) -> np.ndarray:
+        return (frames[run]["beta_sim"].to_numpy(float) - meas) / m
+
+    fields = []
+    for (section, key), ((n1, v1), (n2, v2)) in pairs.items():
+        base = preset.get(section, {}).get(key, 0.0)
+        fields.append((f"{section}.{key}", float(base), float(v1), resid(str(args.runs / n1)), float(v2),
+                       resid(str(args.runs / n2))))
+    values, predicted = combine(resid(args.base), fields)
+    for (name, base, *_), v in zip(fields, values):
+        section, key = name.split(".", 1)
+        print(f"{name} = {v:.4g}" + (" (the preset's)" if abs(v - base) <= 1e-9 * max(1.0, abs(base)) else ""))
+        if abs(v - base) > 1e-9 * max(1.0, abs(base)):
+            text = set_field(text, section, key, float(f"{v:.4g}"))
+    text = re.sub(r'(?m)^name = ".*"$', 'name = "combined"', text, count=1)
+    args.out.write_text(text, encoding="utf-8")
+    print(f"predicted NRMSE {predicted:.4f} (the base run's {math.sqrt(float(np.mean(resid(args.base) ** 2))):.4f}); "
+          f"wrote {args.out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="felt_residual.py", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    v = sub.add_parser("variants", help="write the one-at-a-time variant configs of the preset")
+    v.add_argument("--preset", type=Path, default=PRESET)
+    v.add_argument("--out", type=Path, required=True)
+    v.add_argument("--force", action="store_true")
+    d = sub.add_parser("decompose", help="split each run's curve error against FILE")
+    d.add_argument("file")
+    d.add_argument("runs", nargs="+")
+    d.add_argument("--max-incidence", type=float, default=90.0)
+    d.add_argument("--near", type=float, default=20.0, help="half-width of the near-normal region (deg)")
+    d.add_argument("--json", type=Path)
+    n = sub.add_parser("noise", help="the noise of one config from pairs of seeds")
+    n.add_argument("file")
+    n.add_argument("runs", nargs="+", help="pairs: RUN_A RUN_B [RUN_C RUN_D ...] (two seeds of one config each)")
+    n.add_argument("--max-incidence", type=float, default=90.0)
+    n.add_argument("--json", type=Path)
+    c = sub.add_parser("combine", help="every continuous field at once from the one-at-a-time runs")
+    c.add_argument("file")
+    c.add_argument("base", help="the preset's run (the variants' seed and target)")
+    c.add_argument("--runs", type=Path, required=True, help="folder holding each variant's run as <variant>/")
+    c.add_argument("--preset", type=Path, default=PRESET)
+    c.add_argument("--out", type=Path, required=True, help="the combined config (TOML) to write")
+    c.add_argument("--force", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        if args.cmd == "variants":
+            for p in write_variants(args.preset, args.out, args.force):
+                print(p)
+            return 0
+        if args.cmd == "combine":
+            return _combine(args)
+        if args.cmd == "noise":
+            if len(args.runs) % 2:
+                raise InputError(f"noise: {len(args.runs)} runs given; give pairs (two seeds of one config each)")
+            frames = compared(args.file, args.runs, args.max_incidence)
+            pairs = []
+            for (ra, fa, _), (rb, fb, _) in zip(frames[::2], frames[1::2]):
+                pairs.append({"a": ra, "b": rb, **seed_noise(fa, fb)})
+                print(f"{ra} / {rb}: seed-to-seed noise {pairs[-1]['nrmse_seeds']:.4f} (in NRMSE units)")
+            if args.json:
+                args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
+                                                 "pairs": pairs}, indent=1) + "\n", encoding="utf-8")
+            return 0
+        if not (0.0 <= args.near < GRAZING_DEG):
+            raise InputError(f"--near {args.near:g}: give a half-width in [0, {GRAZING_DEG:g}) deg")
+        results = {}
+        for run, frame, cmp in compared(args.file, args.runs, args.max_incidence):
+            res = decompose_frame(frame, args.near, cmp.bands.label)
+            res["colour"] = _colour(cmp)
+            results[run] = res
+            _print(run, res)
+        if args.json:
+            args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
+                                             "near": args.near, "runs": results}, indent=1) + "\n", encoding="utf-8")
+        return 0
+    except InputError as exc:
+        print(f"felt_residual.py: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(ROOT))
+    sys.exit(main())

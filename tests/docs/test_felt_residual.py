@@ -1,0 +1,203 @@
+"""The felt residual decomposition (docs/scripts/felt_residual.py): its arithmetic on made-up curves (no Monte
+Carlo), its variant configs and its refusal of bad input."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from compare.metrics import curve_error
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("felt_residual", ROOT / "docs" / "scripts" / "felt_residual.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["felt_residual"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _frame() -> pd.DataFrame:
+    """Two incidences, in-plane points at s = -60..70 and two ring points at 30 deg, two bands; the model is the
+    file plus a residual that differs by region so that each region's share is known."""
+    rows = []
+    for theta_i in (0.0, 30.0):
+        for s in (-60.0, -30.0, -10.0, 10.0, 30.0, 70.0):
+            rows.append((theta_i, 0.0, abs(s), 0.0 if s < 0 else 180.0, s))   # phi_o = phi_i: the source's side
+        if theta_i:
+            # the source direction turned by 6 and by 30 deg about the normal's azimuth: out of plane
+            for dist in (6.0, 30.0):
+                rows.append((theta_i, 0.0, theta_i, 2 * math.degrees(math.asin(
+                    math.sin(math.radians(dist / 2)) / math.sin(math.radians(theta_i)))), math.nan))
+    out = []
+    for theta_i, phi_i, theta_o, phi_o, s in rows:
+        for band, level in ((500.0, 1.0), (600.0, 2.0)):
+            out.append(dict(theta_i=theta_i, phi_i=phi_i, theta_o=theta_o, phi_o=phi_o, s=s, wavelength_nm=band,
+                            beta_meas=level, u_sim=0.01))
+    f = pd.DataFrame(out)
+    s = f["s"].to_numpy()
+    resid = np.where(np.isnan(s), -0.2, np.where(s < -20, 0.1, np.where(s > 20, 0.3, 0.0)))
+    f["beta_sim"] = f["beta_meas"] + resid
+    return f
+
+
+def test_regions_follow_the_signed_angle_and_the_ring_distance():
+    fr = _script()
+    f = _frame()
+    reg = fr.region(f, near_deg=20.0)
+    s = f["s"].to_numpy()
+    assert set(reg[s < -20]) == {"back"}
+    assert set(reg[np.abs(s) <= 20]) == {"near"}
+    assert set(reg[(s > 20) & (s <= 70)]) == {"forward"}
+    ring = f[np.isnan(s)]
+    assert list(reg[np.isnan(s)]) == ["ring-6", "ring-6", "ring-30", "ring-30"]
+    np.testing.assert_allclose(fr.retro_distance_deg(ring), [6, 6, 30, 30], atol=1e-9)
+    # grazing: beyond 70 deg in plane
+    g = f.iloc[:1].assign(theta_o=75.0, s=-75.0)
+    assert list(fr.region(g)) == ["grazing"]
+
+
+def test_contributions_add_up_to_the_compare_nrmse_squared():
+    fr = _script()
+    f = _frame()
+    res = fr.decompose_frame(f)
+    assert res["nrmse"] == pytest.approx(curve_error(f).nrmse, rel=1e-12)
+    m = f["beta_meas"].mean()
+    n = len(f)
+    for part in ("by_incidence", "by_region", "by_band", "by_plane", "by_incidence_region"):
+        kept = [v for v in res[part].values() if v["n"]]
+        assert sum(v["n"] for v in kept) == n
+        assert sum(v["contribution"] for v in kept) == pytest.approx(res["nrmse"] ** 2, rel=1e-12)
+        assert sum(v["share"] for v in kept) == pytest.approx(1.0, rel=1e-12)
+    fwd = res["by_region"]["forward"]
+    n_fwd = int(((f["s"] > 20)).sum())
+    assert fwd["n"] == n_fwd
+    assert fwd["contribution"] == pytest.approx(n_fwd * 0.09 / (n * m * m))
+    assert fwd["bias_rel"] == pytest.approx(0.3 / m)
+    assert fwd["rms_rel"] == pytest.approx(0.3 / m)
+    assert fwd["nrmse_own"] == pytest.approx(0.3 / 1.5)
+    assert res["by_region"]["ring-6"]["bias_rel"] == pytest.approx(-0.2 / m)
+    assert res["by_region"]["near"]["contribution"] == 0.0
+    assert res["by_region"]["grazing"] == {"n": 0}
+    # matched exactly, the forward points leave the rest's error
+    rest = f[~(f["s"] > 20)]
+    d = (rest["beta_sim"] - rest["beta_meas"]).to_numpy()
+    assert fwd["nrmse_without"] == pytest.approx(math.sqrt(np.sum(d * d) / n) / m)
+    assert res["nrmse_noise_u"] == pytest.approx(0.01 / m)
+
+
+def test_best_scale_and_forward_rise_on_made_up_curves():
+    fr = _script()
+    f = _frame()
+    f["beta_sim"] = 3.0 * f["beta_meas"] * (1.0 + 0.5 * (f["wavelength_nm"] == 600.0))
+    assert fr.best_scale_nrmse(f) == pytest.approx(0.0, abs=1e-12)
+    f.loc[(f["s"] == 70.0), "beta_sim"] *= 2.0
+    rise = fr.forward_rise(f)
+    assert set(rise) == {"0", "30"}
+    assert rise["30"]["measured"] == pytest.approx(1.0)
+    assert rise["30"]["simulated"] == pytest.approx(2.0)
+    assert fr.best_scale_nrmse(f) > 0.1
+    prof = fr.profile(f)
+    assert prof["30"]["70"] == pytest.approx(2.0 * (3.0 + 9.0) / 3.0)
+    assert prof["30"]["-30"] == pytest.approx((3.0 + 9.0) / 3.0)
+    assert set(prof["0"]) == {"-60", "-30", "-10", "10", "30", "70"}
+
+
+def test_seed_noise_is_the_half_mean_square_difference():
+    fr = _script()
+    a = _frame()
+    b = a.copy()
+    b["beta_sim"] = a["beta_sim"] + np.where(np.arange(len(a)) % 2, 0.04, -0.04)
+    got = fr.seed_noise(a, b)
+    assert got["nrmse_seeds"] == pytest.approx(math.sqrt(0.04 ** 2 / 2) / a["beta_meas"].mean())
+    with pytest.raises(fr.InputError, match="same points"):
+        fr.seed_noise(a, b.iloc[:-1])
+
+
+def test_combine_finds_the_minimum_of_additive_quadratic_responses():
+    fr = _script()
+    r0 = np.array([1.0, -1.0, 0.5, 0.2])
+    # field a: r = r0 (1 - h), zero at h = 1 (scanned at -0.5 and 2); field b: r = r0 + (h^2 - 2h) e, with e
+    # along the first point only, least at h = 1 (scanned at 0.5 and 3), where it lowers the first point by e
+    e = np.array([0.3, 0.0, 0.0, 0.0])
+    fields = [("a", 0.0, -0.5, r0 * 1.5, 2.0, -r0),
+              ("b", 1.0, 1.5, r0 + (0.25 - 1.0) * e, 4.0, r0 + (9.0 - 6.0) * e)]
+    values, predicted = fr.combine(r0, fields)
+    assert values[0] == pytest.approx(1.0, abs=1e-4)
+    # with a at its zero, b leaves (h^2 - 2h) e: zero at h = 0 or 2 (the values 1.0 and 3.0)
+    assert min(abs(values[1] - 1.0), abs(values[1] - 3.0)) < 1e-2
+    assert predicted == pytest.approx(0.0, abs=1e-3)
+    # alone, b's optimum is its vertex h = 1, within its range
+    values_b, predicted_b = fr.combine(r0, fields[1:])
+    assert values_b[0] == pytest.approx(2.0, abs=1e-3)
+    assert predicted_b == pytest.approx(math.sqrt(np.mean((r0 - e) ** 2)), rel=1e-4)
+
+
+def test_variants_change_one_field_each(tmp_path):
+    fr = _script()
+    paths = fr.write_variants(fr.PRESET, tmp_path)
+    base = tomllib.loads(fr.PRESET.read_text())
+    assert len(paths) == len(fr.VARIANTS)
+    for (name, section, key, value), path in zip(fr.VARIANTS, paths):
+        got = tomllib.loads(path.read_text())
+        assert got["name"] == name
+        assert got[section][key] == value
+        got[section].pop(key)
+        want = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
+        want[section] = {k: v for k, v in base[section].items() if k != key}
+        want["name"] = name
+        assert got == want
+    with pytest.raises(fr.InputError, match="no \\[weave\\] section"):
+        fr.set_field("[fiber]\nradius_um = 1.0\n", "weave", "kind", "plain")
+
+
+def _lambertian(out: Path, rho: float) -> None:
+    """A Lambertian dataset (beta = rho) in plane at incidence 0 and 30 deg, s = -40..40, three wavelengths."""
+    from gonio.data import Dataset
+    from gonio.data.dataset import write_dataset
+    rows = [dict(theta_i=ti, phi_i=0.0, theta_o=float(abs(s)), phi_o=0.0 if s < 0 else 180.0, wavelength_nm=wl,
+                 beta=rho, u_beta=0.0, n=1)
+            for ti in (0.0, 30.0) for s in range(-40, 41, 10) if s != 0 for wl in (500.0, 550.0, 600.0)]
+    meta = {"schema": "radiance-dataset/1", "kind": "measured", "sample": {"name": out.name},
+            "wavelengths_nm": [500.0, 550.0, 600.0], "created": "2020-01-01T00:00:00+00:00"}
+    write_dataset(Dataset(pd.DataFrame(rows), meta), out)
+
+
+def _run(capsys, fr, argv):
+    code = fr.main(argv)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
+    fr = _script()
+    code, _, err = _run(capsys, fr, ["decompose", str(tmp_path / "nothing"), str(tmp_path / "run")])
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "nothing" in err and "not a dataset" in err and "Traceback" not in err
+    fr.write_variants(fr.PRESET, tmp_path / "v")
+    code, _, err = _run(capsys, fr, ["variants", "--out", str(tmp_path / "v")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--force" in err
+
+    for name, rho in (("file", 0.5), ("run", 0.4)):
+        _lambertian(tmp_path / name, rho)
+    capsys.readouterr()
+    code, out, err = _run(capsys, fr, ["decompose", str(tmp_path / "file"), str(tmp_path / "run"),
+                                       "--max-incidence", "-1"])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--max-incidence -1" in err
+    code, out, err = _run(capsys, fr, ["decompose", str(tmp_path / "file"), str(tmp_path / "run"),
+                                       "--json", str(tmp_path / "r.json")])
+    assert code == 0, err
+    # a Lambertian model of another albedo is the file after the normalisation: no error anywhere
+    import json
+    res = json.loads((tmp_path / "r.json").read_text())["runs"][str(tmp_path / "run")]
+    assert res["nrmse"] == pytest.approx(0.0, abs=1e-12)
+    assert set(res["by_incidence"]) == {"0", "30"}
