@@ -181,8 +181,9 @@ def fig_demo_cost() -> str:
             ["peak memory (largest process)", f"{d['peak_rss_mb'] / 1024:.1f} GB"]]
     if d.get("cpu_seconds"):
         rows.append(["CPU time (user + system)", f"{d['cpu_seconds']:.0f} s"])
+    cpu = d.get("cpu_steps", {})
     for step, secs in d.get("steps", {}).items():
-        rows.append([f"wall time of `{step}`", f"{secs:.0f} s"])
+        rows.append([f"wall time of `{step}`", f"{secs:.0f} s" + (f" ({cpu[step]:.0f} CPU s)" if step in cpu else "")])
     note = f" ({d['conditions']})" if d.get("conditions") else ""
     return _table(["figure", "value"], rows) + "\n\n" + _source(rec, note)
 
