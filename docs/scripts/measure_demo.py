@@ -45,7 +45,8 @@ def _program_names(command: str) -> list[str]:
     """The short names of the project commands in one shell command line, in order (:func:`step_name`)."""
     lex = shlex.shlex(command, posix=True, punctuation_chars=True)
     lex.whitespace_split = True
-    names, words = [], []
+    names: list[str] = []
+    words: list[str] = []
     for token in [*lex, ";"]:
         if token in ("&", "&&", ";", "||", "|", "(", ")"):
             if words and Path(words[0]).name in ("gonio", "simulate", "compare"):
