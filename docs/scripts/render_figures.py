@@ -478,9 +478,10 @@ def _third_cells(runs: list[dict[str, Any]], group: str) -> tuple[str, str]:
 
 
 def _residual_thirds(green: dict[str, Any], permuted: dict[str, Any]) -> str:
-    """Per wavelength third: the green preset's runs against the green file and the permuted refit against the
-    permuted file, each third's part of ``NRMSE^2`` (the forward side's) and the forward rise, file and model."""
-    g_runs, p_runs = list(green["runs"].values()), list(permuted["runs"].values())
+    """Per wavelength third: the green preset's runs at 3 % against the green file and the permuted refit's runs
+    (all but the one at the preset's dye) against the permuted file, each third's part of ``NRMSE^2`` (the forward side's) and the forward rise, file and model."""
+    g_runs = [r for k, r in green["runs"].items() if _residual_label(k).startswith("`preset-t3-")]
+    p_runs = [r for k, r in permuted["runs"].items() if "preset-dye" not in k]
     header = ["wavelengths", "green: file's rise at 30 / 45 deg", "green preset: NRMSE² part (forward), its rise",
               "permuted: file's rise at 30 / 45 deg", "permuted refit: NRMSE² part (forward), its rise",
               "permuted less green: NRMSE² part (forward)"]
@@ -508,10 +509,14 @@ def fig_felt_residual_permuted() -> str:
     rec = load("felt-residual-permuted")
     green = load("felt-residual")
     note = (" (`FILE`: `gonio truth felt_gbr.bsdf --plan green-felt`, felt_gbr.bsdf the green felt's file with new "
-            "R, G, B = old G, B, R; the runs: the fitted dataset of `simulate fit green-felt-mc DATA --method mc --free "
-            "dye --max-runs 3 --target-rel-err 0.03`, DATA `gonio demo --sample felt_gbr.bsdf --plan green-felt`). "
-            "Second table: per wavelength third, the mean of the green preset's runs of `docs/data/felt-residual.json` "
-            "against the green file and of the runs above against the permuted file: the third's part of NRMSE² "
+            "R, G, B = old G, B, R; DATA `gonio demo --sample felt_gbr.bsdf --plan green-felt`; `FIT` `simulate fit "
+            "green-felt-mc DATA --method mc --free dye --max-runs 3 --target-rel-err 0.03 --out FIT`: "
+            "`permuted-preset-dye` its first run (`FIT/initial`, the preset's dye, seed 0), `permuted-dye-s0` its result "
+            "(`FIT/fitted`), `permuted-dye-sS` `simulate fabric FIT/fitted.toml --method mc --plan green-felt "
+            "--target-rel-err 0.03 --seed S --threads 1`). "
+            "Second table: per wavelength third, the mean of the green preset's three seeds at 3 % "
+            "(`docs/data/felt-residual.json`) against the green file and of the refitted dye's runs above against the "
+            "permuted file: the third's part of NRMSE² "
             "(its forward side's in brackets; the parts add up to NRMSE²) and the forward rise β(70)/β(30) at 30 / 45 deg")
     return (_residual_runs(rec) + "\n\n" + _residual_thirds(green["data"], rec["data"]) + "\n\n"
             + _source(rec, note))
@@ -521,9 +526,12 @@ def fig_felt_residual_combined() -> str:
     """The combined structure variant with its dye refitted, against the green file."""
     rec = load("felt-residual-combined")
     note = (" (`FILE`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`; the runs: "
-            "`simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.03 --threads 1` and the fitted "
-            "dataset of `simulate fit combined.toml DATA --method mc --free dye --max-runs 3 --target-rel-err 0.03`, "
-            "DATA `gonio demo --sample fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`)")
+            "`preset-t3-sS` as in the first figure; DATA `gonio demo --sample fixtures/real/acrylic_felt_green_rgb.bsdf "
+            "--plan green-felt`; `FIT` `simulate fit combined.toml DATA --method mc --free dye --max-runs 3 "
+            "--target-rel-err 0.03 --out FIT`, combined.toml from `felt_residual.py combine`: `combined-t3-s0` its first "
+            "run (`FIT/initial`, the preset's dye, seed 0), `combined-dye-s0` its result (`FIT/fitted`), "
+            "`combined-dye-sS` `simulate fabric FIT/fitted.toml --method mc --plan green-felt --target-rel-err 0.03 "
+            "--seed S --threads 1`)")
     return _residual_runs(rec) + "\n\n" + _source(rec, note)
 
 
