@@ -4,6 +4,7 @@
     python docs/scripts/felt_residual.py decompose FILE RUN [RUN ...] [--max-incidence 59.52] [--json OUT]
     python docs/scripts/felt_residual.py noise FILE RUN_A RUN_B [...] # pairs of seeds of one config: the noise
     python docs/scripts/felt_residual.py combine FILE BASE --runs DIR --out CONFIG   # every field at once
+    python docs/scripts/felt_residual.py permute FILE.bsdf --order gbr --out OTHER.bsdf # another colour
 
 ``decompose`` compares each ``RUN`` (a ``simulate fabric`` dataset) with ``FILE`` (``gonio truth`` of the felt's
 file) exactly as ``compare check`` does (:func:`compare.comparison.compare_datasets`: the per-channel factor at the
@@ -32,6 +33,8 @@ in-plane ``s``, the model over the file (band sums, :func:`profile`).
 ``combine`` takes the one-at-a-time runs (``DIR/<variant>``, each field's two) and the preset's ``BASE`` run
 and writes the config with every continuous field changed at once where a separable quadratic through each
 field's three runs, fitted point by point, predicts the least NRMSE within the scanned ranges (:func:`combine`).
+``permute`` writes an RGB RGL file with its channels reordered (``gbr``: new R, G, B = old G, B, R), the same
+felt in another colour for a dye-only refit.
 Bad input (a missing dataset, an incidence limit that keeps no point) is one line naming it, exit 2.
 """
 
@@ -365,6 +368,28 @@ def _print(run: str, res: dict[str, Any]) -> None:
             f"without {v['nrmse_without']:.3f}" for k, v in res[part].items() if v["n"]))
 
 
+def permute_channels(src: Path, out: Path, order: str, force: bool = False) -> None:
+    """Write the RGB RGL ``.bsdf`` file ``src`` with its channels reordered: ``order`` names the old channel each
+    new R, G, B takes (``"gbr"``: new R, G, B = old G, B, R); every other field (the sampling tables) is kept."""
+    from gonio.data.bsdf_export import write_tensor_file
+    from gonio.data.formats.errors import FormatError
+    from gonio.data.formats.tensor import parse_tensor_bytes
+
+    if sorted(order) != ["b", "g", "r"]:
+        raise InputError(f"--order {order}: give the three letters r, g, b once each (e.g. gbr)")
+    if out.exists() and not force:
+        raise InputError(f"{out} exists; pass --force to replace it")
+    try:
+        fields = parse_tensor_bytes(src.read_bytes(), src)
+    except (OSError, FormatError) as exc:
+        raise InputError(f"{src}: not a readable tensor file ({str(exc).splitlines()[0]})") from None
+    rgb = fields.get("rgb")
+    if rgb is None or rgb.ndim != 5 or rgb.shape[2] != 3:
+        raise InputError(f"{src}: no 'rgb' field of shape [phi_i, theta_i, 3, n, n]; give an RGB RGL .bsdf file")
+    fields["rgb"] = np.ascontiguousarray(rgb[:, :, ["rgb".index(c) for c in order]])
+    write_tensor_file(out, fields)
+
+
 def _combine(args) -> int:
     if args.out.exists() and not args.force:
         raise InputError(f"{args.out} exists; pass --force to replace it")
@@ -429,6 +454,11 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--preset", type=Path, default=PRESET)
     c.add_argument("--out", type=Path, required=True, help="the combined config (TOML) to write")
     c.add_argument("--force", action="store_true")
+    pm = sub.add_parser("permute", help="an RGB RGL .bsdf file with its channels reordered (another colour)")
+    pm.add_argument("src", type=Path)
+    pm.add_argument("--order", required=True, help="the old channel each new R, G, B takes, e.g. gbr")
+    pm.add_argument("--out", type=Path, required=True)
+    pm.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     try:
         if args.cmd == "variants":
@@ -437,6 +467,10 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.cmd == "combine":
             return _combine(args)
+        if args.cmd == "permute":
+            permute_channels(args.src, args.out, args.order.lower(), args.force)
+            print(args.out)
+            return 0
         if args.cmd == "noise":
             if len(args.runs) % 2:
                 raise InputError(f"noise: {len(args.runs)} runs given; give pairs (two seeds of one config each)")

@@ -231,3 +231,27 @@ def test_wavelength_thirds_split_the_error_and_the_forward_rise():
     assert rise["390-500 nm"]["30"]["simulated"] == pytest.approx(1.0)
     assert rise["590-710 nm"]["30"]["simulated"] == pytest.approx(1.5)
     assert rise["590-710 nm"]["30"]["measured"] == pytest.approx(1.0)
+
+
+def test_permute_reorders_the_rgb_channels_and_keeps_the_rest(tmp_path, capsys):
+    from gonio.data.formats.tensor import parse_tensor_bytes
+    fr = _script()
+    src = ROOT / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"
+    out = tmp_path / "felt_gbr.bsdf"
+    code, _, err = _run(capsys, fr, ["permute", str(src), "--order", "gbr", "--out", str(out)])
+    assert code == 0, err
+    old, new = parse_tensor_bytes(src.read_bytes()), parse_tensor_bytes(out.read_bytes())
+    assert set(old) == set(new)
+    for k in old:
+        if k != "rgb":
+            np.testing.assert_array_equal(new[k], old[k])
+    # new R, G, B = old G, B, R
+    for new_c, old_c in ((0, 1), (1, 2), (2, 0)):
+        np.testing.assert_array_equal(new["rgb"][:, :, new_c], old["rgb"][:, :, old_c])
+    assert not np.array_equal(new["rgb"], old["rgb"])
+    for argv, words in ((["permute", str(src), "--order", "gbr", "--out", str(out)], "--force"),
+                        (["permute", str(src), "--order", "ggb", "--out", str(tmp_path / "x.bsdf")], "--order ggb"),
+                        (["permute", str(tmp_path / "none.bsdf"), "--order", "gbr", "--out", str(tmp_path / "y.bsdf")],
+                         "none.bsdf")):
+        code, _, err = _run(capsys, fr, argv)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and words in err and "Traceback" not in err
