@@ -29,7 +29,8 @@ changes, both free in expectation:
 Cost: the second realisation (1.3 s); the rotations' smaller chunks, traced one after the other,
 cost green-felt at 3 % 13.5 s of CPU instead of 11.0 s, which tracing them as one wavefront takes
 back (green-felt-mc at 3 %: 0.60 -> 0.44 ms of CPU per ray; 0.23 with the shadow rays played by Russian
-roulette, :mod:`simulate.woven.integrator`; 0.13 with its per-bounce work compiled; docs/notes/felt-structure.md 2).
+roulette, :mod:`simulate.woven.integrator`; 0.13 with its per-bounce work compiled; 0.11 with the roulette played on
+bounds before the spectral contributions are formed; docs/notes/felt-structure.md 2).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import dataclasses
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -46,7 +48,7 @@ from simulate.budget import medium_coefficients
 from simulate.media.medium import HGMedium
 from simulate.montecarlo.accuracy import check_target, relative_error
 from simulate.fabric.structure import CLOSE_PACKING
-from simulate.woven.integrator import CHUNK, MCResult, trace, trace_rotations, yarn_radius
+from simulate.woven.integrator import CHUNK, MCResult, prepare, trace, trace_rotations, yarn_radius
 from simulate.woven.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.woven.materials import FiberSurface
 from simulate.woven.yarn import YarnTable, table_halves
@@ -211,6 +213,54 @@ def yarn_model(mesh: Any, structure: Any = None, surface: str | None = None, vol
     return surf, vol, spacing, packing
 
 
+def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.ndarray, meshes: tuple, mats: list,
+                      beta: np.ndarray, u_beta: np.ndarray, second: Any, *, r_target: float, max_rays: int,
+                      max_seconds: float, seed: int, threads: int, progress: bool, twist: tuple[float, float],
+                      chunk: int, setups: dict, max_events: int) -> list[dict]:
+    """:func:`fabric_beta`'s traces: each incidence with each half, ``beta`` and ``u_beta`` filled in; returns
+    the incidences' run information. ``second``: the future of the second half's setup (or None)."""
+    runs = []
+    n_rot = felt_rotations(meshes[0])
+    for k, wi in enumerate(incidences):
+        rows = np.nonzero(inverse == k)[0]
+        det_key, det_inv = np.unique(np.round(w_out[rows], 9), axis=0, return_inverse=True)
+        det_inv = np.asarray(det_inv).reshape(-1)
+        det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
+        halves = []
+        for h, (m, mat) in enumerate(zip(meshes, mats)):
+            if h == 1 and second is not None:     # the second half's setup, built on another thread
+                second.result()
+                second = None
+            if n_rot > 1:    # the rotations as one wavefront, stopped on their mean (trace_rotations)
+                parts = trace_rotations(m, mat, wi / np.linalg.norm(wi), det,
+                                        [2.0 * math.pi * (j + 0.5 * h) / n_rot for j in range(n_rot)],
+                                        target_rel_err=r_target, max_rays=max_rays, max_seconds=max_seconds,
+                                        seed=seed + 7919 * k, threads=threads, progress=progress,
+                                        twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)
+            else:
+                parts = [trace(m, mat, wi / np.linalg.norm(wi), det, target_rel_err=r_target, max_rays=max_rays,
+                               max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress,
+                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)]
+            halves.append(_mean_of(parts))
+        ra, rb = halves
+        b = 0.5 * (ra.beta + rb.beta)
+        u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
+        u_table = np.sqrt(np.mean((0.5 * (ra.beta - rb.beta)) ** 2, axis=1, keepdims=True))
+        u = np.sqrt(u_rays2 + u_table ** 2)
+        beta[rows] = b[det_inv]
+        u_beta[rows] = u[det_inv]
+        peak = np.maximum(b.max(axis=1, keepdims=True), 1e-300)
+        runs.append({"w_in": wi.tolist(), "detectors": int(det_key.shape[0]), "rays": ra.rays + rb.rays,
+                     "seconds": ra.seconds + rb.seconds, "rel_err": relative_error(b, u),
+                     "ray_rel_err": relative_error(b, np.sqrt(u_rays2)),
+                     "table_rel_err": float(np.sqrt(np.mean((u_table / peak) ** 2))),
+                     "stop": ra.stop if ra.stop != "target" else rb.stop,
+                     "reflected_mean": float(0.5 * (ra.reflected + rb.reflected).mean()),
+                     "transmitted_mean": float(0.5 * (ra.transmitted + rb.transmitted).mean()),
+                     **{k2: v for k2, v in ra.info.items() if k2 != "u_reflected_plus_transmitted"}})
+    return runs
+
+
 def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_nm: np.ndarray, *,
                 target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
                 threads: int = 1, progress: bool = False, tables: tuple[YarnTable, YarnTable] | None = None,
@@ -264,44 +314,25 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     inverse = np.asarray(inverse).reshape(-1)
     beta = np.zeros((w_in.shape[0], wl.size))
     u_beta = np.zeros_like(beta)
-    runs = []
     n_rot = felt_rotations(meshes[0])
     chunk = max(256, CHUNK // n_rot)
     setups: dict = {}
-    for k, wi in enumerate(incidences):
-        rows = np.nonzero(inverse == k)[0]
-        det_key, det_inv = np.unique(np.round(w_out[rows], 9), axis=0, return_inverse=True)
-        det_inv = np.asarray(det_inv).reshape(-1)
-        det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
-        halves = []
-        for h, (m, mat) in enumerate(zip(meshes, mats)):
-            if n_rot > 1:    # the rotations as one wavefront, stopped on their mean (trace_rotations)
-                parts = trace_rotations(m, mat, wi / np.linalg.norm(wi), det,
-                                        [2.0 * math.pi * (j + 0.5 * h) / n_rot for j in range(n_rot)],
-                                        target_rel_err=r_target, max_rays=max_rays, max_seconds=max_seconds,
-                                        seed=seed + 7919 * k, threads=threads, progress=progress,
-                                        twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)
-            else:
-                parts = [trace(m, mat, wi / np.linalg.norm(wi), det, target_rel_err=r_target, max_rays=max_rays,
-                               max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress,
-                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)]
-            halves.append(_mean_of(parts))
-        ra, rb = halves
-        b = 0.5 * (ra.beta + rb.beta)
-        u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
-        u_table = np.sqrt(np.mean((0.5 * (ra.beta - rb.beta)) ** 2, axis=1, keepdims=True))
-        u = np.sqrt(u_rays2 + u_table ** 2)
-        beta[rows] = b[det_inv]
-        u_beta[rows] = u[det_inv]
-        peak = np.maximum(b.max(axis=1, keepdims=True), 1e-300)
-        runs.append({"w_in": wi.tolist(), "detectors": int(det_key.shape[0]), "rays": ra.rays + rb.rays,
-                     "seconds": ra.seconds + rb.seconds, "rel_err": relative_error(b, u),
-                     "ray_rel_err": relative_error(b, np.sqrt(u_rays2)),
-                     "table_rel_err": float(np.sqrt(np.mean((u_table / peak) ** 2))),
-                     "stop": ra.stop if ra.stop != "target" else rb.stop,
-                     "reflected_mean": float(0.5 * (ra.reflected + rb.reflected).mean()),
-                     "transmitted_mean": float(0.5 * (ra.transmitted + rb.transmitted).mean()),
-                     **{k2: v for k2, v in ra.info.items() if k2 != "u_reflected_plus_transmitted"}})
+    # the second half's scene and table arrays are built on another thread while the first half's
+    # first trace runs (its traces then find them in ``setups``; no result depends on this); the first
+    # half's before (Embree's scene is built holding the GIL: two builds side by side take as long as
+    # one after the other, a build beside a trace takes the trace's idle GIL)
+    background = ThreadPoolExecutor(max_workers=1) if threads != 1 else None
+    second = None
+    if background is not None:
+        prepare(meshes[0], mats[0], setups, twist_deg=twist)
+        second = background.submit(prepare, meshes[1], mats[1], setups, twist_deg=twist)
+    try:
+        runs = _trace_incidences(incidences, inverse, w_out, meshes, mats, beta, u_beta, second, r_target=r_target,
+                                 max_rays=max_rays, max_seconds=max_seconds, seed=seed, threads=threads,
+                                 progress=progress, twist=twist, chunk=chunk, setups=setups, max_events=max_events)
+    finally:
+        if background is not None:
+            background.shutdown()
     photons = int(sum(t.photons for t in tables))
     info = {"table": {"photons": photons, "seconds": float(sum(t.seconds for t in tables)),
                       "cache": [t.cache for t in tables],

@@ -22,6 +22,16 @@ stream of the chunk's own (a child of its seed), so a run stays reproducible and
 threads, and the paths are those of a run without roulette. The added variance is in the per-ray
 totals, so ``u_beta`` holds it. ``info``: ``shadow_candidates`` (next-event estimates asked for),
 ``shadow_rays`` (traced), ``shadow_queries`` (their Embree queries, one per cell crossed).
+
+With a fiber material (:data:`SHADOW_BOUND`) the size played is not the contribution's largest spectral
+value but a bound of it known before the contribution is formed: the ray's largest spectral weight
+times the table cell's largest value times the candidate's scale (the surface term's bound is its
+size). The shading then only records where each contribution comes from
+(:class:`simulate.woven.shading.ShadeOutputs`, ``nee_row`` and ``nee_scale``), and the spectral
+products are formed for the candidates traced and visible alone. The roulette stays unbiased (any
+``c`` fixed before the draw will do); a candidate is played a little more often (the bound is at
+least its size), and the estimator is not the one of the sizes
+(``tests/simulate/woven/test_shadow_bound.py`` checks the two against each other).
 """
 
 from __future__ import annotations
@@ -38,11 +48,11 @@ import numba
 import numpy as np
 
 from simulate.montecarlo.accuracy import check_target, relative_error
-from simulate.woven.materials import K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind, surface_albedo
+from simulate.woven.materials import K_FIBER, K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind, surface_albedo
 from simulate.woven.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
 from simulate.woven.shading import ShadeInputs, ShadeOutputs, new_outputs, shade, shade_groups
 
-__all__ = ["STOP_REASONS", "MCResult", "trace", "trace_rotations", "yarn_radius"]
+__all__ = ["STOP_REASONS", "MCResult", "prepare", "trace", "trace_rotations", "yarn_radius"]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +66,9 @@ SHADOW_ROULETTE = True
 """Russian roulette on the shadow rays (module docstring); ``False`` traces every candidate."""
 SHADOW_LEVEL = 0.5
 """``c_ref`` as a fraction of the chunk's mean per ray of the candidates' sizes towards a detector (0: all traced)."""
+SHADOW_BOUND = True
+"""A fiber material's roulette played on each candidate's bound, its contribution formed only when kept (module
+docstring); ``False``: every contribution formed by the shading and played on its size."""
 
 
 @dataclass
@@ -170,6 +183,7 @@ class _Setup:
             self.n_host = 1.0
             self.albedo = np.zeros(2)
             z = np.zeros((1, 1, 1, n_wl))
+            self.t_rows, self.t_max = z.reshape(1, n_wl), np.zeros(1)
             self.T, self.cdf, self.cell_sum = z, np.ones((1, 1, 1)), np.zeros((1, 1, n_wl))
             self.c_bar, self.tau, self.nodes = np.ones((1, 1)), np.ones((1, 1)), np.zeros(1)
             self.off_tot, self.off_bar = np.zeros((1, 1, 1, n_wl)), np.zeros((1, 1, 1))
@@ -181,6 +195,9 @@ class _Setup:
             self.n_host = float(material.n_host)
             self.albedo = surface_albedo(self.m, self.n_host)   # once per run (and cached on disk)
             self.T = np.ascontiguousarray(tab.T)
+            # the deferred next-event contributions (SHADOW_BOUND): the table's rows and each one's largest value
+            self.t_rows = self.T.reshape(-1, n_wl)
+            self.t_max = self.t_rows.max(axis=1)
             tbar = tab.T.mean(axis=3)
             self.cdf = np.ascontiguousarray(np.cumsum(tbar, axis=2))
             self.cell_sum = np.ascontiguousarray(tab.T.sum(axis=2))
@@ -329,6 +346,55 @@ def _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, c
 
 
 @numba.njit(cache=True, nogil=True)
+def _bounded_candidates(need, nee_row, nee_scale, weight, t_max, hit_group, D, cand, level_scale, cidx, size, p,
+                        state, binsum):
+    """:func:`_shadow_candidates` of deferred contributions (:data:`SHADOW_BOUND`): each candidate's size is
+    the bound ``max_k weight[i, k]`` times ``t_max[nee_row]`` (1 for the surface term, row -1) times
+    ``nee_scale``, and the roulette is always played. Returns ``(candidates, to_draw)``."""
+    M = need.shape[0]
+    E = need.shape[1]
+    L = weight.shape[1]
+    c = 0
+    for j in range(binsum.shape[0]):
+        binsum[j] = 0.0
+    for i in range(M):
+        w_top = -1.0
+        for e in range(E):
+            for d in range(D):
+                if not need[i, e, d]:
+                    continue
+                if w_top < 0.0:
+                    w_top = weight[i, 0]
+                    for k in range(1, L):
+                        if weight[i, k] > w_top:
+                            w_top = weight[i, k]
+                s = w_top * nee_scale[i, e, d]
+                r = nee_row[i, e, d]
+                if r >= 0:
+                    s *= t_max[r]
+                cidx[c, 0] = i
+                cidx[c, 1] = e
+                cidx[c, 2] = d
+                size[c] = s
+                binsum[hit_group[i] * D + d] += s
+                c += 1
+    draw = 0
+    for j in range(binsum.shape[0]):
+        cand[j] += binsum[j]
+    for q in range(c):
+        s = size[q]
+        p[q] = 1.0
+        state[q] = 1 if s > 0.0 else 0
+        level = level_scale * cand[hit_group[cidx[q, 0]] * D + cidx[q, 2]]
+        if level > s:
+            p[q] = s / level
+        if state[q] == 1 and p[q] < 1.0:
+            state[q] = 2
+            draw += 1
+    return c, draw
+
+
+@numba.njit(cache=True, nogil=True)
 def _shadow_rays(c, state, p, draws, cidx, nee_o, detectors, hit_group, wrap, lx, ly, traced, origins, towards):
     """The candidates traced (state 1, or 2 and the next of ``draws`` below ``p``: in order), their
     shadow rays' origins (into the cell for a felt) and directions. Returns how many."""
@@ -368,6 +434,29 @@ def _score_visible(t, traced, vis, cidx, p, nee_c, hit_ray, acc):
         pq = p[q]
         for k in range(L):
             acc[r, d, k] += nee_c[i, e, d, k] / pq
+
+
+@numba.njit(cache=True, nogil=True)
+def _score_visible_bounded(t, traced, vis, cidx, p, nee_row, nee_scale, weight, t_rows, hit_ray, acc):
+    """:func:`_score_visible` of deferred contributions: each visible traced candidate's contribution formed
+    as the shading forms it (``weight * t_rows[row] * scale``; the surface term, row -1, ``weight * scale``)
+    over its probability, added to its ray's detector, in order."""
+    L = weight.shape[1]
+    for j in range(t):
+        if not vis[j]:
+            continue
+        q = traced[j]
+        i, e, d = cidx[q, 0], cidx[q, 1], cidx[q, 2]
+        r = hit_ray[i]
+        pq = p[q]
+        sc = nee_scale[i, e, d]
+        row = nee_row[i, e, d]
+        if row < 0:
+            for k in range(L):
+                acc[r, d, k] += weight[i, k] * sc / pq
+        else:
+            for k in range(L):
+                acc[r, d, k] += weight[i, k] * t_rows[row, k] * sc / pq
 
 
 @numba.njit(cache=True, nogil=True)
@@ -466,7 +555,10 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     hpos, hd, hw = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L))
     work = ShadeOutputs(np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L)), np.empty((N, 2, 3)),
                         np.empty((N, 2, D, L)), np.zeros((N, 2, D), dtype=np.bool_), np.zeros(N),
-                        np.empty(N, np.int64))
+                        np.empty(N, np.int64), np.empty((N, 2, D), np.int64), np.empty((N, 2, D)))
+    # a fiber's contributions deferred: formed only for the candidates the roulette keeps (SHADOW_BOUND)
+    defer = roulette and bool(SHADOW_BOUND) and setup.kind == K_FIBER
+    inputs = setup.inputs._replace(defer_nee=True) if defer else setup.inputs
     cidx = np.empty((N * 2 * D, 3), np.int64)
     csize, cp = np.empty(N * 2 * D), np.empty(N * 2 * D)
     cstate = np.empty(N * 2 * D, np.int8)
@@ -499,14 +591,18 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
         for g in range(G):       # a seed for each group that has hits, drawn in the groups' order
             if cuts[g + 1] > cuts[g]:
                 seeds[g] = rng.integers(0, 2**62)
-        shade_groups(seeds, cuts, hp[:M], hu[:M], hv[:M], hpos[:M], hd[:M], hw[:M], setup.inputs, detectors, out)
-        o, d, w, nee_o, nee_c, need, alb, left = out
+        shade_groups(seeds, cuts, hp[:M], hu[:M], hv[:M], hpos[:M], hd[:M], hw[:M], inputs, detectors, out)
+        o, d, w, nee_o, nee_c, need, alb, left, nee_row, nee_scale = out
         if setup.kind == K_FIBER_BRDF:
             sums.hits += int(alb.size)
             sums.albedo_sum += float(alb.sum())
             sums.albedo_over_one += int(np.count_nonzero(alb > 1.0))
-        c, n_draw = _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, cidx, csize, cp,
-                                       cstate, binsum)
+        if defer:
+            c, n_draw = _bounded_candidates(need, nee_row, nee_scale, hw[:M], setup.t_max, hit_group, D, cand,
+                                            level_scale, cidx, csize, cp, cstate, binsum)
+        else:
+            c, n_draw = _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, cidx, csize, cp,
+                                           cstate, binsum)
         if c:
             sums.shadow_candidates += int(c)
             draws = shadow_rng.random(int(n_draw)) if n_draw else no_draws
@@ -517,7 +613,12 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
                 vis = scene.visible(s_orig[:t], s_dir[:t], stats)
                 sums.shadow_rays += int(t)
                 sums.shadow_queries += stats["queries"] - before
-                _score_visible(t, traced, np.ascontiguousarray(vis, dtype=np.bool_), cidx, cp, nee_c, h_ray, acc)
+                vis = np.ascontiguousarray(vis, dtype=np.bool_)
+                if defer:
+                    _score_visible_bounded(t, traced, vis, cidx, cp, nee_row, nee_scale, hw[:M], setup.t_rows,
+                                           h_ray, acc)
+                else:
+                    _score_visible(t, traced, vis, cidx, cp, nee_c, h_ray, acc)
         # Russian roulette on the largest spectral weight, then the live rays compacted
         n_low = _path_roulette(w, _ROULETTE_BELOW, low)
         draws = rng.random(int(n_low)) if n_low else no_draws
@@ -634,6 +735,32 @@ def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit
                   normals=normals, setups=setups, max_events=max_events, fit_last_round=True)
 
 
+def _setup_for(mesh: Any, material: Any, n_wavelengths: int | None, bins: tuple[int, int],
+               twist_deg: tuple[float, float], normals: str, setups: dict | None) -> _Setup:
+    """The :class:`_Setup` of a trace: from ``setups`` when there, else built (and kept there)."""
+    if n_wavelengths is None:
+        n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
+                         else int(np.size(material.rho)))
+    if normals not in ("vertex", "face"):
+        raise ValueError(f"trace: normals must be 'vertex' or 'face', got {normals!r}")
+    key = (id(mesh), id(material), int(n_wavelengths), tuple(bins), tuple(twist_deg), normals)
+    setup = setups.get(key) if setups is not None else None
+    if setup is None:
+        setup = _Setup(mesh, material, int(n_wavelengths), bins, twist_deg, normals)
+        if setups is not None:
+            setups[key] = setup
+    return setup
+
+
+def prepare(mesh: Any, material: Any, setups: dict, *, n_wavelengths: int | None = None,
+            bins: tuple[int, int] = (9, 12), twist_deg: tuple[float, float] = (0.0, 0.0),
+            normals: str = "vertex") -> None:
+    """Build into ``setups`` the scene and material arrays that :func:`trace` or :func:`trace_rotations`
+    with the same arguments and ``setups`` would build at its start (e.g. on another thread while an
+    earlier mesh is traced: :func:`simulate.woven.estimate.fabric_beta`); the traces then start at once."""
+    _setup_for(mesh, material, n_wavelengths, bins, twist_deg, normals, setups)
+
+
 def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavelengths: int | None, *,
            target_rel_err: float, max_rays: int, max_seconds: float, seed: int, threads: int, progress: bool,
            bins: tuple[int, int], chunk: int, twist_deg: tuple[float, float], normals: str,
@@ -658,17 +785,7 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
         warnings.warn("fabric MC: directions more than 85 deg from the normal: the next-event radiance goes "
                       "as 1/cos(theta_o) and few rays reach the fabric at grazing incidence; the relative "
                       "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=3)
-    if n_wavelengths is None:
-        n_wavelengths = (material.table.T.shape[-1] if isinstance(material, (FiberSurface, FiberBRDFAtHit))
-                         else int(np.size(material.rho)))
-    if normals not in ("vertex", "face"):
-        raise ValueError(f"trace: normals must be 'vertex' or 'face', got {normals!r}")
-    key = (id(mesh), id(material), int(n_wavelengths), tuple(bins), tuple(twist_deg), normals)
-    setup = setups.get(key) if setups is not None else None
-    if setup is None:
-        setup = _Setup(mesh, material, int(n_wavelengths), bins, twist_deg, normals)
-        if setups is not None:
-            setups[key] = setup
+    setup = _setup_for(mesh, material, n_wavelengths, bins, twist_deg, normals, setups)
     L = setup.n_wl
     D = det.shape[1]
     total = _new_sums(G, D, L, bins)

@@ -70,11 +70,18 @@ class ShadeInputs(NamedTuple):
     face_normals: bool
     layer_d: float = 0.0
     axial_shift: bool = False
+    defer_nee: bool = False
+    """A fiber's next-event contributions deferred (:class:`ShadeOutputs`' ``nee_row``, ``nee_scale``)."""
 
 
 class ShadeOutputs(NamedTuple):
     """Per hit ray: the continuing ray (origin, direction, spectral weight; a zero row is dead),
-    next-event origins, contributions and flags (event 0: surface, 1: volume exit), local albedo."""
+    next-event origins, contributions and flags (event 0: surface, 1: volume exit), local albedo.
+
+    With ``defer_nee`` (:class:`ShadeInputs`; a fiber material) ``nee_c`` is not written: a flagged
+    contribution is ``weight[i, k] * T2[nee_row, k] * nee_scale`` with ``T2`` the table's rows
+    (``T.reshape(-1, L)``), or ``weight[i, k] * nee_scale`` where ``nee_row`` is -1 (the surface term):
+    the same products, computed by the tracer only for the candidates it keeps."""
 
     out_o: np.ndarray
     out_d: np.ndarray
@@ -84,13 +91,16 @@ class ShadeOutputs(NamedTuple):
     nee_need: np.ndarray
     hit_albedo: np.ndarray
     out_prim: np.ndarray
+    nee_row: np.ndarray
+    nee_scale: np.ndarray
 
 
 def new_outputs(n: int, n_detectors: int, n_wavelengths: int) -> ShadeOutputs:
     """Output arrays for ``n`` hit rays."""
     return ShadeOutputs(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n_wavelengths)), np.zeros((n, 2, 3)),
                         np.zeros((n, 2, n_detectors, n_wavelengths)), np.zeros((n, 2, n_detectors), dtype=np.bool_),
-                        np.zeros(n), np.full(n, -1, dtype=np.int64))
+                        np.zeros(n), np.full(n, -1, dtype=np.int64), np.zeros((n, 2, n_detectors), dtype=np.int64),
+                        np.zeros((n, 2, n_detectors)))
 
 
 @numba.njit(cache=True)
@@ -404,6 +414,9 @@ def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, o
     out_o, out_d, out_w, nee_o, nee_c, nee_need, hit_albedo = (out.out_o, out.out_d, out.out_w, out.nee_o,
                                                               out.nee_c, out.nee_need, out.hit_albedo)
     out_prim = out.out_prim
+    defer = inp.defer_nee
+    nee_row, nee_scale = out.nee_row, out.nee_scale
+    rows_per_node = T.shape[1] * T.shape[2]
     # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
     # every call reproducible whatever thread runs it (no state is shared between calls)
     np.random.seed(seed)
@@ -613,6 +626,10 @@ def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, o
                 if val > 0.0:
                     val *= corr_in * (wx * gx + wy * gy + wz * gz) / on
                     nee_need[i, 0, d] = True
+                    if defer:
+                        nee_row[i, 0, d] = -1
+                        nee_scale[i, 0, d] = val
+                        continue
                     for k in range(L):
                         nee_c[i, 0, d, k] = weight[i, k] * val
         if kind == K_FIBER_BRDF:
@@ -751,6 +768,10 @@ def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, o
                 c2 = c_first + jm * n_phi + jp
                 scale = entry_nee * corr_in * cg * ratio / (om * cb * p_ov)
                 nee_need[i, 1, d] = True
+                if defer:
+                    nee_row[i, 1, d] = j * rows_per_node + kr * T.shape[2] + c2
+                    nee_scale[i, 1, d] = scale
+                    continue
                 for k in range(L):
                     nee_c[i, 1, d, k] = weight[i, k] * T[j, kr, c2, k] * scale
         # continuation

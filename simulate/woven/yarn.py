@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 import time
 from typing import Any, Callable
@@ -163,20 +164,29 @@ def _tables(fiber: Any, wavelengths_nm: Any, seeds: list[int], threads: int | No
     keys: list[str] = [""] * len(seeds)
     found: list[Any] = [None] * len(seeds)
     for i, seed in enumerate(seeds):
-        started = time.perf_counter()
         if not use:
-            continue
+            break
         try:
             keys[i] = table_key(fiber, wl, w_t_nodes=nodes, n_v=n_v, v_max_R=v_max_R, n_mu=n_mu, n_phi=n_phi,
                                 photons_per_row=photons_per_row, seed=seed, held_log_mu_s=held_log_mu_s)
         except TypeError as exc:  # a medium without a canonical form: no key, no cache
             use = False
             log.warning("yarn table: not cached (%s)", exc)
-            continue
-        arrays = tablecache.load(keys[i])
-        if arrays is not None:
-            found[i] = _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl,
-                                    time.perf_counter() - started, "hit")
+
+    def load(key: str) -> tuple[Any, float]:
+        started = time.perf_counter()
+        return tablecache.load(key), time.perf_counter() - started
+
+    if use:
+        # the halves read side by side (the file reads and their CRC-32s release the GIL), unless one thread
+        if threads == 1 or len(seeds) == 1:
+            loaded = [load(k) for k in keys]
+        else:
+            with ThreadPoolExecutor(max_workers=len(seeds)) as pool:
+                loaded = list(pool.map(load, keys))
+        for i, (arrays, seconds) in enumerate(loaded):
+            if arrays is not None:
+                found[i] = _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl, seconds, "hit")
     missing = [i for i in range(len(seeds)) if found[i] is None]
     if missing:
         if optics is None:

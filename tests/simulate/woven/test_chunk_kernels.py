@@ -156,6 +156,55 @@ def test_shadow_candidates_match_numpy(seed, roulette):
         assert np.any(acc_ref != 0.0)
 
 
+@pytest.mark.parametrize("seed", [7, 8])
+def test_bounded_candidates_match_numpy(seed):
+    """The roulette on deferred contributions (integrator.SHADOW_BOUND): sizes the bounds
+    ``max_k weight * scale * t_max[row]`` (the surface term, row -1, ``max_k weight * scale``), the visible
+    kept ones scored with ``weight * t_rows[row] * scale`` (or ``weight * scale``) over their probability."""
+    rng = np.random.default_rng(seed)
+    G, D, L, n, M, R = 2, 3, 5, 40, 50, 30
+    hit_ray = np.sort(rng.choice(G * n, M, replace=False))
+    hit_group = hit_ray // n
+    need = rng.random((M, 2, D)) < 0.6
+    row = rng.integers(0, R, (M, 2, D))
+    row[:, 0] = -1                                     # the surface terms
+    scale = rng.random((M, 2, D)) ** 3
+    weight = rng.random((M, L)) ** 2
+    weight[rng.random(M) < 0.1] = 0.0                  # dead rays: zero bounds, never traced
+    t_rows = rng.random((R, L)) ** 4
+    t_max = t_rows.max(axis=1)
+    cand = rng.random(G * D)
+    cand_ref = cand.copy()
+    K = M * 2 * D
+    cidx, size, p = np.empty((K, 3), np.int64), np.empty(K), np.empty(K)
+    state, binsum = np.empty(K, np.int8), np.zeros(G * D)
+    c, n_draw = I._bounded_candidates(need, row, scale, weight, t_max, hit_group, D, cand, I.SHADOW_LEVEL / n,
+                                      cidx, size, p, state, binsum)
+    i, e, d = np.nonzero(need)
+    bound = weight.max(axis=1)[i] * scale[i, e, d]
+    bound = np.where(row[i, e, d] >= 0, bound * t_max[row[i, e, d]], bound)
+    assert c == i.size and np.array_equal(cidx[:c], np.column_stack([i, e, d])) and np.array_equal(size[:c], bound)
+    flat = hit_group[i] * D + d
+    cand_ref += np.bincount(flat, weights=bound, minlength=G * D)
+    assert np.array_equal(cand, cand_ref)
+    level = I.SHADOW_LEVEL / n * cand_ref[flat]
+    p_ref = np.where(level > bound, bound / level, 1.0)
+    assert np.array_equal(p[:c], p_ref)
+    assert np.array_equal(state[:c], np.where(bound > 0.0, np.where(p_ref < 1.0, 2, 1), 0))
+    assert n_draw == np.count_nonzero(state[:c] == 2) > 0
+    # every kept candidate scored: the contributions the shading would have formed, over p
+    traced = np.nonzero(state[:c] > 0)[0]
+    vis = rng.random(traced.size) < 0.5
+    acc, acc_ref = np.zeros((G * n, D, L)), np.zeros((G * n, D, L))
+    I._score_visible_bounded(traced.size, traced, vis, cidx, p, row, scale, weight, t_rows, hit_ray, acc)
+    for q in traced[vis]:
+        a, b, k = cidx[q]
+        r = row[a, b, k]
+        contrib = weight[a] * t_rows[r] * scale[a, b, k] if r >= 0 else weight[a] * scale[a, b, k]
+        acc_ref[hit_ray[a], k] += contrib / p[q]
+    assert np.array_equal(acc, acc_ref) and np.any(acc != 0.0)
+
+
 # ------------------------------------------------------------------------------------------------
 # the path's roulette and the compaction of the live rays
 

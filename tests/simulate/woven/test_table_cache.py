@@ -180,3 +180,53 @@ def test_the_tables_rows_are_the_per_node_rows_bit_for_bit(cache):
                                        targets, make_control(), 1500, 9 + 104729 * j, 1)
             got = tab.T[j][..., int(g[0]):int(g[-1]) + 1]
             assert got.tobytes() == ref.reshape(got.shape).tobytes()
+
+
+def test_halves_read_side_by_side_and_a_felt_run_on_two_threads_are_the_serial_ones(cache, monkeypatch):
+    """The cached halves are read on two threads (``threads`` not 1) and the second half's scene and table
+    arrays built on another thread while the first half traces: the tables are the ones read one after the
+    other, bit for bit, and a felt's ``fabric_beta`` the one of a single thread."""
+    from simulate.fabric import structure as ST
+    from simulate.nonwoven.felt import felt_mesh
+    from simulate.woven import integrator as I
+
+    fib = _fiber()
+    kw = dict(_SMALL, photons_per_row=1000)
+    computed = W.table_halves(fib, [500.0, 600.0], seed=5, threads=1, **kw)
+    loads: list = []
+    load = tc.load
+
+    def counted(key):
+        loads.append(key)
+        return load(key)
+
+    monkeypatch.setattr(tc, "load", counted)
+    serial = W.table_halves(fib, [500.0, 600.0], seed=5, threads=1, **kw)
+    side = W.table_halves(fib, [500.0, 600.0], seed=5, threads=2, **kw)
+    assert [t.cache for t in computed] == ["miss", "miss"] and [t.cache for t in side] == ["hit", "hit"]
+    assert len(loads) == 4 and loads[:2] == loads[2:] and loads[0] != loads[1]
+    for a, b, c in zip(computed, serial, side):
+        for name, x in _fields(a).items():
+            assert x.tobytes() == getattr(b, name).tobytes() == getattr(c, name).tobytes(), name
+    # a felt pair at two incidences: the first half's setup built first, the second's by integrator.prepare on
+    # another thread
+    spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=15.0, layers=3)
+    meshes = (felt_mesh(spec, 10.0, seed=0), felt_mesh(spec, 10.0, seed=1))
+    w_i = np.array([[0.3, 0.0, 0.954], [0.0, 0.5, 0.866], [0.3, 0.0, 0.954]])
+    w_o = np.array([[0.0, 0.0, 1.0], [0.4, 0.1, 0.911], [0.2, -0.3, 0.933]])
+    prepared: list = []
+    prepare = I.prepare
+
+    def watched(mesh, material, setups, **k):
+        prepared.append(mesh)
+        prepare(mesh, material, setups, **k)
+
+    monkeypatch.setattr(W.estimate, "prepare", watched)
+    one = W.fabric_beta(meshes, fib, w_i, w_o, [500.0, 600.0], target_rel_err=0.3, seed=2, threads=1,
+                        tables=serial)
+    assert prepared == []
+    two = W.fabric_beta(meshes, fib, w_i, w_o, [500.0, 600.0], target_rel_err=0.3, seed=2, threads=2,
+                        tables=serial)
+    assert len(prepared) == 2 and prepared[0] is meshes[0] and prepared[1] is meshes[1]
+    assert one[0].tobytes() == two[0].tobytes() and one[1].tobytes() == two[1].tobytes()
+    assert np.all(one[0] > 0.0)
