@@ -255,10 +255,10 @@ def _makefile_demo() -> list[str]:
     """The Makefile's demo recipe as the commands a user types (variables substituted; the console
     scripts' path, --no-progress and --force -- the Makefile re-runs into its own folder -- dropped)."""
     text = (ROOT / "Makefile").read_text(encoding="utf-8")
+    text = text.replace("$(FIT_VERDICT)", "")          # make's "a fit labelled failing goes on"
     variables: dict[str, str] = {}
     for k, v in re.findall(r"^(\w+)\s*[:?]?=\s*(.*)$", text, flags=re.M):
         variables.setdefault(k, v.strip())
-    text = text.replace("$(FIT_VERDICT)", "")          # make's "a fit labelled failing goes on"
     recipe = re.search(r"^demo:.*?\n((?:\t.*\n)+)", text, flags=re.M)
     assert recipe, "the Makefile lost its demo target"
     out = []
@@ -268,8 +268,13 @@ def _makefile_demo() -> list[str]:
             continue
         while re.search(r"\$\((\w+)\)", line):
             line = re.sub(r"\$\((\w+)\)", lambda m: variables[m.group(1)], line)
-        line = line.replace(".venv/bin/", "").replace(" --no-progress", "").replace(" --force", "")
-        out.append(" ".join(line.split()))
+        # steps side by side, ``BG & beside=$$!; FG1 && FG2; s=$$?; wait ...``: the foreground's, then the one beside
+        background, _, foreground = line.rpartition(" & beside=$$!; ")
+        steps = foreground.split("; s=$$?;")[0].split(" && ") + ([background] if background else [])
+        for step in steps:
+            step = step.strip().removeprefix("( ").removesuffix(" )")
+            step = step.replace(".venv/bin/", "").replace(" --no-progress", "").replace(" --force", "")
+            out.append(" ".join(step.split()))
     return out
 
 

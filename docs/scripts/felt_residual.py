@@ -4,6 +4,7 @@
     python docs/scripts/felt_residual.py decompose FILE RUN [RUN ...] [--max-incidence 59.52] [--json OUT]
     python docs/scripts/felt_residual.py noise FILE RUN_A RUN_B [...] # pairs of seeds of one config: the noise
     python docs/scripts/felt_residual.py combine FILE BASE --runs DIR --out CONFIG   # every field at once
+    python docs/scripts/felt_residual.py permute FILE.bsdf --order gbr --out OTHER.bsdf # another colour
 
 ``decompose`` compares each ``RUN`` (a ``simulate fabric`` dataset) with ``FILE`` (``gonio truth`` of the felt's
 file) exactly as ``compare check`` does (:func:`compare.comparison.compare_datasets`: the per-channel factor at the
@@ -24,12 +25,16 @@ The Monte Carlo noise part: ``noise`` takes two seeds of one config and estimate
 normal/normal value that sets each band's factor is in it). ``nrmse_noise_u`` is the same from the points' own
 ``u_sim`` as if independent (it leaves out the factor's noise and its correlation with the points').
 ``nrmse_best_scale`` is the NRMSE with each band's factor the least-squares one over the kept points instead of
-the normal's (the shape error with the normalisation point taken out). ``forward_rise``: per incidence,
+the normal's (the shape error with the normalisation point taken out). ``by_band_group`` (and
+``by_band_group_region``, ``forward_rise_by_band_group``): the same over the wavelength thirds of
+:data:`BAND_GROUPS` (which colour carries an error). ``forward_rise``: per incidence,
 ``beta(s = 70) / beta(s = 30)`` in plane, file and model (:func:`forward_rise`); ``profile``: per incidence and
 in-plane ``s``, the model over the file (band sums, :func:`profile`).
 ``combine`` takes the one-at-a-time runs (``DIR/<variant>``, each field's two) and the preset's ``BASE`` run
 and writes the config with every continuous field changed at once where a separable quadratic through each
 field's three runs, fitted point by point, predicts the least NRMSE within the scanned ranges (:func:`combine`).
+``permute`` writes an RGB RGL file with its channels reordered (``gbr``: new R, G, B = old G, B, R), the same
+felt in another colour for a dye-only refit.
 Bad input (a missing dataset, an incidence limit that keeps no point) is one line naming it, exit 2.
 """
 
@@ -52,6 +57,9 @@ PRESET = ROOT / "simulate" / "configs" / "green-felt-mc.toml"
 REGIONS = ("back", "near", "forward", "grazing", "ring-6", "ring-30")
 RINGS_DEG = (6.0, 30.0)
 GRAZING_DEG = 70.0
+#: wavelength groups (name, first, last band in nm): the blue, green and red thirds an RGB file's spectra come from
+BAND_GROUPS: tuple[tuple[str, float, float], ...] = (("390-500 nm", 390.0, 500.0), ("510-580 nm", 510.0, 580.0),
+                                                      ("590-710 nm", 590.0, 710.0))
 
 #: (name, TOML section, key, value): one field of ``green-felt-mc.toml`` changed, each both ways where it can be
 VARIANTS: tuple[tuple[str, str, str, Any], ...] = (
@@ -188,6 +196,15 @@ def forward_rise(frame: pd.DataFrame, low_deg: float = 30.0, high_deg: float = G
     return out
 
 
+def band_group(wavelength_nm: np.ndarray) -> np.ndarray:
+    """The :data:`BAND_GROUPS` name of each wavelength (``"other"`` outside them)."""
+    w = np.asarray(wavelength_nm, dtype=float)
+    out = np.full(w.shape, "other", dtype=object)
+    for name, lo, hi in BAND_GROUPS:
+        out[(w >= lo - 1e-9) & (w <= hi + 1e-9)] = name
+    return out
+
+
 def profile(frame: pd.DataFrame) -> dict[str, dict[str, float]]:
     """Per incidence and in-plane ``s``: the model over the file, each summed over the bands (the curve's shape
     error where it lies)."""
@@ -235,6 +252,9 @@ def decompose_frame(frame: pd.DataFrame, near_deg: float = 20.0,
     band_order = [band_label(b) for b in sorted(set(frame["wavelength_nm"].to_numpy(float)))]
     plane = np.where(np.isfinite(frame["s"].to_numpy(float)), "in plane", "out of plane").astype(object)
     cross = np.array([f"{a}|{b}" for a, b in zip(inc, reg)], dtype=object)
+    group = band_group(frame["wavelength_nm"].to_numpy(float))
+    groups = [g for g, _, _ in BAND_GROUPS] + (["other"] if np.any(group == "other") else [])
+    group_reg = np.array([f"{a}|{b}" for a, b in zip(group, reg)], dtype=object)
     nrmse = math.sqrt(float(np.mean(d * d))) / m
     noise = math.sqrt(float(np.mean(u * u))) / m
     return {"n": n, "mean_meas": m, "nrmse": nrmse, "nrmse_noise_u": noise,
@@ -244,7 +264,10 @@ def decompose_frame(frame: pd.DataFrame, near_deg: float = 20.0,
             "by_region": _parts(d, u, meas, m, reg, list(REGIONS)),
             "by_incidence_region": _parts(d, u, meas, m, cross, [f"{a}|{b}" for a in incidences for b in REGIONS]),
             "by_band": _parts(d, u, meas, m, bands, band_order),
-            "by_plane": _parts(d, u, meas, m, plane, ["in plane", "out of plane"])}
+            "by_plane": _parts(d, u, meas, m, plane, ["in plane", "out of plane"]),
+            "by_band_group": _parts(d, u, meas, m, group, groups),
+            "by_band_group_region": _parts(d, u, meas, m, group_reg, [f"{a}|{b}" for a in groups for b in REGIONS]),
+            "forward_rise_by_band_group": {g: forward_rise(frame[group == g]) for g in groups}}
 
 
 def seed_noise(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
@@ -338,10 +361,33 @@ def _print(run: str, res: dict[str, Any]) -> None:
     rise = ", ".join(f"{t}: {r['measured']:.2f}/{r['simulated']:.2f}" for t, r in res["forward_rise"].items())
     print(f"{run}: NRMSE {res['nrmse']:.4f} over {res['n']} points (u_sim-based noise {res['nrmse_noise_u']:.4f}; "
           f"best scale per band {res['nrmse_best_scale']:.4f}; forward rise file/model {rise})" + "".join(f", {k} {v:+.4f}" for k, v in res.get("colour", {}).items()))
-    for part in ("by_incidence", "by_region", "by_band", "by_plane", "by_incidence_region"):
+    for part in ("by_incidence", "by_region", "by_band", "by_band_group", "by_plane", "by_incidence_region",
+                 "by_band_group_region"):
         print(f"  {part}: " + "; ".join(
             f"{k} n{v['n']} share {100 * v['share']:.1f}% own {v['nrmse_own']:.3f} rms {v['rms_rel']:.3f} bias {v['bias_rel']:+.3f} "
             f"without {v['nrmse_without']:.3f}" for k, v in res[part].items() if v["n"]))
+
+
+def permute_channels(src: Path, out: Path, order: str, force: bool = False) -> None:
+    """Write the RGB RGL ``.bsdf`` file ``src`` with its channels reordered: ``order`` names the old channel each
+    new R, G, B takes (``"gbr"``: new R, G, B = old G, B, R); every other field (the sampling tables) is kept."""
+    from gonio.data.bsdf_export import write_tensor_file
+    from gonio.data.formats.errors import FormatError
+    from gonio.data.formats.tensor import parse_tensor_bytes
+
+    if sorted(order) != ["b", "g", "r"]:
+        raise InputError(f"--order {order}: give the three letters r, g, b once each (e.g. gbr)")
+    if out.exists() and not force:
+        raise InputError(f"{out} exists; pass --force to replace it")
+    try:
+        fields = parse_tensor_bytes(src.read_bytes(), src)
+    except (OSError, FormatError) as exc:
+        raise InputError(f"{src}: not a readable tensor file ({str(exc).splitlines()[0]})") from None
+    rgb = fields.get("rgb")
+    if rgb is None or rgb.ndim != 5 or rgb.shape[2] != 3:
+        raise InputError(f"{src}: no 'rgb' field of shape [phi_i, theta_i, 3, n, n]; give an RGB RGL .bsdf file")
+    fields["rgb"] = np.ascontiguousarray(rgb[:, :, ["rgb".index(c) for c in order]])
+    write_tensor_file(out, fields)
 
 
 def _combine(args) -> int:
@@ -408,6 +454,11 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--preset", type=Path, default=PRESET)
     c.add_argument("--out", type=Path, required=True, help="the combined config (TOML) to write")
     c.add_argument("--force", action="store_true")
+    pm = sub.add_parser("permute", help="an RGB RGL .bsdf file with its channels reordered (another colour)")
+    pm.add_argument("src", type=Path)
+    pm.add_argument("--order", required=True, help="the old channel each new R, G, B takes, e.g. gbr")
+    pm.add_argument("--out", type=Path, required=True)
+    pm.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     try:
         if args.cmd == "variants":
@@ -416,6 +467,10 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.cmd == "combine":
             return _combine(args)
+        if args.cmd == "permute":
+            permute_channels(args.src, args.out, args.order.lower(), args.force)
+            print(args.out)
+            return 0
         if args.cmd == "noise":
             if len(args.runs) % 2:
                 raise InputError(f"noise: {len(args.runs)} runs given; give pairs (two seeds of one config each)")

@@ -6,7 +6,9 @@
 The run is ``make demo`` step by step: ``make venv`` (the virtual environment; nothing to do when it
 exists), then each command of the demo's recipe as ``make -n demo`` prints it, run by ``sh -c`` in the
 repository, in order, stopping at the first that fails. Each step's wall time and peak memory are
-recorded; peak memory is the largest resident set of any one process (``wait4``'s resource usage of the
+recorded, and its CPU time (``cpu_steps``: user + system of the line's processes); a line of steps side by
+side (the recipe runs independent steps two at a time) is one step, named after both. Peak memory is the
+largest resident set of any one process (``wait4``'s resource usage of the
 step's shell, which covers its waited-for children, as ``/usr/bin/time -v`` reports it). Run it from a
 fresh clone on an otherwise idle machine: that is what the README's cost figure promises a new user.
 """
@@ -35,12 +37,37 @@ def recipe() -> list[str]:
     return [line for line in done.stdout.splitlines() if line.strip() and not line.lstrip().startswith("echo ")]
 
 
+#: the recipe's mark of two steps side by side: ``A & beside=$!; B ...; wait $beside`` (A in the background)
+BESIDE = " & beside=$!; "
+
+
+def _program_names(command: str) -> list[str]:
+    """The short names of the project commands in one shell command line, in order (:func:`step_name`)."""
+    lex = shlex.shlex(command, posix=True, punctuation_chars=True)
+    lex.whitespace_split = True
+    names: list[str] = []
+    words: list[str] = []
+    for token in [*lex, ";"]:
+        if token in ("&", "&&", ";", "||", "|", "(", ")"):
+            if words and Path(words[0]).name in ("gonio", "simulate", "compare"):
+                name = " ".join([Path(words[0]).name, *words[1:2]])
+                if "--method" in words:
+                    name += f" --method {words[words.index('--method') + 1]}"
+                names.append(name)
+            words = []
+        else:
+            words.append(token)
+    return names
+
+
 def step_name(command: str) -> str:
-    """A short name of one demo command: its program, subcommand and method, e.g. ``simulate fit --method mc``."""
-    words = shlex.split(command.split("||")[0])
-    name = " ".join([Path(words[0]).name, *words[1:2]])
-    if "--method" in words:
-        name += f" --method {words[words.index('--method') + 1]}"
+    """A short name of one demo command: its program, subcommand and method, e.g. ``simulate fit --method mc``;
+    a line of steps side by side (:data:`BESIDE`) names the foreground's steps (``+``) and then the one beside them,
+    e.g. ``gonio demo beside simulate fabric --method summation``."""
+    background, _, foreground = command.rpartition(BESIDE)
+    name = " + ".join(_program_names(foreground))
+    if background:
+        name += " beside " + " + ".join(_program_names(background))
     return name
 
 
@@ -58,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--conditions", default="", help="how the run was made, e.g. 'fresh clone, idle machine'")
     args = ap.parse_args(argv)
     steps: dict[str, float] = {}
+    cpu_steps: dict[str, float] = {}
     totals = [0.0, 0.0, 0.0]  # wall, CPU, peak RSS
 
     def step(label: str, cmd: list[str]) -> int:
@@ -68,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         while label in steps:
             label += " (again)"
         steps[label] = round(secs, 1)
+        cpu_steps[label] = round(cpus, 1)
         totals[:] = [totals[0] + secs, totals[1] + cpus, max(totals[2], rss)]
         return 0
 
@@ -80,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
             return code
     wall, cpu, peak = totals
     data = {"wall_seconds": round(wall, 1), "cpu_seconds": round(cpu, 1), "peak_rss_mb": round(peak, 1),
-            "steps": steps, "conditions": args.conditions}
+            "steps": steps, "cpu_steps": cpu_steps, "conditions": args.conditions}
     with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as f:
         json.dump(data, f)
     print(record("demo", Path(f.name), "make demo"))

@@ -181,8 +181,9 @@ def fig_demo_cost() -> str:
             ["peak memory (largest process)", f"{d['peak_rss_mb'] / 1024:.1f} GB"]]
     if d.get("cpu_seconds"):
         rows.append(["CPU time (user + system)", f"{d['cpu_seconds']:.0f} s"])
+    cpu = d.get("cpu_steps", {})
     for step, secs in d.get("steps", {}).items():
-        rows.append([f"wall time of `{step}`", f"{secs:.0f} s"])
+        rows.append([f"wall time of `{step}`", f"{secs:.0f} s" + (f" ({cpu[step]:.0f} CPU s)" if step in cpu else "")])
     note = f" ({d['conditions']})" if d.get("conditions") else ""
     return _table(["figure", "value"], rows) + "\n\n" + _source(rec, note)
 
@@ -467,11 +468,81 @@ def fig_felt_residual_sensitivity() -> str:
     return _residual_runs(rec) + "\n\n" + _source(rec, note)
 
 
+def _third_cells(runs: list[dict[str, Any]], group: str) -> tuple[str, str]:
+    """Mean over ``runs`` of a wavelength third's part of ``NRMSE^2`` (its forward side's in brackets), and the
+    model's forward rise at 30 / 45 deg there."""
+    part = statistics.fmean(r["by_band_group"][group]["contribution"] for r in runs)
+    fwd = statistics.fmean(r["by_band_group_region"][f"{group}|forward"]["contribution"] for r in runs)
+    rise = " / ".join(f"{statistics.fmean(r['forward_rise_by_band_group'][group][t]['simulated'] for r in runs):.2f}"
+                      for t in ("30", "45"))
+    return f"{part:.4f} ({fwd:.4f})", rise
+
+
+def _residual_thirds(green: dict[str, Any], permuted: dict[str, Any]) -> str:
+    """Per wavelength third: the green preset's runs at 3 % against the green file and the permuted refit's runs
+    (all but the one at the preset's dye) against the permuted file, each third's part of ``NRMSE^2`` (the forward side's) and the forward rise, file and model."""
+    g_runs = [r for k, r in green["runs"].items() if _residual_label(k).startswith("`preset-t3-")]
+    p_runs = [r for k, r in permuted["runs"].items() if "preset-dye" not in k]
+    header = ["wavelengths", "green: file's rise at 30 / 45 deg", "green preset: NRMSE² part (forward), its rise",
+              "permuted: file's rise at 30 / 45 deg", "permuted refit: NRMSE² part (forward), its rise",
+              "permuted less green: NRMSE² part (forward)"]
+    rows = []
+    for group in g_runs[0]["by_band_group"]:
+        cells = []
+        for runs in (g_runs, p_runs):
+            file_rise = " / ".join(f"{runs[0]['forward_rise_by_band_group'][group][t]['measured']:.2f}" for t in ("30", "45"))
+            part, rise = _third_cells(runs, group)
+            cells += [file_rise, f"{part}, {rise}"]
+        diff = (statistics.fmean(r["by_band_group"][group]["contribution"] for r in p_runs)
+                - statistics.fmean(r["by_band_group"][group]["contribution"] for r in g_runs))
+        diff_f = (statistics.fmean(r["by_band_group_region"][f"{group}|forward"]["contribution"] for r in p_runs)
+                  - statistics.fmean(r["by_band_group_region"][f"{group}|forward"]["contribution"] for r in g_runs))
+        rows.append([group, *cells, f"{diff:+.4f} ({diff_f:+.4f})"])
+    total = [statistics.fmean(r["nrmse"] ** 2 for r in runs) for runs in (g_runs, p_runs)]
+    rows.append(["all", "-", f"{total[0]:.4f} (NRMSE {math.sqrt(total[0]):.3f})", "-",
+                 f"{total[1]:.4f} (NRMSE {math.sqrt(total[1]):.3f})", f"{total[1] - total[0]:+.4f}"])
+    return _table(header, rows)
+
+
+def fig_felt_residual_permuted() -> str:
+    """The green felt's file with its channels permuted, refitted in the dye only, against the permuted file; by
+    wavelength third beside the green preset against the green file."""
+    rec = load("felt-residual-permuted")
+    green = load("felt-residual")
+    note = (" (`FILE`: `gonio truth felt_gbr.bsdf --plan green-felt`, felt_gbr.bsdf the green felt's file with new "
+            "R, G, B = old G, B, R; DATA `gonio demo --sample felt_gbr.bsdf --plan green-felt`; `FIT` `simulate fit "
+            "green-felt-mc DATA --method mc --free dye --max-runs 3 --target-rel-err 0.03 --out FIT`: "
+            "`permuted-preset-dye` its first run (`FIT/initial`, the preset's dye, seed 0), `permuted-dye-s0` its result "
+            "(`FIT/fitted`), `permuted-dye-sS` `simulate fabric FIT/fitted.toml --method mc --plan green-felt "
+            "--target-rel-err 0.03 --seed S --threads 1`). "
+            "Second table: per wavelength third, the mean of the green preset's three seeds at 3 % "
+            "(`docs/data/felt-residual.json`) against the green file and of the refitted dye's runs above against the "
+            "permuted file: the third's part of NRMSE² "
+            "(its forward side's in brackets; the parts add up to NRMSE²) and the forward rise β(70)/β(30) at 30 / 45 deg")
+    return (_residual_runs(rec) + "\n\n" + _residual_thirds(green["data"], rec["data"]) + "\n\n"
+            + _source(rec, note))
+
+
+def fig_felt_residual_combined() -> str:
+    """The combined structure variant with its dye refitted, against the green file."""
+    rec = load("felt-residual-combined")
+    note = (" (`FILE`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`; the runs: "
+            "`preset-t3-sS` as in the first figure; DATA `gonio demo --sample fixtures/real/acrylic_felt_green_rgb.bsdf "
+            "--plan green-felt`; `FIT` `simulate fit combined.toml DATA --method mc --free dye --max-runs 3 "
+            "--target-rel-err 0.03 --out FIT`, combined.toml from `felt_residual.py combine`: `combined-t3-s0` its first "
+            "run (`FIT/initial`, the preset's dye, seed 0), `combined-dye-s0` its result (`FIT/fitted`), "
+            "`combined-dye-sS` `simulate fabric FIT/fitted.toml --method mc --plan green-felt --target-rel-err 0.03 "
+            "--seed S --threads 1`)")
+    return _residual_runs(rec) + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
     "felt-residual": fig_felt_residual,
     "felt-residual-measured": fig_felt_residual_measured,
     "felt-residual-noise": fig_felt_residual_noise,
     "felt-residual-sensitivity": fig_felt_residual_sensitivity,
+    "felt-residual-permuted": fig_felt_residual_permuted,
+    "felt-residual-combined": fig_felt_residual_combined,
     "felt-opposition": fig_felt_opposition,
     "felt-opposition-lambertian": fig_felt_opposition_lambertian,
     "felt-demo-plan": fig_felt_demo_plan,

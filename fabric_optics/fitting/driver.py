@@ -122,7 +122,7 @@ held, the model cannot reach the colour with these free parameters), and a searc
 Evaluation budget
 -----------------
 ``--max-evaluations N`` (default 800: on the demo's acquisition the classic fit converges in 205 evaluations and
-the summation fit, the colour held, in about 710) bounds the objective evaluations of the *search in all*:
+the summation fit, the colour held, in about 570) bounds the objective evaluations of the *search in all*:
 the start's figure, every trust-region step and every Jacobian column, over all ``--starts``. The
 search stops before a Jacobian it cannot complete and keeps the best point evaluated (with a
 warning). The uncertainty propagation afterwards (one Jacobian and 2 x 64 noise draws, all table

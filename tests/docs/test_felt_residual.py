@@ -201,3 +201,57 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
     res = json.loads((tmp_path / "r.json").read_text())["runs"][str(tmp_path / "run")]
     assert res["nrmse"] == pytest.approx(0.0, abs=1e-12)
     assert set(res["by_incidence"]) == {"0", "30"}
+
+
+def test_wavelength_thirds_split_the_error_and_the_forward_rise():
+    fr = _script()
+    assert list(fr.band_group(np.array([390.0, 500.0, 510.0, 580.0, 590.0, 710.0, 720.0]))) == [
+        "390-500 nm", "390-500 nm", "510-580 nm", "510-580 nm", "590-710 nm", "590-710 nm", "other"]
+    f = _frame()
+    red = (f["wavelength_nm"] == 600.0).to_numpy()
+    # the red band's residual twice the blue one's: four times its part of NRMSE^2
+    f.loc[red, "beta_sim"] = f.loc[red, "beta_meas"] + 2.0 * (f.loc[~red, "beta_sim"].to_numpy() - f.loc[~red, "beta_meas"].to_numpy())
+    f.loc[red & (f["s"] == 70.0).to_numpy(), "beta_sim"] *= 1.5
+    res = fr.decompose_frame(f)
+    groups = res["by_band_group"]
+    assert list(groups) == ["390-500 nm", "510-580 nm", "590-710 nm"]
+    assert groups["510-580 nm"] == {"n": 0}
+    assert groups["390-500 nm"]["contribution"] + groups["590-710 nm"]["contribution"] == pytest.approx(res["nrmse"] ** 2)
+    cross = [v for v in res["by_band_group_region"].values() if v["n"]]
+    assert sum(v["contribution"] for v in cross) == pytest.approx(res["nrmse"] ** 2, rel=1e-12)
+    blue_fwd = res["by_band_group_region"]["390-500 nm|forward"]
+    assert blue_fwd["bias_rel"] == pytest.approx(0.3 / f["beta_meas"].mean())
+    # the red forward residual at s = 70 is larger than four times the blue one's: its part more than four times
+    assert res["by_band_group_region"]["590-710 nm|forward"]["contribution"] > 4.0 * blue_fwd["contribution"]
+    assert res["by_band_group_region"]["590-710 nm|back"]["contribution"] == pytest.approx(
+        4.0 * res["by_band_group_region"]["390-500 nm|back"]["contribution"])
+    rise = res["forward_rise_by_band_group"]
+    assert rise["590-710 nm"] == fr.forward_rise(f[red])
+    # blue: file 1 -> 1 and model 1.3 -> 1.3 (rise 1); red: file 2 -> 2, model (2 + 0.6) -> (2 + 0.6) * 1.5
+    assert rise["390-500 nm"]["30"]["simulated"] == pytest.approx(1.0)
+    assert rise["590-710 nm"]["30"]["simulated"] == pytest.approx(1.5)
+    assert rise["590-710 nm"]["30"]["measured"] == pytest.approx(1.0)
+
+
+def test_permute_reorders_the_rgb_channels_and_keeps_the_rest(tmp_path, capsys):
+    from gonio.data.formats.tensor import parse_tensor_bytes
+    fr = _script()
+    src = ROOT / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"
+    out = tmp_path / "felt_gbr.bsdf"
+    code, _, err = _run(capsys, fr, ["permute", str(src), "--order", "gbr", "--out", str(out)])
+    assert code == 0, err
+    old, new = parse_tensor_bytes(src.read_bytes()), parse_tensor_bytes(out.read_bytes())
+    assert set(old) == set(new)
+    for k in old:
+        if k != "rgb":
+            np.testing.assert_array_equal(new[k], old[k])
+    # new R, G, B = old G, B, R
+    for new_c, old_c in ((0, 1), (1, 2), (2, 0)):
+        np.testing.assert_array_equal(new["rgb"][:, :, new_c], old["rgb"][:, :, old_c])
+    assert not np.array_equal(new["rgb"], old["rgb"])
+    for argv, words in ((["permute", str(src), "--order", "gbr", "--out", str(out)], "--force"),
+                        (["permute", str(src), "--order", "ggb", "--out", str(tmp_path / "x.bsdf")], "--order ggb"),
+                        (["permute", str(tmp_path / "none.bsdf"), "--order", "gbr", "--out", str(tmp_path / "y.bsdf")],
+                         "none.bsdf")):
+        code, _, err = _run(capsys, fr, argv)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and words in err and "Traceback" not in err

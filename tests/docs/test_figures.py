@@ -86,9 +86,20 @@ def test_the_demo_measurement_times_every_command_of_the_makefile_recipe():
     makefile = (ROOT / "Makefile").read_text(encoding="utf-8")
     recipe_lines = re.search(r"^demo: .*?\n((?:\t.*\n)+)", makefile, flags=re.M).group(1).splitlines()
     assert len(commands) == len([line for line in recipe_lines if not line.lstrip("\t").startswith("@echo")])
+    named = " + ".join(names).replace(" beside ", " + ").split(" + ")   # steps side by side: each named
     for method in ("classic", "summation", "mc"):
-        assert f"simulate fit --method {method}" in names
-    assert names[0] == "gonio demo" and names[-1] == "compare report"
+        assert f"simulate fit --method {method}" in named
+    assert named.count("simulate fit --method classic") == 1 and "simulate fabric --method summation" in named
+    assert names[0].startswith("gonio demo") and names[-1] == "compare report"
+
+
+def test_a_line_of_two_steps_side_by_side_names_both():
+    m = _measure()
+    line = ("( .venv/bin/simulate fit a m --method mc --out x || [ $? -eq 3 ] ) & beside=$!; ( .venv/bin/simulate "
+            "fit b m --method classic ) && ( .venv/bin/simulate fit c m --method summation ); s=$?; wait $beside")
+    assert m.step_name(line) == ("simulate fit --method classic + simulate fit --method summation beside "
+                                 "simulate fit --method mc")
+    assert m.step_name(".venv/bin/gonio truth f --plan measured --out t --force") == "gonio truth"
 
 
 def test_the_demo_measurement_sees_the_peak_memory_of_a_step_s_child_process():
