@@ -237,9 +237,9 @@ def test_a_foreign_non_empty_folder_is_refused_unless_forced(h, tmp_path, capsys
     assert json.loads((out / "metrics.json").read_text())["overall"]
 
 
-def test_a_previous_report_is_replaced_and_its_stale_figures_removed(h, tmp_path, capsys):
+def test_a_previous_report_is_replaced_and_its_stale_figures_removed(h, demo_like, tmp_path, capsys):
     out = tmp_path / "rep"
-    assert _run(_argv(h, out), capsys)[0] == 0
+    shutil.copytree(demo_like["out"], out)             # a report this tool wrote, copied not redrawn
     # a figure the previous report wrote (and listed) that the new one will not draw
     report = out / "report.html"
     text = report.read_text()
@@ -258,12 +258,11 @@ def test_a_previous_report_is_replaced_and_its_stale_figures_removed(h, tmp_path
     assert (out / "figures" / "mine.png").read_bytes() == b"mine"
 
 
-def test_write_report_refuses_in_the_library_too(h, tmp_path):
+def test_write_report_refuses_in_the_library_too(demo_like, tmp_path):
     out = tmp_path / "x"
     out.mkdir()
     (out / "data.csv").write_text("1,2\n")
-    comparison = compare_datasets(read_dataset(h.FIXTURES / "measured_red"),
-                                  [read_dataset(h.FIXTURES / "sim_scaled")])
+    comparison = demo_like["comparison"]
     with pytest.raises(CompareError, match=r"\(data.csv\)"):
         write_report(comparison, out)
     shutil.rmtree(out)
@@ -332,12 +331,11 @@ def _in_plane_o(strip):
     return in_plane_geometry(strip["theta_i"], float(strip["s"][0]), strip["phi_i"])
 
 
-def test_a_section_added_by_api_is_placed_written_listed_and_cleaned_up(h, tmp_path):
+def test_a_section_added_by_api_is_placed_written_listed_and_cleaned_up(demo_like, tmp_path):
     """compare.report.Section: another module adds a section without splicing HTML."""
     from compare.report import Section
 
-    comparison = compare_datasets(read_dataset(h.FIXTURES / "measured_red"),
-                                  [read_dataset(h.FIXTURES / "sim_lambert")])
+    comparison = demo_like["comparison"]               # measured_red vs sim_lambert
     out = tmp_path / "r"
     extra = [Section("mine", "<h2>My section</h2><p>x &lt; y</p>", figures={"mine.png": b"\x89PNG"},
                      before="curves"),
