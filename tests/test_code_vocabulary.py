@@ -49,6 +49,19 @@ def test_the_pattern_finds_history(text):
     assert HISTORY.search(text)
 
 
+def test_a_phrase_wrapped_across_lines_is_found(tmp_path, monkeypatch):
+    """The scan joins each line with the next one's words: a wrapped "issue" / "19" is found."""
+    pkg = tmp_path / "tests"
+    pkg.mkdir()
+    for j in range(201):
+        (pkg / f"m{j}.py").write_text("x = 1\n")
+    (pkg / "wrapped.py").write_text('"""In the published ranges (issue\n    19), not pink."""\n# a comment on the\n# stop\n')
+    for name, value in (("ROOT", tmp_path), ("FOLDERS", ("tests",)), ("EXEMPT", set())):
+        monkeypatch.setitem(globals(), name, value)
+    with pytest.raises(AssertionError, match=r"wrapped\.py:1: 'issue 19'"):
+        test_no_history_in_code()
+
+
 @pytest.mark.parametrize("text", [
     "one acquisition session", "round 0 is the same photons", "stop_nm = 710", "the stop reason",
     "stops at its next tick", "a round(x, 2) value", "an issue with the link", "version 2026.1",
@@ -65,8 +78,12 @@ def test_no_history_in_code():
     for path in files:
         if path.resolve() in EXEMPT:
             continue
-        for no, line in enumerate(path.read_text().splitlines(), 1):
-            m = HISTORY.search(line)
+        lines = path.read_text().splitlines()
+        for no, line in enumerate(lines, 1):
+            # each line with the next one's words after it: a phrase wrapped across lines
+            # ("issue" at a line's end, its number on the next, a comment's "#" between) is found too
+            after = lines[no].strip().lstrip("#").strip() if no < len(lines) else ""
+            m = HISTORY.search(line) or HISTORY.search(f"{line} {after}")
             if m:
                 bad.append(f"{path.relative_to(ROOT)}:{no}: {m.group(0)!r}")
     assert not bad, "history in code (state what the code does instead):\n" + "\n".join(bad)

@@ -148,8 +148,8 @@ def test_real_summation_dataset_small_plan(red_cotton, tmp_path):
 @pytest.mark.slow
 def test_red_cotton_fabric_colour_in_the_published_range(tmp_path):
     """The shipped preset's FABRIC colour at the report's colour geometry (incidence 0, observation
-    10 deg), by the structured summation through the whole command: in the published ranges (issue
-    19), and the old carpet of top cells (the same config without [structure]) is not (pink)."""
+    10 deg), by the structured summation through the whole command: in the published ranges, and the
+    carpet of top cells (the same config without [structure]) is not (pink)."""
     import re
 
     from gonio.data import read_dataset
@@ -161,7 +161,10 @@ def test_red_cotton_fabric_colour_in_the_published_range(tmp_path):
     plan.write_text('name = "colour"\n[sample]\nname = "red cotton"\n[wavelengths]\nstart_nm = 390\n'
                     'stop_nm = 710\nstep_nm = 10\n[geometry]\nincidence_deg = [0]\nin_plane_deg = [10]\n')
     carpet = tmp_path / "carpet.toml"
-    carpet.write_text(re.sub(r"(?ms)^\[structure\]\n.*?(?=^\[)", "", resolve_config_path("red-cotton").read_text()))
+    text = resolve_config_path("red-cotton").read_text()
+    carpet_text = re.sub(r"(?ms)^\[structure\]\n.*?(?=^\[|\Z)", "", text)   # the section, wherever it stands
+    assert re.search(r"(?m)^\[structure\]", text) and not re.search(r"(?m)^\[structure\]", carpet_text)
+    carpet.write_text(carpet_text)
     colours = {}
     for name, config in (("structure", "red-cotton"), ("carpet", str(carpet))):
         assert simulate_main(["fabric", config, "--method", "summation", "--plan", str(plan), "--target-rel-err",
