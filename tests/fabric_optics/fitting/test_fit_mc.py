@@ -63,7 +63,11 @@ def test_correction_makes_the_surrogate_equal_the_monte_carlo():
 def test_recovery_of_a_dye_from_the_monte_carlo_itself():
     """A measurement made by the felt Monte Carlo at a known two-knot dye (+1 % noise; its u_beta the Monte
     Carlo's and the noise's) is fitted back, from a start 0.3 away, within 3.5 reported standard uncertainties,
-    and the Monte Carlo's objective falls. (~60 s on 2 loaded cores: the summation's walk is ~half.)"""
+    and the Monte Carlo's objective falls to within the Monte Carlo's noise of the truth's: no higher than
+    the truth's own objective under the noise of three independent seeds (the fit's runs share seed 4 with
+    the measurement, so at the truth itself they would reproduce it to the 1 % noise; another seed's run
+    at the truth scatters its objective over 0.002-0.014 here, so a fall to a tenth of the start's 0.024
+    is below that noise). (~60 s on 2 loaded cores: the summation's walk is ~half.)"""
     x_true = np.array([-0.5, -2.5])
     truth = _felt(*x_true)
     probe = MCFitProblem(truth, _flat(WL6), parse_free([FREE], truth), target_rel_err=0.2, seed=4, wavelengths_nm=WL6)
@@ -78,7 +82,10 @@ def test_recovery_of_a_dye_from_the_monte_carlo_itself():
     result = run_mc_fit(problem, max_evaluations=4, noise_draws=16, echo=lines.append)
     info = result.info
     assert len(lines) == info["mc_runs"] >= 2 and problem.walks == 1      # one summation walk for every iteration
-    assert result.objective < 0.1 * result.objective_start
+    assert result.objective < result.objective_start
+    at_truth = [fit_mc.run_monte_carlo(MCFitProblem(start, measured, parse_free([FREE], start), target_rel_err=0.2,
+                                                    seed=s, wavelengths_nm=WL6), x_true).objective for s in (5, 6, 7)]
+    assert result.objective <= max(at_truth) < result.objective_start, (result.objective, at_truth)
     z = (result.x - x_true) / result.u
     assert np.all(np.abs(z) < 3.5), (result.x, result.u)
     assert np.all(result.u_mc > 0) and np.all(result.u_data > 0)
