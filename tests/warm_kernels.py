@@ -21,28 +21,16 @@ from pathlib import Path
 
 
 def _monte_carlo(tmp: Path) -> None:
-    """The slab command, the slab and cylinder routes and the fiber's volume BRDF methods."""
-    import numpy as np
+    """The slab command, the slab and cylinder routes and the fiber's volume BRDF methods: the routes of the
+    kernel-cache probe (``simulate/mc/cache_probe.py``), run from there."""
+    import importlib.util
 
-    from fabric_optics.cli.simulate import main
-    from simulate.fiber import Fiber, point_outputs, range_outputs, volume_brdf
-    from simulate.media.medium import HGMedium
-    from simulate.montecarlo import run_cylinder, run_slab
-
-    with contextlib.redirect_stdout(io.StringIO()):
-        main(["slab", "--mua", "1", "--mus", "9", "--g", "0.75", "--n", "1.4", "--thickness", "1",
-              "--photons", "1000", "--json"])
-    run_slab(1.0, 9.0, g=0.75, n=1.4, thickness=1.0, photons=500, angular_bins=(3, 4))
-    run_cylinder(0.1, 1.0, g=0.7, n=1.5, radius=1.0, photons=500)
-    fiber = Fiber(radius_um=10.0, n_host=1.5, medium=HGMedium(mu_s=1.0, mu_a=0.05, g=0.7), roughness=0.3,
-                  cell_width_deg=20.0)
-    w_in = np.array([[0.3, -0.2, math.sqrt(1 - 0.13)]])
-    w_out = np.array([[0.1, 0.4, math.sqrt(1 - 0.17)]])
-    ranged = range_outputs([0.5], [1.0], [-math.pi / 3], [math.pi / 3], fiber.half_width)
-    for method, outputs in (("nee", point_outputs(w_out, fiber.half_width)), ("nee", ranged), ("beam", ranged),
-                            ("bssrdf", ranged)):
-        volume_brdf(fiber, w_in, None, [450.0, 550.0, 650.0], method=method, outputs=outputs, target_rel_err=0.5,
-                    max_photons=2000, seed=1, bssrdf_bins=(2, 3))
+    spec = importlib.util.spec_from_file_location("cache_probe", Path(__file__).parent / "simulate" / "mc" /
+                                                  "cache_probe.py")
+    assert spec is not None and spec.loader is not None
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    probe._routes()
 
 
 def _structure(tmp: Path) -> None:
