@@ -47,9 +47,17 @@ def _fiber_runs(threads):
     return F.volume_brdf(fib, w_in, w_out, [550.0], target_rel_err=TARGET, seed=4, threads=threads)
 
 
-def test_runs_reach_the_target_and_stop_just_past_it(monkeypatch):
-    runs = _record(monkeypatch)
-    _fiber_runs(threads=1)
+@pytest.fixture(scope="module")
+def one_thread():
+    """The six runs on one thread and the rounds each played: both tests below read the same run."""
+    with pytest.MonkeyPatch.context() as mp:
+        runs = _record(mp)
+        result = _fiber_runs(threads=1)
+    return result, [list(r) for r in runs]
+
+
+def test_runs_reach_the_target_and_stop_just_past_it(one_thread):
+    _, runs = one_thread
     assert len(runs) == 6
     done = needed = 0.0
     for rounds in runs:
@@ -62,14 +70,12 @@ def test_runs_reach_the_target_and_stop_just_past_it(monkeypatch):
     assert done <= (1 + OVERSHOOT) * needed, (done, needed)
 
 
-def test_stopping_point_does_not_depend_on_threads(monkeypatch):
+def test_stopping_point_does_not_depend_on_threads(monkeypatch, one_thread):
     import numba
 
     assert numba.config.NUMBA_NUM_THREADS >= 2        # the root conftest guarantees a pool of 2
+    a, rounds_a = one_thread
     runs = _record(monkeypatch)
-    a = _fiber_runs(threads=1)
-    rounds_a = list(runs)
-    runs.clear()
     b = _fiber_runs(threads=2)
     assert runs == rounds_a
     assert a.R.tobytes() == b.R.tobytes() and a.photons == b.photons
