@@ -18,7 +18,10 @@ closure), :func:`~simulate.fabric.structure.surface_layer_table`, :func:`simulat
   at every node exactly as ``simulate fabric`` would compute it with a dye of that absorption,
   and a dye spectrum is read between the nodes by the absorption table's monotone cubic in
   ``log beta`` over ``log(nu + 1e-4)`` (:class:`simulate.fiber.absorption.AbsorptionTable`, the
-  same interpolation as the top-cell fit: ~1e-3 relative). The fabric's ``beta`` falls
+  same interpolation as the top-cell fit). Its error, measured on the same photons against a node
+  placed at the dye (the felt of ``tests/fabric_optics/fitting/test_fit_structure.py``, 450-650 nm, 23
+  geometries): at 0.058 /um -0.3 to -0.5 % of the volume term on average (at most 0.65 %), at
+  0.32 /um +0.1 to +0.3 % (at most 1.5 %), at 0.01 and 2 /um below 0.2 %. The fabric's ``beta`` falls
   monotonically with the absorption (the closure included), which the cubic keeps.
 * **structure** (``structure.felt_spread_deg``, ``structure.warp_twist_deg``,
   ``structure.weft_twist_deg``): only the facets change; the layer tables at the nodes are kept,
