@@ -78,6 +78,14 @@ VARIANTS: tuple[tuple[str, str, str, Any], ...] = (
     ("crimp-7", "structure", "felt_crimp_percent", 7.0),
     ("crimp-13", "structure", "felt_crimp_percent", 13.0),
 )
+#: (name, TOML section, {key: value}): fields of one model changed together (a loose top: its fraction of the
+#: fiber amount and its depth); written with :data:`VARIANTS`, left out of ``combine``
+JOINT_VARIANTS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("fuzz-0.05-300", "structure", {"felt_fuzz_fraction": 0.05, "felt_fuzz_depth_um": 300.0}),
+    ("fuzz-0.1-300", "structure", {"felt_fuzz_fraction": 0.1, "felt_fuzz_depth_um": 300.0}),
+    ("fuzz-0.2-600", "structure", {"felt_fuzz_fraction": 0.2, "felt_fuzz_depth_um": 600.0}),
+    ("fuzz-0.3-1000", "structure", {"felt_fuzz_fraction": 0.3, "felt_fuzz_depth_um": 1000.0}),
+)
 
 
 class InputError(Exception):
@@ -110,18 +118,22 @@ def set_field(text: str, section: str, key: str, value: Any) -> str:
 
 
 def write_variants(preset: Path, out: Path, force: bool = False) -> list[Path]:
-    """One config per :data:`VARIANTS` entry in ``out``, named after it (its ``name`` field too)."""
+    """One config per :data:`VARIANTS` and :data:`JOINT_VARIANTS` entry in ``out``, named after it (its ``name``
+    field too)."""
     try:
         text = preset.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(f"{preset}: cannot read the preset ({exc.strerror})") from None
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, section, key, value in VARIANTS:
+    changes = [(name, section, {key: value}) for name, section, key, value in VARIANTS] + list(JOINT_VARIANTS)
+    for name, section, fields in changes:
         path = out / f"{name}.toml"
         if path.exists() and not force:
             raise InputError(f"{path} exists; pass --force to replace it")
-        body = set_field(text, section, key, value)
+        body = text
+        for key, value in fields.items():
+            body = set_field(body, section, key, value)
         body = re.sub(r'(?m)^name = ".*"$', f'name = "{name}"', body, count=1)
         path.write_text(body, encoding="utf-8")
         written.append(path)

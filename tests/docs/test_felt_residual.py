@@ -142,18 +142,21 @@ def test_combine_finds_the_minimum_of_additive_quadratic_responses():
     assert predicted_b == pytest.approx(math.sqrt(np.mean((r0 - e) ** 2)), rel=1e-4)
 
 
-def test_variants_change_one_field_each(tmp_path):
+def test_variants_change_their_fields_only(tmp_path):
     fr = _script()
     paths = fr.write_variants(fr.PRESET, tmp_path)
     base = tomllib.loads(fr.PRESET.read_text())
-    assert len(paths) == len(fr.VARIANTS)
-    for (name, section, key, value), path in zip(fr.VARIANTS, paths):
+    assert len(paths) == len(fr.VARIANTS) + len(fr.JOINT_VARIANTS)
+    changes = [(name, section, {key: value}) for name, section, key, value in fr.VARIANTS] + list(fr.JOINT_VARIANTS)
+    assert any(len(fields) > 1 for _, _, fields in changes)
+    for (name, section, fields), path in zip(changes, paths):
         got = tomllib.loads(path.read_text())
         assert got["name"] == name
-        assert got[section][key] == value
-        got[section].pop(key)
+        for key, value in fields.items():
+            assert got[section][key] == value
+            got[section].pop(key)
         want = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
-        want[section] = {k: v for k, v in base[section].items() if k != key}
+        want[section] = {k: v for k, v in base[section].items() if k not in fields}
         want["name"] = name
         assert got == want
     with pytest.raises(fr.InputError, match="no \\[weave\\] section"):
