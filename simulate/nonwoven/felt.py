@@ -576,6 +576,8 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     top = float(np.max(_fiber_tops(C, T, P0, PD, crimp > 0.0, ell, R)))
     C[:, 2] -= top                             # the felt's top at z = 0
     n_bulk = n_compact if n_compact >= 0 else len(C)     # the compact felt's fibers (the bulk's)
+    if n_compact < 0:                          # no loose fiber drawn (a fraction below the last fiber's amount)
+        top_compact = top
     verts, norms, tans, ss, phis, yarn_len = [], [], [], [], [], []
     for k, (c, t) in enumerate(zip(C, T)):
         if crimp > 0.0:                        # the polyline's box (its arc midpoint at c)

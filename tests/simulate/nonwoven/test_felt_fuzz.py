@@ -39,6 +39,15 @@ def test_fraction_zero_is_todays_felt_bit_for_bit(kw):
     assert some.info["fuzz_fibers"] > 0 and not _same(plain, some)
 
 
+def test_a_fraction_below_one_fibre_draws_no_loose_fibre():
+    """A fraction the last compact fiber's amount already covers: no loose fiber, the compact felt's top is the
+    felt's, the geometry today's."""
+    plain = felt_mesh(_spec(), R, seed=3)
+    tiny = felt_mesh(_spec(felt_fuzz_fraction=1e-4), R, seed=3)
+    assert tiny.info["fuzz_fibers"] == 0 and tiny.info["compact_top_um"] == 0.0
+    assert np.array_equal(plain.vertices, tiny.vertices)
+
+
 def _images(m: felt.FeltMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each fiber image's lowest and highest point (its axis's, less and plus the radius) and its tangent."""
     p0, pd = fiber_pieces(m)
