@@ -5,8 +5,8 @@
     python docs/scripts/felt_residual.py noise FILE RUN_A RUN_B [...] # pairs of seeds of one config: the noise
     python docs/scripts/felt_residual.py combine FILE BASE --runs DIR --out CONFIG   # every field at once
     python docs/scripts/felt_residual.py permute FILE.bsdf --order gbr --out OTHER.bsdf # another colour
-    python docs/scripts/felt_residual.py top CONFIG [CONFIG ...] [--seeds 3]   # volume fraction below the top
-    python docs/scripts/felt_residual.py lambert CONFIG [CONFIG ...]            # its felt of Lambertian fibres
+    python docs/scripts/felt_residual.py top CONFIG [CONFIG ...] [--seeds 3] [--json OUT]  # volume fraction below the top
+    python docs/scripts/felt_residual.py lambert CONFIG [CONFIG ...] [--json OUT]          # its felt of Lambertian fibres
 
 ``decompose`` compares each ``RUN`` (a ``simulate fabric`` dataset) with ``FILE`` (``gonio truth`` of the felt's
 file) exactly as ``compare check`` does (:func:`compare.comparison.compare_datasets`: the per-channel factor at the
@@ -44,6 +44,8 @@ the albedos ``--albedo`` and gives the in-plane forward rise ``beta(70)/beta(30)
 orders and the single scattering (:func:`lambert_rise`): the felt's geometry alone, without the fibre's optics.
 Bad input (a missing dataset, an incidence limit that keeps no point, a config that is not a felt) is one line
 naming it, exit 2.
+``--json OUT`` writes the result alone; a table of the notes takes it wrapped with its command and machine:
+``python docs/scripts/render_figures.py --record NAME OUT --command "..."`` (``docs/data/NAME.json``).
 """
 
 from __future__ import annotations
