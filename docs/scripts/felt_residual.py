@@ -5,6 +5,8 @@
     python docs/scripts/felt_residual.py noise FILE RUN_A RUN_B [...] # pairs of seeds of one config: the noise
     python docs/scripts/felt_residual.py combine FILE BASE --runs DIR --out CONFIG   # every field at once
     python docs/scripts/felt_residual.py permute FILE.bsdf --order gbr --out OTHER.bsdf # another colour
+    python docs/scripts/felt_residual.py top CONFIG [CONFIG ...] [--seeds 3] [--json OUT]  # volume fraction below the top
+    python docs/scripts/felt_residual.py lambert CONFIG [CONFIG ...] [--json OUT]          # its felt of Lambertian fibres
 
 ``decompose`` compares each ``RUN`` (a ``simulate fabric`` dataset) with ``FILE`` (``gonio truth`` of the felt's
 file) exactly as ``compare check`` does (:func:`compare.comparison.compare_datasets`: the per-channel factor at the
@@ -35,7 +37,15 @@ and writes the config with every continuous field changed at once where a separa
 field's three runs, fitted point by point, predicts the least NRMSE within the scanned ranges (:func:`combine`).
 ``permute`` writes an RGB RGL file with its channels reordered (``gbr``: new R, G, B = old G, B, R), the same
 felt in another colour for a dye-only refit.
-Bad input (a missing dataset, an incidence limit that keeps no point) is one line naming it, exit 2.
+``top`` builds the felt of each ``CONFIG`` (its ``[structure]`` and fibre radius; the felt's streams ``0 .. seeds - 1``:
+a ``simulate fabric --method mc`` run at seed 0 traces the first) and gives its volume fraction against the depth below
+the felt's top, pooled over the seeds (:func:`top_profile`). ``lambert`` traces the same felt (seed 0) with opaque Lambertian fibres of
+the albedos ``--albedo`` and gives the in-plane forward rise ``beta(70)/beta(30)`` at the plan's four incidences, all
+orders and the single scattering (:func:`lambert_rise`): the felt's geometry alone, without the fibre's optics.
+Bad input (a missing dataset, an incidence limit that keeps no point, a config that is not a felt) is one line
+naming it, exit 2.
+``--json OUT`` writes the result alone; a table of the notes takes it wrapped with its command and machine:
+``python docs/scripts/render_figures.py --record NAME OUT --command "..."`` (``docs/data/NAME.json``).
 """
 
 from __future__ import annotations
@@ -78,6 +88,14 @@ VARIANTS: tuple[tuple[str, str, str, Any], ...] = (
     ("crimp-7", "structure", "felt_crimp_percent", 7.0),
     ("crimp-13", "structure", "felt_crimp_percent", 13.0),
 )
+#: (name, TOML section, {key: value}): fields of one model changed together (a loose top: its fraction of the
+#: fiber amount and its depth); written with :data:`VARIANTS`, left out of ``combine``
+JOINT_VARIANTS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("fuzz-0.05-300", "structure", {"felt_fuzz_fraction": 0.05, "felt_fuzz_depth_um": 300.0}),
+    ("fuzz-0.1-300", "structure", {"felt_fuzz_fraction": 0.1, "felt_fuzz_depth_um": 300.0}),
+    ("fuzz-0.2-600", "structure", {"felt_fuzz_fraction": 0.2, "felt_fuzz_depth_um": 600.0}),
+    ("fuzz-0.3-1000", "structure", {"felt_fuzz_fraction": 0.3, "felt_fuzz_depth_um": 1000.0}),
+)
 
 
 class InputError(Exception):
@@ -110,18 +128,22 @@ def set_field(text: str, section: str, key: str, value: Any) -> str:
 
 
 def write_variants(preset: Path, out: Path, force: bool = False) -> list[Path]:
-    """One config per :data:`VARIANTS` entry in ``out``, named after it (its ``name`` field too)."""
+    """One config per :data:`VARIANTS` and :data:`JOINT_VARIANTS` entry in ``out``, named after it (its ``name``
+    field too)."""
     try:
         text = preset.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(f"{preset}: cannot read the preset ({exc.strerror})") from None
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, section, key, value in VARIANTS:
+    changes = [(name, section, {key: value}) for name, section, key, value in VARIANTS] + list(JOINT_VARIANTS)
+    for name, section, fields in changes:
         path = out / f"{name}.toml"
         if path.exists() and not force:
             raise InputError(f"{path} exists; pass --force to replace it")
-        body = set_field(text, section, key, value)
+        body = text
+        for key, value in fields.items():
+            body = set_field(body, section, key, value)
         body = re.sub(r'(?m)^name = ".*"$', f'name = "{name}"', body, count=1)
         path.write_text(body, encoding="utf-8")
         written.append(path)
@@ -390,6 +412,118 @@ def permute_channels(src: Path, out: Path, order: str, force: bool = False) -> N
     write_tensor_file(out, fields)
 
 
+# ---------------------------------------------------------------------------------------------- the felt's geometry
+
+def _point_segment_distance(p: np.ndarray, a: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Distance from each point ``p`` (``[n, 3]``) to each segment ``a + t d``, ``t`` in ``[0, 1]`` (``[m, 3]``):
+    ``[n, m]``."""
+    w = p[:, None, :] - a[None, :, :]
+    t = np.clip(np.einsum("nmi,mi->nm", w, d) / np.einsum("mi,mi->m", d, d)[None, :], 0.0, 1.0)
+    r = w - t[..., None] * d[None, :, :]
+    return np.sqrt(np.einsum("nmi,nmi->nm", r, r))
+
+
+def top_profile(mesh: Any, bin_um: float, depth_um: float, n: int = 4000, seed: int = 1) -> np.ndarray:
+    """The fraction of the cell inside a fibre in each layer ``[k bin_um, (k + 1) bin_um]`` below the felt's top
+    (``z = 0``) down to ``depth_um``: ``n`` fixed-seed random points per layer, each tested against every fibre
+    image's axis pieces (:func:`simulate.nonwoven.felt.fiber_pieces`; inside: nearer than the radius). Standard
+    error ``sqrt(f (1 - f) / n)``."""
+    from simulate.nonwoven.felt import fiber_pieces
+
+    p0, pd = fiber_pieces(mesh)
+    a, d = p0.reshape(-1, 3), pd.reshape(-1, 3)
+    R, L = float(mesh.yarn_radius_um), float(mesh.Lx)
+    rng = np.random.default_rng(seed)
+    edges = np.arange(0.0, depth_um + 0.5 * bin_um, bin_um)
+    out = []
+    for top, bottom in zip(edges[:-1], edges[1:]):
+        pts = np.stack([rng.uniform(0.0, L, n), rng.uniform(0.0, L, n), -rng.uniform(top, bottom, n)], axis=-1)
+        inside = np.zeros(n, bool)
+        for k in range(0, len(a), 256):
+            inside |= (_point_segment_distance(pts, a[k:k + 256], d[k:k + 256]) < R).any(axis=1)
+        out.append(float(inside.mean()))
+    return np.array(out)
+
+
+#: the in-plane forward rise's incidences and the two observation angles on the mirror's side
+RISE_INCIDENCES = (0.0, 30.0, 45.0, 60.0)
+
+
+def lambert_rise(mesh: Any, albedos: list[float], target_rel_err: float = 0.01, seed: int = 1,
+                 rotations: int = 8) -> dict[str, dict[str, Any]]:
+    """The in-plane forward rise ``beta(70)/beta(30)`` (observation on the mirror's side) of ``mesh`` with opaque
+    Lambertian fibres (:class:`simulate.woven.Lambert`, the albedos on the spectral axis: one trace scores all
+    on the same paths), per incidence of :data:`RISE_INCIDENCES`, all orders (``all``) and the single scattering
+    (``single``, the same for every albedo), each the mean over ``rotations`` turns of the incidence about the
+    normal, with its standard error (the two betas' relative errors in quadrature)."""
+    from simulate import woven as W
+    from simulate.optics.microfacet import directions_deg
+    from simulate.woven.integrator import trace_rotations
+
+    turns = 2.0 * math.pi * np.arange(rotations) / rotations
+    det = directions_deg([GRAZING_DEG, 30.0], [180.0, 180.0])
+    out: dict[str, dict[str, Any]] = {}
+    for events, label in ((0, "all"), (1, "single")):
+        for theta_i in RISE_INCIDENCES:
+            w_in = directions_deg([theta_i], [0.0])[0]
+            res = trace_rotations(mesh, W.Lambert(np.asarray(albedos, float)), w_in, det, turns,
+                                  target_rel_err=target_rel_err, seed=seed, max_events=events)
+            beta = np.mean([r.beta for r in res], axis=0)                         # [2, albedos]
+            u = np.sqrt(np.sum([r.u_beta ** 2 for r in res], axis=0)) / len(res)
+            ratio = beta[0] / beta[1]
+            se = ratio * np.hypot(u[0] / beta[0], u[1] / beta[1])
+            out[f"{label} {theta_i:g}"] = {"ratio": ratio.tolist(), "se": se.tolist()}
+    return out
+
+
+def _felt_of(config_name: str, seed: int) -> Any:
+    from simulate.config import ConfigError, load_config
+    from simulate.nonwoven.felt import cached_felt_mesh
+
+    try:
+        config = load_config(config_name)
+    except ConfigError as exc:
+        raise InputError(str(exc)) from None
+    spec = getattr(config, "structure", None)
+    if spec is None or spec.kind != "nonwoven":
+        raise InputError(f"{config_name}: not a felt; give a config with [structure] kind = \"nonwoven\"")
+    return cached_felt_mesh(spec, float(config.radius_um), seed=seed)[0]
+
+
+def _top(args) -> int:
+    if args.seeds < 1 or not (0.0 < args.bin_um <= args.depth_um):
+        raise InputError("top: give --seeds >= 1 and 0 < --bin-um <= --depth-um")
+    result = {}
+    for name in args.configs:
+        prof = np.mean([top_profile(_felt_of(name, s), args.bin_um, args.depth_um) for s in range(args.seeds)], axis=0)
+        result[name] = prof.tolist()
+        print(f"{name}: " + ", ".join(f"{k * args.bin_um:.0f}-{(k + 1) * args.bin_um:.0f} um {v:.3f}"
+                                      for k, v in enumerate(prof)))
+    if args.json:
+        args.json.write_text(json.dumps({"seeds": args.seeds, "bin_um": args.bin_um, "profiles": result}, indent=1)
+                             + "\n", encoding="utf-8")
+    return 0
+
+
+def _lambert(args) -> int:
+    try:
+        albedos = [float(a) for a in args.albedo.split(",")]
+    except ValueError:
+        albedos = []
+    if not albedos or not all(0.0 < a <= 1.0 for a in albedos):
+        raise InputError(f"--albedo {args.albedo}: give albedos in (0, 1], comma-separated")
+    result = {}
+    for name in args.configs:
+        rise = lambert_rise(_felt_of(name, 0), albedos, args.target)
+        result[name] = rise
+        for key, v in rise.items():
+            print(f"{name} {key} deg: " + ", ".join(f"albedo {a:g} {r:.3f} +- {e:.3f}"
+                                                   for a, r, e in zip(albedos, v["ratio"], v["se"])))
+    if args.json:
+        args.json.write_text(json.dumps({"albedos": albedos, "rise": result}, indent=1) + "\n", encoding="utf-8")
+    return 0
+
+
 def _combine(args) -> int:
     if args.out.exists() and not args.force:
         raise InputError(f"{args.out} exists; pass --force to replace it")
@@ -459,6 +593,17 @@ def main(argv: list[str] | None = None) -> int:
     pm.add_argument("--order", required=True, help="the old channel each new R, G, B takes, e.g. gbr")
     pm.add_argument("--out", type=Path, required=True)
     pm.add_argument("--force", action="store_true")
+    tp = sub.add_parser("top", help="the felt's volume fraction against the depth below its top")
+    tp.add_argument("configs", nargs="+", metavar="CONFIG")
+    tp.add_argument("--seeds", type=int, default=3)
+    tp.add_argument("--bin-um", type=float, default=33.0)
+    tp.add_argument("--depth-um", type=float, default=429.0)
+    tp.add_argument("--json", type=Path)
+    lb = sub.add_parser("lambert", help="the forward rise of the config's felt with opaque Lambertian fibres")
+    lb.add_argument("configs", nargs="+", metavar="CONFIG")
+    lb.add_argument("--albedo", default="0.22,0.9", help="comma-separated albedos (default 0.22,0.9)")
+    lb.add_argument("--target", type=float, default=0.01, help="each trace's relative error target")
+    lb.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     try:
         if args.cmd == "variants":
@@ -467,6 +612,10 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.cmd == "combine":
             return _combine(args)
+        if args.cmd == "top":
+            return _top(args)
+        if args.cmd == "lambert":
+            return _lambert(args)
         if args.cmd == "permute":
             permute_channels(args.src, args.out, args.order.lower(), args.force)
             print(args.out)

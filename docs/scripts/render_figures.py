@@ -536,6 +536,62 @@ def fig_felt_residual_combined() -> str:
     return _residual_runs(rec) + "\n\n" + _source(rec, note)
 
 
+def _config_label(config: str) -> str:
+    """A config as the tables name it: its file's stem (``DIR/fuzz-0.1-300.toml`` -> ``fuzz-0.1-300``)."""
+    return f"`{config.rstrip('/').rsplit('/', 1)[-1].removesuffix('.toml')}`"
+
+
+def fig_felt_top(merge: int = 2) -> str:
+    """The felt's volume fraction against the depth below its top, the preset's felt and its loose tops
+    (``felt_residual.py top``), ``merge`` of the run's layers averaged into one column."""
+    rec = load("felt-top")
+    d = rec["data"]
+    step = d["bin_um"] * merge
+    profiles = {name: [statistics.fmean(p[k:k + merge]) for k in range(0, len(p), merge)]
+                for name, p in d["profiles"].items()}
+    columns = max(len(p) for p in profiles.values())
+    header = ["felt", *[f"{k * step:g}-{(k + 1) * step:g}" for k in range(columns)]]
+    rows = [[_config_label(name), *["0" if v == 0 else f"{v:.3f}" for v in p]] for name, p in profiles.items()]
+    note = (f" (depth below the felt's top in µm; the felts of streams 0 .. {d['seeds'] - 1} pooled, "
+            f"{merge} layers of {d['bin_um']:g} µm averaged in each column)")
+    return _table(header, rows) + "\n\n" + _source(rec, note)
+
+
+def fig_felt_residual_fuzz() -> str:
+    """The loose-top variants of ``green-felt-mc`` against the felt's file: the split of section 8, the NRMSE
+    with each band's least-squares factor and the mean residual per region."""
+    rec = load("felt-residual-fuzz")
+    plane = ("back", "near", "forward")
+    rows = [[_residual_label(run), f"{r['nrmse_best_scale']:.3f}",
+             " / ".join(f"{r['by_region'][k]['bias_rel']:+.3f}" for k in plane)] for run, r in rec["data"]["runs"].items()]
+    bias = _table(["run", "NRMSE, each band's least-squares factor",
+                   f"mean residual over the file's mean β: {' / '.join(plane)}"], rows)
+    note = (" (`DIR/file`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt --out DIR/file`; "
+            "each run `simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.05 --seed S --threads 1 "
+            "--out DIR/RUN`. Second table: `nrmse_best_scale` and `by_region` of the same runs)")
+    return _residual_runs(rec) + "\n\n" + bias + "\n\n" + _source(rec, note)
+
+
+def fig_felt_lambert() -> str:
+    """The in-plane forward rise of the felts with opaque Lambertian fibres (``felt_residual.py lambert``)."""
+    rec = load("felt-lambert")
+    d = rec["data"]
+    albedos = d["albedos"]
+    first = next(iter(d["rise"].values()))
+    incid = [k.split(" ", 1)[1] for k in first if k.startswith("single ")]
+    header = ["felt", f"single scattering at {' / '.join(incid)} deg",
+              *[f"all orders, albedo {a:g}" for a in albedos]]
+    rows = []
+    for name, rise in d["rise"].items():
+        cells = [" / ".join(f"{rise[f'single {t}']['ratio'][0]:.3f}" for t in incid)]
+        cells += [" / ".join(f"{rise[f'all {t}']['ratio'][k]:.3f}" for t in incid) for k in range(len(albedos))]
+        rows.append([_config_label(name), *cells])
+    se = [e for rise in d["rise"].values() for v in rise.values() for e in v["se"]]
+    note = (f" (β(70)/β(30) in plane on the mirror's side, felt of stream 0, each the mean of 8 turns of the "
+            f"incidence about the normal; standard error {min(se):.3f}-{max(se):.3f})")
+    return _table(header, rows) + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
     "felt-residual": fig_felt_residual,
     "felt-residual-measured": fig_felt_residual_measured,
@@ -543,6 +599,9 @@ FIGURES: dict[str, Callable[[], str]] = {
     "felt-residual-sensitivity": fig_felt_residual_sensitivity,
     "felt-residual-permuted": fig_felt_residual_permuted,
     "felt-residual-combined": fig_felt_residual_combined,
+    "felt-top": fig_felt_top,
+    "felt-residual-fuzz": fig_felt_residual_fuzz,
+    "felt-lambert": fig_felt_lambert,
     "felt-opposition": fig_felt_opposition,
     "felt-opposition-lambertian": fig_felt_opposition_lambertian,
     "felt-demo-plan": fig_felt_demo_plan,

@@ -205,6 +205,9 @@ __all__ = [
     "identifiability",
     "parse_free",
     "run_fit",
+    "search_fit",
+    "finish_fit",
+    "FitSearch",
     "toml_dumps",
     "write_outputs",
 ]
@@ -299,6 +302,22 @@ class _Budget(Exception):
     """The evaluation budget of the search is spent."""
 
 
+@dataclass
+class FitSearch:
+    """The search of a fit (:func:`search_fit`), before its uncertainty (:func:`finish_fit`)."""
+
+    x: np.ndarray
+    objective_start: float
+    results: list
+    stopped: str
+    start_note: str
+    evaluations: int
+    max_evaluations: int
+    resume: bool
+    out: Path | None
+    t0: float
+
+
 def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = False,
             max_evaluations: int = DEFAULT_MAX_EVALUATIONS, starts: int = 1, progress: bool = False,
             noise_draws: int = _NOISE_DRAWS, invert_start: bool = True) -> FitResult:
@@ -306,8 +325,19 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
 
     ``max_evaluations``: the objective evaluations of the search in all (the start's, every step's
     and every Jacobian column's, over all starts); the uncertainty propagation afterwards is
-    counted apart (``info["evaluations_uncertainty"]``).
+    counted apart (``info["evaluations_uncertainty"]``). The search (:func:`search_fit`) and the
+    uncertainty at its best point (:func:`finish_fit`) in one.
     """
+    search = search_fit(problem, out=out, resume=resume, max_evaluations=max_evaluations, starts=starts,
+                        progress=progress, invert_start=invert_start)
+    return finish_fit(problem, search, noise_draws=noise_draws)
+
+
+def search_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = False,
+               max_evaluations: int = DEFAULT_MAX_EVALUATIONS, starts: int = 1, progress: bool = False,
+               invert_start: bool = True) -> FitSearch:
+    """The search of :func:`run_fit` alone: its best point, no uncertainty. A caller that fits the same problem
+    several times and keeps one (:func:`fabric_optics.fitting.mc`'s colour weights) finishes only the kept one."""
     from scipy.optimize import least_squares
     from tqdm import tqdm
 
@@ -445,8 +475,20 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
     finally:
         bar.close()
         walk_bar.close()
-    search_evaluations = used()
-    x_best = best["x"]
+    return FitSearch(x=best["x"], objective_start=F_start, results=results, stopped=stopped, start_note=start_note,
+                     evaluations=used(), max_evaluations=max_evaluations, resume=resume, out=out, t0=t0)
+
+
+def finish_fit(problem: FitProblem, search: FitSearch, *, noise_draws: int = _NOISE_DRAWS) -> FitResult:
+    """The result of ``search`` (:func:`search_fit`): the uncertainty at its best point (module docstring), the
+    warnings and fit.json's ``info``; the final state in the search's ``out``. ``problem`` as the search left it
+    (its colour weight and start)."""
+    from compare.errors import CompareError
+
+    ev0 = problem.evaluations
+    x_best, results, stopped, start_note = search.x, search.results, search.stopped, search.start_note
+    search_evaluations, max_evaluations, resume, out = search.evaluations, search.max_evaluations, search.resume, search.out
+    span = problem.high - problem.low
     r_best = problem.residuals(x_best)
     J = jacobian(problem, x_best, r_best, problem.residuals)
     pinv = np.linalg.pinv(J)
@@ -499,10 +541,10 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
         "starts": len(results) if results else 1, "status": [int(r.status) for r in results],
         "message": results[-1].message if results else stopped,
         "evaluations": search_evaluations, "max_evaluations": max_evaluations,
-        "evaluations_uncertainty": problem.evaluations - ev0 - search_evaluations,
+        "evaluations_uncertainty": problem.evaluations - ev0,
         "walks": problem.walks, "walk_seconds": problem.walk_seconds, "reweighted": problem.reweights,
         "walks_from_cache": problem.cached_walks,
-        "reweighted_seconds": problem.reweight_seconds, "seconds": time.perf_counter() - t0,
+        "reweighted_seconds": problem.reweight_seconds, "seconds": time.perf_counter() - search.t0,
         "photons": problem.photons, "resumed": resume, "start_note": start_note, "notes": list(problem.notes),
         "singular_values": np.linalg.svd(J * span[None, :], compute_uv=False).tolist(),
         "uncertainty": u_rule, "u_status": u_status(problem, bound_notes, ident_notes),
@@ -512,7 +554,8 @@ def run_fit(problem: FitProblem, *, out: Path | None = None, resume: bool = Fals
             "schema": STATE_SCHEMA, "identity": problem.identity(), "x": x_best.tolist(),
             "names": [p.name for p in problem.free], "objective": float(r_best @ r_best),
             "photons": problem.photons, "evaluations": problem.evaluations, "done": True})
-    return FitResult(x=x_best, start=problem.start.copy(), objective=float(r_best @ r_best), objective_start=F_start,
+    return FitResult(x=x_best, start=problem.start.copy(), objective=float(r_best @ r_best),
+                     objective_start=search.objective_start,
                      u=u, u_data=u_data, u_mc=u_mc, correlation=corr, warnings=notes, info=info)
 
 

@@ -624,26 +624,30 @@ def _better(run: MCRun, best: MCRun, colour_first: bool) -> bool:
     return run.objective < best.objective
 
 
-def _surrogate_fit(problem: MCFitProblem, colour_first: bool, **kwargs: Any) -> tuple[Any, list[float]]:
+def _surrogate_fit(problem: MCFitProblem, colour_first: bool, noise_draws: int = _NOISE_DRAWS,
+                   **kwargs: Any) -> tuple[Any, list[float]]:
     """The surrogate fit of one iteration and the colour weights it used (module docstring, "The colour
     first"): fitted at the problem's colour weight; with the colour first and the surrogate's colour further
     than :data:`COLOUR_MARGIN` tolerances from the measured, fitted again from that point with the weight
-    :data:`COLOUR_WEIGHT_STEP` times larger, up to :data:`MAX_COLOUR_WEIGHT_FACTOR` times the problem's."""
-    from fabric_optics.fitting.driver import colour_distance, run_fit
+    :data:`COLOUR_WEIGHT_STEP` times larger, up to :data:`MAX_COLOUR_WEIGHT_FACTOR` times the problem's. Only the
+    kept (last) fit's uncertainty is computed (:func:`fabric_optics.fitting.driver.finish_fit`): the searches at the
+    smaller weights only lead to its start."""
+    from fabric_optics.fitting.driver import colour_distance, finish_fit, search_fit
 
     w0 = problem.colour_weight
     start = problem.start.copy()
     weights = [w0]
     try:
-        res = run_fit(problem, out=None, invert_start=True, **kwargs)
-        while (colour_first and colour_distance(problem, res.x) > COLOUR_MARGIN
+        search = search_fit(problem, out=None, invert_start=True, **kwargs)
+        while (colour_first and colour_distance(problem, search.x) > COLOUR_MARGIN
                and problem.colour_weight * COLOUR_WEIGHT_STEP <= MAX_COLOUR_WEIGHT_FACTOR * w0 * (1 + 1e-9)):
             problem.colour_weight *= COLOUR_WEIGHT_STEP
             weights.append(problem.colour_weight)
-            problem.start = res.x.copy()
+            problem.start = search.x.copy()
             log.info("surrogate colour %.3g tolerances off: fitted again at colour weight %g",
-                     colour_distance(problem, res.x), problem.colour_weight)
-            res = run_fit(problem, out=None, invert_start=True, **kwargs)
+                     colour_distance(problem, search.x), problem.colour_weight)
+            search = search_fit(problem, out=None, invert_start=True, **kwargs)
+        res = finish_fit(problem, search, noise_draws=noise_draws)
     finally:
         problem.colour_weight = w0
         problem.start = start

@@ -26,6 +26,8 @@ from gonio.data.schema import WAVELENGTH_RANGE_NM
 from simulate import fabric as fab
 from simulate import fiber as fib
 from simulate.config import SimulationConfig, parse_config
+from simulate.config_dye import dye_from_table
+from simulate.config_table import Table
 from simulate.fiber.absorption import DEFAULT_NODES, AbsorptionTable, absorption_nodes, absorption_table
 from fabric_optics import paths
 from fabric_optics.fitting.structure import STRUCTURE_FIELDS
@@ -51,13 +53,16 @@ LATTICE_STEP = 0.10
 #: Monte Carlo error (the blend's deviation from a walk at the value itself: tests/fabric_optics/fitting/test_lattice_walks.py).
 STRUCTURED_LATTICE_STEP = 0.20
 #: Step of the structured summation's lattice of surface terms in the RMS slope (:meth:`FitProblem.surface_term`):
-#: 2 % in ``log rms_slope``. The surface term's table (:func:`simulate.fabric.fiberlayer.surface_table`, ~1.5 CPU s
-#: on the 7.5 deg layer grid) is computed at the lattice points only and blended linearly in ``log rms_slope``
-#: between them; computed at every value the search visits (each step and each Jacobian's two columns) it was
-#: about two thirds of the felt's summation fit. The blend's deviation from the exact term at a cell's middle:
+#: 2 % in ``log rms_slope``. The surface term's table (:func:`simulate.fabric.fiberlayer.surface_table`, ~0.17 CPU s
+#: on the 7.5 deg layer grid, compiled; ~1.9 s in numpy) is computed at the lattice points only and blended linearly
+#: in ``log rms_slope`` between them; computed in numpy at every value the search visits (each step and each
+#: Jacobian's two columns) it was about two thirds of the felt's summation fit. The blend's deviation from the exact term at a cell's middle:
 #: 4e-5 of the mean ``beta`` (RMS over the demo's geometries at RMS slope 0.15), far below the walk's Monte Carlo
 #: error (tests/fabric_optics/fitting/test_surface_lattice.py).
 SURFACE_LATTICE_STEP = 0.02
+#: Parsed configs :meth:`FitProblem.config_at` keeps, by the values of the free parameters other than the dye: the
+#: centre and a Jacobian's columns of the others (a dye-only point reads its config from them).
+PARSED_CONFIGS = 8
 #: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
 KNOT_LOW, KNOT_HIGH = -4.0, 0.5
 #: Fields only the Monte Carlo sees (kind ``"fine"``), with their valid range: the rough boundary for transmitted
@@ -331,6 +336,8 @@ class FitProblem:
     _references: dict = field(default_factory=dict)
     _tables: dict = field(default_factory=dict)
     _doc: dict = field(default_factory=dict)
+    #: the parsed configs by the values of the free parameters other than the dye (:meth:`config_at`)
+    _parsed: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         import tomllib
@@ -410,11 +417,30 @@ class FitProblem:
     # -- parameters and configs ------------------------------------------------------------
 
     def config_at(self, x: np.ndarray) -> SimulationConfig:
-        """The config with the free fields set to ``x`` (validated by the config parser)."""
+        """The config with the free fields set to ``x`` (validated by the config parser).
+
+        The whole config is parsed once per value of the parameters other than the dye (the last
+        :data:`PARSED_CONFIGS`); a point that differs from one of those in the dye alone gets that config with
+        its dye table parsed (:func:`simulate.config_dye.dye_from_table`, the parser's own) and the text and
+        SHA-256 of the whole: field by field the config a full parse gives (a dye-only search step or Jacobian
+        column re-parsed the whole config, a quarter of an evaluation)."""
         doc = copy.deepcopy(self._doc)
         for p, v in zip(self.free, x):
             paths.set_value(doc, p.name, float(v))
-        return parse_config(toml_dumps(doc), f"{self.config.name}.toml", source=f"fit of {self.config.source}")
+        text = toml_dumps(doc)
+        file = f"{self.config.name}.toml"
+        key = tuple(float(v) for p, v in zip(self.free, x) if p.kind != "dye")
+        base = self._parsed.get(key)
+        if base is None:
+            config = parse_config(text, file, source=f"fit of {self.config.source}")
+            if len(self._parsed) >= PARSED_CONFIGS:
+                self._parsed.pop(next(iter(self._parsed)))
+            self._parsed[key] = config
+            return config
+        raw = text.encode("utf-8", errors="surrogatepass")   # as parse_config reads a text
+        dye = doc["fiber"].get("dye")
+        return dataclasses.replace(base, text=raw.decode("utf-8"), sha256=hashlib.sha256(raw).hexdigest(),
+                                   dye=None if dye is None else dye_from_table(Table(dye, "fiber.dye", file)))
 
     def fitted_toml(self, x: np.ndarray, note: str) -> str:
         """TOML text of the fitted config (comments of the original are not kept)."""

@@ -223,28 +223,98 @@ def layer_grid(step_deg: float, phi_step_deg: float) -> tuple[np.ndarray, np.nda
 def surface_table(roughness: float, n_host: float, masking: bool, spacing_ratio: float, step_deg: float = 7.5,
                   phi_step_deg: float = 15.0, n_psi: int = 180) -> np.ndarray:
     """The surface part of ``G`` on the :class:`LayerTable` grid ``[Ti, Pi, To, Po]`` (independent of the
-    exit table and of the fiber radius: ``Q_surf`` and ``d`` both scale with ``R``), cached."""
+    exit table and of the fiber radius: ``Q_surf`` and ``d`` both scale with ``R``), cached.
+
+    Each incidence's row is :func:`surface_Q` of every exit direction above the layer, computed in compiled code
+    (:func:`_surface_weights`: the same operations in the same order, summed by numpy as there; equal to
+    :func:`surface_Q`'s table bit for bit, tests/fabric_optics/fitting/test_surface_table.py; about a tenth of its
+    CPU); the exit directions' cell frames and visibility, which do not depend on the incidence, are formed once."""
     from simulate.fiber import Fiber
     from simulate.media.medium import HGMedium
 
+    # refuses a slope or index that is not a finite number > 0 (cook_torrance's own checks)
     fiber = Fiber(radius_um=1.0, n_host=n_host, medium=HGMedium(mu_s=0.0, mu_a=0.0, g=0.0), roughness=roughness)
+    m = float(fiber.roughness)
     th, ph_i, ph_o, w_out = layer_grid(step_deg, phi_step_deg)
     spacing = 2.0 * spacing_ratio if masking else None
     out = np.zeros((th.size, ph_i.size, th.size, ph_o.size))
+    dpsi = 2.0 * math.pi / n_psi
+    psi = (np.arange(n_psi) + 0.5) * dpsi - math.pi
+    up = w_out[:, 2] > 0
+    lo = np.ascontiguousarray(cell_frame(w_out[up][:, None, :], psi[None, :]))          # [O, n, 3]
+    seen = np.ascontiguousarray(visibility_any(w_out[up], psi, spacing))                # [O, n]
+    log_pi_m2 = float(np.log(np.pi * np.asarray(m) * np.asarray(m)))
     for a, t_i in enumerate(th):
         for b, p_i in enumerate(ph_i):
             w_in = microfacet.direction(math.radians(t_i), math.radians(p_i))
             if w_in[2] < 1e-12:
                 continue
+            li = np.ascontiguousarray(cell_frame(w_in[None, :], psi))                   # [n, 3]
+            lit = np.ascontiguousarray(visibility(w_in[None], psi, spacing)[0])          # [n]
             q = np.zeros(w_out.shape[0])
-            up = w_out[:, 2] > 0
-            q[up] = surface_Q(fiber, w_in, w_out[up], spacing, spacing, n_psi)
+            weights = _surface_weights(li, lo, lit, seen, m, float(fiber.n_host), log_pi_m2)
+            q[up] = fiber.radius_um * dpsi * weights.sum(axis=1)
             out[a, b] = q.reshape(th.size, ph_o.size) / (2.0 * spacing_ratio)
             if t_i == 0.0:
                 out[a, 1:] = out[a, 0]
                 break
     out.flags.writeable = False
     return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _surface_weights(li, lo, lit, seen, m, n_host, log_pi_m2):
+    """``f_CT (w_i . n)(w_o . n) vis_i vis_o`` ``[O, n]``, the terms of :func:`surface_Q`'s azimuth sum: the
+    cell-frame incidence ``li [n, 3]``, exits ``lo [O, n, 3]``, visibilities ``lit [n]`` and ``seen [O, n]``;
+    :func:`simulate.optics.microfacet.cook_torrance` (Beckmann ``D``, V-cavity ``G``, unpolarised Fresnel ``F``
+    from outside, index 1, into ``n_host``) written out per point, its operations in numpy's order."""
+    n_out, n = seen.shape
+    w = np.zeros((n_out, n))
+    same = n_host == 1.0
+    eta = 1.0 / n_host
+    mm = m * m
+    for o in range(n_out):
+        for k in range(n):
+            ix, iy, ci = li[k, 0], li[k, 1], li[k, 2]
+            ox, oy, co = lo[o, k, 0], lo[o, k, 1], lo[o, k, 2]
+            if not (ci > 0.0 and co > 0.0):
+                continue
+            sx, sy, sz = ix + ox, iy + oy, ci + co
+            norm = math.sqrt((sx * sx + sy * sy) + sz * sz)
+            if norm > 0.0:
+                hx, hy, hz = sx / norm, sy / norm, sz / norm
+            else:
+                hx, hy, hz = 0.0, 0.0, 1.0
+            oh = (ox * hx + oy * hy) + co * hz
+            # Beckmann D (microfacet._beckmann_d)
+            if hz > 0.0:
+                cs = min(hz, 1.0)
+                tan2 = (1.0 - cs * cs) / (cs * cs)
+                d = math.exp((-tan2 / mm - log_pi_m2) - 4.0 * math.log(cs))
+            else:
+                d = 0.0
+            # V-cavity G (microfacet.vcavity_g)
+            if hz > 0.0 and oh > 0.0:
+                g = min(1.0, min(2.0 * hz * co / oh, 2.0 * hz * ci / oh))
+            else:
+                g = 0.0
+            # unpolarised Fresnel (fresnel.reflectance_from_cos of clip(oh, 0, 1))
+            c = min(max(abs(min(max(oh, 0.0), 1.0)), 0.0), 1.0)
+            s = math.sqrt(max(1.0 - c * c, 0.0))
+            es = eta * s
+            sin2_t = es * es
+            if same:
+                f = 0.0
+            elif sin2_t >= 1.0:
+                f = 1.0
+            else:
+                cos_t = math.sqrt(max(1.0 - sin2_t, 0.0))
+                rs = (1.0 * c - n_host * cos_t) / (1.0 * c + n_host * cos_t)
+                rp = (n_host * c - 1.0 * cos_t) / (n_host * c + 1.0 * cos_t)
+                f = 0.5 * (rs * rs + rp * rp)
+            f_ct = d * g * f / (4.0 * (ci * co))
+            w[o, k] = f_ct * ci * co * lit[k] * seen[o, k]
+    return w
 
 
 def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_ratio: float = 1.0,

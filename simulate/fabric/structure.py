@@ -84,6 +84,8 @@ class StructureSpec:
     felt_crimp_percent: float = 0.0
     felt_crimp_per_cm: float = 4.4
     felt_crimp_plane: str = "felt"
+    felt_fuzz_fraction: float = 0.0
+    felt_fuzz_depth_um: float = 300.0
     samples: int = 48
 
     @property
@@ -105,7 +107,7 @@ REMOVED_KEYS = {
 
 #: ``[structure]`` keys of a felt's Monte Carlo only (refused in a woven structure)
 FELT_ONLY_KEYS = ("felt_normal_fraction", "felt_normal_spread_deg", "felt_crimp_percent", "felt_crimp_per_cm",
-                  "felt_crimp_plane")
+                  "felt_crimp_plane", "felt_fuzz_fraction", "felt_fuzz_depth_um")
 
 
 def structure_from_table(t: Any) -> StructureSpec:
@@ -135,6 +137,10 @@ def structure_from_table(t: Any) -> StructureSpec:
         felt_crimp_plane = "felt"   # nonwoven, Monte Carlo: the plane each fiber's crimp wave lies in:
                                     # "felt" (the wave sideways, in the felt's plane: a crimped fiber
                                     # laid and pressed flat) | "random" (turned about the fiber's axis)
+        felt_fuzz_fraction = 0      # nonwoven, Monte Carlo: the fraction of the fiber amount in a loose top
+                                    # layer above the compact felt (a hairy surface), [0, 0.5]; 0: none
+        felt_fuzz_depth_um = 300    # nonwoven, Monte Carlo: the depth over which those fibers' lowest
+                                    # points are spread above the compact felt's top, um, (0, 5000]
         samples = 48                # woven: surface samples per side of the micro-element, [4, 512]
 
     The keys of :data:`REMOVED_KEYS` and ``kind = "felt"`` are refused with what to write instead.
@@ -158,6 +164,8 @@ def structure_from_table(t: Any) -> StructureSpec:
         felt_crimp_percent=t.number("felt_crimp_percent", 0.0, ge=0.0, le=40.0),
         felt_crimp_per_cm=t.number("felt_crimp_per_cm", 4.4, gt=0.0, le=20.0),
         felt_crimp_plane=t.string("felt_crimp_plane", "felt", choices=("felt", "random")),
+        felt_fuzz_fraction=t.number("felt_fuzz_fraction", 0.0, ge=0.0, le=0.5),
+        felt_fuzz_depth_um=t.number("felt_fuzz_depth_um", 300.0, gt=0.0, le=5000.0),
         samples=t.integer("samples", 48, ge=4, le=512),
     )
     t.done()
@@ -268,6 +276,10 @@ def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Fa
         _NORMAL_NOTED.append(True)
         log.warning("the summation's felt has its fibers in the plane only: [structure] felt_normal_fraction "
                     "(%.3g) is taken by --method mc only", spec.felt_normal_fraction)
+    if spec.felt_fuzz_fraction > 0.0 and not _FUZZ_NOTED:
+        _FUZZ_NOTED.append(True)
+        log.warning("the summation's felt has no loose top: [structure] felt_fuzz_fraction (%.3g) is taken by "
+                    "--method mc only", spec.felt_fuzz_fraction)
     if spec.felt_crimp_percent > 0.0 and not _CRIMP_NOTED:
         _CRIMP_NOTED.append(True)
         log.warning("the summation's felt has straight fibers: [structure] felt_crimp_percent (%.3g) is taken by "
@@ -288,6 +300,7 @@ def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Fa
 
 _NORMAL_NOTED: list[bool] = []
 _CRIMP_NOTED: list[bool] = []
+_FUZZ_NOTED: list[bool] = []
 
 
 def merged(facets: Facets, tolerance: float = 0.01) -> Facets:

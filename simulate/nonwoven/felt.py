@@ -43,6 +43,16 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   pieces' cylinders. A crimped fiber lying in the plane counts its polyline's projected area in the amount
   below. At ``felt_crimp_percent = 0`` (the default) nothing is drawn for it: the felt is the straight
   one bit for bit. The summation's felt (6.2) has straight fibers (a warning says so).
+* **Loose top** (``felt_fuzz_fraction``, ``felt_fuzz_depth_um``): a real felt's surface is hairy, loose fibers
+  over a density that falls across the top few hundred microns. With ``felt_fuzz_fraction > 0`` that fraction
+  of the fiber amount below (the last fibers drawn) is deposited as a loose top: each fiber's lowest point
+  is drawn uniformly in ``[top, top + felt_fuzz_depth_um]`` above the compact felt's top (the highest point
+  of the fibers deposited before) and the fiber put at the lowest free height from there, by the
+  deposition's rule (no two fibers interpenetrate); a fiber raised beyond the depth by the loose fibers
+  already there is drawn again (:func:`_place_loose`; a depth too thin for the fibers is refused). The
+  loose fibers float (a real felt's hairs are held by their other ends); their directions are the felt's.
+  The bulk volume fraction is the compact felt's. At ``felt_fuzz_fraction = 0`` (the default) nothing is
+  drawn for it: the felt is today's bit for bit. The summation's felt (6.2) has no loose top (a warning says so).
 * **How many**: the summation's felt is ``layers`` (``structure.layers``, default 10) layers of
   parallel fibers at spacing ``d = 2 R spacing_ratio`` (the packing fraction's); here the fibers'
   projected area ``2 R l cos(epsilon)`` adds up to the same ``layers L^2 / spacing_ratio`` (the same
@@ -95,14 +105,16 @@ its own realisation, at several azimuths (:mod:`simulate.woven.estimate`, "A fel
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numba
 import numpy as np
 
-__all__ = ["FeltMesh", "felt_mesh", "felt_inputs", "felt_key", "cached_felt_mesh", "CACHE_MODULES", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
+__all__ = ["FeltMesh", "felt_mesh", "felt_inputs", "LOOSE_TRIES", "felt_key", "cached_felt_mesh", "CACHE_MODULES", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
 
 #: the cell's side and the fibers' length, in fiber radii
 CELL_RADII = 40.0
@@ -114,6 +126,8 @@ CONTACT = 1.0 + 1e-6
 #: at most ``MAX_PIECES`` pieces (:func:`_crimp_pieces`)
 CRIMP_SAGITTA = 0.1
 MAX_PIECES = 16
+#: a loose top fiber's height is drawn at most this many times (:func:`_place_loose`)
+LOOSE_TRIES = 1000
 
 
 @dataclass
@@ -243,6 +257,35 @@ def _crimped_tube(c: np.ndarray, t: np.ndarray, d: np.ndarray, radius: float, le
     return (pts.reshape(-1, 3), nrm.reshape(-1, 3), tans.reshape(-1, 3), S.reshape(-1), PHI.reshape(-1), P)
 
 
+def _fiber_tops(C: np.ndarray, T: np.ndarray, P0: np.ndarray, PD: np.ndarray, crimped: bool, ell: float,
+                R: float) -> np.ndarray:
+    """Each placed fiber's highest point: a straight one's (centres ``C``, directions ``T``, length ``ell``) or
+    a crimped one's (its pieces ``P0``, ``PD`` from its centre)."""
+    if crimped:
+        ends = np.concatenate([P0[:, :, 2], P0[:, -1:, 2] + PD[:, -1:, 2]], axis=1)
+        return C[:, 2] + ends.max(axis=1) + R
+    return C[:, 2] + 0.5 * ell * np.abs(T[:, 2]) + R
+
+
+def _place_loose(place: Callable[..., float], rng: np.random.Generator, xy: np.ndarray, low: float,
+                 top: float, depth: float, L: float) -> tuple[np.ndarray, float]:
+    """A loose top fiber's position and centre height (module docstring, "Loose top"): its lowest point drawn
+    uniformly in ``[top, top + depth]`` and the fiber over ``xy`` put at the lowest free height from there
+    (``place(xy, floor)``, the deposition's rule); when the loose fibers placed there raise it beyond
+    ``top + depth``, drawn again at a new position in the cell (``L``). ``low``: the fiber's centre over its
+    lowest point."""
+    from simulate.montecarlo import ParameterError
+
+    for k in range(LOOSE_TRIES):
+        if k:
+            xy = np.array([rng.uniform(0.0, L), rng.uniform(0.0, L)])
+        z = place(xy, floor=top + rng.uniform(0.0, depth))
+        if z - low <= top + depth:
+            return xy, z
+    raise ParameterError(f"[structure] felt_fuzz_depth_um = {depth:g}: the loose top fibers (felt_fuzz_fraction) "
+                         "do not fit in that depth; raise felt_fuzz_depth_um or lower felt_fuzz_fraction")
+
+
 def _segment_distance(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -> np.ndarray:
     """Closest distance between the segments ``p1 + s d1`` and ``p2 + t d2``, ``s, t`` in ``[0, 1]``
     (rows broadcast; no degenerate segment). The clamped closest-point solution of Ericson (2005),
@@ -273,7 +316,7 @@ def _image_offsets(xy: np.ndarray, C: np.ndarray, L: float) -> np.ndarray:
 
 
 def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndarray, R: float, ell: float,
-                        L: float, iters: int = 36) -> float:
+                        L: float, iters: int = 36, floor: float = 0.0) -> float:
     """The lowest centre height at which a fiber of direction ``t`` over ``xy`` lies on the floor or in a
     gap of the fibers placed so far (centres ``C``, directions ``T``, periodic with period ``L``) without
     overlapping any of them (module docstring: contact distance ``CONTACT x 2R`` between the axes).
@@ -282,8 +325,9 @@ def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndar
     condition), the distance between the two axes as the candidate is moved vertically by ``w`` is
     convex in ``w`` (the distance between a translated convex set and a fixed one), so the heights at
     which they overlap are one interval: its minimum by golden section, its ends by bisection. The
-    candidate goes at the lowest height above the floor outside every interval."""
-    z = 0.5 * ell * abs(t[2]) + R               # resting on the floor z = 0
+    candidate goes at the lowest height above the floor outside every interval. ``floor``: the height the
+    fiber's lowest point may not go below (0: the felt's floor; a loose top fiber's drawn height)."""
+    z = 0.5 * ell * abs(t[2]) + R + floor       # resting on the floor z = floor
     if len(C) == 0:
         return z
     contact = 2.0 * R * CONTACT
@@ -301,7 +345,7 @@ def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndar
 
 
 def _lowest_free_height_pieces(xy: np.ndarray, A0: np.ndarray, AD: np.ndarray, C: np.ndarray, P0: np.ndarray,
-                               PD: np.ndarray, R: float, L: float, iters: int = 36) -> float:
+                               PD: np.ndarray, R: float, L: float, iters: int = 36, floor: float = 0.0) -> float:
     """:func:`_lowest_free_height` for fibers made of straight pieces (a crimped fiber's polyline).
 
     The candidate's pieces start at ``A0`` (``[n, 3]``, from its centre) with vectors ``AD``; the placed
@@ -311,7 +355,7 @@ def _lowest_free_height_pieces(xy: np.ndarray, A0: np.ndarray, AD: np.ndarray, C
     the lowest height above the floor outside all of them. Pairs that cannot meet are left out first: whole
     fibers by their reach in the plane, then pieces by their midpoints' distance in the plane."""
     ends = np.concatenate([A0[:, 2], A0[:, 2] + AD[:, 2]])
-    z = R - float(ends.min())                       # resting on the floor z = 0
+    z = R - float(ends.min()) + floor               # resting on the floor z = floor
     if len(C) == 0:
         return z
     contact = 2.0 * R * CONTACT
@@ -445,7 +489,9 @@ def felt_inputs(spec: object) -> dict:
             "felt_normal_spread_deg": float(getattr(spec, "felt_normal_spread_deg", 15.0)),
             "felt_crimp_percent": float(getattr(spec, "felt_crimp_percent", 0.0)),
             "felt_crimp_per_cm": float(getattr(spec, "felt_crimp_per_cm", 4.4)),
-            "felt_crimp_plane": str(getattr(spec, "felt_crimp_plane", "felt"))}
+            "felt_crimp_plane": str(getattr(spec, "felt_crimp_plane", "felt")),
+            "felt_fuzz_fraction": float(getattr(spec, "felt_fuzz_fraction", 0.0)),
+            "felt_fuzz_depth_um": float(getattr(spec, "felt_fuzz_depth_um", 300.0))}
 
 
 def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FeltMesh:
@@ -472,6 +518,9 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
         n_s = _crimp_pieces(ell, R, amplitude, wavelength, n_s)
     rng = np.random.default_rng([int(seed), 0x7E17])
     target = layers * L * L / ratio           # the layers' projected fiber area
+    fuzz, fuzz_depth = given["felt_fuzz_fraction"], given["felt_fuzz_depth_um"]
+    compact = target * (1.0 - fuzz)            # the compact felt's amount; the rest is the loose top's
+    n_compact, top_compact = -1, 0.0           # set when the first loose fiber is drawn
     area = 0.0
     n_normal = 0
     C, T = np.zeros((0, 3)), np.zeros((0, 3))
@@ -505,20 +554,30 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
             p0, pd = pts[:-1], np.diff(pts, axis=0)
             if flat:                           # the polyline's projected area
                 amount = 2.0 * R * float(np.linalg.norm(pd[:, :2], axis=1).sum())
-            z = _lowest_free_height_pieces(xy, p0, pd, C, P0, PD, R, L)
+            low = R - float(np.concatenate([p0[:, 2], p0[:, 2] + pd[:, 2]]).min())   # centre over lowest point
+            place: Callable[..., float] = functools.partial(
+                _lowest_free_height_pieces, A0=p0, AD=pd, C=C, P0=P0, PD=PD, R=R, L=L)
+        else:
+            low = 0.5 * ell * abs(t[2]) + R
+            place = functools.partial(_lowest_free_height, t=t, C=C, T=T, R=R, ell=ell, L=L)
+        if fuzz > 0.0 and area >= compact:     # a loose top fiber (drawn only then: today's felt keeps its stream)
+            if n_compact < 0:
+                n_compact = len(C)
+                top_compact = float(np.max(_fiber_tops(C, T, P0, PD, crimp > 0.0, ell, R)))
+            xy, z = _place_loose(place, rng, xy, low, top_compact, fuzz_depth, L)
+        else:
+            z = place(xy, floor=0.0)
+        if crimp > 0.0:
             P0, PD = np.concatenate([P0, p0[None]]), np.concatenate([PD, pd[None]])
             planes.append(d)
             phases.append(phase)
-        else:
-            z = _lowest_free_height(xy, t, C, T, R, ell, L)
         C, T = np.vstack([C, [xy[0], xy[1], z]]), np.vstack([T, t])
         area += amount
-    if crimp > 0.0:
-        ends = np.concatenate([P0[:, :, 2], P0[:, -1:, 2] + PD[:, -1:, 2]], axis=1)
-        top = float(np.max(C[:, 2] + ends.max(axis=1) + R))
-    else:
-        top = float(np.max(C[:, 2] + 0.5 * ell * np.abs(T[:, 2]) + R))
+    top = float(np.max(_fiber_tops(C, T, P0, PD, crimp > 0.0, ell, R)))
     C[:, 2] -= top                             # the felt's top at z = 0
+    n_bulk = n_compact if n_compact >= 0 else len(C)     # the compact felt's fibers (the bulk's)
+    if n_compact < 0:                          # no loose fiber drawn (a fraction below the last fiber's amount)
+        top_compact = top
     verts, norms, tans, ss, phis, yarn_len = [], [], [], [], [], []
     for k, (c, t) in enumerate(zip(C, T)):
         if crimp > 0.0:                        # the polyline's box (its arc midpoint at c)
@@ -553,12 +612,16 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     info: dict = {"fibers": len(C), "images": n_y, "cell_um": L, "fiber_length_um": ell, "thickness_um": top,
                   "layers": layers, "spread_deg": math.degrees(spread),
                   "normal_fibers": n_normal, "triangles": int(faces.shape[0]),
-                  "volume_fraction": (bulk_volume_fraction_pieces(C, C[:, None, :] + P0, PD, R, L) if crimp > 0.0
-                                      else bulk_volume_fraction(C, T, R, ell, L)),
+                  "volume_fraction": (bulk_volume_fraction_pieces(C[:n_bulk], C[:n_bulk, None, :] + P0[:n_bulk],
+                                                                  PD[:n_bulk], R, L) if crimp > 0.0
+                                      else bulk_volume_fraction(C[:n_bulk], T[:n_bulk], R, ell, L)),
                   "seed": int(seed)}
     if crimp > 0.0:
         info.update({"crimp_percent": crimp, "crimp_wavelength_um": wavelength, "crimp_amplitude_um": amplitude,
                      "crimp_plane": "random" if random_plane else "felt", "pieces": n_s})
+    if fuzz > 0.0:
+        info.update({"fuzz_fraction": fuzz, "fuzz_depth_um": fuzz_depth, "fuzz_fibers": len(C) - n_bulk,
+                     "compact_top_um": top_compact - top})   # the compact felt's top, below the felt's
     return FeltMesh(
         vertices=vertices, faces=faces, normals=np.concatenate(norms), tangents=np.ascontiguousarray(np.concatenate(tans)),
         vertex_s=np.concatenate(ss), vertex_phi=np.concatenate(phis),

@@ -142,18 +142,21 @@ def test_combine_finds_the_minimum_of_additive_quadratic_responses():
     assert predicted_b == pytest.approx(math.sqrt(np.mean((r0 - e) ** 2)), rel=1e-4)
 
 
-def test_variants_change_one_field_each(tmp_path):
+def test_variants_change_their_fields_only(tmp_path):
     fr = _script()
     paths = fr.write_variants(fr.PRESET, tmp_path)
     base = tomllib.loads(fr.PRESET.read_text())
-    assert len(paths) == len(fr.VARIANTS)
-    for (name, section, key, value), path in zip(fr.VARIANTS, paths):
+    assert len(paths) == len(fr.VARIANTS) + len(fr.JOINT_VARIANTS)
+    changes = [(name, section, {key: value}) for name, section, key, value in fr.VARIANTS] + list(fr.JOINT_VARIANTS)
+    assert any(len(fields) > 1 for _, _, fields in changes)
+    for (name, section, fields), path in zip(changes, paths):
         got = tomllib.loads(path.read_text())
         assert got["name"] == name
-        assert got[section][key] == value
-        got[section].pop(key)
+        for key, value in fields.items():
+            assert got[section][key] == value
+            got[section].pop(key)
         want = {k: dict(v) if isinstance(v, dict) else v for k, v in base.items()}
-        want[section] = {k: v for k, v in base[section].items() if k != key}
+        want[section] = {k: v for k, v in base[section].items() if k not in fields}
         want["name"] = name
         assert got == want
     with pytest.raises(fr.InputError, match="no \\[weave\\] section"):
@@ -255,3 +258,49 @@ def test_permute_reorders_the_rgb_channels_and_keeps_the_rest(tmp_path, capsys):
                          "none.bsdf")):
         code, _, err = _run(capsys, fr, argv)
         assert code == 2 and len(err.strip().splitlines()) == 1 and words in err and "Traceback" not in err
+
+
+def test_top_profile_measures_the_loose_top():
+    """Above the compact felt's top lie only the loose fibres, none overlapping: the profile over that layer is
+    their volume (capsules of the axis pieces: the tube and its two end caps) over the layer's, within 4 SE."""
+    from simulate.fabric import structure as ST
+    from simulate.nonwoven.felt import felt_mesh
+
+    fr = _script()
+    R = 10.0
+    m = felt_mesh(ST.StructureSpec(kind="nonwoven", layers=4, felt_spread_deg=10.0, felt_fuzz_fraction=0.3,
+                                   felt_fuzz_depth_um=400.0), R, seed=5)
+    H = -m.info["compact_top_um"]
+    n = 20000
+    (got,) = fr.top_profile(m, H, H, n=n)
+    ell, L = m.info["fiber_length_um"], m.info["cell_um"]
+    want = m.info["fuzz_fibers"] * (math.pi * R * R * ell + 4.0 / 3.0 * math.pi * R ** 3) / (L * L * H)
+    assert 0.01 < want < 0.2
+    assert abs(got - want) < 4.0 * math.sqrt(want * (1.0 - want) / n)
+    # and the compact felt below is denser than the loose top
+    deep = fr.top_profile(m, 50.0, H + 300.0, n=4000)[-2:]
+    assert np.all(deep > 2.0 * want)
+
+
+def test_lambert_rise_of_a_flat_lambertian_plane_is_one():
+    """A flat Lambertian plane scatters once, beta = albedo / pi in every direction: the rise is 1 at every
+    incidence, all orders and single, for every albedo."""
+    from simulate.woven.meshes import flat_mesh
+
+    fr = _script()
+    rise = fr.lambert_rise(flat_mesh(), [0.3, 0.9], target_rel_err=0.02, rotations=2)
+    assert set(rise) == {f"{k} {t:g}" for k in ("all", "single") for t in fr.RISE_INCIDENCES}
+    for v in rise.values():
+        for r, e in zip(v["ratio"], v["se"]):
+            assert 0.0 < e < 0.05 and abs(r - 1.0) < 4.0 * e
+
+
+@pytest.mark.parametrize("argv,needle", [(["top", "no-such-config"], "no-such-config"),
+                                         (["top", "red-cotton"], "not a felt"),
+                                         (["lambert", "green-felt-mc", "--albedo", "0,1"], "--albedo"),
+                                         (["top", "green-felt-mc", "--seeds", "0"], "--seeds")])
+def test_the_geometry_commands_refuse_bad_input_in_one_line(capsys, argv, needle):
+    fr = _script()
+    assert fr.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0]

@@ -125,3 +125,58 @@ def test_the_felt_demo_plan_table_is_its_json():
         assert [float(x) for x in cells[1].split("(")[1].rstrip(")").split(" / ")] == list(
             run["nrmse_by_incidence"].values())
         assert cells[3] == f"{run['k_Y']:.2f}"
+
+
+def _record(tmp_path, name: str, data: dict) -> None:
+    (tmp_path / f"{name}.json").write_text(json.dumps({
+        "name": name, "command": f"python docs/scripts/felt_residual.py {name}",
+        "machine": {"cpu": "probe", "cpus": 2, "system": "Linux x86_64", "python": "3.11"}, "data": data}),
+        encoding="utf-8")
+
+
+def _rows(table: str) -> list[list[str]]:
+    return [[c.strip() for c in line.strip("|").split("|")] for line in table.splitlines()
+            if line.startswith("| ")]
+
+
+def test_the_felt_top_table_averages_each_pair_of_layers(tmp_path, monkeypatch):
+    r = _render()
+    _record(tmp_path, "felt-top", {"seeds": 2, "bin_um": 50.0, "profiles": {
+        "green-felt-mc": [0.1, 0.3, 0.05, 0.0], "DIR/fuzz-0.1-300.toml": [0.0, 0.0, 0.2, 0.4]}})
+    monkeypatch.setattr(r, "DATA", tmp_path)
+    out = r.fig_felt_top()
+    rows = _rows(out)
+    assert rows[0] == ["felt", "0-100", "100-200"]
+    assert rows[1] == ["`green-felt-mc`", "0.200", "0.025"]
+    assert rows[2] == ["`fuzz-0.1-300`", "0", "0.300"]
+    assert "`python docs/scripts/felt_residual.py felt-top`" in out and "streams 0 .. 1" in out
+
+
+def test_the_felt_lambert_table_takes_each_albedo_s_column(tmp_path, monkeypatch):
+    r = _render()
+    rise = {"all 0": {"ratio": [0.81, 0.93], "se": [0.004, 0.005]},
+            "all 30": {"ratio": [0.69, 0.87], "se": [0.006, 0.005]},
+            "single 0": {"ratio": [0.79, 0.79], "se": [0.004, 0.004]},
+            "single 30": {"ratio": [0.64, 0.64], "se": [0.009, 0.009]}}
+    _record(tmp_path, "felt-lambert", {"albedos": [0.5, 1.0], "rise": {"DIR/fuzz-0.3-1000.toml": rise}})
+    monkeypatch.setattr(r, "DATA", tmp_path)
+    out = r.fig_felt_lambert()
+    rows = _rows(out)
+    assert rows[0] == ["felt", "single scattering at 0 / 30 deg", "all orders, albedo 0.5", "all orders, albedo 1"]
+    assert rows[1] == ["`fuzz-0.3-1000`", "0.790 / 0.640", "0.810 / 0.690", "0.930 / 0.870"]
+    assert "standard error 0.004-0.009" in out
+
+
+def test_the_loose_top_bias_table_is_its_json():
+    r = _render()
+    runs = json.loads((r.DATA / "felt-residual-fuzz.json").read_text(encoding="utf-8"))["data"]["runs"]
+    block = re.search(r"<!-- BEGIN FIGURE: felt-residual-fuzz -->\n(.*?)<!-- END FIGURE", (
+        ROOT / "docs" / "notes" / "felt-structure.md").read_text(encoding="utf-8"), flags=re.S).group(1)
+    second = block.split("\n\n")[1]
+    rows = _rows(second)[1:]
+    assert len(rows) == len(runs)
+    for row, (run, res) in zip(rows, runs.items()):
+        assert row[0] == f"`{run.rsplit('/', 1)[-1]}`"
+        assert abs(float(row[1]) - res["nrmse_best_scale"]) <= 5e-4
+        biases = [float(x) for x in row[2].split(" / ")]
+        assert all(abs(b - res["by_region"][k]["bias_rel"]) <= 5e-4 for b, k in zip(biases, ("back", "near", "forward")))

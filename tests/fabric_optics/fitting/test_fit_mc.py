@@ -167,7 +167,8 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
 
     calls.clear()
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
-    monkeypatch.setattr(fit_module, "run_fit", _no_surrogate_fit_for_run_0(fit_module.run_fit, start_x(_felt(-0.9, -2.1))))
+    monkeypatch.setattr(fit_module, "search_fit", _no_surrogate_fit_for_run_0(fit_module.search_fit,
+                                                                           start_x(_felt(-0.9, -2.1))))
     problem = _resume_problem(probe)[0]
     lines: list[str] = []
     resumed = run_mc_fit(problem, out=out, resume=True, max_evaluations=4, noise_draws=4, inner_evaluations=60, echo=lines.append)
@@ -178,11 +179,11 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
     np.testing.assert_allclose(resumed.objective, reference.objective, rtol=1e-12)
 
 
-def _no_surrogate_fit_for_run_0(run_fit, x0):
-    """run_fit that fails if asked to fit from run 0's point again (its proposal is in the state)."""
+def _no_surrogate_fit_for_run_0(search_fit, x0):
+    """search_fit that fails if asked to fit from run 0's point again (its proposal is in the state)."""
     def checked(problem, **kw):
         assert not np.allclose(problem.start, x0), "the proposal of run 0 was fitted again"
-        return run_fit(problem, **kw)
+        return search_fit(problem, **kw)
     return checked
 
 
@@ -572,3 +573,50 @@ def test_the_best_run_is_the_colour_s_first():
 
 def _run_beta(problem, x):
     return problem.mc_runs[fit_mc._key(np.asarray(x, float))].beta
+
+
+def test_only_the_kept_surrogate_fit_computes_its_uncertainty(monkeypatch, felt4_probe):
+    """With the colour first the surrogate is fitted again at larger colour weights and only the last fit is kept:
+    the uncertainty is computed for that one alone, and equals the whole fit's (run_fit: search and uncertainty)
+    from the same start at the same weight, bit for bit."""
+    import fabric_optics.fitting.driver as fit_module
+
+    probe = felt4_probe
+    curves = _fake_tinted([])(probe, X4_TRUE).beta
+    spectrum = _fake_tinted([])(probe, np.array([-3.0, -1.5, -0.6, -0.3])).beta
+    g = probe.geometries
+    g_star = int(np.flatnonzero((g["theta_i"] == 0.0) & np.isclose(g["theta_o"], 10.0))[0])
+    beta = curves.copy()
+    beta[g_star] = spectrum[g_star] * curves[g_star].mean() / spectrum[g_star].mean()
+    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
+    start = _felt4(X4_START)
+    problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2, wavelengths_nm=WL6)
+    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    run = _fake_tinted([], colour=True)(problem, problem.start)
+    problem.set_correction(problem.start, run.beta, run.u_beta)
+
+    searches, finishes = [], []
+    real_search, real_finish = fit_module.search_fit, fit_module.finish_fit
+
+    def search(problem, **kw):
+        searches.append(problem.colour_weight)
+        return real_search(problem, **kw)
+
+    def finish(problem, found, **kw):
+        finishes.append(problem.colour_weight)
+        return real_finish(problem, found, **kw)
+
+    monkeypatch.setattr(fit_module, "search_fit", search)
+    monkeypatch.setattr(fit_module, "finish_fit", finish)
+    res, weights = fit_mc._surrogate_fit(problem, True, max_evaluations=80, noise_draws=4)
+    monkeypatch.undo()
+    assert len(weights) > 1 and searches == weights          # fitted again at larger weights (else nothing is shown)
+    assert finishes == [weights[-1]]                         # the discarded fits computed no uncertainty
+    assert problem.colour_weight == 1.0
+
+    problem.colour_weight, problem.start = weights[-1], res.start.copy()
+    whole = fit_module.run_fit(problem, out=None, invert_start=True, max_evaluations=80, noise_draws=4)
+    for name in ("x", "u", "u_data", "u_mc", "correlation"):
+        np.testing.assert_array_equal(getattr(res, name), getattr(whole, name), err_msg=name)
+    assert np.isfinite(res.u).all() and res.objective == whole.objective and res.warnings == whole.warnings
+    assert res.info["evaluations_uncertainty"] == whole.info["evaluations_uncertainty"] > 0

@@ -63,7 +63,16 @@ def test_structured_fit_model_equals_simulate_fabric_summation():
     scored at the absorption nodes. Not bit for bit: the kernel's roulette acts on the largest target
     weight (node 0, no dye, is a target of the fit's walk), so the two runs roulette different photons --
     equal within their standard errors, without bias. 2 x 2000 photons per row: the two-halves error
-    estimate is reliable there (at a few hundred it is not, simulate.fabric.structure.PHOTONS_PER_ROW_AT_1PCT)."""
+    estimate is reliable there (at a few hundred it is not, simulate.fabric.structure.PHOTONS_PER_ROW_AT_1PCT).
+
+    The three wavelengths are two wavelength groups (450; 550 and 650 nm, walked at 650), each on its own
+    stream in both runs (fabric_optics.fitting.structure.seed_of), so the two runs share their photons up
+    to the roulette: their difference is well below the noise of two independent runs, ``sigma`` here (the
+    RMS over the geometries of each run's two-halves error, per wavelength). Measured at seeds 3-16, both
+    dyes: the difference's RMS 0.3-0.7 sigma, its largest value 2.4 sigma (limit 3.5). With the second
+    group walked on the first one's stream the runs are independent at 550 and 650 nm: RMS 0.5-1.5
+    sigma, the largest value above 3.5 sigma at 5 of seeds 3-32 (4.65 at seed 3), which fails here, as
+    does a model without one of its terms."""
     config = _felt()
     free = parse_free(["structure.felt_spread_deg"], config)
     problem = FitProblem(config, _measured(0.3), free, method="summation", target_rel_err=0.1, seed=3)
@@ -85,7 +94,7 @@ def test_structured_fit_model_equals_simulate_fabric_summation():
         assert problem.walks == 1 and problem.photons["per_row"] == per_row
         sigma = np.sqrt(np.mean(u ** 2, axis=0) + np.mean(u_ref ** 2, axis=0))   # per wavelength, RMS
         d = (beta - ref) / sigma
-        assert float(np.max(np.abs(d))) < 4.5, d
+        assert float(np.max(np.abs(d))) < 3.5, d    # two runs on the same streams (docstring)
         assert abs(float(np.mean(d))) < 4.0 / math.sqrt(d.shape[0]) + 0.5, d   # no bias beyond the noise
         np.testing.assert_allclose(beta, ref, rtol=0.08)
     # the structure moves the model without a walk; the same spread gives the same numbers again

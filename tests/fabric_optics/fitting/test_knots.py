@@ -10,6 +10,7 @@ import pytest
 from simulate.config import ConfigError, parse_config
 from fabric_optics.fitting.driver import FitProblem, parse_free, run_fit
 from fabric_optics.fitting.start import inverted_start, knots_config
+from fabric_optics import paths
 from fabric_optics.paths import toml_dumps
 
 from .conftest import WAVELENGTHS, measurement
@@ -94,3 +95,77 @@ def test_knots_curve_and_its_errors(red_cotton):
         assert message in str(info.value)
     names = [p.name for p in parse_free(["dye"], kc)]
     assert names == [f"fiber.dye.log10_per_um[{i}]" for i in range(6)]
+
+
+def test_a_dye_only_point_reads_its_config_from_the_parse_of_its_other_parameters(knots_problem, monkeypatch):
+    """config_at parses the whole config once per value of the parameters other than the dye: a point that
+    changes only the dye gets the config a full parse gives, field by field (text, SHA-256 and the dye
+    included), and the same model bit for bit; a change of another parameter is parsed whole."""
+    import fabric_optics.fitting.problem as problem_module
+
+    base = knots_problem
+    problem = FitProblem(base.config, base.measured, parse_free(["dye,rms_slope"], base.config), method="classic",
+                         target_rel_err=base.target_rel_err, seed=base.seed)
+    problem._tables, problem.photons = base._tables, base.photons
+    parses = []
+    real_parse = problem_module.parse_config
+
+    def counted(*args, **kwargs):
+        parses.append(args[0])
+        return real_parse(*args, **kwargs)
+
+    monkeypatch.setattr(problem_module, "parse_config", counted)
+    x0 = problem.start.copy()
+    problem.config_at(x0)
+    x1 = x0.copy()
+    x1[:-1] += np.linspace(-0.3, 0.4, x1.size - 1)            # every knot moved, the RMS slope kept
+    got = problem.config_at(x1)
+    assert len(parses) == 1                                   # read from x0's parse
+    monkeypatch.undo()
+    doc = tomllib.loads(base.config.text)
+    for p, v in zip(problem.free, x1):
+        paths.set_value(doc, p.name, float(v))
+    full = parse_config(toml_dumps(doc), f"{base.config.name}.toml", source=f"fit of {base.config.source}")
+    assert _same(got, full) and got.dye is not None
+    assert got.text == full.text and got.sha256 == full.sha256 and got.dye != problem.config_at(x0).dye
+    b_got, u_got = problem.model(x1)
+    b_full, u_full = problem.model_at_host(full, full.dye(problem.wavelengths_nm))
+    np.testing.assert_array_equal(b_got, b_full)
+    np.testing.assert_array_equal(u_got, u_full)
+    monkeypatch.setattr(problem_module, "parse_config", counted)
+    x2 = x1.copy()
+    x2[-1] *= 1.1                                             # the RMS slope: parsed whole
+    assert problem.config_at(x2).rms_slope == pytest.approx(x2[-1], rel=1e-15) and len(parses) == 2
+
+
+def _same(a, b) -> bool:
+    """Equal field by field, arrays element by element (a config holds numpy arrays: ``==`` is not a bool)."""
+    import dataclasses
+
+    if type(a) is not type(b):
+        return False
+    if dataclasses.is_dataclass(a):
+        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and a.dtype == b.dtype and bool(np.array_equal(a, b))
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(_same(u, v) for u, v in zip(a, b))
+    return bool(a == b)
+
+
+def test_a_dye_only_point_with_a_bad_dye_is_refused_as_a_full_parse_refuses_it(knots_problem):
+    """The dye table of a dye-only point goes through the parser's own checks: a knot outside the knots' range
+    gives the full parse's error."""
+    problem = knots_problem
+    problem.config_at(problem.start)
+    x = problem.start.copy()
+    x[0] = 5.0                                                # log10 5 /um: above the knots' range
+    doc = tomllib.loads(problem.config.text)
+    doc["fiber"]["dye"]["log10_per_um"][0] = 5.0
+    with pytest.raises(ConfigError) as full:
+        parse_config(toml_dumps(doc), f"{problem.config.name}.toml")
+    with pytest.raises(ConfigError) as got:
+        problem.config_at(x)
+    assert str(got.value) == str(full.value)

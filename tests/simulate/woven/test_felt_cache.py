@@ -52,7 +52,7 @@ def test_the_key_covers_every_input_of_the_felt():
     assert FM.felt_key(_spec(), 10.0, seed=1) == base
     changed = {"layers": 3, "packing_fraction": 0.5, "felt_spread_deg": 16.0, "felt_normal_fraction": 0.1,
                "felt_normal_spread_deg": 20.0, "felt_crimp_percent": 5.0, "felt_crimp_per_cm": 5.0,
-               "felt_crimp_plane": "random"}
+               "felt_crimp_plane": "random", "felt_fuzz_fraction": 0.2, "felt_fuzz_depth_um": 200.0}
     # every input the felt reads is tried here (the spacing ratio through the packing fraction)
     assert set(changed) - {"packing_fraction"} | {"spacing_ratio"} == set(FM.felt_inputs(_spec()))
     for name, value in changed.items():
@@ -120,7 +120,7 @@ def _free_height_numpy(p1, d1, p2, d2, span, zj, z, contact, iters):
 @pytest.mark.parametrize("kw, seed", [({}, 0), ({}, 1_000_003), ({"felt_spread_deg": 5.0}, 5),
                                       ({"felt_crimp_percent": 13.0}, 3),
                                       ({"felt_crimp_percent": 20.0, "felt_crimp_per_cm": 10.0,
-                                        "felt_crimp_plane": "random"}, 4),
+                                        "felt_crimp_plane": "random", "felt_fuzz_fraction": 0.2, "felt_fuzz_depth_um": 200.0}, 4),
                                       ({"felt_normal_fraction": 0.3}, 2)],
                          ids=["seed0", "seed1000003", "seed5", "crimped", "crimped-random", "needled"])
 def test_the_compiled_placement_builds_the_felt_bit_for_bit(monkeypatch, kw, seed):
