@@ -9,7 +9,8 @@ for concurrent processes (an entry is written to a temporary file and moved into
 that counts the cache's entries, hits or misses uses the ``cache_dir`` fixture: a directory of its own.
 
 With two or more xdist workers, the controller first runs ``tests/warm_kernels.py``: one process
-per group of kernels, the groups at once, each compiling its kernels into numba's on-disk cache;
+per group of kernels, the groups at once, each compiling its kernels into numba's on-disk cache (the
+kernels both groups use compiled by one, the other waiting for them: the script's docstring);
 the workers then load them instead of each compiling every kernel it meets. A test that needs an
 empty numba cache (``tests/simulate/mc/test_kernel_cache.py``) sets ``NUMBA_CACHE_DIR`` for its own
 processes.
@@ -67,15 +68,20 @@ def pytest_configure(config: pytest.Config) -> None:
     if _xdist_workers(config) < 2 or config.option.collectonly:
         return
     start = time.perf_counter()
-    env = dict(os.environ, FABRIC_OPTICS_NO_CACHE="1")
+    # the file by which the monte-carlo group tells the fabric group that their shared kernels are compiled
+    ready_dir = tempfile.mkdtemp(prefix="fabric-optics-warm-kernels-")
+    ready = Path(ready_dir) / "shared-ready"
+    env = dict(os.environ, FABRIC_OPTICS_NO_CACHE="1", WARM_KERNELS_SHARED_READY=str(ready))
     procs = [(group, subprocess.Popen([sys.executable, "-P", str(_WARM_KERNELS), group], env=env,
                                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
              for group in _WARM_GROUPS]
     lines = []
     for group, proc in procs:
         out, _ = proc.communicate()
+        ready.touch()     # a group that ended (the monte-carlo group comes first) keeps no other group waiting
         lines.append(out.strip().splitlines()[-1] if proc.returncode == 0 and out.strip()
                      else f"{group} failed (exit {proc.returncode}): {out.strip().splitlines()[-1:] or ''}")
+    shutil.rmtree(ready_dir, ignore_errors=True)
     _warm_report.append(f"numba kernels compiled before the workers start: {time.perf_counter() - start:.1f} s "
                         f"({'; '.join(lines)})")
 

@@ -2,10 +2,14 @@
 
 Run by the root ``conftest.py`` in the xdist controller (``-n 2`` or more) as ``python warm_kernels.py
 GROUP`` in one process per group, the groups at once: each group runs tiny versions of the routes
-whose kernels it compiles (the groups' kernels are disjoint, so no kernel is compiled twice), and the
-test workers then load every kernel instead of each compiling it. In a tree whose cache is already
-filled the groups only load. Nothing is written but numba's cache: the table cache is off and the
-outputs go to a temporary directory. The script prints the seconds it took.
+whose kernels it compiles, and the test workers then load every kernel instead of each compiling it.
+The woven tracer of the fabric group walks its yarn's exit table with the fiber Monte Carlo kernels the
+monte-carlo group compiles too: the monte-carlo group compiles them first (a tiny yarn table) and then
+creates the file named by ``WARM_KERNELS_SHARED_READY`` (set by the caller; it is created when that step
+fails too); the fabric group waits for that file before its first route and loads those kernels, so no
+kernel is compiled twice. In a tree whose cache is already filled the groups only load. Nothing is
+written but numba's cache and that file: the table cache is off and the outputs go to a temporary
+directory. The script prints the seconds it took.
 """
 
 from __future__ import annotations
@@ -31,6 +35,17 @@ def _monte_carlo(tmp: Path) -> None:
     probe = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(probe)
     probe._routes()
+
+
+def _yarn_table(tmp: Path) -> None:
+    """The fiber Monte Carlo kernels both groups use: a yarn's exit table (rows of the white walk), tiny."""
+    from simulate import woven as W
+    from simulate.fiber import Fiber
+    from simulate.media.medium import HGMedium
+
+    fiber = Fiber(radius_um=10.0, n_host=1.5, medium=HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), roughness=0.3,
+                  cell_width_deg=10.0)
+    W.yarn_table(fiber, [550.0], photons_per_row=50, seed=1, threads=1, cache=False)
 
 
 def _structure(tmp: Path) -> None:
@@ -87,31 +102,65 @@ in_plane_deg = [-30, 0, 30]
 """
 
 
-def _fabric(tmp: Path) -> None:
-    """The woven Monte Carlo of a tiny plain weave and its structured summation, through the command line."""
-    from fabric_optics.cli.simulate import main
-
+def _woven_files(tmp: Path) -> tuple[Path, Path, Path]:
+    """The tiny plain weave's config, the same with a [structure] section, and the plan, written into ``tmp``."""
     cfg, structured, plan = tmp / "woven.toml", tmp / "structured.toml", tmp / "plan.toml"
     cfg.write_text(WOVEN_CONFIG)
     structured.write_text(WOVEN_CONFIG + "[structure]\nwarp_twist_deg = 20\n")
     plan.write_text(PLAN)
+    return cfg, structured, plan
+
+
+def _woven_summation(tmp: Path) -> None:
+    """The structured summation of a tiny plain weave, through the command line."""
+    from fabric_optics.cli.simulate import main
+
+    _, structured, plan = _woven_files(tmp)
     with contextlib.redirect_stdout(io.StringIO()):
-        main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(tmp / "mc"),
-              "--target-rel-err", "0.3", "--no-progress"])
         main(["fabric", str(structured), "--method", "summation", "--plan", str(plan), "--out", str(tmp / "sum"),
               "--target-rel-err", "0.3", "--no-progress"])
 
 
-#: the groups, one process each: the Monte Carlo kernels and the fit's walk; the woven scene and shading
-GROUPS = {"monte-carlo": (_monte_carlo, _structure), "fabric": (_fabric,)}
+def _woven_mc(tmp: Path) -> None:
+    """The woven Monte Carlo of a tiny plain weave, through the command line (its yarn table walks the fiber)."""
+    from fabric_optics.cli.simulate import main
+
+    cfg, _, plan = _woven_files(tmp)
+    with contextlib.redirect_stdout(io.StringIO()):
+        main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(tmp / "mc"),
+              "--target-rel-err", "0.3", "--no-progress"])
+
+
+#: the groups, one process each (the Monte Carlo kernels and the fit's walk; the woven scene and shading), each
+#: as the routes before the meeting point and those after it (module docstring): the monte-carlo group first
+#: compiles the kernels both need, then creates the ready file; the fabric group waits for that file (its
+#: summation walks the fiber too)
+GROUPS = {"monte-carlo": ((_yarn_table,), (_monte_carlo, _structure)),
+          "fabric": ((), (_woven_mc, _woven_summation))}
+SHARED_BY = "monte-carlo"
+#: the ready file's variable (set by the caller; without it no group waits) and how long a group waits at most
+READY_ENV = "WARM_KERNELS_SHARED_READY"
+READY_TIMEOUT_S = 900.0
 
 
 def main(argv: list[str]) -> int:
     (group,) = argv
     start = time.perf_counter()
     os.environ["FABRIC_OPTICS_NO_CACHE"] = "1"
+    ready = os.environ.get(READY_ENV, "")
+    first, then = GROUPS[group]
     with tempfile.TemporaryDirectory(prefix="warm-kernels-") as tmp:
-        for route in GROUPS[group]:
+        try:
+            for route in first:
+                route(Path(tmp))
+        finally:
+            if ready and group == SHARED_BY:
+                Path(ready).touch()
+        if ready and group != SHARED_BY:
+            deadline = time.monotonic() + READY_TIMEOUT_S
+            while not os.path.exists(ready) and time.monotonic() < deadline:
+                time.sleep(0.1)
+        for route in then:
             route(Path(tmp))
     print(f"{group}: {time.perf_counter() - start:.1f} s")
     return 0
