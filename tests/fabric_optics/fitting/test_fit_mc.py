@@ -519,13 +519,8 @@ def test_the_monte_carlo_fit_puts_the_colour_first_where_the_curves_want_another
     from fabric_optics.fitting.driver import COLOUR_TOLERANCE
 
     probe = felt4_probe
-    curves = _fake_tinted([])(probe, X4_TRUE).beta
-    spectrum = _fake_tinted([])(probe, np.array([-3.0, -1.5, -0.6, -0.3])).beta
+    measured, g_star = _colour_disagreeing(probe)
     g = probe.geometries
-    g_star = int(np.flatnonzero((g["theta_i"] == 0.0) & np.isclose(g["theta_o"], 10.0))[0])
-    beta = curves.copy()
-    beta[g_star] = spectrum[g_star] * curves[g_star].mean() / spectrum[g_star].mean()
-    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
     dh_max, ds_max = COLOUR_TOLERANCE
     figs = {}
     for colour_first in (False, True):
@@ -571,6 +566,18 @@ def test_the_best_run_is_the_colour_s_first():
     assert fit_mc._better(run(0.1, float("nan")), run(0.2, float("nan")), True)  # no colour: the objective
 
 
+def _colour_disagreeing(probe):
+    """``(measured, g_star)``: the stand-in Monte Carlo's curves at one dye with the colour geometry's spectrum (row
+    ``g_star``, same mean) from another dye: a measurement whose curves and colour disagree."""
+    curves = _fake_tinted([])(probe, X4_TRUE).beta
+    spectrum = _fake_tinted([])(probe, np.array([-3.0, -1.5, -0.6, -0.3])).beta
+    g = probe.geometries
+    g_star = int(np.flatnonzero((g["theta_i"] == 0.0) & np.isclose(g["theta_o"], 10.0))[0])
+    beta = curves.copy()
+    beta[g_star] = spectrum[g_star] * curves[g_star].mean() / spectrum[g_star].mean()
+    return _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6), g_star
+
+
 def _run_beta(problem, x):
     return problem.mc_runs[fit_mc._key(np.asarray(x, float))].beta
 
@@ -582,13 +589,7 @@ def test_only_the_kept_surrogate_fit_computes_its_uncertainty(monkeypatch, felt4
     import fabric_optics.fitting.driver as fit_module
 
     probe = felt4_probe
-    curves = _fake_tinted([])(probe, X4_TRUE).beta
-    spectrum = _fake_tinted([])(probe, np.array([-3.0, -1.5, -0.6, -0.3])).beta
-    g = probe.geometries
-    g_star = int(np.flatnonzero((g["theta_i"] == 0.0) & np.isclose(g["theta_o"], 10.0))[0])
-    beta = curves.copy()
-    beta[g_star] = spectrum[g_star] * curves[g_star].mean() / spectrum[g_star].mean()
-    measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
+    measured, g_star = _colour_disagreeing(probe)
     start = _felt4(X4_START)
     problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2, wavelengths_nm=WL6)
     problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
