@@ -7,6 +7,7 @@
     python docs/scripts/felt_residual.py permute FILE.bsdf --order gbr --out OTHER.bsdf # another colour
     python docs/scripts/felt_residual.py top CONFIG [CONFIG ...] [--seeds 3] [--json OUT]  # volume fraction below the top
     python docs/scripts/felt_residual.py lambert CONFIG [CONFIG ...] [--json OUT]          # its felt of Lambertian fibres
+    python docs/scripts/felt_residual.py phase [CONFIG ...] [--variants] [--felt] [--json OUT] # the fibre's own phase
 
 ``decompose`` compares each ``RUN`` (a ``simulate fabric`` dataset) with ``FILE`` (``gonio truth`` of the felt's
 file) exactly as ``compare check`` does (:func:`compare.comparison.compare_datasets`: the per-channel factor at the
@@ -42,6 +43,11 @@ a ``simulate fabric --method mc`` run at seed 0 traces the first) and gives its 
 the felt's top, pooled over the seeds (:func:`top_profile`). ``lambert`` traces the same felt (seed 0) with opaque Lambertian fibres of
 the albedos ``--albedo`` and gives the in-plane forward rise ``beta(70)/beta(30)`` at the plan's four incidences, all
 orders and the single scattering (:func:`lambert_rise`): the felt's geometry alone, without the fibre's optics.
+``phase`` gives the fibre's own far field at the felt's normal incidence, averaged over the axis azimuths in the
+felt's plane (:func:`fibre_phase`: exit tables plus the surface term, the construction the felt traces), its
+``p(110)/p(150) = S(70)/S(30)`` per band group, the opaque Lambertian fibre's (:func:`lambert_phase`), with
+``--variants`` the first config with each fibre field of :data:`PHASE_VARIANTS` changed, with ``--felt`` each
+``CONFIG``'s felt traced at normal incidence in single scattering and all orders (:func:`felt_rise`).
 Bad input (a missing dataset, an incidence limit that keeps no point, a config that is not a felt) is one line
 naming it, exit 2.
 ``--json OUT`` writes the result alone; a table of the notes takes it wrapped with its command and machine:
@@ -55,6 +61,8 @@ import json
 import math
 import re
 import sys
+import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -105,6 +113,8 @@ class InputError(Exception):
 # ---------------------------------------------------------------------------------------------- variants
 
 def _toml_value(v: Any) -> str:
+    if isinstance(v, dict):     # an inline table
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
     return json.dumps(v) if isinstance(v, str) else repr(v)
 
 
@@ -476,6 +486,212 @@ def lambert_rise(mesh: Any, albedos: list[float], target_rel_err: float = 0.01, 
     return out
 
 
+# ---------------------------------------------------------------------------------------------- the fibre's phase
+
+#: view angles (deg) in the plane of incidence of the phase curve, the beam along the felt's normal: the scattering
+#: angle is ``180 - |view|`` (0 = forward), so views 70 and 30 are the scattering angles 110 and 150 deg
+PHASE_VIEWS_DEG = tuple(float(v) for v in range(-80, 81, 10))
+#: the view angles of ``p(110)/p(150)``: ``beta(70)/beta(30)`` of the felt in single scattering is that times the
+#: felt's geometric factor (:func:`extinction_factor`)
+PHASE_HIGH_DEG, PHASE_LOW_DEG = 70.0, 30.0
+#: (name, ((TOML section, key, value), ...)): fibre fields of ``green-felt-mc.toml`` changed for ``phase --variants``
+#: (a dict value is written as an inline table)
+PHASE_VARIANTS: tuple[tuple[str, tuple[tuple[str, str, Any], ...]], ...] = (
+    ("boundary-smooth", (("surface", "transmission_rms_slope", 0.0), ("surface", "transmission_rms_slope_around", 0.0))),
+    ("boundary-0.3", (("surface", "transmission_rms_slope", 0.3), ("surface", "transmission_rms_slope_around", 0.3))),
+    ("boundary-0.5", (("surface", "transmission_rms_slope", 0.5), ("surface", "transmission_rms_slope_around", 0.5))),
+    ("boundary-1.0", (("surface", "transmission_rms_slope", 1.0), ("surface", "transmission_rms_slope_around", 1.0))),
+    ("boundary-0.1-1.0", (("surface", "transmission_rms_slope_around", 1.0),)),
+    ("rms-slope-0.1", (("surface", "rms_slope", 0.1),)),
+    ("rms-slope-0.2", (("surface", "rms_slope", 0.2),)),
+    ("rms-slope-0.5", (("surface", "rms_slope", 0.5),)),
+    ("rms-slope-0.8", (("surface", "rms_slope", 0.8),)),
+    ("scatterers-x0.1", (("particles", "volume_fraction", 0.000084),)),
+    ("scatterers-x10", (("particles", "volume_fraction", 0.0084),)),
+    ("scatterers-x30", (("particles", "volume_fraction", 0.0252),)),
+    ("particles-0.05", (("particles", "size", {"median_radius_um": 0.05, "sigma_g": 1.4}),)),
+    ("particles-0.3", (("particles", "size", {"median_radius_um": 0.3, "sigma_g": 1.4}),)),
+    ("particles-1.0", (("particles", "size", {"median_radius_um": 1.0, "sigma_g": 1.4}),)),
+    ("radius-5", (("fiber", "radius_um", 5.0),)),
+    ("radius-12", (("fiber", "radius_um", 12.0),)),
+    ("n-host-1.4", (("fiber", "n_host", 1.4),)),
+    ("n-host-1.6", (("fiber", "n_host", 1.6),)),
+)
+
+
+def felt_views(views_deg: Any, azimuths: int) -> np.ndarray:
+    """Exit directions ``[A, V, 3]`` in the fibre's frame (x the axis) for a fibre lying in the felt's plane with its
+    axis at ``A`` azimuths ``alpha`` (uniform midpoints over the turn) from the plane of incidence, the views ``V`` in
+    that plane (``view > 0``: towards +x of the felt). The beam along the felt's normal is ``(0, 0, 1)`` in every
+    fibre's frame (the frame's z is the felt's normal)."""
+    th = np.radians(np.asarray(views_deg, float))
+    alpha = (np.arange(int(azimuths)) + 0.5) * 2.0 * math.pi / int(azimuths)
+    s, c = np.sin(th)[None, :], np.cos(th)[None, :]
+    return np.stack([s * np.cos(alpha)[:, None], -s * np.sin(alpha)[:, None], np.broadcast_to(c, (alpha.size, th.size))],
+                    axis=-1)
+
+
+def lambert_far_field(w_in: np.ndarray, w_out: np.ndarray, radius_um: float = 1.0, albedo: float = 1.0) -> np.ndarray:
+    """``S`` (um/sr) of an opaque Lambertian cylinder (axis x), closed form: with ``phi`` the angle between the
+    directions' projections across the axis, ``S = albedo R |w_i,perp| |w_o,perp| ((pi - phi) cos phi + sin phi) /
+    (2 pi)`` (the cell sum of ``albedo / pi (w_i . n)_+ (w_o . n)_+ R dpsi`` over the lit and seen cells)."""
+    pi_ = np.asarray(w_in, float)[..., 1:]
+    po = np.asarray(w_out, float)[..., 1:]
+    ni, no = np.linalg.norm(pi_, axis=-1), np.linalg.norm(po, axis=-1)
+    cos = np.clip(np.sum(pi_ * po, axis=-1) / np.maximum(ni * no, 1e-300), -1.0, 1.0)
+    phi = np.arccos(cos)
+    return albedo * radius_um * ni * no * ((math.pi - phi) * cos + np.sin(phi)) / (2.0 * math.pi)
+
+
+def extinction_factor(view_deg: float, plane: bool = True) -> float:
+    """The single-scattering factor ``1 / (mu_o a + mu_i b)`` of a half-space of fibres at normal incidence, with
+    ``a``, ``b`` the extinction per unit fibre length along the beam and the view over ``2 R``: fibres lying in the
+    plane (``plane``) take ``a = 1`` (the beam across every fibre) and ``b = <|w_o,perp|>`` over the axis azimuths,
+    ``(2 / pi) E(sin^2 theta_o)``; isotropic scatterers ``a = b = 1`` (Lommel-Seeliger's ``1 / (mu_i + mu_o)``)."""
+    from scipy.special import ellipe
+
+    th = math.radians(view_deg)
+    b = 2.0 / math.pi * float(ellipe(math.sin(th) ** 2)) if plane else 1.0
+    return 1.0 / (math.cos(th) + b)
+
+
+def band_means(values: np.ndarray, wavelengths_nm: np.ndarray) -> dict[str, np.ndarray]:
+    """The mean over the last axis within each of :data:`BAND_GROUPS` (and ``"all"``)."""
+    wl = np.asarray(wavelengths_nm, float)
+    out = {name: values[..., (wl >= lo) & (wl <= hi)].mean(axis=-1) for name, lo, hi in BAND_GROUPS
+           if np.any((wl >= lo) & (wl <= hi))}
+    out["all"] = values.mean(axis=-1)
+    return out
+
+
+def _rise(curve: np.ndarray, views: np.ndarray, high: float = PHASE_HIGH_DEG, low: float = PHASE_LOW_DEG) -> np.ndarray:
+    """``S(high) / S(low)``, each the mean of the two sides (curve ``[V, ...]`` over ``views``)."""
+    def at(v: float) -> np.ndarray:
+        return 0.5 * (curve[np.argmin(np.abs(views - v))] + curve[np.argmin(np.abs(views + v))])
+    return at(high) / at(low)
+
+
+def sphere_integral(far_field: Any, n_theta: int = 90, n_phi: int = 180, upper_only: bool = False) -> np.ndarray:
+    """``int S dOmega`` over the sphere (or the felt's upper half, ``z > 0``) of ``far_field(w_out [O, 3]) -> [O, ...]``
+    by the midpoint rule in ``cos theta`` and the azimuth."""
+    mu = (np.arange(n_theta) + 0.5) / n_theta * (1.0 if upper_only else 2.0) - (0.0 if upper_only else 1.0)
+    ph = (np.arange(n_phi) + 0.5) * 2.0 * math.pi / n_phi
+    st = np.sqrt(1.0 - mu ** 2)
+    w = np.stack([np.outer(st, np.cos(ph)), np.outer(st, np.sin(ph)), np.outer(mu, np.ones_like(ph))], -1).reshape(-1, 3)
+    d_omega = (1.0 if upper_only else 2.0) / n_theta * 2.0 * math.pi / n_phi
+    return np.asarray(far_field(w)).sum(axis=0) * d_omega
+
+
+def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000, tables: int = 4, seed: int = 0,
+                azimuths: int = 72, bins: tuple[int, int] = (10, 20), views_deg: Any = PHASE_VIEWS_DEG,
+                threads: int = 1) -> dict[str, Any]:
+    """The fibre's far field at the felt's normal incidence, averaged over the axis azimuths in the plane.
+
+    ``S = S_vol + S_surf`` (:mod:`simulate.fiber.farfield`): the volume term from ``tables`` independent exit tables
+    (:func:`simulate.fiber.farfield.exit_table`, seeds ``tables * seed + j``, the fibre's rough boundary for light
+    crossing it included, with the light that crosses the fibre without scattering) and the Cook-Torrance surface
+    term, each at the views of ``views_deg`` in the plane of incidence for ``azimuths`` axis azimuths
+    (:func:`felt_views`), then their mean. Per band group of :data:`BAND_GROUPS` (the mean over its wavelengths):
+    the curve ``S(view)``, ``p(110)/p(150) = S(70)/S(30)`` (both sides' mean) and its standard error over the
+    tables, the volume albedo ``a(w_i)`` (all exits of the volume over ``2 R``), the surface's, and the share of
+    the scattered power that leaves into the felt's upper half (towards the source's side)."""
+    from simulate.fiber import farfield as FF
+
+    if tables < 2 or photons_per_row < FF.MIN_PHOTONS_PER_ROW or azimuths < 4:
+        raise InputError(f"phase: give --tables >= 2, --photons >= {FF.MIN_PHOTONS_PER_ROW} and --azimuths >= 4")
+    wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
+    views = np.asarray(views_deg, float)
+    w_in = np.array([0.0, 0.0, 1.0])
+    grid = felt_views(views, azimuths).reshape(-1, 3)
+    s_surf = FF.surface_far_field(fiber, np.repeat(w_in[None], grid.shape[0], 0), grid).reshape(azimuths, -1).mean(0)
+    surf_of = lambda w: FF.surface_far_field(fiber, np.repeat(w_in[None], w.shape[0], 0), w)  # noqa: E731
+    surf_albedo = float(sphere_integral(surf_of) / (2.0 * fiber.radius_um))
+    surf_up = float(sphere_integral(surf_of, upper_only=True) / (2.0 * fiber.radius_um))
+    vols, albedos, ups = [], [], []
+    started = time.perf_counter()
+    for j in range(int(tables)):
+        tab = FF.exit_table(fiber, wl, w_t=(0.0, 0.26), bins=bins, photons_per_row=int(photons_per_row),
+                            seed=int(tables) * int(seed) + j, threads=threads, cache=False)
+        rad = tab.exit_radiance(w_in)
+
+        def vol_of(w: np.ndarray, tab=tab, rad=rad) -> np.ndarray:
+            R, cos = tab.lookup(rad, w)
+            return tab.radius_um * tab.dpsi * np.einsum("ok,okl->ol", cos, R)
+
+        vols.append(vol_of(grid).reshape(azimuths, views.size, wl.size).mean(0))
+        albedos.append(tab.albedo(w_in))
+        ups.append(sphere_integral(vol_of, upper_only=True) / (2.0 * fiber.radius_um))
+    vol = np.mean(vols, axis=0)                                        # [V, L]
+    total = vol + s_surf[:, None]
+    albedo = np.mean(albedos, axis=0)
+    up = np.mean(ups, axis=0)
+    out: dict[str, Any] = {"views_deg": views.tolist(), "photons_per_row": int(photons_per_row), "tables": int(tables),
+                           "azimuths": int(azimuths), "bins": list(bins), "seconds": time.perf_counter() - started,
+                           "surface_albedo": surf_albedo, "bands": {}}
+    per_table = [band_means(v + s_surf[:, None], wl) for v in vols]
+    for band, curve in band_means(total, wl).items():
+        ratios = np.array([_rise(t[band], views) for t in per_table])
+        vshare = band_means(vol, wl)[band] / curve
+        out["bands"][band] = {
+            "curve": curve.tolist(), "volume_share": vshare.tolist(), "ratio": float(_rise(curve, views)),
+            "se": float(ratios.std(ddof=1) / math.sqrt(ratios.size)),
+            "volume_albedo": float(band_means(albedo, wl)[band]),
+            "upper_share": float((band_means(up, wl)[band] + surf_up) / (band_means(albedo, wl)[band] + surf_albedo))}
+    return out
+
+
+def lambert_phase(azimuths: int = 72, views_deg: Any = PHASE_VIEWS_DEG) -> dict[str, Any]:
+    """:func:`fibre_phase`'s curve and ratio for the opaque Lambertian fibre of albedo 1 (:func:`lambert_far_field`),
+    its albedo from the sphere integral (1) and its share into the felt's upper half."""
+    views = np.asarray(views_deg, float)
+    grid = felt_views(views, azimuths)
+    w_in = np.array([0.0, 0.0, 1.0])
+    curve = lambert_far_field(w_in, grid).mean(axis=0)
+    def of(w: np.ndarray) -> np.ndarray:
+        return lambert_far_field(w_in, w)
+    return {"curve": curve.tolist(), "ratio": float(_rise(curve, views)),
+            "albedo": float(sphere_integral(of) / 2.0), "upper_share": float(sphere_integral(of, upper_only=True)
+                                                                              / sphere_integral(of))}
+
+
+def felt_rise(config: Any, *, target_rel_err: float = 0.02, seed: int = 0, max_events: int = 1,
+              threads: int = 1) -> dict[str, Any]:
+    """The felt Monte Carlo of ``config`` (as ``simulate fabric --method mc``: its two felts, exit bins, axial
+    shift and nodes) at normal incidence towards the in-plane views 30 and 70 deg on both sides, following
+    ``max_events`` fibre scatterings (1: single; 0: all): ``beta(70)/beta(30)`` per band group, both sides' mean,
+    with its standard error (the betas' relative errors in quadrature)."""
+    from simulate import woven
+    from simulate.nonwoven.felt import cached_felt_mesh
+    from simulate.optics.microfacet import directions_deg
+    from simulate.products import FELT_SEED_STRIDE
+
+    wl = np.asarray(config.wavelengths_nm, float)
+    fiber = config.fiber(wl)
+    spec = config.structure
+    felts = tuple(cached_felt_mesh(spec, float(fiber.radius_um), seed=seed + FELT_SEED_STRIDE * h)[0] for h in (0, 1))
+    views = [PHASE_HIGH_DEG, PHASE_LOW_DEG, PHASE_HIGH_DEG, PHASE_LOW_DEG]
+    w_o = directions_deg(views, [0.0, 0.0, 180.0, 180.0])
+    w_i = np.repeat(directions_deg([0.0], [0.0]), len(views), axis=0)
+    bins = config.exit_bins or woven.estimate.default_exit_bins(fiber, wl, True)
+    started = time.perf_counter()
+    beta, u, info = woven.fabric_beta(felts, fiber, w_i, w_o, wl, target_rel_err=target_rel_err, seed=seed,
+                                      threads=threads, structure=spec, exit_bins=bins,
+                                      axial_shift=bool(config.axial_shift), w_t_nodes=config.w_t_nodes(),
+                                      max_events=max_events)
+    out: dict[str, Any] = {"max_events": int(max_events), "target_rel_err": target_rel_err, "seed": int(seed),
+                           "rays": int(info["rays"]), "seconds": time.perf_counter() - started, "bands": {}}
+    b, v = band_means(beta, wl), band_means(u ** 2, wl)
+    n_wl = {name: int(np.sum((wl >= lo) & (wl <= hi))) for name, lo, hi in BAND_GROUPS}
+    n_wl["all"] = wl.size
+    for band, bb in b.items():
+        ub = np.sqrt(v[band] / n_wl[band])          # the band mean's error, the wavelengths' errors independent
+        hi, lo = 0.5 * (bb[0] + bb[2]), 0.5 * (bb[1] + bb[3])
+        u_hi, u_lo = 0.5 * math.hypot(ub[0], ub[2]), 0.5 * math.hypot(ub[1], ub[3])
+        r = hi / lo
+        out["bands"][band] = {"ratio": float(r), "se": float(r * math.hypot(u_hi / hi, u_lo / lo))}
+    return out
+
+
 def _felt_of(config_name: str, seed: int) -> Any:
     from simulate.config import ConfigError, load_config
     from simulate.nonwoven.felt import cached_felt_mesh
@@ -521,6 +737,64 @@ def _lambert(args) -> int:
                                                    for a, r, e in zip(albedos, v["ratio"], v["se"])))
     if args.json:
         args.json.write_text(json.dumps({"albedos": albedos, "rise": result}, indent=1) + "\n", encoding="utf-8")
+    return 0
+
+
+def _load(config: str) -> Any:
+    from simulate.config import ConfigError, load_config
+
+    try:
+        return load_config(config)
+    except ConfigError as exc:
+        raise InputError(str(exc)) from None
+
+
+def _phase(args) -> int:
+    from simulate.config import resolve_config_path
+
+    configs: dict[str, Any] = {name: _load(name) for name in args.configs}
+    if args.variants:
+        base = args.configs[0]
+        try:
+            text = resolve_config_path(base).read_text(encoding="utf-8")
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{base}: cannot read the config to vary ({exc})") from None
+        with tempfile.TemporaryDirectory() as tmp:
+            for name, fields in PHASE_VARIANTS:
+                body = text
+                for section, key, value in fields:
+                    body = set_field(body, section, key, value)
+                path = Path(tmp) / f"{name}.toml"
+                path.write_text(re.sub(r'(?m)^name = ".*"$', f'name = "{name}"', body, count=1), encoding="utf-8")
+                configs[name] = _load(str(path))
+    for name, config in configs.items():
+        if args.felt and (getattr(config, "structure", None) is None or config.structure.kind != "nonwoven"):
+            raise InputError(f"{name}: not a felt; --felt traces a config with [structure] kind = \"nonwoven\"")
+    lam = lambert_phase(args.azimuths)
+    print(f"opaque Lambertian fibre: p(110)/p(150) {lam['ratio']:.3f}")
+    result: dict[str, Any] = {
+        "lambert": lam, "configs": {}, "felt": {},
+        "factor_plane": extinction_factor(PHASE_HIGH_DEG) / extinction_factor(PHASE_LOW_DEG),
+        "factor_isotropic": extinction_factor(PHASE_HIGH_DEG, False) / extinction_factor(PHASE_LOW_DEG, False)}
+    for name, config in configs.items():
+        wl = np.asarray(config.wavelengths_nm, float)
+        res = fibre_phase(config.fiber(wl), wl, photons_per_row=args.photons, tables=args.tables, seed=args.seed,
+                          azimuths=args.azimuths)
+        result["configs"][name] = res
+        print(f"{name}: p(110)/p(150) " + ", ".join(f"{b} {v['ratio']:.3f} +- {v['se']:.3f}"
+                                                    for b, v in res["bands"].items()) + f" ({res['seconds']:.0f} s)")
+        if args.json:       # what is measured so far is kept
+            args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    if args.felt:
+        for name in args.configs:
+            config = configs[name]
+            result["felt"][name] = {key: felt_rise(config, target_rel_err=args.felt_target, seed=args.seed,
+                                                   max_events=events) for key, events in (("single", 1), ("all", 0))}
+            for key, v in result["felt"][name].items():
+                print(f"{name} felt, {key}: beta(70)/beta(30) " + ", ".join(
+                    f"{b} {x['ratio']:.3f} +- {x['se']:.3f}" for b, x in v["bands"].items()))
+            if args.json:
+                args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
     return 0
 
 
@@ -604,8 +878,22 @@ def main(argv: list[str] | None = None) -> int:
     lb.add_argument("--albedo", default="0.22,0.9", help="comma-separated albedos (default 0.22,0.9)")
     lb.add_argument("--target", type=float, default=0.01, help="each trace's relative error target")
     lb.add_argument("--json", type=Path)
+    ph = sub.add_parser("phase", help="the fibre's far field at the felt's normal incidence, averaged in the plane")
+    ph.add_argument("configs", nargs="*", metavar="CONFIG", default=["green-felt-mc"])
+    ph.add_argument("--variants", action="store_true", help="also the first config with each of PHASE_VARIANTS")
+    ph.add_argument("--photons", type=int, default=4000, help="photons per exit-table row (each table)")
+    ph.add_argument("--tables", type=int, default=4, help="independent exit tables (their spread: the error)")
+    ph.add_argument("--azimuths", type=int, default=72, help="fibre axis azimuths averaged")
+    ph.add_argument("--seed", type=int, default=0)
+    ph.add_argument("--felt", action="store_true", help="also trace each CONFIG's felt, single and all orders")
+    ph.add_argument("--felt-target", type=float, default=0.02, help="the felt traces' relative error target")
+    ph.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     try:
+        if args.cmd == "phase":
+            if not args.configs:
+                args.configs = ["green-felt-mc"]
+            return _phase(args)
         if args.cmd == "variants":
             for p in write_variants(args.preset, args.out, args.force):
                 print(p)

@@ -592,6 +592,79 @@ def fig_felt_lambert() -> str:
     return _table(header, rows) + "\n\n" + _source(rec, note)
 
 
+def fig_fiber_phase() -> str:
+    """The fibre's own phase at the felt's normal incidence (``felt_residual.py phase``): ``p(110)/p(150)`` of the
+    preset fibre and its variants, the curve, and the felt traced in single scattering against what the phase
+    predicts (``felt-lambert``'s single scattering of the opaque Lambertian felt sets the felt's own factor)."""
+    rec = load("fiber-phase")
+    d = rec["data"]
+    lam = d["lambert"]
+    configs = d["configs"]
+    first = next(iter(configs.values()))
+    bands = [b for b in first["bands"] if b != "all"]
+    views = first["views_deg"]
+    photons, tables = first["photons_per_row"], first["tables"]
+    header = ["fibre", f"p(110)/p(150): {' / '.join(bands)}", "all bands", f"volume albedo: {' / '.join(bands)}",
+              "surface albedo", "share into the source's half"]
+    rows = [["opaque Lambertian", f"{lam['ratio']:.3f}", f"{lam['ratio']:.3f}", "-", "-",
+             f"{lam['upper_share']:.2f}" if "upper_share" in lam else "-"]]
+    for name, r in configs.items():
+        b = r["bands"]
+        rows.append([_config_label(name), " / ".join(f"{b[k]['ratio']:.3f}" for k in bands),
+                     f"{b['all']['ratio']:.3f} ± {b['all']['se']:.3f}",
+                     " / ".join(f"{b[k]['volume_albedo']:.3f}" for k in bands), f"{r['surface_albedo']:.3f}",
+                     f"{b['all']['upper_share']:.2f}"])
+    variants = _table(header, rows)
+    shown = [k for k, v in enumerate(views) if v >= 0]
+    head = ["fibre", *[f"{views[k]:g} ({180 - views[k]:g})" for k in shown]]
+
+    def normalised(curve: list[float]) -> list[str]:
+        at0 = curve[views.index(0.0)]
+        return [f"{curve[k] / at0:.3f}" for k in shown]
+
+    crows = [["opaque Lambertian", *normalised(lam["curve"])]]
+    name0 = next(iter(configs))
+    crows += [[f"{_config_label(name0)} {b}", *normalised(first["bands"][b]["curve"])] for b in (*bands, "all")]
+    crows += [[f"{_config_label(name0)} {b}, volume share",
+               *[f"{first['bands'][b]['volume_share'][k]:.2f}" for k in shown]] for b in ("all",)]
+    curve = _table(head, crows)
+    out = [variants, curve]
+    if d.get("felt"):
+        lam_felt = load("felt-lambert")["data"]["rise"]["green-felt-mc"]["single 0"]
+        own = lam_felt["ratio"][0] / lam["ratio"]
+        fhead = ["config", "band", "p(110)/p(150)", f"× {d['factor_isotropic']:.2f} (isotropic extinction)",
+                 f"× {d['factor_plane']:.2f} (fibres in the plane)", f"× {own:.2f} (the Lambertian felt's)",
+                 "felt, single scattering", "felt, all orders"]
+        frows = []
+        for name, felt in d["felt"].items():
+            for b in (*bands, "all"):
+                p = configs[name]["bands"][b]["ratio"]
+                frows.append([_config_label(name), b, f"{p:.3f}", f"{p * d['factor_isotropic']:.3f}",
+                              f"{p * d['factor_plane']:.3f}", f"{p * own:.3f}",
+                              f"{felt['single']['bands'][b]['ratio']:.3f} ± {felt['single']['bands'][b]['se']:.3f}",
+                              f"{felt['all']['bands'][b]['ratio']:.3f} ± {felt['all']['bands'][b]['se']:.3f}"])
+        out.append(_table(fhead, frows))
+    note = (f" (normal incidence on the felt, the fibre's axis in the felt's plane at {first['azimuths']} azimuths; "
+            f"{tables} independent exit tables of {photons} photons per row, ± their standard error; second table: "
+            f"S over S at the normal against the view angle, the scattering angle in brackets; third table: "
+            f"β(70)/β(30) of the felt at normal incidence, both sides' mean)")
+    return "\n\n".join(out) + "\n\n" + _source(rec, note)
+
+def fig_felt_residual_phase() -> str:
+    """The fibre variants whose phase reaches the file's demand (``fiber-phase``) traced in the felt and split as
+    in section 8, with each band's least-squares NRMSE and the mean residual per region."""
+    rec = load("felt-residual-phase")
+    plane = ("back", "near", "forward")
+    rows = [[_residual_label(run), f"{r['nrmse_best_scale']:.3f}",
+             " / ".join(f"{r['by_region'][k]['bias_rel']:+.3f}" for k in plane)] for run, r in rec["data"]["runs"].items()]
+    bias = _table(["run", "NRMSE, each band's least-squares factor",
+                   f"mean residual over the file's mean β: {' / '.join(plane)}"], rows)
+    note = (" (`DIR/file`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt --out DIR/file`; "
+            "each run `simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.05 --seed 0 --threads 1 "
+            "--out DIR/RUN`, CONFIG the preset or its variant of `felt_residual.py phase --variants`, the dye the "
+            "preset's unless named)")
+    return _residual_runs(rec) + "\n\n" + bias + "\n\n" + _source(rec, note)
+
 FIGURES: dict[str, Callable[[], str]] = {
     "felt-residual": fig_felt_residual,
     "felt-residual-measured": fig_felt_residual_measured,
@@ -602,6 +675,8 @@ FIGURES: dict[str, Callable[[], str]] = {
     "felt-top": fig_felt_top,
     "felt-residual-fuzz": fig_felt_residual_fuzz,
     "felt-lambert": fig_felt_lambert,
+    "fiber-phase": fig_fiber_phase,
+    "felt-residual-phase": fig_felt_residual_phase,
     "felt-opposition": fig_felt_opposition,
     "felt-opposition-lambertian": fig_felt_opposition_lambertian,
     "felt-demo-plan": fig_felt_demo_plan,

@@ -304,3 +304,81 @@ def test_the_geometry_commands_refuse_bad_input_in_one_line(capsys, argv, needle
     assert fr.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0]
+
+
+# ---------------------------------------------------------------------------------------------- the fibre's phase
+
+def _lambert_cell_sum(view_deg: float, alpha: float, n_psi: int = 2000) -> float:
+    """An opaque Lambertian fibre of radius 1 and albedo 1 lying in the felt's plane, its axis at ``alpha`` from the
+    plane of incidence, lit along the normal, seen at ``view_deg`` in that plane: ``S`` by the cell sum of
+    ``(1/pi) (w_i . n)_+ (w_o . n)_+ dpsi`` over the fibre's surface normals, in the felt's own frame."""
+    t = np.array([math.cos(alpha), math.sin(alpha), 0.0])
+    z = np.array([0.0, 0.0, 1.0])
+    side = np.cross(z, t)
+    psi = (np.arange(n_psi) + 0.5) * 2.0 * math.pi / n_psi
+    normals = np.cos(psi)[:, None] * z + np.sin(psi)[:, None] * side
+    th = math.radians(view_deg)
+    w_o = np.array([math.sin(th), 0.0, math.cos(th)])
+    lit = np.clip(normals @ z, 0.0, None) * np.clip(normals @ w_o, 0.0, None)
+    return float(lit.sum() * 2.0 * math.pi / n_psi / math.pi)
+
+
+def test_lambert_phase_is_the_cell_sum_averaged_over_the_axis_azimuths():
+    """The script's frame (felt_views) and closed form (lambert_far_field), averaged over its axis azimuths, against
+    the cell sum in the felt's frame averaged by the trapezoid rule on another azimuth grid: the curve and
+    p(110)/p(150)."""
+    fr = _script()
+    lam = fr.lambert_phase(azimuths=144)
+    views = list(fr.PHASE_VIEWS_DEG)
+    alpha = np.linspace(0.0, 2.0 * math.pi, 241)
+
+    def mean_over_alpha(view: float) -> float:
+        return float(np.trapezoid([_lambert_cell_sum(view, a) for a in alpha], alpha) / (2.0 * math.pi))
+
+    want = {v: mean_over_alpha(v) for v in (0.0, 30.0, -50.0, 70.0)}
+    for view, w in want.items():
+        assert abs(lam["curve"][views.index(view)] - w) < 2e-3 * w
+    assert abs(lam["ratio"] - want[70.0] / want[30.0]) < 2e-3
+    # all the light an opaque white fibre intercepts leaves it: the sphere integral of S is 2 R
+    assert lam["albedo"] == pytest.approx(1.0, abs=2e-3)
+    assert 0.5 < lam["upper_share"] < 1.0
+
+
+def test_extinction_factor_is_the_mean_projected_width():
+    fr = _script()
+    assert fr.extinction_factor(0.0) == pytest.approx(0.5)
+    assert fr.extinction_factor(0.0, plane=False) == pytest.approx(0.5)
+    alpha = (np.arange(100_000) + 0.5) * 2.0 * math.pi / 100_000
+    for view in (30.0, 70.0):
+        th = math.radians(view)
+        b = float(np.mean(np.sqrt(1.0 - (math.sin(th) * np.cos(alpha)) ** 2)))
+        assert fr.extinction_factor(view) == pytest.approx(1.0 / (math.cos(th) + b), rel=1e-6)
+        assert fr.extinction_factor(view, plane=False) == pytest.approx(1.0 / (math.cos(th) + 1.0))
+
+
+def test_a_clear_fibre_s_phase_conserves_its_light():
+    """A non-absorbing, non-scattering smooth fibre: all the light that reaches it leaves it, so its volume albedo
+    (the exit tables, light entering through 1 - F) and its surface albedo (the Cook-Torrance term integrated over
+    the sphere) add up to 1; the ratio's error comes from the tables' spread, the shares lie in (0, 1)."""
+    from simulate.fiber import Fiber
+    from simulate.media.medium import HGMedium
+
+    fr = _script()
+    fiber = Fiber(radius_um=5.0, n_host=1.5, medium=HGMedium(mu_s=0.0, mu_a=0.0, g=0.0), roughness=0.05,
+                  cell_width_deg=20)
+    res = fr.fibre_phase(fiber, [550.0], photons_per_row=300, tables=2, azimuths=8, views_deg=(-70, -30, 0, 30, 70))
+    band = res["bands"]["all"]
+    assert band["volume_albedo"] + res["surface_albedo"] == pytest.approx(1.0, abs=0.02)
+    assert 0.02 < res["surface_albedo"] < 0.08          # Fresnel at n 1.5 over the lit half: about 4-5 %
+    assert 0.0 < band["upper_share"] < 1.0 and band["se"] >= 0.0
+    assert band["ratio"] == pytest.approx(band["curve"][4] / band["curve"][3], rel=1e-9)
+
+
+@pytest.mark.parametrize("argv,needle", [(["phase", "--tables", "1"], "--tables"),
+                                         (["phase", "no-such-config"], "no-such-config"),
+                                         (["phase", "red-cotton", "--felt"], "not a felt")])
+def test_phase_refuses_bad_input_in_one_line(capsys, argv, needle):
+    fr = _script()
+    assert fr.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0]

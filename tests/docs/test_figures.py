@@ -180,3 +180,31 @@ def test_the_loose_top_bias_table_is_its_json():
         assert abs(float(row[1]) - res["nrmse_best_scale"]) <= 5e-4
         biases = [float(x) for x in row[2].split(" / ")]
         assert all(abs(b - res["by_region"][k]["bias_rel"]) <= 5e-4 for b, k in zip(biases, ("back", "near", "forward")))
+
+
+def test_the_fiber_phase_tables_take_the_ratios_and_the_lambertian_felt_s_factor(tmp_path, monkeypatch):
+    r = _render()
+    views = [-70.0, -30.0, 0.0, 30.0, 70.0]
+    band = {"curve": [0.2, 0.4, 1.0, 0.4, 0.2], "volume_share": [0.5] * 5, "ratio": 0.5, "se": 0.01,
+            "volume_albedo": 0.6, "upper_share": 0.2}
+    phase = {"views_deg": views, "photons_per_row": 100, "tables": 2, "azimuths": 8, "surface_albedo": 0.05,
+             "bands": {"390-500 nm": {**band, "ratio": 0.4}, "all": band}}
+    felt = {k: {"bands": {"390-500 nm": {"ratio": 0.7, "se": 0.02}, "all": {"ratio": 0.8, "se": 0.01}}}
+            for k in ("single", "all")}
+    _record(tmp_path, "fiber-phase", {"lambert": {"curve": [0.1, 0.5, 1.0, 0.5, 0.1], "ratio": 0.25,
+                                                  "upper_share": 0.9},
+                                      "configs": {"green-felt-mc": phase}, "felt": {"green-felt-mc": felt},
+                                      "factor_plane": 1.7, "factor_isotropic": 1.4})
+    _record(tmp_path, "felt-lambert", {"albedos": [0.2], "rise": {"green-felt-mc": {"single 0": {
+        "ratio": [0.5], "se": [0.01]}}}})
+    monkeypatch.setattr(r, "DATA", tmp_path)
+    out = r.fig_fiber_phase()
+    tables = [_rows(t) for t in out.split("\n\n") if t.startswith("| ")]
+    assert tables[0][1] == ["opaque Lambertian", "0.250", "0.250", "-", "-", "0.90"]
+    assert tables[0][2] == ["`green-felt-mc`", "0.400", "0.500 ± 0.010", "0.600", "0.050", "0.20"]
+    assert tables[1][0] == ["fibre", "0 (180)", "30 (150)", "70 (110)"]
+    assert tables[1][2] == ["`green-felt-mc` 390-500 nm", "1.000", "0.400", "0.200"]
+    # the Lambertian felt's factor: its single scattering 0.5 over the Lambertian fibre's 0.25
+    assert tables[2][0][5] == "× 2.00 (the Lambertian felt's)"
+    assert tables[2][2] == ["`green-felt-mc`", "all", "0.500", "0.700", "0.850", "1.000", "0.800 ± 0.010",
+                            "0.800 ± 0.010"]
