@@ -47,7 +47,8 @@ orders and the single scattering (:func:`lambert_rise`): the felt's geometry alo
 felt's plane (:func:`fibre_phase`: exit tables plus the surface term, the construction the felt traces), its
 ``p(110)/p(150) = S(70)/S(30)`` per band group, the opaque Lambertian fibre's (:func:`lambert_phase`), with
 ``--variants`` the first config with each fibre field of :data:`PHASE_VARIANTS` changed, with ``--felt`` each
-``CONFIG``'s felt traced at normal incidence in single scattering and all orders (:func:`felt_rise`).
+``CONFIG``'s felt traced at normal incidence in single scattering and all orders (:func:`felt_rise`), with
+``--oblique`` the fibre's ``S(70)/S(30)`` on the mirror's side at oblique beams (:func:`oblique_phase`).
 Bad input (a missing dataset, an incidence limit that keeps no point, a config that is not a felt) is one line
 naming it, exit 2.
 ``--json OUT`` writes the result alone; a table of the notes takes it wrapped with its command and machine:
@@ -502,6 +503,7 @@ PHASE_VARIANTS: tuple[tuple[str, tuple[tuple[str, str, Any], ...]], ...] = (
     ("boundary-0.5", (("surface", "transmission_rms_slope", 0.5), ("surface", "transmission_rms_slope_around", 0.5))),
     ("boundary-1.0", (("surface", "transmission_rms_slope", 1.0), ("surface", "transmission_rms_slope_around", 1.0))),
     ("boundary-0.1-1.0", (("surface", "transmission_rms_slope_around", 1.0),)),
+    ("boundary-0.1-1.0-rms-0.1", (("surface", "transmission_rms_slope_around", 1.0), ("surface", "rms_slope", 0.1))),
     ("rms-slope-0.1", (("surface", "rms_slope", 0.1),)),
     ("rms-slope-0.2", (("surface", "rms_slope", 0.2),)),
     ("rms-slope-0.5", (("surface", "rms_slope", 0.5),)),
@@ -640,6 +642,64 @@ def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000,
     return out
 
 
+def to_fibre_frame(w: np.ndarray, azimuths: int) -> np.ndarray:
+    """Felt-frame directions ``w [..., 3]`` in the frame of a fibre lying in the felt's plane, for each of ``azimuths``
+    axis azimuths (uniform midpoints over the turn, from the felt's x): ``[A, ..., 3]`` (x the axis, z the felt's
+    normal; :func:`felt_views` is this for the views in the plane of incidence)."""
+    w = np.asarray(w, float)
+    alpha = (np.arange(int(azimuths)) + 0.5) * 2.0 * math.pi / int(azimuths)
+    c = np.cos(alpha).reshape((-1,) + (1,) * (w.ndim - 1))
+    s = np.sin(alpha).reshape((-1,) + (1,) * (w.ndim - 1))
+    x, y, z = w[..., 0][None], w[..., 1][None], w[..., 2][None]
+    return np.stack([x * c + y * s, -x * s + y * c, np.broadcast_to(z, (c.shape[0],) + z.shape[1:])], axis=-1)
+
+
+def oblique_phase(fiber: Any, wavelengths_nm: Any, incidences_deg: Any, *, photons_per_row: int = 4000,
+                  tables: int = 4, seed: int = 0, azimuths: int = 72, bins: tuple[int, int] = (10, 20),
+                  w_t_nodes: Any = (0.0, 0.25, 0.5, 0.75, 0.95), threads: int = 1) -> dict[str, Any]:
+    """:func:`fibre_phase` at oblique beams: the source at ``theta_i`` on the felt's -x side, the views 30 and 70 deg
+    on the mirror's side (+x) in the plane of incidence; per incidence and band group ``S(70)/S(30)`` (the fibre's
+    share of the felt's forward rise) with its standard error over the tables, and the opaque Lambertian fibre's.
+    The beam meets a fibre at azimuth ``alpha`` with ``|w_t| = sin theta_i |cos alpha|``: the exit tables take the
+    felt's axial nodes ``w_t_nodes`` (their interpolation, :meth:`ExitTable.exit_radiance`)."""
+    from simulate.fiber import farfield as FF
+
+    if tables < 2 or photons_per_row < FF.MIN_PHOTONS_PER_ROW or azimuths < 4:
+        raise InputError(f"phase: give --tables >= 2, --photons >= {FF.MIN_PHOTONS_PER_ROW} and --azimuths >= 4")
+    wl = np.atleast_1d(np.asarray(wavelengths_nm, float))
+    incid = [float(t) for t in incidences_deg]
+    if not incid or not all(0.0 < t < 90.0 for t in incid):
+        raise InputError("--oblique: give incidences in (0, 90) deg, comma-separated")
+    views = np.radians([PHASE_HIGH_DEG, PHASE_LOW_DEG])
+    w_out = np.stack([np.sin(views), np.zeros(2), np.cos(views)], -1)
+    wo_f = to_fibre_frame(w_out, azimuths)                                      # [A, 2, 3]
+    started = time.perf_counter()
+    tabs = [FF.exit_table(fiber, wl, w_t=w_t_nodes, bins=bins, photons_per_row=int(photons_per_row),
+                          seed=int(tables) * int(seed) + j, threads=threads, cache=False) for j in range(int(tables))]
+    out: dict[str, Any] = {"incidences_deg": incid, "photons_per_row": int(photons_per_row), "tables": int(tables),
+                           "w_t_nodes": [float(x) for x in w_t_nodes], "lambert": [], "bands": {}}
+    per: dict[str, list[list[float]]] = {}
+    for t in incid:
+        th = math.radians(t)
+        wi_f = to_fibre_frame(np.array([-math.sin(th), 0.0, math.cos(th)]), azimuths)       # [A, 3]
+        lam = lambert_far_field(np.repeat(wi_f[:, None], 2, 1), wo_f).mean(axis=0)
+        out["lambert"].append(float(lam[0] / lam[1]))
+        surf = FF.surface_far_field(fiber, np.repeat(wi_f, 2, 0), wo_f.reshape(-1, 3)).reshape(azimuths, 2).mean(0)
+        curves = []
+        for tab in tabs:
+            S = np.zeros((2, wl.size))
+            for a in range(int(azimuths)):
+                R, cos = tab.lookup(tab.exit_radiance(wi_f[a]), wo_f[a])
+                S += tab.radius_um * tab.dpsi * np.einsum("ok,okl->ol", cos, R)
+            curves.append(band_means(S / azimuths + surf[:, None], wl))
+        for band in curves[0]:
+            mean = np.mean([c[band] for c in curves], axis=0)
+            ratios = np.array([c[band][0] / c[band][1] for c in curves])
+            per.setdefault(band, []).append([float(mean[0] / mean[1]), float(ratios.std(ddof=1) / math.sqrt(ratios.size))])
+    out["bands"] = {b: {"ratio": [r for r, _ in v], "se": [e for _, e in v]} for b, v in per.items()}
+    out["seconds"] = time.perf_counter() - started
+    return out
+
 def lambert_phase(azimuths: int = 72, views_deg: Any = PHASE_VIEWS_DEG) -> dict[str, Any]:
     """:func:`fibre_phase`'s curve and ratio for the opaque Lambertian fibre of albedo 1 (:func:`lambert_far_field`),
     its albedo from the sphere integral (1) and its share into the felt's upper half."""
@@ -752,6 +812,15 @@ def _load(config: str) -> Any:
 def _phase(args) -> int:
     from simulate.config import resolve_config_path
 
+    if args.felt_target <= 0.0 or args.felt_target >= 1.0:
+        raise InputError(f"--felt-target {args.felt_target:g}: give a relative error in (0, 1)")
+    if args.oblique is not None:
+        try:
+            ok = all(0.0 < float(t) < 90.0 for t in args.oblique.split(","))
+        except ValueError:
+            ok = False
+        if not ok:
+            raise InputError(f"--oblique {args.oblique}: give incidences in (0, 90) deg, comma-separated")
     configs: dict[str, Any] = {name: _load(name) for name in args.configs}
     if args.variants:
         base = args.configs[0]
@@ -770,6 +839,11 @@ def _phase(args) -> int:
     for name, config in configs.items():
         if args.felt and (getattr(config, "structure", None) is None or config.structure.kind != "nonwoven"):
             raise InputError(f"{name}: not a felt; --felt traces a config with [structure] kind = \"nonwoven\"")
+    of = args.configs if not args.oblique_of else [n.strip() for n in args.oblique_of.split(",")]
+    unknown = [n for n in of if n not in configs]
+    if unknown:
+        raise InputError(f"--oblique-of {','.join(unknown)}: not a config or variant of this run; "
+                         f"known: {', '.join(configs)}")
     lam = lambert_phase(args.azimuths)
     print(f"opaque Lambertian fibre: p(110)/p(150) {lam['ratio']:.3f}")
     result: dict[str, Any] = {
@@ -785,6 +859,24 @@ def _phase(args) -> int:
                                                     for b, v in res["bands"].items()) + f" ({res['seconds']:.0f} s)")
         if args.json:       # what is measured so far is kept
             args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    if args.oblique:
+        try:
+            incid = [float(t) for t in args.oblique.split(",")]
+        except ValueError:
+            incid = []
+        result["oblique"] = {}
+        for name in of:
+            config = configs[name]
+            wl = np.asarray(config.wavelengths_nm, float)
+            res = oblique_phase(config.fiber(wl), wl, incid, photons_per_row=args.photons, tables=args.tables,
+                                seed=args.seed, azimuths=args.azimuths, w_t_nodes=config.w_t_nodes())
+            result["oblique"][name] = res
+            print(f"{name}: S(70)/S(30) on the mirror's side at {', '.join(f'{t:g}' for t in incid)} deg: "
+                  + ", ".join(f"{r:.3f} +- {e:.3f}" for r, e in zip(res["bands"]["all"]["ratio"],
+                                                                    res["bands"]["all"]["se"]))
+                  + " (Lambertian " + ", ".join(f"{r:.3f}" for r in res["lambert"]) + ")")
+            if args.json:
+                args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
     if args.felt:
         for name in args.configs:
             config = configs[name]
@@ -887,6 +979,10 @@ def main(argv: list[str] | None = None) -> int:
     ph.add_argument("--seed", type=int, default=0)
     ph.add_argument("--felt", action="store_true", help="also trace each CONFIG's felt, single and all orders")
     ph.add_argument("--felt-target", type=float, default=0.02, help="the felt traces' relative error target")
+    ph.add_argument("--oblique", help="also the fibre's S(70)/S(30) on the mirror's side at these incidences (deg, "
+                    "comma-separated)")
+    ph.add_argument("--oblique-of", help="the configs or variants (names, comma-separated) --oblique measures; "
+                    "default: each CONFIG")
     ph.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     try:

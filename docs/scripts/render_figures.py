@@ -644,10 +644,20 @@ def fig_fiber_phase() -> str:
                               f"{felt['single']['bands'][b]['ratio']:.3f} ± {felt['single']['bands'][b]['se']:.3f}",
                               f"{felt['all']['bands'][b]['ratio']:.3f} ± {felt['all']['bands'][b]['se']:.3f}"])
         out.append(_table(fhead, frows))
+    if d.get("oblique"):
+        ob = d["oblique"]
+        inc = next(iter(ob.values()))["incidences_deg"]
+        ohead = ["fibre", f"S(70)/S(30) on the mirror's side at {' / '.join(f'{t:g}' for t in inc)} deg"]
+        orows = [["opaque Lambertian", " / ".join(f"{r:.3f}" for r in next(iter(ob.values()))["lambert"])]]
+        orows += [[_config_label(name), " / ".join(f"{r:.3f} ± {e:.3f}" for r, e in zip(
+            o["bands"]["all"]["ratio"], o["bands"]["all"]["se"]))] for name, o in ob.items()]
+        out.append(_table(ohead, orows))
     note = (f" (normal incidence on the felt, the fibre's axis in the felt's plane at {first['azimuths']} azimuths; "
             f"{tables} independent exit tables of {photons} photons per row, ± their standard error; second table: "
             f"S over S at the normal against the view angle, the scattering angle in brackets; third table: "
-            f"β(70)/β(30) of the felt at normal incidence, both sides' mean)")
+            f"β(70)/β(30) of the felt at normal incidence, both sides' mean"
+            + ("; last table: the fibre at oblique beams, the source on the felt's -x side, all bands" if d.get("oblique")
+               else "") + ")")
     return "\n\n".join(out) + "\n\n" + _source(rec, note)
 
 def fig_felt_residual_phase() -> str:
