@@ -100,16 +100,20 @@ def _bins(wo: np.ndarray, n_cos: int, n_phi: int) -> np.ndarray:
 
 def sampling_chi2(path: str | os.PathLike, theta_i_deg: float, *, n_samples: int = 100_000,
                   n_cos: int = 20, n_phi: int = 40, sub: int = 4, seed: int = 0,
-                  against: str = "pdf") -> dict[str, float]:
+                  against: str | tuple[str, ...] = "pdf") -> dict[str, Any]:
     """Chi-square test of Mitsuba's ``sample`` at incidence ``theta_i_deg`` (``phi_i = 0``).
 
     ``against``: ``"pdf"`` (Mitsuba's ``pdf``) or ``"eval"`` (the luminance of ``eval``,
     normalised by its integral over the hemisphere). Returns the statistic, degrees of freedom,
     p-value, the largest relative mismatch of the sample weight ``eval / pdf`` and the sampled
-    fraction that came back invalid (zero weight).
+    fraction that came back invalid (zero weight). A tuple of both, ``("pdf", "eval")``, scores
+    ONE draw against each and returns ``{name: result}``: the draw, the costly part, is shared.
     """
     from scipy.stats import chi2 as chi2_dist
 
+    names = (against,) if isinstance(against, str) else tuple(against)
+    if not names or any(a not in ("pdf", "eval") for a in names):
+        raise ValueError(f"sampling_chi2: against must be 'pdf', 'eval' or a tuple of them, not {against!r}")
     mi, bsdf, wl = load_measured(path)
     ctx = mi.BSDFContext()
     si = mi.SurfaceInteraction3f()
@@ -137,23 +141,33 @@ def sampling_chi2(path: str | os.PathLike, theta_i_deg: float, *, n_samples: int
     cc, pp = np.meshgrid(c, p, indexing="ij")
     s = np.sqrt(1 - cc ** 2)
     dirs = np.stack([s * np.cos(pp), s * np.sin(pp), cc], axis=-1).reshape(-1, 3)
-    dens = np.empty(len(dirs))
+    dens = {a: np.empty(len(dirs)) for a in names}
     ylum = np.array([0.212671, 0.715160, 0.072169]) if wl is None else None
     for k, d in enumerate(dirs):
         v = mi.Vector3f(*d)
-        if against == "pdf":
-            dens[k] = bsdf.pdf(ctx, si, v)
-        else:
+        if "pdf" in dens:
+            dens["pdf"][k] = bsdf.pdf(ctx, si, v)
+        if "eval" in dens:
             ev = np.asarray(list(bsdf.eval(ctx, si, v)), float)
-            dens[k] = float(ev @ ylum) if ylum is not None else float(ev.mean())
+            dens["eval"][k] = float(ev @ ylum) if ylum is not None else float(ev.mean())
     cell = (1.0 / (n_cos * sub)) * (2 * np.pi / (n_phi * sub))
-    dens = dens.reshape(n_cos, sub, n_phi, sub).sum(axis=(1, 3)) * cell
-    if against == "eval":      # the valid samples against the normalised eval density
-        dens = dens / dens.sum() * ok.mean()
-    expected = dens.ravel() * n_samples
+    results = {}
+    for a in names:
+        cells = dens[a].reshape(n_cos, sub, n_phi, sub).sum(axis=(1, 3)) * cell
+        if a == "eval":      # the valid samples against the normalised eval density
+            cells = cells / cells.sum() * ok.mean()
+        expected = cells.ravel() * n_samples
+        stat, dof = _pooled_chi2(expected, observed)
+        results[a] = {"chi2": stat, "dof": float(dof), "p_value": float(chi2_dist.sf(stat, dof)),
+                      "weight_rel_err_max": weight_err, "invalid_fraction": float(1 - ok.mean()),
+                      "expected_total": float(expected.sum())}
+    return results[against] if isinstance(against, str) else results
+
+
+def _pooled_chi2(expected: np.ndarray, observed: np.ndarray) -> tuple[float, int]:
+    """Pearson's statistic and its degrees of freedom, the smallest expected cells pooled until each expects >= 5."""
     order = np.argsort(expected)
     e_sorted, o_sorted = expected[order], observed[order]
-    # pool the smallest expected cells until each pooled cell expects >= 5 samples
     pooled_e, pooled_o, acc_e, acc_o = [], [], 0.0, 0.0
     for e, o in zip(e_sorted, o_sorted):
         acc_e += e
@@ -166,11 +180,7 @@ def sampling_chi2(path: str | os.PathLike, theta_i_deg: float, *, n_samples: int
         pooled_e[-1] += acc_e
         pooled_o[-1] += acc_o
     pe, po = np.array(pooled_e), np.array(pooled_o)
-    stat = float(np.sum((po - pe) ** 2 / pe))
-    dof = pe.size - 1
-    return {"chi2": stat, "dof": float(dof), "p_value": float(chi2_dist.sf(stat, dof)),
-            "weight_rel_err_max": weight_err, "invalid_fraction": float(1 - ok.mean()),
-            "expected_total": float(expected.sum())}
+    return float(np.sum((po - pe) ** 2 / pe)), pe.size - 1
 
 
 # ---------------------------------------------------------------------------------------------
