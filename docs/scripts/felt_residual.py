@@ -586,7 +586,7 @@ def sphere_integral(far_field: Any, n_theta: int = 90, n_phi: int = 180, upper_o
 
 def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000, tables: int = 4, seed: int = 0,
                 azimuths: int = 72, bins: tuple[int, int] = (10, 20), views_deg: Any = PHASE_VIEWS_DEG,
-                threads: int = 1) -> dict[str, Any]:
+                threads: int = 1, sphere: tuple[int, int] = (90, 180)) -> dict[str, Any]:
     """The fibre's far field at the felt's normal incidence, averaged over the axis azimuths in the plane.
 
     ``S = S_vol + S_surf`` (:mod:`simulate.fiber.farfield`): the volume term from ``tables`` independent exit tables
@@ -596,7 +596,8 @@ def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000,
     (:func:`felt_views`), then their mean. Per band group of :data:`BAND_GROUPS` (the mean over its wavelengths):
     the curve ``S(view)``, ``p(110)/p(150) = S(70)/S(30)`` (both sides' mean) and its standard error over the
     tables, the volume albedo ``a(w_i)`` (all exits of the volume over ``2 R``), the surface's, and the share of
-    the scattered power that leaves into the felt's upper half (towards the source's side)."""
+    the scattered power that leaves into the felt's upper half (towards the source's side); ``sphere``: the
+    midpoint grid of those integrals (:func:`sphere_integral`)."""
     from simulate.fiber import farfield as FF
 
     if tables < 2 or photons_per_row < FF.MIN_PHOTONS_PER_ROW or azimuths < 4:
@@ -607,8 +608,8 @@ def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000,
     grid = felt_views(views, azimuths).reshape(-1, 3)
     s_surf = FF.surface_far_field(fiber, np.repeat(w_in[None], grid.shape[0], 0), grid).reshape(azimuths, -1).mean(0)
     surf_of = lambda w: FF.surface_far_field(fiber, np.repeat(w_in[None], w.shape[0], 0), w)  # noqa: E731
-    surf_albedo = float(sphere_integral(surf_of) / (2.0 * fiber.radius_um))
-    surf_up = float(sphere_integral(surf_of, upper_only=True) / (2.0 * fiber.radius_um))
+    surf_albedo = float(sphere_integral(surf_of, *sphere) / (2.0 * fiber.radius_um))
+    surf_up = float(sphere_integral(surf_of, *sphere, upper_only=True) / (2.0 * fiber.radius_um))
     vols, albedos, ups = [], [], []
     started = time.perf_counter()
     for j in range(int(tables)):
@@ -622,7 +623,7 @@ def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000,
 
         vols.append(vol_of(grid).reshape(azimuths, views.size, wl.size).mean(0))
         albedos.append(tab.albedo(w_in))
-        ups.append(sphere_integral(vol_of, upper_only=True) / (2.0 * fiber.radius_um))
+        ups.append(sphere_integral(vol_of, *sphere, upper_only=True) / (2.0 * fiber.radius_um))
     vol = np.mean(vols, axis=0)                                        # [V, L]
     total = vol + s_surf[:, None]
     albedo = np.mean(albedos, axis=0)
