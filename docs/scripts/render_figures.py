@@ -660,20 +660,102 @@ def fig_fiber_phase() -> str:
                else "") + ")")
     return "\n\n".join(out) + "\n\n" + _source(rec, note)
 
+def _residual_bias(rec: dict[str, Any]) -> str:
+    """Per run: the NRMSE with each band's least-squares factor and the mean residual per in-plane region."""
+    plane = ("back", "near", "forward")
+    rows = [[_residual_label(run), f"{r['nrmse_best_scale']:.3f}",
+             " / ".join(f"{r['by_region'][k]['bias_rel']:+.3f}" for k in plane)] for run, r in rec["data"]["runs"].items()]
+    return _table(["run", "NRMSE, each band's least-squares factor",
+                   f"mean residual over the file's mean β: {' / '.join(plane)}"], rows)
+
+
 def fig_felt_residual_phase() -> str:
     """The fibre variants whose phase reaches the file's demand (``fiber-phase``) traced in the felt and split as
     in section 8, with each band's least-squares NRMSE and the mean residual per region."""
     rec = load("felt-residual-phase")
-    plane = ("back", "near", "forward")
-    rows = [[_residual_label(run), f"{r['nrmse_best_scale']:.3f}",
-             " / ".join(f"{r['by_region'][k]['bias_rel']:+.3f}" for k in plane)] for run, r in rec["data"]["runs"].items()]
-    bias = _table(["run", "NRMSE, each band's least-squares factor",
-                   f"mean residual over the file's mean β: {' / '.join(plane)}"], rows)
+    bias = _residual_bias(rec)
     note = (" (`DIR/file`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt --out DIR/file`; "
             "each run `simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.05 --seed 0 --threads 1 "
             "--out DIR/RUN`, CONFIG the preset or its variant of `felt_residual.py phase --variants`, the dye the "
             "preset's unless named)")
     return _residual_runs(rec) + "\n\n" + bias + "\n\n" + _source(rec, note)
+
+#: The felt's forward rise over its fibre's S(70)/S(30) (``fiber-phase``, ``felt-residual-phase``): at the normal
+#: 1.54 (the preset fibre in single scattering) to 1.75 (the fibres whose lobe the boundary smears), at the oblique
+#: beams 1.75; the file's rise over it is the fibre's S(70)/S(30) the file asks (``fiber-phase-twofield``)
+TWOFIELD_FACTORS_NORMAL = (1.54, 1.75)
+TWOFIELD_FACTOR = 1.75
+
+
+def twofield_asked(file_rise: dict[str, float]) -> dict[str, tuple[float, float]]:
+    """The fibre's ``S(70)/S(30)`` the file's forward rise asks per incidence: ``(low, high)``, a range at the normal
+    (the file's rise over :data:`TWOFIELD_FACTORS_NORMAL`), one value at the oblique beams."""
+    out = {}
+    for t, rise in file_rise.items():
+        if float(t) == 0.0:
+            out[t] = (rise / max(TWOFIELD_FACTORS_NORMAL), rise / min(TWOFIELD_FACTORS_NORMAL))
+        else:
+            out[t] = (rise / TWOFIELD_FACTOR, rise / TWOFIELD_FACTOR)
+    return out
+
+
+def twofield_distance(ratios: list[float], asked: list[tuple[float, float]]) -> float:
+    """``sum ln(S / asked)^2`` over the incidences, ``asked`` the nearest end of its range (0 inside it)."""
+    total = 0.0
+    for r, (lo, hi) in zip(ratios, asked):
+        total += math.log(r / lo) ** 2 if r < lo else math.log(r / hi) ** 2 if r > hi else 0.0
+    return total
+
+
+def fig_fiber_phase_twofield() -> str:
+    """The fibre's ``S(70)/S(30)`` at the normal and the oblique beams over a grid of two fields (the boundary's
+    slope about the axis, the reflection's slope), against what the file's rise asks (:func:`twofield_asked`), with
+    the volume albedo at 510-580 nm and the distance :func:`twofield_distance`, its rank."""
+    rec = load("fiber-phase-twofield")
+    d = rec["data"]
+    file_rise = {t: v["measured"] for t, v in next(iter(load("felt-residual")["data"]["runs"].values()))[
+        "forward_rise"].items()}
+    ob = d["oblique"]
+    incid = ["0", *[f"{t:g}" for t in next(iter(ob.values()))["incidences_deg"]]]
+    asked_of = twofield_asked(file_rise)
+    asked = [asked_of[t] for t in incid]
+    rows, dist = [], {}
+    for name, r in d["configs"].items():
+        ratios = [r["bands"]["all"]["ratio"], *ob[name]["bands"]["all"]["ratio"]]
+        ses = [r["bands"]["all"]["se"], *ob[name]["bands"]["all"]["se"]]
+        dist[name] = twofield_distance(ratios, asked)
+        rows.append([name, " / ".join(f"{x:.3f} ± {e:.3f}" for x, e in zip(ratios, ses)),
+                     f"{r['bands']['510-580 nm']['volume_albedo']:.3f}", f"{dist[name]:.3f}"])
+    rank = {name: k + 1 for k, name in enumerate(sorted(dist, key=dist.get))}
+    body = [[_config_label(row[0]), *row[1:], str(rank[row[0]])] for row in rows]
+    head = [["the file asks", " / ".join(f"{lo:.2f}-{hi:.2f}" if hi > lo else f"{lo:.2f}" for lo, hi in asked),
+             "-", "-", "-"]]
+    photons = next(iter(d["configs"].values()))["photons_per_row"]
+    tables = next(iter(d["configs"].values()))["tables"]
+    table = _table(["fibre (slope about the axis, reflection's slope)",
+                    f"S(70)/S(30) at {' / '.join(incid)} deg", "volume albedo 510-580 nm",
+                    "sum of ln(S / asked)^2", "rank"], head + body)
+    note = (f" (the preset with `[surface] transmission_rms_slope_around` and `rms_slope` set, the slope along the "
+            f"axis the preset's 0.1; {tables} independent exit tables of {photons} photons per row, ± their standard "
+            f"error; all bands; at 0 deg both sides' mean, at the oblique beams the mirror's side; the file asks its "
+            f"forward rise (`docs/data/felt-residual.json`) over the felt's factor, "
+            f"{min(TWOFIELD_FACTORS_NORMAL):g}-{max(TWOFIELD_FACTORS_NORMAL):g} at the normal, {TWOFIELD_FACTOR:g} at "
+            f"the oblique beams; the distance takes at the normal the nearest end of the range)")
+    return table + "\n\n" + _source(rec, note)
+
+
+def fig_felt_residual_twofield() -> str:
+    """The Monte Carlo fit of the dye and both slopes from the closest point of ``fiber-phase-twofield``, its config
+    traced at two seeds beside the preset's, split as in section 8."""
+    rec = load("felt-residual-twofield")
+    note = (" (`DIR/file`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt --out DIR/file`; "
+            "DATA `gonio demo --sample fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`; each run "
+            "`simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.05 --seed S --threads 1 "
+            "--out DIR/RUN`, `preset-sS` the preset, `fit-*-sS` the fit's `fitted.toml` of `simulate fit START DATA "
+            "--method mc --free dye,rms_slope,surface.transmission_rms_slope_around --max-runs 6 --target-rel-err 0.05 "
+            "--seed 0 --threads 1`, START the grid's point it names)")
+    return _residual_runs(rec) + "\n\n" + _residual_bias(rec) + "\n\n" + _source(rec, note)
+
 
 FIGURES: dict[str, Callable[[], str]] = {
     "felt-residual": fig_felt_residual,
@@ -687,6 +769,7 @@ FIGURES: dict[str, Callable[[], str]] = {
     "felt-lambert": fig_felt_lambert,
     "fiber-phase": fig_fiber_phase,
     "felt-residual-phase": fig_felt_residual_phase,
+    "fiber-phase-twofield": fig_fiber_phase_twofield,
     "felt-opposition": fig_felt_opposition,
     "felt-opposition-lambertian": fig_felt_opposition_lambertian,
     "felt-demo-plan": fig_felt_demo_plan,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -208,3 +209,31 @@ def test_the_fiber_phase_tables_take_the_ratios_and_the_lambertian_felt_s_factor
     assert tables[2][0][5] == "× 2.00 (the Lambertian felt's)"
     assert tables[2][2] == ["`green-felt-mc`", "all", "0.500", "0.700", "0.850", "1.000", "0.800 ± 0.010",
                             "0.800 ± 0.010"]
+
+
+def test_the_two_field_table_ranks_the_fibres_by_their_distance_from_what_the_file_asks(tmp_path, monkeypatch):
+    r = _render()
+    rise = {"0": 1.54 * 0.6, "30": 1.75 * 0.8, "60": 1.75 * 3.0}
+    _record(tmp_path, "felt-residual", {"runs": {"DIR/preset": {"forward_rise": {
+        t: {"measured": v, "simulated": 1.0} for t, v in rise.items()}}}})
+
+    def normal(ratio: float) -> dict:
+        return {"photons_per_row": 100, "tables": 2, "bands": {
+            "all": {"ratio": ratio, "se": 0.01}, "510-580 nm": {"ratio": ratio, "se": 0.01, "volume_albedo": 0.5}}}
+
+    _record(tmp_path, "fiber-phase-twofield", {
+        "configs": {"DIR/a.toml": normal(0.6), "DIR/b.toml": normal(0.3)},
+        "oblique": {"DIR/a.toml": {"incidences_deg": [30.0, 60.0], "bands": {"all": {"ratio": [0.8, 1.5],
+                                                                                      "se": [0.02, 0.03]}}},
+                    "DIR/b.toml": {"incidences_deg": [30.0, 60.0], "bands": {"all": {"ratio": [0.4, 3.0],
+                                                                                      "se": [0.02, 0.03]}}}}})
+    monkeypatch.setattr(r, "DATA", tmp_path)
+    rows = _rows(r.fig_fiber_phase_twofield())
+    # at the normal the file's 0.924 over 1.75 and 1.54: 0.528-0.600; at 30 / 60 deg over 1.75: 0.8, 3.0
+    assert rows[1] == ["the file asks", "0.53-0.60 / 0.80 / 3.00", "-", "-", "-"]
+    # a: inside the range, on the value at 30 deg, half the value at 60 deg: ln(2)^2
+    assert rows[2][0] == "`a`" and rows[2][1] == "0.600 ± 0.010 / 0.800 ± 0.020 / 1.500 ± 0.030"
+    assert rows[2][3] == f"{0.6931471805599453 ** 2:.3f}" and rows[2][4] == "1"
+    # b: below the range's low end 0.528 at the normal, half at 30 deg, on the value at 60 deg
+    expected = (math.log(0.3 / (0.924 / 1.75))) ** 2 + math.log(0.5) ** 2
+    assert rows[3][3] == f"{expected:.3f}" and rows[3][4] == "2"
