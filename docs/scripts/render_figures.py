@@ -770,6 +770,7 @@ FIGURES: dict[str, Callable[[], str]] = {
     "fiber-phase": fig_fiber_phase,
     "felt-residual-phase": fig_felt_residual_phase,
     "fiber-phase-twofield": fig_fiber_phase_twofield,
+    "felt-residual-twofield": fig_felt_residual_twofield,
     "felt-opposition": fig_felt_opposition,
     "felt-opposition-lambertian": fig_felt_opposition_lambertian,
     "felt-demo-plan": fig_felt_demo_plan,

@@ -237,3 +237,21 @@ def test_the_two_field_table_ranks_the_fibres_by_their_distance_from_what_the_fi
     # b: below the range's low end 0.528 at the normal, half at 30 deg, on the value at 60 deg
     expected = (math.log(0.3 / (0.924 / 1.75))) ** 2 + math.log(0.5) ** 2
     assert rows[3][3] == f"{expected:.3f}" and rows[3][4] == "2"
+
+
+def test_the_two_field_fit_table_names_each_run_with_its_least_squares_nrmse_and_biases(tmp_path, monkeypatch):
+    r = _render()
+    region = {"n": 1, "share": 0.5, "bias_rel": 0.25, "nrmse_without": 0.1}
+    run = {"nrmse": 0.2, "nrmse_best_scale": 0.15, "by_incidence": {"0": {"nrmse_own": 0.2, "share": 1.0}},
+           "by_region": {"back": {**region, "bias_rel": -0.125}, "near": region, "forward": {**region, "bias_rel": 0.5},
+                         "grazing": {"n": 0}, "ring-6": {"n": 0}, "ring-30": {"n": 0}},
+           "forward_rise": {"0": {"measured": 0.99, "simulated": 0.8}},
+           "colour": {"dh": 0.001, "ds": -0.002, "k_Y": 2.0}}
+    _record(tmp_path, "felt-residual-twofield", {"runs": {"DIR/fit-around-1.0-rms-0.34-s1": run}})
+    monkeypatch.setattr(r, "DATA", tmp_path)
+    out = r.fig_felt_residual_twofield()
+    tables = [_rows(t) for t in out.split("\n\n") if t.startswith("| ")]
+    assert tables[0][2] == ["`fit-around-1.0-rms-0.34-s1`", "0.200 (0.200)", "50 % / 50 % / 50 %", "0.80",
+                            "+0.001 / -0.002 / 2.00"]
+    assert tables[1][1] == ["`fit-around-1.0-rms-0.34-s1`", "0.150", "-0.125 / +0.250 / +0.500"]
+    assert "--free dye,rms_slope,surface.transmission_rms_slope_around" in out
