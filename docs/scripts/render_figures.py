@@ -753,7 +753,8 @@ def fig_felt_residual_twofield() -> str:
             "`simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.05 --seed S --threads 1 "
             "--out DIR/RUN`, `preset-sS` the preset, `fit-*-sS` the fit's `fitted.toml` of `simulate fit START DATA "
             "--method mc --free dye,rms_slope,surface.transmission_rms_slope_around --max-runs 6 --target-rel-err 0.05 "
-            "--seed 0 --threads 1`, START the grid's point it names)")
+            "--seed 0 --threads 1`, START the grid's point it names; `fit10-*` the same fit continued to `--max-runs 10` "
+            "with `--resume`)")
     return _residual_runs(rec) + "\n\n" + _residual_bias(rec) + "\n\n" + _source(rec, note)
 
 
