@@ -1,6 +1,14 @@
 """The structured summation's surface table (simulate.fabric.fiberlayer.surface_table), computed in compiled code:
-equal bit for bit to the composition of fiberlayer.surface_Q it replaces, which the fit's RMS-slope lattice
-computes at every lattice point (fabric_optics.fitting.problem.SURFACE_LATTICE_STEP)."""
+equal to the composition of fiberlayer.surface_Q it replaces, which the fit's RMS-slope lattice computes at every
+lattice point (fabric_optics.fitting.problem.SURFACE_LATTICE_STEP), to within a few units in the last place.
+
+Why not bit for bit: numba (LLVM) and numpy each pick their ``exp``, ``sqrt``, ``pow`` and their vector widths by
+the CPU they run on (SVML and AVX-512 paths on some CPUs, scalar libm on others), and each of those may differ
+from the correctly rounded result by one ulp. The table chains about a dozen such operations per element, so the
+two sides agree bit for bit on some CPUs and not on others. The bound below (32 ulp, relative 7e-15, plus an
+absolute floor of 1e-15 of the table's maximum for elements that come out of a cancellation near zero) holds on
+every CPU and is still ten orders of magnitude below any error that changes a fit: a wrong angle, a missing
+factor or a swapped index moves elements by percent."""
 
 from __future__ import annotations
 
@@ -41,7 +49,7 @@ def _by_surface_q(roughness, n_host, masking, spacing_ratio, step_deg, phi_step_
     (0.31, 1.49, True, 1.3, 15.0, 30.0, 90),      # one block, spaced fibers
     (0.05, 1.6, False, 1.0, 22.5, 45.0, 60),      # no masking, a narrow lobe
 ])
-def test_the_compiled_surface_table_equals_surface_q_bit_for_bit(args, monkeypatch):
+def test_the_compiled_surface_table_equals_surface_q_to_a_few_ulp(args, monkeypatch):
     want = _by_surface_q(*args)
     assert want.max() > 0.01                          # a table with light in it (else nothing is compared)
     calls = []
@@ -54,7 +62,7 @@ def test_the_compiled_surface_table_equals_surface_q_bit_for_bit(args, monkeypat
     monkeypatch.setattr(microfacet, "cook_torrance", counted)
     FL.surface_table.cache_clear()
     got = FL.surface_table(*args)
-    np.testing.assert_array_equal(got, want)
+    np.testing.assert_allclose(got, want, rtol=32 * np.finfo(float).eps, atol=1e-15 * want.max())
     assert calls == []                                # no point through numpy's cook_torrance
     assert not got.flags.writeable
 
