@@ -30,11 +30,13 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import Sequence
 
 from gonio.acquisition.engine import RunResult
 from gonio.acquisition.plan import Plan
 from gonio.acquisition.rundir import DEMO_MARKER, JOURNAL_NAME, RUN_DIR_FILES
 from gonio.acquisition.session import run_session
+from gonio.acquisition.subscribers import Subscriber
 from gonio.data import atomic_write
 from gonio.data.outputs import check_output
 from gonio.instrument.probe import open_links
@@ -47,10 +49,11 @@ log = logging.getLogger(__name__)
 def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1.0,
              progress: bool | None = None, force: bool = False,
              wait_timeout_s: float | None = None, sample: str = "red-cotton",
-             name_from_sample: bool = False) -> tuple[RunResult, float]:
+             name_from_sample: bool = False, subscribers: Sequence[Subscriber] = ()) -> tuple[RunResult, float]:
     """Measure ``plan`` on the embedded mock holding ``sample`` into ``out``.
 
     Returns the session's result and the wall time in seconds (mock start-up included).
+    ``subscribers`` are handed to :func:`gonio.acquisition.session.run_session` (the live view).
     Raises :class:`gonio.mock.samples.SampleError` for a sample the mock cannot hold (before
     anything is written), :class:`gonio.data.outputs.OutputRefused` (nothing changed) when ``out``
     holds run files that a demo did not write (with ``force``: a dataset without a journal is
@@ -74,7 +77,8 @@ def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1
                         seed=seed) as mock:
         modbus, serial_link = open_links(mock.modbus_url, mock.serial_url, timeout_s)
         result = run_session(plan, modbus, serial_link, out, seed=seed, progress=progress,
-                             force=force, writer="gonio demo", wait_timeout_s=wait_timeout_s)
+                             force=force, writer="gonio demo", wait_timeout_s=wait_timeout_s,
+                             subscribers=subscribers)
     mark_demo(out, done=True)
     return result, time.monotonic() - t0
 

@@ -132,15 +132,47 @@ def _cmd_acquire(args) -> int:
     check_run_output(out, writer="gonio acquire", force=args.force, resume=args.resume)
     if not args.resume:
         refuse_existing(out, args.force)
-    modbus, serial_link = open_links(args.modbus, args.serial, args.timeout)
+    live = _start_live_view(args, plan, out, "acquire")
     try:
-        result = run_session(plan, modbus, serial_link, out, resume=args.resume,
-                             seed=args.seed, record=Path(args.record) if args.record else None,
-                             progress=False if args.no_progress else None, force=args.force,
-                             wait_timeout_s=args.wait_timeout)
-    except OSError as exc:      # a full disk, a run directory gone read-only, ...
-        raise _UsageError(_write_failure(exc, out, args)) from None
+        modbus, serial_link = open_links(args.modbus, args.serial, args.timeout)
+        try:
+            result = run_session(plan, modbus, serial_link, out, resume=args.resume,
+                                 seed=args.seed, record=Path(args.record) if args.record else None,
+                                 progress=False if args.no_progress else None, force=args.force,
+                                 wait_timeout_s=args.wait_timeout, subscribers=_live_subscribers(live))
+        except OSError as exc:      # a full disk, a run directory gone read-only, ...
+            raise _UsageError(_write_failure(exc, out, args)) from None
+    finally:
+        _close_live_view(live)
     return _finish(result, "acquire", _resume_command(args))
+
+
+def _start_live_view(args, plan, out: Path, command: str):
+    """With ``--live`` (or ``--live-port``): the live view's server, its address printed once; else None."""
+    if not args.live and args.live_port is None:
+        return None
+    from gonio.acquisition.live import LOOPBACK, LiveServer, LiveView
+
+    port = args.live_port or 0
+    view = LiveView(plan, out)
+    try:
+        server = LiveServer(view, port)
+    except OSError as exc:
+        raise _UsageError(f"--live-port {port}: cannot listen on {LOOPBACK}:{port} ({exc.strerror or exc}); "
+                          "choose another port, or leave --live-port out for a free one") from None
+    print(f"gonio {command}: live view at {server.url}", flush=True)
+    return server
+
+
+def _live_subscribers(live) -> list:
+    return [] if live is None else [live.view]
+
+
+def _close_live_view(live) -> None:
+    """Let a page that is watching fetch the end, then stop serving (never raises)."""
+    if live is not None:
+        live.view.ended("the command ended before the acquisition did")
+        live.close()
 
 
 def _write_failure(exc: OSError, out: Path, args) -> str:
@@ -226,14 +258,18 @@ def _cmd_demo(args) -> int:
     # another run's folder there: run_demo's own message (never replaced, --force included)
     if out.is_dir() and not (is_run_folder(out) and not is_previous_demo(out)):
         refuse_existing(out, args.force)
+    live = _start_live_view(args, plan, out, "demo")
     try:
         result, elapsed_s = run_demo(out, plan, seed=args.seed, timeout_s=args.timeout,
                                      progress=False if args.no_progress else None,
                                      force=args.force, wait_timeout_s=args.wait_timeout,
                                      sample=args.sample,
-                                     name_from_sample=args.plan is None and args.sample != "red-cotton")
+                                     name_from_sample=args.plan is None and args.sample != "red-cotton",
+                                     subscribers=_live_subscribers(live))
     except SampleError as exc:
         raise _UsageError(f"--sample: {exc}") from None
+    finally:
+        _close_live_view(live)
     code = _finish(result, "demo")
     if code == EXIT_OK:
         print(f"gonio demo: plan {plan.name} measured on the embedded mock holding {args.sample} "
@@ -299,6 +335,13 @@ def build_parser() -> argparse.ArgumentParser:
                              f"{DEFAULT_WAIT_TIMEOUT_S:g} s; at most 3600); a takeover by a "
                              "client that claims the instrument stops the session within 1 s")
         add_no_progress(sp)
+        sp.add_argument("--live", action="store_true",
+                        help="serve a live view of the acquisition on a local web page (127.0.0.1 only, "
+                             "read-only; its address, with a random token, is printed once): the curves "
+                             "per incidence with error bars as the points arrive, the position in the "
+                             "plan, the time left, retries and faults, then the finished dataset")
+        sp.add_argument("--live-port", type=common.int_in(1, 65535), default=None, metavar="PORT",
+                        help="the live view's port on 127.0.0.1 (implies --live; default: a free port)")
         add_verbose(sp, sub=True)
 
     a = sub.add_parser("acquire", help="measure a plan",

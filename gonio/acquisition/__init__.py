@@ -8,6 +8,8 @@ One concept per module; dependencies point down to :mod:`gonio.instrument` and :
     executes a plan on the two devices, step by step, checkpointing every point;
 ``gonio.acquisition.subscribers``
     what listens to the engine: the journal writer, the progress display, the dataset writer;
+``gonio.acquisition.live``
+    the live view: a subscriber and a local read-only web page that shows the points as they arrive;
 ``gonio.acquisition.journal``
     the append-only JSON Lines journal (the checkpoint storage a run resumes from);
 ``gonio.acquisition.calibration``

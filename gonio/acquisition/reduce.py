@@ -29,7 +29,7 @@ from gonio.acquisition.plan import Plan, Procedure
 from gonio.data import Dataset, make_dataset, new_meta
 from gonio.instrument.head_commands import GAIN_FACTORS
 
-__all__ = ["dataset_from_journal", "usable_points", "retry_totals", "point_key"]
+__all__ = ["dataset_from_journal", "usable_points", "retry_totals", "point_key", "point_beta"]
 
 
 def _versions() -> dict:
@@ -58,6 +58,33 @@ def usable_points(records: list[dict]) -> list[dict]:
     invalid = {r["id"] for r in records if r["type"] == "calibration"
                and calibration_problem(r["darks"], r["reference"]) is not None}
     return [r for r in records if r["type"] == "point" and r["calibration"] not in invalid]
+
+
+def point_beta(point: dict, calibration: dict, standard: WhiteStandard,
+               reference_deg=(0.0, 45.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(wavelength_nm, beta, u_beta)`` of one journaled point against the calibration it names.
+
+    The measurement equation of :func:`dataset_from_journal`, for one point record as it arrives
+    (the live view, :mod:`gonio.acquisition.live`): each reading against the dark at its own
+    ranging step and the white standard at its wavelength. ``reference_deg`` is the plan's, used
+    when the calibration record does not carry its own.
+    """
+    darks = {(d["itime_ms"], d["gain"]): d for d in calibration["darks"]}
+    refs = {float(r["wavelength_nm"]): r for r in calibration["reference"]}
+    to_ref = abs(float(calibration.get("reference_deg", reference_deg)[1]))
+    theta_o = float(point["geometry"][2])
+    rows = []
+    for r in point["readings"]:
+        wl = float(r["wavelength_nm"])
+        ref = refs[wl]
+        d, dr = darks[(r["itime_ms"], r["gain"])], darks[(ref["itime_ms"], ref["gain"])]
+        rows.append((wl, r["mean"], r["sem"], d["mean"], d["sem"], r["itime_ms"], GAIN_FACTORS[r["gain"]],
+                     ref["mean"], ref["sem"], dr["mean"], dr["sem"], ref["itime_ms"], GAIN_FACTORS[ref["gain"]]))
+    c = np.asarray(rows, dtype=float).reshape(-1, 13).T
+    beta_ref, u_beta_ref = standard.at(c[0])
+    beta, u_beta = radiance_factor(c[1], c[2], c[3], c[4], c[5], c[6], theta_o, c[7], c[8], c[9], c[10],
+                                   c[11], c[12], to_ref, beta_ref, u_beta_ref)
+    return c[0], np.asarray(beta, dtype=float), np.asarray(u_beta, dtype=float)
 
 
 def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandard, *,

@@ -18,14 +18,14 @@ import secrets
 import signal
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 from gonio.acquisition.engine import Engine, Interrupted, RunResult
 from gonio.acquisition.plan import Plan
 from gonio.acquisition.record import (RecordingTransport, ReplayTransport, Transcript, TranscriptError,
                                       TranscriptWriter)
 from gonio.acquisition.rundir import RunDirLock, owned_by_run
-from gonio.acquisition.subscribers import DatasetWriter, ProgressReporter
+from gonio.acquisition.subscribers import DatasetWriter, ProgressReporter, Subscriber
 from gonio.data.outputs import check_output
 from gonio.instrument import MotionController, PhotometerHead, RetryPolicy
 from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
@@ -44,7 +44,8 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
                 progress: bool | None = None, retry: RetryPolicy | None = None,
                 created: str | None = None, clock: Callable[[], float] = time.time,
                 owner_token: int | None = None, force: bool = False,
-                writer: str = "gonio acquire", wait_timeout_s: float | None = None) -> RunResult:
+                writer: str = "gonio acquire", wait_timeout_s: float | None = None,
+                subscribers: Sequence[Subscriber] = ()) -> RunResult:
     """Run one acquisition on two transports (live, recording or replaying).
 
     With ``record`` the transports are wrapped in
@@ -57,6 +58,9 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
     are its arguments): a run folder only with ``resume``, a folder holding
     another dataset only with ``force``. ``wait_timeout_s`` bounds the wait for a move and for a
     controller that answers busy (:data:`gonio.instrument.motion.DEFAULT_WAIT_TIMEOUT_S`).
+    ``subscribers`` receive every document after the journal, the progress display and the dataset
+    writer (the live view, :class:`gonio.acquisition.live.LiveView`: the dataset is on disk when it
+    gets ``stop``).
     """
     if record is not None and owned_by_run(out, record):
         raise TranscriptError(f"--record {record}: that is a file of the run directory {out}; "
@@ -68,7 +72,8 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
         check_output(out, "run", writer=writer, force=force, resume=resume)
         return _locked_session(plan, modbus, serial_link, out, resume=resume, seed=seed,
                                record=record, progress=progress, retry=retry, created=created,
-                               clock=clock, owner_token=owner_token, wait_timeout_s=wait_timeout_s)
+                               clock=clock, owner_token=owner_token, wait_timeout_s=wait_timeout_s,
+                               subscribers=subscribers)
     finally:
         lock.release()
 
@@ -83,7 +88,7 @@ def check_run_output(out: Path, *, writer: str, force: bool = False, resume: boo
 
 
 def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, progress, retry,
-                    created, clock, owner_token, wait_timeout_s) -> RunResult:
+                    created, clock, owner_token, wait_timeout_s, subscribers=()) -> RunResult:
     if owner_token is None:
         owner_token = secrets.randbelow(2**32 - 1) + 1
     writer = None
@@ -104,7 +109,7 @@ def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, pro
                     owner_token=owner_token)
     dataset = DatasetWriter(out, plan, engine.standard, seed=seed, created=created,
                             links={"modbus": modbus.url, "serial": serial_link.url})
-    engine.subscribers += [ProgressReporter(plan.name, progress), dataset]
+    engine.subscribers += [ProgressReporter(plan.name, progress), dataset, *subscribers]
     previous = None
     try:
         previous = signal.signal(signal.SIGTERM, _raise_interrupted)

@@ -11,7 +11,9 @@ journal closed; ``records`` is the journal as it is on disk).
   a session resumes from (:meth:`JournalWriter.open`);
 - :class:`ProgressReporter`: a tqdm bar with ETA on a terminal, log lines otherwise;
 - :class:`DatasetWriter`: on ``stop``, reduces the journal to the dataset
-  (:func:`gonio.acquisition.reduce.dataset_from_journal`) and writes it atomically.
+  (:func:`gonio.acquisition.reduce.dataset_from_journal`) and writes it atomically;
+- :class:`gonio.acquisition.live.LiveView` (``--live``): the curves, position, retries and faults
+  for a local web page, after the dataset writer.
 """
 
 from __future__ import annotations
