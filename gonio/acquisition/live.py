@@ -96,6 +96,7 @@ class LiveView:
         self._lock = threading.Lock()
         self._calibrations: dict[int, dict] = {}
         self._done: set[tuple[float, ...]] = set()
+        self._next = 0              # the first point of the motion order not measured (done only grows)
         self._last_retries: dict[str, int] = {}
         self._t_todo = 0.0
         self._session_points = 0
@@ -150,7 +151,7 @@ class LiveView:
             self._fault("calibration", {}, f"calibration invalid: {doc.get('message', '')}", error=True)
         elif what == "session_end":
             self._retries_at(doc, "the end of the acquisition", note="" if doc.get("status") == "complete"
-                             else " (the point being measured was not kept)")
+                             else " (retried until the stop)")
             if doc.get("status") != "complete":
                 s["status"], s["message"] = doc.get("status", "stopped"), str(doc.get("message", ""))
 
@@ -185,7 +186,9 @@ class LiveView:
         self._position()
 
     def _position(self) -> None:
-        nxt = next((p for p in self.ordered if p.key not in self._done), None)
+        while self._next < len(self.ordered) and self.ordered[self._next].key in self._done:
+            self._next += 1
+        nxt = self.ordered[self._next] if self._next < len(self.ordered) else None
         self._state["current"] = None if nxt is None else {
             "index": len(self._done) + 1, "axes_deg": list(nxt.axes_deg), "text": _axes_text(nxt.axes_deg)}
 
@@ -209,7 +212,7 @@ class LiveView:
         s["status"] = str(doc["status"])
         s["current"], s["eta_s"] = None, 0.0 if doc["status"] == "complete" else None
         if doc["status"] in _STOPPED:
-            self._fault("stop", {}, f"{doc['status']}: {s['message'] or 'see the terminal'}", error=True)
+            self._fault("stop", {}, s["message"] or f"{doc['status']} (see the terminal)", error=True)
         if doc["measured"]:
             self._dataset()
         s["finished"] = True

@@ -273,6 +273,28 @@ def test_a_failing_view_or_a_dead_server_leaves_the_acquisition_alone(drv, tmp_p
     server.close()      # closing a dead server does not raise
 
 
+def test_a_stop_by_faults_is_shown_with_what_was_kept(tmp_path):
+    """Axis faults at every other move: the driver's retry budget runs out and it stops safely; the
+    view ends on the stop's message (an error) and on the dataset of the points kept."""
+    out = tmp_path / "run"
+    plan = load_plan("quick")
+    view = LiveView(plan, out)
+    with MockInstrument(sample="lambert:0.5", speed="fast", seed=1, faults="axis_fault=0.5") as mock:
+        result = run_session(plan, ModbusTransport(mock.modbus_url, timeout_s=0.3),
+                             SerialTransport(mock.serial_url, timeout_s=0.3), out, progress=False, seed=1,
+                             retry=RetryPolicy(base_s=0.002), subscribers=[view])
+    assert result.status == "stopped" and 0 < result.points_measured < result.points_total
+    st = view.snapshot()
+    assert st["status"] == "stopped" and st["finished"] and st["message"] == result.message
+    assert st["done"] == result.points_measured and st["dataset"] == str(out)
+    assert [f["text"] for f in st["faults"] if f["error"]] == [result.message]
+    retried = sum(f["kinds"].get("axis_fault", 0) for f in st["faults"])
+    assert retried == result.retries["axis_fault"] == st["retries"]["axis_fault"]
+    values = _dataset_betas(out)
+    assert sorted(b for c in st["curves"] for betas in c["beta"] for b in betas) == sorted(
+        v[0] for v in values.values())
+
+
 def test_a_resumed_run_shows_the_journals_points(drv, tmp_path):
     """On ``resume`` the view reads the points already journaled (and shows the dataset's values)."""
     plan_path = drv.write_plan(tmp_path, "small", incidence=(0, 45), in_plane=(-30, 20, 50))
@@ -325,11 +347,11 @@ def test_the_page_in_headless_chromium(drv, tmp_path, monkeypatch):
             page.goto(server.url)
             while page.text_content("#status") != "starting":
                 time.sleep(0.02)
-            other = browser.new_page()          # a second tab, closed mid-run
-            other.goto(server.url)
             result: list = []
             run = threading.Thread(target=lambda: result.append(_acquire_in_process(mock, plan_path, out, [view])))
             run.start()
+            other = browser.new_page()          # a second tab, opened and closed mid-run
+            other.goto(server.url, wait_until="commit")
             positions, running_shot = set(), False
             deadline = time.monotonic() + 60
             while (run.is_alive() or page.text_content("#status") != "complete") and time.monotonic() < deadline:
