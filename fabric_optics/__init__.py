@@ -10,6 +10,8 @@
 Nothing in ``gonio``, ``simulate`` or ``compare`` imports this package.
 """
 
+from gonio.version import VERSION as __version__
+
 from fabric_optics.api import (
     FABRIC_METHODS,
     FIT_METHODS,
@@ -31,6 +33,6 @@ from fabric_optics.api import (
     write_dataset,
 )
 
-__all__ = ["FABRIC_METHODS", "FIT_METHODS", "FitOutcome", "InputError", "OutputExistsError", "ToolkitError",
+__all__ = ["__version__", "FABRIC_METHODS", "FIT_METHODS", "FitOutcome", "InputError", "OutputExistsError", "ToolkitError",
            "Verdict", "check", "compare", "export_bsdf", "fit", "load_config", "load_plan", "measure_on_mock",
            "read_dataset", "simulate", "truth", "write_dataset"]

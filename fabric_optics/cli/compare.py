@@ -50,7 +50,7 @@ from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAU
 from compare.normalise import DEFAULT_WINDOW_DEG
 from fabric_optics import api
 from fabric_optics.cli import common
-from fabric_optics.cli.common import Parser, UsageError, add_force, add_verbose, refuse_existing
+from fabric_optics.cli.common import Parser, UsageError, add_force, add_verbose, add_version, refuse_existing
 
 __all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main", "build_parser"]
 
@@ -81,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Compare simulated radiance-coefficient datasets with a measured one: "
                     "normalise at the normal direction, curve errors, HSV colour match.")
     add_verbose(parser, sub=False)
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check,render}",
                                 parser_class=Parser)
 

@@ -285,6 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
                "2 usage or input error, 130 interrupted. Plans: a TOML file or a preset name ("
                + ", ".join(preset_names()) + ").")
     add_verbose(p, sub=False)
+    common.add_version(p)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.add_parser("mock", help="serve mock devices (see `gonio mock --help`)", add_help=False)
 

@@ -519,10 +519,9 @@ class Dataset:
 
 
 def _software() -> dict:
-    import gonio
+    from gonio.version import software
 
-    return {"package": "fabric-optics", "version": gonio.__version__,
-            "python": platform.python_version(), "numpy": np.__version__,
+    return {**software(), "python": platform.python_version(), "numpy": np.__version__,
             "pandas": pd.__version__}
 
 
