@@ -51,10 +51,9 @@ __all__ = [
     "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS",
 ]
 
-#: The fabric models (``method=``): summation over the fabric's fibers, the classic Lambert +
-#: Cook-Torrance model, Monte Carlo ray tracing of the fabric's model, or per geometry the
-#: cheapest whose error is within the target.
 FABRIC_METHODS = ("summation", "classic", "mc", "auto")
+"""The fabric models `simulate` takes (`method=`): summation over the fabric's fibers, the classic Lambert +
+Cook-Torrance model, Monte Carlo ray tracing of the fabric, or per geometry the cheapest within the target."""
 #: The models a fit can adjust (``auto`` is not one: its choice changes between evaluations).
 FIT_METHODS = ("summation", "classic", "mc")
 
@@ -780,9 +779,9 @@ def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset
         raise InputError(f"sample {sample!r}: {exc}") from exc
 
 
-#: The file formats `import_measurement` reads (`gonio import FORMAT`): RGL `.bsdf` tensor files, PAB pgII
-#: text files (one incidence each), MERL binary tables.
 IMPORT_FORMATS: tuple[str, ...] = tuple(FORMATS)
+"""The file formats `import_measurement` reads (`gonio import FORMAT`): `"rgl-bsdf"` (RGL `.bsdf` tensor
+files), `"pgii"` (PAB pgII text files, one incidence each), `"merl"` (MERL binary tables)."""
 _SUFFIX_FORMATS = {".bsdf": "rgl-bsdf", ".binary": "merl"}
 
 
