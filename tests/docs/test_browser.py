@@ -40,12 +40,25 @@ FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-
 SEARCH_WORDS = ("goniophotometer", "normalisation")
 
 
+def _missing_browser() -> str | None:
+    """Why the browser cannot start (and how to install it), or None."""
+    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.is_file()]
+    if not missing:
+        return None
+    return (f"no {' and no '.join(missing)}: the browser test needs Debian's chromium and chromium-driver; "
+            "`make browser` installs them (apt-get, as root)")
+
+
+def test_a_missing_browser_fails_and_says_how_to_install_it(monkeypatch, tmp_path):
+    monkeypatch.setattr(sys.modules[__name__], "CHROMIUM", tmp_path / "no-chromium")
+    assert "`make browser` installs them" in _missing_browser() and str(tmp_path / "no-chromium") in _missing_browser()
+
+
 @pytest.fixture(scope="module")
 def browser(tmp_path_factory):
-    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.is_file()]
-    if missing:
-        pytest.fail(f"no {' and no '.join(missing)}: the browser test needs Debian's chromium and chromium-driver; "
-                    "`make browser` installs them (apt-get, as root)", pytrace=False)
+    why = _missing_browser()
+    if why:
+        pytest.fail(why, pytrace=False)
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
