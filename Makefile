@@ -44,7 +44,7 @@ DEMO_FIT_EVALS ?= 800
 # Relative standard error of each fit's first Monte Carlo walk (the start configs' own differ).
 DEMO_FIT_REL_ERR ?= 0.03
 
-.PHONY: demo test test-slow lint bench venv clean docs figures reference
+.PHONY: demo test test-slow lint bench venv clean docs figures reference browser
 
 venv: $(STAMP)
 
@@ -77,6 +77,17 @@ demo: $(STAMP)
 	( $(DEMO_FIT_MC) ) & beside=$$!; ( $(DEMO_FIT_CLASSIC) ) && ( $(DEMO_FIT_SUMMATION) ); s=$$?; wait $$beside && [ $$s -eq 0 ]
 	$(VENV)/bin/compare report $(DEMO_OUT)/measured $(DEMO_OUT)/truth $(DEMO_OUT)/fit-classic/fitted $(DEMO_OUT)/fit-summation/fitted $(DEMO_OUT)/fit-mc/initial $(DEMO_OUT)/fit-mc/fitted --fit $(DEMO_OUT)/fit-classic --fit $(DEMO_OUT)/fit-summation --fit $(DEMO_OUT)/fit-mc --seed-sample $(DEMO_OUT)/red-cotton --out $(DEMO_OUT)/report --force
 	@echo "demo: report in $(DEMO_OUT)/report/report.html"
+
+# The headless browser of tests/docs/test_browser.py (the manual and a report opened in it): Debian's
+# chromium and its chromedriver, installed with apt-get when missing (as root; sudo otherwise). No
+# browser is downloaded by pip or Playwright. .ci/run runs this before `make test`.
+browser:
+	@if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; then \
+		echo "browser: $$(/usr/bin/chromium --version 2>/dev/null), $$(/usr/bin/chromedriver --version | cut -d' ' -f1-2)"; \
+	else \
+		SUDO=$$([ "$$(id -u)" -eq 0 ] || echo sudo); \
+		$$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium chromium-driver; \
+	fi
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"

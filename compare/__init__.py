@@ -23,7 +23,9 @@ vector, dh, ds; the same numbers as ``compare_datasets``); errors a user can fix
 :class:`compare.errors.CompareError` (and :class:`gonio.data.DatasetError` from reading).
 """
 
-__version__ = "0.1.0"
+from gonio.version import VERSION
+
+__version__ = VERSION
 
 __all__ = ["ModelResidual", "ResidualFigures"]
 

@@ -150,13 +150,42 @@ class Level:
 
 @dataclass(frozen=True)
 class Comparison:
-    """Everything computed by :func:`compare_datasets` (inputs kept for the report).
+    """Simulations compared with a measurement: what `fabric_optics.compare` returns (`compare_datasets`).
 
-    ``measured`` and ``simulated`` are the datasets as given; ``measured_view`` and
-    ``simulated_views`` are what was compared (the same objects for a spectral comparison; the
-    channel views of :mod:`compare.bands` for an RGB one, where ``wavelength_nm`` holds band
-    codes: name them with ``bands.label``). ``colour`` is None when there is no colour to state
-    (a photometric, Y-only, measurement).
+    Judge it with `fabric_optics.check`; write it as a report with `fabric_optics.write_report`.
+
+    Attributes
+    ----------
+    measured : Dataset
+        The measurement, as given.
+    simulated : dict of str to Dataset
+        The simulations by name, as given.
+    wavelength_nm : numpy.ndarray
+        The wavelengths compared (band codes for an RGB measurement: name them with `bands.label`).
+    window_deg : float
+        Largest |s| of the normal-incidence points of the measurement's normal value.
+    illuminant : str
+        Illuminant of the colour match.
+    measured_normal : NormalValue
+        The measurement at the normal direction, with its uncertainty.
+    normalisations : dict of str to Normalisation
+        Per simulation the factor k(lambda) that scales it to the measurement at the normal.
+    frames : dict of str to pandas.DataFrame
+        Per simulation the aligned table: measured and normalised simulated values per geometry and band.
+    curves : dict of str to dict of str to CurveError
+        Per simulation and incidence: `rmse`, `nrmse`, `max_abs` and where.
+    overall : dict of str to CurveError
+        Per simulation the errors over every geometry and band: `.overall[name].nrmse`.
+    colour : ColourMatch or None
+        The HSV colour match near the normal direction (`.simulated[name].dh`, `.ds`); None when
+        the measurement has no colour (photometric, Y only).
+    bands : Bands
+        How the bands were matched (spectral, or the channels of an RGB measurement).
+    measured_view, simulated_views : Dataset, dict of str to Dataset
+        What was compared: the datasets themselves for a spectral comparison, their channel views
+        (`compare.bands`) for an RGB one.
+    colour_note : str
+        Why no colour is stated for a spectral comparison, or "".
     """
 
     measured: Dataset
@@ -259,7 +288,7 @@ class Comparison:
         return out[0], out[1]
 
     def level(self, name: str) -> Level:
-        """The absolute level of simulation ``name`` (:class:`Level`)."""
+        """The absolute level of simulation ``name`` (`Level`: `k`, `ratio`, `spread`, `judged`)."""
         k_all = np.asarray(self.normalisations[name].factor, float)
         if self.colour is not None:
             k = float(self.colour.simulated[name].scale)

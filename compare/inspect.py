@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from gonio.data import Dataset, display_srgb
+from gonio.version import software
 
 from .bands import colour_at
 from .comparison import check_values
@@ -153,7 +154,7 @@ def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool =
                "bands": [str(b) for b in ds.bands], "notes": notes,
                "colour": [{k: v for k, v in e.items() if not (ds.relative and k == "v")}
                           for e in table]}
-    files[Path("metrics.json")] = (json.dumps(metrics, indent=2, allow_nan=True) + "\n").encode()
+    files[Path("metrics.json")] = (json.dumps({**metrics, "software": software()}, indent=2, allow_nan=True) + "\n").encode()
     files[Path("report.html")] = _page(ds, incidences, notes, table, figures, preface).encode("utf-8")
     write_together(out, files, "report")
     written = {out / name for name in files}

@@ -10,9 +10,13 @@
 Nothing in ``gonio``, ``simulate`` or ``compare`` imports this package.
 """
 
+from gonio.version import VERSION as __version__
+
 from fabric_optics.api import (
     FABRIC_METHODS,
     FIT_METHODS,
+    IMPORT_FORMATS,
+    Comparison,
     FitOutcome,
     InputError,
     OutputExistsError,
@@ -22,6 +26,7 @@ from fabric_optics.api import (
     compare,
     export_bsdf,
     fit,
+    import_measurement,
     load_config,
     load_plan,
     measure_on_mock,
@@ -29,8 +34,10 @@ from fabric_optics.api import (
     simulate,
     truth,
     write_dataset,
+    write_report,
 )
 
-__all__ = ["FABRIC_METHODS", "FIT_METHODS", "FitOutcome", "InputError", "OutputExistsError", "ToolkitError",
-           "Verdict", "check", "compare", "export_bsdf", "fit", "load_config", "load_plan", "measure_on_mock",
-           "read_dataset", "simulate", "truth", "write_dataset"]
+__all__ = ["__version__", "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS", "Comparison", "FitOutcome",
+           "InputError", "OutputExistsError", "ToolkitError", "Verdict", "check", "compare", "export_bsdf", "fit",
+           "import_measurement", "load_config", "load_plan", "measure_on_mock", "read_dataset", "simulate", "truth",
+           "write_dataset", "write_report"]

@@ -1,27 +1,22 @@
 """The Python interface of fabric-optics: what the command lines do, as functions.
 
-Load a config or plan, simulate a fabric at a plan's geometries, compare datasets and judge the
-comparison, fit config parameters to a measurement, read and write datasets, export to a renderer.
-Every function returns the project's own objects (a :class:`gonio.data.dataset.Dataset` holds a
-pandas table in ``.table`` and its metadata in ``.meta``), raises :class:`InputError` (a
-:class:`ToolkitError`) for bad input instead of exiting, and shows a progress bar only when
-``progress=True``.
+Load a config or plan, measure on the mock instrument or import a measurement, simulate a fabric at
+a plan's geometries, compare datasets and judge the comparison, write the report, fit config
+parameters to a measurement, read and write datasets, export to a renderer. Every function returns
+the project's own objects (a `Dataset` holds a pandas table in `.table` and its metadata in
+`.meta`), raises `InputError` (a `ToolkitError`) for bad input instead of exiting, and shows a
+progress bar only when `progress=True`. The tutorial "Python, from measurement to report" runs a
+whole chain.
 
+Examples
+--------
 >>> import fabric_optics as fo
->>> cfg = fo.load_config("red-cotton")
->>> cfg.name
+>>> fo.load_config("red-cotton").name
 'red-cotton'
 >>> fo.load_config("no-such-preset")
 Traceback (most recent call last):
 ...
 fabric_optics.api.InputError: ...no-such-preset...
-
-A whole chain (see ``examples/``)::
-
-    measured = fo.read_dataset("demo-out/measured")
-    sim = fo.simulate("red-cotton", plan="red-cotton", method="summation", target_rel_err=0.03)
-    verdict = fo.check(fo.compare(measured, sim))
-    print(verdict.summary())
 """
 
 from __future__ import annotations
@@ -39,6 +34,7 @@ from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAU
 from compare.normalise import DEFAULT_WINDOW_DEG
 from gonio.acquisition.plan import Plan, PlanError
 from gonio.data.dataset import Dataset
+from gonio.data.formats import FORMATS
 from gonio.data.schema import DatasetError
 from simulate.config import SimulationConfig
 from simulate.config_table import ConfigError
@@ -51,14 +47,13 @@ __all__ = [
     "ToolkitError", "InputError", "OutputExistsError",
     "load_config", "load_plan", "read_dataset", "write_dataset",
     "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "prepare_fit", "FitJob",
-    "FitOutcome", "export_bsdf",
-    "FABRIC_METHODS", "FIT_METHODS",
+    "FitOutcome", "export_bsdf", "import_measurement", "write_report", "Comparison",
+    "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS",
 ]
 
-#: The fabric models (``method=``): summation over the fabric's fibers, the classic Lambert +
-#: Cook-Torrance model, Monte Carlo ray tracing of the fabric's model, or per geometry the
-#: cheapest whose error is within the target.
 FABRIC_METHODS = ("summation", "classic", "mc", "auto")
+"""The fabric models `simulate` takes (`method=`): summation over the fabric's fibers, the classic Lambert +
+Cook-Torrance model, Monte Carlo ray tracing of the fabric, or per geometry the cheapest within the target."""
 #: The models a fit can adjust (``auto`` is not one: its choice changes between evaluations).
 FIT_METHODS = ("summation", "classic", "mc")
 
@@ -97,8 +92,31 @@ def _typed_errors(fn: _F) -> _F:
 
 @_typed_errors
 def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfig:
-    """A simulation config: a preset name (``"red-cotton"``, ``"green-felt"``, ...), a TOML path,
-    or a config already loaded (returned as is)."""
+    """A simulation config: a preset, a TOML file, or a config already loaded.
+
+    Parameters
+    ----------
+    config : str, path or SimulationConfig
+        A preset name (`"red-cotton"`, `"green-felt"`, `"green-felt-mc"`, ...), the path of a config
+        TOML file (docs: config schema), or a config already loaded (returned as is).
+
+    Returns
+    -------
+    SimulationConfig
+        The validated config (`.name`, `.wavelengths_nm`, `.target_rel_err`, ...).
+
+    Raises
+    ------
+    InputError
+        No such preset or file, or a field that is invalid (the message names it).
+
+    Examples
+    --------
+    >>> import fabric_optics as fo
+    >>> cfg = fo.load_config("red-cotton")
+    >>> cfg.name, len(cfg.wavelengths_nm) > 0
+    ('red-cotton', True)
+    """
     from simulate.config import load_config as _load
 
     if isinstance(config, SimulationConfig):
@@ -108,7 +126,31 @@ def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfi
 
 @_typed_errors
 def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
-    """An acquisition plan (the geometries and wavelengths): a preset name or a TOML path."""
+    """An acquisition plan: the geometries to measure (or simulate) and the wavelengths.
+
+    Parameters
+    ----------
+    plan : str, path or Plan
+        A preset name (`"red-cotton"`, `"green-felt"`, ...; docs: plans), the path of a plan TOML
+        file, or a plan already loaded (returned as is).
+
+    Returns
+    -------
+    Plan
+        The validated plan; `plan.geometries()` is its table of geometries.
+
+    Raises
+    ------
+    InputError
+        No such preset or file, or a field that is invalid (the message names it).
+
+    Examples
+    --------
+    >>> import fabric_optics as fo
+    >>> plan = fo.load_plan("red-cotton")
+    >>> plan.name, sorted(plan.geometries()["theta_i"].unique().tolist())
+    ('red-cotton', [0.0, 30.0, 45.0, 60.0])
+    """
     from gonio.acquisition.plan import load_plan as _load
 
     if isinstance(plan, Plan):
@@ -122,7 +164,30 @@ def _dataset(data: str | os.PathLike | Dataset) -> Dataset:
 
 @_typed_errors
 def read_dataset(path: str | os.PathLike) -> Dataset:
-    """A radiance-coefficient dataset folder (``radiance.csv`` + ``meta.json``, docs: dataset format)."""
+    """Read a radiance-coefficient dataset folder (`radiance.csv` and `meta.json`; docs: dataset format).
+
+    Parameters
+    ----------
+    path : str or path
+        The dataset folder.
+
+    Returns
+    -------
+    Dataset
+        The dataset: `.table` (pandas), `.meta` (dict), `.name`, `.kind`, `.wavelengths_nm`.
+
+    Raises
+    ------
+    InputError
+        No such folder, or a file that is not a valid dataset (the message names file and field).
+
+    Examples
+    --------
+    >>> import fabric_optics as fo
+    >>> measured = fo.read_dataset("fixtures/analytic/measured_red")
+    >>> measured.kind, len(measured) > 0
+    ('measured', True)
+    """
     from gonio.data.dataset import read_dataset as _read
 
     return _read(path)
@@ -130,8 +195,40 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
 
 @_typed_errors
 def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = False) -> Path:
-    """Write ``dataset`` as a folder. An existing non-empty folder is replaced only with
-    ``force=True`` (:class:`OutputExistsError` otherwise); the write is atomic per file."""
+    """Write `dataset` as a dataset folder (`radiance.csv`, `meta.json`), each file atomically.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        What to write.
+    path : str or path
+        The folder; created when missing.
+    force : bool, default False
+        Replace an existing non-empty folder's dataset.
+
+    Returns
+    -------
+    Path
+        The folder written.
+
+    Raises
+    ------
+    OutputExistsError
+        `path` exists and is not empty, and `force` is False.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import fabric_optics as fo
+    >>> out = Path(tempfile.mkdtemp()) / "truth"
+    >>> fo.write_dataset(fo.truth("lambert:0.5"), out).name
+    'truth'
+    >>> fo.write_dataset(fo.truth("lambert:0.5"), out)
+    Traceback (most recent call last):
+    ...
+    fabric_optics.api.OutputExistsError: ...exists; pass force=True to replace it
+    """
     from gonio.data.dataset import write_dataset as _write
 
     out = Path(path)
@@ -145,11 +242,54 @@ def simulate(config: str | os.PathLike | SimulationConfig, plan: str | os.PathLi
              method: str = "summation", *, target_rel_err: float | None = None, seed: int | None = None,
              threads: int | None = None, max_photons: int | None = None, measurable_only: bool = False,
              progress: bool = False, max_seconds: float = 0.0) -> Dataset:
-    """The fabric's radiance coefficient at ``plan``'s geometries and wavelengths by ``method``
-    (one of :data:`FABRIC_METHODS`), as a simulated dataset (``u_beta`` is its Monte Carlo error).
+    """Simulate a fabric's radiance coefficient at a plan's geometries and wavelengths (`simulate fabric`).
 
-    ``target_rel_err``, ``seed``, ``threads`` and ``max_photons`` default to the config's;
-    ``threads=0`` uses every core numba may.
+    Parameters
+    ----------
+    config : str, path or SimulationConfig
+        The fabric: a preset name, a config TOML file or a loaded config (`load_config`).
+    plan : str, path or Plan, default "red-cotton"
+        Where to evaluate it: a plan preset, a plan TOML file or a loaded plan (`load_plan`).
+    method : str, default "summation"
+        One of `FABRIC_METHODS`: `"summation"` (over the fabric's fibers), `"classic"` (Lambert +
+        Cook-Torrance), `"mc"` (Monte Carlo ray tracing of the fabric) or `"auto"` (per geometry the
+        cheapest method whose error is within the target).
+    target_rel_err : float, optional
+        Relative standard error the Monte Carlo aims at; the config's by default.
+    seed : int, optional
+        Random seed (the config's by default); the same seed gives the same numbers with any
+        number of threads.
+    threads : int, optional
+        Worker threads; `0` uses every core numba may; the config's by default.
+    max_photons : int, optional
+        Upper bound on the photons of each Monte Carlo walk; the config's by default.
+    measurable_only : bool, default False
+        Leave out the plan's geometries the instrument cannot measure (the beam-blocked zone).
+    progress : bool, default False
+        Show a progress bar.
+    max_seconds : float, default 0.0
+        Refuse a run estimated to take longer (0: the built-in bound of one day).
+
+    Returns
+    -------
+    Dataset
+        A simulated dataset; `u_beta` is the Monte Carlo's standard error, `meta["provenance"]`
+        records the config, the method and the software that made it.
+
+    Raises
+    ------
+    InputError
+        An unknown method, config or plan, or a run refused by its cost estimate.
+
+    Examples
+    --------
+    The `quick` plan (incidences 0 and 45 deg, three observation angles, six wavelengths) and the
+    classic model, the quickest (a few seconds):
+
+    >>> import fabric_optics as fo
+    >>> sim = fo.simulate("red-cotton", plan="quick", method="classic")
+    >>> sim.kind, len(sim), sim.wavelengths_nm.tolist()
+    ('simulated', 36, [400.0, 450.0, 500.0, 550.0, 600.0, 650.0])
     """
     from simulate.virtual import fabric_dataset
 
@@ -164,8 +304,42 @@ def simulate(config: str | os.PathLike | SimulationConfig, plan: str | os.PathLi
 def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os.PathLike
             | Sequence[Dataset | str | os.PathLike], *, window_deg: float = DEFAULT_WINDOW_DEG,
             illuminant: str = "D65") -> Comparison:
-    """Each simulation normalised to the measurement at the normal direction and compared with it:
-    curve errors (``.overall``, ``.curves``) and the colour match (``.colour``)."""
+    """Compare simulations with a measurement: each normalised to it at the normal direction, then
+    curve errors and the colour match (what `compare report` and `compare check` compute).
+
+    Parameters
+    ----------
+    measured : Dataset or path
+        The measurement (a dataset or its folder).
+    simulated : Dataset, path, or a sequence of them
+        One simulation or several, each a dataset or its folder.
+    window_deg : float, default 5
+        Largest |s| of the normal-incidence points used to estimate the measurement at the
+        normal direction.
+    illuminant : str, default "D65"
+        Illuminant of the colour match.
+
+    Returns
+    -------
+    Comparison
+        `.overall[name].nrmse` (the overall curve error of each simulation by name),
+        `.curves[name][incidence]` (per incidence), `.colour` (the HSV colour match, None for a
+        photometric measurement), `.level(name)` (the absolute level), `.metrics()` (every figure,
+        as `metrics.json` holds them); judge it with `check`.
+
+    Raises
+    ------
+    InputError
+        A dataset that cannot be read, or datasets that share no geometry or wavelength.
+
+    Examples
+    --------
+    >>> import fabric_optics as fo
+    >>> comparison = fo.compare("fixtures/analytic/measured_red", "fixtures/analytic/sim_lambert")
+    >>> name = next(iter(comparison.simulated))
+    >>> round(comparison.overall[name].nrmse, 3) > 0
+    True
+    """
     from compare.comparison import compare_datasets
 
     sims = [simulated] if isinstance(simulated, (Dataset, str, os.PathLike)) else list(simulated)
@@ -175,24 +349,41 @@ def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os
 
 @dataclass(frozen=True)
 class Verdict:
-    """A pass/fail judgement of one simulation against the measurement (``compare check``)."""
+    """The pass/fail judgement of one simulation against the measurement (`compare check`), made by `check`.
+
+    Attributes
+    ----------
+    name : str
+        The simulation judged.
+    measured : str
+        The measurement's name.
+    figures : list of (str, float, float, str)
+        `(label, value, limit, unit)` of every figure judged: the overall NRMSE, and where the colour
+        is known the |hue difference| and |saturation difference|, and the absolute level for an
+        absolute measurement. A NaN value fails.
+    curves : dict of str to float
+        The NRMSE per incidence angle (informative, not judged).
+    notes : list of str
+        What a reader must know about how the data were compared.
+    """
 
     name: str
     measured: str
-    #: (label, value, limit, unit) of every figure judged; a NaN value fails
     figures: list[tuple[str, float, float, str]]
     curves: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
+        """True when every figure is within its limit (`compare check` exits 0); a NaN fails."""
         return all(value <= limit for _, value, limit, _ in self.figures)
 
     def failures(self) -> list[str]:
+        """The labels of the figures beyond their limits (empty when `passed`)."""
         return [label for label, value, limit, _ in self.figures if not value <= limit]
 
     def summary(self) -> str:
-        """The lines ``compare check`` prints."""
+        """The lines `compare check` prints: each figure with `ok` or `FAIL` and its limit."""
         lines = [f"'{self.name}' against '{self.measured}'"]
         lines += [f"  note: {n}" for n in self.notes]
         for label, value, limit, unit in self.figures:
@@ -206,9 +397,42 @@ class Verdict:
 def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float = DEFAULT_MAX_NRMSE,
           max_hue_diff: float = DEFAULT_MAX_HUE_DIFF, max_sat_diff: float = DEFAULT_MAX_SAT_DIFF,
           max_level_ratio: float = DEFAULT_MAX_LEVEL_RATIO) -> Verdict:
-    """Judge one simulation of ``comparison`` (the first unless ``name``) against thresholds:
-    overall NRMSE, and where the colour is known, |hue difference| (turns) and |saturation difference|;
-    the absolute level (``max(k_Y, 1/k_Y)``) unless the measurement is relative (``compare check``)."""
+    """Judge one simulation of a comparison against thresholds (`compare check`).
+
+    Parameters
+    ----------
+    comparison : Comparison
+        What `compare` returned.
+    name : str, optional
+        The simulation to judge; the first of the comparison by default.
+    max_nrmse : float, default 0.10
+        Largest overall NRMSE of the normalised curves.
+    max_hue_diff : float, default 0.02
+        Largest |hue difference|, in turns of the hue circle (judged where the colour is known).
+    max_sat_diff : float, default 0.05
+        Largest |saturation difference| (judged where the colour is known).
+    max_level_ratio : float, default 1.5
+        Largest `max(k_Y, 1/k_Y)`, the absolute level against the measurement's (not judged for a
+        relative measurement).
+
+    Returns
+    -------
+    Verdict
+        `.passed`, `.failures()`, `.summary()` (the lines `compare check` prints).
+
+    Raises
+    ------
+    InputError
+        `comparison` has no simulation called `name`.
+
+    Examples
+    --------
+    >>> import fabric_optics as fo
+    >>> comparison = fo.compare("fixtures/analytic/measured_red", "fixtures/analytic/sim_lambert")
+    >>> verdict = fo.check(comparison)
+    >>> verdict.passed, verdict.failures()[0]
+    (False, 'overall NRMSE')
+    """
     name = name if name is not None else next(iter(comparison.simulated))
     if name not in comparison.simulated:
         raise InputError(f"no simulation named {name!r} in the comparison ({', '.join(comparison.simulated)})")
@@ -359,16 +583,66 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
                 seed: int | None = None, threads: int | None = None, max_photons: int | None = None,
                 check_pairs: int = 0, anisotropic: int = 0, azimuths: int = 5, description: str | None = None,
                 provenance: dict | None = None, force: bool = False, progress: bool = False) -> Any:
-    """Write an RGL ``.bsdf`` file (Mitsuba 3's ``measured`` plugin, pbrt-v4) of a fabric model
-    (``source`` a config or preset, evaluated by ``method``) or of a dataset (``source`` a
-    :class:`~gonio.data.dataset.Dataset`: its values interpolated). Returns the export's result
-    (its path and tabulation figures; ``.provenance["coverage"]``: a dataset's rule for the
-    directions it does not cover).
+    """Write an RGL `.bsdf` file (Mitsuba 3's `measured` material, pbrt-v4) of a fabric model or a dataset.
 
-    ``check_pairs``: measure the tabulation error at that many random direction pairs (more model
-    evaluations); ``anisotropic`` 1, 2 or 4: keep the model's anisotropy with ``azimuths``
-    incidence azimuths over 360/``anisotropic`` deg. ``description`` and ``provenance`` (merged)
-    are written into a dataset's file."""
+    Parameters
+    ----------
+    source : str, path, SimulationConfig or Dataset
+        A fabric (a preset, a config TOML file or a loaded config), evaluated by `method`; or a
+        dataset, its values interpolated (and extrapolated where it has no data: the rule is in
+        the result's `.provenance["coverage"]`).
+    path : str or path
+        The `.bsdf` file to write.
+    method : str, default "summation"
+        For a fabric: `"summation"`, `"classic"` or `"mc"`.
+    wavelengths_nm : sequence of float, optional
+        For a fabric: the file's wavelengths, increasing (the config's by default).
+    rgb : bool, default False
+        For a fabric: an RGB file instead of a spectral one.
+    resolution : int, default 64
+        Values per axis of the tabulation (4 to 256).
+    incidences : int, default 16
+        Incidence nodes (2 to 64).
+    target_rel_err, seed, threads, max_photons : optional
+        The Monte Carlo budget of a fabric, as in `simulate`.
+    check_pairs : int, default 0
+        Measure the tabulation error at that many random direction pairs (more model evaluations).
+    anisotropic : int, default 0
+        1, 2 or 4: keep the model's anisotropy with `azimuths` incidence azimuths over
+        360/`anisotropic` degrees; 0: isotropic.
+    azimuths : int, default 5
+        Incidence azimuths of an anisotropic file.
+    description : str, optional
+        The file's description (a dataset's).
+    provenance : dict, optional
+        Merged into the provenance written into a dataset's file.
+    force : bool, default False
+        Replace an existing file.
+    progress : bool, default False
+        Show a progress bar.
+
+    Returns
+    -------
+    ExportResult
+        `.path`, `.evaluations`, `.valid_fraction`, `.error` (with `check_pairs`), `.provenance`.
+
+    Raises
+    ------
+    OutputExistsError
+        `path` exists and `force` is False.
+    InputError
+        A resolution, incidence count, method or anisotropy out of range.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import fabric_optics as fo
+    >>> measured = fo.read_dataset("fixtures/analytic/measured_red")
+    >>> result = fo.export_bsdf(measured, Path(tempfile.mkdtemp()) / "red.bsdf", resolution=8, incidences=4)
+    >>> Path(result.path).name, result.provenance["coverage"]["incidences_deg"]
+    ('red.bsdf', [0.0, 30.0, 45.0, 60.0])
+    """
     out = Path(path)
     if out.exists() and not force:
         raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
@@ -404,11 +678,54 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
 @_typed_errors
 def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan: str | os.PathLike | Plan | None = None,
                     seed: int = 0, force: bool = False, progress: bool = False) -> Dataset:
-    """Measure ``plan`` on the embedded mock goniophotometer holding ``sample`` (``red-cotton``, the
-    analytic stand-in; ``lambert:RHO``; a dataset folder; or an RGL ``.bsdf`` file such as
-    ``fixtures/real/acrylic_felt_green_rgb.bsdf``) through the real driver and protocols, as
-    ``gonio demo`` does; returns the measured dataset written in ``out``. Without ``plan`` the
-    red-cotton plan's geometry is used, named after the sample."""
+    """Measure a plan on the embedded mock goniophotometer, through the real driver and protocols (`gonio demo`).
+
+    The mock serves Modbus TCP and a serial line on loopback; the driver calibrates against the
+    white standard and measures every point of the plan, writing the run's journal and the
+    dataset into `out`.
+
+    Parameters
+    ----------
+    out : str or path
+        The run folder (journal and dataset).
+    sample : str, default "red-cotton"
+        What the mock holds: `"red-cotton"` (an analytic stand-in with the published colour of red
+        cotton), `"lambert:RHO"`, a dataset folder, or an RGL `.bsdf` file such as
+        `fixtures/real/acrylic_felt_green_rgb.bsdf`.
+    plan : str, path or Plan, optional
+        The plan; by default the red-cotton plan's geometry, named after the sample.
+    seed : int, default 0
+        Seed of the mock's noise.
+    force : bool, default False
+        Replace an earlier demo's folder (another acquisition's run folder is never replaced).
+    progress : bool, default False
+        Show a progress bar.
+
+    Returns
+    -------
+    Dataset
+        The measured dataset, as written in `out`.
+
+    Raises
+    ------
+    OutputExistsError
+        `out` holds an earlier output and `force` is False, or holds another acquisition's run.
+    InputError
+        An unknown sample or plan.
+
+    Examples
+    --------
+    The `quick` plan takes about a second (the red-cotton plan about 25 s: the mock's settle
+    times are real):
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import fabric_optics as fo
+    >>> out = Path(tempfile.mkdtemp()) / "measured"
+    >>> measured = fo.measure_on_mock(out, sample="red-cotton", plan="quick")
+    >>> measured.kind, len(measured), (out / "radiance.csv").is_file()
+    ('measured', 36, True)
+    """
     from gonio.data.outputs import OutputRefused
     from gonio.demo import run_demo
     from gonio.mock.samples import SampleError
@@ -426,8 +743,33 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
 
 @_typed_errors
 def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset:
-    """The mock sample's true radiance coefficient at ``plan``'s geometries (no instrument noise):
-    what a perfect measurement of ``sample`` gives (``gonio truth``)."""
+    """The mock sample's true radiance coefficient at a plan's geometries: what a perfect measurement
+    of it gives (`gonio truth`), to check an acquisition against.
+
+    Parameters
+    ----------
+    sample : str
+        A mock sample, as `measure_on_mock` takes it.
+    plan : str, path or Plan, default "red-cotton"
+        The geometries and wavelengths.
+
+    Returns
+    -------
+    Dataset
+        The sample's values, without instrument noise.
+
+    Raises
+    ------
+    InputError
+        An unknown sample or plan.
+
+    Examples
+    --------
+    >>> import fabric_optics as fo
+    >>> truth = fo.truth("lambert:0.5", plan="red-cotton")
+    >>> float(truth.table["beta"].min()), float(truth.table["beta"].max())
+    (0.5, 0.5)
+    """
     from gonio.mock.samples import SampleError
     from gonio.mock.truth import truth_dataset
 
@@ -435,3 +777,219 @@ def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset
         return truth_dataset(sample, load_plan(plan))
     except SampleError as exc:
         raise InputError(f"sample {sample!r}: {exc}") from exc
+
+
+IMPORT_FORMATS: tuple[str, ...] = tuple(FORMATS)
+"""The file formats `import_measurement` reads (`gonio import FORMAT`): `"rgl-bsdf"` (RGL `.bsdf` tensor
+files), `"pgii"` (PAB pgII text files, one incidence each), `"merl"` (MERL binary tables)."""
+_SUFFIX_FORMATS = {".bsdf": "rgl-bsdf", ".binary": "merl"}
+
+
+def _refuse_existing(out: Path, force: bool, what: str = "out") -> None:
+    """An existing file, or a folder holding anything (hidden files aside), only with `force`."""
+    if force or not (out.exists() or out.is_symlink()):
+        return
+    if out.is_dir() and not any(not e.name.startswith(".") for e in out.iterdir()):
+        return
+    raise OutputExistsError(f"{what} {out}: exists and is not empty; pass force=True to replace it, "
+                            "or choose a new folder")
+
+
+@_typed_errors
+def import_measurement(path: str | os.PathLike | Sequence[str | os.PathLike], out: str | os.PathLike | None = None,
+                       *, force: bool = False, format: str | None = None, plan: str | os.PathLike | Plan | None = None,
+                       scale: float | None = None, white: str | os.PathLike | None = None,
+                       white_reflectance: float = 0.99, keep_grazing: bool = False) -> Dataset:
+    """Import a measurement made elsewhere as a radiance-coefficient dataset (`gonio import`).
+
+    Parameters
+    ----------
+    path : str, path, or a sequence of them
+        The file, or the files of one measurement (pgII: one file per incidence).
+    out : str or path, optional
+        Also write the dataset into this folder (as `gonio import --out` does).
+    force : bool, default False
+        Replace what `out` holds.
+    format : str, optional
+        One of `IMPORT_FORMATS`: `"rgl-bsdf"` (RGL `.bsdf` tensor files, RGB or spectral), `"pgii"`
+        (PAB pgII text files) or `"merl"` (MERL `.binary` tables). Inferred from a `.bsdf` or
+        `.binary` suffix; required for pgII files.
+    plan : str, path or Plan, optional
+        For the tabulated formats (rgl-bsdf, merl): evaluate the file at this plan's geometries;
+        `"measured"` (rgl-bsdf only): the file's own measured incidences and its retro-reflection
+        rings. By default in-plane curves (at an RGL file's own incidences).
+    scale : float, optional
+        pgII files in detector current (uA): f_r per uA, making absolute values; without it (and
+        without `white`) the dataset is relative.
+    white : str or path, optional
+        pgII: a pgII file of a diffuse white standard measured with the same detector (absolute values).
+    white_reflectance : float, default 0.99
+        The hemispherical reflectance of that standard.
+    keep_grazing : bool, default False
+        Keep incidences at 89 deg and beyond (the RGL files' last node is an extrapolation; dropped
+        with a note by default).
+
+    Returns
+    -------
+    Dataset
+        The imported dataset (RGB files give a dataset with a `channel` column).
+
+    Raises
+    ------
+    InputError
+        An unknown or uninferable format, a malformed file (the message names file and line or
+        offset), a non-positive `scale`, a `white_reflectance` outside (0, 1].
+    OutputExistsError
+        `out` holds something and `force` is False.
+
+    Examples
+    --------
+    The real green felt of the RGL database, at its own incidences:
+
+    >>> import fabric_optics as fo
+    >>> felt = fo.import_measurement("fixtures/real/acrylic_felt_green_rgb.bsdf")
+    >>> felt.is_rgb, sorted(felt.table["channel"].unique())
+    (True, ['B', 'G', 'R'])
+    """
+    from gonio.acquisition.plan import MEASURED, measured_plan
+    from gonio.data.formats import import_files
+
+    paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
+    if not paths:
+        raise InputError("path: no file given; give a file or a list of files")
+    fmt = format if format is not None else _SUFFIX_FORMATS.get(Path(paths[0]).suffix.lower())
+    if fmt is None:
+        raise InputError(f"format: cannot tell the format of {paths[0]} from its name; pass format= one of "
+                         f"{', '.join(IMPORT_FORMATS)}")
+    if fmt not in IMPORT_FORMATS:
+        raise InputError(f"format {fmt!r}: choose one of {', '.join(IMPORT_FORMATS)}")
+    if scale is not None and not (0 < scale < float("inf")):
+        raise InputError(f"scale {scale}: must be a positive number (f_r per uA)")
+    if not 0.0 < white_reflectance <= 1.0:
+        raise InputError(f"white_reflectance {white_reflectance}: must be in (0, 1]")
+    geometries = None
+    if plan is not None:
+        if plan == MEASURED:
+            if not (str(paths[0]).endswith(".bsdf") and Path(paths[0]).is_file()):
+                raise InputError(f"plan {MEASURED!r}: follows the measured incidences of an RGL .bsdf file, but "
+                                 f"{paths[0]} is not one; give a .bsdf file or a plan")
+            geometries = measured_plan(Path(paths[0])).geometries(measurable_only=True)
+        else:
+            geometries = load_plan(plan).geometries()
+    out_dir = None if out is None else Path(out)
+    if out_dir is not None:
+        _refuse_existing(out_dir, force)
+    dataset = import_files(fmt, paths, geometries, scale=scale, white=white, white_reflectance=white_reflectance,
+                           keep_grazing=keep_grazing)
+    if out_dir is not None:
+        from gonio.data.dataset import write_dataset as _write
+        from gonio.data.outputs import WRITTEN_BY
+
+        dataset.meta[WRITTEN_BY] = "gonio import"
+        _write(dataset, out_dir)
+    return dataset
+
+
+@_typed_errors
+def write_report(measured: str | os.PathLike | Dataset, *models: str | os.PathLike | Dataset,
+                 out: str | os.PathLike, force: bool = False, fits: Sequence[str | os.PathLike] = (),
+                 seed_sample: str | os.PathLike | Dataset | None = None, renders: str | os.PathLike | None = None,
+                 svg: bool = False, window_deg: float = DEFAULT_WINDOW_DEG, illuminant: str = "D65") -> Path:
+    """Write the comparison report of models against a measurement (`compare report`).
+
+    The report is `report.html` (self-contained: figures embedded), `metrics.json` (every number of
+    the page, and the version and commit that wrote it) and `figures/*.png`, written together.
+
+    Parameters
+    ----------
+    measured : Dataset or path
+        The measurement.
+    *models : Dataset or path
+        The simulations (datasets or their folders), or one `simulate sweep` folder. None: a report
+        of the measurement alone (curves, colour strips, colour table).
+    out : str or path
+        The report's folder: new or empty, or (with `force`) holding anything.
+    force : bool, default False
+        Write into a folder that holds something (a previous report's files are replaced, other
+        files kept).
+    fits : sequence of paths, default ()
+        `simulate fit` output folders (their `fit.json`): a table of the fitted parameters with
+        their uncertainties.
+    seed_sample : Dataset or path, optional
+        A simulated red-cotton dataset judged against the published colour of red cotton.
+    renders : path, optional
+        A `compare render` folder, its sheet embedded (needs a model).
+    svg : bool, default False
+        Also write every figure as `figures/*.svg`.
+    window_deg : float, default 5
+        Largest |s| of the normal-incidence points used to estimate the measurement at the normal.
+    illuminant : str, default "D65"
+        Illuminant of the colour match.
+
+    Returns
+    -------
+    Path
+        The path of `report.html`.
+
+    Raises
+    ------
+    OutputExistsError
+        `out` holds something and `force` is False.
+    InputError
+        A dataset that cannot be read or compared, `renders` that is not a folder or given without
+        a model, a sweep folder beside other models.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import fabric_optics as fo
+    >>> out = Path(tempfile.mkdtemp()) / "report"
+    >>> report = fo.write_report("fixtures/analytic/measured_red", "fixtures/analytic/sim_lambert", out=out)
+    >>> report.name, sorted(p.name for p in out.iterdir())
+    ('report.html', ['figures', 'metrics.json', 'report.html'])
+    """
+    from compare.comparison import compare_datasets
+    from compare.report import Section
+    from compare.report import write_report as _write_report
+    from compare.sweep import is_sweep_dir, write_sweep_report
+
+    out_dir = Path(out)
+    if renders is not None and not Path(renders).is_dir():
+        raise InputError(f"renders {renders}: not a folder (make one with `compare render FILE.bsdf ... --out DIR`)")
+    if renders is not None and not models:
+        raise InputError("renders: the renders are set beside a simulation; give a model too")
+    _refuse_existing(out_dir, force)
+    meas = _dataset(measured)
+    if not models:
+        from compare.inspect import write_dataset_report
+
+        return write_dataset_report(meas, out_dir, svg=svg, force=force)
+    if any(not isinstance(m, Dataset) and is_sweep_dir(Path(m)) for m in models):
+        if len(models) > 1:
+            raise InputError("models: a sweep folder must be the only model (write_report(measured, sweep_dir, ...))")
+        sweep = models[0]
+        assert not isinstance(sweep, Dataset)
+        return write_sweep_report(meas, Path(sweep), out_dir, svg=svg, force=force, window_deg=window_deg,
+                                  illuminant=illuminant)
+    comparison = compare_datasets(meas, [_dataset(m) for m in models], window_deg=window_deg, illuminant=illuminant)
+    sections = _report_sections(meas, comparison, fits, seed_sample)
+    if renders is not None:
+        from compare.render import render_section
+
+        sections.append(Section("renders", render_section(renders), before=None))
+    return _write_report(comparison, out_dir, svg=svg, force=force, sections=sections)
+
+
+def _report_sections(measured: Dataset, comparison: Comparison, fits: Sequence[str | os.PathLike],
+                     seed_sample: str | os.PathLike | Dataset | None) -> list:
+    """What was measured (when the dataset says), the fits' parameters and the seed sample's colour check."""
+    from compare.report.fits import fits_section
+    from compare.report.samples import measured_sample_section, seed_sample_section
+
+    sections = [s for s in [measured_sample_section(measured)] if s is not None]
+    if fits:
+        sections.append(fits_section([str(f) for f in fits], comparison.simulated))
+    if seed_sample is not None:
+        sections.append(seed_sample_section(_dataset(seed_sample)))
+    return sections

@@ -4,4 +4,6 @@
 `gonio.data.colour` derives CIE XYZ / linear sRGB / HSV views of their spectra.
 """
 
-__version__ = "0.1.0"
+from gonio.version import VERSION as __version__
+
+__all__ = ["__version__"]

@@ -1,3 +1,5 @@
 """simulate: physically based fiber and fabric BRDFs (Mie, Monte Carlo transport, Cook-Torrance)."""
 
-__version__ = "0.1.0"
+from gonio.version import VERSION as __version__
+
+__all__ = ["__version__"]

@@ -20,9 +20,9 @@ def software_versions() -> dict:
     import numba
     import scipy
 
-    import gonio
+    from gonio.version import VERSION, commit
 
-    out = {"fabric-optics": gonio.__version__, "python": platform.python_version(),
+    out = {"fabric-optics": VERSION, "commit": commit(), "python": platform.python_version(),
            "numpy": np.__version__, "scipy": scipy.__version__, "numba": numba.__version__}
     try:  # the installed version, without importing it (its import compiles a kernel: 1-2 s)
         out["miepython"] = importlib.metadata.version("miepython")

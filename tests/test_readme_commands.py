@@ -50,6 +50,8 @@ SLOW_SECTIONS = {("mock-lab.md", "5. The whole demo, by hand")}
 #: tutorials that run Monte Carlo simulations, fits, renders or a dask cluster: over a minute each even
 #: on reduced budgets, so ``make test-slow`` runs them (``make test`` checks their commands against the help)
 SLOW_PAGES = {"simulate-compare.md", "fit-felt.md", "render.md", "sweep.md"}
+#: tutorials in Python, not at the terminal: their code blocks run in tests/docs/test_python_tutorial.py
+PYTHON_PAGES = {"python.md"}
 #: what a placeholder looks like: a word of capitals (HEAD, PLAN, RUN_DIR), not a flag value like 8E1
 PLACEHOLDER = re.compile(r"(?<![\w.-])[A-Z][A-Z_]{2,}(?![\w])")
 
@@ -211,7 +213,7 @@ SLOW = [TUTORIALS / name for name in sorted(SLOW_PAGES)]
 
 def test_every_tutorial_is_run():
     pages = {p.name for p in TUTORIALS.glob("*.md")} - {"index.md"}
-    assert pages == {p.name for p in FAST} | SLOW_PAGES, "a tutorial no test runs"
+    assert pages == {p.name for p in FAST} | SLOW_PAGES | PYTHON_PAGES, "a tutorial no test runs"
     assert all(p.is_file() for p in SLOW)
 
 

@@ -11,6 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from gonio.data import write_files_together
+from gonio.version import software
 
 from ..colourmatch import band_luminance_weights
 from ..comparison import Comparison
@@ -129,7 +130,7 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
         "estimate of the measured normal value (data and quadratic-vs-linear model term) and "
         "the simulation's normal value; not folded into the curve errors (see the "
         "normalisation table).")
-    files[Path("metrics.json")] = (json.dumps(metrics, indent=2, allow_nan=False) + "\n").encode("utf-8")
+    files[Path("metrics.json")] = (json.dumps({**metrics, "software": software()}, indent=2, allow_nan=False) + "\n").encode("utf-8")
     for section in sections:
         for name, data in section.figures.items():
             files[fig_dir / name] = data

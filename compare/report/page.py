@@ -64,16 +64,22 @@ class Section:
 
 def head_html(title: str, heading: str, files: list[str], style: str = STYLE) -> list[str]:
     """The page's head (generator and file list: :mod:`compare.report.outdir`) and title."""
+    from gonio.version import describe
+
     e = html.escape
     return ["<!DOCTYPE html>", "<html lang='en'><head><meta charset='utf-8'>",
             f"<meta name='generator' content='{GENERATOR}'>",
+            f"<meta name='software' content='{e(describe())}'>",
             f"<meta name='report-files' content='{e(' '.join(files))}'>",
             f"<title>{e(title)}</title>", style + "</head><body>", f"<h1>{e(heading)}</h1>"]
 
 
 def assemble(head: list[str], sections: list[Section]) -> str:
-    """The page: ``head`` then the sections in order."""
-    return "\n".join(head + [s.html for s in sections] + ["</body></html>"]) + "\n"
+    """The page: ``head``, the sections in order, and a footer naming the version (and commit) that wrote it."""
+    from gonio.version import describe
+
+    footer = f"<footer><p class='software'>Written by {html.escape(describe())}.</p></footer>"
+    return "\n".join(head + [s.html for s in sections] + [footer, "</body></html>"]) + "\n"
 
 
 def order_sections(standard: list[Section], extra: list[Section]) -> list[Section]:

@@ -309,6 +309,15 @@ def add_verbose(p: argparse.ArgumentParser, *, sub: bool) -> None:
                    help="log progress and details to stderr")
 
 
+def add_version(p: argparse.ArgumentParser) -> None:
+    """``--version``: the program, the version of fabric-optics and, in a git checkout, the commit
+    (``gonio 0.2.0 (git abc1234)``): the figures every dataset's ``meta.json`` records under ``software``."""
+    from gonio.version import describe
+
+    p.add_argument("--version", action="version", version=describe(p.prog),
+                   help="print the version (and the git commit of a checkout) and exit")
+
+
 def add_no_progress(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", dest="no_progress",
                    help="no progress bar (it is shown only on a terminal anyway)")

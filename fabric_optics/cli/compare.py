@@ -44,13 +44,13 @@ from typing import Sequence
 
 from gonio.data import DatasetError, read_dataset
 
-from compare.comparison import compare_datasets, incomplete_datasets
+from compare.comparison import incomplete_datasets
 from compare.errors import CompareError
 from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
 from fabric_optics import api
 from fabric_optics.cli import common
-from fabric_optics.cli.common import Parser, UsageError, add_force, add_verbose, refuse_existing
+from fabric_optics.cli.common import Parser, UsageError, add_force, add_verbose, add_version, refuse_existing
 
 __all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main", "build_parser"]
 
@@ -81,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Compare simulated radiance-coefficient datasets with a measured one: "
                     "normalise at the normal direction, curve errors, HSV colour match.")
     add_verbose(parser, sub=False)
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check,render}",
                                 parser_class=Parser)
 
@@ -195,7 +196,12 @@ def _render_cmd(args) -> int:
 
 
 def _report(args) -> int:
-    from compare.report import write_report
+    """`compare report`: the arguments checked (messages naming the flags), then the same code as Python's
+    :func:`fabric_optics.write_report`; prints the seed sample's check and each model's curve error."""
+    import json
+
+    from compare.report.samples import published_colour_check
+    from compare.sweep import is_sweep_dir
 
     if args.renders is not None and not Path(args.renders).is_dir():
         raise CompareError(f"--renders {args.renders}: not a folder (make one with `compare render FILE.bsdf "
@@ -205,68 +211,35 @@ def _report(args) -> int:
                            "(compare report MEASURED SIMULATED --renders DIR)")
     refuse_existing(args.out, args.force)
     measured = read_dataset(args.measured)
-    if not args.simulated:
-        from compare.inspect import write_dataset_report
-
-        try:
-            report = write_dataset_report(measured, args.out, svg=args.svg, force=args.force)
-        except OSError as exc:
-            raise CompareError(f"cannot write the report into --out {args.out}: "
-                               f"{exc.strerror or exc} ({exc.filename}); choose a writable "
-                               "directory") from None
-        print(f"report: {report}")
-        return 0
-    from compare.sweep import is_sweep_dir, write_sweep_report
-
-    if any(is_sweep_dir(p) for p in args.simulated):  # a `simulate sweep` directory: compare.sweep
-        if len(args.simulated) > 1:
-            raise CompareError("a sweep directory must be the only SIMULATED (compare report MEASURED SWEEP_DIR)")
-        report = write_sweep_report(measured, args.simulated[0], args.out, svg=args.svg, force=args.force,
-                                    window_deg=args.normal_window, illuminant=args.illuminant)
-        print(f"report: {report}")
-        return 0
-    simulated = [read_dataset(p) for p in args.simulated]
-    for line in incomplete_datasets(measured, simulated):
-        log.warning("%s; the report says so in a banner", line)
-    comparison = compare_datasets(measured, simulated, window_deg=args.normal_window,
-                                  illuminant=args.illuminant)
-    sections = _sample_sections(args, measured, comparison)
-    if args.renders is not None:  # a `compare render` folder: its sheet embedded, captioned
-        from compare.render import render_section
-        from compare.report import Section
-
-        sections.append(Section("renders", render_section(args.renders), before=None))
-    try:
-        report = write_report(comparison, args.out, svg=args.svg, force=args.force, sections=sections)
-    except OSError as exc:
-        raise CompareError(f"cannot write the report into --out {args.out}: "
-                           f"{exc.strerror or exc} ({exc.filename}); choose a writable "
-                           "directory") from None
-    for name, o in comparison.overall.items():
-        print(f"{name}: overall RMSE {o.rmse:.4g}, NRMSE {o.nrmse:.4g}")
-    print(f"report: {report}")
-    return 0
-
-
-def _sample_sections(args, measured, comparison) -> list:
-    """What was measured (always, when the dataset says), the fits (``--fit``) and the seed
-    sample's published-colour check (``--seed-sample``, also printed): compare.report.samples,
-    compare.report.fits."""
-    from compare.report.fits import fits_section
-    from compare.report.samples import measured_sample_section, published_colour_check, seed_sample_section
-
-    sections = [s for s in [measured_sample_section(measured)] if s is not None]
-    if args.fit:
-        sections.append(fits_section(args.fit, comparison.simulated))
-    if args.seed_sample is not None:
+    sweep = any(is_sweep_dir(p) for p in args.simulated)   # a `simulate sweep` directory: compare.sweep
+    if sweep and len(args.simulated) > 1:
+        raise CompareError("a sweep directory must be the only SIMULATED (compare report MEASURED SWEEP_DIR)")
+    models = list(args.simulated) if sweep else [read_dataset(p) for p in args.simulated]
+    if not sweep:
+        for line in incomplete_datasets(measured, models):
+            log.warning("%s; the report says so in a banner", line)
+    seed = None
+    if args.seed_sample is not None and models and not sweep:
         seed = read_dataset(args.seed_sample)
         _, checks = published_colour_check(seed)
         print(f"seed sample '{seed.name}' against the published colour of red cotton "
               "(incidence 0, observation 10 deg):")
         for c in checks:
             print(f"  {c.line()}")
-        sections.append(seed_sample_section(seed))
-    return sections
+    try:
+        report = api.write_report(measured, *models, out=args.out, force=args.force, fits=args.fit,
+                                  seed_sample=seed, renders=args.renders, svg=args.svg,
+                                  window_deg=args.normal_window, illuminant=args.illuminant)
+    except OSError as exc:
+        raise CompareError(f"cannot write the report into --out {args.out}: "
+                           f"{exc.strerror or exc} ({exc.filename}); choose a writable "
+                           "directory") from None
+    if models and not sweep:
+        overall = json.loads((Path(report).parent / "metrics.json").read_text(encoding="utf-8"))["overall"]
+        for name, o in overall.items():
+            print(f"{name}: overall RMSE {o['rmse']:.4g}, NRMSE {o['nrmse']:.4g}")
+    print(f"report: {report}")
+    return 0
 
 
 def _check(args) -> int:

@@ -321,6 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
                "2 usage or input error, 130 interrupted. Plans: a TOML file or a preset name ("
                + ", ".join(preset_names()) + ").")
     add_verbose(p, sub=False)
+    common.add_version(p)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.add_parser("mock", help="serve mock devices (see `gonio mock --help`)", add_help=False)
 
@@ -458,23 +459,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_import(args) -> int:
-    from gonio.data import write_dataset
-    from gonio.data.formats import import_files, import_notes
+    from gonio.acquisition.plan import MEASURED
+    from gonio.data.formats import import_notes
 
-    geometries = None
-    if args.plan:
-        # the measured plan: what the instrument measures (the acquisition's geometries, no beam-blocked point)
-        geometries = _plan_for(args.plan, args.files[0], "FILE").geometries(measurable_only=args.plan == "measured")
+    from fabric_optics import api
+
+    if args.plan == MEASURED and not (args.files[0].endswith(".bsdf") and Path(args.files[0]).is_file()):
+        raise _UsageError(f"--plan {MEASURED}: follows the measured incidences of an RGL .bsdf file, but FILE "
+                          f"{args.files[0]!r} is not one; give a .bsdf file or a plan")
     if args.scale is not None and not (args.scale > 0 and args.scale < float("inf")):
         raise _UsageError(f"--scale {args.scale}: must be a positive number")
     if not (0.0 < args.white_reflectance <= 1.0):
         raise _UsageError(f"--white-reflectance {args.white_reflectance}: must be in (0, 1]")
     check_output(args.out, "dataset", writer="gonio import", force=args.force)
     refuse_existing(args.out, args.force)
-    dataset = import_files(args.format, args.files, geometries, scale=args.scale, white=args.white,
-                           white_reflectance=args.white_reflectance, keep_grazing=args.keep_grazing)
-    dataset.meta[WRITTEN_BY] = "gonio import"
-    out = write_dataset(dataset, args.out)
+    # the same code as Python's fabric_optics.import_measurement (it marks the folder as gonio import's)
+    dataset = api.import_measurement(args.files, args.out, force=args.force, format=args.format, plan=args.plan,
+                                     scale=args.scale, white=args.white, white_reflectance=args.white_reflectance,
+                                     keep_grazing=args.keep_grazing)
+    out = Path(args.out)
     bands = (f"channels {''.join(dataset.channels)} ({dataset.colour_space})" if dataset.is_rgb
              else f"{len(dataset.wavelengths_nm)} wavelengths")
     print(f"gonio import: {dataset.name}, {len(dataset.geometries())} geometries, {bands}"

@@ -886,6 +886,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
     parser = Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
     add_verbose(parser, sub=False)
+    common.add_version(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     sub.required = True
     for name, (help_text, add_arguments, _) in COMMANDS.items():

@@ -33,7 +33,9 @@ __all__ = ["dataset_from_journal", "usable_points", "retry_totals", "point_key",
 
 
 def _versions() -> dict:
-    out = {}
+    from gonio.version import commit
+
+    out: dict = {"commit": commit()}
     for dist in ("fabric-optics", "pymodbus", "pyserial", "numpy"):
         try:
             out[dist] = metadata.version(dist)

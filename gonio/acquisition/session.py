@@ -35,8 +35,8 @@ __all__ = ["run_session", "replay_session", "check_run_output", "ReplayClock"]
 
 
 def _software() -> dict:
-    import gonio
-    return {"gonio": gonio.__version__}
+    from gonio.version import software
+    return software()
 
 
 def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport, out: Path, *,

@@ -113,6 +113,25 @@ class ExportError(DatasetError):
 
 @dataclass
 class ExportResult:
+    """What an export to an RGL `.bsdf` file wrote (`fabric_optics.export_bsdf`, `gonio export`, `simulate export`).
+
+    Attributes
+    ----------
+    path : str
+        The file written.
+    fields : dict of str to numpy.ndarray
+        The tensor fields as written (`theta_i`, `phi_i`, `spectra` or `rgb`, `ndf`, `vndf`, `luminance`, ...).
+    evaluations : int
+        Model (or interpolation) evaluations the tabulation took.
+    valid_fraction : float
+        Share of the tabulated direction pairs with a value (the rest lie below the horizon).
+    error : dict, optional
+        With `check_pairs`: the tabulation error measured at random direction pairs; None otherwise.
+    provenance : dict
+        What the file records of its source; for a dataset, `"coverage"` says which directions it
+        covers and how the others are filled.
+    """
+
     path: str
     fields: dict[str, np.ndarray]
     evaluations: int

@@ -1,8 +1,8 @@
 """Radiance-coefficient datasets: the format, its validation and its (atomic) I/O.
 
-(About 800 lines, one concept: the validation, the :class:`Dataset` and its I/O share the
+(About 800 lines, one concept: the validation, the `Dataset` and its I/O share the
 private checks, and ``simulate``/``compare`` import the readers and writers from here; the
-format's constants and :class:`DatasetError` are the leaf :mod:`gonio.data.schema`.)
+format's constants and `DatasetError` are the leaf `gonio.data.schema`.)
 
 A dataset is a directory with two files (docs/dataset.md):
 
@@ -20,7 +20,7 @@ A dataset is a directory with two files (docs/dataset.md):
     "instrument"|"model": {...}, "wavelengths_nm": [...], "created": ISO-8601, "software": {...},
     "provenance": {...}}``; free-form beyond these keys.
 
-Reading validates everything and raises :class:`DatasetError`, whose message names the file, the
+Reading validates everything and raises `DatasetError`, whose message names the file, the
 row (the line number in the file, the header being line 1), the column and the problem. Writing is
 atomic per file (temporary file, fsync, rename) and ``meta.json`` is written last and carries the
 SHA-256 of ``radiance.csv``, so a crash between the two renames is detected on reading instead of
@@ -34,7 +34,7 @@ Conventions decided here (the design is silent on them):
   is kept as given: at normal incidence ``phi_i`` names the plane in which the in-plane signed angle
   is measured (the instrument's detector plane / sample rotation).
 - ``beta`` may be slightly negative in measured data (dark-subtracted noise); it must be finite.
-- Interpolation (:meth:`Dataset.interpolate`) lives in :mod:`gonio.data.interpolate`.
+- Interpolation (`Dataset.interpolate`) lives in `gonio.data.interpolate`.
 
 RGB datasets (docs/dataset.md): a ``channel`` column (``R``, ``G``, ``B``, or ``Y`` for a
 photometric measurement) stands in place of ``wavelength_nm``::
@@ -211,7 +211,7 @@ def _validate_table(table: pd.DataFrame, file: str | None, *, line_offset: int =
 
 
 def _meta_depth_ok(meta: Any) -> bool:
-    """True when ``meta`` nests no deeper than :data:`META_MAX_DEPTH` (iterative: no recursion)."""
+    """True when ``meta`` nests no deeper than `META_MAX_DEPTH` (iterative: no recursion)."""
     stack = [(meta, 1)]
     while stack:
         value, depth = stack.pop()
@@ -315,8 +315,8 @@ def _check_colour_space(name: str, file: str | None) -> None:
 class Dataset:
     """A validated radiance-coefficient dataset held in memory.
 
-    Create with :func:`make_dataset` or :func:`read_dataset`; the table is sorted by geometry and
-    wavelength and must not be modified in place (derive new datasets with :meth:`with_values`).
+    Create with `make_dataset` or `read_dataset`; the table is sorted by geometry and
+    wavelength and must not be modified in place (derive new datasets with `with_values`).
     """
 
     def __init__(self, table: pd.DataFrame, meta: dict, path: Path | None = None):
@@ -327,7 +327,7 @@ class Dataset:
 
     def derived(self, key: Any, build: Callable[[], Any]) -> Any:
         """A value computed from this dataset's table once and kept with it (``build()`` the
-        first time ``key`` is asked for): :mod:`gonio.data.interpolate` keeps its
+        first time ``key`` is asked for): `gonio.data.interpolate` keeps its
         triangulations here. Valid because a dataset's table is never modified in place."""
         if key not in self._derived:
             self._derived[key] = build()
@@ -482,7 +482,7 @@ class Dataset:
 
     def colour_at(self, theta_i: float, phi_i: float, theta_o: float, phi_o: float,
                   illuminant: str = "D65"):
-        """HSV / linear-sRGB summary of the spectrum at one geometry (see :mod:`gonio.data.colour`)."""
+        """HSV / linear-sRGB summary of the spectrum at one geometry (see `gonio.data.colour`)."""
         from gonio.data.colour import rgb_colour, spectrum_colour
 
         rows = self.spectrum(theta_i, phi_i, theta_o, phi_o)
@@ -507,7 +507,7 @@ class Dataset:
     def interpolate(self, theta_i, phi_i, theta_o, phi_o, band):
         """``(beta, u_beta)`` at arbitrary geometries and wavelengths (or channels) inside the data.
 
-        See :func:`gonio.data.interpolate.interpolate`.
+        See `gonio.data.interpolate.interpolate`.
         """
         from gonio.data.interpolate import interpolate
 
@@ -519,10 +519,9 @@ class Dataset:
 
 
 def _software() -> dict:
-    import gonio
+    from gonio.version import software
 
-    return {"package": "fabric-optics", "version": gonio.__version__,
-            "python": platform.python_version(), "numpy": np.__version__,
+    return {**software(), "python": platform.python_version(), "numpy": np.__version__,
             "pandas": pd.__version__}
 
 
@@ -552,7 +551,7 @@ def new_meta(kind: str, sample: Mapping, source: Mapping | None = None,
 
 def make_dataset(table: pd.DataFrame | Mapping[str, Iterable], meta: Mapping,
                  *, source: str | None = None) -> Dataset:
-    """Validate ``table`` (columns :data:`COLUMNS`) and ``meta``; return a :class:`Dataset`.
+    """Validate ``table`` (columns `COLUMNS`) and ``meta``; return a `Dataset`.
 
     ``phi`` values are wrapped to [0, 360) and the normal direction's ``phi_o`` is canonicalised
     before validation; ``meta["wavelengths_nm"]`` is filled from the table.
@@ -634,7 +633,7 @@ def write_files_together(out_dir: str | os.PathLike, files: Mapping[str, bytes])
     Every file is written and fsynced into a hidden folder ``out_dir/.writing-XXXXXXXX.tmp/`` first and
     only then renamed into place, so a write that fails (a full disk) leaves ``out_dir`` as it was:
     the staged files are removed, as are the folders this call created; files already in ``out_dir``
-    are replaced only once every new one is on disk. The :class:`OSError` raised names the file
+    are replaced only once every new one is on disk. The `OSError` raised names the file
     (its final path) whose write failed.
     """
     out = Path(out_dir)
@@ -688,13 +687,13 @@ def _remove_empty(folders: list[Path]) -> None:
             pass
 
 
-#: Names of :func:`atomic_write`'s temporary files for a dataset's two files: ``mkstemp`` with
+#: Names of `atomic_write`'s temporary files for a dataset's two files: ``mkstemp`` with
 #: prefix ``.NAME.`` and suffix ``.tmp`` puts 8 characters of ``[a-z0-9_]`` between them.
 _TEMP_NAME = re.compile(r"\.(?:radiance\.csv|meta\.json)\.[a-z0-9_]{8}\.tmp")
 
 
 def remove_stale_temp_files(out_dir: str | os.PathLike) -> list[Path]:
-    """Remove temporary files that :func:`write_dataset` left in ``out_dir`` (a killed write).
+    """Remove temporary files that `write_dataset` left in ``out_dir`` (a killed write).
 
     Only regular files whose names match the writer's own pattern
     (``.radiance.csv.XXXXXXXX.tmp``, ``.meta.json.XXXXXXXX.tmp``) are removed; anything else is
@@ -783,7 +782,7 @@ def _file_kind(mode: int) -> str:
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:
-    """Read and validate the dataset in directory ``path``; raise :class:`DatasetError`."""
+    """Read and validate the dataset in directory ``path``; raise `DatasetError`."""
     root = Path(path)
     hint = f"a dataset is a directory holding {CSV_NAME} and {META_NAME}"
     if not root.exists():

@@ -79,7 +79,8 @@ def test_user_strings_are_escaped_in_the_html(report):
 
 def test_metrics_json_has_exactly_the_contract_keys(report):
     m = json.loads((report["out"] / "metrics.json").read_text())
-    assert set(m) == {"normalisation", "curves", "overall", "colour", "shape"}
+    assert set(m) == {"normalisation", "curves", "overall", "colour", "shape", "software"}
+    assert set(m["software"]) == {"package", "version", "commit"}
     assert set(m["normalisation"]) == {"method", "factor", "normal_value", "level"}
     assert set(m["normalisation"]["factor"]) == SIM_NAMES
     for f in m["normalisation"]["factor"].values():

@@ -52,9 +52,16 @@ def hits(text: str) -> list[str]:
     return out
 
 
+#: a release heading of CHANGELOG.md (Keep a Changelog: ``## [0.2.0] - 2026-12-07``): its date is the release's
+RELEASE_HEADING = re.compile(r"^## \[\d+\.\d+\.\d+\] - 20\d\d-[01]\d-[0-3]\d$", flags=re.M)
+
+
 @pytest.mark.parametrize("path", product_text(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_history_vocabulary_in_the_manual(path):
-    found = hits(path.read_text(encoding="utf-8"))
+    text = path.read_text(encoding="utf-8")
+    if path.name == "CHANGELOG.md":
+        text = RELEASE_HEADING.sub("## release", text)
+    found = hits(text)
     assert not found, f"{path.relative_to(ROOT)}: " + "; ".join(found[:10])
 
 
