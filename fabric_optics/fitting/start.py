@@ -1,8 +1,7 @@
 """Starts of ``simulate fit`` that find the colour: a dye of any colour and its inverted start.
 
-Why: two Gaussian absorption bands started from red cotton cannot absorb the red a green felt
-absorbs (measured on the RGL felt: the bands slid to 430-460 nm, hue left -0.044 turn off). The
-``knots`` dye curve (:mod:`simulate.config`, docs/physics.md section 2) can take any colour;
+Why: a dye curve of a few bands started from another colour may not reach the measured one
+(docs/notes/fit-trust.md, "The colour start, for every method"). The ``knots`` dye curve (:mod:`simulate.config`, docs/physics.md section 2) can take any colour;
 :func:`knots_config` turns any config's dye into ``K`` knots, and :func:`inverted_start` gives the
 knots a start that already has the measured colour.
 
