@@ -17,7 +17,9 @@ from fabric_optics.api import (
     FIT_METHODS,
     IMPORT_FORMATS,
     Comparison,
+    FitJob,
     FitOutcome,
+    FitWarning,
     InputError,
     OutputExistsError,
     ToolkitError,
@@ -30,6 +32,7 @@ from fabric_optics.api import (
     load_config,
     load_plan,
     measure_on_mock,
+    prepare_fit,
     read_dataset,
     simulate,
     truth,
@@ -37,7 +40,7 @@ from fabric_optics.api import (
     write_report,
 )
 
-__all__ = ["__version__", "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS", "Comparison", "FitOutcome",
-           "InputError", "OutputExistsError", "ToolkitError", "Verdict", "check", "compare", "export_bsdf", "fit",
-           "import_measurement", "load_config", "load_plan", "measure_on_mock", "read_dataset", "simulate", "truth",
+__all__ = ["__version__", "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS", "Comparison", "FitJob", "FitOutcome",
+           "FitWarning", "InputError", "OutputExistsError", "ToolkitError", "Verdict", "check", "compare", "export_bsdf", "fit",
+           "import_measurement", "load_config", "load_plan", "measure_on_mock", "prepare_fit", "read_dataset", "simulate", "truth",
            "write_dataset", "write_report"]

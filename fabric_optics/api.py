@@ -39,23 +39,26 @@ from gonio.data.schema import DatasetError
 from simulate.config import SimulationConfig
 from simulate.config_table import ConfigError
 from simulate.fabric.summation import FabricError
+from fabric_optics.fitting.errors import FitError, FitWarning
+from fabric_optics.fitting.methods import DEFAULT_METHOD, METHODS
 
 if TYPE_CHECKING:
-    from fabric_optics.fitting.driver import FitResult
+    from fabric_optics.fitting.outputs import FitResult
 
 __all__ = [
     "ToolkitError", "InputError", "OutputExistsError",
     "load_config", "load_plan", "read_dataset", "write_dataset",
     "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "prepare_fit", "FitJob",
-    "FitOutcome", "export_bsdf", "import_measurement", "write_report", "Comparison",
+    "FitOutcome", "FitWarning", "export_bsdf", "import_measurement", "write_report", "Comparison",
     "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS",
 ]
 
 FABRIC_METHODS = ("summation", "classic", "mc", "auto")
 """The fabric models `simulate` takes (`method=`): summation over the fabric's fibers, the classic Lambert +
 Cook-Torrance model, Monte Carlo ray tracing of the fabric, or per geometry the cheapest within the target."""
-#: The models a fit can adjust (``auto`` is not one: its choice changes between evaluations).
-FIT_METHODS = ("summation", "classic", "mc")
+FIT_METHODS = tuple(METHODS)
+"""The models a fit can adjust, from the fit's method registry (`fabric_optics.fitting.methods.METHODS`); `auto`
+is not one: its choice changes between evaluations."""
 
 
 class ToolkitError(Exception):
@@ -79,8 +82,6 @@ def _typed_errors(fn: _F) -> _F:
     """Re-raise the libraries' input errors as :class:`InputError` (the original as ``__cause__``)."""
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from fabric_optics.fitting.problem import FitError
-
         try:
             return fn(*args, **kwargs)
         except ToolkitError:
@@ -451,21 +452,24 @@ def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float =
 
 @dataclass
 class FitOutcome:
-    """A finished fit: the fitted config (``config``, also in ``out/fitted.toml``), the summary
-    written to ``out/fit.json`` (``summary``: parameters with uncertainties, the figures before
-    and after) and the optimiser's result (``result``)."""
+    """A finished fit: the fitted config (``config``, also in ``out/fitted.toml``), the typed result (``result``:
+    parameters, uncertainties, warnings, counts), the summary written to ``out/fit.json`` (``summary``), whether it
+    passed (``passed``: its colour within the tolerance) and its ``warnings`` (one line each)."""
 
     out: Path
     summary: dict
     result: FitResult
     config: SimulationConfig
+    passed: bool
+    warnings: list[str]
 
 
 @dataclass
 class FitJob:
     """A fit checked and ready to run (:func:`prepare_fit`): ``problem`` (its ``wavelengths_nm``,
-    ``config``, ...), the output folder ``out`` and the ``budget`` (model evaluations, or Monte
-    Carlo runs of the ``mc`` fit). :meth:`run` searches, writes ``out`` and returns the outcome."""
+    ``config``, ...), the output folder ``out`` and the ``budget`` (what the method's budget counts: model
+    evaluations, or Monte Carlo runs of the ``mc`` fit). :meth:`run` searches, writes ``out`` and returns the
+    outcome."""
 
     problem: Any
     out: Path
@@ -473,28 +477,40 @@ class FitJob:
     budget: int
     starts: int
     resume: bool
-    _run: Callable[..., Any]
-    _write: Callable[..., dict]
     #: "ready", "search", "writing" (the outputs being put in place) or "done"
     phase: str = "ready"
 
     @_typed_errors
     def run(self, *, progress: bool = False) -> FitOutcome:
+        """Search, write the outputs and return the outcome. A fit that fails (its colour left off) or never moved
+        from its start warns (:class:`FitWarning`); its outputs are written all the same."""
+        import warnings
+
+        from fabric_optics.fitting.outputs import write_outputs
         from simulate.config import load_config as _load
 
+        method = METHODS[self.method]
         self.out.mkdir(parents=True, exist_ok=True)
         self.phase = "search"
-        result = self._run(self.problem, out=self.out, resume=self.resume, max_evaluations=self.budget,
-                           starts=self.starts, progress=progress)
+        result = method.run(self.problem, out=self.out, resume=self.resume, starts=self.starts, progress=progress,
+                            **{method.budget: self.budget})
         self.phase = "writing"      # the outputs are put in place together: an interrupt changes none of them
-        summary = self._write(self.problem, result, self.out)
+        summary = write_outputs(self.problem, result, self.out)
         self.phase = "done"
-        return FitOutcome(out=self.out, summary=summary, result=result, config=_load(self.out / "fitted.toml"))
+        passed = bool((summary.get("verdict") or {}).get("passed", True))
+        if not passed:
+            warnings.warn(f"fit in {self.out} failed: {summary['verdict'].get('why', 'colour left off')}",
+                          FitWarning, stacklevel=3)
+        if not result.moved:
+            warnings.warn(f"fit in {self.out}: the search never moved from its start ({result.stop or 'converged'})",
+                          FitWarning, stacklevel=3)
+        return FitOutcome(out=self.out, summary=summary, result=result, config=_load(self.out / "fitted.toml"),
+                          passed=passed, warnings=list(result.warnings))
 
 
 @_typed_errors
 def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLike | Dataset,
-                free: str | Sequence[str], out: str | os.PathLike, *, method: str = "summation",
+                free: str | Sequence[str], out: str | os.PathLike, *, method: str = DEFAULT_METHOD,
                 dye: str = "config", max_evaluations: int | None = None, max_runs: int | None = None,
                 target_rel_err: float | None = None, seed: int | None = None, threads: int | None = None,
                 colour_weight: float = 1.0, wavelengths_nm: Sequence[float] | None = None,
@@ -504,21 +520,19 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
     measurement, the free parameters and their bounds, the output folder. Nothing is written."""
     import numpy as np
 
-    from fabric_optics.fitting.driver import DEFAULT_MAX_EVALUATIONS, parse_free
-    from fabric_optics.fitting.mc import DEFAULT_MC_RUNS
-    from fabric_optics.fitting.methods import method_runner
+    from fabric_optics.fitting.spec import parse_free
     from fabric_optics.fitting.start import knots_config
 
-    if method not in FIT_METHODS:
+    if method not in METHODS:
         raise InputError(f"method {method!r}: choose one of {', '.join(FIT_METHODS)}")
+    fit_method = METHODS[method]
     if mc_trend and method != "mc":
         raise InputError(f"mc_trend is for method 'mc' (the {method} fit has no Monte Carlo runs)")
-    if max_runs is not None and method != "mc":
-        raise InputError(f"max_runs counts the Monte Carlo runs of method 'mc'; the {method} fit counts "
-                         "max_evaluations")
-    if max_evaluations is not None and method == "mc":
-        raise InputError("max_evaluations counts the model evaluations of the summation and classic fits; "
-                         "the mc fit counts max_runs")
+    budgets = {"max_evaluations": max_evaluations, "max_runs": max_runs}
+    for name, value in budgets.items():
+        if value is not None and name != fit_method.budget:
+            raise InputError(f"{name} is not the {method} fit's budget: it counts {fit_method.counts} "
+                             f"({fit_method.budget})")
     cfg = load_config(config)
     data = _dataset(measured)
     wavelengths = None if wavelengths_nm is None else np.asarray(wavelengths_nm, dtype=float)
@@ -529,12 +543,11 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
     elif dye != "config":
         raise InputError(f"dye {dye!r}: choose 'config' or 'knots'")
     names = [free] if isinstance(free, str) else list(free)
-    problem_class, run_fit, write_outputs = method_runner(method)
     extra: dict[str, Any] = {"mc_trend": tuple(mc_trend)} if mc_trend else {}
-    problem = problem_class(cfg, data, parse_free(names, cfg), method=method, colour_weight=colour_weight,
-                            level_weight=1.0 if absolute else 0.0, hold_colour=colour_hold and method != "mc",
-                            target_rel_err=cfg.target_rel_err if target_rel_err is None else target_rel_err,
-                            seed=seed, threads=threads or None, wavelengths_nm=wavelengths, **extra)
+    problem = fit_method.problem(cfg, data, parse_free(names, cfg), method=method, colour_weight=colour_weight,
+                                 level_weight=1.0 if absolute else 0.0, hold_colour=colour_hold and method != "mc",
+                                 target_rel_err=cfg.target_rel_err if target_rel_err is None else target_rel_err,
+                                 seed=seed, threads=threads or None, wavelengths_nm=wavelengths, **extra)
     problem.precheck()
     out_dir = Path(out)
     if out_dir.exists() and not out_dir.is_dir():
@@ -542,23 +555,22 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
     if out_dir.is_dir() and any(out_dir.iterdir()) and not (resume or force):
         raise OutputExistsError(f"{out_dir}: exists and is not empty; pass resume=True to continue a fit there "
                                 "or force=True to replace it")
-    budget = max_runs if method == "mc" else max_evaluations
-    if budget is None:
-        budget = DEFAULT_MC_RUNS if method == "mc" else DEFAULT_MAX_EVALUATIONS
-    return FitJob(problem=problem, out=out_dir, method=method, budget=budget, starts=starts, resume=resume,
-                  _run=run_fit, _write=write_outputs)
+    budget = budgets[fit_method.budget]
+    return FitJob(problem=problem, out=out_dir, method=method,
+                  budget=fit_method.default_budget if budget is None else budget, starts=starts, resume=resume)
 
 
 @_typed_errors
 def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLike | Dataset,
-        free: str | Sequence[str], out: str | os.PathLike, *, method: str = "summation", dye: str = "config",
+        free: str | Sequence[str], out: str | os.PathLike, *, method: str = DEFAULT_METHOD, dye: str = "config",
         max_evaluations: int | None = None, max_runs: int | None = None, target_rel_err: float | None = None,
         seed: int | None = None, threads: int | None = None, colour_weight: float = 1.0,
         wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
         resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False,
         colour_hold: bool = True) -> FitOutcome:
     """Fit the ``free`` parameters of ``config`` (names as ``simulate fit --free``: ``"dye,rms_slope"``
-    or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`).
+    or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`, default
+    ``"classic"`` as on the command line).
 
     ``dye="knots"`` replaces the config's dye by knots started from the measured colour.
     ``max_evaluations`` bounds the model evaluations of the summation and classic fits, ``max_runs``
@@ -567,7 +579,8 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     ``resume=True``); an existing output there is replaced only with ``force=True``. ``absolute=True``:
     the measurement is absolutely calibrated, its level is fitted too (``simulate fit --absolute``).
     ``colour_hold=False``: the classic and summation fits weigh the colour by ``colour_weight`` only, without
-    holding it within the tolerance (``simulate fit --no-colour-hold``).
+    holding it within the tolerance (``simulate fit --no-colour-hold``). A fit whose colour is left off, or that
+    never moved from its start, warns with :class:`FitWarning` (``outcome.passed``, ``outcome.warnings``).
     """
     return prepare_fit(config, measured, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
                        max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,

@@ -37,7 +37,7 @@ LAYERS = (
     ("simulate.fiber",),
     ("simulate.fabric",),
     ("simulate.config", "simulate.config_table"),
-    ("simulate.woven", "simulate.nonwoven"),
+    ("simulate.woven", "simulate.nonwoven", "simulate.structwalk"),
     ("simulate.products", "simulate.export"),
     ("simulate.virtual",),
 )

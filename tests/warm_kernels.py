@@ -58,7 +58,7 @@ def _structure(tmp: Path) -> None:
     from simulate.fiber import farfield as FF
     from simulate.fiber.absorption import absorption_nodes
     from simulate.media.medium import HGMedium
-    from fabric_optics.fitting import structure as fit_structure
+    from simulate.structwalk import walk as fit_structure
 
     wl = np.array([550.0])
     config = load_config("green-felt")

@@ -1,7 +1,7 @@
 """Report section "Fitted parameters": what ``simulate fit`` found, from its ``fit.json``.
 
 ``fits_section(fit_dirs, simulated)`` reads ``DIR/fit.json`` of each ``simulate fit`` output folder
-(:mod:`fabric_optics.fitting.driver`: method, start config, objective, the figures before and after, every free
+(:mod:`fabric_optics.fitting.search`: method, start config, objective, the figures before and after, every free
 parameter with its start, bounds, fitted value and standard uncertainty split into its data and
 Monte Carlo parts, warnings, evaluations, walks, seconds) and writes one table per fit. A simulated
 dataset of the report made from a fit's ``fitted.toml`` (``simulate fabric DIR/fitted.toml``: its

@@ -4,7 +4,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``(add_arguments(parser), run(args) -> int)``; a later subcommand (``fiber``, ``fabric``,
 ``sweep``) is one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
 (one line on stderr naming the flag, no traceback), 3 ``simulate fit`` whose fitted colour is left off
-(``fabric_optics.fitting.driver.EXIT_COLOUR_OFF``: outputs written, fit.json ``verdict.passed`` false).
+(``fabric_optics.fitting.outputs.EXIT_COLOUR_OFF``: outputs written, fit.json ``verdict.passed`` false).
 
 ``simulate slab --mua X --mus X --g X --n X --thickness X --photons N [--seed N] [--threads N] --json``
     prints ONE JSON object ``{"Rd", "Tt", "u_Rd", "u_Tt", "photons", "seconds",
@@ -22,7 +22,7 @@ Subcommands are registered in :data:`COMMANDS`: each entry is a pair of function
 ``simulate fiber CONFIG --out DIR [--route nee|beam|bssrdf] [--step-deg 30] [--phi-step-deg 45]``
     the fiber BRDF table (:mod:`simulate.fiber.tables`: npz + JSON sidecar).
 ``simulate fit CONFIG MEASURED --free NAME[=LOW:HIGH],... --out DIR [--method summation|classic|mc]``
-    fits config parameters to a measurement (:mod:`fabric_optics.fitting.driver`, ``mc``: :mod:`fabric_optics.fitting.mc`): fitted.toml,
+    fits config parameters to a measurement (:mod:`fabric_optics.fitting.search`, ``mc``: :mod:`fabric_optics.fitting.spacemapping`): fitted.toml,
     datasets, report.
 ``simulate sweep CONFIG [MEASURED] --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
     a parameter study on dask.distributed (:mod:`fabric_optics.sweep.runner`): one dataset per point, summary.csv;
@@ -42,6 +42,7 @@ import logging
 import math
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -449,13 +450,16 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("measured", metavar="MEASURED", type=Path, help="measured radiance-coefficient dataset (folder)")
     p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
                    help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
-                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fitting.driver")
+                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fitting.spec")
     p.add_argument("--out", type=Path, required=True,
                    help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
     add_force(p, "an existing --out (start the fit afresh there; --resume continues it instead)")
-    p.add_argument("--method", choices=("classic", "summation", "mc"), default="classic",
-                   help="fabric model to fit (default classic); mc: the woven/felt Monte Carlo of simulate fabric, "
-                        "by output space mapping from CONFIG (e.g. a summation fit's fitted.toml), see fabric_optics.fitting.mc")
+    from fabric_optics.fitting.methods import DEFAULT_METHOD, METHODS
+
+    p.add_argument("--method", choices=tuple(METHODS), default=DEFAULT_METHOD,
+                   help=f"fabric model to fit (default {DEFAULT_METHOD}); "
+                        + "; ".join(f"{m.name}: {m.summary}" for m in METHODS.values())
+                        + " (from CONFIG, e.g. a summation fit's fitted.toml)")
     p.add_argument("--colour-weight", type=_nonneg_float, default=1.0, dest="colour_weight",
                    help="weight w_c of (dh^2 + ds^2) beside NRMSE^2 in the objective (default 1)")
     p.add_argument("--no-colour-hold", action="store_false", dest="colour_hold",
@@ -467,13 +471,15 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                         "(k_Y: the normalisation's luminance factor at the colour geometry, 1 at the measured level)")
     p.add_argument("--max-evaluations", type=_int_in(1, 10**6), default=None, dest="max_evaluations", metavar="N",
                    help="summation and classic fits: model evaluations of the search in all, steps and Jacobian "
-                        "columns of every start (default 800; the uncertainty propagation afterwards is counted apart)")
+                        f"columns of every start (default {METHODS['classic'].default_budget}; the uncertainty "
+                        "propagation afterwards is counted apart)")
     p.add_argument("--max-runs", type=_int_in(1, 10**4), default=None, dest="max_runs", metavar="N",
-                   help="--method mc: Monte Carlo runs, the start's included (default 5, at least 2)")
+                   help=f"--method mc: Monte Carlo runs, the start's included (default {METHODS['mc'].default_budget}, "
+                        "at least 2)")
     p.add_argument("--mc-trend", action="append", default=None, dest="mc_trend", metavar="NAME,...",
                    help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
                         "run per parameter and step) instead of the summation -- where the two models' trends "
-                        "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fitting.mc)")
+                        "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fitting.spacemapping)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     add_wavelengths(p, "model wavelengths for an RGB measurement")
@@ -491,8 +497,7 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
     """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists); the structured
     walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the fit began)."""
-    from fabric_optics.fitting.driver import STATE_NAME
-    from fabric_optics.fitting.state import WALKS_DIR
+    from fabric_optics.fitting.state import STATE_NAME, WALKS_DIR
 
     if (out / STATE_NAME).is_file():
         return f"the last accepted point is in {out / STATE_NAME} (continue with --resume)"
@@ -514,7 +519,7 @@ def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
 def _fit_interrupted(args: argparse.Namespace, walk_parts_before: int) -> str:
     """What an interrupted fit left for ``--resume`` (only what exists)."""
     if args.method == "mc":
-        from fabric_optics.fitting.mc import left_behind
+        from fabric_optics.fitting.state import left_behind
         return left_behind(args.out)
     return _fit_left_behind(args.out, walk_parts_before)
 
@@ -559,7 +564,9 @@ def _fit_run(args: argparse.Namespace) -> int:
 
     walk_parts_before = tablecache.stored("structwalk")
     try:
-        outcome = job.run(progress=_progress(args))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", api.FitWarning)   # said below, as the verdict and the warnings
+            outcome = job.run(progress=_progress(args))
     except KeyboardInterrupt:
         if getattr(job, "phase", "") == "writing":
             print(f"simulate fit: interrupted while writing the outputs, which are unchanged in {args.out}; "
@@ -569,7 +576,7 @@ def _fit_run(args: argparse.Namespace) -> int:
         return 130
     except OSError as exc:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
-    from fabric_optics.fitting.driver import uncertainty_text
+    from fabric_optics.fitting.verdict import COLOUR_LEFT_OFF, uncertainty_text
 
     doc = outcome.summary
     for p in doc["parameters"]:
@@ -581,10 +588,10 @@ def _fit_run(args: argparse.Namespace) -> int:
         colour = f", dh {c['dh']:+.4f}, ds {c['ds']:+.4f}" if "dh" in c else ""
         level = f", level k_Y {c['level_k']:.3g}" if c.get("level_k") is not None else ""
         print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}{level}")
-    for w in doc["warnings"]:
-        if not w.startswith("colour left off"):    # said once, as the verdict, below
+    for w in outcome.warnings:
+        if not w.startswith(COLOUR_LEFT_OFF):    # said once, as the verdict, below
             print(f"warning: {w}", file=sys.stderr)
-    info = doc["info"]
+    info = outcome.result.info
     if args.method == "mc":
         print(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
               f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
@@ -595,7 +602,7 @@ def _fit_run(args: argparse.Namespace) -> int:
               + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache")
                  else "") + f", {info['seconds']:.1f} s)")
     verdict = doc.get("verdict") or {}
-    if not verdict.get("passed", True):
+    if not outcome.passed:
         # the outputs are written and labelled failing (fit.json verdict, fitted.toml header); exit 3
         print(f"simulate fit: FAILED, {verdict.get('why', 'colour left off')}", file=sys.stderr)
         return int(verdict.get("exit_status") or 3)
@@ -878,7 +885,7 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 
 
 #: Commands that may build woven yarn tables or structured-summation walks, i.e. use the table cache
-#: (simulate.fiber.tablecache; the fit's walks: fabric_optics.fitting.structure.walk_structure).
+#: (simulate.fiber.tablecache; the fit's walks: simulate.structwalk.walk.walk_structure).
 _TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
 
 

@@ -1,8 +1,7 @@
 """Starts of ``simulate fit`` that find the colour: a dye of any colour and its inverted start.
 
-Why: two Gaussian absorption bands started from red cotton cannot absorb the red a green felt
-absorbs (measured on the RGL felt: the bands slid to 430-460 nm, hue left -0.044 turn off). The
-``knots`` dye curve (:mod:`simulate.config`, docs/physics.md section 2) can take any colour;
+Why: a dye curve of a few bands started from another colour may not reach the measured one
+(docs/notes/fit-trust.md, "The colour start, for every method"). The ``knots`` dye curve (:mod:`simulate.config`, docs/physics.md section 2) can take any colour;
 :func:`knots_config` turns any config's dye into ``K`` knots, and :func:`inverted_start` gives the
 knots a start that already has the measured colour.
 
@@ -33,12 +32,15 @@ from __future__ import annotations
 import logging
 import math
 import re
+import tomllib
 
 import numpy as np
+from scipy.optimize import least_squares
 
+from compare.bands import conversion_matrix
+from fabric_optics.paths import toml_dumps
 from simulate.config import SimulationConfig, knots_curve, parse_config
 from simulate.fiber.absorption import NU_0
-from fabric_optics.paths import toml_dumps
 
 __all__ = ["DEFAULT_KNOTS", "knots_config", "inverted_start", "knot_indices"]
 
@@ -55,8 +57,6 @@ _KNOT = re.compile(r"^fiber\.dye\.log10_per_um\[(\d+)\]$")
 def knots_config(config: SimulationConfig, wavelengths_nm, count: int = DEFAULT_KNOTS) -> SimulationConfig:
     """``config`` with its dye replaced by ``count`` knots spanning ``wavelengths_nm``, sampled from
     its present dye (clipped to [1e-4, 3] /um; no dye: 1e-3 /um, cellulose's baseline)."""
-    import tomllib
-
     wl = np.asarray(wavelengths_nm, float)
     knots = np.linspace(float(wl.min()), float(wl.max()), count)
     mu = config.dye(knots) if config.dye is not None else np.full(count, 1e-3)
@@ -79,8 +79,6 @@ def knot_indices(names: list[str]) -> dict[int, int]:
 
 def _bands_at_colour_geometry(problem) -> tuple[int, np.ndarray, np.ndarray] | None:
     """``(g*, M, m)``: the model geometry row of the colour geometry, the band matrix, the measured bands."""
-    from compare.bands import conversion_matrix
-
     res = problem.residual_model()
     if not res.has_colour:
         return None
@@ -119,8 +117,6 @@ def inverted_start(problem, x: np.ndarray) -> tuple[np.ndarray, str]:
     Returns ``x`` unchanged (and says why in the note) when no knot is free, the measurement has no
     colour, or no three bands at the colour geometry.
     """
-    from scipy.optimize import least_squares
-
     idx = knot_indices([p.name for p in problem.free])
     config = problem.config_at(x)
     if not idx or config.dye is None or config.dye.curve != "knots":

@@ -15,8 +15,8 @@ be deleted at any time.
 
 State file
 ----------
-``DIR/fit-state.json``: the last accepted point (see :mod:`fabric_optics.fitting.driver`); ``DIR/mc-state.json``: the
-Monte Carlo fit's finished runs (:mod:`fabric_optics.fitting.mc`).
+``DIR/fit-state.json``: the last accepted point (see :mod:`fabric_optics.fitting.search`); ``DIR/mc-state.json``: the
+Monte Carlo fit's finished runs (:mod:`fabric_optics.fitting.spacemapping`).
 
 ``--resume`` trusts neither blindly (:func:`read_state_json`, :func:`check_point`): the file must be a
 regular file (a symbolic link to one is followed; a FIFO, device or directory is refused without being
@@ -39,18 +39,35 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
+import re
 import stat
+import zipfile
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
-__all__ = ["WALKS_DIR", "refuse", "MAX_STATE_BYTES", "MAX_DEPTH", "MAX_RUN_PHOTONS", "WalkCheckpoint", "write_json_atomic",
+from fabric_optics.fitting.errors import FitError
+from simulate.montecarlo.accuracy import BATCH
+
+__all__ = ["WALKS_DIR", "STATE_NAME", "MC_STATE", "MC_RUNS_DIR", "MCRun", "MCState", "load_state", "save_state",
+           "left_behind", "refuse", "MAX_STATE_BYTES", "MAX_DEPTH", "MAX_RUN_PHOTONS", "WalkCheckpoint", "write_json_atomic",
            "read_state_json", "check_point", "check_number", "check_photons", "write_failed", "remove_quietly"]
 
+log = logging.getLogger(__name__)
+
 WALKS_DIR = "walks"
+#: the state file of a classic or summation fit: its last accepted point
+STATE_NAME = "fit-state.json"
+STATE_SCHEMA = "simulate-fit-state/1"
+#: the Monte Carlo fit's state file and the folder of its runs
+MC_STATE = "mc-state.json"
+MC_RUNS_DIR = "mc-runs"
+MC_SCHEMA = "simulate-fit-mc-state/1"
 #: the largest state file ``--resume`` reads (a fit's state is a few kB; a Monte Carlo fit's tens of kB)
 MAX_STATE_BYTES = 1_000_000
 #: the deepest nesting of lists and objects a state file may have (a fit's state has 4 levels)
@@ -58,6 +75,80 @@ MAX_DEPTH = 16
 #: the most photons one recorded run may ask for on resume: the default budget ``100 / target^2`` of a
 #: target of 0.0003, far tighter than any fit's (a fit's runs are capped by that budget of their target)
 MAX_RUN_PHOTONS = 10**9
+#: the largest integer any field of a state may hold (counts and photons are far below it)
+MAX_INTEGER = 10**18
+
+
+#: the largest checkpoint file read back (a walk's run or a Monte Carlo run: tens of kB to a few MB on a real plan)
+MAX_RUN_BYTES = 64_000_000
+#: a member of a checkpoint's zip may expand to at most this many times its stored size (np.savez stores them
+#: uncompressed: ratio 1; a deflate bomb expands a thousandfold)
+MAX_EXPANSION = 4
+
+
+def refuse_file(path: Path, what: str) -> NoReturn:
+    """One line for a checkpoint file ``--resume`` (or a re-run in the same folder) cannot trust."""
+    raise FitError(f"{path}: {what}; it is not a checkpoint of this fit: delete it (or run without --resume in "
+                   "another --out) to start afresh")
+
+
+def read_npz(path: Path, arrays: dict[str, tuple[str, int | None]], *,
+             max_bytes: int = MAX_RUN_BYTES) -> dict[str, np.ndarray] | None:
+    """The arrays of the checkpoint ``path`` (``np.savez``), checked before anything is decompressed or loaded;
+    None when there is no such file.
+
+    ``arrays``: name -> ``(dtype kind, ndim)`` (kind ``"f"`` float64, ``"i"`` int64; ndim None: any). Refused with
+    one line naming the file (:func:`refuse_file`): not a regular file (a FIFO is not opened for a blocking read),
+    more than ``max_bytes``, not a zip of exactly these ``.npy`` members, a member that would expand beyond
+    :data:`MAX_EXPANSION` times its stored size or ``max_bytes`` (a deflate bomb), a member of another dtype or
+    number of dimensions (read from its header, before its data), a truncated or corrupt file, a value not finite.
+    Pickled objects are never loaded (``allow_pickle=False``)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        refuse_file(path, f"cannot be opened ({exc.strerror})")
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        refuse_file(path, "is not a regular file (a FIFO, device or folder)")
+    with os.fdopen(fd, "rb") as fh:
+        if st.st_size > max_bytes:
+            refuse_file(path, f"is {st.st_size:,} bytes, more than a checkpoint's limit of {max_bytes:,}")
+        try:
+            with zipfile.ZipFile(fh) as z:
+                members = {i.filename: i for i in z.infolist()}
+                want = {f"{name}.npy" for name in arrays}
+                if set(members) != want:
+                    refuse_file(path, f"holds {sorted(members)[:6]}, not the arrays {sorted(want)}")
+                for info in members.values():
+                    if info.file_size > max_bytes or info.file_size > MAX_EXPANSION * max(info.compress_size, 1) + 4096:
+                        refuse_file(path, f"member {info.filename} would expand to {info.file_size:,} bytes from "
+                                          f"{info.compress_size:,} (more than a checkpoint's)")
+                out = {}
+                for name, (kind, ndim) in arrays.items():
+                    with z.open(f"{name}.npy") as member:
+                        version = np.lib.format.read_magic(member)
+                        if version == (1, 0):
+                            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+                        elif version == (2, 0):
+                            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+                        else:
+                            refuse_file(path, f"array {name!r} has the .npy format {version}, not a checkpoint's")
+                        if dtype != np.dtype(f"<{kind}8") or (ndim is not None and len(shape) != ndim):
+                            refuse_file(path, f"array {name!r} is {dtype} of shape {shape}, not the checkpoint's "
+                                              f"{np.dtype(f'<{kind}8')}" + (f" of {ndim} dimensions" if ndim else ""))
+                    with z.open(f"{name}.npy") as member:
+                        a = np.lib.format.read_array(member, allow_pickle=False)
+                    if not np.all(np.isfinite(a)):
+                        refuse_file(path, f"array {name!r} holds values that are not finite")
+                    out[name] = a
+        except FitError:
+            raise
+        except (zipfile.BadZipFile, EOFError, ValueError, OSError, KeyError) as exc:
+            refuse_file(path, f"is truncated or corrupt ({type(exc).__name__}: {str(exc)[:60]})")
+    return out
 
 
 def remove_quietly(path: Path) -> None:
@@ -77,8 +168,6 @@ def write_failed(path: Path, exc: OSError) -> str:
 def write_json_atomic(path: Path, doc: dict) -> None:
     """``doc`` as JSON at ``path``, written to a temporary file, fsynced and renamed. A failed write
     (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.problem.FitError`."""
-    from fabric_optics.fitting.errors import FitError
-
     tmp = path.with_name(f".{path.name}.tmp")
     try:
         with open(tmp, "w", encoding="utf-8") as fh:
@@ -95,8 +184,6 @@ def write_json_atomic(path: Path, doc: dict) -> None:
 
 
 def refuse(path: Path, what: str) -> None:
-    from fabric_optics.fitting.errors import FitError
-
     raise FitError(f"--resume: {path}: {what}; delete the file or run without --resume to start afresh")
 
 
@@ -162,6 +249,8 @@ def check_number(path: Path, field: str, value: Any, *, low: float = -math.inf, 
     kind = "an integer" if integer else "a number"
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
         refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not {kind}")
+    if isinstance(value, int) and abs(value) > MAX_INTEGER:   # a float of it would overflow, or lose digits
+        refuse(path, f"field {field!r} is a {len(str(abs(value)))}-digit integer, outside [{low:g}, {high:g}]")
     v = float(value) if not integer else value
     if isinstance(v, float) and math.isnan(v) and allow_nan:
         return v
@@ -187,15 +276,26 @@ def check_point(path: Path, field: str, value: Any, names: list[str], low: np.nd
 
 
 def check_photons(path: Path, field: str, value: Any) -> dict | None:
-    """The recorded photons of a state: None, or an object of run keys to photon counts (at most
-    :data:`MAX_RUN_PHOTONS` a run)."""
+    """The recorded photons of a state: None, or an object of run keys to photon counts. A run's (key ``d:g``) is
+    whole batches (:data:`simulate.montecarlo.accuracy.BATCH`: every round of the accuracy control is) below
+    :data:`MAX_RUN_PHOTONS`; the structured walk's photons per row (``per_row``) at least 1 and below it, its
+    ``exit_tables`` total at most 10^15."""
     if value is None:
         return None
     if not isinstance(value, dict):
         refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not an object of photon counts")
+    if len(value) > 100_000:
+        refuse(path, f"field {field!r} lists {len(value)} runs, more than a fit walks")
     for key, n in value.items():
-        check_number(path, f"{field}.{key}"[:60], n, low=0 if key in ("exit_tables", "per_row") else 1,
-                     high=MAX_RUN_PHOTONS if ":" in key else 10**15, integer=True)
+        where = f"{field}.{key}"[:60]
+        if key == "exit_tables":
+            check_number(path, where, n, low=0, high=10**15, integer=True)
+        elif key == "per_row":
+            check_number(path, where, n, low=1, high=MAX_RUN_PHOTONS - 1, integer=True)
+        else:
+            check_number(path, where, n, low=BATCH, high=MAX_RUN_PHOTONS - 1, integer=True)
+            if n % BATCH:
+                refuse(path, f"field {where!r} is {n}, not whole batches of {BATCH} photons (a run's)")
     return dict(value)
 
 
@@ -214,18 +314,20 @@ class WalkCheckpoint:
         return self.dir / f"{digest}.npz"
 
     def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int, float] | None:
+        """Run ``key`` from the checkpoint (:func:`read_npz`: a file that is there but not a run is refused)."""
         path = self._path(key)
-        try:
-            with np.load(path) as z:
-                found = (z["value"].copy(), z["u"].copy(), int(z["photons"]), float(z["scatterings"]))
-        except (OSError, ValueError, KeyError):
+        z = read_npz(path, {"value": ("f", None), "u": ("f", None), "photons": ("i", 0), "scatterings": ("f", 0)})
+        if z is None:
             return None
+        if z["value"].shape != z["u"].shape:
+            refuse_file(path, f"holds a value of shape {z['value'].shape} and its u of {z['u'].shape}")
+        photons = int(z["photons"])
+        if not BATCH <= photons < MAX_RUN_PHOTONS:
+            refuse_file(path, f"records {photons} photons, not a run's ({BATCH} to {MAX_RUN_PHOTONS - 1})")
         self.found += 1
-        return found
+        return z["value"], z["u"], photons, float(z["scatterings"])
 
     def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
-        from fabric_optics.fitting.errors import FitError
-
         path = self._path(key)
         tmp = path.with_name(f".{path.stem}.tmp.npz")
         try:
@@ -242,3 +344,248 @@ class WalkCheckpoint:
     def count(self) -> int:
         """Runs of any walk on disk."""
         return len(list(self.dir.glob("*.npz"))) if self.dir.is_dir() else 0
+
+
+# ------------------------------------------------------------------------------------------
+# the state of a classic or summation fit
+
+
+def load_state(out: Path, problem: Any) -> dict | None:
+    """The saved state of an interrupted fit of the same problem, checked field by field
+    (:mod:`fabric_optics.fitting.state`), or raise FitError naming the file and the field."""
+    path = out / STATE_NAME
+    state = read_state_json(path)
+    if state is None:
+        return None
+    if state.get("schema") != STATE_SCHEMA or state.get("identity") != problem.identity():
+        raise FitError(f"--resume: {path} belongs to a different fit (config, measurement, method, seed or "
+                       "free parameters differ); use a new --out or drop --resume")
+    names = [p.name for p in problem.free]
+    if "names" in state and state["names"] != names:
+        raise FitError(f"--resume: {path}: field 'names' does not list this fit's free parameters ({', '.join(names)}); "
+                       "delete the file or run without --resume to start afresh")
+    for name in ("x", "objective"):
+        if name not in state:
+            raise FitError(f"--resume: {path}: field {name!r} is missing; delete the file or run without --resume "
+                           "to start afresh")
+    return {**state,
+            "x": check_point(path, "x", state["x"], names, problem.low, problem.high),
+            "objective": check_number(path, "objective", state["objective"], low=0.0, high=1e12),
+            "photons": check_photons(path, "photons", state.get("photons")),
+            "evaluations": int(check_number(path, "evaluations", state.get("evaluations", 0), low=0, high=10**9,
+                                            integer=True))}
+
+
+def save_state(out: Path, problem: Any, x: np.ndarray, objective: float, *, done: bool = False) -> None:
+    """``DIR/fit-state.json``: the last accepted point ``x`` of ``problem``'s fit (module docstring)."""
+    doc = {"schema": STATE_SCHEMA, "identity": problem.identity(), "x": np.asarray(x, float).tolist(),
+           "names": [p.name for p in problem.free], "objective": float(objective), "photons": problem.photons,
+           "evaluations": problem.counters.evaluations}
+    if done:
+        doc["done"] = True
+    write_json_atomic(out / STATE_NAME, doc)
+
+
+# ------------------------------------------------------------------------------------------
+# the Monte Carlo fit's state and runs
+
+
+@dataclass
+class MCRun:
+    """One Monte Carlo run of the fit at parameters ``x`` and its figures against the measurement."""
+
+    x: np.ndarray
+    beta: np.ndarray
+    u_beta: np.ndarray
+    seconds: float
+    rays: int
+    rel_err: float
+    objective: float
+    nrmse: float
+    dh: float
+    ds: float
+
+    def record(self) -> dict:
+        return {"x": self.x.tolist(), "seconds": self.seconds, "rays": self.rays, "rel_err": self.rel_err,
+                "objective": self.objective, "nrmse": self.nrmse, "dh": self.dh, "ds": self.ds}
+
+
+#: the most Monte Carlo runs a state may list (the budget's runs and their trend runs)
+MAX_STATE_RUNS = 1000
+_RUN_FILE = re.compile(r"run-[0-9]{1,4}(-d[0-9]{1,3})?\.npz")
+
+
+def _check_record(path: Path, field: str, rec: Any, problem: Any, reach: float = 0.0) -> None:
+    """One run record of the state (its point within the bounds widened by ``reach`` spans, figures, file)."""
+    if not isinstance(rec, dict):
+        refuse(path, f"field {field!r} is not an object")
+    for name in ("x", "file", "seconds", "rays", "rel_err", "objective", "nrmse", "dh", "ds"):
+        if name not in rec:
+            refuse(path, f"field '{field}.{name}' is missing")
+    span = problem.high - problem.low
+    check_point(path, f"{field}.x", rec["x"], [p.name for p in problem.free], problem.low - reach * span,
+                problem.high + reach * span)
+    if not isinstance(rec["file"], str) or not _RUN_FILE.fullmatch(rec["file"]):
+        refuse(path, f"field '{field}.file' is {json.dumps(rec['file'])[:40]}, not a run file name (run-K.npz)")
+    check_number(path, f"{field}.seconds", rec["seconds"], low=0.0, high=1e9)
+    check_number(path, f"{field}.rays", rec["rays"], low=0, high=MAX_INTEGER, integer=True)
+    check_number(path, f"{field}.objective", rec["objective"], low=0.0, high=1e12)
+    for name in ("rel_err", "nrmse", "dh", "ds"):
+        check_number(path, f"{field}.{name}", rec[name], allow_nan=True)
+
+
+def _check_iterations(path: Path, its: Any, problem: Any) -> None:
+    """``mc-state.json``'s ``iterations`` (:mod:`fabric_optics.fitting.state`: refused, naming the field, unless every
+    run and proposal is one of this fit's)."""
+    if not isinstance(its, list):
+        refuse(path, f"field 'iterations' is {json.dumps(its)[:40]}, not a list of runs")
+    if len(its) > MAX_STATE_RUNS:
+        refuse(path, f"field 'iterations' lists {len(its)} runs, more than {MAX_STATE_RUNS}")
+    names = [p.name for p in problem.free]
+    for k, rec in enumerate(its):
+        _check_record(path, f"iterations[{k}]", rec, problem)
+        fine = rec.get("fine_runs")
+        if fine is not None:
+            if not isinstance(fine, dict) or len(fine) > len(names):
+                refuse(path, f"field 'iterations[{k}].fine_runs' is not an object of at most {len(names)} runs")
+            for j, fr in fine.items():
+                if not (j.isdigit() and int(j) < len(names)):
+                    refuse(path, f"field 'iterations[{k}].fine_runs' names parameter {j!r}, not one of 0..{len(names) - 1}")
+                _check_record(path, f"iterations[{k}].fine_runs.{j}", fr, problem, reach=1.0)
+        prop = rec.get("proposal")
+        if prop is not None:
+            where = f"iterations[{k}].proposal"
+            if not isinstance(prop, dict) or prop.get("kind") not in ("surrogate fit", "backtrack"):
+                refuse(path, f"field {where!r} is not a proposal (kind 'surrogate fit' or 'backtrack')")
+            for name in ("x", "u", "surrogate_evaluations"):
+                if name not in prop:
+                    refuse(path, f"field '{where}.{name}' is missing")
+            check_point(path, f"{where}.x", prop["x"], names, problem.low, problem.high)
+            u = prop["u"]
+            if not isinstance(u, list) or len(u) != len(names):
+                refuse(path, f"field '{where}.u' is not a list of {len(names)} uncertainties")
+            for j, v in enumerate(u):
+                check_number(path, f"{where}.u[{j}]", v, low=0.0, allow_nan=True)
+            check_number(path, f"{where}.surrogate_evaluations", prop["surrogate_evaluations"], low=0,
+                         high=10**9, integer=True)
+            notes = prop.get("notes", [])
+            if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
+                refuse(path, f"field '{where}.notes' is not a list of texts")
+
+
+class MCState:
+    """``DIR/mc-state.json`` and ``DIR/mc-runs/`` (module docstring)."""
+
+    def __init__(self, out: Path | None, identity: str, shape: tuple | None = None):
+        self.out = out
+        self.identity = identity
+        #: ``(geometries, wavelengths)`` of a run's table (None: not checked)
+        self.shape = shape
+        self.iterations: list[dict] = []
+
+    def load(self, problem: Any | None = None) -> None:
+        """The finished runs of ``DIR/mc-state.json``, checked field by field against ``problem``'s free
+        parameters (:mod:`fabric_optics.fitting.state`: a malformed or out-of-bounds state is refused, not repaired)."""
+        assert self.out is not None
+        path = self.out / MC_STATE
+        doc = read_state_json(path)
+        if doc is None:
+            raise FitError(f"--resume: nothing to resume in {self.out}: no {MC_STATE} (no Monte Carlo run of "
+                           "this fit had finished); run without --resume")
+        if doc.get("schema") != MC_SCHEMA or doc.get("identity") != self.identity:
+            raise FitError(f"--resume: {path} belongs to a different fit (config, measurement, free parameters, "
+                           "seed or --target-rel-err differ); use a new --out or drop --resume")
+        its = doc.get("iterations")
+        if problem is not None:
+            _check_iterations(path, its, problem)
+        self.iterations = list(its or [])
+
+    def save(self) -> None:
+        if self.out is not None:
+            write_json_atomic(self.out / MC_STATE, {"schema": MC_SCHEMA, "identity": self.identity,
+                                                   "iterations": self.iterations})
+
+    def run(self, k: int, x: np.ndarray) -> MCRun | None:
+        """Run ``k`` from the checkpoint if it was made at ``x``."""
+        if self.out is None or k >= len(self.iterations):
+            return None
+        rec = self.iterations[k]
+        if not np.allclose(rec["x"], x, rtol=0.0, atol=1e-12):
+            return None
+        return self._load(rec)
+
+    def _load(self, rec: dict) -> MCRun | None:
+        """The run ``rec`` names, or None (it is run again) when its file is missing; a file that is there but not
+        a run of this fit (:func:`read_npz`; two finite tables of this fit's shape) is refused naming it."""
+        path = self.out / MC_RUNS_DIR / rec["file"]  # type: ignore[operator]
+        z = read_npz(path, {"x": ("f", 1), "beta": ("f", 2), "u_beta": ("f", 2)})
+        if z is None:
+            log.warning("%s is missing: its Monte Carlo run is run again", path)
+            return None
+        beta, u = z["beta"], z["u_beta"]
+        want = self.shape if self.shape is not None else beta.shape
+        if beta.shape != want or u.shape != want:
+            refuse_file(path, f"holds tables of shape {beta.shape} and {u.shape}, not this fit's {want}")
+        return MCRun(x=np.asarray(rec["x"], float), beta=beta, u_beta=u, seconds=rec["seconds"], rays=rec["rays"],
+                     rel_err=rec["rel_err"], objective=rec["objective"], nrmse=rec["nrmse"], dh=rec["dh"],
+                     ds=rec["ds"])
+
+    def _store(self, name: str, run: MCRun) -> dict:
+        rec = run.record()
+        if self.out is not None:
+            d = self.out / MC_RUNS_DIR
+            rec["file"] = f"{name}.npz"
+            tmp = d / f".{name}.tmp.npz"
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+                np.savez(tmp, x=run.x, beta=run.beta, u_beta=run.u_beta)
+                os.replace(tmp, d / rec["file"])
+            except OSError as exc:
+                remove_quietly(tmp)
+                raise FitError(write_failed(d / rec["file"], exc)) from None
+            except BaseException:
+                remove_quietly(tmp)
+                raise
+        return rec
+
+    def put_run(self, k: int, run: MCRun) -> None:
+        del self.iterations[k:]
+        self.iterations.append(self._store(f"run-{k}", run))
+        self.save()
+
+    def fine_run(self, k: int, j: int, x: np.ndarray) -> MCRun | None:
+        """Fine parameter ``j``'s finite-difference run about centre ``k`` from the checkpoint, if made at ``x``."""
+        if self.out is None or k >= len(self.iterations):
+            return None
+        rec = (self.iterations[k].get("fine_runs") or {}).get(str(j))
+        if rec is None or not np.allclose(rec["x"], x, rtol=0.0, atol=1e-12):
+            return None
+        return self._load(rec)
+
+    def put_fine_run(self, k: int, j: int, run: MCRun) -> None:
+        self.iterations[k].setdefault("fine_runs", {})[str(j)] = self._store(f"run-{k}-d{j}", run)
+        self.save()
+
+    def proposal(self, k: int) -> dict | None:
+        return self.iterations[k].get("proposal") if k < len(self.iterations) else None
+
+    def put_proposal(self, k: int, proposal: dict) -> None:
+        self.iterations[k]["proposal"] = proposal
+        self.save()
+
+
+def left_behind(out: Path) -> str:
+    """What an interrupted Monte Carlo fit left in ``out`` (only what exists)."""
+    try:
+        its = (read_state_json(out / MC_STATE) or {}).get("iterations") or []
+    except FitError:
+        its = []
+    if not isinstance(its, list):
+        its = []
+    if its:
+        props = sum(1 for it in its if isinstance(it, dict) and it.get("proposal"))
+        return (f"{len(its)} finished Monte Carlo run(s) and {props} proposal(s) fitted from them are in "
+                f"{out / MC_STATE} and {out / MC_RUNS_DIR} (continue with --resume)")
+    return "no Monte Carlo run had finished: nothing was saved (run again without --resume)"
+
+

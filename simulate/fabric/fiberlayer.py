@@ -325,7 +325,7 @@ def layer_table(table: ExitTable, fiber: Any, *, masking: bool = True, spacing_r
     The surface part comes from :func:`surface_table` (cached). ``interior`` (a
     :class:`simulate.fabric.interior.Interior`, with ``masking``): add the light returned from inside the
     fabric, ``A_ret(w_i) (w_i . m)(w_o . m) / pi`` (docs/physics.md section 6.3). ``tick``: called before each
-    incident direction (the fit's walk stops there when interrupted: :mod:`fabric_optics.fitting.walk_threads`).
+    incident direction (the fit's walk stops there when interrupted: :mod:`simulate.structwalk.threads`).
     """
     t0 = time.perf_counter()
     th, ph_i, ph_o, w_out = layer_grid(step_deg, phi_step_deg)

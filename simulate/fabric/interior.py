@@ -132,7 +132,7 @@ _SURFACE_LOCK = threading.Lock()
 def _surface_energy(wx: float, wy: float, wz: float, spacing: float, roughness: float, n_host: float, n_psi: int,
                     n_mu: int) -> tuple[float, float, float]:
     """:func:`_surface_energy_of`, cached, computed once per key under a lock: the fit's walk builds two layer
-    tables at once on threads (:mod:`fabric_optics.fitting.walk_threads`) over the same beams, which would both miss."""
+    tables at once on threads (:mod:`simulate.structwalk.threads`) over the same beams, which would both miss."""
     with _SURFACE_LOCK:
         return _surface_energy_of(wx, wy, wz, spacing, roughness, n_host, n_psi, n_mu)
 

@@ -424,7 +424,7 @@ def structured_beta(spec: StructureSpec, fiber: Any, weave: Any, w_i: np.ndarray
 
     ``photons_per_row``: the fixed-photons mode -- ONE round of exactly that many photons per row in
     each half (the first round's streams, seeds ``2 seed + h``), no accuracy loop. It is the model
-    ``simulate fit --method summation`` evaluates (:mod:`fabric_optics.fitting.structure`, built from this
+    ``simulate fit --method summation`` evaluates (:mod:`simulate.structwalk.walk`, built from this
     module's steps: a fit's dye changes at every evaluation, so its photons cannot follow an error
     measured at one dye).
     """

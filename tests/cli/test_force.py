@@ -59,7 +59,7 @@ def _stand_in_fit(monkeypatch):
 
         def run(progress=False):
             (Path(out) / "fit.json").write_text(json.dumps(summary))
-            return SimpleNamespace(summary=summary)
+            return SimpleNamespace(summary=summary, warnings=[], passed=True, result=SimpleNamespace(info=summary["info"]))
 
         return SimpleNamespace(problem=problem, run=run)
 

@@ -8,7 +8,8 @@ import pytest
 
 from gonio.data import in_plane_geometry, make_dataset, new_meta
 from simulate.config import load_config
-from fabric_optics.fitting.driver import FitProblem, parse_free
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.spec import parse_free
 
 WAVELENGTHS = np.arange(420.0, 701.0, 20.0)  # ASTM E308 needs a 1, 5, 10 or 20 nm step
 #: the mock goniophotometer's typical relative standard uncertainty (median of the demo: 1.1 %)
@@ -59,10 +60,10 @@ def base_problem(red_cotton):
     return FitProblem(red_cotton, flat, free, method="classic", target_rel_err=0.03, seed=5)
 
 
-def sibling(problem: FitProblem, measured, free=None) -> FitProblem:
-    """Same config, model and Monte Carlo table as ``problem``, another measurement (no re-walk)."""
+def sibling(problem: FitProblem, measured, free=None, **settings) -> FitProblem:
+    """Same config, model and Monte Carlo table as ``problem``, another measurement (no re-walk); ``settings``
+    of the spec in place of the defaults (``hold_colour``, ``colour_weight``, ...)."""
     p = FitProblem(problem.config, measured, problem.free if free is None else free, method=problem.method,
-                   target_rel_err=problem.target_rel_err, seed=problem.seed)
-    p._tables = problem._tables
-    p.photons = problem.photons
+                   target_rel_err=problem.target_rel_err, seed=problem.seed, **settings)
+    p.share_walks(problem)
     return p

@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabric_optics.fitting.driver import COLOUR_TOLERANCE, colour_left_off, parse_free, run_fit
-from fabric_optics.fitting.problem import COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, colour_hold
+from fabric_optics.fitting.search import run_fit
+from fabric_optics.fitting.spec import COLOUR_TOLERANCE, parse_free
+from fabric_optics.fitting.verdict import colour_left_off
+from fabric_optics.fitting.spec import COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, colour_hold
 
 from .conftest import measurement, sibling
 
@@ -36,8 +38,7 @@ def torn(base_problem):
 
 
 def _fit(problem, hold: bool):
-    p = sibling(problem, problem.measured, problem.free)
-    p.hold_colour = hold
+    p = sibling(problem, problem.measured, problem.free, hold_colour=hold)
     r = run_fit(p, noise_draws=0, invert_start=False)
     fig = p.residual_model().evaluate(p.model(r.x)[0])
     return p, r, fig
@@ -74,10 +75,10 @@ def test_held_problem_states_it_and_its_identity_differs(torn):
     p = sibling(torn, torn.measured, torn.free)
     assert not p.holds_colour()
     ident = p.identity()
-    p.hold_colour = True
+    p = sibling(torn, torn.measured, torn.free, hold_colour=True)
     assert p.holds_colour() and p.identity() != ident
     assert p.residuals(p.start).size == torn.residuals(p.start).size + 2   # the two hold entries
-    p.colour_weight = 0.0
+    p = sibling(torn, torn.measured, torn.free, hold_colour=True, colour_weight=0.0)
     assert not p.holds_colour()   # no colour in the objective: nothing to hold
 
 
@@ -90,7 +91,7 @@ def test_held_problem_states_it_and_its_identity_differs(torn):
 def test_left_off_says_what_helps_for_the_objective_it_had(base_problem, method, hold, weight, says):
     """Knots (any colour) and the colour held: the model's limit, not a larger weight; the hold off or
     the colour without weight: that setting. No walk (the verdict reads the settings only)."""
-    from fabric_optics.fitting.driver import FitProblem
+    from fabric_optics.fitting.problem import FitProblem
     from fabric_optics.fitting.start import knots_config
 
     config = knots_config(base_problem.config, base_problem.wavelengths_nm)
@@ -99,4 +100,4 @@ def test_left_off_says_what_helps_for_the_objective_it_had(base_problem, method,
     line = colour_left_off(p, 0.0, -0.1)
     assert line.startswith("colour left off") and all(s in line for s in says), line
     assert colour_left_off(p, 0.01, -0.02) == ""   # within the tolerance: nothing to say
-    assert p.walks == 0
+    assert p.counters.walks == 0

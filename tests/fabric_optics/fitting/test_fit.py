@@ -13,7 +13,13 @@ from gonio.data import read_dataset, write_dataset
 from simulate import fiber as fib
 from fabric_optics.cli.simulate import main
 from simulate.config import load_config, parse_config
-from fabric_optics.fitting.driver import STATE_NAME, FitError, FitProblem, jacobian, parse_free, run_fit, toml_dumps
+from fabric_optics.paths import toml_dumps
+from fabric_optics.fitting.errors import FitError
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.search import run_fit
+from fabric_optics.fitting.spec import parse_free
+from fabric_optics.fitting.state import STATE_NAME
+from fabric_optics.fitting.uncertainty import jacobian
 from simulate.fiber.absorption import absorption_nodes, absorption_table
 
 from .conftest import WAVELENGTHS, measurement, model_measurement, sibling
@@ -41,12 +47,12 @@ def test_absorption_table_interpolates_between_nodes_from_the_same_photons(red_c
 def test_model_dye_change_does_not_walk_again(base_problem):
     p = base_problem
     p.model(p.start)
-    walks = p.walks
+    walks = p.counters.walks
     x = p.start.copy()
     x[0] *= 1.3  # the 520 nm band's peak
     beta0, _ = p.model(p.start)
     beta1, _ = p.model(x)
-    assert p.walks == walks
+    assert p.counters.walks == walks
     assert not np.allclose(beta0, beta1)
 
 
@@ -219,9 +225,9 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys, base_problem):
 def test_cli_refusals_come_before_any_table(tmp_path, capsys, monkeypatch, method, state, extra, message):
     """A refused fit (another fit's state on --resume, an existing output without --force, nothing to
     resume) says so in one line, exit 2, without walking a photon or evaluating the model."""
-    from fabric_optics.fitting import mc as fit_mc
+    from fabric_optics.fitting import spacemapping as fit_mc
     from fabric_optics.fitting import problem as fit_problem
-    from fabric_optics.fitting import structure as fit_structure
+    from simulate.structwalk import walk as fit_structure
 
     def no_work(*a, **k):
         raise AssertionError("expensive work before the refusal")
@@ -253,7 +259,7 @@ def test_recovery_of_a_walked_parameter(red_cotton):
     problem = sibling(probe, model_measurement(probe, [0.035], noise_seed=11))
     result = run_fit(problem, noise_draws=16, max_evaluations=8)
     assert abs(result.x[0] - 0.035) < 3.5 * result.u[0]
-    assert problem.walks >= 2
+    assert problem.counters.walks >= 2
 
 
 def test_objective_uses_compare_prepared_once_with_the_same_figures(base_problem):
@@ -302,7 +308,7 @@ def test_without_measurement_uncertainty_u_is_scaled_by_the_residual(base_proble
     draws) within it (before, the data part was 0: only the Monte Carlo part was left). The plain s^2 (J^T J)^-1, which
     treats the residuals as independent, gives a third to a half of it here (the per-wavelength normalisation
     correlates them)."""
-    from fabric_optics.fitting.driver import RESIDUAL_DRAWS_RULE, residual_covariance
+    from fabric_optics.fitting.uncertainty import RESIDUAL_DRAWS_RULE, residual_covariance
 
     x_true = np.array([1.4, 0.25])
     sigma = 0.004
@@ -334,7 +340,7 @@ def test_without_measurement_uncertainty_u_is_scaled_by_the_residual(base_proble
 
 def test_a_parameter_at_its_bound_has_no_uncertainty_number(base_problem, tmp_path):
     """The truth beyond the RMS slope's upper bound: reported "at its upper bound", u null in fit.json."""
-    from fabric_optics.fitting.driver import write_outputs
+    from fabric_optics.fitting.outputs import write_outputs
 
     problem = sibling(base_problem, model_measurement(base_problem, (1.4, 0.6), noise_seed=2),
                       free=parse_free(["fiber.dye.bands[0].peak_per_um=0.3:3,rms_slope=0.1:0.4"], base_problem.config))
@@ -357,8 +363,7 @@ def test_absolute_fit_includes_the_level(base_problem):
     beta, _ = base_problem.model(x_true)
     darker = measurement(lambda g, wl: 0.8 * beta, None, geometries=base_problem.geometries)
     shape_only = sibling(base_problem, darker)
-    absolute = sibling(base_problem, darker)
-    absolute.level_weight = 1.0
+    absolute = sibling(base_problem, darker, level_weight=1.0)
     r = absolute.residuals(x_true)
     assert r.size == shape_only.residuals(x_true).size + 1
     sim = absolute.dataset(*absolute.model(x_true), "x")

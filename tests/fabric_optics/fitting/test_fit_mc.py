@@ -13,9 +13,11 @@ import pytest
 from gonio.data import make_dataset, new_meta, write_dataset
 from fabric_optics.cli.simulate import main
 from simulate.config import load_config, parse_config
-from fabric_optics.fitting import mc as fit_mc
-from fabric_optics.fitting.driver import parse_free
-from fabric_optics.fitting.mc import MC_RUNS_DIR, MC_STATE, MCFitProblem, MCRun, correction, run_mc_fit
+from fabric_optics.fitting import spacemapping as fit_mc
+from fabric_optics.fitting import state as fit_state
+from fabric_optics.fitting.spec import parse_free
+from fabric_optics.fitting.spacemapping import MCFitProblem, correction, run_mc_fit
+from fabric_optics.fitting.state import MC_RUNS_DIR, MC_STATE, MCRun
 from fabric_optics.paths import toml_dumps
 
 from .conftest import geometry_table
@@ -79,9 +81,9 @@ def test_recovery_of_a_dye_from_the_monte_carlo_itself():
     start = _felt(-0.8, -2.2)
     problem = MCFitProblem(start, measured, parse_free([FREE], start), target_rel_err=0.2, seed=4, wavelengths_nm=WL6)
     lines: list[str] = []
-    result = run_mc_fit(problem, max_evaluations=4, noise_draws=16, echo=lines.append)
+    result = run_mc_fit(problem, max_runs=4, noise_draws=16, echo=lines.append)
     info = result.info
-    assert len(lines) == info["mc_runs"] >= 2 and problem.walks == 1      # one summation walk for every iteration
+    assert len(lines) == info["mc_runs"] >= 2 and problem.counters.walks == 1      # one summation walk for every iteration
     assert result.objective < result.objective_start
     at_truth = [fit_mc.run_monte_carlo(MCFitProblem(start, measured, parse_free([FREE], start), target_rel_err=0.2,
                                                     seed=s, wavelengths_nm=WL6), x_true).objective for s in (5, 6, 7)]
@@ -104,11 +106,7 @@ def _stand_in(calls: list, beta_of, colour: bool = False):
     its hue and saturation differences, as a real run; else NaN)."""
     def run(problem, x, *, progress=False):
         calls.append(np.asarray(x, float).copy())
-        saved, problem.corr, problem.slope = (problem.corr, problem.slope), None, None
-        try:
-            s, u = problem.model(beta_of.at(problem, x) if hasattr(beta_of, "at") else x)
-        finally:
-            problem.corr, problem.slope = saved
+        s, u = problem.model(beta_of.at(problem, x) if hasattr(beta_of, "at") else x)   # the plain summation
         beta = beta_of(problem, x, s)
         fig = problem.residual_model().evaluate(beta, u)
         r = fig.vector(problem.colour_weight)
@@ -132,19 +130,19 @@ def _resume_problem(shared=None):
     beta, u = probe.model(np.array([-0.5, -2.5]))
     measured = _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6)
     problem = MCFitProblem(start, measured, parse_free([FREE], start), target_rel_err=0.5, seed=2, wavelengths_nm=WL6)
-    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    problem.share_walks(probe)
     return problem, probe
 
 
 def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     """Ctrl-C in the second Monte Carlo run: the first run and its proposal are on disk; --resume does not run
     them again and ends where an uninterrupted fit ends."""
-    import fabric_optics.fitting.driver as fit_module
+    import fabric_optics.fitting.search as fit_module
 
     calls: list = []
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
     ref_problem, probe = _resume_problem()
-    reference = run_mc_fit(ref_problem, out=tmp_path / "ref", max_evaluations=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
+    reference = run_mc_fit(ref_problem, out=tmp_path / "ref", max_runs=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
     n_ref = len(calls)
     assert n_ref >= 2
 
@@ -159,11 +157,11 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
     monkeypatch.setattr(fit_mc, "run_monte_carlo", interrupted)
     out = tmp_path / "fit"
     with pytest.raises(KeyboardInterrupt):
-        run_mc_fit(_resume_problem(probe)[0], out=out, max_evaluations=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
+        run_mc_fit(_resume_problem(probe)[0], out=out, max_runs=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
     state = json.loads((out / MC_STATE).read_text())
     assert len(state["iterations"]) == 1 and "proposal" in state["iterations"][0]
     assert (out / MC_RUNS_DIR / "run-0.npz").is_file()
-    assert "1 finished Monte Carlo run(s) and 1 proposal(s)" in fit_mc.left_behind(out)
+    assert "1 finished Monte Carlo run(s) and 1 proposal(s)" in fit_state.left_behind(out)
 
     calls.clear()
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
@@ -171,7 +169,7 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
                                                                            start_x(_felt(-0.9, -2.1))))
     problem = _resume_problem(probe)[0]
     lines: list[str] = []
-    resumed = run_mc_fit(problem, out=out, resume=True, max_evaluations=4, noise_draws=4, inner_evaluations=60, echo=lines.append)
+    resumed = run_mc_fit(problem, out=out, resume=True, max_runs=4, noise_draws=4, inner_evaluations=60, echo=lines.append)
     assert len(calls) == n_ref - 1                      # run 0 read, not run again
     assert "read from the checkpoint" in lines[0]
     assert resumed.info["iterations"][0]["cached"] and resumed.info["mc_runs"] == reference.info["mc_runs"]
@@ -193,7 +191,7 @@ def test_resume_of_another_fit_or_of_nothing_is_refused(tmp_path):
                            wavelengths_nm=WL6)     # refused before any photon: no walk
     with pytest.raises(fit_mc.FitError, match="nothing to resume"):
         run_mc_fit(problem, out=tmp_path, resume=True)
-    (tmp_path / MC_STATE).write_text(json.dumps({"schema": fit_mc.MC_SCHEMA, "identity": "x", "iterations": []}))
+    (tmp_path / MC_STATE).write_text(json.dumps({"schema": fit_state.MC_SCHEMA, "identity": "x", "iterations": []}))
     with pytest.raises(fit_mc.FitError, match="belongs to a different fit"):
         run_mc_fit(problem, out=tmp_path, resume=True)
 
@@ -230,7 +228,7 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatc
     monkeypatch.setattr(fit_mc, "run_monte_carlo", noisy)
     problem = _resume_problem()[0]
     with caplog.at_level("WARNING", logger="fabric_optics.fitting.mc"):
-        result = run_mc_fit(problem, max_evaluations=2, noise_draws=16, inner_evaluations=20, echo=lambda s: None)
+        result = run_mc_fit(problem, max_runs=2, noise_draws=16, inner_evaluations=20, echo=lambda s: None)
     assert np.all(np.isfinite(result.u)) and np.all(result.u_mc > 0)
     left_out = [r.getMessage() for r in caplog.records if "left out of the uncertainty" in r.getMessage()]
     assert left_out and int(left_out[0].split()[0]) > 0
@@ -250,7 +248,7 @@ def test_a_part_whose_draws_are_all_refused_is_reported_not_estimated(monkeypatc
 
     monkeypatch.setattr(fit_mc, "run_monte_carlo", very_noisy)
     problem = _resume_problem()[0]
-    result = run_mc_fit(problem, max_evaluations=2, noise_draws=8, inner_evaluations=20, echo=lambda s: None)
+    result = run_mc_fit(problem, max_runs=2, noise_draws=8, inner_evaluations=20, echo=lambda s: None)
     assert np.all(np.isnan(result.u_mc))
     assert np.all(np.isfinite(result.u_data)) and np.all(result.u_data > 0)
     assert np.array_equal(result.u, result.u_data)
@@ -259,7 +257,7 @@ def test_a_part_whose_draws_are_all_refused_is_reported_not_estimated(monkeypatc
 
 
 def test_uncertainty_parts_combines_known_parts_and_flags_unknown_ones():
-    from fabric_optics.fitting.driver import uncertainty_parts
+    from fabric_optics.fitting.uncertainty import uncertainty_parts
 
     a = np.array([[4.0, 1.0], [1.0, 9.0]])
     b = np.array([[1.0, 0.0], [0.0, 16.0]])
@@ -302,7 +300,7 @@ def _rough_problem(shared=None):
     start = _rough_felt(-0.7, -2.3, 0.15)
     problem = MCFitProblem(start, measured, parse_free([FREE_FINE], start), target_rel_err=0.5, seed=2,
                            wavelengths_nm=WL6)
-    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    problem.share_walks(probe)
     return problem, probe
 
 
@@ -316,7 +314,7 @@ def test_a_parameter_only_the_monte_carlo_sees_is_fitted_by_its_own_trend(tmp_pa
     problem, probe = _rough_problem()
     assert [p.kind for p in problem.free] == ["dye", "dye", "fine"]
     lines: list[str] = []
-    result = run_mc_fit(problem, out=tmp_path / "ref", max_evaluations=8, noise_draws=4, inner_evaluations=80,
+    result = run_mc_fit(problem, out=tmp_path / "ref", max_runs=8, noise_draws=4, inner_evaluations=80,
                         echo=lines.append)
     info = result.info
     assert abs(result.x[2] - T_TRUE) < 0.01, result.x
@@ -346,11 +344,11 @@ def test_a_parameter_only_the_monte_carlo_sees_is_fitted_by_its_own_trend(tmp_pa
     monkeypatch.setattr(fit_mc, "run_monte_carlo", interrupted)
     out = tmp_path / "fit"
     with pytest.raises(KeyboardInterrupt):
-        run_mc_fit(_rough_problem(probe)[0], out=out, max_evaluations=8, noise_draws=4, inner_evaluations=80,
+        run_mc_fit(_rough_problem(probe)[0], out=out, max_runs=8, noise_draws=4, inner_evaluations=80,
                    echo=lambda s: None)
     calls.clear()
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_rough(calls))
-    resumed = run_mc_fit(_rough_problem(probe)[0], out=out, resume=True, max_evaluations=8, noise_draws=4,
+    resumed = run_mc_fit(_rough_problem(probe)[0], out=out, resume=True, max_runs=8, noise_draws=4,
                          inner_evaluations=80, echo=lambda s: None)
     assert len(calls) == n_ref - 3                      # run 0, its trend run and run 1 read, not run again
     np.testing.assert_allclose(resumed.x, result.x, rtol=0, atol=1e-9)
@@ -409,8 +407,8 @@ def test_mc_trend_takes_a_parameter_s_trend_from_the_monte_carlo_where_the_summa
         monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_opposite(calls))
         problem = MCFitProblem(start, measured, parse_free([free], start), target_rel_err=0.5, seed=2,
                                wavelengths_nm=WL6, mc_trend=trend)
-        problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
-        results[trend] = run_mc_fit(problem, max_evaluations=8, noise_draws=4, inner_evaluations=80,
+        problem.share_walks(probe)
+        results[trend] = run_mc_fit(problem, max_runs=8, noise_draws=4, inner_evaluations=80,
                                     echo=lambda s: None)
     with_trend = results[("surface.rms_slope",)]
     assert abs(with_trend.x[1] - 0.32) < 0.005, with_trend.x
@@ -465,7 +463,7 @@ def felt4_probe():
 def test_the_summation_fit_starts_its_dye_from_the_measured_colour(felt4_probe):
     """The structured summation's colour start: knots inverted from a measurement of another colour have the
     measured hue and saturation at the colour geometry (the start's own knots are far off)."""
-    from fabric_optics.fitting.driver import FitProblem
+    from fabric_optics.fitting.problem import FitProblem
     from fabric_optics.fitting.start import inverted_start
 
     beta, _ = felt4_probe.model(X4_TRUE)
@@ -473,22 +471,21 @@ def test_the_summation_fit_starts_its_dye_from_the_measured_colour(felt4_probe):
     start = _felt4(X4_START)
     problem = FitProblem(start, measured, parse_free([FREE4], start), method="summation", target_rel_err=0.5,
                          seed=2, wavelengths_nm=WL6)
-    problem._tables, problem._references, problem.photons = (felt4_probe._tables, felt4_probe._references,
-                                                             felt4_probe.photons)
+    problem.share_walks(felt4_probe)
     fig0 = problem.residual_model().evaluate(problem.model(problem.start)[0])
     assert abs(fig0.dh) > 0.1
     x0, note = inverted_start(problem, problem.start)
     assert "inverted" in note
     fig = problem.residual_model().evaluate(problem.model(x0)[0])
     assert abs(fig.dh) < 0.01 and abs(fig.ds) < 0.03, (fig.dh, fig.ds)
-    assert problem.walks == 0                              # read from the shared walk
+    assert problem.counters.walks == 0                              # read from the shared walk
 
 
 def test_the_monte_carlo_fit_starts_its_dye_from_the_measured_colour(monkeypatch, felt4_probe):
     """A measurement of another colour (the long wavelengths absorbed, the start absorbs the short ones): the
     surrogate fit starts from the colour inverted through the surrogate, and the fit reaches the colour
     tolerance within 3 Monte Carlo runs (the start's included)."""
-    from fabric_optics.fitting.driver import COLOUR_TOLERANCE
+    from fabric_optics.fitting.spec import COLOUR_TOLERANCE
 
     calls: list = []
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_tinted(calls))
@@ -499,13 +496,13 @@ def test_the_monte_carlo_fit_starts_its_dye_from_the_measured_colour(monkeypatch
     start = _felt4(X4_START)
     problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2,
                            wavelengths_nm=WL6)
-    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
-    result = run_mc_fit(problem, max_evaluations=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+    problem.share_walks(probe)
+    result = run_mc_fit(problem, max_runs=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
     runs = result.info["iterations"]
-    fig0 = problem.residual_model().evaluate(_run_beta(problem, runs[0]["x"]))
+    fig0 = problem.residual_model().evaluate(result.model_start[0])
     assert abs(fig0.dh) > 0.1                              # the start is another colour (else nothing is shown)
     assert "inverted" in runs[0]["proposal"]["start_note"]
-    fig = problem.residual_model().evaluate(problem.mc_runs[fit_mc._key(result.x)].beta)
+    fig = problem.residual_model().evaluate(result.model_fit[0])
     dh_max, ds_max = COLOUR_TOLERANCE
     assert abs(fig.dh) <= dh_max and abs(fig.ds) <= ds_max, (fig.dh, fig.ds)
     assert len(calls) <= 3
@@ -516,7 +513,7 @@ def test_the_monte_carlo_fit_puts_the_colour_first_where_the_curves_want_another
     colour geometry's spectrum (same mean) from another dye. At colour weight 1 the surrogate's optimum trades
     the colour away (hue ~0.05 turn off, confirmed by the Monte Carlo); with the colour first the surrogate fit
     raises the colour weight until its colour is within half the tolerance, and the 3 runs end within it."""
-    from fabric_optics.fitting.driver import COLOUR_TOLERANCE
+    from fabric_optics.fitting.spec import COLOUR_TOLERANCE
 
     probe = felt4_probe
     measured, g_star = _colour_disagreeing(probe)
@@ -531,14 +528,14 @@ def test_the_monte_carlo_fit_puts_the_colour_first_where_the_curves_want_another
         start = _felt4(X4_START)
         problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2,
                                wavelengths_nm=WL6)
-        problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+        problem.share_walks(probe)
         geo = problem.residual_model().colour_geometry                 # the row whose spectrum was replaced
         assert [round(float(geo[c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")] == \
             [round(float(g.iloc[g_star][c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")]
-        result = run_mc_fit(problem, max_evaluations=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+        result = run_mc_fit(problem, max_runs=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
         monkeypatch.undo()
         assert len(calls) <= 3
-        figs[colour_first] = problem.residual_model().evaluate(problem.mc_runs[fit_mc._key(result.x)].beta)
+        figs[colour_first] = problem.residual_model().evaluate(result.model_fit[0])
         props = [it["proposal"] for it in result.info["iterations"] if "proposal" in it]
         if colour_first:
             assert props[0]["colour_weights"][0] == 1.0 and len(props[0]["colour_weights"]) > 1
@@ -578,23 +575,19 @@ def _colour_disagreeing(probe):
     return _measured(beta, 0.01 * beta + 1e-5, probe.geometries, WL6), g_star
 
 
-def _run_beta(problem, x):
-    return problem.mc_runs[fit_mc._key(np.asarray(x, float))].beta
-
-
 def test_only_the_kept_surrogate_fit_computes_its_uncertainty(monkeypatch, felt4_probe):
     """With the colour first the surrogate is fitted again at larger colour weights and only the last fit is kept:
     the uncertainty is computed for that one alone, and equals the whole fit's (run_fit: search and uncertainty)
     from the same start at the same weight, bit for bit."""
-    import fabric_optics.fitting.driver as fit_module
+    import fabric_optics.fitting.search as fit_module
 
     probe = felt4_probe
     measured, g_star = _colour_disagreeing(probe)
     start = _felt4(X4_START)
     problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2, wavelengths_nm=WL6)
-    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    problem.share_walks(probe)
     run = _fake_tinted([], colour=True)(problem, problem.start)
-    problem.set_correction(problem.start, run.beta, run.u_beta)
+    surrogate = fit_mc.Surrogate.at(problem, problem.start, run.beta, run.u_beta)
 
     searches, finishes = [], []
     real_search, real_finish = fit_module.search_fit, fit_module.finish_fit
@@ -607,16 +600,17 @@ def test_only_the_kept_surrogate_fit_computes_its_uncertainty(monkeypatch, felt4
         finishes.append(problem.colour_weight)
         return real_finish(problem, found, **kw)
 
-    monkeypatch.setattr(fit_module, "search_fit", search)
-    monkeypatch.setattr(fit_module, "finish_fit", finish)
-    res, weights = fit_mc._surrogate_fit(problem, True, max_evaluations=80, noise_draws=4)
+    monkeypatch.setattr(fit_mc, "search_fit", search)
+    monkeypatch.setattr(fit_mc, "finish_fit", finish)
+    res, weights, kept = fit_mc._surrogate_fit(surrogate, problem.start.copy(), True, max_evaluations=80,
+                                               noise_draws=4)
     monkeypatch.undo()
     assert len(weights) > 1 and searches == weights          # fitted again at larger weights (else nothing is shown)
     assert finishes == [weights[-1]]                         # the discarded fits computed no uncertainty
-    assert problem.colour_weight == 1.0
+    assert problem.colour_weight == 1.0 and kept.colour_weight == weights[-1]   # the spec is as it was
 
-    problem.colour_weight, problem.start = weights[-1], res.start.copy()
-    whole = fit_module.run_fit(problem, out=None, invert_start=True, max_evaluations=80, noise_draws=4)
+    found = fit_module.search_fit(kept, start=res.start.copy(), out=None, invert_start=True, max_evaluations=80)
+    whole = fit_module.finish_fit(kept, found, noise_draws=4)
     for name in ("x", "u", "u_data", "u_mc", "correlation"):
         np.testing.assert_array_equal(getattr(res, name), getattr(whole, name), err_msg=name)
     assert np.isfinite(res.u).all() and res.objective == whole.objective and res.warnings == whole.warnings

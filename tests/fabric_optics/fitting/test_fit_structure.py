@@ -1,4 +1,4 @@
-"""The structured summation in simulate fit (fabric_optics.fitting.structure): same numbers as simulate fabric,
+"""The structured summation in simulate fit (simulate.structwalk.walk): same numbers as simulate fabric,
 structure parameters free, recovered, validated."""
 
 from __future__ import annotations
@@ -13,8 +13,11 @@ from fabric_optics.cli.simulate import main
 from simulate.config import load_config, parse_config
 from simulate.fabric import structure as st
 from simulate.fiber.absorption import absorption_nodes
-from fabric_optics.fitting import structure as fit_structure
-from fabric_optics.fitting.driver import FitError, FitProblem, parse_free, run_fit
+from simulate.structwalk import walk as fit_structure
+from fabric_optics.fitting.errors import FitError
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.search import run_fit
+from fabric_optics.fitting.spec import parse_free
 from fabric_optics.paths import toml_dumps
 
 from .conftest import geometry_table
@@ -66,7 +69,7 @@ def test_structured_fit_model_equals_simulate_fabric_summation():
     estimate is reliable there (at a few hundred it is not, simulate.fabric.structure.PHOTONS_PER_ROW_AT_1PCT).
 
     The three wavelengths are two wavelength groups (450; 550 and 650 nm, walked at 650), each on its own
-    stream in both runs (fabric_optics.fitting.structure.seed_of), so the two runs share their photons up
+    stream in both runs (simulate.structwalk.walk.seed_of), so the two runs share their photons up
     to the roulette: their difference is well below the noise of two independent runs, ``sigma`` here (the
     RMS over the geometries of each run's two-halves error, per wavelength). Measured at seeds 3-16, both
     dyes: the difference's RMS 0.3-0.7 sigma, its largest value 2.4 sigma (limit 3.5). With the second
@@ -91,7 +94,7 @@ def test_structured_fit_model_equals_simulate_fabric_summation():
                                               target_rel_err=0.1, seed=3, photons_per_row=per_row)
         assert len(info["rounds"]) == 1 and info["photons_per_row"] == 2 * per_row
         beta, u = problem.model_at_host(config, other.dye(WL3))
-        assert problem.walks == 1 and problem.photons["per_row"] == per_row
+        assert problem.counters.walks == 1 and problem.photons["per_row"] == per_row
         sigma = np.sqrt(np.mean(u ** 2, axis=0) + np.mean(u_ref ** 2, axis=0))   # per wavelength, RMS
         d = (beta - ref) / sigma
         assert float(np.max(np.abs(d))) < 3.5, d    # two runs on the same streams (docstring)
@@ -100,7 +103,7 @@ def test_structured_fit_model_equals_simulate_fabric_summation():
     # the structure moves the model without a walk; the same spread gives the same numbers again
     b20 = problem.model(np.array([20.0]))[0]
     b40 = problem.model(np.array([40.0]))[0]
-    assert problem.walks == 1 and not np.allclose(b20, b40, rtol=1e-3)
+    assert problem.counters.walks == 1 and not np.allclose(b20, b40, rtol=1e-3)
     np.testing.assert_array_equal(problem.model(np.array([20.0]))[0], b20)
 
 
@@ -119,13 +122,13 @@ def test_recovery_of_felt_spread():
     x_true = np.array([32.0])
     measured = _measured(probe.model(x_true)[0], probe.geometries, noise_seed=21, wavelengths=WL6)
     problem = FitProblem(config, measured, free, method="summation", target_rel_err=0.1, seed=4)
-    problem._tables, problem._references, problem.photons = probe._tables, probe._references, probe.photons
+    problem.share_walks(probe)
     result = run_fit(problem, noise_draws=12, max_evaluations=24)
     assert result.objective < result.objective_start
     z = (result.x - x_true) / result.u
     assert np.all(np.abs(z) < 3.5), (result.x, result.u)
     assert abs(result.x[0] - 20.0) > 3.0 * result.u[0]   # it moved off the start: the spread is identifiable
-    assert problem.walks == 0   # the probe's walk is shared: the spread is fitted without walking again
+    assert problem.counters.walks == 0   # the probe's walk is shared: the spread is fitted without walking again
 
 
 def test_structure_parameters_parse_with_defaults_and_range():

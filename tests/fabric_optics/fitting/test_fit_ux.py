@@ -12,7 +12,12 @@ import pytest
 from gonio.data import write_dataset
 from fabric_optics.cli.simulate import main
 from fabric_optics.fitting import problem as fit_problem
-from fabric_optics.fitting.driver import EXIT_COLOUR_OFF, STATE_NAME, FitError, FitProblem, run_fit
+from fabric_optics.fitting import spec as fit_spec
+from fabric_optics.fitting.errors import FitError
+from fabric_optics.fitting.outputs import EXIT_COLOUR_OFF
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.search import run_fit
+from fabric_optics.fitting.state import STATE_NAME
 from fabric_optics.fitting.state import WALKS_DIR
 
 from .conftest import measurement, model_measurement
@@ -28,7 +33,7 @@ def _fresh(problem: FitProblem, measured=None, free=None, **kw) -> FitProblem:
 def test_first_walk_reports_progress_before_its_first_run_ends(base_problem):
     calls = []
     p = _fresh(base_problem)
-    p.walk_progress = lambda photons, run, runs: calls.append((photons, run, runs))
+    p.use_walk_progress(lambda photons, run, runs: calls.append((photons, run, runs)))
     p.model(p.start)
     runs = calls[0][2]
     assert calls[0] == (0, 0, runs) and runs >= 1
@@ -51,15 +56,15 @@ def test_interrupted_first_walk_resumes_from_its_checkpoint(base_problem, tmp_pa
             raise _Stop
 
     p = _fresh(base_problem)
-    p.out = tmp_path
-    p.walk_progress = stop_after_first_run
+    p.use_checkpoint(tmp_path)
+    p.use_walk_progress(stop_after_first_run)
     with pytest.raises(KeyboardInterrupt):
         p.table(p.config)
     assert not (tmp_path / STATE_NAME).exists()
     assert len(list((tmp_path / WALKS_DIR).glob("*.npz"))) == 1
     q = _fresh(base_problem)
     walked = []
-    q.walk_progress = lambda photons, run, runs: walked.append(run)
+    q.use_walk_progress(lambda photons, run, runs: walked.append(run))
     result = run_fit(q, out=tmp_path, resume=True, max_evaluations=6, noise_draws=2)
     assert "not walked again" in result.info["start_note"]
     np.testing.assert_array_equal(q.table(q.config).R, R_ref)  # the same table as without the interrupt
@@ -89,24 +94,22 @@ def test_ctrl_c_names_the_walk_parts_this_fit_left_in_the_table_cache(base_probl
                                                                       monkeypatch):
     """A structured walk keeps its finished parts in the table cache, not in DIR: the message says how many
     THIS fit stored (a part stored before it began is not claimed) and where they are."""
+    import dataclasses
+
     import fabric_optics.fitting.methods as fit_module
     from simulate.fiber import tablecache
 
     monkeypatch.setenv(tablecache.ENV_DIR, str(tmp_path / "cache"))
     write_dataset(model_measurement(base_problem, (1.4, 0.25), noise_seed=3), tmp_path / "m")
     tablecache.store("structwalk-" + "0" * 40, {"G": np.zeros(2)})     # an earlier fit's part
-    real = fit_module.method_runner
 
-    def runner(method):
-        problem_class, _, write_outputs = real(method)
+    def run_fit(problem, **kwargs):
+        for i in (1, 2):       # two parts finished, then Ctrl-C in the third
+            tablecache.store(f"structwalk-{i:040d}", {"G": np.full(2, float(i))})
+        raise KeyboardInterrupt
 
-        def run_fit(problem, **kwargs):
-            for i in (1, 2):       # two parts finished, then Ctrl-C in the third
-                tablecache.store(f"structwalk-{i:040d}", {"G": np.full(2, float(i))})
-            raise KeyboardInterrupt
-        return problem_class, run_fit, write_outputs
-
-    monkeypatch.setattr(fit_module, "method_runner", runner)
+    classic = fit_module.METHODS["classic"]
+    monkeypatch.setitem(fit_module.METHODS, "classic", dataclasses.replace(classic, run=run_fit))
     argv = ["fit", "red-cotton", str(tmp_path / "m"), "--free", "rms_slope", "--no-progress"]
     assert main(argv + ["--out", str(tmp_path / "f")]) == 130
     err = capsys.readouterr().err
@@ -115,7 +118,7 @@ def test_ctrl_c_names_the_walk_parts_this_fit_left_in_the_table_cache(base_probl
 
     def nothing(problem, **kwargs):
         raise KeyboardInterrupt
-    monkeypatch.setattr(fit_module, "method_runner", lambda method: (real(method)[0], nothing, None))
+    monkeypatch.setitem(fit_module.METHODS, "classic", dataclasses.replace(classic, run=nothing))
     assert main(argv + ["--out", str(tmp_path / "g")]) == 130
     assert "nothing was saved" in capsys.readouterr().err      # the parts stored before are not claimed
 
@@ -123,8 +126,7 @@ def test_ctrl_c_names_the_walk_parts_this_fit_left_in_the_table_cache(base_probl
 @pytest.mark.parametrize("budget, starts", [(1, 1), (7, 1), (15, 3)])
 def test_max_evaluations_bounds_the_search_in_all(base_problem, budget, starts):
     p = _fresh(base_problem, measured=model_measurement(base_problem, (1.4, 0.25), noise_seed=3))
-    p._tables = base_problem._tables
-    p.photons = base_problem.photons
+    p.share_walks(base_problem)
     result = run_fit(p, max_evaluations=budget, starts=starts, noise_draws=2)
     assert 1 <= result.info["evaluations"] <= budget
     assert any("evaluation budget" in w for w in result.warnings)
@@ -151,7 +153,7 @@ def test_warnings_at_bound_and_colour_once_each(base_problem, tmp_path, capsys):
     doc = json.loads((tmp_path / "f" / "fit.json").read_text())   # the outputs are written, labelled failing
     assert abs(doc["fitted"]["dh"]) > 0.02
     assert doc["verdict"]["passed"] is False and doc["verdict"]["exit_status"] == 3
-    assert doc["objective"]["colour_hold"]["from"] == fit_problem.COLOUR_HOLD_FROM   # the CLI holds the colour
+    assert doc["objective"]["colour_hold"]["from"] == fit_spec.COLOUR_HOLD_FROM   # the CLI holds the colour
     assert "hold(dh, ds)" in doc["objective"]["definition"]
     assert "FAILED: colour left off" in (tmp_path / "f" / "fitted.toml").read_text()
     assert (tmp_path / "f" / "fitted" / "radiance.csv").is_file()

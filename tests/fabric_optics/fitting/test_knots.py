@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from simulate.config import ConfigError, parse_config
-from fabric_optics.fitting.driver import FitProblem, parse_free, run_fit
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.search import run_fit
+from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.start import inverted_start, knots_config
 from fabric_optics import paths
 from fabric_optics.paths import toml_dumps
@@ -46,8 +48,7 @@ def _sibling(problem, beta):
     meas = measurement(lambda g, wl: beta, None, geometries=problem.geometries)
     p = FitProblem(problem.config, meas, problem.free, method=problem.method,
                    target_rel_err=problem.target_rel_err, seed=problem.seed)
-    p._tables = problem._tables
-    p.photons = problem.photons
+    p.share_walks(problem)
     return p
 
 
@@ -62,7 +63,7 @@ def test_inverted_start_has_the_measured_hue(knots_problem, base_problem, colour
     assert "inverted" in note
     dh, ds = _colour(p, x0)
     assert abs(dh) < 0.01 and abs(ds) < 0.05
-    assert p.walks <= 1  # the inversion reads the fit's table: no photon of its own
+    assert p.counters.walks <= 1  # the inversion reads the fit's table: no photon of its own
 
 
 def test_dye_only_fit_recovers_the_colour(knots_problem):
@@ -106,7 +107,7 @@ def test_a_dye_only_point_reads_its_config_from_the_parse_of_its_other_parameter
     base = knots_problem
     problem = FitProblem(base.config, base.measured, parse_free(["dye,rms_slope"], base.config), method="classic",
                          target_rel_err=base.target_rel_err, seed=base.seed)
-    problem._tables, problem.photons = base._tables, base.photons
+    problem.share_walks(base)
     parses = []
     real_parse = problem_module.parse_config
 

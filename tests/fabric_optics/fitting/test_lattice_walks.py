@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from simulate.fiber.absorption import absorption_nodes
-from fabric_optics.fitting import structure as fit_structure
-from fabric_optics.fitting.driver import FitProblem, parse_free
+from simulate.structwalk import walk as fit_structure
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.problem import STRUCTURED_LATTICE_STEP as LATTICE_STEP
 
 from .test_fit_structure import _felt, _measured
@@ -48,9 +49,9 @@ def test_between_lattice_points_equals_a_walk_there():
     start = problem.free[0].start
     v = start * math.exp(0.5 * LATTICE_STEP)
     blend = problem.table(problem.config_at(np.array([v])))
-    assert problem.walks == 2 and problem.reweights == 0          # the two lattice points, nothing else
+    assert problem.counters.walks == 2 and problem.counters.reweights == 0          # the two lattice points, nothing else
     again = problem.table(problem.config_at(np.array([start * math.exp(0.3 * LATTICE_STEP)])))
-    assert problem.walks == 2                                     # same cell: no walk
+    assert problem.counters.walks == 2                                     # same cell: no walk
     assert not np.allclose(again.R, blend.R)
     # a walk at v itself (the same streams: common random numbers)
     config = problem.config_at(np.array([v]))

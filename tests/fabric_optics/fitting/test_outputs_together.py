@@ -1,4 +1,4 @@
-"""The fit's outputs are put in place together (fabric_optics.fitting.driver.write_outputs): an interrupt (or a
+"""The fit's outputs are put in place together (fabric_optics.fitting.outputs.write_outputs): an interrupt (or a
 full disk) at any write leaves the previous outputs exactly as they were and no hidden folder; fitted.toml never
 exists without fit.json; a SIGINT while they are moved into place is held until they are complete; the command
 says what is there and how to resume."""
@@ -13,15 +13,16 @@ import numpy as np
 import pytest
 
 import compare.report
-from fabric_optics.fitting import driver
-from fabric_optics.fitting.driver import OUTPUT_NAMES, FitResult, write_outputs
+from fabric_optics.fitting import outputs, state
+from fabric_optics.fitting.outputs import OUTPUT_NAMES, FitResult, write_outputs
 
 
 def _result(problem, x) -> FitResult:
     n = len(problem.free)
-    return FitResult(x=np.asarray(x, float), start=problem.start.copy(), objective=0.5, objective_start=1.0,
-                     u=np.full(n, 0.01), u_data=np.full(n, 0.01), u_mc=np.zeros(n), correlation=np.eye(n),
-                     warnings=[], info={"evaluations": 1})
+    return FitResult(method=problem.method, names=tuple(p.name for p in problem.free), x=np.asarray(x, float),
+                     start=problem.start.copy(), objective=0.5, objective_start=1.0, u=np.full(n, 0.01),
+                     u_data=np.full(n, 0.01), u_mc=np.zeros(n), correlation=np.eye(n), warnings=[],
+                     info={"evaluations": 1})
 
 
 def _light_report(comparison, out, *, force=False, **kw):
@@ -111,20 +112,22 @@ def test_simulate_fit_interrupted_while_writing_says_what_is_there(base_problem,
     from fabric_optics.cli.simulate import main
     from fabric_optics.fitting import methods
     from gonio.data import write_dataset
+    from dataclasses import replace
 
     write_dataset(base_problem.measured, tmp_path / "m")
     out = tmp_path / "f"
 
     def fake_run(problem, *, out, **kw):           # the search: its state file, then a result
-        (out / driver.STATE_NAME).write_text("{}")
+        (out / state.STATE_NAME).write_text("{}")
         return _result(problem, problem.start)
 
     def interrupted(problem, result, out):
         raise KeyboardInterrupt
-    monkeypatch.setattr(methods, "method_runner", lambda m: (driver.FitProblem, fake_run, interrupted))
+    monkeypatch.setitem(methods.METHODS, "classic", replace(methods.METHODS["classic"], run=fake_run))
+    monkeypatch.setattr(outputs, "write_outputs", interrupted)
     status = main(["fit", "red-cotton", str(tmp_path / "m"), "--method", "classic", "--free", "rms_slope",
                    "--out", str(out), "--no-progress"])
     err = capsys.readouterr().err
     assert status == 130 and err.count("\n") == 1
     assert f"interrupted while writing the outputs, which are unchanged in {out}" in err
-    assert f"the last accepted point is in {out / driver.STATE_NAME} (continue with --resume)" in err
+    assert f"the last accepted point is in {out / state.STATE_NAME} (continue with --resume)" in err

@@ -10,7 +10,8 @@ import os
 import numpy as np
 import pytest
 
-from fabric_optics.fitting.driver import STATE_NAME, STATE_SCHEMA, FitError, load_state
+from fabric_optics.fitting.errors import FitError
+from fabric_optics.fitting.state import STATE_NAME, STATE_SCHEMA, load_state
 from fabric_optics.fitting.state import MAX_STATE_BYTES, read_state_json
 
 
@@ -50,6 +51,12 @@ def test_a_well_formed_state_is_read_as_written(base_problem, tmp_path):
     (lambda d: {**d, "photons": {"0:0": -1}}, "'photons.0:0' is -1"),
     (lambda d: {**d, "photons": {"0:0": 10**18}}, "'photons.0:0' is 1e+18, outside"),
     (lambda d: {**d, "photons": {"0:0": 1e18}}, "not an integer"),
+    (lambda d: {**d, "photons": {"0:0": 1}}, "'photons.0:0' is 1, outside [2000,"),
+    (lambda d: {**d, "photons": {"0:0": 10**9}}, "'photons.0:0' is 1e+09, outside"),
+    (lambda d: {**d, "photons": {"0:0": 50001}}, "not whole batches of 2000"),
+    (lambda d: {**d, "evaluations": 10**400}, "'evaluations' is a 401-digit integer"),
+    (lambda d: {**d, "objective": 10**400}, "'objective' is a 401-digit integer"),
+    (lambda d: {**d, "x": [10**400, 0.3]}, "401-digit integer"),
     (lambda d: {**d, "names": ["other"]}, "'names'"),
 ])
 def test_a_malformed_state_is_refused_naming_the_file_and_field(base_problem, tmp_path, change, field):
@@ -92,8 +99,8 @@ def test_no_state_file_is_none_but_a_dangling_link_is_refused(tmp_path):
 
 
 def _mc_problem():
-    from fabric_optics.fitting.driver import parse_free
-    from fabric_optics.fitting.mc import MCFitProblem
+    from fabric_optics.fitting.spec import parse_free
+    from fabric_optics.fitting.spacemapping import MCFitProblem
 
     from .test_fit_mc import FREE, WL6, _felt, _flat
 
@@ -102,7 +109,7 @@ def _mc_problem():
 
 
 def _mc_state(problem, **rec_changes) -> dict:
-    from fabric_optics.fitting.mc import MC_SCHEMA
+    from fabric_optics.fitting.state import MC_SCHEMA
 
     rec = {"x": [-0.9, -2.1], "seconds": 1.0, "rays": 10, "rel_err": 0.1, "objective": 0.5, "nrmse": 0.3,
            "dh": float("nan"), "ds": 0.01, "file": "run-0.npz",
@@ -125,7 +132,8 @@ def _mc_state(problem, **rec_changes) -> dict:
     ({"fine_runs": {"7": {}}}, "names parameter '7'"),
 ])
 def test_a_malformed_mc_state_is_refused_naming_the_field(tmp_path, change, field):
-    from fabric_optics.fitting.mc import MC_STATE, run_mc_fit
+    from fabric_optics.fitting.spacemapping import run_mc_fit
+    from fabric_optics.fitting.state import MC_STATE
 
     problem = _mc_problem()
     (tmp_path / MC_STATE).write_text(json.dumps(_mc_state(problem, **change)))
@@ -134,19 +142,129 @@ def test_a_malformed_mc_state_is_refused_naming_the_field(tmp_path, change, fiel
     assert field in str(err.value) and str(tmp_path / MC_STATE) in str(err.value)
 
 
-def test_a_well_formed_mc_state_passes_and_a_run_file_of_the_wrong_shape_is_run_again(tmp_path):
-    from fabric_optics.fitting.mc import MC_RUNS_DIR, MC_STATE, _State
+def test_a_well_formed_mc_state_passes_and_a_run_file_of_the_wrong_shape_is_refused(tmp_path):
+    from fabric_optics.fitting.state import MC_RUNS_DIR, MC_STATE, MCState
 
     problem = _mc_problem()
     (tmp_path / MC_STATE).write_text(json.dumps(_mc_state(problem)))
     shape = (len(problem.geometries), problem.wavelengths_nm.size)
-    state = _State(tmp_path, problem.identity(), shape)
+    state = MCState(tmp_path, problem.identity(), shape)
     state.load(problem)
+    assert state.run(0, np.array([-0.9, -2.1])) is None             # no run file: the run is made again
     (tmp_path / MC_RUNS_DIR).mkdir()
     np.savez(tmp_path / MC_RUNS_DIR / "run-0.npz", x=[-0.9, -2.1], beta=np.ones((2, 2)), u_beta=np.ones((2, 2)))
-    assert state.run(0, np.array([-0.9, -2.1])) is None
+    with pytest.raises(FitError, match=r"run-0\.npz: holds tables of shape \(2, 2\)"):
+        state.run(0, np.array([-0.9, -2.1]))
     np.savez(tmp_path / MC_RUNS_DIR / "run-0.npz", x=[-0.9, -2.1], beta=np.ones(shape), u_beta=np.ones(shape))
     assert state.run(0, np.array([-0.9, -2.1])).beta.shape == shape
+
+
+# --- checkpoint files (walks/*.npz, mc-runs/run-K.npz) read as untrusted input --------------------------
+
+
+def _arrays():
+    return {"x": np.array([-0.9, -2.1]), "beta": np.ones((3, 4)), "u_beta": np.full((3, 4), 0.01)}
+
+
+def _spec():
+    return {"x": ("f", 1), "beta": ("f", 2), "u_beta": ("f", 2)}
+
+
+def _bomb(path):
+    """A zip of the right members whose ``beta`` is 200 MB of zeros deflated to a few hundred kB."""
+    import io
+    import zipfile
+
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, a in _arrays().items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.zeros(25_000_000) if name == "beta" else a)
+            z.writestr(f"{name}.npy", buf.getvalue())
+
+
+@pytest.mark.parametrize("make, says", [
+    (lambda p: os.mkfifo(p), "not a regular file"),
+    (lambda p: p.mkdir(), "not a regular file"),
+    (lambda p: p.write_bytes(b"\x00" * 100), "truncated or corrupt"),
+    (lambda p: (np.savez(p, **_arrays()), p.write_bytes(p.read_bytes()[:-200])), "truncated or corrupt"),
+    (lambda p: _bomb(p), "would expand to 200,000,128 bytes"),
+    (lambda p: np.savez(p, x=np.array([-0.9, -2.1]), beta=np.array([{"a": 1}], dtype=object),
+                        u_beta=np.ones((3, 4))), "array 'beta' is object"),
+    (lambda p: np.savez(p, x=np.array([-0.9, -2.1]), beta=np.ones((3, 4), np.float32), u_beta=np.ones((3, 4))),
+     "array 'beta' is float32"),
+    (lambda p: np.savez(p, x=np.array([-0.9, -2.1]), beta=np.ones(12), u_beta=np.ones((3, 4))), "of shape (12,)"),
+    (lambda p: np.savez(p, x=np.array([-0.9, -2.1]), beta=np.full((3, 4), np.nan), u_beta=np.ones((3, 4))),
+     "not finite"),
+    (lambda p: np.savez(p, x=np.array([-0.9, -2.1]), beta=np.ones((3, 4))), "not the arrays"),
+    (lambda p: p.write_bytes(b"\x00" * 2000), "more than a checkpoint's limit of 1,000"),
+])
+def test_a_checkpoint_file_is_checked_before_it_is_loaded(tmp_path, make, says):
+    """No special file is opened for a blocking read, nothing is decompressed past what the zip declares, no
+    pickle is loaded, and a file that is not the checkpoint's is refused in one line naming it."""
+    from fabric_optics.fitting.state import read_npz
+
+    path = tmp_path / "run-0.npz"
+    make(path)
+    with pytest.raises(FitError) as err:
+        read_npz(path, _spec(), max_bytes=1000 if "limit of 1,000" in says else 64_000_000)
+    text = str(err.value)
+    assert str(path) in text and says in text and "\n" not in text, text
+
+
+def test_a_good_checkpoint_file_is_read_and_a_missing_one_is_none(tmp_path):
+    from fabric_optics.fitting.state import read_npz
+
+    assert read_npz(tmp_path / "run-0.npz", _spec()) is None
+    np.savez(tmp_path / "run-0.npz", **_arrays())
+    got = read_npz(tmp_path / "run-0.npz", _spec())
+    for name, a in _arrays().items():
+        np.testing.assert_array_equal(got[name], a)
+
+
+def test_a_walk_checkpoint_that_is_not_a_run_is_refused(tmp_path):
+    from fabric_optics.fitting.state import WalkCheckpoint
+
+    cp = WalkCheckpoint(tmp_path, "id", (), np.zeros(2), None)
+    cp.put("0:0", np.ones((2, 3)), np.ones((2, 3)), 4000, 1.5)
+    value, u, photons, n = cp.get("0:0")
+    assert photons == 4000 and n == 1.5 and value.shape == (2, 3)
+    path = cp._path("0:0")
+    np.savez(path, value=np.ones((2, 3)), u=np.ones((2, 3)), photons=np.int64(1), scatterings=np.float64(1.0))
+    with pytest.raises(FitError, match="records 1 photons"):
+        cp.get("0:0")
+    path.write_bytes(path.read_bytes()[:50])
+    with pytest.raises(FitError, match="truncated or corrupt"):
+        cp.get("0:0")
+
+
+def test_simulate_fit_resume_on_a_truncated_run_file_is_one_line_exit_2(tmp_path, capsys):
+    """The command line: a truncated mc-runs/run-0.npz under a valid mc-state.json is one line naming the file,
+    exit 2, before any Monte Carlo run."""
+    from fabric_optics import api
+    from fabric_optics.cli.simulate import main
+    from fabric_optics.fitting.state import MC_RUNS_DIR, MC_STATE
+    from gonio.data import write_dataset
+
+    from .test_fit_mc import FREE, WL6, _felt, _flat
+
+    (tmp_path / "felt.toml").write_text(_felt(-0.9, -2.1).text)
+    write_dataset(_flat(WL6), tmp_path / "m")
+    out = tmp_path / "fit"
+    out.mkdir()
+    wl = ",".join(f"{w:g}" for w in WL6)
+    problem = api.prepare_fit(tmp_path / "felt.toml", tmp_path / "m", FREE, out, method="mc", target_rel_err=0.2,
+                              seed=2, wavelengths_nm=WL6, resume=True).problem
+    (out / MC_STATE).write_text(json.dumps(_mc_state(problem)))
+    (out / MC_RUNS_DIR).mkdir()
+    shape = (len(problem.geometries), WL6.size)
+    np.savez(out / MC_RUNS_DIR / "run-0.npz", x=[-0.9, -2.1], beta=np.ones(shape), u_beta=np.ones(shape))
+    run_file = out / MC_RUNS_DIR / "run-0.npz"
+    run_file.write_bytes(run_file.read_bytes()[:-300])
+    code = main(["fit", str(tmp_path / "felt.toml"), str(tmp_path / "m"), "--method", "mc", "--free", FREE,
+                 "--target-rel-err", "0.2", "--seed", "2", "--wavelengths", wl, "--out", str(out), "--resume",
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and str(run_file) in err and "truncated" in err, err
 
 
 # --- a full disk while the fit checkpoints ---------------------------------------------------------------

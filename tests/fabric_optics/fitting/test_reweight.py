@@ -16,7 +16,8 @@ from simulate.config import parse_config
 from simulate.fiber.absorption import absorption_nodes, absorption_table
 from simulate.fiber.spectral import phase_chi2, reweight_exponent, spectral_optics
 from simulate.montecarlo.scatter import phase_arrays
-from fabric_optics.fitting.driver import FitProblem, parse_free
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.spec import parse_free
 from fabric_optics.paths import toml_dumps
 
 from .conftest import WAVELENGTHS, measurement
@@ -77,19 +78,19 @@ def test_fit_problem_reweights_near_and_walks_far(red_cotton):
     p = FitProblem(red_cotton, flat, free, method="classic", target_rel_err=0.1, seed=3, nodes=4,
                    wavelengths_nm=WAVELENGTHS)
     b0 = p.model(np.array([0.05]))[0]
-    assert (p.walks, p.reweights) == (1, 0)
+    assert (p.counters.walks, p.counters.reweights) == (1, 0)
     b1 = p.model(np.array([0.0525]))[0]  # +5 %: the paths of the walk at its lattice point (the start)
-    assert (p.walks, p.reweights) == (1, 1)
+    assert (p.counters.walks, p.counters.reweights) == (1, 1)
     assert not np.array_equal(b0, b1)
     p.model(np.array([0.09]))  # x1.8: a new lattice point 0.05 e^0.6 is walked, then re-weighted to 0.09
-    assert (p.walks, p.reweights) == (2, 2)
+    assert (p.counters.walks, p.counters.reweights) == (2, 2)
     p.model(np.array([0.0945]))  # the same lattice point: re-weighted only
-    assert (p.walks, p.reweights) == (2, 3)
+    assert (p.counters.walks, p.counters.reweights) == (2, 3)
     assert p.lattice((0.0945,)) == (round(0.05 * math.exp(0.6), 12),)
     # deterministic in the parameters: evaluated again after other points, the same values
     p._tables.clear()
     np.testing.assert_array_equal(p.model(np.array([0.0525]))[0], b1)
-    assert p.walks == 2  # the lattice walk is kept
+    assert p.counters.walks == 2  # the lattice walk is kept
 
 
 def test_a_change_past_the_bound_is_walked_itself(red_cotton, monkeypatch):
@@ -101,5 +102,5 @@ def test_a_change_past_the_bound_is_walked_itself(red_cotton, monkeypatch):
                    target_rel_err=0.1, seed=3, nodes=4, wavelengths_nm=WAVELENGTHS)
     p.model(np.array([0.05]))
     p.model(np.array([0.07]))  # lattice point 0.05: x1.4 is past the bound -> a walk of its own
-    assert (p.walks, p.reweights) == (2, 0)
+    assert (p.counters.walks, p.counters.reweights) == (2, 0)
     assert p.last_exponent[0] - p.last_exponent[1] > math.log(4.0)

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from fabric_optics.fitting import structure as fit_structure
+from simulate.structwalk import walk as fit_structure
 from simulate.fabric import structure as ST
 from simulate.fiber import farfield as FF
 
 
 def test_the_fits_in_place_symmetrisation_is_the_exit_tables():
-    """:func:`fabric_optics.fitting.structure._symmetrise` (in place, compiled) against
+    """:func:`simulate.structwalk.walk._symmetrise` (in place, compiled) against
     :func:`simulate.fiber.farfield._symmetrised` on a random table with odd and even axes."""
     rng = np.random.default_rng(4)
     T = rng.random((2, 5, 6, 3, 4, 7))

@@ -9,8 +9,9 @@ import math
 
 import numpy as np
 
-from fabric_optics.fitting import structure as fit_structure
-from fabric_optics.fitting.problem import SURFACE_LATTICE_STEP, FitProblem, parse_free
+from simulate.structwalk import walk as fit_structure
+from fabric_optics.fitting.problem import SURFACE_LATTICE_STEP, FitProblem
+from fabric_optics.fitting.spec import parse_free
 
 from .test_fit_structure import _felt, _measured
 

@@ -1,4 +1,4 @@
-"""The structured summation's walk in the disk cache (fabric_optics.fitting.structure.walk_structure + simulate.fiber.tablecache):
+"""The structured summation's walk in the disk cache (simulate.structwalk.walk.walk_structure + simulate.fiber.tablecache):
 a hit is the walk, bit for bit; the key follows what the walk depends on and not the dye or the facets; a broken
 entry is walked again and rewritten.
 
@@ -16,7 +16,7 @@ import pytest
 from simulate.config import load_config, parse_config
 from simulate.fiber import tablecache
 from simulate.fiber.absorption import absorption_nodes
-from fabric_optics.fitting import structure as fit_structure
+from simulate.structwalk import walk as fit_structure
 from fabric_optics.paths import toml_dumps
 
 WL1 = np.array([550.0])

@@ -1,4 +1,4 @@
-"""The structured walk's entries on threads (fabric_optics.fitting.walk_threads via fabric_optics.fitting.structure.walk_structure):
+"""The structured walk's entries on threads (simulate.structwalk.threads via simulate.structwalk.walk.walk_structure):
 the same arrays as the serial walk, bit for bit; one monotone progress; a failing or interrupted walk stops
 the other workers at their next tick and skips the entries not started; ``--threads 1`` is serial.
 
@@ -17,8 +17,8 @@ import pytest
 from simulate.config import load_config
 from simulate.fiber import tablecache
 from simulate.fiber.absorption import absorption_nodes
-from fabric_optics.fitting import structure as fit_structure
-from fabric_optics.fitting import walk_threads
+from simulate.structwalk import walk as fit_structure
+from simulate.structwalk import threads as walk_threads
 
 WL1 = np.array([550.0])
 NODES = absorption_nodes(1.0, 3)

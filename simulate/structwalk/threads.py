@@ -1,6 +1,6 @@
 """Independent walk entries run two at a time on threads, with one progress, one cancel and one thread budget.
 
-:func:`fabric_optics.fitting.structure.walk_structure` is made of independent ``(half, chunk)`` entries, each seeded
+:func:`simulate.structwalk.walk.walk_structure` is made of independent ``(half, chunk)`` entries, each seeded
 by its own ``(seed, half, node, chunk)`` streams. Run one after the other, the parts of an entry that are
 not the kernel's parallel rows (the layer table, the interior closure, the symmetrisation: ~70 % of the
 felt's cold walk) kept ONE core busy on a 2-core machine. :func:`run_entries` runs them on a

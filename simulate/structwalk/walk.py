@@ -45,7 +45,7 @@ atomic writes, checksums and size bound) under :func:`walk_key`: the content has
 WITHOUT dye, the walk's part of ``[structure]``, wavelengths, nodes, photons per row, seed and the
 code (:data:`WALK_MODULES`). The walk is white, so the dye is not in the key: another colour of the
 same felt (a dye-only refit after the structure was fitted: the "structure transfer"),
-``--resume``, the Monte Carlo fit's surrogate (:mod:`fabric_optics.fitting.mc`) and any re-run read it. The
+``--resume``, the Monte Carlo fit's surrogate (:mod:`fabric_optics.fitting.spacemapping`) and any re-run read it. The
 felt's walk is 17 wavelengths x 16 nodes x ~55 000 grid values x 8 bytes x 2 halves = 240 MB (the
 default bound, 2 GiB, holds 8 of them).
 
@@ -64,7 +64,7 @@ compares with. The groups are formed per chunk and not blended across their boun
 felt they differ from the exit table's (the same expectation, other Monte Carlo errors).
 
 Length (~520 lines): the walk, its chunk and its cache key stay together -- this module's source is part of
-every walk's key (:data:`WALK_MODULES`); the threads' scheduling is apart (:mod:`fabric_optics.fitting.walk_threads`).
+every walk's key (:data:`WALK_MODULES`); the threads' scheduling is apart (:mod:`simulate.structwalk.threads`).
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ from simulate.fabric.structure import FELT_ONLY_KEYS
 from simulate.fiber.absorption import AbsorptionTable, absorption_targets
 from simulate.fiber.farfield import EXIT_TABLE_MODULES, plain_fiber
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
-from fabric_optics.fitting.walk_threads import Progress, plan, run_entries
+from simulate.structwalk.threads import Progress, plan, run_entries
 
 log = logging.getLogger(__name__)
 
@@ -270,7 +270,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     and seed, never the dye or the facets: another colour of the same felt, ``--resume``, the Monte
     Carlo fit's surrogate and a second run read it instead of walking (a hit is bit-identical).
 
-    Threads (details in :mod:`fabric_optics.fitting.walk_threads`). The entries not in the cache
+    Threads (details in :mod:`simulate.structwalk.threads`). The entries not in the cache
     run two at a time on threads, ``threads // 2`` kernel threads each (``threads=None``: the cores, and a
     second worker only when a core is idle: with the other core busy two threads cost ~2 CPU s more and
     were slower); ``threads=1`` is the serial walk. Why threads: ~70 % of a cold walk was one core's work
@@ -394,7 +394,7 @@ MC_ONLY_FIELDS = FELT_ONLY_KEYS
 #: the closure and this module (an edit to any of them is a miss, never a stale walk)
 WALK_MODULES = EXIT_TABLE_MODULES + (
     "simulate.fiber.absorption", "simulate.optics.microfacet", "simulate.fabric.fiberlayer",
-    "simulate.fabric.interior", "simulate.fabric.structure", "fabric_optics.fitting.structure",
+    "simulate.fabric.interior", "simulate.fabric.structure", "simulate.structwalk.walk",
 )
 
 

@@ -1,0 +1,370 @@
+"""The fit specification: what ``simulate fit`` fits, frozen before the search starts.
+
+A :class:`FitSpec` holds the start config, the measurement (its near-grazing rows left out), the
+free parameters with their bounds (:class:`FreeParameter`, :func:`parse_free`), the model, the
+objective's weights, the seed, the model wavelengths and the Monte Carlo target. No runner writes
+into it: what a runner varies (a start, bounds, a colour weight, an output correction) is passed to
+it as an argument (:mod:`fabric_optics.fitting.search`, :mod:`fabric_optics.fitting.spacemapping`).
+
+Public objects: :class:`FitSpec` and :func:`make_spec`, :class:`FreeParameter`, :func:`parse_free`,
+:func:`default_bounds`, :func:`colour_hold` and the objective's constants (:data:`COLOUR_TOLERANCE`,
+:data:`COLOUR_HOLD_FROM`, :data:`COLOUR_HOLD_WEIGHT`). Why each value: docs/notes/fit-trust.md.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import tomllib
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from fabric_optics import paths
+from fabric_optics.fitting.errors import FitError
+from gonio.data.dataset import Dataset
+from gonio.data.formats import GRAZING_DEG
+from gonio.data.schema import WAVELENGTH_RANGE_NM
+from simulate.config import SimulationConfig
+from simulate.fiber.absorption import DEFAULT_NODES
+from simulate.structwalk.walk import STRUCTURE_FIELDS
+
+__all__ = ["GENERATOR", "COLOUR_TOLERANCE", "COLOUR_HOLD_FROM", "COLOUR_HOLD_WEIGHT", "FINE_FIELDS", "FreeParameter",
+           "FitSpec", "make_spec", "colour_hold", "default_bounds", "parse_free", "model_geometries", "dye_ceiling",
+           "checked_wavelengths"]
+
+log = logging.getLogger(__name__)
+
+GENERATOR = "simulate fit"
+#: Default bounds of a dye knot (log10 of 1/um): see :func:`default_bounds`.
+KNOT_LOW, KNOT_HIGH = -4.0, 0.5
+#: Fields only the Monte Carlo sees (kind ``"fine"``), with their valid range: the rough boundary for transmitted
+#: light (docs/physics.md 3). The summation and classic model walk the smooth boundary
+#: (:func:`simulate.products.smooth_boundary_unless_mc`), so a fit of theirs refuses them; the Monte Carlo fit
+#: takes their trend from Monte Carlo runs themselves (:mod:`fabric_optics.fitting.spacemapping`, "Parameters only the Monte Carlo sees").
+FINE_FIELDS = {"surface.transmission_rms_slope": (0.0, 1.0), "surface.transmission_rms_slope_around": (0.0, 1.0)}
+#: ``(|dh| turn, |ds|)`` above which a fitted colour is left off: the fit fails (:mod:`fabric_optics.fitting.search`)
+COLOUR_TOLERANCE = (0.02, 0.03)
+#: The colour hold (:func:`colour_hold`): from this fraction of :data:`COLOUR_TOLERANCE` on, each colour difference
+#: pays ``COLOUR_HOLD_WEIGHT (|d|/tol - COLOUR_HOLD_FROM)^2`` in the objective (why these values:
+#: docs/notes/fit-trust.md, "The fit's constants").
+COLOUR_HOLD_FROM = 0.7
+COLOUR_HOLD_WEIGHT = 1.0
+
+
+def colour_hold(dh: float, ds: float) -> np.ndarray:
+    """``sqrt(COLOUR_HOLD_WEIGHT) [max(0, |dh|/tol_h - f), max(0, |ds|/tol_s - f)]`` (``f`` :data:`COLOUR_HOLD_FROM`,
+    ``tol`` :data:`COLOUR_TOLERANCE`): the residual entries of the colour hold, zero well inside the tolerance."""
+    tol_h, tol_s = COLOUR_TOLERANCE
+    excess = np.maximum(0.0, np.abs(np.array([dh / tol_h, ds / tol_s], float)) - COLOUR_HOLD_FROM)
+    return math.sqrt(COLOUR_HOLD_WEIGHT) * excess
+
+
+
+# ------------------------------------------------------------------------------------------
+# free parameters
+
+
+@dataclass(frozen=True)
+class FreeParameter:
+    """One free config field: its dotted path, kind and bounds.
+
+    ``kind``: ``"dye"`` (re-weighted from the absorption table), ``"surface"`` (analytic
+    Cook-Torrance term), ``"structure"`` (the structured summation's geometry), ``"walk"`` (changes the
+    scattering: photons are walked again) or ``"fine"`` (:data:`FINE_FIELDS`: seen by the Monte Carlo only).
+    """
+
+    name: str
+    start: float
+    low: float
+    high: float
+    kind: str
+
+
+def _kind(path: str) -> str:
+    if path.startswith("fiber.dye"):
+        return "dye"
+    if path == "surface.rms_slope":
+        return "surface"
+    if path in STRUCTURE_FIELDS:
+        return "structure"
+    if path in FINE_FIELDS:
+        return "fine"
+    return "walk"
+
+
+def default_bounds(path: str, start: float) -> tuple[float, float]:
+    """Default bounds of a free parameter from its field and start value.
+
+    Volume fraction ``[start/5, min(5 start, 0.5)]``; radii and widths ``[start/4, 4 start]``;
+    RMS slope ``[0.02, 0.5]``; dye amplitudes (``*_per_um``) ``[0, max(4 start, 0.01)]``; dye
+    knots (``log10_per_um[k]``) ``[-4, 0.5]`` (1e-4 to 3.2 /um: transparent to opaque over a
+    fiber's radius; widened to hold the start); band
+    centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
+    ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0). Structure fields
+    (:data:`simulate.structwalk.walk.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg. The boundary's
+    slopes for transmitted light (:data:`FINE_FIELDS`): ``[0, 1]``, their valid range (0 is the smooth boundary).
+    """
+    if path in STRUCTURE_FIELDS:
+        return STRUCTURE_FIELDS[path]
+    if path in FINE_FIELDS:
+        return FINE_FIELDS[path]
+    leaf = path.rsplit(".", 1)[-1]
+    if leaf == "volume_fraction":
+        return start / 5.0, min(5.0 * start, 0.5)
+    if path == "surface.rms_slope":
+        return 0.02, 0.5  # Cook-Torrance's single-scattering domain (simulate.optics.microfacet warns above)
+    if leaf.endswith("_per_um") and path.startswith("fiber.dye"):
+        return 0.0, max(4.0 * start, 0.01)
+    if leaf in ("center_nm", "edge_nm"):
+        return start - 60.0, start + 60.0
+    if leaf == "sigma_g":
+        return 1.0, 3.0
+    if leaf.startswith("log10_per_um[") and path.startswith("fiber.dye"):
+        return min(KNOT_LOW, start), max(KNOT_HIGH, start)
+    return start / 4.0, 4.0 * start
+
+
+def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter]:
+    """Free parameters from ``NAME[=LOW:HIGH]`` items (comma-separated in each string).
+
+    Raises
+    ------
+    FitError
+        An unknown name (the config has no such numeric field), malformed or empty bounds, bounds
+        that exclude the start value, or a parameter named twice.
+    """
+    data = tomllib.loads(config.text)
+    out: list[FreeParameter] = []
+    for spec in ",".join(specs).split(","):
+        spec = spec.strip()
+        if not spec:
+            continue
+        name, _, bounds = spec.partition("=")
+        try:
+            names = paths.expand(name.strip(), data)
+            for path in names:
+                paths.split(path)
+        except paths.PathError as exc:
+            raise FitError(f"--free {exc}" if name.strip() in paths.ALIASES else f"--free: {exc}") from None
+        for path in names:
+            # before the look-up: a run setting at its default is not written in the config
+            if path.startswith(("method.", "wavelengths.", "weave.")) or path == "seed":
+                raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
+            if path.startswith("structure."):
+                _check_structure_field(path, config)
+            try:
+                start = paths.get(data, path)
+            except KeyError:
+                if path in STRUCTURE_FIELDS:   # a defaulted [structure] field: its default starts the fit
+                    start = getattr(config.structure, path.split(".", 1)[1])
+                    data["structure"][path.split(".", 1)[1]] = start
+                else:
+                    start = None
+            if start is None:
+                candidates = ", ".join(sorted(set(paths.numeric_leaves(data, "")) - {"seed"})[:12])
+                raise FitError(f"--free: unknown parameter {path!r}: the config {config.name} has no such "
+                               f"numeric field (fields: {candidates}, ...; aliases: volume_fraction, radius, "
+                               "rms_slope, dye, dye-peaks)") from None
+            if isinstance(start, bool) or not isinstance(start, (int, float)):
+                raise FitError(f"--free: {path!r} is not a number in the config (a table or text); "
+                               "free one numeric field")
+            start = float(start)
+            if bounds:
+                lo_text, sep, hi_text = bounds.partition(":")
+                try:
+                    low, high = float(lo_text), float(hi_text)
+                except ValueError:
+                    low = high = math.nan
+                if not sep or not (math.isfinite(low) and math.isfinite(high)) or not low < high:
+                    raise FitError(f"--free: {spec!r}: bounds must be LOW:HIGH with LOW < HIGH, got {bounds!r}")
+            else:
+                low, high = default_bounds(path, start)
+            if path in STRUCTURE_FIELDS or path in FINE_FIELDS:
+                lo_ok, hi_ok = STRUCTURE_FIELDS.get(path) or FINE_FIELDS[path]
+                if low < lo_ok or high > hi_ok:
+                    raise FitError(f"--free: {path} bounds [{low:g}, {high:g}] leave the field's valid range "
+                                   f"[{lo_ok:g}, {hi_ok:g}]; give bounds inside it")
+            if not low <= start <= high:
+                raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
+                               f"[{low:g}, {high:g}]; widen the bounds or change the config")
+            if any(p.name == path for p in out):
+                raise FitError(f"--free: {path} is named twice")
+            out.append(FreeParameter(path, start, float(low), float(high), _kind(path)))
+    if not out:
+        raise FitError("--free: no parameter to fit")
+    return out
+
+
+def _check_structure_field(path: str, config: SimulationConfig) -> None:
+    """A ``structure.*`` parameter: the config has ``[structure]``, the field is one a fit frees, of its kind."""
+    spec = getattr(config, "structure", None)
+    if spec is None:
+        raise FitError(f"--free: {path!r}: the config {config.name} has no [structure] section (add one: "
+                       "kind = \"woven\" or \"nonwoven\")")
+    if path not in STRUCTURE_FIELDS:
+        raise FitError(f"--free: {path!r} is not a structure parameter a fit frees (free one of "
+                       f"{', '.join(sorted(STRUCTURE_FIELDS))})")
+    felt = path == "structure.felt_spread_deg"
+    if felt != (spec.kind == "nonwoven"):
+        raise FitError(f"--free: {path!r} does nothing for the config's structure kind {spec.kind!r} "
+                       f"({'felt_spread_deg' if spec.kind == 'nonwoven' else 'warp_twist_deg, weft_twist_deg'} do)")
+
+
+# ------------------------------------------------------------------------------------------
+# the problem: model evaluation and objective
+
+
+def model_geometries(measured: Dataset) -> pd.DataFrame:
+    # exactly the measured geometries: compare then estimates the model's normal/normal value from
+    # the same neighbours as the measurement's, so the estimate's own bias cancels in k(lambda)
+    # (the model's exact normal value against an estimated measured one biased the fit)
+    g = measured.table[["theta_i", "phi_i", "theta_o", "phi_o"]].drop_duplicates()
+    return g.reset_index(drop=True)
+
+
+def dye_ceiling(config: SimulationConfig, free: list[FreeParameter], wl: np.ndarray) -> float:
+    """Largest host absorption (1/um) any dye within the bounds can reach (the table's nu_max)."""
+    if config.dye is None:
+        return 1e-3
+    p = copy.deepcopy(config.dye.params)
+    doc = {"fiber": {"dye": p}}
+    for f in free:
+        if f.kind == "dye":
+            paths.set_value(doc, f.name, f.high if "_per_um" in f.name else paths.get(doc, f.name))
+    if config.dye.curve == "gaussian-bands":
+        top = p["baseline_per_um"] + sum(b["peak_per_um"] for b in p["bands"])
+    elif config.dye.curve == "knots":  # PCHIP does not overshoot: the largest knot is the maximum
+        top = 10.0 ** max(p["log10_per_um"])
+    elif config.dye.curve == "logistic-edge":
+        top = max(p["short_per_um"], p["long_per_um"])
+    else:
+        top = float(np.max(config.dye(wl)))
+    return max(1.05 * top, 1e-3)
+
+
+def checked_wavelengths(value: object) -> np.ndarray:
+    """The model wavelengths (``--wavelengths``) as a float array: finite, in the dataset range, increasing."""
+    try:
+        wl = np.asarray(value, float).reshape(-1)
+    except (TypeError, ValueError):
+        raise FitError(f"--wavelengths: expected numbers in nm, got {value!r}") from None
+    lo, hi = WAVELENGTH_RANGE_NM
+    if wl.size == 0:
+        raise FitError("--wavelengths: no wavelength given")
+    bad = [w for w in wl if not (np.isfinite(w) and lo <= w <= hi)]
+    if bad:
+        raise FitError(f"--wavelengths: {bad[0]:g} is not a wavelength in [{lo:g}, {hi:g}] nm")
+    if np.any(np.diff(wl) <= 0):
+        raise FitError("--wavelengths: must be strictly increasing, without repeats (e.g. 400,410,...,700)")
+    return wl
+
+
+#: the models a :class:`FitSpec` evaluates (the Monte Carlo fit's coarse model is the summation)
+SPEC_MODELS = ("classic", "summation")
+
+
+@dataclass(frozen=True, eq=False)
+class FitSpec:
+    """What a fit fits, checked and frozen (:func:`make_spec`): no runner writes into it.
+
+    ``measured`` is the measurement without its near-grazing rows (``notes`` say so); ``wavelengths_nm``
+    the model wavelengths (the measurement's, or the config's for an RGB measurement); ``method`` the model
+    evaluated (``classic`` or ``summation``; the Monte Carlo fit's coarse model is the summation, with
+    ``fine_capable``: the fields only the Monte Carlo sees may be free).
+    """
+
+    config: SimulationConfig
+    measured: Dataset
+    free: tuple[FreeParameter, ...]
+    method: str
+    colour_weight: float
+    #: the colour hold (:func:`colour_hold`) in the objective, when the measurement has a colour
+    hold_colour: bool
+    #: weight of ``(ln k_Y)^2``, the absolute level (``--absolute``: 1; 0: shapes and colour only)
+    level_weight: float
+    target_rel_err: float
+    seed: int
+    threads: int | None
+    wavelengths_nm: np.ndarray
+    nodes: int
+    #: re-weight the lattice walk to other scattering parameters within the variance bound
+    reweight: bool
+    fine_capable: bool
+    #: what the spec changed in the measurement (the near-grazing rows left out, interpolated incidences)
+    notes: tuple[str, ...]
+
+    @property
+    def structured(self) -> bool:
+        """The structured summation (:mod:`simulate.structwalk`) instead of the top cell's carpet."""
+        return self.method == "summation" and getattr(self.config, "structure", None) is not None
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.free]
+
+
+def make_spec(config: SimulationConfig, measured: Dataset, free: list[FreeParameter] | tuple[FreeParameter, ...], *,
+              method: str = "classic", colour_weight: float = 1.0, hold_colour: bool = False,
+              level_weight: float = 0.0, target_rel_err: float = 0.03, seed: int | None = None,
+              threads: int | None = None, wavelengths_nm: object = None, nodes: int = DEFAULT_NODES,
+              reweight: bool = True, fine_capable: bool = False) -> FitSpec:
+    """The checked :class:`FitSpec` (:class:`~fabric_optics.fitting.errors.FitError`, one line, on bad input).
+
+    ``seed`` defaults to the config's; ``wavelengths_nm`` to the measurement's (spectral) or the config's (RGB).
+    Rows at ``theta_i >= 89`` deg are left out with a note (the rule of ``gonio import``).
+    """
+    if method not in SPEC_MODELS:
+        raise FitError(f"--method must be classic or summation, got {method!r}")
+    if level_weight and measured.relative:
+        raise FitError("--absolute: the measurement is relative (\"relative\": true, raw units): it has no absolute "
+                       "level to fit; drop --absolute")
+    if method == "summation" and config.route == "bssrdf":
+        raise FitError("the summation fit needs the nee or beam fiber route (fiber.route in the config)")
+    if wavelengths_nm is None:
+        spectral = "channel" not in measured.table.columns
+        wavelengths_nm = (np.asarray(measured.wavelengths_nm, float) if spectral
+                          else np.asarray(config.wavelengths_nm, float))
+    wl = checked_wavelengths(wavelengths_nm)
+    wl.setflags(write=False)
+    structured = method == "summation" and getattr(config, "structure", None) is not None
+    fine = [p.name for p in free if p.kind == "fine"]
+    if fine and not fine_capable:
+        raise FitError(f"--free {fine[0]}: only the Monte Carlo sees the rough boundary for transmitted light "
+                       f"(the {method} model walks the smooth one, docs/physics.md 3); fit it with --method mc")
+    if any(p.kind == "structure" for p in free) and not structured:
+        raise FitError("--free structure.*: structure parameters need --method summation and a config with "
+                       "a [structure] section")
+    notes: list[str] = []
+    measured = _without_grazing(measured, notes)
+    incidences = (measured.meta.get("sample") or {}).get("incidences") or {}
+    if incidences.get("interpolated_deg"):
+        notes.append(f"the measurement's incidences {', '.join(f'{t:g}' for t in incidences['interpolated_deg'])} "
+                     f"deg are {incidences.get('source', 'the file')}'s interpolation between its measured "
+                     "tables, not measured (a plan of its measured incidences: --plan measured)")
+    return FitSpec(config=config, measured=measured, free=tuple(free), method=method,
+                   colour_weight=float(colour_weight), hold_colour=bool(hold_colour), level_weight=float(level_weight),
+                   target_rel_err=float(target_rel_err), seed=int(config.seed if seed is None else seed),
+                   threads=threads, wavelengths_nm=wl, nodes=int(nodes), reweight=bool(reweight),
+                   fine_capable=bool(fine_capable), notes=tuple(notes))
+
+
+def _without_grazing(measured: Dataset, notes: list[str]) -> Dataset:
+    """The grazing rule of ``gonio import`` (:data:`gonio.data.formats.GRAZING_DEG`): rows at
+    ``theta_i >= 89`` deg are left out of the fit with a note (a file imported with
+    ``--keep-grazing`` keeps them; no fabric model is meant for them: the projected area
+    vanishes, Cook-Torrance leaves its domain); a measurement with nothing else is refused."""
+    t = measured.table
+    grazing = t["theta_i"].to_numpy(float) >= GRAZING_DEG
+    if not grazing.any():
+        return measured
+    if grazing.all():
+        raise FitError(f"every incidence of the measurement is >= {GRAZING_DEG:g} deg (near grazing), where "
+                       "no fabric model is meant to be fitted")
+    angles = ", ".join(f"{a:.10g}" for a in np.unique(t["theta_i"].to_numpy(float)[grazing]))
+    notes.append(f"{int(grazing.sum())} rows of the measurement at incidence >= {GRAZING_DEG:g} deg "
+                 f"(theta_i {angles}) are left out of the fit (near grazing: the rule of gonio import)")
+    log.warning("%s", notes[-1])
+    return Dataset(t[~grazing].reset_index(drop=True), measured.meta, measured.path)
