@@ -13,8 +13,11 @@ Nothing in ``gonio``, ``simulate`` or ``compare`` imports this package.
 from fabric_optics.api import (
     FABRIC_METHODS,
     FIT_METHODS,
+    FileSystemError,
     FitOutcome,
     InputError,
+    InternalError,
+    OutputBusyError,
     OutputExistsError,
     ToolkitError,
     Verdict,
@@ -31,6 +34,7 @@ from fabric_optics.api import (
     write_dataset,
 )
 
-__all__ = ["FABRIC_METHODS", "FIT_METHODS", "FitOutcome", "InputError", "OutputExistsError", "ToolkitError",
+__all__ = ["FABRIC_METHODS", "FIT_METHODS", "FileSystemError", "FitOutcome", "InputError", "InternalError",
+           "OutputBusyError", "OutputExistsError", "ToolkitError",
            "Verdict", "check", "compare", "export_bsdf", "fit", "load_config", "load_plan", "measure_on_mock",
            "read_dataset", "simulate", "truth", "write_dataset"]

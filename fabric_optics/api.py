@@ -26,29 +26,28 @@ A whole chain (see ``examples/``)::
 
 from __future__ import annotations
 
-import functools
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 from compare.comparison import Comparison
-from compare.errors import CompareError
 from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
-from gonio.acquisition.plan import Plan, PlanError
+from gonio.acquisition.plan import Plan
 from gonio.data.dataset import Dataset
-from gonio.data.schema import DatasetError
 from simulate.config import SimulationConfig
-from simulate.config_table import ConfigError
-from simulate.fabric.summation import FabricError
+
+from fabric_optics import validate as _v
+from fabric_optics.errors import (FileSystemError, InputError, InternalError, OutputBusyError,
+                                  OutputExistsError, ToolkitError, typed_errors)
 
 if TYPE_CHECKING:
     from fabric_optics.fitting.driver import FitResult
 
 __all__ = [
-    "ToolkitError", "InputError", "OutputExistsError",
+    "ToolkitError", "InputError", "OutputExistsError", "OutputBusyError", "FileSystemError", "InternalError",
     "load_config", "load_plan", "read_dataset", "write_dataset",
     "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "prepare_fit", "FitJob",
     "FitOutcome", "export_bsdf",
@@ -63,36 +62,8 @@ FABRIC_METHODS = ("summation", "classic", "mc", "auto")
 FIT_METHODS = ("summation", "classic", "mc")
 
 
-class ToolkitError(Exception):
-    """Base of the errors this interface raises."""
-
-
-class InputError(ToolkitError, ValueError):
-    """A config, plan, dataset, parameter or value that cannot be used; the message names it and
-    says what to do. The library's own error is kept as ``__cause__``."""
-
-
-class OutputExistsError(ToolkitError, FileExistsError):
-    """The output path holds something already and ``force`` was not given."""
-
-
-_INPUT_ERRORS: tuple[type[Exception], ...] = (ConfigError, PlanError, DatasetError, FabricError, CompareError)
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-def _typed_errors(fn: _F) -> _F:
-    """Re-raise the libraries' input errors as :class:`InputError` (the original as ``__cause__``)."""
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from fabric_optics.fitting.problem import FitError
-
-        try:
-            return fn(*args, **kwargs)
-        except ToolkitError:
-            raise
-        except _INPUT_ERRORS + (FitError,) as exc:
-            raise InputError(str(exc)) from exc
-    return wrapper  # type: ignore[return-value]
+#: Every function below raises only :class:`ToolkitError` subclasses (:mod:`fabric_optics.errors`)
+_typed_errors = typed_errors
 
 
 @_typed_errors
@@ -103,6 +74,7 @@ def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfi
 
     if isinstance(config, SimulationConfig):
         return config
+    _v.path("config", config)
     return _load(config if isinstance(config, (str, Path)) else Path(config))
 
 
@@ -113,6 +85,7 @@ def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
 
     if isinstance(plan, Plan):
         return plan
+    _v.path("plan", plan)
     return _load(plan if isinstance(plan, (str, Path)) else Path(plan))
 
 
@@ -125,6 +98,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     """A radiance-coefficient dataset folder (``radiance.csv`` + ``meta.json``, docs: dataset format)."""
     from gonio.data.dataset import read_dataset as _read
 
+    _v.path("path", path)
     return _read(path)
 
 
@@ -132,12 +106,22 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
 def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = False) -> Path:
     """Write ``dataset`` as a folder. An existing non-empty folder is replaced only with
     ``force=True`` (:class:`OutputExistsError` otherwise); the write is atomic per file."""
+    from gonio.data.claim import claim_output
     from gonio.data.dataset import write_dataset as _write
+    from gonio.data.outputs import JOURNAL_NAME, is_run_folder
 
-    out = Path(path)
-    if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
-        raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
-    return _write(dataset, out)
+    if not isinstance(dataset, Dataset):
+        raise InputError(f"dataset: expected a Dataset, got {type(dataset).__name__}")
+    out = _v.out_path("path", path)
+    _v.flag("force", force)
+    with claim_output(out, option="path="):
+        if is_run_folder(out):
+            raise OutputExistsError(f"{out}: is a run folder (it holds {JOURNAL_NAME}; its dataset is rebuilt from "
+                                    "that journal): choose another path (a run folder is never replaced, not even "
+                                    "with force=True)")
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
+        return _write(dataset, out)
 
 
 @_typed_errors
@@ -155,7 +139,16 @@ def simulate(config: str | os.PathLike | SimulationConfig, plan: str | os.PathLi
 
     if method not in FABRIC_METHODS:
         raise InputError(f"method {method!r}: choose one of {', '.join(FABRIC_METHODS)}")
-    return fabric_dataset(load_config(config), load_plan(plan), method, target_rel_err=target_rel_err, seed=seed,
+    _v.rel_err("target_rel_err", target_rel_err)
+    _v.seed("seed", seed)
+    _v.threads("threads", threads)
+    _v.integer("max_photons", max_photons, 1, 10**15, none=True)
+    _v.flag("measurable_only", measurable_only)
+    _v.flag("progress", progress)
+    _v.number("max_seconds", max_seconds, 0.0)
+    config, plan = load_config(config), load_plan(plan)
+    _v.cost(config, plan.wavelengths_nm, target_rel_err, max_photons)
+    return fabric_dataset(config, plan, method, target_rel_err=target_rel_err, seed=seed,
                           threads=threads, max_photons=max_photons, measurable_only=measurable_only,
                           progress=progress, max_seconds=max_seconds)
 
@@ -168,6 +161,10 @@ def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os
     curve errors (``.overall``, ``.curves``) and the colour match (``.colour``)."""
     from compare.comparison import compare_datasets
 
+    _v.number("window_deg", window_deg, 0.0, 90.0, lo_open=True)
+    _v.text("illuminant", illuminant, max_len=64)
+    if isinstance(simulated, (list, tuple)) and not simulated:
+        raise InputError("simulated: no dataset; give at least one")
     sims = [simulated] if isinstance(simulated, (Dataset, str, os.PathLike)) else list(simulated)
     return compare_datasets(_dataset(measured), [_dataset(s) for s in sims], window_deg=window_deg,
                             illuminant=illuminant)
@@ -203,12 +200,19 @@ class Verdict:
         return "\n".join(lines)
 
 
+@_typed_errors
 def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float = DEFAULT_MAX_NRMSE,
           max_hue_diff: float = DEFAULT_MAX_HUE_DIFF, max_sat_diff: float = DEFAULT_MAX_SAT_DIFF,
           max_level_ratio: float = DEFAULT_MAX_LEVEL_RATIO) -> Verdict:
     """Judge one simulation of ``comparison`` (the first unless ``name``) against thresholds:
     overall NRMSE, and where the colour is known, |hue difference| (turns) and |saturation difference|;
     the absolute level (``max(k_Y, 1/k_Y)``) unless the measurement is relative (``compare check``)."""
+    if not isinstance(comparison, Comparison):
+        raise InputError(f"comparison: expected a Comparison (from compare()), got {type(comparison).__name__}")
+    _v.text("name", name, none=True)
+    for arg, value in (("max_nrmse", max_nrmse), ("max_hue_diff", max_hue_diff), ("max_sat_diff", max_sat_diff),
+                       ("max_level_ratio", max_level_ratio)):
+        _v.number(arg, value, 0.0)
     name = name if name is not None else next(iter(comparison.simulated))
     if name not in comparison.simulated:
         raise InputError(f"no simulation named {name!r} in the comparison ({', '.join(comparison.simulated)})")
@@ -345,11 +349,16 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     ``colour_hold=False``: the classic and summation fits weigh the colour by ``colour_weight`` only, without
     holding it within the tolerance (``simulate fit --no-colour-hold``).
     """
-    return prepare_fit(config, measured, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
-                       max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
-                       colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
-                       starts=starts, resume=resume, force=force, absolute=absolute,
-                       colour_hold=colour_hold).run(progress=progress)
+    from gonio.data.claim import claim_output
+
+    data = _dataset(measured)
+    _v.measurement_rows(f"measured ({data.path or data.name})", len(data))
+    with claim_output(_v.out_path("out", out), option="out="):     # one writer of the fit's folder
+        return prepare_fit(config, data, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
+                           max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
+                           colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
+                           starts=starts, resume=resume, force=force, absolute=absolute,
+                           colour_hold=colour_hold).run(progress=progress)
 
 
 @_typed_errors
@@ -369,13 +378,42 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
     evaluations); ``anisotropic`` 1, 2 or 4: keep the model's anisotropy with ``azimuths``
     incidence azimuths over 360/``anisotropic`` deg. ``description`` and ``provenance`` (merged)
     are written into a dataset's file."""
-    out = Path(path)
+    from gonio.data.claim import claim_output
+
+    out = _v.out_path("path", path)
+    _v.choice("method", method, ("summation", "classic", "mc"))
+    _v.wavelengths("wavelengths_nm", wavelengths_nm)
+    for arg, value in (("rgb", rgb), ("force", force), ("progress", progress)):
+        _v.flag(arg, value)
+    _v.integer("resolution", resolution, 4, 256)
+    _v.integer("incidences", incidences, 2, 64)
+    _v.rel_err("target_rel_err", target_rel_err)
+    _v.seed("seed", seed)
+    _v.threads("threads", threads)
+    _v.integer("max_photons", max_photons, 1, 10**15, none=True)
+    _v.integer("check_pairs", check_pairs, 0, _v.MAX_CHECK_PAIRS)
+    _v.choice("anisotropic", anisotropic, (0, 1, 2, 4))
+    _v.integer("azimuths", azimuths, 3, _v.MAX_AZIMUTHS)
+    _v.text("description", description, none=True)
+    if provenance is not None and not isinstance(provenance, dict):
+        raise InputError(f"provenance: expected a dict, got {type(provenance).__name__}")
+    if not isinstance(source, (Dataset, SimulationConfig, str, os.PathLike)):
+        raise InputError(f"source: expected a config, preset name, path or Dataset, got {type(source).__name__}")
+    with claim_output(out, option="path="):
+        return _export_bsdf(source, out, method=method, wavelengths_nm=wavelengths_nm, rgb=rgb,
+                            resolution=resolution, incidences=incidences, target_rel_err=target_rel_err, seed=seed,
+                            threads=threads, max_photons=max_photons, check_pairs=check_pairs,
+                            anisotropic=anisotropic, azimuths=azimuths, description=description,
+                            provenance=provenance, force=force, progress=progress)
+
+
+def _export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, out: Path, *, method: str,
+                 wavelengths_nm: Sequence[float] | None, rgb: bool, resolution: int, incidences: int,
+                 target_rel_err: float | None, seed: int | None, threads: int | None, max_photons: int | None,
+                 check_pairs: int, anisotropic: int, azimuths: int, description: str | None,
+                 provenance: dict | None, force: bool, progress: bool) -> Any:
     if out.exists() and not force:
         raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
-    if not 4 <= resolution <= 256:
-        raise InputError(f"resolution {resolution}: choose 4..256 values per axis")
-    if not 2 <= incidences <= 64:
-        raise InputError(f"incidences {incidences}: choose 2..64 incidence nodes")
     if isinstance(source, Dataset):
         from gonio.data.bsdf_dataset import dataset_brdf, dataset_nodes
         from gonio.data.bsdf_export import export_bsdf as _export
@@ -395,7 +433,9 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
         import numba
 
         threads = int(numba.config.NUMBA_NUM_THREADS)
-    return export_model(load_config(source), method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
+    config = load_config(source)
+    _v.cost(config, config.wavelengths_nm if wavelengths_nm is None else wavelengths_nm, target_rel_err, max_photons)
+    return export_model(config, method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
                         incidences=incidences, target_rel_err=target_rel_err, seed=seed, threads=threads,
                         max_photons=max_photons, check_pairs=check_pairs, reduction=anisotropic, n_phi_i=azimuths,
                         progress=progress)
@@ -409,18 +449,25 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
     ``fixtures/real/acrylic_felt_green_rgb.bsdf``) through the real driver and protocols, as
     ``gonio demo`` does; returns the measured dataset written in ``out``. Without ``plan`` the
     red-cotton plan's geometry is used, named after the sample."""
+    from gonio.data.claim import claim_output
     from gonio.data.outputs import OutputRefused
     from gonio.demo import run_demo
     from gonio.mock.samples import SampleError
 
+    out = _v.out_path("out", out)
+    _v.text("sample", sample, max_len=4096)
+    _v.integer("seed", seed, 0, _v.MAX_SEED)
+    _v.flag("force", force)
+    _v.flag("progress", progress)
     plan_obj = load_plan("red-cotton" if plan is None else plan)
-    try:
-        run_demo(Path(out), plan_obj, seed=seed, force=force, progress=progress, sample=sample,
-                 name_from_sample=plan is None and sample != "red-cotton")
-    except SampleError as exc:
-        raise InputError(f"sample {sample!r}: {exc}") from exc
-    except OutputRefused as exc:
-        raise OutputExistsError(str(exc)) from exc
+    with claim_output(out, option="out="):
+        try:
+            run_demo(out, plan_obj, seed=seed, force=force, progress=progress, sample=sample,
+                     name_from_sample=plan is None and sample != "red-cotton")
+        except SampleError as exc:
+            raise InputError(f"sample {sample!r}: {exc}") from exc
+        except OutputRefused as exc:
+            raise OutputExistsError(str(exc)) from exc
     return read_dataset(out)
 
 
@@ -431,6 +478,7 @@ def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset
     from gonio.mock.samples import SampleError
     from gonio.mock.truth import truth_dataset
 
+    _v.text("sample", sample, max_len=4096)
     try:
         return truth_dataset(sample, load_plan(plan))
     except SampleError as exc:

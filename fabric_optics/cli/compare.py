@@ -300,9 +300,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="compare: %(levelname)s: %(message)s", stream=sys.stderr)
     try:
         if args.command == "report":
-            return _report(args)
+            with common.claim(args.out):     # one writer of --out from its check to its final rename
+                return _report(args)
         if args.command == "render":
-            return _render_cmd(args)
+            with common.claim(args.out):
+                return _render_cmd(args)
         return _check(args)
     except (DatasetError, CompareError, UsageError, api.InputError, api.OutputExistsError) as exc:
         print(f"compare {args.command}: error: {exc}", file=sys.stderr)

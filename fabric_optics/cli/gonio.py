@@ -504,6 +504,11 @@ def build_parsers() -> dict[str, argparse.ArgumentParser]:
     return {"gonio": build_parser(), "gonio mock": mock_parser(), "gonio bench-driver": _bench_parser()}
 
 
+#: The commands that claim their --out for their whole run (:func:`fabric_optics.cli.common.claim`);
+#: ``acquire`` and ``replay`` lock their run folder for the session (gonio.acquisition.rundir).
+_CLAIMING = ("demo", "truth", "import", "export", "bench-driver")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gonio`` console script; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -526,6 +531,10 @@ def main(argv: list[str] | None = None) -> int:
                 "demo": _cmd_demo, "bench-driver": _cmd_bench, "truth": _cmd_truth,
                 "import": _cmd_import, "export": _cmd_export}
     try:
+        out = getattr(args, "out", None)
+        if args.command in _CLAIMING and out:
+            with common.claim(out):   # one writer of --out from its check to its final rename
+                return handlers[args.command](args)
         return handlers[args.command](args)
     except (_UsageError, *_USER_ERRORS) as exc:
         print(f"gonio {args.command}: {exc}", file=sys.stderr)

@@ -46,6 +46,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from fabric_optics import validate
 from fabric_optics.cli import common
 from fabric_optics.cli.common import (Parser, UsageError, add_deprecated, add_force, add_no_progress,
                                       add_plan, add_seed, add_target_rel_err, add_threads, add_verbose,
@@ -354,14 +355,16 @@ def _fabric_run(args: argparse.Namespace) -> int:
     except api.InputError as exc:
         raise _UsageError(f"--plan: {exc}") from None
     _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
-    _prepare_fabric_out(args.out, args.force)
-    dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
-                           threads=args.threads, max_photons=args.max_photons, measurable_only=args.measurable_only,
-                           progress=_progress(args), max_seconds=args.max_seconds)
-    try:
-        write_dataset_dir(dataset, args.out)
-    except OutputError as exc:
-        raise _UsageError(str(exc)) from None
+    with common.claim(args.out):         # one writer of --out from its check to its final rename
+        _prepare_fabric_out(args.out, args.force)
+        dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
+                               threads=args.threads, max_photons=args.max_photons,
+                               measurable_only=args.measurable_only, progress=_progress(args),
+                               max_seconds=args.max_seconds)
+        try:
+            write_dataset_dir(dataset, args.out)
+        except OutputError as exc:
+            raise _UsageError(str(exc)) from None
     prov = dataset.meta["provenance"]
     err_text = f"{prov['rel_err']:.2%} (rms of u / each direction's spectral peak)"
     print(f"wrote {args.out} ({len(dataset)} rows: {prov['geometries']} geometries x "
@@ -541,10 +544,16 @@ def _fit_run(args: argparse.Namespace) -> int:
     config = api.load_config(args.config)
     try:
         measured = api.read_dataset(args.measured)
+        validate.measurement_rows(f"MEASURED {args.measured}", len(measured))
     except api.InputError as exc:
         raise _UsageError(f"MEASURED: {exc}") from None
     if args.out.exists() and not args.out.is_dir():
         raise _UsageError(f"--out {args.out}: exists and is not a directory; choose a directory path")
+    with common.claim(args.out):         # one writer of --out from its check to the last output written
+        return _fit_claimed(args, api, config, measured, mc_trend)
+
+
+def _fit_claimed(args: argparse.Namespace, api: Any, config: Any, measured: Any, mc_trend: tuple[str, ...]) -> int:
     if not (args.resume or args.force):
         refuse_existing(args.out, False)
     job = api.prepare_fit(config, measured, args.free, args.out, method=args.method, dye=args.dye,
@@ -852,11 +861,16 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _export_run(args: argparse.Namespace) -> int:
-    import time
-
     from fabric_optics import api
 
     config = api.load_config(args.config)
+    with common.claim(args.out):
+        return _export_claimed(args, api, config)
+
+
+def _export_claimed(args: argparse.Namespace, api: Any, config: Any) -> int:
+    import time
+
     refuse_existing(args.out, args.force)
     started = time.perf_counter()
     result = api.export_bsdf(config, args.out, method=args.method, wavelengths_nm=args.wavelengths, rgb=args.rgb,
@@ -942,6 +956,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        print(f"simulate {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except SystemError as exc:
+        # Ctrl-C inside compiled code (numba, miepython) can reach here as a SystemError wrapping it
+        from fabric_optics.errors import interrupt_of
+
+        if interrupt_of(exc) is None:
+            raise
         print(f"simulate {args.command}: interrupted", file=sys.stderr)
         return 130
 
