@@ -163,8 +163,18 @@ def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os
 
     _v.number("window_deg", window_deg, 0.0, 90.0, lo_open=True)
     _v.text("illuminant", illuminant, max_len=64)
-    if isinstance(simulated, (list, tuple)) and not simulated:
-        raise InputError("simulated: no dataset; give at least one")
+    if not isinstance(measured, Dataset):
+        _v.path("measured", measured)
+    if not isinstance(simulated, (Dataset, str, os.PathLike)):
+        if not isinstance(simulated, (list, tuple)):
+            raise InputError(f"simulated={simulated!r}: expected a dataset, a dataset folder or a list of them")
+        if not simulated:
+            raise InputError("simulated: no dataset; give at least one")
+        for k, sim in enumerate(simulated):
+            if not isinstance(sim, Dataset):
+                _v.path(f"simulated[{k}]", sim)
+    elif not isinstance(simulated, Dataset):
+        _v.path("simulated", simulated)
     sims = [simulated] if isinstance(simulated, (Dataset, str, os.PathLike)) else list(simulated)
     return compare_datasets(_dataset(measured), [_dataset(s) for s in sims], window_deg=window_deg,
                             illuminant=illuminant)
@@ -351,6 +361,17 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     """
     from gonio.data.claim import claim_output
 
+    _v.integer("max_evaluations", max_evaluations, 1, 10**6, none=True)
+    _v.integer("max_runs", max_runs, 2, 10**4, none=True)
+    _v.rel_err("target_rel_err", target_rel_err)
+    _v.seed("seed", seed)
+    _v.threads("threads", threads)
+    _v.number("colour_weight", colour_weight, 0.0)
+    _v.wavelengths("wavelengths_nm", wavelengths_nm)
+    _v.integer("starts", starts, 1, 1000)
+    for arg, value in (("resume", resume), ("force", force), ("progress", progress), ("absolute", absolute),
+                       ("colour_hold", colour_hold)):
+        _v.flag(arg, value)
     data = _dataset(measured)
     _v.measurement_rows(f"measured ({data.path or data.name})", len(data))
     with claim_output(_v.out_path("out", out), option="out="):     # one writer of the fit's folder
