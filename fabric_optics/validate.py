@@ -186,8 +186,10 @@ def cost(config: Any, wavelengths_nm: Any, target: float | None, max_photons: in
         raise InputError(f"{name}: {exc}") from exc
 
 
-def measurement_rows(what: str, rows: int, limit: int = MAX_MEASUREMENT_ROWS) -> None:
-    """Refuse a measurement of more than ``limit`` rows for a fit (``what`` names its file or argument)."""
+def measurement_rows(what: str, rows: int, limit: int | None = None) -> None:
+    """Refuse a measurement of more than ``limit`` rows (default :data:`MAX_MEASUREMENT_ROWS`) for a
+    fit (``what`` names its file or argument)."""
+    limit = MAX_MEASUREMENT_ROWS if limit is None else limit
     if rows > limit:
         raise InputError(f"{what}: {rows:,} rows; a fit takes at most {limit:,} (it evaluates the model at every "
                          "row many times): thin the measurement (fewer geometries or wavelengths)")

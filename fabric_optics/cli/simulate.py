@@ -47,6 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from fabric_optics import validate
+from gonio.data.printable import printable
 from fabric_optics.cli import common
 from fabric_optics.cli.common import (Parser, UsageError, add_deprecated, add_force, add_no_progress,
                                       add_plan, add_seed, add_target_rel_err, add_threads, add_verbose,
@@ -949,11 +950,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             tablecache.max_bytes()   # a bad FABRIC_OPTICS_CACHE_MAX_BYTES: exit 2 now, not after the run
         return run(args)
     except (_UsageError, InputError, OutputExistsError) as exc:
-        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        print(f"simulate {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
     except ParameterError as exc:
         # invalid run parameters found by the library; the message names the parameter
-        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        print(f"simulate {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"simulate {args.command}: interrupted", file=sys.stderr)
