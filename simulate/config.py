@@ -412,8 +412,10 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         With a message naming the file (its name only, ``red.toml``) and the field.
     """
     file = Path(path).name
+    if isinstance(raw, str):
+        raw = raw.encode("utf-8", errors="surrogatepass")
     data = toml_text.loads(raw, file, ConfigError, "config", 4)
-    text = raw if isinstance(raw, str) else raw.decode("utf-8")     # valid UTF-8: loads checked it
+    text = raw.decode("utf-8")                  # valid UTF-8: loads checked it
     top = Table(data, "", file)
     name = top.string("name", Path(path).stem) or Path(path).stem
     description = top.raw("description", "")

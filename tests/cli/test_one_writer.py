@@ -108,11 +108,12 @@ def test_two_api_writers_with_force_never_mix_or_silently_replace(tmp_path):
 def _gonio(argv, err_file):
     from fabric_optics.cli.gonio import main
 
-    fd = os.open(err_file, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
-    os.dup2(fd, 2)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 1)
-    code = main(argv)
+    sys.stderr = open(err_file, "w")             # the child's own files (pytest captures the parent's)
+    sys.stdout = open(os.devnull, "w")
+    try:
+        code = main(argv)
+    finally:
+        sys.stderr.flush()
     if code:
         raise SystemExit(code)
 
