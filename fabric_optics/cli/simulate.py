@@ -308,14 +308,12 @@ def _load_config(text: str):
 def _check_cost(command: str, config: Any, wavelengths: Any, target: float | None, max_photons: int | None,
                 runs: int = 1) -> None:
     """Refuse a run estimated beyond a day, warn beyond ten minutes (:mod:`simulate.budget`)."""
-    from simulate.budget import BudgetError, check_cost
+    from fabric_optics.errors import InputError
 
-    target = config.target_rel_err if target is None else target
-    max_photons = config.max_photons if max_photons is None else max_photons
-    try:
-        warning = check_cost(config, wavelengths, target, max_photons, runs=runs)
-    except BudgetError as exc:
-        raise _UsageError(str(exc)) from None
+    try:        # the estimate the Python interface applies too (fabric_optics.validate.cost)
+        warning = validate.cost(config, wavelengths, target, max_photons, runs=runs)
+    except InputError as exc:
+        raise _UsageError(str(exc.__cause__ or exc)) from None
     if warning:
         print(f"simulate {command}: warning: {warning}", file=sys.stderr)
 
