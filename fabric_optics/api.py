@@ -106,7 +106,6 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
 def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = False) -> Path:
     """Write ``dataset`` as a folder. An existing non-empty folder is replaced only with
     ``force=True`` (:class:`OutputExistsError` otherwise); the write is atomic per file."""
-    from gonio.data.claim import claim_output
     from gonio.data.dataset import write_dataset as _write
     from gonio.data.outputs import JOURNAL_NAME, is_run_folder
 
@@ -114,7 +113,7 @@ def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = Fa
         raise InputError(f"dataset: expected a Dataset, got {type(dataset).__name__}")
     out = _v.out_path("path", path)
     _v.flag("force", force)
-    with claim_output(out, option="path="):
+    with _v.claimed("path", out):
         if is_run_folder(out):
             raise OutputExistsError(f"{out}: is a run folder (it holds {JOURNAL_NAME}; its dataset is rebuilt from "
                                     "that journal): choose another path (a run folder is never replaced, not even "
@@ -359,8 +358,6 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     ``colour_hold=False``: the classic and summation fits weigh the colour by ``colour_weight`` only, without
     holding it within the tolerance (``simulate fit --no-colour-hold``).
     """
-    from gonio.data.claim import claim_output
-
     _v.integer("max_evaluations", max_evaluations, 1, 10**6, none=True)
     _v.integer("max_runs", max_runs, 2, 10**4, none=True)
     _v.rel_err("target_rel_err", target_rel_err)
@@ -374,7 +371,7 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         _v.flag(arg, value)
     data = _dataset(measured)
     _v.measurement_rows(f"measured ({data.path or data.name})", len(data))
-    with claim_output(_v.out_path("out", out), option="out="):     # one writer of the fit's folder
+    with _v.claimed("out", _v.out_path("out", out)):     # one writer of the fit's folder
         return prepare_fit(config, data, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
                            max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
                            colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
@@ -399,8 +396,6 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
     evaluations); ``anisotropic`` 1, 2 or 4: keep the model's anisotropy with ``azimuths``
     incidence azimuths over 360/``anisotropic`` deg. ``description`` and ``provenance`` (merged)
     are written into a dataset's file."""
-    from gonio.data.claim import claim_output
-
     out = _v.out_path("path", path)
     _v.choice("method", method, ("summation", "classic", "mc"))
     _v.wavelengths("wavelengths_nm", wavelengths_nm)
@@ -420,7 +415,7 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
         raise InputError(f"provenance: expected a dict, got {type(provenance).__name__}")
     if not isinstance(source, (Dataset, SimulationConfig, str, os.PathLike)):
         raise InputError(f"source: expected a config, preset name, path or Dataset, got {type(source).__name__}")
-    with claim_output(out, option="path="):
+    with _v.claimed("path", out):
         return _export_bsdf(source, out, method=method, wavelengths_nm=wavelengths_nm, rgb=rgb,
                             resolution=resolution, incidences=incidences, target_rel_err=target_rel_err, seed=seed,
                             threads=threads, max_photons=max_photons, check_pairs=check_pairs,
@@ -470,7 +465,6 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
     ``fixtures/real/acrylic_felt_green_rgb.bsdf``) through the real driver and protocols, as
     ``gonio demo`` does; returns the measured dataset written in ``out``. Without ``plan`` the
     red-cotton plan's geometry is used, named after the sample."""
-    from gonio.data.claim import claim_output
     from gonio.data.outputs import OutputRefused
     from gonio.demo import run_demo
     from gonio.mock.samples import SampleError
@@ -481,7 +475,7 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
     _v.flag("force", force)
     _v.flag("progress", progress)
     plan_obj = load_plan("red-cotton" if plan is None else plan)
-    with claim_output(out, option="out="):
+    with _v.claimed("out", out):
         try:
             run_demo(out, plan_obj, seed=seed, force=force, progress=progress, sample=sample,
                      name_from_sample=plan is None and sample != "red-cotton")

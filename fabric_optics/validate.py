@@ -16,7 +16,8 @@ from __future__ import annotations
 import math
 import numbers
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ from fabric_optics.errors import InputError
 
 __all__ = ["MAX_SEED", "MAX_WAVELENGTHS", "MAX_CHECK_PAIRS", "MAX_AZIMUTHS", "MAX_MEASUREMENT_ROWS",
            "integer", "number", "rel_err", "seed", "threads", "choice", "flag", "text", "path", "out_path",
-           "wavelengths", "cost", "measurement_rows"]
+           "wavelengths", "cost", "measurement_rows", "claimed"]
 
 #: Seeds of the fiber/fabric runs: the Monte Carlo derives per-batch streams as seed * 1_000_003 + ...
 #: in 64-bit integers, so seeds stay below 2^31.
@@ -193,3 +194,25 @@ def measurement_rows(what: str, rows: int, limit: int | None = None) -> None:
     if rows > limit:
         raise InputError(f"{what}: {rows:,} rows; a fit takes at most {limit:,} (it evaluates the model at every "
                          "row many times): thin the measurement (fewer geometries or wavelengths)")
+
+
+@contextmanager
+def claimed(name: str, out: Path) -> Iterator[None]:
+    """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`), for a
+    function whose argument ``name`` gives it: another writer of ``out`` is refused at once
+    (:class:`~fabric_optics.errors.OutputBusyError`), an output where no lock can be created (a folder
+    that cannot be written) is an :class:`InputError` naming the argument."""
+    from gonio.data.claim import OutputBusy, claim_output
+
+    from fabric_optics.errors import OutputBusyError
+
+    stack = ExitStack()
+    try:
+        stack.enter_context(claim_output(out, option=f"{name}="))
+    except OutputBusy as exc:
+        raise OutputBusyError(str(exc)) from exc
+    except OSError as exc:
+        raise InputError(f"{name}={os.fspath(out)!r}: cannot be written there ({exc.strerror or exc}); choose an "
+                         "output in a writable folder") from exc
+    with stack:
+        yield
