@@ -396,7 +396,7 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
     evaluations); ``anisotropic`` 1, 2 or 4: keep the model's anisotropy with ``azimuths``
     incidence azimuths over 360/``anisotropic`` deg. ``description`` and ``provenance`` (merged)
     are written into a dataset's file."""
-    out = _v.out_path("path", path)
+    out = _v.out_path("path", path, file=True)
     _v.choice("method", method, ("summation", "classic", "mc"))
     _v.wavelengths("wavelengths_nm", wavelengths_nm)
     for arg, value in (("rgb", rgb), ("force", force), ("progress", progress)):
@@ -415,7 +415,7 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
         raise InputError(f"provenance: expected a dict, got {type(provenance).__name__}")
     if not isinstance(source, (Dataset, SimulationConfig, str, os.PathLike)):
         raise InputError(f"source: expected a config, preset name, path or Dataset, got {type(source).__name__}")
-    with _v.claimed("path", out):
+    with _v.claimed("path", out, file=True):
         return _export_bsdf(source, out, method=method, wavelengths_nm=wavelengths_nm, rgb=rgb,
                             resolution=resolution, incidences=incidences, target_rel_err=target_rel_err, seed=seed,
                             threads=threads, max_photons=max_photons, check_pairs=check_pairs,

@@ -134,11 +134,14 @@ def path(name: str, value: Any, *, none: bool = False) -> Path | None:
     return Path(p)
 
 
-def out_path(name: str, value: Any) -> Path:
-    """An output path that can be written: its nearest existing folder is a writable folder."""
+def out_path(name: str, value: Any, *, file: bool = False) -> Path:
+    """An output path that can be written: its nearest existing folder is a writable folder;
+    ``file``: a file output, whose folder must exist."""
     p = path(name, value)
     assert p is not None
     parent = Path(os.path.abspath(p)).parent
+    if file and not parent.is_dir():
+        raise InputError(f"{name}={os.fspath(p)!r}: the folder {parent} does not exist; create it or choose another")
     while not parent.exists():
         if parent.is_symlink() or parent == parent.parent:
             break
@@ -197,18 +200,19 @@ def measurement_rows(what: str, rows: int, limit: int | None = None) -> None:
 
 
 @contextmanager
-def claimed(name: str, out: Path) -> Iterator[None]:
+def claimed(name: str, out: Path, *, file: bool = False) -> Iterator[None]:
     """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`), for a
     function whose argument ``name`` gives it: another writer of ``out`` is refused at once
     (:class:`~fabric_optics.errors.OutputBusyError`), an output where no lock can be created (a folder
-    that cannot be written) is an :class:`InputError` naming the argument."""
+    that cannot be written) is an :class:`InputError` naming the argument. ``file``: a file output (its
+    folder is not created for the lock)."""
     from gonio.data.claim import OutputBusy, claim_output
 
     from fabric_optics.errors import OutputBusyError
 
     stack = ExitStack()
     try:
-        stack.enter_context(claim_output(out, option=f"{name}="))
+        stack.enter_context(claim_output(out, option=f"{name}=", parents=not file))
     except OutputBusy as exc:
         raise OutputBusyError(str(exc)) from exc
     except OSError as exc:

@@ -338,15 +338,16 @@ def refuse_existing(out: str | os.PathLike, force: bool, *, flag: str = "--out")
 
 
 @contextmanager
-def claim(out: str | os.PathLike, option: str = "--out") -> Iterator[None]:
+def claim(out: str | os.PathLike, option: str = "--out", *, file: bool = False) -> Iterator[None]:
     """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`):
     a second writer of the same output, or a claim lost before the final rename, is one
-    :class:`UsageError` line (exit 2); an output whose folder cannot be written, too."""
+    :class:`UsageError` line (exit 2); an output whose folder cannot be written, too. ``file``: a file
+    output (its folder is not created for the lock: the writer refuses a missing folder itself)."""
     from gonio.data.claim import OutputBusy, claim_output
 
     stack = ExitStack()
     try:
-        stack.enter_context(claim_output(out, option=option))
+        stack.enter_context(claim_output(out, option=option, parents=not file))
     except OutputBusy as exc:
         raise UsageError(str(exc)) from None
     except OSError as exc:

@@ -534,7 +534,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         out = getattr(args, "out", None)
         if args.command in _CLAIMING and out:
-            with common.claim(out):   # one writer of --out from its check to its final rename
+            with common.claim(out, file=args.command in ("export", "bench-driver")):   # one writer of --out
                 return handlers[args.command](args)
         return handlers[args.command](args)
     except (_UsageError, *_USER_ERRORS) as exc:

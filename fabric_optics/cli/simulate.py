@@ -863,7 +863,7 @@ def _export_run(args: argparse.Namespace) -> int:
     from fabric_optics import api
 
     config = api.load_config(args.config)
-    with common.claim(args.out):
+    with common.claim(args.out, file=True):
         return _export_claimed(args, api, config)
 
 
@@ -893,6 +893,10 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 #: Commands that may build woven yarn tables or structured-summation walks, i.e. use the table cache
 #: (simulate.fiber.tablecache; the fit's walks: fabric_optics.fitting.structure.walk_structure).
 _TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
+
+
+#: Commands whose --out is a file (the others write a folder): the claim does not create its folder.
+_FILE_OUTPUTS = ("export", "weave")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -946,6 +950,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from simulate.fiber import tablecache
 
             tablecache.max_bytes()   # a bad FABRIC_OPTICS_CACHE_MAX_BYTES: exit 2 now, not after the run
+        out = getattr(args, "out", None)
+        if out:   # one writer of --out for the whole run (re-entrant: fabric, fit, export claim it too)
+            with common.claim(out, file=args.command in _FILE_OUTPUTS):
+                return run(args)
         return run(args)
     except (_UsageError, InputError, OutputExistsError) as exc:
         print(f"simulate {args.command}: error: {printable(exc)}", file=sys.stderr)

@@ -69,7 +69,7 @@ def _busy(out: Path, option: str) -> OutputBusy:
 
 
 def _acquire(out: Path, lock: Path, option: str) -> tuple[int, tuple[int, int]]:
-    lock.parent.mkdir(parents=True, exist_ok=True)
+    lock.parent.mkdir(parents=True, exist_ok=True)      # (parents=False: claim_output checked it exists)
     while True:
         fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
         try:
@@ -98,17 +98,23 @@ def _acquire(out: Path, lock: Path, option: str) -> tuple[int, tuple[int, int]]:
 
 
 @contextmanager
-def claim_output(out: str | os.PathLike, *, option: str = "--out") -> Iterator[Path]:
+def claim_output(out: str | os.PathLike, *, option: str = "--out", parents: bool = True) -> Iterator[Path]:
     """Hold the claim on the output ``out`` (a file or a folder, existing or not) for the block.
 
     Raises :class:`OutputBusy` at once when another process or thread holds it; :class:`OSError`
     (naming the lock file) when the lock file cannot be created, e.g. an output in a folder that
     cannot be written. ``option`` names the output in the message (``--out``, ``path=``).
+    ``parents``: create the folders above ``out`` for the lock file (a folder output, which its
+    writer creates anyway); ``False`` (a file output, whose writer refuses a missing folder): an
+    output whose folder does not exist is not claimed, its writer's own refusal follows.
     Yields the lock file's path.
     """
     key = _key(out)
     lock = lock_path(out)
     me = threading.get_ident()
+    if not parents and not lock.parent.is_dir():
+        yield lock
+        return
     with _GUARD:
         held = _HELD.get(key)
         if held is not None:

@@ -228,3 +228,44 @@ def test_a_folder_that_cannot_be_written_is_refused_before_any_work(tmp_path):
     # the permission check, or as root (which passes it) the claim, whose lock file cannot be created
     with pytest.raises(fo.InputError, match="path=.*/proc"):
         fo.write_dataset(_dataset(0.4, "x"), Path("/proc/x"))
+
+
+MEASURED = Path(__file__).resolve().parents[2] / "fixtures" / "analytic" / "measured_red"
+SIM = MEASURED.parent / "sim_scaled"
+FELT = MEASURED.parents[1] / "real" / "acrylic_felt_green_rgb.bsdf"
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "fabric", "red-cotton", "--method", "classic", "--plan", "quick", "--out", "OUT"],
+    ["simulate", "fit", "red-cotton", str(MEASURED), "--free", "rms_slope", "--out", "OUT"],
+    ["simulate", "export", "red-cotton", "--method", "classic", "--out", "OUT"],
+    ["simulate", "fiber", "red-cotton", "--out", "OUT"],
+    ["compare", "report", str(MEASURED), str(SIM), "--out", "OUT"],
+    ["gonio", "truth", "lambert:0.5", "--plan", "quick", "--out", "OUT"],
+    ["gonio", "import", "rgl-bsdf", str(FELT), "--out", "OUT"],
+    ["gonio", "export", str(MEASURED), "--out", "OUT"],
+    ["gonio", "demo", "--plan", "quick", "--out", "OUT", "--no-progress"],
+    ["gonio", "bench-driver", "--plan", "quick", "--out", "OUT"],
+], ids=lambda argv: " ".join(argv[:2]))
+def test_every_writer_is_refused_while_another_holds_its_output(tmp_path, capsys, argv):
+    from fabric_optics.cli import compare, gonio, simulate
+
+    out = tmp_path / "out"
+    taken, done = threading.Event(), threading.Event()
+
+    def hold():
+        with claim_output(out):
+            taken.set()
+            done.wait(60)
+    holder = threading.Thread(target=hold)
+    holder.start()
+    try:
+        assert taken.wait(10)
+        main = {"simulate": simulate.main, "compare": compare.main, "gonio": gonio.main}[argv[0]]
+        assert main([str(out) if a == "OUT" else a for a in argv[1:]]) == 2
+    finally:
+        done.set()
+        holder.join()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "another writer is writing this output now" in err[0] and str(out) in err[0], err
+    assert not out.exists()
