@@ -412,6 +412,8 @@ def _procedure(f: _Fields) -> Procedure:
 def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     """Validate plan TOML text (bytes or str) and build a :class:`Plan`; raises :class:`PlanError`."""
     file = str(path)
+    if isinstance(raw, str):
+        raw = raw.encode("utf-8", errors="surrogatepass")
     data = toml_text.loads(raw, file, PlanError, "plan", 3)
     top = _Fields(data, "", file)
     name = top.get("name", Path(file).stem)
