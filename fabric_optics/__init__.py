@@ -18,9 +18,12 @@ from fabric_optics.api import (
     IMPORT_FORMATS,
     Comparison,
     FitJob,
+    FileSystemError,
     FitOutcome,
     FitWarning,
     InputError,
+    InternalError,
+    OutputBusyError,
     OutputExistsError,
     ToolkitError,
     Verdict,
@@ -40,7 +43,8 @@ from fabric_optics.api import (
     write_report,
 )
 
-__all__ = ["__version__", "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS", "Comparison", "FitJob", "FitOutcome",
-           "FitWarning", "InputError", "OutputExistsError", "ToolkitError", "Verdict", "check", "compare", "export_bsdf", "fit",
-           "import_measurement", "load_config", "load_plan", "measure_on_mock", "prepare_fit", "read_dataset", "simulate", "truth",
-           "write_dataset", "write_report"]
+__all__ = ["__version__", "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS", "Comparison", "FileSystemError", "FitJob",
+           "FitOutcome", "FitWarning", "InputError", "InternalError", "OutputBusyError", "OutputExistsError",
+           "ToolkitError", "Verdict", "check", "compare", "export_bsdf", "fit", "import_measurement", "load_config",
+           "load_plan", "measure_on_mock", "prepare_fit", "read_dataset", "simulate", "truth", "write_dataset",
+           "write_report"]

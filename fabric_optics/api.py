@@ -21,32 +21,30 @@ fabric_optics.api.InputError: ...no-such-preset...
 
 from __future__ import annotations
 
-import functools
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 from compare.comparison import Comparison
-from compare.errors import CompareError
 from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
-from gonio.acquisition.plan import Plan, PlanError
+from gonio.acquisition.plan import Plan
 from gonio.data.dataset import Dataset
 from gonio.data.formats import FORMATS
-from gonio.data.schema import DatasetError
 from simulate.config import SimulationConfig
-from simulate.config_table import ConfigError
-from simulate.fabric.summation import FabricError
-from fabric_optics.fitting.errors import FitError, FitWarning
+from fabric_optics import validate as _v
+from fabric_optics.errors import (FileSystemError, InputError, InternalError, OutputBusyError,
+                                  OutputExistsError, ToolkitError, typed_errors)
+from fabric_optics.fitting.errors import FitWarning
 from fabric_optics.fitting.methods import DEFAULT_METHOD, METHODS
 
 if TYPE_CHECKING:
     from fabric_optics.fitting.outputs import FitResult
 
 __all__ = [
-    "ToolkitError", "InputError", "OutputExistsError",
+    "ToolkitError", "InputError", "OutputExistsError", "OutputBusyError", "FileSystemError", "InternalError",
     "load_config", "load_plan", "read_dataset", "write_dataset",
     "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "prepare_fit", "FitJob",
     "FitOutcome", "FitWarning", "export_bsdf", "import_measurement", "write_report", "Comparison",
@@ -61,34 +59,8 @@ FIT_METHODS = tuple(METHODS)
 is not one: its choice changes between evaluations."""
 
 
-class ToolkitError(Exception):
-    """Base of the errors this interface raises."""
-
-
-class InputError(ToolkitError, ValueError):
-    """A config, plan, dataset, parameter or value that cannot be used; the message names it and
-    says what to do. The library's own error is kept as ``__cause__``."""
-
-
-class OutputExistsError(ToolkitError, FileExistsError):
-    """The output path holds something already and ``force`` was not given."""
-
-
-_INPUT_ERRORS: tuple[type[Exception], ...] = (ConfigError, PlanError, DatasetError, FabricError, CompareError)
-_F = TypeVar("_F", bound=Callable[..., Any])
-
-
-def _typed_errors(fn: _F) -> _F:
-    """Re-raise the libraries' input errors as :class:`InputError` (the original as ``__cause__``)."""
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return fn(*args, **kwargs)
-        except ToolkitError:
-            raise
-        except _INPUT_ERRORS + (FitError,) as exc:
-            raise InputError(str(exc)) from exc
-    return wrapper  # type: ignore[return-value]
+#: Every function below raises only :class:`ToolkitError` subclasses (:mod:`fabric_optics.errors`)
+_typed_errors = typed_errors
 
 
 @_typed_errors
@@ -122,6 +94,7 @@ def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfi
 
     if isinstance(config, SimulationConfig):
         return config
+    _v.path("config", config)
     return _load(config if isinstance(config, (str, Path)) else Path(config))
 
 
@@ -156,6 +129,7 @@ def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
 
     if isinstance(plan, Plan):
         return plan
+    _v.path("plan", plan)
     return _load(plan if isinstance(plan, (str, Path)) else Path(plan))
 
 
@@ -191,6 +165,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     """
     from gonio.data.dataset import read_dataset as _read
 
+    _v.path("path", path)
     return _read(path)
 
 
@@ -231,11 +206,20 @@ def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = Fa
     fabric_optics.api.OutputExistsError: ...exists; pass force=True to replace it
     """
     from gonio.data.dataset import write_dataset as _write
+    from gonio.data.outputs import JOURNAL_NAME, is_run_folder
 
-    out = Path(path)
-    if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
-        raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
-    return _write(dataset, out)
+    if not isinstance(dataset, Dataset):
+        raise InputError(f"dataset: expected a Dataset, got {type(dataset).__name__}")
+    out = _v.out_path("path", path)
+    _v.flag("force", force)
+    with _v.claimed("path", out):
+        if is_run_folder(out):
+            raise OutputExistsError(f"{out}: is a run folder (it holds {JOURNAL_NAME}; its dataset is rebuilt from "
+                                    "that journal): choose another path (a run folder is never replaced, not even "
+                                    "with force=True)")
+        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
+            raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
+        return _write(dataset, out)
 
 
 @_typed_errors
@@ -296,7 +280,16 @@ def simulate(config: str | os.PathLike | SimulationConfig, plan: str | os.PathLi
 
     if method not in FABRIC_METHODS:
         raise InputError(f"method {method!r}: choose one of {', '.join(FABRIC_METHODS)}")
-    return fabric_dataset(load_config(config), load_plan(plan), method, target_rel_err=target_rel_err, seed=seed,
+    _v.rel_err("target_rel_err", target_rel_err)
+    _v.seed("seed", seed)
+    _v.threads("threads", threads)
+    _v.integer("max_photons", max_photons, 1, 10**15, none=True)
+    _v.flag("measurable_only", measurable_only)
+    _v.flag("progress", progress)
+    _v.number("max_seconds", max_seconds, 0.0)
+    config, plan = load_config(config), load_plan(plan)
+    _v.cost(config, plan.wavelengths_nm, target_rel_err, max_photons)
+    return fabric_dataset(config, plan, method, target_rel_err=target_rel_err, seed=seed,
                           threads=threads, max_photons=max_photons, measurable_only=measurable_only,
                           progress=progress, max_seconds=max_seconds)
 
@@ -343,6 +336,20 @@ def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os
     """
     from compare.comparison import compare_datasets
 
+    _v.number("window_deg", window_deg, 0.0, 90.0, lo_open=True)
+    _v.text("illuminant", illuminant, max_len=64)
+    if not isinstance(measured, Dataset):
+        _v.path("measured", measured)
+    if not isinstance(simulated, (Dataset, str, os.PathLike)):
+        if not isinstance(simulated, (list, tuple)):
+            raise InputError(f"simulated={simulated!r}: expected a dataset, a dataset folder or a list of them")
+        if not simulated:
+            raise InputError("simulated: no dataset; give at least one")
+        for k, sim in enumerate(simulated):
+            if not isinstance(sim, Dataset):
+                _v.path(f"simulated[{k}]", sim)
+    elif not isinstance(simulated, Dataset):
+        _v.path("simulated", simulated)
     sims = [simulated] if isinstance(simulated, (Dataset, str, os.PathLike)) else list(simulated)
     return compare_datasets(_dataset(measured), [_dataset(s) for s in sims], window_deg=window_deg,
                             illuminant=illuminant)
@@ -395,6 +402,7 @@ class Verdict:
         return "\n".join(lines)
 
 
+@_typed_errors
 def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float = DEFAULT_MAX_NRMSE,
           max_hue_diff: float = DEFAULT_MAX_HUE_DIFF, max_sat_diff: float = DEFAULT_MAX_SAT_DIFF,
           max_level_ratio: float = DEFAULT_MAX_LEVEL_RATIO) -> Verdict:
@@ -434,6 +442,12 @@ def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float =
     >>> verdict.passed, verdict.failures()[0]
     (False, 'overall NRMSE')
     """
+    if not isinstance(comparison, Comparison):
+        raise InputError(f"comparison: expected a Comparison (from compare()), got {type(comparison).__name__}")
+    _v.text("name", name, none=True)
+    for arg, value in (("max_nrmse", max_nrmse), ("max_hue_diff", max_hue_diff), ("max_sat_diff", max_sat_diff),
+                       ("max_level_ratio", max_level_ratio)):
+        _v.number(arg, value, 0.0)
     name = name if name is not None else next(iter(comparison.simulated))
     if name not in comparison.simulated:
         raise InputError(f"no simulation named {name!r} in the comparison ({', '.join(comparison.simulated)})")
@@ -582,11 +596,25 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     holding it within the tolerance (``simulate fit --no-colour-hold``). A fit whose colour is left off, or that
     never moved from its start, warns with :class:`FitWarning` (``outcome.passed``, ``outcome.warnings``).
     """
-    return prepare_fit(config, measured, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
-                       max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
-                       colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
-                       starts=starts, resume=resume, force=force, absolute=absolute,
-                       colour_hold=colour_hold).run(progress=progress)
+    _v.integer("max_evaluations", max_evaluations, 1, 10**6, none=True)
+    _v.integer("max_runs", max_runs, 2, 10**4, none=True)
+    _v.rel_err("target_rel_err", target_rel_err)
+    _v.seed("seed", seed)
+    _v.threads("threads", threads)
+    _v.number("colour_weight", colour_weight, 0.0)
+    _v.wavelengths("wavelengths_nm", wavelengths_nm)
+    _v.integer("starts", starts, 1, 1000)
+    for arg, value in (("resume", resume), ("force", force), ("progress", progress), ("absolute", absolute),
+                       ("colour_hold", colour_hold)):
+        _v.flag(arg, value)
+    data = _dataset(measured)
+    _v.measurement_rows(f"measured ({data.path or data.name})", len(data))
+    with _v.claimed("out", _v.out_path("out", out)):     # one writer of the fit's folder
+        return prepare_fit(config, data, free, out, method=method, dye=dye, max_evaluations=max_evaluations,
+                           max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
+                           colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
+                           starts=starts, resume=resume, force=force, absolute=absolute,
+                           colour_hold=colour_hold).run(progress=progress)
 
 
 @_typed_errors
@@ -656,13 +684,40 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
     >>> Path(result.path).name, result.provenance["coverage"]["incidences_deg"]
     ('red.bsdf', [0.0, 30.0, 45.0, 60.0])
     """
-    out = Path(path)
+    out = _v.out_path("path", path, file=True)
+    _v.choice("method", method, ("summation", "classic", "mc"))
+    _v.wavelengths("wavelengths_nm", wavelengths_nm)
+    for arg, value in (("rgb", rgb), ("force", force), ("progress", progress)):
+        _v.flag(arg, value)
+    _v.integer("resolution", resolution, 4, 256)
+    _v.integer("incidences", incidences, 2, 64)
+    _v.rel_err("target_rel_err", target_rel_err)
+    _v.seed("seed", seed)
+    _v.threads("threads", threads)
+    _v.integer("max_photons", max_photons, 1, 10**15, none=True)
+    _v.integer("check_pairs", check_pairs, 0, _v.MAX_CHECK_PAIRS)
+    _v.choice("anisotropic", anisotropic, (0, 1, 2, 4))
+    _v.integer("azimuths", azimuths, 3, _v.MAX_AZIMUTHS)
+    _v.text("description", description, none=True)
+    if provenance is not None and not isinstance(provenance, dict):
+        raise InputError(f"provenance: expected a dict, got {type(provenance).__name__}")
+    if not isinstance(source, (Dataset, SimulationConfig, str, os.PathLike)):
+        raise InputError(f"source: expected a config, preset name, path or Dataset, got {type(source).__name__}")
+    with _v.claimed("path", out, file=True):
+        return _export_bsdf(source, out, method=method, wavelengths_nm=wavelengths_nm, rgb=rgb,
+                            resolution=resolution, incidences=incidences, target_rel_err=target_rel_err, seed=seed,
+                            threads=threads, max_photons=max_photons, check_pairs=check_pairs,
+                            anisotropic=anisotropic, azimuths=azimuths, description=description,
+                            provenance=provenance, force=force, progress=progress)
+
+
+def _export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, out: Path, *, method: str,
+                 wavelengths_nm: Sequence[float] | None, rgb: bool, resolution: int, incidences: int,
+                 target_rel_err: float | None, seed: int | None, threads: int | None, max_photons: int | None,
+                 check_pairs: int, anisotropic: int, azimuths: int, description: str | None,
+                 provenance: dict | None, force: bool, progress: bool) -> Any:
     if out.exists() and not force:
         raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
-    if not 4 <= resolution <= 256:
-        raise InputError(f"resolution {resolution}: choose 4..256 values per axis")
-    if not 2 <= incidences <= 64:
-        raise InputError(f"incidences {incidences}: choose 2..64 incidence nodes")
     if isinstance(source, Dataset):
         from gonio.data.bsdf_dataset import dataset_brdf, dataset_nodes
         from gonio.data.bsdf_export import export_bsdf as _export
@@ -682,7 +737,9 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
         import numba
 
         threads = int(numba.config.NUMBA_NUM_THREADS)
-    return export_model(load_config(source), method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
+    config = load_config(source)
+    _v.cost(config, config.wavelengths_nm if wavelengths_nm is None else wavelengths_nm, target_rel_err, max_photons)
+    return export_model(config, method, out, wavelengths_nm=wavelengths_nm, rgb=rgb, res=resolution,
                         incidences=incidences, target_rel_err=target_rel_err, seed=seed, threads=threads,
                         max_photons=max_photons, check_pairs=check_pairs, reduction=anisotropic, n_phi_i=azimuths,
                         progress=progress)
@@ -743,14 +800,20 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
     from gonio.demo import run_demo
     from gonio.mock.samples import SampleError
 
+    out = _v.out_path("out", out)
+    _v.text("sample", sample, max_len=4096)
+    _v.integer("seed", seed, 0, _v.MAX_SEED)
+    _v.flag("force", force)
+    _v.flag("progress", progress)
     plan_obj = load_plan("red-cotton" if plan is None else plan)
-    try:
-        run_demo(Path(out), plan_obj, seed=seed, force=force, progress=progress, sample=sample,
-                 name_from_sample=plan is None and sample != "red-cotton")
-    except SampleError as exc:
-        raise InputError(f"sample {sample!r}: {exc}") from exc
-    except OutputRefused as exc:
-        raise OutputExistsError(str(exc)) from exc
+    with _v.claimed("out", out):
+        try:
+            run_demo(out, plan_obj, seed=seed, force=force, progress=progress, sample=sample,
+                     name_from_sample=plan is None and sample != "red-cotton")
+        except SampleError as exc:
+            raise InputError(f"sample {sample!r}: {exc}") from exc
+        except OutputRefused as exc:
+            raise OutputExistsError(str(exc)) from exc
     return read_dataset(out)
 
 
@@ -786,6 +849,7 @@ def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset
     from gonio.mock.samples import SampleError
     from gonio.mock.truth import truth_dataset
 
+    _v.text("sample", sample, max_len=4096)
     try:
         return truth_dataset(sample, load_plan(plan))
     except SampleError as exc:
@@ -889,12 +953,16 @@ def import_measurement(path: str | os.PathLike | Sequence[str | os.PathLike], ou
             geometries = measured_plan(Path(paths[0])).geometries(measurable_only=True)
         else:
             geometries = load_plan(plan).geometries()
-    out_dir = None if out is None else Path(out)
-    if out_dir is not None:
+    _v.flag("force", force)
+    _v.flag("keep_grazing", keep_grazing)
+    if out is None:
+        return import_files(fmt, paths, geometries, scale=scale, white=white, white_reflectance=white_reflectance,
+                            keep_grazing=keep_grazing)
+    out_dir = _v.out_path("out", out)
+    with _v.claimed("out", out_dir):     # one writer of the dataset's folder, from its check to its last rename
         _refuse_existing(out_dir, force)
-    dataset = import_files(fmt, paths, geometries, scale=scale, white=white, white_reflectance=white_reflectance,
-                           keep_grazing=keep_grazing)
-    if out_dir is not None:
+        dataset = import_files(fmt, paths, geometries, scale=scale, white=white,
+                               white_reflectance=white_reflectance, keep_grazing=keep_grazing)
         from gonio.data.dataset import write_dataset as _write
         from gonio.data.outputs import WRITTEN_BY
 
@@ -962,12 +1030,26 @@ def write_report(measured: str | os.PathLike | Dataset, *models: str | os.PathLi
     >>> report.name, sorted(p.name for p in out.iterdir())
     ('report.html', ['figures', 'metrics.json', 'report.html'])
     """
+    out_dir = _v.out_path("out", out)
+    _v.flag("force", force)
+    _v.flag("svg", svg)
+    _v.number("window_deg", window_deg, 0.0, 90.0, lo_open=True)
+    _v.text("illuminant", illuminant, max_len=64)
+    with _v.claimed("out", out_dir):     # one writer of the report's folder, from its check to its last rename
+        return _write_report_claimed(measured, models, out_dir, force=force, fits=fits, seed_sample=seed_sample,
+                                     renders=renders, svg=svg, window_deg=window_deg, illuminant=illuminant)
+
+
+def _write_report_claimed(measured: str | os.PathLike | Dataset, models: Sequence[str | os.PathLike | Dataset],
+                          out_dir: Path, *, force: bool, fits: Sequence[str | os.PathLike],
+                          seed_sample: str | os.PathLike | Dataset | None, renders: str | os.PathLike | None,
+                          svg: bool, window_deg: float, illuminant: str) -> Path:
+    """`write_report` once its arguments are checked and its folder claimed."""
     from compare.comparison import compare_datasets
     from compare.report import Section
     from compare.report import write_report as _write_report
     from compare.sweep import is_sweep_dir, write_sweep_report
 
-    out_dir = Path(out)
     if renders is not None and not Path(renders).is_dir():
         raise InputError(f"renders {renders}: not a folder (make one with `compare render FILE.bsdf ... --out DIR`)")
     if renders is not None and not models:

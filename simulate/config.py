@@ -108,7 +108,6 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -116,6 +115,7 @@ from typing import Any
 
 import numpy as np
 
+from gonio.data import toml_text
 from simulate.config_dye import DyeSpectrum, dye_from_table, knots_curve
 from simulate.config_table import ConfigError, Table, show
 from simulate.fabric.structure import structure_from_table
@@ -414,16 +414,8 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     file = Path(path).name
     if isinstance(raw, str):
         raw = raw.encode("utf-8", errors="surrogatepass")
-    try:
-        text = raw.decode("utf-8")
-        data = tomllib.loads(text)
-    except (UnicodeDecodeError, UnicodeEncodeError):
-        raise ConfigError(f"{file}: not UTF-8 text; a config is a TOML file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{file}: invalid TOML: {exc}") from None
-    except RecursionError:      # tomllib recurses once per nested array or inline table
-        raise ConfigError(f"{file}: arrays or inline tables nested too deeply for a config (the schema "
-                          f"nests at most 4 levels)") from None
+    data = toml_text.loads(raw, file, ConfigError, "config", 4)
+    text = raw.decode("utf-8")                  # valid UTF-8: loads checked it
     top = Table(data, "", file)
     name = top.string("name", Path(path).stem) or Path(path).stem
     description = top.raw("description", "")

@@ -30,6 +30,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from gonio.data import claim
 from gonio.data.dataset import Dataset, write_dataset
 
 __all__ = ["OutputError", "recover", "recover_all", "write_dataset_dir", "side_folders"]
@@ -140,6 +141,7 @@ def write_dataset_dir(dataset: Dataset, out: str | os.PathLike, *, recovered: bo
         tmp = _side(out, "partial")
         write_dataset(dataset, tmp)
         os.chmod(tmp, 0o777 & ~_umask())     # mkdtemp's 0700 is for secrets; a dataset is shared
+        claim.verify(out)                    # the claim still ours at the final rename
         if out.exists():
             old = _side(out, "old")
             os.rename(out, old)              # replaces the empty placeholder atomically

@@ -28,16 +28,52 @@ def read_fit(fit_dir: str | Path) -> dict:
     """``fit_dir/fit.json`` as a dict; :class:`CompareError` (one line) when it is not a fit."""
     path = Path(fit_dir) / "fit.json"
     try:
+        if path.stat().st_size > MAX_FIT_BYTES:
+            raise CompareError(f"--fit {fit_dir}: fit.json holds {path.stat().st_size:,} bytes; a fit's summary "
+                               f"holds a few kB (at most {MAX_FIT_BYTES:,}): not written by simulate fit")
+        if not path.is_file():
+            raise CompareError(f"--fit {fit_dir}: fit.json is not a regular file")
         doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise CompareError(f"--fit {fit_dir}: no fit.json there (give the --out folder of "
                            "`simulate fit`)") from None
+    except RecursionError:
+        raise CompareError(f"--fit {fit_dir}: fit.json is nested too deeply to be read (not written by "
+                           "simulate fit)") from None
     except (OSError, ValueError) as exc:
         raise CompareError(f"--fit {fit_dir}: fit.json unreadable ({exc})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), list):
         raise CompareError(f"--fit {fit_dir}: fit.json has no parameters list (not written by "
                            "simulate fit)")
+    _check_fields(doc, fit_dir)
     return doc
+
+
+#: Largest fit.json read (a fit's summary is a few kB).
+MAX_FIT_BYTES = 16 * 2**20
+
+
+def _check_fields(doc: dict, fit_dir: str | Path) -> None:
+    """Refuse a fit.json whose fields have the wrong types (a hand edit): one line naming the field."""
+    def fail(field: str, what: str) -> None:
+        raise CompareError(f"--fit {fit_dir}: fit.json field '{field}' must be {what}, got "
+                           f"{type(value).__name__}")
+
+    for key in ("start", "fitted", "info", "uncertainty"):
+        value = doc.get(key)
+        if value is not None and not isinstance(value, dict):
+            fail(key, "an object")
+    for key in ("start", "fitted"):
+        for figure in ("nrmse", "dh", "ds"):
+            value = (doc.get(key) or {}).get(figure)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                fail(f"{key}.{figure}", "a number")
+    for k, value in enumerate(doc["parameters"]):
+        if not isinstance(value, dict):
+            fail(f"parameters[{k}]", "an object")
+    for key, value in (("warnings", doc.get("warnings")), ("info.notes", (doc.get("info") or {}).get("notes"))):
+        if value is not None and not isinstance(value, list):
+            fail(key, "a list")
 
 
 def _num(x, digits: int = 4) -> str:
@@ -51,8 +87,13 @@ def _num(x, digits: int = 4) -> str:
 def _figures(c: Mapping) -> str:
     out = f"NRMSE {_num(c.get('nrmse'))}"
     if "dh" in c:
-        out += f", dh {float(c['dh']):+.4f} turn, ds {float(c['ds']):+.4f}"
+        out += f", dh {_signed(c.get('dh'))} turn, ds {_signed(c.get('ds'))}"
     return out
+
+
+def _signed(x) -> str:
+    v = float(x) if isinstance(x, (int, float)) else math.nan
+    return f"{v:+.4f}" if math.isfinite(v) else "-"
 
 
 def _made_from(fit_dir: Path, simulated: Mapping) -> list[str]:

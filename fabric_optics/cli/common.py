@@ -56,22 +56,24 @@ import argparse
 import math
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any, NoReturn
+
+from fabric_optics import validate as _validate
 
 __all__ = ["Parser", "UsageError", "MAX_WAVELENGTHS", "parse_wavelengths", "wavelengths_arg", "int_in", "finite_number",
            "threads_arg", "rel_err_arg", "add_plan", "add_wavelengths", "add_threads", "add_target_rel_err",
            "add_seed", "add_force", "add_verbose", "add_no_progress", "add_deprecated", "deprecated",
-           "plan_of", "refuse_existing", "progress", "MAX_SEED", "DEFAULT_PLAN"]
+           "plan_of", "refuse_existing", "claim", "progress", "MAX_SEED", "DEFAULT_PLAN"]
 
 #: The plan used where a command has a default plan.
 DEFAULT_PLAN = "red-cotton"
-#: Most wavelengths a ``--wavelengths`` may name (a 1 nm grid over 400..2399 nm).
-MAX_WAVELENGTHS = 2000
-#: Seeds of the fiber/fabric runs: the Monte Carlo derives per-batch streams as seed * 1_000_003 + ...
-#: in 64-bit integers, so seeds stay below 2^31.
-MAX_SEED = 2**31 - 1
+#: Most wavelengths a ``--wavelengths`` may name, and the largest seed: the bounds of the one
+#: validation layer that the Python interface applies too (:mod:`fabric_optics.validate`).
+MAX_WAVELENGTHS = _validate.MAX_WAVELENGTHS
+MAX_SEED = _validate.MAX_SEED
 
 
 class UsageError(Exception):
@@ -342,3 +344,26 @@ def refuse_existing(out: str | os.PathLike, force: bool, *, flag: str = "--out")
         raise UsageError(f"{flag} {path}: the folder is not empty; pass --force to replace its output, "
                          "or choose a new folder")
     raise UsageError(f"{flag} {path}: exists; pass --force to replace it, or choose a new name")
+
+
+@contextmanager
+def claim(out: str | os.PathLike, option: str = "--out", *, file: bool = False) -> Iterator[None]:
+    """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`):
+    a second writer of the same output, or a claim lost before the final rename, is one
+    :class:`UsageError` line (exit 2); an output whose folder cannot be written, too. ``file``: a file
+    output (its folder is not created for the lock: the writer refuses a missing folder itself)."""
+    from gonio.data.claim import OutputBusy, claim_output
+
+    stack = ExitStack()
+    try:
+        stack.enter_context(claim_output(out, option=option, parents=not file))
+    except OutputBusy as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise UsageError(f"{option} {out}: cannot write there ({exc.strerror or exc}: {exc.filename}); choose "
+                         "a writable folder") from None
+    with stack:
+        try:
+            yield
+        except OutputBusy as exc:
+            raise UsageError(str(exc)) from None

@@ -43,6 +43,7 @@ import sys
 from typing import Sequence
 
 from gonio.data import DatasetError, read_dataset
+from gonio.data.printable import printable
 
 from compare.comparison import incomplete_datasets
 from compare.errors import CompareError
@@ -217,15 +218,15 @@ def _report(args) -> int:
     models = list(args.simulated) if sweep else [read_dataset(p) for p in args.simulated]
     if not sweep:
         for line in incomplete_datasets(measured, models):
-            log.warning("%s; the report says so in a banner", line)
+            log.warning("%s; the report says so in a banner", printable(line))
     seed = None
     if args.seed_sample is not None and models and not sweep:
         seed = read_dataset(args.seed_sample)
         _, checks = published_colour_check(seed)
-        print(f"seed sample '{seed.name}' against the published colour of red cotton "
+        print(f"seed sample '{printable(seed.name)}' against the published colour of red cotton "
               "(incidence 0, observation 10 deg):")
         for c in checks:
-            print(f"  {c.line()}")
+            print(printable(f"  {c.line()}"))
     try:
         report = api.write_report(measured, *models, out=args.out, force=args.force, fits=args.fit,
                                   seed_sample=seed, renders=args.renders, svg=args.svg,
@@ -237,7 +238,7 @@ def _report(args) -> int:
     if models and not sweep:
         overall = json.loads((Path(report).parent / "metrics.json").read_text(encoding="utf-8"))["overall"]
         for name, o in overall.items():
-            print(f"{name}: overall RMSE {o['rmse']:.4g}, NRMSE {o['nrmse']:.4g}")
+            print(printable(f"{name}: overall RMSE {o['rmse']:.4g}, NRMSE {o['nrmse']:.4g}"))
     print(f"report: {report}")
     return 0
 
@@ -248,17 +249,18 @@ def _check(args) -> int:
     incomplete = incomplete_datasets(measured, [simulated])
     if incomplete and not args.allow_incomplete:
         for line in incomplete:
-            print(f"compare check: FAIL {line}; finish the run (gonio acquire --resume) or pass "
+            print(f"compare check: FAIL {printable(line)}; finish the run (gonio acquire --resume) or pass "
                   "--allow-incomplete")
         return 1
     for line in incomplete:
-        print(f"compare check: note: {line} (compared anyway: --allow-incomplete)")
+        print(f"compare check: note: {printable(line)} (compared anyway: --allow-incomplete)")
     comparison = api.compare(measured, simulated, window_deg=args.normal_window, illuminant=args.illuminant)
     verdict = api.check(comparison, max_nrmse=args.max_nrmse, max_hue_diff=args.max_hue_diff,
                         max_sat_diff=args.max_sat_diff, max_level_ratio=args.max_level_ratio)
-    print(f"compare check: {verdict.summary()}")
+    print(printable(f"compare check: {verdict.summary()}", newlines=True))
     name = verdict.name
-    print(f"  level: {comparison.level(name).words(name, comparison.overall[name].nrmse, args.max_level_ratio, args.max_nrmse)}")
+    words = comparison.level(name).words(name, comparison.overall[name].nrmse, args.max_level_ratio, args.max_nrmse)
+    print(printable(f"  level: {words}", newlines=True))
     return 0 if verdict.passed else 1
 
 
@@ -273,12 +275,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="compare: %(levelname)s: %(message)s", stream=sys.stderr)
     try:
         if args.command == "report":
-            return _report(args)
+            with common.claim(args.out):     # one writer of --out from its check to its final rename
+                return _report(args)
         if args.command == "render":
-            return _render_cmd(args)
+            with common.claim(args.out):
+                return _render_cmd(args)
         return _check(args)
     except (DatasetError, CompareError, UsageError, api.InputError, api.OutputExistsError) as exc:
-        print(f"compare {args.command}: error: {exc}", file=sys.stderr)
+        print(f"compare {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:
         where = f" {exc.filename}" if exc.filename else ""

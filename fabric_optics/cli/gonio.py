@@ -51,6 +51,7 @@ from gonio.acquisition.record import (ReplayMismatch, TranscriptError, Transcrip
 from gonio.acquisition.session import check_run_output, replay_session, run_session
 from gonio.data import DatasetError
 from gonio.data.outputs import WRITTEN_BY, OutputRefused, check_output
+from gonio.data.printable import printable
 from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
 from gonio.instrument.probe import LinkSetupError, open_links
 
@@ -209,7 +210,7 @@ def _cmd_check_plan(args) -> int:
     plan = load_plan(plan_of(args))
     chk = plan.check()
     n_wl = len(plan.wavelengths_nm)
-    print(f"plan {plan.name} ({plan.path}): {len(plan.points())} geometries x {n_wl} wavelengths")
+    print(f"plan {printable(plan.name)} ({printable(plan.path)}): {len(plan.points())} geometries x {n_wl} wavelengths")
     print(f"measurable: {len(chk.ordered)} geometries ({len(chk.ordered) * n_wl} measurements), "
           f"ordered by rotation, incidence, detector plane, serpentine over the detector angle")
     if chk.blocked:
@@ -272,7 +273,7 @@ def _cmd_demo(args) -> int:
         _close_live_view(live)
     code = _finish(result, "demo")
     if code == EXIT_OK:
-        print(f"gonio demo: plan {plan.name} measured on the embedded mock holding {args.sample} "
+        print(f"gonio demo: plan {printable(plan.name)} measured on the embedded mock holding {printable(args.sample)} "
               f"in {elapsed_s:.1f} s; dataset in {out}/ (radiance.csv, meta.json)")
     return code
 
@@ -291,7 +292,7 @@ def _cmd_truth(args) -> int:
         raise _UsageError(str(exc)) from None
     dataset.meta[WRITTEN_BY] = "gonio truth"
     out = write_dataset(dataset, args.out)
-    print(f"gonio truth: {dataset.name}, {len(dataset)} values at the geometries of plan "
+    print(f"gonio truth: {printable(dataset.name)}, {len(dataset)} values at the geometries of plan "
           f"{plan.name}; dataset in {out}/")
     return EXIT_OK
 
@@ -480,10 +481,10 @@ def _cmd_import(args) -> int:
     out = Path(args.out)
     bands = (f"channels {''.join(dataset.channels)} ({dataset.colour_space})" if dataset.is_rgb
              else f"{len(dataset.wavelengths_nm)} wavelengths")
-    print(f"gonio import: {dataset.name}, {len(dataset.geometries())} geometries, {bands}"
+    print(f"gonio import: {printable(dataset.name)}, {len(dataset.geometries())} geometries, {bands}"
           f"{', relative units' if dataset.relative else ''}; dataset in {out}/")
     for note in import_notes(dataset):
-        print(f"gonio import: note: {note}")
+        print(f"gonio import: note: {printable(note)}")
     return EXIT_OK
 
 
@@ -521,7 +522,7 @@ def _cmd_export(args) -> int:
                                                            "measured dataset)",
                              provenance={"dataset": str(args.dataset)})
     rule = result.provenance["coverage"] if hasattr(result, "provenance") else result.coverage
-    print(f"gonio export: {dataset.name} -> {out} ({result.evaluations} interpolated values; measured "
+    print(f"gonio export: {printable(dataset.name)} -> {out} ({result.evaluations} interpolated values; measured "
           f"incidences {rule['incidences_deg']} deg, observation {rule['observation_range_deg']} deg: "
           "values outside them are clamped/blended, see the file's provenance)")
     return EXIT_OK
@@ -550,6 +551,11 @@ def build_parsers() -> dict[str, argparse.ArgumentParser]:
     return {"gonio": build_parser(), "gonio mock": mock_parser(), "gonio bench-driver": _bench_parser()}
 
 
+#: The commands that claim their --out for their whole run (:func:`fabric_optics.cli.common.claim`);
+#: ``acquire`` and ``replay`` lock their run folder for the session (gonio.acquisition.rundir).
+_CLAIMING = ("demo", "truth", "import", "export", "bench-driver")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gonio`` console script; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -572,9 +578,13 @@ def main(argv: list[str] | None = None) -> int:
                 "demo": _cmd_demo, "bench-driver": _cmd_bench, "truth": _cmd_truth,
                 "import": _cmd_import, "export": _cmd_export}
     try:
+        out = getattr(args, "out", None)
+        if args.command in _CLAIMING and out:
+            with common.claim(out, file=args.command in ("export", "bench-driver")):   # one writer of --out
+                return handlers[args.command](args)
         return handlers[args.command](args)
     except (_UsageError, *_USER_ERRORS) as exc:
-        print(f"gonio {args.command}: {exc}", file=sys.stderr)
+        print(f"gonio {args.command}: {printable(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print(f"gonio {args.command}: interrupted", file=sys.stderr)

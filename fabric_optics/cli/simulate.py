@@ -47,6 +47,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from fabric_optics import validate
+from gonio.data.printable import printable
 from fabric_optics.cli import common
 from fabric_optics.cli.common import (Parser, UsageError, add_deprecated, add_force, add_no_progress,
                                       add_plan, add_seed, add_target_rel_err, add_threads, add_verbose,
@@ -307,14 +309,12 @@ def _load_config(text: str):
 def _check_cost(command: str, config: Any, wavelengths: Any, target: float | None, max_photons: int | None,
                 runs: int = 1) -> None:
     """Refuse a run estimated beyond a day, warn beyond ten minutes (:mod:`simulate.budget`)."""
-    from simulate.budget import BudgetError, check_cost
+    from fabric_optics.errors import InputError
 
-    target = config.target_rel_err if target is None else target
-    max_photons = config.max_photons if max_photons is None else max_photons
-    try:
-        warning = check_cost(config, wavelengths, target, max_photons, runs=runs)
-    except BudgetError as exc:
-        raise _UsageError(str(exc)) from None
+    try:        # the estimate the Python interface applies too (fabric_optics.validate.cost)
+        warning = validate.cost(config, wavelengths, target, max_photons, runs=runs)
+    except InputError as exc:
+        raise _UsageError(str(exc.__cause__ or exc)) from None
     if warning:
         print(f"simulate {command}: warning: {warning}", file=sys.stderr)
 
@@ -355,14 +355,16 @@ def _fabric_run(args: argparse.Namespace) -> int:
     except api.InputError as exc:
         raise _UsageError(f"--plan: {exc}") from None
     _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
-    _prepare_fabric_out(args.out, args.force)
-    dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
-                           threads=args.threads, max_photons=args.max_photons, measurable_only=args.measurable_only,
-                           progress=_progress(args), max_seconds=args.max_seconds)
-    try:
-        write_dataset_dir(dataset, args.out)
-    except OutputError as exc:
-        raise _UsageError(str(exc)) from None
+    with common.claim(args.out):         # one writer of --out from its check to its final rename
+        _prepare_fabric_out(args.out, args.force)
+        dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
+                               threads=args.threads, max_photons=args.max_photons,
+                               measurable_only=args.measurable_only, progress=_progress(args),
+                               max_seconds=args.max_seconds)
+        try:
+            write_dataset_dir(dataset, args.out)
+        except OutputError as exc:
+            raise _UsageError(str(exc)) from None
     prov = dataset.meta["provenance"]
     err_text = f"{prov['rel_err']:.2%} (rms of u / each direction's spectral peak)"
     print(f"wrote {args.out} ({len(dataset)} rows: {prov['geometries']} geometries x "
@@ -546,10 +548,16 @@ def _fit_run(args: argparse.Namespace) -> int:
     config = api.load_config(args.config)
     try:
         measured = api.read_dataset(args.measured)
+        validate.measurement_rows(f"MEASURED {args.measured}", len(measured))
     except api.InputError as exc:
         raise _UsageError(f"MEASURED: {exc}") from None
     if args.out.exists() and not args.out.is_dir():
         raise _UsageError(f"--out {args.out}: exists and is not a directory; choose a directory path")
+    with common.claim(args.out):         # one writer of --out from its check to the last output written
+        return _fit_claimed(args, api, config, measured, mc_trend)
+
+
+def _fit_claimed(args: argparse.Namespace, api: Any, config: Any, measured: Any, mc_trend: tuple[str, ...]) -> int:
     if not (args.resume or args.force):
         refuse_existing(args.out, False)
     job = api.prepare_fit(config, measured, args.free, args.out, method=args.method, dye=args.dye,
@@ -859,11 +867,16 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _export_run(args: argparse.Namespace) -> int:
-    import time
-
     from fabric_optics import api
 
     config = api.load_config(args.config)
+    with common.claim(args.out, file=True):
+        return _export_claimed(args, api, config)
+
+
+def _export_claimed(args: argparse.Namespace, api: Any, config: Any) -> int:
+    import time
+
     refuse_existing(args.out, args.force)
     started = time.perf_counter()
     result = api.export_bsdf(config, args.out, method=args.method, wavelengths_nm=args.wavelengths, rgb=args.rgb,
@@ -887,6 +900,10 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 #: Commands that may build woven yarn tables or structured-summation walks, i.e. use the table cache
 #: (simulate.fiber.tablecache; the fit's walks: simulate.structwalk.walk.walk_structure).
 _TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
+
+
+#: Commands whose --out is a file (the others write a folder): the claim does not create its folder.
+_FILE_OUTPUTS = ("export", "weave")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -941,15 +958,27 @@ def main(argv: Sequence[str] | None = None) -> int:
             from simulate.fiber import tablecache
 
             tablecache.max_bytes()   # a bad FABRIC_OPTICS_CACHE_MAX_BYTES: exit 2 now, not after the run
+        out = getattr(args, "out", None)
+        if out:   # one writer of --out for the whole run (re-entrant: fabric, fit, export claim it too)
+            with common.claim(out, file=args.command in _FILE_OUTPUTS):
+                return run(args)
         return run(args)
     except (_UsageError, InputError, OutputExistsError) as exc:
-        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        print(f"simulate {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
     except ParameterError as exc:
         # invalid run parameters found by the library; the message names the parameter
-        print(f"simulate {args.command}: error: {exc}", file=sys.stderr)
+        print(f"simulate {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        print(f"simulate {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except SystemError as exc:
+        # Ctrl-C inside compiled code (numba, miepython) can reach here as a SystemError wrapping it
+        from fabric_optics.errors import interrupt_of
+
+        if interrupt_of(exc) is None:
+            raise
         print(f"simulate {args.command}: interrupted", file=sys.stderr)
         return 130
 

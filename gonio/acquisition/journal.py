@@ -321,9 +321,12 @@ class Journal:
         except JournalError as exc:
             raise ValueError(f"not a valid journal record: {exc}") from None
         line, self._head = _seal(self._head, record)
-        self._fh.write(line + b"\n")
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
+        try:
+            self._fh.write(line + b"\n")
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+        except OSError as exc:       # a full disk: name the journal (a torn last line is cut off on resume)
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
 
     def close(self) -> None:
         """Close the file (idempotent)."""

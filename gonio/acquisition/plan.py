@@ -112,7 +112,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -121,6 +120,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from gonio.data import toml_text
 from gonio.data.geometry import axes_to_fabric, beam_blocked
 from gonio.instrument.modbus_map import AXES, deg_to_mdeg
 
@@ -414,13 +414,7 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
     file = str(path)
     if isinstance(raw, str):
         raw = raw.encode("utf-8", errors="surrogatepass")
-    try:
-        text = raw.decode("utf-8")
-        data = tomllib.loads(text)
-    except (UnicodeDecodeError, UnicodeEncodeError):
-        raise PlanError(f"{file}: not UTF-8 text; a plan is a TOML file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise PlanError(f"{file}: invalid TOML: {exc}") from None
+    data = toml_text.loads(raw, file, PlanError, "plan", 3)
     top = _Fields(data, "", file)
     name = top.get("name", Path(file).stem)
     if not isinstance(name, str) or not name.strip():

@@ -62,11 +62,12 @@ import shutil
 import stat
 import tempfile
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, BinaryIO, Callable, Iterable, Mapping
 
 import numpy as np
 import pandas as pd
 
+from gonio.data import claim
 from gonio.data.geometry import signed_angle
 
 __all__ = [
@@ -602,29 +603,42 @@ def _csv_bytes(table: pd.DataFrame) -> bytes:
     return buffer.getvalue().encode("utf-8")
 
 
-def atomic_write(path: str | os.PathLike, data: bytes) -> None:
+def atomic_write(path: str | os.PathLike, data: bytes | Callable[[BinaryIO], object]) -> None:
     """Write ``data`` to ``path`` atomically: temporary file in the same folder, fsync, rename.
 
     The file gets the usual permissions (``0666 & ~umask``), not ``mkstemp``'s private 0600:
     datasets and reports are meant to be shared. A crash leaves either the old file or the new one.
+    ``data`` may also be a function that writes the file's bytes to the open handle it is given
+    (a mesh exporter, a large table). Every :class:`OSError` names ``path`` (``exc.filename``:
+    the final name, not the temporary one), a full disk included. When this thread claimed ``path``
+    or its folder (:func:`gonio.data.claim.claim_output`), the claim is checked before the rename.
+    This is the one atomic file writer of the toolkit's outputs.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
+            if callable(data):
+                data(handle)
+            else:
+                handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
+        claim.verify(path)
         os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+        tmp = None
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
 
 
 def write_files_together(out_dir: str | os.PathLike, files: Mapping[str, bytes]) -> list[Path]:
@@ -666,6 +680,7 @@ def write_files_together(out_dir: str | os.PathLike, files: Mapping[str, bytes])
                 os.chmod(tmp, 0o666 & ~umask)
             except OSError as exc:
                 raise OSError(exc.errno, exc.strerror, str(out / r)) from None
+        claim.verify(out)
         for r in rel:
             os.replace(stage / r, out / r)
     except BaseException:
@@ -734,10 +749,12 @@ def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
 
     ``radiance.csv`` first, then ``meta.json`` carrying its SHA-256: each file is replaced
     atomically, and a reader detects a crash between the two. Other files in ``out_dir`` (a run's
-    journal, for example) are left alone. The CSV is formatted deterministically (``%.10g``), so
-    equal datasets give byte-identical files.
+    journal, for example) are left alone. A table that :func:`read_dataset` would refuse (a NaN, a
+    negative ``beta``, ...) is refused first with its :class:`DatasetError`; nothing is written.
+    The CSV is formatted deterministically (``%.10g``), so equal datasets give byte-identical files.
     """
     out = Path(out_dir)
+    _validate_table(dataset.table, str(out / CSV_NAME), line_offset=0)   # what the reader would refuse
     out.mkdir(parents=True, exist_ok=True)
     data = _csv_bytes(dataset.table)
     meta = json.loads(json.dumps(dataset.meta, default=_json_default))

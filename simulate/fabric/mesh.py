@@ -7,14 +7,13 @@ vertex normals and the yarn tangent at each vertex (which orients the fiber BRDF
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gonio.data.dataset import atomic_write
 from simulate.fabric.weave import Weave, WeaveError
 
 if TYPE_CHECKING:
@@ -94,27 +93,11 @@ class WeaveMesh:
         if kind not in ("ply", "obj"):
             raise WeaveError(f"{path}: unknown mesh format {path.suffix or '(no suffix)'!r}; "
                              f"use a .ply or .obj file name")
-        tmp: str | None = None
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-            with os.fdopen(fd, "wb") as handle:
-                self.to_trimesh().export(handle, file_type=kind)
-                handle.flush()
-                os.fsync(handle.fileno())
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)     # mkstemp's 0600 is for secrets; a mesh is shared
-            os.replace(tmp, path)
-            tmp = None
+            atomic_write(path, lambda handle: self.to_trimesh().export(handle, file_type=kind))
         except OSError as exc:
             raise WeaveError(f"{path}: cannot write the mesh ({exc.strerror or exc}); nothing was "
                              f"written under that name") from None
-        finally:
-            if tmp is not None:
-                try:
-                    os.unlink(tmp)
-                except FileNotFoundError:
-                    pass
         return path
 
 

@@ -109,6 +109,6 @@ def test_export_refuses_an_existing_file_and_bounds_the_grid(tmp_path):
     with pytest.raises(fo.OutputExistsError):
         fo.export_bsdf(ds, target)
     assert target.read_bytes() == b"user's file"
-    with pytest.raises(fo.InputError, match="incidences 1000"):
+    with pytest.raises(fo.InputError, match="incidences=1000"):
         fo.export_bsdf(ds, tmp_path / "y.bsdf", incidences=1000)
     assert not (tmp_path / "y.bsdf").exists()

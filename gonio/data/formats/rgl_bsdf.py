@@ -242,7 +242,18 @@ class RGLBSDF:
         u_m1 = _phi2u(phi_m - phi_i if self.isotropic else phi_m)
         u_m = np.stack([_theta2u(theta_m), u_m1 - np.floor(u_m1)], axis=-1)
         params = (phi_i, theta_i)
-        sample = self._vndf.invert(u_m, params)
+        with np.errstate(divide="ignore", invalid="ignore"):     # a zero row: NaN, refused just below
+            sample = self._vndf.invert(u_m, params)
+        lost = ~np.all(np.isfinite(sample), axis=-1)
+        if np.any(lost & active):
+            # the warp divides by the table row's mass: a row of zeros where the incidence's visible normals
+            # must be (a table copied from another incidence) leaves no position to look the values up at
+            where = ", ".join(f"{t:.4g}" for t in np.unique(np.round(np.degrees(theta_i[lost & active]), 2))[:5])
+            raise FormatError(f"field 'vndf' has no visible normal where directions at incidence {where} deg "
+                              "need one (rows of zeros in its table there)", file=self.path,
+                              hint="not a consistent RGL .bsdf file: each incidence's vndf table must cover "
+                                   "its visible normals")
+        sample = np.where(lost[..., None], 0.0, sample)
         out = np.empty(wi.shape[:-1] + (self._n_bands,))
         bands = self.wavelengths_nm if self.is_spectral else np.arange(3.0)
         for k in range(self._n_bands):

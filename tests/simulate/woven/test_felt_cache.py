@@ -82,14 +82,40 @@ def test_the_key_follows_the_felt_code(monkeypatch):
     assert "simulate.nonwoven.felt" in seen[0] and "simulate.fabric.mesh" in seen[0]
 
 
+def _dot(x, y):
+    """A row-wise dot product of 3-vectors summed in the order the compiled kernel sums it,
+    ``(x0 y0 + x2 y2) + x1 y1``, with numpy's element-wise ``*`` and ``+`` (``np.einsum`` may sum in
+    another order, and fuse, depending on the CPU's vector width)."""
+    return (x[..., 0] * y[..., 0] + x[..., 2] * y[..., 2]) + x[..., 1] * y[..., 1]
+
+
+def _segment_distance_ordered(p1, d1, p2, d2):
+    """``simulate.nonwoven.felt._segment_distance`` with its dot products summed by :func:`_dot`."""
+    r = p1 - p2
+    a, e, b, c, f = _dot(d1, d1), _dot(d2, d2), _dot(d1, d2), _dot(d1, r), _dot(d2, r)
+    den = a * e - b * b
+    skew = den > 1e-12 * a * e
+    s = np.where(skew, np.clip((b * f - c * e) / np.where(skew, den, 1.0), 0.0, 1.0), 0.0)
+    t = (b * s + f) / e
+    s = np.where(t < 0.0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1.0, np.clip((b - c) / a, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    d = r + s[..., None] * d1 - t[..., None] * d2
+    return np.sqrt(_dot(d, d))
+
+
 def _free_height_numpy(p1, d1, p2, d2, span, zj, z, contact, iters):
     """The placement's lowest free height computed with numpy over all pairs at once (the compiled kernel's
-    reference: golden section for each pair's closest height, bisection for its overlap interval's ends)."""
+    reference: golden section for each pair's closest height, bisection for its overlap interval's ends).
+
+    Bit for bit on any CPU by construction: both sides use only ``+ - * /``, ``sqrt``, ``min``/``max``
+    and comparisons (IEEE 754 correctly rounded everywhere; the kernel is compiled without fastmath, so
+    LLVM fuses no multiply-add) in the same order (:func:`_dot`), so every comparison, and the mesh,
+    come out the same."""
     def gap(w, rows):
         sel = slice(None) if rows is None else rows
         p = np.array(p1[sel])
         p[:, 2] += w
-        return FM._segment_distance(p, d1[sel], p2[sel], d2[sel])
+        return _segment_distance_ordered(p, d1[sel], p2[sel], d2[sel])
 
     a, b = -span, span.copy()
     golden = 0.5 * (np.sqrt(5.0) - 1.0)

@@ -1,0 +1,140 @@
+"""The errors of the Python interface (:mod:`fabric_optics.api` re-exports them) and the wrapper that
+makes every exception reaching a caller one of them.
+
+Every exception a function of :mod:`fabric_optics.api` raises is a :class:`ToolkitError`:
+
+- :class:`InputError` (also a :class:`ValueError`): a bad argument, config, plan or dataset; the
+  message names the Python argument or the file and says what to do;
+- :class:`OutputExistsError` (also a :class:`FileExistsError`): the output holds something and
+  ``force`` was not given, or it is one that nothing replaces (a run folder);
+  :class:`OutputBusyError`: another writer is writing that output now;
+- :class:`FileSystemError` (also an :class:`OSError`, ``filename`` set): a file could not be read or
+  written (a full disk, a folder without permission); the message names the file;
+- :class:`InternalError`: anything else (a defect of the toolkit; the original is ``__cause__``).
+
+A ``KeyboardInterrupt`` passes through unchanged.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from compare.errors import CompareError
+from gonio.acquisition.journal import JournalError
+from gonio.acquisition.plan import PlanError
+from gonio.data.claim import OutputBusy
+from gonio.data.outputs import OutputRefused
+from gonio.data.schema import DatasetError
+from gonio.mock.samples import SampleError
+from simulate.budget import BudgetError
+from simulate.config_table import ConfigError
+from simulate.fabric.summation import FabricError
+from simulate.fabric.weave import WeaveError
+from simulate.montecarlo.transport import ParameterError
+from simulate.outdir import OutputError
+
+__all__ = ["ToolkitError", "InputError", "OutputExistsError", "OutputBusyError", "FileSystemError",
+           "InternalError", "typed_errors", "as_toolkit_error", "interrupt_of", "INPUT_ERRORS"]
+
+
+class ToolkitError(Exception):
+    """Base of the errors this interface raises."""
+
+
+class InputError(ToolkitError, ValueError):
+    """A config, plan, dataset, parameter or value that cannot be used; the message names it and
+    says what to do. The library's own error is kept as ``__cause__``."""
+
+
+class OutputExistsError(ToolkitError, FileExistsError):
+    """The output path holds something already and ``force`` was not given."""
+
+
+class OutputBusyError(OutputExistsError):
+    """Another writer (another process or thread) is writing the same output now
+    (:mod:`gonio.data.claim`); nothing was changed."""
+
+
+class FileSystemError(ToolkitError, OSError):
+    """A file could not be read or written (a full disk, no permission); ``filename`` and the
+    message name it."""
+
+
+class InternalError(ToolkitError):
+    """An error the toolkit did not expect (a defect: please report it with the call that made it);
+    the original exception is ``__cause__``."""
+
+
+# the public name of these classes is fabric_optics.api.X (tracebacks, pickles, docs)
+for _cls in (ToolkitError, InputError, OutputExistsError, OutputBusyError, FileSystemError, InternalError):
+    _cls.__module__ = "fabric_optics.api"
+
+#: The libraries' errors for bad input: re-raised as :class:`InputError`.
+INPUT_ERRORS: tuple[type[Exception], ...] = (ConfigError, PlanError, DatasetError, FabricError, CompareError,
+                                             SampleError, BudgetError, ParameterError, WeaveError, JournalError)
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def interrupt_of(exc: BaseException) -> KeyboardInterrupt | None:
+    """The :class:`KeyboardInterrupt` behind ``exc``: ``exc`` itself, or the interrupt that a
+    compiled extension turned into a :class:`SystemError` (``<built-in function ...> returned a
+    result with an exception set``: Ctrl-C arriving while numba or numpy code runs a Python
+    callback); None otherwise."""
+    cur: BaseException | None = exc
+    for _ in range(16):
+        if isinstance(cur, KeyboardInterrupt):
+            return cur
+        if not isinstance(cur, SystemError):
+            return None
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
+def as_toolkit_error(exc: BaseException) -> BaseException:
+    """The :class:`ToolkitError` that stands for ``exc`` (``exc`` itself when it is one, or not an
+    :class:`Exception`: an interrupt)."""
+    from fabric_optics.fitting.errors import FitError
+
+    if isinstance(exc, ToolkitError) or not isinstance(exc, Exception):
+        return exc
+    interrupt = interrupt_of(exc)
+    if interrupt is not None:
+        return interrupt
+    if isinstance(exc, OutputBusy):
+        out: ToolkitError = OutputBusyError(str(exc))
+    elif isinstance(exc, OutputRefused):
+        out = OutputExistsError(str(exc))
+    elif isinstance(exc, OutputError):
+        out = FileSystemError(str(exc))
+    elif isinstance(exc, INPUT_ERRORS + (FitError,)):
+        out = InputError(str(exc))
+    elif isinstance(exc, OSError):
+        if exc.errno and exc.filename:
+            out = FileSystemError(exc.errno, exc.strerror, exc.filename)
+        else:
+            out = FileSystemError(f"{exc.filename}: {exc}" if exc.filename else str(exc))
+    elif isinstance(exc, RecursionError):
+        out = InputError(f"nested too deeply to be read ({exc})")
+    elif isinstance(exc, MemoryError):
+        out = InputError("the call needs more memory than there is; choose smaller sizes")
+    else:
+        out = InternalError(f"{type(exc).__name__}: {exc}")
+    out.__cause__ = exc
+    return out
+
+
+def typed_errors(fn: _F) -> _F:
+    """Make every exception that leaves ``fn`` a :class:`ToolkitError` (:func:`as_toolkit_error`;
+    the original as ``__cause__``)."""
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except ToolkitError:
+            raise
+        except Exception as exc:     # noqa: BLE001 - the contract: only ToolkitError reaches the caller
+            raise as_toolkit_error(exc) from exc
+    return wrapper  # type: ignore[return-value]
