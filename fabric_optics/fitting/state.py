@@ -51,6 +51,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from gonio.data.dataset import atomic_write
 from fabric_optics.fitting.errors import FitError
 from simulate.montecarlo.accuracy import BATCH
 
@@ -166,21 +167,13 @@ def write_failed(path: Path, exc: OSError) -> str:
 
 
 def write_json_atomic(path: Path, doc: dict) -> None:
-    """``doc`` as JSON at ``path``, written to a temporary file, fsynced and renamed. A failed write
-    (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.problem.FitError`."""
-    tmp = path.with_name(f".{path.name}.tmp")
+    """``doc`` as JSON at ``path``, written by the toolkit's one atomic writer
+    (:func:`gonio.data.dataset.atomic_write`: a temporary file, fsynced, the output's claim checked, renamed). A
+    failed write (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.errors.FitError`."""
     try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh, indent=1)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        atomic_write(path, json.dumps(doc, indent=1).encode("utf-8"))
     except OSError as exc:
-        remove_quietly(tmp)
         raise FitError(write_failed(path, exc)) from None
-    except BaseException:
-        remove_quietly(tmp)
-        raise
 
 
 def refuse(path: Path, what: str) -> None:
@@ -329,17 +322,12 @@ class WalkCheckpoint:
 
     def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
         path = self._path(key)
-        tmp = path.with_name(f".{path.stem}.tmp.npz")
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
-            np.savez(tmp, value=value, u=u, photons=np.int64(photons), scatterings=np.float64(scatterings))
-            os.replace(tmp, path)
+            atomic_write(path, lambda fh: np.savez(fh, value=value, u=u, photons=np.int64(photons),
+                                                   scatterings=np.float64(scatterings)))
         except OSError as exc:
-            remove_quietly(tmp)
             raise FitError(write_failed(path, exc)) from None
-        except BaseException:
-            remove_quietly(tmp)
-            raise
 
     def count(self) -> int:
         """Runs of any walk on disk."""
@@ -535,17 +523,11 @@ class MCState:
         if self.out is not None:
             d = self.out / MC_RUNS_DIR
             rec["file"] = f"{name}.npz"
-            tmp = d / f".{name}.tmp.npz"
             try:
                 d.mkdir(parents=True, exist_ok=True)
-                np.savez(tmp, x=run.x, beta=run.beta, u_beta=run.u_beta)
-                os.replace(tmp, d / rec["file"])
+                atomic_write(d / rec["file"], lambda fh: np.savez(fh, x=run.x, beta=run.beta, u_beta=run.u_beta))
             except OSError as exc:
-                remove_quietly(tmp)
                 raise FitError(write_failed(d / rec["file"], exc)) from None
-            except BaseException:
-                remove_quietly(tmp)
-                raise
         return rec
 
     def put_run(self, k: int, run: MCRun) -> None:
