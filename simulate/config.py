@@ -103,9 +103,10 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     [populations.fiber]                #   any of radius_um, n_host (the Monte Carlo of a felt needs them
     radius_um = 8                      #   the same in every population), dye_profile and dye_depth_um,
     [populations.fiber.dye]            #   a whole dye (replacing the fiber's; same forms as [fiber.dye]),
-    curve = "knots"
-    [populations.particles]            #   a whole [particles] table (replacing the config's),
-    [populations.surface]              #   any of the [surface] fields (rms_slope: one for a felt's Monte Carlo)
+    wavelength_nm = [400, 700]
+    mu_a_per_um = [0.2, 0.01]
+    # [populations.particles]          #   a whole [particles] table (replacing the config's),
+    # [populations.surface]            #   any of the [surface] fields (rms_slope: one for a felt's Monte Carlo)
     # By mass: a population's mass share is its share times its radius squared (equal densities),
     # normalised; give the shares by number.
 
@@ -119,7 +120,7 @@ A config with ``[[populations]]`` is a blend: every fiber of the fabric is one o
 by its share. The structured summation mixes the populations' layer tables by share (exact for the
 fabric's top layer); the felt Monte Carlo mixes their exit tables by share, so that each fiber a ray meets
 is, in expectation, drawn from a population by share (exact for light that meets a fiber once). Models
-and commands that take one fiber refuse a blend with one line (:func:`require_single_population`).
+and commands that take one fiber refuse a blend with one line (``simulate.config.require_single_population``).
 One population of share 1 without overrides is the config without ``[[populations]]``, bit for bit.
 
 Exactly one of ``[particles]`` and ``[medium]`` is required. ``[method] method`` (the fiber route
