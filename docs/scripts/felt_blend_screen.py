@@ -1,7 +1,7 @@
 """Does a blend of differently dyed fibres, or a dye placed in a ring or a core, give the felt's red-larger opposition
 peak and its peaks' colour against the body's? A screen of ``felt_opposition_scan.py``'s runs.
 
-    python docs/scripts/felt_opposition_scan.py --only preset,red-clear,red-x10,blend-red,blend-red-x4,ring-1.5,core-4.1 \\
+    python docs/scripts/felt_opposition_scan.py --only preset,red-clear,red-x10,blend-red,blend-red-x4,blend-red-x2,ring-1.5,core-4.1 \\
         --seeds 4 --out DIR/scan.json
     python docs/scripts/felt_blend_screen.py DIR/scan.json --json DIR/felt-blend-screen.json
 

@@ -175,6 +175,8 @@ VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
                                                                         (0.5, _dye_red(None, 10.0)))),
     "blend-red-x4": ("a blend: half red-clear, half with the dye's red absorption x4",
                      _blend((0.5, _dye_red(-2.0)), (0.5, _dye_red(None, 4.0)))),
+    "blend-red-x2": ("a blend: half red-clear, half with the dye's red absorption x2",
+                     _blend((0.5, _dye_red(-2.0)), (0.5, _dye_red(None, 2.0)))),
     "ring-1.5": ("the dye in a ring 1.5 um deep (its amount kept)", _placed("ring", 1.5)),
     "core-4.1": ("the dye in a core below a clear skin 4.1 um deep (its amount kept)", _placed("core", 4.1)),
 }

@@ -59,7 +59,7 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
                 "n-1.8+rms-slope-x2": {"n_host", "rms_slope"},
                 "scatterers-x30+dye-x3": {"particles.volume_fraction", "dye.params"},
                 "red-clear": {"dye.params"}, "red-x10": {"dye.params"},
-                "blend-red": {"populations"}, "blend-red-x4": {"populations"},
+                "blend-red": {"populations"}, "blend-red-x4": {"populations"}, "blend-red-x2": {"populations"},
                 "ring-1.5": {"dye_profile", "dye_depth_um", "dye.params"},
                 "core-4.1": {"dye_profile", "dye_depth_um", "dye.params"}}
     for name in s.VARIANTS:
