@@ -81,7 +81,8 @@ Dye profile (``medium[M_DYE_PROFILE]``, cylinders, re-weighted runs only): the t
 which ``l_d`` lies in the dyed region takes ``exp(-(mu_t^l - mu_d^l - mu_t^w) l - mu_d^l l_d)`` instead of
 ``exp(-(mu_t^l - mu_t^w) l)``; ``l_d`` is the exact chord of the straight path with the inner circle
 (:func:`.geometry.core_length`). The walk itself is unchanged: absorption is carried by the weights. A profile
-is walked by a flavour of its own (:func:`_make_kernel`), so a run without one runs the loop without it.
+is walked by a flavour of its own (:func:`_make_kernel`, with its own runners, compiled only when a run places
+its dye), so a run without one runs the loop without it.
 
 Deferred re-weighting: the medium is homogeneous, so the free-path factors of ``n`` collisions
 and of the path ``L`` walked since the last update are one factor,
@@ -159,6 +160,8 @@ __all__ = [
     "run_batches_plain",
     "run_batches_for",
     "run_rows",
+    "run_rows_for",
+    "has_profile",
 ]
 
 # numba's 'omp' threading layer (GNU libgomp) spin-waits at the end of every parallel region by
@@ -657,13 +660,12 @@ simulate_batch = _make_kernel(True)
 simulate_batch_profiled = _make_kernel(True, profiled=True)
 
 
-@numba.njit(cache=True, inline="always")
-def _has_profile(inp: KernelInputs) -> bool:
+def has_profile(inp: KernelInputs) -> bool:
     """The run places its dye (``medium[M_DYE_PROFILE]``): the profiled flavour walks it."""
     return inp.medium.shape[0] > M_DYE_PROFILE and inp.medium[M_DYE_PROFILE] != DYE_UNIFORM
 
 
-def _make_runner(scoring: bool):
+def _make_runner(scoring: bool, profiled: bool = False):
     """The parallel driver of one flavour, calling its :func:`simulate_batch` through a module global.
 
     Why a global and not the closure of :func:`_make_kernel`: numba keys a cached closure on a
@@ -677,6 +679,7 @@ def _make_runner(scoring: bool):
     numba's caching notes: https://numba.readthedocs.io/en/stable/developer/caching.html
     """
     SCORING = scoring
+    PROFILED = profiled and scoring
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, parallel=True)
@@ -697,11 +700,10 @@ def _make_runner(scoring: bool):
             scal[i, :] = 0.0
             bins[i, :, :] = 0.0
             if count > 0:
-                if SCORING:
-                    if _has_profile(inp):
-                        simulate_batch_profiled(inp, inp.source, count, seed, b, scal[i], bins[i])
-                    else:
-                        simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
+                if PROFILED:
+                    simulate_batch_profiled(inp, inp.source, count, seed, b, scal[i], bins[i])
+                elif SCORING:
+                    simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
                 else:
                     if inp.geometry == SLAB and inp.medium[M_ROUGH] <= 0.0 and inp.medium[M_ROUGH_B] <= 0.0:
                         simulate_batch_slab_lanes(inp, inp.source, count, seed, b, scal[i], bins[i])
@@ -713,14 +715,17 @@ def _make_runner(scoring: bool):
 
 run_batches_plain = _make_runner(False)
 run_batches = _make_runner(True)
+#: the dye profile's runner: compiled only when a run places its dye (the others never reference its kernel)
+run_batches_profiled = _make_runner(True, profiled=True)
 
 
-def _make_rows_runner():
+def _make_rows_runner(profiled: bool = False):
     """The parallel driver of many runs that differ only in their source row and seed (:func:`run_rows`).
 
     Scoring flavour only (its callers, the BSSRDF rows, tally exits). Same cache-key rule as
-    :func:`_make_runner`: the closure holds only the stamp.
+    :func:`_make_runner`: the closure holds only constants (the stamp, ``PROFILED``).
     """
+    PROFILED = profiled
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, parallel=True, nogil=True)
@@ -741,7 +746,7 @@ def _make_rows_runner():
             scal[i, :] = 0.0
             bins[i, :, :] = 0.0
             if count > 0:
-                if _has_profile(inp):
+                if PROFILED:
                     simulate_batch_profiled(inp, sources[row], count, seeds[row], b, scal[i], bins[i])
                 else:
                     simulate_batch(inp, sources[row], count, seeds[row], b, scal[i], bins[i])
@@ -750,10 +755,16 @@ def _make_rows_runner():
 
 
 run_rows = _make_rows_runner()
+run_rows_profiled = _make_rows_runner(profiled=True)
+
+
+def run_rows_for(inp: KernelInputs):
+    """The compiled :func:`run_rows` flavour a run needs (the dye profile's when it places its dye)."""
+    return run_rows_profiled if has_profile(inp) else run_rows
 
 
 def run_batches_for(inp: KernelInputs):
     """The compiled :func:`run_batches` flavour a run needs (plain when nothing is tallied)."""
     if inp.tally_mode == T.NONE and inp.vertex_mode == T.V_NONE:
         return run_batches_plain
-    return run_batches
+    return run_batches_profiled if has_profile(inp) else run_batches
