@@ -25,6 +25,10 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     n_host = 1.557                     # real host index, >= 1
     cell_width_deg = 10                # optional, (0, 180]: angular width of the top cell B
     route = "nee"                      # optional: the fiber route, "nee" | "beam" | "bssrdf"
+    dye_profile = "uniform"            # optional: where [fiber.dye] sits across the fiber: "uniform" | "ring"
+    # dye_depth_um = 2.0               #   (from the surface to dye_depth_um) | "core" (below a clear skin of
+                                       #   dye_depth_um); dye_depth_um in (0, radius_um), ring and core only;
+                                       #   walked by the Monte Carlo's exit tables (simulate.montecarlo.kernel)
 
     [fiber.dye]                        # optional: host absorption mu_a_host(lambda), 1/um; ONE of
     wavelength_nm = [400, 500, 600]    #   a table: wavelength_nm + mu_a_per_um (>= 0)
@@ -92,11 +96,32 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     warp_twist_deg = 24                #   simulate.fabric.structure.structure_from_table. Absent: the
                                        #   summation is the carpet of top cells (docs/physics.md 6)
 
+    [[populations]]                    # optional: a blend of fiber populations (absent: one population, the
+    share = 0.5                        #   fiber above); share: the population's fraction of the fibers by
+    name = "yellow"                    #   number (of fiber length), (0, 1], the shares adding up to 1;
+                                       #   name optional. Each may override the fiber above:
+    [populations.fiber]                #   any of radius_um, n_host (the Monte Carlo of a felt needs them
+    radius_um = 8                      #   the same in every population), dye_profile and dye_depth_um,
+    [populations.fiber.dye]            #   a whole dye (replacing the fiber's; same forms as [fiber.dye]),
+    wavelength_nm = [400, 700]
+    mu_a_per_um = [0.2, 0.01]
+    # [populations.particles]          #   a whole [particles] table (replacing the config's),
+    # [populations.surface]            #   any of the [surface] fields (rms_slope: one for a felt's Monte Carlo)
+    # By mass: a population's mass share is its share times its radius squared (equal densities),
+    # normalised; give the shares by number.
+
     [wavelengths]                      # optional: the wavelengths of `simulate fiber` tables
     start_nm = 390                     # (`simulate fabric` uses the plan's wavelengths)
     stop_nm = 710
     step_nm = 10
     # or: list_nm = [450, 550, 650]
+
+A config with ``[[populations]]`` is a blend: every fiber of the fabric is one of the populations, drawn
+by its share. The structured summation mixes the populations' layer tables by share (exact for the
+fabric's top layer); the felt Monte Carlo mixes their exit tables by share, so that each fiber a ray meets
+is, in expectation, drawn from a population by share (exact for light that meets a fiber once). Models
+and commands that take one fiber refuse a blend with one line (``simulate.config.require_single_population``).
+One population of share 1 without overrides is the config without ``[[populations]]``, bit for bit.
 
 Exactly one of ``[particles]`` and ``[medium]`` is required. ``[method] method`` (the fiber route
 before it was ``[fiber] route``) is still read, with a deprecation warning; the removed ``[structure]``
@@ -105,6 +130,7 @@ switches are refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 import math
@@ -127,11 +153,13 @@ __all__ = [
     "ConfigError",
     "DyeSpectrum",
     "ParticleSpec",
+    "Population",
     "SimulationConfig",
     "knots_curve",
     "load_config",
     "parse_config",
     "preset_names",
+    "require_single_population",
     "resolve_config_path",
 ]
 
@@ -141,6 +169,8 @@ _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
 #: The fiber routes of ``[fiber] route``.
 ROUTES = ("nee", "beam", "bssrdf")
+#: ``[fiber] dye_profile``: where the dye sits across the fiber (simulate.fiber.Fiber.dye_profile)
+DYE_PROFILES = ("uniform", "ring", "core")
 #: ``[method] exit_bins`` when not given: None, chosen per run by
 #: :func:`simulate.woven.estimate.default_exit_bins` ([10, 20] for a felt of nearly clear fibers,
 #: whose exit cones coarser bins smear; [5, 10] for turbid fibers and woven yarns, which converge
@@ -165,13 +195,18 @@ def axial_node_grid(n: int) -> tuple[float, ...]:
 #: The keys of the schema's tables (a key outside them is refused, with a suggestion, before any
 #: field is read: :class:`simulate.config_table.Table`).
 _FIELDS: dict[str, tuple[str, ...]] = {
-    "fiber": ("radius_um", "n_host", "cell_width_deg", "route", "dye"),
+    "fiber": ("radius_um", "n_host", "cell_width_deg", "route", "dye", "dye_profile", "dye_depth_um"),
     "fiber.dye": ("wavelength_nm", "mu_a_per_um", "curve", "baseline_per_um", "bands", "short_per_um",
                   "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
     "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
     "method": ("target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes"),
+    "populations": ("name", "share", "fiber", "particles", "surface"),
+    "populations.fiber": ("radius_um", "n_host", "dye", "dye_profile", "dye_depth_um"),
+    "surface": ("rms_slope", "transmission_rms_slope", "transmission_rms_slope_around"),
 }
+#: how far the populations' shares may add up from 1
+SHARE_TOLERANCE = 1e-6
 
 
 def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = None,
@@ -215,6 +250,24 @@ class ParticleSpec:
 
 
 @dataclass(frozen=True)
+class Population:
+    """One fiber population of ``[[populations]]``: its share by number and its fiber, every field resolved
+    (the config's own where the population does not override it)."""
+
+    name: str
+    share: float
+    radius_um: float
+    n_host: float
+    dye: DyeSpectrum | None
+    particles: ParticleSpec | None
+    rms_slope: float
+    transmission_rms_slope: float
+    transmission_rms_slope_around: float | None
+    dye_profile: str = "uniform"
+    dye_depth_um: float = 0.0
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     """A validated simulation config (see the module docstring for the schema)."""
 
@@ -252,6 +305,23 @@ class SimulationConfig:
     #: ``[method] axial_nodes``: the yarn table's rows in |w_t| (the component of the incidence along the
     #: fiber), steps of 1/(N-1) from 0, the last at 0.95
     axial_nodes: int = DEFAULT_AXIAL_NODES
+    #: ``[[populations]]``: the blend's fiber populations; None: one population, the config's fiber
+    populations: tuple[Population, ...] | None = None
+    #: ``[fiber] dye_profile``, ``dye_depth_um``: where the dye sits across the fiber
+    dye_profile: str = "uniform"
+    dye_depth_um: float = 0.0
+
+    def population_configs(self) -> list[tuple[float, SimulationConfig]]:
+        """``(share, config)`` of each fiber population: the config with that population's fiber and no
+        ``[[populations]]``; without ``[[populations]]``, ``[(1.0, self)]``."""
+        if not self.populations:
+            return [(1.0, self)]
+        return [(p.share, dataclasses.replace(
+            self, radius_um=p.radius_um, n_host=p.n_host, dye=p.dye, particles=p.particles, rms_slope=p.rms_slope,
+            transmission_rms_slope=p.transmission_rms_slope,
+            transmission_rms_slope_around=p.transmission_rms_slope_around, dye_profile=p.dye_profile,
+            dye_depth_um=p.dye_depth_um, populations=None))
+            for p in self.populations]
 
     def w_t_nodes(self) -> tuple[float, ...]:
         """The yarn table's axial nodes of ``[method] axial_nodes``."""
@@ -277,7 +347,8 @@ class SimulationConfig:
         return Fiber(radius_um=self.radius_um, n_host=self.n_host, medium=self.medium(wavelengths_nm),
                      roughness=self.rms_slope, cell_width_deg=self.cell_width_deg,
                      transmission_roughness=self.transmission_rms_slope,
-                     transmission_roughness_around=self.transmission_rms_slope_around)
+                     transmission_roughness_around=self.transmission_rms_slope_around,
+                     dye_profile=self.dye_profile, dye_depth_um=self.dye_depth_um)
 
     def provenance(self) -> dict:
         """What produced a result: the config's name, source, SHA-256 and full text."""
@@ -431,6 +502,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     route = fib.string("route", "nee", choices=ROUTES)
     dye_t = fib.sub("dye", fields=_FIELDS["fiber.dye"])
     dye = dye_from_table(dye_t) if dye_t is not None else None
+    profile, depth = _dye_profile(fib, radius, dye is not None)
     fib.done()
 
     if top.has("particles") == top.has("medium"):
@@ -451,8 +523,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
             raise fib.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total "
                                   "absorption of a Henyey-Greenstein medium)")
 
-    surf = top.sub("surface", required=True, fields=("rms_slope", "transmission_rms_slope",
-                                                      "transmission_rms_slope_around"))
+    surf = top.sub("surface", required=True, fields=_FIELDS["surface"])
     assert surf is not None
     rms_slope = surf.number("rms_slope", required=True, gt=0.0, le=1.0)
     transmission_rms_slope = surf.number("transmission_rms_slope", 0.0, ge=0.0, le=1.0)
@@ -484,6 +555,10 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     wavelengths = _wavelengths(wl_t) if wl_t is not None else _DEFAULT_WAVELENGTHS
     st_t = top.sub("structure")        # simulate.fabric.structure validates it, naming the field
     structure = None if st_t is None else structure_from_table(st_t)
+    base = Population(name="", share=1.0, radius_um=radius, n_host=n_host, dye=dye, particles=particles,
+                      rms_slope=rms_slope, transmission_rms_slope=transmission_rms_slope,
+                      transmission_rms_slope_around=around, dye_profile=profile, dye_depth_um=depth)
+    populations = _populations(top, base, hg is not None)
     top.done()
 
     return SimulationConfig(
@@ -493,7 +568,102 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         route=route, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins,
         transmission_rms_slope=transmission_rms_slope, axial_shift=axial_shift,
-        transmission_rms_slope_around=around, axial_nodes=axial_nodes)
+        transmission_rms_slope_around=around, axial_nodes=axial_nodes, populations=populations,
+        dye_profile=profile, dye_depth_um=depth)
+
+
+def _populations(top: Table, base: Population, hg_medium: bool) -> tuple[Population, ...] | None:
+    """``[[populations]]``: each population's share and its overrides of ``base`` (the config's fiber)."""
+    if not top.has("populations"):
+        top.raw("populations")
+        return None
+    items = top.raw("populations")
+    if not isinstance(items, list) or not items or not all(isinstance(x, dict) for x in items):
+        raise top.fail("populations", f"must be an array of tables ([[populations]], one per population), "
+                                      f"got {show(items)}")
+    out = []
+    for k, item in enumerate(items):
+        t = Table(item, f"populations[{k}]", top.file, _FIELDS["populations"])
+        name = t.string("name", f"population {k + 1}") or f"population {k + 1}"
+        share = t.number("share", required=True, gt=0.0, le=1.0)
+        assert share is not None
+        fields: dict[str, Any] = {}
+        ft = t.sub("fiber", fields=_FIELDS["populations.fiber"])
+        if ft is not None:
+            if ft.has("radius_um"):
+                fields["radius_um"] = ft.number("radius_um", gt=0.0, le=1e4)
+            if ft.has("n_host"):
+                fields["n_host"] = ft.number("n_host", ge=1.0, le=4.0)
+            dt = ft.sub("dye", fields=_FIELDS["fiber.dye"])
+            if dt is not None:
+                if hg_medium:
+                    raise ft.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total absorption)")
+                fields["dye"] = dye_from_table(dt)
+            if ft.has("dye_profile") or ft.has("dye_depth_um"):
+                radius_p = fields.get("radius_um", base.radius_um)
+                fields["dye_profile"], fields["dye_depth_um"] = _dye_profile(
+                    ft, radius_p, fields.get("dye", base.dye) is not None)
+            elif "radius_um" in fields and base.dye_profile != "uniform" and not base.dye_depth_um < fields["radius_um"]:
+                raise ft.fail("radius_um", f"must exceed fiber.dye_depth_um ({base.dye_depth_um:g}) of the "
+                                           f"{base.dye_profile} dye it keeps, got {fields['radius_um']:g}")
+            ft.done()
+        pt = t.sub("particles", fields=_FIELDS["particles"])
+        if pt is not None:
+            if hg_medium:
+                raise t.fail("particles", "cannot be combined with [medium]: a population overrides [particles]")
+            fields["particles"] = _particles(pt)
+        st = t.sub("surface", fields=_FIELDS["surface"])
+        if st is not None:
+            if st.has("rms_slope"):
+                fields["rms_slope"] = st.number("rms_slope", gt=0.0, le=1.0)
+            if st.has("transmission_rms_slope"):
+                fields["transmission_rms_slope"] = st.number("transmission_rms_slope", ge=0.0, le=1.0)
+            if st.has("transmission_rms_slope_around"):
+                fields["transmission_rms_slope_around"] = st.number("transmission_rms_slope_around", ge=0.0, le=1.0)
+            st.done()
+        t.done()
+        out.append(dataclasses.replace(base, name=name, share=share, **fields))
+    total = sum(p.share for p in out)
+    if abs(total - 1.0) > SHARE_TOLERANCE:
+        raise top.fail("populations", f"shares must add up to 1, got {total:.6g} "
+                                      f"({' + '.join(f'{p.share:g}' for p in out)})")
+    names = [p.name for p in out]
+    for k, n in enumerate(names):
+        if n in names[:k]:
+            raise top.fail(f"populations[{k}].name", f"repeats {show(n)}: give each population its own name")
+    return tuple(out)
+
+
+def _dye_profile(t: Table, radius_um: float, has_dye: bool) -> tuple[str, float]:
+    """``dye_profile`` and ``dye_depth_um`` of a ``[fiber]`` (or a population's) table."""
+    profile = t.string("dye_profile", "uniform", choices=DYE_PROFILES) or "uniform"
+    if profile == "uniform":
+        if t.has("dye_depth_um"):
+            raise t.fail("dye_depth_um", f"is for a ring or core dye: give {t.name('dye_profile')} = \"ring\" or "
+                                         f"\"core\", or delete it")
+        return profile, 0.0
+    if not has_dye:
+        raise t.fail("dye_profile", "places the fiber's dye: give a [fiber.dye] (or the population's) to place")
+    depth = t.number("dye_depth_um", required=True, gt=0.0, lt=radius_um)
+    assert depth is not None
+    return profile, depth
+
+
+def require_single_population(config: SimulationConfig, what: str) -> None:
+    """Refuse a blend (``[[populations]]`` with more than one population) for ``what``, a model or command that
+    takes one fiber: one line naming the config and what to do.
+
+    Raises
+    ------
+    ConfigError
+        ``felt.toml: populations: simulate fit takes one fiber population, this config has 2; ...``
+    """
+    pops = config.populations or ()
+    if len(pops) > 1:
+        source = config.source
+        file = f"{source[len('preset '):]}.toml" if source.startswith("preset ") else Path(source).name
+        raise ConfigError(f"{file}: populations: {what} takes one fiber population, this config has {len(pops)} "
+                          f"({', '.join(p.name for p in pops)}); give one population or none")
 
 
 def _exit_bins(mt: Table) -> tuple[int, int] | None:

@@ -65,6 +65,9 @@ def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err:
     seed = config.seed if seed is None else int(seed)
     threads = config.threads if threads is None else threads
     max_photons = config.max_photons if max_photons is None else max_photons
+    from simulate.config import require_single_population
+
+    require_single_population(config, "simulate export")
     fib = config.fiber(wl)
     info: dict[str, Any] = {"method": method, "config": config.name, "target_rel_err": target,
                             "seed": seed, "wavelengths_nm": wl.tolist()}

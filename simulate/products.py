@@ -91,8 +91,115 @@ def evaluate(method: str, config: SimulationConfig, fiber: Any, geometries: Geom
     """The registered model ``method`` at ``geometries``."""
     if method not in _REGISTRY:
         raise ValueError(f"fabric model must be one of {', '.join(_REGISTRY)}, got {method!r}")
+    if getattr(config, "populations", None) and method != "mc":
+        return _blend(method, config, geometries, np.asarray(wavelengths, float), settings)
     fiber = smooth_boundary_unless_mc(method, fiber)
     return _REGISTRY[method](config, fiber, geometries, np.asarray(wavelengths, float), settings)
+
+
+def _blend(method: str, config: SimulationConfig, g: Geometries, wavelengths: np.ndarray,
+           s: RunSettings) -> FabricEstimate:
+    """A blend of fiber populations (``[[populations]]``) by a model that is linear in its fiber's tables (the
+    summation, the classic model): each population's estimate at the run's seed, mixed by share. The
+    summation's layer tables enter ``beta`` linearly, so this is the share-weighted mix of the populations'
+    layer tables (exact for the top layer). ``u_beta`` adds the populations' errors linearly (they share the
+    seed's streams, so they are correlated)."""
+    parts = [(share, evaluate(method, c, c.fiber(wavelengths), g, wavelengths, s))
+             for share, c in config.population_configs()]
+    beta = sum(share * e.beta for share, e in parts)
+    u_beta = sum(share * e.u_beta for share, e in parts)
+    n = np.min([e.n for _, e in parts], axis=0)
+    photons = None if any(e.photons is None for _, e in parts) else int(sum(int(e.photons or 0) for _, e in parts))
+    model = dict(parts[0][1].model)
+    model["populations"] = _population_record(config, [e.model for _, e in parts])
+    info = {"populations": [jsonable(e.info) for _, e in parts]}
+    return FabricEstimate(np.asarray(beta, float), np.asarray(u_beta, float), n, photons, info,
+                          float(sum(e.seconds for _, e in parts)), model)
+
+
+def _population_record(config: SimulationConfig, models: list[dict] | None = None) -> list[dict]:
+    """The dataset's record of a blend's populations: name and share (and each one's model fields)."""
+    pops = config.populations or ()
+    out = []
+    for k, p in enumerate(pops):
+        row: dict[str, Any] = {"name": p.name, "share": p.share}
+        if models is not None:
+            row["model"] = jsonable({key: v for key, v in models[k].items() if key != "populations"})
+        out.append(row)
+    return out
+
+
+def check_blend(config: SimulationConfig, method: str) -> None:
+    """Refuse, before any work, a blend (``[[populations]]``) that ``method`` cannot trace: the woven Monte Carlo
+    takes one population, the felt's needs one radius, host index and reflection slope in all of them.
+    :class:`ConfigError`, one line naming the field."""
+    if not getattr(config, "populations", None) or method not in ("mc", "auto"):
+        return
+    spec = getattr(config, "structure", None)
+    if spec is None or spec.kind != "nonwoven":
+        from simulate.config import require_single_population
+
+        require_single_population(config, "the woven Monte Carlo")
+        return
+    _same_fiber(config)
+
+
+def _same_fiber(config: SimulationConfig) -> None:
+    from simulate.config import ConfigError
+
+    parts = config.population_configs()
+    first = parts[0][1]
+    for share, c in parts[1:]:
+        for field_name, a, b in (("fiber.radius_um", c.radius_um, first.radius_um),
+                                 ("fiber.n_host", c.n_host, first.n_host),
+                                 ("surface.rms_slope", c.rms_slope, first.rms_slope)):
+            if a != b:
+                raise ConfigError(f"{_file_of(config)}: populations: the felt Monte Carlo traces one {field_name} "
+                                  f"for every population, got {b:g} and {a:g}; give the populations the same "
+                                  f"{field_name} (or use --method summation)")
+
+
+def felt_population_tables(config: SimulationConfig, fiber: Any, wavelengths: np.ndarray, s: RunSettings,
+                           bins: tuple[int, int]) -> tuple[Any, Any]:
+    """The felt Monte Carlo's two table halves of a blend: each population's halves (the run's seed and photons,
+    as :func:`simulate.woven.fabric_beta` builds one fiber's) with their exit weights mixed by share. A ray that
+    meets a fiber then scatters, in expectation, as a fiber drawn from the populations by share (exact for light
+    that meets a fiber once; light that meets the same fiber again draws afresh). The populations must share
+    the fiber's radius, host index and reflection slope (the felt's tubes and the traced surface term):
+    :class:`ConfigError` naming the field otherwise. ``fiber``: the first population's."""
+    import dataclasses
+
+    from simulate.woven.estimate import table_photons
+    from simulate.woven.yarn import table_halves
+
+    parts = config.population_configs()
+    _same_fiber(config)
+    nodes = tuple(float(x) for x in config.w_t_nodes())
+    photons = table_photons(s.target) // 2
+    threads = all_threads(s.threads)
+    halves = [table_halves(c.fiber(wavelengths), wavelengths, photons, s.seed, threads if threads else None,
+                           n_mu=int(bins[0]), n_phi=int(bins[1]), w_t_nodes=nodes) for _, c in parts]
+    shares = [share for share, _ in parts]
+    mixed = []
+    for h in range(2):
+        tabs = [pair[h] for pair in halves]
+        T = shares[0] * tabs[0].T
+        c_bar = shares[0] * tabs[0].c_bar
+        tau = shares[0] * tabs[0].tau
+        for share, t in zip(shares[1:], tabs[1:]):
+            T = T + share * t.T
+            c_bar = c_bar + share * t.c_bar
+            tau = tau + share * t.tau
+        mixed.append(dataclasses.replace(tabs[0], T=T, c_bar=c_bar, tau=tau, photons=int(sum(t.photons for t in tabs)),
+                                         seconds=float(sum(t.seconds for t in tabs))))
+    return mixed[0], mixed[1]
+
+
+def _file_of(config: SimulationConfig) -> str:
+    from pathlib import Path
+
+    source = config.source
+    return f"{source[len('preset '):]}.toml" if source.startswith("preset ") else Path(source).name
 
 
 def smooth_boundary_unless_mc(method: str, fiber: Any, *, quiet: bool = False) -> Any:
@@ -182,6 +289,13 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     w_i = fab.directions_deg(g.theta_i, g.phi_i)
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
     spec = getattr(config, "structure", None)       # twist, or a felt (simulate.nonwoven.felt)
+    blend = getattr(config, "populations", None)
+    if blend:
+        from simulate.config import require_single_population
+
+        if spec is None or spec.kind != "nonwoven":
+            require_single_population(config, "the woven Monte Carlo")
+        fiber = config.population_configs()[0][1].fiber(wavelengths)
     if spec is not None and spec.kind == "nonwoven":
         from simulate.nonwoven.felt import cached_felt_mesh
 
@@ -202,13 +316,19 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     # are the yarn's): where the fiber's clearness decides whether the exit bins resolve it
     felt = spec is not None and spec.kind == "nonwoven"
     bins = config.exit_bins
-    if bins is None:
-        bins = woven.estimate.default_exit_bins(fiber, wavelengths, felt)
-    note = woven.estimate.clear_fiber_note(fiber, wavelengths, bins) if felt else None
-    if note:
-        log.warning("simulate fabric --method mc: %s", note)
+    fibers = [c.fiber(wavelengths) for _, c in config.population_configs()] if blend else [fiber]
+    if bins is None:     # a blend: the finest any of its fibers asks
+        bins = max((woven.estimate.default_exit_bins(f, wavelengths, felt) for f in fibers), key=lambda b: b[0] * b[1])
+    for f in fibers:
+        note = woven.estimate.clear_fiber_note(f, wavelengths, bins) if felt else None
+        if note:
+            log.warning("simulate fabric --method mc: %s", note)
+            break
+    tables = felt_population_tables(config, fiber, wavelengths, s, bins) if blend else None
+    if blend:
+        geometry["populations"] = _population_record(config)
     beta, u_beta, mc_info = woven.fabric_beta(
-        mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
+        mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0, tables=tables,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
         structure=spec, exit_bins=bins, axial_shift=bool(getattr(config, "axial_shift", False)),
         w_t_nodes=config.w_t_nodes() if hasattr(config, "w_t_nodes") else (0.0, 0.25, 0.5, 0.75, 0.95))

@@ -87,6 +87,43 @@ def _dye(factor: float) -> Callable[[Any], dict]:
     return change
 
 
+def _dye_red(value: float | None = None, factor: float = 1.0) -> Callable[[Any], dict]:
+    """The dye's red knots (above 600 nm) set to ``value`` (log10 of the absorption per um; None: kept) and
+    multiplied by ``factor``: one population of a blend whose red differs from the preset's."""
+    def change(cfg: Any) -> dict:
+        params = dict(cfg.dye.params)
+        params["log10_per_um"] = [(v if value is None else value) + math.log10(factor) if w > 600.0 else v
+                                  for w, v in zip(params["wavelength_nm"], params["log10_per_um"])]
+        return {"dye": dataclasses.replace(cfg.dye, params=params)}
+    return change
+
+
+def _blend(*parts: tuple[float, Callable[[Any], dict]]) -> Callable[[Any], dict]:
+    """A blend of fiber populations (``[[populations]]``): each ``(share, change of the dye)``."""
+    def change(cfg: Any) -> dict:
+        from simulate.config import Population
+
+        pops = []
+        for k, (share, dye_change) in enumerate(parts):
+            dye = dye_change(cfg).get("dye", cfg.dye)
+            pops.append(Population(name=f"population {k + 1}", share=share, radius_um=cfg.radius_um, n_host=cfg.n_host,
+                                   dye=dye, particles=cfg.particles, rms_slope=cfg.rms_slope,
+                                   transmission_rms_slope=cfg.transmission_rms_slope,
+                                   transmission_rms_slope_around=cfg.transmission_rms_slope_around))
+        return {"populations": tuple(pops)}
+    return change
+
+
+def _placed(profile: str, depth_um: float) -> Callable[[Any], dict]:
+    """The dye placed in a ``ring`` from the surface to ``depth_um`` or a ``core`` below a clear skin of that depth,
+    the fiber's amount of dye kept (its absorption coefficient over the dyed share of the cross-section)."""
+    def change(cfg: Any) -> dict:
+        inner = (cfg.radius_um - depth_um) / cfg.radius_um
+        share = 1.0 - inner ** 2 if profile == "ring" else inner ** 2
+        return {"dye_profile": profile, "dye_depth_um": depth_um, **_dye(1.0 / share)(cfg)}
+    return change
+
+
 def _field(**values: Any) -> Callable[[Any], dict]:
     return lambda cfg: dict(values)
 
@@ -132,6 +169,16 @@ VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
                            _both(_field(n_host=1.8), lambda c: {"rms_slope": 2.0 * c.rms_slope})),
     "scatterers-x30+dye-x3": ("scatterers' volume fraction x30 and dye absorption x3",
                               _both(_scatterers(30.0), _dye(3.0))),
+    "red-clear": ("the dye's red as clear as its green (a yellow-green population)", _dye_red(-2.0)),
+    "red-x10": ("the dye's red absorption x10 (a blue-green population)", _dye_red(None, 10.0)),
+    "blend-red": ("a blend: half red-clear, half red-x10 fibers", _blend((0.5, _dye_red(-2.0)),
+                                                                        (0.5, _dye_red(None, 10.0)))),
+    "blend-red-x4": ("a blend: half red-clear, half with the dye's red absorption x4",
+                     _blend((0.5, _dye_red(-2.0)), (0.5, _dye_red(None, 4.0)))),
+    "blend-red-x2": ("a blend: half red-clear, half with the dye's red absorption x2",
+                     _blend((0.5, _dye_red(-2.0)), (0.5, _dye_red(None, 2.0)))),
+    "ring-1.5": ("the dye in a ring 1.5 um deep (its amount kept)", _placed("ring", 1.5)),
+    "core-4.1": ("the dye in a core below a clear skin 4.1 um deep (its amount kept)", _placed("core", 4.1)),
 }
 
 
@@ -146,6 +193,11 @@ def variant_config(name: str, base: Any) -> tuple[Any, dict]:
             shown["fiber.dye.log10_per_um"] = list(value.params["log10_per_um"])
         elif key == "n_host":
             shown["fiber.n_host"] = value
+        elif key == "populations":
+            shown["populations"] = [{"share": p.share, "fiber.dye.log10_per_um": list(p.dye.params["log10_per_um"])}
+                                    for p in value]
+        elif key in ("dye_profile", "dye_depth_um"):
+            shown[f"fiber.{key}"] = value
         elif key == "structure":
             shown.update({f"structure.{f.name}": getattr(value, f.name) for f in dataclasses.fields(value)
                           if getattr(value, f.name) != getattr(base.structure, f.name)})
@@ -277,10 +329,17 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
     started, cpu0 = time.perf_counter(), _cpu()
     meshes, built, g, w_in, w_out = _felts_and_geometries(cfg.structure, fiber.radius_um, seed, felts, felt)
     traced = {}
+    tables = None
+    if cfg.populations:         # a blend: the populations' tables mixed by share, as simulate fabric traces it
+        from simulate.products import RunSettings, felt_population_tables
+
+        tables = felt_population_tables(cfg, fiber, wl, RunSettings(target=target, seed=seed, threads=threads),
+                                        EXIT_BINS)
     for label in orders:
         events, event = {**ORDERS, **SPLIT_ORDERS}[label]
         with contextlib.nullcontext() if event is None else only_event(event):
             beta, u, info = fabric_beta(meshes, fiber, w_in, w_out, wl, max_events=events, target_rel_err=target,
+                                        tables=tables,
                                         max_rays=max_rays, seed=seed, threads=threads, structure=cfg.structure,
                                         exit_bins=EXIT_BINS, axial_shift=bool(cfg.axial_shift),
                                         w_t_nodes=cfg.w_t_nodes())

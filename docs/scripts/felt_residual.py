@@ -383,6 +383,30 @@ def compared(file: str, runs: list[str], max_incidence: float) -> list[tuple[str
     return out
 
 
+#: the bands of the retro-ring ratio ``beta(6 deg) / beta(30 deg)`` :func:`retro` reports
+RETRO_BANDS_NM = (550.0, 650.0)
+
+
+def retro(path: str, max_incidence: float = 90.0, bands: tuple[float, ...] = RETRO_BANDS_NM) -> dict[str, dict]:
+    """The retro-ring ratio of a dataset at ``bands`` (its own values, scale-free:
+    :func:`compare.felt_metrics.opposition_ratios`), per oblique incidence up to ``max_incidence`` that holds both
+    rings, with the ratio's standard error; ``{}`` when none does."""
+    from compare.felt_metrics import Missing, opposition_ratios
+
+    table = _read(path).table
+    ratios = opposition_ratios(table)
+    if isinstance(ratios, Missing):
+        return {}
+    out = {}
+    for ti, r in ratios.items():
+        if ti > max_incidence + 1e-9:
+            continue
+        keys = {round(float(k), 6): k for k in r.value}
+        out[f"{ti:g}"] = {f"{b:g}": {"ratio": float(r.value[keys[round(b, 6)]]), "u": float(r.u[keys[round(b, 6)]])}
+                          for b in bands if round(b, 6) in keys}
+    return out
+
+
 def _colour(cmp) -> dict[str, float]:
     if cmp.colour is None:
         return {}
@@ -1023,8 +1047,13 @@ def main(argv: list[str] | None = None) -> int:
         for run, frame, cmp in compared(args.file, args.runs, args.max_incidence):
             res = decompose_frame(frame, args.near, cmp.bands.label)
             res["colour"] = _colour(cmp)
+            res["retro"] = {"file": retro(args.file, args.max_incidence), "model": retro(run, args.max_incidence)}
             results[run] = res
             _print(run, res)
+            print("  retro ratio file/model: " + "; ".join(
+                f"{ti} deg " + ", ".join(f"{b} nm {res['retro']['file'][ti][b]['ratio']:.3f}/{m['ratio']:.3f}"
+                                         for b, m in bands.items() if b in res["retro"]["file"].get(ti, {}))
+                for ti, bands in res["retro"]["model"].items()))
         if args.json:
             args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
                                              "near": args.near, "runs": results}, indent=1) + "\n", encoding="utf-8")

@@ -354,6 +354,12 @@ def _fabric_run(args: argparse.Namespace) -> int:
         plan = api.load_plan(args.plan)
     except api.InputError as exc:
         raise _UsageError(f"--plan: {exc}") from None
+    from simulate.config import ConfigError
+    from simulate.products import check_blend
+    try:
+        check_blend(config, args.method)
+    except ConfigError as exc:
+        raise _UsageError(str(exc)) from None
     _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
     with common.claim(args.out):         # one writer of --out from its check to its final rename
         _prepare_fabric_out(args.out, args.force)
@@ -423,6 +429,11 @@ def _fiber_run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise _UsageError(f"--step-deg/--phi-step-deg: {exc}") from None
     target = config.target_rel_err if args.target_rel_err is None else args.target_rel_err
+    from simulate.config import ConfigError, require_single_population
+    try:
+        require_single_population(config, "simulate fiber")
+    except ConfigError as exc:
+        raise _UsageError(str(exc)) from None
     _check_cost("fiber", config, wavelengths, target, args.max_photons)
     _refuse_previous(args.out, args.force, _is_fiber_output, "simulate fiber")
     _prepare_out(args.out, lambda out: args.force or _is_fiber_output(out), "simulate fiber")

@@ -15,10 +15,12 @@ from simulate.media.medium import HGMedium, MieMedium
 from simulate.montecarlo.transport import ParameterError
 from simulate.optics import microfacet
 
-__all__ = ["METHODS", "Fiber", "BRDFEstimate", "point_outputs", "range_outputs", "as_directions", "as_wavelengths",
+__all__ = ["METHODS", "DYE_PROFILES", "Fiber", "BRDFEstimate", "point_outputs", "range_outputs", "as_directions", "as_wavelengths",
            "surface_brdf"]
 
 METHODS = ("nee", "beam", "bssrdf")
+#: Where a fiber's dye sits (:attr:`Fiber.dye_profile`)
+DYE_PROFILES = ("uniform", "ring", "core")
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,13 @@ class Fiber:
         Angular width of the surface cell B about the top of the fiber (the cell whose BRDF
         the fabric summation uses); 360 / cell_width_deg should be an integer for the
         ``bssrdf`` route.
+    dye_profile : str
+        Where the host's absorption (the dye) sits across the fiber: ``"uniform"`` (everywhere, the default),
+        ``"ring"`` (from the surface to the depth ``dye_depth_um``: a ring-dyed fiber) or ``"core"`` (below a
+        clear skin of that depth). Walked by the exit-tally routes (the yarn and exit tables:
+        :mod:`simulate.montecarlo.kernel`, "Dye profile"); the next-event routes refuse it.
+    dye_depth_um : float
+        The profile's depth below the surface (um), in ``(0, radius_um)``; 0 for the uniform profile.
     """
 
     radius_um: float
@@ -56,6 +65,8 @@ class Fiber:
     cell_width_deg: float = 10.0
     transmission_roughness: float = 0.0
     transmission_roughness_around: float | None = None
+    dye_profile: str = "uniform"
+    dye_depth_um: float = 0.0
 
     def __post_init__(self) -> None:
         t = self.transmission_roughness
@@ -71,6 +82,19 @@ class Fiber:
                 raise ParameterError(f"Fiber: {name} must be a finite number > 0, got {v!r}")
         if not self.cell_width_deg <= 180.0:
             raise ParameterError(f"Fiber: cell_width_deg must be <= 180, got {self.cell_width_deg!r}")
+        if self.dye_profile not in DYE_PROFILES:
+            raise ParameterError(f"Fiber: dye_profile must be one of {', '.join(DYE_PROFILES)}, got {self.dye_profile!r}")
+        d = self.dye_depth_um
+        if self.dye_profile != "uniform" and (isinstance(d, bool) or not isinstance(d, (int, float))
+                                              or not 0.0 < d < self.radius_um):
+            raise ParameterError(f"Fiber: dye_depth_um must be a number in (0, radius_um = {self.radius_um:g}) for the "
+                                 f"{self.dye_profile} profile, got {d!r}")
+
+    @property
+    def dye_radius_um(self) -> float:
+        """The dye profile's inner boundary, ``radius_um - dye_depth_um`` (the radius where the ring or the
+        clear skin begins)."""
+        return float(self.radius_um) - float(self.dye_depth_um)
 
     @property
     def half_width(self) -> float:

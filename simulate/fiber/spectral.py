@@ -44,6 +44,8 @@ class SpectralOptics:
     mu_a: np.ndarray
     g: np.ndarray
     phases: list[PhaseArrays]
+    #: the host's absorption (the dye) within ``mu_a``, for a fiber whose dye has a profile; None: uniform
+    mu_a_dye: np.ndarray | None = None
 
 
 
@@ -71,7 +73,23 @@ def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = No
         if key not in cache:
             cache[key] = phase_arrays(cos_table=op.phase.cos_table)
         phases.append(cache[key])
-    return SpectralOptics(np.array(mu_s), np.array(mu_a), np.array(g), phases)
+    dye = None
+    if getattr(fiber, "dye_profile", "uniform") != "uniform":
+        dye = np.array([host_absorption(fiber.medium, float(wl)) for wl in wavelengths_nm])
+    return SpectralOptics(np.array(mu_s), np.array(mu_a), np.array(g), phases, dye)
+
+
+def host_absorption(medium: Any, wavelength_nm: float) -> float:
+    """The host's own absorption (1/um) within the medium's ``mu_a``: the dye a profile places
+    (:attr:`simulate.fiber.Fiber.dye_profile`). A Mie medium's ``mu_a_host_per_um``; a Henyey-Greenstein
+    medium's whole ``mu_a`` (it has no other absorber)."""
+    inner = getattr(medium, "medium", None)     # a cached medium (simulate.fiber.farfield.CachedMedium)
+    if inner is not None and not isinstance(medium, MieMedium):
+        return host_absorption(inner, wavelength_nm)
+    if isinstance(medium, MieMedium):
+        host = medium.mu_a_host_per_um
+        return float(host(np.array([wavelength_nm]))[0]) if callable(host) else float(host)
+    return float(medium.optical_properties(wavelength_nm).mu_a)
 
 
 def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU_S,
@@ -157,11 +175,17 @@ def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: b
     medium[K.M_ROUGH] = float(getattr(fiber, "transmission_roughness", 0.0))
     around = getattr(fiber, "transmission_roughness_around", None)
     medium[K.M_ROUGH_B] = medium[K.M_ROUGH] if around is None else float(around)
+    dye = None
+    if optics.mu_a_dye is not None:     # the dye where it sits (kernel docstring, "Dye profile")
+        medium[K.M_DYE_PROFILE] = K.DYE_RING if fiber.dye_profile == "ring" else K.DYE_CORE
+        medium[K.M_DYE_RADIUS] = fiber.dye_radius_um
+        dye = optics.mu_a_dye[group].astype(float)
     targets = SpectralTargets(
         mu_a=optics.mu_a[group].astype(float),
         mu_s=optics.mu_s[group].astype(float),
         phases=[optics.phases[int(j)] for j in group],
         same_phase=np.array([optics.phases[int(j)] is walk_phase for j in group]),
+        mu_a_dye=dye,
     )
     return medium, walk_phase, targets
 

@@ -56,6 +56,7 @@ import numba
 import numpy as np
 
 __all__ = [
+    "core_length",
     "SLAB",
     "CYLINDER",
     "BEAM",
@@ -73,6 +74,28 @@ CYLINDER = 1
 BEAM = 0
 POINT = 1
 CELL = 2
+
+
+@numba.njit(cache=True, inline="always")
+def core_length(y: float, z: float, uy: float, uz: float, s: float, a: float) -> float:
+    """The length of the segment from ``(y, z)`` (the cross-section's coordinates of a point of the cylinder)
+    along ``u`` for ``s`` (a unit direction: ``s`` is the path length) that lies within the radius ``a`` of the
+    axis: the roots of ``|p_perp + t u_perp|^2 = a^2`` clipped to ``[0, s]`` (a dye profile's inner boundary).
+    A path along the axis is inside for its whole length or not at all."""
+    if s <= 0.0:
+        return 0.0
+    q = uy * uy + uz * uz
+    c = y * y + z * z - a * a
+    if q < 1e-24:
+        return s if c < 0.0 else 0.0
+    b = y * uy + z * uz
+    disc = b * b - q * c
+    if disc <= 0.0:
+        return 0.0
+    root = math.sqrt(disc)
+    lo = max((-b - root) / q, 0.0)
+    hi = min((-b + root) / q, s)
+    return hi - lo if hi > lo else 0.0
 
 
 @numba.njit(cache=True, inline="always")

@@ -75,6 +75,15 @@ With ``mu_a^w = 0`` and ``p^l = p^w`` this is exactly white Monte Carlo, ``A_l =
 re-weight exactly too, at a variance that grows with the mismatch (callers group
 wavelengths, :mod:`simulate.fiber`). Roulette acts on ``w max_l A_l``.
 
+Dye profile (``medium[M_DYE_PROFILE]``, cylinders, re-weighted runs only): the targets' dye absorption
+``mu_d^l`` (``spec_mu[l, 2]``, a part of ``mu_a^l``) absorbs only where the dye sits -- beyond the radius
+``a = medium[M_DYE_RADIUS]`` (a ring dye) or within it (a dyed core) -- so a free path of length ``l`` of
+which ``l_d`` lies in the dyed region takes ``exp(-(mu_t^l - mu_d^l - mu_t^w) l - mu_d^l l_d)`` instead of
+``exp(-(mu_t^l - mu_t^w) l)``; ``l_d`` is the exact chord of the straight path with the inner circle
+(:func:`.geometry.core_length`). The walk itself is unchanged: absorption is carried by the weights. A profile
+is walked by a flavour of its own (:func:`_make_kernel`, with its own runners, compiled only when a run places
+its dye), so a run without one runs the loop without it.
+
 Deferred re-weighting: the medium is homogeneous, so the free-path factors of ``n`` collisions
 and of the path ``L`` walked since the last update are one factor,
 ``(mu_s^l / mu_s^w)^n exp(-(mu_t^l - mu_t^w) L) = exp(n ln(mu_s^l / mu_s^w) - (mu_t^l - mu_t^w) L)``:
@@ -111,6 +120,7 @@ from simulate.montecarlo import tallies as T
 from simulate.montecarlo.geometry import (
     CELL,
     SLAB,
+    core_length,
     distance_to_boundary,
     entry_point,
     inside,
@@ -133,6 +143,11 @@ __all__ = [
     "M_PHASE",
     "M_ROUGH",
     "M_ROUGH_B",
+    "M_DYE_PROFILE",
+    "M_DYE_RADIUS",
+    "DYE_UNIFORM",
+    "DYE_RING",
+    "DYE_CORE",
     "N_MEDIUM",
     "C_WEIGHT_THRESHOLD",
     "C_SURVIVAL",
@@ -145,6 +160,8 @@ __all__ = [
     "run_batches_plain",
     "run_batches_for",
     "run_rows",
+    "run_rows_for",
+    "has_profile",
 ]
 
 # numba's 'omp' threading layer (GNU libgomp) spin-waits at the end of every parallel region by
@@ -165,7 +182,14 @@ M_N = 3
 M_PHASE = 4
 M_ROUGH = 5  # Beckmann RMS slope of the boundary for light crossing it, along the axis (0 with M_ROUGH_B: smooth; .rough)
 M_ROUGH_B = 6  # ... and about the axis (the same value: isotropic)
-N_MEDIUM = 7
+M_DYE_PROFILE = 7  # where the targets' dye absorbs across a cylinder: DYE_UNIFORM (0), DYE_RING, DYE_CORE
+M_DYE_RADIUS = 8  # the profile's inner boundary: the dye at r > it (ring) or at r < it (core)
+N_MEDIUM = 9
+
+# dye profiles (M_DYE_PROFILE; module docstring, "Dye profile")
+DYE_UNIFORM = 0
+DYE_RING = 1
+DYE_CORE = 2
 
 # control array slots
 C_WEIGHT_THRESHOLD = 0
@@ -230,7 +254,7 @@ def _source_stamp() -> int:
 _SOURCE_STAMP = _source_stamp()
 
 
-def _make_kernel(scoring: bool):
+def _make_kernel(scoring: bool, profiled: bool = False):
     """Compile the kernel for one flavour: ``scoring`` False is the plain transport loop (totals
     and bookkeeping only), True adds the tallies, the vertex hook and spectral re-weighting.
 
@@ -239,8 +263,12 @@ def _make_kernel(scoring: bool):
     slab case about 30 % of its speed. (The plain slab runs in a loop of its own with two photons
     in flight, :mod:`.slab_lanes`; :func:`run_batches_plain` picks it for slab runs.)
     ``STAMP`` (:func:`_source_stamp`) keys the cache to the sources the kernel is built from.
+    ``profiled`` (with ``scoring``) is the flavour of a dye profile (module docstring, "Dye profile"); its code
+    is pruned from the others as the scoring code is from the plain one, so a run without a profile is the
+    loop without it, bit for bit.
     """
     SCORING = scoring
+    PROFILED = profiled and scoring
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
@@ -288,6 +316,9 @@ def _make_kernel(scoring: bool):
         m_rough = medium[M_ROUGH]
         m_rough_b = medium[M_ROUGH_B]
         rough = contrast and (m_rough > 0.0 or m_rough_b > 0.0)  # a rough boundary (.rough); else the smooth code
+        if PROFILED:
+            dye_mode = int(medium[M_DYE_PROFILE])
+            dye_radius = medium[M_DYE_RADIUS]
         dx = -source[1]
         dy = -source[2]
         dz = -source[3]
@@ -329,6 +360,15 @@ def _make_kernel(scoring: bool):
         if not reweight:
             for l in range(n_spec):
                 spec_mu_t[l] = mu_t
+        if PROFILED:
+            # a dye profile: the dye's part of d_mu_t is taken along the dyed length pend_d instead of pend_l
+            # (its runs are re-weighted, with the dye's column: make_inputs checks it)
+            d_mu_u = d_mu_t.copy()
+            spec_dye = np.zeros(n_spec)
+            for l in range(n_spec):
+                spec_dye[l] = inp.spec_mu[l, 2]
+                d_mu_u[l] = d_mu_t[l] - spec_dye[l]
+            pend_d = 0.0
 
         s0, s1, s2, s3 = seed_state(seed, batch)
 
@@ -403,6 +443,8 @@ def _make_kernel(scoring: bool):
                         spec_w[l] = 1.0
                     pend_n = 0
                     pend_l = 0.0
+                    if PROFILED:
+                        pend_d = 0.0
             alive = w > 0.0
             while alive:
                 if events >= max_events:
@@ -417,6 +459,9 @@ def _make_kernel(scoring: bool):
                 zn = z + step * uz
                 if inside(geometry, size, xn, yn, zn):
                     # --- collision (the end point is inside: convex shape) ------------------
+                    if PROFILED:
+                        inner = core_length(y, z, uy, uz, step, dye_radius)
+                        pend_d += inner if dye_mode == DYE_CORE else step - inner
                     x = xn
                     y = yn
                     z = zn
@@ -452,8 +497,14 @@ def _make_kernel(scoring: bool):
                                     spec_w[l] *= r0[l] + fr * (r1[l] - r0[l])
                             if pend_n == 0 or pend_n >= REWEIGHT_EVERY:
                                 if pend_n > 0:
-                                    for l in range(n_spec):
-                                        spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
+                                    if PROFILED:
+                                        for l in range(n_spec):
+                                            spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_u[l] * pend_l
+                                                              - spec_dye[l] * pend_d)
+                                        pend_d = 0.0
+                                    else:
+                                        for l in range(n_spec):
+                                            spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
                                     pend_n = 0
                                     pend_l = 0.0
                                 w_max = 0.0
@@ -474,6 +525,9 @@ def _make_kernel(scoring: bool):
                 else:
                     # --- boundary --------------------------------------------------------
                     s_b = distance_to_boundary(geometry, size, x, y, z, ux, uy, uz)
+                    if PROFILED:
+                        inner = core_length(y, z, uy, uz, s_b, dye_radius)
+                        pend_d += inner if dye_mode == DYE_CORE else s_b - inner
                     x += s_b * ux
                     y += s_b * uy
                     z += s_b * uz
@@ -555,8 +609,12 @@ def _make_kernel(scoring: bool):
                     path_total += w * path
                     if SCORING:
                         if reweight and (pend_n > 0 or pend_l > 0.0):
-                            for l in range(n_spec):
-                                spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
+                            if PROFILED:
+                                for l in range(n_spec):
+                                    spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_u[l] * pend_l - spec_dye[l] * pend_d)
+                            else:
+                                for l in range(n_spec):
+                                    spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
                         T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, marks,
                                      n_spec, spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
                     break
@@ -599,9 +657,15 @@ def _make_kernel(scoring: bool):
 
 simulate_batch_plain = _make_kernel(False)
 simulate_batch = _make_kernel(True)
+simulate_batch_profiled = _make_kernel(True, profiled=True)
 
 
-def _make_runner(scoring: bool):
+def has_profile(inp: KernelInputs) -> bool:
+    """The run places its dye (``medium[M_DYE_PROFILE]``): the profiled flavour walks it."""
+    return inp.medium.shape[0] > M_DYE_PROFILE and inp.medium[M_DYE_PROFILE] != DYE_UNIFORM
+
+
+def _make_runner(scoring: bool, profiled: bool = False):
     """The parallel driver of one flavour, calling its :func:`simulate_batch` through a module global.
 
     Why a global and not the closure of :func:`_make_kernel`: numba keys a cached closure on a
@@ -615,6 +679,7 @@ def _make_runner(scoring: bool):
     numba's caching notes: https://numba.readthedocs.io/en/stable/developer/caching.html
     """
     SCORING = scoring
+    PROFILED = profiled and scoring
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, parallel=True)
@@ -635,7 +700,9 @@ def _make_runner(scoring: bool):
             scal[i, :] = 0.0
             bins[i, :, :] = 0.0
             if count > 0:
-                if SCORING:
+                if PROFILED:
+                    simulate_batch_profiled(inp, inp.source, count, seed, b, scal[i], bins[i])
+                elif SCORING:
                     simulate_batch(inp, inp.source, count, seed, b, scal[i], bins[i])
                 else:
                     if inp.geometry == SLAB and inp.medium[M_ROUGH] <= 0.0 and inp.medium[M_ROUGH_B] <= 0.0:
@@ -648,14 +715,17 @@ def _make_runner(scoring: bool):
 
 run_batches_plain = _make_runner(False)
 run_batches = _make_runner(True)
+#: the dye profile's runner: compiled only when a run places its dye (the others never reference its kernel)
+run_batches_profiled = _make_runner(True, profiled=True)
 
 
-def _make_rows_runner():
+def _make_rows_runner(profiled: bool = False):
     """The parallel driver of many runs that differ only in their source row and seed (:func:`run_rows`).
 
     Scoring flavour only (its callers, the BSSRDF rows, tally exits). Same cache-key rule as
-    :func:`_make_runner`: the closure holds only the stamp.
+    :func:`_make_runner`: the closure holds only constants (the stamp, ``PROFILED``).
     """
+    PROFILED = profiled
     STAMP = _SOURCE_STAMP
 
     @numba.njit(cache=True, parallel=True, nogil=True)
@@ -676,16 +746,25 @@ def _make_rows_runner():
             scal[i, :] = 0.0
             bins[i, :, :] = 0.0
             if count > 0:
-                simulate_batch(inp, sources[row], count, seeds[row], b, scal[i], bins[i])
+                if PROFILED:
+                    simulate_batch_profiled(inp, sources[row], count, seeds[row], b, scal[i], bins[i])
+                else:
+                    simulate_batch(inp, sources[row], count, seeds[row], b, scal[i], bins[i])
 
     return run_rows
 
 
 run_rows = _make_rows_runner()
+run_rows_profiled = _make_rows_runner(profiled=True)
+
+
+def run_rows_for(inp: KernelInputs):
+    """The compiled :func:`run_rows` flavour a run needs (the dye profile's when it places its dye)."""
+    return run_rows_profiled if has_profile(inp) else run_rows
 
 
 def run_batches_for(inp: KernelInputs):
     """The compiled :func:`run_batches` flavour a run needs (plain when nothing is tallied)."""
     if inp.tally_mode == T.NONE and inp.vertex_mode == T.V_NONE:
         return run_batches_plain
-    return run_batches
+    return run_batches_profiled if has_profile(inp) else run_batches

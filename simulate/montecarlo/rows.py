@@ -7,7 +7,7 @@ node, per table half -- of a few thousand photons each, i.e. one or two batches 
 kernel call had fewer batches than threads: on 2 cores one thread idled in most of them, and every
 call paid its thread start and barrier (red cotton's cold woven Monte Carlo made 700
 such calls). :func:`execute_rows` hands all batches of all runs to ONE ``prange``
-(:func:`.kernel.run_rows`, dynamic scheduling, one batch per chunk) and reduces each run's
+(:func:`.kernel.run_rows` or its dye profile's flavour, dynamic scheduling, one batch per chunk) and reduces each run's
 batches in batch order, exactly as :func:`.transport.execute` does for that run alone: every
 run's sums are bit-identical to its own call (``tests/simulate/mc/test_rows.py``).
 
@@ -93,6 +93,7 @@ def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, ph
         if isinstance(threads, bool) or int(threads) != threads or not 1 <= int(threads) <= limit:
             raise ParameterError(f"threads must be an integer in [1, {limit}] (this machine), got {threads!r}")
         numba.set_num_threads(int(threads))
+    runner = K.run_rows_for(inp)      # the dye profile's flavour when the run places its dye
     previous_chunk = numba.set_parallel_chunksize(1)
     try:
         t0 = time.perf_counter()
@@ -101,8 +102,8 @@ def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, ph
         while first < n_jobs:
             count = min(count, n_jobs - first)
             t_round = time.perf_counter()
-            K.run_rows(inp, sources, seeds, job_row[first:first + count], job_batch[first:first + count], photons,
-                       batch_size, scal_buf, bins_buf)
+            runner(inp, sources, seeds, job_row[first:first + count], job_batch[first:first + count], photons,
+                   batch_size, scal_buf, bins_buf)
             if bins is None:
                 _reduce_means(job_row[first:first + count], job_batch[first:first + count], n_batches, photons,
                               scal_buf, bins_buf, scal, means6)

@@ -317,12 +317,16 @@ class SpectralTargets:
         Phase function of each target (all of one kind and table size).
     same_phase : numpy.ndarray
         ``bool[L]``: the target's phase function is the walk's (no phase ratio needed).
+    mu_a_dye : numpy.ndarray or None
+        ``[L]`` the part of ``mu_a`` that the walk medium's dye profile places (``medium[M_DYE_PROFILE]``,
+        :mod:`.kernel`, "Dye profile"); None: no profile (the whole ``mu_a`` is uniform).
     """
 
     mu_a: np.ndarray
     mu_s: np.ndarray
     phases: list[PhaseArrays]
     same_phase: np.ndarray
+    mu_a_dye: np.ndarray | None = None
 
 
 RATIO_GRID = 1025
@@ -361,7 +365,8 @@ def phase_ratio_table(walk: PhaseArrays, targets: list[PhaseArrays], n_grid: int
 def _spectral_arrays(targets: SpectralTargets | None, medium: np.ndarray, walk_phase: PhaseArrays):
     if targets is None:
         return False, np.array([[medium[K.M_MU_A], medium[K.M_MU_S]]]), False, np.ones((2, 1))
-    mu = np.ascontiguousarray(np.stack([targets.mu_a, targets.mu_s], axis=1), dtype=np.float64)
+    columns = [targets.mu_a, targets.mu_s] + ([] if targets.mu_a_dye is None else [targets.mu_a_dye])
+    mu = np.ascontiguousarray(np.stack(columns, axis=1), dtype=np.float64)
     same = np.asarray(targets.same_phase, dtype=np.bool_)
     if np.all(same):
         return True, mu, False, np.ones((2, mu.shape[0]))
@@ -391,6 +396,14 @@ def make_inputs(
         raise ParameterError("a rough boundary for transmitted light (transmission_rms_slope > 0) is walked with "
                              "exit tallies only: the next-event vertex estimators assume the smooth boundary; "
                              "use the exit-tally route (the woven/felt yarn tables) or transmission_rms_slope = 0")
+    if medium.shape[0] > K.M_DYE_PROFILE and medium[K.M_DYE_PROFILE] != K.DYE_UNIFORM:
+        if vertex_mode != T.V_NONE:
+            raise ParameterError("a dye profile (ring or core) is walked with exit tallies only: the next-event "
+                                 "vertex estimators assume a uniform dye; use the exit-tally route (the woven/felt "
+                                 "yarn tables) or the uniform profile")
+        if targets is None or targets.mu_a_dye is None or geometry == G.SLAB:
+            raise ParameterError("a dye profile (ring or core) needs a cylinder and spectral targets that name the "
+                                 "dye's absorption (SpectralTargets.mu_a_dye)")
     consts = np.zeros((outputs.shape[0], T.N_NEE))
     if vertex_mode != T.V_NONE:
         for o in range(outputs.shape[0]):
@@ -670,6 +683,7 @@ def run_cylinder(
     max_events: int = DEFAULT_MAX_EVENTS,
     weight_threshold: float = DEFAULT_WEIGHT_THRESHOLD,
     survival: float = DEFAULT_SURVIVAL,
+    dye_profile: tuple[str, float] | None = None,
 ) -> CylinderResult:
     r"""Photon transport in an infinite circular cylinder (a fiber) with axis ``t = +x``.
 
@@ -691,6 +705,12 @@ def run_cylinder(
     angular_bins : (int, int, int), optional
         ``(n_psi, n_mu, n_phi)``: tally exits per ``psi`` x local direction bin
         (:class:`CylinderAngular`).
+    dye_profile : (str, float), optional
+        ``("ring", a)``: ``mu_a`` absorbs only beyond the radius ``a`` of the axis (a ring-dyed fiber);
+        ``("core", a)``: only within it. The photons then walk white (``mu_a = 0``) and carry the absorption
+        of their path's dyed length as a weight (:mod:`.kernel`, "Dye profile"); ``exited`` is read from the
+        exit bins (``angular_bins``, default one bin), the walk's own bookkeeping (``absorbed``, ``energy``)
+        is the white walk's.
 
     Returns
     -------
@@ -733,7 +753,20 @@ def run_cylinder(
     else:
         n_psi, n_mu, n_phi = (_positive_int("angular_bins", int(v), 100_000) for v in angular_bins)
         mode, params = T.CYLINDER_DIRECTIONS, np.array([float(n_psi), float(n_mu), float(n_phi), 1.0, 1.0])
-    inp = make_inputs(G.CYLINDER, np.array([r]), src, medium, walk_phase, control, mode, params)
+    targets = None
+    if dye_profile is not None:
+        kind, a = dye_profile if isinstance(dye_profile, tuple) and len(dye_profile) == 2 else (None, None)
+        if kind not in ("ring", "core") or not (isinstance(a, (int, float)) and 0.0 < a < r):
+            raise ParameterError(f"dye_profile must be ('ring' or 'core', inner radius in (0, radius)), got {dye_profile!r}")
+        mu_a_t = float(medium[K.M_MU_A])
+        medium[K.M_MU_A] = 0.0
+        medium[K.M_DYE_PROFILE] = K.DYE_RING if kind == "ring" else K.DYE_CORE
+        medium[K.M_DYE_RADIUS] = float(a)
+        targets = SpectralTargets(mu_a=np.array([mu_a_t]), mu_s=np.array([float(medium[K.M_MU_S])]),
+                                  phases=[walk_phase], same_phase=np.array([True]), mu_a_dye=np.array([mu_a_t]))
+        if mode == T.NONE:
+            mode, params = T.CYLINDER_DIRECTIONS, np.array([1.0, 1.0, 1.0, 1.0, 1.0])
+    inp = make_inputs(G.CYLINDER, np.array([r]), src, medium, walk_phase, control, mode, params, targets=targets)
     scal, bins, seconds = execute(inp, photons, int(seed), threads, batch_size)
     capped = _log_cap(scal, int(control[K.C_MAX_EVENTS]))
     angular = None
@@ -748,9 +781,12 @@ def run_cylinder(
             exits=s / photons,
             u_exits=_bins_stderr(s, s2, photons),
         )
+    exited, u_exited = scal[T.S_EXIT0] / photons, _stderr(scal[T.S_EXIT0], scal[T.S_EXIT0_SQ], photons)
+    if targets is not None:      # the profile's absorption is in the bins' weights (a photon exits in one bin)
+        exited, u_exited = float(bins[:, 0].sum()) / photons, _stderr(float(bins[:, 0].sum()), float(bins[:, 1].sum()), photons)
     return CylinderResult(
-        exited=scal[T.S_EXIT0] / photons,
-        u_exited=_stderr(scal[T.S_EXIT0], scal[T.S_EXIT0_SQ], photons),
+        exited=exited,
+        u_exited=u_exited,
         unscattered=scal[T.S_UNSCATTERED0] / photons,
         specular=scal[T.S_SPECULAR] / photons,
         absorbed=scal[T.S_ABSORBED] / photons,

@@ -113,6 +113,9 @@ def table_key(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 0
         inputs["transmission_roughness"] = rough
         if around is not None:
             inputs["transmission_roughness_around"] = float(around)
+    profile = getattr(fiber, "dye_profile", "uniform")
+    if profile != "uniform":                # the dye where it sits; uniform keys unchanged
+        inputs["dye_profile"] = (str(profile), float(fiber.dye_depth_um))
     return tablecache.content_key("yarn", inputs, TABLE_MODULES)
 
 
@@ -251,7 +254,8 @@ def _compute(fiber: Any, wl: np.ndarray, nodes: np.ndarray, n_psi: int, dpsi: fl
         medium, walk_phase, targets = group_walk(fiber, optics, group, white=True)
         if held_log_mu_s > 0.0:      # the walk's scattering for every wavelength, each its own absorption
             targets = SpectralTargets(mu_a=targets.mu_a, mu_s=np.full(group.size, float(medium[M_MU_S])),
-                                      phases=[walk_phase] * group.size, same_phase=np.ones(group.size, bool))
+                                      phases=[walk_phase] * group.size, same_phase=np.ones(group.size, bool),
+                                      mu_a_dye=targets.mu_a_dye)
         inp = rows_inputs(fiber, grid, medium, walk_phase, targets, control)
         # the means written into T (bit-identical to accuracy.mean_and_error's): no [rows, bins, 2] sums array and no
         # standard errors -- the tracer reads T only; the table's noise is measured from the two halves

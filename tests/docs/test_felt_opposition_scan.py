@@ -57,7 +57,11 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
                 "n-1.6": {"n_host"}, "n-1.8": {"n_host"},
                 "scatterers-x10+rms-slope-x2": {"particles.volume_fraction", "rms_slope"},
                 "n-1.8+rms-slope-x2": {"n_host", "rms_slope"},
-                "scatterers-x30+dye-x3": {"particles.volume_fraction", "dye.params"}}
+                "scatterers-x30+dye-x3": {"particles.volume_fraction", "dye.params"},
+                "red-clear": {"dye.params"}, "red-x10": {"dye.params"},
+                "blend-red": {"populations"}, "blend-red-x4": {"populations"}, "blend-red-x2": {"populations"},
+                "ring-1.5": {"dye_profile", "dye_depth_um", "dye.params"},
+                "core-4.1": {"dye_profile", "dye_depth_um", "dye.params"}}
     for name in s.VARIANTS:
         cfg, shown = s.variant_config(name, base)
         if name.startswith("scatterers-x") and "+" not in name:
@@ -71,6 +75,18 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
         if name.startswith("dye-x"):
             factor = float(name.removeprefix("dye-x"))
             np.testing.assert_allclose(cfg.dye(wl), factor * base.dye(wl), rtol=1e-12)
+    # a red population: the knots above 600 nm only; the blends: two populations of those dyes, by share
+    knots = np.array(base.dye.params["wavelength_nm"])
+    red = s.variant_config("red-x10", base)[0]
+    np.testing.assert_allclose(red.dye(knots), np.where(knots > 600, 10.0, 1.0) * base.dye(knots), rtol=1e-12)
+    blend = s.variant_config("blend-red", base)[0]
+    assert [p.share for p in blend.populations] == [0.5, 0.5]
+    assert blend.populations[1].dye == red.dye and blend.populations[0].dye == s.variant_config("red-clear", base)[0].dye
+    # the dye placed in a ring keeps the fiber's amount: its coefficient over the ring's share of the section
+    ring = s.variant_config("ring-1.5", base)[0]
+    share = 1.0 - ((base.radius_um - 1.5) / base.radius_um) ** 2
+    assert (ring.dye_profile, ring.dye_depth_um) == ("ring", 1.5)
+    np.testing.assert_allclose(share * ring.dye(wl), base.dye(wl), rtol=1e-12)
     assert s.variant_config("rms-slope-x2", base)[0].rms_slope == pytest.approx(2 * base.rms_slope)
     both, shown = s.variant_config("scatterers-x10+rms-slope-x2", base)
     assert both.rms_slope == pytest.approx(2 * base.rms_slope)

@@ -411,3 +411,61 @@ def test_phase_refuses_bad_input_in_one_line(capsys, argv, needle):
     assert fr.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0]
+
+
+def _blend_screen():
+    spec = importlib.util.spec_from_file_location("felt_blend_screen", ROOT / "docs" / "scripts" / "felt_blend_screen.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["felt_blend_screen"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_blend_screen_reads_made_up_rings_and_mixes_two_populations_by_share():
+    """Rings made up so that each figure is known: ratio = ring_6 / ring_30 per band, the red excess per seed, the
+    peak's and the body's R/G; the 50/50 mix of two variants is the mean of their rings seed by seed."""
+    m = _blend_screen()
+
+    def run(seed: int, r6: list[float], r30: list[float]) -> dict:
+        inc = {"ring_6": r6, "ring_30": r30}
+        return {"seed": seed, "orders": {o: {"incidences": {"27.76": inc, "40.03": inc}} for o in ("single", "all")}}
+
+    a = [run(0, [1.0, 1.2, 0.66], [1.0, 1.0, 0.5]), run(1, [1.0, 1.2, 0.63], [1.0, 1.0, 0.5])]
+    b = [run(0, [1.0, 1.0, 0.2], [1.0, 0.8, 0.2]), run(1, [1.0, 1.0, 0.2], [1.0, 0.8, 0.2])]
+    file = {"ring_6": [1.0, 1.1, 0.6], "ring_30": [1.0, 1.0, 0.5]}
+    scan = {"data": {"settings": {}, "file": {"incidences": {"27.76": file, "40.03": file}},
+                     "variants": [{"name": "red-clear", "label": "a", "runs": a},
+                                  {"name": "red-x10", "label": "b", "runs": b}]}}
+    rows = m.screen(scan)["rows"]
+    f = rows["the file"]["all"]["27.76"]
+    assert f["ratio_550"] == pytest.approx(1.1) and f["ratio_650"] == pytest.approx(1.2)
+    assert f["red_excess"] == pytest.approx(0.1) and f["u_red_excess"] is None
+    assert f["peak_rg"] == pytest.approx(0.1 / 0.1) and f["body_rg"] == pytest.approx(0.5)
+    x = rows["red-clear"]["all"]["40.03"]
+    # per seed: 0.66/0.5 - 1.2 = 0.12 and 0.63/0.5 - 1.2 = 0.06
+    assert x["red_excess"] == pytest.approx(0.09) and x["u_red_excess"] == pytest.approx(0.03)
+    assert x["ratio_650"] == pytest.approx(0.645 / 0.5)
+    mix = rows["mix-red-clear-red-x10"]["single"]["27.76"]
+    assert mix["ratio_550"] == pytest.approx(1.1 / 0.9) and mix["body_rg"] == pytest.approx(0.35 / 0.9)
+    assert rows["mix-red-clear-red-x10"]["seeds"] == 2
+
+
+def test_retro_reads_the_ring_ratio_of_a_dataset_at_550_and_650_nm(tmp_path):
+    """A dataset whose ring at 6 deg is 1.2 (550 nm) and 1.3 (650 nm) times its ring at 30 deg: `retro` gives those."""
+    from compare.felt_metrics import ring_directions
+    from gonio.data import Dataset
+    from gonio.data.dataset import write_dataset
+
+    rows = []
+    for rho, scale in ((6.0, {550.0: 1.2, 650.0: 1.3}), (30.0, {550.0: 1.0, 650.0: 1.0})):
+        for t, p in ring_directions(40.0, rho, 8):
+            for wl, v in scale.items():
+                rows.append(dict(theta_i=40.0, phi_i=0.0, theta_o=t, phi_o=p, wavelength_nm=wl, beta=0.1 * v,
+                                 u_beta=0.001, n=1))
+    out = tmp_path / "run"
+    meta = {"schema": "radiance-dataset/1", "kind": "simulated", "sample": {"name": "run"},
+            "wavelengths_nm": [550.0, 650.0], "created": "2020-01-01T00:00:00+00:00"}
+    write_dataset(Dataset(pd.DataFrame(rows), meta), out)
+    r = _script().retro(str(out))
+    assert r["40"]["550"]["ratio"] == pytest.approx(1.2) and r["40"]["650"]["ratio"] == pytest.approx(1.3)
+    assert r["40"]["550"]["u"] > 0

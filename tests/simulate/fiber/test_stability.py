@@ -91,6 +91,21 @@ def test_bad_fiber_fields_are_named(field, value):
         Fiber(**args)
 
 
+@pytest.mark.parametrize("profile, depth", [("skin", 1.0), ("ring", 5.0), ("core", 0.0), ("ring", True)])
+def test_a_bad_dye_profile_is_named(profile, depth):
+    args = dict(radius_um=5.0, n_host=1.5, medium=HGMedium(mu_s=1.0, mu_a=0.1, g=0.5), roughness=0.3)
+    with pytest.raises(ParameterError, match="dye_"):
+        Fiber(**args, dye_profile=profile, dye_depth_um=depth)
+
+
+def test_a_dye_profile_is_refused_by_the_next_event_route():
+    """The next-event vertex estimators attenuate towards the exit with a uniform dye: a ring is refused, named."""
+    fiber = Fiber(radius_um=5.0, n_host=1.5, medium=HGMedium(mu_s=1.0, mu_a=0.1, g=0.5), roughness=0.3,
+                  dye_profile="ring", dye_depth_um=1.0)
+    with pytest.raises(ParameterError, match="dye profile"):
+        volume_brdf(fiber, W_IN, W_OUT, [500.0], target_rel_err=0.2, max_photons=2_000, seed=5)
+
+
 @pytest.mark.parametrize("f_out", [0.9, 0.999])
 def test_the_reflection_order_follows_the_geometric_law_below_and_above_the_switch(f_out):
     """The next-event estimator's number of internal reflections before an exit, P(k) = (1 - F) F^k: one draw
