@@ -27,7 +27,8 @@ from fabric_optics.fitting.errors import FitError
 from gonio.data.dataset import Dataset
 from gonio.data.formats import GRAZING_DEG
 from gonio.data.schema import WAVELENGTH_RANGE_NM
-from simulate.config import SimulationConfig
+from simulate.config import SimulationConfig, require_single_population
+from simulate.config_table import ConfigError
 from simulate.fiber.absorption import DEFAULT_NODES
 from simulate.structwalk.walk import STRUCTURE_FIELDS
 
@@ -316,6 +317,10 @@ def make_spec(config: SimulationConfig, measured: Dataset, free: list[FreeParame
     ``seed`` defaults to the config's; ``wavelengths_nm`` to the measurement's (spectral) or the config's (RGB).
     Rows at ``theta_i >= 89`` deg are left out with a note (the rule of ``gonio import``).
     """
+    try:     # a blend's populations each replace the dye a fit would vary: refused until fits free them
+        require_single_population(config, "simulate fit")
+    except ConfigError as exc:
+        raise FitError(str(exc)) from None
     if method not in SPEC_MODELS:
         raise FitError(f"--method must be classic or summation, got {method!r}")
     if level_weight and measured.relative:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -99,3 +100,21 @@ def test_the_fit_specification_is_frozen(red_cotton):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert p.counters.evaluations == 0 and p.counters.walks == 0
+
+
+def test_a_fit_of_a_fibre_blend_is_refused_in_one_line_naming_the_config(tmp_path):
+    """A blend's populations each replace the config's dye, so a fit that varies the dye would never reach the
+    model: every method refuses a config with two populations before any walk, naming the file."""
+    import fabric_optics as fo
+
+    cfg = tmp_path / "blend.toml"
+    text = (Path("simulate/configs/red-cotton.toml").read_text(encoding="utf-8")
+            + '\n[[populations]]\nname = "pale"\nshare = 0.5\n[[populations]]\nname = "dark"\nshare = 0.5\n'
+            + '[populations.fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [0.2, 0.2]\n')
+    cfg.write_text(text, encoding="utf-8")
+    for method in ("classic", "summation", "mc"):
+        with pytest.raises(fo.InputError, match=r"blend\.toml: populations: simulate fit takes one fiber "
+                                                r"population, this config has 2 \(pale, dark\)"):
+            fo.fit(cfg, "fixtures/analytic/measured_red", ["rms_slope"], tmp_path / f"out-{method}",
+                   method=method)
+        assert not (tmp_path / f"out-{method}" / "fit.json").exists()
