@@ -35,7 +35,7 @@ the issue)::
                                    or {"reason": str}}}}
 
 ``shape`` holds each dataset's own opposition and mirror-to-neighbours ratios
-(:mod:`compare.felt_metrics`; the normalisation cancels in them), or why the dataset lacks the
+(:mod:`compare.ratios`; the normalisation cancels in them), or why the dataset lacks the
 points they need.
 
 Names are the datasets' ``name`` (``meta.sample.name`` or the directory name), made unique with a
@@ -67,7 +67,7 @@ from gonio.data import Dataset
 from .align import align, shared_wavelengths
 from .bands import Bands, colour_resampling, prepare
 from .colourmatch import ColourMatch, colour_match, colour_refusal
-from .felt_metrics import shape_document
+from .ratios import shape_document
 from .errors import CompareError
 from .metrics import CurveError, curve_errors
 from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,

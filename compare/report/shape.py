@@ -1,11 +1,11 @@
-"""The report's shape-ratio section: opposition and mirror-to-neighbours ratios (:mod:`compare.felt_metrics`)."""
+"""The report's shape-ratio section: opposition and mirror-to-neighbours ratios (:mod:`compare.ratios`)."""
 
 from __future__ import annotations
 
 import html
 
 from ..comparison import Comparison
-from ..felt_metrics import INNER_DEG, NEIGHBOUR_DEG, OUTER_DEG
+from ..ratios import INNER_DEG, NEIGHBOUR_DEG, OUTER_DEG
 from .page import Section
 from .prose import fmt
 

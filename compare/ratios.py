@@ -1,8 +1,9 @@
-r"""Two shape ratios of a BRDF that tell how a felt's fibres scatter: opposition and mirror.
+r"""Two shape ratios of any BRDF dataset: opposition (shadow-hiding) and mirror-to-neighbours.
 
 Both are ratios of one dataset's own values at one wavelength (or channel), so the normalisation
 factor ``k(lambda)`` of a comparison cancels: they are the same for a simulation before and
-after normalising, and a model is judged by its ratio against the measurement's.
+after normalising, and a model is judged by its ratio against the measurement's. A felt's fibres
+show in both (docs/notes/felt-structure.md), but nothing here is felt-specific.
 
 **Opposition ratio** (shadow-hiding). At an incidence ``theta_i > 0`` let ``w_r`` be the retro
 direction (towards the source). The *ring at rho* is the set of directions at angle ``rho`` from
