@@ -146,7 +146,7 @@ def align(measured: Dataset, simulated: Dataset, wavelength_nm) -> pd.DataFrame:
         raise CompareError(
             f"simulated dataset '{simulated.name}' ({simulated.source}) shares no geometry with "
             f"measured dataset '{measured.name}' ({measured.source}), not even by interpolation; "
-            "simulate at the measured geometries (e.g. simulate fabric --geometry PLAN.toml)")
+            "simulate at the measured geometries (e.g. simulate fabric --plan PLAN.toml)")
     if dropped.any():
         n_geo = merged.loc[dropped, list(GEOMETRY)].drop_duplicates().shape[0]
         log.warning("%d measured geometries lie outside simulated dataset '%s' and are left out",

@@ -98,15 +98,13 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     step_nm = 10
     # or: list_nm = [450, 550, 650]
 
-Exactly one of ``[particles]`` and ``[medium]`` is required. ``[method] method`` (the fiber route
-before it was ``[fiber] route``) is still read, with a deprecation warning; the removed ``[structure]``
-switches are refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
+Exactly one of ``[particles]`` and ``[medium]`` is required. The removed ``[structure]`` switches are
+refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
 """
 
 from __future__ import annotations
 
 import hashlib
-import logging
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -135,7 +133,6 @@ __all__ = [
     "resolve_config_path",
 ]
 
-log = logging.getLogger(__name__)
 
 _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
@@ -471,13 +468,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     weave_t = top.sub("weave", fields=_FIELDS["weave"])
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method", fields=_FIELDS["method"] + ("method",)) or Table({}, "method", file)   # + the old route
-    if mt.has("method"):
-        if fib.has("route"):
-            raise mt.fail("method", "and fiber.route both give the fiber route: delete method.method")
-        route = mt.string("method", "nee", choices=ROUTES) or "nee"
-        log.warning("%s: method.method is deprecated; write route = %s in [fiber] instead "
-                    "(method.method is read until the next release)", file, show(route))
+    mt = top.sub("method", fields=_FIELDS["method"]) or Table({}, "method", file)
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
     threads = mt.integer("threads", 0, ge=0, le=1024)

@@ -49,7 +49,6 @@ from compare.errors import CompareError
 from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
 from fabric_optics import api
-from fabric_optics.cli import common
 from fabric_optics.cli.common import Parser, UsageError, add_force, add_verbose, refuse_existing
 
 __all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main", "build_parser"]
@@ -293,7 +292,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``compare`` command line; return the exit status."""
     parser = build_parser()
     try:
-        args = common.clean(parser.parse_args(argv))
+        args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code) if isinstance(exc.code, int) else 2
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,

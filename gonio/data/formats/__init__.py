@@ -93,8 +93,8 @@ def _import(fmt: str, paths: Sequence[str | os.PathLike], geometries: pd.DataFra
         from gonio.data.formats.pgii import pgii_dataset, read_pgii
 
         if geometries is not None:
-            raise FormatError("pgII files are measured at their own geometries; --geometry "
-                              "does not apply", hint="leave out --geometry")
+            raise FormatError("pgII files are measured at their own geometries; --plan "
+                              "does not apply", hint="leave out --plan")
         return pgii_dataset([read_pgii(p) for p in paths], scale=scale,
                             white=read_pgii(white) if white is not None else None,
                             white_reflectance=white_reflectance)

@@ -308,7 +308,7 @@ class RGLBSDF:
         if len(geo) * self._n_bands > MAX_ROWS:
             raise FormatError(f"{len(geo)} geometries x {self._n_bands} bands is "
                               f"{len(geo) * self._n_bands} rows, more than {MAX_ROWS}",
-                              file=self.path, hint="evaluate at fewer geometries (--geometry)")
+                              file=self.path, hint="evaluate at fewer geometries (--plan)")
         beta = self.beta(*(geo[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_o",
                                                                    "phi_o")))
         rows = []
