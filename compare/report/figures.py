@@ -3,6 +3,41 @@ factor, swatches and colour strips; :func:`save_figure` writes PNG (and SVG on r
 
 In figure labels ``$`` is escaped so that matplotlib does not read names as mathtext
 (:func:`mpl_label`).
+
+Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HTML as base64 PNG):
+
+The in-plane figures have the layout of the paper's Figure 7: one panel per incidence angle side
+by side, the measurement as points with error bars, each simulation as a line with its own +-1
+standard uncertainty shaded around it (``k u_C``; the luminance curve sums the wavelengths'
+uncertainties linearly, the white Monte Carlo's errors being correlated across wavelengths).
+
+``inplane_luminance.png``
+    One panel per incidence angle present (0, 30, 45, 60 deg for the red-cotton plan), the
+    luminance-weighted radiance coefficient ``Y[beta] / pi`` (the CIE ``Y`` of the spectrum
+    under the report's illuminant, ``Y = 1`` for the ideal white diffuser, i.e. a band average
+    weighted by what the eye sees) against the signed observation angle ``s``; measured as points
+    with error bars (``u_Y / pi``, ``u_beta`` propagated through the linear ``Y`` weights), each
+    simulation (normalised per wavelength) as a line.
+``inplane_<W>nm.png``
+    The same at single wavelengths: the shared wavelengths nearest 450, 550 and 650 nm
+    (``beta / pi``, error bars ``u_beta / pi``).
+``spectrum.png``
+    Spectra at the colour geometry: left, the simulations normalised per wavelength; right, scaled
+    by the one luminance factor ``k_Y`` used for the colour match (:mod:`compare.colourmatch`).
+``factor.png``
+    The normalisation factor ``k(lambda)`` of each simulation with its standard uncertainty.
+``swatches.png``
+    Colour swatches (display sRGB) of the measurement and each simulation at the colour geometry,
+    labelled with the H, S, V of the displayed (gamma-encoded) pixel.
+``colour_strips.png``
+    The colour along every in-plane curve: per incidence, one strip per dataset, one swatch per
+    observation angle (the dataset's own spectrum there -> linear sRGB via
+    :mod:`gonio.data.colour`, scaled to the strip's brightest swatch, gamma-encoded for display);
+    the caption gives the hue at both ends of each highest-incidence strip.
+
+Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
+contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
+are shown), otherwise at the measured geometries (interpolated).
 """
 
 from __future__ import annotations

@@ -74,7 +74,7 @@ def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Sec
              "<code>simulate fit</code> (objective NRMSE^2 + w_c (dh^2 + ds^2), the figures "
              "compare reports; uncertainties: standard, the measurement's u_beta and the model's "
              "Monte Carlo error propagated through the whole objective, linearised at the "
-             "solution; see the README's fit section). 'config value' and 'before' are the start config's value and figures; the search itself may start elsewhere (a --dye knots fit starts from the knots inverted from the measured colour: the start note says so).</p>"]
+             "solution; the manual's page \"Fit parameters\", docs/how-to/fit.md, says how to read them). 'config value' and 'before' are the start config's value and figures; the search itself may start elsewhere (a --dye knots fit starts from the knots inverted from the measured colour: the start note says so).</p>"]
     for fit_dir in map(Path, fit_dirs):
         doc = read_fit(fit_dir)
         info = doc.get("info") or {}

@@ -39,8 +39,8 @@ that line: :func:`read_journal` raises :class:`JournalIntegrityError` naming the
 point into the dataset. A kill leaves at most a torn last line, which fails to parse (the chain
 is never partly written: a line and its hash are one ``write``), so crash-safety is unchanged.
 
-Journals written before the chain (no ``"h"`` on their first line) stay readable: their lines
-are read unchecked, as before (:attr:`JournalContent.unchained_lines` counts them and
+Journals without the chain (no ``"h"`` on their first line) stay readable: their lines
+are read unchecked (:attr:`JournalContent.unchained_lines` counts them and
 ``--resume`` says so in its log); records appended to such a journal are chained, with ``h_0``
 the SHA-256 of the old lines, so from then on an edit of an old line is detected too. Once a
 journal has a chained line, every later line must be chained. The chain detects edits and

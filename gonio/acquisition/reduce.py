@@ -12,8 +12,8 @@ session's cumulative retry counter (``retries``) at its checkpoint. The meta's `
 over the sessions (a ``start`` record or a ``resume`` event opens one), each session's last
 snapshot - its ``session_end`` counts when it ended, else those of its last checkpoint (retries
 spent on a point that was never journaled are lost with that point). ``sessions`` counts every
-session, killed ones included. Journals written before the snapshots existed sum their
-``session_end`` events as before.
+session, killed ones included. A journal whose records carry no snapshots sums its
+``session_end`` events.
 """
 
 from __future__ import annotations

@@ -213,8 +213,8 @@ def _illuminant_data(illuminant: str):
     """``(cmfs, illuminant spectrum, white xy)`` of the illuminant named ``illuminant`` (a key of
     ``colour.SDS_ILLUMINANTS``), ValueError for any other name.
 
-    colour-science's mappings compare a name with every key in several spellings (about 2 ms a
-    look-up), so the data of each accepted name are looked up once (:func:`_illuminant_entry`);
+    colour-science's mappings compare a name with every key in several spellings (slow for a
+    look-up in a loop), so the data of each accepted name are looked up once (:func:`_illuminant_entry`);
     an unknown name is not remembered and is refused again on every call.
     """
     if not isinstance(illuminant, str):

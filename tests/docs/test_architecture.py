@@ -94,3 +94,17 @@ def test_a_line_that_is_not_an_entry_is_refused():
     lines = LINES[:start + 1] + [" instrument/ the instrument"] + LINES[start + 1:]
     with pytest.raises(ValueError, match="not a tree entry"):
         arch.page_entries(lines)
+
+
+def test_every_page_of_the_manual_the_code_names_exists():
+    """Docstrings, comments and messages (the report's words included) point to pages that exist."""
+    import re
+
+    named = {}
+    for pkg in arch.PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            for m in re.finditer(r"\bdocs/[\w/.-]+\.md\b", path.read_text(encoding="utf-8")):
+                named.setdefault(m.group(0), path.relative_to(ROOT).as_posix())
+    assert "docs/how-to/fit.md" in named and "docs/notes/implementation.md" in named
+    missing = {page: where for page, where in named.items() if not (ROOT / page).is_file()}
+    assert not missing, f"pages named in the code that do not exist: {missing}"
