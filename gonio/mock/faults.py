@@ -55,12 +55,7 @@ hit by several kinds gets the first in this order: modbus_drop, modbus_norespons
 ``axis_fault``         (one opportunity per accepted move command) the axis stops half way
                        with fault 1 (following error); CONTROL bit3 resets it.
 
-A faulted exchange never advances the head's repetition counter (its readings are discarded),
-so a session that retries through faults measures exactly the numbers of a clean session:
-faults never corrupt a reading that is reported as good. Modbus faults never touch it either: a
-Modbus request changes the head's state only through the controller (a move, a coil, the sample
-slot), and repeating such a request (after a drop that did execute it) resets the counter to the
-same zero.
+Faults never corrupt a reading reported as good (:class:`FaultInjector`).
 """
 
 from __future__ import annotations
@@ -144,6 +139,13 @@ class FaultInjector:
     """Deterministic fault decisions per kind, from the seed and the sequence of opportunities.
 
     ``stats`` counts the faults injected per kind.
+
+    A faulted exchange never advances the head's repetition counter (its readings are discarded),
+    so a session that retries through faults measures exactly the numbers of a clean session:
+    faults never corrupt a reading that is reported as good. Modbus faults never touch it either: a
+    Modbus request changes the head's state only through the controller (a move, a coil, the sample
+    slot), and repeating such a request (after a drop that did execute it) resets the counter to the
+    same zero.
     """
 
     def __init__(self, spec: str | dict[str, FaultRule] | None, seed: int = 0):
