@@ -2,7 +2,7 @@
 
 ``simulate fabric CONFIG --method classic|summation|mc --out DIR [--plan PLAN]`` (docs/physics.md
 section 7) evaluates the chosen fabric model (:mod:`simulate.fabric`) at the geometries and
-wavelengths of an acquisition plan (:mod:`gonio.plan`; default: the shipped ``red-cotton`` plan)
+wavelengths of an acquisition plan (:mod:`gonio.acquisition.plan`; default: the shipped ``red-cotton`` plan)
 and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`gonio.data.dataset`:
 
 - ``beta`` = the model's radiance coefficient; ``u_beta`` = its Monte Carlo standard error,
