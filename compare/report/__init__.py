@@ -1,5 +1,6 @@
-"""The comparison report: ``report.html`` (one self-contained file), ``figures/*.png``,
-``metrics.json`` -- a list of sections.
+"""The comparison report as a list of sections.
+
+``report.html`` (one self-contained file), ``figures/*.png`` and ``metrics.json``.
 
 One concept per module:
 

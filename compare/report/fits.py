@@ -15,8 +15,8 @@ from __future__ import annotations
 import html
 import json
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 from ..errors import CompareError
 from .page import Section
@@ -67,8 +67,10 @@ def _made_from(fit_dir: Path, simulated: Mapping) -> list[str]:
 
 
 def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Section:
-    """The "Fitted parameters" section (module docstring); ``simulated``: the report's
-    simulated datasets by name."""
+    """The "Fitted parameters" section (module docstring).
+
+    ``simulated``: the report's simulated datasets by name.
+    """
     e = html.escape
     parts = ["<h2>Fitted parameters</h2><p>Each model below was fitted to the measurement by "
              "<code>simulate fit</code> (objective NRMSE^2 + w_c (dh^2 + ds^2), the figures "

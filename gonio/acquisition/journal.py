@@ -52,8 +52,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import re
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -113,7 +113,7 @@ def _check_fields(rec: dict, spec: dict[str, Any], where: str) -> None:
             raise JournalError(f"{where}: field '{key}' has the wrong type ({type(v).__name__})")
 
 
-def _validate(rec: Any, where: str) -> dict:
+def _validate(rec: Any, where: str) -> dict:  # noqa: C901
     if not isinstance(rec, dict):
         raise JournalError(f"{where}: a record must be a JSON object")
     if not _finite(rec):
@@ -292,7 +292,7 @@ class Journal:
         self._head = hashlib.sha256(b"").hexdigest()
 
     @classmethod
-    def open(cls, path: str | os.PathLike) -> tuple["Journal", JournalContent]:
+    def open(cls, path: str | os.PathLike) -> tuple[Journal, JournalContent]:
         """Open for appending after reading what is there; a torn last line is cut off first.
 
         A last record complete but for its newline is kept (the newline is added).

@@ -390,7 +390,7 @@ def _procedure(f: _Fields) -> Procedure:
     return Procedure(tuple(steps), every)
 
 
-def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
+def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:  # noqa: C901
     """Validate plan TOML text (bytes or str) and build a :class:`Plan`; raises :class:`PlanError`."""
     file = str(path)
     if isinstance(raw, str):
@@ -425,7 +425,7 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
         wavelengths = list(_DEFAULT_WAVELENGTHS)
     wl.unknown()
     field_name = "list_nm" if "list_nm" in wl.table else "start_nm"
-    for k, w in enumerate(wavelengths):
+    for w in wavelengths:
         if not 380.0 <= w <= 780.0:
             wl.fail(field_name, f"wavelength {w} nm outside the monochromator range 380..780 nm")
         if abs(w * 10.0 - round(w * 10.0)) > 1e-6:
@@ -616,7 +616,7 @@ class Plan:
         ok, blocked, bad = [], [], []
         for p in self.points():
             reason = None
-            for axis, v in zip(AXES, p.axes_deg):
+            for axis, v in zip(AXES, p.axes_deg, strict=True):
                 if not axis.within_limits(deg_to_mdeg(v)):
                     reason = (f"{axis.name} at {v:g} deg outside the soft limits "
                               f"{axis.min_mdeg / 1000:g}..{axis.max_mdeg / 1000:g} deg")

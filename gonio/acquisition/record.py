@@ -44,8 +44,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gonio.instrument.transport import (LineTransport, LinkLost, LinkTimeout, ModbusExceptionResponse,
-                                        RequestTransport, TransportError)
+from gonio.instrument.transport import (
+    LineTransport,
+    LinkLost,
+    LinkTimeout,
+    ModbusExceptionResponse,
+    RequestTransport,
+    TransportError,
+)
 
 __all__ = ["TRANSCRIPT_FORMAT", "TranscriptError", "TranscriptIntegrityError", "ReplayMismatch",
            "TranscriptWriter", "reseal",
@@ -236,7 +242,7 @@ class Transcript:
                                       line=self.pos + 2))
 
 
-def load_transcript(path: str | os.PathLike) -> Transcript:
+def load_transcript(path: str | os.PathLike) -> Transcript:  # noqa: C901
     """Read and validate a transcript file; raises :class:`TranscriptError`."""
     p = Path(path)
     try:

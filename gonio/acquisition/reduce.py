@@ -43,7 +43,7 @@ def _versions() -> dict:
 
 
 def _iso(t: float) -> str:
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.fromtimestamp(t, _dt.UTC).isoformat(timespec="seconds")
 
 
 def point_key(point: dict) -> tuple[float, ...]:
@@ -93,7 +93,7 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
             ref = refs[wl]
             d = darks[(r["itime_ms"], r["gain"])]
             dr = darks[(ref["itime_ms"], ref["gain"])]
-            for name, v in zip(("theta_i", "phi_i", "theta_o", "phi_o"), key):
+            for name, v in zip(("theta_i", "phi_i", "theta_o", "phi_o"), key, strict=True):
                 cols[name].append(v)
             cols["wavelength_nm"].append(wl)
             cols["S"].append(r["mean"]); cols["uS"].append(r["sem"])

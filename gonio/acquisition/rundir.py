@@ -52,7 +52,7 @@ class RunDirLock:
         self.path, self._fd = path, fd
 
     @classmethod
-    def acquire(cls, run_dir: str | os.PathLike) -> "RunDirLock":
+    def acquire(cls, run_dir: str | os.PathLike) -> RunDirLock:
         """Create ``run_dir`` if needed and lock it; :class:`RunDirLocked` if it is taken."""
         path = Path(run_dir)
         path.mkdir(parents=True, exist_ok=True)
@@ -77,7 +77,7 @@ class RunDirLock:
                 os.close(self._fd)
                 self._fd = None
 
-    def __enter__(self) -> "RunDirLock":
+    def __enter__(self) -> RunDirLock:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -17,13 +17,12 @@ import datetime as _dt
 import secrets
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from gonio.acquisition.engine import Engine, Interrupted, RunResult
 from gonio.acquisition.plan import Plan
-from gonio.acquisition.record import (RecordingTransport, ReplayTransport, Transcript, TranscriptError,
-                                      TranscriptWriter)
+from gonio.acquisition.record import RecordingTransport, ReplayTransport, Transcript, TranscriptError, TranscriptWriter
 from gonio.acquisition.rundir import RunDirLock, owned_by_run
 from gonio.acquisition.subscribers import DatasetWriter, ProgressReporter
 from gonio.data.outputs import check_output
@@ -88,7 +87,7 @@ def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, pro
         owner_token = secrets.randbelow(2**32 - 1) + 1
     writer = None
     if record is not None:
-        created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        created = created or _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         writer = TranscriptWriter(record, {"created": created, "seed": seed,
                                            "modbus": modbus.url, "serial": serial_link.url,
                                            "plan": plan.name, "plan_sha256": plan.sha256,

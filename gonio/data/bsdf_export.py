@@ -63,8 +63,9 @@ import json
 import logging
 import os
 import struct
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -122,7 +123,7 @@ def write_tensor_file(path: str | os.PathLike, fields: dict[str, np.ndarray]) ->
         pad = (-len(data)) % 8
         blobs.append(data + b"\0" * pad)
         offset += len(data) + pad
-    for (name, a), off in zip(items, offsets):
+    for (name, a), off in zip(items, offsets, strict=True):
         raw = name.encode()
         header += struct.pack("<H", len(raw)) + raw
         header += struct.pack("<HBQ", a.ndim, _DTYPE_CODES[a.dtype], off)
@@ -414,7 +415,7 @@ def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
         raise ExportError(f"an RGB export needs 3 channels (R, G, B); the source gives {n_bands}")
     table = np.zeros((phis.size, nodes.size, n_bands, res * res))
     start = 0
-    for (p, j, idx), fac in zip(where, factor):
+    for (p, j, idx), fac in zip(where, factor, strict=True):
         table[p, j][:, idx] = (np.clip(values[start:start + idx.size], 0, None) * fac[:, None]).T
         start += idx.size
     table = table.reshape(phis.size, nodes.size, n_bands, res, res)

@@ -113,7 +113,7 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     if not np.all(np.isfinite(values)):
         raise ValueError("the spectrum contains NaN or infinite values")
     cmfs, sd_illuminant, white_xy = _illuminant_data(illuminant)
-    sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist())), name="beta")
+    sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist(), strict=True)), name="beta")
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
         xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0

@@ -61,8 +61,9 @@ import re
 import shutil
 import stat
 import tempfile
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -86,10 +87,24 @@ __all__ = [
     "write_dataset",
 ]
 
-from gonio.data.schema import (ANGLE_TOL_DEG, BETA_MAX, CHANNELS, COLUMNS, CSV_NAME,  # noqa: F401
-                               DEFAULT_COLOUR_SPACE, GEOMETRY, KINDS, META_MAX_DEPTH, META_NAME,
-                               N_MAX, RGB_COLUMNS, SCHEMA, U_BETA_MAX_RATIO, WAVELENGTH_RANGE_NM,
-                               DatasetError)
+from gonio.data.schema import (  # noqa: F401
+    ANGLE_TOL_DEG,
+    BETA_MAX,
+    CHANNELS,
+    COLUMNS,
+    CSV_NAME,
+    DEFAULT_COLOUR_SPACE,
+    GEOMETRY,
+    KINDS,
+    META_MAX_DEPTH,
+    META_NAME,
+    N_MAX,
+    RGB_COLUMNS,
+    SCHEMA,
+    U_BETA_MAX_RATIO,
+    WAVELENGTH_RANGE_NM,
+    DatasetError,
+)
 
 _FLOAT_FORMAT = "%.10g"
 
@@ -229,7 +244,7 @@ def _type_name(value: Any) -> str:
                                                                         type(value).__name__)
 
 
-def _validate_meta(meta: Any, file: str | None) -> dict:
+def _validate_meta(meta: Any, file: str | None) -> dict:  # noqa: C901
     if not isinstance(meta, dict):
         raise DatasetError(f"must hold a JSON object, not {_type_name(meta)}", file=file)
     if not _meta_depth_ok(meta):
@@ -487,12 +502,12 @@ class Dataset:
 
         rows = self.spectrum(theta_i, phi_i, theta_o, phi_o)
         if self.is_rgb:
-            values = dict(zip(rows["channel"], rows["beta"]))
+            values = dict(zip(rows["channel"], rows["beta"], strict=True))
             return rgb_colour(values, colour_space=self.colour_space or DEFAULT_COLOUR_SPACE)
         return spectrum_colour(rows["wavelength_nm"].to_numpy(), rows["beta"].to_numpy(),
                                illuminant=illuminant)
 
-    def with_values(self, beta, u_beta=None, meta_update: Mapping | None = None) -> "Dataset":
+    def with_values(self, beta, u_beta=None, meta_update: Mapping | None = None) -> Dataset:
         """A new dataset with the same rows and new ``beta`` (and ``u_beta``) values."""
         table = self.table.copy()
         table["beta"] = np.asarray(beta, dtype=float) * np.ones(len(table))
@@ -542,7 +557,7 @@ def new_meta(kind: str, sample: Mapping, source: Mapping | None = None,
         "sample": dict(sample),
         ("instrument" if kind == "measured" else "model"): dict(source or {}),
         "wavelengths_nm": [],
-        "created": created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": created or _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "software": _software(),
         "provenance": dict(provenance or {}),
     }
@@ -574,7 +589,7 @@ def make_dataset(table: pd.DataFrame | Mapping[str, Iterable], meta: Mapping,
     return dataset
 
 
-def _fill_band_meta(dataset: "Dataset") -> None:
+def _fill_band_meta(dataset: Dataset) -> None:
     """``wavelengths_nm`` (spectral) or ``channels`` and ``colour_space`` (RGB) from the table."""
     meta = dataset.meta
     if dataset.is_rgb:
@@ -782,7 +797,7 @@ def _file_kind(mode: int) -> str:
     return next((name for test, name in kinds if test(mode)), "a special file")
 
 
-def read_dataset(path: str | os.PathLike) -> Dataset:
+def read_dataset(path: str | os.PathLike) -> Dataset:  # noqa: C901
     """Read and validate the dataset in directory ``path``; raise :class:`DatasetError`."""
     root = Path(path)
     hint = f"a dataset is a directory holding {CSV_NAME} and {META_NAME}"

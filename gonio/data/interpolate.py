@@ -14,14 +14,14 @@ scipy.interpolate.LinearNDInterpolator (barycentric interpolation on a Qhull tri
 
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
 
 from gonio.data.geometry import signed_angle
 from gonio.data.schema import ANGLE_TOL_DEG, GEOMETRY, DatasetError
-
 
 
 class Dataset(Protocol):
@@ -46,7 +46,7 @@ class Dataset(Protocol):
 __all__ = ["interpolate"]
 
 
-def interpolate(dataset: "Dataset", theta_i, phi_i, theta_o, phi_o, band):
+def interpolate(dataset: Dataset, theta_i, phi_i, theta_o, phi_o, band):
     """``(beta, u_beta)`` of ``dataset`` at arbitrary geometries and bands inside the data.
 
     Parameters
@@ -129,14 +129,14 @@ def interpolate(dataset: "Dataset", theta_i, phi_i, theta_o, phi_o, band):
     return beta.reshape(shape), u_beta.reshape(shape)
 
 
-def _geometry_interpolator(dataset: "Dataset", rotation: float) -> Callable:
+def _geometry_interpolator(dataset: Dataset, rotation: float) -> Callable:
     """A function (theta_i, theta_o, dphi) -> (beta per band, u_beta per band) for one phi_i,
     built once per dataset and rotation (:meth:`Dataset.derived`)."""
     return dataset.derived(("geometry interpolator", rotation),
                            lambda: _build_geometry_interpolator(dataset, rotation))
 
 
-def _build_geometry_interpolator(dataset: "Dataset", rotation: float) -> Callable:
+def _build_geometry_interpolator(dataset: Dataset, rotation: float) -> Callable:
     from scipy.interpolate import LinearNDInterpolator
 
     table = dataset.table

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from gonio.instrument.head_commands import HEAD_COMMANDS, HEAD_ERRORS
 from gonio.instrument.modbus_map import AXES, AXIS_BLOCK_BASE, AXIS_BLOCK_STRIDE, MODBUS_MAP

@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 __all__ = [
     "IDN_MAKER", "IDN_MODEL", "SATURATION_COUNTS", "ADC_MAX_COUNTS", "OVERLOAD_COUNTS",

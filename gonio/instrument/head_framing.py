@@ -20,10 +20,19 @@ from __future__ import annotations
 import math
 import re
 
-from gonio.instrument.head_commands import (HEAD_ERRORS, READ_N_RANGE, ChecksumError,
-                                            ChecksumMissing, ErrorEntry,
-                                            GarbledResponse, Identity, NoResponse, Reading,
-                                            TruncatedResponse, head_error)
+from gonio.instrument.head_commands import (
+    HEAD_ERRORS,
+    READ_N_RANGE,
+    ChecksumError,
+    ChecksumMissing,
+    ErrorEntry,
+    GarbledResponse,
+    Identity,
+    NoResponse,
+    Reading,
+    TruncatedResponse,
+    head_error,
+)
 
 __all__ = ["LINE_TERMINATOR", "checksum", "format_response", "parse_response", "RESPONSE_KINDS"]
 
@@ -84,7 +93,7 @@ def _as_int(text: str, what: str) -> int:
     return int(text)
 
 
-def parse_response(line: bytes, chk: bool, expect: str = "text"):
+def parse_response(line: bytes, chk: bool, expect: str = "text"):  # noqa: C901
     """Parse one head response line (as read, terminator included) into a typed value.
 
     Parameters

@@ -42,15 +42,26 @@ import functools
 import itertools
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from gonio.data.geometry import beam_blocked
 from gonio.instrument.errors import AxisFaultError, DeviceError, InstrumentTaken
-from gonio.instrument.modbus_map import (HOME_POSITIONS_MDEG, IN_POSITION_TOLERANCE_MDEG, N_AXES,
-                                         VELOCITY_RANGE_CDEG_S, AxisCommand, AxisFault, AxisStatus,
-                                         Control, ControllerStatus, ModbusException, SampleSlot,
-                                         deg_to_mdeg, mdeg_to_deg)
+from gonio.instrument.modbus_map import (
+    HOME_POSITIONS_MDEG,
+    IN_POSITION_TOLERANCE_MDEG,
+    N_AXES,
+    VELOCITY_RANGE_CDEG_S,
+    AxisCommand,
+    AxisFault,
+    AxisStatus,
+    Control,
+    ControllerStatus,
+    ModbusException,
+    SampleSlot,
+    deg_to_mdeg,
+    mdeg_to_deg,
+)
 from gonio.instrument.registers import Coil, HoldingRegister, InputRegister, ModbusDevice
 from gonio.instrument.retry import RetryPolicy
 from gonio.instrument.transport import RequestTransport
@@ -315,7 +326,7 @@ class MotionController(ModbusDevice):
         for a in self._safe_order(changed, targets, what):
             mdeg = targets[a]
             try:
-                self.write_rows(dict(zip(_AXIS_MOVE, (mdeg, v, AxisCommand.MOVE))), a,
+                self.write_rows(dict(zip(_AXIS_MOVE, (mdeg, v, AxisCommand.MOVE), strict=True)), a,
                                 f"{what}: axis {a}",
                                 took_effect=functools.partial(self._move_taken, a, mdeg, v, what))
             except DeviceError as exc:

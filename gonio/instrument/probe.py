@@ -11,8 +11,7 @@ from __future__ import annotations
 import contextlib
 
 from gonio.instrument.modbus_map import IR_FIRMWARE
-from gonio.instrument.transport import (LinkLost, ModbusTransport, SerialTransport, TransportError,
-                                        parse_modbus_url)
+from gonio.instrument.transport import LinkLost, ModbusTransport, SerialTransport, TransportError, parse_modbus_url
 
 __all__ = ["LinkSetupError", "open_links"]
 

@@ -36,7 +36,8 @@ from __future__ import annotations
 import logging
 import time
 import urllib.parse
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import serial
 from pymodbus import FramerType

@@ -154,7 +154,7 @@ class PhotometerHead:
             self.errors.append((exc.code, exc.message))
             return f"ERR {exc.code},{exc.message}", 0.0, 0, False
 
-    def _run(self, cmd: HC.HeadCommand, value) -> tuple[str, float, int, bool]:
+    def _run(self, cmd: HC.HeadCommand, value) -> tuple[str, float, int, bool]:  # noqa: C901
         key = cmd.key
         c = self.controller
         if cmd.changes_state and key != "READ?":

@@ -31,8 +31,13 @@ from gonio.mock.faults import FaultInjector
 from gonio.mock.head import PhotometerHead
 from gonio.mock.motion import INTEGRATION_FACTORS, SPEED_FACTORS, ModbusFrontend, MotionController
 from gonio.mock.samples import make_sample, reference_beta
-from gonio.mock.servers import (PtyBridge, drop_current_modbus_connection, make_dropping_tcp_server,
-                                serve_head_pty, serve_head_socket)
+from gonio.mock.servers import (
+    PtyBridge,
+    drop_current_modbus_connection,
+    make_dropping_tcp_server,
+    serve_head_pty,
+    serve_head_socket,
+)
 
 __all__ = ["MockInstrument", "MockConfigError", "parse_modbus_option", "parse_serial_option"]
 
@@ -168,7 +173,7 @@ class MockInstrument:
         """Calibrated radiance factor of the mock white standard."""
         return reference_beta(wavelength_nm)
 
-    def start(self) -> "MockInstrument":
+    def start(self) -> MockInstrument:
         """Start the servers in a background thread; returns when both endpoints are up."""
         if self._thread is not None:
             return self
@@ -205,7 +210,7 @@ class MockInstrument:
             self._bridge.stop()
             self._bridge = None
 
-    def __enter__(self) -> "MockInstrument":
+    def __enter__(self) -> MockInstrument:
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -27,8 +27,8 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 from gonio.data import geometry as G
 from gonio.instrument import links as LK
@@ -211,7 +211,7 @@ class MotionController:
         if self.on_state_change is not None:
             self.on_state_change()
 
-    def write_holding(self, address: int, values: list[int]) -> None:
+    def write_holding(self, address: int, values: list[int]) -> None:  # noqa: C901
         """Apply a holding-register write atomically (all checks first), or raise ModbusRefusal."""
         self.update()
         regs = {address + i: int(v) & 0xFFFF for i, v in enumerate(values)}

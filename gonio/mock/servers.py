@@ -60,7 +60,7 @@ class PtyBridge:
         self._thread = threading.Thread(target=self._run, name="gonio-mock-rtu-bridge", daemon=True)
         self._stop = False
 
-    def start(self) -> "PtyBridge":
+    def start(self) -> PtyBridge:
         self._thread.start()
         return self
 

@@ -26,7 +26,7 @@ and residual of a comparison. The dropped incidences are listed in the provenanc
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 import pandas as pd
 

@@ -83,7 +83,7 @@ class RegularFile:
             os.close(self.fd)
             self.fd = -1
 
-    def __enter__(self) -> "RegularFile":
+    def __enter__(self) -> RegularFile:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -34,8 +34,9 @@ RGL material database, https://rgl.epfl.ch/materials (CC0).
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -84,7 +85,7 @@ class _Marginal2D:
     def _weights(self, param: Sequence[np.ndarray]):
         """Per parameter: (index of the lower node, weight of the upper node)."""
         out = []
-        for values, p in zip(self.params, param):
+        for values, p in zip(self.params, param, strict=True):
             if values.size == 1:
                 out.append((np.zeros(np.shape(p), dtype=np.intp), np.zeros(np.shape(p))))
                 continue
@@ -376,7 +377,7 @@ def _check_header(headers: dict[str, TensorHeader], path: str) -> None:
                               hint="not an RGL .bsdf file (they hold about ten), or corrupt")
 
 
-def _check_structure(fields: dict[str, np.ndarray], path: str) -> None:
+def _check_structure(fields: dict[str, np.ndarray], path: str) -> None:  # noqa: C901
     """The shape and type checks of Mitsuba's ``measured`` plugin, with a message for each."""
     def fail(problem: str) -> None:
         raise FormatError(problem, file=path, hint="not a valid RGL .bsdf file (Dupuy & Jakob "

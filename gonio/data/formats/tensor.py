@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 import os
 import struct
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
@@ -89,7 +90,7 @@ def _read_fields(read: Callable[[int, int], bytes], headers: list[TensorHeader])
     return fields
 
 
-def _parse_headers(read: Callable[[int, int], bytes], size: int,
+def _parse_headers(read: Callable[[int, int], bytes], size: int,  # noqa: C901
                    path: str | os.PathLike) -> list[TensorHeader]:
     pos = 0
 
