@@ -166,7 +166,7 @@ class Engine:
         self.records.append(record)
 
     def _retry_snapshot(self) -> dict[str, int]:
-        """This session's cumulative retry counts (non-zero kinds, sorted)."""
+        """The session's cumulative retry counts (non-zero kinds, sorted)."""
         return {k: int(v) for k, v in sorted(self.retry.counts.items()) if v}
 
     def _reference_axes(self) -> tuple[float, float, float, float]:
@@ -308,9 +308,11 @@ class Engine:
         return content
 
     def _check_points_in_plan(self, name: str) -> None:
-        """Every journaled point is a measurable point of the plan (same axes, the plan's
-        wavelengths): the journal is not trusted blindly (an edited or foreign point would be
-        merged into the dataset and counted as done)."""
+        """Check that every journaled point is a measurable point of the plan.
+
+        Same axes, the plan's wavelengths: the journal is not trusted blindly (an edited or foreign point would be
+        merged into the dataset and counted as done).
+        """
         points: dict[tuple[float, ...], PlanPoint] = {p.key: p for p in self.check.ordered}
         wavelengths = set(map(float, self.plan.wavelengths_nm))
         for line, r in enumerate(self.records, start=1):

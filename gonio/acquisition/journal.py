@@ -167,8 +167,11 @@ class JournalContent:
 
 
 def parse_journal(data: bytes, name: str = "journal.jsonl") -> JournalContent:
-    """Parse journal bytes; raises :class:`JournalError` for anything but a torn last line
-    (:class:`JournalIntegrityError` for a line that breaks the integrity chain)."""
+    """Parse journal bytes.
+
+    Raises :class:`JournalError` for anything but a torn last line (:class:`JournalIntegrityError`
+    for a line that breaks the integrity chain).
+    """
     out = JournalContent()
     pos = 0
     lineno = 0
@@ -232,9 +235,11 @@ def parse_journal(data: bytes, name: str = "journal.jsonl") -> JournalContent:
 
 
 def check_consistency(records: list[dict], name: str = "journal.jsonl") -> None:
-    """Cross-record checks: one start record first; every point refers to an earlier
-    calibration holding a dark for each of its (integration time, gain) settings and a white
-    reference for each of its wavelengths. Raises :class:`JournalError`."""
+    """Cross-record checks; raises :class:`JournalError`.
+
+    One start record first; every point refers to an earlier calibration holding a dark for each of its (integration time, gain) settings and a white
+    reference for each of its wavelengths.
+    """
     if not records:
         return
     if records[0]["type"] != "start" or sum(r["type"] == "start" for r in records) != 1:
@@ -283,8 +288,11 @@ def _finite(obj: Any) -> bool:
 
 
 class Journal:
-    """Append-only writer; every :meth:`append` is chained (see the module's *Integrity*),
-    flushed and fsynced before it returns."""
+    """Append-only writer of the journal.
+
+    Every :meth:`append` is chained (see the module's *Integrity*), flushed and fsynced before it
+    returns.
+    """
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)

@@ -145,8 +145,10 @@ WAVELENGTH_STEP_NM = 0.1
 
 @dataclass(frozen=True)
 class Procedure:
-    """The session's steps after connecting (see the module docstring): names of
-    :data:`PROCEDURE_STEPS` in order, and ``recalibrate_every`` points (0 = never)."""
+    """The session's steps after connecting (see the module docstring).
+
+    Names of :data:`PROCEDURE_STEPS` in order, and ``recalibrate_every`` points (0 = never).
+    """
 
     steps: tuple[str, ...] = PROCEDURE_STEPS
     recalibrate_every: int = 0
@@ -273,8 +275,10 @@ def resolve_plan_path(path_or_name: str | Path) -> Path:
 
 
 def load_plan(path_or_name: str | Path) -> Plan:
-    """Read and validate a plan file or a preset name; raises :class:`PlanError`. An RGL ``.bsdf`` file gives
-    the plan of its measured incidences (:func:`measured_plan`)."""
+    """Read and validate a plan file or a preset name; raises :class:`PlanError`.
+
+    An RGL ``.bsdf`` file gives the plan of its measured incidences (:func:`measured_plan`).
+    """
     p = Path(path_or_name)
     if p.suffix == ".bsdf" and p.is_file():
         return measured_plan(p)
@@ -636,9 +640,11 @@ class Plan:
 
 def retro_ring(theta_i_deg: float, radius_deg: float, azimuths: int = RETRO_RING_AZIMUTHS
                ) -> list[tuple[float, float]]:
-    """``(theta_o, phi_o - phi_i)`` (deg) of ``azimuths`` directions ``radius_deg`` from the retro-reflection
-    (source) direction at incidence ``theta_i_deg``, evenly spaced around it starting towards the normal;
-    directions below 85 deg of zenith only (the detector's reach).
+    """``(theta_o, phi_o - phi_i)`` (deg) of a ring of directions about the retro-reflection direction.
+
+    ``azimuths`` directions ``radius_deg`` from the retro-reflection (source) direction at incidence
+    ``theta_i_deg``, evenly spaced around it starting towards the normal; directions below 85 deg of
+    zenith only (the detector's reach).
 
     >>> [(round(t, 3), round(p, 3)) for t, p in retro_ring(40.0, 6.0, 2)]
     [(34.0, 0.0), (46.0, 0.0)]
@@ -661,9 +667,10 @@ def retro_ring(theta_i_deg: float, radius_deg: float, azimuths: int = RETRO_RING
 
 
 def measured_plan(bsdf_path: str | Path, base: str | Path = "green-felt") -> Plan:
-    """The plan of an RGL ``.bsdf`` file's own measured incidences: its ``theta_i`` below the grazing
-    limit rounded to the millidegree, ``phi_i`` 0 (isotropic files), the retro-reflection ring at every
-    oblique incidence, the rest from ``base``.
+    """The plan of an RGL ``.bsdf`` file's own measured incidences.
+
+    Its ``theta_i`` below the grazing limit rounded to the millidegree, ``phi_i`` 0 (isotropic
+    files), the retro-reflection ring at every oblique incidence, the rest from ``base``.
 
     :func:`measured_plan` builds the plan that follows an RGL ``.bsdf`` file's own measured incidences
     (the green felt: ``theta_i`` = 0, 27.76, 40.03, 50.16, 59.52, 68.77, 78.56 deg; the file's 89.99 deg

@@ -52,9 +52,11 @@ def point_key(point: dict) -> tuple[float, ...]:
 
 
 def usable_points(records: list[dict]) -> list[dict]:
-    """The journal's point records whose calibration is valid
-    (:func:`gonio.acquisition.calibration.calibration_problem`; a journal written before calibrations were
-    checked may hold an invalid one: its points are measured again on resume)."""
+    """The journal's point records whose calibration is valid.
+
+    Validity is :func:`gonio.acquisition.calibration.calibration_problem`'s; the points of an
+    invalid calibration are measured again on resume.
+    """
     invalid = {r["id"] for r in records if r["type"] == "calibration"
                and calibration_problem(r["darks"], r["reference"]) is not None}
     return [r for r in records if r["type"] == "point" and r["calibration"] not in invalid]

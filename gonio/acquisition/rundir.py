@@ -27,8 +27,10 @@ _DATASET_TEMP = re.compile(r"\.(?:radiance\.csv|meta\.json)\..*\.tmp")
 
 
 def owned_by_run(run_dir: str | os.PathLike, path: str | os.PathLike) -> bool:
-    """True when ``path`` is (or would be) one of the files a session owns in ``run_dir``
-    (:data:`RUN_DIR_FILES`, the dataset writer's temporary files), symlinks resolved."""
+    """True when ``path`` is (or would be) one of the files a session owns in ``run_dir``.
+
+    Those are :data:`RUN_DIR_FILES` and the dataset writer's temporary files, symlinks resolved.
+    """
     p, d = Path(path).resolve(), Path(run_dir).resolve()
     return p.parent == d and (p.name in RUN_DIR_FILES
                               or bool(_DATASET_TEMP.fullmatch(p.name)))

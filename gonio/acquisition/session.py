@@ -73,9 +73,11 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
 
 
 def check_run_output(out: Path, *, writer: str, force: bool = False, resume: bool = False) -> None:
-    """What :func:`run_session` checks first, for a command line to check before it opens any
-    link: a run folder locked by another session (:class:`RunDirLocked`), then the output rule
-    (:func:`gonio.data.outputs.check_output`)."""
+    """What :func:`run_session` checks first, for a command line to check before it opens any link.
+
+    A run folder locked by another session (:class:`RunDirLocked`), then the output rule
+    (:func:`gonio.data.outputs.check_output`).
+    """
     if Path(out).is_dir():
         RunDirLock.acquire(out).release()
     check_output(out, "run", writer=writer, force=force, resume=resume)
@@ -135,6 +137,7 @@ class ReplayClock:
             self.t = 0.0
 
     def __call__(self) -> float:
+        """The recording's start (seconds since the epoch), the same on every call."""
         return self.t
 
 

@@ -95,6 +95,12 @@ class ExportError(DatasetError):
 
 @dataclass
 class ExportResult:
+    """What an export wrote.
+
+    The file, its fields, the evaluations asked of the source, the share of valid cells and, when
+    measured, the tabulation error.
+    """
+
     path: str
     fields: dict[str, np.ndarray]
     evaluations: int
@@ -104,9 +110,9 @@ class ExportResult:
 
 
 def write_tensor_file(path: str | os.PathLike, fields: dict[str, np.ndarray]) -> None:
-    """Write Mitsuba's ``tensor_file`` (little-endian, version 1.0), atomically.
+    r"""Write Mitsuba's ``tensor_file`` (little-endian, version 1.0), atomically.
 
-    Header: ``tensor_file\\0``, version bytes ``1, 0``, field count (uint32); per field the name
+    Header: ``tensor_file\0``, version bytes ``1, 0``, field count (uint32); per field the name
     (uint16 length + UTF-8), ndim (uint16), dtype code (uint8), data offset (uint64), shape
     (ndim x uint64); the data follow, each field 8-byte aligned.
     """

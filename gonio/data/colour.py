@@ -1,4 +1,4 @@
-"""Colour of a radiance-coefficient spectrum: CIE XYZ, linear sRGB, HSV and channel ratios.
+r"""Colour of a radiance-coefficient spectrum: CIE XYZ, linear sRGB, HSV and channel ratios.
 
 docs/physics.md section 7: spectral ``beta`` at one geometry -> CIE XYZ (CIE 1931 2-degree standard
 observer, illuminant D65 unless set) -> linear sRGB, so that an ideal white diffuser (``beta = 1``)
@@ -16,8 +16,8 @@ The computation is colour-science's:
 
 .. math::
 
-    X = k \\sum_\\lambda \\beta(\\lambda) S(\\lambda) \\bar x(\\lambda) \\Delta\\lambda, \\quad
-    k = 1 / \\sum_\\lambda S(\\lambda) \\bar y(\\lambda) \\Delta\\lambda
+    X = k \sum_\lambda \beta(\lambda) S(\lambda) \bar x(\lambda) \Delta\lambda, \quad
+    k = 1 / \sum_\lambda S(\lambda) \bar y(\lambda) \Delta\lambda
 
 (``colour.sd_to_XYZ``, ASTM E308 method, divided by 100 so that ``Y = 1`` for ``beta = 1``), then
 ``colour.XYZ_to_RGB(XYZ, "sRGB", illuminant=D65 white point)`` and ``colour.RGB_to_HSV``. With
@@ -210,8 +210,9 @@ def spectrum_to_rgb(wavelength_nm, beta, colour_space: str = "linear sRGB",
 
 
 def _illuminant_data(illuminant: str):
-    """``(cmfs, illuminant spectrum, white xy)`` of the illuminant named ``illuminant`` (a key of
-    ``colour.SDS_ILLUMINANTS``), ValueError for any other name.
+    """``(cmfs, illuminant spectrum, white xy)`` of the illuminant named ``illuminant``.
+
+    The name is a key of ``colour.SDS_ILLUMINANTS``; any other name is a ValueError.
 
     colour-science's mappings compare a name with every key in several spellings (slow for a
     look-up in a loop), so the data of each accepted name are looked up once (:func:`_illuminant_entry`);

@@ -110,7 +110,7 @@ _FLOAT_FORMAT = "%.10g"
 
 
 def _canonical_phi(table: pd.DataFrame) -> pd.DataFrame:
-    """phi in [0, 360); ``phi_o`` of the normal direction set to ``phi_i + 180`` (see module doc)."""
+    """Phi in [0, 360); ``phi_o`` of the normal direction set to ``phi_i + 180`` (see module doc)."""
     table = table.copy()
     for col in ("phi_i", "phi_o"):
         phi = np.mod(table[col].to_numpy(dtype=float), 360.0)
@@ -341,9 +341,11 @@ class Dataset:
         self._derived: dict = {}
 
     def derived(self, key: Any, build: Callable[[], Any]) -> Any:
-        """A value computed from this dataset's table once and kept with it (``build()`` the
-        first time ``key`` is asked for): :mod:`gonio.data.interpolate` keeps its
-        triangulations here. Valid because a dataset's table is never modified in place."""
+        """A value computed from this dataset's table once and kept with it.
+
+        ``build()`` runs the first time ``key`` is asked for: :mod:`gonio.data.interpolate` keeps
+        its triangulations here. Valid because a dataset's table is never modified in place.
+        """
         if key not in self._derived:
             self._derived[key] = build()
         return self._derived[key]
@@ -351,10 +353,12 @@ class Dataset:
     # --- descriptive properties -------------------------------------------------------------
     @property
     def kind(self) -> str:
+        """What the dataset holds: ``measured``, ``simulated``, ... (meta ``kind``)."""
         return self.meta["kind"]
 
     @property
     def name(self) -> str:
+        """The sample's name (meta ``sample.name``), else the folder's name."""
         sample = self.meta.get("sample") or {}
         name = sample.get("name") if isinstance(sample, dict) else None
         if name:
@@ -398,6 +402,7 @@ class Dataset:
 
     @property
     def wavelengths_nm(self) -> np.ndarray:
+        """The dataset's wavelengths, ascending (empty for an RGB dataset)."""
         if self.is_rgb:
             return np.array([], dtype=float)
         return np.unique(self.table["wavelength_nm"].to_numpy())
@@ -409,8 +414,11 @@ class Dataset:
 
     @property
     def complete(self) -> bool:
-        """False when the meta says the run is incomplete (``"complete": false`` at the top level
-        or in ``provenance``, as ``gonio acquire`` writes it for a stopped run); True otherwise."""
+        """False when the meta says the run is incomplete, True otherwise.
+
+        Incomplete is ``"complete": false`` at the top level or in ``provenance``, as ``gonio
+        acquire`` writes it for a stopped run.
+        """
         provenance = self.meta.get("provenance") or {}
         flag = self.meta.get("complete", provenance.get("complete"))
         return flag is not False

@@ -25,9 +25,12 @@ from gonio.data.schema import ANGLE_TOL_DEG, GEOMETRY, DatasetError
 
 
 class Dataset(Protocol):
-    """What interpolation needs of a dataset (:class:`gonio.data.dataset.Dataset` has it; that
-    module imports this one for :meth:`~gonio.data.dataset.Dataset.interpolate`, so the type is
-    structural here rather than imported)."""
+    """What interpolation needs of a dataset.
+
+    :class:`gonio.data.dataset.Dataset` has it; that module imports this one for
+    :meth:`~gonio.data.dataset.Dataset.interpolate`, so the type is structural here rather than
+    imported.
+    """
 
     table: pd.DataFrame
     source: Any
@@ -52,6 +55,7 @@ def interpolate(dataset: Dataset, theta_i, phi_i, theta_o, phi_o, band):
     Parameters
     ----------
     dataset : gonio.data.Dataset
+        The dataset whose values are interpolated.
     theta_i, phi_i, theta_o, phi_o : array_like
         Fabric-frame angles in degrees (broadcast together with ``band``).
     band : array_like
@@ -130,8 +134,10 @@ def interpolate(dataset: Dataset, theta_i, phi_i, theta_o, phi_o, band):
 
 
 def _geometry_interpolator(dataset: Dataset, rotation: float) -> Callable:
-    """A function (theta_i, theta_o, dphi) -> (beta per band, u_beta per band) for one phi_i,
-    built once per dataset and rotation (:meth:`Dataset.derived`)."""
+    """A function (theta_i, theta_o, dphi) -> (beta per band, u_beta per band) for one phi_i.
+
+    Built once per dataset and rotation (:meth:`Dataset.derived`).
+    """
     return dataset.derived(("geometry interpolator", rotation),
                            lambda: _build_geometry_interpolator(dataset, rotation))
 

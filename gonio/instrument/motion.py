@@ -199,7 +199,7 @@ class MotionController(ModbusDevice):
         self._wait(range(N_AXES), "home all", homing=True)
 
     def _homing_taken(self) -> bool:
-        """Did the controller take an unanswered ``HOME_ALL``?
+        """Whether the controller took an unanswered ``HOME_ALL``.
 
         True when every axis' COMMAND register holds HOME and the axis is homing (moving, not
         homed: a move needs a homed axis) or homed and at rest at its home position.
@@ -283,8 +283,7 @@ class MotionController(ModbusDevice):
         self.owner_token = token
 
     def check_owner(self, what: str) -> None:
-        """Raise :class:`~gonio.instrument.errors.InstrumentTaken` when the OWNER registers no
-        longer hold our token."""
+        """Raise :class:`~gonio.instrument.errors.InstrumentTaken` unless OWNER holds our token."""
         if self.owner_token is None:
             return
         found = self._read_owner(f"{what}: check owner")
@@ -341,7 +340,7 @@ class MotionController(ModbusDevice):
         self._wait(moving, what, travel_s=travel / (v / 100.0))
 
     def _move_taken(self, a: int, mdeg: int, velocity: int, what: str) -> bool:
-        """Did the controller take the move of axis ``a`` to ``mdeg`` (an unanswered write)?
+        """Whether the controller took the move of axis ``a`` to ``mdeg`` (an unanswered write).
 
         True when its TARGET, VELOCITY and COMMAND registers hold this move and the axis is
         moving, in position at the target, or faulted (the wait then reports the fault). An

@@ -205,8 +205,10 @@ class _RegisterControl:
 
     def write(self, device: ModbusDevice, value, axis: int | None, what: str | None = None, *,
               took_effect: Callable[[], bool] | None = None) -> None:
-        """Write the register (validated by :meth:`ModbusDevice.write_rows`; ``took_effect``:
-        see :meth:`ModbusDevice.call`)."""
+        """Write the register, validated by :meth:`ModbusDevice.write_rows`.
+
+        ``took_effect``: see :meth:`ModbusDevice.call`.
+        """
         if self.register.access != "rw":
             raise AttributeError(f"{self.attr} is read-only")
         where = f" of axis {axis}" if axis is not None else ""

@@ -1,4 +1,4 @@
-"""Fault injection for the mock instrument (``gonio mock --faults SPEC``).
+r"""Fault injection for the mock instrument (``gonio mock --faults SPEC``).
 
 Syntax
 ------
@@ -20,7 +20,7 @@ this order: drop, serial_timeout, busy, garbled, truncated, checksum):
 ``serial_timeout``  no answer at all; the command is not executed.
 ``busy``            ``ERR 103,Busy`` (queued for SYST:ERR?); the command is not executed.
 ``garbled``         the command is executed but bytes 0x80..0xFF (never valid ASCII) replace part
-                    of the reply; the ``\\r\\n`` terminator is kept.
+                    of the reply; the ``\r\n`` terminator is kept.
 ``truncated``       the reply is cut and sent without its terminator.
 ``checksum``        the reply carries a wrong ``*HH`` (one opportunity per reply sent in checksum
                     mode that no other fault hit, the reply to ``CHK ON`` included).
@@ -158,6 +158,7 @@ class FaultInjector:
             for k in self.rules}
 
     def active(self, kind: str) -> bool:
+        """Whether the spec names the fault ``kind``."""
         return kind in self.rules
 
     def fires(self, kind: str) -> bool:

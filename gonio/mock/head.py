@@ -85,6 +85,7 @@ class PhotometerHead:
         self.repetition = 0
 
     def reading_state(self) -> physics.ReadingState:
+        """What a reading depends on now: axes, sample slot, wavelength, integration, gain, shutter, lamp."""
         c = self.controller
         return physics.ReadingState(c.positions_mdeg(), c.slot, self.wavelength_dnm, self.itime_ms,
                                     self.gain_step, c.shutter_open, c.lamp_on)

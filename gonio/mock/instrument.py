@@ -160,8 +160,10 @@ class MockInstrument:
     # --- public API ---------------------------------------------------------------------------
     @property
     def stats(self) -> dict[str, Any]:
-        """Faults injected per kind, Modbus requests served, links dropped (and the dropped
-        requests, ``(function code, address, executed)``), head commands."""
+        """What the mock served: faults per kind, Modbus requests, dropped links, head commands.
+
+        The dropped requests are listed as ``(function code, address, executed)``.
+        """
         return {"faults": {k: int(v) for k, v in self.faults.stats.items() if v},
                 "modbus_requests": self.frontend.requests, "modbus_writes": self.frontend.writes,
                 "modbus_drops": self.frontend.drops,

@@ -94,10 +94,12 @@ class LambertSample:
         self.name = f"lambert:{rho:g}"
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        """``beta = rho`` at every geometry and wavelength."""
         ti = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)[0]
         return np.full(ti.shape, self.rho)
 
     def describe(self) -> dict:
+        """The sample as the dataset's meta records it."""
         return {"name": self.name, "model": "lambert", "rho": self.rho}
 
 
@@ -198,6 +200,7 @@ class RedCottonSample:
                 / (1.0 + np.exp(-(wl - cls.dye_edge_nm) / cls.dye_edge_width_nm)))
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        """The sample's radiance coefficient (class docstring) at the given angles (degrees) and wavelengths."""
         ti, pi_, to, po, wl = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)
         wi = directions(ti, pi_)
         wo = directions(to, po)
@@ -236,6 +239,7 @@ class RedCottonSample:
         return beta_d * (1.0 - self.grazing_loss * u ** 2) + beta_s + beta_f + beta_b
 
     def describe(self) -> dict:
+        """The sample and its constants as the dataset's meta records them."""
         return {"name": self.name,
                 "model": "analytic Oren-Nayar + retro + Ward + sheen + backscatter (gonio.mock.samples)",
                 "sigma_deg": self.sigma_deg, "retro_height": self.retro_height,
@@ -249,8 +253,10 @@ class RedCottonSample:
 
 
 def _load_truth(path: str | Path, reader):
-    """A sample's truth read from ``path`` by ``reader``; a bad file is a :class:`SampleError`
-    naming ``path`` as the user gave it."""
+    """A sample's truth read from ``path`` by ``reader``.
+
+    A bad file is a :class:`SampleError` naming ``path`` as the user gave it.
+    """
     from gonio.data import DatasetError
 
     try:
@@ -288,6 +294,7 @@ class DatasetSample:
         return rgb_spectrum(rgb, wavelength_nm)
 
     def describe(self) -> dict:
+        """The sample as the dataset's meta records it."""
         return {"name": self.name, "model": "dataset", "path": str(self.path)}
 
 
@@ -316,8 +323,11 @@ class BSDFSample:
         return rgb_spectrum(bands[..., :3], wl)                          # bands in R, G, B order
 
     def describe(self) -> dict:
-        """Name, model, path, the file's own description, its SHA-256 and, for a file the
-        project ships (:data:`KNOWN_FILES`), where it comes from and its licence."""
+        """The sample as the dataset's meta records it.
+
+        Name, model, path, the file's own description, its SHA-256 and, for a file the project
+        ships (:data:`KNOWN_FILES`), where it comes from and its licence.
+        """
         import hashlib
 
         sha = hashlib.sha256(self.path.read_bytes()).hexdigest()

@@ -43,8 +43,10 @@ def import_files(fmt: str, paths: Sequence[str | os.PathLike],
                  geometries: pd.DataFrame | None = None, *, scale: float | None = None,
                  white: str | os.PathLike | None = None, white_reflectance: float = 0.99,
                  keep_grazing: bool = False):
-    """Read ``paths`` of format ``fmt`` into one dataset (at ``geometries`` where applicable);
-    rows at ``theta_i >= GRAZING_DEG`` dropped unless ``keep_grazing`` (module docstring)."""
+    """Read ``paths`` of format ``fmt`` into one dataset (at ``geometries`` where applicable).
+
+    Rows at ``theta_i >= GRAZING_DEG`` are dropped unless ``keep_grazing`` (module docstring).
+    """
     dataset = _import(fmt, paths, geometries, scale=scale, white=white,
                       white_reflectance=white_reflectance)
     return dataset if keep_grazing else _drop_grazing(dataset, paths)

@@ -79,6 +79,7 @@ class RegularFile:
         return self.read(0, self.size)
 
     def close(self) -> None:
+        """Close the file descriptor (once; later calls do nothing)."""
         if self.fd >= 0:
             os.close(self.fd)
             self.fd = -1

@@ -90,6 +90,7 @@ class PgiiFile:
 
 
 def read_pgii(path: str | os.PathLike) -> PgiiFile:
+    """Read and parse one pgII text file (one incidence); :class:`FormatError` naming the file."""
     path = Path(path)
     data = read_file_bytes(path, MAX_BYTES, "pgII text (one incidence)")
     try:

@@ -1,6 +1,6 @@
-"""Reader of Mitsuba's ``tensor_file`` container (the RGL ``.bsdf`` files are such files).
+r"""Reader of Mitsuba's ``tensor_file`` container (the RGL ``.bsdf`` files are such files).
 
-Layout (little-endian): the 12 bytes ``tensor_file\\0``, version ``1, 0`` (two bytes), the field
+Layout (little-endian): the 12 bytes ``tensor_file\0``, version ``1, 0`` (two bytes), the field
 count (uint32), then per field: name length (uint16) and name (UTF-8), number of dimensions
 (uint16), dtype (uint8: 1 uint8 ... 10 float32, 11 float64), data offset (uint64), shape
 (ndim x uint64); the data follow at their offsets.
@@ -48,6 +48,7 @@ class TensorHeader(NamedTuple):
 
     @property
     def nbytes(self) -> int:
+        """The field's size in bytes."""
         return math.prod(self.shape) * self.dtype.itemsize
 
 
