@@ -103,21 +103,18 @@ def parse_response(line: bytes, chk: bool, expect: str = "text"):  # noqa: C901
     chk : bool
         Whether checksum mode is on (then ``*HH`` is required and verified).
     expect : str
-        The reply kind (:attr:`HeadCommand.response`): ``"text"`` (any payload, returned as str),
-        ``"ok"`` (returns None), ``"float"``, ``"int"``, ``"word"`` (str), ``"idn"``
-        (:class:`Identity`), ``"reading"`` (:class:`Reading`), ``"error_entry"``
-        (:class:`ErrorEntry`).
+        The reply kind (:attr:`HeadCommand.response`): ``"text"`` (str), ``"ok"`` (None),
+        ``"float"``, ``"int"``, ``"word"`` (str), ``"idn"`` (:class:`Identity`), ``"reading"``
+        (:class:`Reading`), ``"error_entry"`` (:class:`ErrorEntry`).
 
     Raises
     ------
     NoResponse, TruncatedResponse, GarbledResponse, ChecksumError
         Framing problems (transient).
     HeadError
-        A subclass: the head answered ``ERR <code>,<message>`` (:class:`BusyError` is transient,
-        the others are not). An ERR line with an unknown code or a message that does not match the
-        code is reported as GarbledResponse.
-
-    Never raises anything else, whatever the bytes (ValueError for an unknown ``expect``).
+        A subclass: the head answered ``ERR <code>,<message>`` (:class:`BusyError` is transient);
+        an unknown code or a message not matching it is a GarbledResponse. Nothing else is raised,
+        whatever the bytes (ValueError for an unknown ``expect``).
 
     Examples
     --------
