@@ -14,13 +14,15 @@ Data flow (one concept per module)::
                                                       geometries (fits, sweeps): ModelResidual
                                          report       report.html, figures, metrics.json
                                          inspect      report of one dataset alone
-                                         cli          `compare report`, `compare check`
+                                         ratios       opposition and mirror-to-neighbours ratios
+                                         sweep        a parameter sweep against a measurement
 
 Library entry points: :func:`compare.comparison.compare_datasets`, and for a model evaluated many
 times against one measurement :class:`compare.residual.ModelResidual` (``ModelResidual(measured,
 geometries, wavelengths_nm).evaluate(beta[G, L]) -> ResidualFigures``: NRMSE, the residual
 vector, dh, ds; the same numbers as ``compare_datasets``); errors a user can fix are
-:class:`compare.errors.CompareError` (and :class:`gonio.data.DatasetError` from reading).
+:class:`compare.errors.CompareError` (and :class:`gonio.data.DatasetError` from reading). The
+``compare`` command line is :mod:`fabric_optics.cli.compare`.
 """
 
 from gonio.version import VERSION

@@ -19,7 +19,7 @@ The result is one table per simulation with the measured and raw simulated value
 from __future__ import annotations
 
 import logging
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
@@ -93,6 +93,7 @@ def align(measured: Dataset, simulated: Dataset, wavelength_nm) -> pd.DataFrame:
     Parameters
     ----------
     measured, simulated : gonio.data.Dataset
+        The measurement and one simulation (as compared: :func:`compare.bands.prepare`).
     wavelength_nm : array_like
         Comparison grid (a subset of the measured wavelengths, inside the simulation's range).
 
@@ -146,7 +147,7 @@ def align(measured: Dataset, simulated: Dataset, wavelength_nm) -> pd.DataFrame:
         raise CompareError(
             f"simulated dataset '{simulated.name}' ({simulated.source}) shares no geometry with "
             f"measured dataset '{measured.name}' ({measured.source}), not even by interpolation; "
-            "simulate at the measured geometries (e.g. simulate fabric --geometry PLAN.toml)")
+            "simulate at the measured geometries (e.g. simulate fabric --plan PLAN.toml)")
     if dropped.any():
         n_geo = merged.loc[dropped, list(GEOMETRY)].drop_duplicates().shape[0]
         log.warning("%d measured geometries lie outside simulated dataset '%s' and are left out",

@@ -34,9 +34,9 @@ never written, and every label shown to a person goes through :meth:`Bands.label
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -80,6 +80,7 @@ class Bands:
 
     @property
     def is_rgb(self) -> bool:
+        """Whether the comparison is made on colour channels (an RGB measurement) rather than wavelengths."""
         return self.channels is not None
 
     @property
@@ -89,6 +90,7 @@ class Bands:
 
     @property
     def noun(self) -> str:
+        """What one band is called in messages: ``channel`` or ``wavelength``."""
         return "channel" if self.is_rgb else "wavelength"
 
     def label(self, band: float) -> str:
@@ -102,6 +104,7 @@ class Bands:
         return self.label(band) if self.is_rgb else f"{float(band):g}"
 
     def codes(self) -> np.ndarray:
+        """The band codes of the channels (:data:`CODES`), in the order of ``channels``; empty for wavelengths."""
         return np.array([CODES[c] for c in self.channels or ()], dtype=float)
 
 
@@ -144,8 +147,10 @@ COLOUR_STEP_NM = 5.0
 
 
 def colour_resampling(wavelength_nm) -> tuple[np.ndarray, np.ndarray | None]:
-    """``(grid, L)``: the wavelengths a spectrum's colour is integrated on, and the linear
-    interpolation matrix (``grid`` x given) to them, or None when the given grid is used as it is.
+    """The grid a spectrum's colour is integrated on, and the interpolation to it.
+
+    Returns ``(grid, L)``: the wavelengths, and the linear interpolation matrix (``grid`` x given)
+    to them, or None when the given grid is used as it is.
 
     ASTM E308 (colour-science's ``sd_to_XYZ``) integrates evenly spaced spectra at 1, 5, 10 or 20
     nm and raises on others (a 50 nm simulation, an irregular grid); such a spectrum is linearly
@@ -174,8 +179,11 @@ def colour_resampling(wavelength_nm) -> tuple[np.ndarray, np.ndarray | None]:
 
 def colour_at(ds: Dataset, theta_i: float, phi_i: float, theta_o: float, phi_o: float,
               illuminant: str = "D65"):
-    """:meth:`gonio.data.Dataset.colour_at`, a spectrum on a grid ASTM E308 does not integrate
-    first interpolated linearly (:func:`colour_resampling`); ValueError when there is none."""
+    """The colour of a dataset at one geometry, on any wavelength grid.
+
+    As :meth:`gonio.data.Dataset.colour_at`, a spectrum on a grid ASTM E308 does not integrate
+    first interpolated linearly (:func:`colour_resampling`); ValueError when there is none.
+    """
     if ds.is_rgb:
         return ds.colour_at(theta_i, phi_i, theta_o, phi_o, illuminant=illuminant)
     rows = ds.spectrum(theta_i, phi_i, theta_o, phi_o)
@@ -198,7 +206,7 @@ def _matrix(wavelengths: tuple[float, ...], channels: tuple[str, ...], colour_sp
     for j in range(wl.size):
         unit = np.zeros(wl.size)
         unit[j] = 1.0
-        rgb = dict(zip("RGB", spectrum_to_rgb(wl, unit, colour_space, illuminant)))
+        rgb = dict(zip("RGB", spectrum_to_rgb(wl, unit, colour_space, illuminant), strict=True))
         if "Y" in channels:
             rgb["Y"] = spectrum_colour(wl, unit, illuminant=illuminant).xyz[1]
         out[:, j] = [rgb[c] for c in channels]
@@ -226,8 +234,10 @@ def conversion_matrix(wavelength_nm, channels: Sequence[str], colour_space: str 
 
 def channel_coverage(lo_nm: float, hi_nm: float, channels: Sequence[str],
                      colour_space: str = "linear sRGB", illuminant: str = "D65") -> np.ndarray:
-    """Fraction of each channel's weight (``sum |M|`` over the observer's 360..830 nm at 5 nm)
-    that lies inside ``[lo_nm, hi_nm]``: how much of a channel a spectrum on that range sees.
+    """How much of each colour channel a spectrum on ``[lo_nm, hi_nm]`` sees.
+
+    The fraction of each channel's weight (``sum |M|`` over the observer's 360..830 nm at 5 nm)
+    that lies inside the range.
 
     Examples
     --------
@@ -326,6 +336,22 @@ def prepare(measured: Dataset, simulated: Sequence[Dataset], names: Sequence[str
     measurement: every simulation converted to the measurement's channels and colour space (see
     the module docstring), all restricted to the channels they share.
 
+    Parameters
+    ----------
+    measured : gonio.data.Dataset
+        The measurement.
+    simulated : sequence of gonio.data.Dataset
+        The simulations.
+    names : sequence of str
+        The simulations' names (messages and conversion notes).
+    illuminant : str
+        Illuminant of an RGB conversion.
+
+    Returns
+    -------
+    (gonio.data.Dataset, list of gonio.data.Dataset, Bands)
+        The measurement and the simulations as compared, and what they are compared on.
+
     Raises
     ------
     CompareError
@@ -345,7 +371,7 @@ def prepare(measured: Dataset, simulated: Sequence[Dataset], names: Sequence[str
     views: list[Dataset] = []
     conversions: dict[str, str] = {}
     shared = set(channels)
-    for name, sim in zip(names, simulated):
+    for name, sim in zip(names, simulated, strict=True):
         if sim.is_rgb:
             gives = set(sim.channels) | ({"Y"} if set("RGB") <= set(sim.channels) else set())
             common = tuple(c for c in channels if c in gives)

@@ -35,15 +35,15 @@ row (``0.2126 R + 0.7152 G + 0.0722 B`` for sRGB) in place of the CIE ``Y`` weig
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
 
-from gonio.data.colour import ColourSummary, colourspace, hue_difference, rgb_colour, spectrum_colour
 from gonio.data import GEOMETRY
+from gonio.data.colour import ColourSummary, colourspace, hue_difference, rgb_colour, spectrum_colour
 
 from .errors import CompareError
 
@@ -121,9 +121,11 @@ def luminance_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
 
 
 def band_luminance_weights(bands, grid, illuminant: str = "D65") -> np.ndarray:
-    """Weights ``w`` with ``Y = w @ values`` on the comparison grid: the CIE ``Y`` weights of the
-    wavelengths, or for channels the ``Y`` channel itself when present, else the colour space's
-    luminance row over R, G, B."""
+    """Weights ``w`` with ``Y = w @ values`` on the comparison grid.
+
+    The CIE ``Y`` weights of the wavelengths, or for channels the ``Y`` channel itself when
+    present, else the colour space's luminance row over R, G, B.
+    """
     if bands is None or not bands.is_rgb:
         return luminance_weights(grid, illuminant)
     labels = [bands.label(b) for b in np.asarray(grid, dtype=float)]
@@ -163,7 +165,7 @@ def colour_geometry(frames: Mapping[str, pd.DataFrame]) -> dict:
     row = order.iloc[0]
     first = next(iter(frames.values()))
     s = first.loc[(first[list(GEOMETRY)].round(6) == row[list(GEOMETRY)]).all(axis=1), "s"]
-    geometry = {c: float(row[c]) for c in GEOMETRY}
+    geometry: dict[str, float | None] = {c: float(row[c]) for c in GEOMETRY}
     s_value = float(s.iloc[0]) if len(s) else float("nan")
     geometry["s"] = s_value if np.isfinite(s_value) else None
     return geometry
@@ -201,11 +203,13 @@ class ColourMatch:
 
 
 def colour_of(wl, beta, illuminant: str, what: str, bands=None) -> ColourSummary:
-    """The colour of values on the comparison grid (a spectrum, or the channels of ``bands``);
-    CompareError naming ``what`` when there is none."""
+    """The colour of values on the comparison grid (a spectrum, or the channels of ``bands``).
+
+    Raises CompareError naming ``what`` when there is none.
+    """
     try:
         if bands is not None and bands.is_rgb:
-            return rgb_colour({bands.label(b): v for b, v in zip(wl, beta)},
+            return rgb_colour({bands.label(b): v for b, v in zip(wl, beta, strict=True)},
                               colour_space=bands.colour_space)
         from .bands import colour_resampling
 
@@ -233,7 +237,7 @@ def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str,
         The comparison's bands; for channels (R, G, B present) the colour is read from them.
     """
     geometry = colour_geometry(frames)
-    measured = None
+    measured: ColourSummary | None = None
     simulated: dict[str, SimulatedColour] = {}
     for name, frame in frames.items():
         rows = _rows_at(frame, geometry)
@@ -251,5 +255,7 @@ def colour_match(frames: Mapping[str, pd.DataFrame], normal_values: Mapping[str,
         simulated[name] = SimulatedColour(
             colour=c, scale=scale, dh=float(hue_difference(measured.h, c.h)),
             ds=c.s - measured.s, dv=c.v - measured.v, wavelength_nm=wl, beta=beta)
+    if measured is None:
+        raise CompareError("no dataset to match the colour of")
     return ColourMatch(geometry=geometry, measured=measured, measured_wavelength_nm=meas_wl,
                        measured_beta=meas_beta, simulated=simulated)

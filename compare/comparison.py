@@ -35,7 +35,7 @@ the issue)::
                                    or {"reason": str}}}}
 
 ``shape`` holds each dataset's own opposition and mirror-to-neighbours ratios
-(:mod:`compare.felt_metrics`; the normalisation cancels in them), or why the dataset lacks the
+(:mod:`compare.ratios`; the normalisation cancels in them), or why the dataset lacks the
 points they need.
 
 Names are the datasets' ``name`` (``meta.sample.name`` or the directory name), made unique with a
@@ -55,9 +55,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -67,11 +67,17 @@ from gonio.data import Dataset
 from .align import align, shared_wavelengths
 from .bands import Bands, colour_resampling, prepare
 from .colourmatch import ColourMatch, colour_match, colour_refusal
-from .felt_metrics import shape_document
 from .errors import CompareError
 from .metrics import CurveError, curve_errors
-from .normalise import (DEFAULT_WINDOW_DEG, METHOD_TEXT, Normalisation, NormalValue,
-                        estimate_normal_value, normalisation_factor)
+from .normalise import (
+    DEFAULT_WINDOW_DEG,
+    METHOD_TEXT,
+    Normalisation,
+    NormalValue,
+    estimate_normal_value,
+    normalisation_factor,
+)
+from .ratios import shape_document
 
 __all__ = ["DYNAMIC_RANGE_MAX", "MEASURED_BETA_MAX", "Comparison", "Level", "check_values",
            "compare_datasets", "incomplete_datasets", "same_dataset",
@@ -104,8 +110,9 @@ def unique_names(names: Iterable[str], reserved: Iterable[str] = RESERVED_NAMES)
 
 @dataclass(frozen=True)
 class Level:
-    """The absolute level of one simulation against the measurement, which the per-wavelength normalisation
-    hides (docs/notes/fit-trust.md "The level").
+    """The absolute level of one simulation against the measurement.
+
+    The per-wavelength normalisation hides it (docs/notes/fit-trust.md "The level").
 
     ``k`` is the luminance-weighted factor ``k_Y`` at the colour geometry (:mod:`compare.colourmatch`; the
     median ``k`` of a photometric comparison): the measurement is ``k`` times the model there. ``ratio`` =
@@ -124,6 +131,7 @@ class Level:
     judged: bool
 
     def as_dict(self) -> dict:
+        """The level as ``metrics.json`` holds it (non-finite figures as None)."""
         def num(x):
             return float(x) if math.isfinite(float(x)) else None
         return {"k": num(self.k), "ratio": num(self.ratio), "k_min": num(self.k_min), "k_max": num(self.k_max),
@@ -205,14 +213,22 @@ class Comparison:
     #: why no colour is stated for a spectral comparison (:func:`compare.colourmatch.colour_refusal`), or ""
     colour_note: str = ""
 
+    def colour_matched(self) -> ColourMatch:
+        """The colour match, for what draws or states it (:class:`CompareError` when there is none)."""
+        if self.colour is None:
+            raise CompareError("no colour was compared" + (f": {self.colour_note}" if self.colour_note else ""))
+        return self.colour
+
     @property
     def relative(self) -> bool:
         """True when the measurement is relative (raw units): no absolute colour statement (V)."""
         return self.measured.relative
 
     def notes(self) -> list[str]:
-        """What a reader must know about how the data were compared (shown in the report and by
-        ``compare check``)."""
+        """What a reader must know about how the data were compared.
+
+        Shown in the report and by ``compare check``.
+        """
         out = list(self.bands.conversions.values())
         if not self.bands.is_rgb:
             out += self.interpolation_notes()
@@ -237,8 +253,10 @@ class Comparison:
         return out
 
     def simulated_wavelengths_used(self, name: str) -> int:
-        """How many of the compared wavelengths the simulation ``name`` holds itself (the others
-        were linearly interpolated in wavelength, :mod:`compare.align`)."""
+        """How many of the compared wavelengths the simulation ``name`` holds itself.
+
+        The others were linearly interpolated in wavelength (:mod:`compare.align`).
+        """
         wl = self.simulated[name].wavelengths_nm
         grid = self.wavelength_nm
         if wl.size == 0:
@@ -272,10 +290,12 @@ class Comparison:
         return self.measured_view if self.measured_view is not None else self.measured
 
     def nrmse_with_factor_shifted(self, name: str) -> tuple[float, float]:
-        """Overall NRMSE of ``name`` with every ``k(lambda)`` moved to ``k - u_k`` and to
-        ``k + u_k``: how far the normalisation's own uncertainty (fully correlated across the
-        curve, so it does not average out) can move the curve error. Not in ``metrics.json``,
-        whose NRMSE uses ``k`` itself."""
+        """Overall NRMSE of ``name`` with every ``k(lambda)`` moved to ``k - u_k`` and to ``k + u_k``.
+
+        How far the normalisation's own uncertainty (fully correlated across the curve, so it does
+        not average out) can move the curve error. Not in ``metrics.json``,
+        whose NRMSE uses ``k`` itself.
+        """
         frame = self.frames[name]
         norm = self.normalisations[name]
         wl = frame["wavelength_nm"].to_numpy()
@@ -311,7 +331,7 @@ class Comparison:
         per = "per_channel" if bands.is_rgb else "per_wavelength"
 
         def per_wl(wl, values):
-            return {bands.key(w): num(v) for w, v in zip(wl, values)}
+            return {bands.key(w): num(v) for w, v in zip(wl, values, strict=True)}
 
         def normal(nv: NormalValue):
             return {"how": nv.how, per: per_wl(nv.wavelength_nm, nv.value),
@@ -320,7 +340,8 @@ class Comparison:
         def where(at: dict) -> dict:
             out = {k: (num(v) if v is not None else None) for k, v in at.items()}
             if bands.is_rgb:
-                out["channel"] = bands.label(out.pop("wavelength_nm"))
+                band = out.pop("wavelength_nm")
+                out["channel"] = bands.label(band) if band is not None else None
             return out
 
         factor = {}
@@ -386,8 +407,11 @@ DYNAMIC_RANGE_MAX = 1e9
 
 
 def check_values(ds: Dataset, role: str) -> None:
-    """Refuse a dataset whose ``beta`` is not finite or absurd (:class:`CompareError`, one line
-    naming the dataset, the field, the row's geometry and what to do)."""
+    """Refuse a dataset whose ``beta`` is not finite or absurd.
+
+    Raises :class:`CompareError`: one line naming the dataset, the field, the row's geometry and
+    what to do.
+    """
     table = ds.table
     beta = table["beta"].to_numpy(dtype=float)
     band = ds.band_column
@@ -492,7 +516,7 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
     frames: dict[str, pd.DataFrame] = {}
     curves: dict[str, dict[str, CurveError]] = {}
     overall: dict[str, CurveError] = {}
-    for name, sim in zip(names, views):
+    for name, sim in zip(names, views, strict=True):
         # like for like: a measurement without the normal/normal point gets a simulation's estimated
         # from the same neighbours (compare.normalise.estimate_normal_value, use_exact)
         norm = normalisation_factor(measured_normal,
@@ -507,17 +531,17 @@ def compare_datasets(measured: Dataset, simulated: Sequence[Dataset], *,
         curves[name], overall[name] = curve_errors(frame)
         log.info("'%s': overall RMSE %.4g, NRMSE %.4g", name, overall[name].rmse,
                  overall[name].nrmse)
-    colour = None
+    colour_result: ColourMatch | None = None
     colour_note = "" if bands.is_rgb else (colour_refusal(grid, illuminant) or "")
     if colour_note:
         log.warning("no colour (H, S, V) is stated: %s; the curves and their errors are compared", colour_note)
     if bands.has_colour and not colour_note:
-        colour = colour_match(frames, {n: (normalisations[n].measured_value,
+        colour_result = colour_match(frames, {n: (normalisations[n].measured_value,
                                            normalisations[n].simulated_value) for n in names},
                               illuminant=illuminant, bands=bands)
-    return Comparison(measured=measured, simulated=dict(zip(names, simulated)),
+    return Comparison(measured=measured, simulated=dict(zip(names, simulated, strict=True)),
                       wavelength_nm=grid, window_deg=window_deg, illuminant=illuminant,
                       measured_normal=measured_normal, normalisations=normalisations,
-                      frames=frames, curves=curves, overall=overall, colour=colour,
+                      frames=frames, curves=curves, overall=overall, colour=colour_result,
                       bands=bands, measured_view=measured_view,
-                      simulated_views=dict(zip(names, views)), colour_note=colour_note)
+                      simulated_views=dict(zip(names, views, strict=True)), colour_note=colour_note)

@@ -73,7 +73,7 @@ def _strip_figure(table: list[dict], incidences: list[float], relative: bool):
     scale = 1.0
     if relative:    # only the shapes mean something: scale the brightest swatch to 1
         scale = 1.0 / max(max(e["rgb"]) for e in table)
-    for ax, ti in zip(axes[:, 0], incidences):
+    for ax, ti in zip(axes[:, 0], incidences, strict=True):
         row = [e for e in table if e["theta_i"] == ti]
         ax.set_yticks([])
         ax.set_ylabel(angle_text(ti), rotation=0, labelpad=30, fontsize=8)
@@ -89,8 +89,27 @@ def _strip_figure(table: list[dict], incidences: list[float], relative: bool):
 
 def write_dataset_report(ds: Dataset, out_dir: str | os.PathLike, *, svg: bool = False,
                          force: bool = False) -> Path:
-    """Write ``report.html``, ``metrics.json`` and ``figures/*.png`` for one dataset, together (a report that
-    cannot be written is one :class:`~compare.errors.CompareError` and leaves ``out_dir`` as it was)."""
+    """Write ``report.html``, ``metrics.json`` and ``figures/*.png`` for one dataset, together.
+
+    A report that cannot be written is one :class:`~compare.errors.CompareError` and leaves
+    ``out_dir`` as it was.
+
+    Parameters
+    ----------
+    ds : gonio.data.Dataset
+        The dataset to look at.
+    out_dir : path-like
+        The report's folder (the output-folder policy of :func:`compare.report.write_report`).
+    svg : bool
+        Also write ``figures/*.svg``.
+    force : bool
+        Write into a folder that holds other files.
+
+    Returns
+    -------
+    pathlib.Path
+        The path of ``report.html``.
+    """
     import matplotlib
 
     matplotlib.use("Agg")

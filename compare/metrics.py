@@ -101,7 +101,19 @@ def curve_error(frame: pd.DataFrame) -> CurveError:
 
 
 def curve_errors(frame: pd.DataFrame) -> tuple[dict[str, CurveError], CurveError]:
-    """Per-incidence errors (keyed by :func:`angle_key`, ascending) and the overall error."""
+    """Per-incidence errors (keyed by :func:`angle_key`, ascending) and the overall error.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        An aligned, normalised table (:func:`compare.align.align` with ``beta_sim``): one row per
+        geometry and wavelength, columns ``theta_i``, ``beta_meas``, ``beta_sim``.
+
+    Returns
+    -------
+    (dict of str -> CurveError, CurveError)
+        The error of each incidence's curve and of all of them together.
+    """
     per_angle = {angle_key(theta_i): curve_error(rows)
                  for theta_i, rows in frame.groupby("theta_i", sort=True)}
     return per_angle, curve_error(frame)

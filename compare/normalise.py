@@ -46,8 +46,8 @@ built on it (docs/quality.md B).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -131,8 +131,10 @@ def _describe(dataset: Dataset) -> str:
 
 
 def intercept_weights(s: np.ndarray) -> np.ndarray:
-    """Weights ``w`` with ``w @ beta`` the intercept of the unweighted least-squares quadratic in
-    ``s`` through ``(s, beta)`` (the estimate is linear in the values)."""
+    """Weights ``w`` with ``w @ beta`` the intercept of a least-squares quadratic in ``s``.
+
+    The quadratic is unweighted, through ``(s, beta)``: the estimate is linear in the values.
+    """
     scale = max(float(np.max(np.abs(s))), 1.0)  # conditioning: fit in s / max|s|
     x = s / scale
     design = np.column_stack([np.ones_like(x), x, x * x])
@@ -332,6 +334,19 @@ def normalisation_factor(measured: NormalValue, simulated: NormalValue,
 
     Both normal values are linearly interpolated in wavelength where the grid is not theirs (the
     comparison grid is a subset of the measured wavelengths, so only the simulation may be).
+
+    Parameters
+    ----------
+    measured, simulated : NormalValue
+        The normal/normal values of the measurement and of the simulation
+        (:func:`estimate_normal_value`).
+    wavelength_nm : array_like
+        The comparison grid.
+
+    Returns
+    -------
+    Normalisation
+        The factor ``k`` and its standard uncertainty on the grid, with both normal values.
     """
     wl = np.asarray(wavelength_nm, dtype=float)
     m, u_m = measured.at(wl)

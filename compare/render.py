@@ -26,9 +26,10 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -79,7 +80,7 @@ def mitsuba_eval(path: str | os.PathLike, wi: np.ndarray, wo: np.ndarray) -> np.
     n_bands = 3 if wl is None else wl.size
     out = np.empty((len(wi), n_bands))
     si = mi.SurfaceInteraction3f()
-    for k, (a, b) in enumerate(zip(np.asarray(wi, float), np.asarray(wo, float))):
+    for k, (a, b) in enumerate(zip(np.asarray(wi, float), np.asarray(wo, float), strict=True)):
         si.wi = mi.Vector3f(*a)
         if wl is None:
             out[k] = list(bsdf.eval(ctx, si, mi.Vector3f(*b)))
@@ -169,7 +170,7 @@ def _pooled_chi2(expected: np.ndarray, observed: np.ndarray) -> tuple[float, int
     order = np.argsort(expected)
     e_sorted, o_sorted = expected[order], observed[order]
     pooled_e, pooled_o, acc_e, acc_o = [], [], 0.0, 0.0
-    for e, o in zip(e_sorted, o_sorted):
+    for e, o in zip(e_sorted, o_sorted, strict=True):
         acc_e += e
         acc_o += o
         if acc_e >= 5:
@@ -302,17 +303,20 @@ def to_srgb8(rgb: np.ndarray, exposure: float = 1.0) -> np.ndarray:
 
 def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike,
                      settings: RenderSettings | None = None) -> dict:
-    """Individual PNGs, one side-by-side sheet (rows: materials) and ``render.json``, written together
-    (:func:`gonio.data.write_files_together`): a set that cannot be written (a full disk) is one
-    :class:`~compare.errors.CompareError` line and leaves ``out_dir`` as it was."""
+    """Write the renders: individual PNGs, one side-by-side sheet (rows: materials) and ``render.json``.
+
+    They are written together (:func:`gonio.data.write_files_together`): a set that cannot be
+    written (a full disk) is one :class:`~compare.errors.CompareError` line and leaves ``out_dir``
+    as it was.
+    """
     import io
     import json
+
+    import matplotlib
 
     from gonio.data import write_files_together
 
     from .errors import CompareError
-
-    import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -322,7 +326,7 @@ def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike
     labels = list(dict.fromkeys(im.material for im in images))
     scenes = list(dict.fromkeys(im.scene for im in images))
     files = []
-    for k, im in enumerate(images):
+    for im in images:
         name = f"{labels.index(im.material)}_{scenes.index(im.scene)}.png"
         buffer = io.BytesIO()
         plt.imsave(buffer, to_srgb8(im.rgb, s.exposure), format="png")

@@ -61,12 +61,17 @@ from gonio.data.colour import hue_difference
 
 from .align import align, shared_wavelengths
 from .bands import CODES, Bands, conversion_matrix, prepare
-from .comparison import DYNAMIC_RANGE_MAX, check_values
 from .colourmatch import band_luminance_weights, colour_geometry, colour_of
+from .comparison import DYNAMIC_RANGE_MAX, check_values
 from .errors import CompareError
 from .metrics import angle_key
-from .normalise import (DEFAULT_WINDOW_DEG, check_normal_values, estimate_normal_value,
-                        intercept_weights, normal_selection)
+from .normalise import (
+    DEFAULT_WINDOW_DEG,
+    check_normal_values,
+    estimate_normal_value,
+    intercept_weights,
+    normal_selection,
+)
 
 __all__ = ["ModelResidual", "ResidualFigures"]
 
@@ -118,10 +123,12 @@ class ResidualFigures:
     level: float = float("nan")
 
     def vector(self, colour_weight: float = 1.0, level_weight: float = 0.0) -> np.ndarray:
-        """``residual ++ sqrt(colour_weight) [dh, ds]`` (no colour terms when the measurement
-        has no colour, a photometric one): the residual vector of ``simulate fit``,
-        ``|r|^2 = NRMSE^2 + w (dh^2 + ds^2)``; ``level_weight > 0`` (``simulate fit --absolute``)
-        appends ``sqrt(level_weight) ln(level)``, so ``|r|^2`` gains ``w_l (ln k_Y)^2``."""
+        """The residual vector of ``simulate fit``: ``residual ++ sqrt(colour_weight) [dh, ds]``.
+
+        No colour terms when the measurement has no colour (a photometric one); otherwise
+        ``|r|^2 = NRMSE^2 + w (dh^2 + ds^2)``. ``level_weight > 0`` (``simulate fit --absolute``)
+        appends ``sqrt(level_weight) ln(level)``, so ``|r|^2`` gains ``w_l (ln k_Y)^2``.
+        """
         parts = [self.residual]
         if self.has_colour:
             parts.append(math.sqrt(colour_weight) * np.array([self.dh, self.ds]))
@@ -251,9 +258,11 @@ class ModelResidual:
             self.measured_colour = colour_of(self._c_wl, self._meas[self._c_rows], self.illuminant,
                                              "the measured dataset", self.bands)
 
-    def with_measured(self, measured: Dataset) -> "ModelResidual":
-        """A copy against ``measured``, a dataset with the SAME rows as the one prepared (new
-        values: e.g. a noise draw of the measurement); only the measured side is recomputed.
+    def with_measured(self, measured: Dataset) -> ModelResidual:
+        """A copy against ``measured``; only the measured side is recomputed.
+
+        ``measured`` has the SAME rows as the dataset prepared (new values: e.g. a noise draw of
+        the measurement).
 
         Raises
         ------
@@ -347,7 +356,7 @@ class ModelResidual:
             for q, (_, grp) in enumerate(groups):
                 w_geo = weights[q]
                 nz = np.flatnonzero(w_geo != 0.0)
-                for r, at in zip(grp.index.to_numpy(), grp["wavelength_nm"].to_numpy(float)):
+                for r, at in zip(grp.index.to_numpy(), grp["wavelength_nm"].to_numpy(float), strict=True):
                     j = int(np.clip(np.searchsorted(bands_v, at) - 1, 0, max(bands_v.size - 2, 0)))
                     if bands_v.size > 1:
                         f = float(np.clip((at - bands_v[j]) / (bands_v[j + 1] - bands_v[j]), 0, 1))
@@ -391,6 +400,20 @@ class ModelResidual:
 
     def evaluate(self, beta, u_beta=None) -> ResidualFigures:
         """The comparison figures of the model values ``beta[G, L]`` (module docstring).
+
+        Parameters
+        ----------
+        beta : array_like, shape (G, L)
+            The model's radiance coefficients at the prepared geometries (rows) and wavelengths
+            (columns).
+        u_beta : array_like, shape (G, L), optional
+            Their standard uncertainties (Monte Carlo); None: zero.
+
+        Returns
+        -------
+        ResidualFigures
+            NRMSE, the residual vector, the colour differences and the level, as
+            :func:`compare.comparison.compare_datasets` would give them.
 
         Raises
         ------

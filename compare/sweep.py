@@ -62,7 +62,23 @@ def is_sweep_dir(path: str | Path) -> bool:
 
 
 def read_sweep(path: str | Path) -> dict:
-    """The ``sweep.json`` of a sweep directory, checked for what the report reads."""
+    """The ``sweep.json`` of a sweep directory, checked for what the report reads.
+
+    Parameters
+    ----------
+    path : path-like
+        The sweep directory (``simulate sweep --out``).
+
+    Returns
+    -------
+    dict
+        The document, with ``parameters`` and ``points`` as the report reads them.
+
+    Raises
+    ------
+    CompareError
+        A missing or unreadable ``sweep.json``, or a point whose folder leads outside the sweep.
+    """
     p = Path(path) / SWEEP_NAME
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
@@ -87,6 +103,18 @@ def point_metrics(measured: Dataset, simulated: Dataset, *, window_deg: float = 
     """``{"nrmse", "dh", "ds"}`` of one simulation against ``measured`` (as ``compare check``).
 
     ``dh`` and ``ds`` are NaN when the measurement has no colour (photometric).
+
+    Parameters
+    ----------
+    measured, simulated : gonio.data.Dataset
+        The measurement and one point's dataset.
+    window_deg, illuminant :
+        As :func:`compare.comparison.compare_datasets`.
+
+    Returns
+    -------
+    dict of str -> float
+        The point's NRMSE, hue and saturation differences.
     """
     c = compare_datasets(measured, [simulated], window_deg=window_deg, illuminant=illuminant)
     name = next(iter(c.simulated))
@@ -136,11 +164,11 @@ def _chart(table: pd.DataFrame, names: list[str]) -> bytes:
     groups = table.groupby(others, sort=True) if others else [((), table)]
     x_all = table[x_name].to_numpy(float)
     log_x = bool(np.all(x_all > 0) and x_all.max() / x_all.min() > 100.0)
-    for ax, (col, label) in zip(axes.ravel(), metrics):
+    for ax, (col, label) in zip(axes.ravel(), metrics, strict=True):
         for key, rows in groups:
             rows = rows.sort_values(x_name)
             key = key if isinstance(key, tuple) else (key,)
-            tag = ", ".join(f"{n}={v:g}" for n, v in zip(others, key)) or None
+            tag = ", ".join(f"{n}={v:g}" for n, v in zip(others, key, strict=True)) or None
             ax.plot(rows[x_name].to_numpy(float), rows[col].to_numpy(float), "o-", ms=4, label=tag)
         if col != "nrmse":
             ax.axhline(0.0, color="0.5", lw=0.8, ls=":")
@@ -198,7 +226,23 @@ def write_sweep_report(measured: Dataset, sweep_dir: str | Path, out_dir: str | 
                        illuminant: str = "D65") -> Path:
     """The comparison report of a sweep directory against ``measured`` (module docstring).
 
-    Returns the path of ``report.html``.
+    Parameters
+    ----------
+    measured : gonio.data.Dataset
+        The measurement.
+    sweep_dir : path-like
+        The sweep directory (:func:`read_sweep`).
+    out_dir : path-like
+        The report's folder (the output-folder policy of :func:`compare.report.write_report`).
+    svg, force :
+        As :func:`compare.report.write_report`.
+    window_deg, illuminant :
+        As :func:`compare.comparison.compare_datasets`.
+
+    Returns
+    -------
+    pathlib.Path
+        The path of ``report.html``.
     """
     from .report import Section, write_report
 

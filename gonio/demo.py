@@ -29,8 +29,8 @@ import hashlib
 import json
 import logging
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from gonio.acquisition.engine import RunResult
 from gonio.acquisition.plan import Plan
@@ -84,8 +84,9 @@ def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1
 
 
 def demo_sample_meta(plan_sample: dict, truth, *, name_from_sample: bool = False) -> dict:
-    """The dataset's ``sample``: the plan's, with ``mock_sample`` (``truth.describe()``) added;
-    with ``name_from_sample`` the name and material are the mock sample's.
+    """The dataset's ``sample``: the plan's, with ``mock_sample`` (``truth.describe()``) added.
+
+    With ``name_from_sample`` the name and material are the mock sample's.
 
     >>> from gonio.mock.samples import LambertSample
     >>> demo_sample_meta({"name": "red cotton"}, LambertSample(0.5), name_from_sample=True)["name"]
@@ -102,8 +103,10 @@ def demo_sample_meta(plan_sample: dict, truth, *, name_from_sample: bool = False
 
 
 def is_previous_demo(out: Path) -> bool:
-    """True when ``out`` was marked by a demo whose journal is still there unchanged (or that
-    was killed before it wrote the journal's hash)."""
+    """True when ``out`` was marked by a demo whose journal is still there unchanged.
+
+    Or by a demo killed before it wrote the journal's hash.
+    """
     try:
         marker = json.loads((out / DEMO_MARKER).read_text())
         return marker.get("written_by") == "gonio demo" and marker.get("journal_start") in (

@@ -41,8 +41,10 @@ VERSION: str = _version()
 
 @functools.lru_cache(maxsize=1)
 def commit() -> str | None:
-    """The short hash of the checkout's ``HEAD``, with ``+dirty`` when tracked files are modified;
-    ``None`` outside a git checkout or without git."""
+    """Give the short hash of the checkout's ``HEAD``, with ``+dirty`` when tracked files are modified.
+
+    ``None`` outside a git checkout or without git.
+    """
     if not (_ROOT / ".git").exists():
         return None
 

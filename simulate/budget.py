@@ -12,11 +12,10 @@ magnitude from the config alone, and :func:`check_cost` turns it into a decision
   target needs is what the estimate then counts;
 - above :data:`WARN_SECONDS` (ten minutes): a warning line with the figure, then the run.
 
-The model (an order of magnitude, not a promise; constants measured on the project's shared
-2-core machine, ``simulate fabric red-cotton --method summation --target-rel-err 0.1``: 1.05e6
-photons in 41 s, achieved error 1.43 % of the fiber route):
+The model (an order of magnitude, not a promise; its constants are calibrated on one run of red
+cotton, docs/notes/implementation.md, "The cost model"):
 
-- photons ``N = max(N_FLOOR, C / target^2)`` with ``C`` = 1.05e6 x 0.0143^2 = 215 (the standard
+- photons ``N = max(N_FLOOR, C / target^2)`` with ``C`` = 215 (the standard
   error falls as ``1/sqrt(N)``) and ``N_FLOOR`` = 1e6 (the routes' first rounds), or the photon
   budget when that is smaller;
 - events per photon in the fiber (a cylinder of diameter ``D``), from the optical thicknesses
@@ -24,17 +23,17 @@ photons in 41 s, achieved error 1.43 % of the fiber route):
   ``~tau'^2`` transport steps of ``1/(1 - g)`` scatterings to cross the fiber, and implicit capture
   with roulette ends it after ``~10 / (1 - w)`` events, so ``E = 1 + min(tau_s (1 + tau'),
   10 / (1 - w), DEFAULT_MAX_EVENTS)``, averaged over the wavelengths (red cotton: 73);
-- :data:`EVENT_RATE` = 1.05e6 x 73 / 35 s = 2e6 photon events a second (NEE route, all threads);
+- :data:`EVENT_RATE` = 2e6 photon events a second (NEE route, all threads);
 - the Mie phase functions: per wavelength ``0.082 s (x / 534)^2`` for one radius and
   ``2.2 s (x / 53)^2`` for a log-normal distribution (257 sizes), ``x = 2 pi n_host r / lambda``
-  at the shortest wavelength and the (median) radius (measured here, miepython with JIT).
+  at the shortest wavelength and the (median) radius (miepython with JIT).
 
 Particles at least as large as the fiber are refused outright (they cannot sit inside it), and so is
 a number density whose particles would fill more than the whole volume.
 
 The events per photon of a ``[particles]`` config need the medium's Mie cross sections (``mu_s``,
 ``mu_a``, ``g`` at every wavelength; importing miepython and loading its compiled kernels alone
-takes ~1.2 s), although a run whose tables are in the table cache needs no Mie result otherwise.
+takes about a second), although a run whose tables are in the table cache needs no Mie result otherwise.
 They are therefore kept in the table cache (:mod:`simulate.fiber.tablecache`, kind ``coeffs``, a
 file of ~1.5 kB; :func:`medium_coefficients`) under the hash of the medium (particles, host index, dye sampled at the
 wavelengths), the wavelengths and the source of the Mie and medium modules: a later check of the

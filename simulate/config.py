@@ -123,16 +123,14 @@ is, in expectation, drawn from a population by share (exact for light that meets
 and commands that take one fiber refuse a blend with one line (``simulate.config.require_single_population``).
 One population of share 1 without overrides is the config without ``[[populations]]``, bit for bit.
 
-Exactly one of ``[particles]`` and ``[medium]`` is required. ``[method] method`` (the fiber route
-before it was ``[fiber] route``) is still read, with a deprecation warning; the removed ``[structure]``
-switches are refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
+Exactly one of ``[particles]`` and ``[medium]`` is required. The removed ``[structure]`` switches are
+refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
-import logging
 import math
 from dataclasses import dataclass, field
 from importlib import resources
@@ -163,7 +161,6 @@ __all__ = [
     "resolve_config_path",
 ]
 
-log = logging.getLogger(__name__)
 
 _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
@@ -534,13 +531,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     weave_t = top.sub("weave", fields=_FIELDS["weave"])
     weave = _weave(weave_t, Path(path).parent) if weave_t is not None else {}
 
-    mt = top.sub("method", fields=_FIELDS["method"] + ("method",)) or Table({}, "method", file)   # + the old route
-    if mt.has("method"):
-        if fib.has("route"):
-            raise mt.fail("method", "and fiber.route both give the fiber route: delete method.method")
-        route = mt.string("method", "nee", choices=ROUTES) or "nee"
-        log.warning("%s: method.method is deprecated; write route = %s in [fiber] instead "
-                    "(method.method is read until the next release)", file, show(route))
+    mt = top.sub("method", fields=_FIELDS["method"]) or Table({}, "method", file)
     target = mt.number("target_rel_err", 0.01, gt=0.0, lt=1.0)
     max_photons = mt.integer("max_photons", 0, ge=0, le=10**15)
     threads = mt.integer("threads", 0, ge=0, le=1024)

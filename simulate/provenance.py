@@ -24,7 +24,7 @@ def software_versions() -> dict:
 
     out = {"fabric-optics": VERSION, "commit": commit(), "python": platform.python_version(),
            "numpy": np.__version__, "scipy": scipy.__version__, "numba": numba.__version__}
-    try:  # the installed version, without importing it (its import compiles a kernel: 1-2 s)
+    try:  # the installed version, without importing it (its import compiles a kernel)
         out["miepython"] = importlib.metadata.version("miepython")
     except importlib.metadata.PackageNotFoundError:  # pragma: no cover - a declared dependency
         pass

@@ -1,8 +1,8 @@
 """The virtual goniophotometer: a fabric model evaluated at a plan's geometries, as a dataset.
 
-``simulate fabric CONFIG --method classic|summation|mc --out DIR [--geometry PLAN]`` (docs/physics.md
+``simulate fabric CONFIG --method classic|summation|mc --out DIR [--plan PLAN]`` (docs/physics.md
 section 7) evaluates the chosen fabric model (:mod:`simulate.fabric`) at the geometries and
-wavelengths of an acquisition plan (:mod:`gonio.plan`; default: the shipped ``red-cotton`` plan)
+wavelengths of an acquisition plan (:mod:`gonio.acquisition.plan`; default: the shipped ``red-cotton`` plan)
 and writes a radiance-coefficient dataset of kind ``"simulated"`` through :mod:`gonio.data.dataset`:
 
 - ``beta`` = the model's radiance coefficient; ``u_beta`` = its Monte Carlo standard error,
@@ -147,7 +147,7 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
                          columns=list(COLUMNS))
     # The name labels the dataset in reports: say which model and config produced it. A plan made for this
     # config's sample (the same name: red-cotton at red-cotton, green-felt at green-felt) names the sample;
-    # any other plan only lends its geometries and wavelengths (`--geometry` defaults to red-cotton), so the
+    # any other plan only lends its geometries and wavelengths (`--plan` defaults to red-cotton), so the
     # sample simulated is the config's and a green felt is not labelled "red cotton, woven cotton".
     if plan.name == config.name:
         sample = dict(plan.sample)

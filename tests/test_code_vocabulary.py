@@ -7,6 +7,7 @@ the accuracy loop's *rounds* are the code's own terms and are not matched.
 
 from __future__ import annotations
 
+import ast
 import re
 from pathlib import Path
 
@@ -87,3 +88,45 @@ def test_no_history_in_code():
             if m:
                 bad.append(f"{path.relative_to(ROOT)}:{no}: {m.group(0)!r}")
     assert not bad, "history in code (state what the code does instead):\n" + "\n".join(bad)
+
+
+#: narrative history in a module docstring (what the module was, how it came to be): a docstring says
+#: what the module is and why; its history is in CHANGELOG.md, its measurements in docs/notes
+NARRATIVE = re.compile(
+    r"\b(?:a|the|its|an) (?:first|earlier|previous|older) (?:version|implementation|attempt)\b" "|"
+    r"\bpreviously\b|\bformerly\b|\bas before\b|\bused to be\b|\bwas (?:rewritten|replaced by)\b",
+    re.IGNORECASE)
+#: folders left out of the narrative check (none: every module's docstring is held to it)
+NARRATIVE_EXCLUDED: tuple[str, ...] = ()
+
+
+@pytest.mark.parametrize("text", [
+    "a first version re-weighted from the last walk", "the journal sums its events as before.",
+    "previously the table was walked twice", "this module used to be two", "formerly simulate.woven.felt",
+    "an earlier implementation looped entry cell outermost", "the loop was rewritten in numba",
+])
+def test_the_narrative_pattern_finds_history(text):
+    assert NARRATIVE.search(text)
+
+
+@pytest.mark.parametrize("text", [
+    "never re-sent to an axis that is no longer homed", "the grid no longer resolves the ripple",
+    "the points used to normalise", "the format's first version field", "before the first point",
+    "the version of the format", "replaced by the new value when given",
+])
+def test_the_narrative_pattern_leaves_the_codes_own_words(text):
+    assert not NARRATIVE.search(text)
+
+
+def test_no_narrative_history_in_module_docstrings():
+    bad = []
+    for path in _files():
+        rel = path.relative_to(ROOT).as_posix()
+        if rel.startswith(("tests/",) + NARRATIVE_EXCLUDED):
+            continue
+        doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+        m = NARRATIVE.search(" ".join(doc.split()))
+        if m:
+            bad.append(f"{rel}: {m.group(0)!r}")
+    assert not bad, "history in module docstrings (say what the module is; history goes to CHANGELOG.md):\n" \
+        + "\n".join(bad)

@@ -1,5 +1,6 @@
-"""The comparison report: ``report.html`` (one self-contained file), ``figures/*.png``,
-``metrics.json`` -- a list of sections.
+"""The comparison report as a list of sections.
+
+``report.html`` (one self-contained file), ``figures/*.png`` and ``metrics.json``.
 
 One concept per module:
 
@@ -13,7 +14,7 @@ One concept per module:
 ``samples``     sections "What was measured" (the mock's sample, a real file's source) and the
                 seed sample's published-colour check
 ``fits``        section "Fitted parameters" (``simulate fit``'s ``fit.json``)
-``shape``       section "Shape ratios": opposition and mirror ratios (:mod:`compare.felt_metrics`)
+``shape``       section "Shape ratios": opposition and mirror ratios (:mod:`compare.ratios`)
 ==============  ===============================================================================
 
 Other code adds to a report through :func:`write_report`'s ``sections`` (a :class:`Section`:
@@ -33,40 +34,7 @@ get a banner. The normalisation's uncertainty is explained and its effect on the
 the ``<meta name="generator">`` of its ``report.html``; only that report's files are replaced, its
 figures that the new one does not draw removed); any other non-empty folder needs ``force``.
 
-Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HTML as base64 PNG):
-
-The in-plane figures have the layout of the paper's Figure 7: one panel per incidence angle side
-by side, the measurement as points with error bars, each simulation as a line with its own +-1
-standard uncertainty shaded around it (``k u_C``; the luminance curve sums the wavelengths'
-uncertainties linearly, the white Monte Carlo's errors being correlated across wavelengths).
-
-``inplane_luminance.png``
-    One panel per incidence angle present (0, 30, 45, 60 deg for the red-cotton plan), the
-    luminance-weighted radiance coefficient ``Y[beta] / pi`` (the CIE ``Y`` of the spectrum
-    under the report's illuminant, ``Y = 1`` for the ideal white diffuser, i.e. a band average
-    weighted by what the eye sees) against the signed observation angle ``s``; measured as points
-    with error bars (``u_Y / pi``, ``u_beta`` propagated through the linear ``Y`` weights), each
-    simulation (normalised per wavelength) as a line.
-``inplane_<W>nm.png``
-    The same at single wavelengths: the shared wavelengths nearest 450, 550 and 650 nm
-    (``beta / pi``, error bars ``u_beta / pi``).
-``spectrum.png``
-    Spectra at the colour geometry: left, the simulations normalised per wavelength; right, scaled
-    by the one luminance factor ``k_Y`` used for the colour match (:mod:`compare.colourmatch`).
-``factor.png``
-    The normalisation factor ``k(lambda)`` of each simulation with its standard uncertainty.
-``swatches.png``
-    Colour swatches (display sRGB) of the measurement and each simulation at the colour geometry,
-    labelled with the H, S, V of the displayed (gamma-encoded) pixel.
-``colour_strips.png``
-    The colour along every in-plane curve: per incidence, one strip per dataset, one swatch per
-    observation angle (the dataset's own spectrum there -> linear sRGB via
-    :mod:`gonio.data.colour`, scaled to the strip's brightest swatch, gamma-encoded for display);
-    the caption gives the hue at both ends of each highest-incidence strip.
-
-Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
-contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
-are shown), otherwise at the measured geometries (interpolated).
+The figures and what each shows: :mod:`.figures`.
 
 Every user-supplied string (sample names, paths, meta fields) is escaped with
 :func:`html.escape` before it enters the HTML; in figure labels ``$`` is escaped so that

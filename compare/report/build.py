@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -16,10 +16,26 @@ from gonio.version import software
 from ..colourmatch import band_luminance_weights
 from ..comparison import Comparison
 from ..errors import CompareError
-from .curves import (BEAM_BLOCK_DEG, GRAZING_DEG, REPORT_WAVELENGTHS_NM, beam_blocked,
-                     luminance_curve, measured_inplane, sim_inplane, single_wavelength)
-from .figures import (colour_strip_figure, colour_strips, factor_figure, hue_trend,
-                      inplane_figure, save_figure, spectrum_figure, swatch_figure)
+from .curves import (
+    BEAM_BLOCK_DEG,
+    GRAZING_DEG,
+    REPORT_WAVELENGTHS_NM,
+    beam_blocked,
+    luminance_curve,
+    measured_inplane,
+    sim_inplane,
+    single_wavelength,
+)
+from .figures import (
+    colour_strip_figure,
+    colour_strips,
+    factor_figure,
+    hue_trend,
+    inplane_figure,
+    save_figure,
+    spectrum_figure,
+    swatch_figure,
+)
 from .outdir import prepare_out_dir
 from .page import Section, page_html
 from .shape import shape_section
@@ -42,6 +58,19 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
     is refused with a :class:`~compare.errors.CompareError` unless ``force``. ``svg`` also writes
     ``figures/*.svg``. ``sections`` are added to the page (each before the standard section it
     names, :class:`compare.report.Section`), their figures written into ``figures/``.
+
+    Parameters
+    ----------
+    comparison : compare.comparison.Comparison
+        The comparison to report (:func:`compare.comparison.compare_datasets`).
+    out_dir : path-like
+        The report's folder.
+    svg : bool
+        Also write ``figures/*.svg``.
+    force : bool
+        Write into a folder that holds other files.
+    sections : sequence of Section
+        Sections added to the page.
 
     Returns
     -------
@@ -149,8 +178,10 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, *, svg: boo
 
 
 def interpolated_at(comparison: Comparison, wavelength: float) -> str:
-    """A sentence naming the simulations that do not hold ``wavelength`` (their curve there is
-    linearly interpolated in wavelength), or ``""``."""
+    """A sentence naming the simulations that do not hold ``wavelength``, or ``""``.
+
+    Their curve there is linearly interpolated in wavelength.
+    """
     if comparison.bands.is_rgb:
         return ""
     names = [name for name, ds in comparison.simulated.items()
@@ -174,7 +205,7 @@ def write_together(out: Path, files: dict, what: str) -> None:
 
 
 def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool, files: dict | None = None) -> None:
-    geo = comparison.colour.geometry
+    geo = comparison.colour_matched().geometry
     figures["spectrum.png"] = (save_figure(spectrum_figure(comparison), fig_dir / "spectrum.png",
                                            svg, files),
         ("Channels" if comparison.bands.is_rgb else "Spectra")

@@ -1,5 +1,7 @@
-"""The report's data: the in-plane rows of the measurement and of each normalised simulation,
-luminance and single-wavelength curves, and where a drawn curve must be broken.
+"""The report's data: in-plane rows, luminance and single-wavelength curves, curve breaks.
+
+The in-plane rows of the measurement and of each normalised simulation, their luminance and
+single-wavelength curves, and where a drawn curve must be broken.
 
 Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
 contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
@@ -32,12 +34,14 @@ def angle_text(theta_deg: float) -> str:
 
 
 def beam_blocked(rows: pd.DataFrame, dataset=None) -> set[float]:
-    """Incidences (rounded to 1e-6) at which the measured curve has a beam-block gap: no point
-    within :data:`BEAM_BLOCK_DEG` of the retro-direction ``s = -theta_i`` but points on both
-    sides of it. A beam block is the instrument's: a dataset imported from another instrument's
+    """Incidences (rounded to 1e-6) at which the measured curve has a beam-block gap.
+
+    A gap is no point within :data:`BEAM_BLOCK_DEG` of the retro-direction ``s = -theta_i`` but
+    points on both sides of it. A beam block is the instrument's: a dataset imported from another instrument's
     file (meta.json ``instrument.format``: rgl-bsdf, merl, pgii, ...) has none, even where its
     geometries (a plan's) skip the retro-direction, nor does a simulation (kind other than
-    ``measured``): empty."""
+    ``measured``): empty.
+    """
     if dataset is not None:
         instrument = dataset.meta.get("instrument")
         if dataset.kind != "measured" or (isinstance(instrument, dict) and instrument.get("format")):
@@ -79,6 +83,7 @@ def sim_inplane(comparison: Comparison, name: str) -> pd.DataFrame:
 
 
 def measured_inplane(comparison: Comparison) -> pd.DataFrame:
+    """The measurement's in-plane rows on the comparison grid: geometry, wavelength, ``beta`` and ``u_beta``."""
     rows = comparison.measured_compared.in_plane()
     grid = comparison.wavelength_nm
     keep = np.min(np.abs(rows["wavelength_nm"].to_numpy()[:, None] - grid[None, :]), axis=1) < 1e-6
@@ -120,15 +125,18 @@ def luminance_curve(rows: pd.DataFrame, grid: np.ndarray, weights: np.ndarray,
 
 
 def single_wavelength(rows: pd.DataFrame, wavelength_nm: float) -> pd.DataFrame:
+    """The in-plane curve of ``rows`` at one wavelength: ``theta_i``, ``s``, ``value`` and ``u``."""
     sel = rows[np.abs(rows["wavelength_nm"].to_numpy() - wavelength_nm) < 1e-6]
     return pd.DataFrame({"theta_i": sel["theta_i"].to_numpy(), "s": sel["s"].to_numpy(),
                          "value": sel["beta"].to_numpy(), "u": sel["u_beta"].to_numpy()})
 
 
 def gapped(s: np.ndarray, y: np.ndarray, theta_i: float) -> tuple[np.ndarray, np.ndarray]:
-    """``s, y`` with NaN inserted where a line must not be drawn: across the beam-blocked
-    retro-direction when the curve has no point there, and across holes wider than 1.5 times the
-    usual spacing (missing points are not interpolated by eye)."""
+    """``s, y`` with NaN inserted where a line must not be drawn.
+
+    That is across the beam-blocked retro-direction when the curve has no point there, and across
+    holes wider than 1.5 times the usual spacing (missing points are not interpolated by eye).
+    """
     if s.size < 2:
         return s, y
     gaps = np.diff(s)

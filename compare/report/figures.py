@@ -1,8 +1,45 @@
-"""The report's figures (matplotlib, Agg backend): in-plane panels, spectra, the normalisation
-factor, swatches and colour strips; :func:`save_figure` writes PNG (and SVG on request).
+"""The report's figures (matplotlib, Agg backend).
+
+In-plane panels, spectra, the normalisation factor, swatches and colour strips;
+:func:`save_figure` writes PNG (and SVG on request).
 
 In figure labels ``$`` is escaped so that matplotlib does not read names as mathtext
 (:func:`mpl_label`).
+
+Figures (matplotlib, Agg backend, written to ``figures/`` and embedded in the HTML as base64 PNG):
+
+The in-plane figures have the layout of the paper's Figure 7: one panel per incidence angle side
+by side, the measurement as points with error bars, each simulation as a line with its own +-1
+standard uncertainty shaded around it (``k u_C``; the luminance curve sums the wavelengths'
+uncertainties linearly, the white Monte Carlo's errors being correlated across wavelengths).
+
+``inplane_luminance.png``
+    One panel per incidence angle present (0, 30, 45, 60 deg for the red-cotton plan), the
+    luminance-weighted radiance coefficient ``Y[beta] / pi`` (the CIE ``Y`` of the spectrum
+    under the report's illuminant, ``Y = 1`` for the ideal white diffuser, i.e. a band average
+    weighted by what the eye sees) against the signed observation angle ``s``; measured as points
+    with error bars (``u_Y / pi``, ``u_beta`` propagated through the linear ``Y`` weights), each
+    simulation (normalised per wavelength) as a line.
+``inplane_<W>nm.png``
+    The same at single wavelengths: the shared wavelengths nearest 450, 550 and 650 nm
+    (``beta / pi``, error bars ``u_beta / pi``).
+``spectrum.png``
+    Spectra at the colour geometry: left, the simulations normalised per wavelength; right, scaled
+    by the one luminance factor ``k_Y`` used for the colour match (:mod:`compare.colourmatch`).
+``factor.png``
+    The normalisation factor ``k(lambda)`` of each simulation with its standard uncertainty.
+``swatches.png``
+    Colour swatches (display sRGB) of the measurement and each simulation at the colour geometry,
+    labelled with the H, S, V of the displayed (gamma-encoded) pixel.
+``colour_strips.png``
+    The colour along every in-plane curve: per incidence, one strip per dataset, one swatch per
+    observation angle (the dataset's own spectrum there -> linear sRGB via
+    :mod:`gonio.data.colour`, scaled to the strip's brightest swatch, gamma-encoded for display);
+    the caption gives the hue at both ends of each highest-incidence strip.
+
+Simulated curves are drawn at the simulation's own in-plane geometries when its wavelength grid
+contains the comparison grid (so points the instrument cannot measure, like the normal/normal one,
+are shown), otherwise at the measured geometries (interpolated).
 """
 
 from __future__ import annotations
@@ -40,7 +77,8 @@ def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -
     """Write ``path`` (PNG at :data:`FIGURE_DPI`; also ``.svg`` beside it when ``svg``); return the PNG.
 
     ``files``: collect the bytes there (path -> bytes) instead of writing them, for a report written
-    together (:func:`gonio.data.write_files_together`)."""
+    together (:func:`gonio.data.write_files_together`).
+    """
     import io
 
     import matplotlib.pyplot as plt
@@ -75,7 +113,8 @@ def tight_layout(fig, bottom_in: float = 0.0) -> None:
     twice (once for the margins, once more inside ``rect``), two equal measurements since the
     panels do not move in between; here they are measured once and the bottom margin moves up
     by the strip. With several rows (whose spacing is relative to the panel height)
-    matplotlib's own ``rect`` is used."""
+    matplotlib's own ``rect`` is used.
+    """
     strip = bottom_in / fig.get_figheight()
     specs = [ax.get_subplotspec() for ax in fig.axes]
     if strip and any(spec is None or spec.get_gridspec().nrows > 1 for spec in specs):
@@ -105,8 +144,11 @@ OWN_SCALE_RATIO = 2.0
 
 def own_scale_panels(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame],
                      angles: list[float], ratio: float | None = OWN_SCALE_RATIO) -> set[float]:
-    """The incidences drawn on their own value axis: grazing ones (>= ``GRAZING_DEG``) and,
-    unless ``ratio`` is None, those whose peak exceeds ``ratio`` times the median panel peak."""
+    """The incidences drawn on their own value axis.
+
+    The grazing ones (>= ``GRAZING_DEG``) and, unless ``ratio`` is None, those whose peak exceeds
+    ``ratio`` times the median panel peak.
+    """
     frames = [measured] + list(simulated.values())
     peaks = []
     for theta_i in angles:
@@ -115,8 +157,8 @@ def own_scale_panels(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame],
         both = np.concatenate(values) if values else np.array([])
         both = both[np.isfinite(both)]
         peaks.append(float(np.max(np.abs(both))) if both.size else 0.0)
-    typical = float(np.median([p for a, p in zip(angles, peaks) if a < GRAZING_DEG] or [0.0]))
-    return {a for a, p in zip(angles, peaks)
+    typical = float(np.median([p for a, p in zip(angles, peaks, strict=True) if a < GRAZING_DEG] or [0.0]))
+    return {a for a, p in zip(angles, peaks, strict=True)
             if a >= GRAZING_DEG or (ratio is not None and typical > 0 and p > ratio * typical)}
 
 
@@ -124,8 +166,10 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
                     ylabel: str, measured_name: str, *, bands: bool = True,
                     blocked: set[float] | None = None, role: str = "measured",
                     own_scale_ratio: float | None = None):
-    """The in-plane panels; returns ``(figure, bars_hidden)``, ``bars_hidden`` True when the
-    measured error bars are smaller than the markers in every panel.
+    """The in-plane panels, and whether the measured error bars are hidden by the markers.
+
+    Returns ``(figure, bars_hidden)``, ``bars_hidden`` True when the measured error bars are
+    smaller than the markers in every panel.
 
     The layout is the paper's Figure 7: one panel per incidence angle side by side (rows of at
     most four), sharing the value axis, against the signed observation angle ``s`` over at least
@@ -150,6 +194,9 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
         :data:`~compare.report.curves.GRAZING_DEG`) and, with ``own_scale_ratio``, panels far
         above the others (:func:`own_scale_panels`) get their own value axis, said in their
         title; the comparison report keeps the paper's shared axis for the others.
+    own_scale_ratio : float, optional
+        A panel whose peak exceeds this times the median panel peak gets its own value axis;
+        None: only the grazing incidences do.
     """
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
@@ -168,11 +215,11 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
                              figsize=(4.4 * ncols, 3.6 * nrows + (legend_in if legend_below else 0.0)),
                              squeeze=False)
     own = own_scale_panels(measured, simulated, angles, own_scale_ratio)
-    shared = [ax for ax, a in zip(axes.ravel(), angles) if a not in own]
+    shared = [ax for ax, a in zip(axes.ravel(), angles, strict=False) if a not in own]
     for ax in shared[1:]:
         ax.sharey(shared[0])
     hidden = []
-    for k, (ax, theta_i) in enumerate(zip(axes.ravel(), angles)):
+    for k, (ax, theta_i) in enumerate(zip(axes.ravel(), angles, strict=False)):
         m = measured[np.abs(measured["theta_i"] - theta_i) < 1e-6].sort_values("s")
         if round(float(theta_i), 6) in blocked:
             ax.axvspan(-theta_i - BEAM_BLOCK_DEG, -theta_i + BEAM_BLOCK_DEG, color="0.92", lw=0)
@@ -230,7 +277,7 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
         tight_layout(fig)
     # the layout is final (tight_layout placed the axes) and _bars_hidden autoscales the
     # limits: the transforms it reads are those drawn, without a draw here
-    for ax, theta_i in zip(axes.ravel(), angles):
+    for ax, theta_i in zip(axes.ravel(), angles, strict=False):
         if not ax.yaxis.offsetText.get_text():
             # nothing above the panel for its title to clear (no offset or power of ten on
             # the value axis, no ticks on top): its place is fixed, which saves measuring
@@ -243,14 +290,16 @@ def inplane_figure(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame], t
 
 
 def spectrum_figure(comparison: Comparison):
-    """The spectra (or channels) at the colour geometry: the measurement and each simulation
-    scaled by the one luminance factor ``k_Y`` of the colour match. The per-wavelength
-    normalised view is not drawn: ``k(lambda)`` makes every simulation equal the measurement at
-    the normal by construction, so near the normal it would show the same curve for every
-    dataset. Channels are points (R, G, B are not a continuum: no line joins them)."""
+    """The spectra (or channels) at the colour geometry.
+
+    The measurement and each simulation scaled by the one luminance factor ``k_Y`` of the colour
+    match. The per-wavelength normalised view is not drawn: ``k(lambda)`` makes every simulation
+    equal the measurement at the normal by construction, so near the normal it would show the same
+    curve for every dataset. Channels are points (R, G, B are not a continuum: no line joins them).
+    """
     import matplotlib.pyplot as plt
 
-    cm = comparison.colour
+    cm = comparison.colour_matched()
     geo = cm.geometry
     rgb = comparison.bands.is_rgb
     style = "o" if rgb else "-"
@@ -262,7 +311,7 @@ def spectrum_figure(comparison: Comparison):
     ax.errorbar(rows["wavelength_nm"], rows["beta_meas"], yerr=rows["u_meas"], fmt="o",
                 ms=3 if not rgb else 6, capsize=2, color=MEASURED_COLOUR,
                 label=mpl_label(f"{comparison.measured.name} (measured)"))
-    for j, (name, sc) in enumerate(cm.simulated.items()):
+    for name, sc in cm.simulated.items():
         ax.plot(sc.wavelength_nm, sc.beta, style, ms=5, label=mpl_label(f"{name} x k_Y"))
     ax.set_xlabel("wavelength (nm)")
     ax.set_title("scaled by the luminance factor k_Y (colour match)")
@@ -281,6 +330,7 @@ def spectrum_figure(comparison: Comparison):
 
 
 def factor_figure(comparison: Comparison):
+    """Figure ``factor.png``: each simulation's normalisation factor ``k(lambda)`` with its uncertainty."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 3.8))
@@ -302,14 +352,17 @@ def factor_figure(comparison: Comparison):
 
 
 def swatch_entries(comparison: Comparison) -> list[tuple[str, np.ndarray, tuple]]:
-    """``(label, pixel, hsv)`` per swatch: ``pixel`` is the gamma-encoded sRGB shown on screen
-    and ``hsv`` is computed from that same pixel, so a label describes what it sits under (the
-    metrics' H, S, V are those of LINEAR sRGB; the table gives both)."""
+    """``(label, pixel, hsv)`` per swatch.
+
+    ``pixel`` is the gamma-encoded sRGB shown on screen and ``hsv`` is computed from that same
+    pixel, so a label describes what it sits under (the metrics' H, S, V are those of LINEAR sRGB;
+    the table gives both).
+    """
     import colour
 
     from gonio.data.colour import display_srgb
 
-    cm = comparison.colour
+    cm = comparison.colour_matched()
     entries = [(f"{comparison.measured.name} (measured)", cm.measured)]
     entries += [(name, sc.colour) for name, sc in cm.simulated.items()]
     out = []
@@ -321,6 +374,7 @@ def swatch_entries(comparison: Comparison) -> list[tuple[str, np.ndarray, tuple]
 
 
 def swatch_figure(comparison: Comparison):
+    """Figure ``swatches.png``: the measured and simulated colour swatches at the colour geometry."""
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
@@ -396,9 +450,11 @@ def colour_strips(comparison: Comparison) -> list[dict]:
 
 
 def colour_strip_figure(strips: list[dict]):
-    """One panel per incidence (top to bottom), one strip per dataset in it, each swatch drawn
-    at its observation angle ``s`` (so the strips line up with the in-plane panels and a
-    missing geometry is a gap), the angles labelled under each panel."""
+    """The colour strips: one panel per incidence (top to bottom), one strip per dataset in it.
+
+    Each swatch is drawn at its observation angle ``s`` (so the strips line up with the in-plane
+    panels and a missing geometry is a gap), the angles labelled under each panel.
+    """
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
@@ -409,11 +465,11 @@ def colour_strip_figure(strips: list[dict]):
     heights = [0.34 * len(v) + 0.95 for v in panels.values()]
     fig, axes = plt.subplots(len(panels), 1, figsize=(11.0, sum(heights) + 0.5), squeeze=False,
                              gridspec_kw={"height_ratios": heights})
-    for ax, ((theta_i, phi_i), rows) in zip(axes[:, 0], panels.items()):
+    for ax, ((theta_i, phi_i), rows) in zip(axes[:, 0], panels.items(), strict=True):
         every_s = np.unique(np.concatenate([r["s"] for r in rows]))
         step = float(np.min(np.diff(every_s))) if every_s.size > 1 else 10.0
         for j, strip in enumerate(rows):
-            for s, pixel in zip(strip["s"], strip["pixel"]):
+            for s, pixel in zip(strip["s"], strip["pixel"], strict=True):
                 ax.add_patch(Rectangle((s - 0.45 * step, -j - 0.4), 0.9 * step, 0.8,
                                        color=tuple(pixel), lw=0))
         ax.axvline(-theta_i, color="0.5", lw=0.8, ls=":")
@@ -437,9 +493,11 @@ def colour_strip_figure(strips: list[dict]):
 
 
 def hue_trend(strips: list[dict]) -> str:
-    """One sentence: the hue at the two ends of every dataset's strip at the highest incidence
-    (where the paper's purple-to-red change is largest), so the caption states what the strips
-    show in numbers rather than leaving it to the eye (display scaling changes the look)."""
+    """One sentence: the hue at the two ends of every dataset's strip at the highest incidence.
+
+    There the paper's purple-to-red change is largest; the caption states what the strips
+    show in numbers rather than leaving it to the eye (display scaling changes the look).
+    """
     if not strips:
         return ""
     top = max(s["theta_i"] for s in strips)

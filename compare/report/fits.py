@@ -15,8 +15,8 @@ from __future__ import annotations
 import html
 import json
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 from ..errors import CompareError
 from .page import Section
@@ -108,14 +108,16 @@ def _made_from(fit_dir: Path, simulated: Mapping) -> list[str]:
 
 
 def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Section:
-    """The "Fitted parameters" section (module docstring); ``simulated``: the report's
-    simulated datasets by name."""
+    """The "Fitted parameters" section (module docstring).
+
+    ``simulated``: the report's simulated datasets by name.
+    """
     e = html.escape
     parts = ["<h2>Fitted parameters</h2><p>Each model below was fitted to the measurement by "
              "<code>simulate fit</code> (objective NRMSE^2 + w_c (dh^2 + ds^2), the figures "
              "compare reports; uncertainties: standard, the measurement's u_beta and the model's "
              "Monte Carlo error propagated through the whole objective, linearised at the "
-             "solution; see the README's fit section). 'config value' and 'before' are the start config's value and figures; the search itself may start elsewhere (a --dye knots fit starts from the knots inverted from the measured colour: the start note says so).</p>"]
+             "solution; the manual's page \"Fit parameters\", docs/how-to/fit.md, says how to read them). 'config value' and 'before' are the start config's value and figures; the search itself may start elsewhere (a --dye knots fit starts from the knots inverted from the measured colour: the start note says so).</p>"]
     for fit_dir in map(Path, fit_dirs):
         doc = read_fit(fit_dir)
         info = doc.get("info") or {}

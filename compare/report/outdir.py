@@ -51,7 +51,7 @@ def prepare_out_dir(out: Path, force: bool) -> list[Path]:
         match = _PREVIOUS_FILES.search(head)
         names = html.unescape(match.group(1)).split() if match else []
     elif "<title>Comparison report: " in head and "<h1>Measurement vs simulation: " in head:
-        # a report of the first version (no generator tag): its figures are named by img alt
+        # a report without the generator tag (an older layout): its figures are named by img alt
         text = previous.read_text(encoding="utf-8", errors="replace")
         names = [f"figures/{n}" for n in _LEGACY_FIGURES.findall(text)]
     if names is not None:

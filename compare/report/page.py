@@ -163,8 +163,10 @@ def _signed(x: float) -> str:
 
 
 def result_sentences(comparison: Comparison, metrics: dict) -> list[str]:
-    """The report's result in words, before any table: which model is closest to the measurement and
-    by how much on curve and colour, whether any meets the threshold, and what the threshold means.
+    """The report's result in words, before any table.
+
+    Which model is closest to the measurement and by how much on curve and colour, whether any
+    meets the threshold, and what the threshold means.
 
     Closest is the smallest ``NRMSE^2 + dh^2 + ds^2`` (the fit's objective at its default colour
     weight; NRMSE alone when there is no colour statement). Datasets of the mock's true values
@@ -405,8 +407,10 @@ def colour_section(comparison: Comparison, metrics: dict) -> Section:
 
 
 def figures_section(figures: dict[str, tuple[bytes, str]], preface: str = "") -> Section:
-    """The figures with numbered captions; ``preface`` (plain text) is said once above them
-    (what every in-plane figure shares)."""
+    """The figures with numbered captions.
+
+    ``preface`` (plain text) is said once above them (what every in-plane figure shares).
+    """
     e = html.escape
     parts: list[str] = []
     parts.append("<h2>Figures</h2>")
@@ -423,6 +427,7 @@ def figures_section(figures: dict[str, tuple[bytes, str]], preface: str = "") ->
 
 
 def colour_html(parts: list[str], comparison: Comparison, colour: dict) -> None:
+    """Append the colour-match table of ``metrics.json``'s ``colour`` to ``parts`` (HTML)."""
     e = html.escape
     meas = comparison.measured
     geo = colour["geometry"]

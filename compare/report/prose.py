@@ -1,5 +1,8 @@
-"""The report's words: dataset summaries (no link URLs or temporary ports), number formatting
-and the banners for incomplete data or a dataset compared with itself."""
+"""The report's words: dataset summaries, number formatting, banners.
+
+The summaries carry no link URLs or temporary ports; the banners flag incomplete data and a
+dataset compared with itself.
+"""
 
 from __future__ import annotations
 
@@ -49,6 +52,7 @@ def source_summary(ds) -> str:
 
 
 def sample_summary(ds) -> str:
+    """The sample of a dataset in words: its name and its meta's simple fields."""
     sample = ds.meta.get("sample") if isinstance(ds.meta.get("sample"), dict) else {}
     fields = [f"{k}: {v}" for k, v in sample.items()
               if k != "name" and isinstance(v, (str, int, float))]
@@ -56,6 +60,7 @@ def sample_summary(ds) -> str:
 
 
 def fmt(x, digits: int = 4) -> str:
+    """A figure for the page: ``digits`` significant digits, ``-`` for None or a non-finite value."""
     if x is None:
         return "-"
     if isinstance(x, float):
@@ -64,6 +69,7 @@ def fmt(x, digits: int = 4) -> str:
 
 
 def banners(comparison: Comparison) -> list[str]:
+    """The page's warnings: incomplete data, and a simulation that is the measurement itself."""
     from ..comparison import incomplete_datasets, same_dataset
 
     out = [f"Incomplete data: {line}. Curves and colours cover only what was measured."

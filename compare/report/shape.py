@@ -1,11 +1,11 @@
-"""The report's shape-ratio section: opposition and mirror-to-neighbours ratios (:mod:`compare.felt_metrics`)."""
+"""The report's shape-ratio section: opposition and mirror-to-neighbours ratios (:mod:`compare.ratios`)."""
 
 from __future__ import annotations
 
 import html
 
 from ..comparison import Comparison
-from ..felt_metrics import INNER_DEG, NEIGHBOUR_DEG, OUTER_DEG
+from ..ratios import INNER_DEG, NEIGHBOUR_DEG, OUTER_DEG
 from .page import Section
 from .prose import fmt
 
@@ -27,9 +27,12 @@ def _shown_keys(comparison: Comparison) -> list[str]:
 
 
 def shape_section(comparison: Comparison, metrics: dict) -> Section:
-    """A table per ratio: rows the measurement and each simulation, columns the incidences where
-    the measurement has the ratio, at :data:`SHOWN_NM` (or the G and R channels); a dataset that
-    lacks the points is named with its reason."""
+    """A table per ratio.
+
+    Rows are the measurement and each simulation, columns the incidences where the measurement
+    has the ratio, at :data:`SHOWN_NM` (or the G and R channels); a dataset that lacks the points
+    is named with its reason.
+    """
     e = html.escape
     shape = metrics.get("shape", {})
     keys = _shown_keys(comparison)

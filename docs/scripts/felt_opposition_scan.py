@@ -15,9 +15,9 @@ the felt Monte Carlo (:func:`simulate.woven.fabric_beta`, two felt realisations 
 --method mc`` builds them) at ``--seeds`` seeds (each its own felts, table and rays; the same seeds for every
 variant, so variants that keep the preset's felt are traced on the same felts) at the RGL file's incidences 40.03 and
 27.76 deg, towards 12 directions on each of the rings 6 and 30 deg from the retro direction
-(:func:`compare.felt_metrics.ring_directions`) and towards the normal, at 450, 550 and 650 nm: once
+(:func:`compare.ratios.ring_directions`) and towards the normal, at 450, 550 and 650 nm: once
 with the single scattering only (``max_events=1``) and once with all orders. The opposition ratio
-is :func:`compare.felt_metrics.opposition_ratios` of those points (its standard error takes each
+is :func:`compare.ratios.opposition_ratios` of those points (its standard error takes each
 point's error as independent; the table's share of them is common to a ring, so it is indicative); the
 seeds' rings are pooled, and the standard error of the mean of the seeds' own ratios, from their
 scatter, is kept beside it as a check.
@@ -208,7 +208,7 @@ def variant_config(name: str, base: Any) -> tuple[Any, dict]:
 
 def detectors(theta_i: float) -> list[tuple[float, float]]:
     """``(theta_o, phi_o)`` of one incidence: the ring at 6 deg, the ring at 30 deg, then the normal."""
-    from compare.felt_metrics import INNER_DEG, OUTER_DEG, ring_directions
+    from compare.ratios import INNER_DEG, OUTER_DEG, ring_directions
 
     return [*ring_directions(theta_i, INNER_DEG, RING_POINTS), *ring_directions(theta_i, OUTER_DEG, RING_POINTS),
             (0.0, 0.0)]
@@ -226,7 +226,7 @@ def summarise(g: Any, beta: np.ndarray, u: np.ndarray, bands: tuple[float, ...] 
     """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per band
     (``bands``: the columns of ``beta``, the wavelengths or the Lambertian felt's albedos)."""
     import pandas as pd
-    from compare.felt_metrics import Missing, opposition_ratios
+    from compare.ratios import Missing, opposition_ratios
 
     wl = np.asarray(bands, float)
     table = pd.DataFrame({c: np.repeat(g[c].to_numpy(float), wl.size) for c in g.columns})

@@ -39,14 +39,6 @@ budgets                ``--max-evaluations N``: model evaluations of a summation
                        ``--max-photons N``: the Monte Carlo's photon budget.
 =====================  ==========================================================================
 
-Old spellings keep working for one release and print exactly one line on stderr each
-(``simulate fabric: --geometry is deprecated; use --plan (same meaning)``): the positional
-``PLAN`` of ``gonio acquire|replay|truth|check-plan``, ``--geometry`` (``gonio import``,
-``simulate fabric``, ``simulate sweep``), ``--measured`` (``simulate sweep``), ``--method`` of
-``simulate fiber`` (now ``--route``) and ``--max-evaluations`` with ``simulate fit --method mc``
-(now ``--max-runs``). They are registered with :func:`add_deprecated` or announced with
-:func:`deprecated`; nothing else prints a deprecation.
-
 A usage error is one line on stderr (``PROG SUBCOMMAND: error: ...``), exit status 2.
 """
 
@@ -56,16 +48,16 @@ import argparse
 import math
 import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
 from fabric_optics import validate as _validate
 
 __all__ = ["Parser", "UsageError", "MAX_WAVELENGTHS", "parse_wavelengths", "wavelengths_arg", "int_in", "finite_number",
            "threads_arg", "rel_err_arg", "add_plan", "add_wavelengths", "add_threads", "add_target_rel_err",
-           "add_seed", "add_force", "add_verbose", "add_no_progress", "add_deprecated", "deprecated",
+           "add_seed", "add_force", "add_verbose", "add_no_progress",
            "plan_of", "refuse_existing", "claim", "progress", "MAX_SEED", "DEFAULT_PLAN"]
 
 #: The plan used where a command has a default plan.
@@ -191,84 +183,18 @@ def wavelengths_arg(text: str) -> tuple[float, ...]:
 
 
 # ---------------------------------------------------------------------------------------------
-# deprecated spellings
-# ---------------------------------------------------------------------------------------------
-
-_SEEN = "_deprecations_printed"
-
-
-def deprecated(prog: str, old: str, new: str, namespace: argparse.Namespace | None = None) -> None:
-    """Print the one line that says ``old`` is deprecated in favour of ``new`` (once per parse
-    when ``namespace`` is given)."""
-    if namespace is not None:
-        seen = namespace.__dict__.setdefault(_SEEN, set())
-        if old in seen:
-            return
-        seen.add(old)
-    print(f"{prog}: {old} is deprecated; use {new} (same meaning)", file=sys.stderr)
-
-
-class _DeprecatedAction(argparse.Action):
-    """Stores into the new spelling's ``dest`` and prints the deprecation line."""
-
-    def __init__(self, option_strings: Sequence[str], dest: str, *, old: str, new: str, **kwargs: Any) -> None:
-        self.old, self.new = old, new
-        super().__init__(option_strings, dest, **kwargs)
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
-                 option_string: str | None = None) -> None:
-        if not self.option_strings and getattr(namespace, "_plan_given", False):
-            raise argparse.ArgumentError(self, f"give the plan once: {self.new} (the positional PLAN is deprecated)")
-        deprecated(parser.prog, self.old, self.new, namespace)
-        setattr(namespace, self.dest, values)
-
-
-def add_deprecated(parser: argparse.ArgumentParser, *flags: str, dest: str, new: str, old: str | None = None,
-                   **kwargs: Any) -> None:
-    """Register an old spelling: ``flags`` (none: a positional) store into ``dest`` as the new
-    spelling ``new`` does, with one deprecation line on stderr. Hidden from the help."""
-    if flags:
-        parser.add_argument(*flags, dest=dest, action=_DeprecatedAction, old=old or flags[0], new=new,
-                            default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)
-    else:
-        parser.add_argument(dest, nargs="?", action=_DeprecatedAction, old=old or f"the positional {dest.upper()}",
-                            new=new, default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)
-
-
-def clean(namespace: argparse.Namespace) -> argparse.Namespace:
-    """The namespace without this module's bookkeeping (what a command sees)."""
-    namespace.__dict__.pop(_SEEN, None)
-    namespace.__dict__.pop("_plan_given", None)
-    return namespace
-
-
-# ---------------------------------------------------------------------------------------------
 # the shared options
 # ---------------------------------------------------------------------------------------------
 
 
-class _PlanAction(argparse.Action):
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
-                 option_string: str | None = None) -> None:
-        namespace._plan_given = True
-        setattr(namespace, self.dest, values)
-
-
 def add_plan(p: argparse.ArgumentParser, *, required: bool = False, default: str | None = DEFAULT_PLAN,
-             what: str = "whose geometries and wavelengths are used", positional: bool = False,
-             geometry: bool = False) -> None:
-    """``--plan PLAN``; ``positional`` / ``geometry``: the deprecated positional PLAN / ``--geometry``.
-
-    A required plan is checked after parsing (:func:`plan_of`) so that the deprecated positional
-    can stand in for it."""
+             what: str = "whose geometries and wavelengths are used") -> None:
+    """``--plan PLAN``; a required plan is checked after parsing (:func:`plan_of`), so that its
+    absence is the one-line usage error of the command."""
     default = None if required else default
     tail = "required" if required else ("default " + default if default else "optional")
-    p.add_argument("--plan", metavar="PLAN", default=default, action=_PlanAction,
+    p.add_argument("--plan", metavar="PLAN", default=default,
                    help=f"acquisition plan {what}: a preset name or a TOML file ({tail})")
-    if positional:
-        add_deprecated(p, dest="plan", new="--plan PLAN", old="the positional PLAN")
-    if geometry:
-        add_deprecated(p, "--geometry", dest="plan", new="--plan", metavar="PLAN")
 
 
 def plan_of(args: argparse.Namespace) -> str:

@@ -268,7 +268,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``compare`` command line; return the exit status."""
     parser = build_parser()
     try:
-        args = common.clean(parser.parse_args(argv))
+        args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code) if isinstance(exc.code, int) else 2
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,

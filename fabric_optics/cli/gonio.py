@@ -356,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "are unchanged, the instrument is the same and it is younger than "
                               "the plan's calibration_max_age_min; otherwise it is measured "
                               "again. --record writes a new transcript for this session.")
-    add_plan(a, required=True, what="to measure", positional=True)
+    add_plan(a, required=True, what="to measure")
     a.add_argument("--modbus", required=True, metavar="URL", help="tcp://HOST:PORT or rtu://DEVICE")
     a.add_argument("--serial", required=True, metavar="URL", help="device path, pty or socket://HOST:PORT")
     a.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory")
@@ -377,7 +377,7 @@ def build_parser() -> argparse.ArgumentParser:
                               "message names the request index and both requests), or the "
                               "recorded run itself stopped; 2 usage or input error.")
     r.add_argument("transcript", metavar="TRANSCRIPT")
-    add_plan(r, required=True, what="of the recorded run", positional=True)
+    add_plan(r, required=True, what="of the recorded run")
     r.add_argument("--out", required=True, metavar="RUN_DIR")
     add_force(r, _FORCE_HELP)
     add_verbose(r, sub=True)
@@ -389,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="Exit status: 0 every point measurable (beam-block points allowed "
                               "when the plan says skip_blocked = true); 1 some points refused "
                               "(listed); 2 invalid plan.")
-    add_plan(c, required=True, what="to check", positional=True)
+    add_plan(c, required=True, what="to check")
     c.add_argument("--list", action="store_true", help="list the points in motion order")
     add_verbose(c, sub=True)
 
@@ -421,7 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "mock must recover.")
     t.add_argument("sample", metavar="SAMPLE",
                    help="lambert:RHO, red-cotton, a dataset directory or an RGL .bsdf file")
-    add_plan(t, required=True, what="whose geometries and wavelengths are evaluated", positional=True)
+    add_plan(t, required=True, what="whose geometries and wavelengths are evaluated")
     t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
     add_force(t, _FORCE_HELP)
     add_verbose(t, sub=True)
@@ -438,7 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
     im.add_argument("files", metavar="FILE", nargs="+", help="file(s) to import")
     im.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
     add_force(im, _FORCE_HELP)
-    add_plan(im, default=None, what="whose geometries to evaluate (default: in-plane curves)", geometry=True)
+    add_plan(im, default=None, what="whose geometries to evaluate (default: in-plane curves)")
     im.add_argument("--scale", type=float, metavar="FR_PER_UA",
                     help="pgii [uA] files: f_r per uA of detector current (absolute values); "
                          "without it raw currents make a relative dataset")
@@ -565,7 +565,7 @@ def main(argv: list[str] | None = None) -> int:
     bench = argv[:1] == ["bench-driver"]
     parser = _bench_parser() if bench else build_parser()
     try:
-        args = common.clean(parser.parse_args(argv[1:] if bench else argv))
+        args = parser.parse_args(argv[1:] if bench else argv)
     except SystemExit as exc:
         return int(exc.code or 0)
     if bench:

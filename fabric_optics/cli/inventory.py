@@ -4,7 +4,7 @@ distinct spellings of each concept of the vocabulary (:mod:`fabric_optics.cli.co
     python -m fabric_optics.cli.inventory            # a table
     python -m fabric_optics.cli.inventory --json     # the same as JSON
 
-Hidden options (deprecated spellings) are counted apart: ``flags`` are the ``--x`` option strings
+Hidden options (parsed, left out of the help) are counted apart: ``flags`` are the ``--x`` option strings
 a user sees in the help, ``hidden_flags`` the ones that still parse but are not shown. A concept's
 spellings are the distinct (option or positional, syntax, default) forms it takes across every
 subcommand that has it; one vocabulary means one spelling per concept.

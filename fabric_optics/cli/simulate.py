@@ -50,7 +50,7 @@ from typing import Any
 from fabric_optics import validate
 from gonio.data.printable import printable
 from fabric_optics.cli import common
-from fabric_optics.cli.common import (Parser, UsageError, add_deprecated, add_force, add_no_progress,
+from fabric_optics.cli.common import (Parser, UsageError, add_force, add_no_progress,
                                       add_plan, add_seed, add_target_rel_err, add_threads, add_verbose,
                                       add_wavelengths, refuse_existing)
 
@@ -338,7 +338,7 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output dataset directory (radiance.csv, meta.json)")
     add_force(p, "a previous `simulate fabric` output in --out (a folder holding anything else is never replaced: "
                  "the output replaces the whole folder)")
-    add_plan(p, what="whose geometries and wavelengths are simulated", geometry=True)
+    add_plan(p, what="whose geometries and wavelengths are simulated")
     p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
                    help="skip the plan's beam-blocked geometries as the measurement does "
                         "(default: simulate them; the normal/normal value is the normalisation point)")
@@ -385,7 +385,6 @@ def _fiber_arguments(p: argparse.ArgumentParser) -> None:
     add_force(p)
     p.add_argument("--route", choices=("nee", "beam", "bssrdf"), default=None,
                    help="fiber route of the Monte Carlo (default: the config's)")
-    add_deprecated(p, "--method", dest="route", new="--route", choices=("nee", "beam", "bssrdf"))
     p.add_argument("--step-deg", type=_pos_float, default=30.0, dest="step_deg",
                    help="polar grid step in degrees, dividing 90 (default 30)")
     p.add_argument("--phi-step-deg", type=_pos_float, default=45.0, dest="phi_step_deg",
@@ -410,12 +409,6 @@ def _check_table_size(step_deg: float, phi_step_deg: float, n_wavelengths: int) 
                           f"{MAX_TABLE_VALUES * 64 / 2**30:.1f} GiB): use a coarser step")
 
 
-def _config_route(config: Any) -> str:
-    """The config's fiber route (``[fiber] route``; an older config: ``[method] method``)."""
-    route = getattr(config, "route", None)
-    return str(route if route is not None else config.method)
-
-
 def _fiber_run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -438,7 +431,7 @@ def _fiber_run(args: argparse.Namespace) -> int:
     _refuse_previous(args.out, args.force, _is_fiber_output, "simulate fiber")
     _prepare_out(args.out, lambda out: args.force or _is_fiber_output(out), "simulate fiber")
     arrays, sidecar = fiber_table(
-        config.fiber(wavelengths), wavelengths, grid, method=args.route or _config_route(config),
+        config.fiber(wavelengths), wavelengths, grid, method=args.route or config.route,
         target_rel_err=target, seed=config.seed if args.seed is None else args.seed,
         threads=args.threads or None,
         max_photons=config.max_photons if args.max_photons is None else args.max_photons,
@@ -541,11 +534,8 @@ def _fit_run(args: argparse.Namespace) -> int:
     from fabric_optics import api
 
     if args.method == "mc" and args.max_evaluations is not None:
-        if args.max_runs is not None:
-            raise _UsageError("--max-evaluations and --max-runs: give --max-runs only (--method mc counts "
-                              "Monte Carlo runs)")
-        common.deprecated("simulate fit", "--max-evaluations with --method mc", "--max-runs")
-        args.max_runs, args.max_evaluations = args.max_evaluations, None
+        raise _UsageError(f"--max-evaluations {args.max_evaluations}: --method mc counts Monte Carlo runs; "
+                          "give --max-runs N instead")
     if args.max_runs is not None and args.max_runs < 2:
         raise _UsageError(f"--max-runs {args.max_runs}: --method mc needs at least 2 Monte Carlo runs (the start's "
                           "and one more)")
@@ -694,7 +684,6 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("measured", metavar="MEASURED", type=Path, nargs="?", default=None,
                    help="measured dataset (optional, right after CONFIG): add compare's NRMSE, dh and ds of every point "
                         "to summary.csv")
-    add_deprecated(p, "--measured", dest="measured", new="the positional MEASURED", type=Path, metavar="DIR")
     p.add_argument("--param", action="append", required=True, metavar="NAME=v1,v2,...",
                    help="a swept config field (dotted path or alias volume_fraction, radius, rms_slope) and its "
                         "values; repeat for a grid (every combination)")
@@ -703,7 +692,7 @@ def _sweep_arguments(p: argparse.ArgumentParser) -> None:
     add_force(p, "an existing --out sweep (computed afresh; --resume continues it instead)")
     p.add_argument("--method", choices=("summation", "classic", "mc"), default="summation",
                    help="fabric model (default summation)")
-    add_plan(p, what="whose geometries and wavelengths are simulated", geometry=True)
+    add_plan(p, what="whose geometries and wavelengths are simulated")
     p.add_argument("--measurable-only", action="store_true", dest="measurable_only",
                    help="skip the plan's beam-blocked geometries as the measurement does")
     p.add_argument("--scheduler", metavar="tls://HOST:PORT", default=None,
@@ -939,17 +928,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``simulate`` console script; returns the exit code."""
-    # Start-up (numba and its registries) makes ~10^5 long-lived objects and no garbage: the cyclic
-    # collector scanned them ~250 times (0.08 s CPU) and once more at exit (0.1 s). It is off while the
-    # arguments are parsed (numba is imported then); at exit gc.freeze() keeps everything out of the
-    # last collection (README, speed; https://docs.python.org/3/library/gc.html#gc.freeze).
+    # Start-up (numba and its registries) makes ~10^5 long-lived objects and no garbage, which the cyclic
+    # collector would scan hundreds of times and once more at exit. It is off while the arguments are
+    # parsed (numba is imported then); at exit gc.freeze() keeps everything out of the last collection
+    # (docs/notes/implementation.md; https://docs.python.org/3/library/gc.html#gc.freeze).
     atexit.unregister(gc.freeze)
     atexit.register(gc.freeze)
     collecting = gc.isenabled()
     gc.disable()
     try:
         parser = build_parser()
-        args = common.clean(parser.parse_args(argv))
+        args = parser.parse_args(argv)
     finally:
         if collecting:
             gc.enable()

@@ -1,26 +1,9 @@
 r"""``simulate sweep``: parameter studies of a fabric model on dask.distributed.
 
-``simulate sweep CONFIG --param NAME=v1,v2,... [--param NAME2=...] --out DIR [--method summation|classic|mc]
-[--geometry PLAN] [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N] [--measured DIR] [--resume]``
+``simulate sweep CONFIG [MEASURED] --param NAME=v1,v2,... [--param NAME2=...] --out DIR [--method summation|classic|mc]
+[--plan PLAN] [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N] [--resume]``
 
-Parameters and points
----------------------
-A swept parameter is a numeric config field named as ``simulate fit`` names its free
-parameters (the same machinery, :mod:`fabric_optics.paths`): a dotted TOML path with list indices
-(``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``, ``weave.spacing_um``) or
-one of the single-field aliases ``volume_fraction``, ``radius``, ``rms_slope``. The multi-field
-aliases ``dye``/``dye-peaks`` and the run settings (``seed``, ``method.*``, ``wavelengths.*``)
-are refused: a sweep sets one field to one value, and the run settings have their own flags.
-Several ``--param`` give the Cartesian product (the first parameter varies slowest); every
-point's config is built and validated by :func:`simulate.config.parse_config` before any work,
-so a value out of a field's range is one line naming the point and the field (exit 2). Before
-that, the grid is counted: at most :data:`~fabric_optics.sweep.spec.MAX_POINTS` (10 000) points and
-:data:`~fabric_optics.sweep.spec.MAX_TASKS` (100 000) tasks, and ``simulate sweep`` estimates the cost
-of the costliest of up to 9 evenly spaced points times the points per worker
-(:mod:`simulate.budget`; refused beyond a day). A point's directory is always
-``points/<label>`` inside the sweep (:func:`~fabric_optics.sweep.spec.point_dir`; ``compare`` refuses a
-``sweep.json`` whose point ``dir`` leads elsewhere). Point datasets are written as whole folders
-(:mod:`simulate.outdir`); a full disk is one line naming the file, the finished tasks kept.
+Parameters, points and their limits: :mod:`fabric_optics.sweep.spec`.
 
 Tasks and seeds
 ---------------
@@ -31,8 +14,8 @@ run shares between wavelengths (the classic model's one walk), which each task r
 wavelength. The Monte Carlo (``--method mc``) is the exception: one task per point, all
 wavelengths (``tasks/p003.npz``; :attr:`~fabric_optics.sweep.spec.SweepSpec.per_point`) -- its run shares
 everything across the spectrum (rays, the felt or weave mesh, the yarn tables walked once for all
-wavelengths), so per-wavelength tasks made a 33-wavelength felt point ~33 x 40 s instead of ~70 s,
-and its accuracy control then holds the one relative error of ``simulate fabric`` itself.
+wavelengths: a per-wavelength task would cost nearly what the whole spectrum costs), and its
+accuracy control then holds the one relative error of ``simulate fabric`` itself.
 
 Accuracy: ``--target-rel-err`` means what it means for ``simulate fabric`` (the one relative
 error, :func:`simulate.montecarlo.accuracy.relative_error`: RMS of ``u`` relative to each

@@ -4,6 +4,25 @@
 ``simulate fit --free`` names them: :mod:`fabric_optics.paths`); :class:`SweepSpec` holds the config,
 plan, parameters, method, seed and accuracy, builds every point's config before any work and
 lists the (point, wavelength) tasks with their seeds (:func:`task_seed`).
+
+Parameters and points
+---------------------
+A swept parameter is a numeric config field named as ``simulate fit`` names its free
+parameters (the same machinery, :mod:`fabric_optics.paths`): a dotted TOML path with list indices
+(``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``, ``weave.spacing_um``) or
+one of the single-field aliases ``volume_fraction``, ``radius``, ``rms_slope``. The multi-field
+aliases ``dye``/``dye-peaks`` and the run settings (``seed``, ``method.*``, ``wavelengths.*``)
+are refused: a sweep sets one field to one value, and the run settings have their own flags.
+Several ``--param`` give the Cartesian product (the first parameter varies slowest); every
+point's config is built and validated by :func:`simulate.config.parse_config` before any work,
+so a value out of a field's range is one line naming the point and the field (exit 2). Before
+that, the grid is counted: at most :data:`~fabric_optics.sweep.spec.MAX_POINTS` (10 000) points and
+:data:`~fabric_optics.sweep.spec.MAX_TASKS` (100 000) tasks, and ``simulate sweep`` estimates the cost
+of the costliest of up to 9 evenly spaced points times the points per worker
+(:mod:`simulate.budget`; refused beyond a day). A point's directory is always
+``points/<label>`` inside the sweep (:func:`~fabric_optics.sweep.spec.point_dir`; ``compare`` refuses a
+``sweep.json`` whose point ``dir`` leads elsewhere). Point datasets are written as whole folders
+(:mod:`simulate.outdir`); a full disk is one line naming the file, the finished tasks kept.
 """
 
 from __future__ import annotations
@@ -271,7 +290,7 @@ class SweepSpec:
     def per_point(self) -> bool:
         """One task per point (all wavelengths) instead of per (point, wavelength): the Monte Carlo
         (``--method mc``), whose run shares its rays, felt or weave mesh and yarn tables across the
-        spectrum (one wavelength's task cost ~40 s on the felt, the whole spectrum ~70 s)."""
+        spectrum (one wavelength's task costs nearly what the whole spectrum costs)."""
         return self.method == "mc"
 
     def tasks(self) -> list[SweepTask]:

@@ -1,4 +1,4 @@
-"""Measurement equation and the white standard's calibration table.
+r"""Measurement equation and the white standard's calibration table.
 
 The detector sees the whole illuminated spot, so its signal is proportional to
 ``beta * cos(theta_o)``. With signal ``S`` and dark ``D`` (shutter closed) at integration time
@@ -7,18 +7,18 @@ The detector sees the whole illuminated spot, so its signal is proportional to
 
 .. math::
 
-    \\beta = \\beta_{ref}\\, \\frac{(S - D)/(t G)}{(S_{ref} - D_{ref})/(t_{ref} G_{ref})}\\,
-             \\frac{\\cos\\theta_{o,ref}}{\\cos\\theta_o}
+    \beta = \beta_{ref}\, \frac{(S - D)/(t G)}{(S_{ref} - D_{ref})/(t_{ref} G_{ref})}\,
+             \frac{\cos\theta_{o,ref}}{\cos\theta_o}
 
-Writing :math:`\\beta = C (S - D)` with
-:math:`C = \\beta_{ref} \\cos\\theta_{o,ref} / [t G \\cos\\theta_o\\, (S_{ref}-D_{ref})/(t_{ref}G_{ref})]`,
+Writing :math:`\beta = C (S - D)` with
+:math:`C = \beta_{ref} \cos\theta_{o,ref} / [t G \cos\theta_o\, (S_{ref}-D_{ref})/(t_{ref}G_{ref})]`,
 first-order propagation of independent standard errors (GUM, JCGM 100:2008, eq. 10) gives
 
 .. math::
 
-    u_\\beta^2 = C^2 (u_S^2 + u_D^2)
-               + \\beta^2 \\left[\\frac{u_{S_{ref}}^2 + u_{D_{ref}}^2}{(S_{ref}-D_{ref})^2}
-               + \\left(\\frac{u_{\\beta_{ref}}}{\\beta_{ref}}\\right)^2\\right]
+    u_\beta^2 = C^2 (u_S^2 + u_D^2)
+               + \beta^2 \left[\frac{u_{S_{ref}}^2 + u_{D_{ref}}^2}{(S_{ref}-D_{ref})^2}
+               + \left(\frac{u_{\beta_{ref}}}{\beta_{ref}}\right)^2\right]
 
 where each ``u`` of a mean of ``n`` readings is ``std / sqrt(n)``. The absolute form of the first
 term keeps ``u_beta`` finite when ``S - D`` is near zero (a dark sample).

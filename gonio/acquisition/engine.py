@@ -54,9 +54,9 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
 
 from gonio.acquisition.calibration import WhiteStandard, calibration_problem, load_white_standard
 from gonio.acquisition.journal import JournalContent, JournalError, check_consistency, read_journal
@@ -65,8 +65,15 @@ from gonio.acquisition.reduce import point_key, usable_points
 from gonio.acquisition.rundir import JOURNAL_NAME
 from gonio.acquisition.subscribers import JournalWriter, Subscriber
 from gonio.data import remove_stale_temp_files
-from gonio.instrument import (RECOVERABLE_FAULTS, AxisFaultError, DeviceError, MotionController,
-                              PhotometerHead, RetryPolicy, SampleSlot)
+from gonio.instrument import (
+    RECOVERABLE_FAULTS,
+    AxisFaultError,
+    DeviceError,
+    MotionController,
+    PhotometerHead,
+    RetryPolicy,
+    SampleSlot,
+)
 
 __all__ = ["Engine", "RunResult", "AcquisitionError", "Interrupted", "EXIT_OK", "EXIT_STOPPED",
            "EXIT_USAGE", "EXIT_INTERRUPTED"]
@@ -159,7 +166,7 @@ class Engine:
         self.records.append(record)
 
     def _retry_snapshot(self) -> dict[str, int]:
-        """This session's cumulative retry counts (non-zero kinds, sorted)."""
+        """The session's cumulative retry counts (non-zero kinds, sorted)."""
         return {k: int(v) for k, v in sorted(self.retry.counts.items()) if v}
 
     def _reference_axes(self) -> tuple[float, float, float, float]:
@@ -301,16 +308,18 @@ class Engine:
         return content
 
     def _check_points_in_plan(self, name: str) -> None:
-        """Every journaled point is a measurable point of the plan (same axes, the plan's
-        wavelengths): the journal is not trusted blindly (an edited or foreign point would be
-        merged into the dataset and counted as done)."""
+        """Check that every journaled point is a measurable point of the plan.
+
+        Same axes, the plan's wavelengths: the journal is not trusted blindly (an edited or foreign point would be
+        merged into the dataset and counted as done).
+        """
         points: dict[tuple[float, ...], PlanPoint] = {p.key: p for p in self.check.ordered}
         wavelengths = set(map(float, self.plan.wavelengths_nm))
         for line, r in enumerate(self.records, start=1):
             if r["type"] != "point":
                 continue
             p = points.get(point_key(r))
-            if p is None or any(abs(float(a) - b) > 1e-6 for a, b in zip(r["axes_deg"], p.axes_deg)):
+            if p is None or any(abs(float(a) - b) > 1e-6 for a, b in zip(r["axes_deg"], p.axes_deg, strict=False)):
                 raise AcquisitionError(
                     f"{name}: line {line}: point at geometry "
                     f"({', '.join(f'{float(x):g}' for x in r['geometry'])}) is not a measurable "

@@ -39,8 +39,8 @@ that line: :func:`read_journal` raises :class:`JournalIntegrityError` naming the
 point into the dataset. A kill leaves at most a torn last line, which fails to parse (the chain
 is never partly written: a line and its hash are one ``write``), so crash-safety is unchanged.
 
-Journals written before the chain (no ``"h"`` on their first line) stay readable: their lines
-are read unchecked, as before (:attr:`JournalContent.unchained_lines` counts them and
+Journals without the chain (no ``"h"`` on their first line) stay readable: their lines
+are read unchecked (:attr:`JournalContent.unchained_lines` counts them and
 ``--resume`` says so in its log); records appended to such a journal are chained, with ``h_0``
 the SHA-256 of the old lines, so from then on an edit of an old line is detected too. Once a
 journal has a chained line, every later line must be chained. The chain detects edits and
@@ -52,8 +52,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import re
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -113,7 +113,7 @@ def _check_fields(rec: dict, spec: dict[str, Any], where: str) -> None:
             raise JournalError(f"{where}: field '{key}' has the wrong type ({type(v).__name__})")
 
 
-def _validate(rec: Any, where: str) -> dict:
+def _validate(rec: Any, where: str) -> dict:  # noqa: C901
     if not isinstance(rec, dict):
         raise JournalError(f"{where}: a record must be a JSON object")
     if not _finite(rec):
@@ -167,8 +167,11 @@ class JournalContent:
 
 
 def parse_journal(data: bytes, name: str = "journal.jsonl") -> JournalContent:
-    """Parse journal bytes; raises :class:`JournalError` for anything but a torn last line
-    (:class:`JournalIntegrityError` for a line that breaks the integrity chain)."""
+    """Parse journal bytes.
+
+    Raises :class:`JournalError` for anything but a torn last line (:class:`JournalIntegrityError`
+    for a line that breaks the integrity chain).
+    """
     out = JournalContent()
     pos = 0
     lineno = 0
@@ -232,9 +235,11 @@ def parse_journal(data: bytes, name: str = "journal.jsonl") -> JournalContent:
 
 
 def check_consistency(records: list[dict], name: str = "journal.jsonl") -> None:
-    """Cross-record checks: one start record first; every point refers to an earlier
-    calibration holding a dark for each of its (integration time, gain) settings and a white
-    reference for each of its wavelengths. Raises :class:`JournalError`."""
+    """Cross-record checks; raises :class:`JournalError`.
+
+    One start record first; every point refers to an earlier calibration holding a dark for each of its (integration time, gain) settings and a white
+    reference for each of its wavelengths.
+    """
     if not records:
         return
     if records[0]["type"] != "start" or sum(r["type"] == "start" for r in records) != 1:
@@ -283,8 +288,11 @@ def _finite(obj: Any) -> bool:
 
 
 class Journal:
-    """Append-only writer; every :meth:`append` is chained (see the module's *Integrity*),
-    flushed and fsynced before it returns."""
+    """Append-only writer of the journal.
+
+    Every :meth:`append` is chained (see the module's *Integrity*), flushed and fsynced before it
+    returns.
+    """
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
@@ -292,7 +300,7 @@ class Journal:
         self._head = hashlib.sha256(b"").hexdigest()
 
     @classmethod
-    def open(cls, path: str | os.PathLike) -> tuple["Journal", JournalContent]:
+    def open(cls, path: str | os.PathLike) -> tuple[Journal, JournalContent]:
         """Open for appending after reading what is there; a torn last line is cut off first.
 
         A last record complete but for its newline is kept (the newline is added).

@@ -169,7 +169,7 @@ class LiveView:
             return
         cal = self._calibrations[rec["calibration"]]
         wl, beta, u_beta = point_beta(rec, cal, self.standard, self.plan.reference_deg)
-        self._add(rec["axes_deg"], rec["geometry"], dict(zip(wl.tolist(), zip(beta.tolist(), u_beta.tolist()))))
+        self._add(rec["axes_deg"], rec["geometry"], dict(zip(wl.tolist(), zip(beta.tolist(), u_beta.tolist(), strict=True), strict=True)))
         self._done.add(key)
         s = self._state
         s["done"] = len(self._done)
@@ -225,14 +225,17 @@ class LiveView:
         table = read_dataset(self.out).table
         self._curves.clear()
         for geometry, rows in table.groupby(["theta_i", "phi_i", "theta_o", "phi_o"], sort=False):
-            values = dict(zip(rows["wavelength_nm"].astype(float), zip(rows["beta"], rows["u_beta"])))
+            values = dict(zip(rows["wavelength_nm"].astype(float), zip(rows["beta"], rows["u_beta"], strict=True),
+                               strict=True))
             self._add(fabric_to_axes(*geometry), geometry, values)
         self._state["dataset"] = str(self.out)
 
     def _add(self, axes, geometry, values: dict) -> None:
-        """One geometry into its curve: the in-plane points of an incidence (and rotation), or its
-        points out of the plane; ``geometry``: (theta_i, phi_i, theta_o, phi_o); ``values``:
-        wavelength -> (beta, u_beta)."""
+        """Put one geometry into its curve.
+
+        A curve is the in-plane points of an incidence (and rotation), or its points out of the plane;
+        ``geometry``: (theta_i, phi_i, theta_o, phi_o); ``values``: wavelength -> (beta, u_beta).
+        """
         source, detector, plane, rotation = (float(a) for a in axes)
         in_plane = abs(plane) < 1e-6
         key = (source, rotation, in_plane)
@@ -321,8 +324,11 @@ class LiveServer:
             return self._cache[1], self._cache[2]
 
     def close(self, linger_s: float = 5.0) -> None:
-        """Stop serving; first, when a page polled in the last seconds, give it up to ``linger_s``
-        to fetch the finished state (so that it ends on the dataset). Never raises."""
+        """Stop serving. Never raises.
+
+        First, when a page polled in the last seconds, give it up to ``linger_s`` to fetch the finished
+        state (so that it ends on the dataset).
+        """
         try:
             if time.monotonic() - self.last_poll < 4 * POLL_MS / 1000 and self.thread.is_alive():
                 self.final_served.wait(linger_s)

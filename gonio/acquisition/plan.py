@@ -4,20 +4,11 @@ A plan is data (bluesky habit): the sample, the wavelengths, the geometries and 
 policy. The engine (:mod:`gonio.acquisition.engine`) executes it; ``simulate`` evaluates its models at the
 same geometries through :meth:`Plan.geometries`.
 
-Geometry (docs/physics.md section 1, docs/instrument.md axes)
----------------------------------------------------
-The four axes are source zenith ``a0 = theta_i``, signed detector zenith ``s`` (+ = mirror side),
-detector-plane azimuth ``p`` from the plane of incidence, and sample rotation ``a3``, whose
-reading is ``phi_i``. :func:`gonio.data.geometry.axes_to_fabric` (shared with the mock) gives
-
-.. math::
-
-    \\theta_i = a_0,\\quad \\phi_i = a_3,\\quad \\theta_o = |s|,\\quad
-    \\phi_o = \\phi_i + p + 180^\\circ [s \\ge 0]   \\pmod{360}
-
-so in plane (``p = 0``) ``s >= 0`` means ``phi_o = phi_i + 180`` and ``s < 0`` ``phi_o = phi_i``.
-Out-of-plane directions are given as ``(theta_o, phi_o - phi_i)``: a relative azimuth ``a`` in
-[180, 360) is reached with ``s = +theta_o, p = a - 180``, in [0, 180) with ``s = -theta_o, p = a``.
+Geometry: the instrument's axes and the fabric frame are related by
+:func:`gonio.data.geometry.axes_to_fabric` (docs/physics.md section 1, docs/instrument.md). Out-of-plane
+directions are given as ``(theta_o, phi_o - phi_i)``: a relative azimuth ``a`` in [180, 360) is
+reached with the signed detector zenith ``s = +theta_o`` and the detector-plane azimuth
+``p = a - 180``, in [0, 180) with ``s = -theta_o, p = a``.
 
 Plan TOML schema
 ----------------
@@ -68,7 +59,7 @@ The procedure names the steps the engine runs after connecting (:data:`PROCEDURE
 on ``--resume`` the journal's calibration when still valid) and ``measure`` (every measurable
 point); ``measure`` comes once, after a ``calibrate``. With ``recalibrate_every = N`` the
 calibration is measured again after every N points measured in a session, and each point uses
-the calibration it was measured with. The default is the order every recorded session used.
+the calibration it was measured with. The default is the usual order.
 
 Size limit: a plan asks for at most :data:`MAX_MEASUREMENTS` (one million) measurements,
 geometries (``incidence x rotations x (in-plane + out-of-plane directions)``) times wavelengths -
@@ -81,30 +72,13 @@ not rounded, so that a dataset never labels a reading with a wavelength other th
 head was set to (two plan wavelengths rounding to one setting would otherwise be two rows of the
 same measurement). Values within 1e-6 nm of the grid (floating-point steps) are snapped to it.
 
-Measured geometry of a file
----------------------------
-:func:`measured_plan` builds the plan that follows an RGL ``.bsdf`` file's own measured incidences
-(the green felt: ``theta_i`` = 0, 27.76, 40.03, 50.16, 59.52, 68.77, 78.56 deg; the file's 89.99 deg
-table is its extrapolation and is left out, :data:`gonio.data.formats.GRAZING_DEG`), rounded to the
-controller's millidegree, with the in-plane curves, wavelengths and settings of a base plan
-(``green-felt``) and the retro-reflection ring (:data:`RETRO_RING_DEG` at :data:`RETRO_RING_AZIMUTHS`
-azimuths around the source direction at every oblique incidence), so that the opposition ratio can be
-measured. A file evaluated at such a plan is read at its measured incidences; at any other incidence
-the file is interpolated between its tables (the datasets say which, ``incidences`` in meta.json:
-:func:`gonio.data.formats.rgl_bsdf.incidence_meta`). ``gonio demo --plan measured``, ``gonio truth FILE --plan measured`` and ``gonio
-import rgl-bsdf FILE --plan measured`` build it from the sample file; a ``.bsdf`` path given as the
-plan does too (:func:`load_plan`).
+A file's own measured incidences make a plan too (:func:`measured_plan`).
 
 Before any acquisition the plan is checked (:meth:`Plan.check`, the same rules ``gonio
 check-plan`` applies): ``gonio acquire`` refuses a plan with points out of the soft limits or in
 the beam-block zone without ``skip_blocked = true`` (:meth:`PlanCheck.refusal`), instead of
 dropping those points and reporting the run complete.
 
-Auto-ranging starts every reading at ``(itime_ms, gain)`` and steps down
-(:meth:`AcquisitionSettings.ladder`) while the head reports saturation. The default gain is x1:
-the shot-noise-limited relative error ``1/sqrt(K t beta cos theta_o)`` does not depend on the
-gain (it only lifts the signal above the read noise), so a higher starting gain mostly costs
-saturated readings.
 """
 
 from __future__ import annotations
@@ -171,8 +145,10 @@ WAVELENGTH_STEP_NM = 0.1
 
 @dataclass(frozen=True)
 class Procedure:
-    """The session's steps after connecting (see the module docstring): names of
-    :data:`PROCEDURE_STEPS` in order, and ``recalibrate_every`` points (0 = never)."""
+    """The session's steps after connecting (see the module docstring).
+
+    Names of :data:`PROCEDURE_STEPS` in order, and ``recalibrate_every`` points (0 = never).
+    """
 
     steps: tuple[str, ...] = PROCEDURE_STEPS
     recalibrate_every: int = 0
@@ -184,7 +160,14 @@ class PlanError(ValueError):
 
 @dataclass(frozen=True)
 class AcquisitionSettings:
-    """Integration time / gain policy and timing of one plan (see the module docstring)."""
+    """Integration time / gain policy and timing of one plan.
+
+    Auto-ranging starts every reading at ``(itime_ms, gain)`` and steps down
+    (:meth:`AcquisitionSettings.ladder`) while the head reports saturation. The default gain is x1:
+    the shot-noise-limited relative error ``1/sqrt(K t beta cos theta_o)`` does not depend on the
+    gain (it only lifts the signal above the read noise), so a higher starting gain mostly costs
+    saturated readings.
+    """
 
     itime_ms: int = 100
     gain: int = 0
@@ -292,8 +275,10 @@ def resolve_plan_path(path_or_name: str | Path) -> Path:
 
 
 def load_plan(path_or_name: str | Path) -> Plan:
-    """Read and validate a plan file or a preset name; raises :class:`PlanError`. An RGL ``.bsdf`` file gives
-    the plan of its measured incidences (:func:`measured_plan`)."""
+    """Read and validate a plan file or a preset name; raises :class:`PlanError`.
+
+    An RGL ``.bsdf`` file gives the plan of its measured incidences (:func:`measured_plan`).
+    """
     p = Path(path_or_name)
     if p.suffix == ".bsdf" and p.is_file():
         return measured_plan(p)
@@ -409,7 +394,7 @@ def _procedure(f: _Fields) -> Procedure:
     return Procedure(tuple(steps), every)
 
 
-def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
+def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:  # noqa: C901
     """Validate plan TOML text (bytes or str) and build a :class:`Plan`; raises :class:`PlanError`."""
     file = str(path)
     if isinstance(raw, str):
@@ -438,7 +423,7 @@ def parse_plan(raw: bytes | str, path: str | Path = "<plan>") -> Plan:
         wavelengths = list(_DEFAULT_WAVELENGTHS)
     wl.unknown()
     field_name = "list_nm" if "list_nm" in wl.table else "start_nm"
-    for k, w in enumerate(wavelengths):
+    for w in wavelengths:
         if not 380.0 <= w <= 780.0:
             wl.fail(field_name, f"wavelength {w} nm outside the monochromator range 380..780 nm")
         if abs(w * 10.0 - round(w * 10.0)) > 1e-6:
@@ -629,7 +614,7 @@ class Plan:
         ok, blocked, bad = [], [], []
         for p in self.points():
             reason = None
-            for axis, v in zip(AXES, p.axes_deg):
+            for axis, v in zip(AXES, p.axes_deg, strict=True):
                 if not axis.within_limits(deg_to_mdeg(v)):
                     reason = (f"{axis.name} at {v:g} deg outside the soft limits "
                               f"{axis.min_mdeg / 1000:g}..{axis.max_mdeg / 1000:g} deg")
@@ -649,9 +634,11 @@ class Plan:
 
 def retro_ring(theta_i_deg: float, radius_deg: float, azimuths: int = RETRO_RING_AZIMUTHS
                ) -> list[tuple[float, float]]:
-    """``(theta_o, phi_o - phi_i)`` (deg) of ``azimuths`` directions ``radius_deg`` from the retro-reflection
-    (source) direction at incidence ``theta_i_deg``, evenly spaced around it starting towards the normal;
-    directions below 85 deg of zenith only (the detector's reach).
+    """``(theta_o, phi_o - phi_i)`` (deg) of a ring of directions about the retro-reflection direction.
+
+    ``azimuths`` directions ``radius_deg`` from the retro-reflection (source) direction at incidence
+    ``theta_i_deg``, evenly spaced around it starting towards the normal; directions below 85 deg of
+    zenith only (the detector's reach).
 
     >>> [(round(t, 3), round(p, 3)) for t, p in retro_ring(40.0, 6.0, 2)]
     [(34.0, 0.0), (46.0, 0.0)]
@@ -674,9 +661,22 @@ def retro_ring(theta_i_deg: float, radius_deg: float, azimuths: int = RETRO_RING
 
 
 def measured_plan(bsdf_path: str | Path, base: str | Path = "green-felt") -> Plan:
-    """The plan of an RGL ``.bsdf`` file's own measured incidences (module docstring, "Measured geometry of
-    a file"): its ``theta_i`` below the grazing limit rounded to the millidegree, ``phi_i`` 0 (isotropic
+    """The plan of an RGL ``.bsdf`` file's own measured incidences.
+
+    Its ``theta_i`` below the grazing limit rounded to the millidegree, ``phi_i`` 0 (isotropic
     files), the retro-reflection ring at every oblique incidence, the rest from ``base``.
+
+    :func:`measured_plan` builds the plan that follows an RGL ``.bsdf`` file's own measured incidences
+    (the green felt: ``theta_i`` = 0, 27.76, 40.03, 50.16, 59.52, 68.77, 78.56 deg; the file's 89.99 deg
+    table is its extrapolation and is left out, :data:`gonio.data.formats.GRAZING_DEG`), rounded to the
+    controller's millidegree, with the in-plane curves, wavelengths and settings of a base plan
+    (``green-felt``) and the retro-reflection ring (:data:`RETRO_RING_DEG` at :data:`RETRO_RING_AZIMUTHS`
+    azimuths around the source direction at every oblique incidence), so that the opposition ratio can be
+    measured. A file evaluated at such a plan is read at its measured incidences; at any other incidence
+    the file is interpolated between its tables (the datasets say which, ``incidences`` in meta.json:
+    :func:`gonio.data.formats.rgl_bsdf.incidence_meta`). ``gonio demo --plan measured``, ``gonio truth FILE --plan measured`` and ``gonio
+    import rgl-bsdf FILE --plan measured`` build it from the sample file; a ``.bsdf`` path given as the
+    plan does too (:func:`load_plan`).
 
     Raises :class:`PlanError` (naming the file) when the file cannot be read.
     """

@@ -44,8 +44,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gonio.instrument.transport import (LineTransport, LinkLost, LinkTimeout, ModbusExceptionResponse,
-                                        RequestTransport, TransportError)
+from gonio.instrument.transport import (
+    LineTransport,
+    LinkLost,
+    LinkTimeout,
+    ModbusExceptionResponse,
+    RequestTransport,
+    TransportError,
+)
 
 __all__ = ["TRANSCRIPT_FORMAT", "TranscriptError", "TranscriptIntegrityError", "ReplayMismatch",
            "TranscriptWriter", "reseal",
@@ -74,8 +80,10 @@ def _sealed(previous: str, body: str) -> tuple[str, str]:
 
 
 def reseal(text: str) -> str:
-    """Recompute the integrity chain of a transcript's text (tests and repair tools: an edited
-    transcript then loads as if recorded so)."""
+    """Recompute the integrity chain of a transcript's text.
+
+    For tests and repair tools: an edited transcript then loads as if recorded so.
+    """
     lines = text.splitlines()
     out = [lines[0]]
     h = hashlib.sha256(lines[0].encode("utf-8")).hexdigest()
@@ -148,6 +156,7 @@ class TranscriptWriter:
         self._i += 1
 
     def close(self) -> None:
+        """Close the transcript file."""
         if not self._fh.closed:
             self._fh.close()
 
@@ -174,24 +183,29 @@ class RecordingTransport:
 
     def exchange(self, request: Any, timeout_s: float | None = None) -> Any:
         # a per-command timeout exists on the line transport only (a long READ?)
+        """Exchange on the inner transport and record the request and its reply (or its error)."""
         kw = {} if timeout_s is None else {"timeout_s": timeout_s}
         out = self._do(_encode(self.channel, request), lambda: self.inner.exchange(request, **kw))
         self.writer.write(self.channel, "rx", _encode(self.channel, out))
         return out
 
     def reconnect(self) -> None:
+        """Reconnect the inner transport, recorded."""
         self._do({"op": "reconnect"}, self.inner.reconnect)
         self.writer.write(self.channel, "rx", {"ok": True})
 
     def drain(self) -> bytes:
+        """Drain the inner transport's input, recorded with what was dropped."""
         out = self._do({"op": "drain"}, self.inner.drain)
         self.writer.write(self.channel, "rx", {"dropped": _encode(self.channel, out)})
         return out
 
     def open(self) -> None:
+        """Open the inner transport."""
         self.inner.open()
 
     def close(self) -> None:
+        """Close the inner transport."""
         self.inner.close()
 
 
@@ -236,7 +250,7 @@ class Transcript:
                                       line=self.pos + 2))
 
 
-def load_transcript(path: str | os.PathLike) -> Transcript:
+def load_transcript(path: str | os.PathLike) -> Transcript:  # noqa: C901
     """Read and validate a transcript file; raises :class:`TranscriptError`."""
     p = Path(path)
     try:
@@ -319,6 +333,7 @@ class ReplayTransport:
                 raise LinkLost(self.channel, resp.get("message", "link lost (recorded)"))
 
     def exchange(self, request: Any, timeout_s: float | None = None) -> Any:
+        """The recorded reply to ``request`` (or its recorded error), checked against the transcript."""
         self._last_request = request if isinstance(request, dict) else {}
         resp = self.transcript.answer(self.channel, _encode(self.channel, request))
         if self.channel == "serial":
@@ -348,15 +363,19 @@ class ReplayTransport:
         return resp
 
     def reconnect(self) -> None:
+        """Replay a recorded reconnect (its recorded error, if any)."""
         self._raise_error(self.transcript.answer(self.channel, {"op": "reconnect"}))
 
     def drain(self) -> bytes:
+        """The input a recorded drain dropped."""
         resp = self.transcript.answer(self.channel, {"op": "drain"})
         self._raise_error(resp)
         return str(resp.get("dropped", "")).encode("latin-1") if isinstance(resp, dict) else b""
 
     def open(self) -> None:
+        """Nothing to open: a replay has no link."""
         pass
 
     def close(self) -> None:
+        """Nothing to close: a replay has no link."""
         pass

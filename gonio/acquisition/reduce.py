@@ -12,8 +12,8 @@ session's cumulative retry counter (``retries``) at its checkpoint. The meta's `
 over the sessions (a ``start`` record or a ``resume`` event opens one), each session's last
 snapshot - its ``session_end`` counts when it ended, else those of its last checkpoint (retries
 spent on a point that was never journaled are lost with that point). ``sessions`` counts every
-session, killed ones included. Journals written before the snapshots existed sum their
-``session_end`` events as before.
+session, killed ones included. A journal whose records carry no snapshots sums its
+``session_end`` events.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def _versions() -> dict:
 
 
 def _iso(t: float) -> str:
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.fromtimestamp(t, _dt.UTC).isoformat(timespec="seconds")
 
 
 def point_key(point: dict) -> tuple[float, ...]:
@@ -54,9 +54,11 @@ def point_key(point: dict) -> tuple[float, ...]:
 
 
 def usable_points(records: list[dict]) -> list[dict]:
-    """The journal's point records whose calibration is valid
-    (:func:`gonio.acquisition.calibration.calibration_problem`; a journal written before calibrations were
-    checked may hold an invalid one: its points are measured again on resume)."""
+    """The journal's point records whose calibration is valid.
+
+    Validity is :func:`gonio.acquisition.calibration.calibration_problem`'s; the points of an
+    invalid calibration are measured again on resume.
+    """
     invalid = {r["id"] for r in records if r["type"] == "calibration"
                and calibration_problem(r["darks"], r["reference"]) is not None}
     return [r for r in records if r["type"] == "point" and r["calibration"] not in invalid]
@@ -122,7 +124,7 @@ def dataset_from_journal(records: list[dict], plan: Plan, standard: WhiteStandar
             ref = refs[wl]
             d = darks[(r["itime_ms"], r["gain"])]
             dr = darks[(ref["itime_ms"], ref["gain"])]
-            for name, v in zip(("theta_i", "phi_i", "theta_o", "phi_o"), key):
+            for name, v in zip(("theta_i", "phi_i", "theta_o", "phi_o"), key, strict=True):
                 cols[name].append(v)
             cols["wavelength_nm"].append(wl)
             cols["S"].append(r["mean"]); cols["uS"].append(r["sem"])

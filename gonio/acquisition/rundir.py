@@ -27,8 +27,10 @@ _DATASET_TEMP = re.compile(r"\.(?:radiance\.csv|meta\.json)\..*\.tmp")
 
 
 def owned_by_run(run_dir: str | os.PathLike, path: str | os.PathLike) -> bool:
-    """True when ``path`` is (or would be) one of the files a session owns in ``run_dir``
-    (:data:`RUN_DIR_FILES`, the dataset writer's temporary files), symlinks resolved."""
+    """True when ``path`` is (or would be) one of the files a session owns in ``run_dir``.
+
+    Those are :data:`RUN_DIR_FILES` and the dataset writer's temporary files, symlinks resolved.
+    """
     p, d = Path(path).resolve(), Path(run_dir).resolve()
     return p.parent == d and (p.name in RUN_DIR_FILES
                               or bool(_DATASET_TEMP.fullmatch(p.name)))
@@ -52,7 +54,7 @@ class RunDirLock:
         self.path, self._fd = path, fd
 
     @classmethod
-    def acquire(cls, run_dir: str | os.PathLike) -> "RunDirLock":
+    def acquire(cls, run_dir: str | os.PathLike) -> RunDirLock:
         """Create ``run_dir`` if needed and lock it; :class:`RunDirLocked` if it is taken."""
         path = Path(run_dir)
         path.mkdir(parents=True, exist_ok=True)
@@ -77,7 +79,7 @@ class RunDirLock:
                 os.close(self._fd)
                 self._fd = None
 
-    def __enter__(self) -> "RunDirLock":
+    def __enter__(self) -> RunDirLock:
         return self
 
     def __exit__(self, *exc) -> None:

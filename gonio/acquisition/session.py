@@ -17,13 +17,12 @@ import datetime as _dt
 import secrets
 import signal
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 from gonio.acquisition.engine import Engine, Interrupted, RunResult
 from gonio.acquisition.plan import Plan
-from gonio.acquisition.record import (RecordingTransport, ReplayTransport, Transcript, TranscriptError,
-                                      TranscriptWriter)
+from gonio.acquisition.record import RecordingTransport, ReplayTransport, Transcript, TranscriptError, TranscriptWriter
 from gonio.acquisition.rundir import RunDirLock, owned_by_run
 from gonio.acquisition.subscribers import DatasetWriter, ProgressReporter, Subscriber
 from gonio.data.outputs import check_output
@@ -79,9 +78,11 @@ def run_session(plan: Plan, modbus: RequestTransport, serial_link: LineTransport
 
 
 def check_run_output(out: Path, *, writer: str, force: bool = False, resume: bool = False) -> None:
-    """What :func:`run_session` checks first, for a command line to check before it opens any
-    link: a run folder locked by another session (:class:`RunDirLocked`), then the output rule
-    (:func:`gonio.data.outputs.check_output`)."""
+    """What :func:`run_session` checks first, for a command line to check before it opens any link.
+
+    A run folder locked by another session (:class:`RunDirLocked`), then the output rule
+    (:func:`gonio.data.outputs.check_output`).
+    """
     if Path(out).is_dir():
         RunDirLock.acquire(out).release()
     check_output(out, "run", writer=writer, force=force, resume=resume)
@@ -93,7 +94,7 @@ def _locked_session(plan, modbus, serial_link, out, *, resume, seed, record, pro
         owner_token = secrets.randbelow(2**32 - 1) + 1
     writer = None
     if record is not None:
-        created = created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        created = created or _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         writer = TranscriptWriter(record, {"created": created, "seed": seed,
                                            "modbus": modbus.url, "serial": serial_link.url,
                                            "plan": plan.name, "plan_sha256": plan.sha256,
@@ -141,6 +142,7 @@ class ReplayClock:
             self.t = 0.0
 
     def __call__(self) -> float:
+        """The recording's start (seconds since the epoch), the same on every call."""
         return self.t
 
 

@@ -38,7 +38,9 @@ log = logging.getLogger("gonio.acquisition.engine")
 class Subscriber(Protocol):
     """A callable receiving every document the engine emits."""
 
-    def __call__(self, name: str, doc: dict) -> None: ...
+    def __call__(self, name: str, doc: dict) -> None:
+        """Receive one document ``doc`` of type ``name`` from the engine."""
+        ...
 
 
 class JournalWriter:
@@ -59,6 +61,7 @@ class JournalWriter:
             self.journal.close()
 
     def __call__(self, name: str, doc: dict) -> None:
+        """Append a record to the journal (other documents are ignored)."""
         if name in RECORD_TYPES:
             assert self.journal is not None, "JournalWriter.open() first"
             self.journal.append(doc)
@@ -78,6 +81,7 @@ class ProgressReporter:
         self.t0 = 0.0
 
     def __call__(self, name: str, doc: dict) -> None:
+        """Advance the progress display on the engine's documents."""
         if name == "todo":
             self.total, self.done = int(doc["total"]), int(doc["done"])
             self.n_todo, self.k = self.total - self.done, 0
@@ -115,6 +119,7 @@ class DatasetWriter:
         self.path: Path | None = None
 
     def __call__(self, name: str, doc: dict) -> None:
+        """On the engine's stop with points measured, write the dataset reduced from the journal."""
         if name != "stop" or not doc["measured"]:
             return
         ds = dataset_from_journal(doc["records"], self.plan, self.standard, seed=self.seed,

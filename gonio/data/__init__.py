@@ -20,15 +20,27 @@ One concept per module (``compare`` and ``simulate`` import only from here):
     the one rule of what a command that writes may replace (run folders never).
 """
 
-from gonio.data.colour import (ColourSummary, display_srgb, hue_difference, rgb_colour,
-                               spectrum_colour, spectrum_to_rgb)
-from gonio.data.dataset import (CHANNELS, COLUMNS, CSV_NAME, DEFAULT_COLOUR_SPACE, GEOMETRY,
-                                META_NAME, RGB_COLUMNS, SCHEMA, Dataset, DatasetError,
-                                atomic_write, make_dataset, new_meta, read_dataset,
-                                remove_stale_temp_files, write_dataset,
-                                write_files_together)
-from gonio.data.geometry import (beam_blocked, direction, in_plane_geometry, signed_angle,
-                                 spherical_angles)
+from gonio.data.colour import ColourSummary, display_srgb, hue_difference, rgb_colour, spectrum_colour, spectrum_to_rgb
+from gonio.data.dataset import (
+    CHANNELS,
+    COLUMNS,
+    CSV_NAME,
+    DEFAULT_COLOUR_SPACE,
+    GEOMETRY,
+    META_NAME,
+    RGB_COLUMNS,
+    SCHEMA,
+    Dataset,
+    DatasetError,
+    atomic_write,
+    make_dataset,
+    new_meta,
+    read_dataset,
+    remove_stale_temp_files,
+    write_dataset,
+    write_files_together,
+)
+from gonio.data.geometry import beam_blocked, direction, in_plane_geometry, signed_angle, spherical_angles
 from gonio.data.interpolate import interpolate
 
 __all__ = [

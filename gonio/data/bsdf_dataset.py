@@ -88,9 +88,12 @@ def dataset_brdf(dataset: Any) -> tuple[BRDF, dict[str, Any]]:
 
 
 def dataset_nodes(rule: dict[str, Any], n: int = 16, min_gap_deg: float = 2.0) -> np.ndarray:
-    """Incidence nodes for a dataset's export: the measured incidences themselves (there the file
-    holds the measured curves, not an interpolation between nodes) plus ``n`` nodes uniform in
-    ``cos(theta_i)``, dropping those within ``min_gap_deg`` of a measured one."""
+    """Incidence nodes for a dataset's export: the measured incidences and ``n`` more.
+
+    The measured incidences themselves (there the file holds the measured curves, not an
+    interpolation between nodes) plus ``n`` nodes uniform in ``cos(theta_i)``, dropping those
+    within ``min_gap_deg`` of a measured one.
+    """
     from gonio.data.bsdf_export import incidence_nodes
 
     measured = np.asarray(rule["incidences_deg"], float)

@@ -30,10 +30,7 @@ tables over the half vector's / incidence's azimuth too (33 x 128), the retro-re
 on 16 zenith x 5 azimuth directions inside the stored azimuth range, and there are ``n_phi_i``
 incidence azimuths over ``[-pi, -pi + 2 pi / reduction]`` (Mitsuba mirrors every incidence into
 that range by ``x -> -x`` and/or ``y -> -y``: the source must have those mirror symmetries, as
-a plain weave's warp/weft summation has). Measured on an anisotropic Ward-like lobe (RMS slopes
-0.15 along x, 0.45 along y, over a red Lambertian; 12 incidences, 5 azimuths, 48 x 48 values,
-3000 random pairs): relative error RMS 2.4 %, p95 4.7 %, max 23 % (theta <= 60 deg); RMS 5.9 %
-(theta <= 80 deg); the isotropic export of the same source is off by 84 % RMS.
+a plain weave's warp/weft summation has).
 
 Renderers. Mitsuba 3 reads RGB files (``rgb``) in its RGB variants and spectral files
 (``spectra`` + ``wavelengths``) in its spectral variants, isotropic and any ``reduction``.
@@ -46,26 +43,10 @@ model's values at :data:`GRAZING_EVAL_DEG` (models refuse ``cos(theta_i) = 0``).
 sources are exported isotropically: the values are averaged over the azimuths ``azimuths_deg``
 of the incidence (stated in the description and provenance).
 
-Tabulation error, measured (defaults: 16 incidences, 64 x 64 values; relative error of ``beta``
-read back with the project's reader, i.e. Mitsuba's numerics, against the source at 4000 random
-direction pairs, seed 0, each direction uniform over the cap ``theta <= theta_max``)::
-
-    source                                theta_max   RMS      p95     max
-    classic model, red-cotton, 3 bands    60 deg      0.38 %   0.72 %  5.3 %
-                                          80 deg      0.88 %   1.4 %   33 %
-    Lambertian (RGB)                      60 deg      0.66 %   1.5 %   7.4 %
-                                          80 deg      0.79 %   1.3 %   14 %
-
-The largest errors sit near the mirror direction at large incidence (half vectors near the
-normal, which the ``u = sqrt(2 theta / pi)`` warp with its ``u sin(theta_m)`` Jacobian resolves
-coarsely for a broad NDF) and, for the classic model, in the grazing forward Fresnel peak of its
-darkest band. 32 x 32 values and 10 incidences (the RGL files' size) give RMS 1-4 % and maxima
-above 100 % there. :data:`STATED_TABULATION_ERROR` is the bound the tests hold exports to.
-(A narrow lobe mixed into the warping NDF to resolve the normal better was tried and made the
-grazing errors worse; not used.)
-
-(Length: a little over 500 lines, 90 of them this docstring; the writer, its warp and its error
-measurement stay together because each is checked against the others.)
+Tabulation error: the largest errors sit near the mirror direction at large incidence (half
+vectors near the normal, which the ``u = sqrt(2 theta / pi)`` warp resolves coarsely for a broad
+NDF) and in a model's grazing forward Fresnel peak; :data:`STATED_TABULATION_ERROR` is the bound
+the tests hold exports to (the measured errors: docs/notes/implementation.md, "RGL .bsdf export").
 
 References
 ----------
@@ -82,8 +63,9 @@ import json
 import logging
 import os
 import struct
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -141,9 +123,9 @@ class ExportResult:
 
 
 def write_tensor_file(path: str | os.PathLike, fields: dict[str, np.ndarray]) -> None:
-    """Write Mitsuba's ``tensor_file`` (little-endian, version 1.0), atomically.
+    r"""Write Mitsuba's ``tensor_file`` (little-endian, version 1.0), atomically.
 
-    Header: ``tensor_file\\0``, version bytes ``1, 0``, field count (uint32); per field the name
+    Header: ``tensor_file\0``, version bytes ``1, 0``, field count (uint32); per field the name
     (uint16 length + UTF-8), ndim (uint16), dtype code (uint8), data offset (uint64), shape
     (ndim x uint64); the data follow, each field 8-byte aligned.
     """
@@ -160,7 +142,7 @@ def write_tensor_file(path: str | os.PathLike, fields: dict[str, np.ndarray]) ->
         pad = (-len(data)) % 8
         blobs.append(data + b"\0" * pad)
         offset += len(data) + pad
-    for (name, a), off in zip(items, offsets):
+    for (name, a), off in zip(items, offsets, strict=True):
         raw = name.encode()
         header += struct.pack("<H", len(raw)) + raw
         header += struct.pack("<HBQ", a.ndim, _DTYPE_CODES[a.dtype], off)
@@ -452,7 +434,7 @@ def build_fields(brdf: BRDF, *, wavelengths_nm: npt.ArrayLike | None = None,
         raise ExportError(f"an RGB export needs 3 channels (R, G, B); the source gives {n_bands}")
     table = np.zeros((phis.size, nodes.size, n_bands, res * res))
     start = 0
-    for (p, j, idx), fac in zip(where, factor):
+    for (p, j, idx), fac in zip(where, factor, strict=True):
         table[p, j][:, idx] = (np.clip(values[start:start + idx.size], 0, None) * fac[:, None]).T
         start += idx.size
     table = table.reshape(phis.size, nodes.size, n_bands, res, res)

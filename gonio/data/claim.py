@@ -154,10 +154,12 @@ def _same(lock: Path, ino: tuple[int, int]) -> bool:
 
 
 def verify(path: str | os.PathLike, *, option: str = "--out") -> None:
-    """The check at a writer's final rename of ``path``: when this thread claimed ``path`` or a
-    folder above it, that claim's lock file must still be the one it locked; :class:`OutputBusy`
-    otherwise (nothing is renamed). No claim held there by this thread: nothing to check (a caller
-    that claims nothing, e.g. a cache)."""
+    """Check the claim at a writer's final rename of ``path``.
+
+    When this thread claimed ``path`` or a folder above it, that claim's lock file must still be the one
+    it locked; :class:`OutputBusy` otherwise (nothing is renamed). No claim held there by this thread:
+    nothing to check (a caller that claims nothing, e.g. a cache).
+    """
     if not _HELD:
         return
     key = _key(path)

@@ -1,4 +1,4 @@
-"""Colour of a radiance-coefficient spectrum: CIE XYZ, linear sRGB, HSV and channel ratios.
+r"""Colour of a radiance-coefficient spectrum: CIE XYZ, linear sRGB, HSV and channel ratios.
 
 docs/physics.md section 7: spectral ``beta`` at one geometry -> CIE XYZ (CIE 1931 2-degree standard
 observer, illuminant D65 unless set) -> linear sRGB, so that an ideal white diffuser (``beta = 1``)
@@ -16,8 +16,8 @@ The computation is colour-science's:
 
 .. math::
 
-    X = k \\sum_\\lambda \\beta(\\lambda) S(\\lambda) \\bar x(\\lambda) \\Delta\\lambda, \\quad
-    k = 1 / \\sum_\\lambda S(\\lambda) \\bar y(\\lambda) \\Delta\\lambda
+    X = k \sum_\lambda \beta(\lambda) S(\lambda) \bar x(\lambda) \Delta\lambda, \quad
+    k = 1 / \sum_\lambda S(\lambda) \bar y(\lambda) \Delta\lambda
 
 (``colour.sd_to_XYZ``, ASTM E308 method, divided by 100 so that ``Y = 1`` for ``beta = 1``), then
 ``colour.XYZ_to_RGB(XYZ, "sRGB", illuminant=D65 white point)`` and ``colour.RGB_to_HSV``. With
@@ -113,7 +113,7 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     if not np.all(np.isfinite(values)):
         raise ValueError("the spectrum contains NaN or infinite values")
     cmfs, sd_illuminant, white_xy = _illuminant_data(illuminant)
-    sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist())), name="beta")
+    sd = colour.SpectralDistribution(dict(zip(wl.tolist(), values.tolist(), strict=True)), name="beta")
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
         xyz = colour.sd_to_XYZ(sd, cmfs, sd_illuminant) / 100.0
@@ -210,11 +210,12 @@ def spectrum_to_rgb(wavelength_nm, beta, colour_space: str = "linear sRGB",
 
 
 def _illuminant_data(illuminant: str):
-    """``(cmfs, illuminant spectrum, white xy)`` of the illuminant named ``illuminant`` (a key of
-    ``colour.SDS_ILLUMINANTS``), ValueError for any other name.
+    """``(cmfs, illuminant spectrum, white xy)`` of the illuminant named ``illuminant``.
 
-    colour-science's mappings compare a name with every key in several spellings (about 2 ms a
-    look-up), so the data of each accepted name are looked up once (:func:`_illuminant_entry`);
+    The name is a key of ``colour.SDS_ILLUMINANTS``; any other name is a ValueError.
+
+    colour-science's mappings compare a name with every key in several spellings (slow for a
+    look-up in a loop), so the data of each accepted name are looked up once (:func:`_illuminant_entry`);
     an unknown name is not remembered and is refused again on every call.
     """
     if not isinstance(illuminant, str):

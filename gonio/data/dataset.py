@@ -61,8 +61,9 @@ import re
 import shutil
 import stat
 import tempfile
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, BinaryIO, Callable, Iterable, Mapping
+from typing import Any, BinaryIO
 
 import numpy as np
 import pandas as pd
@@ -87,16 +88,30 @@ __all__ = [
     "write_dataset",
 ]
 
-from gonio.data.schema import (ANGLE_TOL_DEG, BETA_MAX, CHANNELS, COLUMNS, CSV_NAME,  # noqa: F401
-                               DEFAULT_COLOUR_SPACE, GEOMETRY, KINDS, META_MAX_DEPTH, META_NAME,
-                               N_MAX, RGB_COLUMNS, SCHEMA, U_BETA_MAX_RATIO, WAVELENGTH_RANGE_NM,
-                               DatasetError)
+from gonio.data.schema import (  # noqa: F401
+    ANGLE_TOL_DEG,
+    BETA_MAX,
+    CHANNELS,
+    COLUMNS,
+    CSV_NAME,
+    DEFAULT_COLOUR_SPACE,
+    GEOMETRY,
+    KINDS,
+    META_MAX_DEPTH,
+    META_NAME,
+    N_MAX,
+    RGB_COLUMNS,
+    SCHEMA,
+    U_BETA_MAX_RATIO,
+    WAVELENGTH_RANGE_NM,
+    DatasetError,
+)
 
 _FLOAT_FORMAT = "%.10g"
 
 
 def _canonical_phi(table: pd.DataFrame) -> pd.DataFrame:
-    """phi in [0, 360); ``phi_o`` of the normal direction set to ``phi_i + 180`` (see module doc)."""
+    """Phi in [0, 360); ``phi_o`` of the normal direction set to ``phi_i + 180`` (see module doc)."""
     table = table.copy()
     for col in ("phi_i", "phi_o"):
         phi = np.mod(table[col].to_numpy(dtype=float), 360.0)
@@ -230,7 +245,7 @@ def _type_name(value: Any) -> str:
                                                                         type(value).__name__)
 
 
-def _validate_meta(meta: Any, file: str | None) -> dict:
+def _validate_meta(meta: Any, file: str | None) -> dict:  # noqa: C901
     if not isinstance(meta, dict):
         raise DatasetError(f"must hold a JSON object, not {_type_name(meta)}", file=file)
     if not _meta_depth_ok(meta):
@@ -327,9 +342,11 @@ class Dataset:
         self._derived: dict = {}
 
     def derived(self, key: Any, build: Callable[[], Any]) -> Any:
-        """A value computed from this dataset's table once and kept with it (``build()`` the
-        first time ``key`` is asked for): `gonio.data.interpolate` keeps its
-        triangulations here. Valid because a dataset's table is never modified in place."""
+        """A value computed from this dataset's table once and kept with it.
+
+        ``build()`` runs the first time ``key`` is asked for: :mod:`gonio.data.interpolate` keeps
+        its triangulations here. Valid because a dataset's table is never modified in place.
+        """
         if key not in self._derived:
             self._derived[key] = build()
         return self._derived[key]
@@ -337,10 +354,12 @@ class Dataset:
     # --- descriptive properties -------------------------------------------------------------
     @property
     def kind(self) -> str:
+        """What the dataset holds: ``measured``, ``simulated``, ... (meta ``kind``)."""
         return self.meta["kind"]
 
     @property
     def name(self) -> str:
+        """The sample's name (meta ``sample.name``), else the folder's name."""
         sample = self.meta.get("sample") or {}
         name = sample.get("name") if isinstance(sample, dict) else None
         if name:
@@ -384,6 +403,7 @@ class Dataset:
 
     @property
     def wavelengths_nm(self) -> np.ndarray:
+        """The dataset's wavelengths, ascending (empty for an RGB dataset)."""
         if self.is_rgb:
             return np.array([], dtype=float)
         return np.unique(self.table["wavelength_nm"].to_numpy())
@@ -395,8 +415,11 @@ class Dataset:
 
     @property
     def complete(self) -> bool:
-        """False when the meta says the run is incomplete (``"complete": false`` at the top level
-        or in ``provenance``, as ``gonio acquire`` writes it for a stopped run); True otherwise."""
+        """False when the meta says the run is incomplete, True otherwise.
+
+        Incomplete is ``"complete": false`` at the top level or in ``provenance``, as ``gonio
+        acquire`` writes it for a stopped run.
+        """
         provenance = self.meta.get("provenance") or {}
         flag = self.meta.get("complete", provenance.get("complete"))
         return flag is not False
@@ -488,12 +511,12 @@ class Dataset:
 
         rows = self.spectrum(theta_i, phi_i, theta_o, phi_o)
         if self.is_rgb:
-            values = dict(zip(rows["channel"], rows["beta"]))
+            values = dict(zip(rows["channel"], rows["beta"], strict=True))
             return rgb_colour(values, colour_space=self.colour_space or DEFAULT_COLOUR_SPACE)
         return spectrum_colour(rows["wavelength_nm"].to_numpy(), rows["beta"].to_numpy(),
                                illuminant=illuminant)
 
-    def with_values(self, beta, u_beta=None, meta_update: Mapping | None = None) -> "Dataset":
+    def with_values(self, beta, u_beta=None, meta_update: Mapping | None = None) -> Dataset:
         """A new dataset with the same rows and new ``beta`` (and ``u_beta``) values."""
         table = self.table.copy()
         table["beta"] = np.asarray(beta, dtype=float) * np.ones(len(table))
@@ -542,7 +565,7 @@ def new_meta(kind: str, sample: Mapping, source: Mapping | None = None,
         "sample": dict(sample),
         ("instrument" if kind == "measured" else "model"): dict(source or {}),
         "wavelengths_nm": [],
-        "created": created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": created or _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "software": _software(),
         "provenance": dict(provenance or {}),
     }
@@ -574,7 +597,7 @@ def make_dataset(table: pd.DataFrame | Mapping[str, Iterable], meta: Mapping,
     return dataset
 
 
-def _fill_band_meta(dataset: "Dataset") -> None:
+def _fill_band_meta(dataset: Dataset) -> None:
     """``wavelengths_nm`` (spectral) or ``channels`` and ``colour_space`` (RGB) from the table."""
     meta = dataset.meta
     if dataset.is_rgb:
@@ -798,8 +821,8 @@ def _file_kind(mode: int) -> str:
     return next((name for test, name in kinds if test(mode)), "a special file")
 
 
-def read_dataset(path: str | os.PathLike) -> Dataset:
-    """Read and validate the dataset in directory ``path``; raise `DatasetError`."""
+def read_dataset(path: str | os.PathLike) -> Dataset:  # noqa: C901
+    """Read and validate the dataset in directory ``path``; raise :class:`DatasetError`."""
     root = Path(path)
     hint = f"a dataset is a directory holding {CSV_NAME} and {META_NAME}"
     if not root.exists():

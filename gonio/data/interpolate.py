@@ -14,7 +14,8 @@ scipy.interpolate.LinearNDInterpolator (barycentric interpolation on a Qhull tri
 
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
@@ -23,11 +24,13 @@ from gonio.data.geometry import signed_angle
 from gonio.data.schema import ANGLE_TOL_DEG, GEOMETRY, DatasetError
 
 
-
 class Dataset(Protocol):
-    """What interpolation needs of a dataset (:class:`gonio.data.dataset.Dataset` has it; that
-    module imports this one for :meth:`~gonio.data.dataset.Dataset.interpolate`, so the type is
-    structural here rather than imported)."""
+    """What interpolation needs of a dataset.
+
+    :class:`gonio.data.dataset.Dataset` has it; that module imports this one for
+    :meth:`~gonio.data.dataset.Dataset.interpolate`, so the type is structural here rather than
+    imported.
+    """
 
     table: pd.DataFrame
     source: Any
@@ -46,12 +49,13 @@ class Dataset(Protocol):
 __all__ = ["interpolate"]
 
 
-def interpolate(dataset: "Dataset", theta_i, phi_i, theta_o, phi_o, band):
+def interpolate(dataset: Dataset, theta_i, phi_i, theta_o, phi_o, band):
     """``(beta, u_beta)`` of ``dataset`` at arbitrary geometries and bands inside the data.
 
     Parameters
     ----------
     dataset : gonio.data.Dataset
+        The dataset whose values are interpolated.
     theta_i, phi_i, theta_o, phi_o : array_like
         Fabric-frame angles in degrees (broadcast together with ``band``).
     band : array_like
@@ -129,14 +133,16 @@ def interpolate(dataset: "Dataset", theta_i, phi_i, theta_o, phi_o, band):
     return beta.reshape(shape), u_beta.reshape(shape)
 
 
-def _geometry_interpolator(dataset: "Dataset", rotation: float) -> Callable:
-    """A function (theta_i, theta_o, dphi) -> (beta per band, u_beta per band) for one phi_i,
-    built once per dataset and rotation (:meth:`Dataset.derived`)."""
+def _geometry_interpolator(dataset: Dataset, rotation: float) -> Callable:
+    """A function (theta_i, theta_o, dphi) -> (beta per band, u_beta per band) for one phi_i.
+
+    Built once per dataset and rotation (:meth:`Dataset.derived`).
+    """
     return dataset.derived(("geometry interpolator", rotation),
                            lambda: _build_geometry_interpolator(dataset, rotation))
 
 
-def _build_geometry_interpolator(dataset: "Dataset", rotation: float) -> Callable:
+def _build_geometry_interpolator(dataset: Dataset, rotation: float) -> Callable:
     from scipy.interpolate import LinearNDInterpolator
 
     table = dataset.table

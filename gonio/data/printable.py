@@ -1,9 +1,9 @@
-"""Text from a file, made safe to print on a terminal: the one sanitising helper of the command lines.
+r"""Text from a file, made safe to print on a terminal: the one sanitising helper of the command lines.
 
 A dataset's name, its sample's name and the notes it carries come from files anyone may write. Printed
 raw, an escape sequence in them (``ESC [ 2 J``, colours, a cursor move, a bidirectional override)
 would act on the user's terminal: clear the screen, forge a green "passed". :func:`printable`
-replaces every control and format character by its visible escape (``\\x1b``, ``\\u202e``).
+replaces every control and format character by its visible escape (``\x1b``, ``\u202e``).
 """
 
 from __future__ import annotations
@@ -19,8 +19,10 @@ def _escape(ch: str) -> str:
 
 
 def printable(text: object, *, newlines: bool = False) -> str:
-    """``str(text)`` with every control (Cc) and format (Cf) character escaped, as in ``\\x1b``;
-    ``newlines=True`` keeps ``\\n`` (a text of several lines printed as such)."""
+    r"""Give ``str(text)`` with every control (Cc) and format (Cf) character escaped.
+
+    As in ``\x1b``; ``newlines=True`` keeps ``\n`` (a text of several lines printed as such).
+    """
     s = str(text)
     if s.isprintable():
         return s

@@ -2,7 +2,7 @@
 
 Everything here is plain data (names, columns, limits) and :class:`DatasetError`; the modules
 that read, write, interpolate or convert datasets import it, and it imports nothing of theirs,
-so :mod:`gonio.data.dataset` and :mod:`gonio.data.interpolate` no longer import each other
+so :mod:`gonio.data.dataset` and :mod:`gonio.data.interpolate` need not import each other.
 The meaning of each name is in docs/dataset.md.
 """
 

@@ -1,4 +1,4 @@
-"""The protocol document's tables, generated from the code's tables (so they cannot drift).
+r"""The protocol document's tables, generated from the code's tables (so they cannot drift).
 
 ``docs/instrument.md`` holds prose written by hand and sections between markers::
 
@@ -12,7 +12,7 @@ one; ``python -m gonio.instrument.docs docs/instrument.md`` rewrites it after a 
 
 Examples
 --------
->>> print(render("<!-- BEGIN GENERATED: errors -->\\n<!-- END GENERATED: errors -->").splitlines()[2])
+>>> print(render("<!-- BEGIN GENERATED: errors -->\n<!-- END GENERATED: errors -->").splitlines()[2])
 |---|---|
 """
 
@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from gonio.instrument.head_commands import HEAD_COMMANDS, HEAD_ERRORS
 from gonio.instrument.modbus_map import AXES, AXIS_BLOCK_BASE, AXIS_BLOCK_STRIDE, MODBUS_MAP

@@ -21,15 +21,28 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from gonio.instrument.errors import DeviceError
-from gonio.instrument.head_commands import (ERROR_QUEUE_LENGTH, HEAD_COMMANDS, BusyError, ChecksumError,
-                                            ChecksumMissing,
-                                            DetectorOverloadError, ErrorEntry, GarbledResponse,
-                                            HeadCommand, HeadError, Identity, NoResponse,
-                                            ProtocolError, Reading, TruncatedResponse)
+from gonio.instrument.head_commands import (
+    ERROR_QUEUE_LENGTH,
+    HEAD_COMMANDS,
+    BusyError,
+    ChecksumError,
+    ChecksumMissing,
+    DetectorOverloadError,
+    ErrorEntry,
+    GarbledResponse,
+    HeadCommand,
+    HeadError,
+    Identity,
+    NoResponse,
+    ProtocolError,
+    Reading,
+    TruncatedResponse,
+)
 from gonio.instrument.head_framing import parse_response
 from gonio.instrument.retry import Failure, RetryPolicy
 from gonio.instrument.transport import LineTransport, LinkLost

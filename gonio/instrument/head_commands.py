@@ -1,7 +1,7 @@
-"""The photometer head's command table: constants, typed replies, errors and the command rows.
+r"""The photometer head's command table: constants, typed replies, errors and the command rows.
 
-RS-232 115200 8N1 (or a socket), ASCII. Commands end with ``\\n`` (a preceding ``\\r`` is
-accepted); each command gets exactly one response line ending ``\\r\\n``: a value, ``OK`` or
+RS-232 115200 8N1 (or a socket), ASCII. Commands end with ``\n`` (a preceding ``\r`` is
+accepted); each command gets exactly one response line ending ``\r\n``: a value, ``OK`` or
 ``ERR <code>,<message>`` (framing and parsing: :mod:`gonio.instrument.head_framing`).
 ``*RST`` restores wavelength, integration time, gain and closes the shutter; it does not change
 the checksum mode. Every ``ERR`` is also queued (oldest first, at most 16) for ``SYST:ERR?``.
@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 __all__ = [
     "IDN_MAKER", "IDN_MODEL", "SATURATION_COUNTS", "ADC_MAX_COUNTS", "OVERLOAD_COUNTS",
@@ -86,7 +86,7 @@ class GarbledResponse(ProtocolError):
 
 
 class TruncatedResponse(ProtocolError):
-    """The line ended without its ``\\r\\n`` terminator."""
+    r"""The line ended without its ``\r\n`` terminator."""
 
 
 class ChecksumError(ProtocolError):
@@ -94,8 +94,10 @@ class ChecksumError(ProtocolError):
 
 
 class ChecksumMissing(ChecksumError):
-    """Checksum mode is on and a complete, printable reply has no ``*HH`` at all: the head
-    answered in checksum-off mode (its link was reset), not a corrupted line."""
+    """Checksum mode is on and a complete, printable reply has no ``*HH`` at all.
+
+    The head answered in checksum-off mode (its link was reset): not a corrupted line.
+    """
 
 
 class HeadError(ProtocolError):
@@ -156,10 +158,12 @@ class Reading:
 
     @property
     def saturated(self) -> bool:
+        """Whether the head flagged the reading as saturated."""
         return bool(self.flags & FLAG_SATURATED)
 
     @property
     def lamp_unstable(self) -> bool:
+        """Whether the head flagged its lamp as unstable during the reading."""
         return bool(self.flags & FLAG_LAMP_UNSTABLE)
 
     @property
@@ -242,7 +246,7 @@ class HeadCommand:
     doc: str
 
     def format(self, value: object = None) -> bytes:
-        """The command line (with ``\\n``) for ``value``, validated against the table.
+        r"""The command line (with ``\n``) for ``value``, validated against the table.
 
         Raises ValueError when the value is out of range or missing/superfluous.
         """

@@ -1,6 +1,6 @@
-"""Framing of the photometer head's lines and the parser of its responses.
+r"""Framing of the photometer head's lines and the parser of its responses.
 
-In checksum mode (``CHK ON``) every response is ``<payload>*HH\\r\\n`` with ``HH`` = XOR of all
+In checksum mode (``CHK ON``) every response is ``<payload>*HH\r\n`` with ``HH`` = XOR of all
 bytes of ``<payload>`` (every byte before the ``*``), two upper-case hex digits. The reply to
 ``CHK ON`` already carries a checksum; the reply to ``CHK OFF`` does not.
 
@@ -20,10 +20,19 @@ from __future__ import annotations
 import math
 import re
 
-from gonio.instrument.head_commands import (HEAD_ERRORS, READ_N_RANGE, ChecksumError,
-                                            ChecksumMissing, ErrorEntry,
-                                            GarbledResponse, Identity, NoResponse, Reading,
-                                            TruncatedResponse, head_error)
+from gonio.instrument.head_commands import (
+    HEAD_ERRORS,
+    READ_N_RANGE,
+    ChecksumError,
+    ChecksumMissing,
+    ErrorEntry,
+    GarbledResponse,
+    Identity,
+    NoResponse,
+    Reading,
+    TruncatedResponse,
+    head_error,
+)
 
 __all__ = ["LINE_TERMINATOR", "checksum", "format_response", "parse_response", "RESPONSE_KINDS"]
 
@@ -50,7 +59,7 @@ def checksum(line_bytes: bytes) -> str:
 
 
 def format_response(payload: str | bytes, chk: bool) -> bytes:
-    """A complete response line: payload, ``*HH`` when ``chk``, and ``\\r\\n``."""
+    r"""A complete response line: payload, ``*HH`` when ``chk``, and ``\r\n``."""
     p = payload.encode("ascii") if isinstance(payload, str) else bytes(payload)
     if chk:
         p = p + b"*" + checksum(p).encode("ascii")
@@ -84,32 +93,34 @@ def _as_int(text: str, what: str) -> int:
     return int(text)
 
 
-def parse_response(line: bytes, chk: bool, expect: str = "text"):
-    """Parse one head response line (as read, terminator included) into a typed value.
+def parse_response(line: bytes, chk: bool, expect: str = "text"):  # noqa: C901
+    r"""Parse one head response line (as read, terminator included) into a typed value.
 
     Parameters
     ----------
-    line : the raw bytes read up to and including ``\\r\\n`` (an empty ``bytes`` = timeout).
-    chk : whether checksum mode is on (then ``*HH`` is required and verified).
-    expect : the reply kind (:attr:`HeadCommand.response`): ``"text"`` (any payload, returned
-        as str), ``"ok"`` (returns None), ``"float"``, ``"int"``, ``"word"`` (str),
-        ``"idn"`` (:class:`Identity`), ``"reading"`` (:class:`Reading`),
-        ``"error_entry"`` (:class:`ErrorEntry`).
+    line : bytes
+        The raw bytes read up to and including ``\r\n`` (an empty ``bytes`` = timeout).
+    chk : bool
+        Whether checksum mode is on (then ``*HH`` is required and verified).
+    expect : str
+        The reply kind (:attr:`HeadCommand.response`): ``"text"`` (str), ``"ok"`` (None),
+        ``"float"``, ``"int"``, ``"word"`` (str), ``"idn"`` (:class:`Identity`), ``"reading"``
+        (:class:`Reading`), ``"error_entry"`` (:class:`ErrorEntry`).
 
     Raises
     ------
-    NoResponse, TruncatedResponse, GarbledResponse, ChecksumError : framing problems (transient).
-    HeadError subclass : the head answered ``ERR <code>,<message>`` (:class:`BusyError` is
-        transient, the others are not). An ERR line with an unknown code or a message that does
-        not match the code is reported as GarbledResponse.
-
-    Never raises anything else, whatever the bytes (ValueError for an unknown ``expect``).
+    NoResponse, TruncatedResponse, GarbledResponse, ChecksumError
+        Framing problems (transient).
+    HeadError
+        A subclass: the head answered ``ERR <code>,<message>`` (:class:`BusyError` is transient);
+        an unknown code or a message not matching it is a GarbledResponse. Nothing else is raised,
+        whatever the bytes (ValueError for an unknown ``expect``).
 
     Examples
     --------
-    >>> parse_response(b"OK*04\\r\\n", chk=True, expect="ok") is None
+    >>> parse_response(b"OK*04\r\n", chk=True, expect="ok") is None
     True
-    >>> parse_response(b"1234.50,12.30,10,0\\r\\n", chk=False, expect="reading").mean_counts
+    >>> parse_response(b"1234.50,12.30,10,0\r\n", chk=False, expect="reading").mean_counts
     1234.5
     """
     if expect not in RESPONSE_KINDS:

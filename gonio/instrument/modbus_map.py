@@ -51,8 +51,9 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 __all__ = [
     "FIRMWARE_VERSION", "Axis", "AXES", "N_AXES", "HOME_POSITIONS_MDEG", "IN_POSITION_TOLERANCE_MDEG",

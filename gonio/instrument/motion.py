@@ -42,15 +42,26 @@ import functools
 import itertools
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from gonio.data.geometry import beam_blocked
 from gonio.instrument.errors import AxisFaultError, DeviceError, InstrumentTaken
-from gonio.instrument.modbus_map import (HOME_POSITIONS_MDEG, IN_POSITION_TOLERANCE_MDEG, N_AXES,
-                                         VELOCITY_RANGE_CDEG_S, AxisCommand, AxisFault, AxisStatus,
-                                         Control, ControllerStatus, ModbusException, SampleSlot,
-                                         deg_to_mdeg, mdeg_to_deg)
+from gonio.instrument.modbus_map import (
+    HOME_POSITIONS_MDEG,
+    IN_POSITION_TOLERANCE_MDEG,
+    N_AXES,
+    VELOCITY_RANGE_CDEG_S,
+    AxisCommand,
+    AxisFault,
+    AxisStatus,
+    Control,
+    ControllerStatus,
+    ModbusException,
+    SampleSlot,
+    deg_to_mdeg,
+    mdeg_to_deg,
+)
 from gonio.instrument.registers import Coil, HoldingRegister, InputRegister, ModbusDevice
 from gonio.instrument.retry import RetryPolicy
 from gonio.instrument.transport import RequestTransport
@@ -188,7 +199,7 @@ class MotionController(ModbusDevice):
         self._wait(range(N_AXES), "home all", homing=True)
 
     def _homing_taken(self) -> bool:
-        """Did the controller take an unanswered ``HOME_ALL``?
+        """Whether the controller took an unanswered ``HOME_ALL``.
 
         True when every axis' COMMAND register holds HOME and the axis is homing (moving, not
         homed: a move needs a homed axis) or homed and at rest at its home position.
@@ -272,8 +283,7 @@ class MotionController(ModbusDevice):
         self.owner_token = token
 
     def check_owner(self, what: str) -> None:
-        """Raise :class:`~gonio.instrument.errors.InstrumentTaken` when the OWNER registers no
-        longer hold our token."""
+        """Raise :class:`~gonio.instrument.errors.InstrumentTaken` unless OWNER holds our token."""
         if self.owner_token is None:
             return
         found = self._read_owner(f"{what}: check owner")
@@ -315,7 +325,7 @@ class MotionController(ModbusDevice):
         for a in self._safe_order(changed, targets, what):
             mdeg = targets[a]
             try:
-                self.write_rows(dict(zip(_AXIS_MOVE, (mdeg, v, AxisCommand.MOVE))), a,
+                self.write_rows(dict(zip(_AXIS_MOVE, (mdeg, v, AxisCommand.MOVE), strict=True)), a,
                                 f"{what}: axis {a}",
                                 took_effect=functools.partial(self._move_taken, a, mdeg, v, what))
             except DeviceError as exc:
@@ -330,7 +340,7 @@ class MotionController(ModbusDevice):
         self._wait(moving, what, travel_s=travel / (v / 100.0))
 
     def _move_taken(self, a: int, mdeg: int, velocity: int, what: str) -> bool:
-        """Did the controller take the move of axis ``a`` to ``mdeg`` (an unanswered write)?
+        """Whether the controller took the move of axis ``a`` to ``mdeg`` (an unanswered write).
 
         True when its TARGET, VELOCITY and COMMAND registers hold this move and the axis is
         moving, in position at the target, or faulted (the wait then reports the fault). An

@@ -1,4 +1,4 @@
-"""Opening the two links and telling them apart: is each endpoint the device it should be?
+"""Opening the two links and telling them apart: whether each endpoint is the device it should be.
 
 :func:`open_links` connects both transports and identifies both endpoints (one request each);
 only when neither answers as it should are the two URLs tried the other way round, so swapped
@@ -11,8 +11,7 @@ from __future__ import annotations
 import contextlib
 
 from gonio.instrument.modbus_map import IR_FIRMWARE
-from gonio.instrument.transport import (LinkLost, ModbusTransport, SerialTransport, TransportError,
-                                        parse_modbus_url)
+from gonio.instrument.transport import LinkLost, ModbusTransport, SerialTransport, TransportError, parse_modbus_url
 
 __all__ = ["LinkSetupError", "open_links"]
 
@@ -46,7 +45,7 @@ def open_links(modbus_url: str, serial_url: str, timeout_s: float = 1.0
 
 
 def _answers_modbus(link: ModbusTransport) -> bool:
-    """Does the endpoint answer a Modbus read of the controller's firmware register?"""
+    """Whether the endpoint answers a Modbus read of the controller's firmware register."""
     try:
         link.exchange({"fn": "read_input_registers", "address": IR_FIRMWARE, "count": 1})
         return True
@@ -55,7 +54,7 @@ def _answers_modbus(link: ModbusTransport) -> bool:
 
 
 def _answers_head(link: SerialTransport) -> bool:
-    """Does the endpoint answer ``*IDN?`` with a line of text (the photometer head does)?"""
+    """Whether the endpoint answers ``*IDN?`` with a line of text (the photometer head does)."""
     try:
         with contextlib.suppress(TransportError, OSError):
             link.drain()

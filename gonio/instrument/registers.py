@@ -23,14 +23,13 @@ Examples
 from __future__ import annotations
 
 import logging
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from gonio.instrument.errors import DeviceError
-from gonio.instrument.modbus_map import (COIL, HOLDING, INPUT, MODBUS_MAP, ModbusException, Register,
-                                         exception_name)
+from gonio.instrument.modbus_map import COIL, HOLDING, INPUT, MODBUS_MAP, ModbusException, Register, exception_name
 from gonio.instrument.retry import Failure, RetryPolicy
-from gonio.instrument.transport import (LinkLost, LinkTimeout, ModbusExceptionResponse,
-                                        RequestTransport)
+from gonio.instrument.transport import LinkLost, LinkTimeout, ModbusExceptionResponse, RequestTransport
 
 __all__ = ["ModbusDevice", "Coil", "HoldingRegister", "InputRegister"]
 
@@ -168,7 +167,7 @@ class ModbusDevice:
 class _PerAxis:
     """``device.register[axis]`` access of a per-axis register descriptor."""
 
-    def __init__(self, device: ModbusDevice, control: "_RegisterControl"):
+    def __init__(self, device: ModbusDevice, control: _RegisterControl):
         self.device, self.control = device, control
 
     def __getitem__(self, axis: int):
@@ -194,7 +193,7 @@ class _RegisterControl:
         self.attr = name
 
     @classmethod
-    def rows(cls, *registers: str) -> tuple["_RegisterControl", ...]:
+    def rows(cls, *registers: str) -> tuple[_RegisterControl, ...]:
         """One descriptor per named row, to unpack into class attributes."""
         return tuple(cls(r) for r in registers)
 
@@ -206,8 +205,10 @@ class _RegisterControl:
 
     def write(self, device: ModbusDevice, value, axis: int | None, what: str | None = None, *,
               took_effect: Callable[[], bool] | None = None) -> None:
-        """Write the register (validated by :meth:`ModbusDevice.write_rows`; ``took_effect``:
-        see :meth:`ModbusDevice.call`)."""
+        """Write the register, validated by :meth:`ModbusDevice.write_rows`.
+
+        ``took_effect``: see :meth:`ModbusDevice.call`.
+        """
         if self.register.access != "rw":
             raise AttributeError(f"{self.attr} is read-only")
         where = f" of axis {axis}" if axis is not None else ""

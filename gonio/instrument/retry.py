@@ -38,8 +38,9 @@ import collections
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, TypeVar
+from typing import TypeVar
 
 from gonio.instrument.errors import DeviceError
 
@@ -93,6 +94,7 @@ class LinkStats:
         return (self.failures + 0.5) / (self.attempts + 10)
 
     def record(self, ok: bool) -> None:
+        """Count one attempt: a success resets the streak of failures, a failure extends it."""
         self.attempts += 1
         if ok:
             self.streak = 0
@@ -103,8 +105,10 @@ class LinkStats:
 
 @dataclass
 class RetryPolicy:
-    """Adaptive bounded retries, per-link backoff, a per-point budget; ``sleep`` is injectable
-    (replay: no wait). See the module docstring for the rules."""
+    """Adaptive bounded retries, per-link backoff, a per-point budget.
+
+    ``sleep`` is injectable (replay: no wait). See the module docstring for the rules.
+    """
 
     attempts: int = 6
     base_s: float = 0.005
@@ -184,22 +188,32 @@ class RetryPolicy:
 
         Parameters
         ----------
-        attempt : one try; its return value is returned.
-        classify : maps an exception of ``attempt`` to a :class:`Failure` (retry it) or None
-            (not transient: re-raised at once; a classifier may also raise its own error).
-        device, what : named in the :class:`DeviceError` raised when the attempts run out.
-        took_effect : asked before re-sending after an unanswered attempt; True means the device
-            executed the request anyway, and ``executed`` is returned without sending it again.
-        busy_timeout_s : total backoff spent waiting out :attr:`Failure.busy` answers before they
-            count against the attempts.
-        exhausted : the message when the attempts run out (default: "no valid response ...").
-        link : the link whose statistics this command feeds and whose fault rate sets its
-            attempts and backoff (None: the base ``attempts``, backoff by attempt number, no
-            statistics - for a retry wrapped around other retried commands).
+        attempt : callable
+            One try; its return value is returned.
+        classify : callable
+            Maps an exception of ``attempt`` to a :class:`Failure` (retry it) or None (not
+            transient: re-raised at once; a classifier may also raise its own error).
+        device, what : str
+            Named in the :class:`DeviceError` raised when the attempts run out.
+        took_effect : callable, optional
+            Asked before re-sending after an unanswered attempt; True means the device executed the
+            request anyway, and ``executed`` is returned without sending it again.
+        busy_timeout_s : float
+            Total backoff spent waiting out :attr:`Failure.busy` answers before they count against
+            the attempts.
+        executed : optional
+            What is returned when ``took_effect`` says the request was executed.
+        exhausted : str, optional
+            The message when the attempts run out (default: "no valid response ...").
+        link : str, optional
+            The link whose statistics this command feeds and whose fault rate sets its attempts and
+            backoff (None: the base ``attempts``, backoff by attempt number, no statistics - for a
+            retry wrapped around other retried commands).
 
         Raises
         ------
-        DeviceError : ``transient=True``, after the attempts ran out.
+        DeviceError
+            ``transient=True``, after the attempts ran out.
         """
         stats = self.link(link) if link is not None else None
         last: Exception | None = None

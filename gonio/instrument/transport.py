@@ -1,4 +1,4 @@
-"""Transports: a line-oriented serial link and a Modbus client link, knowing nothing of devices.
+r"""Transports: a line-oriented serial link and a Modbus client link, knowing nothing of devices.
 
 Each transport has one primitive, ``exchange(request) -> response``, plus ``open``, ``close``
 and ``reconnect``; the two interfaces are typed protocols, :class:`LineTransport` and
@@ -7,8 +7,8 @@ build requests from the protocol tables and interpret responses; a recording wra
 replaying fake (:mod:`gonio.acquisition.record`) can stand in for a transport because nothing
 else crosses these interfaces.
 
-- :class:`SerialTransport` (``channel = "serial"``): ``exchange(b"WAVE 550\\n")`` writes the
-  command line and returns the raw response bytes up to and including ``\\r\\n`` - or what arrived
+- :class:`SerialTransport` (``channel = "serial"``): ``exchange(b"WAVE 550\n")`` writes the
+  command line and returns the raw response bytes up to and including ``\r\n`` - or what arrived
   before the timeout (``b""`` for no answer, a truncated line otherwise); the caller parses with
   :func:`gonio.instrument.head_framing.parse_response`. URLs are anything ``serial.serial_for_url`` opens: a
   device path (``/dev/ttyUSB0``, a pty ``/dev/pts/5``) or ``socket://127.0.0.1:PORT``.
@@ -36,7 +36,8 @@ from __future__ import annotations
 import logging
 import time
 import urllib.parse
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import serial
 from pymodbus import FramerType
@@ -102,15 +103,25 @@ class LineTransport(Protocol):
     url: str
     timeout_s: float
 
-    def exchange(self, line: bytes, /, timeout_s: float | None = None) -> bytes: ...
+    def exchange(self, line: bytes, /, timeout_s: float | None = None) -> bytes:
+        """Send one command line and return the reply line (terminator included)."""
+        ...
 
-    def drain(self) -> bytes: ...
+    def drain(self) -> bytes:
+        """Discard pending input; return what was dropped."""
+        ...
 
-    def reconnect(self) -> None: ...
+    def reconnect(self) -> None:
+        """Close and open the link again."""
+        ...
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Open the link."""
+        ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Close the link."""
+        ...
 
 
 class RequestTransport(Protocol):
@@ -123,13 +134,21 @@ class RequestTransport(Protocol):
     channel: str
     url: str
 
-    def exchange(self, request: dict, /) -> dict: ...
+    def exchange(self, request: dict, /) -> dict:
+        """Send one Modbus request and return its response."""
+        ...
 
-    def reconnect(self) -> None: ...
+    def reconnect(self) -> None:
+        """Close and open the link again."""
+        ...
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        """Open the link."""
+        ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Close the link."""
+        ...
 
 
 def parse_modbus_url(url: str) -> dict[str, Any]:

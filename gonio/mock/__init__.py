@@ -16,7 +16,7 @@ injection), :mod:`~gonio.mock.servers` (transports), :mod:`~gonio.mock.instrumen
 
 from gonio.mock.faults import FAULT_KINDS, FaultSpecError, parse_faults
 from gonio.mock.instrument import MockConfigError, MockInstrument
-from gonio.mock.samples import (WHITE_REFERENCE_BETA, SampleError, make_sample, reference_beta)
+from gonio.mock.samples import WHITE_REFERENCE_BETA, SampleError, make_sample, reference_beta
 
 __all__ = ["MockInstrument", "MockConfigError", "FAULT_KINDS", "FaultSpecError", "parse_faults",
            "WHITE_REFERENCE_BETA", "SampleError", "make_sample", "reference_beta"]

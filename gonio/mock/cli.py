@@ -28,6 +28,7 @@ __all__ = ["main", "build_parser"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``gonio mock``."""
     p = argparse.ArgumentParser(
         prog="gonio mock",
         description="Mock goniophotometer on real protocol endpoints (loopback and pseudo-terminals only). "

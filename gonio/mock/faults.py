@@ -1,4 +1,4 @@
-"""Fault injection for the mock instrument (``gonio mock --faults SPEC``).
+r"""Fault injection for the mock instrument (``gonio mock --faults SPEC``).
 
 Syntax
 ------
@@ -20,7 +20,7 @@ this order: drop, serial_timeout, busy, garbled, truncated, checksum):
 ``serial_timeout``  no answer at all; the command is not executed.
 ``busy``            ``ERR 103,Busy`` (queued for SYST:ERR?); the command is not executed.
 ``garbled``         the command is executed but bytes 0x80..0xFF (never valid ASCII) replace part
-                    of the reply; the ``\\r\\n`` terminator is kept.
+                    of the reply; the ``\r\n`` terminator is kept.
 ``truncated``       the reply is cut and sent without its terminator.
 ``checksum``        the reply carries a wrong ``*HH`` (one opportunity per reply sent in checksum
                     mode that no other fault hit, the reply to ``CHK ON`` included).
@@ -55,12 +55,7 @@ hit by several kinds gets the first in this order: modbus_drop, modbus_norespons
 ``axis_fault``         (one opportunity per accepted move command) the axis stops half way
                        with fault 1 (following error); CONTROL bit3 resets it.
 
-A faulted exchange never advances the head's repetition counter (its readings are discarded),
-so a session that retries through faults measures exactly the numbers of a clean session:
-faults never corrupt a reading that is reported as good. Modbus faults never touch it either: a
-Modbus request changes the head's state only through the controller (a move, a coil, the sample
-slot), and repeating such a request (after a drop that did execute it) resets the counter to the
-same zero.
+Faults never corrupt a reading reported as good (:class:`FaultInjector`).
 """
 
 from __future__ import annotations
@@ -144,6 +139,13 @@ class FaultInjector:
     """Deterministic fault decisions per kind, from the seed and the sequence of opportunities.
 
     ``stats`` counts the faults injected per kind.
+
+    A faulted exchange never advances the head's repetition counter (its readings are discarded),
+    so a session that retries through faults measures exactly the numbers of a clean session:
+    faults never corrupt a reading that is reported as good. Modbus faults never touch it either: a
+    Modbus request changes the head's state only through the controller (a move, a coil, the sample
+    slot), and repeating such a request (after a drop that did execute it) resets the counter to the
+    same zero.
     """
 
     def __init__(self, spec: str | dict[str, FaultRule] | None, seed: int = 0):
@@ -156,6 +158,7 @@ class FaultInjector:
             for k in self.rules}
 
     def active(self, kind: str) -> bool:
+        """Whether the spec names the fault ``kind``."""
         return kind in self.rules
 
     def fires(self, kind: str) -> bool:

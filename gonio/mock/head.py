@@ -85,6 +85,7 @@ class PhotometerHead:
         self.repetition = 0
 
     def reading_state(self) -> physics.ReadingState:
+        """What a reading depends on now: axes, sample slot, wavelength, integration, gain, shutter, lamp."""
         c = self.controller
         return physics.ReadingState(c.positions_mdeg(), c.slot, self.wavelength_dnm, self.itime_ms,
                                     self.gain_step, c.shutter_open, c.lamp_on)
@@ -154,7 +155,7 @@ class PhotometerHead:
             self.errors.append((exc.code, exc.message))
             return f"ERR {exc.code},{exc.message}", 0.0, 0, False
 
-    def _run(self, cmd: HC.HeadCommand, value) -> tuple[str, float, int, bool]:
+    def _run(self, cmd: HC.HeadCommand, value) -> tuple[str, float, int, bool]:  # noqa: C901
         key = cmd.key
         c = self.controller
         if cmd.changes_state and key != "READ?":

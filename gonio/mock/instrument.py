@@ -31,8 +31,13 @@ from gonio.mock.faults import FaultInjector
 from gonio.mock.head import PhotometerHead
 from gonio.mock.motion import INTEGRATION_FACTORS, SPEED_FACTORS, ModbusFrontend, MotionController
 from gonio.mock.samples import make_sample, reference_beta
-from gonio.mock.servers import (PtyBridge, drop_current_modbus_connection, make_dropping_tcp_server,
-                                serve_head_pty, serve_head_socket)
+from gonio.mock.servers import (
+    PtyBridge,
+    drop_current_modbus_connection,
+    make_dropping_tcp_server,
+    serve_head_pty,
+    serve_head_socket,
+)
 
 __all__ = ["MockInstrument", "MockConfigError", "parse_modbus_option", "parse_serial_option"]
 
@@ -155,8 +160,10 @@ class MockInstrument:
     # --- public API ---------------------------------------------------------------------------
     @property
     def stats(self) -> dict[str, Any]:
-        """Faults injected per kind, Modbus requests served, links dropped (and the dropped
-        requests, ``(function code, address, executed)``), head commands."""
+        """What the mock served: faults per kind, Modbus requests, dropped links, head commands.
+
+        The dropped requests are listed as ``(function code, address, executed)``.
+        """
         return {"faults": {k: int(v) for k, v in self.faults.stats.items() if v},
                 "modbus_requests": self.frontend.requests, "modbus_writes": self.frontend.writes,
                 "modbus_drops": self.frontend.drops,
@@ -168,7 +175,7 @@ class MockInstrument:
         """Calibrated radiance factor of the mock white standard."""
         return reference_beta(wavelength_nm)
 
-    def start(self) -> "MockInstrument":
+    def start(self) -> MockInstrument:
         """Start the servers in a background thread; returns when both endpoints are up."""
         if self._thread is not None:
             return self
@@ -205,7 +212,7 @@ class MockInstrument:
             self._bridge.stop()
             self._bridge = None
 
-    def __enter__(self) -> "MockInstrument":
+    def __enter__(self) -> MockInstrument:
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -27,8 +27,8 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 from gonio.data import geometry as G
 from gonio.instrument import links as LK
@@ -141,13 +141,16 @@ class MotionController:
         return x0 + (x1 - x0) * (t - t0) / max(t_arrive - t0, 1e-12)
 
     def homing(self) -> bool:
+        """Whether any axis is homing."""
         return any(ax.motion is not None and ax.motion[5] == "home" for ax in self.axes)
 
     def positions_mdeg(self) -> tuple[int, int, int, int]:
+        """The four axis positions, millidegrees, brought up to date."""
         self.update()
         return tuple(int(round(ax.position)) for ax in self.axes)  # type: ignore[return-value]
 
     def axis_status(self, a: int) -> int:
+        """The status word of axis ``a`` (the register map's status bits)."""
         ax = self.axes[a]
         s = 0
         if ax.homed:
@@ -166,6 +169,7 @@ class MotionController:
         return int(s)
 
     def controller_status(self) -> int:
+        """The controller's status word (the register map's controller bits)."""
         s = 0
         if any(ax.fault for ax in self.axes):
             s |= MM.ControllerStatus.ANY_FAULT
@@ -177,7 +181,8 @@ class MotionController:
     def register_values(self) -> dict[tuple[str, int | None], int]:
         """The value of every register of the map, keyed ``(name, axis or None)``.
 
-        Evaluated as the state stands (call :meth:`update` first for the current time)."""
+        Evaluated as the state stands (call :meth:`update` first for the current time).
+        """
         values: dict[tuple[str, int | None], int] = {
             ("CONTROL", None): int(MM.Control.ENABLE) if self.enabled else 0,
             ("SAMPLE_SLOT", None): self.slot, ("OWNER", None): self.owner,
@@ -200,9 +205,11 @@ class MotionController:
         return img
 
     def holding_image(self) -> dict[int, int]:
+        """The holding registers' values by address."""
         return self._image(MM.HOLDING)
 
     def input_image(self) -> dict[int, int]:
+        """The input registers' values by address, brought up to date."""
         self.update()
         return self._image(MM.INPUT)
 
@@ -211,7 +218,7 @@ class MotionController:
         if self.on_state_change is not None:
             self.on_state_change()
 
-    def write_holding(self, address: int, values: list[int]) -> None:
+    def write_holding(self, address: int, values: list[int]) -> None:  # noqa: C901
         """Apply a holding-register write atomically (all checks first), or raise ModbusRefusal."""
         self.update()
         regs = {address + i: int(v) & 0xFFFF for i, v in enumerate(values)}
@@ -362,6 +369,7 @@ class MotionController:
         self._changed()
 
     def coil_image(self) -> list[bool]:
+        """The coils' values, by coil number."""
         img = self._image(MM.COIL)
         return [bool(img[k]) for k in range(MM.N_COILS)]
 
@@ -451,7 +459,7 @@ class ModbusFrontend:
         return NoSuchIdException("link dropped (injected modbus_drop)")
 
     async def action(self, fc: int, start: int, address: int, count: int, regs: list[int], values):
-        """pymodbus simulator action: runs on every request before pymodbus touches ``regs``."""
+        """Pymodbus simulator action: runs on every request before pymodbus touches ``regs``."""
         from pymodbus.constants import ExcCodes
         from pymodbus.exceptions import NoSuchIdException
 

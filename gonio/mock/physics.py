@@ -87,10 +87,12 @@ class ReadingState:
 
     @property
     def wavelength_nm(self) -> float:
+        """The wavelength, nm."""
         return self.wavelength_dnm / 10.0
 
     @property
     def gain_factor(self) -> int:
+        """The gain factor of the gain step."""
         return HC.GAIN_FACTORS[self.gain_step]
 
 

@@ -10,62 +10,9 @@ Samples
 ``lambert:RHO``
     ``beta = RHO`` everywhere (an ideal diffuse reflector of reflectance RHO).
 ``red-cotton``
-    An analytic fabric-like sample (not derived from ``simulate``)::
-
-        beta = beta_d + beta_s
-        beta_d = rho_d(lambda) * [A + B max(0, cos(phi_i - phi_o)) sin(a) tan(b)]
-                 * (1 + R exp(-g^2 / (2 w_r^2)))
-        beta_s = c_g F(theta_d) / (4 a_x a_y sqrt(cos theta_i cos theta_o))
-                 * exp(-tan^2 theta_h (cos^2 phi_h / a_x^2 + sin^2 phi_h / a_y^2))
-
-    ``beta_d`` is the qualitative Oren-Nayar diffuse lobe (roughness sigma = 20 deg:
-    ``A = 1 - 0.5 s^2/(s^2 + 0.33)``, ``B = 0.45 s^2/(s^2 + 0.09)``, ``a = max(theta_i,
-    theta_o)``, ``b = min(theta_i, theta_o)``) with a mild retro-reflection (hiding) peak of
-    relative height ``R = 0.12`` and width ``w_r = 8 deg`` in the angle ``g`` between ``w_i`` and
-    ``w_o``. ``rho_d(lambda)`` is the red dye (:meth:`RedCottonSample.rho_d`)::
-
-        rho_d = r_0 + r_b exp(-(lambda - 420 nm)^2 / (2 (40 nm)^2))
-                + (r_red - r_0) / (1 + exp(-(lambda - 594.7 nm) / 7.1 nm))
-
-    ``r_0 = 0.01`` (the dye absorbs nearly all green), a violet-blue shoulder ``r_b = 0.088`` (the
-    bluish cast of a real red dye, which makes the hue slightly magenta, H > 0.98 rather than
-    0.00) and a red plateau ``r_red = 0.92`` (undyed cotton's reflectance, the dye being
-    transparent above ~620 nm), the absorption edge a logistic of 10-90 % width 31 nm. The three
-    free numbers ``r_b``, the edge position and its width were fitted once so that the colour
-    at the report's colour geometry (normal incidence, ``theta_o = 10 deg``, gloss included)
-    matches the published measurement of red cotton (docs/physics.md section 8, linear sRGB, D65,
-    CIE 1931 2 deg): H 0.988, S 0.989, V 0.80, BLUE/RED 0.080, GREEN/RED 0.011 (pinned by
-    ``tests/gonio/mock/test_physics.py``). ``beta_s`` is the Ward anisotropic specular lobe
-    (``pi`` times the Ward BRDF) of the fibre surfaces, spectrally neutral, wider across the
-    warp (``a_x = 0.22`` along the warp x, ``a_y = 0.38`` along the weft y), with the Schlick
-    Fresnel factor ``F = F0 + (1 - F0)(1 - cos theta_d)^5``, ``F0 = 0.045``, ``theta_d`` the
-    angle between ``w_i`` and the half vector ``h``, weighted by the gloss fraction
-    ``c_g = 0.08``: the share of the fibres' surface reflection that stays a coherent lobe at
-    the scale of the fabric. The rest is spread over the hemisphere by fibre twist, crimp and
-    hairiness; it is part of ``rho_d``. (A full-strength lobe would add ~0.12 of white to
-    every near-normal spectrum and wash the red out to S 0.70, against the published S 0.99:
-    the measurement itself bounds the near-normal gloss to about 0.01.) Both terms are
-    non-negative and reciprocal.
-
-    Angular character of a real fabric (the real felt rises 7x towards the forward
-    grazing direction at 60 deg incidence and has a backscatter lobe): two more reciprocal,
-    non-negative terms, and the diffuse lobe giving up energy to them at grazing angles, all
-    three nothing at normal incidence or observation (``u = sin theta_i sin theta_o = 0``), so
-    the published colour near the normal is unchanged::
-
-        beta_d -> beta_d (1 - k u^2)
-        beta_f = c_f (0.3 + 0.7 rho_d) u^4 ((1 - cos(phi_i - phi_o)) / 2)^2
-        beta_b = c_b rho_d u^2 ((1 + cos(phi_i - phi_o)) / 2)^4
-
-    ``beta_f`` is the forward sheen (light scattered forward along and through the fibres at
-    grazing angles: part surface, part dyed, hence paler than the diffuse red), ``c_f = 1.5``;
-    ``beta_b`` the backscatter towards the source's side (dyed: returned by the fibre pile),
-    ``c_b = 0.5``; ``k = 0.4``. Without ``k`` the red's directional albedo (0.87 at 60 deg,
-    0.91 at 80 deg incidence before) would pass 1; with it the largest over incidences up to
-    89 deg is 0.97 at every wavelength (``tests/gonio/mock/test_physics.py``). In plane at
-    incidence 60 deg the luminance-weighted ``beta`` rises from 0.16 at s = 0 to 0.46 at
-    s = +70 (0.22 before: the ratio 2.8 against 1.3) and is 0.23 at s = -50. Chosen by hand for
-    that shape; cotton's forward rise is weaker than the felt's.
+    An analytic fabric-like sample (not derived from ``simulate``): an Oren-Nayar diffuse lobe in
+    a red dye with a retro-reflection peak, a Ward gloss lobe, a forward sheen and a backscatter
+    term (:class:`RedCottonSample`, whose docstring has the equations and their constants).
 ``FILE``
     A radiance-coefficient dataset directory (``gonio.data.read_dataset``; an imported one
     too), interpolated with ``Dataset.interpolate``; a request outside the data raises
@@ -147,10 +94,12 @@ class LambertSample:
         self.name = f"lambert:{rho:g}"
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        """``beta = rho`` at every geometry and wavelength."""
         ti = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)[0]
         return np.full(ti.shape, self.rho)
 
     def describe(self) -> dict:
+        """The sample as the dataset's meta records it."""
         return {"name": self.name, "model": "lambert", "rho": self.rho}
 
 
@@ -168,7 +117,62 @@ def reference_beta(wavelength_nm) -> np.ndarray:
 
 
 class RedCottonSample:
-    """The built-in analytic red-cotton sample (see the module docstring for the equations)."""
+    """The built-in analytic red-cotton sample (not derived from ``simulate``).
+
+    The sample's radiance coefficient::
+
+        beta = beta_d + beta_s
+        beta_d = rho_d(lambda) * [A + B max(0, cos(phi_i - phi_o)) sin(a) tan(b)]
+                 * (1 + R exp(-g^2 / (2 w_r^2)))
+        beta_s = c_g F(theta_d) / (4 a_x a_y sqrt(cos theta_i cos theta_o))
+                 * exp(-tan^2 theta_h (cos^2 phi_h / a_x^2 + sin^2 phi_h / a_y^2))
+
+    ``beta_d`` is the qualitative Oren-Nayar diffuse lobe (roughness sigma = 20 deg:
+    ``A = 1 - 0.5 s^2/(s^2 + 0.33)``, ``B = 0.45 s^2/(s^2 + 0.09)``, ``a = max(theta_i,
+    theta_o)``, ``b = min(theta_i, theta_o)``) with a mild retro-reflection (hiding) peak of
+    relative height ``R = 0.12`` and width ``w_r = 8 deg`` in the angle ``g`` between ``w_i`` and
+    ``w_o``. ``rho_d(lambda)`` is the red dye (:meth:`RedCottonSample.rho_d`)::
+
+        rho_d = r_0 + r_b exp(-(lambda - 420 nm)^2 / (2 (40 nm)^2))
+                + (r_red - r_0) / (1 + exp(-(lambda - 594.7 nm) / 7.1 nm))
+
+    ``r_0 = 0.01`` (the dye absorbs nearly all green), a violet-blue shoulder ``r_b = 0.088`` (the
+    bluish cast of a real red dye, which makes the hue slightly magenta, H > 0.98 rather than
+    0.00) and a red plateau ``r_red = 0.92`` (undyed cotton's reflectance, the dye being
+    transparent above ~620 nm), the absorption edge a logistic of 10-90 % width 31 nm. The three
+    free numbers ``r_b``, the edge position and its width were fitted once so that the colour
+    at the report's colour geometry (normal incidence, ``theta_o = 10 deg``, gloss included)
+    matches the published measurement of red cotton (docs/physics.md section 8, linear sRGB, D65,
+    CIE 1931 2 deg): H 0.988, S 0.989, V 0.80, BLUE/RED 0.080, GREEN/RED 0.011 (pinned by
+    ``tests/gonio/mock/test_physics.py``). ``beta_s`` is the Ward anisotropic specular lobe
+    (``pi`` times the Ward BRDF) of the fibre surfaces, spectrally neutral, wider across the
+    warp (``a_x = 0.22`` along the warp x, ``a_y = 0.38`` along the weft y), with the Schlick
+    Fresnel factor ``F = F0 + (1 - F0)(1 - cos theta_d)^5``, ``F0 = 0.045``, ``theta_d`` the
+    angle between ``w_i`` and the half vector ``h``, weighted by the gloss fraction
+    ``c_g = 0.08``: the share of the fibres' surface reflection that stays a coherent lobe at
+    the scale of the fabric. The rest is spread over the hemisphere by fibre twist, crimp and
+    hairiness; it is part of ``rho_d``. (A full-strength lobe would add ~0.12 of white to
+    every near-normal spectrum and wash the red out to S 0.70, against the published S 0.99:
+    the measurement itself bounds the near-normal gloss to about 0.01.) Both terms are
+    non-negative and reciprocal.
+
+    Angular character of a real fabric (the real felt rises 7x towards the forward
+    grazing direction at 60 deg incidence and has a backscatter lobe): two more reciprocal,
+    non-negative terms, and the diffuse lobe giving up energy to them at grazing angles, all
+    three nothing at normal incidence or observation (``u = sin theta_i sin theta_o = 0``), so
+    the published colour near the normal is unchanged::
+
+        beta_d -> beta_d (1 - k u^2)
+        beta_f = c_f (0.3 + 0.7 rho_d) u^4 ((1 - cos(phi_i - phi_o)) / 2)^2
+        beta_b = c_b rho_d u^2 ((1 + cos(phi_i - phi_o)) / 2)^4
+
+    ``beta_f`` is the forward sheen (light scattered forward along and through the fibres at
+    grazing angles: part surface, part dyed, hence paler than the diffuse red), ``c_f = 1.5``;
+    ``beta_b`` the backscatter towards the source's side (dyed: returned by the fibre pile),
+    ``c_b = 0.5``; ``k = 0.4``, which keeps the directional albedo below 1 at every incidence and
+    wavelength (``tests/gonio/mock/test_physics.py``). The constants are chosen by hand for the
+    shape of a fabric's in-plane curve; cotton's forward rise is weaker than the felt's.
+    """
 
     name = "red-cotton"
     sigma_deg = 20.0
@@ -196,6 +200,7 @@ class RedCottonSample:
                 / (1.0 + np.exp(-(wl - cls.dye_edge_nm) / cls.dye_edge_width_nm)))
 
     def beta(self, theta_i, phi_i, theta_o, phi_o, wavelength_nm) -> np.ndarray:
+        """The sample's radiance coefficient (class docstring) at the given angles (degrees) and wavelengths."""
         ti, pi_, to, po, wl = _broadcast(theta_i, phi_i, theta_o, phi_o, wavelength_nm)
         wi = directions(ti, pi_)
         wo = directions(to, po)
@@ -234,6 +239,7 @@ class RedCottonSample:
         return beta_d * (1.0 - self.grazing_loss * u ** 2) + beta_s + beta_f + beta_b
 
     def describe(self) -> dict:
+        """The sample and its constants as the dataset's meta records them."""
         return {"name": self.name,
                 "model": "analytic Oren-Nayar + retro + Ward + sheen + backscatter (gonio.mock.samples)",
                 "sigma_deg": self.sigma_deg, "retro_height": self.retro_height,
@@ -247,8 +253,10 @@ class RedCottonSample:
 
 
 def _load_truth(path: str | Path, reader):
-    """A sample's truth read from ``path`` by ``reader``; a bad file is a :class:`SampleError`
-    naming ``path`` as the user gave it."""
+    """A sample's truth read from ``path`` by ``reader``.
+
+    A bad file is a :class:`SampleError` naming ``path`` as the user gave it.
+    """
     from gonio.data import DatasetError
 
     try:
@@ -286,6 +294,7 @@ class DatasetSample:
         return rgb_spectrum(rgb, wavelength_nm)
 
     def describe(self) -> dict:
+        """The sample as the dataset's meta records it."""
         return {"name": self.name, "model": "dataset", "path": str(self.path)}
 
 
@@ -314,8 +323,11 @@ class BSDFSample:
         return rgb_spectrum(bands[..., :3], wl)                          # bands in R, G, B order
 
     def describe(self) -> dict:
-        """Name, model, path, the file's own description, its SHA-256 and, for a file the
-        project ships (:data:`KNOWN_FILES`), where it comes from and its licence."""
+        """The sample as the dataset's meta records it.
+
+        Name, model, path, the file's own description, its SHA-256 and, for a file the project
+        ships (:data:`KNOWN_FILES`), where it comes from and its licence.
+        """
         import hashlib
 
         sha = hashlib.sha256(self.path.read_bytes()).hexdigest()

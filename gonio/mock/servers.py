@@ -1,11 +1,11 @@
-"""Transports of the mock: pseudo-terminals, the RTU pty bridge and the head's socket listener.
+r"""Transports of the mock: pseudo-terminals, the RTU pty bridge and the head's socket listener.
 
 Everything here runs on one asyncio event loop (the mock's background thread), except the RTU
 bridge, a small thread copying bytes between two pseudo-terminal masters so that a Modbus RTU
 server and a client can each open a ``/dev/pts/N`` path (no socat needed).
 
-The head is served by :class:`HeadLink`: bytes are split into lines at ``\\n`` (a preceding
-``\\r`` is dropped), and lines are handled one at a time in order; each reply is written after
+The head is served by :class:`HeadLink`: bytes are split into lines at ``\n`` (a preceding
+``\r`` is dropped), and lines are handled one at a time in order; each reply is written after
 the command's own duration (integration time) has elapsed.
 
 The Modbus TCP server is pymodbus' ``ModbusTcpServer`` with one change
@@ -60,7 +60,8 @@ class PtyBridge:
         self._thread = threading.Thread(target=self._run, name="gonio-mock-rtu-bridge", daemon=True)
         self._stop = False
 
-    def start(self) -> "PtyBridge":
+    def start(self) -> PtyBridge:
+        """Start bridging on its thread; returns the bridge."""
         self._thread.start()
         return self
 
@@ -87,6 +88,7 @@ class PtyBridge:
                         pass
 
     def stop(self) -> None:
+        """Stop the bridge, wait for its thread and close its descriptors."""
         self._stop = True
         try:
             os.write(self._wake_w, b"x")
@@ -115,6 +117,7 @@ class HeadLink:
         self.task = asyncio.get_running_loop().create_task(self._worker())
 
     def feed(self, data: bytes) -> None:
+        """Take bytes received on the link (ignored while the link is silent)."""
         loop = asyncio.get_running_loop()
         if loop.time() < self.silent_until:
             return
@@ -139,6 +142,7 @@ class HeadLink:
                 self.queue.put_nowait(b"\xff" * 2)       # answered with ERR 101
 
     def flush_input(self) -> None:
+        """Discard everything received and not yet handled."""
         self.buffer.clear()
         while not self.queue.empty():
             self.queue.get_nowait()
@@ -163,6 +167,7 @@ class HeadLink:
                 self.write(reply.data)
 
     def close(self) -> None:
+        """Stop serving the connection."""
         self.task.cancel()
 
 
@@ -285,8 +290,10 @@ def drop_current_modbus_connection() -> bool:
 
 
 def make_dropping_tcp_server(*args, **kwargs):
-    """A ``pymodbus.server.ModbusTcpServer`` (same arguments) whose connections the action can drop
-    (:func:`drop_current_modbus_connection`; see the module docstring)."""
+    """A ``pymodbus.server.ModbusTcpServer`` (same arguments) whose connections the action can drop.
+
+    See :func:`drop_current_modbus_connection` and the module docstring.
+    """
     from pymodbus.server import ModbusTcpServer
 
     handler_cls = _handler_class()

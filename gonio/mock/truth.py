@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from gonio.data import COLUMNS, Dataset, make_dataset, new_meta
 from gonio.acquisition.plan import Plan
+from gonio.data import COLUMNS, Dataset, make_dataset, new_meta
 
 __all__ = ["truth_dataset"]
 

@@ -1,2 +1,5 @@
-"""Shipped presets: acquisition plans (``red-cotton.toml``, ``green-felt.toml``, ``quick.toml``) and the white
-standard's calibration table (``spectralon.csv``), accepted by name wherever a path is."""
+"""Shipped presets, accepted by name wherever a path is.
+
+The acquisition plans (``red-cotton.toml``, ``green-felt.toml``, ``quick.toml``) and the white
+standard's calibration table (``spectralon.csv``).
+"""

@@ -7,7 +7,7 @@ details that other estimators extend.
 
 from simulate.montecarlo.numba_start import preload_blas_check
 
-preload_blas_check()  # before any kernel runs: numba's BLAS check without scipy.linalg (0.13 s)
+preload_blas_check()  # before any kernel runs: numba's BLAS check without scipy.linalg
 
 from simulate.montecarlo.transport import (  # noqa: E402
     DEFAULT_BATCH_SIZE,

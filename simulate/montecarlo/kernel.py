@@ -1,9 +1,5 @@
 """The compiled photon-transport kernel (docs/physics.md section 3).
 
-(Over 500 lines on purpose: one compiled photon loop whose two flavours are pruned from one
-source, and this docstring with the physics, the estimator contract and the speed decisions;
-split, the loop's hot state would cross function calls.)
-
 One photon history, in the units of the caller (any consistent length unit)::
 
     entry      refraction by Snell at the entry point; weight w = 1 - F(theta_i)
@@ -12,48 +8,26 @@ One photon history, in the units of the caller (any consistent length unit)::
                a collision when its end point p + l u is strictly inside the (convex) shape,
                otherwise the photon moves the analytic distance s_b to the boundary
     collision  (l < s_b) implicit capture: absorbed += w mu_a / mu_t, w *= mu_s / mu_t;
-               new direction from the phase function (Henyey-Greenstein or an inverse-CDF table)
+               new direction from the phase function (:mod:`.scatter`: Henyey-Greenstein or
+               an inverse-CDF table; azimuth from a table, no trigonometric call)
     roulette   if w < w_th: survive with probability p and w /= p, else the photon ends
     boundary   (l >= s_b) unpolarised Fresnel reflectance F(theta) with total internal
                reflection; reflect with probability F, otherwise refract out and tally
     cap        a photon reaching ``max_events`` steps is stopped and counted (a guard only)
 
-Henyey-Greenstein sampling (g != 0), with the constants hoisted out of the loop::
+The direction update is MCML's (Wang, Jacques & Zheng 1995, eq. 3.23). The loop is one function
+on purpose (its two flavours pruned from one source): split, its hot state would cross function
+calls (measurements: docs/notes/implementation.md, "The photon kernel").
 
-    cos theta = (1 + g^2 - ((1 - g^2) / (1 - g + 2 g xi))^2) / (2 g)
-
-Table sampling: ``j = floor(xi K)``, linear interpolation between ``cos_table[j]`` and
-``cos_table[j + 1]`` (``cos_table`` = cos theta at CDF values ``k / K``). The azimuth is
-uniform; the uniform of cos theta and the azimuth share one 64-bit draw, the azimuth's cosine
-and sine come from a table and short polynomials (no trigonometric call, no rejection loop:
-:func:`.scatter.azimuth`). The direction update is the standard one of MCML (Wang, Jacques &
-Zheng 1995, eq. 3.23); on a slab face an internal reflection only flips ``u_z``.
-
-Speed (van de Hulst case, one thread): the random state lives in registers (four ``uint64``
-locals), the free path needs no logarithm in 98.9 % of the draws (ziggurat), and the
-collision test needs no division; with ~3 collisions and one exit per photon the remaining
-cost is the square root and division of the MCML update, the HG division and the
-mispredicted branches (collision/exit). A branch-free frame (Duff et al. 2017: one division,
-no square root) instead of the MCML update, and an exit written with selects, were measured
-and were not faster (the loop is bound by instruction throughput, not by that chain).
-
-Layout: the inputs of a run are packed once into a :class:`KernelInputs` record (geometry,
-source, walk medium and its phase arrays, control, exit tally, vertex estimator, spectral
-targets). :func:`simulate_batch` runs one batch of photons on its own random stream
-``(seed, batch)`` (see :mod:`.rng`) into that batch's accumulators; :func:`run_batches`
-runs consecutive batches in parallel (``prange``), each writing its own row, so the
-caller can reduce the rows in batch order: results for a fixed seed do not depend on the
-number of threads. Geometry, phase function, tallies and estimators are run-time switches
-of one compiled signature, so a fresh clone compiles the kernel once; every later process loads
-it from numba's on-disk cache, whose keys hold only constants that are the same in every process
-(see :func:`_make_runner`; ``tests/simulate/mc/test_kernel_cache.py`` checks it).
-:func:`run_rows` runs the batches of MANY runs that differ only in their source row and seed in
-one ``prange`` (the BSSRDF rows: :mod:`.rows`), each batch exactly as :func:`run_batches` would.
-
-Estimator contract (:mod:`.tallies`): every history ends in one place, where its exit
-weights, its roulette balance and its scratch tally are flushed as per-photon sums and
-squares; :func:`.tallies.score_vertex` is called at every scattering vertex and
-:func:`.tallies.score_exit` at every exit.
+Public objects: :class:`KernelInputs` (a run's inputs packed once: geometry, source, walk medium
+and phase arrays, control, tallies, spectral targets); :func:`simulate_batch` (one batch of photons
+on its own random stream ``(seed, batch)``, :mod:`.rng`); :func:`run_batches` (consecutive batches
+in parallel, one row each, reduced in batch order by the caller: a fixed seed gives the same
+result on any number of threads); :func:`run_rows` (the batches of many runs that differ only in
+source row and seed, :mod:`.rows`). Geometry, phase function, tallies and estimators are run-time
+switches of one compiled signature, cached on disk under keys that are the same in every process
+(:func:`_make_runner`). Every history ends in one place that flushes its tallies (the estimator
+contract of :mod:`.tallies`).
 
 Spectral re-weighting ("white" Monte Carlo and wavelength groups): photons walk in the walk
 medium ``(mu_a^w, mu_s^w, p^w)``; for each target wavelength ``l`` with ``(mu_a^l, mu_s^l, p^l)``
@@ -84,24 +58,14 @@ which ``l_d`` lies in the dyed region takes ``exp(-(mu_t^l - mu_d^l - mu_t^w) l 
 is walked by a flavour of its own (:func:`_make_kernel`, with its own runners, compiled only when a run places
 its dye), so a run without one runs the loop without it.
 
-Deferred re-weighting: the medium is homogeneous, so the free-path factors of ``n`` collisions
-and of the path ``L`` walked since the last update are one factor,
-``(mu_s^l / mu_s^w)^n exp(-(mu_t^l - mu_t^w) L) = exp(n ln(mu_s^l / mu_s^w) - (mu_t^l - mu_t^w) L)``:
-the weights are brought up to date every :data:`REWEIGHT_EVERY` collisions, at every exit, and
-at every vertex when a vertex estimator reads them; the phase ratios are applied at each
-collision. Roulette is decided at the updates only -- a roulette rule may depend on anything
-in the history so far without biasing the estimate, so deciding it every few collisions changes
-the variance by a hair and nothing else. Measured on red cotton's 21-wavelength group (cylinder,
-49 events per photon): 3.7 -> 2.1 us per photon; the tables agree with the per-collision update
-within their errors (the walks are the same photons: only rounding and the roulette moments
-differ).
+The free-path factors are deferred: they are brought up to date every :data:`REWEIGHT_EVERY`
+collisions (see there), at every exit and at every vertex a vertex estimator reads.
 
 References
 ----------
 Wang, L., Jacques, S. L. & Zheng, L. (1995). MCML -- Monte Carlo modeling of light transport
 in multi-layered tissues. *Comput. Methods Programs Biomed.* 47, 131-146.
 Henyey, L. G. & Greenstein, J. L. (1941). Diffuse radiation in the Galaxy. *Astrophys. J.* 93, 70-83.
-Duff, T. et al. (2017). Building an orthonormal basis, revisited. *J. Comput. Graph. Tech.* 6(1), 1-8.
 """
 
 from __future__ import annotations
@@ -166,10 +130,9 @@ __all__ = [
 
 # numba's 'omp' threading layer (GNU libgomp) spin-waits at the end of every parallel region by
 # default. On a machine whose other cores are busy the spinning thread and the one it waits for share
-# a core: every kernel call then costs ~5 ms of CPU whatever its size (measured: an empty prange over
-# two items, 2 threads, both cores busy: 5.4 ms per call, 0.003 ms with 'passive'), which made
-# the 1368 small exit-table calls of red-cotton's summation 8.5 s of its 20 s. Passive threads sleep
-# at the barrier; long runs are unaffected. libgomp reads the variable when numba first starts its
+# a core: every kernel call then costs milliseconds of CPU whatever its size, which dominates many
+# small calls (docs/notes/implementation.md, "The photon kernel"). Passive threads sleep at the
+# barrier; long runs are unaffected. libgomp reads the variable when numba first starts its
 # threads, after this import; a value the user set is kept.
 # https://gcc.gnu.org/onlinedocs/libgomp/OMP_005fWAIT_005fPOLICY.html
 os.environ.setdefault("OMP_WAIT_POLICY", "passive")
@@ -201,8 +164,15 @@ N_CONTROL = 3
 # (Fast-math 'nsz'/'reassoc' allow no rewrite that turns 0 * _LOG_ZERO into a NaN: it is finite.)
 _LOG_ZERO = -1e300
 
-#: collisions between updates of the spectral weights (and roulette decisions) when no vertex
-#: estimator reads them (module docstring, "deferred re-weighting")
+#: Collisions between updates of the spectral weights (and roulette decisions) when no vertex
+#: estimator reads them. The medium is homogeneous, so the free-path factors of ``n`` collisions
+#: and of the path ``L`` walked since the last update are one factor,
+#: ``(mu_s^l / mu_s^w)^n exp(-(mu_t^l - mu_t^w) L) = exp(n ln(mu_s^l / mu_s^w) - (mu_t^l - mu_t^w) L)``:
+#: the weights are brought up to date every :data:`REWEIGHT_EVERY` collisions, at every exit, and
+#: at every vertex when a vertex estimator reads them; the phase ratios are applied at each
+#: collision. Roulette is decided at the updates only -- a roulette rule may depend on anything
+#: in the history so far without biasing the estimate, so deciding it every few collisions changes
+#: the variance by a hair and nothing else, and saves the exponentials of every collision.
 REWEIGHT_EVERY = 8
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
@@ -670,9 +640,9 @@ def _make_runner(scoring: bool, profiled: bool = False):
 
     Why a global and not the closure of :func:`_make_kernel`: numba keys a cached closure on a
     pickle of its closure cells, and a dispatcher pickles with an id unique to the process, so
-    a driver closing over the batch dispatcher got a new cache key in every process -- it
-    recompiled each time (1.5 s plain, 3-4 s with tallies) and left one more data file in the
-    cache directory per run. The closure cells here are plain constants (``SCORING``,
+    a driver closing over the batch dispatcher would get a new cache key in every process and
+    recompile each time (seconds), leaving one more data file in the cache directory per run.
+    The closure cells here are plain constants (``SCORING``,
     ``STAMP``), whose pickles are the same in every process; ``SCORING`` selects the global at
     compile time (numba prunes the constant branch). ``tests/simulate/mc/test_kernel_cache.py``
     guards this: a second process must load every kernel from the cache and add no file.

@@ -4,19 +4,19 @@ The first time a process compiles or loads a cached numba function, numba import
 registries. One of them, ``numba.np.arraymath``, checks at import time that BLAS is there by
 importing ``scipy.linalg.cython_blas`` (``numba.np.linalg.ensure_blas``). Importing that submodule
 first runs ``scipy/linalg/__init__.py``, which pulls in most of ``scipy.linalg``, ``scipy._lib``
-and ``numpy.f2py``: about 0.13 s of CPU in every process that runs a kernel, for a check whose only
-use is to let numba compile ``np.dot`` and the like (measured with ``python -X importtime`` on
-``simulate slab``; README, speed).
+and ``numpy.f2py``: a noticeable share of a short run's start-up in every process that runs a
+kernel, for a check whose only use is to let numba compile ``np.dot`` and the like
+(docs/notes/implementation.md, "The photon kernel").
 
-:func:`preload_blas_check` loads the ``cython_blas`` extension module from its own file (2 ms,
-without the package ``__init__``), imports ``numba.np.arraymath`` so that numba's check runs
+:func:`preload_blas_check` loads the ``cython_blas`` extension module from its own file (without the
+package ``__init__``), imports ``numba.np.arraymath`` so that numba's check runs
 against it, and removes the module from ``sys.modules`` again. A later
 ``import scipy.linalg.cython_blas`` therefore goes through the normal import machinery (it runs
 ``scipy.linalg``'s ``__init__`` and gets the same module object back: an extension module is
 initialised once per process), and numba's BLAS calls look their functions up by module name as
 usual. Nothing is done when ``scipy.linalg`` is already imported, when numba's registries are
 already loaded, or when scipy is missing; if anything in the shortcut fails, numba imports
-``scipy.linalg`` itself, as before (``tests/simulate/mc/test_numba_start.py``).
+``scipy.linalg`` itself, as without the shortcut (``tests/simulate/mc/test_numba_start.py``).
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ _scratch = threading.local()
 def _buffers(jobs: int, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
     """The round buffers ``scal[jobs, N_SCALARS]``, ``bins[jobs, n_bins, 2]``, kept per thread and reused while the
     shape holds (the kernel zeroes a job's rows before it runs: no stale values). Fresh ~10^8-byte buffers at
-    every call cost their page faults: ~1 s of system time in the felt's walk (48 calls)."""
+    every call would cost their page faults in every call (docs/notes/implementation.md)."""
     got = getattr(_scratch, "buffers", None)
     if got is None or got[1].shape != (jobs, n_bins, 2):
         got = (np.zeros((jobs, T.N_SCALARS)), np.zeros((jobs, n_bins, 2)))
@@ -127,8 +127,8 @@ def _reduce_means(job_row, job_batch, n_batches, photons, scal_buf, bins_buf, sc
     """:func:`execute_rows`'s reduction into ``means`` (``[R, a, b, c, d, e]``, any strides): job ``i``'s scalars
     added to its run's, its bin sums added to the run's sums held in ``means`` (``0.0 +`` the first batch,
     as ``bins`` starts at zero), divided by ``photons`` after the run's last batch. Compiled, parallel over
-    the first bin axis (each value still sees its jobs in order) and without the GIL: the Python loop it
-    replaces held the GIL for ~2 s of the felt's walk."""
+    the first bin axis (each value still sees its jobs in order) and without the GIL, so other threads
+    run meanwhile."""
     R, A, B, C, D, E = means.shape
     for i in range(job_row.shape[0]):
         for s in range(scal.shape[1]):

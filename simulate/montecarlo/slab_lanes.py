@@ -4,8 +4,8 @@ The photon loop of :mod:`.kernel` is bound by latency: each step of a photon wai
 before (the direction update feeds the next free path, whose end point decides the branch), so a
 core runs one photon's chain at a time and leaves most of its execution units idle. Here a batch's
 photons are split between two independent *lanes*, and every turn of the loop advances each lane
-by one event; the two chains interleave, the core overlaps them. Measured on the van de Hulst
-slab, one thread: 0.48 s -> 0.39 s of CPU per 10^7 photons (README, speed).
+by one event; the two chains interleave, the core overlaps them (the gain, measured:
+docs/notes/implementation.md, "The photon kernel").
 
 The physics is that of the kernel's plain slab path, event for event (module docstring of
 :mod:`.kernel`): Snell/Fresnel entry, exponential free paths (ziggurat), implicit capture, the
@@ -16,8 +16,8 @@ What differs is which random numbers a photon gets: lane 0 of batch ``b`` draws 
 ``(seed, b)``, lane 1 from stream ``(seed, b + LANE_OFFSET)`` (:mod:`.rng`), each lane takes every
 photon it can until its share (``ceil(n/2)``, ``floor(n/2)``) is done, and the slab entry needs no
 draw (every photon enters at the origin). So a seed gives other photons than the scoring kernel
-would (statistically the same; identical for any thread count, as before), and the plain slab
-no longer spends a draw per photon on an entry point it does not use.
+would (statistically the same; identical for any thread count), and the plain slab spends no
+draw per photon on an entry point it does not use.
 
 Only the plain slab (no tallies, no vertex estimator, no spectral targets) runs here; every
 other run keeps :func:`.kernel.simulate_batch`.

@@ -38,17 +38,13 @@ for smooth integrands under a Gaussian weight); the same sum on every other node
 second estimate, and their relative difference is returned as ``quadrature_error``, an
 upper bound in practice of the error of the fine sum. Defaults: 257 nodes on ``[-8, 8]``
 (truncated mass 1e-15, wide enough for the ``r^6``-weighted Rayleigh regime up to
-``sigma_g = 1.5``). Measured estimates (host 1.557, 550 nm unless said): Rayleigh spheres in
-air, ``sigma_g = 1.5``: 1e-7; ``m_p = 1.6 - 0.01i``, median ``x = 9``, ``sigma_g = 1.5``: 6e-7;
-``m_p = 2.7``, ``x = 1.8``, ``sigma_g = 1.3``: 8e-6; ``m_p = 2.7 - 0.05i``, ``x = 18``: 6e-4.
-Non-absorbing resonant spheres converge slowly (``m_p = 2.7``, ``x = 2.7``, ``sigma_g = 1.6``:
-9e-3; ``x = 18``, ``sigma_g = 1.3``: estimate 1e-2, actual error of the fine sum 3e-3 in
-``sigma_sca`` and ``g`` against 1281 nodes) - raise ``n_nodes`` there.
+``sigma_g = 1.5``). Non-absorbing resonant spheres converge slowly: raise ``n_nodes`` there
+(the estimates per regime: docs/notes/implementation.md, "Mie").
 
 The JIT backend of miepython is switched on (``MIEPYTHON_USE_JIT=1``, unless already set)
-before it is imported: 37-130x faster, identical to 3e-13. miepython is imported on first use,
-not with this module: its JIT backend compiles one kernel at every import (``_cn_dn_nb`` has no
-``cache=True``; 1-2 s), which a run whose tables come from the cache never needs.
+before it is imported (much faster, the same values to rounding). miepython is imported on first
+use, not with this module: its JIT backend compiles one kernel at every import (``_cn_dn_nb`` has
+no ``cache=True``), which a run whose tables come from the cache never needs.
 
 References
 ----------
@@ -56,9 +52,6 @@ Bohren, C. F. & Huffman, D. R. (1983). *Absorption and Scattering of Light by Sm
 ch. 4 and App. A. Wiley.
 Wiscombe, W. J. (1980). Improved Mie scattering algorithms. *Applied Optics* 19, 1505-1509.
 Prahl, S. miepython 3.3, https://miepython.readthedocs.io
-
-Over 500 lines for a reason: one physical concept (Mie spheres and their size distributions),
-mostly docstrings with the validation references.
 """
 
 from __future__ import annotations
@@ -82,8 +75,7 @@ def _miepython():
 
     miepython's ``mie_jit`` compiles ``_cn_dn_nb`` eagerly (it has a signature) and without
     ``cache=True`` -- the only one of its kernels without it -- so every process that imports it
-    spent 1.5-2 s compiling a function this package never calls (measured: import 2.25 s, 0.55-0.70 s
-    with the kernel loaded from numba's cache). During the import, ``numba.njit`` is
+    would spend seconds compiling a function this package never calls. During the import, ``numba.njit`` is
     wrapped to default ``cache=True`` for miepython's own modules only (numba's cache is keyed by the
     function's source and signature, so this is the same compiled code; numba puts it beside
     miepython, or in ``NUMBA_CACHE_DIR`` / the user cache when that is read-only). Numba's caching
@@ -554,7 +546,7 @@ def _ensemble(
 
 #: results of :func:`cross_sections` and :func:`ensemble_phase_function` by their exact inputs, in
 #: this process: a run asks for the same wavelengths more than once (``simulate fabric``'s cost
-#: estimate, then the run's medium: red cotton's 33 phase functions were 2 s each time). Cleared
+#: estimate, then the run's medium: seconds each time for a log-normal distribution). Cleared
 #: when it reaches :data:`_MEMO_MAX` entries. Results are immutable (the arrays are copied out).
 _MEMO: dict[tuple, Any] = {}
 _MEMO_MAX = 4096

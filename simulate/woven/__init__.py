@@ -27,48 +27,8 @@ averaged over the ray's spectral weight) and enters otherwise, and is re-weighte
 ``a_s / p`` or ``e(lambda) / (1 - p)``: the expected response is ``R_surf + R_vol`` as in the
 fiber model, i.e. the same (slightly non-conservative, see docs) split of energy.
 
-Mapping the fiber table onto a yarn (the decisions, docs/physics.md section 6)
------------------------------------------------------------------------------
-* The table is the fiber's (radius ``R``); the yarn uses it as a similar cylinder: angular
-  offsets are kept (``d_psi`` rotates the exit point about the yarn's axis through the same
-  angle, as the cross-section's parametric angle), axial offsets ``v`` are scaled by
-  ``r_yarn / R`` with ``r_yarn = sqrt(a b)`` (the cross-section's semi-axes).
-* Local incidence ``(w_t, a)`` (``w_t = w_in . t``, ``a`` its azimuth about ``t`` from the
-  normal) selects the table row by *stochastic* linear interpolation between the nodes of the
-  ``w_t`` grid and the cell-multiple azimuths (unbiased for the linear interpolant). Mirror
-  symmetries halve the table: ``w_t -> -w_t`` flips ``v`` and the exit direction's ``t``
-  component, ``a -> -a`` flips the cell offset and the ``b`` component.
-* Interpenetrating yarns: a ray that starts inside another yarn hits that yarn's surface from
-  inside first (a back face); it is moved to that point and processed as entering it (the
-  light is in its volume already: no surface reflection), its incidence mirrored about the
-  tangent plane.
-
-Estimators
-----------
-*Next-event* (the camera of the virtual measurement): at every event the light that would leave
-straight towards each detector direction ``w_o`` of the plan is scored, if a shadow ray towards
-``w_o`` escapes (periodic wrap included). With rays of power ``E cos(theta_i) A / N`` on the
-micro-element of area ``A``::
-
-    f(w_in, w_o) = 1 / (N cos theta_o) sum_rays sum_events c(w_o),        beta = pi f
-
-where ``c`` is the radiant intensity per unit incident power of the event: ``f_CT cos_o'`` for
-the surface, ``T_bin / (c_bar p_cell) cos_o' / Omega_proj,bin`` for a sampled volume exit
-(``'`` = local frame). *Direction bins*: escaping rays binned in ``(cos theta, phi)``:
-``f_bin = sum w / (N Omega_proj,bin)``. The energy budget (reflected, transmitted, the rest
-absorbed) is tallied per wavelength.
-
-Accuracy control: rays are traced in chunks of fixed size with fixed seeds; after every round
-of chunks the RMS over detectors and wavelengths of the standard error relative to each
-detector's spectral peak (as :func:`simulate.fiber.volume_brdf`) is compared with the target;
-the run stops at the target, or at the ray or time budget, and says which. :func:`trace`'s
-standard error is that of the ray tracing *given* the BSSRDF table; :func:`fabric_beta` (the
-plan-level entry of ``simulate fabric --method mc``) builds the table as two independent halves
-(``table_photons`` per row in all, scaling with the target) and adds the table's own noise,
-estimated from the difference of the two halves' traces, to ``u_beta``. A felt (a random
-realisation of its fibers) is traced at :data:`FELT_ROTATIONS` azimuths per incidence, each half on
-its own realisation: the difference of the halves then holds the spread between realisations too
-(:mod:`.estimate`).
+The decisions of mapping the fiber table onto a yarn are in :mod:`.yarn`; the estimators and
+the accuracy control in :mod:`.integrator`.
 
 Modules: :mod:`.scene` (the periodic Embree scene: ray queries), :mod:`.yarn` (the yarn
 table), :mod:`.materials`, :mod:`.shading` (compiled: a ray at a yarn hit),

@@ -1,4 +1,4 @@
-"""The woven fabric at a plan's geometries: the entry of ``simulate fabric --method mc`` (package docstring).
+"""The woven fabric at a plan's geometries: the entry of ``simulate fabric --method mc``.
 
 Two independent halves of the yarn table, one trace per incidence with each, the table's own
 noise from their difference added to ``u_beta``; the target's error shared between the table
@@ -8,29 +8,22 @@ A felt
 ------
 A felt's mesh (:mod:`simulate.nonwoven.felt`) is ONE random realisation of its fibers in a cell of
 about 20 fibers across, and what is wanted is the felt's BRDF, the expectation over realisations (as
-a measurement's spot averages thousands of fibers). Traced as a weave (one mesh, one azimuth), four
-felts at fixed tables differed by 2.1 % of each direction's peak (RMS) where the runs reported 1.0 %
-(green-felt, target 1.2 %, 56 geometries, 3 wavelengths), and a small felt's variance
-between seeds was 12 times the mean ``u_beta^2`` (``tests/simulate/woven/test_felt.py``). Two
+a measurement's spot averages thousands of fibers). Traced as a weave (one mesh, one azimuth), one
+realisation's run would report a standard error well below the spread between realisations. Two
 changes, both free in expectation:
 
 - the felt is in-plane isotropic, so each incidence and its detectors are turned about the normal
   to :data:`FELT_ROTATIONS` azimuths (``2 pi (j + h / 2) / K`` for half ``h``) and the traces
-  averaged: the top fibers' few orientations are seen at ``K`` angles (spread 2.1 % -> 1.7 %).
+  averaged: the top fibers' few orientations are seen at ``K`` angles.
   The ``K`` rotations are traced as one wavefront (:func:`simulate.woven.integrator.trace_rotations`:
   ``K`` times smaller chunks of each, every bounce one Embree query for all of them), stopped when
   their mean reaches the ray target; the scene is built once per mesh;
 - each table half is traced on its OWN realisation (``mesh`` a pair; ``simulate fabric`` builds the
   felt at the run's seed and at seed + 1 000 003), so the halves' difference, which gives the
-  table's term of ``u_beta``, holds the spread between realisations as well: the four felts'
-  spread (1.8 %) is then what their runs report (1.7 %), and the small felt's variance ratio
-  1.6 (4 seeds, test: 0.3-3.5).
+  table's term of ``u_beta``, holds the spread between realisations as well
+  (``tests/simulate/woven/test_felt.py``).
 
-Cost: the second realisation (1.3 s); the rotations' smaller chunks, traced one after the other,
-cost green-felt at 3 % 13.5 s of CPU instead of 11.0 s, which tracing them as one wavefront takes
-back (green-felt-mc at 3 %: 0.60 -> 0.44 ms of CPU per ray; 0.23 with the shadow rays played by Russian
-roulette, :mod:`simulate.woven.integrator`; 0.13 with its per-bounce work compiled; 0.11 with the roulette played on
-bounds before the spectral contributions are formed; docs/notes/felt-structure.md 2).
+What these choices cost and gain, measured: docs/notes/implementation.md, "The ray tracer's felt".
 """
 
 from __future__ import annotations
@@ -60,24 +53,20 @@ log = logging.getLogger(__name__)
 
 
 TABLE_NOISE = 1.2
-"""The table's relative noise times ``sqrt(photons per row)`` (both halves together): measured
-0.0059 at 40 000 photons per row on red-cotton (``table_rel_err`` of a run), 0.016 at 5 000 on
-the bench's weave. A fabric whose table is noisier shows it in ``table_rel_err`` and ``rel_err``."""
+"""The table's relative noise times ``sqrt(photons per row)`` (both halves together), measured
+on red cotton and on the bench's weave (docs/notes/implementation.md). A fabric whose table is noisier shows it in ``table_rel_err`` and ``rel_err``."""
 TABLE_SHARE = 0.7
 """The share of the target's error the table is given; the ray tracing gets ``sqrt(1 - 0.7^2) = 0.71``."""
 TABLE_MIN_PHOTONS = 10_000
 """The fewest photons per row of the fiber's table (:func:`table_photons`)."""
 PILE_TABLE = {"noise": 0.6, "share": 0.8, "min_photons": 4_000}
 """:func:`table_photons` for the pile's table (:mod:`simulate.woven.pile`, scattering held per group): the
-photons its rows need for the FABRIC's target, not more. Measured on red cotton at 1 %
-(29 387 photons per row, the two halves together): ``table_rel_err`` 0.30-0.34 % over the 4 incidences,
-i.e. noise 0.51-0.58 (0.6 kept, leaning conservative), while the rays reached 0.40 % at their first
-round (16 384 rays, 0.35 s an incidence) against 35 s for the table: a table photon costs ~100x a
-ray's share of the error, so the table takes 0.9 of the target (the rays ``sqrt(1 - 0.81) = 0.44``,
-met by their first round). The floor 4 000 (not the fiber's 10 000): the pile's rows are ~65 scattering
-radii thick, each photon has hundreds of events and fills its row's cells densely, and the table's
-noise at any count is measured (``table_rel_err``, the halves' difference) and reported, not assumed.
-The table's expected values do not depend on its photons (the same walk, fewer of them)."""
+photons its rows need for the FABRIC's target, not more: its measured noise (0.6, leaning
+conservative), the larger share of the target for the table (a table photon costs far more than a
+ray's share of the error) and a lower floor (the pile's rows are many scattering radii thick, each
+photon fills its row's cells densely); the table's noise at any count is measured (``table_rel_err``,
+the halves' difference) and reported, not assumed. The measurements: docs/notes/implementation.md,
+"The ray tracer's tables". The table's expected values do not depend on its photons."""
 
 
 def table_photons(target_rel_err: float, noise: float = TABLE_NOISE, share: float = TABLE_SHARE,
@@ -85,17 +74,14 @@ def table_photons(target_rel_err: float, noise: float = TABLE_NOISE, share: floa
     """Photons per BSSRDF row for a run at ``target_rel_err``: ``(noise / (share T))^2`` within [min_photons, 4e5].
 
     The pile's table (:mod:`simulate.woven.pile`, scattering held per wavelength group) takes
-    :data:`PILE_TABLE`: its own measured noise (0.51-0.79 where the fiber's is 1.2), share and floor;
-    it used to take the fiber's, which spent 29 387 photons per row at 1 % for a 0.54 % result.
+    :data:`PILE_TABLE`: its own measured noise, share and floor.
 
     The table's noise is a fixed pattern shared by every ray of the run; it is not hidden:
     :func:`fabric_beta` builds the table as two independent halves and puts their difference
     into ``u_beta``. The errors add in quadrature, ``rel^2 = t^2 + r^2``, and a table photon
-    costs far more than a ray's share of the error (red-cotton at 1 %: table 36 s for
-    ``t = 0.59 %``, rays 2.8 s for ``r = 0.66 %``), so the table gets the larger share
-    (:data:`TABLE_SHARE`; the cost optimum ``t^2 / r^2 = sqrt(cost_t / cost_r)`` is near 0.87 / 0.49):
-    at 1 % this is 22 500 photons per row instead of the earlier 40 000 (``4 / T^2``, which kept
-    the table near 0.6 % and let the rays stop at 1 %, so the sum could exceed the target).
+    costs far more than a ray's share of the error, so the table gets the larger share
+    (:data:`TABLE_SHARE`, near the cost optimum ``t^2 / r^2 = sqrt(cost_t / cost_r)``); the sum of
+    the two then meets the target.
     """
     t = check_target(target_rel_err) * float(share)
     return int(min(max((float(noise) / t) ** 2, int(min_photons)), 400_000))

@@ -1,4 +1,4 @@
-"""The integrator of the woven-fabric tracer: wavefronts of rays through the micro-element (package docstring).
+"""The integrator of the woven-fabric tracer: wavefronts of rays through the micro-element.
 
 :func:`trace` follows a beam from one incidence through the tiled micro-element
 (:mod:`simulate.woven.scene`), shading every hit (:mod:`simulate.woven.shading`), scoring
@@ -32,6 +32,31 @@ products are formed for the candidates traced and visible alone. The roulette st
 ``c`` fixed before the draw will do); a candidate is played a little more often (the bound is at
 least its size), and the estimator is not the one of the sizes
 (``tests/simulate/woven/test_shadow_bound.py`` checks the two against each other).
+
+Estimators
+----------
+*Next-event* (the camera of the virtual measurement): at every event the light that would leave
+straight towards each detector direction ``w_o`` of the plan is scored, if a shadow ray towards
+``w_o`` escapes (periodic wrap included). With rays of power ``E cos(theta_i) A / N`` on the
+micro-element of area ``A``::
+
+    f(w_in, w_o) = 1 / (N cos theta_o) sum_rays sum_events c(w_o),        beta = pi f
+
+where ``c`` is the radiant intensity per unit incident power of the event: ``f_CT cos_o'`` for
+the surface, ``T_bin / (c_bar p_cell) cos_o' / Omega_proj,bin`` for a sampled volume exit
+(``'`` = local frame). *Direction bins*: escaping rays binned in ``(cos theta, phi)``:
+``f_bin = sum w / (N Omega_proj,bin)``. The energy budget (reflected, transmitted, the rest
+absorbed) is tallied per wavelength.
+
+Accuracy control: rays are traced in chunks of fixed size with fixed seeds; the run stops at the
+target, or at the ray or time budget, and says which. :func:`trace`'s
+standard error is that of the ray tracing *given* the BSSRDF table; :func:`fabric_beta` (the
+plan-level entry of ``simulate fabric --method mc``) builds the table as two independent halves
+(``table_photons`` per row in all, scaling with the target) and adds the table's own noise,
+estimated from the difference of the two halves' traces, to ``u_beta``. A felt (a random
+realisation of its fibers) is traced at :data:`FELT_ROTATIONS` azimuths per incidence, each half on
+its own realisation: the difference of the halves then holds the spread between realisations too
+(:mod:`.estimate`).
 """
 
 from __future__ import annotations
@@ -692,8 +717,8 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
         Shading normals: the mesh's interpolated vertex normals (with the adjoint shading-normal
         rule of :mod:`simulate.woven.shading`), or the triangles' own normals (a faceted tube).
     setups : dict, optional
-        Kept across calls by the caller: the scene and the material arrays (0.16 s for a felt of 2e5
-        triangles) are built once per mesh and material and reused (a felt traced at several rotations).
+        Kept across calls by the caller: the scene and the material arrays (a noticeable cost for a felt's
+        hundreds of thousands of triangles) are built once per mesh and material and reused (a felt traced at several rotations).
     max_events : int
         Scattering events followed per ray (0: all, up to the tracer's limit of 200). ``1`` scores the
         single scattering only: the next-event estimates of each ray's first hit, shadow rays included

@@ -1,6 +1,6 @@
-"""Compiled shading of the woven-fabric tracer: what a ray does at a yarn hit (package docstring).
+"""Compiled shading of the woven-fabric tracer: what a ray does at a yarn hit.
 
-Over 500 lines for a reason: one numba kernel (:func:`shade`) and the small compiled helpers it
+One module for one numba kernel (:func:`shade`) and the small compiled helpers it
 inlines, which numba caches together; split across modules they would cache and invalidate apart.
 
 :func:`shade` scatters every hit ray of a wavefront once and prepares its next-event

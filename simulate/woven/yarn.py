@@ -1,4 +1,4 @@
-"""The fiber's BSSRDF as a yarn table: the exits the woven-fabric tracer samples (package docstring).
+"""The fiber's BSSRDF as a yarn table: the exits the woven-fabric tracer samples.
 
 Built with the fiber's public Monte Carlo (:mod:`simulate.fiber.bssrdf`, :mod:`simulate.fiber.spectral`):
 white walks per wavelength group, rows for a grid of axial incidences, ``v`` offsets kept.
@@ -10,6 +10,22 @@ source of the kernel and of the modules that build the table (:data:`TABLE_MODUL
 threads are not in the key: the rows do not depend on them (batches of fixed seeds). A hit is
 bit-identical to the miss that stored it; :func:`table_halves` builds the medium's optics
 (Mie: the expensive part outside the kernel) once for both halves and only when one misses.
+
+The fiber table on a yarn (the decisions, docs/physics.md section 6)
+--------------------------------------------------------------------
+* The table is the fiber's (radius ``R``); the yarn uses it as a similar cylinder: angular
+  offsets are kept (``d_psi`` rotates the exit point about the yarn's axis through the same
+  angle, as the cross-section's parametric angle), axial offsets ``v`` are scaled by
+  ``r_yarn / R`` with ``r_yarn = sqrt(a b)`` (the cross-section's semi-axes).
+* Local incidence ``(w_t, a)`` (``w_t = w_in . t``, ``a`` its azimuth about ``t`` from the
+  normal) selects the table row by *stochastic* linear interpolation between the nodes of the
+  ``w_t`` grid and the cell-multiple azimuths (unbiased for the linear interpolant). Mirror
+  symmetries halve the table: ``w_t -> -w_t`` flips ``v`` and the exit direction's ``t``
+  component, ``a -> -a`` flips the cell offset and the ``b`` component.
+* Interpenetrating yarns: a ray that starts inside another yarn hits that yarn's surface from
+  inside first (a back face); it is moved to that point and processed as entering it (the
+  light is in its volume already: no surface reflection), its incidence mirrored about the
+  tangent plane.
 """
 
 from __future__ import annotations
@@ -206,8 +222,8 @@ def _tables(fiber: Any, wavelengths_nm: Any, seeds: list[int], threads: int | No
 
 def _walk_optics(fiber: Any, wl: np.ndarray, held_log_mu_s: float) -> SpectralOptics:
     """The optics a table walks with: every phase function, or for a held-scattering table only those of
-    the groups' middle wavelengths (the walks'; the others are never read: red cotton's pile, 7 of 33
-    Mie phase functions, 1.8 s less). The groups depend on ``mu_s`` and ``g`` only."""
+    the groups' middle wavelengths (the walks'; the others are never read: red cotton's pile needs 7 of
+    its 33 Mie phase functions). The groups depend on ``mu_s`` and ``g`` only."""
     if held_log_mu_s <= 0.0:
         return spectral_optics(fiber, wl)
     coefficients = spectral_optics(fiber, wl, phase_at=())

@@ -199,7 +199,7 @@ def test_anisotropic_file_in_mitsuba(tmp_path):
 
 def test_measured_route_against_a_known_truth(tmp_path):
     """The RGL felt is a full-hemisphere truth: its in-plane values at the red-cotton plan
-    (`gonio import rgl-bsdf --geometry red-cotton`: 4 incidences, 10 deg steps) exported with
+    (`gonio import rgl-bsdf --plan red-cotton`: 4 incidences, 10 deg steps) exported with
     `gonio export` give back the felt in plane (incidence 0..60, every 1 deg of observation:
     measured RMS 5.3 %, median 2.4 %) and, out of plane, what the stated blend rule gives
     (median 16 %, RMS 49 % at random pairs within 60 deg): flagged in the file, bounded here."""

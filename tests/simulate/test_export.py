@@ -55,7 +55,7 @@ def _rel(got, ref):
 
 
 def test_round_trip_through_gonio_import(classic, tmp_path):
-    """export -> `gonio import rgl-bsdf --geometry red-cotton` -> the model's values at the plan's
+    """export -> `gonio import rgl-bsdf --plan red-cotton` -> the model's values at the plan's
     geometries (incidence 0/30/45/60, observation -60..70 deg), within the stated error."""
     out = tmp_path / "imported"
     assert gonio_main(["import", "rgl-bsdf", str(classic["spectral"]), "--plan", "red-cotton",

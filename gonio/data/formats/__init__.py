@@ -26,7 +26,7 @@ and residual of a comparison. The dropped incidences are listed in the provenanc
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 import pandas as pd
 
@@ -43,8 +43,10 @@ def import_files(fmt: str, paths: Sequence[str | os.PathLike],
                  geometries: pd.DataFrame | None = None, *, scale: float | None = None,
                  white: str | os.PathLike | None = None, white_reflectance: float = 0.99,
                  keep_grazing: bool = False):
-    """Read ``paths`` of format ``fmt`` into one dataset (at ``geometries`` where applicable);
-    rows at ``theta_i >= GRAZING_DEG`` dropped unless ``keep_grazing`` (module docstring)."""
+    """Read ``paths`` of format ``fmt`` into one dataset (at ``geometries`` where applicable).
+
+    Rows at ``theta_i >= GRAZING_DEG`` are dropped unless ``keep_grazing`` (module docstring).
+    """
     dataset = _import(fmt, paths, geometries, scale=scale, white=white,
                       white_reflectance=white_reflectance)
     return dataset if keep_grazing else _drop_grazing(dataset, paths)
@@ -93,8 +95,8 @@ def _import(fmt: str, paths: Sequence[str | os.PathLike], geometries: pd.DataFra
         from gonio.data.formats.pgii import pgii_dataset, read_pgii
 
         if geometries is not None:
-            raise FormatError("pgII files are measured at their own geometries; --geometry "
-                              "does not apply", hint="leave out --geometry")
+            raise FormatError("pgII files are measured at their own geometries; --plan "
+                              "does not apply", hint="leave out --plan")
         return pgii_dataset([read_pgii(p) for p in paths], scale=scale,
                             white=read_pgii(white) if white is not None else None,
                             white_reflectance=white_reflectance)

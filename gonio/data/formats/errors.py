@@ -79,11 +79,12 @@ class RegularFile:
         return self.read(0, self.size)
 
     def close(self) -> None:
+        """Close the file descriptor (once; later calls do nothing)."""
         if self.fd >= 0:
             os.close(self.fd)
             self.fd = -1
 
-    def __enter__(self) -> "RegularFile":
+    def __enter__(self) -> RegularFile:
         return self
 
     def __exit__(self, *exc) -> None:

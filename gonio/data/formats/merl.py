@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import os
 import struct
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -77,9 +77,11 @@ class MerlBRDF:
         return np.where(values < 0, np.nan, values)
 
     def to_dataset(self, geometries: pd.DataFrame | None = None):
-        """Dataset (RGB, linear sRGB as the database's) at ``geometries`` (default: in-plane
-        curves at theta_i = 0, 15, ..., 75 deg, s = -80..80 deg every 2 deg); bins without data
-        are left out."""
+        """Dataset (RGB, linear sRGB as the database's) at ``geometries``; bins without data left out.
+
+        The default geometries are in-plane curves at theta_i = 0, 15, ..., 75 deg, s = -80..80
+        deg every 2 deg.
+        """
         from gonio.data.dataset import make_dataset, new_meta
         from gonio.data.geometry import direction, in_plane_geometry
 

@@ -48,8 +48,8 @@ import logging
 import math
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -90,6 +90,7 @@ class PgiiFile:
 
 
 def read_pgii(path: str | os.PathLike) -> PgiiFile:
+    """Read and parse one pgII text file (one incidence); :class:`FormatError` naming the file."""
     path = Path(path)
     data = read_file_bytes(path, MAX_BYTES, "pgII text (one incidence)")
     try:
@@ -112,7 +113,7 @@ def _number(token: str, what: str, path: str, line: int) -> float:
     return value
 
 
-def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
+def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:  # noqa: C901
     """Parse the text of a pgII file; raise :class:`FormatError` naming the line."""
     header: dict[str, str] = {}
     sample, theta_i, phi_i, unit, wavelengths = "", None, 0.0, None, None
@@ -188,7 +189,7 @@ def parse_pgii(text: str, path: str = "<pgII>") -> PgiiFile:
     # one observation direction per line: a repeat (also theta > 90 mirrored onto a direction
     # already given, or the normal at two azimuths) is named by its two lines
     seen: dict[tuple[float, float], int] = {}
-    for k, (t, ph) in enumerate(zip(theta_o, phi_o)):
+    for k, (t, ph) in enumerate(zip(theta_o, phi_o, strict=True)):
         key = (round(float(t), 6), 0.0 if round(float(t), 6) == 0.0 else round(float(ph), 6) % 360.0)
         if key in seen:
             raise FormatError(f"observation direction theta {key[0]:g}, phi {key[1]:g} deg given twice "

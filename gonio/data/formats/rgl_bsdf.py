@@ -1,4 +1,4 @@
-"""RGL ``.bsdf`` files (EPFL material database; Dupuy & Jakob 2018): reading and evaluation.
+r"""RGL ``.bsdf`` files (EPFL material database; Dupuy & Jakob 2018): reading and evaluation.
 
 A file stores a BRDF in the *adaptive parameterisation* of Dupuy & Jakob: for each incidence
 ``(phi_i, theta_i)`` a 2D table over the unit square ``u = (u_theta, u_phi)`` of the half vector
@@ -8,10 +8,10 @@ isotropic materials), warped by the visible normal distribution (``vndf``); the 
 
 .. math::
 
-    m = \\frac{w_i + w_o}{|w_i + w_o|}, \\quad
-    s = \\mathrm{VNDF}^{-1}(u(m) \\mid \\phi_i, \\theta_i), \\quad
-    f_r \\cos\\theta_o = S(s \\mid \\phi_i, \\theta_i, \\lambda)\\,
-        \\frac{D(u(m))}{4\\,\\sigma(u(w_i))}
+    m = \frac{w_i + w_o}{|w_i + w_o|}, \quad
+    s = \mathrm{VNDF}^{-1}(u(m) \mid \phi_i, \theta_i), \quad
+    f_r \cos\theta_o = S(s \mid \phi_i, \theta_i, \lambda)\,
+        \frac{D(u(m))}{4\,\sigma(u(w_i))}
 
 where ``VNDF^{-1}`` is the inverse of the continuous marginal/conditional sample warp of a
 bilinearly interpolated table (the incidence parameters interpolated linearly), ``D`` the NDF
@@ -34,8 +34,9 @@ RGL material database, https://rgl.epfl.ch/materials (CC0).
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -84,7 +85,7 @@ class _Marginal2D:
     def _weights(self, param: Sequence[np.ndarray]):
         """Per parameter: (index of the lower node, weight of the upper node)."""
         out = []
-        for values, p in zip(self.params, param):
+        for values, p in zip(self.params, param, strict=True):
             if values.size == 1:
                 out.append((np.zeros(np.shape(p), dtype=np.intp), np.zeros(np.shape(p))))
                 continue
@@ -214,6 +215,7 @@ class RGLBSDF:
 
     @property
     def channels(self) -> tuple[str, ...]:
+        """``("R", "G", "B")`` for an RGB file, ``()`` for a spectral one."""
         return () if self.is_spectral else ("R", "G", "B")
 
     def eval_cos(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -319,7 +321,7 @@ class RGLBSDF:
         if len(geo) * self._n_bands > MAX_ROWS:
             raise FormatError(f"{len(geo)} geometries x {self._n_bands} bands is "
                               f"{len(geo) * self._n_bands} rows, more than {MAX_ROWS}",
-                              file=self.path, hint="evaluate at fewer geometries (--geometry)")
+                              file=self.path, hint="evaluate at fewer geometries (--plan)")
         beta = self.beta(*(geo[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_o",
                                                                    "phi_o")))
         rows = []
@@ -350,8 +352,11 @@ class RGLBSDF:
 
 
 def incidence_meta(file_incidence_deg, dataset_incidence_deg, source: str) -> dict:
-    """``incidences`` of a dataset made from a file (an RGL ``.bsdf``): the file's measured incidences, and
-    which of the dataset's are the file's interpolation between them (not within 0.01 deg of a measured one)."""
+    """``incidences`` of a dataset made from a file (an RGL ``.bsdf``).
+
+    The file's measured incidences, and which of the dataset's are the file's interpolation between
+    them (not within 0.01 deg of a measured one).
+    """
     measured = sorted({round(float(t), 4) for t in file_incidence_deg})
     used = sorted({round(float(t), 4) for t in dataset_incidence_deg})
     interpolated = [t for t in used if min(abs(t - m) for m in measured) > 0.01]
@@ -387,7 +392,7 @@ def _check_header(headers: dict[str, TensorHeader], path: str) -> None:
                               hint="not an RGL .bsdf file (they hold about ten), or corrupt")
 
 
-def _check_structure(fields: dict[str, np.ndarray], path: str) -> None:
+def _check_structure(fields: dict[str, np.ndarray], path: str) -> None:  # noqa: C901
     """The shape and type checks of Mitsuba's ``measured`` plugin, with a message for each."""
     def fail(problem: str) -> None:
         raise FormatError(problem, file=path, hint="not a valid RGL .bsdf file (Dupuy & Jakob "

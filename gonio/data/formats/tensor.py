@@ -1,6 +1,6 @@
-"""Reader of Mitsuba's ``tensor_file`` container (the RGL ``.bsdf`` files are such files).
+r"""Reader of Mitsuba's ``tensor_file`` container (the RGL ``.bsdf`` files are such files).
 
-Layout (little-endian): the 12 bytes ``tensor_file\\0``, version ``1, 0`` (two bytes), the field
+Layout (little-endian): the 12 bytes ``tensor_file\0``, version ``1, 0`` (two bytes), the field
 count (uint32), then per field: name length (uint16) and name (UTF-8), number of dimensions
 (uint16), dtype (uint8: 1 uint8 ... 10 float32, 11 float64), data offset (uint64), shape
 (ndim x uint64); the data follow at their offsets.
@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 import os
 import struct
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
@@ -47,6 +48,7 @@ class TensorHeader(NamedTuple):
 
     @property
     def nbytes(self) -> int:
+        """The field's size in bytes."""
         return math.prod(self.shape) * self.dtype.itemsize
 
 
@@ -89,7 +91,7 @@ def _read_fields(read: Callable[[int, int], bytes], headers: list[TensorHeader])
     return fields
 
 
-def _parse_headers(read: Callable[[int, int], bytes], size: int,
+def _parse_headers(read: Callable[[int, int], bytes], size: int,  # noqa: C901
                    path: str | os.PathLike) -> list[TensorHeader]:
     pos = 0
 

@@ -104,15 +104,15 @@ def test_check_lists_blocked_and_out_of_limit_points(tmp_path):
 
 
 def test_check_plan_cli_exit_status(tmp_path, capsys):
-    assert main(["check-plan", "quick"]) == 0
-    assert main(["check-plan", "red-cotton"]) == 0          # blocked points expected (skip_blocked)
+    assert main(["check-plan", "--plan", "quick"]) == 0
+    assert main(["check-plan", "--plan", "red-cotton"]) == 0          # blocked points expected (skip_blocked)
     out = capsys.readouterr().out
     assert "beam-block zone (expected, skipped): 3 geometries" in out
-    assert main(["check-plan", str(_refusing_plan(tmp_path))]) == 1
+    assert main(["check-plan", "--plan", str(_refusing_plan(tmp_path))]) == 1
     out = capsys.readouterr().out
     assert "REFUSED" in out and "theta_i=30 phi_i=0 theta_o=28 phi_o=0" in out
     assert "source_zenith at 88 deg outside the soft limits 0..85 deg" in out
-    assert main(["check-plan", str(tmp_path / "missing.toml")]) == 2
+    assert main(["check-plan", "--plan", str(tmp_path / "missing.toml")]) == 2
 
 
 def test_order_is_serpentine_and_estimate_grows_with_work():

@@ -28,7 +28,7 @@ def _meta_without_versions(path: Path) -> dict:
 @pytest.mark.parametrize("name,plan", CASES, ids=[c[0] for c in CASES])
 def test_replay_reproduces_the_fixture_dataset(tmp_path, name, plan, capsys):
     out = tmp_path / "replay"
-    assert main(["replay", str(FIXTURES / f"{name}.jsonl"), plan, "--out", str(out)]) == 0
+    assert main(["replay", str(FIXTURES / f"{name}.jsonl"), "--plan", plan, "--out", str(out)]) == 0
     assert (out / "radiance.csv").read_bytes() == (FIXTURES / name / "radiance.csv").read_bytes()
     assert _meta_without_versions(out / "meta.json") == _meta_without_versions(FIXTURES / name / "meta.json")
     recorded = json.loads((FIXTURES / name / "meta.json").read_text())
@@ -62,7 +62,7 @@ def test_a_different_request_fails_loudly_naming_the_index(tmp_path, capsys):
     src[k] = src[k].replace("WAVE 500.0", "WAVE 501.0")
     bad = tmp_path / "edited.jsonl"
     bad.write_text(reseal("\n".join(src) + "\n"))      # a valid chain: the replay must notice
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     index = sum(1 for ln in src[1:k] if '"dir":"tx"' in ln)
     assert f"request {index} (transcript line {k + 1}) differs" in err
@@ -71,7 +71,7 @@ def test_a_different_request_fails_loudly_naming_the_index(tmp_path, capsys):
 
 def test_replay_with_another_plan_fails(tmp_path, capsys):
     assert main(["replay", str(FIXTURES / "quick-lambert.jsonl"),
-                 str(FIXTURES / "red-cotton-small.toml"), "--out", str(tmp_path / "r")]) == 2
+                 "--plan", str(FIXTURES / "red-cotton-small.toml"), "--out", str(tmp_path / "r")]) == 2
     assert "was recorded with plan 'quick'" in capsys.readouterr().err
 
 
@@ -79,7 +79,7 @@ def test_truncated_transcript_fails(tmp_path, capsys):
     src = (FIXTURES / "quick-lambert.jsonl").read_text().splitlines()
     short = tmp_path / "short.jsonl"
     short.write_text("\n".join(src[:200]) + "\n")
-    assert main(["replay", str(short), "quick", "--out", str(tmp_path / "r")]) == 1
+    assert main(["replay", str(short), "--plan", "quick", "--out", str(tmp_path / "r")]) == 1
     assert "the transcript ends" in capsys.readouterr().err
 
 
@@ -96,7 +96,7 @@ def test_record_then_replay_round_trip(drv, tmp_path):
     assert kinds == {("serial", "tx"), ("serial", "rx"), ("modbus", "tx"), ("modbus", "rx")}
     assert all(m["t"] >= 0 for m in t.messages)
     assert any(m["payload"] == {"exception": 6} for m in t.messages)
-    assert main(["replay", str(tmp_path / "t.jsonl"), str(plan), "--out", str(tmp_path / "rp")]) == 0
+    assert main(["replay", str(tmp_path / "t.jsonl"), "--plan", str(plan), "--out", str(tmp_path / "rp")]) == 0
     assert (tmp_path / "rp" / "radiance.csv").read_bytes() == (tmp_path / "run" / "radiance.csv").read_bytes()
     assert (tmp_path / "rp" / "meta.json").read_bytes() == (tmp_path / "run" / "meta.json").read_bytes()
 
@@ -104,7 +104,7 @@ def test_record_then_replay_round_trip(drv, tmp_path):
 def test_bad_transcript_is_a_usage_error(tmp_path, capsys):
     p = tmp_path / "x.jsonl"
     p.write_text("hello\n")
-    assert main(["replay", str(p), "quick", "--out", str(tmp_path / "r")]) == 2
+    assert main(["replay", str(p), "--plan", "quick", "--out", str(tmp_path / "r")]) == 2
     assert "not a transcript header" in capsys.readouterr().err
 
 
@@ -120,7 +120,7 @@ def test_corrupt_transcripts_are_clear_errors(tmp_path, capsys, edit, needle):
     edited = [lines[0]] + [json.dumps(edit(json.loads(x))) for x in lines[1:]]
     bad = tmp_path / "bad.jsonl"
     bad.write_text(reseal("\n".join(edited) + "\n"))
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 2
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
 
@@ -177,14 +177,14 @@ def test_an_edited_reply_with_a_recomputed_checksum_fails_the_integrity_check(tm
     src[k] = json.dumps(m, separators=(",", ":"))[:-1] + f',"h":"{h}"}}'
     bad = tmp_path / "forged.jsonl"
     bad.write_text("\n".join(src) + "\n")
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     assert f"line {k + 1}: integrity check failed" in err and "Traceback" not in err
     assert not (tmp_path / "r" / "radiance.csv").exists()
     # the same edit, chain recomputed, is replayed (the chain detects edits, it does not
     # authenticate) - and the forged reading shows in the dataset
     bad.write_text(reseal("\n".join(src) + "\n"))
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r2")]) == 0
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r2")]) == 0
     assert ((tmp_path / "r2" / "radiance.csv").read_bytes()
             != (FIXTURES / "quick-lambert" / "radiance.csv").read_bytes())
 
@@ -196,11 +196,11 @@ def test_a_transcript_without_integrity_hashes_is_refused(tmp_path, capsys):
     stripped += [json.dumps({k: v for k, v in json.loads(x).items() if k != "h"}) for x in lines[1:]]
     bad = tmp_path / "old.jsonl"
     bad.write_text("\n".join(stripped) + "\n")
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 2
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r")]) == 2
     assert "no integrity check" in capsys.readouterr().err
     # the header kept at /2 and the hashes removed: the first message line is named
     bad.write_text("\n".join([lines[0]] + stripped[1:]) + "\n")
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r")]) == 1
     assert "line 2: no integrity hash" in capsys.readouterr().err
 
 

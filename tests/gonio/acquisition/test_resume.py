@@ -47,7 +47,7 @@ def mock_process():
 
 
 def _acquire(urls, plan, out, *extra):
-    return _gonio("acquire", plan, "--modbus", urls["modbus"], "--serial", urls["serial"],
+    return _gonio("acquire", "--plan", plan, "--modbus", urls["modbus"], "--serial", urls["serial"],
                   "--out", out, "--seed", SEED, "--timeout", "0.3", "--no-progress", *extra)
 
 
@@ -219,9 +219,9 @@ def test_resume_refuses_a_journal_of_another_plan(drv, tmp_path):
         assert drv.run(mock, p1, out).exit_code == 0
         args = ["--modbus", mock.modbus_url, "--serial", mock.serial_url, "--out", str(out),
                 "--no-progress"]
-        assert main(["acquire", str(p2), *args, "--resume"]) == 2
-        assert main(["acquire", str(p1), *args]) == 2          # journal there, no --resume
-        assert main(["acquire", str(p1), *args, "--resume"]) == 0   # nothing left: rewrites
+        assert main(["acquire", "--plan", str(p2), *args, "--resume"]) == 2
+        assert main(["acquire", "--plan", str(p1), *args]) == 2          # journal there, no --resume
+        assert main(["acquire", "--plan", str(p1), *args, "--resume"]) == 0   # nothing left: rewrites
 
 
 def test_a_session_that_cannot_reach_the_head_leaves_a_resumable_journal(drv, tmp_path):

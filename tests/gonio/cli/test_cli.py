@@ -38,14 +38,14 @@ def test_help_and_mock_dispatch(capsys):
 
 
 @pytest.mark.parametrize("argv,needle", [
-    (["acquire", "quick", "--modbus", "udp://x", "--serial", "/dev/null", "--out", "o"], "--modbus"),
-    (["acquire", "quick", "--modbus", "tcp://127.0.0.1:{port}", "--serial", "/dev/null",
+    (["acquire", "--plan", "quick", "--modbus", "udp://x", "--serial", "/dev/null", "--out", "o"], "--modbus"),
+    (["acquire", "--plan", "quick", "--modbus", "tcp://127.0.0.1:{port}", "--serial", "/dev/null",
       "--out", "o"], "cannot reach the device"),
-    (["acquire", "quick", "--modbus", "tcp://127.0.0.1:1", "--serial", "/nonexistent/tty",
+    (["acquire", "--plan", "quick", "--modbus", "tcp://127.0.0.1:1", "--serial", "/nonexistent/tty",
       "--out", "o"], "cannot reach the device"),
-    (["acquire", "nosuchplan", "--modbus", "tcp://127.0.0.1:1", "--serial", "x", "--out", "o"],
+    (["acquire", "--plan", "nosuchplan", "--modbus", "tcp://127.0.0.1:1", "--serial", "x", "--out", "o"],
      "no such plan file"),
-    (["acquire", "quick", "--serial", "x", "--out", "o"], "required"),
+    (["acquire", "--plan", "quick", "--serial", "x", "--out", "o"], "required"),
     (["check-plan"], "required"),
 ])
 def test_usage_errors_exit_2_with_one_line(tmp_path, capsys, argv, needle):
@@ -89,7 +89,7 @@ def test_sigint_stops_safely_keeping_points(drv, tmp_path):
     try:
         urls = json.loads(mock.stdout.readline())
         out = tmp_path / "run"
-        proc = subprocess.Popen([sys.executable, "-m", "fabric_optics.cli.gonio", "acquire", str(plan),
+        proc = subprocess.Popen([sys.executable, "-m", "fabric_optics.cli.gonio", "acquire", "--plan", str(plan),
                                  "--modbus", urls["modbus"], "--serial", urls["serial"],
                                  "--out", str(out), "--no-progress"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -34,7 +34,7 @@ def _last_line(err: str) -> str:
 
 @pytest.mark.parametrize("value", ["-1", "0", "nan", "inf", "1e308", "soon"])
 def test_timeout_must_be_a_finite_positive_number_of_seconds(tmp_path, capsys, value):
-    argv = ["acquire", "quick", "--modbus", "tcp://127.0.0.1:1", "--serial", "x",
+    argv = ["acquire", "--plan", "quick", "--modbus", "tcp://127.0.0.1:1", "--serial", "x",
             "--out", str(tmp_path / "o"), f"--timeout={value}"]
     assert main(argv) == 2
     line = _last_line(capsys.readouterr().err)
@@ -49,14 +49,14 @@ def test_a_huge_plan_is_refused_with_its_size(tmp_path, capsys):
     plan.write_text(f'[sample]\nname = "x"\n[wavelengths]\nlist_nm = [550]\n[geometry]\n'
                     f'incidence_deg = {incidence}\n'
                     'in_plane = {start = -60, stop = 69.9987, step = 0.0013}\n')
-    assert main(["check-plan", str(plan)]) == 2
+    assert main(["check-plan", "--plan", str(plan)]) == 2
     line = _last_line(capsys.readouterr().err)
     assert str(plan) in line and "30,000,000 measurements" in line and "at most 1,000,000" in line
     assert "split" in line
 
 
 def test_a_directory_as_plan_says_it_is_a_directory(tmp_path, capsys):
-    assert main(["check-plan", str(tmp_path)]) == 2
+    assert main(["check-plan", "--plan", str(tmp_path)]) == 2
     line = _last_line(capsys.readouterr().err)
     assert "is a directory" in line and "no such plan file" not in line
 
@@ -78,7 +78,7 @@ def test_demo_out_a_file_fails_before_starting_the_mock(tmp_path, capsys, monkey
 
 def test_replay_with_another_plan_names_the_recorded_plan(tmp_path, capsys):
     assert main(["replay", str(FIXTURES / "quick-lambert.jsonl"),
-                 str(FIXTURES / "red-cotton-small.toml"), "--out", str(tmp_path / "r")]) == 2
+                 "--plan", str(FIXTURES / "red-cotton-small.toml"), "--out", str(tmp_path / "r")]) == 2
     line = _last_line(capsys.readouterr().err)
     assert "recorded with plan 'quick'" in line and "red-cotton-small.toml" in line
     assert "replay: replay:" not in line and not (tmp_path / "r").exists()
@@ -90,7 +90,7 @@ def test_replay_mismatch_says_replay_once(tmp_path, capsys):
     src[k] = src[k].replace("WAVE 500.0", "WAVE 501.0")
     bad = tmp_path / "edited.jsonl"
     bad.write_text(reseal("\n".join(src) + "\n"))     # chain recomputed: the replay must notice
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 1
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     assert "gonio replay: request" in err and "replay: replay:" not in err
 
@@ -99,13 +99,13 @@ def test_a_malformed_last_transcript_line_is_not_the_end(tmp_path, capsys):
     src = (FIXTURES / "quick-lambert.jsonl").read_text().splitlines()
     bad = tmp_path / "bad.jsonl"
     bad.write_text("\n".join(src[:-1] + ['{"i": 1, "ch": "serial", oops']) + "\n")
-    assert main(["replay", str(bad), "quick", "--out", str(tmp_path / "r")]) == 2
+    assert main(["replay", str(bad), "--plan", "quick", "--out", str(tmp_path / "r")]) == 2
     line = _last_line(capsys.readouterr().err)
     assert f"the last line {len(src)}: not valid JSON" in line and "corrupt" in line
     # a torn last line (no newline: the recording was killed while writing it) is still accepted
     torn = tmp_path / "torn.jsonl"
     torn.write_text("\n".join(src) + "\n" + '{"i": 99999, "ch": "ser')
-    assert main(["replay", str(torn), "quick", "--out", str(tmp_path / "t")]) == 0
+    assert main(["replay", str(torn), "--plan", "quick", "--out", str(tmp_path / "t")]) == 0
 
 
 def _hostport(url: str) -> str:
@@ -122,14 +122,14 @@ def test_swapped_links_are_named_at_connect_time(tmp_path, capsys, modbus, seria
             wrong_modbus = "rtu://" + mock.serial_url
             wrong_serial = mock.modbus_url[len("rtu://"):]
         out = tmp_path / "run"
-        code = main(["acquire", "quick", "--modbus", wrong_modbus, "--serial", wrong_serial,
+        code = main(["acquire", "--plan", "quick", "--modbus", wrong_modbus, "--serial", wrong_serial,
                      "--out", str(out), "--timeout", "0.5", "--no-progress"])
         line = _last_line(capsys.readouterr().err)
         assert code == 2, line
         assert "links look swapped" in line and wrong_modbus in line and wrong_serial in line
         assert not (out / "journal.jsonl").exists()
         # the same URLs the right way round work
-        assert main(["acquire", "quick", "--modbus", mock.modbus_url, "--serial", mock.serial_url,
+        assert main(["acquire", "--plan", "quick", "--modbus", mock.modbus_url, "--serial", mock.serial_url,
                      "--out", str(out), "--no-progress"]) == 0
 
 
@@ -146,7 +146,7 @@ def test_disk_full_names_the_file_and_how_to_continue(tmp_path, capsys, monkeypa
 
     out = tmp_path / "run"
     with MockInstrument(sample="lambert:0.5", speed="fast", seed=3) as mock:
-        argv = ["acquire", str(plan), "--modbus", mock.modbus_url, "--serial", mock.serial_url,
+        argv = ["acquire", "--plan", str(plan), "--modbus", mock.modbus_url, "--serial", mock.serial_url,
                 "--out", str(out), "--no-progress"]
         monkeypatch.setattr(os, "fsync", fsync_until_full)
         assert main(argv) == 2
@@ -182,7 +182,7 @@ def test_ipv6_loopback_endpoints_are_urls_acquire_accepts(tmp_path, drv):
                         seed=2) as mock:
         assert mock.modbus_url.startswith("tcp://[::1]:") and mock.serial_url.startswith("socket://[::1]:")
         assert parse_modbus_url(mock.modbus_url)["host"] == "::1"
-        assert main(["acquire", str(plan), "--modbus", mock.modbus_url, "--serial",
+        assert main(["acquire", "--plan", str(plan), "--modbus", mock.modbus_url, "--serial",
                      mock.serial_url, "--out", str(tmp_path / "run"), "--no-progress"]) == 0
 
 

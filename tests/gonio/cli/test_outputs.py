@@ -38,7 +38,7 @@ def run_folder(tmp_path_factory) -> Path:
 
 
 def _truth(out: Path, *extra: str) -> int:
-    return main(["truth", "lambert:0.4", "quick", "--out", str(out), *extra])
+    return main(["truth", "lambert:0.4", "--plan", "quick", "--out", str(out), *extra])
 
 
 def test_check_output_rule_per_kind(tmp_path, run_folder):
@@ -134,11 +134,11 @@ def test_acquire_and_replay_refuse_a_dataset_they_did_not_write(drv, tmp_path, c
     before = _snapshot(out)
     capsys.readouterr()
     # refused before any link is opened (port 9 answers nothing: that error would differ)
-    acquire = ["acquire", "quick", "--modbus", "tcp://127.0.0.1:9", "--serial",
+    acquire = ["acquire", "--plan", "quick", "--modbus", "tcp://127.0.0.1:9", "--serial",
                "socket://127.0.0.1:9", "--out", str(out), "--no-progress"]
     assert main(acquire) == 2
     _one_line(capsys, "that `gonio acquire` did not write")
-    assert main(["replay", str(RECORDED / "quick-lambert.jsonl"), "quick", "--out", str(out)]) == 2
+    assert main(["replay", str(RECORDED / "quick-lambert.jsonl"), "--plan", "quick", "--out", str(out)]) == 2
     _one_line(capsys, "that `gonio replay` did not write")
     assert _snapshot(out) == before
     # the library refuses it too (checked again under the run folder's lock); --force replaces

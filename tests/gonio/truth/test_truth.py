@@ -11,7 +11,7 @@ from gonio.acquisition.plan import load_plan
 
 
 def test_lambert_truth_is_flat_on_the_plan_geometries(tmp_path, capsys):
-    assert main(["truth", "lambert:0.37", "quick", "--out", str(tmp_path / "t")]) == 0
+    assert main(["truth", "lambert:0.37", "--plan", "quick", "--out", str(tmp_path / "t")]) == 0
     ds = read_dataset(tmp_path / "t")
     plan = load_plan("quick")
     assert ds.kind == "simulated"
@@ -23,7 +23,7 @@ def test_lambert_truth_is_flat_on_the_plan_geometries(tmp_path, capsys):
 
 
 def test_red_cotton_truth_matches_the_sample(tmp_path):
-    assert main(["truth", "red-cotton", "red-cotton", "--out", str(tmp_path / "t")]) == 0
+    assert main(["truth", "red-cotton", "--plan", "red-cotton", "--out", str(tmp_path / "t")]) == 0
     t = read_dataset(tmp_path / "t").table
     expected = RedCottonSample().beta(t.theta_i, t.phi_i, t.theta_o, t.phi_o, t.wavelength_nm)
     np.testing.assert_allclose(t["beta"], expected, rtol=1e-9)
@@ -32,6 +32,6 @@ def test_red_cotton_truth_matches_the_sample(tmp_path):
 
 
 def test_unknown_sample_is_a_usage_error(tmp_path, capsys):
-    assert main(["truth", "velvet", "quick", "--out", str(tmp_path / "t")]) == 2
+    assert main(["truth", "velvet", "--plan", "quick", "--out", str(tmp_path / "t")]) == 2
     assert "unknown sample 'velvet'" in capsys.readouterr().err
     assert not (tmp_path / "t").exists()

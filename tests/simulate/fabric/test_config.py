@@ -79,20 +79,10 @@ def test_exit_bins_default_and_given():
     assert cfg.exit_bins == (5, 10)
 
 
-def test_the_old_route_key_is_read_with_one_deprecation_line(caplog):
-    """``[method] method`` still gives the fiber route for one release, with one warning line naming the new key;
-    the same config as ``[fiber] route``; both at once is an error."""
-    new = parse_config(_set(BASE, 'route = "nee"', 'route = "beam"'), "t.toml")
-    old_text = _set(_set(BASE, 'route = "nee"\n', ""), "[method]\n", '[method]\nmethod = "beam"\n')
-    with caplog.at_level("WARNING", logger="simulate.config"):
-        old = parse_config(old_text, "t.toml")
-    assert old.route == new.route == "beam"
-    lines = [r.getMessage() for r in caplog.records]
-    assert len(lines) == 1 and "\n" not in lines[0]
-    assert lines[0].startswith("t.toml: method.method is deprecated") and 'route = "beam" in [fiber]' in lines[0]
-    fields = [f for f in old.__dataclass_fields__ if f not in ("text", "sha256")]
-    assert all(getattr(old, f) == getattr(new, f) for f in fields)
-    with pytest.raises(ConfigError, match="method.method and fiber.route both give the fiber route"):
+def test_the_fiber_route_has_one_key():
+    """The fiber route is ``[fiber] route``; a ``[method] method`` is an unknown field, refused with its name."""
+    assert parse_config(_set(BASE, 'route = "nee"', 'route = "beam"'), "t.toml").route == "beam"
+    with pytest.raises(ConfigError, match=r"method\.method"):
         parse_config(_set(BASE, "[method]\n", '[method]\nmethod = "beam"\n'), "t.toml")
 
 

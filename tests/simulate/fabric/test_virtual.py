@@ -105,7 +105,7 @@ def test_unknown_method_is_refused(fake_fiber):
 
 
 def test_the_sample_is_the_plans_only_when_the_plan_is_made_for_the_config(fake_fiber):
-    """`--geometry` lends a plan's geometries; a plan of another name does not name the sample simulated."""
+    """`--plan` lends a plan's geometries; a plan of another name does not name the sample simulated."""
     import dataclasses
 
     config = carpet_config()                                  # "red-cotton"

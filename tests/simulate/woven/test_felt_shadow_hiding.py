@@ -10,7 +10,7 @@ Both see the same random felt with an opaque Lambertian fiber surface (albedo 1)
 single scattering only (``trace(..., max_events=1)``: each ray's first hit, seen past the other
 fibers, i.e. with its shadow ray). Compared: ``beta`` averaged on the ring 6 deg and on the ring
 30 deg from the retro direction, and their ratio (the opposition ratio of
-:mod:`compare.felt_metrics`), within 4 combined standard errors. The reference's unshadowed ratio
+:mod:`compare.ratios`), within 4 combined standard errors. The reference's unshadowed ratio
 (every exit path taken as free) is below 1, so the peak is the shadowing's; the tracer with its
 shadow rays skipped misses the reference's ratio by many standard errors (the test can fail).
 

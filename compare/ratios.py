@@ -1,8 +1,9 @@
-r"""Two shape ratios of a BRDF that tell how a felt's fibres scatter: opposition and mirror.
+r"""Two shape ratios of any BRDF dataset: opposition (shadow-hiding) and mirror-to-neighbours.
 
 Both are ratios of one dataset's own values at one wavelength (or channel), so the normalisation
 factor ``k(lambda)`` of a comparison cancels: they are the same for a simulation before and
-after normalising, and a model is judged by its ratio against the measurement's.
+after normalising, and a model is judged by its ratio against the measurement's. A felt's fibres
+show in both (docs/notes/felt-structure.md), but nothing here is felt-specific.
 
 **Opposition ratio** (shadow-hiding). At an incidence ``theta_i > 0`` let ``w_r`` be the retro
 direction (towards the source). The *ring at rho* is the set of directions at angle ``rho`` from
@@ -74,8 +75,11 @@ MIN_THETA_I_DEG = 1.0
 
 @dataclass(frozen=True)
 class Ratio:
-    """A ratio at one incidence: ``value[band]`` and ``u[band]`` per wavelength or channel code,
-    and the number of points of the numerator and the denominator."""
+    """A ratio at one incidence.
+
+    ``value[band]`` and ``u[band]`` per wavelength or channel code, and the number of points of
+    the numerator and the denominator.
+    """
 
     theta_i: float
     value: dict
@@ -96,8 +100,10 @@ def _unit(theta_deg, phi_deg) -> np.ndarray:
 
 
 def _retro_frame(theta_i: np.ndarray, phi_i: np.ndarray):
-    """The retro direction ``w_r`` and two unit vectors ``e1`` (in the plane of incidence, towards
-    the normal) and ``e2`` completing the frame, per row."""
+    """The retro direction ``w_r`` and a frame about it, per row.
+
+    ``e1`` lies in the plane of incidence, towards the normal; ``e2`` completes the frame.
+    """
     w_r = _unit(theta_i, phi_i)
     e1 = _unit(np.asarray(theta_i) - 90.0, phi_i)       # in plane, perpendicular to w_r
     e2 = np.cross(w_r, e1)
@@ -105,9 +111,26 @@ def _retro_frame(theta_i: np.ndarray, phi_i: np.ndarray):
 
 
 def ring_directions(theta_i: float, radius_deg: float, n: int = 12) -> list[tuple[float, float]]:
-    """``n`` directions evenly round the ring at ``radius_deg`` about the retro direction of
-    incidence ``theta_i`` (``phi_i = 0``), as ``(theta_o, phi_o - phi_i)`` in degrees (azimuth in
-    [0, 360)); directions below the horizon (``theta_o >= 90``) are left out."""
+    """``n`` directions evenly round a ring about the retro direction of incidence ``theta_i``.
+
+    The ring is ``radius_deg`` from the retro direction (``phi_i = 0``); the directions are
+    ``(theta_o, phi_o - phi_i)`` in degrees (azimuth in [0, 360)), those below the horizon
+    (``theta_o >= 90``) left out.
+
+    Parameters
+    ----------
+    theta_i : float
+        Incidence zenith angle, degrees.
+    radius_deg : float
+        Angle of the ring's directions from the retro direction, degrees.
+    n : int
+        Directions on the ring, evenly spaced in azimuth about the retro direction.
+
+    Returns
+    -------
+    list of (float, float)
+        ``(theta_o, phi_o - phi_i)`` pairs, degrees: a plan's ``directions_deg``.
+    """
     w_r, e1, e2 = (v[0] for v in _retro_frame(np.array([theta_i]), np.array([0.0])))
     rho = math.radians(radius_deg)
     out = []
@@ -142,8 +165,10 @@ def _mean_per_band(rows: pd.DataFrame, band: str) -> tuple[pd.Series, pd.Series]
 
 
 def _ring_mean(rows: pd.DataFrame, band: str) -> tuple[pd.Series, pd.Series]:
-    """Per band, the mean over the ring's azimuth sectors of each sector's mean (so that a ring
-    sampled more densely on one side is not weighted towards it)."""
+    """Per band, the mean over the ring's azimuth sectors of each sector's mean.
+
+    A ring sampled more densely on one side is then not weighted towards it.
+    """
     per = rows.groupby(["_sector", band], sort=True)
     m = per["beta"].mean()
     u2 = per["u_beta"].apply(lambda x: float(np.sum(np.square(x.to_numpy(float)))) / len(x) ** 2)
@@ -165,9 +190,23 @@ def _ratio(num: tuple[pd.Series, pd.Series], den: tuple[pd.Series, pd.Series]) -
 
 def opposition_ratios(table: pd.DataFrame, inner_deg: float = INNER_DEG,
                       outer_deg: float = OUTER_DEG) -> dict[float, Ratio] | Missing:
-    """The opposition ratio at every oblique incidence of ``table`` (a dataset's table: columns
-    ``theta_i, phi_i, theta_o, phi_o``, ``wavelength_nm`` or ``channel``, ``beta``, ``u_beta``)
-    that holds both rings (module docstring), keyed by ``theta_i``; :class:`Missing` when none does.
+    """The opposition ratio at every oblique incidence of ``table`` that holds both rings.
+
+    ``table`` is a dataset's table (columns ``theta_i, phi_i, theta_o, phi_o``, ``wavelength_nm``
+    or ``channel``, ``beta``, ``u_beta``); the ratios are keyed by ``theta_i`` (module docstring),
+    :class:`Missing` when no incidence holds both rings.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        A dataset's table.
+    inner_deg, outer_deg : float
+        The rings' angles from the retro direction, degrees (numerator and denominator).
+
+    Returns
+    -------
+    dict of float -> Ratio, or Missing
+        The ratio per incidence, or why there is none.
 
     Examples
     --------
@@ -216,9 +255,20 @@ def opposition_ratios(table: pd.DataFrame, inner_deg: float = INNER_DEG,
 
 
 def mirror_ratios(table: pd.DataFrame) -> dict[float, Ratio] | Missing:
-    """The mirror-to-neighbours ratio at every oblique incidence of ``table`` that holds the
-    in-plane mirror point and a neighbour on each side (module docstring); :class:`Missing` when
-    none does.
+    """The mirror-to-neighbours ratio at every oblique incidence of ``table``.
+
+    An incidence needs the in-plane mirror point and a neighbour on each side (module docstring);
+    :class:`Missing` when none has them.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        A dataset's table (as :func:`opposition_ratios`).
+
+    Returns
+    -------
+    dict of float -> Ratio, or Missing
+        The ratio per incidence, or why there is none.
 
     Examples
     --------
@@ -265,9 +315,23 @@ def mirror_ratios(table: pd.DataFrame) -> dict[float, Ratio] | Missing:
 
 
 def shape_document(table: pd.DataFrame, key) -> dict:
-    """Both ratios of ``table`` as JSON-able data: per ratio either ``{"per_incidence": {theta_i:
-    {"value": {band key: r}, "u": {...}, "n_points": [num, den]}}}`` or ``{"reason": str}``;
-    ``key(band)`` gives a band's JSON key (:meth:`compare.bands.Bands.key`)."""
+    """Both ratios of ``table`` as JSON-able data.
+
+    Per ratio either ``{"per_incidence": {theta_i: {"value": {band key: r}, "u": {...},
+    "n_points": [num, den]}}}`` or ``{"reason": str}``.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        A dataset's table (as :func:`opposition_ratios`).
+    key : callable
+        A band's JSON key (:meth:`compare.bands.Bands.key`).
+
+    Returns
+    -------
+    dict
+        ``{"opposition": ..., "mirror": ...}``, the ``"shape"`` entry of ``metrics.json``.
+    """
     from .metrics import angle_key
 
     def num(x):

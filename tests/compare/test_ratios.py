@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from compare import felt_metrics as FM
+from compare import ratios
 from compare.comparison import compare_datasets
 from gonio.data import in_plane_geometry
 
@@ -32,8 +32,8 @@ def peak(gamma, wl):
 def ring_table(incidences=(27.76, 40.03), n=12, keep=lambda psi: True, u=0.0):
     rows = []
     for ti in incidences:
-        for rho in (FM.INNER_DEG, FM.OUTER_DEG):
-            for k, (t, p) in enumerate(FM.ring_directions(ti, rho, n)):
+        for rho in (ratios.INNER_DEG, ratios.OUTER_DEG):
+            for k, (t, p) in enumerate(ratios.ring_directions(ti, rho, n)):
                 if not keep(360.0 * k / n):
                     continue
                 for wl in WL:
@@ -46,15 +46,15 @@ def ring_table(incidences=(27.76, 40.03), n=12, keep=lambda psi: True, u=0.0):
 
 def test_ring_directions_lie_on_the_ring():
     for ti, rho in ((27.76, 6.0), (40.03, 30.0), (59.52, 30.0)):
-        d = FM.ring_directions(ti, rho, 24)
+        d = ratios.ring_directions(ti, rho, 24)
         gam = retro_angle(ti, [t for t, _ in d], [p for _, p in d])
         assert np.allclose(gam, rho, atol=1e-9)
         assert all(t < 90.0 for t, _ in d)
-    assert len(FM.ring_directions(59.52, 40.0, 24)) < 24       # the part below the horizon left out
+    assert len(ratios.ring_directions(59.52, 40.0, 24)) < 24       # the part below the horizon left out
 
 
 def test_opposition_ratio_of_a_known_retro_peak():
-    r = FM.opposition_ratios(ring_table())
+    r = ratios.opposition_ratios(ring_table())
     assert set(r) == {27.76, 40.03}
     for ti, ratio in r.items():
         assert ratio.n_points == (12, 12)
@@ -67,18 +67,18 @@ def test_opposition_ratio_of_a_known_retro_peak():
 
 def test_opposition_uncertainty_is_propagated():
     u = 0.01
-    r = FM.opposition_ratios(ring_table(u=u))[40.03]
+    r = ratios.opposition_ratios(ring_table(u=u))[40.03]
     m6, m30 = peak(6.0, 550.0), peak(30.0, 550.0)
     want = (m6 / m30) * math.hypot(u / math.sqrt(12) / m6, u / math.sqrt(12) / m30)
     assert math.isclose(r.u[550.0], want, rel_tol=1e-9)
 
 
 def test_a_one_sided_ring_or_an_in_plane_curve_gives_no_opposition_ratio():
-    one_side = FM.opposition_ratios(ring_table(keep=lambda psi: psi <= 90.0))
-    assert isinstance(one_side, FM.Missing) and "one side" in one_side.reason
+    one_side = ratios.opposition_ratios(ring_table(keep=lambda psi: psi <= 90.0))
+    assert isinstance(one_side, ratios.Missing) and "one side" in one_side.reason
     plane = in_plane_table(lambda ti, s, wl: 1.0 + 0 * s)
-    missing = FM.opposition_ratios(plane)
-    assert isinstance(missing, FM.Missing) and "ring" in missing.reason
+    missing = ratios.opposition_ratios(plane)
+    assert isinstance(missing, ratios.Missing) and "ring" in missing.reason
     # the in-plane curve at 30 deg has two points 30 deg from retro (s = 0 and -60): not a ring
     assert "30 deg: 0 point(s) on the ring at 6 deg" in missing.reason
 
@@ -90,7 +90,7 @@ def test_mirror_ratio_of_a_known_lobe():
         return 1.0 + B * (wl / 650.0) * np.exp(-((s - ti) / 5.0) ** 2)
 
     t = in_plane_table(beta, s_grid=np.arange(-60.0, 71.0, 5.0), wavelengths=WL)
-    r = FM.mirror_ratios(t)
+    r = ratios.mirror_ratios(t)
     # mirror at s = theta_i needs a grid point: 30 and 60 only (45 too: step 5), not 0
     assert set(r) == {30.0, 45.0, 60.0}
     for ti in r:
@@ -103,8 +103,8 @@ def test_mirror_ratio_of_a_known_lobe():
 
 def test_mirror_ratio_missing_when_no_mirror_point():
     t = in_plane_table(lambda ti, s, wl: 1.0 + 0 * s, incidence=(0.0, 45.0))
-    m = FM.mirror_ratios(t)
-    assert isinstance(m, FM.Missing) and "45 deg: no in-plane point at the mirror direction" in m.reason
+    m = ratios.mirror_ratios(t)
+    assert isinstance(m, ratios.Missing) and "45 deg: no in-plane point at the mirror direction" in m.reason
 
 
 def test_metrics_json_carries_the_ratios_and_they_ignore_the_normalisation():
@@ -139,21 +139,21 @@ def test_a_ring_sampled_densely_on_one_side_is_averaged_over_its_azimuth():
     to the centre value; 6 extra points on the high side must not move the ratio."""
     def lopsided(t):
         ti = t.theta_i.to_numpy()
-        w_o = FM._unit(t.theta_o.to_numpy(), t.phi_o.to_numpy())
-        w_r, e1, _ = FM._retro_frame(ti, 0.0 * ti)
+        w_o = ratios._unit(t.theta_o.to_numpy(), t.phi_o.to_numpy())
+        w_r, e1, _ = ratios._retro_frame(ti, 0.0 * ti)
         return 1.0 + 0.5 * np.einsum("ij,ij->i", w_o, e1)   # linear in cos(psi) on each ring
 
     even = ring_table(incidences=(40.03,))
     even["beta"] = lopsided(even)
     extra = []
-    for rho in (FM.INNER_DEG, FM.OUTER_DEG):
-        for t, p in FM.ring_directions(40.03, rho, 72)[:6]:      # psi 0-25 deg: the high side
+    for rho in (ratios.INNER_DEG, ratios.OUTER_DEG):
+        for t, p in ratios.ring_directions(40.03, rho, 72)[:6]:      # psi 0-25 deg: the high side
             extra += [dict(theta_i=40.03, phi_i=0.0, theta_o=t, phi_o=p, wavelength_nm=w, u_beta=0.0)
                       for w in WL]
     extra = pd.DataFrame(extra)
     extra["beta"] = lopsided(extra)
     dense = pd.concat([even, extra], ignore_index=True)
-    a = FM.opposition_ratios(even)[40.03].value[550.0]
-    b = FM.opposition_ratios(dense)[40.03].value[550.0]
+    a = ratios.opposition_ratios(even)[40.03].value[550.0]
+    b = ratios.opposition_ratios(dense)[40.03].value[550.0]
     assert math.isclose(a, 1.0, abs_tol=1e-12)                 # both rings average to beta(retro) = 1
     assert abs(b - a) < 0.02 * 0.5 * (math.sin(math.radians(30)) - math.sin(math.radians(6)))
