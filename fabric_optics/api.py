@@ -337,7 +337,7 @@ def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os
     from compare.comparison import compare_datasets
 
     _v.number("window_deg", window_deg, 0.0, 90.0, lo_open=True)
-    _v.text("illuminant", illuminant, max_len=64)
+    _v.illuminant("illuminant", illuminant)
     if not isinstance(measured, Dataset):
         _v.path("measured", measured)
     if not isinstance(simulated, (Dataset, str, os.PathLike)):
@@ -931,19 +931,27 @@ def import_measurement(path: str | os.PathLike | Sequence[str | os.PathLike], ou
     from gonio.acquisition.plan import MEASURED, measured_plan
     from gonio.data.formats import import_files
 
-    paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
-    if not paths:
-        raise InputError("path: no file given; give a file or a list of files")
+    if isinstance(path, (str, os.PathLike)):
+        paths = [_v.path("path", path)]
+    elif isinstance(path, (list, tuple)) and 0 < len(path) <= 1000:
+        paths = [_v.path(f"path[{k}]", p) for k, p in enumerate(path)]
+    else:
+        raise InputError(f"path={path!r}: give a file or a list of 1 to 1000 files")
+    if format is not None:
+        _v.choice("format", format, IMPORT_FORMATS)
+    _v.number("scale", scale, 0.0, lo_open=True, none=True)
+    _v.number("white_reflectance", white_reflectance, 0.0, 1.0, lo_open=True)
+    _v.path("white", white, none=True)
+    _v.flag("force", force)
+    _v.flag("keep_grazing", keep_grazing)
+    if out is not None:
+        _v.out_path("out", out)
     fmt = format if format is not None else _SUFFIX_FORMATS.get(Path(paths[0]).suffix.lower())
     if fmt is None:
         raise InputError(f"format: cannot tell the format of {paths[0]} from its name; pass format= one of "
                          f"{', '.join(IMPORT_FORMATS)}")
     if fmt not in IMPORT_FORMATS:
         raise InputError(f"format {fmt!r}: choose one of {', '.join(IMPORT_FORMATS)}")
-    if scale is not None and not (0 < scale < float("inf")):
-        raise InputError(f"scale {scale}: must be a positive number (f_r per uA)")
-    if not 0.0 < white_reflectance <= 1.0:
-        raise InputError(f"white_reflectance {white_reflectance}: must be in (0, 1]")
     geometries = None
     if plan is not None:
         if plan == MEASURED:
@@ -953,8 +961,6 @@ def import_measurement(path: str | os.PathLike | Sequence[str | os.PathLike], ou
             geometries = measured_plan(Path(paths[0])).geometries(measurable_only=True)
         else:
             geometries = load_plan(plan).geometries()
-    _v.flag("force", force)
-    _v.flag("keep_grazing", keep_grazing)
     if out is None:
         return import_files(fmt, paths, geometries, scale=scale, white=white, white_reflectance=white_reflectance,
                             keep_grazing=keep_grazing)
@@ -1030,11 +1036,26 @@ def write_report(measured: str | os.PathLike | Dataset, *models: str | os.PathLi
     >>> report.name, sorted(p.name for p in out.iterdir())
     ('report.html', ['figures', 'metrics.json', 'report.html'])
     """
+    if not isinstance(measured, Dataset):
+        _v.path("measured", measured)
+    for k, model in enumerate(models):
+        if not isinstance(model, Dataset):
+            _v.path(f"models[{k}]", model)
+    if not isinstance(fits, (list, tuple)):
+        raise InputError(f"fits={fits!r}: expected a list of `simulate fit` output folders")
+    for k, fit_dir in enumerate(fits):
+        _v.path(f"fits[{k}]", fit_dir)
+    if seed_sample is not None and not isinstance(seed_sample, Dataset):
+        seed_dir = _v.path("seed_sample", seed_sample)
+        if seed_dir is None or not seed_dir.is_dir():
+            raise InputError(f"seed_sample={os.fspath(seed_sample)!r}: no such dataset folder; give a simulated "
+                             "red-cotton dataset (simulate fabric red-cotton ... --out DIR)")
+    _v.path("renders", renders, none=True)
     out_dir = _v.out_path("out", out)
     _v.flag("force", force)
     _v.flag("svg", svg)
     _v.number("window_deg", window_deg, 0.0, 90.0, lo_open=True)
-    _v.text("illuminant", illuminant, max_len=64)
+    _v.illuminant("illuminant", illuminant)
     with _v.claimed("out", out_dir):     # one writer of the report's folder, from its check to its last rename
         return _write_report_claimed(measured, models, out_dir, force=force, fits=fits, seed_sample=seed_sample,
                                      renders=renders, svg=svg, window_deg=window_deg, illuminant=illuminant)

@@ -25,7 +25,7 @@ from fabric_optics.errors import InputError
 
 __all__ = ["MAX_SEED", "MAX_WAVELENGTHS", "MAX_CHECK_PAIRS", "MAX_AZIMUTHS", "MAX_MEASUREMENT_ROWS",
            "integer", "number", "rel_err", "seed", "threads", "choice", "flag", "text", "path", "out_path",
-           "wavelengths", "cost", "measurement_rows", "claimed"]
+           "wavelengths", "cost", "measurement_rows", "claimed", "illuminant"]
 
 #: Seeds of the fiber/fabric runs: the Monte Carlo derives per-batch streams as seed * 1_000_003 + ...
 #: in 64-bit integers, so seeds stay below 2^31.
@@ -220,3 +220,16 @@ def claimed(name: str, out: Path, *, file: bool = False) -> Iterator[None]:
                          "output in a writable folder") from exc
     with stack:
         yield
+
+
+def illuminant(name: str, value: Any) -> str:
+    """The name of an illuminant of the colour match: a key of colour-science's ``SDS_ILLUMINANTS``."""
+    from gonio.data.colour import _illuminant_data
+
+    text(name, value, max_len=64)
+    try:
+        _illuminant_data(value)
+    except ValueError:
+        raise InputError(f"{name}={value!r}: unknown illuminant; use a key of colour.SDS_ILLUMINANTS "
+                         "such as 'D65'") from None
+    return value

@@ -139,15 +139,14 @@ def test_an_interrupt_wrapped_in_a_system_error_is_the_interrupt():
 
 
 def test_ctrl_c_in_the_compiled_mie_code_during_a_fit_exits_130_interrupted(tmp_path, capsys, monkeypatch):
-    from fabric_optics import api
+    """The fit's search stands in for the compiled Mie code: the registry's classic runner raises what CPython
+    raises when a C function returns with the interrupt set."""
+    import dataclasses
 
-    real_prepare = api.prepare_fit
+    from fabric_optics.fitting.methods import METHODS
 
-    def prepare(*args, **kwargs):
-        job = real_prepare(*args, **kwargs)
-        job._run = lambda *a, **k: _interrupt_in_compiled_code()
-        return job
-    monkeypatch.setattr(api, "prepare_fit", prepare)
+    monkeypatch.setitem(METHODS, "classic", dataclasses.replace(
+        METHODS["classic"], run=lambda *a, **k: _interrupt_in_compiled_code()))
     out = tmp_path / "fit"
     code = simulate_cli.main(["fit", "red-cotton", str(MEASURED), "--free", "radius", "--method", "classic",
                               "--out", str(out), "--no-progress"])

@@ -1,6 +1,6 @@
 """A wide table of bad calls of the Python interface: every one raises a typed error before any work.
 
-For every function of ``fabric_optics.api.__all__`` but ``fit`` (the fit's own tests cover it) and
+For every function of ``fabric_optics.api.__all__`` (importing a measurement and writing a report included) but ``fit`` (the fit's own tests cover it) and
 ``prepare_fit``/``FitJob``: wrong types (a bool for an int, '10' for a number, 1.5 for a count, lists,
 None), NaN and infinities, negatives, sizes that would allocate gigabytes, costs of years, outputs
 that cannot be written. Each call must raise an :class:`InputError`, :class:`OutputExistsError` or
@@ -22,6 +22,7 @@ from fabric_optics import api
 ROOT = Path(__file__).resolve().parents[2]
 MEASURED = ROOT / "fixtures" / "analytic" / "measured_red"
 SIM = ROOT / "fixtures" / "analytic" / "sim_scaled"
+FELT = ROOT / "fixtures" / "real" / "acrylic_felt_green_rgb.bsdf"
 NAN, INF = math.nan, math.inf
 
 #: bad values of each kind of argument
@@ -102,6 +103,23 @@ def _cases():
     add("export_bsdf", e, "provenance", [[1], "x", 1])
     add("export_bsdf", e, "force", ["yes"])
     add("export_bsdf", e, "progress", [1])
+    i = {"path": str(FELT)}
+    add("import_measurement", i, "path", PATHS[:1] + PATHS[2:] + [[], ["x"] * 1001, "/no/such/file.bsdf"])
+    add("import_measurement", i, "format", ["csv", 1, True])
+    add("import_measurement", {**i, "format": "pgii"}, "scale", [0, -1.0, NAN, INF, "1", True])
+    add("import_measurement", i, "white_reflectance", [0, 1.5, NAN, "0.99", None])
+    add("import_measurement", i, "plan", [1, "no-such-plan"])
+    add("import_measurement", i, "out", OUT[:1] + OUT[2:])
+    add("import_measurement", i, "force", FLAG)
+    r = {"measured": str(MEASURED), "out": "TMP/report"}
+    add("write_report", r, "measured", PATHS + ["/no/such/dataset"])
+    add("write_report", r, "out", OUT)
+    add("write_report", r, "fits", ["fit-folder", 1, [1]])
+    add("write_report", r, "seed_sample", [1, "/no/such/dataset"])
+    add("write_report", r, "renders", [1, "/no/such/renders"])
+    add("write_report", r, "svg", FLAG)
+    add("write_report", r, "window_deg", [0, -1, NAN, "5", 91])
+    add("write_report", r, "illuminant", [1, "no-such-illuminant"])
     return c
 
 

@@ -62,11 +62,11 @@ def test_pgii_files_need_their_format_and_give_pi_f_r(tmp_path):
         fo.import_measurement(tmp_path / "a.txt")
     ds = fo.import_measurement([tmp_path / "a.txt"], format="pgii")
     np.testing.assert_allclose(np.sort(ds.table["beta"].to_numpy()), np.pi * np.array([0.1, 0.2, 0.3]))
-    with pytest.raises(fo.InputError, match="scale -1"):
+    with pytest.raises(fo.InputError, match=r"scale=-1: must be in \(0, inf\]"):
         fo.import_measurement(tmp_path / "a.txt", format="pgii", scale=-1)
-    with pytest.raises(fo.InputError, match="white_reflectance 1.5"):
+    with pytest.raises(fo.InputError, match=r"white_reflectance=1.5: must be in \(0, 1\]"):
         fo.import_measurement(tmp_path / "a.txt", format="pgii", white_reflectance=1.5)
-    with pytest.raises(fo.InputError, match="format 'csv'"):
+    with pytest.raises(fo.InputError, match="format='csv': choose one of 'rgl-bsdf', 'pgii', 'merl'"):
         fo.import_measurement(tmp_path / "a.txt", format="csv")
 
 
