@@ -1,3 +1,11 @@
-"""simulate: physically based fiber and fabric BRDFs (Mie, Monte Carlo transport, Cook-Torrance)."""
+"""simulate: physically based fiber and fabric BRDFs (Mie, Monte Carlo transport, Cook-Torrance).
+
+Importing it makes numba cache the package's compiled kernels once per machine, keyed by their
+source's content (:mod:`simulate.kernelcache`; numba itself is imported only when a kernel is needed).
+"""
+
+from simulate import kernelcache as _kernelcache
 
 __version__ = "0.1.0"
+
+_kernelcache.install()
