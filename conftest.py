@@ -11,8 +11,10 @@ that counts the cache's entries, hits or misses uses the ``cache_dir`` fixture: 
 With two or more xdist workers, the controller first runs ``tests/warm_kernels.py``: one process
 per group of kernels, the groups at once, each compiling its kernels into numba's on-disk cache (the
 kernels both groups use compiled by one, the other waiting for them: the script's docstring);
-the workers then load them instead of each compiling every kernel it meets. A test that judges numba's
-cache (``tests/simulate/mc/test_kernel_cache.py``) gives its own processes a ``NUMBA_CACHE_DIR`` of its own,
+the workers then load them instead of each compiling every kernel it meets. The kernels are numba's cache
+of the user (:mod:`simulate.kernelcache`: keyed by their sources' content, so a run from another clone of the
+same sources only loads them and the warm-up takes seconds). A test that judges numba's cache
+(``tests/simulate/mc/test_kernel_cache.py``) gives its own processes a ``NUMBA_CACHE_DIR`` of its own,
 filled with a copy of the kernels this warm-up compiled.
 """
 

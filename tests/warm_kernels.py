@@ -7,7 +7,8 @@ The woven tracer of the fabric group walks its yarn's exit table with the fiber 
 monte-carlo group compiles too: the monte-carlo group compiles them first (a tiny yarn table) and then
 creates the file named by ``WARM_KERNELS_SHARED_READY`` (set by the caller; it is created when that step
 fails too); the fabric group waits for that file before its first route and loads those kernels, so no
-kernel is compiled twice. In a tree whose cache is already filled the groups only load. Nothing is
+kernel is compiled twice. When the user's kernel cache (:mod:`simulate.kernelcache`) already holds them (any clone
+of the same sources filled it) the groups only load. Nothing is
 written but numba's cache and that file: the table cache is off and the outputs go to a temporary
 directory. The script prints the seconds it took.
 """

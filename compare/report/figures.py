@@ -82,7 +82,13 @@ def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -
     import io
 
     import matplotlib.pyplot as plt
+    from matplotlib.layout_engine import PlaceHolderLayoutEngine
 
+    # fig.tight_layout() leaves a placeholder layout engine on the figure, and savefig draws a figure
+    # that has a layout engine once more (text measured again) before drawing it into the file; the
+    # layout is final here, so the figure is saved without one: one draw per file
+    if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine):
+        fig.set_layout_engine(None)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=FIGURE_DPI, metadata={"Software": None})
     out = {}

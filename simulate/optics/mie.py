@@ -77,8 +77,8 @@ def _miepython():
     ``cache=True`` -- the only one of its kernels without it -- so every process that imports it
     would spend seconds compiling a function this package never calls. During the import, ``numba.njit`` is
     wrapped to default ``cache=True`` for miepython's own modules only (numba's cache is keyed by the
-    function's source and signature, so this is the same compiled code; numba puts it beside
-    miepython, or in ``NUMBA_CACHE_DIR`` / the user cache when that is read-only). Numba's caching
+    function's source and signature, so this is the same compiled code; it is kept with the
+    project's kernels in the user's kernel cache, :mod:`simulate.kernelcache`). Numba's caching
     notes: https://numba.readthedocs.io/en/stable/developer/caching.html
     """
     import sys

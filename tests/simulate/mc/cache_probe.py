@@ -4,7 +4,8 @@ Run as a script in a fresh process (``NUMBA_CACHE_DIR`` set by the caller) by
 ``test_kernel_cache.py``: prints one JSON object mapping every numba dispatcher of
 :mod:`simulate.montecarlo` (and :mod:`simulate.fresnel`, whose kernels it inlines) that was
 compiled or loaded in this process to ``{"hits": ..., "misses": ...}``: the counts numba's
-dispatcher keeps in ``stats`` (a miss is a compilation; a hit a load from the cache).
+dispatcher keeps in ``stats`` (a miss is a compilation; a hit a load from the cache), and under
+``"simulate"`` the file the package was imported from (the caller checks it ran the tree it meant).
 """
 
 from __future__ import annotations
@@ -41,8 +42,10 @@ def _routes() -> None:
                     max_photons=2000, seed=1, bssrdf_bins=(2, 3))
 
 
-def _stats() -> dict[str, dict[str, int]]:
-    report = {}
+def _stats() -> dict[str, object]:
+    import simulate
+
+    report: dict[str, object] = {"simulate": simulate.__file__}
     seen = set()
     for name, module in sorted(sys.modules.items()):
         if not (name.startswith("simulate.montecarlo") or name == "simulate.fresnel"):
