@@ -100,10 +100,10 @@ browser:
 		$$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium chromium-driver; \
 	fi
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
 
-test-slow: $(STAMP)
+test-slow: $(STAMP) browser
 	$(PY) -m pytest -q -n 2 --dist loadfile -m slow
 
 # ruff and mypy, configured in pyproject.toml (versions pinned in the test extras); .ci/run runs it
