@@ -758,7 +758,27 @@ def fig_felt_residual_twofield() -> str:
     return _residual_runs(rec) + "\n\n" + _residual_bias(rec) + "\n\n" + _source(rec, note)
 
 
+def fig_speed_accuracy() -> str:
+    """The Monte Carlo's achieved error against its marginal cost (``simulate bench --study speed-accuracy``)."""
+    rec = load("speed-accuracy")
+    d = rec["data"]
+    rows = []
+    for name, f in d["fabrics"].items():
+        for r in f["runs"]:
+            rows.append([name, f"{r['target']:g}", f"{r['achieved_error']:.2%} ± {r['achieved_error_se']:.2%}",
+                         f"{r['table_seconds']:.1f} s + {r['trace_seconds']:.1f} s",
+                         f"{r['startup_seconds']:.1f} s + {r['setup_seconds']:.1f} s"])
+        floors = ", ".join(f"{k} {v:.1%}" for k, v in f["model_floors"].items())
+        rows.append([name, "floors", floors, "", ""])
+    note = (f" (achieved error ± its sampling spread; {d['threads']} thread, each target run twice with seeds {d['seeds'][0]} and {d['seeds'][1]}, tables"
+            f" floored at {d['table_floor']} photons per row; load average at the start {d['load_at_start'][0]:.1f}"
+            " on a shared machine)")
+    return _table(["fabric", "target", "achieved error", "marginal: tables + rays", "fixed: start-up + set-up"],
+                  rows) + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
+    "speed-accuracy": fig_speed_accuracy,
     "felt-residual": fig_felt_residual,
     "felt-residual-measured": fig_felt_residual_measured,
     "felt-residual-noise": fig_felt_residual_noise,

@@ -8,6 +8,9 @@ Each study writes ``OUT/NAME.json`` and prints its figures; ``quick`` runs it on
   classic model depart from the felt Monte Carlo on the green felt; ``OUT/method-errors-felt.json`` is
   the table ``simulate fabric --method auto`` reads for a felt (shipped as
   ``simulate/configs/method-errors-felt.json``). ``quick``: the Monte Carlo at 10 %.
+* ``speed-accuracy`` (:mod:`fabric_optics.bench.speed_accuracy`): the Monte Carlo's achieved error
+  against its marginal cost, red cotton and the felt, with the fixed costs apart and the cheaper
+  models' floors; also writes ``OUT/speed-accuracy.png``. ``quick``: every other target.
 """
 
 from __future__ import annotations
@@ -33,12 +36,29 @@ def _method_errors_felt(quick: bool) -> tuple[dict[str, Any], list[str]]:
     return errors, lines
 
 
+def _speed_accuracy(quick: bool) -> tuple[dict[str, Any], list[str]]:
+    from fabric_optics.bench.speed_accuracy import run_speed_accuracy, study_lines
+
+    report = run_speed_accuracy(quick=quick)
+    return report, study_lines(report)
+
+
+def _speed_accuracy_chart(report: dict[str, Any], out: Path) -> None:
+    from fabric_optics.bench.speed_accuracy import chart
+
+    chart(report, out / "speed-accuracy.png")
+
+
 #: name -> ``(one-line description, run(quick) -> (report, lines))``
 STUDIES: dict[str, tuple[str, Callable[[bool], tuple[dict[str, Any], list[str]]]]] = {
     "felt": ("the felt Monte Carlo against the felt summation, per fiber absorption", _felt),
     "method-errors-felt": ("where the summation and classic depart from the felt Monte Carlo "
                            "(the --method auto table of a felt)", _method_errors_felt),
+    "speed-accuracy": ("the Monte Carlo's achieved error against its marginal cost, fixed costs apart, "
+                       "red cotton and the felt", _speed_accuracy),
 }
+#: the studies that also draw a chart: name -> draw(report, out)
+CHARTS: dict[str, Callable[[dict[str, Any], Path], None]] = {"speed-accuracy": _speed_accuracy_chart}
 
 
 def run_study(name: str, out: Path, quick: bool = False) -> list[str]:
@@ -46,4 +66,6 @@ def run_study(name: str, out: Path, quick: bool = False) -> list[str]:
     _, run = STUDIES[name]
     report, lines = run(quick)
     (Path(out) / f"{name}.json").write_text(json.dumps(report, indent=2))
+    if name in CHARTS:
+        CHARTS[name](report, Path(out))
     return lines

@@ -16,7 +16,8 @@ d = 0.02 cm; MCML manual Table 6.1):
 * (not with ``--quick``) the fiber BRDF routes, :mod:`fabric_optics.bench.fiber`, the woven-fabric
   Monte Carlo, :mod:`fabric_optics.bench.woven`, and ``simulate fabric red-cotton`` at 1 % by
   summation and Monte Carlo (cold and warm table cache), whole processes and in process,
-  :mod:`fabric_optics.bench.fabric`.
+  :mod:`fabric_optics.bench.fabric`; the Monte Carlo's achieved error against its marginal cost,
+  :mod:`fabric_optics.bench.speed_accuracy` (``speed-accuracy.png``).
 
 Writes ``DIR/bench.json`` and ``DIR/bench.png`` (matplotlib, Agg); :func:`markdown_table`
 formats the headline figures.
@@ -252,7 +253,12 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
 
         report["woven"] = bench_woven.run_woven_bench()
         bench_woven.chart(report["woven"], out / "woven.png")
-        bench_woven.chart_speed(report["woven"], out / "speed-accuracy.png")
+        bench_woven.chart_cost_growth(report["woven"], out / "cost-growth.png")
+        # the Monte Carlo's achieved error against its marginal cost, red cotton and the felt
+        from fabric_optics.bench import speed_accuracy
+
+        report["speed_accuracy"] = speed_accuracy.run_speed_accuracy()
+        speed_accuracy.chart(report["speed_accuracy"], out / "speed-accuracy.png")
         # simulate fabric red-cotton at 1 % against its time targets: summation, mc cold / warm table cache
         from fabric_optics.bench.fabric import run_fabric_bench
 

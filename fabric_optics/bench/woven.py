@@ -144,7 +144,6 @@ def run_woven_bench(target: float = 0.01) -> dict:
     report["red_cotton"] = red_cotton_mc(target)
     report["models"] = model_datasets()
     report["departure"] = departure(report)
-    report["speed_vs_accuracy"] = speed_vs_accuracy()
     report["cost_growth"] = cost_growth()
     return report
 
@@ -173,7 +172,7 @@ def markdown(report: dict) -> str:
 
 
 # ------------------------------------------------------------------------------------------
-# speed against accuracy, cost growth (issue: the main job's bench)
+# cost growth (speed against accuracy: fabric_optics.bench.speed_accuracy)
 # ------------------------------------------------------------------------------------------
 
 
@@ -182,39 +181,6 @@ def _plan_subset(plan: Any, wavelengths: Any) -> Any:
     import dataclasses
 
     return dataclasses.replace(plan, wavelengths_nm=np.asarray(wavelengths, float))
-
-
-def speed_vs_accuracy(budgets: tuple[float, ...] = (0.2, 0.1, 0.05, 0.02), reference_target: float = 0.005,
-                      threads: int | None = None) -> dict:
-    """Error of every method against a converged woven Monte Carlo reference, against wall time.
-
-    Error: RMS over geometries and wavelengths of ``(beta - ref) / max_lambda(ref)``, i.e. the
-    accuracy target's convention. Every run is a child process of its own, so its peak memory
-    is its own (``peak_rss_mb``). Classic and summation converge to their own model, so their
-    error levels off at their departure from the woven fabric; the Monte Carlo's falls with its
-    budget. Each run uses a different seed from the reference.
-    """
-    import pandas as pd
-
-    threads = threads or os.cpu_count() or 1
-    ref = in_child(reference_target, "mc", 1000, threads)
-    key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
-    rt = pd.DataFrame(ref["table"])
-
-    def error(table: dict) -> float:
-        j = rt.merge(pd.DataFrame(table), on=key, suffixes=("_r", "_m"))
-        peak = j.groupby(["theta_i", "phi_i", "theta_o", "phi_o"])["beta_r"].transform("max")
-        return float(np.sqrt(np.mean(((j["beta_m"] - j["beta_r"]) / peak) ** 2)))
-
-    runs = []
-    for method in ("classic", "summation", "mc"):
-        for k, target in enumerate(budgets):
-            r = in_child(target, method, k + 1, threads)
-            runs.append({"method": method, "target": target, "seconds": r["wall_seconds"],
-                         "peak_rss_mb": r["peak_rss_mb"], "error": error(r["table"])})
-    return {"reference": {"method": "mc", "target": reference_target, "seconds": ref["wall_seconds"],
-                          "peak_rss_mb": ref["peak_rss_mb"]},
-            "runs": runs, "threads": threads}
 
 
 def cost_growth(target: float = 0.02) -> dict:
@@ -238,25 +204,14 @@ def cost_growth(target: float = 0.02) -> dict:
     return {"target": target, "runs": rows}
 
 
-def chart_speed(report: dict, path: Path) -> None:
-    """Error vs wall time per method (log-log), and cost growth with wavelengths and threads."""
+def chart_cost_growth(report: dict, path: Path) -> None:
+    """Woven Monte Carlo wall time against the number of wavelengths, per thread count."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    sva = report["speed_vs_accuracy"]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for method, marker in (("classic", "s"), ("summation", "o"), ("mc", "^")):
-        r = [x for x in sva["runs"] if x["method"] == method]
-        a.loglog([x["seconds"] for x in r], [x["error"] for x in r], marker + "-", label=method)
-        for x in r:
-            a.annotate(f"{x['target']:g}", (x["seconds"], x["error"]), fontsize=7, xytext=(3, 3),
-                       textcoords="offset points")
-    a.set_xlabel("wall time (s)")
-    a.set_ylabel("RMS error vs converged woven MC (of its peak)")
-    a.set_title(f"speed vs accuracy (reference: MC at {sva['reference']['target']:.1%})")
-    a.legend(fontsize=8)
+    fig, b = plt.subplots(figsize=(5.5, 4.2))
     cg = report["cost_growth"]["runs"]
     for threads, marker in ((1, "o-"), (2, "s-")):
         r = [x for x in cg if x["threads"] == threads]
