@@ -224,11 +224,11 @@ def claimed(name: str, out: Path, *, file: bool = False) -> Iterator[None]:
 
 def illuminant(name: str, value: Any) -> str:
     """The name of an illuminant of the colour match: a key of colour-science's ``SDS_ILLUMINANTS``."""
-    from gonio.data.colour import _illuminant_data
+    from gonio.data.colour import check_illuminant
 
     text(name, value, max_len=64)
     try:
-        _illuminant_data(value)
+        check_illuminant(value)
     except ValueError:
         raise InputError(f"{name}={value!r}: unknown illuminant; use a key of colour.SDS_ILLUMINANTS "
                          "such as 'D65'") from None

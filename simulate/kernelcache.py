@@ -27,7 +27,7 @@ function's bytecode. Two clones of the same sources share one folder; clones who
 use different folders and never overwrite each other's files (a loaded kernel is always the one its
 index was written with). A module keeps the :data:`KEEP` folders used last; older ones are removed
 when a new one is made. A folder that cannot be made or written (read-only home) leaves the kernel
-to numba's own locators, as before. ``NUMBA_CACHE_LOCATOR_CLASSES``, when set, is numba's to obey:
+to numba's own locators. ``NUMBA_CACHE_LOCATOR_CLASSES``, when set, is numba's to obey:
 nothing is installed.
 
 Design after the content-hash locators of cmomy (https://github.com/usnistgov/cmomy,

@@ -10,7 +10,7 @@ traced as ``simulate fabric`` traces a blend, the dye in a ring or a core) and e
 event, ``all``), at the file's incidences 27.76 and 40.03 deg:
 
 * ``ratio``: the opposition ratio ``beta(ring 6 deg) / beta(ring 30 deg)`` at 550 and 650 nm, the rings pooled over
-  the seeds (:func:`compare.felt_metrics.opposition_ratios`' rings);
+  the seeds (:func:`compare.ratios.opposition_ratios`' rings);
 * ``red_excess``: ``ratio(650) - ratio(550)`` of each seed's own run (the two bands share the run's rays, so most of
   the noise cancels), its mean over the seeds and the standard error of that mean from their spread: the file's
   red-larger peak is a positive value;

@@ -389,9 +389,9 @@ RETRO_BANDS_NM = (550.0, 650.0)
 
 def retro(path: str, max_incidence: float = 90.0, bands: tuple[float, ...] = RETRO_BANDS_NM) -> dict[str, dict]:
     """The retro-ring ratio of a dataset at ``bands`` (its own values, scale-free:
-    :func:`compare.felt_metrics.opposition_ratios`), per oblique incidence up to ``max_incidence`` that holds both
+    :func:`compare.ratios.opposition_ratios`), per oblique incidence up to ``max_incidence`` that holds both
     rings, with the ratio's standard error; ``{}`` when none does."""
-    from compare.felt_metrics import Missing, opposition_ratios
+    from compare.ratios import Missing, opposition_ratios
 
     table = _read(path).table
     ratios = opposition_ratios(table)

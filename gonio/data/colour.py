@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ColourSummary", "colourspace", "display_srgb", "hue_difference", "rgb_colour",
+__all__ = ["ColourSummary", "check_illuminant", "colourspace", "display_srgb", "hue_difference", "rgb_colour",
            "spectrum_colour", "spectrum_to_rgb"]
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
@@ -222,6 +222,18 @@ def _illuminant_data(illuminant: str):
         raise ValueError(f"unknown illuminant {illuminant!r}; use a key of "
                          "colour.SDS_ILLUMINANTS such as 'D65'")
     return _illuminant_entry(illuminant)
+
+
+def check_illuminant(illuminant: str) -> str:
+    """Return ``illuminant`` when it names an illuminant of the colour match.
+
+    Raises
+    ------
+    ValueError
+        Any name that is not a key of ``colour.SDS_ILLUMINANTS``.
+    """
+    _illuminant_data(illuminant)
+    return illuminant
 
 
 @functools.lru_cache(maxsize=64)

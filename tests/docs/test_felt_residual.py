@@ -452,7 +452,7 @@ def test_the_blend_screen_reads_made_up_rings_and_mixes_two_populations_by_share
 
 def test_retro_reads_the_ring_ratio_of_a_dataset_at_550_and_650_nm(tmp_path):
     """A dataset whose ring at 6 deg is 1.2 (550 nm) and 1.3 (650 nm) times its ring at 30 deg: `retro` gives those."""
-    from compare.felt_metrics import ring_directions
+    from compare.ratios import ring_directions
     from gonio.data import Dataset
     from gonio.data.dataset import write_dataset
 
