@@ -466,9 +466,24 @@ def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float =
 
 @dataclass
 class FitOutcome:
-    """A finished fit: the fitted config (``config``, also in ``out/fitted.toml``), the typed result (``result``:
-    parameters, uncertainties, warnings, counts), the summary written to ``out/fit.json`` (``summary``), whether it
-    passed (``passed``: its colour within the tolerance) and its ``warnings`` (one line each)."""
+    """A finished fit, as `fit` returns it.
+
+    Attributes
+    ----------
+    out : Path
+        The fit's folder.
+    summary : dict
+        What `out/fit.json` holds (the one serialiser of the fit's result wrote both).
+    result : FitResult
+        The typed result: parameter names, start and fitted values, uncertainties (the measurement's and the
+        Monte Carlo's parts), correlation, objective, warnings and counts.
+    config : SimulationConfig
+        The fitted config (also `out/fitted.toml`).
+    passed : bool
+        The fitted colour is within the tolerance.
+    warnings : list of str
+        One line each: a bound reached, a budget spent, the colour left off.
+    """
 
     out: Path
     summary: dict
@@ -582,19 +597,86 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
         resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False,
         colour_hold: bool = True) -> FitOutcome:
-    """Fit the ``free`` parameters of ``config`` (names as ``simulate fit --free``: ``"dye,rms_slope"``
-    or ``["dye", "rms_slope=0.1:0.5"]``) to ``measured`` by ``method`` (one of :data:`FIT_METHODS`, default
-    ``"classic"`` as on the command line).
+    """Fit parameters of a fabric model to a measurement (`simulate fit`).
 
-    ``dye="knots"`` replaces the config's dye by knots started from the measured colour.
-    ``max_evaluations`` bounds the model evaluations of the summation and classic fits, ``max_runs``
-    the Monte Carlo runs of the ``mc`` fit. ``target_rel_err`` (the first Monte Carlo walk's) and
-    ``seed`` default to the config's. Everything is written to ``out`` (resumable with
-    ``resume=True``); an existing output there is replaced only with ``force=True``. ``absolute=True``:
-    the measurement is absolutely calibrated, its level is fitted too (``simulate fit --absolute``).
-    ``colour_hold=False``: the classic and summation fits weigh the colour by ``colour_weight`` only, without
-    holding it within the tolerance (``simulate fit --no-colour-hold``). A fit whose colour is left off, or that
-    never moved from its start, warns with :class:`FitWarning` (``outcome.passed``, ``outcome.warnings``).
+    Parameters
+    ----------
+    config : str, path or SimulationConfig
+        The start: a preset name, a config TOML file or a loaded config.
+    measured : str, path or Dataset
+        The measurement (a dataset or its folder).
+    free : str or sequence of str
+        The parameters to fit, named as `simulate fit --free` names them: `"dye,rms_slope"` or
+        `["dye", "rms_slope=0.1:0.5"]` (a range after `=`).
+    out : str or path
+        The fit's folder: `fit.json`, `fitted.toml`, the `initial/` and `fitted/` datasets, a report and the
+        checkpoints that `resume` reads.
+    method : str, default "classic"
+        One of `FIT_METHODS`: `"classic"`, `"summation"` or `"mc"` (the Monte Carlo by output space mapping).
+    dye : str, default "config"
+        `"knots"` replaces the config's dye by knots started from the measured colour.
+    max_evaluations : int, optional
+        Model evaluations of the classic and summation fits (their default budget when None).
+    max_runs : int, optional
+        Monte Carlo runs of the `mc` fit (its default budget when None).
+    target_rel_err, seed : optional
+        The first Monte Carlo walk's relative error and the seed (the config's by default).
+    threads : int, optional
+        Threads of the walks (all cores by default).
+    colour_weight : float, default 1.0
+        Weight of the colour match in the objective.
+    wavelengths_nm : sequence of float, optional
+        The model's wavelengths (the measurement's by default).
+    mc_trend : sequence of str, default ()
+        For `mc`: parameters whose trend the surrogate borrows from the summation.
+    starts : int, default 1
+        Independent starts of the search; the best is kept.
+    resume : bool, default False
+        Continue a fit stopped in `out` from its checkpoints.
+    force : bool, default False
+        Replace what `out` holds.
+    progress : bool, default False
+        Show a progress bar.
+    absolute : bool, default False
+        The measurement is absolutely calibrated: its level is fitted too (`simulate fit --absolute`).
+    colour_hold : bool, default True
+        The classic and summation fits hold the colour within the tolerance; False weighs it by
+        `colour_weight` only (`simulate fit --no-colour-hold`).
+
+    Returns
+    -------
+    FitOutcome
+        `.config` (the fitted config), `.result` (parameters, uncertainties, warnings, counts), `.summary`
+        (what `fit.json` holds), `.passed` and `.warnings`.
+
+    Raises
+    ------
+    InputError
+        A bad argument, config, measurement or free parameter (the message names it), a fibre blend, a
+        measurement beyond the row bound, a checkpoint that cannot be trusted.
+    OutputExistsError
+        `out` holds a fit and neither `force` nor `resume` was given; `OutputBusyError` when another writer
+        holds it.
+
+    Warns
+    -----
+    FitWarning
+        The fitted colour is off by more than the tolerance, or the search never moved from its start; the
+        outputs are written all the same and `outcome.passed` says so.
+
+    Examples
+    --------
+    >>> import tempfile, warnings
+    >>> from pathlib import Path
+    >>> import fabric_optics as fo
+    >>> out = Path(tempfile.mkdtemp()) / "fit"
+    >>> with warnings.catch_warnings(record=True):
+    ...     outcome = fo.fit("red-cotton", "fixtures/analytic/measured_red", "rms_slope", out,
+    ...                      max_evaluations=6, target_rel_err=0.2, seed=1)
+    >>> outcome.result.names, outcome.result.x[0] < outcome.result.start[0]
+    (('surface.rms_slope',), True)
+    >>> sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    ['fit-state.json', 'fit.json', 'fitted', 'fitted.toml', 'initial', 'report', 'walks']
     """
     _v.integer("max_evaluations", max_evaluations, 1, 10**6, none=True)
     _v.integer("max_runs", max_runs, 2, 10**4, none=True)
