@@ -7,12 +7,14 @@ records the versions it ran with and its parameters through these two functions.
 from __future__ import annotations
 
 import importlib.metadata
+import os
 import platform
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["software_versions", "jsonable"]
+__all__ = ["software_versions", "jsonable", "machine"]
 
 
 def software_versions() -> dict:
@@ -46,3 +48,17 @@ def jsonable(obj: Any) -> Any:
     if obj is None or isinstance(obj, (str, int, bool)):
         return obj
     return str(obj)
+
+
+def machine() -> dict[str, Any]:
+    """What a measured figure was measured on: CPU model, logical CPUs, system and Python."""
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": model or platform.processor() or "unknown", "cpus": os.cpu_count(),
+            "system": f"{platform.system()} {platform.machine()}", "python": platform.python_version()}

@@ -22,8 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
 import re
 import statistics
 import sys
@@ -31,24 +29,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from simulate.provenance import machine
+
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "docs" / "data"
 REGENERATE = "python docs/scripts/render_figures.py"
 _BLOCK = re.compile(r"(<!-- BEGIN FIGURE: ([\w-]+) -->\n)(.*?)(<!-- END FIGURE: \2 -->)", re.S)
-
-
-def machine() -> dict[str, Any]:
-    """What the figures were measured on: CPU model, logical CPUs, system."""
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": model or platform.processor() or "unknown", "cpus": os.cpu_count(),
-            "system": f"{platform.system()} {platform.machine()}", "python": platform.python_version()}
 
 
 def load(name: str, path: Path | None = None) -> dict[str, Any]:

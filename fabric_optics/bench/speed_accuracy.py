@@ -32,7 +32,6 @@ import dataclasses
 import json
 import math
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -41,6 +40,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+from simulate.provenance import machine
 
 __all__ = ["FABRICS", "TARGETS", "small_plan", "achieved_error", "model_floors", "run_speed_accuracy", "chart",
            "study_lines", "machine"]
@@ -55,20 +55,6 @@ TARGETS: dict[str, tuple[float, ...]] = {"red cotton": (0.2, 0.1, 0.05, 0.02, 0.
                                          "green felt": (0.5, 0.2, 0.1, 0.05, 0.02)}
 SEEDS = (11, 12)
 COMMAND = "simulate bench --study speed-accuracy --out DIR"
-
-
-def machine() -> dict[str, Any]:
-    """CPU model, logical CPUs, system (as the documentation's figures record them)."""
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": model or platform.processor() or "unknown", "cpus": os.cpu_count(),
-            "system": f"{platform.system()} {platform.machine()}", "python": platform.python_version()}
 
 
 def small_plan(plan: Any, wavelengths: int = 3, step: int = 3) -> Any:
