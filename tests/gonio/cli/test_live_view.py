@@ -160,7 +160,8 @@ def test_state_follows_the_run_and_the_page_is_guarded(drv, tmp_path):
                 socket.create_connection(("127.0.0.2", port), timeout=5).close()
             held: list[socket.socket] = []
             seen = []
-            while True:
+            deadline = time.monotonic() + 120       # a view that never finishes fails here, not at the suite's timeout
+            while time.monotonic() < deadline:
                 st = _state(url)
                 seen.append(st)
                 if not held and st["done"] >= 3:
@@ -345,8 +346,10 @@ def test_the_page_in_headless_chromium(drv, tmp_path, monkeypatch):
             page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
             page.on("requestfailed", lambda r: problems.append(f"failed: {r.url} {r.failure}"))
             page.goto(server.url)
-            while page.text_content("#status") != "starting":
+            ready = time.monotonic() + 60
+            while page.text_content("#status") != "starting" and time.monotonic() < ready:
                 time.sleep(0.02)
+            assert page.text_content("#status") == "starting"
             result: list = []
             run = threading.Thread(target=lambda: result.append(_acquire_in_process(mock, plan_path, out, [view])))
             run.start()
