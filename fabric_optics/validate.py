@@ -19,7 +19,7 @@ import os
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 from fabric_optics.errors import InputError
 
@@ -120,8 +120,16 @@ def text(name: str, value: Any, *, none: bool = False, max_len: int = 10_000) ->
     return value
 
 
+@overload
+def path(name: str, value: Any) -> Path: ...
+
+
+@overload
+def path(name: str, value: Any, *, none: bool) -> Path | None: ...
+
+
 def path(name: str, value: Any, *, none: bool = False) -> Path | None:
-    """A path given as ``str`` or ``os.PathLike`` (no NUL character, not empty)."""
+    """A path given as ``str`` or ``os.PathLike`` (no NUL character, not empty); ``None`` only with ``none``."""
     if value is None and none:
         return None
     if not isinstance(value, (str, os.PathLike)):
@@ -138,7 +146,6 @@ def out_path(name: str, value: Any, *, file: bool = False) -> Path:
     """An output path that can be written: its nearest existing folder is a writable folder;
     ``file``: a file output, whose folder must exist."""
     p = path(name, value)
-    assert p is not None
     parent = Path(os.path.abspath(p)).parent
     if file and not parent.is_dir():
         raise InputError(f"{name}={os.fspath(p)!r}: the folder {parent} does not exist; create it or choose another")

@@ -320,6 +320,11 @@ class SimulationConfig:
             dye_depth_um=p.dye_depth_um, populations=None))
             for p in self.populations]
 
+    def undyed(self) -> SimulationConfig:
+        """The config with its fiber undyed: the reference a walk is traced in when its dye is applied by
+        weights (:mod:`simulate.structwalk`)."""
+        return dataclasses.replace(self, dye=None)
+
     def w_t_nodes(self) -> tuple[float, ...]:
         """The yarn table's axial nodes of ``[method] axial_nodes``."""
         return axial_node_grid(self.axial_nodes)

@@ -29,6 +29,7 @@ from simulate import fiber as F
 from simulate import woven as W
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
+from simulate.products import all_threads
 from simulate.nonwoven.felt import felt_mesh, fiber_pieces
 
 R_UM = 10.0
@@ -117,7 +118,7 @@ def run_felt_study(*, quick: bool = False, mu_a: tuple[float, ...] | None = None
         bs, us, _ = ST.structured_beta(spec, fib, None, w_i, w_o, [550.0], target_rel_err=summation_target, seed=1,
                                        threads=threads)
         b, u, _ = W.fabric_beta(mesh, fib, w_i, w_o, np.array([550.0]), target_rel_err=target, seed=seed,
-                                threads=threads)
+                                threads=all_threads(threads))
         ratio = float(b[0, 0] / bs[0, 0])
         rows.append({"mu_a_per_um": float(a), "mc": float(b[0, 0]), "u_mc": float(u[0, 0]),
                      "summation": float(bs[0, 0]), "u_summation": float(us[0, 0]), "ratio": ratio,

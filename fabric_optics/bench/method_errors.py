@@ -52,6 +52,14 @@ def model_datasets(config: str = "red-cotton", plan_name: str = "red-cotton") ->
     return out
 
 
+def _mc_report(report: dict) -> dict:
+    """The Monte Carlo reference of a report (``mc``; ``red_cotton`` in reports of the red-cotton study)."""
+    mc = report.get("mc", report.get("red_cotton"))
+    if not isinstance(mc, dict):
+        raise ValueError("the report has no Monte Carlo reference ('mc')")
+    return mc
+
+
 def frame(table: dict):
     """A report's table (dict of columns) as a DataFrame."""
     import pandas as pd
@@ -62,7 +70,7 @@ def frame(table: dict):
 def departure(report: dict) -> dict:
     """Per geometry, the RMS over wavelengths of ``(model - MC) / max_lambda(MC)`` (the accuracy
     target's spectral-peak convention) and the MC's own relative error there; median and max."""
-    mc = frame(report.get("mc", report.get("red_cotton"))["table"])
+    mc = frame(_mc_report(report)["table"])
     key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
     out: dict[str, Any] = {}
     for name, m in report["models"].items():
@@ -151,7 +159,7 @@ def chart(report: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    mc = frame(report.get("mc", report.get("red_cotton"))["table"])
+    mc = frame(_mc_report(report)["table"])
     models = {k: frame(v["table"]) for k, v in report["models"].items()}
     wl = 620.0
     incid = sorted(mc["theta_i"].unique())
@@ -176,7 +184,7 @@ def chart(report: dict, path: Path) -> None:
     axes[0, 0].set_ylabel("beta")
     axes[1, 0].set_ylabel("model / Monte Carlo")
     axes[0, 0].legend(fontsize=8)
-    rc = report.get("mc", report.get("red_cotton"))
+    rc = _mc_report(report)
     fig.suptitle(f"{report.get('study', 'red-cotton')}: Monte Carlo to {rc['rel_err']:.2%} rms in "
                  f"{rc['wall_seconds']:.0f} s, {os.cpu_count()} cores")
     fig.tight_layout()

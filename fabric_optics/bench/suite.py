@@ -47,7 +47,7 @@ __all__ = ["VAN_DE_HULST", "run_bench", "markdown_table"]
 
 log = logging.getLogger(__name__)
 
-VAN_DE_HULST = {"mu_a": 10.0, "mu_s": 90.0, "g": 0.75, "n": 1.0, "thickness": 0.02}
+VAN_DE_HULST: dict[str, Any] = {"mu_a": 10.0, "mu_s": 90.0, "g": 0.75, "n": 1.0, "thickness": 0.02}
 
 _COLD_SNIPPET = (
     "import time; t = time.perf_counter()\n"
@@ -132,7 +132,7 @@ def _whole_process(repeats: int = 5) -> dict[str, Any] | None:
     }
 
 
-def _run(threads: int, photons: int, seed: int, **case: float) -> dict[str, float]:
+def _run(threads: int, photons: int, seed: int, **case: Any) -> dict[str, float]:
     r = run_slab(photons=photons, seed=seed, threads=threads, **case)
     events = r.events_per_photon * r.photons
     return {

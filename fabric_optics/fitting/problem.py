@@ -274,7 +274,7 @@ class FitProblem:
         for p, v in zip([p for p in self.free if p.kind == "walk"], point):
             paths.set_value(doc, p.name, v)
         at = parse_config(toml_dumps(doc), "lattice.toml")
-        nodye = dataclasses.replace(at, dye=None).fiber(self.wavelengths_nm)
+        nodye = at.undyed().fiber(self.wavelengths_nm)
         walk = self._run(nodye, point, None, at)
         self._references[point] = (nodye, walk)
         if len(self._tables) >= 6:  # the 2^d corners of a step and of a Jacobian's columns
@@ -296,7 +296,7 @@ class FitProblem:
         if walk in self._tables:
             return self._tables[walk]
         wl = self.wavelengths_nm
-        nodye = dataclasses.replace(config, dye=None).fiber(wl)
+        nodye = config.undyed().fiber(wl)
         lattice = self.lattice(walk)
         table = None
         if self.reweight and lattice != walk:
@@ -305,7 +305,7 @@ class FitProblem:
                 doc = self._doc_of(config)
                 for p, v in zip([p for p in self.free if p.kind == "walk"], lattice):
                     paths.set_value(doc, p.name, v)
-                ref_fiber = dataclasses.replace(parse_config(toml_dumps(doc), "lattice.toml"), dye=None).fiber(wl)
+                ref_fiber = parse_config(toml_dumps(doc), "lattice.toml").undyed().fiber(wl)
                 ref = (ref_fiber, self._run(ref_fiber, lattice, None, config))
                 self._references[lattice] = ref
             if self._within_bound(ref[1], nodye, wl):

@@ -191,7 +191,8 @@ def prepare_out(out: Path, spec: SweepSpec, resume: bool = False) -> bool:
             raise SweepError(f"--out {out}: {SWEEP_NAME} is not a readable sweep description; "
                              "remove the directory or choose a new --out")
         if doc.get("digest") != spec.digest:
-            old = doc.get("identity") if isinstance(doc.get("identity"), dict) else {}
+            identity = doc.get("identity")
+            old = identity if isinstance(identity, dict) else {}
             new = spec.identity()
             differ = [k for k in new if old.get(k) != new[k]] or ["the spec"]
             raise SweepError(f"--out {out}: holds a different sweep ({', '.join(differ)} differ); remove that "
@@ -303,6 +304,7 @@ class SweepResult:
 
 
 def _task_args(spec: SweepSpec, task: SweepTask) -> TaskArgs:
+    assert spec.target_rel_err is not None   # the config's when not given (SweepSpec.__post_init__)
     return TaskArgs(task.id, task.point.config, spec.plan, task.wavelength_nm, task.seed, spec.method,
                     float(spec.target_rel_err), spec.max_photons, spec.measurable_only, spec.threads)
 
@@ -389,6 +391,7 @@ def _point_dataset(out: Path, spec: SweepSpec, point: SweepPoint, tasks: list[Sw
     geometry = ["theta_i", "phi_i", "theta_o", "phi_o"]
     spectra = table.set_index(geometry + ["wavelength_nm"])[["beta", "u_beta"]].unstack("wavelength_nm")
     values = {p.name: v for p, v in zip(spec.params, point.values)}
+    assert spec.seed is not None   # the config's when not given (SweepSpec.__post_init__)
     prov = dict(first["provenance"])
     prov.pop("task", None)
     prov.update({

@@ -295,6 +295,7 @@ class SweepSpec:
 
     def tasks(self) -> list[SweepTask]:
         """Every task, point by point, wavelength by wavelength (:attr:`per_point`: one per point)."""
+        assert self.seed is not None   # the config's when not given (__post_init__)
         if self.per_point:
             return [SweepTask(p, None, task_seed(int(self.seed), p.index, 0.0)) for p in self.points]
         return [SweepTask(p, wl, task_seed(int(self.seed), p.index, wl))
@@ -302,6 +303,7 @@ class SweepSpec:
 
     def identity(self) -> dict:
         """The parts of the spec that a resumed sweep must share (see :attr:`digest`)."""
+        assert self.seed is not None and self.target_rel_err is not None   # set in __post_init__
         return {"config": self.config.sha256, "plan": self.plan.sha256,
                 "parameters": [[p.name, p.path, list(p.values)] for p in self.params],
                 "method": self.method, "seed": int(self.seed), "target_rel_err": float(self.target_rel_err),
