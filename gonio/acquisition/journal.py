@@ -56,7 +56,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 __all__ = ["JournalError", "JournalIntegrityError", "JournalContent", "Journal", "read_journal", "parse_journal",
            "check_consistency", "RECORD_TYPES"]
@@ -296,7 +296,7 @@ class Journal:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        self._fh = None
+        self._fh: BinaryIO | None = None
         self._head = hashlib.sha256(b"").hexdigest()
 
     @classmethod

@@ -216,7 +216,7 @@ class PlanPoint:
     @property
     def key(self) -> tuple[float, float, float, float]:
         """Fabric-frame geometry ``(theta_i, phi_i, theta_o, phi_o)``, rounded to 1e-6 deg."""
-        return tuple(round(v, 6) for v in (self.theta_i, self.phi_i, self.theta_o, self.phi_o))
+        return (round(self.theta_i, 6), round(self.phi_i, 6), round(self.theta_o, 6), round(self.phi_o, 6))
 
 
 @dataclass
@@ -568,7 +568,7 @@ class Plan:
         out, seen = [], set()
         for a in axes:
             g = axes_to_fabric(*a)
-            p = PlanPoint(*(float(x) for x in a), *g)
+            p = PlanPoint(float(a[0]), float(a[1]), float(a[2]), float(a[3]), *g)
             if p.key not in seen:
                 seen.add(p.key)
                 out.append(p)

@@ -406,7 +406,7 @@ class ModbusFrontend:
         self.dropped: list[tuple[int, int, bool]] = []
         self.drop_executed: bool | None = None
         self.silent_until = -math.inf
-        self.drop_link: Callable[[], None] | None = None
+        self.drop_link: Callable[[], object] | None = None
 
     def device(self):
         """Build the ``pymodbus.simulator.SimDevice`` (non-shared blocks: c, d, h, i)."""

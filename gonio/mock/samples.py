@@ -80,7 +80,7 @@ def directions(theta_deg, phi_deg) -> np.ndarray:
 
 
 def _broadcast(*args) -> list[np.ndarray]:
-    return np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in args))
+    return list(np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in args)))
 
 
 class LambertSample:
