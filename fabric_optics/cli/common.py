@@ -50,8 +50,9 @@ import os
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
-from pathlib import Path
 from typing import NoReturn
+
+from gonio.data import outputs as _outputs
 
 from fabric_optics import validate as _validate
 
@@ -256,20 +257,9 @@ def progress(args: argparse.Namespace) -> bool:
 
 
 def refuse_existing(out: str | os.PathLike, force: bool, *, flag: str = "--out") -> None:
-    """Refuse an existing output without ``--force``: a file, or a folder holding anything
-    (hidden files aside)."""
-    path = Path(out)
-    if force or not (path.exists() or path.is_symlink()):
-        return
-    if path.is_dir():
-        try:
-            if not any(not e.name.startswith(".") for e in path.iterdir()):
-                return
-        except OSError as exc:
-            raise UsageError(f"{flag} {path}: cannot read the folder ({exc.strerror})") from None
-        raise UsageError(f"{flag} {path}: the folder is not empty; pass --force to replace its output, "
-                         "or choose a new folder")
-    raise UsageError(f"{flag} {path}: exists; pass --force to replace it, or choose a new name")
+    """Refuse an existing output without ``--force``: a file, or a folder holding anything (hidden
+    files aside); the output rule of every writer (:func:`gonio.data.outputs.refuse_existing`)."""
+    _outputs.refuse_existing(out, force=force, option=flag)
 
 
 @contextmanager
