@@ -278,19 +278,17 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_truth(args) -> int:
-    from gonio.data import write_dataset
-    from gonio.mock.samples import SampleError
-    from gonio.mock.truth import truth_dataset
+    from fabric_optics import api
 
     plan = _plan_for(plan_of(args), args.sample, "SAMPLE")
     check_output(args.out, "dataset", writer="gonio truth", force=args.force)
     refuse_existing(args.out, args.force)
     try:
-        dataset = truth_dataset(args.sample, plan)
-    except SampleError as exc:
-        raise _UsageError(str(exc)) from None
+        dataset = api.truth(args.sample, plan)
+    except api.InputError as exc:       # the sample's own message, as the option names it
+        raise _UsageError(str(exc.__cause__ or exc)) from None
     dataset.meta[WRITTEN_BY] = "gonio truth"
-    out = write_dataset(dataset, args.out)
+    out = api.write_dataset(dataset, args.out, force=args.force)
     print(f"gonio truth: {printable(dataset.name)}, {len(dataset)} values at the geometries of plan "
           f"{plan.name}; dataset in {out}/")
     return EXIT_OK

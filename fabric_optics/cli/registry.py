@@ -29,11 +29,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
-from gonio.data.outputs import OutputRefused
-from gonio.data.printable import printable
-
 from fabric_optics.cli.common import Parser, UsageError, add_verbose, add_version, claim
 from fabric_optics.errors import InputError, OutputExistsError, interrupt_of
+from gonio.data.outputs import OutputRefused
+from gonio.data.printable import printable
 
 __all__ = ["Command", "Program", "build_parser", "main", "EXIT_USAGE", "EXIT_INTERRUPTED", "USER_ERRORS"]
 
@@ -258,5 +257,5 @@ def main(program: Program, argv: Sequence[str] | None = None) -> int:
 def _os_error(exc: OSError) -> str:
     """One line for a failed read or write: the file and the reason."""
     reason = exc.strerror or str(exc)
-    return printable(f"{exc.filename}: {reason}" if exc.filename else reason)
+    return printable(f"{reason} ({exc.filename})" if exc.filename else reason)
 

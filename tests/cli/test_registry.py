@@ -76,7 +76,7 @@ def _raise(exc):
 @pytest.mark.parametrize("exc, code, line", [
     (UsageError("--n 3: too many"), 2, "prog go: error: --n 3: too many"),
     (OutputRefused("--out o: exists; pass --force to replace it"), 2, "prog go: error: --out o: exists; pass --force"),
-    (OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "o/x.csv"), 2, "prog go: error: o/x.csv: No space left on device"),
+    (OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "o/x.csv"), 2, "prog go: error: No space left on device (o/x.csv)"),
     (KeyboardInterrupt(), 130, "prog go: interrupted"),
 ])
 def test_the_shared_errors_are_one_line_with_their_exit_status(exc, code, line, capsys):
