@@ -35,6 +35,7 @@ from gonio.data.dataset import Dataset
 from gonio.data.formats import FORMATS
 from gonio.data.outputs import OutputRefused
 from gonio.data.outputs import refuse_existing as _refuse_output
+from gonio.data.outputs import refuse_run_folder as _refuse_run_folder
 from simulate.config import SimulationConfig
 from fabric_optics import validate as _v
 from fabric_optics.errors import (FileSystemError, InputError, InternalError, OutputBusyError,
@@ -208,18 +209,13 @@ def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = Fa
     fabric_optics.api.OutputExistsError: ...the folder is not empty; pass force=True to replace its output, or choose a new folder
     """
     from gonio.data.dataset import write_dataset as _write
-    from gonio.data.outputs import JOURNAL_NAME, is_run_folder
 
     if not isinstance(dataset, Dataset):
         raise InputError(f"dataset: expected a Dataset, got {type(dataset).__name__}")
     out = _v.out_path("path", path)
     _v.flag("force", force)
     with _v.claimed("path", out):
-        if is_run_folder(out):
-            raise OutputExistsError(f"{out}: is a run folder (it holds {JOURNAL_NAME}; its dataset is rebuilt from "
-                                    "that journal): choose another path (a run folder is never replaced, not even "
-                                    "with force=True)")
-        _refuse_existing(out, force, "path")
+        _refuse_existing(out, force, "path", run_folder=True)
         return _write(dataset, out)
 
 
@@ -943,10 +939,12 @@ _SUFFIX_FORMATS = {".bsdf": "rgl-bsdf", ".binary": "merl"}
 
 
 def _refuse_existing(out: Path, force: bool, what: str = "out", *, ask: str = "force=True",
-                     file: bool = False) -> None:
-    """An existing file, or a folder holding anything (hidden files aside), only with `force`: the output
-    rule of every writer (`gonio.data.outputs.refuse_existing`)."""
+                     file: bool = False, run_folder: bool = False) -> None:
+    """An existing file, or a folder holding anything (hidden files aside), only with `force`; `run_folder`:
+    a run folder never (the output rule of every writer, `gonio.data.outputs`)."""
     try:
+        if run_folder:
+            _refuse_run_folder(out, option=what, ask=ask)
         _refuse_output(out, force=force, option=what, ask=ask, file=file)
     except OutputRefused as exc:
         raise OutputExistsError(str(exc)) from None

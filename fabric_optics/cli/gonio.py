@@ -45,7 +45,7 @@ from pathlib import Path
 from gonio.acquisition.calibration import CalibrationError
 from gonio.acquisition.engine import EXIT_OK, AcquisitionError, RunResult
 from gonio.acquisition.journal import JournalError, read_journal
-from gonio.acquisition.plan import PlanError, load_plan, preset_names
+from gonio.acquisition.plan import PlanError, preset_names
 from gonio.acquisition.record import (ReplayMismatch, TranscriptError, TranscriptIntegrityError,
                                       load_transcript)
 from gonio.acquisition.session import check_run_output, replay_session, run_session
@@ -55,6 +55,7 @@ from gonio.data.printable import printable
 from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
 from gonio.instrument.probe import LinkSetupError, open_links
 
+from fabric_optics import api
 from fabric_optics.cli import common, registry
 from fabric_optics.cli.common import (Parser, UsageError, add_force, add_no_progress, add_plan,
                                       add_verbose, plan_of, refuse_existing)
@@ -127,7 +128,7 @@ def _finish(result: RunResult, command: str, resume: str | None = None) -> int:
 
 
 def _cmd_acquire(args) -> int:
-    plan = load_plan(plan_of(args))
+    plan = api.load_plan(plan_of(args))
     out = Path(args.out)
     check_run_output(out, writer="gonio acquire", force=args.force, resume=args.resume)
     if not args.resume:
@@ -193,7 +194,7 @@ def _cmd_replay(args) -> int:
     except TranscriptIntegrityError as exc:     # an edited transcript proves nothing: exit 1
         print(f"gonio replay: {exc}", file=sys.stderr)
         return 1
-    plan = load_plan(plan_of(args))
+    plan = api.load_plan(plan_of(args))
     check_run_output(Path(args.out), writer="gonio replay", force=args.force)
     refuse_existing(args.out, args.force)
     try:
@@ -206,7 +207,7 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_check_plan(args) -> int:
-    plan = load_plan(plan_of(args))
+    plan = api.load_plan(plan_of(args))
     chk = plan.check()
     n_wl = len(plan.wavelengths_nm)
     print(f"plan {printable(plan.name)} ({printable(plan.path)}): {len(plan.points())} geometries x {n_wl} wavelengths")
@@ -241,7 +242,7 @@ def _plan_for(plan: str, sample: str, what: str):
     from gonio.acquisition.plan import MEASURED, measured_plan
 
     if plan != MEASURED:
-        return load_plan(plan)
+        return api.load_plan(plan)
     if not (str(sample).endswith(".bsdf") and Path(sample).is_file()):
         raise _UsageError(f"--plan {MEASURED}: follows the measured incidences of an RGL .bsdf file, but {what} "
                           f"{sample!r} is not one; give a .bsdf file or a plan")
@@ -278,8 +279,6 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_truth(args) -> int:
-    from fabric_optics import api
-
     plan = _plan_for(plan_of(args), args.sample, "SAMPLE")
     check_output(args.out, "dataset", writer="gonio truth", force=args.force)
     refuse_existing(args.out, args.force)
@@ -301,7 +300,7 @@ def _cmd_bench(args) -> int:
     if args.out:
         check_output(args.out, "file", writer="gonio bench-driver", force=args.force)
         refuse_existing(args.out, args.force)
-    report = {WRITTEN_BY: "gonio bench-driver", **bench_driver(load_plan(args.plan),
+    report = {WRITTEN_BY: "gonio bench-driver", **bench_driver(api.load_plan(args.plan),
                                                                repeats=args.repeats)}
     if args.out:
         check_output(args.out, "file", writer="gonio bench-driver", force=args.force)
@@ -406,8 +405,6 @@ def _cmd_import(args) -> int:
     from gonio.acquisition.plan import MEASURED
     from gonio.data.formats import import_notes
 
-    from fabric_optics import api
-
     if args.plan == MEASURED and not (args.files[0].endswith(".bsdf") and Path(args.files[0]).is_file()):
         raise _UsageError(f"--plan {MEASURED}: follows the measured incidences of an RGL .bsdf file, but FILE "
                           f"{args.files[0]!r} is not one; give a .bsdf file or a plan")
@@ -452,8 +449,6 @@ def _export_arguments(ex: argparse.ArgumentParser) -> None:
 
 
 def _cmd_export(args) -> int:
-    from fabric_optics import api
-
     out = Path(args.out)
     refuse_existing(out, args.force)
     dataset = api.read_dataset(args.dataset)

@@ -49,7 +49,7 @@ from typing import Any, Literal
 from gonio.data.outputs import prepare_folder
 from simulate.montecarlo import ParameterError
 
-from fabric_optics import validate
+from fabric_optics import api, validate
 from fabric_optics.cli import common, registry
 from fabric_optics.cli.common import (UsageError, add_force, add_no_progress, add_plan, add_seed,
                                       add_target_rel_err, add_threads, add_wavelengths, refuse_existing)
@@ -242,15 +242,6 @@ def _is_fiber_output(out: Path) -> bool:
     return isinstance(meta, dict) and meta.get("format") == FORMAT
 
 
-def _load_config(text: str):
-    from simulate.config import ConfigError, load_config
-
-    try:
-        return load_config(text)
-    except ConfigError as exc:
-        raise _UsageError(str(exc)) from None
-
-
 def _check_cost(command: str, config: Any, wavelengths: Any, target: float | None, max_photons: int | None,
                 runs: int = 1) -> None:
     """Refuse a run estimated beyond a day, warn beyond ten minutes (:mod:`simulate.budget`)."""
@@ -291,7 +282,6 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fabric_run(args: argparse.Namespace) -> int:
-    from fabric_optics import api
     from simulate.outdir import OutputError, write_dataset_dir
 
     config = api.load_config(args.config)
@@ -358,7 +348,7 @@ def _fiber_run(args: argparse.Namespace) -> int:
 
     from simulate.fiber.tables import TableGrid, fiber_table, is_fiber_table_dir, write_fiber_table
 
-    config = _load_config(args.config)
+    config = api.load_config(args.config)
     wavelengths = np.asarray(config.wavelengths_nm, float)
     _check_table_size(args.step_deg, args.phi_step_deg, wavelengths.size)
     try:
@@ -474,8 +464,6 @@ def _fit_interrupted(args: argparse.Namespace, walk_parts_before: int) -> str:
 
 
 def _fit_run(args: argparse.Namespace) -> int:
-    from fabric_optics import api
-
     if args.method == "mc" and args.max_evaluations is not None:
         raise _UsageError(f"--max-evaluations {args.max_evaluations}: --method mc counts Monte Carlo runs; "
                           "give --max-runs N instead")
@@ -497,10 +485,11 @@ def _fit_run(args: argparse.Namespace) -> int:
         raise _UsageError(f"MEASURED: {exc}") from None
     if args.out.exists() and not args.out.is_dir():
         raise _UsageError(f"--out {args.out}: exists and is not a directory; choose a directory path")
-    return _fit_claimed(args, api, config, measured, mc_trend)
+    return _fit_claimed(args, config, measured, mc_trend)
 
 
-def _fit_claimed(args: argparse.Namespace, api: Any, config: Any, measured: Any, mc_trend: tuple[str, ...]) -> int:
+def _fit_claimed(args: argparse.Namespace, config: Any, measured: Any, mc_trend: tuple[str, ...]) -> int:
+    """The fit once its arguments are checked (its --out claimed by the registry for the whole run)."""
     if not (args.resume or args.force):
         refuse_existing(args.out, False)
     job = api.prepare_fit(config, measured, args.free, args.out, method=args.method, dye=args.dye,
@@ -588,7 +577,7 @@ def _weave_run(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise _UsageError(f"--out {out}: is a directory; give a mesh file name (.ply or .obj)")
     refuse_existing(out, args.force)
-    config = _load_config(args.config)
+    config = api.load_config(args.config)
     try:
         weave = weave_from_config(config)
         m = mesh(weave)
@@ -680,15 +669,13 @@ def _check_sweep_cost(args: argparse.Namespace, spec: Any) -> None:
 
 
 def _sweep_run(args: argparse.Namespace) -> int:
-    from gonio.acquisition.plan import PlanError, load_plan
-    from gonio.data.dataset import DatasetError, read_dataset
     from fabric_optics.sweep.runner import (SweepError, SweepSpec, clear_sweep, finished_tasks, parse_params,
                                             prepare_out, run_sweep)
 
-    config = _load_config(args.config)
+    config = api.load_config(args.config)
     try:
-        plan = load_plan(args.plan)
-    except PlanError as exc:
+        plan = api.load_plan(args.plan)
+    except api.InputError as exc:
         raise _UsageError(f"--plan: {exc}") from None
     try:
         spec = SweepSpec(config, plan, parse_params(args.param, config), method=args.method,
@@ -700,8 +687,8 @@ def _sweep_run(args: argparse.Namespace) -> int:
     measured = None
     if args.measured is not None:
         try:
-            measured = read_dataset(args.measured)
-        except DatasetError as exc:
+            measured = api.read_dataset(args.measured)
+        except api.InputError as exc:
             raise _UsageError(f"MEASURED: {exc}") from None
     try:
         if args.force and not args.resume:
@@ -777,15 +764,9 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _export_run(args: argparse.Namespace) -> int:
-    from fabric_optics import api
-
-    config = api.load_config(args.config)
-    return _export_claimed(args, api, config)
-
-
-def _export_claimed(args: argparse.Namespace, api: Any, config: Any) -> int:
     import time
 
+    config = api.load_config(args.config)
     refuse_existing(args.out, args.force)
     started = time.perf_counter()
     result = api.export_bsdf(config, args.out, method=args.method, wavelengths_nm=args.wavelengths, rgb=args.rgb,

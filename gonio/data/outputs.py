@@ -42,7 +42,7 @@ from typing import Literal
 from gonio.data.dataset import CSV_NAME, META_NAME
 
 __all__ = ["JOURNAL_NAME", "RUN_FILES", "WRITTEN_BY", "OutputRefused", "check_output",
-           "is_run_folder", "written_by", "occupied", "refuse_existing", "prepare_folder"]
+           "is_run_folder", "written_by", "occupied", "refuse_existing", "refuse_run_folder", "prepare_folder"]
 
 #: The journal of an acquisition: a folder holding a non-empty one is a run folder.
 JOURNAL_NAME = "journal.jsonl"
@@ -109,9 +109,7 @@ def check_output(path: str | os.PathLike, kind: OutputKind, *, writer: str, forc
             raise OutputRefused(f"{where}: a journal from an earlier run is there; continue it "
                                 "with --resume or choose a new --out (a run folder is never "
                                 "replaced, not even with --force)")
-        raise OutputRefused(f"{where}: is a run folder (it holds {JOURNAL_NAME}; its dataset is "
-                            "rebuilt from that journal): choose another --out (a run folder is "
-                            "never replaced, not even with --force)")
+        refuse_run_folder(p, option=option)
     present = [n for n in (CSV_NAME, META_NAME) if (p / n).exists()]
     if not present or force or ours or written_by(p / META_NAME) == writer:
         return
@@ -132,6 +130,25 @@ def _check_file(p: Path, where: str, writer: str, force: bool) -> None:
             return
         raise OutputRefused(f"{where}: the file exists and `{writer}` did not write it; nothing "
                             "was changed: choose another file, or add --force to replace it")
+
+
+def refuse_run_folder(path: str | os.PathLike, *, option: str = "--out", ask: str = "--force") -> None:
+    """Raise :class:`OutputRefused` when ``path`` is a run folder (rule 1: never replaced, ``force`` or not).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The output folder.
+    option : str
+        How the message names the output: ``--out`` on a command line, ``path`` in Python.
+    ask : str
+        How the message names ``force``.
+    """
+    if is_run_folder(path):
+        name = option if option.startswith("-") else "path"
+        raise OutputRefused(f"{option} {Path(path)}: is a run folder (it holds {JOURNAL_NAME}; its dataset is "
+                            f"rebuilt from that journal): choose another {name} (a run folder is never replaced, "
+                            f"not even with {ask})")
 
 
 def occupied(path: str | os.PathLike) -> bool:
