@@ -31,6 +31,7 @@ output                 ``--out PATH`` and ``--force`` on every command that writ
                        ``--force``; ``--resume`` continues a run instead (``gonio acquire``,
                        ``simulate fit``, ``simulate sweep``). A run folder (one holding a
                        journal of measurements) is never replaced, not even with ``--force``.
+                       The one rule of every writer: :mod:`gonio.data.outputs`.
 verbosity              ``-v/--verbose``, before or after the subcommand.
 progress               ``--no-progress`` on every command that can show a progress bar (a bar
                        is shown only on a terminal anyway).
@@ -39,7 +40,8 @@ budgets                ``--max-evaluations N``: model evaluations of a summation
                        ``--max-photons N``: the Monte Carlo's photon budget.
 =====================  ==========================================================================
 
-A usage error is one line on stderr (``PROG SUBCOMMAND: error: ...``), exit status 2.
+A usage error is one line on stderr (``PROG SUBCOMMAND: error: ...``), exit status 2
+(:mod:`fabric_optics.cli.registry`, which runs every command).
 """
 
 from __future__ import annotations

@@ -18,8 +18,8 @@ stopped; 2 usage or input error.
 beam-block zone (all listed); 2 invalid plan.
 ``mock``: see ``gonio mock --help``.
 
-Every command that writes follows :func:`gonio.data.outputs.check_output` and then the vocabulary's
-rule (:mod:`fabric_optics.cli.common`): a run folder (holding a journal) is never replaced (only
+Every command that writes follows :func:`gonio.data.outputs.check_output` and then
+:func:`gonio.data.outputs.refuse_existing`: a run folder (holding a journal) is never replaced (only
 ``acquire --resume`` continues it); any other existing output, a previous output of the same
 command included, only with ``--force``.
 
