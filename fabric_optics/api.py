@@ -33,6 +33,9 @@ from compare.normalise import DEFAULT_WINDOW_DEG
 from gonio.acquisition.plan import Plan
 from gonio.data.dataset import Dataset
 from gonio.data.formats import FORMATS
+from gonio.data.outputs import OutputRefused
+from gonio.data.outputs import refuse_existing as _refuse_output
+from gonio.data.outputs import refuse_run_folder as _refuse_run_folder
 from simulate.config import SimulationConfig
 from fabric_optics import validate as _v
 from fabric_optics.errors import (FileSystemError, InputError, InternalError, OutputBusyError,
@@ -203,22 +206,16 @@ def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = Fa
     >>> fo.write_dataset(fo.truth("lambert:0.5"), out)
     Traceback (most recent call last):
     ...
-    fabric_optics.api.OutputExistsError: ...exists; pass force=True to replace it
+    fabric_optics.api.OutputExistsError: ...the folder is not empty; pass force=True to replace its output, or choose a new folder
     """
     from gonio.data.dataset import write_dataset as _write
-    from gonio.data.outputs import JOURNAL_NAME, is_run_folder
 
     if not isinstance(dataset, Dataset):
         raise InputError(f"dataset: expected a Dataset, got {type(dataset).__name__}")
     out = _v.out_path("path", path)
     _v.flag("force", force)
     with _v.claimed("path", out):
-        if is_run_folder(out):
-            raise OutputExistsError(f"{out}: is a run folder (it holds {JOURNAL_NAME}; its dataset is rebuilt from "
-                                    "that journal): choose another path (a run folder is never replaced, not even "
-                                    "with force=True)")
-        if out.exists() and not force and (not out.is_dir() or any(out.iterdir())):
-            raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
+        _refuse_existing(out, force, "path", run_folder=True)
         return _write(dataset, out)
 
 
@@ -581,9 +578,8 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
     out_dir = Path(out)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"{out_dir}: exists and is not a folder; choose a folder")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not (resume or force):
-        raise OutputExistsError(f"{out_dir}: exists and is not empty; pass resume=True to continue a fit there "
-                                "or force=True to replace it")
+    if not resume:
+        _refuse_existing(out_dir, force, ask="resume=True to continue a fit there or force=True")
     budget = budgets[fit_method.budget]
     return FitJob(problem=problem, out=out_dir, method=method,
                   budget=fit_method.default_budget if budget is None else budget, starts=starts, resume=resume)
@@ -798,8 +794,7 @@ def _export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, out: Pa
                  target_rel_err: float | None, seed: int | None, threads: int | None, max_photons: int | None,
                  check_pairs: int, anisotropic: int, azimuths: int, description: str | None,
                  provenance: dict | None, force: bool, progress: bool) -> Any:
-    if out.exists() and not force:
-        raise OutputExistsError(f"{out}: exists; pass force=True to replace it")
+    _refuse_existing(out, force, "path", file=True)
     if isinstance(source, Dataset):
         from gonio.data.bsdf_dataset import dataset_brdf, dataset_nodes
         from gonio.data.bsdf_export import export_bsdf as _export
@@ -878,7 +873,6 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
     >>> measured.kind, len(measured), (out / "radiance.csv").is_file()
     ('measured', 36, True)
     """
-    from gonio.data.outputs import OutputRefused
     from gonio.demo import run_demo
     from gonio.mock.samples import SampleError
 
@@ -944,14 +938,16 @@ files), `"pgii"` (PAB pgII text files, one incidence each), `"merl"` (MERL binar
 _SUFFIX_FORMATS = {".bsdf": "rgl-bsdf", ".binary": "merl"}
 
 
-def _refuse_existing(out: Path, force: bool, what: str = "out") -> None:
-    """An existing file, or a folder holding anything (hidden files aside), only with `force`."""
-    if force or not (out.exists() or out.is_symlink()):
-        return
-    if out.is_dir() and not any(not e.name.startswith(".") for e in out.iterdir()):
-        return
-    raise OutputExistsError(f"{what} {out}: exists and is not empty; pass force=True to replace it, "
-                            "or choose a new folder")
+def _refuse_existing(out: Path, force: bool, what: str = "out", *, ask: str = "force=True",
+                     file: bool = False, run_folder: bool = False) -> None:
+    """An existing file, or a folder holding anything (hidden files aside), only with `force`; `run_folder`:
+    a run folder never (the output rule of every writer, `gonio.data.outputs`)."""
+    try:
+        if run_folder:
+            _refuse_run_folder(out, option=what, ask=ask)
+        _refuse_output(out, force=force, option=what, ask=ask, file=file)
+    except OutputRefused as exc:
+        raise OutputExistsError(str(exc)) from None
 
 
 @_typed_errors

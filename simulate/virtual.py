@@ -38,8 +38,10 @@ definition measures it, is within the target.
 
 from __future__ import annotations
 
+import json
 import logging
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -52,7 +54,7 @@ from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, check_target, relat
 from simulate.products import MODELS, Geometries, RunSettings, evaluate
 from simulate.provenance import software_versions
 
-__all__ = ["FABRIC_METHODS", "GENERATOR", "fabric_dataset"]
+__all__ = ["FABRIC_METHODS", "GENERATOR", "fabric_dataset", "is_previous_output"]
 
 log = logging.getLogger(__name__)
 
@@ -179,3 +181,24 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     }
     meta = new_meta("simulated", sample, model, provenance)
     return make_dataset(table, meta)
+
+
+def is_previous_output(out: Path) -> bool:
+    """True when the folder ``out`` holds a previous ``simulate fabric`` output: its ``meta.json`` says so.
+
+    Also recognised: what a run of an older version killed between its two renames left,
+    ``radiance.csv`` beside the ``.meta.json.XXXXXXXX.tmp`` that says so (that version wrote file by file).
+    """
+    out = Path(out)
+    candidates = [out / "meta.json"]
+    if not candidates[0].exists() and (out / "radiance.csv").is_file():
+        candidates = sorted(out.glob(".meta.json.*.tmp"))
+    for path in candidates:
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if (isinstance(meta, dict) and meta.get("kind") == "simulated"
+                and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR):
+            return True
+    return False

@@ -31,6 +31,7 @@ output                 ``--out PATH`` and ``--force`` on every command that writ
                        ``--force``; ``--resume`` continues a run instead (``gonio acquire``,
                        ``simulate fit``, ``simulate sweep``). A run folder (one holding a
                        journal of measurements) is never replaced, not even with ``--force``.
+                       The one rule of every writer: :mod:`gonio.data.outputs`.
 verbosity              ``-v/--verbose``, before or after the subcommand.
 progress               ``--no-progress`` on every command that can show a progress bar (a bar
                        is shown only on a terminal anyway).
@@ -39,7 +40,8 @@ budgets                ``--max-evaluations N``: model evaluations of a summation
                        ``--max-photons N``: the Monte Carlo's photon budget.
 =====================  ==========================================================================
 
-A usage error is one line on stderr (``PROG SUBCOMMAND: error: ...``), exit status 2.
+A usage error is one line on stderr (``PROG SUBCOMMAND: error: ...``), exit status 2
+(:mod:`fabric_optics.cli.registry`, which runs every command).
 """
 
 from __future__ import annotations
@@ -50,8 +52,9 @@ import os
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
-from pathlib import Path
 from typing import NoReturn
+
+from gonio.data import outputs as _outputs
 
 from fabric_optics import validate as _validate
 
@@ -256,20 +259,9 @@ def progress(args: argparse.Namespace) -> bool:
 
 
 def refuse_existing(out: str | os.PathLike, force: bool, *, flag: str = "--out") -> None:
-    """Refuse an existing output without ``--force``: a file, or a folder holding anything
-    (hidden files aside)."""
-    path = Path(out)
-    if force or not (path.exists() or path.is_symlink()):
-        return
-    if path.is_dir():
-        try:
-            if not any(not e.name.startswith(".") for e in path.iterdir()):
-                return
-        except OSError as exc:
-            raise UsageError(f"{flag} {path}: cannot read the folder ({exc.strerror})") from None
-        raise UsageError(f"{flag} {path}: the folder is not empty; pass --force to replace its output, "
-                         "or choose a new folder")
-    raise UsageError(f"{flag} {path}: exists; pass --force to replace it, or choose a new name")
+    """Refuse an existing output without ``--force``: a file, or a folder holding anything (hidden
+    files aside); the output rule of every writer (:func:`gonio.data.outputs.refuse_existing`)."""
+    _outputs.refuse_existing(out, force=force, option=flag)
 
 
 @contextmanager

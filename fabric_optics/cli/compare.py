@@ -42,7 +42,7 @@ import logging
 import sys
 from typing import Sequence
 
-from gonio.data import DatasetError, read_dataset
+from gonio.data import DatasetError
 from gonio.data.printable import printable
 
 from compare.comparison import incomplete_datasets
@@ -50,10 +50,10 @@ from compare.errors import CompareError
 from compare.metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 from compare.normalise import DEFAULT_WINDOW_DEG
 from fabric_optics import api
-from fabric_optics.cli import common
-from fabric_optics.cli.common import Parser, UsageError, add_force, add_verbose, add_version, refuse_existing
+from fabric_optics.cli import registry
+from fabric_optics.cli.common import add_force, refuse_existing
 
-__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "main", "build_parser"]
+__all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "PROGRAM", "main", "build_parser"]
 
 log = logging.getLogger("compare")
 
@@ -75,29 +75,15 @@ def _positive(text: str) -> float:
     return value
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``compare`` parser, every subcommand included."""
-    parser = Parser(
-        prog="compare",
-        description="Compare simulated radiance-coefficient datasets with a measured one: "
-                    "normalise at the normal direction, curve errors, HSV colour match.")
-    add_verbose(parser, sub=False)
-    add_version(parser)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{report,check,render}",
-                                parser_class=Parser)
+def _common_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--normal-window", type=_positive, default=DEFAULT_WINDOW_DEG,
+                   metavar="DEG", help="largest |s| of the normal-incidence points used to "
+                   f"estimate beta(0,0) (default {DEFAULT_WINDOW_DEG:g})")
+    p.add_argument("--illuminant", default="D65",
+                   help="illuminant of the colour match (default D65)")
 
-    def common(p):
-        p.add_argument("--normal-window", type=_positive, default=DEFAULT_WINDOW_DEG,
-                       metavar="DEG", help="largest |s| of the normal-incidence points used to "
-                       f"estimate beta(0,0) (default {DEFAULT_WINDOW_DEG:g})")
-        p.add_argument("--illuminant", default="D65",
-                       help="illuminant of the colour match (default D65)")
-        add_verbose(p, sub=True)
 
-    rep = sub.add_parser("report", help="write report.html, metrics.json and figures/*.png",
-                         description="Compare one or more simulations with a measurement and "
-                                     "write REPORT_DIR/report.html (self-contained), "
-                                     "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.")
+def _report_arguments(rep: argparse.ArgumentParser) -> None:
     rep.add_argument("measured", metavar="MEASURED", help="measured dataset directory")
     rep.add_argument("simulated", metavar="SIMULATED", nargs="*",
                      help="simulated dataset(s) or a `simulate sweep` folder; none: look at MEASURED alone "
@@ -117,13 +103,10 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--seed-sample", default=None, metavar="DATASET_DIR",
                      help="judge a simulated red-cotton dataset against the published colour of red "
                           "cotton at incidence 0 / observation 10 deg (printed and reported)")
-    common(rep)
+    _common_arguments(rep)
 
-    chk = sub.add_parser("check", help="exit 0 when a simulation matches within thresholds, "
-                                       "1 otherwise",
-                         description="CI verdict: compare SIMULATED with MEASURED; exit 0 "
-                                     "when within all thresholds, 1 (printing the failing "
-                                     "figures) otherwise, 2 on bad input.")
+
+def _check_arguments(chk: argparse.ArgumentParser) -> None:
     chk.add_argument("measured", metavar="MEASURED", help="measured dataset directory")
     chk.add_argument("simulated", metavar="SIMULATED", help="simulated dataset directory")
     chk.add_argument("--max-nrmse", type=_non_negative, default=DEFAULT_MAX_NRMSE, metavar="X",
@@ -141,19 +124,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="largest ratio between the model's absolute level and the measured one, max(k_Y, 1/k_Y) "
                           f"at the colour geometry (default {DEFAULT_MAX_LEVEL_RATIO:g}: a model scaled by 2 fails; "
                           "not judged for a relative measurement)")
-    common(chk)
-    _add_render_parser(sub)
-    return parser
+    _common_arguments(chk)
 
 
 # ---- compare render: one self-contained block ------------------------------------------------------
-def _add_render_parser(sub) -> None:
-    ren = sub.add_parser("render", help="render RGL .bsdf files with Mitsuba 3 (cushion + lit swatch)",
-                         description="Render each FILE.bsdf (e.g. `gonio export` of a measurement, "
-                                     "`simulate export` of a model) on a cushion and on a flat swatch "
-                                     "lit from four sides, side by side: DIR/render_sheet.png, one PNG "
-                                     "per image, DIR/render.json (settings, seconds). Needs the render "
-                                     "extra (mitsuba).")
+_RENDER_DESCRIPTION = ("Render each FILE.bsdf (e.g. `gonio export` of a measurement, "
+                       "`simulate export` of a model) on a cushion and on a flat swatch "
+                       "lit from four sides, side by side: DIR/render_sheet.png, one PNG "
+                       "per image, DIR/render.json (settings, seconds). Needs the render "
+                       "extra (mitsuba).")
+
+
+def _render_arguments(ren: argparse.ArgumentParser) -> None:
     ren.add_argument("files", metavar="FILE.bsdf", nargs="+", help="RGL .bsdf files")
     ren.add_argument("--out", required=True, metavar="DIR", help="output folder (new, or a previous render)")
     ren.add_argument("--label", action="append", default=None, metavar="NAME",
@@ -162,12 +144,9 @@ def _add_render_parser(sub) -> None:
     ren.add_argument("--size", default="240x180", metavar="WxH", help="cushion image size (240x180)")
     ren.add_argument("--swatch-size", type=int, default=112, metavar="PX", help="swatch image size (112)")
     add_force(ren, "an existing render in --out (or write into a folder that holds anything)")
-    add_verbose(ren, sub=True)
 
 
 def _render_cmd(args) -> int:
-    from pathlib import Path
-
     from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
 
     from compare.render import MitsubaMissing, RenderSettings, render_materials, require_mitsuba, write_render_set
@@ -211,17 +190,17 @@ def _report(args) -> int:
         raise CompareError("--renders: the renders are set beside a simulation; give a SIMULATED dataset too "
                            "(compare report MEASURED SIMULATED --renders DIR)")
     refuse_existing(args.out, args.force)
-    measured = read_dataset(args.measured)
+    measured = api.read_dataset(args.measured)
     sweep = any(is_sweep_dir(p) for p in args.simulated)   # a `simulate sweep` directory: compare.sweep
     if sweep and len(args.simulated) > 1:
         raise CompareError("a sweep directory must be the only SIMULATED (compare report MEASURED SWEEP_DIR)")
-    models = list(args.simulated) if sweep else [read_dataset(p) for p in args.simulated]
+    models = list(args.simulated) if sweep else [api.read_dataset(p) for p in args.simulated]
     if not sweep:
         for line in incomplete_datasets(measured, models):
             log.warning("%s; the report says so in a banner", printable(line))
     seed = None
     if args.seed_sample is not None and models and not sweep:
-        seed = read_dataset(args.seed_sample)
+        seed = api.read_dataset(args.seed_sample)
         _, checks = published_colour_check(seed)
         print(f"seed sample '{printable(seed.name)}' against the published colour of red cotton "
               "(incidence 0, observation 10 deg):")
@@ -264,30 +243,43 @@ def _check(args) -> int:
     return 0 if verdict.passed else 1
 
 
+def _setup_logging(verbose: bool) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
+                        format="compare: %(levelname)s: %(message)s", stream=sys.stderr)
+
+
+#: The ``compare`` program: its commands (:mod:`fabric_optics.cli.registry`).
+PROGRAM = registry.Program(
+    prog="compare",
+    description="Compare simulated radiance-coefficient datasets with a measured one: "
+                "normalise at the normal direction, curve errors, HSV colour match.",
+    commands=(
+        registry.Command("report", "write report.html, metrics.json and figures/*.png", _report_arguments, _report,
+                         description="Compare one or more simulations with a measurement and "
+                                     "write REPORT_DIR/report.html (self-contained), "
+                                     "REPORT_DIR/metrics.json and REPORT_DIR/figures/*.png.",
+                         out="folder"),
+        registry.Command("check", "exit 0 when a simulation matches within thresholds, 1 otherwise",
+                         _check_arguments, _check,
+                         description="CI verdict: compare SIMULATED with MEASURED; exit 0 "
+                                     "when within all thresholds, 1 (printing the failing "
+                                     "figures) otherwise, 2 on bad input."),
+        registry.Command("render", "render RGL .bsdf files with Mitsuba 3 (cushion + lit swatch)", _render_arguments,
+                         _render_cmd, description=_RENDER_DESCRIPTION, out="folder"),
+    ),
+    user_errors=(DatasetError, CompareError),
+    setup_logging=_setup_logging,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``compare`` parser, every subcommand included."""
+    return registry.build_parser(PROGRAM)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``compare`` command line; return the exit status."""
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
-        return int(exc.code) if isinstance(exc.code, int) else 2
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="compare: %(levelname)s: %(message)s", stream=sys.stderr)
-    try:
-        if args.command == "report":
-            with common.claim(args.out):     # one writer of --out from its check to its final rename
-                return _report(args)
-        if args.command == "render":
-            with common.claim(args.out):
-                return _render_cmd(args)
-        return _check(args)
-    except (DatasetError, CompareError, UsageError, api.InputError, api.OutputExistsError) as exc:
-        print(f"compare {args.command}: error: {printable(exc)}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"compare {args.command}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
+    return registry.main(PROGRAM, argv)
 
 
 if __name__ == "__main__":

@@ -18,8 +18,8 @@ stopped; 2 usage or input error.
 beam-block zone (all listed); 2 invalid plan.
 ``mock``: see ``gonio mock --help``.
 
-Every command that writes follows :func:`gonio.data.outputs.check_output` and then the vocabulary's
-rule (:mod:`fabric_optics.cli.common`): a run folder (holding a journal) is never replaced (only
+Every command that writes follows :func:`gonio.data.outputs.check_output` and then
+:func:`gonio.data.outputs.refuse_existing`: a run folder (holding a journal) is never replaced (only
 ``acquire --resume`` continues it); any other existing output, a previous output of the same
 command included, only with ``--force``.
 
@@ -43,29 +43,29 @@ import sys
 from pathlib import Path
 
 from gonio.acquisition.calibration import CalibrationError
-from gonio.acquisition.engine import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, AcquisitionError, RunResult
+from gonio.acquisition.engine import EXIT_OK, AcquisitionError, RunResult
 from gonio.acquisition.journal import JournalError, read_journal
-from gonio.acquisition.plan import PlanError, load_plan, preset_names
+from gonio.acquisition.plan import PlanError, preset_names
 from gonio.acquisition.record import (ReplayMismatch, TranscriptError, TranscriptIntegrityError,
                                       load_transcript)
 from gonio.acquisition.session import check_run_output, replay_session, run_session
 from gonio.data import DatasetError
-from gonio.data.outputs import WRITTEN_BY, OutputRefused, check_output
+from gonio.data.outputs import WRITTEN_BY, check_output
 from gonio.data.printable import printable
 from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
 from gonio.instrument.probe import LinkSetupError, open_links
 
-from fabric_optics.api import InputError, OutputExistsError
-from fabric_optics.cli import common
+from fabric_optics import api
+from fabric_optics.cli import common, registry
 from fabric_optics.cli.common import (Parser, UsageError, add_force, add_no_progress, add_plan,
                                       add_verbose, plan_of, refuse_existing)
 
-__all__ = ["main", "build_parser", "build_parsers"]
+__all__ = ["PROGRAM", "main", "build_parser", "build_parsers"]
 
 log = logging.getLogger("gonio")
 
 _USER_ERRORS = (PlanError, CalibrationError, JournalError, AcquisitionError, TranscriptError,
-                DatasetError, LinkSetupError, OutputRefused, InputError, OutputExistsError)
+                DatasetError, LinkSetupError)
 
 _UsageError = UsageError
 
@@ -128,7 +128,7 @@ def _finish(result: RunResult, command: str, resume: str | None = None) -> int:
 
 
 def _cmd_acquire(args) -> int:
-    plan = load_plan(plan_of(args))
+    plan = api.load_plan(plan_of(args))
     out = Path(args.out)
     check_run_output(out, writer="gonio acquire", force=args.force, resume=args.resume)
     if not args.resume:
@@ -194,7 +194,7 @@ def _cmd_replay(args) -> int:
     except TranscriptIntegrityError as exc:     # an edited transcript proves nothing: exit 1
         print(f"gonio replay: {exc}", file=sys.stderr)
         return 1
-    plan = load_plan(plan_of(args))
+    plan = api.load_plan(plan_of(args))
     check_run_output(Path(args.out), writer="gonio replay", force=args.force)
     refuse_existing(args.out, args.force)
     try:
@@ -207,7 +207,7 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_check_plan(args) -> int:
-    plan = load_plan(plan_of(args))
+    plan = api.load_plan(plan_of(args))
     chk = plan.check()
     n_wl = len(plan.wavelengths_nm)
     print(f"plan {printable(plan.name)} ({printable(plan.path)}): {len(plan.points())} geometries x {n_wl} wavelengths")
@@ -242,7 +242,7 @@ def _plan_for(plan: str, sample: str, what: str):
     from gonio.acquisition.plan import MEASURED, measured_plan
 
     if plan != MEASURED:
-        return load_plan(plan)
+        return api.load_plan(plan)
     if not (str(sample).endswith(".bsdf") and Path(sample).is_file()):
         raise _UsageError(f"--plan {MEASURED}: follows the measured incidences of an RGL .bsdf file, but {what} "
                           f"{sample!r} is not one; give a .bsdf file or a plan")
@@ -279,19 +279,15 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_truth(args) -> int:
-    from gonio.data import write_dataset
-    from gonio.mock.samples import SampleError
-    from gonio.mock.truth import truth_dataset
-
     plan = _plan_for(plan_of(args), args.sample, "SAMPLE")
     check_output(args.out, "dataset", writer="gonio truth", force=args.force)
     refuse_existing(args.out, args.force)
     try:
-        dataset = truth_dataset(args.sample, plan)
-    except SampleError as exc:
-        raise _UsageError(str(exc)) from None
+        dataset = api.truth(args.sample, plan)
+    except api.InputError as exc:       # the sample's own message, as the option names it
+        raise _UsageError(str(exc.__cause__ or exc)) from None
     dataset.meta[WRITTEN_BY] = "gonio truth"
-    out = write_dataset(dataset, args.out)
+    out = api.write_dataset(dataset, args.out, force=args.force)
     print(f"gonio truth: {printable(dataset.name)}, {len(dataset)} values at the geometries of plan "
           f"{plan.name}; dataset in {out}/")
     return EXIT_OK
@@ -304,7 +300,7 @@ def _cmd_bench(args) -> int:
     if args.out:
         check_output(args.out, "file", writer="gonio bench-driver", force=args.force)
         refuse_existing(args.out, args.force)
-    report = {WRITTEN_BY: "gonio bench-driver", **bench_driver(load_plan(args.plan),
+    report = {WRITTEN_BY: "gonio bench-driver", **bench_driver(api.load_plan(args.plan),
                                                                repeats=args.repeats)}
     if args.out:
         check_output(args.out, "file", writer="gonio bench-driver", force=args.force)
@@ -313,49 +309,28 @@ def _cmd_bench(args) -> int:
     return EXIT_OK
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``gonio`` parser, every subcommand included (``mock`` and ``bench-driver`` parse their
-    own arguments: :func:`build_parsers`)."""
-    p = Parser(
-        prog="gonio", description="Goniophotometer driver, mock devices and acquisition.",
-        epilog="Exit status: 0 success, 1 failed check / safe stop / replay mismatch, "
-               "2 usage or input error, 130 interrupted. Plans: a TOML file or a preset name ("
-               + ", ".join(preset_names()) + ").")
-    add_verbose(p, sub=False)
-    common.add_version(p)
-    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    sub.add_parser("mock", help="serve mock devices (see `gonio mock --help`)", add_help=False)
+def _links(sp: argparse.ArgumentParser) -> None:
+    """The options of a command that talks to the instrument (``acquire``, ``demo``)."""
+    sp.add_argument("--timeout", type=_timeout_seconds, default=1.0, metavar="S",
+                    help="link timeout in seconds (default 1.0; a READ? also gets its "
+                         "integration time; at most 3600)")
+    sp.add_argument("--wait-timeout", type=_timeout_seconds, default=None, metavar="S",
+                    help="longest wait for a move (unless the move itself needs longer at "
+                         "its velocity) and for a controller answering busy, e.g. another "
+                         "client driving the instrument (default "
+                         f"{DEFAULT_WAIT_TIMEOUT_S:g} s; at most 3600); a takeover by a "
+                         "client that claims the instrument stops the session within 1 s")
+    add_no_progress(sp)
+    sp.add_argument("--live", action="store_true",
+                    help="serve a live view of the acquisition on a local web page (127.0.0.1 only, "
+                         "read-only; its address, with a random token, is printed once): the curves "
+                         "per incidence with error bars as the points arrive, the position in the "
+                         "plan, the time left, retries and faults, then the finished dataset")
+    sp.add_argument("--live-port", type=common.int_in(1, 65535), default=None, metavar="PORT",
+                    help="the live view's port on 127.0.0.1 (implies --live; default: a free port)")
 
-    def links(sp):
-        sp.add_argument("--timeout", type=_timeout_seconds, default=1.0, metavar="S",
-                        help="link timeout in seconds (default 1.0; a READ? also gets its "
-                             "integration time; at most 3600)")
-        sp.add_argument("--wait-timeout", type=_timeout_seconds, default=None, metavar="S",
-                        help="longest wait for a move (unless the move itself needs longer at "
-                             "its velocity) and for a controller answering busy, e.g. another "
-                             "client driving the instrument (default "
-                             f"{DEFAULT_WAIT_TIMEOUT_S:g} s; at most 3600); a takeover by a "
-                             "client that claims the instrument stops the session within 1 s")
-        add_no_progress(sp)
-        sp.add_argument("--live", action="store_true",
-                        help="serve a live view of the acquisition on a local web page (127.0.0.1 only, "
-                             "read-only; its address, with a random token, is printed once): the curves "
-                             "per incidence with error bars as the points arrive, the position in the "
-                             "plan, the time left, retries and faults, then the finished dataset")
-        sp.add_argument("--live-port", type=common.int_in(1, 65535), default=None, metavar="PORT",
-                        help="the live view's port on 127.0.0.1 (implies --live; default: a free port)")
-        add_verbose(sp, sub=True)
 
-    a = sub.add_parser("acquire", help="measure a plan",
-                       description="Home, calibrate (dark + white standard), measure every point "
-                                   "of --plan, journal each point, write the dataset in --out.",
-                       epilog="Exit status: 0 complete; 1 stopped safely by an instrument fault "
-                              "(measured points kept: continue with --resume); 2 usage or input "
-                              "error; 130 interrupted (Ctrl-C, SIGTERM; points kept). --resume "
-                              "reuses the journal's calibration when the plan and standard files "
-                              "are unchanged, the instrument is the same and it is younger than "
-                              "the plan's calibration_max_age_min; otherwise it is measured "
-                              "again. --record writes a new transcript for this session.")
+def _acquire_arguments(a: argparse.ArgumentParser) -> None:
     add_plan(a, required=True, what="to measure")
     a.add_argument("--modbus", required=True, metavar="URL", help="tcp://HOST:PORT or rtu://DEVICE")
     a.add_argument("--serial", required=True, metavar="URL", help="device path, pty or socket://HOST:PORT")
@@ -366,38 +341,22 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--seed", type=int, default=None, metavar="N",
                    help="the mock's seed, recorded in the meta (default: none)")
     add_force(a, _FORCE_HELP)
-    links(a)
+    _links(a)
 
-    r = sub.add_parser("replay", help="run the driver against a recorded transcript",
-                       description="Run the driver with --plan against TRANSCRIPT (from "
-                                   "`gonio acquire --record`), answering each request with the "
-                                   "recorded response; writes the dataset in --out.",
-                       epilog="Exit status: 0 reproduced (and the recorded run was complete); 1 "
-                              "the driver sent a request that differs from the transcript (the "
-                              "message names the request index and both requests), or the "
-                              "recorded run itself stopped; 2 usage or input error.")
+
+def _replay_arguments(r: argparse.ArgumentParser) -> None:
     r.add_argument("transcript", metavar="TRANSCRIPT")
     add_plan(r, required=True, what="of the recorded run")
     r.add_argument("--out", required=True, metavar="RUN_DIR")
     add_force(r, _FORCE_HELP)
-    add_verbose(r, sub=True)
 
-    c = sub.add_parser("check-plan", help="validate a plan: limits, beam-block zone, duration",
-                       description="List the points the controller would refuse (soft limits, "
-                                   "beam-block zone: never sent), the motion order and the "
-                                   "estimated duration at real speed.",
-                       epilog="Exit status: 0 every point measurable (beam-block points allowed "
-                              "when the plan says skip_blocked = true); 1 some points refused "
-                              "(listed); 2 invalid plan.")
+
+def _check_plan_arguments(c: argparse.ArgumentParser) -> None:
     add_plan(c, required=True, what="to check")
     c.add_argument("--list", action="store_true", help="list the points in motion order")
-    add_verbose(c, sub=True)
 
-    d = sub.add_parser("demo", help="embedded mock (red cotton unless --sample) + a plan (red-cotton)",
-                       description="Start the mock goniophotometer in this process (real protocol "
-                                   "endpoints on loopback and a pseudo-terminal) holding --sample, "
-                                   "and measure it with --plan into --out. The dataset's meta names "
-                                   "the mock's sample (sample.mock_sample).")
+
+def _demo_arguments(d: argparse.ArgumentParser) -> None:
     d.add_argument("--out", default="demo-out/measured", metavar="DIR",
                    help="dataset folder (default demo-out/measured)")
     d.add_argument("--sample", default="red-cotton", metavar="NAME|FILE",
@@ -411,28 +370,18 @@ def build_parser() -> argparse.ArgumentParser:
                         "file's own measured incidences and retro-reflection ring)")
     d.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
     add_force(d, _FORCE_HELP)
-    links(d)
+    _links(d)
 
-    t = sub.add_parser("truth", help="write a mock sample's true beta at a plan's geometries",
-                       description="Evaluate the mock's virtual sample (lambert:RHO, red-cotton, "
-                                   "a dataset directory or an RGL .bsdf file) at the measurable geometries and the "
-                                   "wavelengths of --plan and write it as a dataset (kind "
-                                   "simulated, u_beta 0): the known answer an acquisition on the "
-                                   "mock must recover.")
+
+def _truth_arguments(t: argparse.ArgumentParser) -> None:
     t.add_argument("sample", metavar="SAMPLE",
                    help="lambert:RHO, red-cotton, a dataset directory or an RGL .bsdf file")
     add_plan(t, required=True, what="whose geometries and wavelengths are evaluated")
     t.add_argument("--out", required=True, metavar="DIR", help="dataset folder")
     add_force(t, _FORCE_HELP)
-    add_verbose(t, sub=True)
 
-    im = sub.add_parser("import", help="convert a file of another format into a dataset",
-                        description="Read FILE (rgl-bsdf: an RGL .bsdf tensor file; pgii: one or "
-                                    "more pgII text files, one incidence each; merl: a MERL "
-                                    ".binary table) and write a radiance-coefficient dataset. "
-                                    "Tabulated BRDFs (rgl-bsdf, merl) are evaluated at the "
-                                    "geometries of --plan, by default at in-plane "
-                                    "curves (the file's own incidence angles for rgl-bsdf).")
+
+def _import_arguments(im: argparse.ArgumentParser) -> None:
     im.add_argument("format", metavar="FORMAT", choices=["rgl-bsdf", "pgii", "merl"],
                     help="rgl-bsdf | pgii | merl")
     im.add_argument("files", metavar="FILE", nargs="+", help="file(s) to import")
@@ -450,20 +399,11 @@ def build_parser() -> argparse.ArgumentParser:
     im.add_argument("--keep-grazing", action="store_true",
                     help="keep incidences theta_i >= 89 deg (dropped by default: the RGL files' "
                          "89.99999 deg tables are extrapolations; see docs/dataset.md)")
-    add_verbose(im, sub=True)
-
-    sub.add_parser("bench-driver", add_help=False,
-                   help="driver overhead benchmark on the fast mock, with replays (JSON; see "
-                        "`gonio bench-driver --help`)")
-    _add_export_parser(sub)
-    return p
 
 
 def _cmd_import(args) -> int:
     from gonio.acquisition.plan import MEASURED
     from gonio.data.formats import import_notes
-
-    from fabric_optics import api
 
     if args.plan == MEASURED and not (args.files[0].endswith(".bsdf") and Path(args.files[0]).is_file()):
         raise _UsageError(f"--plan {MEASURED}: follows the measured incidences of an RGL .bsdf file, but FILE "
@@ -498,9 +438,7 @@ _EXPORT_DESCRIPTION = (
     "written into the file.")
 
 
-def _add_export_parser(sub) -> None:
-    ex = sub.add_parser("export", help="write a dataset as an RGL .bsdf file (Mitsuba 3 / pbrt-v4)",
-                        description=_EXPORT_DESCRIPTION)
+def _export_arguments(ex: argparse.ArgumentParser) -> None:
     ex.add_argument("dataset", metavar="DATASET", help="dataset folder")
     ex.add_argument("--out", required=True, metavar="FILE.bsdf", help="file to write")
     add_force(ex, "FILE.bsdf if it exists")
@@ -508,12 +446,9 @@ def _add_export_parser(sub) -> None:
                     help="values per axis of the warped grid, 4..256 (64)")
     ex.add_argument("--incidences", type=common.int_in(2, 64), default=16,
                     help="incidence nodes 0..90 deg besides the measured incidences, 2..64 (16)")
-    add_verbose(ex, sub=True)
 
 
 def _cmd_export(args) -> int:
-    from fabric_optics import api
-
     out = Path(args.out)
     refuse_existing(out, args.force)
     dataset = api.read_dataset(args.dataset)
@@ -543,6 +478,92 @@ def _bench_parser() -> argparse.ArgumentParser:
     return b
 
 
+def _mock_main(argv: list[str]) -> int:
+    from gonio.mock.cli import main as mock_main
+
+    return mock_main(argv)
+
+
+_ACQUIRE_EPILOG = ("Exit status: 0 complete; 1 stopped safely by an instrument fault "
+                   "(measured points kept: continue with --resume); 2 usage or input "
+                   "error; 130 interrupted (Ctrl-C, SIGTERM; points kept). --resume "
+                   "reuses the journal's calibration when the plan and standard files "
+                   "are unchanged, the instrument is the same and it is younger than "
+                   "the plan's calibration_max_age_min; otherwise it is measured "
+                   "again. --record writes a new transcript for this session.")
+
+
+#: The ``gonio`` program: its commands (:mod:`fabric_optics.cli.registry`). ``acquire`` and ``replay``
+#: lock their run folder for the session (gonio.acquisition.rundir) rather than claim their --out.
+PROGRAM = registry.Program(
+    prog="gonio",
+    description="Goniophotometer driver, mock devices and acquisition.",
+    epilog="Exit status: 0 success, 1 failed check / safe stop / replay mismatch, "
+           "2 usage or input error, 130 interrupted. Plans: a TOML file or a preset name ("
+           + ", ".join(preset_names()) + ").",
+    metavar="COMMAND",
+    required=False,
+    error_word="",
+    user_errors=_USER_ERRORS,
+    setup_logging=_setup_logging,
+    commands=(
+        registry.Command("mock", "serve mock devices (see `gonio mock --help`)", delegate=_mock_main),
+        registry.Command("acquire", "measure a plan", _acquire_arguments, _cmd_acquire,
+                         description="Home, calibrate (dark + white standard), measure every point "
+                                     "of --plan, journal each point, write the dataset in --out.",
+                         epilog=_ACQUIRE_EPILOG),
+        registry.Command("replay", "run the driver against a recorded transcript", _replay_arguments, _cmd_replay,
+                         description="Run the driver with --plan against TRANSCRIPT (from "
+                                     "`gonio acquire --record`), answering each request with the "
+                                     "recorded response; writes the dataset in --out.",
+                         epilog="Exit status: 0 reproduced (and the recorded run was complete); 1 "
+                                "the driver sent a request that differs from the transcript (the "
+                                "message names the request index and both requests), or the "
+                                "recorded run itself stopped; 2 usage or input error."),
+        registry.Command("check-plan", "validate a plan: limits, beam-block zone, duration", _check_plan_arguments,
+                         _cmd_check_plan,
+                         description="List the points the controller would refuse (soft limits, "
+                                     "beam-block zone: never sent), the motion order and the "
+                                     "estimated duration at real speed.",
+                         epilog="Exit status: 0 every point measurable (beam-block points allowed "
+                                "when the plan says skip_blocked = true); 1 some points refused "
+                                "(listed); 2 invalid plan."),
+        registry.Command("demo", "embedded mock (red cotton unless --sample) + a plan (red-cotton)", _demo_arguments,
+                         _cmd_demo, out="folder",
+                         description="Start the mock goniophotometer in this process (real protocol "
+                                     "endpoints on loopback and a pseudo-terminal) holding --sample, "
+                                     "and measure it with --plan into --out. The dataset's meta names "
+                                     "the mock's sample (sample.mock_sample)."),
+        registry.Command("truth", "write a mock sample's true beta at a plan's geometries", _truth_arguments,
+                         _cmd_truth, out="folder",
+                         description="Evaluate the mock's virtual sample (lambert:RHO, red-cotton, "
+                                     "a dataset directory or an RGL .bsdf file) at the measurable geometries and the "
+                                     "wavelengths of --plan and write it as a dataset (kind "
+                                     "simulated, u_beta 0): the known answer an acquisition on the "
+                                     "mock must recover."),
+        registry.Command("import", "convert a file of another format into a dataset", _import_arguments,
+                         _cmd_import, out="folder",
+                         description="Read FILE (rgl-bsdf: an RGL .bsdf tensor file; pgii: one or "
+                                     "more pgII text files, one incidence each; merl: a MERL "
+                                     ".binary table) and write a radiance-coefficient dataset. "
+                                     "Tabulated BRDFs (rgl-bsdf, merl) are evaluated at the "
+                                     "geometries of --plan, by default at in-plane "
+                                     "curves (the file's own incidence angles for rgl-bsdf)."),
+        registry.Command("bench-driver", "driver overhead benchmark on the fast mock, with replays (JSON; see "
+                                         "`gonio bench-driver --help`)",
+                         run=_cmd_bench, parser=_bench_parser, out="file"),
+        registry.Command("export", "write a dataset as an RGL .bsdf file (Mitsuba 3 / pbrt-v4)", _export_arguments,
+                         _cmd_export, description=_EXPORT_DESCRIPTION, out="file"),
+    ),
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``gonio`` parser, every subcommand included (``mock`` and ``bench-driver`` parse their
+    own arguments: :func:`build_parsers`)."""
+    return registry.build_parser(PROGRAM)
+
+
 def build_parsers() -> dict[str, argparse.ArgumentParser]:
     """Every parser of ``gonio``: ``"gonio"`` (:func:`build_parser`, the subcommands included) and
     the two subcommands that parse their own arguments, ``"gonio mock"`` and ``"gonio bench-driver"``."""
@@ -551,48 +572,9 @@ def build_parsers() -> dict[str, argparse.ArgumentParser]:
     return {"gonio": build_parser(), "gonio mock": mock_parser(), "gonio bench-driver": _bench_parser()}
 
 
-#: The commands that claim their --out for their whole run (:func:`fabric_optics.cli.common.claim`);
-#: ``acquire`` and ``replay`` lock their run folder for the session (gonio.acquisition.rundir).
-_CLAIMING = ("demo", "truth", "import", "export", "bench-driver")
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gonio`` console script; returns the exit status."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] == "mock":
-        from gonio.mock.cli import main as mock_main
-        return mock_main(argv[1:])
-    bench = argv[:1] == ["bench-driver"]
-    parser = _bench_parser() if bench else build_parser()
-    try:
-        args = parser.parse_args(argv[1:] if bench else argv)
-    except SystemExit as exc:
-        return int(exc.code or 0)
-    if bench:
-        args.command = "bench-driver"
-    if args.command is None:
-        parser.print_help()
-        return EXIT_USAGE
-    _setup_logging(getattr(args, "verbose", False))
-    handlers = {"acquire": _cmd_acquire, "replay": _cmd_replay, "check-plan": _cmd_check_plan,
-                "demo": _cmd_demo, "bench-driver": _cmd_bench, "truth": _cmd_truth,
-                "import": _cmd_import, "export": _cmd_export}
-    try:
-        out = getattr(args, "out", None)
-        if args.command in _CLAIMING and out:
-            with common.claim(out, file=args.command in ("export", "bench-driver")):   # one writer of --out
-                return handlers[args.command](args)
-        return handlers[args.command](args)
-    except (_UsageError, *_USER_ERRORS) as exc:
-        print(f"gonio {args.command}: {printable(exc)}", file=sys.stderr)
-        return EXIT_USAGE
-    except KeyboardInterrupt:
-        print(f"gonio {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except OSError as exc:     # unwritable --out, full disk, ...: the environment, not a bug
-        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
-        print(f"gonio {args.command}: {exc.strerror or exc}{where}", file=sys.stderr)
-        return EXIT_USAGE
+    return registry.main(PROGRAM, argv)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 """The ``simulate`` console script (docs/architecture.md, command line contract).
 
-Subcommands are registered in :data:`COMMANDS`: each entry is a pair of functions
-``(add_arguments(parser), run(args) -> int)``; a later subcommand (``fiber``, ``fabric``,
-``sweep``) is one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
+Subcommands are registered in :data:`PROGRAM` (:mod:`fabric_optics.cli.registry`): each is a
+:class:`~fabric_optics.cli.registry.Command` of two functions, ``add_arguments(parser)`` and
+``run(args) -> int``; a new subcommand is one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
 (one line on stderr naming the flag, no traceback), 3 ``simulate fit`` whose fitted colour is left off
 (``fabric_optics.fitting.outputs.EXIT_COLOUR_OFF``: outputs written, fit.json ``verdict.passed`` false).
 
@@ -35,7 +35,6 @@ the work is done by :mod:`fabric_optics.api` where it has the function (fabric, 
 from __future__ import annotations
 
 import argparse
-import atexit
 import gc
 import json
 import logging
@@ -45,21 +44,21 @@ import sys
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from fabric_optics import validate
-from gonio.data.printable import printable
-from fabric_optics.cli import common
-from fabric_optics.cli.common import (Parser, UsageError, add_force, add_no_progress,
-                                      add_plan, add_seed, add_target_rel_err, add_threads, add_verbose,
-                                      add_wavelengths, refuse_existing)
+from gonio.data.outputs import prepare_folder
+from simulate.montecarlo import ParameterError
 
-__all__ = ["main", "COMMANDS", "build_parser"]
+from fabric_optics import api, validate
+from fabric_optics.cli import common, registry
+from fabric_optics.cli.common import (UsageError, add_force, add_no_progress, add_plan, add_seed,
+                                      add_target_rel_err, add_threads, add_wavelengths, refuse_existing)
+
+__all__ = ["PROGRAM", "main", "build_parser"]
 
 log = logging.getLogger("simulate")
 
 _UsageError = UsageError
-_Parser = Parser
 
 
 # ------------------------------------------------------------------------------------------
@@ -180,13 +179,7 @@ def _bench_run(args: argparse.Namespace) -> int:
     from fabric_optics.bench.suite import markdown_table, run_bench
 
     out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise _UsageError(f"--out {out}: exists and is not a directory; choose a directory path")
-    refuse_existing(out, args.force)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
+    prepare_folder(out, writer="simulate bench", force=args.force)
     if args.study:
         from fabric_optics.bench.studies import run_study
 
@@ -216,67 +209,19 @@ def _run_settings_arguments(p: argparse.ArgumentParser) -> None:
     add_no_progress(p)
 
 
-def _prepare_out(out: Path, is_previous: Callable[[Path], bool], what: str) -> None:
-    """Refuse a non-empty --out that does not hold a previous output of this command."""
-    if out.exists() and not out.is_dir():
-        raise _UsageError(f"--out {out}: exists and is not a directory; choose a directory path")
-    if out.is_dir():
-        try:
-            entries = [e for e in out.iterdir() if not e.name.startswith(".")]
-        except OSError as exc:
-            raise _UsageError(f"--out {out}: cannot read the directory ({exc.strerror})") from None
-        if entries and not is_previous(out):
-            raise _UsageError(f"--out {out}: directory is not empty and does not hold a previous "
-                              f"`{what}` output; refusing to overwrite it (choose a new or empty directory)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise _UsageError(f"--out {out}: cannot create the directory ({exc.strerror})") from None
-    if not os.access(out, os.W_OK):
-        raise _UsageError(f"--out {out}: directory is not writable")
-
-
-def _refuse_previous(out: Path, force: bool, is_previous: Callable[[Path], bool], what: str) -> None:
-    """Without ``--force``, refuse an ``out`` holding a previous output of this command (a folder
-    holding something else: :func:`_prepare_out`'s message)."""
-    if not force and out.is_dir() and any(not e.name.startswith(".") for e in out.iterdir()) and is_previous(out):
-        raise _UsageError(f"--out {out}: holds a previous `{what}` output; pass --force to replace it, or choose a "
-                          "new folder")
-
-
-def _is_fabric_output(out: Path) -> bool:
-    """A previous ``simulate fabric`` output: its ``meta.json`` says so. Also recognised: what a
-    run of an older version killed between its two renames left, ``radiance.csv`` beside the
-    ``.meta.json.XXXXXXXX.tmp`` that says so (that version wrote file by file)."""
-    from simulate.virtual import GENERATOR
-
-    candidates = [out / "meta.json"]
-    if not candidates[0].exists() and (out / "radiance.csv").is_file():
-        candidates = sorted(out.glob(".meta.json.*.tmp"))
-    for path in candidates:
-        try:
-            meta = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            continue
-        if (isinstance(meta, dict) and meta.get("kind") == "simulated"
-                and isinstance(meta.get("model"), dict) and meta["model"].get("generator") == GENERATOR):
-            return True
-    return False
-
-
 def _prepare_fabric_out(out: Path, force: bool) -> None:
-    """:func:`_prepare_out` for ``simulate fabric``, whose output replaces ``out`` as one folder
-    (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a previous output
-    holding anything besides the dataset's files is refused (the swap would delete it)."""
+    """The output rule (:func:`gonio.data.outputs.prepare_folder`) for ``simulate fabric``, whose output
+    replaces ``out`` as one folder (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a
+    previous output holding anything besides the dataset's files is refused (the swap would delete it)."""
     from gonio.data.dataset import CSV_NAME, META_NAME, remove_stale_temp_files
     from simulate.outdir import recover
+    from simulate.virtual import is_previous_output
 
     try:
         recover(out)
     except OSError as exc:
         raise _UsageError(f"--out {out}: cannot clean up after an earlier killed run ({exc.strerror})") from None
-    _refuse_previous(out, force, _is_fabric_output, "simulate fabric")
-    _prepare_out(out, _is_fabric_output, "simulate fabric")
+    prepare_folder(out, writer="simulate fabric", force=force, previous=is_previous_output, exclusive=True)
     try:
         remove_stale_temp_files(out)         # a killed per-file write of an older version
         others = sorted(e.name for e in out.iterdir() if e.name not in (CSV_NAME, META_NAME))
@@ -295,15 +240,6 @@ def _is_fiber_output(out: Path) -> bool:
     except (OSError, ValueError):
         return False
     return isinstance(meta, dict) and meta.get("format") == FORMAT
-
-
-def _load_config(text: str):
-    from simulate.config import ConfigError, load_config
-
-    try:
-        return load_config(text)
-    except ConfigError as exc:
-        raise _UsageError(str(exc)) from None
 
 
 def _check_cost(command: str, config: Any, wavelengths: Any, target: float | None, max_photons: int | None,
@@ -346,7 +282,6 @@ def _fabric_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fabric_run(args: argparse.Namespace) -> int:
-    from fabric_optics import api
     from simulate.outdir import OutputError, write_dataset_dir
 
     config = api.load_config(args.config)
@@ -361,16 +296,15 @@ def _fabric_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         raise _UsageError(str(exc)) from None
     _check_cost("fabric", config, plan.wavelengths_nm, args.target_rel_err, args.max_photons)
-    with common.claim(args.out):         # one writer of --out from its check to its final rename
-        _prepare_fabric_out(args.out, args.force)
-        dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
-                               threads=args.threads, max_photons=args.max_photons,
-                               measurable_only=args.measurable_only, progress=_progress(args),
-                               max_seconds=args.max_seconds)
-        try:
-            write_dataset_dir(dataset, args.out)
-        except OutputError as exc:
-            raise _UsageError(str(exc)) from None
+    _prepare_fabric_out(args.out, args.force)
+    dataset = api.simulate(config, plan, args.method, target_rel_err=args.target_rel_err, seed=args.seed,
+                           threads=args.threads, max_photons=args.max_photons,
+                           measurable_only=args.measurable_only, progress=_progress(args),
+                           max_seconds=args.max_seconds)
+    try:
+        write_dataset_dir(dataset, args.out)
+    except OutputError as exc:
+        raise _UsageError(str(exc)) from None
     prov = dataset.meta["provenance"]
     err_text = f"{prov['rel_err']:.2%} (rms of u / each direction's spectral peak)"
     print(f"wrote {args.out} ({len(dataset)} rows: {prov['geometries']} geometries x "
@@ -412,9 +346,9 @@ def _check_table_size(step_deg: float, phi_step_deg: float, n_wavelengths: int) 
 def _fiber_run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from simulate.fiber.tables import TableGrid, fiber_table, write_fiber_table
+    from simulate.fiber.tables import TableGrid, fiber_table, is_fiber_table_dir, write_fiber_table
 
-    config = _load_config(args.config)
+    config = api.load_config(args.config)
     wavelengths = np.asarray(config.wavelengths_nm, float)
     _check_table_size(args.step_deg, args.phi_step_deg, wavelengths.size)
     try:
@@ -428,8 +362,7 @@ def _fiber_run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         raise _UsageError(str(exc)) from None
     _check_cost("fiber", config, wavelengths, target, args.max_photons)
-    _refuse_previous(args.out, args.force, _is_fiber_output, "simulate fiber")
-    _prepare_out(args.out, lambda out: args.force or _is_fiber_output(out), "simulate fiber")
+    prepare_folder(args.out, writer="simulate fiber", force=args.force, previous=is_fiber_table_dir)
     arrays, sidecar = fiber_table(
         config.fiber(wavelengths), wavelengths, grid, method=args.route or config.route,
         target_rel_err=target, seed=config.seed if args.seed is None else args.seed,
@@ -531,8 +464,6 @@ def _fit_interrupted(args: argparse.Namespace, walk_parts_before: int) -> str:
 
 
 def _fit_run(args: argparse.Namespace) -> int:
-    from fabric_optics import api
-
     if args.method == "mc" and args.max_evaluations is not None:
         raise _UsageError(f"--max-evaluations {args.max_evaluations}: --method mc counts Monte Carlo runs; "
                           "give --max-runs N instead")
@@ -554,11 +485,11 @@ def _fit_run(args: argparse.Namespace) -> int:
         raise _UsageError(f"MEASURED: {exc}") from None
     if args.out.exists() and not args.out.is_dir():
         raise _UsageError(f"--out {args.out}: exists and is not a directory; choose a directory path")
-    with common.claim(args.out):         # one writer of --out from its check to the last output written
-        return _fit_claimed(args, api, config, measured, mc_trend)
+    return _fit_claimed(args, config, measured, mc_trend)
 
 
-def _fit_claimed(args: argparse.Namespace, api: Any, config: Any, measured: Any, mc_trend: tuple[str, ...]) -> int:
+def _fit_claimed(args: argparse.Namespace, config: Any, measured: Any, mc_trend: tuple[str, ...]) -> int:
+    """The fit once its arguments are checked (its --out claimed by the registry for the whole run)."""
     if not (args.resume or args.force):
         refuse_existing(args.out, False)
     job = api.prepare_fit(config, measured, args.free, args.out, method=args.method, dye=args.dye,
@@ -568,7 +499,7 @@ def _fit_claimed(args: argparse.Namespace, api: Any, config: Any, measured: Any,
                           starts=args.starts, resume=args.resume, force=args.force, absolute=args.absolute,
                           colour_hold=args.colour_hold)
     _check_cost("fit", config, job.problem.wavelengths_nm, job.problem.target_rel_err, None)
-    _prepare_out(args.out, lambda out: True, "simulate fit")
+    prepare_folder(args.out, writer="simulate fit", force=args.force, resume=args.resume)
     from simulate.fiber import tablecache
 
     walk_parts_before = tablecache.stored("structwalk")
@@ -620,16 +551,6 @@ def _fit_claimed(args: argparse.Namespace, api: Any, config: Any, measured: Any,
 
 # ------------------------------------------------------------------------------------------
 
-COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]] = {
-    "slab": ("Monte Carlo slab: diffuse reflectance and total transmittance", _slab_arguments, _slab_run),
-    "bench": ("benchmark the Monte Carlo kernel (JSON + chart)", _bench_arguments, _bench_run),
-    "fabric": ("fabric BRDF at a plan's geometries, as a radiance-coefficient dataset", _fabric_arguments,
-               _fabric_run),
-    "fiber": ("fiber BRDF table over the incident sphere (npz + JSON)", _fiber_arguments, _fiber_run),
-    "fit": ("fit config parameters of a fabric model to a measurement", _fit_arguments, _fit_run),
-}
-
-
 # ------------------------------------------------------------------------------------------
 # simulate weave CONFIG --out MESH.ply|obj [--force]
 #   the triangulated yarn tubes of the config's woven micro-element (simulate.fabric.weave); registered
@@ -655,9 +576,8 @@ def _weave_run(args: argparse.Namespace) -> int:
         raise _UsageError(f"--out {out}: unknown mesh format {out.suffix or '(no suffix)'!r}; use .ply or .obj")
     if out.is_dir():
         raise _UsageError(f"--out {out}: is a directory; give a mesh file name (.ply or .obj)")
-    if out.exists() and not args.force:
-        raise _UsageError(f"--out {out}: file exists; refusing to overwrite it (use --force)")
-    config = _load_config(args.config)
+    refuse_existing(out, args.force)
+    config = api.load_config(args.config)
     try:
         weave = weave_from_config(config)
         m = mesh(weave)
@@ -669,8 +589,6 @@ def _weave_run(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS["weave"] = ("woven micro-element: the yarn tubes of the config's weave as a PLY/OBJ mesh",
-                     _weave_arguments, _weave_run)
 
 
 # ------------------------------------------------------------------------------------------
@@ -750,33 +668,14 @@ def _check_sweep_cost(args: argparse.Namespace, spec: Any) -> None:
     _check_cost("sweep", worst.config, wl, target, spec.max_photons, runs=max(1, -(-len(spec.points) // workers)))
 
 
-def _clear_sweep(out: Path) -> None:
-    """``--force``: remove a previous sweep's own files from ``out`` (nothing else)."""
-    import shutil
-
-    from fabric_optics.sweep.runner import POINTS_DIR, SUMMARY_NAME, SWEEP_NAME, TASKS_DIR
-
-    if not (out / SWEEP_NAME).is_file():
-        return
-    try:
-        for name in (TASKS_DIR, POINTS_DIR):
-            if (out / name).is_dir():
-                shutil.rmtree(out / name)
-        for name in (SUMMARY_NAME, SWEEP_NAME):
-            (out / name).unlink(missing_ok=True)
-    except OSError as exc:
-        raise _UsageError(f"--out {out}: cannot remove the previous sweep ({exc.strerror})") from None
-
-
 def _sweep_run(args: argparse.Namespace) -> int:
-    from gonio.acquisition.plan import PlanError, load_plan
-    from gonio.data.dataset import DatasetError, read_dataset
-    from fabric_optics.sweep.runner import SweepError, SweepSpec, finished_tasks, parse_params, prepare_out, run_sweep
+    from fabric_optics.sweep.runner import (SweepError, SweepSpec, clear_sweep, finished_tasks, parse_params,
+                                            prepare_out, run_sweep)
 
-    config = _load_config(args.config)
+    config = api.load_config(args.config)
     try:
-        plan = load_plan(args.plan)
-    except PlanError as exc:
+        plan = api.load_plan(args.plan)
+    except api.InputError as exc:
         raise _UsageError(f"--plan: {exc}") from None
     try:
         spec = SweepSpec(config, plan, parse_params(args.param, config), method=args.method,
@@ -788,12 +687,12 @@ def _sweep_run(args: argparse.Namespace) -> int:
     measured = None
     if args.measured is not None:
         try:
-            measured = read_dataset(args.measured)
-        except DatasetError as exc:
+            measured = api.read_dataset(args.measured)
+        except api.InputError as exc:
             raise _UsageError(f"MEASURED: {exc}") from None
-    if args.force and not args.resume:
-        _clear_sweep(args.out)
     try:
+        if args.force and not args.resume:
+            clear_sweep(args.out)
         resumed = prepare_out(args.out, spec, resume=args.resume)
     except SweepError as exc:
         raise _UsageError(str(exc)) from None
@@ -840,8 +739,6 @@ def _sweep_run(args: argparse.Namespace) -> int:
     return 1 if result.failures else 0
 
 
-COMMANDS["sweep"] = ("parameter sweep of a fabric model on dask.distributed (one dataset per point)",
-                     _sweep_arguments, _sweep_run)
 
 
 # ---- simulate export: one self-contained block ------------------------------------------------------
@@ -867,16 +764,9 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _export_run(args: argparse.Namespace) -> int:
-    from fabric_optics import api
-
-    config = api.load_config(args.config)
-    with common.claim(args.out, file=True):
-        return _export_claimed(args, api, config)
-
-
-def _export_claimed(args: argparse.Namespace, api: Any, config: Any) -> int:
     import time
 
+    config = api.load_config(args.config)
     refuse_existing(args.out, args.force)
     started = time.perf_counter()
     result = api.export_bsdf(config, args.out, method=args.method, wavelengths_nm=args.wavelengths, rgb=args.rgb,
@@ -892,8 +782,6 @@ def _export_claimed(args: argparse.Namespace, api: Any, config: Any) -> int:
     return 0
 
 
-COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / pbrt-v4 `measured`)",
-                      _export_arguments, _export_run)
 # ---- end simulate export ----------------------------------------------------------------------
 
 
@@ -902,85 +790,71 @@ COMMANDS["export"] = ("export a fabric model as an RGL .bsdf file (Mitsuba 3 / p
 _TABLE_CACHE_COMMANDS = ("fabric", "sweep", "bench", "export", "fit")
 
 
-#: Commands whose --out is a file (the others write a folder): the claim does not create its folder.
-_FILE_OUTPUTS = ("export", "weave")
+def _add_no_cache(command: registry.Command, p: argparse.ArgumentParser) -> None:
+    """``--no-cache`` on the commands that use the table cache."""
+    if command.name in _TABLE_CACHE_COMMANDS:
+        p.add_argument("--no-cache", action="store_true", dest="no_cache",
+                       help="neither read nor write the table cache (the yarn tables, the felts, the fit's "
+                            "structured walks; default "
+                            "~/.cache/fabric-optics or $FABRIC_OPTICS_CACHE_DIR, bounded by "
+                            "$FABRIC_OPTICS_CACHE_MAX_BYTES, 2 GiB); also FABRIC_OPTICS_NO_CACHE=1")
+
+
+def _check_cache(command: registry.Command, args: argparse.Namespace) -> None:
+    """``--no-cache`` for this process and the ones it starts; a bad cache bound: exit 2 now, not after the run."""
+    if getattr(args, "no_cache", False):
+        os.environ["FABRIC_OPTICS_NO_CACHE"] = "1"   # inherited by the processes a sweep starts
+    if command.name in _TABLE_CACHE_COMMANDS:
+        from simulate.fiber import tablecache
+
+        tablecache.max_bytes()
+
+
+def _setup_logging(verbose: bool) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+
+def _command(name: str, help_text: str, add_arguments: Callable[[argparse.ArgumentParser], None],
+             run: Callable[[argparse.Namespace], int], out: Literal["folder", "file"] | None = "folder") -> registry.Command:
+    return registry.Command(name, help_text, add_arguments, run, out=out)
+
+
+#: The ``simulate`` program: its commands (:mod:`fabric_optics.cli.registry`).
+PROGRAM = registry.Program(
+    prog="simulate",
+    description="Physically based fiber and fabric BRDF simulation.",
+    metavar="COMMAND",
+    commands=(
+        _command("slab", "Monte Carlo slab: diffuse reflectance and total transmittance", _slab_arguments, _slab_run,
+                 out=None),
+        _command("bench", "benchmark the Monte Carlo kernel (JSON + chart)", _bench_arguments, _bench_run),
+        _command("fabric", "fabric BRDF at a plan's geometries, as a radiance-coefficient dataset", _fabric_arguments,
+                 _fabric_run),
+        _command("fiber", "fiber BRDF table over the incident sphere (npz + JSON)", _fiber_arguments, _fiber_run),
+        _command("fit", "fit config parameters of a fabric model to a measurement", _fit_arguments, _fit_run),
+        _command("weave", "woven micro-element: the yarn tubes of the config's weave as a PLY/OBJ mesh",
+                 _weave_arguments, _weave_run, out="file"),
+        _command("sweep", "parameter sweep of a fabric model on dask.distributed (one dataset per point)",
+                 _sweep_arguments, _sweep_run),
+        _command("export", "export a fabric model as an RGL .bsdf file (Mitsuba 3 / pbrt-v4 `measured`)",
+                 _export_arguments, _export_run, out="file"),
+    ),
+    user_errors=(ParameterError,),
+    setup_logging=_setup_logging,
+    extend=_add_no_cache,
+    before_run=_check_cache,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``simulate`` argument parser with one subparser per entry of :data:`COMMANDS`."""
-    parser = Parser(prog="simulate", description="Physically based fiber and fabric BRDF simulation.")
-    add_verbose(parser, sub=False)
-    common.add_version(parser)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    sub.required = True
-    for name, (help_text, add_arguments, _) in COMMANDS.items():
-        sp = sub.add_parser(name, help=help_text, description=help_text)
-        add_arguments(sp)
-        add_verbose(sp, sub=True)
-        if name in _TABLE_CACHE_COMMANDS:
-            sp.add_argument("--no-cache", action="store_true", dest="no_cache",
-                            help="neither read nor write the table cache (the yarn tables, the felts, the fit's "
-                                 "structured walks; default "
-                                 "~/.cache/fabric-optics or $FABRIC_OPTICS_CACHE_DIR, bounded by "
-                                 "$FABRIC_OPTICS_CACHE_MAX_BYTES, 2 GiB); also FABRIC_OPTICS_NO_CACHE=1")
-    return parser
+    """The ``simulate`` argument parser with one subparser per command of :data:`PROGRAM`."""
+    return registry.build_parser(PROGRAM)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``simulate`` console script; returns the exit code."""
-    # Start-up (numba and its registries) makes ~10^5 long-lived objects and no garbage, which the cyclic
-    # collector would scan hundreds of times and once more at exit. It is off while the arguments are
-    # parsed (numba is imported then); at exit gc.freeze() keeps everything out of the last collection
-    # (docs/notes/implementation.md; https://docs.python.org/3/library/gc.html#gc.freeze).
-    atexit.unregister(gc.freeze)
-    atexit.register(gc.freeze)
-    collecting = gc.isenabled()
-    gc.disable()
-    try:
-        parser = build_parser()
-        args = parser.parse_args(argv)
-    finally:
-        if collecting:
-            gc.enable()
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
-    from fabric_optics.api import InputError, OutputExistsError
-    from simulate.montecarlo import ParameterError
-
-    _, _, run = COMMANDS[args.command]
-    try:
-        if getattr(args, "no_cache", False):
-            os.environ["FABRIC_OPTICS_NO_CACHE"] = "1"   # inherited by the processes a sweep starts
-        if args.command in _TABLE_CACHE_COMMANDS:
-            from simulate.fiber import tablecache
-
-            tablecache.max_bytes()   # a bad FABRIC_OPTICS_CACHE_MAX_BYTES: exit 2 now, not after the run
-        out = getattr(args, "out", None)
-        if out:   # one writer of --out for the whole run (re-entrant: fabric, fit, export claim it too)
-            with common.claim(out, file=args.command in _FILE_OUTPUTS):
-                return run(args)
-        return run(args)
-    except (_UsageError, InputError, OutputExistsError) as exc:
-        print(f"simulate {args.command}: error: {printable(exc)}", file=sys.stderr)
-        return 2
-    except ParameterError as exc:
-        # invalid run parameters found by the library; the message names the parameter
-        print(f"simulate {args.command}: error: {printable(exc)}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"simulate {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except SystemError as exc:
-        # Ctrl-C inside compiled code (numba, miepython) can reach here as a SystemError wrapping it
-        from fabric_optics.errors import interrupt_of
-
-        if interrupt_of(exc) is None:
-            raise
-        print(f"simulate {args.command}: interrupted", file=sys.stderr)
-        return 130
+    return registry.main(PROGRAM, argv)
 
 
 if __name__ == "__main__":

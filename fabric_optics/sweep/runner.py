@@ -68,6 +68,7 @@ import logging
 import math
 import os
 import re
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -78,6 +79,7 @@ import pandas as pd
 
 from gonio.acquisition.plan import Plan
 from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta
+from gonio.data.outputs import occupied
 from simulate.config import SimulationConfig
 from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
 from simulate.outdir import OutputError, recover_all, write_dataset_dir
@@ -117,6 +119,7 @@ __all__ = [
     "finished_tasks",
     "parse_params",
     "prepare_out",
+    "clear_sweep",
     "run_sweep",
     "task_seed",
 ]
@@ -175,6 +178,20 @@ def _read_json(path: Path) -> Any:
         return None
 
 
+def clear_sweep(out: Path) -> None:
+    """Remove a previous sweep's own files from ``out``, nothing else (``simulate sweep --force``)."""
+    if not (out / SWEEP_NAME).is_file():
+        return
+    try:
+        for name in (TASKS_DIR, POINTS_DIR):
+            if (out / name).is_dir():
+                shutil.rmtree(out / name)
+        for name in (SUMMARY_NAME, SWEEP_NAME):
+            (out / name).unlink(missing_ok=True)
+    except OSError as exc:
+        raise SweepError(f"--out {out}: cannot remove the previous sweep ({exc.strerror})") from None
+
+
 def prepare_out(out: Path, spec: SweepSpec, resume: bool = False) -> bool:
     """Check that ``out`` may receive ``spec``'s sweep; write ``sweep.json`` when it is new.
 
@@ -203,10 +220,10 @@ def prepare_out(out: Path, spec: SweepSpec, resume: bool = False) -> bool:
                          "start one")
     if out.is_dir():
         try:
-            entries = [e.name for e in out.iterdir() if not e.name.startswith(".")]
+            full = occupied(out)
         except OSError as exc:
             raise SweepError(f"--out {out}: cannot read the directory ({exc.strerror})") from None
-        if entries:
+        if full:
             raise SweepError(f"--out {out}: directory is not empty and is not a sweep directory (no {SWEEP_NAME}); "
                              "refusing to write into it (choose a new or empty directory)")
     try:

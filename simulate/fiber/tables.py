@@ -56,7 +56,7 @@ from simulate.optics.microfacet import directions_deg
 from simulate.provenance import jsonable, software_versions
 
 __all__ = ["FORMAT", "JSON_NAME", "NPZ_NAME", "TableGrid", "fiber_table", "write_fiber_table",
-           "read_fiber_table"]
+           "read_fiber_table", "is_fiber_table_dir"]
 
 FORMAT = "fiber-brdf-table/1"
 #: Default target relative error of a table (the config's target is for the fabric runs).
@@ -165,3 +165,13 @@ def read_fiber_table(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
     with np.load(root / NPZ_NAME, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files}
     return arrays, sidecar
+
+
+def is_fiber_table_dir(out: Path) -> bool:
+    """True when the folder ``out`` holds a fiber table (its JSON sidecar says so): a previous
+    ``simulate fiber`` output, which the command replaces with ``--force`` (:func:`gonio.data.outputs.prepare_folder`)."""
+    try:
+        meta = json.loads((Path(out) / JSON_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == FORMAT

@@ -152,8 +152,9 @@ def test_ctrl_c_in_the_compiled_mie_code_during_a_fit_exits_130_interrupted(tmp_
                               "--out", str(out), "--no-progress"])
     err = capsys.readouterr().err
     assert code == 130 and "simulate fit: interrupted" in err and "SystemError" not in err, err
-    monkeypatch.setitem(simulate_cli.COMMANDS, "slab", (*simulate_cli.COMMANDS["slab"][:2],
-                                                        lambda args: _interrupt_in_compiled_code()))
+    slab = simulate_cli.PROGRAM.by_name["slab"]
+    monkeypatch.setitem(simulate_cli.PROGRAM.by_name, "slab",
+                        dataclasses.replace(slab, run=lambda args: _interrupt_in_compiled_code()))
     assert simulate_cli.main(["slab", "--mua", "0.1", "--mus", "1", "--g", "0", "--n", "1.5", "--thickness", "1",
                               "--photons", "10", "--json"]) == 130
     assert capsys.readouterr().err.strip() == "simulate slab: interrupted"

@@ -151,7 +151,7 @@ def test_cli_refuses_to_overwrite_without_force(tmp_path, capsys):
     out = tmp_path / "mesh.ply"
     out.write_text("keep me")
     assert main(["weave", "red-cotton", "--out", str(out)]) == 2
-    assert "file exists; refusing to overwrite it (use --force)" in _one_error_line(capsys)
+    assert "exists; pass --force to replace it, or choose a new name" in _one_error_line(capsys)
     assert out.read_text() == "keep me"
     assert main(["weave", "red-cotton", "--out", str(out), "--force"]) == 0
     assert out.read_bytes().startswith(b"ply")
