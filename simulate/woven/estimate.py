@@ -321,7 +321,8 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
         prepare(meshes[0], mats[0], setups, twist_deg=twist)
         second = background.submit(prepare, meshes[1], mats[1], setups, twist_deg=twist)
     if record is not None:
-        record.update(incidences=[], shape=beta.shape, tables=tuple(tables), volume=vol, packing=packing,
+        record.update(incidences=[], shape=beta.shape, volume=vol, packing=packing,
+                      tables=tuple({"shape": t.T.shape, "c_bar": t.c_bar, "tau": t.tau} for t in tables),
                       yarn_radius=yarn_radius(mesh) if vol == "pile" else None, seed=seed, threads=threads,
                       photons_per_row=table_photons(target_rel_err, **split) // 2,
                       grid={"n_mu": int(tables[0].n_mu), "n_phi": int(tables[0].n_phi),

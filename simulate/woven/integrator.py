@@ -907,7 +907,7 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
     if record is not None:
         from simulate.woven.reweight import TraceLog
 
-        record.append(TraceLog(logs, G, D, L, np.array(det), n, setup.t_rows))
+        record.append(TraceLog(logs, G, D, L, np.array(det), n, tuple(setup.t_rows.shape)))
     out = []
     for g in range(G):
         mean, u = _mean_se(total.nee[g], total.nee2[g], n)

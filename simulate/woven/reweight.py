@@ -41,7 +41,7 @@ import numpy as np
 from simulate.montecarlo.accuracy import relative_error
 
 __all__ = ["EventLog", "ChunkLog", "TraceLog", "replay", "record_bytes", "new_tables", "reweighted_beta",
-           "same_but_dye"]
+           "reweighted_estimate", "same_but_dye"]
 
 
 @dataclass(frozen=True)
@@ -120,7 +120,7 @@ class EventLog:
 
 @dataclass
 class TraceLog:
-    """One :func:`simulate.woven.integrator._trace`'s chunks (in order), its groups, detectors and table rows."""
+    """One :func:`simulate.woven.integrator._trace`'s chunks (in order), its groups, detectors and table rows' shape."""
 
     chunks: list
     G: int
@@ -128,7 +128,7 @@ class TraceLog:
     L: int
     detectors: np.ndarray
     rays: int
-    t_rows: np.ndarray
+    rows_shape: tuple
 
     @property
     def nbytes(self) -> int:
@@ -174,8 +174,8 @@ def replay(log: TraceLog, t_rows: np.ndarray) -> list[Any]:
     from simulate.woven.integrator import _ROULETTE_SURVIVE, MCResult, _mean_se
 
     t_rows = np.ascontiguousarray(t_rows, float)
-    if t_rows.shape != log.t_rows.shape:
-        raise ValueError(f"reweight: the new table's rows {t_rows.shape} differ from the traced {log.t_rows.shape} "
+    if t_rows.shape != tuple(log.rows_shape):
+        raise ValueError(f"reweight: the new table's rows {t_rows.shape} differ from the traced {log.rows_shape} "
                          "(another grid, exit bins or wavelengths: trace again)")
     G, D, L = log.G, log.D, log.L
     nee = np.zeros((G, D, L))
@@ -253,8 +253,9 @@ def reweighted_beta(record: dict, tables: tuple) -> tuple[np.ndarray, np.ndarray
 
 
 def same_but_dye(old: Any, new: Any) -> bool:
-    """Whether fiber ``new`` is ``old`` but for its host absorption (the dye): the yarn table's cache key with the
-    dye put back (:func:`simulate.woven.yarn.table_key`) is the same."""
+    """Whether fiber ``new`` is ``old`` but for its host absorption (the dye): every field of the fiber the same
+    and the medium's canonical form (the yarn table's cache key, :func:`simulate.woven.yarn.table_key`) the same
+    once the dye is put back."""
     from simulate.media.medium import HGMedium
     from simulate.woven.yarn import table_key
 
@@ -264,9 +265,32 @@ def same_but_dye(old: Any, new: Any) -> bool:
         else:
             medium = dataclasses.replace(new.medium, mu_a_host_per_um=old.medium.mu_a_host_per_um)
         back = dataclasses.replace(new, medium=medium)
-        return bool(table_key(back, [550.0]) == table_key(old, [550.0]))
-    except (TypeError, AttributeError):
+        rest = all(getattr(back, f.name) == getattr(old, f.name) for f in dataclasses.fields(old)
+                   if f.name != "medium")
+        return bool(rest and table_key(back, [550.0]) == table_key(old, [550.0]))
+    except (TypeError, AttributeError, ValueError):
         return False
+
+
+def reweighted_estimate(record: dict, config: Any, wavelengths_nm: Any) -> tuple[np.ndarray, np.ndarray, dict]:
+    """:func:`reweighted_beta` of a ``--method mc`` run recorded through
+    :class:`simulate.products.RunSettings` ``record``, for ``config`` (the traced config with another dye, or
+    other shares or dyes of its populations). The tables are those a trace of ``config`` would walk (the same
+    photons and seeds). :class:`ValueError` when ``config`` differs from the traced one in more than its dyes."""
+    from simulate.products import RunSettings, felt_population_tables
+
+    wl = np.asarray(wavelengths_nm, float)
+    if not np.array_equal(wl, record["wavelengths_nm"]):
+        raise ValueError("reweight: other wavelengths than the traced run's")
+    blend = bool(record.get("blend"))
+    fiber = config.population_configs()[0][1].fiber(wl) if blend else config.fiber(wl)
+    if not same_but_dye(record["fiber"], fiber):
+        raise ValueError("reweight: the fiber differs from the traced one in more than its dye: trace again")
+    tables = None
+    if blend:
+        tables = felt_population_tables(config, fiber, wl, RunSettings(target=record["target"], seed=record["seed"],
+                                                                       threads=record["threads"]), record["bins"])
+    return reweighted_beta(record, new_tables(record, fiber, tables))
 
 
 def new_tables(record: dict, fiber: Any, tables: tuple | None = None) -> tuple:
@@ -284,9 +308,10 @@ def new_tables(record: dict, fiber: Any, tables: tuple | None = None) -> tuple:
         threads = record["threads"]
         tables = table_halves(walked, record["wavelengths_nm"], record["photons_per_row"], record["seed"],
                               threads if threads else None, **grid)
-    old = record["tables"]
+    old = record["tables"]     # the traced halves' shape, c_bar and tau
     for a, b in zip(old, tables):
-        if a.T.shape != b.T.shape or not np.array_equal(a.c_bar, b.c_bar) or not np.array_equal(a.tau, b.tau):
+        if (tuple(a["shape"]) != b.T.shape or not np.allclose(a["c_bar"], b.c_bar, rtol=1e-12, atol=0.0)
+                or not np.allclose(a["tau"], b.tau, rtol=1e-12, atol=0.0)):
             raise ValueError("reweight: the new tables differ from the traced ones in more than the dye (grid, "
                              "radius or index): trace again")
     return tuple(tables)
