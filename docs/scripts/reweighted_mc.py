@@ -7,7 +7,9 @@ The ``make demo`` Monte Carlo fit's run: green-felt-mc at the measured plan's ge
 eight dye knots (``--free dye``). The start's dye is traced once with a record (:mod:`simulate.woven.reweight`);
 the record is re-weighted to the start's own dye (equal to rounding) and to each dye of :data:`DYES`, and each of
 those is traced again at the same seed (the same tables: a trace of that dye walks them). Per dye: the z-scores
-``(rw - traced) / sqrt(u_rw^2 + u_traced^2)`` over every geometry and wavelength, both runs' relative errors, the
+``(rw - traced) / sqrt(u_rw^2 + u_traced^2)`` over every geometry and wavelength, and ``z_rays`` with the rays' parts
+of the errors only (the table's part is shared by the two runs and cancels in their difference), both runs' relative
+errors, the
 spread (re-weighted ray error over the traced start's at the same rays), the level ratio ``sum rw / sum traced``,
 whether the fit would keep the re-weighting (:func:`fabric_optics.fitting.spacemapping.reweight_accepted`), and
 each one's wall and CPU seconds. The record's size and event counts are reported with the first trace.
@@ -83,13 +85,23 @@ def main(argv: list[str] | None = None) -> int:
         t, c = time.perf_counter(), time.process_time()
         b, u, info = RW.reweighted_estimate(record, problem.config_at(x), wl)
         rw_wall, rw_cpu = time.perf_counter() - t, time.process_time() - c
-        est, wall, cpu = _run(problem, x, geoms)
-        z = (b - est.beta) / np.sqrt(u ** 2 + est.u_beta ** 2)
-        z = z[np.isfinite(z)]
+        again: dict = {}
+        est, wall, cpu = _run(problem, x, geoms, again)
+        # the re-traced run's rays' part of its error (its own record replayed at its own dye: its result)
+        _, _, info_again = RW.reweighted_estimate(again, problem.config_at(x), wl)
+        del again
+        z_all = (b - est.beta) / np.sqrt(u ** 2 + est.u_beta ** 2)
+        z = z_all[np.isfinite(z_all)]
+        # both runs walk the same tables, so the table's part of u_beta is shared and cancels in the difference:
+        # z_rays leaves it out (the rays' parts only)
+        zr = (b - est.beta) / np.sqrt(info["u_rays"] ** 2 + info_again["u_rays"] ** 2)
+        zr = zr[np.isfinite(zr)]
         data["dyes"].append({
             "dye": name, "x": x.tolist(), "n": int(z.size), "z_mean": float(np.mean(z)),
             "z_rms": float(np.sqrt(np.mean(z ** 2))), "z_max_abs": float(np.max(np.abs(z))),
             "frac_abs_z_gt_2": float(np.mean(np.abs(z) > 2.0)), "frac_abs_z_gt_3": float(np.mean(np.abs(z) > 3.0)),
+            "z_rays_mean": float(np.mean(zr)), "z_rays_rms": float(np.sqrt(np.mean(zr ** 2))),
+            "z_rays_max_abs": float(np.max(np.abs(zr))), "frac_abs_z_rays_gt_3": float(np.mean(np.abs(zr) > 3.0)),
             "level_ratio": float(np.sum(b) / np.sum(est.beta)),
             "rel_err_reweighted": float(info["rel_err"]), "rel_err_retraced": float(relative_error(est.beta, est.u_beta)),
             "ray_rel_err_reweighted": float(info["ray_rel_err"]), "spread": float(info["spread"]),

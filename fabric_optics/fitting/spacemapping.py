@@ -17,7 +17,7 @@ every run is checkpointed (:class:`~fabric_optics.fitting.state.MCState`) and ``
 Re-weighted runs. When every free parameter is a dye's (``--free dye``), a run after a traced one is not traced
 again: the traced run's rays are re-weighted to the new dye (:mod:`simulate.woven.reweight`, correlated
 sampling: the same ray paths, each event's weight the new table's over the probability the trace used), which
-costs the new dye's table walk and a replay instead of the trace. It is kept while it is as accurate as a trace
+costs the new dye's table walk and a replay instead of the trace. It is kept while its error stays near a trace's
 (:func:`reweight_accepted`); otherwise the run is traced (and recorded) again. ``--mc-retrace``
 (``mc_retrace=True``) traces every run.
 

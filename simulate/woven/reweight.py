@@ -228,10 +228,12 @@ def reweighted_beta(record: dict, tables: tuple) -> tuple[np.ndarray, np.ndarray
     ``info``: ``rel_err`` and ``ray_rel_err`` (the re-weighted run's, :func:`relative_error`), per incidence the
     same and ``spread``, the re-weighted ray error over the traced run's at the same rays (1 at the traced dye; a
     fresh trace at the new dye would give about the traced run's, so the ratio is how much the weights cost: its
-    square is the inverse of the effective sample size's share), ``rays`` and ``event_bytes``."""
+    square is the inverse of the effective sample size's share), ``rays``, ``event_bytes`` and ``u_rays`` (``[P, L]``:
+    the rays' part of ``u_beta``, without the table's)."""
     shape = tuple(record["shape"])
     beta = np.zeros(shape)
     u_beta = np.zeros(shape)
+    u_rays = np.zeros(shape)
     runs = []
     for inc, (ra, rb) in zip(record["incidences"], _half_results(record, tables)):
         rows, det_inv = inc["rows"], inc["det_inv"]
@@ -241,6 +243,7 @@ def reweighted_beta(record: dict, tables: tuple) -> tuple[np.ndarray, np.ndarray
         u = np.sqrt(u_rays2 + u_table ** 2)
         beta[rows] = b[det_inv]
         u_beta[rows] = u[det_inv]
+        u_rays[rows] = np.sqrt(u_rays2)[det_inv]
         ray_rel = relative_error(b, np.sqrt(u_rays2))
         traced = inc.get("ray_rel_err")
         runs.append({"rel_err": relative_error(b, u), "ray_rel_err": ray_rel,
@@ -248,7 +251,8 @@ def reweighted_beta(record: dict, tables: tuple) -> tuple[np.ndarray, np.ndarray
     info = {"rel_err": relative_error(beta, u_beta),
             "ray_rel_err": max((r["ray_rel_err"] for r in runs), default=0.0),
             "spread": max((r["spread"] for r in runs), default=float("nan")),
-            "incidences": runs, "rays": int(sum(r["rays"] for r in runs)), "event_bytes": record_bytes(record)}
+            "incidences": runs, "rays": int(sum(r["rays"] for r in runs)), "event_bytes": record_bytes(record),
+            "u_rays": u_rays}
     return beta, u_beta, info
 
 
