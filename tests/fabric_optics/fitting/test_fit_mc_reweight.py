@@ -85,3 +85,15 @@ def test_the_rule_is_the_target_widened_by_a_quarter_and_a_bounded_spread():
     assert reweight_accepted({"rel_err": 0.06, "spread": 1.0}, 0.03, 0.05)
     assert not reweight_accepted({"rel_err": 0.01, "spread": 2.1}, 0.03, 0.02)
     assert not reweight_accepted({"rel_err": 0.01, "spread": float("nan")}, 0.03, 0.02)
+
+
+def test_mc_retrace_is_for_the_monte_carlo_fit(tmp_path, capsys):
+    from gonio.data import write_dataset
+
+    from fabric_optics.cli.simulate import main
+
+    write_dataset(_flat(WL6), tmp_path / "m")
+    code = main(["fit", "green-felt", str(tmp_path / "m"), "--method", "summation", "--free", "dye", "--out",
+                 str(tmp_path / "f"), "--no-progress", "--mc-retrace"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--mc-retrace is for --method mc" in err and len(err.strip().splitlines()) == 1, err
