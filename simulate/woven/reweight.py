@@ -280,7 +280,9 @@ def reweighted_estimate(record: dict, config: Any, wavelengths_nm: Any) -> tuple
     """:func:`reweighted_beta` of a ``--method mc`` run recorded through
     :class:`simulate.products.RunSettings` ``record``, for ``config`` (the traced config with another dye, or
     other shares or dyes of its populations). The tables are those a trace of ``config`` would walk (the same
-    photons and seeds). :class:`ValueError` when ``config`` differs from the traced one in more than its dyes."""
+    photons and seeds). :class:`ValueError` when ``config``'s fiber differs from the traced one in more than its
+    dye. For a blend only the first population's fiber is compared: the caller changes no more than the
+    populations' dyes and shares (the fit re-weights ``fiber.dye`` parameters only)."""
     from simulate.products import RunSettings, felt_population_tables
 
     wl = np.asarray(wavelengths_nm, float)
