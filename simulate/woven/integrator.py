@@ -543,7 +543,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element (one wavefront for all ``G``),
     each for at most ``events`` scattering events (the rays still going after that count as killed).
     ``record``: the sums' ``log`` holds the events a dye's re-weighting replays
-    (:func:`simulate.woven.reweight.record_events`; a fiber material with deferred contributions only).
+    (:class:`simulate.woven.reweight.EventLog`; a fiber material with deferred contributions only).
 
     ``w_in`` ``[G, 3]`` and ``detectors`` ``[G, D, 3]``: ray ``r`` belongs to group ``r // n`` and is
     scored towards that group's detectors; the sums carry a leading group axis. The rays of every
