@@ -541,7 +541,8 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
                 target_rel_err: float | None = None, seed: int | None = None, threads: int | None = None,
                 colour_weight: float = 1.0, wavelengths_nm: Sequence[float] | None = None,
                 mc_trend: Sequence[str] = (), starts: int = 1, resume: bool = False,
-                force: bool = False, absolute: bool = False, colour_hold: bool = True) -> FitJob:
+                force: bool = False, absolute: bool = False, colour_hold: bool = True,
+                mc_retrace: bool = False) -> FitJob:
     """Everything :func:`fit` checks before its search (arguments as :func:`fit`): the config, the
     measurement, the free parameters and their bounds, the output folder. Nothing is written."""
     import numpy as np
@@ -570,6 +571,10 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
         raise InputError(f"dye {dye!r}: choose 'config' or 'knots'")
     names = [free] if isinstance(free, str) else list(free)
     extra: dict[str, Any] = {"mc_trend": tuple(mc_trend)} if mc_trend else {}
+    if mc_retrace:
+        if method != "mc":
+            raise InputError(f"mc_retrace is for method 'mc' (the {method} fit has no Monte Carlo runs)")
+        extra["mc_retrace"] = True
     problem = fit_method.problem(cfg, data, parse_free(names, cfg), method=method, colour_weight=colour_weight,
                                  level_weight=1.0 if absolute else 0.0, hold_colour=colour_hold and method != "mc",
                                  target_rel_err=cfg.target_rel_err if target_rel_err is None else target_rel_err,
@@ -592,7 +597,7 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         seed: int | None = None, threads: int | None = None, colour_weight: float = 1.0,
         wavelengths_nm: Sequence[float] | None = None, mc_trend: Sequence[str] = (), starts: int = 1,
         resume: bool = False, force: bool = False, progress: bool = False, absolute: bool = False,
-        colour_hold: bool = True) -> FitOutcome:
+        colour_hold: bool = True, mc_retrace: bool = False) -> FitOutcome:
     """Fit parameters of a fabric model to a measurement (`simulate fit`).
 
     Parameters
@@ -625,6 +630,9 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         The model's wavelengths (the measurement's by default).
     mc_trend : sequence of str, default ()
         For `mc`: parameters whose trend the surrogate borrows from the summation.
+    mc_retrace : bool, default False
+        For `mc`: trace every Monte Carlo run (with only dye parameters free, a run after a traced one is
+        otherwise re-weighted from its rays while that is as accurate as a trace).
     starts : int, default 1
         Independent starts of the search; the best is kept.
     resume : bool, default False
@@ -683,7 +691,7 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
     _v.wavelengths("wavelengths_nm", wavelengths_nm)
     _v.integer("starts", starts, 1, 1000)
     for arg, value in (("resume", resume), ("force", force), ("progress", progress), ("absolute", absolute),
-                       ("colour_hold", colour_hold)):
+                       ("colour_hold", colour_hold), ("mc_retrace", mc_retrace)):
         _v.flag(arg, value)
     data = _dataset(measured)
     _v.measurement_rows(f"measured ({data.path or data.name})", len(data))
@@ -692,7 +700,7 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
                            max_runs=max_runs, target_rel_err=target_rel_err, seed=seed, threads=threads,
                            colour_weight=colour_weight, wavelengths_nm=wavelengths_nm, mc_trend=mc_trend,
                            starts=starts, resume=resume, force=force, absolute=absolute,
-                           colour_hold=colour_hold).run(progress=progress)
+                           colour_hold=colour_hold, mc_retrace=mc_retrace).run(progress=progress)
 
 
 @_typed_errors

@@ -59,6 +59,9 @@ class RunSettings:
     max_photons: Any = None
     progress: bool = False
     max_seconds: float = 0.0
+    record: dict | None = field(default=None, compare=False)
+    """``--method mc``: a dict the run's ray events are recorded into, from which
+    :func:`simulate.woven.reweight.reweighted_estimate` gives another dye's result without tracing again."""
 
 
 @dataclass(frozen=True)
@@ -331,7 +334,10 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0, tables=tables,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
         structure=spec, exit_bins=bins, axial_shift=bool(getattr(config, "axial_shift", False)),
-        w_t_nodes=config.w_t_nodes() if hasattr(config, "w_t_nodes") else (0.0, 0.25, 0.5, 0.75, 0.95))
+        w_t_nodes=config.w_t_nodes() if hasattr(config, "w_t_nodes") else (0.0, 0.25, 0.5, 0.75, 0.95),
+        record=s.record)
+    if s.record is not None:      # what a dye's re-weighting builds its tables from (simulate.woven.reweight)
+        s.record.update(fiber=fiber, blend=bool(blend), bins=tuple(bins), target=s.target)
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
     meshes = mesh if isinstance(mesh, tuple) else (mesh,)
     extra = {**geometry, "triangles": int(meshes[0].faces.shape[0]), "ray_engine": "embree (embreex)",

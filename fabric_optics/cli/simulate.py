@@ -419,6 +419,9 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
                    help="--method mc: free parameters whose trend the surrogate takes from Monte Carlo runs (one more "
                         "run per parameter and step) instead of the summation -- where the two models' trends "
                         "disagree; the boundary's slopes for transmitted light always are (see fabric_optics.fitting.spacemapping)")
+    p.add_argument("--mc-retrace", action="store_true", dest="mc_retrace",
+                   help="--method mc: trace every Monte Carlo run (by default, with only dye parameters free, a run "
+                        "after a traced one re-weights its rays to the new dye while that is as accurate as a trace)")
     p.add_argument("--starts", type=_int_in(1, 1000), default=1,
                    help="least-squares starts: the config's values plus Latin-hypercube points (default 1)")
     add_wavelengths(p, "model wavelengths for an RGB measurement")
@@ -473,6 +476,8 @@ def _fit_run(args: argparse.Namespace) -> int:
     if args.max_runs is not None and args.method != "mc":
         raise _UsageError(f"--max-runs counts the Monte Carlo runs of --method mc; the {args.method} fit counts "
                           "--max-evaluations")
+    if args.mc_retrace and args.method != "mc":
+        raise _UsageError("--mc-retrace is for --method mc (the other fits make no Monte Carlo runs)")
     if args.mc_trend and args.method != "mc":
         raise _UsageError(f"--mc-trend is for --method mc (the {args.method} fit has no Monte Carlo runs); "
                           "drop it or fit with --method mc")
@@ -496,6 +501,7 @@ def _fit_claimed(args: argparse.Namespace, config: Any, measured: Any, mc_trend:
                           max_evaluations=args.max_evaluations, max_runs=args.max_runs,
                           target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
                           colour_weight=args.colour_weight, wavelengths_nm=args.wavelengths, mc_trend=mc_trend,
+                          mc_retrace=args.mc_retrace,
                           starts=args.starts, resume=args.resume, force=args.force, absolute=args.absolute,
                           colour_hold=args.colour_hold)
     _check_cost("fit", config, job.problem.wavelengths_nm, job.problem.target_rel_err, None)

@@ -14,6 +14,13 @@ Parameters the summation cannot see (:data:`~fabric_optics.fitting.spec.FINE_FIE
 first-order term from Monte Carlo runs themselves. ``--max-runs`` counts Monte Carlo runs (the start's included);
 every run is checkpointed (:class:`~fabric_optics.fitting.state.MCState`) and ``--resume`` replays them.
 
+Re-weighted runs. When every free parameter is a dye's (``--free dye``), a run after a traced one is not traced
+again: the traced run's rays are re-weighted to the new dye (:mod:`simulate.woven.reweight`, correlated
+sampling: the same ray paths, each event's weight the new table's over the probability the trace used), which
+costs the new dye's table walk and a replay instead of the trace. It is kept while its error stays near a trace's
+(:func:`reweight_accepted`); otherwise the run is traced (and recorded) again. ``--mc-retrace``
+(``mc_retrace=True``) traces every run.
+
 Public objects: :func:`run_mc_fit`, :class:`MCFitProblem`, :class:`Surrogate`, :func:`correction`,
 :func:`run_monte_carlo`, :data:`DEFAULT_MC_RUNS`. The design's reasons and measured behaviour:
 docs/notes/fit-trust.md ("The Monte Carlo fit").
@@ -80,6 +87,11 @@ COLOUR_MARGIN = 0.5
 COLOUR_WEIGHT_STEP = 10.0
 #: the largest colour weight of a surrogate fit, as a multiple of the problem's
 MAX_COLOUR_WEIGHT_FACTOR = 1000.0
+#: a re-weighted run's relative error over the target (or the traced run's, where larger), at most
+#: (:func:`reweight_accepted`)
+REWEIGHT_ERROR_FACTOR = 1.25
+#: a re-weighted run's ray error over the traced run's at the same rays, at most (:func:`reweight_accepted`)
+REWEIGHT_MAX_SPREAD = 2.0
 
 
 
@@ -100,7 +112,7 @@ class MCFitProblem(FitProblem):
     weave), whose free parameters may include those only the Monte Carlo sees (:data:`FINE_FIELDS`)."""
 
     def __init__(self, config: Any, measured: Any, free: list, *, method: str = "mc", mc_trend: Sequence[str] = (),
-                 **settings: Any) -> None:
+                 mc_retrace: bool = False, **settings: Any) -> None:
         if method != "mc":
             raise FitError(f"MCFitProblem fits the Monte Carlo (method 'mc'), got {method!r}")
         super().__init__(config, measured, free, method="summation", fine_capable=True, **settings)
@@ -118,6 +130,15 @@ class MCFitProblem(FitProblem):
                 expanded.append(path)
         #: free parameters (config paths) whose trend comes from the Monte Carlo although the summation sees them
         self.mc_trend = tuple(expanded)
+        #: every Monte Carlo run traced, none re-weighted from an earlier one (module docstring)
+        self.mc_retrace = bool(mc_retrace)
+        #: the ``reuse`` of :func:`run_monte_carlo` when not given: the fit's last traced run (:func:`run_mc_fit`)
+        self.mc_reuse: dict | None = None
+
+    def reweights_runs(self) -> bool:
+        """Whether the fit's runs may be re-weighted from a traced one (module docstring): every free parameter a
+        dye's and ``mc_retrace`` off."""
+        return not self.mc_retrace and bool(self.free) and all(p.kind == "dye" for p in self.free)
 
     def fine_indices(self) -> list[int]:
         """The parameters whose trend comes from Monte Carlo runs: the fine ones and ``mc_trend``."""
@@ -211,21 +232,67 @@ def _key(x: np.ndarray) -> tuple:
     return tuple(np.round(np.asarray(x, float), 12).tolist())
 
 
-def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = False) -> MCRun:
-    """The woven/felt Monte Carlo (``simulate fabric --method mc``) at the measured geometries for ``x``."""
+def reweight_accepted(info: dict, target_rel_err: float, traced_rel_err: float) -> bool:
+    """Whether a re-weighted run (:func:`simulate.woven.reweight.reweighted_beta`'s ``info``) replaces a trace.
+
+    Its relative standard error (rays and table, computed from the re-weighted rays as a trace computes its own)
+    is at most :data:`REWEIGHT_ERROR_FACTOR` times the run's target, or the traced run's own error where that is
+    larger (a felt's table and realisations put a trace at the target slightly above it): a re-weighted run then
+    carries at most 25 % more error than a trace -- what a trace of 64 % of the rays would -- at a fraction of
+    its cost, and its ``u_beta`` says so to the fit's uncertainty. And its ray error is at most
+    :data:`REWEIGHT_MAX_SPREAD` times the traced run's at the same rays (an effective sample of at least a quarter
+    of the rays): beyond that the weights' tails make the error's own estimate unsure. Measured over the dyes a
+    fit explores: docs/notes/reweighted-mc.md."""
+    spread = float(info.get("spread", math.inf))
+    return (float(info["rel_err"]) <= REWEIGHT_ERROR_FACTOR * max(float(target_rel_err), float(traced_rel_err))
+            and math.isfinite(spread) and spread <= REWEIGHT_MAX_SPREAD)
+
+
+def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = False,
+                    reuse: dict | None = None) -> MCRun:
+    """The woven/felt Monte Carlo (``simulate fabric --method mc``) at the measured geometries for ``x``.
+
+    ``reuse`` (a dict the caller keeps across runs that differ in their dyes alone, :meth:`MCFitProblem.reweights_runs`;
+    default ``problem.mc_reuse``): the last traced run's ray events; the run is re-weighted from them when
+    :func:`reweight_accepted`, else traced and recorded there. ``reuse["last"]`` then says how the run was made."""
+    if reuse is None:
+        reuse = getattr(problem, "mc_reuse", None)
     config = problem.config_at(x)
     wl = problem.wavelengths_nm
     g = problem.geometries
     geoms = Geometries(*(g[c].to_numpy(float) for c in ("theta_i", "phi_i", "theta_o", "phi_o")))
     t0 = time.perf_counter()
-    est = evaluate("mc", config, config.fiber(wl), geoms, wl,
-                   RunSettings(target=problem.target_rel_err, seed=int(problem.seed or 0),
-                               threads=all_threads(problem.threads), progress=progress))
-    fig = problem.residual_model().evaluate(est.beta, est.u_beta)
+    beta: np.ndarray | None = None
+    rays = 0
+    if reuse is not None and reuse.get("record"):
+        from simulate.woven.reweight import reweighted_estimate
+
+        try:
+            b, u, info = reweighted_estimate(reuse["record"], config, wl)
+        except ValueError as exc:
+            log.info("mc run not re-weighted (%s): traced", exc)
+            reuse["last"] = {"reweighted": False, "reason": str(exc)}
+        else:
+            ok = reweight_accepted(info, problem.target_rel_err, reuse["rel_err"])
+            reuse["last"] = {"reweighted": ok, "from_run": reuse.get("run"), "rel_err": info["rel_err"],
+                             "spread": info["spread"], "seconds": time.perf_counter() - t0}
+            if ok:
+                beta, u_beta, rays = b, u, int(info["rays"])
+    if beta is None:
+        record: dict | None = {} if reuse is not None else None
+        est = evaluate("mc", config, config.fiber(wl), geoms, wl,
+                       RunSettings(target=problem.target_rel_err, seed=int(problem.seed or 0),
+                                   threads=all_threads(problem.threads), progress=progress, record=record))
+        beta, u_beta, rays = np.asarray(est.beta, float), np.asarray(est.u_beta, float), int(est.info.get("rays", 0))
+        if reuse is not None:
+            reuse.setdefault("last", {"reweighted": False})
+            reuse.update(record=record if record else None, rel_err=float(relative_error(beta, u_beta)),
+                         run=reuse.get("next"))
+    fig = problem.residual_model().evaluate(beta, u_beta)
     r = fig.vector(problem.colour_weight, problem.level_weight)
-    return MCRun(x=np.asarray(x, float).copy(), beta=np.asarray(est.beta, float), u_beta=np.asarray(est.u_beta, float),
-                 seconds=time.perf_counter() - t0, rays=int(est.info.get("rays", 0)),
-                 rel_err=float(relative_error(est.beta, est.u_beta)), objective=float(r @ r),
+    return MCRun(x=np.asarray(x, float).copy(), beta=np.asarray(beta, float), u_beta=np.asarray(u_beta, float),
+                 seconds=time.perf_counter() - t0, rays=rays,
+                 rel_err=float(relative_error(beta, u_beta)), objective=float(r @ r),
                  nrmse=float(fig.nrmse), dh=float(getattr(fig, "dh", math.nan)), ds=float(getattr(fig, "ds", math.nan)))
 
 
@@ -304,15 +371,21 @@ class _Search:
     fine_runs: int = 0
     #: ``{j: D_j}``: the Monte Carlo's first-order term in the parameters whose trend the summation lacks
     slope: dict | None = None
-
-    def run(self, k: int, x: np.ndarray) -> tuple[MCRun, bool]:
-        """Monte Carlo run ``k`` at ``x``: from the checkpoint, or made and checkpointed."""
+    def run(self, k: int, x: np.ndarray) -> tuple[MCRun, bool, dict]:
+        """Monte Carlo run ``k`` at ``x``: from the checkpoint, or made (traced or re-weighted) and checkpointed;
+        and how it was made (``{"reweighted": bool, ...}``, empty when read from the checkpoint)."""
         run = self.state.run(k, x)
         cached = run is not None
+        how: dict = {}
         if run is None:
+            reuse = self.problem.mc_reuse
+            if reuse is not None:
+                reuse.pop("last", None)
+                reuse["next"] = k
             run = run_monte_carlo(self.problem, x, progress=self.progress)
+            how = dict(reuse.get("last") or {}) if reuse is not None else {}
             self.state.put_run(k, run)
-        return run, cached
+        return run, cached, how
 
     def fine_trend(self, k: int, x: np.ndarray, run: MCRun, fine: list[int]) -> None:
         """The fine parameters' trend from the Monte Carlo itself (module docstring): one run per parameter."""
@@ -398,6 +471,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
             raise FitError("--resume needs the output directory of the interrupted fit (--out)")
         state.load(problem)
     S = _Search(problem, state, _colour_first(problem), progress, echo or _stderr)
+    problem.mc_reuse = {} if problem.reweights_runs() else None
     x = start.copy()
     stop = ""
     surrogate_evals = 0
@@ -405,13 +479,14 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
     u_prev: np.ndarray | None = None
     fine = problem.fine_indices()
     for k in range(max_runs):
-        run, cached = S.run(k, x)
+        run, cached, how = S.run(k, x)
         dx = None if not S.runs else float(np.max(np.abs(x - S.runs[-1].x)))
         S.runs.append(run)
         S.by_x[_key(x)] = run
-        S.iterations.append({"k": k, **run.record(), "cached": cached,
+        S.iterations.append({"k": k, **run.record(), "cached": cached, **({"made": how} if how else {}),
                              "dx": None if not k else (x - S.runs[-2].x).tolist()})
-        S.echo(_line(k, run, dx, cached))
+        S.echo(_line(k, run, dx, cached) + (f", re-weighted from run {how.get('from_run')}"
+                                            if how.get("reweighted") else ""))
         if S.best is None or _better(run, S.best, S.colour_first):
             before, S.best, S.halvings = S.best, run, 0
             if before is not None and u_prev is not None and np.all(np.abs(run.x - before.x) <= u_prev):
@@ -450,6 +525,7 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
         S.iterations[-1]["proposal"] = prop
         x = np.clip(np.asarray(prop["x"], float), problem.low, problem.high)
         u_prev = np.asarray(prop["u"], float)
+    problem.mc_reuse = None       # the traced run's events: not kept past the fit
     return _finish(S, start, fine, inner_notes, noise_draws,
                    {"stop": stop, "message": stop, "starts": starts, "max_runs": max_runs,
                     "surrogate_evaluations": surrogate_evals, "seconds": time.perf_counter() - t0, "resumed": resume})
@@ -505,6 +581,8 @@ def _info(S: _Search, J: np.ndarray, u_rule: dict, u_status: list[str], run: dic
         "evaluations": len(runs) + S.fine_runs, "max_evaluations": run["max_runs"],
         "evaluations_meaning": "Monte Carlo runs", "mc_runs": len(runs) + S.fine_runs, "mc_runs_done": done,
         "fine_trend_runs": S.fine_runs,
+        "mc_reweighted_runs": sum(1 for it in iterations if it.get("made", {}).get("reweighted")),
+        "mc_retrace": problem.mc_retrace,
         "mc_seconds": float(sum(r.seconds for it, r in zip(iterations, runs) if not it["cached"])
                             + sum(f["seconds"] for f in fine_records if not f["cached"])),
         "surrogate_evaluations": run["surrogate_evaluations"], "summation_walks": counts.walks,

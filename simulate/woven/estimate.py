@@ -202,9 +202,10 @@ def yarn_model(mesh: Any, structure: Any = None, surface: str | None = None, vol
 def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.ndarray, meshes: tuple, mats: list,
                       beta: np.ndarray, u_beta: np.ndarray, second: Any, *, r_target: float, max_rays: int,
                       max_seconds: float, seed: int, threads: int, progress: bool, twist: tuple[float, float],
-                      chunk: int, setups: dict, max_events: int) -> list[dict]:
+                      chunk: int, setups: dict, max_events: int, record: dict | None = None) -> list[dict]:
     """:func:`fabric_beta`'s traces: each incidence with each half, ``beta`` and ``u_beta`` filled in; returns
-    the incidences' run information. ``second``: the future of the second half's setup (or None)."""
+    the incidences' run information. ``second``: the future of the second half's setup (or None).
+    ``record``: each incidence's traces' events go to ``record["incidences"]`` (:mod:`simulate.woven.reweight`)."""
     runs = []
     n_rot = felt_rotations(meshes[0])
     for k, wi in enumerate(incidences):
@@ -213,6 +214,7 @@ def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.nda
         det_inv = np.asarray(det_inv).reshape(-1)
         det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
         halves = []
+        logs: list | None = [] if record is not None else None
         for h, (m, mat) in enumerate(zip(meshes, mats)):
             if h == 1 and second is not None:     # the second half's setup, built on another thread
                 second.result()
@@ -222,17 +224,21 @@ def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.nda
                                         [2.0 * math.pi * (j + 0.5 * h) / n_rot for j in range(n_rot)],
                                         target_rel_err=r_target, max_rays=max_rays, max_seconds=max_seconds,
                                         seed=seed + 7919 * k, threads=threads, progress=progress,
-                                        twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)
+                                        twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events,
+                                        record=logs)
             else:
                 parts = [trace(m, mat, wi / np.linalg.norm(wi), det, target_rel_err=r_target, max_rays=max_rays,
                                max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress,
-                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events)]
+                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events, record=logs)]
             halves.append(_mean_of(parts))
         ra, rb = halves
         b = 0.5 * (ra.beta + rb.beta)
         u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
         u_table = np.sqrt(np.mean((0.5 * (ra.beta - rb.beta)) ** 2, axis=1, keepdims=True))
         u = np.sqrt(u_rays2 + u_table ** 2)
+        if record is not None:
+            record["incidences"].append({"rows": rows, "det_inv": det_inv, "halves": logs,
+                                         "ray_rel_err": relative_error(b, np.sqrt(u_rays2))})
         beta[rows] = b[det_inv]
         u_beta[rows] = u[det_inv]
         peak = np.maximum(b.max(axis=1, keepdims=True), 1e-300)
@@ -254,7 +260,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                 volume: str | None = None, exit_bins: tuple[int, int] = (5, 10),
                 axial_shift: bool = False,
                 w_t_nodes: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.95),
-                max_events: int = 0) -> tuple[np.ndarray, np.ndarray, dict]:
+                max_events: int = 0, record: dict | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -271,7 +277,9 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     are used as they are (``volume`` and ``exit_bins`` then say nothing). ``exit_bins``: the tables'
     exit directions per exit cell, ``(mu bins, phi bins)`` (a config's ``[method] exit_bins``; what
     they resolve and cost: docs/physics.md 6, "Exit directions"). ``max_events``: the scattering events
-    followed per ray (:func:`simulate.woven.trace`; 0: all, 1: the single scattering).
+    followed per ray (:func:`simulate.woven.trace`; 0: all, 1: the single scattering). ``record`` (a dict):
+    filled with the run's events and table settings, from which :func:`simulate.woven.reweight.reweighted_beta`
+    gives the result for another dye without tracing again.
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -312,10 +320,19 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     if background is not None:
         prepare(meshes[0], mats[0], setups, twist_deg=twist)
         second = background.submit(prepare, meshes[1], mats[1], setups, twist_deg=twist)
+    if record is not None:
+        record.update(incidences=[], shape=beta.shape, volume=vol, packing=packing,
+                      tables=tuple({"shape": t.T.shape, "c_bar": t.c_bar, "tau": t.tau} for t in tables),
+                      yarn_radius=yarn_radius(mesh) if vol == "pile" else None, seed=seed, threads=threads,
+                      photons_per_row=table_photons(target_rel_err, **split) // 2,
+                      grid={"n_mu": int(tables[0].n_mu), "n_phi": int(tables[0].n_phi),
+                            "w_t_nodes": tuple(float(x) for x in tables[0].w_t_nodes)},
+                      target_rel_err=float(target_rel_err), wavelengths_nm=wl.copy())
     try:
         runs = _trace_incidences(incidences, inverse, w_out, meshes, mats, beta, u_beta, second, r_target=r_target,
                                  max_rays=max_rays, max_seconds=max_seconds, seed=seed, threads=threads,
-                                 progress=progress, twist=twist, chunk=chunk, setups=setups, max_events=max_events)
+                                 progress=progress, twist=twist, chunk=chunk, setups=setups, max_events=max_events,
+                                 record=record)
     finally:
         if background is not None:
             background.shutdown()

@@ -143,6 +143,8 @@ class _Sums:
     shadow_candidates: int = 0
     shadow_rays: int = 0
     shadow_queries: int = 0
+    log: Any = None
+    """The chunk's events for a dye's re-weighting (:func:`_chunk` with ``record``), else None."""
 
     def add(self, o: "_Sums") -> None:
         for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins", "bins2"):
@@ -537,9 +539,11 @@ def _survivors(o, d, w, left, hit_ray, low, draws, survive, wrap, lx, ly, origin
 
 
 def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...],
-           events: int = _MAX_BOUNCES) -> _Sums:
+           events: int = _MAX_BOUNCES, record: bool = False) -> _Sums:
     """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element (one wavefront for all ``G``),
     each for at most ``events`` scattering events (the rays still going after that count as killed).
+    ``record``: the sums' ``log`` holds the events a dye's re-weighting replays
+    (:class:`simulate.woven.reweight.EventLog`; a fiber material with deferred contributions only).
 
     ``w_in`` ``[G, 3]`` and ``detectors`` ``[G, D, 3]``: ray ``r`` belongs to group ``r // n`` and is
     scored towards that group's detectors; the sums carry a leading group axis. The rays of every
@@ -580,7 +584,8 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     hpos, hd, hw = np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L))
     work = ShadeOutputs(np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L)), np.empty((N, 2, 3)),
                         np.empty((N, 2, D, L)), np.zeros((N, 2, D), dtype=np.bool_), np.zeros(N),
-                        np.empty(N, np.int64), np.empty((N, 2, D), np.int64), np.empty((N, 2, D)))
+                        np.empty(N, np.int64), np.empty((N, 2, D), np.int64), np.empty((N, 2, D)),
+                        np.empty(N, np.int64), np.empty(N))
     # a fiber's contributions deferred: formed only for the candidates the roulette keeps (SHADOW_BOUND)
     defer = roulette and bool(SHADOW_BOUND) and setup.kind == K_FIBER
     inputs = setup.inputs._replace(defer_nee=True) if defer else setup.inputs
@@ -592,6 +597,14 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     low = np.empty(N, np.bool_)
     nxt = (np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L)), np.empty(N, np.int64), np.empty(N, np.int64))
     no_draws = np.empty(0)
+    log = None
+    if record:
+        from simulate.woven.reweight import EventLog
+
+        if not defer:
+            raise ValueError("trace: a re-weighting record needs a fiber material traced with its next-event "
+                             "contributions deferred (SHADOW_ROULETTE and SHADOW_BOUND)")
+        log = EventLog(N, n, G, D)
     for bounce in range(events):
         if ray.size == 0:
             break
@@ -617,7 +630,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             if cuts[g + 1] > cuts[g]:
                 seeds[g] = rng.integers(0, 2**62)
         shade_groups(seeds, cuts, hp[:M], hu[:M], hv[:M], hpos[:M], hd[:M], hw[:M], inputs, detectors, out)
-        o, d, w, nee_o, nee_c, need, alb, left, nee_row, nee_scale = out
+        o, d, w, nee_o, nee_c, need, alb, left, nee_row, nee_scale, out_row, out_scale = out
         if setup.kind == K_FIBER_BRDF:
             sums.hits += int(alb.size)
             sums.albedo_sum += float(alb.sum())
@@ -644,9 +657,13 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
                                            h_ray, acc)
                 else:
                     _score_visible(t, traced, vis, cidx, cp, nee_c, h_ray, acc)
+                if log is not None:
+                    log.scores(traced[:t][vis], cidx, cp, nee_row, nee_scale)
         # Russian roulette on the largest spectral weight, then the live rays compacted
         n_low = _path_roulette(w, _ROULETTE_BELOW, low)
         draws = rng.random(int(n_low)) if n_low else no_draws
+        if log is not None:
+            log.hits(h_ray, out_row, out_scale, low[:M], draws, _ROULETTE_SURVIVE)
         a = _survivors(o, d, w, left, h_ray, low, draws, _ROULETTE_SURVIVE, wrap, lx, ly, *nxt)
         # the next wavefront: the compacted rows (written from the shading's outputs, never read from)
         origins, dirs, weight, ray, last = (x[:a] for x in nxt)
@@ -662,6 +679,8 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
     sums.trans2 += (trans ** 2).sum(axis=1)
     sums.energy2 += ((refl + trans) ** 2).sum(axis=1)
     sums.embree_rays = stats["queries"]
+    if log is not None:
+        sums.log = log.close()
     return sums
 
 
@@ -685,7 +704,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
           *, target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
           threads: int = 1, progress: bool = False, bins: tuple[int, int] = (9, 12),
           chunk: int = CHUNK, twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex",
-          setups: dict | None = None, max_events: int = 0) -> MCResult:
+          setups: dict | None = None, max_events: int = 0, record: list | None = None) -> MCResult:
     """Trace the beam from ``w_in`` through the woven micro-element; next-event ``beta`` at ``detectors``.
 
     Parameters
@@ -723,12 +742,15 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
         Scattering events followed per ray (0: all, up to the tracer's limit of 200). ``1`` scores the
         single scattering only: the next-event estimates of each ray's first hit, shadow rays included
         (the shadow-hiding reference, tests/simulate/woven/test_felt_shadow_hiding.py).
+    record : list, optional
+        The trace's events are appended to it (:class:`simulate.woven.reweight.TraceLog`), from which
+        :mod:`simulate.woven.reweight` recomputes the result for another dye without tracing again.
     """
     w_in = np.asarray(w_in, float).reshape(1, 3)
     det = np.atleast_2d(np.asarray(detectors, float))[None]
     return _trace(mesh, material, w_in, det, n_wavelengths, target_rel_err=target_rel_err, max_rays=max_rays,
                   max_seconds=max_seconds, seed=seed, threads=threads, progress=progress, bins=bins, chunk=chunk,
-                  twist_deg=twist_deg, normals=normals, setups=setups, max_events=max_events)[0]
+                  twist_deg=twist_deg, normals=normals, setups=setups, max_events=max_events, record=record)[0]
 
 
 def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: Any, detectors: Any,
@@ -736,7 +758,7 @@ def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit
                     max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0, threads: int = 1,
                     progress: bool = False, bins: tuple[int, int] = (9, 12), chunk: int = CHUNK,
                     twist_deg: tuple[float, float] = (0.0, 0.0), normals: str = "vertex",
-                    setups: dict | None = None, max_events: int = 0) -> list[MCResult]:
+                    setups: dict | None = None, max_events: int = 0, record: list | None = None) -> list[MCResult]:
     """:func:`trace` of the incidence and its detectors turned about the normal by each of ``angles`` (radians).
 
     The rotations are traced together: every chunk holds ``chunk`` rays of each rotation and each
@@ -757,7 +779,7 @@ def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit
     return _trace(mesh, material, w_all, det_all, n_wavelengths, target_rel_err=target_rel_err,
                   max_rays=max_rays // len(rots) if max_rays else 0, max_seconds=max_seconds, seed=seed,
                   threads=threads, progress=progress, bins=bins, chunk=chunk, twist_deg=twist_deg,
-                  normals=normals, setups=setups, max_events=max_events, fit_last_round=True)
+                  normals=normals, setups=setups, max_events=max_events, fit_last_round=True, record=record)
 
 
 def _setup_for(mesh: Any, material: Any, n_wavelengths: int | None, bins: tuple[int, int],
@@ -789,12 +811,14 @@ def prepare(mesh: Any, material: Any, setups: dict, *, n_wavelengths: int | None
 def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavelengths: int | None, *,
            target_rel_err: float, max_rays: int, max_seconds: float, seed: int, threads: int, progress: bool,
            bins: tuple[int, int], chunk: int, twist_deg: tuple[float, float], normals: str,
-           setups: dict | None, max_events: int = 0, fit_last_round: bool = False) -> list[MCResult]:
+           setups: dict | None, max_events: int = 0, fit_last_round: bool = False,
+           record: list | None = None) -> list[MCResult]:
     """:func:`trace` of ``G`` groups (``w_in [G, 3]``, ``det [G, D, 3]``); ``max_rays`` per group;
     stops on the mean over the groups (:func:`trace_rotations`). ``fit_last_round``: after the first
     round, each round's chunks hold only the rays the target still needs (predicted from the error
     so far, between ``chunk / 8`` and ``chunk`` a group), so a run overshoots its target by less
-    than a round of full chunks; the sizes follow from the sums alone (not from the threads)."""
+    than a round of full chunks; the sizes follow from the sums alone (not from the threads). ``record``: a
+    :class:`simulate.woven.reweight.TraceLog` of the trace's events is appended to it (a dye's re-weighting)."""
     target_rel_err = check_target(target_rel_err)
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 0:
         raise ValueError(f"trace: max_events must be a whole number >= 0 (0: all events), not {max_events!r}")
@@ -824,16 +848,20 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
         from tqdm import tqdm
         bar = tqdm(total=None, unit="ray", desc="fabric MC", leave=False)
     pool = ThreadPoolExecutor(max_workers=max(1, int(threads))) if threads and threads > 1 else None
+    logs: list = []
     try:
         while True:
             jobs = [(seed, c + r) for r in range(_ROUND)]
             size = int(chunk) if c == 0 or not fit_last_round else next_size
             if max_rays:   # the last round is cut so the budget is kept exactly
                 size = max(1, min(size, (int(max_rays) - total.rays) // _ROUND))
+            keep = record is not None
             if pool is None:
-                parts = [_chunk(setup, w_in, det, size, s, events) for s in jobs]
+                parts = [_chunk(setup, w_in, det, size, s, events, keep) for s in jobs]
             else:
-                parts = list(pool.map(lambda s: _chunk(setup, w_in, det, size, s, events), jobs))
+                parts = list(pool.map(lambda s: _chunk(setup, w_in, det, size, s, events, keep), jobs))
+            if keep:
+                logs.extend(p.log for p in parts)
             for p in parts:     # in chunk order: the sums do not depend on the threads
                 total.add(p)
             c += _ROUND
@@ -876,6 +904,10 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
         info["local_albedo"] = {"hits": total.hits, "mean_max_over_wavelengths": total.albedo_sum / max(total.hits, 1),
                                 "fraction_above_one": total.albedo_over_one / max(total.hits, 1)}
     log.info("fabric MC: %d rays, %.1f s, rel. err %.3g (%s)", n * G, seconds, rel, stop)
+    if record is not None:
+        from simulate.woven.reweight import TraceLog
+
+        record.append(TraceLog(logs, G, D, L, np.array(det), n, tuple(setup.t_rows.shape)))
     out = []
     for g in range(G):
         mean, u = _mean_se(total.nee[g], total.nee2[g], n)

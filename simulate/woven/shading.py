@@ -93,6 +93,11 @@ class ShadeOutputs(NamedTuple):
     out_prim: np.ndarray
     nee_row: np.ndarray
     nee_scale: np.ndarray
+    out_row: np.ndarray
+    """A fiber material's continuation: ``out_w = weight * T2[out_row] * out_scale`` (a volume exit), or
+    ``weight * out_scale`` where ``out_row`` is -1 (a reflection; 0: a dead ray) -- what a dye's re-weighting
+    needs (:mod:`simulate.woven.reweight`)."""
+    out_scale: np.ndarray
 
 
 def new_outputs(n: int, n_detectors: int, n_wavelengths: int) -> ShadeOutputs:
@@ -100,7 +105,7 @@ def new_outputs(n: int, n_detectors: int, n_wavelengths: int) -> ShadeOutputs:
     return ShadeOutputs(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n_wavelengths)), np.zeros((n, 2, 3)),
                         np.zeros((n, 2, n_detectors, n_wavelengths)), np.zeros((n, 2, n_detectors), dtype=np.bool_),
                         np.zeros(n), np.full(n, -1, dtype=np.int64), np.zeros((n, 2, n_detectors), dtype=np.int64),
-                        np.zeros((n, 2, n_detectors)))
+                        np.zeros((n, 2, n_detectors)), np.full(n, -1, dtype=np.int64), np.zeros(n))
 
 
 @numba.njit(cache=True)
@@ -366,7 +371,7 @@ def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, tx, ty, tz, bx, by, bz, 
 def _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl, tx, ty, tz, bx, by, bz, nx, ny, nz,
                  gx, gy, gz, corr_in):
     """The surface branch's continuation: sampled reflection, weight factor and the adjoint
-    shading-normal factor applied (0 below the geometric horizon)."""
+    shading-normal factor applied (0 below the geometric horizon). Returns the factor."""
     ot, ob, on, wgt = _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl)
     out_d[i, 0] = ot * tx + ob * bx + on * nx
     out_d[i, 1] = ot * ty + ob * by + on * ny
@@ -374,6 +379,7 @@ def _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl, tx
     wgt *= corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], gx, gy, gz, nx, ny, nz)
     for k in range(weight.shape[1]):
         out_w[i, k] = weight[i, k] * wgt
+    return wgt
 
 
 @numba.njit(cache=True, nogil=True)
@@ -416,6 +422,7 @@ def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, o
     out_prim = out.out_prim
     defer = inp.defer_nee
     nee_row, nee_scale = out.nee_row, out.nee_scale
+    out_row, out_scale = out.out_row, out.out_scale
     rows_per_node = T.shape[1] * T.shape[2]
     # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
     # every call reproducible whatever thread runs it (no state is shared between calls)
@@ -427,6 +434,8 @@ def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, o
     for i in range(lo, hi):
         f = prim[i]
         out_prim[i] = f
+        out_row[i] = -1
+        out_scale[i] = 0.0
         yarn = face_yarn[f]
         ia, ib, ic = faces[f, 0], faces[f, 1], faces[f, 2]
         w0 = 1.0 - bu[i] - bv[i]
@@ -777,13 +786,14 @@ def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, o
         # continuation
         refl = np.random.random() < p_refl
         if refl and not layer:
-            _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
-                         tx, ty, tz, bx, by, bz, nx, ny, nz, gx, gy, gz, corr_in)
+            out_scale[i] = _reflect_out(out_d, out_w, weight, i, lt, lb, ln, m, n_host, a_s, p_refl,
+                                        tx, ty, tz, bx, by, bz, nx, ny, nz, gx, gy, gz, corr_in)
         elif refl and escape:
             out_d[i, 0] = rt * tx + mb * bx + mn * nx
             out_d[i, 1] = rt * ty + mb * by + mn * ny
             out_d[i, 2] = rt * tz + mb * bz + mn * nz
             wgt = wr / p_refl * corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], gx, gy, gz, nx, ny, nz)
+            out_scale[i] = wgt
             for k in range(L):
                 out_w[i, k] = weight[i, k] * wgt
         elif cell >= 0:
@@ -801,6 +811,8 @@ def _shade_rows(seed, lo, hi, prim, bu, bv, pos, dirs, weight, inp, detectors, o
             else:
                 sc = entry / (cb * p_c * (1.0 - p_refl))
             sc *= corr_in * _out_factor(out_d[i, 0], out_d[i, 1], out_d[i, 2], egx, egy, egz, enx, eny, enz)
+            out_row[i] = j * rows_per_node + kr * T.shape[2] + cell
+            out_scale[i] = sc
             for k in range(L):
                 out_w[i, k] = weight[i, k] * T[j, kr, cell, k] * sc
         else:
