@@ -10,7 +10,7 @@ name (:data:`MODELS`) plus ``auto``.
 - ``summation``: the fiber BRDF summed over warp and weft (:mod:`simulate.fabric.summation`) at
   the unique fiber-frame pairs of the geometries (one :func:`simulate.fiber.volume_brdf` call);
 - ``classic``: Cook-Torrance over the fiber's normal-incidence albedo (:mod:`simulate.fabric.classic`);
-- ``mc``: the woven micro-element's Monte Carlo (:mod:`simulate.woven`).
+- ``mc``: the woven micro-element's Monte Carlo (:mod:`simulate.raytrace`).
 """
 
 from __future__ import annotations
@@ -162,15 +162,15 @@ def _same_fiber(config: SimulationConfig) -> None:
 def felt_population_tables(config: SimulationConfig, fiber: Any, wavelengths: np.ndarray, s: RunSettings,
                            bins: tuple[int, int]) -> tuple[Any, Any]:
     """The felt Monte Carlo's two table halves of a blend: each population's halves (the run's seed and photons,
-    as :func:`simulate.woven.fabric_beta` builds one fiber's) with their exit weights mixed by share. A ray that
+    as :func:`simulate.raytrace.fabric_beta` builds one fiber's) with their exit weights mixed by share. A ray that
     meets a fiber then scatters, in expectation, as a fiber drawn from the populations by share (exact for light
     that meets a fiber once; light that meets the same fiber again draws afresh). The populations must share
     the fiber's radius, host index and reflection slope (the felt's tubes and the traced surface term):
     :class:`ConfigError` naming the field otherwise. ``fiber``: the first population's."""
     import dataclasses
 
-    from simulate.woven.estimate import table_photons
-    from simulate.woven.yarn import table_halves
+    from simulate.raytrace.estimate import table_photons
+    from simulate.raytrace.yarn import table_halves
 
     parts = config.population_configs()
     _same_fiber(config)
@@ -283,12 +283,12 @@ def _classic(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: n
 @register("mc")
 def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
               s: RunSettings) -> FabricEstimate:
-    from simulate import woven
-    from simulate.fabric.mesh import mesh as weave_mesh
+    from simulate import raytrace
+    from simulate.geometry.mesh import mesh as weave_mesh
 
     w_i = fab.directions_deg(g.theta_i, g.phi_i)
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
-    spec = getattr(config, "structure", None)       # twist, or a felt (simulate.nonwoven.felt)
+    spec = getattr(config, "structure", None)       # twist, or a felt (simulate.geometry.felt)
     blend = getattr(config, "populations", None)
     if blend:
         from simulate.config import require_single_population
@@ -297,10 +297,10 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
             require_single_population(config, "the woven Monte Carlo")
         fiber = config.population_configs()[0][1].fiber(wavelengths)
     if spec is not None and spec.kind == "nonwoven":
-        from simulate.nonwoven.felt import cached_felt_mesh
+        from simulate.geometry.felt import cached_felt_mesh
 
         # two realisations of the felt, one per table half: their difference puts the spread of the
-        # fibers' placement into u_beta (simulate.woven.estimate, "A felt"); from the table cache, so
+        # fibers' placement into u_beta (simulate.raytrace.estimate, "A felt"); from the table cache, so
         # the runs of a fit that keeps the structure build them once
         felts = tuple(cached_felt_mesh(spec, float(fiber.radius_um), seed=s.seed + FELT_SEED_STRIDE * h)[0]
                       for h in (0, 1))
@@ -312,22 +312,22 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         geometry = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
                               "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
                               "points_per_span": wv.points_per_span}}
-    # a felt walks the fiber's own table (a weave's yarns walk the pile, simulate.woven.pile, whose exits
+    # a felt walks the fiber's own table (a weave's yarns walk the pile, simulate.raytrace.pile, whose exits
     # are the yarn's): where the fiber's clearness decides whether the exit bins resolve it
     felt = spec is not None and spec.kind == "nonwoven"
     bins = config.exit_bins
     fibers = [c.fiber(wavelengths) for _, c in config.population_configs()] if blend else [fiber]
     if bins is None:     # a blend: the finest any of its fibers asks
-        bins = max((woven.estimate.default_exit_bins(f, wavelengths, felt) for f in fibers), key=lambda b: b[0] * b[1])
+        bins = max((raytrace.estimate.default_exit_bins(f, wavelengths, felt) for f in fibers), key=lambda b: b[0] * b[1])
     for f in fibers:
-        note = woven.estimate.clear_fiber_note(f, wavelengths, bins) if felt else None
+        note = raytrace.estimate.clear_fiber_note(f, wavelengths, bins) if felt else None
         if note:
             log.warning("simulate fabric --method mc: %s", note)
             break
     tables = felt_population_tables(config, fiber, wavelengths, s, bins) if blend else None
     if blend:
         geometry["populations"] = _population_record(config)
-    beta, u_beta, mc_info = woven.fabric_beta(
+    beta, u_beta, mc_info = raytrace.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0, tables=tables,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
         structure=spec, exit_bins=bins, axial_shift=bool(getattr(config, "axial_shift", False)),
