@@ -36,7 +36,7 @@ R_UM = 10.0
 
 def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
     """The fraction of the fibers' surface (in the cell) that lies inside another fiber image
-    (``m`` a :class:`simulate.geometry.felt.FeltMesh`; random points on random fiber images)."""
+    (``m`` a :class:`simulate.geometry.mesh.FabricMesh`; random points on random fiber images)."""
     if m.info.get("crimp_amplitude_um", 0.0) > 0.0:
         return _buried_fraction_pieces(m, n, seed)
     ring = (int(m.n_s[0]) + 1) * (int(m.sides) + 1)

@@ -81,7 +81,8 @@ fibers are built as geometry and traced on Embree like the weave's yarns:
   (the felt study, :func:`fabric_optics.bench.felt.run_felt_study` with ``packing_fraction``).
 * **Ends**: the tubes are open. An end is ``R / l = 2.5 %`` of a fiber's surface; light that enters
   one meets the tube's inside and is taken into the fiber's volume (the interpenetration rule).
-* **Mesh**: the weave mesh's contract (:mod:`simulate.geometry.weave`): one "yarn" per fiber image,
+* **Mesh**: a :class:`~simulate.geometry.mesh.FabricMesh`, the weave's layout
+  (:mod:`simulate.geometry.weave`): one "yarn" per fiber image,
   ``(n_s + 1) x (sides + 1)`` vertices, ``s`` the arc length along the fiber (``open_fibers``: the
   tracer clamps exits to the tube's ends instead of wrapping them round a periodic yarn, and puts
   rays that leave from an image outside the cell back into it), vertex normals radial, vertex tangents
@@ -109,12 +110,13 @@ import functools
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numba
 import numpy as np
 
-__all__ = ["FeltMesh", "felt_mesh", "felt_inputs", "LOOSE_TRIES", "felt_key", "cached_felt_mesh", "CACHE_MODULES", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
+from simulate.geometry.mesh import FabricMesh, grid_faces
+
+__all__ = ["felt_mesh", "felt_inputs", "LOOSE_TRIES", "felt_key", "cached_felt_mesh", "CACHE_MODULES", "CELL_RADII", "LENGTH_RADII", "crimp_amplitude", "crimp_axis", "fiber_pieces"]
 
 #: the cell's side and the fibers' length, in fiber radii
 CELL_RADII = 40.0
@@ -129,31 +131,6 @@ MAX_PIECES = 16
 #: a loose top fiber's height is drawn at most this many times (:func:`_place_loose`)
 LOOSE_TRIES = 1000
 
-
-@dataclass
-class FeltMesh:
-    """The felt's fibers in the weave mesh's contract (module docstring), plus ``info``."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    normals: np.ndarray
-    tangents: np.ndarray
-    vertex_s: np.ndarray
-    vertex_phi: np.ndarray
-    vertex_yarn: np.ndarray
-    face_yarn: np.ndarray
-    vertex_base: np.ndarray
-    face_base: np.ndarray
-    n_s: np.ndarray
-    yarn_length: np.ndarray
-    sides: int
-    Lx: float
-    Ly: float
-    z_min: float
-    z_max: float
-    yarn_radius_um: float
-    open_fibers: bool = True
-    info: dict = field(default_factory=dict)
 
 
 def _tube(c: np.ndarray, t: np.ndarray, radius: float, length: float, n_s: int, sides: int):
@@ -494,12 +471,10 @@ def felt_inputs(spec: object) -> dict:
             "felt_fuzz_depth_um": float(getattr(spec, "felt_fuzz_depth_um", 300.0))}
 
 
-def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FeltMesh:
+def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FabricMesh:
     """The felt of ``spec`` (:class:`simulate.fabric.structure.StructureSpec`, ``kind = "nonwoven"``) for
     fibers of radius ``radius_um``: random fibers from the stream ``seed`` (module docstring); ``sides`` and
     ``n_s`` the tubes' sides and pieces (a crimped fiber's pieces: at least ``n_s``, :func:`_crimp_pieces`)."""
-    from simulate.geometry.mesh import grid_faces
-
     R = float(radius_um)
     L = CELL_RADII * R
     ell = LENGTH_RADII * R
@@ -622,7 +597,7 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
     if fuzz > 0.0:
         info.update({"fuzz_fraction": fuzz, "fuzz_depth_um": fuzz_depth, "fuzz_fibers": len(C) - n_bulk,
                      "compact_top_um": top_compact - top})   # the compact felt's top, below the felt's
-    return FeltMesh(
+    return FabricMesh(
         vertices=vertices, faces=faces, normals=np.concatenate(norms), tangents=np.ascontiguousarray(np.concatenate(tans)),
         vertex_s=np.concatenate(ss), vertex_phi=np.concatenate(phis),
         vertex_yarn=np.repeat(np.arange(n_y, dtype=np.int32), ring),
@@ -630,7 +605,7 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
         vertex_base=vertex_base, face_base=face_base, n_s=np.full(n_y, n_s, dtype=np.int32),
         yarn_length=np.array(yarn_len, float), sides=int(sides), Lx=L, Ly=L,
         z_min=float(vertices[:, 2].min()), z_max=float(vertices[:, 2].max()), yarn_radius_um=R,
-        info=info)
+        open_fibers=True, info=info)
 
 
 #: the modules whose source a cached felt depends on (:func:`cached_felt_mesh`)
@@ -651,7 +626,7 @@ def felt_key(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, 
 
 
 def cached_felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
-                     n_s: int = 4) -> tuple[FeltMesh, bool]:
+                     n_s: int = 4) -> tuple[FabricMesh, bool]:
     """``(felt, hit)``: :func:`felt_mesh` from the table cache (``FABRIC_OPTICS_CACHE_DIR``), built and stored
     on a miss. The key (:func:`felt_key`) covers every input and the code, so a hit is the felt a build would
     give, array for array; the runs of a fit that keeps the structure build each realisation once."""
@@ -666,10 +641,10 @@ def cached_felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: in
     arrays, hit = tablecache.cached(felt_key(spec, radius_um, seed, sides=sides, n_s=n_s), build)
     fields: dict = {name: arrays[name] for name in _ARRAYS}
     fields.update(json.loads(str(arrays["scalars"])))
-    return FeltMesh(**fields), hit
+    return FabricMesh(**fields), hit
 
 
-def fiber_pieces(m: FeltMesh) -> tuple[np.ndarray, np.ndarray]:
+def fiber_pieces(m: FabricMesh) -> tuple[np.ndarray, np.ndarray]:
     """Each fiber image's axis as straight pieces, read off its mesh (the centres of its rings): the starts
     ``[images, n_s, 3]`` and the pieces' vectors."""
     ns, sides = int(m.n_s[0]), int(m.sides)

@@ -1,13 +1,16 @@
-"""The yarn tubes of a woven micro-element as a triangle mesh (layout: :mod:`simulate.geometry.weave`'s docstring).
+"""The mesh type of the ray tracer, and the yarn tubes of a woven micro-element as one.
 
-:func:`mesh` triangulates each yarn of a :class:`simulate.geometry.weave.Weave` as a tube with
-vertex normals and the yarn tangent at each vertex (which orients the fiber BRDF); the tracer
-(:mod:`simulate.raytrace`) tiles it periodically.
+:class:`FabricMesh` is the one mesh the tracer (:mod:`simulate.raytrace`) walks: the tubes of a
+periodic cell (a weave's yarns, a felt's fibres, a validation shape) in the grid layout of
+:mod:`simulate.geometry.weave`'s docstring. :func:`mesh` triangulates each yarn of a
+:class:`simulate.geometry.weave.Weave` as a tube with vertex normals and the yarn tangent at each
+vertex (which orients the fiber BRDF); the felt (:mod:`simulate.geometry.felt`) and the validation
+meshes (:mod:`simulate.geometry.validation`) build the same type; the tracer tiles it periodically.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,12 +22,14 @@ from simulate.geometry.weave import Weave, WeaveError
 if TYPE_CHECKING:
     import trimesh
 
-__all__ = ["WeaveMesh", "grid_faces", "mesh"]
+__all__ = ["FabricMesh", "grid_faces", "mesh"]
 
 
 @dataclass(frozen=True, eq=False)
-class WeaveMesh:
-    """Triangulated yarn tubes of a micro-element (layout in the module docstring).
+class FabricMesh:
+    """Triangulated tubes of a periodic cell: a weave's yarns, a felt's fibres (layout: :mod:`simulate.geometry.weave`).
+
+    A tube is a "yarn" of the layout: a weave's yarn, or one image of a felt's fibre.
 
     Attributes
     ----------
@@ -42,7 +47,16 @@ class WeaveMesh:
     sides : int
         Intervals around the section.
     Lx, Ly, z_min, z_max : float
-        Micro-element size and the z bounds of all vertices.
+        Cell size and the z bounds of all vertices.
+    yarn_radius_um : float or None
+        The tubes' one radius when they have one (a felt's fibres); None: the tracer takes
+        ``sqrt(a b)`` of the first yarn's section.
+    open_fibers : bool
+        False for a weave's yarns (periodic: ``s`` runs along ``x`` or ``y`` over the cell); True for a
+        felt's fibres (``s`` the arc length along an open tube: the tracer clamps exits to its ends and
+        puts rays that leave from an image outside the cell back into it).
+    info : dict
+        What the builder reports (a felt: fibres, images, thickness, volume fraction...); empty for a weave.
     """
 
     vertices: np.ndarray
@@ -62,6 +76,9 @@ class WeaveMesh:
     Ly: float
     z_min: float
     z_max: float
+    yarn_radius_um: float | None = None
+    open_fibers: bool = False
+    info: dict = field(default_factory=dict)
 
     def vertex_index(self, yarn: int, i_s: Any, i_phi: Any) -> Any:
         """Vertex index of grid point ``(i_s, i_phi)`` of a yarn (the layout contract)."""
@@ -147,7 +164,7 @@ def grid_faces(n_s: int, sides: int, base: int) -> np.ndarray:
     return np.stack([first, second], axis=2).reshape(-1, 3)
 
 
-def mesh(weave: Weave) -> WeaveMesh:
+def mesh(weave: Weave) -> FabricMesh:
     """Triangulate the yarn tubes of a micro-element (layout and conventions: :mod:`simulate.geometry.weave`).
 
     The mesh has ``4 sides points_per_span n_warp n_weft`` triangles, at most
@@ -174,7 +191,7 @@ def mesh(weave: Weave) -> WeaveMesh:
     parts = [_yarn_grid(weave, y, int(n_s[y])) for y in range(n_y)]
     vertices = np.concatenate([p[0] for p in parts])
     faces = np.concatenate([grid_faces(int(n_s[y]), weave.sides, int(vertex_base[y])) for y in range(n_y)])
-    return WeaveMesh(
+    return FabricMesh(
         vertices=vertices,
         faces=faces.astype(np.int32),
         normals=np.concatenate([p[1] for p in parts]),

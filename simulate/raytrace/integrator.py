@@ -690,7 +690,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
 
     Parameters
     ----------
-    mesh : simulate.geometry.mesh.WeaveMesh
+    mesh : simulate.geometry.mesh.FabricMesh
         The micro-element (or :func:`simulate.geometry.validation.flat_mesh`).
     material : Lambert, FiberSurface or FiberBRDFAtHit
     w_in : (3,) array

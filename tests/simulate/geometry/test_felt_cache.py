@@ -10,14 +10,15 @@ import pytest
 from simulate.fabric import structure as ST
 from simulate.fiber import tablecache
 from simulate.geometry import felt as FM
+from simulate.geometry.mesh import FabricMesh
 
 
 def _spec(**kw) -> ST.StructureSpec:
     return ST.StructureSpec(**{"kind": "nonwoven", "felt_spread_deg": 15.0, "layers": 1, **kw})
 
 
-def _assert_same(a: FM.FeltMesh, b: FM.FeltMesh) -> None:
-    for f in dataclasses.fields(FM.FeltMesh):
+def _assert_same(a: FabricMesh, b: FabricMesh) -> None:
+    for f in dataclasses.fields(FabricMesh):
         x, y = getattr(a, f.name), getattr(b, f.name)
         if isinstance(x, np.ndarray):
             assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), f.name

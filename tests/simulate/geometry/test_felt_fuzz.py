@@ -13,6 +13,7 @@ from simulate.fabric import structure as ST
 from simulate.montecarlo import ParameterError
 from simulate.geometry import felt
 from simulate.geometry.felt import felt_mesh, fiber_pieces
+from simulate.geometry.mesh import FabricMesh
 
 R = 10.0
 
@@ -21,7 +22,7 @@ def _spec(**kw) -> ST.StructureSpec:
     return ST.StructureSpec(kind="nonwoven", layers=4, **kw)
 
 
-def _same(a: felt.FeltMesh, b: felt.FeltMesh) -> bool:
+def _same(a: FabricMesh, b: FabricMesh) -> bool:
     names = ("vertices", "faces", "normals", "tangents", "vertex_s", "vertex_phi", "n_s", "yarn_length")
     return all(getattr(a, n).shape == getattr(b, n).shape and np.array_equal(getattr(a, n), getattr(b, n))
                for n in names) and a.info == b.info
@@ -48,7 +49,7 @@ def test_a_fraction_below_one_fibre_draws_no_loose_fibre():
     assert np.array_equal(plain.vertices, tiny.vertices)
 
 
-def _images(m: felt.FeltMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _images(m: FabricMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each fiber image's lowest and highest point (its axis's, less and plus the radius) and its tangent."""
     p0, pd = fiber_pieces(m)
     z = np.concatenate([p0[:, :, 2], p0[:, -1:, 2] + pd[:, -1:, 2]], axis=1)

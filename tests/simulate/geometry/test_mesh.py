@@ -188,3 +188,42 @@ def test_export_rejects_an_unknown_suffix_naming_the_path(tmp_path):
     with pytest.raises(WeaveError, match="cannot write the mesh"):
         m.export(tmp_path / "no" / "such" / "dir" / "mesh.ply")
     assert not target.exists()
+
+
+def _tube_builders():
+    """The tubes of every builder other than the weave's, each a FabricMesh: a felt, a straight yarn."""
+    from simulate.fabric.structure import StructureSpec
+    from simulate.geometry.felt import felt_mesh
+    from simulate.geometry.validation import straight_yarn_mesh
+
+    felt = felt_mesh(StructureSpec(kind="nonwoven", layers=1, felt_spread_deg=15.0), 10.0, seed=2, sides=6, n_s=3)
+    return {"felt": felt, "straight yarn": straight_yarn_mesh(10.0, 40.0, 60.0, n_s=3, sides=6)}
+
+
+@pytest.mark.parametrize("name", ["felt", "straight yarn"])
+def test_every_builder_gives_one_mesh_type_in_the_layout(name):
+    """The felt and the validation yarn are FabricMesh in the weave's grid layout: each tube's vertex at
+    (i_s, i_phi) sits at s = i_s L / n_s, phi = 2 pi i_phi / sides, and its faces are the layout's."""
+    from simulate.geometry.mesh import FabricMesh, grid_faces
+
+    m = _tube_builders()[name]
+    assert type(m) is FabricMesh
+    ring = m.sides + 1
+    for y in range(len(m.vertex_base)):
+        n_s = int(m.n_s[y])
+        i_s, i_phi = np.meshgrid(np.arange(n_s + 1), np.arange(ring), indexing="ij")
+        idx = m.vertex_index(y, i_s, i_phi)
+        assert np.allclose(m.vertex_s[idx], i_s * m.yarn_length[y] / n_s, rtol=0, atol=1e-9)
+        assert np.allclose(m.vertex_phi[idx], 2.0 * np.pi * i_phi / m.sides, rtol=0, atol=1e-12)
+        assert np.all(m.vertex_yarn[idx] == y)
+        first = int(m.face_base[y])
+        assert np.array_equal(m.faces[first:first + 2 * n_s * m.sides],
+                              grid_faces(n_s, m.sides, int(m.vertex_base[y])))
+    # the tracer tells the felt's open fibres from periodic yarns by the mesh alone
+    assert m.open_fibers is (name == "felt")
+    assert m.yarn_radius_um == (10.0 if name == "felt" else None)
+
+
+def test_the_weave_mesh_is_periodic_yarns_of_no_stated_radius():
+    m = mesh(preset("plain", points_per_span=2, sides=4))
+    assert m.open_fibers is False and m.yarn_radius_um is None and m.info == {}
