@@ -31,7 +31,7 @@ from gonio.mock.samples import SampleError
 from simulate.budget import BudgetError
 from simulate.config_table import ConfigError
 from simulate.fabric.summation import FabricError
-from simulate.fabric.weave import WeaveError
+from simulate.geometry.weave import WeaveError
 from simulate.montecarlo.transport import ParameterError
 from simulate.outdir import OutputError
 

@@ -131,7 +131,7 @@ def medium_coefficients(medium: Any, wavelengths: Any) -> dict[str, np.ndarray]:
     Kept under the hash of the medium, the wavelengths and :data:`MIE_MODULES` (module docstring):
     a hit returns the float64 values :meth:`~simulate.media.medium.MieMedium.optical_properties`
     gives (``with_phase=False``), without importing miepython. Shared by the cost check and the felt
-    tracer's exit-bin choice (:func:`simulate.woven.estimate.fiber_scatterings`).
+    tracer's exit-bin choice (:func:`simulate.raytrace.estimate.fiber_scatterings`).
     """
     wl = np.atleast_1d(np.asarray(wavelengths, float))
 

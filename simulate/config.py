@@ -2,7 +2,7 @@
 
 A config names the fiber (radius, host index, host absorption spectrum = the dye), the
 scattering medium inside it (Mie particles, or a direct Henyey-Greenstein medium for
-validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.fabric.weave`), the
+validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.geometry.weave`), the
 method settings and the seed. ``simulate fiber`` and ``simulate fabric`` take a config path or
 the name of a shipped preset (``red-cotton``, in :mod:`simulate.configs`).
 
@@ -62,7 +62,7 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     # transmission_rms_slope_around = 0.3  # [0, 1], optional: an anisotropic boundary, the line above
                                        #   then the slope along the fiber axis, this one about it
 
-    [weave]                            # optional: the woven micro-element (simulate.fabric.weave)
+    [weave]                            # optional: the woven micro-element (simulate.geometry.weave)
     matrix = [[1, 0], [0, 1]]          # rows of 0/1 (1 = warp over weft), rectangular; at most ONE
     # preset = "twill"                 #   of matrix, preset ("plain" | "twill" | "satin") and
     # wif = "pattern.wif"              #   wif (a WIF 1.1 file, relative to this file); none: plain
@@ -73,7 +73,7 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     points_per_span = 16               # mesh intervals per crossing interval, >= 1 (default 16)
     sides = 48                         # mesh intervals around the yarn section, >= 3 (default 48)
                                        # the mesh: 4 sides points_per_span n_warp n_weft <= 2e6
-                                       #   triangles (simulate.fabric.weave.MAX_TRIANGLES)
+                                       #   triangles (simulate.geometry.weave.MAX_TRIANGLES)
 
     [method]                           # optional, defaults shown
     target_rel_err = 0.01              # target relative standard error, (0, 1)
@@ -143,8 +143,8 @@ from gonio.data import toml_text
 from simulate.config_dye import DyeSpectrum, dye_from_table, knots_curve
 from simulate.config_table import ConfigError, Table, show
 from simulate.fabric.structure import structure_from_table
-from simulate.fabric.weave import PRESETS, Weave, WeaveError, preset
-from simulate.fabric.wif import weave_from_wif
+from simulate.geometry.weave import PRESETS, Weave, WeaveError, preset
+from simulate.geometry.wif import weave_from_wif
 from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
 
 __all__ = [
@@ -169,7 +169,7 @@ ROUTES = ("nee", "beam", "bssrdf")
 #: ``[fiber] dye_profile``: where the dye sits across the fiber (simulate.fiber.Fiber.dye_profile)
 DYE_PROFILES = ("uniform", "ring", "core")
 #: ``[method] exit_bins`` when not given: None, chosen per run by
-#: :func:`simulate.woven.estimate.default_exit_bins` ([10, 20] for a felt of nearly clear fibers,
+#: :func:`simulate.raytrace.estimate.default_exit_bins` ([10, 20] for a felt of nearly clear fibers,
 #: whose exit cones coarser bins smear; [5, 10] for turbid fibers and woven yarns, which converge
 #: there at half the trace time; docs/physics.md 6, "Exit directions").
 DEFAULT_EXIT_BINS = None
@@ -290,7 +290,7 @@ class SimulationConfig:
     #: the [structure] section (:class:`simulate.fabric.structure.StructureSpec`), None when absent
     structure: Any = None
     #: the woven/felt Monte Carlo's yarn table: exit direction bins (mu, phi) per exit cell; None: by
-    #: the fiber (:func:`simulate.woven.estimate.default_exit_bins`)
+    #: the fiber (:func:`simulate.raytrace.estimate.default_exit_bins`)
     exit_bins: tuple[int, int] | None = DEFAULT_EXIT_BINS
     #: ``[surface] transmission_rms_slope``: the boundary's roughness for light crossing it (0: smooth)
     transmission_rms_slope: float = 0.0
@@ -675,16 +675,16 @@ def _exit_bins(mt: Table) -> tuple[int, int] | None:
 
 
 # ------------------------------------------------------------------------------------------
-# the [weave] table as a geometry (the config adapter of simulate.fabric.weave)
+# the [weave] table as a geometry (the config adapter of simulate.geometry.weave)
 
 
 def weave_from_config(config: SimulationConfig | str | Path) -> Weave:
-    """The :class:`simulate.fabric.weave.Weave` of a simulation config's ``[weave]`` table (or of a config path/preset).
+    """The :class:`simulate.geometry.weave.Weave` of a simulation config's ``[weave]`` table (or of a config path/preset).
 
     One of ``preset``, ``wif`` (resolved against the config's directory when the config is read)
     and ``matrix``; none: the plain weave. Missing dimensions take the defaults
-    :data:`simulate.fabric.weave.DEFAULT_SPACING_UM` (300), :data:`simulate.fabric.weave.DEFAULT_WIDTH_UM` (250), :data:`simulate.fabric.weave.DEFAULT_HEIGHT_UM`
-    (100), :data:`simulate.fabric.weave.DEFAULT_CRIMP` (1), :data:`simulate.fabric.weave.DEFAULT_POINTS_PER_SPAN` (16), :data:`simulate.fabric.weave.DEFAULT_SIDES` (48).
+    :data:`simulate.geometry.weave.DEFAULT_SPACING_UM` (300), :data:`simulate.geometry.weave.DEFAULT_WIDTH_UM` (250), :data:`simulate.geometry.weave.DEFAULT_HEIGHT_UM`
+    (100), :data:`simulate.geometry.weave.DEFAULT_CRIMP` (1), :data:`simulate.geometry.weave.DEFAULT_POINTS_PER_SPAN` (16), :data:`simulate.geometry.weave.DEFAULT_SIDES` (48).
 
     Raises
     ------

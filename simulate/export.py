@@ -37,15 +37,15 @@ RETRO_SAMPLES_MC = 8
 
 def _model_functions() -> dict[str, Any]:
     """The public entry points of the fabric models this module uses (the ONE import site)."""
-    from simulate import fabric, fiber, woven
+    from simulate import fabric, fiber, raytrace
     from simulate.config import weave_from_config
-    from simulate.fabric.mesh import mesh
+    from simulate.geometry.mesh import mesh
     from simulate.optics.fresnel import OpticsDomainWarning
 
     return {"domain_warning": OpticsDomainWarning, "classic_beta": fabric.classic_beta, "summation_beta": fabric.summation_beta,
             "normal_albedo": fiber.normal_albedo, "volume_brdf": fiber.volume_brdf,
             "surface_brdf": fiber.surface_brdf, "weave_from_config": weave_from_config,
-            "weave_mesh": mesh, "woven_fabric_beta": woven.fabric_beta}
+            "weave_mesh": mesh, "woven_fabric_beta": raytrace.fabric_beta}
 
 
 def model_brdf(config: Any, method: str, wavelengths_nm: Any, *, target_rel_err: float | None = None,

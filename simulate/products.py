@@ -10,7 +10,7 @@ name (:data:`MODELS`) plus ``auto``.
 - ``summation``: the fiber BRDF summed over warp and weft (:mod:`simulate.fabric.summation`) at
   the unique fiber-frame pairs of the geometries (one :func:`simulate.fiber.volume_brdf` call);
 - ``classic``: Cook-Torrance over the fiber's normal-incidence albedo (:mod:`simulate.fabric.classic`);
-- ``mc``: the woven micro-element's Monte Carlo (:mod:`simulate.woven`).
+- ``mc``: the woven micro-element's Monte Carlo (:mod:`simulate.raytrace`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ from simulate import fabric as fab
 from simulate.config import SimulationConfig, weave_from_config
 from simulate.provenance import jsonable
 
-__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "all_threads", "register", "evaluate"]
+__all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "all_threads", "register", "evaluate",
+           "reweighted_estimate"]
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ class RunSettings:
     max_seconds: float = 0.0
     record: dict | None = field(default=None, compare=False)
     """``--method mc``: a dict the run's ray events are recorded into, from which
-    :func:`simulate.woven.reweight.reweighted_estimate` gives another dye's result without tracing again."""
+    :func:`reweighted_estimate` gives another dye's result without tracing again."""
 
 
 @dataclass(frozen=True)
@@ -165,15 +166,15 @@ def _same_fiber(config: SimulationConfig) -> None:
 def felt_population_tables(config: SimulationConfig, fiber: Any, wavelengths: np.ndarray, s: RunSettings,
                            bins: tuple[int, int]) -> tuple[Any, Any]:
     """The felt Monte Carlo's two table halves of a blend: each population's halves (the run's seed and photons,
-    as :func:`simulate.woven.fabric_beta` builds one fiber's) with their exit weights mixed by share. A ray that
+    as :func:`simulate.raytrace.fabric_beta` builds one fiber's) with their exit weights mixed by share. A ray that
     meets a fiber then scatters, in expectation, as a fiber drawn from the populations by share (exact for light
     that meets a fiber once; light that meets the same fiber again draws afresh). The populations must share
     the fiber's radius, host index and reflection slope (the felt's tubes and the traced surface term):
     :class:`ConfigError` naming the field otherwise. ``fiber``: the first population's."""
     import dataclasses
 
-    from simulate.woven.estimate import table_photons
-    from simulate.woven.yarn import table_halves
+    from simulate.raytrace.estimate import table_photons
+    from simulate.raytrace.yarn import table_halves
 
     parts = config.population_configs()
     _same_fiber(config)
@@ -286,12 +287,12 @@ def _classic(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: n
 @register("mc")
 def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
               s: RunSettings) -> FabricEstimate:
-    from simulate import woven
-    from simulate.fabric.mesh import mesh as weave_mesh
+    from simulate import raytrace
+    from simulate.geometry.mesh import mesh as weave_mesh
 
     w_i = fab.directions_deg(g.theta_i, g.phi_i)
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
-    spec = getattr(config, "structure", None)       # twist, or a felt (simulate.nonwoven.felt)
+    spec = getattr(config, "structure", None)       # twist, or a felt (simulate.geometry.felt)
     blend = getattr(config, "populations", None)
     if blend:
         from simulate.config import require_single_population
@@ -300,10 +301,10 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
             require_single_population(config, "the woven Monte Carlo")
         fiber = config.population_configs()[0][1].fiber(wavelengths)
     if spec is not None and spec.kind == "nonwoven":
-        from simulate.nonwoven.felt import cached_felt_mesh
+        from simulate.geometry.felt import cached_felt_mesh
 
         # two realisations of the felt, one per table half: their difference puts the spread of the
-        # fibers' placement into u_beta (simulate.woven.estimate, "A felt"); from the table cache, so
+        # fibers' placement into u_beta (simulate.raytrace.estimate, "A felt"); from the table cache, so
         # the runs of a fit that keeps the structure build them once
         felts = tuple(cached_felt_mesh(spec, float(fiber.radius_um), seed=s.seed + FELT_SEED_STRIDE * h)[0]
                       for h in (0, 1))
@@ -315,28 +316,28 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         geometry = {"weave": {"matrix": wv.matrix.tolist(), "spacing_um": wv.spacing_um, "width_um": wv.width_um,
                               "height_um": wv.height_um, "crimp": wv.crimp, "sides": wv.sides,
                               "points_per_span": wv.points_per_span}}
-    # a felt walks the fiber's own table (a weave's yarns walk the pile, simulate.woven.pile, whose exits
+    # a felt walks the fiber's own table (a weave's yarns walk the pile, simulate.raytrace.pile, whose exits
     # are the yarn's): where the fiber's clearness decides whether the exit bins resolve it
     felt = spec is not None and spec.kind == "nonwoven"
     bins = config.exit_bins
     fibers = [c.fiber(wavelengths) for _, c in config.population_configs()] if blend else [fiber]
     if bins is None:     # a blend: the finest any of its fibers asks
-        bins = max((woven.estimate.default_exit_bins(f, wavelengths, felt) for f in fibers), key=lambda b: b[0] * b[1])
+        bins = max((raytrace.estimate.default_exit_bins(f, wavelengths, felt) for f in fibers), key=lambda b: b[0] * b[1])
     for f in fibers:
-        note = woven.estimate.clear_fiber_note(f, wavelengths, bins) if felt else None
+        note = raytrace.estimate.clear_fiber_note(f, wavelengths, bins) if felt else None
         if note:
             log.warning("simulate fabric --method mc: %s", note)
             break
     tables = felt_population_tables(config, fiber, wavelengths, s, bins) if blend else None
     if blend:
         geometry["populations"] = _population_record(config)
-    beta, u_beta, mc_info = woven.fabric_beta(
+    beta, u_beta, mc_info = raytrace.fabric_beta(
         mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0, tables=tables,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
         structure=spec, exit_bins=bins, axial_shift=bool(getattr(config, "axial_shift", False)),
         w_t_nodes=config.w_t_nodes() if hasattr(config, "w_t_nodes") else (0.0, 0.25, 0.5, 0.75, 0.95),
         record=s.record)
-    if s.record is not None:      # what a dye's re-weighting builds its tables from (simulate.woven.reweight)
+    if s.record is not None:      # what a dye's re-weighting builds its tables from (simulate.raytrace.reweight)
         s.record.update(fiber=fiber, blend=bool(blend), bins=tuple(bins), target=s.target)
     n = np.full(beta.shape, max(int(mc_info["rays"]), 1))
     meshes = mesh if isinstance(mesh, tuple) else (mesh,)
@@ -351,3 +352,26 @@ FELT_SEED_STRIDE = 1_000_003
 
 #: The registered fabric models, in registration order.
 MODELS: tuple[str, ...] = tuple(_REGISTRY)
+
+
+def reweighted_estimate(record: dict, config: Any, wavelengths_nm: Any) -> tuple[np.ndarray, np.ndarray, dict]:
+    """:func:`simulate.raytrace.reweight.reweighted_beta` of a ``--method mc`` run recorded through
+    :class:`RunSettings` ``record``, for ``config`` (the traced config with another dye, or
+    other shares or dyes of its populations). The tables are those a trace of ``config`` would walk (the same
+    photons and seeds). :class:`ValueError` when ``config``'s fiber differs from the traced one in more than its
+    dye. For a blend only the first population's fiber is compared: the caller changes no more than the
+    populations' dyes and shares (the fit re-weights ``fiber.dye`` parameters only)."""
+    from simulate.raytrace.reweight import new_tables, reweighted_beta, same_but_dye
+
+    wl = np.asarray(wavelengths_nm, float)
+    if not np.array_equal(wl, record["wavelengths_nm"]):
+        raise ValueError("reweight: other wavelengths than the traced run's")
+    blend = bool(record.get("blend"))
+    fiber = config.population_configs()[0][1].fiber(wl) if blend else config.fiber(wl)
+    if not same_but_dye(record["fiber"], fiber):
+        raise ValueError("reweight: the fiber differs from the traced one in more than its dye: trace again")
+    tables = None
+    if blend:
+        tables = felt_population_tables(config, fiber, wl, RunSettings(target=record["target"], seed=record["seed"],
+                                                                       threads=record["threads"]), record["bins"])
+    return reweighted_beta(record, new_tables(record, fiber, tables))

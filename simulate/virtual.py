@@ -30,8 +30,8 @@ seconds, the fiber route's own ``info`` and the software versions.
 One number, one meaning: ``target_rel_err`` is that relative error for every method. For
 ``summation`` and ``classic`` it is the target of the fiber Monte Carlo (the per-incidence
 control of :func:`simulate.fiber.volume_brdf`, same definition), for ``mc`` the target of the
-woven tracer, and for ``auto`` it is also the tolerated MODEL error of a cheaper method against
-the woven Monte Carlo, measured in the same convention (``(model - MC) / max_lambda(MC)``,
+ray tracer, and for ``auto`` it is also the tolerated MODEL error of a cheaper method against
+the Monte Carlo, measured in the same convention (``(model - MC) / max_lambda(MC)``,
 :mod:`simulate.fabric.auto`): a geometry gets the cheapest method whose error, as this
 definition measures it, is within the target.
 """
@@ -75,7 +75,7 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     config : SimulationConfig
     plan : gonio.acquisition.plan.Plan
     method : {"summation", "classic", "mc", "auto"}
-        ``mc``: Monte Carlo ray tracing of the config's woven micro-element (:mod:`simulate.woven`).
+        ``mc``: Monte Carlo ray tracing of the config's woven micro-element (:mod:`simulate.raytrace`).
         ``auto``: per geometry the cheapest method whose error against the Monte Carlo reference
         (the bench's "where methods fail" study, :mod:`simulate.fabric.auto`) is within the target;
         ``meta.json["model"]["method_per_geometry"]`` records which method produced each geometry.

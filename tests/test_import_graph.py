@@ -10,8 +10,8 @@ Walks every module of ``gonio``, ``simulate``, ``compare`` and ``fabric_optics``
   (``fabric_optics`` is the application layer on top: the API, fit, sweep, benchmarks and the
   command lines);
 - a layer of ``simulate`` or of ``fabric_optics`` importing one above it (optics <- media <-
-  montecarlo <- fiber <- fabric <- woven, nonwoven <- products <- virtual; paths <- fit <- sweep <- api <-
-  bench <- cli);
+  montecarlo <- fiber <- geometry <- fabric <- config <- raytrace, structwalk <- products <- virtual;
+  paths <- fit <- sweep <- api <- bench <- cli);
 - a cycle: modules that import each other, directly or around a loop.
 """
 
@@ -35,9 +35,10 @@ LAYERS = (
     ("simulate.media",),
     ("simulate.montecarlo",),
     ("simulate.fiber",),
+    ("simulate.geometry",),
     ("simulate.fabric",),
     ("simulate.config", "simulate.config_table"),
-    ("simulate.woven", "simulate.nonwoven", "simulate.structwalk"),
+    ("simulate.raytrace", "simulate.structwalk"),
     ("simulate.products", "simulate.export"),
     ("simulate.virtual",),
 )

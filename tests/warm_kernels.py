@@ -3,7 +3,7 @@
 Run by the root ``conftest.py`` in the xdist controller (``-n 2`` or more) as ``python warm_kernels.py
 GROUP`` in one process per group, the groups at once: each group runs tiny versions of the routes
 whose kernels it compiles, and the test workers then load every kernel instead of each compiling it.
-The woven tracer of the fabric group walks its yarn's exit table with the fiber Monte Carlo kernels the
+The ray tracer of the fabric group walks its yarn's exit table with the fiber Monte Carlo kernels the
 monte-carlo group compiles too: the monte-carlo group compiles them first (a tiny yarn table) and then
 creates the file named by ``WARM_KERNELS_SHARED_READY`` (set by the caller; it is created when that step
 fails too); the fabric group waits for that file before its first route and loads those kernels, so no
@@ -40,7 +40,7 @@ def _monte_carlo(tmp: Path) -> None:
 
 def _yarn_table(tmp: Path) -> None:
     """The fiber Monte Carlo kernels both groups use: a yarn's exit table (rows of the white walk), tiny."""
-    from simulate import woven as W
+    from simulate import raytrace as W
     from simulate.fiber import Fiber
     from simulate.media.medium import HGMedium
 

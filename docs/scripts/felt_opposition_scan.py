@@ -11,7 +11,7 @@ scatterers (the delustrant's volume fraction), the dye's absorption, the surface
 the boundary's roughness for transmitted light, the felt's inclination spread (which sets the
 deposited felt's volume fraction), the needle-punched fraction, the fiber amount, the fiber's refractive
 index; and three combinations of those changes. Each is traced by
-the felt Monte Carlo (:func:`simulate.woven.fabric_beta`, two felt realisations as ``simulate fabric
+the felt Monte Carlo (:func:`simulate.raytrace.fabric_beta`, two felt realisations as ``simulate fabric
 --method mc`` builds them) at ``--seeds`` seeds (each its own felts, table and rays; the same seeds for every
 variant, so variants that keep the preset's felt are traced on the same felts) at the RGL file's incidences 40.03 and
 27.76 deg, towards 12 directions on each of the rings 6 and 30 deg from the retro direction
@@ -265,11 +265,11 @@ def file_ratios() -> dict:
 def only_event(event: int) -> Iterator[None]:
     """Within the block the felt tracer scores the next-event estimates of one shading event only: 0 the
     fiber surface's reflection, 1 the light out of the fiber's volume (the events of
-    :func:`simulate.woven.shading.shade`). The other event's estimates are dropped after each shading call
+    :func:`simulate.raytrace.shading.shade`). The other event's estimates are dropped after each shading call
     (its contributions zeroed, no shadow ray asked for); the rays' paths are not changed. The tracer's
     files are not edited: the wavefront's shading call (``shade_groups`` as
-    :mod:`simulate.woven.integrator` calls it) is wrapped for the block and restored after it."""
-    from simulate.woven import integrator
+    :mod:`simulate.raytrace.integrator` calls it) is wrapped for the block and restored after it."""
+    from simulate.raytrace import integrator
 
     if event not in (0, 1):
         raise ValueError(f"only_event: event must be 0 (surface) or 1 (volume), got {event!r}")
@@ -299,7 +299,7 @@ def _felts_and_geometries(structure: Any, radius_um: float, seed: int, felts: di
     """The two felts of ``structure`` at ``seed`` (built once into ``felts``), their figures, the plan and its
     directions; ValueError if ``felt`` (the figures a run already holds) differs from the felts built now."""
     from simulate.fabric import directions_deg
-    from simulate.nonwoven.felt import felt_mesh
+    from simulate.geometry.felt import felt_mesh
     from simulate.products import FELT_SEED_STRIDE
 
     key = (structure, seed)
@@ -320,8 +320,8 @@ def run_variant(name: str, base: Any, seed: int, target: float, threads: int, ma
     """Trace variant ``name`` at ``seed`` (its felts' and rays') at each of ``orders`` (:data:`ORDERS`,
     :data:`SPLIT_ORDERS`); ``felts``: meshes by (structure, seed). ``felt``: the felts' figures a run
     already holds; ValueError before any trace if the felts built now differ from them."""
-    from simulate.woven import fabric_beta
-    from simulate.woven import integrator
+    from simulate.raytrace import fabric_beta
+    from simulate.raytrace import integrator
 
     cfg, _ = variant_config(name, base)
     wl = np.asarray(WAVELENGTHS_NM)
@@ -359,14 +359,14 @@ ALBEDOS = (0.1, 0.2, 0.35, 0.5, 0.65, 0.8, 0.9, 1.0)
 def lambertian_beta(meshes: tuple, albedos: tuple[float, ...], w_in: np.ndarray, w_out: np.ndarray, *,
                     target: float, max_rays: int, seed: int, threads: int, max_events: int) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta [P, A]`` and its standard error of the felts ``meshes`` (two realisations) with opaque Lambertian
-    fibers of each albedo of ``albedos``, traced as :func:`simulate.woven.fabric_beta` traces a felt (the
+    fibers of each albedo of ``albedos``, traced as :func:`simulate.raytrace.fabric_beta` traces a felt (the
     rotations of each incidence as one wavefront, the two felts averaged, the same seeds and chunks) with
-    :class:`simulate.woven.Lambert` of the albedos as its spectral axis: every albedo on the same paths (the
+    :class:`simulate.raytrace.Lambert` of the albedos as its spectral axis: every albedo on the same paths (the
     path's weight is the product of the albedos it met; Russian roulette acts on the largest, so the
     estimates stay unbiased for each). The standard error is the rays' only (no table)."""
-    from simulate.woven import Lambert
-    from simulate.woven.estimate import FELT_ROTATIONS, _mean_of
-    from simulate.woven.integrator import CHUNK, trace_rotations
+    from simulate.raytrace import Lambert
+    from simulate.raytrace.estimate import FELT_ROTATIONS, mean_of
+    from simulate.raytrace.integrator import CHUNK, trace_rotations
 
     material = Lambert(np.asarray(albedos, float))
     key = np.round(w_in, 9)
@@ -386,7 +386,7 @@ def lambertian_beta(meshes: tuple, albedos: tuple[float, ...], w_in: np.ndarray,
                                     [2.0 * math.pi * (j + 0.5 * h) / FELT_ROTATIONS for j in range(FELT_ROTATIONS)],
                                     target_rel_err=target, max_rays=max_rays, seed=seed + 7919 * k, threads=threads,
                                     chunk=max(256, CHUNK // FELT_ROTATIONS), setups={}, max_events=max_events)
-            halves.append(_mean_of(parts))
+            halves.append(mean_of(parts))
         ra, rb = halves
         beta[rows] = (0.5 * (ra.beta + rb.beta))[det_inv]
         u_beta[rows] = np.sqrt(0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2))[det_inv]

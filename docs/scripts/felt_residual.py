@@ -461,9 +461,9 @@ def _point_segment_distance(p: np.ndarray, a: np.ndarray, d: np.ndarray) -> np.n
 def top_profile(mesh: Any, bin_um: float, depth_um: float, n: int = 4000, seed: int = 1) -> np.ndarray:
     """The fraction of the cell inside a fibre in each layer ``[k bin_um, (k + 1) bin_um]`` below the felt's top
     (``z = 0``) down to ``depth_um``: ``n`` fixed-seed random points per layer, each tested against every fibre
-    image's axis pieces (:func:`simulate.nonwoven.felt.fiber_pieces`; inside: nearer than the radius). Standard
+    image's axis pieces (:func:`simulate.geometry.felt.fiber_pieces`; inside: nearer than the radius). Standard
     error ``sqrt(f (1 - f) / n)``."""
-    from simulate.nonwoven.felt import fiber_pieces
+    from simulate.geometry.felt import fiber_pieces
 
     p0, pd = fiber_pieces(mesh)
     a, d = p0.reshape(-1, 3), pd.reshape(-1, 3)
@@ -487,13 +487,13 @@ RISE_INCIDENCES = (0.0, 30.0, 45.0, 60.0)
 def lambert_rise(mesh: Any, albedos: list[float], target_rel_err: float = 0.01, seed: int = 1,
                  rotations: int = 8) -> dict[str, dict[str, Any]]:
     """The in-plane forward rise ``beta(70)/beta(30)`` (observation on the mirror's side) of ``mesh`` with opaque
-    Lambertian fibres (:class:`simulate.woven.Lambert`, the albedos on the spectral axis: one trace scores all
+    Lambertian fibres (:class:`simulate.raytrace.Lambert`, the albedos on the spectral axis: one trace scores all
     on the same paths), per incidence of :data:`RISE_INCIDENCES`, all orders (``all``) and the single scattering
     (``single``, the same for every albedo), each the mean over ``rotations`` turns of the incidence about the
     normal, with its standard error (the two betas' relative errors in quadrature)."""
-    from simulate import woven as W
+    from simulate import raytrace as W
     from simulate.optics.microfacet import directions_deg
-    from simulate.woven.integrator import trace_rotations
+    from simulate.raytrace.integrator import trace_rotations
 
     turns = 2.0 * math.pi * np.arange(rotations) / rotations
     det = directions_deg([GRAZING_DEG, 30.0], [180.0, 180.0])
@@ -745,8 +745,8 @@ def felt_rise(config: Any, *, target_rel_err: float = 0.02, seed: int = 0, max_e
     shift and nodes) at normal incidence towards the in-plane views 30 and 70 deg on both sides, following
     ``max_events`` fibre scatterings (1: single; 0: all): ``beta(70)/beta(30)`` per band group, both sides' mean,
     with its standard error (the betas' relative errors in quadrature)."""
-    from simulate import woven
-    from simulate.nonwoven.felt import cached_felt_mesh
+    from simulate import raytrace
+    from simulate.geometry.felt import cached_felt_mesh
     from simulate.optics.microfacet import directions_deg
     from simulate.products import FELT_SEED_STRIDE
 
@@ -757,9 +757,9 @@ def felt_rise(config: Any, *, target_rel_err: float = 0.02, seed: int = 0, max_e
     views = [PHASE_HIGH_DEG, PHASE_LOW_DEG, PHASE_HIGH_DEG, PHASE_LOW_DEG]
     w_o = directions_deg(views, [0.0, 0.0, 180.0, 180.0])
     w_i = np.repeat(directions_deg([0.0], [0.0]), len(views), axis=0)
-    bins = config.exit_bins or woven.estimate.default_exit_bins(fiber, wl, True)
+    bins = config.exit_bins or raytrace.estimate.default_exit_bins(fiber, wl, True)
     started = time.perf_counter()
-    beta, u, info = woven.fabric_beta(felts, fiber, w_i, w_o, wl, target_rel_err=target_rel_err, seed=seed,
+    beta, u, info = raytrace.fabric_beta(felts, fiber, w_i, w_o, wl, target_rel_err=target_rel_err, seed=seed,
                                       threads=threads, structure=spec, exit_bins=bins,
                                       axial_shift=bool(config.axial_shift), w_t_nodes=config.w_t_nodes(),
                                       max_events=max_events)
@@ -779,7 +779,7 @@ def felt_rise(config: Any, *, target_rel_err: float = 0.02, seed: int = 0, max_e
 
 def _felt_of(config_name: str, seed: int) -> Any:
     from simulate.config import ConfigError, load_config
-    from simulate.nonwoven.felt import cached_felt_mesh
+    from simulate.geometry.felt import cached_felt_mesh
 
     try:
         config = load_config(config_name)

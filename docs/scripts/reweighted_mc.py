@@ -4,7 +4,7 @@
     python docs/scripts/reweighted_mc.py DIR/measured --json DIR/reweighted-mc.json
 
 The ``make demo`` Monte Carlo fit's run: green-felt-mc at the measured plan's geometries, 3 % target, seed 0, its
-eight dye knots (``--free dye``). The start's dye is traced once with a record (:mod:`simulate.woven.reweight`);
+eight dye knots (``--free dye``). The start's dye is traced once with a record (:mod:`simulate.raytrace.reweight`);
 the record is re-weighted to the start's own dye (equal to rounding) and to each dye of :data:`DYES`, and each of
 those is traced again at the same seed (the same tables: a trace of that dye walks them). Per dye: the z-scores
 ``(rw - traced) / sqrt(u_rw^2 + u_traced^2)`` over every geometry and wavelength, and ``z_rays`` with the rays' parts
@@ -46,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     from simulate.montecarlo.accuracy import relative_error
     from simulate.products import Geometries
     from simulate.provenance import machine
-    from simulate.woven import reweight as RW
+    from simulate.products import reweighted_estimate
+    from simulate.raytrace import reweight as RW
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("measured", help="the demo's acquisition (gonio demo --plan measured)")
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     chunks = [c for inc in record["incidences"] for t in inc["halves"] for c in t.chunks]
     traced_rel = float(relative_error(est0.beta, est0.u_beta))
     t, c = time.perf_counter(), time.process_time()
-    b, u, _ = RW.reweighted_estimate(record, problem.config_at(x0), wl)
+    b, u, _ = reweighted_estimate(record, problem.config_at(x0), wl)
     same = {"max_rel_diff_beta": float(np.max(np.abs(b - est0.beta) / np.maximum(np.abs(est0.beta), 1e-300))),
             "max_rel_diff_u_beta": float(np.max(np.abs(u - est0.u_beta) / np.maximum(est0.u_beta, 1e-300))),
             "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
@@ -83,12 +84,12 @@ def main(argv: list[str] | None = None) -> int:
         x = np.roll(x0, 1) if factor is None else x0 + np.log10(factor)
         x = np.clip(x, problem.low, problem.high)
         t, c = time.perf_counter(), time.process_time()
-        b, u, info = RW.reweighted_estimate(record, problem.config_at(x), wl)
+        b, u, info = reweighted_estimate(record, problem.config_at(x), wl)
         rw_wall, rw_cpu = time.perf_counter() - t, time.process_time() - c
         again: dict = {}
         est, wall, cpu = _run(problem, x, geoms, again)
         # the re-traced run's rays' part of its error (its own record replayed at its own dye: its result)
-        _, _, info_again = RW.reweighted_estimate(again, problem.config_at(x), wl)
+        _, _, info_again = reweighted_estimate(again, problem.config_at(x), wl)
         del again
         z_all = (b - est.beta) / np.sqrt(u ** 2 + est.u_beta ** 2)
         z = z_all[np.isfinite(z_all)]

@@ -1,6 +1,6 @@
 """The felt study: the felt Monte Carlo against the felt's structured summation, absorbing and not.
 
-``simulate bench --study felt --out DIR [--quick]`` builds the felt of :mod:`simulate.nonwoven.felt`
+``simulate bench --study felt --out DIR [--quick]`` builds the felt of :mod:`simulate.geometry.felt`
 (HG fiber: R 10 um, n 1.5, mu_s 0.8 /um, g 0.5, RMS slope 0.35; ``[structure] kind = "nonwoven"``,
 touching layers; seed 0) and reports, in ``DIR/felt.json`` and on stdout:
 
@@ -26,18 +26,18 @@ import numpy as np
 
 from simulate import fabric as fab
 from simulate import fiber as F
-from simulate import woven as W
+from simulate import raytrace as W
 from simulate.fabric import structure as ST
 from simulate.media.medium import HGMedium
+from simulate.geometry.felt import felt_mesh, fiber_pieces
 from simulate.products import all_threads
-from simulate.nonwoven.felt import felt_mesh, fiber_pieces
 
 R_UM = 10.0
 
 
 def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
     """The fraction of the fibers' surface (in the cell) that lies inside another fiber image
-    (``m`` a :class:`simulate.nonwoven.felt.FeltMesh`; random points on random fiber images)."""
+    (``m`` a :class:`simulate.geometry.mesh.FabricMesh`; random points on random fiber images)."""
     if m.info.get("crimp_amplitude_um", 0.0) > 0.0:
         return _buried_fraction_pieces(m, n, seed)
     ring = (int(m.n_s[0]) + 1) * (int(m.sides) + 1)
@@ -67,7 +67,7 @@ def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
 
 def _buried_fraction_pieces(m: Any, n: int, seed: int) -> float:
     """:func:`buried_fraction` of a felt of crimped fibers: random points on the pieces of the fibers'
-    polylines (:func:`simulate.nonwoven.felt.fiber_pieces`), inside another image's piece cylinder."""
+    polylines (:func:`simulate.geometry.felt.fiber_pieces`), inside another image's piece cylinder."""
     S, D = fiber_pieces(m)
     R = float(m.yarn_radius_um)
     length = np.linalg.norm(D, axis=2)

@@ -17,7 +17,7 @@ a first run, not kept, that loads the fabric's compiled kernels):
   model's departure from the Monte Carlo (the ``--method auto`` tables
   ``simulate/configs/method-errors.json`` and ``method-errors-felt.json``, same definition).
 
-The tables' photons per row have a floor in ``simulate fabric`` (:data:`simulate.woven.estimate.PILE_TABLE`
+The tables' photons per row have a floor in ``simulate fabric`` (:data:`simulate.raytrace.estimate.PILE_TABLE`
 4 000, the fiber's 10 000): below a target of about 1 % (red cotton) or 1.7 % (felt) every run
 builds the same table and lands near 1 %, which hides the trade-off. The study lowers that floor
 to ``table_floor`` (0: the target alone sets the photons), and records it.
@@ -70,7 +70,7 @@ def small_plan(plan: Any, wavelengths: int = 3, step: int = 3) -> Any:
 @contextlib.contextmanager
 def _table_floor(floor: int | None) -> Iterator[None]:
     """The tables' photons per row floored at ``floor`` (None: as shipped) while inside; restored after."""
-    import simulate.woven.estimate as E
+    import simulate.raytrace.estimate as E
 
     if floor is None:
         yield

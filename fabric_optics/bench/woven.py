@@ -2,7 +2,7 @@
 headline, and where the cheaper fabric models depart from it.
 
 * Ray engine: first-hit queries per second on the red-cotton micro-element, Embree (through
-  ``embreex``, with the periodic wrap of :class:`simulate.woven.scene.PeriodicScene`) on one and two
+  ``embreex``, with the periodic wrap of :class:`simulate.raytrace.scene.PeriodicScene`) on one and two
   threads, against a compiled brute-force intersector (every triangle tested: what any hand-written
   acceleration structure must beat first), on the same rays (raw first hits, no wrap, for both).
 * Headline (docs/quality.md): the red-cotton plan's in-plane curves (4 incidences x 14
@@ -84,7 +84,7 @@ def ray_engine_speed(mesh: Any, n_rays: int = 200_000, repeats: int = 3, alterna
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
-    from simulate.woven.scene import PeriodicScene
+    from simulate.raytrace.scene import PeriodicScene
 
     scene = PeriodicScene(mesh.vertices, mesh.faces, mesh.Lx, mesh.Ly)
     o, d = _rays(mesh, n_rays, 1)
@@ -135,7 +135,7 @@ def red_cotton_mc(target: float = 0.01) -> dict:
 
 def run_woven_bench(target: float = 0.01) -> dict:
     """All three parts (minutes)."""
-    from simulate.fabric.mesh import mesh as weave_mesh
+    from simulate.geometry.mesh import mesh as weave_mesh
     from simulate.config import load_config, weave_from_config
 
     mesh = weave_mesh(weave_from_config(load_config("red-cotton")))

@@ -559,7 +559,7 @@ def _fit_claimed(args: argparse.Namespace, config: Any, measured: Any, mc_trend:
 
 # ------------------------------------------------------------------------------------------
 # simulate weave CONFIG --out MESH.ply|obj [--force]
-#   the triangulated yarn tubes of the config's woven micro-element (simulate.fabric.weave); registered
+#   the triangulated yarn tubes of the config's woven micro-element (simulate.geometry.weave); registered
 #   after COMMANDS so that this section stays self-contained
 # ------------------------------------------------------------------------------------------
 
@@ -574,8 +574,8 @@ def _weave_arguments(p: argparse.ArgumentParser) -> None:
 def _weave_run(args: argparse.Namespace) -> int:
     from simulate.config import ConfigError
     from simulate.config import weave_from_config
-    from simulate.fabric.mesh import mesh
-    from simulate.fabric.weave import WeaveError
+    from simulate.geometry.mesh import mesh
+    from simulate.geometry.weave import WeaveError
 
     out: Path = args.out
     if out.suffix.lower() not in (".ply", ".obj"):

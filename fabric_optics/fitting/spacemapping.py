@@ -15,7 +15,7 @@ first-order term from Monte Carlo runs themselves. ``--max-runs`` counts Monte C
 every run is checkpointed (:class:`~fabric_optics.fitting.state.MCState`) and ``--resume`` replays them.
 
 Re-weighted runs. When every free parameter is a dye's (``--free dye``), a run after a traced one is not traced
-again: the traced run's rays are re-weighted to the new dye (:mod:`simulate.woven.reweight`, correlated
+again: the traced run's rays are re-weighted to the new dye (:mod:`simulate.raytrace.reweight`, correlated
 sampling: the same ray paths, each event's weight the new table's over the probability the trace used), which
 costs the new dye's table walk and a replay instead of the trace. It is kept while its error stays near a trace's
 (:func:`reweight_accepted`); otherwise the run is traced (and recorded) again. ``--mc-retrace``
@@ -233,7 +233,7 @@ def _key(x: np.ndarray) -> tuple:
 
 
 def reweight_accepted(info: dict, target_rel_err: float, traced_rel_err: float) -> bool:
-    """Whether a re-weighted run (:func:`simulate.woven.reweight.reweighted_beta`'s ``info``) replaces a trace.
+    """Whether a re-weighted run (:func:`simulate.raytrace.reweight.reweighted_beta`'s ``info``) replaces a trace.
 
     Its relative standard error (rays and table, computed from the re-weighted rays as a trace computes its own)
     is at most :data:`REWEIGHT_ERROR_FACTOR` times the run's target, or the traced run's own error where that is
@@ -265,7 +265,7 @@ def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = Fa
     beta: np.ndarray | None = None
     rays = 0
     if reuse is not None and reuse.get("record"):
-        from simulate.woven.reweight import reweighted_estimate
+        from simulate.products import reweighted_estimate
 
         try:
             b, u, info = reweighted_estimate(reuse["record"], config, wl)

@@ -1,9 +1,10 @@
-"""Fabric models over the fiber BRDF: the summation and the classic model, the weave, the ``auto`` choice.
+"""Fabric models over the fiber BRDF: the summation and the classic model, the structured summation, the ``auto`` choice.
 
 Modules: :mod:`.summation` (fabric frames, the summation of the fiber BRDF over the two
-families), :mod:`.classic` (Cook-Torrance + Lambert), :mod:`.weave` (the woven micro-element's
-geometry), :mod:`.mesh` (its yarn tubes as a mesh), :mod:`.wif` (WIF drawdowns), :mod:`.auto`
-(the ``--method auto`` choice from the method-errors study). The woven fabric's Monte Carlo is :mod:`simulate.woven`.
+families), :mod:`.classic` (Cook-Torrance + Lambert), :mod:`.structure` (the summation over the fabric's visible fiber layers; :mod:`.fiberlayer`,
+:mod:`.interior` and :mod:`.structtable` its layer, inner layers and table), :mod:`.auto` (the ``--method auto`` choice from the method-errors study).
+The geometry of a woven micro-element and of a felt is :mod:`simulate.geometry`; their Monte Carlo
+ray tracer is :mod:`simulate.raytrace`.
 """
 
 from simulate.fabric.classic import classic_beta

@@ -270,7 +270,7 @@ def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Fa
     """Nonwoven felt: fibers of uniform in-plane direction and Gaussian inclination (module docstring).
 
     The needle-punched population (``felt_normal_fraction``) and the crimp (``felt_crimp_percent``) are the
-    Monte Carlo's felt's only (:mod:`simulate.nonwoven.felt`): here they are left out, and said so once per
+    Monte Carlo's felt's only (:mod:`simulate.geometry.felt`): here they are left out, and said so once per
     process."""
     if spec.felt_normal_fraction > 0.0 and not _NORMAL_NOTED:
         _NORMAL_NOTED.append(True)

@@ -1,6 +1,6 @@
 """The ``bssrdf`` route: the fiber BSSRDF stored by cell offset, and its summation (package docstring).
 
-The rows are also what the woven-fabric tracer samples exits from (:mod:`simulate.woven.yarn`):
+The rows are also what the ray tracer of fibre assemblies samples exits from (:mod:`simulate.raytrace.yarn`):
 :func:`bssrdf_rows` and :func:`lit_rows` are public for it.
 """
 

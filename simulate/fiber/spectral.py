@@ -55,7 +55,7 @@ def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = No
     ``phase_at`` (indices into ``wavelengths_nm``, optional): only these wavelengths get their own
     phase table (Mie: the expensive part); the others get the Henyey-Greenstein table of their ``g``
     (``optical_properties(..., with_phase=False)``), for callers that walk and score with the phase
-    functions of a few wavelengths only (the held-scattering tables of :mod:`simulate.woven.yarn`).
+    functions of a few wavelengths only (the held-scattering tables of :mod:`simulate.raytrace.yarn`).
     ``mu_s``, ``mu_a`` and ``g`` are the same either way. ``None``: every wavelength's own table.
     """
     mu_s, mu_a, g, phases = [], [], [], []
@@ -97,7 +97,7 @@ def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU
     """Consecutive wavelengths whose scattering is close enough to share one walk: ``mu_s`` within
     ``max_log_mu_s`` (in ``log``; equal values always) and ``g`` within ``GROUP_G`` of the group's
     middle one. The default is the re-weighted walks'; a held-scattering table passes its own
-    (:func:`simulate.woven.yarn.held_groups`). ``max_size``: a group of more wavelengths is split
+    (:func:`simulate.raytrace.yarn.held_groups`). ``max_size``: a group of more wavelengths is split
     into ``ceil(size / max_size)`` consecutive groups of near-equal size."""
     n = optics.mu_s.size
     groups: list[list[int]] = []

@@ -1,7 +1,7 @@
 """Many runs in one parallel kernel call: runs that differ only in their source row and seed.
 
 The BSSRDF tables (:func:`simulate.fiber.bssrdf.bssrdf_rows`, the woven fabric's yarn and pile
-tables :mod:`simulate.woven.yarn`) are made of many short runs -- one per lit row, per axial
+tables :mod:`simulate.raytrace.yarn`) are made of many short runs -- one per lit row, per axial
 node, per table half -- of a few thousand photons each, i.e. one or two batches of
 :data:`simulate.montecarlo.accuracy.BATCH`. Run one at a time (:func:`.transport.execute`), each
 kernel call had fewer batches than threads: on 2 cores one thread idled in most of them, and every

@@ -425,7 +425,7 @@ def directional_albedo(
 
 
 # ------------------------------------------------------------------------------------------
-# compiled: the same Cook-Torrance for the Monte Carlo tracers (simulate.woven.shading)
+# compiled: the same Cook-Torrance for the Monte Carlo tracers (simulate.raytrace.shading)
 # ------------------------------------------------------------------------------------------
 
 

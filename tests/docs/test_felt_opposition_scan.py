@@ -193,7 +193,7 @@ def test_an_existing_result_is_kept_without_force_and_bad_options_are_refused(tm
 def test_the_single_scattering_splits_into_the_surface_s_reflection_and_the_light_through_the_fiber(tmp_path,
                                                                                                     monkeypatch, capsys):
     s = _scan()
-    from simulate.woven import integrator
+    from simulate.raytrace import integrator
 
     # every shadow ray traced: the two parts' candidates are then exactly the single scattering's
     monkeypatch.setattr(integrator, "SHADOW_ROULETTE", False)
@@ -223,7 +223,7 @@ def test_the_single_scattering_splits_into_the_surface_s_reflection_and_the_ligh
     out.write_text(json.dumps(rec), encoding="utf-8")
     kept = out.read_text(encoding="utf-8")
     traced = []
-    monkeypatch.setattr("simulate.woven.fabric_beta", lambda *a, **k: traced.append(1))
+    monkeypatch.setattr("simulate.raytrace.fabric_beta", lambda *a, **k: traced.append(1))
     with pytest.raises(SystemExit) as exc:
         s.main(tiny[:-2] + ["--out", str(out), "--resume", "--split"])
     assert exc.value.code == 2 and not traced and out.read_text(encoding="utf-8") == kept

@@ -264,7 +264,7 @@ def test_top_profile_measures_the_loose_top():
     """Above the compact felt's top lie only the loose fibres, none overlapping: the profile over that layer is
     their volume (capsules of the axis pieces: the tube and its two end caps) over the layer's, within 4 SE."""
     from simulate.fabric import structure as ST
-    from simulate.nonwoven.felt import felt_mesh
+    from simulate.geometry.felt import felt_mesh
 
     fr = _script()
     R = 10.0
@@ -285,7 +285,7 @@ def test_top_profile_measures_the_loose_top():
 def test_lambert_rise_of_a_flat_lambertian_plane_is_one():
     """A flat Lambertian plane scatters once, beta = albedo / pi in every direction: the rise is 1 at every
     incidence, all orders and single, for every albedo."""
-    from simulate.woven.meshes import flat_mesh
+    from simulate.geometry.validation import flat_mesh
 
     fr = _script()
     rise = fr.lambert_rise(flat_mesh(), [0.3, 0.9], target_rel_err=0.02, rotations=2)

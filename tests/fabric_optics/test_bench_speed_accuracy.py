@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 
-import simulate.woven.estimate as E
+import simulate.raytrace.estimate as E
 from fabric_optics.bench import speed_accuracy as sa
 from fabric_optics.cli.simulate import main
 

@@ -122,7 +122,7 @@ def test_a_corrupt_entry_is_computed_again(cache_dir):
 
 
 def test_the_felt_s_exit_bin_choice_reads_the_cost_check_s_coefficients(cache_dir, monkeypatch):
-    from simulate.woven.estimate import fiber_scatterings
+    from simulate.raytrace.estimate import fiber_scatterings
 
     config = load_config("green-felt-mc")
     wl = np.asarray(config.wavelengths_nm, float)

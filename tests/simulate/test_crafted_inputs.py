@@ -1,8 +1,8 @@
 """Crafted inputs: each is one line naming the file or field, exit 2, bounded memory and time.
 
 Every case here used to allocate gigabytes (or raise a traceback) before any check; the bounds
-are :data:`simulate.fabric.weave.MAX_TRIANGLES`, :data:`simulate.fabric.weave.MAX_WEAVE_CELLS`,
-:data:`simulate.fabric.wif.MAX_WIF_BYTES` and the others named in each test.
+are :data:`simulate.geometry.weave.MAX_TRIANGLES`, :data:`simulate.geometry.weave.MAX_WEAVE_CELLS`,
+:data:`simulate.geometry.wif.MAX_WIF_BYTES` and the others named in each test.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from fabric_optics.cli.simulate import main
-from simulate.fabric.mesh import mesh
-from simulate.fabric.weave import MAX_TRIANGLES, MAX_WEAVE_CELLS, Weave, WeaveError, preset, triangle_count
-from simulate.fabric.wif import MAX_WIF_BYTES, read_wif
+from simulate.geometry.mesh import mesh
+from simulate.geometry.weave import MAX_TRIANGLES, MAX_WEAVE_CELLS, Weave, WeaveError, preset, triangle_count
+from simulate.geometry.wif import MAX_WIF_BYTES, read_wif
 
 PRESETS_PLAIN = [[1, 0], [0, 1]]
 
@@ -123,7 +123,7 @@ def test_weave_refuses_mesh_over_the_bound_before_building():
 
 def test_weave_400_by_400_matrix_refused_by_its_mesh():
     m = np.tile(np.array(PRESETS_PLAIN), (200, 200))       # a valid 400 x 400 weave
-    from simulate.fabric.weave import DEFAULT_POINTS_PER_SPAN, DEFAULT_SIDES
+    from simulate.geometry.weave import DEFAULT_POINTS_PER_SPAN, DEFAULT_SIDES
 
     # 4 sides points_per_span n_warp n_weft triangles with the default tube
     expected = 4 * DEFAULT_SIDES * DEFAULT_POINTS_PER_SPAN * 400 * 400
@@ -360,7 +360,7 @@ def test_mc_with_config_threads_zero_uses_numba_limit(monkeypatch):
     """NUMBA_NUM_THREADS=1 and threads = 0 used to pass os.cpu_count() (2) and be refused."""
     import numba
 
-    from simulate import woven
+    from simulate import raytrace
     from simulate.config import load_config
     from simulate.products import Geometries, RunSettings, evaluate
 
@@ -371,7 +371,7 @@ def test_mc_with_config_threads_zero_uses_numba_limit(monkeypatch):
         raise RuntimeError("stop here")
 
     monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", 1)
-    monkeypatch.setattr(woven, "fabric_beta", fake_fabric_beta)
+    monkeypatch.setattr(raytrace, "fabric_beta", fake_fabric_beta)
     config = load_config("red-cotton")
     assert config.threads is None              # the shipped config leaves threads at its default, 0
     g = Geometries(np.array([0.0]), np.array([0.0]), np.array([30.0]), np.array([180.0]))

@@ -145,7 +145,7 @@ def tree_copy(tmp_path_factory):
 
 
 def test_the_real_kernels_keys_do_not_depend_on_the_folder(tree_copy):
-    for module in ("simulate/montecarlo/kernel.py", "simulate/woven/shading.py", "simulate/fiber/farfield.py"):
+    for module in ("simulate/montecarlo/kernel.py", "simulate/raytrace/shading.py", "simulate/fiber/farfield.py"):
         assert kernelcache.source_key(tree_copy / module) == kernelcache.source_key(REPO / module), module
 
 
@@ -154,7 +154,7 @@ def test_the_real_kernels_keys_follow_their_imports(tree_copy):
     kernel.py does not import, does not."""
     kernel = tree_copy / "simulate/montecarlo/kernel.py"
     before = kernelcache.source_key(kernel)
-    scene = tree_copy / "simulate/woven/scene.py"
+    scene = tree_copy / "simulate/raytrace/scene.py"
     scene.write_text(scene.read_text() + "\n# edited\n")
     kernelcache._source_key.cache_clear()
     assert kernelcache.source_key(kernel) == before

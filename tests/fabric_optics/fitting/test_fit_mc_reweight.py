@@ -1,7 +1,7 @@
 """The Monte Carlo fit's re-weighted runs (fabric_optics.fitting.spacemapping.run_monte_carlo with ``reuse``): with
 only dye parameters free, a run after a traced one is re-weighted from its record while the re-weighting is accurate
 enough (reweight_accepted), traced (and recorded) otherwise; --mc-retrace and any other free parameter trace every
-run. The tracer and the re-weighting are stood in for here (what they compute: tests/simulate/woven/test_reweight_mc.py)."""
+run. The tracer and the re-weighting are stood in for here (what they compute: tests/simulate/raytrace/test_reweight_mc.py)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from fabric_optics.fitting import spacemapping as fit_mc
 from fabric_optics.fitting.spacemapping import MCFitProblem, reweight_accepted, run_monte_carlo
 from fabric_optics.fitting.spec import parse_free
 from simulate.products import FabricEstimate
-from simulate.woven import reweight as RW
+from simulate import products
 
 from .test_fit_mc import FREE, WL6, _felt, _flat
 
@@ -38,7 +38,7 @@ def stand_ins(monkeypatch):
 
     problem_of: list = []
     monkeypatch.setattr(fit_mc, "evaluate", evaluate)
-    monkeypatch.setattr(RW, "reweighted_estimate", reweighted_estimate)
+    monkeypatch.setattr(products, "reweighted_estimate", reweighted_estimate)
     return calls, problem_of
 
 

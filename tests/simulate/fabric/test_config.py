@@ -74,7 +74,7 @@ def test_base_config_parses_to_the_fields():
 
 def test_exit_bins_default_and_given():
     base = parse_config(BASE, "test.toml")
-    assert base.exit_bins is None          # chosen per run by the fiber (simulate.woven.estimate.default_exit_bins)
+    assert base.exit_bins is None          # chosen per run by the fiber (simulate.raytrace.estimate.default_exit_bins)
     cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5, 10]"), "t.toml")
     assert cfg.exit_bins == (5, 10)
 

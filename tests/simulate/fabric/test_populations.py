@@ -11,9 +11,9 @@ import pytest
 
 from simulate import fabric as fab
 from simulate import products
-from simulate import woven as W
+from simulate import raytrace as W
 from simulate.config import ConfigError, parse_config, require_single_population
-from simulate.nonwoven.felt import felt_mesh
+from simulate.geometry.felt import felt_mesh
 
 FELT = """
 seed = 2

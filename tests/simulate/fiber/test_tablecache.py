@@ -213,10 +213,10 @@ def test_a_run_whose_own_tables_exceed_the_bound_says_so(cache, monkeypatch, cap
 
 
 def test_the_felt_meshes_count_in_the_bound_and_are_evicted_as_any_entry(cache, monkeypatch):
-    """A felt built by simulate.nonwoven.felt.cached_felt_mesh is an entry like a table: its size is in the
+    """A felt built by simulate.geometry.felt.cached_felt_mesh is an entry like a table: its size is in the
     total the bound is held to, and it is evicted least recently used first."""
     from simulate.fabric.structure import StructureSpec
-    from simulate.nonwoven import felt as FM
+    from simulate.geometry import felt as FM
 
     monkeypatch.setattr(tc, "_USED", set())
     felt, hit = FM.cached_felt_mesh(StructureSpec(kind="nonwoven", felt_spread_deg=15.0, layers=1), 10.0, seed=1)

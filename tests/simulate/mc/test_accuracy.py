@@ -34,7 +34,7 @@ def test_a_target_outside_0_1_is_refused(bad):
 def test_zero_targets_never_reach_a_division():
     from simulate.fiber import Fiber, volume_brdf
     from simulate.media.medium import HGMedium
-    from simulate.woven import table_photons
+    from simulate.raytrace import table_photons
 
     fiber = Fiber(radius_um=5.0, n_host=1.5, medium=HGMedium(mu_s=0.1, mu_a=0.0, g=0.0), roughness=0.3)
     w = np.array([[0.0, 0.0, 1.0]])

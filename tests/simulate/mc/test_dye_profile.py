@@ -115,7 +115,7 @@ def test_the_felts_yarn_table_walks_the_profile():
     the tiny undyed part; a thin ring lets more light out of every row."""
     from simulate.fiber import Fiber
     from simulate.media.medium import HGMedium
-    from simulate.woven.yarn import yarn_table
+    from simulate.raytrace.yarn import yarn_table
 
     def table(**profile):
         fiber = Fiber(radius_um=5.0, n_host=1.5, medium=HGMedium(mu_s=0.05, mu_a=0.3, g=0.5), roughness=0.3,

@@ -222,7 +222,7 @@ def test_a_clear_fibers_yarn_table_spreads_its_exits_off_the_refraction_plane_wh
     import dataclasses
 
     from simulate import fiber as F
-    from simulate import woven as W
+    from simulate import raytrace as W
     from simulate.media.medium import HGMedium
 
     smooth = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.001, mu_a=0.0, g=0.0), 0.3, 30.0)

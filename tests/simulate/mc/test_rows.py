@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 
 from simulate import fiber as F
-from simulate import woven as W
+from simulate import raytrace as W
 from simulate.fiber.bssrdf import row_sources, rows_inputs
 from simulate.fiber.spectral import group_walk, spectral_optics, wavelength_groups
 from simulate.media.medium import HGMedium
 from simulate.montecarlo import transport as TR
 from simulate.montecarlo.accuracy import mean_and_error
 from simulate.montecarlo.rows import execute_rows
-from simulate.woven import yarn as Y
+from simulate.raytrace import yarn as Y
 
 
 def _fiber() -> F.Fiber:
@@ -126,7 +126,7 @@ def test_table_halves_equal_each_half_built_row_by_row():
 
 def test_held_table_with_only_the_walks_phase_functions_is_bit_identical():
     """A held-scattering table (the pile's) computes the Mie phase functions of its groups' middle
-    wavelengths only (:func:`simulate.woven.yarn._walk_optics`); every other wavelength's is never read:
+    wavelengths only (:func:`simulate.raytrace.yarn._walk_optics`); every other wavelength's is never read:
     the table equals the one built with all of them."""
     from simulate.media.medium import MieMedium
 

@@ -11,7 +11,7 @@ from simulate.fiber import farfield as FF
 from simulate.fabric import fiberlayer as FL
 from simulate.fabric import structure as ST
 from simulate.fabric import structtable as STT
-from simulate.fabric import weave as WV
+from simulate.geometry import weave as WV
 from simulate.fiber import Fiber
 from simulate.media.medium import HGMedium
 

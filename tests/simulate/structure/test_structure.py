@@ -11,7 +11,7 @@ from gonio.acquisition.plan import parse_plan
 from simulate.fiber import farfield as FF
 from simulate.fabric import interior as IN
 from simulate.fabric import structure as ST
-from simulate.fabric import weave as WV
+from simulate.geometry import weave as WV
 from simulate.config import ConfigError, parse_config
 from simulate.fiber import Fiber
 from simulate.media.medium import HGMedium

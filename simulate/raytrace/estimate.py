@@ -1,0 +1,353 @@
+"""A fibre assembly (a weave or a felt) at a plan's geometries: the entry of ``simulate fabric --method mc``.
+
+Two independent halves of the yarn table, one trace per incidence with each, the table's own
+noise from their difference added to ``u_beta``; the target's error shared between the table
+(:data:`TABLE_SHARE`) and the rays (:func:`ray_target`).
+
+A felt
+------
+A felt's mesh (:mod:`simulate.geometry.felt`) is ONE random realisation of its fibers in a cell of
+about 20 fibers across, and what is wanted is the felt's BRDF, the expectation over realisations (as
+a measurement's spot averages thousands of fibers). Traced as a weave (one mesh, one azimuth), one
+realisation's run would report a standard error well below the spread between realisations. Two
+changes, both free in expectation:
+
+- the felt is in-plane isotropic, so each incidence and its detectors are turned about the normal
+  to :data:`FELT_ROTATIONS` azimuths (``2 pi (j + h / 2) / K`` for half ``h``) and the traces
+  averaged: the top fibers' few orientations are seen at ``K`` angles.
+  The ``K`` rotations are traced as one wavefront (:func:`simulate.raytrace.integrator.trace_rotations`:
+  ``K`` times smaller chunks of each, every bounce one Embree query for all of them), stopped when
+  their mean reaches the ray target; the scene is built once per mesh;
+- each table half is traced on its OWN realisation (``mesh`` a pair; ``simulate fabric`` builds the
+  felt at the run's seed and at seed + 1 000 003), so the halves' difference, which gives the
+  table's term of ``u_beta``, holds the spread between realisations as well
+  (``tests/simulate/raytrace/test_felt.py``).
+
+What these choices cost and gain, measured: docs/notes/implementation.md, "The ray tracer's felt".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from simulate.budget import medium_coefficients
+from simulate.media.medium import HGMedium
+from simulate.montecarlo.accuracy import check_target, relative_error
+from simulate.fabric.structure import CLOSE_PACKING
+from simulate.raytrace.integrator import CHUNK, MCResult, prepare, trace, trace_rotations, yarn_radius
+from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
+from simulate.raytrace.materials import FiberSurface
+from simulate.raytrace.yarn import YarnTable, table_halves
+
+__all__ = ["TABLE_NOISE", "TABLE_SHARE", "PILE_TABLE", "CLEAR_FIBER_SCATTERINGS", "clear_fiber_note", "table_photons",
+           "ray_target", "fabric_beta", "mean_of", "twist_of", "yarn_model"]
+
+log = logging.getLogger(__name__)
+
+
+TABLE_NOISE = 1.2
+"""The table's relative noise times ``sqrt(photons per row)`` (both halves together), measured
+on red cotton and on the bench's weave (docs/notes/implementation.md). A fabric whose table is noisier shows it in ``table_rel_err`` and ``rel_err``."""
+TABLE_SHARE = 0.7
+"""The share of the target's error the table is given; the ray tracing gets ``sqrt(1 - 0.7^2) = 0.71``."""
+TABLE_MIN_PHOTONS = 10_000
+"""The fewest photons per row of the fiber's table (:func:`table_photons`)."""
+PILE_TABLE = {"noise": 0.6, "share": 0.8, "min_photons": 4_000}
+""":func:`table_photons` for the pile's table (:mod:`simulate.raytrace.pile`, scattering held per group): the
+photons its rows need for the FABRIC's target, not more: its measured noise (0.6, leaning
+conservative), the larger share of the target for the table (a table photon costs far more than a
+ray's share of the error) and a lower floor (the pile's rows are many scattering radii thick, each
+photon fills its row's cells densely); the table's noise at any count is measured (``table_rel_err``,
+the halves' difference) and reported, not assumed. The measurements: docs/notes/implementation.md,
+"The ray tracer's tables". The table's expected values do not depend on its photons."""
+
+
+def table_photons(target_rel_err: float, noise: float = TABLE_NOISE, share: float = TABLE_SHARE,
+                  min_photons: int = TABLE_MIN_PHOTONS) -> int:
+    """Photons per BSSRDF row for a run at ``target_rel_err``: ``(noise / (share T))^2`` within [min_photons, 4e5].
+
+    The pile's table (:mod:`simulate.raytrace.pile`, scattering held per wavelength group) takes
+    :data:`PILE_TABLE`: its own measured noise, share and floor.
+
+    The table's noise is a fixed pattern shared by every ray of the run; it is not hidden:
+    :func:`fabric_beta` builds the table as two independent halves and puts their difference
+    into ``u_beta``. The errors add in quadrature, ``rel^2 = t^2 + r^2``, and a table photon
+    costs far more than a ray's share of the error, so the table gets the larger share
+    (:data:`TABLE_SHARE`, near the cost optimum ``t^2 / r^2 = sqrt(cost_t / cost_r)``); the sum of
+    the two then meets the target.
+    """
+    t = check_target(target_rel_err) * float(share)
+    return int(min(max((float(noise) / t) ** 2, int(min_photons)), 400_000))
+
+
+def ray_target(target_rel_err: float, share: float = TABLE_SHARE) -> float:
+    """The target of each half's trace: ``sqrt(2 (1 - share^2)) T`` (``share``: the table's, :func:`table_photons`).
+
+    The two halves' traces are averaged (``u_rays^2 = (u_a^2 + u_b^2) / 4``), so each may have
+    ``sqrt 2`` times the ray error the mean is given.
+    """
+    return check_target(target_rel_err) * min(math.sqrt(2.0 * (1.0 - float(share) ** 2)), 0.999)
+
+
+FELT_ROTATIONS = 8
+"""Azimuthal rotations of each incidence and its detectors over which a felt is traced (module docstring)."""
+
+
+def felt_rotations(mesh: Any) -> int:
+    """:data:`FELT_ROTATIONS` for a felt's mesh (``open_fibers``: in-plane isotropic), 1 for a weave."""
+    return FELT_ROTATIONS if getattr(mesh, "open_fibers", False) else 1
+
+
+CLEAR_FIBER_SCATTERINGS = 1.0
+"""A fiber with fewer expected scattering events than this across its diameter (``2 R mu_s``) is nearly
+clear: its exits keep to the cones refraction puts them on, which coarse azimuth bins smear
+(:func:`clear_fiber_note`)."""
+
+
+def fiber_scatterings(fiber: Any, wavelengths_nm: Any) -> float:
+    """``2 R mu_s`` at the middle of ``wavelengths_nm``: the expected scattering events across the fiber."""
+    medium = fiber.medium
+    wl = np.asarray(wavelengths_nm, float).ravel()
+    if not wl.size:
+        wl = np.array([550.0])
+    # a Mie medium's coefficients at all of wavelengths_nm, through the table cache: the cost check
+    # before the run stored them (no Mie evaluation, no miepython import, in a run whose tables are cached)
+    mu_s = float(medium.mu_s) if isinstance(medium, HGMedium) else float(
+        medium_coefficients(medium, wl)["mu_s"][wl.size // 2])
+    return 2.0 * float(fiber.radius_um) * mu_s
+
+
+def default_exit_bins(fiber: Any, wavelengths_nm: Any, felt: bool) -> tuple[int, int]:
+    """The exit bins of a config that gives none: ``(10, 20)`` for a felt whose fiber is nearly clear
+    (fewer than :data:`CLEAR_FIBER_SCATTERINGS` scattering events across it: its exits keep to cones
+    that coarser bins smear), ``(5, 10)`` otherwise -- turbid fibers, and woven yarns, whose table is
+    the yarn pile's (:mod:`simulate.raytrace.pile`), converge there at about half the trace time."""
+    if felt and fiber_scatterings(fiber, wavelengths_nm) < CLEAR_FIBER_SCATTERINGS:
+        return (10, 20)
+    return (5, 10)
+
+
+def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]) -> str | None:
+    """The warning for a run whose fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s``
+    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are 10 or fewer (36 deg
+    or more), else None. Measured: the green felt moves by more than its misfit to the measurement
+    between 10 and 20 azimuth bins, red cotton (2 R mu_s = 19) within its Monte Carlo noise
+    (docs/physics.md 6, "Exit directions")."""
+    if int(exit_bins[1]) > 10:
+        return None
+    wl = np.asarray(wavelengths_nm, float).ravel()
+    mid = float(wl[wl.size // 2]) if wl.size else 550.0
+    n = fiber_scatterings(fiber, wl)
+    if n >= CLEAR_FIBER_SCATTERINGS:
+        return None
+    return (f"the fiber is nearly clear ({n:.2g} scattering events across its diameter at {mid:g} nm) and "
+            f"the yarn table's exit directions are binned at {int(exit_bins[1])} azimuths: its exits keep to "
+            "cones that such bins smear, and the result can move by more than a fit's misfit at finer bins; "
+            "[method] exit_bins = [10, 20] (the default for such a felt) resolves them (docs/physics.md 6, \"Exit directions\")")
+
+
+def mean_of(parts: list[MCResult]) -> MCResult:
+    """The mean of independent traces of one incidence (rotations): ``beta`` their mean, ``u`` of the mean."""
+    if len(parts) == 1:
+        return parts[0]
+    n = len(parts)
+    p0 = parts[0]
+    stops = [p.stop for p in parts if p.stop != "target"]
+    return dataclasses.replace(
+        p0, beta=np.mean([p.beta for p in parts], axis=0),
+        u_beta=np.sqrt(np.sum([p.u_beta ** 2 for p in parts], axis=0)) / n,
+        reflected=np.mean([p.reflected for p in parts], axis=0),
+        transmitted=np.mean([p.transmitted for p in parts], axis=0),
+        rays=int(sum(p.rays for p in parts)), seconds=float(sum(p.seconds for p in parts)),
+        stop=stops[0] if stops else "target")
+
+
+def twist_of(structure: Any) -> tuple[float, float]:
+    """The signed surface twist angles (warp, weft) in degrees, ``+`` Z and ``-`` S, of a config's
+    ``[structure]`` (:class:`simulate.fabric.structure.StructureSpec`); ``(0, 0)`` without one or for a felt."""
+    if structure is None or structure.kind != "woven":
+        return (0.0, 0.0)
+    return (float(structure.warp_twist_deg) * (1.0 if structure.warp_twist == "Z" else -1.0),
+            float(structure.weft_twist_deg) * (1.0 if structure.weft_twist == "Z" else -1.0))
+
+
+def yarn_model(mesh: Any, structure: Any = None, surface: str | None = None, volume: str | None = None
+               ) -> tuple[str, str, float, float]:
+    """What a mesh's tubes are made of: ``(surface, volume, spacing_ratio, packing_fraction)``.
+
+    A weave's yarns with a woven ``[structure]`` are made of fibers (docs/physics.md 6, "Yarn made of
+    fibers"): surface ``"fibers"`` (:class:`FiberSurface`) at the structure's fiber spacing, volume
+    ``"pile"`` (:mod:`simulate.raytrace.pile`) at its packing fraction -- the Monte Carlo of the fabric
+    the structured summation sums. Without a ``[structure]`` (as the summation's carpet of top
+    cells) and for a felt's tubes, each of which IS one fiber: ``"tube"`` and ``"fiber"`` (the
+    fiber's own table), the tracer as it was. ``surface`` / ``volume`` override the choice.
+    """
+    woven = structure is not None and structure.kind == "woven" and not getattr(mesh, "open_fibers", False)
+    surf = surface or ("fibers" if woven else "tube")
+    vol = volume or ("pile" if woven else "fiber")
+    if vol not in ("fiber", "pile"):
+        raise ValueError(f"fabric_beta: volume must be 'fiber' or 'pile', not {vol!r}")
+    spacing = float(structure.spacing_ratio) if woven else 1.0
+    packing = float(structure.packing_fraction) if woven else CLOSE_PACKING
+    return surf, vol, spacing, packing
+
+
+def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.ndarray, meshes: tuple, mats: list,
+                      beta: np.ndarray, u_beta: np.ndarray, second: Any, *, r_target: float, max_rays: int,
+                      max_seconds: float, seed: int, threads: int, progress: bool, twist: tuple[float, float],
+                      chunk: int, setups: dict, max_events: int, record: dict | None = None) -> list[dict]:
+    """:func:`fabric_beta`'s traces: each incidence with each half, ``beta`` and ``u_beta`` filled in; returns
+    the incidences' run information. ``second``: the future of the second half's setup (or None).
+    ``record``: each incidence's traces' events go to ``record["incidences"]`` (:mod:`simulate.raytrace.reweight`)."""
+    runs = []
+    n_rot = felt_rotations(meshes[0])
+    for k, wi in enumerate(incidences):
+        rows = np.nonzero(inverse == k)[0]
+        det_key, det_inv = np.unique(np.round(w_out[rows], 9), axis=0, return_inverse=True)
+        det_inv = np.asarray(det_inv).reshape(-1)
+        det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
+        halves = []
+        logs: list | None = [] if record is not None else None
+        for h, (m, mat) in enumerate(zip(meshes, mats)):
+            if h == 1 and second is not None:     # the second half's setup, built on another thread
+                second.result()
+                second = None
+            if n_rot > 1:    # the rotations as one wavefront, stopped on their mean (trace_rotations)
+                parts = trace_rotations(m, mat, wi / np.linalg.norm(wi), det,
+                                        [2.0 * math.pi * (j + 0.5 * h) / n_rot for j in range(n_rot)],
+                                        target_rel_err=r_target, max_rays=max_rays, max_seconds=max_seconds,
+                                        seed=seed + 7919 * k, threads=threads, progress=progress,
+                                        twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events,
+                                        record=logs)
+            else:
+                parts = [trace(m, mat, wi / np.linalg.norm(wi), det, target_rel_err=r_target, max_rays=max_rays,
+                               max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress,
+                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events, record=logs)]
+            halves.append(mean_of(parts))
+        ra, rb = halves
+        b = 0.5 * (ra.beta + rb.beta)
+        u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
+        u_table = np.sqrt(np.mean((0.5 * (ra.beta - rb.beta)) ** 2, axis=1, keepdims=True))
+        u = np.sqrt(u_rays2 + u_table ** 2)
+        if record is not None:
+            record["incidences"].append({"rows": rows, "det_inv": det_inv, "halves": logs,
+                                         "ray_rel_err": relative_error(b, np.sqrt(u_rays2))})
+        beta[rows] = b[det_inv]
+        u_beta[rows] = u[det_inv]
+        peak = np.maximum(b.max(axis=1, keepdims=True), 1e-300)
+        runs.append({"w_in": wi.tolist(), "detectors": int(det_key.shape[0]), "rays": ra.rays + rb.rays,
+                     "seconds": ra.seconds + rb.seconds, "rel_err": relative_error(b, u),
+                     "ray_rel_err": relative_error(b, np.sqrt(u_rays2)),
+                     "table_rel_err": float(np.sqrt(np.mean((u_table / peak) ** 2))),
+                     "stop": ra.stop if ra.stop != "target" else rb.stop,
+                     "reflected_mean": float(0.5 * (ra.reflected + rb.reflected).mean()),
+                     "transmitted_mean": float(0.5 * (ra.transmitted + rb.transmitted).mean()),
+                     **{k2: v for k2, v in ra.info.items() if k2 != "u_reflected_plus_transmitted"}})
+    return runs
+
+
+def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_nm: np.ndarray, *,
+                target_rel_err: float = 0.01, max_rays: int = 0, max_seconds: float = 0.0, seed: int = 0,
+                threads: int = 1, progress: bool = False, tables: tuple[YarnTable, YarnTable] | None = None,
+                structure: Any = None, cache: bool = True, surface: str | None = None,
+                volume: str | None = None, exit_bins: tuple[int, int] = (5, 10),
+                axial_shift: bool = False,
+                w_t_nodes: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.95),
+                max_events: int = 0, record: dict | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
+
+    The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
+    Every distinct incidence is traced once with each half, with the same ray streams (common
+    random numbers), towards all of its detector directions; ``beta`` is their mean. The
+    standard error combines the ray tracing's (``(u_a^2 + u_b^2) / 4``) with the table's: the two
+    halves differ by twice the full table's noise, so per detector ``u_table^2 = mean_lambda
+    ((beta_a - beta_b) / 2)^2`` (pooled over the wavelengths, which leans conservative for the
+    dark ones). Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information. The halves
+    come from the disk cache when there (:func:`simulate.raytrace.table_halves`; ``cache=False``
+    or ``FABRIC_OPTICS_NO_CACHE=1``: always computed); ``info["table"]["cache"]`` says which.
+    ``structure`` (a config's ``[structure]``): the yarns' twist (:func:`twist_of`) and what they
+    are made of (:func:`yarn_model`; ``surface`` and ``volume`` override it). ``tables`` given: they
+    are used as they are (``volume`` and ``exit_bins`` then say nothing). ``exit_bins``: the tables'
+    exit directions per exit cell, ``(mu bins, phi bins)`` (a config's ``[method] exit_bins``; what
+    they resolve and cost: docs/physics.md 6, "Exit directions"). ``max_events``: the scattering events
+    followed per ray (:func:`simulate.raytrace.trace`; 0: all, 1: the single scattering). ``record`` (a dict):
+    filled with the run's events and table settings, from which :func:`simulate.raytrace.reweight.reweighted_beta`
+    gives the result for another dye without tracing again.
+    """
+    w_in = np.atleast_2d(np.asarray(w_in, float))
+    w_out = np.atleast_2d(np.asarray(w_out, float))
+    wl = np.asarray(wavelengths_nm, float)
+    started = time.perf_counter()
+    surf, vol, spacing, packing = yarn_model(mesh[0] if isinstance(mesh, (tuple, list)) else mesh, structure,
+                                             surface, volume)
+    split: dict[str, Any] = dict(PILE_TABLE) if vol == "pile" and tables is None else {}
+    if tables is not None:
+        vol = "tables given"
+    else:
+        walked = pile_fiber(fiber, yarn_radius(mesh), packing) if vol == "pile" else fiber
+        grid: dict[str, Any] = {"held_log_mu_s": HELD_LOG_MU_S} if vol == "pile" else {}
+        grid.update(n_mu=int(exit_bins[0]), n_phi=int(exit_bins[1]), w_t_nodes=tuple(float(x) for x in w_t_nodes))
+        tables = table_halves(walked, wl, table_photons(target_rel_err, **split) // 2, seed,
+                              threads if threads else None, cache=cache, **grid)
+    r_target = ray_target(target_rel_err, split.get("share", TABLE_SHARE))
+    mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host), surf, spacing, bool(axial_shift))
+            for t in tables]
+    meshes = tuple(mesh) if isinstance(mesh, (tuple, list)) else (mesh, mesh)
+    if len(meshes) != 2:
+        raise ValueError(f"fabric_beta: one mesh or one per table half (2), not {len(meshes)}")
+    twist = twist_of(structure)
+    key = np.round(w_in, 9)
+    incidences, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    beta = np.zeros((w_in.shape[0], wl.size))
+    u_beta = np.zeros_like(beta)
+    n_rot = felt_rotations(meshes[0])
+    chunk = max(256, CHUNK // n_rot)
+    setups: dict = {}
+    # the second half's scene and table arrays are built on another thread while the first half's
+    # first trace runs (its traces then find them in ``setups``; no result depends on this); the first
+    # half's before (Embree's scene is built holding the GIL: two builds side by side take as long as
+    # one after the other, a build beside a trace takes the trace's idle GIL)
+    background = ThreadPoolExecutor(max_workers=1) if threads != 1 else None
+    second = None
+    if background is not None:
+        prepare(meshes[0], mats[0], setups, twist_deg=twist)
+        second = background.submit(prepare, meshes[1], mats[1], setups, twist_deg=twist)
+    if record is not None:
+        record.update(incidences=[], shape=beta.shape, volume=vol, packing=packing,
+                      tables=tuple({"shape": t.T.shape, "c_bar": t.c_bar, "tau": t.tau} for t in tables),
+                      yarn_radius=yarn_radius(mesh) if vol == "pile" else None, seed=seed, threads=threads,
+                      photons_per_row=table_photons(target_rel_err, **split) // 2,
+                      grid={"n_mu": int(tables[0].n_mu), "n_phi": int(tables[0].n_phi),
+                            "w_t_nodes": tuple(float(x) for x in tables[0].w_t_nodes)},
+                      target_rel_err=float(target_rel_err), wavelengths_nm=wl.copy())
+    try:
+        runs = _trace_incidences(incidences, inverse, w_out, meshes, mats, beta, u_beta, second, r_target=r_target,
+                                 max_rays=max_rays, max_seconds=max_seconds, seed=seed, threads=threads,
+                                 progress=progress, twist=twist, chunk=chunk, setups=setups, max_events=max_events,
+                                 record=record)
+    finally:
+        if background is not None:
+            background.shutdown()
+    photons = int(sum(t.photons for t in tables))
+    info = {"table": {"photons": photons, "seconds": float(sum(t.seconds for t in tables)),
+                      "cache": [t.cache for t in tables],
+                      "halves": 2, "photons_per_row": int(photons // max(1, tables[0].T.shape[0] * tables[0].T.shape[1])),
+                      "w_t_nodes": tables[0].w_t_nodes.tolist(),
+                      "grid": [tables[0].n_psi, tables[0].n_v, tables[0].n_mu, tables[0].n_phi],
+                      "axial_shift": bool(axial_shift)},
+            "incidences": runs, "seconds": time.perf_counter() - started, "twist_deg": list(twist),
+            "rotations": n_rot, "realisations": 2 if meshes[0] is not meshes[1] else 1,
+            "yarn_surface": surf, "surface_spacing_ratio": spacing if surf == "fibers" else None,
+            "yarn_volume": vol, "pile_packing_fraction": packing if vol == "pile" else None,
+            "rays": int(sum(r["rays"] for r in runs)),
+            "stop": "target" if all(r["stop"] == "target" for r in runs) else
+            next(r["stop"] for r in runs if r["stop"] != "target")}
+    return beta, u_beta, info

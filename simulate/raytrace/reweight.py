@@ -1,0 +1,209 @@
+"""A dye's woven/felt Monte Carlo without tracing again: the traced rays re-weighted (correlated sampling).
+
+A dye (the fiber host's absorption) enters the tracer only through the fiber's exit table ``T`` (the
+white walk applies it per wavelength: :mod:`simulate.raytrace.yarn`). The rays' geometry -- where they
+hit, the row read, the exit cell and direction sampled, reflect or enter, the roulettes -- was drawn
+from probabilities computed with the traced table; under another table the same draws are an
+importance sample of the other dye's estimate when each event's weight factor is the new table's
+value over the probability that was USED (perturbation / correlated-sampling Monte Carlo: Hayakawa
+et al., Opt. Lett. 26(17), 2001; Alerstam, Andersson-Engels and Svensson, J. Biomed. Opt. 13(4),
+2008). Per event that factor is a table row times a scalar that holds every sampling probability
+and geometric factor of the traced run:
+
+* a volume exit continues with ``w T[row] s`` (``s = entry corr f_out / (c_bar p_cell (1 - p_refl))``,
+  ``p_cell`` and ``p_refl`` the traced table's), a reflection with ``w s`` (``s = f / p_refl``);
+* a next-event score adds ``w T[row] s / p_shadow`` (a volume exit) or ``w s / p_shadow`` (the
+  surface term), ``p_shadow`` the shadow roulette's probability, played on the traced weights;
+* the path's roulette multiplies a survivor by ``1 / 0.1`` and stops a loser, as traced.
+
+:func:`simulate.raytrace.integrator.trace` with ``record`` keeps those per event (:class:`EventLog`:
+per hit the ray, the row and the scalar (:mod:`simulate.raytrace.record`), and the roulette's outcome; per next-event score the hit, the
+detector, the row and the scalar over ``p_shadow``), and :func:`replay` recomputes every ray's
+per-detector totals with another table, in the tracer's order: at the traced table the result equals
+the traced one to rounding. ``u_beta`` is computed from the re-weighted per-ray totals as the tracer
+computes its own, so the variance the weights add is in it. The findings, the memory per event and
+the validation against re-traced runs: docs/notes/reweighted-mc.md.
+
+What it needs of the new table: wherever the new table's exit density is above zero the traced one's
+must be too (a cell never sampled cannot be re-weighted). Tables walked with the same photons
+(white Monte Carlo at the same seeds: :func:`simulate.raytrace.yarn.table_halves`) reach the same cells.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numba
+import numpy as np
+
+from simulate.montecarlo.accuracy import relative_error
+from simulate.raytrace.record import TraceLog
+
+__all__ = ["replay", "record_bytes", "new_tables", "reweighted_beta",
+           "same_but_dye"]
+
+
+@numba.njit(cache=True, nogil=True)
+def _replay_chunk(N, hit_ray, hit_row, hit_scale, hit_rr, hit_start, nee_hit, nee_det, nee_row, nee_scale,
+                  nee_start, t_rows, survive, acc):
+    """Every ray's per-detector totals ``acc [N, D, L]`` with the table rows ``t_rows`` (compiled)."""
+    L = t_rows.shape[1]
+    W = np.ones((N, L))
+    for b in range(hit_start.shape[0] - 1):
+        for q in range(nee_start[b], nee_start[b + 1]):
+            r = hit_ray[nee_hit[q]]
+            d = nee_det[q]
+            row = nee_row[q]
+            sc = nee_scale[q]
+            if row < 0:
+                for k in range(L):
+                    acc[r, d, k] += W[r, k] * sc
+            else:
+                for k in range(L):
+                    acc[r, d, k] += W[r, k] * t_rows[row, k] * sc
+        for i in range(hit_start[b], hit_start[b + 1]):
+            r = hit_ray[i]
+            row = hit_row[i]
+            sc = hit_scale[i]
+            rr = hit_rr[i]
+            for k in range(L):
+                x = W[r, k] * t_rows[row, k] * sc if row >= 0 else W[r, k] * sc
+                if rr == 1:
+                    x = x / survive
+                elif rr == 2:
+                    x = 0.0
+                W[r, k] = x
+
+
+def replay(log: TraceLog, t_rows: np.ndarray) -> list[Any]:
+    """The :class:`~simulate.raytrace.integrator.MCResult` of each group of a recorded trace, its rays re-weighted
+    to the table rows ``t_rows`` (``T.reshape(-1, L)`` of the new table; the traced table's gives the traced
+    result to rounding). Only ``beta``, ``u_beta``, ``rays`` and ``rel_err`` are filled in."""
+    from simulate.raytrace.integrator import ROULETTE_SURVIVE, MCResult, mean_se
+
+    t_rows = np.ascontiguousarray(t_rows, float)
+    if t_rows.shape != tuple(log.rows_shape):
+        raise ValueError(f"reweight: the new table's rows {t_rows.shape} differ from the traced {log.rows_shape} "
+                         "(another grid, exit bins or wavelengths: trace again)")
+    G, D, L = log.G, log.D, log.L
+    nee = np.zeros((G, D, L))
+    nee2 = np.zeros((G, D, L))
+    rays = 0
+    for c in log.chunks:
+        acc = np.zeros((c.N, D, L))
+        _replay_chunk(c.N, c.hit_ray, c.hit_row, c.hit_scale, c.hit_rr, c.hit_start, c.nee_hit, c.nee_det,
+                      c.nee_row, c.nee_scale, c.nee_start, t_rows, ROULETTE_SURVIVE, acc)
+        tot = acc.reshape(G, c.n, D, L)
+        nee += tot.sum(axis=1)
+        nee2 += np.einsum("gndl,gndl->gdl", tot, tot)
+        rays += c.n
+    cos_o = log.detectors[..., 2][..., None]
+    out = []
+    empty = np.zeros(0)
+    for g in range(G):
+        mean, u = mean_se(nee[g], nee2[g], rays)
+        beta, u_beta = np.pi * mean / cos_o[g], np.pi * u / cos_o[g]
+        out.append(MCResult(beta, u_beta, empty, empty, empty, empty, empty, empty, rays, 0.0,
+                            relative_error(beta, u_beta) if float(np.abs(beta).max(initial=0.0)) > 0 else 0.0,
+                            "target"))
+    return out
+
+
+def record_bytes(record: dict) -> int:
+    """The memory of a :func:`simulate.raytrace.fabric_beta` record's events (bytes)."""
+    return int(sum(t.nbytes for inc in record.get("incidences", []) for t in inc["halves"]))
+
+
+def _half_results(record: dict, tables: tuple) -> list[list[Any]]:
+    """Per incidence, the two halves' results re-weighted to ``tables`` (each half's rotations averaged)."""
+    from simulate.raytrace.estimate import mean_of
+
+    out = []
+    for inc in record["incidences"]:
+        halves = []
+        for h, tl in enumerate(inc["halves"]):
+            T = tables[h].T
+            halves.append(mean_of(replay(tl, T.reshape(-1, T.shape[-1]))))
+        out.append(halves)
+    return out
+
+
+def reweighted_beta(record: dict, tables: tuple) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``beta``, ``u_beta`` and run information of a recorded :func:`simulate.raytrace.fabric_beta` run re-weighted
+    to the table halves ``tables`` (:func:`new_tables`), combined as :func:`~simulate.raytrace.fabric_beta` combines
+    its traces (the halves' mean; the rays' error and the table's, from the halves' difference).
+
+    ``info``: ``rel_err`` and ``ray_rel_err`` (the re-weighted run's, :func:`relative_error`), per incidence the
+    same and ``spread``, the re-weighted ray error over the traced run's at the same rays (1 at the traced dye; a
+    fresh trace at the new dye would give about the traced run's, so the ratio is how much the weights cost: its
+    square is the inverse of the effective sample size's share), ``rays``, ``event_bytes`` and ``u_rays`` (``[P, L]``:
+    the rays' part of ``u_beta``, without the table's)."""
+    shape = tuple(record["shape"])
+    beta = np.zeros(shape)
+    u_beta = np.zeros(shape)
+    u_rays = np.zeros(shape)
+    runs = []
+    for inc, (ra, rb) in zip(record["incidences"], _half_results(record, tables)):
+        rows, det_inv = inc["rows"], inc["det_inv"]
+        b = 0.5 * (ra.beta + rb.beta)
+        u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
+        u_table = np.sqrt(np.mean((0.5 * (ra.beta - rb.beta)) ** 2, axis=1, keepdims=True))
+        u = np.sqrt(u_rays2 + u_table ** 2)
+        beta[rows] = b[det_inv]
+        u_beta[rows] = u[det_inv]
+        u_rays[rows] = np.sqrt(u_rays2)[det_inv]
+        ray_rel = relative_error(b, np.sqrt(u_rays2))
+        traced = inc.get("ray_rel_err")
+        runs.append({"rel_err": relative_error(b, u), "ray_rel_err": ray_rel,
+                     "spread": ray_rel / traced if traced else float("nan"), "rays": int(ra.rays + rb.rays)})
+    info = {"rel_err": relative_error(beta, u_beta),
+            "ray_rel_err": max((r["ray_rel_err"] for r in runs), default=0.0),
+            "spread": max((r["spread"] for r in runs), default=float("nan")),
+            "incidences": runs, "rays": int(sum(r["rays"] for r in runs)), "event_bytes": record_bytes(record),
+            "u_rays": u_rays}
+    return beta, u_beta, info
+
+
+def same_but_dye(old: Any, new: Any) -> bool:
+    """Whether fiber ``new`` is ``old`` but for its host absorption (the dye): every field of the fiber the same
+    and the medium's canonical form (the yarn table's cache key, :func:`simulate.raytrace.yarn.table_key`) the same
+    once the dye is put back."""
+    from simulate.media.medium import HGMedium
+    from simulate.raytrace.yarn import table_key
+
+    try:
+        if isinstance(new.medium, HGMedium):
+            medium = dataclasses.replace(new.medium, mu_a=old.medium.mu_a)
+        else:
+            medium = dataclasses.replace(new.medium, mu_a_host_per_um=old.medium.mu_a_host_per_um)
+        back = dataclasses.replace(new, medium=medium)
+        rest = all(getattr(back, f.name) == getattr(old, f.name) for f in dataclasses.fields(old)
+                   if f.name != "medium")
+        return bool(rest and table_key(back, [550.0]) == table_key(old, [550.0]))
+    except (TypeError, AttributeError, ValueError):
+        return False
+
+
+def new_tables(record: dict, fiber: Any, tables: tuple | None = None) -> tuple:
+    """The table halves a recorded run would have traced with ``fiber`` (the same walk: photons, seeds, grid;
+    from the table cache when there). ``tables`` given (a blend's mixed halves): they are checked and returned."""
+    from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
+    from simulate.raytrace.yarn import table_halves
+
+    if tables is None:
+        grid: dict[str, Any] = dict(record["grid"])
+        walked = fiber
+        if record["volume"] == "pile":
+            walked = pile_fiber(fiber, record["yarn_radius"], record["packing"])
+            grid["held_log_mu_s"] = HELD_LOG_MU_S
+        threads = record["threads"]
+        tables = table_halves(walked, record["wavelengths_nm"], record["photons_per_row"], record["seed"],
+                              threads if threads else None, **grid)
+    old = record["tables"]     # the traced halves' shape, c_bar and tau
+    for a, b in zip(old, tables):
+        if (tuple(a["shape"]) != b.T.shape or not np.allclose(a["c_bar"], b.c_bar, rtol=1e-12, atol=0.0)
+                or not np.allclose(a["tau"], b.tau, rtol=1e-12, atol=0.0)):
+            raise ValueError("reweight: the new tables differ from the traced ones in more than the dye (grid, "
+                             "radius or index): trace again")
+    return tuple(tables)
