@@ -63,8 +63,12 @@ class Browser:
     def __init__(self, page):
         self.page = page
         self._messages: list[str] = []
-        page.on("console", lambda m: m.type == "error" and self._messages.append(m.text))
+        # a file that fails to load is reported below with its address, by the response or the failed
+        # request; the console's own line about it ("Failed to load resource: ...") names none
+        page.on("console", lambda m: m.type == "error" and not m.text.startswith("Failed to load resource")
+                and self._messages.append(m.text))
         page.on("pageerror", lambda e: self._messages.append(f"page error: {e}"))
+        page.on("response", lambda r: r.status >= 400 and self._messages.append(f"HTTP {r.status}: {r.url}"))
         # a request cut off by the next navigation (net::ERR_ABORTED) is no failure of the page
         page.on("requestfailed", lambda r: "ERR_ABORTED" not in (r.failure or "")
                 and self._messages.append(f"request failed: {r.url} {r.failure}"))
@@ -257,3 +261,18 @@ def test_a_report_shows_every_figure_without_errors(browser, report, serve, how)
     assert not missing, missing
     # the page names what wrote it
     assert "Written by fabric-optics" in browser.page.locator("footer").inner_text()
+
+
+@pytest.mark.parametrize("how", ["disk", "http"])
+def test_the_checks_see_a_missing_file_a_script_error_and_a_broken_image(browser, serve, tmp_path, how):
+    """What the checks above rely on: a page with a missing stylesheet, a failing script and a missing image
+    yields a problem naming each, and the image counts as broken."""
+    (tmp_path / "bad.html").write_text("<!doctype html><html><head><link rel='stylesheet' href='gone.css'></head>"
+                                       "<body><img src='gone.png'><script>undefinedFunction()</script></body></html>",
+                                       encoding="utf-8")
+    url = (tmp_path / "bad.html").as_uri() if how == "disk" else serve(tmp_path) + "bad.html"
+    browser.problems()
+    browser.get(url)
+    problems = "\n".join(browser.problems())
+    assert "gone.css" in problems and "gone.png" in problems and "undefinedFunction" in problems, problems
+    assert _broken_images(browser) == ["gone.png"]
