@@ -86,6 +86,13 @@ FIGURES_DIR = ROOT / "docs" / "figures"
 #: page -> the figures it shows: (the command that draws it, the file below the run's folder, its name in
 #: docs/figures/, what it shows: the image's alt text)
 FIGURES = {
+    "mock-lab.md": [
+        ("compare report demo-out/measured demo-out/truth demo-out/fit-classic/fitted demo-out/fit-summation/fitted "
+         "demo-out/fit-mc/initial demo-out/fit-mc/fitted --fit demo-out/fit-classic --fit demo-out/fit-summation "
+         "--fit demo-out/fit-mc --seed-sample demo-out/red-cotton --out demo-out/report",
+         "demo-out/report/figures/inplane_luminance.png", "tutorial-mock-lab-demo.png",
+         "The felt measured on the mock, its truth and the three fitted models: in-plane luminance"),
+    ],
     "simulate-compare.md": [
         ("compare report sc/measured sc/classic sc/summation sc/mc --out sc/report",
          "sc/report/figures/inplane_luminance.png", "tutorial-simulate-compare-report.png",
@@ -298,8 +305,9 @@ def test_every_tutorial_is_run():
 @pytest.mark.parametrize("page", FAST, ids=[p.name for p in FAST])
 def test_tutorial_runs_on_reduced_budgets(page, tmp_path, monkeypatch, capsys):
     outputs: dict[str, str] = {}
-    _check_tutorial(page, _sections(page, slow=False), tmp_path, monkeypatch, capsys, outputs)
-    _check_shown_outputs(page, outputs)
+    commands = _sections(page, slow=False)
+    _check_tutorial(page, commands, tmp_path, monkeypatch, capsys, outputs)
+    _check_shown_outputs(page, outputs, scope={c for _, c, _ in commands})
 
 
 @pytest.mark.slow
@@ -330,9 +338,13 @@ def test_the_whole_demo_chain_runs_on_a_reduced_budget(tmp_path, monkeypatch, ca
     page = TUTORIALS / "mock-lab.md"
     commands = [c for c in _sections(page, slow=True) if (page.name, c[0]) in SLOW_SECTIONS]
     assert len(commands) == 8
-    _run_tutorial(page, commands, tmp_path, monkeypatch, capsys)
+    outputs: dict[str, str] = {}
+    argvs: dict[str, str] = {}
+    _run_tutorial(page, commands, tmp_path, monkeypatch, capsys, outputs, argvs)
     text = Path("demo-out/report/report.html").read_text(encoding="utf-8")
     assert "What was measured" in text and "Fitted parameters" in text and "Seed sample" in text
+    _check_shown_outputs(page, outputs, shown_figures(page, tmp_path, argvs), scope={c for _, c, _ in commands},
+                         test="-m slow -k test_the_whole_demo_chain_runs_on_a_reduced_budget")
 
 
 def _makefile_demo() -> list[str]:
@@ -385,17 +397,27 @@ def normalise(text: str, run_dir: Path) -> str:
     return "\n".join(line.rstrip() for line in text.strip("\n").splitlines())
 
 
-def with_outputs(text: str, outputs: dict[str, str], figures: dict[str, list[str]] | None = None) -> str:
+#: a code block with the output and figure blocks under it
+_SHOWN = re.compile(r"^```[^\n]*\n(.*?)^```\n((?:" + OUTPUT_BLOCK.pattern + "|" + FIGURE_BLOCK.pattern + r")*)",
+                    flags=re.S | re.M)
+
+
+def with_outputs(text: str, outputs: dict[str, str], figures: dict[str, list[str]] | None = None,
+                 scope: set[str] | None = None) -> str:
     """``text`` with an output block after every command block whose commands all printed in ``outputs``
     (a block of several commands shows each under its ``$ command`` line), then the figure blocks of
-    ``figures`` (by command line: :func:`figure_block`) of the block's commands; other blocks left as they are."""
+    ``figures`` (by command line: :func:`figure_block`) of the block's commands; the output and figure blocks
+    of other blocks taken out. With ``scope`` (the command lines one test runs), a block with a command
+    outside it keeps what it shows (another test makes it)."""
     figures = figures or {}
-    text = FIGURE_BLOCK.sub("\n", OUTPUT_BLOCK.sub("\n", text))
     pieces, end = [], 0
-    for m in re.finditer(r"^```[^\n]*\n(.*?)^```\n", text, flags=re.S | re.M):
+    for m in _SHOWN.finditer(text):
         lines = [c[0] for c in map(_command, m.group(1).splitlines()) if c]
-        pieces.append(text[end:m.end()])
+        pieces.append(text[end:m.end(1)] + "```\n")
         end = m.end()
+        if scope is not None and not set(lines) <= scope:
+            pieces.append(m.group(2))
+            continue
         if lines and all(line in outputs for line in lines):
             shown = outputs[lines[0]] if len(lines) == 1 else "\n\n".join(
                 f"$ {line}\n{outputs[line]}".rstrip() for line in lines)
@@ -446,9 +468,9 @@ def shown_figures(page: Path, run_dir: Path, argvs: dict[str, str]) -> dict[str,
 
 
 def _check_shown_outputs(page: Path, outputs: dict[str, str], figures: dict[str, list[str]] | None = None,
-                         slow: bool = False) -> None:
+                         slow: bool = False, scope: set[str] | None = None, test: str = "") -> None:
     old = page.read_text(encoding="utf-8")
-    new = with_outputs(old, outputs, figures)
+    new = with_outputs(old, outputs, figures, scope)
     if new == old:
         return
     if os.environ.get("FABRIC_OPTICS_UPDATE_DOCS") == "1":
@@ -456,8 +478,8 @@ def _check_shown_outputs(page: Path, outputs: dict[str, str], figures: dict[str,
         return
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True), str(page.relative_to(ROOT)),
                                         "as the commands print it now"))
-    test = (f"-m slow -k 'test_long_tutorial_runs_on_reduced_budgets and {page.name}'" if slow
-            else "-k test_tutorial_runs_on_reduced_budgets")
+    test = test or (f"-m slow -k 'test_long_tutorial_runs_on_reduced_budgets and {page.name}'" if slow
+                    else "-k test_tutorial_runs_on_reduced_budgets")
     pytest.fail(f"{page.relative_to(ROOT)}: the outputs it shows are not what its commands print now\n{diff}\n"
                 f"If the change is right, regenerate the page: FABRIC_OPTICS_UPDATE_DOCS=1 .venv/bin/python -m "
                 f"pytest tests/test_readme_commands.py -n 0 {test}", pytrace=False)
@@ -484,6 +506,10 @@ def test_shown_outputs_are_inserted_replaced_and_left_out_of_the_commands():
     assert "made on a machine.*\n\n```\nsimulate fit" in drawn
     assert with_outputs(drawn, outputs, {"compare check o t": [figure]}) == drawn
     assert with_outputs(drawn, {}) == page and _blocks(drawn) == _blocks(page)
+    # a test that runs some of the commands leaves what the others' blocks show
+    scoped = with_outputs(drawn, {"simulate fit x y --out f": "fitted"}, scope={"simulate fit x y --out f"})
+    assert scoped.startswith(drawn.rstrip("\n").rsplit("```\nsimulate fit", 1)[0])
+    assert scoped.endswith("```\nsimulate fit x y --out f\n```\n\n" + OUTPUT_MARKER + "\n```text\nfitted\n```\n")
 
 
 def test_normalise_takes_out_what_varies_between_runs(tmp_path):
