@@ -301,6 +301,15 @@ def test_every_tutorial_is_run():
     assert all(p.is_file() for p in SLOW)
 
 
+def test_every_figure_of_the_manual_is_shown():
+    """A figure in docs/figures/ that no page shows (a tutorial's step renamed, a figure left behind) fails."""
+    text = "\n".join(p.read_text(encoding="utf-8") for p in _pages())
+    unused = sorted(f.name for f in FIGURES_DIR.glob("*.png") if f"figures/{f.name})" not in text)
+    assert not unused, f"docs/figures/ holds figures no page shows: {unused}"
+    assert {name for entries in FIGURES.values() for _, _, name, _ in entries} <= {f.name for f in
+                                                                                  FIGURES_DIR.glob("*.png")}
+
+
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("page", FAST, ids=[p.name for p in FAST])
 def test_tutorial_runs_on_reduced_budgets(page, tmp_path, monkeypatch, capsys):
