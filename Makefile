@@ -89,15 +89,16 @@ demo: $(STAMP)
 	$(VENV)/bin/compare report $(DEMO_OUT)/measured $(DEMO_OUT)/truth $(DEMO_OUT)/fit-classic/fitted $(DEMO_OUT)/fit-summation/fitted $(DEMO_OUT)/fit-mc/initial $(DEMO_OUT)/fit-mc/fitted --fit $(DEMO_OUT)/fit-classic --fit $(DEMO_OUT)/fit-summation --fit $(DEMO_OUT)/fit-mc --seed-sample $(DEMO_OUT)/red-cotton --out $(DEMO_OUT)/report --force
 	@echo "demo: report in $(DEMO_OUT)/report/report.html"
 
-# The headless browser of tests/docs/test_browser.py (the manual and a report opened in it): Debian's
-# chromium and its chromedriver, installed with apt-get when missing (as root; sudo otherwise). No
-# browser is downloaded by pip or Playwright. .ci/run runs this before `make test`.
+# The headless browser of the browser tests (tests/docs/test_browser.py: the manual and a report;
+# tests/gonio/cli/test_live_view.py: the live view): Debian's chromium, driven by Playwright through its
+# executable path, installed with apt-get when missing (as root; sudo otherwise). No browser is
+# downloaded by pip or Playwright. .ci/run runs this before `make test`.
 browser:
-	@if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; then \
-		echo "browser: $$(/usr/bin/chromium --version 2>/dev/null), $$(/usr/bin/chromedriver --version | cut -d' ' -f1-2)"; \
+	@if [ -x /usr/bin/chromium ]; then \
+		echo "browser: $$(/usr/bin/chromium --version 2>/dev/null)"; \
 	else \
 		SUDO=$$([ "$$(id -u)" -eq 0 ] || echo sudo); \
-		$$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium chromium-driver; \
+		$$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; \
 	fi
 
 test: $(STAMP) browser

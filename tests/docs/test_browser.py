@@ -1,5 +1,6 @@
-"""The manual and a report in a real browser: Debian's headless Chromium, driven by Selenium through its
-chromedriver (`make browser` installs both; `.ci/run` runs it before `make test`).
+"""The manual and a report in a real browser: Debian's headless Chromium, driven by Playwright (the driver
+the live view's test uses too) through its executable path, never a browser of Playwright's own
+(`make browser` installs Debian's chromium; `.ci/run` runs it before `make test`).
 
 The manual is built (`mkdocs build --strict`) and opened twice, from disk (`file://.../index.html`, as
 the README says) and served over http (Python's http.server on loopback). Each time every page the
@@ -7,7 +8,8 @@ navigation lists is loaded, and the test fails on
 
 - a dead link: a navigation or page link to a file that is not there, a page that is not a page of
   the manual (a directory listing, a 404), an anchor the target page lacks;
-- a console error (a script or a file that fails to load, a JavaScript exception);
+- a console error (a script or a file that fails to load, a JavaScript exception, a request that
+  fails);
 - an image that does not load (not complete, or no pixels);
 - a search without results: words typed into the search box must list pages;
 - maths not rendered: the physics page's equations must be KaTeX, with no KaTeX error.
@@ -32,45 +34,78 @@ from urllib.parse import unquote, urldefrag, urlparse
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--window-size=1280,900")
+CHROMIUM = Path("/usr/bin/chromium")
+#: the flags Debian's chromium runs headless with here (no network of its own, no GPU); Playwright adds
+#: --headless itself
+FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync"]
 #: words typed into the search box, each expected to find pages
 SEARCH_WORDS = ("goniophotometer", "normalisation")
 
 
 def _missing_browser() -> str | None:
     """Why the browser cannot start (and how to install it), or None."""
-    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.is_file()]
-    if not missing:
+    if CHROMIUM.is_file():
         return None
-    return (f"no {' and no '.join(missing)}: the browser test needs Debian's chromium and chromium-driver; "
-            "`make browser` installs them (apt-get, as root)")
+    return (f"no {CHROMIUM}: the browser test needs Debian's chromium; `make browser` installs it "
+            "(apt-get, as root)")
 
 
 def test_a_missing_browser_fails_and_says_how_to_install_it(monkeypatch, tmp_path):
     monkeypatch.setattr(sys.modules[__name__], "CHROMIUM", tmp_path / "no-chromium")
-    assert "`make browser` installs them" in _missing_browser() and str(tmp_path / "no-chromium") in _missing_browser()
+    why = _missing_browser()
+    assert why is not None and "`make browser` installs it" in why and str(tmp_path / "no-chromium") in why
+
+
+class Browser:
+    """One page of headless Chromium and what went wrong on it since :meth:`problems` was last read."""
+
+    def __init__(self, page):
+        self.page = page
+        self._messages: list[str] = []
+        # a file that fails to load is reported below with its address, by the response or the failed
+        # request; the console's own line about it ("Failed to load resource: ...") names none
+        page.on("console", lambda m: m.type == "error" and not m.text.startswith("Failed to load resource")
+                and self._messages.append(m.text))
+        page.on("pageerror", lambda e: self._messages.append(f"page error: {e}"))
+        page.on("response", lambda r: r.status >= 400 and self._messages.append(f"HTTP {r.status}: {r.url}"))
+        # a request cut off by the next navigation (net::ERR_ABORTED) is no failure of the page
+        page.on("requestfailed", lambda r: "ERR_ABORTED" not in (r.failure or "")
+                and self._messages.append(f"request failed: {r.url} {r.failure}"))
+
+    def get(self, url: str) -> None:
+        self.page.goto(url, timeout=60_000)
+
+    def js(self, expression: str, arg=None):
+        return self.page.evaluate(expression, arg)
+
+    def count(self, selector: str) -> int:
+        return self.page.locator(selector).count()
+
+    def problems(self) -> list[str]:
+        """The console errors, page errors and failed requests since the last call (a browser asks a server
+        for /favicon.ico by itself; a report served alone has none)."""
+        out = [m for m in self._messages if "favicon.ico" not in m]
+        self._messages.clear()
+        return out
 
 
 @pytest.fixture(scope="module")
-def browser(tmp_path_factory):
+def browser():
     why = _missing_browser()
     if why:
         pytest.fail(why, pytrace=False)
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM)
-    for flag in FLAGS + (f"--user-data-dir={tmp_path_factory.mktemp('chromium-profile')}",):
-        options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(options=options, service=Service(str(CHROMEDRIVER)))
-    driver.set_page_load_timeout(60)
-    yield driver
-    driver.quit()
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.fail("playwright is missing: `pip install -e '.[test]'` (it drives Debian's chromium, installed by "
+                    "`make browser`)", pytrace=False)
+    with sync_playwright() as pw:
+        chromium = pw.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
+        try:
+            yield Browser(chromium.new_page(viewport={"width": 1280, "height": 900}))
+        finally:
+            chromium.close()
 
 
 @pytest.fixture(scope="module")
@@ -113,20 +148,13 @@ def serve():
         server.server_close()
 
 
-def _console_errors(driver) -> list[str]:
-    # a browser asks a server for /favicon.ico by itself; a report served alone has none
-    return [e["message"] for e in driver.get_log("browser")
-            if e["level"] == "SEVERE" and "favicon.ico" not in e["message"]]
+def _broken_images(browser: Browser) -> list[str]:
+    return browser.js("Array.from(document.images).filter(i => !i.complete || i.naturalWidth === 0)"
+                      ".map(i => i.getAttribute('src').slice(0, 80))")
 
 
-def _broken_images(driver) -> list[str]:
-    return driver.execute_script(
-        "return Array.from(document.images).filter(i => !i.complete || i.naturalWidth === 0)"
-        ".map(i => i.getAttribute('src').slice(0, 80))")
-
-
-def _links(driver, selector: str) -> list[str]:
-    return driver.execute_script(f"return Array.from(document.querySelectorAll({selector!r})).map(a => a.href)")
+def _links(browser: Browser, selector: str) -> list[str]:
+    return browser.js("s => Array.from(document.querySelectorAll(s)).map(a => a.href)", selector)
 
 
 def _target_exists(url: str, base: str, folder: Path) -> bool:
@@ -147,12 +175,12 @@ def _wait(predicate, timeout: float = 10.0):
     return predicate()
 
 
-def _check_site(driver, site: Path, base: str) -> dict:
+def _check_site(browser: Browser, site: Path, base: str) -> dict:
     """Every page of the navigation loaded and checked; returns the figures (and asserts nothing itself)."""
     problems: list[str] = []
-    driver.get(base + "index.html")
-    driver.get_log("browser")
-    nav = sorted({urldefrag(u)[0] for u in _links(driver, "nav.md-nav--primary a.md-nav__link[href]")})
+    browser.get(base + "index.html")
+    problems += [f"index.html: console: {m}" for m in browser.problems()]
+    nav = sorted({urldefrag(u)[0] for u in _links(browser, "nav.md-nav--primary a.md-nav__link[href]")})
     pages = links = images = 0
     anchors_wanted: dict[str, set[str]] = {}
     for url in nav:
@@ -162,14 +190,14 @@ def _check_site(driver, site: Path, base: str) -> dict:
         if not _target_exists(url, base, site):
             problems.append(f"dead navigation link: {url}")
             continue
-        driver.get(url)
+        browser.get(url)
         pages += 1
-        if not driver.find_elements("css selector", "article.md-content__inner"):
-            problems.append(f"{url}: not a page of the manual ({driver.title!r})")
-        problems += [f"{url}: image does not load: {src}" for src in _broken_images(driver)]
-        images += driver.execute_script("return document.images.length")
-        problems += [f"{url}: console: {m}" for m in _console_errors(driver)]
-        for link in _links(driver, "article a[href]"):
+        if not browser.count("article.md-content__inner"):
+            problems.append(f"{url}: not a page of the manual ({browser.page.title()!r})")
+        problems += [f"{url}: image does not load: {src}" for src in _broken_images(browser)]
+        images += browser.js("document.images.length")
+        problems += [f"{url}: console: {m}" for m in browser.problems()]
+        for link in _links(browser, "article a[href]"):
             if not link.startswith(base):
                 continue            # external addresses are not followed offline
             links += 1
@@ -183,24 +211,24 @@ def _check_site(driver, site: Path, base: str) -> dict:
         problems += [f"dead anchor {page}#{a}" for a in sorted(anchors) if f'id="{a}"' not in html]
     # search: the box finds pages for each word
     results = {}
-    driver.get(base + "index.html")
+    browser.get(base + "index.html")
     for word in SEARCH_WORDS:
-        box = driver.find_element("css selector", "input.md-search__input")
-        if not box.is_displayed():      # a narrow window: the search opens from its button
-            driver.find_element("css selector", "label.md-header__button[for='__search']").click()
+        box = browser.page.locator("input.md-search__input")
+        if not box.is_visible():        # a narrow window: the search opens from its button
+            browser.page.locator("label.md-header__button[for='__search']").click()
         box.click()
-        box.clear()
-        box.send_keys(word)
-        results[word] = _wait(lambda: len(driver.find_elements("css selector", ".md-search-result__item")))
-        driver.get(base + "index.html")
+        box.fill("")
+        box.press_sequentially(word)    # typed key by key, as a reader types
+        results[word] = _wait(lambda: browser.count(".md-search-result__item"))
+        browser.get(base + "index.html")
     problems += [f"search for {w!r}: no results" for w, n in results.items() if not n]
     # maths: the physics page's equations rendered by KaTeX
-    driver.get(base + "physics.html")
-    katex = _wait(lambda: driver.execute_script("return document.querySelectorAll('.katex').length"))
-    katex_errors = driver.execute_script("return document.querySelectorAll('.katex-error').length")
+    browser.get(base + "physics.html")
+    katex = _wait(lambda: browser.count(".katex"))
+    katex_errors = browser.count(".katex-error")
     if katex < 10 or katex_errors:
         problems.append(f"physics.html: {katex} formulas rendered, {katex_errors} KaTeX errors")
-    problems += [f"search/maths: console: {m}" for m in _console_errors(driver)]
+    problems += [f"search/maths: console: {m}" for m in browser.problems()]
     return {"problems": problems, "pages": pages, "links": links, "images": images, "search": results,
             "formulas": katex}
 
@@ -222,13 +250,29 @@ def test_the_manual_works_served_over_http(browser, site, serve):
 @pytest.mark.parametrize("how", ["disk", "http"])
 def test_a_report_shows_every_figure_without_errors(browser, report, serve, how):
     url = (report / "report.html").as_uri() if how == "disk" else serve(report) + "report.html"
+    browser.problems()
     browser.get(url)
-    assert browser.find_elements("css selector", "h1"), browser.title
-    images = browser.execute_script("return document.images.length")
+    assert browser.count("h1"), browser.page.title()
+    images = browser.js("document.images.length")
     assert images >= 5 and not _broken_images(browser)
-    assert not _console_errors(browser)
+    assert not browser.problems()
     anchors = [urldefrag(u)[1] for u in _links(browser, "a[href^='#']")]
-    missing = [a for a in anchors if not browser.execute_script("return !!document.getElementById(arguments[0])", a)]
+    missing = [a for a in anchors if not browser.js("a => !!document.getElementById(a)", a)]
     assert not missing, missing
     # the page names what wrote it
-    assert "Written by fabric-optics" in browser.find_element("css selector", "footer").text
+    assert "Written by fabric-optics" in browser.page.locator("footer").inner_text()
+
+
+@pytest.mark.parametrize("how", ["disk", "http"])
+def test_the_checks_see_a_missing_file_a_script_error_and_a_broken_image(browser, serve, tmp_path, how):
+    """What the checks above rely on: a page with a missing stylesheet, a failing script and a missing image
+    yields a problem naming each, and the image counts as broken."""
+    (tmp_path / "bad.html").write_text("<!doctype html><html><head><link rel='stylesheet' href='gone.css'></head>"
+                                       "<body><img src='gone.png'><script>undefinedFunction()</script></body></html>",
+                                       encoding="utf-8")
+    url = (tmp_path / "bad.html").as_uri() if how == "disk" else serve(tmp_path) + "bad.html"
+    browser.problems()
+    browser.get(url)
+    problems = "\n".join(browser.problems())
+    assert "gone.css" in problems and "gone.png" in problems and "undefinedFunction" in problems, problems
+    assert _broken_images(browser) == ["gone.png"]
