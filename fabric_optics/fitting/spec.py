@@ -19,6 +19,7 @@ import math
 import re
 import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -479,9 +480,15 @@ def _check_blend(config: SimulationConfig) -> None:
     for p in pops[1:]:
         for label, attr in SHARED_FIELDS:
             if getattr(p, attr) != getattr(pops[0], attr):
-                raise FitError(f"{config.name}: populations: simulate fit takes a blend whose populations differ in "
+                raise FitError(f"{_file(config)}: populations: simulate fit takes a blend whose populations differ in "
                                f"dye and share only; {pops[0].name!r} and {p.name!r} differ in {label}: give them the "
                                "same, or fit each population's fiber alone")
+
+
+def _file(config: SimulationConfig) -> str:
+    """The config's file name as its messages name it (a preset: ``NAME.toml``)."""
+    source = config.source
+    return f"{source[len('preset '):]}.toml" if source.startswith("preset ") else Path(source).name
 
 
 def _check_dye_placement(config: SimulationConfig, free: list[FreeParameter] | tuple[FreeParameter, ...],
@@ -495,7 +502,7 @@ def _check_dye_placement(config: SimulationConfig, free: list[FreeParameter] | t
                        "--method mc runs of the ring or core dye (docs/how-to/fit.md, \"Blends\")")
     placed = [c for _, c in config.population_configs() if c.dye_profile != "uniform"]
     if placed:
-        raise FitError(f"{config.name}: fiber.dye_profile = {placed[0].dye_profile!r}: the {method} fit reads the dye "
+        raise FitError(f"{_file(config)}: fiber.dye_profile = {placed[0].dye_profile!r}: the {method} fit reads the dye "
                        "from absorption tables of a dye spread through the fiber; fit the dye with dye_profile = "
                        "\"uniform\" (the ring or core dye is traced by simulate fabric --method mc)")
 
