@@ -33,8 +33,8 @@ from simulate.config import SimulationConfig
 from simulate.fiber.absorption import DEFAULT_NODES
 from simulate.structwalk.walk import STRUCTURE_FIELDS
 
-__all__ = ["GENERATOR", "SHARE_MIN", "shares_at", "COLOUR_TOLERANCE", "COLOUR_HOLD_FROM", "COLOUR_HOLD_WEIGHT", "FINE_FIELDS", "FreeParameter",
-           "FitSpec", "make_spec", "colour_hold", "default_bounds", "parse_free", "model_geometries", "dye_ceiling",
+__all__ = ["GENERATOR", "SHARE_MIN", "shares_at", "COLOUR_TOLERANCE", "COLOUR_HOLD_FROM", "COLOUR_HOLD_WEIGHT",
+           "FINE_FIELDS", "FreeParameter", "FitSpec", "make_spec", "colour_hold", "default_bounds", "parse_free", "model_geometries", "dye_ceiling",
            "checked_wavelengths"]
 
 log = logging.getLogger(__name__)
@@ -173,7 +173,7 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
                 raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
             if path.startswith("structure."):
                 _check_structure_field(path, config)
-            if path.startswith("populations") or (config.populations and _kind(path) == "dye"):
+            if config.populations or path.startswith("populations"):
                 _check_population_field(name.strip(), path, config, data)
             try:
                 start = paths.get(data, path)
@@ -231,6 +231,14 @@ def _check_population_field(name: str, path: str, config: SimulationConfig, data
         return
     m = _POP_PATH.match(path)
     if not m:
+        # a field of the config's fiber that a population overrides would move the others only
+        table, _, field = path.partition(".")
+        for item, p in zip(data.get("populations") or [], pops):
+            own = item.get(table) if isinstance(item, dict) else None
+            if isinstance(own, dict) and (table == "particles" or field.split(".")[0] in own):
+                raise FitError(f"--free {name}: population {p.name!r} sets its own {table}"
+                               f"{'' if table == 'particles' else '.' + field.split('.')[0]}, which this field of the "
+                               "config would not move; give the populations the config's (delete the override)")
         return
     k = int(m.group(1))
     if k >= len(pops):

@@ -292,3 +292,12 @@ def test_the_mc_fit_refuses_a_blend_the_woven_monte_carlo_cannot_trace():
     cfg = two()         # red cotton: woven
     with pytest.raises(FitError, match="--method mc: .*the woven Monte Carlo takes one fiber population"):
         MCFitProblem(cfg, FLAT, parse_free(["populations.magenta.share"], cfg), method="mc")
+
+
+def test_a_field_a_population_overrides_is_not_freed_in_the_config():
+    cfg = blend([{"name": "a", "share": 0.5, "fiber": {"dye": MAGENTA}, "surface": {"rms_slope": 0.25}},
+                 {"name": "b", "share": 0.5, "fiber": {"dye": CYAN}, "surface": {"rms_slope": 0.25}}])
+    with pytest.raises(FitError, match="population 'a' sets its own surface.rms_slope, which this field of the config "
+                                       "would not move"):
+        parse_free(["rms_slope"], cfg)
+    assert parse_free(["volume_fraction"], cfg)[0].kind == "walk"       # one the populations take from the config
