@@ -608,14 +608,16 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         The measurement (a dataset or its folder).
     free : str or sequence of str
         The parameters to fit, named as `simulate fit --free` names them: `"dye,rms_slope"` or
-        `["dye", "rms_slope=0.1:0.5"]` (a range after `=`).
+        `["dye", "rms_slope=0.1:0.5"]` (a range after `=`); a blend's populations by name,
+        `"populations.green.dye,populations.green.share"` (docs/how-to/fit.md, "Blends").
     out : str or path
         The fit's folder: `fit.json`, `fitted.toml`, the `initial/` and `fitted/` datasets, a report and the
         checkpoints that `resume` reads.
     method : str, default "classic"
         One of `FIT_METHODS`: `"classic"`, `"summation"` or `"mc"` (the Monte Carlo by output space mapping).
     dye : str, default "config"
-        `"knots"` replaces the config's dye by knots started from the measured colour.
+        `"knots"` replaces the config's dye by knots started from the measured colour (a blend: each
+        population's own dye).
     max_evaluations : int, optional
         Model evaluations of the classic and summation fits (their default budget when None).
     max_runs : int, optional

@@ -4,7 +4,9 @@ A path names one field of a config's TOML document by its tables and list indice
 (``particles.volume_fraction``, ``fiber.dye.bands[0].peak_per_um``, ``fiber.dye.log10_per_um[3]``,
 ``structure.twist_deg`` once a config has that table: any numeric field is a path); an alias names
 several (:func:`expand`: ``volume_fraction``, ``radius``, ``rms_slope``, ``dye``, ``dye-peaks``; for a
-``knots`` dye, ``dye`` and ``dye-peaks`` are its knot values).
+``knots`` dye, ``dye`` and ``dye-peaks`` are its knot values). A blend's population is named by its name
+(``populations.yellow.dye``, ``populations.yellow.share``, ``populations.yellow.dye_depth_um``: its dye,
+share and dye depth, :func:`population_path`) or by its index (``populations[0].share``).
 :func:`toml_dumps` writes a document back (what ``tomllib`` read), so a changed document can be
 parsed by :func:`simulate.config.parse_config` exactly as a file would be.
 """
@@ -15,10 +17,14 @@ import json
 import re
 from typing import Any
 
-__all__ = ["ALIASES", "PathError", "split", "get", "set_value", "numeric_leaves", "expand", "toml_dumps"]
+__all__ = ["ALIASES", "POPULATION_FIELDS", "PathError", "split", "get", "set_value", "numeric_leaves", "expand",
+           "population_path", "toml_dumps"]
 
 #: The aliases :func:`expand` knows.
 ALIASES = ("volume_fraction", "radius", "rms_slope", "dye", "dye-peaks")
+#: What a fit frees of one population of a blend (``populations.NAME.FIELD``, :func:`population_path`)
+POPULATION_FIELDS = ("dye", "dye-peaks", "share", "dye_depth_um")
+_POPULATION = re.compile(r"^populations\.([A-Za-z_][A-Za-z0-9_-]*)\.(.+)$")
 
 
 class PathError(ValueError):
@@ -133,8 +139,59 @@ def toml_dumps(data: dict, header: str = "") -> str:
     return "\n".join(lines).lstrip("\n") + "\n"
 
 
+def population_path(name: str, data: dict) -> str | None:
+    """``populations.NAME.REST`` as the indexed path ``populations[k].REST`` (``k`` the population named ``NAME``
+    in the document ``data``); None for a name that does not start so. ``REST`` is one of
+    :data:`POPULATION_FIELDS` (``dye`` and ``dye-peaks`` become ``populations[k].fiber.dye``, which
+    :func:`expand` expands, ``dye_depth_um`` ``populations[k].fiber.dye_depth_um``) or a path inside the
+    population's table.
+
+    >>> population_path("populations.yellow.share", {"populations": [{"name": "blue"}, {"name": "yellow"}]})
+    'populations[1].share'
+    """
+    m = _POPULATION.match(name)
+    if not m:
+        return None
+    who, rest = m.group(1), m.group(2)
+    pops = data.get("populations")
+    if not isinstance(pops, list) or not pops:
+        raise PathError(f"{name}: the config has no [[populations]] (one fiber): free its dye with dye, "
+                        "or declare the populations of a blend")
+    names = [str(p.get("name", f"population {k + 1}")) if isinstance(p, dict) else "" for k, p in enumerate(pops)]
+    if who not in names:
+        listed = ", ".join(repr(n) for n in names)
+        raise PathError(f"{name}: the config has no population named {who!r} (populations: {listed}; a population "
+                        "without a name of letters, digits, _ and - is named populations[INDEX], from 0)")
+    k = names.index(who)
+    if rest in ("dye", "dye-peaks"):
+        return f"populations[{k}].fiber.{'dye' if rest == 'dye' else 'dye-peaks'}"
+    if rest == "dye_depth_um":
+        return f"populations[{k}].fiber.dye_depth_um"
+    return f"populations[{k}].{rest}"
+
+
+_INDEXED_DYE = re.compile(r"^populations\[(\d+)\]\.fiber\.(dye|dye-peaks)$")
+
+
 def expand(alias: str, data: dict) -> list[str]:
-    """The paths an alias stands for in the document ``data`` (a plain path: itself)."""
+    """The paths an alias stands for in the document ``data`` (a plain path: itself). A population's name
+    (``populations.NAME....``, :func:`population_path`) is replaced by its index first; its ``dye`` expands as
+    the config's ``dye`` does, in the population's own ``[populations.fiber.dye]``."""
+    indexed = population_path(alias, data)
+    if indexed is not None:
+        alias = indexed
+    m = _INDEXED_DYE.match(alias)
+    if m:
+        k = int(m.group(1))
+        pops = data.get("populations") or []
+        pop = pops[k] if k < len(pops) and isinstance(pops[k], dict) else {}
+        dye = (pop.get("fiber") or {}).get("dye")
+        label = str(pop.get("name", f"populations[{k}]"))
+        if dye is None:
+            raise PathError(f"{alias}: population {label!r} has no dye of its own (it takes [fiber.dye]); give it "
+                            "one in [populations.fiber.dye], or fit with --dye knots, which gives each population "
+                            "its own knots")
+        return _dye_paths(m.group(2), dye, f"populations[{k}].fiber.dye")
     if alias == "volume_fraction":
         return ["particles.volume_fraction"]
     if alias == "rms_slope":
@@ -143,15 +200,21 @@ def expand(alias: str, data: dict) -> list[str]:
         p = data.get("particles", {})
         return ["particles.radius_um" if "radius_um" in p else "particles.size.median_radius_um"]
     if alias in ("dye", "dye-peaks"):
-        dye = data.get("fiber", {}).get("dye")
-        if not isinstance(dye, dict) or "curve" not in dye:
-            raise PathError(f"{alias}: the config's dye is "
-                           f"{'absent' if dye is None else 'a table'}; a fit frees the coefficients of a "
-                           "named smooth curve (fiber.dye.curve = gaussian-bands or logistic-edge)")
-        if dye["curve"] == "knots":  # the knots' values (their wavelengths stay put)
-            return [f"fiber.dye.log10_per_um[{k}]" for k in range(len(dye.get("log10_per_um", [])))]
-        names = numeric_leaves(dye, "fiber.dye")
-        if alias == "dye-peaks":
-            names = [n for n in names if n.endswith("_per_um")]
-        return names
+        return _dye_paths(alias, data.get("fiber", {}).get("dye"), "fiber.dye")
     return [alias]
+
+
+def _dye_paths(alias: str, dye: Any, prefix: str) -> list[str]:
+    """The free paths of the dye table ``dye`` at ``prefix`` (``dye``: every coefficient, ``dye-peaks``: the
+    ``*_per_um`` ones; a ``knots`` dye: its knot values)."""
+    if not isinstance(dye, dict) or "curve" not in dye:
+        raise PathError(f"{alias}: the dye {prefix} is "
+                        f"{'absent' if dye is None else 'a table'}; a fit frees the coefficients of a "
+                        f"named smooth curve ({prefix}.curve = gaussian-bands, logistic-edge or knots; "
+                        "--dye knots makes one)")
+    if dye["curve"] == "knots":  # the knots' values (their wavelengths stay put)
+        return [f"{prefix}.log10_per_um[{k}]" for k in range(len(dye.get("log10_per_um", [])))]
+    names = numeric_leaves(dye, prefix)
+    if alias == "dye-peaks":
+        names = [n for n in names if n.endswith("_per_um")]
+    return names

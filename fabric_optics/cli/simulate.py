@@ -389,7 +389,8 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("measured", metavar="MEASURED", type=Path, help="measured radiance-coefficient dataset (folder)")
     p.add_argument("--free", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
                    help="free config parameters (dotted paths or aliases volume_fraction, radius, rms_slope, "
-                        "dye, dye-peaks; repeatable or comma-separated); see fabric_optics.fitting.spec")
+                        "dye, dye-peaks; a blend's populations.NAME.dye, populations.NAME.share; repeatable or "
+                        "comma-separated); see fabric_optics.fitting.spec")
     p.add_argument("--out", type=Path, required=True,
                    help="output directory (fitted.toml, initial/, fitted/, report/, fit.json, fit-state.json)")
     add_force(p, "an existing --out (start the fit afresh there; --resume continues it instead)")
@@ -427,7 +428,8 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
     add_wavelengths(p, "model wavelengths for an RGB measurement")
     p.add_argument("--dye", choices=("config", "knots"), default="config",
                    help="knots: replace the config's dye by 8 knots of log10 absorption (any colour; free them "
-                        "with --free dye), started from the measured colour (default: the config's dye)")
+                        "with --free dye; a blend: each population its own knots), started from the measured colour "
+                        "(default: the config's dye)")
     p.add_argument("--resume", action="store_true", help="continue from DIR/fit-state.json (last accepted point; "
                    "--method mc: from DIR/mc-state.json, the finished Monte Carlo runs)")
     add_target_rel_err(p, "of the first Monte Carlo walk; later walks reuse its photons")

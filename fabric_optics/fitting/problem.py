@@ -34,7 +34,7 @@ from compare.errors import CompareError
 from fabric_optics import paths
 from fabric_optics.fitting.errors import FitError
 from fabric_optics.fitting.spec import (COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, GENERATOR, FitSpec, FreeParameter,
-                                        colour_hold, dye_ceiling, make_spec, model_geometries)
+                                        colour_hold, dye_ceiling, make_spec, model_geometries, shares_at)
 from fabric_optics.fitting.state import WalkCheckpoint
 from fabric_optics.paths import toml_dumps
 from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
@@ -49,7 +49,7 @@ from simulate.media.medium import HGMedium
 from simulate.products import smooth_boundary_unless_mc
 from simulate.structwalk import walk as structwalk
 
-__all__ = ["FitProblem", "Counters", "REWEIGHT_LIMIT", "LATTICE_STEP", "STRUCTURED_LATTICE_STEP",
+__all__ = ["FitProblem", "Counters", "mixed_model", "REWEIGHT_LIMIT", "LATTICE_STEP", "STRUCTURED_LATTICE_STEP",
            "SURFACE_LATTICE_STEP"]
 
 log = logging.getLogger(__name__)
@@ -183,12 +183,10 @@ class FitProblem:
         its dye table parsed (:func:`simulate.config_dye.dye_from_table`, the parser's own) and the text and
         SHA-256 of the whole: field by field the config a full parse gives (a dye-only search step or Jacobian
         column re-parsed the whole config, a quarter of an evaluation)."""
-        doc = copy.deepcopy(self._doc)
-        for p, v in zip(self.free, x):
-            paths.set_value(doc, p.name, float(v))
+        doc = self._doc_at(x)
         text = toml_dumps(doc)
         file = f"{self.config.name}.toml"
-        key = tuple(float(v) for p, v in zip(self.free, x) if p.kind != "dye")
+        key = tuple(float(v) for p, v in zip(self.free, x) if p.kind not in ("dye", "share"))
         base = self._parsed.get(key)
         if base is None:
             config = parse_config(text, file, source=f"fit of {self.config.source}")
@@ -197,15 +195,32 @@ class FitProblem:
             self._parsed[key] = config
             return config
         raw = text.encode("utf-8", errors="surrogatepass")   # as parse_config reads a text
-        dye = doc["fiber"].get("dye")
+        dye_t = doc["fiber"].get("dye")
+        dye = None if dye_t is None else dye_from_table(Table(dye_t, "fiber.dye", file))
+        populations = base.populations
+        if populations:      # each population's own dye (or the config's) and its share, as the parser sets them
+            populations = tuple(
+                dataclasses.replace(
+                    pop, share=float(item["share"]),
+                    dye=(dye if pop.dye is base.dye else
+                         dye_from_table(Table(item["fiber"]["dye"], f"populations[{k}].fiber.dye", file))))
+                for k, (pop, item) in enumerate(zip(populations, doc["populations"])))
         return dataclasses.replace(base, text=raw.decode("utf-8"), sha256=hashlib.sha256(raw).hexdigest(),
-                                   dye=None if dye is None else dye_from_table(Table(dye, "fiber.dye", file)))
+                                   dye=dye, populations=populations)
 
-    def fitted_toml(self, x: np.ndarray, note: str) -> str:
-        """TOML text of the fitted config (comments of the original are not kept)."""
+    def _doc_at(self, x: np.ndarray) -> dict:
+        """The config document with the free fields set to ``x`` (and a blend's shares that are not free taking
+        the remainder: :func:`~fabric_optics.fitting.spec.shares_at`)."""
         doc = copy.deepcopy(self._doc)
         for p, v in zip(self.free, x):
             paths.set_value(doc, p.name, float(v))
+        for k, share in shares_at(self.config, self.spec.free, x).items():
+            doc["populations"][k]["share"] = share
+        return doc
+
+    def fitted_toml(self, x: np.ndarray, note: str) -> str:
+        """TOML text of the fitted config (comments of the original are not kept)."""
+        doc = self._doc_at(x)
         doc["name"] = f"{self.config.name}-fitted"
         return toml_dumps(doc, header="\n".join("# " + line for line in note.splitlines()))
 
@@ -422,10 +437,7 @@ class FitProblem:
         ``mc_noise`` (``[P, L]`` standard normal draws) shifts the volume term by that many
         standard errors (the uncertainty propagation of the Monte Carlo error).
         """
-        config = self.config_at(x)
-        wl = self.wavelengths_nm
-        mu_host = config.dye(wl) if config.dye is not None else np.zeros(wl.size)
-        return self.model_at_host(config, mu_host, mc_noise)
+        return mixed_model(self.config_at(x), self.wavelengths_nm, self.model_at_host, mc_noise)
 
     def model_at_host(self, config: SimulationConfig, mu_host: np.ndarray,
                       mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -574,6 +586,28 @@ class FitProblem:
         if self.level_weight:
             doc["level_weight"] = self.level_weight
         return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def mixed_model(config: SimulationConfig, wavelengths_nm: np.ndarray, at_host: Callable[..., tuple],
+                mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``beta, u_beta`` of ``config``: ``at_host(fiber_config, mu_host, mc_noise)`` of its fiber with its dye; of a
+    blend, the populations' models mixed by share (as :func:`simulate.products.evaluate` mixes the summation's and
+    the classic model's), ``u_beta`` added linearly (their tables are one walk's). One population: its model alone.
+
+    The populations of a fitted blend share the fiber's scattering (:func:`~fabric_optics.fitting.spec.make_spec`),
+    so each reads its dye from the same absorption table and one ``mc_noise`` draw shifts them all alike."""
+    wl = np.asarray(wavelengths_nm, float)
+    parts = config.population_configs()
+    if len(parts) == 1:
+        c = parts[0][1]
+        return at_host(c, c.dye(wl) if c.dye is not None else np.zeros(wl.size), mc_noise)
+    beta: Any = 0.0
+    u: Any = 0.0
+    for share, c in parts:
+        b, ub = at_host(c, c.dye(wl) if c.dye is not None else np.zeros(wl.size), mc_noise)
+        beta = beta + share * b
+        u = u + share * ub
+    return np.asarray(beta, float), np.asarray(u, float)
 
 
 def _frozen(values: list[float]) -> np.ndarray:

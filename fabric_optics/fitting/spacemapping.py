@@ -52,7 +52,7 @@ import numpy as np
 from fabric_optics import paths
 from fabric_optics.fitting.errors import FitError
 from fabric_optics.fitting.outputs import FitResult
-from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.problem import FitProblem, mixed_model
 from fabric_optics.fitting.search import finish_fit, search_fit
 from fabric_optics.fitting.start import knot_indices
 from fabric_optics.fitting.state import MCRun, MCState
@@ -60,7 +60,8 @@ from fabric_optics.fitting.uncertainty import (NOISE_DRAWS, at_bounds, identifia
                                                u_status, uncertainty_parts)
 from fabric_optics.fitting.verdict import colour_distance, colour_left_off, colour_off
 from simulate.montecarlo.accuracy import relative_error
-from simulate.products import Geometries, RunSettings, all_threads, evaluate
+from simulate.config_table import ConfigError
+from simulate.products import Geometries, RunSettings, all_threads, check_blend, evaluate
 
 __all__ = ["DEFAULT_MC_RUNS", "INNER_EVALUATIONS", "TINY", "MCFitProblem", "Surrogate", "correction",
            "run_monte_carlo", "run_mc_fit"]
@@ -115,6 +116,10 @@ class MCFitProblem(FitProblem):
                  mc_retrace: bool = False, **settings: Any) -> None:
         if method != "mc":
             raise FitError(f"MCFitProblem fits the Monte Carlo (method 'mc'), got {method!r}")
+        try:    # a blend: the felt's Monte Carlo traces it (one radius, index and slope); the woven one does not
+            check_blend(config, "mc")
+        except ConfigError as exc:
+            raise FitError(f"--method mc: {exc}") from None
         super().__init__(config, measured, free, method="summation", fine_capable=True, **settings)
         names = [p.name for p in self.free]
         expanded: list[str] = []
@@ -214,10 +219,8 @@ class Surrogate:
             xs = xs.copy()
             for j in self._slope:
                 xs[j] = self._centre[j]
-        config = self._base.config_at(xs)
-        wl = self._base.wavelengths_nm
-        mu_host = config.dye(wl) if config.dye is not None else np.zeros(wl.size)
-        out, mc_u = self.model_at_host(config, mu_host, mc_noise)
+        # a blend: its populations' surrogates mixed by share (the correction is affine: the mix's own)
+        out, mc_u = mixed_model(self._base.config_at(xs), self._base.wavelengths_nm, self.model_at_host, mc_noise)
         if self._slope is not None:
             for j, Dj in self._slope.items():
                 out = out + Dj * (float(x[j]) - float(self._centre[j]))

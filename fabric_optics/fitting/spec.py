@@ -16,8 +16,10 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import re
 import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -27,13 +29,12 @@ from fabric_optics.fitting.errors import FitError
 from gonio.data.dataset import Dataset
 from gonio.data.formats import GRAZING_DEG
 from gonio.data.schema import WAVELENGTH_RANGE_NM
-from simulate.config import SimulationConfig, require_single_population
-from simulate.config_table import ConfigError
+from simulate.config import SimulationConfig
 from simulate.fiber.absorption import DEFAULT_NODES
 from simulate.structwalk.walk import STRUCTURE_FIELDS
 
-__all__ = ["GENERATOR", "COLOUR_TOLERANCE", "COLOUR_HOLD_FROM", "COLOUR_HOLD_WEIGHT", "FINE_FIELDS", "FreeParameter",
-           "FitSpec", "make_spec", "colour_hold", "default_bounds", "parse_free", "model_geometries", "dye_ceiling",
+__all__ = ["GENERATOR", "SHARE_MIN", "shares_at", "COLOUR_TOLERANCE", "COLOUR_HOLD_FROM", "COLOUR_HOLD_WEIGHT",
+           "FINE_FIELDS", "FreeParameter", "FitSpec", "make_spec", "colour_hold", "default_bounds", "parse_free", "model_geometries", "dye_ceiling",
            "checked_wavelengths"]
 
 log = logging.getLogger(__name__)
@@ -72,9 +73,11 @@ def colour_hold(dh: float, ds: float) -> np.ndarray:
 class FreeParameter:
     """One free config field: its dotted path, kind and bounds.
 
-    ``kind``: ``"dye"`` (re-weighted from the absorption table), ``"surface"`` (analytic
+    ``kind``: ``"dye"`` (re-weighted from the absorption table; a population's dye too), ``"share"`` (a blend's
+    population share: its populations' models mixed by share, :func:`shares_at`), ``"surface"`` (analytic
     Cook-Torrance term), ``"structure"`` (the structured summation's geometry), ``"walk"`` (changes the
-    scattering: photons are walked again) or ``"fine"`` (:data:`FINE_FIELDS`: seen by the Monte Carlo only).
+    scattering: photons are walked again), ``"fine"`` (:data:`FINE_FIELDS`: seen by the Monte Carlo only) or
+    ``"placement"`` (a ring or core dye's depth: named and checked, refused by :func:`make_spec`).
     """
 
     name: str
@@ -84,9 +87,20 @@ class FreeParameter:
     kind: str
 
 
+_POP_DYE = re.compile(r"^populations\[\d+\]\.fiber\.dye\.")
+_POP_SHARE = re.compile(r"^populations\[(\d+)\]\.share$")
+_POP_PATH = re.compile(r"^populations\[(\d+)\]\.")
+#: A free share's smallest value (a population's share must stay above 0: config.py's rule)
+SHARE_MIN = 1e-3
+
+
 def _kind(path: str) -> str:
-    if path.startswith("fiber.dye"):
+    if path.endswith("dye_depth_um"):
+        return "placement"
+    if path.startswith("fiber.dye") or _POP_DYE.match(path):
         return "dye"
+    if _POP_SHARE.match(path):
+        return "share"
     if path == "surface.rms_slope":
         return "surface"
     if path in STRUCTURE_FIELDS:
@@ -104,7 +118,8 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
     knots (``log10_per_um[k]``) ``[-4, 0.5]`` (1e-4 to 3.2 /um: transparent to opaque over a
     fiber's radius; widened to hold the start); band
     centres and edges ``start -+ 60 nm``; log-normal ``sigma_g`` ``[1, 3]``; anything else
-    ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0). Structure fields
+    ``[start/4, 4 start]`` (give ``=LOW:HIGH`` for a field that is 0). A population's share: ``[0.001, 0.999]``,
+    narrowed by :func:`parse_free` so that the free shares cannot add up beyond 1. Structure fields
     (:data:`simulate.structwalk.walk.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg. The boundary's
     slopes for transmitted light (:data:`FINE_FIELDS`): ``[0, 1]``, their valid range (0 is the smooth boundary).
     """
@@ -112,18 +127,20 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
         return STRUCTURE_FIELDS[path]
     if path in FINE_FIELDS:
         return FINE_FIELDS[path]
+    if _POP_SHARE.match(path):      # parse_free narrows the upper bound by the other free shares
+        return SHARE_MIN, 1.0 - SHARE_MIN
     leaf = path.rsplit(".", 1)[-1]
     if leaf == "volume_fraction":
         return start / 5.0, min(5.0 * start, 0.5)
     if path == "surface.rms_slope":
         return 0.02, 0.5  # Cook-Torrance's single-scattering domain (simulate.optics.microfacet warns above)
-    if leaf.endswith("_per_um") and path.startswith("fiber.dye"):
+    if leaf.endswith("_per_um") and _kind(path) == "dye" and not leaf.startswith("log10_per_um["):
         return 0.0, max(4.0 * start, 0.01)
     if leaf in ("center_nm", "edge_nm"):
         return start - 60.0, start + 60.0
     if leaf == "sigma_g":
         return 1.0, 3.0
-    if leaf.startswith("log10_per_um[") and path.startswith("fiber.dye"):
+    if leaf.startswith("log10_per_um[") and _kind(path) == "dye":
         return min(KNOT_LOW, start), max(KNOT_HIGH, start)
     return start / 4.0, 4.0 * start
 
@@ -156,6 +173,8 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
                 raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
             if path.startswith("structure."):
                 _check_structure_field(path, config)
+            if config.populations or path.startswith("populations"):
+                _check_population_field(name.strip(), path, config, data)
             try:
                 start = paths.get(data, path)
             except KeyError:
@@ -196,6 +215,96 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
             out.append(FreeParameter(path, start, float(low), float(high), _kind(path)))
     if not out:
         raise FitError("--free: no parameter to fit")
+    return _narrowed_shares(out, config)
+
+
+def _check_population_field(name: str, path: str, config: SimulationConfig, data: dict) -> None:
+    """A free path of a blend: a population's dye, share or dye depth (nothing else of a population is freed: its
+    scattering is the config's); the config's own dye only while some population takes it."""
+    pops = config.populations or ()
+    kind = _kind(path)
+    if kind == "dye" and path.startswith("fiber.dye"):
+        if all(p.dye is not config.dye for p in pops):
+            named = ", ".join(f"populations.{p.name}.dye" for p in pops)
+            raise FitError(f"--free {name}: every population of the blend has a dye of its own, so [fiber.dye] "
+                           f"colours none of them; free the populations' dyes ({named})")
+        return
+    m = _POP_PATH.match(path)
+    if not m:
+        # a field of the config's fiber that a population overrides would move the others only
+        table, _, field = path.partition(".")
+        for item, p in zip(data.get("populations") or [], pops):
+            own = item.get(table) if isinstance(item, dict) else None
+            if isinstance(own, dict) and (table == "particles" or field.split(".")[0] in own):
+                raise FitError(f"--free {name}: population {p.name!r} sets its own {table}"
+                               f"{'' if table == 'particles' else '.' + field.split('.')[0]}, which this field of the "
+                               "config would not move; give the populations the config's (delete the override)")
+        return
+    k = int(m.group(1))
+    if k >= len(pops):
+        raise FitError(f"--free {name}: the config has {len(pops)} population(s) (populations[0] to "
+                       f"populations[{len(pops) - 1}])")
+    pop = pops[k]
+    if kind not in ("dye", "share", "placement"):
+        raise FitError(f"--free {name}: a fit frees a population's dye, share and dye_depth_um "
+                       f"(populations.NAME.dye, .share, .dye_depth_um); its fiber's scattering is the config's")
+    if kind == "share" and len(pops) < 2:
+        raise FitError(f"--free {name}: the config has one population, whose share is 1; a share is fitted in a "
+                       "blend of two or more populations")
+    if kind == "placement":
+        if pop.dye_profile == "uniform":
+            raise FitError(f"--free {name}: population {pop.name!r} has a uniform dye, which has no depth; give it "
+                           "dye_profile = \"ring\" or \"core\" and a dye_depth_um in [populations.fiber]")
+        own = (data["populations"][k].get("fiber") or {})
+        if "dye_depth_um" not in own:
+            raise FitError(f"--free {name}: population {pop.name!r} takes fiber.dye_depth_um of the config; give it "
+                           "its own dye_profile and dye_depth_um in [populations.fiber] to free them")
+
+
+def _narrowed_shares(free: list[FreeParameter], config: SimulationConfig) -> list[FreeParameter]:
+    """The free shares checked and their default upper bounds narrowed (:func:`shares_at`): at least one population's
+    share stays out of ``--free`` (it takes the remainder), and the free shares' upper bounds add up to below 1."""
+    shares = [p for p in free if p.kind == "share"]
+    if not shares:
+        return free
+    pops = config.populations or ()
+    if len(shares) >= len(pops):
+        raise FitError("--free: the shares of all the populations add up to 1, so one of them follows from the "
+                       "others: leave one population's share out of --free (it takes the remainder)")
+    rest = 1.0 - sum(p.start for p in shares)            # the shares of the populations whose share is not free
+    fixed = len(pops) - len(shares)
+    out = []
+    for p in free:
+        if p.kind == "share" and p.high == 1.0 - SHARE_MIN and p.low == SHARE_MIN:   # default bounds: narrowed
+            high = p.start + (rest - SHARE_MIN * fixed) / len(shares)
+            p = FreeParameter(p.name, p.start, p.low, max(high, p.start), p.kind)
+        out.append(p)
+    top = sum(p.high for p in out if p.kind == "share")
+    if top > 1.0 - SHARE_MIN * fixed + 1e-12:
+        raise FitError(f"--free: the free shares' upper bounds add up to {top:.6g}, leaving no share for the other "
+                       f"population(s); give bounds that add up to at most {1.0 - SHARE_MIN * fixed:.6g}")
+    low = [p for p in out if p.kind == "share" and p.low <= 0.0]
+    if low:
+        raise FitError(f"--free: {low[0].name}: a share's lower bound must be above 0 (a population of share 0 is "
+                       f"no population), got {low[0].low:g}")
+    return out
+
+
+def shares_at(config: SimulationConfig, free: list[FreeParameter] | tuple[FreeParameter, ...],
+              x: np.ndarray) -> dict[int, float]:
+    """The shares of a blend's populations ``{index: share}`` at the free values ``x``: a free share is its value;
+    the populations whose share is not free take the remainder ``1 - sum(free shares)`` in proportion to their
+    shares in the config (with two populations, the one free share moves both). Empty when no share is free."""
+    pops = config.populations or ()
+    free_k = {int(m.group(1)): float(v) for p, v in zip(free, x) if (m := _POP_SHARE.match(p.name))}
+    if not free_k:
+        return {}
+    rest = 1.0 - sum(free_k.values())
+    fixed = {k: pops[k].share for k in range(len(pops)) if k not in free_k}
+    total = sum(fixed.values())
+    out = dict(free_k)
+    for k, s in fixed.items():
+        out[k] = rest * s / total
     return out
 
 
@@ -228,21 +337,33 @@ def model_geometries(measured: Dataset) -> pd.DataFrame:
 
 def dye_ceiling(config: SimulationConfig, free: list[FreeParameter], wl: np.ndarray) -> float:
     """Largest host absorption (1/um) any dye within the bounds can reach (the table's nu_max)."""
-    if config.dye is None:
+    if not config.populations:
+        return _dye_top(config.dye, "fiber.dye", free, wl)
+    # a blend: the largest over the config's dye and each population's own (their free coefficients at the bounds)
+    tops = [_dye_top(config.dye, "fiber.dye", free, wl)]
+    tops += [_dye_top(p.dye, f"populations[{k}].fiber.dye", free, wl)
+             for k, p in enumerate(config.populations) if p.dye is not config.dye]
+    return max(tops)
+
+
+def _dye_top(dye, prefix: str, free: list[FreeParameter], wl: np.ndarray) -> float:
+    """The largest host absorption of the dye at ``prefix`` with its free coefficients at their upper bounds."""
+    if dye is None:
         return 1e-3
-    p = copy.deepcopy(config.dye.params)
-    doc = {"fiber": {"dye": p}}
+    p = copy.deepcopy(dye.params)
+    root = {"dye": p}
     for f in free:
-        if f.kind == "dye":
-            paths.set_value(doc, f.name, f.high if "_per_um" in f.name else paths.get(doc, f.name))
-    if config.dye.curve == "gaussian-bands":
+        if f.kind == "dye" and f.name.startswith(prefix + "."):
+            rel = "dye." + f.name[len(prefix) + 1:]
+            paths.set_value(root, rel, f.high if "_per_um" in f.name else paths.get(root, rel))
+    if dye.curve == "gaussian-bands":
         top = p["baseline_per_um"] + sum(b["peak_per_um"] for b in p["bands"])
-    elif config.dye.curve == "knots":  # PCHIP does not overshoot: the largest knot is the maximum
+    elif dye.curve == "knots":  # PCHIP does not overshoot: the largest knot is the maximum
         top = 10.0 ** max(p["log10_per_um"])
-    elif config.dye.curve == "logistic-edge":
+    elif dye.curve == "logistic-edge":
         top = max(p["short_per_um"], p["long_per_um"])
     else:
-        top = float(np.max(config.dye(wl)))
+        top = float(np.max(dye(wl)))
     return max(1.05 * top, 1e-3)
 
 
@@ -317,10 +438,8 @@ def make_spec(config: SimulationConfig, measured: Dataset, free: list[FreeParame
     ``seed`` defaults to the config's; ``wavelengths_nm`` to the measurement's (spectral) or the config's (RGB).
     Rows at ``theta_i >= 89`` deg are left out with a note (the rule of ``gonio import``).
     """
-    try:     # a blend's populations each replace the dye a fit would vary: refused until fits free them
-        require_single_population(config, "simulate fit")
-    except ConfigError as exc:
-        raise FitError(str(exc)) from None
+    _check_blend(config)
+    _check_dye_placement(config, free, method)
     if method not in SPEC_MODELS:
         raise FitError(f"--method must be classic or summation, got {method!r}")
     if level_weight and measured.relative:
@@ -354,6 +473,46 @@ def make_spec(config: SimulationConfig, measured: Dataset, free: list[FreeParame
                    target_rel_err=float(target_rel_err), seed=int(config.seed if seed is None else seed),
                    threads=threads, wavelengths_nm=wl, nodes=int(nodes), reweight=bool(reweight),
                    fine_capable=bool(fine_capable), notes=tuple(notes))
+
+
+#: the fields a fitted blend's populations share (the fit walks one fiber's scattering for all of them)
+SHARED_FIELDS = (("fiber.radius_um", "radius_um"), ("fiber.n_host", "n_host"), ("particles", "particles"),
+                 ("surface.rms_slope", "rms_slope"), ("surface.transmission_rms_slope", "transmission_rms_slope"),
+                 ("surface.transmission_rms_slope_around", "transmission_rms_slope_around"))
+
+
+def _check_blend(config: SimulationConfig) -> None:
+    """A blend is fitted when its populations differ in dye and share only: one walk of the fiber's scattering serves
+    them all (each population's dye read from the same absorption table). Otherwise one line naming the field."""
+    pops = config.populations or ()
+    for p in pops[1:]:
+        for label, attr in SHARED_FIELDS:
+            if getattr(p, attr) != getattr(pops[0], attr):
+                raise FitError(f"{_file(config)}: populations: simulate fit takes a blend whose populations differ in "
+                               f"dye and share only; {pops[0].name!r} and {p.name!r} differ in {label}: give them the "
+                               "same, or fit each population's fiber alone")
+
+
+def _file(config: SimulationConfig) -> str:
+    """The config's file name as its messages name it (a preset: ``NAME.toml``)."""
+    source = config.source
+    return f"{source[len('preset '):]}.toml" if source.startswith("preset ") else Path(source).name
+
+
+def _check_dye_placement(config: SimulationConfig, free: list[FreeParameter] | tuple[FreeParameter, ...],
+                         method: str) -> None:
+    """The fit's absorption tables hold a dye spread through the fiber: a ring or core dye (``dye_profile``), and
+    its depth, are refused with what to do."""
+    depth = [p.name for p in free if p.kind == "placement"]
+    if depth:
+        raise FitError(f"--free {depth[0]}: the {method} fit reads every dye from absorption tables of a dye spread "
+                       "through the fiber, which have no depth to vary; compare depths with simulate fabric "
+                       "--method mc runs of the ring or core dye (docs/how-to/fit.md, \"Blends\")")
+    placed = [c for _, c in config.population_configs() if c.dye_profile != "uniform"]
+    if placed:
+        raise FitError(f"{_file(config)}: fiber.dye_profile = {placed[0].dye_profile!r}: the {method} fit reads the dye "
+                       "from absorption tables of a dye spread through the fiber; fit the dye with dye_profile = "
+                       "\"uniform\" (the ring or core dye is traced by simulate fabric --method mc)")
 
 
 def _without_grazing(measured: Dataset, notes: list[str]) -> Dataset:

@@ -42,7 +42,7 @@ from fabric_optics.paths import toml_dumps
 from simulate.config import SimulationConfig, knots_curve, parse_config
 from simulate.fiber.absorption import NU_0
 
-__all__ = ["DEFAULT_KNOTS", "knots_config", "inverted_start", "knot_indices"]
+__all__ = ["DEFAULT_KNOTS", "knots_config", "inverted_start", "knot_indices", "knot_owners"]
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,7 @@ DEFAULT_KNOTS = 8
 _GRID = 40
 W_LEVEL = 0.3
 W_SMOOTH = 0.02
-_KNOT = re.compile(r"^fiber\.dye\.log10_per_um\[(\d+)\]$")
+_KNOT = re.compile(r"^(?:populations\[(\d+)\]\.)?fiber\.dye\.log10_per_um\[(\d+)\]$")
 
 
 def knots_config(config: SimulationConfig, wavelengths_nm, count: int = DEFAULT_KNOTS) -> SimulationConfig:
@@ -59,21 +59,34 @@ def knots_config(config: SimulationConfig, wavelengths_nm, count: int = DEFAULT_
     its present dye (clipped to [1e-4, 3] /um; no dye: 1e-3 /um, cellulose's baseline)."""
     wl = np.asarray(wavelengths_nm, float)
     knots = np.linspace(float(wl.min()), float(wl.max()), count)
-    mu = config.dye(knots) if config.dye is not None else np.full(count, 1e-3)
+
+    def as_knots(dye) -> dict:
+        mu = dye(knots) if dye is not None else np.full(count, 1e-3)
+        return {"curve": "knots", "wavelength_nm": [round(float(k), 3) for k in knots],
+                "log10_per_um": [round(float(v), 6) for v in np.log10(np.clip(mu, 1e-4, 3.0))]}
+
     doc = tomllib.loads(config.text)
-    doc.setdefault("fiber", {})["dye"] = {
-        "curve": "knots", "wavelength_nm": [round(float(k), 3) for k in knots],
-        "log10_per_um": [round(float(v), 6) for v in np.log10(np.clip(mu, 1e-4, 3.0))]}
+    doc.setdefault("fiber", {})["dye"] = as_knots(config.dye)
+    # a blend: each population its own knots, sampled from its dye (its own, or the config's it took)
+    for item, pop in zip(doc.get("populations") or [], config.populations or ()):
+        item.setdefault("fiber", {})["dye"] = as_knots(pop.dye)
     return parse_config(toml_dumps(doc), f"{config.name}.toml", source=config.source)
 
 
 def knot_indices(names: list[str]) -> dict[int, int]:
-    """``{free-parameter index: knot index}`` of the free dye knots among ``names``."""
-    out = {}
+    """``{free-parameter index: knot index}`` of the free dye knots among ``names`` (the config's and the
+    populations')."""
+    return {i: k for i, (_, k) in knot_owners(names).items()}
+
+
+def knot_owners(names: list[str]) -> dict[int, tuple[int | None, int]]:
+    """``{free-parameter index: (population, knot index)}`` of the free dye knots among ``names``; population None
+    for the config's ``[fiber.dye]``, ``k`` for ``populations[k]``'s own."""
+    out: dict[int, tuple[int | None, int]] = {}
     for i, name in enumerate(names):
         m = _KNOT.match(name)
         if m:
-            out[i] = int(m.group(1))
+            out[i] = (None if m.group(1) is None else int(m.group(1)), int(m.group(2)))
     return out
 
 
@@ -117,8 +130,11 @@ def inverted_start(problem, x: np.ndarray) -> tuple[np.ndarray, str]:
     Returns ``x`` unchanged (and says why in the note) when no knot is free, the measurement has no
     colour, or no three bands at the colour geometry.
     """
-    idx = knot_indices([p.name for p in problem.free])
     config = problem.config_at(x)
+    if config.populations and len(config.populations) > 1:
+        return _inverted_blend(problem, x, config)
+    config = config.population_configs()[0][1]      # one population: its fiber (its own dye)
+    idx = knot_indices([p.name for p in problem.free])
     if not idx or config.dye is None or config.dye.curve != "knots":
         return x, "no free dye knots: the config's values start the fit"
     bands = _bands_at_colour_geometry(problem)
@@ -158,5 +174,75 @@ def inverted_start(problem, x: np.ndarray) -> tuple[np.ndarray, str]:
     ratio_err = float(np.max(np.abs(residual(best.x)[:m.size])))
     note = (f"dye knots started from the measurement's colour (inverted at the colour geometry through the "
             f"model's absorption table; largest band-ratio error {ratio_err:.3f} in log)")
+    log.info("%s", note)
+    return out, note
+
+
+def _inverted_blend(problem, x: np.ndarray, config) -> tuple[np.ndarray, str]:
+    """The colour start of a blend: every free knot of every population moved by ONE offset per knot ``delta``
+    (log10), solved so that the share-weighted mix has the measured colour (the residual of the module docstring
+    with the mix in place of one fiber; second differences of ``delta``). The populations keep their differences
+    from each other (what sets their share apart); the offset gives the mix the measured colour."""
+    owners = knot_owners([p.name for p in problem.free])
+    pops = config.population_configs()
+    free_pops = sorted({k for k, _ in owners.values() if k is not None})
+    if not free_pops:
+        return x, "no free dye knots of a population: the config's values start the fit"
+    dyes = [c.dye for _, c in pops]
+    if any(d is None or d.curve != "knots" for d in dyes):
+        return x, "a population's dye is not knots: the config's values start the fit"
+    grids = {tuple(np.asarray(d.params["wavelength_nm"], float)) for d in dyes}
+    if len(grids) != 1:
+        return x, "the populations' knots lie at different wavelengths: the config's values start the fit"
+    bands = _bands_at_colour_geometry(problem)
+    if bands is None:
+        return x, "the measurement has no colour at its colour geometry: the config's knots start the fit"
+    g_star, M, m = bands
+    wl = problem.wavelengths_nm
+    knots_nm = np.asarray(dyes[0].params["wavelength_nm"], float)
+    K = knots_nm.size
+    values = [np.asarray(d.params["log10_per_um"], float) for d in dyes]
+    free_mask = np.zeros((len(pops), K), dtype=bool)
+    lo = np.full(K, -np.inf)
+    hi = np.full(K, np.inf)
+    for i, (k, j) in owners.items():
+        if k is None:
+            continue
+        free_mask[k, j] = True
+        lo[j] = max(lo[j], problem.free[i].low - values[k][j])
+        hi[j] = min(hi[j], problem.free[i].high - values[k][j])
+    moved = free_mask.any(axis=0)
+    lo, hi = np.where(moved, lo, -1e-9), np.where(moved, hi, 1e-9)
+    if np.any(lo >= hi):
+        return x, "the populations' knots leave no common room within their bounds: the config's values start the fit"
+    table = problem.table(pops[0][1])      # the populations share the fiber's scattering (make_spec): one table
+    xg = np.linspace(math.log(NU_0), math.log(table.nu_max + NU_0), _GRID)
+    nu = np.clip(np.exp(xg) - NU_0, 0.0, table.nu_max)
+    B = np.array([problem.model_at_host(pops[0][1], np.full(wl.size, v))[0][g_star] for v in nu])  # [J, L]
+    logB = np.log(np.maximum(B, 1e-300))
+    shares = np.array([share for share, _ in pops])
+    log_m = np.log(m)
+
+    def shifted(delta: np.ndarray) -> list[np.ndarray]:
+        return [v + np.where(free_mask[k], delta, 0.0) for k, v in enumerate(values)]
+
+    def residual(delta: np.ndarray) -> np.ndarray:
+        mix = np.zeros(wl.size)
+        for share, vals in zip(shares, shifted(delta)):
+            xl = np.log(knots_curve(knots_nm, vals, wl) + NU_0)
+            mix += share * np.exp([np.interp(xl[l], xg, logB[:, l]) for l in range(wl.size)])
+        d = np.log(np.maximum(M @ mix, 1e-12)) - log_m
+        return np.concatenate([d - d.mean(), [W_LEVEL * d.mean()], W_SMOOTH * np.diff(delta, 2)])
+
+    sol = least_squares(residual, np.clip(np.zeros(K), lo, hi), bounds=(lo, hi), method="trf")
+    new = shifted(sol.x)
+    out = x.copy()
+    for i, (k, j) in owners.items():
+        if k is not None:
+            out[i] = float(np.clip(new[k][j], problem.free[i].low, problem.free[i].high))
+    ratio_err = float(np.max(np.abs(residual(sol.x)[:m.size])))
+    note = (f"the populations' dye knots started from the measurement's colour: one offset per knot for all of them, "
+            f"so that their share-weighted mix has the measured colour (largest band-ratio error {ratio_err:.3f} "
+            "in log)")
     log.info("%s", note)
     return out, note

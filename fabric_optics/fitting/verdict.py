@@ -48,9 +48,13 @@ def colour_left_off(problem: Any, dh: float, ds: float, method: str | None = Non
     if abs(dh) <= dh_max and abs(ds) <= ds_max:
         return ""
     method = method or problem.method
-    dye = problem.config.dye
+    # a blend: the first of its populations' dyes that cannot take every colour (one fiber: its dye)
+    dyes = [c.dye for _, c in problem.config.population_configs()]
+    dye = next((d for d in dyes if d is None or d.curve != "knots"), dyes[0])
     if not any(p.kind == "dye" for p in problem.free):
-        helps = "the dye is fixed: free it (--free dye; with --dye knots it can take any colour)"
+        helps = ("the dye is fixed: free it (--free dye, a blend's --free populations.NAME.dye; with --dye knots it "
+                 "can take any colour)" if problem.config.populations else
+                 "the dye is fixed: free it (--free dye; with --dye knots it can take any colour)")
     elif problem.colour_weight <= 0:
         helps = "--colour-weight 0 leaves the colour out of the objective: give it a weight (the default 1)"
     elif method != "mc" and not problem.holds_colour():
