@@ -15,9 +15,12 @@ One photon history, in the units of the caller (any consistent length unit)::
                reflection; reflect with probability F, otherwise refract out and tally
     cap        a photon reaching ``max_events`` steps is stopped and counted (a guard only)
 
-The direction update is MCML's (Wang, Jacques & Zheng 1995, eq. 3.23). The loop is one function
-on purpose (its two flavours pruned from one source): split, its hot state would cross function
-calls (measurements: docs/notes/implementation.md, "The photon kernel").
+The direction update is MCML's (Wang, Jacques & Zheng 1995, eq. 3.23). The loop reads as the list
+above: each event is a helper of :mod:`.events` (entry, Fresnel decision, reflection, exit, roulette,
+the deferred spectral weights), shared with the slab's two-lane loop (:mod:`.slab_lanes`). The helpers
+take and return scalars and are inlined into the loop by numba, so the hot state of a history stays in
+registers as in a loop written in one piece (a loop split into called functions is slower:
+docs/notes/implementation.md, "The photon kernel").
 
 Public objects: :class:`KernelInputs` (a run's inputs packed once: geometry, source, walk medium
 and phase arrays, control, tallies, spectral targets); :func:`simulate_batch` (one batch of photons
