@@ -15,9 +15,12 @@ One photon history, in the units of the caller (any consistent length unit)::
                reflection; reflect with probability F, otherwise refract out and tally
     cap        a photon reaching ``max_events`` steps is stopped and counted (a guard only)
 
-The direction update is MCML's (Wang, Jacques & Zheng 1995, eq. 3.23). The loop is one function
-on purpose (its two flavours pruned from one source): split, its hot state would cross function
-calls (measurements: docs/notes/implementation.md, "The photon kernel").
+The direction update is MCML's (Wang, Jacques & Zheng 1995, eq. 3.23). The loop reads as the list
+above: each event is a helper of :mod:`.events` (entry, Fresnel decision, reflection, exit, roulette,
+the deferred spectral weights), shared with the slab's two-lane loop (:mod:`.slab_lanes`). The helpers
+take and return scalars and are inlined into the loop by numba, so the hot state of a history stays in
+registers as in a loop written in one piece (a loop split into called functions is slower:
+docs/notes/implementation.md, "The photon kernel").
 
 Public objects: :class:`KernelInputs` (a run's inputs packed once: geometry, source, walk medium
 and phase arrays, control, tallies, spectral targets); :func:`simulate_batch` (one batch of photons
@@ -79,8 +82,9 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
 from simulate.montecarlo import tallies as T
+from simulate.montecarlo.events import (catch_up, catch_up_dyed, fresnel_reflects, largest, mirror, refract_in,
+                                        refract_out, roulette)
 from simulate.montecarlo.geometry import (
     CELL,
     SLAB,
@@ -95,7 +99,6 @@ from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_unifor
 from simulate.montecarlo.rough import rough_cross, rough_entry
 from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, sample_direction
 from simulate.montecarlo.slab_lanes import simulate_batch_slab_lanes
-from simulate.montecarlo.vecmath import vexp
 
 __all__ = [
     "PHASE_HG",
@@ -377,16 +380,7 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                 ux, uy, uz, t_in, f_in = rough_entry(dx, dy, dz, nx, ny, nz, n_in, m_rough, m_rough_b,
                                                      to_uniform(r), to_uniform(r2))
             elif contrast and w0 > 0.0:
-                f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
-                cos_t = refracted_cos(cos_i, 1.0, n_in)
-                k = eta_in * cos_i - cos_t
-                ux = eta_in * dx + k * nx
-                uy = eta_in * dy + k * ny
-                uz = eta_in * dz + k * nz
-                norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
-                ux *= norm
-                uy *= norm
-                uz *= norm
+                ux, uy, uz, f_in = refract_in(dx, dy, dz, nx, ny, nz, cos_i, n_in, eta_in)
             else:
                 f_in = 0.0
                 ux = dx
@@ -440,14 +434,13 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                     w *= albedo
                     scatterings += 1
                     w_max = 1.0
-                    roulette = True
+                    decide = True  # roulette decided at this collision
                     if SCORING:
                         if reweight:
                             pend_n += 1
                             pend_l += step
                             if vertex_mode == T.V_CYLINDER_NEE:  # the vertex estimator reads spec_w
-                                for l in range(n_spec):
-                                    spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
+                                catch_up(spec_w, log_s, d_mu_t, pend_n, pend_l)
                                 pend_n = 0
                                 pend_l = 0.0
                         if vertex_mode == T.V_CYLINDER_NEE:
@@ -468,29 +461,21 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                             if pend_n == 0 or pend_n >= REWEIGHT_EVERY:
                                 if pend_n > 0:
                                     if PROFILED:
-                                        for l in range(n_spec):
-                                            spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_u[l] * pend_l
-                                                              - spec_dye[l] * pend_d)
+                                        catch_up_dyed(spec_w, log_s, d_mu_u, spec_dye, pend_n, pend_l, pend_d)
                                         pend_d = 0.0
                                     else:
-                                        for l in range(n_spec):
-                                            spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
+                                        catch_up(spec_w, log_s, d_mu_t, pend_n, pend_l)
                                     pend_n = 0
                                     pend_l = 0.0
-                                w_max = 0.0
-                                for l in range(n_spec):
-                                    w_max = max(w_max, spec_w[l])
+                                w_max = largest(spec_w)
                             else:
-                                roulette = False  # decided at the next update (any rule is unbiased)
-                    if roulette and w * w_max < w_threshold:
+                                decide = False  # decided at the next update (any rule is unbiased)
+                    if decide and w * w_max < w_threshold:
                         if w <= 0.0 or w_max <= 0.0:
                             break
-                        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                        if to_uniform(r) < survival:
-                            h_gain += w * (inv_survival - 1.0)
-                            w *= inv_survival
-                        else:
-                            h_killed += w
+                        alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette(w, h_gain, h_killed, survival,
+                                                                              inv_survival, s0, s1, s2, s3)
+                        if not alive:
                             break
                 else:
                     # --- boundary --------------------------------------------------------
@@ -532,35 +517,12 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                         wy = oy
                         wz = oz
                     elif contrast:
-                        f_out = fresnel_unpolarized(cos_i, n_in, 1.0)
-                        if f_out > 0.0:
-                            if f_out >= 1.0:
-                                reflect = True
-                            else:
-                                r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                                reflect = to_uniform(r) < f_out
-                            if reflect:
-                                if geometry == SLAB:
-                                    uz = -uz  # the mirror image in a face z = const, exactly
-                                else:
-                                    ux -= 2.0 * cos_i * nx
-                                    uy -= 2.0 * cos_i * ny
-                                    uz -= 2.0 * cos_i * nz
-                                    norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
-                                    ux *= norm
-                                    uy *= norm
-                                    uz *= norm
-                                reflections_total += 1
-                                continue
-                        cos_t = refracted_cos(cos_i, n_in, 1.0)
-                        k = cos_t - n_in * cos_i
-                        wx = n_in * ux + k * nx
-                        wy = n_in * uy + k * ny
-                        wz = n_in * uz + k * nz
-                        norm = 1.0 / math.sqrt(wx * wx + wy * wy + wz * wz)
-                        wx *= norm
-                        wy *= norm
-                        wz *= norm
+                        reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, n_in, s0, s1, s2, s3)
+                        if reflect:
+                            ux, uy, uz = mirror(ux, uy, uz, nx, ny, nz, cos_i, geometry == SLAB)
+                            reflections_total += 1
+                            continue
+                        wx, wy, wz = refract_out(ux, uy, uz, nx, ny, nz, cos_i, n_in)
                     else:
                         wx = ux
                         wy = uy
@@ -580,11 +542,9 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                     if SCORING:
                         if reweight and (pend_n > 0 or pend_l > 0.0):
                             if PROFILED:
-                                for l in range(n_spec):
-                                    spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_u[l] * pend_l - spec_dye[l] * pend_d)
+                                catch_up_dyed(spec_w, log_s, d_mu_u, spec_dye, pend_n, pend_l, pend_d)
                             else:
-                                for l in range(n_spec):
-                                    spec_w[l] *= vexp(pend_n * log_s[l] - d_mu_t[l] * pend_l)
+                                catch_up(spec_w, log_s, d_mu_t, pend_n, pend_l)
                         T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, marks,
                                      n_spec, spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
                     break

@@ -31,7 +31,8 @@ import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
+from simulate.montecarlo.events import fresnel_reflects, roulette
+from simulate.montecarlo.rng import exponential, next_u64, seed_state
 from simulate.montecarlo.scatter import INV40, LOW24, U40_SHIFT, azimuth, hg_constants, sample_cosine
 from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
 
@@ -160,13 +161,9 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
                     if w <= 0.0:
                         end = True
                     else:
-                        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                        if to_uniform(r) < survival:
-                            h_gain += w * (inv_survival - 1.0)
-                            w *= inv_survival
-                        else:
-                            h_killed += w
-                            end = True
+                        alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette(w, h_gain, h_killed, survival,
+                                                                              inv_survival, s0, s1, s2, s3)
+                        end = not alive
             else:
                 # --- boundary: the face u_z points to; Fresnel reflection or exit -----------------
                 if uz > 0.0:
@@ -182,13 +179,7 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
                 path += s_b
                 reflect = False
                 if contrast:
-                    f_out = fresnel_unpolarized(cos_i, n_in, 1.0)
-                    if f_out > 0.0:
-                        if f_out >= 1.0:
-                            reflect = True
-                        else:
-                            r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                            reflect = to_uniform(r) < f_out
+                    reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, n_in, s0, s1, s2, s3)
                 if reflect:
                     uz = -uz  # the mirror image in a face z = const, exactly
                     reflections_total += 1
