@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[2]))   # the checkout: render_figures reads the machine from it
 from render_figures import ROOT, record  # noqa: E402
 
 
