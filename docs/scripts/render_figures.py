@@ -757,8 +757,7 @@ def fig_speed_accuracy() -> str:
         floors = ", ".join(f"{k} {v:.1%}" for k, v in f["model_floors"].items())
         rows.append([name, "floors", floors, "", ""])
     note = (f" (achieved error ± its sampling spread; {d['threads']} thread, each target run twice with seeds {d['seeds'][0]} and {d['seeds'][1]}, tables"
-            f" floored at {d['table_floor']} photons per row; load average at the start {d['load_at_start'][0]:.1f}"
-            " on a shared machine)")
+            f" floored at {d['table_floor']} photons per row)")
     return _table(["fabric", "target", "achieved error", "marginal: tables + rays", "fixed: start-up + set-up"],
                   rows) + "\n\n" + _source(rec, note)
 

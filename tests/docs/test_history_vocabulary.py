@@ -28,7 +28,8 @@ PATTERNS = {
     "a session": r"\bsessions?\b(?!\.py)",
     "a run date": r"\b20\d\d-[01]\d(?:-[0-3]\d)?\b",
     "a time of day": r"\b\d\d:\d\d(?:-\d\d:\d\d)? UTC\b|\bUTC\b",
-    "a machine load": r"\bmachine load\b|\bload(?: average)? ~?\d|\bat load\b|\bunder load\b",
+    "a machine load": r"\bmachine load\b|\bload(?: average)? ~?\d|\bload average at\b|\bat load\b|\bunder load\b"
+                      r"|\b(?:shared|loaded) machine\b|\bloaded by other\b|\bshared\s+with\s+other\s+jobs\b",
 }
 
 
@@ -77,7 +78,7 @@ _ = " ".join
 DIARY = [_(["measured in the fifth", "stop"]), _(["since the ninth", "stop"]), "this stop's kernel",
          "three rounds each, rounds alternated", "review round 2", _(["as issue", "21 asked"]), "the issue's target",
          "in this session", "-".join(["2026", "11", "24"]), "20:14-20:16 UTC", "load average 0.9", "at load 3-4",
-         "machine load was high"]
+         "machine load was high", "on the shared machine", "a loaded machine", "2 cores shared with other jobs"]
 
 
 @pytest.mark.parametrize("diary", DIARY)
