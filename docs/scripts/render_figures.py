@@ -762,7 +762,31 @@ def fig_speed_accuracy() -> str:
                   rows) + "\n\n" + _source(rec, note)
 
 
+def fig_fibre_section_screen() -> str:
+    """The flattened section's forward rise against the round section's, in two dimensions."""
+    rec = load("fibre-section-screen")
+    d = rec["data"]
+    incid = sorted({r["theta_i_deg"] for r in d["rows"]})
+    rows = []
+    for band in d["fibre"]["bands_nm"]:
+        for orient in ("flat", "random"):
+            for aspect in sorted({r["aspect"] for r in d["rows"]}):
+                sel = sorted((r for r in d["rows"] if r["band_nm"] == band and r["orientation"] == orient
+                              and r["aspect"] == aspect), key=lambda r: r["theta_i_deg"])
+                cells = [f"{r['rise']:.2f} ± {r['rise_se']:.2f}"
+                         + ("" if aspect == 1.0 else f" ({r['change']:+.0%})") for r in sel]
+                raised = "" if aspect == 1.0 else str(sum(r["change"] > 2 * r["change_se"] for r in sel))
+                rows.append([f"{band:.0f}", orient, f"{aspect:g}", *cells, raised])
+    head = ["band (nm)", "orientation", "aspect", *[f"S(70)/S(30) at {t:.2f} deg" for t in incid],
+            "raised (of 4)"]
+    note = (f" ({d['rays']} rays per section and incidence, seed {d['seed']}; ± the spread over ten batches of the"
+            " rays; in brackets the change from the round section; raised: changes above twice their standard"
+            " error)")
+    return _table(head, rows) + "\n\n" + _source(rec, note)
+
+
 FIGURES: dict[str, Callable[[], str]] = {
+    "fibre-section-screen": fig_fibre_section_screen,
     "speed-accuracy": fig_speed_accuracy,
     "felt-residual": fig_felt_residual,
     "felt-residual-measured": fig_felt_residual_measured,
