@@ -499,6 +499,18 @@ def _fit_claimed(args: argparse.Namespace, config: Any, measured: Any, mc_trend:
     """The fit once its arguments are checked (its --out claimed by the registry for the whole run)."""
     if not (args.resume or args.force):
         refuse_existing(args.out, False)
+    from fabric_optics.fitting import reuse
+
+    key = reuse.fit_key(vars(args), config, measured, args.out)
+    found = None if args.resume else reuse.lookup(key)
+    if found is not None:
+        prepare_folder(args.out, writer="simulate fit", force=args.force, resume=False)
+        lines, status = reuse.restore(found, args.out)
+        print(f"simulate fit: this fit (its inputs, options and code unchanged) finished before; its outputs are "
+              f"restored from the table cache into {args.out} (--no-cache fits again)")
+        for stream, text in lines:
+            print(text, file=sys.stderr if stream == "stderr" else sys.stdout)
+        return status
     job = api.prepare_fit(config, measured, args.free, args.out, method=args.method, dye=args.dye,
                           max_evaluations=args.max_evaluations, max_runs=args.max_runs,
                           target_rel_err=args.target_rel_err, seed=args.seed, threads=args.threads,
@@ -526,35 +538,44 @@ def _fit_claimed(args: argparse.Namespace, config: Any, measured: Any, mc_trend:
         raise _UsageError(_write_failed(args.out, exc) + " (the fit state is kept: --resume)") from None
     from fabric_optics.fitting.verdict import COLOUR_LEFT_OFF, uncertainty_text
 
+    said: list[tuple[str, str]] = []
+
+    def say(text: str, stream: str = "stdout") -> None:
+        print(text, file=sys.stderr if stream == "stderr" else sys.stdout)
+        said.append((stream, text))
+
     doc = outcome.summary
     for p in doc["parameters"]:
         u = p["u"] if p.get("u") is not None else float("nan")
-        print(f"{p['name']} = {p['value']:.6g} {uncertainty_text(u, p.get('u_status', ''))}   (start "
-              f"{p['start']:.6g}, bounds [{p['low']:g}, {p['high']:g}])")
-    for key in ("start", "fitted"):
-        c = doc[key]
+        say(f"{p['name']} = {p['value']:.6g} {uncertainty_text(u, p.get('u_status', ''))}   (start "
+            f"{p['start']:.6g}, bounds [{p['low']:g}, {p['high']:g}])")
+    for key_ in ("start", "fitted"):
+        c = doc[key_]
         colour = f", dh {c['dh']:+.4f}, ds {c['ds']:+.4f}" if "dh" in c else ""
         level = f", level k_Y {c['level_k']:.3g}" if c.get("level_k") is not None else ""
-        print(f"{key:>7}: NRMSE {c['nrmse']:.4f}{colour}{level}")
+        say(f"{key_:>7}: NRMSE {c['nrmse']:.4f}{colour}{level}")
     for w in outcome.warnings:
         if not w.startswith(COLOUR_LEFT_OFF):    # said once, as the verdict, below
-            print(f"warning: {w}", file=sys.stderr)
+            say(f"warning: {w}", "stderr")
     info = outcome.result.info
     if args.method == "mc":
-        print(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
-              f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
-              f"{info['seconds']:.1f} s; {info['stop']})")
+        say(f"wrote {args.out} ({info['mc_runs']} Monte Carlo runs ({info['mc_runs_done']} run now), "
+            f"{info['summation_walks']} summation walks, {info['surrogate_evaluations']} surrogate evaluations, "
+            f"{info['seconds']:.1f} s; {info['stop']})")
     else:
-        print(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
-              f"{info['reweighted']} re-weighted passes"
-              + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache")
-                 else "") + f", {info['seconds']:.1f} s)")
+        say(f"wrote {args.out} ({info['evaluations']} evaluations, {info['walks']} Monte Carlo walks, "
+            f"{info['reweighted']} re-weighted passes"
+            + (f", {info['walks_from_cache']} of them read from the table cache" if info.get("walks_from_cache")
+               else "") + f", {info['seconds']:.1f} s)")
     verdict = doc.get("verdict") or {}
+    status = 0
     if not outcome.passed:
         # the outputs are written and labelled failing (fit.json verdict, fitted.toml header); exit 3
-        print(f"simulate fit: FAILED, {verdict.get('why', 'colour left off')}", file=sys.stderr)
-        return int(verdict.get("exit_status") or 3)
-    return 0
+        say(f"simulate fit: FAILED, {verdict.get('why', 'colour left off')}", "stderr")
+        status = int(verdict.get("exit_status") or 3)
+    if not args.resume:   # a resumed fit's folder holds what an earlier process left: not a pure function of the key
+        reuse.keep(key, args.out, said, status)
+    return status
 
 
 # ------------------------------------------------------------------------------------------
