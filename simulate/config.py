@@ -134,6 +134,7 @@ import hashlib
 import math
 from dataclasses import dataclass, field
 from importlib import resources
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -180,8 +181,10 @@ DEFAULT_AXIAL_NODES = 5
 
 
 def axial_node_grid(n: int) -> tuple[float, ...]:
-    """``n`` yarn-table nodes in ``|w_t|``: steps of ``1 / (n - 1)`` from 0, the last node at 0.95
-    instead of 1 (light travelling exactly along the fiber axis does not enter its side).
+    """``n`` yarn-table nodes in ``|w_t|``.
+
+    Steps of ``1 / (n - 1)`` from 0, the last node at 0.95 instead of 1 (light travelling exactly along
+    the fiber axis does not enter its side).
 
     >>> axial_node_grid(5)
     (0.0, 0.25, 0.5, 0.75, 0.95)
@@ -221,7 +224,7 @@ def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = N
     sub.done()
     if len(wl) != len(values):
         raise sub.fail("values", f"must have as many items as wavelength_nm ({len(wl)}), got {len(values)}")
-    if any(b <= a for a, b in zip(wl, wl[1:])):
+    if any(b <= a for a, b in pairwise(wl)):
         raise sub.fail("wavelength_nm", "must be strictly increasing")
     for k, v in enumerate(values):
         if (gt is not None and not v > gt) or (ge is not None and not v >= ge):
@@ -248,8 +251,10 @@ class ParticleSpec:
 
 @dataclass(frozen=True)
 class Population:
-    """One fiber population of ``[[populations]]``: its share by number and its fiber, every field resolved
-    (the config's own where the population does not override it)."""
+    """One fiber population of ``[[populations]]``: its share by number and its fiber.
+
+    Every field is resolved: the config's own where the population does not override it.
+    """
 
     name: str
     share: float
@@ -309,8 +314,11 @@ class SimulationConfig:
     dye_depth_um: float = 0.0
 
     def population_configs(self) -> list[tuple[float, SimulationConfig]]:
-        """``(share, config)`` of each fiber population: the config with that population's fiber and no
-        ``[[populations]]``; without ``[[populations]]``, ``[(1.0, self)]``."""
+        """``(share, config)`` of each fiber population.
+
+        Each config is this one with that population's fiber and no ``[[populations]]``; without
+        ``[[populations]]``, ``[(1.0, self)]``.
+        """
         if not self.populations:
             return [(1.0, self)]
         return [(p.share, dataclasses.replace(
@@ -321,8 +329,10 @@ class SimulationConfig:
             for p in self.populations]
 
     def undyed(self) -> SimulationConfig:
-        """The config with its fiber undyed: the reference a walk is traced in when its dye is applied by
-        weights (:mod:`simulate.structwalk`)."""
+        """The config with its fiber undyed.
+
+        The reference a walk is traced in when its dye is applied by weights (:mod:`simulate.structwalk`).
+        """
         return dataclasses.replace(self, dye=None)
 
     def w_t_nodes(self) -> tuple[float, ...]:
@@ -419,8 +429,11 @@ def _particles(t: Table) -> ParticleSpec:
 
 
 def _weave(t: Table, base_dir: Path) -> dict:
-    """The ``[weave]`` table as a dict of the fields present (:func:`weave_from_config`
-    fills the defaults and checks the geometry); ``wif`` is stored resolved against ``base_dir``."""
+    """The ``[weave]`` table as a dict of the fields present.
+
+    :func:`weave_from_config` fills the defaults and checks the geometry; ``wif`` is stored resolved
+    against ``base_dir``.
+    """
     out: dict = {}
     given = [key for key in ("matrix", "preset", "wif") if t.has(key)]
     if len(given) > 1:
@@ -471,7 +484,7 @@ def _wavelengths(t: Table) -> tuple[float, ...]:
         if not 200.0 <= w <= 2500.0:
             raise t.fail("list_nm" if t.has("list_nm") else "start_nm",
                          f"wavelength {w:g} nm outside 200..2500 nm")
-    if len(set(wl)) != len(wl) or any(b <= a for a, b in zip(wl, wl[1:])):
+    if len(set(wl)) != len(wl) or any(b <= a for a, b in pairwise(wl)):
         raise t.fail("list_nm", "must be strictly increasing without duplicates")
     return tuple(wl)
 
@@ -577,48 +590,8 @@ def _populations(top: Table, base: Population, hg_medium: bool) -> tuple[Populat
     if not isinstance(items, list) or not items or not all(isinstance(x, dict) for x in items):
         raise top.fail("populations", f"must be an array of tables ([[populations]], one per population), "
                                       f"got {show(items)}")
-    out = []
-    for k, item in enumerate(items):
-        t = Table(item, f"populations[{k}]", top.file, _FIELDS["populations"])
-        name = t.string("name", f"population {k + 1}") or f"population {k + 1}"
-        share = t.number("share", required=True, gt=0.0, le=1.0)
-        assert share is not None
-        fields: dict[str, Any] = {}
-        ft = t.sub("fiber", fields=_FIELDS["populations.fiber"])
-        if ft is not None:
-            if ft.has("radius_um"):
-                fields["radius_um"] = ft.number("radius_um", gt=0.0, le=1e4)
-            if ft.has("n_host"):
-                fields["n_host"] = ft.number("n_host", ge=1.0, le=4.0)
-            dt = ft.sub("dye", fields=_FIELDS["fiber.dye"])
-            if dt is not None:
-                if hg_medium:
-                    raise ft.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total absorption)")
-                fields["dye"] = dye_from_table(dt)
-            if ft.has("dye_profile") or ft.has("dye_depth_um"):
-                radius_p = fields.get("radius_um", base.radius_um)
-                fields["dye_profile"], fields["dye_depth_um"] = _dye_profile(
-                    ft, radius_p, fields.get("dye", base.dye) is not None)
-            elif "radius_um" in fields and base.dye_profile != "uniform" and not base.dye_depth_um < fields["radius_um"]:
-                raise ft.fail("radius_um", f"must exceed fiber.dye_depth_um ({base.dye_depth_um:g}) of the "
-                                           f"{base.dye_profile} dye it keeps, got {fields['radius_um']:g}")
-            ft.done()
-        pt = t.sub("particles", fields=_FIELDS["particles"])
-        if pt is not None:
-            if hg_medium:
-                raise t.fail("particles", "cannot be combined with [medium]: a population overrides [particles]")
-            fields["particles"] = _particles(pt)
-        st = t.sub("surface", fields=_FIELDS["surface"])
-        if st is not None:
-            if st.has("rms_slope"):
-                fields["rms_slope"] = st.number("rms_slope", gt=0.0, le=1.0)
-            if st.has("transmission_rms_slope"):
-                fields["transmission_rms_slope"] = st.number("transmission_rms_slope", ge=0.0, le=1.0)
-            if st.has("transmission_rms_slope_around"):
-                fields["transmission_rms_slope_around"] = st.number("transmission_rms_slope_around", ge=0.0, le=1.0)
-            st.done()
-        t.done()
-        out.append(dataclasses.replace(base, name=name, share=share, **fields))
+    out = [_population(Table(item, f"populations[{k}]", top.file, _FIELDS["populations"]), k, base, hg_medium)
+           for k, item in enumerate(items)]
     total = sum(p.share for p in out)
     if abs(total - 1.0) > SHARE_TOLERANCE:
         raise top.fail("populations", f"shares must add up to 1, got {total:.6g} "
@@ -628,6 +601,54 @@ def _populations(top: Table, base: Population, hg_medium: bool) -> tuple[Populat
         if n in names[:k]:
             raise top.fail(f"populations[{k}].name", f"repeats {show(n)}: give each population its own name")
     return tuple(out)
+
+
+def _population(t: Table, k: int, base: Population, hg_medium: bool) -> Population:
+    """Population ``k`` of ``[[populations]]`` (its table ``t``): ``base`` with the table's overrides."""
+    name = t.string("name", f"population {k + 1}") or f"population {k + 1}"
+    share = t.number("share", required=True, gt=0.0, le=1.0)
+    assert share is not None
+    fields: dict[str, Any] = {}
+    ft = t.sub("fiber", fields=_FIELDS["populations.fiber"])
+    if ft is not None:
+        fields.update(_population_fiber(ft, base, hg_medium))
+    pt = t.sub("particles", fields=_FIELDS["particles"])
+    if pt is not None:
+        if hg_medium:
+            raise t.fail("particles", "cannot be combined with [medium]: a population overrides [particles]")
+        fields["particles"] = _particles(pt)
+    st = t.sub("surface", fields=_FIELDS["surface"])
+    if st is not None:
+        for key in ("rms_slope", "transmission_rms_slope", "transmission_rms_slope_around"):
+            if st.has(key):
+                fields[key] = (st.number(key, gt=0.0, le=1.0) if key == "rms_slope"
+                               else st.number(key, ge=0.0, le=1.0))
+        st.done()
+    t.done()
+    return dataclasses.replace(base, name=name, share=share, **fields)
+
+
+def _population_fiber(ft: Table, base: Population, hg_medium: bool) -> dict[str, Any]:
+    """A population's ``[populations.fiber]`` overrides of ``base``'s fiber (radius, index, dye, profile)."""
+    fields: dict[str, Any] = {}
+    if ft.has("radius_um"):
+        fields["radius_um"] = ft.number("radius_um", gt=0.0, le=1e4)
+    if ft.has("n_host"):
+        fields["n_host"] = ft.number("n_host", ge=1.0, le=4.0)
+    dt = ft.sub("dye", fields=_FIELDS["fiber.dye"])
+    if dt is not None:
+        if hg_medium:
+            raise ft.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total absorption)")
+        fields["dye"] = dye_from_table(dt)
+    if ft.has("dye_profile") or ft.has("dye_depth_um"):
+        radius_p = fields.get("radius_um", base.radius_um)
+        fields["dye_profile"], fields["dye_depth_um"] = _dye_profile(
+            ft, radius_p, fields.get("dye", base.dye) is not None)
+    elif "radius_um" in fields and base.dye_profile != "uniform" and not base.dye_depth_um < fields["radius_um"]:
+        raise ft.fail("radius_um", f"must exceed fiber.dye_depth_um ({base.dye_depth_um:g}) of the "
+                                   f"{base.dye_profile} dye it keeps, got {fields['radius_um']:g}")
+    ft.done()
+    return fields
 
 
 def _dye_profile(t: Table, radius_um: float, has_dye: bool) -> tuple[str, float]:
@@ -646,8 +667,10 @@ def _dye_profile(t: Table, radius_um: float, has_dye: bool) -> tuple[str, float]
 
 
 def require_single_population(config: SimulationConfig, what: str) -> None:
-    """Refuse a blend (``[[populations]]`` with more than one population) for ``what``, a model or command that
-    takes one fiber: one line naming the config and what to do.
+    """Refuse a blend (``[[populations]]`` with more than one population) for a one-fiber ``what``.
+
+    ``what`` is a model or command that takes one fiber; the refusal is one line naming the config and
+    what to do.
 
     Raises
     ------

@@ -139,8 +139,10 @@ PRESETS: dict[str, list[list[int]]] = {
 
 
 class WeaveError(ValueError):
-    """A bad weave (matrix, dimensions, WIF file, export path): one line naming the row, column,
-    line or field."""
+    """A bad weave (matrix, dimensions, WIF file, export path).
+
+    Its message is one line naming the row, column, line or field.
+    """
 
 
 # ------------------------------------------------------------------------------------------
@@ -336,8 +338,11 @@ class Weave:
         return s, np.append(z, z[0]).astype(float)
 
     def centre_line(self, yarn: int) -> CubicSpline:
-        """The yarn's centre height ``z_c(s)``: periodic cubic spline (period ``L``) through its
-        control points; it extrapolates periodically, so it may be evaluated on ``[0, L]``."""
+        """The yarn's centre height ``z_c(s)``.
+
+        A periodic cubic spline (period ``L``) through its control points; it extrapolates periodically,
+        so it may be evaluated on ``[0, L]``.
+        """
         s, z = self.control_points(yarn)
         return CubicSpline(s, z, bc_type="periodic")
 
