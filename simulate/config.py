@@ -1,17 +1,73 @@
 """Simulation configs: what fiber, what fabric, how accurately (TOML, read with ``tomllib``).
 
-A config names the fiber (radius, host index, host absorption spectrum = the dye), the
-scattering medium inside it (Mie particles, or a direct Henyey-Greenstein medium for
-validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.geometry.weave`), the
-method settings and the seed. ``simulate fiber`` and ``simulate fabric`` take a config path or
-the name of a shipped preset (``red-cotton``, in :mod:`simulate.configs`).
+A config names the fiber (radius, host index, host absorption spectrum = the dye), the scattering
+medium inside it (Mie particles, or a direct Henyey-Greenstein medium for validation), the surface
+roughness, the fabric (the woven micro-element of :mod:`simulate.geometry.weave`, or a
+``[structure]``), a blend's fiber populations, the method settings and the seed. ``simulate fiber``,
+``simulate fabric`` and the fit take a config path or the name of a shipped preset (``red-cotton``,
+in :mod:`simulate.configs`).
 
+Public objects
+--------------
+- :func:`load_config`, :func:`parse_config`: a path, preset name or TOML text to a validated
+  :class:`SimulationConfig` (with its :class:`ParticleSpec`, :class:`DyeSpectrum` and
+  :class:`Population` parts); :func:`preset_names`, :func:`resolve_config_path`.
+- :func:`weave_from_config`: the :class:`~simulate.geometry.weave.Weave` of a config's ``[weave]``.
+- :func:`require_single_population`: the one refusal of a blend by a one-fiber model or command.
+- :class:`ConfigError`: the one error of a bad config.
+- :data:`SCHEMA`: every table and field, with units, bounds and defaults.
+
+Notes
+-----
 Every bad field ends in ONE :class:`ConfigError` whose message names the file and the field,
 e.g. ``red.toml: fiber.radius_um must be a number > 0, got "abc"``. Unknown fields are errors
 too (a misspelt key must not be silently ignored).
 
-Schema
-------
+The schema is :data:`SCHEMA`; ``docs/scripts/gen_reference.py`` renders it, with the table of known
+keys, as the config reference (docs/reference/config.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gonio.data import toml_text
+from simulate.config_dye import DyeSpectrum, dye_from_table, knots_curve
+from simulate.config_table import ConfigError, Table, show
+from simulate.fabric.structure import structure_from_table
+from simulate.geometry.weave import PRESETS, Weave, WeaveError, preset
+from simulate.geometry.wif import weave_from_wif
+from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
+
+__all__ = [
+    "SCHEMA",
+    "ConfigError",
+    "DyeSpectrum",
+    "ParticleSpec",
+    "Population",
+    "SimulationConfig",
+    "knots_curve",
+    "load_config",
+    "parse_config",
+    "preset_names",
+    "require_single_population",
+    "resolve_config_path",
+]
+
+
+#: The config schema: units, an annotated example of every table and field (bounds and defaults in the
+#: comments) and the rules across tables. Rendered as docs/reference/config.md by
+#: ``docs/scripts/gen_reference.py`` (an RST literal block after ``::``).
+SCHEMA = """\
 Lengths in micrometres, absorption/scattering coefficients in 1/um, wavelengths in nm (vacuum).
 A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], values = [...]}``
 (strictly increasing wavelengths, interpolated linearly, end values held outside)::
@@ -126,41 +182,6 @@ One population of share 1 without overrides is the config without ``[[population
 Exactly one of ``[particles]`` and ``[medium]`` is required. The removed ``[structure]`` switches are
 refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
 """
-
-from __future__ import annotations
-
-import dataclasses
-import hashlib
-import math
-from dataclasses import dataclass, field
-from importlib import resources
-from itertools import pairwise
-from pathlib import Path
-from typing import Any
-
-import numpy as np
-
-from gonio.data import toml_text
-from simulate.config_dye import DyeSpectrum, dye_from_table, knots_curve
-from simulate.config_table import ConfigError, Table, show
-from simulate.fabric.structure import structure_from_table
-from simulate.geometry.weave import PRESETS, Weave, WeaveError, preset
-from simulate.geometry.wif import weave_from_wif
-from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
-
-__all__ = [
-    "ConfigError",
-    "DyeSpectrum",
-    "ParticleSpec",
-    "Population",
-    "SimulationConfig",
-    "knots_curve",
-    "load_config",
-    "parse_config",
-    "preset_names",
-    "require_single_population",
-    "resolve_config_path",
-]
 
 
 _PRESET_PACKAGE = "simulate.configs"

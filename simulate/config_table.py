@@ -144,7 +144,7 @@ class Table:
         """``FILE: where.key is not a known field (did you mean X?)``."""
         guess = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
         hint = (f"did you mean {guess[0]}?" if guess
-                else "check the spelling; the schema is in the simulate.config docstring")
+                else "check the spelling; the schema is docs/reference/config.md")
         return self.fail(key, f"is not a known field ({hint})")
 
     def done(self) -> None:

@@ -191,8 +191,8 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
 def is_previous_output(out: Path) -> bool:
     """True when the folder ``out`` holds a previous ``simulate fabric`` output: its ``meta.json`` says so.
 
-    Also recognised: what a run of an older version killed between its two renames left,
-    ``radiance.csv`` beside the ``.meta.json.XXXXXXXX.tmp`` that says so (that version wrote file by file).
+    Also recognised: ``radiance.csv`` beside a ``.meta.json.XXXXXXXX.tmp`` that says so, what an output
+    written file by file leaves when its run is killed between the two renames.
     """
     out = Path(out)
     candidates = [out / "meta.json"]

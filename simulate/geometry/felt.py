@@ -1,107 +1,44 @@
-r"""A nonwoven felt for the ray tracer: a random layer of fibers in a periodic cell.
+"""A nonwoven felt for the ray tracer: a random layer of fibers in a periodic cell.
 
-The summation's felt (:func:`simulate.fabric.structure.felt_facets`, docs/physics.md 6.2) has fibers
-whose in-plane direction is uniform in ``[0, 180)`` deg and whose inclination ``epsilon`` out of the
-plane is normal with standard deviation ``felt_spread_deg`` (truncated at +-80 deg). Here the same
-fibers are built as geometry and traced on Embree like the weave's yarns:
+The summation's felt (:func:`simulate.fabric.structure.felt_facets`, docs/physics.md 6.2) built as
+geometry and traced on Embree like the weave's yarns: straight or crimped tubes of the fiber's radius
+``R``, in-plane direction uniform, inclination normal with standard deviation ``felt_spread_deg``
+(truncated at +-80 deg), as much fiber per unit area as the summation's ``layers`` layers.
 
-* **Cell**: ``[0, L) x [0, L)`` with ``L = 40 R`` (``R`` the fiber radius), periodic as the weave's
-  micro-element (:mod:`simulate.raytrace.scene`).
-* **Fibers**: circular tubes of radius ``R``, length ``l = 40 R`` (straight, or crimped: below), each with a uniform
-  random in-plane position and a direction drawn from the distribution above. A fiber that crosses
-  the cell's sides is also put in at its periodic images (shifted by ``+-L``), so the cell tiles the
-  plane seamlessly.
-* **Needle-punched fibers** (``felt_normal_fraction``, ``felt_normal_spread_deg``): needle punching drives
-  part of the web's fibers from the plane towards the normal; X-ray CT of needle-punched nonwovens finds
-  fibers parallel and perpendicular to the normal and few in between (Text. Res. J., doi
-  10.1177/0040517517736470). With probability ``felt_normal_fraction`` a fiber is drawn from that
-  second population: tilted from the normal by ``|N(0, felt_normal_spread_deg)|`` (truncated at 80 deg)
-  towards a uniform azimuth, counted by its material (``2 R l``, as a fiber lying flat) in the amount
-  below. It is deposited like the others (on the floor or on the fibers below), so it stands among
-  them and may stand out of the top. The fraction 0 (the default) draws nothing more from the stream:
-  the felt is bit for bit the in-plane one. The summation's felt (6.2) has no such population (a
-  warning says so).
-* **Crimp** (``felt_crimp_percent``, ``felt_crimp_per_cm``, ``felt_crimp_plane``): staple fibers are
-  crimped, a wave the fiber keeps in the felt (ASTM D3937 measures its frequency for manufactured staple
-  whose crimp can be viewed as a plane sine wave). The crimp percentage ``c`` is the straightened length
-  less the crimped length over the straightened length; for a sine ``A sin(2 pi x / lambda)`` at
-  ``f = 1 / lambda`` waves per unit crimped length, one wave's arc length is ``lambda / (1 - c)``, which
-  sets the amplitude ``A`` (:func:`crimp_amplitude`; 13 % at 4.4 per cm: ``lambda`` 2.27 mm, ``A`` 0.29 mm,
-  the slope up to 39 deg). A fiber of length ``l`` is the piece of arc length ``l`` of that wave about a
-  uniform random phase: the direction drawn above is the wave's run, its arc's midpoint the fiber's
-  centre. At the green felt's ``l`` = 0.33 mm a fiber is an eighth of a wave: an arc whose tangent
-  turns by up to ``A (2 pi / lambda)^2 l`` (42 deg; 7 pieces). The wave lies in the plane of its run and a
-  displacement perpendicular to it: horizontal (``"felt"``: a crimped fiber laid and pressed flat rests
-  on its wave's side; for an in-plane fiber its tangents stay in the plane) or turned about the run by a
-  uniform angle (``"random"``: its pieces then tilt out of the plane by up to the slope). Geometry: the
-  axis is a polyline of ``n_s`` pieces at uniform arc length (enough that it leaves the sine by at most
-  ``CRIMP_SAGITTA R`` between rings, at most ``MAX_PIECES``), its rings perpendicular to the sine's
-  tangent in a parallel-transported frame, so that ``(s, phi)`` stay the tube's coordinates
-  (:func:`_crimped_tube`); its images are chosen by the polyline's box. Deposition: the lowest-gap
-  argument below holds per pair of straight pieces, so a crimped fiber is placed against every placed
-  piece that can meet it (:func:`_lowest_free_height_pieces`); the volume fraction counts points in the
-  pieces' cylinders. A crimped fiber lying in the plane counts its polyline's projected area in the amount
-  below. At ``felt_crimp_percent = 0`` (the default) nothing is drawn for it: the felt is the straight
-  one bit for bit. The summation's felt (6.2) has straight fibers (a warning says so).
-* **Loose top** (``felt_fuzz_fraction``, ``felt_fuzz_depth_um``): a real felt's surface is hairy, loose fibers
-  over a density that falls across the top few hundred microns. With ``felt_fuzz_fraction > 0`` that fraction
-  of the fiber amount below (the last fibers drawn) is deposited as a loose top: each fiber's lowest point
-  is drawn uniformly in ``[top, top + felt_fuzz_depth_um]`` above the compact felt's top (the highest point
-  of the fibers deposited before) and the fiber put at the lowest free height from there, by the
-  deposition's rule (no two fibers interpenetrate); a fiber raised beyond the depth by the loose fibers
-  already there is drawn again (:func:`_place_loose`; a depth too thin for the fibers is refused). The
-  loose fibers float (a real felt's hairs are held by their other ends); their directions are the felt's.
-  The bulk volume fraction is the compact felt's. At ``felt_fuzz_fraction = 0`` (the default) nothing is
-  drawn for it: the felt is today's bit for bit. The summation's felt (6.2) has no loose top (a warning says so).
-* **How many**: the summation's felt is ``layers`` (``structure.layers``, default 10) layers of
-  parallel fibers at spacing ``d = 2 R spacing_ratio`` (the packing fraction's); here the fibers'
-  projected area ``2 R l cos(epsilon)`` adds up to the same ``layers L^2 / spacing_ratio`` (the same
-  amount of fiber per unit area).
-* **No two fibers interpenetrate**. Fibers placed independently overlap where they cross
-  (at the layers' density a covered point lay in 1.47 fibers on average), and a tracer that walks
-  each fiber's volume from a table walks the shared material once per fiber: with absorbing fibers
-  the felt was 16 % too dark (docs/physics.md 6). Treating the union instead would need the walk in
-  the union of cylinders, which the per-fiber exit tables cannot give, so the geometry is made
-  physical: the fibers are deposited one by one, each put at the *lowest height* at which it lies on
-  the floor or in a gap of the fibers below without touching any (random sequential deposition with
-  settling into the lowest gap, the way a web is laid; :func:`_lowest_free_height`: the axes kept
-  ``2 R`` apart -- a spherocylinder test, slightly conservative at the fibers' ends). The felt's top
-  is put at ``z = 0``.
-* **Volume fraction**: rigid straight fibers of aspect ratio 20 jam loosely: this deposition reaches
-  a bulk volume fraction of about 0.11 (spread 20 deg) to 0.16 (spread 0, fibers in the plane)
-  (``info["volume_fraction"]``, measured between the quartiles of the centres' heights). Random
-  sequential addition with rejection in a slab reaches no more (it jammed at 0.14-0.19, the fibers'
-  volume over their centres' slab, 20 000 tries a fiber), and picking the lowest of 4-16 positions
-  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured).
-  The summation's layers of touching fibers (packing 0.9069) are beyond any random straight-fiber
-  layer: the felt keeps the layers' *fiber amount* and the orientation distribution and takes the
-  thickness the deposition gives (10 touching layers of 20-um fibers: ~1.2-1.8 mm instead of 0.2 mm).
-  A requested packing below the deposition's density (< ~0.11) is not loosened further (it only sets
-  the fiber count): compare with the summation at the felt's measured volume fraction
-  (the felt study, :func:`fabric_optics.bench.felt.run_felt_study` with ``packing_fraction``).
-* **Ends**: the tubes are open. An end is ``R / l = 2.5 %`` of a fiber's surface; light that enters
-  one meets the tube's inside and is taken into the fiber's volume (the interpenetration rule).
-* **Mesh**: a :class:`~simulate.geometry.mesh.FabricMesh`, the weave's layout
-  (:mod:`simulate.geometry.weave`): one "yarn" per fiber image,
-  ``(n_s + 1) x (sides + 1)`` vertices, ``s`` the arc length along the fiber (``open_fibers``: the
-  tracer clamps exits to the tube's ends instead of wrapping them round a periodic yarn, and puts
-  rays that leave from an image outside the cell back into it), vertex normals radial, vertex tangents
-  the axis's (a crimped fiber's at each ring); no twist.
+Public objects
+--------------
+- :func:`felt_mesh`: the felt of a ``[structure]`` as a :class:`~simulate.geometry.mesh.FabricMesh`
+  (one "yarn" per fiber image); :func:`felt_inputs`: the fields it reads.
+- :func:`cached_felt_mesh`, :func:`felt_key`, :data:`CACHE_MODULES`: a felt through the table cache
+  (:mod:`simulate.fiber.tablecache`), keyed by every input and this module's source.
+- :func:`crimp_axis`, :func:`crimp_amplitude`: a crimped fiber's sine; :func:`fiber_pieces`: a mesh's
+  fiber axes as straight pieces; :data:`CELL_RADII`, :data:`LENGTH_RADII`.
 
-* **Cost**: the deposition's overlap intervals (golden section and bisections per pair) are compiled
-  (:func:`_overlap_intervals`, numba), with numpy's operations in numpy's order: the felt is the one the
-  numpy placement builds, bit for bit (tested), in a ninth of its CPU (green felt: 0.68 s instead of
-  6.2 s). :func:`cached_felt_mesh` keeps a built felt in the table cache (:mod:`simulate.fiber.tablecache`,
-  16 MB for the green felt) under every input of it and this module's source: the runs of a fit that keeps
-  the structure load their two realisations (0.03 s each) instead of building them.
+Notes
+-----
+- **Deposition.** No two fibers interpenetrate (a tracer walking each fiber's volume from its exit
+  table would walk shared material twice): each fiber goes at the lowest height where it lies on the
+  floor or in a gap of the fibers below, axes ``2 R`` apart (:func:`_lowest_free_height`). The felt
+  takes the thickness this gives (``info["volume_fraction"]``); its top is at ``z = 0``.
+- **Cell and mesh.** ``[0, L)^2``, ``L = 40 R``, fibers ``40 R`` long, put in at their periodic images
+  too; open tubes (``open_fibers``), ``s`` the arc length, the yarn table the fiber's own (``r_yarn = R``).
+- **Needle-punched fibers** (``felt_normal_fraction``, ``felt_normal_spread_deg``): a second population
+  tilted from the normal by ``|N(0, felt_normal_spread_deg)|`` [1], deposited like the others.
+- **Crimp** (``felt_crimp_percent``, ``felt_crimp_per_cm``, ``felt_crimp_plane``): each fiber a piece of
+  a sine whose wave's arc length is ``lambda / (1 - c)`` [2] (:func:`crimp_amplitude`), lying in the
+  felt's plane or turned about its run; its axis a polyline (:func:`_crimp_pieces`), its rings in a
+  parallel-transported frame, placed against every piece it can meet.
+- **Loose top** (``felt_fuzz_fraction``, ``felt_fuzz_depth_um``): the last fibers' lowest points drawn
+  uniformly over a depth above the compact felt's top (:func:`_place_loose`).
+- Each option at 0 (its default) draws nothing from the stream; the summation's felt has none of them.
+- Limits: rigid fibers, a flat floor, a cell of about 20 fibers across (the spread between
+  realisations goes into ``u_beta``: :mod:`simulate.raytrace.estimate`, "A felt"). Volume fractions and
+  what the options change: docs/physics.md 6 ("Felt"), docs/notes/felt-structure.md.
 
-The yarn table is the fiber's own (``r_yarn = R``: the exit offsets need no scaling).
-
-Limits: rigid fibers (a real felt's fibers bend where they cross and pack denser), a floor under the first fibers
-(the felt's bottom is flat; with 10 layers' fiber little light reaches it), a cell of 40 R (about
-20 fibers across): one realisation varies from the next by ~2 % of each direction's peak (green felt),
-which ``simulate fabric --method mc`` puts into ``u_beta`` by tracing each of its two table halves on
-its own realisation, at several azimuths (:mod:`simulate.raytrace.estimate`, "A felt").
+References
+----------
+[1] Fiber orientation of needle-punched nonwovens by X-ray CT, Text. Res. J., doi 10.1177/0040517517736470.
+[2] ASTM D3937, crimp frequency of manufactured staple fibers.
 """
 
 from __future__ import annotations

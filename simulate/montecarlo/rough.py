@@ -21,7 +21,7 @@ EGSR; the same model as Mitsuba's and pbrt's ``roughdielectric``):
 
 ``G1`` is Smith's for the Beckmann distribution, ``1 / (1 + Lambda(a))`` with ``a = 1 / (m tan
 theta)`` and ``Lambda(a) = (erf(a) - 1) / 2 + exp(-a^2) / (2 a sqrt(pi))`` (Walter et al. eq. 27).
-At ``m_t = 0`` the kernel takes its smooth branch, bit for bit the previous code.
+At ``m_t = 0`` the kernel takes its smooth branch: a smooth boundary's results, bit for bit.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ has escaped (reflected / transmitted). Rays are traced in batches (a wavefront):
 call per batch and wrap round, the bookkeeping in compiled code.
 
 Why Embree and not a hand-written grid: it is a well-kept, SIMD BVH engine; ``simulate bench``
-measures its rays per second on these meshes (README, "Fabric Monte Carlo").
+measures its rays per second on these meshes (docs/quality.md).
 
 Precision: Embree works in float32; coordinates are in um and the micro-element is a few
 hundred um wide, so positions are resolved to ~1e-4 um. Secondary rays start ``EPS_UM`` off

@@ -154,7 +154,7 @@ def yarn_table(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 
     the walk's (only the absorption is applied per wavelength, exactly): a bias of at most that
     relative error in ``mu_s`` instead of the re-weighting's variance, which in an optically thick
     cylinder (hundreds of events per path: the yarn's pile, :mod:`simulate.raytrace.pile`) has heavy
-    tails -- re-weighted, the pile's table noise reached 9 % of the peak at 23 000 photons per row.
+    tails (docs/physics.md 6, "Yarn made of fibers").
     """
     return _tables(fiber, wavelengths_nm, [seed], threads, optics, cache, w_t_nodes=w_t_nodes, n_v=n_v,
                    v_max_R=v_max_R, n_mu=n_mu, n_phi=n_phi, photons_per_row=photons_per_row,
