@@ -4,9 +4,8 @@ Importing it makes numba cache the package's compiled kernels once per machine, 
 source's content (:mod:`simulate.kernelcache`; numba itself is imported only when a kernel is needed).
 """
 
-from simulate import kernelcache as _kernelcache
-
 from gonio.version import VERSION as __version__
+from simulate import kernelcache as _kernelcache
 
 __all__ = ["__version__"]
 

@@ -1,17 +1,73 @@
 """Simulation configs: what fiber, what fabric, how accurately (TOML, read with ``tomllib``).
 
-A config names the fiber (radius, host index, host absorption spectrum = the dye), the
-scattering medium inside it (Mie particles, or a direct Henyey-Greenstein medium for
-validation), the surface roughness, the weave (the woven micro-element of :mod:`simulate.geometry.weave`), the
-method settings and the seed. ``simulate fiber`` and ``simulate fabric`` take a config path or
-the name of a shipped preset (``red-cotton``, in :mod:`simulate.configs`).
+A config names the fiber (radius, host index, host absorption spectrum = the dye), the scattering
+medium inside it (Mie particles, or a direct Henyey-Greenstein medium for validation), the surface
+roughness, the fabric (the woven micro-element of :mod:`simulate.geometry.weave`, or a
+``[structure]``), a blend's fiber populations, the method settings and the seed. ``simulate fiber``,
+``simulate fabric`` and the fit take a config path or the name of a shipped preset (``red-cotton``,
+in :mod:`simulate.configs`).
 
+Public objects
+--------------
+- :func:`load_config`, :func:`parse_config`: a path, preset name or TOML text to a validated
+  :class:`SimulationConfig` (with its :class:`ParticleSpec`, :class:`DyeSpectrum` and
+  :class:`Population` parts); :func:`preset_names`, :func:`resolve_config_path`.
+- :func:`weave_from_config`: the :class:`~simulate.geometry.weave.Weave` of a config's ``[weave]``.
+- :func:`require_single_population`: the one refusal of a blend by a one-fiber model or command.
+- :class:`ConfigError`: the one error of a bad config.
+- :data:`SCHEMA`: every table and field, with units, bounds and defaults.
+
+Notes
+-----
 Every bad field ends in ONE :class:`ConfigError` whose message names the file and the field,
 e.g. ``red.toml: fiber.radius_um must be a number > 0, got "abc"``. Unknown fields are errors
 too (a misspelt key must not be silently ignored).
 
-Schema
-------
+The schema is :data:`SCHEMA`; ``docs/scripts/gen_reference.py`` renders it, with the table of known
+keys, as the config reference (docs/reference/config.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gonio.data import toml_text
+from simulate.config_dye import DyeSpectrum, dye_from_table, knots_curve
+from simulate.config_table import ConfigError, Table, show
+from simulate.fabric.structure import structure_from_table
+from simulate.geometry.weave import PRESETS, Weave, WeaveError, preset
+from simulate.geometry.wif import weave_from_wif
+from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
+
+__all__ = [
+    "SCHEMA",
+    "ConfigError",
+    "DyeSpectrum",
+    "ParticleSpec",
+    "Population",
+    "SimulationConfig",
+    "knots_curve",
+    "load_config",
+    "parse_config",
+    "preset_names",
+    "require_single_population",
+    "resolve_config_path",
+]
+
+
+#: The config schema: units, an annotated example of every table and field (bounds and defaults in the
+#: comments) and the rules across tables. Rendered as docs/reference/config.md by
+#: ``docs/scripts/gen_reference.py`` (an RST literal block after ``::``).
+SCHEMA = """\
 Lengths in micrometres, absorption/scattering coefficients in 1/um, wavelengths in nm (vacuum).
 A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], values = [...]}``
 (strictly increasing wavelengths, interpolated linearly, end values held outside)::
@@ -127,40 +183,6 @@ Exactly one of ``[particles]`` and ``[medium]`` is required. The removed ``[stru
 refused with what to do (``simulate.fabric.structure.REMOVED_KEYS``).
 """
 
-from __future__ import annotations
-
-import dataclasses
-import hashlib
-import math
-from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
-from typing import Any
-
-import numpy as np
-
-from gonio.data import toml_text
-from simulate.config_dye import DyeSpectrum, dye_from_table, knots_curve
-from simulate.config_table import ConfigError, Table, show
-from simulate.fabric.structure import structure_from_table
-from simulate.geometry.weave import PRESETS, Weave, WeaveError, preset
-from simulate.geometry.wif import weave_from_wif
-from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
-
-__all__ = [
-    "ConfigError",
-    "DyeSpectrum",
-    "ParticleSpec",
-    "Population",
-    "SimulationConfig",
-    "knots_curve",
-    "load_config",
-    "parse_config",
-    "preset_names",
-    "require_single_population",
-    "resolve_config_path",
-]
-
 
 _PRESET_PACKAGE = "simulate.configs"
 _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10.0))
@@ -180,8 +202,10 @@ DEFAULT_AXIAL_NODES = 5
 
 
 def axial_node_grid(n: int) -> tuple[float, ...]:
-    """``n`` yarn-table nodes in ``|w_t|``: steps of ``1 / (n - 1)`` from 0, the last node at 0.95
-    instead of 1 (light travelling exactly along the fiber axis does not enter its side).
+    """``n`` yarn-table nodes in ``|w_t|``.
+
+    Steps of ``1 / (n - 1)`` from 0, the last node at 0.95 instead of 1 (light travelling exactly along
+    the fiber axis does not enter its side).
 
     >>> axial_node_grid(5)
     (0.0, 0.25, 0.5, 0.75, 0.95)
@@ -221,7 +245,7 @@ def _spectrum(t: Table, key: str, default: float | None, *, gt: float | None = N
     sub.done()
     if len(wl) != len(values):
         raise sub.fail("values", f"must have as many items as wavelength_nm ({len(wl)}), got {len(values)}")
-    if any(b <= a for a, b in zip(wl, wl[1:])):
+    if any(b <= a for a, b in pairwise(wl)):
         raise sub.fail("wavelength_nm", "must be strictly increasing")
     for k, v in enumerate(values):
         if (gt is not None and not v > gt) or (ge is not None and not v >= ge):
@@ -248,8 +272,10 @@ class ParticleSpec:
 
 @dataclass(frozen=True)
 class Population:
-    """One fiber population of ``[[populations]]``: its share by number and its fiber, every field resolved
-    (the config's own where the population does not override it)."""
+    """One fiber population of ``[[populations]]``: its share by number and its fiber.
+
+    Every field is resolved: the config's own where the population does not override it.
+    """
 
     name: str
     share: float
@@ -309,8 +335,11 @@ class SimulationConfig:
     dye_depth_um: float = 0.0
 
     def population_configs(self) -> list[tuple[float, SimulationConfig]]:
-        """``(share, config)`` of each fiber population: the config with that population's fiber and no
-        ``[[populations]]``; without ``[[populations]]``, ``[(1.0, self)]``."""
+        """``(share, config)`` of each fiber population.
+
+        Each config is this one with that population's fiber and no ``[[populations]]``; without
+        ``[[populations]]``, ``[(1.0, self)]``.
+        """
         if not self.populations:
             return [(1.0, self)]
         return [(p.share, dataclasses.replace(
@@ -321,8 +350,10 @@ class SimulationConfig:
             for p in self.populations]
 
     def undyed(self) -> SimulationConfig:
-        """The config with its fiber undyed: the reference a walk is traced in when its dye is applied by
-        weights (:mod:`simulate.structwalk`)."""
+        """The config with its fiber undyed.
+
+        The reference a walk is traced in when its dye is applied by weights (:mod:`simulate.structwalk`).
+        """
         return dataclasses.replace(self, dye=None)
 
     def w_t_nodes(self) -> tuple[float, ...]:
@@ -419,8 +450,11 @@ def _particles(t: Table) -> ParticleSpec:
 
 
 def _weave(t: Table, base_dir: Path) -> dict:
-    """The ``[weave]`` table as a dict of the fields present (:func:`weave_from_config`
-    fills the defaults and checks the geometry); ``wif`` is stored resolved against ``base_dir``."""
+    """The ``[weave]`` table as a dict of the fields present.
+
+    :func:`weave_from_config` fills the defaults and checks the geometry; ``wif`` is stored resolved
+    against ``base_dir``.
+    """
     out: dict = {}
     given = [key for key in ("matrix", "preset", "wif") if t.has(key)]
     if len(given) > 1:
@@ -471,7 +505,7 @@ def _wavelengths(t: Table) -> tuple[float, ...]:
         if not 200.0 <= w <= 2500.0:
             raise t.fail("list_nm" if t.has("list_nm") else "start_nm",
                          f"wavelength {w:g} nm outside 200..2500 nm")
-    if len(set(wl)) != len(wl) or any(b <= a for a, b in zip(wl, wl[1:])):
+    if len(set(wl)) != len(wl) or any(b <= a for a, b in pairwise(wl)):
         raise t.fail("list_nm", "must be strictly increasing without duplicates")
     return tuple(wl)
 
@@ -577,48 +611,8 @@ def _populations(top: Table, base: Population, hg_medium: bool) -> tuple[Populat
     if not isinstance(items, list) or not items or not all(isinstance(x, dict) for x in items):
         raise top.fail("populations", f"must be an array of tables ([[populations]], one per population), "
                                       f"got {show(items)}")
-    out = []
-    for k, item in enumerate(items):
-        t = Table(item, f"populations[{k}]", top.file, _FIELDS["populations"])
-        name = t.string("name", f"population {k + 1}") or f"population {k + 1}"
-        share = t.number("share", required=True, gt=0.0, le=1.0)
-        assert share is not None
-        fields: dict[str, Any] = {}
-        ft = t.sub("fiber", fields=_FIELDS["populations.fiber"])
-        if ft is not None:
-            if ft.has("radius_um"):
-                fields["radius_um"] = ft.number("radius_um", gt=0.0, le=1e4)
-            if ft.has("n_host"):
-                fields["n_host"] = ft.number("n_host", ge=1.0, le=4.0)
-            dt = ft.sub("dye", fields=_FIELDS["fiber.dye"])
-            if dt is not None:
-                if hg_medium:
-                    raise ft.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total absorption)")
-                fields["dye"] = dye_from_table(dt)
-            if ft.has("dye_profile") or ft.has("dye_depth_um"):
-                radius_p = fields.get("radius_um", base.radius_um)
-                fields["dye_profile"], fields["dye_depth_um"] = _dye_profile(
-                    ft, radius_p, fields.get("dye", base.dye) is not None)
-            elif "radius_um" in fields and base.dye_profile != "uniform" and not base.dye_depth_um < fields["radius_um"]:
-                raise ft.fail("radius_um", f"must exceed fiber.dye_depth_um ({base.dye_depth_um:g}) of the "
-                                           f"{base.dye_profile} dye it keeps, got {fields['radius_um']:g}")
-            ft.done()
-        pt = t.sub("particles", fields=_FIELDS["particles"])
-        if pt is not None:
-            if hg_medium:
-                raise t.fail("particles", "cannot be combined with [medium]: a population overrides [particles]")
-            fields["particles"] = _particles(pt)
-        st = t.sub("surface", fields=_FIELDS["surface"])
-        if st is not None:
-            if st.has("rms_slope"):
-                fields["rms_slope"] = st.number("rms_slope", gt=0.0, le=1.0)
-            if st.has("transmission_rms_slope"):
-                fields["transmission_rms_slope"] = st.number("transmission_rms_slope", ge=0.0, le=1.0)
-            if st.has("transmission_rms_slope_around"):
-                fields["transmission_rms_slope_around"] = st.number("transmission_rms_slope_around", ge=0.0, le=1.0)
-            st.done()
-        t.done()
-        out.append(dataclasses.replace(base, name=name, share=share, **fields))
+    out = [_population(Table(item, f"populations[{k}]", top.file, _FIELDS["populations"]), k, base, hg_medium)
+           for k, item in enumerate(items)]
     total = sum(p.share for p in out)
     if abs(total - 1.0) > SHARE_TOLERANCE:
         raise top.fail("populations", f"shares must add up to 1, got {total:.6g} "
@@ -628,6 +622,54 @@ def _populations(top: Table, base: Population, hg_medium: bool) -> tuple[Populat
         if n in names[:k]:
             raise top.fail(f"populations[{k}].name", f"repeats {show(n)}: give each population its own name")
     return tuple(out)
+
+
+def _population(t: Table, k: int, base: Population, hg_medium: bool) -> Population:
+    """Population ``k`` of ``[[populations]]`` (its table ``t``): ``base`` with the table's overrides."""
+    name = t.string("name", f"population {k + 1}") or f"population {k + 1}"
+    share = t.number("share", required=True, gt=0.0, le=1.0)
+    assert share is not None
+    fields: dict[str, Any] = {}
+    ft = t.sub("fiber", fields=_FIELDS["populations.fiber"])
+    if ft is not None:
+        fields.update(_population_fiber(ft, base, hg_medium))
+    pt = t.sub("particles", fields=_FIELDS["particles"])
+    if pt is not None:
+        if hg_medium:
+            raise t.fail("particles", "cannot be combined with [medium]: a population overrides [particles]")
+        fields["particles"] = _particles(pt)
+    st = t.sub("surface", fields=_FIELDS["surface"])
+    if st is not None:
+        for key in ("rms_slope", "transmission_rms_slope", "transmission_rms_slope_around"):
+            if st.has(key):
+                fields[key] = (st.number(key, gt=0.0, le=1.0) if key == "rms_slope"
+                               else st.number(key, ge=0.0, le=1.0))
+        st.done()
+    t.done()
+    return dataclasses.replace(base, name=name, share=share, **fields)
+
+
+def _population_fiber(ft: Table, base: Population, hg_medium: bool) -> dict[str, Any]:
+    """A population's ``[populations.fiber]`` overrides of ``base``'s fiber (radius, index, dye, profile)."""
+    fields: dict[str, Any] = {}
+    if ft.has("radius_um"):
+        fields["radius_um"] = ft.number("radius_um", gt=0.0, le=1e4)
+    if ft.has("n_host"):
+        fields["n_host"] = ft.number("n_host", ge=1.0, le=4.0)
+    dt = ft.sub("dye", fields=_FIELDS["fiber.dye"])
+    if dt is not None:
+        if hg_medium:
+            raise ft.fail("dye", "cannot be combined with [medium] (medium.mu_a is the total absorption)")
+        fields["dye"] = dye_from_table(dt)
+    if ft.has("dye_profile") or ft.has("dye_depth_um"):
+        radius_p = fields.get("radius_um", base.radius_um)
+        fields["dye_profile"], fields["dye_depth_um"] = _dye_profile(
+            ft, radius_p, fields.get("dye", base.dye) is not None)
+    elif "radius_um" in fields and base.dye_profile != "uniform" and not base.dye_depth_um < fields["radius_um"]:
+        raise ft.fail("radius_um", f"must exceed fiber.dye_depth_um ({base.dye_depth_um:g}) of the "
+                                   f"{base.dye_profile} dye it keeps, got {fields['radius_um']:g}")
+    ft.done()
+    return fields
 
 
 def _dye_profile(t: Table, radius_um: float, has_dye: bool) -> tuple[str, float]:
@@ -646,8 +688,10 @@ def _dye_profile(t: Table, radius_um: float, has_dye: bool) -> tuple[str, float]
 
 
 def require_single_population(config: SimulationConfig, what: str) -> None:
-    """Refuse a blend (``[[populations]]`` with more than one population) for ``what``, a model or command that
-    takes one fiber: one line naming the config and what to do.
+    """Refuse a blend (``[[populations]]`` with more than one population) for a one-fiber ``what``.
+
+    ``what`` is a model or command that takes one fiber; the refusal is one line naming the config and
+    what to do.
 
     Raises
     ------

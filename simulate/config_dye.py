@@ -7,9 +7,11 @@ checked table (:class:`simulate.config_table.Table`), so every error names the f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
+
 from simulate.config_table import Table, show
 from simulate.media.medium import Spectrum
 
@@ -38,6 +40,7 @@ class DyeSpectrum:
     params: dict
 
     def __call__(self, wavelength_nm: Any) -> np.ndarray:
+        """The host absorption ``mu_a`` in 1/um at ``wavelength_nm``."""
         wl = np.asarray(wavelength_nm, dtype=float)
         p = self.params
         if self.curve == "table":
@@ -74,12 +77,13 @@ def knots_curve(knots_nm: Any, log10_per_um: Any, wavelength_nm: Any) -> np.ndar
 
 
 def _knots(t: Table) -> dict:
+    """The ``knots`` curve's parameters: at least 2 increasing wavelengths and their log10 ``mu_a``."""
     wl = t.numbers("wavelength_nm", ge=0.0)
     values = t.numbers("log10_per_um")
     lo, hi = KNOT_LOG10_RANGE
     if len(wl) < 2 or wl[0] <= 0:
         raise t.fail("wavelength_nm", f"must list at least 2 knots > 0 nm, got {len(wl)}")
-    if any(b <= a for a, b in zip(wl, wl[1:])):
+    if any(b <= a for a, b in pairwise(wl)):
         raise t.fail("wavelength_nm", "must be strictly increasing")
     if len(values) != len(wl):
         raise t.fail("log10_per_um", f"must have as many items as wavelength_nm ({len(wl)}), got {len(values)}")
@@ -90,6 +94,10 @@ def _knots(t: Table) -> dict:
 
 
 def dye_from_table(t: Table) -> DyeSpectrum:
+    """The dye of a ``[fiber.dye]`` (or a population's) table: a wavelength table or a named curve.
+
+    Every field is checked; an error names the file and the field (:class:`simulate.config.ConfigError`).
+    """
     if t.has("curve"):
         curve = t.string("curve", choices=DYE_CURVES)
         if curve == "knots":
@@ -121,6 +129,6 @@ def dye_from_table(t: Table) -> DyeSpectrum:
     t.done()
     if len(wl) != len(mu_a):
         raise t.fail("mu_a_per_um", f"must have as many items as wavelength_nm ({len(wl)}), got {len(mu_a)}")
-    if any(b <= a for a, b in zip(wl, wl[1:])):
+    if any(b <= a for a, b in pairwise(wl)):
         raise t.fail("wavelength_nm", "must be strictly increasing")
     return DyeSpectrum("table", {"wavelength_nm": wl, "mu_a_per_um": mu_a})

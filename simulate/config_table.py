@@ -52,16 +52,20 @@ class Table:
             self._refuse_unknown(self.fields)
 
     def name(self, key: str) -> str:
+        """The dotted field name of ``key`` in this table (``fiber.radius_um``), as errors show it."""
         return f"{self.where}.{key}" if self.where else key
 
     def fail(self, key: str, message: str) -> ConfigError:
+        """The error ``FILE: where.key message`` (returned, for the caller to raise)."""
         return ConfigError(f"{self.file}: {self.name(key)} {message}")
 
     def has(self, key: str) -> bool:
+        """Whether the table gives ``key`` (the key then counts as known to :meth:`done`'s suggestion)."""
         self.asked.add(key)
         return key in self.data
 
     def raw(self, key: str, default: Any = None, required: bool = False) -> Any:
+        """The value of ``key`` unchecked (``default`` when absent; an error when ``required``), marked used."""
         self.used.add(key)
         if key not in self.data:
             if required:
@@ -72,6 +76,7 @@ class Table:
     def number(self, key: str, default: float | None = None, *, required: bool = False,
                gt: float | None = None, ge: float | None = None, lt: float | None = None,
                le: float | None = None) -> float | None:
+        """``key`` as a finite float within the bounds given (``default`` when absent; None stays None)."""
         value = self.raw(key, default, required)
         if value is None:
             return None
@@ -87,6 +92,7 @@ class Table:
         return float(value)
 
     def integer(self, key: str, default: int, *, ge: int = 0, le: int = 2**63 - 1) -> int:
+        """``key`` as an integer in ``[ge, le]`` (a bool is refused), ``default`` when absent."""
         value = self.raw(key, default)
         if isinstance(value, bool) or not isinstance(value, int) or not ge <= value <= le:
             raise self.fail(key, f"must be an integer in [{ge}, {le}], got {show(value)}")
@@ -94,6 +100,7 @@ class Table:
 
     def string(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
                required: bool = False) -> str | None:
+        """``key`` as a non-empty string, one of ``choices`` when given (``default`` when absent)."""
         value = self.raw(key, default, required)
         if value is None:
             return None
@@ -104,6 +111,7 @@ class Table:
         return value
 
     def numbers(self, key: str, *, ge: float | None = None, required: bool = True) -> list[float]:
+        """``key`` as a non-empty list of finite floats, each ``>= ge`` when given."""
         value = self.raw(key, None, required)
         if not isinstance(value, list) or not value:
             raise self.fail(key, f"must be a non-empty list of numbers, got {show(value)}")
@@ -136,10 +144,11 @@ class Table:
         """``FILE: where.key is not a known field (did you mean X?)``."""
         guess = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
         hint = (f"did you mean {guess[0]}?" if guess
-                else "check the spelling; the schema is in the simulate.config docstring")
+                else "check the spelling; the schema is docs/reference/config.md")
         return self.fail(key, f"is not a known field ({hint})")
 
     def done(self) -> None:
+        """Refuse the first key of the table that no check read, with a suggestion of a known one."""
         extra = sorted(set(self.data) - self.used)
         if extra:
             raise self.unknown(extra[0], self.used | self.asked | (self.fields or set()))

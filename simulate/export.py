@@ -23,7 +23,8 @@ file's error against the *exact* model is the tabulation error plus that noise.
 from __future__ import annotations
 
 import os
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -43,8 +44,11 @@ class Geometries:
 
 
 def all_threads(threads: Any) -> int:
-    """``threads`` with 0 or None meaning "all that numba allows" (``numba.config.NUMBA_NUM_THREADS``,
-    which ``NUMBA_NUM_THREADS`` in the environment lowers), the one meaning of 0 in configs and flags."""
+    """``threads`` with 0 or None meaning "all that numba allows".
+
+    That is ``numba.config.NUMBA_NUM_THREADS``, which ``NUMBA_NUM_THREADS`` in the environment lowers: the
+    one meaning of 0 in configs and flags.
+    """
     import numba
 
     return int(threads) if threads else int(numba.config.NUMBA_NUM_THREADS)
@@ -103,11 +107,14 @@ def evaluate(method: str, config: SimulationConfig, fiber: Any, geometries: Geom
 
 def _blend(method: str, config: SimulationConfig, g: Geometries, wavelengths: np.ndarray,
            s: RunSettings) -> FabricEstimate:
-    """A blend of fiber populations (``[[populations]]``) by a model that is linear in its fiber's tables (the
-    summation, the classic model): each population's estimate at the run's seed, mixed by share. The
+    """A blend of fiber populations (``[[populations]]``) by a model linear in its fiber's tables.
+
+    Such models are the summation and the classic model: each population's estimate at the run's seed,
+    mixed by share. The
     summation's layer tables enter ``beta`` linearly, so this is the share-weighted mix of the populations'
     layer tables (exact for the top layer). ``u_beta`` adds the populations' errors linearly (they share the
-    seed's streams, so they are correlated)."""
+    seed's streams, so they are correlated).
+    """
     parts = [(share, evaluate(method, c, c.fiber(wavelengths), g, wavelengths, s))
              for share, c in config.population_configs()]
     beta = sum(share * e.beta for share, e in parts)
@@ -134,9 +141,12 @@ def _population_record(config: SimulationConfig, models: list[dict] | None = Non
 
 
 def check_blend(config: SimulationConfig, method: str) -> None:
-    """Refuse, before any work, a blend (``[[populations]]``) that ``method`` cannot trace: the woven Monte Carlo
-    takes one population, the felt's needs one radius, host index and reflection slope in all of them.
-    :class:`ConfigError`, one line naming the field."""
+    """Refuse, before any work, a blend (``[[populations]]``) that ``method`` cannot trace.
+
+    The woven Monte Carlo takes one population, the felt's needs one radius, host index and reflection
+    slope in all of them.
+    :class:`ConfigError`, one line naming the field.
+    """
     if not getattr(config, "populations", None) or method not in ("mc", "auto"):
         return
     spec = getattr(config, "structure", None)
@@ -153,7 +163,7 @@ def _same_fiber(config: SimulationConfig) -> None:
 
     parts = config.population_configs()
     first = parts[0][1]
-    for share, c in parts[1:]:
+    for _, c in parts[1:]:
         for field_name, a, b in (("fiber.radius_um", c.radius_um, first.radius_um),
                                  ("fiber.n_host", c.n_host, first.n_host),
                                  ("surface.rms_slope", c.rms_slope, first.rms_slope)):
@@ -165,12 +175,15 @@ def _same_fiber(config: SimulationConfig) -> None:
 
 def felt_population_tables(config: SimulationConfig, fiber: Any, wavelengths: np.ndarray, s: RunSettings,
                            bins: tuple[int, int]) -> tuple[Any, Any]:
-    """The felt Monte Carlo's two table halves of a blend: each population's halves (the run's seed and photons,
-    as :func:`simulate.raytrace.fabric_beta` builds one fiber's) with their exit weights mixed by share. A ray that
+    """The felt Monte Carlo's two table halves of a blend.
+
+    Each population's halves (the run's seed and photons, as :func:`simulate.raytrace.fabric_beta` builds
+    one fiber's) with their exit weights mixed by share. A ray that
     meets a fiber then scatters, in expectation, as a fiber drawn from the populations by share (exact for light
     that meets a fiber once; light that meets the same fiber again draws afresh). The populations must share
     the fiber's radius, host index and reflection slope (the felt's tubes and the traced surface term):
-    :class:`ConfigError` naming the field otherwise. ``fiber``: the first population's."""
+    :class:`ConfigError` naming the field otherwise. ``fiber``: the first population's.
+    """
     import dataclasses
 
     from simulate.raytrace.estimate import table_photons
@@ -190,7 +203,7 @@ def felt_population_tables(config: SimulationConfig, fiber: Any, wavelengths: np
         T = shares[0] * tabs[0].T
         c_bar = shares[0] * tabs[0].c_bar
         tau = shares[0] * tabs[0].tau
-        for share, t in zip(shares[1:], tabs[1:]):
+        for share, t in zip(shares[1:], tabs[1:], strict=True):
             T = T + share * t.T
             c_bar = c_bar + share * t.c_bar
             tau = tau + share * t.tau
@@ -207,11 +220,14 @@ def _file_of(config: SimulationConfig) -> str:
 
 
 def smooth_boundary_unless_mc(method: str, fiber: Any, *, quiet: bool = False) -> Any:
-    """The fiber a model walks: the Monte Carlo takes a rough boundary for transmitted light
+    """The fiber a model walks: with its transmitting boundary smooth unless the model is the Monte Carlo.
+
+    The Monte Carlo takes a rough boundary for transmitted light
     (``[surface] transmission_rms_slope``, :mod:`simulate.montecarlo.rough`); the summation's and the
     classic model's fiber routes estimate exits by next events through the smooth boundary, so they walk
     the fiber with it smooth, and say so once per process (``quiet``: not at all -- the Monte Carlo fit's
-    surrogate, whose docstring says how the boundary's slopes are fitted without it)."""
+    surrogate, whose docstring says how the boundary's slopes are fitted without it).
+    """
     import dataclasses
 
     rough = max(float(getattr(fiber, "transmission_roughness", 0.0) or 0.0),
@@ -252,8 +268,10 @@ def _summation(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths:
 
 def _structured(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
                 s: RunSettings) -> FabricEstimate:
-    """The summation over the fabric's visible fibers in all their orientations
-    (:func:`simulate.fabric.structure.structured_beta`), for a config with a ``[structure]`` section."""
+    """The summation over the fabric's visible fibers in all their orientations.
+
+    :func:`simulate.fabric.structure.structured_beta`, for a config with a ``[structure]`` section.
+    """
     from simulate.fabric import structure as st
 
     spec = config.structure
@@ -355,12 +373,15 @@ MODELS: tuple[str, ...] = tuple(_REGISTRY)
 
 
 def reweighted_estimate(record: dict, config: Any, wavelengths_nm: Any) -> tuple[np.ndarray, np.ndarray, dict]:
-    """:func:`simulate.raytrace.reweight.reweighted_beta` of a ``--method mc`` run recorded through
-    :class:`RunSettings` ``record``, for ``config`` (the traced config with another dye, or
+    """:func:`simulate.raytrace.reweight.reweighted_beta` of a recorded ``--method mc`` run.
+
+    The run was recorded through :class:`RunSettings` ``record``; the estimate is for ``config`` (the
+    traced config with another dye, or
     other shares or dyes of its populations). The tables are those a trace of ``config`` would walk (the same
     photons and seeds). :class:`ValueError` when ``config``'s fiber differs from the traced one in more than its
     dye. For a blend only the first population's fiber is compared: the caller changes no more than the
-    populations' dyes and shares (the fit re-weights ``fiber.dye`` parameters only)."""
+    populations' dyes and shares (the fit re-weights ``fiber.dye`` parameters only).
+    """
     from simulate.raytrace.reweight import new_tables, reweighted_beta, same_but_dye
 
     wl = np.asarray(wavelengths_nm, float)

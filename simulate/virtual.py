@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
 from gonio.acquisition.plan import Plan
+from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
 from simulate.config import SimulationConfig
 from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, check_target, relative_error
 from simulate.products import MODELS, Geometries, RunSettings, evaluate
@@ -73,7 +73,9 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
     Parameters
     ----------
     config : SimulationConfig
+        The fiber, fabric and method settings (:func:`simulate.config.load_config`).
     plan : gonio.acquisition.plan.Plan
+        The geometries and wavelengths to evaluate the model at.
     method : {"summation", "classic", "mc", "auto"}
         ``mc``: Monte Carlo ray tracing of the config's woven micro-element (:mod:`simulate.raytrace`).
         ``auto``: per geometry the cheapest method whose error against the Monte Carlo reference
@@ -86,6 +88,9 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
         Skip the plan's beam-blocked geometries (see the module docstring).
     progress : bool
         Progress bar of the fiber Monte Carlo (tqdm).
+    max_seconds : float
+        ``mc``: the ray tracer's time budget in seconds (0: none); ``meta.json``'s ``fiber_info`` says
+        which budget ended the run.
 
     Returns
     -------
@@ -186,8 +191,8 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
 def is_previous_output(out: Path) -> bool:
     """True when the folder ``out`` holds a previous ``simulate fabric`` output: its ``meta.json`` says so.
 
-    Also recognised: what a run of an older version killed between its two renames left,
-    ``radiance.csv`` beside the ``.meta.json.XXXXXXXX.tmp`` that says so (that version wrote file by file).
+    Also recognised: ``radiance.csv`` beside a ``.meta.json.XXXXXXXX.tmp`` that says so, what an output
+    written file by file leaves when its run is killed between the two renames.
     """
     out = Path(out)
     candidates = [out / "meta.json"]

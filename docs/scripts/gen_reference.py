@@ -34,8 +34,8 @@ PARSERS: list[tuple[str, str, tuple[str, ...]]] = [
     ("compare", "", ("fabric_optics.cli.compare:build_parser", "compare.cli:build_parser")),
 ]
 
-#: The config module whose docstring holds the schema (a "Schema" section with a literal block) and whose
-#: ``_FIELDS`` (or ``FIELDS``) maps each table to its keys.
+#: The config module whose ``SCHEMA`` (or, without one, its docstring's "Schema" section) holds the schema
+#: as text with a literal block, and whose ``_FIELDS`` (or ``FIELDS``) maps each table to its keys.
 CONFIG_MODULES: tuple[str, ...] = ("fabric_optics.config", "simulate.config")
 #: Tables whose schema lives in the docstring of the function that reads them (a literal block after
 #: "Schema ...::"): (table, candidate ``module:function`` locations).
@@ -43,7 +43,8 @@ CONFIG_TABLES: list[tuple[str, tuple[str, ...]]] = [
     ("structure", ("fabric_optics.structure:structure_from_table", "simulate.fabric.structure:structure_from_table")),
 ]
 
-#: The plan module whose docstring holds the plan schema (a "Plan TOML schema" section with a literal block).
+#: The plan module whose ``SCHEMA`` (or, without one, its docstring's "Plan TOML schema" section) holds the
+#: plan schema as text with a literal block.
 PLAN_MODULES: tuple[str, ...] = ("fabric_optics.plan", "gonio.acquisition.plan")
 
 CLI_PAGE = ROOT / "docs" / "reference" / "cli.md"
@@ -170,6 +171,20 @@ def cli_page() -> str:
     return "\n".join(parts).rstrip() + "\n"
 
 
+def _schema_text(module, heading: str) -> str:
+    """The text holding ``module``'s schema under ``heading``: its ``SCHEMA`` constant, else its docstring."""
+    schema = getattr(module, "SCHEMA", None)
+    if isinstance(schema, str):
+        return f"{heading}\n{'-' * len(heading)}\n{inspect.cleandoc(schema)}"
+    return inspect.getdoc(module) or ""
+
+
+def _where(module) -> str:
+    """Where the schema of ``module`` is written, for the page's note on its source."""
+    return f"`{module.__name__}.SCHEMA`" if isinstance(getattr(module, "SCHEMA", None), str) else \
+        f"the docstring of `{module.__name__}`"
+
+
 def _schema_block(doc: str) -> str:
     """The literal block of the docstring's "Schema" section, dedented."""
     m = re.search(r"^Schema\n-+\n(.*?)::\n\n(.*?)(?=\n\S|\Z)", doc, flags=re.S | re.M)
@@ -194,7 +209,7 @@ def config_page() -> str:
     if module is None:
         raise SystemExit(f"gen_reference: none of {CONFIG_MODULES} imports: add the new location to "
                          "CONFIG_MODULES in docs/scripts/gen_reference.py")
-    doc = inspect.getdoc(module) or ""
+    doc = _schema_text(module, "Schema")
     intro, block = _schema_block(doc)
     after = doc.split(block.splitlines()[-1].strip(), 1)[-1].strip() if block else ""
     intro, after = intro.replace("``", "`"), after.replace("``", "`")
@@ -204,8 +219,7 @@ def config_page() -> str:
              f"(`{'`, `'.join(module.preset_names())}`), given to `simulate fabric`, `simulate fit`, "
              "`simulate sweep`, `simulate export` and `simulate fiber`. Every bad field is one error line "
              "naming the file and the dotted field; an unknown key is an error with a suggestion.\n",
-             "This page is generated from the schema in the docstring of "
-             f"`{module.__name__}` and from its table of known keys.\n",
+             f"This page is generated from the schema in {_where(module)} and from its table of known keys.\n",
              "## Schema\n", intro + "\n", f"```toml\n{block}\n```\n"]
     if after:
         parts.append(" ".join(after.split()) + "\n")
@@ -243,7 +257,7 @@ def _import_first(names: tuple[str, ...], what: str):
 def plans_page() -> str:
     """The plan schema: the literal block of the plan module's "Plan TOML schema" section."""
     module = _import_first(PLAN_MODULES, "PLAN_MODULES")
-    doc = inspect.getdoc(module) or ""
+    doc = _schema_text(module, "Plan TOML schema")
     m = re.search(r"^Plan TOML schema\n-+\n(.*?)::\n\n(.*?)(?=\n\S|\Z)", doc, flags=re.S | re.M)
     if not m:
         raise SystemExit(f"gen_reference: {module.__name__}'s docstring has no 'Plan TOML schema' literal block")
@@ -260,11 +274,14 @@ def plans_page() -> str:
              f"geometry, the calibration's largest age and the procedure's steps. Plans are TOML files or the "
              f"names of shipped presets{names}; every command that takes `--plan PLAN` takes either, and "
              "`gonio check-plan --plan PLAN` validates one.\n",
-             f"This page is generated from the docstring of `{module.__name__}`.\n",
+             f"This page is generated from {_where(module)}.\n",
              "## Schema\n"]
     if intro:
         parts.append(intro + "\n")
     parts.append(f"```toml\n{block}\n```\n")
+    after = doc[m.end():].strip()
+    for paragraph in re.split(r"\n\s*\n", after) if after else ():
+        parts.append(" ".join(paragraph.split()).replace("``", "`") + "\n")
     return "\n".join(parts).rstrip() + "\n"
 
 

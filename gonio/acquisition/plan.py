@@ -4,14 +4,76 @@ A plan is data (bluesky habit): the sample, the wavelengths, the geometries and 
 policy. The engine (:mod:`gonio.acquisition.engine`) executes it; ``simulate`` evaluates its models at the
 same geometries through :meth:`Plan.geometries`.
 
+Public objects
+--------------
+- :func:`load_plan`, :func:`parse_plan`: a path, preset name or TOML text to a validated :class:`Plan`
+  (with its :class:`AcquisitionSettings` and :class:`Procedure`); :func:`preset_names`,
+  :func:`resolve_plan_path`.
+- :meth:`Plan.check`, :class:`PlanCheck`: the rules ``gonio check-plan`` and ``gonio acquire`` apply
+  before any acquisition (:meth:`PlanCheck.refusal`).
+- :func:`measured_plan`: the plan of a file's own measured incidences; :func:`retro_ring`.
+- :func:`order_points`, :func:`estimate_duration_s`: the order of the points and the time they take.
+- :class:`PlanError`: the one error of a bad plan.
+- :data:`SCHEMA`: every table and field and the rules across them.
+
+Notes
+-----
 Geometry: the instrument's axes and the fabric frame are related by
 :func:`gonio.data.geometry.axes_to_fabric` (docs/physics.md section 1, docs/instrument.md). Out-of-plane
 directions are given as ``(theta_o, phi_o - phi_i)``: a relative azimuth ``a`` in [180, 360) is
 reached with the signed detector zenith ``s = +theta_o`` and the detector-plane azimuth
 ``p = a - 180``, in [0, 180) with ``s = -theta_o, p = a``.
 
-Plan TOML schema
-----------------
+A plan asks for at most :data:`MAX_MEASUREMENTS` measurements; its wavelengths lie on the
+monochromator's grid (:data:`WAVELENGTH_STEP_NM`); its steps are :data:`PROCEDURE_STEPS`. The schema
+is :data:`SCHEMA`; ``docs/scripts/gen_reference.py`` renders it as docs/reference/plans.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from gonio.data import toml_text
+from gonio.data.geometry import axes_to_fabric, beam_blocked
+from gonio.instrument.modbus_map import AXES, deg_to_mdeg
+
+__all__ = [
+    "SCHEMA",
+    "WAVELENGTH_STEP_NM",
+    "PlanError",
+    "AcquisitionSettings",
+    "PlanPoint",
+    "PlanCheck",
+    "Plan",
+    "load_plan",
+    "parse_plan",
+    "resolve_plan_path",
+    "preset_names",
+    "order_points",
+    "estimate_duration_s",
+    "MAX_MEASUREMENTS",
+    "PROCEDURE_STEPS",
+    "Procedure",
+    "RETRO_RING_DEG",
+    "RETRO_RING_AZIMUTHS",
+    "MEASURED",
+    "measured_plan",
+    "retro_ring",
+]
+
+#: The plan schema: an annotated example of every table and field (defaults and bounds in the comments)
+#: and the rules across them. Rendered as docs/reference/plans.md by ``docs/scripts/gen_reference.py``
+#: (an RST literal block after ``::``).
+SCHEMA = """\
 ::
 
     name = "red-cotton"                 # optional, default: the file's stem
@@ -54,72 +116,27 @@ Plan TOML schema
     steps = ["home", "calibrate", "measure"]   # the session's steps, in order
     recalibrate_every = 0               # > 0: dark + white standard again after every N points
 
-The procedure names the steps the engine runs after connecting (:data:`PROCEDURE_STEPS`):
-``home`` (home every axis), ``calibrate`` (dark and white standard at the reference geometry, or
-on ``--resume`` the journal's calibration when still valid) and ``measure`` (every measurable
-point); ``measure`` comes once, after a ``calibrate``. With ``recalibrate_every = N`` the
-calibration is measured again after every N points measured in a session, and each point uses
-the calibration it was measured with. The default is the usual order.
+The procedure names the steps the engine runs after connecting: ``home`` (home every axis),
+``calibrate`` (dark and white standard at the reference geometry, or on ``--resume`` the journal's
+calibration when still valid) and ``measure`` (every measurable point); ``measure`` comes once, after
+a ``calibrate``. With ``recalibrate_every = N`` the calibration is measured again after every N points
+measured in a session, and each point uses the calibration it was measured with. The default is the
+usual order.
 
-Size limit: a plan asks for at most :data:`MAX_MEASUREMENTS` (one million) measurements,
-geometries (``incidence x rotations x (in-plane + out-of-plane directions)``) times wavelengths -
-about a month at real speed. A larger plan is refused at load time with one line; split it into
-several plans (each its own run directory).
+Size limit: a plan asks for at most one million measurements, geometries (``incidence x rotations x
+(in-plane + out-of-plane directions)``) times wavelengths - about a month at real speed. A larger plan
+is refused at load time with one line; split it into several plans (each its own run directory).
 
-Wavelengths must lie on the monochromator's 0.1 nm grid (:data:`WAVELENGTH_STEP_NM`, the
-resolution of ``WAVE``): a finer value (``500.01``) is refused with the field and value named,
-not rounded, so that a dataset never labels a reading with a wavelength other than the one the
-head was set to (two plan wavelengths rounding to one setting would otherwise be two rows of the
-same measurement). Values within 1e-6 nm of the grid (floating-point steps) are snapped to it.
+Wavelengths must lie on the monochromator's 0.1 nm grid (the resolution of ``WAVE``): a finer value
+(``500.01``) is refused with the field and value named, not rounded, so that a dataset never labels a
+reading with a wavelength other than the one the head was set to (two plan wavelengths rounding to one
+setting would otherwise be two rows of the same measurement). Values within 1e-6 nm of the grid
+(floating-point steps) are snapped to it.
 
-A file's own measured incidences make a plan too (:func:`measured_plan`).
-
-Before any acquisition the plan is checked (:meth:`Plan.check`, the same rules ``gonio
-check-plan`` applies): ``gonio acquire`` refuses a plan with points out of the soft limits or in
-the beam-block zone without ``skip_blocked = true`` (:meth:`PlanCheck.refusal`), instead of
-dropping those points and reporting the run complete.
-
+Before any acquisition the plan is checked (the rules ``gonio check-plan`` applies): ``gonio acquire``
+refuses a plan with points out of the soft limits or in the beam-block zone without
+``skip_blocked = true``, instead of dropping those points and reporting the run complete.
 """
-
-from __future__ import annotations
-
-import dataclasses
-import hashlib
-import math
-from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
-from typing import Any
-
-import numpy as np
-import pandas as pd
-
-from gonio.data import toml_text
-from gonio.data.geometry import axes_to_fabric, beam_blocked
-from gonio.instrument.modbus_map import AXES, deg_to_mdeg
-
-__all__ = [
-    "WAVELENGTH_STEP_NM",
-    "PlanError",
-    "AcquisitionSettings",
-    "PlanPoint",
-    "PlanCheck",
-    "Plan",
-    "load_plan",
-    "parse_plan",
-    "resolve_plan_path",
-    "preset_names",
-    "order_points",
-    "estimate_duration_s",
-    "MAX_MEASUREMENTS",
-    "PROCEDURE_STEPS",
-    "Procedure",
-    "RETRO_RING_DEG",
-    "RETRO_RING_AZIMUTHS",
-    "MEASURED",
-    "measured_plan",
-    "retro_ring",
-]
 
 #: ``--plan measured``: the plan of the sample file's own measured incidences (:func:`measured_plan`)
 MEASURED = "measured"

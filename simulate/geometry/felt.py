@@ -1,107 +1,44 @@
-r"""A nonwoven felt for the ray tracer: a random layer of fibers in a periodic cell.
+"""A nonwoven felt for the ray tracer: a random layer of fibers in a periodic cell.
 
-The summation's felt (:func:`simulate.fabric.structure.felt_facets`, docs/physics.md 6.2) has fibers
-whose in-plane direction is uniform in ``[0, 180)`` deg and whose inclination ``epsilon`` out of the
-plane is normal with standard deviation ``felt_spread_deg`` (truncated at +-80 deg). Here the same
-fibers are built as geometry and traced on Embree like the weave's yarns:
+The summation's felt (:func:`simulate.fabric.structure.felt_facets`, docs/physics.md 6.2) built as
+geometry and traced on Embree like the weave's yarns: straight or crimped tubes of the fiber's radius
+``R``, in-plane direction uniform, inclination normal with standard deviation ``felt_spread_deg``
+(truncated at +-80 deg), as much fiber per unit area as the summation's ``layers`` layers.
 
-* **Cell**: ``[0, L) x [0, L)`` with ``L = 40 R`` (``R`` the fiber radius), periodic as the weave's
-  micro-element (:mod:`simulate.raytrace.scene`).
-* **Fibers**: circular tubes of radius ``R``, length ``l = 40 R`` (straight, or crimped: below), each with a uniform
-  random in-plane position and a direction drawn from the distribution above. A fiber that crosses
-  the cell's sides is also put in at its periodic images (shifted by ``+-L``), so the cell tiles the
-  plane seamlessly.
-* **Needle-punched fibers** (``felt_normal_fraction``, ``felt_normal_spread_deg``): needle punching drives
-  part of the web's fibers from the plane towards the normal; X-ray CT of needle-punched nonwovens finds
-  fibers parallel and perpendicular to the normal and few in between (Text. Res. J., doi
-  10.1177/0040517517736470). With probability ``felt_normal_fraction`` a fiber is drawn from that
-  second population: tilted from the normal by ``|N(0, felt_normal_spread_deg)|`` (truncated at 80 deg)
-  towards a uniform azimuth, counted by its material (``2 R l``, as a fiber lying flat) in the amount
-  below. It is deposited like the others (on the floor or on the fibers below), so it stands among
-  them and may stand out of the top. The fraction 0 (the default) draws nothing more from the stream:
-  the felt is bit for bit the in-plane one. The summation's felt (6.2) has no such population (a
-  warning says so).
-* **Crimp** (``felt_crimp_percent``, ``felt_crimp_per_cm``, ``felt_crimp_plane``): staple fibers are
-  crimped, a wave the fiber keeps in the felt (ASTM D3937 measures its frequency for manufactured staple
-  whose crimp can be viewed as a plane sine wave). The crimp percentage ``c`` is the straightened length
-  less the crimped length over the straightened length; for a sine ``A sin(2 pi x / lambda)`` at
-  ``f = 1 / lambda`` waves per unit crimped length, one wave's arc length is ``lambda / (1 - c)``, which
-  sets the amplitude ``A`` (:func:`crimp_amplitude`; 13 % at 4.4 per cm: ``lambda`` 2.27 mm, ``A`` 0.29 mm,
-  the slope up to 39 deg). A fiber of length ``l`` is the piece of arc length ``l`` of that wave about a
-  uniform random phase: the direction drawn above is the wave's run, its arc's midpoint the fiber's
-  centre. At the green felt's ``l`` = 0.33 mm a fiber is an eighth of a wave: an arc whose tangent
-  turns by up to ``A (2 pi / lambda)^2 l`` (42 deg; 7 pieces). The wave lies in the plane of its run and a
-  displacement perpendicular to it: horizontal (``"felt"``: a crimped fiber laid and pressed flat rests
-  on its wave's side; for an in-plane fiber its tangents stay in the plane) or turned about the run by a
-  uniform angle (``"random"``: its pieces then tilt out of the plane by up to the slope). Geometry: the
-  axis is a polyline of ``n_s`` pieces at uniform arc length (enough that it leaves the sine by at most
-  ``CRIMP_SAGITTA R`` between rings, at most ``MAX_PIECES``), its rings perpendicular to the sine's
-  tangent in a parallel-transported frame, so that ``(s, phi)`` stay the tube's coordinates
-  (:func:`_crimped_tube`); its images are chosen by the polyline's box. Deposition: the lowest-gap
-  argument below holds per pair of straight pieces, so a crimped fiber is placed against every placed
-  piece that can meet it (:func:`_lowest_free_height_pieces`); the volume fraction counts points in the
-  pieces' cylinders. A crimped fiber lying in the plane counts its polyline's projected area in the amount
-  below. At ``felt_crimp_percent = 0`` (the default) nothing is drawn for it: the felt is the straight
-  one bit for bit. The summation's felt (6.2) has straight fibers (a warning says so).
-* **Loose top** (``felt_fuzz_fraction``, ``felt_fuzz_depth_um``): a real felt's surface is hairy, loose fibers
-  over a density that falls across the top few hundred microns. With ``felt_fuzz_fraction > 0`` that fraction
-  of the fiber amount below (the last fibers drawn) is deposited as a loose top: each fiber's lowest point
-  is drawn uniformly in ``[top, top + felt_fuzz_depth_um]`` above the compact felt's top (the highest point
-  of the fibers deposited before) and the fiber put at the lowest free height from there, by the
-  deposition's rule (no two fibers interpenetrate); a fiber raised beyond the depth by the loose fibers
-  already there is drawn again (:func:`_place_loose`; a depth too thin for the fibers is refused). The
-  loose fibers float (a real felt's hairs are held by their other ends); their directions are the felt's.
-  The bulk volume fraction is the compact felt's. At ``felt_fuzz_fraction = 0`` (the default) nothing is
-  drawn for it: the felt is today's bit for bit. The summation's felt (6.2) has no loose top (a warning says so).
-* **How many**: the summation's felt is ``layers`` (``structure.layers``, default 10) layers of
-  parallel fibers at spacing ``d = 2 R spacing_ratio`` (the packing fraction's); here the fibers'
-  projected area ``2 R l cos(epsilon)`` adds up to the same ``layers L^2 / spacing_ratio`` (the same
-  amount of fiber per unit area).
-* **No two fibers interpenetrate**. Fibers placed independently overlap where they cross
-  (at the layers' density a covered point lay in 1.47 fibers on average), and a tracer that walks
-  each fiber's volume from a table walks the shared material once per fiber: with absorbing fibers
-  the felt was 16 % too dark (docs/physics.md 6). Treating the union instead would need the walk in
-  the union of cylinders, which the per-fiber exit tables cannot give, so the geometry is made
-  physical: the fibers are deposited one by one, each put at the *lowest height* at which it lies on
-  the floor or in a gap of the fibers below without touching any (random sequential deposition with
-  settling into the lowest gap, the way a web is laid; :func:`_lowest_free_height`: the axes kept
-  ``2 R`` apart -- a spherocylinder test, slightly conservative at the fibers' ends). The felt's top
-  is put at ``z = 0``.
-* **Volume fraction**: rigid straight fibers of aspect ratio 20 jam loosely: this deposition reaches
-  a bulk volume fraction of about 0.11 (spread 20 deg) to 0.16 (spread 0, fibers in the plane)
-  (``info["volume_fraction"]``, measured between the quartiles of the centres' heights). Random
-  sequential addition with rejection in a slab reaches no more (it jammed at 0.14-0.19, the fibers'
-  volume over their centres' slab, 20 000 tries a fiber), and picking the lowest of 4-16 positions
-  per fiber gave only 0.13-0.15 for 4-16 times the cost (measured).
-  The summation's layers of touching fibers (packing 0.9069) are beyond any random straight-fiber
-  layer: the felt keeps the layers' *fiber amount* and the orientation distribution and takes the
-  thickness the deposition gives (10 touching layers of 20-um fibers: ~1.2-1.8 mm instead of 0.2 mm).
-  A requested packing below the deposition's density (< ~0.11) is not loosened further (it only sets
-  the fiber count): compare with the summation at the felt's measured volume fraction
-  (the felt study, :func:`fabric_optics.bench.felt.run_felt_study` with ``packing_fraction``).
-* **Ends**: the tubes are open. An end is ``R / l = 2.5 %`` of a fiber's surface; light that enters
-  one meets the tube's inside and is taken into the fiber's volume (the interpenetration rule).
-* **Mesh**: a :class:`~simulate.geometry.mesh.FabricMesh`, the weave's layout
-  (:mod:`simulate.geometry.weave`): one "yarn" per fiber image,
-  ``(n_s + 1) x (sides + 1)`` vertices, ``s`` the arc length along the fiber (``open_fibers``: the
-  tracer clamps exits to the tube's ends instead of wrapping them round a periodic yarn, and puts
-  rays that leave from an image outside the cell back into it), vertex normals radial, vertex tangents
-  the axis's (a crimped fiber's at each ring); no twist.
+Public objects
+--------------
+- :func:`felt_mesh`: the felt of a ``[structure]`` as a :class:`~simulate.geometry.mesh.FabricMesh`
+  (one "yarn" per fiber image); :func:`felt_inputs`: the fields it reads.
+- :func:`cached_felt_mesh`, :func:`felt_key`, :data:`CACHE_MODULES`: a felt through the table cache
+  (:mod:`simulate.fiber.tablecache`), keyed by every input and this module's source.
+- :func:`crimp_axis`, :func:`crimp_amplitude`: a crimped fiber's sine; :func:`fiber_pieces`: a mesh's
+  fiber axes as straight pieces; :data:`CELL_RADII`, :data:`LENGTH_RADII`.
 
-* **Cost**: the deposition's overlap intervals (golden section and bisections per pair) are compiled
-  (:func:`_overlap_intervals`, numba), with numpy's operations in numpy's order: the felt is the one the
-  numpy placement builds, bit for bit (tested), in a ninth of its CPU (green felt: 0.68 s instead of
-  6.2 s). :func:`cached_felt_mesh` keeps a built felt in the table cache (:mod:`simulate.fiber.tablecache`,
-  16 MB for the green felt) under every input of it and this module's source: the runs of a fit that keeps
-  the structure load their two realisations (0.03 s each) instead of building them.
+Notes
+-----
+- **Deposition.** No two fibers interpenetrate (a tracer walking each fiber's volume from its exit
+  table would walk shared material twice): each fiber goes at the lowest height where it lies on the
+  floor or in a gap of the fibers below, axes ``2 R`` apart (:func:`_lowest_free_height`). The felt
+  takes the thickness this gives (``info["volume_fraction"]``); its top is at ``z = 0``.
+- **Cell and mesh.** ``[0, L)^2``, ``L = 40 R``, fibers ``40 R`` long, put in at their periodic images
+  too; open tubes (``open_fibers``), ``s`` the arc length, the yarn table the fiber's own (``r_yarn = R``).
+- **Needle-punched fibers** (``felt_normal_fraction``, ``felt_normal_spread_deg``): a second population
+  tilted from the normal by ``|N(0, felt_normal_spread_deg)|`` [1], deposited like the others.
+- **Crimp** (``felt_crimp_percent``, ``felt_crimp_per_cm``, ``felt_crimp_plane``): each fiber a piece of
+  a sine whose wave's arc length is ``lambda / (1 - c)`` [2] (:func:`crimp_amplitude`), lying in the
+  felt's plane or turned about its run; its axis a polyline (:func:`_crimp_pieces`), its rings in a
+  parallel-transported frame, placed against every piece it can meet.
+- **Loose top** (``felt_fuzz_fraction``, ``felt_fuzz_depth_um``): the last fibers' lowest points drawn
+  uniformly over a depth above the compact felt's top (:func:`_place_loose`).
+- Each option at 0 (its default) draws nothing from the stream; the summation's felt has none of them.
+- Limits: rigid fibers, a flat floor, a cell of about 20 fibers across (the spread between
+  realisations goes into ``u_beta``: :mod:`simulate.raytrace.estimate`, "A felt"). Volume fractions and
+  what the options change: docs/physics.md 6 ("Felt"), docs/notes/felt-structure.md.
 
-The yarn table is the fiber's own (``r_yarn = R``: the exit offsets need no scaling).
-
-Limits: rigid fibers (a real felt's fibers bend where they cross and pack denser), a floor under the first fibers
-(the felt's bottom is flat; with 10 layers' fiber little light reaches it), a cell of 40 R (about
-20 fibers across): one realisation varies from the next by ~2 % of each direction's peak (green felt),
-which ``simulate fabric --method mc`` puts into ``u_beta`` by tracing each of its two table halves on
-its own realisation, at several azimuths (:mod:`simulate.raytrace.estimate`, "A felt").
+References
+----------
+[1] Fiber orientation of needle-punched nonwovens by X-ray CT, Text. Res. J., doi 10.1177/0040517517736470.
+[2] ASTM D3937, crimp frequency of manufactured staple fibers.
 """
 
 from __future__ import annotations
@@ -110,6 +47,7 @@ import functools
 import json
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -152,8 +90,10 @@ def _tube(c: np.ndarray, t: np.ndarray, radius: float, length: float, n_s: int, 
 
 
 def crimp_amplitude(percent: float, wavelength: float) -> float:
-    """The amplitude ``A`` of the sine ``A sin(2 pi x / wavelength)`` whose crimp is ``percent``: one wave's
-    arc length is ``wavelength / (1 - percent / 100)`` (module docstring, "Crimp"). 0 at 0."""
+    """The amplitude ``A`` of the sine ``A sin(2 pi x / wavelength)`` whose crimp is ``percent``.
+
+    One wave's arc length is ``wavelength / (1 - percent / 100)`` (module docstring, "Crimp"). 0 at 0.
+    """
     c = float(percent) / 100.0
     if c <= 0.0:
         return 0.0
@@ -171,9 +111,12 @@ def crimp_amplitude(percent: float, wavelength: float) -> float:
 
 
 def crimp_axis(length: float, amplitude: float, wavelength: float, phase: float, n: int):
-    """A crimped fiber's axis in its wave's frame: ``n + 1`` points at uniform arc length over ``length``
-    on ``y = A (sin(k x + phase) - sin(phase))`` (``k = 2 pi / wavelength``), the arc's midpoint at the
-    origin. Returns ``x``, ``y`` and the slope ``dy/dx`` at the points."""
+    """A crimped fiber's axis in its wave's frame.
+
+    ``n + 1`` points at uniform arc length over ``length`` on ``y = A (sin(k x + phase) - sin(phase))``
+    (``k = 2 pi / wavelength``), the arc's midpoint at the origin. Returns ``x``, ``y`` and the slope
+    ``dy/dx`` at the points.
+    """
     k = 2.0 * math.pi / wavelength
     x = np.linspace(-0.5 * length, 0.5 * length, 4001)   # the arc is at least its chord: x within +-l/2
     ds = np.sqrt(1.0 + (amplitude * k * np.cos(k * x + phase)) ** 2)
@@ -185,9 +128,11 @@ def crimp_axis(length: float, amplitude: float, wavelength: float, phase: float,
 
 
 def _crimp_pieces(ell: float, R: float, amplitude: float, wavelength: float, n_s: int) -> int:
-    """Pieces of a crimped fiber's polyline: its axis leaves the sine by at most ``CRIMP_SAGITTA R``
-    between two rings (the sagitta ``l^2 kappa / 8`` at the sine's largest curvature ``A k^2``),
-    at least ``n_s``, at most ``MAX_PIECES``."""
+    """Pieces of a crimped fiber's polyline: at least ``n_s``, at most ``MAX_PIECES``.
+
+    Enough that the axis leaves the sine by at most ``CRIMP_SAGITTA R`` between two rings (the sagitta
+    ``l^2 kappa / 8`` at the sine's largest curvature ``A k^2``).
+    """
     kappa = amplitude * (2.0 * math.pi / wavelength) ** 2
     if kappa <= 0.0:
         return n_s
@@ -196,8 +141,10 @@ def _crimp_pieces(ell: float, R: float, amplitude: float, wavelength: float, n_s
 
 
 def _crimp_plane(t: np.ndarray, turn: float) -> np.ndarray:
-    """The crimp's displacement direction for a fiber along ``t``: the horizontal perpendicular ``z x t``
-    (the felt's plane), turned by ``turn`` about ``t``."""
+    """The crimp's displacement direction for a fiber along ``t``.
+
+    The horizontal perpendicular ``z x t`` (the felt's plane), turned by ``turn`` about ``t``.
+    """
     h = np.cross([0.0, 0.0, 1.0], t)
     if np.linalg.norm(h) < 1e-9:                          # a fiber along the normal: any perpendicular
         h = np.cross([1.0, 0.0, 0.0], t)
@@ -207,10 +154,13 @@ def _crimp_plane(t: np.ndarray, turn: float) -> np.ndarray:
 
 def _crimped_tube(c: np.ndarray, t: np.ndarray, d: np.ndarray, radius: float, length: float, amplitude: float,
                   wavelength: float, phase: float, n_s: int, sides: int):
-    """Vertices, normals, tangents, s and phi of one crimped tube: its axis :func:`crimp_axis` in the plane of
-    ``t`` (the wave's run) and ``d`` (its displacement, unit, perpendicular to ``t``), the arc's midpoint at
+    """Vertices, normals, tangents, s and phi of one crimped tube; also the ring centres.
+
+    Its axis is :func:`crimp_axis` in the plane of ``t`` (the wave's run) and ``d`` (its displacement,
+    unit, perpendicular to ``t``), the arc's midpoint at
     ``c``; rings of ``sides`` at its ``n_s + 1`` points, perpendicular to the sine's tangent there, in a
-    parallel-transported frame (``phi`` continuous along the fiber). Also the ring centres."""
+    parallel-transported frame (``phi`` continuous along the fiber).
+    """
     x, y, slope = crimp_axis(length, amplitude, wavelength, phase, n_s)
     P = c + x[:, None] * t + y[:, None] * d
     T = t + slope[:, None] * d
@@ -236,8 +186,11 @@ def _crimped_tube(c: np.ndarray, t: np.ndarray, d: np.ndarray, radius: float, le
 
 def _fiber_tops(C: np.ndarray, T: np.ndarray, P0: np.ndarray, PD: np.ndarray, crimped: bool, ell: float,
                 R: float) -> np.ndarray:
-    """Each placed fiber's highest point: a straight one's (centres ``C``, directions ``T``, length ``ell``) or
-    a crimped one's (its pieces ``P0``, ``PD`` from its centre)."""
+    """Each placed fiber's highest point.
+
+    A straight one's from its centre ``C``, direction ``T`` and length ``ell``, a crimped one's from its
+    pieces ``P0``, ``PD`` (from its centre).
+    """
     if crimped:
         ends = np.concatenate([P0[:, :, 2], P0[:, -1:, 2] + PD[:, -1:, 2]], axis=1)
         return C[:, 2] + ends.max(axis=1) + R
@@ -246,11 +199,14 @@ def _fiber_tops(C: np.ndarray, T: np.ndarray, P0: np.ndarray, PD: np.ndarray, cr
 
 def _place_loose(place: Callable[..., float], rng: np.random.Generator, xy: np.ndarray, low: float,
                  top: float, depth: float, L: float) -> tuple[np.ndarray, float]:
-    """A loose top fiber's position and centre height (module docstring, "Loose top"): its lowest point drawn
-    uniformly in ``[top, top + depth]`` and the fiber over ``xy`` put at the lowest free height from there
+    """A loose top fiber's position and centre height (module docstring, "Loose top").
+
+    Its lowest point is drawn uniformly in ``[top, top + depth]`` and the fiber over ``xy`` put at the
+    lowest free height from there
     (``place(xy, floor)``, the deposition's rule); when the loose fibers placed there raise it beyond
     ``top + depth``, drawn again at a new position in the cell (``L``). ``low``: the fiber's centre over its
-    lowest point."""
+    lowest point.
+    """
     from simulate.montecarlo import ParameterError
 
     for k in range(LOOSE_TRIES):
@@ -264,9 +220,11 @@ def _place_loose(place: Callable[..., float], rng: np.random.Generator, xy: np.n
 
 
 def _segment_distance(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -> np.ndarray:
-    """Closest distance between the segments ``p1 + s d1`` and ``p2 + t d2``, ``s, t`` in ``[0, 1]``
-    (rows broadcast; no degenerate segment). The clamped closest-point solution of Ericson (2005),
-    *Real-Time Collision Detection*, section 5.1.9, vectorised."""
+    """Closest distance between the segments ``p1 + s d1`` and ``p2 + t d2``, ``s, t`` in ``[0, 1]``.
+
+    Rows broadcast; no degenerate segment. The clamped closest-point solution of Ericson (2005),
+    *Real-Time Collision Detection*, section 5.1.9, vectorised.
+    """
     r = p1 - p2
     a = np.einsum("...i,...i->...", d1, d1)
     e = np.einsum("...i,...i->...", d2, d2)
@@ -284,8 +242,10 @@ def _segment_distance(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.nda
 
 
 def _image_offsets(xy: np.ndarray, C: np.ndarray, L: float) -> np.ndarray:
-    """The candidate's centre ``xy`` from each placed fiber's centre ``C[:, :2]`` in the plane: the nearest
-    periodic image and its 8 neighbours, ``[len(C) * 9, 2]`` (fiber by fiber, 9 images each)."""
+    """The candidate's centre ``xy`` from each placed fiber's centre ``C[:, :2]`` in the plane.
+
+    The nearest periodic image and its 8 neighbours, ``[len(C) * 9, 2]`` (fiber by fiber, 9 images each).
+    """
     shifts = np.array([[i * L, j * L] for i in (-1, 0, 1) for j in (-1, 0, 1)])
     dxy = xy[None, :] - C[:, :2]
     dxy -= L * np.round(dxy / L)               # the nearest image, then its neighbours
@@ -294,16 +254,19 @@ def _image_offsets(xy: np.ndarray, C: np.ndarray, L: float) -> np.ndarray:
 
 def _lowest_free_height(xy: np.ndarray, t: np.ndarray, C: np.ndarray, T: np.ndarray, R: float, ell: float,
                         L: float, iters: int = 36, floor: float = 0.0) -> float:
-    """The lowest centre height at which a fiber of direction ``t`` over ``xy`` lies on the floor or in a
-    gap of the fibers placed so far (centres ``C``, directions ``T``, periodic with period ``L``) without
-    overlapping any of them (module docstring: contact distance ``CONTACT x 2R`` between the axes).
+    """The lowest centre height at which a fiber over ``xy`` touches none of the fibers placed so far.
+
+    The fiber, of direction ``t``, lies on the floor or in a gap of the placed fibers (centres ``C``,
+    directions ``T``, periodic with period ``L``) without overlapping any of them (module docstring:
+    contact distance ``CONTACT x 2R`` between the axes).
 
     For each fiber it can meet (its axis within ``2R`` of the candidate's in the plane: a necessary
     condition), the distance between the two axes as the candidate is moved vertically by ``w`` is
     convex in ``w`` (the distance between a translated convex set and a fixed one), so the heights at
     which they overlap are one interval: its minimum by golden section, its ends by bisection. The
     candidate goes at the lowest height above the floor outside every interval. ``floor``: the height the
-    fiber's lowest point may not go below (0: the felt's floor; a loose top fiber's drawn height)."""
+    fiber's lowest point may not go below (0: the felt's floor; a loose top fiber's drawn height).
+    """
     z = 0.5 * ell * abs(t[2]) + R + floor       # resting on the floor z = floor
     if len(C) == 0:
         return z
@@ -330,7 +293,8 @@ def _lowest_free_height_pieces(xy: np.ndarray, A0: np.ndarray, AD: np.ndarray, C
     per pair of pieces (the distance between a vertically moved segment and a fixed one is convex in the
     move), so every pair that can meet gives one interval of forbidden heights, and the candidate goes at
     the lowest height above the floor outside all of them. Pairs that cannot meet are left out first: whole
-    fibers by their reach in the plane, then pieces by their midpoints' distance in the plane."""
+    fibers by their reach in the plane, then pieces by their midpoints' distance in the plane.
+    """
     ends = np.concatenate([A0[:, 2], A0[:, 2] + AD[:, 2]])
     z = R - float(ends.min()) + floor               # resting on the floor z = floor
     if len(C) == 0:
@@ -376,12 +340,13 @@ def _free_height(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray,
     piece's fiber centre) along ``d1[i]``, the placed one ``p2[i]`` along ``d2[i]``; ``span``: a relative
     height beyond which the pair cannot overlap; ``zj``: the placed fibers' centre heights. A pair's overlap
     heights are one interval (the distance is convex in ``w``): its minimum by golden section, its ends by
-    bisection (:func:`_overlap_intervals`, compiled)."""
+    bisection (:func:`_overlap_intervals`, compiled).
+    """
     lo, hi = _overlap_intervals(np.ascontiguousarray(p1, dtype=float), np.ascontiguousarray(d1, dtype=float),
                                 np.ascontiguousarray(p2, dtype=float), np.ascontiguousarray(d2, dtype=float),
                                 np.ascontiguousarray(span, dtype=float), np.ascontiguousarray(zj, dtype=float),
                                 float(contact), int(iters))
-    for s0, e0 in zip(*(v[np.argsort(lo)] for v in (lo, hi))):
+    for s0, e0 in zip(*(v[np.argsort(lo)] for v in (lo, hi)), strict=True):
         if s0 >= z:
             break
         z = max(z, float(e0))
@@ -390,8 +355,10 @@ def _free_height(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray,
 
 @numba.njit(cache=True)
 def _pair_gap(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray, i: int, w: float) -> float:
-    """:func:`_segment_distance` of pair ``i`` with the candidate raised by ``w``: the same operations in the
-    same order, so the same bits."""
+    """:func:`_segment_distance` of pair ``i`` with the candidate raised by ``w``.
+
+    The same operations in the same order, so the same bits.
+    """
     r0, r1, r2 = p1[i, 0] - p2[i, 0], p1[i, 1] - p2[i, 1], (p1[i, 2] + w) - p2[i, 2]
     u0, u1, u2 = d1[i, 0], d1[i, 1], d1[i, 2]
     v0, v1, v2 = d2[i, 0], d2[i, 1], d2[i, 2]
@@ -420,8 +387,10 @@ def _pair_gap(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray, i:
 @numba.njit(cache=True)
 def _overlap_intervals(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray, span: np.ndarray,
                        zj: np.ndarray, contact: float, iters: int) -> tuple[np.ndarray, np.ndarray]:
-    """The overlap intervals ``[lo, hi]`` (absolute heights, both ends on the free side) of the pairs that
-    overlap somewhere (:func:`_free_height`), each pair's golden section and bisections in turn."""
+    """The overlap intervals ``[lo, hi]`` of the pairs that overlap somewhere (:func:`_free_height`).
+
+    Absolute heights, both ends on the free side; each pair's golden section and bisections in turn.
+    """
     golden = 0.5 * (math.sqrt(5.0) - 1.0)
     n = len(span)
     lo, hi = np.empty(n), np.empty(n)
@@ -456,9 +425,11 @@ def _overlap_intervals(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.nd
 
 
 def felt_inputs(spec: object) -> dict:
-    """Every field of ``spec`` the felt is built from (:func:`felt_mesh` reads them here only), with the
-    defaults of a spec that lacks one: with the radius, the seed and the mesh's sizes, the whole of a felt's
-    inputs (the key of :func:`cached_felt_mesh`)."""
+    """Every field of ``spec`` the felt is built from, with the defaults of a spec that lacks one.
+
+    :func:`felt_mesh` reads them here only: with the radius, the seed and the mesh's sizes, the whole of a
+    felt's inputs (the key of :func:`cached_felt_mesh`).
+    """
     return {"layers": int(getattr(spec, "layers", 0)),
             "spacing_ratio": float(getattr(spec, "spacing_ratio", 1.0)),
             "felt_spread_deg": float(getattr(spec, "felt_spread_deg", 20.0)),
@@ -471,92 +442,155 @@ def felt_inputs(spec: object) -> dict:
             "felt_fuzz_depth_um": float(getattr(spec, "felt_fuzz_depth_um", 300.0))}
 
 
-def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FabricMesh:
-    """The felt of ``spec`` (:class:`simulate.fabric.structure.StructureSpec`, ``kind = "nonwoven"``) for
-    fibers of radius ``radius_um``: random fibers from the stream ``seed`` (module docstring); ``sides`` and
-    ``n_s`` the tubes' sides and pieces (a crimped fiber's pieces: at least ``n_s``, :func:`_crimp_pieces`)."""
+@dataclass(frozen=True)
+class _FeltParameters:
+    """What :func:`felt_mesh` builds a felt from, in micrometres and radians (:func:`felt_inputs` resolved)."""
+
+    R: float                 # fiber radius
+    L: float                 # the cell's side
+    ell: float               # fiber length
+    layers: int
+    target: float            # the layers' projected fiber area
+    spread: float            # sd of an in-plane fiber's inclination
+    punched: float           # fraction of needle-punched fibers
+    tilt_sd: float           # sd of a needle-punched fiber's tilt from the normal
+    crimp: float             # crimp percentage (0: straight fibers)
+    wavelength: float        # crimp wave length
+    amplitude: float         # crimp wave amplitude
+    random_plane: bool       # crimp wave turned about its run by a uniform angle
+    n_s: int                 # pieces per fiber
+    fuzz: float              # fraction of the fiber amount in the loose top
+    fuzz_depth: float        # depth of the loose top
+
+
+def _felt_parameters(spec: object, radius_um: float, n_s: int) -> _FeltParameters:
+    """The felt's parameters from ``spec`` (:func:`felt_inputs`) and the fiber radius."""
     R = float(radius_um)
     L = CELL_RADII * R
     ell = LENGTH_RADII * R
     given = felt_inputs(spec)
     layers = given["layers"] or 10
-    ratio = given["spacing_ratio"]
-    spread = math.radians(given["felt_spread_deg"])
-    punched = given["felt_normal_fraction"]
-    tilt_sd = math.radians(given["felt_normal_spread_deg"])
     crimp = given["felt_crimp_percent"]
     wavelength, amplitude, random_plane = 1.0, 0.0, False
-    if crimp > 0.0:                            # crimped fibers (drawn only then: today's felt keeps its stream)
+    if crimp > 0.0:                            # crimped fibers (drawn only then: a straight felt keeps its stream)
         wavelength = 1e4 / given["felt_crimp_per_cm"]
         amplitude = crimp_amplitude(crimp, wavelength)
         random_plane = given["felt_crimp_plane"] == "random"
         n_s = _crimp_pieces(ell, R, amplitude, wavelength, n_s)
-    rng = np.random.default_rng([int(seed), 0x7E17])
-    target = layers * L * L / ratio           # the layers' projected fiber area
-    fuzz, fuzz_depth = given["felt_fuzz_fraction"], given["felt_fuzz_depth_um"]
-    compact = target * (1.0 - fuzz)            # the compact felt's amount; the rest is the loose top's
-    n_compact, top_compact = -1, 0.0           # set when the first loose fiber is drawn
+    return _FeltParameters(
+        R=R, L=L, ell=ell, layers=layers, target=layers * L * L / given["spacing_ratio"],
+        spread=math.radians(given["felt_spread_deg"]), punched=given["felt_normal_fraction"],
+        tilt_sd=math.radians(given["felt_normal_spread_deg"]), crimp=crimp, wavelength=wavelength,
+        amplitude=amplitude, random_plane=random_plane, n_s=n_s, fuzz=given["felt_fuzz_fraction"],
+        fuzz_depth=given["felt_fuzz_depth_um"])
+
+
+def _draw_direction(rng: np.random.Generator, fp: _FeltParameters) -> tuple[np.ndarray, float, bool, bool]:
+    """One fiber's direction from the stream: ``(t, amount, flat, punched)``.
+
+    ``amount`` is the fiber's projected area (a needle-punched fiber's counted as a fiber lying flat),
+    ``flat`` whether the fiber is an in-plane one, ``punched`` whether it is a needle-punched one.
+    """
+    R, ell = fp.R, fp.ell
+    az = rng.uniform(0.0, math.pi)
+    # a needle-punched fiber (drawn only when the fraction is set: an in-plane felt keeps its stream)
+    if fp.punched > 0.0 and rng.uniform() < fp.punched:
+        az *= 2.0                          # the tilt's azimuth over the full circle
+        tilt = abs(rng.normal(0.0, fp.tilt_sd)) if fp.tilt_sd > 0 else 0.0
+        while tilt > math.radians(80.0):
+            tilt = abs(rng.normal(0.0, fp.tilt_sd))
+        eps = 0.5 * math.pi - tilt
+        amount = 2.0 * R * ell             # its material, counted as a fiber lying flat
+        punched, flat = True, False
+    else:
+        eps = rng.normal(0.0, fp.spread) if fp.spread > 0 else 0.0
+        while abs(eps) > math.radians(80.0):
+            eps = rng.normal(0.0, fp.spread)
+        amount = 2.0 * R * ell * math.cos(eps)
+        punched, flat = False, True
+    t = np.array([math.cos(eps) * math.cos(az), math.cos(eps) * math.sin(az), math.sin(eps)])
+    return t, amount, flat, punched
+
+
+@dataclass
+class _Deposit:
+    """The fibers deposited so far: centres ``C``, directions ``T``, a crimped felt's pieces and waves."""
+
+    C: np.ndarray
+    T: np.ndarray
+    P0: np.ndarray           # crimped: each fiber's pieces' starts, from its centre
+    PD: np.ndarray           # crimped: each fiber's pieces' vectors
+    planes: list = field(default_factory=list)
+    phases: list = field(default_factory=list)
+    n_normal: int = 0        # needle-punched fibers
+    n_compact: int = -1      # fibers of the compact felt (set when the first loose fiber is drawn)
+    top_compact: float = 0.0
+
+
+def _placement(rng: np.random.Generator, fp: _FeltParameters, dep: _Deposit, t: np.ndarray, flat: bool,
+               amount: float) -> tuple[Callable[..., float], float, float, tuple | None]:
+    """How a fiber along ``t`` is placed: ``(place, low, amount, wave)``.
+
+    ``place(xy, floor)`` is its lowest free height over ``xy``, ``low`` its centre over its lowest point,
+    ``amount`` its projected area (a crimped in-plane fiber's polyline's), ``wave`` a crimped fiber's
+    ``(p0, pd, plane, phase)`` (None for a straight one). A crimped fiber draws its phase and plane here.
+    """
+    R, ell = fp.R, fp.ell
+    if fp.crimp > 0.0:
+        phase = rng.uniform(0.0, 2.0 * math.pi)
+        d = _crimp_plane(t, rng.uniform(0.0, 2.0 * math.pi) if fp.random_plane else 0.0)
+        x, y, _ = crimp_axis(ell, fp.amplitude, fp.wavelength, phase, fp.n_s)
+        pts = x[:, None] * t + y[:, None] * d
+        p0, pd = pts[:-1], np.diff(pts, axis=0)
+        if flat:                           # the polyline's projected area
+            amount = 2.0 * R * float(np.linalg.norm(pd[:, :2], axis=1).sum())
+        low = R - float(np.concatenate([p0[:, 2], p0[:, 2] + pd[:, 2]]).min())   # centre over lowest point
+        place: Callable[..., float] = functools.partial(
+            _lowest_free_height_pieces, A0=p0, AD=pd, C=dep.C, P0=dep.P0, PD=dep.PD, R=R, L=fp.L)
+        return place, low, amount, (p0, pd, d, phase)
+    low = 0.5 * ell * abs(t[2]) + R
+    place = functools.partial(_lowest_free_height, t=t, C=dep.C, T=dep.T, R=R, ell=ell, L=fp.L)
+    return place, low, amount, None
+
+
+def _deposit(fp: _FeltParameters, rng: np.random.Generator) -> _Deposit:
+    """Deposit fibers one by one until their projected area reaches the layers' (module docstring)."""
+    compact = fp.target * (1.0 - fp.fuzz)     # the compact felt's amount; the rest is the loose top's
     area = 0.0
-    n_normal = 0
-    C, T = np.zeros((0, 3)), np.zeros((0, 3))
-    P0, PD = np.zeros((0, n_s, 3)), np.zeros((0, n_s, 3))   # crimped: each fiber's pieces, from its centre
-    planes, phases = [], []
-    while area < target:
-        az = rng.uniform(0.0, math.pi)
-        # a needle-punched fiber (drawn only when the fraction is set: today's felt keeps its stream)
-        if punched > 0.0 and rng.uniform() < punched:
-            az *= 2.0                          # the tilt's azimuth over the full circle
-            tilt = abs(rng.normal(0.0, tilt_sd)) if tilt_sd > 0 else 0.0
-            while tilt > math.radians(80.0):
-                tilt = abs(rng.normal(0.0, tilt_sd))
-            eps = 0.5 * math.pi - tilt
-            amount = 2.0 * R * ell             # its material, counted as a fiber lying flat
-            n_normal += 1
-            flat = False
-        else:
-            eps = rng.normal(0.0, spread) if spread > 0 else 0.0
-            while abs(eps) > math.radians(80.0):
-                eps = rng.normal(0.0, spread)
-            amount = 2.0 * R * ell * math.cos(eps)
-            flat = True
-        t = np.array([math.cos(eps) * math.cos(az), math.cos(eps) * math.sin(az), math.sin(eps)])
-        xy = np.array([rng.uniform(0.0, L), rng.uniform(0.0, L)])
-        if crimp > 0.0:
-            phase = rng.uniform(0.0, 2.0 * math.pi)
-            d = _crimp_plane(t, rng.uniform(0.0, 2.0 * math.pi) if random_plane else 0.0)
-            x, y, _ = crimp_axis(ell, amplitude, wavelength, phase, n_s)
-            pts = x[:, None] * t + y[:, None] * d
-            p0, pd = pts[:-1], np.diff(pts, axis=0)
-            if flat:                           # the polyline's projected area
-                amount = 2.0 * R * float(np.linalg.norm(pd[:, :2], axis=1).sum())
-            low = R - float(np.concatenate([p0[:, 2], p0[:, 2] + pd[:, 2]]).min())   # centre over lowest point
-            place: Callable[..., float] = functools.partial(
-                _lowest_free_height_pieces, A0=p0, AD=pd, C=C, P0=P0, PD=PD, R=R, L=L)
-        else:
-            low = 0.5 * ell * abs(t[2]) + R
-            place = functools.partial(_lowest_free_height, t=t, C=C, T=T, R=R, ell=ell, L=L)
-        if fuzz > 0.0 and area >= compact:     # a loose top fiber (drawn only then: today's felt keeps its stream)
-            if n_compact < 0:
-                n_compact = len(C)
-                top_compact = float(np.max(_fiber_tops(C, T, P0, PD, crimp > 0.0, ell, R)))
-            xy, z = _place_loose(place, rng, xy, low, top_compact, fuzz_depth, L)
+    dep = _Deposit(C=np.zeros((0, 3)), T=np.zeros((0, 3)), P0=np.zeros((0, fp.n_s, 3)), PD=np.zeros((0, fp.n_s, 3)))
+    while area < fp.target:
+        t, amount, flat, punched = _draw_direction(rng, fp)
+        dep.n_normal += punched
+        xy = np.array([rng.uniform(0.0, fp.L), rng.uniform(0.0, fp.L)])
+        place, low, amount, wave = _placement(rng, fp, dep, t, flat, amount)
+        if fp.fuzz > 0.0 and area >= compact:    # a loose top fiber (drawn only then: a compact felt keeps its stream)
+            if dep.n_compact < 0:
+                dep.n_compact = len(dep.C)
+                dep.top_compact = float(np.max(_fiber_tops(dep.C, dep.T, dep.P0, dep.PD, fp.crimp > 0.0, fp.ell,
+                                                           fp.R)))
+            xy, z = _place_loose(place, rng, xy, low, dep.top_compact, fp.fuzz_depth, fp.L)
         else:
             z = place(xy, floor=0.0)
-        if crimp > 0.0:
-            P0, PD = np.concatenate([P0, p0[None]]), np.concatenate([PD, pd[None]])
-            planes.append(d)
-            phases.append(phase)
-        C, T = np.vstack([C, [xy[0], xy[1], z]]), np.vstack([T, t])
+        if wave is not None:
+            p0, pd, d, phase = wave
+            dep.P0, dep.PD = np.concatenate([dep.P0, p0[None]]), np.concatenate([dep.PD, pd[None]])
+            dep.planes.append(d)
+            dep.phases.append(phase)
+        dep.C, dep.T = np.vstack([dep.C, [xy[0], xy[1], z]]), np.vstack([dep.T, t])
         area += amount
-    top = float(np.max(_fiber_tops(C, T, P0, PD, crimp > 0.0, ell, R)))
-    C[:, 2] -= top                             # the felt's top at z = 0
-    n_bulk = n_compact if n_compact >= 0 else len(C)     # the compact felt's fibers (the bulk's)
-    if n_compact < 0:                          # no loose fiber drawn (a fraction below the last fiber's amount)
-        top_compact = top
+    return dep
+
+
+def _fiber_images(fp: _FeltParameters, dep: _Deposit, sides: int) -> tuple[list, ...]:
+    """Each fiber's tube at each periodic image that reaches into the cell.
+
+    Returns the lists of the images' vertices, normals, tangents, ``s``, ``phi`` and lengths.
+    """
+    R, L, ell, n_s = fp.R, fp.L, fp.ell, fp.n_s
     verts, norms, tans, ss, phis, yarn_len = [], [], [], [], [], []
-    for k, (c, t) in enumerate(zip(C, T)):
-        if crimp > 0.0:                        # the polyline's box (its arc midpoint at c)
-            xy_all = np.concatenate([P0[k, :, :2], P0[k, -1:, :2] + PD[k, -1:, :2]])
+    for k, (c, t) in enumerate(zip(dep.C, dep.T, strict=True)):
+        if fp.crimp > 0.0:                     # the polyline's box (its arc midpoint at c)
+            xy_all = np.concatenate([dep.P0[k, :, :2], dep.P0[k, -1:, :2] + dep.PD[k, -1:, :2]])
             box_lo, box_hi = xy_all.min(axis=0) - R, xy_all.max(axis=0) + R
         else:
             half = 0.5 * ell * np.abs(t[:2]) + R
@@ -566,9 +600,9 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
                 cc = c + np.array([i * L, j * L, 0.0])
                 if np.any(cc[:2] + box_hi < 0.0) or np.any(cc[:2] + box_lo > L):
                     continue                   # this image does not reach into the cell
-                if crimp > 0.0:
-                    p, nrm, tan, s, phi, _ = _crimped_tube(cc, t, planes[k], R, ell, amplitude, wavelength,
-                                                           phases[k], n_s, sides)
+                if fp.crimp > 0.0:
+                    p, nrm, tan, s, phi, _ = _crimped_tube(cc, t, dep.planes[k], R, ell, fp.amplitude, fp.wavelength,
+                                                           dep.phases[k], n_s, sides)
                 else:
                     p, nrm, s, phi = _tube(cc, t, R, ell, n_s, sides)
                     tan = np.broadcast_to(t, p.shape)
@@ -578,25 +612,67 @@ def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
                 ss.append(s)
                 phis.append(phi)
                 yarn_len.append(ell)
+    return verts, norms, tans, ss, phis, yarn_len
+
+
+def _felt_info(fp: _FeltParameters, dep: _Deposit, top: float, n_bulk: int, n_images: int, triangles: int,
+               seed: int) -> dict:
+    """The felt's ``info``: counts, sizes, the bulk volume fraction and the crimp's and loose top's settings."""
+    C, T, P0, PD = dep.C, dep.T, dep.P0, dep.PD
+    info: dict = {"fibers": len(C), "images": n_images, "cell_um": fp.L, "fiber_length_um": fp.ell,
+                  "thickness_um": top, "layers": fp.layers, "spread_deg": math.degrees(fp.spread),
+                  "normal_fibers": dep.n_normal, "triangles": triangles,
+                  "volume_fraction": (bulk_volume_fraction_pieces(C[:n_bulk], C[:n_bulk, None, :] + P0[:n_bulk],
+                                                                  PD[:n_bulk], fp.R, fp.L) if fp.crimp > 0.0
+                                      else bulk_volume_fraction(C[:n_bulk], T[:n_bulk], fp.R, fp.ell, fp.L)),
+                  "seed": int(seed)}
+    if fp.crimp > 0.0:
+        info.update({"crimp_percent": fp.crimp, "crimp_wavelength_um": fp.wavelength,
+                     "crimp_amplitude_um": fp.amplitude, "crimp_plane": "random" if fp.random_plane else "felt",
+                     "pieces": fp.n_s})
+    if fp.fuzz > 0.0:
+        info.update({"fuzz_fraction": fp.fuzz, "fuzz_depth_um": fp.fuzz_depth, "fuzz_fibers": len(C) - n_bulk,
+                     "compact_top_um": dep.top_compact - top})   # the compact felt's top, below the felt's
+    return info
+
+
+def felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> FabricMesh:
+    """The felt of ``spec`` for fibers of radius ``radius_um``.
+
+    Parameters
+    ----------
+    spec : simulate.fabric.structure.StructureSpec
+        A ``kind = "nonwoven"`` structure (its fields: :func:`felt_inputs`).
+    radius_um : float
+        The fibers' radius.
+    seed : int
+        The stream the random fibers are drawn from (module docstring).
+    sides, n_s : int
+        The tubes' sides and pieces (a crimped fiber's pieces: at least ``n_s``, :func:`_crimp_pieces`).
+
+    Returns
+    -------
+    FabricMesh
+        Open tubes, one "yarn" per fiber image; ``info`` holds the counts, the thickness and the bulk
+        volume fraction.
+    """
+    fp = _felt_parameters(spec, radius_um, n_s)
+    rng = np.random.default_rng([int(seed), 0x7E17])
+    dep = _deposit(fp, rng)
+    top = float(np.max(_fiber_tops(dep.C, dep.T, dep.P0, dep.PD, fp.crimp > 0.0, fp.ell, fp.R)))
+    dep.C[:, 2] -= top                         # the felt's top at z = 0
+    n_bulk = dep.n_compact if dep.n_compact >= 0 else len(dep.C)     # the compact felt's fibers (the bulk's)
+    if dep.n_compact < 0:                      # no loose fiber drawn (a fraction below the last fiber's amount)
+        dep.top_compact = top
+    verts, norms, tans, ss, phis, yarn_len = _fiber_images(fp, dep, sides)
+    n_s, R, L = fp.n_s, fp.R, fp.L
     n_y = len(verts)
     ring = (n_s + 1) * (sides + 1)
     vertex_base = (np.arange(n_y) * ring).astype(np.int64)
     face_base = (np.arange(n_y) * 2 * n_s * sides).astype(np.int64)
     faces = np.concatenate([grid_faces(n_s, sides, int(vertex_base[y])) for y in range(n_y)]).astype(np.int32)
     vertices = np.concatenate(verts)
-    info: dict = {"fibers": len(C), "images": n_y, "cell_um": L, "fiber_length_um": ell, "thickness_um": top,
-                  "layers": layers, "spread_deg": math.degrees(spread),
-                  "normal_fibers": n_normal, "triangles": int(faces.shape[0]),
-                  "volume_fraction": (bulk_volume_fraction_pieces(C[:n_bulk], C[:n_bulk, None, :] + P0[:n_bulk],
-                                                                  PD[:n_bulk], R, L) if crimp > 0.0
-                                      else bulk_volume_fraction(C[:n_bulk], T[:n_bulk], R, ell, L)),
-                  "seed": int(seed)}
-    if crimp > 0.0:
-        info.update({"crimp_percent": crimp, "crimp_wavelength_um": wavelength, "crimp_amplitude_um": amplitude,
-                     "crimp_plane": "random" if random_plane else "felt", "pieces": n_s})
-    if fuzz > 0.0:
-        info.update({"fuzz_fraction": fuzz, "fuzz_depth_um": fuzz_depth, "fuzz_fibers": len(C) - n_bulk,
-                     "compact_top_um": top_compact - top})   # the compact felt's top, below the felt's
+    info = _felt_info(fp, dep, top, n_bulk, n_y, int(faces.shape[0]), seed)
     return FabricMesh(
         vertices=vertices, faces=faces, normals=np.concatenate(norms), tangents=np.ascontiguousarray(np.concatenate(tans)),
         vertex_s=np.concatenate(ss), vertex_phi=np.concatenate(phis),
@@ -616,8 +692,11 @@ _SCALARS = ("sides", "Lx", "Ly", "z_min", "z_max", "yarn_radius_um", "open_fiber
 
 
 def felt_key(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, n_s: int = 4) -> str:
-    """The table cache's key of a felt (:mod:`simulate.fiber.tablecache`): every input of :func:`felt_mesh`
-    (:func:`felt_inputs`, the radius, the seed, the mesh's sizes) and the source of :data:`CACHE_MODULES`."""
+    """The table cache's key of a felt (:mod:`simulate.fiber.tablecache`).
+
+    It covers every input of :func:`felt_mesh` (:func:`felt_inputs`, the radius, the seed, the mesh's
+    sizes) and the source of :data:`CACHE_MODULES`.
+    """
     from simulate.fiber import tablecache
 
     inputs = {"spec": felt_inputs(spec), "radius_um": float(radius_um), "seed": int(seed), "sides": int(sides),
@@ -627,9 +706,12 @@ def felt_key(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48, 
 
 def cached_felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: int = 48,
                      n_s: int = 4) -> tuple[FabricMesh, bool]:
-    """``(felt, hit)``: :func:`felt_mesh` from the table cache (``FABRIC_OPTICS_CACHE_DIR``), built and stored
-    on a miss. The key (:func:`felt_key`) covers every input and the code, so a hit is the felt a build would
-    give, array for array; the runs of a fit that keeps the structure build each realisation once."""
+    """``(felt, hit)``: :func:`felt_mesh` from the table cache (``FABRIC_OPTICS_CACHE_DIR``).
+
+    Built and stored on a miss. The key (:func:`felt_key`) covers every input and the code, so a hit is
+    the felt a build would
+    give, array for array; the runs of a fit that keeps the structure build each realisation once.
+    """
     from simulate.fiber import tablecache
 
     def build() -> dict:
@@ -645,21 +727,26 @@ def cached_felt_mesh(spec: object, radius_um: float, seed: int = 0, *, sides: in
 
 
 def fiber_pieces(m: FabricMesh) -> tuple[np.ndarray, np.ndarray]:
-    """Each fiber image's axis as straight pieces, read off its mesh (the centres of its rings): the starts
-    ``[images, n_s, 3]`` and the pieces' vectors."""
+    """Each fiber image's axis as straight pieces, read off its mesh (the centres of its rings).
+
+    Returns the starts ``[images, n_s, 3]`` and the pieces' vectors.
+    """
     ns, sides = int(m.n_s[0]), int(m.sides)
     centres = m.vertices.reshape(len(m.vertex_base), ns + 1, sides + 1, 3)[:, :, :-1].mean(axis=2)
     return centres[:, :-1], np.diff(centres, axis=1)
 
 
 def bulk_volume_fraction(C: np.ndarray, T: np.ndarray, R: float, ell: float, L: float, n: int = 4000) -> float:
-    """The fraction of the felt's bulk (the cell between the quartiles of the fibers' centre heights)
-    inside a fiber: ``n`` fixed-seed random points (standard error ~ ``sqrt(f (1 - f) / n)``, 0.005)."""
+    """The fraction of the felt's bulk inside a fiber.
+
+    The bulk is the cell between the quartiles of the fibers' centre heights, sampled by ``n`` fixed-seed
+    random points (standard error ``sqrt(f (1 - f) / n)``).
+    """
     rng = np.random.default_rng(0xF17)
     z_lo, z_hi = np.quantile(C[:, 2], [0.25, 0.75])
     p = np.stack([rng.uniform(0.0, L, n), rng.uniform(0.0, L, n), rng.uniform(z_lo, z_hi, n)], axis=-1)
     inside = np.zeros(n, bool)
-    for c, t in zip(C, T):
+    for c, t in zip(C, T, strict=True):
         d = p - c
         d[:, :2] -= L * np.round(d[:, :2] / L)  # nearest image (a fiber's half-projection is <= L / 2)
         a = d @ t
@@ -668,14 +755,17 @@ def bulk_volume_fraction(C: np.ndarray, T: np.ndarray, R: float, ell: float, L: 
 
 
 def bulk_volume_fraction_pieces(C: np.ndarray, S: np.ndarray, D: np.ndarray, R: float, L: float, n: int = 4000) -> float:
-    """:func:`bulk_volume_fraction` for fibers of straight pieces (a crimped fiber's polyline): fiber ``j``'s
-    pieces start at ``S[j]`` (``[pieces, 3]``, absolute) with vectors ``D[j]``; a point is inside a fiber when
-    it is inside one of its pieces' cylinders (the nearest image of each piece)."""
+    """:func:`bulk_volume_fraction` for fibers of straight pieces (a crimped fiber's polyline).
+
+    Fiber ``j``'s pieces start at ``S[j]`` (``[pieces, 3]``, absolute) with vectors ``D[j]``; a point is
+    inside a fiber when
+    it is inside one of its pieces' cylinders (the nearest image of each piece).
+    """
     rng = np.random.default_rng(0xF17)
     z_lo, z_hi = np.quantile(C[:, 2], [0.25, 0.75])
     p = np.stack([rng.uniform(0.0, L, n), rng.uniform(0.0, L, n), rng.uniform(z_lo, z_hi, n)], axis=-1)
     inside = np.zeros(n, bool)
-    for s, dv in zip(S, D):
+    for s, dv in zip(S, D, strict=True):
         length = np.linalg.norm(dv, axis=1)
         e = dv / length[:, None]
         d = p[None, :, :] - (s + 0.5 * dv)[:, None, :]    # from each piece's midpoint

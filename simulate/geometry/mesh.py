@@ -85,8 +85,10 @@ class FabricMesh:
         return self.vertex_base[yarn] + np.asarray(i_s) * (self.sides + 1) + np.asarray(i_phi)
 
     def to_trimesh(self) -> trimesh.Trimesh:
-        """A :class:`trimesh.Trimesh` of the same vertices and faces (not merged or reordered),
-        with the analytic vertex normals."""
+        """A :class:`trimesh.Trimesh` of the same vertices and faces.
+
+        Not merged or reordered, with the analytic vertex normals.
+        """
         import trimesh
 
         return trimesh.Trimesh(vertices=self.vertices, faces=self.faces, vertex_normals=self.normals,

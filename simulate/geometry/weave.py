@@ -91,10 +91,8 @@ DEFAULT_SIDES = 48
 #: Bound on the micro-element's mesh (:func:`simulate.geometry.mesh.mesh`): a weave whose mesh would
 #: have more triangles is refused when the :class:`Weave` is made, before anything is allocated.
 #: The mesh has ``4 x sides x points_per_span x n_warp x n_weft`` triangles (two per quad, every
-#: crossing on a warp and on a weft); building it takes about 136 bytes per triangle at its peak
-#: (measured with ``tracemalloc`` on a 32 768-triangle twill), so the bound is about 0.27 GiB for
-#: the mesh and about as much again for the tracer's trimesh/Embree copy. The shipped red-cotton
-#: weave has 2 048 triangles.
+#: crossing on a warp and on a weft); the bound keeps the mesh's peak memory, and about as much again
+#: for the tracer's trimesh/Embree copy, near a quarter GiB (docs/physics.md 6, "Size bounds").
 MAX_TRIANGLES = 2_000_000
 #: Bound on the weave matrix (warp threads x picks): the largest that still meshes within
 #: :data:`MAX_TRIANGLES` with the coarsest mesh (``sides = 3``, ``points_per_span = 1``); a WIF
@@ -139,8 +137,10 @@ PRESETS: dict[str, list[list[int]]] = {
 
 
 class WeaveError(ValueError):
-    """A bad weave (matrix, dimensions, WIF file, export path): one line naming the row, column,
-    line or field."""
+    """A bad weave (matrix, dimensions, WIF file, export path).
+
+    Its message is one line naming the row, column, line or field.
+    """
 
 
 # ------------------------------------------------------------------------------------------
@@ -336,8 +336,11 @@ class Weave:
         return s, np.append(z, z[0]).astype(float)
 
     def centre_line(self, yarn: int) -> CubicSpline:
-        """The yarn's centre height ``z_c(s)``: periodic cubic spline (period ``L``) through its
-        control points; it extrapolates periodically, so it may be evaluated on ``[0, L]``."""
+        """The yarn's centre height ``z_c(s)``.
+
+        A periodic cubic spline (period ``L``) through its control points; it extrapolates periodically,
+        so it may be evaluated on ``[0, L]``.
+        """
         s, z = self.control_points(yarn)
         return CubicSpline(s, z, bc_type="periodic")
 

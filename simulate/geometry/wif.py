@@ -143,7 +143,7 @@ class _Wif:
 
 
 def read_wif(path: str | Path) -> np.ndarray:
-    """The drawdown of a WIF 1.1 file as a weave matrix (rows = warp threads, columns = picks).
+    r"""The drawdown of a WIF 1.1 file as a weave matrix (rows = warp threads, columns = picks).
 
     Warp thread ``j`` (``j + 1`` in the file) raised on pick ``i`` -- it shows on the face, over
     the weft -- gives ``matrix[j, i] = 1``. Read: ``[WEAVING] Shafts`` (and ``Treadles``, ``Rising
@@ -162,9 +162,9 @@ def read_wif(path: str | Path) -> np.ndarray:
     --------
     >>> from pathlib import Path
     >>> p = Path(getfixture("tmp_path")) / "plain.wif"
-    >>> _ = p.write_text("[WIF]\\nVersion=1.1\\n[WEAVING]\\nShafts=2\\nTreadles=2\\n[WARP]\\nThreads=2\\n"
-    ...                  "[WEFT]\\nThreads=2\\n[THREADING]\\n1=1\\n2=2\\n[TIEUP]\\n1=1\\n2=2\\n"
-    ...                  "[TREADLING]\\n1=1\\n2=2\\n")
+    >>> _ = p.write_text("[WIF]\nVersion=1.1\n[WEAVING]\nShafts=2\nTreadles=2\n[WARP]\nThreads=2\n"
+    ...                  "[WEFT]\nThreads=2\n[THREADING]\n1=1\n2=2\n[TIEUP]\n1=1\n2=2\n"
+    ...                  "[TREADLING]\n1=1\n2=2\n")
     >>> read_wif(p).tolist()
     [[1, 0], [0, 1]]
     """

@@ -18,8 +18,9 @@ budget.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -103,11 +104,9 @@ def next_round(history: list[tuple[int, float]], target: float, max_photons: int
     to ``N_need = N (rel / target)^(1/a)``. A first extrapolation further than twice the photons
     done goes only to the geometric mean of the two (the error measured there gives the
     decay); otherwise to ``SAFETY N_need``. Rounds are at least ``max(BATCH, MIN_GROWTH N)``,
-    at most ``MAX_GROWTH N`` and the budget, whole batches.
-
-    The earlier rule (``1.1 N_need`` with ``a = 1/2`` and rounds of at least 25 %) spent 29 %
-    more photons than the target needed on red-cotton's summation: the error after
-    the first 50 000 photons overstates the 1/sqrt(N) extrapolation (it falls faster at first).
+    at most ``MAX_GROWTH N`` and the budget, whole batches. The decay is measured rather than taken
+    as ``1/sqrt(N)`` because the early error falls faster than that (docs/notes/implementation.md,
+    "The accuracy control").
 
     >>> next_round([(50_000, 0.0110)], 0.01, 10**7)   # 1.03 * 1.21 * 50 000 = 62 315 -> 12 315 more -> batches
     14000

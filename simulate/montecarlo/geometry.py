@@ -53,7 +53,6 @@ from __future__ import annotations
 import math
 
 import numba
-import numpy as np
 
 __all__ = [
     "core_length",
@@ -78,10 +77,13 @@ CELL = 2
 
 @numba.njit(cache=True, inline="always")
 def core_length(y: float, z: float, uy: float, uz: float, s: float, a: float) -> float:
-    """The length of the segment from ``(y, z)`` (the cross-section's coordinates of a point of the cylinder)
-    along ``u`` for ``s`` (a unit direction: ``s`` is the path length) that lies within the radius ``a`` of the
-    axis: the roots of ``|p_perp + t u_perp|^2 = a^2`` clipped to ``[0, s]`` (a dye profile's inner boundary).
-    A path along the axis is inside for its whole length or not at all."""
+    """The length of a path segment that lies within the radius ``a`` of the axis.
+
+    The segment starts at ``(y, z)`` (the cross-section's coordinates of a point of the cylinder) and runs
+    along ``u`` for ``s`` (a unit direction: ``s`` is the path length); the length is from the roots of
+    ``|p_perp + t u_perp|^2 = a^2`` clipped to ``[0, s]`` (a dye profile's inner boundary).
+    A path along the axis is inside for its whole length or not at all.
+    """
     if s <= 0.0:
         return 0.0
     q = uy * uy + uz * uz

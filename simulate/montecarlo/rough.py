@@ -21,7 +21,7 @@ EGSR; the same model as Mitsuba's and pbrt's ``roughdielectric``):
 
 ``G1`` is Smith's for the Beckmann distribution, ``1 / (1 + Lambda(a))`` with ``a = 1 / (m tan
 theta)`` and ``Lambda(a) = (erf(a) - 1) / 2 + exp(-a^2) / (2 a sqrt(pi))`` (Walter et al. eq. 27).
-At ``m_t = 0`` the kernel takes its smooth branch, bit for bit the previous code.
+At ``m_t = 0`` the kernel takes its smooth branch: a smooth boundary's results, bit for bit.
 """
 
 from __future__ import annotations
@@ -37,8 +37,11 @@ _INV_SQRT_PI = 1.0 / math.sqrt(math.pi)
 
 @numba.njit(cache=True, inline="always")
 def smith_g1(cos_v: float, m: float) -> float:
-    """Smith's masking ``G1`` of the Beckmann surface of RMS slope ``m`` for a direction at ``|cos_v|`` to the
-    normal (``m`` the slope in the direction's own azimuth for an anisotropic surface: :func:`slope_towards`)."""
+    """Smith's masking ``G1`` of the Beckmann surface of RMS slope ``m``.
+
+    For a direction at ``|cos_v|`` to the normal; ``m`` is the slope in the direction's own azimuth for an
+    anisotropic surface (:func:`slope_towards`).
+    """
     c = abs(cos_v)
     if c >= 1.0:
         return 1.0
@@ -54,9 +57,11 @@ def smith_g1(cos_v: float, m: float) -> float:
 
 @numba.njit(cache=True, inline="always")
 def slope_towards(vx: float, vy: float, vz: float, nx: float, ny: float, nz: float, m_a: float, m_b: float) -> float:
-    """The RMS slope of the anisotropic Beckmann surface (``m_a`` along the fiber axis ``t = x``, ``m_b``
-    about it) in the azimuth of ``v``'s projection on the tangent plane (Heitz 2014, section 5.3:
-    ``alpha^2 = cos^2 phi m_a^2 + sin^2 phi m_b^2``)."""
+    """The RMS slope of the anisotropic Beckmann surface in the azimuth of ``v``.
+
+    ``m_a`` is the slope along the fiber axis ``t = x``, ``m_b`` about it; the azimuth is that of ``v``'s
+    projection on the tangent plane (Heitz 2014, section 5.3: ``alpha^2 = cos^2 phi m_a^2 + sin^2 phi m_b^2``).
+    """
     if m_a == m_b:
         return m_a
     vn = vx * nx + vy * ny + vz * nz
@@ -70,10 +75,12 @@ def slope_towards(vx: float, vy: float, vz: float, nx: float, ny: float, nz: flo
 
 @numba.njit(cache=True, inline="always")
 def facet_normal(nx: float, ny: float, nz: float, m_a: float, m_b: float, u1: float, u2: float):
-    """A Beckmann microfacet normal about the unit ``n`` with density ``D(h)(h.n)``: slopes drawn from the
-    Beckmann slope distribution, RMS slope ``m_a`` along the fiber axis ``t = (1, 0, 0)`` (which lies in
-    every tangent plane of the kernel's cylinder and slab) and ``m_b`` along ``b = n x t``; returns ``h``
-    and ``h.n``."""
+    """A Beckmann microfacet normal about the unit ``n`` with density ``D(h)(h.n)``.
+
+    Slopes are drawn from the Beckmann slope distribution, RMS slope ``m_a`` along the fiber axis
+    ``t = (1, 0, 0)`` (which lies in every tangent plane of the kernel's cylinder and slab) and ``m_b``
+    along ``b = n x t``; returns ``h`` and ``h.n``.
+    """
     r = math.sqrt(-math.log(1.0 - u1))
     phi = 2.0 * math.pi * u2
     s_t = m_a * r * math.cos(phi)
@@ -89,8 +96,11 @@ def facet_normal(nx: float, ny: float, nz: float, m_a: float, m_b: float, u1: fl
 @numba.njit(cache=True, inline="always")
 def refract_about(ux: float, uy: float, uz: float, hx: float, hy: float, hz: float, cos_i: float, n1: float,
                   n2: float):
-    """Snell's refraction of the unit ``u`` (``cos_i = u.h > 0``, below total internal reflection) about the
-    unit normal ``h`` pointing to the side of index ``n2``: ``eta u + (cos_t - eta cos_i) h``, ``eta = n1/n2``."""
+    """Snell's refraction of the unit ``u`` about the unit normal ``h``.
+
+    ``cos_i = u.h > 0``, below total internal reflection; ``h`` points to the side of index ``n2``. The
+    refracted direction is ``eta u + (cos_t - eta cos_i) h``, ``eta = n1/n2``.
+    """
     eta = n1 / n2
     k = refracted_cos(cos_i, n1, n2) - eta * cos_i
     ox = eta * ux + k * hx
@@ -103,9 +113,9 @@ def refract_about(ux: float, uy: float, uz: float, hx: float, hy: float, hz: flo
 @numba.njit(cache=True, inline="always")
 def rough_cross(ux: float, uy: float, uz: float, nx: float, ny: float, nz: float, n1: float, n2: float,
                 m_a: float, m_b: float, u1: float, u2: float, u3: float):
-    """Light along ``u`` meets a rough boundary from the side of index ``n1``; ``n`` the unit macro
-    normal pointing to the side of index ``n2`` (``u.n > 0``).
+    """Light along ``u`` meets a rough boundary from the side of index ``n1``.
 
+    ``n`` is the unit macro normal pointing to the side of index ``n2`` (``u.n > 0``).
     One microfacet is drawn (``u1``, ``u2``), then reflection or refraction at it (``u3`` against its
     Fresnel reflectance). Returns ``(ox, oy, oz, factor, crossed)``: the new direction, the weight
     factor (0: the light is lost -- a back-facing facet or a masked or wrong-side direction), and

@@ -36,9 +36,12 @@ _scratch = threading.local()
 
 
 def _buffers(jobs: int, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """The round buffers ``scal[jobs, N_SCALARS]``, ``bins[jobs, n_bins, 2]``, kept per thread and reused while the
-    shape holds (the kernel zeroes a job's rows before it runs: no stale values). Fresh ~10^8-byte buffers at
-    every call would cost their page faults in every call (docs/notes/implementation.md)."""
+    """The round buffers ``scal[jobs, N_SCALARS]`` and ``bins[jobs, n_bins, 2]``, kept per thread.
+
+    They are reused while the shape holds (the kernel zeroes a job's rows before it runs: no stale
+    values); fresh buffers of this size would cost their page faults at every call
+    (docs/notes/implementation.md).
+    """
     got = getattr(_scratch, "buffers", None)
     if got is None or got[1].shape != (jobs, n_bins, 2):
         got = (np.zeros((jobs, T.N_SCALARS)), np.zeros((jobs, n_bins, 2)))
@@ -124,11 +127,13 @@ def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, ph
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _reduce_means(job_row, job_batch, n_batches, photons, scal_buf, bins_buf, scal, means):
-    """:func:`execute_rows`'s reduction into ``means`` (``[R, a, b, c, d, e]``, any strides): job ``i``'s scalars
-    added to its run's, its bin sums added to the run's sums held in ``means`` (``0.0 +`` the first batch,
-    as ``bins`` starts at zero), divided by ``photons`` after the run's last batch. Compiled, parallel over
-    the first bin axis (each value still sees its jobs in order) and without the GIL, so other threads
-    run meanwhile."""
+    """:func:`execute_rows`'s reduction into ``means`` (``[R, a, b, c, d, e]``, any strides).
+
+    Job ``i``'s scalars are added to its run's, its bin sums to the run's sums held in ``means`` (``0.0 +``
+    the first batch, as ``bins`` starts at zero), divided by ``photons`` after the run's last batch.
+    Compiled, parallel over the first bin axis (each value still sees its jobs in order) and without the
+    GIL, so other threads run meanwhile.
+    """
     R, A, B, C, D, E = means.shape
     for i in range(job_row.shape[0]):
         for s in range(scal.shape[1]):

@@ -27,9 +27,8 @@ update of MCML (Wang, Jacques & Zheng 1995, eq. 3.23). One 64-bit draw gives bot
 top 40 bits the uniform of ``mu`` (grid 2^-40), its low 24 bits the azimuth
 ``phi = 2 pi k / 2^24`` (grid 3.7e-7 rad), whose cosine and sine come from a 256-node table and
 the angle-addition formulas with short Taylor polynomials (:func:`azimuth`, within 2e-15; no
-trigonometric call, no branch). This replaced a point drawn uniformly in the unit disc by
-rejection (``cos phi = (a^2 - b^2) / r^2``): one draw instead of 2.27 on average, no division and
-no mispredicted rejection branch -- 14 % off the plain slab loop (README, speed).
+trigonometric call, no branch): one draw, where a point drawn uniformly in the unit disc by
+rejection takes more, a division and an unpredictable branch (docs/notes/implementation.md).
 
 References
 ----------

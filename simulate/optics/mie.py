@@ -669,6 +669,6 @@ def _ensemble_phase(m_particle: complex, n_host: float, wavelength_nm: float, ra
     keep = ws > _PHASE_NODE_CUTOFF * total
     mu_arr = phase_grid(float(np.max(x[keep]))) if mu is None else np.asarray(mu, dtype=float)
     p = np.zeros(mu_arr.shape)
-    for xi, wi in zip(x[keep], ws[keep]):
+    for xi, wi in zip(x[keep], ws[keep], strict=True):
         p += wi * phase_function(m, float(xi), mu_arr)
     return mu_arr, p / ws[keep].sum()

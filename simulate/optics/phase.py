@@ -147,7 +147,7 @@ class PhaseTable:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_hg(cls, g: float, K: int = DEFAULT_TABLE_SIZE) -> "PhaseTable":
+    def from_hg(cls, g: float, K: int = DEFAULT_TABLE_SIZE) -> PhaseTable:
         """Table of the Henyey-Greenstein phase function from its exact inverse CDF.
 
         Parameters
@@ -174,7 +174,7 @@ class PhaseTable:
         p: npt.ArrayLike,
         K: int = DEFAULT_TABLE_SIZE,
         g_reference: float = float("nan"),
-    ) -> "PhaseTable":
+    ) -> PhaseTable:
         """Table from samples of ``p(mu)`` on a grid (taken piecewise linear in ``mu``).
 
         Parameters
@@ -240,7 +240,7 @@ class PhaseTable:
         x: float,
         K: int = DEFAULT_TABLE_SIZE,
         n_theta: int | None = None,
-    ) -> "PhaseTable":
+    ) -> PhaseTable:
         """Table of the Mie phase function of one sphere (see :func:`simulate.optics.mie.phase_function`).
 
         Parameters

@@ -121,8 +121,7 @@ def surface_albedo(roughness: float, n_host: float) -> np.ndarray:
     """The Cook-Torrance surface's directional albedo at :data:`ALBEDO_NODES` ``cos theta`` nodes (a fresh copy).
 
     Computed once per process and (roughness, index), and kept in the table cache
-    (:mod:`simulate.fiber.tablecache`): every trace of a run shares it (it was computed per
-    trace, 8 times in a ``simulate fabric --method mc`` run). ``roughness = 0`` (the smooth
+    (:mod:`simulate.fiber.tablecache`): every trace of a run shares it. ``roughness = 0`` (the smooth
     limit, no table): two zeros.
     """
     if roughness <= 0.0:

@@ -66,6 +66,9 @@ def pile_medium(medium: Any, packing_fraction: float) -> Any:
 
 
 def pile_fiber(fiber: Any, radius_um: float, packing_fraction: float) -> Any:
-    """The "fiber" whose BSSRDF is the yarn's: radius ``radius_um`` (the yarn's), the fiber's host index,
-    roughness and cells, its medium diluted to ``packing_fraction`` (module docstring)."""
+    """The "fiber" whose BSSRDF is the yarn's.
+
+    Radius ``radius_um`` (the yarn's), the fiber's host index, roughness and cells, its medium diluted to
+    ``packing_fraction`` (module docstring).
+    """
     return dataclasses.replace(fiber, radius_um=float(radius_um), medium=pile_medium(fiber.medium, packing_fraction))

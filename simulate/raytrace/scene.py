@@ -10,7 +10,7 @@ has escaped (reflected / transmitted). Rays are traced in batches (a wavefront):
 call per batch and wrap round, the bookkeeping in compiled code.
 
 Why Embree and not a hand-written grid: it is a well-kept, SIMD BVH engine; ``simulate bench``
-measures its rays per second on these meshes (README, "Fabric Monte Carlo").
+measures its rays per second on these meshes (docs/quality.md).
 
 Precision: Embree works in float32; coordinates are in um and the micro-element is a few
 hundred um wide, so positions are resolved to ~1e-4 um. Secondary rays start ``EPS_UM`` off
@@ -93,8 +93,11 @@ def _segment_limits(origins, directions, lx, ly, z_lo, z_hi, t_out, face_out):
 
 @numba.njit(cache=True, nogil=True)
 def _prepare(o, d, active, na, lx, ly, z_lo, z_hi, oa, da, ta, fa, o32, d32, dist32):
-    """A wrap round's rays (``active[:na]``) gathered, their segments' limits (:func:`_segment_limits`) and
-    Embree's float32 inputs (the distance at least 1e-6) (compiled)."""
+    """A wrap round's rays (``active[:na]``) gathered for Embree (compiled).
+
+    Also their segments' limits (:func:`_segment_limits`) and Embree's float32 inputs (the distance at
+    least 1e-6).
+    """
     for j in range(na):
         i = active[j]
         for q in range(3):
@@ -111,9 +114,11 @@ def _prepare(o, d, active, na, lx, ly, z_lo, z_hi, oa, da, ta, fa, o32, d32, dis
 @numba.njit(cache=True, nogil=True)
 def _settle(hit_prim, hit_u, hit_v, hit_t, occlusion, active, na, oa, da, ta, fa, lx, ly, prim, u, v, o,
             seg_origin):
-    """Apply a wrap round's Embree answers: a hit's triangle, barycentrics and point, an escape's code and
-    exit point, and the rays that reached a side face wrapped to the opposite one, kept in ``active``
-    (in order, in place). Returns how many go on (compiled)."""
+    """Apply a wrap round's Embree answers (compiled).
+
+    A hit's triangle, barycentrics and point, an escape's code and exit point, and the rays that reached a
+    side face wrapped to the opposite one, kept in ``active`` (in order, in place). Returns how many go on.
+    """
     ns = 0
     for j in range(na):
         i = active[j]
@@ -230,9 +235,10 @@ class PeriodicScene:
 
     @property
     def top(self) -> float:
-        """z of the plane rays start from and escape through upward."""
+        """Z of the plane rays start from and escape through upward."""
         return self.z_hi
 
     @property
     def bottom(self) -> float:
+        """Z of the plane below the fabric: rays that reach it leave through the bottom."""
         return self.z_lo

@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import logging
 import math
+import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-import time
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -153,7 +154,7 @@ def yarn_table(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 
     the walk's (only the absorption is applied per wavelength, exactly): a bias of at most that
     relative error in ``mu_s`` instead of the re-weighting's variance, which in an optically thick
     cylinder (hundreds of events per path: the yarn's pile, :mod:`simulate.raytrace.pile`) has heavy
-    tails -- re-weighted, the pile's table noise reached 9 % of the peak at 23 000 photons per row.
+    tails (docs/physics.md 6, "Yarn made of fibers").
     """
     return _tables(fiber, wavelengths_nm, [seed], threads, optics, cache, w_t_nodes=w_t_nodes, n_v=n_v,
                    v_max_R=v_max_R, n_mu=n_mu, n_phi=n_phi, photons_per_row=photons_per_row,
@@ -212,7 +213,7 @@ def _tables(fiber: Any, wavelengths_nm: Any, seeds: list[int], threads: int | No
             optics = _walk_optics(fiber, wl, held_log_mu_s)
         computed = _compute(fiber, wl, nodes, n_psi, dpsi, ks, n_v, v_max_R, n_mu, n_phi, photons_per_row,
                             [seeds[i] for i in missing], threads, optics, held_log_mu_s)
-        for i, arrays in zip(missing, computed):
+        for i, arrays in zip(missing, computed, strict=True):
             if use:
                 tablecache.store(keys[i], arrays)
             found[i] = _from_arrays(arrays, dpsi, n_psi, n_v, n_mu, n_phi, v_max_R, fiber, wl,
@@ -221,9 +222,12 @@ def _tables(fiber: Any, wavelengths_nm: Any, seeds: list[int], threads: int | No
 
 
 def _walk_optics(fiber: Any, wl: np.ndarray, held_log_mu_s: float) -> SpectralOptics:
-    """The optics a table walks with: every phase function, or for a held-scattering table only those of
-    the groups' middle wavelengths (the walks'; the others are never read: red cotton's pile needs 7 of
-    its 33 Mie phase functions). The groups depend on ``mu_s`` and ``g`` only."""
+    """The optics a table walks with.
+
+    Every phase function, or for a held-scattering table only those of the groups' middle wavelengths
+    (the walks'; the others are never read, so they are not computed). The groups depend on ``mu_s`` and
+    ``g`` only.
+    """
     if held_log_mu_s <= 0.0:
         return spectral_optics(fiber, wl)
     coefficients = spectral_optics(fiber, wl, phase_at=())
@@ -232,9 +236,12 @@ def _walk_optics(fiber: Any, wl: np.ndarray, held_log_mu_s: float) -> SpectralOp
 
 
 def held_groups(optics: SpectralOptics, max_log_mu_s: float) -> list[np.ndarray]:
-    """Consecutive wavelengths whose ``mu_s`` lie within ``max_log_mu_s`` (in ``log``) and ``g`` within
-    ``GROUP_G`` of the group's middle one (which walks): the groups of a held-scattering table
-    (:func:`simulate.fiber.spectral.wavelength_groups` with this bound)."""
+    """The groups of a held-scattering table: runs of consecutive wavelengths.
+
+    In a group every ``mu_s`` lies within ``max_log_mu_s`` (in ``log``) and every ``g`` within ``GROUP_G``
+    of the group's middle one (which walks): :func:`simulate.fiber.spectral.wavelength_groups` with this
+    bound.
+    """
     return wavelength_groups(optics, max_log_mu_s)
 
 
