@@ -1,0 +1,40 @@
+"""The Python interface of fabric-optics: what the command lines do, as functions."""
+
+from fabric_optics.api.comparison import (
+    FABRIC_METHODS,
+    FIT_METHODS,
+    IMPORT_FORMATS,
+    Comparison,
+    FileSystemError,
+    FitJob,
+    FitOutcome,
+    FitWarning,
+    InputError,
+    InternalError,
+    OutputBusyError,
+    OutputExistsError,
+    ToolkitError,
+    Verdict,
+    check,
+    compare,
+    export_bsdf,
+    fit,
+    import_measurement,
+    load_config,
+    load_plan,
+    measure_on_mock,
+    prepare_fit,
+    read_dataset,
+    simulate,
+    truth,
+    write_dataset,
+    write_report,
+)
+
+__all__ = [
+    "ToolkitError", "InputError", "OutputExistsError", "OutputBusyError", "FileSystemError", "InternalError",
+    "load_config", "load_plan", "read_dataset", "write_dataset",
+    "measure_on_mock", "truth", "simulate", "compare", "check", "Verdict", "fit", "prepare_fit", "FitJob",
+    "FitOutcome", "FitWarning", "export_bsdf", "import_measurement", "write_report", "Comparison",
+    "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS",
+]
