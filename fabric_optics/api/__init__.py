@@ -1,34 +1,37 @@
-"""The Python interface of fabric-optics: what the command lines do, as functions."""
+"""The Python interface of fabric-optics: what the command lines do, as functions.
 
-from fabric_optics.api.comparison import (
-    FABRIC_METHODS,
-    FIT_METHODS,
-    IMPORT_FORMATS,
-    Comparison,
+Load a config or plan, measure on the mock instrument or import a measurement, simulate a fabric at
+a plan's geometries, compare datasets and judge the comparison, write the report, fit config
+parameters to a measurement, read and write datasets, export to a renderer. Every function returns
+the project's own objects (a `Dataset` holds a pandas table in `.table` and its metadata in
+`.meta`), raises `InputError` (a `ToolkitError`) for bad input instead of exiting, and shows a
+progress bar only when `progress=True`. The tutorial "Python, from measurement to report" runs a
+whole chain.
+
+Examples
+--------
+>>> import fabric_optics as fo
+>>> fo.load_config("red-cotton").name
+'red-cotton'
+>>> fo.load_config("no-such-preset")
+Traceback (most recent call last):
+...
+fabric_optics.api.InputError: ...no-such-preset...
+"""
+
+from fabric_optics.api.comparison import Comparison, Verdict, check, compare, write_report
+from fabric_optics.api.export import export_bsdf
+from fabric_optics.api.fitting import FIT_METHODS, FitJob, FitOutcome, FitWarning, fit, prepare_fit
+from fabric_optics.api.loading import load_config, load_plan, read_dataset, write_dataset
+from fabric_optics.api.measurement import IMPORT_FORMATS, import_measurement, measure_on_mock, truth
+from fabric_optics.api.simulation import FABRIC_METHODS, simulate
+from fabric_optics.errors import (
     FileSystemError,
-    FitJob,
-    FitOutcome,
-    FitWarning,
     InputError,
     InternalError,
     OutputBusyError,
     OutputExistsError,
     ToolkitError,
-    Verdict,
-    check,
-    compare,
-    export_bsdf,
-    fit,
-    import_measurement,
-    load_config,
-    load_plan,
-    measure_on_mock,
-    prepare_fit,
-    read_dataset,
-    simulate,
-    truth,
-    write_dataset,
-    write_report,
 )
 
 __all__ = [
