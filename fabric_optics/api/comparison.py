@@ -1,5 +1,8 @@
-"""Comparing simulations with a measurement, judging the comparison, and writing the report (``compare check``,
-``compare report``)."""
+"""Comparing simulations with a measurement, judging the comparison, and writing the report.
+
+These are the functions behind ``compare check`` (:func:`compare`, then :func:`check` and its
+:class:`Verdict`) and ``compare report`` (:func:`write_report`).
+"""
 
 from __future__ import annotations
 
@@ -23,8 +26,11 @@ __all__ = ["Comparison", "Verdict", "check", "compare", "write_report"]
 def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os.PathLike
             | Sequence[Dataset | str | os.PathLike], *, window_deg: float = DEFAULT_WINDOW_DEG,
             illuminant: str = "D65") -> Comparison:
-    """Compare simulations with a measurement: each normalised to it at the normal direction, then
-    curve errors and the colour match (what `compare report` and `compare check` compute).
+    """Compare simulations with a measurement: curve errors and the colour match.
+
+    Each simulation is normalised to the measurement at the normal direction, so that the shapes of
+    the curves are compared apart from the absolute level (which is compared on its own where the
+    measurement is absolute). This is what `compare report` and `compare check` compute.
 
     Parameters
     ----------
@@ -49,7 +55,8 @@ def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os
     Raises
     ------
     InputError
-        A dataset that cannot be read, or datasets that share no geometry or wavelength.
+        A dataset that cannot be read, datasets that share no geometry or wavelength, an empty list
+        of simulations, or a `window_deg` or `illuminant` out of range.
 
     Examples
     --------
@@ -84,6 +91,9 @@ def compare(measured: str | os.PathLike | Dataset, simulated: Dataset | str | os
 class Verdict:
     """The pass/fail judgement of one simulation against the measurement (`compare check`), made by `check`.
 
+    A verdict keeps each judged figure beside its limit, so that a caller (or `compare check`'s
+    output) sees by how much a figure passed or failed, not only whether.
+
     Attributes
     ----------
     name : str
@@ -108,15 +118,34 @@ class Verdict:
 
     @property
     def passed(self) -> bool:
-        """True when every figure is within its limit (`compare check` exits 0); a NaN fails."""
+        """Whether every figure is within its limit (`compare check` exits 0); a NaN fails.
+
+        Returns
+        -------
+        bool
+            True when no figure exceeds its limit.
+        """
         return all(value <= limit for _, value, limit, _ in self.figures)
 
     def failures(self) -> list[str]:
-        """The labels of the figures beyond their limits (empty when `passed`)."""
+        """The labels of the figures beyond their limits (empty when `passed`).
+
+        Returns
+        -------
+        list of str
+            The failed figures' labels, e.g. `["overall NRMSE"]`.
+        """
         return [label for label, value, limit, _ in self.figures if not value <= limit]
 
     def summary(self) -> str:
-        """The lines `compare check` prints: each figure with `ok` or `FAIL` and its limit."""
+        """The lines `compare check` prints: each figure with `ok` or `FAIL` and its limit.
+
+        Returns
+        -------
+        str
+            One line naming the simulation and the measurement, then the notes, then one line per
+            judged figure, then the NRMSE per incidence.
+        """
         lines = [f"'{self.name}' against '{self.measured}'"]
         lines += [f"  note: {n}" for n in self.notes]
         for label, value, limit, unit in self.figures:
@@ -132,6 +161,9 @@ def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float =
           max_hue_diff: float = DEFAULT_MAX_HUE_DIFF, max_sat_diff: float = DEFAULT_MAX_SAT_DIFF,
           max_level_ratio: float = DEFAULT_MAX_LEVEL_RATIO) -> Verdict:
     """Judge one simulation of a comparison against thresholds (`compare check`).
+
+    The defaults are the thresholds `compare check` uses; the colour is judged only where the
+    measurement has a colour and the level only where it is absolute.
 
     Parameters
     ----------
@@ -157,7 +189,7 @@ def check(comparison: Comparison, *, name: str | None = None, max_nrmse: float =
     Raises
     ------
     InputError
-        `comparison` has no simulation called `name`.
+        `comparison` is not a Comparison, has no simulation called `name`, or a threshold is negative.
 
     Examples
     --------
@@ -234,6 +266,8 @@ def write_report(measured: str | os.PathLike | Dataset, *models: str | os.PathLi
     ------
     OutputExistsError
         `out` holds something and `force` is False.
+    OutputBusyError
+        Another writer is writing `out` now.
     InputError
         A dataset that cannot be read or compared, `renders` that is not a folder or given without
         a model, a sweep folder beside other models.
@@ -277,7 +311,11 @@ def _write_report_claimed(measured: str | os.PathLike | Dataset, models: Sequenc
                           out_dir: Path, *, force: bool, fits: Sequence[str | os.PathLike],
                           seed_sample: str | os.PathLike | Dataset | None, renders: str | os.PathLike | None,
                           svg: bool, window_deg: float, illuminant: str) -> Path:
-    """`write_report` once its arguments are checked and its folder claimed."""
+    """Write the report once `write_report` has checked its arguments and claimed its folder.
+
+    A report of the measurement alone, of a sweep folder, or of models compared with the
+    measurement (with the sections of fits, the seed sample and renders).
+    """
     from compare.comparison import compare_datasets
     from compare.report import Section
     from compare.report import write_report as _write_report

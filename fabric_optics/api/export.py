@@ -1,5 +1,8 @@
-"""Exporting a fabric model or a dataset to a renderer: an RGL ``.bsdf`` file (``simulate export``,
-``gonio export``)."""
+"""Exporting a fabric model or a dataset to a renderer as an RGL ``.bsdf`` file.
+
+:func:`export_bsdf` is ``simulate export`` (a fabric model) and ``gonio export`` (a dataset); the
+file is what Mitsuba 3's ``measured`` material and pbrt-v4 read.
+"""
 
 from __future__ import annotations
 
@@ -26,6 +29,10 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
                 provenance: dict | None = None, force: bool = False, progress: bool = False) -> Any:
     """Write an RGL `.bsdf` file (Mitsuba 3's `measured` material, pbrt-v4) of a fabric model or a dataset.
 
+    A renderer then shows the fabric under any light, from the same model or measurement the
+    comparison judged. The tabulation's error can be measured (`check_pairs`) so that a file says
+    how far it is from its model.
+
     Parameters
     ----------
     source : str, path, SimulationConfig or Dataset
@@ -44,8 +51,14 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
         Values per axis of the tabulation (4 to 256).
     incidences : int, default 16
         Incidence nodes (2 to 64).
-    target_rel_err, seed, threads, max_photons : optional
-        The Monte Carlo budget of a fabric, as in `simulate`.
+    target_rel_err : float, optional
+        For a fabric: the Monte Carlo's relative standard error (the config's by default).
+    seed : int, optional
+        For a fabric: the random seed (the config's by default).
+    threads : int, optional
+        For a fabric: worker threads; `0` uses every core numba may.
+    max_photons : int, optional
+        For a fabric: upper bound on the photons of each Monte Carlo walk.
     check_pairs : int, default 0
         Measure the tabulation error at that many random direction pairs (more model evaluations).
     anisotropic : int, default 0
@@ -71,8 +84,11 @@ def export_bsdf(source: str | os.PathLike | SimulationConfig | Dataset, path: st
     ------
     OutputExistsError
         `path` exists and `force` is False.
+    OutputBusyError
+        Another writer is writing `path` now.
     InputError
-        A resolution, incidence count, method or anisotropy out of range.
+        A resolution, incidence count, method or anisotropy out of range, a source that is neither a
+        config nor a dataset, or a run refused by its cost estimate.
 
     Examples
     --------

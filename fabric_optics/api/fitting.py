@@ -63,10 +63,31 @@ class FitOutcome:
 
 @dataclass
 class FitJob:
-    """A fit checked and ready to run (:func:`prepare_fit`): ``problem`` (its ``wavelengths_nm``,
-    ``config``, ...), the output folder ``out`` and the ``budget`` (what the method's budget counts: model
-    evaluations, or Monte Carlo runs of the ``mc`` fit). :meth:`run` searches, writes ``out`` and returns the
-    outcome."""
+    """A fit checked and ready to run, as :func:`prepare_fit` returns it.
+
+    Preparing and running are apart so that a caller (the command line) can report on the fit (its
+    wavelengths, its budget) before the search starts. :meth:`run` searches, writes ``out`` and
+    returns the outcome.
+
+    Attributes
+    ----------
+    problem : FitProblem or MCFitProblem
+        The fit's problem, from the method registry (its ``wavelengths_nm``, ``config``, ...).
+    out : Path
+        The fit's output folder.
+    method : str
+        The fit's method, one of `FIT_METHODS`.
+    budget : int
+        What the method's budget counts: model evaluations (``classic``, ``summation``) or Monte
+        Carlo runs (``mc``).
+    starts : int
+        Independent starts of the search; the best is kept.
+    resume : bool
+        Continue a fit stopped in ``out`` from its checkpoints.
+    phase : str, default "ready"
+        ``"ready"``, ``"search"``, ``"writing"`` (the outputs being put in place) or ``"done"``: where
+        an interrupted run stopped.
+    """
 
     problem: Any
     out: Path
@@ -79,8 +100,34 @@ class FitJob:
 
     @typed_errors
     def run(self, *, progress: bool = False) -> FitOutcome:
-        """Search, write the outputs and return the outcome. A fit that fails (its colour left off) or never moved
-        from its start warns (:class:`FitWarning`); its outputs are written all the same."""
+        """Search, write the outputs and return the outcome.
+
+        The outputs are put in place together once the search is over, so an interrupt leaves the
+        checkpoints (for ``resume``) and none of the outputs half-written.
+
+        Parameters
+        ----------
+        progress : bool, default False
+            Show a progress bar.
+
+        Returns
+        -------
+        FitOutcome
+            The fitted config, the typed result, what ``fit.json`` holds, the verdict and the warnings.
+
+        Raises
+        ------
+        InputError
+            A checkpoint in ``out`` that cannot be trusted, or a model the fit cannot evaluate.
+        FileSystemError
+            ``out`` cannot be written.
+
+        Warns
+        -----
+        FitWarning
+            The fitted colour is off by more than the tolerance, or the search never moved from its
+            start; the outputs are written all the same.
+        """
         import warnings
 
         from fabric_optics.fitting.outputs import write_outputs
@@ -114,8 +161,80 @@ def prepare_fit(config: str | os.PathLike | SimulationConfig, measured: str | os
                 mc_trend: Sequence[str] = (), starts: int = 1, resume: bool = False,
                 force: bool = False, absolute: bool = False, colour_hold: bool = True,
                 mc_retrace: bool = False) -> FitJob:
-    """Everything :func:`fit` checks before its search (arguments as :func:`fit`): the config, the
-    measurement, the free parameters and their bounds, the output folder. Nothing is written."""
+    """Check a fit and build its problem without searching: what :func:`fit` does before its search.
+
+    The config, the measurement, the free parameters and their bounds, the budget and the output
+    folder are checked and the fit's problem is built from the method registry; nothing is written
+    and the output folder is not claimed (:func:`fit` claims it). A caller that wants to see the
+    fit before it runs (its wavelengths, its budget) prepares it, then calls :meth:`FitJob.run`.
+
+    Parameters
+    ----------
+    config : str, path or SimulationConfig
+        The start: a preset name, a config TOML file or a loaded config.
+    measured : str, path or Dataset
+        The measurement (a dataset or its folder).
+    free : str or sequence of str
+        The parameters to fit, as :func:`fit` takes them (`"dye,rms_slope"`, `["rms_slope=0.1:0.5"]`).
+    out : str or path
+        The fit's folder (checked here, written by :meth:`FitJob.run`).
+    method : str, default "classic"
+        One of `FIT_METHODS`.
+    dye : str, default "config"
+        `"config"` keeps the config's dye; `"knots"` replaces it by knots started from the measured colour.
+    max_evaluations : int, optional
+        Model evaluations of the classic and summation fits (their default budget when None).
+    max_runs : int, optional
+        Monte Carlo runs of the `mc` fit (its default budget when None).
+    target_rel_err : float, optional
+        The first Monte Carlo walk's relative error (the config's by default).
+    seed : int, optional
+        The random seed (the config's by default).
+    threads : int, optional
+        Threads of the walks (all cores by default).
+    colour_weight : float, default 1.0
+        Weight of the colour match in the objective.
+    wavelengths_nm : sequence of float, optional
+        The model's wavelengths (the measurement's by default).
+    mc_trend : sequence of str, default ()
+        For `mc`: parameters whose trend the surrogate borrows from the summation.
+    starts : int, default 1
+        Independent starts of the search; the best is kept.
+    resume : bool, default False
+        Continue a fit stopped in `out` from its checkpoints (`out` may then hold a fit).
+    force : bool, default False
+        Replace what `out` holds.
+    absolute : bool, default False
+        The measurement is absolutely calibrated: its level is fitted too.
+    colour_hold : bool, default True
+        The classic and summation fits hold the colour within the tolerance; False weighs it by
+        `colour_weight` only.
+    mc_retrace : bool, default False
+        For `mc`: trace every Monte Carlo run instead of re-weighting runs from a traced one.
+
+    Returns
+    -------
+    FitJob
+        The fit, ready to run: `.problem`, `.out`, `.method`, `.budget`.
+
+    Raises
+    ------
+    InputError
+        An unknown method or dye, a budget or Monte Carlo option that is not the method's, a bad
+        config, measurement or free parameter (the message names it), `out` a file.
+    OutputExistsError
+        `out` holds something and neither `force` nor `resume` was given.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import fabric_optics as fo
+    >>> out = Path(tempfile.mkdtemp()) / "fit"
+    >>> job = fo.prepare_fit("red-cotton", "fixtures/analytic/measured_red", "rms_slope", out, max_evaluations=6)
+    >>> job.method, job.budget, job.phase, out.exists()
+    ('classic', 6, 'ready', False)
+    """
     import numpy as np
 
     from fabric_optics.fitting.spec import parse_free
@@ -171,6 +290,10 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         colour_hold: bool = True, mc_retrace: bool = False) -> FitOutcome:
     """Fit parameters of a fabric model to a measurement (`simulate fit`).
 
+    The arguments are checked, the output folder is claimed for this writer, the fit is prepared
+    (:func:`prepare_fit`) and run (:meth:`FitJob.run`). The search minimises the curve error of the
+    normalised curves and, unless `colour_hold` is off, holds the fitted colour within the tolerance.
+
     Parameters
     ----------
     config : str, path or SimulationConfig
@@ -193,8 +316,10 @@ def fit(config: str | os.PathLike | SimulationConfig, measured: str | os.PathLik
         Model evaluations of the classic and summation fits (their default budget when None).
     max_runs : int, optional
         Monte Carlo runs of the `mc` fit (its default budget when None).
-    target_rel_err, seed : optional
-        The first Monte Carlo walk's relative error and the seed (the config's by default).
+    target_rel_err : float, optional
+        The first Monte Carlo walk's relative error (the config's by default).
+    seed : int, optional
+        The random seed (the config's by default).
     threads : int, optional
         Threads of the walks (all cores by default).
     colour_weight : float, default 1.0

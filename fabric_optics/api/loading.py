@@ -27,6 +27,9 @@ __all__ = ["load_config", "load_plan", "read_dataset", "write_dataset", "as_data
 def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfig:
     """A simulation config: a preset, a TOML file, or a config already loaded.
 
+    Every function of the API that models a fabric takes a config in any of these three forms and
+    loads it here, so a preset, a file and an object behave alike and are validated once.
+
     Parameters
     ----------
     config : str, path or SimulationConfig
@@ -62,6 +65,9 @@ def load_config(config: str | os.PathLike | SimulationConfig) -> SimulationConfi
 def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
     """An acquisition plan: the geometries to measure (or simulate) and the wavelengths.
 
+    The same plan drives an acquisition and a simulation, so that the two datasets share their
+    geometries and wavelengths and can be compared point by point.
+
     Parameters
     ----------
     plan : str, path or Plan
@@ -94,12 +100,32 @@ def load_plan(plan: str | os.PathLike | Plan = "red-cotton") -> Plan:
 
 
 def as_dataset(data: str | os.PathLike | Dataset) -> Dataset:
+    """A dataset given as an object or as its folder, read when it is a folder.
+
+    Parameters
+    ----------
+    data : str, path or Dataset
+        A dataset (returned as is) or its folder (read with :func:`read_dataset`).
+
+    Returns
+    -------
+    Dataset
+        The dataset.
+
+    Raises
+    ------
+    InputError
+        No such folder, or a folder that is not a valid dataset.
+    """
     return data if isinstance(data, Dataset) else read_dataset(data)
 
 
 @typed_errors
 def read_dataset(path: str | os.PathLike) -> Dataset:
     """Read a radiance-coefficient dataset folder (`radiance.csv` and `meta.json`; docs: dataset format).
+
+    A dataset is the contract between the packages: measured, imported and simulated datasets are
+    read alike, checked against the format's schema.
 
     Parameters
     ----------
@@ -133,6 +159,10 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
 def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = False) -> Path:
     """Write `dataset` as a dataset folder (`radiance.csv`, `meta.json`), each file atomically.
 
+    The folder is claimed for this writer while it is written (another writer of the same folder is
+    refused), and an acquisition's run folder is never written into: its journal is the record of a
+    measurement.
+
     Parameters
     ----------
     dataset : Dataset
@@ -149,8 +179,12 @@ def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = Fa
 
     Raises
     ------
+    InputError
+        `dataset` is not a Dataset, or `path` or `force` is not usable.
     OutputExistsError
-        `path` exists and is not empty, and `force` is False.
+        `path` exists and is not empty and `force` is False, or it is an acquisition's run folder.
+    OutputBusyError
+        Another writer is writing `path` now.
 
     Examples
     --------
@@ -178,8 +212,31 @@ def write_dataset(dataset: Dataset, path: str | os.PathLike, *, force: bool = Fa
 
 def refuse_existing(out: Path, force: bool, what: str = "out", *, ask: str = "force=True",
                      file: bool = False, run_folder: bool = False) -> None:
-    """An existing file, or a folder holding anything (hidden files aside), only with `force`; `run_folder`:
-    a run folder never (the output rule of every writer, `gonio.data.outputs`)."""
+    """Refuse an output that holds something unless `force` is given (the output rule of every writer).
+
+    The rule is :mod:`gonio.data.outputs`'s: an existing file, or a folder holding anything (hidden
+    files aside), is written only with `force`; with `run_folder`, an acquisition's run folder never.
+
+    Parameters
+    ----------
+    out : Path
+        The file or folder about to be written.
+    force : bool
+        Whether the caller asked to replace what `out` holds.
+    what : str, default "out"
+        The argument that named `out`, for the message.
+    ask : str, default "force=True"
+        What the message tells the caller to pass to go ahead.
+    file : bool, default False
+        `out` is a file (not a folder).
+    run_folder : bool, default False
+        Refuse an acquisition's run folder even with `force`.
+
+    Raises
+    ------
+    OutputExistsError
+        `out` holds something and `force` is False, or it is a run folder and `run_folder` is True.
+    """
     try:
         if run_folder:
             _refuse_run_folder(out, option=what, ask=ask)

@@ -1,5 +1,8 @@
-"""Measurements: on the embedded mock instrument (``gonio demo``), its true values (``gonio truth``), or imported
-from files made elsewhere (``gonio import``)."""
+"""Measurements: made on the mock instrument, its true values, or imported from files made elsewhere.
+
+:func:`measure_on_mock` is ``gonio demo``, :func:`truth` is ``gonio truth`` and
+:func:`import_measurement` is ``gonio import``; each returns a measured dataset.
+"""
 
 from __future__ import annotations
 
@@ -16,6 +19,12 @@ from gonio.data.formats import FORMATS
 from gonio.data.outputs import OutputRefused
 
 __all__ = ["IMPORT_FORMATS", "import_measurement", "measure_on_mock", "truth"]
+
+IMPORT_FORMATS: tuple[str, ...] = tuple(FORMATS)
+"""The file formats `import_measurement` reads (`gonio import FORMAT`): `"rgl-bsdf"` (RGL `.bsdf` tensor
+files), `"pgii"` (PAB pgII text files, one incidence each), `"merl"` (MERL binary tables)."""
+#: the formats a file name tells by its suffix (pgII files have none of their own)
+_SUFFIX_FORMATS = {".bsdf": "rgl-bsdf", ".binary": "merl"}
 
 
 @typed_errors
@@ -53,8 +62,10 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
     ------
     OutputExistsError
         `out` holds an earlier output and `force` is False, or holds another acquisition's run.
+    OutputBusyError
+        Another writer is writing `out` now.
     InputError
-        An unknown sample or plan.
+        An unknown sample or plan, or a seed out of range.
 
     Examples
     --------
@@ -91,8 +102,10 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
 
 @typed_errors
 def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset:
-    """The mock sample's true radiance coefficient at a plan's geometries: what a perfect measurement
-    of it gives (`gonio truth`), to check an acquisition against.
+    """The mock sample's true radiance coefficient at a plan's geometries (`gonio truth`).
+
+    This is what a perfect measurement of the sample gives: the reference an acquisition on the
+    mock instrument is checked against.
 
     Parameters
     ----------
@@ -128,18 +141,15 @@ def truth(sample: str, plan: str | os.PathLike | Plan = "red-cotton") -> Dataset
         raise InputError(f"sample {sample!r}: {exc}") from exc
 
 
-IMPORT_FORMATS: tuple[str, ...] = tuple(FORMATS)
-"""The file formats `import_measurement` reads (`gonio import FORMAT`): `"rgl-bsdf"` (RGL `.bsdf` tensor
-files), `"pgii"` (PAB pgII text files, one incidence each), `"merl"` (MERL binary tables)."""
-_SUFFIX_FORMATS = {".bsdf": "rgl-bsdf", ".binary": "merl"}
-
-
 @typed_errors
 def import_measurement(path: str | os.PathLike | Sequence[str | os.PathLike], out: str | os.PathLike | None = None,
                        *, force: bool = False, format: str | None = None, plan: str | os.PathLike | Plan | None = None,
                        scale: float | None = None, white: str | os.PathLike | None = None,
                        white_reflectance: float = 0.99, keep_grazing: bool = False) -> Dataset:
     """Import a measurement made elsewhere as a radiance-coefficient dataset (`gonio import`).
+
+    The imported dataset is in the project's own format, so that it is simulated, compared and
+    fitted like a measurement made with the instrument.
 
     Parameters
     ----------
@@ -180,6 +190,8 @@ def import_measurement(path: str | os.PathLike | Sequence[str | os.PathLike], ou
         offset), a non-positive `scale`, a `white_reflectance` outside (0, 1].
     OutputExistsError
         `out` holds something and `force` is False.
+    OutputBusyError
+        Another writer is writing `out` now.
 
     Examples
     --------

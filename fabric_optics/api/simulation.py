@@ -26,6 +26,10 @@ def simulate(config: str | os.PathLike | SimulationConfig, plan: str | os.PathLi
              progress: bool = False, max_seconds: float = 0.0) -> Dataset:
     """Simulate a fabric's radiance coefficient at a plan's geometries and wavelengths (`simulate fabric`).
 
+    The result is a dataset like a measured one, at the plan's geometries, so that `compare` can
+    set the two side by side. The run's cost is estimated before it starts and a run beyond
+    `max_seconds` is refused rather than left to run for days.
+
     Parameters
     ----------
     config : str, path or SimulationConfig
@@ -61,7 +65,8 @@ def simulate(config: str | os.PathLike | SimulationConfig, plan: str | os.PathLi
     Raises
     ------
     InputError
-        An unknown method, config or plan, or a run refused by its cost estimate.
+        An unknown method, config or plan, an argument out of range (the message names it), or a
+        run refused by its cost estimate.
 
     Examples
     --------
