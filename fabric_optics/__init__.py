@@ -10,15 +10,13 @@
 Nothing in ``gonio``, ``simulate`` or ``compare`` imports this package.
 """
 
-from gonio.version import VERSION as __version__
-
 from fabric_optics.api import (
     FABRIC_METHODS,
     FIT_METHODS,
     IMPORT_FORMATS,
     Comparison,
-    FitJob,
     FileSystemError,
+    FitJob,
     FitOutcome,
     FitWarning,
     InputError,
@@ -42,6 +40,7 @@ from fabric_optics.api import (
     write_dataset,
     write_report,
 )
+from gonio.version import VERSION as __version__
 
 __all__ = ["__version__", "FABRIC_METHODS", "FIT_METHODS", "IMPORT_FORMATS", "Comparison", "FileSystemError", "FitJob",
            "FitOutcome", "FitWarning", "InputError", "InternalError", "OutputBusyError", "OutputExistsError",

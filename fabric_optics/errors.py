@@ -1,7 +1,6 @@
-"""The errors of the Python interface (:mod:`fabric_optics.api` re-exports them) and the wrapper that
-makes every exception reaching a caller one of them.
+"""The errors of the Python interface and the wrapper that makes every exception reaching a caller one of them.
 
-Every exception a function of :mod:`fabric_optics.api` raises is a :class:`ToolkitError`:
+:mod:`fabric_optics.api` re-exports the error classes. Every exception a function of :mod:`fabric_optics.api` raises is a :class:`ToolkitError`:
 
 - :class:`InputError` (also a :class:`ValueError`): a bad argument, config, plan or dataset; the
   message names the Python argument or the file and says what to do;
@@ -40,31 +39,58 @@ __all__ = ["ToolkitError", "InputError", "OutputExistsError", "OutputBusyError",
 
 
 class ToolkitError(Exception):
-    """Base of the errors this interface raises."""
+    """Base of the errors this interface raises.
+
+    Catching it catches every failure of a call to the API (a ``KeyboardInterrupt`` aside), so a
+    notebook or script can report a failed step and go on.
+
+    Examples
+    --------
+    >>> import fabric_optics as fo
+    >>> try:
+    ...     fo.load_plan("no-such-plan")
+    ... except fo.ToolkitError as exc:
+    ...     print(type(exc).__name__)
+    InputError
+    """
 
 
 class InputError(ToolkitError, ValueError):
-    """A config, plan, dataset, parameter or value that cannot be used; the message names it and
-    says what to do. The library's own error is kept as ``__cause__``."""
+    """A config, plan, dataset, parameter or value that cannot be used.
+
+    The message names the argument or the file and says what to do; the library's own error is
+    kept as ``__cause__``. It is also a :class:`ValueError`.
+    """
 
 
 class OutputExistsError(ToolkitError, FileExistsError):
-    """The output path holds something already and ``force`` was not given."""
+    """The output path holds something already and ``force`` was not given.
+
+    Nothing a user made is overwritten without being asked; an acquisition's run folder is never
+    overwritten. It is also a :class:`FileExistsError`.
+    """
 
 
 class OutputBusyError(OutputExistsError):
-    """Another writer (another process or thread) is writing the same output now
-    (:mod:`gonio.data.claim`); nothing was changed."""
+    """Another writer (another process or thread) is writing the same output now; nothing was changed.
+
+    Every writer claims its output (:mod:`gonio.data.claim`) so that two writers never interleave
+    their files.
+    """
 
 
 class FileSystemError(ToolkitError, OSError):
-    """A file could not be read or written (a full disk, no permission); ``filename`` and the
-    message name it."""
+    """A file could not be read or written (a full disk, no permission).
+
+    ``filename`` and the message name the file. It is also an :class:`OSError`.
+    """
 
 
 class InternalError(ToolkitError):
-    """An error the toolkit did not expect (a defect: please report it with the call that made it);
-    the original exception is ``__cause__``."""
+    """An error the toolkit did not expect: a defect, to be reported with the call that made it.
+
+    The original exception is ``__cause__``.
+    """
 
 
 # the public name of these classes is fabric_optics.api.X (tracebacks, pickles, docs)
@@ -79,10 +105,22 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 
 
 def interrupt_of(exc: BaseException) -> KeyboardInterrupt | None:
-    """The :class:`KeyboardInterrupt` behind ``exc``: ``exc`` itself, or the interrupt that a
-    compiled extension turned into a :class:`SystemError` (``<built-in function ...> returned a
-    result with an exception set``: Ctrl-C arriving while numba or numpy code runs a Python
-    callback); None otherwise."""
+    """The :class:`KeyboardInterrupt` behind ``exc``, or None when there is none.
+
+    That is ``exc`` itself, or the interrupt that a compiled extension turned into a
+    :class:`SystemError` (``<built-in function ...> returned a result with an exception set``:
+    Ctrl-C arriving while numba or numpy code runs a Python callback).
+
+    Parameters
+    ----------
+    exc : BaseException
+        The exception caught.
+
+    Returns
+    -------
+    KeyboardInterrupt or None
+        The interrupt, found through at most 16 causes or contexts.
+    """
     cur: BaseException | None = exc
     for _ in range(16):
         if isinstance(cur, KeyboardInterrupt):
@@ -94,8 +132,21 @@ def interrupt_of(exc: BaseException) -> KeyboardInterrupt | None:
 
 
 def as_toolkit_error(exc: BaseException) -> BaseException:
-    """The :class:`ToolkitError` that stands for ``exc`` (``exc`` itself when it is one, or not an
-    :class:`Exception`: an interrupt)."""
+    """The :class:`ToolkitError` that stands for ``exc``.
+
+    Parameters
+    ----------
+    exc : BaseException
+        The exception caught.
+
+    Returns
+    -------
+    BaseException
+        ``exc`` itself when it is a :class:`ToolkitError` or not an :class:`Exception` (an interrupt);
+        otherwise the typed error for it (``exc`` as its ``__cause__``): :class:`OutputBusyError`,
+        :class:`OutputExistsError`, :class:`FileSystemError`, :class:`InputError` for the libraries'
+        input errors, :class:`InternalError` for anything else.
+    """
     from fabric_optics.fitting.errors import FitError
 
     if isinstance(exc, ToolkitError) or not isinstance(exc, Exception):
@@ -127,8 +178,19 @@ def as_toolkit_error(exc: BaseException) -> BaseException:
 
 
 def typed_errors(fn: _F) -> _F:
-    """Make every exception that leaves ``fn`` a :class:`ToolkitError` (:func:`as_toolkit_error`;
-    the original as ``__cause__``)."""
+    """Make every exception that leaves ``fn`` a :class:`ToolkitError` (the original as ``__cause__``).
+
+    Parameters
+    ----------
+    fn : callable
+        A function of the API.
+
+    Returns
+    -------
+    callable
+        ``fn`` wrapped: a :class:`ToolkitError` or an interrupt passes through, any other exception is
+        re-raised as :func:`as_toolkit_error` types it.
+    """
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:

@@ -140,8 +140,9 @@ def toml_dumps(data: dict, header: str = "") -> str:
 
 
 def population_path(name: str, data: dict) -> str | None:
-    """``populations.NAME.REST`` as the indexed path ``populations[k].REST`` (``k`` the population named ``NAME``
-    in the document ``data``); None for a name that does not start so. ``REST`` is one of
+    """``populations.NAME.REST`` as the indexed path ``populations[k].REST``; None for another name.
+
+    ``k`` is the population named ``NAME`` in the document ``data``. ``REST`` is one of
     :data:`POPULATION_FIELDS` (``dye`` and ``dye-peaks`` become ``populations[k].fiber.dye``, which
     :func:`expand` expands, ``dye_depth_um`` ``populations[k].fiber.dye_depth_um``) or a path inside the
     population's table.
@@ -174,9 +175,11 @@ _INDEXED_DYE = re.compile(r"^populations\[(\d+)\]\.fiber\.(dye|dye-peaks)$")
 
 
 def expand(alias: str, data: dict) -> list[str]:
-    """The paths an alias stands for in the document ``data`` (a plain path: itself). A population's name
-    (``populations.NAME....``, :func:`population_path`) is replaced by its index first; its ``dye`` expands as
-    the config's ``dye`` does, in the population's own ``[populations.fiber.dye]``."""
+    """The paths an alias stands for in the document ``data`` (a plain path: itself).
+
+    A population's name (``populations.NAME....``, :func:`population_path`) is replaced by its index first; its
+    ``dye`` expands as the config's ``dye`` does, in the population's own ``[populations.fiber.dye]``.
+    """
     indexed = population_path(alias, data)
     if indexed is not None:
         alias = indexed
@@ -205,8 +208,10 @@ def expand(alias: str, data: dict) -> list[str]:
 
 
 def _dye_paths(alias: str, dye: Any, prefix: str) -> list[str]:
-    """The free paths of the dye table ``dye`` at ``prefix`` (``dye``: every coefficient, ``dye-peaks``: the
-    ``*_per_um`` ones; a ``knots`` dye: its knot values)."""
+    """The free paths of the dye table ``dye`` at ``prefix``.
+
+    ``dye``: every coefficient; ``dye-peaks``: the ``*_per_um`` ones; a ``knots`` dye: its knot values.
+    """
     if not isinstance(dye, dict) or "curve" not in dye:
         raise PathError(f"{alias}: the dye {prefix} is "
                         f"{'absent' if dye is None else 'a table'}; a fit frees the coefficients of a "

@@ -143,8 +143,10 @@ def path(name: str, value: Any, *, none: bool = False) -> Path | None:
 
 
 def out_path(name: str, value: Any, *, file: bool = False) -> Path:
-    """An output path that can be written: its nearest existing folder is a writable folder;
-    ``file``: a file output, whose folder must exist."""
+    """An output path that can be written.
+
+    Its nearest existing folder is a writable folder; ``file``: a file output, whose folder must exist.
+    """
     p = path(name, value)
     parent = Path(os.path.abspath(p)).parent
     if file and not parent.is_dir():
@@ -161,8 +163,10 @@ def out_path(name: str, value: Any, *, file: bool = False) -> Path:
 
 
 def wavelengths(name: str, value: Any) -> tuple[float, ...] | None:
-    """Model wavelengths in nm: increasing, finite, within the dataset schema's range, at most
-    :data:`MAX_WAVELENGTHS` (None: the config's)."""
+    """Model wavelengths in nm.
+
+    Increasing, finite, within the dataset schema's range, at most :data:`MAX_WAVELENGTHS` (None: the config's).
+    """
     from gonio.data.schema import WAVELENGTH_RANGE_NM
 
     if value is None:
@@ -174,7 +178,8 @@ def wavelengths(name: str, value: Any) -> tuple[float, ...] | None:
     if len(value) == 0:
         raise InputError(f"{name}: no wavelength; give at least one")
     values = tuple(number(f"{name}[{k}]", v) for k, v in enumerate(value))
-    if any(b <= a for a, b in zip(values, values[1:])):     # type: ignore[operator]
+    # strict=False: each value beside the next (one pair fewer than values)
+    if any(b <= a for a, b in zip(values, values[1:], strict=False)):     # type: ignore[operator]
         raise InputError(f"{name}: list the wavelengths increasing, each once")
     lo, hi = WAVELENGTH_RANGE_NM
     if values[0] < lo or values[-1] > hi:                    # type: ignore[operator]
@@ -184,9 +189,11 @@ def wavelengths(name: str, value: Any) -> tuple[float, ...] | None:
 
 def cost(config: Any, wavelengths_nm: Any, target: float | None, max_photons: int | None, *,
          runs: int = 1, name: str = "target_rel_err") -> str | None:
-    """The cost estimate of the command lines (:func:`simulate.budget.check_cost`): a run estimated
-    beyond a day is refused with :class:`InputError` (naming ``name``, the argument that sets it);
-    returns the warning line of a run beyond ten minutes, else None."""
+    """The cost estimate of the command lines (:func:`simulate.budget.check_cost`).
+
+    A run estimated beyond a day is refused with :class:`InputError` (naming ``name``, the argument that sets it);
+    returns the warning line of a run beyond ten minutes, else None.
+    """
     from simulate.budget import BudgetError, check_cost
 
     target = config.target_rel_err if target is None else target
@@ -198,8 +205,10 @@ def cost(config: Any, wavelengths_nm: Any, target: float | None, max_photons: in
 
 
 def measurement_rows(what: str, rows: int, limit: int | None = None) -> None:
-    """Refuse a measurement of more than ``limit`` rows (default :data:`MAX_MEASUREMENT_ROWS`) for a
-    fit (``what`` names its file or argument)."""
+    """Refuse a measurement of more than ``limit`` rows (default :data:`MAX_MEASUREMENT_ROWS`) for a fit.
+
+    ``what`` names its file or argument in the message.
+    """
     limit = MAX_MEASUREMENT_ROWS if limit is None else limit
     if rows > limit:
         raise InputError(f"{what}: {rows:,} rows; a fit takes at most {limit:,} (it evaluates the model at every "
@@ -208,14 +217,15 @@ def measurement_rows(what: str, rows: int, limit: int | None = None) -> None:
 
 @contextmanager
 def claimed(name: str, out: Path, *, file: bool = False) -> Iterator[None]:
-    """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`), for a
-    function whose argument ``name`` gives it: another writer of ``out`` is refused at once
+    """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`).
+
+    For a function whose argument ``name`` gives it: another writer of ``out`` is refused at once
     (:class:`~fabric_optics.errors.OutputBusyError`), an output where no lock can be created (a folder
     that cannot be written) is an :class:`InputError` naming the argument. ``file``: a file output (its
-    folder is not created for the lock)."""
-    from gonio.data.claim import OutputBusy, claim_output
-
+    folder is not created for the lock).
+    """
     from fabric_optics.errors import OutputBusyError
+    from gonio.data.claim import OutputBusy, claim_output
 
     stack = ExitStack()
     try:

@@ -68,8 +68,10 @@ def _process(cmd: list[str], env: dict[str, str]) -> dict[str, Any]:
 
 
 def _in_process(argv: list[str]) -> dict[str, Any]:
-    """The run of ``simulate fabric`` ``argv`` (as :func:`fabric_command` builds it) through the
-    Python interface in this process: the same function the command calls, then the same write."""
+    """Run ``simulate fabric`` ``argv`` (as :func:`fabric_command` builds it) through the Python interface.
+
+    In this process: the same function the command calls, then the same write.
+    """
     from fabric_optics import api
 
     config, method, target, out = argv[1], argv[3], float(argv[5]), Path(argv[-1])

@@ -28,16 +28,19 @@ from simulate import fabric as fab
 from simulate import fiber as F
 from simulate import raytrace as W
 from simulate.fabric import structure as ST
-from simulate.media.medium import HGMedium
 from simulate.geometry.felt import felt_mesh, fiber_pieces
+from simulate.media.medium import HGMedium
 from simulate.products import all_threads
 
 R_UM = 10.0
 
 
 def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
-    """The fraction of the fibers' surface (in the cell) that lies inside another fiber image
-    (``m`` a :class:`simulate.geometry.mesh.FabricMesh`; random points on random fiber images)."""
+    """The fraction of the fibers' surface (in the cell) that lies inside another fiber image.
+
+    ``m`` is a :class:`simulate.geometry.mesh.FabricMesh`; the fraction is estimated from random points
+    on random fiber images.
+    """
     if m.info.get("crimp_amplitude_um", 0.0) > 0.0:
         return _buried_fraction_pieces(m, n, seed)
     ring = (int(m.n_s[0]) + 1) * (int(m.sides) + 1)
@@ -66,8 +69,11 @@ def buried_fraction(m: Any, n: int = 20_000, seed: int = 1) -> float:
 
 
 def _buried_fraction_pieces(m: Any, n: int, seed: int) -> float:
-    """:func:`buried_fraction` of a felt of crimped fibers: random points on the pieces of the fibers'
-    polylines (:func:`simulate.geometry.felt.fiber_pieces`), inside another image's piece cylinder."""
+    """:func:`buried_fraction` of a felt of crimped fibers.
+
+    Random points on the pieces of the fibers' polylines (:func:`simulate.geometry.felt.fiber_pieces`), inside
+    another image's piece cylinder.
+    """
     S, D = fiber_pieces(m)
     R = float(m.yarn_radius_um)
     length = np.linalg.norm(D, axis=2)

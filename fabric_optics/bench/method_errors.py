@@ -68,8 +68,10 @@ def frame(table: dict):
 
 
 def departure(report: dict) -> dict:
-    """Per geometry, the RMS over wavelengths of ``(model - MC) / max_lambda(MC)`` (the accuracy
-    target's spectral-peak convention) and the MC's own relative error there; median and max."""
+    """Per geometry, the RMS over wavelengths of ``(model - MC) / max_lambda(MC)``, with its median and max.
+
+    The accuracy target's spectral-peak convention; the MC's own relative error there is given beside it.
+    """
     mc = frame(_mc_report(report)["table"])
     key = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
     out: dict[str, Any] = {}
@@ -140,8 +142,10 @@ def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int |
 
 def in_child(target: float, method: str = "mc", seed: int | None = None, threads: int | None = None,
              config: str = "red-cotton", plan_name: str = "red-cotton") -> dict:
-    """One run (red cotton unless told) in a spawned child process: its wall time (of the run only,
-    not the process start) and its own peak memory."""
+    """One run (red cotton unless told) in a spawned child process.
+
+    Its wall time (of the run only, not the process start) and its own peak memory.
+    """
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
     p = ctx.Process(target=_red_cotton_child, args=(target, queue, method, seed, threads, config, plan_name))
@@ -152,8 +156,11 @@ def in_child(target: float, method: str = "mc", seed: int | None = None, threads
 
 
 def chart(report: dict, path: Path) -> None:
-    """Four panels (incidence 0/30/45/60): beta at 620 nm of MC (error bars), summation, classic;
-    below them the ratio of each model to MC against the signed observation angle."""
+    """Four panels (incidence 0/30/45/60).
+
+    Beta at 620 nm of MC (error bars), summation, classic; below them the ratio of each model to MC against the
+    signed observation angle.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -164,17 +171,20 @@ def chart(report: dict, path: Path) -> None:
     wl = 620.0
     incid = sorted(mc["theta_i"].unique())
     fig, axes = plt.subplots(2, len(incid), figsize=(4 * len(incid), 6.5), sharex=True)
+
+    def curve(df, ti):
+        s = df[(df["theta_i"] == ti) & (df["wavelength_nm"] == wl)].copy()
+        # gonio.data.geometry's signed angle: s >= 0 on the mirror side (phi_o = phi_i + 180)
+        s["signed"] = np.where(np.isclose((s["phi_o"] - s["phi_i"]) % 360.0, 180.0), s["theta_o"], -s["theta_o"])
+        return s.sort_values("signed")
+
     for c, ti in enumerate(incid):
-        def curve(df):
-            s = df[(df["theta_i"] == ti) & (df["wavelength_nm"] == wl)].copy()
-            # gonio.data.geometry's signed angle: s >= 0 on the mirror side (phi_o = phi_i + 180)
-            s["signed"] = np.where(np.isclose((s["phi_o"] - s["phi_i"]) % 360.0, 180.0), s["theta_o"], -s["theta_o"])
-            return s.sort_values("signed")
-        m = curve(mc)
+        m = curve(mc, ti)
         ax = axes[0, c]
         ax.errorbar(m["signed"], m["beta"], yerr=m["u_beta"], fmt="o", ms=3, color="k", label="Monte Carlo")
-        for (name, df), col in zip(models.items(), ("C0", "C1")):
-            s = curve(df)
+        # strict=False: a colour per model from a fixed palette, which may hold more colours than there are models
+        for (name, df), col in zip(models.items(), ("C0", "C1"), strict=False):
+            s = curve(df, ti)
             ax.plot(s["signed"], s["beta"], "-", color=col, label=name)
             j = s.merge(m, on="signed", suffixes=("", "_mc"))
             axes[1, c].plot(j["signed"], j["beta"] / j["beta_mc"], "-o", ms=3, color=col, label=name)
@@ -194,8 +204,10 @@ def chart(report: dict, path: Path) -> None:
 
 def run(study: str = "red-cotton", target: float | None = None, threads: int | None = None,
         config: str | None = None) -> tuple[dict, dict, list[str]]:
-    """The study ``study`` (:data:`STUDIES`; ``config`` in place of its own): its report, its ``--method auto``
-    table and its lines of text."""
+    """The study ``study`` (:data:`STUDIES`; ``config`` in place of its own).
+
+    Its report, its ``--method auto`` table and its lines of text.
+    """
     import datetime
     import json
 
@@ -232,9 +244,12 @@ def run(study: str = "red-cotton", target: float | None = None, threads: int | N
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m fabric_optics.bench.method_errors [--study NAME] [--target T] [--threads N] [--out JSON]
-    [--chart PNG] [--report JSON]``: the where-methods-fail part of ``simulate bench`` alone (the study's Monte Carlo in a
-    child process, the summation and classic at 1 %), the ``--method auto`` data file and the chart."""
+    """The where-methods-fail part of ``simulate bench`` alone, its ``--method auto`` data file and chart.
+
+    ``python -m fabric_optics.bench.method_errors [--study NAME] [--target T] [--threads N] [--out JSON]
+    [--chart PNG] [--report JSON]``: the study's Monte Carlo in a child process, the summation and classic
+    at 1 %.
+    """
     import argparse
     import json
 

@@ -36,10 +36,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
+
 from simulate.provenance import machine
 
 __all__ = ["FABRICS", "TARGETS", "small_plan", "achieved_error", "model_floors", "run_speed_accuracy", "chart",
@@ -58,8 +60,11 @@ COMMAND = "simulate bench --study speed-accuracy --out DIR"
 
 
 def small_plan(plan: Any, wavelengths: int = 3, step: int = 3) -> Any:
-    """``plan`` cut down: its first incidence, every ``step``-th in-plane observation, ``wavelengths``
-    wavelengths spread over its range, no out-of-plane directions."""
+    """``plan`` cut down.
+
+    Its first incidence, every ``step``-th in-plane observation, ``wavelengths`` wavelengths spread over its range,
+    no out-of-plane directions.
+    """
     wl = np.asarray(plan.wavelengths_nm, float)
     pick = np.unique(np.linspace(0, wl.size - 1, wavelengths).round().astype(int))
     return dataclasses.replace(plan, wavelengths_nm=wl[pick], incidence_deg=list(plan.incidence_deg[:1]),
@@ -156,13 +161,15 @@ def achieved_error(table_a: dict, table_b: dict) -> tuple[float, float]:
 
 
 def model_floors(table: dict, errors_file: str) -> dict[str, float]:
-    """RMS over ``table``'s geometries of the summation's and classic's departure from the Monte Carlo
-    (the shipped ``--method auto`` table ``errors_file``, the same definition as the target)."""
+    """RMS over ``table``'s geometries of the summation's and classic's departure from the Monte Carlo.
+
+    ``table`` is the shipped ``--method auto`` table ``errors_file``, with the same definition as the target.
+    """
     import simulate
 
     rows = json.loads((Path(simulate.__file__).parent / "configs" / errors_file).read_text())["geometries"]
     ti, pi, to, po = (np.asarray(table[k], float) for k in ("theta_i", "phi_i", "theta_o", "phi_o"))
-    geos = {(a, (d - b) % 360.0, c) for a, b, c, d in zip(ti, pi, to, po)}
+    geos = {(a, (d - b) % 360.0, c) for a, b, c, d in zip(ti, pi, to, po, strict=True)}
     out: dict[str, float] = {}
     for model in ("summation", "classic"):
         found = [r[model] for g in geos for r in rows
@@ -219,8 +226,10 @@ def study_lines(report: dict[str, Any]) -> list[str]:
 
 
 def chart(report: dict[str, Any], path: Path) -> None:
-    """Left: achieved error against marginal cost (log-log), the models' floors as lines. Right: each
-    run's cost split into its fixed part (start-up, set-up) and its marginal part (tables, rays)."""
+    """Left: achieved error against marginal cost (log-log), the models' floors as lines.
+
+    Right: each run's cost split into its fixed part (start-up, set-up) and its marginal part (tables, rays).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -229,7 +238,8 @@ def chart(report: dict[str, Any], path: Path) -> None:
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 5.8), gridspec_kw={"width_ratios": [1.15, 1]})
     labels: list[str] = []
     parts: dict[str, list[float]] = {k: [] for k in ("startup_seconds", "setup_seconds", "table_seconds", "trace_seconds")}
-    for (name, f), col in zip(report["fabrics"].items(), ("C3", "C2")):
+    # strict=False: a colour per fabric from a fixed palette, which may hold more colours than there are fabrics
+    for (name, f), col in zip(report["fabrics"].items(), ("C3", "C2"), strict=False):
         r = f["runs"]
         x = [v["marginal_seconds"] for v in r]
         a.errorbar(x, [v["achieved_error"] for v in r], yerr=[2 * v["achieved_error_se"] for v in r], fmt="o-",
@@ -255,7 +265,7 @@ def chart(report: dict[str, Any], path: Path) -> None:
     left = np.zeros(len(labels))
     names = {"startup_seconds": "start-up (fixed)", "setup_seconds": "set-up: mesh, optics (fixed)",
              "table_seconds": "table build", "trace_seconds": "ray tracing"}
-    for (k, v), col in zip(parts.items(), ("0.75", "0.55", "C0", "C1")):
+    for (k, v), col in zip(parts.items(), ("0.75", "0.55", "C0", "C1"), strict=True):
         b.barh(y, v, left=left, color=col, label=names[k])
         left += np.asarray(v)
     b.set_yticks(y, labels, fontsize=7)

@@ -16,8 +16,9 @@ Each study writes ``OUT/NAME.json`` and prints its figures; ``quick`` runs it on
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 __all__ = ["STUDIES", "run_study"]
 

@@ -179,7 +179,7 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
     for rep in range(repeats):
         one.append(_run(1, photons, rep, **VAN_DE_HULST))
         many.append(_run(max_threads, photons, rep, **VAN_DE_HULST))
-    ratios = [m["photons_per_s"] / o["photons_per_s"] for o, m in zip(one, many)]
+    ratios = [m["photons_per_s"] / o["photons_per_s"] for o, m in zip(one, many, strict=True)]
 
     def summary(rows: list[dict[str, float]], threads: int) -> dict[str, Any]:
         return {

@@ -1,5 +1,7 @@
-"""``simulate bench`` part 3: the woven-fabric Monte Carlo -- ray engine speed, the red-cotton
-headline, and where the cheaper fabric models depart from it.
+"""``simulate bench`` part 3.
+
+The woven-fabric Monte Carlo -- ray engine speed, the red-cotton headline, and where the cheaper fabric models depart
+from it.
 
 * Ray engine: first-hit queries per second on the red-cotton micro-element, Embree (through
   ``embreex``, with the periodic wrap of :class:`simulate.raytrace.scene.PeriodicScene`) on one and two
@@ -135,8 +137,8 @@ def red_cotton_mc(target: float = 0.01) -> dict:
 
 def run_woven_bench(target: float = 0.01) -> dict:
     """All three parts (minutes)."""
-    from simulate.geometry.mesh import mesh as weave_mesh
     from simulate.config import load_config, weave_from_config
+    from simulate.geometry.mesh import mesh as weave_mesh
 
     mesh = weave_mesh(weave_from_config(load_config("red-cotton")))
     report: dict[str, Any] = {"machine": {"cpus": os.cpu_count()}, "target": target,

@@ -1,5 +1,6 @@
-"""The vocabulary of the ``gonio``, ``simulate`` and ``compare`` command lines, and the argument
-helpers that all three use so that one concept has one name, one syntax and one default.
+"""The vocabulary of the ``gonio``, ``simulate`` and ``compare`` command lines, and their argument helpers.
+
+All three command lines use these helpers, so that one concept has one name, one syntax and one default.
 
 =====================  ==========================================================================
 concept                spelling (every command that has the concept)
@@ -54,9 +55,8 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from typing import NoReturn
 
-from gonio.data import outputs as _outputs
-
 from fabric_optics import validate as _validate
+from gonio.data import outputs as _outputs
 
 __all__ = ["Parser", "UsageError", "MAX_WAVELENGTHS", "parse_wavelengths", "wavelengths_arg", "int_in", "finite_number",
            "threads_arg", "rel_err_arg", "add_plan", "add_wavelengths", "add_threads", "add_target_rel_err",
@@ -79,6 +79,7 @@ class Parser(argparse.ArgumentParser):
     """ArgumentParser whose errors are one line (``simulate fabric: error: argument --plan: ...``)."""
 
     def error(self, message: str) -> NoReturn:
+        """Exit with status 2 and the one-line usage error ``PROG: error: MESSAGE`` (no usage text)."""
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
@@ -126,6 +127,7 @@ def threads_arg(text: str) -> int:
 
 
 def rel_err_arg(text: str) -> float:
+    """A relative error in (0, 1), for argparse ``type=``."""
     value = finite_number(text)
     if not 0.0 < value < 1.0:
         raise argparse.ArgumentTypeError(f"must be in (0, 1), got {text!r}")
@@ -170,7 +172,8 @@ def parse_wavelengths(text: str) -> tuple[float, ...]:
             raise ValueError(f"wavelengths must be finite numbers, got {text!r}")
         if len(values) > MAX_WAVELENGTHS:
             raise ValueError(f"{len(values):,} wavelengths; at most {MAX_WAVELENGTHS}")
-        if any(b <= a for a, b in zip(values, values[1:])):
+        # strict=False: each value beside the next (one pair fewer than values)
+        if any(b <= a for a, b in zip(values, values[1:], strict=False)):
             raise ValueError(f"list the wavelengths increasing, each once, got {text!r}")
     if values[0] < lo or values[-1] > hi:
         raise ValueError(f"wavelengths must be in [{lo:g}, {hi:g}] nm, got {values[0]:g}..{values[-1]:g}")
@@ -192,8 +195,11 @@ def wavelengths_arg(text: str) -> tuple[float, ...]:
 
 def add_plan(p: argparse.ArgumentParser, *, required: bool = False, default: str | None = DEFAULT_PLAN,
              what: str = "whose geometries and wavelengths are used") -> None:
-    """``--plan PLAN``; a required plan is checked after parsing (:func:`plan_of`), so that its
-    absence is the one-line usage error of the command."""
+    """Add ``--plan PLAN`` to the parser ``p``.
+
+    A required plan is checked after parsing (:func:`plan_of`), so that its absence is the one-line
+    usage error of the command.
+    """
     default = None if required else default
     tail = "required" if required else ("default " + default if default else "optional")
     p.add_argument("--plan", metavar="PLAN", default=default,
@@ -208,41 +214,50 @@ def plan_of(args: argparse.Namespace) -> str:
 
 
 def add_wavelengths(p: argparse.ArgumentParser, what: str = "model wavelengths") -> None:
+    """Add ``--wavelengths NM,NM,...|START:STOP:STEP`` (default: the config's) to the parser ``p``."""
     p.add_argument("--wavelengths", type=wavelengths_arg, default=None, metavar="NM,NM,...|START:STOP:STEP",
                    help=f"{what} in nm: a list or an inclusive range (e.g. 450,550,650 or 400:700:10; at most "
                         f"{MAX_WAVELENGTHS}; default: the config's)")
 
 
 def add_threads(p: argparse.ArgumentParser, default: int = 0, note: str = "") -> None:
+    """Add ``--threads N`` (0: all cores) to the parser ``p``."""
     p.add_argument("--threads", type=threads_arg, default=default, metavar="N",
                    help=f"threads, 0 = all (default {default}{' = all' if default == 0 else ''}{note}); results do "
                         "not depend on it")
 
 
 def add_target_rel_err(p: argparse.ArgumentParser, what: str = "of the fiber Monte Carlo") -> None:
+    """Add ``--target-rel-err X`` (default: the config's) to the parser ``p``."""
     p.add_argument("--target-rel-err", type=rel_err_arg, default=None, dest="target_rel_err", metavar="X",
                    help=f"target relative standard error {what} (default: the config's target_rel_err)")
 
 
 def add_seed(p: argparse.ArgumentParser, default: int | None = None, what: str = "random seed") -> None:
+    """Add ``--seed N`` to the parser ``p``."""
     tail = "the config's" if default is None else str(default)
     p.add_argument("--seed", type=int_in(0, MAX_SEED), default=default, metavar="N", help=f"{what} (default: {tail})")
 
 
 def add_force(p: argparse.ArgumentParser, what: str = "an existing --out") -> None:
+    """Add ``--force``: replace an existing output, refused without it."""
     p.add_argument("--force", action="store_true", help=f"replace {what}; without it an existing output is refused")
 
 
 def add_verbose(p: argparse.ArgumentParser, *, sub: bool) -> None:
-    """``-v/--verbose`` on the program (``sub=False``) and again on each subcommand (``sub=True``:
-    absent there, the program's value stands)."""
+    """Add ``-v/--verbose`` on the program (``sub=False``) and again on each subcommand (``sub=True``).
+
+    Absent on a subcommand, the program's value stands.
+    """
     p.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS if sub else False,
                    help="log progress and details to stderr")
 
 
 def add_version(p: argparse.ArgumentParser) -> None:
-    """``--version``: the program, the version of fabric-optics and, in a git checkout, the commit
-    (``gonio 0.2.0 (git abc1234)``): the figures every dataset's ``meta.json`` records under ``software``."""
+    """Add ``--version``: the program, the version of fabric-optics and, in a git checkout, the commit.
+
+    ``gonio 0.2.0 (git abc1234)``: the figures every dataset's ``meta.json`` records under ``software``.
+    """
     from gonio.version import describe
 
     p.add_argument("--version", action="version", version=describe(p.prog),
@@ -250,26 +265,33 @@ def add_version(p: argparse.ArgumentParser) -> None:
 
 
 def add_no_progress(p: argparse.ArgumentParser) -> None:
+    """Add ``--no-progress`` to the parser ``p``."""
     p.add_argument("--no-progress", action="store_true", dest="no_progress",
                    help="no progress bar (it is shown only on a terminal anyway)")
 
 
 def progress(args: argparse.Namespace) -> bool:
+    """Whether to show a progress bar: on a terminal, unless ``--no-progress``."""
     return not getattr(args, "no_progress", False) and sys.stderr.isatty()
 
 
 def refuse_existing(out: str | os.PathLike, force: bool, *, flag: str = "--out") -> None:
-    """Refuse an existing output without ``--force``: a file, or a folder holding anything (hidden
-    files aside); the output rule of every writer (:func:`gonio.data.outputs.refuse_existing`)."""
+    """Refuse an existing output without ``--force``.
+
+    A file, or a folder holding anything (hidden files aside); the output rule of every writer
+    (:func:`gonio.data.outputs.refuse_existing`).
+    """
     _outputs.refuse_existing(out, force=force, option=flag)
 
 
 @contextmanager
 def claim(out: str | os.PathLike, option: str = "--out", *, file: bool = False) -> Iterator[None]:
-    """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`):
-    a second writer of the same output, or a claim lost before the final rename, is one
-    :class:`UsageError` line (exit 2); an output whose folder cannot be written, too. ``file``: a file
-    output (its folder is not created for the lock: the writer refuses a missing folder itself)."""
+    """Hold the claim on the output ``out`` for the block (:func:`gonio.data.claim.claim_output`).
+
+    A second writer of the same output, or a claim lost before the final rename, is one :class:`UsageError` line
+    (exit 2); an output whose folder cannot be written, too. ``file``: a file output (its folder is not created for
+    the lock: the writer refuses a missing folder itself).
+    """
     from gonio.data.claim import OutputBusy, claim_output
 
     stack = ExitStack()

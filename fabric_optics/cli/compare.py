@@ -37,13 +37,10 @@ apply (they do not depend on the scale), and no V is stated (noted). No threshol
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 import logging
 import sys
-from typing import Sequence
-
-from gonio.data import DatasetError
-from gonio.data.printable import printable
+from collections.abc import Sequence
+from pathlib import Path
 
 from compare.comparison import incomplete_datasets
 from compare.errors import CompareError
@@ -52,6 +49,8 @@ from compare.normalise import DEFAULT_WINDOW_DEG
 from fabric_optics import api
 from fabric_optics.cli import registry
 from fabric_optics.cli.common import add_force, refuse_existing
+from gonio.data import DatasetError
+from gonio.data.printable import printable
 
 __all__ = ["DEFAULT_MAX_HUE_DIFF", "DEFAULT_MAX_NRMSE", "DEFAULT_MAX_SAT_DIFF", "PROGRAM", "main", "build_parser"]
 
@@ -147,9 +146,8 @@ def _render_arguments(ren: argparse.ArgumentParser) -> None:
 
 
 def _render_cmd(args) -> int:
-    from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
-
     from compare.render import MitsubaMissing, RenderSettings, render_materials, require_mitsuba, write_render_set
+    from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
 
     out = Path(args.out)
     refuse_existing(out, args.force)
@@ -166,7 +164,7 @@ def _render_cmd(args) -> int:
     settings = RenderSettings(spp=args.spp, size=(w, h), swatch_size=args.swatch_size)
     try:
         require_mitsuba()
-        images = render_materials(list(zip(labels, args.files)), settings)
+        images = render_materials(list(zip(labels, args.files, strict=True)), settings)
     except MitsubaMissing as exc:
         raise CompareError(str(exc)) from None
     info = write_render_set(images, out, settings)
@@ -176,8 +174,11 @@ def _render_cmd(args) -> int:
 
 
 def _report(args) -> int:
-    """`compare report`: the arguments checked (messages naming the flags), then the same code as Python's
-    :func:`fabric_optics.write_report`; prints the seed sample's check and each model's curve error."""
+    """`compare report`.
+
+    The arguments checked (messages naming the flags), then the same code as Python's
+    :func:`fabric_optics.write_report`; prints the seed sample's check and each model's curve error.
+    """
     import json
 
     from compare.report.samples import published_colour_check

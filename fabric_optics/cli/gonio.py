@@ -1,5 +1,6 @@
-"""The ``gonio`` console script: mock, acquire, replay, check-plan, demo, truth, import,
-bench-driver.
+"""The ``gonio`` console script.
+
+Mock, acquire, replay, check-plan, demo, truth, import, bench-driver.
 
 Exit status
 -----------
@@ -42,23 +43,29 @@ import shlex
 import sys
 from pathlib import Path
 
+from fabric_optics import api
+from fabric_optics.cli import common, registry
+from fabric_optics.cli.common import (
+    Parser,
+    UsageError,
+    add_force,
+    add_no_progress,
+    add_plan,
+    add_verbose,
+    plan_of,
+    refuse_existing,
+)
 from gonio.acquisition.calibration import CalibrationError
 from gonio.acquisition.engine import EXIT_OK, AcquisitionError, RunResult
 from gonio.acquisition.journal import JournalError, read_journal
 from gonio.acquisition.plan import PlanError, preset_names
-from gonio.acquisition.record import (ReplayMismatch, TranscriptError, TranscriptIntegrityError,
-                                      load_transcript)
+from gonio.acquisition.record import ReplayMismatch, TranscriptError, TranscriptIntegrityError, load_transcript
 from gonio.acquisition.session import check_run_output, replay_session, run_session
 from gonio.data import DatasetError
 from gonio.data.outputs import WRITTEN_BY, check_output
 from gonio.data.printable import printable
 from gonio.instrument.motion import DEFAULT_WAIT_TIMEOUT_S
 from gonio.instrument.probe import LinkSetupError, open_links
-
-from fabric_optics import api
-from fabric_optics.cli import common, registry
-from fabric_optics.cli.common import (Parser, UsageError, add_force, add_no_progress, add_plan,
-                                      add_verbose, plan_of, refuse_existing)
 
 __all__ = ["PROGRAM", "main", "build_parser", "build_parsers"]
 
@@ -237,8 +244,11 @@ def _cmd_check_plan(args) -> int:
 
 
 def _plan_for(plan: str, sample: str, what: str):
-    """The plan named ``plan``; ``measured``: the plan of the sample file's own measured incidences
-    (:func:`gonio.acquisition.plan.measured_plan`; the sample must be an RGL .bsdf file)."""
+    """The plan named ``plan``.
+
+    ``measured``: the plan of the sample file's own measured incidences
+    (:func:`gonio.acquisition.plan.measured_plan`; the sample must be an RGL .bsdf file).
+    """
     from gonio.acquisition.plan import MEASURED, measured_plan
 
     if plan != MEASURED:
@@ -559,14 +569,19 @@ PROGRAM = registry.Program(
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``gonio`` parser, every subcommand included (``mock`` and ``bench-driver`` parse their
-    own arguments: :func:`build_parsers`)."""
+    """The ``gonio`` parser, every subcommand included.
+
+    ``mock`` and ``bench-driver`` parse their own arguments (:func:`build_parsers`).
+    """
     return registry.build_parser(PROGRAM)
 
 
 def build_parsers() -> dict[str, argparse.ArgumentParser]:
-    """Every parser of ``gonio``: ``"gonio"`` (:func:`build_parser`, the subcommands included) and
-    the two subcommands that parse their own arguments, ``"gonio mock"`` and ``"gonio bench-driver"``."""
+    """Every parser of ``gonio``.
+
+    ``"gonio"`` (:func:`build_parser`, the subcommands included) and the two subcommands that parse their own
+    arguments, ``"gonio mock"`` and ``"gonio bench-driver"``.
+    """
     from gonio.mock.cli import build_parser as mock_parser
 
     return {"gonio": build_parser(), "gonio mock": mock_parser(), "gonio bench-driver": _bench_parser()}

@@ -1,5 +1,6 @@
-"""Count the command-line surface from the parsers themselves: subcommands, flags, and the
-distinct spellings of each concept of the vocabulary (:mod:`fabric_optics.cli.common`).
+"""Count the command-line surface from the parsers themselves.
+
+Subcommands, flags, and the distinct spellings of each concept of the vocabulary (:mod:`fabric_optics.cli.common`).
 
     python -m fabric_optics.cli.inventory            # a table
     python -m fabric_optics.cli.inventory --json     # the same as JSON
@@ -26,8 +27,10 @@ _MODULES = ("gonio", "simulate", "compare")
 
 
 def parsers() -> dict[str, argparse.ArgumentParser]:
-    """Every top-level parser of the three programs, by program name (``gonio mock`` and ``gonio
-    bench-driver`` parse their own arguments and are listed apart)."""
+    """Every top-level parser of the three programs, by program name.
+
+    ``gonio mock`` and ``gonio bench-driver`` parse their own arguments and are listed apart.
+    """
     out: dict[str, argparse.ArgumentParser] = {}
     for name in _MODULES:
         mod = importlib.import_module(f"fabric_optics.cli.{name}")
@@ -53,8 +56,10 @@ def _subparsers(p: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser
 
 
 def commands() -> Iterator[tuple[str, argparse.ArgumentParser, argparse.ArgumentParser]]:
-    """``(command, its parser, the program's parser)`` for every command that takes arguments
-    (a subcommand that parses its own, ``gonio mock``, is given by its own parser)."""
+    """``(command, its parser, the program's parser)`` for every command that takes arguments.
+
+    A subcommand that parses its own arguments (``gonio mock``) is given by its own parser.
+    """
     all_parsers = parsers()
     for prog, parser in all_parsers.items():
         subs = _subparsers(parser)
@@ -81,6 +86,31 @@ def _spelling(action: argparse.Action) -> str:
     return where
 
 
+def _concept_spellings(a: argparse.Action, command: str) -> list[tuple[str, str]]:
+    """The concepts of the vocabulary that the option ``a`` of ``command`` spells, each with its spelling."""
+    sp = _spelling(a)
+    out = []
+    if a.dest in ("plan", "geometry") or a.metavar == "PLAN":
+        out.append(("plan", sp))
+    if a.dest == "measured":
+        out.append(("measured dataset", sp))
+    if "--wavelengths" in a.option_strings:
+        out.append(("wavelengths", f"--wavelengths {a.metavar}"))
+    if a.choices is not None and "nee" in a.choices:
+        out.append(("fiber route", sp))
+    if set(a.option_strings) & {"--max-evaluations", "--max-runs"} and "Monte Carlo runs" in (a.help or ""):
+        out.append(("Monte Carlo runs of a fit", sp))
+    if "--threads" in a.option_strings and not command.endswith("sweep"):
+        out.append(("threads", f"--threads, default {_default_phrase(a)}"))
+    if "--target-rel-err" in a.option_strings:
+        out.append(("target error", f"--target-rel-err, default {_default_phrase(a)}"))
+    if "--seed" in a.option_strings and command.startswith("simulate") and command != "simulate slab":
+        out.append(("seed", f"--seed, default {_default_phrase(a)}"))
+    if "--no-progress" in a.option_strings:
+        out.append(("progress", sp))
+    return out
+
+
 def inventory() -> dict[str, Any]:
     """The counts (see the module docstring)."""
     subcommands = occurrences = 0
@@ -105,25 +135,8 @@ def inventory() -> dict[str, Any]:
                     occurrences += not _hidden(a)
             if _hidden(a):
                 continue
-            sp = _spelling(a)
-            if a.dest in ("plan", "geometry") or a.metavar == "PLAN":
-                spellings["plan"].add(sp)
-            if a.dest == "measured":
-                spellings["measured dataset"].add(sp)
-            if "--wavelengths" in a.option_strings:
-                spellings["wavelengths"].add(f"--wavelengths {a.metavar}")
-            if a.choices is not None and "nee" in a.choices:
-                spellings["fiber route"].add(sp)
-            if set(a.option_strings) & {"--max-evaluations", "--max-runs"} and "Monte Carlo runs" in (a.help or ""):
-                spellings["Monte Carlo runs of a fit"].add(sp)
-            if "--threads" in a.option_strings and not command.endswith("sweep"):
-                spellings["threads"].add(f"--threads, default {_default_phrase(a)}")
-            if "--target-rel-err" in a.option_strings:
-                spellings["target error"].add(f"--target-rel-err, default {_default_phrase(a)}")
-            if "--seed" in a.option_strings and command.startswith("simulate") and command != "simulate slab":
-                spellings["seed"].add(f"--seed, default {_default_phrase(a)}")
-            if "--no-progress" in a.option_strings:
-                spellings["progress"].add(sp)
+            for concept, text in _concept_spellings(a, command):
+                spellings[concept].add(text)
         if "-v" in opts and top is not p:
             verbose_after.add(command.split()[0])
         if "--out" in opts:

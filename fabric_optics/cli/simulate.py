@@ -46,13 +46,21 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
-from gonio.data.outputs import prepare_folder
-from simulate.montecarlo import ParameterError
-
 from fabric_optics import api, validate
 from fabric_optics.cli import common, registry
-from fabric_optics.cli.common import (UsageError, add_force, add_no_progress, add_plan, add_seed,
-                                      add_target_rel_err, add_threads, add_wavelengths, refuse_existing)
+from fabric_optics.cli.common import (
+    UsageError,
+    add_force,
+    add_no_progress,
+    add_plan,
+    add_seed,
+    add_target_rel_err,
+    add_threads,
+    add_wavelengths,
+    refuse_existing,
+)
+from gonio.data.outputs import prepare_folder
+from simulate.montecarlo import ParameterError
 
 __all__ = ["PROGRAM", "main", "build_parser"]
 
@@ -210,9 +218,12 @@ def _run_settings_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _prepare_fabric_out(out: Path, force: bool) -> None:
-    """The output rule (:func:`gonio.data.outputs.prepare_folder`) for ``simulate fabric``, whose output
-    replaces ``out`` as one folder (:mod:`simulate.outdir`): a killed run's folders are cleaned first, and a
-    previous output holding anything besides the dataset's files is refused (the swap would delete it)."""
+    """The output rule (:func:`gonio.data.outputs.prepare_folder`) for ``simulate fabric``.
+
+    Its output replaces ``out`` as one folder (:mod:`simulate.outdir`): a killed run's folders are cleaned
+    first, and a previous output holding anything besides the dataset's files is refused (the swap would
+    delete it).
+    """
     from gonio.data.dataset import CSV_NAME, META_NAME, remove_stale_temp_files
     from simulate.outdir import recover
     from simulate.virtual import is_previous_output
@@ -439,8 +450,11 @@ def _fit_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fit_left_behind(out: Path, walk_parts_before: int = 0) -> str:
-    """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists); the structured
-    walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the fit began)."""
+    """What an interrupted fit left in ``out`` that ``--resume`` can use (only what exists).
+
+    The structured walk's parts it stored in the table cache (``walk_parts_before``: the process's count when the
+    fit began).
+    """
     from fabric_optics.fitting.state import STATE_NAME, WALKS_DIR
 
     if (out / STATE_NAME).is_file():
@@ -595,8 +609,7 @@ def _weave_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _weave_run(args: argparse.Namespace) -> int:
-    from simulate.config import ConfigError
-    from simulate.config import weave_from_config
+    from simulate.config import ConfigError, weave_from_config
     from simulate.geometry.mesh import mesh
     from simulate.geometry.weave import WeaveError
 
@@ -697,9 +710,9 @@ def _check_sweep_cost(args: argparse.Namespace, spec: Any) -> None:
     _check_cost("sweep", worst.config, wl, target, spec.max_photons, runs=max(1, -(-len(spec.points) // workers)))
 
 
-def _sweep_run(args: argparse.Namespace) -> int:
-    from fabric_optics.sweep.runner import (SweepError, SweepSpec, clear_sweep, finished_tasks, parse_params,
-                                            prepare_out, run_sweep)
+def _sweep_spec(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The sweep's spec from the arguments, its cost checked, and the measurement to compare each point with."""
+    from fabric_optics.sweep.runner import SweepError, SweepSpec, parse_params
 
     config = api.load_config(args.config)
     try:
@@ -719,6 +732,13 @@ def _sweep_run(args: argparse.Namespace) -> int:
             measured = api.read_dataset(args.measured)
         except api.InputError as exc:
             raise _UsageError(f"MEASURED: {exc}") from None
+    return spec, measured
+
+
+def _sweep_folder(args: argparse.Namespace, spec: Any) -> bool:
+    """Prepare the sweep's folder (cleared with ``--force``); whether it resumes a sweep already there."""
+    from fabric_optics.sweep.runner import SweepError, clear_sweep, prepare_out
+
     try:
         if args.force and not args.resume:
             clear_sweep(args.out)
@@ -728,6 +748,35 @@ def _sweep_run(args: argparse.Namespace) -> int:
     if resumed and not args.resume:
         raise _UsageError(f"--out {args.out}: holds this sweep already; pass --resume to continue it (finished "
                           "tasks are reused) or --force to compute it afresh")
+    return resumed
+
+
+def _print_sweep(args: argparse.Namespace, spec: Any, result: Any, n_tasks: int, resumed: bool) -> None:
+    """Print each point's status and figures, the failures, and the line naming what was written."""
+    summary = result.summary
+    names = [p.name for p in spec.params]
+    for row in summary.to_dict("records"):
+        figures = f"{row['seconds']:.1f} s, rel_err {row['rel_err']:.2%}"
+        if "nrmse" in row:
+            figures += f", NRMSE {row['nrmse']:.4g}, dh {row['dh']:+.4f}, ds {row['ds']:+.4f}"
+        values = ", ".join(f"{n}={row[n]:g}" for n in names)
+        print(f"  {values}: {row['status']}" + (f" ({figures})" if row["status"] == "complete" else
+                                                 f" ({row['tasks_done']} of {row['tasks']} tasks)"))
+    for line in result.failures.values():
+        print(f"simulate sweep: {line}", file=sys.stderr)
+    shape = (f"{len(spec.points)} points (all {len(spec.wavelengths_nm)} wavelengths a task)" if spec.per_point else
+             f"{len(spec.points)} points x {len(spec.wavelengths_nm)} wavelengths")
+    print(f"wrote {args.out} ({shape} = {n_tasks} tasks: "
+          f"{result.computed} computed, {result.reused} reused{', resumed' if resumed else ''}, "
+          f"{len(result.failures)} failed; summary in {args.out / 'summary.csv'})")
+
+
+def _sweep_run(args: argparse.Namespace) -> int:
+    """``simulate sweep``: the spec, the folder, the tasks on the cluster, then the points' summary."""
+    from fabric_optics.sweep.runner import SweepError, finished_tasks, run_sweep
+
+    spec, measured = _sweep_spec(args)
+    resumed = _sweep_folder(args, spec)
     if not args.verbose:
         # distributed's own logs (cluster start/stop, each failed attempt's traceback, in the
         # workers too: they inherit the environment) are not for users; failures are reported below
@@ -749,22 +798,7 @@ def _sweep_run(args: argparse.Namespace) -> int:
             client.close()
             if cluster is not None:
                 cluster.close()
-    summary = result.summary
-    names = [p.name for p in spec.params]
-    for row in summary.to_dict("records"):
-        figures = f"{row['seconds']:.1f} s, rel_err {row['rel_err']:.2%}"
-        if "nrmse" in row:
-            figures += f", NRMSE {row['nrmse']:.4g}, dh {row['dh']:+.4f}, ds {row['ds']:+.4f}"
-        values = ", ".join(f"{n}={row[n]:g}" for n in names)
-        print(f"  {values}: {row['status']}" + (f" ({figures})" if row["status"] == "complete" else
-                                                 f" ({row['tasks_done']} of {row['tasks']} tasks)"))
-    for line in result.failures.values():
-        print(f"simulate sweep: {line}", file=sys.stderr)
-    shape = (f"{len(spec.points)} points (all {len(spec.wavelengths_nm)} wavelengths a task)" if spec.per_point else
-             f"{len(spec.points)} points x {len(spec.wavelengths_nm)} wavelengths")
-    print(f"wrote {args.out} ({shape} = {n_tasks} tasks: "
-          f"{result.computed} computed, {result.reused} reused{', resumed' if resumed else ''}, "
-          f"{len(result.failures)} failed; summary in {args.out / 'summary.csv'})")
+    _print_sweep(args, spec, result, n_tasks, resumed)
     return 1 if result.failures else 0
 
 

@@ -10,5 +10,8 @@ class FitError(ValueError):
 
 
 class FitWarning(UserWarning):
-    """A fit that finished with its outputs written but should not be trusted as it stands: its colour left off
-    the measured one, or a search that never moved from its start (:attr:`FitResult.warnings` say why)."""
+    """A fit that finished with its outputs written but should not be trusted as it stands.
+
+    Its colour is off the measured one, or its search never moved from its start
+    (:attr:`FitResult.warnings` say why). A warning, not an error, so the outputs are kept for a look.
+    """

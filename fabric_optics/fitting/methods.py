@@ -22,9 +22,12 @@ __all__ = ["FitMethod", "METHODS", "DEFAULT_METHOD", "method_of"]
 
 @dataclass(frozen=True)
 class FitMethod:
-    """One fit method: ``problem`` builds its problem (the arguments of
-    :class:`~fabric_optics.fitting.problem.FitProblem`), ``run(problem, out=, resume=, starts=, progress=,
-    **{budget: n})`` fits it; ``budget`` names the runner's keyword and, dashed, the command line's flag."""
+    """One fit method of the registry: its problem, its runner and its budget.
+
+    ``problem`` builds its problem (the arguments of :class:`~fabric_optics.fitting.problem.FitProblem`),
+    ``run(problem, out=, resume=, starts=, progress=, **{budget: n})`` fits it; ``budget`` names the runner's
+    keyword and, dashed, the command line's flag.
+    """
 
     name: str
     problem: Callable[..., Any]

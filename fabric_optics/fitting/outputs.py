@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from compare import report as compare_report
 from compare.comparison import compare_datasets
 from compare.errors import CompareError
-from compare import report as compare_report
 from fabric_optics.fitting.spec import COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, COLOUR_TOLERANCE, GENERATOR
 from fabric_optics.fitting.verdict import COLOUR_LEFT_OFF, colour_left_off, uncertainty_text
 from gonio.data.dataset import atomic_write, write_dataset
@@ -146,7 +146,8 @@ def write_outputs(problem: Any, result: FitResult, out: Path) -> dict:
     All are written into a hidden folder of ``out`` first and then moved into place together (module
     docstring): an exception or an interrupt while writing leaves ``out``'s previous outputs unchanged. The
     datasets are the result's model values (:attr:`FitResult.model_start`, :attr:`FitResult.model_fit`), or the
-    problem's model at its start and result when the result has none."""
+    problem's model at its start and result when the result has none.
+    """
     prov = {"command": GENERATOR, "config": problem.config.provenance(), "seed": problem.seed,
             "versions": software_versions()}
     method = result.method
@@ -157,7 +158,7 @@ def write_outputs(problem: Any, result: FitResult, out: Path) -> dict:
                                                   "rel_err_definition": REL_ERR_DEFINITION}, method=method)
     fitted = problem.dataset(b1, u1, "fitted", {**prov, "rel_err": rel_err["fitted"],
                                                 "rel_err_definition": REL_ERR_DEFINITION,
-                                                "fitted": {p.name: float(v) for p, v in zip(problem.free, result.x)}},
+                                                "fitted": {p.name: float(v) for p, v in zip(problem.free, result.x, strict=True)}},
                              method=method)
     for stale in out.glob(f"{_STAGE_PREFIX}*.tmp"):   # a killed earlier write's folder
         shutil.rmtree(stale, ignore_errors=True)
@@ -178,7 +179,7 @@ def write_outputs(problem: Any, result: FitResult, out: Path) -> dict:
         status = result.info.get("u_status") or [""] * len(problem.free)
         lines.append("free parameters (value +- standard uncertainty):")
         lines += [f"  {p.name} = {v:.6g} {uncertainty_text(uu, st)}"
-                  for p, v, uu, st in zip(problem.free, result.x, result.u, status)]
+                  for p, v, uu, st in zip(problem.free, result.x, result.u, status, strict=True)]
         rule = result.info.get("uncertainty") or {}
         if rule.get("data") == "residual":
             lines.append(f"  (no measurement uncertainty: u scaled by the residual, s^2 = SSR/(n - p) = "
@@ -216,7 +217,7 @@ def write_outputs(problem: Any, result: FitResult, out: Path) -> dict:
             "parameters": [{"name": p.name, "kind": p.kind, "low": p.low, "high": p.high, "start": p.start,
                             "value": float(v), **_u_fields(uu, ud, um, st)}
                            for p, v, uu, ud, um, st in zip(problem.free, result.x, result.u, result.u_data,
-                                                           result.u_mc, status)],
+                                                           result.u_mc, status, strict=True)],
             "uncertainty": rule,
             "correlation": result.correlation.tolist(), "warnings": result.warnings, "info": result.info,
         }

@@ -33,8 +33,18 @@ from compare.comparison import compare_datasets
 from compare.errors import CompareError
 from fabric_optics import paths
 from fabric_optics.fitting.errors import FitError
-from fabric_optics.fitting.spec import (COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, GENERATOR, FitSpec, FreeParameter,
-                                        colour_hold, dye_ceiling, make_spec, model_geometries, shares_at)
+from fabric_optics.fitting.spec import (
+    COLOUR_HOLD_FROM,
+    COLOUR_HOLD_WEIGHT,
+    GENERATOR,
+    FitSpec,
+    FreeParameter,
+    colour_hold,
+    dye_ceiling,
+    make_spec,
+    model_geometries,
+    shares_at,
+)
 from fabric_optics.fitting.state import WalkCheckpoint
 from fabric_optics.paths import toml_dumps
 from gonio.data.dataset import COLUMNS, Dataset, make_dataset, new_meta
@@ -85,8 +95,10 @@ class Counters:
 
 
 class FitProblem:
-    """The model evaluator of a :class:`~fabric_optics.fitting.spec.FitSpec`: the model at the measured geometries
-    for any value of the free parameters, the objective's residuals, and the caches that make both cheap.
+    """The model evaluator of a :class:`~fabric_optics.fitting.spec.FitSpec`.
+
+    The model at the measured geometries for any value of the free parameters, the objective's residuals, and the
+    caches that make both cheap.
 
     Built from the spec's arguments (:func:`~fabric_optics.fitting.spec.make_spec`); the spec's fields are read-only
     attributes. It owns its caches (walks, re-weighted tables, parsed configs, facets, surface terms), the photons
@@ -182,11 +194,12 @@ class FitProblem:
         :data:`PARSED_CONFIGS`); a point that differs from one of those in the dye alone gets that config with
         its dye table parsed (:func:`simulate.config_dye.dye_from_table`, the parser's own) and the text and
         SHA-256 of the whole: field by field the config a full parse gives (a dye-only search step or Jacobian
-        column re-parsed the whole config, a quarter of an evaluation)."""
+        column re-parsed the whole config, a quarter of an evaluation).
+        """
         doc = self._doc_at(x)
         text = toml_dumps(doc)
         file = f"{self.config.name}.toml"
-        key = tuple(float(v) for p, v in zip(self.free, x) if p.kind not in ("dye", "share"))
+        key = tuple(float(v) for p, v in zip(self.free, x, strict=True) if p.kind not in ("dye", "share"))
         base = self._parsed.get(key)
         if base is None:
             config = parse_config(text, file, source=f"fit of {self.config.source}")
@@ -204,15 +217,17 @@ class FitProblem:
                     pop, share=float(item["share"]),
                     dye=(dye if pop.dye is base.dye else
                          dye_from_table(Table(item["fiber"]["dye"], f"populations[{k}].fiber.dye", file))))
-                for k, (pop, item) in enumerate(zip(populations, doc["populations"])))
+                for k, (pop, item) in enumerate(zip(populations, doc["populations"], strict=True)))
         return dataclasses.replace(base, text=raw.decode("utf-8"), sha256=hashlib.sha256(raw).hexdigest(),
                                    dye=dye, populations=populations)
 
     def _doc_at(self, x: np.ndarray) -> dict:
-        """The config document with the free fields set to ``x`` (and a blend's shares that are not free taking
-        the remainder: :func:`~fabric_optics.fitting.spec.shares_at`)."""
+        """The config document with the free fields set to ``x``.
+
+        A blend's shares that are not free take the remainder (:func:`~fabric_optics.fitting.spec.shares_at`).
+        """
         doc = copy.deepcopy(self._doc)
-        for p, v in zip(self.free, x):
+        for p, v in zip(self.free, x, strict=True):
             paths.set_value(doc, p.name, float(v))
         for k, share in shares_at(self.config, self.spec.free, x).items():
             doc["populations"][k]["share"] = share
@@ -227,15 +242,21 @@ class FitProblem:
     # -- the model ----------------------------------------------------------------------------
 
     def table(self, config: SimulationConfig) -> AbsorptionTable:
-        """The absorption table of ``config``'s scattering: walked, or re-weighted from the walk at its
-        lattice point (:meth:`lattice`), whichever the module docstring's rule says; memoised."""
+        """The absorption table of ``config``'s scattering.
+
+        Walked, or re-weighted from the walk at its lattice point (:meth:`lattice`), whichever the module
+        docstring's rule says; memoised.
+        """
         if self.structured:
             return self._structured_table(config)
         return self._walk_table(config)
 
     def _structured_table(self, config: SimulationConfig) -> AbsorptionTable:
-        """The structured summation's table of ``config``: its walk's, or -- a walked parameter between two
-        lattice points -- the interpolation of the walks at the lattice points around it (:meth:`lattice_corners`)."""
+        """The structured summation's table of ``config``.
+
+        Its walk's, or -- a walked parameter between two lattice points -- the interpolation of the walks at the
+        lattice points around it (:meth:`lattice_corners`).
+        """
         key = structwalk.structure_key(config)
         facets = self._facets_of(config)
         corners = self.lattice_corners(self._walk_values(config))
@@ -251,20 +272,23 @@ class FitProblem:
                                groups=first.groups, optics=None)
 
     def lattice_corners(self, walk: tuple) -> list[tuple[tuple, float]]:
-        """The lattice points (``start * exp(STRUCTURED_LATTICE_STEP k)`` per walked parameter) around the walked values
-        ``walk`` and their multilinear weights in ``log v``: ``[(point, weight)]`` (one point, weight 1, on the
-        lattice; 2^d around it). Values that are not positive, or whose start is not, are kept as they are.
+        """The lattice points around the walked values ``walk`` and their multilinear weights in ``log v``.
+
+        The lattice is ``start * exp(STRUCTURED_LATTICE_STEP k)`` per walked parameter; the result is
+        ``[(point, weight)]`` (one point, weight 1, on the lattice; 2^d around it). Values that are not
+        positive, or whose start is not, are kept as they are.
 
         The structured summation's walked parameters are read this way instead of re-weighting the walk at the
         nearest lattice point (:meth:`lattice`): a re-weighted pass walks the same paths again to score them
         (as long as a walk: 9 passes of 51 evaluations were 3/4 of a 347 s fit of the felt), so the walks at
         the lattice points are all that is walked (each in the disk cache: a refit walks nothing). The
         objective is then continuous across lattice cells (the jumps between the walks at 10 % target,
-        docs/physics.md 6.5, become a linear blend)."""
+        docs/physics.md 6.5, become a linear blend).
+        """
         starts = [p.start for p in self.free if p.kind == "walk"]
         axes: list[list[tuple[float, float]]] = []
         step = STRUCTURED_LATTICE_STEP
-        for s, v in zip(starts, walk):
+        for s, v in zip(starts, walk, strict=True):
             if s > 0 and v > 0:
                 x = math.log(v / s) / step
                 k = math.floor(x + 1e-9)
@@ -286,7 +310,7 @@ class FitProblem:
         if point in self._tables:
             return self._tables[point]
         doc = self._doc_of(config)
-        for p, v in zip([p for p in self.free if p.kind == "walk"], point):
+        for p, v in zip([p for p in self.free if p.kind == "walk"], point, strict=True):
             paths.set_value(doc, p.name, v)
         at = parse_config(toml_dumps(doc), "lattice.toml")
         nodye = at.undyed().fiber(self.wavelengths_nm)
@@ -318,7 +342,7 @@ class FitProblem:
             ref = self._references.get(lattice)
             if ref is None:
                 doc = self._doc_of(config)
-                for p, v in zip([p for p in self.free if p.kind == "walk"], lattice):
+                for p, v in zip([p for p in self.free if p.kind == "walk"], lattice, strict=True):
                     paths.set_value(doc, p.name, v)
                 ref_fiber = parse_config(toml_dumps(doc), "lattice.toml").undyed().fiber(wl)
                 ref = (ref_fiber, self._run(ref_fiber, lattice, None, config))
@@ -337,13 +361,16 @@ class FitProblem:
         return tuple(round(float(paths.get(self._doc_of(config), p.name)), 12) for p in self.free if p.kind == "walk")
 
     def lattice(self, walk: tuple) -> tuple:
-        """The reference point of walked values ``walk``: each positive value rounded to the geometric
-        lattice ``start * exp(LATTICE_STEP * k)`` (others kept). Evaluating every point from the walk
-        at its lattice point makes the objective a deterministic function of the parameters (not of
-        the order in which the search visited them: a resumed fit sees the same values)."""
+        """The reference point of walked values ``walk``.
+
+        Each positive value rounded to the geometric lattice ``start * exp(LATTICE_STEP * k)`` (others kept).
+        Evaluating every point from the walk at its lattice point makes the objective a deterministic function
+        of the parameters (not of the order in which the search visited them: a resumed fit sees the same
+        values).
+        """
         starts = [p.start for p in self.free if p.kind == "walk"]
         out = []
-        for s, v in zip(starts, walk):
+        for s, v in zip(starts, walk, strict=True):
             if s > 0 and v > 0:
                 k = round(math.log(v / s) / LATTICE_STEP)
                 out.append(round(s * math.exp(LATTICE_STEP * k), 12))
@@ -413,9 +440,11 @@ class FitProblem:
         return walk
 
     def _within_bound(self, ref_table: Any, nodye: Any, wl: np.ndarray) -> bool:
-        """Whether ``ref_table``'s paths can be re-weighted to ``nodye``'s scattering
-        (:func:`simulate.fiber.spectral.reweight_exponent`: the bound grows by at most
-        :data:`REWEIGHT_LIMIT` over the walk's own wavelength groups)."""
+        """Whether ``ref_table``'s paths can be re-weighted to ``nodye``'s scattering.
+
+        They can when the bound of :func:`simulate.fiber.spectral.reweight_exponent` grows by at most
+        :data:`REWEIGHT_LIMIT` over the walk's own wavelength groups.
+        """
         n = ref_table.group_scatterings()
         own = reweight_exponent(ref_table.optics, ref_table.optics, ref_table.groups, n)
         # the walk's wavelengths (a structured walk may have fewer than the model: fit_structure.walk_wavelengths)
@@ -441,8 +470,11 @@ class FitProblem:
 
     def model_at_host(self, config: SimulationConfig, mu_host: np.ndarray,
                       mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """``beta, u_beta`` ``[G, L]`` of ``config``'s fiber with the host absorption ``mu_host[L]`` (1/um)
-        in place of its dye (read from the absorption table, no walk once the table exists)."""
+        """``beta, u_beta`` ``[G, L]`` of ``config``'s fiber with the host absorption ``mu_host[L]`` (1/um).
+
+        The host absorption stands in place of the dye; the values are read from the absorption table
+        (no walk once the table exists).
+        """
         table = self.table(config)
         R, u = table(mu_host)
         if mc_noise is not None:
@@ -467,11 +499,14 @@ class FitProblem:
         return beta, u_beta
 
     def surface_term(self, config: SimulationConfig) -> np.ndarray:
-        """The structured summation's surface ``beta [N]`` at ``config``'s RMS slope: the exact term
-        (:func:`simulate.structwalk.walk.surface_beta`) at the points of the lattice ``r0 exp(SURFACE_LATTICE_STEP k)``
-        (``r0`` the start config's RMS slope), blended linearly in ``log rms_slope`` between the two around it
-        (:data:`SURFACE_LATTICE_STEP`); each lattice point computed once per structure (memoised). A positive RMS
-        slope on the lattice (the start's, a fit that does not free it) is the exact term."""
+        """The structured summation's surface ``beta [N]`` at ``config``'s RMS slope.
+
+        The exact term (:func:`simulate.structwalk.walk.surface_beta`) at the points of the lattice ``r0
+        exp(SURFACE_LATTICE_STEP k)`` (``r0`` the start config's RMS slope), blended linearly in ``log
+        rms_slope`` between the two around it (:data:`SURFACE_LATTICE_STEP`); each lattice point computed once
+        per structure (memoised). A positive RMS slope on the lattice (the start's, a fit that does not free it)
+        is the exact term.
+        """
         r, r0 = float(config.rms_slope), float(self.config.rms_slope)
         if r <= 0.0 or r0 <= 0.0:
             return self._surface_at(config, r)
@@ -496,8 +531,10 @@ class FitProblem:
 
     def dataset(self, beta: np.ndarray, u_beta: np.ndarray, label: str, extra: dict | None = None,
                 method: str | None = None) -> Dataset:
-        """The model values as a ``"simulated"`` dataset at the model geometries (labelled ``method``: the spec's
-        model unless given)."""
+        """The model values as a ``"simulated"`` dataset at the model geometries.
+
+        The dataset is labelled ``method``: the spec's model unless given.
+        """
         method = method or self.method
         g = self.geometries
         wl = self.wavelengths_nm
@@ -532,8 +569,11 @@ class FitProblem:
         return np.concatenate(parts)
 
     def residual_model(self, measured: Dataset | None = None):
-        """:class:`compare.residual.ModelResidual` of the measurement (or of a noise draw of it with
-        the same rows), prepared once: per evaluation only the model side is computed."""
+        """The :class:`compare.residual.ModelResidual` of the measurement, prepared once.
+
+        Of the measurement or of a noise draw of it with the same rows; per evaluation only the model
+        side is computed.
+        """
         if self._residual is None:
             self._residual = ModelResidual(self.measured, self.geometries, self.wavelengths_nm,
                                            name=f"{self.method} model")
@@ -543,16 +583,21 @@ class FitProblem:
 
     def residuals(self, x: np.ndarray, measured: Dataset | None = None,
                   mc_noise: np.ndarray | None = None) -> np.ndarray:
-        """Residuals at parameters ``x`` (physical units): ``compare``'s figures through
-        :meth:`residual_model` (equal to :meth:`residuals_of` of :meth:`compare` to 1e-12, tested
-        in compare)."""
+        """Residuals at parameters ``x`` (physical units).
+
+        ``compare``'s figures through :meth:`residual_model` (equal to :meth:`residuals_of` of :meth:`compare`
+        to 1e-12, tested in compare).
+        """
         beta, u = self.model(x, mc_noise)
         return self.residuals_of_model(beta, u, measured)
 
     def residuals_of_model(self, beta: np.ndarray, u: np.ndarray, measured: Dataset | None = None,
                            colour_weight: float | None = None) -> np.ndarray:
-        """The residual vector of model values ``beta, u`` ``[G, L]`` (one evaluation counted); ``colour_weight``
-        in place of the spec's (a surrogate fit that raises it, :mod:`fabric_optics.fitting.spacemapping`)."""
+        """The residual vector of model values ``beta, u`` ``[G, L]`` (one evaluation counted).
+
+        ``colour_weight`` in place of the spec's (a surrogate fit that raises it,
+        :mod:`fabric_optics.fitting.spacemapping`).
+        """
         w = self.colour_weight if colour_weight is None else colour_weight
         self.counters.evaluations += 1
         fig = self.residual_model(measured).evaluate(beta, u)
@@ -562,8 +607,10 @@ class FitProblem:
         return r
 
     def holds_colour(self, colour_weight: float | None = None) -> bool:
-        """Whether the objective holds the colour within the tolerance (:func:`colour_hold`): asked for, the
-        measurement has a colour and the colour terms carry weight."""
+        """Whether the objective holds the colour within the tolerance (:func:`colour_hold`).
+
+        Asked for, the measurement has a colour and the colour terms carry weight.
+        """
         w = self.colour_weight if colour_weight is None else colour_weight
         return self.hold_colour and w > 0 and bool(self.residual_model().has_colour)
 
@@ -590,12 +637,15 @@ class FitProblem:
 
 def mixed_model(config: SimulationConfig, wavelengths_nm: np.ndarray, at_host: Callable[..., tuple],
                 mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``beta, u_beta`` of ``config``: ``at_host(fiber_config, mu_host, mc_noise)`` of its fiber with its dye; of a
-    blend, the populations' models mixed by share (as :func:`simulate.products.evaluate` mixes the summation's and
-    the classic model's), ``u_beta`` added linearly (their tables are one walk's). One population: its model alone.
+    """``beta, u_beta`` of ``config``.
+
+    ``at_host(fiber_config, mu_host, mc_noise)`` of its fiber with its dye; of a blend, the populations' models
+    mixed by share (as :func:`simulate.products.evaluate` mixes the summation's and the classic model's), ``u_beta``
+    added linearly (their tables are one walk's). One population: its model alone.
 
     The populations of a fitted blend share the fiber's scattering (:func:`~fabric_optics.fitting.spec.make_spec`),
-    so each reads its dye from the same absorption table and one ``mc_noise`` draw shifts them all alike."""
+    so each reads its dye from the same absorption table and one ``mc_noise`` draw shifts them all alike.
+    """
     wl = np.asarray(wavelengths_nm, float)
     parts = config.population_configs()
     if len(parts) == 1:

@@ -54,8 +54,10 @@ _IDENTITY: list[str] = []
 
 
 def code_identity() -> str:
-    """SHA-256 of every source and data file of the four packages (path and bytes) and of the numerical
-    libraries' versions; computed once per process."""
+    """SHA-256 of the code: every source and data file of the four packages and the numerical libraries' versions.
+
+    The files' paths and bytes are hashed; computed once per process.
+    """
     if not _IDENTITY:
         h = hashlib.sha256()
         root = Path(__file__).resolve().parents[2]
@@ -79,15 +81,34 @@ RUN_FIELDS = ("created", "instrument")
 
 
 def _measurement(measured: Any) -> dict[str, Any]:
-    """What a fit reads of a measurement: its values (the canonical ``radiance.csv`` bytes' hash) and its meta but
-    the fields that name the run (:data:`RUN_FIELDS`)."""
+    """What a fit reads of a measurement: its values and what its meta says it measured.
+
+    The values by the canonical ``radiance.csv`` bytes' hash; the meta without the fields that name the run
+    (:data:`RUN_FIELDS`).
+    """
     meta = {k: v for k, v in measured.meta.items() if k not in RUN_FIELDS}
     return {"values": measured.content_sha256(), "meta": json.dumps(meta, sort_keys=True, default=str)}
 
 
 def fit_key(options: dict[str, Any], config: Any, measured: Any, out: Path) -> str:
-    """The cache key of one ``simulate fit``: ``options`` (the parsed command line; :data:`RESULT_OPTIONS` are
-    read), the loaded config, the measured dataset and the output folder."""
+    """The cache key of one ``simulate fit``.
+
+    Parameters
+    ----------
+    options : dict
+        The parsed command line; :data:`RESULT_OPTIONS` are read.
+    config : SimulationConfig
+        The loaded config.
+    measured : Dataset
+        The measured dataset.
+    out : Path
+        The output folder.
+
+    Returns
+    -------
+    str
+        ``fit-`` and 40 hex digits of the inputs' and the code's hash.
+    """
     chosen = {name: options.get(name) for name in RESULT_OPTIONS}
     inputs = {"options": repr(sorted(chosen.items())), "config": tablecache.content_hash(config),
               "measured": _measurement(measured), "out": str(Path(out).resolve()),
@@ -109,8 +130,10 @@ def restore(found: dict[str, np.ndarray], out: Path) -> tuple[list[tuple[str, st
 
 
 def keep(key: str, out: Path, lines: list[tuple[str, str]], exit_status: int) -> bool:
-    """Store the finished fit's folder ``out``, its printed ``lines`` and ``exit_status`` under ``key``; False when
-    not stored (the cache is off, the folder is too large, or the cache cannot be written)."""
+    """Store the finished fit's folder ``out``, its printed ``lines`` and ``exit_status`` under ``key``.
+
+    Returns False when not stored: the cache is off, the folder is too large, or the cache cannot be written.
+    """
     if not tablecache.enabled():
         return False
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())

@@ -31,8 +31,15 @@ from fabric_optics.fitting.errors import FitError
 from fabric_optics.fitting.outputs import FitResult
 from fabric_optics.fitting.start import inverted_start
 from fabric_optics.fitting.state import STATE_NAME, WALKS_DIR, WalkCheckpoint, load_state, save_state
-from fabric_optics.fitting.uncertainty import (NOISE_DRAWS, at_bounds, identifiability, jacobian, propagate,
-                                               u_status, uncertainty_parts)
+from fabric_optics.fitting.uncertainty import (
+    NOISE_DRAWS,
+    at_bounds,
+    identifiability,
+    jacobian,
+    propagate,
+    u_status,
+    uncertainty_parts,
+)
 from fabric_optics.fitting.verdict import colour_distance, colour_left_off_at
 
 __all__ = ["DEFAULT_MAX_EVALUATIONS", "FitSearch", "run_fit", "search_fit", "finish_fit"]
@@ -85,14 +92,16 @@ def run_fit(problem: Any, *, out: Path | None = None, resume: bool = False,
 def search_fit(problem: Any, *, start: np.ndarray | None = None, bounds: tuple[np.ndarray, np.ndarray] | None = None,
                out: Path | None = None, resume: bool = False, max_evaluations: int = DEFAULT_MAX_EVALUATIONS,
                starts: int = 1, progress: bool = False, invert_start: bool = True) -> FitSearch:
-    """The search of :func:`run_fit` alone: its best point, no uncertainty. A caller that fits the same problem
-    several times and keeps one (:mod:`fabric_optics.fitting.spacemapping`'s colour weights) finishes only the kept one.
-    ``start`` (default the config's values) and ``bounds`` (default the free parameters') are this search's."""
+    """The search of :func:`run_fit` alone: its best point, no uncertainty.
+
+    A caller that fits the same problem several times and keeps one (:mod:`fabric_optics.fitting.spacemapping`'s
+    colour weights) finishes only the kept one. ``start`` (default the config's values) and ``bounds`` (default the
+    free parameters') are this search's.
+    """
     t0 = time.perf_counter()
     problem.use_checkpoint(out)
     start = np.array(problem.start if start is None else start, float)
-    low, high = (problem.low, problem.high) if bounds is None else (np.asarray(bounds[0], float),
-                                                                    np.asarray(bounds[1], float))
+    low, high = _search_bounds(problem, bounds)
     span = high - low
     state, start_note = _resumed(problem, out) if resume else (None, "")
     x0 = start.copy() if state is None else np.array(state["x"], float)  # load_state refuses a point outside
@@ -112,13 +121,7 @@ def search_fit(problem: Any, *, start: np.ndarray | None = None, bounds: tuple[n
         try:
             r = problem.residuals(x)
         except CompareError as exc:
-            # a trial point whose model compare cannot normalise (e.g. its normal/normal estimate from the
-            # neighbours is not positive): rejected by a residual far above any other, not a traceback
-            if memo["r"] is None:
-                raise FitError(f"the model at the start cannot be compared with the measurement: {exc}") from None
-            problem.counters.evaluations += 1
-            r = np.full(memo["r"].size, 1e3 / math.sqrt(memo["r"].size))
-            log.info("trial point rejected: %s", exc)
+            r = _rejected(problem, memo["r"], exc)
         bar.update(1)
         memo.update(x=x.copy(), r=r)
         return r
@@ -150,37 +153,80 @@ def search_fit(problem: Any, *, start: np.ndarray | None = None, bounds: tuple[n
     stopped = ""
     results = []
     try:
-        if state is None and invert_start:
-            x0, note = inverted_start(problem, x0)
-            start_note = f"{start_note}; {note}" if start_note else note
-        r_start = fun_x(start)
-        F_start = float(r_start @ r_start)
-        accept(start, r_start)
-        if state is None and invert_start and not np.array_equal(x0, start):
-            r_inv = fun_x(x0)
-            if _own_start_first(problem, start, x0, F_start, float(r_inv @ r_inv)):
-                x0 = start.copy()
-                start_note += ("; the config's own values are nearer the measured colour or score better than the "
-                               "inverted start and start the search")
-            else:
-                start_note += "; the inverted start is nearer the measured colour and starts the search"
-        starts_u = [(x0 - low) / span]
-        if starts > 1 and state is None:
-            starts_u += list(qmc.LatinHypercube(d=x0.size, seed=int(problem.seed or 0)).random(starts - 1))
-        for su in starts_u:
+        x0, F_start, start_note = _first_point(problem, start, x0, fun_x, accept, start_note,
+                                               invert=state is None and invert_start)
+        for su in _start_points(problem, x0, low, span, starts if state is None else 1):
             results.append(least_squares(fun_u, np.clip(su, 0.0, 1.0), jac=jac_u, bounds=(0.0, 1.0), method="trf",
                                          x_scale=1.0, max_nfev=max_evaluations, ftol=1e-8, xtol=1e-8, gtol=1e-10))
     except _Budget:
-        stopped = (f"the search stopped at its evaluation budget (--max-evaluations {max_evaluations}) before "
-                   "converging: the result is the best point evaluated")
-        if not math.isfinite(best["F"]):
-            raise FitError(f"--max-evaluations {max_evaluations}: no evaluation was possible") from None
+        stopped = _budget_spent(max_evaluations, best["F"])
     finally:
         bar.close()
         walk_bar.close()
     return FitSearch(x=best["x"], objective_start=F_start, results=results, stopped=stopped, start_note=start_note,
                      evaluations=used(), max_evaluations=max_evaluations, resume=resume, out=out, t0=t0,
                      start=start, low=low, high=high)
+
+
+def _rejected(problem: Any, last: np.ndarray | None, exc: CompareError) -> np.ndarray:
+    """The residual of a trial point whose model ``compare`` cannot normalise: far above any other, not a traceback.
+
+    Such a point (e.g. its normal/normal estimate from the neighbours is not positive) is rejected by the search
+    and counted as an evaluation; at the start (no ``last`` residual) the fit cannot begin.
+    """
+    if last is None:
+        raise FitError(f"the model at the start cannot be compared with the measurement: {exc}") from None
+    problem.counters.evaluations += 1
+    log.info("trial point rejected: %s", exc)
+    return np.full(last.size, 1e3 / math.sqrt(last.size))
+
+
+def _budget_spent(max_evaluations: int, best_objective: float) -> str:
+    """The stop note of a search that spent its budget; a FitError when no evaluation was possible at all."""
+    if not math.isfinite(best_objective):
+        raise FitError(f"--max-evaluations {max_evaluations}: no evaluation was possible") from None
+    return (f"the search stopped at its evaluation budget (--max-evaluations {max_evaluations}) before "
+            "converging: the result is the best point evaluated")
+
+
+def _search_bounds(problem: Any, bounds: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` of a search: ``bounds`` as given, or the free parameters' own."""
+    if bounds is None:
+        return problem.low, problem.high
+    return np.asarray(bounds[0], float), np.asarray(bounds[1], float)
+
+
+def _start_points(problem: Any, x0: np.ndarray, low: np.ndarray, span: np.ndarray, starts: int) -> list[np.ndarray]:
+    """The searches' start points in the unit cube: ``x0``, then ``starts - 1`` Latin-hypercube points (seeded)."""
+    points = [(x0 - low) / span]
+    if starts > 1:
+        points += list(qmc.LatinHypercube(d=x0.size, seed=int(problem.seed or 0)).random(starts - 1))
+    return points
+
+
+def _first_point(problem: Any, start: np.ndarray, x0: np.ndarray, fun_x: Any, accept: Any, start_note: str, *,
+                 invert: bool) -> tuple[np.ndarray, float, str]:
+    """``(x0, F_start, note)``: the point the search starts from, the objective at ``start``, the start's note.
+
+    ``start`` is evaluated (and accepted) first; with ``invert``, the start inverted from the measured colour
+    (:func:`~fabric_optics.fitting.start.inverted_start`) is evaluated too and starts the search unless the
+    config's own values are nearer the measured colour or score better (:func:`_own_start_first`).
+    """
+    if invert:
+        x0, note = inverted_start(problem, x0)
+        start_note = f"{start_note}; {note}" if start_note else note
+    r_start = fun_x(start)
+    F_start = float(r_start @ r_start)
+    accept(start, r_start)
+    if invert and not np.array_equal(x0, start):
+        r_inv = fun_x(x0)
+        if _own_start_first(problem, start, x0, F_start, float(r_inv @ r_inv)):
+            x0 = start.copy()
+            start_note += ("; the config's own values are nearer the measured colour or score better than the "
+                           "inverted start and start the search")
+        else:
+            start_note += "; the inverted start is nearer the measured colour and starts the search"
+    return x0, F_start, start_note
 
 
 def _bars(problem: Any, max_evaluations: int, progress: bool) -> tuple[Any, Any]:
@@ -201,8 +247,11 @@ def _bars(problem: Any, max_evaluations: int, progress: bool) -> tuple[Any, Any]
 
 
 def _resumed(problem: Any, out: Path | None) -> tuple[dict | None, str]:
-    """``(state, note)`` of ``--resume``: the last accepted point of ``out/fit-state.json`` (its photons given to the
-    problem: the walks are the interrupted fit's), or None when only finished Monte Carlo runs are on disk."""
+    """``(state, note)`` of ``--resume``.
+
+    The last accepted point of ``out/fit-state.json`` (its photons given to the problem: the walks are the
+    interrupted fit's), or None when only finished Monte Carlo runs are on disk.
+    """
     if out is None:
         raise FitError("--resume needs the output directory of the interrupted fit (--out)")
     state = load_state(out, problem)
@@ -219,11 +268,13 @@ def _resumed(problem: Any, out: Path | None) -> tuple[dict | None, str]:
 
 
 def _own_start_first(problem: Any, start: np.ndarray, x0: np.ndarray, F_start: float, F_inv: float) -> bool:
-    """Whether the config's own values start the search rather than the inverted start ``x0``: a config whose dye
-    was fitted already (a preset's knots) may beat the inversion, which matches the colour only. The colour comes
-    first (a fit left off in colour fails): the start nearer the measured colour (in tolerances), the lower
-    objective when both are within the tolerance; from a start of another colour the search stays in that
-    colour's basin."""
+    """Whether the config's own values start the search rather than the inverted start ``x0``.
+
+    A config whose dye was fitted already (a preset's knots) may beat the inversion, which matches the colour only.
+    The colour comes first (a fit left off in colour fails): the start nearer the measured colour (in tolerances),
+    the lower objective when both are within the tolerance; from a start of another colour the search stays in that
+    colour's basin.
+    """
     off_own, off_inv = colour_distance(problem, start), colour_distance(problem, x0)
     if off_own <= 1.0 and off_inv <= 1.0:
         return F_inv > F_start
@@ -234,9 +285,12 @@ def _own_start_first(problem: Any, start: np.ndarray, x0: np.ndarray, F_start: f
 
 def finish_fit(problem: Any, search: FitSearch, *, noise_draws: int = NOISE_DRAWS, method: str | None = None,
                with_model: bool = False) -> FitResult:
-    """The result of ``search`` (:func:`search_fit`): the uncertainty at its best point
-    (:func:`~fabric_optics.fitting.uncertainty.propagate`), the warnings and fit.json's ``info``; the final state in
-    the search's ``out``. ``with_model``: the model at the start and at the result too (the outputs' datasets)."""
+    """The result of ``search`` (:func:`search_fit`).
+
+    The uncertainty at its best point (:func:`~fabric_optics.fitting.uncertainty.propagate`), the warnings and
+    fit.json's ``info``; the final state in the search's ``out``. ``with_model``: the model at the start and at the
+    result too (the outputs' datasets).
+    """
     ev0 = problem.counters.evaluations
     x_best, results, stopped, start_note = search.x, search.results, search.stopped, search.start_note
     span = search.high - search.low

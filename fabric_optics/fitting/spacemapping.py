@@ -56,11 +56,18 @@ from fabric_optics.fitting.problem import FitProblem, mixed_model
 from fabric_optics.fitting.search import finish_fit, search_fit
 from fabric_optics.fitting.start import knot_indices
 from fabric_optics.fitting.state import MCRun, MCState
-from fabric_optics.fitting.uncertainty import (NOISE_DRAWS, at_bounds, identifiability, jacobian, propagate,
-                                               u_status, uncertainty_parts)
+from fabric_optics.fitting.uncertainty import (
+    NOISE_DRAWS,
+    at_bounds,
+    identifiability,
+    jacobian,
+    propagate,
+    u_status,
+    uncertainty_parts,
+)
 from fabric_optics.fitting.verdict import colour_distance, colour_left_off, colour_off
-from simulate.montecarlo.accuracy import relative_error
 from simulate.config_table import ConfigError
+from simulate.montecarlo.accuracy import relative_error
 from simulate.products import Geometries, RunSettings, all_threads, check_blend, evaluate
 
 __all__ = ["DEFAULT_MC_RUNS", "INNER_EVALUATIONS", "TINY", "MCFitProblem", "Surrogate", "correction",
@@ -97,8 +104,10 @@ REWEIGHT_MAX_SPREAD = 2.0
 
 
 def correction(s: np.ndarray, mc: np.ndarray, tiny: float = TINY) -> tuple[np.ndarray, np.ndarray]:
-    """``(c, d)`` ``[G, L]`` with ``MC = S c + d``: multiplicative where ``S > tiny max_lambda S`` of its
-    geometry, additive elsewhere (module docstring)."""
+    """``(c, d)`` ``[G, L]`` with ``MC = S c + d``.
+
+    Multiplicative where ``S > tiny max_lambda S`` of its geometry, additive elsewhere (module docstring).
+    """
     s = np.asarray(s, float)
     mc = np.asarray(mc, float)
     peak = np.max(np.abs(s), axis=1, keepdims=True)
@@ -109,8 +118,11 @@ def correction(s: np.ndarray, mc: np.ndarray, tiny: float = TINY) -> tuple[np.nd
 
 
 class MCFitProblem(FitProblem):
-    """The coarse model of the Monte Carlo fit: the summation of the config (a structured one for a felt or a
-    weave), whose free parameters may include those only the Monte Carlo sees (:data:`FINE_FIELDS`)."""
+    """The coarse model of the Monte Carlo fit.
+
+    The summation of the config (a structured one for a felt or a weave), whose free parameters may include those
+    only the Monte Carlo sees (:data:`FINE_FIELDS`).
+    """
 
     def __init__(self, config: Any, measured: Any, free: list, *, method: str = "mc", mc_trend: Sequence[str] = (),
                  mc_retrace: bool = False, **settings: Any) -> None:
@@ -141,8 +153,10 @@ class MCFitProblem(FitProblem):
         self.mc_reuse: dict | None = None
 
     def reweights_runs(self) -> bool:
-        """Whether the fit's runs may be re-weighted from a traced one (module docstring): every free parameter a
-        dye's and ``mc_retrace`` off."""
+        """Whether the fit's runs may be re-weighted from a traced one (module docstring).
+
+        Every free parameter a dye's and ``mc_retrace`` off.
+        """
         return not self.mc_retrace and bool(self.free) and all(p.kind == "dye" for p in self.free)
 
     def fine_indices(self) -> list[int]:
@@ -156,13 +170,16 @@ class MCFitProblem(FitProblem):
         return -h if x[j] + h > p.high else h
 
     def identity(self) -> str:
+        """The problem's identity, its checkpoints' key: the summation's, the method, the target, the trends."""
         doc = [super().identity(), "mc", self.target_rel_err] + ([sorted(self.mc_trend)] if self.mc_trend else [])
         return hashlib.sha256(json.dumps(doc).encode()).hexdigest()
 
 
 class Surrogate:
-    """The summation corrected to the Monte Carlo at a centre ``x_k`` (module docstring): an objective a search
-    fits like a :class:`~fabric_optics.fitting.problem.FitProblem`, whose caches and counters it shares.
+    """The summation corrected to the Monte Carlo at a centre ``x_k`` (module docstring).
+
+    An objective a search fits like a :class:`~fabric_optics.fitting.problem.FitProblem`, whose caches and counters
+    it shares.
 
     Built by :meth:`at` (the correction that makes it equal the Monte Carlo values there); ``slope``: the Monte
     Carlo's own first-order term ``{j: D_j}`` in the parameters whose trend the summation lacks; ``colour_weight``
@@ -201,18 +218,22 @@ class Surrogate:
     high = property(lambda self: self._base.high if self._bounds is None else self._bounds[1])
 
     def holds_colour(self, colour_weight: float | None = None) -> bool:
+        """Whether the objective holds the colour (the summation's rule at the surrogate's colour weight)."""
         return self._base.holds_colour(self._colour_weight if colour_weight is None else colour_weight)
 
     def model_at_host(self, config: Any, mu_host: np.ndarray,
                       mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The surrogate at host absorption ``mu_host``: the summation's value with the correction applied. The
-        colour start (:func:`fabric_optics.fitting.start.inverted_start`) reads the model through this, so the
-        Monte Carlo fit inverts the measured colour through its own surrogate."""
+        """The surrogate at host absorption ``mu_host``: the summation's value with the correction applied.
+
+        The colour start (:func:`fabric_optics.fitting.start.inverted_start`) reads the model through this, so
+        the Monte Carlo fit inverts the measured colour through its own surrogate.
+        """
         beta, _ = self._base.model_at_host(config, mu_host, mc_noise)
         c, d, mc_u = self._corr
         return beta * c + d, mc_u
 
     def model(self, x: np.ndarray, mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``beta, u_beta`` ``[G, L]`` of the surrogate at ``x``: the summation with the correction applied."""
         xs = np.asarray(x, float)
         if self._slope is not None:
             # the summation held at the centre in the parameters whose trend is the Monte Carlo's
@@ -227,6 +248,7 @@ class Surrogate:
         return out, mc_u
 
     def residuals(self, x: np.ndarray, measured: Any = None, mc_noise: np.ndarray | None = None) -> np.ndarray:
+        """The residual vector of the surrogate at ``x`` (the summation's residuals of its model values)."""
         beta, u = self.model(x, mc_noise)
         return self._base.residuals_of_model(beta, u, measured, colour_weight=self._colour_weight)
 
@@ -245,7 +267,8 @@ def reweight_accepted(info: dict, target_rel_err: float, traced_rel_err: float) 
     its cost, and its ``u_beta`` says so to the fit's uncertainty. And its ray error is at most
     :data:`REWEIGHT_MAX_SPREAD` times the traced run's at the same rays (an effective sample of at least a quarter
     of the rays): beyond that the weights' tails make the error's own estimate unsure. Measured over the dyes a
-    fit explores: docs/notes/reweighted-mc.md."""
+    fit explores: docs/notes/reweighted-mc.md.
+    """
     spread = float(info.get("spread", math.inf))
     return (float(info["rel_err"]) <= REWEIGHT_ERROR_FACTOR * max(float(target_rel_err), float(traced_rel_err))
             and math.isfinite(spread) and spread <= REWEIGHT_MAX_SPREAD)
@@ -257,7 +280,8 @@ def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = Fa
 
     ``reuse`` (a dict the caller keeps across runs that differ in their dyes alone, :meth:`MCFitProblem.reweights_runs`;
     default ``problem.mc_reuse``): the last traced run's ray events; the run is re-weighted from them when
-    :func:`reweight_accepted`, else traced and recorded there. ``reuse["last"]`` then says how the run was made."""
+    :func:`reweight_accepted`, else traced and recorded there. ``reuse["last"]`` then says how the run was made.
+    """
     if reuse is None:
         reuse = getattr(problem, "mc_reuse", None)
     config = problem.config_at(x)
@@ -300,16 +324,21 @@ def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = Fa
 
 
 def _colour_first(problem: MCFitProblem) -> bool:
-    """Whether the fit puts the colour first (module docstring, "The colour first"): free dye knots, a colour
-    weight above zero and a measurement with a colour."""
+    """Whether the fit puts the colour first (module docstring, "The colour first").
+
+    Free dye knots, a colour weight above zero and a measurement with a colour.
+    """
     return (problem.colour_weight > 0 and bool(knot_indices([p.name for p in problem.free]))
             and problem.residual_model().has_colour)
 
 
 def _better(run: MCRun, best: MCRun, colour_first: bool) -> bool:
-    """Whether ``run`` replaces ``best``: the lower Monte Carlo objective; with the colour first, a run within
-    the colour tolerance beats one outside it, and of two outside it the nearer the measured colour wins (the
-    rule of the colour start, :func:`fabric_optics.fitting.search.run_fit`)."""
+    """Whether ``run`` replaces ``best``.
+
+    The lower Monte Carlo objective; with the colour first, a run within the colour tolerance beats one outside it,
+    and of two outside it the nearer the measured colour wins (the rule of the colour start,
+    :func:`fabric_optics.fitting.search.run_fit`).
+    """
     if colour_first:
         a, b = colour_off(run.dh, run.ds), colour_off(best.dh, best.ds)
         if a > 1.0 or b > 1.0:
@@ -319,11 +348,13 @@ def _better(run: MCRun, best: MCRun, colour_first: bool) -> bool:
 
 def _surrogate_fit(surrogate: Surrogate, x: np.ndarray, colour_first: bool, noise_draws: int = NOISE_DRAWS,
                    **kwargs: Any) -> tuple[FitResult, list[float], Surrogate]:
-    """The surrogate fit of one iteration from ``x``, the colour weights it used and the surrogate it kept:
-    fitted at the problem's colour weight; with the colour first and the surrogate's colour further than
+    """The surrogate fit of one iteration from ``x``, the colour weights it used and the surrogate it kept.
+
+    Fitted at the problem's colour weight; with the colour first and the surrogate's colour further than
     :data:`COLOUR_MARGIN` tolerances from the measured, fitted again from that point with the weight
     :data:`COLOUR_WEIGHT_STEP` times larger, up to :data:`MAX_COLOUR_WEIGHT_FACTOR` times the problem's. Only the
-    kept (last) fit's uncertainty is computed: the searches at the smaller weights only lead to its start."""
+    kept (last) fit's uncertainty is computed: the searches at the smaller weights only lead to its start.
+    """
     w0 = surrogate.colour_weight
     weights = [w0]
     bounds = (surrogate.low, surrogate.high)
@@ -340,10 +371,13 @@ def _surrogate_fit(surrogate: Surrogate, x: np.ndarray, colour_first: bool, nois
 
 def _uncertainty(problem: MCFitProblem, x: np.ndarray, beta: np.ndarray, u_beta: np.ndarray, draws: int,
                  slope: dict | None, data: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """``(J, cov_data, cov_mc, rule)`` at ``x`` through the surrogate equal to the Monte Carlo ``beta, u_beta``
-    there (:func:`~fabric_optics.fitting.uncertainty.propagate`): the Monte Carlo part perturbs the correction by
-    the run's standard errors (the summation's own table noise cancels in ``S(x)/S(x*)`` to first order);
-    ``data=False``: the Monte Carlo part only."""
+    """``(J, cov_data, cov_mc, rule)`` at ``x``, through the surrogate equal to the Monte Carlo there.
+
+    :func:`~fabric_optics.fitting.uncertainty.propagate` of the surrogate equal to the Monte Carlo
+    ``beta, u_beta`` at ``x``: the Monte Carlo part perturbs the correction by the run's standard errors
+    (the summation's own table noise cancels in ``S(x)/S(x*)`` to first order); ``data=False``: the Monte
+    Carlo part only.
+    """
     surrogate = Surrogate.at(problem, x, beta, u_beta, slope)
     r0 = surrogate.residuals(x)
     J = jacobian(problem, x, r0, surrogate.residuals)
@@ -375,8 +409,11 @@ class _Search:
     #: ``{j: D_j}``: the Monte Carlo's first-order term in the parameters whose trend the summation lacks
     slope: dict | None = None
     def run(self, k: int, x: np.ndarray) -> tuple[MCRun, bool, dict]:
-        """Monte Carlo run ``k`` at ``x``: from the checkpoint, or made (traced or re-weighted) and checkpointed;
-        and how it was made (``{"reweighted": bool, ...}``, empty when read from the checkpoint)."""
+        """Monte Carlo run ``k`` at ``x``.
+
+        From the checkpoint, or made (traced or re-weighted) and checkpointed; and how it was made
+        (``{"reweighted": bool, ...}``, empty when read from the checkpoint).
+        """
         run = self.state.run(k, x)
         cached = run is not None
         how: dict = {}
@@ -417,10 +454,12 @@ class _Search:
 
     def propose(self, x: np.ndarray, run: MCRun, fine: list[int], *, starts: int, noise_draws: int,
                 inner_evaluations: int) -> dict:
-        """The surrogate fit from run ``run`` at ``x`` and its proposal (module docstring): the colour start through
-        the surrogate (free dye knots: the measured colour inverted through the summation corrected to this run;
-        the search starts from it or from ``x``, the better), the colour held within the margin by raising its
-        weight, the fine parameters held near ``x``."""
+        """The surrogate fit from run ``run`` at ``x`` and its proposal (module docstring).
+
+        The colour start through the surrogate (free dye knots: the measured colour inverted through the
+        summation corrected to this run; the search starts from it or from ``x``, the better), the colour held
+        within the margin by raising its weight, the fine parameters held near ``x``.
+        """
         problem = self.problem
         t1 = time.perf_counter()
         ev0 = problem.counters.evaluations
@@ -586,7 +625,7 @@ def _info(S: _Search, J: np.ndarray, u_rule: dict, u_status: list[str], run: dic
         "fine_trend_runs": S.fine_runs,
         "mc_reweighted_runs": sum(1 for it in iterations if it.get("made", {}).get("reweighted")),
         "mc_retrace": problem.mc_retrace,
-        "mc_seconds": float(sum(r.seconds for it, r in zip(iterations, runs) if not it["cached"])
+        "mc_seconds": float(sum(r.seconds for it, r in zip(iterations, runs, strict=True) if not it["cached"])
                             + sum(f["seconds"] for f in fine_records if not f["cached"])),
         "surrogate_evaluations": run["surrogate_evaluations"], "summation_walks": counts.walks,
         "walks": counts.walks + done, "walk_seconds": counts.walk_seconds,

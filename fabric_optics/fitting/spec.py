@@ -57,8 +57,11 @@ COLOUR_HOLD_WEIGHT = 1.0
 
 
 def colour_hold(dh: float, ds: float) -> np.ndarray:
-    """``sqrt(COLOUR_HOLD_WEIGHT) [max(0, |dh|/tol_h - f), max(0, |ds|/tol_s - f)]`` (``f`` :data:`COLOUR_HOLD_FROM`,
-    ``tol`` :data:`COLOUR_TOLERANCE`): the residual entries of the colour hold, zero well inside the tolerance."""
+    """The residual entries of the colour hold, zero well inside the tolerance.
+
+    ``sqrt(COLOUR_HOLD_WEIGHT) [max(0, |dh|/tol_h - f), max(0, |ds|/tol_s - f)]`` (``f``
+    :data:`COLOUR_HOLD_FROM`, ``tol`` :data:`COLOUR_TOLERANCE`).
+    """
     tol_h, tol_s = COLOUR_TOLERANCE
     excess = np.maximum(0.0, np.abs(np.array([dh / tol_h, ds / tol_s], float)) - COLOUR_HOLD_FROM)
     return math.sqrt(COLOUR_HOLD_WEIGHT) * excess
@@ -161,55 +164,9 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
         if not spec:
             continue
         name, _, bounds = spec.partition("=")
-        try:
-            names = paths.expand(name.strip(), data)
-            for path in names:
-                paths.split(path)
-        except paths.PathError as exc:
-            raise FitError(f"--free {exc}" if name.strip() in paths.ALIASES else f"--free: {exc}") from None
-        for path in names:
-            # before the look-up: a run setting at its default is not written in the config
-            if path.startswith(("method.", "wavelengths.", "weave.")) or path == "seed":
-                raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
-            if path.startswith("structure."):
-                _check_structure_field(path, config)
-            if config.populations or path.startswith("populations"):
-                _check_population_field(name.strip(), path, config, data)
-            try:
-                start = paths.get(data, path)
-            except KeyError:
-                if path in STRUCTURE_FIELDS:   # a defaulted [structure] field: its default starts the fit
-                    start = getattr(config.structure, path.split(".", 1)[1])
-                    data["structure"][path.split(".", 1)[1]] = start
-                else:
-                    start = None
-            if start is None:
-                candidates = ", ".join(sorted(set(paths.numeric_leaves(data, "")) - {"seed"})[:12])
-                raise FitError(f"--free: unknown parameter {path!r}: the config {config.name} has no such "
-                               f"numeric field (fields: {candidates}, ...; aliases: volume_fraction, radius, "
-                               "rms_slope, dye, dye-peaks)") from None
-            if isinstance(start, bool) or not isinstance(start, (int, float)):
-                raise FitError(f"--free: {path!r} is not a number in the config (a table or text); "
-                               "free one numeric field")
-            start = float(start)
-            if bounds:
-                lo_text, sep, hi_text = bounds.partition(":")
-                try:
-                    low, high = float(lo_text), float(hi_text)
-                except ValueError:
-                    low = high = math.nan
-                if not sep or not (math.isfinite(low) and math.isfinite(high)) or not low < high:
-                    raise FitError(f"--free: {spec!r}: bounds must be LOW:HIGH with LOW < HIGH, got {bounds!r}")
-            else:
-                low, high = default_bounds(path, start)
-            if path in STRUCTURE_FIELDS or path in FINE_FIELDS:
-                lo_ok, hi_ok = STRUCTURE_FIELDS.get(path) or FINE_FIELDS[path]
-                if low < lo_ok or high > hi_ok:
-                    raise FitError(f"--free: {path} bounds [{low:g}, {high:g}] leave the field's valid range "
-                                   f"[{lo_ok:g}, {hi_ok:g}]; give bounds inside it")
-            if not low <= start <= high:
-                raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
-                               f"[{low:g}, {high:g}]; widen the bounds or change the config")
+        for path in _free_paths(name.strip(), data):
+            start = _free_start(name.strip(), path, config, data)
+            low, high = _free_bounds(spec, path, bounds, start)
             if any(p.name == path for p in out):
                 raise FitError(f"--free: {path} is named twice")
             out.append(FreeParameter(path, start, float(low), float(high), _kind(path)))
@@ -218,9 +175,74 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
     return _narrowed_shares(out, config)
 
 
+def _free_paths(name: str, data: dict) -> list[str]:
+    """The config paths that the ``--free`` name ``name`` stands for (an alias expanded), each checked."""
+    try:
+        names = paths.expand(name, data)
+        for path in names:
+            paths.split(path)
+    except paths.PathError as exc:
+        raise FitError(f"--free {exc}" if name in paths.ALIASES else f"--free: {exc}") from None
+    return names
+
+
+def _free_start(name: str, path: str, config: SimulationConfig, data: dict) -> float:
+    """The start value of the free ``path``: the config's number there (a defaulted structure field: its default)."""
+    # before the look-up: a run setting at its default is not written in the config
+    if path.startswith(("method.", "wavelengths.", "weave.")) or path == "seed":
+        raise FitError(f"--free: {path!r} is a run setting, not an optical parameter")
+    if path.startswith("structure."):
+        _check_structure_field(path, config)
+    if config.populations or path.startswith("populations"):
+        _check_population_field(name, path, config, data)
+    try:
+        start = paths.get(data, path)
+    except KeyError:
+        if path in STRUCTURE_FIELDS:   # a defaulted [structure] field: its default starts the fit
+            start = getattr(config.structure, path.split(".", 1)[1])
+            data["structure"][path.split(".", 1)[1]] = start
+        else:
+            start = None
+    if start is None:
+        candidates = ", ".join(sorted(set(paths.numeric_leaves(data, "")) - {"seed"})[:12])
+        raise FitError(f"--free: unknown parameter {path!r}: the config {config.name} has no such "
+                       f"numeric field (fields: {candidates}, ...; aliases: volume_fraction, radius, "
+                       "rms_slope, dye, dye-peaks)") from None
+    if isinstance(start, bool) or not isinstance(start, (int, float)):
+        raise FitError(f"--free: {path!r} is not a number in the config (a table or text); "
+                       "free one numeric field")
+    return float(start)
+
+
+def _free_bounds(spec: str, path: str, bounds: str, start: float) -> tuple[float, float]:
+    """``(low, high)`` of the free ``path``: ``LOW:HIGH`` as given (or the defaults), inside the field's range."""
+    if bounds:
+        lo_text, sep, hi_text = bounds.partition(":")
+        try:
+            low, high = float(lo_text), float(hi_text)
+        except ValueError:
+            low = high = math.nan
+        if not sep or not (math.isfinite(low) and math.isfinite(high)) or not low < high:
+            raise FitError(f"--free: {spec!r}: bounds must be LOW:HIGH with LOW < HIGH, got {bounds!r}")
+    else:
+        low, high = default_bounds(path, start)
+    if path in STRUCTURE_FIELDS or path in FINE_FIELDS:
+        lo_ok, hi_ok = STRUCTURE_FIELDS.get(path) or FINE_FIELDS[path]
+        if low < lo_ok or high > hi_ok:
+            raise FitError(f"--free: {path} bounds [{low:g}, {high:g}] leave the field's valid range "
+                           f"[{lo_ok:g}, {hi_ok:g}]; give bounds inside it")
+    if not low <= start <= high:
+        raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
+                       f"[{low:g}, {high:g}]; widen the bounds or change the config")
+    return low, high
+
+
 def _check_population_field(name: str, path: str, config: SimulationConfig, data: dict) -> None:
-    """A free path of a blend: a population's dye, share or dye depth (nothing else of a population is freed: its
-    scattering is the config's); the config's own dye only while some population takes it."""
+    """A free path of a blend.
+
+    A population's dye, share or dye depth (nothing else of a population is freed: its scattering is the config's);
+    the config's own dye only while some population takes it.
+    """
     pops = config.populations or ()
     kind = _kind(path)
     if kind == "dye" and path.startswith("fiber.dye"):
@@ -233,7 +255,7 @@ def _check_population_field(name: str, path: str, config: SimulationConfig, data
     if not m:
         # a field of the config's fiber that a population overrides would move the others only
         table, _, field = path.partition(".")
-        for item, p in zip(data.get("populations") or [], pops):
+        for item, p in zip(data.get("populations") or [], pops, strict=True):
             own = item.get(table) if isinstance(item, dict) else None
             if isinstance(own, dict) and (table == "particles" or field.split(".")[0] in own):
                 raise FitError(f"--free {name}: population {p.name!r} sets its own {table}"
@@ -262,8 +284,11 @@ def _check_population_field(name: str, path: str, config: SimulationConfig, data
 
 
 def _narrowed_shares(free: list[FreeParameter], config: SimulationConfig) -> list[FreeParameter]:
-    """The free shares checked and their default upper bounds narrowed (:func:`shares_at`): at least one population's
-    share stays out of ``--free`` (it takes the remainder), and the free shares' upper bounds add up to below 1."""
+    """The free shares checked and their default upper bounds narrowed (:func:`shares_at`).
+
+    At least one population's share stays out of ``--free`` (it takes the remainder), and the free shares' upper
+    bounds add up to below 1.
+    """
     shares = [p for p in free if p.kind == "share"]
     if not shares:
         return free
@@ -292,11 +317,14 @@ def _narrowed_shares(free: list[FreeParameter], config: SimulationConfig) -> lis
 
 def shares_at(config: SimulationConfig, free: list[FreeParameter] | tuple[FreeParameter, ...],
               x: np.ndarray) -> dict[int, float]:
-    """The shares of a blend's populations ``{index: share}`` at the free values ``x``: a free share is its value;
-    the populations whose share is not free take the remainder ``1 - sum(free shares)`` in proportion to their
-    shares in the config (with two populations, the one free share moves both). Empty when no share is free."""
+    """The shares of a blend's populations ``{index: share}`` at the free values ``x``.
+
+    A free share is its value; the populations whose share is not free take the remainder ``1 - sum(free shares)``
+    in proportion to their shares in the config (with two populations, the one free share moves both). Empty when no
+    share is free.
+    """
     pops = config.populations or ()
-    free_k = {int(m.group(1)): float(v) for p, v in zip(free, x) if (m := _POP_SHARE.match(p.name))}
+    free_k = {int(m.group(1)): float(v) for p, v in zip(free, x, strict=True) if (m := _POP_SHARE.match(p.name))}
     if not free_k:
         return {}
     rest = 1.0 - sum(free_k.values())
@@ -328,6 +356,7 @@ def _check_structure_field(path: str, config: SimulationConfig) -> None:
 
 
 def model_geometries(measured: Dataset) -> pd.DataFrame:
+    """The geometries the model is evaluated at: exactly the measured ones."""
     # exactly the measured geometries: compare then estimates the model's normal/normal value from
     # the same neighbours as the measurement's, so the estimate's own bias cancels in k(lambda)
     # (the model's exact normal value against an estimated measured one biased the fit)
@@ -425,6 +454,7 @@ class FitSpec:
 
     @property
     def names(self) -> list[str]:
+        """The free parameters' names, in order."""
         return [p.name for p in self.free]
 
 
@@ -482,8 +512,11 @@ SHARED_FIELDS = (("fiber.radius_um", "radius_um"), ("fiber.n_host", "n_host"), (
 
 
 def _check_blend(config: SimulationConfig) -> None:
-    """A blend is fitted when its populations differ in dye and share only: one walk of the fiber's scattering serves
-    them all (each population's dye read from the same absorption table). Otherwise one line naming the field."""
+    """A blend is fitted when its populations differ in dye and share only.
+
+    One walk of the fiber's scattering serves them all (each population's dye read from the same absorption table).
+    Otherwise one line naming the field.
+    """
     pops = config.populations or ()
     for p in pops[1:]:
         for label, attr in SHARED_FIELDS:
@@ -501,8 +534,10 @@ def _file(config: SimulationConfig) -> str:
 
 def _check_dye_placement(config: SimulationConfig, free: list[FreeParameter] | tuple[FreeParameter, ...],
                          method: str) -> None:
-    """The fit's absorption tables hold a dye spread through the fiber: a ring or core dye (``dye_profile``), and
-    its depth, are refused with what to do."""
+    """The fit's absorption tables hold a dye spread through the fiber.
+
+    A ring or core dye (``dye_profile``), and its depth, are refused with what to do.
+    """
     depth = [p.name for p in free if p.kind == "placement"]
     if depth:
         raise FitError(f"--free {depth[0]}: the {method} fit reads every dye from absorption tables of a dye spread "
@@ -516,10 +551,12 @@ def _check_dye_placement(config: SimulationConfig, free: list[FreeParameter] | t
 
 
 def _without_grazing(measured: Dataset, notes: list[str]) -> Dataset:
-    """The grazing rule of ``gonio import`` (:data:`gonio.data.formats.GRAZING_DEG`): rows at
-    ``theta_i >= 89`` deg are left out of the fit with a note (a file imported with
-    ``--keep-grazing`` keeps them; no fabric model is meant for them: the projected area
-    vanishes, Cook-Torrance leaves its domain); a measurement with nothing else is refused."""
+    """The grazing rule of ``gonio import`` (:data:`gonio.data.formats.GRAZING_DEG`).
+
+    Rows at ``theta_i >= 89`` deg are left out of the fit with a note (a file imported with ``--keep-grazing`` keeps
+    them; no fabric model is meant for them: the projected area vanishes, Cook-Torrance leaves its domain); a
+    measurement with nothing else is refused.
+    """
     t = measured.table
     grazing = t["theta_i"].to_numpy(float) >= GRAZING_DEG
     if not grazing.any():

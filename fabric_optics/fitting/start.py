@@ -55,8 +55,11 @@ _KNOT = re.compile(r"^(?:populations\[(\d+)\]\.)?fiber\.dye\.log10_per_um\[(\d+)
 
 
 def knots_config(config: SimulationConfig, wavelengths_nm, count: int = DEFAULT_KNOTS) -> SimulationConfig:
-    """``config`` with its dye replaced by ``count`` knots spanning ``wavelengths_nm``, sampled from
-    its present dye (clipped to [1e-4, 3] /um; no dye: 1e-3 /um, cellulose's baseline)."""
+    """``config`` with its dye replaced by ``count`` knots spanning ``wavelengths_nm``.
+
+    The knots are sampled from its present dye (clipped to [1e-4, 3] /um; no dye: 1e-3 /um,
+    cellulose's baseline).
+    """
     wl = np.asarray(wavelengths_nm, float)
     knots = np.linspace(float(wl.min()), float(wl.max()), count)
 
@@ -68,20 +71,24 @@ def knots_config(config: SimulationConfig, wavelengths_nm, count: int = DEFAULT_
     doc = tomllib.loads(config.text)
     doc.setdefault("fiber", {})["dye"] = as_knots(config.dye)
     # a blend: each population its own knots, sampled from its dye (its own, or the config's it took)
-    for item, pop in zip(doc.get("populations") or [], config.populations or ()):
+    for item, pop in zip(doc.get("populations") or [], config.populations or (), strict=True):
         item.setdefault("fiber", {})["dye"] = as_knots(pop.dye)
     return parse_config(toml_dumps(doc), f"{config.name}.toml", source=config.source)
 
 
 def knot_indices(names: list[str]) -> dict[int, int]:
-    """``{free-parameter index: knot index}`` of the free dye knots among ``names`` (the config's and the
-    populations')."""
+    """``{free-parameter index: knot index}`` of the free dye knots among ``names``.
+
+    The knots of the config's dye and of the populations' dyes.
+    """
     return {i: k for i, (_, k) in knot_owners(names).items()}
 
 
 def knot_owners(names: list[str]) -> dict[int, tuple[int | None, int]]:
-    """``{free-parameter index: (population, knot index)}`` of the free dye knots among ``names``; population None
-    for the config's ``[fiber.dye]``, ``k`` for ``populations[k]``'s own."""
+    """``{free-parameter index: (population, knot index)}`` of the free dye knots among ``names``.
+
+    Population None for the config's ``[fiber.dye]``, ``k`` for ``populations[k]``'s own.
+    """
     out: dict[int, tuple[int | None, int]] = {}
     for i, name in enumerate(names):
         m = _KNOT.match(name)
@@ -179,10 +186,13 @@ def inverted_start(problem, x: np.ndarray) -> tuple[np.ndarray, str]:
 
 
 def _inverted_blend(problem, x: np.ndarray, config) -> tuple[np.ndarray, str]:
-    """The colour start of a blend: every free knot of every population moved by ONE offset per knot ``delta``
-    (log10), solved so that the share-weighted mix has the measured colour (the residual of the module docstring
-    with the mix in place of one fiber; second differences of ``delta``). The populations keep their differences
-    from each other (what sets their share apart); the offset gives the mix the measured colour."""
+    """The colour start of a blend.
+
+    Every free knot of every population moved by ONE offset per knot ``delta`` (log10), solved so that the
+    share-weighted mix has the measured colour (the residual of the module docstring with the mix in place of one
+    fiber; second differences of ``delta``). The populations keep their differences from each other (what sets their
+    share apart); the offset gives the mix the measured colour.
+    """
     owners = knot_owners([p.name for p in problem.free])
     pops = config.population_configs()
     free_pops = sorted({k for k, _ in owners.values() if k is not None})
@@ -228,7 +238,7 @@ def _inverted_blend(problem, x: np.ndarray, config) -> tuple[np.ndarray, str]:
 
     def residual(delta: np.ndarray) -> np.ndarray:
         mix = np.zeros(wl.size)
-        for share, vals in zip(shares, shifted(delta)):
+        for share, vals in zip(shares, shifted(delta), strict=True):
             xl = np.log(knots_curve(knots_nm, vals, wl) + NU_0)
             mix += share * np.exp([np.interp(xl[l], xg, logB[:, l]) for l in range(wl.size)])
         d = np.log(np.maximum(M @ mix, 1e-12)) - log_m

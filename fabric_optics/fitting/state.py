@@ -51,8 +51,8 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from gonio.data.dataset import atomic_write
 from fabric_optics.fitting.errors import FitError
+from gonio.data.dataset import atomic_write
 from simulate.montecarlo.accuracy import BATCH
 
 __all__ = ["WALKS_DIR", "STATE_NAME", "MC_STATE", "MC_RUNS_DIR", "MCRun", "MCState", "load_state", "save_state",
@@ -95,7 +95,8 @@ def refuse_file(path: Path, what: str) -> NoReturn:
 
 def read_npz(path: Path, arrays: dict[str, tuple[str, int | None]], *,
              max_bytes: int = MAX_RUN_BYTES) -> dict[str, np.ndarray] | None:
-    """The arrays of the checkpoint ``path`` (``np.savez``), checked before anything is decompressed or loaded;
+    """The arrays of the checkpoint ``path`` (``np.savez``), checked before anything is decompressed or loaded.
+
     None when there is no such file.
 
     ``arrays``: name -> ``(dtype kind, ndim)`` (kind ``"f"`` float64, ``"i"`` int64; ndim None: any). Refused with
@@ -103,7 +104,8 @@ def read_npz(path: Path, arrays: dict[str, tuple[str, int | None]], *,
     more than ``max_bytes``, not a zip of exactly these ``.npy`` members, a member that would expand beyond
     :data:`MAX_EXPANSION` times its stored size or ``max_bytes`` (a deflate bomb), a member of another dtype or
     number of dimensions (read from its header, before its data), a truncated or corrupt file, a value not finite.
-    Pickled objects are never loaded (``allow_pickle=False``)."""
+    Pickled objects are never loaded (``allow_pickle=False``).
+    """
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
@@ -167,9 +169,11 @@ def write_failed(path: Path, exc: OSError) -> str:
 
 
 def write_json_atomic(path: Path, doc: dict) -> None:
-    """``doc`` as JSON at ``path``, written by the toolkit's one atomic writer
-    (:func:`gonio.data.dataset.atomic_write`: a temporary file, fsynced, the output's claim checked, renamed). A
-    failed write (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.errors.FitError`."""
+    """Write ``doc`` as JSON at ``path`` with the toolkit's one atomic writer.
+
+    :func:`gonio.data.dataset.atomic_write`: a temporary file, fsynced, the output's claim checked, renamed. A
+    failed write (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.errors.FitError`.
+    """
     try:
         atomic_write(path, json.dumps(doc, indent=1).encode("utf-8"))
     except OSError as exc:
@@ -177,6 +181,7 @@ def write_json_atomic(path: Path, doc: dict) -> None:
 
 
 def refuse(path: Path, what: str) -> None:
+    """Raise the ``--resume`` refusal naming ``path`` and what is wrong with it."""
     raise FitError(f"--resume: {path}: {what}; delete the file or run without --resume to start afresh")
 
 
@@ -194,8 +199,10 @@ def _depth(doc: Any, limit: int) -> int:
 
 
 def read_state_json(path: Path) -> dict | None:
-    """The JSON object in the state file ``path`` (module docstring), None if there is none; refuses
-    anything else with :class:`~fabric_optics.fitting.problem.FitError` naming the file."""
+    """The JSON object in the state file ``path`` (module docstring), None if there is none.
+
+    Refuses anything else with :class:`~fabric_optics.fitting.problem.FitError` naming the file.
+    """
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
@@ -237,8 +244,10 @@ def read_state_json(path: Path) -> dict | None:
 
 def check_number(path: Path, field: str, value: Any, *, low: float = -math.inf, high: float = math.inf,
                  integer: bool = False, allow_nan: bool = False) -> float:
-    """``value`` as a number in ``[low, high]`` (finite unless ``allow_nan`` lets NaN through), or refuse it
-    naming ``path`` and ``field``."""
+    """``value`` as a number in ``[low, high]``, or refuse it naming ``path`` and ``field``.
+
+    The number is finite unless ``allow_nan`` lets NaN through.
+    """
     kind = "an integer" if integer else "a number"
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
         refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not {kind}")
@@ -255,24 +264,29 @@ def check_number(path: Path, field: str, value: Any, *, low: float = -math.inf, 
 
 
 def check_point(path: Path, field: str, value: Any, names: list[str], low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """``value`` as a point of the free parameters ``names``: one finite number each, inside its bounds
-    (not clamped: a point outside is refused naming ``path``, ``field`` and the parameter)."""
+    """``value`` as a point of the free parameters ``names``.
+
+    One finite number each, inside its bounds (not clamped: a point outside is refused naming ``path``, ``field``
+    and the parameter).
+    """
     if not isinstance(value, list):
         refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not a list of {len(names)} number(s)")
     if len(value) != len(names):
         refuse(path, f"field {field!r} has {len(value)} entries; this fit has {len(names)} free parameter(s) "
                       f"({', '.join(names)})")
     x = np.empty(len(names))
-    for j, (v, name, lo, hi) in enumerate(zip(value, names, low, high)):
+    for j, (v, name, lo, hi) in enumerate(zip(value, names, low, high, strict=True)):
         x[j] = check_number(path, f"{field}[{j}] ({name})", v, low=float(lo), high=float(hi))
     return x
 
 
 def check_photons(path: Path, field: str, value: Any) -> dict | None:
-    """The recorded photons of a state: None, or an object of run keys to photon counts. A run's (key ``d:g``) is
-    whole batches (:data:`simulate.montecarlo.accuracy.BATCH`: every round of the accuracy control is) below
-    :data:`MAX_RUN_PHOTONS`; the structured walk's photons per row (``per_row``) at least 1 and below it, its
-    ``exit_tables`` total at most 10^15."""
+    """The recorded photons of a state: None, or an object of run keys to photon counts.
+
+    A run's (key ``d:g``) is whole batches (:data:`simulate.montecarlo.accuracy.BATCH`: every round of the accuracy
+    control is) below :data:`MAX_RUN_PHOTONS`; the structured walk's photons per row (``per_row``) at least 1 and
+    below it, its ``exit_tables`` total at most 10^15.
+    """
     if value is None:
         return None
     if not isinstance(value, dict):
@@ -321,6 +335,7 @@ class WalkCheckpoint:
         return z["value"], z["u"], photons, float(z["scatterings"])
 
     def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
+        """Store a walk's values under ``key`` (atomically: an interrupt leaves the old file or the new one)."""
         path = self._path(key)
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
@@ -339,8 +354,11 @@ class WalkCheckpoint:
 
 
 def load_state(out: Path, problem: Any) -> dict | None:
-    """The saved state of an interrupted fit of the same problem, checked field by field
-    (:mod:`fabric_optics.fitting.state`), or raise FitError naming the file and the field."""
+    """The saved state of an interrupted fit of the same problem, checked field by field.
+
+    The checks are this module's (:mod:`fabric_optics.fitting.state`); a state that fails one raises
+    FitError naming the file and the field.
+    """
     path = out / STATE_NAME
     state = read_state_json(path)
     if state is None:
@@ -394,6 +412,7 @@ class MCRun:
     ds: float
 
     def record(self) -> dict:
+        """The run as the state file records it."""
         return {"x": self.x.tolist(), "seconds": self.seconds, "rays": self.rays, "rel_err": self.rel_err,
                 "objective": self.objective, "nrmse": self.nrmse, "dh": self.dh, "ds": self.ds}
 
@@ -423,8 +442,11 @@ def _check_record(path: Path, field: str, rec: Any, problem: Any, reach: float =
 
 
 def _check_iterations(path: Path, its: Any, problem: Any) -> None:
-    """``mc-state.json``'s ``iterations`` (:mod:`fabric_optics.fitting.state`: refused, naming the field, unless every
-    run and proposal is one of this fit's)."""
+    """``mc-state.json``'s ``iterations``, checked against this fit.
+
+    Refused, naming the field, unless every run and proposal is one of this fit's
+    (:mod:`fabric_optics.fitting.state`).
+    """
     if not isinstance(its, list):
         refuse(path, f"field 'iterations' is {json.dumps(its)[:40]}, not a list of runs")
     if len(its) > MAX_STATE_RUNS:
@@ -472,8 +494,10 @@ class MCState:
         self.iterations: list[dict] = []
 
     def load(self, problem: Any | None = None) -> None:
-        """The finished runs of ``DIR/mc-state.json``, checked field by field against ``problem``'s free
-        parameters (:mod:`fabric_optics.fitting.state`: a malformed or out-of-bounds state is refused, not repaired)."""
+        """The finished runs of ``DIR/mc-state.json``, checked field by field against ``problem``'s free parameters.
+
+        A malformed or out-of-bounds state is refused, not repaired (:mod:`fabric_optics.fitting.state`).
+        """
         assert self.out is not None
         path = self.out / MC_STATE
         doc = read_state_json(path)
@@ -489,6 +513,7 @@ class MCState:
         self.iterations = list(its or [])
 
     def save(self) -> None:
+        """Write ``mc-state.json`` (atomically) when the fit has an output folder."""
         if self.out is not None:
             write_json_atomic(self.out / MC_STATE, {"schema": MC_SCHEMA, "identity": self.identity,
                                                    "iterations": self.iterations})
@@ -503,8 +528,11 @@ class MCState:
         return self._load(rec)
 
     def _load(self, rec: dict) -> MCRun | None:
-        """The run ``rec`` names, or None (it is run again) when its file is missing; a file that is there but not
-        a run of this fit (:func:`read_npz`; two finite tables of this fit's shape) is refused naming it."""
+        """The run ``rec`` names, or None (it is run again) when its file is missing.
+
+        A file that is there but not a run of this fit (:func:`read_npz`; two finite tables of this fit's shape)
+        is refused naming it.
+        """
         path = self.out / MC_RUNS_DIR / rec["file"]  # type: ignore[operator]
         z = read_npz(path, {"x": ("f", 1), "beta": ("f", 2), "u_beta": ("f", 2)})
         if z is None:
@@ -531,6 +559,7 @@ class MCState:
         return rec
 
     def put_run(self, k: int, run: MCRun) -> None:
+        """Record run ``k`` (dropping any later one) and save the state."""
         del self.iterations[k:]
         self.iterations.append(self._store(f"run-{k}", run))
         self.save()
@@ -545,13 +574,16 @@ class MCState:
         return self._load(rec)
 
     def put_fine_run(self, k: int, j: int, run: MCRun) -> None:
+        """Record the trend run ``j`` of iteration ``k`` and save the state."""
         self.iterations[k].setdefault("fine_runs", {})[str(j)] = self._store(f"run-{k}-d{j}", run)
         self.save()
 
     def proposal(self, k: int) -> dict | None:
+        """The proposal recorded for iteration ``k``, None when there is none."""
         return self.iterations[k].get("proposal") if k < len(self.iterations) else None
 
     def put_proposal(self, k: int, proposal: dict) -> None:
+        """Record the proposal of iteration ``k`` and save the state."""
         self.iterations[k]["proposal"] = proposal
         self.save()
 

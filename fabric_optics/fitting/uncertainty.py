@@ -47,9 +47,12 @@ DATA_RULE = {"data": "u_beta", "rule": "the measurement's u_beta propagated by n
 
 
 def jacobian(problem: Any, x: np.ndarray, r0: np.ndarray, fun: Callable) -> np.ndarray:
-    """d r / d x (physical units) by finite differences: forward, :data:`WALK_STEP` of the value, for walked
-    parameters (common random numbers reduce but do not remove their noise); central, :data:`CHEAP_STEP` of the
-    bound range, for the dye and surface parameters (table reads: smooth)."""
+    """D r / d x (physical units) by finite differences.
+
+    Forward, :data:`WALK_STEP` of the value, for walked parameters (common random numbers reduce but do not remove
+    their noise); central, :data:`CHEAP_STEP` of the bound range, for the dye and surface parameters (table reads:
+    smooth).
+    """
     J = np.zeros((r0.size, x.size))
     for j, p in enumerate(problem.free):
         span = p.high - p.low
@@ -146,7 +149,7 @@ def uncertainty_parts(cov_data: np.ndarray, cov_mc: np.ndarray) -> tuple[np.ndar
 def at_bounds(problem: Any, x: np.ndarray) -> list[str]:
     """A parameter within 10^-3 of its bound range from a bound: the optimum may lie beyond."""
     notes = []
-    for p, v in zip(problem.free, x):
+    for p, v in zip(problem.free, x, strict=True):
         tol = _AT_BOUND * (p.high - p.low)
         side = "lower" if v - p.low <= tol else "upper" if p.high - v <= tol else ""
         if side:
@@ -156,8 +159,11 @@ def at_bounds(problem: Any, x: np.ndarray) -> list[str]:
 
 
 def identifiability(problem: Any, J: np.ndarray, u: np.ndarray, span: np.ndarray | None = None) -> list[str]:
-    """A flat direction of the scaled Jacobian (singular value below 10^-3 of the largest: the direction is named)
-    or an uncertainty above half the bound range ``span`` (default the free parameters' bounds)."""
+    """A flat direction of the scaled Jacobian, or an uncertainty above half the bound range ``span``.
+
+    A direction is flat when its singular value is below 10^-3 of the largest (the direction is named);
+    ``span`` is by default the free parameters' bounds.
+    """
     if span is None:
         span = problem.high - problem.low
     notes = []
@@ -167,11 +173,11 @@ def identifiability(problem: Any, J: np.ndarray, u: np.ndarray, span: np.ndarray
     for k in range(s.size):
         if s[0] == 0 or s[k] < _FLAT * s[0]:
             v = vt[k] / np.max(np.abs(vt[k]))
-            terms = " ".join(f"{c:+.2f}*{n}" for c, n in zip(v, names) if abs(c) > 0.2)
+            terms = " ".join(f"{c:+.2f}*{n}" for c, n in zip(v, names, strict=True) if abs(c) > 0.2)
             notes.append(f"not identifiable: the objective is flat along {terms} (scaled singular value "
                          f"{s[k] / s[0] if s[0] else 0:.1e} of the largest)")
-            flagged.update(n for c, n in zip(v, names) if abs(c) > 0.2)
-    for name, uu, sp in zip(names, u, span):
+            flagged.update(n for c, n in zip(v, names, strict=True) if abs(c) > 0.2)
+    for name, uu, sp in zip(names, u, span, strict=True):
         if name not in flagged and math.isfinite(uu) and uu > 0.5 * sp:
             notes.append(f"not identifiable: {name} has an uncertainty ({uu:.3g}) above half its bound range "
                          f"({sp:.3g})")
@@ -191,8 +197,10 @@ RESIDUAL_RULE = ("no measurement uncertainty (u_beta is 0): the data part of u i
 
 
 def residual_covariance(J: np.ndarray, r: np.ndarray, unweighted: int = 0) -> tuple[np.ndarray, dict]:
-    """``(cov, rule)``: the parameters' covariance ``s^2 (J^T J)^+`` with ``s^2 = SSR/(n - p)`` from the
-    residual ``r`` at the solution (the usual least-squares rule for data without stated uncertainty).
+    """``(cov, rule)``: the parameters' covariance ``s^2 (J^T J)^+``, with ``s^2 = SSR/(n - p)``.
+
+    ``SSR`` is from the residual ``r`` at the solution: the usual least-squares rule for data without
+    stated uncertainty.
 
     ``n`` counts the residuals that carry weight (``unweighted``: the colour terms at ``--colour-weight 0``), ``p``
     the free parameters. No degree of freedom left (``n <= p``): the covariance is NaN (no number is printed).
@@ -224,13 +232,15 @@ RESIDUAL_DRAWS_RULE = ("no measurement uncertainty (u_beta is 0): one noise leve
 
 def residual_scaled_draws(problem: Any, x: np.ndarray, r0: np.ndarray, J: np.ndarray, rng: np.random.Generator,
                           draws: int, residuals: Callable | None = None) -> tuple[np.ndarray, dict]:
-    """``(cov, rule)``: the data part of the parameters' covariance for a measurement without ``u_beta``
-    (:data:`RESIDUAL_DRAWS_RULE`). Noise draws of 1 % of the mean ``|beta|`` on every value go through the whole
+    """``(cov, rule)``: the data part of the parameters' covariance for a measurement without ``u_beta``.
+
+    The rule is :data:`RESIDUAL_DRAWS_RULE`. Noise draws of 1 % of the mean ``|beta|`` on every value go through the whole
     objective (``residuals``, default the problem's): their parameter shifts ``-J^+ dr`` and the part of ``dr`` the
     re-fit cannot absorb, ``(I - J J^+) dr``, whose mean square calibrates ``SSR`` into ``sigma^2``. The plain rule
     ``s^2 (J^T J)^-1`` (:func:`residual_covariance`) treats the residuals as independent; the per-wavelength
     normalisation at the normal makes them correlated, and on synthetic data with known noise it gave a third to a
-    half of the true u (tests/fabric_optics/fitting/test_fit.py)."""
+    half of the true u (tests/fabric_optics/fitting/test_fit.py).
+    """
     fn = residuals or problem.residuals
     meas = problem.measured
     p = J.shape[1]
@@ -269,8 +279,11 @@ def unweighted_rows(problem: Any) -> int:
 
 
 def u_status(problem: Any, bound_notes: list[str], ident_notes: list[str]) -> list[str]:
-    """Per free parameter: ``""`` (its ``u`` is a number), ``"at its lower bound"``/``"at its upper bound"`` or
-    ``"not identifiable"`` -- reported as such, not with a number (``u`` null in fit.json)."""
+    """Per free parameter.
+
+    ``""`` (its ``u`` is a number), ``"at its lower bound"``/``"at its upper bound"`` or ``"not identifiable"`` --
+    reported as such, not with a number (``u`` null in fit.json).
+    """
     out = []
     for p in problem.free:
         status = ""

@@ -30,8 +30,10 @@ def colour_off(dh: float, ds: float) -> float:
 
 
 def colour_distance(problem: Any, x: np.ndarray) -> float:
-    """``max(|dh|/tol_h, |ds|/tol_s)`` of the model at ``x`` (:data:`COLOUR_TOLERANCE`): <= 1 within the
-    tolerance; 0 for a measurement without colour."""
+    """``max(|dh|/tol_h, |ds|/tol_s)`` of the model at ``x`` (:data:`COLOUR_TOLERANCE`).
+
+    <= 1 within the tolerance; 0 for a measurement without colour.
+    """
     fig = problem.residual_model().evaluate(problem.model(x)[0])
     if not fig.has_colour:
         return 0.0
@@ -40,8 +42,11 @@ def colour_distance(problem: Any, x: np.ndarray) -> float:
 
 
 def colour_left_off(problem: Any, dh: float, ds: float, method: str | None = None) -> str:
-    """One line when the colour ``(dh, ds)`` is further from the measured than :data:`COLOUR_TOLERANCE`
-    (``""`` within it, or without a colour), with what helps for this fit's free parameters and method."""
+    """One line when the colour ``(dh, ds)`` is further from the measured than :data:`COLOUR_TOLERANCE`.
+
+    The line says what helps for this fit's free parameters and method; ``""`` within the tolerance, or
+    without a colour.
+    """
     if not (math.isfinite(dh) and math.isfinite(ds)):
         return ""
     dh_max, ds_max = COLOUR_TOLERANCE
@@ -92,8 +97,10 @@ def colour_left_off_at(problem: Any, x: np.ndarray) -> list[str]:
 
 
 def uncertainty_text(u: float, status: str = "") -> str:
-    """``+- u`` for a parameter whose uncertainty is a number; its status (at a bound, not identifiable) or
-    ``(no uncertainty)`` otherwise -- never a number for those."""
+    """``+- u`` for a parameter whose uncertainty is a number.
+
+    Its status (at a bound, not identifiable) or ``(no uncertainty)`` otherwise -- never a number for those.
+    """
     if status:
         return f"({status}: no uncertainty)"
     if not math.isfinite(float(u)):

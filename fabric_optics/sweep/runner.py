@@ -77,14 +77,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from gonio.acquisition.plan import Plan
-from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta
-from gonio.data.outputs import occupied
-from simulate.config import SimulationConfig
-from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
-from simulate.outdir import OutputError, recover_all, write_dataset_dir
-from simulate.provenance import jsonable, software_versions
-from simulate.virtual import fabric_dataset
 from fabric_optics.sweep.spec import (
     GENERATOR,
     LOCK_NAME,
@@ -99,9 +91,19 @@ from fabric_optics.sweep.spec import (
     SweepSpec,
     SweepTask,
     parse_params,
-    point_dir as _point_dir,
     task_seed,
 )
+from fabric_optics.sweep.spec import (
+    point_dir as _point_dir,
+)
+from gonio.acquisition.plan import Plan
+from gonio.data.dataset import COLUMNS, Dataset, atomic_write, make_dataset, new_meta
+from gonio.data.outputs import occupied
+from simulate.config import SimulationConfig
+from simulate.montecarlo.accuracy import REL_ERR_DEFINITION, relative_error
+from simulate.outdir import OutputError, recover_all, write_dataset_dir
+from simulate.provenance import jsonable, software_versions
+from simulate.virtual import fabric_dataset
 
 __all__ = [
     "GENERATOR",
@@ -151,8 +153,9 @@ class TaskArgs:
 
 
 def evaluate_task(args: TaskArgs) -> dict:
-    """Evaluate one point's model at one wavelength (or all: ``wavelength_nm`` None); returns
-    ``{"columns": {...}, "meta": {...}}``.
+    """Evaluate one point's model at one wavelength (or all: ``wavelength_nm`` None).
+
+    Returns ``{"columns": {...}, "meta": {...}}``.
 
     The plan is copied with only ``args.wavelength_nm`` (the dye is sampled exactly there).
     """
@@ -407,7 +410,7 @@ def _point_dataset(out: Path, spec: SweepSpec, point: SweepPoint, tasks: list[Sw
     photons = [p.get("photons") for p in provs]
     geometry = ["theta_i", "phi_i", "theta_o", "phi_o"]
     spectra = table.set_index(geometry + ["wavelength_nm"])[["beta", "u_beta"]].unstack("wavelength_nm")
-    values = {p.name: v for p, v in zip(spec.params, point.values)}
+    values = {p.name: v for p, v in zip(spec.params, point.values, strict=True)}
     assert spec.seed is not None   # the config's when not given (SweepSpec.__post_init__)
     prov = dict(first["provenance"])
     prov.pop("task", None)
@@ -422,7 +425,7 @@ def _point_dataset(out: Path, spec: SweepSpec, point: SweepPoint, tasks: list[Sw
         "photons": None if any(n is None for n in photons) else int(sum(photons)),
         "seconds": float(sum(p["task"]["seconds"] for p in provs)),
         "fiber_seconds": float(sum(p.get("fiber_seconds") or 0.0 for p in provs)),
-        "fiber_info": {_task_key(t): p.get("fiber_info") for t, p in zip(tasks, provs)},
+        "fiber_info": {_task_key(t): p.get("fiber_info") for t, p in zip(tasks, provs, strict=True)},
         "sweep": {"parameters": values, "paths": {p.name: p.path for p in spec.params}, "point": point.index,
                   "digest": spec.digest},
         "versions": software_versions(),
@@ -458,7 +461,7 @@ def assemble(out: Path, spec: SweepSpec, measured: Dataset | None = None) -> pd.
         tasks = by_point[point.index]
         n_done = sum(_task_path(out, t).is_file() for t in tasks)
         row: dict[str, Any] = {"point": point.index, "dir": point.dir}
-        row.update({p.name: v for p, v in zip(spec.params, point.values)})
+        row.update({p.name: v for p, v in zip(spec.params, point.values, strict=True)})
         row.update(status="complete" if n_done == len(tasks) else "incomplete", tasks_done=n_done,
                    tasks=len(tasks), seconds=math.nan, rel_err=math.nan)
         if measured is not None:

@@ -38,11 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
+from fabric_optics import paths as config_paths
+from fabric_optics.paths import toml_dumps
 from gonio.acquisition.plan import Plan
 from simulate.config import ConfigError, SimulationConfig, parse_config
 from simulate.virtual import FABRIC_METHODS
-from fabric_optics import paths as config_paths
-from fabric_optics.paths import toml_dumps
 
 __all__ = ["GENERATOR", "SCHEMA", "SWEEP_NAME", "SUMMARY_NAME", "TASKS_DIR", "POINTS_DIR", "LOCK_NAME",
            "SweepError", "SweepParameter", "parse_params", "SweepPoint", "SweepTask", "task_seed", "SweepSpec",
@@ -191,8 +191,11 @@ def point_dir(sweep_dir: str | Path, rel: object) -> Path:
 
 @dataclass(frozen=True)
 class SweepTask:
-    """One task: a point at one wavelength (``id`` names its file: ``p003_w0550``), or a point at all the
-    plan's wavelengths (``wavelength_nm`` None, ``p003``: the Monte Carlo's tasks, :meth:`SweepSpec.tasks`)."""
+    """One task of a sweep: a point at one wavelength, or a point at all the plan's wavelengths.
+
+    ``id`` names its file: ``p003_w0550``, or ``p003`` with ``wavelength_nm`` None (the Monte Carlo's
+    tasks, :meth:`SweepSpec.tasks`).
+    """
 
     point: SweepPoint
     wavelength_nm: float | None
@@ -200,6 +203,7 @@ class SweepTask:
 
     @property
     def id(self) -> str:
+        """The task's name, its file's stem: ``p003_w0550`` (a point at a wavelength) or ``p003``."""
         wl = self.wavelength_nm
         if wl is None:
             return f"p{self.point.index:03d}"
@@ -271,9 +275,9 @@ class SweepSpec:
                              "tasks (each point is a config and a dataset, each task a file): sweep fewer values")
         doc = tomllib.loads(self.config.text)
         for index, values in enumerate(itertools.product(*(p.values for p in self.params))):
-            label = ",".join(f"{p.name}={_value_text(v)}" for p, v in zip(self.params, values))
+            label = ",".join(f"{p.name}={_value_text(v)}" for p, v in zip(self.params, values, strict=True))
             point_doc = copy.deepcopy(doc)
-            for p, v in zip(self.params, values):
+            for p, v in zip(self.params, values, strict=True):
                 config_paths.set_value(point_doc, p.path, v)
             try:
                 cfg = parse_config(toml_dumps(point_doc), _config_path(self.config),
@@ -284,13 +288,16 @@ class SweepSpec:
 
     @property
     def wavelengths_nm(self) -> list[float]:
+        """The plan's wavelengths, in nm."""
         return [float(w) for w in self.plan.wavelengths_nm]
 
     @property
     def per_point(self) -> bool:
-        """One task per point (all wavelengths) instead of per (point, wavelength): the Monte Carlo
-        (``--method mc``), whose run shares its rays, felt or weave mesh and yarn tables across the
-        spectrum (one wavelength's task costs nearly what the whole spectrum costs)."""
+        """One task per point (all wavelengths) instead of per (point, wavelength).
+
+        The Monte Carlo (``--method mc``), whose run shares its rays, felt or weave mesh and yarn tables across
+        the spectrum (one wavelength's task costs nearly what the whole spectrum costs).
+        """
         return self.method == "mc"
 
     def tasks(self) -> list[SweepTask]:
@@ -326,8 +333,8 @@ class SweepSpec:
             "method": self.method,
             "parameters": [{"name": p.name, "path": p.path, "values": list(p.values)} for p in self.params],
             "points": [{"index": p.index, "dir": p.dir, "label": p.label,
-                        "values": {q.name: v for q, v in zip(self.params, p.values)}} for p in self.points],
+                        "values": {q.name: v for q, v in zip(self.params, p.values, strict=True)}} for p in self.points],
             "wavelengths_nm": self.wavelengths_nm,
             "tasks": len(self.tasks()),
-            "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+            "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         }
