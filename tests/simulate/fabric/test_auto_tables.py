@@ -269,3 +269,25 @@ def test_against_measures_a_tables_departures_from_another(tmp_path, capsys):
     method_errors.main(["--compare", str(paths[0]), str(paths[1]), "--json", str(tmp_path / "c.json")])
     assert "summation: departure +0.030 on average" in capsys.readouterr().out
     assert json.loads((tmp_path / "c.json").read_text())["summation"]["mean_z"] == pytest.approx(0.6)
+
+
+def test_a_woven_blend_has_no_study_and_auto_refuses_it_as_the_monte_carlo_does(tmp_path, capsys, caplog):
+    """The woven Monte Carlo traces one population, so no woven blend can be studied against it: its table is none
+    (the reason says a blend), and `simulate fabric --method auto` refuses it before any work, in one line."""
+    from fabric_optics.cli.simulate import main
+
+    text = (CONFIGS / "red-cotton.toml").read_text() + (
+        '\n[[populations]]\nname = "a"\nshare = 0.5\n[[populations]]\nname = "b"\nshare = 0.5\n'
+        '[populations.fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [0.02, 0.02]\n')
+    path = tmp_path / "woven-blend.toml"
+    path.write_text(text)
+    cfg = load_config(path)
+    assert auto.table_for(cfg) is None
+    with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
+        errors = auto.errors_for(cfg)
+    assert errors["geometries"] == [] and "a blend ([[populations]]) of [structure] kind = \"woven\"" in \
+        errors["provenance"]["reason"]
+    code = main(["fabric", str(path), "--method", "auto", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "the woven Monte Carlo takes one fiber population" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
