@@ -21,8 +21,10 @@ in their dye only (and its placement), and their :func:`dye_spread` is at most t
 (two fabrics side by side) where the Monte Carlo draws each fiber a path meets from the populations,
 so their error grows with how differently the populations absorb; a blend beyond the studied spread,
 of populations that differ in more than their dye, or of a kind with no blend study gets the Monte
-Carlo at every geometry, with one logged line saying why. Within a table, a geometry farther than ``MATCH_DEG`` from every studied one, or at
-another incidence, gets the Monte Carlo too. Each table is one fabric's: a sample far from it
+Carlo at every geometry, with one logged line saying why.
+
+Within a table, a geometry farther than ``MATCH_DEG`` from every studied one, or at another incidence,
+gets the Monte Carlo too. Each table is one fabric's: a sample far from it
 should regenerate its own (``python -m fabric_optics.bench.method_errors``) and pass it through
 ``choose(..., errors=...)``. The chosen table's provenance goes into the dataset's meta.
 """
