@@ -7,7 +7,10 @@ spectrum: the RMS over wavelengths of ``(model - MC) / max_lambda(MC)``, the sam
 :func:`errors_from_report` turns its report into the table that
 :func:`simulate.fabric.auto.choose` reads: one table per structure kind, ``simulate/configs/method-errors.json``
 (woven, red cotton) and ``simulate/configs/method-errors-felt.json`` (nonwoven, green felt), each made by
-``python -m fabric_optics.bench.method_errors --study NAME --out FILE`` (:data:`STUDIES`).
+``python -m fabric_optics.bench.method_errors --study NAME --out FILE`` (:data:`STUDIES`). A blend study
+(``populations``) traces its config with the study's ``[[populations]]`` appended (the green felt as two
+populations of different dyes): ``simulate/configs/method-errors-felt-blend.json``, which ``--method auto``
+reads for a felt blend within its :func:`simulate.fabric.auto.dye_spread` (recorded in the table).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import resource
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -23,17 +27,69 @@ import numpy as np
 
 from simulate.montecarlo.accuracy import relative_error
 
-__all__ = ["STUDIES", "run", "model_datasets", "frame", "departure", "errors_from_report", "auto_counts", "main"]
+__all__ = ["STUDIES", "run", "model_datasets", "frame", "departure", "errors_from_report", "auto_counts", "against",
+           "main"]
 
 
-#: the studies: config and plan (presets), the Monte Carlo's target, the table file under simulate/configs
-#: and the structure kind ``--method auto`` reads it for (:func:`simulate.fabric.auto.table_for`)
+#: the blend of the green felt whose body keeps the preset's colour: half with the dye's knots above 600 nm as
+#: clear as its green (a yellow-green fiber), half with those knots' absorption doubled (a blue-green fiber)
+_RED_CLEAR = """[[populations]]
+name = "red-clear"
+share = 0.5
+[populations.fiber.dye]
+curve = "knots"
+wavelength_nm = [390.0, 435.714, 481.429, 527.143, 572.857, 618.571, 664.286, 710.0]
+log10_per_um = [-0.7429, -0.06555, -1.6602, -2.02274, -1.98626, -2.0, -2.0, -2.0]
+"""
+BLEND_RED_X2 = _RED_CLEAR + """
+[[populations]]
+name = "red-x2"
+share = 0.5
+[populations.fiber.dye]
+curve = "knots"
+wavelength_nm = [390.0, 435.714, 481.429, 527.143, 572.857, 618.571, 664.286, 710.0]
+log10_per_um = [-0.7429, -0.06555, -1.6602, -2.02274, -1.98626, -1.28411, -1.36778, -1.50128]
+"""
+#: the same with the second population's red absorption x10 of the preset's (a body darker in red)
+BLEND_RED_X10 = _RED_CLEAR + """
+[[populations]]
+name = "red-x10"
+share = 0.5
+[populations.fiber.dye]
+curve = "knots"
+wavelength_nm = [390.0, 435.714, 481.429, 527.143, 572.857, 618.571, 664.286, 710.0]
+log10_per_um = [-0.7429, -0.06555, -1.6602, -2.02274, -1.98626, -0.58514, -0.66881, -0.80231]
+"""
+
+#: the studies: config and plan (presets; ``populations``: the ``[[populations]]`` appended to the config),
+#: the Monte Carlo's target, the table file under simulate/configs and the structure kind ``--method auto``
+#: reads it for (:func:`simulate.fabric.auto.table_for`; a blend's :data:`simulate.fabric.auto.BLEND_TABLES`)
 STUDIES: dict[str, dict[str, Any]] = {
     "red-cotton": {"config": "red-cotton", "plan": "red-cotton", "target": 0.01, "kind": "woven",
                    "file": "method-errors.json", "reference": "woven Monte Carlo"},
     "green-felt": {"config": "green-felt-mc", "plan": "green-felt", "target": 0.03, "kind": "nonwoven",
                    "file": "method-errors-felt.json", "reference": "felt Monte Carlo"},
+    "green-felt-blend": {"config": "green-felt-mc", "plan": "green-felt", "target": 0.03, "kind": "nonwoven",
+                         "populations": BLEND_RED_X2, "blend": "blend-red-x2",
+                         "file": "method-errors-felt-blend.json", "reference": "felt Monte Carlo of the blend"},
+    "green-felt-blend-x10": {"config": "green-felt-mc", "plan": "green-felt", "target": 0.03, "kind": "nonwoven",
+                             "populations": BLEND_RED_X10, "blend": "blend-red-x10", "file": None,
+                             "reference": "felt Monte Carlo of the blend"},
 }
+
+
+def blend_config(study: str, directory: str | Path) -> Path:
+    """The config a blend study traces, written into ``directory`` (the runs load it by path).
+
+    Its preset's text with the study's ``[[populations]]`` appended.
+    """
+    from importlib import resources
+
+    st = STUDIES[study]
+    text = resources.files("simulate.configs").joinpath(f"{st['config']}.toml").read_text()
+    path = Path(directory) / f"{st['config']}-{st['blend']}.toml"
+    path.write_text(text.rstrip("\n") + "\n\n" + st["populations"])
+    return path
 
 
 def model_datasets(config: str = "red-cotton", plan_name: str = "red-cotton") -> dict:
@@ -100,11 +156,14 @@ def errors_from_report(report: dict, study: str = "red-cotton") -> dict:
             rows.setdefault(key, {"theta_i": r["theta_i"], "theta_o": r["theta_o"], "rel_phi_o": r["rel_phi_o"],
                                   "mc_rel_se": r["mc_rel_se"]})[name] = r["departure"]
     st = STUDIES[study]
-    return {"provenance": {"command": "simulate bench", "study": study, "kind": st["kind"],
-                           "config": report.get("config", st["config"]),
-                           "plan": st["plan"], "reference": st["reference"],
-                           "target_rel_err": report.get("target", st["target"]),
-                           "machine": report.get("machine", {})},
+    prov = {"command": "simulate bench", "study": study, "kind": st["kind"],
+            "config": report.get("config", st["config"]),
+            "plan": st["plan"], "reference": st["reference"],
+            "target_rel_err": report.get("target", st["target"]),
+            "machine": report.get("machine", {})}
+    if "populations" in report:       # a blend study: what was appended, and how differently it absorbs
+        prov.update(blend=st.get("blend"), populations=report["populations"], dye_spread=report["dye_spread"])
+    return {"provenance": prov,
             "geometries": sorted(rows.values(), key=lambda r: (r["theta_i"], r["rel_phi_o"], r["theta_o"]))}
 
 
@@ -121,6 +180,41 @@ def auto_counts(errors: dict, targets: tuple[float, ...] = (0.01, 0.02, 0.05, 0.
         names, _ = choose(ti, [0.0] * len(g), to, po, t, errors=errors)
         out[str(t)] = {m: int((names == m).sum()) for m in ("classic", "summation", "mc")}
     return out
+
+
+def against(errors: dict, base: dict) -> dict:
+    """How a study's departures differ from another table's (``base``) at the geometries they share, per model.
+
+    The mean and median of ``departure - base departure``, the mean's standard error (from the two Monte Carlo
+    references' errors at each geometry, ``mc_rel_se``, independent runs), the mean of the per-geometry
+    differences in units of their own error (``z``; 0 for tables that differ by noise only) and how many
+    geometries differ by more than 3 of those errors.
+    """
+    key = ("theta_i", "theta_o", "rel_phi_o")
+    rows = {tuple(round(float(r[k]), 6) for k in key): r for r in base["geometries"]}
+    pairs = [(r, rows[k]) for r in errors["geometries"] if (k := tuple(round(float(r[c]), 6) for c in key)) in rows]
+    out: dict[str, Any] = {"geometries": len(pairs)}
+    for m in ("summation", "classic"):
+        d = np.array([a[m] - b[m] for a, b in pairs])
+        se = np.array([float(np.hypot(a["mc_rel_se"], b["mc_rel_se"])) for a, b in pairs])
+        z = d / se
+        out[m] = {"mean_difference": float(d.mean()), "median_difference": float(np.median(d)),
+                  "se_of_mean": float(np.sqrt(np.sum(se ** 2)) / d.size), "mean_z": float(z.mean()),
+                  "beyond_3_se": int(np.sum(np.abs(z) > 3.0)),
+                  "median": float(np.median([a[m] for a, _ in pairs])),
+                  "base_median": float(np.median([b[m] for _, b in pairs]))}
+    return out
+
+
+def against_lines(comparison: dict, name: str, base: str) -> list[str]:
+    """The lines :func:`against` prints."""
+    lines = [f"{name} against {base} ({comparison['geometries']} geometries):"]
+    for m in ("summation", "classic"):
+        c = comparison[m]
+        lines.append(f"  {m}: departure {c['mean_difference']:+.3f} on average (+- {c['se_of_mean']:.3f}), "
+                     f"median {c['median_difference']:+.3f}; mean z {c['mean_z']:+.2f}, {c['beyond_3_se']} beyond 3 "
+                     f"standard errors; median departure {c['median']:.3f} against {c['base_median']:.3f}")
+    return lines
 
 
 def _red_cotton_child(target: float, queue: Any, method: str = "mc", seed: int | None = None,
@@ -216,8 +310,18 @@ def run(study: str = "red-cotton", target: float | None = None, threads: int | N
     load = os.getloadavg()
     report: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "load_at_start": [round(x, 2) for x in load]},
                               "target": target, "study": study, "config": config or st["config"]}
-    report["mc"] = in_child(target, threads=threads, config=report["config"], plan_name=st["plan"])
-    report["models"] = model_datasets(report["config"], st["plan"])
+    with tempfile.TemporaryDirectory(prefix="method-errors-") as tmp:
+        traced = report["config"]
+        if "populations" in st and config is None:
+            from simulate.config import load_config
+            from simulate.fabric.auto import dye_spread
+
+            path = blend_config(study, tmp)
+            traced = str(path)
+            report["populations"] = st["populations"]
+            report["dye_spread"] = dye_spread(load_config(path))
+        report["mc"] = in_child(target, threads=threads, config=traced, plan_name=st["plan"])
+        report["models"] = model_datasets(traced, st["plan"])
     report["departure"] = departure(report)
     errors = errors_from_report(report, study)
     errors["provenance"]["date"] = datetime.date.today().isoformat()
@@ -248,7 +352,8 @@ def main(argv: list[str] | None = None) -> None:
 
     ``python -m fabric_optics.bench.method_errors [--study NAME] [--target T] [--threads N] [--out JSON]
     [--chart PNG] [--report JSON]``: the study's Monte Carlo in a child process, the summation and classic
-    at 1 %.
+    at 1 %. ``--compare TABLE BASE [--json OUT]``: how one table's departures differ from another's
+    (:func:`against`), no study run.
     """
     import argparse
     import json
@@ -262,11 +367,27 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default=None, help="write the --method auto data file here")
     ap.add_argument("--chart", default=None, help="write the model/MC chart here (PNG)")
     ap.add_argument("--report", default=None, help="write the whole report here (JSON: the tables of every method)")
-    ap.add_argument("--force", action="store_true", help="overwrite an existing --out, --chart or --report")
+    ap.add_argument("--compare", nargs=2, metavar=("TABLE", "BASE"), default=None,
+                    help="compare two --method auto tables' departures instead of running a study")
+    ap.add_argument("--json", default=None, help="with --compare: write the comparison here")
+    ap.add_argument("--force", action="store_true", help="overwrite an existing --out, --chart, --report or --json")
     a = ap.parse_args(argv)
-    for opt, val in (("--out", a.out), ("--chart", a.chart), ("--report", a.report)):
+    for opt, val in (("--out", a.out), ("--chart", a.chart), ("--report", a.report), ("--json", a.json)):
         if val and Path(val).exists() and not a.force:
             ap.error(f"{opt} {val}: exists; pass --force to overwrite it")
+    if a.compare:
+        tables = []
+        for path in a.compare:
+            try:
+                tables.append(json.loads(Path(path).read_text()))
+            except (OSError, ValueError) as exc:
+                ap.error(f"--compare {path}: not a readable --method auto table ({exc})")
+        comparison = against(tables[0], tables[1])
+        print("\n".join(against_lines(comparison, a.compare[0], a.compare[1])))
+        if a.json:
+            names = {"table": a.compare[0], "base": a.compare[1]}
+            Path(a.json).write_text(json.dumps({**names, **comparison}, indent=1) + "\n")
+        return
     report, errors, lines = run(a.study, a.target, a.threads, a.config)
     print("\n".join(lines))
     if a.out:

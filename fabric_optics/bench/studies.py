@@ -8,6 +8,9 @@ Each study writes ``OUT/NAME.json`` and prints its figures; ``quick`` runs it on
   classic model depart from the felt Monte Carlo on the green felt; ``OUT/method-errors-felt.json`` is
   the table ``simulate fabric --method auto`` reads for a felt (shipped as
   ``simulate/configs/method-errors-felt.json``). ``quick``: the Monte Carlo at 10 %.
+* ``method-errors-felt-blend``: the same on the green felt as a blend of two populations of different dyes;
+  ``OUT/method-errors-felt-blend.json`` is the table ``--method auto`` reads for a felt blend within its dye
+  spread (shipped as ``simulate/configs/method-errors-felt-blend.json``). ``quick``: the Monte Carlo at 10 %.
 * ``speed-accuracy`` (:mod:`fabric_optics.bench.speed_accuracy`): the Monte Carlo's achieved error
   against its marginal cost, red cotton and the felt, with the fixed costs apart and the cheaper
   models' floors; also writes ``OUT/speed-accuracy.png``. ``quick``: every other target.
@@ -37,6 +40,13 @@ def _method_errors_felt(quick: bool) -> tuple[dict[str, Any], list[str]]:
     return errors, lines
 
 
+def _method_errors_felt_blend(quick: bool) -> tuple[dict[str, Any], list[str]]:
+    from fabric_optics.bench.method_errors import run
+
+    _, errors, lines = run("green-felt-blend", target=0.1 if quick else None)
+    return errors, lines
+
+
 def _speed_accuracy(quick: bool) -> tuple[dict[str, Any], list[str]]:
     from fabric_optics.bench.speed_accuracy import run_speed_accuracy, study_lines
 
@@ -55,6 +65,8 @@ STUDIES: dict[str, tuple[str, Callable[[bool], tuple[dict[str, Any], list[str]]]
     "felt": ("the felt Monte Carlo against the felt summation, per fiber absorption", _felt),
     "method-errors-felt": ("where the summation and classic depart from the felt Monte Carlo "
                            "(the --method auto table of a felt)", _method_errors_felt),
+    "method-errors-felt-blend": ("the same for a felt blended from two differently dyed populations "
+                                 "(the --method auto table of a felt blend)", _method_errors_felt_blend),
     "speed-accuracy": ("the Monte Carlo's achieved error against its marginal cost, fixed costs apart, "
                        "red cotton and the felt", _speed_accuracy),
 }

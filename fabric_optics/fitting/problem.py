@@ -366,12 +366,13 @@ class FitProblem:
         Each positive value rounded to the geometric lattice ``start * exp(LATTICE_STEP * k)`` (others kept).
         Evaluating every point from the walk at its lattice point makes the objective a deterministic function
         of the parameters (not of the order in which the search visited them: a resumed fit sees the same
-        values).
+        values). A dye's depth is kept: a walk is re-weighted to other scattering, not to another dyed region
+        (:mod:`simulate.fiber.absorption`).
         """
-        starts = [p.start for p in self.free if p.kind == "walk"]
-        out = []
-        for s, v in zip(starts, walk, strict=True):
-            if s > 0 and v > 0:
+        walked = [p for p in self.free if p.kind == "walk"]
+        out: list[float] = []
+        for s, v in zip([p.start for p in walked], walk, strict=True):
+            if s > 0 and v > 0 and not walked[len(out)].name.endswith("dye_depth_um"):
                 k = round(math.log(v / s) / LATTICE_STEP)
                 out.append(round(s * math.exp(LATTICE_STEP * k), 12))
             else:

@@ -79,8 +79,8 @@ class FreeParameter:
     ``kind``: ``"dye"`` (re-weighted from the absorption table; a population's dye too), ``"share"`` (a blend's
     population share: its populations' models mixed by share, :func:`shares_at`), ``"surface"`` (analytic
     Cook-Torrance term), ``"structure"`` (the structured summation's geometry), ``"walk"`` (changes the
-    scattering: photons are walked again), ``"fine"`` (:data:`FINE_FIELDS`: seen by the Monte Carlo only) or
-    ``"placement"`` (a ring or core dye's depth: named and checked, refused by :func:`make_spec`).
+    scattering: photons are walked again; a ring or core dye's depth too, whose dyed region the walk scores:
+    :mod:`simulate.fiber.absorption`) or ``"fine"`` (:data:`FINE_FIELDS`: seen by the Monte Carlo only).
     """
 
     name: str
@@ -99,7 +99,7 @@ SHARE_MIN = 1e-3
 
 def _kind(path: str) -> str:
     if path.endswith("dye_depth_um"):
-        return "placement"
+        return "walk"
     if path.startswith("fiber.dye") or _POP_DYE.match(path):
         return "dye"
     if _POP_SHARE.match(path):
@@ -167,6 +167,11 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
         for path in _free_paths(name.strip(), data):
             start = _free_start(name.strip(), path, config, data)
             low, high = _free_bounds(spec, path, bounds, start)
+            if path.endswith("dye_depth_um"):
+                low, high = _depth_bounds(path, spec, bool(bounds), low, high, config)
+                if not low <= start <= high:
+                    raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
+                                   f"[{low:g}, {high:g}]; widen the bounds or change the config")
             if any(p.name == path for p in out):
                 raise FitError(f"--free: {path} is named twice")
             out.append(FreeParameter(path, start, float(low), float(high), _kind(path)))
@@ -237,6 +242,27 @@ def _free_bounds(spec: str, path: str, bounds: str, start: float) -> tuple[float
     return low, high
 
 
+#: a free dye depth's default bounds: from this fraction of the fiber's radius to the radius less it
+DEPTH_MARGIN = 0.02
+
+
+def _depth_bounds(path: str, spec: str, given: bool, low: float, high: float,
+                  config: SimulationConfig) -> tuple[float, float]:
+    """A free dye depth's bounds inside ``(0, radius)`` (a ring or core needs both regions).
+
+    The defaults are clipped to :data:`DEPTH_MARGIN` of the radius from either end; given bounds outside
+    ``(0, radius)`` are refused in one line.
+    """
+    m = _POP_PATH.match(path)
+    radius = float(config.populations[int(m.group(1))].radius_um if m and config.populations else config.radius_um)
+    if given:
+        if not (0.0 < low and high < radius):
+            raise FitError(f"--free: {spec!r}: a dye depth lies in (0, {radius:g}) um (the fiber's radius), got "
+                           f"[{low:g}, {high:g}]; give bounds inside it")
+        return low, high
+    return max(low, DEPTH_MARGIN * radius), min(high, (1.0 - DEPTH_MARGIN) * radius)
+
+
 def _check_population_field(name: str, path: str, config: SimulationConfig, data: dict) -> None:
     """A free path of a blend.
 
@@ -267,13 +293,13 @@ def _check_population_field(name: str, path: str, config: SimulationConfig, data
         raise FitError(f"--free {name}: the config has {len(pops)} population(s) (populations[0] to "
                        f"populations[{len(pops) - 1}])")
     pop = pops[k]
-    if kind not in ("dye", "share", "placement"):
+    if kind not in ("dye", "share") and not path.endswith("dye_depth_um"):
         raise FitError(f"--free {name}: a fit frees a population's dye, share and dye_depth_um "
                        f"(populations.NAME.dye, .share, .dye_depth_um); its fiber's scattering is the config's")
     if kind == "share" and len(pops) < 2:
         raise FitError(f"--free {name}: the config has one population, whose share is 1; a share is fitted in a "
                        "blend of two or more populations")
-    if kind == "placement":
+    if path.endswith("dye_depth_um"):
         if pop.dye_profile == "uniform":
             raise FitError(f"--free {name}: population {pop.name!r} has a uniform dye, which has no depth; give it "
                            "dye_profile = \"ring\" or \"core\" and a dye_depth_um in [populations.fiber]")
@@ -534,20 +560,37 @@ def _file(config: SimulationConfig) -> str:
 
 def _check_dye_placement(config: SimulationConfig, free: list[FreeParameter] | tuple[FreeParameter, ...],
                          method: str) -> None:
-    """The fit's absorption tables hold a dye spread through the fiber.
+    """Check a ring or core dye (``dye_profile``) and its depth against what the fit can score.
 
-    A ring or core dye (``dye_profile``), and its depth, are refused with what to do.
+    The fit's absorption tables score the dye in its region (:mod:`simulate.fiber.absorption`) through exit
+    tallies, which the classic model's albedo and the structured summation walk; the top cell's next-event
+    summation (a config without ``[structure]``) cannot. One walk serves every population of a blend, so their
+    dyes must sit alike (the config's profile and depth). One line each.
     """
-    depth = [p.name for p in free if p.kind == "placement"]
-    if depth:
-        raise FitError(f"--free {depth[0]}: the {method} fit reads every dye from absorption tables of a dye spread "
-                       "through the fiber, which have no depth to vary; compare depths with simulate fabric "
-                       "--method mc runs of the ring or core dye (docs/how-to/fit.md, \"Blends\")")
-    placed = [c for _, c in config.population_configs() if c.dye_profile != "uniform"]
-    if placed:
-        raise FitError(f"{_file(config)}: fiber.dye_profile = {placed[0].dye_profile!r}: the {method} fit reads the dye "
-                       "from absorption tables of a dye spread through the fiber; fit the dye with dye_profile = "
-                       "\"uniform\" (the ring or core dye is traced by simulate fabric --method mc)")
+    depth = [p.name for p in free if p.name.endswith("dye_depth_um")]
+    parts = [c for _, c in config.population_configs()]
+    placed = [c for c in parts if c.dye_profile != "uniform"]
+    if not depth and not placed:
+        return
+    if method == "summation" and getattr(config, "structure", None) is None:
+        what = f"--free {depth[0]}" if depth else f"{_file(config)}: fiber.dye_profile = {placed[0].dye_profile!r}"
+        raise FitError(f"{what}: the summation of a config without [structure] reads the top cell by next events, "
+                       "which assume a dye through the fiber; fit a ring or core dye with --method classic or a "
+                       "config with a [structure] section (the structured summation)")
+    pops = config.populations or ()
+    for p in pops:
+        if (p.dye_profile, p.dye_depth_um) != (config.dye_profile, config.dye_depth_um):
+            raise FitError(f"{_file(config)}: populations: population {p.name!r} places its dye otherwise than "
+                           f"[fiber] (dye_profile {p.dye_profile!r}, dye_depth_um {p.dye_depth_um:g}); the fit walks one "
+                           "fiber's paths for every population, so give them the config's dye_profile and "
+                           "dye_depth_um")
+    for name in depth:
+        if name.startswith("populations"):
+            raise FitError(f"--free {name}: the fit walks one fiber's paths for every population, whose dyes sit "
+                           "alike; free the depth they share, fiber.dye_depth_um")
+        if config.dye_profile == "uniform":
+            raise FitError(f"--free {name}: {_file(config)} has a uniform dye (fiber.dye_profile), which has no "
+                           "depth; give it dye_profile = \"ring\" or \"core\" and a dye_depth_um")
 
 
 def _without_grazing(measured: Dataset, notes: list[str]) -> Dataset:

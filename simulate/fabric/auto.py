@@ -11,8 +11,20 @@ The rule: the table is chosen by the config's structure kind (:data:`TABLES`). A
 woven Monte Carlo); a felt (``kind = "nonwoven"``) reads ``simulate/configs/method-errors-felt.json``
 (the green felt against the felt Monte Carlo). A config of no studied kind (no ``[structure]`` table)
 gets the Monte Carlo at every geometry, with one logged line saying why: an unknown error is not a
-small one. Within a table, a geometry farther than ``MATCH_DEG`` from every studied one, or at
-another incidence, gets the Monte Carlo too. Each table is one fabric's: a sample far from it
+small one.
+
+A blend (``[[populations]]`` of two or more) reads its kind's blend table (:data:`BLEND_TABLES`: a felt's
+``simulate/configs/method-errors-felt-blend.json``, the green felt as two populations of different dyes
+against the felt Monte Carlo of the blend) when it lies within the studied range: its populations differ
+in their dye only (and its placement), and their :func:`dye_spread` is at most the studied blend's
+(``provenance.dye_spread`` of the table). The cheaper models mix the populations' results by share
+(two fabrics side by side) where the Monte Carlo draws each fiber a path meets from the populations,
+so their error grows with how differently the populations absorb; a blend beyond the studied spread,
+of populations that differ in more than their dye, or of a kind with no blend study gets the Monte
+Carlo at every geometry, with one logged line saying why.
+
+Within a table, a geometry farther than ``MATCH_DEG`` from every studied one, or at another incidence,
+gets the Monte Carlo too. Each table is one fabric's: a sample far from it
 should regenerate its own (``python -m fabric_optics.bench.method_errors``) and pass it through
 ``choose(..., errors=...)``. The chosen table's provenance goes into the dataset's meta.
 """
@@ -29,7 +41,8 @@ import numpy as np
 
 from simulate.optics.microfacet import directions_deg
 
-__all__ = ["CHEAPEST_FIRST", "MATCH_DEG", "TABLES", "table_for", "errors_for", "load_errors", "choose"]
+__all__ = ["CHEAPEST_FIRST", "MATCH_DEG", "TABLES", "BLEND_TABLES", "table_for", "errors_for", "load_errors",
+           "choose", "dye_spread", "blend_outside"]
 
 log = logging.getLogger(__name__)
 
@@ -39,22 +52,89 @@ CHEAPEST_FIRST = ("classic", "summation", "mc")
 MATCH_DEG = 6.0
 #: the method-errors table (under simulate/configs) of each studied structure kind
 TABLES = {"woven": "method-errors.json", "nonwoven": "method-errors-felt.json"}
+#: the method-errors table of a blend (``[[populations]]`` of two or more) of each studied structure kind (the
+#: woven Monte Carlo takes one population: a woven blend has no reference to be studied against)
+BLEND_TABLES = {"nonwoven": "method-errors-felt-blend.json"}
+#: the wavelengths (nm) :func:`dye_spread` reads the populations' dyes at
+SPREAD_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 711.0, 10.0))
+#: what a blend's populations may differ in for a blend table to hold (:func:`blend_outside`)
+_SAME = (("radius_um", "fiber.radius_um"), ("n_host", "fiber.n_host"), ("particles", "particles"),
+         ("rms_slope", "surface.rms_slope"), ("transmission_rms_slope", "surface.transmission_rms_slope"),
+         ("transmission_rms_slope_around", "surface.transmission_rms_slope_around"))
+
+
+def _is_blend(config: Any) -> bool:
+    return len(getattr(config, "populations", None) or ()) > 1
 
 
 def table_for(config: Any) -> str | None:
-    """The shipped table's file name for ``config`` (by its ``[structure] kind``), None for no studied kind."""
+    """The shipped table's file name for ``config`` (by its ``[structure] kind``; a blend's of
+    :data:`BLEND_TABLES`), None for no studied kind. Whether a blend lies within its table's study is
+    :func:`blend_outside`'s."""
     structure = getattr(config, "structure", None)
-    return None if structure is None else TABLES.get(getattr(structure, "kind", None))
+    tables = BLEND_TABLES if _is_blend(config) else TABLES
+    return None if structure is None else tables.get(getattr(structure, "kind", None))
 
 
-def no_study(config: Any) -> dict:
-    """The empty table of a config of no studied kind (every geometry gets the Monte Carlo), logged once."""
-    structure = getattr(config, "structure", None)
-    kind = "no [structure] table" if structure is None else f'[structure] kind = "{structure.kind}"'
-    reason = (f"--method auto: no method-errors study for {kind} (studied: "
-              + ", ".join(f'kind = "{k}"' for k in TABLES) + "); the Monte Carlo at every geometry")
+def no_study(config: Any, why: str | None = None) -> dict:
+    """The empty table of a config of no studied kind, or of a blend outside its study (``why``): every
+    geometry gets the Monte Carlo, and one line is logged."""
+    if why is None:
+        structure = getattr(config, "structure", None)
+        kind = "no [structure] table" if structure is None else f'[structure] kind = "{structure.kind}"'
+        tables = BLEND_TABLES if _is_blend(config) else TABLES
+        what = "a blend ([[populations]]) of " if _is_blend(config) else ""
+        why = (f"no method-errors study for {what}{kind} (studied: "
+               + ", ".join(f'kind = "{k}"' for k in tables) + ")")
+    reason = f"--method auto: {why}; the Monte Carlo at every geometry"
     log.warning(reason)
     return {"provenance": {"table": None, "reason": reason}, "geometries": []}
+
+
+def dye_spread(config: Any, wavelengths_nm: Any = SPREAD_WAVELENGTHS) -> float:
+    """How differently a blend's populations absorb: the largest, over ``wavelengths_nm``, of the
+    share-weighted standard deviation of the populations' transmittance along a fiber's mean dyed chord.
+
+    Each population's transmittance is ``exp(-mu_dye(lambda) A_dyed / (2 r))``: its dye's absorption over
+    the mean length a straight line across the fiber spends in the dyed region (the dyed area of the
+    section over the fiber's width: ``pi r / 2`` for a dye through the fiber, the ring's or core's area
+    over ``2 r`` for a placed one). 0 for one population or populations of one dye; 0.5 at most.
+    """
+    wl = np.asarray(wavelengths_nm, float)
+    shares, trans = [], []
+    for share, c in config.population_configs():
+        r = float(c.radius_um)
+        if c.dye_profile == "uniform" or c.dye is None:
+            area = math.pi * r * r
+        else:
+            inner = r - float(c.dye_depth_um)
+            area = math.pi * (r * r - inner * inner) if c.dye_profile == "ring" else math.pi * inner * inner
+        mu = np.zeros(wl.size) if c.dye is None else np.asarray(c.dye(wl), float)
+        shares.append(float(share))
+        trans.append(np.exp(-mu * area / (2.0 * r)))
+    s = np.asarray(shares)[:, None] / sum(shares)
+    t = np.asarray(trans)
+    mean = (s * t).sum(axis=0)
+    return float(np.sqrt((s * (t - mean) ** 2).sum(axis=0)).max())
+
+
+def blend_outside(config: Any, errors: dict) -> str | None:
+    """Why the blend ``config`` lies outside the blend study ``errors`` (its populations differ in more than
+    their dye, or their :func:`dye_spread` exceeds the study's ``provenance.dye_spread``); None within it."""
+    pops = config.populations
+    for attr, label in _SAME:
+        # by their text: a particle spectrum holds arrays
+        other = next((p for p in pops[1:] if repr(getattr(p, attr)) != repr(getattr(pops[0], attr))), None)
+        if other is not None:
+            return (f"the blend's populations differ in {label} ({pops[0].name!r} and {other.name!r}), the studied "
+                    "blends in their dye only")
+    studied = float(errors.get("provenance", {}).get("dye_spread", 0.0))
+    spread = dye_spread(config)
+    if spread > studied + 1e-9:
+        return (f"the blend's populations absorb more differently (dye spread {spread:.3f}) than the studied "
+                f"blend's ({studied:.3f}, {errors.get('provenance', {}).get('table')}), where the cheaper models' "
+                "mix of the populations departs most from the Monte Carlo")
+    return None
 
 
 def load_errors(path: Any = None, name: str = "method-errors.json") -> dict:
@@ -72,7 +152,15 @@ def load_errors(path: Any = None, name: str = "method-errors.json") -> dict:
 def errors_for(config: Any) -> dict:
     """The table ``--method auto`` reads for ``config`` (:func:`table_for`; the rule in the module's text)."""
     name = table_for(config)
-    return no_study(config) if name is None else load_errors(name=name)
+    if name is None:
+        return no_study(config)
+    errors = load_errors(name=name)
+    if _is_blend(config):
+        why = blend_outside(config, errors)
+        if why is not None:
+            return no_study(config, why)
+        errors["provenance"]["config_dye_spread"] = dye_spread(config)
+    return errors
 
 
 def choose(theta_i: Any, phi_i: Any, theta_o: Any, phi_o: Any, target: float,

@@ -25,6 +25,16 @@ against a table with the asked value as a node, from the same photons). Above ``
 nothing is extrapolated: the caller sizes ``nu_max`` from the largest host absorption the
 fit's bounds allow.
 
+A dye where it sits (:attr:`simulate.fiber.Fiber.dye_profile` ``"ring"`` or ``"core"``): the dye absorbs only
+along the part ``d_j`` of each path that lies in the dyed region, so (1) becomes
+``R(mu_dye) = sum_j w_j exp(-mu_a_part l_j - mu_dye d_j)`` -- the same Laplace transform, of the dyed
+lengths' distribution instead of the whole paths'. The walk is unchanged; the nodes are the dye's
+absorption in the dyed region (:func:`absorption_targets` names them the targets' dye,
+``SpectralTargets.mu_a_dye``), and the kernel takes each free path's dyed chord (:mod:`simulate.montecarlo.kernel`,
+"Dye profile"), as the fiber Monte Carlo absorbs a placed dye. A table is walked at one placement (the fiber's
+profile and depth): another depth is another walk. The kernel scores a placed dye with exit tallies only, so
+such a table takes the binned ``beam`` route (the next-event ``nee`` route is refused).
+
 Cost: the walk is shared, the re-weighting costs ``K`` times the targets. The photons of each
 (incident direction, wavelength group) are fixed at the first evaluation (accuracy-controlled
 there) and reused, with the same seeds, by every later walk of the fit: a scattering change
@@ -47,7 +57,8 @@ from simulate.montecarlo.accuracy import check_budget
 from simulate.montecarlo.tallies import S_LAUNCHED, S_SCATTERINGS
 from simulate.montecarlo.transport import ParameterError, SpectralTargets, make_control
 
-__all__ = ["AbsorptionTable", "RunCache", "DEFAULT_NODES", "absorption_nodes", "absorption_table", "absorption_targets"]
+__all__ = ["AbsorptionTable", "RunCache", "DEFAULT_NODES", "absorption_nodes", "absorption_table", "absorption_targets",
+           "check_placement"]
 
 #: Host-absorption nodes per wavelength (see the module docstring).
 DEFAULT_NODES = 16
@@ -206,15 +217,34 @@ def _pchip_end(h0: float, h1: float, m0: np.ndarray, m1: np.ndarray) -> np.ndarr
 
 
 def absorption_targets(optics: Any, group: np.ndarray, nodes: np.ndarray, walk_phase: Any) -> SpectralTargets:
-    """Targets ``(wavelength j, node k)`` at index ``j_local * K + k``."""
+    """Targets ``(wavelength j, node k)`` at index ``j_local * K + k``: the node is host absorption added to
+    the wavelength's own; for a placed dye (``optics.mu_a_dye``, a ring or core) it is the dye's, which absorbs
+    in the dyed region only (module docstring)."""
     k = nodes.size
     idx = np.repeat(group, k)
+    added = np.tile(nodes, group.size)
+    dye = getattr(optics, "mu_a_dye", None)
     return SpectralTargets(
-        mu_a=(optics.mu_a[idx] + np.tile(nodes, group.size)).astype(float),
+        mu_a=(optics.mu_a[idx] + added).astype(float),
         mu_s=optics.mu_s[idx].astype(float),
         phases=[optics.phases[int(j)] for j in idx],
         same_phase=np.array([optics.phases[int(j)] is walk_phase for j in idx]),
+        mu_a_dye=None if dye is None else (np.asarray(dye, float)[idx] + added).astype(float),
     )
+
+
+def check_placement(fiber: Fiber, method: str, reference: Fiber | None = None) -> None:
+    """A placed dye's table (module docstring): the ``beam`` route, and a reference walk at the same placement
+    (its dyed region is the walk's). :class:`ParameterError` naming what to change otherwise."""
+    profile = getattr(fiber, "dye_profile", "uniform")
+    if reference is not None and (getattr(reference, "dye_profile", "uniform"), getattr(reference, "dye_depth_um", 0.0)) \
+            != (profile, getattr(fiber, "dye_depth_um", 0.0)):
+        raise ParameterError("absorption table: the reference fiber's dye_profile and dye_depth_um must be the "
+                             "fiber's (the dyed region is walked with the reference's)")
+    if profile != "uniform" and method != "beam":
+        raise ParameterError(f"absorption table: a {profile} dye (dye_profile) is scored with exit tallies only; "
+                             f"the {method} route's next-event estimates assume a dye through the fiber: use the beam "
+                             "route")
 
 
 def absorption_table(
@@ -239,7 +269,8 @@ def absorption_table(
     Parameters
     ----------
     fiber : simulate.fiber.Fiber
-        The fiber WITHOUT its dye (host absorption 0; particle absorption is kept).
+        The fiber WITHOUT its dye (host absorption 0; particle absorption is kept). A placed dye's profile and
+        depth are kept: the nodes are then the dye's absorption in its region (module docstring; ``beam`` route).
     w_in : numpy.ndarray
         ``[P, 3]`` incident directions (fiber frame), paired with ``outputs``.
     outputs : numpy.ndarray
@@ -272,6 +303,7 @@ def absorption_table(
     """
     if method not in ("nee", "beam"):
         raise ParameterError(f"absorption table: method must be nee or beam, got {method!r}")
+    check_placement(fiber, method, reference)
     wl = as_wavelengths(wavelengths_nm)
     nodes = np.asarray(nodes, float)
     if nodes[0] != 0.0 or np.any(np.diff(nodes) <= 0):

@@ -111,20 +111,34 @@ def test_bad_population_names_are_refused_in_one_line(config, free, message):
     assert message in str(exc.value) and "\n" not in str(exc.value)
 
 
-def test_a_dye_depth_is_named_and_refused_with_what_to_do():
+def test_a_populations_own_dye_depth_is_named_and_refused_with_what_to_do():
+    """The fit walks one fiber's paths for every population: a population's own depth or placement is refused, the
+    depth the populations share (the config's) is freed as fiber.dye_depth_um (tests/fabric_optics/fitting/
+    test_fit_depth.py)."""
     cfg = blend([RING, {"name": "plain", "share": 0.5, "fiber": {"dye": CYAN}}])
     free = parse_free(["populations.ring.dye_depth_um"], cfg)
-    assert free[0].kind == "placement" and free[0].name == "populations[0].fiber.dye_depth_um"
-    with pytest.raises(FitError, match="no depth to vary; compare depths with simulate fabric --method mc"):
+    assert free[0].kind == "walk" and free[0].name == "populations[0].fiber.dye_depth_um"
+    with pytest.raises(FitError, match="population 'ring' places its dye otherwise than \\[fiber\\]"):
         FitProblem(cfg, FLAT, free, method="classic")
-    # a ring dye that is not freed: the absorption tables hold a dye spread through the fiber
-    with pytest.raises(FitError, match="fiber.dye_profile = 'ring'"):
-        FitProblem(cfg, FLAT, parse_free(["populations.plain.dye"], cfg), method="summation")
+    with pytest.raises(FitError, match="population 'ring' places its dye otherwise than \\[fiber\\]"):
+        FitProblem(cfg, FLAT, parse_free(["populations.plain.dye"], cfg), method="classic")
+    # a top cell's summation (no [structure]) scores by next events: refused for any placed dye
+    doc = tomllib.loads(blend_text([RING, {"name": "plain", "share": 0.5, "fiber": {"dye": CYAN}}]))
+    del doc["structure"]
+    flat = parse_config(toml_dumps(doc), "blend.toml")
+    with pytest.raises(FitError, match="fiber.dye_profile = 'ring': the summation of a config without \\[structure\\]"):
+        FitProblem(flat, FLAT, parse_free(["populations.plain.dye"], flat), method="summation")
     inherits = blend([{"name": "a", "share": 0.5, "fiber": {"dye": MAGENTA}}, {"name": "b", "share": 0.5}],
                      fiber={**tomllib.loads(load_config("red-cotton").text)["fiber"], "dye_profile": "ring",
                             "dye_depth_um": 1.0})
     with pytest.raises(FitError, match="takes fiber.dye_depth_um of the config"):
         parse_free(["populations.a.dye_depth_um"], inherits)
+    own = blend([{"name": "a", "share": 0.5, "fiber": {"dye": MAGENTA, "dye_profile": "ring", "dye_depth_um": 1.0}},
+                 {"name": "b", "share": 0.5}],
+                fiber={**tomllib.loads(load_config("red-cotton").text)["fiber"], "dye_profile": "ring", "dye_depth_um": 1.0})
+    with pytest.raises(FitError, match="free the depth they share, fiber.dye_depth_um") as exc:
+        FitProblem(own, FLAT, parse_free(["populations.a.dye_depth_um"], own), method="classic")
+    assert "\n" not in str(exc.value)
 
 
 def test_a_blend_of_populations_with_other_scattering_is_refused():

@@ -67,12 +67,103 @@ def test_a_config_of_no_studied_kind_gets_the_monte_carlo_with_the_reason(tmp_pa
 
 
 def test_every_studied_kind_has_its_shipped_table():
-    for study in method_errors.STUDIES.values():
-        assert auto.TABLES[study["kind"]] == study["file"]
-    assert set(auto.TABLES) == {s["kind"] for s in method_errors.STUDIES.values()}
+    shipped = [s for s in method_errors.STUDIES.values() if s["file"]]
+    for study in shipped:
+        assert (auto.BLEND_TABLES if "populations" in study else auto.TABLES)[study["kind"]] == study["file"]
+    assert set(auto.TABLES) == {s["kind"] for s in shipped if "populations" not in s}
+    assert set(auto.BLEND_TABLES) == {s["kind"] for s in shipped if "populations" in s}
 
 
-@pytest.mark.parametrize("study", sorted(method_errors.STUDIES))
+def _blend(tmp_path: Path, study: str = "green-felt-blend") -> Path:
+    return method_errors.blend_config(study, tmp_path)
+
+
+def _spread_table(spread: float, summation: float = 0.04) -> dict:
+    t = _table(summation=summation, classic=0.5)
+    t["provenance"].update(dye_spread=spread, table="stand-in blend table")
+    return t
+
+
+def test_a_felt_blend_within_the_study_reads_the_blend_table(tmp_path, monkeypatch, caplog):
+    blend = load_config(_blend(tmp_path))
+    assert auto.table_for(blend) == "method-errors-felt-blend.json"
+    # the blend table says the summation at 4 %, the one-population felt table only the Monte Carlo
+    stand_ins = {"method-errors-felt.json": _table(summation=0.5, classic=0.5),
+                 "method-errors-felt-blend.json": _spread_table(auto.dye_spread(blend))}
+    monkeypatch.setattr(auto, "load_errors", lambda path=None, name="method-errors.json": stand_ins[name])
+    with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
+        errors = auto.errors_for(blend)
+    assert not caplog.records
+    names, prov = auto.choose([0.0], [0.0], [30.0], [0.0], 0.05, errors=errors)
+    assert names.tolist() == ["summation"] and prov["config_dye_spread"] == pytest.approx(auto.dye_spread(blend))
+    # its one-population felt still reads the felt's own table
+    assert auto.choose([0.0], [0.0], [30.0], [0.0], 0.05, errors=auto.errors_for(load_config("green-felt-mc")))[0] \
+        .tolist() == ["mc"]
+
+
+def test_the_shipped_blend_table_holds_its_blends_spread(tmp_path):
+    blend = load_config(_blend(tmp_path))
+    errors = auto.errors_for(blend)
+    prov = errors["provenance"]
+    assert prov["table"] == "method-errors-felt-blend.json" and prov["blend"] == "blend-red-x2"
+    assert prov["dye_spread"] == pytest.approx(auto.dye_spread(blend)) and prov["populations"].count("[[populations]]") == 2
+
+
+def test_a_blend_beyond_the_studied_spread_gets_the_monte_carlo_with_the_reason(tmp_path, caplog):
+    wider = load_config(_blend(tmp_path, "green-felt-blend-x10"))
+    studied = auto.load_errors(name="method-errors-felt-blend.json")["provenance"]["dye_spread"]
+    assert auto.dye_spread(wider) > studied
+    with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
+        errors = auto.errors_for(wider)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "dye spread" in lines[0] and "Monte Carlo at every geometry" in lines[0]
+    names, prov = auto.choose([0.0, 30.0], [0.0, 0.0], [30.0, 10.0], [0.0, 180.0], 10.0, errors=errors)
+    assert names.tolist() == ["mc", "mc"] and prov["reason"] == lines[0]
+
+
+def test_a_blend_whose_populations_differ_in_more_than_their_dye_gets_the_monte_carlo(tmp_path, caplog):
+    path = _blend(tmp_path)
+    within = auto.dye_spread(load_config(path))
+    path.write_text(path.read_text() + "[populations.particles]\nn = 2.7\nk = 0.0\nradius_um = 0.1\n"
+                    "volume_fraction = 0.002\n")
+    other = load_config(path)
+    assert auto.dye_spread(other) == within        # the same dyes: only the scatterers put it outside
+    with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
+        errors = auto.errors_for(other)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "differ in particles" in lines[0] and "'red-clear' and 'red-x2'" in lines[0]
+    assert errors["geometries"] == []
+
+
+def test_the_dye_spread_is_the_populations_spread_of_transmittance():
+    """Two uniform dyes of 0.01 and 0.05 /um in fibers of radius r: transmittances exp(-mu pi r / 2), so the
+    50/50 spread is half their difference; a ring 2 um deep holds the dye over its area / 2 r."""
+    from simulate.config import parse_config
+
+    head = ('name = "t"\n[fiber]\nradius_um = 8.0\nn_host = 1.5\n[fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [0.01, 0.01]\n'
+            "[particles]\nn = 1.6\nk = 0.0\nradius_um = 0.1\nvolume_fraction = 0.001\n[surface]\nrms_slope = 0.3\n"
+            "[structure]\nkind = \"nonwoven\"\n")
+
+    def pop(name, share, mu, extra=""):
+        return (f'[[populations]]\nname = "{name}"\nshare = {share}\n[populations.fiber]\n{extra}'
+                f"[populations.fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [{mu}, {mu}]\n")
+
+    one = parse_config(head, "t.toml")
+    assert auto.dye_spread(one) == 0.0
+    same = parse_config(head + pop("a", 0.5, 0.01) + pop("b", 0.5, 0.01), "t.toml")
+    assert auto.dye_spread(same) == 0.0
+    two = parse_config(head + pop("a", 0.5, 0.01) + pop("b", 0.5, 0.05), "t.toml")
+    t1, t2 = math.exp(-0.01 * math.pi * 8.0 / 2), math.exp(-0.05 * math.pi * 8.0 / 2)
+    assert auto.dye_spread(two) == pytest.approx(abs(t1 - t2) / 2, rel=1e-12)
+    shares = parse_config(head + pop("a", 0.25, 0.01) + pop("b", 0.75, 0.05), "t.toml")
+    assert auto.dye_spread(shares) == pytest.approx(math.sqrt(0.25 * 0.75) * abs(t1 - t2), rel=1e-12)
+    ring = parse_config(head + pop("a", 0.5, 0.01) + pop("b", 0.5, 0.05, 'dye_profile = "ring"\ndye_depth_um = 2.0\n'),
+                        "t.toml")
+    t2r = math.exp(-0.05 * math.pi * (64.0 - 36.0) / 16.0)
+    assert auto.dye_spread(ring) == pytest.approx(abs(t1 - t2r) / 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("study", sorted(k for k, v in method_errors.STUDIES.items() if v["file"]))
 def test_the_shipped_table_is_its_commands(study):
     st = method_errors.STUDIES[study]
     d = json.loads(resources.files("simulate.configs").joinpath(st["file"]).read_text())
@@ -131,3 +222,72 @@ def test_simulate_bench_writes_the_felt_table(tmp_path, capsys, monkeypatch):
     assert calls == [("green-felt", 0.1)]
     assert json.loads((tmp_path / "b" / "method-errors-felt.json").read_text()) == _table(0.02, 0.3)
     assert "stand-in line" in capsys.readouterr().out
+    assert main(["bench", "--study", "method-errors-felt-blend", "--quick", "--out", str(tmp_path / "c")]) == 0
+    assert calls[-1] == ("green-felt-blend", 0.1)
+    assert json.loads((tmp_path / "c" / "method-errors-felt-blend.json").read_text()) == _table(0.02, 0.3)
+
+
+def test_a_blend_study_traces_its_config_with_its_populations(tmp_path, monkeypatch):
+    """The blend study's runs load the preset with the study's [[populations]] appended; its table records them
+    and their dye spread."""
+    traced = []
+
+    def child(target, method="mc", seed=None, threads=None, config="", plan_name=""):
+        traced.append(load_config(config))
+        return {"wall_seconds": 1.0, "rel_err": 0.03, "info": {"stop": "target"}, "table": {}}
+
+    monkeypatch.setattr(method_errors, "in_child", child)
+    monkeypatch.setattr(method_errors, "model_datasets", lambda config, plan: traced.append(load_config(config)) or {})
+    monkeypatch.setattr(method_errors, "departure", lambda report: {})
+    _, errors, _ = method_errors.run("green-felt-blend", target=0.1)
+    assert [[p.name for p in c.populations] for c in traced] == [["red-clear", "red-x2"]] * 2
+    base = load_config("green-felt-mc")
+    assert traced[0].structure == base.structure and traced[0].particles.volume_fraction == base.particles.volume_fraction
+    prov = errors["provenance"]
+    assert prov["populations"] == method_errors.BLEND_RED_X2 and prov["dye_spread"] == auto.dye_spread(traced[0])
+    assert "--study green-felt-blend" in prov["command"]
+
+
+def test_against_measures_a_tables_departures_from_another(tmp_path, capsys):
+    """Two geometries: the summation's departures +0.04 and +0.02 above the base's, each geometry's references
+    with errors 0.03 and 0.04 (so 0.05 together): mean +0.03 +- 0.05 sqrt(2) / 2, z 0.8 and 0.4."""
+    def row(ti, summation, classic, se):
+        return {"theta_i": ti, "theta_o": 30.0, "rel_phi_o": 0.0, "mc_rel_se": se, "summation": summation,
+                "classic": classic}
+
+    base = {"geometries": [row(0.0, 0.30, 0.2, 0.03), row(30.0, 0.40, 0.2, 0.03), row(45.0, 0.9, 0.9, 0.03)]}
+    table = {"geometries": [row(0.0, 0.34, 0.2, 0.04), row(30.0, 0.42, 0.2, 0.04)]}
+    c = method_errors.against(table, base)
+    assert c["geometries"] == 2
+    s = c["summation"]
+    assert s["mean_difference"] == pytest.approx(0.03) and s["median_difference"] == pytest.approx(0.03)
+    assert s["se_of_mean"] == pytest.approx(0.05 * math.sqrt(2) / 2) and s["mean_z"] == pytest.approx(0.6)
+    assert s["beyond_3_se"] == 0 and c["classic"]["mean_difference"] == pytest.approx(0.0)
+    paths = [tmp_path / "t.json", tmp_path / "b.json"]
+    for p, t in zip(paths, (table, base)):
+        p.write_text(json.dumps(t))
+    method_errors.main(["--compare", str(paths[0]), str(paths[1]), "--json", str(tmp_path / "c.json")])
+    assert "summation: departure +0.030 on average" in capsys.readouterr().out
+    assert json.loads((tmp_path / "c.json").read_text())["summation"]["mean_z"] == pytest.approx(0.6)
+
+
+def test_a_woven_blend_has_no_study_and_auto_refuses_it_as_the_monte_carlo_does(tmp_path, capsys, caplog):
+    """The woven Monte Carlo traces one population, so no woven blend can be studied against it: its table is none
+    (the reason says a blend), and `simulate fabric --method auto` refuses it before any work, in one line."""
+    from fabric_optics.cli.simulate import main
+
+    text = (CONFIGS / "red-cotton.toml").read_text() + (
+        '\n[[populations]]\nname = "a"\nshare = 0.5\n[[populations]]\nname = "b"\nshare = 0.5\n'
+        '[populations.fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [0.02, 0.02]\n')
+    path = tmp_path / "woven-blend.toml"
+    path.write_text(text)
+    cfg = load_config(path)
+    assert auto.table_for(cfg) is None
+    with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
+        errors = auto.errors_for(cfg)
+    assert errors["geometries"] == [] and "a blend ([[populations]]) of [structure] kind = \"woven\"" in \
+        errors["provenance"]["reason"]
+    code = main(["fabric", str(path), "--method", "auto", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "the woven Monte Carlo takes one fiber population" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
