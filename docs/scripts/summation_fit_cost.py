@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
                              for key in fits[0]} for label, fits in got["fits"].items()}}
     out = {"name": "summation-fit-cost",
            "command": "python docs/scripts/summation_fit_cost.py DIR/measured --json DIR/summation-fit-cost.json"
-                      + ("" if args.before is None else " --before TREE"),
+                      + ("" if args.before is None else " --before TREE") + ("" if args.after is None else " --after TREE"),
            "fit_command": "simulate fit green-felt DIR/measured --free FREE " + " ".join(FIT_ARGS[:-2]) + " --out DIR",
            "note": (f"minimum of {args.repeats} runs{' alternating with the other tree' if args.before else ''}; "
                     "per evaluation: CPU seconds (time.process_time) of FitProblem.residuals, mean over "
