@@ -36,10 +36,9 @@ DEMO_MC_RUNS ?= 2
 # A fit whose colour is left off exits 3 with its outputs written and labelled failing
 # (docs/notes/fit-trust.md); the demo goes on so that the report shows it. Any other failure stops it.
 FIT_VERDICT = || [ $$? -eq 3 ]
-# Evaluation budget of each fit (one walk each, then 0.05 to 0.1 s per evaluation; the summation also about
-# 1.5 s per point of its RMS-slope lattice the search reaches): the default. On the demo's acquisition
-# (measured plan), with the colour held (the default), the classic fit converges in 205 evaluations, the
-# summation fit in about 570 (docs/notes/fit-trust.md, "The fits on the measured plan").
+# Evaluation budget of each fit (one walk each, then the evaluations): the default, more than the classic
+# and summation fits need to converge on the demo's acquisition with the colour held (docs/notes/fit-trust.md,
+# "The fits on the measured plan").
 DEMO_FIT_EVALS ?= 800
 # Relative standard error of each fit's first Monte Carlo walk (the start configs' own differ).
 DEMO_FIT_REL_ERR ?= 0.03

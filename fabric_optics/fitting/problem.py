@@ -54,6 +54,7 @@ from simulate.config import SimulationConfig, parse_config
 from simulate.config_dye import dye_from_table
 from simulate.config_table import Table
 from simulate.fiber.absorption import AbsorptionTable, absorption_nodes, absorption_table
+from simulate.fabric.surfacesum import SurfaceSum
 from simulate.fiber.spectral import reweight_exponent, spectral_optics
 from simulate.media.medium import HGMedium
 from simulate.products import smooth_boundary_unless_mc
@@ -76,6 +77,9 @@ STRUCTURED_LATTICE_STEP = 0.20
 #: Step of the structured summation's lattice of surface terms in ``log rms_slope`` (:meth:`FitProblem.surface_term`):
 #: the exact term at the lattice points, blended linearly between them.
 SURFACE_LATTICE_STEP = 0.02
+#: Surface terms :meth:`FitProblem.surface_term` keeps, by RMS slope (lattice points; ``[N]`` each): a search's
+#: steps and Jacobian columns return to the points around its slope, and a fit reaches a few dozen of them.
+SURFACE_MEMO = 256
 #: Parsed configs :meth:`FitProblem.config_at` keeps, by the values of the free parameters other than the dye: the
 #: centre and a Jacobian's columns of the others (a dye-only point reads its config from them).
 PARSED_CONFIGS = 8
@@ -124,6 +128,7 @@ class FitProblem:
         self._doc = tomllib.loads(self.spec.config.text)
         self._facets: dict = {}
         self._surfaces: dict = {}
+        self._surface_sums: dict = {}
         # the structured walk's interior closure: its surface share at the starting RMS slope (simulate.structwalk)
         self._roughness = float(self.spec.config.rms_slope)
         self.geometries = model_geometries(self.spec.measured)
@@ -521,14 +526,27 @@ class FitProblem:
         return (1.0 - f) * lo + f * hi
 
     def _surface_at(self, config: SimulationConfig, rms_slope: float) -> np.ndarray:
-        """The exact surface ``beta [N]`` of ``config``'s structure at ``rms_slope`` (memoised, the last 16)."""
+        """The exact surface ``beta [N]`` of ``config``'s structure at ``rms_slope`` (memoised, the last :data:`SURFACE_MEMO`):
+        :func:`simulate.structwalk.walk.surface_beta`'s value, bit for bit, from the structure's
+        :class:`simulate.fabric.surfacesum.SurfaceSum` (what does not depend on the slope, formed once per
+        structure and host index: :meth:`_surface_sum_of`)."""
         key = (structwalk.structure_key(config), rms_slope, float(config.n_host))
         if key not in self._surfaces:
-            if len(self._surfaces) >= 16:
+            if len(self._surfaces) >= SURFACE_MEMO:
                 self._surfaces.pop(next(iter(self._surfaces)))
-            at = config if rms_slope == float(config.rms_slope) else dataclasses.replace(config, rms_slope=rms_slope)
-            self._surfaces[key] = structwalk.surface_beta(at, self._facets_of(config), self.w_i, self.w_o)
+            self._surfaces[key] = self._surface_sum_of(config).beta(rms_slope)
         return self._surfaces[key]
+
+    def _surface_sum_of(self, config: SimulationConfig) -> SurfaceSum:
+        """The :class:`~simulate.fabric.surfacesum.SurfaceSum` of ``config``'s structure and host index at the model
+        geometries (the last 4: a free structure field's centre and Jacobian columns)."""
+        key = (structwalk.structure_key(config), float(config.n_host))
+        if key not in self._surface_sums:
+            if len(self._surface_sums) >= 4:
+                self._surface_sums.pop(next(iter(self._surface_sums)))
+            self._surface_sums[key] = SurfaceSum(self._facets_of(config), self.w_i, self.w_o, float(config.n_host),
+                                                 config.structure.spacing_ratio)
+        return self._surface_sums[key]
 
     def dataset(self, beta: np.ndarray, u_beta: np.ndarray, label: str, extra: dict | None = None,
                 method: str | None = None) -> Dataset:

@@ -1,6 +1,7 @@
 """The structured summation's surface term on a lattice in the RMS slope (FitProblem.surface_term): exact at the
 lattice points, the linear blend in log rms_slope between them (close to the exact term), and computed only at
-the lattice points, so a Jacobian's two RMS-slope columns inside one cell compute no surface table."""
+the lattice points, so a Jacobian's two RMS-slope columns inside one cell compute no surface term; the terms are
+those of the config each evaluation is given (a surface sum built once per structure and host index)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import math
 
 import numpy as np
 
+from simulate.fabric.surfacesum import SurfaceSum
 from simulate.structwalk import walk as fit_structure
 from fabric_optics.fitting.problem import SURFACE_LATTICE_STEP, FitProblem
 from fabric_optics.fitting.spec import parse_free
@@ -33,13 +35,13 @@ def test_the_surface_term_is_exact_on_the_lattice_and_blended_between(monkeypatc
     problem = _problem()
     r0 = float(problem.config.rms_slope)
     calls: list[float] = []
-    real = fit_structure.surface_beta
+    real = SurfaceSum.beta
 
-    def counted(config, facets, w_i, w_o):
-        calls.append(float(config.rms_slope))
-        return real(config, facets, w_i, w_o)
+    def counted(self, rms_slope):
+        calls.append(float(rms_slope))
+        return real(self, rms_slope)
 
-    monkeypatch.setattr(fit_structure, "surface_beta", counted)
+    monkeypatch.setattr(SurfaceSum, "beta", counted)
     at_start = problem.surface_term(problem.config_at(np.array([r0])))
     np.testing.assert_array_equal(at_start, _exact(problem, r0))
     calls.clear()
@@ -58,3 +60,27 @@ def test_the_surface_term_is_exact_on_the_lattice_and_blended_between(monkeypatc
     for v in (r * (1 - 1e-3), r * (1 + 1e-3)):
         problem.surface_term(problem.config_at(np.array([v])))
     assert calls == []
+
+
+def test_a_fit_problems_surface_term_follows_the_config_it_is_given():
+    """FitProblem keeps a surface sum per structure and host index: after one was built, a config with another
+    host index or felt spread gets its own term, equal to the uncached one, and the first config's term is
+    unchanged when asked again."""
+    config = _felt(spread=10.0)
+    problem = FitProblem(config, _measured(0.3), parse_free(["rms_slope"], config), method="summation",
+                         target_rel_err=0.1, seed=3)
+
+    def uncached(cfg, m):
+        at = dataclasses.replace(cfg, rms_slope=m)
+        return fit_structure.surface_beta(at, fit_structure.facets_of(at), problem.w_i, problem.w_o)
+
+    first = problem._surface_at(config, 0.25)
+    np.testing.assert_array_equal(first, uncached(config, 0.25))
+    index = dataclasses.replace(config, n_host=1.6)
+    spread = dataclasses.replace(config, structure=dataclasses.replace(config.structure, felt_spread_deg=25.0))
+    for cfg in (index, spread):
+        got = problem._surface_at(cfg, 0.25)
+        assert not np.array_equal(got, first)
+        np.testing.assert_array_equal(got, uncached(cfg, 0.25))
+    np.testing.assert_array_equal(problem._surface_at(config, 0.3), uncached(config, 0.3))
+    np.testing.assert_array_equal(problem._surface_at(config, 0.25), first)
