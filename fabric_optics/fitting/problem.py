@@ -53,8 +53,8 @@ from simulate import fiber as fib
 from simulate.config import SimulationConfig, parse_config
 from simulate.config_dye import dye_from_table
 from simulate.config_table import Table
-from simulate.fiber.absorption import AbsorptionTable, absorption_nodes, absorption_table
 from simulate.fabric.surfacesum import SurfaceSum
+from simulate.fiber.absorption import AbsorptionTable, absorption_nodes, absorption_table
 from simulate.fiber.spectral import reweight_exponent, spectral_optics
 from simulate.media.medium import HGMedium
 from simulate.products import smooth_boundary_unless_mc
@@ -526,10 +526,12 @@ class FitProblem:
         return (1.0 - f) * lo + f * hi
 
     def _surface_at(self, config: SimulationConfig, rms_slope: float) -> np.ndarray:
-        """The exact surface ``beta [N]`` of ``config``'s structure at ``rms_slope`` (memoised, the last :data:`SURFACE_MEMO`):
+        """The exact surface ``beta [N]`` of ``config``'s structure at ``rms_slope`` (the last :data:`SURFACE_MEMO` kept).
+
         :func:`simulate.structwalk.walk.surface_beta`'s value, bit for bit, from the structure's
         :class:`simulate.fabric.surfacesum.SurfaceSum` (what does not depend on the slope, formed once per
-        structure and host index: :meth:`_surface_sum_of`)."""
+        structure and host index: :meth:`_surface_sum_of`).
+        """
         key = (structwalk.structure_key(config), rms_slope, float(config.n_host))
         if key not in self._surfaces:
             if len(self._surfaces) >= SURFACE_MEMO:
@@ -538,8 +540,10 @@ class FitProblem:
         return self._surfaces[key]
 
     def _surface_sum_of(self, config: SimulationConfig) -> SurfaceSum:
-        """The :class:`~simulate.fabric.surfacesum.SurfaceSum` of ``config``'s structure and host index at the model
-        geometries (the last 4: a free structure field's centre and Jacobian columns)."""
+        """The :class:`~simulate.fabric.surfacesum.SurfaceSum` of ``config``'s structure and host index.
+
+        At the model geometries; the last 4 are kept (a free structure field's centre and Jacobian columns).
+        """
         key = (structwalk.structure_key(config), float(config.n_host))
         if key not in self._surface_sums:
             if len(self._surface_sums) >= 4:
