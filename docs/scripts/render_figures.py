@@ -170,7 +170,16 @@ def fig_demo_cost() -> str:
     cpu = d.get("cpu_steps", {})
     for step, secs in d.get("steps", {}).items():
         rows.append([f"wall time of `{step}`", f"{secs:.0f} s" + (f" ({cpu[step]:.0f} CPU s)" if step in cpu else "")])
-    note = f" ({d['conditions']})" if d.get("conditions") else ""
+    again = d.get("second_run")
+    if again:
+        minutes, seconds = divmod(round(again["wall_seconds"]), 60)
+        rows.append(["wall time of a second `make demo` in the same clone", f"{minutes} min {seconds:02d} s"
+                     f" ({again['cpu_seconds']:.0f} CPU s, {again['peak_rss_mb'] / 1024:.1f} GB)"])
+        for step, secs in again.get("steps", {}).items():
+            if step != "make venv":
+                rows.append([f"second run: `{step}`", f"{secs:.0f} s"])
+    note = f" ({d['conditions']}" + (f"; the second run: {again['conditions']}" if again and again.get("conditions")
+                                       else "") + ")" if d.get("conditions") else ""
     return _table(["figure", "value"], rows) + "\n\n" + _source(rec, note)
 
 
