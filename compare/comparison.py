@@ -402,7 +402,7 @@ class Comparison:
 MEASURED_BETA_MAX = 1e7
 #: Largest ratio of one ``|beta|`` to the dataset's median ``|beta|`` (nine decades: a specular
 #: peak of 1e6 over a diffuse floor of 1e-3 still passes); a larger spike is a corrupt value,
-#: which would otherwise dominate every curve error (``NRMSE 3.47e+98``) instead of being named.
+#: which would otherwise dominate every curve error instead of being named.
 DYNAMIC_RANGE_MAX = 1e9
 
 

@@ -35,7 +35,8 @@ DEFAULT_MAX_SAT_DIFF = 0.05
 #: ``compare check --max-level-ratio``: largest ratio between the model's absolute level and the measured one,
 #: ``max(k_Y, 1/k_Y)`` (:class:`compare.comparison.Level`). 1.5: a model at the measured level within its
 #: Monte Carlo error and the reference's calibration (a few %) passes with a wide margin, one scaled by 2 (or
-#: 1/2) fails; the felt models fitted in shape only (k_Y 0.3, 2.85x too dark) fail, as they should.
+#: 1/2) fails; a model fitted in shape only, several times too dark, fails as it should (docs/notes/fit-trust.md,
+#: "The level").
 DEFAULT_MAX_LEVEL_RATIO = 1.5
 
 

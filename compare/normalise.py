@@ -218,8 +218,8 @@ def estimate_normal_value(dataset: Dataset, window_deg: float = DEFAULT_WINDOW_D
         normalised like for like: when the measurement has no normal/normal point (the instrument
         cannot observe there), the simulation's value is estimated from the same neighbouring
         angles, not read at its own normal point -- a narrow backscatter peak the measurement
-        cannot see would otherwise set the whole scale (the felt Monte Carlo's retro-reflection,
-        66 % above its 10 deg neighbours, moved the demo's NRMSE from 0.17 to 0.37).
+        cannot see would otherwise set the whole scale (the felt Monte Carlo's retro-reflection:
+        docs/physics.md section 8).
 
     Returns
     -------

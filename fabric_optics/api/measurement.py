@@ -69,8 +69,8 @@ def measure_on_mock(out: str | os.PathLike, *, sample: str = "red-cotton", plan:
 
     Examples
     --------
-    The `quick` plan takes about a second (the red-cotton plan about 25 s: the mock's settle
-    times are real):
+    The `quick` plan is the shortest (the mock's settle times are real: the red-cotton plan's
+    time is in docs/tutorials/python.md):
 
     >>> import tempfile
     >>> from pathlib import Path

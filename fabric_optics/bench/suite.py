@@ -169,7 +169,7 @@ def run_bench(out: Path, quick: bool = False) -> dict[str, Any]:
     """
     max_threads = numba.config.NUMBA_NUM_THREADS
     repeats = 5 if quick else 7
-    photons = 200_000 if quick else 4_000_000  # >= 0.4 s per one-thread run at ~10 M/s
+    photons = 200_000 if quick else 4_000_000  # one-thread runs long against the timer (docs/reference/figures.md)
     t0 = time.perf_counter()
     run_slab(photons=1000, seed=0, threads=1, **VAN_DE_HULST)
     warmup = time.perf_counter() - t0

@@ -285,7 +285,7 @@ class FitProblem:
 
         The structured summation's walked parameters are read this way instead of re-weighting the walk at the
         nearest lattice point (:meth:`lattice`): a re-weighted pass walks the same paths again to score them
-        (as long as a walk: 9 passes of 51 evaluations were 3/4 of a 347 s fit of the felt), so the walks at
+        and costs about what a walk costs (docs/notes/fit-trust.md, "Monte Carlo noise"), so the walks at
         the lattice points are all that is walked (each in the disk cache: a refit walks nothing). The
         objective is then continuous across lattice cells (the jumps between the walks at 10 % target,
         docs/physics.md 6.5, become a linear blend).

@@ -238,8 +238,8 @@ def residual_scaled_draws(problem: Any, x: np.ndarray, r0: np.ndarray, J: np.nda
     objective (``residuals``, default the problem's): their parameter shifts ``-J^+ dr`` and the part of ``dr`` the
     re-fit cannot absorb, ``(I - J J^+) dr``, whose mean square calibrates ``SSR`` into ``sigma^2``. The plain rule
     ``s^2 (J^T J)^-1`` (:func:`residual_covariance`) treats the residuals as independent; the per-wavelength
-    normalisation at the normal makes them correlated, and on synthetic data with known noise it gave a third to a
-    half of the true u (tests/fabric_optics/fitting/test_fit.py).
+    normalisation at the normal makes them correlated, and on synthetic data with known noise it underestimates u
+    (docs/notes/fit-trust.md, "Honest uncertainties"; tests/fabric_optics/fitting/test_fit.py).
     """
     fn = residuals or problem.residuals
     meas = problem.measured

@@ -23,11 +23,10 @@ def dataset_brdf(dataset: Any) -> tuple[BRDF, dict[str, Any]]:
     interpolated linearly in ``theta_i`` and ``s``, clamped to the measured ranges of both (nearest
     curve end); a pair with relative azimuth ``dphi`` between the curves is the blend
     ``(1 + cos dphi)/2 beta(theta_i, -theta_o) + (1 - cos dphi)/2 beta(theta_i, +theta_o)``
-    (source side to mirror side). Measured against a full-hemisphere truth (the RGL felt sampled at
-    the red-cotton plan): in plane RMS 5.3 %, out of plane median 16 %, RMS 49 %
-    (tests/gonio/test_bsdf_export.py). Refused: fewer than 2 incidences or fewer than 3 observation
-    angles on either side of an incidence, RGB data other than R, G, B, relative (raw) units,
-    geometries missing some of the bands.
+    (source side to mirror side). Its error against a full-hemisphere truth, in and out of plane:
+    docs/explanation/validation.md, "Export to a renderer". Refused: fewer than 2 incidences or
+    fewer than 3 observation angles on either side of an incidence, RGB data other than R, G, B,
+    relative (raw) units, geometries missing some of the bands.
     """
     from scipy.interpolate import RegularGridInterpolator
 

@@ -1,7 +1,7 @@
 """One retry policy for both devices: an adaptive, bounded budget, per-link backoff, counted per kind.
 
-Adaptive budget (with every fault kind of the mock at 0.1, about 47 % of the head's
-exchanges fail, and six attempts per command ran out within a few points):
+Adaptive budget (a fixed number of attempts runs out on a noisy link that still works; the
+mock's measured fault rates: docs/instrument.md, "Retries: an adaptive, bounded budget"):
 
 - **Per link** (``"serial"``, ``"modbus"``) the policy keeps the outcomes of every attempt and
   estimates the link's fault rate ``p = (failures + 0.5) / (attempts + 10)`` (a prior of 5 %

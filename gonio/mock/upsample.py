@@ -16,21 +16,10 @@ match's pipeline, :func:`gonio.data.colour.spectrum_to_rgb`) is the file's RGB, 
 for channels up to 1.5) on a 5 nm grid (``tests/gonio/mock/test_upsample.py``) and 0.3-0.5 % on the
 demo's 10 nm grid (``tests/gonio/acquisition/test_closed_loop_felt.py`` allows 1 %).
 
-**Why this and not a three-band view** (B below 490 nm, G 490..590
-nm, R above): the steps do not have the file's colour. At the felt's normal direction the steps'
-sRGB is (0.160, 0.319, 0.041) where the file says (0.182, 0.305, 0.048): hue +0.016 turn and
-saturation +0.03 off the felt, more than the colour targets the fits are judged by (the Monte
-Carlo fitted to the steps was 0.022 turn off the file's own hue). The decomposition keeps the
-steps' virtue: it is linear in the RGB, so every wavelength's angular curve is a fixed mixture of
-the file's channel curves (at 450 nm 0.95 B, 0.04 G; at 550 nm 0.97 G; at 650 nm 0.91 R).
-
-**Why not a smooth upsampling** (Jakob & Hanika 2019, the sigmoid spectra of Mitsuba 3's
-``rgb2spec``, :func:`colour.recovery.XYZ_to_sd_Jakob2019`): it is non-linear, so each geometry's
-spectrum is shaped on its own and the curves of the tail wavelengths follow the sigmoid's tails
-rather than the fabric (the green felt's forward sheen at 60 / +70 deg over its 0 / 10 deg value:
-12.6 at 700 nm in the sigmoid view, where the decomposition gives 5.7 and the G channel 4.8).
-Measured on the felt: the Monte Carlo fitted to the three-band acquisition scores NRMSE 0.114 against the decomposition's view and 0.161 against the sigmoid
-view; a dye refit on the sigmoid view reached only 0.125 with the hue 0.019 turn off.
+Why a linear decomposition and not three-band steps (whose colour is not the file's) or a smooth
+sigmoid upsampling (non-linear, so the tail wavelengths follow the sigmoid rather than the fabric):
+docs/instrument.md, "An RGB sample's spectrum". The decomposition is linear in the RGB, so every
+wavelength's angular curve is a fixed mixture of the file's channel curves.
 
 An RGB file carries three numbers per geometry: any spectrum read from it is an assumption, and
 this one is stated here and in the demo's report. Negative channels (fitting noise at dark
