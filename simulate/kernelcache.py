@@ -3,7 +3,7 @@
 Numba's own cache locators put a module's compiled kernels beside it (``__pycache__``) or, with
 ``NUMBA_CACHE_DIR``, in a folder named after the hash of the module's absolute folder: a fresh clone
 of the project, or a second worktree, never finds the kernels an earlier one compiled, and compiles
-them all again (about 95 s of CPU). Its source stamp is the module's own file: a kernel that inlines
+them all again. Its source stamp is the module's own file: a kernel that inlines
 or calls a kernel of another module is not recompiled when only that other module changes.
 
 :class:`ContentHashLocator` (installed by :func:`install`, which ``simulate`` and ``fabric_optics``

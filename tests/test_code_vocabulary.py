@@ -106,8 +106,6 @@ NARRATIVE = re.compile(
     r"\b(?:was|were) (?:rewritten|replaced by|changed to)\b|\b(?:before|after|until) this change\b|\buntil now\b" "|"
     r"\bhistorically\b|\bin the past\b",
     re.IGNORECASE)
-#: files left out of the narrative check until their owner rewrites them -- delete an entry when its file is clean
-NARRATIVE_EXCLUDED: tuple[str, ...] = ("simulate/fiber/farfield.py",)
 
 
 @pytest.mark.parametrize("text", [
@@ -157,7 +155,7 @@ def test_no_narrative_history_in_package_code():
     bad = []
     for path in _files():
         rel = path.relative_to(ROOT).as_posix()
-        if rel.startswith(("tests/",) + NARRATIVE_EXCLUDED) or path.resolve() in EXEMPT:
+        if rel.startswith("tests/") or path.resolve() in EXEMPT:
             continue
         lines = path.read_text(encoding="utf-8").splitlines()
         for no, line in enumerate(lines, 1):
@@ -173,7 +171,7 @@ def test_no_narrative_history_in_module_docstrings():
     bad = []
     for path in _files():
         rel = path.relative_to(ROOT).as_posix()
-        if rel.startswith(("tests/",) + NARRATIVE_EXCLUDED):
+        if rel.startswith("tests/"):
             continue
         doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
         m = NARRATIVE.search(" ".join(doc.split()))

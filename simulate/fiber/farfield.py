@@ -162,10 +162,9 @@ def _accumulate_beam(T, k_min, nodes, js, weights, scales, lit, out):
     beam azimuth cell ``js[c]``) and the lit entry cells ``i``, row ``k = js[c] - i`` (wrapped), for ONE beam.
 
     Parallel over the exit cells ``B``, each ``out[B]`` (one exit cell's bins and channels, ~10^5 values)
-    summed while it stays in cache. The first version looped entry cell outermost, one call per term:
-    ``out`` (~5 MB on the felt's 112 channels) streamed through memory once per lit cell and term, 30 s of
-    a 74 s fit walk. The order of the additions per value is that version's (term, then entry cell), so
-    the numbers are bit-identical."""
+    summed while it stays in cache, rather than streaming the whole ``out`` through memory once per lit cell
+    and term. The additions per value run in the order term, then entry cell, the order of the plain loop
+    over terms and entry cells: the numbers do not depend on the loop's arrangement."""
     n = out.shape[0]
     inner = out[0].size
     flat_out = out.reshape(n, inner)

@@ -51,10 +51,9 @@ IDLE_FOR_WORKER = 0.5
 def idle_cores(seconds: float = 0.1) -> float | None:
     """Cores left idle by every process on the machine over ``seconds`` (``/proc/stat``; None where it is not).
 
-    On two cores, two entries at once finish a cold felt walk in ~15 s when the second core is free,
-    but cost ~2 CPU s more than one
-    after the other (GIL hand-offs, page faults of two tables at once), so with the other core busy the
-    threads are ~3 s SLOWER. The choice changes no number (bit-identical either way), only the time."""
+    Two entries at once finish a walk sooner when the second core is free, but cost more CPU than one after
+    the other (GIL hand-offs, page faults of two tables at once), so with the other core busy they are
+    slower. The choice changes no number (bit-identical either way), only the time."""
     def sample() -> tuple[int, int]:
         with open("/proc/stat") as f:
             v = [int(x) for x in f.readline().split()[1:]]

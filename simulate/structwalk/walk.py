@@ -272,8 +272,8 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
 
     Threads (details in :mod:`simulate.structwalk.threads`). The entries not in the cache
     run two at a time on threads, ``threads // 2`` kernel threads each (``threads=None``: the cores, and a
-    second worker only when a core is idle: with the other core busy two threads cost ~2 CPU s more and
-    were slower); ``threads=1`` is the serial walk. Why threads: ~70 % of a cold walk was one core's work
+    second worker only when a core is idle: with the other core busy two threads cost more CPU and
+    are slower); ``threads=1`` is the serial walk. Why threads: most of a cold walk is one core's work
     per entry (exit radiance, layer table, closure), and processes would pickle ~10^8-byte tables and
     re-load numba. Why ``nogil=True`` (row runner, ``_accumulate_beam``, :func:`_symmetrise`, the rows'
     reduction): a numba call holds the GIL unless compiled without it, and those are most of an entry.
@@ -455,7 +455,7 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
 
     ``spare``: a list of flat float64 buffers to take the exit table's memory from and give it back to (the
     table, ~0.6 GB on the felt, is written whole by the rows -- every node, row and wavelength group -- so
-    a used buffer needs no zeroing; a fresh one per entry cost its page faults: ~1 s of system time)."""
+    a used buffer needs no zeroing, and a fresh one per entry would cost its page faults)."""
     from simulate.fabric.structure import layer_table_of
     from simulate.fiber import farfield as FF
     from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
@@ -514,7 +514,7 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
 def _symmetrise(T):
     """In place, :func:`simulate.fiber.farfield._symmetrised` (each row averaged with the mirror image of its
     opposite: row ``r -> R-1-r``, exit cell ``o -> -o``, exit azimuth bin ``p -> P-1-p``) in one pass
-    without the three ``[W, K, n_psi, n_mu, n_phi, L]`` temporaries (16 s of a 133 s walk on the felt)."""
+    without the three ``[W, K, n_psi, n_mu, n_phi, L]`` temporaries (on the felt, tables of ~0.6 GB each)."""
     W, R, O, M, P, C = T.shape
     for w in numba.prange(W):
         for r in range(R):
