@@ -3,7 +3,7 @@
 The page's "Layout" section holds one fenced tree per package (``gonio/``, ``simulate/``, ``compare/``,
 ``fabric_optics/``): two spaces of indentation per level, one entry per line, a folder's name ending
 in ``/`` (its line stands for its ``__init__.py``), then at least two spaces and a one-line description.
-Anywhere on the page, a path such as ``gonio/acquisition/plan.py`` must name a module that exists.
+Anywhere on the page, a path such as ``gonio/acquisition/plan/parse.py`` must name a module that exists.
 
 ``python docs/scripts/architecture.py`` (``make architecture``) prints the modules without a line and the
 lines without a module, and mends the page: a new module gets a line with the first sentence of its

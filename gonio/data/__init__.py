@@ -6,7 +6,11 @@ One concept per module (``compare`` and ``simulate`` import only from here):
     the format's constants (columns, names, limits) and :class:`DatasetError`: the leaf every
     other module imports, importing none of them;
 ``gonio.data.dataset``
-    the dataset format (spectral or RGB, absolute or relative), its validation and atomic I/O;
+    the dataset format (spectral or RGB, absolute or relative): the `Dataset`, reading and writing;
+``gonio.data.validation``
+    the checks of a dataset's table, metadata and files that reading and writing share;
+``gonio.data.atomic``
+    the atomic writers of every output (one file, or several together);
 ``gonio.data.geometry``
     the fabric frame's conventions: directions, the signed in-plane angle, the instrument's axes
     and the beam-block test shared by plans, datasets and the mock;

@@ -1,8 +1,9 @@
 """Radiance-coefficient datasets: the format, its validation and its (atomic) I/O.
 
-(About 800 lines, one concept: the validation, the `Dataset` and its I/O share the
-private checks, and ``simulate``/``compare`` import the readers and writers from here; the
-format's constants and `DatasetError` are the leaf `gonio.data.schema`.)
+The format's constants and `DatasetError` are the leaf `gonio.data.schema`, the checks of the two
+files `gonio.data.validation`, the atomic writers `gonio.data.atomic`; ``simulate`` and ``compare``
+import the readers and writers from here (this module also offers `atomic_write`,
+`write_files_together` and `remove_stale_temp_files` under their long-standing names).
 
 A dataset is a directory with two files (docs/dataset.md):
 
@@ -50,25 +51,24 @@ units carries ``"relative": true``: its shapes are meaningful, its absolute leve
 from __future__ import annotations
 
 import datetime as _dt
-import errno
 import hashlib
 import io
 import json
-import math
 import os
 import platform
-import re
-import shutil
-import stat
-import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from gonio.data import claim
+from gonio.data.atomic import (  # noqa: F401  (also offered here: their long-standing home)
+    atomic_write,
+    fsync_dir,
+    remove_stale_temp_files,
+    write_files_together,
+)
 from gonio.data.geometry import signed_angle
 
 __all__ = [
@@ -86,6 +86,7 @@ __all__ = [
     "read_dataset",
     "remove_stale_temp_files",
     "write_dataset",
+    "write_files_together",
 ]
 
 from gonio.data.schema import (  # noqa: F401
@@ -106,223 +107,9 @@ from gonio.data.schema import (  # noqa: F401
     WAVELENGTH_RANGE_NM,
     DatasetError,
 )
+from gonio.data.validation import canonical_phi, file_kind, require_regular_file, validate_meta, validate_table
 
 _FLOAT_FORMAT = "%.10g"
-
-
-def _canonical_phi(table: pd.DataFrame) -> pd.DataFrame:
-    """Phi in [0, 360); ``phi_o`` of the normal direction set to ``phi_i + 180`` (see module doc)."""
-    table = table.copy()
-    for col in ("phi_i", "phi_o"):
-        phi = np.mod(table[col].to_numpy(dtype=float), 360.0)
-        phi[np.isclose(phi, 360.0, atol=ANGLE_TOL_DEG)] = 0.0
-        table[col] = phi
-    normal_o = np.abs(table["theta_o"].to_numpy(dtype=float)) < ANGLE_TOL_DEG
-    if normal_o.any():
-        table.loc[normal_o, "phi_o"] = np.mod(table.loc[normal_o, "phi_i"] + 180.0, 360.0)
-    return table
-
-
-# --------------------------------------------------------------------------------------------
-# validation
-
-
-def _validate_table(table: pd.DataFrame, file: str | None, *, line_offset: int = 2) -> pd.DataFrame:
-    """Check columns, numbers, ranges and duplicates; return a float/int typed, sorted copy.
-
-    ``line_offset`` maps a 0-based data index to the row number users see (2 = file line, header
-    on line 1).
-    """
-    if table.shape[0] == 0:
-        raise DatasetError("no data rows", file=file,
-                           hint="a dataset needs at least one (geometry, wavelength) row")
-    columns = [str(c).strip() for c in table.columns]
-    rgb = "channel" in columns and "wavelength_nm" not in columns
-    expected = RGB_COLUMNS if rgb else COLUMNS
-    band = expected[4]
-    missing = [c for c in expected if c not in columns]
-    if missing:
-        raise DatasetError(f"missing column(s) {', '.join(missing)}", file=file, row=1,
-                           hint=f"the header must be {','.join(COLUMNS)} (or, for an RGB "
-                                f"dataset, {','.join(RGB_COLUMNS)})")
-    extra = [c for c in columns if c not in expected]
-    if extra or tuple(columns) != expected:
-        raise DatasetError(
-            f"columns are {','.join(columns)}" + (f" (unknown: {', '.join(extra)})" if extra else ""),
-            file=file, row=1, hint=f"the header must be exactly {','.join(expected)} in this order")
-    table = table.copy()
-    table.columns = columns
-    out: dict[str, Any] = {}
-    if rgb:
-        channel = table["channel"].astype(str).str.strip().to_numpy()
-        bad = ~np.isin(channel, CHANNELS)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise DatasetError(f"value {str(table['channel'].iloc[i])!r} is not a channel",
-                               file=file, row=i + line_offset, column="channel",
-                               hint=f"a channel is one of {', '.join(CHANNELS)}")
-        out["channel"] = channel.astype(object)
-    for col in expected:
-        if col == "channel":
-            continue
-        raw = table[col]
-        values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=float)
-        bad = ~np.isfinite(values)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            shown = raw.iloc[i]
-            shown = "empty" if (shown is None or (isinstance(shown, float) and math.isnan(shown))
-                                or str(shown).strip() == "") else repr(str(shown))
-            raise DatasetError(f"value {shown} is not a finite number", file=file,
-                               row=i + line_offset, column=col)
-        out[col] = values
-    checks = [
-        ("theta_i", lambda v: (v >= 0) & (v <= 90), "must be in [0, 90] degrees"),
-        ("theta_o", lambda v: (v >= 0) & (v <= 90), "must be in [0, 90] degrees"),
-        ("phi_i", lambda v: (v >= 0) & (v < 360), "must be in [0, 360) degrees"),
-        ("phi_o", lambda v: (v >= 0) & (v < 360), "must be in [0, 360) degrees"),
-        ("wavelength_nm", lambda v: (v >= WAVELENGTH_RANGE_NM[0]) & (v <= WAVELENGTH_RANGE_NM[1]),
-         f"must be in [{WAVELENGTH_RANGE_NM[0]:g}, {WAVELENGTH_RANGE_NM[1]:g}] nm"),
-        ("beta", lambda v: np.abs(v) <= BETA_MAX,
-         f"is not a plausible radiance coefficient (|beta| must be <= {BETA_MAX:g})"),
-        ("u_beta", lambda v: v >= 0, "must be >= 0"),
-        ("u_beta", lambda v: v <= U_BETA_MAX_RATIO * max(float(np.max(np.abs(out["beta"]))), 1.0),
-         f"is not a plausible standard uncertainty: it exceeds {U_BETA_MAX_RATIO:g} times the "
-         "largest |beta| of the file (or 1); leave out a point whose value is unknown"),
-        ("n", lambda v: (v >= 1) & (v == np.round(v)), "must be a whole number >= 1"),
-        ("n", lambda v: v <= N_MAX, f"is out of range (a count must be <= 2^53 = {N_MAX:d})"),
-    ]
-    for col, ok, what in checks:
-        if col not in out:
-            continue
-        good = ok(out[col])
-        if not good.all():
-            i = int(np.flatnonzero(~good)[0])
-            raise DatasetError(f"value {out[col][i]:g} {what}", file=file, row=i + line_offset,
-                               column=col)
-    frame = pd.DataFrame(out, columns=list(expected))
-    frame["n"] = frame["n"].astype(np.int64)
-    frame = _canonical_phi(frame)
-    key = frame[list(GEOMETRY)].round(6)
-    key[band] = frame[band]
-    dup = key.duplicated(keep=False).to_numpy()
-    if dup.any():
-        rows = np.flatnonzero(dup)
-        first = key.iloc[rows[0]]
-        same = rows[(key.iloc[rows] == first).all(axis=1).to_numpy()]
-        geometry = ", ".join(f"{c}={first[c]}" if c == "channel" else f"{c}={first[c]:g}"
-                             for c in key.columns)
-        raise DatasetError(f"duplicate geometry and {'channel' if rgb else 'wavelength'} "
-                           f"({geometry}), also on row "
-                           f"{int(same[1]) + line_offset}", file=file,
-                           row=int(same[0]) + line_offset,
-                           hint="each (geometry, wavelength) must appear once")
-    if rgb:
-        frame["_order"] = [CHANNELS.index(c) for c in frame["channel"]]
-        frame = frame.sort_values(list(GEOMETRY) + ["_order"], kind="mergesort")
-        frame = frame.drop(columns="_order")
-    else:
-        frame = frame.sort_values(list(GEOMETRY) + ["wavelength_nm"], kind="mergesort")
-    return frame.reset_index(drop=True)
-
-
-def _meta_depth_ok(meta: Any) -> bool:
-    """True when ``meta`` nests no deeper than `META_MAX_DEPTH` (iterative: no recursion)."""
-    stack = [(meta, 1)]
-    while stack:
-        value, depth = stack.pop()
-        if isinstance(value, (dict, list)):
-            if depth > META_MAX_DEPTH:
-                return False
-            children = value.values() if isinstance(value, dict) else value
-            stack.extend((child, depth + 1) for child in children)
-    return True
-
-
-def _type_name(value: Any) -> str:
-    return {dict: "an object", list: "a list", str: "a string", bool: "true/false",
-            type(None): "null", int: "a number", float: "a number"}.get(type(value),
-                                                                        type(value).__name__)
-
-
-def _validate_meta(meta: Any, file: str | None) -> dict:  # noqa: C901
-    if not isinstance(meta, dict):
-        raise DatasetError(f"must hold a JSON object, not {_type_name(meta)}", file=file)
-    if not _meta_depth_ok(meta):
-        raise DatasetError(f"nested deeper than {META_MAX_DEPTH} levels", file=file,
-                           hint="meta.json holds a few levels of keys; regenerate it")
-    schema = meta.get("schema")
-    if schema is None:
-        raise DatasetError("missing key 'schema'", file=file, hint=f"expected \"{SCHEMA}\"")
-    if schema != SCHEMA:
-        raise DatasetError(f"unknown schema {schema!r}", file=file,
-                           hint=f"this version reads \"{SCHEMA}\"")
-    kind = meta.get("kind")
-    if kind not in KINDS:
-        raise DatasetError(f"key 'kind' is {kind!r}", file=file,
-                           hint="it must be \"measured\" or \"simulated\"")
-
-    def expect(path: str, value: Any, types: tuple, what: str) -> None:
-        if not isinstance(value, types) or (bool not in types and isinstance(value, bool)):
-            raise DatasetError(f"key '{path}' must be {what}, not {_type_name(value)}", file=file,
-                               hint="fix or regenerate meta.json")
-
-    for key in ("sample", "instrument", "model", "software", "provenance", "files"):
-        if key in meta:
-            expect(key, meta[key], (dict,), "an object")
-    if "name" in meta.get("sample", {}):
-        expect("sample.name", meta["sample"]["name"], (str,), "a string")
-    if "created" in meta:
-        expect("created", meta["created"], (str,), "an ISO-8601 date string")
-    if "wavelengths_nm" in meta:
-        expect("wavelengths_nm", meta["wavelengths_nm"], (list,), "a list of numbers")
-        for j, w in enumerate(meta["wavelengths_nm"]):
-            expect(f"wavelengths_nm[{j}]", w, (int, float), "a number")
-    if "channels" in meta:
-        expect("channels", meta["channels"], (list,), "a list of channel names")
-        for j, c in enumerate(meta["channels"]):
-            if c not in CHANNELS:
-                raise DatasetError(f"key 'channels[{j}]' is {c!r}; a channel is one of "
-                                   f"{', '.join(CHANNELS)}", file=file)
-    if "colour_space" in meta:
-        expect("colour_space", meta["colour_space"], (str,), "a string such as \"linear sRGB\"")
-        _check_colour_space(meta["colour_space"], file)
-    if "relative" in meta:
-        expect("relative", meta["relative"], (bool,), "true or false")
-    files = meta.get("files", {})
-    if CSV_NAME in files:
-        expect(f"files.{CSV_NAME}", files[CSV_NAME], (dict,), "an object")
-        if "sha256" in files[CSV_NAME]:
-            expect(f"files.{CSV_NAME}.sha256", files[CSV_NAME]["sha256"], (str,),
-                   "a hexadecimal string")
-    provenance = meta.get("provenance", {})
-    if "complete" in meta:
-        expect("complete", meta["complete"], (bool,), "true or false")
-    if "complete" in provenance:
-        expect("provenance.complete", provenance["complete"], (bool,), "true or false")
-    for key in ("points_planned", "points_measured"):
-        if key in provenance:
-            expect(f"provenance.{key}", provenance[key], (int,), "a whole number")
-            if provenance[key] < 0:
-                raise DatasetError(f"key 'provenance.{key}' is {provenance[key]}; it must be >= 0",
-                                   file=file)
-    return meta
-
-
-def _check_colour_space(name: str, file: str | None) -> None:
-    """Accept ``"linear NAME"`` with NAME a colour-science RGB colour space (e.g. sRGB)."""
-    import colour
-
-    if not name.startswith("linear "):
-        raise DatasetError(f"key 'colour_space' is {name!r}: only linear colour spaces are "
-                           "supported", file=file,
-                           hint="name it \"linear sRGB\" (or \"linear NAME\" with NAME a "
-                                "colour-science RGB colour space) and store linear values")
-    if name[len("linear "):] not in colour.RGB_COLOURSPACES:
-        raise DatasetError(f"key 'colour_space' names an unknown colour space {name!r}",
-                           file=file, hint="use \"linear sRGB\" or \"linear NAME\" with NAME a key "
-                                           "of colour.RGB_COLOURSPACES")
-
 
 # --------------------------------------------------------------------------------------------
 # the dataset
@@ -468,7 +255,7 @@ class Dataset:
     def spectrum(self, theta_i: float, phi_i: float, theta_o: float, phi_o: float) -> pd.DataFrame:
         """Rows at one geometry (angles within 1e-6 degrees), sorted by wavelength."""
         t = self.table
-        probe = _canonical_phi(pd.DataFrame({"theta_i": [theta_i], "phi_i": [phi_i],
+        probe = canonical_phi(pd.DataFrame({"theta_i": [theta_i], "phi_i": [phi_i],
                                              "theta_o": [theta_o], "phi_o": [phi_o]}))
         mask = np.ones(len(t), dtype=bool)
         for col in GEOMETRY:
@@ -590,8 +377,8 @@ def make_dataset(table: pd.DataFrame | Mapping[str, Iterable], meta: Mapping,
     for columns in (COLUMNS, RGB_COLUMNS):
         if all(c in frame.columns for c in columns):
             frame = frame[list(columns)]
-    meta = _validate_meta(json.loads(json.dumps(dict(meta), default=_json_default)), source)
-    frame = _validate_table(frame, source, line_offset=0)
+    meta = validate_meta(json.loads(json.dumps(dict(meta), default=_json_default)), source)
+    frame = validate_table(frame, source, line_offset=0)
     dataset = Dataset(frame, meta)
     _fill_band_meta(dataset)
     return dataset
@@ -626,147 +413,6 @@ def _csv_bytes(table: pd.DataFrame) -> bytes:
     return buffer.getvalue().encode("utf-8")
 
 
-def atomic_write(path: str | os.PathLike, data: bytes | Callable[[BinaryIO], object]) -> None:
-    """Write ``data`` to ``path`` atomically: temporary file in the same folder, fsync, rename.
-
-    The file gets the usual permissions (``0666 & ~umask``), not ``mkstemp``'s private 0600:
-    datasets and reports are meant to be shared. A crash leaves either the old file or the new one.
-    ``data`` may also be a function that writes the file's bytes to the open handle it is given
-    (a mesh exporter, a large table). Every :class:`OSError` names ``path`` (``exc.filename``:
-    the final name, not the temporary one), a full disk included. When this thread claimed ``path``
-    or its folder (:func:`gonio.data.claim.claim_output`), the claim is checked before the rename.
-    This is the one atomic file writer of the toolkit's outputs.
-    """
-    path = Path(path)
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as handle:
-            if callable(data):
-                data(handle)
-            else:
-                handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        claim.verify(path)
-        os.replace(tmp, path)
-        tmp = None
-    except OSError as exc:
-        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-
-
-def write_files_together(out_dir: str | os.PathLike, files: Mapping[str, bytes]) -> list[Path]:
-    """Write ``files`` (path relative to ``out_dir`` -> bytes) into ``out_dir`` together; return their paths.
-
-    Every file is written and fsynced into a hidden folder ``out_dir/.writing-XXXXXXXX.tmp/`` first and
-    only then renamed into place, so a write that fails (a full disk) leaves ``out_dir`` as it was:
-    the staged files are removed, as are the folders this call created; files already in ``out_dir``
-    are replaced only once every new one is on disk. The `OSError` raised names the file
-    (its final path) whose write failed.
-    """
-    out = Path(out_dir)
-    rel = {Path(name): data for name, data in files.items()}
-    for r in rel:
-        if r.is_absolute() or ".." in r.parts or not r.parts:
-            raise ValueError(f"{r}: not a file name inside {out}")
-    created: list[Path] = []
-    for d in [out, *sorted({out / r.parent for r in rel if r.parent != Path(".")})]:
-        missing = [a for a in [d, *d.parents] if not a.exists()][::-1]
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            _remove_empty(created + missing)
-            raise OSError(exc.errno, exc.strerror, str(d)) from None
-        created += missing
-    umask = os.umask(0)
-    os.umask(umask)
-    stage = None
-    try:
-        stage = Path(tempfile.mkdtemp(prefix=".writing-", suffix=".tmp", dir=out))
-        for r, data in rel.items():
-            tmp = stage / r
-            try:
-                tmp.parent.mkdir(parents=True, exist_ok=True)
-                with open(tmp, "wb") as handle:
-                    handle.write(data)
-                    handle.flush()
-                    os.fsync(handle.fileno())
-                os.chmod(tmp, 0o666 & ~umask)
-            except OSError as exc:
-                raise OSError(exc.errno, exc.strerror, str(out / r)) from None
-        claim.verify(out)
-        for r in rel:
-            os.replace(stage / r, out / r)
-    except BaseException:
-        if stage is not None:
-            shutil.rmtree(stage, ignore_errors=True)
-        _remove_empty(created)
-        raise
-    shutil.rmtree(stage, ignore_errors=True)
-    _fsync_dir(out)
-    return [out / r for r in rel]
-
-
-def _remove_empty(folders: list[Path]) -> None:
-    """Remove the ``folders`` (deepest first) that are empty: those a failed write created."""
-    for d in sorted(set(folders), key=lambda p: len(p.parts), reverse=True):
-        try:
-            d.rmdir()
-        except OSError:
-            pass
-
-
-#: Names of `atomic_write`'s temporary files for a dataset's two files: ``mkstemp`` with
-#: prefix ``.NAME.`` and suffix ``.tmp`` puts 8 characters of ``[a-z0-9_]`` between them.
-_TEMP_NAME = re.compile(r"\.(?:radiance\.csv|meta\.json)\.[a-z0-9_]{8}\.tmp")
-
-
-def remove_stale_temp_files(out_dir: str | os.PathLike) -> list[Path]:
-    """Remove temporary files that `write_dataset` left in ``out_dir`` (a killed write).
-
-    Only regular files whose names match the writer's own pattern
-    (``.radiance.csv.XXXXXXXX.tmp``, ``.meta.json.XXXXXXXX.tmp``) are removed; anything else is
-    left alone. The caller must be the only writer of ``out_dir`` (the engine holds the run
-    directory's lock). Returns the removed paths.
-    """
-    out = Path(out_dir)
-    removed: list[Path] = []
-    try:
-        entries = list(os.scandir(out))
-    except (FileNotFoundError, NotADirectoryError):
-        return removed
-    for entry in entries:
-        if _TEMP_NAME.fullmatch(entry.name) and entry.is_file(follow_symlinks=False):
-            try:
-                os.unlink(entry.path)
-            except FileNotFoundError:
-                continue
-            removed.append(Path(entry.path))
-    return removed
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
     """Write ``dataset`` to ``out_dir`` (created if needed) atomically; return the directory.
 
@@ -777,7 +423,7 @@ def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
     The CSV is formatted deterministically (``%.10g``), so equal datasets give byte-identical files.
     """
     out = Path(out_dir)
-    _validate_table(dataset.table, str(out / CSV_NAME), line_offset=0)   # what the reader would refuse
+    validate_table(dataset.table, str(out / CSV_NAME), line_offset=0)   # what the reader would refuse
     out.mkdir(parents=True, exist_ok=True)
     data = _csv_bytes(dataset.table)
     meta = json.loads(json.dumps(dataset.meta, default=_json_default))
@@ -790,35 +436,10 @@ def write_dataset(dataset: Dataset, out_dir: str | os.PathLike) -> Path:
     atomic_write(out / CSV_NAME, data)
     atomic_write(out / META_NAME,
                   (json.dumps(meta, indent=2, sort_keys=False, allow_nan=False) + "\n").encode())
-    _fsync_dir(out)
+    fsync_dir(out)
     dataset.path = out
     dataset.meta = meta
     return out
-
-
-def _require_regular_file(path: Path) -> None:
-    """Refuse anything but a readable regular file, saying what it is (a FIFO would block)."""
-    hint = f"a dataset directory holds the regular files {CSV_NAME} and {META_NAME}"
-    try:
-        st = os.stat(path)
-    except OSError as exc:
-        if os.path.islink(path):
-            what = ("is a symbolic link that loops" if exc.errno == errno.ELOOP
-                    else f"is a symbolic link to a missing target ({os.readlink(path)})")
-            raise DatasetError(what, file=path, hint=hint) from None
-        if exc.errno == errno.ENOENT:
-            raise DatasetError("file is missing", file=path, hint=hint) from None
-        raise DatasetError(f"cannot be opened ({exc.strerror})", file=path, hint=hint) from None
-    if not stat.S_ISREG(st.st_mode):
-        raise DatasetError(f"is {_file_kind(st.st_mode)}, not a regular file", file=path,
-                           hint=hint)
-
-
-def _file_kind(mode: int) -> str:
-    kinds = [(stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-             (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
-             (stat.S_ISBLK, "a block device"), (stat.S_ISREG, "a regular file")]
-    return next((name for test, name in kinds if test(mode)), "a special file")
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:  # noqa: C901
@@ -827,7 +448,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:  # noqa: C901
     hint = f"a dataset is a directory holding {CSV_NAME} and {META_NAME}"
     if not root.exists():
         if os.path.islink(root):
-            _require_regular_file(root)    # names the looping or dangling link
+            require_regular_file(root)    # names the looping or dangling link
         raise DatasetError("no such dataset directory", file=root, hint=hint)
     if root.is_file():
         if root.name in (CSV_NAME, META_NAME):
@@ -836,11 +457,11 @@ def read_dataset(path: str | os.PathLike) -> Dataset:  # noqa: C901
             raise DatasetError("is a file, not a dataset directory", file=root,
                                hint=f"pass the directory holding {CSV_NAME} and {META_NAME}")
     elif not root.is_dir():
-        kind = _file_kind(os.stat(root).st_mode)
+        kind = file_kind(os.stat(root).st_mode)
         raise DatasetError(f"is {kind}, not a dataset directory", file=root, hint=hint)
     csv_path, meta_path = root / CSV_NAME, root / META_NAME
     for p in (csv_path, meta_path):
-        _require_regular_file(p)
+        require_regular_file(p)
     raw_meta = meta_path.read_bytes()
     if not raw_meta.strip():
         raise DatasetError("file is empty", file=meta_path)
@@ -854,7 +475,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:  # noqa: C901
         raise DatasetError(f"not UTF-8 text ({exc.reason})", file=meta_path) from None
     except json.JSONDecodeError as exc:
         raise DatasetError(f"invalid JSON: {exc.msg}", file=meta_path, row=exc.lineno) from None
-    meta = _validate_meta(meta, str(meta_path))
+    meta = validate_meta(meta, str(meta_path))
     data = csv_path.read_bytes()
     if not data.strip():
         raise DatasetError("file is empty", file=csv_path,
@@ -877,7 +498,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:  # noqa: C901
     except pd.errors.EmptyDataError:
         raise DatasetError("file is empty", file=csv_path) from None
     # pandas pads short rows with NaN/"" and rejects long ones above; name the short row precisely
-    table = _validate_table(table, str(csv_path))
+    table = validate_table(table, str(csv_path))
     if "channel" in table.columns:
         dataset = Dataset(table, meta, path=root)
         listed_channels = meta.get("channels")

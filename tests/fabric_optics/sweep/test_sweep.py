@@ -121,7 +121,7 @@ def test_failed_task_is_retried_reported_and_the_rest_kept(tmp_path, monkeypatch
         return Client(cluster), cluster
 
     monkeypatch.setattr(sweep_mod, "fabric_dataset", flaky)
-    monkeypatch.setattr("fabric_optics.cli.simulate._sweep_client", client)
+    monkeypatch.setattr("fabric_optics.cli.simulate.sweep._sweep_client", client)
     plan = write_plan(tmp_path)
     out = tmp_path / "s"
     argv = ["sweep", "red-cotton", "--param", PARAMS[0], "--method", "classic", "--plan", str(plan),
