@@ -83,8 +83,8 @@ import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.events import (catch_up, catch_up_dyed, fresnel_reflects, largest, mirror, refract_in,
-                                        refract_out, roulette)
+from simulate.montecarlo.events import (catch_up, catch_up_dyed, fresnel_reflects, implicit_capture, largest, mirror,
+                                        refract_in, refract_out, roulette)
 from simulate.montecarlo.geometry import (
     CELL,
     SLAB,
@@ -435,8 +435,7 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                     y = yn
                     z = zn
                     path += step
-                    absorbed += w * absorb
-                    w *= albedo
+                    w, absorbed = implicit_capture(w, absorbed, albedo, absorb)
                     scatterings += 1
                     w_max = 1.0
                     decide = True  # roulette decided at this collision
