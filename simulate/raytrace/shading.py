@@ -133,11 +133,12 @@ def _interp(a, x):
 
 
 @numba.njit(cache=True)
-def _tube_point(s, phi, yarn, vertices, normals, tangents, vertex_base, n_s, yarn_length, sides, periodic,
-                face_base):
+def _tube_point(s, phi, yarn, tube, periodic, face_base):
     """Point, normal and tangent of the tube mesh at (s, phi): the mesh's own triangles; with a
     non-empty ``face_base`` also the triangle's index and its outward geometric normal. ``periodic = False``
-    (an open fiber of a felt, :mod:`simulate.geometry.felt`): ``s`` is clamped to the tube's ends."""
+    (an open fiber of a felt, :mod:`simulate.geometry.felt`): ``s`` is clamped to the tube's ends. ``tube``:
+    the mesh's ``(vertices, normals, tangents, vertex_base, n_s, yarn_length, sides)`` (:class:`ShadeInputs`)."""
+    vertices, normals, tangents, vertex_base, n_s, yarn_length, sides = tube
     L = yarn_length[yarn]
     ns = n_s[yarn]
     if periodic:
@@ -916,8 +917,8 @@ def _sample_exit(i, on_yarn, inp, out, row, vol):
     ia, ib, ic, w0, w1, w2 = bary
     ytx, yty, ybx, yby, ybz = yarn_frame
     n_psi, n_v, n_mu, n_phi = inp.n_psi, inp.n_v, inp.n_mu, inp.n_phi
-    vertices, normals, tangents, vertex_base = inp.vertices, inp.normals, inp.tangents, inp.vertex_base
-    n_s, yarn_length, sides, face_base = inp.n_s, inp.yarn_length, inp.sides, inp.face_base
+    tube = (inp.vertices, inp.normals, inp.tangents, inp.vertex_base, inp.n_s, inp.yarn_length, inp.sides)
+    face_base = inp.face_base
     iv = (cell // (n_phi * n_mu)) % n_v
     io = cell // (n_phi * n_mu * n_v)
     o_signed = io if io <= n_psi // 2 else io - n_psi
@@ -930,10 +931,8 @@ def _sample_exit(i, on_yarn, inp, out, row, vol):
     s0 = w0 * inp.vertex_s[ia] + w1 * inp.vertex_s[ib] + w2 * inp.vertex_s[ic]
     f0 = w0 * inp.vertex_phi[ia] + w1 * inp.vertex_phi[ib] + w2 * inp.vertex_phi[ic]
     # d P / d phi ~ n x t-ish: find the phi direction from the neighbouring ring point
-    q_p, q_n, q_t, q_g, q_f = _tube_point(s0, f0 + 1e-3, yarn, vertices, normals, tangents, vertex_base,
-                                          n_s, yarn_length, sides, periodic, face_base[:0])
-    r_p, r_n, r_t, r_g, r_f = _tube_point(s0, f0, yarn, vertices, normals, tangents, vertex_base, n_s,
-                                          yarn_length, sides, periodic, face_base[:0])
+    q_p, q_n, q_t, q_g, q_f = _tube_point(s0, f0 + 1e-3, yarn, tube, periodic, face_base[:0])
+    r_p, r_n, r_t, r_g, r_f = _tube_point(s0, f0, yarn, tube, periodic, face_base[:0])
     dpb = (q_p[0] - r_p[0]) * ybx + (q_p[1] - r_p[1]) * yby + (q_p[2] - r_p[2]) * ybz
     sgn = -1.0 if dpb > 0.0 else 1.0
     # s is x (warp), y (weft) or the arc length (a felt's fiber, run_axis 2)
@@ -948,8 +947,7 @@ def _sample_exit(i, on_yarn, inp, out, row, vol):
         d_b = -vv * tw_s - inp.r_yarn * dps * c_a
         s1 = s0 + d_t * t_run
         f1 = f0 - sgn * d_b / inp.r_yarn
-    e_p, e_n, e_t, e_g, e_face = _tube_point(s1, f1, yarn, vertices, normals, tangents, vertex_base, n_s,
-                                             yarn_length, sides, periodic, face_base)
+    e_p, e_n, e_t, e_g, e_face = _tube_point(s1, f1, yarn, tube, periodic, face_base)
     if inp.face_normals:
         e_n = e_g
     etx, ety, etz, ebx, eby, ebz, enx, eny, enz = _frame(e_n[0], e_n[1], e_n[2], e_t[0], e_t[1], e_t[2])
