@@ -6,6 +6,7 @@ the order of events in :mod:`.kernel`'s module docstring), written once and call
 :func:`.slab_lanes.simulate_batch_slab_lanes` (the plain slab, two photons in flight).
 
 * :func:`refract_in`: a smooth entry (Snell), the entering direction and the reflected fraction;
+* :func:`implicit_capture`: the absorbed part of a photon's weight at a collision;
 * :func:`fresnel_reflects`: whether a photon meeting the smooth boundary from inside is reflected
   (Fresnel, total internal reflection included), drawing only when the answer is not certain;
 * :func:`mirror` and :func:`refract_out`: its new direction, reflected or leaving;
@@ -30,7 +31,7 @@ from simulate.montecarlo.rng import next_u64, to_uniform
 from simulate.montecarlo.vecmath import vexp
 from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
 
-__all__ = ["refract_in", "fresnel_reflects", "mirror", "refract_out", "roulette", "catch_up", "catch_up_dyed",
+__all__ = ["refract_in", "implicit_capture", "fresnel_reflects", "mirror", "refract_out", "roulette", "catch_up", "catch_up_dyed",
            "largest"]
 
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # as kernel._FASTMATH
@@ -49,6 +50,13 @@ def refract_in(dx, dy, dz, nx, ny, nz, cos_i, n_in, eta_in):
     uz = eta_in * dz + k * nz
     norm = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
     return ux * norm, uy * norm, uz * norm, f_in
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def implicit_capture(w, absorbed, albedo, absorb):
+    """Implicit capture at a collision: the absorbed part ``w mu_a / mu_t`` (``absorb``) of the weight ``w``
+    booked, the photon going on with ``w mu_s / mu_t`` (``albedo``). ``(w, absorbed)``."""
+    return w * albedo, absorbed + w * absorb
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)

@@ -83,8 +83,8 @@ import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.events import (catch_up, catch_up_dyed, fresnel_reflects, largest, mirror, refract_in,
-                                        refract_out, roulette)
+from simulate.montecarlo.events import (catch_up, catch_up_dyed, fresnel_reflects, implicit_capture, largest, mirror,
+                                        refract_in, refract_out, roulette)
 from simulate.montecarlo.geometry import (
     CELL,
     SLAB,
@@ -342,6 +342,11 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                 spec_dye[l] = inp.spec_mu[l, 2]
                 d_mu_u[l] = d_mu_t[l] - spec_dye[l]
             pend_d = 0.0
+        # the records the tallies read, packed once (tuples: no allocation, passed as their fields)
+        scratch = T.Scratch(hist, touched, n_touched, marks, n_spec)
+        spectral = T.Spectral(spec_w, spec_mu_t, phase_ratio, ratio)
+        vertex = T.VertexInputs(inp.outputs, nee_consts, nee_work, vertex_base, size, n_in, phase, g, table, inp.pdf,
+                                inp.lookup)
 
         s0, s1, s2, s3 = seed_state(seed, batch)
 
@@ -430,8 +435,7 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                     y = yn
                     z = zn
                     path += step
-                    absorbed += w * absorb
-                    w *= albedo
+                    w, absorbed = implicit_capture(w, absorbed, albedo, absorb)
                     scatterings += 1
                     w_max = 1.0
                     decide = True  # roulette decided at this collision
@@ -444,11 +448,8 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                                 pend_n = 0
                                 pend_l = 0.0
                         if vertex_mode == T.V_CYLINDER_NEE:
-                            s0, s1, s2, s3 = T.score_vertex(
-                                inp.outputs, nee_consts, nee_work, vertex_base, hist, touched, n_touched, marks, n_spec,
-                                spec_w, spec_mu_t, phase_ratio, ratio, phase, g, table, inp.pdf, inp.lookup,
-                                size, n_in, x, y, z, ux, uy, uz, w, s0, s1, s2, s3,
-                            )
+                            s0, s1, s2, s3 = T.score_vertex(vertex, scratch, spectral, (x, y, z), (ux, uy, uz), w,
+                                                            (s0, s1, s2, s3))
                     ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, phase, g, table, hg, s0, s1, s2, s3)
                     if SCORING:
                         if reweight:
@@ -545,8 +546,8 @@ def _make_kernel(scoring: bool, profiled: bool = False):
                                 catch_up_dyed(spec_w, log_s, d_mu_u, spec_dye, pend_n, pend_l, pend_d)
                             else:
                                 catch_up(spec_w, log_s, d_mu_t, pend_n, pend_l)
-                        T.score_exit(tally_mode, inp.tally_params, inp.outputs, hist, touched, n_touched, marks,
-                                     n_spec, spec_w, face, x, y, z, wx, wy, wz, w, scatterings)
+                        T.score_exit(tally_mode, inp.tally_params, inp.outputs, scratch, spec_w, face, (x, y, z),
+                                     (wx, wy, wz), w, scatterings)
                     break
             # --- the one end of every history: flush per-photon tallies -------------------
             exit0 += h_exit0
@@ -557,7 +558,7 @@ def _make_kernel(scoring: bool, profiled: bool = False):
             killed += h_killed
             net_sq += (h_gain - h_killed) * (h_gain - h_killed)
             if SCORING:
-                T.flush_history(hist, touched, n_touched, marks, n_spec, bins)
+                T.flush_history(scratch, bins)
             events_total += events
             scatterings_total += scatterings
 

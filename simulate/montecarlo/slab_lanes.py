@@ -8,10 +8,12 @@ by one event; the two chains interleave, the core overlaps them (the gain, measu
 docs/notes/implementation.md, "The photon kernel").
 
 The physics is that of the kernel's plain slab path, event for event (module docstring of
-:mod:`.kernel`): Snell/Fresnel entry, exponential free paths (ziggurat), implicit capture, the
-Henyey-Greenstein or table phase function with the MCML direction update (only ``u_z`` is
-carried: nothing of a plain slab run reads ``u_x, u_y``), Russian roulette, Fresnel exits with
-internal reflection, the event cap, and the same scalar accumulators (:mod:`.tallies` ``S_*``).
+:mod:`.kernel`), and its events are the kernel's own helpers, inlined (:mod:`.events`: the smooth
+entry, implicit capture, the Fresnel decision, the mirror image, roulette; :func:`.scatter.sample_direction`):
+exponential free paths (ziggurat), the Henyey-Greenstein or table phase function with the MCML direction
+update (only ``u_z`` is carried: nothing of a plain slab run reads ``u_x, u_y``, and the code that would
+compute them is dead and left out by the compiler), Fresnel exits with internal reflection, the event cap,
+and the same scalar accumulators (:mod:`.tallies` ``S_*``).
 What differs is which random numbers a photon gets: lane 0 of batch ``b`` draws from stream
 ``(seed, b)``, lane 1 from stream ``(seed, b + LANE_OFFSET)`` (:mod:`.rng`), each lane takes every
 photon it can until its share (``ceil(n/2)``, ``floor(n/2)``) is done, and the slab entry needs no
@@ -31,10 +33,9 @@ import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.events import fresnel_reflects, roulette
-from simulate.montecarlo.rng import exponential, next_u64, seed_state
-from simulate.montecarlo.scatter import INV40, LOW24, U40_SHIFT, azimuth, hg_constants, sample_cosine
-from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
+from simulate.montecarlo.events import fresnel_reflects, implicit_capture, mirror, refract_in, roulette
+from simulate.montecarlo.rng import exponential, seed_state
+from simulate.montecarlo.scatter import hg_constants, sample_direction
 
 __all__ = ["LANE_OFFSET", "simulate_batch_slab_lanes"]
 
@@ -79,13 +80,7 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
     dz = -source[3]
     cos_i = -dz
     if contrast:
-        eta_in = 1.0 / n_in
-        f_in = fresnel_unpolarized(cos_i, 1.0, n_in)
-        k = eta_in * cos_i - refracted_cos(cos_i, 1.0, n_in)
-        ux = eta_in * dx
-        uy = eta_in * dy
-        uz0 = eta_in * dz + k
-        uz0 = uz0 / math.sqrt(ux * ux + uy * uy + uz0 * uz0)
+        _, _, uz0, f_in = refract_in(dx, dy, dz, 0.0, 0.0, 1.0, cos_i, n_in, 1.0 / n_in)
     else:
         f_in = 0.0
         uz0 = dz
@@ -146,17 +141,10 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
                 # --- collision: implicit capture, new direction (MCML update, u_z only), roulette ----
                 z = zn
                 path += step
-                absorbed += w * absorb
-                w *= albedo
+                w, absorbed = implicit_capture(w, absorbed, albedo, absorb)
                 scat += 1
-                r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                ct = sample_cosine(phase, g, table, float(r >> U40_SHIFT) * INV40, hg)
-                st = math.sqrt(max(1.0 - ct * ct, 0.0))
-                cp, _ = azimuth(r & LOW24)
-                if abs(uz) > 0.99999:
-                    uz = ct if uz > 0.0 else -ct
-                else:
-                    uz = -st * cp * math.sqrt(1.0 - uz * uz) + uz * ct
+                # u_z of the new direction depends on u_z alone: the lanes carry no u_x, u_y (0 here)
+                _, _, uz, _, s0, s1, s2, s3 = sample_direction(0.0, 0.0, uz, phase, g, table, hg, s0, s1, s2, s3)
                 if w < w_threshold:
                     if w <= 0.0:
                         end = True
@@ -181,7 +169,7 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
                 if contrast:
                     reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, n_in, s0, s1, s2, s3)
                 if reflect:
-                    uz = -uz  # the mirror image in a face z = const, exactly
+                    _, _, uz = mirror(0.0, 0.0, uz, 0.0, 0.0, 1.0, cos_i, True)  # a face z = const: u_z negated
                     reflections_total += 1
                 else:
                     exit_face = face

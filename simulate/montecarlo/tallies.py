@@ -53,6 +53,7 @@ Vertex modes (``vertex_mode``, parameters ``vertex_params``)
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -84,6 +85,9 @@ __all__ = [
     "N_NEE",
     "touch",
     "flush_history",
+    "Scratch",
+    "Spectral",
+    "VertexInputs",
 ]
 
 NONE = 0
@@ -187,6 +191,47 @@ def _uniform_bin(value: float, lo: float, hi: float, count: int) -> int:
     return k
 
 
+class Scratch(NamedTuple):
+    """A history's scratch tally, one per batch: its scores ``hist`` (``n_spec`` spectral bins per geometric
+    bin) and the geometric bins it touched (``touched[:n_touched[0]]``, flagged in ``marks``)."""
+
+    hist: np.ndarray
+    touched: np.ndarray
+    n_touched: np.ndarray
+    marks: np.ndarray
+    n_spec: int
+
+
+class Spectral(NamedTuple):
+    """A photon's spectral weights ``A_l`` (``spec_w``) and what a score of them reads: the targets'
+    ``mu_t`` (``spec_mu_t``), whether their phase functions differ from the walk's (``phase_ratio``) and
+    the phase ratios ``p^l / p^w`` on the grid of :func:`ratio_row` (``ratio``)."""
+
+    spec_w: np.ndarray
+    spec_mu_t: np.ndarray
+    phase_ratio: bool
+    ratio: np.ndarray
+
+
+class VertexInputs(NamedTuple):
+    """What :func:`score_vertex` reads of a run, packed once per batch: the output ranges, their constants
+    (:func:`nee_constants`; a batch's private copy, as ranged outputs overwrite their row) and a work row,
+    the first vertex bin (``base``), the cylinder's ``radius`` and index ``n_in``, and the walk's phase
+    function (``kind, g, table, pdf, lookup``, as :func:`.scatter.phase_pdf` reads it)."""
+
+    outputs: np.ndarray
+    consts: np.ndarray
+    work: np.ndarray
+    base: int
+    radius: float
+    n_in: float
+    kind: int
+    g: float
+    table: np.ndarray
+    pdf: np.ndarray
+    lookup: np.ndarray
+
+
 @numba.njit(cache=True, inline="always")
 def touch(touched: np.ndarray, n_touched: np.ndarray, marks: np.ndarray, block: int) -> None:
     """Remember that the history scored into geometric bin ``block`` (its ``n_spec`` spectral bins).
@@ -201,13 +246,13 @@ def touch(touched: np.ndarray, n_touched: np.ndarray, marks: np.ndarray, block: 
 
 
 @numba.njit(cache=True, inline="always")
-def flush_history(hist: np.ndarray, touched: np.ndarray, n_touched: np.ndarray, marks: np.ndarray, n_spec: int,
-                  bins: np.ndarray) -> None:
+def flush_history(scratch: Scratch, bins: np.ndarray) -> None:
     """End of a history: move its scratch scores into ``bins`` as (sum, sum of squares).
 
     Every spectral bin of a touched geometric bin is flushed; a bin that scored nothing adds
     ``0`` to both sums, which leaves them unchanged.
     """
+    hist, touched, n_touched, marks, n_spec = scratch
     for i in range(n_touched[0]):
         block = touched[i]
         marks[block] = False
@@ -220,35 +265,19 @@ def flush_history(hist: np.ndarray, touched: np.ndarray, n_touched: np.ndarray, 
 
 
 @numba.njit(cache=True, inline="always")
-def _add_spectral(hist, touched, n_touched, marks, block, n_spec, spec_w, value) -> None:
+def _add_spectral(scratch, block, spec_w, value) -> None:
+    hist, touched, n_touched, marks, n_spec = scratch
     touch(touched, n_touched, marks, block)
     h = hist[block * n_spec:(block + 1) * n_spec]
     for l in range(n_spec):
         h[l] += value * spec_w[l]
 
 
-@numba.njit(cache=True)
-def score_exit(
-    mode: int,
-    params: np.ndarray,
-    outputs: np.ndarray,
-    hist: np.ndarray,
-    touched: np.ndarray,
-    n_touched: np.ndarray,
-    marks: np.ndarray,
-    n_spec: int,
-    spec_w: np.ndarray,
-    face: int,
-    x: float,
-    y: float,
-    z: float,
-    wx: float,
-    wy: float,
-    wz: float,
-    weight: float,
-    scatterings: int,
-) -> None:
-    """Score a photon leaving the medium at ``(x, y, z)`` in direction ``w`` (outside, unit).
+# _nrt=False: as score_vertex (the inlined _add_spectral binds the scratch tally's arrays)
+@numba.njit(cache=True, _nrt=False)
+def score_exit(mode: int, params: np.ndarray, outputs: np.ndarray, scratch: Scratch, spec_w: np.ndarray, face: int,
+               p: tuple[float, float, float], w: tuple[float, float, float], weight: float, scatterings: int) -> None:
+    """Score a photon leaving the medium at ``p`` in direction ``w`` (outside, unit).
 
     Parameters
     ----------
@@ -256,30 +285,30 @@ def score_exit(
         Exit tally mode and its parameters (module docstring).
     outputs : numpy.ndarray
         ``float64[n_out, 8]`` output ranges (``CYLINDER_OUTPUTS``; columns ``OUTPUT_COLUMNS``).
-    hist, touched, n_touched, marks : numpy.ndarray
-        The history's scratch tally (see :func:`touch`).
-    n_spec : int
-        Spectral factors per geometric bin.
+    scratch : Scratch
+        The history's scratch tally.
     spec_w : numpy.ndarray
         ``A_l``, the photon's spectral weight factors.
     face : int
         Slab: 0 top, 1 bottom; cylinder: 0.
-    x, y, z : float
+    p : (float, float, float)
         Exit point on the surface.
-    wx, wy, wz : float
+    w : (float, float, float)
         Exit direction after refraction.
     weight : float
         Photon weight leaving (walk medium).
     scatterings : int
         Scattering events of the photon (0: unscattered light).
     """
+    x, y, z = p
+    wx, wy, wz = w
     if mode == SLAB_DIRECTIONS:
         n_mu = int(params[0])
         n_phi = int(params[1])
         mu = wz if face == 0 else -wz
         k = (face * n_mu + _uniform_bin(mu, 0.0, 1.0, n_mu)) * n_phi
         k += _uniform_bin(math.atan2(wy, wx), -math.pi, math.pi, n_phi)
-        _add_spectral(hist, touched, n_touched, marks, k, n_spec, spec_w, weight)
+        _add_spectral(scratch, k, spec_w, weight)
         return
     if mode == NONE:
         return
@@ -300,7 +329,7 @@ def score_exit(
         kv = _uniform_bin(x, -params[4], params[4], n_v) if n_v > 1 else 0
         k = ((cell * n_v + kv) * n_mu + _uniform_bin(mu, 0.0, 1.0, n_mu)) * n_phi
         k += _uniform_bin(phi, -math.pi, math.pi, n_phi)
-        _add_spectral(hist, touched, n_touched, marks, k, n_spec, spec_w, weight)
+        _add_spectral(scratch, k, spec_w, weight)
         return
     if mode == CYLINDER_OUTPUTS:
         filt = int(params[0])
@@ -314,7 +343,7 @@ def score_exit(
                 continue
             if mu < outputs[o, 3] or mu > outputs[o, 4] or phi < outputs[o, 5] or phi > outputs[o, 6]:
                 continue
-            _add_spectral(hist, touched, n_touched, marks, o, n_spec, spec_w, weight)
+            _add_spectral(scratch, o, spec_w, weight)
 
 
 #: columns of the per-output constants of the next-event estimator (:func:`nee_constants`)
@@ -424,17 +453,16 @@ def ratio_row(mu: float, n_grid: int) -> tuple[int, float]:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _score_spectral(hist, touched, n_touched, marks, block, n_spec, g0, spec_w, spec_mu_t, path, phase_ratio, ratio,
-                    cos_s) -> None:
+def _score_spectral(scratch, block, g0, spectral, path, cos_s) -> None:
     """Add ``g0 A_l (p_l / p_walk)(cos_s) exp(-mu_t,l path)`` to bins ``block * n_spec + l`` (one exit solution).
 
     The wavelength loop reads contiguous rows (``spec_w``, ``spec_mu_t``, two rows of ``ratio``)
     and writes one contiguous block of ``hist``, with no call and no branch in it
-    (:func:`.vecmath.vexp`): LLVM vectorises it (with a libm ``exp`` and a touched-bin
-    test per wavelength this loop was 64 % of the summation route). A separate compiled function
-    on purpose: inlined into the vertex loop, LLVM's treatment of this loop made the whole
-    estimator about three times slower.
+    (:func:`.vecmath.vexp`): LLVM vectorises it. A separate compiled function on purpose: inlined
+    into the vertex loop, this loop is no longer vectorised and the whole estimator is slower.
     """
+    hist, touched, n_touched, marks, n_spec = scratch
+    spec_w, spec_mu_t, phase_ratio, ratio = spectral
     touch(touched, n_touched, marks, block)
     # slices, not hist[first + l]: a slice's index is known non-negative (no wrap-around select),
     # which is what lets LLVM vectorise these loops
@@ -450,40 +478,14 @@ def _score_spectral(hist, touched, n_touched, marks, block, n_spec, g0, spec_w, 
             h[l] += g0 * spec_w[l] * vexp(-spec_mu_t[l] * path)
 
 
-@numba.njit(cache=True)
-def score_vertex(
-    outputs: np.ndarray,
-    consts: np.ndarray,
-    work: np.ndarray,
-    base: int,
-    hist: np.ndarray,
-    touched: np.ndarray,
-    n_touched: np.ndarray,
-    marks: np.ndarray,
-    n_spec: int,
-    spec_w: np.ndarray,
-    spec_mu_t: np.ndarray,
-    phase_ratio: bool,
-    ratio: np.ndarray,
-    kind: int,
-    g: float,
-    table: np.ndarray,
-    pdf: np.ndarray,
-    lookup: np.ndarray,
-    radius: float,
-    n_in: float,
-    x: float,
-    y: float,
-    z: float,
-    ux: float,
-    uy: float,
-    uz: float,
-    weight: float,
-    s0: np.uint64,
-    s1: np.uint64,
-    s2: np.uint64,
-    s3: np.uint64,
-) -> tuple[np.uint64, np.uint64, np.uint64, np.uint64]:
+# _nrt=False: compiled without reference counting (numba's option for code that allocates nothing): its
+# inlined helpers bind the records' arrays to their own variables, which would otherwise be counted up and
+# down at every call
+@numba.njit(cache=True, _nrt=False)
+def score_vertex(vertex: VertexInputs, scratch: Scratch, spectral: Spectral, p: tuple[float, float, float],
+                 u: tuple[float, float, float], weight: float,
+                 state: tuple[np.uint64, np.uint64, np.uint64, np.uint64]) -> tuple[np.uint64, np.uint64, np.uint64,
+                                                                                     np.uint64]:
     r"""Next-event estimate of the light leaving the cylinder at each output, from one vertex.
 
     The photon (weight ``w`` after implicit capture, arriving along ``u``) scatters at ``p``.
@@ -497,7 +499,76 @@ def score_vertex(
     *Internal direction.* Snell backwards at the exit: ``u_t = w_t / n``, ``u_b = w_b / n``,
     ``u_n = sqrt(1 - u_t^2 - u_b^2)`` (``u_n = cos theta_int``), fixed in the local frame.
     Its projection on the cross-section makes the angle ``alpha`` with the normal:
-    ``sin alpha = u_b / rho``, ``cos alpha = u_n / rho``, ``rho = sqrt(1 - u_t^2)``.
+    ``sin alpha = u_b / rho``, ``cos alpha = u_n / rho``, ``rho = sqrt(1 - u_t^2)``
+    (:func:`nee_constants`; a ranged output's direction is drawn by :func:`_output_direction`).
+    The exit points, internal reflections and the Jacobian of one output: :func:`_score_output`.
+
+    ``R_vol = (score per photon) x (launch normalisation) / (cell width)`` (see :mod:`simulate.fiber`).
+
+    Parameters
+    ----------
+    vertex : VertexInputs
+        The outputs and their constants (``consts`` holds :func:`nee_constants` of point outputs;
+        for ranged outputs the direction is drawn here and its row overwritten), the first vertex
+        bin, the cylinder and the walk's phase function.
+    scratch : Scratch
+        The history's scratch tally.
+    spectral : Spectral
+        The photon's spectral weights and the targets.
+    p, u : (float, float, float)
+        The vertex and the photon's direction arriving there.
+    weight : float
+        The photon's weight after implicit capture.
+    state : (uint64, uint64, uint64, uint64)
+        The random state.
+
+    Returns
+    -------
+    (uint64, uint64, uint64, uint64)
+        The advanced random state.
+    """
+    x, y, z = p
+    r2 = y * y + z * z
+    if r2 <= 0.0:
+        r2 = 1e-300
+    inv_r2 = 1.0 / r2
+    for o in range(vertex.outputs.shape[0]):
+        state = _output_direction(vertex, o, state)
+        state = _score_output(vertex, o, scratch, spectral, p, u, weight, r2, inv_r2, state)
+    return state
+
+
+@numba.njit(cache=True, inline="always")
+def _output_direction(vertex, o, state):
+    """A ranged output's exit direction, drawn in its range with density ``prop. to cos theta_out``
+    (``mu^2`` uniform, ``phi`` uniform), its constants written to row ``o`` of ``consts``; a point output
+    keeps its row. Returns the random state (no draw for a point output)."""
+    outputs, consts, work = vertex.outputs, vertex.consts, vertex.work
+    s0, s1, s2, s3 = state
+    mu_lo = outputs[o, 3]
+    mu_hi = outputs[o, 4]
+    phi_lo = outputs[o, 5]
+    phi_hi = outputs[o, 6]
+    if mu_hi > mu_lo or phi_hi > phi_lo:
+        if mu_hi > mu_lo:
+            rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+            mu = math.sqrt(mu_lo * mu_lo + to_uniform(rr) * (mu_hi * mu_hi - mu_lo * mu_lo))
+        else:
+            mu = mu_lo
+        if phi_hi > phi_lo:
+            rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+            phi = phi_lo + to_uniform(rr) * (phi_hi - phi_lo)
+        else:
+            phi = phi_lo
+        nee_constants(mu, phi, vertex.n_in, vertex.radius, work)
+        for i in range(N_NEE):
+            consts[o, i] = work[i]
+    return s0, s1, s2, s3
+
+
+@numba.njit(cache=True, inline="always")
+def _score_output(vertex, o, scratch, spectral, p, u, weight, r2, inv_r2, state):
+    r"""The score of output ``o`` from the vertex ``p`` (``r2 = |p'|^2``): up to two exit solutions.
 
     *Exit points.* A 2-D ray from ``p' = (y, z)`` reaches the circle at angle ``alpha`` to the
     normal after the 2-D distance ``s`` with ``|p'|^2 = R^2 - 2 R s cos alpha + s^2``::
@@ -516,10 +587,7 @@ def score_vertex(
     following every order, each exit solution draws its order ``k`` with probability
     ``(1 - F) F^k`` -- the number of internal reflections the light would really make -- so
     ``F^k (1 - F)`` cancels and only that order is scored (unbiased; one cell test instead of a
-    dozen, and the faint orders cost nothing unless drawn). Up to ``F = 0.95`` the order is drawn
-    one reflection at a time; above it (an exit within ~0.5 deg of grazing, where ``1 / (1 - F)``
-    reflections are expected: 1000 at 89.99 deg) by the law's inverse CDF in one draw, and the exit
-    point turned by ``k`` steps at once.
+    dozen, and the faint orders cost nothing unless drawn): :func:`reflection_order`, :func:`turned`.
 
     *Jacobian.* With the direction parametrised by ``(u_t, phi)`` (``dOmega = du_t dphi``) and
     the local direction by ``(u_t, alpha)``, ``d alpha / d phi = 1 - s / (R cos alpha)``, since a
@@ -535,80 +603,55 @@ def score_vertex(
     (``c`` here the 2-D chord ``2 R cos alpha``, ``/ rho`` making both lengths 3-D)
 
     with ``p_l = p_walk x (p_l / p_walk)``, the ratio read from ``ratio`` (see
-    :mod:`simulate.montecarlo.kernel`). ``R_vol = (score per photon) x (launch normalisation) /
-    (cell width)`` (see :mod:`simulate.fiber`). ``J`` diverges (integrably) on the caustic
+    :mod:`simulate.montecarlo.kernel`). ``J`` diverges (integrably) on the caustic
     ``|p'| = R |sin alpha|``: the estimator is unbiased but its variance grows logarithmically
-    there; cells and direction ranges of finite size average it out.
-
-    ``consts`` holds :func:`nee_constants` of point outputs; for ranged outputs the direction
-    is drawn here and its row of this batch's private copy of ``consts`` overwritten. Returns the advanced
-    random state (draws are used only for ranged outputs).
+    there; cells and direction ranges of finite size average it out. Returns the random state.
     """
-    r2 = y * y + z * z
-    if r2 <= 0.0:
-        r2 = 1e-300
-    inv_r2 = 1.0 / r2
-    for o in range(outputs.shape[0]):
-        mu_lo = outputs[o, 3]
-        mu_hi = outputs[o, 4]
-        phi_lo = outputs[o, 5]
-        phi_hi = outputs[o, 6]
-        if mu_hi > mu_lo or phi_hi > phi_lo:
-            if mu_hi > mu_lo:
-                rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                mu = math.sqrt(mu_lo * mu_lo + to_uniform(rr) * (mu_hi * mu_hi - mu_lo * mu_lo))
-            else:
-                mu = mu_lo
-            if phi_hi > phi_lo:
-                rr, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                phi = phi_lo + to_uniform(rr) * (phi_hi - phi_lo)
-            else:
-                phi = phi_lo
-            nee_constants(mu, phi, n_in, radius, work)
-            for i in range(N_NEE):
-                consts[o, i] = work[i]
-        rho = consts[o, 3]
-        if rho <= 0.0:
+    outputs, consts, radius = vertex.outputs, vertex.consts, vertex.radius
+    _, y, z = p
+    ux, uy, uz = u
+    s0, s1, s2, s3 = state
+    rho = consts[o, 3]
+    if rho <= 0.0:
+        return s0, s1, s2, s3
+    sa = consts[o, 4]
+    ca = consts[o, 5]
+    disc = r2 - radius * radius * sa * sa
+    if disc <= 0.0:
+        return s0, s1, s2, s3
+    sq = math.sqrt(disc)
+    f_out = consts[o, 6]
+    if f_out >= 1.0:
+        return s0, s1, s2, s3          # an exactly grazing exit: no light leaves there
+    c_step = consts[o, 8]
+    s_step = consts[o, 9]
+    cos_c = outputs[o, 0]
+    sin_c = outputs[o, 1]
+    cos_h = outputs[o, 2]
+    for sol in range(2):
+        s = radius * ca + sq if sol == 0 else radius * ca - sq
+        if s <= 0.0:
             continue
-        sa = consts[o, 4]
-        ca = consts[o, 5]
-        disc = r2 - radius * radius * sa * sa
-        if disc <= 0.0:
+        a_n = radius - s * ca
+        a_b = -s * sa
+        # n = p' (a_n + i a_b) / |p'|^2 in (y + i z) notation: the first exit point's normal
+        ny0 = (y * a_n - z * a_b) * inv_r2
+        nz0 = (y * a_b + z * a_n) * inv_r2
+        # the number of internal reflections before the light leaves, k ~ P(k) = (1 - F) F^k:
+        # the physical process itself, so F^k (1 - F) cancels against P(k)
+        k, s0, s1, s2, s3 = reflection_order(f_out, s0, s1, s2, s3)
+        ny, nz = turned(ny0, nz0, c_step, s_step, k, f_out)
+        # cell test: n(psi) . n(psi_c), n(psi_c) = (-sin_c, cos_c)
+        if -ny * sin_c + nz * cos_c < cos_h:
             continue
-        sq = math.sqrt(disc)
-        f_out = consts[o, 6]
-        if f_out >= 1.0:
-            continue          # an exactly grazing exit: no light leaves there
-        c_step = consts[o, 8]
-        s_step = consts[o, 9]
-        cos_c = outputs[o, 0]
-        sin_c = outputs[o, 1]
-        cos_h = outputs[o, 2]
-        for sol in range(2):
-            s = radius * ca + sq if sol == 0 else radius * ca - sq
-            if s <= 0.0:
-                continue
-            a_n = radius - s * ca
-            a_b = -s * sa
-            # n = p' (a_n + i a_b) / |p'|^2 in (y + i z) notation: the first exit point's normal
-            ny0 = (y * a_n - z * a_b) * inv_r2
-            nz0 = (y * a_b + z * a_n) * inv_r2
-            # the number of internal reflections before the light leaves, k ~ P(k) = (1 - F) F^k:
-            # the physical process itself, so F^k (1 - F) cancels against P(k)
-            k, s0, s1, s2, s3 = reflection_order(f_out, s0, s1, s2, s3)
-            ny, nz = turned(ny0, nz0, c_step, s_step, k, f_out)
-            # cell test: n(psi) . n(psi_c), n(psi_c) = (-sin_c, cos_c)
-            if -ny * sin_c + nz * cos_c < cos_h:
-                continue
-            # the light reaches the cell (most solutions do not: what they need is loaded only now)
-            # internal direction at the first exit point: u_t t + u_n n + u_b b, b = (n_z, -n_y)
-            u_t = consts[o, 0]
-            u_b = consts[o, 1]
-            u_n = consts[o, 2]
-            cos_s = ux * u_t + uy * (u_n * ny0 + u_b * nz0) + uz * (u_n * nz0 - u_b * ny0)
-            p_w = phase_pdf(cos_s, kind, g, table, pdf, lookup)
-            path = s / rho + k * consts[o, 10]
-            common = weight * consts[o, 11] / sq
-            _score_spectral(hist, touched, n_touched, marks, base + o, n_spec, common * p_w, spec_w, spec_mu_t,
-                            path, phase_ratio, ratio, cos_s)
+        # the light reaches the cell (most solutions do not: what they need is loaded only now)
+        # internal direction at the first exit point: u_t t + u_n n + u_b b, b = (n_z, -n_y)
+        u_t = consts[o, 0]
+        u_b = consts[o, 1]
+        u_n = consts[o, 2]
+        cos_s = ux * u_t + uy * (u_n * ny0 + u_b * nz0) + uz * (u_n * nz0 - u_b * ny0)
+        p_w = phase_pdf(cos_s, vertex.kind, vertex.g, vertex.table, vertex.pdf, vertex.lookup)
+        path = s / rho + k * consts[o, 10]
+        common = weight * consts[o, 11] / sq
+        _score_spectral(scratch, vertex.base + o, common * p_w, spectral, path, cos_s)
     return s0, s1, s2, s3

@@ -48,12 +48,13 @@ def test_vexp_special_values():
 def _score_histories(hist, touched, n_touched, marks, bins, blocks, n_spec, g0, spec_w, spec_mu_t, paths,
                      phase_ratio, ratio, cos_s, history_of):
     """Score (block, path, cos) triples; a new history starts where ``history_of`` changes."""
+    scratch = T.Scratch(hist, touched, n_touched, marks, n_spec)
+    spectral = T.Spectral(spec_w, spec_mu_t, phase_ratio, ratio)
     for i in range(blocks.size):
         if i > 0 and history_of[i] != history_of[i - 1]:
-            T.flush_history(hist, touched, n_touched, marks, n_spec, bins)
-        T._score_spectral(hist, touched, n_touched, marks, blocks[i], n_spec, g0[i], spec_w, spec_mu_t, paths[i],
-                          phase_ratio, ratio, cos_s[i])
-    T.flush_history(hist, touched, n_touched, marks, n_spec, bins)
+            T.flush_history(scratch, bins)
+        T._score_spectral(scratch, blocks[i], g0[i], spectral, paths[i], cos_s[i])
+    T.flush_history(scratch, bins)
 
 
 @pytest.mark.parametrize("phase_ratio", [False, True])
