@@ -80,7 +80,7 @@ endif
 # summation fits. A line of two waits for both and fails when either failed (a fit's exit 3 included
 # as FIT_VERDICT says). Each step prints its own time (measured figures: README, "What `make demo`
 # does"). Each step replaces the previous demo's output (--force).
-# The acquisition leaves a core idle: beside it, after red cotton's start, DEMO_MC_PREPARE makes what the Monte
+# The acquisition leaves a core idle: beside it and red cotton, DEMO_MC_PREPARE makes what the Monte
 # Carlo fit would make before and between its runs and needs no measurement: the ray tracer's compilation
 # (numba's cache), the start's two exit-table halves and felts (a Monte Carlo run of the start config with a
 # few rays per incidence) and the structured walk of its surrogate (a summation fit of the start config with
@@ -96,7 +96,7 @@ DEMO_FIT_SUMMATION = $(VENV)/bin/simulate fit $(DEMO_START) $(DEMO_OUT)/measured
 DEMO_MC_PREPARE = mkdir -p $(DEMO_OUT) && { $(VENV)/bin/simulate fabric $(DEMO_MC_START) --method mc --plan $(DEMO_MC_PREPARE_PLAN) --target-rel-err $(DEMO_REL_ERR) --max-photons 64 --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare --force && { $(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/mc-prepare --method summation --free $(DEMO_MC_FREE) --max-evaluations 1 --target-rel-err $(DEMO_REL_ERR) --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare-walk --force $(FIT_VERDICT); }; } >$(DEMO_OUT)/mc-prepare.log 2>&1 || { cat $(DEMO_OUT)/mc-prepare.log >&2; false; }; s=$$?; rm -rf $(DEMO_OUT)/mc-prepare $(DEMO_OUT)/mc-prepare-walk $(DEMO_OUT)/mc-prepare.log; [ $$s -eq 0 ]
 DEMO_FIT_MC = $(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/measured --method mc --free $(DEMO_MC_FREE) --max-runs $(DEMO_MC_RUNS) --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-mc --force $(FIT_VERDICT)
 demo: $(STAMP)
-	{ $(DEMO_COTTON) & cotton=$$!; ( $(DEMO_MC_PREPARE) ); p=$$?; wait $$cotton && [ $$p -eq 0 ]; } & beside=$$!; $(VENV)/bin/gonio demo --sample $(DEMO_SAMPLE) --plan $(DEMO_PLAN) --out $(DEMO_OUT)/measured --no-progress --force; s=$$?; wait $$beside && [ $$s -eq 0 ]
+	( $(DEMO_MC_PREPARE) ) & prepare=$$!; $(DEMO_COTTON) & beside=$$!; $(VENV)/bin/gonio demo --sample $(DEMO_SAMPLE) --plan $(DEMO_PLAN) --out $(DEMO_OUT)/measured --no-progress --force; s=$$?; wait $$beside && wait $$prepare && [ $$s -eq 0 ]
 	$(VENV)/bin/gonio truth $(DEMO_SAMPLE) --plan $(DEMO_PLAN) --out $(DEMO_OUT)/truth --force
 	$(VENV)/bin/compare check $(DEMO_OUT)/measured $(DEMO_OUT)/truth --max-nrmse 0.05
 	( $(DEMO_FIT_MC) ) & beside=$$!; ( $(DEMO_FIT_CLASSIC) ) && ( $(DEMO_FIT_SUMMATION) ); s=$$?; wait $$beside && [ $$s -eq 0 ]
