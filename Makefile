@@ -87,7 +87,7 @@ endif
 # one evaluation, to that run's output: the walk depends on the wavelengths, not on the values), into the
 # table cache; one thread each (the walk then holds one exit table at a time); their outputs and messages
 # removed (shown when a step fails: exit status other than 0, or 3 for the fit's colour verdict). The fit
-# finds them under the same keys, bit-identical (a miss would only cost the time this saves), so neither its
+# finds them under the keys it looks up (a miss would only cost the time this saves), so neither its
 # critical path nor its memory holds the compilation or the walk (its two entries at once, on an idle core,
 # held ~1.4 GB of exit tables).
 DEMO_COTTON = $(VENV)/bin/simulate fabric red-cotton --method summation --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/red-cotton --force
