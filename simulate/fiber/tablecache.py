@@ -334,19 +334,67 @@ def stored(kind: str) -> int:
         return _STORED.get(kind, 0)
 
 
+class _Payload:
+    """The file ``f`` from ``offset`` on, as :func:`np.savez` sees it: the archive it writes there is byte for
+    byte the one it would write alone (its offsets count from the payload's start)."""
+
+    def __init__(self, f: Any, offset: int) -> None:
+        self._f, self._offset = f, offset
+
+    def write(self, data: Any) -> int:
+        return self._f.write(data)
+
+    def read(self, size: int = -1) -> bytes:      # np.savez takes an object with ``read`` for a file
+        return self._f.read(size)
+
+    def tell(self) -> int:
+        return self._f.tell() - self._offset
+
+    def seek(self, pos: int, whence: int = 0) -> int:
+        return self._f.seek(pos + self._offset if whence == 0 else pos, whence) - self._offset
+
+    def flush(self) -> None:
+        self._f.flush()
+
+
+#: bytes read back at a time to hash an entry's payload
+_HASH_BLOCK = 16 * 2 ** 20
+
+
+def _write_entry(f: Any, arrays: dict[str, Any]) -> None:
+    """Write the entry ``MAGIC + sha256(payload) + payload`` of ``arrays`` into the open file ``f`` (``w+b``).
+
+    The archive goes straight into the file (numpy writes each array in blocks of 16 MiB) and is then read
+    back in blocks to hash it: no copy of the payload is held in memory (the felt's exit tables are 285 MB
+    each, and an in-memory archive plus its concatenation with the header held two copies beside the
+    table: the Monte Carlo fit's peak memory)."""
+    f.write(_MAGIC + bytes(_DIGEST))
+    start = f.tell()
+    np.savez(_Payload(f, start), **{k: np.asarray(v) for k, v in arrays.items()})  # type: ignore[arg-type]
+    f.flush()
+    h = hashlib.sha256()
+    f.seek(start)
+    block = bytearray(_HASH_BLOCK)
+    view = memoryview(block)
+    while True:
+        n = f.readinto(block)
+        if not n:
+            break
+        h.update(view[:n])
+    f.seek(len(_MAGIC))
+    f.write(h.digest())
+
+
 def store(key: str, arrays: dict[str, Any]) -> Path | None:
     """Write ``arrays`` under ``key`` (temporary file + :func:`os.replace`), then :func:`evict`; None if disabled/failed."""
     if not enabled():
         return None
     path = _path(key)
-    buf = io.BytesIO()
-    np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})  # type: ignore[arg-type]
-    payload = buf.getvalue()
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.{time.monotonic_ns()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as f:
-            f.write(_MAGIC + hashlib.sha256(payload).digest() + payload)
+        with open(tmp, "w+b") as f:
+            _write_entry(f, arrays)
         os.replace(tmp, path)
     except OSError as exc:
         log.warning("table cache: cannot write %s (%s); the run goes on without it", path, exc)

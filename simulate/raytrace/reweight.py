@@ -32,7 +32,8 @@ must be too (a cell never sampled cannot be re-weighted). Tables walked with the
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, overload
 
 import numba
 import numpy as np
@@ -40,7 +41,7 @@ import numpy as np
 from simulate.montecarlo.accuracy import relative_error
 from simulate.raytrace.record import TraceLog
 
-__all__ = ["replay", "record_bytes", "new_tables", "reweighted_beta",
+__all__ = ["replay", "record_bytes", "new_tables", "WalkedHalves", "reweighted_beta",
            "same_but_dye"]
 
 
@@ -115,21 +116,26 @@ def record_bytes(record: dict) -> int:
     return int(sum(t.nbytes for inc in record.get("incidences", []) for t in inc["halves"]))
 
 
-def _half_results(record: dict, tables: tuple) -> list[list[Any]]:
-    """Per incidence, the two halves' results re-weighted to ``tables`` (each half's rotations averaged)."""
+def _half_results(record: dict, tables: Sequence[Any]) -> list[list[Any]]:
+    """Per incidence, the two halves' results re-weighted to ``tables`` (each half's rotations averaged).
+
+    Half by half: every incidence's rays of a half are replayed with that half's table, which is then let go
+    before the other is asked for (:func:`new_tables` walks or reads each only then), so a re-weighting holds
+    one table at a time beside the record. The replays are independent: the order changes no result."""
     from simulate.raytrace.estimate import mean_of
 
-    out = []
-    for inc in record["incidences"]:
-        halves = []
-        for h, tl in enumerate(inc["halves"]):
-            T = tables[h].T
-            halves.append(mean_of(replay(tl, T.reshape(-1, T.shape[-1]))))
-        out.append(halves)
+    incidences = record["incidences"]
+    out: list[list[Any]] = [[] for _ in incidences]
+    for h in range(len(tables)):
+        T = tables[h].T
+        rows = T.reshape(-1, T.shape[-1])
+        for i, inc in enumerate(incidences):
+            out[i].append(mean_of(replay(inc["halves"][h], rows)))
+        del T, rows
     return out
 
 
-def reweighted_beta(record: dict, tables: tuple) -> tuple[np.ndarray, np.ndarray, dict]:
+def reweighted_beta(record: dict, tables: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta``, ``u_beta`` and run information of a recorded :func:`simulate.raytrace.fabric_beta` run re-weighted
     to the table halves ``tables`` (:func:`new_tables`), combined as :func:`~simulate.raytrace.fabric_beta` combines
     its traces (the halves' mean; the rays' error and the table's, from the halves' difference).
@@ -185,25 +191,63 @@ def same_but_dye(old: Any, new: Any) -> bool:
         return False
 
 
-def new_tables(record: dict, fiber: Any, tables: tuple | None = None) -> tuple:
-    """The table halves a recorded run would have traced with ``fiber`` (the same walk: photons, seeds, grid;
-    from the table cache when there). ``tables`` given (a blend's mixed halves): they are checked and returned."""
-    from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
-    from simulate.raytrace.yarn import table_halves
+class WalkedHalves(Sequence):
+    """The two table halves a recorded run would have traced with ``fiber``, each walked (or read from the table
+    cache) when it is asked for and not kept: :func:`reweighted_beta` reads them one after the other, so the two
+    are never held together (285 MB each for the felt at its [10, 20] exit bins). Each half is bit for bit the
+    one :func:`simulate.raytrace.yarn.table_halves` gives (the same photons, seeds and grid; the same cache key),
+    checked against the traced half's grid, ``c_bar`` and ``tau`` as it is made."""
 
-    if tables is None:
-        grid: dict[str, Any] = dict(record["grid"])
-        walked = fiber
+    def __init__(self, record: dict, fiber: Any) -> None:
+        from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
+
+        self._record = record
+        self._grid: dict[str, Any] = dict(record["grid"])
+        self._walked = fiber
         if record["volume"] == "pile":
-            walked = pile_fiber(fiber, record["yarn_radius"], record["packing"])
-            grid["held_log_mu_s"] = HELD_LOG_MU_S
-        threads = record["threads"]
-        tables = table_halves(walked, record["wavelengths_nm"], record["photons_per_row"], record["seed"],
-                              threads if threads else None, **grid)
-    old = record["tables"]     # the traced halves' shape, c_bar and tau
-    for a, b in zip(old, tables):
-        if (tuple(a["shape"]) != b.T.shape or not np.allclose(a["c_bar"], b.c_bar, rtol=1e-12, atol=0.0)
-                or not np.allclose(a["tau"], b.tau, rtol=1e-12, atol=0.0)):
-            raise ValueError("reweight: the new tables differ from the traced ones in more than the dye (grid, "
-                             "radius or index): trace again")
+            self._walked = pile_fiber(fiber, record["yarn_radius"], record["packing"])
+            self._grid["held_log_mu_s"] = HELD_LOG_MU_S
+
+    def __len__(self) -> int:
+        return len(self._record["tables"])
+
+    @overload
+    def __getitem__(self, h: int) -> Any: ...
+
+    @overload
+    def __getitem__(self, h: slice) -> Sequence[Any]: ...
+
+    def __getitem__(self, h: int | slice) -> Any:
+        if isinstance(h, slice):
+            return [self[i] for i in range(len(self))[h]]
+        from simulate.raytrace.yarn import HALF_SEED_STEP, yarn_table
+
+        if not -len(self) <= h < len(self):
+            raise IndexError(f"table half {h} of {len(self)}")
+        h %= len(self)
+        r = self._record
+        threads = r["threads"]
+        table = yarn_table(self._walked, r["wavelengths_nm"], photons_per_row=r["photons_per_row"],
+                           seed=int(r["seed"]) + HALF_SEED_STEP * h, threads=threads if threads else None,
+                           **self._grid)
+        _check_half(r["tables"][h], table)
+        return table
+
+
+def _check_half(traced: dict, table: Any) -> None:
+    if (tuple(traced["shape"]) != table.T.shape
+            or not np.allclose(traced["c_bar"], table.c_bar, rtol=1e-12, atol=0.0)
+            or not np.allclose(traced["tau"], table.tau, rtol=1e-12, atol=0.0)):
+        raise ValueError("reweight: the new tables differ from the traced ones in more than the dye (grid, "
+                         "radius or index): trace again")
+
+
+def new_tables(record: dict, fiber: Any, tables: tuple | None = None) -> Sequence[Any]:
+    """The table halves a recorded run would have traced with ``fiber`` (the same walk: photons, seeds, grid;
+    from the table cache when there): a :class:`WalkedHalves`, each half made when it is read. ``tables`` given
+    (a blend's mixed halves): they are checked and returned."""
+    if tables is None:
+        return WalkedHalves(record, fiber)
+    for traced, table in zip(record["tables"], tables):
+        _check_half(traced, table)
     return tuple(tables)

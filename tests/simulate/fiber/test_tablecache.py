@@ -268,3 +268,41 @@ def test_a_flipped_bit_anywhere_gives_a_miss_or_the_same_arrays(cache, caplog):
     for cut in range(0, len(good), 7):
         path.write_bytes(good[:cut])
         assert tc.load("yarn-flip") is None
+
+
+def test_an_entry_is_the_header_the_payload_s_digest_and_the_archive_np_savez_writes(cache, monkeypatch):
+    """The entry written straight into its file is byte for byte ``MAGIC + sha256(payload) + payload``,
+    ``payload`` the archive ``np.savez`` writes into memory (the zip's timestamps held fixed)."""
+    import hashlib
+    import io
+
+    fixed = time.struct_time((2024, 5, 6, 7, 8, 9, 0, 127, 0))
+    monkeypatch.setattr(time, "localtime", lambda *a: fixed)
+    monkeypatch.setattr(tc, "_HASH_BLOCK", 1000)      # the payload read back in many blocks
+    rng = np.random.default_rng(3)
+    arrays = {"T": rng.random((4, 5, 300)), "F": np.asfortranarray(rng.random((7, 9))), "n": np.int64(11)}
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    payload = buf.getvalue()
+    path = tc.store("yarn-format", arrays)
+    assert path is not None and path.read_bytes() == tc._MAGIC + hashlib.sha256(payload).digest() + payload
+
+
+def test_storing_a_table_holds_no_copy_of_it(cache):
+    """The archive goes to the file as it is written (numpy's blocks of 16 MiB) and is hashed from the file:
+    the memory a store allocates stays far below the table's size (an archive built in memory, then joined
+    to its header, held two copies beside it)."""
+    import tracemalloc
+
+    table = np.ones(8 * 2 ** 20)              # 64 MiB
+    tracemalloc.start()
+    try:
+        tracemalloc.reset_peak()
+        path = tc.store("yarn-big", {"T": table})
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert path is not None and path.stat().st_size > table.nbytes
+    assert peak < 0.6 * table.nbytes, f"store allocated {peak / 2 ** 20:.0f} MiB for a {table.nbytes / 2 ** 20:.0f} MiB table"
+    got = tc.load("yarn-big")
+    assert got is not None and np.array_equal(got["T"], table)

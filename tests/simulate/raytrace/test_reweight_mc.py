@@ -71,3 +71,53 @@ def test_only_a_dye_change_is_re_weighted(felt_case):
     wider = dataclasses.replace(other, c_bar=other.c_bar * 1.01)
     with pytest.raises(ValueError, match="more than the dye"):
         RW.new_tables(record, None, (wider, wider))
+
+
+def _base(a: np.ndarray) -> np.ndarray:
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a
+
+
+def test_the_halves_are_walked_one_at_a_time_as_the_traced_run_s(felt_case, monkeypatch, tmp_path):
+    """Each half made on demand is bit for bit the one ``table_halves`` walks for both at once (what a trace of
+    that dye reads), and a re-weighting lets a half go before it asks for the next: the two are never held
+    together (weak references to each table's memory, checked as the next half is asked for)."""
+    import weakref
+    from collections.abc import Sequence
+
+    from simulate.fiber import tablecache
+    from simulate.raytrace.yarn import table_halves
+
+    monkeypatch.setenv(tablecache.ENV_DIR, str(tmp_path / "cache"))
+    monkeypatch.setenv(tablecache.ENV_DISABLE, "1")      # walked, not read: the walk itself is compared
+    record = felt_case[4]
+    fiber = _fiber(0.03)
+    halves = RW.new_tables(record, fiber)
+    assert len(halves) == 2
+    both = table_halves(fiber, record["wavelengths_nm"], record["photons_per_row"], record["seed"], None,
+                        **record["grid"])
+    for h in range(2):
+        one = halves[h]
+        assert one.T.tobytes() == both[h].T.tobytes()
+        assert one.c_bar.tobytes() == both[h].c_bar.tobytes() and one.tau.tobytes() == both[h].tau.tobytes()
+    del one, both
+
+    class Watched(Sequence):
+        def __init__(self) -> None:
+            self.alive: list = []
+
+        def __len__(self) -> int:
+            return len(halves)
+
+        def __getitem__(self, h):  # type: ignore[override]
+            assert all(r() is None for r in self.alive), f"half {h} asked for while another is held"
+            table = halves[h]
+            self.alive.append(weakref.ref(_base(table.T)))
+            return table
+
+    watched = Watched()
+    b, ub, _ = RW.reweighted_beta(record, watched)
+    assert len(watched.alive) == 2
+    b_all, ub_all, _ = RW.reweighted_beta(record, tuple(halves[h] for h in range(2)))
+    assert b.tobytes() == b_all.tobytes() and ub.tobytes() == ub_all.tobytes()
