@@ -152,9 +152,14 @@ def search_fit(problem: Any, *, start: np.ndarray | None = None, bounds: tuple[n
 
     stopped = ""
     results = []
+    F_start = math.nan
+    invert = state is None and invert_start
     try:
-        x0, F_start, start_note = _first_point(problem, start, x0, fun_x, accept, start_note,
-                                               invert=state is None and invert_start)
+        x0, start_note = _inverted(problem, x0, start_note, invert)
+        r_start = fun_x(start)
+        F_start = float(r_start @ r_start)    # the start's objective stands even when the budget ends next
+        accept(start, r_start)
+        x0, start_note = _search_start(problem, start, x0, F_start, fun_x, start_note, invert=invert)
         for su in _start_points(problem, x0, low, span, starts if state is None else 1):
             results.append(least_squares(fun_u, np.clip(su, 0.0, 1.0), jac=jac_u, bounds=(0.0, 1.0), method="trf",
                                          x_scale=1.0, max_nfev=max_evaluations, ftol=1e-8, xtol=1e-8, gtol=1e-10))
@@ -204,20 +209,23 @@ def _start_points(problem: Any, x0: np.ndarray, low: np.ndarray, span: np.ndarra
     return points
 
 
-def _first_point(problem: Any, start: np.ndarray, x0: np.ndarray, fun_x: Any, accept: Any, start_note: str, *,
-                 invert: bool) -> tuple[np.ndarray, float, str]:
-    """``(x0, F_start, note)``: the point the search starts from, the objective at ``start``, the start's note.
+def _inverted(problem: Any, x0: np.ndarray, start_note: str, invert: bool) -> tuple[np.ndarray, str]:
+    """``(x0, note)``: with ``invert``, the start inverted from the measured colour and its note (no evaluation)."""
+    if not invert:
+        return x0, start_note
+    x0, note = inverted_start(problem, x0)
+    return x0, f"{start_note}; {note}" if start_note else note
 
-    ``start`` is evaluated (and accepted) first; with ``invert``, the start inverted from the measured colour
-    (:func:`~fabric_optics.fitting.start.inverted_start`) is evaluated too and starts the search unless the
-    config's own values are nearer the measured colour or score better (:func:`_own_start_first`).
+
+def _search_start(problem: Any, start: np.ndarray, x0: np.ndarray, F_start: float, fun_x: Any, start_note: str, *,
+                  invert: bool) -> tuple[np.ndarray, str]:
+    """``(x0, note)``: the point the search starts from and the start's note.
+
+    With ``invert``, the start inverted from the measured colour (``x0``,
+    :func:`~fabric_optics.fitting.start.inverted_start`) is evaluated and starts the search unless the config's
+    own values (``start``, objective ``F_start``) are nearer the measured colour or score better
+    (:func:`_own_start_first`).
     """
-    if invert:
-        x0, note = inverted_start(problem, x0)
-        start_note = f"{start_note}; {note}" if start_note else note
-    r_start = fun_x(start)
-    F_start = float(r_start @ r_start)
-    accept(start, r_start)
     if invert and not np.array_equal(x0, start):
         r_inv = fun_x(x0)
         if _own_start_first(problem, start, x0, F_start, float(r_inv @ r_inv)):
@@ -226,7 +234,7 @@ def _first_point(problem: Any, start: np.ndarray, x0: np.ndarray, fun_x: Any, ac
                            "inverted start and start the search")
         else:
             start_note += "; the inverted start is nearer the measured colour and starts the search"
-    return x0, F_start, start_note
+    return x0, start_note
 
 
 def _bars(problem: Any, max_evaluations: int, progress: bool) -> tuple[Any, Any]:

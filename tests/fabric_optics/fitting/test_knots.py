@@ -170,3 +170,15 @@ def test_a_dye_only_point_with_a_bad_dye_is_refused_as_a_full_parse_refuses_it(k
     with pytest.raises(ConfigError) as got:
         problem.config_at(x)
     assert str(got.value) == str(full.value)
+
+
+def test_a_budget_spent_by_the_start_keeps_the_start_s_objective(knots_problem):
+    """One evaluation: the config's start is evaluated, the inverted start is not; the fit ends at the budget with
+    the start's objective (a search that stops before its inverted start is compared)."""
+    p = _sibling(knots_problem, knots_problem.measured.table["beta"].to_numpy().reshape(
+        len(knots_problem.geometries), -1))
+    result = run_fit(p, max_evaluations=1, noise_draws=2)
+    assert result.info["evaluations"] == 1
+    assert any("evaluation budget" in w for w in result.warnings)
+    r = p.residuals(p.start)
+    assert result.objective_start == pytest.approx(float(r @ r), rel=1e-12)
