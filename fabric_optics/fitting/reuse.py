@@ -8,7 +8,8 @@ of threads. When a command finishes, its output folder, the lines it printed and
 stored in the table cache (:mod:`simulate.fiber.tablecache`) under the SHA-256 of all of these and
 of the output folder's path (the outputs name it); the same command run again, with nothing
 changed, restores the folder and prints the same lines instead of fitting again, and says so. The
-measurement counts by its values and what its meta says it measured, not by when: a repeated
+measurement counts by its values and what its meta says it measured, not by when, through which
+port or by which build of the software it was recorded: a repeated
 acquisition of the same values (the mock instrument at its seed) restores the fit, whose own report
 then names the acquisition it was computed from. Any
 change -- an edited source file, another measurement, another option -- is another key: the fit
@@ -76,8 +77,8 @@ def code_identity() -> str:
 
 
 #: the measurement's meta fields that name its run rather than what it measured (its time, the instrument's
-#: connection endpoints), left out of the key
-RUN_FIELDS = ("created", "instrument")
+#: connection endpoints, the software that recorded it: the fit's own code is in the key apart), left out of the key
+RUN_FIELDS = ("created", "instrument", "software")
 
 
 def _measurement(measured: Any) -> dict[str, Any]:

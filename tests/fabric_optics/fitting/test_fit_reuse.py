@@ -125,12 +125,14 @@ def _rewrite(path, factor):
 
 
 def test_a_repeated_acquisition_of_the_same_values_restores(measured, tmp_path, cache_dir, monkeypatch, capsys):
-    """The measurement counts by its values and what it measured, not by when or through which port."""
+    """The measurement counts by its values and what it measured, not by when, through which port or by which
+    build of the software it was recorded (a checkout with an edited file records ``+dirty``)."""
     out = tmp_path / "f"
     _fit(measured, out)
     meta = json.loads((measured / "meta.json").read_text())
     meta["created"] = "2030-01-01T00:00:00+00:00"
     meta["instrument"] = {"modbus": "tcp://127.0.0.1:1"}
+    meta["software"] = {"package": "fabric-optics", "commit": "0000000+dirty"}
     (measured / "meta.json").write_text(json.dumps(meta))
     capsys.readouterr()
     counting = Counting(monkeypatch)
