@@ -85,9 +85,11 @@ def _measurement(measured: Any) -> dict[str, Any]:
     """What a fit reads of a measurement: its values and what its meta says it measured.
 
     The values by the canonical ``radiance.csv`` bytes' hash; the meta without the fields that name the run
-    (:data:`RUN_FIELDS`).
+    (:data:`RUN_FIELDS`, and the provenance's software ``versions``).
     """
     meta = {k: v for k, v in measured.meta.items() if k not in RUN_FIELDS}
+    if isinstance(meta.get("provenance"), dict):   # the acquisition's software versions name the run too
+        meta["provenance"] = {k: v for k, v in meta["provenance"].items() if k != "versions"}
     return {"values": measured.content_sha256(), "meta": json.dumps(meta, sort_keys=True, default=str)}
 
 

@@ -133,6 +133,7 @@ def test_a_repeated_acquisition_of_the_same_values_restores(measured, tmp_path, 
     meta["created"] = "2030-01-01T00:00:00+00:00"
     meta["instrument"] = {"modbus": "tcp://127.0.0.1:1"}
     meta["software"] = {"package": "fabric-optics", "commit": "0000000+dirty"}
+    meta.setdefault("provenance", {})["versions"] = {"commit": "0000000+dirty"}
     (measured / "meta.json").write_text(json.dumps(meta))
     capsys.readouterr()
     counting = Counting(monkeypatch)
