@@ -50,20 +50,28 @@ DEMO_FIT_REL_ERR ?= 0.03
 
 venv: $(STAMP)
 
-# The environment: with uv on PATH (https://docs.astral.sh/uv/), uv builds it (its resolver and parallel,
-# cached installs: seconds instead of a minute or more); pip otherwise. Both install the project from
-# pyproject.toml, with the same pins. `make venv UV=` forces pip. The venv gets pip either way (--seed),
-# for the README's `pip install -e '.[render]'`.
+# The environment, from pyproject.toml's pins, by uv (https://docs.astral.sh/uv/: its resolver and parallel,
+# cached installs take seconds where pip takes a minute or more): the uv on PATH, or else the pinned UV_VERSION, which
+# pip first installs into the new venv (one wheel); pip installs the project itself if that fails.
+# `make venv INSTALLER=pip` uses pip alone. The venv has pip either way, for the README's
+# `pip install -e '.[render]'`.
 UV ?= $(shell command -v uv 2>/dev/null)
+UV_VERSION ?= 0.13.10
+INSTALLER ?= uv
+EXTRAS := .[test,docs]
 
 $(STAMP): pyproject.toml
-ifneq ($(strip $(UV)),)
-	$(UV) venv --quiet --seed --allow-existing --python $(PYTHON) $(VENV)
-	$(UV) pip install --quiet --python $(PY) -e '.[test,docs]'
-else
+ifeq ($(INSTALLER),pip)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,docs]'
+	$(PY) -m pip install --quiet -e '$(EXTRAS)'
+else ifneq ($(strip $(UV)),)
+	$(UV) venv --quiet --seed --allow-existing --python $(PYTHON) $(VENV)
+	$(UV) pip install --quiet --python $(PY) -e '$(EXTRAS)'
+else
+	$(PYTHON) -m venv $(VENV)
+	( $(PY) -m pip install --quiet 'uv==$(UV_VERSION)' && $(VENV)/bin/uv pip install --quiet --python $(PY) -e '$(EXTRAS)' ) \
+		|| $(PY) -m pip install --quiet -e '$(EXTRAS)'
 endif
 	touch $(STAMP)
 
