@@ -51,28 +51,43 @@ DEMO_FIT_REL_ERR ?= 0.03
 venv: $(STAMP)
 
 # The environment, from pyproject.toml's pins, by uv (https://docs.astral.sh/uv/: its resolver and parallel,
-# cached installs take seconds where pip takes a minute or more): the uv on PATH, or else the pinned UV_VERSION, which
-# pip first installs into the new venv (one wheel); pip installs the project itself if that fails.
+# cached installs take seconds where pip takes a minute or more): the uv on PATH, or else the pinned UV_VERSION,
+# which pip first installs into the new venv (one wheel); pip installs the project if uv cannot.
 # `make venv INSTALLER=pip` uses pip alone. The venv has pip either way, for the README's
-# `pip install -e '.[render]'`.
+# `pip install -e '.[render]'`. Modules are compiled to bytecode at install, as pip does, so that the
+# first run's processes do not each compile them. `make demo` needs the project alone (BASE_STAMP);
+# the test, lint and docs targets add the test and docs extras to the same venv (STAMP).
 UV ?= $(shell command -v uv 2>/dev/null)
 UV_VERSION ?= 0.13.10
 INSTALLER ?= uv
+BASE_STAMP := $(VENV)/.installed-base-stamp
+UV_IN_VENV := $(VENV)/bin/uv
 EXTRAS := .[test,docs]
+# $(call install,SPEC): install the project (editable) with SPEC's extras into the venv
+ifeq ($(INSTALLER),pip)
+install = $(PY) -m pip install --quiet -e '$(1)'
+else
+install = $(if $(strip $(UV)),$(UV),$(UV_IN_VENV)) pip install --quiet --compile-bytecode --python $(PY) -e '$(1)' \
+	|| $(PY) -m pip install --quiet -e '$(1)'
+endif
 
-$(STAMP): pyproject.toml
+$(PY):
 ifeq ($(INSTALLER),pip)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '$(EXTRAS)'
 else ifneq ($(strip $(UV)),)
 	$(UV) venv --quiet --seed --allow-existing --python $(PYTHON) $(VENV)
-	$(UV) pip install --quiet --python $(PY) -e '$(EXTRAS)'
 else
 	$(PYTHON) -m venv $(VENV)
-	( $(PY) -m pip install --quiet 'uv==$(UV_VERSION)' && $(VENV)/bin/uv pip install --quiet --python $(PY) -e '$(EXTRAS)' ) \
-		|| $(PY) -m pip install --quiet -e '$(EXTRAS)'
+	$(PY) -m pip install --quiet 'uv==$(UV_VERSION)' || true
 endif
+
+$(BASE_STAMP): pyproject.toml | $(PY)
+	$(call install,.)
+	touch $(BASE_STAMP)
+
+$(STAMP): $(BASE_STAMP)
+	$(call install,$(EXTRAS))
 	touch $(STAMP)
 
 # The main job (README, "What `make demo` does"): the real felt measured through the mock instrument
@@ -102,7 +117,7 @@ DEMO_FIT_CLASSIC = $(VENV)/bin/simulate fit $(DEMO_CLASSIC_START) $(DEMO_OUT)/me
 DEMO_FIT_SUMMATION = $(VENV)/bin/simulate fit $(DEMO_START) $(DEMO_OUT)/measured --method summation $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --target-rel-err $(DEMO_FIT_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-summation --force $(FIT_VERDICT)
 DEMO_MC_PREPARE = mkdir -p $(DEMO_OUT) && ( $(VENV)/bin/simulate fabric $(DEMO_MC_START) --method mc --plan $(DEMO_MC_PREPARE_PLAN) --target-rel-err $(DEMO_REL_ERR) --max-photons 64 --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare --force && ( $(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/mc-prepare --method summation --free $(DEMO_MC_FREE) --max-evaluations 1 --target-rel-err $(DEMO_REL_ERR) --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare-walk --force $(FIT_VERDICT) ) ) >$(DEMO_OUT)/mc-prepare.log 2>&1 || ( cat $(DEMO_OUT)/mc-prepare.log >&2; false ); s=$$?; rm -rf $(DEMO_OUT)/mc-prepare $(DEMO_OUT)/mc-prepare-walk $(DEMO_OUT)/mc-prepare.log; [ $$s -eq 0 ]
 DEMO_FIT_MC = $(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/measured --method mc --free $(DEMO_MC_FREE) --max-runs $(DEMO_MC_RUNS) --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-mc --force $(FIT_VERDICT)
-demo: $(STAMP)
+demo: $(BASE_STAMP)
 	( $(DEMO_MC_PREPARE) ) & prepare=$$!; $(DEMO_COTTON) & beside=$$!; $(VENV)/bin/gonio demo --sample $(DEMO_SAMPLE) --plan $(DEMO_PLAN) --out $(DEMO_OUT)/measured --no-progress --force; s=$$?; wait $$beside && wait $$prepare && [ $$s -eq 0 ]
 	$(VENV)/bin/gonio truth $(DEMO_SAMPLE) --plan $(DEMO_PLAN) --out $(DEMO_OUT)/truth --force
 	$(VENV)/bin/compare check $(DEMO_OUT)/measured $(DEMO_OUT)/truth --max-nrmse 0.05

@@ -31,10 +31,14 @@ sys.path.insert(1, str(Path(__file__).resolve().parents[2]))   # the checkout: r
 from render_figures import ROOT, record  # noqa: E402
 
 
+#: what ``make demo`` builds of the environment: the project without the test and docs extras (Makefile, BASE_STAMP)
+DEMO_ENV = ".venv/.installed-base-stamp"
+
+
 def recipe() -> list[str]:
     """The shell commands of ``make demo``, in order (``make -n``: printed, not run)."""
     # -o: the environment counts as built (measure_demo builds it first, as its own step)
-    done = subprocess.run(["make", "-s", "-n", "-o", ".venv/.installed-stamp", "demo"], cwd=ROOT,
+    done = subprocess.run(["make", "-s", "-n", "-o", DEMO_ENV, "demo"], cwd=ROOT,
                           capture_output=True, text=True, check=True)
     return [line for line in done.stdout.splitlines() if line.strip() and not line.lstrip().startswith("echo ")]
 
@@ -106,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     # the recipe is read once the environment exists (before, make -n would list its build)
-    if code := step("make venv", ["make", "-s", "venv"]):
+    if code := step("make venv", ["make", "-s", DEMO_ENV]):
         return code
     for command in recipe():
         print(command, flush=True)
