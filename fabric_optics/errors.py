@@ -20,22 +20,8 @@ import functools
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from compare.errors import CompareError
-from gonio.acquisition.journal import JournalError
-from gonio.acquisition.plan import PlanError
-from gonio.data.claim import OutputBusy
-from gonio.data.outputs import OutputRefused
-from gonio.data.schema import DatasetError
-from gonio.mock.samples import SampleError
-from simulate.budget import BudgetError
-from simulate.config_table import ConfigError
-from simulate.fabric.summation import FabricError
-from simulate.geometry.weave import WeaveError
-from simulate.montecarlo.transport import ParameterError
-from simulate.outdir import OutputError
-
 __all__ = ["ToolkitError", "InputError", "OutputExistsError", "OutputBusyError", "FileSystemError",
-           "InternalError", "typed_errors", "as_toolkit_error", "interrupt_of", "INPUT_ERRORS"]
+           "InternalError", "typed_errors", "as_toolkit_error", "interrupt_of", "INPUT_ERROR_NAMES"]
 
 
 class ToolkitError(Exception):
@@ -97,9 +83,20 @@ class InternalError(ToolkitError):
 for _cls in (ToolkitError, InputError, OutputExistsError, OutputBusyError, FileSystemError, InternalError):
     _cls.__module__ = "fabric_optics.api"
 
-#: The libraries' errors for bad input: re-raised as :class:`InputError`.
-INPUT_ERRORS: tuple[type[Exception], ...] = (ConfigError, PlanError, DatasetError, FabricError, CompareError,
-                                             SampleError, BudgetError, ParameterError, WeaveError, JournalError)
+#: The libraries' errors for bad input, re-raised as :class:`InputError`: ``module.Class`` of each, so that
+#: importing this module does not import the libraries (a class's module is loaded once it was raised)
+INPUT_ERROR_NAMES: tuple[str, ...] = (
+    "simulate.config_table.ConfigError", "gonio.acquisition.plan.schema.PlanError", "gonio.data.schema.DatasetError",
+    "simulate.fabric.summation.FabricError", "compare.errors.CompareError", "gonio.mock.samples.SampleError",
+    "simulate.budget.BudgetError", "simulate.montecarlo.transport.ParameterError", "simulate.geometry.weave.WeaveError",
+    "gonio.acquisition.journal.JournalError", "fabric_optics.fitting.errors.FitError",
+)
+
+
+def _is_a(exc: BaseException, names: tuple[str, ...]) -> bool:
+    """Whether ``exc`` is an instance of one of the classes ``names`` (``module.Class``), by its class's MRO."""
+    return any(f"{cls.__module__}.{cls.__qualname__}" in names for cls in type(exc).__mro__)
+
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 
@@ -147,20 +144,18 @@ def as_toolkit_error(exc: BaseException) -> BaseException:
         :class:`OutputExistsError`, :class:`FileSystemError`, :class:`InputError` for the libraries'
         input errors, :class:`InternalError` for anything else.
     """
-    from fabric_optics.fitting.errors import FitError
-
     if isinstance(exc, ToolkitError) or not isinstance(exc, Exception):
         return exc
     interrupt = interrupt_of(exc)
     if interrupt is not None:
         return interrupt
-    if isinstance(exc, OutputBusy):
+    if _is_a(exc, ("gonio.data.claim.OutputBusy",)):
         out: ToolkitError = OutputBusyError(str(exc))
-    elif isinstance(exc, OutputRefused):
+    elif _is_a(exc, ("gonio.data.outputs.OutputRefused",)):
         out = OutputExistsError(str(exc))
-    elif isinstance(exc, OutputError):
+    elif _is_a(exc, ("simulate.outdir.OutputError",)):
         out = FileSystemError(str(exc))
-    elif isinstance(exc, INPUT_ERRORS + (FitError,)):
+    elif _is_a(exc, INPUT_ERROR_NAMES):
         out = InputError(str(exc))
     elif isinstance(exc, OSError):
         if exc.errno and exc.filename:

@@ -19,12 +19,9 @@ Traceback (most recent call last):
 fabric_optics.api.InputError: ...no-such-preset...
 """
 
-from fabric_optics.api.comparison import Comparison, Verdict, check, compare, write_report
-from fabric_optics.api.export import export_bsdf
-from fabric_optics.api.fitting import FIT_METHODS, FitJob, FitOutcome, FitWarning, fit, prepare_fit
-from fabric_optics.api.loading import load_config, load_plan, read_dataset, write_dataset
-from fabric_optics.api.measurement import IMPORT_FORMATS, import_measurement, measure_on_mock, truth
-from fabric_optics.api.simulation import FABRIC_METHODS, simulate
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from fabric_optics.errors import (
     FileSystemError,
     InputError,
@@ -33,6 +30,41 @@ from fabric_optics.errors import (
     OutputExistsError,
     ToolkitError,
 )
+
+if TYPE_CHECKING:
+    from fabric_optics.api.comparison import Comparison, Verdict, check, compare, write_report
+    from fabric_optics.api.export import export_bsdf
+    from fabric_optics.api.fitting import FIT_METHODS, FitJob, FitOutcome, FitWarning, fit, prepare_fit
+    from fabric_optics.api.loading import load_config, load_plan, read_dataset, write_dataset
+    from fabric_optics.api.measurement import IMPORT_FORMATS, import_measurement, measure_on_mock, truth
+    from fabric_optics.api.simulation import FABRIC_METHODS, simulate
+
+#: each function's or class's module: it is imported on first use, so that a command or script pays for the
+#: parts of the toolkit it calls (a measurement on the mock does not load the simulation's compiled kernels)
+_MODULE_OF = {name: module for module, names in {
+    'comparison': ('Comparison', 'Verdict', 'check', 'compare', 'write_report'),
+    'export': ('export_bsdf',),
+    'fitting': ('FIT_METHODS', 'FitJob', 'FitOutcome', 'FitWarning', 'fit', 'prepare_fit'),
+    'loading': ('load_config', 'load_plan', 'read_dataset', 'write_dataset'),
+    'measurement': ('IMPORT_FORMATS', 'import_measurement', 'measure_on_mock', 'truth'),
+    'simulation': ('FABRIC_METHODS', 'simulate'),
+}.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    """The API's function or class ``name``, its module imported on first use (PEP 562)."""
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """Every public name, the ones not imported yet included."""
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "ToolkitError", "InputError", "OutputExistsError", "OutputBusyError", "FileSystemError", "InternalError",
