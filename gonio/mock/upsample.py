@@ -9,7 +9,8 @@ decomposition of Mallett & Yuksel (2019)**::
 
 with their three basis spectra (colour-science's
 :data:`colour.recovery.MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019`, 380..780 nm at 5 nm, interpolated
-linearly; the end values outside). The basis spectra are non-negative, sum to 1 at every
+linearly; the end values outside), read from a copy beside this module (``mallett2019_srgb_basis.csv``:
+the photometer answers without importing colour-science, whose import would stall the first reading). The basis spectra are non-negative, sum to 1 at every
 wavelength (white stays flat) and are the sRGB primaries' own spectra: the colour of ``beta``
 (CIE 1931 2-degree observer, illuminant D65, ``Y = 1`` for the ideal white diffuser, the colour
 match's pipeline, :func:`gonio.data.colour.spectrum_to_rgb`) is the file's RGB, to 1.5e-4 (absolute,
@@ -32,17 +33,20 @@ Reflectance", Eurographics Symposium on Rendering (DL-only track), 2019.
 from __future__ import annotations
 
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["rgb_spectrum", "basis"]
+__all__ = ["rgb_spectrum", "basis", "BASIS_FILE"]
+
+BASIS_FILE = Path(__file__).with_name("mallett2019_srgb_basis.csv")
+"""The basis spectra: wavelength (nm) and ``b_R, b_G, b_B``, copied from colour-science."""
 
 
 @lru_cache(maxsize=1)
 def _basis_table() -> tuple[np.ndarray, np.ndarray]:
-    from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as table
-
-    return np.asarray(table.wavelengths, dtype=float), np.asarray(table.values, dtype=float)   # R, G, B
+    table = np.loadtxt(BASIS_FILE, delimiter=",", comments="#", skiprows=5)
+    return table[:, 0], table[:, 1:]   # wavelengths, R, G, B
 
 
 def basis(wavelength_nm) -> np.ndarray:

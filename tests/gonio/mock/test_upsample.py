@@ -21,6 +21,13 @@ def test_the_spectrum_has_the_rgb_colour(rgb):
     assert np.allclose(back, rgb, atol=2e-4), back
 
 
+def test_the_basis_file_is_colour_sciences_table():
+    from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as table
+
+    assert np.array_equal(basis(table.wavelengths), np.asarray(table.values, dtype=float))
+    assert np.array_equal(basis(np.array([300.0, 900.0])), np.asarray(table.values, dtype=float)[[0, -1]])
+
+
 def test_basis_is_a_partition_of_white_and_non_negative():
     b = basis(np.arange(360.0, 831.0, 1.0))
     assert np.all(b >= 0.0)
