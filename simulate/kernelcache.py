@@ -22,6 +22,10 @@ whose kernels :mod:`simulate.optics.mie` caches) under::
   than parsing it; a docstring line that reads like an import only adds a file to the key). Editing
   a module recompiles the kernels of the modules that import it and no others.
 
+A kernel is loaded or compiled under a file lock beside its index (:func:`compile_lock_path`): two
+processes that need the same kernel at once (the commands a first ``make demo`` starts side by side)
+compile it once, the second loading what the first saved.
+
 Numba's index inside that folder still keys each compiled variant on its signature, the CPU and the
 function's bytecode. Two clones of the same sources share one folder; clones whose sources differ
 use different folders and never overwrite each other's files (a loaded kernel is always the one its
@@ -37,6 +41,7 @@ Design after the content-hash locators of cmomy (https://github.com/usnistgov/cm
 
 from __future__ import annotations
 
+import fcntl
 import functools
 import hashlib
 import importlib.abc
@@ -51,7 +56,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, Sequence
 
-__all__ = ["PACKAGE_GROUPS", "KEEP", "cache_base", "version_tag", "source_key", "install", "ContentHashLocator"]
+__all__ = ["PACKAGE_GROUPS", "KEEP", "cache_base", "version_tag", "source_key", "install", "ContentHashLocator",
+           "compile_lock_path"]
 
 #: top-level packages whose kernels this locator caches; a module's key follows its imports within its own group
 PACKAGE_GROUPS: list[tuple[str, ...]] = [("simulate", "fabric_optics", "gonio", "compare"), ("miepython",)]
@@ -269,12 +275,68 @@ def _locator_class() -> type:
                 self.ensure_cache_path()
             except OSError:
                 return None                    # numba's own locators take it
+            _lock_compiles()
             return self
 
     return ContentHashLocator
 
 
 ContentHashLocator: type | None = None
+
+#: the lock files this process holds (a kernel compiled again inside its own compilation passes through)
+_held: set[str] = set()
+
+
+def compile_lock_path(dispatcher: Any) -> str | None:
+    """The lock file of ``dispatcher``'s compilation: beside its cache index, or None when not ours."""
+    cache = getattr(dispatcher, "_cache", None)
+    locator: Any = getattr(getattr(cache, "_impl", None), "locator", None)  # numba's locator, or ours
+    if ContentHashLocator is None or not isinstance(locator, ContentHashLocator):
+        return None
+    folder: str = getattr(locator, "get_cache_path")()  # noqa: B009 - typed as a plain type above
+    return os.path.join(folder, f"{getattr(cache, '_impl').filename_base}.lock")  # noqa: B009
+
+
+def _locked(compile_: Any) -> Any:
+    """``Dispatcher.compile`` that holds a per-kernel file lock while it loads or compiles.
+
+    Two processes that need the same kernel (two commands started at once on a fresh machine) would
+    both compile it; with the lock the second waits and then loads what the first saved. The lock is
+    taken inside numba's own compiler lock (one compiling thread per process), so a kernel compiled
+    inside another's compilation cannot deadlock; the kernel releases it when its process ends,
+    however it ends."""
+    from numba.core.compiler_lock import global_compiler_lock
+
+    @functools.wraps(compile_)
+    def compile(self: Any, sig: Any) -> Any:
+        path = compile_lock_path(self)
+        if path is None:
+            return compile_(self, sig)
+        with global_compiler_lock:
+            if path in _held:
+                return compile_(self, sig)
+            try:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError:
+                return compile_(self, sig)       # a folder we cannot write: compile without the lock
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                _held.add(path)
+                return compile_(self, sig)
+            finally:
+                _held.discard(path)
+                os.close(fd)
+
+    compile.__wrapped_by_kernelcache__ = True  # type: ignore[attr-defined]
+    return compile
+
+
+def _lock_compiles() -> None:
+    """Make numba's dispatchers take :func:`compile_lock_path`'s lock when they compile (once)."""
+    dispatcher = sys.modules.get("numba.core.dispatcher")
+    cls = getattr(dispatcher, "Dispatcher", None)
+    if cls is not None and not getattr(cls.compile, "__wrapped_by_kernelcache__", False):
+        cls.compile = _locked(cls.compile)
 
 
 def _register(caching: ModuleType) -> None:

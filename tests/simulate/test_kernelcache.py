@@ -163,3 +163,42 @@ def test_the_real_kernels_keys_follow_their_imports(tree_copy):
     kernelcache._source_key.cache_clear()
     assert kernelcache.source_key(kernel) != before
     assert kernelcache.source_key(REPO / "simulate/montecarlo/kernel.py") == before
+
+
+LOCK_PATH = """
+from simulate import kernelcache
+kernelcache.PACKAGE_GROUPS.append(("kcpkg",))
+import kcpkg.caller as caller
+print(kernelcache.compile_lock_path(caller.total))
+"""
+
+
+def test_two_processes_needing_one_kernel_compile_it_once(tmp_path):
+    """While the kernel's lock is held neither process gets past it; released, one compiles and saves, the
+    other waits for it and loads what it saved (without the lock both would compile)."""
+    import fcntl
+    import time
+
+    clone = _write_package(tmp_path / "clone", value=3)
+    cache = tmp_path / "numba-cache"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=os.pathsep.join([str(clone), str(REPO)]))
+    env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
+    path = subprocess.run([sys.executable, "-c", LOCK_PATH], env=env, capture_output=True, text=True,
+                          check=True, timeout=300).stdout.strip().splitlines()[-1]
+    assert Path(path).parent.is_relative_to(cache) and path.endswith(".lock"), path
+    fd = os.open(path, os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    try:
+        procs = [subprocess.Popen([sys.executable, "-c", PROBE], env=env, stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True) for _ in range(2)]
+        time.sleep(3.0)
+        assert [p.poll() for p in procs] == [None, None]     # waiting at the lock (or still starting)
+    finally:
+        os.close(fd)
+    outs = []
+    for p in procs:
+        stdout, stderr = p.communicate(timeout=300)
+        assert p.returncode == 0, stderr
+        outs.append(json.loads(stdout.strip().splitlines()[-1]))
+    assert sorted((o["misses"], o["hits"]) for o in outs) == [(0, 1), (1, 0)], outs
+    assert [o["result"] for o in outs] == [4, 4]
