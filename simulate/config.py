@@ -146,9 +146,11 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
                                        #   bins smear their exit cones), [5, 10] otherwise (turbid fibers
                                        #   and woven yarns converge there at half the trace time)
                                        #   (docs/physics.md 6, "Exit directions")
-    felt_realisations = 2              # felt Monte Carlo: independent realisations of the felt a run
-                                       #   averages, an even number in [2, 32]; its error is their
-                                       #   spread (docs/notes/felt-structure.md 8, "The Monte Carlo noise")
+    felt_realisations = 4              # felt Monte Carlo: independent realisations of the felt a run
+                                       #   averages, an even number in [2, 32], half on each table
+                                       #   half; its error holds their spread (2: one per half, the
+                                       #   halves' difference; docs/notes/felt-structure.md 8,
+                                       #   "The Monte Carlo noise")
 
     [structure]                        # optional: the summation over the fabric's visible fibers in all
     kind = "woven"                     #   their orientations; fields and defaults in
@@ -203,8 +205,10 @@ DEFAULT_AXIAL_SHIFT = False
 #: ``[method] axial_nodes`` when not given (docs/physics.md 6, "Axial nodes")
 DEFAULT_AXIAL_NODES = 5
 #: ``[method] felt_realisations`` when not given: the felt Monte Carlo's independent realisations of the felt
-#: (:func:`simulate.raytrace.estimate.combine_realisations`; docs/notes/felt-structure.md 8, "The Monte Carlo noise")
-DEFAULT_FELT_REALISATIONS = 2
+#: (:func:`simulate.raytrace.estimate.combine_realisations`). Four, by measurement: against two, one run's noise
+#: falls to the rays' own and the reported error holds the seeds' spread, for ~15 % more CPU; eight and sixteen
+#: gain nothing more (docs/notes/felt-structure.md 8, "The Monte Carlo noise")
+DEFAULT_FELT_REALISATIONS = 4
 #: the most ``[method] felt_realisations``
 MAX_FELT_REALISATIONS = 32
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from simulate import fabric as fab
-from simulate.config import SimulationConfig, weave_from_config
+from simulate.config import DEFAULT_FELT_REALISATIONS, SimulationConfig, weave_from_config
 from simulate.provenance import jsonable
 
 __all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "all_threads", "register", "evaluate",
@@ -324,7 +324,7 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         # the felt's independent realisations, alternately on the two table halves: their spread puts the
         # fibers' placement into u_beta (simulate.raytrace.estimate, "A felt"); from the table cache, so
         # the runs of a fit that keeps the structure build them once
-        n_real = int(getattr(config, "felt_realisations", 2))
+        n_real = int(getattr(config, "felt_realisations", DEFAULT_FELT_REALISATIONS))
         felts = tuple(cached_felt_mesh(spec, float(fiber.radius_um), seed=s.seed + FELT_SEED_STRIDE * h)[0]
                       for h in range(n_real))
         mesh: Any = felts

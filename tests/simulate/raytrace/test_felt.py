@@ -133,6 +133,50 @@ def test_simulate_fabric_mc_runs_a_felt_config(tmp_path, capsys):
     assert len(ds.table) == 2 and np.all(np.isfinite(ds.table["beta"])) and np.all(ds.table["beta"] > 0)
     felt = ds.meta["model"]["felt"]
     assert felt["layers"] == 4 and abs(felt["spread_deg"] - 15.0) < 1e-9 and felt["seed"] == 2 and "weave" not in ds.meta["model"]
+    from simulate.config import DEFAULT_FELT_REALISATIONS
+
+    assert ds.meta["provenance"]["fiber_info"]["realisations"] == DEFAULT_FELT_REALISATIONS
+
+
+def test_a_config_with_two_realisations_traces_the_two_felts_of_its_seed(tmp_path, capsys):
+    """``[method] felt_realisations = 2``: the run is ``fabric_beta`` on the felts of the run's seed and of the seed plus
+    the stride, one per table half (the estimator of a run with one realisation per half), value for value."""
+    from simulate.config import load_config
+    from simulate.products import FELT_SEED_STRIDE
+
+    cfg = tmp_path / "felt.toml"
+    cfg.write_text(FELT + "[method]\nfelt_realisations = 2\n")
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(PLAN)
+    out = tmp_path / "felt-mc"
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out),
+                 "--target-rel-err", "0.2", "--no-progress", "--threads", "1"]) == 0
+    capsys.readouterr()
+    ds = read_dataset(out)
+    c = load_config(cfg)
+    wl = np.array([550.0])
+    fib = c.fiber(wl)
+    meshes = (felt_mesh(c.structure, 10.0, seed=2), felt_mesh(c.structure, 10.0, seed=2 + FELT_SEED_STRIDE))
+    t = ds.table.sort_values("theta_o")
+    w_i = fab.directions_deg(t["theta_i"].to_numpy(float), t["phi_i"].to_numpy(float))
+    w_o = fab.directions_deg(t["theta_o"].to_numpy(float), t["phi_o"].to_numpy(float))
+    # the fiber is turbid (2 R mu_s = 16): the run's exit bins are fabric_beta's default, (5, 10)
+    beta, u, info = W.fabric_beta(meshes, fib, w_i, w_o, wl, target_rel_err=0.2, seed=2, threads=1, structure=c.structure)
+    assert info["realisations"] == 2
+    np.testing.assert_allclose(t["beta"].to_numpy(float), beta[:, 0], rtol=1e-9)
+    np.testing.assert_allclose(t["u_beta"].to_numpy(float), u[:, 0], rtol=1e-9)
+
+
+def test_a_bad_realisation_count_is_one_line_and_exit_2(tmp_path, capsys):
+    cfg = tmp_path / "felt.toml"
+    cfg.write_text(FELT + "[method]\nfelt_realisations = 5\n")
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(PLAN)
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "felt.toml: method.felt_realisations must be an even integer" in err and "\n" not in err
+    assert not (tmp_path / "o").exists()
 
 
 def _tiny_felt_case(target: float):
