@@ -13,19 +13,19 @@ realisation's run would report a standard error well below the spread between re
 changes, both free in expectation:
 
 - the felt is in-plane isotropic, so each incidence and its detectors are turned about the normal
-  to :data:`FELT_ROTATIONS` azimuths (``2 pi (j + h / 2) / K`` for half ``h``) and the traces
-  averaged: the top fibers' few orientations are seen at ``K`` angles.
-  The ``K`` rotations are traced as one wavefront (:func:`simulate.raytrace.integrator.trace_rotations`:
-  ``K`` times smaller chunks of each, every bounce one Embree query for all of them), stopped when
+  to ``N`` = :data:`FELT_ROTATIONS` azimuths and the traces averaged: the top fibers' few orientations
+  are seen at ``N`` angles.
+  The ``N`` rotations are traced as one wavefront (:func:`simulate.raytrace.integrator.trace_rotations`:
+  ``N`` times smaller chunks of each, every bounce one Embree query for all of them), stopped when
   their mean reaches the ray target; the scene is built once per mesh;
 - the felt is traced on ``K`` independent realisations (``mesh`` a tuple of ``K``, an even number;
   ``simulate fabric`` builds them at the run's seed plus :data:`simulate.products.FELT_SEED_STRIDE` times
   ``0 .. K - 1``, ``[method] felt_realisations``), realisation ``j`` with table half ``j mod 2``, at the
-  rotations ``2 pi (i + j / K) / FELT_ROTATIONS``, each traced to ``sqrt(K / 2)`` times a half's ray target
+  rotations ``2 pi (i + j / K) / N``, each traced to ``sqrt(K / 2)`` times a half's ray target
   (the same rays in all). ``beta`` is their mean and ``u_beta`` comes from their spread
-  (:func:`combine_realisations`): it holds the spread between realisations, which is most of a felt
-  run's noise (``tests/simulate/raytrace/test_felt.py``; measured: docs/notes/felt-structure.md 8,
-  "The Monte Carlo noise").
+  (:func:`combine_realisations`): it holds the spread between realisations, so it predicts the spread
+  between seeds (``tests/simulate/raytrace/test_felt.py``; measured, with what the realisations' count
+  costs and gains: docs/notes/felt-structure.md 8, "The Monte Carlo noise").
 
 What these choices cost and gain, measured: docs/notes/implementation.md, "The ray tracer's felt".
 """
