@@ -146,6 +146,11 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
                                        #   bins smear their exit cones), [5, 10] otherwise (turbid fibers
                                        #   and woven yarns converge there at half the trace time)
                                        #   (docs/physics.md 6, "Exit directions")
+    felt_realisations = 4              # felt Monte Carlo: independent realisations of the felt a run
+                                       #   averages, an even number in [2, 32], half on each table
+                                       #   half; its error holds their spread (2: one per half, the
+                                       #   halves' difference; docs/notes/felt-structure.md 8,
+                                       #   "The Monte Carlo noise")
 
     [structure]                        # optional: the summation over the fabric's visible fibers in all
     kind = "woven"                     #   their orientations; fields and defaults in
@@ -199,6 +204,13 @@ DEFAULT_EXIT_BINS = None
 DEFAULT_AXIAL_SHIFT = False
 #: ``[method] axial_nodes`` when not given (docs/physics.md 6, "Axial nodes")
 DEFAULT_AXIAL_NODES = 5
+#: ``[method] felt_realisations`` when not given: the felt Monte Carlo's independent realisations of the felt
+#: (:func:`simulate.raytrace.estimate.combine_realisations`). Four, by measurement: against two, one run's noise
+#: falls to the rays' own and the reported error holds the seeds' spread, for ~15 % more CPU; eight and sixteen
+#: gain nothing more (docs/notes/felt-structure.md 8, "The Monte Carlo noise")
+DEFAULT_FELT_REALISATIONS = 4
+#: the most ``[method] felt_realisations``
+MAX_FELT_REALISATIONS = 32
 
 
 def axial_node_grid(n: int) -> tuple[float, ...]:
@@ -221,7 +233,8 @@ _FIELDS: dict[str, tuple[str, ...]] = {
                   "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
     "weave": ("matrix", "preset", "wif", "spacing_um", "width_um", "height_um", "crimp", "points_per_span", "sides"),
-    "method": ("target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes"),
+    "method": ("target_rel_err", "max_photons", "threads", "exit_bins", "axial_shift", "axial_nodes",
+               "felt_realisations"),
     "populations": ("name", "share", "fiber", "particles", "surface"),
     "populations.fiber": ("radius_um", "n_host", "dye", "dye_profile", "dye_depth_um"),
     "surface": ("rms_slope", "transmission_rms_slope", "transmission_rms_slope_around"),
@@ -328,6 +341,9 @@ class SimulationConfig:
     #: ``[method] axial_nodes``: the yarn table's rows in |w_t| (the component of the incidence along the
     #: fiber), steps of 1/(N-1) from 0, the last at 0.95
     axial_nodes: int = DEFAULT_AXIAL_NODES
+    #: ``[method] felt_realisations``: the felt Monte Carlo's independent realisations of the felt, an even
+    #: number (each table half traced on half of them)
+    felt_realisations: int = DEFAULT_FELT_REALISATIONS
     #: ``[[populations]]``: the blend's fiber populations; None: one population, the config's fiber
     populations: tuple[Population, ...] | None = None
     #: ``[fiber] dye_profile``, ``dye_depth_um``: where the dye sits across the fiber
@@ -579,6 +595,11 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     if not isinstance(axial_shift, bool):
         raise mt.fail("axial_shift", f"must be true or false, got {axial_shift!r}")
     axial_nodes = mt.integer("axial_nodes", DEFAULT_AXIAL_NODES, ge=2, le=64)
+    realisations = mt.raw("felt_realisations", DEFAULT_FELT_REALISATIONS)
+    if (isinstance(realisations, bool) or not isinstance(realisations, int) or realisations % 2
+            or not 2 <= realisations <= MAX_FELT_REALISATIONS):
+        raise mt.fail("felt_realisations", f"must be an even integer in [2, {MAX_FELT_REALISATIONS}] (half of the "
+                      f"realisations on each table half), got {realisations!r}")
     mt.done()
 
     wl_t = top.sub("wavelengths", fields=("start_nm", "stop_nm", "step_nm", "list_nm"))
@@ -598,7 +619,8 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         route=route, target_rel_err=target, max_photons=max_photons or None,
         threads=threads or None, wavelengths_nm=wavelengths, structure=structure, exit_bins=exit_bins,
         transmission_rms_slope=transmission_rms_slope, axial_shift=axial_shift,
-        transmission_rms_slope_around=around, axial_nodes=axial_nodes, populations=populations,
+        transmission_rms_slope_around=around, axial_nodes=axial_nodes, felt_realisations=int(realisations),
+        populations=populations,
         dye_profile=profile, dye_depth_um=depth)
 
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from simulate import fabric as fab
-from simulate.config import SimulationConfig, weave_from_config
+from simulate.config import DEFAULT_FELT_REALISATIONS, SimulationConfig, weave_from_config
 from simulate.provenance import jsonable
 
 __all__ = ["FabricEstimate", "Geometries", "RunSettings", "MODELS", "all_threads", "register", "evaluate",
@@ -321,11 +321,12 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     if spec is not None and spec.kind == "nonwoven":
         from simulate.geometry.felt import cached_felt_mesh
 
-        # two realisations of the felt, one per table half: their difference puts the spread of the
+        # the felt's independent realisations, alternately on the two table halves: their spread puts the
         # fibers' placement into u_beta (simulate.raytrace.estimate, "A felt"); from the table cache, so
         # the runs of a fit that keeps the structure build them once
+        n_real = int(getattr(config, "felt_realisations", DEFAULT_FELT_REALISATIONS))
         felts = tuple(cached_felt_mesh(spec, float(fiber.radius_um), seed=s.seed + FELT_SEED_STRIDE * h)[0]
-                      for h in (0, 1))
+                      for h in range(n_real))
         mesh: Any = felts
         geometry: dict = {"felt": felts[0].info, "felt_second_realisation": felts[1].info}
     else:
@@ -365,7 +366,7 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
                           float(mc_info["table"]["seconds"]), extra)
 
 
-#: The seed of a felt's second realisation is the run's seed plus this (the first's is the run's seed).
+#: The seed of a felt's realisation ``j`` is the run's seed plus this times ``j`` (the first's is the run's seed).
 FELT_SEED_STRIDE = 1_000_003
 
 #: The registered fabric models, in registration order.

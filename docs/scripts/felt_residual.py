@@ -3,6 +3,8 @@
     python docs/scripts/felt_residual.py variants --out DIR          # DIR/<variant>.toml from green-felt-mc.toml
     python docs/scripts/felt_residual.py decompose FILE RUN [RUN ...] [--max-incidence 59.52] [--json OUT]
     python docs/scripts/felt_residual.py noise FILE RUN_A RUN_B [...] # pairs of seeds of one config: the noise
+    python docs/scripts/felt_residual.py realisations FILE --group NAME RUN RUN [...] [--group ...] [--json OUT]
+    python docs/scripts/felt_residual.py fixed-felt --felt-seed 0 [--table-factor 4] -- ARGS  # `simulate ARGS`, felts held
     python docs/scripts/felt_residual.py combine FILE BASE --runs DIR --out CONFIG   # every field at once
     python docs/scripts/felt_residual.py permute FILE.bsdf --order gbr --out OTHER.bsdf # another colour
     python docs/scripts/felt_residual.py top CONFIG [CONFIG ...] [--seeds 3] [--json OUT]  # volume fraction below the top
@@ -27,6 +29,17 @@ The Monte Carlo noise part: ``noise`` takes two seeds of one config and estimate
 ``NRMSE^2`` from their difference, ``mean((a - b)^2) / 2 / m^2`` (both normalised as above, so the noise of the
 normal/normal value that sets each band's factor is in it). ``nrmse_noise_u`` is the same from the points' own
 ``u_sim`` as if independent (it leaves out the factor's noise and its correlation with the points').
+``realisations`` takes groups of runs, each the seeds of one config at one target (``--group NAME RUN RUN ...``; the
+runs' felt realisations, ``[method] felt_realisations``, and target read from them), and gives per group the NRMSE of
+each seed, their standard deviation and range, one run's noise from every pair of seeds
+(as ``noise``, pooled over the pairs in quadrature), and ``z``: every pair of seeds' difference at each point of the
+runs (their own values, before any comparison) over the two runs' reported ``u_beta`` combined, its RMS and the
+fraction beyond 2 and 3 (an error that holds the spread between seeds gives an RMS near 1); with each run's rays, and
+its CPU seconds and peak memory when ``RUN.time`` (the output of ``/usr/bin/time -v -o RUN.time``) is beside it.
+``fixed-felt`` runs ``simulate ARGS`` (e.g. ``fabric green-felt-mc --method mc --seed 2 ...``) with every felt
+realisation that of the run at ``--felt-seed`` (the tables and rays still follow ``--seed``) and, with
+``--table-factor N``, the yarn table walked with ``N`` times the photons: seeds of such runs differ by the tables' and
+rays' noise alone, the felt's part of a run's noise taken out.
 ``nrmse_best_scale`` is the NRMSE with each band's factor the least-squares one over the kept points instead of
 the normal's (the shape error with the normalisation point taken out). ``by_band_group`` (and
 ``by_band_group_region``, ``forward_rise_by_band_group``): the same over the wavelength thirds of
@@ -316,6 +329,95 @@ def seed_noise(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
     ua, ub = j["u_sim_a"].to_numpy(float), j["u_sim_b"].to_numpy(float)
     return {"n": int(len(j)), "nrmse_seeds": math.sqrt(float(np.mean(diff * diff)) / 2.0) / m,
             "nrmse_noise_a": math.sqrt(float(np.mean(ua * ua))) / m, "nrmse_noise_b": math.sqrt(float(np.mean(ub * ub))) / m}
+
+
+def fixed_felt(argv: list[str], felt_seed: int, table_factor: int = 1) -> int:
+    """``simulate argv`` with each felt realisation ``j`` that of a run at ``felt_seed`` (its seed
+    ``felt_seed + FELT_SEED_STRIDE j``) and the yarn table's photons times ``table_factor`` (module docstring)."""
+    from unittest import mock
+
+    import simulate.geometry.felt as felt
+    import simulate.raytrace.estimate as est
+    from fabric_optics.cli.simulate import main as simulate_main
+    from simulate.products import FELT_SEED_STRIDE
+
+    if felt_seed < 0 or table_factor < 1:
+        raise InputError(f"--felt-seed {felt_seed} --table-factor {table_factor}: give a seed >= 0 and a factor >= 1")
+    build, photons = felt.cached_felt_mesh, est.table_photons
+
+    def held(spec: Any, radius_um: float, seed: int = 0, **kw: Any) -> Any:
+        return build(spec, radius_um, seed=felt_seed + FELT_SEED_STRIDE * (seed // FELT_SEED_STRIDE), **kw)
+
+    with mock.patch.object(felt, "cached_felt_mesh", held), \
+            mock.patch.object(est, "table_photons", lambda target, **kw: table_factor * photons(target, **kw)):
+        return int(simulate_main(argv))
+
+
+def _time_v(path: Path) -> dict[str, float]:
+    """User + system CPU seconds and the peak resident memory (MB) of a ``/usr/bin/time -v`` output; ``{}`` without one."""
+    if not path.is_file():
+        return {}
+    got: dict[str, float] = {}
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        key, _, value = line.strip().rpartition(": ")
+        if key in ("User time (seconds)", "System time (seconds)"):
+            got["cpu_s"] = got.get("cpu_s", 0.0) + float(value)
+        elif key == "Maximum resident set size (kbytes)":
+            got["peak_rss_mb"] = float(value) / 1024.0
+    return got
+
+
+def realisation_groups(file: str, groups: list[list[str]], max_incidence: float) -> list[dict[str, Any]]:
+    """Per group (``[NAME, RUN, RUN, ...]``: seeds of one config at one target): each seed's NRMSE against ``file``,
+    their spread, one run's noise from every pair of seeds, and the pairs' differences over their reported errors
+    (module docstring, ``realisations``)."""
+    from itertools import combinations
+
+    out = []
+    keys = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
+    for name, *runs in groups:
+        if len(runs) < 2:
+            raise InputError(f"--group {name}: give two or more runs (seeds of one config)")
+        members = []
+        for run, frame, cmp in compared(file, runs, max_incidence):
+            prov = _read(run).meta.get("provenance", {})
+            info = prov.get("fiber_info") or {}
+            if "realisations" not in info:
+                raise InputError(f"{run}: not a felt Monte Carlo run (no realisations in its provenance)")
+            members.append((run, frame, cmp, prov, info))
+        ks = {(int(m[4]["realisations"]), float(m[3]["target_rel_err"])) for m in members}
+        if len(ks) != 1:
+            raise InputError(f"--group {name}: its runs differ in realisations or target ({sorted(ks)}); "
+                             "give one config at one target per group")
+        k, target = ks.pop()
+        seeds = []
+        for run, frame, cmp, prov, info in members:
+            seeds.append({"run": run, "seed": int(prov["seed"]), "nrmse": float(decompose_frame(frame, 20.0,
+                                                                                                cmp.bands.label)["nrmse"]),
+                          "rel_err": float(prov["rel_err"]), "rays": int(info["rays"]),
+                          **_time_v(Path(f"{run.rstrip('/')}.time"))})
+        pairs, z = [], []
+        for (ra, fa, *_), (rb, fb, *_) in combinations(members, 2):
+            pairs.append(seed_noise(fa, fb)["nrmse_seeds"])
+            ta, tb = _read(ra).table, _read(rb).table
+            j = ta.merge(tb, on=keys, suffixes=("_a", "_b"))
+            u = np.sqrt(j["u_beta_a"].to_numpy(float) ** 2 + j["u_beta_b"].to_numpy(float) ** 2)
+            ok = u > 0
+            z.append((j["beta_a"].to_numpy(float)[ok] - j["beta_b"].to_numpy(float)[ok]) / u[ok])
+        nr = [r["nrmse"] for r in seeds]
+        zz = np.concatenate(z) if z else np.zeros(0)
+        row = {"group": name, "realisations": k, "target_rel_err": target, "runs": seeds,
+               "nrmse_mean": float(np.mean(nr)), "nrmse_std": float(np.std(nr, ddof=1)) if len(nr) > 1 else None,
+               "nrmse_range": float(max(nr) - min(nr)),
+               "noise_one_run": math.sqrt(float(np.mean(np.square(pairs)))) if pairs else None, "pairs": len(pairs),
+               "z_rms": math.sqrt(float(np.mean(zz * zz))) if zz.size else None,
+               "z_above_2": float(np.mean(np.abs(zz) > 2.0)) if zz.size else None,
+               "z_above_3": float(np.mean(np.abs(zz) > 3.0)) if zz.size else None}
+        for key in ("cpu_s", "peak_rss_mb", "rays", "rel_err"):
+            vals = [r[key] for r in seeds if key in r]
+            row[f"{key}_mean"] = float(np.mean(vals)) if len(vals) == len(seeds) else None
+        out.append(row)
+    return out
 
 
 def combine(r0: np.ndarray, fields: list[tuple[str, float, float, np.ndarray, float, np.ndarray]],
@@ -972,6 +1074,16 @@ def main(argv: list[str] | None = None) -> int:
     n.add_argument("runs", nargs="+", help="pairs: RUN_A RUN_B [RUN_C RUN_D ...] (two seeds of one config each)")
     n.add_argument("--max-incidence", type=float, default=90.0)
     n.add_argument("--json", type=Path)
+    ff = sub.add_parser("fixed-felt", help="`simulate ARGS` with the felt realisations of one seed held")
+    ff.add_argument("--felt-seed", type=int, default=0)
+    ff.add_argument("--table-factor", type=int, default=1, help="the yarn table's photons times this")
+    ff.add_argument("args", nargs=argparse.REMAINDER, help="-- and the arguments of `simulate`")
+    rl = sub.add_parser("realisations", help="seeds of one config per felt realisation count: spread, noise, z")
+    rl.add_argument("file")
+    rl.add_argument("--group", nargs="+", action="append", required=True, metavar="NAME RUN",
+                    help="a name and the runs of one config at two or more seeds (repeat for each group)")
+    rl.add_argument("--max-incidence", type=float, default=90.0)
+    rl.add_argument("--json", type=Path)
     c = sub.add_parser("combine", help="every continuous field at once from the one-at-a-time runs")
     c.add_argument("file")
     c.add_argument("base", help="the preset's run (the variants' seed and target)")
@@ -1028,6 +1140,22 @@ def main(argv: list[str] | None = None) -> int:
         if args.cmd == "permute":
             permute_channels(args.src, args.out, args.order.lower(), args.force)
             print(args.out)
+            return 0
+        if args.cmd == "fixed-felt":
+            return fixed_felt(args.args[1:] if args.args[:1] == ["--"] else args.args, args.felt_seed,
+                              args.table_factor)
+        if args.cmd == "realisations":
+            rows = realisation_groups(args.file, args.group, args.max_incidence)
+            for r in rows:
+                print(f"{r['group']} (K {r['realisations']} at {r['target_rel_err']:g}): NRMSE " +
+                      ", ".join(f"{x['nrmse']:.4f}" for x in r["runs"]) +
+                      f" (std {r['nrmse_std'] or 0:.4f}, range {r['nrmse_range']:.4f}); noise of one run "
+                      f"{r['noise_one_run'] or 0:.4f} over {r['pairs']} pairs; z rms {r['z_rms'] or 0:.3f} "
+                      f"(|z| > 2: {r['z_above_2'] or 0:.3f}); rays {r['rays_mean']:.0f}; CPU {r['cpu_s_mean'] or 0:.1f} s; "
+                      f"peak {r['peak_rss_mb_mean'] or 0:.0f} MB")
+            if args.json:
+                args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
+                                                 "groups": rows}, indent=1) + "\n", encoding="utf-8")
             return 0
         if args.cmd == "noise":
             if len(args.runs) % 2:

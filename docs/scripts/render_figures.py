@@ -455,6 +455,24 @@ def fig_felt_residual_noise() -> str:
         "\n\n" + _source(rec)
 
 
+def fig_felt_realisations() -> str:
+    """Seeds of ``green-felt-mc`` per felt realisation count (``felt_residual.py realisations``)."""
+    rec = load("felt-realisations")
+    rows = []
+    for g in rec["data"]["groups"]:
+        runs = g["runs"]
+        rows.append([f"`{g['group']}`", str(g["realisations"]), f"{100 * g['target_rel_err']:g} %",
+                     " / ".join(f"{r['nrmse']:.3f}" for r in runs),
+                     f"{g['nrmse_std']:.4f} ({g['nrmse_range']:.3f})", f"{g['noise_one_run']:.3f} ({g['pairs']})",
+                     f"{g['z_rms']:.2f} ({100 * g['z_above_2']:.1f} %)", f"{100 * g['rel_err_mean']:.2f} %",
+                     f"{g['rays_mean'] / 1e3:.0f} k",
+                     f"{g['cpu_s_mean']:.1f} s" if g.get("cpu_s_mean") is not None else "-",
+                     f"{g['peak_rss_mb_mean'] / 1024:.2f} GB" if g.get("peak_rss_mb_mean") is not None else "-"])
+    header = ["runs", "realisations", "target", "NRMSE per seed", "NRMSE std (range)", "noise of one run (pairs)",
+              "z RMS (beyond 2)", "reported error", "rays", "CPU", "peak RSS"]
+    return _table(header, rows) + "\n\n" + _source(rec)
+
+
 def fig_felt_residual_sensitivity() -> str:
     """One-at-a-time variants of ``green-felt-mc`` at 5 %, seed 0."""
     rec = load("felt-residual-sensitivity")
@@ -800,6 +818,7 @@ FIGURES: dict[str, Callable[[], str]] = {
     "felt-residual": fig_felt_residual,
     "felt-residual-measured": fig_felt_residual_measured,
     "felt-residual-noise": fig_felt_residual_noise,
+    "felt-realisations": fig_felt_realisations,
     "felt-residual-sensitivity": fig_felt_residual_sensitivity,
     "felt-residual-permuted": fig_felt_residual_permuted,
     "felt-residual-combined": fig_felt_residual_combined,

@@ -22,9 +22,10 @@ Where and how much (environment variables, read at every call so a test or a CLI
   entries, 129 MB in all; a felt fit with its Monte Carlo stores exit tables (351 MB) and yarn
   tables (294 MB), about 0.65 GB: a third of the default bound, which therefore holds one felt fit
   with room for about two more before the oldest entries go (the bound is not raised). A felt Monte
-  Carlo run also stores its two felt realisations (``felt-*`` entries, :func:`simulate.geometry.felt.cached_felt_mesh`),
-  counted and evicted as any entry: 32 MB for ``green-felt-mc`` (52 MB with 13 % crimp), once per felt
-  structure (a fit freeing a ``[structure]`` field stores a pair per structure it runs);
+  Carlo run also stores its felt realisations (``felt-*`` entries, :func:`simulate.geometry.felt.cached_felt_mesh`;
+  ``[method] felt_realisations``, 4 by default), counted and evicted as any entry: 16 MB each for
+  ``green-felt-mc`` (26 MB with 13 % crimp), once per felt structure (a fit freeing a ``[structure]`` field
+  stores them per structure it runs);
 - ``FABRIC_OPTICS_NO_CACHE=1`` (``simulate ... --no-cache``): neither read nor written.
 
 Safety: an entry is one file, ``MAGIC + sha256(payload) + payload`` (``payload`` an uncompressed

@@ -13,15 +13,19 @@ realisation's run would report a standard error well below the spread between re
 changes, both free in expectation:
 
 - the felt is in-plane isotropic, so each incidence and its detectors are turned about the normal
-  to :data:`FELT_ROTATIONS` azimuths (``2 pi (j + h / 2) / K`` for half ``h``) and the traces
-  averaged: the top fibers' few orientations are seen at ``K`` angles.
-  The ``K`` rotations are traced as one wavefront (:func:`simulate.raytrace.integrator.trace_rotations`:
-  ``K`` times smaller chunks of each, every bounce one Embree query for all of them), stopped when
+  to ``N`` = :data:`FELT_ROTATIONS` azimuths and the traces averaged: the top fibers' few orientations
+  are seen at ``N`` angles.
+  The ``N`` rotations are traced as one wavefront (:func:`simulate.raytrace.integrator.trace_rotations`:
+  ``N`` times smaller chunks of each, every bounce one Embree query for all of them), stopped when
   their mean reaches the ray target; the scene is built once per mesh;
-- each table half is traced on its OWN realisation (``mesh`` a pair; ``simulate fabric`` builds the
-  felt at the run's seed and at seed + 1 000 003), so the halves' difference, which gives the
-  table's term of ``u_beta``, holds the spread between realisations as well
-  (``tests/simulate/raytrace/test_felt.py``).
+- the felt is traced on ``K`` independent realisations (``mesh`` a tuple of ``K``, an even number;
+  ``simulate fabric`` builds them at the run's seed plus :data:`simulate.products.FELT_SEED_STRIDE` times
+  ``0 .. K - 1``, ``[method] felt_realisations``), realisation ``j`` with table half ``j mod 2``, at the
+  rotations ``2 pi (i + j / K) / N``, each traced to ``sqrt(K / 2)`` times a half's ray target
+  (the same rays in all). ``beta`` is their mean and ``u_beta`` comes from their spread
+  (:func:`combine_realisations`): it holds the spread between realisations, so it predicts the spread
+  between seeds (``tests/simulate/raytrace/test_felt.py``; measured, with what the realisations' count
+  costs and gains: docs/notes/felt-structure.md 8, "The Monte Carlo noise").
 
 What these choices cost and gain, measured: docs/notes/implementation.md, "The ray tracer's felt".
 """
@@ -47,7 +51,8 @@ from simulate.raytrace.materials import FiberSurface
 from simulate.raytrace.yarn import YarnTable, table_halves
 
 __all__ = ["TABLE_NOISE", "TABLE_SHARE", "PILE_TABLE", "CLEAR_FIBER_SCATTERINGS", "clear_fiber_note", "table_photons",
-           "ray_target", "fabric_beta", "mean_of", "twist_of", "yarn_model"]
+           "ray_target", "fabric_beta", "mean_of", "twist_of", "yarn_model", "combine_realisations",
+           "REALISATION_STREAM"]
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +103,14 @@ def ray_target(target_rel_err: float, share: float = TABLE_SHARE) -> float:
 
 FELT_ROTATIONS = 8
 """Azimuthal rotations of each incidence and its detectors over which a felt is traced (module docstring)."""
+
+
+REALISATION_STREAM = 104_729
+"""The ray streams of a felt's realisation ``j`` start at the incidence's seed plus this times ``j // 2``
+(realisations 0 and 1, on the two table halves, share their streams: common random numbers)."""
+REALISATION_CHUNK_MIN = 128
+"""The fewest rays per rotation in a chunk of one realisation's trace (:func:`fabric_beta`: a felt of more
+than two realisations traces each with ``2 / K`` of the chunk, so its first round is not more than it needs)."""
 
 
 def felt_rotations(mesh: Any) -> int:
@@ -169,6 +182,44 @@ def mean_of(parts: list[MCResult]) -> MCResult:
         stop=stops[0] if stops else "target")
 
 
+def combine_realisations(betas: Any, u_rays: Any) -> dict[str, np.ndarray]:
+    """``beta`` and its standard error from ``K`` traces (``K`` even; trace ``j`` on table half ``j mod 2``).
+
+    ``betas``, ``u_rays``: ``[K, D, L]``, each trace's result and its rays' standard error. Returns
+    ``beta`` (their mean), ``u_beta``, ``u_rays`` (the rays' part, ``sqrt(sum u_j^2) / K``) and ``u_table``
+    (``[D, 1]``, the table's part).
+
+    ``K = 2`` (one trace per half): ``u_beta^2 = (u_0^2 + u_1^2) / 4 + u_table^2`` with
+    ``u_table^2 = mean_lambda ((beta_0 - beta_1) / 2)^2`` (the halves' difference, pooled over the
+    wavelengths). ``K >= 4``: batch means. Each trace is an independent batch but for the table half
+    it shares with the others of its half, so with ``A``, ``B`` the halves' means and
+    ``s^2 = (sum_{j even} (beta_j - A)^2 + sum_{j odd} (beta_j - B)^2) / (K - 2)`` (the spread between
+    traces of one half: their realisations and rays), ``u_beta^2 = s^2 / K + u_table^2`` with
+    ``u_table^2 = max(0, mean_lambda ((A - B)^2 / 4 - s^2 / K))``: ``(A - B)^2 / 4`` has the expectation
+    ``s^2 / K`` plus the table's share, ``var(table half) / 2``, of the mean's variance.
+    """
+    x = np.asarray(betas, float)
+    u = np.asarray(u_rays, float)
+    K = x.shape[0]
+    if K < 2 or K % 2:
+        raise ValueError(f"combine_realisations: an even number of traces (one or more per table half), not {K}")
+    if K == 2:
+        ra, rb = x
+        b = 0.5 * (ra + rb)
+        u_rays2 = 0.25 * (u[0] ** 2 + u[1] ** 2)
+        u_table = np.sqrt(np.mean((0.5 * (ra - rb)) ** 2, axis=1, keepdims=True))
+        return {"beta": b, "u_beta": np.sqrt(u_rays2 + u_table ** 2), "u_rays": np.sqrt(u_rays2),
+                "u_table": u_table}
+    even, odd = x[0::2], x[1::2]
+    a, c = even.mean(axis=0), odd.mean(axis=0)
+    b = 0.5 * (a + c)
+    s2 = (((even - a) ** 2).sum(axis=0) + ((odd - c) ** 2).sum(axis=0)) / (K - 2)
+    u_real2 = s2 / K
+    u_table2 = np.maximum(np.mean(0.25 * (a - c) ** 2 - u_real2, axis=1, keepdims=True), 0.0)
+    return {"beta": b, "u_beta": np.sqrt(u_real2 + u_table2), "u_rays": np.sqrt((u ** 2).sum(axis=0)) / K,
+            "u_table": np.sqrt(u_table2)}
+
+
 def twist_of(structure: Any) -> tuple[float, float]:
     """The signed surface twist angles (warp, weft) in degrees, ``+`` Z and ``-`` S, of a config's
     ``[structure]`` (:class:`simulate.fabric.structure.StructureSpec`); ``(0, 0)`` without one or for a felt."""
@@ -200,56 +251,79 @@ def yarn_model(mesh: Any, structure: Any = None, surface: str | None = None, vol
 
 
 def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.ndarray, meshes: tuple, mats: list,
-                      beta: np.ndarray, u_beta: np.ndarray, second: Any, *, r_target: float, max_rays: int,
+                      beta: np.ndarray, u_beta: np.ndarray, background: Any, *, r_target: float, max_rays: int,
                       max_seconds: float, seed: int, threads: int, progress: bool, twist: tuple[float, float],
                       chunk: int, setups: dict, max_events: int, record: dict | None = None) -> list[dict]:
-    """:func:`fabric_beta`'s traces: each incidence with each half, ``beta`` and ``u_beta`` filled in; returns
-    the incidences' run information. ``second``: the future of the second half's setup (or None).
-    ``record``: each incidence's traces' events go to ``record["incidences"]`` (:mod:`simulate.raytrace.reweight`)."""
-    runs = []
+    """:func:`fabric_beta`'s traces: each incidence on each mesh (realisation ``j`` with table half ``j mod 2``),
+    ``beta`` and ``u_beta`` filled in (:func:`combine_realisations`); returns the incidences' run information.
+
+    The realisations are traced one after the other, every incidence on each, and each one's scene is let go
+    before the next (``background``: an executor that builds the next one's meanwhile, or None).
+    ``record``: each incidence's traces' events go to ``record["incidences"]`` (:mod:`simulate.raytrace.reweight`),
+    one log per realisation."""
     n_rot = felt_rotations(meshes[0])
-    for k, wi in enumerate(incidences):
+    n_real = len(meshes)
+    per_half = n_real // 2
+    r_each = r_target * math.sqrt(per_half)
+    rays_each = max_rays // per_half if max_rays else 0
+    seconds_each = max_seconds / per_half if max_seconds else 0.0
+    dets = []
+    for k in range(len(incidences)):
         rows = np.nonzero(inverse == k)[0]
         det_key, det_inv = np.unique(np.round(w_out[rows], 9), axis=0, return_inverse=True)
-        det_inv = np.asarray(det_inv).reshape(-1)
-        det = det_key / np.linalg.norm(det_key, axis=1)[:, None]
-        halves = []
-        logs: list | None = [] if record is not None else None
-        for h, (m, mat) in enumerate(zip(meshes, mats)):
-            if h == 1 and second is not None:     # the second half's setup, built on another thread
-                second.result()
-                second = None
+        dets.append((rows, det_key, np.asarray(det_inv).reshape(-1), det_key / np.linalg.norm(det_key, axis=1)[:, None]))
+    results: list[list[MCResult]] = [[] for _ in incidences]
+    logs: list[list] = [[] for _ in incidences]
+    pending = None
+    for j, m in enumerate(meshes):
+        mat = mats[j % 2]
+        if pending is not None:     # this realisation's setup, built on another thread
+            pending.result()
+            pending = None
+        if background is not None and j + 1 < n_real:
+            if j == 0:
+                prepare(m, mat, setups, twist_deg=twist)
+            pending = background.submit(prepare, meshes[j + 1], mats[(j + 1) % 2], setups, twist_deg=twist)
+        for k, wi in enumerate(incidences):
+            det = dets[k][3]
+            stream = seed + 7919 * k + REALISATION_STREAM * (j // 2)
+            log_k = logs[k] if record is not None else None
             if n_rot > 1:    # the rotations as one wavefront, stopped on their mean (trace_rotations)
                 parts = trace_rotations(m, mat, wi / np.linalg.norm(wi), det,
-                                        [2.0 * math.pi * (j + 0.5 * h) / n_rot for j in range(n_rot)],
-                                        target_rel_err=r_target, max_rays=max_rays, max_seconds=max_seconds,
-                                        seed=seed + 7919 * k, threads=threads, progress=progress,
+                                        [2.0 * math.pi * (i + j / n_real) / n_rot for i in range(n_rot)],
+                                        target_rel_err=r_each, max_rays=rays_each, max_seconds=seconds_each,
+                                        seed=stream, threads=threads, progress=progress,
                                         twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events,
-                                        record=logs)
+                                        record=log_k)
             else:
-                parts = [trace(m, mat, wi / np.linalg.norm(wi), det, target_rel_err=r_target, max_rays=max_rays,
-                               max_seconds=max_seconds, seed=seed + 7919 * k, threads=threads, progress=progress,
-                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events, record=logs)]
-            halves.append(mean_of(parts))
-        ra, rb = halves
-        b = 0.5 * (ra.beta + rb.beta)
-        u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
-        u_table = np.sqrt(np.mean((0.5 * (ra.beta - rb.beta)) ** 2, axis=1, keepdims=True))
-        u = np.sqrt(u_rays2 + u_table ** 2)
+                parts = [trace(m, mat, wi / np.linalg.norm(wi), det, target_rel_err=r_each, max_rays=rays_each,
+                               max_seconds=seconds_each, seed=stream, threads=threads, progress=progress,
+                               twist_deg=twist, chunk=chunk, setups=setups, max_events=max_events, record=log_k)]
+            results[k].append(mean_of(parts))
+        if not any(later is m for later in meshes[j + 1:]):    # its scene is not needed again: let it go
+            for key in [key for key in setups if key[0] == id(m)]:
+                del setups[key]
+    runs = []
+    for k, wi in enumerate(incidences):
+        rows, det_key, det_inv, _ = dets[k]
+        res = results[k]
+        c = combine_realisations([r.beta for r in res], [r.u_beta for r in res])
+        b, u, u_rays, u_table = c["beta"], c["u_beta"], c["u_rays"], c["u_table"]
         if record is not None:
-            record["incidences"].append({"rows": rows, "det_inv": det_inv, "halves": logs,
-                                         "ray_rel_err": relative_error(b, np.sqrt(u_rays2))})
+            record["incidences"].append({"rows": rows, "det_inv": det_inv, "realisations": logs[k],
+                                         "ray_rel_err": relative_error(b, u_rays)})
         beta[rows] = b[det_inv]
         u_beta[rows] = u[det_inv]
         peak = np.maximum(b.max(axis=1, keepdims=True), 1e-300)
-        runs.append({"w_in": wi.tolist(), "detectors": int(det_key.shape[0]), "rays": ra.rays + rb.rays,
-                     "seconds": ra.seconds + rb.seconds, "rel_err": relative_error(b, u),
-                     "ray_rel_err": relative_error(b, np.sqrt(u_rays2)),
+        stops = [r.stop for r in res if r.stop != "target"]
+        runs.append({"w_in": wi.tolist(), "detectors": int(det_key.shape[0]), "rays": int(sum(r.rays for r in res)),
+                     "seconds": float(sum(r.seconds for r in res)), "rel_err": relative_error(b, u),
+                     "ray_rel_err": relative_error(b, u_rays),
                      "table_rel_err": float(np.sqrt(np.mean((u_table / peak) ** 2))),
-                     "stop": ra.stop if ra.stop != "target" else rb.stop,
-                     "reflected_mean": float(0.5 * (ra.reflected + rb.reflected).mean()),
-                     "transmitted_mean": float(0.5 * (ra.transmitted + rb.transmitted).mean()),
-                     **{k2: v for k2, v in ra.info.items() if k2 != "u_reflected_plus_transmitted"}})
+                     "stop": stops[0] if stops else "target",
+                     "reflected_mean": float(np.mean([r.reflected for r in res], axis=0).mean()),
+                     "transmitted_mean": float(np.mean([r.transmitted for r in res], axis=0).mean()),
+                     **{k2: v for k2, v in res[0].info.items() if k2 != "u_reflected_plus_transmitted"}})
     return runs
 
 
@@ -269,7 +343,10 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     standard error combines the ray tracing's (``(u_a^2 + u_b^2) / 4``) with the table's: the two
     halves differ by twice the full table's noise, so per detector ``u_table^2 = mean_lambda
     ((beta_a - beta_b) / 2)^2`` (pooled over the wavelengths, which leans conservative for the
-    dark ones). Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information. The halves
+    dark ones). ``mesh`` a tuple of ``K`` (an even number; a felt's realisations): trace ``j`` is on mesh ``j``
+    with half ``j mod 2``, each to ``sqrt(K / 2)`` times a half's ray target (and ``max_rays``, ``max_seconds``
+    over ``K / 2``), and for ``K >= 4`` the standard error is the batch means' of :func:`combine_realisations`.
+    Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information. The halves
     come from the disk cache when there (:func:`simulate.raytrace.table_halves`; ``cache=False``
     or ``FABRIC_OPTICS_NO_CACHE=1``: always computed); ``info["table"]["cache"]`` says which.
     ``structure`` (a config's ``[structure]``): the yarns' twist (:func:`twist_of`) and what they
@@ -300,8 +377,9 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host), surf, spacing, bool(axial_shift))
             for t in tables]
     meshes = tuple(mesh) if isinstance(mesh, (tuple, list)) else (mesh, mesh)
-    if len(meshes) != 2:
-        raise ValueError(f"fabric_beta: one mesh or one per table half (2), not {len(meshes)}")
+    if len(meshes) < 2 or len(meshes) % 2:
+        raise ValueError(f"fabric_beta: one mesh or an even number of them (realisations, alternately on the two "
+                         f"table halves), not {len(meshes)}")
     twist = twist_of(structure)
     key = np.round(w_in, 9)
     incidences, inverse = np.unique(key, axis=0, return_inverse=True)
@@ -310,16 +388,14 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     u_beta = np.zeros_like(beta)
     n_rot = felt_rotations(meshes[0])
     chunk = max(256, CHUNK // n_rot)
+    if len(meshes) > 2:     # each realisation traces 2 / K of the rays: chunks as much smaller, within a floor
+        chunk = max(REALISATION_CHUNK_MIN, chunk * 2 // len(meshes))
     setups: dict = {}
-    # the second half's scene and table arrays are built on another thread while the first half's
-    # first trace runs (its traces then find them in ``setups``; no result depends on this); the first
-    # half's before (Embree's scene is built holding the GIL: two builds side by side take as long as
+    # the next realisation's scene and table arrays are built on another thread while this one's
+    # traces run (its traces then find them in ``setups``; no result depends on this); the first
+    # one's before (Embree's scene is built holding the GIL: two builds side by side take as long as
     # one after the other, a build beside a trace takes the trace's idle GIL)
     background = ThreadPoolExecutor(max_workers=1) if threads != 1 else None
-    second = None
-    if background is not None:
-        prepare(meshes[0], mats[0], setups, twist_deg=twist)
-        second = background.submit(prepare, meshes[1], mats[1], setups, twist_deg=twist)
     if record is not None:
         record.update(incidences=[], shape=beta.shape, volume=vol, packing=packing,
                       tables=tuple({"shape": t.T.shape, "c_bar": t.c_bar, "tau": t.tau} for t in tables),
@@ -329,7 +405,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                             "w_t_nodes": tuple(float(x) for x in tables[0].w_t_nodes)},
                       target_rel_err=float(target_rel_err), wavelengths_nm=wl.copy())
     try:
-        runs = _trace_incidences(incidences, inverse, w_out, meshes, mats, beta, u_beta, second, r_target=r_target,
+        runs = _trace_incidences(incidences, inverse, w_out, meshes, mats, beta, u_beta, background, r_target=r_target,
                                  max_rays=max_rays, max_seconds=max_seconds, seed=seed, threads=threads,
                                  progress=progress, twist=twist, chunk=chunk, setups=setups, max_events=max_events,
                                  record=record)
@@ -344,7 +420,7 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                       "grid": [tables[0].n_psi, tables[0].n_v, tables[0].n_mu, tables[0].n_phi],
                       "axial_shift": bool(axial_shift)},
             "incidences": runs, "seconds": time.perf_counter() - started, "twist_deg": list(twist),
-            "rotations": n_rot, "realisations": 2 if meshes[0] is not meshes[1] else 1,
+            "rotations": n_rot, "realisations": len({id(m) for m in meshes}),
             "yarn_surface": surf, "surface_spacing_ratio": spacing if surf == "fibers" else None,
             "yarn_volume": vol, "pile_packing_fraction": packing if vol == "pile" else None,
             "rays": int(sum(r["rays"] for r in runs)),

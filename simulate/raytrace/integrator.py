@@ -54,8 +54,8 @@ standard error is that of the ray tracing *given* the BSSRDF table; :func:`fabri
 plan-level entry of ``simulate fabric --method mc``) builds the table as two independent halves
 (``table_photons`` per row in all, scaling with the target) and adds the table's own noise,
 estimated from the difference of the two halves' traces, to ``u_beta``. A felt (a random
-realisation of its fibers) is traced at :data:`FELT_ROTATIONS` azimuths per incidence, each half on
-its own realisation: the difference of the halves then holds the spread between realisations too
+realisation of its fibers) is traced at :data:`FELT_ROTATIONS` azimuths per incidence on several
+independent realisations, half of them on each table half: their spread is in ``u_beta`` too
 (:mod:`.estimate`).
 """
 

@@ -113,11 +113,12 @@ def replay(log: TraceLog, t_rows: np.ndarray) -> list[Any]:
 
 def record_bytes(record: dict) -> int:
     """The memory of a :func:`simulate.raytrace.fabric_beta` record's events (bytes)."""
-    return int(sum(t.nbytes for inc in record.get("incidences", []) for t in inc["halves"]))
+    return int(sum(t.nbytes for inc in record.get("incidences", []) for t in inc["realisations"]))
 
 
 def _half_results(record: dict, tables: Sequence[Any]) -> list[list[Any]]:
-    """Per incidence, the two halves' results re-weighted to ``tables`` (each half's rotations averaged).
+    """Per incidence, the realisations' results re-weighted to ``tables`` (each one's rotations averaged;
+    realisation ``j`` on table half ``j mod 2``), in the realisations' order.
 
     Half by half: every incidence's rays of a half are replayed with that half's table, which is then let go
     before the other is asked for (:func:`new_tables` walks or reads each only then), so a re-weighting holds
@@ -125,12 +126,13 @@ def _half_results(record: dict, tables: Sequence[Any]) -> list[list[Any]]:
     from simulate.raytrace.estimate import mean_of
 
     incidences = record["incidences"]
-    out: list[list[Any]] = [[] for _ in incidences]
+    out: list[list[Any]] = [[None] * len(inc["realisations"]) for inc in incidences]
     for h in range(len(tables)):
         T = tables[h].T
         rows = T.reshape(-1, T.shape[-1])
         for i, inc in enumerate(incidences):
-            out[i].append(mean_of(replay(inc["halves"][h], rows)))
+            for j in range(h, len(inc["realisations"]), len(tables)):
+                out[i][j] = mean_of(replay(inc["realisations"][j], rows))
         del T, rows
     return out
 
@@ -138,31 +140,31 @@ def _half_results(record: dict, tables: Sequence[Any]) -> list[list[Any]]:
 def reweighted_beta(record: dict, tables: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta``, ``u_beta`` and run information of a recorded :func:`simulate.raytrace.fabric_beta` run re-weighted
     to the table halves ``tables`` (:func:`new_tables`), combined as :func:`~simulate.raytrace.fabric_beta` combines
-    its traces (the halves' mean; the rays' error and the table's, from the halves' difference).
+    its traces (:func:`simulate.raytrace.estimate.combine_realisations`: the realisations' mean and its error).
 
     ``info``: ``rel_err`` and ``ray_rel_err`` (the re-weighted run's, :func:`relative_error`), per incidence the
     same and ``spread``, the re-weighted ray error over the traced run's at the same rays (1 at the traced dye; a
     fresh trace at the new dye would give about the traced run's, so the ratio is how much the weights cost: its
     square is the inverse of the effective sample size's share), ``rays``, ``event_bytes`` and ``u_rays`` (``[P, L]``:
     the rays' part of ``u_beta``, without the table's)."""
+    from simulate.raytrace.estimate import combine_realisations
+
     shape = tuple(record["shape"])
     beta = np.zeros(shape)
     u_beta = np.zeros(shape)
     u_rays = np.zeros(shape)
     runs = []
-    for inc, (ra, rb) in zip(record["incidences"], _half_results(record, tables)):
+    for inc, res in zip(record["incidences"], _half_results(record, tables)):
         rows, det_inv = inc["rows"], inc["det_inv"]
-        b = 0.5 * (ra.beta + rb.beta)
-        u_rays2 = 0.25 * (ra.u_beta ** 2 + rb.u_beta ** 2)
-        u_table = np.sqrt(np.mean((0.5 * (ra.beta - rb.beta)) ** 2, axis=1, keepdims=True))
-        u = np.sqrt(u_rays2 + u_table ** 2)
+        c = combine_realisations([r.beta for r in res], [r.u_beta for r in res])
+        b, u = c["beta"], c["u_beta"]
         beta[rows] = b[det_inv]
         u_beta[rows] = u[det_inv]
-        u_rays[rows] = np.sqrt(u_rays2)[det_inv]
-        ray_rel = relative_error(b, np.sqrt(u_rays2))
+        u_rays[rows] = c["u_rays"][det_inv]
+        ray_rel = relative_error(b, c["u_rays"])
         traced = inc.get("ray_rel_err")
         runs.append({"rel_err": relative_error(b, u), "ray_rel_err": ray_rel,
-                     "spread": ray_rel / traced if traced else float("nan"), "rays": int(ra.rays + rb.rays)})
+                     "spread": ray_rel / traced if traced else float("nan"), "rays": int(sum(r.rays for r in res))})
     info = {"rel_err": relative_error(beta, u_beta),
             "ray_rel_err": max((r["ray_rel_err"] for r in runs), default=0.0),
             "spread": max((r["spread"] for r in runs), default=float("nan")),

@@ -469,3 +469,22 @@ def test_retro_reads_the_ring_ratio_of_a_dataset_at_550_and_650_nm(tmp_path):
     r = _script().retro(str(out))
     assert r["40"]["550"]["ratio"] == pytest.approx(1.2) and r["40"]["650"]["ratio"] == pytest.approx(1.3)
     assert r["40"]["550"]["u"] > 0
+
+
+def test_realisations_reads_time_v_and_refuses_runs_that_are_not_felt_seeds(tmp_path, capsys):
+    fr = _script()
+    (tmp_path / "run.time").write_text("\tCommand being timed: \"simulate fabric x\"\n\tUser time (seconds): 30.25\n"
+                                       "\tSystem time (seconds): 2.50\n\tMaximum resident set size (kbytes): 1048576\n")
+    got = fr._time_v(tmp_path / "run.time")
+    assert got["cpu_s"] == pytest.approx(32.75) and got["peak_rss_mb"] == pytest.approx(1024.0)
+    assert fr._time_v(tmp_path / "none.time") == {}
+    for name, rho in (("file", 0.5), ("run", 0.4), ("run2", 0.4)):
+        _lambertian(tmp_path / name, rho)
+    capsys.readouterr()
+    code, _, err = _run(capsys, fr, ["realisations", str(tmp_path / "file"), "--group", "one", str(tmp_path / "run")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "two or more runs" in err
+    code, _, err = _run(capsys, fr, ["realisations", str(tmp_path / "file"), "--group", "g", str(tmp_path / "run"),
+                                     str(tmp_path / "run2")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "not a felt Monte Carlo run" in err
+    code, _, err = _run(capsys, fr, ["fixed-felt", "--felt-seed", "-1", "--", "fabric", "x"])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--felt-seed -1" in err

@@ -108,6 +108,14 @@ def test_axial_nodes_and_shift_default_to_steps_of_a_quarter_and_reach_the_grid(
     assert cfg.axial_shift is True
 
 
+def test_felt_realisations_default_to_the_constant_and_are_read():
+    from simulate.config import DEFAULT_FELT_REALISATIONS
+
+    assert parse_config(BASE, "test.toml").felt_realisations == DEFAULT_FELT_REALISATIONS
+    cfg = parse_config(_set(BASE, "target_rel_err = 0.02", "target_rel_err = 0.02\nfelt_realisations = 6"), "t.toml")
+    assert cfg.felt_realisations == 6
+
+
 def test_hg_medium_and_tables():
     text = BASE.replace("""[particles]
 n = 2.7
@@ -190,6 +198,16 @@ BAD = [
     ("target_rel_err = 0.02", "target_rel_err = 0.02\naxial_shift = 1", "method.axial_shift must be true or false"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\naxial_nodes = 1", "method.axial_nodes must be an integer"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\naxial_nodes = 9.5", "method.axial_nodes must be an integer"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nfelt_realisations = 3",
+     "method.felt_realisations must be an even integer in [2, 32]"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nfelt_realisations = 0",
+     "method.felt_realisations must be an even integer in [2, 32]"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nfelt_realisations = 34",
+     "method.felt_realisations must be an even integer in [2, 32]"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nfelt_realisations = 8.0",
+     "method.felt_realisations must be an even integer in [2, 32]"),
+    ("target_rel_err = 0.02", "target_rel_err = 0.02\nfelt_realisations = true",
+     "method.felt_realisations must be an even integer in [2, 32]"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5]", "method.exit_bins must be [mu bins, phi bins]"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [1, 10]", "method.exit_bins must be [mu bins, phi bins]"),
     ("target_rel_err = 0.02", "target_rel_err = 0.02\nexit_bins = [5, 10.5]", "method.exit_bins must be [mu bins, phi bins]"),

@@ -133,6 +133,50 @@ def test_simulate_fabric_mc_runs_a_felt_config(tmp_path, capsys):
     assert len(ds.table) == 2 and np.all(np.isfinite(ds.table["beta"])) and np.all(ds.table["beta"] > 0)
     felt = ds.meta["model"]["felt"]
     assert felt["layers"] == 4 and abs(felt["spread_deg"] - 15.0) < 1e-9 and felt["seed"] == 2 and "weave" not in ds.meta["model"]
+    from simulate.config import DEFAULT_FELT_REALISATIONS
+
+    assert ds.meta["provenance"]["fiber_info"]["realisations"] == DEFAULT_FELT_REALISATIONS
+
+
+def test_a_config_with_two_realisations_traces_the_two_felts_of_its_seed(tmp_path, capsys):
+    """``[method] felt_realisations = 2``: the run is ``fabric_beta`` on the felts of the run's seed and of the seed plus
+    the stride, one per table half (the estimator of a run with one realisation per half), value for value."""
+    from simulate.config import load_config
+    from simulate.products import FELT_SEED_STRIDE
+
+    cfg = tmp_path / "felt.toml"
+    cfg.write_text(FELT + "[method]\nfelt_realisations = 2\n")
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(PLAN)
+    out = tmp_path / "felt-mc"
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(out),
+                 "--target-rel-err", "0.2", "--no-progress", "--threads", "1"]) == 0
+    capsys.readouterr()
+    ds = read_dataset(out)
+    c = load_config(cfg)
+    wl = np.array([550.0])
+    fib = c.fiber(wl)
+    meshes = (felt_mesh(c.structure, 10.0, seed=2), felt_mesh(c.structure, 10.0, seed=2 + FELT_SEED_STRIDE))
+    t = ds.table.sort_values("theta_o")
+    w_i = fab.directions_deg(t["theta_i"].to_numpy(float), t["phi_i"].to_numpy(float))
+    w_o = fab.directions_deg(t["theta_o"].to_numpy(float), t["phi_o"].to_numpy(float))
+    # the fiber is turbid (2 R mu_s = 16): the run's exit bins are fabric_beta's default, (5, 10)
+    beta, u, info = W.fabric_beta(meshes, fib, w_i, w_o, wl, target_rel_err=0.2, seed=2, threads=1, structure=c.structure)
+    assert info["realisations"] == 2
+    np.testing.assert_allclose(t["beta"].to_numpy(float), beta[:, 0], rtol=1e-9)
+    np.testing.assert_allclose(t["u_beta"].to_numpy(float), u[:, 0], rtol=1e-9)
+
+
+def test_a_bad_realisation_count_is_one_line_and_exit_2(tmp_path, capsys):
+    cfg = tmp_path / "felt.toml"
+    cfg.write_text(FELT + "[method]\nfelt_realisations = 5\n")
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(PLAN)
+    assert main(["fabric", str(cfg), "--method", "mc", "--plan", str(plan), "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "felt.toml: method.felt_realisations must be an even integer" in err and "\n" not in err
+    assert not (tmp_path / "o").exists()
 
 
 def _tiny_felt_case(target: float):
@@ -165,6 +209,67 @@ def test_each_table_half_is_traced_on_its_own_realisation_of_the_felt():
     assert info["rotations"] == W.FELT_ROTATIONS and info["realisations"] == 2
     np.testing.assert_allclose(ab + ba, aa + bb, rtol=1e-12)
     assert not np.allclose(ab, aa, rtol=1e-3)        # the second half did see the other felt
+
+
+def _per_realisation(record: dict, tables) -> list[list]:
+    """Each incidence's result on each realisation, from the run's record: realisation ``j``'s rays replayed with
+    table half ``j mod 2`` (the traced table gives the traced result to rounding), its rotations averaged."""
+    from simulate.raytrace.reweight import replay
+
+    rows = [t.T.reshape(-1, t.T.shape[-1]) for t in tables]
+    return [[W.estimate.mean_of(replay(log, rows[j % 2])) for j, log in enumerate(inc["realisations"])]
+            for inc in record["incidences"]]
+
+
+def test_four_realisations_report_the_batch_means_error():
+    """K = 4 felts: ``beta`` is the realisations' mean and ``u_beta`` the batch means' error, computed here from
+    each realisation's own result: the spread of the realisations about their table half's mean over
+    ``K (K - 2)``, plus the table's part the halves' means differ by beyond it."""
+    spec, fib, w_i, w_o, wl, tables = _tiny_felt_case(0.2)
+    w_i, w_o = w_i[:4], w_o[:4]
+    wl2 = np.array([500.0, 600.0])
+    tables = W.table_halves(fib, wl2, W.table_photons(0.2) // 2, 0, 1)
+    meshes = tuple(felt_mesh(spec, 10.0, seed=s) for s in range(4))
+    record: dict = {}
+    beta, u, info = W.fabric_beta(meshes, fib, w_i, w_o, wl2, target_rel_err=0.2, seed=0, threads=1, tables=tables,
+                                  structure=spec, record=record)
+    assert info["realisations"] == 4
+    for inc, res in zip(record["incidences"], _per_realisation(record, tables)):
+        x = np.array([r.beta for r in res])                         # [K, D, L]
+        a, b = x[[0, 2]].mean(axis=0), x[[1, 3]].mean(axis=0)
+        s2 = (np.sum((x[[0, 2]] - a) ** 2, axis=0) + np.sum((x[[1, 3]] - b) ** 2, axis=0)) / 2.0
+        table2 = np.maximum(np.mean((a - b) ** 2 / 4.0 - s2 / 4.0, axis=1, keepdims=True), 0.0)
+        expect_u = np.sqrt(s2 / 4.0 + table2)
+        rows, det_inv = inc["rows"], inc["det_inv"]
+        np.testing.assert_allclose(beta[rows], x.mean(axis=0)[det_inv], rtol=1e-12)
+        np.testing.assert_allclose(u[rows], expect_u[det_inv], rtol=1e-9)
+        assert np.all(s2 > 0.0)       # the realisations differ: the error is their spread, not zero
+
+
+def test_two_realisations_keep_the_halves_estimator():
+    """K = 2 (the default): ``u_beta^2`` is the two traces' ray errors over 4 plus the halves' difference pooled over
+    the wavelengths, the estimator of a run with one realisation per table half, from each one's own result."""
+    spec, fib, w_i, w_o, wl, _ = _tiny_felt_case(0.2)
+    wl2 = np.array([500.0, 600.0])
+    tables = W.table_halves(fib, wl2, W.table_photons(0.2) // 2, 0, 1)
+    meshes = (felt_mesh(spec, 10.0, seed=0), felt_mesh(spec, 10.0, seed=1))
+    record: dict = {}
+    beta, u, _ = W.fabric_beta(meshes, fib, w_i[:2], w_o[:2], wl2, target_rel_err=0.2, seed=0, threads=1,
+                               tables=tables, structure=spec, record=record)
+    for inc, (ra, rb) in zip(record["incidences"], _per_realisation(record, tables)):
+        u_table2 = np.mean(((ra.beta - rb.beta) / 2.0) ** 2, axis=1, keepdims=True)
+        expect_u = np.sqrt((ra.u_beta ** 2 + rb.u_beta ** 2) / 4.0 + u_table2)
+        rows, det_inv = inc["rows"], inc["det_inv"]
+        np.testing.assert_allclose(beta[rows], ((ra.beta + rb.beta) / 2.0)[det_inv], rtol=1e-12)
+        np.testing.assert_allclose(u[rows], expect_u[det_inv], rtol=1e-9)
+
+
+def test_an_odd_number_of_realisations_is_refused():
+    spec, fib, w_i, w_o, wl, tables = _tiny_felt_case(0.2)
+    meshes = tuple(felt_mesh(spec, 10.0, seed=s) for s in range(3))
+    with pytest.raises(ValueError, match="even number"):
+        W.fabric_beta(meshes, fib, w_i[:1], w_o[:1], wl, target_rel_err=0.2, seed=0, threads=1, tables=tables,
+                      structure=spec)
 
 
 @pytest.mark.slow
