@@ -8,12 +8,12 @@ by one event; the two chains interleave, the core overlaps them (the gain, measu
 docs/notes/implementation.md, "The photon kernel").
 
 The physics is that of the kernel's plain slab path, event for event (module docstring of
-:mod:`.kernel`), and its events are the kernel's own helpers, inlined (:mod:`.events`: the smooth
-entry, implicit capture, the Fresnel decision, the mirror image, roulette; :func:`.scatter.sample_direction`):
-exponential free paths (ziggurat), the Henyey-Greenstein or table phase function with the MCML direction
-update (only ``u_z`` is carried: nothing of a plain slab run reads ``u_x, u_y``, and the code that would
-compute them is dead and left out by the compiler), Fresnel exits with internal reflection, the event cap,
-and the same scalar accumulators (:mod:`.tallies` ``S_*``).
+:mod:`.kernel`), and its events are the kernel's own helpers, inlined (:mod:`.events`: the walk's
+constants, the free path, the smooth entry, implicit capture, the Fresnel decision, the mirror image,
+roulette, the end of a history and the batch's sums; :func:`.scatter.sample_direction`). Only the way to
+the boundary is the slab's own (:func:`_slab_face`), and only ``u_z`` is carried: nothing of a plain slab
+run reads ``u_x, u_y``, and the code that would compute them is dead and left out by the compiler.
+
 What differs is which random numbers a photon gets: lane 0 of batch ``b`` draws from stream
 ``(seed, b)``, lane 1 from stream ``(seed, b + LANE_OFFSET)`` (:mod:`.rng`), each lane takes every
 photon it can until its share (``ceil(n/2)``, ``floor(n/2)``) is done, and the slab entry needs no
@@ -27,25 +27,43 @@ other run keeps :func:`.kernel.simulate_batch`.
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.events import fresnel_reflects, implicit_capture, mirror, refract_in, roulette
-from simulate.montecarlo.rng import exponential, seed_state
-from simulate.montecarlo.scatter import hg_constants, sample_direction
+from simulate.montecarlo.events import (
+    add_totals,
+    end_history,
+    free_path,
+    fresnel_reflects,
+    implicit_capture,
+    mirror,
+    refract_in,
+    roulette_below,
+    walk_constants,
+)
+from simulate.montecarlo.rng import seed_state
+from simulate.montecarlo.scatter import sample_direction
 
 __all__ = ["LANE_OFFSET", "simulate_batch_slab_lanes"]
 
 #: lane 1 of batch ``b`` uses stream ``(seed, b + LANE_OFFSET)`` (batches stay far below it)
 LANE_OFFSET = 1 << 62
 
-# medium / control slots of kernel.KernelInputs (kernel.M_*, kernel.C_*; kernel imports this module)
-_M_MU_A, _M_MU_S, _M_G, _M_N, _M_PHASE = 0, 1, 2, 3, 4
-_C_WEIGHT_THRESHOLD, _C_SURVIVAL, _C_MAX_EVENTS = 0, 1, 2
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # as kernel._FASTMATH
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _slab_face(z, uz, size):
+    """The way of a slab photon to the face it points to.
+
+    A photon at depth ``z`` travelling along ``u_z != 0`` to the face it points to: ``(s_b, z, cos_i,
+    face)``, the distance, the face's depth, the cosine with its outward normal and the face (0 top,
+    1 bottom); the slab's case of :func:`.geometry.distance_to_boundary` and :func:`.geometry.snap_to_surface`.
+    """
+    if uz > 0.0:
+        return max(-z, 0.0) / uz, 0.0, uz, 0
+    return min(-size - z, 0.0) / uz, -size, -uz, 1
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
@@ -56,31 +74,15 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
     The signature of :func:`.kernel.simulate_batch` (``inp`` a :class:`.kernel.KernelInputs` of a
     slab with no tallies; ``bins`` is not written).
     """
-    medium = inp.medium
-    mu_a = medium[_M_MU_A]
-    mu_s = medium[_M_MU_S]
-    g = medium[_M_G]
-    n_in = medium[_M_N]
-    phase = int(medium[_M_PHASE])
-    table = inp.table
+    walk = walk_constants(inp.medium, inp.control)
     size = inp.geom[0]
-    mu_t = mu_a + mu_s
-    inv_mu_t = 1.0 / mu_t if mu_t > 0.0 else math.inf
-    albedo = mu_s / mu_t if mu_t > 0.0 else 0.0
-    absorb = 1.0 - albedo
-    w_threshold = inp.control[_C_WEIGHT_THRESHOLD]
-    survival = inp.control[_C_SURVIVAL]
-    inv_survival = 1.0 / survival
-    max_events = int(inp.control[_C_MAX_EVENTS])
-    contrast = n_in != 1.0
-    hg = hg_constants(g)
     # the entry is the same for every photon: at the origin of the top face (normal +z), along -w
     dx = -source[1]
     dy = -source[2]
     dz = -source[3]
     cos_i = -dz
-    if contrast:
-        _, _, uz0, f_in = refract_in(dx, dy, dz, 0.0, 0.0, 1.0, cos_i, n_in, 1.0 / n_in)
+    if walk.contrast:
+        _, _, uz0, f_in = refract_in(dx, dy, dz, 0.0, 0.0, 1.0, cos_i, walk.n_in, walk.eta_in)
     else:
         f_in = 0.0
         uz0 = dz
@@ -91,24 +93,10 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
         scal[T.S_SPECULAR] += photons * f_in
         return
 
-    launched = 0.0
-    exit0 = 0.0
-    exit0_sq = 0.0
-    exit1 = 0.0
-    exit1_sq = 0.0
-    unscattered0 = 0.0
-    unscattered1 = 0.0
+    acc = np.zeros(T.N_SCALARS)  # the batch's sums (events.end_history)
     absorbed = 0.0
-    gain = 0.0
-    killed = 0.0
-    net_sq = 0.0
-    capped = 0.0
-    capped_weight = 0.0
-    events_total = 0
-    scatterings_total = 0
-    reflections_total = 0
-    path_total = 0.0
-
+    reflections = 0
+    launched = 0.0
     # the current lane (z, uz, w, ..., s0..s3) and the other one (zo, uzo, wo, ..., t0..t3): every turn
     # runs one event of the current lane's photon, then the two swap (module docstring)
     s0, s1, s2, s3 = seed_state(seed, batch)
@@ -127,72 +115,43 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
         launched += 1.0
     while active:
         end = False
+        capped = False
         exit_face = -1
-        if events >= max_events:
-            capped += 1.0
-            capped_weight += w
+        if events >= walk.max_events:
+            capped = True
             end = True
         else:
             events += 1
-            e, s0, s1, s2, s3 = exponential(s0, s1, s2, s3)
-            step = e * inv_mu_t
+            step, s0, s1, s2, s3 = free_path(walk.inv_mu_t, s0, s1, s2, s3)
             zn = z + step * uz
             if zn < 0.0 and zn > -size:
                 # --- collision: implicit capture, new direction (MCML update, u_z only), roulette ----
                 z = zn
                 path += step
-                w, absorbed = implicit_capture(w, absorbed, albedo, absorb)
+                w, absorbed = implicit_capture(w, absorbed, walk.albedo, walk.absorb)
                 scat += 1
                 # u_z of the new direction depends on u_z alone: the lanes carry no u_x, u_y (0 here)
-                _, _, uz, _, s0, s1, s2, s3 = sample_direction(0.0, 0.0, uz, phase, g, table, hg, s0, s1, s2, s3)
-                if w < w_threshold:
-                    if w <= 0.0:
-                        end = True
-                    else:
-                        alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette(w, h_gain, h_killed, survival,
-                                                                              inv_survival, s0, s1, s2, s3)
-                        end = not alive
+                _, _, uz, _, s0, s1, s2, s3 = sample_direction(0.0, 0.0, uz, walk.phase, walk.g, inp.table, walk.hg,
+                                                               s0, s1, s2, s3)
+                alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette_below(w, 1.0, walk, h_gain, h_killed,
+                                                                            s0, s1, s2, s3)
+                end = not alive
             else:
-                # --- boundary: the face u_z points to; Fresnel reflection or exit -----------------
-                if uz > 0.0:
-                    s_b = max(-z, 0.0) / uz
-                    z = 0.0
-                    cos_i = uz
-                    face = 0
-                else:  # u_z < 0 (a step along u_z = 0 stays inside)
-                    s_b = min(-size - z, 0.0) / uz
-                    z = -size
-                    cos_i = -uz
-                    face = 1
+                # --- boundary: the face u_z points to (a step along u_z = 0 stays inside); Fresnel or exit
+                s_b, z, cos_i, face = _slab_face(z, uz, size)
                 path += s_b
                 reflect = False
-                if contrast:
-                    reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, n_in, s0, s1, s2, s3)
+                if walk.contrast:
+                    reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, walk.n_in, s0, s1, s2, s3)
                 if reflect:
                     _, _, uz = mirror(0.0, 0.0, uz, 0.0, 0.0, 1.0, cos_i, True)  # a face z = const: u_z negated
-                    reflections_total += 1
+                    reflections += 1
                 else:
                     exit_face = face
                     end = True
         if end:
-            # --- the one end of every history: flush, then the lane's next photon enters --------
-            if exit_face == 0:
-                exit0 += w
-                exit0_sq += w * w
-                if scat == 0:
-                    unscattered0 += w
-                path_total += w * path
-            elif exit_face == 1:
-                exit1 += w
-                exit1_sq += w * w
-                if scat == 0:
-                    unscattered1 += w
-                path_total += w * path
-            gain += h_gain
-            killed += h_killed
-            net_sq += (h_gain - h_killed) * (h_gain - h_killed)
-            events_total += events
-            scatterings_total += scat
+            # --- the one end of every history, then the lane's next photon enters -------------------
+            end_history(acc, exit_face, w, scat, path, h_gain, h_killed, events, capped)
             if left > 0:
                 left -= 1
                 launched += 1.0
@@ -215,23 +174,10 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
             s2, t2 = t2, s2
             s3, t3 = t3, s3
 
-    scal[T.S_LAUNCHED] += launched
-    scal[T.S_LAUNCH_WEIGHT] += launched
-    scal[T.S_SPECULAR] += launched * f_in
-    scal[T.S_ENTERED] += launched * w_in
-    scal[T.S_EXIT0] += exit0
-    scal[T.S_EXIT0_SQ] += exit0_sq
-    scal[T.S_EXIT1] += exit1
-    scal[T.S_EXIT1_SQ] += exit1_sq
-    scal[T.S_UNSCATTERED0] += unscattered0
-    scal[T.S_UNSCATTERED1] += unscattered1
-    scal[T.S_ABSORBED] += absorbed
-    scal[T.S_ROULETTE_GAIN] += gain
-    scal[T.S_ROULETTE_KILLED] += killed
-    scal[T.S_ROULETTE_NET_SQ] += net_sq
-    scal[T.S_CAPPED] += capped
-    scal[T.S_CAPPED_WEIGHT] += capped_weight
-    scal[T.S_EVENTS] += events_total
-    scal[T.S_SCATTERINGS] += scatterings_total
-    scal[T.S_INTERNAL_REFLECTIONS] += reflections_total
-    scal[T.S_PATH_LENGTH] += path_total
+    acc[T.S_LAUNCHED] = launched
+    acc[T.S_LAUNCH_WEIGHT] = launched
+    acc[T.S_SPECULAR] = launched * f_in
+    acc[T.S_ENTERED] = launched * w_in
+    acc[T.S_ABSORBED] = absorbed
+    acc[T.S_INTERNAL_REFLECTIONS] = reflections
+    add_totals(scal, acc)
