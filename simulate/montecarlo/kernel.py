@@ -338,14 +338,15 @@ def _settle(rw, n, length, dyed, profiled):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _at_vertex(rw, vertex_mode, vertex, scratch, spectral, p, u, w, step, pend_n, pend_l, s0, s1, s2, s3):
+def _at_vertex(recs, vertex_mode, p, u, w, step, pend_n, pend_l, state):
     """A collision's vertex, before the new direction: pending factors and the vertex score.
 
     A collision at ``p`` after a free path ``step``, before the new direction: the free path joins the
     pending spectral factors (``pend_n`` collisions, ``pend_l`` length); a vertex estimator brings the
-    weights up to date and scores the vertex (:func:`.tallies.score_vertex`).
-    ``(pend_n, pend_l, s0, s1, s2, s3)``.
+    weights up to date and scores the vertex (:func:`.tallies.score_vertex`). ``recs``: the batch's
+    :class:`_Records`; ``state``: the random stream's four words. ``(pend_n, pend_l, state)``.
     """
+    rw = recs.rw
     if rw.reweight:
         pend_n += 1
         pend_l += step
@@ -354,8 +355,8 @@ def _at_vertex(rw, vertex_mode, vertex, scratch, spectral, p, u, w, step, pend_n
             pend_n = 0
             pend_l = 0.0
     if vertex_mode == T.V_CYLINDER_NEE:
-        s0, s1, s2, s3 = T.score_vertex(vertex, scratch, spectral, p, u, w, (s0, s1, s2, s3))
-    return pend_n, pend_l, s0, s1, s2, s3
+        state = T.score_vertex(recs.vertex, recs.scratch, recs.spectral, p, u, w, state)
+    return pend_n, pend_l, state
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
@@ -386,7 +387,7 @@ def _after_scattering(rw, ct, pend_n, pend_l, pend_d, profiled):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _cross_boundary(geometry, size, walk, p, u, w, absorbed, s0, s1, s2, s3):
+def _cross_boundary(geometry, size, walk, p, u, w, absorbed, state):
     """A photon at the boundary: reflected, let out, or spent.
 
     A photon at the boundary point ``p`` (snapped onto it) travelling along ``u``: reflected (Fresnel with
@@ -394,8 +395,9 @@ def _cross_boundary(geometry, size, walk, p, u, w, absorbed, s0, s1, s2, s3):
     oz, w, absorbed, s0, s1, s2, s3)``: ``outcome`` is the face it leaves by (0, 1; ``o`` its direction
     outside), :data:`_REFLECTED` (``o`` its new direction inside) or :data:`_LOST`. A rough crossing's weight
     factor is 1 on average less the facets' masking loss; its difference from 1 is booked in ``absorbed``
-    (signed), so every photon's balance stays exact.
+    (signed), so every photon's balance stays exact. ``state``: the random stream's four words.
     """
+    s0, s1, s2, s3 = state
     ux, uy, uz = u
     x, y, z = snap_to_surface(geometry, size, p[0], p[1], p[2], uz)
     nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
@@ -423,15 +425,18 @@ def _cross_boundary(geometry, size, walk, p, u, w, absorbed, s0, s1, s2, s3):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _score_exit(inp, rw, scratch, face, p, o, w, scatterings, pend_n, pend_l, pend_d, profiled):
+def _score_exit(inp, recs, face, p, o, w, scatterings, pending, profiled):
     """The exit of a photon, scored.
 
     A photon leaving by ``face`` at ``p`` along ``o`` (outside) with weight ``w``: its spectral weights
-    brought up to date and its exit scored (:func:`.tallies.score_exit`).
+    brought up to date (``pending``: the collisions, length and dyed length walked since their last update)
+    and its exit scored (:func:`.tallies.score_exit`).
     """
+    rw = recs.rw
+    pend_n, pend_l, pend_d = pending
     if rw.reweight and (pend_n > 0 or pend_l > 0.0):
         _settle(rw, pend_n, pend_l, pend_d, profiled)
-    T.score_exit(inp.tally_mode, inp.tally_params, inp.outputs, scratch, rw.spec_w, face, p, o, w, scatterings)
+    T.score_exit(inp.tally_mode, inp.tally_params, inp.outputs, recs.scratch, rw.spec_w, face, p, o, w, scatterings)
 
 
 class _Records(NamedTuple):
@@ -458,7 +463,7 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
     ``profiled`` are the flavour's constants (:func:`_make_walk`): their branches are pruned from the
     flavours without them.
     """
-    walk, beam, rw, scratch, spectral, vertex = recs
+    walk, beam, rw, scratch = recs.walk, recs.beam, recs.rw, recs.scratch
     geometry = inp.geometry
     size = inp.geom[0]
     dye_mode = int(inp.medium[M_DYE_PROFILE]) if profiled else DYE_UNIFORM
@@ -495,9 +500,9 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
                 w, absorbed = implicit_capture(w, absorbed, walk.albedo, walk.absorb)
                 scatterings += 1
                 if scoring:
-                    pend_n, pend_l, s0, s1, s2, s3 = _at_vertex(rw, inp.vertex_mode, vertex, scratch, spectral,
-                                                                (x, y, z), (ux, uy, uz), w, step, pend_n, pend_l,
-                                                                s0, s1, s2, s3)
+                    pend_n, pend_l, state = _at_vertex(recs, inp.vertex_mode, (x, y, z), (ux, uy, uz), w, step,
+                                                       pend_n, pend_l, (s0, s1, s2, s3))
+                    s0, s1, s2, s3 = state
                 ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, walk.phase, walk.g, inp.table, walk.hg,
                                                                   s0, s1, s2, s3)
                 decide = True
@@ -517,7 +522,7 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
                 path += s_b
                 pend_l += s_b
                 outcome, x, y, z, ox, oy, oz, w, absorbed, s0, s1, s2, s3 = _cross_boundary(
-                    geometry, size, walk, (x, y, z), (ux, uy, uz), w, absorbed, s0, s1, s2, s3)
+                    geometry, size, walk, (x, y, z), (ux, uy, uz), w, absorbed, (s0, s1, s2, s3))
                 if outcome == _REFLECTED:
                     ux = ox
                     uy = oy
@@ -526,8 +531,8 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
                     continue
                 face = outcome
                 if scoring and face != _LOST:
-                    _score_exit(inp, rw, scratch, face, (x, y, z), (ox, oy, oz), w, scatterings, pend_n, pend_l,
-                                pend_d, profiled)
+                    _score_exit(inp, recs, face, (x, y, z), (ox, oy, oz), w, scatterings, (pend_n, pend_l, pend_d),
+                                profiled)
                 break
         end_history(acc, face, w, scatterings, path, h_gain, h_killed, events, capped)
         if scoring:

@@ -9,10 +9,11 @@ docs/notes/implementation.md, "The photon kernel").
 
 The physics is that of the kernel's plain slab path, event for event (module docstring of
 :mod:`.kernel`), and its events are the kernel's own helpers, inlined (:mod:`.events`: the walk's
-constants, the free path, the smooth entry, implicit capture, the Fresnel decision, the mirror image,
-roulette, the end of a history and the batch's sums; :func:`.scatter.sample_direction`). Only the way to
-the boundary is the slab's own (:func:`_slab_face`), and only ``u_z`` is carried: nothing of a plain slab
-run reads ``u_x, u_y``, and the code that would compute them is dead and left out by the compiler.
+constants, the smooth entry, implicit capture, the Fresnel decision, the mirror image, roulette;
+:func:`.scatter.sample_direction`). The loop itself is written in one piece, its sums in registers: the
+free path, the roulette threshold and the end of a history written as the kernel's helpers cost this loop
+a few per cent (docs/notes/implementation.md, "The photon kernel"). Only ``u_z`` is carried: nothing of a
+plain slab run reads ``u_x, u_y``, and the code that would compute them is dead and left out by the compiler.
 
 What differs is which random numbers a photon gets: lane 0 of batch ``b`` draws from stream
 ``(seed, b)``, lane 1 from stream ``(seed, b + LANE_OFFSET)`` (:mod:`.rng`), each lane takes every
@@ -31,18 +32,8 @@ import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.events import (
-    add_totals,
-    end_history,
-    free_path,
-    fresnel_reflects,
-    implicit_capture,
-    mirror,
-    refract_in,
-    roulette_below,
-    walk_constants,
-)
-from simulate.montecarlo.rng import seed_state
+from simulate.montecarlo.events import fresnel_reflects, implicit_capture, mirror, refract_in, roulette, walk_constants
+from simulate.montecarlo.rng import exponential, seed_state
 from simulate.montecarlo.scatter import sample_direction
 
 __all__ = ["LANE_OFFSET", "simulate_batch_slab_lanes"]
@@ -54,20 +45,23 @@ _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # as kernel._FASTMATH
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _slab_face(z, uz, size):
-    """The way of a slab photon to the face it points to.
+def _slab_entry(walk, source):
+    """The entry of every photon of a plain slab run.
 
-    A photon at depth ``z`` travelling along ``u_z != 0`` to the face it points to: ``(s_b, z, cos_i,
-    face)``, the distance, the face's depth, the cosine with its outward normal and the face (0 top,
-    1 bottom); the slab's case of :func:`.geometry.distance_to_boundary` and :func:`.geometry.snap_to_surface`.
+    At the origin of the top face (normal +z), along ``-w`` (``w = source[1:4]``): ``(u_z, f_in)``, the
+    direction's ``z`` component inside and the reflected fraction.
     """
-    if uz > 0.0:
-        return max(-z, 0.0) / uz, 0.0, uz, 0
-    return min(-size - z, 0.0) / uz, -size, -uz, 1
+    dx = -source[1]
+    dy = -source[2]
+    dz = -source[3]
+    if walk.contrast:
+        _, _, uz0, f_in = refract_in(dx, dy, dz, 0.0, 0.0, 1.0, -dz, walk.n_in, walk.eta_in)
+        return uz0, f_in
+    return dz, 0.0
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
-def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, batch: int,
+def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, batch: int,  # noqa: C901 (one loop)
                               scal: np.ndarray, bins: np.ndarray) -> None:
     """Transport ``photons`` photons of batch ``batch`` through the plain slab, adding to ``scal``.
 
@@ -75,17 +69,11 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
     slab with no tallies; ``bins`` is not written).
     """
     walk = walk_constants(inp.medium, inp.control)
-    size = inp.geom[0]
-    # the entry is the same for every photon: at the origin of the top face (normal +z), along -w
-    dx = -source[1]
-    dy = -source[2]
-    dz = -source[3]
-    cos_i = -dz
-    if walk.contrast:
-        _, _, uz0, f_in = refract_in(dx, dy, dz, 0.0, 0.0, 1.0, cos_i, walk.n_in, walk.eta_in)
-    else:
-        f_in = 0.0
-        uz0 = dz
+    # the walk's constants as locals: the loop below is written in one piece (module docstring)
+    inv_mu_t, albedo, absorb, n_in, contrast = walk.inv_mu_t, walk.albedo, walk.absorb, walk.n_in, walk.contrast
+    phase, g, hg, table, size = walk.phase, walk.g, walk.hg, inp.table, inp.geom[0]
+    w_threshold, survival, inv_survival, max_events = walk.w_threshold, walk.survival, walk.inv_survival, walk.max_events
+    uz0, f_in = _slab_entry(walk, source)  # the same for every photon
     w_in = 1.0 - f_in
     if not w_in > 0.0:  # no light enters (never for an incidence below 90 degrees)
         scal[T.S_LAUNCHED] += photons
@@ -93,10 +81,24 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
         scal[T.S_SPECULAR] += photons * f_in
         return
 
-    acc = np.zeros(T.N_SCALARS)  # the batch's sums (events.end_history)
-    absorbed = 0.0
-    reflections = 0
     launched = 0.0
+    exit0 = 0.0
+    exit0_sq = 0.0
+    exit1 = 0.0
+    exit1_sq = 0.0
+    unscattered0 = 0.0
+    unscattered1 = 0.0
+    absorbed = 0.0
+    gain = 0.0
+    killed = 0.0
+    net_sq = 0.0
+    capped = 0.0
+    capped_weight = 0.0
+    events_total = 0
+    scatterings_total = 0
+    reflections_total = 0
+    path_total = 0.0
+
     # the current lane (z, uz, w, ..., s0..s3) and the other one (zo, uzo, wo, ..., t0..t3): every turn
     # runs one event of the current lane's photon, then the two swap (module docstring)
     s0, s1, s2, s3 = seed_state(seed, batch)
@@ -115,43 +117,72 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
         launched += 1.0
     while active:
         end = False
-        capped = False
         exit_face = -1
-        if events >= walk.max_events:
-            capped = True
+        if events >= max_events:
+            capped += 1.0
+            capped_weight += w
             end = True
         else:
             events += 1
-            step, s0, s1, s2, s3 = free_path(walk.inv_mu_t, s0, s1, s2, s3)
+            e, s0, s1, s2, s3 = exponential(s0, s1, s2, s3)
+            step = e * inv_mu_t
             zn = z + step * uz
             if zn < 0.0 and zn > -size:
                 # --- collision: implicit capture, new direction (MCML update, u_z only), roulette ----
                 z = zn
                 path += step
-                w, absorbed = implicit_capture(w, absorbed, walk.albedo, walk.absorb)
+                w, absorbed = implicit_capture(w, absorbed, albedo, absorb)
                 scat += 1
                 # u_z of the new direction depends on u_z alone: the lanes carry no u_x, u_y (0 here)
-                _, _, uz, _, s0, s1, s2, s3 = sample_direction(0.0, 0.0, uz, walk.phase, walk.g, inp.table, walk.hg,
-                                                               s0, s1, s2, s3)
-                alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette_below(w, 1.0, walk, h_gain, h_killed,
-                                                                            s0, s1, s2, s3)
-                end = not alive
+                _, _, uz, _, s0, s1, s2, s3 = sample_direction(0.0, 0.0, uz, phase, g, table, hg, s0, s1, s2, s3)
+                if w < w_threshold:
+                    if w <= 0.0:
+                        end = True
+                    else:
+                        alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette(w, h_gain, h_killed, survival,
+                                                                              inv_survival, s0, s1, s2, s3)
+                        end = not alive
             else:
-                # --- boundary: the face u_z points to (a step along u_z = 0 stays inside); Fresnel or exit
-                s_b, z, cos_i, face = _slab_face(z, uz, size)
+                # --- boundary: the face u_z points to; Fresnel reflection or exit -----------------
+                if uz > 0.0:
+                    s_b = max(-z, 0.0) / uz
+                    z = 0.0
+                    cos_i = uz
+                    face = 0
+                else:  # u_z < 0 (a step along u_z = 0 stays inside)
+                    s_b = min(-size - z, 0.0) / uz
+                    z = -size
+                    cos_i = -uz
+                    face = 1
                 path += s_b
                 reflect = False
-                if walk.contrast:
-                    reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, walk.n_in, s0, s1, s2, s3)
+                if contrast:
+                    reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, n_in, s0, s1, s2, s3)
                 if reflect:
                     _, _, uz = mirror(0.0, 0.0, uz, 0.0, 0.0, 1.0, cos_i, True)  # a face z = const: u_z negated
-                    reflections += 1
+                    reflections_total += 1
                 else:
                     exit_face = face
                     end = True
         if end:
-            # --- the one end of every history, then the lane's next photon enters -------------------
-            end_history(acc, exit_face, w, scat, path, h_gain, h_killed, events, capped)
+            # --- the one end of every history: flush, then the lane's next photon enters --------
+            if exit_face == 0:
+                exit0 += w
+                exit0_sq += w * w
+                if scat == 0:
+                    unscattered0 += w
+                path_total += w * path
+            elif exit_face == 1:
+                exit1 += w
+                exit1_sq += w * w
+                if scat == 0:
+                    unscattered1 += w
+                path_total += w * path
+            gain += h_gain
+            killed += h_killed
+            net_sq += (h_gain - h_killed) * (h_gain - h_killed)
+            events_total += events
+            scatterings_total += scat
             if left > 0:
                 left -= 1
                 launched += 1.0
@@ -174,10 +205,23 @@ def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, 
             s2, t2 = t2, s2
             s3, t3 = t3, s3
 
-    acc[T.S_LAUNCHED] = launched
-    acc[T.S_LAUNCH_WEIGHT] = launched
-    acc[T.S_SPECULAR] = launched * f_in
-    acc[T.S_ENTERED] = launched * w_in
-    acc[T.S_ABSORBED] = absorbed
-    acc[T.S_INTERNAL_REFLECTIONS] = reflections
-    add_totals(scal, acc)
+    scal[T.S_LAUNCHED] += launched
+    scal[T.S_LAUNCH_WEIGHT] += launched
+    scal[T.S_SPECULAR] += launched * f_in
+    scal[T.S_ENTERED] += launched * w_in
+    scal[T.S_EXIT0] += exit0
+    scal[T.S_EXIT0_SQ] += exit0_sq
+    scal[T.S_EXIT1] += exit1
+    scal[T.S_EXIT1_SQ] += exit1_sq
+    scal[T.S_UNSCATTERED0] += unscattered0
+    scal[T.S_UNSCATTERED1] += unscattered1
+    scal[T.S_ABSORBED] += absorbed
+    scal[T.S_ROULETTE_GAIN] += gain
+    scal[T.S_ROULETTE_KILLED] += killed
+    scal[T.S_ROULETTE_NET_SQ] += net_sq
+    scal[T.S_CAPPED] += capped
+    scal[T.S_CAPPED_WEIGHT] += capped_weight
+    scal[T.S_EVENTS] += events_total
+    scal[T.S_SCATTERINGS] += scatterings_total
+    scal[T.S_INTERNAL_REFLECTIONS] += reflections_total
+    scal[T.S_PATH_LENGTH] += path_total
