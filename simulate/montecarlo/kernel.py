@@ -1,68 +1,44 @@
 """The compiled photon-transport kernel (docs/physics.md section 3).
 
-One photon history, in the units of the caller (any consistent length unit)::
+One photon history, in the units of the caller (any consistent length unit), event by event::
 
-    entry      refraction by Snell at the entry point; weight w = 1 - F(theta_i)
-               (the specular part F is the surface term and is only counted, not followed)
-    step       l = E / mu_t with E ~ Exp(1) (ziggurat, :func:`.rng.exponential`); the step is
-               a collision when its end point p + l u is strictly inside the (convex) shape,
-               otherwise the photon moves the analytic distance s_b to the boundary
-    collision  (l < s_b) implicit capture: absorbed += w mu_a / mu_t, w *= mu_s / mu_t;
-               new direction from the phase function (:mod:`.scatter`: Henyey-Greenstein or
-               an inverse-CDF table; azimuth from a table, no trigonometric call)
+    entry      refraction by Snell at the entry point; weight w = 1 - F(theta_i) (the specular
+               part F is the surface term: counted, not followed)                    _enter
+    step       l = E / mu_t, E ~ Exp(1); a collision when p + l u is strictly inside the
+               (convex) shape, else a move of the distance s_b to the boundary         free_path
+    collision  implicit capture (absorbed += w mu_a / mu_t, w *= mu_s / mu_t), the vertex
+               estimator's score, a new direction from the phase function (:mod:`.scatter`)
+                                                                implicit_capture, _at_vertex
     roulette   if w < w_th: survive with probability p and w /= p, else the photon ends
-    boundary   (l >= s_b) unpolarised Fresnel reflectance F(theta) with total internal
-               reflection; reflect with probability F, otherwise refract out and tally
+                                                                              roulette_below
+    boundary   Fresnel reflection with total internal reflection (or a rough facet, :mod:`.rough`),
+               or refraction out and the exit's score             _cross_boundary, _score_exit
     cap        a photon reaching ``max_events`` steps is stopped and counted (a guard only)
+    end        the history's tallies flushed, in one place for every history           end_history
 
-The direction update is MCML's (Wang, Jacques & Zheng 1995, eq. 3.23). The loop reads as the list
-above: each event is a helper of :mod:`.events` (entry, Fresnel decision, reflection, exit, roulette,
-the deferred spectral weights), shared with the slab's two-lane loop (:mod:`.slab_lanes`). The helpers
-take and return scalars and are inlined into the loop by numba, so the hot state of a history stays in
-registers as in a loop written in one piece (a loop split into called functions is slower:
-docs/notes/implementation.md, "The photon kernel").
+The direction update is MCML's (Wang, Jacques & Zheng 1995, eq. 3.23). Each event is a helper of
+:mod:`.events` (shared with the slab's two-lane loop, :mod:`.slab_lanes`) or of this module (the
+events only this loop has). The helpers are inlined by numba, so the hot state of a history stays in
+registers as in a loop written in one piece (docs/notes/implementation.md, "The photon kernel").
 
-Public objects: :class:`KernelInputs` (a run's inputs packed once: geometry, source, walk medium
-and phase arrays, control, tallies, spectral targets); :func:`simulate_batch` (one batch of photons
-on its own random stream ``(seed, batch)``, :mod:`.rng`); :func:`run_batches` (consecutive batches
-in parallel, one row each, reduced in batch order by the caller: a fixed seed gives the same
+Spectral re-weighting ("white" Monte Carlo, wavelength groups): photons walk in the walk medium
+``(mu_a^w, mu_s^w, p^w)`` and carry, for each target wavelength ``l``, the likelihood ratio ``A_l`` of
+their path: ``(mu_s^l / mu_s^w) exp(-(mu_t^l - mu_t^w) l) p^l(mu) / p^w(mu)`` per collision after a free
+path ``l``, ``exp(-(mu_t^l - mu_t^w) s)`` for the last path ``s`` to the boundary. With ``mu_a^w = 0`` and
+``p^l = p^w`` this is white Monte Carlo, ``A_l = exp(-mu_a^l L)``; other scattering spectra re-weight
+exactly at a variance that grows with the mismatch (callers group wavelengths, :mod:`simulate.fiber`).
+The phase ratio is read from a table of cell-averaged ratios, uniform in ``t = sqrt((1 - mu) / 2)``;
+the free-path factors are deferred (:data:`REWEIGHT_EVERY`); roulette acts on ``w max_l A_l``.
+A dye profile (``medium[M_DYE_PROFILE]``, cylinders) absorbs the dye's part ``mu_d^l`` of ``mu_a^l`` only
+along the length of a path in the dyed region (:func:`.geometry.core_length`); it is walked by a flavour
+of its own, compiled only when a run places its dye.
+
+Public objects: :class:`KernelInputs` (a run's inputs packed once); :func:`simulate_batch` (one batch
+of photons on its own random stream ``(seed, batch)``, :mod:`.rng`); :func:`run_batches` (consecutive
+batches in parallel, one row each, reduced in batch order by the caller: a fixed seed gives the same
 result on any number of threads); :func:`run_rows` (the batches of many runs that differ only in
 source row and seed, :mod:`.rows`). Geometry, phase function, tallies and estimators are run-time
-switches of one compiled signature, cached on disk under keys that are the same in every process
-(:func:`_make_runner`). Every history ends in one place that flushes its tallies (the estimator
-contract of :mod:`.tallies`).
-
-Spectral re-weighting ("white" Monte Carlo and wavelength groups): photons walk in the walk
-medium ``(mu_a^w, mu_s^w, p^w)``; for each target wavelength ``l`` with ``(mu_a^l, mu_s^l, p^l)``
-a photon carries the likelihood ratio ``A_l`` of its path::
-
-    collision after a free path l, scattering by mu:  A_l *= (mu_s^l / mu_s^w) exp(-(mu_t^l - mu_t^w) l)
-                                                      A_l *= p^l(mu) / p^w(mu)   (new direction)
-    boundary reached after s:                         A_l *= exp(-(mu_t^l - mu_t^w) s)
-
-(implicit capture makes the walk's weight-density of a collision segment ``mu_s^w exp(-mu_t^w l)``).
-The phase ratio ``p^l / p^w`` is read from a table of cell-averaged ratios on a grid uniform in
-``t = sqrt((1 - mu) / 2)`` (dense in the forward peak; 1025 nodes, linear interpolation, every
-wavelength's value on one cache line), so a collision costs one look-up for all wavelengths
-instead of one table search per wavelength; it re-weights towards the cell-averaged target
-density, which differs from the target's own sampling table only by that table's
-discretisation.
-With ``mu_a^w = 0`` and ``p^l = p^w`` this is exactly white Monte Carlo, ``A_l = exp(-mu_a^l L)``
-(absorption applied afterwards along the path length ``L``); different scattering spectra
-re-weight exactly too, at a variance that grows with the mismatch (callers group
-wavelengths, :mod:`simulate.fiber`). Roulette acts on ``w max_l A_l``.
-
-Dye profile (``medium[M_DYE_PROFILE]``, cylinders, re-weighted runs only): the targets' dye absorption
-``mu_d^l`` (``spec_mu[l, 2]``, a part of ``mu_a^l``) absorbs only where the dye sits -- beyond the radius
-``a = medium[M_DYE_RADIUS]`` (a ring dye) or within it (a dyed core) -- so a free path of length ``l`` of
-which ``l_d`` lies in the dyed region takes ``exp(-(mu_t^l - mu_d^l - mu_t^w) l - mu_d^l l_d)`` instead of
-``exp(-(mu_t^l - mu_t^w) l)``; ``l_d`` is the exact chord of the straight path with the inner circle
-(:func:`.geometry.core_length`). The walk itself is unchanged: absorption is carried by the weights. A profile
-is walked by a flavour of its own (:func:`_make_kernel`, with its own runners, compiled only when a run places
-its dye), so a run without one runs the loop without it.
-
-The free-path factors are deferred: they are brought up to date every :data:`REWEIGHT_EVERY`
-collisions (see there), at every exit and at every vertex a vertex estimator reads.
+switches of one compiled signature, cached on disk under keys that are the same in every process.
 
 References
 ----------
@@ -83,8 +59,36 @@ import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.events import (catch_up, catch_up_dyed, fresnel_reflects, implicit_capture, largest, mirror,
-                                        refract_in, refract_out, roulette)
+from simulate.montecarlo.events import (
+    C_MAX_EVENTS,
+    C_SURVIVAL,
+    C_WEIGHT_THRESHOLD,
+    M_DYE_PROFILE,
+    M_DYE_RADIUS,
+    M_G,
+    M_MU_A,
+    M_MU_S,
+    M_N,
+    M_PHASE,
+    M_ROUGH,
+    M_ROUGH_B,
+    N_CONTROL,
+    N_MEDIUM,
+    Walk,
+    add_totals,
+    catch_up,
+    catch_up_dyed,
+    end_history,
+    free_path,
+    fresnel_reflects,
+    implicit_capture,
+    largest,
+    mirror,
+    refract_in,
+    refract_out,
+    roulette_below,
+    walk_constants,
+)
 from simulate.montecarlo.geometry import (
     CELL,
     SLAB,
@@ -95,9 +99,9 @@ from simulate.montecarlo.geometry import (
     outward_normal,
     snap_to_surface,
 )
-from simulate.montecarlo.rng import exponential, next_u64, seed_state, to_uniform
+from simulate.montecarlo.rng import next_u64, seed_state, to_uniform
 from simulate.montecarlo.rough import rough_cross, rough_entry
-from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, hg_constants, sample_direction
+from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, sample_direction
 from simulate.montecarlo.slab_lanes import simulate_batch_slab_lanes
 
 __all__ = [
@@ -140,28 +144,12 @@ __all__ = [
 # https://gcc.gnu.org/onlinedocs/libgomp/OMP_005fWAIT_005fPOLICY.html
 os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 
-# walk-medium array slots
-M_MU_A = 0
-M_MU_S = 1
-M_G = 2
-M_N = 3
-M_PHASE = 4
-M_ROUGH = 5  # Beckmann RMS slope of the boundary for light crossing it, along the axis (0 with M_ROUGH_B: smooth; .rough)
-M_ROUGH_B = 6  # ... and about the axis (the same value: isotropic)
-M_DYE_PROFILE = 7  # where the targets' dye absorbs across a cylinder: DYE_UNIFORM (0), DYE_RING, DYE_CORE
-M_DYE_RADIUS = 8  # the profile's inner boundary: the dye at r > it (ring) or at r < it (core)
-N_MEDIUM = 9
+# the walk-medium (M_*) and control (C_*) slots are defined with the events that read them (.events)
 
-# dye profiles (M_DYE_PROFILE; module docstring, "Dye profile")
+# dye profiles (M_DYE_PROFILE; module docstring)
 DYE_UNIFORM = 0
 DYE_RING = 1
 DYE_CORE = 2
-
-# control array slots
-C_WEIGHT_THRESHOLD = 0
-C_SURVIVAL = 1
-C_MAX_EVENTS = 2
-N_CONTROL = 3
 
 # No 'nnan'/'ninf': infinite free paths (mu_t = 0) and distances are legitimate values.
 # (Fast-math 'nsz'/'reassoc' allow no rewrite that turns 0 * _LOG_ZERO into a NaN: it is finite.)
@@ -178,6 +166,10 @@ _LOG_ZERO = -1e300
 #: the variance by a hair and nothing else, and saves the exponentials of every collision.
 REWEIGHT_EVERY = 8
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+# what _cross_boundary did with a photon besides letting it out by a face (0, 1)
+_LOST = -1  # its weight is spent (a rough crossing's factor 0); also "no exit" at the end of a history
+_REFLECTED = -2  # it is reflected back inside
 
 
 class KernelInputs(NamedTuple):
@@ -207,6 +199,347 @@ class KernelInputs(NamedTuple):
     nee_consts: np.ndarray  # float64[n_out, tallies.N_NEE]: next-event constants of point outputs
 
 
+class _Reweighting(NamedTuple):
+    """A batch's spectral state (module docstring).
+
+    A batch's spectral state (module docstring): the photon's weights ``spec_w`` (``A_l``) and what
+    updates them -- ``log_s = ln(mu_s^l / mu_s^w)``, ``d_mu_t = mu_t^l - mu_t^w``, with a dye profile the
+    dye's ``spec_dye = mu_d^l`` and the rest ``d_mu_u = d_mu_t - mu_d^l``, the phase ratios ``ratio`` on
+    ``n_grid`` nodes -- and what the tallies read (``spec_mu_t``: the targets' ``mu_t``).
+
+    With a dye profile a free path of length ``l`` of which ``l_d`` lies in the dyed region takes
+    ``exp(-(mu_t^l - mu_d^l - mu_t^w) l - mu_d^l l_d)`` instead of ``exp(-(mu_t^l - mu_t^w) l)``: the walk
+    itself is unchanged, the dye's absorption is carried by the weights.
+    """
+
+    reweight: bool
+    spec_w: np.ndarray
+    log_s: np.ndarray
+    d_mu_t: np.ndarray
+    d_mu_u: np.ndarray
+    spec_dye: np.ndarray
+    spec_mu_t: np.ndarray
+    phase_ratio: bool
+    ratio: np.ndarray
+    n_grid: int
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _reweighting(inp, mu_s, mu_t):
+    """The :class:`_Reweighting` of a run for the walk medium's ``mu_s`` and ``mu_t`` (``A_l = 1``)."""
+    n_spec = inp.spec_mu.shape[0]
+    d_mu_t = np.zeros(n_spec)
+    log_s = np.zeros(n_spec)  # a large negative number for mu_s^l = 0
+    spec_mu_t = np.zeros(n_spec)
+    spec_dye = np.zeros(n_spec)  # the dye's column: profiled runs only (make_inputs checks it)
+    for l in range(n_spec):
+        spec_mu_t[l] = inp.spec_mu[l, 0] + inp.spec_mu[l, 1]
+        d_mu_t[l] = spec_mu_t[l] - mu_t
+        s_ratio = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
+        log_s[l] = math.log(s_ratio) if s_ratio > 0.0 else _LOG_ZERO
+        if inp.spec_mu.shape[1] > 2:
+            spec_dye[l] = inp.spec_mu[l, 2]
+    if not inp.reweight:
+        spec_mu_t[:] = mu_t
+    return _Reweighting(inp.reweight, np.ones(n_spec), log_s, d_mu_t, d_mu_t - spec_dye, spec_dye, spec_mu_t,
+                        inp.phase_ratio, inp.spec_ratio, inp.spec_ratio.shape[0])
+
+
+@numba.njit(cache=True, inline="always")
+def _tally_records(inp, bins, walk, rw):
+    """The records the tallies read, packed once a batch.
+
+    The records the tallies read, packed once a batch: the history's scratch tally (:class:`.tallies.Scratch`,
+    ``n_spec`` spectral bins per geometric bin of ``bins``), the spectral weights (:class:`.tallies.Spectral`)
+    and the vertex estimator's inputs (:class:`.tallies.VertexInputs`, with a private copy of the next-event
+    constants: ranged outputs overwrite their row per vertex).
+    """
+    n_spec = rw.spec_w.shape[0]
+    n_blocks = max(bins.shape[0] // n_spec, 1)  # geometric bins
+    scratch = T.Scratch(np.zeros(bins.shape[0]), np.zeros(n_blocks, dtype=np.int64), np.zeros(1, dtype=np.int64),
+                        np.zeros(n_blocks, dtype=np.bool_), n_spec)
+    spectral = T.Spectral(rw.spec_w, rw.spec_mu_t, rw.phase_ratio, rw.ratio)
+    vertex = T.VertexInputs(inp.outputs, inp.nee_consts.copy(), np.zeros(T.N_NEE), inp.n_exit_bins, inp.geom[0],
+                            walk.n_in, walk.phase, walk.g, inp.table, inp.pdf, inp.lookup)
+    return scratch, spectral, vertex
+
+
+@numba.njit(cache=True, inline="always")
+def _beam(geometry, source):
+    """A source row unpacked once a batch.
+
+    A source row unpacked once a batch: ``(mode, d_x, d_y, d_z, half width, cell)``, ``d = -w`` the photons'
+    direction, ``cell`` for a cell source (launch weight ``cos theta_i``).
+    """
+    src_mode = int(source[0])
+    return src_mode, -source[1], -source[2], -source[3], source[4], geometry != SLAB and src_mode == CELL
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _enter(geometry, size, beam, walk, acc, absorbed, s0, s1, s2, s3):
+    """A photon enters the medium from the source.
+
+    A photon enters from the source ``beam`` (:func:`_beam`): its entry point and direction inside, its
+    weight (launch weight x (1 - F), or a rough facet's transmitted part), the launch, specular and entered
+    weights booked in ``acc``, a rough entry's balance (its masking loss, signed: one facet's draw may give
+    more or less than its mean) in ``absorbed``. ``(x, y, z, ux, uy, uz, w, absorbed, s0, s1, s2, s3)``.
+    """
+    src_mode, dx, dy, dz, src_h, cell_source = beam
+    r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+    x, y, z, nx, ny, nz = entry_point(geometry, size, src_mode, -dx, -dy, -dz, src_h, to_uniform(r))
+    cos_i = -(dx * nx + dy * ny + dz * nz)
+    w0 = 1.0
+    if cell_source:
+        w0 = max(cos_i, 0.0)  # irradiance on the surface element, per unit beam irradiance
+    t_in = -1.0  # the rough entry's transmitted weight (per unit arriving); < 0: 1 - f_in
+    if walk.rough and w0 > 0.0:
+        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+        r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+        ux, uy, uz, t_in, f_in = rough_entry(dx, dy, dz, nx, ny, nz, walk.n_in, walk.m_rough, walk.m_rough_b,
+                                             to_uniform(r), to_uniform(r2))
+    elif walk.contrast and w0 > 0.0:
+        ux, uy, uz, f_in = refract_in(dx, dy, dz, nx, ny, nz, cos_i, walk.n_in, walk.eta_in)
+    else:
+        f_in = 0.0
+        ux = dx
+        uy = dy
+        uz = dz
+    acc[T.S_LAUNCH_WEIGHT] += w0
+    w = w0 * (1.0 - f_in) if t_in < 0.0 else w0 * t_in
+    acc[T.S_SPECULAR] += w0 * f_in  # rough: f_in is the facet's reflected part, masking included
+    if t_in >= 0.0:
+        absorbed += w0 * (1.0 - t_in - f_in)
+    acc[T.S_ENTERED] += w
+    return x, y, z, ux, uy, uz, w, absorbed, s0, s1, s2, s3
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _dyed_length(y, z, uy, uz, s, radius, mode):
+    """The part of a path that lies where a dye profile's dye sits.
+
+    The part of a path of length ``s`` from ``(y, z)`` along ``u`` that lies where a dye profile's dye
+    sits: within ``radius`` of the axis (``DYE_CORE``) or beyond it (``DYE_RING``).
+    """
+    inner = core_length(y, z, uy, uz, s, radius)
+    return inner if mode == DYE_CORE else s - inner
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _settle(rw, n, length, dyed, profiled):
+    """The spectral weights brought up to date (the pending free-path factors).
+
+    The spectral weights brought up to date with the ``n`` collisions and the path ``length`` (``dyed`` of
+    it in a dye profile's dyed region) walked since their last update (:data:`REWEIGHT_EVERY`).
+    """
+    if profiled:
+        catch_up_dyed(rw.spec_w, rw.log_s, rw.d_mu_u, rw.spec_dye, n, length, dyed)
+    else:
+        catch_up(rw.spec_w, rw.log_s, rw.d_mu_t, n, length)
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _at_vertex(recs, vertex_mode, p, u, w, step, pend_n, pend_l, state):
+    """A collision's vertex, before the new direction: pending factors and the vertex score.
+
+    A collision at ``p`` after a free path ``step``, before the new direction: the free path joins the
+    pending spectral factors (``pend_n`` collisions, ``pend_l`` length); a vertex estimator brings the
+    weights up to date and scores the vertex (:func:`.tallies.score_vertex`). ``recs``: the batch's
+    :class:`_Records`; ``state``: the random stream's four words. ``(pend_n, pend_l, state)``.
+    """
+    rw = recs.rw
+    if rw.reweight:
+        pend_n += 1
+        pend_l += step
+        if vertex_mode == T.V_CYLINDER_NEE:  # the vertex estimator reads spec_w
+            catch_up(rw.spec_w, rw.log_s, rw.d_mu_t, pend_n, pend_l)
+            pend_n = 0
+            pend_l = 0.0
+    if vertex_mode == T.V_CYLINDER_NEE:
+        state = T.score_vertex(recs.vertex, recs.scratch, recs.spectral, p, u, w, state)
+    return pend_n, pend_l, state
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _after_scattering(rw, ct, pend_n, pend_l, pend_d, profiled):
+    """The spectral weights after a scattering, and whether roulette is decided now.
+
+    The spectral weights after a scattering by ``ct`` (the cosine of the angle): the phase ratios applied,
+    the pending free-path factors settled every :data:`REWEIGHT_EVERY` collisions. Roulette is decided at
+    those updates only (any rule is unbiased), on ``w max_l A_l``.
+    ``(decide, w_max, pend_n, pend_l, pend_d)``.
+    """
+    if not rw.reweight:
+        return True, 1.0, pend_n, pend_l, pend_d
+    if rw.phase_ratio:
+        jr, fr = T.ratio_row(ct, rw.n_grid)
+        r0 = rw.ratio[jr]
+        r1 = rw.ratio[jr + 1]
+        for l in range(rw.spec_w.shape[0]):
+            rw.spec_w[l] *= r0[l] + fr * (r1[l] - r0[l])
+    if pend_n == 0 or pend_n >= REWEIGHT_EVERY:
+        if pend_n > 0:
+            _settle(rw, pend_n, pend_l, pend_d, profiled)
+            pend_n = 0
+            pend_l = 0.0
+            pend_d = 0.0
+        return True, largest(rw.spec_w), pend_n, pend_l, pend_d
+    return False, 1.0, pend_n, pend_l, pend_d
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _cross_boundary(geometry, size, walk, p, u, w, absorbed, state):
+    """A photon at the boundary: reflected, let out, or spent.
+
+    A photon at the boundary point ``p`` (snapped onto it) travelling along ``u``: reflected (Fresnel with
+    total internal reflection, or a rough facet's choice) or let out (refracted). ``(outcome, x, y, z, ox, oy,
+    oz, w, absorbed, s0, s1, s2, s3)``: ``outcome`` is the face it leaves by (0, 1; ``o`` its direction
+    outside), :data:`_REFLECTED` (``o`` its new direction inside) or :data:`_LOST`. A rough crossing's weight
+    factor is 1 on average less the facets' masking loss; its difference from 1 is booked in ``absorbed``
+    (signed), so every photon's balance stays exact. ``state``: the random stream's four words.
+    """
+    s0, s1, s2, s3 = state
+    ux, uy, uz = u
+    x, y, z = snap_to_surface(geometry, size, p[0], p[1], p[2], uz)
+    nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
+    cos_i = ux * nx + uy * ny + uz * nz
+    face = 1 if geometry == SLAB and nz < 0.0 else 0
+    if walk.rough:
+        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+        r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+        r3, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
+        ox, oy, oz, factor, crossed = rough_cross(ux, uy, uz, nx, ny, nz, walk.n_in, 1.0, walk.m_rough,
+                                                  walk.m_rough_b, to_uniform(r), to_uniform(r2), to_uniform(r3))
+        absorbed += w * (1.0 - factor)
+        if factor <= 0.0:
+            return _LOST, x, y, z, ux, uy, uz, w, absorbed, s0, s1, s2, s3
+        w *= factor
+        return (face if crossed else _REFLECTED), x, y, z, ox, oy, oz, w, absorbed, s0, s1, s2, s3
+    if walk.contrast:
+        reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, walk.n_in, s0, s1, s2, s3)
+        if reflect:
+            ox, oy, oz = mirror(ux, uy, uz, nx, ny, nz, cos_i, geometry == SLAB)
+            return _REFLECTED, x, y, z, ox, oy, oz, w, absorbed, s0, s1, s2, s3
+        ox, oy, oz = refract_out(ux, uy, uz, nx, ny, nz, cos_i, walk.n_in)
+        return face, x, y, z, ox, oy, oz, w, absorbed, s0, s1, s2, s3
+    return face, x, y, z, ux, uy, uz, w, absorbed, s0, s1, s2, s3
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _score_exit(inp, recs, face, p, o, w, scatterings, pending, profiled):
+    """The exit of a photon, scored.
+
+    A photon leaving by ``face`` at ``p`` along ``o`` (outside) with weight ``w``: its spectral weights
+    brought up to date (``pending``: the collisions, length and dyed length walked since their last update)
+    and its exit scored (:func:`.tallies.score_exit`).
+    """
+    rw = recs.rw
+    pend_n, pend_l, pend_d = pending
+    if rw.reweight and (pend_n > 0 or pend_l > 0.0):
+        _settle(rw, pend_n, pend_l, pend_d, profiled)
+    T.score_exit(inp.tally_mode, inp.tally_params, inp.outputs, recs.scratch, rw.spec_w, face, p, o, w, scatterings)
+
+
+class _Records(NamedTuple):
+    """What a batch's photon loop reads besides the run's inputs, packed once a batch.
+
+    The walk's constants (:class:`.events.Walk`), the source (:func:`_beam`), the spectral state
+    (:class:`_Reweighting`) and the tallies' records (:func:`_tally_records`).
+    """
+
+    walk: Walk
+    beam: tuple[int, float, float, float, float, bool]
+    rw: _Reweighting
+    scratch: T.Scratch
+    spectral: T.Spectral
+    vertex: T.VertexInputs
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
+    """The photon loop of a batch, one event helper a line (module docstring).
+
+    The histories of ``photons`` photons of stream ``(seed, batch)``, their sums booked in ``acc`` and their
+    scores in ``bins``; returns the two sums kept in registers, ``(absorbed, reflections)``. ``scoring`` and
+    ``profiled`` are the flavour's constants (:func:`_make_walk`): their branches are pruned from the
+    flavours without them.
+    """
+    walk, beam, rw, scratch = recs.walk, recs.beam, recs.rw, recs.scratch
+    geometry = inp.geometry
+    size = inp.geom[0]
+    dye_mode = int(inp.medium[M_DYE_PROFILE]) if profiled else DYE_UNIFORM
+    dye_radius = inp.medium[M_DYE_RADIUS] if profiled else 0.0
+    absorbed = 0.0  # (added to at every collision)
+    reflections = 0
+    s0, s1, s2, s3 = seed_state(seed, batch)
+    for _ in range(photons):
+        x, y, z, ux, uy, uz, w, absorbed, s0, s1, s2, s3 = _enter(geometry, size, beam, walk, acc, absorbed,
+                                                                  s0, s1, s2, s3)
+        h_gain = h_killed = path = pend_l = pend_d = 0.0
+        events = scatterings = pend_n = 0
+        face = _LOST
+        capped = False
+        if scoring and rw.reweight:
+            rw.spec_w[:] = 1.0
+        alive = w > 0.0
+        while alive:
+            if events >= walk.max_events:
+                capped = True
+                break
+            events += 1
+            step, s0, s1, s2, s3 = free_path(walk.inv_mu_t, s0, s1, s2, s3)
+            xn = x + step * ux
+            yn = y + step * uy
+            zn = z + step * uz
+            if inside(geometry, size, xn, yn, zn):  # a collision (the end point is inside: convex shape)
+                if profiled:
+                    pend_d += _dyed_length(y, z, uy, uz, step, dye_radius, dye_mode)
+                x = xn
+                y = yn
+                z = zn
+                path += step
+                w, absorbed = implicit_capture(w, absorbed, walk.albedo, walk.absorb)
+                scatterings += 1
+                if scoring:
+                    pend_n, pend_l, state = _at_vertex(recs, inp.vertex_mode, (x, y, z), (ux, uy, uz), w, step,
+                                                       pend_n, pend_l, (s0, s1, s2, s3))
+                    s0, s1, s2, s3 = state
+                ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, walk.phase, walk.g, inp.table, walk.hg,
+                                                                  s0, s1, s2, s3)
+                decide = True
+                w_max = 1.0
+                if scoring:
+                    decide, w_max, pend_n, pend_l, pend_d = _after_scattering(rw, ct, pend_n, pend_l, pend_d, profiled)
+                if decide:
+                    alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette_below(w, w_max, walk, h_gain, h_killed,
+                                                                                s0, s1, s2, s3)
+            else:  # the boundary
+                s_b = distance_to_boundary(geometry, size, x, y, z, ux, uy, uz)
+                if profiled:
+                    pend_d += _dyed_length(y, z, uy, uz, s_b, dye_radius, dye_mode)
+                x += s_b * ux
+                y += s_b * uy
+                z += s_b * uz
+                path += s_b
+                pend_l += s_b
+                outcome, x, y, z, ox, oy, oz, w, absorbed, s0, s1, s2, s3 = _cross_boundary(
+                    geometry, size, walk, (x, y, z), (ux, uy, uz), w, absorbed, (s0, s1, s2, s3))
+                if outcome == _REFLECTED:
+                    ux = ox
+                    uy = oy
+                    uz = oz
+                    reflections += 1
+                    continue
+                face = outcome
+                if scoring and face != _LOST:
+                    _score_exit(inp, recs, face, (x, y, z), (ox, oy, oz), w, scatterings, (pend_n, pend_l, pend_d),
+                                profiled)
+                break
+        end_history(acc, face, w, scatterings, path, h_gain, h_killed, events, capped)
+        if scoring:
+            T.flush_history(scratch, bins)
+    return absorbed, reflections
+
+
 def _source_stamp() -> int:
     """A hash of every source the compiled kernel is built from (this package and fresnel.py).
 
@@ -227,18 +560,44 @@ def _source_stamp() -> int:
 _SOURCE_STAMP = _source_stamp()
 
 
-def _make_kernel(scoring: bool, profiled: bool = False):
-    """Compile the kernel for one flavour: ``scoring`` False is the plain transport loop (totals
-    and bookkeeping only), True adds the tallies, the vertex hook and spectral re-weighting.
+def _make_walk(scoring: bool, profiled: bool = False):
+    """Compile the photon loop of one flavour (:func:`_transport`; flavours as in :func:`_make_kernel`).
 
-    ``SCORING`` is a closure constant, so numba prunes the scoring code from the plain
-    flavour: its mere presence (calls and array stores in the photon loop) costs the plain
-    slab case about 30 % of its speed. (The plain slab runs in a loop of its own with two photons
-    in flight, :mod:`.slab_lanes`; :func:`run_batches_plain` picks it for slab runs.)
-    ``STAMP`` (:func:`_source_stamp`) keys the cache to the sources the kernel is built from.
-    ``profiled`` (with ``scoring``) is the flavour of a dye profile (module docstring, "Dye profile"); its code
-    is pruned from the others as the scoring code is from the plain one, so a run without a profile is the
-    loop without it, bit for bit.
+    The loop allocates nothing, so it is compiled without numba's reference counting (``_nrt=False``):
+    its event helpers take records that hold arrays, and every such record handed to an inlined helper
+    would otherwise cost atomic reference-count updates of each of its arrays, at every event.
+    :func:`simulate_batch` allocates and packs the records, then calls the loop once a batch through a
+    module global (the cache-key rule of :func:`_make_runner`).
+    """
+    SCORING = scoring
+    PROFILED = profiled and scoring
+    STAMP = _SOURCE_STAMP
+
+    @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, _nrt=False)
+    def walk_photons(inp, recs, photons, seed, batch, bins, acc):
+        if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
+            return 0.0, 0
+        return _transport(SCORING, PROFILED, inp, recs, photons, seed, batch, bins, acc)
+
+    return walk_photons
+
+
+_walk_plain = _make_walk(False)
+_walk_scoring = _make_walk(True)
+_walk_profiled = _make_walk(True, profiled=True)
+
+
+def _make_kernel(scoring: bool, profiled: bool = False):
+    """Compile the kernel for one flavour.
+
+    ``scoring`` False is the plain transport loop (totals and bookkeeping only), True adds the tallies,
+    the vertex hook and spectral re-weighting; ``profiled`` (with ``scoring``) adds a dye profile (module
+    docstring). Each flavour's photon loop is compiled apart with the others' code pruned
+    (:func:`_make_walk`): its mere presence in the loop slows the plain case
+    (docs/notes/implementation.md, "The photon kernel"), and a run without a profile runs the loop without
+    it, bit for bit. (The plain slab runs in a loop of its own with two photons in flight,
+    :mod:`.slab_lanes`; :func:`run_batches_plain` picks it for slab runs.) ``STAMP``
+    (:func:`_source_stamp`) keys the cache to the sources the kernel is built from.
     """
     SCORING = scoring
     PROFILED = profiled and scoring
@@ -267,321 +626,21 @@ def _make_kernel(scoring: bool, profiled: bool = False):
         """
         if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
             return
-        geometry = inp.geometry
-        geom = inp.geom
-        medium = inp.medium
-        table = inp.table
-        mu_a = medium[M_MU_A]
-        mu_s = medium[M_MU_S]
-        g = medium[M_G]
-        n_in = medium[M_N]
-        phase = int(medium[M_PHASE])
-        mu_t = mu_a + mu_s
-        inv_mu_t = 1.0 / mu_t if mu_t > 0.0 else math.inf
-        albedo = mu_s / mu_t if mu_t > 0.0 else 0.0
-        absorb = 1.0 - albedo
-        w_threshold = inp.control[C_WEIGHT_THRESHOLD]
-        survival = inp.control[C_SURVIVAL]
-        inv_survival = 1.0 / survival
-        max_events = int(inp.control[C_MAX_EVENTS])
-        contrast = n_in != 1.0
-        eta_in = 1.0 / n_in
-        m_rough = medium[M_ROUGH]
-        m_rough_b = medium[M_ROUGH_B]
-        rough = contrast and (m_rough > 0.0 or m_rough_b > 0.0)  # a rough boundary (.rough); else the smooth code
+        walk = walk_constants(inp.medium, inp.control)
+        rw = _reweighting(inp, inp.medium[M_MU_S], walk.mu_t)
+        scratch, spectral, vertex = _tally_records(inp, bins, walk, rw)
+        recs = _Records(walk, _beam(inp.geometry, source), rw, scratch, spectral, vertex)
+        acc = np.zeros(T.N_SCALARS)  # the batch's sums
         if PROFILED:
-            dye_mode = int(medium[M_DYE_PROFILE])
-            dye_radius = medium[M_DYE_RADIUS]
-        dx = -source[1]
-        dy = -source[2]
-        dz = -source[3]
-        size = geom[0]
-        src_mode = int(source[0])
-        src_h = source[4]
-        cell_source = geometry != SLAB and src_mode == CELL
-        hg = hg_constants(g)
-
-        tally_mode = inp.tally_mode
-        vertex_mode = inp.vertex_mode
-        reweight = inp.reweight
-        n_spec = inp.spec_mu.shape[0]
-        vertex_base = inp.n_exit_bins
-        n_bins_total = bins.shape[0]
-        hist = np.zeros(n_bins_total)
-        n_blocks = max(n_bins_total // n_spec, 1)  # geometric bins, each of n_spec spectral bins
-        touched = np.zeros(n_blocks, dtype=np.int64)
-        n_touched = np.zeros(1, dtype=np.int64)
-        marks = np.zeros(n_blocks, dtype=np.bool_)
-        spec_w = np.ones(n_spec)
-        nee_work = np.zeros(T.N_NEE)
-        nee_consts = inp.nee_consts.copy()  # private: ranged outputs overwrite their row per vertex
-        phase_ratio = inp.phase_ratio
-        ratio = inp.spec_ratio
-        n_grid = ratio.shape[0]
-        d_mu_t = np.zeros(n_spec)
-        log_s = np.zeros(n_spec)  # ln(mu_s^l / mu_s^w), a large negative number for mu_s^l = 0
-        spec_mu_t = np.zeros(n_spec)
-        for l in range(n_spec):
-            spec_mu_t[l] = inp.spec_mu[l, 0] + inp.spec_mu[l, 1]
-            d_mu_t[l] = spec_mu_t[l] - mu_t
-            s_ratio = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
-            log_s[l] = math.log(s_ratio) if s_ratio > 0.0 else _LOG_ZERO
-        # deferred re-weighting: the factors (mu_s^l / mu_s^w) exp(-(mu_t^l - mu_t^w) l) of the free
-        # paths since the last update are one exp of (n ln s_l - d_l L) per wavelength (module docstring)
-        pend_n = 0
-        pend_l = 0.0
-        if not reweight:
-            for l in range(n_spec):
-                spec_mu_t[l] = mu_t
-        if PROFILED:
-            # a dye profile: the dye's part of d_mu_t is taken along the dyed length pend_d instead of pend_l
-            # (its runs are re-weighted, with the dye's column: make_inputs checks it)
-            d_mu_u = d_mu_t.copy()
-            spec_dye = np.zeros(n_spec)
-            for l in range(n_spec):
-                spec_dye[l] = inp.spec_mu[l, 2]
-                d_mu_u[l] = d_mu_t[l] - spec_dye[l]
-            pend_d = 0.0
-        # the records the tallies read, packed once (tuples: no allocation, passed as their fields)
-        scratch = T.Scratch(hist, touched, n_touched, marks, n_spec)
-        spectral = T.Spectral(spec_w, spec_mu_t, phase_ratio, ratio)
-        vertex = T.VertexInputs(inp.outputs, nee_consts, nee_work, vertex_base, size, n_in, phase, g, table, inp.pdf,
-                                inp.lookup)
-
-        s0, s1, s2, s3 = seed_state(seed, batch)
-
-        specular = 0.0
-        entered = 0.0
-        launch_weight = 0.0
-        exit0 = 0.0
-        exit0_sq = 0.0
-        exit1 = 0.0
-        exit1_sq = 0.0
-        unscattered0 = 0.0
-        unscattered1 = 0.0
-        absorbed = 0.0
-        gain = 0.0
-        killed = 0.0
-        net_sq = 0.0
-        capped = 0.0
-        capped_weight = 0.0
-        events_total = 0
-        scatterings_total = 0
-        reflections_total = 0
-        path_total = 0.0
-
-        for _ in range(photons):
-            # --- entry: Snell refraction, weight (launch weight) x (1 - F) -----------------
-            r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-            x, y, z, nx, ny, nz = entry_point(geometry, size, src_mode, -dx, -dy, -dz, src_h, to_uniform(r))
-            cos_i = -(dx * nx + dy * ny + dz * nz)
-            w0 = 1.0
-            if cell_source:
-                w0 = max(cos_i, 0.0)  # irradiance on the surface element, per unit beam irradiance
-            t_in = -1.0  # the rough entry's transmitted weight (per unit arriving); < 0: 1 - f_in
-            if rough and w0 > 0.0:
-                r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                ux, uy, uz, t_in, f_in = rough_entry(dx, dy, dz, nx, ny, nz, n_in, m_rough, m_rough_b,
-                                                     to_uniform(r), to_uniform(r2))
-            elif contrast and w0 > 0.0:
-                ux, uy, uz, f_in = refract_in(dx, dy, dz, nx, ny, nz, cos_i, n_in, eta_in)
-            else:
-                f_in = 0.0
-                ux = dx
-                uy = dy
-                uz = dz
-            launch_weight += w0
-            w = w0 * (1.0 - f_in) if t_in < 0.0 else w0 * t_in
-            specular += w0 * f_in  # rough: f_in is the facet's reflected part, masking included
-            if t_in >= 0.0:
-                # the rough entry's balance: its mean is the facets' masking loss (.rough), booked as
-                # absorbed; one facet's draw may give more or less than its mean, so this may be < 0
-                absorbed += w0 * (1.0 - t_in - f_in)
-            entered += w
-            h_exit0 = 0.0
-            h_exit1 = 0.0
-            h_gain = 0.0
-            h_killed = 0.0
-            events = 0
-            scatterings = 0
-            path = 0.0
-            if SCORING:
-                if reweight:
-                    for l in range(n_spec):
-                        spec_w[l] = 1.0
-                    pend_n = 0
-                    pend_l = 0.0
-                    if PROFILED:
-                        pend_d = 0.0
-            alive = w > 0.0
-            while alive:
-                if events >= max_events:
-                    capped += 1.0
-                    capped_weight += w
-                    break
-                events += 1
-                e, s0, s1, s2, s3 = exponential(s0, s1, s2, s3)
-                step = e * inv_mu_t
-                xn = x + step * ux
-                yn = y + step * uy
-                zn = z + step * uz
-                if inside(geometry, size, xn, yn, zn):
-                    # --- collision (the end point is inside: convex shape) ------------------
-                    if PROFILED:
-                        inner = core_length(y, z, uy, uz, step, dye_radius)
-                        pend_d += inner if dye_mode == DYE_CORE else step - inner
-                    x = xn
-                    y = yn
-                    z = zn
-                    path += step
-                    w, absorbed = implicit_capture(w, absorbed, albedo, absorb)
-                    scatterings += 1
-                    w_max = 1.0
-                    decide = True  # roulette decided at this collision
-                    if SCORING:
-                        if reweight:
-                            pend_n += 1
-                            pend_l += step
-                            if vertex_mode == T.V_CYLINDER_NEE:  # the vertex estimator reads spec_w
-                                catch_up(spec_w, log_s, d_mu_t, pend_n, pend_l)
-                                pend_n = 0
-                                pend_l = 0.0
-                        if vertex_mode == T.V_CYLINDER_NEE:
-                            s0, s1, s2, s3 = T.score_vertex(vertex, scratch, spectral, (x, y, z), (ux, uy, uz), w,
-                                                            (s0, s1, s2, s3))
-                    ux, uy, uz, ct, s0, s1, s2, s3 = sample_direction(ux, uy, uz, phase, g, table, hg, s0, s1, s2, s3)
-                    if SCORING:
-                        if reweight:
-                            if phase_ratio:
-                                jr, fr = T.ratio_row(ct, n_grid)
-                                r0 = ratio[jr]
-                                r1 = ratio[jr + 1]
-                                for l in range(n_spec):
-                                    spec_w[l] *= r0[l] + fr * (r1[l] - r0[l])
-                            if pend_n == 0 or pend_n >= REWEIGHT_EVERY:
-                                if pend_n > 0:
-                                    if PROFILED:
-                                        catch_up_dyed(spec_w, log_s, d_mu_u, spec_dye, pend_n, pend_l, pend_d)
-                                        pend_d = 0.0
-                                    else:
-                                        catch_up(spec_w, log_s, d_mu_t, pend_n, pend_l)
-                                    pend_n = 0
-                                    pend_l = 0.0
-                                w_max = largest(spec_w)
-                            else:
-                                decide = False  # decided at the next update (any rule is unbiased)
-                    if decide and w * w_max < w_threshold:
-                        if w <= 0.0 or w_max <= 0.0:
-                            break
-                        alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette(w, h_gain, h_killed, survival,
-                                                                              inv_survival, s0, s1, s2, s3)
-                        if not alive:
-                            break
-                else:
-                    # --- boundary --------------------------------------------------------
-                    s_b = distance_to_boundary(geometry, size, x, y, z, ux, uy, uz)
-                    if PROFILED:
-                        inner = core_length(y, z, uy, uz, s_b, dye_radius)
-                        pend_d += inner if dye_mode == DYE_CORE else s_b - inner
-                    x += s_b * ux
-                    y += s_b * uy
-                    z += s_b * uz
-                    path += s_b
-                    if SCORING:
-                        if reweight:
-                            pend_l += s_b
-                    x, y, z = snap_to_surface(geometry, size, x, y, z, uz)
-                    nx, ny, nz = outward_normal(geometry, size, x, y, z, uz)
-                    cos_i = ux * nx + uy * ny + uz * nz
-                    if rough:
-                        r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                        r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                        r3, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-                        ox, oy, oz, factor, crossed = rough_cross(ux, uy, uz, nx, ny, nz, n_in, 1.0, m_rough,
-                                                                  m_rough_b, to_uniform(r), to_uniform(r2),
-                                                                  to_uniform(r3))
-                        # the crossing's weight factor is 1 on average less the facets' masking loss
-                        # (.rough); its difference from 1 is booked as absorbed (signed: one facet's
-                        # draw may weigh more than 1), so every photon's balance stays exact
-                        absorbed += w * (1.0 - factor)
-                        if factor <= 0.0:
-                            break
-                        w *= factor
-                        if not crossed:
-                            ux = ox
-                            uy = oy
-                            uz = oz
-                            reflections_total += 1
-                            continue
-                        wx = ox
-                        wy = oy
-                        wz = oz
-                    elif contrast:
-                        reflect, s0, s1, s2, s3 = fresnel_reflects(cos_i, n_in, s0, s1, s2, s3)
-                        if reflect:
-                            ux, uy, uz = mirror(ux, uy, uz, nx, ny, nz, cos_i, geometry == SLAB)
-                            reflections_total += 1
-                            continue
-                        wx, wy, wz = refract_out(ux, uy, uz, nx, ny, nz, cos_i, n_in)
-                    else:
-                        wx = ux
-                        wy = uy
-                        wz = uz
-                    face = 0
-                    if geometry == SLAB and nz < 0.0:
-                        face = 1
-                    if face == 0:
-                        h_exit0 = w
-                        if scatterings == 0:
-                            unscattered0 += w
-                    else:
-                        h_exit1 = w
-                        if scatterings == 0:
-                            unscattered1 += w
-                    path_total += w * path
-                    if SCORING:
-                        if reweight and (pend_n > 0 or pend_l > 0.0):
-                            if PROFILED:
-                                catch_up_dyed(spec_w, log_s, d_mu_u, spec_dye, pend_n, pend_l, pend_d)
-                            else:
-                                catch_up(spec_w, log_s, d_mu_t, pend_n, pend_l)
-                        T.score_exit(tally_mode, inp.tally_params, inp.outputs, scratch, spec_w, face, (x, y, z),
-                                     (wx, wy, wz), w, scatterings)
-                    break
-            # --- the one end of every history: flush per-photon tallies -------------------
-            exit0 += h_exit0
-            exit0_sq += h_exit0 * h_exit0
-            exit1 += h_exit1
-            exit1_sq += h_exit1 * h_exit1
-            gain += h_gain
-            killed += h_killed
-            net_sq += (h_gain - h_killed) * (h_gain - h_killed)
-            if SCORING:
-                T.flush_history(scratch, bins)
-            events_total += events
-            scatterings_total += scatterings
-
-        scal[T.S_LAUNCHED] += photons
-        scal[T.S_LAUNCH_WEIGHT] += launch_weight
-        scal[T.S_SPECULAR] += specular
-        scal[T.S_ENTERED] += entered
-        scal[T.S_EXIT0] += exit0
-        scal[T.S_EXIT0_SQ] += exit0_sq
-        scal[T.S_EXIT1] += exit1
-        scal[T.S_EXIT1_SQ] += exit1_sq
-        scal[T.S_UNSCATTERED0] += unscattered0
-        scal[T.S_UNSCATTERED1] += unscattered1
-        scal[T.S_ABSORBED] += absorbed
-        scal[T.S_ROULETTE_GAIN] += gain
-        scal[T.S_ROULETTE_KILLED] += killed
-        scal[T.S_ROULETTE_NET_SQ] += net_sq
-        scal[T.S_CAPPED] += capped
-        scal[T.S_CAPPED_WEIGHT] += capped_weight
-        scal[T.S_EVENTS] += events_total
-        scal[T.S_SCATTERINGS] += scatterings_total
-        scal[T.S_INTERNAL_REFLECTIONS] += reflections_total
-        scal[T.S_PATH_LENGTH] += path_total
+            absorbed, reflections = _walk_profiled(inp, recs, photons, seed, batch, bins, acc)
+        elif SCORING:
+            absorbed, reflections = _walk_scoring(inp, recs, photons, seed, batch, bins, acc)
+        else:
+            absorbed, reflections = _walk_plain(inp, recs, photons, seed, batch, bins, acc)
+        acc[T.S_LAUNCHED] = photons
+        acc[T.S_ABSORBED] = absorbed
+        acc[T.S_INTERNAL_REFLECTIONS] = reflections
+        add_totals(scal, acc)
 
     return simulate_batch
 
@@ -663,10 +722,13 @@ def _make_rows_runner(profiled: bool = False):
     def run_rows(inp: KernelInputs, sources: np.ndarray, seeds: np.ndarray, job_row: np.ndarray,
                  job_batch: np.ndarray, total_photons: int, batch_size: int, scal: np.ndarray,
                  bins: np.ndarray) -> None:
-        """Run jobs ``i`` = batch ``job_batch[i]`` of run ``job_row[i]`` (source ``sources[row]``, seed
+        """Run many runs' batches, one job a row, in parallel.
+
+        Run jobs ``i`` = batch ``job_batch[i]`` of run ``job_row[i]`` (source ``sources[row]``, seed
         ``seeds[row]``, ``total_photons`` photons per run) in parallel, job ``i`` into row ``i`` of
         ``scal`` / ``bins`` (zeroed first). Each job is exactly the batch that :func:`run_batches`
-        runs for that run alone: the same stream ``(seed, batch)`` and photons."""
+        runs for that run alone: the same stream ``(seed, batch)`` and photons.
+        """
         if STAMP < 0:  # never: the stamp only keys the cache (see _source_stamp)
             return
         for i in numba.prange(job_row.shape[0]):

@@ -8,12 +8,13 @@ by one event; the two chains interleave, the core overlaps them (the gain, measu
 docs/notes/implementation.md, "The photon kernel").
 
 The physics is that of the kernel's plain slab path, event for event (module docstring of
-:mod:`.kernel`), and its events are the kernel's own helpers, inlined (:mod:`.events`: the smooth
-entry, implicit capture, the Fresnel decision, the mirror image, roulette; :func:`.scatter.sample_direction`):
-exponential free paths (ziggurat), the Henyey-Greenstein or table phase function with the MCML direction
-update (only ``u_z`` is carried: nothing of a plain slab run reads ``u_x, u_y``, and the code that would
-compute them is dead and left out by the compiler), Fresnel exits with internal reflection, the event cap,
-and the same scalar accumulators (:mod:`.tallies` ``S_*``).
+:mod:`.kernel`), and its events are the kernel's own helpers, inlined (:mod:`.events`: the walk's
+constants, the smooth entry, implicit capture, the Fresnel decision, the mirror image, roulette;
+:func:`.scatter.sample_direction`). The loop itself is written in one piece, its sums in registers: the
+free path, the roulette threshold and the end of a history written as the kernel's helpers cost this loop
+a few per cent (docs/notes/implementation.md, "The photon kernel"). Only ``u_z`` is carried: nothing of a
+plain slab run reads ``u_x, u_y``, and the code that would compute them is dead and left out by the compiler.
+
 What differs is which random numbers a photon gets: lane 0 of batch ``b`` draws from stream
 ``(seed, b)``, lane 1 from stream ``(seed, b + LANE_OFFSET)`` (:mod:`.rng`), each lane takes every
 photon it can until its share (``ceil(n/2)``, ``floor(n/2)``) is done, and the slab entry needs no
@@ -27,63 +28,52 @@ other run keeps :func:`.kernel.simulate_batch`.
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.events import fresnel_reflects, implicit_capture, mirror, refract_in, roulette
+from simulate.montecarlo.events import fresnel_reflects, implicit_capture, mirror, refract_in, roulette, walk_constants
 from simulate.montecarlo.rng import exponential, seed_state
-from simulate.montecarlo.scatter import hg_constants, sample_direction
+from simulate.montecarlo.scatter import sample_direction
 
 __all__ = ["LANE_OFFSET", "simulate_batch_slab_lanes"]
 
 #: lane 1 of batch ``b`` uses stream ``(seed, b + LANE_OFFSET)`` (batches stay far below it)
 LANE_OFFSET = 1 << 62
 
-# medium / control slots of kernel.KernelInputs (kernel.M_*, kernel.C_*; kernel imports this module)
-_M_MU_A, _M_MU_S, _M_G, _M_N, _M_PHASE = 0, 1, 2, 3, 4
-_C_WEIGHT_THRESHOLD, _C_SURVIVAL, _C_MAX_EVENTS = 0, 1, 2
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # as kernel._FASTMATH
 
 
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _slab_entry(walk, source):
+    """The entry of every photon of a plain slab run.
+
+    At the origin of the top face (normal +z), along ``-w`` (``w = source[1:4]``): ``(u_z, f_in)``, the
+    direction's ``z`` component inside and the reflected fraction.
+    """
+    dx = -source[1]
+    dy = -source[2]
+    dz = -source[3]
+    if walk.contrast:
+        _, _, uz0, f_in = refract_in(dx, dy, dz, 0.0, 0.0, 1.0, -dz, walk.n_in, walk.eta_in)
+        return uz0, f_in
+    return dz, 0.0
+
+
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
-def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, batch: int,
+def simulate_batch_slab_lanes(inp, source: np.ndarray, photons: int, seed: int, batch: int,  # noqa: C901 (one loop)
                               scal: np.ndarray, bins: np.ndarray) -> None:
     """Transport ``photons`` photons of batch ``batch`` through the plain slab, adding to ``scal``.
 
     The signature of :func:`.kernel.simulate_batch` (``inp`` a :class:`.kernel.KernelInputs` of a
     slab with no tallies; ``bins`` is not written).
     """
-    medium = inp.medium
-    mu_a = medium[_M_MU_A]
-    mu_s = medium[_M_MU_S]
-    g = medium[_M_G]
-    n_in = medium[_M_N]
-    phase = int(medium[_M_PHASE])
-    table = inp.table
-    size = inp.geom[0]
-    mu_t = mu_a + mu_s
-    inv_mu_t = 1.0 / mu_t if mu_t > 0.0 else math.inf
-    albedo = mu_s / mu_t if mu_t > 0.0 else 0.0
-    absorb = 1.0 - albedo
-    w_threshold = inp.control[_C_WEIGHT_THRESHOLD]
-    survival = inp.control[_C_SURVIVAL]
-    inv_survival = 1.0 / survival
-    max_events = int(inp.control[_C_MAX_EVENTS])
-    contrast = n_in != 1.0
-    hg = hg_constants(g)
-    # the entry is the same for every photon: at the origin of the top face (normal +z), along -w
-    dx = -source[1]
-    dy = -source[2]
-    dz = -source[3]
-    cos_i = -dz
-    if contrast:
-        _, _, uz0, f_in = refract_in(dx, dy, dz, 0.0, 0.0, 1.0, cos_i, n_in, 1.0 / n_in)
-    else:
-        f_in = 0.0
-        uz0 = dz
+    walk = walk_constants(inp.medium, inp.control)
+    # the walk's constants as locals: the loop below is written in one piece (module docstring)
+    inv_mu_t, albedo, absorb, n_in, contrast = walk.inv_mu_t, walk.albedo, walk.absorb, walk.n_in, walk.contrast
+    phase, g, hg, table, size = walk.phase, walk.g, walk.hg, inp.table, inp.geom[0]
+    w_threshold, survival, inv_survival, max_events = walk.w_threshold, walk.survival, walk.inv_survival, walk.max_events
+    uz0, f_in = _slab_entry(walk, source)  # the same for every photon
     w_in = 1.0 - f_in
     if not w_in > 0.0:  # no light enters (never for an incidence below 90 degrees)
         scal[T.S_LAUNCHED] += photons
