@@ -334,6 +334,18 @@ def test_colour_strips_one_per_dataset_and_incidence(demo_like):
     first = measured[0]
     c = comparison.measured.colour_at(first["theta_i"], first["phi_i"], *_in_plane_o(first))
     assert np.allclose(first["rgb"][0], c.rgb)
+    # every swatch of a measured and a simulated strip, converted together, is the colour of
+    # its own spectrum at its geometry (compare.bands.colour_at, one spectrum at a time)
+    from compare.bands import colour_at
+
+    by_label = {**{f"{comparison.measured.name} (measured)": comparison.measured}, **comparison.simulated}
+    for strip in (first, next(s for s in strips if not s["measured"])):
+        ds = by_label[strip["label"]]
+        for k, s in enumerate(strip["s"]):
+            c = colour_at(ds, strip["theta_i"], strip["phi_i"],
+                          *_in_plane_o({**strip, "s": strip["s"][k:]}), illuminant=comparison.illuminant)
+            np.testing.assert_allclose(strip["rgb"][k], c.rgb, rtol=1e-12, atol=1e-15)
+            assert strip["h"][k] == pytest.approx(c.h, rel=1e-12, abs=1e-15)
     text = demo_like["html"]
     assert "Colour strips: the colour of each dataset along each in-plane curve" in text
     assert "Hue of linear sRGB (deg; 0/360 red, 300 magenta) at the ends" in text
