@@ -84,14 +84,13 @@ def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -
 
     import matplotlib.pyplot as plt
     from matplotlib.layout_engine import PlaceHolderLayoutEngine
+    from PIL import Image
 
-    # fig.tight_layout() leaves a placeholder layout engine on the figure, and savefig draws a figure
-    # that has a layout engine once more (text measured again) before drawing it into the file; the
-    # layout is final here, so the figure is saved without one: one draw per file
+    # fig.tight_layout() leaves a placeholder layout engine on the figure, and a draw of a figure
+    # that has a layout engine runs it once more (text measured again) before drawing; the layout
+    # is final here, so the figure is drawn without one: one draw per file
     if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine):
         fig.set_layout_engine(None)
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=FIGURE_DPI, metadata={"Software": None})
     out = {}
     if svg:
         import matplotlib
@@ -101,6 +100,16 @@ def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -
         with matplotlib.rc_context({"svg.hashsalt": "fabric-optics"}):
             fig.savefig(vector, format="svg", metadata={"Date": None})
         out[path.with_suffix(".svg")] = vector.getvalue()
+    # the pixels savefig(format="png") would write (one Agg draw at FIGURE_DPI), encoded without
+    # their alpha channel when the figure is opaque (every report figure is: a quarter fewer bytes
+    # to compress and to embed, the same picture)
+    fig.set_dpi(FIGURE_DPI)
+    fig.canvas.draw()
+    pixels = np.asarray(fig.canvas.buffer_rgba())
+    opaque = bool(np.all(pixels[..., 3] == 255))
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(pixels[..., :3]) if opaque else pixels).save(
+        buffer, format="png", dpi=(FIGURE_DPI, FIGURE_DPI))
     plt.close(fig)
     data = buffer.getvalue()
     out[path] = data
