@@ -42,12 +42,12 @@ import numpy as np
 import pandas as pd
 
 from gonio.data import GEOMETRY, Dataset
-from gonio.data.colour import spectrum_colour, spectrum_to_rgb
+from gonio.data.colour import spectra_srgb, spectrum_colour, spectrum_to_rgb
 
 from .errors import CompareError
 
 __all__ = ["ASTM_STEPS_NM", "CODES", "COLOUR_STEP_NM", "MIN_CHANNEL_COVERAGE", "Bands",
-           "channel_coverage", "colour_at", "colour_resampling", "conversion_matrix", "prepare"]
+           "channel_coverage", "colour_at", "colour_resampling", "conversion_matrix", "prepare", "spectra_colours"]
 
 #: Band code of each channel inside the comparison (not a wavelength).
 CODES = {"R": 1.0, "G": 2.0, "B": 3.0, "Y": 4.0}
@@ -193,6 +193,22 @@ def colour_at(ds: Dataset, theta_i: float, phi_i: float, theta_o: float, phi_o: 
     if interp is not None:
         beta = interp @ beta
     return spectrum_colour(grid, beta, illuminant=illuminant)
+
+
+def spectra_colours(wavelength_nm, betas, illuminant: str = "D65") -> tuple[np.ndarray, np.ndarray]:
+    """Linear sRGB and hue (turns) of many spectra on one grid, each as :func:`colour_at` gives it.
+
+    One spectrum per row of ``betas``, resampled as :func:`colour_at` does and converted at once
+    (:func:`gonio.data.colour.spectra_srgb`); a row whose colour :func:`colour_at` would refuse
+    (NaN or infinite values, an overflow) is NaN. ValueError for a grid it refuses.
+    """
+    wl = np.asarray(wavelength_nm, dtype=float).ravel()
+    values = np.asarray(betas, dtype=float).reshape(-1, wl.size)
+    grid, interp = colour_resampling(wl)
+    if interp is not None:
+        values = values @ interp.T
+    rgb, hsv = spectra_srgb(grid, values, illuminant=illuminant)
+    return rgb, hsv[:, 0]
 
 
 @lru_cache(maxsize=32)

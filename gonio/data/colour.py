@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ColourSummary", "check_illuminant", "colourspace", "display_srgb", "hue_difference", "rgb_colour",
-           "spectrum_colour", "spectrum_to_rgb"]
+           "spectra_srgb", "spectrum_colour", "spectrum_to_rgb"]
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 
@@ -129,6 +129,79 @@ def spectrum_colour(wavelength_nm, beta, illuminant: str = "D65") -> ColourSumma
     return ColourSummary(h=float(hsv[0]), s=float(hsv[1]), v=float(hsv[2]),
                          blue_red=_ratio(b, r), green_red=_ratio(g, r), rgb=(r, g, b),
                          xyz=(float(xyz[0]), float(xyz[1]), float(xyz[2])), illuminant=illuminant)
+
+
+def spectra_srgb(wavelength_nm, betas, illuminant: str = "D65") -> tuple[np.ndarray, np.ndarray]:
+    """Linear sRGB and HSV of many spectra on one wavelength grid: :func:`spectrum_colour` row by row.
+
+    The spectrum-to-XYZ step of colour-science (ASTM E308) is linear in the spectrum, so it is the
+    matrix whose column ``j`` is the CIE XYZ of the unit spectrum at wavelength ``j`` (computed
+    once per grid and illuminant by :func:`spectrum_colour` itself); XYZ -> linear sRGB -> HSV are
+    then colour-science's own calls on all rows at once. The result equals converting each row
+    with :func:`spectrum_colour` to the rounding of the sum (about 1e-16 relative).
+
+    Parameters
+    ----------
+    wavelength_nm : array_like
+        The grid (as :func:`spectrum_colour`).
+    betas : array_like
+        Radiance coefficients, one spectrum per row (shape ``(m, n)`` for ``n`` wavelengths).
+    illuminant : str
+        A key of ``colour.SDS_ILLUMINANTS``.
+
+    Returns
+    -------
+    rgb, hsv : ndarray
+        Shape ``(m, 3)`` each. A row whose spectrum holds NaN or infinite values, or whose colour
+        overflows (where :func:`spectrum_colour` raises), is NaN.
+
+    Raises
+    ------
+    ValueError
+        A grid :func:`spectrum_colour` refuses, rows of another length than the grid, or an unknown
+        illuminant.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> wl = np.arange(390, 711, 10)
+    >>> rgb, hsv = spectra_srgb(wl, [np.full(33, 0.5), np.linspace(0.1, 0.9, 33)])
+    >>> c = spectrum_colour(wl, np.linspace(0.1, 0.9, 33))
+    >>> bool(np.allclose(rgb[1], c.rgb, rtol=1e-12)), bool(np.isclose(hsv[1, 0], c.h, rtol=1e-12))
+    (True, True)
+    """
+    import colour
+
+    wl = np.asarray(wavelength_nm, dtype=float).ravel()
+    values = np.asarray(betas, dtype=float)
+    if values.ndim != 2 or values.shape[1] != wl.size:
+        raise ValueError(f"{wl.size} wavelengths but spectra of shape {values.shape}")
+    weights = _xyz_weights(tuple(wl.tolist()), illuminant)
+    _, _, white_xy = _illuminant_data(illuminant)
+    finite = np.all(np.isfinite(values), axis=1)
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
+        xyz = np.where(finite[:, None], values, 0.0) @ weights.T
+        rgb = np.asarray(colour.XYZ_to_RGB(xyz, _colourspace("sRGB"), illuminant=white_xy), dtype=float)
+        rgb = rgb.reshape(-1, 3)
+        bad = ~(finite & np.all(np.isfinite(xyz), axis=1) & np.all(np.isfinite(rgb), axis=1))
+        rgb[bad] = np.nan
+        hsv = np.asarray(colour.RGB_to_HSV(np.where(bad[:, None], 0.0, rgb)), dtype=float).reshape(-1, 3)
+    hsv[bad] = np.nan
+    return rgb, hsv
+
+
+@functools.lru_cache(maxsize=32)
+def _xyz_weights(wavelengths: tuple[float, ...], illuminant: str) -> np.ndarray:
+    """``W`` (3 x n): ``W @ beta`` is :func:`spectrum_colour`'s ``xyz`` of ``beta`` on ``wavelengths``."""
+    wl = np.asarray(wavelengths)
+    out = np.empty((3, wl.size))
+    for j in range(wl.size):
+        unit = np.zeros(wl.size)
+        unit[j] = 1.0
+        out[:, j] = spectrum_colour(wl, unit, illuminant=illuminant).xyz
+    out.setflags(write=False)
+    return out
 
 
 def colourspace(name: str):

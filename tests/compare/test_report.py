@@ -71,6 +71,41 @@ def test_figures_are_150_dpi_png_and_svg_on_request(demo_like):
         assert svg.is_file() and b"<svg" in svg.read_bytes()[:2000]
 
 
+def test_a_saved_figure_is_the_picture_savefig_draws(tmp_path):
+    """save_figure writes the pixels of matplotlib's own PNG at FIGURE_DPI: an opaque figure as RGB
+    (no alpha channel to compress), a figure with transparent parts keeps its alpha."""
+    import io
+    from pathlib import Path
+
+    import matplotlib.pyplot as plt
+
+    from compare.report.figures import save_figure
+
+    def figure(transparent):
+        fig, ax = plt.subplots(figsize=(3, 2))
+        ax.plot([0, 1, 2], [1, 0, 2], "o-", label="a")
+        ax.fill_between([0, 1, 2], [0, 0, 1], [1, 1, 2], alpha=0.3)
+        ax.set_title("title")
+        ax.legend()
+        fig.tight_layout()
+        if transparent:
+            fig.patch.set_alpha(0.0)
+        return fig
+
+    for transparent, mode in ((False, "RGB"), (True, "RGBA")):
+        reference = io.BytesIO()
+        fig = figure(transparent)
+        fig.savefig(reference, format="png", dpi=FIGURE_DPI)
+        plt.close(fig)
+        files: dict = {}
+        data = save_figure(figure(transparent), Path("figures/x.png"), files=files)
+        assert files == {Path("figures/x.png"): data}
+        ours, theirs = Image.open(io.BytesIO(data)), Image.open(reference)
+        assert ours.mode == mode and ours.size == theirs.size
+        assert min(ours.info["dpi"]) == pytest.approx(FIGURE_DPI, abs=0.5)
+        np.testing.assert_array_equal(np.asarray(ours.convert("RGBA")), np.asarray(theirs.convert("RGBA")))
+
+
 def test_the_same_report_gives_the_same_svg_bytes(demo_like, tmp_path):
     """The SVGs carry no random element ids: writing the same comparison again reproduces them
     byte for byte (a report under version control changes only where its data does)."""
@@ -334,6 +369,18 @@ def test_colour_strips_one_per_dataset_and_incidence(demo_like):
     first = measured[0]
     c = comparison.measured.colour_at(first["theta_i"], first["phi_i"], *_in_plane_o(first))
     assert np.allclose(first["rgb"][0], c.rgb)
+    # every swatch of a measured and a simulated strip, converted together, is the colour of
+    # its own spectrum at its geometry (compare.bands.colour_at, one spectrum at a time)
+    from compare.bands import colour_at
+
+    by_label = {**{f"{comparison.measured.name} (measured)": comparison.measured}, **comparison.simulated}
+    for strip in (first, next(s for s in strips if not s["measured"])):
+        ds = by_label[strip["label"]]
+        for k, s in enumerate(strip["s"]):
+            c = colour_at(ds, strip["theta_i"], strip["phi_i"],
+                          *_in_plane_o({**strip, "s": strip["s"][k:]}), illuminant=comparison.illuminant)
+            np.testing.assert_allclose(strip["rgb"][k], c.rgb, rtol=1e-12, atol=1e-15)
+            assert strip["h"][k] == pytest.approx(c.h, rel=1e-12, abs=1e-15)
     text = demo_like["html"]
     assert "Colour strips: the colour of each dataset along each in-plane curve" in text
     assert "Hue of linear sRGB (deg; 0/360 red, 300 magenta) at the ends" in text

@@ -21,7 +21,7 @@ import colorsys
 import numpy as np
 import pytest
 
-from gonio.data.colour import display_srgb, hue_difference, spectrum_colour
+from gonio.data.colour import display_srgb, hue_difference, spectra_srgb, spectrum_colour
 
 WL = np.arange(390.0, 711.0, 10.0)
 WL_1NM = np.arange(360.0, 831.0, 1.0)
@@ -123,3 +123,27 @@ def test_hue_difference_wraps():
     assert hue_difference(0.02, 0.98) == pytest.approx(-0.04)
     assert hue_difference(0.25, 0.5) == pytest.approx(0.25)
     np.testing.assert_allclose(hue_difference([0.1, 0.9], [0.9, 0.1]), [-0.2, 0.2])
+
+
+@pytest.mark.parametrize("wl, illuminant", [(WL, "D65"), (WL, "A"), (np.arange(400.0, 701.0, 20.0), "D65"),
+                                            (np.arange(380.0, 781.0, 5.0), "D50")])
+def test_many_spectra_at_once_are_each_spectrum_colour(wl, illuminant):
+    """spectra_srgb (one matrix per grid) against spectrum_colour called row by row (colour-science's chain)."""
+    rng = np.random.default_rng(7)
+    betas = np.vstack([rng.uniform(0.0, 1.0, (5, wl.size)), np.full(wl.size, 1e308), np.full(wl.size, np.nan)])
+    betas[5, 0] = 0.5                       # not all equal: an overflow whatever the weights
+    rgb, hsv = spectra_srgb(wl, betas, illuminant=illuminant)
+    assert rgb.shape == hsv.shape == (7, 3)
+    for row, beta in enumerate(betas[:5]):
+        c = spectrum_colour(wl, beta, illuminant=illuminant)
+        np.testing.assert_allclose(rgb[row], c.rgb, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(hsv[row], (c.h, c.s, c.v), rtol=1e-12, atol=1e-15)
+    # where spectrum_colour refuses (an overflow, a NaN), the row is NaN
+    for row in (5, 6):
+        with pytest.raises(ValueError):
+            spectrum_colour(wl, betas[row], illuminant=illuminant)
+        assert np.all(np.isnan(rgb[row])) and np.all(np.isnan(hsv[row]))
+    with pytest.raises(ValueError, match="spectra of shape"):
+        spectra_srgb(wl, betas[:, 1:])
+    with pytest.raises(ValueError, match="strictly increasing"):
+        spectra_srgb(wl[::-1], betas)
