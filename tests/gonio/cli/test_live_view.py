@@ -92,10 +92,14 @@ def _state(url: str) -> dict:
 
 
 def _comparable_meta(run: Path) -> dict:
-    """meta.json without what differs between two runs of one plan on two mocks (time, link URLs)."""
+    """meta.json without what differs between two runs of one plan on two mocks (time, link URLs), and with
+    only the injected fault's retries: a reply late on a loaded machine adds a serial timeout's retry to one
+    run and not the other."""
     meta = json.loads((run / "meta.json").read_text())
     meta.pop("created")
     meta.pop("instrument")
+    retries = meta["provenance"]["retries"]
+    meta["provenance"]["retries"] = {"axis_fault": retries.get("axis_fault", 0)}
     return meta
 
 
@@ -185,6 +189,7 @@ def test_state_follows_the_run_and_the_page_is_guarded(drv, tmp_path):
     # the dataset and the journal are those of the run without the view
     assert (out / "radiance.csv").read_bytes() == (tmp_path / "plain" / "radiance.csv").read_bytes()
     assert _comparable_meta(out) == _comparable_meta(tmp_path / "plain")
+    assert _comparable_meta(out)["provenance"]["retries"] == {"axis_fault": 1}
     total = len(load_plan(plan).check().ordered)
     assert len(read_journal(out / "journal.jsonl").of_type("point")) == total
     # points arrived one by one, the position never went back, the time left was given
@@ -205,8 +210,9 @@ def test_state_follows_the_run_and_the_page_is_guarded(drv, tmp_path):
                 assert b == pytest.approx(want[0], rel=1e-8) and u == pytest.approx(want[1], rel=1e-8)
     # the fault: counted where the driver retried it, and in the retry totals
     faulted = [f for f in seen[-1]["faults"] if "axis_fault" in f["kinds"]]
-    assert len(faulted) == 1 and faulted[0]["kinds"] == {"axis_fault": 1} and not faulted[0]["error"]
-    assert any(s["retries"] == {"axis_fault": 1} for s in running)
+    # (a reply late on a loaded machine may add a serial timeout beside it)
+    assert len(faulted) == 1 and faulted[0]["kinds"]["axis_fault"] == 1 and not faulted[0]["error"]
+    assert any(s["retries"].get("axis_fault") == 1 for s in running)
     # the end: the dataset as written, every geometry at every wavelength
     end = seen[-1]
     assert end["status"] == "complete" and end["done"] == total and end["dataset"] == str(out)
