@@ -150,7 +150,7 @@ lint: $(STAMP)
 
 # The documentation site (docs/, mkdocs.yml) in strict mode: a broken link, a missing page or a
 # docstring reference that does not resolve fails the build. Site in site/. `make test` builds it too
-# (tests/docs/test_docs_build.py). `make reference` regenerates the command-line and config pages,
+# (tests/docs/test_browser.py). `make reference` regenerates the command-line and config pages,
 # `make figures` the tables of measured figures from docs/data/*.json.
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --site-dir site
