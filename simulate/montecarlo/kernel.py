@@ -58,6 +58,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from simulate.montecarlo import rough as R
 from simulate.montecarlo import tallies as T
 from simulate.montecarlo.events import (
     C_MAX_EVENTS,
@@ -100,7 +101,6 @@ from simulate.montecarlo.geometry import (
     snap_to_surface,
 )
 from simulate.montecarlo.rng import next_u64, seed_state, to_uniform
-from simulate.montecarlo.rough import rough_cross, rough_entry
 from simulate.montecarlo.scatter import PHASE_HG, PHASE_TABLE, sample_direction
 from simulate.montecarlo.slab_lanes import simulate_batch_slab_lanes
 
@@ -275,6 +275,21 @@ def _beam(geometry, source):
     return src_mode, -source[1], -source[2], -source[3], source[4], geometry != SLAB and src_mode == CELL
 
 
+# The rough surface's two events are compiled once as functions of their own and called, not inlined:
+# numba's inlining of their sizeable code made up about a fifth of the photon loop's compile time, while
+# a call (scalars in and out) costs nothing measurable at the rate rough runs make it.
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _rough_entry(dx, dy, dz, nx, ny, nz, n_in, m_a, m_b, xi1, xi2):
+    """:func:`.rough.rough_entry`, called (not inlined)."""
+    return R.rough_entry(dx, dy, dz, nx, ny, nz, n_in, m_a, m_b, xi1, xi2)
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _rough_cross(ux, uy, uz, nx, ny, nz, n1, n2, m_a, m_b, xi1, xi2, xi3):
+    """:func:`.rough.rough_cross`, called (not inlined)."""
+    return R.rough_cross(ux, uy, uz, nx, ny, nz, n1, n2, m_a, m_b, xi1, xi2, xi3)
+
+
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
 def _enter(geometry, size, beam, walk, acc, absorbed, s0, s1, s2, s3):
     """A photon enters the medium from the source.
@@ -295,7 +310,7 @@ def _enter(geometry, size, beam, walk, acc, absorbed, s0, s1, s2, s3):
     if walk.rough and w0 > 0.0:
         r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
         r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-        ux, uy, uz, t_in, f_in = rough_entry(dx, dy, dz, nx, ny, nz, walk.n_in, walk.m_rough, walk.m_rough_b,
+        ux, uy, uz, t_in, f_in = _rough_entry(dx, dy, dz, nx, ny, nz, walk.n_in, walk.m_rough, walk.m_rough_b,
                                              to_uniform(r), to_uniform(r2))
     elif walk.contrast and w0 > 0.0:
         ux, uy, uz, f_in = refract_in(dx, dy, dz, nx, ny, nz, cos_i, walk.n_in, walk.eta_in)
@@ -407,7 +422,7 @@ def _cross_boundary(geometry, size, walk, p, u, w, absorbed, state):
         r, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
         r2, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
         r3, s0, s1, s2, s3 = next_u64(s0, s1, s2, s3)
-        ox, oy, oz, factor, crossed = rough_cross(ux, uy, uz, nx, ny, nz, walk.n_in, 1.0, walk.m_rough,
+        ox, oy, oz, factor, crossed = _rough_cross(ux, uy, uz, nx, ny, nz, walk.n_in, 1.0, walk.m_rough,
                                                   walk.m_rough_b, to_uniform(r), to_uniform(r2), to_uniform(r3))
         absorbed += w * (1.0 - factor)
         if factor <= 0.0:
@@ -475,7 +490,9 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
         x, y, z, ux, uy, uz, w, absorbed, s0, s1, s2, s3 = _enter(geometry, size, beam, walk, acc, absorbed,
                                                                   s0, s1, s2, s3)
         h_gain = h_killed = path = pend_l = pend_d = 0.0
-        events = scatterings = pend_n = 0
+        # int64, not the literal 0: the counters are arguments of compiled (not inlined) helpers, which
+        # type inference would otherwise also compile once for the literal
+        events = scatterings = pend_n = np.int64(0)
         face = _LOST
         capped = False
         if scoring and rw.reweight:
