@@ -33,6 +33,8 @@ from render_figures import ROOT, record  # noqa: E402
 
 #: what ``make demo`` builds of the environment: the project without the test and docs extras (Makefile, BASE_STAMP)
 DEMO_ENV = ".venv/.installed-base-stamp"
+#: the name of that step in docs/data/demo.json
+ENV_STEP = "the environment (the project alone)"
 
 
 def recipe() -> list[str]:
@@ -110,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     # the recipe is read once the environment exists (before, make -n would list its build)
-    if code := step("make venv", ["make", "-s", DEMO_ENV]):
+    if code := step(ENV_STEP, ["make", "-s", DEMO_ENV]):
         return code
     for command in recipe():
         print(command, flush=True)

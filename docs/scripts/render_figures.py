@@ -176,7 +176,7 @@ def fig_demo_cost() -> str:
         rows.append(["wall time of a second `make demo` in the same clone", f"{minutes} min {seconds:02d} s"
                      f" ({again['cpu_seconds']:.0f} CPU s, {again['peak_rss_mb'] / 1024:.1f} GB)"])
         for step, secs in again.get("steps", {}).items():
-            if step != "make venv":
+            if step not in ("make venv", "the environment (the project alone)"):
                 rows.append([f"second run: `{step}`", f"{secs:.0f} s"])
     note = f" ({d['conditions']}" + (f"; the second run: {again['conditions']}" if again and again.get("conditions")
                                        else "") + ")" if d.get("conditions") else ""
