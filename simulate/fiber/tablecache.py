@@ -443,6 +443,10 @@ def entries(directory: Path | None = None) -> list[tuple[float, int, Path]]:
     return out
 
 
+#: the name prefix of a finished fit's entry (:mod:`fabric_optics.fitting.reuse`): evicted after the tables
+FIT_PREFIX = "fit-"
+
+
 def _mb(n: float) -> str:
     return f"{n / 1e6:,.1f} MB"
 
@@ -450,7 +454,8 @@ def _mb(n: float) -> str:
 def evict(limit: int | None = None) -> int:
     """Delete the least recently used entries until the total is at most ``limit`` (default :func:`max_bytes`).
 
-    Entries this process stored or read go last (module docstring); each eviction is logged at INFO,
+    A finished fit's entry goes after every table, and entries this process stored or read go last
+    (module docstring); each eviction is logged at INFO,
     and a warning says when this process's own tables alone exceed the bound. Also removes temporary
     files older than an hour (left by a killed writer). Returns the bytes freed.
     """
@@ -472,8 +477,11 @@ def evict(limit: int | None = None) -> int:
         return 0
     with _STORED_LOCK:
         used = set(_USED)
-    # least recently used first, this process's own entries after every other one
-    order = [e for e in items if str(e[2]) not in used] + [e for e in items if str(e[2]) in used]
+    # least recently used first; a finished fit (a few MB, a whole fit to compute again) after every table; this
+    # process's own entries after every other one
+    others = [e for e in items if str(e[2]) not in used]
+    order = ([e for e in others if not e[2].name.startswith(FIT_PREFIX)]
+             + [e for e in others if e[2].name.startswith(FIT_PREFIX)] + [e for e in items if str(e[2]) in used])
     start, freed, gone, own = total, 0, 0, 0
     for mtime, size, p in order:
         if total <= limit:

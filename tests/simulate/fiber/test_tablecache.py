@@ -306,3 +306,22 @@ def test_storing_a_table_holds_no_copy_of_it(cache):
     assert peak < 0.6 * table.nbytes, f"store allocated {peak / 2 ** 20:.0f} MiB for a {table.nbytes / 2 ** 20:.0f} MiB table"
     got = tc.load("yarn-big")
     assert got is not None and np.array_equal(got["T"], table)
+
+
+def test_a_finished_fit_is_evicted_after_every_table(cache, monkeypatch):
+    """A finished fit's entry (a few MB standing for a whole fit) outlives the tables around it, although it is
+    the least recently used: the tables go first."""
+    one = {"a": np.zeros(10_000)}
+    for name in ("fit-old", "yarn-a", "yarn-b"):
+        tc.store(name, one)
+    entry = tc.entries()[0][1]
+    for name, t in (("fit-old", 1_000_000), ("yarn-a", 1_000_100), ("yarn-b", 1_000_200)):
+        os.utime(cache / f"{name}{tc.SUFFIX}", (t, t))
+    monkeypatch.setattr(tc, "_USED", set())                 # as if another run had made all three
+    monkeypatch.setenv(tc.ENV_MAX_BYTES, str(int(2.5 * entry)))
+    tc.store("yarn-next", one)                               # 4 entries over a bound of 2.5: two go
+    names = {p.name for _, _, p in tc.entries()}
+    assert names == {f"fit-old{tc.SUFFIX}", f"yarn-next{tc.SUFFIX}"}
+    from fabric_optics.fitting import reuse
+
+    assert tc.FIT_PREFIX == f"{reuse.KIND}-"                 # the prefix of the fits' keys
