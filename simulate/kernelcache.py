@@ -288,7 +288,18 @@ _held: set[str] = set()
 
 
 def compile_lock_path(dispatcher: Any) -> str | None:
-    """The lock file of ``dispatcher``'s compilation: beside its cache index, or None when not ours."""
+    """The lock file of ``dispatcher``'s compilation, beside its cache index.
+
+    Parameters
+    ----------
+    dispatcher : numba dispatcher
+        A ``cache=True`` kernel.
+
+    Returns
+    -------
+    str or None
+        The lock file's path, or None when the kernel is not cached by :class:`ContentHashLocator`.
+    """
     cache = getattr(dispatcher, "_cache", None)
     locator: Any = getattr(getattr(cache, "_impl", None), "locator", None)  # numba's locator, or ours
     if ContentHashLocator is None or not isinstance(locator, ContentHashLocator):
