@@ -29,8 +29,9 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
-from typing import Any, Callable, Hashable, Sequence
+from typing import Any
 
 import numba
 
@@ -49,11 +50,23 @@ IDLE_FOR_WORKER = 0.5
 
 
 def idle_cores(seconds: float = 0.1) -> float | None:
-    """Cores left idle by every process on the machine over ``seconds`` (``/proc/stat``; None where it is not).
+    """Cores left idle by every process on the machine over ``seconds``, read from ``/proc/stat``.
 
     Two entries at once finish a walk sooner when the second core is free, but cost more CPU than one after
     the other (GIL hand-offs, page faults of two tables at once), so with the other core busy they are
-    slower. The choice changes no number (bit-identical either way), only the time."""
+    slower. The choice changes no number (bit-identical either way), only the time.
+
+    Parameters
+    ----------
+    seconds : float
+        How long to watch the machine's CPU counters.
+
+    Returns
+    -------
+    float or None
+        The number of idle cores (``cpu_count`` times the idle share of the interval), or None where
+        ``/proc/stat`` cannot be read.
+    """
     def sample() -> tuple[int, int]:
         with open("/proc/stat") as f:
             v = [int(x) for x in f.readline().split()[1:]]
@@ -69,10 +82,24 @@ def idle_cores(seconds: float = 0.1) -> float | None:
 
 
 def plan(threads: int | None, n_entries: int) -> tuple[int, int | None]:
-    """``(workers, kernel threads per worker)`` for ``n_entries`` entries and a budget of ``threads``
-    (None: numba's thread count of the caller, i.e. the cores, and a second worker only if
-    :func:`idle_cores` finds a core idle). One worker keeps ``threads`` as given (the serial walk); ``w``
-    workers split the budget, ``budget // w`` each (at least 1)."""
+    """The number of worker threads for a walk's entries and the kernel threads each worker gets.
+
+    One worker keeps ``threads`` as given (the serial walk); ``w`` workers split the budget,
+    ``budget // w`` each (at least 1).
+
+    Parameters
+    ----------
+    threads : int or None
+        The walk's thread budget; None: numba's thread count of the caller (the cores), and a second
+        worker only if :func:`idle_cores` finds at least :data:`IDLE_FOR_WORKER` cores idle.
+    n_entries : int
+        The entries left to walk (never more workers than entries, nor than :data:`MAX_WORKERS`).
+
+    Returns
+    -------
+    (int, int or None)
+        ``(workers, kernel threads per worker)``.
+    """
     budget = numba.get_num_threads() if threads is None else int(threads)
     workers = max(1, min(MAX_WORKERS, budget, n_entries))
     if workers > 1 and threads is None:
@@ -89,7 +116,8 @@ class Progress:
 
     ``report(entry)`` gives the entry's callback ``(photons so far, runs so far)``; :meth:`finish` moves the
     entry's final counts to the finished total. Every update and every call of ``callback`` is under one
-    lock, so the calls see sums that never decrease (each entry's own counts only grow)."""
+    lock, so the calls see sums that never decrease (each entry's own counts only grow).
+    """
 
     def __init__(self, callback: Callable[[int, int, int], None] | None, runs: int) -> None:
         self.callback, self.runs = callback, runs
@@ -110,6 +138,20 @@ class Progress:
             self.callback(p, r, self.runs)
 
     def report(self, entry: Hashable) -> Callable[[int, int], None]:
+        """The progress callback of one entry.
+
+        Parameters
+        ----------
+        entry : hashable
+            The entry whose counts the callback reports.
+
+        Returns
+        -------
+        callable
+            ``report(photons, runs)``, the entry's counts so far; it raises :class:`Cancelled` when the
+            walk was interrupted, and otherwise calls the walk's callback with the new sums.
+        """
+
         def report(photons: int, done: int) -> None:
             self.tick()
             with self.lock:
@@ -118,6 +160,17 @@ class Progress:
         return report
 
     def finish(self, entry: Hashable, photons: int, runs: int) -> None:
+        """Move a finished entry's counts from the running entries to the finished total.
+
+        Parameters
+        ----------
+        entry : hashable
+            The finished entry.
+        photons : int
+            The photons it walked.
+        runs : int
+            The runs it made.
+        """
         with self.lock:
             self.partial.pop(entry, None)
             self.photons += int(photons)
@@ -127,9 +180,26 @@ class Progress:
 
 def run_entries(entries: Sequence[Any], work: Callable[[Any, int | None], Any], finished: Callable[[Any, Any], None],
                 *, workers: int, kernel_threads: int | None, progress: Progress) -> None:
-    """``finished(entry, work(entry, kernel_threads))`` for every entry: in order in this thread when
-    ``workers == 1``, else ``work`` on ``workers`` threads and ``finished`` here in completion order
-    (module docstring: cancel, interrupts)."""
+    """Call ``finished(entry, work(entry, kernel_threads))`` for every entry, on threads when ``workers > 1``.
+
+    With ``workers == 1`` the entries run in order in this thread; otherwise ``work`` runs on ``workers``
+    threads and ``finished`` here, in completion order (module docstring: cancel, interrupts).
+
+    Parameters
+    ----------
+    entries : sequence
+        The entries to run.
+    work : callable
+        ``work(entry, kernel_threads) -> result``, run on a worker thread.
+    finished : callable
+        ``finished(entry, result)``, run in the calling thread as each entry is done.
+    workers : int
+        The number of worker threads (1: the serial walk in this thread).
+    kernel_threads : int or None
+        Each worker's thread count for its compiled parallel loops (None: numba's default).
+    progress : Progress
+        The walk's shared progress; its cancel event stops the running entries on an exception.
+    """
     if workers <= 1:
         for e in entries:
             finished(e, work(e, kernel_threads))

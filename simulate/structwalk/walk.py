@@ -73,8 +73,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numba
 import numpy as np
@@ -111,8 +112,26 @@ def facets_of(config: Any) -> Any:
 
 
 def surface_beta(config: Any, facets: Any, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
-    """``beta [N]`` of the layers' surface term (Cook-Torrance with masking) summed over ``facets``
-    (:func:`simulate.fabric.structure.surface_layer_table` through :func:`~simulate.fabric.structure.fabric_beta_from_G`)."""
+    """The layers' surface term (Cook-Torrance with masking) summed over ``facets``.
+
+    The surface term is analytic (:func:`simulate.fabric.structure.surface_layer_table`), so the fit sums it
+    over the facets apart from the walked volume term, through
+    :func:`~simulate.fabric.structure.fabric_beta_from_G`.
+
+    Parameters
+    ----------
+    config : Config
+        The fabric's config: its ``structure``, ``rms_slope`` and ``n_host``.
+    facets : Facets
+        The visible fiber orientations (:func:`facets_of`).
+    w_i, w_o : numpy.ndarray
+        Incident and exit directions, ``[N, 3]`` unit vectors.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``beta [N]`` of the surface term at the ``N`` geometries.
+    """
     from simulate.fabric.structure import fabric_beta_from_G, surface_layer_table
 
     lt = surface_layer_table(config.structure, config.rms_slope, config.n_host)
@@ -154,20 +173,50 @@ class StructWalk:
         return self._optics
 
     def group_scatterings(self) -> np.ndarray:
+        """The mean scatterings per photon of each wavelength group of half 0, in group order.
+
+        Returns
+        -------
+        numpy.ndarray
+            One value per entry of :attr:`groups` (0 where a group has no count).
+        """
         return np.array([self.scatterings.get(f"0:{gi}", 0.0) for gi in range(len(self.groups))])
 
     @property
     def nu_max(self) -> float:
+        """The largest host-absorption node walked (1/um): the dye's absorption the table reaches."""
         return float(self.nodes[-1])
 
     def table(self, key: tuple, facets: Any, w_i: np.ndarray, w_o: np.ndarray,
               wavelengths_nm: np.ndarray | None = None) -> AbsorptionTable:
-        """The fabric's volume ``beta`` (and interior return) at the geometries, ``R [N, L, K]``, for ``facets``
-        (memoised by ``key``): mean of the halves, ``u`` half their difference (as ``structured_beta``).
+        """The fabric's volume ``beta`` (and interior return) at the geometries, at every absorption node.
 
-        ``wavelengths_nm``: the model's wavelengths, when the walk was walked at fewer
-        (:func:`walk_wavelengths`): ``R`` and ``u`` read linearly in the wavelength at every absorption
-        node (the dye is applied afterwards at each model wavelength, exactly)."""
+        ``R [N, L, K]`` is the mean of the two halves' facet sums and ``u`` half their difference, as in
+        :func:`simulate.fabric.structure.structured_beta`. The last eight tables are memoised by ``key``.
+
+        Parameters
+        ----------
+        key : tuple
+            What the facets depend on (:func:`structure_key`) and the geometries: the memo's key.
+        facets : Facets
+            The visible fiber orientations (:func:`facets_of`).
+        w_i, w_o : numpy.ndarray
+            Incident and exit directions, ``[N, 3]`` unit vectors.
+        wavelengths_nm : numpy.ndarray, optional
+            The model's wavelengths, when the walk was walked at fewer (:func:`walk_wavelengths`): ``R``
+            and ``u`` are read linearly in the wavelength at every absorption node (the dye is applied
+            afterwards at each model wavelength, exactly). None: the walked wavelengths.
+
+        Returns
+        -------
+        AbsorptionTable
+            ``R`` and ``u_R`` over the geometries, wavelengths and nodes, with the walk's counts.
+
+        Raises
+        ------
+        ValueError
+            If ``wavelengths_nm`` reaches outside the walked wavelengths.
+        """
         if key in self._tables:
             return self._tables[key]
         from simulate.fabric.fiberlayer import LayerTable
@@ -205,8 +254,10 @@ WALK_STEP_NM = 20.0
 
 
 def walk_wavelengths(wavelengths_nm: Any) -> np.ndarray:
-    """The wavelengths the fit's structured walk is walked at: every ``s``-th model wavelength of a uniform
-    grid, ``s`` the largest stride with a step of at most :data:`WALK_STEP_NM` that keeps both ends (else all).
+    """The wavelengths the fit's structured walk is walked at: a uniform grid thinned to at most a 20 nm step.
+
+    Every ``s``-th model wavelength of a uniform grid is kept, ``s`` the largest stride with a step of at
+    most :data:`WALK_STEP_NM` that keeps both ends (else all of them).
 
     A spectral measurement at 10 nm (33 wavelengths, 390-710) is walked at 20 nm (17): the walk's cost is
     proportional to its channels (wavelengths x absorption nodes), and between two walked wavelengths
@@ -216,6 +267,16 @@ def walk_wavelengths(wavelengths_nm: Any) -> np.ndarray:
     the fit's NRMSE, hue and saturation unchanged within the Monte Carlo error. ASTM E308's 20 nm
     table is the coarsest the colour terms use, so 20 nm is the step (an RGB measurement's model
     wavelengths, the config's 20 nm, are walked as they are).
+
+    Parameters
+    ----------
+    wavelengths_nm : array_like
+        The model's wavelengths (nm), ascending.
+
+    Returns
+    -------
+    numpy.ndarray
+        The wavelengths to walk, a subset of ``wavelengths_nm`` with both ends.
     """
     wl = np.asarray(wavelengths_nm, float)
     if wl.size < 3:
@@ -230,8 +291,10 @@ def walk_wavelengths(wavelengths_nm: Any) -> np.ndarray:
 
 
 def photons_per_row(target_rel_err: float) -> int:
-    """Photons per exit-table row of each half of the fit's walk: ``PHOTONS_PER_ROW_AT_1PCT (0.01 / target)^2 / 2``
-    rounded UP to a multiple of ``FIT_ROW_QUANTUM`` (so at least 2000).
+    """Photons per exit-table row of each half of the fit's walk for a target relative error.
+
+    ``PHOTONS_PER_ROW_AT_1PCT (0.01 / target)^2 / 2`` rounded UP to a multiple of ``FIT_ROW_QUANTUM`` (so at
+    least 2000).
 
     The fit has no accuracy loop (its dye changes at every evaluation, so the rounds that
     :func:`simulate.fiber.farfield.controlled_halves` would add at one dye mean nothing at another)
@@ -240,6 +303,16 @@ def photons_per_row(target_rel_err: float) -> int:
     ``PHOTONS_PER_ROW_AT_1PCT``): hence the floor. ``simulate fabric --method summation`` evaluates the
     same model in its fixed-photons mode, :func:`simulate.fabric.structure.structured_beta` with
     ``photons_per_row=`` this number (one round, the first round's streams).
+
+    Parameters
+    ----------
+    target_rel_err : float
+        The fit's target relative error of ``beta`` (0.01: 1 %).
+
+    Returns
+    -------
+    int
+        Photons per row of each half.
     """
     from simulate.fabric.structure import PHOTONS_PER_ROW_AT_1PCT
 
@@ -255,8 +328,10 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
                    target_rel_err: float, seed: int, threads: int | None = None, reference: Any = None,
                    progress: Callable[[int, int, int], None] | None = None, max_group: int = 7,
                    cache: bool = True) -> StructWalk:
-    """Walk the two exit tables of ``nodye`` (the fiber without dye; its roughness is the interior closure's)
-    scored at every host-absorption node, and reduce them chunk by chunk to layer tables (module docstring).
+    """Walk the two exit tables of a fiber without dye at every absorption node and reduce them to layer tables.
+
+    The exit tables of ``nodye`` (the fiber without dye; its roughness is the interior closure's) are scored
+    at every host-absorption node and reduced chunk by chunk to layer tables (module docstring).
 
     Streams and photons are those of :func:`simulate.fiber.farfield.exit_table` called by
     :func:`simulate.fabric.structure.structured_beta` in its fixed-photons mode with ``photons_per_row(target_rel_err)``
@@ -280,6 +355,37 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
     The numbers do not depend on the thread: bit-identical to the serial walk (hits read first, entries
     assembled by index; ``tests/fabric_optics/fitting/test_walk_threads.py``). Progress: one lock-guarded monotone
     sum. Ctrl-C: re-raised at once, the workers stop at their next tick, finished entries are stored.
+
+    Parameters
+    ----------
+    nodye : Fiber
+        The fiber without dye, whose scattering is scored.
+    config : Config
+        The fabric's config with ``[structure]`` (the layer count and the walk's part of the structure).
+    wavelengths_nm : numpy.ndarray
+        The wavelengths to walk (nm; :func:`walk_wavelengths`).
+    nodes : numpy.ndarray
+        The host-absorption nodes (1/um) the exit tables are scored at.
+    target_rel_err : float
+        The target relative error that sets the photons per row (:func:`photons_per_row`).
+    seed : int
+        The config's seed; the streams follow from it (:func:`seed_of`).
+    threads : int, optional
+        The thread budget (None: the cores; 1: the serial walk).
+    reference : Fiber, optional
+        A fiber whose scattering the photons are walked in, scored for ``nodye``'s by the likelihood ratio.
+    progress : callable, optional
+        ``progress(photons, runs done, runs)``, called with sums that never decrease.
+    max_group : int
+        The most wavelengths in one chunk (and so in one exit table held in memory).
+    cache : bool
+        Read and store the (half, chunk) layer tables in the disk cache.
+
+    Returns
+    -------
+    StructWalk
+        The two halves' layer tables at every (wavelength, node) channel, with the walk's counts and
+        where its tables came from (``cache``: "miss", "hit", "partial" or "off").
     """
     from simulate.fabric.fiberlayer import layer_grid
     from simulate.fiber import farfield as FF
@@ -350,7 +456,9 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
         # (FF.cached) and the lazy imports (miepython's import wraps numba.njit: not thread-safe)
         spectral_optics(fiber, wl)
         spectral_optics(walk_fiber, wl)
-        import simulate.fabric.fiberlayer, simulate.fabric.interior, simulate.fiber.bssrdf  # noqa: F401, E401
+        import simulate.fabric.fiberlayer  # noqa: F401
+        import simulate.fabric.interior  # noqa: F401
+        import simulate.fiber.bssrdf  # noqa: F401
     # the index in the walk of each chunk's first wavelength group (group k walks on the exit table's stream of
     # group k, seed_of); the hits need none
     counts = [len(wavelength_groups(spectral_optics(walk_fiber, wl[ch]))) if missing else 0 for ch in chunks]
@@ -360,7 +468,7 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
         got = small[(0, c)]
         sizes = np.asarray(got["group_sizes"], int)
         local = np.split(np.asarray(got["group_index"], int), np.cumsum(sizes)[:-1])
-        for g, n in zip(local, np.asarray(got["scatterings"], float)):
+        for g, n in zip(local, np.asarray(got["scatterings"], float), strict=True):
             scatterings[f"0:{len(groups_global)}"] = float(n)
             groups_global.append(chunk[g])
     photons = sum(int(v["photons"]) for v in small.values())
@@ -447,15 +555,18 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
                 per_row: int, seed: int, half: int, group0: int, threads: int | None,
                 report: Callable[[int, int], None], tick: Callable[[], None] | None = None,
                 spare: list | None = None) -> dict:
-    """One (half, chunk) of :func:`walk_structure`: its exit table walked at every node, symmetrised, reduced to
-    the layer table (with the interior closure). Returns the cache entry's arrays.
+    """One (half, chunk) of :func:`walk_structure`: its exit table walked, symmetrised and reduced to a layer table.
+
+    The exit table is walked at every node and reduced to the layer table with the interior closure.
+    Returns the cache entry's arrays.
 
     ``group0``: the index, in the whole walk, of the chunk's first wavelength group; the chunk's group ``g``
     walks on the stream of group ``group0 + g`` (:func:`seed_of`).
 
     ``spare``: a list of flat float64 buffers to take the exit table's memory from and give it back to (the
     table, ~0.6 GB on the felt, is written whole by the rows -- every node, row and wavelength group -- so
-    a used buffer needs no zeroing, and a fresh one per entry would cost its page faults)."""
+    a used buffer needs no zeroing, and a fresh one per entry would cost its page faults).
+    """
     from simulate.fabric.structure import layer_table_of
     from simulate.fiber import farfield as FF
     from simulate.fiber.bssrdf import bssrdf_rows, lit_rows
@@ -512,9 +623,12 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
 
 @numba.njit(cache=True, parallel=True, nogil=True)
 def _symmetrise(T):
-    """In place, :func:`simulate.fiber.farfield._symmetrised` (each row averaged with the mirror image of its
-    opposite: row ``r -> R-1-r``, exit cell ``o -> -o``, exit azimuth bin ``p -> P-1-p``) in one pass
-    without the three ``[W, K, n_psi, n_mu, n_phi, L]`` temporaries (on the felt, tables of ~0.6 GB each)."""
+    """In place, :func:`simulate.fiber.farfield._symmetrised` in one pass without temporaries.
+
+    Each row is averaged with the mirror image of its opposite: row ``r -> R-1-r``, exit cell ``o -> -o``,
+    exit azimuth bin ``p -> P-1-p``. One pass avoids the three ``[W, K, n_psi, n_mu, n_phi, L]``
+    temporaries (on the felt, tables of ~0.6 GB each).
+    """
     W, R, O, M, P, C = T.shape
     for w in numba.prange(W):
         for r in range(R):
@@ -531,14 +645,32 @@ def _symmetrise(T):
 
 
 def seed_of(seed: int, half: int, node: int, group: int) -> int:
-    """The stream of exit-table node ``node``, wavelength group ``group`` (counted over the whole walk) of half
-    ``half``: :func:`simulate.fiber.farfield.exit_table`'s rule (node ``104729 i``, and
+    """The random stream of one exit-table node and wavelength group of one half of the walk.
+
+    :func:`simulate.fiber.farfield.exit_table`'s rule (node ``104729 i``, and
     :func:`simulate.fiber.bssrdf.bssrdf_table`'s group ``GROUP_SEED_STEP k``) with ``structured_beta``'s seed
     ``2 seed + half``. Every group has its own stream: the groups' errors are independent, as in ``simulate
     fabric``. Where the walk's groups are the exit table's and none is blended with its neighbour (the
     exit table blends two groups of 2 or more wavelengths across their boundary, the walk does not), the
     streams are the same and the two differ by the roulette only
-    (``tests/fabric_optics/fitting/test_fit_structure.py``, three wavelengths in two groups)."""
+    (``tests/fabric_optics/fitting/test_fit_structure.py``, three wavelengths in two groups).
+
+    Parameters
+    ----------
+    seed : int
+        The config's seed.
+    half : int
+        The half of the controlled halves, 0 or 1.
+    node : int
+        The index of the exit table's incidence node.
+    group : int
+        The wavelength group, counted over the whole walk.
+
+    Returns
+    -------
+    int
+        The stream's seed.
+    """
     from simulate.fiber.bssrdf import GROUP_SEED_STEP
 
     return (2 * int(seed) + half) * 1_000_003 + 104_729 * node + GROUP_SEED_STEP * group
