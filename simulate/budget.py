@@ -132,6 +132,18 @@ def medium_coefficients(medium: Any, wavelengths: Any) -> dict[str, np.ndarray]:
     a hit returns the float64 values :meth:`~simulate.media.medium.MieMedium.optical_properties`
     gives (``with_phase=False``), without importing miepython. Shared by the cost check and the felt
     tracer's exit-bin choice (:func:`simulate.raytrace.estimate.fiber_scatterings`).
+
+    Parameters
+    ----------
+    medium : MieMedium
+        The particles in their host.
+    wavelengths : array_like
+        Wavelengths (nm).
+
+    Returns
+    -------
+    dict of str -> numpy.ndarray
+        ``"mu_s"``, ``"mu_a"`` and ``"g"``, one value per wavelength.
     """
     wl = np.atleast_1d(np.asarray(wavelengths, float))
 
@@ -152,7 +164,7 @@ def _events_per_photon(config: SimulationConfig, wavelengths: np.ndarray) -> flo
         props = [(mu_s, mu_a, g)] * len(wavelengths)
     else:
         coeffs = medium_coefficients(config.medium(wavelengths), wavelengths)
-        props = [(float(s), float(a), float(g)) for s, a, g in zip(coeffs["mu_s"], coeffs["mu_a"], coeffs["g"])]
+        props = [(float(s), float(a), float(g)) for s, a, g in zip(coeffs["mu_s"], coeffs["mu_a"], coeffs["g"], strict=True)]
     events = []
     for mu_s, mu_a, g in props:
         tau_s = mu_s * diameter
@@ -169,6 +181,23 @@ def estimate_cost(config: SimulationConfig, wavelengths: Any, target_rel_err: fl
 
     The Mie part is estimated from the size parameter alone; the events per photon need the
     medium's coefficients (no phase function), computed only when the Mie part is affordable.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The run's fiber, medium and particles.
+    wavelengths : array_like
+        Wavelengths of the run (nm).
+    target_rel_err : float
+        The run's target relative error, which sets the photons.
+    max_photons : int, optional
+        A photon budget; the estimate is bounded by it when it is smaller than the target needs.
+
+    Returns
+    -------
+    CostEstimate
+        Photons, events per photon (NaN when the Mie part alone is beyond :data:`MAX_SECONDS`), the
+        Mie part's seconds and the total seconds.
     """
     wl = np.atleast_1d(np.asarray(wavelengths, float))
     mie = _mie_seconds(config, wl)
@@ -186,8 +215,23 @@ def check_cost(config: SimulationConfig, wavelengths: Any, target_rel_err: float
                max_photons: int | None = None, *, runs: int = 1) -> str | None:
     """Refuse (:class:`BudgetError`) or announce (the returned warning line) a costly run.
 
-    ``runs``: independent runs of this cost (the points of a sweep). Returns None for a run
-    estimated under :data:`WARN_SECONDS`.
+    Parameters
+    ----------
+    config : SimulationConfig
+        The run's config; its ``source`` names the file in the messages.
+    wavelengths : array_like
+        Wavelengths of the run (nm).
+    target_rel_err : float
+        The run's target relative error.
+    max_photons : int, optional
+        The run's photon budget (``--max-photons``, ``method.max_photons``).
+    runs : int
+        Independent runs of this cost (the points of a sweep).
+
+    Returns
+    -------
+    str or None
+        A one-line warning for a run estimated beyond :data:`WARN_SECONDS`, else None.
 
     Raises
     ------

@@ -52,9 +52,10 @@ import re
 import shutil
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import Any, Sequence
+from typing import Any
 
 __all__ = ["PACKAGE_GROUPS", "KEEP", "cache_base", "version_tag", "source_key", "install", "ContentHashLocator",
            "compile_lock_path"]
@@ -77,7 +78,7 @@ def cache_base() -> Path:
     return (Path(xdg).expanduser() if xdg else Path.home() / ".cache") / "fabric-optics" / "numba"
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def version_tag() -> str:
     """``numba-<v>-llvmlite-<v>-<python cache tag>-<machine>``: a compiled kernel is reused only by these."""
     import llvmlite
@@ -87,7 +88,7 @@ def version_tag() -> str:
             f"{platform.machine() or 'unknown'}")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _package_root(py_file: str) -> tuple[str, str] | None:
     """``(folder holding the top-level package, top-level package)`` of a module file, or None outside a package."""
     folder = os.path.dirname(py_file)
@@ -105,10 +106,12 @@ def _group(top: str) -> tuple[str, ...] | None:
     return None
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _group_modules(root: str, group: tuple[str, ...]) -> dict[str, str]:
-    """Dotted module name -> file of every module of the group's packages under ``root`` (a package: its
-    ``__init__.py``); one listing per folder, once per process."""
+    """Dotted module name -> file of every module of the group's packages under ``root``.
+
+    A package's file is its ``__init__.py``; one listing per folder, once per process.
+    """
     out: dict[str, str] = {}
     for top in group:
         for folder, dirs, files in os.walk(os.path.join(root, top)):
@@ -132,7 +135,7 @@ def _module_files(modules: dict[str, str], dotted: str) -> list[str]:
     return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _imports(py_file: str, root: str, group: tuple[str, ...], mtime_ns: int, size: int) -> tuple[str, ...]:
     """The files of ``group`` that ``py_file``'s import statements name (memoised by the file's stamp)."""
     with open(py_file, "rb") as f:
@@ -161,13 +164,27 @@ def _imports(py_file: str, root: str, group: tuple[str, ...], mtime_ns: int, siz
 def source_key(py_file: str | os.PathLike[str]) -> str:
     """SHA-256 (hex) of a module's and its group's imported modules' package-relative paths and contents.
 
-    Raises ValueError for a file outside :data:`PACKAGE_GROUPS`' packages. Memoised per file and
-    process (the files are read once per process, as numba reads its sources).
+    Memoised per file and process (the files are read once per process, as numba reads its sources).
+
+    Parameters
+    ----------
+    py_file : str or os.PathLike
+        A module file of one of :data:`PACKAGE_GROUPS`' packages.
+
+    Returns
+    -------
+    str
+        The key, 64 hex digits.
+
+    Raises
+    ------
+    ValueError
+        For a file outside :data:`PACKAGE_GROUPS`' packages.
     """
     return _source_key(os.path.realpath(py_file))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _source_key(path: str) -> str:
     found = _package_root(path)
     group = _group(found[1]) if found else None
@@ -189,7 +206,7 @@ def _source_key(path: str) -> str:
     return digest.hexdigest()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _content_digest(py_file: str, mtime_ns: int, size: int) -> bytes:
     """SHA-256 of a file's bytes (memoised by its stamp, as numba memoises its own source hashes)."""
     with open(py_file, "rb") as f:
@@ -208,7 +225,7 @@ def _prune(module_dir: Path, stem: str, keep: int) -> None:
         shutil.rmtree(p, ignore_errors=True)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _place(py_file: str, base: str) -> tuple[str, str, str, str] | None:
     """``(cache folder, module folder, module name, key)`` of a module of :data:`PACKAGE_GROUPS`, else None."""
     path = os.path.realpath(py_file)
@@ -315,7 +332,8 @@ def _locked(compile_: Any) -> Any:
     both compile it; with the lock the second waits and then loads what the first saved. The lock is
     taken inside numba's own compiler lock (one compiling thread per process), so a kernel compiled
     inside another's compilation cannot deadlock; the kernel releases it when its process ends,
-    however it ends."""
+    however it ends.
+    """
     from numba.core.compiler_lock import global_compiler_lock
 
     @functools.wraps(compile_)
@@ -392,7 +410,8 @@ def install() -> None:
     """Put :class:`ContentHashLocator` first among numba's cache locators, now or when numba is imported.
 
     Must run before a ``cache=True`` kernel is defined (``simulate`` and ``fabric_optics`` call it on
-    import). Idempotent."""
+    import). Idempotent.
+    """
     caching = sys.modules.get("numba.core.caching")
     if caching is not None:
         _register(caching)
