@@ -68,17 +68,43 @@ def _is_blend(config: Any) -> bool:
 
 
 def table_for(config: Any) -> str | None:
-    """The shipped table's file name for ``config`` (by its ``[structure] kind``; a blend's of
-    :data:`BLEND_TABLES`), None for no studied kind. Whether a blend lies within its table's study is
-    :func:`blend_outside`'s."""
+    """The shipped method-errors table's file name for ``config``, by its ``[structure] kind``.
+
+    A blend's table is one of :data:`BLEND_TABLES`. Whether a blend lies within its table's study is
+    :func:`blend_outside`'s.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The fabric's config.
+
+    Returns
+    -------
+    str or None
+        The table's file name, None for a config without ``[structure]`` or of no studied kind.
+    """
     structure = getattr(config, "structure", None)
     tables = BLEND_TABLES if _is_blend(config) else TABLES
     return None if structure is None else tables.get(getattr(structure, "kind", None))
 
 
 def no_study(config: Any, why: str | None = None) -> dict:
-    """The empty table of a config of no studied kind, or of a blend outside its study (``why``): every
-    geometry gets the Monte Carlo, and one line is logged."""
+    """The empty table of a config of no studied kind, or of a blend outside its study.
+
+    With it every geometry gets the Monte Carlo; the reason is logged on one line.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The fabric's config.
+    why : str, optional
+        Why the blend lies outside its study (:func:`blend_outside`); None: the config's kind has no study.
+
+    Returns
+    -------
+    dict
+        A table with no geometries, its ``provenance`` holding the logged reason.
+    """
     if why is None:
         structure = getattr(config, "structure", None)
         kind = "no [structure] table" if structure is None else f'[structure] kind = "{structure.kind}"'
@@ -92,13 +118,27 @@ def no_study(config: Any, why: str | None = None) -> dict:
 
 
 def dye_spread(config: Any, wavelengths_nm: Any = SPREAD_WAVELENGTHS) -> float:
-    """How differently a blend's populations absorb: the largest, over ``wavelengths_nm``, of the
-    share-weighted standard deviation of the populations' transmittance along a fiber's mean dyed chord.
+    """How differently a blend's populations absorb, from 0 (alike) to 0.5.
+
+    The largest, over ``wavelengths_nm``, of the share-weighted standard deviation of the populations'
+    transmittance along a fiber's mean dyed chord.
 
     Each population's transmittance is ``exp(-mu_dye(lambda) A_dyed / (2 r))``: its dye's absorption over
     the mean length a straight line across the fiber spends in the dyed region (the dyed area of the
     section over the fiber's width: ``pi r / 2`` for a dye through the fiber, the ring's or core's area
     over ``2 r`` for a placed one). 0 for one population or populations of one dye; 0.5 at most.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The blend's config (its ``population_configs()``).
+    wavelengths_nm : array_like
+        The wavelengths (nm) the spread is taken over.
+
+    Returns
+    -------
+    float
+        The dye spread.
     """
     wl = np.asarray(wavelengths_nm, float)
     shares, trans = [], []
@@ -119,8 +159,23 @@ def dye_spread(config: Any, wavelengths_nm: Any = SPREAD_WAVELENGTHS) -> float:
 
 
 def blend_outside(config: Any, errors: dict) -> str | None:
-    """Why the blend ``config`` lies outside the blend study ``errors`` (its populations differ in more than
-    their dye, or their :func:`dye_spread` exceeds the study's ``provenance.dye_spread``); None within it."""
+    """Why a blend lies outside a blend study, or None within it.
+
+    A blend lies outside when its populations differ in more than their dye, or when their
+    :func:`dye_spread` exceeds the study's ``provenance.dye_spread``.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The blend's config (its ``populations``).
+    errors : dict
+        The blend study (:func:`load_errors`).
+
+    Returns
+    -------
+    str or None
+        The reason, one line, or None when the study holds for the blend.
+    """
     pops = config.populations
     for attr, label in _SAME:
         # by their text: a particle spectrum holds arrays
@@ -138,8 +193,21 @@ def blend_outside(config: Any, errors: dict) -> str | None:
 
 
 def load_errors(path: Any = None, name: str = "method-errors.json") -> dict:
-    """A shipped study by file ``name`` (red cotton's by default), or the one at ``path`` (written by
-    :func:`fabric_optics.bench.method_errors.errors_from_report`)."""
+    """A method-errors study: a shipped one by file name, or one written to a path.
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        A study written by :func:`fabric_optics.bench.method_errors.errors_from_report`; None: the shipped
+        study ``name``.
+    name : str
+        The shipped study's file name in ``simulate.configs`` (red cotton's by default).
+
+    Returns
+    -------
+    dict
+        The study: ``provenance`` (a shipped one's with its ``table`` name) and ``geometries``.
+    """
     if path is None:
         text = resources.files("simulate.configs").joinpath(name).read_text()
         out = json.loads(text)

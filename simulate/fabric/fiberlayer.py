@@ -50,14 +50,15 @@ import functools
 import math
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numba
 import numpy as np
 
-from simulate.optics import microfacet
 from simulate.fiber.farfield import ExitTable, cell_frame
+from simulate.optics import microfacet
 from simulate.optics.fresnel import OpticsDomainWarning
 
 __all__ = ["LayerTable", "layer_table", "surface_table", "layer_lookup", "visibility", "visibility_any", "layer_G", "surface_Q", "layer_grid"]
@@ -102,15 +103,32 @@ def visibility_any(w: np.ndarray, psi: np.ndarray, spacing: float | None) -> np.
 
 def cell_fractions(table: ExitTable, w: np.ndarray, spacing: float | None, n_sub: int = 0, radius: float = 1.0
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell: the unshadowed fraction of its irradiance from ``w`` ``[P, n_psi]`` and its unmasked projected
-    width towards ``w`` ``[P, n_psi]`` (um), exactly.
+    """Per cell, exactly: the unshadowed fraction of its irradiance from ``w`` and its unmasked width towards ``w``.
 
     Projected along ``w`` onto the cross-section, a point at ``psi`` has the coordinate
     ``s = R sin(psi - beta)`` across the beam (``n(beta)`` along ``w_perp``) and receives ``E_perp |w_perp| ds``.
     The neighbour ``j = +-1`` that lies towards ``w`` (``j d w_y > 0``) covers ``s`` in
     ``[-j d cos(beta) - R, -j d cos(beta) + R]`` (two disjoint disks: a line of constant ``s`` meets
     the nearer one first); the other neighbours are behind it. Directions below the layer see
-    nothing (``spacing`` given). ``n_sub`` is not used (kept for the signature).
+    nothing (``spacing`` given).
+
+    Parameters
+    ----------
+    table : ExitTable
+        The fiber's exit table (its cells: ``n_psi``, ``dpsi``).
+    w : numpy.ndarray
+        Directions in the layer frame, ``[P, 3]`` (or one ``[3]``).
+    spacing : float or None
+        The fibers' centre spacing over their radius; None: a lone fiber, no neighbour shadows.
+    n_sub : int
+        Not used (kept for the signature).
+    radius : float
+        The fiber's radius (um).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        The unshadowed fraction ``[P, n_psi]`` and the unmasked projected width ``[P, n_psi]`` (um).
     """
     del n_sub
     w = np.atleast_2d(np.asarray(w, float))
@@ -210,6 +228,24 @@ class LayerTable:
 
 
 def layer_grid(step_deg: float, phi_step_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The angles of a :class:`LayerTable`'s grid and its exit directions.
+
+    The incident azimuths span a quarter turn (the layer's two mirror symmetries), the exit azimuths a
+    whole turn; exit directions at 90 degrees are clipped onto the layer's plane.
+
+    Parameters
+    ----------
+    step_deg : float
+        The polar step (degrees), from 0 to 90.
+    phi_step_deg : float
+        The azimuth step (degrees).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray, numpy.ndarray, numpy.ndarray)
+        Polar angles ``[T]``, incident azimuths ``[Pi]`` and exit azimuths ``[Po]`` (degrees), and the exit
+        directions ``[T * Po, 3]`` (polar-major).
+    """
     th = np.arange(0.0, 90.0 + 1e-9, step_deg)
     ph_i = np.arange(0.0, 90.0 + 1e-9, phi_step_deg)
     ph_o = np.arange(0.0, 360.0 + 1e-9, phi_step_deg)
@@ -222,13 +258,35 @@ def layer_grid(step_deg: float, phi_step_deg: float) -> tuple[np.ndarray, np.nda
 @functools.lru_cache(maxsize=8)
 def surface_table(roughness: float, n_host: float, masking: bool, spacing_ratio: float, step_deg: float = 7.5,
                   phi_step_deg: float = 15.0, n_psi: int = 180) -> np.ndarray:
-    """The surface part of ``G`` on the :class:`LayerTable` grid ``[Ti, Pi, To, Po]`` (independent of the
-    exit table and of the fiber radius: ``Q_surf`` and ``d`` both scale with ``R``), cached.
+    """The surface part of ``G`` on the :class:`LayerTable` grid ``[Ti, Pi, To, Po]``, cached.
+
+    It is independent of the exit table and of the fiber radius: ``Q_surf`` and ``d`` both scale with ``R``.
 
     Each incidence's row is :func:`surface_Q` of every exit direction above the layer, computed in compiled code
     (:func:`_surface_weights`: the same operations in the same order, summed by numpy as there; equal to
     :func:`surface_Q`'s table bit for bit, tests/fabric_optics/fitting/test_surface_table.py; about a tenth of its
-    CPU); the exit directions' cell frames and visibility, which do not depend on the incidence, are formed once."""
+    CPU); the exit directions' cell frames and visibility, which do not depend on the incidence, are formed once.
+
+    Parameters
+    ----------
+    roughness : float
+        The fiber surface's RMS slope (Beckmann).
+    n_host : float
+        The fiber's refractive index.
+    masking : bool
+        Whether neighbouring fibers shadow and mask the surface.
+    spacing_ratio : float
+        The fibers' centre spacing over twice their radius.
+    step_deg, phi_step_deg : float
+        The grid's polar and azimuth steps (degrees; :func:`layer_grid`).
+    n_psi : int
+        Surface cells around the fiber in the azimuth sum.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``G_surf [Ti, Pi, To, Po]``, read-only (shared by the cache).
+    """
     from simulate.fiber import Fiber
     from simulate.media.medium import HGMedium
 
@@ -264,10 +322,12 @@ def surface_table(roughness: float, n_host: float, masking: bool, spacing_ratio:
 
 @numba.njit(cache=True, error_model="numpy")
 def _surface_weights(li, lo, lit, seen, m, n_host, log_pi_m2):
-    """``f_CT (w_i . n)(w_o . n) vis_i vis_o`` ``[O, n]``, the terms of :func:`surface_Q`'s azimuth sum: the
-    cell-frame incidence ``li [n, 3]``, exits ``lo [O, n, 3]``, visibilities ``lit [n]`` and ``seen [O, n]``;
+    """``f_CT (w_i . n)(w_o . n) vis_i vis_o`` ``[O, n]``, the terms of :func:`surface_Q`'s azimuth sum.
+
+    From the cell-frame incidence ``li [n, 3]``, exits ``lo [O, n, 3]``, visibilities ``lit [n]`` and ``seen [O, n]``:
     :func:`simulate.optics.microfacet.cook_torrance` (Beckmann ``D``, V-cavity ``G``, unpolarised Fresnel ``F``
-    from outside, index 1, into ``n_host``) written out per point, its operations in numpy's order."""
+    from outside, index 1, into ``n_host``) written out per point, its operations in numpy's order.
+    """
     n_out, n = seen.shape
     w = np.zeros((n_out, n))
     same = n_host == 1.0

@@ -53,14 +53,15 @@ from __future__ import annotations
 import functools
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from simulate.optics import microfacet
-from simulate.fiber.farfield import ExitTable
 from simulate.fabric.fiberlayer import cell_fractions, surface_Q, visibility, visibility_any
+from simulate.fiber.farfield import ExitTable
+from simulate.optics import microfacet
 from simulate.optics.fresnel import reflectance_from_cos
 
 __all__ = ["Interior", "exit_classes", "layer_energy", "interior", "stack_reflectance"]
@@ -108,9 +109,36 @@ def _sphere(n_mu: int) -> tuple[np.ndarray, float]:
 def layer_energy(table: ExitTable, fiber: Any, w_in: np.ndarray, classes: np.ndarray, *, spacing_ratio: float = 1.0,
                  n_sub: int = 8, n_psi_surface: int = 72, n_mu_surface: int = 8,
                  radiance: np.ndarray | None = None) -> np.ndarray:
-    """``[4, L]``: up (unmasked), down (unmasked), all light leaving the lit fibers, and the light passing
-    between the fibers (spacing ratio > 1), per unit layer irradiance. ``radiance``: the beam's
-    :func:`simulate.fabric.fiberlayer.lit_radiance` when the caller has it (with masking)."""
+    """Where a beam's light goes in one fiber layer, per unit layer irradiance.
+
+    The four rows are the light leaving the lit fibers up (unmasked), down (unmasked) and in all, and the
+    light passing between the fibers (spacing ratio > 1); each is the volume part (the exit table's
+    radiance through :func:`exit_classes`) plus the fibers' surface reflection.
+
+    Parameters
+    ----------
+    table : ExitTable
+        The fiber's exit table.
+    fiber : Fiber
+        The fiber (its surface roughness and index).
+    w_in : numpy.ndarray
+        The beam's direction in the layer frame, ``[3]``.
+    classes : numpy.ndarray
+        The exit cells' up and down classes (:func:`exit_classes`).
+    spacing_ratio : float
+        The fibers' centre spacing over their diameter.
+    n_sub : int
+        Passed to :func:`simulate.fabric.fiberlayer.cell_fractions` (not used there).
+    n_psi_surface, n_mu_surface : int
+        The surface reflection's quadrature: cells around the fiber and exit polar steps.
+    radiance : numpy.ndarray, optional
+        The beam's :func:`simulate.fabric.fiberlayer.lit_radiance` when the caller has it (with masking).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[4, L]``: up, down, all leaving, passing between, per wavelength.
+    """
     w_in = np.asarray(w_in, float).reshape(3)
     spacing = 2.0 * spacing_ratio
     d = spacing * table.radius_um
@@ -131,8 +159,11 @@ _SURFACE_LOCK = threading.Lock()
 
 def _surface_energy(wx: float, wy: float, wz: float, spacing: float, roughness: float, n_host: float, n_psi: int,
                     n_mu: int) -> tuple[float, float, float]:
-    """:func:`_surface_energy_of`, cached, computed once per key under a lock: the fit's walk builds two layer
-    tables at once on threads (:mod:`simulate.structwalk.threads`) over the same beams, which would both miss."""
+    """:func:`_surface_energy_of`, cached, computed once per key under a lock.
+
+    The fit's walk builds two layer tables at once on threads (:mod:`simulate.structwalk.threads`) over the
+    same beams, which would both miss.
+    """
     with _SURFACE_LOCK:
         return _surface_energy_of(wx, wy, wz, spacing, roughness, n_host, n_psi, n_mu)
 
@@ -192,8 +223,30 @@ class Interior:
 
     def returned_for_beam(self, table: ExitTable, fiber: Any, w_in: np.ndarray, *, spacing_ratio: float = 1.0,
                           n_sub: int = 8, radiance: np.ndarray | None = None) -> np.ndarray:
-        """``A_ret [L]`` for the beam ``w_in`` on the top layer of ``table`` (its :func:`layer_energy`, then
-        :meth:`returned`); ``radiance``: the beam's lit radiance when the caller has it."""
+        """``A_ret [L]``, the light the layers below return, for a beam on the top layer.
+
+        The beam's :func:`layer_energy`, then :meth:`returned`.
+
+        Parameters
+        ----------
+        table : ExitTable
+            The fiber's exit table.
+        fiber : Fiber
+            The fiber (its surface roughness and index).
+        w_in : numpy.ndarray
+            The beam's direction in the layer frame, ``[3]``.
+        spacing_ratio : float
+            The fibers' centre spacing over their diameter.
+        n_sub : int
+            Passed to :func:`layer_energy`.
+        radiance : numpy.ndarray, optional
+            The beam's lit radiance when the caller has it.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``A_ret [L]`` per unit layer irradiance.
+        """
         return self.returned(layer_energy(table, fiber, w_in, self.classes, spacing_ratio=spacing_ratio, n_sub=n_sub,
                                           radiance=radiance))
 
@@ -202,7 +255,8 @@ def interior(table: ExitTable, fiber: Any, n_layers: int, *, spacing_ratio: floa
              n_phi: int = 4, tick: Callable[[], None] | None = None) -> Interior:
     """Diffuse layer properties by cosine-weighted quadrature over the incident quadrant (mirrors give the rest).
 
-    ``tick``: called before each incident direction (an interrupted caller stops there)."""
+    ``tick``: called before each incident direction (an interrupted caller stops there).
+    """
     if int(n_layers) < 1:
         raise ValueError(f"interior: n_layers must be >= 1, got {n_layers!r}")
     classes = exit_classes(table, 2.0 * spacing_ratio)

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from simulate.optics import microfacet
 from simulate.fabric.fiberlayer import HALF_TURN, LayerTable, lookup_many, lookup_one
+from simulate.optics import microfacet
 
 __all__ = ["FabricTable", "fabric_table"]
 

@@ -187,9 +187,22 @@ class Facets:
 
     @property
     def m_z(self) -> np.ndarray:
+        """``[K]`` the fabric normal's component along each facet's normal (the cosine of its tilt)."""
         return self.M[:, 2, 2]
 
     def visible_fraction(self, system: int) -> float:
+        """The projected-area fraction of one yarn system's facets.
+
+        Parameters
+        ----------
+        system : int
+            0 warp, 1 weft, 2 felt.
+
+        Returns
+        -------
+        float
+            The sum of that system's ``a``.
+        """
         return float(self.a[self.system == system].sum())
 
 
@@ -271,7 +284,8 @@ def felt_facets(spec: StructureSpec, n_azimuth: int = 36, n_incl: int = 9) -> Fa
 
     The needle-punched population (``felt_normal_fraction``) and the crimp (``felt_crimp_percent``) are the
     Monte Carlo's felt's only (:mod:`simulate.geometry.felt`): here they are left out, and said so once per
-    process."""
+    process.
+    """
     if spec.felt_normal_fraction > 0.0 and not _NORMAL_NOTED:
         _NORMAL_NOTED.append(True)
         log.warning("the summation's felt has its fibers in the plane only: [structure] felt_normal_fraction "
@@ -304,10 +318,24 @@ _FUZZ_NOTED: list[bool] = []
 
 
 def merged(facets: Facets, tolerance: float = 0.01) -> Facets:
-    """Facets whose frames agree to ``tolerance`` (each matrix entry) merged: weights summed, frames averaged
-    (re-orthonormalised). A woven micro-element repeats its yarns' shapes, so most sampled facets come
-    in identical pairs; 0.01 (~0.6 deg) merges near-identical ones too, well inside the layer table's
-    7.5-deg grid. ``tolerance = 0`` merges exact duplicates only."""
+    """Facets whose frames agree to ``tolerance`` merged: weights summed, frames averaged and re-orthonormalised.
+
+    A woven micro-element repeats its yarns' shapes, so most sampled facets come in identical pairs; 0.01
+    (~0.6 deg) merges near-identical ones too, well inside the layer table's 7.5-deg grid. Facets of
+    different yarn systems are never merged.
+
+    Parameters
+    ----------
+    facets : Facets
+        The sampled facets.
+    tolerance : float
+        The agreement of each rotation-matrix entry; 0 merges exact duplicates only.
+
+    Returns
+    -------
+    Facets
+        The merged facets; ``info`` gains ``facets`` (merged count) and ``sampled`` (count before).
+    """
     key = facets.M.reshape(-1, 9)
     if tolerance > 0:
         key = np.round(key / tolerance)
@@ -372,18 +400,54 @@ BULK_GEOMETRIES = 50_000
 
 
 def interior_layers(spec: StructureSpec, weave: Any, radius_um: float) -> int:
-    """The interior closure's number of fiber layers: ``[structure] layers``, else 10 for a felt (or a
-    structure without a weave), else the weave's yarn height over the fiber radius (two yarn systems)."""
+    """The interior closure's number of fiber layers.
+
+    Parameters
+    ----------
+    spec : StructureSpec
+        The ``[structure]`` table; its ``layers``, when set, is the answer.
+    weave : Weave or None
+        The weave; None, or a felt: 10 layers.
+    radius_um : float
+        The fiber radius (um).
+
+    Returns
+    -------
+    int
+        ``[structure] layers``, else 10 for a felt (or a structure without a weave), else the weave's yarn
+        height over the fiber radius (two yarn systems), at least 1.
+    """
     return int(spec.layers or (10 if spec.kind == "nonwoven" or weave is None
                                else max(1, round(weave.height_um / radius_um))))
 
 
 def layer_table_of(spec: StructureSpec, table: Any, fiber: Any, n_layers: int, *, surface: bool = True,
                    tick: Any = None) -> Any:
-    """The layer table of one exit table: the visible fiber layer with masking, plus the light the
-    interior closure returns from ``n_layers`` layers (docs/physics.md 6.1, 6.3). ``surface=False``
-    leaves out the layer's surface term (:func:`surface_layer_table` is that term on its own).
-    ``tick``: called before each incident direction (an interrupt stops there)."""
+    """The layer table of one exit table: the visible layer with masking plus the interior closure's return.
+
+    The interior closure returns light from ``n_layers`` layers below (docs/physics.md 6.1, 6.3).
+
+    Parameters
+    ----------
+    spec : StructureSpec
+        The ``[structure]`` table (its ``spacing_ratio``).
+    table : ExitTable
+        The fiber's exit table.
+    fiber : Fiber
+        The fiber (its surface roughness and index).
+    n_layers : int
+        The interior closure's layers (:func:`interior_layers`).
+    surface : bool
+        Include the layer's surface term; False leaves it out (:func:`surface_layer_table` is that term on
+        its own).
+    tick : callable, optional
+        Called before each incident direction (an interrupt stops there).
+
+    Returns
+    -------
+    LayerTable
+        ``G`` on the 7.5-degree layer grid.
+    """
     from simulate.fabric.fiberlayer import layer_table
     from simulate.fabric.interior import interior
 
@@ -393,9 +457,25 @@ def layer_table_of(spec: StructureSpec, table: Any, fiber: Any, n_layers: int, *
 
 
 def surface_layer_table(spec: StructureSpec, rms_slope: float, n_host: float) -> Any:
-    """The layer table of the fiber layer's surface term alone (Cook-Torrance with masking; analytic,
-    cached by :func:`simulate.fabric.fiberlayer.surface_table`): what :func:`layer_table_of` adds with
-    ``surface=True``, on the same grid."""
+    """The layer table of the fiber layer's surface term alone: what :func:`layer_table_of` adds with ``surface=True``.
+
+    Cook-Torrance with masking, analytic, cached by :func:`simulate.fabric.fiberlayer.surface_table`, on
+    the same grid as :func:`layer_table_of`.
+
+    Parameters
+    ----------
+    spec : StructureSpec
+        The ``[structure]`` table (its ``spacing_ratio``).
+    rms_slope : float
+        The fiber surface's RMS slope.
+    n_host : float
+        The fiber's refractive index.
+
+    Returns
+    -------
+    LayerTable
+        ``G_surf`` with one channel.
+    """
     from simulate.fabric.fiberlayer import LayerTable, layer_grid, surface_table
 
     th, ph_i, ph_o, _ = layer_grid(7.5, 15.0)
@@ -404,8 +484,20 @@ def surface_layer_table(spec: StructureSpec, rms_slope: float, n_host: float) ->
 
 
 def mean_of_halves(beta_0: np.ndarray, beta_1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``beta`` of two independent halves and its standard error: their mean and half their difference
-    (one degree of freedom per value; :func:`simulate.fiber.farfield.controlled_halves`)."""
+    """``beta`` of two independent halves and its standard error: their mean and half their difference.
+
+    One degree of freedom per value (:func:`simulate.fiber.farfield.controlled_halves`).
+
+    Parameters
+    ----------
+    beta_0, beta_1 : numpy.ndarray
+        The two halves' ``beta``, of one shape.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        ``beta`` and ``u_beta``.
+    """
     return 0.5 * (beta_0 + beta_1), 0.5 * np.abs(beta_0 - beta_1)
 
 

@@ -67,9 +67,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simulate.optics.microfacet import directions_deg
 from simulate.optics.fresnel import OpticsDomainWarning
-
+from simulate.optics.microfacet import directions_deg
 
 log = logging.getLogger(__name__)
 
@@ -186,6 +185,7 @@ class FiberPairs:
 
     @property
     def n_unique(self) -> int:
+        """The number of unique fiber-frame pairs (rows of ``w_in``) the geometries map to."""
         return int(self.w_in.shape[0])
 
 

@@ -54,8 +54,11 @@ def _angles_deg(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _node_range(nodes: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The lowest and highest lower node index of the cells a lookup at ``v`` may use (the lookup takes the
-    cell ``floor((v - v0) / step)`` clipped to the grid; within :data:`NODE_MARGIN` of a node both are kept)."""
+    """The lowest and highest lower node index of the cells a lookup at ``v`` may use.
+
+    The lookup takes the cell ``floor((v - v0) / step)`` clipped to the grid; within :data:`NODE_MARGIN` of a
+    node both cells are kept.
+    """
     step = nodes[1] - nodes[0]
     x = (v - nodes[0]) / step
     top = nodes.size - 2
@@ -65,11 +68,26 @@ def _node_range(nodes: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def facet_cells(grid: tuple, facets: Any, w_i: np.ndarray, w_o: np.ndarray) -> np.ndarray:
-    """``[C]`` flat indices into a layer table ``[Ti, Pi, To, Po]`` on ``grid`` (its four node arrays, degrees) of
-    every cell the facet sum over ``facets`` at the fabric-frame pairs ``w_i, w_o [N, 3]`` may read: both nodes
-    of each coordinate's interval (one more where the coordinate lies within rounding of a node), for every
-    (pair, facet) whose directions are both above the facet's layer, after the layer's mirrors
-    (:func:`simulate.fabric.fiberlayer.lookup_one`)."""
+    """The cells of a layer table that the facet sum over ``facets`` at the given pairs may read.
+
+    Both nodes of each coordinate's interval (one more where the coordinate lies within rounding of a node),
+    for every (pair, facet) whose directions are both above the facet's layer, after the layer's mirrors
+    (:func:`simulate.fabric.fiberlayer.lookup_one`).
+
+    Parameters
+    ----------
+    grid : tuple of numpy.ndarray
+        The layer table's four node arrays ``(th_i, ph_i, th_o, ph_o)`` (degrees).
+    facets : Facets
+        The visible fiber orientations.
+    w_i, w_o : numpy.ndarray
+        Fabric-frame incident and exit directions, ``[N, 3]``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[C]`` flat indices into a table ``[Ti, Pi, To, Po]`` on ``grid``, ascending.
+    """
     th_i, ph_i, th_o, ph_o = grid
     M = np.asarray(facets.M, float)
     li = np.einsum("kab,nb->nka", M, np.atleast_2d(w_i)).reshape(-1, 3)
@@ -93,7 +111,7 @@ def facet_cells(grid: tuple, facets: Any, w_i: np.ndarray, w_o: np.ndarray) -> n
                 for dd in range(3):
                     idx = []
                     ok = np.ones(t_i.size, bool)
-                    for (lo_k, hi_k), off in zip(ranges, (da, db, dc, dd)):
+                    for (lo_k, hi_k), off in zip(ranges, (da, db, dc, dd), strict=True):
                         # the nodes lo .. hi + 1: the lower node of each possible cell and the node above it
                         ok &= lo_k + off <= hi_k + 1
                         idx.append(np.minimum(lo_k + off, hi_k + 1))
@@ -103,14 +121,37 @@ def facet_cells(grid: tuple, facets: Any, w_i: np.ndarray, w_o: np.ndarray) -> n
 
 @numba.njit(cache=True)
 def surface_points(li, lo, lit, seen, inc, out, n_host):
-    """The slope-free quantities of :func:`simulate.fabric.fiberlayer._surface_weights` at every azimuth point of
-    the cells ``c`` (incidence ``inc[c]`` into ``li [I, n, 3]``, ``lit [I, n]``; exit ``out[c]`` into
-    ``lo [O, n, 3]``, ``seen [O, n]``) that is lit and seen and where both cosines are positive (elsewhere the
-    kernel's term is 0).
+    """The slope-free quantities of :func:`simulate.fabric.fiberlayer._surface_weights` at the cells' points.
 
-    Returns ``flat [P]`` (``c n + k``) and ``q [P, 7]``: the half vector's ``tan^2`` and ``4 ln cos`` (Beckmann),
-    the V-cavity ``G``, the unpolarised Fresnel ``F``, ``4 (cos_i cos_o)``, ``cos_i`` and ``cos_o``, each by the
-    kernel's operations in its order."""
+    Only the azimuth points that are lit and seen and where both cosines are positive are kept (elsewhere
+    the kernel's term is 0), so that :func:`surface_weights_at` costs the Beckmann term alone per slope.
+    Each quantity is computed by the kernel's operations in its order.
+
+    Parameters
+    ----------
+    li : numpy.ndarray
+        Cell-frame incidences ``[I, n, 3]``.
+    lo : numpy.ndarray
+        Cell-frame exits ``[O, n, 3]``.
+    lit : numpy.ndarray
+        The incidences' visibilities ``[I, n]``.
+    seen : numpy.ndarray
+        The exits' visibilities ``[O, n]``.
+    inc : numpy.ndarray
+        Each cell's incidence, an index into ``li`` and ``lit`` (``[C]``, int64).
+    out : numpy.ndarray
+        Each cell's exit, an index into ``lo`` and ``seen`` (``[C]``, int64).
+    n_host : float
+        The fiber's refractive index (Fresnel from outside, index 1).
+
+    Returns
+    -------
+    flat : numpy.ndarray
+        ``[P]`` the points' indices ``c n + k`` into a ``[C, n]`` array.
+    q : numpy.ndarray
+        ``[P, 7]``: the half vector's ``tan^2`` and ``4 ln cos`` (Beckmann), the V-cavity ``G``, the
+        unpolarised Fresnel ``F``, ``4 (cos_i cos_o)``, ``cos_i`` and ``cos_o``.
+    """
     n_cells = inc.size
     n = lit.shape[1]
     count = 0
@@ -175,9 +216,24 @@ def surface_points(li, lo, lit, seen, inc, out, n_host):
 
 @numba.njit(cache=True)
 def surface_weights_at(flat, q, m, log_pi_m2, w):
-    """``w.flat[flat] = f_CT cos_i cos_o`` at the points of :func:`surface_points` for the RMS slope ``m``
-    (``log_pi_m2 = ln(pi m^2)``): :func:`simulate.fabric.fiberlayer._surface_weights`'s term, in its order (its
-    factors ``vis_i vis_o``, 1 at these points, leave a product unchanged)."""
+    """Write ``f_CT cos_i cos_o`` at the points of :func:`surface_points` for one RMS slope, in place.
+
+    :func:`simulate.fabric.fiberlayer._surface_weights`'s term, in its order (its factors ``vis_i vis_o``,
+    1 at these points, leave a product unchanged).
+
+    Parameters
+    ----------
+    flat : numpy.ndarray
+        The points' flat indices into ``w`` (:func:`surface_points`).
+    q : numpy.ndarray
+        The points' slope-free quantities ``[P, 7]`` (:func:`surface_points`).
+    m : float
+        The RMS slope.
+    log_pi_m2 : float
+        ``ln(pi m^2)``.
+    w : numpy.ndarray
+        ``[C, n]`` weights, written at ``flat`` (elsewhere left as they are).
+    """
     mm = m * m
     wf = w.reshape(-1)
     for j in range(flat.size):
@@ -191,9 +247,10 @@ def surface_weights_at(flat, q, m, log_pi_m2, w):
 
 
 class SurfaceSum:
-    """The structured summation's surface ``beta [N]`` at the fabric-frame pairs ``w_i, w_o [N, 3]`` for any RMS
-    slope, equal to :func:`simulate.structwalk.walk.surface_beta` of a config with that slope, ``n_host`` and a
-    structure of these ``facets`` and ``spacing_ratio`` (module docstring).
+    """The structured summation's surface ``beta [N]`` at fixed fabric-frame pairs, for any RMS slope.
+
+    Equal to :func:`simulate.structwalk.walk.surface_beta` of a config with that slope, ``n_host`` and a
+    structure of these ``facets`` and ``spacing_ratio`` at the pairs ``w_i, w_o [N, 3]`` (module docstring).
 
     Built once per (facets, geometries, ``n_host``, spacing ratio); :meth:`beta` then costs the Beckmann term at
     the azimuth points the facet sum reaches, a row sum and the facet sum. ``step_deg``, ``phi_step_deg`` and
@@ -251,8 +308,24 @@ class SurfaceSum:
         return int(self._flat.size)
 
     def table(self, rms_slope: float) -> LayerTable:
-        """The surface layer table at ``rms_slope``: :func:`simulate.fabric.fiberlayer.surface_table`'s values at
-        the cells the facet sum reaches, 0 elsewhere."""
+        """The surface layer table at one RMS slope, at the cells the facet sum reaches.
+
+        Parameters
+        ----------
+        rms_slope : float
+            The fiber surface's RMS slope, a finite number > 0.
+
+        Returns
+        -------
+        LayerTable
+            :func:`simulate.fabric.fiberlayer.surface_table`'s values at the cells the facet sum reaches,
+            0 elsewhere.
+
+        Raises
+        ------
+        ValueError
+            If ``rms_slope`` is not a finite number > 0.
+        """
         m = float(rms_slope)
         if not (math.isfinite(m) and m > 0.0):
             raise ValueError(f"SurfaceSum: the RMS slope must be a finite number > 0, not {rms_slope!r}")
