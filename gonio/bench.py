@@ -58,8 +58,9 @@ def _bench_once(plan: Plan, out: Path, record: Path | None = None) -> dict:
         slept[0] += time.perf_counter() - t
 
     with MockInstrument(sample="red-cotton", speed="fast", seed=0) as mock:
-        modbus = _TimedLink(ModbusTransport(mock.modbus_url, timeout_s=1.0))
-        serial_link = _TimedLink(SerialTransport(mock.serial_url, timeout_s=1.0))
+        modbus_url, serial_url = mock.urls()
+        modbus = _TimedLink(ModbusTransport(modbus_url, timeout_s=1.0))
+        serial_link = _TimedLink(SerialTransport(serial_url, timeout_s=1.0))
         t0 = time.perf_counter()
         result = run_session(plan, modbus, serial_link, out, seed=0, progress=False,
                              retry=RetryPolicy(sleep=sleep), record=record)

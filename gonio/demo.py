@@ -75,7 +75,7 @@ def run_demo(out: str | Path, plan: Plan, *, seed: int = 0, timeout_s: float = 1
     t0 = time.monotonic()
     with MockInstrument(sample=sample, modbus="tcp", serial="pty", speed="fast",
                         seed=seed) as mock:
-        modbus, serial_link = open_links(mock.modbus_url, mock.serial_url, timeout_s)
+        modbus, serial_link = open_links(*mock.urls(), timeout_s)
         result = run_session(plan, modbus, serial_link, out, seed=seed, progress=progress,
                              force=force, writer="gonio demo", wait_timeout_s=wait_timeout_s,
                              subscribers=subscribers)

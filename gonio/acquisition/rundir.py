@@ -51,7 +51,8 @@ class RunDirLock:
     """
 
     def __init__(self, path: Path, fd: int):
-        self.path, self._fd = path, fd
+        self.path = path
+        self._fd: int | None = fd      # None once released
 
     @classmethod
     def acquire(cls, run_dir: str | os.PathLike) -> RunDirLock:

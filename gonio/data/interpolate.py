@@ -33,7 +33,9 @@ class Dataset(Protocol):
     """
 
     table: pd.DataFrame
-    source: Any
+
+    @property
+    def source(self) -> Any: ...
 
     @property
     def is_rgb(self) -> bool: ...

@@ -320,8 +320,9 @@ class MotionController(ModbusDevice):
         changed = [a for a in range(N_AXES)
                    if targets[a] != self._target_mdeg[a] or v != self._velocity_cdeg_s[a]]
         # travel (deg) of the longest commanded axis; an unknown start counts a full turn
-        travel = max((abs(targets[a] - self._target_mdeg[a]) / 1000.0
-                      if self._target_mdeg[a] is not None else 360.0 for a in changed), default=0.0)
+        starts = [self._target_mdeg[a] for a in changed]
+        travel = max((abs(targets[a] - start) / 1000.0 if start is not None else 360.0
+                      for a, start in zip(changed, starts, strict=True)), default=0.0)
         for a in self._safe_order(changed, targets, what):
             mdeg = targets[a]
             try:

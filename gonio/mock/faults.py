@@ -168,7 +168,10 @@ class FaultInjector:
             return False
         self.opportunities[kind] += 1
         u = float(self._rngs[kind].random())
-        hit = (self.opportunities[kind] == rule.at) if rule.at is not None else (u < rule.rate)
+        if rule.at is not None:
+            hit = self.opportunities[kind] == rule.at
+        else:       # a rule of parse_faults has a rate where it has no trigger count
+            hit = rule.rate is not None and u < rule.rate
         if hit:
             self.stats[kind] += 1
         return hit

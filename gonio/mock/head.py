@@ -99,7 +99,8 @@ class PhotometerHead:
     def handle_line(self, raw: bytes) -> HeadReply:
         """Interpret one command line (terminator stripped) and build the reply."""
         self.commands += 1
-        fault = self.faults.head_fault() if self.faults is not None else None
+        faults = self.faults
+        fault = faults.head_fault() if faults is not None else None
         if fault == "drop":
             log.info("head: %r -> link dropped (injected fault)", raw[:40])
             self.link_reset()
@@ -111,22 +112,22 @@ class PhotometerHead:
             log.info("head: %r -> busy (injected fault)", raw[:40])
             return HeadReply(self._error(103))
         payload, delay, consumed, lamp_fault = self._execute(raw)
-        if fault is None and self.chk and self.faults is not None and self.faults.fires("checksum"):
+        if fault is None and self.chk and faults is not None and faults.fires("checksum"):
             fault = "checksum"
         if fault is None and not lamp_fault:
             self.repetition += consumed
-        if lamp_fault and fault is not None:
-            # the flagged reading never reaches the driver intact: the lamp fault is not
-            # counted (only the fault the driver can see is, as for the other kinds)
-            self.faults.stats["lamp"] -= 1
         line = HF.format_response(payload, self.chk)
-        if fault == "garbled":
-            line = self._garble(line)
-        elif fault == "truncated":
-            line = self._truncate(line)
-        elif fault == "checksum":
-            line = self._bad_checksum(line)
-        if fault is not None:
+        if fault is not None and faults is not None:       # every fault is drawn from the injector
+            if lamp_fault:
+                # the flagged reading never reaches the driver intact: the lamp fault is not
+                # counted (only the fault the driver can see is, as for the other kinds)
+                faults.stats["lamp"] -= 1
+            if fault == "garbled":
+                line = self._garble(line, faults.rng("garbled"))
+            elif fault == "truncated":
+                line = self._truncate(line, faults.rng("truncated"))
+            elif fault == "checksum":
+                line = self._bad_checksum(line)
             log.info("head: %r -> %s reply (injected fault)", raw[:40], fault)
         return HeadReply(line, delay_s=delay)
 
@@ -228,10 +229,13 @@ class PhotometerHead:
         if signal + dark >= HC.OVERLOAD_COUNTS:
             raise HC.head_error(301)
         readings = physics.simulate_readings(self.seed, state, f, cos_o, self.repetition, n)
-        lamp_fault = self.faults is not None and state.shutter_open and self.faults.fires("lamp")
+        faults = self.faults
+        lamp_rng = (faults.rng("lamp") if faults is not None and state.shutter_open and faults.fires("lamp")
+                    else None)
+        lamp_fault = lamp_rng is not None
         mean, std, n_out, flags = physics.summarise(readings)
-        if lamp_fault:
-            rng = self.faults.rng("lamp")
+        if lamp_rng is not None:
+            rng = lamp_rng
             perturbed = np.clip(np.rint(readings * (1.0 + 0.05 * rng.standard_normal(n)) + 0.1 * signal
                                         * (rng.random() - 0.5)), 0, HC.ADC_MAX_COUNTS)
             mean, std, n_out, flags = physics.summarise(perturbed)
@@ -241,8 +245,9 @@ class PhotometerHead:
         return f"{mean:.3f},{std:.3f},{n_out},{flags}", delay, n, lamp_fault
 
     # --- corruptions (faults) -----------------------------------------------------------------
-    def _garble(self, line: bytes) -> bytes:
-        rng = self.faults.rng("garbled")
+    @staticmethod
+    def _garble(line: bytes, rng: np.random.Generator) -> bytes:
+        """The reply with a run of its body's bytes replaced by non-ASCII ones drawn from ``rng``."""
         body = bytearray(line[:-2])
         if not body:
             body = bytearray(b"?")
@@ -251,8 +256,9 @@ class PhotometerHead:
         body[start:start + k] = bytes(rng.integers(0x80, 0x100, size=k, dtype=np.uint8).tolist())
         return bytes(body) + HF.LINE_TERMINATOR
 
-    def _truncate(self, line: bytes) -> bytes:
-        rng = self.faults.rng("truncated")
+    @staticmethod
+    def _truncate(line: bytes, rng: np.random.Generator) -> bytes:
+        """The reply cut after a number of its body's bytes drawn from ``rng``."""
         body_len = len(line) - len(HF.LINE_TERMINATOR)
         return line[: int(rng.integers(1, max(2, body_len)))]      # at least one byte, never the \r\n
 

@@ -212,6 +212,23 @@ class MockInstrument:
             self._bridge.stop()
             self._bridge = None
 
+    def urls(self) -> tuple[str, str]:
+        """The endpoints of the started mock.
+
+        Returns
+        -------
+        (str, str)
+            ``(modbus_url, serial_url)``, the addresses a driver connects to.
+
+        Raises
+        ------
+        RuntimeError
+            If the mock has not been started (:meth:`start`).
+        """
+        if self.modbus_url is None or self.serial_url is None:
+            raise RuntimeError("mock instrument: not started (call start() or use it in a with block)")
+        return self.modbus_url, self.serial_url
+
     def __enter__(self) -> MockInstrument:
         return self.start()
 

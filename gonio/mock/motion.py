@@ -112,11 +112,12 @@ class MotionController:
         """Advance every axis to the current time."""
         t = self.now()
         for ax in self.axes:
-            if ax.motion is None:
+            motion = ax.motion
+            if motion is None:
                 continue
-            t0, x0, x1, t_arrive, t_end, kind, t_fault = ax.motion
+            t0, x0, x1, t_arrive, t_end, kind, t_fault = motion
             if t_fault is not None and t >= t_fault:
-                ax.position = self._position_at(ax, t_fault)
+                ax.position = self._position_at(motion, t_fault)
                 ax.motion = None
                 ax.fault = MM.AxisFault.FOLLOWING_ERROR
                 log.info("axis %d: following error at %.0f mdeg (injected fault)", ax.index, ax.position)
@@ -129,10 +130,12 @@ class MotionController:
                     ax.target = int(x1)
                 ax.moved = True
             else:
-                ax.position = self._position_at(ax, t)
+                ax.position = self._position_at(motion, t)
 
-    def _position_at(self, ax: AxisState, t: float) -> float:
-        t0, x0, x1, t_arrive, t_end, kind, _ = ax.motion
+    @staticmethod
+    def _position_at(motion: tuple, t: float) -> float:
+        """An axis's position (mdeg) at time ``t`` of its ``motion`` (:attr:`AxisState.motion`)."""
+        t0, x0, x1, t_arrive, t_end, kind, _ = motion
         if t >= t_arrive:
             d = x1 - x0
             over = min(SETTLE_OVERSHOOT_MDEG, abs(d)) * (1 if d >= 0 else -1)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -49,7 +49,7 @@ class _Fields:
     def _name(self, key: str) -> str:
         return f"{self.where}.{key}" if self.where else key
 
-    def fail(self, key: str, msg: str):
+    def fail(self, key: str, msg: str) -> NoReturn:
         raise PlanError(f"{self.file}: field '{self._name(key)}': {msg}")
 
     def get(self, key: str, default: Any = None, required: bool = False) -> Any:
@@ -77,10 +77,11 @@ class _Fields:
             self.fail(key, f"must be <= {hi}, got {v}")
         return int(v) if integer else float(v)
 
-    def numbers(self, key: str, default: list | None = None, required: bool = False) -> list[float] | None:
+    def numbers(self, key: str, default: list | None = None, required: bool = False) -> list[float]:
+        """The list of finite numbers at ``key``; an absent key gives ``default`` (no default: an empty list)."""
         v = self.get(key, default, required)
         if v is None:
-            return None
+            return []
         if not isinstance(v, list):
             self.fail(key, f"must be a list of numbers, got {type(v).__name__}")
         out = []

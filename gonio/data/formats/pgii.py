@@ -265,6 +265,7 @@ def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None, white
                               f"{first.path}'s ({first.unit} / {first.wavelengths_nm})", file=f.path,
                               hint="one dataset needs files of the same format")
     white_scale = None
+    white_meta: dict = {}       # the white reference's provenance, when one calibrates the files
     if white is not None:
         if first.unit != "[uA]":
             raise FormatError(f"a white reference calibrates raw [uA] files; these are {first.unit}",
@@ -274,6 +275,8 @@ def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None, white
                               f"{first.wavelengths_nm}", file=white.path,
                               hint="measure the standard at the sample's wavelengths")
         white_scale = white_reference_scale(white, white_reflectance, first.values.shape[1])
+        white_meta = {"white_reference": Path(white.path).name, "white_reflectance": white_reflectance,
+                      "white_scale_fr_per_uA": white_scale.tolist()}
     relative = first.unit == "[uA]" and scale is None and white_scale is None
     parts = []
     for f in files:
@@ -310,8 +313,7 @@ def pgii_dataset(files: Sequence[PgiiFile], *, scale: float | None = None, white
                      "headers": {Path(f.path).name: f.header for f in files},
                      **({"scale_fr_per_uA": scale} if scale is not None else {}),
                      **({"negative_values": negative} if negative else {}),
-                     **({"white_reference": Path(white.path).name, "white_reflectance": white_reflectance,
-                         "white_scale_fr_per_uA": white_scale.tolist()} if white_scale is not None else {})},
+                     **white_meta},
                     relative=relative)
     if not first.wavelengths_nm:
         meta["colour_space"] = "linear sRGB"

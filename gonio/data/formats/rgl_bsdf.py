@@ -187,9 +187,11 @@ class RGLBSDF:
         _check_structure(fields, self.path)
         self.is_spectral = "wavelengths" in fields
         spectra = fields["spectra"] if self.is_spectral else fields["rgb"]
-        self.wavelengths_nm = (np.asarray(fields["wavelengths"], dtype=float)
-                               if self.is_spectral else None)
-        bands = self.wavelengths_nm if self.is_spectral else np.arange(3.0)
+        wavelengths = np.asarray(fields["wavelengths"], dtype=float) if self.is_spectral else None
+        self.wavelengths_nm = wavelengths
+        #: the tables' band coordinate: the wavelengths, or the channels' indices 0, 1, 2
+        self._bands = wavelengths if wavelengths is not None else np.arange(3.0)
+        bands = self._bands
         phi_i = np.asarray(fields["phi_i"], dtype=float)
         theta_i = np.asarray(fields["theta_i"], dtype=float)
         self.isotropic = phi_i.size <= 2
@@ -257,7 +259,7 @@ class RGLBSDF:
                                    "its visible normals")
         sample = np.where(lost[..., None], 0.0, sample)
         out = np.empty(wi.shape[:-1] + (self._n_bands,))
-        bands = self.wavelengths_nm if self.is_spectral else np.arange(3.0)
+        bands = self._bands
         for k in range(self._n_bands):
             out[..., k] = self._spectra.eval(sample, (phi_i, theta_i, np.full(phi_i.shape, bands[k])))
         if self.jacobian:
@@ -325,7 +327,7 @@ class RGLBSDF:
         beta = self.beta(*(geo[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_o",
                                                                    "phi_o")))
         rows = []
-        labels = list(self.channels) if not self.is_spectral else list(self.wavelengths_nm)
+        labels = list(self.channels) if self.wavelengths_nm is None else list(self.wavelengths_nm)
         band = "wavelength_nm" if self.is_spectral else "channel"
         for k, label in enumerate(labels):
             part = geo.copy()
