@@ -202,9 +202,10 @@ def estimate_cost(config: SimulationConfig, wavelengths: Any, target_rel_err: fl
     wl = np.atleast_1d(np.asarray(wavelengths, float))
     mie = _mie_seconds(config, wl)
     photons = max(N_FLOOR, PHOTONS_AT_UNIT_ERROR / float(target_rel_err) ** 2)
-    budgeted = bool(max_photons) and float(max_photons) < photons
-    if budgeted:
-        photons = float(max_photons or 0)
+    budgeted = False
+    if max_photons and float(max_photons) < photons:
+        budgeted = True
+        photons = float(max_photons)
     if mie > MAX_SECONDS:
         return CostEstimate(photons, math.nan, mie, mie, budgeted)
     events = _events_per_photon(config, wl)

@@ -83,9 +83,9 @@ def table_for(config: Any) -> str | None:
     str or None
         The table's file name, None for a config without ``[structure]`` or of no studied kind.
     """
-    structure = getattr(config, "structure", None)
+    kind = getattr(getattr(config, "structure", None), "kind", None)
     tables = BLEND_TABLES if _is_blend(config) else TABLES
-    return None if structure is None else tables.get(getattr(structure, "kind", None))
+    return None if kind is None else tables.get(kind)
 
 
 def no_study(config: Any, why: str | None = None) -> dict:

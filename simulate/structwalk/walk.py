@@ -430,8 +430,8 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
         shared.finish(e, int(got["photons"]), n_wt)
 
     for e in entries:                            # the hits first: read, never walked
-        got = None if keys[e] is None else _entry(tablecache.load(keys[e]), halves[0].shape[:4] +
-                                                    (chunks[e[1]].size * K,))
+        key = keys[e]
+        got = None if key is None else _entry(tablecache.load(key), halves[0].shape[:4] + (chunks[e[1]].size * K,))
         if got is not None:
             hits += 1
             place(e, got)
@@ -445,8 +445,9 @@ def walk_structure(nodye: Any, config: Any, wavelengths_nm: np.ndarray, nodes: n
             own.spare = []
         got = _walk_chunk(fiber, walk_fiber, spec, n_layers, wl[chunks[c]], nodes, per_row, seed, half, first[c],
                           kernel_threads, shared.report(e), shared.tick, own.spare)
-        if keys[e] is not None:
-            tablecache.store(keys[e], got)      # stored when done: an interrupt keeps the finished entries
+        key = keys[e]
+        if key is not None:
+            tablecache.store(key, got)          # stored when done: an interrupt keeps the finished entries
         return got
 
     missing = [e for e in entries if e not in small]
