@@ -589,11 +589,12 @@ def _walk_chunk(fiber: Any, walk_fiber: Any, spec: Any, n_layers: int, wl: np.nd
     photons = 0
     shape = (w_t.size, len(ks), n_psi, n_mu, n_phi, wl.size * K)
     size = int(np.prod(shape))
-    flat = next((b for b in (spare or []) if b.size >= size), None)
+    buffers: list = [] if spare is None else spare
+    flat = next((b for b in buffers if b.size >= size), None)
     if flat is None:
         flat = np.zeros(size)
     else:
-        spare.remove(flat)                                   # type: ignore[union-attr]
+        buffers.remove(flat)
     T = flat[:size].reshape(shape)
     for i, wt in enumerate(w_t):
         for gi, group in enumerate(groups):
