@@ -161,13 +161,13 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     share = 0.5                        #   fiber above); share: the population's fraction of the fibers by
     name = "yellow"                    #   number (of fiber length), (0, 1], the shares adding up to 1;
                                        #   name optional. Each may override the fiber above:
-    [populations.fiber]                #   any of radius_um, n_host (the Monte Carlo of a felt needs them
-    radius_um = 8                      #   the same in every population), dye_profile and dye_depth_um,
+    [populations.fiber]                #   any of radius_um, n_host (the Monte Carlo needs them the same
+    radius_um = 8                      #   in every population), dye_profile and dye_depth_um,
     [populations.fiber.dye]            #   a whole dye (replacing the fiber's; same forms as [fiber.dye]),
     wavelength_nm = [400, 700]
     mu_a_per_um = [0.2, 0.01]
     # [populations.particles]          #   a whole [particles] table (replacing the config's),
-    # [populations.surface]            #   any of the [surface] fields (rms_slope: one for a felt's Monte Carlo)
+    # [populations.surface]            #   any of the [surface] fields (rms_slope: one for the Monte Carlo)
     # By mass: a population's mass share is its share times its radius squared (equal densities),
     # normalised; give the shares by number.
 
@@ -180,7 +180,9 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
 A config with ``[[populations]]`` is a blend: every fiber of the fabric is one of the populations, drawn
 by its share. The structured summation mixes the populations' layer tables by share (exact for the
 fabric's top layer); the felt Monte Carlo mixes their exit tables by share, so that each fiber a ray meets
-is, in expectation, drawn from a population by share (exact for light that meets a fiber once). Models
+is, in expectation, drawn from a population by share (exact for light that meets a fiber once); the woven
+Monte Carlo mixes the piles of its yarns likewise, so that each yarn a ray enters is, in expectation, the
+pile of a population drawn by share (a mélange yarn; docs/physics.md 6, "Fiber populations"). Models
 and commands that take one fiber refuse a blend with one line (``simulate.config.require_single_population``).
 One population of share 1 without overrides is the config without ``[[populations]]``, bit for bit.
 

@@ -10,7 +10,10 @@ name (:data:`MODELS`) plus ``auto``.
 - ``summation``: the fiber BRDF summed over warp and weft (:mod:`simulate.fabric.summation`) at
   the unique fiber-frame pairs of the geometries (one :func:`simulate.fiber.volume_brdf` call);
 - ``classic``: Cook-Torrance over the fiber's normal-incidence albedo (:mod:`simulate.fabric.classic`);
-- ``mc``: the woven micro-element's Monte Carlo (:mod:`simulate.raytrace`).
+- ``mc``: the woven micro-element's (or the felt's) Monte Carlo (:mod:`simulate.raytrace`).
+
+A blend (``[[populations]]``) is the share-weighted mix of its populations' estimates in the summation and the
+classic model (:func:`_blend`) and of their exit tables in the Monte Carlo (:func:`population_walks`).
 """
 
 from __future__ import annotations
@@ -143,17 +146,11 @@ def _population_record(config: SimulationConfig, models: list[dict] | None = Non
 def check_blend(config: SimulationConfig, method: str) -> None:
     """Refuse, before any work, a blend (``[[populations]]``) that ``method`` cannot trace.
 
-    The woven Monte Carlo takes one population, the felt's needs one radius, host index and reflection
-    slope in all of them.
-    :class:`ConfigError`, one line naming the field.
+    The Monte Carlo (``mc``, and ``auto``, which may choose it) traces a blend whose populations share the fiber's
+    radius, host index and reflection slope (:func:`population_walks`); :class:`ConfigError`, one line naming
+    the field, otherwise.
     """
     if not getattr(config, "populations", None) or method not in ("mc", "auto"):
-        return
-    spec = getattr(config, "structure", None)
-    if spec is None or spec.kind != "nonwoven":
-        from simulate.config import require_single_population
-
-        require_single_population(config, "the woven Monte Carlo")
         return
     _same_fiber(config)
 
@@ -161,6 +158,8 @@ def check_blend(config: SimulationConfig, method: str) -> None:
 def _same_fiber(config: SimulationConfig) -> None:
     from simulate.config import ConfigError
 
+    spec = getattr(config, "structure", None)
+    what = "felt" if spec is not None and spec.kind == "nonwoven" else "woven"
     parts = config.population_configs()
     first = parts[0][1]
     for _, c in parts[1:]:
@@ -168,48 +167,46 @@ def _same_fiber(config: SimulationConfig) -> None:
                                  ("fiber.n_host", c.n_host, first.n_host),
                                  ("surface.rms_slope", c.rms_slope, first.rms_slope)):
             if a != b:
-                raise ConfigError(f"{_file_of(config)}: populations: the felt Monte Carlo traces one {field_name} "
+                raise ConfigError(f"{_file_of(config)}: populations: the {what} Monte Carlo traces one {field_name} "
                                   f"for every population, got {b:g} and {a:g}; give the populations the same "
                                   f"{field_name} (or use --method summation)")
 
 
+def population_walks(config: SimulationConfig, wavelengths: np.ndarray) -> list[tuple[float, Any]]:
+    """``(share, fiber)`` of each of a blend's populations, as the Monte Carlo traces them (:func:`_woven_mc`).
+
+    The tracer mixes the populations' exit tables by share (:func:`simulate.raytrace.yarn.blend_halves`): light
+    that enters a fiber of a felt, or a yarn of a weave, scatters in expectation as one of a population drawn by
+    share. In a felt that is each fiber a ray meets drawn from the populations (exact for light that meets a fiber
+    once; a fiber met again draws afresh). In a weave it is each yarn a ray enters: its volume, the pile of its
+    fibers (:mod:`simulate.raytrace.pile`), walked as the pile of one population, drawn by share -- a mélange
+    (heather) yarn whose populations mix within the yarn, taken in the limit where the light that enters the yarn
+    meets fibers of the population it entered through (the mix of the populations' yarns' reflectances; a pile
+    whose light crosses fibers of every population would darken more: docs/physics.md 6, "Fiber populations").
+    A share is by number of fibers, which with one radius is the share of the yarn's (or the felt's) fiber volume
+    and, for equal densities, of its mass. The populations must share the fiber's radius, host index and
+    reflection slope (one fiber geometry for the felt's tubes and the shares; one surface term):
+    :class:`ConfigError` naming the field otherwise.
+    """
+    _same_fiber(config)
+    return [(share, c.fiber(wavelengths)) for share, c in config.population_configs()]
+
+
 def felt_population_tables(config: SimulationConfig, fiber: Any, wavelengths: np.ndarray, s: RunSettings,
                            bins: tuple[int, int]) -> tuple[Any, Any]:
-    """The felt Monte Carlo's two table halves of a blend.
+    """The felt Monte Carlo's two table halves of a blend: those :func:`_woven_mc` traces a felt blend with.
 
     Each population's halves (the run's seed and photons, as :func:`simulate.raytrace.fabric_beta` builds
-    one fiber's) with their exit weights mixed by share. A ray that
-    meets a fiber then scatters, in expectation, as a fiber drawn from the populations by share (exact for light
-    that meets a fiber once; light that meets the same fiber again draws afresh). The populations must share
-    the fiber's radius, host index and reflection slope (the felt's tubes and the traced surface term):
-    :class:`ConfigError` naming the field otherwise. ``fiber``: the first population's.
+    one fiber's) with their exit weights mixed by share (:func:`population_walks`: what that means and what the
+    populations must share). ``fiber``: the first population's (unused: each population's own is walked).
     """
-    import dataclasses
-
     from simulate.raytrace.estimate import table_photons
-    from simulate.raytrace.yarn import table_halves
+    from simulate.raytrace.yarn import blend_halves
 
-    parts = config.population_configs()
-    _same_fiber(config)
     nodes = tuple(float(x) for x in config.w_t_nodes())
-    photons = table_photons(s.target) // 2
     threads = all_threads(s.threads)
-    halves = [table_halves(c.fiber(wavelengths), wavelengths, photons, s.seed, threads if threads else None,
-                           n_mu=int(bins[0]), n_phi=int(bins[1]), w_t_nodes=nodes) for _, c in parts]
-    shares = [share for share, _ in parts]
-    mixed = []
-    for h in range(2):
-        tabs = [pair[h] for pair in halves]
-        T = shares[0] * tabs[0].T
-        c_bar = shares[0] * tabs[0].c_bar
-        tau = shares[0] * tabs[0].tau
-        for share, t in zip(shares[1:], tabs[1:], strict=True):
-            T = T + share * t.T
-            c_bar = c_bar + share * t.c_bar
-            tau = tau + share * t.tau
-        mixed.append(dataclasses.replace(tabs[0], T=T, c_bar=c_bar, tau=tau, photons=int(sum(t.photons for t in tabs)),
-                                         seconds=float(sum(t.seconds for t in tabs))))
-    return mixed[0], mixed[1]
+    return blend_halves(population_walks(config, wavelengths), wavelengths, table_photons(s.target) // 2, s.seed,
+                        threads if threads else None, n_mu=int(bins[0]), n_phi=int(bins[1]), w_t_nodes=nodes)
 
 
 def _file_of(config: SimulationConfig) -> str:
@@ -305,6 +302,11 @@ def _classic(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: n
 @register("mc")
 def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: np.ndarray,
               s: RunSettings) -> FabricEstimate:
+    """The Monte Carlo of the config's weave (a felt with a ``nonwoven`` ``[structure]``).
+
+    A blend's populations are mixed by share in the exit tables its yarns (the felt's fibers) walk
+    (:func:`population_walks`).
+    """
     from simulate import raytrace
     from simulate.geometry.mesh import mesh as weave_mesh
 
@@ -312,12 +314,9 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     w_o = fab.directions_deg(g.theta_o, g.phi_o)
     spec = getattr(config, "structure", None)       # twist, or a felt (simulate.geometry.felt)
     blend = getattr(config, "populations", None)
-    if blend:
-        from simulate.config import require_single_population
-
-        if spec is None or spec.kind != "nonwoven":
-            require_single_population(config, "the woven Monte Carlo")
-        fiber = config.population_configs()[0][1].fiber(wavelengths)
+    populations = population_walks(config, wavelengths) if blend else None
+    if populations:
+        fiber = populations[0][1]       # the surface term's (radius, index and slope: the populations')
     if spec is not None and spec.kind == "nonwoven":
         from simulate.geometry.felt import cached_felt_mesh
 
@@ -339,7 +338,7 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
     # are the yarn's): where the fiber's clearness decides whether the exit bins resolve it
     felt = spec is not None and spec.kind == "nonwoven"
     bins = config.exit_bins
-    fibers = [c.fiber(wavelengths) for _, c in config.population_configs()] if blend else [fiber]
+    fibers = [f for _, f in populations] if populations else [fiber]
     if bins is None:     # a blend: the finest any of its fibers asks
         bins = max((raytrace.estimate.default_exit_bins(f, wavelengths, felt) for f in fibers), key=lambda b: b[0] * b[1])
     for f in fibers:
@@ -347,11 +346,11 @@ def _woven_mc(config: SimulationConfig, fiber: Any, g: Geometries, wavelengths: 
         if note:
             log.warning("simulate fabric --method mc: %s", note)
             break
-    tables = felt_population_tables(config, fiber, wavelengths, s, bins) if blend else None
     if blend:
         geometry["populations"] = _population_record(config)
     beta, u_beta, mc_info = raytrace.fabric_beta(
-        mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0, tables=tables,
+        mesh, fiber, w_i, w_o, wavelengths, target_rel_err=s.target, max_rays=s.max_photons or 0,
+        populations=populations,
         seed=s.seed, threads=all_threads(s.threads), progress=s.progress, max_seconds=s.max_seconds,
         structure=spec, exit_bins=bins, axial_shift=bool(getattr(config, "axial_shift", False)),
         w_t_nodes=config.w_t_nodes() if hasattr(config, "w_t_nodes") else (0.0, 0.25, 0.5, 0.75, 0.95),
@@ -389,11 +388,8 @@ def reweighted_estimate(record: dict, config: Any, wavelengths_nm: Any) -> tuple
     if not np.array_equal(wl, record["wavelengths_nm"]):
         raise ValueError("reweight: other wavelengths than the traced run's")
     blend = bool(record.get("blend"))
-    fiber = config.population_configs()[0][1].fiber(wl) if blend else config.fiber(wl)
+    populations = population_walks(config, wl) if blend else None
+    fiber = populations[0][1] if populations else config.fiber(wl)
     if not same_but_dye(record["fiber"], fiber):
         raise ValueError("reweight: the fiber differs from the traced one in more than its dye: trace again")
-    tables = None
-    if blend:
-        tables = felt_population_tables(config, fiber, wl, RunSettings(target=record["target"], seed=record["seed"],
-                                                                       threads=record["threads"]), record["bins"])
-    return reweighted_beta(record, new_tables(record, fiber, tables))
+    return reweighted_beta(record, new_tables(record, fiber, populations=populations))

@@ -20,8 +20,8 @@ in their dye only (and its placement), and their :func:`dye_spread` is at most t
 (``provenance.dye_spread`` of the table). The cheaper models mix the populations' results by share
 (two fabrics side by side) where the Monte Carlo draws each fiber a path meets from the populations,
 so their error grows with how differently the populations absorb; a blend beyond the studied spread,
-of populations that differ in more than their dye, or of a kind with no blend study gets the Monte
-Carlo at every geometry, with one logged line saying why.
+of populations that differ in more than their dye, or of a kind with no blend study (a woven blend) gets
+the Monte Carlo at every geometry, with one logged line saying why.
 
 Within a table, a geometry farther than ``MATCH_DEG`` from every studied one, or at another incidence,
 gets the Monte Carlo too. Each table is one fabric's: a sample far from it
@@ -52,8 +52,8 @@ CHEAPEST_FIRST = ("classic", "summation", "mc")
 MATCH_DEG = 6.0
 #: the method-errors table (under simulate/configs) of each studied structure kind
 TABLES = {"woven": "method-errors.json", "nonwoven": "method-errors-felt.json"}
-#: the method-errors table of a blend (``[[populations]]`` of two or more) of each studied structure kind (the
-#: woven Monte Carlo takes one population: a woven blend has no reference to be studied against)
+#: the method-errors table of a blend (``[[populations]]`` of two or more) of each studied structure kind (no woven
+#: blend has been studied against the woven Monte Carlo: it gets the Monte Carlo at every geometry)
 BLEND_TABLES = {"nonwoven": "method-errors-felt-blend.json"}
 #: the wavelengths (nm) :func:`dye_spread` reads the populations' dyes at
 SPREAD_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 711.0, 10.0))

@@ -41,12 +41,14 @@ fibre a "yarn" walked with the fibre's own table (:mod:`simulate.geometry.felt`)
 from simulate.raytrace.estimate import FELT_ROTATIONS, fabric_beta, table_photons, twist_of
 from simulate.raytrace.integrator import STOP_REASONS, MCResult, trace
 from simulate.raytrace.materials import FiberBRDFAtHit, FiberSurface, Lambert
-from simulate.raytrace.yarn import YarnTable, table_halves, yarn_table
+from simulate.raytrace.yarn import YarnTable, blend_halves, mix_tables, table_halves, yarn_table
 
 __all__ = [
     "YarnTable",
     "yarn_table",
     "table_halves",
+    "blend_halves",
+    "mix_tables",
     "Lambert",
     "FiberSurface",
     "FiberBRDFAtHit",

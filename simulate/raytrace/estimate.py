@@ -36,6 +36,7 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -48,7 +49,7 @@ from simulate.fabric.structure import CLOSE_PACKING
 from simulate.raytrace.integrator import CHUNK, MCResult, prepare, trace, trace_rotations, yarn_radius
 from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.raytrace.materials import FiberSurface
-from simulate.raytrace.yarn import YarnTable, table_halves
+from simulate.raytrace.yarn import YarnTable, blend_halves, table_halves
 
 __all__ = ["TABLE_NOISE", "TABLE_SHARE", "PILE_TABLE", "CLEAR_FIBER_SCATTERINGS", "clear_fiber_note", "table_photons",
            "ray_target", "fabric_beta", "mean_of", "twist_of", "yarn_model", "combine_realisations",
@@ -334,7 +335,8 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                 volume: str | None = None, exit_bins: tuple[int, int] = (5, 10),
                 axial_shift: bool = False,
                 w_t_nodes: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 0.95),
-                max_events: int = 0, record: dict | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+                max_events: int = 0, record: dict | None = None,
+                populations: Sequence[tuple[float, Any]] | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """``beta`` and its standard error at P geometries ``(w_in, w_out)`` of the woven fabric.
 
     The BSSRDF table is built as two independent halves (seeds apart, half the photons each).
@@ -356,7 +358,11 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     they resolve and cost: docs/physics.md 6, "Exit directions"). ``max_events``: the scattering events
     followed per ray (:func:`simulate.raytrace.trace`; 0: all, 1: the single scattering). ``record`` (a dict):
     filled with the run's events and table settings, from which :func:`simulate.raytrace.reweight.reweighted_beta`
-    gives the result for another dye without tracing again.
+    gives the result for another dye without tracing again. ``populations`` (a blend's ``(share, fiber)``): each
+    population's halves walked as ``fiber``'s would be (a woven ``[structure]``: in the pile of that population's
+    fibers, :mod:`simulate.raytrace.pile`) and mixed by share (:func:`simulate.raytrace.yarn.blend_halves`), so a
+    ray entering a yarn (a felt's fiber) scatters, in expectation, as one of a population drawn by share;
+    ``fiber`` is then the surface term's (its roughness and host index, which the populations share).
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -366,13 +372,22 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
                                              surface, volume)
     split: dict[str, Any] = dict(PILE_TABLE) if vol == "pile" and tables is None else {}
     if tables is not None:
+        if populations is not None:
+            raise ValueError("fabric_beta: tables or populations, not both")
         vol = "tables given"
     else:
-        walked = pile_fiber(fiber, yarn_radius(mesh), packing) if vol == "pile" else fiber
+        def walked(f: Any) -> Any:
+            return pile_fiber(f, yarn_radius(mesh), packing) if vol == "pile" else f
+
         grid: dict[str, Any] = {"held_log_mu_s": HELD_LOG_MU_S} if vol == "pile" else {}
         grid.update(n_mu=int(exit_bins[0]), n_phi=int(exit_bins[1]), w_t_nodes=tuple(float(x) for x in w_t_nodes))
-        tables = table_halves(walked, wl, table_photons(target_rel_err, **split) // 2, seed,
-                              threads if threads else None, cache=cache, **grid)
+        photons_per_row = table_photons(target_rel_err, **split) // 2
+        if populations is not None:
+            tables = blend_halves([(share, walked(f)) for share, f in populations], wl, photons_per_row, seed,
+                                  threads if threads else None, cache=cache, **grid)
+        else:
+            tables = table_halves(walked(fiber), wl, photons_per_row, seed, threads if threads else None, cache=cache,
+                                  **grid)
     r_target = ray_target(target_rel_err, split.get("share", TABLE_SHARE))
     mats = [FiberSurface(t, float(fiber.roughness), float(fiber.n_host), surf, spacing, bool(axial_shift))
             for t in tables]

@@ -41,7 +41,7 @@ import numpy as np
 from simulate.montecarlo.accuracy import relative_error
 from simulate.raytrace.record import TraceLog
 
-__all__ = ["replay", "record_bytes", "new_tables", "WalkedHalves", "reweighted_beta",
+__all__ = ["replay", "record_bytes", "new_tables", "WalkedHalves", "MixedHalves", "reweighted_beta",
            "same_but_dye"]
 
 
@@ -244,12 +244,43 @@ def _check_half(traced: dict, table: Any) -> None:
                          "radius or index): trace again")
 
 
-def new_tables(record: dict, fiber: Any, tables: tuple | None = None) -> Sequence[Any]:
+class MixedHalves(Sequence):
+    """A blend's table halves a recorded run would have traced with ``populations`` (``(share, fiber)``): each
+    half the populations' :class:`WalkedHalves` half mixed by share (:func:`simulate.raytrace.yarn.mix_tables`), as
+    :func:`simulate.raytrace.fabric_beta` mixes them, made when it is read and checked against the traced half."""
+
+    def __init__(self, record: dict, populations: Sequence[tuple[float, Any]]) -> None:
+        self._record = record
+        self._shares = [float(share) for share, _ in populations]
+        self._walked = [WalkedHalves(record, fiber) for _, fiber in populations]
+
+    def __len__(self) -> int:
+        return len(self._record["tables"])
+
+    @overload
+    def __getitem__(self, h: int) -> Any: ...
+
+    @overload
+    def __getitem__(self, h: slice) -> Sequence[Any]: ...
+
+    def __getitem__(self, h: int | slice) -> Any:
+        if isinstance(h, slice):
+            return [self[i] for i in range(len(self))[h]]
+        from simulate.raytrace.yarn import mix_tables
+
+        table = mix_tables([w[h] for w in self._walked], self._shares)
+        _check_half(self._record["tables"][h % len(self)], table)
+        return table
+
+
+def new_tables(record: dict, fiber: Any, tables: tuple | None = None,
+               populations: Sequence[tuple[float, Any]] | None = None) -> Sequence[Any]:
     """The table halves a recorded run would have traced with ``fiber`` (the same walk: photons, seeds, grid;
-    from the table cache when there): a :class:`WalkedHalves`, each half made when it is read. ``tables`` given
-    (a blend's mixed halves): they are checked and returned."""
+    from the table cache when there): a :class:`WalkedHalves`, each half made when it is read. ``populations``
+    (a blend's ``(share, fiber)``): a :class:`MixedHalves`. ``tables`` given (mixed halves): they are checked and
+    returned."""
     if tables is None:
-        return WalkedHalves(record, fiber)
+        return WalkedHalves(record, fiber) if populations is None else MixedHalves(record, populations)
     for traced, table in zip(record["tables"], tables):
         _check_half(traced, table)
     return tuple(tables)

@@ -30,10 +30,11 @@ The fiber table on a yarn (the decisions, docs/physics.md section 6)
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -50,7 +51,8 @@ from simulate.montecarlo.rows import execute_rows
 from simulate.montecarlo.transport import SpectralTargets, make_control
 from simulate.optics.fresnel import reflectance_from_cos
 
-__all__ = ["TABLE_MODULES", "YarnTable", "yarn_table", "table_halves", "table_key", "held_groups", "HALF_SEED_STEP"]
+__all__ = ["TABLE_MODULES", "YarnTable", "yarn_table", "table_halves", "table_key", "held_groups", "HALF_SEED_STEP",
+           "mix_tables", "blend_halves"]
 
 #: The modules whose source is part of every yarn table's cache key (the kernel and the table's builders).
 TABLE_MODULES = (
@@ -171,6 +173,42 @@ def table_halves(fiber: Any, wavelengths_nm: Any, photons_per_row: int, seed: in
     """
     a, b = _tables(fiber, wavelengths_nm, [seed, seed + HALF_SEED_STEP], threads, None, cache,
                    photons_per_row=photons_per_row, **grid)
+    return a, b
+
+
+def mix_tables(tables: Sequence[YarnTable], shares: Sequence[float]) -> YarnTable:
+    """A blend's table: the tables of its fiber populations (one grid) with ``T``, ``c_bar`` and ``tau`` mixed by share.
+
+    A ray that enters a yarn (or a felt's fiber) then scatters, in expectation, as one drawn from the
+    populations by share: the table is linear in what the tracer reads of it. ``photons`` and ``seconds`` are the
+    tables' sums. One table of share 1 is that table, bit for bit. :class:`ValueError` for tables of two grids.
+    """
+    first = tables[0]
+    for t in tables[1:]:
+        if t.T.shape != first.T.shape or t.radius_um != first.radius_um or not np.array_equal(t.w_t_nodes,
+                                                                                               first.w_t_nodes):
+            raise ValueError("mix_tables: the populations' tables are on different grids (radius, nodes or bins)")
+    T = shares[0] * first.T
+    c_bar = shares[0] * first.c_bar
+    tau = shares[0] * first.tau
+    for share, t in zip(shares[1:], tables[1:], strict=True):
+        T = T + share * t.T
+        c_bar = c_bar + share * t.c_bar
+        tau = tau + share * t.tau
+    return dataclasses.replace(first, T=T, c_bar=c_bar, tau=tau, photons=int(sum(t.photons for t in tables)),
+                               seconds=float(sum(t.seconds for t in tables)))
+
+
+def blend_halves(populations: Sequence[tuple[float, Any]], wavelengths_nm: Any, photons_per_row: int, seed: int,
+                 threads: int | None = None, cache: bool = True, **grid: Any) -> tuple[YarnTable, YarnTable]:
+    """:func:`table_halves` of each of a blend's ``populations`` (``(share, fiber)``), mixed by share.
+
+    Half by half (:func:`mix_tables`); each population's halves are walked as one fiber's are (the same photons,
+    seeds and grid).
+    """
+    halves = [table_halves(f, wavelengths_nm, photons_per_row, seed, threads, cache, **grid) for _, f in populations]
+    shares = [float(share) for share, _ in populations]
+    a, b = (mix_tables([pair[h] for pair in halves], shares) for h in range(2))
     return a, b
 
 

@@ -281,14 +281,11 @@ def test_a_share_the_data_cannot_see_is_not_identifiable(tmp_path, capsys):
     assert sum(p.share for p in fitted.populations) == pytest.approx(1.0, abs=1e-9)
 
 
-def test_the_mc_fit_surrogate_mixes_a_blend_as_the_summation(walked, monkeypatch):
+def test_the_mc_fit_surrogate_mixes_a_blend_as_the_summation(walked):
     """The Monte Carlo fit's surrogate (the summation, corrected) takes a blend: with no correction it is the
-    coarse model's mix. (The surrogate alone, on the walked cotton: the woven Monte Carlo's refusal of a blend,
-    which a felt's does not have, is lifted here and tested below.)"""
-    from fabric_optics.fitting import spacemapping
+    coarse model's mix (the surrogate alone, on the walked cotton)."""
     from fabric_optics.fitting.spacemapping import MCFitProblem, Surrogate
 
-    monkeypatch.setattr(spacemapping, "check_blend", lambda config, method: None)
     cfg = two()
     free = [FreeParameter("populations[0].share", 0.3, SHARE_MIN, 1 - SHARE_MIN, "share")]
     base = MCFitProblem(cfg, walked.measured, free, method="mc", target_rel_err=0.3, seed=3, wavelengths_nm=WL6)
@@ -301,11 +298,16 @@ def test_the_mc_fit_surrogate_mixes_a_blend_as_the_summation(walked, monkeypatch
 
 
 def test_the_mc_fit_refuses_a_blend_the_woven_monte_carlo_cannot_trace():
+    """The woven Monte Carlo traces a blend whose populations share one surface term: one of two reflection slopes
+    is refused before any walk, in one line naming the field."""
     from fabric_optics.fitting.spacemapping import MCFitProblem
 
-    cfg = two()         # red cotton: woven
-    with pytest.raises(FitError, match="--method mc: .*the woven Monte Carlo takes one fiber population"):
+    cfg = blend([{"name": "magenta", "share": 0.3, "fiber": {"dye": MAGENTA}, "surface": {"rms_slope": 0.2}},
+                 {"name": "cyan", "share": 0.7, "fiber": {"dye": CYAN}}])         # red cotton: woven
+    with pytest.raises(FitError, match="^--method mc: .*populations: the woven Monte Carlo traces one "
+                                       "surface.rms_slope for every population") as e:
         MCFitProblem(cfg, FLAT, parse_free(["populations.magenta.share"], cfg), method="mc")
+    assert "\n" not in str(e.value)
 
 
 def test_a_field_a_population_overrides_is_not_freed_in_the_config():

@@ -104,8 +104,8 @@ def test_the_fit_specification_is_frozen(red_cotton):
 
 def test_a_fit_of_a_blend_it_cannot_fit_is_refused_in_one_line_naming_the_config(tmp_path):
     """A blend whose populations differ in more than dye and share (here the radius) is not fitted: one walk must
-    serve every population. Every method refuses it before any walk, naming the file (the Monte Carlo fit of a
-    woven blend: the woven Monte Carlo takes one population)."""
+    serve every population. Every method refuses it before any walk, naming the file (the Monte Carlo fit: the
+    woven Monte Carlo traces one radius)."""
     import fabric_optics as fo
 
     cfg = tmp_path / "blend.toml"
@@ -115,7 +115,7 @@ def test_a_fit_of_a_blend_it_cannot_fit_is_refused_in_one_line_naming_the_config
             + '[populations.fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [0.2, 0.2]\n')
     cfg.write_text(text, encoding="utf-8")
     why = {"classic": "'pale' and 'dark' differ in fiber.radius_um", "summation": "differ in fiber.radius_um",
-           "mc": "the woven Monte Carlo takes one fiber population, this config has 2 \\(pale, dark\\)"}
+           "mc": "the woven Monte Carlo traces one fiber.radius_um for every population, got 5 and 10"}
     for method in ("classic", "summation", "mc"):
         with pytest.raises(fo.InputError, match=r"blend\.toml: populations: .*" + why[method]) as exc:
             fo.fit(cfg, "fixtures/analytic/measured_red", ["rms_slope"], tmp_path / f"out-{method}",

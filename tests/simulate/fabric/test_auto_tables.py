@@ -8,10 +8,12 @@ import math
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gonio.acquisition.plan import load_plan
-from simulate.config import load_config
+from simulate import products
+from simulate.config import load_config, parse_config
 from simulate.fabric import auto
 from fabric_optics.bench import method_errors
 
@@ -271,23 +273,20 @@ def test_against_measures_a_tables_departures_from_another(tmp_path, capsys):
     assert json.loads((tmp_path / "c.json").read_text())["summation"]["mean_z"] == pytest.approx(0.6)
 
 
-def test_a_woven_blend_has_no_study_and_auto_refuses_it_as_the_monte_carlo_does(tmp_path, capsys, caplog):
-    """The woven Monte Carlo traces one population, so no woven blend can be studied against it: its table is none
-    (the reason says a blend), and `simulate fabric --method auto` refuses it before any work, in one line."""
-    from fabric_optics.cli.simulate import main
-
+def test_a_woven_blend_has_no_study_and_auto_gives_it_the_monte_carlo(caplog):
+    """No woven blend has been studied against the woven Monte Carlo (which takes it): its table is none, the
+    reason says a blend, and `--method auto` chooses the Monte Carlo at every geometry, with that line logged."""
     text = (CONFIGS / "red-cotton.toml").read_text() + (
         '\n[[populations]]\nname = "a"\nshare = 0.5\n[[populations]]\nname = "b"\nshare = 0.5\n'
         '[populations.fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [0.02, 0.02]\n')
-    path = tmp_path / "woven-blend.toml"
-    path.write_text(text)
-    cfg = load_config(path)
+    cfg = parse_config(text, "woven-blend.toml")
     assert auto.table_for(cfg) is None
     with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
         errors = auto.errors_for(cfg)
-    assert errors["geometries"] == [] and "a blend ([[populations]]) of [structure] kind = \"woven\"" in \
-        errors["provenance"]["reason"]
-    code = main(["fabric", str(path), "--method", "auto", "--out", str(tmp_path / "out")])
-    err = capsys.readouterr().err
-    assert code == 2 and "the woven Monte Carlo takes one fiber population" in err, err
-    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+    reason = errors["provenance"]["reason"]
+    assert errors["geometries"] == [] and "a blend ([[populations]]) of [structure] kind = \"woven\"" in reason
+    assert reason.endswith("the Monte Carlo at every geometry") and reason in caplog.text
+    chosen, _ = auto.choose(np.array([0.0, 45.0]), np.zeros(2), np.array([10.0, 30.0]), np.zeros(2), 0.5, errors)
+    assert list(chosen) == ["mc", "mc"]        # where the woven table would have allowed a cheaper model
+    assert set(auto.choose(np.array([0.0, 45.0]), np.zeros(2), np.array([10.0, 30.0]), np.zeros(2), 0.5)[0]) != {"mc"}
+    products.check_blend(cfg, "auto")          # and the Monte Carlo it chooses takes the blend
