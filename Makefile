@@ -138,7 +138,7 @@ browser:
 	fi
 
 test: $(STAMP) browser
-	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
+	$(PY) -m pytest -q -n 3 --dist loadfile -m "not slow"
 
 test-slow: $(STAMP) browser
 	$(PY) -m pytest -q -n 2 --dist loadfile -m slow

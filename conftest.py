@@ -8,14 +8,15 @@ through the environment, so a table one worker computed is loaded by the other. 
 for concurrent processes (an entry is written to a temporary file and moved into place). A test
 that counts the cache's entries, hits or misses uses the ``cache_dir`` fixture: a directory of its own.
 
-With two or more xdist workers, the controller first runs ``tests/warm_kernels.py``: one process
-per group of kernels, the groups at once, each compiling its kernels into numba's on-disk cache (the
-kernels both groups use compiled by one, the other waiting for them: the script's docstring);
-the workers then load them instead of each compiling every kernel it meets. The kernels are numba's cache
-of the user (:mod:`simulate.kernelcache`: keyed by their sources' content, so a run from another clone of the
-same sources only loads them and the warm-up takes seconds). A test that judges numba's cache
+With two or more xdist workers, the controller starts ``tests/warm_kernels.py`` beside them: one
+process per group of kernels, each compiling its kernels into numba's on-disk cache while the workers run
+the first files, which need none (``testpaths``: the instrument, the comparison and the command lines come
+first). A kernel is compiled once: :mod:`simulate.kernelcache` locks each kernel's compilation, so a worker
+that meets a kernel being compiled waits for it and loads it. The kernels are numba's cache of the user
+(:mod:`simulate.kernelcache`: keyed by their sources' content, so a run from another clone of the same
+sources only loads them and the warm-up takes seconds). A test that judges numba's cache
 (``tests/simulate/mc/test_kernel_cache.py``) gives its own processes a ``NUMBA_CACHE_DIR`` of its own,
-filled with a copy of the kernels this warm-up compiled.
+filled with a copy of the kernels compiled so far.
 """
 
 from __future__ import annotations
@@ -26,7 +27,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +47,8 @@ os.environ.pop("FABRIC_OPTICS_NO_CACHE", None)
 
 _WARM_KERNELS = Path(__file__).with_name("tests") / "warm_kernels.py"
 _WARM_GROUPS = ("monte-carlo", "fabric")
-_warm_report: list[str] = []
+#: the warm-up's processes (group, process), started by the controller
+_warm_procs: list[tuple[str, subprocess.Popen]] = []
 
 # The thread-independence tests compare 1 and 2 compiled threads: numba's pool must hold at least 2
 # (set before numba is first imported; on a 1-core machine the two threads share the core).
@@ -63,34 +64,53 @@ def _xdist_workers(config: pytest.Config) -> int:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """With 2 or more workers: compile the kernels once, one process per group (module docstring).
+    """With 2 or more workers: start compiling the kernels, one process per group, beside the workers.
 
-    A group that fails is reported in the summary and the run goes on (its kernels are then compiled
-    by the tests that use them, which also show the failure)."""
+    The processes are collected at the end of the run; a group that failed is reported in the summary
+    (its kernels are then compiled by the tests that use them, which also show the failure)."""
     if _xdist_workers(config) < 2 or config.option.collectonly:
         return
-    start = time.perf_counter()
-    # the file by which the monte-carlo group tells the fabric group that their shared kernels are compiled
-    ready_dir = tempfile.mkdtemp(prefix="fabric-optics-warm-kernels-")
-    ready = Path(ready_dir) / "shared-ready"
-    env = dict(os.environ, FABRIC_OPTICS_NO_CACHE="1", WARM_KERNELS_SHARED_READY=str(ready))
-    procs = [(group, subprocess.Popen([sys.executable, "-P", str(_WARM_KERNELS), group], env=env,
-                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
-             for group in _WARM_GROUPS]
-    lines = []
-    for group, proc in procs:
-        out, _ = proc.communicate()
-        ready.touch()     # a group that ended (the monte-carlo group comes first) keeps no other group waiting
-        lines.append(out.strip().splitlines()[-1] if proc.returncode == 0 and out.strip()
-                     else f"{group} failed (exit {proc.returncode}): {out.strip().splitlines()[-1:] or ''}")
-    shutil.rmtree(ready_dir, ignore_errors=True)
-    _warm_report.append(f"numba kernels compiled before the workers start: {time.perf_counter() - start:.1f} s "
-                        f"({'; '.join(lines)})")
+    env = dict(os.environ, FABRIC_OPTICS_NO_CACHE="1")
+    for group in _WARM_GROUPS:
+        proc = subprocess.Popen([sys.executable, "-P", str(_WARM_KERNELS), group], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        _warm_procs.append((group, proc))
+    atexit.register(_stop_warm_up)
+
+
+#: the files that need no compiled kernel, run first (module docstring): the instrument, its command line
+#: and the comparison, whose tests mostly wait on the mock's serial and Modbus replies or draw figures
+_NO_KERNEL_FIRST = ("tests/gonio/", "tests/cli/", "gonio/", "compare/", "tests/compare/")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Run the files that need no kernel first, the rest in their collected order (a stable sort)."""
+    root = config.rootpath
+
+    def later(item: pytest.Item) -> bool:
+        path = item.path.relative_to(root).as_posix() if item.path.is_relative_to(root) else ""
+        return not path.startswith(_NO_KERNEL_FIRST)
+
+    items.sort(key=later)
+
+
+def _stop_warm_up() -> None:
+    """Stop the warm-up processes still running when the run ends early (an interrupted run)."""
+    for _, proc in _warm_procs:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
-    for line in _warm_report:
-        terminalreporter.write_line(line)
+    """The warm-up's line: each group's seconds, or how it failed."""
+    lines = []
+    for group, proc in _warm_procs:
+        out, _ = proc.communicate()
+        lines.append(out.strip().splitlines()[-1] if proc.returncode == 0 and out.strip()
+                     else f"{group} failed (exit {proc.returncode}): {out.strip().splitlines()[-1:] or ''}")
+    if lines:
+        terminalreporter.write_line(f"numba kernels compiled beside the first tests ({'; '.join(lines)})")
 
 
 @pytest.fixture(autouse=True)

@@ -1,16 +1,13 @@
-"""Compile the cached numba kernels the suite uses into numba's on-disk cache, before the workers start.
+"""Compile the cached numba kernels the suite uses into numba's on-disk cache, beside the first tests.
 
-Run by the root ``conftest.py`` in the xdist controller (``-n 2`` or more) as ``python warm_kernels.py
-GROUP`` in one process per group, the groups at once: each group runs tiny versions of the routes
-whose kernels it compiles, and the test workers then load every kernel instead of each compiling it.
-The ray tracer of the fabric group walks its yarn's exit table with the fiber Monte Carlo kernels the
-monte-carlo group compiles too: the monte-carlo group compiles them first (a tiny yarn table) and then
-creates the file named by ``WARM_KERNELS_SHARED_READY`` (set by the caller; it is created when that step
-fails too); the fabric group waits for that file before its first route and loads those kernels, so no
-kernel is compiled twice. When the user's kernel cache (:mod:`simulate.kernelcache`) already holds them (any clone
-of the same sources filled it) the groups only load. Nothing is
-written but numba's cache and that file: the table cache is off and the outputs go to a temporary
-directory. The script prints the seconds it took.
+Started by the root ``conftest.py`` in the xdist controller (``-n 2`` or more) as ``python warm_kernels.py
+GROUP``, one process per group, the groups at once and beside the workers: each group runs tiny versions of
+the routes whose kernels it compiles, while the workers run the tests that need no kernel (the suite's first
+files). A kernel is compiled by one process only: :mod:`simulate.kernelcache` takes a per-kernel lock around
+numba's compilation, so a worker or the other group that needs a kernel being compiled waits for it and loads
+it from the cache. When the user's kernel cache already holds them (any clone of the same sources filled it)
+the groups only load. Nothing is written but numba's cache: the table cache is off and the outputs go to a
+temporary directory. The script prints the seconds it took.
 """
 
 from __future__ import annotations
@@ -132,36 +129,18 @@ def _woven_mc(tmp: Path) -> None:
               "--target-rel-err", "0.3", "--no-progress"])
 
 
-#: the groups, one process each (the Monte Carlo kernels and the fit's walk; the woven scene and shading), each
-#: as the routes before the meeting point and those after it (module docstring): the monte-carlo group first
-#: compiles the kernels both need, then creates the ready file; the fabric group waits for that file (its
-#: summation walks the fiber too)
-GROUPS = {"monte-carlo": ((_yarn_table,), (_monte_carlo, _structure)),
-          "fabric": ((), (_woven_mc, _woven_summation))}
-SHARED_BY = "monte-carlo"
-#: the ready file's variable (set by the caller; without it no group waits) and how long a group waits at most
-READY_ENV = "WARM_KERNELS_SHARED_READY"
-READY_TIMEOUT_S = 900.0
+#: the groups, one process each: the Monte Carlo kernels and the fit's walk; the woven scene and shading (its yarn
+#: table walks the fiber with the Monte Carlo group's kernels: whichever group meets one first compiles it)
+GROUPS = {"monte-carlo": (_yarn_table, _monte_carlo, _structure),
+          "fabric": (_woven_mc, _woven_summation)}
 
 
 def main(argv: list[str]) -> int:
     (group,) = argv
     start = time.perf_counter()
     os.environ["FABRIC_OPTICS_NO_CACHE"] = "1"
-    ready = os.environ.get(READY_ENV, "")
-    first, then = GROUPS[group]
     with tempfile.TemporaryDirectory(prefix="warm-kernels-") as tmp:
-        try:
-            for route in first:
-                route(Path(tmp))
-        finally:
-            if ready and group == SHARED_BY:
-                Path(ready).touch()
-        if ready and group != SHARED_BY:
-            deadline = time.monotonic() + READY_TIMEOUT_S
-            while not os.path.exists(ready) and time.monotonic() < deadline:
-                time.sleep(0.1)
-        for route in then:
+        for route in GROUPS[group]:
             route(Path(tmp))
     print(f"{group}: {time.perf_counter() - start:.1f} s")
     return 0
