@@ -36,6 +36,15 @@ from simulate.montecarlo.transport import (
 __all__ = ["run_cylinder"]
 
 
+def _place_scatterers(medium: np.ndarray, profile: Any, radius: float) -> None:
+    """Write ``run_cylinder``'s ``scatterer_profile`` into the medium row, or a ParameterError naming it."""
+    kind, a = profile if isinstance(profile, tuple) and len(profile) == 2 else (None, None)
+    if kind not in ("skin", "core") or not (isinstance(a, (int, float)) and 0.0 < a < radius):
+        raise ParameterError(f"scatterer_profile must be ('skin' or 'core', inner radius in (0, radius)), got {profile!r}")
+    medium[K.M_SCAT_PROFILE] = K.SCAT_SKIN if kind == "skin" else K.SCAT_CORE
+    medium[K.M_SCAT_RADIUS] = float(a)
+
+
 def run_cylinder(
     mu_a: float,
     mu_s: float,
@@ -131,13 +140,7 @@ def run_cylinder(
         mode, params = T.CYLINDER_DIRECTIONS, np.array([float(n_psi), float(n_mu), float(n_phi), 1.0, 1.0])
     targets = None
     if scatterer_profile is not None:
-        kind, a = (scatterer_profile if isinstance(scatterer_profile, tuple) and len(scatterer_profile) == 2
-                   else (None, None))
-        if kind not in ("skin", "core") or not (isinstance(a, (int, float)) and 0.0 < a < r):
-            raise ParameterError("scatterer_profile must be ('skin' or 'core', inner radius in (0, radius)), "
-                                 f"got {scatterer_profile!r}")
-        medium[K.M_SCAT_PROFILE] = K.SCAT_SKIN if kind == "skin" else K.SCAT_CORE
-        medium[K.M_SCAT_RADIUS] = float(a)
+        _place_scatterers(medium, scatterer_profile, r)
         if mode == T.NONE:
             mode, params = T.CYLINDER_DIRECTIONS, np.array([1.0, 1.0, 1.0, 1.0, 1.0])
     if dye_profile is not None:

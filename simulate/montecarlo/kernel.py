@@ -380,11 +380,39 @@ def _clear_length(y, z, uy, uz, s, radius, mode):
 
 
 @numba.njit(cache=True, inline="always")
-def _scatters_at(y, z, radius, mode):
-    """Whether a collision at ``(y, z)`` meets the scatterers of a scatterer profile (else a null collision)."""
+def _placement(medium):
+    """A profiled run's ``(dye_mode, dye_radius, scat_mode, scat_radius)`` from its medium row."""
+    return (int(medium[M_DYE_PROFILE]), medium[M_DYE_RADIUS], int(medium[M_SCAT_PROFILE]),
+            medium[M_SCAT_RADIUS])
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _placed_lengths(place, y, z, uy, uz, s, pend_d, pend_c):
+    """The pending dyed and clear lengths after a path of length ``s`` from ``(y, z)`` along ``u``.
+
+    ``place``: the run's ``(dye_mode, dye_radius, scat_mode, scat_radius)``; each profile's length is taken
+    only when the run has that profile. ``(pend_d, pend_c)``.
+    """
+    dye_mode, dye_radius, scat_mode, scat_radius = place
+    if dye_mode != DYE_UNIFORM:
+        pend_d += _dyed_length(y, z, uy, uz, s, dye_radius, dye_mode)
+    if scat_mode != SCAT_UNIFORM:
+        pend_c += _clear_length(y, z, uy, uz, s, scat_radius, scat_mode)
+    return pend_d, pend_c
+
+
+@numba.njit(cache=True, inline="always")
+def _null_at(place, y, z):
+    """Whether a collision at ``(y, z)`` is a null collision.
+
+    The run places its scatterers and the point lies in the clear region (``place`` as in :func:`_placed_lengths`).
+    """
+    _, _, mode, radius = place
+    if mode == SCAT_UNIFORM:
+        return False
     r2 = y * y + z * z
     a2 = radius * radius
-    return r2 > a2 if mode == SCAT_SKIN else r2 < a2
+    return r2 <= a2 if mode == SCAT_SKIN else r2 >= a2
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
@@ -534,10 +562,7 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
     walk, beam, rw, scratch = recs.walk, recs.beam, recs.rw, recs.scratch
     geometry = inp.geometry
     size = inp.geom[0]
-    dye_mode = int(inp.medium[M_DYE_PROFILE]) if profiled else DYE_UNIFORM
-    dye_radius = inp.medium[M_DYE_RADIUS] if profiled else 0.0
-    scat_mode = int(inp.medium[M_SCAT_PROFILE]) if profiled else SCAT_UNIFORM
-    scat_radius = inp.medium[M_SCAT_RADIUS] if profiled else 0.0
+    place = _placement(inp.medium) if profiled else (DYE_UNIFORM, 0.0, SCAT_UNIFORM, 0.0)
     absorbed = 0.0  # (added to at every collision)
     reflections = 0
     s0, s1, s2, s3 = seed_state(seed, batch)
@@ -564,19 +589,15 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
             zn = z + step * uz
             if inside(geometry, size, xn, yn, zn):  # a collision (the end point is inside: convex shape)
                 if profiled:
-                    if dye_mode != DYE_UNIFORM:
-                        pend_d += _dyed_length(y, z, uy, uz, step, dye_radius, dye_mode)
-                    if scat_mode != SCAT_UNIFORM:
-                        pend_c += _clear_length(y, z, uy, uz, step, scat_radius, scat_mode)
+                    pend_d, pend_c = _placed_lengths(place, y, z, uy, uz, step, pend_d, pend_c)
                 x = xn
                 y = yn
                 z = zn
                 path += step
                 w, absorbed = implicit_capture(w, absorbed, walk.albedo, walk.absorb)
-                if profiled and scat_mode != SCAT_UNIFORM and not _scatters_at(y, z, scat_radius, scat_mode):
+                if profiled and _null_at(place, y, z):
                     # a null collision (module docstring): straight on, its path pending, no spectral factor
-                    if rw.reweight:
-                        pend_l += step
+                    pend_l += step if rw.reweight else 0.0
                     alive = w > 0.0
                     continue
                 scatterings += 1
@@ -597,10 +618,7 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
             else:  # the boundary
                 s_b = distance_to_boundary(geometry, size, x, y, z, ux, uy, uz)
                 if profiled:
-                    if dye_mode != DYE_UNIFORM:
-                        pend_d += _dyed_length(y, z, uy, uz, s_b, dye_radius, dye_mode)
-                    if scat_mode != SCAT_UNIFORM:
-                        pend_c += _clear_length(y, z, uy, uz, s_b, scat_radius, scat_mode)
+                    pend_d, pend_c = _placed_lengths(place, y, z, uy, uz, s_b, pend_d, pend_c)
                 x += s_b * ux
                 y += s_b * uy
                 z += s_b * uz
@@ -736,15 +754,19 @@ simulate_batch_profiled = _make_kernel(True, profiled=True)
 
 
 def has_profile(inp: KernelInputs) -> bool:
-    """The run places its dye or its scatterers (``medium[M_DYE_PROFILE]``, ``medium[M_SCAT_PROFILE]``): the
-    profiled flavour walks them."""
+    """The run places its dye or its scatterers (``medium[M_DYE_PROFILE]``, ``medium[M_SCAT_PROFILE]``).
+
+    The profiled flavour walks them.
+    """
     return (inp.medium.shape[0] > M_DYE_PROFILE and inp.medium[M_DYE_PROFILE] != DYE_UNIFORM) \
         or has_scatterer_profile(inp)
 
 
 def has_scatterer_profile(inp: KernelInputs) -> bool:
-    """The run places its scatterers (``medium[M_SCAT_PROFILE]``): walked by the profiled flavour even
-    without tallies (the plain loop scatters everywhere)."""
+    """The run places its scatterers (``medium[M_SCAT_PROFILE]``).
+
+    Walked by the profiled flavour even without tallies (the plain loop scatters everywhere).
+    """
     return inp.medium.shape[0] > M_SCAT_PROFILE and inp.medium[M_SCAT_PROFILE] != SCAT_UNIFORM
 
 
@@ -850,8 +872,10 @@ def run_rows_for(inp: KernelInputs):
 
 
 def run_batches_for(inp: KernelInputs):
-    """The compiled :func:`run_batches` flavour a run needs (plain when nothing is tallied and the scatterers
-    are everywhere)."""
+    """The compiled :func:`run_batches` flavour a run needs.
+
+    Plain when nothing is tallied and the scatterers are everywhere.
+    """
     if has_scatterer_profile(inp):
         return run_batches_profiled
     if inp.tally_mode == T.NONE and inp.vertex_mode == T.V_NONE:
