@@ -230,8 +230,8 @@ def make_inputs(
     if medium.shape[0] > K.M_SCAT_PROFILE and medium[K.M_SCAT_PROFILE] != K.SCAT_UNIFORM:
         if vertex_mode != T.V_NONE:
             raise ParameterError("a scatterer profile (skin or core) is walked with exit tallies only: the next-event "
-                                 "vertex estimators assume scatterers through the fiber; use the exit-tally route "
-                                 "(the exit and yarn tables, the beam route) or the uniform profile")
+                                 "vertex estimators assume scatterers through the fiber; use the beam route "
+                                 "([fiber] route = \"beam\") or the uniform profile")
         if geometry == G.SLAB:
             raise ParameterError("a scatterer profile (skin or core) needs a cylinder")
     consts = np.zeros((outputs.shape[0], T.N_NEE))
