@@ -85,6 +85,12 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
     # dye_depth_um = 2.0               #   (from the surface to dye_depth_um) | "core" (below a clear skin of
                                        #   dye_depth_um); dye_depth_um in (0, radius_um), ring and core only;
                                        #   walked by the Monte Carlo's exit tables (simulate.montecarlo.kernel)
+    scatterer_profile = "uniform"      # optional: where the scatterers ([particles] or [medium] mu_s) sit:
+    # scatterer_depth_um = 2.0         #   "uniform" | "skin" (from the surface to scatterer_depth_um, a clear
+                                       #   core) | "core" (below a clear skin of scatterer_depth_um); depth in
+                                       #   (0, radius_um), skin and core only; the clear part keeps the host's
+                                       #   index and dye; particles with k = 0; every population shares it;
+                                       #   walked by the fiber's exit tables (the summation), not the yarn tables
 
     [fiber.dye]                        # optional: host absorption mu_a_host(lambda), 1/um; ONE of
     wavelength_nm = [400, 500, 600]    #   a table: wavelength_nm + mu_a_per_um (>= 0)
@@ -197,6 +203,8 @@ _DEFAULT_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 710.0 + 1e-9, 10
 ROUTES = ("nee", "beam", "bssrdf")
 #: ``[fiber] dye_profile``: where the dye sits across the fiber (simulate.fiber.Fiber.dye_profile)
 DYE_PROFILES = ("uniform", "ring", "core")
+#: ``[fiber] scatterer_profile``: where the scatterers sit across the fiber (simulate.fiber.Fiber.scatterer_profile)
+SCATTERER_PROFILES = ("uniform", "skin", "core")
 #: ``[method] exit_bins`` when not given: None, chosen per run by
 #: :func:`simulate.raytrace.estimate.default_exit_bins` ([10, 20] for a felt of nearly clear fibers,
 #: whose exit cones coarser bins smear; [5, 10] for turbid fibers and woven yarns, which converge
@@ -230,7 +238,8 @@ def axial_node_grid(n: int) -> tuple[float, ...]:
 #: The keys of the schema's tables (a key outside them is refused, with a suggestion, before any
 #: field is read: :class:`simulate.config_table.Table`).
 _FIELDS: dict[str, tuple[str, ...]] = {
-    "fiber": ("radius_um", "n_host", "cell_width_deg", "route", "dye", "dye_profile", "dye_depth_um"),
+    "fiber": ("radius_um", "n_host", "cell_width_deg", "route", "dye", "dye_profile", "dye_depth_um",
+              "scatterer_profile", "scatterer_depth_um"),
     "fiber.dye": ("wavelength_nm", "mu_a_per_um", "curve", "baseline_per_um", "bands", "short_per_um",
                   "long_per_um", "edge_nm", "width_nm", "log10_per_um"),
     "particles": ("n", "k", "radius_um", "size", "volume_fraction", "number_density_per_um3"),
@@ -303,6 +312,9 @@ class Population:
     transmission_rms_slope_around: float | None
     dye_profile: str = "uniform"
     dye_depth_um: float = 0.0
+    #: the config's ``[fiber] scatterer_profile`` and ``scatterer_depth_um`` (every population's)
+    scatterer_profile: str = "uniform"
+    scatterer_depth_um: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -351,6 +363,9 @@ class SimulationConfig:
     #: ``[fiber] dye_profile``, ``dye_depth_um``: where the dye sits across the fiber
     dye_profile: str = "uniform"
     dye_depth_um: float = 0.0
+    #: ``[fiber] scatterer_profile``, ``scatterer_depth_um``: where the scatterers sit across the fiber
+    scatterer_profile: str = "uniform"
+    scatterer_depth_um: float = 0.0
 
     def population_configs(self) -> list[tuple[float, SimulationConfig]]:
         """``(share, config)`` of each fiber population.
@@ -399,7 +414,8 @@ class SimulationConfig:
                      roughness=self.rms_slope, cell_width_deg=self.cell_width_deg,
                      transmission_roughness=self.transmission_rms_slope,
                      transmission_roughness_around=self.transmission_rms_slope_around,
-                     dye_profile=self.dye_profile, dye_depth_um=self.dye_depth_um)
+                     dye_profile=self.dye_profile, dye_depth_um=self.dye_depth_um,
+                     scatterer_profile=self.scatterer_profile, scatterer_depth_um=self.scatterer_depth_um)
 
     def provenance(self) -> dict:
         """What produced a result: the config's name, source, SHA-256 and full text."""
@@ -557,6 +573,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     dye_t = fib.sub("dye", fields=_FIELDS["fiber.dye"])
     dye = dye_from_table(dye_t) if dye_t is not None else None
     profile, depth = _dye_profile(fib, radius, dye is not None)
+    scat_profile, scat_depth = _scatterer_profile(fib, radius)
     fib.done()
 
     if top.has("particles") == top.has("medium"):
@@ -610,7 +627,8 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
     structure = None if st_t is None else structure_from_table(st_t)
     base = Population(name="", share=1.0, radius_um=radius, n_host=n_host, dye=dye, particles=particles,
                       rms_slope=rms_slope, transmission_rms_slope=transmission_rms_slope,
-                      transmission_rms_slope_around=around, dye_profile=profile, dye_depth_um=depth)
+                      transmission_rms_slope_around=around, dye_profile=profile, dye_depth_um=depth,
+                      scatterer_profile=scat_profile, scatterer_depth_um=scat_depth)
     populations = _populations(top, base, hg is not None)
     top.done()
 
@@ -623,7 +641,7 @@ def parse_config(raw: bytes | str, path: str | Path = "<config>", *, source: str
         transmission_rms_slope=transmission_rms_slope, axial_shift=axial_shift,
         transmission_rms_slope_around=around, axial_nodes=axial_nodes, felt_realisations=int(realisations),
         populations=populations,
-        dye_profile=profile, dye_depth_um=depth)
+        dye_profile=profile, dye_depth_um=depth, scatterer_profile=scat_profile, scatterer_depth_um=scat_depth)
 
 
 def _populations(top: Table, base: Population, hg_medium: bool) -> tuple[Population, ...] | None:
@@ -692,6 +710,10 @@ def _population_fiber(ft: Table, base: Population, hg_medium: bool) -> dict[str,
     elif "radius_um" in fields and base.dye_profile != "uniform" and not base.dye_depth_um < fields["radius_um"]:
         raise ft.fail("radius_um", f"must exceed fiber.dye_depth_um ({base.dye_depth_um:g}) of the "
                                    f"{base.dye_profile} dye it keeps, got {fields['radius_um']:g}")
+    if ("radius_um" in fields and base.scatterer_profile != "uniform"
+            and not base.scatterer_depth_um < fields["radius_um"]):
+        raise ft.fail("radius_um", f"must exceed fiber.scatterer_depth_um ({base.scatterer_depth_um:g}) of the "
+                                   f"scatterers' {base.scatterer_profile}, got {fields['radius_um']:g}")
     ft.done()
     return fields
 
@@ -707,6 +729,19 @@ def _dye_profile(t: Table, radius_um: float, has_dye: bool) -> tuple[str, float]
     if not has_dye:
         raise t.fail("dye_profile", "places the fiber's dye: give a [fiber.dye] (or the population's) to place")
     depth = t.number("dye_depth_um", required=True, gt=0.0, lt=radius_um)
+    assert depth is not None
+    return profile, depth
+
+
+def _scatterer_profile(t: Table, radius_um: float) -> tuple[str, float]:
+    """``scatterer_profile`` and ``scatterer_depth_um`` of the ``[fiber]`` table."""
+    profile = t.string("scatterer_profile", "uniform", choices=SCATTERER_PROFILES) or "uniform"
+    if profile == "uniform":
+        if t.has("scatterer_depth_um"):
+            raise t.fail("scatterer_depth_um", f"is for scatterers in a skin or a core: give "
+                                               f"{t.name('scatterer_profile')} = \"skin\" or \"core\", or delete it")
+        return profile, 0.0
+    depth = t.number("scatterer_depth_um", required=True, gt=0.0, lt=radius_um)
     assert depth is not None
     return profile, depth
 

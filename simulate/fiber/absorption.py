@@ -234,13 +234,22 @@ def absorption_targets(optics: Any, group: np.ndarray, nodes: np.ndarray, walk_p
 
 
 def check_placement(fiber: Fiber, method: str, reference: Fiber | None = None) -> None:
-    """A placed dye's table (module docstring): the ``beam`` route, and a reference walk at the same placement
-    (its dyed region is the walk's). :class:`ParameterError` naming what to change otherwise."""
+    """A placed dye's (or placed scatterers') table (module docstring): the ``beam`` route, and a reference walk at
+    the same placement (its dyed region and its scatterers are the walk's). :class:`ParameterError` naming what to change otherwise."""
     profile = getattr(fiber, "dye_profile", "uniform")
     if reference is not None and (getattr(reference, "dye_profile", "uniform"), getattr(reference, "dye_depth_um", 0.0)) \
             != (profile, getattr(fiber, "dye_depth_um", 0.0)):
         raise ParameterError("absorption table: the reference fiber's dye_profile and dye_depth_um must be the "
                              "fiber's (the dyed region is walked with the reference's)")
+    placed = (getattr(fiber, "scatterer_profile", "uniform"), getattr(fiber, "scatterer_depth_um", 0.0))
+    if reference is not None and (getattr(reference, "scatterer_profile", "uniform"),
+                                  getattr(reference, "scatterer_depth_um", 0.0)) != placed:
+        raise ParameterError("absorption table: the reference fiber's scatterer_profile and scatterer_depth_um must "
+                             "be the fiber's (the scatterers sit where the reference's walk puts them)")
+    if placed[0] != "uniform" and method != "beam":
+        raise ParameterError(f"absorption table: scatterers in a {placed[0]} (scatterer_profile) are scored with exit "
+                             f"tallies only; the {method} route's next-event estimates assume scatterers through the "
+                             "fiber: use the beam route")
     if profile != "uniform" and method != "beam":
         raise ParameterError(f"absorption table: a {profile} dye (dye_profile) is scored with exit tallies only; "
                              f"the {method} route's next-event estimates assume a dye through the fiber: use the beam "

@@ -15,12 +15,14 @@ from simulate.media.medium import HGMedium, MieMedium
 from simulate.montecarlo.transport import ParameterError
 from simulate.optics import microfacet
 
-__all__ = ["METHODS", "DYE_PROFILES", "Fiber", "BRDFEstimate", "point_outputs", "range_outputs", "as_directions", "as_wavelengths",
+__all__ = ["METHODS", "DYE_PROFILES", "SCATTERER_PROFILES", "Fiber", "BRDFEstimate", "point_outputs", "range_outputs", "as_directions", "as_wavelengths",
            "surface_brdf"]
 
 METHODS = ("nee", "beam", "bssrdf")
 #: Where a fiber's dye sits (:attr:`Fiber.dye_profile`)
 DYE_PROFILES = ("uniform", "ring", "core")
+#: Where a fiber's scatterers sit (:attr:`Fiber.scatterer_profile`)
+SCATTERER_PROFILES = ("uniform", "skin", "core")
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,14 @@ class Fiber:
         :mod:`simulate.montecarlo.kernel`, "Dye profile"); the next-event routes refuse it.
     dye_depth_um : float
         The profile's depth below the surface (um), in ``(0, radius_um)``; 0 for the uniform profile.
+    scatterer_profile : str
+        Where the medium's scatterers (its particles) sit across the fiber: ``"uniform"`` (everywhere, the
+        default), ``"skin"`` (from the surface to the depth ``scatterer_depth_um``, a clear core) or ``"core"``
+        (below a clear skin of that depth). The clear part has the host's index and absorption (the dye, placed
+        by ``dye_profile`` independently); the particles must not absorb (``k = 0``). Walked by the exit-tally
+        routes with null collisions (:mod:`simulate.montecarlo.kernel`, "Scatterer profile").
+    scatterer_depth_um : float
+        The scatterer profile's depth below the surface (um), in ``(0, radius_um)``; 0 for the uniform profile.
     """
 
     radius_um: float
@@ -67,6 +77,8 @@ class Fiber:
     transmission_roughness_around: float | None = None
     dye_profile: str = "uniform"
     dye_depth_um: float = 0.0
+    scatterer_profile: str = "uniform"
+    scatterer_depth_um: float = 0.0
 
     def __post_init__(self) -> None:
         t = self.transmission_roughness
@@ -89,6 +101,14 @@ class Fiber:
                                               or not 0.0 < d < self.radius_um):
             raise ParameterError(f"Fiber: dye_depth_um must be a number in (0, radius_um = {self.radius_um:g}) for the "
                                  f"{self.dye_profile} profile, got {d!r}")
+        if self.scatterer_profile not in SCATTERER_PROFILES:
+            raise ParameterError(f"Fiber: scatterer_profile must be one of {', '.join(SCATTERER_PROFILES)}, "
+                                 f"got {self.scatterer_profile!r}")
+        d = self.scatterer_depth_um
+        if self.scatterer_profile != "uniform" and (isinstance(d, bool) or not isinstance(d, (int, float))
+                                                    or not 0.0 < d < self.radius_um):
+            raise ParameterError(f"Fiber: scatterer_depth_um must be a number in (0, radius_um = {self.radius_um:g}) "
+                                 f"for the {self.scatterer_profile} profile, got {d!r}")
 
     @property
     def dye_radius_um(self) -> float:
@@ -97,12 +117,26 @@ class Fiber:
         return float(self.radius_um) - float(self.dye_depth_um)
 
     @property
+    def scatterer_radius_um(self) -> float:
+        """The scatterer profile's inner boundary, ``radius_um - scatterer_depth_um`` (the radius where the skin
+        of scatterers or the clear skin begins)."""
+        return float(self.radius_um) - float(self.scatterer_depth_um)
+
+    @property
     def half_width(self) -> float:
         """Half the cell width in radians."""
         return math.radians(self.cell_width_deg) / 2.0
 
     def cell_count(self, what: str = "bssrdf route") -> int:
-        """Cells around the fiber, ``360 / cell_width_deg``; an error naming ``what`` unless it is an integer."""
+        """Cells around the fiber, ``360 / cell_width_deg``; an error naming ``what`` unless it is an integer.
+
+        The yarn table (``what`` "yarn table", the woven and felt Monte Carlo) refuses a scatterer profile: its
+        cache key does not hold one yet, so a table walked for one placement could be read for another.
+        """
+        if what == "yarn table" and self.scatterer_profile != "uniform":
+            raise ParameterError(f"yarn table: scatterers in a {self.scatterer_profile} (scatterer_profile) are "
+                                 "walked by the fiber's exit tables (the summation) only; use scatterer_profile = "
+                                 "\"uniform\" for the woven or felt Monte Carlo")
         n_psi = int(round(360.0 / self.cell_width_deg))
         if abs(n_psi * self.cell_width_deg - 360.0) > 1e-9:
             raise ParameterError(f"{what}: 360 / cell_width_deg must be an integer, got {self.cell_width_deg}")

@@ -20,7 +20,7 @@ from simulate.fiber.model import Fiber
 from simulate.media.medium import MieMedium
 from simulate.montecarlo import kernel as K
 from simulate.montecarlo.scatter import PhaseArrays, phase_arrays
-from simulate.montecarlo.transport import SpectralTargets
+from simulate.montecarlo.transport import ParameterError, SpectralTargets
 
 __all__ = ["GROUP_LOG_MU_S", "GROUP_G", "REWEIGHT_LIMIT", "BLEND", "SpectralOptics", "spectral_optics",
            "wavelength_groups", "blended_groups", "group_walk", "run_seed", "direction_keys", "phase_chi2",
@@ -76,7 +76,20 @@ def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = No
     dye = None
     if getattr(fiber, "dye_profile", "uniform") != "uniform":
         dye = np.array([host_absorption(fiber.medium, float(wl)) for wl in wavelengths_nm])
+    if getattr(fiber, "scatterer_profile", "uniform") != "uniform":
+        _check_clear_particles(fiber, wavelengths_nm, np.array(mu_a))
     return SpectralOptics(np.array(mu_s), np.array(mu_a), np.array(g), phases, dye)
+
+
+def _check_clear_particles(fiber: Fiber, wavelengths_nm: np.ndarray, mu_a: np.ndarray) -> None:
+    """A scatterer profile places the particles' scattering only: the walk absorbs ``mu_a`` everywhere, so the
+    particles themselves must not absorb (their absorption would sit where they are). ParameterError otherwise."""
+    host = np.array([host_absorption(fiber.medium, float(wl)) for wl in wavelengths_nm])
+    particles = mu_a - host
+    if np.any(particles > 1e-9 * np.maximum(mu_a, 1e-300)):
+        i = int(np.argmax(particles))
+        raise ParameterError(f"Fiber: scatterer_profile {fiber.scatterer_profile!r} takes particles that do not "
+                             f"absorb (k = 0); these absorb {particles[i]:.3g} /um at {float(wavelengths_nm[i]):g} nm")
 
 
 def host_absorption(medium: Any, wavelength_nm: float) -> float:
@@ -180,6 +193,9 @@ def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: b
         medium[K.M_DYE_PROFILE] = K.DYE_RING if fiber.dye_profile == "ring" else K.DYE_CORE
         medium[K.M_DYE_RADIUS] = fiber.dye_radius_um
         dye = optics.mu_a_dye[group].astype(float)
+    if getattr(fiber, "scatterer_profile", "uniform") != "uniform":    # the scatterers where they sit (null collisions)
+        medium[K.M_SCAT_PROFILE] = K.SCAT_SKIN if fiber.scatterer_profile == "skin" else K.SCAT_CORE
+        medium[K.M_SCAT_RADIUS] = fiber.scatterer_radius_um
     targets = SpectralTargets(
         mu_a=optics.mu_a[group].astype(float),
         mu_s=optics.mu_s[group].astype(float),

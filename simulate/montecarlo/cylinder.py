@@ -1,7 +1,7 @@
 """The Monte Carlo cylinder: photon transport in one infinite circular fiber.
 
 :func:`run_cylinder` lights the cylinder (axis ``+x``) with a parallel beam or at one point, with an
-optional ring or core dye profile, and returns a :class:`CylinderResult`: the exited fraction, its
+optional ring or core dye profile and scatterers in a skin or a core, and returns a :class:`CylinderResult`: the exited fraction, its
 standard error, the energy balance and optional direction bins. The fiber models build on the same
 machinery (:mod:`simulate.montecarlo.transport`).
 """
@@ -36,6 +36,15 @@ from simulate.montecarlo.transport import (
 __all__ = ["run_cylinder"]
 
 
+def _place_scatterers(medium: np.ndarray, profile: Any, radius: float) -> None:
+    """Write ``run_cylinder``'s ``scatterer_profile`` into the medium row, or a ParameterError naming it."""
+    kind, a = profile if isinstance(profile, tuple) and len(profile) == 2 else (None, None)
+    if kind not in ("skin", "core") or not (isinstance(a, (int, float)) and 0.0 < a < radius):
+        raise ParameterError(f"scatterer_profile must be ('skin' or 'core', inner radius in (0, radius)), got {profile!r}")
+    medium[K.M_SCAT_PROFILE] = K.SCAT_SKIN if kind == "skin" else K.SCAT_CORE
+    medium[K.M_SCAT_RADIUS] = float(a)
+
+
 def run_cylinder(
     mu_a: float,
     mu_s: float,
@@ -54,6 +63,7 @@ def run_cylinder(
     weight_threshold: float = DEFAULT_WEIGHT_THRESHOLD,
     survival: float = DEFAULT_SURVIVAL,
     dye_profile: tuple[str, float] | None = None,
+    scatterer_profile: tuple[str, float] | None = None,
 ) -> CylinderResult:
     r"""Photon transport in an infinite circular cylinder (a fiber) with axis ``t = +x``.
 
@@ -81,6 +91,11 @@ def run_cylinder(
         of their path's dyed length as a weight (:mod:`.kernel`, "Dye profile"); ``exited`` is read from the
         exit bins (``angular_bins``, default one bin), the walk's own bookkeeping (``absorbed``, ``energy``)
         is the white walk's.
+    scatterer_profile : (str, float), optional
+        ``("skin", a)``: ``mu_s`` scatters only beyond the radius ``a`` of the axis (scatterers in a skin, a
+        clear core); ``("core", a)``: only within it (a clear skin). The rest of the fiber is clear (same
+        index, same absorption). Walked with null collisions (:mod:`.kernel`, "Scatterer profile"); with
+        or without a dye profile.
 
     Returns
     -------
@@ -124,6 +139,10 @@ def run_cylinder(
         n_psi, n_mu, n_phi = (positive_int("angular_bins", int(v), 100_000) for v in angular_bins)
         mode, params = T.CYLINDER_DIRECTIONS, np.array([float(n_psi), float(n_mu), float(n_phi), 1.0, 1.0])
     targets = None
+    if scatterer_profile is not None:
+        _place_scatterers(medium, scatterer_profile, r)
+        if mode == T.NONE:
+            mode, params = T.CYLINDER_DIRECTIONS, np.array([1.0, 1.0, 1.0, 1.0, 1.0])
     if dye_profile is not None:
         kind, a = dye_profile if isinstance(dye_profile, tuple) and len(dye_profile) == 2 else (None, None)
         if kind not in ("ring", "core") or not (isinstance(a, (int, float)) and 0.0 < a < r):

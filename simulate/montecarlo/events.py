@@ -40,9 +40,9 @@ from simulate.montecarlo.vecmath import vexp
 from simulate.optics.fresnel import fresnel_unpolarized, refracted_cos
 
 __all__ = ["M_MU_A", "M_MU_S", "M_G", "M_N", "M_PHASE", "M_ROUGH", "M_ROUGH_B", "M_DYE_PROFILE", "M_DYE_RADIUS",
-           "N_MEDIUM", "C_WEIGHT_THRESHOLD", "C_SURVIVAL", "C_MAX_EVENTS", "N_CONTROL", "Walk", "walk_constants",
+           "M_SCAT_PROFILE", "M_SCAT_RADIUS", "N_MEDIUM", "C_WEIGHT_THRESHOLD", "C_SURVIVAL", "C_MAX_EVENTS", "N_CONTROL", "Walk", "walk_constants",
            "free_path", "refract_in", "implicit_capture", "fresnel_reflects", "mirror", "refract_out", "roulette_below",
-           "roulette", "catch_up", "catch_up_dyed", "largest", "end_history", "add_totals"]
+           "roulette", "catch_up", "catch_up_dyed", "catch_up_placed", "largest", "end_history", "add_totals"]
 
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # as kernel._FASTMATH
 
@@ -56,7 +56,9 @@ M_ROUGH = 5  # Beckmann RMS slope of the boundary for light crossing it, along t
 M_ROUGH_B = 6  # ... and about the axis (the same value: isotropic)
 M_DYE_PROFILE = 7  # where the targets' dye absorbs across a cylinder: kernel.DYE_UNIFORM (0), DYE_RING, DYE_CORE
 M_DYE_RADIUS = 8  # the profile's inner boundary: the dye at r > it (ring) or at r < it (core)
-N_MEDIUM = 9
+M_SCAT_PROFILE = 9  # where the scatterers sit across a cylinder: kernel.SCAT_UNIFORM (0), SCAT_SKIN, SCAT_CORE
+M_SCAT_RADIUS = 10  # the scatterer profile's inner boundary: scatterers at r > it (skin) or at r < it (core)
+N_MEDIUM = 11
 
 # control array slots (kernel.KernelInputs.control; re-exported by kernel)
 C_WEIGHT_THRESHOLD = 0
@@ -252,6 +254,20 @@ def catch_up_dyed(spec_w, log_s, d_mu_u, spec_dye, n, length, dyed):
     """
     for l in range(spec_w.shape[0]):
         spec_w[l] *= vexp(n * log_s[l] - d_mu_u[l] * length - spec_dye[l] * dyed)
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def catch_up_placed(spec_w, log_s, d_mu_u, spec_dye, d_mu_s, n, length, dyed, clear):
+    """:func:`catch_up_dyed` with a scatterer profile too.
+
+    :func:`catch_up_dyed` where the scatterers sit in part of the fiber: the walk takes null collisions
+    (no scattering, no spectral factor) in the clear region, at the walk's own ``mu_s^w``, and so does
+    the target (its null rate is the walk's). There the target's extinction differs from the walk's by
+    ``mu_a^l - mu_a^w = (mu_t^l - mu_t^w) - d_mu_s``: the part ``clear`` of the path takes back
+    ``d_mu_s = mu_s^l - mu_s^w``; ``n`` counts the real scatterings only.
+    """
+    for l in range(spec_w.shape[0]):
+        spec_w[l] *= vexp(n * log_s[l] - d_mu_u[l] * length - spec_dye[l] * dyed + d_mu_s[l] * clear)
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)

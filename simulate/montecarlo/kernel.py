@@ -32,6 +32,15 @@ the free-path factors are deferred (:data:`REWEIGHT_EVERY`); roulette acts on ``
 A dye profile (``medium[M_DYE_PROFILE]``, cylinders) absorbs the dye's part ``mu_d^l`` of ``mu_a^l`` only
 along the length of a path in the dyed region (:func:`.geometry.core_length`); it is walked by a flavour
 of its own, compiled only when a run places its dye.
+A scatterer profile (``medium[M_SCAT_PROFILE]``, cylinders: the scatterers in a skin beyond the radius
+``a`` or in a core within it, the rest of the fiber clear) is walked by the same flavour with null
+collisions (delta tracking, Woodcock et al. 1965): free paths are drawn at the walk's uniform
+``mu_t^w = mu_a^w + mu_s^w``; a collision at a point of the clear region takes the implicit capture of
+``mu_a^w`` and goes on in the same direction (a null collision: no scattering, no vertex, no spectral
+factor), one in the scattering region scatters. This is exact for piecewise-constant scattering
+(analog: absorption ``mu_a / mu_t``, scattering ``mu_s(r) / mu_t``, a null event the rest). The targets
+take null collisions at the walk's rate, so along the clear part ``l_c`` of a path their free-path
+factor is ``exp(-(mu_a^l - mu_a^w) l_c)`` (:func:`.events.catch_up_placed`).
 
 Public objects: :class:`KernelInputs` (a run's inputs packed once); :func:`simulate_batch` (one batch
 of photons on its own random stream ``(seed, batch)``, :mod:`.rng`); :func:`run_batches` (consecutive
@@ -45,6 +54,8 @@ References
 Wang, L., Jacques, S. L. & Zheng, L. (1995). MCML -- Monte Carlo modeling of light transport
 in multi-layered tissues. *Comput. Methods Programs Biomed.* 47, 131-146.
 Henyey, L. G. & Greenstein, J. L. (1941). Diffuse radiation in the Galaxy. *Astrophys. J.* 93, 70-83.
+Woodcock, E. R., Murphy, T., Hemmings, P. J. & Longworth, T. C. (1965). Techniques used in the GEM code
+for Monte Carlo neutronics calculations in reactors and other systems of complex geometry. ANL-7050, 557-579.
 """
 
 from __future__ import annotations
@@ -73,12 +84,15 @@ from simulate.montecarlo.events import (
     M_PHASE,
     M_ROUGH,
     M_ROUGH_B,
+    M_SCAT_PROFILE,
+    M_SCAT_RADIUS,
     N_CONTROL,
     N_MEDIUM,
     Walk,
     add_totals,
     catch_up,
     catch_up_dyed,
+    catch_up_placed,
     end_history,
     free_path,
     fresnel_reflects,
@@ -119,6 +133,11 @@ __all__ = [
     "DYE_UNIFORM",
     "DYE_RING",
     "DYE_CORE",
+    "M_SCAT_PROFILE",
+    "M_SCAT_RADIUS",
+    "SCAT_UNIFORM",
+    "SCAT_SKIN",
+    "SCAT_CORE",
     "N_MEDIUM",
     "C_WEIGHT_THRESHOLD",
     "C_SURVIVAL",
@@ -133,6 +152,7 @@ __all__ = [
     "run_rows",
     "run_rows_for",
     "has_profile",
+    "has_scatterer_profile",
 ]
 
 # numba's 'omp' threading layer (GNU libgomp) spin-waits at the end of every parallel region by
@@ -150,6 +170,11 @@ os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 DYE_UNIFORM = 0
 DYE_RING = 1
 DYE_CORE = 2
+
+# scatterer profiles (M_SCAT_PROFILE; module docstring)
+SCAT_UNIFORM = 0
+SCAT_SKIN = 1
+SCAT_CORE = 2
 
 # No 'nnan'/'ninf': infinite free paths (mu_t = 0) and distances are legitimate values.
 # (Fast-math 'nsz'/'reassoc' allow no rewrite that turns 0 * _LOG_ZERO into a NaN: it is finite.)
@@ -209,7 +234,8 @@ class _Reweighting(NamedTuple):
 
     With a dye profile a free path of length ``l`` of which ``l_d`` lies in the dyed region takes
     ``exp(-(mu_t^l - mu_d^l - mu_t^w) l - mu_d^l l_d)`` instead of ``exp(-(mu_t^l - mu_t^w) l)``: the walk
-    itself is unchanged, the dye's absorption is carried by the weights.
+    itself is unchanged, the dye's absorption is carried by the weights. With a scatterer profile the
+    clear part ``l_c`` of the path takes back ``d_mu_s = mu_s^l - mu_s^w`` (:func:`.events.catch_up_placed`).
     """
 
     reweight: bool
@@ -218,6 +244,7 @@ class _Reweighting(NamedTuple):
     d_mu_t: np.ndarray
     d_mu_u: np.ndarray
     spec_dye: np.ndarray
+    d_mu_s: np.ndarray
     spec_mu_t: np.ndarray
     phase_ratio: bool
     ratio: np.ndarray
@@ -232,16 +259,18 @@ def _reweighting(inp, mu_s, mu_t):
     log_s = np.zeros(n_spec)  # a large negative number for mu_s^l = 0
     spec_mu_t = np.zeros(n_spec)
     spec_dye = np.zeros(n_spec)  # the dye's column: profiled runs only (make_inputs checks it)
+    d_mu_s = np.zeros(n_spec)
     for l in range(n_spec):
         spec_mu_t[l] = inp.spec_mu[l, 0] + inp.spec_mu[l, 1]
         d_mu_t[l] = spec_mu_t[l] - mu_t
+        d_mu_s[l] = inp.spec_mu[l, 1] - mu_s
         s_ratio = inp.spec_mu[l, 1] / mu_s if mu_s > 0.0 else 1.0
         log_s[l] = math.log(s_ratio) if s_ratio > 0.0 else _LOG_ZERO
         if inp.spec_mu.shape[1] > 2:
             spec_dye[l] = inp.spec_mu[l, 2]
     if not inp.reweight:
         spec_mu_t[:] = mu_t
-    return _Reweighting(inp.reweight, np.ones(n_spec), log_s, d_mu_t, d_mu_t - spec_dye, spec_dye, spec_mu_t,
+    return _Reweighting(inp.reweight, np.ones(n_spec), log_s, d_mu_t, d_mu_t - spec_dye, spec_dye, d_mu_s, spec_mu_t,
                         inp.phase_ratio, inp.spec_ratio, inp.spec_ratio.shape[0])
 
 
@@ -340,14 +369,65 @@ def _dyed_length(y, z, uy, uz, s, radius, mode):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _settle(rw, n, length, dyed, profiled):
+def _clear_length(y, z, uy, uz, s, radius, mode):
+    """The part of a path that lies where a scatterer profile has no scatterers.
+
+    The part of a path of length ``s`` from ``(y, z)`` along ``u`` that lies in the clear region of a
+    scatterer profile: within ``radius`` of the axis (``SCAT_SKIN``) or beyond it (``SCAT_CORE``).
+    """
+    inner = core_length(y, z, uy, uz, s, radius)
+    return inner if mode == SCAT_SKIN else s - inner
+
+
+@numba.njit(cache=True, inline="always")
+def _placement(medium):
+    """A profiled run's ``(dye_mode, dye_radius, scat_mode, scat_radius)`` from its medium row."""
+    return (int(medium[M_DYE_PROFILE]), medium[M_DYE_RADIUS], int(medium[M_SCAT_PROFILE]),
+            medium[M_SCAT_RADIUS])
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _placed_lengths(place, y, z, uy, uz, s, pend_d, pend_c):
+    """The pending dyed and clear lengths after a path of length ``s`` from ``(y, z)`` along ``u``.
+
+    ``place``: the run's ``(dye_mode, dye_radius, scat_mode, scat_radius)``; each profile's length is taken
+    only when the run has that profile. ``(pend_d, pend_c)``.
+    """
+    dye_mode, dye_radius, scat_mode, scat_radius = place
+    if dye_mode != DYE_UNIFORM:
+        pend_d += _dyed_length(y, z, uy, uz, s, dye_radius, dye_mode)
+    if scat_mode != SCAT_UNIFORM:
+        pend_c += _clear_length(y, z, uy, uz, s, scat_radius, scat_mode)
+    return pend_d, pend_c
+
+
+@numba.njit(cache=True, inline="always")
+def _null_at(place, y, z):
+    """Whether a collision at ``(y, z)`` is a null collision.
+
+    The run places its scatterers and the point lies in the clear region (``place`` as in :func:`_placed_lengths`).
+    """
+    _, _, mode, radius = place
+    if mode == SCAT_UNIFORM:
+        return False
+    r2 = y * y + z * z
+    a2 = radius * radius
+    return r2 <= a2 if mode == SCAT_SKIN else r2 >= a2
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
+def _settle(rw, n, length, dyed, clear, profiled):
     """The spectral weights brought up to date (the pending free-path factors).
 
     The spectral weights brought up to date with the ``n`` collisions and the path ``length`` (``dyed`` of
-    it in a dye profile's dyed region) walked since their last update (:data:`REWEIGHT_EVERY`).
+    it in a dye profile's dyed region, ``clear`` of it in a scatterer profile's clear region) walked since
+    their last update (:data:`REWEIGHT_EVERY`).
     """
     if profiled:
-        catch_up_dyed(rw.spec_w, rw.log_s, rw.d_mu_u, rw.spec_dye, n, length, dyed)
+        if clear != 0.0:
+            catch_up_placed(rw.spec_w, rw.log_s, rw.d_mu_u, rw.spec_dye, rw.d_mu_s, n, length, dyed, clear)
+        else:
+            catch_up_dyed(rw.spec_w, rw.log_s, rw.d_mu_u, rw.spec_dye, n, length, dyed)
     else:
         catch_up(rw.spec_w, rw.log_s, rw.d_mu_t, n, length)
 
@@ -375,16 +455,16 @@ def _at_vertex(recs, vertex_mode, p, u, w, step, pend_n, pend_l, state):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
-def _after_scattering(rw, ct, pend_n, pend_l, pend_d, profiled):
+def _after_scattering(rw, ct, pend_n, pend_l, pend_d, pend_c, profiled):
     """The spectral weights after a scattering, and whether roulette is decided now.
 
     The spectral weights after a scattering by ``ct`` (the cosine of the angle): the phase ratios applied,
     the pending free-path factors settled every :data:`REWEIGHT_EVERY` collisions. Roulette is decided at
     those updates only (any rule is unbiased), on ``w max_l A_l``.
-    ``(decide, w_max, pend_n, pend_l, pend_d)``.
+    ``(decide, w_max, pend_n, pend_l, pend_d, pend_c)``.
     """
     if not rw.reweight:
-        return True, 1.0, pend_n, pend_l, pend_d
+        return True, 1.0, pend_n, pend_l, pend_d, pend_c
     if rw.phase_ratio:
         jr, fr = T.ratio_row(ct, rw.n_grid)
         r0 = rw.ratio[jr]
@@ -393,12 +473,13 @@ def _after_scattering(rw, ct, pend_n, pend_l, pend_d, profiled):
             rw.spec_w[l] *= r0[l] + fr * (r1[l] - r0[l])
     if pend_n == 0 or pend_n >= REWEIGHT_EVERY:
         if pend_n > 0:
-            _settle(rw, pend_n, pend_l, pend_d, profiled)
+            _settle(rw, pend_n, pend_l, pend_d, pend_c, profiled)
             pend_n = 0
             pend_l = 0.0
             pend_d = 0.0
-        return True, largest(rw.spec_w), pend_n, pend_l, pend_d
-    return False, 1.0, pend_n, pend_l, pend_d
+            pend_c = 0.0
+        return True, largest(rw.spec_w), pend_n, pend_l, pend_d, pend_c
+    return False, 1.0, pend_n, pend_l, pend_d, pend_c
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH)
@@ -444,13 +525,13 @@ def _score_exit(inp, recs, face, p, o, w, scatterings, pending, profiled):
     """The exit of a photon, scored.
 
     A photon leaving by ``face`` at ``p`` along ``o`` (outside) with weight ``w``: its spectral weights
-    brought up to date (``pending``: the collisions, length and dyed length walked since their last update)
-    and its exit scored (:func:`.tallies.score_exit`).
+    brought up to date (``pending``: the collisions, length, dyed length and clear length walked since their
+    last update) and its exit scored (:func:`.tallies.score_exit`).
     """
     rw = recs.rw
-    pend_n, pend_l, pend_d = pending
+    pend_n, pend_l, pend_d, pend_c = pending
     if rw.reweight and (pend_n > 0 or pend_l > 0.0):
-        _settle(rw, pend_n, pend_l, pend_d, profiled)
+        _settle(rw, pend_n, pend_l, pend_d, pend_c, profiled)
     T.score_exit(inp.tally_mode, inp.tally_params, inp.outputs, recs.scratch, rw.spec_w, face, p, o, w, scatterings)
 
 
@@ -481,15 +562,14 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
     walk, beam, rw, scratch = recs.walk, recs.beam, recs.rw, recs.scratch
     geometry = inp.geometry
     size = inp.geom[0]
-    dye_mode = int(inp.medium[M_DYE_PROFILE]) if profiled else DYE_UNIFORM
-    dye_radius = inp.medium[M_DYE_RADIUS] if profiled else 0.0
+    place = _placement(inp.medium) if profiled else (DYE_UNIFORM, 0.0, SCAT_UNIFORM, 0.0)
     absorbed = 0.0  # (added to at every collision)
     reflections = 0
     s0, s1, s2, s3 = seed_state(seed, batch)
     for _ in range(photons):
         x, y, z, ux, uy, uz, w, absorbed, s0, s1, s2, s3 = _enter(geometry, size, beam, walk, acc, absorbed,
                                                                   s0, s1, s2, s3)
-        h_gain = h_killed = path = pend_l = pend_d = 0.0
+        h_gain = h_killed = path = pend_l = pend_d = pend_c = 0.0
         # int64, not the literal 0: the counters are arguments of compiled (not inlined) helpers, which
         # type inference would otherwise also compile once for the literal
         events = scatterings = pend_n = np.int64(0)
@@ -509,12 +589,17 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
             zn = z + step * uz
             if inside(geometry, size, xn, yn, zn):  # a collision (the end point is inside: convex shape)
                 if profiled:
-                    pend_d += _dyed_length(y, z, uy, uz, step, dye_radius, dye_mode)
+                    pend_d, pend_c = _placed_lengths(place, y, z, uy, uz, step, pend_d, pend_c)
                 x = xn
                 y = yn
                 z = zn
                 path += step
                 w, absorbed = implicit_capture(w, absorbed, walk.albedo, walk.absorb)
+                if profiled and _null_at(place, y, z):
+                    # a null collision (module docstring): straight on, its path pending, no spectral factor
+                    pend_l += step if rw.reweight else 0.0
+                    alive = w > 0.0
+                    continue
                 scatterings += 1
                 if scoring:
                     pend_n, pend_l, state = _at_vertex(recs, inp.vertex_mode, (x, y, z), (ux, uy, uz), w, step,
@@ -525,14 +610,15 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
                 decide = True
                 w_max = 1.0
                 if scoring:
-                    decide, w_max, pend_n, pend_l, pend_d = _after_scattering(rw, ct, pend_n, pend_l, pend_d, profiled)
+                    decide, w_max, pend_n, pend_l, pend_d, pend_c = _after_scattering(rw, ct, pend_n, pend_l, pend_d,
+                                                                                     pend_c, profiled)
                 if decide:
                     alive, w, h_gain, h_killed, s0, s1, s2, s3 = roulette_below(w, w_max, walk, h_gain, h_killed,
                                                                                 s0, s1, s2, s3)
             else:  # the boundary
                 s_b = distance_to_boundary(geometry, size, x, y, z, ux, uy, uz)
                 if profiled:
-                    pend_d += _dyed_length(y, z, uy, uz, s_b, dye_radius, dye_mode)
+                    pend_d, pend_c = _placed_lengths(place, y, z, uy, uz, s_b, pend_d, pend_c)
                 x += s_b * ux
                 y += s_b * uy
                 z += s_b * uz
@@ -548,8 +634,8 @@ def _transport(scoring, profiled, inp, recs, photons, seed, batch, bins, acc):
                     continue
                 face = outcome
                 if scoring and face != _LOST:
-                    _score_exit(inp, recs, face, (x, y, z), (ox, oy, oz), w, scatterings, (pend_n, pend_l, pend_d),
-                                profiled)
+                    _score_exit(inp, recs, face, (x, y, z), (ox, oy, oz), w, scatterings,
+                                (pend_n, pend_l, pend_d, pend_c), profiled)
                 break
         end_history(acc, face, w, scatterings, path, h_gain, h_killed, events, capped)
         if scoring:
@@ -668,8 +754,20 @@ simulate_batch_profiled = _make_kernel(True, profiled=True)
 
 
 def has_profile(inp: KernelInputs) -> bool:
-    """The run places its dye (``medium[M_DYE_PROFILE]``): the profiled flavour walks it."""
-    return inp.medium.shape[0] > M_DYE_PROFILE and inp.medium[M_DYE_PROFILE] != DYE_UNIFORM
+    """The run places its dye or its scatterers (``medium[M_DYE_PROFILE]``, ``medium[M_SCAT_PROFILE]``).
+
+    The profiled flavour walks them.
+    """
+    return (inp.medium.shape[0] > M_DYE_PROFILE and inp.medium[M_DYE_PROFILE] != DYE_UNIFORM) \
+        or has_scatterer_profile(inp)
+
+
+def has_scatterer_profile(inp: KernelInputs) -> bool:
+    """The run places its scatterers (``medium[M_SCAT_PROFILE]``).
+
+    Walked by the profiled flavour even without tallies (the plain loop scatters everywhere).
+    """
+    return inp.medium.shape[0] > M_SCAT_PROFILE and inp.medium[M_SCAT_PROFILE] != SCAT_UNIFORM
 
 
 def _make_runner(scoring: bool, profiled: bool = False):
@@ -774,7 +872,12 @@ def run_rows_for(inp: KernelInputs):
 
 
 def run_batches_for(inp: KernelInputs):
-    """The compiled :func:`run_batches` flavour a run needs (plain when nothing is tallied)."""
+    """The compiled :func:`run_batches` flavour a run needs.
+
+    Plain when nothing is tallied and the scatterers are everywhere.
+    """
+    if has_scatterer_profile(inp):
+        return run_batches_profiled
     if inp.tally_mode == T.NONE and inp.vertex_mode == T.V_NONE:
         return run_batches_plain
     return run_batches_profiled if has_profile(inp) else run_batches

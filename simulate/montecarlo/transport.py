@@ -227,6 +227,13 @@ def make_inputs(
         if targets is None or targets.mu_a_dye is None or geometry == G.SLAB:
             raise ParameterError("a dye profile (ring or core) needs a cylinder and spectral targets that name the "
                                  "dye's absorption (SpectralTargets.mu_a_dye)")
+    if medium.shape[0] > K.M_SCAT_PROFILE and medium[K.M_SCAT_PROFILE] != K.SCAT_UNIFORM:
+        if vertex_mode != T.V_NONE:
+            raise ParameterError("a scatterer profile (skin or core) is walked with exit tallies only: the next-event "
+                                 "vertex estimators assume scatterers through the fiber; use the beam route "
+                                 "([fiber] route = \"beam\") or the uniform profile")
+        if geometry == G.SLAB:
+            raise ParameterError("a scatterer profile (skin or core) needs a cylinder")
     consts = np.zeros((outputs.shape[0], T.N_NEE))
     if vertex_mode != T.V_NONE:
         for o in range(outputs.shape[0]):
