@@ -1,5 +1,7 @@
-"""Root conftest: settings of the docstring examples collected by ``--doctest-modules``; a private table cache;
-the numba kernels compiled once before the xdist workers start.
+"""Root conftest: the docstring examples' print settings, a private table cache, the kernels compiled once.
+
+The docstring examples collected by ``--doctest-modules`` print numpy scalars the way a reader
+expects; the numba kernels are compiled once before the xdist workers start.
 
 The suite never reads or writes the user's table cache (:mod:`simulate.fiber.tablecache`): the test
 run (the xdist controller, or the only process of a run without workers) makes a fresh temporary
@@ -66,7 +68,14 @@ def pytest_configure(config: pytest.Config) -> None:
     """With 2 or more workers: compile the kernels once, one process per group (module docstring).
 
     A group that fails is reported in the summary and the run goes on (its kernels are then compiled
-    by the tests that use them, which also show the failure)."""
+    by the tests that use them, which also show the failure).
+
+    Parameters
+    ----------
+    config : pytest.Config
+        The run's configuration: its xdist options say how many workers start, and a run that only
+        collects compiles nothing.
+    """
     if _xdist_workers(config) < 2 or config.option.collectonly:
         return
     start = time.perf_counter()
@@ -89,14 +98,24 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
+    """Print the kernel warm-up's line (its time and each group's last line) in the run's summary.
+
+    Parameters
+    ----------
+    terminalreporter : _pytest.terminal.TerminalReporter
+        pytest's terminal reporter, which writes the line.
+    """
     for line in _warm_report:
         terminalreporter.write_line(line)
 
 
 @pytest.fixture(autouse=True)
 def _doctest_numpy_scalars_print_as_python(request):
-    """Docstring examples show what a reader expects (``True``, ``0.5``): numpy 2 prints its
-    scalars as ``np.True_`` / ``np.float64(0.5)``; the 1.25 style is used while they run."""
+    """Print numpy scalars in the 1.25 style while a docstring example runs.
+
+    Docstring examples show what a reader expects (``True``, ``0.5``): numpy 2 prints its scalars as
+    ``np.True_`` / ``np.float64(0.5)``. Other tests run with numpy's print options unchanged.
+    """
     if not isinstance(request.node, DoctestItem):
         yield
         return
@@ -110,7 +129,20 @@ def _doctest_numpy_scalars_print_as_python(request):
 
 @pytest.fixture
 def cache_dir(tmp_path, monkeypatch):
-    """An empty table-cache directory of this test's own, the cache switched on (not created here)."""
+    """An empty table-cache directory of this test's own, the cache switched on (not created here).
+
+    Parameters
+    ----------
+    tmp_path : pathlib.Path
+        The test's temporary directory, which holds the cache directory.
+    monkeypatch : pytest.MonkeyPatch
+        Sets ``FABRIC_OPTICS_CACHE_DIR`` and removes ``FABRIC_OPTICS_NO_CACHE`` for this test only.
+
+    Returns
+    -------
+    pathlib.Path
+        ``tmp_path / "cache"``, which does not exist yet.
+    """
     d = tmp_path / "cache"
     monkeypatch.setenv("FABRIC_OPTICS_CACHE_DIR", str(d))
     monkeypatch.delenv("FABRIC_OPTICS_NO_CACHE", raising=False)
