@@ -1,5 +1,7 @@
-"""Root conftest: settings of the docstring examples collected by ``--doctest-modules``; a private table cache;
-the numba kernels compiled once before the xdist workers start.
+"""Root conftest: the docstring examples' print settings, a private table cache, the kernels compiled beside the tests.
+
+The docstring examples collected by ``--doctest-modules`` print numpy scalars the way a reader
+expects; with xdist workers, the numba kernels are compiled while the first tests run.
 
 The suite never reads or writes the user's table cache (:mod:`simulate.fiber.tablecache`): the test
 run (the xdist controller, or the only process of a run without workers) makes a fresh temporary
@@ -67,7 +69,14 @@ def pytest_configure(config: pytest.Config) -> None:
     """With 2 or more workers: start compiling the kernels, one process per group, beside the workers.
 
     The processes are collected at the end of the run; a group that failed is reported in the summary
-    (its kernels are then compiled by the tests that use them, which also show the failure)."""
+    (its kernels are then compiled by the tests that use them, which also show the failure).
+
+    Parameters
+    ----------
+    config : pytest.Config
+        The run's configuration: its xdist options say how many workers start, and a run that only
+        collects compiles nothing.
+    """
     if _xdist_workers(config) < 2 or config.option.collectonly:
         return
     env = dict(os.environ, FABRIC_OPTICS_NO_CACHE="1")
@@ -84,10 +93,19 @@ _NO_KERNEL_FIRST = ("tests/gonio/", "tests/cli/", "gonio/", "compare/", "tests/c
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Run the files that need no kernel first, the rest in their collected order (a stable sort)."""
+    """Run the files that need no kernel first, the rest in their collected order (a stable sort).
+
+    Parameters
+    ----------
+    config : pytest.Config
+        The run's configuration (its root, against which the items' paths are read).
+    items : list of pytest.Item
+        The collected tests, sorted in place.
+    """
     root = config.rootpath
 
     def later(item: pytest.Item) -> bool:
+        """Whether ``item`` runs after the files of :data:`_NO_KERNEL_FIRST`."""
         path = item.path.relative_to(root).as_posix() if item.path.is_relative_to(root) else ""
         return not path.startswith(_NO_KERNEL_FIRST)
 
@@ -103,7 +121,13 @@ def _stop_warm_up() -> None:
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
-    """The warm-up's line: each group's seconds, or how it failed."""
+    """The warm-up's line: each group's seconds, or how it failed.
+
+    Parameters
+    ----------
+    terminalreporter : _pytest.terminal.TerminalReporter
+        pytest's terminal reporter, which writes the line (none without a warm-up).
+    """
     lines = []
     for group, proc in _warm_procs:
         out, _ = proc.communicate()
@@ -115,8 +139,11 @@ def pytest_terminal_summary(terminalreporter) -> None:
 
 @pytest.fixture(autouse=True)
 def _doctest_numpy_scalars_print_as_python(request):
-    """Docstring examples show what a reader expects (``True``, ``0.5``): numpy 2 prints its
-    scalars as ``np.True_`` / ``np.float64(0.5)``; the 1.25 style is used while they run."""
+    """Print numpy scalars in the 1.25 style while a docstring example runs.
+
+    Docstring examples show what a reader expects (``True``, ``0.5``): numpy 2 prints its scalars as
+    ``np.True_`` / ``np.float64(0.5)``. Other tests run with numpy's print options unchanged.
+    """
     if not isinstance(request.node, DoctestItem):
         yield
         return
@@ -130,7 +157,20 @@ def _doctest_numpy_scalars_print_as_python(request):
 
 @pytest.fixture
 def cache_dir(tmp_path, monkeypatch):
-    """An empty table-cache directory of this test's own, the cache switched on (not created here)."""
+    """An empty table-cache directory of this test's own, the cache switched on (not created here).
+
+    Parameters
+    ----------
+    tmp_path : pathlib.Path
+        The test's temporary directory, which holds the cache directory.
+    monkeypatch : pytest.MonkeyPatch
+        Sets ``FABRIC_OPTICS_CACHE_DIR`` and removes ``FABRIC_OPTICS_NO_CACHE`` for this test only.
+
+    Returns
+    -------
+    pathlib.Path
+        ``tmp_path / "cache"``, which does not exist yet.
+    """
     d = tmp_path / "cache"
     monkeypatch.setenv("FABRIC_OPTICS_CACHE_DIR", str(d))
     monkeypatch.delenv("FABRIC_OPTICS_NO_CACHE", raising=False)

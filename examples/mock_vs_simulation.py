@@ -28,6 +28,20 @@ import fabric_optics as fo
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Measure red cotton on the mock, simulate it by the summation model, compare the two and print the verdict.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``OUT_DIR``, ``--target-rel-err``, ``--plan``, ``--force``);
+        ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0 when the simulation matches within the default thresholds, 1 when it does not, 2 when
+        OUT_DIR holds an earlier run and ``--force`` is not given (nothing is measured then).
+    """
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("--target-rel-err", type=float, default=0.03)

@@ -24,6 +24,20 @@ FELT = Path(__file__).resolve().parents[1] / "fixtures" / "real" / "acrylic_felt
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Measure the felt on the mock, fit only its dye by the summation model, and print the colour and curve errors.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``OUT_DIR``, ``--sample``, ``--max-evaluations``, ``--target-rel-err``,
+        ``--wavelengths``, ``--force``); ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0 after the fit, 2 when OUT_DIR holds an earlier run and ``--force`` is not given (nothing is
+        measured then).
+    """
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("--sample", default=str(FELT), help="RGL .bsdf file or dataset to measure on the mock")

@@ -116,6 +116,7 @@ def fabric_dataset(config: SimulationConfig, plan: Plan, method: str, *,
                              "fiber_route": config.route}
     settings = RunSettings(target=target, seed=seed, threads=threads, max_photons=max_photons, progress=progress,
                            max_seconds=max_seconds)
+    photons: int | None      # None: the method counts no photons (classic)
     if method == "auto":
         from simulate.fabric import auto as methods_mod
 

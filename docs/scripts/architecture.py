@@ -40,7 +40,19 @@ class Entry:
 
 
 def code_entries(root: Path = ROOT) -> set[str]:
-    """What the page must name: every module (``pkg/a/b.py``) and every sub-package folder (``pkg/a/``)."""
+    """What the page must name: every module (``pkg/a/b.py``) and every sub-package folder (``pkg/a/``).
+
+    Parameters
+    ----------
+    root : pathlib.Path
+        The checkout that holds the four packages.
+
+    Returns
+    -------
+    set of str
+        Paths relative to ``root``, with ``/`` separators; a folder's ends in ``/``. The packages'
+        own folders are not in it (the trees' first lines name them).
+    """
     out = set()
     for pkg in PACKAGES:
         for path in (root / pkg).rglob("*.py"):
@@ -55,13 +67,31 @@ def code_entries(root: Path = ROOT) -> set[str]:
 
 
 def _layout_span(lines: list[str]) -> tuple[int, int]:
+    """The lines of the "Layout" section: its heading's index and the next section's (or the page's end)."""
     start = next(i for i, s in enumerate(lines) if s.strip() == "## Layout")
     end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
     return start, end
 
 
 def page_entries(lines: list[str]) -> list[Entry]:
-    """The tree entries of the Layout section, in page order."""
+    """The tree entries of the Layout section, in page order.
+
+    Parameters
+    ----------
+    lines : list of str
+        The page's lines, without line ends.
+
+    Returns
+    -------
+    list of Entry
+        One per tree line below a package's first line, its path joined from the folders above it.
+
+    Raises
+    ------
+    ValueError
+        A line of a tree is not an entry (odd indentation, no name) or is indented below no folder;
+        the message names the page's line.
+    """
     start, end = _layout_span(lines)
     out: list[Entry] = []
     stack: list[str] = []
@@ -93,12 +123,38 @@ def page_entries(lines: list[str]) -> list[Entry]:
 
 
 def prose_paths(lines: list[str]) -> set[str]:
-    """Module paths the page names in its text (outside the trees)."""
+    """Module paths the page names in its text (outside the trees).
+
+    Parameters
+    ----------
+    lines : list of str
+        The page's lines.
+
+    Returns
+    -------
+    set of str
+        Every ``pkg/.../name.py`` of the four packages the lines mention.
+    """
     return {m.group(0) for s in lines for m in PATH_IN_TEXT.finditer(s)}
 
 
 def difference(lines: list[str], root: Path = ROOT) -> tuple[list[str], list[str]]:
-    """``(missing, extra)``: modules without a line; lines and paths in the text that name no module."""
+    """``(missing, extra)``: modules without a line; lines and paths in the text that name no module.
+
+    Parameters
+    ----------
+    lines : list of str
+        The page's lines.
+    root : pathlib.Path
+        The checkout the page describes.
+
+    Returns
+    -------
+    missing : list of str
+        Modules and sub-package folders with no tree line, sorted.
+    extra : list of str
+        Tree lines that name no module (sorted), then paths in the text that name no file (sorted).
+    """
     code = code_entries(root)
     named = {e.path for e in page_entries(lines)}
     missing = sorted(code - named)
@@ -108,7 +164,18 @@ def difference(lines: list[str], root: Path = ROOT) -> tuple[list[str], list[str
 
 
 def first_sentence(path: Path) -> str:
-    """The first sentence of a module's docstring (of the folder's ``__init__.py`` for a folder)."""
+    """The first sentence of a module's docstring (of the folder's ``__init__.py`` for a folder).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        A module, or a package's folder.
+
+    Returns
+    -------
+    str
+        The sentence on one line, without its final period; ``(no docstring)`` when there is none.
+    """
     source = path / "__init__.py" if path.is_dir() else path
     doc = ast.get_docstring(ast.parse(source.read_text(encoding="utf-8"))) or "(no docstring)"
     text = " ".join(doc.split("\n\n")[0].split())
@@ -117,7 +184,27 @@ def first_sentence(path: Path) -> str:
 
 
 def mend(lines: list[str], root: Path = ROOT) -> tuple[list[str], list[str], list[str]]:
-    """The page with a line for each missing module and without the lines of removed ones."""
+    """The page with a line for each missing module and without the lines of removed ones.
+
+    A new line goes after its earlier siblings (in path order) and what they hold, its description the
+    first sentence of the module's docstring, to be edited into a better one.
+
+    Parameters
+    ----------
+    lines : list of str
+        The page's lines (not changed).
+    root : pathlib.Path
+        The checkout the page describes.
+
+    Returns
+    -------
+    lines : list of str
+        The mended page.
+    missing : list of str
+        The modules given a line (as :func:`difference` returns them).
+    extra : list of str
+        The tree lines removed and the paths in the text that name no file (the text is left to edit).
+    """
     missing, extra = difference(lines, root)
     entries = page_entries(lines)
     drop = {e.line for e in entries if e.path in extra}
@@ -154,6 +241,20 @@ def _subtree_end(entries: list[Entry], entry: Entry) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Print how the page and the code differ and, without ``--check``, mend the page.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``--check``); ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0 when the page names every module and only modules (or, when mending, when only tree lines
+        were wrong and are now mended); 1 when they differ under ``--check``, or when the text names a
+        module that does not exist (that is left to edit).
+    """
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="print the difference only; exit 1 when there is one")
     args = parser.parse_args(argv)

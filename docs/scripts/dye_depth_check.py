@@ -32,6 +32,7 @@ import numpy as np
 
 
 def _fresnel(cos_i: np.ndarray, n1: float, n2: float) -> np.ndarray:
+    """Unpolarised Fresnel reflectance from index ``n1`` into ``n2`` at the cosines ``cos_i`` (1 beyond the critical angle)."""
     c = np.clip(np.abs(cos_i), 0.0, 1.0)
     sin2_t = (n1 / n2) ** 2 * (1.0 - c * c)
     ct = np.sqrt(np.clip(1.0 - sin2_t, 0.0, None))
@@ -41,7 +42,30 @@ def _fresnel(cos_i: np.ndarray, n1: float, n2: float) -> np.ndarray:
 
 
 def annulus(n: float, mu: float, a: float, kind: str, m: int = 400_000) -> float:
-    """The exited fraction of a clear unit cylinder dyed (``mu``) beyond (ring) or within (core) the radius ``a``."""
+    """The exited fraction of a clear unit cylinder dyed (``mu``) beyond (ring) or within (core) the radius ``a``.
+
+    Straight chords at perpendicular incidence, summed over ``m`` impact parameters: every chord of a
+    ray inside a circle keeps its distance from the axis, so each internal pass crosses the same dyed
+    length; Fresnel at every crossing, the internal reflections summed as a geometric series.
+
+    Parameters
+    ----------
+    n : float
+        The fiber's refractive index (in air).
+    mu : float
+        The dye's absorption coefficient, per unit radius.
+    a : float
+        The radius between the dyed and the clear part.
+    kind : {"ring", "core"}
+        ``ring``: dyed beyond ``a`` (a skin of depth ``1 - a``); ``core``: dyed within ``a``.
+    m : int
+        Number of impact parameters (midpoints of equal steps across the diameter).
+
+    Returns
+    -------
+    float
+        The fraction of the incident light that leaves the fiber, after any number of internal passes.
+    """
     b = (np.arange(m) + 0.5) / m * 2.0 - 1.0
     f = _fresnel(np.sqrt(1.0 - b * b), 1.0, n)
     d = np.abs(b) / n
@@ -52,6 +76,20 @@ def annulus(n: float, mu: float, a: float, kind: str, m: int = 400_000) -> float
 
 
 def shell(target: float) -> list[dict]:
+    """A clear fiber's absorption table with a ring or core dye against the closed form of :func:`annulus`.
+
+    Parameters
+    ----------
+    target : float
+        The table's target relative error (``target_rel_err`` of its walk).
+
+    Returns
+    -------
+    list of dict
+        One row per profile (ring 0.2 deep, core below a 0.4 skin) and table node: the node's
+        absorption per radius, the table's exited fraction and its standard error, the closed form, their
+        difference in standard errors (``z``), the uniform dye's closed form, the table's seconds and photons.
+    """
     from simulate.fiber import Fiber, range_outputs
     from simulate.fiber.absorption import absorption_nodes, absorption_table
     from simulate.media.medium import HGMedium
@@ -81,6 +119,20 @@ def shell(target: float) -> list[dict]:
 
 
 def against_mc(target: float) -> dict:
+    """The green felt's absorption table with a ring dye against the fiber Monte Carlo of the dyed fiber.
+
+    Parameters
+    ----------
+    target : float
+        Target relative error of the table's walk and of the two Monte Carlo runs.
+
+    Returns
+    -------
+    dict
+        The wavelengths, the dye (three times the preset's), the two exit ranges, the table's and the
+        traced reflectances with their standard errors, their difference in standard errors (``z``) and
+        the uniform dye's traced reflectance.
+    """
     from simulate.config import load_config
     from simulate.config_dye import DyeSpectrum
     from simulate.fiber import range_outputs, volume_brdf
@@ -107,6 +159,20 @@ def against_mc(target: float) -> dict:
 
 
 def fits(methods: tuple[str, ...]) -> list[dict]:
+    """Fit a ring dye's depth from a synthetic measurement of red cotton made by the model at a known depth.
+
+    Parameters
+    ----------
+    methods : tuple of str
+        The fits to run, of ``classic`` and ``summation`` (others are ignored).
+
+    Returns
+    -------
+    list of dict
+        One per method run: its target error, the true, starting and fitted depths (um), the fit's
+        standard uncertainty and the error in those, the objective at the start and the end, the walks
+        and the seconds.
+    """
     from fabric_optics.fitting.problem import FitProblem
     from fabric_optics.fitting.search import run_fit
     from fabric_optics.fitting.spec import parse_free
@@ -126,6 +192,7 @@ def fits(methods: tuple[str, ...]) -> list[dict]:
     geometries = pd.DataFrame(rows, columns=["theta_i", "phi_i", "theta_o", "phi_o"])
 
     def dataset(beta: np.ndarray, noise_seed: int | None, at: pd.DataFrame = geometries):
+        """A measured dataset of the ``at`` geometries with ``beta`` (mock noise from ``noise_seed`` when given)."""
         u = 0.011 * np.abs(beta) + 1e-5
         if noise_seed is not None:
             beta = beta + np.random.default_rng(noise_seed).standard_normal(beta.shape) * u
@@ -162,6 +229,14 @@ def fits(methods: tuple[str, ...]) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the three measurements and write them as JSON; print a line per result.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``--json``, ``--shell-target``, ``--mc-target``, ``--methods``);
+        ``sys.argv[1:]`` when None. An existing ``--json`` file is refused (argparse's exit 2).
+    """
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--json", required=True, help="write the figures here")
     ap.add_argument("--shell-target", type=float, default=0.002)

@@ -1,5 +1,7 @@
-"""Does a blend of two differently dyed fibre populations, fitted by the summation, hold the green felt better than
-one population? And does it transfer to another colour with the structure kept?
+"""Fit the green felt by a blend of two dyed fibre populations and by one, in its colour and in another.
+
+Does a blend of two differently dyed fibre populations, fitted by the summation, hold the green felt
+better than one population? And does it transfer to another colour with the structure kept?
 
     gonio demo --sample fixtures/real/acrylic_felt_green_rgb.bsdf --plan measured --out DIR/measured
     python docs/scripts/felt_blend_fit.py DIR/measured --out DIR/fits --json DIR/felt-blend-fit.json
@@ -47,7 +49,20 @@ def permute_channels(src: Path, dst: Path) -> Path:
     basis spectra of :mod:`gonio.mock.upsample`. Each geometry's ``(R, G, B)`` is recovered by least squares on the
     basis and the spectrum rebuilt from the permuted channels; what the basis does not hold (the acquisition's
     noise) is added back unchanged, and ``u_beta`` keeps its relative size. The geometry, the metadata and the rows'
-    order are kept. An RGB dataset (``channel`` column) has its channels renamed."""
+    order are kept. An RGB dataset (``channel`` column) has its channels renamed.
+
+    Parameters
+    ----------
+    src : pathlib.Path
+        The dataset folder to read.
+    dst : pathlib.Path
+        The dataset folder to write; its sample's name says the channels are permuted.
+
+    Returns
+    -------
+    pathlib.Path
+        ``dst``.
+    """
     from gonio.data import make_dataset, read_dataset, write_dataset
     from gonio.mock.upsample import basis
 
@@ -79,7 +94,20 @@ def permute_channels(src: Path, dst: Path) -> Path:
 
 
 def blend_config(out: Path, wavelengths_nm) -> Path:
-    """The ``blend`` start: green-felt with its dye as knots, in two populations (module docstring)."""
+    """The ``blend`` start: green-felt with its dye as knots, in two populations (module docstring).
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        Folder to write the config to (``green-felt-blend.toml``).
+    wavelengths_nm : array_like
+        The wavelengths at which the preset's dye becomes knots (the preset's own).
+
+    Returns
+    -------
+    pathlib.Path
+        The written config.
+    """
     from fabric_optics.fitting.start import knots_config
     from fabric_optics.paths import toml_dumps
     from simulate.config import load_config
@@ -90,7 +118,7 @@ def blend_config(out: Path, wavelengths_nm) -> Path:
     knots = np.asarray(dye["wavelength_nm"], float)
     green = [float(v) for v in dye["log10_per_um"]]
     at_550 = float(np.interp(550.0, knots, green))
-    yellow = [at_550 if k > 600.0 else v for k, v in zip(knots, green)]
+    yellow = [at_550 if k > 600.0 else v for k, v in zip(knots, green, strict=True)]
     doc["name"] = "green-felt-blend"
     doc["populations"] = [
         {"name": "green", "share": 0.5, "fiber": {"dye": dict(dye, log10_per_um=green)}},
@@ -102,7 +130,19 @@ def blend_config(out: Path, wavelengths_nm) -> Path:
 
 
 def ratios(dataset_dir: Path) -> dict:
-    """The retro-ring ratios at :data:`INCIDENCES` and :data:`BANDS_NM` of a dataset."""
+    """The retro-ring ratios at :data:`INCIDENCES` and :data:`BANDS_NM` of a dataset.
+
+    Parameters
+    ----------
+    dataset_dir : pathlib.Path
+        The dataset folder.
+
+    Returns
+    -------
+    dict
+        ``{incidence: {band: ratio}}`` for each incidence the dataset holds within 0.05 deg, keyed as
+        ``"27.76"`` and ``"550"``; ``{"missing": reason}`` when the dataset has no ring to read.
+    """
     from compare.ratios import Missing, opposition_ratios
     from gonio.data import read_dataset
 
@@ -120,6 +160,19 @@ def ratios(dataset_dir: Path) -> dict:
 
 
 def run(args: argparse.Namespace) -> dict:
+    """Permute the measurement, then run the four fits (or those of ``--only``) and gather their figures.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (:func:`main`).
+
+    Returns
+    -------
+    dict
+        The JSON document (name, command, machine, settings and one row per fit and per measurement);
+        empty with ``--permute-only``.
+    """
     from fabric_optics import api
     from simulate.provenance import machine
 
@@ -175,6 +228,19 @@ def run(args: argparse.Namespace) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the fits and write their figures; with ``--only``, the JSON's other rows are kept.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (the measurement, ``--out``, ``--json``, the budgets, ``--only``,
+        ``--permute-only``); ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0 (argparse exits 2 on a bad argument).
+    """
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("measured", help="the imported measurement (gonio demo ... --plan measured)")
     ap.add_argument("--out", required=True, help="folder of the fits and the permuted measurement")

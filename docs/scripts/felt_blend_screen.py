@@ -1,7 +1,10 @@
-"""Does a blend of differently dyed fibres, or a dye placed in a ring or a core, give the felt's red-larger opposition
-peak and its peaks' colour against the body's? A screen of ``felt_opposition_scan.py``'s runs.
+r"""Screen the felt opposition scan's variants for the felt's red-larger opposition peak and its colour.
 
-    python docs/scripts/felt_opposition_scan.py --only preset,red-clear,red-x10,blend-red,blend-red-x4,blend-red-x2,ring-1.5,core-4.1 \\
+Does a blend of differently dyed fibres, or a dye placed in a ring or a core, give the felt's
+red-larger opposition peak and its peaks' colour against the body's? A screen of
+``felt_opposition_scan.py``'s runs.
+
+    python docs/scripts/felt_opposition_scan.py --only preset,red-clear,red-x10,blend-red,blend-red-x4,blend-red-x2,ring-1.5,core-4.1 \
         --seeds 4 --out DIR/scan.json
     python docs/scripts/felt_blend_screen.py DIR/scan.json --json DIR/felt-blend-screen.json
 
@@ -42,12 +45,26 @@ MIXES = (("red-clear", "red-x10"),)
 
 
 def _rings(run: dict, order: str, ti: str) -> tuple[np.ndarray, np.ndarray]:
+    """One run's rings ``(ring_6, ring_30)`` of an order at an incidence, as arrays over the bands."""
     x = run["orders"][order]["incidences"][ti]
     return np.asarray(x["ring_6"], float), np.asarray(x["ring_30"], float)
 
 
 def metrics(seeds: list[dict[str, tuple[np.ndarray, np.ndarray]]]) -> dict[str, Any]:
-    """The screen's figures of one variant and order from each seed's rings ``{ti: (ring_6, ring_30)}``."""
+    """The screen's figures of one variant and order from each seed's rings ``{ti: (ring_6, ring_30)}``.
+
+    Parameters
+    ----------
+    seeds : list of dict
+        One entry per seed: for each incidence of :data:`INCIDENCES`, the rings at 6 and 30 deg as
+        arrays over the scan's bands (450, 550, 650 nm).
+
+    Returns
+    -------
+    dict
+        Per incidence: the pooled ratios at 550 and 650 nm, the mean red excess and its standard error
+        (None from one seed), the peak's and the body's red over green, and their quotient (``untie``).
+    """
     out: dict[str, Any] = {}
     for ti in INCIDENCES:
         r6 = np.mean([s[ti][0] for s in seeds], axis=0)
@@ -63,7 +80,19 @@ def metrics(seeds: list[dict[str, tuple[np.ndarray, np.ndarray]]]) -> dict[str, 
 
 
 def screen(scan: dict) -> dict[str, Any]:
-    """The screen's table from a ``felt_opposition_scan.py`` result (its ``data`` part)."""
+    """The screen's table from a ``felt_opposition_scan.py`` result (its ``data`` part).
+
+    Parameters
+    ----------
+    scan : dict
+        The scan's JSON document, or its ``data`` part.
+
+    Returns
+    -------
+    dict
+        The scan's settings and the rows: the file's, one per variant (both orders) and one per mix of
+        :data:`MIXES` whose two variants the scan holds (over the seeds they share).
+    """
     data = scan.get("data", scan)
     file = {ti: (np.asarray(x["ring_6"], float), np.asarray(x["ring_30"], float))
             for ti, x in data["file"]["incidences"].items()}
@@ -83,13 +112,26 @@ def screen(scan: dict) -> dict[str, Any]:
         row = {"seeds": len(common), "label": f"50/50 of {a} and {b}, mixed from their runs"}
         for order in ("single", "all"):
             row[order] = metrics([{ti: tuple(0.5 * x + 0.5 * y for x, y in zip(_rings(runs_a[s], order, ti),
-                                                                                 _rings(runs_b[s], order, ti)))
+                                                                                 _rings(runs_b[s], order, ti),
+                                                                                 strict=True))
                                    for ti in INCIDENCES} for s in common])
         rows[f"mix-{a}-{b}"] = row
     return {"settings": data.get("settings"), "rows": rows}
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Read a scan's result, print the screen's rows and write them as JSON.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (the scan's JSON, ``--json``); ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0, or 2 when the file is not a scan's result (one line says so).
+    """
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scan", type=Path, help="a felt_opposition_scan.py result")
     ap.add_argument("--json", type=Path, help="write the table here")

@@ -27,9 +27,6 @@ rays, so the two parts add up to the single scattering, exactly when every shado
 With ``--lambertian`` the preset's felts are traced with opaque Lambertian fibers of the albedos
 :data:`ALBEDOS` (single scattering and all orders, every albedo on the same paths: :func:`lambertian_beta`),
 and the all-orders curves are read at the file's levels (:func:`albedo_readoff`); alone it traces no variant.
-With ``--lambertian`` the preset's felts are traced with opaque Lambertian fibers of the albedos
-:data:`ALBEDOS` (single scattering and all orders, every albedo on the same paths: :func:`lambertian_beta`),
-and the all-orders curves are read at the file's levels (:func:`albedo_readoff`); alone it traces no variant.
 The file's own ratios at the same directions come from the mock sample of the file
 (:func:`gonio.mock.samples.make_sample`).
 
@@ -73,6 +70,7 @@ COMMAND = "python docs/scripts/felt_opposition_scan.py"
 
 
 def _scatterers(factor: float) -> Callable[[Any], dict]:
+    """The change that multiplies the scatterers' volume fraction by ``factor``."""
     def change(cfg: Any) -> dict:
         p = cfg.particles
         return {"particles": dataclasses.replace(p, volume_fraction=p.volume_fraction * factor)}
@@ -80,6 +78,7 @@ def _scatterers(factor: float) -> Callable[[Any], dict]:
 
 
 def _dye(factor: float) -> Callable[[Any], dict]:
+    """The change that multiplies the dye's absorption by ``factor`` (every knot's log10 moved)."""
     def change(cfg: Any) -> dict:
         params = dict(cfg.dye.params)
         params["log10_per_um"] = [v + math.log10(factor) for v in params["log10_per_um"]]
@@ -88,12 +87,15 @@ def _dye(factor: float) -> Callable[[Any], dict]:
 
 
 def _dye_red(value: float | None = None, factor: float = 1.0) -> Callable[[Any], dict]:
-    """The dye's red knots (above 600 nm) set to ``value`` (log10 of the absorption per um; None: kept) and
-    multiplied by ``factor``: one population of a blend whose red differs from the preset's."""
+    """The dye's red knots (above 600 nm) set to ``value`` and multiplied by ``factor``.
+
+    ``value`` is the log10 of the absorption per um (None: each knot's kept): one population of a
+    blend whose red differs from the preset's.
+    """
     def change(cfg: Any) -> dict:
         params = dict(cfg.dye.params)
         params["log10_per_um"] = [(v if value is None else value) + math.log10(factor) if w > 600.0 else v
-                                  for w, v in zip(params["wavelength_nm"], params["log10_per_um"])]
+                                  for w, v in zip(params["wavelength_nm"], params["log10_per_um"], strict=True)]
         return {"dye": dataclasses.replace(cfg.dye, params=params)}
     return change
 
@@ -115,8 +117,11 @@ def _blend(*parts: tuple[float, Callable[[Any], dict]]) -> Callable[[Any], dict]
 
 
 def _placed(profile: str, depth_um: float) -> Callable[[Any], dict]:
-    """The dye placed in a ``ring`` from the surface to ``depth_um`` or a ``core`` below a clear skin of that depth,
-    the fiber's amount of dye kept (its absorption coefficient over the dyed share of the cross-section)."""
+    """The dye placed in a ``ring`` from the surface to ``depth_um`` or a ``core`` below a clear skin of that depth.
+
+    The fiber's amount of dye is kept: its absorption coefficient is divided by the dyed share of the
+    cross-section.
+    """
     def change(cfg: Any) -> dict:
         inner = (cfg.radius_um - depth_um) / cfg.radius_um
         share = 1.0 - inner ** 2 if profile == "ring" else inner ** 2
@@ -125,10 +130,12 @@ def _placed(profile: str, depth_um: float) -> Callable[[Any], dict]:
 
 
 def _field(**values: Any) -> Callable[[Any], dict]:
+    """The change that sets the config's fields ``values``."""
     return lambda cfg: dict(values)
 
 
 def _structure(**values: Any) -> Callable[[Any], dict]:
+    """The change that sets the structure's fields ``values``."""
     return lambda cfg: {"structure": dataclasses.replace(cfg.structure, **values)}
 
 
@@ -183,7 +190,23 @@ VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
 
 
 def variant_config(name: str, base: Any) -> tuple[Any, dict]:
-    """The config of variant ``name`` (``base``: the preset's) and its changed fields, as JSON values."""
+    """The config of variant ``name`` and its changed fields, as JSON values.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`VARIANTS`.
+    base : simulate.config.Config
+        The preset's config.
+
+    Returns
+    -------
+    config : simulate.config.Config
+        ``base`` with the variant's change.
+    shown : dict
+        The changed fields by their dotted names (a structure's: only the fields that differ from the
+        preset's), empty for the preset.
+    """
     changes = VARIANTS[name][1](base)
     shown = {}
     for key, value in changes.items():
@@ -207,7 +230,18 @@ def variant_config(name: str, base: Any) -> tuple[Any, dict]:
 
 
 def detectors(theta_i: float) -> list[tuple[float, float]]:
-    """``(theta_o, phi_o)`` of one incidence: the ring at 6 deg, the ring at 30 deg, then the normal."""
+    """``(theta_o, phi_o)`` of one incidence: the ring at 6 deg, the ring at 30 deg, then the normal.
+
+    Parameters
+    ----------
+    theta_i : float
+        The incidence (deg).
+
+    Returns
+    -------
+    list of tuple of (float, float)
+        :data:`RING_POINTS` directions on each ring, then ``(0, 0)`` (deg).
+    """
     from compare.ratios import INNER_DEG, OUTER_DEG, ring_directions
 
     return [*ring_directions(theta_i, INNER_DEG, RING_POINTS), *ring_directions(theta_i, OUTER_DEG, RING_POINTS),
@@ -215,7 +249,13 @@ def detectors(theta_i: float) -> list[tuple[float, float]]:
 
 
 def geometries() -> Any:
-    """Every (incidence, detector) row: a frame of ``theta_i, phi_i, theta_o, phi_o``."""
+    """Every (incidence, detector) row: a frame of ``theta_i, phi_i, theta_o, phi_o``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The :func:`detectors` of each incidence of :data:`INCIDENCES_DEG`, in that order (deg).
+    """
     import pandas as pd
 
     return pd.DataFrame([dict(theta_i=ti, phi_i=0.0, theta_o=t, phi_o=p) for ti in INCIDENCES_DEG
@@ -223,9 +263,32 @@ def geometries() -> Any:
 
 
 def summarise(g: Any, beta: np.ndarray, u: np.ndarray, bands: tuple[float, ...] = WAVELENGTHS_NM) -> dict:
-    """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per band
-    (``bands``: the columns of ``beta``, the wavelengths or the Lambertian felt's albedos)."""
+    """Per incidence: the two rings' means, the opposition ratio and the view towards the normal, per band.
+
+    Parameters
+    ----------
+    g : pandas.DataFrame
+        The :func:`geometries` rows ``beta`` is traced at.
+    beta : numpy.ndarray
+        ``[rows, bands]`` values.
+    u : numpy.ndarray
+        Their standard errors (zeros for the file's noiseless values).
+    bands : tuple of float
+        The columns of ``beta``: the wavelengths, or the Lambertian felt's albedos.
+
+    Returns
+    -------
+    dict
+        Keyed by the incidence (``"40.03"``): per band the ratio and its standard error, the points of
+        each ring, the rings' means and the normal view with their standard errors (JSON lists).
+
+    Raises
+    ------
+    RuntimeError
+        The rows do not hold both rings of an incidence.
+    """
     import pandas as pd
+
     from compare.ratios import Missing, opposition_ratios
 
     wl = np.asarray(bands, float)
@@ -249,7 +312,13 @@ def summarise(g: Any, beta: np.ndarray, u: np.ndarray, bands: tuple[float, ...] 
 
 
 def file_ratios() -> dict:
-    """The RGL file's opposition ratios and view towards the normal at the scan's directions (no noise)."""
+    """The RGL file's opposition ratios and view towards the normal at the scan's directions (no noise).
+
+    Returns
+    -------
+    dict
+        :func:`summarise` of the mock sample of the file at :func:`geometries` and :data:`WAVELENGTHS_NM`.
+    """
     from gonio.mock.samples import make_sample
 
     g = geometries()
@@ -263,12 +332,28 @@ def file_ratios() -> dict:
 
 @contextlib.contextmanager
 def only_event(event: int) -> Iterator[None]:
-    """Within the block the felt tracer scores the next-event estimates of one shading event only: 0 the
-    fiber surface's reflection, 1 the light out of the fiber's volume (the events of
-    :func:`simulate.raytrace.shading.shade`). The other event's estimates are dropped after each shading call
-    (its contributions zeroed, no shadow ray asked for); the rays' paths are not changed. The tracer's
-    files are not edited: the wavefront's shading call (``shade_groups`` as
-    :mod:`simulate.raytrace.integrator` calls it) is wrapped for the block and restored after it."""
+    """Within the block the felt tracer scores the next-event estimates of one shading event only.
+
+    Event 0 is the fiber surface's reflection, 1 the light out of the fiber's volume (the events of
+    :func:`simulate.raytrace.shading.shade`). The other event's estimates are dropped after each shading
+    call (its contributions zeroed, no shadow ray asked for); the rays' paths are not changed. The
+    tracer's files are not edited: the wavefront's shading call (``shade_groups`` as
+    :mod:`simulate.raytrace.integrator` calls it) is wrapped for the block and restored after it.
+
+    Parameters
+    ----------
+    event : {0, 1}
+        The shading event scored.
+
+    Yields
+    ------
+    None
+
+    Raises
+    ------
+    ValueError
+        ``event`` is neither 0 nor 1.
+    """
     from simulate.raytrace import integrator
 
     if event not in (0, 1):
@@ -296,8 +381,10 @@ SPLIT_ORDERS: dict[str, tuple[int, int | None]] = {"surface": (1, 0), "volume": 
 
 
 def _felts_and_geometries(structure: Any, radius_um: float, seed: int, felts: dict, felt: dict | None) -> tuple:
-    """The two felts of ``structure`` at ``seed`` (built once into ``felts``), their figures, the plan and its
-    directions; ValueError if ``felt`` (the figures a run already holds) differs from the felts built now."""
+    """The two felts of ``structure`` at ``seed`` (built once into ``felts``), their figures, the plan and its directions.
+
+    ValueError if ``felt`` (the figures a run already holds) differs from the felts built now.
+    """
     from simulate.fabric import directions_deg
     from simulate.geometry.felt import felt_mesh
     from simulate.products import FELT_SEED_STRIDE
@@ -317,11 +404,37 @@ def _felts_and_geometries(structure: Any, radius_um: float, seed: int, felts: di
 
 def run_variant(name: str, base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict,
                 orders: tuple[str, ...] = tuple(ORDERS), felt: dict | None = None) -> dict:
-    """Trace variant ``name`` at ``seed`` (its felts' and rays') at each of ``orders`` (:data:`ORDERS`,
-    :data:`SPLIT_ORDERS`); ``felts``: meshes by (structure, seed). ``felt``: the felts' figures a run
-    already holds; ValueError before any trace if the felts built now differ from them."""
-    from simulate.raytrace import fabric_beta
-    from simulate.raytrace import integrator
+    """Trace variant ``name`` at ``seed`` (its felts' and rays') at each of ``orders``.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`VARIANTS`.
+    base : simulate.config.Config
+        The preset's config.
+    seed : int
+        The seed of the felts, the table and the rays.
+    target : float
+        Each trace's target relative error.
+    threads : int
+        Threads of the traces (they do not change the figures).
+    max_rays : int
+        Ray budget per incidence and table half (0: none).
+    felts : dict
+        Meshes by ``(structure, seed)``, filled with the felts built here.
+    orders : tuple of str
+        Keys of :data:`ORDERS` and :data:`SPLIT_ORDERS`.
+    felt : dict, optional
+        The felts' figures a run already holds; ValueError before any trace if the felts built now
+        differ from them.
+
+    Returns
+    -------
+    dict
+        The run: its seed, the felts' figures, per order its :func:`summarise` and the trace's rays,
+        stop, errors, seconds and cache, and the run's wall and CPU seconds.
+    """
+    from simulate.raytrace import fabric_beta, integrator
 
     cfg, _ = variant_config(name, base)
     wl = np.asarray(WAVELENGTHS_NM)
@@ -358,12 +471,44 @@ ALBEDOS = (0.1, 0.2, 0.35, 0.5, 0.65, 0.8, 0.9, 1.0)
 
 def lambertian_beta(meshes: tuple, albedos: tuple[float, ...], w_in: np.ndarray, w_out: np.ndarray, *,
                     target: float, max_rays: int, seed: int, threads: int, max_events: int) -> tuple[np.ndarray, np.ndarray, dict]:
-    """``beta [P, A]`` and its standard error of the felts ``meshes`` (two realisations) with opaque Lambertian
-    fibers of each albedo of ``albedos``, traced as :func:`simulate.raytrace.fabric_beta` traces a felt (the
-    rotations of each incidence as one wavefront, the two felts averaged, the same seeds and chunks) with
-    :class:`simulate.raytrace.Lambert` of the albedos as its spectral axis: every albedo on the same paths (the
-    path's weight is the product of the albedos it met; Russian roulette acts on the largest, so the
-    estimates stay unbiased for each). The standard error is the rays' only (no table)."""
+    """``beta [P, A]`` and its standard error of the felts ``meshes`` with opaque Lambertian fibers of each albedo.
+
+    Traced as :func:`simulate.raytrace.fabric_beta` traces a felt (the rotations of each incidence as one
+    wavefront, the two felts averaged, the same seeds and chunks) with :class:`simulate.raytrace.Lambert`
+    of the albedos as its spectral axis: every albedo on the same paths (the path's weight is the
+    product of the albedos it met; Russian roulette acts on the largest, so the estimates stay unbiased
+    for each). The standard error is the rays' only (no table).
+
+    Parameters
+    ----------
+    meshes : tuple
+        The two felt realisations.
+    albedos : tuple of float
+        The fibers' albedos (the spectral axis).
+    w_in : numpy.ndarray
+        ``[P, 3]`` incident directions (towards the source).
+    w_out : numpy.ndarray
+        ``[P, 3]`` outgoing directions.
+    target : float
+        Target relative error per incidence and felt.
+    max_rays : int
+        Ray budget per incidence and felt (0: none).
+    seed : int
+        The rays' seed (each incidence its own, derived from it).
+    threads : int
+        Threads of the traces.
+    max_events : int
+        Scattering events followed (1: single scattering; 0: all).
+
+    Returns
+    -------
+    beta : numpy.ndarray
+        ``[P, A]`` values.
+    u_beta : numpy.ndarray
+        Their standard errors.
+    info : dict
+        The rays traced, the stop (the first that is not ``target``) and the seconds.
+    """
     from simulate.raytrace import Lambert
     from simulate.raytrace.estimate import FELT_ROTATIONS, mean_of
     from simulate.raytrace.integrator import CHUNK, trace_rotations
@@ -399,10 +544,33 @@ def lambertian_beta(meshes: tuple, albedos: tuple[float, ...], w_in: np.ndarray,
 
 def run_lambertian(base: Any, seed: int, target: float, threads: int, max_rays: int, felts: dict,
                    felt: dict | None = None) -> dict:
-    """The preset's felts at ``seed`` (as :func:`run_variant` builds them) with opaque Lambertian fibers of
-    the albedos :data:`ALBEDOS`, single scattering and all orders, summarised as a variant's run is (the
-    bands are the albedos)."""
+    """The preset's felts at ``seed`` with opaque Lambertian fibers of the albedos :data:`ALBEDOS`.
 
+    The felts are built as :func:`run_variant` builds them; single scattering and all orders are
+    summarised as a variant's run is (the bands are the albedos).
+
+    Parameters
+    ----------
+    base : simulate.config.Config
+        The preset's config.
+    seed : int
+        The seed of the felts and the rays.
+    target : float
+        Each trace's target relative error.
+    threads : int
+        Threads of the traces.
+    max_rays : int
+        Ray budget per incidence and felt (0: none).
+    felts : dict
+        Meshes by ``(structure, seed)``, filled with the felts built here.
+    felt : dict, optional
+        The felts' figures a run already holds; ValueError if the felts built now differ from them.
+
+    Returns
+    -------
+    dict
+        The run, as :func:`run_variant` returns one.
+    """
     fiber = base.fiber(np.asarray(WAVELENGTHS_NM))
     started, cpu0 = time.perf_counter(), _cpu()
     meshes, built, g, w_in, w_out = _felts_and_geometries(base.structure, fiber.radius_um, seed, felts, felt)
@@ -424,21 +592,38 @@ def _crossing(x: np.ndarray, y: np.ndarray, level: float) -> float | None:
 
 
 def _at(x: np.ndarray, y: np.ndarray, at: float) -> float:
+    """``y`` at ``at``, linear between the points ``(x, y)``."""
     return float(np.interp(at, x, y))
 
 
 def albedo_readoff(lamb: dict, file: dict, matched: str = "normal_view", pair: tuple[float, float] = (550.0, 650.0)) -> dict:
     """The Lambertian felt's all-orders curves read at the file's levels, per incidence.
 
-    ``lamb``: the pooled Lambertian runs (:func:`pooled`; bands: :data:`ALBEDOS`); ``file``: the file's
-    summary (:func:`file_ratios`). For each wavelength of ``pair``, the albedo at which the felt's
-    ``matched`` beta (``normal_view``, ``ring_6`` or ``ring_30``) equals the file's, and the felt's opposition
-    ratio there (both linear between the traced albedos), its standard error from the ratio's own at the
-    neighbouring albedos and the level's (``u_level / (d beta / d a) * (d ratio / d a)``), and the red
-    excess (the second wavelength's ratio less the first's; the two errors taken as independent). Then the
-    family the file's beta ratio ``650 / 550`` alone allows: for each traced albedo ``a`` taken at 550 nm, the
-    albedo whose beta is the file's ratio times ``beta(a)`` and the excess it gives. ``None`` where a level
-    lies outside the traced albedos."""
+    For each wavelength of ``pair``, the albedo at which the felt's ``matched`` beta equals the file's,
+    and the felt's opposition ratio there (both linear between the traced albedos), its standard error
+    from the ratio's own at the neighbouring albedos and the level's
+    (``u_level / (d beta / d a) * (d ratio / d a)``), and the red excess (the second wavelength's ratio
+    less the first's; the two errors taken as independent). Then the family the file's beta ratio
+    ``650 / 550`` alone allows: for each traced albedo ``a`` taken at 550 nm, the albedo whose beta is
+    the file's ratio times ``beta(a)`` and the excess it gives.
+
+    Parameters
+    ----------
+    lamb : dict
+        The pooled Lambertian runs (:func:`pooled`; bands: :data:`ALBEDOS`).
+    file : dict
+        The file's summary (:func:`file_ratios`).
+    matched : {"normal_view", "ring_6", "ring_30"}
+        The beta matched to the file's.
+    pair : tuple of (float, float)
+        The two wavelengths (nm), of :data:`WAVELENGTHS_NM`.
+
+    Returns
+    -------
+    dict
+        Per incidence: the picks at each wavelength, the excess and its standard error, the file's
+        excess and level ratio, and the family. ``None`` where a level lies outside the traced albedos.
+    """
     a = np.asarray(ALBEDOS, float)
     out: dict = {}
     wl = list(WAVELENGTHS_NM)
@@ -482,16 +667,42 @@ def albedo_readoff(lamb: dict, file: dict, matched: str = "normal_view", pair: t
 
 
 def multiple_share(lamb: dict) -> dict:
-    """Per incidence and albedo: the share of each ring's and the normal view's all-orders beta that is not
-    the single scattering (``1 - single / all``; the pooled runs of :func:`pooled`)."""
+    """Per incidence and albedo: the share of each ring's and the normal view's all-orders beta that is multiple scattering.
+
+    That is ``1 - single / all``, of the pooled runs of :func:`pooled`.
+
+    Parameters
+    ----------
+    lamb : dict
+        The pooled Lambertian runs, with both orders.
+
+    Returns
+    -------
+    dict
+        ``{incidence: {"ring_6" | "ring_30" | "normal_view": [share per albedo]}}``.
+    """
     return {ti: {k: (1.0 - np.asarray(lamb["single"][ti][k]) / np.asarray(lamb["all"][ti][k])).tolist()
                  for k in ("ring_6", "ring_30", "normal_view")} for ti in lamb["all"]}
 
 
 def pooled(runs: list[dict]) -> dict:
-    """The runs (seeds) of one variant pooled, per order (those every run holds) and incidence: the rings' and the normal view's
-    means over the seeds, the ratio of the pooled rings with its standard error from the points' errors
-    (independent), and the standard error of the mean of the seeds' own ratios from their scatter."""
+    """The runs (seeds) of one variant pooled, per order (those every run holds) and incidence.
+
+    The rings' and the normal view's means over the seeds, the ratio of the pooled rings with its
+    standard error from the points' errors (independent), and the standard error of the mean of the
+    seeds' own ratios from their scatter.
+
+    Parameters
+    ----------
+    runs : list of dict
+        The variant's runs (:func:`run_variant` or :func:`run_lambertian`).
+
+    Returns
+    -------
+    dict
+        ``{order: {incidence: figures}}``, the figures as JSON lists (the seeds' standard error None
+        from one seed).
+    """
     out: dict = {}
     n = len(runs)
     for order in [o for o in (*ORDERS, *SPLIT_ORDERS) if all(o in r["orders"] for r in runs)]:
@@ -512,23 +723,27 @@ def pooled(runs: list[dict]) -> dict:
 
 
 def _cpu() -> float:
+    """The process's CPU seconds so far (user and system)."""
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
 
 
 def _fail(message: str) -> SystemExit:
+    """Print ``message`` as one error line and return the SystemExit (2) to raise."""
     print(f"felt_opposition_scan: {message}", file=sys.stderr)
     return SystemExit(2)
 
 
 def _write(path: Path, record: dict) -> None:
+    """Write ``record`` to ``path`` as JSON, through a temporary file moved into place."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")
     tmp.write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
     os.replace(tmp, path)
 
 
-def main(argv: list[str] | None = None) -> int:
+def _arguments(argv: list[str] | None) -> tuple[argparse.Namespace, list[str]]:
+    """The parsed command line and the variants to trace; SystemExit (2) naming a bad option."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", help=f"comma-separated variants (default: all, in order: {', '.join(VARIANTS)})")
     ap.add_argument("--target-rel-err", type=float, default=DEFAULT_TARGET,
@@ -561,9 +776,11 @@ def main(argv: list[str] | None = None) -> int:
         raise _fail(f"--target-rel-err must lie in (0, 1), got {args.target_rel_err:g}")
     if args.threads < 1 or args.max_rays < 0 or args.seeds < 1:
         raise _fail("--threads and --seeds must be >= 1 and --max-rays >= 0")
-    settings = {"config": CONFIG, "target_rel_err": args.target_rel_err, "max_rays": args.max_rays, "seeds": args.seeds,
-                "incidences_deg": list(INCIDENCES_DEG), "wavelengths_nm": list(WAVELENGTHS_NM),
-                "ring_points": RING_POINTS, "exit_bins": list(EXIT_BINS)}
+    return args, names
+
+
+def _earlier(args: argparse.Namespace, settings: dict) -> tuple[list[dict], list[str], dict, int]:
+    """What ``--out`` already holds: its variants, invocations, Lambertian felt and threads (nothing without it)."""
     done: list[dict] = []
     invocations: list[str] = []
     lamb: dict = {"albedos": list(ALBEDOS), "runs": []}
@@ -586,10 +803,11 @@ def main(argv: list[str] | None = None) -> int:
             if lamb["albedos"] != list(ALBEDOS):
                 raise _fail(f"--resume: {args.out} holds a Lambertian felt of other albedos; --force to replace it")
             threads = old["settings"].get("threads", args.threads)
-    from simulate.config import load_config
+    return done, invocations, lamb, threads
 
-    base = load_config(CONFIG)
-    invocations.append(shlex.join([*COMMAND.split(), *(sys.argv[1:] if argv is None else argv)]))
+
+def _canonical(args: argparse.Namespace) -> list[str]:
+    """The command that gives this scan's settings, its defaults left out (the record's ``command``)."""
     canonical = [COMMAND]
     if args.target_rel_err != DEFAULT_TARGET:
         canonical.append(f"--target-rel-err {args.target_rel_err:g}")
@@ -599,6 +817,92 @@ def main(argv: list[str] | None = None) -> int:
         canonical.append(f"--seeds {args.seeds}")
     if args.out.resolve() != (DATA / f"{NAME}.json").resolve():
         canonical.append(f"--out {shlex.quote(str(args.out))}")
+    return canonical
+
+
+def _save(path: Path, canonical: list[str], data: dict) -> None:
+    """Write the scan's record (its command, the machine and ``data``) to ``path``."""
+    _write(path, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
+
+
+def _complete(done: list[dict], seeds: int) -> bool:
+    """Whether every variant of :data:`VARIANTS` has its ``seeds`` runs."""
+    return all(any(v["name"] == n and len(v["runs"]) == seeds for v in done) for n in VARIANTS)
+
+
+def _trace_variants(seed: int, names: list[str], wanted: tuple[str, ...], felts: dict, base: Any,
+                    args: argparse.Namespace, data: dict, canonical: list[str]) -> dict:
+    """Trace the orders ``wanted`` that each variant's run at ``seed`` lacks, saving after each; the felts kept."""
+    done = data["variants"]
+    for name in names:
+        variant = next(v for v in done if v["name"] == name)
+        run = next((r for r in variant["runs"] if r["seed"] == seed), None)
+        missing = tuple(o for o in wanted if run is None or o not in run["orders"])
+        if not missing:
+            continue
+        print(f"felt_opposition_scan: {name} ({VARIANTS[name][0]}), seed {seed}: {', '.join(missing)}", flush=True)
+        try:
+            new = run_variant(name, base, seed, args.target_rel_err, args.threads, args.max_rays, felts, missing,
+                              None if run is None else run["felt"])
+        except ValueError as exc:
+            raise _fail(f"{name}, seed {seed}: {exc} ({args.out}); trace the variant anew into another --out") from None
+        if run is None:
+            variant["runs"].append(new)
+            variant["runs"].sort(key=lambda r: r["seed"])
+        else:
+            run["orders"].update(new["orders"])
+            run["cpu_seconds"] += new["cpu_seconds"]
+            run["wall_seconds"] += new["wall_seconds"]
+        variant["pooled"] = pooled(variant["runs"])
+        variant["cpu_seconds"] = sum(r["cpu_seconds"] for r in variant["runs"])
+        data["complete"] = _complete(done, args.seeds)
+        _save(args.out, canonical, data)
+        felts = {k: m for k, m in felts.items() if k[0] == base.structure}   # the preset's felts are reused
+    return felts
+
+
+def _trace_lambertian(seed: int, lamb: dict, felts: dict, base: Any, args: argparse.Namespace, data: dict,
+                      canonical: list[str]) -> None:
+    """Trace the Lambertian felt at ``seed`` when ``lamb`` has no run of it, then pool, read off and save."""
+    run = next((r for r in lamb["runs"] if r["seed"] == seed), None)
+    if args.lambertian and run is None:
+        print(f"felt_opposition_scan: opaque Lambertian fibers, seed {seed}", flush=True)
+        lamb["runs"].append(run_lambertian(base, seed, args.target_rel_err, args.threads, args.max_rays, felts))
+        lamb["runs"].sort(key=lambda r: r["seed"])
+        lamb["pooled"] = pooled(lamb["runs"])
+        lamb["cpu_seconds"] = sum(r["cpu_seconds"] for r in lamb["runs"])
+        lamb["readoff"] = {m: albedo_readoff(lamb["pooled"], data["file"]["incidences"], m)
+                           for m in ("normal_view", "ring_6", "ring_30")}
+        lamb["multiple_share"] = multiple_share(lamb["pooled"])
+        _save(args.out, canonical, data)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Trace the variants (and the Lambertian felt) seed by seed, writing the record after every run.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``--only``, ``--target-rel-err``, ``--threads``, ``--max-rays``,
+        ``--seeds``, ``--out``, ``--split``, ``--lambertian``, ``--force`` or ``--resume``);
+        ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0; a bad option, an existing ``--out`` without ``--force`` or ``--resume``, or a resumed run
+        whose felts differ exits 2 with one line.
+    """
+    args, names = _arguments(argv)
+    settings = {"config": CONFIG, "target_rel_err": args.target_rel_err, "max_rays": args.max_rays, "seeds": args.seeds,
+                "incidences_deg": list(INCIDENCES_DEG), "wavelengths_nm": list(WAVELENGTHS_NM),
+                "ring_points": RING_POINTS, "exit_bins": list(EXIT_BINS)}
+    done, invocations, lamb, threads = _earlier(args, settings)
+    from simulate.config import load_config
+
+    base = load_config(CONFIG)
+    invocations.append(shlex.join([*COMMAND.split(), *(sys.argv[1:] if argv is None else argv)]))
+    canonical = _canonical(args)
     data: dict[str, Any] = {"settings": {**settings, "threads": threads, "first_seed": base.seed},
             "file": {"sample": str(SAMPLE.relative_to(ROOT)), "incidences": file_ratios()},
             "variants": done, "invocations": invocations}
@@ -611,44 +915,10 @@ def main(argv: list[str] | None = None) -> int:
     done.sort(key=lambda v: order.index(v["name"]))
     wanted = (*ORDERS, *(SPLIT_ORDERS if args.split else ()))
     for seed in range(base.seed, base.seed + args.seeds):     # every variant at one seed before the next seed
-        felts: dict = {}
-        for name in names:
-            variant = next(v for v in done if v["name"] == name)
-            run = next((r for r in variant["runs"] if r["seed"] == seed), None)
-            missing = tuple(o for o in wanted if run is None or o not in run["orders"])
-            if not missing:
-                continue
-            print(f"felt_opposition_scan: {name} ({VARIANTS[name][0]}), seed {seed}: {', '.join(missing)}", flush=True)
-            try:
-                new = run_variant(name, base, seed, args.target_rel_err, args.threads, args.max_rays, felts, missing,
-                                  None if run is None else run["felt"])
-            except ValueError as exc:
-                raise _fail(f"{name}, seed {seed}: {exc} ({args.out}); trace the variant anew into another --out") from None
-            if run is None:
-                variant["runs"].append(new)
-                variant["runs"].sort(key=lambda r: r["seed"])
-            else:
-                run["orders"].update(new["orders"])
-                run["cpu_seconds"] += new["cpu_seconds"]
-                run["wall_seconds"] += new["wall_seconds"]
-            variant["pooled"] = pooled(variant["runs"])
-            variant["cpu_seconds"] = sum(r["cpu_seconds"] for r in variant["runs"])
-            data["complete"] = all(any(v["name"] == n and len(v["runs"]) == args.seeds for v in done) for n in order)
-            _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
-            felts = {k: m for k, m in felts.items() if k[0] == base.structure}   # the preset's felts are reused
-        run = next((r for r in lamb["runs"] if r["seed"] == seed), None)
-        if args.lambertian and run is None:
-            print(f"felt_opposition_scan: opaque Lambertian fibers, seed {seed}", flush=True)
-            lamb["runs"].append(run_lambertian(base, seed, args.target_rel_err, args.threads, args.max_rays, felts))
-            lamb["runs"].sort(key=lambda r: r["seed"])
-            lamb["pooled"] = pooled(lamb["runs"])
-            lamb["cpu_seconds"] = sum(r["cpu_seconds"] for r in lamb["runs"])
-            lamb["readoff"] = {m: albedo_readoff(lamb["pooled"], data["file"]["incidences"], m)
-                               for m in ("normal_view", "ring_6", "ring_30")}
-            lamb["multiple_share"] = multiple_share(lamb["pooled"])
-            _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
-    data["complete"] = all(any(v["name"] == n and len(v["runs"]) == args.seeds for v in done) for n in order)
-    _write(args.out, {"name": NAME, "command": " ".join(canonical), "machine": machine(), "data": data})
+        felts = _trace_variants(seed, names, wanted, {}, base, args, data, canonical)
+        _trace_lambertian(seed, lamb, felts, base, args, data, canonical)
+    data["complete"] = _complete(done, args.seeds)
+    _save(args.out, canonical, data)
     print(f"felt_opposition_scan: {len(done)} variant(s) in {args.out}")
     return 0
 

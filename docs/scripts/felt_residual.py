@@ -127,14 +127,38 @@ class InputError(Exception):
 # ---------------------------------------------------------------------------------------------- variants
 
 def _toml_value(v: Any) -> str:
+    """``v`` as a TOML value: a string quoted, a dict as an inline table, a number as Python prints it."""
     if isinstance(v, dict):     # an inline table
         return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
     return json.dumps(v) if isinstance(v, str) else repr(v)
 
 
 def set_field(text: str, section: str, key: str, value: Any) -> str:
-    """``text`` (a TOML document) with ``key`` of ``[section]`` set to ``value``: the line replaced if the section
-    has it, else added as the section's first line. Raises :class:`InputError` when the section is absent."""
+    """``text`` (a TOML document) with ``key`` of ``[section]`` set to ``value``.
+
+    The key's line is replaced if the section has it, else added as the section's first line.
+
+    Parameters
+    ----------
+    text : str
+        The TOML document.
+    section : str
+        The table's name, as its header writes it.
+    key : str
+        The key to set.
+    value : Any
+        Its value (a dict is written as an inline table).
+
+    Returns
+    -------
+    str
+        The document with the key set; every other line unchanged.
+
+    Raises
+    ------
+    InputError
+        The document has no ``[section]``.
+    """
     lines = text.splitlines(keepends=True)
     header = re.compile(r"^\s*\[([^\]]+)\]\s*(#.*)?$")
     start = next((i for i, ln in enumerate(lines) if (m := header.match(ln)) and m.group(1).strip() == section), None)
@@ -152,8 +176,29 @@ def set_field(text: str, section: str, key: str, value: Any) -> str:
 
 
 def write_variants(preset: Path, out: Path, force: bool = False) -> list[Path]:
-    """One config per :data:`VARIANTS` and :data:`JOINT_VARIANTS` entry in ``out``, named after it (its ``name``
-    field too)."""
+    """One config per :data:`VARIANTS` and :data:`JOINT_VARIANTS` entry in ``out``, named after it.
+
+    Its ``name`` field is the variant's name too.
+
+    Parameters
+    ----------
+    preset : pathlib.Path
+        The preset's TOML file.
+    out : pathlib.Path
+        The folder to write to (made when absent).
+    force : bool
+        Replace existing files of the same names.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The written configs, in the tables' order.
+
+    Raises
+    ------
+    InputError
+        The preset cannot be read, or a file exists without ``force`` (the ones before it are written).
+    """
     try:
         text = preset.read_text(encoding="utf-8")
     except OSError as exc:
@@ -177,19 +222,44 @@ def write_variants(preset: Path, out: Path, force: bool = False) -> list[Path]:
 # ---------------------------------------------------------------------------------------------- decomposition
 
 def _unit(theta_deg: np.ndarray, phi_deg: np.ndarray) -> np.ndarray:
+    """Unit vectors of the polar angles ``theta_deg`` and azimuths ``phi_deg`` (deg), ``[..., 3]``."""
     t, p = np.radians(theta_deg), np.radians(phi_deg)
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
 def retro_distance_deg(frame: pd.DataFrame) -> np.ndarray:
-    """Angle (deg) between each point's observation direction and its source (retro) direction."""
+    """Angle (deg) between each point's observation direction and its source (retro) direction.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Points with ``theta_i``, ``phi_i``, ``theta_o``, ``phi_o`` (deg).
+
+    Returns
+    -------
+    numpy.ndarray
+        The angle per point (deg).
+    """
     a = _unit(frame["theta_i"].to_numpy(float), frame["phi_i"].to_numpy(float))
     b = _unit(frame["theta_o"].to_numpy(float), frame["phi_o"].to_numpy(float))
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1.0, 1.0)))
 
 
 def region(frame: pd.DataFrame, near_deg: float = 20.0) -> np.ndarray:
-    """The region (:data:`REGIONS`) of each point of an aligned frame (module docstring)."""
+    """The region (:data:`REGIONS`) of each point of an aligned frame (module docstring).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Aligned points with the signed in-plane angle ``s`` (NaN out of plane) and the angles.
+    near_deg : float
+        Half-width of the near-normal region (deg).
+
+    Returns
+    -------
+    numpy.ndarray
+        The region's name per point (object array).
+    """
     s = frame["s"].to_numpy(float)
     out = np.empty(len(frame), dtype=object)
     inplane = np.isfinite(s)
@@ -206,6 +276,7 @@ def region(frame: pd.DataFrame, near_deg: float = 20.0) -> np.ndarray:
 
 
 def _parts(d: np.ndarray, u: np.ndarray, meas: np.ndarray, m: float, keys: np.ndarray, order: list) -> dict[str, Any]:
+    """The squared error of the points split by ``keys`` (in ``order``): share, contribution, NRMSE without, bias, noise."""
     n_all = d.size
     total = float(np.sum(d * d))
     out: dict[str, dict[str, Any]] = {}
@@ -225,9 +296,23 @@ def _parts(d: np.ndarray, u: np.ndarray, meas: np.ndarray, m: float, keys: np.nd
 
 
 def forward_rise(frame: pd.DataFrame, low_deg: float = 30.0, high_deg: float = GRAZING_DEG) -> dict[str, dict]:
-    """Per incidence, the in-plane forward rise ``beta(s = high) / beta(s = low)`` of the file and of the model,
-    each the ratio of the band sums (the normalisation cancels in it); incidences lacking either point are left
-    out."""
+    """Per incidence, the in-plane forward rise ``beta(s = high) / beta(s = low)`` of the file and of the model.
+
+    Each is the ratio of the band sums (the normalisation cancels in it); incidences lacking either
+    point are left out.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Aligned points with ``s``, ``beta_meas`` and ``beta_sim``.
+    low_deg, high_deg : float
+        The two in-plane angles (deg).
+
+    Returns
+    -------
+    dict
+        ``{incidence: {"measured": ratio, "simulated": ratio}}``, the incidence as ``"27.76"``.
+    """
     out = {}
     s = frame["s"].to_numpy(float)
     for theta_i in sorted(frame["theta_i"].unique()):
@@ -243,7 +328,18 @@ def forward_rise(frame: pd.DataFrame, low_deg: float = 30.0, high_deg: float = G
 
 
 def band_group(wavelength_nm: np.ndarray) -> np.ndarray:
-    """The :data:`BAND_GROUPS` name of each wavelength (``"other"`` outside them)."""
+    """The :data:`BAND_GROUPS` name of each wavelength (``"other"`` outside them).
+
+    Parameters
+    ----------
+    wavelength_nm : numpy.ndarray
+        Wavelengths (nm).
+
+    Returns
+    -------
+    numpy.ndarray
+        The group's name per wavelength (object array).
+    """
     w = np.asarray(wavelength_nm, dtype=float)
     out = np.full(w.shape, "other", dtype=object)
     for name, lo, hi in BAND_GROUPS:
@@ -252,8 +348,20 @@ def band_group(wavelength_nm: np.ndarray) -> np.ndarray:
 
 
 def profile(frame: pd.DataFrame) -> dict[str, dict[str, float]]:
-    """Per incidence and in-plane ``s``: the model over the file, each summed over the bands (the curve's shape
-    error where it lies)."""
+    """Per incidence and in-plane ``s``: the model over the file, each summed over the bands.
+
+    The curve's shape error where it lies; a geometry whose file sum is not positive is left out.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Aligned points with ``s``, ``beta_meas`` and ``beta_sim``.
+
+    Returns
+    -------
+    dict
+        ``{incidence: {s: model over file}}``, both keys as ``"%g"`` strings.
+    """
     rows = frame[np.isfinite(frame["s"].to_numpy(float))]
     out: dict[str, dict[str, float]] = {}
     for (theta_i, s), g in rows.groupby(["theta_i", "s"], sort=True):
@@ -264,8 +372,21 @@ def profile(frame: pd.DataFrame) -> dict[str, dict[str, float]]:
 
 
 def best_scale_nrmse(frame: pd.DataFrame) -> float:
-    """The NRMSE if each band's factor were the least-squares one over the frame's points instead of the normal's
-    (``k_b = sum(meas C) / sum(C^2)`` per band): the curves' shape error with the normalisation point taken out."""
+    """The NRMSE if each band's factor were the least-squares one over the frame's points.
+
+    Instead of the normal's: ``k_b = sum(meas C) / sum(C^2)`` per band, the curves' shape error with the
+    normalisation point taken out.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Aligned points with ``wavelength_nm``, ``beta_meas`` and ``beta_sim``.
+
+    Returns
+    -------
+    float
+        The NRMSE over the file's mean ``beta``.
+    """
     meas = frame["beta_meas"].to_numpy(float)
     sim = frame["beta_sim"].to_numpy(float)
     bands = frame["wavelength_nm"].to_numpy(float)
@@ -279,9 +400,32 @@ def best_scale_nrmse(frame: pd.DataFrame) -> float:
 
 def decompose_frame(frame: pd.DataFrame, near_deg: float = 20.0,
                     band_label=lambda b: f"{float(b):g}") -> dict[str, Any]:
-    """The curve error of an aligned, normalised frame (columns of :func:`compare.align.align` plus ``beta_sim``
-    and ``u_sim``) split by incidence, region, incidence x region, band and in plane / out of plane, with the
-    forward rise of each incidence (:func:`forward_rise`)."""
+    """The curve error of an aligned, normalised frame split by incidence, region, band and plane.
+
+    The frame has the columns of :func:`compare.align.align` plus ``beta_sim`` and ``u_sim``. The splits
+    are by incidence, region, incidence x region, band, band group (and band group x region) and in
+    plane / out of plane, with the forward rise of each incidence (:func:`forward_rise`), the profile
+    and the NRMSE with each band's least-squares factor.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The aligned points kept.
+    near_deg : float
+        Half-width of the near-normal region (deg).
+    band_label : callable
+        The name of a band from its wavelength (the comparison's labels).
+
+    Returns
+    -------
+    dict
+        ``n``, ``mean_meas``, ``nrmse``, ``nrmse_noise_u`` and the splits (module docstring).
+
+    Raises
+    ------
+    InputError
+        The frame is empty, or the file's mean ``beta`` over it is not positive.
+    """
     if frame.empty:
         raise InputError("no point to decompose")
     meas = frame["beta_meas"].to_numpy(float)
@@ -297,10 +441,10 @@ def decompose_frame(frame: pd.DataFrame, near_deg: float = 20.0,
     bands = np.array([band_label(b) for b in frame["wavelength_nm"].to_numpy(float)], dtype=object)
     band_order = [band_label(b) for b in sorted(set(frame["wavelength_nm"].to_numpy(float)))]
     plane = np.where(np.isfinite(frame["s"].to_numpy(float)), "in plane", "out of plane").astype(object)
-    cross = np.array([f"{a}|{b}" for a, b in zip(inc, reg)], dtype=object)
+    cross = np.array([f"{a}|{b}" for a, b in zip(inc, reg, strict=True)], dtype=object)
     group = band_group(frame["wavelength_nm"].to_numpy(float))
     groups = [g for g, _, _ in BAND_GROUPS] + (["other"] if np.any(group == "other") else [])
-    group_reg = np.array([f"{a}|{b}" for a, b in zip(group, reg)], dtype=object)
+    group_reg = np.array([f"{a}|{b}" for a, b in zip(group, reg, strict=True)], dtype=object)
     nrmse = math.sqrt(float(np.mean(d * d))) / m
     noise = math.sqrt(float(np.mean(u * u))) / m
     return {"n": n, "mean_meas": m, "nrmse": nrmse, "nrmse_noise_u": noise,
@@ -317,9 +461,27 @@ def decompose_frame(frame: pd.DataFrame, near_deg: float = 20.0,
 
 
 def seed_noise(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
-    """The noise of one run estimated from two seeds' aligned frames of the same points: per point the difference's
-    mean square over two (the variance of one run when both have the same noise), over the file's mean ``beta``;
-    and the expected noise from the runs' own ``u_sim`` for comparison."""
+    """The noise of one run estimated from two seeds' aligned frames of the same points.
+
+    Per point the difference's mean square over two (the variance of one run when both have the same
+    noise), over the file's mean ``beta``; and the expected noise from the runs' own ``u_sim`` for
+    comparison.
+
+    Parameters
+    ----------
+    a, b : pandas.DataFrame
+        The two runs' aligned frames.
+
+    Returns
+    -------
+    dict
+        ``n``, ``nrmse_seeds`` and ``nrmse_noise_a``, ``nrmse_noise_b`` (from ``u_sim``).
+
+    Raises
+    ------
+    InputError
+        The two frames do not hold the same points.
+    """
     keys = ["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm"]
     j = a.merge(b, on=keys, suffixes=("_a", "_b"))
     if len(j) != len(a) or len(j) != len(b):
@@ -332,8 +494,30 @@ def seed_noise(a: pd.DataFrame, b: pd.DataFrame) -> dict[str, float]:
 
 
 def fixed_felt(argv: list[str], felt_seed: int, table_factor: int = 1) -> int:
-    """``simulate argv`` with each felt realisation ``j`` that of a run at ``felt_seed`` (its seed
-    ``felt_seed + FELT_SEED_STRIDE j``) and the yarn table's photons times ``table_factor`` (module docstring)."""
+    """``simulate argv`` with every felt realisation that of a run at ``felt_seed`` (module docstring).
+
+    Realisation ``j`` is the felt of seed ``felt_seed + FELT_SEED_STRIDE j``; the yarn table's photons
+    are multiplied by ``table_factor``.
+
+    Parameters
+    ----------
+    argv : list of str
+        The arguments of ``simulate``.
+    felt_seed : int
+        The seed whose felts every run takes (>= 0).
+    table_factor : int
+        Factor on the yarn table's photons (>= 1).
+
+    Returns
+    -------
+    int
+        ``simulate``'s exit status.
+
+    Raises
+    ------
+    InputError
+        A negative seed or a factor below 1.
+    """
     from unittest import mock
 
     import simulate.geometry.felt as felt
@@ -346,6 +530,7 @@ def fixed_felt(argv: list[str], felt_seed: int, table_factor: int = 1) -> int:
     build, photons = felt.cached_felt_mesh, est.table_photons
 
     def held(spec: Any, radius_um: float, seed: int = 0, **kw: Any) -> Any:
+        """The felt of realisation ``seed // FELT_SEED_STRIDE`` at ``felt_seed``."""
         return build(spec, radius_um, seed=felt_seed + FELT_SEED_STRIDE * (seed // FELT_SEED_STRIDE), **kw)
 
     with mock.patch.object(felt, "cached_felt_mesh", held), \
@@ -368,9 +553,33 @@ def _time_v(path: Path) -> dict[str, float]:
 
 
 def realisation_groups(file: str, groups: list[list[str]], max_incidence: float) -> list[dict[str, Any]]:
-    """Per group (``[NAME, RUN, RUN, ...]``: seeds of one config at one target): each seed's NRMSE against ``file``,
-    their spread, one run's noise from every pair of seeds, and the pairs' differences over their reported errors
-    (module docstring, ``realisations``)."""
+    """Per group of seeds of one config at one target: each seed's NRMSE, their spread, the noise and the z.
+
+    One run's noise comes from every pair of seeds, and the pairs' differences over their reported
+    errors give the z (module docstring, ``realisations``).
+
+    Parameters
+    ----------
+    file : str
+        The file's dataset (``gonio truth``).
+    groups : list of list of str
+        ``[NAME, RUN, RUN, ...]`` per group.
+    max_incidence : float
+        Largest incidence kept (deg).
+
+    Returns
+    -------
+    list of dict
+        One row per group: its realisations and target, each seed's figures, the NRMSE's mean, standard
+        deviation and range, the noise of one run, the pairs, the z's RMS and the fractions beyond 2
+        and 3, and the means of the rays, errors, CPU seconds and peak memory (None when a run lacks one).
+
+    Raises
+    ------
+    InputError
+        A group of fewer than two runs, a run that is not a felt Monte Carlo run, or runs of
+        different realisations or targets in one group.
+    """
     from itertools import combinations
 
     out = []
@@ -422,11 +631,31 @@ def realisation_groups(file: str, groups: list[list[str]], max_incidence: float)
 
 def combine(r0: np.ndarray, fields: list[tuple[str, float, float, np.ndarray, float, np.ndarray]],
             starts: int = 20, seed: int = 0) -> tuple[list[float], float]:
-    """Every field at once from one-at-a-time runs: per field ``(name, base value, value 1, residuals 1, value 2,
-    residuals 2)`` (residual vectors over the file's mean, ``r0`` the base run's), each point's residual taken as
-    ``r0 + sum_f a_f h_f + b_f h_f^2`` (the quadratic through the field's three runs, ``h`` the change from the
-    base), and the changes within each field's scanned range that minimise its mean square. Returns the values
-    and the predicted NRMSE."""
+    """Every field at once from one-at-a-time runs: the changes that minimise the predicted mean square.
+
+    Each point's residual is taken as ``r0 + sum_f a_f h_f + b_f h_f^2`` (the quadratic through the
+    field's three runs, ``h`` the change from the base), and the changes within each field's scanned
+    range that minimise its mean square are searched by L-BFGS-B from the base and ``starts`` random
+    points.
+
+    Parameters
+    ----------
+    r0 : numpy.ndarray
+        The base run's residuals over the file's mean.
+    fields : list of tuple
+        Per field ``(name, base value, value 1, residuals 1, value 2, residuals 2)``.
+    starts : int
+        Random starting points besides the base.
+    seed : int
+        Their seed.
+
+    Returns
+    -------
+    values : list of float
+        Each field's value.
+    nrmse : float
+        The predicted NRMSE.
+    """
     from scipy.optimize import minimize
 
     models = []
@@ -436,11 +665,13 @@ def combine(r0: np.ndarray, fields: list[tuple[str, float, float, np.ndarray, fl
         models.append((base, min(h1, h2, 0.0), max(h1, h2, 0.0), coef))
 
     def changes(z: np.ndarray) -> list[float]:
-        return [lo + (hi - lo) * float(zz) for (_, lo, hi, _), zz in zip(models, z)]
+        """The fields' changes from the unit-cube point ``z`` (0 and 1 the ends of each scanned range)."""
+        return [lo + (hi - lo) * float(zz) for (_, lo, hi, _), zz in zip(models, z, strict=True)]
 
     def mean_square(z: np.ndarray) -> float:
+        """The predicted mean square residual at the unit-cube point ``z``."""
         r = r0.copy()
-        for (_, _, _, c), h in zip(models, changes(z)):
+        for (_, _, _, c), h in zip(models, changes(z), strict=True):
             r = r + c[0] * h + c[1] * h * h
         return float(np.mean(r * r))
 
@@ -448,12 +679,13 @@ def combine(r0: np.ndarray, fields: list[tuple[str, float, float, np.ndarray, fl
     z0 = [np.array([-lo / (hi - lo) for _, lo, hi, _ in models])] + [rng.random(len(models)) for _ in range(starts)]
     best = min((minimize(mean_square, z, bounds=[(0.0, 1.0)] * len(models), method="L-BFGS-B") for z in z0),
                key=lambda res: res.fun)
-    return [base + h for (base, _, _, _), h in zip(models, changes(best.x))], math.sqrt(best.fun)
+    return [base + h for (base, _, _, _), h in zip(models, changes(best.x), strict=True)], math.sqrt(best.fun)
 
 
 # ---------------------------------------------------------------------------------------------- datasets
 
 def _read(path: str):
+    """The dataset at ``path``; InputError naming it when it is not one."""
     from gonio.data import DatasetError, read_dataset
     try:
         return read_dataset(path)
@@ -462,7 +694,31 @@ def _read(path: str):
 
 
 def compared(file: str, runs: list[str], max_incidence: float) -> list[tuple[str, pd.DataFrame, Any]]:
-    """``(name, frame, comparison)`` per run against ``file``, the frame cut at ``max_incidence``."""
+    """``(name, frame, comparison)`` per run against ``file``, the frame cut at ``max_incidence``.
+
+    Each run is compared exactly as ``compare check`` compares it
+    (:func:`compare.comparison.compare_datasets`).
+
+    Parameters
+    ----------
+    file : str
+        The file's dataset.
+    runs : list of str
+        The runs' datasets.
+    max_incidence : float
+        Largest incidence kept (deg).
+
+    Returns
+    -------
+    list of tuple
+        Per run its path, its aligned frame and the comparison.
+
+    Raises
+    ------
+    InputError
+        A path is not a dataset, a run cannot be compared, or no point is left at or below
+        ``max_incidence``.
+    """
     import logging
 
     from compare.comparison import compare_datasets
@@ -490,9 +746,24 @@ RETRO_BANDS_NM = (550.0, 650.0)
 
 
 def retro(path: str, max_incidence: float = 90.0, bands: tuple[float, ...] = RETRO_BANDS_NM) -> dict[str, dict]:
-    """The retro-ring ratio of a dataset at ``bands`` (its own values, scale-free:
-    :func:`compare.ratios.opposition_ratios`), per oblique incidence up to ``max_incidence`` that holds both
-    rings, with the ratio's standard error; ``{}`` when none does."""
+    """The retro-ring ratio of a dataset at ``bands``, per oblique incidence that holds both rings.
+
+    The dataset's own values, scale-free (:func:`compare.ratios.opposition_ratios`).
+
+    Parameters
+    ----------
+    path : str
+        The dataset.
+    max_incidence : float
+        Largest incidence kept (deg).
+    bands : tuple of float
+        The bands (nm); those the dataset lacks are left out.
+
+    Returns
+    -------
+    dict
+        ``{incidence: {band: {"ratio": r, "u": standard error}}}``; ``{}`` when no incidence holds both rings.
+    """
     from compare.ratios import Missing, opposition_ratios
 
     table = _read(path).table
@@ -510,6 +781,7 @@ def retro(path: str, max_incidence: float = 90.0, bands: tuple[float, ...] = RET
 
 
 def _colour(cmp) -> dict[str, float]:
+    """The comparison's colour differences and level (``dh``, ``ds``, ``k_Y``); ``{}`` without a colour."""
     if cmp.colour is None:
         return {}
     sc = next(iter(cmp.colour.simulated.values()))
@@ -517,6 +789,7 @@ def _colour(cmp) -> dict[str, float]:
 
 
 def _print(run: str, res: dict[str, Any]) -> None:
+    """Print one run's decomposition: the NRMSE, the noise, the forward rise and each split."""
     rise = ", ".join(f"{t}: {r['measured']:.2f}/{r['simulated']:.2f}" for t, r in res["forward_rise"].items())
     print(f"{run}: NRMSE {res['nrmse']:.4f} over {res['n']} points (u_sim-based noise {res['nrmse_noise_u']:.4f}; "
           f"best scale per band {res['nrmse_best_scale']:.4f}; forward rise file/model {rise})" + "".join(f", {k} {v:+.4f}" for k, v in res.get("colour", {}).items()))
@@ -528,8 +801,27 @@ def _print(run: str, res: dict[str, Any]) -> None:
 
 
 def permute_channels(src: Path, out: Path, order: str, force: bool = False) -> None:
-    """Write the RGB RGL ``.bsdf`` file ``src`` with its channels reordered: ``order`` names the old channel each
-    new R, G, B takes (``"gbr"``: new R, G, B = old G, B, R); every other field (the sampling tables) is kept."""
+    """Write the RGB RGL ``.bsdf`` file ``src`` with its channels reordered.
+
+    Every other field (the sampling tables) is kept.
+
+    Parameters
+    ----------
+    src : pathlib.Path
+        The RGB RGL file.
+    out : pathlib.Path
+        The file to write.
+    order : str
+        The old channel each new R, G, B takes (``"gbr"``: new R, G, B = old G, B, R).
+    force : bool
+        Replace ``out`` when it exists.
+
+    Raises
+    ------
+    InputError
+        ``order`` is not a permutation of ``rgb``, ``out`` exists without ``force``, or ``src`` is not an
+        RGB tensor file.
+    """
     from gonio.data.bsdf_export import write_tensor_file
     from gonio.data.formats.errors import FormatError
     from gonio.data.formats.tensor import parse_tensor_bytes
@@ -552,8 +844,7 @@ def permute_channels(src: Path, out: Path, order: str, force: bool = False) -> N
 # ---------------------------------------------------------------------------------------------- the felt's geometry
 
 def _point_segment_distance(p: np.ndarray, a: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Distance from each point ``p`` (``[n, 3]``) to each segment ``a + t d``, ``t`` in ``[0, 1]`` (``[m, 3]``):
-    ``[n, m]``."""
+    """Distance ``[n, m]`` from each point ``p`` (``[n, 3]``) to each segment ``a + t d``, ``t`` in ``[0, 1]`` (``[m, 3]``)."""
     w = p[:, None, :] - a[None, :, :]
     t = np.clip(np.einsum("nmi,mi->nm", w, d) / np.einsum("mi,mi->m", d, d)[None, :], 0.0, 1.0)
     r = w - t[..., None] * d[None, :, :]
@@ -561,10 +852,31 @@ def _point_segment_distance(p: np.ndarray, a: np.ndarray, d: np.ndarray) -> np.n
 
 
 def top_profile(mesh: Any, bin_um: float, depth_um: float, n: int = 4000, seed: int = 1) -> np.ndarray:
-    """The fraction of the cell inside a fibre in each layer ``[k bin_um, (k + 1) bin_um]`` below the felt's top
-    (``z = 0``) down to ``depth_um``: ``n`` fixed-seed random points per layer, each tested against every fibre
-    image's axis pieces (:func:`simulate.geometry.felt.fiber_pieces`; inside: nearer than the radius). Standard
-    error ``sqrt(f (1 - f) / n)``."""
+    """The fraction of the cell inside a fibre in each layer below the felt's top down to ``depth_um``.
+
+    Layer ``k`` is ``[k bin_um, (k + 1) bin_um]`` below ``z = 0``: ``n`` fixed-seed random points per
+    layer, each tested against every fibre image's axis pieces
+    (:func:`simulate.geometry.felt.fiber_pieces`; inside: nearer than the radius). Standard error
+    ``sqrt(f (1 - f) / n)``.
+
+    Parameters
+    ----------
+    mesh : simulate.geometry.mesh.FiberMesh
+        A felt realisation.
+    bin_um : float
+        The layers' thickness (um).
+    depth_um : float
+        The depth profiled (um).
+    n : int
+        Points per layer.
+    seed : int
+        The points' seed.
+
+    Returns
+    -------
+    numpy.ndarray
+        The fraction per layer, from the top.
+    """
     from simulate.geometry.felt import fiber_pieces
 
     p0, pd = fiber_pieces(mesh)
@@ -573,7 +885,7 @@ def top_profile(mesh: Any, bin_um: float, depth_um: float, n: int = 4000, seed: 
     rng = np.random.default_rng(seed)
     edges = np.arange(0.0, depth_um + 0.5 * bin_um, bin_um)
     out = []
-    for top, bottom in zip(edges[:-1], edges[1:]):
+    for top, bottom in zip(edges[:-1], edges[1:], strict=True):
         pts = np.stack([rng.uniform(0.0, L, n), rng.uniform(0.0, L, n), -rng.uniform(top, bottom, n)], axis=-1)
         inside = np.zeros(n, bool)
         for k in range(0, len(a), 256):
@@ -588,11 +900,32 @@ RISE_INCIDENCES = (0.0, 30.0, 45.0, 60.0)
 
 def lambert_rise(mesh: Any, albedos: list[float], target_rel_err: float = 0.01, seed: int = 1,
                  rotations: int = 8) -> dict[str, dict[str, Any]]:
-    """The in-plane forward rise ``beta(70)/beta(30)`` (observation on the mirror's side) of ``mesh`` with opaque
-    Lambertian fibres (:class:`simulate.raytrace.Lambert`, the albedos on the spectral axis: one trace scores all
-    on the same paths), per incidence of :data:`RISE_INCIDENCES`, all orders (``all``) and the single scattering
-    (``single``, the same for every albedo), each the mean over ``rotations`` turns of the incidence about the
-    normal, with its standard error (the two betas' relative errors in quadrature)."""
+    """The in-plane forward rise ``beta(70)/beta(30)`` of ``mesh`` with opaque Lambertian fibres.
+
+    The observation is on the mirror's side; :class:`simulate.raytrace.Lambert` puts the albedos on the
+    spectral axis, so one trace scores all on the same paths. Per incidence of :data:`RISE_INCIDENCES`,
+    all orders (``all``) and the single scattering (``single``, the same for every albedo), each the mean
+    over ``rotations`` turns of the incidence about the normal, with its standard error (the two betas'
+    relative errors in quadrature).
+
+    Parameters
+    ----------
+    mesh : simulate.geometry.mesh.FiberMesh
+        A felt realisation.
+    albedos : list of float
+        The fibres' albedos.
+    target_rel_err : float
+        Each trace's target relative error.
+    seed : int
+        The rays' seed.
+    rotations : int
+        Turns of the incidence about the normal.
+
+    Returns
+    -------
+    dict
+        ``{"all 30": {"ratio": [...], "se": [...]}, ...}``, a value per albedo.
+    """
     from simulate import raytrace as W
     from simulate.optics.microfacet import directions_deg
     from simulate.raytrace.integrator import trace_rotations
@@ -648,10 +981,24 @@ PHASE_VARIANTS: tuple[tuple[str, tuple[tuple[str, str, Any], ...]], ...] = (
 
 
 def felt_views(views_deg: Any, azimuths: int) -> np.ndarray:
-    """Exit directions ``[A, V, 3]`` in the fibre's frame (x the axis) for a fibre lying in the felt's plane with its
-    axis at ``A`` azimuths ``alpha`` (uniform midpoints over the turn) from the plane of incidence, the views ``V`` in
-    that plane (``view > 0``: towards +x of the felt). The beam along the felt's normal is ``(0, 0, 1)`` in every
-    fibre's frame (the frame's z is the felt's normal)."""
+    """Exit directions ``[A, V, 3]`` in the fibre's frame for a fibre lying in the felt's plane.
+
+    The fibre's axis (x) lies at ``A`` azimuths ``alpha`` (uniform midpoints over the turn) from the
+    plane of incidence, the views ``V`` in that plane (``view > 0``: towards +x of the felt). The beam
+    along the felt's normal is ``(0, 0, 1)`` in every fibre's frame (the frame's z is the felt's normal).
+
+    Parameters
+    ----------
+    views_deg : array_like
+        View angles in the plane of incidence (deg from the normal).
+    azimuths : int
+        Number of axis azimuths.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[A, V, 3]`` unit vectors.
+    """
     th = np.radians(np.asarray(views_deg, float))
     alpha = (np.arange(int(azimuths)) + 0.5) * 2.0 * math.pi / int(azimuths)
     s, c = np.sin(th)[None, :], np.cos(th)[None, :]
@@ -660,9 +1007,28 @@ def felt_views(views_deg: Any, azimuths: int) -> np.ndarray:
 
 
 def lambert_far_field(w_in: np.ndarray, w_out: np.ndarray, radius_um: float = 1.0, albedo: float = 1.0) -> np.ndarray:
-    """``S`` (um/sr) of an opaque Lambertian cylinder (axis x), closed form: with ``phi`` the angle between the
-    directions' projections across the axis, ``S = albedo R |w_i,perp| |w_o,perp| ((pi - phi) cos phi + sin phi) /
-    (2 pi)`` (the cell sum of ``albedo / pi (w_i . n)_+ (w_o . n)_+ R dpsi`` over the lit and seen cells)."""
+    """``S`` (um/sr) of an opaque Lambertian cylinder (axis x), closed form.
+
+    With ``phi`` the angle between the directions' projections across the axis,
+    ``S = albedo R |w_i,perp| |w_o,perp| ((pi - phi) cos phi + sin phi) / (2 pi)`` (the cell sum of
+    ``albedo / pi (w_i . n)_+ (w_o . n)_+ R dpsi`` over the lit and seen cells).
+
+    Parameters
+    ----------
+    w_in : numpy.ndarray
+        Incident directions ``[..., 3]`` (towards the source), in the fibre's frame.
+    w_out : numpy.ndarray
+        Outgoing directions ``[..., 3]``, broadcast against ``w_in``.
+    radius_um : float
+        The cylinder's radius (um).
+    albedo : float
+        Its albedo.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``S`` per direction pair.
+    """
     pi_ = np.asarray(w_in, float)[..., 1:]
     po = np.asarray(w_out, float)[..., 1:]
     ni, no = np.linalg.norm(pi_, axis=-1), np.linalg.norm(po, axis=-1)
@@ -672,10 +1038,25 @@ def lambert_far_field(w_in: np.ndarray, w_out: np.ndarray, radius_um: float = 1.
 
 
 def extinction_factor(view_deg: float, plane: bool = True) -> float:
-    """The single-scattering factor ``1 / (mu_o a + mu_i b)`` of a half-space of fibres at normal incidence, with
-    ``a``, ``b`` the extinction per unit fibre length along the beam and the view over ``2 R``: fibres lying in the
-    plane (``plane``) take ``a = 1`` (the beam across every fibre) and ``b = <|w_o,perp|>`` over the axis azimuths,
-    ``(2 / pi) E(sin^2 theta_o)``; isotropic scatterers ``a = b = 1`` (Lommel-Seeliger's ``1 / (mu_i + mu_o)``)."""
+    """The single-scattering factor ``1 / (mu_o a + mu_i b)`` of a half-space of fibres at normal incidence.
+
+    ``a``, ``b`` are the extinction per unit fibre length along the beam and the view over ``2 R``:
+    fibres lying in the plane (``plane``) take ``a = 1`` (the beam across every fibre) and
+    ``b = <|w_o,perp|>`` over the axis azimuths, ``(2 / pi) E(sin^2 theta_o)``; isotropic scatterers
+    ``a = b = 1`` (Lommel-Seeliger's ``1 / (mu_i + mu_o)``).
+
+    Parameters
+    ----------
+    view_deg : float
+        The view's angle from the normal (deg).
+    plane : bool
+        Fibres lying in the plane; else isotropic scatterers.
+
+    Returns
+    -------
+    float
+        The factor.
+    """
     from scipy.special import ellipe
 
     th = math.radians(view_deg)
@@ -684,7 +1065,20 @@ def extinction_factor(view_deg: float, plane: bool = True) -> float:
 
 
 def band_means(values: np.ndarray, wavelengths_nm: np.ndarray) -> dict[str, np.ndarray]:
-    """The mean over the last axis within each of :data:`BAND_GROUPS` (and ``"all"``)."""
+    """The mean over the last axis within each of :data:`BAND_GROUPS` (and ``"all"``).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        Values over the wavelengths on the last axis.
+    wavelengths_nm : numpy.ndarray
+        The wavelengths (nm).
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        The mean per group holding a wavelength, then ``"all"``.
+    """
     wl = np.asarray(wavelengths_nm, float)
     out = {name: values[..., (wl >= lo) & (wl <= hi)].mean(axis=-1) for name, lo, hi in BAND_GROUPS
            if np.any((wl >= lo) & (wl <= hi))}
@@ -700,8 +1094,24 @@ def _rise(curve: np.ndarray, views: np.ndarray, high: float = PHASE_HIGH_DEG, lo
 
 
 def sphere_integral(far_field: Any, n_theta: int = 90, n_phi: int = 180, upper_only: bool = False) -> np.ndarray:
-    """``int S dOmega`` over the sphere (or the felt's upper half, ``z > 0``) of ``far_field(w_out [O, 3]) -> [O, ...]``
-    by the midpoint rule in ``cos theta`` and the azimuth."""
+    """``int S dOmega`` over the sphere (or the felt's upper half, ``z > 0``) of a far field.
+
+    By the midpoint rule in ``cos theta`` and the azimuth.
+
+    Parameters
+    ----------
+    far_field : callable
+        ``far_field(w_out [O, 3]) -> [O, ...]``.
+    n_theta, n_phi : int
+        The grid's cells in ``cos theta`` and the azimuth.
+    upper_only : bool
+        Integrate over ``z > 0`` only.
+
+    Returns
+    -------
+    numpy.ndarray
+        The integral, of the far field's trailing shape.
+    """
     mu = (np.arange(n_theta) + 0.5) / n_theta * (1.0 if upper_only else 2.0) - (0.0 if upper_only else 1.0)
     ph = (np.arange(n_phi) + 0.5) * 2.0 * math.pi / n_phi
     st = np.sqrt(1.0 - mu ** 2)
@@ -715,15 +1125,49 @@ def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000,
                 threads: int = 1, sphere: tuple[int, int] = (90, 180)) -> dict[str, Any]:
     """The fibre's far field at the felt's normal incidence, averaged over the axis azimuths in the plane.
 
-    ``S = S_vol + S_surf`` (:mod:`simulate.fiber.farfield`): the volume term from ``tables`` independent exit tables
-    (:func:`simulate.fiber.farfield.exit_table`, seeds ``tables * seed + j``, the fibre's rough boundary for light
-    crossing it included, with the light that crosses the fibre without scattering) and the Cook-Torrance surface
-    term, each at the views of ``views_deg`` in the plane of incidence for ``azimuths`` axis azimuths
-    (:func:`felt_views`), then their mean. Per band group of :data:`BAND_GROUPS` (the mean over its wavelengths):
-    the curve ``S(view)``, ``p(110)/p(150) = S(70)/S(30)`` (both sides' mean) and its standard error over the
-    tables, the volume albedo ``a(w_i)`` (all exits of the volume over ``2 R``), the surface's, and the share of
-    the scattered power that leaves into the felt's upper half (towards the source's side); ``sphere``: the
-    midpoint grid of those integrals (:func:`sphere_integral`)."""
+    ``S = S_vol + S_surf`` (:mod:`simulate.fiber.farfield`): the volume term from ``tables`` independent
+    exit tables (:func:`simulate.fiber.farfield.exit_table`, seeds ``tables * seed + j``, the fibre's
+    rough boundary for light crossing it included, with the light that crosses the fibre without
+    scattering) and the Cook-Torrance surface term, each at the views of ``views_deg`` in the plane of
+    incidence for ``azimuths`` axis azimuths (:func:`felt_views`), then their mean.
+
+    Parameters
+    ----------
+    fiber : simulate.fiber.Fiber
+        The fibre.
+    wavelengths_nm : array_like
+        The wavelengths (nm).
+    photons_per_row : int
+        Photons per exit-table row.
+    tables : int
+        Independent exit tables (at least 2: their spread is the error).
+    seed : int
+        The tables' seed.
+    azimuths : int
+        Axis azimuths averaged (at least 4).
+    bins : tuple of (int, int)
+        The exit tables' bins.
+    views_deg : array_like
+        View angles in the plane of incidence (deg).
+    threads : int
+        Threads of the tables' walks.
+    sphere : tuple of (int, int)
+        The midpoint grid of the albedo integrals (:func:`sphere_integral`).
+
+    Returns
+    -------
+    dict
+        The settings, the seconds, the surface's albedo and per band group of :data:`BAND_GROUPS`
+        (the mean over its wavelengths): the curve ``S(view)``, the volume's share of it,
+        ``p(110)/p(150) = S(70)/S(30)`` (both sides' mean) and its standard error over the tables, the
+        volume albedo ``a(w_i)`` (all exits of the volume over ``2 R``) and the share of the scattered
+        power that leaves into the felt's upper half (towards the source's side).
+
+    Raises
+    ------
+    InputError
+        Fewer than 2 tables, too few photons per row or fewer than 4 azimuths.
+    """
     from simulate.fiber import farfield as FF
 
     if tables < 2 or photons_per_row < FF.MIN_PHOTONS_PER_ROW or azimuths < 4:
@@ -770,9 +1214,23 @@ def fibre_phase(fiber: Any, wavelengths_nm: Any, *, photons_per_row: int = 4000,
 
 
 def to_fibre_frame(w: np.ndarray, azimuths: int) -> np.ndarray:
-    """Felt-frame directions ``w [..., 3]`` in the frame of a fibre lying in the felt's plane, for each of ``azimuths``
-    axis azimuths (uniform midpoints over the turn, from the felt's x): ``[A, ..., 3]`` (x the axis, z the felt's
-    normal; :func:`felt_views` is this for the views in the plane of incidence)."""
+    """Felt-frame directions ``w [..., 3]`` in the frame of a fibre lying in the felt's plane, per axis azimuth.
+
+    The ``azimuths`` are uniform midpoints over the turn, from the felt's x; the frame's x is the axis
+    and z the felt's normal (:func:`felt_views` is this for the views in the plane of incidence).
+
+    Parameters
+    ----------
+    w : numpy.ndarray
+        Directions ``[..., 3]`` in the felt's frame.
+    azimuths : int
+        Number of axis azimuths.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[A, ..., 3]``.
+    """
     w = np.asarray(w, float)
     alpha = (np.arange(int(azimuths)) + 0.5) * 2.0 * math.pi / int(azimuths)
     c = np.cos(alpha).reshape((-1,) + (1,) * (w.ndim - 1))
@@ -784,11 +1242,47 @@ def to_fibre_frame(w: np.ndarray, azimuths: int) -> np.ndarray:
 def oblique_phase(fiber: Any, wavelengths_nm: Any, incidences_deg: Any, *, photons_per_row: int = 4000,
                   tables: int = 4, seed: int = 0, azimuths: int = 72, bins: tuple[int, int] = (10, 20),
                   w_t_nodes: Any = (0.0, 0.25, 0.5, 0.75, 0.95), threads: int = 1) -> dict[str, Any]:
-    """:func:`fibre_phase` at oblique beams: the source at ``theta_i`` on the felt's -x side, the views 30 and 70 deg
-    on the mirror's side (+x) in the plane of incidence; per incidence and band group ``S(70)/S(30)`` (the fibre's
-    share of the felt's forward rise) with its standard error over the tables, and the opaque Lambertian fibre's.
-    The beam meets a fibre at azimuth ``alpha`` with ``|w_t| = sin theta_i |cos alpha|``: the exit tables take the
-    felt's axial nodes ``w_t_nodes`` (their interpolation, :meth:`ExitTable.exit_radiance`)."""
+    """:func:`fibre_phase` at oblique beams: the fibre's share of the felt's forward rise.
+
+    The source is at ``theta_i`` on the felt's -x side, the views 30 and 70 deg on the mirror's side
+    (+x) in the plane of incidence. The beam meets a fibre at azimuth ``alpha`` with
+    ``|w_t| = sin theta_i |cos alpha|``: the exit tables take the felt's axial nodes ``w_t_nodes``
+    (their interpolation, :meth:`ExitTable.exit_radiance`).
+
+    Parameters
+    ----------
+    fiber : simulate.fiber.Fiber
+        The fibre.
+    wavelengths_nm : array_like
+        The wavelengths (nm).
+    incidences_deg : array_like
+        The beams' angles from the felt's normal, in (0, 90) deg.
+    photons_per_row : int
+        Photons per exit-table row.
+    tables : int
+        Independent exit tables (at least 2).
+    seed : int
+        The tables' seed.
+    azimuths : int
+        Axis azimuths averaged (at least 4).
+    bins : tuple of (int, int)
+        The exit tables' bins.
+    w_t_nodes : array_like
+        The tables' axial nodes.
+    threads : int
+        Threads of the tables' walks.
+
+    Returns
+    -------
+    dict
+        The settings, the opaque Lambertian fibre's ``S(70)/S(30)`` per incidence, per band group the
+        ratio and its standard error over the tables per incidence, and the seconds.
+
+    Raises
+    ------
+    InputError
+        Bad table, photon or azimuth counts, or an incidence outside (0, 90) deg.
+    """
     from simulate.fiber import farfield as FF
 
     if tables < 2 or photons_per_row < FF.MIN_PHOTONS_PER_ROW or azimuths < 4:
@@ -828,13 +1322,29 @@ def oblique_phase(fiber: Any, wavelengths_nm: Any, incidences_deg: Any, *, photo
     return out
 
 def lambert_phase(azimuths: int = 72, views_deg: Any = PHASE_VIEWS_DEG) -> dict[str, Any]:
-    """:func:`fibre_phase`'s curve and ratio for the opaque Lambertian fibre of albedo 1 (:func:`lambert_far_field`),
-    its albedo from the sphere integral (1) and its share into the felt's upper half."""
+    """:func:`fibre_phase`'s curve and ratio for the opaque Lambertian fibre of albedo 1.
+
+    From :func:`lambert_far_field`, with its albedo from the sphere integral (1) and its share into the
+    felt's upper half.
+
+    Parameters
+    ----------
+    azimuths : int
+        Axis azimuths averaged.
+    views_deg : array_like
+        View angles in the plane of incidence (deg).
+
+    Returns
+    -------
+    dict
+        ``curve``, ``ratio``, ``albedo`` and ``upper_share``.
+    """
     views = np.asarray(views_deg, float)
     grid = felt_views(views, azimuths)
     w_in = np.array([0.0, 0.0, 1.0])
     curve = lambert_far_field(w_in, grid).mean(axis=0)
     def of(w: np.ndarray) -> np.ndarray:
+        """The Lambertian fibre's ``S`` towards ``w`` for the beam along the normal."""
         return lambert_far_field(w_in, w)
     return {"curve": curve.tolist(), "ratio": float(_rise(curve, views)),
             "albedo": float(sphere_integral(of) / 2.0), "upper_share": float(sphere_integral(of, upper_only=True)
@@ -843,10 +1353,30 @@ def lambert_phase(azimuths: int = 72, views_deg: Any = PHASE_VIEWS_DEG) -> dict[
 
 def felt_rise(config: Any, *, target_rel_err: float = 0.02, seed: int = 0, max_events: int = 1,
               threads: int = 1) -> dict[str, Any]:
-    """The felt Monte Carlo of ``config`` (as ``simulate fabric --method mc``: its two felts, exit bins, axial
-    shift and nodes) at normal incidence towards the in-plane views 30 and 70 deg on both sides, following
-    ``max_events`` fibre scatterings (1: single; 0: all): ``beta(70)/beta(30)`` per band group, both sides' mean,
-    with its standard error (the betas' relative errors in quadrature)."""
+    """The felt Monte Carlo of ``config`` at normal incidence: ``beta(70)/beta(30)`` per band group.
+
+    Traced as ``simulate fabric --method mc`` traces it (its two felts, exit bins, axial shift and
+    nodes), towards the in-plane views 30 and 70 deg on both sides, following ``max_events`` fibre
+    scatterings; both sides' mean, with its standard error (the betas' relative errors in quadrature).
+
+    Parameters
+    ----------
+    config : simulate.config.Config
+        A felt's config.
+    target_rel_err : float
+        The trace's target relative error.
+    seed : int
+        The felts' and rays' seed.
+    max_events : int
+        Fibre scatterings followed (1: single; 0: all).
+    threads : int
+        Threads of the trace.
+
+    Returns
+    -------
+    dict
+        The settings, the rays, the seconds and per band group the ratio and its standard error.
+    """
     from simulate import raytrace
     from simulate.geometry.felt import cached_felt_mesh
     from simulate.optics.microfacet import directions_deg
@@ -880,6 +1410,7 @@ def felt_rise(config: Any, *, target_rel_err: float = 0.02, seed: int = 0, max_e
 
 
 def _felt_of(config_name: str, seed: int) -> Any:
+    """The felt realisation of config ``config_name`` at ``seed``; InputError when the config is not a felt."""
     from simulate.config import ConfigError, load_config
     from simulate.geometry.felt import cached_felt_mesh
 
@@ -894,6 +1425,7 @@ def _felt_of(config_name: str, seed: int) -> Any:
 
 
 def _top(args) -> int:
+    """``top``: print and write the volume fraction against the depth below the top of each CONFIG's felt."""
     if args.seeds < 1 or not (0.0 < args.bin_um <= args.depth_um):
         raise InputError("top: give --seeds >= 1 and 0 < --bin-um <= --depth-um")
     result = {}
@@ -909,6 +1441,7 @@ def _top(args) -> int:
 
 
 def _lambert(args) -> int:
+    """``lambert``: print and write the forward rise of each CONFIG's felt with opaque Lambertian fibres."""
     try:
         albedos = [float(a) for a in args.albedo.split(",")]
     except ValueError:
@@ -921,13 +1454,14 @@ def _lambert(args) -> int:
         result[name] = rise
         for key, v in rise.items():
             print(f"{name} {key} deg: " + ", ".join(f"albedo {a:g} {r:.3f} +- {e:.3f}"
-                                                   for a, r, e in zip(albedos, v["ratio"], v["se"])))
+                                                   for a, r, e in zip(albedos, v["ratio"], v["se"], strict=True)))
     if args.json:
         args.json.write_text(json.dumps({"albedos": albedos, "rise": result}, indent=1) + "\n", encoding="utf-8")
     return 0
 
 
 def _load(config: str) -> Any:
+    """The config ``config``; InputError with the config's own message when it does not load."""
     from simulate.config import ConfigError, load_config
 
     try:
@@ -936,7 +1470,8 @@ def _load(config: str) -> Any:
         raise InputError(str(exc)) from None
 
 
-def _phase(args) -> int:
+def _phase_configs(args) -> tuple[dict[str, Any], list[str]]:
+    """The configs ``phase`` measures (the variants' too) and those ``--oblique`` measures; InputError on bad input."""
     from simulate.config import resolve_config_path
 
     if args.felt_target <= 0.0 or args.felt_target >= 1.0:
@@ -971,6 +1506,48 @@ def _phase(args) -> int:
     if unknown:
         raise InputError(f"--oblique-of {','.join(unknown)}: not a config or variant of this run; "
                          f"known: {', '.join(configs)}")
+    return configs, of
+
+
+def _phase_oblique(args, configs: dict[str, Any], of: list[str], result: dict[str, Any]) -> None:
+    """``phase --oblique``: each config of ``of`` at the oblique beams, into ``result`` (written after each)."""
+    try:
+        incid = [float(t) for t in args.oblique.split(",")]
+    except ValueError:
+        incid = []
+    result["oblique"] = {}
+    for name in of:
+        config = configs[name]
+        wl = np.asarray(config.wavelengths_nm, float)
+        res = oblique_phase(config.fiber(wl), wl, incid, photons_per_row=args.photons, tables=args.tables,
+                            seed=args.seed, azimuths=args.azimuths, w_t_nodes=config.w_t_nodes())
+        result["oblique"][name] = res
+        print(f"{name}: S(70)/S(30) on the mirror's side at {', '.join(f'{t:g}' for t in incid)} deg: "
+              + ", ".join(f"{r:.3f} +- {e:.3f}" for r, e in zip(res["bands"]["all"]["ratio"],
+                                                                res["bands"]["all"]["se"], strict=True))
+              + " (Lambertian " + ", ".join(f"{r:.3f}" for r in res["lambert"]) + ")")
+        if args.json:
+            args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+
+
+def _phase_felt(args, configs: dict[str, Any], result: dict[str, Any]) -> None:
+    """``phase --felt``: each CONFIG's felt in single scattering and all orders, into ``result`` (written after each)."""
+    for name in args.configs:
+        config = configs[name]
+        result["felt"][name] = {key: felt_rise(config, target_rel_err=args.felt_target, seed=args.seed,
+                                               max_events=events) for key, events in (("single", 1), ("all", 0))}
+        for key, v in result["felt"][name].items():
+            print(f"{name} felt, {key}: beta(70)/beta(30) " + ", ".join(
+                f"{b} {x['ratio']:.3f} +- {x['se']:.3f}" for b, x in v["bands"].items()))
+        if args.json:
+            args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+
+
+def _phase(args) -> int:
+    """``phase``: the fibre's far field per config (and variant), at oblique beams and in the felt when asked."""
+    if not args.configs:
+        args.configs = ["green-felt-mc"]
+    configs, of = _phase_configs(args)
     lam = lambert_phase(args.azimuths)
     print(f"opaque Lambertian fibre: p(110)/p(150) {lam['ratio']:.3f}")
     result: dict[str, Any] = {
@@ -987,37 +1564,14 @@ def _phase(args) -> int:
         if args.json:       # what is measured so far is kept
             args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
     if args.oblique:
-        try:
-            incid = [float(t) for t in args.oblique.split(",")]
-        except ValueError:
-            incid = []
-        result["oblique"] = {}
-        for name in of:
-            config = configs[name]
-            wl = np.asarray(config.wavelengths_nm, float)
-            res = oblique_phase(config.fiber(wl), wl, incid, photons_per_row=args.photons, tables=args.tables,
-                                seed=args.seed, azimuths=args.azimuths, w_t_nodes=config.w_t_nodes())
-            result["oblique"][name] = res
-            print(f"{name}: S(70)/S(30) on the mirror's side at {', '.join(f'{t:g}' for t in incid)} deg: "
-                  + ", ".join(f"{r:.3f} +- {e:.3f}" for r, e in zip(res["bands"]["all"]["ratio"],
-                                                                    res["bands"]["all"]["se"]))
-                  + " (Lambertian " + ", ".join(f"{r:.3f}" for r in res["lambert"]) + ")")
-            if args.json:
-                args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+        _phase_oblique(args, configs, of, result)
     if args.felt:
-        for name in args.configs:
-            config = configs[name]
-            result["felt"][name] = {key: felt_rise(config, target_rel_err=args.felt_target, seed=args.seed,
-                                                   max_events=events) for key, events in (("single", 1), ("all", 0))}
-            for key, v in result["felt"][name].items():
-                print(f"{name} felt, {key}: beta(70)/beta(30) " + ", ".join(
-                    f"{b} {x['ratio']:.3f} +- {x['se']:.3f}" for b, x in v["bands"].items()))
-            if args.json:
-                args.json.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+        _phase_felt(args, configs, result)
     return 0
 
 
 def _combine(args) -> int:
+    """``combine``: write the config with every continuous field at its predicted best (:func:`combine`)."""
     if args.out.exists() and not args.force:
         raise InputError(f"{args.out} exists; pass --force to replace it")
     text = args.preset.read_text(encoding="utf-8")
@@ -1036,6 +1590,7 @@ def _combine(args) -> int:
     m = float(np.mean(meas))
 
     def resid(run: str) -> np.ndarray:
+        """The residuals of ``run`` over the file's mean."""
         return (frames[run]["beta_sim"].to_numpy(float) - meas) / m
 
     fields = []
@@ -1044,7 +1599,7 @@ def _combine(args) -> int:
         fields.append((f"{section}.{key}", float(base), float(v1), resid(str(args.runs / n1)), float(v2),
                        resid(str(args.runs / n2))))
     values, predicted = combine(resid(args.base), fields)
-    for (name, base, *_), v in zip(fields, values):
+    for (name, base, *_), v in zip(fields, values, strict=True):
         section, key = name.split(".", 1)
         print(f"{name} = {v:.4g}" + (" (the preset's)" if abs(v - base) <= 1e-9 * max(1.0, abs(base)) else ""))
         if abs(v - base) > 1e-9 * max(1.0, abs(base)):
@@ -1056,7 +1611,8 @@ def _combine(args) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line's parser: one subcommand per measurement (module docstring)."""
     ap = argparse.ArgumentParser(prog="felt_residual.py", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     v = sub.add_parser("variants", help="write the one-at-a-time variant configs of the preset")
@@ -1121,71 +1677,103 @@ def main(argv: list[str] | None = None) -> int:
     ph.add_argument("--oblique-of", help="the configs or variants (names, comma-separated) --oblique measures; "
                     "default: each CONFIG")
     ph.add_argument("--json", type=Path)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _variants(args) -> int:
+    """``variants``: write the variant configs and print their paths."""
+    for p in write_variants(args.preset, args.out, args.force):
+        print(p)
+    return 0
+
+
+def _permute(args) -> int:
+    """``permute``: write the file with its channels reordered and print its path."""
+    permute_channels(args.src, args.out, args.order.lower(), args.force)
+    print(args.out)
+    return 0
+
+
+def _fixed_felt(args) -> int:
+    """``fixed-felt``: ``simulate ARGS`` (after ``--``) with the felts of ``--felt-seed`` held."""
+    return fixed_felt(args.args[1:] if args.args[:1] == ["--"] else args.args, args.felt_seed,
+                      args.table_factor)
+
+
+def _realisations(args) -> int:
+    """``realisations``: print each group's seeds, spread, noise and z, and write them with ``--json``."""
+    rows = realisation_groups(args.file, args.group, args.max_incidence)
+    for r in rows:
+        print(f"{r['group']} (K {r['realisations']} at {r['target_rel_err']:g}): NRMSE " +
+              ", ".join(f"{x['nrmse']:.4f}" for x in r["runs"]) +
+              f" (std {r['nrmse_std'] or 0:.4f}, range {r['nrmse_range']:.4f}); noise of one run "
+              f"{r['noise_one_run'] or 0:.4f} over {r['pairs']} pairs; z rms {r['z_rms'] or 0:.3f} "
+              f"(|z| > 2: {r['z_above_2'] or 0:.3f}); rays {r['rays_mean']:.0f}; CPU {r['cpu_s_mean'] or 0:.1f} s; "
+              f"peak {r['peak_rss_mb_mean'] or 0:.0f} MB")
+    if args.json:
+        args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
+                                         "groups": rows}, indent=1) + "\n", encoding="utf-8")
+    return 0
+
+
+def _noise(args) -> int:
+    """``noise``: print each pair's seed-to-seed noise, and write them with ``--json``."""
+    if len(args.runs) % 2:
+        raise InputError(f"noise: {len(args.runs)} runs given; give pairs (two seeds of one config each)")
+    frames = compared(args.file, args.runs, args.max_incidence)
+    pairs = []
+    for (ra, fa, _), (rb, fb, _) in zip(frames[::2], frames[1::2], strict=True):
+        pairs.append({"a": ra, "b": rb, **seed_noise(fa, fb)})
+        print(f"{ra} / {rb}: seed-to-seed noise {pairs[-1]['nrmse_seeds']:.4f} (in NRMSE units)")
+    if args.json:
+        args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
+                                         "pairs": pairs}, indent=1) + "\n", encoding="utf-8")
+    return 0
+
+
+def _decompose(args) -> int:
+    """``decompose``: print each run's split of the curve error and retro ratios, and write them with ``--json``."""
+    if not (0.0 <= args.near < GRAZING_DEG):
+        raise InputError(f"--near {args.near:g}: give a half-width in [0, {GRAZING_DEG:g}) deg")
+    results = {}
+    for run, frame, cmp in compared(args.file, args.runs, args.max_incidence):
+        res = decompose_frame(frame, args.near, cmp.bands.label)
+        res["colour"] = _colour(cmp)
+        res["retro"] = {"file": retro(args.file, args.max_incidence), "model": retro(run, args.max_incidence)}
+        results[run] = res
+        _print(run, res)
+        print("  retro ratio file/model: " + "; ".join(
+            f"{ti} deg " + ", ".join(f"{b} nm {res['retro']['file'][ti][b]['ratio']:.3f}/{m['ratio']:.3f}"
+                                     for b, m in bands.items() if b in res["retro"]["file"].get(ti, {}))
+            for ti, bands in res["retro"]["model"].items()))
+    if args.json:
+        args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
+                                         "near": args.near, "runs": results}, indent=1) + "\n", encoding="utf-8")
+    return 0
+
+
+#: the subcommands' handlers
+COMMANDS: dict[str, Any] = {"phase": _phase, "variants": _variants, "combine": _combine, "top": _top,
+                            "lambert": _lambert, "permute": _permute, "fixed-felt": _fixed_felt,
+                            "realisations": _realisations, "noise": _noise, "decompose": _decompose}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand (module docstring); bad input is one line, exit 2.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The subcommand and its arguments; ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        The subcommand's status: 0, or 2 on bad input (``fixed-felt``: ``simulate``'s own status).
+    """
+    args = _parser().parse_args(argv)
     try:
-        if args.cmd == "phase":
-            if not args.configs:
-                args.configs = ["green-felt-mc"]
-            return _phase(args)
-        if args.cmd == "variants":
-            for p in write_variants(args.preset, args.out, args.force):
-                print(p)
-            return 0
-        if args.cmd == "combine":
-            return _combine(args)
-        if args.cmd == "top":
-            return _top(args)
-        if args.cmd == "lambert":
-            return _lambert(args)
-        if args.cmd == "permute":
-            permute_channels(args.src, args.out, args.order.lower(), args.force)
-            print(args.out)
-            return 0
-        if args.cmd == "fixed-felt":
-            return fixed_felt(args.args[1:] if args.args[:1] == ["--"] else args.args, args.felt_seed,
-                              args.table_factor)
-        if args.cmd == "realisations":
-            rows = realisation_groups(args.file, args.group, args.max_incidence)
-            for r in rows:
-                print(f"{r['group']} (K {r['realisations']} at {r['target_rel_err']:g}): NRMSE " +
-                      ", ".join(f"{x['nrmse']:.4f}" for x in r["runs"]) +
-                      f" (std {r['nrmse_std'] or 0:.4f}, range {r['nrmse_range']:.4f}); noise of one run "
-                      f"{r['noise_one_run'] or 0:.4f} over {r['pairs']} pairs; z rms {r['z_rms'] or 0:.3f} "
-                      f"(|z| > 2: {r['z_above_2'] or 0:.3f}); rays {r['rays_mean']:.0f}; CPU {r['cpu_s_mean'] or 0:.1f} s; "
-                      f"peak {r['peak_rss_mb_mean'] or 0:.0f} MB")
-            if args.json:
-                args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
-                                                 "groups": rows}, indent=1) + "\n", encoding="utf-8")
-            return 0
-        if args.cmd == "noise":
-            if len(args.runs) % 2:
-                raise InputError(f"noise: {len(args.runs)} runs given; give pairs (two seeds of one config each)")
-            frames = compared(args.file, args.runs, args.max_incidence)
-            pairs = []
-            for (ra, fa, _), (rb, fb, _) in zip(frames[::2], frames[1::2]):
-                pairs.append({"a": ra, "b": rb, **seed_noise(fa, fb)})
-                print(f"{ra} / {rb}: seed-to-seed noise {pairs[-1]['nrmse_seeds']:.4f} (in NRMSE units)")
-            if args.json:
-                args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
-                                                 "pairs": pairs}, indent=1) + "\n", encoding="utf-8")
-            return 0
-        if not (0.0 <= args.near < GRAZING_DEG):
-            raise InputError(f"--near {args.near:g}: give a half-width in [0, {GRAZING_DEG:g}) deg")
-        results = {}
-        for run, frame, cmp in compared(args.file, args.runs, args.max_incidence):
-            res = decompose_frame(frame, args.near, cmp.bands.label)
-            res["colour"] = _colour(cmp)
-            res["retro"] = {"file": retro(args.file, args.max_incidence), "model": retro(run, args.max_incidence)}
-            results[run] = res
-            _print(run, res)
-            print("  retro ratio file/model: " + "; ".join(
-                f"{ti} deg " + ", ".join(f"{b} nm {res['retro']['file'][ti][b]['ratio']:.3f}/{m['ratio']:.3f}"
-                                         for b, m in bands.items() if b in res["retro"]["file"].get(ti, {}))
-                for ti, bands in res["retro"]["model"].items()))
-        if args.json:
-            args.json.write_text(json.dumps({"file": args.file, "max_incidence": args.max_incidence,
-                                             "near": args.near, "runs": results}, indent=1) + "\n", encoding="utf-8")
-        return 0
+        return COMMANDS[args.cmd](args)
     except InputError as exc:
         print(f"felt_residual.py: {exc}", file=sys.stderr)
         return 2

@@ -53,8 +53,20 @@ BATCHES = 10
 
 
 def fresnel_unpolarised(cos_i: np.ndarray, n_ratio: np.ndarray | float) -> np.ndarray:
-    """The unpolarised Fresnel reflectance for incidence cosines ``cos_i`` (> 0) from a medium into one of
-    relative index ``n_ratio`` (n_transmitted / n_incident); 1 beyond the critical angle."""
+    """The unpolarised Fresnel reflectance at incidence cosines ``cos_i``, 1 beyond the critical angle.
+
+    Parameters
+    ----------
+    cos_i : numpy.ndarray
+        Incidence cosines (> 0; clipped to [0, 1]).
+    n_ratio : numpy.ndarray or float
+        Relative index of the medium entered, ``n_transmitted / n_incident`` (per ray, or one for all).
+
+    Returns
+    -------
+    numpy.ndarray
+        The mean of the s and p reflectances, per ray.
+    """
     cos_i = np.clip(cos_i, 0.0, 1.0)
     sin_t2 = (1.0 - cos_i**2) / np.asarray(n_ratio) ** 2
     tir = sin_t2 >= 1.0
@@ -65,25 +77,78 @@ def fresnel_unpolarised(cos_i: np.ndarray, n_ratio: np.ndarray | float) -> np.nd
 
 
 def _rot(vx: np.ndarray, vy: np.ndarray, c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vectors ``(vx, vy)`` rotated by the angles whose cosines and sines are ``c`` and ``s``."""
     return c * vx - s * vy, s * vx + c * vy
 
 
 class Section:
-    """An ellipse of semi-axes ``a`` (its own x) and ``b`` (its own y), centred at the origin, rotated by ``phi``
-    per ray (radians): intersections and normals in the felt's frame."""
+    """An ellipse rotated per ray: intersections and normals in the felt's frame.
+
+    Parameters
+    ----------
+    a : float
+        Semi-axis along the ellipse's own x (um).
+    b : float
+        Semi-axis along its own y (um).
+    phi : numpy.ndarray
+        The ellipse's rotation per ray (radians, from the felt's plane); the ellipse is centred at the origin.
+    """
 
     def __init__(self, a: float, b: float, phi: np.ndarray):
         self.a, self.b = a, b
         self.c, self.s = np.cos(phi), np.sin(phi)
 
     def to_local(self, x, y, idx):
+        """Vectors of the felt's frame in the section's own frame, for the rays ``idx``.
+
+        Parameters
+        ----------
+        x, y : numpy.ndarray
+            The vectors' components in the felt's frame.
+        idx : numpy.ndarray
+            The rays (indices into the per-ray rotation).
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            The components along the section's own axes.
+        """
         return _rot(x, y, self.c[idx], -self.s[idx])
 
     def to_felt(self, x, y, idx):
+        """Vectors of the section's own frame in the felt's frame, for the rays ``idx``.
+
+        Parameters
+        ----------
+        x, y : numpy.ndarray
+            The vectors' components along the section's own axes.
+        idx : numpy.ndarray
+            The rays (indices into the per-ray rotation).
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            The components in the felt's frame.
+        """
         return _rot(x, y, self.c[idx], self.s[idx])
 
     def exit_distance(self, px, py, dx, dy, idx):
-        """The distance along (dx, dy) from an inside point to the boundary (the larger root)."""
+        """The distance along (dx, dy) from an inside point to the boundary (the larger root).
+
+        Parameters
+        ----------
+        px, py : numpy.ndarray
+            The points, inside the section (felt's frame).
+        dx, dy : numpy.ndarray
+            The unit directions.
+        idx : numpy.ndarray
+            The rays the points belong to.
+
+        Returns
+        -------
+        numpy.ndarray
+            The distances (0 where rounding puts a point outside behind the boundary).
+        """
         lx, ly = self.to_local(px, py, idx)
         ux, uy = self.to_local(dx, dy, idx)
         qa = (ux / self.a) ** 2 + (uy / self.b) ** 2
@@ -93,7 +158,22 @@ class Section:
         return np.maximum((-qb + disc) / (2 * qa), 0.0)
 
     def entry_distance(self, px, py, dx, dy, idx):
-        """The distance along (dx, dy) from an outside point to the boundary (the smaller root; NaN on a miss)."""
+        """The distance along (dx, dy) from an outside point to the boundary (the smaller root; NaN on a miss).
+
+        Parameters
+        ----------
+        px, py : numpy.ndarray
+            The points, outside the section (felt's frame).
+        dx, dy : numpy.ndarray
+            The unit directions.
+        idx : numpy.ndarray
+            The rays the points belong to.
+
+        Returns
+        -------
+        numpy.ndarray
+            The distances, NaN for a ray that misses the section.
+        """
         lx, ly = self.to_local(px, py, idx)
         ux, uy = self.to_local(dx, dy, idx)
         qa = (ux / self.a) ** 2 + (uy / self.b) ** 2
@@ -103,14 +183,38 @@ class Section:
         return np.where(disc >= 0, (-qb - np.sqrt(np.clip(disc, 0, None))) / (2 * qa), np.nan)
 
     def normal(self, px, py, idx):
-        """The outward unit normal at boundary points."""
+        """The outward unit normal at boundary points.
+
+        Parameters
+        ----------
+        px, py : numpy.ndarray
+            Points on the boundary (felt's frame).
+        idx : numpy.ndarray
+            The rays the points belong to.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            The normal's components in the felt's frame.
+        """
         lx, ly = self.to_local(px, py, idx)
         nx, ny = lx / self.a**2, ly / self.b**2
         norm = np.hypot(nx, ny)
         return self.to_felt(nx / norm, ny / norm, idx)
 
     def half_width(self, px: float, py: float) -> np.ndarray:
-        """Half the section's width across the unit direction (px, py), per ray."""
+        """Half the section's width across the unit direction (px, py), per ray.
+
+        Parameters
+        ----------
+        px, py : float
+            The unit direction across which the width is taken (felt's frame).
+
+        Returns
+        -------
+        numpy.ndarray
+            The half-width for each ray's rotation (um).
+        """
         lx, ly = _rot(px, py, self.c, -self.s)
         return np.sqrt((self.a * lx) ** 2 + (self.b * ly) ** 2)
 
@@ -126,8 +230,42 @@ def _tilt(nx, ny, slope_sigma, rng):
 def trace(aspect: float, orientation: str, theta_i_deg: float, *, radius_um: float, n_host: float, mu_a: float,
           mu_s: float, g: float, reflect_slope: float, transmit_slope: float, rays: int,
           rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Trace ``rays`` rays of a beam at ``theta_i_deg`` through one section; the exit angles (deg from the felt's
-    normal, positive on the mirror's side, beyond 90 below the felt's plane), weights and batch of each exit."""
+    """Trace ``rays`` rays of a beam at ``theta_i_deg`` through one section, all orders (module docstring).
+
+    Parameters
+    ----------
+    aspect : float
+        The ellipse's aspect ``k`` (1: round); its area is the round fibre's.
+    orientation : {"flat", "random"}
+        ``flat``: the major axis in the felt's plane; ``random``: the rotation uniform per ray.
+    theta_i_deg : float
+        The beam's angle from the felt's normal (deg).
+    radius_um : float
+        The round fibre's radius (um).
+    n_host : float
+        The fibre's refractive index (in air).
+    mu_a : float
+        The dye's absorption coefficient (1/um).
+    mu_s : float
+        The scatterers' scattering coefficient (1/um; 0: no scattering).
+    g : float
+        The scatterers' mean cosine (of the wrapped Cauchy distribution).
+    reflect_slope : float
+        The surface's RMS slope for reflections.
+    transmit_slope : float
+        The surface's RMS slope for refractions.
+    rays : int
+        Number of rays, split into :data:`BATCHES` batches for the standard errors.
+    rng : numpy.random.Generator
+        The draws' source.
+
+    Returns
+    -------
+    dict of numpy.ndarray
+        Per exit: ``angle`` (deg from the felt's normal, positive on the mirror's side, beyond 90
+        below the felt's plane), ``weight`` and ``batch``. A ray still inside after :data:`MAX_EVENTS`
+        events is dropped.
+    """
     a, b = radius_um * np.sqrt(aspect), radius_um / np.sqrt(aspect)
     phi = np.zeros(rays) if orientation == "flat" else rng.uniform(0.0, np.pi, rays)
     sec = Section(a, b, phi)
@@ -213,10 +351,23 @@ def trace(aspect: float, orientation: str, theta_i_deg: float, *, radius_um: flo
 
 
 def forward_rise(result: dict[str, np.ndarray]) -> tuple[float, float]:
-    """``S(70)/S(30)`` on the mirror's side and its standard error over the batches."""
+    """``S(70)/S(30)`` on the mirror's side and its standard error over the batches.
+
+    Parameters
+    ----------
+    result : dict of numpy.ndarray
+        A :func:`trace` result.
+
+    Returns
+    -------
+    tuple of (float, float)
+        The ratio of all rays (NaN when no weight falls near 30 deg), and the standard error of the
+        batches' ratios (NaN from fewer than two finite ones).
+    """
     ang, w, batch = result["angle"], result["weight"], result["batch"]
 
     def ratio(sel):
+        """``S(70)/S(30)`` of the exits selected by ``sel`` (NaN when none is near 30 deg)."""
         s = [w[sel & (np.abs(ang - v) <= HALF_BIN_DEG)].sum() for v in VIEWS_DEG]
         return s[1] / s[0] if s[0] > 0 else np.nan
 
@@ -228,7 +379,20 @@ def forward_rise(result: dict[str, np.ndarray]) -> tuple[float, float]:
 
 
 def fibre_properties(config: str, bands_nm: tuple[float, ...]) -> dict[str, Any]:
-    """The config's fibre at ``bands_nm``: radius, host index, mu_s, mu_a, g per band, the surface's slopes."""
+    """The config's fibre at ``bands_nm``: radius, host index, mu_s, mu_a, g per band, the surface's slopes.
+
+    Parameters
+    ----------
+    config : str
+        A config preset's name or a TOML path.
+    bands_nm : tuple of float
+        The bands (nm).
+
+    Returns
+    -------
+    dict
+        The config's name and the fibre's properties, as JSON numbers and lists.
+    """
     from simulate.config import load_config
 
     cfg = load_config(config)
@@ -243,8 +407,33 @@ def fibre_properties(config: str, bands_nm: tuple[float, ...]) -> dict[str, Any]
 
 def screen(fibre: dict[str, Any], *, rays: int, seed: int, aspects=ASPECTS, orientations=ORIENTATIONS,
            incidences=INCIDENCES_DEG) -> list[dict[str, Any]]:
-    """Every (aspect, orientation, band, incidence): the forward rise, its standard error and the change from
-    the round section of the same orientation, band and incidence."""
+    """Every (aspect, orientation, band, incidence): the forward rise, its error and the change from round.
+
+    The change is from the round section of the same orientation, band and incidence, with its
+    standard error from both rises'.
+
+    Parameters
+    ----------
+    fibre : dict
+        A :func:`fibre_properties` result.
+    rays : int
+        Rays per section and incidence.
+    seed : int
+        The seed; each trace draws from its own generator, keyed by the seed and the trace's indices.
+    aspects : tuple of float
+        The aspects to trace (1.0 among them: the round section the changes are from).
+    orientations : tuple of str
+        Of :data:`ORIENTATIONS`.
+    incidences : tuple of float
+        The beam's angles (deg).
+
+    Returns
+    -------
+    list of dict
+        One row per trace: the band, orientation, aspect and incidence, the rise and its standard
+        error, the albedo, and the change from round and its standard error (NaN when the round
+        section's rise is 0).
+    """
     rows = []
     for bi, band in enumerate(fibre["bands_nm"]):
         for orient in orientations:
@@ -273,6 +462,18 @@ def screen(fibre: dict[str, Any], *, rays: int, seed: int, aspects=ASPECTS, orie
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Trace the screen, print a table of the forward rises and write the rows as JSON.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``--config``, ``--rays``, ``--seed``, ``--json``); ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0, or 2 when ``--rays`` is too small for the batches (one line says so).
+    """
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default="green-felt-mc", help="the fibre's config (default green-felt-mc)")
     ap.add_argument("--rays", type=int, default=200_000, help="rays per section and incidence (default 200000)")

@@ -1,5 +1,4 @@
-"""Write the generated reference pages: the command line from the argparse parsers, the config schema
-from the config module.
+"""Write the generated reference pages: the command line from the argparse parsers, the config schema from the config module.
 
     python docs/scripts/gen_reference.py            # write docs/reference/cli.md, config.md, plans.md
     python docs/scripts/gen_reference.py --check    # exit 1 naming the stale pages, write nothing
@@ -140,7 +139,15 @@ def _command_section(title: str, help_text: str, parser: argparse.ArgumentParser
 
 
 def cli_page() -> str:
-    """The command-line reference, every program and subcommand, from the parsers."""
+    """The command-line reference, every program and subcommand, from the parsers.
+
+    Returns
+    -------
+    str
+        The page's Markdown: per program its description, its options before the subcommand, and a
+        section per subcommand (a parser of :data:`PARSERS` given for a subcommand replaces the one
+        the program holds).
+    """
     programs: dict[str, argparse.ArgumentParser] = {}
     replaced: dict[tuple[str, str], argparse.ArgumentParser] = {}
     for prog, sub, candidates in PARSERS:
@@ -185,7 +192,7 @@ def _where(module) -> str:
         f"the docstring of `{module.__name__}`"
 
 
-def _schema_block(doc: str) -> str:
+def _schema_block(doc: str) -> tuple[str, str]:
     """The literal block of the docstring's "Schema" section, dedented."""
     m = re.search(r"^Schema\n-+\n(.*?)::\n\n(.*?)(?=\n\S|\Z)", doc, flags=re.S | re.M)
     if not m:
@@ -198,7 +205,19 @@ def _schema_block(doc: str) -> str:
 
 
 def config_page() -> str:
-    """The config schema: the module docstring's schema block and the table of known keys."""
+    """The config schema: the module docstring's schema block and the table of known keys.
+
+    Returns
+    -------
+    str
+        The page's Markdown: the schema block, the ``[table]`` blocks of :data:`CONFIG_TABLES`' readers
+        and the known keys per table.
+
+    Raises
+    ------
+    SystemExit
+        No module of :data:`CONFIG_MODULES` imports, or a schema block is missing (the message names it).
+    """
     module = None
     for name in CONFIG_MODULES:
         try:
@@ -245,6 +264,7 @@ def config_page() -> str:
 
 
 def _import_first(names: tuple[str, ...], what: str):
+    """The first module of ``names`` that imports; SystemExit naming the list ``what`` when none does."""
     for name in names:
         try:
             return importlib.import_module(name)
@@ -255,7 +275,19 @@ def _import_first(names: tuple[str, ...], what: str):
 
 
 def plans_page() -> str:
-    """The plan schema: the literal block of the plan module's "Plan TOML schema" section."""
+    """The plan schema: the literal block of the plan module's "Plan TOML schema" section.
+
+    Returns
+    -------
+    str
+        The page's Markdown: the plans' purpose, the presets' names, the schema block and the notes
+        after it.
+
+    Raises
+    ------
+    SystemExit
+        No module of :data:`PLAN_MODULES` imports, or its docstring has no schema block.
+    """
     module = _import_first(PLAN_MODULES, "PLAN_MODULES")
     doc = _schema_text(module, "Plan TOML schema")
     m = re.search(r"^Plan TOML schema\n-+\n(.*?)::\n\n(.*?)(?=\n\S|\Z)", doc, flags=re.S | re.M)
@@ -289,6 +321,19 @@ PAGES: dict[Path, Callable[[], str]] = {CLI_PAGE: cli_page, CONFIG_PAGE: config_
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Write the three pages, or with ``--check`` name those whose committed text differs.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``--check``); ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0, or 1 under ``--check`` when a page is stale (one line names the pages and the command
+        that regenerates them).
+    """
     ap = argparse.ArgumentParser(description="Generate docs/reference/cli.md, config.md and plans.md.")
     ap.add_argument("--check", action="store_true", help="exit 1 if a committed page is stale; write nothing")
     args = ap.parse_args(argv)

@@ -30,7 +30,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(1, str(Path(__file__).resolve().parents[2]))   # the checkout: render_figures reads the machine from it
 from render_figures import ROOT, record  # noqa: E402
 
-
 #: what ``make demo`` builds of the environment: the project without the test and docs extras (Makefile, BASE_STAMP)
 DEMO_ENV = ".venv/.installed-base-stamp"
 #: the name of that step in docs/data/demo.json
@@ -38,7 +37,14 @@ ENV_STEP = "the environment (the project alone)"
 
 
 def recipe() -> list[str]:
-    """The shell commands of ``make demo``, in order (``make -n``: printed, not run)."""
+    """The shell commands of ``make demo``, in order (``make -n``: printed, not run).
+
+    Returns
+    -------
+    list of str
+        The recipe's command lines, without blank lines and ``echo`` lines; the environment's build
+        is left out (measured as its own step).
+    """
     # -o: the environment counts as built (measure_demo builds it first, as its own step)
     done = subprocess.run(["make", "-s", "-n", "-o", DEMO_ENV, "demo"], cwd=ROOT,
                           capture_output=True, text=True, check=True)
@@ -69,9 +75,21 @@ def _program_names(command: str) -> list[str]:
 
 
 def step_name(command: str) -> str:
-    """A short name of one demo command: its program, subcommand and method, e.g. ``simulate fit --method mc``;
-    a line of steps side by side (:data:`BESIDE`) names the foreground's steps (``+``) and then the one beside them,
-    e.g. ``gonio demo beside simulate fabric --method summation``."""
+    """A short name of one demo command: its program, subcommand and method, e.g. ``simulate fit --method mc``.
+
+    A line of steps side by side (:data:`BESIDE`) names the foreground's steps (``+``) and then the one
+    beside them, e.g. ``gonio demo beside simulate fabric --method summation``.
+
+    Parameters
+    ----------
+    command : str
+        One command line of the recipe.
+
+    Returns
+    -------
+    str
+        The name the step is recorded under in docs/data/demo.json.
+    """
     background, _, foreground = command.rpartition(BESIDE)
     name = " + ".join(_program_names(foreground))
     if background:
@@ -80,7 +98,19 @@ def step_name(command: str) -> str:
 
 
 def timed(argv: list[str]) -> tuple[int, float, float, float]:
-    """Run ``argv`` in the repository: exit code, wall seconds, CPU seconds, peak RSS in MB."""
+    """Run ``argv`` in the repository: exit code, wall seconds, CPU seconds, peak RSS in MB.
+
+    Parameters
+    ----------
+    argv : list of str
+        The program and its arguments.
+
+    Returns
+    -------
+    tuple of (int, float, float, float)
+        The exit code, the wall seconds, the CPU seconds (user and system of the process and its
+        waited-for children) and the largest resident set of any one of them (MB).
+    """
     start = time.monotonic()
     proc = subprocess.Popen(argv, cwd=ROOT)
     _, status, usage = os.wait4(proc.pid, 0)
@@ -89,6 +119,19 @@ def timed(argv: list[str]) -> tuple[int, float, float, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``make demo`` step by step, timing each, and record the figures (docs/data/demo.json).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``--conditions``, ``--again``); ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0 when every step ran and the figures are recorded; else the exit code of the step that failed
+        (nothing is recorded then).
+    """
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--conditions", default="", help="how the run was made, e.g. 'fresh clone, idle machine'")
     ap.add_argument("--again", action="store_true",
@@ -100,6 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     totals = [0.0, 0.0, 0.0]  # wall, CPU, peak RSS
 
     def step(label: str, cmd: list[str]) -> int:
+        """Time one step and add it to the figures; its exit code (a failed step is not added)."""
         code, secs, cpus, rss = timed(cmd)
         if code != 0:
             print(f"measure_demo: `{label}` exited {code}; nothing recorded", file=sys.stderr)

@@ -38,6 +38,25 @@ _BLOCK = re.compile(r"(<!-- BEGIN FIGURE: ([\w-]+) -->\n)(.*?)(<!-- END FIGURE: 
 
 
 def load(name: str, path: Path | None = None) -> dict[str, Any]:
+    """The JSON of figure ``name``, from ``docs/data/NAME.json`` or ``path``.
+
+    Parameters
+    ----------
+    name : str
+        The figure's data name.
+    path : pathlib.Path, optional
+        Another file to read instead.
+
+    Returns
+    -------
+    dict
+        The parsed JSON (a record: ``name``, ``command``, ``machine``, ``data``).
+
+    Raises
+    ------
+    SystemExit
+        The file is missing or not JSON; the message names it and how to produce it.
+    """
     path = path or DATA / f"{name}.json"
     try:
         return json.loads(path.read_text(encoding="utf-8"))
@@ -47,24 +66,34 @@ def load(name: str, path: Path | None = None) -> dict[str, Any]:
 
 
 def _machine_text(m: dict[str, Any]) -> str:
+    """A record's machine on one line: CPU, logical CPUs, system (the parts it has)."""
     parts = [str(m.get("cpu") or ""), f"{m['cpus']} logical CPUs" if m.get("cpus") else "",
              str(m.get("system") or "")]
     return ", ".join(p for p in parts if p)
 
 
 def _source(record: dict[str, Any], extra: str = "") -> str:
+    """The line under a figure: the command that produced it, the machine (``extra`` after it), the data file."""
     return (f"*Produced by `{record['command']}` on {_machine_text(record['machine'])}"
             f"{extra}. Data: `docs/data/{record['name']}.json`.*")
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
+    """A Markdown table of ``header`` and ``rows``."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
 
 
 def fig_slab_kernel() -> str:
-    """The Monte Carlo kernel on the van de Hulst slab (``simulate bench``)."""
+    """The Monte Carlo kernel on the van de Hulst slab (``simulate bench``).
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/bench-quick.json``).
+    """
     rec = load("bench-quick")
     d = rec["data"]
     one, two = d["throughput"]["one_thread"], d["throughput"]["all_threads"]
@@ -86,7 +115,14 @@ def fig_slab_kernel() -> str:
 
 
 def fig_driver() -> str:
-    """The driver's own overhead against the fast mock (``gonio bench-driver``)."""
+    """The driver's own overhead against the fast mock (``gonio bench-driver``).
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/driver.json``).
+    """
     rec = load("driver")
     d = rec["data"]
     rows = [
@@ -119,6 +155,7 @@ def _method_errors(file: str, reference: str) -> tuple[str, dict[str, Any], list
 
 
 def _method_errors_caption(prov: dict[str, Any], geos: list, file: str, command: str) -> str:
+    """The caption under a method-errors table: the error's definition, the plan, the config, the command, the file."""
     return (f"*RMS over wavelengths of (model − Monte Carlo) relative to the Monte Carlo's spectral "
             f"peak, at the {len(geos)} geometries of the `{prov['plan']}` plan for the `{prov['config']}` config. "
             f"Produced by `{command}` on a {prov.get('machine', {}).get('cpus')}-CPU machine. Data: "
@@ -126,7 +163,14 @@ def _method_errors_caption(prov: dict[str, Any], geos: list, file: str, command:
 
 
 def fig_method_errors() -> str:
-    """Where the cheaper models depart from the woven Monte Carlo (red cotton)."""
+    """Where the cheaper models depart from the woven Monte Carlo (red cotton).
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the caption naming the plan, the config, the command and
+        ``simulate/configs/method-errors.json``.
+    """
     text, prov, geos = _method_errors("method-errors.json", "woven Monte Carlo")
     command = prov["command"].split(" (")[0] + " --target 0.01 --threads 2"
     return text + "\n\n" + _method_errors_caption(prov, geos, "method-errors.json", command)
@@ -142,7 +186,14 @@ FELT_REGIONS: dict[str, Callable[[float, float, float], bool]] = {
 
 
 def fig_method_errors_felt() -> str:
-    """Where the cheaper models depart from the felt Monte Carlo (green felt), overall and by region."""
+    """Where the cheaper models depart from the felt Monte Carlo (green felt), overall and by region.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the caption naming the plan, the config, the command and
+        ``simulate/configs/method-errors-felt.json``.
+    """
     file = "method-errors-felt.json"
     text, prov, geos = _method_errors(file, "felt Monte Carlo")
     rows, seen = [], set()
@@ -159,7 +210,14 @@ def fig_method_errors_felt() -> str:
 
 
 def fig_demo_cost() -> str:
-    """Wall time and peak memory of ``make demo`` from a fresh clone."""
+    """Wall time and peak memory of ``make demo`` from a fresh clone.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/demo.json``).
+    """
     rec = load("demo")
     d = rec["data"]
     minutes, seconds = divmod(round(d["wall_seconds"]), 60)
@@ -191,7 +249,14 @@ def _pair(values: list, u: list | None = None, digits: int = 3) -> str:
 
 
 def fig_felt_opposition() -> str:
-    """The felt Monte Carlo's opposition ratio with one parameter of ``green-felt-mc`` changed at a time."""
+    """The felt Monte Carlo's opposition ratio with one parameter of ``green-felt-mc`` changed at a time.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-opposition.json``).
+    """
     rec = load("felt-opposition")
     d = dict(rec["data"])
     d["variants"] = [v for v in d["variants"] if v.get("pooled")]     # a scan under way lists variants not yet traced
@@ -208,6 +273,7 @@ def fig_felt_opposition() -> str:
     ref = preset["pooled"]["all"][t1]["normal_view"] if preset else None
 
     def level_colour(nv: list) -> list[str]:
+        """A normal view's level over the preset's (at 550 nm) and its colour (450 and 650 over 550 nm)."""
         level = f"{nv[1] / ref[1]:.2f}" if ref else ""
         return [level, f"{nv[0] / nv[1]:.2f} / {nv[2] / nv[1]:.2f}"]
 
@@ -274,7 +340,14 @@ def _felt_split_table(d: dict[str, Any], incid: list[str]) -> str:
 
 
 def fig_felt_opposition_lambertian() -> str:
-    """The preset's felts with opaque Lambertian fibers: the opposition ratio against the albedo, read at the file's levels."""
+    """The preset's felts with opaque Lambertian fibers: the opposition ratio against the albedo, read at the file's levels.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-opposition.json``).
+    """
     rec = load("felt-opposition")
     d = rec["data"]
     lamb = d.get("lambertian") or {}
@@ -335,7 +408,14 @@ def fig_felt_opposition_lambertian() -> str:
 
 
 def fig_felt_demo_plan() -> str:
-    """Variants of ``green-felt-mc`` traced at the demo's plan against ``gonio truth`` of the felt's file."""
+    """Variants of ``green-felt-mc`` traced at the demo's plan against ``gonio truth`` of the felt's file.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-demo-plan.json``).
+    """
     rec = load("felt-demo-plan")
     d = rec["data"]
     incid = list(d["runs"][0]["nrmse_by_incidence"])
@@ -350,6 +430,7 @@ def fig_felt_demo_plan() -> str:
 
 
 def _residual_label(run: str) -> str:
+    """A run's name as the tables show it."""
     return f"`{run.rstrip('/').rsplit('/', 1)[-1]}`"
 
 
@@ -418,7 +499,14 @@ def _residual_profile(runs: dict[str, Any]) -> str:
 
 
 def fig_felt_residual() -> str:
-    """``green-felt-mc`` against the felt's file at the demo's plan: per seed and target, and the split of one run."""
+    """``green-felt-mc`` against the felt's file at the demo's plan: per seed and target, and the split of one run.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual.json``).
+    """
     rec = load("felt-residual")
     first_run, first = next(iter(rec["data"]["runs"].items()))
     note = (f" (`FILE`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`; the runs "
@@ -432,7 +520,14 @@ def fig_felt_residual() -> str:
 
 
 def fig_felt_residual_measured() -> str:
-    """The same split at the file's measured incidences up to 59.52 deg, with the retro rings."""
+    """The same split at the file's measured incidences up to 59.52 deg, with the retro rings.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-measured.json``).
+    """
     rec = load("felt-residual-measured")
     d = rec["data"]
     run, r = next(iter(d["runs"].items()))
@@ -447,7 +542,14 @@ def fig_felt_residual_measured() -> str:
 
 
 def fig_felt_residual_noise() -> str:
-    """Seed-to-seed noise of ``green-felt-mc`` in NRMSE units."""
+    """Seed-to-seed noise of ``green-felt-mc`` in NRMSE units.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-noise.json``).
+    """
     rec = load("felt-residual-noise")
     rows = [[_residual_label(p["a"]) + " / " + _residual_label(p["b"]), f"{p['nrmse_seeds']:.3f}",
              f"{p['nrmse_noise_a']:.3f} / {p['nrmse_noise_b']:.3f}"] for p in rec["data"]["pairs"]]
@@ -456,7 +558,14 @@ def fig_felt_residual_noise() -> str:
 
 
 def fig_felt_realisations() -> str:
-    """Seeds of ``green-felt-mc`` per felt realisation count (``felt_residual.py realisations``)."""
+    """Seeds of ``green-felt-mc`` per felt realisation count (``felt_residual.py realisations``).
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-realisations.json``).
+    """
     rec = load("felt-realisations")
     rows = []
     for g in rec["data"]["groups"]:
@@ -474,7 +583,14 @@ def fig_felt_realisations() -> str:
 
 
 def fig_felt_residual_sensitivity() -> str:
-    """One-at-a-time variants of ``green-felt-mc`` at 5 %, seed 0."""
+    """One-at-a-time variants of ``green-felt-mc`` at 5 %, seed 0.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-sensitivity.json``).
+    """
     rec = load("felt-residual-sensitivity")
     note = (" (each run `simulate fabric CONFIG --method mc --plan green-felt --target-rel-err 0.05 --threads 1`, "
             "CONFIG from `python docs/scripts/felt_residual.py variants --out DIR`)")
@@ -482,8 +598,10 @@ def fig_felt_residual_sensitivity() -> str:
 
 
 def _third_cells(runs: list[dict[str, Any]], group: str) -> tuple[str, str]:
-    """Mean over ``runs`` of a wavelength third's part of ``NRMSE^2`` (its forward side's in brackets), and the
-    model's forward rise at 30 / 45 deg there."""
+    """Mean over ``runs`` of a wavelength third's part of ``NRMSE^2`` (its forward side's in brackets).
+
+    With the model's forward rise at 30 / 45 deg there.
+    """
     part = statistics.fmean(r["by_band_group"][group]["contribution"] for r in runs)
     fwd = statistics.fmean(r["by_band_group_region"][f"{group}|forward"]["contribution"] for r in runs)
     rise = " / ".join(f"{statistics.fmean(r['forward_rise_by_band_group'][group][t]['simulated'] for r in runs):.2f}"
@@ -492,8 +610,11 @@ def _third_cells(runs: list[dict[str, Any]], group: str) -> tuple[str, str]:
 
 
 def _residual_thirds(green: dict[str, Any], permuted: dict[str, Any]) -> str:
-    """Per wavelength third: the green preset's runs at 3 % against the green file and the permuted refit's runs
-    (all but the one at the preset's dye) against the permuted file, each third's part of ``NRMSE^2`` (the forward side's) and the forward rise, file and model."""
+    """Per wavelength third: the green preset against the green file and the permuted refit against the permuted file.
+
+    The green preset's runs at 3 % and the permuted refit's runs (all but the one at the preset's dye):
+    each third's part of ``NRMSE^2`` (the forward side's) and the forward rise, file and model.
+    """
     g_runs = [r for k, r in green["runs"].items() if _residual_label(k).startswith("`preset-t3-")]
     p_runs = [r for k, r in permuted["runs"].items() if "preset-dye" not in k]
     header = ["wavelengths", "green: file's rise at 30 / 45 deg", "green preset: NRMSE² part (forward), its rise",
@@ -518,8 +639,16 @@ def _residual_thirds(green: dict[str, Any], permuted: dict[str, Any]) -> str:
 
 
 def fig_felt_residual_permuted() -> str:
-    """The green felt's file with its channels permuted, refitted in the dye only, against the permuted file; by
-    wavelength third beside the green preset against the green file."""
+    """The green felt's file with its channels permuted, refitted in the dye only, against the permuted file.
+
+    By wavelength third, beside the green preset against the green file.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-permuted.json``, ``docs/data/felt-residual.json``).
+    """
     rec = load("felt-residual-permuted")
     green = load("felt-residual")
     note = (" (`FILE`: `gonio truth felt_gbr.bsdf --plan green-felt`, felt_gbr.bsdf the green felt's file with new "
@@ -537,7 +666,14 @@ def fig_felt_residual_permuted() -> str:
 
 
 def fig_felt_residual_combined() -> str:
-    """The combined structure variant with its dye refitted, against the green file."""
+    """The combined structure variant with its dye refitted, against the green file.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-combined.json``).
+    """
     rec = load("felt-residual-combined")
     note = (" (`FILE`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`; the runs: "
             "`preset-t3-sS` as in the first figure; DATA `gonio demo --sample fixtures/real/acrylic_felt_green_rgb.bsdf "
@@ -555,8 +691,21 @@ def _config_label(config: str) -> str:
 
 
 def fig_felt_top(merge: int = 2) -> str:
-    """The felt's volume fraction against the depth below its top, the preset's felt and its loose tops
-    (``felt_residual.py top``), ``merge`` of the run's layers averaged into one column."""
+    """The felt's volume fraction against the depth below its top, the preset's felt and its loose tops.
+
+    From ``felt_residual.py top``; ``merge`` of the run's layers are averaged into one column.
+
+    Parameters
+    ----------
+    merge : int
+        Layers per column.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-top.json``).
+    """
     rec = load("felt-top")
     d = rec["data"]
     step = d["bin_um"] * merge
@@ -571,8 +720,16 @@ def fig_felt_top(merge: int = 2) -> str:
 
 
 def fig_felt_residual_fuzz() -> str:
-    """The loose-top variants of ``green-felt-mc`` against the felt's file: the split of section 8, the NRMSE
-    with each band's least-squares factor and the mean residual per region."""
+    """The loose-top variants of ``green-felt-mc`` against the felt's file.
+
+    The split of section 8, the NRMSE with each band's least-squares factor and the mean residual per region.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-fuzz.json``).
+    """
     rec = load("felt-residual-fuzz")
     plane = ("back", "near", "forward")
     rows = [[_residual_label(run), f"{r['nrmse_best_scale']:.3f}",
@@ -586,7 +743,14 @@ def fig_felt_residual_fuzz() -> str:
 
 
 def fig_felt_lambert() -> str:
-    """The in-plane forward rise of the felts with opaque Lambertian fibres (``felt_residual.py lambert``)."""
+    """The in-plane forward rise of the felts with opaque Lambertian fibres (``felt_residual.py lambert``).
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-lambert.json``).
+    """
     rec = load("felt-lambert")
     d = rec["data"]
     albedos = d["albedos"]
@@ -606,9 +770,18 @@ def fig_felt_lambert() -> str:
 
 
 def fig_fiber_phase() -> str:
-    """The fibre's own phase at the felt's normal incidence (``felt_residual.py phase``): ``p(110)/p(150)`` of the
-    preset fibre and its variants, the curve, and the felt traced in single scattering against what the phase
-    predicts (``felt-lambert``'s single scattering of the opaque Lambertian felt sets the felt's own factor)."""
+    """The fibre's own phase at the felt's normal incidence (``felt_residual.py phase``).
+
+    ``p(110)/p(150)`` of the preset fibre and its variants, the curve, and the felt traced in single scattering
+    against what the phase predicts (``felt-lambert``'s single scattering of the opaque Lambertian felt sets
+    the felt's own factor).
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/fiber-phase.json``, ``docs/data/felt-lambert.json``).
+    """
     rec = load("fiber-phase")
     d = rec["data"]
     lam = d["lambert"]
@@ -663,7 +836,7 @@ def fig_fiber_phase() -> str:
         ohead = ["fibre", f"S(70)/S(30) on the mirror's side at {' / '.join(f'{t:g}' for t in inc)} deg"]
         orows = [["opaque Lambertian", " / ".join(f"{r:.3f}" for r in next(iter(ob.values()))["lambert"])]]
         orows += [[_config_label(name), " / ".join(f"{r:.3f} ± {e:.3f}" for r, e in zip(
-            o["bands"]["all"]["ratio"], o["bands"]["all"]["se"]))] for name, o in ob.items()]
+            o["bands"]["all"]["ratio"], o["bands"]["all"]["se"], strict=True))] for name, o in ob.items()]
         out.append(_table(ohead, orows))
     note = (f" (normal incidence on the felt, the fibre's axis in the felt's plane at {first['azimuths']} azimuths; "
             f"{tables} independent exit tables of {photons} photons per row, ± their standard error; second table: "
@@ -683,8 +856,16 @@ def _residual_bias(rec: dict[str, Any]) -> str:
 
 
 def fig_felt_residual_phase() -> str:
-    """The fibre variants whose phase reaches the file's demand (``fiber-phase``) traced in the felt and split as
-    in section 8, with each band's least-squares NRMSE and the mean residual per region."""
+    """The fibre variants whose phase reaches the file's demand, traced in the felt and split as in section 8.
+
+    The variants are those of ``fiber-phase``; with each band's least-squares NRMSE and the mean residual per region.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-phase.json``).
+    """
     rec = load("felt-residual-phase")
     bias = _residual_bias(rec)
     note = (" (`DIR/file`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt --out DIR/file`; "
@@ -701,8 +882,21 @@ TWOFIELD_FACTOR = 1.75
 
 
 def twofield_asked(file_rise: dict[str, float]) -> dict[str, tuple[float, float]]:
-    """The fibre's ``S(70)/S(30)`` the file's forward rise asks per incidence: ``(low, high)``, a range at the normal
-    (the file's rise over :data:`TWOFIELD_FACTORS_NORMAL`), one value at the oblique beams."""
+    """The fibre's ``S(70)/S(30)`` the file's forward rise asks per incidence: ``(low, high)``.
+
+    A range at the normal (the file's rise over :data:`TWOFIELD_FACTORS_NORMAL`), one value at the
+    oblique beams (over :data:`TWOFIELD_FACTOR`).
+
+    Parameters
+    ----------
+    file_rise : dict of str to float
+        The file's forward rise by incidence (``"0"``, ``"27.76"``, ...).
+
+    Returns
+    -------
+    dict of str to tuple of (float, float)
+        The asked range by incidence (low equal to high at the oblique beams).
+    """
     out = {}
     for t, rise in file_rise.items():
         if float(t) == 0.0:
@@ -713,17 +907,39 @@ def twofield_asked(file_rise: dict[str, float]) -> dict[str, tuple[float, float]
 
 
 def twofield_distance(ratios: list[float], asked: list[tuple[float, float]]) -> float:
-    """``sum ln(S / asked)^2`` over the incidences, ``asked`` the nearest end of its range (0 inside it)."""
+    """``sum ln(S / asked)^2`` over the incidences, ``asked`` the nearest end of its range (0 inside it).
+
+    Parameters
+    ----------
+    ratios : list of float
+        The fibre's ``S(70)/S(30)`` per incidence.
+    asked : list of tuple of (float, float)
+        The asked range per incidence, in the same order (:func:`twofield_asked`).
+
+    Returns
+    -------
+    float
+        The distance (0 when every ratio lies in its range).
+    """
     total = 0.0
-    for r, (lo, hi) in zip(ratios, asked):
+    for r, (lo, hi) in zip(ratios, asked, strict=True):
         total += math.log(r / lo) ** 2 if r < lo else math.log(r / hi) ** 2 if r > hi else 0.0
     return total
 
 
 def fig_fiber_phase_twofield() -> str:
-    """The fibre's ``S(70)/S(30)`` at the normal and the oblique beams over a grid of two fields (the boundary's
-    slope about the axis, the reflection's slope), against what the file's rise asks (:func:`twofield_asked`), with
-    the volume albedo at 510-580 nm and the distance :func:`twofield_distance`, its rank."""
+    """The fibre's ``S(70)/S(30)`` at the normal and the oblique beams over a grid of two fields.
+
+    The fields are the boundary's slope about the axis and the reflection's slope; against what the file's
+    rise asks (:func:`twofield_asked`), with the volume albedo at 510-580 nm and the distance
+    :func:`twofield_distance`, its rank.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/fiber-phase-twofield.json``, ``docs/data/felt-residual.json``).
+    """
     rec = load("fiber-phase-twofield")
     d = rec["data"]
     file_rise = {t: v["measured"] for t, v in next(iter(load("felt-residual")["data"]["runs"].values()))[
@@ -737,7 +953,7 @@ def fig_fiber_phase_twofield() -> str:
         ratios = [r["bands"]["all"]["ratio"], *ob[name]["bands"]["all"]["ratio"]]
         ses = [r["bands"]["all"]["se"], *ob[name]["bands"]["all"]["se"]]
         dist[name] = twofield_distance(ratios, asked)
-        rows.append([name, " / ".join(f"{x:.3f} ± {e:.3f}" for x, e in zip(ratios, ses)),
+        rows.append([name, " / ".join(f"{x:.3f} ± {e:.3f}" for x, e in zip(ratios, ses, strict=True)),
                      f"{r['bands']['510-580 nm']['volume_albedo']:.3f}", f"{dist[name]:.3f}"])
     rank = {name: k + 1 for k, name in enumerate(sorted(dist, key=dist.get))}
     body = [[_config_label(row[0]), *row[1:], str(rank[row[0]])] for row in rows]
@@ -758,8 +974,16 @@ def fig_fiber_phase_twofield() -> str:
 
 
 def fig_felt_residual_twofield() -> str:
-    """The Monte Carlo fit of the dye and both slopes from the closest point of ``fiber-phase-twofield``, its config
-    traced at two seeds beside the preset's, split as in section 8."""
+    """The Monte Carlo fit of the dye and both slopes from the closest point of ``fiber-phase-twofield``.
+
+    Its config traced at two seeds beside the preset's, split as in section 8.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/felt-residual-twofield.json``).
+    """
     rec = load("felt-residual-twofield")
     note = (" (`DIR/file`: `gonio truth fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt --out DIR/file`; "
             "DATA `gonio demo --sample fixtures/real/acrylic_felt_green_rgb.bsdf --plan green-felt`; each run "
@@ -772,7 +996,14 @@ def fig_felt_residual_twofield() -> str:
 
 
 def fig_speed_accuracy() -> str:
-    """The Monte Carlo's achieved error against its marginal cost (``simulate bench --study speed-accuracy``)."""
+    """The Monte Carlo's achieved error against its marginal cost (``simulate bench --study speed-accuracy``).
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/speed-accuracy.json``).
+    """
     rec = load("speed-accuracy")
     d = rec["data"]
     rows = []
@@ -790,7 +1021,14 @@ def fig_speed_accuracy() -> str:
 
 
 def fig_fibre_section_screen() -> str:
-    """The flattened section's forward rise against the round section's, in two dimensions."""
+    """The flattened section's forward rise against the round section's, in two dimensions.
+
+    Returns
+    -------
+    str
+        The block's Markdown: the table(s) and the line naming the command, the machine and the data
+        (``docs/data/fibre-section-screen.json``).
+    """
     rec = load("fibre-section-screen")
     d = rec["data"]
     incid = sorted({r["theta_i_deg"] for r in d["rows"]})
@@ -841,8 +1079,25 @@ FIGURES: dict[str, Callable[[], str]] = {
 
 
 def render(text: str) -> str:
-    """``text`` with every marked block filled from its JSON."""
+    """``text`` with every marked block filled from its JSON.
+
+    Parameters
+    ----------
+    text : str
+        A Markdown page.
+
+    Returns
+    -------
+    str
+        The page with each ``BEGIN FIGURE`` / ``END FIGURE`` block's body replaced by its figure.
+
+    Raises
+    ------
+    SystemExit
+        A block names a figure that :data:`FIGURES` does not hold.
+    """
     def fill(m: re.Match) -> str:
+        """The block of the match ``m`` with its figure."""
         name = m.group(2)
         if name not in FIGURES:
             raise SystemExit(f"render_figures: unknown figure {name!r}; known: {', '.join(FIGURES)}")
@@ -851,11 +1106,33 @@ def render(text: str) -> str:
 
 
 def pages() -> list[Path]:
+    """The pages that may hold figure blocks.
+
+    Returns
+    -------
+    list of pathlib.Path
+        README.md, then every Markdown file under docs/, sorted.
+    """
     return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 
 def record(name: str, source: Path, command: str) -> Path:
-    """Wrap ``source`` (a run's JSON) as ``docs/data/NAME.json`` with its command and this machine."""
+    """Wrap ``source`` (a run's JSON) as ``docs/data/NAME.json`` with its command and this machine.
+
+    Parameters
+    ----------
+    name : str
+        The figure's data name.
+    source : pathlib.Path
+        The run's JSON.
+    command : str
+        The command that wrote it.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+    """
     data = json.loads(source.read_text(encoding="utf-8"))
     out = DATA / f"{name}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -865,6 +1142,20 @@ def record(name: str, source: Path, command: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Fill every figure block of the pages, check them (``--check``) or wrap a run's JSON (``--record``).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (``--check``, ``--record NAME FILE.json --command CMD``);
+        ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0, or 1 under ``--check`` when a page's blocks are stale (one line names the pages and the
+        command that regenerates them).
+    """
     ap = argparse.ArgumentParser(description="Render the documentation's measured figures from docs/data/*.json.")
     ap.add_argument("--check", action="store_true", help="exit 1 if a committed block is stale; write nothing")
     ap.add_argument("--record", nargs=2, metavar=("NAME", "FILE.json"), help="wrap a run's JSON as docs/data/NAME.json")

@@ -30,6 +30,7 @@ DYES = (("x0.5", 0.5), ("x0.8", 0.8), ("x1.25", 1.25), ("x2", 2.0), ("hue", None
 
 
 def _run(problem, x, geoms, record=None):
+    """Trace the felt Monte Carlo at ``x`` (filling ``record`` when given): the estimate, its wall and CPU seconds."""
     from simulate.products import RunSettings, all_threads, evaluate
 
     cfg = problem.config_at(x)
@@ -41,12 +42,26 @@ def _run(problem, x, geoms, record=None):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Trace the start's dye with a record, re-weight it to each dye of :data:`DYES` and compare with re-traced runs.
+
+    The JSON is rewritten after each dye, so a run stopped midway keeps the dyes already compared.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (the measurement, ``--json``, ``--target-rel-err``); ``sys.argv[1:]``
+        when None.
+
+    Returns
+    -------
+    int
+        0 (argparse exits 2 on a bad argument).
+    """
     from fabric_optics import api
     from fabric_optics.fitting.spacemapping import reweight_accepted
     from simulate.montecarlo.accuracy import relative_error
-    from simulate.products import Geometries
+    from simulate.products import Geometries, reweighted_estimate
     from simulate.provenance import machine
-    from simulate.products import reweighted_estimate
     from simulate.raytrace import reweight as RW
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

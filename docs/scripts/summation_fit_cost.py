@@ -37,6 +37,7 @@ EVALUATIONS = 60
 
 
 def _problem(measured: str, free: str) -> object:
+    """The demo summation fit's problem for the measurement ``measured`` with ``--free free``."""
     from fabric_optics import api
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -46,9 +47,25 @@ def _problem(measured: str, free: str) -> object:
 
 
 def evaluations(measured: str, n: int) -> dict:
-    """CPU seconds per evaluation of the demo fit's problem: dye-only steps, and RMS-slope steps (each a new
-    point of the surface lattice), after one evaluation that reads the walk; then each fit's search
-    (:func:`fabric_optics.fitting.search.search_fit`, the walk read before it) over its evaluations."""
+    """CPU seconds per evaluation of the demo fit's problem, and per evaluation of each fit's search.
+
+    Dye-only steps, and RMS-slope steps (each a new point of the surface lattice), after one evaluation
+    that reads the walk; then each fit's search (:func:`fabric_optics.fitting.search.search_fit`, the
+    walk read before it) over its evaluations.
+
+    Parameters
+    ----------
+    measured : str
+        The demo's acquisition folder.
+    n : int
+        Evaluations per sequence (dye steps, RMS-slope steps).
+
+    Returns
+    -------
+    dict
+        ``first_s`` (the evaluation that reads the walk), per sequence the mean, median and total CPU
+        seconds, and per fit of :data:`FITS` its search's CPU seconds, evaluations and their quotient.
+    """
     import numpy as np
 
     from fabric_optics.fitting.search import search_fit
@@ -89,6 +106,7 @@ def evaluations(measured: str, n: int) -> dict:
 
 
 def _env(tree: str | None, cache: Path) -> dict:
+    """The environment of a run of ``tree`` (this one when None) with the shared table cache ``cache``."""
     env = dict(os.environ, FABRIC_OPTICS_CACHE_DIR=str(cache))
     if tree is not None:
         env["PYTHONPATH"] = tree
@@ -98,12 +116,14 @@ def _env(tree: str | None, cache: Path) -> dict:
 
 
 def _per_evaluation(tree: str | None, measured: str, cache: Path) -> dict:
+    """:func:`evaluations` of the source tree ``tree``, run in a process of its own."""
     got = subprocess.run([sys.executable, __file__, measured, "--evaluations-only"], env=_env(tree, cache),
                          check=True, capture_output=True, text=True, cwd=tree or ROOT)
     return json.loads(got.stdout.strip().splitlines()[-1])
 
 
 def _fit(tree: str | None, measured: str, cache: Path, free: str, out: Path) -> dict:
+    """One ``simulate fit`` of ``tree`` under ``/usr/bin/time``: its CPU, wall, peak memory, evaluations, NRMSE and values."""
     simulate = Path(sys.executable).parent / "simulate"
     cmd = ["/usr/bin/time", "-f", "%U %S %e %M", str(simulate), "fit", "green-felt", measured, "--free", free,
            "--out", str(out), *FIT_ARGS]
@@ -119,6 +139,20 @@ def _fit(tree: str | None, measured: str, cache: Path, free: str, out: Path) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Measure the per-evaluation and per-fit costs of this tree (and of ``--before``), and write them as JSON.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command-line arguments (the measurement, ``--json``, ``--before``, ``--after``, ``--repeats``);
+        ``sys.argv[1:]`` when None.
+
+    Returns
+    -------
+    int
+        0; argparse exits 2 without ``--json``, and a fit that fails raises RuntimeError with its
+        command and the end of its error output.
+    """
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("measured", help="the demo's acquisition (gonio demo --plan measured)")
     ap.add_argument("--json", help="output file")

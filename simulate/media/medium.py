@@ -55,6 +55,9 @@ __all__ = [
 
 #: Volume fraction above which independent scattering is doubtful (warning).
 DEPENDENT_SCATTERING_VOLUME_FRACTION = 0.1
+#: what :class:`MieMedium` requires of its size and of its amount of particles: one of each pair
+_ONE_SIZE = "MieMedium: give exactly one of radius_um and size_distribution"
+_ONE_AMOUNT = "MieMedium: give exactly one of number_density_per_um3 and volume_fraction"
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,11 +201,11 @@ class MieMedium:
         if not (float(self.n_host) > 0 and np.isfinite(self.n_host)):
             raise ValueError("MieMedium: n_host must be a finite real index > 0")
         if (self.radius_um is None) == (self.size_distribution is None):
-            raise ValueError("MieMedium: give exactly one of radius_um and size_distribution")
+            raise ValueError(_ONE_SIZE)
         if self.radius_um is not None and not (self.radius_um > 0 and np.isfinite(self.radius_um)):
             raise ValueError("MieMedium: radius_um must be finite and > 0")
         if (self.number_density_per_um3 is None) == (self.volume_fraction is None):
-            raise ValueError("MieMedium: give exactly one of number_density_per_um3 and volume_fraction")
+            raise ValueError(_ONE_AMOUNT)
         if self.number_density_per_um3 is not None and not (
             self.number_density_per_um3 >= 0 and np.isfinite(self.number_density_per_um3)
         ):
@@ -233,6 +236,8 @@ class MieMedium:
         """``<4/3 pi r^3>`` in um^3 (exact log-normal moment for a distribution)."""
         if self.size_distribution is not None:
             return 4.0 / 3.0 * np.pi * self.size_distribution.moment(3.0)
+        if self.radius_um is None:      # not reached: __post_init__ requires one of the two
+            raise ValueError(_ONE_SIZE)
         return 4.0 / 3.0 * np.pi * float(self.radius_um) ** 3
 
     @property
@@ -240,6 +245,8 @@ class MieMedium:
         """``N`` in 1/um^3 (from ``f_v`` if that was given)."""
         if self.number_density_per_um3 is not None:
             return float(self.number_density_per_um3)
+        if self.volume_fraction is None:    # not reached: __post_init__ requires one of the two
+            raise ValueError(_ONE_AMOUNT)
         return float(self.volume_fraction) / self.mean_particle_volume_um3
 
     @property
@@ -247,6 +254,8 @@ class MieMedium:
         """``f_v = N <4/3 pi r^3>``."""
         if self.volume_fraction is not None:
             return float(self.volume_fraction)
+        if self.number_density_per_um3 is None:     # not reached: __post_init__ requires one of the two
+            raise ValueError(_ONE_AMOUNT)
         return float(self.number_density_per_um3) * self.mean_particle_volume_um3
 
     def particle_index(self, wavelength_nm: float) -> complex:

@@ -597,14 +597,16 @@ def cross_sections(
         return _MEMO[key]
     m, radii, w, x, eff = _ensemble(m_particle, n_host, wavelength_nm, radius_um, distribution)
     area = np.pi * radii**2
+    # the ensemble's efficiencies are arrays over its size nodes (np.asarray takes them as they are)
+    qext, qsca, qback, qabs, g = (np.asarray(q) for q in (eff.qext, eff.qsca, eff.qback, eff.qabs, eff.g))
 
     def integrate(weights: np.ndarray, sl: slice) -> tuple[float, float, float, float, float]:
         a = area[sl]
-        s_ext = float(np.sum(weights * eff.qext[sl] * a))
-        s_sca = float(np.sum(weights * eff.qsca[sl] * a))
-        s_back = float(np.sum(weights * eff.qback[sl] * a))
-        s_abs = float(np.sum(weights * eff.qabs[sl] * a))
-        gw = float(np.sum(weights * eff.g[sl] * eff.qsca[sl] * a))
+        s_ext = float(np.sum(weights * qext[sl] * a))
+        s_sca = float(np.sum(weights * qsca[sl] * a))
+        s_back = float(np.sum(weights * qback[sl] * a))
+        s_abs = float(np.sum(weights * qabs[sl] * a))
+        gw = float(np.sum(weights * g[sl] * qsca[sl] * a))
         return s_ext, s_sca, s_abs, s_back, (gw / s_sca if s_sca > 0 else 0.0)
 
     fine = integrate(w, slice(None))
@@ -617,7 +619,8 @@ def cross_sections(
         pairs = [(fine[i], coarse[i]) for i in (0, 1, 2, 4)]
         rel = [abs(a - b) / abs(a) for a, b in pairs if a != 0]
         err = max(rel) if rel else 0.0
-    x_med = float(size_parameter(radius_um if distribution is None else distribution.median_radius_um,
+    # one size: its radius, the only node (_ensemble has checked it)
+    x_med = float(size_parameter(radii[0] if distribution is None else distribution.median_radius_um,
                                  wavelength_nm, n_host))
     return _remember(key, MieCrossSections(*fine, x=x_med, m=m, quadrature_error=err))
 
