@@ -18,6 +18,7 @@ Walks every module of ``gonio``, ``simulate``, ``compare`` and ``fabric_optics``
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -121,10 +122,15 @@ def _layer(module: str, layers=LAYERS) -> int | None:
     return None if best is None else best[0]
 
 
+@functools.cache
+def _all_edges() -> tuple[tuple[str, Path, str, str | None, int], ...]:
+    """Every (module, its file, imported module, name taken, line), parsed once for the module's tests."""
+    return tuple((name, path, target, attr, line)
+                 for name, path in MODULES.items() for target, attr, line in _imports(name, path))
+
+
 def _edges():
-    for name, path in MODULES.items():
-        for target, attr, line in _imports(name, path):
-            yield name, path, target, attr, line
+    yield from _all_edges()
 
 
 def test_the_graph_is_not_empty():
