@@ -137,6 +137,8 @@ browser:
 		$$SUDO apt-get update && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y chromium; \
 	fi
 
+# three workers on two cores: many tests wait (on the mock instrument's replies, a browser, a child
+# process), and a third worker runs while one waits; the kernels compile beside the first files (conftest.py)
 test: $(STAMP) browser
 	$(PY) -m pytest -q -n 3 --dist loadfile -m "not slow"
 

@@ -128,7 +128,7 @@ def demo(tmp_path_factory):
     plan = root / "plan.toml"
     plan.write_text(PLAN)
     # loose budgets: 20 % relative error and a photon cap for the fiber Monte Carlo; one thread
-    # each, since the test suite runs two workers on two cores
+    # each, since the test suite runs several workers on two cores
     budget = ["--plan", str(plan), "--target-rel-err", "0.2", "--threads", "1",
               "--no-progress"]
     status = {

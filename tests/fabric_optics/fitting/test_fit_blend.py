@@ -224,6 +224,7 @@ def test_the_blend_model_is_the_share_mix_of_its_populations(walked):
     assert walked.counters.walks == 1 and p.counters.walks == 0     # one walk serves every population
 
 
+@pytest.mark.slow
 def test_a_blend_fit_recovers_the_share_from_the_summation(walked):
     """A measurement made by the summation from a known blend (shares 0.3/0.7, two dyes of bands at 500 and 570 nm,
     mock-level noise) is fitted from shares 0.5/0.5 and another peak of the second dye: the share comes back within

@@ -69,6 +69,7 @@ def _recovered(method: str, truth: float, start: float, target: float, max_evalu
     return run_fit(problem, noise_draws=16, max_evaluations=max_evaluations)
 
 
+@pytest.mark.slow
 def test_a_classic_fit_recovers_a_ring_dyes_depth():
     """Made at 1.0 um, started at 1.5 um: the depth comes back within 3 u, and the start lies beyond that."""
     result = _recovered("classic", truth=1.0, start=1.5, target=0.1, max_evaluations=30)
