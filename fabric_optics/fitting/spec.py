@@ -257,8 +257,8 @@ def _depth_bounds(path: str, spec: str, given: bool, low: float, high: float,
                   config: SimulationConfig) -> tuple[float, float]:
     """A free depth's bounds inside ``(0, radius)`` (a placement needs both of its regions).
 
-    A ring or core dye, a skin or core of scatterers. The defaults are clipped to :data:`DEPTH_MARGIN` of the radius from either end; given bounds outside
-    ``(0, radius)`` are refused in one line.
+    A ring or core dye, a skin or core of scatterers. The defaults are clipped to :data:`DEPTH_MARGIN` of the
+    radius from either end; given bounds outside ``(0, radius)`` are refused in one line.
     """
     m = _POP_PATH.match(path)
     radius = float(config.populations[int(m.group(1))].radius_um if m and config.populations else config.radius_um)
