@@ -90,7 +90,7 @@ A *spectrum* is either a number (constant) or a table ``{wavelength_nm = [...], 
                                        #   core) | "core" (below a clear skin of scatterer_depth_um); depth in
                                        #   (0, radius_um), skin and core only; the clear part keeps the host's
                                        #   index and dye; particles with k = 0; every population shares it;
-                                       #   walked by the fiber's exit tables (the summation), not the yarn tables
+                                       #   walked by the exit tables and the yarn tables (summation, --method mc)
 
     [fiber.dye]                        # optional: host absorption mu_a_host(lambda), 1/um; ONE of
     wavelength_nm = [400, 500, 600]    #   a table: wavelength_nm + mu_a_per_um (>= 0)

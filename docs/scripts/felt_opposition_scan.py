@@ -10,7 +10,9 @@ Each variant is the ``green-felt-mc`` preset with one thing changed (:data:`VARI
 scatterers (the delustrant's volume fraction), the dye's absorption, the surface's reflection slope,
 the boundary's roughness for transmitted light, the felt's inclination spread (which sets the
 deposited felt's volume fraction), the needle-punched fraction, the fiber amount, the fiber's refractive
-index; and three combinations of those changes. Each is traced by
+index; and three combinations of those changes; then blends of differently dyed fibers, the dye placed in a
+ring or a core, and the scatterers placed in a skin or a core (their amount kept, or multiplied; a sheath: a skin
+of scatterers over a dyed core). Each is traced by
 the felt Monte Carlo (:func:`simulate.raytrace.fabric_beta`, two felt realisations as ``simulate fabric
 --method mc`` builds them) at ``--seeds`` seeds (each its own felts, table and rays; the same seeds for every
 variant, so variants that keep the preset's felt are traced on the same felts) at the RGL file's incidences 40.03 and
@@ -129,6 +131,19 @@ def _placed(profile: str, depth_um: float) -> Callable[[Any], dict]:
     return change
 
 
+def _scatterers_placed(profile: str, depth_um: float, factor: float = 1.0) -> Callable[[Any], dict]:
+    """The scatterers placed in a ``skin`` from the surface to ``depth_um`` or a ``core`` below a clear skin of it.
+
+    The fiber's amount of scatterers is kept (times ``factor``): their volume fraction is divided by the share of the
+    cross-section they fill.
+    """
+    def change(cfg: Any) -> dict:
+        inner = (cfg.radius_um - depth_um) / cfg.radius_um
+        share = 1.0 - inner ** 2 if profile == "skin" else inner ** 2
+        return {"scatterer_profile": profile, "scatterer_depth_um": depth_um, **_scatterers(factor / share)(cfg)}
+    return change
+
+
 def _field(**values: Any) -> Callable[[Any], dict]:
     """The change that sets the config's fields ``values``."""
     return lambda cfg: dict(values)
@@ -186,6 +201,18 @@ VARIANTS: dict[str, tuple[str, Callable[[Any], dict]]] = {
                      _blend((0.5, _dye_red(-2.0)), (0.5, _dye_red(None, 2.0)))),
     "ring-1.5": ("the dye in a ring 1.5 um deep (its amount kept)", _placed("ring", 1.5)),
     "core-4.1": ("the dye in a core below a clear skin 4.1 um deep (its amount kept)", _placed("core", 4.1)),
+    "skin-0.5": ("the scatterers in a skin 0.5 um deep (their amount kept)", _scatterers_placed("skin", 0.5)),
+    "skin-1.5": ("the scatterers in a skin 1.5 um deep (their amount kept)", _scatterers_placed("skin", 1.5)),
+    "skin-3": ("the scatterers in a skin 3 um deep (their amount kept)", _scatterers_placed("skin", 3.0)),
+    "scatterers-core-4.1": ("the scatterers in a core below a clear skin 4.1 um deep (their amount kept)",
+                            _scatterers_placed("core", 4.1)),
+    "sheath-1.5": ("the scatterers in a skin 1.5 um deep over the dye in the core below it (both amounts kept)",
+                   _both(_scatterers_placed("skin", 1.5), _placed("core", 1.5))),
+    "sheath-1.5-x10": ("sheath-1.5 with ten times the scatterers",
+                       _both(_scatterers_placed("skin", 1.5, 10.0), _placed("core", 1.5))),
+    "skin-1.5-x10": ("the scatterers x10 in a skin 1.5 um deep", _scatterers_placed("skin", 1.5, 10.0)),
+    "skin-0.5-x10": ("the scatterers x10 in a skin 0.5 um deep", _scatterers_placed("skin", 0.5, 10.0)),
+    "skin-1.5-x30": ("the scatterers x30 in a skin 1.5 um deep", _scatterers_placed("skin", 1.5, 30.0)),
 }
 
 
@@ -219,7 +246,7 @@ def variant_config(name: str, base: Any) -> tuple[Any, dict]:
         elif key == "populations":
             shown["populations"] = [{"share": p.share, "fiber.dye.log10_per_um": list(p.dye.params["log10_per_um"])}
                                     for p in value]
-        elif key in ("dye_profile", "dye_depth_um"):
+        elif key in ("dye_profile", "dye_depth_um", "scatterer_profile", "scatterer_depth_um"):
             shown[f"fiber.{key}"] = value
         elif key == "structure":
             shown.update({f"structure.{f.name}": getattr(value, f.name) for f in dataclasses.fields(value)

@@ -36,6 +36,7 @@ from fabric_optics.fitting.errors import FitError
 from fabric_optics.fitting.spec import (
     COLOUR_HOLD_FROM,
     COLOUR_HOLD_WEIGHT,
+    DEPTH_FIELDS,
     GENERATOR,
     FitSpec,
     FreeParameter,
@@ -371,13 +372,13 @@ class FitProblem:
         Each positive value rounded to the geometric lattice ``start * exp(LATTICE_STEP * k)`` (others kept).
         Evaluating every point from the walk at its lattice point makes the objective a deterministic function
         of the parameters (not of the order in which the search visited them: a resumed fit sees the same
-        values). A dye's depth is kept: a walk is re-weighted to other scattering, not to another dyed region
-        (:mod:`simulate.fiber.absorption`).
+        values). A depth (a dye's or the scatterers') is kept: a walk is re-weighted to other scattering, not to
+        another dyed region or another placement of its scatterers (:mod:`simulate.fiber.absorption`).
         """
         walked = [p for p in self.free if p.kind == "walk"]
         out: list[float] = []
         for s, v in zip([p.start for p in walked], walk, strict=True):
-            if s > 0 and v > 0 and not walked[len(out)].name.endswith("dye_depth_um"):
+            if s > 0 and v > 0 and not walked[len(out)].name.endswith(DEPTH_FIELDS):
                 k = round(math.log(v / s) / LATTICE_STEP)
                 out.append(round(s * math.exp(LATTICE_STEP * k), 12))
             else:

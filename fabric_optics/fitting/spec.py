@@ -33,7 +33,7 @@ from simulate.config import SimulationConfig
 from simulate.fiber.absorption import DEFAULT_NODES
 from simulate.structwalk.walk import STRUCTURE_FIELDS
 
-__all__ = ["GENERATOR", "SHARE_MIN", "shares_at", "COLOUR_TOLERANCE", "COLOUR_HOLD_FROM", "COLOUR_HOLD_WEIGHT",
+__all__ = ["GENERATOR", "SHARE_MIN", "DEPTH_FIELDS", "shares_at", "COLOUR_TOLERANCE", "COLOUR_HOLD_FROM", "COLOUR_HOLD_WEIGHT",
            "FINE_FIELDS", "FreeParameter", "FitSpec", "make_spec", "colour_hold", "default_bounds", "parse_free", "model_geometries", "dye_ceiling",
            "checked_wavelengths"]
 
@@ -97,8 +97,12 @@ _POP_PATH = re.compile(r"^populations\[(\d+)\]\.")
 SHARE_MIN = 1e-3
 
 
+#: The free depths of a placement (a ring or core dye, a skin or core of scatterers): walked, inside the fiber
+DEPTH_FIELDS = ("dye_depth_um", "scatterer_depth_um")
+
+
 def _kind(path: str) -> str:
-    if path.endswith("dye_depth_um"):
+    if path.endswith(DEPTH_FIELDS):
         return "walk"
     if path.startswith("fiber.dye") or _POP_DYE.match(path):
         return "dye"
@@ -167,7 +171,7 @@ def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter
         for path in _free_paths(name.strip(), data):
             start = _free_start(name.strip(), path, config, data)
             low, high = _free_bounds(spec, path, bounds, start)
-            if path.endswith("dye_depth_um"):
+            if path.endswith(DEPTH_FIELDS):
                 low, high = _depth_bounds(path, spec, bool(bounds), low, high, config)
                 if not low <= start <= high:
                     raise FitError(f"--free: {path} = {start:g} in the config lies outside its bounds "
@@ -208,6 +212,8 @@ def _free_start(name: str, path: str, config: SimulationConfig, data: dict) -> f
             data["structure"][path.split(".", 1)[1]] = start
         else:
             start = None
+    if start is None and path == "fiber.scatterer_depth_um":
+        raise FitError(_no_scatterer_depth(name, config))
     if start is None:
         candidates = ", ".join(sorted(set(paths.numeric_leaves(data, "")) - {"seed"})[:12])
         raise FitError(f"--free: unknown parameter {path!r}: the config {config.name} has no such "
@@ -242,22 +248,24 @@ def _free_bounds(spec: str, path: str, bounds: str, start: float) -> tuple[float
     return low, high
 
 
-#: a free dye depth's default bounds: from this fraction of the fiber's radius to the radius less it
+#: a free depth's default bounds (a dye's or the scatterers'): from this fraction of the fiber's radius to the
+#: radius less it
 DEPTH_MARGIN = 0.02
 
 
 def _depth_bounds(path: str, spec: str, given: bool, low: float, high: float,
                   config: SimulationConfig) -> tuple[float, float]:
-    """A free dye depth's bounds inside ``(0, radius)`` (a ring or core needs both regions).
+    """A free depth's bounds inside ``(0, radius)`` (a placement needs both of its regions).
 
-    The defaults are clipped to :data:`DEPTH_MARGIN` of the radius from either end; given bounds outside
-    ``(0, radius)`` are refused in one line.
+    A ring or core dye, a skin or core of scatterers. The defaults are clipped to :data:`DEPTH_MARGIN` of the
+    radius from either end; given bounds outside ``(0, radius)`` are refused in one line.
     """
     m = _POP_PATH.match(path)
     radius = float(config.populations[int(m.group(1))].radius_um if m and config.populations else config.radius_um)
     if given:
         if not (0.0 < low and high < radius):
-            raise FitError(f"--free: {spec!r}: a dye depth lies in (0, {radius:g}) um (the fiber's radius), got "
+            what = "a scatterer depth" if path.endswith("scatterer_depth_um") else "a dye depth"
+            raise FitError(f"--free: {spec!r}: {what} lies in (0, {radius:g}) um (the fiber's radius), got "
                            f"[{low:g}, {high:g}]; give bounds inside it")
         return low, high
     return max(low, DEPTH_MARGIN * radius), min(high, (1.0 - DEPTH_MARGIN) * radius)
@@ -496,6 +504,7 @@ def make_spec(config: SimulationConfig, measured: Dataset, free: list[FreeParame
     """
     _check_blend(config)
     _check_dye_placement(config, free, method)
+    _check_scatterer_placement(config, free, method)
     if method not in SPEC_MODELS:
         raise FitError(f"--method must be classic or summation, got {method!r}")
     if level_weight and measured.relative:
@@ -591,6 +600,36 @@ def _check_dye_placement(config: SimulationConfig, free: list[FreeParameter] | t
         if config.dye_profile == "uniform":
             raise FitError(f"--free {name}: {_file(config)} has a uniform dye (fiber.dye_profile), which has no "
                            "depth; give it dye_profile = \"ring\" or \"core\" and a dye_depth_um")
+
+
+def _no_scatterer_depth(name: str, config: SimulationConfig) -> str:
+    """The one line refusing a free scatterer depth of a config whose scatterers fill the fiber."""
+    return (f"--free {name}: {_file(config)} has its scatterers through the fiber (fiber.scatterer_profile "
+            "\"uniform\"), which have no depth; give it scatterer_profile = \"skin\" or \"core\" and a "
+            "scatterer_depth_um")
+
+
+def _check_scatterer_placement(config: SimulationConfig, free: list[FreeParameter] | tuple[FreeParameter, ...],
+                               method: str) -> None:
+    """Check a skin or core of scatterers (``scatterer_profile``) and its free depth against what the fit can score.
+
+    Like a placed dye's (:func:`_check_dye_placement`): the exit tallies of the classic model's albedo and of the
+    structured summation walk it, the top cell's next-event summation (a config without ``[structure]``) cannot.
+    Every population shares the config's placement, so only ``fiber.scatterer_depth_um`` is freed. One line each.
+    """
+    depth = [p.name for p in free if p.name.endswith("scatterer_depth_um")]
+    profile = getattr(config, "scatterer_profile", "uniform")
+    for name in depth:
+        if name != "fiber.scatterer_depth_um":
+            raise FitError(f"--free {name}: every population shares the config's scatterer placement; free "
+                           "fiber.scatterer_depth_um")
+        if profile == "uniform":
+            raise FitError(_no_scatterer_depth(name, config))
+    if (depth or profile != "uniform") and method == "summation" and getattr(config, "structure", None) is None:
+        what = f"--free {depth[0]}" if depth else f"{_file(config)}: fiber.scatterer_profile = {profile!r}"
+        raise FitError(f"{what}: the summation of a config without [structure] reads the top cell by next events, "
+                       "which assume scatterers through the fiber; fit a skin or core of scatterers with --method "
+                       "classic or a config with a [structure] section (the structured summation)")
 
 
 def _without_grazing(measured: Dataset, notes: list[str]) -> Dataset:

@@ -128,15 +128,7 @@ class Fiber:
         return math.radians(self.cell_width_deg) / 2.0
 
     def cell_count(self, what: str = "bssrdf route") -> int:
-        """Cells around the fiber, ``360 / cell_width_deg``; an error naming ``what`` unless it is an integer.
-
-        The yarn table (``what`` "yarn table", the woven and felt Monte Carlo) refuses a scatterer profile: its
-        cache key does not hold one yet, so a table walked for one placement could be read for another.
-        """
-        if what == "yarn table" and self.scatterer_profile != "uniform":
-            raise ParameterError(f"yarn table: scatterers in a {self.scatterer_profile} (scatterer_profile) are "
-                                 "walked by the fiber's exit tables (the summation) only; use scatterer_profile = "
-                                 "\"uniform\" for the woven or felt Monte Carlo")
+        """Cells around the fiber, ``360 / cell_width_deg``; an error naming ``what`` unless it is an integer."""
         n_psi = int(round(360.0 / self.cell_width_deg))
         if abs(n_psi * self.cell_width_deg - 360.0) > 1e-9:
             raise ParameterError(f"{what}: 360 / cell_width_deg must be an integer, got {self.cell_width_deg}")

@@ -4,7 +4,8 @@ Built with the fiber's public Monte Carlo (:mod:`simulate.fiber.bssrdf`, :mod:`s
 white walks per wavelength group, rows for a grid of axial incidences, ``v`` offsets kept.
 
 Tables are cached on disk (:mod:`simulate.fiber.tablecache`) under the content hash of all they
-depend on: the fiber's radius, host index, cell width and medium, the wavelengths, the grid
+depend on: the fiber's radius, host index, cell width and medium (and, when not uniform, the dye's and the
+scatterers' placement across it), the wavelengths, the grid
 (nodes, ``n_v``, ``v_max_R``, ``n_mu``, ``n_phi``), the photons per row, the seed and the
 source of the kernel and of the modules that build the table (:data:`TABLE_MODULES`). The
 threads are not in the key: the rows do not depend on them (batches of fixed seeds). A hit is
@@ -135,6 +136,9 @@ def table_key(fiber: Any, wavelengths_nm: Any, *, w_t_nodes: Any = (0.0, 0.25, 0
     profile = getattr(fiber, "dye_profile", "uniform")
     if profile != "uniform":                # the dye where it sits; uniform keys unchanged
         inputs["dye_profile"] = (str(profile), float(fiber.dye_depth_um))
+    placed = getattr(fiber, "scatterer_profile", "uniform")
+    if placed != "uniform":                 # the scatterers where they sit; uniform keys unchanged
+        inputs["scatterer_profile"] = (str(placed), float(fiber.scatterer_depth_um))
     return tablecache.content_key("yarn", inputs, TABLE_MODULES)
 
 

@@ -62,6 +62,10 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
                 "blend-red": {"populations"}, "blend-red-x4": {"populations"}, "blend-red-x2": {"populations"},
                 "ring-1.5": {"dye_profile", "dye_depth_um", "dye.params"},
                 "core-4.1": {"dye_profile", "dye_depth_um", "dye.params"}}
+    placed = {"scatterer_profile", "scatterer_depth_um", "particles.volume_fraction"}
+    expected.update({name: placed for name in ("skin-0.5", "skin-1.5", "skin-3", "scatterers-core-4.1", "skin-1.5-x10",
+                                               "skin-0.5-x10", "skin-1.5-x30")})
+    expected.update({name: placed | expected["core-4.1"] for name in ("sheath-1.5", "sheath-1.5-x10")})
     for name in s.VARIANTS:
         cfg, shown = s.variant_config(name, base)
         if name.startswith("scatterers-x") and "+" not in name:
@@ -87,6 +91,21 @@ def test_each_variant_changes_one_parameter_of_the_preset_by_its_factor():
     share = 1.0 - ((base.radius_um - 1.5) / base.radius_um) ** 2
     assert (ring.dye_profile, ring.dye_depth_um) == ("ring", 1.5)
     np.testing.assert_allclose(share * ring.dye(wl), base.dye(wl), rtol=1e-12)
+    # the scatterers placed in a skin or a core keep the fiber's amount (times the factor): the volume fraction over
+    # their share of the section; a sheath puts the dye below the skin of scatterers
+    for name, profile, depth, factor in (("skin-1.5", "skin", 1.5, 1.0), ("scatterers-core-4.1", "core", 4.1, 1.0),
+                                         ("skin-1.5-x10", "skin", 1.5, 10.0), ("sheath-1.5-x10", "skin", 1.5, 10.0)):
+        cfg, shown = s.variant_config(name, base)
+        inner = ((base.radius_um - depth) / base.radius_um) ** 2
+        share = 1.0 - inner if profile == "skin" else inner
+        assert (cfg.scatterer_profile, cfg.scatterer_depth_um) == (profile, depth)
+        assert cfg.fiber(wl).scatterer_radius_um == pytest.approx(base.radius_um - depth)
+        assert share * cfg.particles.volume_fraction == pytest.approx(factor * base.particles.volume_fraction)
+        assert shown["fiber.scatterer_profile"] == profile and shown["fiber.scatterer_depth_um"] == depth
+    sheath = s.variant_config("sheath-1.5", base)[0]
+    assert (sheath.dye_profile, sheath.dye_depth_um) == ("core", 1.5)
+    np.testing.assert_allclose(((base.radius_um - 1.5) / base.radius_um) ** 2 * sheath.dye(wl), base.dye(wl),
+                               rtol=1e-12)
     assert s.variant_config("rms-slope-x2", base)[0].rms_slope == pytest.approx(2 * base.rms_slope)
     both, shown = s.variant_config("scatterers-x10+rms-slope-x2", base)
     assert both.rms_slope == pytest.approx(2 * base.rms_slope)

@@ -1,6 +1,8 @@
 """simulate fit frees a ring dye's depth (``fiber.dye_depth_um``): the depth of a synthetic measurement made at a
 known depth comes back within 3 of its reported uncertainties from another start depth (the classic model; the
-structured summation in the slow suite), and a bad depth or a model that cannot take one is refused in one line."""
+structured summation in the slow suite), and a bad depth or a model that cannot take one is refused in one line.
+Likewise the depth of a skin of scatterers (``fiber.scatterer_depth_um``): its default bounds inside the fiber, the
+free value reaching the fiber that is walked, and the refusals."""
 
 from __future__ import annotations
 
@@ -123,3 +125,77 @@ def test_the_cli_refuses_a_bad_depth_before_any_work(tmp_path, capsys, depth_tex
     err = capsys.readouterr().err
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "f").exists()
+
+
+# ------------------------------------------------------------------------------------------
+# the depth of a skin (or core) of scatterers
+
+
+def skin_text(depth: float, structure: bool = True, profile: str = "skin") -> str:
+    """Red cotton with its scatterers (k = 0) in a skin ``depth`` um deep (radius 10 um)."""
+    doc = tomllib.loads(load_config("red-cotton").text)
+    doc["fiber"].update(scatterer_profile=profile, scatterer_depth_um=depth)
+    if not structure:
+        del doc["structure"]
+    return toml_dumps(doc)
+
+
+def skin(depth: float, structure: bool = True):
+    return parse_config(skin_text(depth, structure), "skin.toml")
+
+
+def test_the_scatterer_depths_default_bounds_keep_it_inside_the_fiber():
+    deep = parse_free(["fiber.scatterer_depth_um"], skin(6.0))[0]
+    assert (deep.kind, deep.low, deep.high) == ("walk", 1.5, 9.8)          # start / 4 to the radius less 2 %
+    with pytest.raises(FitError, match="has its scatterers through the fiber") as exc:
+        FitProblem(load_config("red-cotton"), FLAT, [deep], method="classic")
+    assert "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("config, free, method, message", [
+    (skin(1.5), "fiber.scatterer_depth_um=-1:3", "classic",
+     "a scatterer depth lies in (0, 10) um (the fiber's radius), got [-1, 3]"),
+    (skin(1.5), "fiber.scatterer_depth_um=1:10", "classic",
+     "a scatterer depth lies in (0, 10) um (the fiber's radius), got [1, 10]"),
+    (skin(1.5, structure=False), "fiber.scatterer_depth_um", "summation",
+     "--free fiber.scatterer_depth_um: the summation of a config without [structure] reads the top cell by next events"),
+    (skin(1.5, structure=False), "rms_slope", "summation",
+     "skin.toml: fiber.scatterer_profile = 'skin': the summation of a config without [structure]"),
+])
+def test_a_bad_scatterer_depth_or_a_model_without_one_is_refused_in_one_line(config, free, method, message):
+    with pytest.raises(FitError) as exc:
+        FitProblem(config, FLAT, parse_free([free], config), method=method)
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_the_cli_refuses_a_scatterer_depth_of_uniform_scatterers_before_any_work(tmp_path, capsys):
+    (tmp_path / "cotton.toml").write_text(load_config("red-cotton").text)
+    write_dataset(FLAT, tmp_path / "m")
+    code = main(["fit", str(tmp_path / "cotton.toml"), str(tmp_path / "m"), "--method", "classic", "--free",
+                 "fiber.scatterer_depth_um", "--out", str(tmp_path / "f")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert ("--free fiber.scatterer_depth_um: cotton.toml has its scatterers through the fiber "
+            "(fiber.scatterer_profile \"uniform\"), which have no depth") in err
+    assert not (tmp_path / "f").exists()
+
+
+def test_the_free_scatterer_depth_is_the_walked_fibers_and_kept_off_the_lattice():
+    """The classic model at a free depth is the model of the config written at that depth (the same seed: the same
+    walk), another depth's differs, and the depth is walked as it is, not re-weighted from a lattice point (a walk
+    is re-weighted to other scattering, not to another placement)."""
+    geometries = _geometries()
+    flat = measurement(lambda g, wl: np.full((len(g), wl.size), 0.3), None, geometries=geometries)
+
+    def problem(depth: float) -> FitProblem:
+        cfg = skin(depth)
+        return FitProblem(cfg, flat, parse_free(["fiber.scatterer_depth_um"], cfg), method="classic",
+                          target_rel_err=0.3, seed=3, wavelengths_nm=WL6)
+
+    moved = problem(1.0)
+    assert moved.lattice((2.13,)) == (2.13,)
+    at_3, _ = moved.model(np.array([3.0]))
+    written, _ = problem(3.0).model(np.array([3.0]))
+    np.testing.assert_array_equal(at_3, written)
+    at_1, _ = moved.model(np.array([1.0]))
+    assert np.max(np.abs(at_1 - at_3) / np.abs(at_3)) > 0.02

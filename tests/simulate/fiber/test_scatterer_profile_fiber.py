@@ -135,12 +135,8 @@ def test_the_exit_table_key_follows_the_placement(cache_dir):
 
 def test_routes_that_cannot_walk_a_placement_refuse_it_in_one_line():
     from simulate.fiber import range_outputs, volume_brdf
-    from simulate.raytrace.yarn import yarn_table
 
     skin = _fiber(scatterer_profile="skin", scatterer_depth_um=1.0)
-    with pytest.raises(ParameterError, match=r"^yarn table: scatterers in a skin \(scatterer_profile\)") as e:
-        yarn_table(skin, WL, photons_per_row=100, threads=1, cache=False)
-    assert "\n" not in str(e.value)
     out = range_outputs([0.0], [1.0], [-3.0], [3.0], skin.half_width)
     with pytest.raises(ParameterError, match="scatterer profile"):
         volume_brdf(skin, np.array([[0.0, 0.0, 1.0]]), None, WL, method="nee", outputs=out, target_rel_err=0.2)
