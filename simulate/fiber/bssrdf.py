@@ -140,7 +140,7 @@ def bssrdf_table(
     photons = 0
     seconds = 0.0
     groups = wavelength_groups(optics, max_size=max_group)
-    for k, (group, (scored, weight)) in enumerate(zip(groups, blended_groups(groups, blend))):
+    for k, (group, (scored, weight)) in enumerate(zip(groups, blended_groups(groups, blend), strict=True)):
         medium, walk_phase, targets = group_walk(fiber, optics, group, white=True, scored=scored)
         t, u, p, s = bssrdf_rows(fiber, w_t, ks, (n_psi, n_v, v_max, n_mu, n_phi), medium, walk_phase, targets,
                                   control, photons_per_row, seed + GROUP_SEED_STEP * k, threads)

@@ -158,13 +158,16 @@ def far_field_nee(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_n
 
 @numba.njit(cache=True, parallel=True, nogil=True)
 def _accumulate_beam(T, k_min, nodes, js, weights, scales, lit, out):
-    """``out[B] += weights[c] scales[c, k] lit[i] T[nodes[c], k, B - i]`` over the terms ``c`` (node ``nodes[c]``,
-    beam azimuth cell ``js[c]``) and the lit entry cells ``i``, row ``k = js[c] - i`` (wrapped), for ONE beam.
+    """Add one beam's exit-table terms to its far field ``out``.
+
+    ``out[B] += weights[c] scales[c, k] lit[i] T[nodes[c], k, B - i]`` over the terms ``c`` (node ``nodes[c]``,
+    beam azimuth cell ``js[c]``) and the lit entry cells ``i``, row ``k = js[c] - i`` (wrapped).
 
     Parallel over the exit cells ``B``, each ``out[B]`` (one exit cell's bins and channels, ~10^5 values)
     summed while it stays in cache, rather than streaming the whole ``out`` through memory once per lit cell
     and term. The additions per value run in the order term, then entry cell, the order of the plain loop
-    over terms and entry cells: the numbers do not depend on the loop's arrangement."""
+    over terms and entry cells: the numbers do not depend on the loop's arrangement.
+    """
     n = out.shape[0]
     inner = out[0].size
     flat_out = out.reshape(n, inner)
@@ -217,14 +220,17 @@ class ExitTable:
 
     @property
     def n_psi(self) -> int:
+        """Number of azimuth cells around the fiber's section."""
         return int(self.T.shape[2])
 
     @property
     def dpsi(self) -> float:
+        """Width of one azimuth cell (radians)."""
         return 2.0 * math.pi / self.n_psi
 
     @property
     def bins(self) -> tuple[int, int]:
+        """Local exit bins ``(n_mu, n_phi)``: cosine bins from the surface normal and azimuth bins."""
         return int(self.T.shape[3]), int(self.T.shape[4])
 
     def omega(self) -> np.ndarray:
@@ -341,6 +347,7 @@ class CachedMedium:
         self._cache: dict[float, Any] = {}
 
     def optical_properties(self, wavelength_nm: float) -> Any:
+        """The wrapped medium's optical properties at ``wavelength_nm``, computed once per wavelength."""
         key = float(wavelength_nm)
         if key not in self._cache:
             self._cache[key] = self.medium.optical_properties(key)
@@ -378,7 +385,6 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
     710 nm that the closure of :mod:`simulate.fabric.interior` amplifies. Neighbouring groups are
     blended across their boundary (:func:`simulate.fiber.spectral.blended_groups`).
     """
-
     nodes = np.asarray(w_t, float)
     if nodes.ndim != 1 or nodes.size < 2 or nodes[0] != 0.0 or np.any(np.diff(nodes) <= 0) or nodes[-1] >= 1.0:
         raise ValueError("exit_table: w_t must be increasing nodes from 0 to below 1 (at least two)")
@@ -416,9 +422,33 @@ def plain_fiber(fiber: Any) -> Any:
 
 def exit_table_key(fiber: Any, wavelengths_nm: Any, w_t: Any, bins: tuple[int, int], photons_per_row: int,
                    seed: int, max_group: int) -> str | None:
-    """The disk-cache key of :func:`exit_table` (:mod:`simulate.fiber.tablecache`; None when the cache is off or
-    the medium has no canonical form): the fiber (its dye included: this table is not white), wavelengths,
-    nodes, bins, photons per row, seed, chunking and the code. The threads are not in it (same rows)."""
+    """The disk-cache key of :func:`exit_table` (:mod:`simulate.fiber.tablecache`).
+
+    The key holds the fiber (its dye included: this table is not white), wavelengths, nodes, bins, photons
+    per row, seed, chunking and the code. The threads are not in it (same rows).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber (a :class:`CachedMedium` is unwrapped first).
+    wavelengths_nm : array_like
+        Wavelengths of the table (nm).
+    w_t : array_like
+        The table's ``w_t`` nodes.
+    bins : tuple of int
+        Local exit bins ``(n_mu, n_phi)``.
+    photons_per_row : int
+        Photons launched per row.
+    seed : int
+        Random seed of the table.
+    max_group : int
+        Largest wavelength group of one walk.
+
+    Returns
+    -------
+    str or None
+        The key; None when the cache is off or the medium has no canonical form.
+    """
     if not tablecache.enabled():
         return None
     inputs = {"fiber": plain_fiber(fiber), "wavelengths_nm": np.asarray(wavelengths_nm, float),

@@ -116,6 +116,7 @@ def volume_brdf(
     Parameters
     ----------
     fiber : Fiber
+        The fiber (radius, medium, dye, refractive index).
     w_in : numpy.ndarray
         ``[P, 3]`` unit vectors towards the light in the fiber frame (anywhere but along the axis).
     w_out : numpy.ndarray, optional

@@ -82,8 +82,11 @@ def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = No
 
 
 def _check_clear_particles(fiber: Fiber, wavelengths_nm: np.ndarray, mu_a: np.ndarray) -> None:
-    """A scatterer profile places the particles' scattering only: the walk absorbs ``mu_a`` everywhere, so the
-    particles themselves must not absorb (their absorption would sit where they are). ParameterError otherwise."""
+    """Refuse absorbing particles under a scatterer profile (ParameterError).
+
+    A scatterer profile places the particles' scattering only: the walk absorbs ``mu_a`` everywhere, so the
+    particles themselves must not absorb (their absorption would sit where they are).
+    """
     host = np.array([host_absorption(fiber.medium, float(wl)) for wl in wavelengths_nm])
     particles = mu_a - host
     if np.any(particles > 1e-9 * np.maximum(mu_a, 1e-300)):
@@ -93,9 +96,23 @@ def _check_clear_particles(fiber: Fiber, wavelengths_nm: np.ndarray, mu_a: np.nd
 
 
 def host_absorption(medium: Any, wavelength_nm: float) -> float:
-    """The host's own absorption (1/um) within the medium's ``mu_a``: the dye a profile places
-    (:attr:`simulate.fiber.Fiber.dye_profile`). A Mie medium's ``mu_a_host_per_um``; a Henyey-Greenstein
-    medium's whole ``mu_a`` (it has no other absorber)."""
+    """The host's own absorption (1/um) within the medium's ``mu_a``.
+
+    It is the dye a profile places (:attr:`simulate.fiber.Fiber.dye_profile`): a Mie medium's
+    ``mu_a_host_per_um``; a Henyey-Greenstein medium's whole ``mu_a`` (it has no other absorber).
+
+    Parameters
+    ----------
+    medium : MieMedium or HGMedium
+        The fiber's medium (a cached medium is unwrapped).
+    wavelength_nm : float
+        Vacuum wavelength (nm).
+
+    Returns
+    -------
+    float
+        The host's absorption coefficient (1/um).
+    """
     inner = getattr(medium, "medium", None)     # a cached medium (simulate.fiber.farfield.CachedMedium)
     if inner is not None and not isinstance(medium, MieMedium):
         return host_absorption(inner, wavelength_nm)
@@ -107,11 +124,27 @@ def host_absorption(medium: Any, wavelength_nm: float) -> float:
 
 def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU_S,
                       max_size: int | None = None) -> list[np.ndarray]:
-    """Consecutive wavelengths whose scattering is close enough to share one walk: ``mu_s`` within
-    ``max_log_mu_s`` (in ``log``; equal values always) and ``g`` within ``GROUP_G`` of the group's
-    middle one. The default is the re-weighted walks'; a held-scattering table passes its own
-    (:func:`simulate.raytrace.yarn.held_groups`). ``max_size``: a group of more wavelengths is split
-    into ``ceil(size / max_size)`` consecutive groups of near-equal size."""
+    """Consecutive wavelengths whose scattering is close enough to share one walk.
+
+    A group's ``mu_s`` lie within ``max_log_mu_s`` (in ``log``; equal values always) and its ``g``
+    within ``GROUP_G`` of the group's middle one.
+
+    Parameters
+    ----------
+    optics : SpectralOptics
+        The medium's optics per wavelength.
+    max_log_mu_s : float
+        Largest ``log`` distance of ``mu_s`` within a group. The default is the re-weighted walks'; a
+        held-scattering table passes its own (:func:`simulate.raytrace.yarn.held_groups`).
+    max_size : int, optional
+        A group of more wavelengths is split into ``ceil(size / max_size)`` consecutive groups of
+        near-equal size.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        The wavelength indices of each group, in order.
+    """
     n = optics.mu_s.size
     groups: list[list[int]] = []
     current: list[int] = []
@@ -175,7 +208,8 @@ def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: b
     """Walk medium, walk phase and spectral targets of one wavelength group (its middle wavelength walks).
 
     ``scored`` (indices, optional): the wavelengths the walk scores, if not the group's own (a blended
-    walk also scores its neighbours' transition zones: :func:`blended_groups`)."""
+    walk also scores its neighbours' transition zones: :func:`blended_groups`).
+    """
     ref = int(group[len(group) // 2])
     group = np.asarray(group if scored is None else scored)
     walk_phase = optics.phases[ref]
@@ -251,8 +285,9 @@ def phase_chi2(walk: PhaseArrays, target: PhaseArrays, cells: int = 512) -> floa
 
 def reweight_exponent(walk: SpectralOptics, target: SpectralOptics, groups: list[np.ndarray],
                       scatterings: np.ndarray) -> float:
-    r"""The largest ``ln E[w^2]`` of the likelihood ratio ``w`` of a walk in ``walk``'s optics scored
-    for ``target``'s, over the wavelength groups.
+    r"""The largest ``ln E[w^2]`` over the wavelength groups of the likelihood ratio ``w`` of a re-weighted walk.
+
+    The walk runs in ``walk``'s optics and is scored for ``target``'s.
 
     Derivation. A path of ``n`` scatterings and length ``L`` (white: absorption is a separate
     ``exp(-mu_a L)`` factor) walked with ``mu_s0, p0`` and scored for ``mu_s = r mu_s0, p`` has
@@ -272,7 +307,21 @@ def reweight_exponent(walk: SpectralOptics, target: SpectralOptics, groups: list
     Methods*, ch. 5 (importance sampling); Sassaroli et al. (2012), perturbation Monte Carlo,
     JOSA A 29, 2110 (the ``r^n exp(-(r-1) mu_s L)`` weight).
 
-    ``scatterings[gi]``: the mean scatterings per photon of group ``gi``'s walk (worst direction).
+    Parameters
+    ----------
+    walk : SpectralOptics
+        The optics the photons are walked in.
+    target : SpectralOptics
+        The optics they are scored for.
+    groups : list of numpy.ndarray
+        The wavelength indices of each walk (its reference wavelength the middle one).
+    scatterings : numpy.ndarray
+        ``scatterings[gi]``: the mean scatterings per photon of group ``gi``'s walk (worst direction).
+
+    Returns
+    -------
+    float
+        ``max ln E[w^2]``, compared with :data:`REWEIGHT_LIMIT`.
     """
     worst = 0.0
     for gi, group in enumerate(groups):

@@ -1,5 +1,7 @@
-"""A content-addressed disk cache of Monte Carlo tables (the woven yarn table, the surface albedo, the
-structured summation's walks, the exit tables) and of the felt Monte Carlo's built felts.
+"""A content-addressed disk cache of Monte Carlo tables and of the felt Monte Carlo's built felts.
+
+The tables are the woven yarn table, the surface albedo, the structured summation's walks and the
+exit tables.
 
 A table is stored under the SHA-256 of everything it depends on (:func:`content_key`): the
 inputs as canonical bytes (:func:`content_hash` walks dataclasses, arrays, numbers, strings),
@@ -65,8 +67,9 @@ import threading
 import time
 import zipfile
 import zlib
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -122,6 +125,12 @@ def enabled() -> bool:
 
 def _feed(h: Any, obj: Any) -> None:
     """Feed a canonical, type-tagged byte form of ``obj`` into the hash ``h``."""
+    if not (_feed_scalar(h, obj) or _feed_composite(h, obj)):
+        raise TypeError(f"content_hash: no canonical form for {type(obj).__qualname__}")
+
+
+def _feed_scalar(h: Any, obj: Any) -> bool:
+    """Feed ``obj`` into ``h`` when it is None, a bool, a number, a string or bytes; False for anything else."""
     if obj is None or isinstance(obj, (bool, np.bool_)):
         h.update(b"N" if obj is None else (b"T" if obj else b"F"))
     elif isinstance(obj, (int, np.integer)):
@@ -135,7 +144,14 @@ def _feed(h: Any, obj: Any) -> None:
         h.update(b"s" + str(len(b)).encode() + b":" + b)
     elif isinstance(obj, bytes):
         h.update(b"b" + str(len(obj)).encode() + b":" + obj)
-    elif isinstance(obj, np.ndarray):
+    else:
+        return False
+    return True
+
+
+def _feed_composite(h: Any, obj: Any) -> bool:
+    """Feed ``obj`` into ``h`` when it is an array, an enum, a dataclass, a dict, a list or a tuple; else False."""
+    if isinstance(obj, np.ndarray):
         if obj.dtype.hasobject:
             raise TypeError("content_hash: object arrays have no canonical bytes")
         a = np.ascontiguousarray(obj)
@@ -162,7 +178,8 @@ def _feed(h: Any, obj: Any) -> None:
             _feed(h, x)
         h.update(b"]")
     else:
-        raise TypeError(f"content_hash: no canonical form for {type(obj).__qualname__}")
+        return False
+    return True
 
 
 def content_hash(obj: Any) -> str:
@@ -330,14 +347,18 @@ _USED: set[str] = set()
 def stored(kind: str) -> int:
     """How many entries of ``kind`` (the first word of :func:`content_key`) this process has written.
 
-    What an interrupted command can honestly say it left behind (``simulate fit``'s Ctrl-C message)."""
+    What an interrupted command can honestly say it left behind (``simulate fit``'s Ctrl-C message).
+    """
     with _STORED_LOCK:
         return _STORED.get(kind, 0)
 
 
 class _Payload:
-    """The file ``f`` from ``offset`` on, as :func:`np.savez` sees it: the archive it writes there is byte for
-    byte the one it would write alone (its offsets count from the payload's start)."""
+    """The file ``f`` from ``offset`` on, as :func:`np.savez` sees it.
+
+    The archive it writes there is byte for byte the one it would write alone (its offsets count from
+    the payload's start).
+    """
 
     def __init__(self, f: Any, offset: int) -> None:
         self._f, self._offset = f, offset
@@ -368,7 +389,8 @@ def _write_entry(f: Any, arrays: dict[str, Any]) -> None:
     The archive goes straight into the file (numpy writes each array in blocks of 16 MiB) and is then read
     back in blocks to hash it: no copy of the payload is held in memory (the felt's exit tables are 285 MB
     each, and an in-memory archive plus its concatenation with the header held two copies beside the
-    table: the Monte Carlo fit's peak memory)."""
+    table: the Monte Carlo fit's peak memory).
+    """
     f.write(_MAGIC + bytes(_DIGEST))
     start = f.tell()
     np.savez(_Payload(f, start), **{k: np.asarray(v) for k, v in arrays.items()})  # type: ignore[arg-type]

@@ -81,6 +81,7 @@ class TableGrid:
 
     @property
     def shape(self) -> tuple[int, int, int, int]:
+        """The table's axes: ``(theta_in, phi_in, theta_out, phi_out)`` node counts."""
         return (self.theta_in_deg.size, self.phi_in_deg.size, self.theta_out_deg.size,
                 self.phi_out_deg.size)
 
@@ -91,6 +92,7 @@ class TableGrid:
         return directions_deg(ti.ravel(), pi.ravel()), directions_deg(to.ravel(), po.ravel())
 
     def as_dict(self) -> dict:
+        """The grid's nodes and steps as JSON-ready lists, with what each axis spans (the table's sidecar)."""
         return {"theta_in_deg": self.theta_in_deg.tolist(), "phi_in_deg": self.phi_in_deg.tolist(),
                 "theta_out_deg": self.theta_out_deg.tolist(), "phi_out_deg": self.phi_out_deg.tolist(),
                 "step_deg": self.step_deg, "phi_step_deg": self.phi_step_deg,
@@ -168,8 +170,21 @@ def read_fiber_table(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
 
 
 def is_fiber_table_dir(out: Path) -> bool:
-    """True when the folder ``out`` holds a fiber table (its JSON sidecar says so): a previous
-    ``simulate fiber`` output, which the command replaces with ``--force`` (:func:`gonio.data.outputs.prepare_folder`)."""
+    """True when the folder ``out`` holds a fiber table (its JSON sidecar says so).
+
+    Such a folder is a previous ``simulate fiber`` output, which the command replaces with ``--force``
+    (:func:`gonio.data.outputs.prepare_folder`).
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The folder asked for as output.
+
+    Returns
+    -------
+    bool
+        Whether its sidecar names a fiber table.
+    """
     try:
         meta = json.loads((Path(out) / JSON_NAME).read_text(encoding="utf-8"))
     except (OSError, ValueError):

@@ -43,12 +43,12 @@ from typing import Any
 import numpy as np
 
 from simulate.budget import medium_coefficients
+from simulate.fabric.structure import CLOSE_PACKING
 from simulate.media.medium import HGMedium
 from simulate.montecarlo.accuracy import check_target, relative_error
-from simulate.fabric.structure import CLOSE_PACKING
 from simulate.raytrace.integrator import CHUNK, MCResult, prepare, trace, trace_rotations, yarn_radius
-from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.raytrace.materials import FiberSurface
+from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.raytrace.yarn import YarnTable, blend_halves, table_halves
 
 __all__ = ["TABLE_NOISE", "TABLE_SHARE", "PILE_TABLE", "CLEAR_FIBER_SCATTERINGS", "clear_fiber_note", "table_photons",
@@ -139,21 +139,54 @@ def fiber_scatterings(fiber: Any, wavelengths_nm: Any) -> float:
 
 
 def default_exit_bins(fiber: Any, wavelengths_nm: Any, felt: bool) -> tuple[int, int]:
-    """The exit bins of a config that gives none: ``(10, 20)`` for a felt whose fiber is nearly clear
-    (fewer than :data:`CLEAR_FIBER_SCATTERINGS` scattering events across it: its exits keep to cones
-    that coarser bins smear), ``(5, 10)`` otherwise -- turbid fibers, and woven yarns, whose table is
-    the yarn pile's (:mod:`simulate.raytrace.pile`), converge there at about half the trace time."""
+    """The exit bins ``(n_mu, n_phi)`` of a config that gives none.
+
+    ``(10, 20)`` for a felt whose fiber is nearly clear (fewer than :data:`CLEAR_FIBER_SCATTERINGS`
+    scattering events across it: its exits keep to cones that coarser bins smear), ``(5, 10)``
+    otherwise -- turbid fibers, and woven yarns, whose table is the yarn pile's
+    (:mod:`simulate.raytrace.pile`), converge there at about half the trace time.
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fabric's fiber.
+    wavelengths_nm : array_like
+        The run's wavelengths (nm); the middle one decides.
+    felt : bool
+        Whether the fabric is a felt (its tubes are single fibers).
+
+    Returns
+    -------
+    tuple of int
+        ``(n_mu, n_phi)``.
+    """
     if felt and fiber_scatterings(fiber, wavelengths_nm) < CLEAR_FIBER_SCATTERINGS:
         return (10, 20)
     return (5, 10)
 
 
 def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]) -> str | None:
-    """The warning for a run whose fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s``
-    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are 10 or fewer (36 deg
-    or more), else None. Measured: the green felt moves by more than its misfit to the measurement
-    between 10 and 20 azimuth bins, red cotton (2 R mu_s = 19) within its Monte Carlo noise
-    (docs/physics.md 6, "Exit directions")."""
+    """The warning for a nearly clear fiber traced with coarse azimuth bins, else None.
+
+    It is given when the fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s`` below
+    :data:`CLEAR_FIBER_SCATTERINGS`) and the azimuth bins are 10 or fewer (36 deg or more): such a
+    fiber's result moves between 10 and 20 azimuth bins by more than a fit's misfit, a turbid one's
+    within its Monte Carlo noise (docs/physics.md 6, "Exit directions").
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fabric's fiber.
+    wavelengths_nm : array_like
+        The run's wavelengths (nm).
+    exit_bins : tuple of int
+        The yarn table's exit bins ``(n_mu, n_phi)``.
+
+    Returns
+    -------
+    str or None
+        The warning's text.
+    """
     if int(exit_bins[1]) > 10:
         return None
     wl = np.asarray(wavelengths_nm, float).ravel()
@@ -222,8 +255,18 @@ def combine_realisations(betas: Any, u_rays: Any) -> dict[str, np.ndarray]:
 
 
 def twist_of(structure: Any) -> tuple[float, float]:
-    """The signed surface twist angles (warp, weft) in degrees, ``+`` Z and ``-`` S, of a config's
-    ``[structure]`` (:class:`simulate.fabric.structure.StructureSpec`); ``(0, 0)`` without one or for a felt."""
+    """The signed surface twist angles (warp, weft) in degrees, ``+`` Z and ``-`` S, of a config's structure.
+
+    Parameters
+    ----------
+    structure : StructureSpec or None
+        The config's ``[structure]`` (:class:`simulate.fabric.structure.StructureSpec`).
+
+    Returns
+    -------
+    tuple of float
+        ``(warp, weft)`` twist in degrees; ``(0, 0)`` without a structure or for a felt.
+    """
     if structure is None or structure.kind != "woven":
         return (0.0, 0.0)
     return (float(structure.warp_twist_deg) * (1.0 if structure.warp_twist == "Z" else -1.0),
@@ -239,7 +282,28 @@ def yarn_model(mesh: Any, structure: Any = None, surface: str | None = None, vol
     ``"pile"`` (:mod:`simulate.raytrace.pile`) at its packing fraction -- the Monte Carlo of the fabric
     the structured summation sums. Without a ``[structure]`` (as the summation's carpet of top
     cells) and for a felt's tubes, each of which IS one fiber: ``"tube"`` and ``"fiber"`` (the
-    fiber's own table), the tracer as it was. ``surface`` / ``volume`` override the choice.
+    fiber's own table).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The traced mesh (a felt's open fibers are single fibers).
+    structure : StructureSpec, optional
+        The config's ``[structure]``.
+    surface : str, optional
+        Overrides the surface's choice.
+    volume : {"fiber", "pile"}, optional
+        Overrides the volume's choice.
+
+    Returns
+    -------
+    tuple
+        ``(surface, volume, spacing_ratio, packing_fraction)``.
+
+    Raises
+    ------
+    ValueError
+        When ``volume`` is neither ``"fiber"`` nor ``"pile"``.
     """
     woven = structure is not None and structure.kind == "woven" and not getattr(mesh, "open_fibers", False)
     surf = surface or ("fibers" if woven else "tube")
@@ -255,13 +319,16 @@ def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.nda
                       beta: np.ndarray, u_beta: np.ndarray, background: Any, *, r_target: float, max_rays: int,
                       max_seconds: float, seed: int, threads: int, progress: bool, twist: tuple[float, float],
                       chunk: int, setups: dict, max_events: int, record: dict | None = None) -> list[dict]:
-    """:func:`fabric_beta`'s traces: each incidence on each mesh (realisation ``j`` with table half ``j mod 2``),
-    ``beta`` and ``u_beta`` filled in (:func:`combine_realisations`); returns the incidences' run information.
+    """:func:`fabric_beta`'s traces: each incidence on each mesh, ``beta`` and ``u_beta`` filled in.
+
+    Realisation ``j`` is traced with table half ``j mod 2``; the realisations are combined by
+    :func:`combine_realisations`. Returns the incidences' run information.
 
     The realisations are traced one after the other, every incidence on each, and each one's scene is let go
     before the next (``background``: an executor that builds the next one's meanwhile, or None).
     ``record``: each incidence's traces' events go to ``record["incidences"]`` (:mod:`simulate.raytrace.reweight`),
-    one log per realisation."""
+    one log per realisation.
+    """
     n_rot = felt_rotations(meshes[0])
     n_real = len(meshes)
     per_half = n_real // 2
