@@ -58,10 +58,10 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from simulate.optics.fresnel import fresnel_unpolarized
 from simulate.montecarlo.rng import next_u64, to_uniform, to_uniform_open
 from simulate.montecarlo.scatter import phase_pdf
 from simulate.montecarlo.vecmath import vexp
+from simulate.optics.fresnel import fresnel_unpolarized
 
 __all__ = [
     "NONE",
@@ -192,8 +192,11 @@ def _uniform_bin(value: float, lo: float, hi: float, count: int) -> int:
 
 
 class Scratch(NamedTuple):
-    """A history's scratch tally, one per batch: its scores ``hist`` (``n_spec`` spectral bins per geometric
-    bin) and the geometric bins it touched (``touched[:n_touched[0]]``, flagged in ``marks``)."""
+    """A history's scratch tally, one per batch.
+
+    A history's scratch tally, one per batch: its scores ``hist`` (``n_spec`` spectral bins per geometric
+    bin) and the geometric bins it touched (``touched[:n_touched[0]]``, flagged in ``marks``).
+    """
 
     hist: np.ndarray
     touched: np.ndarray
@@ -203,9 +206,12 @@ class Scratch(NamedTuple):
 
 
 class Spectral(NamedTuple):
-    """A photon's spectral weights ``A_l`` (``spec_w``) and what a score of them reads: the targets'
+    """A photon's spectral weights and what a score of them reads.
+
+    A photon's spectral weights ``A_l`` (``spec_w``) and what a score of them reads: the targets'
     ``mu_t`` (``spec_mu_t``), whether their phase functions differ from the walk's (``phase_ratio``) and
-    the phase ratios ``p^l / p^w`` on the grid of :func:`ratio_row` (``ratio``)."""
+    the phase ratios ``p^l / p^w`` on the grid of :func:`ratio_row` (``ratio``).
+    """
 
     spec_w: np.ndarray
     spec_mu_t: np.ndarray
@@ -214,10 +220,13 @@ class Spectral(NamedTuple):
 
 
 class VertexInputs(NamedTuple):
-    """What :func:`score_vertex` reads of a run, packed once per batch: the output ranges, their constants
+    """What :func:`score_vertex` reads of a run, packed once per batch.
+
+    What :func:`score_vertex` reads of a run, packed once per batch: the output ranges, their constants
     (:func:`nee_constants`; a batch's private copy, as ranged outputs overwrite their row) and a work row,
     the first vertex bin (``base``), the cylinder's ``radius`` and index ``n_in``, and the walk's phase
-    function (``kind, g, table, pdf, lookup``, as :func:`.scatter.phase_pdf` reads it)."""
+    function (``kind, g, table, pdf, lookup``, as :func:`.scatter.phase_pdf` reads it).
+    """
 
     outputs: np.ndarray
     consts: np.ndarray
@@ -428,9 +437,12 @@ def reflection_order(f_out: float, s0: np.uint64, s1: np.uint64, s2: np.uint64,
 
 @numba.njit(cache=True, inline="always")
 def turned(ny: float, nz: float, c_step: float, s_step: float, k: int, f_out: float) -> tuple[float, float]:
-    """The exit normal ``n = (-sin psi, cos psi)`` after ``k`` reflections, each turning it by ``step``
+    """The exit normal after ``k`` reflections around the fiber's section.
+
+    The exit normal ``n = (-sin psi, cos psi)`` after ``k`` reflections, each turning it by ``step``
     (``cos step, sin step``): one rotation per reflection up to ``F =`` :data:`_LOOP_F` (the orders of
-    :func:`reflection_order`'s loop), one rotation by ``k step`` above it."""
+    :func:`reflection_order`'s loop), one rotation by ``k step`` above it.
+    """
     if f_out <= _LOOP_F:
         for _ in range(k):
             t_y = ny * c_step - nz * s_step
@@ -540,9 +552,12 @@ def score_vertex(vertex: VertexInputs, scratch: Scratch, spectral: Spectral, p: 
 
 @numba.njit(cache=True, inline="always")
 def _output_direction(vertex, o, state):
-    """A ranged output's exit direction, drawn in its range with density ``prop. to cos theta_out``
+    """Draw a ranged output's exit direction and write its constants; a point output keeps its row.
+
+    A ranged output's exit direction, drawn in its range with density ``prop. to cos theta_out``
     (``mu^2`` uniform, ``phi`` uniform), its constants written to row ``o`` of ``consts``; a point output
-    keeps its row. Returns the random state (no draw for a point output)."""
+    keeps its row. Returns the random state (no draw for a point output).
+    """
     outputs, consts, work = vertex.outputs, vertex.consts, vertex.work
     s0, s1, s2, s3 = state
     mu_lo = outputs[o, 3]
