@@ -75,7 +75,25 @@ def _x(nu: Any) -> np.ndarray:
 
 
 def absorption_nodes(nu_max: float, count: int = DEFAULT_NODES) -> np.ndarray:
-    """``count`` host absorptions (1/um) from 0 to ``nu_max``, uniform in ``log(nu + NU_0)``."""
+    """``count`` host absorptions (1/um) from 0 to ``nu_max``, uniform in ``log(nu + NU_0)``.
+
+    Parameters
+    ----------
+    nu_max : float
+        The largest host absorption (1/um), ``> 0``.
+    count : int
+        Number of nodes, at least 3.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[count]`` nodes, the first one 0.
+
+    Raises
+    ------
+    ParameterError
+        For a ``nu_max`` that is not a finite number > 0 or fewer than 3 nodes.
+    """
     if not (math.isfinite(nu_max) and nu_max > 0):
         raise ParameterError(f"absorption table: nu_max must be a finite number > 0, got {nu_max!r}")
     if count < 3:

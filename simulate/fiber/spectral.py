@@ -52,11 +52,23 @@ class SpectralOptics:
 def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = None) -> SpectralOptics:
     """The medium's optical properties at each wavelength.
 
-    ``phase_at`` (indices into ``wavelengths_nm``, optional): only these wavelengths get their own
-    phase table (Mie: the expensive part); the others get the Henyey-Greenstein table of their ``g``
-    (``optical_properties(..., with_phase=False)``), for callers that walk and score with the phase
-    functions of a few wavelengths only (the held-scattering tables of :mod:`simulate.raytrace.yarn`).
-    ``mu_s``, ``mu_a`` and ``g`` are the same either way. ``None``: every wavelength's own table.
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber whose medium (and placed dye) is read.
+    wavelengths_nm : numpy.ndarray
+        Vacuum wavelengths (nm).
+    phase_at : array_like of int, optional
+        Only these wavelengths (indices into ``wavelengths_nm``) get their own phase table (Mie: the
+        expensive part); the others get the Henyey-Greenstein table of their ``g``
+        (``optical_properties(..., with_phase=False)``), for callers that walk and score with the phase
+        functions of a few wavelengths only (the held-scattering tables of :mod:`simulate.raytrace.yarn`).
+        ``mu_s``, ``mu_a`` and ``g`` are the same either way. None: every wavelength's own table.
+
+    Returns
+    -------
+    SpectralOptics
+        ``mu_s``, ``mu_a``, ``g``, the phase tables and a placed dye's ``mu_a_dye`` per wavelength.
     """
     mu_s, mu_a, g, phases = [], [], [], []
     cache: dict[Any, PhaseArrays] = {}
@@ -207,8 +219,28 @@ def blended_groups(groups: list[np.ndarray], blend: int = BLEND) -> list[tuple[n
 def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: bool, scored: Any = None):
     """Walk medium, walk phase and spectral targets of one wavelength group (its middle wavelength walks).
 
-    ``scored`` (indices, optional): the wavelengths the walk scores, if not the group's own (a blended
-    walk also scores its neighbours' transition zones: :func:`blended_groups`).
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber (index, roughness, dye and scatterer placement).
+    optics : SpectralOptics
+        Its optics per wavelength (:func:`spectral_optics`).
+    group : numpy.ndarray
+        The group's wavelength indices.
+    white : bool
+        Walk without absorption (scored by re-weighting) rather than with the middle wavelength's.
+    scored : array_like of int, optional
+        The wavelengths the walk scores, if not the group's own (a blended walk also scores its
+        neighbours' transition zones: :func:`blended_groups`).
+
+    Returns
+    -------
+    medium : numpy.ndarray
+        The kernel's medium row (:mod:`simulate.montecarlo.kernel`).
+    walk_phase : PhaseArrays
+        The phase function walked.
+    targets : SpectralTargets
+        The scored wavelengths' optics.
     """
     ref = int(group[len(group) // 2])
     group = np.asarray(group if scored is None else scored)
@@ -244,6 +276,22 @@ def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: b
 def run_seed(seed: int, direction: int, group: int) -> int:
     """The seed of the run of incident direction ``direction`` and wavelength group ``group``.
 
+    Parameters
+    ----------
+    seed : int
+        The table's seed.
+    direction : int
+        Index of the incident direction.
+    group : int
+        Index of the wavelength group.
+
+    Returns
+    -------
+    int
+        A seed distinct for every direction and group of a table.
+
+    Examples
+    --------
     >>> run_seed(3, 2, 1)
     3002028
     """
@@ -251,7 +299,18 @@ def run_seed(seed: int, direction: int, group: int) -> int:
 
 
 def direction_keys(w_in: np.ndarray) -> dict[tuple[float, ...], list[int]]:
-    """Rows of ``w_in`` grouped by direction (rounded to 1e-12), in first-seen order: one run per key."""
+    """Rows of ``w_in`` grouped by direction (rounded to 1e-12), in first-seen order: one run per key.
+
+    Parameters
+    ----------
+    w_in : numpy.ndarray
+        ``[P, 3]`` incident directions.
+
+    Returns
+    -------
+    dict of tuple to list of int
+        The rows of each distinct direction.
+    """
     keys: dict[tuple[float, ...], list[int]] = {}
     for p in range(w_in.shape[0]):
         keys.setdefault(tuple(np.round(w_in[p], 12)), []).append(p)
@@ -263,7 +322,21 @@ def phase_chi2(walk: PhaseArrays, target: PhaseArrays, cells: int = 512) -> floa
 
     Binned on ``cells`` cells of equal probability under the walk's function (a lower bound that
     converges with ``cells``): ``chi2 = K sum_i q_i^2 - 1`` with ``q_i`` the target's probability
-    of cell ``i``. Both as kernel arrays (an inverse-CDF table, or Henyey-Greenstein).
+    of cell ``i``.
+
+    Parameters
+    ----------
+    walk : PhaseArrays
+        The walk's phase function as kernel arrays (an inverse-CDF table, or Henyey-Greenstein).
+    target : PhaseArrays
+        The target's, the same way.
+    cells : int
+        Cells of equal probability under the walk's function.
+
+    Returns
+    -------
+    float
+        The divergence, ``>= 0``.
     """
     from simulate.optics.phase import hg_inverse_cdf
 

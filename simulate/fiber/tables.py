@@ -106,8 +106,36 @@ def fiber_table(fiber: Fiber, wavelengths_nm: Any, grid: TableGrid, *, method: s
                 config_provenance: dict | None = None) -> tuple[dict[str, np.ndarray], dict]:
     """Compute the table arrays and the sidecar's metadata (not written).
 
-    ``config_provenance`` (:meth:`simulate.config.SimulationConfig.provenance` of the config the
-    fiber came from) is recorded in the sidecar.
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    wavelengths_nm : array_like
+        Vacuum wavelengths (nm).
+    grid : TableGrid
+        The incident and exit directions of the table.
+    method : {"nee", "beam", "bssrdf"}
+        The volume route (:func:`simulate.fiber.volume_brdf`).
+    target_rel_err : float, optional
+        Target relative standard error of the volume term (default :data:`DEFAULT_TABLE_REL_ERR`).
+    seed : int
+        Random seed.
+    threads : int, optional
+        Threads (results do not depend on it).
+    max_photons : int, optional
+        Photon budget per incident direction and wavelength group.
+    progress : bool
+        Show a progress bar.
+    config_provenance : dict, optional
+        :meth:`simulate.config.SimulationConfig.provenance` of the config the fiber came from, recorded
+        in the sidecar.
+
+    Returns
+    -------
+    arrays : dict of str to numpy.ndarray
+        The grid's axes, ``R`` (volume + surface), ``u_R`` and the two terms apart.
+    sidecar : dict
+        Format, grid, units, frame, symmetry and provenance.
     """
     target = DEFAULT_TABLE_REL_ERR if target_rel_err is None else float(target_rel_err)
     seed = int(seed)
@@ -148,7 +176,22 @@ def fiber_table(fiber: Fiber, wavelengths_nm: Any, grid: TableGrid, *, method: s
 
 
 def write_fiber_table(out_dir: str | Path, arrays: dict[str, np.ndarray], sidecar: dict) -> Path:
-    """Write ``fiber-table.npz`` then ``fiber-table.json`` atomically into ``out_dir``."""
+    """Write ``fiber-table.npz`` then ``fiber-table.json`` atomically into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : str or pathlib.Path
+        The output folder (made when missing).
+    arrays : dict of str to numpy.ndarray
+        The table's arrays (:func:`fiber_table`).
+    sidecar : dict
+        Its metadata.
+
+    Returns
+    -------
+    pathlib.Path
+        The folder.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     buffer = io.BytesIO()
@@ -159,7 +202,25 @@ def write_fiber_table(out_dir: str | Path, arrays: dict[str, np.ndarray], sideca
 
 
 def read_fiber_table(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Read a table directory written by :func:`write_fiber_table`."""
+    """Read a table directory written by :func:`write_fiber_table`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The folder.
+
+    Returns
+    -------
+    arrays : dict of str to numpy.ndarray
+        The table's arrays.
+    sidecar : dict
+        Its metadata.
+
+    Raises
+    ------
+    ValueError
+        When the sidecar does not name this table format.
+    """
     root = Path(path)
     sidecar = json.loads((root / JSON_NAME).read_text())
     if sidecar.get("format") != FORMAT:
