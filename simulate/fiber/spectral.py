@@ -192,6 +192,20 @@ def blended_groups(groups: list[np.ndarray], blend: int = BLEND) -> list[tuple[n
     so the blend of unbiased estimates is unbiased; the difference between two walks (their Monte
     Carlo noise) is spread over ``2h + 1`` steps instead of one step at the boundary.
 
+    Parameters
+    ----------
+    groups : list of numpy.ndarray
+        Consecutive wavelength groups (:func:`wavelength_groups`).
+    blend : int
+        Largest half-width ``h`` of a transition zone (0: no blending).
+
+    Returns
+    -------
+    list of (numpy.ndarray, numpy.ndarray)
+        Per group, the wavelengths its walk scores and their weights.
+
+    Examples
+    --------
     >>> [(s.tolist(), w.round(2).tolist()) for s, w in blended_groups([np.arange(4), np.arange(4, 8)], 2)]
     [([0, 1, 2, 3, 4, 5], [1.0, 1.0, 0.8, 0.6, 0.4, 0.2]), ([2, 3, 4, 5, 6, 7], [0.2, 0.4, 0.6, 0.8, 1.0, 1.0])]
     """
