@@ -182,8 +182,18 @@ def _new_sums(G: int, D: int, L: int, bins: tuple[int, int]) -> _Sums:
 def yarn_radius(mesh: Any) -> float:
     """The yarn radius of a mesh (um): the first yarn's ``sqrt(a b)``, or the radius the mesh states.
 
-    ``sqrt(a b)`` of the first yarn's cross-section (semi-axes from its first ring of vertices;
-    a mesh may state it as ``yarn_radius_um``, as the felt's does).
+    The semi-axes ``a``, ``b`` come from the first yarn's first ring of vertices; a mesh may state the
+    radius as ``yarn_radius_um``, as the felt's does.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The traced mesh.
+
+    Returns
+    -------
+    float
+        The radius (um).
     """
     if getattr(mesh, "yarn_radius_um", None):
         return float(mesh.yarn_radius_um)
@@ -587,8 +597,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
            events: int = _MAX_BOUNCES, record: bool = False) -> _Sums:
     """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element in one wavefront.
 
-    Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element (one wavefront for all ``G``),
-    each for at most ``events`` scattering events (the rays still going after that count as killed).
+    One wavefront holds the rays of all ``G`` beams, each followed for at most ``events`` scattering events (the rays still going after that count as killed).
     ``record``: the sums' ``log`` holds the events a dye's re-weighting replays
     (:class:`simulate.raytrace.record.EventLog`; a fiber material with deferred contributions only).
 
@@ -729,7 +738,20 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
 
 
 def mean_se(s: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The mean of ``n`` per-ray contributions from their sum ``s`` and sum of squares ``s2``, and its standard error."""
+    """The mean of ``n`` per-ray contributions from their sum ``s`` and sum of squares ``s2``, and its standard error.
+
+    Parameters
+    ----------
+    s, s2 : numpy.ndarray
+        The sums of the contributions and of their squares.
+    n : int
+        The rays.
+
+    Returns
+    -------
+    mean, u : numpy.ndarray
+        The mean per ray and its standard error.
+    """
     mean = s / n
     var = np.maximum(s2 / n - mean ** 2, 0.0) / max(n - 1, 1)
     return mean, np.sqrt(var)
@@ -816,7 +838,25 @@ def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit
     Returns one :class:`MCResult` per rotation (``rays``: its own; ``seconds``: an equal share;
     ``info``: the whole trace's). The run stops when the MEAN over the rotations reaches
     ``target_rel_err`` (its standard error ``sqrt(sum u_j^2) / K``); ``max_rays`` is the budget
-    of all rotations together, ``max_seconds`` of the whole trace. Other parameters: :func:`trace`.
+    of all rotations together, ``max_seconds`` of the whole trace.
+
+    Parameters
+    ----------
+    mesh, material, w_in, detectors, n_wavelengths
+        As :func:`trace`'s.
+    angles : array_like
+        The rotations about the normal (radians).
+    target_rel_err : float
+        Target of the mean over the rotations.
+    max_rays, max_seconds : int, float
+        Budgets of all rotations together (0: none).
+    seed, threads, progress, bins, chunk, twist_deg, normals, setups, max_events, record
+        As :func:`trace`'s.
+
+    Returns
+    -------
+    list of MCResult
+        One per rotation.
     """
     w = np.asarray(w_in, float).reshape(3)
     det = np.atleast_2d(np.asarray(detectors, float))
@@ -854,9 +894,14 @@ def prepare(mesh: Any, material: Any, setups: dict, *, n_wavelengths: int | None
             normals: str = "vertex") -> None:
     """Build the scene and material arrays of a trace ahead of it into ``setups``.
 
-    Build into ``setups`` the scene and material arrays that :func:`trace` or :func:`trace_rotations`
-    with the same arguments and ``setups`` would build at its start (e.g. on another thread while an
-    earlier mesh is traced: :func:`simulate.raytrace.estimate.fabric_beta`); the traces then start at once.
+    They are the arrays :func:`trace` or :func:`trace_rotations` with the same arguments and ``setups``
+    would build at its start (e.g. on another thread while an earlier mesh is traced:
+    :func:`simulate.raytrace.estimate.fabric_beta`); the traces then start at once.
+
+    Parameters
+    ----------
+    mesh, material, setups, n_wavelengths, bins, twist_deg, normals
+        As :func:`trace`'s.
     """
     _setup_for(mesh, material, n_wavelengths, bins, twist_deg, normals, setups)
 
@@ -908,8 +953,7 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
            record: list | None = None) -> list[MCResult]:
     """:func:`trace` of ``G`` groups (rotations) at once, stopped on their mean error.
 
-    :func:`trace` of ``G`` groups (``w_in [G, 3]``, ``det [G, D, 3]``); ``max_rays`` per group;
-    stops on the mean over the groups (:func:`trace_rotations`). ``fit_last_round``: after the first
+    ``w_in [G, 3]``, ``det [G, D, 3]``; ``max_rays`` per group (:func:`trace_rotations`). ``fit_last_round``: after the first
     round, each round's chunks hold only the rays the target still needs (predicted from the error
     so far, between ``chunk / 8`` and ``chunk`` a group), so a run overshoots its target by less
     than a round of full chunks; the sizes follow from the sums alone (not from the threads). ``record``: a

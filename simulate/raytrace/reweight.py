@@ -131,7 +131,18 @@ def replay(log: TraceLog, t_rows: np.ndarray) -> list[Any]:
 
 
 def record_bytes(record: dict) -> int:
-    """The memory of a :func:`simulate.raytrace.fabric_beta` record's events (bytes)."""
+    """The memory of a :func:`simulate.raytrace.fabric_beta` record's events (bytes).
+
+    Parameters
+    ----------
+    record : dict
+        The record.
+
+    Returns
+    -------
+    int
+        Bytes held by its traces' arrays.
+    """
     return int(sum(t.nbytes for inc in record.get("incidences", []) for t in inc["realisations"]))
 
 
