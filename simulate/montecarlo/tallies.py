@@ -247,6 +247,17 @@ def touch(touched: np.ndarray, n_touched: np.ndarray, marks: np.ndarray, block: 
 
     The scratch tally is kept per geometric bin, not per spectral bin: one test per score, and
     the wavelength loops that follow are plain array arithmetic (vectorised by LLVM).
+
+    Parameters
+    ----------
+    touched : numpy.ndarray
+        The geometric bins touched so far (first ``n_touched[0]``).
+    n_touched : numpy.ndarray
+        ``[1]`` their count.
+    marks : numpy.ndarray
+        Per geometric bin, whether it is in ``touched``.
+    block : int
+        The geometric bin scored.
     """
     if not marks[block]:
         marks[block] = True
@@ -260,6 +271,13 @@ def flush_history(scratch: Scratch, bins: np.ndarray) -> None:
 
     Every spectral bin of a touched geometric bin is flushed; a bin that scored nothing adds
     ``0`` to both sums, which leaves them unchanged.
+
+    Parameters
+    ----------
+    scratch : Scratch
+        The history's scores, cleared as they are moved.
+    bins : numpy.ndarray
+        ``[n_bins, 2]`` the batch's sums and sums of squares.
     """
     hist, touched, n_touched, marks, n_spec = scratch
     for i in range(n_touched[0]):
@@ -378,6 +396,17 @@ def nee_constants(mu: float, phi: float, n_in: float, radius: float, out: np.nda
     exit point per chord, the 3-D chord length ``2 R cos alpha / rho`` and
     ``R cos alpha / (n^2 u_n)`` (the Jacobian's numerator with the interface factor).
     ``rho = 0`` marks a direction that cannot occur.
+
+    Parameters
+    ----------
+    mu, phi : float
+        The exit direction's cosine from the normal and azimuth.
+    n_in : float
+        The fiber's refractive index.
+    radius : float
+        The fiber's radius (um).
+    out : numpy.ndarray
+        The row written.
     """
     st = math.sqrt(max(1.0 - mu * mu, 0.0))
     u_t = st * math.cos(phi) / n_in
@@ -420,6 +449,18 @@ def reflection_order(f_out: float, s0: np.uint64, s1: np.uint64, s2: np.uint64,
     Up to ``F =`` :data:`_LOOP_F` one draw per reflection (a reflection while ``U < F``); above it, near grazing
     (``1 / (1 - F)`` reflections expected: 1000 at 89.99 deg), the same law by its inverse CDF in one draw:
     ``k = floor(ln U / ln F)`` with ``U`` in (0, 1], since ``P(k >= m) = P(U <= F^m) = F^m``.
+
+    Parameters
+    ----------
+    f_out : float
+        The internal Fresnel reflectance ``F``.
+    s0, s1, s2, s3 : numpy.uint64
+        The random state.
+
+    Returns
+    -------
+    tuple
+        ``(k, s0, s1, s2, s3)``: the order and the advanced state.
     """
     k = 0
     if f_out <= _LOOP_F:
@@ -439,9 +480,25 @@ def reflection_order(f_out: float, s0: np.uint64, s1: np.uint64, s2: np.uint64,
 def turned(ny: float, nz: float, c_step: float, s_step: float, k: int, f_out: float) -> tuple[float, float]:
     """The exit normal after ``k`` reflections around the fiber's section.
 
-    The exit normal ``n = (-sin psi, cos psi)`` after ``k`` reflections, each turning it by ``step``
-    (``cos step, sin step``): one rotation per reflection up to ``F =`` :data:`_LOOP_F` (the orders of
-    :func:`reflection_order`'s loop), one rotation by ``k step`` above it.
+    Each reflection turns the normal ``n = (-sin psi, cos psi)`` by ``step``: one rotation per
+    reflection up to ``F =`` :data:`_LOOP_F` (the orders of :func:`reflection_order`'s loop), one
+    rotation by ``k step`` above it.
+
+    Parameters
+    ----------
+    ny, nz : float
+        The normal before.
+    c_step, s_step : float
+        ``cos step`` and ``sin step``.
+    k : int
+        Reflections.
+    f_out : float
+        The internal Fresnel reflectance (which way of turning was drawn).
+
+    Returns
+    -------
+    tuple of float
+        The normal after.
     """
     if f_out <= _LOOP_F:
         for _ in range(k):
@@ -457,7 +514,20 @@ def turned(ny: float, nz: float, c_step: float, s_step: float, k: int, f_out: fl
 
 @numba.njit(cache=True, inline="always")
 def ratio_row(mu: float, n_grid: int) -> tuple[int, float]:
-    """Grid node and fraction of ``mu`` on the phase-ratio grid ``t = sqrt((1 - mu) / 2)`` uniform."""
+    """Grid node and fraction of ``mu`` on the phase-ratio grid ``t = sqrt((1 - mu) / 2)`` uniform.
+
+    Parameters
+    ----------
+    mu : float
+        Cosine of the scattering angle.
+    n_grid : int
+        Nodes of the grid.
+
+    Returns
+    -------
+    tuple
+        ``(j, frac)``: the node below and the fraction towards the next.
+    """
     t = math.sqrt(max(0.5 * (1.0 - mu), 0.0))
     x = t * (n_grid - 1)
     j = min(int(x), n_grid - 2)

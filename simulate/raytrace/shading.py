@@ -118,7 +118,22 @@ class ShadeOutputs(NamedTuple):
 
 
 def new_outputs(n: int, n_detectors: int, n_wavelengths: int) -> ShadeOutputs:
-    """Output arrays for ``n`` hit rays."""
+    """Output arrays for ``n`` hit rays.
+
+    Parameters
+    ----------
+    n : int
+        Hit rays.
+    n_detectors : int
+        Detector directions.
+    n_wavelengths : int
+        Spectral size.
+
+    Returns
+    -------
+    ShadeOutputs
+        Uninitialised arrays but for the flags (cleared).
+    """
     return ShadeOutputs(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n_wavelengths)), np.zeros((n, 2, 3)),
                         np.zeros((n, 2, n_detectors, n_wavelengths)), np.zeros((n, 2, n_detectors), dtype=np.bool_),
                         np.zeros(n), np.full(n, -1, dtype=np.int64), np.zeros((n, 2, n_detectors), dtype=np.int64),
@@ -444,6 +459,25 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     incident power towards detector ``d`` of event ``e`` (0: surface, 1: volume exit) from
     origin ``nee_o[i, e]``, to be multiplied by the visibility; it is written only where
     ``nee_need[i, e, d]`` is set (the rest of ``nee_c`` is left as it was).
+
+    Parameters
+    ----------
+    seed : int
+        The random state of the call.
+    prim : numpy.ndarray
+        ``[M]`` the hit triangle of each ray.
+    bu, bv : numpy.ndarray
+        ``[M]`` barycentric coordinates of the hit on it.
+    pos : numpy.ndarray
+        ``[M, 3]`` hit points.
+    dirs : numpy.ndarray
+        ``[M, 3]`` the rays' directions.
+    weight : numpy.ndarray
+        ``[M, L]`` the rays' spectral weights.
+    inp : ShadeInputs
+        The run's mesh, material and table arrays.
+    out : ShadeOutputs
+        Written row by row (:func:`new_outputs`).
     """
     _shade_rows(seed, 0, prim.shape[0], (prim, bu, bv, pos, dirs, weight), inp, inp.detectors, out,
                 np.ones(weight.shape[1]))
@@ -453,9 +487,32 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
 def shade_groups(seeds, cuts, prim, bu, bv, pos, dirs, weight, inp, detectors, out):
     """:func:`shade` of a wavefront of several groups (rotations), each towards its own detectors.
 
-    :func:`shade` of a wavefront whose rows ``cuts[g]:cuts[g + 1]`` belong to group ``g`` (a rotation),
-    scored towards ``detectors[g]`` from the random state ``seeds[g]``: the same as one :func:`shade` call per
-    non-empty group on its slices, in one call (compiled).
+    The rows ``cuts[g]:cuts[g + 1]`` belong to group ``g`` (a rotation) and are scored towards
+    ``detectors[g]`` from the random state ``seeds[g]``: the same as one :func:`shade` call per non-empty
+    group on its slices, in one call (compiled).
+
+    Parameters
+    ----------
+    seeds : numpy.ndarray
+        ``int64[G]`` each group's random state.
+    cuts : numpy.ndarray
+        ``[G + 1]`` the groups' row bounds.
+    prim : numpy.ndarray
+        ``[M]`` the hit triangle of each ray.
+    bu, bv : numpy.ndarray
+        ``[M]`` barycentric coordinates of the hit on it.
+    pos : numpy.ndarray
+        ``[M, 3]`` hit points.
+    dirs : numpy.ndarray
+        ``[M, 3]`` the rays' directions.
+    weight : numpy.ndarray
+        ``[M, L]`` the rays' spectral weights.
+    inp : ShadeInputs
+        The run's mesh, material and table arrays.
+    detectors : numpy.ndarray
+        ``[G, D, 3]`` each group's detector directions.
+    out : ShadeOutputs
+        Written row by row.
     """
     hits = (prim, bu, bv, pos, dirs, weight)
     clampf = np.ones(weight.shape[1])
