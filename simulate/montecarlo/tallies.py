@@ -194,7 +194,7 @@ def _uniform_bin(value: float, lo: float, hi: float, count: int) -> int:
 class Scratch(NamedTuple):
     """A history's scratch tally, one per batch.
 
-    A history's scratch tally, one per batch: its scores ``hist`` (``n_spec`` spectral bins per geometric
+    Its scores ``hist`` (``n_spec`` spectral bins per geometric
     bin) and the geometric bins it touched (``touched[:n_touched[0]]``, flagged in ``marks``).
     """
 
@@ -222,7 +222,7 @@ class Spectral(NamedTuple):
 class VertexInputs(NamedTuple):
     """What :func:`score_vertex` reads of a run, packed once per batch.
 
-    What :func:`score_vertex` reads of a run, packed once per batch: the output ranges, their constants
+    The output ranges, their constants
     (:func:`nee_constants`; a batch's private copy, as ranged outputs overwrite their row) and a work row,
     the first vertex bin (``base``), the cylinder's ``radius`` and index ``n_in``, and the walk's phase
     function (``kind, g, table, pdf, lookup``, as :func:`.scatter.phase_pdf` reads it).

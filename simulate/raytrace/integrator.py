@@ -527,8 +527,7 @@ def _score_visible_bounded(t, traced, vis, cidx, p, nee_row, nee_scale, weight, 
 def _path_roulette(w, below, low):
     """Mark the continuing rays of low weight for the path's Russian roulette; returns how many.
 
-    Mark the continuing rays whose largest spectral weight is below ``below`` (and above 0) for the
-    path's Russian roulette; returns how many.
+    A ray's weight is low when its largest spectral value is below ``below`` (and above 0).
     """
     c = 0
     L = w.shape[1]
@@ -597,7 +596,8 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
            events: int = _MAX_BOUNCES, record: bool = False) -> _Sums:
     """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element in one wavefront.
 
-    One wavefront holds the rays of all ``G`` beams, each followed for at most ``events`` scattering events (the rays still going after that count as killed).
+    One wavefront holds the rays of all ``G`` beams, each followed for at most ``events`` scattering
+    events (the rays still going after that count as killed).
     ``record``: the sums' ``log`` holds the events a dye's re-weighting replays
     (:class:`simulate.raytrace.record.EventLog`; a fiber material with deferred contributions only).
 

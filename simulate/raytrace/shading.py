@@ -282,7 +282,7 @@ def _layer_seen(vy, vz, py, pz, d):
 def _out_factor(wx, wy, wz, gx, gy, gz, nx, ny, nz):
     """Exit half of the adjoint shading-normal factor (docs/physics.md 6).
 
-    Exit half of the adjoint shading-normal factor (docs/physics.md 6): ``|w.N_g| / |w.N_s|``,
+    ``|w.N_g| / |w.N_s|``,
     0 unless ``w`` is above both the geometric and the shading horizon.
     """
     cg = wx * gx + wy * gy + wz * gz
