@@ -45,8 +45,9 @@ Monte Carlo noise between nearby parameter values.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -74,7 +75,25 @@ def _x(nu: Any) -> np.ndarray:
 
 
 def absorption_nodes(nu_max: float, count: int = DEFAULT_NODES) -> np.ndarray:
-    """``count`` host absorptions (1/um) from 0 to ``nu_max``, uniform in ``log(nu + NU_0)``."""
+    """``count`` host absorptions (1/um) from 0 to ``nu_max``, uniform in ``log(nu + NU_0)``.
+
+    Parameters
+    ----------
+    nu_max : float
+        The largest host absorption (1/um), ``> 0``.
+    count : int
+        Number of nodes, at least 3.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[count]`` nodes, the first one 0.
+
+    Raises
+    ------
+    ParameterError
+        For a ``nu_max`` that is not a finite number > 0 or fewer than 3 nodes.
+    """
     if not (math.isfinite(nu_max) and nu_max > 0):
         raise ParameterError(f"absorption table: nu_max must be a finite number > 0, got {nu_max!r}")
     if count < 3:
@@ -87,9 +106,13 @@ def absorption_nodes(nu_max: float, count: int = DEFAULT_NODES) -> np.ndarray:
 class RunCache(Protocol):
     """Finished (direction, group) runs of a table by key ``"d:gi"`` (:func:`absorption_table`)."""
 
-    def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int, float] | None: ...
+    def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int, float] | None:
+        """The run stored under ``key``: ``(value, u, photons, scatterings)``, or None when it is not stored."""
+        ...
 
-    def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None: ...
+    def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
+        """Store the finished run ``key``: its estimate, standard error, photons and mean scatterings."""
+        ...
 
 
 @dataclass
@@ -133,6 +156,7 @@ class AbsorptionTable:
 
     @property
     def nu_max(self) -> float:
+        """The largest host absorption of the table (1/um), beyond which it is not read."""
         return float(self.nodes[-1])
 
     def __call__(self, mu_a_host: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -166,8 +190,10 @@ def _interval(x_nodes: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def _linear_at(x_nodes: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``y[P, L, K]`` over ``x_nodes[K]`` read linearly at ``x[L]`` (one query per wavelength): ``[P, L]``
-    (``np.interp`` per row, without the loop)."""
+    """``y[P, L, K]`` over ``x_nodes[K]`` read linearly at ``x[L]`` (one query per wavelength): ``[P, L]``.
+
+    ``np.interp`` per row, without the loop.
+    """
     i, s = _interval(x_nodes, x)
     cols = np.arange(x.size)
     y0, y1 = y[:, cols, i], y[:, cols, i + 1]
@@ -182,6 +208,20 @@ def pchip_at(x_nodes: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
     for all outputs and wavelengths at once: the fit reads a table at one absorption per wavelength
     at every evaluation, and one ``PchipInterpolator`` per wavelength cost 35 ms of a 40 ms evaluation
     on the felt (33 wavelengths). Equal to scipy's to rounding (test).
+
+    Parameters
+    ----------
+    x_nodes : numpy.ndarray
+        ``[K]`` increasing nodes, ``K >= 2``.
+    y : numpy.ndarray
+        ``[P, L, K]`` values at the nodes.
+    x : numpy.ndarray
+        ``[L]`` one query per wavelength.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[P, L]`` the interpolant's values.
     """
     h = np.diff(x_nodes)                                     # [K-1]
     m = np.diff(y, axis=2) / h                               # [P, L, K-1] slopes
@@ -217,9 +257,28 @@ def _pchip_end(h0: float, h1: float, m0: np.ndarray, m1: np.ndarray) -> np.ndarr
 
 
 def absorption_targets(optics: Any, group: np.ndarray, nodes: np.ndarray, walk_phase: Any) -> SpectralTargets:
-    """Targets ``(wavelength j, node k)`` at index ``j_local * K + k``: the node is host absorption added to
+    """The walk's spectral targets of one wavelength group at every host-absorption node.
+
+    Target ``(wavelength j, node k)`` sits at index ``j_local * K + k``: the node is host absorption added to
     the wavelength's own; for a placed dye (``optics.mu_a_dye``, a ring or core) it is the dye's, which absorbs
-    in the dyed region only (module docstring)."""
+    in the dyed region only (module docstring).
+
+    Parameters
+    ----------
+    optics : FiberOptics
+        The fiber's optics per wavelength (``mu_a``, ``mu_s``, ``phases``, optionally ``mu_a_dye``).
+    group : numpy.ndarray
+        Wavelength indices of the group.
+    nodes : numpy.ndarray
+        ``[K]`` host absorptions added (1/um).
+    walk_phase : object
+        The phase function the walk samples; a target with the same phase needs no phase re-weighting.
+
+    Returns
+    -------
+    SpectralTargets
+        ``len(group) * K`` targets.
+    """
     k = nodes.size
     idx = np.repeat(group, k)
     added = np.tile(nodes, group.size)
@@ -234,8 +293,25 @@ def absorption_targets(optics: Any, group: np.ndarray, nodes: np.ndarray, walk_p
 
 
 def check_placement(fiber: Fiber, method: str, reference: Fiber | None = None) -> None:
-    """A placed dye's (or placed scatterers') table (module docstring): the ``beam`` route, and a reference walk at
-    the same placement (its dyed region and its scatterers are the walk's). :class:`ParameterError` naming what to change otherwise."""
+    """Check that a table of a placed dye (or placed scatterers) can be walked as asked (module docstring).
+
+    A placed dye or placed scatterers need the ``beam`` route, and a reference walk at the same placement
+    (its dyed region and its scatterers are the walk's).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber whose table is built.
+    method : str
+        The fiber route (``nee``, ``beam`` or ``bssrdf``).
+    reference : Fiber, optional
+        The fiber whose walk is re-weighted, when it is not ``fiber`` itself.
+
+    Raises
+    ------
+    ParameterError
+        Naming what to change when the route or the reference's placement does not fit.
+    """
     profile = getattr(fiber, "dye_profile", "uniform")
     if reference is not None and (getattr(reference, "dye_profile", "uniform"), getattr(reference, "dye_depth_um", 0.0)) \
             != (profile, getattr(fiber, "dye_depth_um", 0.0)):

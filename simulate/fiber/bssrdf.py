@@ -23,7 +23,18 @@ __all__ = ["lit_rows", "bssrdf_rows", "row_sources", "rows_inputs", "bssrdf_tabl
 
 
 def lit_rows(dpsi: float) -> int:
-    """Largest ``k`` with ``|k dpsi| < 90 deg + dpsi / 2``: the local azimuths whose cell is lit in part."""
+    """Largest ``k`` with ``|k dpsi| < 90 deg + dpsi / 2``: the local azimuths whose cell is lit in part.
+
+    Parameters
+    ----------
+    dpsi : float
+        Width of a cell around the fiber (radians).
+
+    Returns
+    -------
+    int
+        ``k_max``: rows ``-k_max .. k_max`` are lit.
+    """
     return int(math.floor((math.pi / 2 + dpsi / 2) / dpsi - 1e-12))
 
 
@@ -32,6 +43,20 @@ def row_sources(w_t: float, ks, dpsi: float) -> np.ndarray:
 
     A beam at a cell whose normal makes the angle ``k dpsi`` with ``w_perp`` has
     ``w . n = rho cos(k dpsi)``, ``w . b = -rho sin(k dpsi)`` (``b = n x t`` at the top cell is +y).
+
+    Parameters
+    ----------
+    w_t : float
+        Axial component of the incident direction.
+    ks : sequence of int
+        The rows' local azimuth indices.
+    dpsi : float
+        Cell width (radians).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``float64[len(ks), 5]`` source rows.
     """
     rho = math.sqrt(max(1.0 - w_t * w_t, 0.0))
     return np.array([[float(G.CELL), w_t, -rho * math.sin(k * dpsi), rho * math.cos(k * dpsi), dpsi / 2.0]
@@ -39,7 +64,29 @@ def row_sources(w_t: float, ks, dpsi: float) -> np.ndarray:
 
 
 def rows_inputs(fiber, grid, medium, walk_phase, targets, control):
-    """The kernel inputs shared by every row of :func:`bssrdf_rows` (the source is per row)."""
+    """The kernel inputs shared by every row of :func:`bssrdf_rows` (the source is per row).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber (radius, cell count).
+    grid : tuple
+        ``(n_psi, n_v, v_max, n_mu, n_phi)``: exit cells, axial bins and their half-range (um), exit
+        direction bins.
+    medium : numpy.ndarray
+        The kernel's medium row of the walk (:func:`simulate.fiber.spectral.group_walk`).
+    walk_phase : PhaseArrays
+        The phase function walked.
+    targets : SpectralTargets
+        The scored wavelengths' optics.
+    control : numpy.ndarray
+        The kernel's control row (:func:`simulate.montecarlo.transport.make_control`).
+
+    Returns
+    -------
+    KernelInputs
+        The packed inputs (their source a placeholder).
+    """
     n_psi, n_v, v_max, n_mu, n_phi = grid
     params = np.array([float(n_psi), float(n_mu), float(n_phi), float(n_v), float(v_max)])
     return make_inputs(G.CYLINDER, np.array([fiber.radius_um]), np.zeros(5), medium, walk_phase, control,
@@ -59,6 +106,46 @@ def bssrdf_rows(fiber, w_t, ks, grid, medium, walk_phase, targets, control, phot
     row's scalar tally sums (the fit's re-weighting bound reads the scatterings from them).
     Row ``r`` is the run of seed ``seed + 7919 r``; all rows run in ONE parallel kernel call
     (:func:`simulate.montecarlo.rows.execute_rows`: bit-identical to one call per row).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    w_t : float
+        Axial component of the incident direction.
+    ks : sequence of int
+        The rows' local azimuth indices.
+    grid : tuple
+        ``(n_psi, n_v, v_max, n_mu, n_phi)`` (:func:`rows_inputs`).
+    medium : numpy.ndarray
+        The kernel's medium row of the walk (:func:`simulate.fiber.spectral.group_walk`).
+    walk_phase : PhaseArrays
+        The phase function walked.
+    targets : SpectralTargets
+        The scored wavelengths' optics.
+    control : numpy.ndarray
+        The kernel's control row (:func:`simulate.montecarlo.transport.make_control`).
+    photons : int
+        Photons per row.
+    seed : int
+        Seed of row 0.
+    threads : int or None
+        Threads (results do not depend on it).
+    scalars : list, optional
+        Receives each row's scalar tally sums.
+    into : numpy.ndarray, optional
+        Where the means are written (then no standard error).
+
+    Returns
+    -------
+    T : numpy.ndarray
+        The rows (``into`` when given).
+    u_T : numpy.ndarray or None
+        Their standard error (None with ``into``).
+    photons : int
+        Photons walked.
+    seconds : float
+        Wall time of the kernel call.
     """
     n_psi, n_v, v_max, n_mu, n_phi = grid
     dpsi = 2.0 * math.pi / n_psi
@@ -120,6 +207,31 @@ def bssrdf_table(
     a smooth material's table has no step there: the difference of two independent walks is spread
     over the zone. ``u_T`` of a blended value is ``sqrt(sum (w u)^2)`` over the walks.
 
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    w_t : float
+        Axial component of the incident direction, in ``(-1, 1)``.
+    wavelengths_nm : array_like
+        Vacuum wavelengths (nm).
+    n_mu, n_phi : int
+        Local exit direction bins in ``cos theta`` and azimuth.
+    n_v : int
+        Axial offset bins (1: summed out).
+    v_max_um : float, optional
+        Half-range of the axial offsets (default 10 fiber radii).
+    photons_per_row : int
+        Photons per row and wavelength group.
+    seed : int
+        Random seed.
+    threads : int, optional
+        Threads (results do not depend on it).
+    max_group : int, optional
+        Largest wavelength group of one walk.
+    blend : int
+        Wavelengths blended on each side of a group boundary.
+
     Returns
     -------
     dict
@@ -140,7 +252,7 @@ def bssrdf_table(
     photons = 0
     seconds = 0.0
     groups = wavelength_groups(optics, max_size=max_group)
-    for k, (group, (scored, weight)) in enumerate(zip(groups, blended_groups(groups, blend))):
+    for k, (group, (scored, weight)) in enumerate(zip(groups, blended_groups(groups, blend), strict=True)):
         medium, walk_phase, targets = group_walk(fiber, optics, group, white=True, scored=scored)
         t, u, p, s = bssrdf_rows(fiber, w_t, ks, (n_psi, n_v, v_max, n_mu, n_phi), medium, walk_phase, targets,
                                   control, photons_per_row, seed + GROUP_SEED_STEP * k, threads)
@@ -159,7 +271,26 @@ def bssrdf_table(
 
 
 def bssrdf_route(fiber, w_in, outputs_grid_bins, table, omega):
-    """Summation of the BSSRDF rows for one beam (aligned azimuths exact, others interpolated)."""
+    """Summation of the BSSRDF rows for one beam (aligned azimuths exact, others interpolated).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    w_in : numpy.ndarray
+        ``[3]`` incident direction in the fiber frame.
+    outputs_grid_bins : tuple of numpy.ndarray
+        ``(mu_i, phi_i)``: each output's cell of the direction grid (:func:`grid_cells`).
+    table : dict
+        The beam's rows (:func:`bssrdf_for_beam`).
+    omega : numpy.ndarray
+        Each output cell's projected solid angle.
+
+    Returns
+    -------
+    R, u : numpy.ndarray
+        ``[n_out, n_spec]`` volume BRDF of cell B and its standard error.
+    """
     rows, errs, ks, dpsi = table["T"], table["u_T"], table["k"], table["cell_width_rad"]
     n_psi = rows.shape[1]
     beta = math.atan2(-w_in[1], w_in[2])  # w_perp along n(beta)
@@ -185,7 +316,27 @@ def bssrdf_route(fiber, w_in, outputs_grid_bins, table, omega):
 
 
 def grid_cells(outputs: np.ndarray, n_mu: int, n_phi: int):
-    """Map ranged outputs onto the cells of a (mu, phi) grid; refuse ranges that are not grid cells."""
+    """Map ranged outputs onto the cells of a (mu, phi) grid; refuse ranges that are not grid cells.
+
+    Parameters
+    ----------
+    outputs : numpy.ndarray
+        ``[P, 8]`` output rows (:func:`simulate.fiber.routes.range_outputs`).
+    n_mu, n_phi : int
+        The grid's bins in ``cos theta`` and azimuth.
+
+    Returns
+    -------
+    mu_i, phi_i : numpy.ndarray
+        Each output's cell.
+    omega : numpy.ndarray
+        Each cell's projected solid angle.
+
+    Raises
+    ------
+    ParameterError
+        When an output range is not one grid cell.
+    """
     mu_edges = np.linspace(0, 1, n_mu + 1)
     phi_edges = np.linspace(-math.pi, math.pi, n_phi + 1)
     mu_i = np.clip(np.searchsorted(mu_edges, 0.5 * (outputs[:, 3] + outputs[:, 4])) - 1, 0, n_mu - 1)
@@ -200,7 +351,38 @@ def grid_cells(outputs: np.ndarray, n_mu: int, n_phi: int):
 
 def bssrdf_for_beam(fiber, w_in, medium, walk_phase, targets, control, n_mu, n_phi, target, max_photons, seed,
                     threads):
-    """The BSSRDF rows one beam needs (its axial component), photons per row from the target."""
+    """The BSSRDF rows one beam needs (its axial component), photons per row from the target.
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    w_in : numpy.ndarray
+        ``[3]`` incident direction in the fiber frame.
+    medium : numpy.ndarray
+        The kernel's medium row of the walk (:func:`simulate.fiber.spectral.group_walk`).
+    walk_phase : PhaseArrays
+        The phase function walked.
+    targets : SpectralTargets
+        The scored wavelengths' optics.
+    control : numpy.ndarray
+        The kernel's control row (:func:`simulate.montecarlo.transport.make_control`).
+    n_mu, n_phi : int
+        Local exit direction bins.
+    target : float
+        Target relative standard error.
+    max_photons : int
+        Photon budget per row.
+    seed : int
+        Seed of row 0.
+    threads : int or None
+        Threads (results do not depend on it).
+
+    Returns
+    -------
+    dict
+        ``T``, ``u_T``, ``k``, ``cell_width_rad``, ``photons``, ``seconds``.
+    """
     n_psi = fiber.cell_count("bssrdf route")
     dpsi = 2.0 * math.pi / n_psi
     k_max = lit_rows(dpsi)

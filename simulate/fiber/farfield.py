@@ -91,6 +91,18 @@ def cell_frame(w: np.ndarray, psi: np.ndarray) -> np.ndarray:
     """Fiber-frame directions ``w [..., 3]`` in the local frame ``(t, b(psi), n(psi))`` of the cell at ``psi``.
 
     This is the rotation ``X(-psi)`` about the axis: the top cell's frame is the fiber frame.
+
+    Parameters
+    ----------
+    w : numpy.ndarray
+        ``[..., 3]`` directions in the fiber frame.
+    psi : numpy.ndarray
+        The cells' azimuths (radians), broadcast against ``w[..., 0]``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[..., 3]`` the same directions in each cell's frame.
     """
     w = np.asarray(w, float)
     psi = np.asarray(psi, float)
@@ -103,8 +115,22 @@ def surface_far_field(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, n_psi: in
                       visibility: Any = None) -> np.ndarray:
     """``S_surf [P]`` (um/sr): the Cook-Torrance term integrated over the cylinder's azimuth.
 
-    ``visibility(w, psi) -> [P, n_psi]`` in [0, 1], optional: the fraction of the point at ``psi``
-    seen from ``w`` (masking and shadowing); it multiplies both the lit and the seen factor.
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber (radius, roughness, index).
+    w_in, w_out : numpy.ndarray
+        ``[P, 3]`` paired incident and exit directions in the fiber frame.
+    n_psi : int
+        Azimuth nodes of the integral.
+    visibility : callable, optional
+        ``visibility(w, psi) -> [P, n_psi]`` in [0, 1]: the fraction of the point at ``psi`` seen from
+        ``w`` (masking and shadowing); it multiplies both the lit and the seen factor.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``[P]`` the surface term (um/sr).
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))
@@ -128,9 +154,30 @@ def far_field_nee(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_n
     """``S(w_i, w_o)`` by next-event estimation: ``S_vol [P, L]``, ``u_S_vol [P, L]``, ``S_surf [P]``, info.
 
     One :func:`simulate.fiber.volume_brdf` call (``method="nee"``) with an output row per pair
-    and per cell of the fiber's cell width facing ``w_o`` (module docstring); ``mc`` goes to it
-    (target_rel_err, seed, threads, ...). ``u`` adds the cells' errors linearly (they share
-    photons: the correlated bound).
+    and per cell of the fiber's cell width facing ``w_o`` (module docstring). ``u`` adds the cells'
+    errors linearly (they share photons: the correlated bound).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    w_in, w_out : numpy.ndarray
+        ``[P, 3]`` paired incident and exit directions in the fiber frame.
+    wavelengths_nm : array_like
+        Vacuum wavelengths (nm).
+    surface : bool
+        Also integrate the surface term (else ``S_surf`` is zero).
+    **mc
+        Passed to :func:`simulate.fiber.volume_brdf` (``target_rel_err``, ``seed``, ``threads``, ...).
+
+    Returns
+    -------
+    S_vol, u_S_vol : numpy.ndarray
+        ``[P, L]`` volume term and its error.
+    S_surf : numpy.ndarray
+        ``[P]`` surface term.
+    info : dict
+        ``photons``, ``seconds``, ``outputs`` and the fiber run's information.
     """
     from simulate import fiber as fiber_mod
 
@@ -158,13 +205,16 @@ def far_field_nee(fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wavelengths_n
 
 @numba.njit(cache=True, parallel=True, nogil=True)
 def _accumulate_beam(T, k_min, nodes, js, weights, scales, lit, out):
-    """``out[B] += weights[c] scales[c, k] lit[i] T[nodes[c], k, B - i]`` over the terms ``c`` (node ``nodes[c]``,
-    beam azimuth cell ``js[c]``) and the lit entry cells ``i``, row ``k = js[c] - i`` (wrapped), for ONE beam.
+    """Add one beam's exit-table terms to its far field ``out``.
+
+    ``out[B] += weights[c] scales[c, k] lit[i] T[nodes[c], k, B - i]`` over the terms ``c`` (node ``nodes[c]``,
+    beam azimuth cell ``js[c]``) and the lit entry cells ``i``, row ``k = js[c] - i`` (wrapped).
 
     Parallel over the exit cells ``B``, each ``out[B]`` (one exit cell's bins and channels, ~10^5 values)
     summed while it stays in cache, rather than streaming the whole ``out`` through memory once per lit cell
     and term. The additions per value run in the order term, then entry cell, the order of the plain loop
-    over terms and entry cells: the numbers do not depend on the loop's arrangement."""
+    over terms and entry cells: the numbers do not depend on the loop's arrangement.
+    """
     n = out.shape[0]
     inner = out[0].size
     flat_out = out.reshape(n, inner)
@@ -217,14 +267,17 @@ class ExitTable:
 
     @property
     def n_psi(self) -> int:
+        """Number of azimuth cells around the fiber's section."""
         return int(self.T.shape[2])
 
     @property
     def dpsi(self) -> float:
+        """Width of one azimuth cell (radians)."""
         return 2.0 * math.pi / self.n_psi
 
     @property
     def bins(self) -> tuple[int, int]:
+        """Local exit bins ``(n_mu, n_phi)``: cosine bins from the surface normal and azimuth bins."""
         return int(self.T.shape[3]), int(self.T.shape[4])
 
     def omega(self) -> np.ndarray:
@@ -341,6 +394,7 @@ class CachedMedium:
         self._cache: dict[float, Any] = {}
 
     def optical_properties(self, wavelength_nm: float) -> Any:
+        """The wrapped medium's optical properties at ``wavelength_nm``, computed once per wavelength."""
         key = float(wavelength_nm)
         if key not in self._cache:
             self._cache[key] = self.medium.optical_properties(key)
@@ -348,7 +402,18 @@ class CachedMedium:
 
 
 def cached(fiber: Any) -> Any:
-    """``fiber`` with a :class:`CachedMedium` (the same fiber if it already has one)."""
+    """``fiber`` with a :class:`CachedMedium` (the same fiber if it already has one).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        Any fiber.
+
+    Returns
+    -------
+    Fiber
+        A copy whose medium computes each wavelength's optics once.
+    """
     import dataclasses
 
     if isinstance(fiber.medium, CachedMedium):
@@ -361,11 +426,6 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
                max_group: int = 7, cache: bool = True) -> ExitTable:
     """The :class:`ExitTable` of ``fiber`` from :func:`simulate.fiber.bssrdf_table` at each ``w_t`` node.
 
-    ``cache``: read / store the table in the disk cache (:mod:`simulate.fiber.tablecache`, key
-    :func:`exit_table_key`): a second ``simulate fabric --method summation`` of the same fiber at the
-    same photons reads its tables (each round of :func:`controlled_halves` is one entry); a hit is
-    bit-identical to the walk that stored it.
-
     Streams: node ``i`` uses the seed ``seed * 1000003 + 104729 i``, its wavelength group ``k`` adds
     ``1009 k`` and its rows ``7919 r`` (:func:`simulate.fiber.bssrdf_table`, ``r < 19``): for up to 8
     nodes and 33 groups these offsets are distinct for distinct ``(i, k, r)`` and stay below 1000003,
@@ -377,8 +437,36 @@ def exit_table(fiber: Any, wavelengths_nm: Any, *, w_t: Any = DEFAULT_WT_NODES, 
     group's reference wavelength; a 21-wavelength group (510-710 nm) gave rare heavy weights at
     710 nm that the closure of :mod:`simulate.fabric.interior` amplifies. Neighbouring groups are
     blended across their boundary (:func:`simulate.fiber.spectral.blended_groups`).
-    """
 
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    wavelengths_nm : array_like
+        Vacuum wavelengths (nm).
+    w_t : array_like
+        The axial incidence nodes.
+    bins : tuple of int
+        Local exit bins ``(n_mu, n_phi)``.
+    photons_per_row : int
+        Photons per row, node and wavelength group.
+    seed : int
+        Random seed.
+    threads : int, optional
+        Threads (results do not depend on it).
+    max_group : int
+        Largest wavelength group of one walk.
+    cache : bool
+        Read and store the table in the disk cache (:mod:`simulate.fiber.tablecache`, key
+        :func:`exit_table_key`): a second ``simulate fabric --method summation`` of the same fiber at
+        the same photons reads its tables (each round of :func:`controlled_halves` is one entry); a hit
+        is bit-identical to the walk that stored it.
+
+    Returns
+    -------
+    ExitTable
+        Rows at every node, their errors, photons and seconds.
+    """
     nodes = np.asarray(w_t, float)
     if nodes.ndim != 1 or nodes.size < 2 or nodes[0] != 0.0 or np.any(np.diff(nodes) <= 0) or nodes[-1] >= 1.0:
         raise ValueError("exit_table: w_t must be increasing nodes from 0 to below 1 (at least two)")
@@ -408,7 +496,18 @@ EXIT_TABLE_MODULES = (
 
 
 def plain_fiber(fiber: Any) -> Any:
-    """``fiber`` with its :class:`CachedMedium` unwrapped (the dataclass a cache key hashes)."""
+    """``fiber`` with its :class:`CachedMedium` unwrapped (the dataclass a cache key hashes).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        Any fiber.
+
+    Returns
+    -------
+    Fiber
+        The fiber with its own medium.
+    """
     import dataclasses
 
     return dataclasses.replace(fiber, medium=fiber.medium.medium) if isinstance(fiber.medium, CachedMedium) else fiber
@@ -416,9 +515,33 @@ def plain_fiber(fiber: Any) -> Any:
 
 def exit_table_key(fiber: Any, wavelengths_nm: Any, w_t: Any, bins: tuple[int, int], photons_per_row: int,
                    seed: int, max_group: int) -> str | None:
-    """The disk-cache key of :func:`exit_table` (:mod:`simulate.fiber.tablecache`; None when the cache is off or
-    the medium has no canonical form): the fiber (its dye included: this table is not white), wavelengths,
-    nodes, bins, photons per row, seed, chunking and the code. The threads are not in it (same rows)."""
+    """The disk-cache key of :func:`exit_table` (:mod:`simulate.fiber.tablecache`).
+
+    The key holds the fiber (its dye included: this table is not white), wavelengths, nodes, bins, photons
+    per row, seed, chunking and the code. The threads are not in it (same rows).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber (a :class:`CachedMedium` is unwrapped first).
+    wavelengths_nm : array_like
+        Wavelengths of the table (nm).
+    w_t : array_like
+        The table's ``w_t`` nodes.
+    bins : tuple of int
+        Local exit bins ``(n_mu, n_phi)``.
+    photons_per_row : int
+        Photons launched per row.
+    seed : int
+        Random seed of the table.
+    max_group : int
+        Largest wavelength group of one walk.
+
+    Returns
+    -------
+    str or None
+        The key; None when the cache is off or the medium has no canonical form.
+    """
     if not tablecache.enabled():
         return None
     inputs = {"fiber": plain_fiber(fiber), "wavelengths_nm": np.asarray(wavelengths_nm, float),
@@ -463,6 +586,18 @@ def merged(a: ExitTable, b: ExitTable, per_row_a: int, per_row_b: int) -> ExitTa
     """The exit table of the photons of ``a`` and ``b`` together (independent streams, same grid).
 
     Means weighted by the photons per row, ``u = sqrt(p_a^2 u_a^2 + p_b^2 u_b^2) / (p_a + p_b)``.
+
+    Parameters
+    ----------
+    a, b : ExitTable
+        The two tables.
+    per_row_a, per_row_b : int
+        Their photons per row.
+
+    Returns
+    -------
+    ExitTable
+        The pooled table.
     """
     n = float(per_row_a + per_row_b)
     wa, wb = per_row_a / n, per_row_b / n
@@ -493,6 +628,32 @@ def controlled_halves(fiber: Any, wavelengths_nm: Any, beta_of: Any, target_rel_
     values is the error read), :func:`simulate.montecarlo.accuracy.relative_error` of them the
     error reached. The first round uses ``per_row``; if the error is above the target the next
     adds photons to ``(rel / target)^2 SAFETY`` times those done (error ~ 1/sqrt(N)).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    wavelengths_nm : array_like
+        Vacuum wavelengths (nm).
+    beta_of : callable
+        ``beta_of(table) -> [N, L]``, what the caller makes of a table.
+    target_rel_err : float
+        Target relative standard error of ``beta``.
+    per_row : int
+        Photons per row of the first round.
+    seed : int
+        Random seed.
+    threads : int, optional
+        Threads (results do not depend on it).
+    max_photons_per_row : int, optional
+        Budget per row of each half.
+
+    Returns
+    -------
+    beta, u_beta : numpy.ndarray
+        ``[N, L]`` the halves' mean and its error.
+    info : dict
+        ``rounds``, ``photons``, ``photons_per_row`` (both halves) and ``rel_err``.
     """
     from simulate.montecarlo.accuracy import SAFETY, relative_error
 

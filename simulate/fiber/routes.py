@@ -52,10 +52,42 @@ def beam_route(fiber, w_in, outputs, medium, walk_phase, targets, method, contro
                seed, threads, progress):
     """NEE or binned beam route for one incident direction and one wavelength group.
 
-    ``medium, walk_phase, targets`` from :func:`simulate.fiber.spectral.group_walk` (or targets of
-    one's own: :mod:`simulate.fiber.absorption`), ``control`` from
-    :func:`simulate.montecarlo.transport.make_control`. Returns ``(R, u)`` as ``[n_out, n_spec]``
-    and the :class:`simulate.montecarlo.accuracy.Run`.
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    w_in : numpy.ndarray
+        ``[3]`` incident direction in the fiber frame.
+    outputs : numpy.ndarray
+        ``[n_out, 8]`` output rows (:func:`range_outputs`).
+    medium : numpy.ndarray
+        The kernel's medium row of the walk (:func:`simulate.fiber.spectral.group_walk`, or targets of
+        one's own: :mod:`simulate.fiber.absorption`).
+    walk_phase : PhaseArrays
+        The phase function walked.
+    targets : SpectralTargets
+        The scored wavelengths' optics.
+    control : numpy.ndarray
+        The kernel's control row (:func:`simulate.montecarlo.transport.make_control`).
+    method : {"nee", "beam"}
+        Next-event estimates or binned exits.
+    target : float
+        Target relative standard error.
+    max_photons : int
+        Photon budget.
+    seed : int
+        Random seed.
+    threads : int or None
+        Threads (results do not depend on it).
+    progress : callable or None
+        Called with ``(photons, rel_err)`` after each round.
+
+    Returns
+    -------
+    R, u : numpy.ndarray
+        ``[n_out, n_spec]`` volume BRDF of cell B and its standard error.
+    run : Run
+        The controlled run (:class:`simulate.montecarlo.accuracy.Run`).
     """
     source, d_perp = _beam_source(w_in)
     n_out = outputs.shape[0]
@@ -116,6 +148,7 @@ def volume_brdf(
     Parameters
     ----------
     fiber : Fiber
+        The fiber (radius, medium, dye, refractive index).
     w_in : numpy.ndarray
         ``[P, 3]`` unit vectors towards the light in the fiber frame (anywhere but along the axis).
     w_out : numpy.ndarray, optional
@@ -228,7 +261,24 @@ def volume_brdf(
 
 def fiber_brdf(fiber: Fiber, w_in: np.ndarray, w_out: np.ndarray, wavelengths_nm: np.ndarray,
                **kwargs: Any) -> BRDFEstimate:
-    """``R_B = R_surf + R_vol`` (surface term exact, volume term by :func:`volume_brdf`)."""
+    """``R_B = R_surf + R_vol`` (surface term exact, volume term by :func:`volume_brdf`).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    w_in, w_out : numpy.ndarray
+        ``[P, 3]`` paired incident and exit directions in the fiber frame.
+    wavelengths_nm : numpy.ndarray
+        Vacuum wavelengths (nm).
+    **kwargs
+        Passed to :func:`volume_brdf`.
+
+    Returns
+    -------
+    BRDFEstimate
+        The sum and the volume term's standard error.
+    """
     vol = volume_brdf(fiber, w_in, w_out, wavelengths_nm, **kwargs)
     surf = surface_brdf(fiber, w_in, w_out)
     return BRDFEstimate(vol.R + surf[:, None], vol.u_R, vol.photons, vol.seconds, {**vol.info, "surface": True})
@@ -243,6 +293,24 @@ def normal_albedo(
     ``rho = int R_vol,B(z, w_o) cos(theta_o) dOmega_o``: the fraction of the irradiance on B that
     leaves B through its volume (the classic model's Lambertian albedo), from the binned beam
     route with one output range covering B's whole hemisphere (``Omega_proj = pi``).
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    wavelengths_nm : numpy.ndarray
+        Vacuum wavelengths (nm).
+    target_rel_err : float
+        Target relative standard error.
+    seed : int
+        Random seed.
+    threads : int, optional
+        Threads (results do not depend on it).
+
+    Returns
+    -------
+    rho, u_rho : numpy.ndarray
+        ``[L]`` albedo and its standard error.
     """
     out = range_outputs([0.0], [1.0], [-math.pi], [math.pi], fiber.half_width)
     est = volume_brdf(fiber, np.array([[0.0, 0.0, 1.0]]), None, wavelengths_nm, method="beam", outputs=out,

@@ -52,11 +52,23 @@ class SpectralOptics:
 def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = None) -> SpectralOptics:
     """The medium's optical properties at each wavelength.
 
-    ``phase_at`` (indices into ``wavelengths_nm``, optional): only these wavelengths get their own
-    phase table (Mie: the expensive part); the others get the Henyey-Greenstein table of their ``g``
-    (``optical_properties(..., with_phase=False)``), for callers that walk and score with the phase
-    functions of a few wavelengths only (the held-scattering tables of :mod:`simulate.raytrace.yarn`).
-    ``mu_s``, ``mu_a`` and ``g`` are the same either way. ``None``: every wavelength's own table.
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber whose medium (and placed dye) is read.
+    wavelengths_nm : numpy.ndarray
+        Vacuum wavelengths (nm).
+    phase_at : array_like of int, optional
+        Only these wavelengths (indices into ``wavelengths_nm``) get their own phase table (Mie: the
+        expensive part); the others get the Henyey-Greenstein table of their ``g``
+        (``optical_properties(..., with_phase=False)``), for callers that walk and score with the phase
+        functions of a few wavelengths only (the held-scattering tables of :mod:`simulate.raytrace.yarn`).
+        ``mu_s``, ``mu_a`` and ``g`` are the same either way. None: every wavelength's own table.
+
+    Returns
+    -------
+    SpectralOptics
+        ``mu_s``, ``mu_a``, ``g``, the phase tables and a placed dye's ``mu_a_dye`` per wavelength.
     """
     mu_s, mu_a, g, phases = [], [], [], []
     cache: dict[Any, PhaseArrays] = {}
@@ -82,8 +94,11 @@ def spectral_optics(fiber: Fiber, wavelengths_nm: np.ndarray, phase_at: Any = No
 
 
 def _check_clear_particles(fiber: Fiber, wavelengths_nm: np.ndarray, mu_a: np.ndarray) -> None:
-    """A scatterer profile places the particles' scattering only: the walk absorbs ``mu_a`` everywhere, so the
-    particles themselves must not absorb (their absorption would sit where they are). ParameterError otherwise."""
+    """Refuse absorbing particles under a scatterer profile (ParameterError).
+
+    A scatterer profile places the particles' scattering only: the walk absorbs ``mu_a`` everywhere, so the
+    particles themselves must not absorb (their absorption would sit where they are).
+    """
     host = np.array([host_absorption(fiber.medium, float(wl)) for wl in wavelengths_nm])
     particles = mu_a - host
     if np.any(particles > 1e-9 * np.maximum(mu_a, 1e-300)):
@@ -93,9 +108,23 @@ def _check_clear_particles(fiber: Fiber, wavelengths_nm: np.ndarray, mu_a: np.nd
 
 
 def host_absorption(medium: Any, wavelength_nm: float) -> float:
-    """The host's own absorption (1/um) within the medium's ``mu_a``: the dye a profile places
-    (:attr:`simulate.fiber.Fiber.dye_profile`). A Mie medium's ``mu_a_host_per_um``; a Henyey-Greenstein
-    medium's whole ``mu_a`` (it has no other absorber)."""
+    """The host's own absorption (1/um) within the medium's ``mu_a``.
+
+    It is the dye a profile places (:attr:`simulate.fiber.Fiber.dye_profile`): a Mie medium's
+    ``mu_a_host_per_um``; a Henyey-Greenstein medium's whole ``mu_a`` (it has no other absorber).
+
+    Parameters
+    ----------
+    medium : MieMedium or HGMedium
+        The fiber's medium (a cached medium is unwrapped).
+    wavelength_nm : float
+        Vacuum wavelength (nm).
+
+    Returns
+    -------
+    float
+        The host's absorption coefficient (1/um).
+    """
     inner = getattr(medium, "medium", None)     # a cached medium (simulate.fiber.farfield.CachedMedium)
     if inner is not None and not isinstance(medium, MieMedium):
         return host_absorption(inner, wavelength_nm)
@@ -107,11 +136,27 @@ def host_absorption(medium: Any, wavelength_nm: float) -> float:
 
 def wavelength_groups(optics: SpectralOptics, max_log_mu_s: float = GROUP_LOG_MU_S,
                       max_size: int | None = None) -> list[np.ndarray]:
-    """Consecutive wavelengths whose scattering is close enough to share one walk: ``mu_s`` within
-    ``max_log_mu_s`` (in ``log``; equal values always) and ``g`` within ``GROUP_G`` of the group's
-    middle one. The default is the re-weighted walks'; a held-scattering table passes its own
-    (:func:`simulate.raytrace.yarn.held_groups`). ``max_size``: a group of more wavelengths is split
-    into ``ceil(size / max_size)`` consecutive groups of near-equal size."""
+    """Consecutive wavelengths whose scattering is close enough to share one walk.
+
+    A group's ``mu_s`` lie within ``max_log_mu_s`` (in ``log``; equal values always) and its ``g``
+    within ``GROUP_G`` of the group's middle one.
+
+    Parameters
+    ----------
+    optics : SpectralOptics
+        The medium's optics per wavelength.
+    max_log_mu_s : float
+        Largest ``log`` distance of ``mu_s`` within a group. The default is the re-weighted walks'; a
+        held-scattering table passes its own (:func:`simulate.raytrace.yarn.held_groups`).
+    max_size : int, optional
+        A group of more wavelengths is split into ``ceil(size / max_size)`` consecutive groups of
+        near-equal size.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        The wavelength indices of each group, in order.
+    """
     n = optics.mu_s.size
     groups: list[list[int]] = []
     current: list[int] = []
@@ -147,6 +192,20 @@ def blended_groups(groups: list[np.ndarray], blend: int = BLEND) -> list[tuple[n
     so the blend of unbiased estimates is unbiased; the difference between two walks (their Monte
     Carlo noise) is spread over ``2h + 1`` steps instead of one step at the boundary.
 
+    Parameters
+    ----------
+    groups : list of numpy.ndarray
+        Consecutive wavelength groups (:func:`wavelength_groups`).
+    blend : int
+        Largest half-width ``h`` of a transition zone (0: no blending).
+
+    Returns
+    -------
+    list of (numpy.ndarray, numpy.ndarray)
+        Per group, the wavelengths its walk scores and their weights.
+
+    Examples
+    --------
     >>> [(s.tolist(), w.round(2).tolist()) for s, w in blended_groups([np.arange(4), np.arange(4, 8)], 2)]
     [([0, 1, 2, 3, 4, 5], [1.0, 1.0, 0.8, 0.6, 0.4, 0.2]), ([2, 3, 4, 5, 6, 7], [0.2, 0.4, 0.6, 0.8, 1.0, 1.0])]
     """
@@ -174,8 +233,29 @@ def blended_groups(groups: list[np.ndarray], blend: int = BLEND) -> list[tuple[n
 def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: bool, scored: Any = None):
     """Walk medium, walk phase and spectral targets of one wavelength group (its middle wavelength walks).
 
-    ``scored`` (indices, optional): the wavelengths the walk scores, if not the group's own (a blended
-    walk also scores its neighbours' transition zones: :func:`blended_groups`)."""
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber (index, roughness, dye and scatterer placement).
+    optics : SpectralOptics
+        Its optics per wavelength (:func:`spectral_optics`).
+    group : numpy.ndarray
+        The group's wavelength indices.
+    white : bool
+        Walk without absorption (scored by re-weighting) rather than with the middle wavelength's.
+    scored : array_like of int, optional
+        The wavelengths the walk scores, if not the group's own (a blended walk also scores its
+        neighbours' transition zones: :func:`blended_groups`).
+
+    Returns
+    -------
+    medium : numpy.ndarray
+        The kernel's medium row (:mod:`simulate.montecarlo.kernel`).
+    walk_phase : PhaseArrays
+        The phase function walked.
+    targets : SpectralTargets
+        The scored wavelengths' optics.
+    """
     ref = int(group[len(group) // 2])
     group = np.asarray(group if scored is None else scored)
     walk_phase = optics.phases[ref]
@@ -210,6 +290,22 @@ def group_walk(fiber: Fiber, optics: SpectralOptics, group: np.ndarray, white: b
 def run_seed(seed: int, direction: int, group: int) -> int:
     """The seed of the run of incident direction ``direction`` and wavelength group ``group``.
 
+    Parameters
+    ----------
+    seed : int
+        The table's seed.
+    direction : int
+        Index of the incident direction.
+    group : int
+        Index of the wavelength group.
+
+    Returns
+    -------
+    int
+        A seed distinct for every direction and group of a table.
+
+    Examples
+    --------
     >>> run_seed(3, 2, 1)
     3002028
     """
@@ -217,7 +313,18 @@ def run_seed(seed: int, direction: int, group: int) -> int:
 
 
 def direction_keys(w_in: np.ndarray) -> dict[tuple[float, ...], list[int]]:
-    """Rows of ``w_in`` grouped by direction (rounded to 1e-12), in first-seen order: one run per key."""
+    """Rows of ``w_in`` grouped by direction (rounded to 1e-12), in first-seen order: one run per key.
+
+    Parameters
+    ----------
+    w_in : numpy.ndarray
+        ``[P, 3]`` incident directions.
+
+    Returns
+    -------
+    dict of tuple to list of int
+        The rows of each distinct direction.
+    """
     keys: dict[tuple[float, ...], list[int]] = {}
     for p in range(w_in.shape[0]):
         keys.setdefault(tuple(np.round(w_in[p], 12)), []).append(p)
@@ -229,7 +336,21 @@ def phase_chi2(walk: PhaseArrays, target: PhaseArrays, cells: int = 512) -> floa
 
     Binned on ``cells`` cells of equal probability under the walk's function (a lower bound that
     converges with ``cells``): ``chi2 = K sum_i q_i^2 - 1`` with ``q_i`` the target's probability
-    of cell ``i``. Both as kernel arrays (an inverse-CDF table, or Henyey-Greenstein).
+    of cell ``i``.
+
+    Parameters
+    ----------
+    walk : PhaseArrays
+        The walk's phase function as kernel arrays (an inverse-CDF table, or Henyey-Greenstein).
+    target : PhaseArrays
+        The target's, the same way.
+    cells : int
+        Cells of equal probability under the walk's function.
+
+    Returns
+    -------
+    float
+        The divergence, ``>= 0``.
     """
     from simulate.optics.phase import hg_inverse_cdf
 
@@ -251,8 +372,9 @@ def phase_chi2(walk: PhaseArrays, target: PhaseArrays, cells: int = 512) -> floa
 
 def reweight_exponent(walk: SpectralOptics, target: SpectralOptics, groups: list[np.ndarray],
                       scatterings: np.ndarray) -> float:
-    r"""The largest ``ln E[w^2]`` of the likelihood ratio ``w`` of a walk in ``walk``'s optics scored
-    for ``target``'s, over the wavelength groups.
+    r"""The largest ``ln E[w^2]`` over the wavelength groups of the likelihood ratio ``w`` of a re-weighted walk.
+
+    The walk runs in ``walk``'s optics and is scored for ``target``'s.
 
     Derivation. A path of ``n`` scatterings and length ``L`` (white: absorption is a separate
     ``exp(-mu_a L)`` factor) walked with ``mu_s0, p0`` and scored for ``mu_s = r mu_s0, p`` has
@@ -272,7 +394,21 @@ def reweight_exponent(walk: SpectralOptics, target: SpectralOptics, groups: list
     Methods*, ch. 5 (importance sampling); Sassaroli et al. (2012), perturbation Monte Carlo,
     JOSA A 29, 2110 (the ``r^n exp(-(r-1) mu_s L)`` weight).
 
-    ``scatterings[gi]``: the mean scatterings per photon of group ``gi``'s walk (worst direction).
+    Parameters
+    ----------
+    walk : SpectralOptics
+        The optics the photons are walked in.
+    target : SpectralOptics
+        The optics they are scored for.
+    groups : list of numpy.ndarray
+        The wavelength indices of each walk (its reference wavelength the middle one).
+    scatterings : numpy.ndarray
+        ``scatterings[gi]``: the mean scatterings per photon of group ``gi``'s walk (worst direction).
+
+    Returns
+    -------
+    float
+        ``max ln E[w^2]``, compared with :data:`REWEIGHT_LIMIT`.
     """
     worst = 0.0
     for gi, group in enumerate(groups):

@@ -1,5 +1,7 @@
-"""A content-addressed disk cache of Monte Carlo tables (the woven yarn table, the surface albedo, the
-structured summation's walks, the exit tables) and of the felt Monte Carlo's built felts.
+"""A content-addressed disk cache of Monte Carlo tables and of the felt Monte Carlo's built felts.
+
+The tables are the woven yarn table, the surface albedo, the structured summation's walks and the
+exit tables.
 
 A table is stored under the SHA-256 of everything it depends on (:func:`content_key`): the
 inputs as canonical bytes (:func:`content_hash` walks dataclasses, arrays, numbers, strings),
@@ -65,8 +67,9 @@ import threading
 import time
 import zipfile
 import zlib
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -122,6 +125,12 @@ def enabled() -> bool:
 
 def _feed(h: Any, obj: Any) -> None:
     """Feed a canonical, type-tagged byte form of ``obj`` into the hash ``h``."""
+    if not (_feed_scalar(h, obj) or _feed_composite(h, obj)):
+        raise TypeError(f"content_hash: no canonical form for {type(obj).__qualname__}")
+
+
+def _feed_scalar(h: Any, obj: Any) -> bool:
+    """Feed ``obj`` into ``h`` when it is None, a bool, a number, a string or bytes; False for anything else."""
     if obj is None or isinstance(obj, (bool, np.bool_)):
         h.update(b"N" if obj is None else (b"T" if obj else b"F"))
     elif isinstance(obj, (int, np.integer)):
@@ -135,7 +144,14 @@ def _feed(h: Any, obj: Any) -> None:
         h.update(b"s" + str(len(b)).encode() + b":" + b)
     elif isinstance(obj, bytes):
         h.update(b"b" + str(len(obj)).encode() + b":" + obj)
-    elif isinstance(obj, np.ndarray):
+    else:
+        return False
+    return True
+
+
+def _feed_composite(h: Any, obj: Any) -> bool:
+    """Feed ``obj`` into ``h`` when it is an array, an enum, a dataclass, a dict, a list or a tuple; else False."""
+    if isinstance(obj, np.ndarray):
         if obj.dtype.hasobject:
             raise TypeError("content_hash: object arrays have no canonical bytes")
         a = np.ascontiguousarray(obj)
@@ -162,15 +178,32 @@ def _feed(h: Any, obj: Any) -> None:
             _feed(h, x)
         h.update(b"]")
     else:
-        raise TypeError(f"content_hash: no canonical form for {type(obj).__qualname__}")
+        return False
+    return True
 
 
 def content_hash(obj: Any) -> str:
     """SHA-256 (hex) of a canonical byte form of ``obj`` (dataclasses by field, arrays by dtype/shape/bytes).
 
-    Equal content gives the same hash in every process; a :class:`TypeError` for objects without
-    a canonical form (they cannot be keys).
+    Equal content gives the same hash in every process.
 
+    Parameters
+    ----------
+    obj : object
+        None, a bool, number, string, bytes, array, enum, dataclass, dict, list or tuple (nested freely).
+
+    Returns
+    -------
+    str
+        The hash in hex.
+
+    Raises
+    ------
+    TypeError
+        For an object without a canonical form (it cannot be a key).
+
+    Examples
+    --------
     >>> content_hash({"a": 1.0, "b": (1, 2)}) == content_hash({"b": (1, 2), "a": 1.0})
     True
     >>> content_hash(1.0) == content_hash(1)
@@ -188,6 +221,16 @@ def code_version(modules: Iterable[str]) -> str:
     """SHA-256 of the source text of ``modules`` (dotted names) and of numpy/numba/miepython's versions.
 
     Any edit to one of these files changes every key built with it (memoised per process).
+
+    Parameters
+    ----------
+    modules : iterable of str
+        Dotted names of the modules whose source a table depends on.
+
+    Returns
+    -------
+    str
+        The hash in hex.
     """
     names = tuple(sorted(modules))
     if names not in _CODE_VERSIONS:
@@ -208,7 +251,22 @@ def code_version(modules: Iterable[str]) -> str:
 
 
 def content_key(kind: str, inputs: Any, modules: Iterable[str]) -> str:
-    """The key of a table: ``kind`` (a file-name-safe word) and the hash of inputs + code version."""
+    """The key of a table: ``kind`` and the hash of its inputs and of its code's version.
+
+    Parameters
+    ----------
+    kind : str
+        A file-name-safe word naming the table's kind (it begins the entry's file name).
+    inputs : object
+        Everything the table depends on (:func:`content_hash`).
+    modules : iterable of str
+        The modules that compute it (:func:`code_version`).
+
+    Returns
+    -------
+    str
+        ``"<kind>-<hash>"``.
+    """
     return f"{kind}-{content_hash((kind, inputs, code_version(modules)))[:40]}"
 
 
@@ -219,7 +277,18 @@ def _path(key: str, directory: Path | None = None) -> Path:
 
 
 def load(key: str) -> dict[str, np.ndarray] | None:
-    """The arrays stored under ``key``, or None (absent, disabled, or corrupt: then deleted)."""
+    """The arrays stored under ``key``, or None (absent, disabled, or corrupt: then deleted).
+
+    Parameters
+    ----------
+    key : str
+        A :func:`content_key`.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray, or None
+        The entry's arrays by name.
+    """
     if not enabled():
         return None
     path = _path(key)
@@ -330,14 +399,28 @@ _USED: set[str] = set()
 def stored(kind: str) -> int:
     """How many entries of ``kind`` (the first word of :func:`content_key`) this process has written.
 
-    What an interrupted command can honestly say it left behind (``simulate fit``'s Ctrl-C message)."""
+    What an interrupted command can honestly say it left behind (``simulate fit``'s Ctrl-C message).
+
+    Parameters
+    ----------
+    kind : str
+        The entries' kind.
+
+    Returns
+    -------
+    int
+        The count.
+    """
     with _STORED_LOCK:
         return _STORED.get(kind, 0)
 
 
 class _Payload:
-    """The file ``f`` from ``offset`` on, as :func:`np.savez` sees it: the archive it writes there is byte for
-    byte the one it would write alone (its offsets count from the payload's start)."""
+    """The file ``f`` from ``offset`` on, as :func:`np.savez` sees it.
+
+    The archive it writes there is byte for byte the one it would write alone (its offsets count from
+    the payload's start).
+    """
 
     def __init__(self, f: Any, offset: int) -> None:
         self._f, self._offset = f, offset
@@ -368,7 +451,8 @@ def _write_entry(f: Any, arrays: dict[str, Any]) -> None:
     The archive goes straight into the file (numpy writes each array in blocks of 16 MiB) and is then read
     back in blocks to hash it: no copy of the payload is held in memory (the felt's exit tables are 285 MB
     each, and an in-memory archive plus its concatenation with the header held two copies beside the
-    table: the Monte Carlo fit's peak memory)."""
+    table: the Monte Carlo fit's peak memory).
+    """
     f.write(_MAGIC + bytes(_DIGEST))
     start = f.tell()
     np.savez(_Payload(f, start), **{k: np.asarray(v) for k, v in arrays.items()})  # type: ignore[arg-type]
@@ -387,7 +471,20 @@ def _write_entry(f: Any, arrays: dict[str, Any]) -> None:
 
 
 def store(key: str, arrays: dict[str, Any]) -> Path | None:
-    """Write ``arrays`` under ``key`` (temporary file + :func:`os.replace`), then :func:`evict`; None if disabled/failed."""
+    """Write ``arrays`` under ``key`` (temporary file + :func:`os.replace`), then :func:`evict`.
+
+    Parameters
+    ----------
+    key : str
+        A :func:`content_key`.
+    arrays : dict of str to array_like
+        The entry's arrays by name.
+
+    Returns
+    -------
+    pathlib.Path or None
+        The entry's file; None when the cache is disabled or the write failed.
+    """
     if not enabled():
         return None
     path = _path(key)
@@ -414,6 +511,20 @@ def cached(key: str, compute: Callable[[], dict[str, Any]]) -> tuple[dict[str, n
 
     On a miss the arrays returned are those :func:`load` would give (same dtypes, numpy arrays),
     so a later hit is bit-identical to this miss.
+
+    Parameters
+    ----------
+    key : str
+        A :func:`content_key`.
+    compute : callable
+        Makes the arrays on a miss.
+
+    Returns
+    -------
+    arrays : dict of str to numpy.ndarray
+        The entry's arrays.
+    hit : bool
+        Whether they were read from the cache.
     """
     got = load(key)
     if got is not None:
@@ -424,7 +535,18 @@ def cached(key: str, compute: Callable[[], dict[str, Any]]) -> tuple[dict[str, n
 
 
 def entries(directory: Path | None = None) -> list[tuple[float, int, Path]]:
-    """``(mtime, size, path)`` of the cache's entries, oldest first."""
+    """``(mtime, size, path)`` of the cache's entries, oldest first.
+
+    Parameters
+    ----------
+    directory : pathlib.Path, optional
+        The cache's folder (default: :func:`cache_dir`).
+
+    Returns
+    -------
+    list of (float, int, pathlib.Path)
+        One tuple per entry.
+    """
     d = cache_dir() if directory is None else directory
     out = []
     try:
@@ -457,7 +579,17 @@ def evict(limit: int | None = None) -> int:
     A finished fit's entry goes after every table, and entries this process stored or read go last
     (module docstring); each eviction is logged at INFO,
     and a warning says when this process's own tables alone exceed the bound. Also removes temporary
-    files older than an hour (left by a killed writer). Returns the bytes freed.
+    files older than an hour (left by a killed writer).
+
+    Parameters
+    ----------
+    limit : int, optional
+        The bound in bytes.
+
+    Returns
+    -------
+    int
+        The bytes freed.
     """
     limit = max_bytes() if limit is None else limit
     d = cache_dir()

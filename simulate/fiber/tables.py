@@ -81,6 +81,7 @@ class TableGrid:
 
     @property
     def shape(self) -> tuple[int, int, int, int]:
+        """The table's axes: ``(theta_in, phi_in, theta_out, phi_out)`` node counts."""
         return (self.theta_in_deg.size, self.phi_in_deg.size, self.theta_out_deg.size,
                 self.phi_out_deg.size)
 
@@ -91,6 +92,7 @@ class TableGrid:
         return directions_deg(ti.ravel(), pi.ravel()), directions_deg(to.ravel(), po.ravel())
 
     def as_dict(self) -> dict:
+        """The grid's nodes and steps as JSON-ready lists, with what each axis spans (the table's sidecar)."""
         return {"theta_in_deg": self.theta_in_deg.tolist(), "phi_in_deg": self.phi_in_deg.tolist(),
                 "theta_out_deg": self.theta_out_deg.tolist(), "phi_out_deg": self.phi_out_deg.tolist(),
                 "step_deg": self.step_deg, "phi_step_deg": self.phi_step_deg,
@@ -104,8 +106,36 @@ def fiber_table(fiber: Fiber, wavelengths_nm: Any, grid: TableGrid, *, method: s
                 config_provenance: dict | None = None) -> tuple[dict[str, np.ndarray], dict]:
     """Compute the table arrays and the sidecar's metadata (not written).
 
-    ``config_provenance`` (:meth:`simulate.config.SimulationConfig.provenance` of the config the
-    fiber came from) is recorded in the sidecar.
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    wavelengths_nm : array_like
+        Vacuum wavelengths (nm).
+    grid : TableGrid
+        The incident and exit directions of the table.
+    method : {"nee", "beam", "bssrdf"}
+        The volume route (:func:`simulate.fiber.volume_brdf`).
+    target_rel_err : float, optional
+        Target relative standard error of the volume term (default :data:`DEFAULT_TABLE_REL_ERR`).
+    seed : int
+        Random seed.
+    threads : int, optional
+        Threads (results do not depend on it).
+    max_photons : int, optional
+        Photon budget per incident direction and wavelength group.
+    progress : bool
+        Show a progress bar.
+    config_provenance : dict, optional
+        :meth:`simulate.config.SimulationConfig.provenance` of the config the fiber came from, recorded
+        in the sidecar.
+
+    Returns
+    -------
+    arrays : dict of str to numpy.ndarray
+        The grid's axes, ``R`` (volume + surface), ``u_R`` and the two terms apart.
+    sidecar : dict
+        Format, grid, units, frame, symmetry and provenance.
     """
     target = DEFAULT_TABLE_REL_ERR if target_rel_err is None else float(target_rel_err)
     seed = int(seed)
@@ -146,7 +176,22 @@ def fiber_table(fiber: Fiber, wavelengths_nm: Any, grid: TableGrid, *, method: s
 
 
 def write_fiber_table(out_dir: str | Path, arrays: dict[str, np.ndarray], sidecar: dict) -> Path:
-    """Write ``fiber-table.npz`` then ``fiber-table.json`` atomically into ``out_dir``."""
+    """Write ``fiber-table.npz`` then ``fiber-table.json`` atomically into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : str or pathlib.Path
+        The output folder (made when missing).
+    arrays : dict of str to numpy.ndarray
+        The table's arrays (:func:`fiber_table`).
+    sidecar : dict
+        Its metadata.
+
+    Returns
+    -------
+    pathlib.Path
+        The folder.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     buffer = io.BytesIO()
@@ -157,7 +202,25 @@ def write_fiber_table(out_dir: str | Path, arrays: dict[str, np.ndarray], sideca
 
 
 def read_fiber_table(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Read a table directory written by :func:`write_fiber_table`."""
+    """Read a table directory written by :func:`write_fiber_table`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The folder.
+
+    Returns
+    -------
+    arrays : dict of str to numpy.ndarray
+        The table's arrays.
+    sidecar : dict
+        Its metadata.
+
+    Raises
+    ------
+    ValueError
+        When the sidecar does not name this table format.
+    """
     root = Path(path)
     sidecar = json.loads((root / JSON_NAME).read_text())
     if sidecar.get("format") != FORMAT:
@@ -168,8 +231,21 @@ def read_fiber_table(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
 
 
 def is_fiber_table_dir(out: Path) -> bool:
-    """True when the folder ``out`` holds a fiber table (its JSON sidecar says so): a previous
-    ``simulate fiber`` output, which the command replaces with ``--force`` (:func:`gonio.data.outputs.prepare_folder`)."""
+    """True when the folder ``out`` holds a fiber table (its JSON sidecar says so).
+
+    Such a folder is a previous ``simulate fiber`` output, which the command replaces with ``--force``
+    (:func:`gonio.data.outputs.prepare_folder`).
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The folder asked for as output.
+
+    Returns
+    -------
+    bool
+        Whether its sidecar names a fiber table.
+    """
     try:
         meta = json.loads((Path(out) / JSON_NAME).read_text(encoding="utf-8"))
     except (OSError, ValueError):

@@ -167,6 +167,9 @@ def run_controlled(inp: K.KernelInputs, estimate: Callable[[np.ndarray, int], tu
             break
         history.append((photons, rel))
         want = next_round(history, target_rel_err, max_photons)
+    if bins is None:
+        raise ParameterError(f"no photons to run: min_photons {min_photons!r} and max_photons {max_photons!r} "
+                             "must both be >= 1")
     return Run(scal, bins, photons, seconds)
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import overload
 
 import numba
 import numpy as np
@@ -47,6 +48,16 @@ def _buffers(jobs: int, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
         got = (np.zeros((jobs, T.N_SCALARS)), np.zeros((jobs, n_bins, 2)))
         _scratch.buffers = got
     return got
+
+
+@overload
+def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, photons: int, threads: int | None,
+                 batch_size: int, means: None = None) -> tuple[np.ndarray, np.ndarray, float]: ...
+
+
+@overload
+def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, photons: int, threads: int | None,
+                 batch_size: int, means: np.ndarray) -> tuple[np.ndarray, None, float]: ...
 
 
 def execute_rows(inp: K.KernelInputs, sources: np.ndarray, seeds: np.ndarray, photons: int, threads: int | None,

@@ -58,10 +58,10 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from simulate.optics.fresnel import fresnel_unpolarized
 from simulate.montecarlo.rng import next_u64, to_uniform, to_uniform_open
 from simulate.montecarlo.scatter import phase_pdf
 from simulate.montecarlo.vecmath import vexp
+from simulate.optics.fresnel import fresnel_unpolarized
 
 __all__ = [
     "NONE",
@@ -192,8 +192,11 @@ def _uniform_bin(value: float, lo: float, hi: float, count: int) -> int:
 
 
 class Scratch(NamedTuple):
-    """A history's scratch tally, one per batch: its scores ``hist`` (``n_spec`` spectral bins per geometric
-    bin) and the geometric bins it touched (``touched[:n_touched[0]]``, flagged in ``marks``)."""
+    """A history's scratch tally, one per batch.
+
+    Its scores ``hist`` (``n_spec`` spectral bins per geometric
+    bin) and the geometric bins it touched (``touched[:n_touched[0]]``, flagged in ``marks``).
+    """
 
     hist: np.ndarray
     touched: np.ndarray
@@ -203,9 +206,12 @@ class Scratch(NamedTuple):
 
 
 class Spectral(NamedTuple):
-    """A photon's spectral weights ``A_l`` (``spec_w``) and what a score of them reads: the targets'
+    """A photon's spectral weights and what a score of them reads.
+
+    A photon's spectral weights ``A_l`` (``spec_w``) and what a score of them reads: the targets'
     ``mu_t`` (``spec_mu_t``), whether their phase functions differ from the walk's (``phase_ratio``) and
-    the phase ratios ``p^l / p^w`` on the grid of :func:`ratio_row` (``ratio``)."""
+    the phase ratios ``p^l / p^w`` on the grid of :func:`ratio_row` (``ratio``).
+    """
 
     spec_w: np.ndarray
     spec_mu_t: np.ndarray
@@ -214,10 +220,13 @@ class Spectral(NamedTuple):
 
 
 class VertexInputs(NamedTuple):
-    """What :func:`score_vertex` reads of a run, packed once per batch: the output ranges, their constants
+    """What :func:`score_vertex` reads of a run, packed once per batch.
+
+    The output ranges, their constants
     (:func:`nee_constants`; a batch's private copy, as ranged outputs overwrite their row) and a work row,
     the first vertex bin (``base``), the cylinder's ``radius`` and index ``n_in``, and the walk's phase
-    function (``kind, g, table, pdf, lookup``, as :func:`.scatter.phase_pdf` reads it)."""
+    function (``kind, g, table, pdf, lookup``, as :func:`.scatter.phase_pdf` reads it).
+    """
 
     outputs: np.ndarray
     consts: np.ndarray
@@ -238,6 +247,17 @@ def touch(touched: np.ndarray, n_touched: np.ndarray, marks: np.ndarray, block: 
 
     The scratch tally is kept per geometric bin, not per spectral bin: one test per score, and
     the wavelength loops that follow are plain array arithmetic (vectorised by LLVM).
+
+    Parameters
+    ----------
+    touched : numpy.ndarray
+        The geometric bins touched so far (first ``n_touched[0]``).
+    n_touched : numpy.ndarray
+        ``[1]`` their count.
+    marks : numpy.ndarray
+        Per geometric bin, whether it is in ``touched``.
+    block : int
+        The geometric bin scored.
     """
     if not marks[block]:
         marks[block] = True
@@ -251,6 +271,13 @@ def flush_history(scratch: Scratch, bins: np.ndarray) -> None:
 
     Every spectral bin of a touched geometric bin is flushed; a bin that scored nothing adds
     ``0`` to both sums, which leaves them unchanged.
+
+    Parameters
+    ----------
+    scratch : Scratch
+        The history's scores, cleared as they are moved.
+    bins : numpy.ndarray
+        ``[n_bins, 2]`` the batch's sums and sums of squares.
     """
     hist, touched, n_touched, marks, n_spec = scratch
     for i in range(n_touched[0]):
@@ -369,6 +396,17 @@ def nee_constants(mu: float, phi: float, n_in: float, radius: float, out: np.nda
     exit point per chord, the 3-D chord length ``2 R cos alpha / rho`` and
     ``R cos alpha / (n^2 u_n)`` (the Jacobian's numerator with the interface factor).
     ``rho = 0`` marks a direction that cannot occur.
+
+    Parameters
+    ----------
+    mu, phi : float
+        The exit direction's cosine from the normal and azimuth.
+    n_in : float
+        The fiber's refractive index.
+    radius : float
+        The fiber's radius (um).
+    out : numpy.ndarray
+        The row written.
     """
     st = math.sqrt(max(1.0 - mu * mu, 0.0))
     u_t = st * math.cos(phi) / n_in
@@ -411,6 +449,18 @@ def reflection_order(f_out: float, s0: np.uint64, s1: np.uint64, s2: np.uint64,
     Up to ``F =`` :data:`_LOOP_F` one draw per reflection (a reflection while ``U < F``); above it, near grazing
     (``1 / (1 - F)`` reflections expected: 1000 at 89.99 deg), the same law by its inverse CDF in one draw:
     ``k = floor(ln U / ln F)`` with ``U`` in (0, 1], since ``P(k >= m) = P(U <= F^m) = F^m``.
+
+    Parameters
+    ----------
+    f_out : float
+        The internal Fresnel reflectance ``F``.
+    s0, s1, s2, s3 : numpy.uint64
+        The random state.
+
+    Returns
+    -------
+    tuple
+        ``(k, s0, s1, s2, s3)``: the order and the advanced state.
     """
     k = 0
     if f_out <= _LOOP_F:
@@ -428,9 +478,28 @@ def reflection_order(f_out: float, s0: np.uint64, s1: np.uint64, s2: np.uint64,
 
 @numba.njit(cache=True, inline="always")
 def turned(ny: float, nz: float, c_step: float, s_step: float, k: int, f_out: float) -> tuple[float, float]:
-    """The exit normal ``n = (-sin psi, cos psi)`` after ``k`` reflections, each turning it by ``step``
-    (``cos step, sin step``): one rotation per reflection up to ``F =`` :data:`_LOOP_F` (the orders of
-    :func:`reflection_order`'s loop), one rotation by ``k step`` above it."""
+    """The exit normal after ``k`` reflections around the fiber's section.
+
+    Each reflection turns the normal ``n = (-sin psi, cos psi)`` by ``step``: one rotation per
+    reflection up to ``F =`` :data:`_LOOP_F` (the orders of :func:`reflection_order`'s loop), one
+    rotation by ``k step`` above it.
+
+    Parameters
+    ----------
+    ny, nz : float
+        The normal before.
+    c_step, s_step : float
+        ``cos step`` and ``sin step``.
+    k : int
+        Reflections.
+    f_out : float
+        The internal Fresnel reflectance (which way of turning was drawn).
+
+    Returns
+    -------
+    tuple of float
+        The normal after.
+    """
     if f_out <= _LOOP_F:
         for _ in range(k):
             t_y = ny * c_step - nz * s_step
@@ -445,7 +514,20 @@ def turned(ny: float, nz: float, c_step: float, s_step: float, k: int, f_out: fl
 
 @numba.njit(cache=True, inline="always")
 def ratio_row(mu: float, n_grid: int) -> tuple[int, float]:
-    """Grid node and fraction of ``mu`` on the phase-ratio grid ``t = sqrt((1 - mu) / 2)`` uniform."""
+    """Grid node and fraction of ``mu`` on the phase-ratio grid ``t = sqrt((1 - mu) / 2)`` uniform.
+
+    Parameters
+    ----------
+    mu : float
+        Cosine of the scattering angle.
+    n_grid : int
+        Nodes of the grid.
+
+    Returns
+    -------
+    tuple
+        ``(j, frac)``: the node below and the fraction towards the next.
+    """
     t = math.sqrt(max(0.5 * (1.0 - mu), 0.0))
     x = t * (n_grid - 1)
     j = min(int(x), n_grid - 2)
@@ -540,9 +622,12 @@ def score_vertex(vertex: VertexInputs, scratch: Scratch, spectral: Spectral, p: 
 
 @numba.njit(cache=True, inline="always")
 def _output_direction(vertex, o, state):
-    """A ranged output's exit direction, drawn in its range with density ``prop. to cos theta_out``
+    """Draw a ranged output's exit direction and write its constants; a point output keeps its row.
+
+    A ranged output's exit direction, drawn in its range with density ``prop. to cos theta_out``
     (``mu^2`` uniform, ``phi`` uniform), its constants written to row ``o`` of ``consts``; a point output
-    keeps its row. Returns the random state (no draw for a point output)."""
+    keeps its row. Returns the random state (no draw for a point output).
+    """
     outputs, consts, work = vertex.outputs, vertex.consts, vertex.work
     s0, s1, s2, s3 = state
     mu_lo = outputs[o, 3]

@@ -43,12 +43,12 @@ from typing import Any
 import numpy as np
 
 from simulate.budget import medium_coefficients
+from simulate.fabric.structure import CLOSE_PACKING
 from simulate.media.medium import HGMedium
 from simulate.montecarlo.accuracy import check_target, relative_error
-from simulate.fabric.structure import CLOSE_PACKING
 from simulate.raytrace.integrator import CHUNK, MCResult, prepare, trace, trace_rotations, yarn_radius
-from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.raytrace.materials import FiberSurface
+from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
 from simulate.raytrace.yarn import YarnTable, blend_halves, table_halves
 
 __all__ = ["TABLE_NOISE", "TABLE_SHARE", "PILE_TABLE", "CLEAR_FIBER_SCATTERINGS", "clear_fiber_note", "table_photons",
@@ -88,6 +88,22 @@ def table_photons(target_rel_err: float, noise: float = TABLE_NOISE, share: floa
     costs far more than a ray's share of the error, so the table gets the larger share
     (:data:`TABLE_SHARE`, near the cost optimum ``t^2 / r^2 = sqrt(cost_t / cost_r)``); the sum of
     the two then meets the target.
+
+    Parameters
+    ----------
+    target_rel_err : float
+        The run's target relative standard error ``T``.
+    noise : float
+        The table's relative noise at one photon per row (its error is ``noise / sqrt(photons)``).
+    share : float
+        The table's share of the target error.
+    min_photons : int
+        The floor.
+
+    Returns
+    -------
+    int
+        Photons per row.
     """
     t = check_target(target_rel_err) * float(share)
     return int(min(max((float(noise) / t) ** 2, int(min_photons)), 400_000))
@@ -98,6 +114,18 @@ def ray_target(target_rel_err: float, share: float = TABLE_SHARE) -> float:
 
     The two halves' traces are averaged (``u_rays^2 = (u_a^2 + u_b^2) / 4``), so each may have
     ``sqrt 2`` times the ray error the mean is given.
+
+    Parameters
+    ----------
+    target_rel_err : float
+        The run's target relative standard error ``T``.
+    share : float
+        The table's share of it.
+
+    Returns
+    -------
+    float
+        Each half's ray target.
     """
     return check_target(target_rel_err) * min(math.sqrt(2.0 * (1.0 - float(share) ** 2)), 0.999)
 
@@ -115,7 +143,18 @@ than two realisations traces each with ``2 / K`` of the chunk, so its first roun
 
 
 def felt_rotations(mesh: Any) -> int:
-    """:data:`FELT_ROTATIONS` for a felt's mesh (``open_fibers``: in-plane isotropic), 1 for a weave."""
+    """:data:`FELT_ROTATIONS` for a felt's mesh (``open_fibers``: in-plane isotropic), 1 for a weave.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The traced mesh.
+
+    Returns
+    -------
+    int
+        Rotations each incidence is traced at.
+    """
     return FELT_ROTATIONS if getattr(mesh, "open_fibers", False) else 1
 
 
@@ -126,7 +165,20 @@ clear: its exits keep to the cones refraction puts them on, which coarse azimuth
 
 
 def fiber_scatterings(fiber: Any, wavelengths_nm: Any) -> float:
-    """``2 R mu_s`` at the middle of ``wavelengths_nm``: the expected scattering events across the fiber."""
+    """``2 R mu_s`` at the middle of ``wavelengths_nm``: the expected scattering events across the fiber.
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fiber.
+    wavelengths_nm : array_like
+        The run's wavelengths (nm); 550 nm when empty.
+
+    Returns
+    -------
+    float
+        The scattering events.
+    """
     medium = fiber.medium
     wl = np.asarray(wavelengths_nm, float).ravel()
     if not wl.size:
@@ -139,21 +191,54 @@ def fiber_scatterings(fiber: Any, wavelengths_nm: Any) -> float:
 
 
 def default_exit_bins(fiber: Any, wavelengths_nm: Any, felt: bool) -> tuple[int, int]:
-    """The exit bins of a config that gives none: ``(10, 20)`` for a felt whose fiber is nearly clear
-    (fewer than :data:`CLEAR_FIBER_SCATTERINGS` scattering events across it: its exits keep to cones
-    that coarser bins smear), ``(5, 10)`` otherwise -- turbid fibers, and woven yarns, whose table is
-    the yarn pile's (:mod:`simulate.raytrace.pile`), converge there at about half the trace time."""
+    """The exit bins ``(n_mu, n_phi)`` of a config that gives none.
+
+    ``(10, 20)`` for a felt whose fiber is nearly clear (fewer than :data:`CLEAR_FIBER_SCATTERINGS`
+    scattering events across it: its exits keep to cones that coarser bins smear), ``(5, 10)``
+    otherwise -- turbid fibers, and woven yarns, whose table is the yarn pile's
+    (:mod:`simulate.raytrace.pile`), converge there at about half the trace time.
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fabric's fiber.
+    wavelengths_nm : array_like
+        The run's wavelengths (nm); the middle one decides.
+    felt : bool
+        Whether the fabric is a felt (its tubes are single fibers).
+
+    Returns
+    -------
+    tuple of int
+        ``(n_mu, n_phi)``.
+    """
     if felt and fiber_scatterings(fiber, wavelengths_nm) < CLEAR_FIBER_SCATTERINGS:
         return (10, 20)
     return (5, 10)
 
 
 def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]) -> str | None:
-    """The warning for a run whose fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s``
-    below :data:`CLEAR_FIBER_SCATTERINGS`) and whose azimuth bins are 10 or fewer (36 deg
-    or more), else None. Measured: the green felt moves by more than its misfit to the measurement
-    between 10 and 20 azimuth bins, red cotton (2 R mu_s = 19) within its Monte Carlo noise
-    (docs/physics.md 6, "Exit directions")."""
+    """The warning for a nearly clear fiber traced with coarse azimuth bins, else None.
+
+    It is given when the fiber is nearly clear at the middle of ``wavelengths_nm`` (``2 R mu_s`` below
+    :data:`CLEAR_FIBER_SCATTERINGS`) and the azimuth bins are 10 or fewer (36 deg or more): such a
+    fiber's result moves between 10 and 20 azimuth bins by more than a fit's misfit, a turbid one's
+    within its Monte Carlo noise (docs/physics.md 6, "Exit directions").
+
+    Parameters
+    ----------
+    fiber : Fiber
+        The fabric's fiber.
+    wavelengths_nm : array_like
+        The run's wavelengths (nm).
+    exit_bins : tuple of int
+        The yarn table's exit bins ``(n_mu, n_phi)``.
+
+    Returns
+    -------
+    str or None
+        The warning's text.
+    """
     if int(exit_bins[1]) > 10:
         return None
     wl = np.asarray(wavelengths_nm, float).ravel()
@@ -168,7 +253,18 @@ def clear_fiber_note(fiber: Any, wavelengths_nm: Any, exit_bins: tuple[int, int]
 
 
 def mean_of(parts: list[MCResult]) -> MCResult:
-    """The mean of independent traces of one incidence (rotations): ``beta`` their mean, ``u`` of the mean."""
+    """The mean of independent traces of one incidence (rotations): ``beta`` their mean, ``u`` of the mean.
+
+    Parameters
+    ----------
+    parts : list of MCResult
+        The traces.
+
+    Returns
+    -------
+    MCResult
+        Their mean (the one trace itself when there is one).
+    """
     if len(parts) == 1:
         return parts[0]
     n = len(parts)
@@ -186,10 +282,6 @@ def mean_of(parts: list[MCResult]) -> MCResult:
 def combine_realisations(betas: Any, u_rays: Any) -> dict[str, np.ndarray]:
     """``beta`` and its standard error from ``K`` traces (``K`` even; trace ``j`` on table half ``j mod 2``).
 
-    ``betas``, ``u_rays``: ``[K, D, L]``, each trace's result and its rays' standard error. Returns
-    ``beta`` (their mean), ``u_beta``, ``u_rays`` (the rays' part, ``sqrt(sum u_j^2) / K``) and ``u_table``
-    (``[D, 1]``, the table's part).
-
     ``K = 2`` (one trace per half): ``u_beta^2 = (u_0^2 + u_1^2) / 4 + u_table^2`` with
     ``u_table^2 = mean_lambda ((beta_0 - beta_1) / 2)^2`` (the halves' difference, pooled over the
     wavelengths). ``K >= 4``: batch means. Each trace is an independent batch but for the table half
@@ -198,6 +290,19 @@ def combine_realisations(betas: Any, u_rays: Any) -> dict[str, np.ndarray]:
     traces of one half: their realisations and rays), ``u_beta^2 = s^2 / K + u_table^2`` with
     ``u_table^2 = max(0, mean_lambda ((A - B)^2 / 4 - s^2 / K))``: ``(A - B)^2 / 4`` has the expectation
     ``s^2 / K`` plus the table's share, ``var(table half) / 2``, of the mean's variance.
+
+    Parameters
+    ----------
+    betas : array_like
+        ``[K, D, L]`` each trace's result.
+    u_rays : array_like
+        ``[K, D, L]`` each trace's rays' standard error.
+
+    Returns
+    -------
+    dict
+        ``beta`` (their mean), ``u_beta``, ``u_rays`` (the rays' part, ``sqrt(sum u_j^2) / K``) and
+        ``u_table`` (``[D, 1]``, the table's part).
     """
     x = np.asarray(betas, float)
     u = np.asarray(u_rays, float)
@@ -222,8 +327,18 @@ def combine_realisations(betas: Any, u_rays: Any) -> dict[str, np.ndarray]:
 
 
 def twist_of(structure: Any) -> tuple[float, float]:
-    """The signed surface twist angles (warp, weft) in degrees, ``+`` Z and ``-`` S, of a config's
-    ``[structure]`` (:class:`simulate.fabric.structure.StructureSpec`); ``(0, 0)`` without one or for a felt."""
+    """The signed surface twist angles (warp, weft) in degrees, ``+`` Z and ``-`` S, of a config's structure.
+
+    Parameters
+    ----------
+    structure : StructureSpec or None
+        The config's ``[structure]`` (:class:`simulate.fabric.structure.StructureSpec`).
+
+    Returns
+    -------
+    tuple of float
+        ``(warp, weft)`` twist in degrees; ``(0, 0)`` without a structure or for a felt.
+    """
     if structure is None or structure.kind != "woven":
         return (0.0, 0.0)
     return (float(structure.warp_twist_deg) * (1.0 if structure.warp_twist == "Z" else -1.0),
@@ -239,7 +354,28 @@ def yarn_model(mesh: Any, structure: Any = None, surface: str | None = None, vol
     ``"pile"`` (:mod:`simulate.raytrace.pile`) at its packing fraction -- the Monte Carlo of the fabric
     the structured summation sums. Without a ``[structure]`` (as the summation's carpet of top
     cells) and for a felt's tubes, each of which IS one fiber: ``"tube"`` and ``"fiber"`` (the
-    fiber's own table), the tracer as it was. ``surface`` / ``volume`` override the choice.
+    fiber's own table).
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The traced mesh (a felt's open fibers are single fibers).
+    structure : StructureSpec, optional
+        The config's ``[structure]``.
+    surface : str, optional
+        Overrides the surface's choice.
+    volume : {"fiber", "pile"}, optional
+        Overrides the volume's choice.
+
+    Returns
+    -------
+    tuple
+        ``(surface, volume, spacing_ratio, packing_fraction)``.
+
+    Raises
+    ------
+    ValueError
+        When ``volume`` is neither ``"fiber"`` nor ``"pile"``.
     """
     woven = structure is not None and structure.kind == "woven" and not getattr(mesh, "open_fibers", False)
     surf = surface or ("fibers" if woven else "tube")
@@ -255,13 +391,16 @@ def _trace_incidences(incidences: np.ndarray, inverse: np.ndarray, w_out: np.nda
                       beta: np.ndarray, u_beta: np.ndarray, background: Any, *, r_target: float, max_rays: int,
                       max_seconds: float, seed: int, threads: int, progress: bool, twist: tuple[float, float],
                       chunk: int, setups: dict, max_events: int, record: dict | None = None) -> list[dict]:
-    """:func:`fabric_beta`'s traces: each incidence on each mesh (realisation ``j`` with table half ``j mod 2``),
-    ``beta`` and ``u_beta`` filled in (:func:`combine_realisations`); returns the incidences' run information.
+    """:func:`fabric_beta`'s traces: each incidence on each mesh, ``beta`` and ``u_beta`` filled in.
+
+    Realisation ``j`` is traced with table half ``j mod 2``; the realisations are combined by
+    :func:`combine_realisations`. Returns the incidences' run information.
 
     The realisations are traced one after the other, every incidence on each, and each one's scene is let go
     before the next (``background``: an executor that builds the next one's meanwhile, or None).
     ``record``: each incidence's traces' events go to ``record["incidences"]`` (:mod:`simulate.raytrace.reweight`),
-    one log per realisation."""
+    one log per realisation.
+    """
     n_rot = felt_rotations(meshes[0])
     n_real = len(meshes)
     per_half = n_real // 2
@@ -345,24 +484,69 @@ def fabric_beta(mesh: Any, fiber: Any, w_in: np.ndarray, w_out: np.ndarray, wave
     standard error combines the ray tracing's (``(u_a^2 + u_b^2) / 4``) with the table's: the two
     halves differ by twice the full table's noise, so per detector ``u_table^2 = mean_lambda
     ((beta_a - beta_b) / 2)^2`` (pooled over the wavelengths, which leans conservative for the
-    dark ones). ``mesh`` a tuple of ``K`` (an even number; a felt's realisations): trace ``j`` is on mesh ``j``
-    with half ``j mod 2``, each to ``sqrt(K / 2)`` times a half's ray target (and ``max_rays``, ``max_seconds``
-    over ``K / 2``), and for ``K >= 4`` the standard error is the batch means' of :func:`combine_realisations`.
-    Returns ``beta [P, L]``, ``u_beta [P, L]`` and run information. The halves
-    come from the disk cache when there (:func:`simulate.raytrace.table_halves`; ``cache=False``
-    or ``FABRIC_OPTICS_NO_CACHE=1``: always computed); ``info["table"]["cache"]`` says which.
-    ``structure`` (a config's ``[structure]``): the yarns' twist (:func:`twist_of`) and what they
-    are made of (:func:`yarn_model`; ``surface`` and ``volume`` override it). ``tables`` given: they
-    are used as they are (``volume`` and ``exit_bins`` then say nothing). ``exit_bins``: the tables'
-    exit directions per exit cell, ``(mu bins, phi bins)`` (a config's ``[method] exit_bins``; what
-    they resolve and cost: docs/physics.md 6, "Exit directions"). ``max_events``: the scattering events
-    followed per ray (:func:`simulate.raytrace.trace`; 0: all, 1: the single scattering). ``record`` (a dict):
-    filled with the run's events and table settings, from which :func:`simulate.raytrace.reweight.reweighted_beta`
-    gives the result for another dye without tracing again. ``populations`` (a blend's ``(share, fiber)``): each
-    population's halves walked as ``fiber``'s would be (a woven ``[structure]``: in the pile of that population's
-    fibers, :mod:`simulate.raytrace.pile`) and mixed by share (:func:`simulate.raytrace.yarn.blend_halves`), so a
-    ray entering a yarn (a felt's fiber) scatters, in expectation, as one of a population drawn by share;
-    ``fiber`` is then the surface term's (its roughness and host index, which the populations share).
+    dark ones). The halves come from the disk cache when there (:func:`simulate.raytrace.table_halves`);
+    ``info["table"]["cache"]`` says which.
+
+    Parameters
+    ----------
+    mesh : Mesh or tuple of Mesh
+        The micro-element; a tuple of ``K`` (an even number; a felt's realisations): trace ``j`` is on
+        mesh ``j`` with half ``j mod 2``, each to ``sqrt(K / 2)`` times a half's ray target (and
+        ``max_rays``, ``max_seconds`` over ``K / 2``), and for ``K >= 4`` the standard error is the batch
+        means' of :func:`combine_realisations`.
+    fiber : Fiber
+        The yarns' fiber; with ``populations``, the surface term's (its roughness and host index, which
+        the populations share).
+    w_in, w_out : numpy.ndarray
+        ``[P, 3]`` paired incident and exit directions in the fabric frame.
+    wavelengths_nm : numpy.ndarray
+        ``[L]`` vacuum wavelengths (nm).
+    target_rel_err : float
+        Target relative standard error of ``beta``.
+    max_rays, max_seconds : int, float
+        Budgets (0: none).
+    seed : int
+        Random seed.
+    threads : int
+        Threads (results do not depend on it).
+    progress : bool
+        Show a progress bar.
+    tables : tuple of YarnTable, optional
+        The two halves, used as they are (``volume`` and ``exit_bins`` then say nothing).
+    structure : StructureSpec, optional
+        A config's ``[structure]``: the yarns' twist (:func:`twist_of`) and what they are made of
+        (:func:`yarn_model`).
+    cache : bool
+        Read and store the halves in the disk cache (False, or ``FABRIC_OPTICS_NO_CACHE=1``: always
+        computed).
+    surface, volume : str, optional
+        Override :func:`yarn_model`'s choice.
+    exit_bins : tuple of int
+        The tables' exit directions per exit cell, ``(mu bins, phi bins)`` (a config's
+        ``[method] exit_bins``; what they resolve and cost: docs/physics.md 6, "Exit directions").
+    axial_shift : bool
+        Shift a table row's exits along the fiber axis (docs/physics.md 6, "Axial shift").
+    w_t_nodes : tuple of float
+        The tables' axial incidence nodes.
+    max_events : int
+        The scattering events followed per ray (:func:`simulate.raytrace.trace`; 0: all, 1: the single
+        scattering).
+    record : dict, optional
+        Filled with the run's events and table settings, from which
+        :func:`simulate.raytrace.reweight.reweighted_beta` gives the result for another dye without
+        tracing again.
+    populations : sequence of (float, Fiber), optional
+        A blend's ``(share, fiber)``: each population's halves walked as ``fiber``'s would be (a woven
+        ``[structure]``: in the pile of that population's fibers, :mod:`simulate.raytrace.pile`) and mixed
+        by share (:func:`simulate.raytrace.yarn.blend_halves`), so a ray entering a yarn (a felt's fiber)
+        scatters, in expectation, as one of a population drawn by share.
+
+    Returns
+    -------
+    beta, u_beta : numpy.ndarray
+        ``[P, L]`` estimate and standard error.
+    info : dict
+        Run information (the table, the traces, the stops).
     """
     w_in = np.atleast_2d(np.asarray(w_in, float))
     w_out = np.atleast_2d(np.asarray(w_out, float))

@@ -73,7 +73,15 @@ import numba
 import numpy as np
 
 from simulate.montecarlo.accuracy import check_target, relative_error
-from simulate.raytrace.materials import K_FIBER, K_FIBER_BRDF, FiberBRDFAtHit, FiberSurface, Lambert, material_kind, surface_albedo
+from simulate.raytrace.materials import (
+    K_FIBER,
+    K_FIBER_BRDF,
+    FiberBRDFAtHit,
+    FiberSurface,
+    Lambert,
+    material_kind,
+    surface_albedo,
+)
 from simulate.raytrace.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
 from simulate.raytrace.shading import ShadeInputs, ShadeOutputs, new_outputs, shade, shade_groups
 
@@ -147,7 +155,7 @@ class _Sums:
     log: Any = None
     """The chunk's events for a dye's re-weighting (:func:`_chunk` with ``record``), else None."""
 
-    def add(self, o: "_Sums") -> None:
+    def add(self, o: _Sums) -> None:
         for name in ("nee", "nee2", "refl", "refl2", "trans", "trans2", "energy2", "bins", "bins2"):
             getattr(self, name)[...] += getattr(o, name)
         self.rays += o.rays
@@ -172,8 +180,21 @@ def _new_sums(G: int, D: int, L: int, bins: tuple[int, int]) -> _Sums:
 
 
 def yarn_radius(mesh: Any) -> float:
-    """``sqrt(a b)`` of the first yarn's cross-section (semi-axes from its first ring of vertices;
-    a mesh may state it as ``yarn_radius_um``, as the felt's does)."""
+    """The yarn radius of a mesh (um): the first yarn's ``sqrt(a b)``, or the radius the mesh states.
+
+    The semi-axes ``a``, ``b`` come from the first yarn's first ring of vertices; a mesh may state the
+    radius as ``yarn_radius_um``, as the felt's does.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The traced mesh.
+
+    Returns
+    -------
+    float
+        The radius (um).
+    """
     if getattr(mesh, "yarn_radius_um", None):
         return float(mesh.yarn_radius_um)
     ring = np.asarray(mesh.vertices)[int(mesh.vertex_base[0]):int(mesh.vertex_base[0]) + int(mesh.sides) + 1]
@@ -273,10 +294,13 @@ class _Setup:
 @numba.njit(cache=True, nogil=True)
 def _tally_escapes(prim, ray, last, dirs, azimuth, weight, n, n_mu, n_phi, refl, trans, bins, bins2,
                    hit_ray, hit_idx):
-    """Score the rays of a bounce that escaped (up: ``refl`` and the exit bins, ``bins2`` their squares;
+    """Score the rays of a bounce that escaped and list the ones that hit.
+
+    Score the rays of a bounce that escaped (up: ``refl`` and the exit bins, ``bins2`` their squares;
     down: ``trans``) and list the ones that hit (``hit_ray``: their ray, ``hit_idx``: their row in the
     wavefront), in order. ``azimuth``: ``arctan2(dirs_y, dirs_x)`` (numpy's). Returns
-    ``(hits, lost, continued, self_hits)``."""
+    ``(hits, lost, continued, self_hits)``.
+    """
     m = 0
     lost = 0
     continued = 0
@@ -328,10 +352,13 @@ def _gather_hits(hit_idx, m, prim, u, v, position, dirs, weight, hp, hu, hv, hpo
 
 @numba.njit(cache=True, nogil=True)
 def _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, cidx, size, p, state, binsum):
-    """The next-event candidates of a bounce (``need``'s true entries in C order), their sizes (largest
+    """The next-event candidates of a bounce, their roulette probabilities and their states.
+
+    The next-event candidates of a bounce (``need``'s true entries in C order), their sizes (largest
     spectral value), the roulette's probabilities against the running per-detector sums ``cand`` (updated
     with this bounce's sizes first) and their state: 0 not traced (zero), 1 traced, 2 to be drawn with ``p``.
-    Returns ``(candidates, to_draw)``."""
+    Returns ``(candidates, to_draw)``.
+    """
     M = need.shape[0]
     E = need.shape[1]
     L = nee_c.shape[3]
@@ -376,9 +403,12 @@ def _shadow_candidates(need, nee_c, hit_group, D, cand, level_scale, roulette, c
 @numba.njit(cache=True, nogil=True)
 def _bounded_candidates(need, nee_row, nee_scale, weight, t_max, hit_group, D, cand, level_scale, cidx, size, p,
                         state, binsum):
-    """:func:`_shadow_candidates` of deferred contributions (:data:`SHADOW_BOUND`): each candidate's size is
+    """The next-event candidates of a bounce whose contributions are deferred, by their bounds.
+
+    :func:`_shadow_candidates` of deferred contributions (:data:`SHADOW_BOUND`): each candidate's size is
     the bound ``max_k weight[i, k]`` times ``t_max[nee_row]`` (1 for the surface term, row -1) times
-    ``nee_scale``, and the roulette is always played. Returns ``(candidates, to_draw)``."""
+    ``nee_scale``, and the roulette is always played. Returns ``(candidates, to_draw)``.
+    """
     M = need.shape[0]
     E = need.shape[1]
     L = weight.shape[1]
@@ -424,8 +454,11 @@ def _bounded_candidates(need, nee_row, nee_scale, weight, t_max, hit_group, D, c
 
 @numba.njit(cache=True, nogil=True)
 def _shadow_rays(c, state, p, draws, cidx, nee_o, detectors, hit_group, wrap, lx, ly, traced, origins, towards):
-    """The candidates traced (state 1, or 2 and the next of ``draws`` below ``p``: in order), their
-    shadow rays' origins (into the cell for a felt) and directions. Returns how many."""
+    """Gather the candidates to trace and their shadow rays; returns how many.
+
+    The candidates traced (state 1, or 2 and the next of ``draws`` below ``p``: in order), their
+    shadow rays' origins (into the cell for a felt) and directions. Returns how many.
+    """
     t = 0
     u = 0
     for q in range(c):
@@ -466,9 +499,12 @@ def _score_visible(t, traced, vis, cidx, p, nee_c, hit_ray, acc):
 
 @numba.njit(cache=True, nogil=True)
 def _score_visible_bounded(t, traced, vis, cidx, p, nee_row, nee_scale, weight, t_rows, hit_ray, acc):
-    """:func:`_score_visible` of deferred contributions: each visible traced candidate's contribution formed
+    """Score the visible traced candidates of deferred contributions, each over its probability.
+
+    :func:`_score_visible` of deferred contributions: each visible traced candidate's contribution formed
     as the shading forms it (``weight * t_rows[row] * scale``; the surface term, row -1, ``weight * scale``)
-    over its probability, added to its ray's detector, in order."""
+    over its probability, added to its ray's detector, in order.
+    """
     L = weight.shape[1]
     for j in range(t):
         if not vis[j]:
@@ -489,8 +525,10 @@ def _score_visible_bounded(t, traced, vis, cidx, p, nee_row, nee_scale, weight, 
 
 @numba.njit(cache=True, nogil=True)
 def _path_roulette(w, below, low):
-    """Mark the continuing rays whose largest spectral weight is below ``below`` (and above 0) for the
-    path's Russian roulette; returns how many."""
+    """Mark the continuing rays of low weight for the path's Russian roulette; returns how many.
+
+    A ray's weight is low when its largest spectral value is below ``below`` (and above 0).
+    """
     c = 0
     L = w.shape[1]
     for i in range(w.shape[0]):
@@ -506,9 +544,12 @@ def _path_roulette(w, below, low):
 
 @numba.njit(cache=True, nogil=True)
 def _survivors(o, d, w, left, hit_ray, low, draws, survive, wrap, lx, ly, origins, dirs, weight, ray, last):
-    """Play the path's roulette (``draws`` in order over the ``low`` rows: kept with probability
+    """Play the path's roulette and compact the live rays into the next wavefront; returns how many.
+
+    Play the path's roulette (``draws`` in order over the ``low`` rows: kept with probability
     ``survive``, their weight over it) and compact the live rays (largest weight above 0) into the next
-    wavefront's arrays (a felt's origins back into the cell). Returns how many."""
+    wavefront's arrays (a felt's origins back into the cell). Returns how many.
+    """
     L = w.shape[1]
     u = 0
     a = 0
@@ -539,10 +580,24 @@ def _survivors(o, d, w, left, hit_ray, low, draws, survive, wrap, lx, ly, origin
     return a
 
 
+def _group_seeds(rng: np.random.Generator, cuts: np.ndarray, G: int) -> np.ndarray:
+    """The shading's random state of each group that has hits (``cuts[g] < cuts[g + 1]``), drawn in the groups' order.
+
+    A group without hits keeps 0 and draws nothing, so the streams of the others do not depend on it.
+    """
+    seeds = np.zeros(G, np.int64)
+    for g in range(G):
+        if cuts[g + 1] > cuts[g]:
+            seeds[g] = rng.integers(0, 2**62)
+    return seeds
+
+
 def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed: tuple[int, ...],
            events: int = _MAX_BOUNCES, record: bool = False) -> _Sums:
-    """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element (one wavefront for all ``G``),
-    each for at most ``events`` scattering events (the rays still going after that count as killed).
+    """Trace ``n`` rays of each beam ``w_in[g]`` through the micro-element in one wavefront.
+
+    One wavefront holds the rays of all ``G`` beams, each followed for at most ``events`` scattering
+    events (the rays still going after that count as killed).
     ``record``: the sums' ``log`` holds the events a dye's re-weighting replays
     (:class:`simulate.raytrace.record.EventLog`; a fiber material with deferred contributions only).
 
@@ -606,7 +661,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
             raise ValueError("trace: a re-weighting record needs a fiber material traced with its next-event "
                              "contributions deferred (SHADOW_ROULETTE and SHADOW_BOUND)")
         log = EventLog(N, n, G, D)
-    for bounce in range(events):
+    for _bounce in range(events):
         if ray.size == 0:
             break
         hits = scene.intersect(origins, dirs, stats)
@@ -626,10 +681,7 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
         if setup.kind == K_FIBER_BRDF:
             out.hit_albedo[...] = 0.0
         cuts = np.searchsorted(hit_group, np.arange(G + 1)) if G > 1 else np.array([0, M])
-        seeds = np.zeros(G, np.int64)
-        for g in range(G):       # a seed for each group that has hits, drawn in the groups' order
-            if cuts[g + 1] > cuts[g]:
-                seeds[g] = rng.integers(0, 2**62)
+        seeds = _group_seeds(rng, cuts, G)
         shade_groups(seeds, cuts, hp[:M], hu[:M], hv[:M], hpos[:M], hd[:M], hw[:M], inputs, detectors, out)
         o, d, w, nee_o, nee_c, need, alb, left, nee_row, nee_scale, out_row, out_scale = out
         if setup.kind == K_FIBER_BRDF:
@@ -686,7 +738,20 @@ def _chunk(setup: _Setup, w_in: np.ndarray, detectors: np.ndarray, n: int, seed:
 
 
 def mean_se(s: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The mean of ``n`` per-ray contributions from their sum ``s`` and sum of squares ``s2``, and its standard error."""
+    """The mean of ``n`` per-ray contributions from their sum ``s`` and sum of squares ``s2``, and its standard error.
+
+    Parameters
+    ----------
+    s, s2 : numpy.ndarray
+        The sums of the contributions and of their squares.
+    n : int
+        The rays.
+
+    Returns
+    -------
+    mean, u : numpy.ndarray
+        The mean per ray and its standard error.
+    """
     mean = s / n
     var = np.maximum(s2 / n - mean ** 2, 0.0) / max(n - 1, 1)
     return mean, np.sqrt(var)
@@ -714,6 +779,7 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
     mesh : simulate.geometry.mesh.FabricMesh
         The micro-element (or :func:`simulate.geometry.validation.flat_mesh`).
     material : Lambert, FiberSurface or FiberBRDFAtHit
+        The yarns' material: a Lambertian albedo, or a fiber surface over a yarn table.
     w_in : (3,) array
         Unit direction towards the source, fabric frame (``z > 0``).
     detectors : (D, 3) array
@@ -728,6 +794,10 @@ def trace(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit, w_in: An
         Chunk ``c`` uses the stream ``(seed, c)``: results do not depend on ``threads``.
     threads : int
         Chunks traced concurrently (Embree and the compiled shading release the GIL).
+    progress : bool
+        Show a progress bar (tqdm) of the rays traced.
+    bins : (int, int)
+        ``(n_mu, n_phi)`` exit-direction bins of the escaped rays' tally.
     chunk : int
         Rays per chunk (a wavefront); the error is checked after every 4 chunks.
     twist_deg : (float, float)
@@ -768,7 +838,25 @@ def trace_rotations(mesh: Any, material: Lambert | FiberSurface | FiberBRDFAtHit
     Returns one :class:`MCResult` per rotation (``rays``: its own; ``seconds``: an equal share;
     ``info``: the whole trace's). The run stops when the MEAN over the rotations reaches
     ``target_rel_err`` (its standard error ``sqrt(sum u_j^2) / K``); ``max_rays`` is the budget
-    of all rotations together, ``max_seconds`` of the whole trace. Other parameters: :func:`trace`.
+    of all rotations together, ``max_seconds`` of the whole trace.
+
+    Parameters
+    ----------
+    mesh, material, w_in, detectors, n_wavelengths
+        As :func:`trace`'s.
+    angles : array_like
+        The rotations about the normal (radians).
+    target_rel_err : float
+        Target of the mean over the rotations.
+    max_rays, max_seconds : int, float
+        Budgets of all rotations together (0: none).
+    seed, threads, progress, bins, chunk, twist_deg, normals, setups, max_events, record
+        As :func:`trace`'s.
+
+    Returns
+    -------
+    list of MCResult
+        One per rotation.
     """
     w = np.asarray(w_in, float).reshape(3)
     det = np.atleast_2d(np.asarray(detectors, float))
@@ -804,10 +892,58 @@ def _setup_for(mesh: Any, material: Any, n_wavelengths: int | None, bins: tuple[
 def prepare(mesh: Any, material: Any, setups: dict, *, n_wavelengths: int | None = None,
             bins: tuple[int, int] = (9, 12), twist_deg: tuple[float, float] = (0.0, 0.0),
             normals: str = "vertex") -> None:
-    """Build into ``setups`` the scene and material arrays that :func:`trace` or :func:`trace_rotations`
-    with the same arguments and ``setups`` would build at its start (e.g. on another thread while an
-    earlier mesh is traced: :func:`simulate.raytrace.estimate.fabric_beta`); the traces then start at once."""
+    """Build the scene and material arrays of a trace ahead of it into ``setups``.
+
+    They are the arrays :func:`trace` or :func:`trace_rotations` with the same arguments and ``setups``
+    would build at its start (e.g. on another thread while an earlier mesh is traced:
+    :func:`simulate.raytrace.estimate.fabric_beta`); the traces then start at once.
+
+    Parameters
+    ----------
+    mesh, material, setups, n_wavelengths, bins, twist_deg, normals
+        As :func:`trace`'s.
+    """
     _setup_for(mesh, material, n_wavelengths, bins, twist_deg, normals, setups)
+
+
+def _events_of(max_events: Any) -> int:
+    """The scattering events a ray is followed for: ``max_events`` (0: all) capped at the tracer's limit."""
+    if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 0:
+        raise ValueError(f"trace: max_events must be a whole number >= 0 (0: all events), not {max_events!r}")
+    return min(int(max_events), _MAX_BOUNCES) if max_events else _MAX_BOUNCES
+
+
+def _check_directions(w_in: np.ndarray, det: np.ndarray) -> None:
+    """Refuse incidences and detectors at or below the fabric's plane; warn of grazing ones (beyond 85 deg)."""
+    # 90 deg exactly (cos 90 deg is 6e-17 in floating point) is an error, not a ray that wraps for ever
+    if np.any(w_in[:, 2] <= 1e-12) or np.any(det[..., 2] <= 1e-12):
+        raise ValueError("trace: w_in and the detectors must point above the fabric (z > 0)")
+    if min(float(w_in[:, 2].min()), float(det[..., 2].min())) < math.cos(math.radians(85.0)):
+        from simulate.optics.microfacet import OpticsDomainWarning
+
+        # stacklevel 4: the caller of trace / trace_rotations (this helper, _trace, then theirs)
+        warnings.warn("fabric MC: directions more than 85 deg from the normal: the next-event radiance goes "
+                      "as 1/cos(theta_o) and few rays reach the fabric at grazing incidence; the relative "
+                      "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=4)
+
+
+def _stop_of(rel: float, target_rel_err: float, rays: int, max_rays: int, started: float,
+             max_seconds: float) -> str | None:
+    """Which stop ends a trace after a round (``target``, ``max_rays``, ``max_seconds``, in that order), or None."""
+    if rel <= target_rel_err:
+        return "target"
+    if max_rays and rays >= max_rays:
+        return "max_rays"
+    if max_seconds and time.perf_counter() - started >= max_seconds:
+        return "max_seconds"
+    return None
+
+
+def _progress_bar() -> Any:
+    """The trace's progress bar (tqdm), counting rays; closed when the trace ends."""
+    from tqdm import tqdm
+
+    return tqdm(total=None, unit="ray", desc="fabric MC", leave=False)
 
 
 def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavelengths: int | None, *,
@@ -815,27 +951,19 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
            bins: tuple[int, int], chunk: int, twist_deg: tuple[float, float], normals: str,
            setups: dict | None, max_events: int = 0, fit_last_round: bool = False,
            record: list | None = None) -> list[MCResult]:
-    """:func:`trace` of ``G`` groups (``w_in [G, 3]``, ``det [G, D, 3]``); ``max_rays`` per group;
-    stops on the mean over the groups (:func:`trace_rotations`). ``fit_last_round``: after the first
+    """:func:`trace` of ``G`` groups (rotations) at once, stopped on their mean error.
+
+    ``w_in [G, 3]``, ``det [G, D, 3]``; ``max_rays`` per group (:func:`trace_rotations`). ``fit_last_round``: after the first
     round, each round's chunks hold only the rays the target still needs (predicted from the error
     so far, between ``chunk / 8`` and ``chunk`` a group), so a run overshoots its target by less
     than a round of full chunks; the sizes follow from the sums alone (not from the threads). ``record``: a
-    :class:`simulate.raytrace.record.TraceLog` of the trace's events is appended to it (a dye's re-weighting)."""
+    :class:`simulate.raytrace.record.TraceLog` of the trace's events is appended to it (a dye's re-weighting).
+    """
     target_rel_err = check_target(target_rel_err)
-    if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 0:
-        raise ValueError(f"trace: max_events must be a whole number >= 0 (0: all events), not {max_events!r}")
-    events = min(int(max_events), _MAX_BOUNCES) if max_events else _MAX_BOUNCES
+    events = _events_of(max_events)
     det = np.ascontiguousarray(det)
     G = w_in.shape[0]
-    # 90 deg exactly (cos 90 deg is 6e-17 in floating point) is an error, not a ray that wraps for ever
-    if np.any(w_in[:, 2] <= 1e-12) or np.any(det[..., 2] <= 1e-12):
-        raise ValueError("trace: w_in and the detectors must point above the fabric (z > 0)")
-    if min(float(w_in[:, 2].min()), float(det[..., 2].min())) < math.cos(math.radians(85.0)):
-        from simulate.optics.microfacet import OpticsDomainWarning
-
-        warnings.warn("fabric MC: directions more than 85 deg from the normal: the next-event radiance goes "
-                      "as 1/cos(theta_o) and few rays reach the fabric at grazing incidence; the relative "
-                      "error there is large (it is in u_beta)", OpticsDomainWarning, stacklevel=3)
+    _check_directions(w_in, det)
     setup = _setup_for(mesh, material, n_wavelengths, bins, twist_deg, normals, setups)
     L = setup.n_wl
     D = det.shape[1]
@@ -845,10 +973,7 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
     next_size = int(chunk)
     stop = "target"
     rel = float("inf")
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=None, unit="ray", desc="fabric MC", leave=False)
+    bar = _progress_bar() if progress else None
     pool = ThreadPoolExecutor(max_workers=max(1, int(threads))) if threads and threads > 1 else None
     logs: list = []
     try:
@@ -861,7 +986,7 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
             if pool is None:
                 parts = [_chunk(setup, w_in, det, size, s, events, keep) for s in jobs]
             else:
-                parts = list(pool.map(lambda s: _chunk(setup, w_in, det, size, s, events, keep), jobs))
+                parts = list(pool.map(lambda s, size=size, keep=keep: _chunk(setup, w_in, det, size, s, events, keep), jobs))
             if keep:
                 logs.extend(p.log for p in parts)
             for p in parts:     # in chunk order: the sums do not depend on the threads
@@ -875,14 +1000,9 @@ def _trace(mesh: Any, material: Any, w_in: np.ndarray, det: np.ndarray, n_wavele
             if bar is not None:
                 bar.update(_ROUND * size * G)
                 bar.set_postfix_str(f"rel. err {rel:.3%} (target {target_rel_err:.2%})")
-            if rel <= target_rel_err:
-                stop = "target"
-                break
-            if max_rays and total.rays >= max_rays:
-                stop = "max_rays"
-                break
-            if max_seconds and time.perf_counter() - started >= max_seconds:
-                stop = "max_seconds"
+            ended = _stop_of(rel, target_rel_err, total.rays, max_rays, started, max_seconds)
+            if ended is not None:
+                stop = ended
                 break
             if fit_last_round:   # the rays the target still needs (rel ~ 1 / sqrt(rays)); short: one more round
                 need = total.rays * ((rel / target_rel_err) ** 2 - 1.0) / _ROUND

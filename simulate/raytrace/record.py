@@ -27,7 +27,8 @@ class ChunkLog:
     2 stopped); bounce ``b``'s hits are ``hit_start[b]:hit_start[b + 1]``. Next-event scores (visible and
     kept by the shadow roulette): ``nee_hit`` (index into the hits), ``nee_det``, ``nee_row`` (-1: the
     surface term), ``nee_scale`` (the scalar over the roulette's probability); bounce ``b``'s are
-    ``nee_start[b]:nee_start[b + 1]``."""
+    ``nee_start[b]:nee_start[b + 1]``.
+    """
 
     N: int
     n: int
@@ -46,6 +47,7 @@ class ChunkLog:
 
     @property
     def nbytes(self) -> int:
+        """Bytes held by the recorded arrays (what keeping the record costs in memory)."""
         return int(sum(getattr(self, f.name).nbytes for f in dataclasses.fields(self)
                        if isinstance(getattr(self, f.name), np.ndarray)))
 
@@ -82,6 +84,7 @@ class EventLog:
         self._nee_start.append(self._q)
 
     def close(self) -> ChunkLog:
+        """The chunk's events as one :class:`ChunkLog` (the bounces' parts joined in order)."""
         def cat(parts: list, k: int, dtype: Any) -> np.ndarray:
             return np.concatenate([p[k] for p in parts]) if parts else np.zeros(0, dtype)
 
@@ -106,4 +109,5 @@ class TraceLog:
 
     @property
     def nbytes(self) -> int:
+        """Bytes held by all chunks' recorded arrays."""
         return int(sum(c.nbytes for c in self.chunks))

@@ -78,9 +78,28 @@ def _replay_chunk(N, hit_ray, hit_row, hit_scale, hit_rr, hit_start, nee_hit, ne
 
 
 def replay(log: TraceLog, t_rows: np.ndarray) -> list[Any]:
-    """The :class:`~simulate.raytrace.integrator.MCResult` of each group of a recorded trace, its rays re-weighted
-    to the table rows ``t_rows`` (``T.reshape(-1, L)`` of the new table; the traced table's gives the traced
-    result to rounding). Only ``beta``, ``u_beta``, ``rays`` and ``rel_err`` are filled in."""
+    """The :class:`~simulate.raytrace.integrator.MCResult` of each group of a recorded trace, re-weighted.
+
+    The trace's rays are re-weighted to the table rows ``t_rows``; the traced table's rows give the traced
+    result to rounding. Only ``beta``, ``u_beta``, ``rays`` and ``rel_err`` are filled in.
+
+    Parameters
+    ----------
+    log : TraceLog
+        The recorded trace.
+    t_rows : numpy.ndarray
+        ``T.reshape(-1, L)`` of the new table (the traced table's row shape).
+
+    Returns
+    -------
+    list of MCResult
+        One result per group of the trace.
+
+    Raises
+    ------
+    ValueError
+        When the new table's rows differ in shape from the traced one's.
+    """
     from simulate.raytrace.integrator import ROULETTE_SURVIVE, MCResult, mean_se
 
     t_rows = np.ascontiguousarray(t_rows, float)
@@ -112,17 +131,30 @@ def replay(log: TraceLog, t_rows: np.ndarray) -> list[Any]:
 
 
 def record_bytes(record: dict) -> int:
-    """The memory of a :func:`simulate.raytrace.fabric_beta` record's events (bytes)."""
+    """The memory of a :func:`simulate.raytrace.fabric_beta` record's events (bytes).
+
+    Parameters
+    ----------
+    record : dict
+        The record.
+
+    Returns
+    -------
+    int
+        Bytes held by its traces' arrays.
+    """
     return int(sum(t.nbytes for inc in record.get("incidences", []) for t in inc["realisations"]))
 
 
 def _half_results(record: dict, tables: Sequence[Any]) -> list[list[Any]]:
-    """Per incidence, the realisations' results re-weighted to ``tables`` (each one's rotations averaged;
-    realisation ``j`` on table half ``j mod 2``), in the realisations' order.
+    """Per incidence, the realisations' results re-weighted to ``tables``, in the realisations' order.
+
+    Each realisation's rotations are averaged; realisation ``j`` is read on table half ``j mod 2``.
 
     Half by half: every incidence's rays of a half are replayed with that half's table, which is then let go
     before the other is asked for (:func:`new_tables` walks or reads each only then), so a re-weighting holds
-    one table at a time beside the record. The replays are independent: the order changes no result."""
+    one table at a time beside the record. The replays are independent: the order changes no result.
+    """
     from simulate.raytrace.estimate import mean_of
 
     incidences = record["incidences"]
@@ -138,15 +170,29 @@ def _half_results(record: dict, tables: Sequence[Any]) -> list[list[Any]]:
 
 
 def reweighted_beta(record: dict, tables: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, dict]:
-    """``beta``, ``u_beta`` and run information of a recorded :func:`simulate.raytrace.fabric_beta` run re-weighted
-    to the table halves ``tables`` (:func:`new_tables`), combined as :func:`~simulate.raytrace.fabric_beta` combines
-    its traces (:func:`simulate.raytrace.estimate.combine_realisations`: the realisations' mean and its error).
+    """A recorded :func:`simulate.raytrace.fabric_beta` run re-weighted to the table halves ``tables``.
 
-    ``info``: ``rel_err`` and ``ray_rel_err`` (the re-weighted run's, :func:`relative_error`), per incidence the
-    same and ``spread``, the re-weighted ray error over the traced run's at the same rays (1 at the traced dye; a
-    fresh trace at the new dye would give about the traced run's, so the ratio is how much the weights cost: its
-    square is the inverse of the effective sample size's share), ``rays``, ``event_bytes`` and ``u_rays`` (``[P, L]``:
-    the rays' part of ``u_beta``, without the table's)."""
+    The realisations are combined as :func:`~simulate.raytrace.fabric_beta` combines its traces
+    (:func:`simulate.raytrace.estimate.combine_realisations`: the realisations' mean and its error).
+
+    Parameters
+    ----------
+    record : dict
+        The run's record (its incidences, realisations, traced tables and grid).
+    tables : sequence of YarnTable
+        The new table halves (:func:`new_tables`).
+
+    Returns
+    -------
+    beta, u_beta : numpy.ndarray
+        ``[P, L]`` estimate and standard error.
+    info : dict
+        ``rel_err`` and ``ray_rel_err`` (the re-weighted run's, :func:`relative_error`), per incidence the
+        same and ``spread``, the re-weighted ray error over the traced run's at the same rays (1 at the traced
+        dye; a fresh trace at the new dye would give about the traced run's, so the ratio is how much the
+        weights cost: its square is the inverse of the effective sample size's share), ``rays``,
+        ``event_bytes`` and ``u_rays`` (``[P, L]``: the rays' part of ``u_beta``, without the table's).
+    """
     from simulate.raytrace.estimate import combine_realisations
 
     shape = tuple(record["shape"])
@@ -154,7 +200,7 @@ def reweighted_beta(record: dict, tables: Sequence[Any]) -> tuple[np.ndarray, np
     u_beta = np.zeros(shape)
     u_rays = np.zeros(shape)
     runs = []
-    for inc, res in zip(record["incidences"], _half_results(record, tables)):
+    for inc, res in zip(record["incidences"], _half_results(record, tables), strict=True):
         rows, det_inv = inc["rows"], inc["det_inv"]
         c = combine_realisations([r.beta for r in res], [r.u_beta for r in res])
         b, u = c["beta"], c["u_beta"]
@@ -174,9 +220,23 @@ def reweighted_beta(record: dict, tables: Sequence[Any]) -> tuple[np.ndarray, np
 
 
 def same_but_dye(old: Any, new: Any) -> bool:
-    """Whether fiber ``new`` is ``old`` but for its host absorption (the dye): every field of the fiber the same
-    and the medium's canonical form (the yarn table's cache key, :func:`simulate.raytrace.yarn.table_key`) the same
-    once the dye is put back."""
+    """Whether fiber ``new`` is ``old`` but for its host absorption (the dye).
+
+    Every field of the fiber must be the same, and the medium's canonical form (the yarn table's cache key,
+    :func:`simulate.raytrace.yarn.table_key`) the same once the dye is put back.
+
+    Parameters
+    ----------
+    old : Fiber
+        The traced fiber.
+    new : Fiber
+        The fiber to re-weight to.
+
+    Returns
+    -------
+    bool
+        True when a re-weighting of ``old``'s record can stand for a trace of ``new``.
+    """
     from simulate.media.medium import HGMedium
     from simulate.raytrace.yarn import table_key
 
@@ -194,11 +254,21 @@ def same_but_dye(old: Any, new: Any) -> bool:
 
 
 class WalkedHalves(Sequence):
-    """The two table halves a recorded run would have traced with ``fiber``, each walked (or read from the table
-    cache) when it is asked for and not kept: :func:`reweighted_beta` reads them one after the other, so the two
-    are never held together (285 MB each for the felt at its [10, 20] exit bins). Each half is bit for bit the
-    one :func:`simulate.raytrace.yarn.table_halves` gives (the same photons, seeds and grid; the same cache key),
-    checked against the traced half's grid, ``c_bar`` and ``tau`` as it is made."""
+    """The two table halves a recorded run would have traced with ``fiber``, each made when it is asked for.
+
+    Each half is walked (or read from the table cache) and not kept: :func:`reweighted_beta` reads them one
+    after the other, so the two are never held together (a felt's half at its [10, 20] exit bins takes
+    hundreds of MB). Each half is bit for bit the one :func:`simulate.raytrace.yarn.table_halves` gives (the
+    same photons, seeds and grid; the same cache key), checked against the traced half's grid, ``c_bar`` and
+    ``tau`` as it is made.
+
+    Parameters
+    ----------
+    record : dict
+        The recorded run (its traced tables, grid, photons and seed).
+    fiber : Fiber
+        The fiber to walk the halves with.
+    """
 
     def __init__(self, record: dict, fiber: Any) -> None:
         from simulate.raytrace.pile import HELD_LOG_MU_S, pile_fiber
@@ -245,9 +315,19 @@ def _check_half(traced: dict, table: Any) -> None:
 
 
 class MixedHalves(Sequence):
-    """A blend's table halves a recorded run would have traced with ``populations`` (``(share, fiber)``): each
-    half the populations' :class:`WalkedHalves` half mixed by share (:func:`simulate.raytrace.yarn.mix_tables`), as
-    :func:`simulate.raytrace.fabric_beta` mixes them, made when it is read and checked against the traced half."""
+    """A blend's table halves a recorded run would have traced with ``populations``.
+
+    Each half is the populations' :class:`WalkedHalves` half mixed by share
+    (:func:`simulate.raytrace.yarn.mix_tables`), as :func:`simulate.raytrace.fabric_beta` mixes them, made
+    when it is read and checked against the traced half.
+
+    Parameters
+    ----------
+    record : dict
+        The recorded run.
+    populations : sequence of (float, Fiber)
+        The blend's ``(share, fiber)`` pairs.
+    """
 
     def __init__(self, record: dict, populations: Sequence[tuple[float, Any]]) -> None:
         self._record = record
@@ -275,12 +355,35 @@ class MixedHalves(Sequence):
 
 def new_tables(record: dict, fiber: Any, tables: tuple | None = None,
                populations: Sequence[tuple[float, Any]] | None = None) -> Sequence[Any]:
-    """The table halves a recorded run would have traced with ``fiber`` (the same walk: photons, seeds, grid;
-    from the table cache when there): a :class:`WalkedHalves`, each half made when it is read. ``populations``
-    (a blend's ``(share, fiber)``): a :class:`MixedHalves`. ``tables`` given (mixed halves): they are checked and
-    returned."""
+    """The table halves a recorded run would have traced with ``fiber``.
+
+    The same walk (photons, seeds, grid; from the table cache when there), each half made when it is read.
+
+    Parameters
+    ----------
+    record : dict
+        The recorded run.
+    fiber : Fiber
+        The fiber to re-weight to.
+    tables : tuple of YarnTable, optional
+        Halves already made (mixed halves): they are checked and returned.
+    populations : sequence of (float, Fiber), optional
+        A blend's ``(share, fiber)`` pairs, mixed half by half.
+
+    Returns
+    -------
+    sequence of YarnTable
+        ``tables``; else a :class:`MixedHalves` for ``populations``; else a :class:`WalkedHalves`.
+
+    Raises
+    ------
+    ValueError
+        When given tables differ from the traced ones in number or in more than the dye.
+    """
     if tables is None:
         return WalkedHalves(record, fiber) if populations is None else MixedHalves(record, populations)
-    for traced, table in zip(record["tables"], tables):
+    if len(tables) != len(record["tables"]):
+        raise ValueError(f"reweight: {len(tables)} table halves given for the {len(record['tables'])} traced")
+    for traced, table in zip(record["tables"], tables, strict=True):
         _check_half(traced, table)
     return tuple(tables)

@@ -89,13 +89,16 @@ class ShadeInputs(NamedTuple):
 
 
 class ShadeOutputs(NamedTuple):
-    """Per hit ray: the continuing ray (origin, direction, spectral weight; a zero row is dead),
+    """Per hit ray, what its shading writes: the continuation, the next-event terms and the albedo.
+
+    Per hit ray: the continuing ray (origin, direction, spectral weight; a zero row is dead),
     next-event origins, contributions and flags (event 0: surface, 1: volume exit), local albedo.
 
     With ``defer_nee`` (:class:`ShadeInputs`; a fiber material) ``nee_c`` is not written: a flagged
     contribution is ``weight[i, k] * T2[nee_row, k] * nee_scale`` with ``T2`` the table's rows
     (``T.reshape(-1, L)``), or ``weight[i, k] * nee_scale`` where ``nee_row`` is -1 (the surface term):
-    the same products, computed by the tracer only for the candidates it keeps."""
+    the same products, computed by the tracer only for the candidates it keeps.
+    """
 
     out_o: np.ndarray
     out_d: np.ndarray
@@ -115,7 +118,22 @@ class ShadeOutputs(NamedTuple):
 
 
 def new_outputs(n: int, n_detectors: int, n_wavelengths: int) -> ShadeOutputs:
-    """Output arrays for ``n`` hit rays."""
+    """Output arrays for ``n`` hit rays.
+
+    Parameters
+    ----------
+    n : int
+        Hit rays.
+    n_detectors : int
+        Detector directions.
+    n_wavelengths : int
+        Spectral size.
+
+    Returns
+    -------
+    ShadeOutputs
+        Uninitialised arrays but for the flags (cleared).
+    """
     return ShadeOutputs(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n_wavelengths)), np.zeros((n, 2, 3)),
                         np.zeros((n, 2, n_detectors, n_wavelengths)), np.zeros((n, 2, n_detectors), dtype=np.bool_),
                         np.zeros(n), np.full(n, -1, dtype=np.int64), np.zeros((n, 2, n_detectors), dtype=np.int64),
@@ -134,10 +152,13 @@ def _interp(a, x):
 
 @numba.njit(cache=True)
 def _tube_point(s, phi, yarn, tube, periodic, face_base):
-    """Point, normal and tangent of the tube mesh at (s, phi): the mesh's own triangles; with a
+    """Point, normal and tangent of the tube mesh at ``(s, phi)``.
+
+    Point, normal and tangent of the tube mesh at (s, phi): the mesh's own triangles; with a
     non-empty ``face_base`` also the triangle's index and its outward geometric normal. ``periodic = False``
     (an open fiber of a felt, :mod:`simulate.geometry.felt`): ``s`` is clamped to the tube's ends. ``tube``:
-    the mesh's ``(vertices, normals, tangents, vertex_base, n_s, yarn_length, sides)`` (:class:`ShadeInputs`)."""
+    the mesh's ``(vertices, normals, tangents, vertex_base, n_s, yarn_length, sides)`` (:class:`ShadeInputs`).
+    """
     vertices, normals, tangents, vertex_base, n_s, yarn_length, sides = tube
     L = yarn_length[yarn]
     ns = n_s[yarn]
@@ -188,9 +209,12 @@ def _tube_point(s, phi, yarn, tube, periodic, face_base):
 
 @numba.njit(cache=True)
 def _twist(tx, ty, tz, bx, by, bz, c, s):
-    """The fiber frame of a twisted yarn: ``t_f = cos(alpha) T + s sin(alpha) (T x n)`` (``s = +1``
+    """The fiber frame of a twisted yarn at a point.
+
+    The fiber frame of a twisted yarn: ``t_f = cos(alpha) T + s sin(alpha) (T x n)`` (``s = +1``
     Z, ``-1`` S, :mod:`simulate.fabric.structure`); with ``T x n = -b``: ``t_f = c t - s' b``,
-    ``b_f = n x t_f = c b + s' t`` (``s' = s sin(alpha)``)."""
+    ``b_f = n x t_f = c b + s' t`` (``s' = s sin(alpha)``).
+    """
     return c * tx - s * bx, c * ty - s * by, c * tz - s * bz, c * bx + s * tx, c * by + s * ty, c * bz + s * tz
 
 
@@ -233,10 +257,13 @@ def _layer_point(uy, uz, d):
 
 @numba.njit(cache=True)
 def _layer_seen(vy, vz, py, pz, d):
-    """Whether the point ``(py, pz)`` of the central unit circle (outward normal the same) is seen from the
+    """Whether a point of the central fiber of a layer is seen from an in-plane direction.
+
+    Whether the point ``(py, pz)`` of the central unit circle (outward normal the same) is seen from the
     in-plane direction ``(vy, vz)`` (not necessarily unit): it faces it, the direction rises above the layer
     and misses the neighbours at ``(+-d, 0)`` (for a rising ray only they can block:
-    :mod:`simulate.fabric.fiberlayer`)."""
+    :mod:`simulate.fabric.fiberlayer`).
+    """
     if vz <= 0.0 or vy * py + vz * pz <= 0.0:
         return False
     nrm = math.sqrt(vy * vy + vz * vz)
@@ -253,8 +280,11 @@ def _layer_seen(vy, vz, py, pz, d):
 
 @numba.njit(cache=True)
 def _out_factor(wx, wy, wz, gx, gy, gz, nx, ny, nz):
-    """Exit half of the adjoint shading-normal factor (docs/physics.md 6): ``|w.N_g| / |w.N_s|``,
-    0 unless ``w`` is above both the geometric and the shading horizon."""
+    """Exit half of the adjoint shading-normal factor (docs/physics.md 6).
+
+    ``|w.N_g| / |w.N_s|``,
+    0 unless ``w`` is above both the geometric and the shading horizon.
+    """
     cg = wx * gx + wy * gy + wz * gz
     cs = wx * nx + wy * ny + wz * nz
     if cg <= 0.0 or cs <= 0.0:
@@ -290,8 +320,11 @@ def _pick(cdf, u):
 
 @numba.njit(cache=True)
 def _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl):
-    """Reflected local direction and weight factor of the surface branch (Beckmann sampling;
-    ``m = 0``: the specular Fresnel mirror)."""
+    """Reflected local direction and weight factor of the surface branch.
+
+    Reflected local direction and weight factor of the surface branch (Beckmann sampling;
+    ``m = 0``: the specular Fresnel mirror).
+    """
     if m > 0.0:
         u1 = np.random.random()
         u2 = np.random.random()
@@ -311,8 +344,11 @@ def _sample_ct(lt, lb, ln, m, n_host, a_s, p_refl):
 
 @numba.njit(cache=True)
 def _table_bin(w, frame, mu, sx, sb, n_mu, n_phi):
-    """A detector's direction ``w`` binned in the table's frame (mirrors applied; they are involutions)
-    and the bin's projected solid angle ``Omega_proj``."""
+    """A detector's direction binned in the table's frame, with the bin's projected solid angle.
+
+    A detector's direction ``w`` binned in the table's frame (mirrors applied; they are involutions)
+    and the bin's projected solid angle ``Omega_proj``.
+    """
     wx, wy, wz = w
     tx, ty, tz, bx, by, bz, _, _, _ = frame
     dphi = 2.0 * math.pi / n_phi
@@ -329,11 +365,14 @@ def _table_bin(w, frame, mu, sx, sb, n_mu, n_phi):
 
 @numba.njit(cache=True)
 def _shifted_bin(w, frame, sx, sb, shift, n_mu, n_phi):
-    """A detector's direction ``w`` binned in the table's frame when the row's exits are shifted along the
+    """A detector's direction binned in the table's frame of a row whose exits are shifted along the axis.
+
+    A detector's direction ``w`` binned in the table's frame when the row's exits are shifted along the
     axis by ``shift`` (:func:`_bin_direction`): the bin of the direction's pre-image, the bin's projected
     solid angle, and ``ratio`` = the pre-image's cosine from the normal over the direction's (the
     density is uniform in projected solid angle at the pre-image; the shift keeps solid angle).
-    ``ratio`` 0: the direction has no pre-image (it would need ``|w_t| >= 1`` in the row)."""
+    ``ratio`` 0: the direction has no pre-image (it would need ``|w_t| >= 1`` in the row).
+    """
     wx, wy, wz = w
     tx, ty, tz, bx, by, bz, nx, ny, nz = frame
     dphi = 2.0 * math.pi / n_phi
@@ -358,11 +397,14 @@ def _shifted_bin(w, frame, sx, sb, shift, n_mu, n_phi):
 
 @numba.njit(cache=True)
 def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, frame, shift=0.0):
-    """A direction uniform in projected solid angle within a table cell's direction bin, shifted along
+    """Draw a direction in a table cell's direction bin, shifted along the fiber axis, into ``out_d[i]``.
+
+    A direction uniform in projected solid angle within a table cell's direction bin, shifted along
     the fiber axis by ``shift`` (its component along ``t`` in the table's frame moved by ``shift``, its
     azimuth about the axis kept: a map that keeps solid angle), mirrored back into the local frame
     ``(t, b, n)``, written to ``out_d[i]``. Returns False (nothing written) when the shifted direction
-    does not exist (``|w_t| >= 1``). Why the shift: docs/physics.md 6, "Axial shift"."""
+    does not exist (``|w_t| >= 1``). Why the shift: docs/physics.md 6, "Axial shift".
+    """
     tx, ty, tz, bx, by, bz, nx, ny, nz = frame
     iphi = cell % n_phi
     imu = (cell // n_phi) % n_mu
@@ -389,8 +431,11 @@ def _bin_direction(out_d, i, cell, n_mu, n_phi, sx, sb, frame, shift=0.0):
 
 @numba.njit(cache=True)
 def _reflect_out(out_d, out_w, weight, hit, surf):
-    """The surface branch's continuation of ``hit``: sampled reflection, weight factor and the adjoint
-    shading-normal factor applied (0 below the geometric horizon). Returns the factor."""
+    """The surface branch's continuation of ``hit``; returns the weight factor.
+
+    The surface branch's continuation of ``hit``: sampled reflection, weight factor and the adjoint
+    shading-normal factor applied (0 below the geometric horizon). Returns the factor.
+    """
     i, g, frame, inc, corr_in = hit
     gx, gy, gz = g
     tx, ty, tz, bx, by, bz, nx, ny, nz = frame
@@ -414,6 +459,25 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     incident power towards detector ``d`` of event ``e`` (0: surface, 1: volume exit) from
     origin ``nee_o[i, e]``, to be multiplied by the visibility; it is written only where
     ``nee_need[i, e, d]`` is set (the rest of ``nee_c`` is left as it was).
+
+    Parameters
+    ----------
+    seed : int
+        The random state of the call.
+    prim : numpy.ndarray
+        ``[M]`` the hit triangle of each ray.
+    bu, bv : numpy.ndarray
+        ``[M]`` barycentric coordinates of the hit on it.
+    pos : numpy.ndarray
+        ``[M, 3]`` hit points.
+    dirs : numpy.ndarray
+        ``[M, 3]`` the rays' directions.
+    weight : numpy.ndarray
+        ``[M, L]`` the rays' spectral weights.
+    inp : ShadeInputs
+        The run's mesh, material and table arrays.
+    out : ShadeOutputs
+        Written row by row (:func:`new_outputs`).
     """
     _shade_rows(seed, 0, prim.shape[0], (prim, bu, bv, pos, dirs, weight), inp, inp.detectors, out,
                 np.ones(weight.shape[1]))
@@ -421,9 +485,35 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
 
 @numba.njit(cache=True, nogil=True)
 def shade_groups(seeds, cuts, prim, bu, bv, pos, dirs, weight, inp, detectors, out):
-    """:func:`shade` of a wavefront whose rows ``cuts[g]:cuts[g + 1]`` belong to group ``g`` (a rotation),
-    scored towards ``detectors[g]`` from the random state ``seeds[g]``: the same as one :func:`shade` call per
-    non-empty group on its slices, in one call (compiled)."""
+    """:func:`shade` of a wavefront of several groups (rotations), each towards its own detectors.
+
+    The rows ``cuts[g]:cuts[g + 1]`` belong to group ``g`` (a rotation) and are scored towards
+    ``detectors[g]`` from the random state ``seeds[g]``: the same as one :func:`shade` call per non-empty
+    group on its slices, in one call (compiled).
+
+    Parameters
+    ----------
+    seeds : numpy.ndarray
+        ``int64[G]`` each group's random state.
+    cuts : numpy.ndarray
+        ``[G + 1]`` the groups' row bounds.
+    prim : numpy.ndarray
+        ``[M]`` the hit triangle of each ray.
+    bu, bv : numpy.ndarray
+        ``[M]`` barycentric coordinates of the hit on it.
+    pos : numpy.ndarray
+        ``[M, 3]`` hit points.
+    dirs : numpy.ndarray
+        ``[M, 3]`` the rays' directions.
+    weight : numpy.ndarray
+        ``[M, L]`` the rays' spectral weights.
+    inp : ShadeInputs
+        The run's mesh, material and table arrays.
+    detectors : numpy.ndarray
+        ``[G, D, 3]`` each group's detector directions.
+    out : ShadeOutputs
+        Written row by row.
+    """
     hits = (prim, bu, bv, pos, dirs, weight)
     clampf = np.ones(weight.shape[1])
     for g in range(seeds.shape[0]):
@@ -436,9 +526,12 @@ def shade_groups(seeds, cuts, prim, bu, bv, pos, dirs, weight, inp, detectors, o
 # argument (``inp``, ``out``) would be counted up and down at each call, in every hit.
 @numba.njit(cache=True, nogil=True, _nrt=False)
 def _shade_rows(seed, lo, hi, hits, inp, detectors, out, clampf):
-    """:func:`shade` of the rows ``lo:hi`` of ``hits`` (``prim, bu, bv, pos, dirs, weight``) towards
+    """:func:`shade` of the rows ``lo:hi`` of a wavefront's hits.
+
+    :func:`shade` of the rows ``lo:hi`` of ``hits`` (``prim, bu, bv, pos, dirs, weight``) towards
     ``detectors``, from the random state ``seed``: each hit's events in turn (module docstring).
-    ``clampf``: scratch of the cell-BRDF approximation's energy clamp, one value per wavelength."""
+    ``clampf``: scratch of the cell-BRDF approximation's energy clamp, one value per wavelength.
+    """
     prim, bu, bv, pos, dirs, weight = hits
     # numba keeps one random state per thread: seeding it here, from the chunk's own stream, makes
     # every call reproducible whatever thread runs it (no state is shared between calls)
@@ -485,7 +578,8 @@ def _hit_frame(i, prim, bu, bv, inp, out):
     from the interpolated normal and tangent, twisted into the fiber's for a twisted yarn (the table's
     frame); ``on_yarn = (yarn, (ia, ib, ic, w0, w1, w2), yarn_frame, tw_s)``: the yarn, the triangle's
     vertices and barycentric weights, the yarn's own ``(t_x, t_y, b_x, b_y, b_z)`` (exit placement) and
-    its twist. The row's continuation bookkeeping is reset (no table row, no scale)."""
+    its twist. The row's continuation bookkeeping is reset (no table row, no scale).
+    """
     vertices, normals, tangents = inp.vertices, inp.normals, inp.tangents
     f = prim[i]
     out.out_prim[i] = f
@@ -534,7 +628,8 @@ def _incidence(i, dirs, g, frame):
     outside that arrives below the shading horizon is absorbed (``lit`` False: the BSDF is 0 there, as in
     Mitsuba 3 and pbrt-v4), and nothing leaves below either horizon. Light from inside another yarn
     (``inside``: interpenetration) is mirrored about the tangent plane so the incidence is above it.
-    ``(lt, lb, ln)``: the direction towards where the light came from, in the frame."""
+    ``(lt, lb, ln)``: the direction towards where the light came from, in the frame.
+    """
     gx, gy, gz = g
     tx, ty, tz, bx, by, bz, nx, ny, nz = frame
     dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
@@ -557,8 +652,11 @@ def _incidence(i, dirs, g, frame):
 
 @numba.njit(cache=True, inline="always")
 def _ray_origins(i, pos, g, out):
-    """The origins of row ``i``'s continuing ray and surface next-event rays: off the hit's triangle
-    along the geometric normal (no re-hit of it)."""
+    """Write the origins of row ``i``'s continuing ray and surface next-event rays.
+
+    The origins of row ``i``'s continuing ray and surface next-event rays: off the hit's triangle
+    along the geometric normal (no re-hit of it).
+    """
     gx, gy, gz = g
     out.out_o[i, 0] = pos[i, 0] + EPS_UM * gx
     out.out_o[i, 1] = pos[i, 1] + EPS_UM * gy
@@ -569,8 +667,11 @@ def _ray_origins(i, pos, g, out):
 
 @numba.njit(cache=True, inline="always")
 def _shade_lambert(hit, weight, inp, detectors, out):
-    """A Lambertian material: the next-event term towards every detector above both horizons, and a
-    cosine-weighted continuation."""
+    """Shade a hit on a Lambertian material.
+
+    A Lambertian material: the next-event term towards every detector above both horizons, and a
+    cosine-weighted continuation.
+    """
     i, g, frame, _, corr_in = hit
     gx, gy, gz = g
     tx, ty, tz, _, _, _, nx, ny, nz = frame
@@ -605,11 +706,14 @@ def _shade_lambert(hit, weight, inp, detectors, out):
 
 @numba.njit(cache=True, inline="always")
 def _shade_fiber(hit, inside, on_yarn, weight, inp, detectors, out, clampf):
-    """A fiber material (a table of the yarn's volume, a Cook-Torrance surface): the events of the hit in
+    """Shade a hit on a fiber material: its events in order.
+
+    A fiber material (a table of the yarn's volume, a Cook-Torrance surface): the events of the hit in
     their order -- the table row, the point of the fiber layer met, the entry into the volume, the
     surface's share, the surface next-event term, then either the cell-BRDF approximation's events or the
     volume's: a reflection sample, an exit drawn from the row and placed on the tube, its next-event
-    term and the continuation."""
+    term and the continuation.
+    """
     i, _, _, inc, _ = hit
     row = _table_row(inc, inp)
     layer = inp.layer_d > 0.0 and inp.kind == K_FIBER and not inside
@@ -633,9 +737,12 @@ def _shade_fiber(hit, inside, on_yarn, weight, inp, detectors, out, clampf):
 
 @numba.njit(cache=True, inline="always")
 def _table_row(inc, inp):
-    """The table row of the incidence, by stochastic linear interpolation in ``|w_t|`` and ``|a|``:
+    """The table row of the incidence, by stochastic linear interpolation in ``|w_t|`` and ``|a|``.
+
+    The table row of the incidence, by stochastic linear interpolation in ``|w_t|`` and ``|a|``:
     ``(j, kr, k_max, sx, sb, shift)`` -- the ``|w_t|`` node, the azimuth row, the last row, the mirrors
-    of the table's frame (signs of ``w_t`` and of the azimuth) and the axial shift of the row's exits."""
+    of the table's frame (signs of ``w_t`` and of the azimuth) and the axial shift of the row's exits.
+    """
     lt, lb, ln = inc
     nodes, dpsi = inp.nodes, inp.dpsi
     sx = 1.0 if lt >= 0.0 else -1.0
@@ -664,10 +771,13 @@ def _table_row(inc, inp):
 
 @numba.njit(cache=True, inline="always")
 def _layer_hit(inc, layer, layer_d):
-    """The point of the yarn's top layer of fibers the ray meets (FiberSurface(surface="fibers"),
+    """The point of the yarn's top layer of fibers the ray meets.
+
+    The point of the yarn's top layer of fibers the ray meets (FiberSurface(surface="fibers"),
     docs/physics.md 6): ``(layer, on_fiber, fy, fz, flb, fln)`` -- its normal ``fy b + fz n`` and the
     incident direction in the fiber's own frame; ``on_fiber`` False: a gap, straight into the volume.
-    Without a layer (``layer`` False) the yarn's surface itself."""
+    Without a layer (``layer`` False) the yarn's surface itself.
+    """
     _, lb, ln = inc
     fy, fz, on_fiber = 0.0, 1.0, True
     flb, fln = lb, ln
@@ -687,7 +797,8 @@ def _volume_entry(i, weight, inp, row, inside, lay):
     ``c_bar``); the entry transmission is the exact smooth-interface 1 - F at this point (the row holds
     its cell-average ``tau = tr``), and none at all for light that is inside the yarn already
     (interpenetration): ``entry`` the factor of the row's exits. ``e_bar``: the volume's albedo at this
-    hit, weighted by the ray's spectrum (``wsum`` its sum)."""
+    hit, weighted by the ray's spectrum (``wsum`` its sum).
+    """
     j, kr = row[0], row[1]
     n_cells = inp.n_psi * inp.n_v * inp.n_mu * inp.n_phi
     total = inp.cdf[j, kr, n_cells - 1]
@@ -709,8 +820,11 @@ def _volume_entry(i, weight, inp, row, inside, lay):
 
 @numba.njit(cache=True, inline="always")
 def _offset_cell(kr, o, n_psi):
-    """Row ``r`` and offset index of entry cell ``o`` seen from row ``kr`` (the tables hold ``|r|``;
-    a negative row is the mirror image): ``(r, off)``."""
+    """Row and offset index of entry cell ``o`` seen from row ``kr``.
+
+    Row ``r`` and offset index of entry cell ``o`` seen from row ``kr`` (the tables hold ``|r|``;
+    a negative row is the mirror image): ``(r, off)``.
+    """
     r = kr + o
     off = o % n_psi if r >= 0 else (-o) % n_psi
     return r, off
@@ -718,10 +832,13 @@ def _offset_cell(kr, o, n_psi):
 
 @numba.njit(cache=True, inline="always")
 def _cell_brdf_albedo(i, weight, inp, row, ln, wsum, clampf, out):
-    """The cell-BRDF approximation's albedo (``kind == K_FIBER_BRDF``): the fiber BRDF of the cell at the
+    """The cell-BRDF approximation's albedo at the hit point.
+
+    The cell-BRDF approximation's albedo (``kind == K_FIBER_BRDF``): the fiber BRDF of the cell at the
     hit point -- light entering every lit cell A = B - o (local azimuth a + o dpsi) and leaving here.
     Returns ``(e_bar, s_bar)``, the volume's albedo and what the entry cells send here; writes the energy
-    clamp per wavelength to ``clampf`` and the hit's albedo to ``hit_albedo``."""
+    clamp per wavelength to ``clampf`` and the hit's albedo to ``hit_albedo``.
+    """
     j, kr, k_max = row[0], row[1], row[2]
     n_psi, off_tot, off_bar = inp.n_psi, inp.off_tot, inp.off_bar
     h = n_psi // 2
@@ -754,9 +871,12 @@ def _cell_brdf_albedo(i, weight, inp, row, ln, wsum, clampf, out):
 
 @numba.njit(cache=True, inline="always")
 def _surface_share(inside, lay, e_bar, inp):
-    """The surface branch: ``(m, n_host, a_s, p_refl)`` -- the roughness and index, the surface's albedo at
+    """The surface branch's roughness, index, albedo and reflection probability.
+
+    The surface branch: ``(m, n_host, a_s, p_refl)`` -- the roughness and index, the surface's albedo at
     the point met (0 in a gap) and the probability of continuing by reflection (in proportion to the
-    surface's and the volume's albedos; 0 from inside, where no surface reflects)."""
+    surface's and the volume's albedos; 0 from inside, where no surface reflects).
+    """
     on_fiber, fln = lay[1], lay[5]
     if not on_fiber:
         a_s = 0.0
@@ -775,8 +895,11 @@ def _surface_share(inside, lay, e_bar, inp):
 
 @numba.njit(cache=True, inline="always")
 def _nee_surface(hit, weight, inp, detectors, out, lay):
-    """The next-event term of the rough surface towards every detector (event 0): on the fibers, at the
-    lit point, seen past the neighbours."""
+    """Score the rough surface's next-event term towards every detector (event 0).
+
+    The next-event term of the rough surface towards every detector (event 0): on the fibers, at the
+    lit point, seen past the neighbours.
+    """
     i, g, frame, inc, corr_in = hit
     gx, gy, gz = g
     tx, ty, tz, bx, by, bz, nx, ny, nz = frame
@@ -809,10 +932,13 @@ def _nee_surface(hit, weight, inp, detectors, out, lay):
 
 @numba.njit(cache=True, inline="always")
 def _shade_cell_brdf(hit, weight, inp, detectors, out, row, surf, s_bar, clampf):
-    """The cell-BRDF approximation's events (``kind == K_FIBER_BRDF``): with nothing sent here, a
+    """Shade the cell-BRDF approximation's events of a hit.
+
+    The cell-BRDF approximation's events (``kind == K_FIBER_BRDF``): with nothing sent here, a
     reflection or nothing; else one entry cell drawn in proportion to what it sends here, its next-event
     term (event 1, from the hit point) and the continuation -- a reflection, or an exit direction drawn
-    from the cell's row."""
+    from the cell's row.
+    """
     i, g, frame, inc, corr_in = hit
     gx, gy, gz = g
     _, _, _, _, _, _, nx, ny, nz = frame
@@ -880,10 +1006,13 @@ def _shade_cell_brdf(hit, weight, inp, detectors, out, row, surf, s_bar, clampf)
 
 @numba.njit(cache=True, inline="always")
 def _layer_reflection(inc, lay, surf, inp, vol):
-    """On the fibers: one reflection sample, for the continuation and for the light that a neighbour
+    """One reflection sample on the fibers, for the continuation and for the light a neighbour masks.
+
+    On the fibers: one reflection sample, for the continuation and for the light that a neighbour
     masks -- it meets that fiber and is taken into the yarn's volume. ``(layer, escape, wr, rt, mb, mn,
     entry_nee)``: whether it escapes past the neighbours, its weight, its direction in the yarn's frame
-    and the entry factor of the volume's next-event term (the masked reflection added)."""
+    and the entry factor of the volume's next-event term (the masked reflection added).
+    """
     layer, on_fiber, fy, fz, flb, fln = lay
     a_s = surf[2]
     tr, entry = vol[2], vol[3]
@@ -902,10 +1031,13 @@ def _layer_reflection(inc, lay, surf, inp, vol):
 
 @numba.njit(cache=True, inline="always")
 def _sample_exit(i, on_yarn, inp, out, row, vol):
-    """An exit drawn from the row (cell offset, v bin, direction bin) and placed on the tube:
+    """Draw an exit from the row and place it on the tube.
+
+    An exit drawn from the row (cell offset, v bin, direction bin) and placed on the tube:
     ``(cell, io, iv, e_face, e_frame, e_g)`` -- the cell (-1: the row sends nothing), its offset and v
     bin, the exit's triangle, shading frame (twisted as the hit's) and geometric normal. The exit's
-    rays start off its triangle along the geometric normal (``nee_o[i, 1]``, no re-hit of it)."""
+    rays start off its triangle along the geometric normal (``nee_o[i, 1]``, no re-hit of it).
+    """
     j, kr, _, sx, sb, _ = row
     total, cb = vol[0], vol[1]
     cell = -1
@@ -960,9 +1092,12 @@ def _sample_exit(i, on_yarn, inp, out, row, vol):
 
 @numba.njit(cache=True, inline="always")
 def _nee_exit(hit, weight, inp, detectors, out, row, vol, ex, entry_nee):
-    """The next-event term of the volume exit ``ex`` towards every detector (event 1): the row's bin of
+    """Score the volume exit's next-event term towards every detector (event 1).
+
+    The next-event term of the volume exit ``ex`` towards every detector (event 1): the row's bin of
     each detector's direction (the pre-image of the axial shift) over the exit cell's marginal
-    probability, ``entry_nee`` the entry factor. Deferred (``defer_nee``): the table row and the scale."""
+    probability, ``entry_nee`` the entry factor. Deferred (``defer_nee``): the table row and the scale.
+    """
     i, _, _, _, corr_in = hit
     j, kr, _, sx, sb, shift = row
     total, cb = vol[0], vol[1]
@@ -998,9 +1133,12 @@ def _nee_exit(hit, weight, inp, detectors, out, row, vol, ex, entry_nee):
 
 @numba.njit(cache=True, inline="always")
 def _continue_fiber(hit, weight, inp, out, row, surf, vol, ex, refl):
-    """The continuing ray of a fiber hit: a reflection (``p_refl``) -- sampled here, or the layer's sample
+    """Write the continuing ray of a fiber hit.
+
+    The continuing ray of a fiber hit: a reflection (``p_refl``) -- sampled here, or the layer's sample
     when it escapes past the neighbours -- or the volume exit ``ex`` (a masked reflection enters the volume
-    there too), or nothing."""
+    there too), or nothing.
+    """
     i, g, frame, _, corr_in = hit
     gx, gy, gz = g
     tx, ty, tz, bx, by, bz, nx, ny, nz = frame
