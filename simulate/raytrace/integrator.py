@@ -83,7 +83,7 @@ from simulate.raytrace.materials import (
     surface_albedo,
 )
 from simulate.raytrace.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene
-from simulate.raytrace.shading import ShadeInputs, ShadeOutputs, new_outputs, shade, shade_groups
+from simulate.raytrace.shading import ShadeInputs, ShadeOutputs, shade_groups
 
 __all__ = ["STOP_REASONS", "ROULETTE_SURVIVE", "MCResult", "mean_se", "prepare", "trace", "trace_rotations", "yarn_radius"]
 
@@ -274,16 +274,6 @@ class _Setup:
             yarn_radius(mesh), np.asarray(me.face_base, np.int64), normals == "face",
             float(material.layer_d) if isinstance(material, FiberSurface) else 0.0,
             bool(getattr(material, "axial_shift", False)))
-
-    def shade(self, seed, prim, u, v, pos, dirs, weight, detectors):
-        """:func:`simulate.raytrace.shading.shade` of the hit rays; returns its outputs as a tuple."""
-        out = new_outputs(prim.size, detectors.shape[0], self.n_wl)
-        shade(seed, prim, u, v, pos, dirs, weight, self.inputs._replace(detectors=detectors), out)
-        return out
-
-    def shade_into(self, seed, prim, u, v, pos, dirs, weight, detectors, out):
-        """:meth:`shade` into given outputs (slices of a wavefront's, :func:`new_outputs`)."""
-        shade(seed, prim, u, v, pos, dirs, weight, self.inputs._replace(detectors=detectors), out)
 
 
 # ---- the per-bounce bookkeeping of a wavefront, compiled (:func:`_chunk`) ---------------------------

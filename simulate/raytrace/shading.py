@@ -451,9 +451,11 @@ def _reflect_out(out_d, out_w, weight, hit, surf):
     return wgt
 
 
-@numba.njit(cache=True, nogil=True)
 def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
-    """Scatter every hit ray once and prepare its next-event contributions (compiled).
+    """Scatter every hit ray once and prepare its next-event contributions.
+
+    The one-group case of :func:`shade_groups`, which it calls (towards ``inp.detectors``): a compiled
+    function of its own would link and optimise the whole shading loop once more, for no other use.
 
     ``out_w`` rows of zeros are dead rays. ``nee_c[i, e, d, :]`` is the intensity per unit
     incident power towards detector ``d`` of event ``e`` (0: surface, 1: volume exit) from
@@ -479,8 +481,8 @@ def shade(seed, prim, bu, bv, pos, dirs, weight, inp, out):
     out : ShadeOutputs
         Written row by row (:func:`new_outputs`).
     """
-    _shade_rows(seed, 0, prim.shape[0], (prim, bu, bv, pos, dirs, weight), inp, inp.detectors, out,
-                np.ones(weight.shape[1]))
+    shade_groups(np.array([seed], np.int64), np.array([0, prim.shape[0]], np.int64), prim, bu, bv, pos, dirs,
+                 weight, inp, np.ascontiguousarray(inp.detectors[None]), out)
 
 
 @numba.njit(cache=True, nogil=True)
