@@ -461,6 +461,7 @@ def load_config(path_or_name: str | Path) -> SimulationConfig:
 def _particles(t: Table) -> ParticleSpec:
     n = _spectrum(t, "n", None, gt=0.0, required=True)
     k = _spectrum(t, "k", 0.0, ge=0.0)
+    assert n is not None and k is not None     # n is required and k has a default
     if t.has("radius_um") == t.has("size"):
         raise t.fail("radius_um", "or particles.size: give exactly one (a radius or a log-normal "
                                   "size distribution)")

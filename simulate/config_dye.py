@@ -99,7 +99,7 @@ def dye_from_table(t: Table) -> DyeSpectrum:
     Every field is checked; an error names the file and the field (:class:`simulate.config.ConfigError`).
     """
     if t.has("curve"):
-        curve = t.string("curve", choices=DYE_CURVES)
+        curve = t.string("curve", choices=DYE_CURVES, required=True)
         if curve == "knots":
             params_k = _knots(t)
             t.done()

@@ -15,7 +15,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, Literal, overload
 
 __all__ = ["ConfigError", "Table", "show", "is_number"]
 
@@ -73,6 +73,19 @@ class Table:
             return default
         return self.data[key]
 
+    # the value is a float when a default is given or the key is required, else possibly None
+    @overload
+    def number(self, key: str, default: float, *, required: bool = False, gt: float | None = None,
+               ge: float | None = None, lt: float | None = None, le: float | None = None) -> float: ...
+
+    @overload
+    def number(self, key: str, default: None = None, *, required: Literal[True], gt: float | None = None,
+               ge: float | None = None, lt: float | None = None, le: float | None = None) -> float: ...
+
+    @overload
+    def number(self, key: str, default: None = None, *, required: bool = False, gt: float | None = None,
+               ge: float | None = None, lt: float | None = None, le: float | None = None) -> float | None: ...
+
     def number(self, key: str, default: float | None = None, *, required: bool = False,
                gt: float | None = None, ge: float | None = None, lt: float | None = None,
                le: float | None = None) -> float | None:
@@ -97,6 +110,19 @@ class Table:
         if isinstance(value, bool) or not isinstance(value, int) or not ge <= value <= le:
             raise self.fail(key, f"must be an integer in [{ge}, {le}], got {show(value)}")
         return int(value)
+
+    # the value is a string when a default is given or the key is required, else possibly None
+    @overload
+    def string(self, key: str, default: str, *, choices: tuple[str, ...] | None = None,
+               required: bool = False) -> str: ...
+
+    @overload
+    def string(self, key: str, default: None = None, *, choices: tuple[str, ...] | None = None,
+               required: Literal[True]) -> str: ...
+
+    @overload
+    def string(self, key: str, default: None = None, *, choices: tuple[str, ...] | None = None,
+               required: bool = False) -> str | None: ...
 
     def string(self, key: str, default: str | None = None, *, choices: tuple[str, ...] | None = None,
                required: bool = False) -> str | None:

@@ -112,14 +112,18 @@ class Fiber:
 
     @property
     def dye_radius_um(self) -> float:
-        """The dye profile's inner boundary, ``radius_um - dye_depth_um`` (the radius where the ring or the
-        clear skin begins)."""
+        """The dye profile's inner boundary, ``radius_um - dye_depth_um``.
+
+        The radius where the ring or the clear skin begins.
+        """
         return float(self.radius_um) - float(self.dye_depth_um)
 
     @property
     def scatterer_radius_um(self) -> float:
-        """The scatterer profile's inner boundary, ``radius_um - scatterer_depth_um`` (the radius where the skin
-        of scatterers or the clear skin begins)."""
+        """The scatterer profile's inner boundary, ``radius_um - scatterer_depth_um``.
+
+        The radius where the skin of scatterers or the clear skin begins.
+        """
         return float(self.radius_um) - float(self.scatterer_depth_um)
 
     @property
