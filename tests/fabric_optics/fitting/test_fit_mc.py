@@ -134,21 +134,14 @@ def _resume_problem(shared=None):
     return problem, probe
 
 
-@pytest.fixture(scope="module")
-def felt_probe():
-    """The felt's structured summation at the two-knot truth of :func:`_resume_problem` (walked once for the
-    tests below that fit it against a stand-in Monte Carlo)."""
-    return _resume_problem()[1]
-
-
-def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch, felt_probe):
+def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     """Ctrl-C in the second Monte Carlo run: the first run and its proposal are on disk; --resume does not run
     them again and ends where an uninterrupted fit ends."""
     import fabric_optics.fitting.search as fit_module
 
     calls: list = []
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
-    ref_problem, probe = _resume_problem(felt_probe)
+    ref_problem, probe = _resume_problem()
     reference = run_mc_fit(ref_problem, out=tmp_path / "ref", max_runs=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
     n_ref = len(calls)
     assert n_ref >= 2
@@ -220,7 +213,7 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, args, message):
     assert message in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatch, caplog, felt_probe):
+def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatch, caplog):
     """A loose Monte Carlo (u_beta as large as beta) puts some of the uncertainty's noise draws at a normal
     value <= 0: the fit still ends, leaves those draws out and says how many (it used to stop with a
     CompareError after every run had been made)."""
@@ -233,7 +226,7 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatc
         return run
 
     monkeypatch.setattr(fit_mc, "run_monte_carlo", noisy)
-    problem = _resume_problem(felt_probe)[0]
+    problem = _resume_problem()[0]
     with caplog.at_level("WARNING", logger="fabric_optics.fitting.mc"):
         result = run_mc_fit(problem, max_runs=2, noise_draws=16, inner_evaluations=20, echo=lambda s: None)
     assert np.all(np.isfinite(result.u)) and np.all(result.u_mc > 0)
@@ -241,7 +234,7 @@ def test_noise_draws_that_cannot_be_normalised_are_left_out_not_fatal(monkeypatc
     assert left_out and int(left_out[0].split()[0]) > 0
 
 
-def test_a_part_whose_draws_are_all_refused_is_reported_not_estimated(monkeypatch, felt_probe):
+def test_a_part_whose_draws_are_all_refused_is_reported_not_estimated(monkeypatch):
     """Every Monte Carlo noise draw refused (u_beta 50x beta: each draw has some normal value <= 0): its
     part of the uncertainty is NaN (null in fit.json), u is the data part alone, and a warning says so
     (it used to report u_mc = 0, as if the Monte Carlo added no uncertainty)."""
@@ -254,7 +247,7 @@ def test_a_part_whose_draws_are_all_refused_is_reported_not_estimated(monkeypatc
         return run
 
     monkeypatch.setattr(fit_mc, "run_monte_carlo", very_noisy)
-    problem = _resume_problem(felt_probe)[0]
+    problem = _resume_problem()[0]
     result = run_mc_fit(problem, max_runs=2, noise_draws=8, inner_evaluations=20, echo=lambda s: None)
     assert np.all(np.isnan(result.u_mc))
     assert np.all(np.isfinite(result.u_data)) and np.all(result.u_data > 0)
