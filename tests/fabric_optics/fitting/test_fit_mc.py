@@ -497,7 +497,7 @@ def test_the_monte_carlo_fit_starts_its_dye_from_the_measured_colour(monkeypatch
     problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2,
                            wavelengths_nm=WL6)
     problem.share_walks(probe)
-    result = run_mc_fit(problem, max_runs=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+    result = run_mc_fit(problem, max_runs=3, noise_draws=2, inner_evaluations=80, echo=lambda s: None)
     runs = result.info["iterations"]
     fig0 = problem.residual_model().evaluate(result.model_start[0])
     assert abs(fig0.dh) > 0.1                              # the start is another colour (else nothing is shown)
@@ -532,7 +532,7 @@ def test_the_monte_carlo_fit_puts_the_colour_first_where_the_curves_want_another
         geo = problem.residual_model().colour_geometry                 # the row whose spectrum was replaced
         assert [round(float(geo[c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")] == \
             [round(float(g.iloc[g_star][c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")]
-        result = run_mc_fit(problem, max_runs=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+        result = run_mc_fit(problem, max_runs=3, noise_draws=2, inner_evaluations=80, echo=lambda s: None)
         monkeypatch.undo()
         assert len(calls) <= 3
         figs[colour_first] = problem.residual_model().evaluate(result.model_fit[0])
