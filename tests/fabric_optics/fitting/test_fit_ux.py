@@ -132,13 +132,9 @@ def test_max_evaluations_bounds_the_search_in_all(base_problem, budget, starts):
     assert any("evaluation budget" in w for w in result.warnings)
 
 
-def test_warnings_at_bound_and_colour_once_each(base_problem, tmp_path, capsys, monkeypatch):
+def test_warnings_at_bound_and_colour_once_each(base_problem, tmp_path, capsys):
     """The truth lies beyond the peak's upper bound: flagged at the bound; the hue cannot follow a
     green measurement with only the red band's peak free: flagged as colour left off."""
-    from fabric_optics.fitting import search
-
-    # the uncertainty from 8 noise draws, not 64: nothing here reads its value
-    monkeypatch.setitem(search.run_fit.__kwdefaults__, "noise_draws", 8)
     green = np.full(base_problem.wavelengths_nm.size, 1e-3) + 1.5 * np.exp(
         -0.5 * ((base_problem.wavelengths_nm - 650.0) / 45.0) ** 2)
     beta, _ = base_problem.model_at_host(base_problem.config, green)
