@@ -142,7 +142,7 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
     calls: list = []
     monkeypatch.setattr(fit_mc, "run_monte_carlo", _fake_fine(calls))
     ref_problem, probe = _resume_problem()
-    reference = run_mc_fit(ref_problem, out=tmp_path / "ref", max_runs=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
+    reference = run_mc_fit(ref_problem, out=tmp_path / "ref", max_runs=3, noise_draws=2, inner_evaluations=30, echo=lambda s: None)
     n_ref = len(calls)
     assert n_ref >= 2
 
@@ -157,7 +157,7 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
     monkeypatch.setattr(fit_mc, "run_monte_carlo", interrupted)
     out = tmp_path / "fit"
     with pytest.raises(KeyboardInterrupt):
-        run_mc_fit(_resume_problem(probe)[0], out=out, max_runs=4, noise_draws=4, inner_evaluations=60, echo=lambda s: None)
+        run_mc_fit(_resume_problem(probe)[0], out=out, max_runs=3, noise_draws=2, inner_evaluations=30, echo=lambda s: None)
     state = json.loads((out / MC_STATE).read_text())
     assert len(state["iterations"]) == 1 and "proposal" in state["iterations"][0]
     assert (out / MC_RUNS_DIR / "run-0.npz").is_file()
@@ -169,7 +169,7 @@ def test_interrupted_iteration_resumes_from_its_checkpoint(tmp_path, monkeypatch
                                                                            start_x(_felt(-0.9, -2.1))))
     problem = _resume_problem(probe)[0]
     lines: list[str] = []
-    resumed = run_mc_fit(problem, out=out, resume=True, max_runs=4, noise_draws=4, inner_evaluations=60, echo=lines.append)
+    resumed = run_mc_fit(problem, out=out, resume=True, max_runs=3, noise_draws=2, inner_evaluations=30, echo=lines.append)
     assert len(calls) == n_ref - 1                      # run 0 read, not run again
     assert "read from the checkpoint" in lines[0]
     assert resumed.info["iterations"][0]["cached"] and resumed.info["mc_runs"] == reference.info["mc_runs"]
@@ -497,7 +497,7 @@ def test_the_monte_carlo_fit_starts_its_dye_from_the_measured_colour(monkeypatch
     problem = MCFitProblem(start, measured, parse_free([FREE4], start), target_rel_err=0.5, seed=2,
                            wavelengths_nm=WL6)
     problem.share_walks(probe)
-    result = run_mc_fit(problem, max_runs=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+    result = run_mc_fit(problem, max_runs=3, noise_draws=2, inner_evaluations=80, echo=lambda s: None)
     runs = result.info["iterations"]
     fig0 = problem.residual_model().evaluate(result.model_start[0])
     assert abs(fig0.dh) > 0.1                              # the start is another colour (else nothing is shown)
@@ -532,7 +532,7 @@ def test_the_monte_carlo_fit_puts_the_colour_first_where_the_curves_want_another
         geo = problem.residual_model().colour_geometry                 # the row whose spectrum was replaced
         assert [round(float(geo[c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")] == \
             [round(float(g.iloc[g_star][c]), 6) for c in ("theta_i", "phi_i", "theta_o", "phi_o")]
-        result = run_mc_fit(problem, max_runs=3, noise_draws=4, inner_evaluations=80, echo=lambda s: None)
+        result = run_mc_fit(problem, max_runs=3, noise_draws=2, inner_evaluations=80, echo=lambda s: None)
         monkeypatch.undo()
         assert len(calls) <= 3
         figs[colour_first] = problem.residual_model().evaluate(result.model_fit[0])

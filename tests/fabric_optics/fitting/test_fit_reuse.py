@@ -34,6 +34,15 @@ def light_report(monkeypatch):
     monkeypatch.setattr(compare.report, "write_report", write_report)
 
 
+@pytest.fixture(autouse=True)
+def few_noise_draws(monkeypatch):
+    """The uncertainty from 8 noise draws, not 64 (three quarters of a fit here): these tests count fits and
+    compare a restored folder with the fitted one, whatever its uncertainty."""
+    from fabric_optics.fitting import search
+
+    monkeypatch.setitem(search.run_fit.__kwdefaults__, "noise_draws", 8)
+
+
 @pytest.fixture
 def measured(base_problem, tmp_path):
     """A red-cotton-like measurement of the classic model, written as a dataset folder."""
