@@ -253,7 +253,35 @@ def same_but_dye(old: Any, new: Any) -> bool:
         return False
 
 
-class WalkedHalves(Sequence):
+class _RecordHalves(Sequence):
+    """The table halves of a recorded run, each made by :meth:`_half` when it is read and not kept."""
+
+    _record: dict
+
+    def __len__(self) -> int:
+        return len(self._record["tables"])
+
+    @overload
+    def __getitem__(self, h: int) -> Any: ...
+
+    @overload
+    def __getitem__(self, h: slice) -> Sequence[Any]: ...
+
+    def __getitem__(self, h: int | slice) -> Any:
+        if isinstance(h, slice):
+            return [self[i] for i in range(len(self))[h]]
+        if not -len(self) <= h < len(self):
+            raise IndexError(f"table half {h} of {len(self)}")
+        h %= len(self)
+        table = self._half(h)
+        _check_half(self._record["tables"][h], table)
+        return table
+
+    def _half(self, h: int) -> Any:
+        raise NotImplementedError
+
+
+class WalkedHalves(_RecordHalves):
     """The two table halves a recorded run would have traced with ``fiber``, each made when it is asked for.
 
     Each half is walked (or read from the table cache) and not kept: :func:`reweighted_beta` reads them one
@@ -280,30 +308,14 @@ class WalkedHalves(Sequence):
             self._walked = pile_fiber(fiber, record["yarn_radius"], record["packing"])
             self._grid["held_log_mu_s"] = HELD_LOG_MU_S
 
-    def __len__(self) -> int:
-        return len(self._record["tables"])
-
-    @overload
-    def __getitem__(self, h: int) -> Any: ...
-
-    @overload
-    def __getitem__(self, h: slice) -> Sequence[Any]: ...
-
-    def __getitem__(self, h: int | slice) -> Any:
-        if isinstance(h, slice):
-            return [self[i] for i in range(len(self))[h]]
+    def _half(self, h: int) -> Any:
         from simulate.raytrace.yarn import HALF_SEED_STEP, yarn_table
 
-        if not -len(self) <= h < len(self):
-            raise IndexError(f"table half {h} of {len(self)}")
-        h %= len(self)
         r = self._record
         threads = r["threads"]
-        table = yarn_table(self._walked, r["wavelengths_nm"], photons_per_row=r["photons_per_row"],
-                           seed=int(r["seed"]) + HALF_SEED_STEP * h, threads=threads if threads else None,
-                           **self._grid)
-        _check_half(r["tables"][h], table)
-        return table
+        return yarn_table(self._walked, r["wavelengths_nm"], photons_per_row=r["photons_per_row"],
+                          seed=int(r["seed"]) + HALF_SEED_STEP * h, threads=threads if threads else None,
+                          **self._grid)
 
 
 def _check_half(traced: dict, table: Any) -> None:
@@ -314,7 +326,7 @@ def _check_half(traced: dict, table: Any) -> None:
                          "radius or index): trace again")
 
 
-class MixedHalves(Sequence):
+class MixedHalves(_RecordHalves):
     """A blend's table halves a recorded run would have traced with ``populations``.
 
     Each half is the populations' :class:`WalkedHalves` half mixed by share
@@ -334,23 +346,10 @@ class MixedHalves(Sequence):
         self._shares = [float(share) for share, _ in populations]
         self._walked = [WalkedHalves(record, fiber) for _, fiber in populations]
 
-    def __len__(self) -> int:
-        return len(self._record["tables"])
-
-    @overload
-    def __getitem__(self, h: int) -> Any: ...
-
-    @overload
-    def __getitem__(self, h: slice) -> Sequence[Any]: ...
-
-    def __getitem__(self, h: int | slice) -> Any:
-        if isinstance(h, slice):
-            return [self[i] for i in range(len(self))[h]]
+    def _half(self, h: int) -> Any:
         from simulate.raytrace.yarn import mix_tables
 
-        table = mix_tables([w[h] for w in self._walked], self._shares)
-        _check_half(self._record["tables"][h % len(self)], table)
-        return table
+        return mix_tables([w[h] for w in self._walked], self._shares)
 
 
 def new_tables(record: dict, fiber: Any, tables: tuple | None = None,
