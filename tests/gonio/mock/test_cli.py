@@ -11,6 +11,12 @@ import pytest
 from gonio.mock.cli import main
 
 
+#: how long the mock may take to exit after the signal: its own shutdown is bounded by 12 s (the servers' stop
+#: 5 s, the event loop's thread 5 s, the serial bridge's thread 2 s), which a loaded machine can use up; a mock
+#: that does not exit at all still fails
+STOP_TIMEOUT_S = 60
+
+
 def test_subprocess_prints_one_json_line_and_exits_0_on_sigterm(tools):
     proc = subprocess.Popen([sys.executable, "-m", "gonio.mock", "--modbus", "tcp://127.0.0.1:0",
                              "--serial", "socket://127.0.0.1:0", "--sample", "lambert:0.3", "--seed", "5",
@@ -29,7 +35,7 @@ def test_subprocess_prints_one_json_line_and_exits_0_on_sigterm(tools):
         assert mb.read_input(1, 1) == [0x0104]
         mb.close()
         proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=15)
+        out, err = proc.communicate(timeout=STOP_TIMEOUT_S)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -47,7 +53,7 @@ def test_subprocess_rtu_and_pty(tools):
         assert head.raw("WAVE?") == b"550.0\r\n"
         head.close()
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=15)
+        proc.communicate(timeout=STOP_TIMEOUT_S)
     finally:
         if proc.poll() is None:
             proc.kill()
