@@ -31,6 +31,7 @@ must be too (a cell never sampled cannot be re-weighted). Tables walked with the
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 from collections.abc import Sequence
 from typing import Any, overload
@@ -277,8 +278,9 @@ class _RecordHalves(Sequence):
         _check_half(self._record["tables"][h], table)
         return table
 
+    @abc.abstractmethod
     def _half(self, h: int) -> Any:
-        raise NotImplementedError
+        """Half ``h`` (``0 <= h < len(self)``), made afresh."""
 
 
 class WalkedHalves(_RecordHalves):
