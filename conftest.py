@@ -138,6 +138,19 @@ def pytest_terminal_summary(terminalreporter) -> None:
 
 
 @pytest.fixture(autouse=True)
+def _table_cache_switch_reset():
+    """Leave the table cache switched on after every test.
+
+    ``--no-cache`` switches the cache off for the whole process (``os.environ``, inherited by the processes a
+    sweep starts), so a test that runs a command with it in-process would otherwise switch it off for every
+    later test of its worker, and a test that asserts what the cache holds would fail or pass by the order
+    the workers drew.
+    """
+    yield
+    os.environ.pop("FABRIC_OPTICS_NO_CACHE", None)
+
+
+@pytest.fixture(autouse=True)
 def _doctest_numpy_scalars_print_as_python(request):
     """Print numpy scalars in the 1.25 style while a docstring example runs.
 
