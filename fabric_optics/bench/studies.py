@@ -78,8 +78,9 @@ STUDIES: dict[str, tuple[str, Callable[[bool], tuple[dict[str, Any], list[str]]]
                            "(the --method auto table of a felt)", _method_errors_felt),
     "method-errors-felt-blend": ("the same for a felt blended from two differently dyed populations "
                                  "(the --method auto table of a felt blend)", _method_errors_felt_blend),
-    "method-errors-woven-blend": ("the same for red cotton blended from two populations of one dye at two "
-                                  "strengths (the --method auto study of a woven blend)", _method_errors_woven_blend),
+    "method-errors-woven-blend": ("where the summation and classic depart from the woven Monte Carlo of red "
+                                  "cotton blended from two populations of one dye at two strengths (the --method "
+                                  "auto study of a woven blend)", _method_errors_woven_blend),
     "speed-accuracy": ("the Monte Carlo's achieved error against its marginal cost, fixed costs apart, "
                        "red cotton and the felt", _speed_accuracy),
 }

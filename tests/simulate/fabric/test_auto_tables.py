@@ -373,3 +373,25 @@ def test_a_woven_blend_whose_populations_differ_in_their_scatterers_gets_the_mon
         errors = auto.errors_for(cfg)
     reason = errors["provenance"]["reason"]
     assert errors["geometries"] == [] and "differ in particles ('a' and 'b')" in reason and reason in caplog.text
+
+
+def test_simulate_fabric_auto_on_a_woven_blend_takes_the_summation_where_the_woven_table_allows(tmp_path):
+    """The command on the studied woven blend at incidence 0, observation 60 deg either side, 3 %: the woven
+    table's summation departures there are within it, so every geometry is the summation's (no Monte Carlo run),
+    and the dataset's meta names the table read and the blend study that allowed it."""
+    from fabric_optics.cli.simulate import main
+
+    cfg = _blend(tmp_path, "red-cotton-blend")
+    plan = tmp_path / "tiny.toml"
+    plan.write_text('[sample]\nname = "tiny"\n[wavelengths]\nlist_nm = [550, 650]\n[geometry]\nincidence_deg = [0]\n'
+                    "in_plane_deg = [-60, 60]\n")
+    rows = _departures("method-errors.json")
+    target = 0.03
+    assert all(rows[(0.0, 60.0, az)]["summation"] <= target for az in (0.0, 180.0))
+    out = tmp_path / "out"
+    assert main(["fabric", str(cfg), "--method", "auto", "--target-rel-err", str(target), "--plan", str(plan),
+                 "--out", str(out), "--no-progress"]) == 0
+    model = json.loads((out / "meta.json").read_text())["model"]
+    assert model["method_per_geometry"] == ["summation", "summation"]
+    assert model["method_errors"]["table"] == "method-errors.json"
+    assert model["method_errors"]["blend_study"]["table"] == "method-errors-woven-blend.json"
