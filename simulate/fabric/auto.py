@@ -78,8 +78,8 @@ def _is_blend(config: Any) -> bool:
 def table_for(config: Any) -> str | None:
     """The shipped method-errors table's file name for ``config``, by its ``[structure] kind``.
 
-    A blend's table is one of :data:`BLEND_TABLES`. Whether a blend lies within its table's study is
-    :func:`blend_outside`'s.
+    A blend's is its kind's blend study (:data:`BLEND_TABLES`). Whether a blend lies within the study is
+    :func:`blend_outside`'s; which departures a blend within it reads, :func:`errors_for`'s.
 
     Parameters
     ----------
