@@ -10,7 +10,10 @@ spectrum: the RMS over wavelengths of ``(model - MC) / max_lambda(MC)``, the sam
 ``python -m fabric_optics.bench.method_errors --study NAME --out FILE`` (:data:`STUDIES`). A blend study
 (``populations``) traces its config with the study's ``[[populations]]`` appended (the green felt as two
 populations of different dyes): ``simulate/configs/method-errors-felt-blend.json``, which ``--method auto``
-reads for a felt blend within its :func:`simulate.fabric.auto.dye_spread` (recorded in the table).
+reads for a felt blend within its :func:`simulate.fabric.auto.dye_spread` (recorded in the table); red cotton as
+two populations of its dye at two strengths: ``simulate/configs/method-errors-woven-blend.json``, whose summation
+departs as the one-population table's, so ``--method auto`` reads that table for a woven blend within the
+study's dye spread (:data:`simulate.fabric.auto.BLEND_DEPARTURES`).
 """
 
 from __future__ import annotations
@@ -60,6 +63,26 @@ curve = "knots"
 wavelength_nm = [390.0, 435.714, 481.429, 527.143, 572.857, 618.571, 664.286, 710.0]
 log10_per_um = [-0.7429, -0.06555, -1.6602, -2.02274, -1.98626, -0.58514, -0.66881, -0.80231]
 """
+#: the blend of red cotton whose populations differ in their dye's strength only: half with the preset's dye, half
+#: with its two bands x3 (the same red passed above 620 nm, the orange edge and the violet darker)
+BLEND_RED_COTTON_X3 = """[[populations]]
+name = "red"
+share = 0.5
+
+[[populations]]
+name = "red-x3"
+share = 0.5
+[populations.fiber.dye]
+curve = "gaussian-bands"
+baseline_per_um = 0.0001
+bands = [
+    { center_nm = 520, width_nm = 26.9, peak_per_um = 3.3 },
+    { center_nm = 490, width_nm = 32, peak_per_um = 1.86 },
+]
+"""
+#: the same with the second population's bands x10 (the orange edge darker still)
+BLEND_RED_COTTON_X10 = BLEND_RED_COTTON_X3.replace('"red-x3"', '"red-x10"').replace("3.3 }", "11.0 }") \
+    .replace("1.86 }", "6.2 }")
 
 #: the studies: config and plan (presets; ``populations``: the ``[[populations]]`` appended to the config),
 #: the Monte Carlo's target, the table file under simulate/configs and the structure kind ``--method auto``
@@ -67,6 +90,12 @@ log10_per_um = [-0.7429, -0.06555, -1.6602, -2.02274, -1.98626, -0.58514, -0.668
 STUDIES: dict[str, dict[str, Any]] = {
     "red-cotton": {"config": "red-cotton", "plan": "red-cotton", "target": 0.01, "kind": "woven",
                    "file": "method-errors.json", "reference": "woven Monte Carlo"},
+    "red-cotton-blend": {"config": "red-cotton", "plan": "red-cotton", "target": 0.01, "kind": "woven",
+                         "populations": BLEND_RED_COTTON_X3, "blend": "blend-red-x3",
+                         "file": "method-errors-woven-blend.json", "reference": "woven Monte Carlo of the blend"},
+    "red-cotton-blend-x10": {"config": "red-cotton", "plan": "red-cotton", "target": 0.01, "kind": "woven",
+                             "populations": BLEND_RED_COTTON_X10, "blend": "blend-red-x10", "file": None,
+                             "reference": "woven Monte Carlo of the blend"},
     "green-felt": {"config": "green-felt-mc", "plan": "green-felt", "target": 0.03, "kind": "nonwoven",
                    "file": "method-errors-felt.json", "reference": "felt Monte Carlo"},
     "green-felt-blend": {"config": "green-felt-mc", "plan": "green-felt", "target": 0.03, "kind": "nonwoven",

@@ -13,15 +13,20 @@ woven Monte Carlo); a felt (``kind = "nonwoven"``) reads ``simulate/configs/meth
 gets the Monte Carlo at every geometry, with one logged line saying why: an unknown error is not a
 small one.
 
-A blend (``[[populations]]`` of two or more) reads its kind's blend table (:data:`BLEND_TABLES`: a felt's
-``simulate/configs/method-errors-felt-blend.json``, the green felt as two populations of different dyes
-against the felt Monte Carlo of the blend) when it lies within the studied range: its populations differ
-in their dye only (and its placement), and their :func:`dye_spread` is at most the studied blend's
-(``provenance.dye_spread`` of the table). The cheaper models mix the populations' results by share
-(two fabrics side by side) where the Monte Carlo draws each fiber a path meets from the populations,
-so their error grows with how differently the populations absorb; a blend beyond the studied spread,
-of populations that differ in more than their dye, or of a kind with no blend study (a woven blend) gets
-the Monte Carlo at every geometry, with one logged line saying why.
+A blend (``[[populations]]`` of two or more) is judged by its kind's blend study (:data:`BLEND_TABLES`: a
+felt's ``simulate/configs/method-errors-felt-blend.json``, the green felt as two populations of different
+dyes against the felt Monte Carlo of the blend; a weave's ``simulate/configs/method-errors-woven-blend.json``,
+red cotton as two populations of one dye at two strengths against the woven Monte Carlo of the blend). It
+holds when the blend lies within the studied range: its populations differ in their dye only (and its
+placement), and their :func:`dye_spread` is at most the studied blend's (``provenance.dye_spread`` of the
+study). The cheaper models mix the populations' results by share (two fabrics side by side) where the Monte
+Carlo draws each fiber (a felt) or each yarn (a weave) a path meets from the populations, so their error may
+grow with how differently the populations absorb. A felt blend within its study reads the study's own
+departures, which are larger than the one-population felt's. A woven blend within its study reads the
+one-population woven table (:data:`BLEND_DEPARTURES`): the study found the summation's departures the one
+population's within their errors, and the one-population table's Monte Carlo is the more precise. A blend
+beyond the studied spread or of populations that differ in more than their dye gets the Monte Carlo at every
+geometry, with one logged line saying why.
 
 Within a table, a geometry farther than ``MATCH_DEG`` from every studied one, or at another incidence,
 gets the Monte Carlo too. Each table is one fabric's: a sample far from it
@@ -41,8 +46,8 @@ import numpy as np
 
 from simulate.optics.microfacet import directions_deg
 
-__all__ = ["CHEAPEST_FIRST", "MATCH_DEG", "TABLES", "BLEND_TABLES", "table_for", "errors_for", "load_errors",
-           "choose", "dye_spread", "blend_outside"]
+__all__ = ["CHEAPEST_FIRST", "MATCH_DEG", "TABLES", "BLEND_TABLES", "BLEND_DEPARTURES", "table_for", "errors_for",
+           "load_errors", "choose", "dye_spread", "blend_outside"]
 
 log = logging.getLogger(__name__)
 
@@ -52,9 +57,12 @@ CHEAPEST_FIRST = ("classic", "summation", "mc")
 MATCH_DEG = 6.0
 #: the method-errors table (under simulate/configs) of each studied structure kind
 TABLES = {"woven": "method-errors.json", "nonwoven": "method-errors-felt.json"}
-#: the method-errors table of a blend (``[[populations]]`` of two or more) of each studied structure kind (no woven
-#: blend has been studied against the woven Monte Carlo: it gets the Monte Carlo at every geometry)
-BLEND_TABLES = {"nonwoven": "method-errors-felt-blend.json"}
+#: the method-errors study of a blend (``[[populations]]`` of two or more) of each studied structure kind: its
+#: ``provenance.dye_spread`` bounds the blends it holds for (:func:`blend_outside`)
+BLEND_TABLES = {"nonwoven": "method-errors-felt-blend.json", "woven": "method-errors-woven-blend.json"}
+#: the kinds whose blend study found the cheaper models' departures their one-population table's (within the
+#: errors of the two Monte Carlo references): a blend within the study reads this table's departures
+BLEND_DEPARTURES = {"woven": "method-errors.json"}
 #: the wavelengths (nm) :func:`dye_spread` reads the populations' dyes at
 SPREAD_WAVELENGTHS = tuple(float(w) for w in np.arange(390.0, 711.0, 10.0))
 #: what a blend's populations may differ in for a blend table to hold (:func:`blend_outside`)
@@ -70,8 +78,8 @@ def _is_blend(config: Any) -> bool:
 def table_for(config: Any) -> str | None:
     """The shipped method-errors table's file name for ``config``, by its ``[structure] kind``.
 
-    A blend's table is one of :data:`BLEND_TABLES`. Whether a blend lies within its table's study is
-    :func:`blend_outside`'s.
+    A blend's is its kind's blend study (:data:`BLEND_TABLES`). Whether a blend lies within the study is
+    :func:`blend_outside`'s; which departures a blend within it reads, :func:`errors_for`'s.
 
     Parameters
     ----------
@@ -218,7 +226,11 @@ def load_errors(path: Any = None, name: str = "method-errors.json") -> dict:
 
 
 def errors_for(config: Any) -> dict:
-    """The table ``--method auto`` reads for ``config`` (:func:`table_for`; the rule in the module's text)."""
+    """The table ``--method auto`` reads for ``config`` (:func:`table_for`; the rule in the module's text).
+
+    A blend within its study reads the study (or, for a kind of :data:`BLEND_DEPARTURES`, that table, its
+    provenance's ``blend_study`` naming the study); its ``provenance.config_dye_spread`` is the blend's spread.
+    """
     name = table_for(config)
     if name is None:
         return no_study(config)
@@ -227,6 +239,12 @@ def errors_for(config: Any) -> dict:
         why = blend_outside(config, errors)
         if why is not None:
             return no_study(config, why)
+        kind = config.structure.kind
+        if kind in BLEND_DEPARTURES:
+            # the blend study holds for this blend and found its departures the one population's
+            study = errors["provenance"]
+            errors = load_errors(name=BLEND_DEPARTURES[kind])
+            errors["provenance"]["blend_study"] = {k: study.get(k) for k in ("table", "study", "blend", "dye_spread")}
         errors["provenance"]["config_dye_spread"] = dye_spread(config)
     return errors
 

@@ -227,6 +227,9 @@ def test_simulate_bench_writes_the_felt_table(tmp_path, capsys, monkeypatch):
     assert main(["bench", "--study", "method-errors-felt-blend", "--quick", "--out", str(tmp_path / "c")]) == 0
     assert calls[-1] == ("green-felt-blend", 0.1)
     assert json.loads((tmp_path / "c" / "method-errors-felt-blend.json").read_text()) == _table(0.02, 0.3)
+    assert main(["bench", "--study", "method-errors-woven-blend", "--quick", "--out", str(tmp_path / "d")]) == 0
+    assert calls[-1] == ("red-cotton-blend", 0.1)
+    assert json.loads((tmp_path / "d" / "method-errors-woven-blend.json").read_text()) == _table(0.02, 0.3)
 
 
 def test_a_blend_study_traces_its_config_with_its_populations(tmp_path, monkeypatch):
@@ -273,20 +276,122 @@ def test_against_measures_a_tables_departures_from_another(tmp_path, capsys):
     assert json.loads((tmp_path / "c.json").read_text())["summation"]["mean_z"] == pytest.approx(0.6)
 
 
-def test_a_woven_blend_has_no_study_and_auto_gives_it_the_monte_carlo(caplog):
-    """No woven blend has been studied against the woven Monte Carlo (which takes it): its table is none, the
-    reason says a blend, and `--method auto` chooses the Monte Carlo at every geometry, with that line logged."""
+def _departures(name: str) -> dict:
+    """A shipped table's departures by geometry."""
+    rows = auto.load_errors(name=name)["geometries"]
+    return {(r["theta_i"], r["theta_o"], r["rel_phi_o"]): r for r in rows}
+
+
+def test_a_woven_blend_within_the_study_picks_per_geometry_from_the_woven_departures(tmp_path, caplog):
+    """Red cotton as the studied blend: no line logged, its table names the woven blend study and its spread, and at
+    each geometry auto takes the cheapest model whose departure in the one-population woven table (the study found
+    the blend's the same) is within the target -- the summation where it is, the Monte Carlo elsewhere."""
+    blend = load_config(_blend(tmp_path, "red-cotton-blend"))
+    assert auto.table_for(blend) == "method-errors-woven-blend.json"
+    with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
+        errors = auto.errors_for(blend)
+    assert not caplog.records
+    prov = errors["provenance"]
+    assert prov["table"] == "method-errors.json" and prov["blend_study"]["table"] == "method-errors-woven-blend.json"
+    assert prov["blend_study"]["dye_spread"] == pytest.approx(auto.dye_spread(blend))
+    assert prov["config_dye_spread"] == pytest.approx(auto.dye_spread(blend))
+    rows = _departures("method-errors.json")
+    keys = sorted(rows)
+    ti, to, po = (np.array([k[c] for k in keys]) for c in range(3))
+    target = 0.05
+    names, _ = auto.choose(ti, np.zeros(ti.size), to, po, target, errors=errors)
+    expected = ["classic" if rows[k]["classic"] <= target else "summation" if rows[k]["summation"] <= target else "mc"
+                for k in keys]
+    assert names.tolist() == expected
+    assert {"summation", "mc"} <= set(expected)         # the target splits the plan: the check sees both branches
+    products.check_blend(blend, "auto")                  # the Monte Carlo it chooses elsewhere takes the blend
+
+
+def test_a_woven_blend_reads_the_one_population_departures_not_the_studys(tmp_path, monkeypatch):
+    """Stand-ins: the woven blend study allows nothing cheaper than the Monte Carlo, the one-population woven table
+    the summation; a woven blend within the study reads the latter, a felt blend its own study."""
+    blend = load_config(_blend(tmp_path, "red-cotton-blend"))
+    felt = load_config(_blend(tmp_path, "green-felt-blend"))
+    stand_ins = {"method-errors.json": _table(summation=0.04, classic=0.5),
+                 "method-errors-woven-blend.json": _spread_table(auto.dye_spread(blend), summation=0.5),
+                 "method-errors-felt.json": _table(summation=0.04, classic=0.5),
+                 "method-errors-felt-blend.json": _spread_table(auto.dye_spread(felt), summation=0.5)}
+    monkeypatch.setattr(auto, "load_errors", lambda path=None, name="method-errors.json": json.loads(
+        json.dumps(stand_ins[name])))
+    geo = ([0.0], [0.0], [30.0], [0.0])
+    assert auto.choose(*geo, 0.05, errors=auto.errors_for(blend))[0].tolist() == ["summation"]
+    assert auto.choose(*geo, 0.05, errors=auto.errors_for(felt))[0].tolist() == ["mc"]
+
+
+def test_the_woven_blend_studys_summation_departs_as_the_one_populations():
+    """Why a woven blend reads the one-population woven table: at every geometry of the plan the shipped blend
+    study's summation departure and the one-population table's differ by no more than their references' errors
+    allow (none beyond 3 standard errors, their mean within 3 standard errors of 0)."""
+    blend = auto.load_errors(name="method-errors-woven-blend.json")
+    one = auto.load_errors(name="method-errors.json")
+    c = method_errors.against(blend, one)
+    assert c["geometries"] == len(one["geometries"]) == len(blend["geometries"])
+    s = c["summation"]
+    assert s["beyond_3_se"] == 0 and abs(s["mean_difference"]) < 3 * s["se_of_mean"]
+
+
+def test_the_shipped_woven_blend_study_holds_its_blends_spread(tmp_path):
+    blend = load_config(_blend(tmp_path, "red-cotton-blend"))
+    prov = auto.load_errors(name="method-errors-woven-blend.json")["provenance"]
+    assert prov["blend"] == "blend-red-x3" and prov["populations"] == method_errors.BLEND_RED_COTTON_X3
+    assert prov["dye_spread"] == pytest.approx(auto.dye_spread(blend))
+    # the populations differ in their dye only: the woven Monte Carlo takes them
+    assert [p.name for p in blend.populations] == ["red", "red-x3"] and auto.blend_outside(blend, {
+        "provenance": prov}) is None
+
+
+def test_a_woven_blend_beyond_the_studied_spread_gets_the_monte_carlo_with_the_reason(tmp_path, caplog):
+    """The blend of red cotton and its dye x10 absorbs more differently than the study's: the Monte Carlo at every
+    geometry, even where the woven table allows the summation at a huge target, with that line logged."""
+    wider = load_config(_blend(tmp_path, "red-cotton-blend-x10"))
+    studied = auto.load_errors(name="method-errors-woven-blend.json")["provenance"]["dye_spread"]
+    assert auto.dye_spread(wider) > studied
+    with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
+        errors = auto.errors_for(wider)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "dye spread" in lines[0] and "method-errors-woven-blend.json" in lines[0]
+    assert lines[0].endswith("the Monte Carlo at every geometry")
+    geo = (np.array([0.0, 45.0]), np.zeros(2), np.array([10.0, 30.0]), np.zeros(2))
+    chosen, prov = auto.choose(*geo, 0.5, errors)
+    assert list(chosen) == ["mc", "mc"] and prov["reason"] == lines[0]
+    assert set(auto.choose(*geo, 0.5)[0]) != {"mc"}      # where the woven table would have allowed a cheaper model
+    products.check_blend(wider, "auto")
+
+
+def test_a_woven_blend_whose_populations_differ_in_their_scatterers_gets_the_monte_carlo(caplog):
     text = (CONFIGS / "red-cotton.toml").read_text() + (
         '\n[[populations]]\nname = "a"\nshare = 0.5\n[[populations]]\nname = "b"\nshare = 0.5\n'
-        '[populations.fiber.dye]\nwavelength_nm = [400, 700]\nmu_a_per_um = [0.02, 0.02]\n')
+        "[populations.particles]\nn = 2.7\nk = 0.0\nradius_um = 0.1\nvolume_fraction = 0.02\n")
     cfg = parse_config(text, "woven-blend.toml")
-    assert auto.table_for(cfg) is None
+    assert auto.dye_spread(cfg) == 0.0                   # one dye: only the scatterers put it outside
     with caplog.at_level(logging.WARNING, logger="simulate.fabric.auto"):
         errors = auto.errors_for(cfg)
     reason = errors["provenance"]["reason"]
-    assert errors["geometries"] == [] and "a blend ([[populations]]) of [structure] kind = \"woven\"" in reason
-    assert reason.endswith("the Monte Carlo at every geometry") and reason in caplog.text
-    chosen, _ = auto.choose(np.array([0.0, 45.0]), np.zeros(2), np.array([10.0, 30.0]), np.zeros(2), 0.5, errors)
-    assert list(chosen) == ["mc", "mc"]        # where the woven table would have allowed a cheaper model
-    assert set(auto.choose(np.array([0.0, 45.0]), np.zeros(2), np.array([10.0, 30.0]), np.zeros(2), 0.5)[0]) != {"mc"}
-    products.check_blend(cfg, "auto")          # and the Monte Carlo it chooses takes the blend
+    assert errors["geometries"] == [] and "differ in particles ('a' and 'b')" in reason and reason in caplog.text
+
+
+def test_simulate_fabric_auto_on_a_woven_blend_takes_the_summation_where_the_woven_table_allows(tmp_path):
+    """The command on the studied woven blend at incidence 0, observation 60 deg either side, 3 %: the woven
+    table's summation departures there are within it, so every geometry is the summation's (no Monte Carlo run),
+    and the dataset's meta names the table read and the blend study that allowed it."""
+    from fabric_optics.cli.simulate import main
+
+    cfg = _blend(tmp_path, "red-cotton-blend")
+    plan = tmp_path / "tiny.toml"
+    plan.write_text('[sample]\nname = "tiny"\n[wavelengths]\nlist_nm = [550, 650]\n[geometry]\nincidence_deg = [0]\n'
+                    "in_plane_deg = [-60, 60]\n")
+    rows = _departures("method-errors.json")
+    target = 0.03
+    assert all(rows[(0.0, 60.0, az)]["summation"] <= target for az in (0.0, 180.0))
+    out = tmp_path / "out"
+    assert main(["fabric", str(cfg), "--method", "auto", "--target-rel-err", str(target), "--plan", str(plan),
+                 "--out", str(out), "--no-progress"]) == 0
+    model = json.loads((out / "meta.json").read_text())["model"]
+    assert model["method_per_geometry"] == ["summation", "summation"]
+    assert model["method_errors"]["table"] == "method-errors.json"
+    assert model["method_errors"]["blend_study"]["table"] == "method-errors-woven-blend.json"
