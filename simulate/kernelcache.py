@@ -264,8 +264,9 @@ def _locator_class() -> type:
     class ContentHashLocator(_CacheLocator):  # type: ignore[misc]
         """Numba cache locator of the project's kernels (module docstring)."""
 
-        def __init__(self, py_func: Any, place: tuple[str, str, str, str]) -> None:
+        def __init__(self, py_func: Any, py_file: str, place: tuple[str, str, str, str]) -> None:
             self._lineno = py_func.__code__.co_firstlineno
+            self._py_file = py_file            # numba's warning on a kernel it cannot cache names the file
             self._cache_path, self._module_dir, self._stem, self._key = place
 
         def ensure_cache_path(self) -> None:
@@ -288,7 +289,7 @@ def _locator_class() -> type:
                 place = _place(py_file, str(cache_base()))
                 if place is None:
                     return None
-                self = cls(py_func, place)
+                self = cls(py_func, py_file, place)
                 self.ensure_cache_path()
             except OSError:
                 return None                    # numba's own locators take it

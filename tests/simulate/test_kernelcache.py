@@ -202,3 +202,35 @@ def test_two_processes_needing_one_kernel_compile_it_once(tmp_path):
         outs.append(json.loads(stdout.strip().splitlines()[-1]))
     assert sorted((o["misses"], o["hits"]) for o in outs) == [(0, 1), (1, 0)], outs
     assert [o["result"] for o in outs] == [4, 4]
+
+
+UNCACHABLE = ("import numba\nimport numpy as np\n\nBIG = np.arange(200_000, dtype=np.float64)\n\n\n"
+              "@numba.njit(cache=True)\ndef last():\n    return BIG[-1]\n")
+UNCACHABLE_PROBE = """
+import json, warnings
+from simulate import kernelcache
+kernelcache.PACKAGE_GROUPS.append(("kcpkg",))
+import kcpkg.big as big
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    result = big.last()
+print(json.dumps({"result": result, "warnings": [(str(w.message), w.filename) for w in caught]}))
+"""
+
+
+def test_a_kernel_numba_cannot_cache_runs_and_numba_says_why(tmp_path):
+    """A kernel holding a global array over 1 MB is not cachable (numba keeps a pointer to it): numba warns,
+    naming the kernel's file, and the kernel runs uncached; the locator must give numba that file."""
+    clone = _write_package(tmp_path / "clone", value=1)
+    (clone / "kcpkg" / "big.py").write_text(UNCACHABLE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"),
+               PYTHONPATH=os.pathsep.join([str(clone), str(REPO)]))
+    env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
+    done = subprocess.run([sys.executable, "-c", UNCACHABLE_PROBE], env=env, capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["result"] == 199_999.0
+    said = [Path(f).name for m, f in out["warnings"]
+            if 'Cannot cache compiled function "last" as it uses dynamic globals' in m]
+    assert said == ["big.py"], out
