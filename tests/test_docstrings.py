@@ -17,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 #: folders (and their subfolders) whose public functions must document their parameters
-DOCUMENTED = ("compare", "fabric_optics/api")
+DOCUMENTED = ("compare", "fabric_optics/api", "fabric_optics/fitting")
 
 _HEADER = re.compile(r"^(\s*)Parameters\n\1-{3,}\n", re.MULTILINE)
 _SECTION_END = re.compile(r"^\s*\S.*\n\s*-{3,}\s*$", re.MULTILINE)

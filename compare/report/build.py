@@ -233,7 +233,7 @@ def write_together(out: Path, files: dict, what: str) -> None:
 
 
 def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool, files: dict | None = None) -> None:
-    """Add the colour figures to ``figures``: the spectra and the swatches at the colour geometry, and the colour strips.
+    """Add the colour figures to ``figures``: spectra and swatches at the colour geometry, colour strips.
 
     Parameters
     ----------
