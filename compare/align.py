@@ -48,6 +48,18 @@ def _range(wl: np.ndarray) -> str:
 def shared_wavelengths(measured: Dataset, simulated: Sequence[Dataset]) -> np.ndarray:
     """Measured wavelengths inside every simulation's wavelength range.
 
+    Parameters
+    ----------
+    measured : Dataset
+        The measurement; its wavelengths (nm) are the candidates.
+    simulated : sequence of Dataset
+        The simulations; each must cover the kept wavelengths.
+
+    Returns
+    -------
+    numpy.ndarray
+        The measured wavelengths (nm, ascending) inside every simulation's range.
+
     Raises
     ------
     CompareError

@@ -94,13 +94,35 @@ class Bands:
         return "channel" if self.is_rgb else "wavelength"
 
     def label(self, band: float) -> str:
-        """``"R"`` for an RGB band code, ``"550 nm"`` for a wavelength."""
+        """``"R"`` for an RGB band code, ``"550 nm"`` for a wavelength.
+
+        Parameters
+        ----------
+        band : float
+            A band code (:data:`CODES`) in an RGB comparison, else a wavelength (nm).
+
+        Returns
+        -------
+        str
+            The channel's letter, or the wavelength with its unit.
+        """
         if self.is_rgb:
             return _CHANNEL_OF.get(round(float(band), 6), f"{band:g}")
         return f"{float(band):g} nm"
 
     def key(self, band: float) -> str:
-        """JSON key of a band: ``"R"`` or ``"550"``."""
+        """JSON key of a band: ``"R"`` or ``"550"``.
+
+        Parameters
+        ----------
+        band : float
+            A band code (:data:`CODES`) in an RGB comparison, else a wavelength (nm).
+
+        Returns
+        -------
+        str
+            The channel's letter, or the wavelength in nm without its unit.
+        """
         return self.label(band) if self.is_rgb else f"{float(band):g}"
 
     def codes(self) -> np.ndarray:
@@ -157,6 +179,19 @@ def colour_resampling(wavelength_nm) -> tuple[np.ndarray, np.ndarray | None]:
     interpolated to :data:`COLOUR_STEP_NM` inside its own range first (never extrapolated), which
     the comparison notes say.
 
+    Parameters
+    ----------
+    wavelength_nm : array_like
+        The spectrum's wavelengths (nm, ascending).
+
+    Returns
+    -------
+    grid : numpy.ndarray
+        The wavelengths (nm) the colour is integrated on.
+    L : numpy.ndarray or None
+        The interpolation matrix (``grid.size`` x ``wavelength_nm.size``), or None when ``grid`` is
+        ``wavelength_nm`` itself.
+
     Examples
     --------
     >>> grid, L = colour_resampling(np.arange(400.0, 701.0, 50.0))
@@ -183,6 +218,27 @@ def colour_at(ds: Dataset, theta_i: float, phi_i: float, theta_o: float, phi_o: 
 
     As :meth:`gonio.data.Dataset.colour_at`, a spectrum on a grid ASTM E308 does not integrate
     first interpolated linearly (:func:`colour_resampling`); ValueError when there is none.
+
+    Parameters
+    ----------
+    ds : Dataset
+        The dataset (spectral or RGB).
+    theta_i, phi_i : float
+        Incidence direction (degrees): polar angle from the normal and azimuth.
+    theta_o, phi_o : float
+        Observation direction (degrees): polar angle from the normal and azimuth.
+    illuminant : str, default "D65"
+        The illuminant the colour is seen under.
+
+    Returns
+    -------
+    ColourSummary
+        The colour (linear sRGB, and HSV in [0, 1]) at that geometry.
+
+    Raises
+    ------
+    ValueError
+        When the dataset holds no spectrum at that geometry, or its grid cannot be integrated.
     """
     if ds.is_rgb:
         return ds.colour_at(theta_i, phi_i, theta_o, phi_o, illuminant=illuminant)
@@ -201,6 +257,27 @@ def spectra_colours(wavelength_nm, betas, illuminant: str = "D65") -> tuple[np.n
     One spectrum per row of ``betas``, resampled as :func:`colour_at` does and converted at once
     (:func:`gonio.data.colour.spectra_srgb`); a row whose colour :func:`colour_at` would refuse
     (NaN or infinite values, an overflow) is NaN. ValueError for a grid it refuses.
+
+    Parameters
+    ----------
+    wavelength_nm : array_like
+        The common wavelength grid (nm, ascending).
+    betas : array_like
+        The spectra's radiance coefficients, one spectrum per row (``n`` x ``wavelength_nm.size``).
+    illuminant : str, default "D65"
+        The illuminant the colours are seen under.
+
+    Returns
+    -------
+    rgb : numpy.ndarray
+        Linear sRGB of each spectrum (``n`` x 3).
+    hue : numpy.ndarray
+        Hue of each spectrum (turns, in [0, 1)).
+
+    Raises
+    ------
+    ValueError
+        When colour-science refuses the grid.
     """
     wl = np.asarray(wavelength_nm, dtype=float).ravel()
     values = np.asarray(betas, dtype=float).reshape(-1, wl.size)
@@ -237,6 +314,22 @@ def conversion_matrix(wavelength_nm, channels: Sequence[str], colour_space: str 
     ``j`` (``Y``: its CIE ``Y``); the conversion is linear, so ``M @ beta`` equals converting
     ``beta`` itself.
 
+    Parameters
+    ----------
+    wavelength_nm : array_like
+        The spectrum's wavelengths (nm, ascending).
+    channels : sequence of str
+        The channels wanted, each of ``"R"``, ``"G"``, ``"B"`` and ``"Y"``.
+    colour_space : str, default "linear sRGB"
+        The linear colour space of R, G and B.
+    illuminant : str, default "D65"
+        The illuminant the spectrum is seen under.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``M`` (``len(channels)`` x ``wavelength_nm.size``), a copy the caller may change.
+
     Examples
     --------
     >>> import numpy as np
@@ -254,6 +347,22 @@ def channel_coverage(lo_nm: float, hi_nm: float, channels: Sequence[str],
 
     The fraction of each channel's weight (``sum |M|`` over the observer's 360..830 nm at 5 nm)
     that lies inside the range.
+
+    Parameters
+    ----------
+    lo_nm, hi_nm : float
+        The spectrum's wavelength range (nm).
+    channels : sequence of str
+        The channels judged, each of ``"R"``, ``"G"``, ``"B"`` and ``"Y"``.
+    colour_space : str, default "linear sRGB"
+        The linear colour space of R, G and B.
+    illuminant : str, default "D65"
+        The illuminant the spectrum is seen under.
+
+    Returns
+    -------
+    numpy.ndarray
+        The fraction (0 to 1) of each channel's weight inside the range, in the order of ``channels``.
 
     Examples
     --------

@@ -65,6 +65,18 @@ def colour_refusal(wavelength_nm, illuminant: str = "D65") -> str | None:
     :data:`MAX_COLOUR_STEP_NM` apart. Sparser samples (e.g. 450, 550 and 650 nm) do not determine a
     colour: a band between two of them, where a dye absorbs, would be a straight line. Their curves are
     compared all the same. ``illuminant`` is accepted for symmetry with the colour functions.
+
+    Parameters
+    ----------
+    wavelength_nm : array_like
+        The compared wavelengths (nm).
+    illuminant : str, default "D65"
+        The comparison's illuminant (not used by the rule).
+
+    Returns
+    -------
+    str or None
+        One sentence saying why no colour is stated, or None when a colour is stated.
     """
     from .bands import colour_resampling
 
@@ -109,6 +121,18 @@ def luminance_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
     colour-science's integration (ASTM E308, as in :func:`gonio.data.colour.spectrum_colour`) is linear
     in the spectrum, so ``w`` is the ``Y`` of each unit basis spectrum; ``Y = 1`` for ``beta = 1``.
 
+    Parameters
+    ----------
+    wavelength_nm : array_like
+        The spectrum's wavelengths (nm, ascending).
+    illuminant : str, default "D65"
+        The illuminant the spectrum is seen under.
+
+    Returns
+    -------
+    numpy.ndarray
+        One weight per wavelength.
+
     Examples
     --------
     >>> import numpy as np
@@ -125,6 +149,20 @@ def band_luminance_weights(bands, grid, illuminant: str = "D65") -> np.ndarray:
 
     The CIE ``Y`` weights of the wavelengths, or for channels the ``Y`` channel itself when
     present, else the colour space's luminance row over R, G, B.
+
+    Parameters
+    ----------
+    bands : Bands or None
+        The comparison's bands; None (or a spectral comparison) for wavelengths.
+    grid : array_like
+        The comparison grid: wavelengths (nm), or band codes of ``bands``.
+    illuminant : str, default "D65"
+        The illuminant of the ``Y`` of wavelengths.
+
+    Returns
+    -------
+    numpy.ndarray
+        One weight per value of ``grid``.
     """
     if bands is None or not bands.is_rgb:
         return luminance_weights(grid, illuminant)
@@ -140,6 +178,18 @@ def colour_geometry(frames: Mapping[str, pd.DataFrame]) -> dict:
 
     Geometries a simulation actually holds are preferred; interpolated ones are used only when
     the datasets share no geometry exactly.
+
+    Parameters
+    ----------
+    frames : mapping of str to pandas.DataFrame
+        The aligned frames (:func:`compare.align.align`) by name, with the geometry columns, ``s``
+        and ``interpolated``.
+
+    Returns
+    -------
+    dict
+        ``theta_i``, ``phi_i``, ``theta_o``, ``phi_o`` (degrees) and ``s`` (degrees, None when the
+        geometry is out of the plane).
 
     Raises
     ------
@@ -206,6 +256,29 @@ def colour_of(wl, beta, illuminant: str, what: str, bands=None) -> ColourSummary
     """The colour of values on the comparison grid (a spectrum, or the channels of ``bands``).
 
     Raises CompareError naming ``what`` when there is none.
+
+    Parameters
+    ----------
+    wl : array_like
+        The comparison grid: wavelengths (nm), or band codes of ``bands``.
+    beta : array_like
+        The radiance coefficients at ``wl``.
+    illuminant : str
+        The illuminant of a spectrum's colour.
+    what : str
+        What the values are (e.g. "the measured dataset"), for the message.
+    bands : Bands, optional
+        The comparison's bands; None or a spectral comparison for a spectrum.
+
+    Returns
+    -------
+    ColourSummary
+        The colour (linear sRGB, and HSV in [0, 1]).
+
+    Raises
+    ------
+    CompareError
+        When the values have no colour.
     """
     try:
         if bands is not None and bands.is_rgb:

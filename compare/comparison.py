@@ -91,6 +91,18 @@ RESERVED_NAMES = ("measured", "geometry")
 def unique_names(names: Iterable[str], reserved: Iterable[str] = RESERVED_NAMES) -> list[str]:
     """Names made unique by a `` (2)``, `` (3)``... suffix, avoiding ``reserved``.
 
+    Parameters
+    ----------
+    names : iterable of str
+        The names, in order.
+    reserved : iterable of str, default RESERVED_NAMES
+        Names no result may take.
+
+    Returns
+    -------
+    list of str
+        The names in the same order, each unique and none reserved.
+
     Examples
     --------
     >>> unique_names(["fiber", "fiber", "measured", "classic"])
@@ -138,7 +150,24 @@ class Level:
                 "spread": num(self.spread), "cv": num(self.cv), "judged": self.judged}
 
     def words(self, name: str, nrmse: float, max_ratio: float, max_nrmse: float) -> str:
-        """One sentence on the level of ``name``: matched in shape but not in level, or at the level."""
+        """One sentence on the level of ``name``: matched in shape but not in level, or at the level.
+
+        Parameters
+        ----------
+        name : str
+            The simulation's name.
+        nrmse : float
+            Its overall curve error (NRMSE), to say whether the shape matches.
+        max_ratio : float
+            The largest level ratio judged at the level.
+        max_nrmse : float
+            The largest NRMSE judged a match in shape.
+
+        Returns
+        -------
+        str
+            The sentence.
+        """
         if not self.judged:
             return (f"'{name}': the measurement is relative (raw units), so its level is not judged; only shapes "
                     "and colour are compared")
@@ -256,6 +285,16 @@ class Comparison:
         """How many of the compared wavelengths the simulation ``name`` holds itself.
 
         The others were linearly interpolated in wavelength (:mod:`compare.align`).
+
+        Parameters
+        ----------
+        name : str
+            The simulation's name.
+
+        Returns
+        -------
+        int
+            The count of compared wavelengths found on the simulation's own grid.
         """
         wl = self.simulated[name].wavelengths_nm
         grid = self.wavelength_nm
@@ -281,7 +320,18 @@ class Comparison:
         return out
 
     def view(self, name: str) -> Dataset:
-        """The simulation ``name`` as compared (its channel view in an RGB comparison)."""
+        """The simulation ``name`` as compared (its channel view in an RGB comparison).
+
+        Parameters
+        ----------
+        name : str
+            The simulation's name.
+
+        Returns
+        -------
+        Dataset
+            The channel view, or the simulation itself.
+        """
         return self.simulated_views.get(name, self.simulated[name])
 
     @property
@@ -295,6 +345,16 @@ class Comparison:
         How far the normalisation's own uncertainty (fully correlated across the curve, so it does
         not average out) can move the curve error. Not in ``metrics.json``,
         whose NRMSE uses ``k`` itself.
+
+        Parameters
+        ----------
+        name : str
+            The simulation's name.
+
+        Returns
+        -------
+        tuple of float
+            The overall NRMSE with ``k - u_k`` and with ``k + u_k``.
         """
         frame = self.frames[name]
         norm = self.normalisations[name]
@@ -308,7 +368,18 @@ class Comparison:
         return out[0], out[1]
 
     def level(self, name: str) -> Level:
-        """The absolute level of simulation ``name`` (`Level`: `k`, `ratio`, `spread`, `judged`)."""
+        """The absolute level of simulation ``name`` (`Level`: `k`, `ratio`, `spread`, `judged`).
+
+        Parameters
+        ----------
+        name : str
+            The simulation's name.
+
+        Returns
+        -------
+        Level
+            The level figures of the simulation.
+        """
         k_all = np.asarray(self.normalisations[name].factor, float)
         if self.colour is not None:
             k = float(self.colour.simulated[name].scale)
@@ -411,6 +482,19 @@ def check_values(ds: Dataset, role: str) -> None:
 
     Raises :class:`CompareError`: one line naming the dataset, the field, the row's geometry and
     what to do.
+
+    Parameters
+    ----------
+    ds : Dataset
+        The dataset to check.
+    role : str
+        ``"measured"`` or ``"simulated"``: the measured level is also checked for plausibility.
+
+    Raises
+    ------
+    CompareError
+        When a ``beta`` is not finite, a measured absolute ``beta`` is implausibly large, or one value
+        exceeds the dataset's median many times over.
     """
     table = ds.table
     beta = table["beta"].to_numpy(dtype=float)
@@ -446,7 +530,18 @@ def check_values(ds: Dataset, role: str) -> None:
 
 
 def same_dataset(a: Dataset, b: Dataset) -> str:
-    """Why ``a`` and ``b`` are the same data (same directory or same content), or ``""``."""
+    """Why ``a`` and ``b`` are the same data (same directory or same content), or ``""``.
+
+    Parameters
+    ----------
+    a, b : Dataset
+        The two datasets.
+
+    Returns
+    -------
+    str
+        ``"the same directory"``, ``"the same radiance.csv content"`` or ``""``.
+    """
     if a.path is not None and b.path is not None:
         try:
             if Path(a.path).resolve() == Path(b.path).resolve():
@@ -459,7 +554,20 @@ def same_dataset(a: Dataset, b: Dataset) -> str:
 
 
 def incomplete_datasets(measured: Dataset, simulated: Iterable[Dataset]) -> list[str]:
-    """One line per dataset whose meta says it is incomplete (``"complete": false``)."""
+    """One line per dataset whose meta says it is incomplete (``"complete": false``).
+
+    Parameters
+    ----------
+    measured : Dataset
+        The measurement.
+    simulated : iterable of Dataset
+        The simulations.
+
+    Returns
+    -------
+    list of str
+        One line per incomplete dataset, naming its role, name and source; empty when all are complete.
+    """
     out = []
     for role, ds in [("measured", measured)] + [("simulated", s) for s in simulated]:
         if not ds.complete:

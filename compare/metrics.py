@@ -63,7 +63,18 @@ class CurveError:
 
 
 def angle_key(angle_deg: float) -> str:
-    """JSON key of an angle: ``30.0 -> "30"``, ``22.5 -> "22.5"``."""
+    """JSON key of an angle: ``30.0 -> "30"``, ``22.5 -> "22.5"``.
+
+    Parameters
+    ----------
+    angle_deg : float
+        The angle (degrees).
+
+    Returns
+    -------
+    str
+        The angle in its shortest form.
+    """
     return f"{float(angle_deg):g}"
 
 
@@ -73,6 +84,18 @@ def _finite_or_none(x: float):
 
 def curve_error(frame: pd.DataFrame) -> CurveError:
     """Error figures of ``frame`` (columns of :func:`compare.align.align` plus ``beta_sim``).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The aligned points: the geometry columns (degrees), ``s`` (degrees), ``wavelength_nm``,
+        ``beta_meas`` and ``beta_sim`` (radiance coefficients).
+
+    Returns
+    -------
+    CurveError
+        RMSE, NRMSE (RMSE over the mean measured ``beta``; NaN when that mean is not positive), the
+        largest |difference| and where it is, and the number of points.
 
     Examples
     --------

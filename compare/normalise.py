@@ -116,7 +116,20 @@ class NormalValue:
     s_used: tuple[float, ...]
 
     def at(self, wavelength_nm) -> tuple[np.ndarray, np.ndarray]:
-        """``(value, u)`` linearly interpolated to ``wavelength_nm`` (inside the dataset's range)."""
+        """``(value, u)`` linearly interpolated to ``wavelength_nm`` (inside the dataset's range).
+
+        Parameters
+        ----------
+        wavelength_nm : array_like
+            The wavelengths (nm).
+
+        Returns
+        -------
+        value : numpy.ndarray
+            ``beta(0, 0)`` at each wavelength.
+        u : numpy.ndarray
+            Its standard uncertainty.
+        """
         wl = np.asarray(wavelength_nm, dtype=float)
         return (np.interp(wl, self.wavelength_nm, self.value),
                 np.interp(wl, self.wavelength_nm, self.u))
@@ -134,6 +147,16 @@ def intercept_weights(s: np.ndarray) -> np.ndarray:
     """Weights ``w`` with ``w @ beta`` the intercept of a least-squares quadratic in ``s``.
 
     The quadratic is unweighted, through ``(s, beta)``: the estimate is linear in the values.
+
+    Parameters
+    ----------
+    s : numpy.ndarray
+        The signed observation angles (degrees) of the points.
+
+    Returns
+    -------
+    numpy.ndarray
+        One weight per point.
     """
     scale = max(float(np.max(np.abs(s))), 1.0)  # conditioning: fit in s / max|s|
     x = s / scale
@@ -151,6 +174,33 @@ def normal_selection(dataset: Dataset, s: np.ndarray, wavelength: float, window_
     :class:`CompareError` when the window holds too few points (shared by
     :func:`estimate_normal_value` and :mod:`compare.residual`). ``use_exact=False``: estimate even
     where the normal/normal point exists, from the same neighbours as a measurement without it.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The dataset, named in the message.
+    s : numpy.ndarray
+        The signed observation angles (degrees) of its normal-incidence in-plane rows at ``wavelength``.
+    wavelength : float
+        The wavelength (nm) or band code.
+    window_deg : float
+        Largest |s| (degrees) of the points of the fit.
+    band_label : callable, optional
+        Label of a band in the message (default: the wavelength in nm).
+    use_exact : bool, default True
+        Use the normal/normal point itself where it is there.
+
+    Returns
+    -------
+    exact : bool
+        Whether the mask selects the normal/normal point itself.
+    mask : numpy.ndarray
+        Boolean mask over ``s``.
+
+    Raises
+    ------
+    CompareError
+        When the window holds too few points on either side of the normal.
     """
     exact = np.abs(s) < _S_TOL
     if exact.any() and use_exact:
@@ -175,7 +225,26 @@ def normal_selection(dataset: Dataset, s: np.ndarray, wavelength: float, window_
 
 def check_normal_values(dataset: Dataset, wavelengths: np.ndarray, value: np.ndarray,
                         measured: np.ndarray, band_label: Callable[[float], str] = _nm) -> None:
-    """Refuse a normal value that is zero, negative or not finite (:class:`CompareError`)."""
+    """Refuse a normal value that is zero, negative or not finite (:class:`CompareError`).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The dataset, named in the message.
+    wavelengths : numpy.ndarray
+        The wavelengths (nm) or band codes.
+    value : numpy.ndarray
+        The normal/normal value ``beta(0, 0)`` at each.
+    measured : numpy.ndarray
+        Whether each value was measured (True) or estimated (False).
+    band_label : callable, optional
+        Label of a band in the message (default: the wavelength in nm).
+
+    Raises
+    ------
+    CompareError
+        When a value is zero, negative or not finite.
+    """
     bad = ~np.isfinite(value) | (value <= 0)
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
@@ -320,11 +389,43 @@ class Normalisation:
         return idx
 
     def factor_at(self, wavelength_nm) -> np.ndarray:
-        """``k`` at each of ``wavelength_nm`` (values of the comparison grid)."""
+        """``k`` at each of ``wavelength_nm`` (values of the comparison grid).
+
+        Parameters
+        ----------
+        wavelength_nm : array_like
+            Wavelengths (nm) or band codes of the comparison grid.
+
+        Returns
+        -------
+        numpy.ndarray
+            The factor ``k`` at each.
+
+        Raises
+        ------
+        ValueError
+            When a value is not on the comparison grid.
+        """
         return self.factor[self._index(wavelength_nm)]
 
     def u_factor_at(self, wavelength_nm) -> np.ndarray:
-        """``u_k`` at each of ``wavelength_nm`` (values of the comparison grid)."""
+        """``u_k`` at each of ``wavelength_nm`` (values of the comparison grid).
+
+        Parameters
+        ----------
+        wavelength_nm : array_like
+            Wavelengths (nm) or band codes of the comparison grid.
+
+        Returns
+        -------
+        numpy.ndarray
+            The standard uncertainty ``u_k`` at each.
+
+        Raises
+        ------
+        ValueError
+            When a value is not on the comparison grid.
+        """
         return self.u_factor[self._index(wavelength_nm)]
 
 

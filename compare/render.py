@@ -44,7 +44,23 @@ class MitsubaMissing(RuntimeError):
 
 
 def require_mitsuba(variant: str = "scalar_rgb") -> Any:
-    """The ``mitsuba`` module with ``variant`` set; :class:`MitsubaMissing` (one line) without it."""
+    """The ``mitsuba`` module with ``variant`` set; :class:`MitsubaMissing` (one line) without it.
+
+    Parameters
+    ----------
+    variant : str, default "scalar_rgb"
+        The Mitsuba variant to set (``"scalar_rgb"`` or ``"scalar_spectral"``).
+
+    Returns
+    -------
+    module
+        The ``mitsuba`` module.
+
+    Raises
+    ------
+    MitsubaMissing
+        When Mitsuba 3 is not installed.
+    """
     try:
         import mitsuba as mi
     except ImportError:
@@ -60,7 +76,27 @@ def _file_is_spectral(path: str | os.PathLike) -> bool:
 
 
 def load_measured(path: str | os.PathLike) -> tuple[Any, Any, np.ndarray | None]:
-    """``(mitsuba, bsdf, wavelengths or None)`` for an RGL file, in the variant its type needs."""
+    """``(mitsuba, bsdf, wavelengths or None)`` for an RGL file, in the variant its type needs.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The RGL ``.bsdf`` file.
+
+    Returns
+    -------
+    mitsuba : module
+        The ``mitsuba`` module, in ``scalar_spectral`` for a spectral file, else ``scalar_rgb``.
+    bsdf : mitsuba.BSDF
+        The file loaded as Mitsuba's ``measured`` BSDF.
+    wavelengths : numpy.ndarray or None
+        The file's wavelengths (nm) for a spectral file, else None.
+
+    Raises
+    ------
+    MitsubaMissing
+        When Mitsuba 3 is not installed.
+    """
     from gonio.data.formats.tensor import read_tensor_file
 
     fields = read_tensor_file(path)
@@ -74,6 +110,24 @@ def mitsuba_eval(path: str | os.PathLike, wi: np.ndarray, wo: np.ndarray) -> np.
     """Mitsuba's ``eval`` (``f_r cos theta_o``) of the file at pairs ``(N, 3)``: ``(N, bands)``.
 
     Spectral files are evaluated at their own wavelengths (four per call, Mitsuba's bundle).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The RGL ``.bsdf`` file.
+    wi, wo : numpy.ndarray
+        Incident and outgoing unit directions in the local frame (``N`` x 3; ``z`` the normal).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``f_r cos theta_o`` (sr^-1) per pair and band (``N`` x 3 for RGB, ``N`` x wavelengths for a
+        spectral file).
+
+    Raises
+    ------
+    MitsubaMissing
+        When Mitsuba 3 is not installed.
     """
     mi, bsdf, wl = load_measured(path)
     ctx = mi.BSDFContext()
@@ -109,6 +163,36 @@ def sampling_chi2(path: str | os.PathLike, theta_i_deg: float, *, n_samples: int
     p-value, the largest relative mismatch of the sample weight ``eval / pdf`` and the sampled
     fraction that came back invalid (zero weight). A tuple of both, ``("pdf", "eval")``, scores
     ONE draw against each and returns ``{name: result}``: the draw, the costly part, is shared.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The RGL ``.bsdf`` file.
+    theta_i_deg : float
+        Incidence polar angle (degrees).
+    n_samples : int, default 100000
+        Directions drawn.
+    n_cos, n_phi : int, default 20, 40
+        Bins in ``cos theta_o`` and in ``phi_o``.
+    sub : int, default 4
+        Sub-grid points per bin and axis of the density's midpoint rule.
+    seed : int, default 0
+        Seed of the random numbers fed to ``sample``.
+    against : str or tuple of str, default "pdf"
+        The density the draws are tested against: ``"pdf"``, ``"eval"`` or both.
+
+    Returns
+    -------
+    dict
+        ``chi2``, ``dof``, ``p_value``, ``weight_rel_err_max``, ``invalid_fraction`` and
+        ``expected_total``; for a tuple ``against``, one such dict per name.
+
+    Raises
+    ------
+    ValueError
+        When ``against`` names another density.
+    MitsubaMissing
+        When Mitsuba 3 is not installed.
     """
     from scipy.stats import chi2 as chi2_dist
 
@@ -238,7 +322,22 @@ def _sensor(mi: Any, origin, target, fov: float, w: int, h: int, spp: int) -> di
 
 
 def cushion_scene(mi: Any, bsdf_path: str | os.PathLike, s: RenderSettings) -> dict:
-    """The cushion on a grey floor under a sky and a low key light (path tracing, 3 bounces)."""
+    """The cushion on a grey floor under a sky and a low key light (path tracing, 3 bounces).
+
+    Parameters
+    ----------
+    mi : module
+        The ``mitsuba`` module, in the variant the file needs.
+    bsdf_path : str or os.PathLike
+        The cushion's RGL ``.bsdf`` file.
+    s : RenderSettings
+        Image size and samples per pixel.
+
+    Returns
+    -------
+    dict
+        The scene, for ``mitsuba.load_dict``.
+    """
     return {
         "type": "scene",
         "integrator": {"type": "path", "max_depth": 3},
@@ -255,7 +354,26 @@ def cushion_scene(mi: Any, bsdf_path: str | os.PathLike, s: RenderSettings) -> d
 
 def swatch_scene(mi: Any, bsdf_path: str | os.PathLike, incidence_deg: float, azimuth_deg: float,
                  s: RenderSettings) -> dict:
-    """A flat swatch seen at CAMERA_ZENITH_DEG, lit by one directional light (direct lighting)."""
+    """A flat swatch seen at CAMERA_ZENITH_DEG, lit by one directional light (direct lighting).
+
+    Parameters
+    ----------
+    mi : module
+        The ``mitsuba`` module, in the variant the file needs.
+    bsdf_path : str or os.PathLike
+        The swatch's RGL ``.bsdf`` file.
+    incidence_deg : float
+        The light's polar angle from the swatch's normal (degrees).
+    azimuth_deg : float
+        The light's azimuth relative to the camera's (degrees; 0 behind the camera).
+    s : RenderSettings
+        Image size and samples per pixel.
+
+    Returns
+    -------
+    dict
+        The scene, for ``mitsuba.load_dict``.
+    """
     cz = np.radians(CAMERA_ZENITH_DEG)
     cam = (0.0, -4.0 * np.sin(cz), 4.0 * np.cos(cz))          # camera azimuth: -y
     ti, az = np.radians(incidence_deg), np.radians(azimuth_deg - 90.0)
@@ -275,6 +393,25 @@ def render_materials(materials: Sequence[tuple[str, str | os.PathLike]], setting
     """Render each ``(label, file.bsdf)``: the cushion, then the swatch under :data:`SWATCH_LIGHTS`.
 
     ``progress`` receives one line per image (label, scene, seconds).
+
+    Parameters
+    ----------
+    materials : sequence of (str, path)
+        Each material's label and RGL ``.bsdf`` file.
+    settings : RenderSettings, optional
+        Sizes, samples per pixel, seed and exposure (default :class:`RenderSettings`).
+    progress : callable, default print
+        Called with one line per image; None or False for silence.
+
+    Returns
+    -------
+    list of RenderedImage
+        The images, material by material, the cushion first.
+
+    Raises
+    ------
+    MitsubaMissing
+        When Mitsuba 3 is not installed.
     """
     s = settings or RenderSettings()
     out: list[RenderedImage] = []
@@ -295,7 +432,20 @@ def render_materials(materials: Sequence[tuple[str, str | os.PathLike]], setting
 
 
 def to_srgb8(rgb: np.ndarray, exposure: float = 1.0) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB (clipped), the display transfer of IEC 61966-2-1."""
+    """Linear RGB -> 8-bit sRGB (clipped), the display transfer of IEC 61966-2-1.
+
+    Parameters
+    ----------
+    rgb : numpy.ndarray
+        Linear RGB values (any shape, 1 the white).
+    exposure : float, default 1
+        Linear scale applied before the transfer.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``uint8`` values of the same shape.
+    """
     x = np.clip(np.asarray(rgb, float) * exposure, 0.0, 1.0)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return (srgb * 255 + 0.5).astype(np.uint8)
@@ -308,6 +458,26 @@ def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike
     They are written together (:func:`gonio.data.write_files_together`): a set that cannot be
     written (a full disk) is one :class:`~compare.errors.CompareError` line and leaves ``out_dir``
     as it was.
+
+    Parameters
+    ----------
+    images : sequence of RenderedImage
+        The renders, as :func:`render_materials` returns them.
+    out_dir : str or os.PathLike
+        The folder written into.
+    settings : RenderSettings, optional
+        The settings the images were rendered with (their exposure is applied).
+
+    Returns
+    -------
+    dict
+        The content of ``render.json``: the sheet's file, each image's file, material, scene,
+        seconds, spp and size, the caption, the total seconds and the settings.
+
+    Raises
+    ------
+    CompareError
+        When the files cannot be written.
     """
     import io
     import json
@@ -370,6 +540,20 @@ def write_render_set(images: Sequence[RenderedImage], out_dir: str | os.PathLike
 
 
 def caption_text(images: Sequence[RenderedImage], s: RenderSettings) -> str:
+    """The caption of the render sheet: the renderer, each scene's size, lighting and time per image.
+
+    Parameters
+    ----------
+    images : sequence of RenderedImage
+        The renders.
+    s : RenderSettings
+        The settings they were rendered with.
+
+    Returns
+    -------
+    str
+        The caption, one sentence ending in a full stop.
+    """
     total = sum(im.seconds for im in images)
     per = {sc: np.mean([im.seconds for im in images if im.scene == sc]) for sc in dict.fromkeys(im.scene for im in images)}
     cushion = per.pop("cushion", None)
@@ -388,6 +572,16 @@ def render_section(render_dir: str | os.PathLike) -> str:
     """HTML (a ``<section>``) embedding the sheet written by :func:`write_render_set`, captioned.
 
     Without a render (no ``render.json``) it says how to make one; the report is otherwise unchanged.
+
+    Parameters
+    ----------
+    render_dir : str or os.PathLike
+        The folder :func:`write_render_set` wrote.
+
+    Returns
+    -------
+    str
+        The section's HTML.
     """
     import base64
     import html

@@ -128,6 +128,18 @@ class ResidualFigures:
         No colour terms when the measurement has no colour (a photometric one); otherwise
         ``|r|^2 = NRMSE^2 + w (dh^2 + ds^2)``. ``level_weight > 0`` (``simulate fit --absolute``)
         appends ``sqrt(level_weight) ln(level)``, so ``|r|^2`` gains ``w_l (ln k_Y)^2``.
+
+        Parameters
+        ----------
+        colour_weight : float, default 1
+            Weight ``w`` of the squared hue and saturation differences.
+        level_weight : float, default 0
+            Weight ``w_l`` of the squared log level; 0 leaves the level out.
+
+        Returns
+        -------
+        numpy.ndarray
+            The residual vector (a new array).
         """
         parts = [self.residual]
         if self.has_colour:
@@ -263,6 +275,16 @@ class ModelResidual:
 
         ``measured`` has the SAME rows as the dataset prepared (new values: e.g. a noise draw of
         the measurement).
+
+        Parameters
+        ----------
+        measured : Dataset
+            The measurement with the prepared rows and new values.
+
+        Returns
+        -------
+        ModelResidual
+            The copy; the original is unchanged.
 
         Raises
         ------

@@ -57,7 +57,18 @@ _FIGURE = "sweep_metrics.png"
 
 
 def is_sweep_dir(path: str | Path) -> bool:
-    """True when ``path`` is a directory holding a ``sweep.json`` (a ``simulate sweep`` output)."""
+    """True when ``path`` is a directory holding a ``sweep.json`` (a ``simulate sweep`` output).
+
+    Parameters
+    ----------
+    path : str or Path
+        The path to look at.
+
+    Returns
+    -------
+    bool
+        Whether ``path/sweep.json`` is a file.
+    """
     return (Path(path) / SWEEP_NAME).is_file()
 
 

@@ -181,6 +181,19 @@ def interpolated_at(comparison: Comparison, wavelength: float) -> str:
     """A sentence naming the simulations that do not hold ``wavelength``, or ``""``.
 
     Their curve there is linearly interpolated in wavelength.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    wavelength : float
+        The wavelength (nm).
+
+    Returns
+    -------
+    str
+        The sentence, with a leading space; ``""`` when every simulation holds ``wavelength`` or the
+        comparison is on channels.
     """
     if comparison.bands.is_rgb:
         return ""
@@ -195,7 +208,22 @@ def interpolated_at(comparison: Comparison, wavelength: float) -> str:
 
 
 def write_together(out: Path, files: dict, what: str) -> None:
-    """:func:`gonio.data.write_files_together`, its failure one :class:`CompareError` line."""
+    """:func:`gonio.data.write_files_together`, its failure one :class:`CompareError` line.
+
+    Parameters
+    ----------
+    out : Path
+        The folder written into.
+    files : dict
+        Path (relative to ``out``) -> bytes.
+    what : str
+        What the files are (e.g. "report"), for the message.
+
+    Raises
+    ------
+    CompareError
+        When the files cannot be written; none of them is then written.
+    """
     try:
         write_files_together(out, {str(k): v for k, v in files.items()})
     except OSError as exc:
@@ -205,6 +233,21 @@ def write_together(out: Path, files: dict, what: str) -> None:
 
 
 def colour_figures(comparison: Comparison, figures: dict, fig_dir: Path, svg: bool, files: dict | None = None) -> None:
+    """Add the colour figures to ``figures``: spectra and swatches at the colour geometry, colour strips.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison; its colour match must be known.
+    figures : dict
+        File name -> ``(PNG bytes, caption)``, added to in place.
+    fig_dir : Path
+        The report's ``figures/`` folder.
+    svg : bool
+        Also write each figure as SVG.
+    files : dict, optional
+        Collects path -> bytes instead of writing them (see :func:`save_figure`).
+    """
     geo = comparison.colour_matched().geometry
     figures["spectrum.png"] = (save_figure(spectrum_figure(comparison), fig_dir / "spectrum.png",
                                            svg, files),

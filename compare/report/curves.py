@@ -29,7 +29,18 @@ GRAZING_DEG = 85.0
 
 
 def angle_text(theta_deg: float) -> str:
-    """``"θi = 27.8°"``: an incidence to one decimal (no trailing ``.0``)."""
+    """``"θi = 27.8°"``: an incidence to one decimal (no trailing ``.0``).
+
+    Parameters
+    ----------
+    theta_deg : float
+        The incidence polar angle (degrees).
+
+    Returns
+    -------
+    str
+        The label.
+    """
     return f"θi = {round(float(theta_deg), 1):g}°"
 
 
@@ -41,6 +52,18 @@ def beam_blocked(rows: pd.DataFrame, dataset=None) -> set[float]:
     file (meta.json ``instrument.format``: rgl-bsdf, merl, pgii, ...) has none, even where its
     geometries (a plan's) skip the retro-direction, nor does a simulation (kind other than
     ``measured``): empty.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        The measurement's in-plane rows, with ``theta_i`` and ``s`` (degrees).
+    dataset : Dataset, optional
+        The dataset the rows are from, to tell an instrument's measurement from others.
+
+    Returns
+    -------
+    set of float
+        The incidence polar angles (degrees) with a gap.
     """
     if dataset is not None:
         instrument = dataset.meta.get("instrument")
@@ -55,7 +78,22 @@ def beam_blocked(rows: pd.DataFrame, dataset=None) -> set[float]:
 
 
 def sim_inplane(comparison: Comparison, name: str) -> pd.DataFrame:
-    """Normalised in-plane simulated rows (``theta_i, s, wavelength_nm, beta, u_beta``)."""
+    """Normalised in-plane simulated rows (``theta_i, s, wavelength_nm, beta, u_beta``).
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    name : str
+        The simulation's name.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``theta_i``, ``s``, ``phi_i`` (degrees), ``wavelength_nm`` and ``beta``, ``u_beta``
+        times ``k(lambda)``; the simulation's own rows where it holds the comparison grid, else the
+        rows aligned to the measurement.
+    """
     grid = comparison.wavelength_nm
     sim = comparison.view(name)
     norm = comparison.normalisations[name]
@@ -83,7 +121,18 @@ def sim_inplane(comparison: Comparison, name: str) -> pd.DataFrame:
 
 
 def measured_inplane(comparison: Comparison) -> pd.DataFrame:
-    """The measurement's in-plane rows on the comparison grid: geometry, wavelength, ``beta`` and ``u_beta``."""
+    """The measurement's in-plane rows on the comparison grid: geometry, wavelength, ``beta`` and ``u_beta``.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``theta_i``, ``s``, ``phi_i`` (degrees), ``wavelength_nm``, ``beta`` and ``u_beta``.
+    """
     rows = comparison.measured_compared.in_plane()
     grid = comparison.wavelength_nm
     keep = np.min(np.abs(rows["wavelength_nm"].to_numpy()[:, None] - grid[None, :]), axis=1) < 1e-6
@@ -103,6 +152,23 @@ def luminance_curve(rows: pd.DataFrame, grid: np.ndarray, weights: np.ndarray,
     ``u_Y = sum |w| u_beta``: the simulations are "white" Monte Carlo, one set of photons
     re-weighted for every wavelength, so their errors move together across the spectrum and the
     quadrature sum would understate the band by up to ``sqrt(n_wavelengths)``.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        In-plane rows with ``theta_i``, ``phi_i``, ``s``, ``wavelength_nm``, ``beta`` and ``u_beta``.
+    grid : numpy.ndarray
+        The comparison grid (wavelengths in nm, or band codes).
+    weights : numpy.ndarray
+        Weights with ``Y = weights @ beta`` on ``grid``
+        (:func:`compare.colourmatch.band_luminance_weights`).
+    correlated : bool, default False
+        Add the uncertainties linearly instead of in quadrature.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``theta_i``, ``s`` (degrees), ``value`` (``Y``) and ``u`` (``u_Y``).
     """
     if rows.empty:
         return pd.DataFrame(columns=["theta_i", "s", "value", "u"])
@@ -125,7 +191,20 @@ def luminance_curve(rows: pd.DataFrame, grid: np.ndarray, weights: np.ndarray,
 
 
 def single_wavelength(rows: pd.DataFrame, wavelength_nm: float) -> pd.DataFrame:
-    """The in-plane curve of ``rows`` at one wavelength: ``theta_i``, ``s``, ``value`` and ``u``."""
+    """The in-plane curve of ``rows`` at one wavelength: ``theta_i``, ``s``, ``value`` and ``u``.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        In-plane rows with ``theta_i``, ``s``, ``wavelength_nm``, ``beta`` and ``u_beta``.
+    wavelength_nm : float
+        The wavelength (nm) or band code.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The rows at that wavelength.
+    """
     sel = rows[np.abs(rows["wavelength_nm"].to_numpy() - wavelength_nm) < 1e-6]
     return pd.DataFrame({"theta_i": sel["theta_i"].to_numpy(), "s": sel["s"].to_numpy(),
                          "value": sel["beta"].to_numpy(), "u": sel["u_beta"].to_numpy()})
@@ -136,6 +215,20 @@ def gapped(s: np.ndarray, y: np.ndarray, theta_i: float) -> tuple[np.ndarray, np
 
     That is across the beam-blocked retro-direction when the curve has no point there, and across
     holes wider than 1.5 times the usual spacing (missing points are not interpolated by eye).
+
+    Parameters
+    ----------
+    s : numpy.ndarray
+        Signed observation angles (degrees, ascending).
+    y : numpy.ndarray
+        The values at ``s``.
+    theta_i : float
+        The incidence polar angle (degrees); the retro-direction is ``s = -theta_i``.
+
+    Returns
+    -------
+    s, y : numpy.ndarray
+        The arrays with NaN at each cut (the inputs themselves when there is none).
     """
     if s.size < 2:
         return s, y

@@ -69,7 +69,18 @@ LINESTYLES = ("-", "--", "-.", ":")
 
 
 def mpl_label(text: str) -> str:
-    """A matplotlib-safe label (no mathtext, not hidden by a leading underscore)."""
+    """A matplotlib-safe label (no mathtext, not hidden by a leading underscore).
+
+    Parameters
+    ----------
+    text : str
+        The label as given (e.g. a dataset's name).
+
+    Returns
+    -------
+    str
+        The label with ``$`` escaped and a leading underscore preceded by a space.
+    """
     text = str(text).replace("$", r"\$")
     return " " + text if text.startswith("_") else text
 
@@ -79,6 +90,22 @@ def save_figure(fig, path: Path, svg: bool = False, files: dict | None = None) -
 
     ``files``: collect the bytes there (path -> bytes) instead of writing them, for a report written
     together (:func:`gonio.data.write_files_together`).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure; it is closed.
+    path : Path
+        The PNG file.
+    svg : bool, default False
+        Also write an SVG beside it.
+    files : dict, optional
+        Collects path -> bytes instead of writing them.
+
+    Returns
+    -------
+    bytes
+        The PNG.
     """
     import io
 
@@ -130,6 +157,13 @@ def tight_layout(fig, bottom_in: float = 0.0) -> None:
     panels do not move in between; here they are measured once and the bottom margin moves up
     by the strip. With several rows (whose spacing is relative to the panel height)
     matplotlib's own ``rect`` is used.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+    bottom_in : float, default 0
+        Height of the free strip (inches).
     """
     strip = bottom_in / fig.get_figheight()
     specs = [ax.get_subplotspec() for ax in fig.axes]
@@ -164,6 +198,23 @@ def own_scale_panels(measured: pd.DataFrame, simulated: dict[str, pd.DataFrame],
 
     The grazing ones (>= ``GRAZING_DEG``) and, unless ``ratio`` is None, those whose peak exceeds
     ``ratio`` times the median panel peak.
+
+    Parameters
+    ----------
+    measured : pandas.DataFrame
+        The measured curves, with ``theta_i`` (degrees) and ``value``.
+    simulated : dict of str to pandas.DataFrame
+        The simulated curves by name, with the same columns.
+    angles : list of float
+        The incidence polar angles (degrees) of the panels.
+    ratio : float or None, default OWN_SCALE_RATIO
+        Peak over the median panel peak above which a panel gets its own axis; None: only the
+        grazing ones.
+
+    Returns
+    -------
+    set of float
+        The incidence angles (degrees) drawn on their own axis.
     """
     frames = [measured] + list(simulated.values())
     peaks = []
@@ -312,6 +363,16 @@ def spectrum_figure(comparison: Comparison):
     match. The per-wavelength normalised view is not drawn: ``k(lambda)`` makes every simulation
     equal the measurement at the normal by construction, so near the normal it would show the same
     curve for every dataset. Channels are points (R, G, B are not a continuum: no line joins them).
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison; its colour match must be known.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     import matplotlib.pyplot as plt
 
@@ -346,7 +407,18 @@ def spectrum_figure(comparison: Comparison):
 
 
 def factor_figure(comparison: Comparison):
-    """Figure ``factor.png``: each simulation's normalisation factor ``k(lambda)`` with its uncertainty."""
+    """Figure ``factor.png``: each simulation's normalisation factor ``k(lambda)`` with its uncertainty.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 3.8))
@@ -373,6 +445,17 @@ def swatch_entries(comparison: Comparison) -> list[tuple[str, np.ndarray, tuple]
     ``pixel`` is the gamma-encoded sRGB shown on screen and ``hsv`` is computed from that same
     pixel, so a label describes what it sits under (the metrics' H, S, V are those of LINEAR sRGB;
     the table gives both).
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison; its colour match must be known.
+
+    Returns
+    -------
+    list of (str, numpy.ndarray, tuple)
+        The label, the displayed pixel (gamma-encoded sRGB, 0 to 1) and its H, S, V (in [0, 1]), the
+        measurement first.
     """
     import colour
 
@@ -390,7 +473,18 @@ def swatch_entries(comparison: Comparison) -> list[tuple[str, np.ndarray, tuple]
 
 
 def swatch_figure(comparison: Comparison):
-    """Figure ``swatches.png``: the measured and simulated colour swatches at the colour geometry."""
+    """Figure ``swatches.png``: the measured and simulated colour swatches at the colour geometry.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison; its colour match must be known.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
@@ -420,6 +514,11 @@ def colour_strips(comparison: Comparison) -> list[dict]:
     illuminant, linear sRGB). Simulations are taken as written, not normalised per wavelength:
     ``k(lambda)`` makes every simulation's spectrum the measured one at the normal, so its
     colour there would agree by construction; a per-strip scale (below) is all that is needed.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
 
     Returns
     -------
@@ -509,6 +608,16 @@ def colour_strip_figure(strips: list[dict]):
 
     Each swatch is drawn at its observation angle ``s`` (so the strips line up with the in-plane
     panels and a missing geometry is a gap), the angles labelled under each panel.
+
+    Parameters
+    ----------
+    strips : list of dict
+        The strips of :func:`colour_strips`.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
     """
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
@@ -555,6 +664,16 @@ def hue_trend(strips: list[dict]) -> str:
 
     There the paper's purple-to-red change is largest; the caption states what the strips
     show in numbers rather than leaving it to the eye (display scaling changes the look).
+
+    Parameters
+    ----------
+    strips : list of dict
+        The strips of :func:`colour_strips`.
+
+    Returns
+    -------
+    str
+        The sentence, with a leading space; ``""`` when no strip has two swatches.
     """
     if not strips:
         return ""

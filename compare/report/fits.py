@@ -25,7 +25,23 @@ __all__ = ["fits_section", "read_fit"]
 
 
 def read_fit(fit_dir: str | Path) -> dict:
-    """``fit_dir/fit.json`` as a dict; :class:`CompareError` (one line) when it is not a fit."""
+    """``fit_dir/fit.json`` as a dict; :class:`CompareError` (one line) when it is not a fit.
+
+    Parameters
+    ----------
+    fit_dir : str or Path
+        The ``--out`` folder of ``simulate fit``.
+
+    Returns
+    -------
+    dict
+        The fit's summary, with its ``parameters`` list.
+
+    Raises
+    ------
+    CompareError
+        When ``fit.json`` is missing, too large, unreadable, or not a fit's summary.
+    """
     path = Path(fit_dir) / "fit.json"
     try:
         if path.stat().st_size > MAX_FIT_BYTES:
@@ -111,6 +127,24 @@ def fits_section(fit_dirs: Sequence[str | Path], simulated: Mapping = {}) -> Sec
     """The "Fitted parameters" section (module docstring).
 
     ``simulated``: the report's simulated datasets by name.
+
+    Parameters
+    ----------
+    fit_dirs : sequence of str or Path
+        The ``--out`` folders of ``simulate fit``, one table each.
+    simulated : mapping, default {}
+        The report's simulated datasets by name; those evaluated at a fit's parameters are named
+        under its table.
+
+    Returns
+    -------
+    Section
+        The section, placed before the normalisation section.
+
+    Raises
+    ------
+    CompareError
+        When a folder holds no readable fit (:func:`read_fit`).
     """
     e = html.escape
     parts = ["<h2>Fitted parameters</h2><p>Each model below was fitted to the measurement by "

@@ -32,6 +32,24 @@ def prepare_out_dir(out: Path, force: bool) -> list[Path]:
     ``out`` may be missing, empty, or hold a previous report (its ``report.html`` names this
     generator): then only the previous report's own files are replaced or removed. Any other
     non-empty folder is refused unless ``force`` (then same-named files are replaced).
+
+    Parameters
+    ----------
+    out : Path
+        The report's folder.
+    force : bool
+        Write into a non-empty folder that holds no previous report.
+
+    Returns
+    -------
+    list of Path
+        The figure files of the previous report in ``out`` (empty when there is none).
+
+    Raises
+    ------
+    CompareError
+        When ``out`` is not a folder, or is a non-empty folder without a previous report and
+        ``force`` is not given.
     """
     if not out.exists():
         return []

@@ -63,7 +63,25 @@ class Section:
 
 
 def head_html(title: str, heading: str, files: list[str], style: str = STYLE) -> list[str]:
-    """The page's head (generator and file list: :mod:`compare.report.outdir`) and title."""
+    """The page's head (generator and file list: :mod:`compare.report.outdir`) and title.
+
+    Parameters
+    ----------
+    title : str
+        The page's title (the browser's tab).
+    heading : str
+        The page's ``<h1>``.
+    files : list of str
+        The report's own files (relative paths), named in the head so that the next report in
+        the folder may replace them.
+    style : str, default STYLE
+        The ``<style>`` element.
+
+    Returns
+    -------
+    list of str
+        The page's first lines of HTML, up to and including the ``<h1>``.
+    """
     from gonio.version import describe
 
     e = html.escape
@@ -75,7 +93,20 @@ def head_html(title: str, heading: str, files: list[str], style: str = STYLE) ->
 
 
 def assemble(head: list[str], sections: list[Section]) -> str:
-    """The page: ``head``, the sections in order, and a footer naming the version (and commit) that wrote it."""
+    """The page: ``head``, the sections in order, and a footer naming the version (and commit) that wrote it.
+
+    Parameters
+    ----------
+    head : list of str
+        The page's first lines (:func:`head_html`, then banners and the result).
+    sections : list of Section
+        The sections, in page order.
+
+    Returns
+    -------
+    str
+        The whole page.
+    """
     from gonio.version import describe
 
     footer = f"<footer><p class='software'>Written by {html.escape(describe())}.</p></footer>"
@@ -83,7 +114,20 @@ def assemble(head: list[str], sections: list[Section]) -> str:
 
 
 def order_sections(standard: list[Section], extra: list[Section]) -> list[Section]:
-    """``extra`` placed before the standard section each names (in the order given)."""
+    """``extra`` placed before the standard section each names (in the order given).
+
+    Parameters
+    ----------
+    standard : list of Section
+        The standard sections, in page order.
+    extra : list of Section
+        The added sections; one naming no standard section goes at the end.
+
+    Returns
+    -------
+    list of Section
+        All the sections, in page order.
+    """
     out: list[Section] = []
     for s in standard:
         out += [x for x in extra if x.before == s.key]
@@ -94,7 +138,26 @@ def order_sections(standard: list[Section], extra: list[Section]) -> list[Sectio
 
 def page_html(comparison: Comparison, metrics: dict, figures: dict[str, tuple[bytes, str]],
               extra: list[Section] | tuple = (), preface: str = "") -> str:
-    """The comparison report's page: banners, the standard sections and ``extra``."""
+    """The comparison report's page: banners, the standard sections and ``extra``.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`, as ``metrics.json`` holds them).
+    figures : dict of str to (bytes, str)
+        Figure file name -> ``(PNG bytes, caption)``.
+    extra : list of Section or tuple, default ()
+        Sections added to the standard ones (:func:`order_sections`).
+    preface : str, default ""
+        Plain text said once above the figures.
+
+    Returns
+    -------
+    str
+        The page's HTML.
+    """
     e = html.escape
     files = [f"figures/{name}" for name in figures]
     files += [f"figures/{name}" for s in extra for name in s.figures]
@@ -115,7 +178,18 @@ HOW_SIMULATED = {"measured": "its own s = 0 point", "estimated": "quadratic esti
 
 
 def describe_dataset(ds) -> str:
-    """What a dataset is, read from its meta.json (kind, sample, instrument or model)."""
+    """What a dataset is, read from its meta.json (kind, sample, instrument or model).
+
+    Parameters
+    ----------
+    ds : Dataset
+        The dataset.
+
+    Returns
+    -------
+    str
+        A phrase, e.g. "a measurement of red cotton, by ...".
+    """
     meta = ds.meta
     sample = meta.get("sample") if isinstance(meta.get("sample"), dict) else {}
     what = str(sample.get("name") or ds.name)
@@ -172,6 +246,19 @@ def result_sentences(comparison: Comparison, metrics: dict) -> list[str]:
     weight; NRMSE alone when there is no colour statement). Datasets of the mock's true values
     (:data:`TRUTH_MODEL`) are checks of the instrument chain and are not ranked. Returns ``[]`` when
     there is no model to rank (a report of a measurement alone).
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`).
+
+    Returns
+    -------
+    list of str
+        Three sentences (the closest model, whether any model matches, what the threshold means),
+        or ``[]``.
     """
     from ..metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 
@@ -224,7 +311,20 @@ def result_sentences(comparison: Comparison, metrics: dict) -> list[str]:
 
 
 def result_html(comparison: Comparison, metrics: dict) -> str:
-    """:func:`result_sentences` as the page's first paragraph (empty without a model)."""
+    """:func:`result_sentences` as the page's first paragraph (empty without a model).
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`).
+
+    Returns
+    -------
+    str
+        A ``<section>`` of HTML, or ``""``.
+    """
     sentences = result_sentences(comparison, metrics)
     if not sentences:
         return ""
@@ -234,7 +334,20 @@ def result_html(comparison: Comparison, metrics: dict) -> str:
 
 
 def howto_section(comparison: Comparison, metrics: dict) -> Section:
-    """The "how to read this" box: what the reference is, what the models are, what success is."""
+    """The "how to read this" box: what the reference is, what the models are, what success is.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`).
+
+    Returns
+    -------
+    Section
+        The section, with a verdict per model at the defaults of ``compare check``.
+    """
     from ..metrics import DEFAULT_MAX_HUE_DIFF, DEFAULT_MAX_LEVEL_RATIO, DEFAULT_MAX_NRMSE, DEFAULT_MAX_SAT_DIFF
 
     e = html.escape
@@ -287,6 +400,18 @@ def howto_section(comparison: Comparison, metrics: dict) -> Section:
 
 
 def datasets_section(comparison: Comparison) -> Section:
+    """The "Datasets" section: every dataset compared, what the comparison is made on, and its notes.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+
+    Returns
+    -------
+    Section
+        The section.
+    """
     e = html.escape
     parts: list[str] = []
     meas = comparison.measured
@@ -326,6 +451,20 @@ def datasets_section(comparison: Comparison) -> Section:
 
 
 def normalisation_section(comparison: Comparison, metrics: dict) -> Section:
+    """The "Normalisation at the normal direction" section: the measured normal value and each factor ``k``.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`).
+
+    Returns
+    -------
+    Section
+        The section.
+    """
     e = html.escape
     parts: list[str] = []
     norm = metrics["normalisation"]
@@ -366,6 +505,20 @@ def normalisation_section(comparison: Comparison, metrics: dict) -> Section:
 
 
 def curves_section(comparison: Comparison, metrics: dict) -> Section:
+    """The "Curve errors" section: RMSE, NRMSE and the largest difference per simulation and incidence.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`).
+
+    Returns
+    -------
+    Section
+        The section.
+    """
     e = html.escape
     parts: list[str] = []
     parts.append("<h2>Curve errors</h2><p>Residuals k C - beta_meas over all shared geometries "
@@ -392,6 +545,20 @@ def curves_section(comparison: Comparison, metrics: dict) -> Section:
 
 
 def colour_section(comparison: Comparison, metrics: dict) -> Section:
+    """The "Colour match" section: the H, S, V table, or why there is no colour statement.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`).
+
+    Returns
+    -------
+    Section
+        The section.
+    """
     parts: list[str] = []
     colour = metrics["colour"]
     if not colour and comparison.colour_note:
@@ -410,6 +577,18 @@ def figures_section(figures: dict[str, tuple[bytes, str]], preface: str = "") ->
     """The figures with numbered captions.
 
     ``preface`` (plain text) is said once above them (what every in-plane figure shares).
+
+    Parameters
+    ----------
+    figures : dict of str to (bytes, str)
+        Figure file name -> ``(PNG bytes, caption)``, in page order.
+    preface : str, default ""
+        Plain text said once above the figures.
+
+    Returns
+    -------
+    Section
+        The section, each figure embedded as a data URL.
     """
     e = html.escape
     parts: list[str] = []
@@ -427,7 +606,17 @@ def figures_section(figures: dict[str, tuple[bytes, str]], preface: str = "") ->
 
 
 def colour_html(parts: list[str], comparison: Comparison, colour: dict) -> None:
-    """Append the colour-match table of ``metrics.json``'s ``colour`` to ``parts`` (HTML)."""
+    """Append the colour-match table of ``metrics.json``'s ``colour`` to ``parts`` (HTML).
+
+    Parameters
+    ----------
+    parts : list of str
+        The section's HTML so far, appended to in place.
+    comparison : Comparison
+        The comparison.
+    colour : dict
+        ``metrics.json``'s ``colour``: the ``geometry`` and each dataset's figures by name.
+    """
     e = html.escape
     meas = comparison.measured
     geo = colour["geometry"]

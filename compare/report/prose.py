@@ -15,7 +15,19 @@ __all__ = ["banners", "fmt", "sample_summary", "source_summary"]
 
 
 def source_summary(ds) -> str:
-    """A readable one-line summary of what produced ``ds`` (no link URLs or temporary ports)."""
+    """A readable one-line summary of what produced ``ds`` (no link URLs or temporary ports).
+
+    Parameters
+    ----------
+    ds : Dataset
+        The dataset.
+
+    Returns
+    -------
+    str
+        Its instrument or model, plan, seed, completeness and software, ``"; "``-joined; ``"-"``
+        when its meta says none of them.
+    """
     meta = ds.meta
     parts = []
     source = meta.get("instrument") if ds.kind == "measured" else meta.get("model")
@@ -52,7 +64,18 @@ def source_summary(ds) -> str:
 
 
 def sample_summary(ds) -> str:
-    """The sample of a dataset in words: its name and its meta's simple fields."""
+    """The sample of a dataset in words: its name and its meta's simple fields.
+
+    Parameters
+    ----------
+    ds : Dataset
+        The dataset.
+
+    Returns
+    -------
+    str
+        The sample's name (the dataset's without one), then its fields in parentheses.
+    """
     sample = ds.meta.get("sample") if isinstance(ds.meta.get("sample"), dict) else {}
     fields = [f"{k}: {v}" for k, v in sample.items()
               if k != "name" and isinstance(v, (str, int, float))]
@@ -60,7 +83,20 @@ def sample_summary(ds) -> str:
 
 
 def fmt(x, digits: int = 4) -> str:
-    """A figure for the page: ``digits`` significant digits, ``-`` for None or a non-finite value."""
+    """A figure for the page: ``digits`` significant digits, ``-`` for None or a non-finite value.
+
+    Parameters
+    ----------
+    x : float, None or object
+        The figure; anything else is shown as its escaped text.
+    digits : int, default 4
+        Significant digits of a float.
+
+    Returns
+    -------
+    str
+        The text, HTML-escaped.
+    """
     if x is None:
         return "-"
     if isinstance(x, float):
@@ -69,7 +105,18 @@ def fmt(x, digits: int = 4) -> str:
 
 
 def banners(comparison: Comparison) -> list[str]:
-    """The page's warnings: incomplete data, and a simulation that is the measurement itself."""
+    """The page's warnings: incomplete data, and a simulation that is the measurement itself.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+
+    Returns
+    -------
+    list of str
+        One plain-text warning each; empty when there is none.
+    """
     from ..comparison import incomplete_datasets, same_dataset
 
     out = [f"Incomplete data: {line}. Curves and colours cover only what was measured."

@@ -76,6 +76,28 @@ def published_colour_check(dataset, ranges=None):
     Raises :class:`CompareError` (naming the dataset) for an RGB dataset or one without the
     geometry.
 
+    Parameters
+    ----------
+    dataset : Dataset
+        A spectral dataset holding the in-plane spectrum at :data:`SEED_GEOMETRY`.
+    ranges : dict, optional
+        Quantity (``h``, ``s``, ``blue_red``, ``green_red``) -> ``(low, high)``, either None for no
+        bound (default :data:`PUBLISHED_RED_COTTON`).
+
+    Returns
+    -------
+    colour : ColourSummary
+        The dataset's colour there.
+    checks : list of RangeCheck
+        One check per quantity of ``ranges``.
+
+    Raises
+    ------
+    CompareError
+        For an RGB dataset or one without the geometry.
+
+    Examples
+    --------
     >>> RangeCheck("h", 0.979, 0.97, 0.99).ok, RangeCheck("s", 0.95, 0.97, None).line()
     (True, 'S 0.95 OUT OF RANGE >= 0.97')
     """
@@ -98,7 +120,23 @@ def published_colour_check(dataset, ranges=None):
 
 
 def seed_sample_section(dataset) -> Section:
-    """The seed sample's colour against :data:`PUBLISHED_RED_COTTON` (module docstring)."""
+    """The seed sample's colour against :data:`PUBLISHED_RED_COTTON` (module docstring).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The simulated seed sample (:func:`published_colour_check`).
+
+    Returns
+    -------
+    Section
+        The section, at the end of the page.
+
+    Raises
+    ------
+    CompareError
+        For an RGB dataset or one without the geometry.
+    """
     e = html.escape
     colour, checks = published_colour_check(dataset)
     rows = "".join(f"<tr><td class='l'>{e(_LABELS[c.quantity])}</td><td>{c.value:.4f}</td>"
@@ -120,7 +158,19 @@ def seed_sample_section(dataset) -> Section:
 
 
 def measured_sample_section(dataset) -> Section | None:
-    """What the measured dataset is (module docstring), or None when it says nothing of it."""
+    """What the measured dataset is (module docstring), or None when it says nothing of it.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The measurement.
+
+    Returns
+    -------
+    Section or None
+        The section, under the title; None for a dataset not measured through the mock
+        goniophotometer.
+    """
     e = html.escape
     sample = dataset.meta.get("sample") or {}
     mock = sample.get("mock_sample") if isinstance(sample, dict) else None

@@ -32,6 +32,18 @@ def shape_section(comparison: Comparison, metrics: dict) -> Section:
     Rows are the measurement and each simulation, columns the incidences where the measurement
     has the ratio, at :data:`SHOWN_NM` (or the G and R channels); a dataset that lacks the points
     is named with its reason.
+
+    Parameters
+    ----------
+    comparison : Comparison
+        The comparison.
+    metrics : dict
+        Its figures (:meth:`Comparison.metrics`), with their ``shape`` ratios.
+
+    Returns
+    -------
+    Section
+        The section, placed before the colour section.
     """
     e = html.escape
     shape = metrics.get("shape", {})

@@ -60,5 +60,21 @@ DEFAULT_METHOD = "classic"
 
 
 def method_of(name: str) -> FitMethod:
-    """The registry's method ``name`` (:class:`KeyError` for another name: the caller says what to do)."""
+    """The registry's method ``name`` (:class:`KeyError` for another name: the caller says what to do).
+
+    Parameters
+    ----------
+    name : str
+        The method's name (``--method``).
+
+    Returns
+    -------
+    FitMethod
+        The method.
+
+    Raises
+    ------
+    KeyError
+        For a name the registry does not hold.
+    """
     return METHODS[name]

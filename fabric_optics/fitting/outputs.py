@@ -147,6 +147,25 @@ def write_outputs(problem: Any, result: FitResult, out: Path) -> dict:
     docstring): an exception or an interrupt while writing leaves ``out``'s previous outputs unchanged. The
     datasets are the result's model values (:attr:`FitResult.model_start`, :attr:`FitResult.model_fit`), or the
     problem's model at its start and result when the result has none.
+
+    Parameters
+    ----------
+    problem : FitProblem
+        The fit.
+    result : FitResult
+        Its result.
+    out : Path
+        The ``--out`` folder (it exists).
+
+    Returns
+    -------
+    dict
+        The content of fit.json.
+
+    Raises
+    ------
+    OSError
+        When the outputs cannot be written, naming ``out``; its previous outputs are unchanged.
     """
     prov = {"command": GENERATOR, "config": problem.config.provenance(), "seed": problem.seed,
             "versions": software_versions()}

@@ -176,19 +176,43 @@ class FitProblem:
     # -- what a runner sets --------------------------------------------------------------------
 
     def use_checkpoint(self, out: Path | None) -> None:
-        """Checkpoint every finished Monte Carlo run in ``out/walks/`` (None: none)."""
+        """Checkpoint every finished Monte Carlo run in ``out/walks/`` (None: none).
+
+        Parameters
+        ----------
+        out : Path or None
+            The fit's ``--out`` folder, or None for no checkpoint.
+        """
         self._out = None if out is None else Path(out)
 
     def use_photons(self, photons: dict | None) -> None:
-        """The photons of a resumed fit's first walk (its state file), so its walks are the interrupted one's."""
+        """The photons of a resumed fit's first walk (its state file), so its walks are the interrupted one's.
+
+        Parameters
+        ----------
+        photons : dict or None
+            Run key -> photons (the state file's ``photons``), or None for a fresh fit.
+        """
         self._photons = None if photons is None else dict(photons)
 
     def use_walk_progress(self, progress: Callable[[int, int, int], None] | None) -> None:
-        """``progress(photons, run, runs)`` during walks (None: silent)."""
+        """``progress(photons, run, runs)`` during walks (None: silent).
+
+        Parameters
+        ----------
+        progress : callable or None
+            Called with the photons walked so far, the run's number and the number of runs.
+        """
         self._walk_progress = progress
 
     def share_walks(self, other: FitProblem) -> None:
-        """Read the walks ``other`` made (same config and walked parameters) instead of walking them again."""
+        """Read the walks ``other`` made (same config and walked parameters) instead of walking them again.
+
+        Parameters
+        ----------
+        other : FitProblem
+            The problem whose walks (tables, reference points and photons) are shared.
+        """
         self._tables, self._references, self._photons = other._tables, other._references, other._photons
 
     # -- parameters and configs ------------------------------------------------------------
@@ -201,6 +225,16 @@ class FitProblem:
         its dye table parsed (:func:`simulate.config_dye.dye_from_table`, the parser's own) and the text and
         SHA-256 of the whole: field by field the config a full parse gives (a dye-only search step or Jacobian
         column re-parsed the whole config, a quarter of an evaluation).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            One value per free parameter, in its physical units.
+
+        Returns
+        -------
+        SimulationConfig
+            The config at ``x``.
         """
         doc = self._doc_at(x)
         text = toml_dumps(doc)
@@ -240,7 +274,20 @@ class FitProblem:
         return doc
 
     def fitted_toml(self, x: np.ndarray, note: str) -> str:
-        """TOML text of the fitted config (comments of the original are not kept)."""
+        """TOML text of the fitted config (comments of the original are not kept).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            One value per free parameter, in its physical units.
+        note : str
+            Text written as comment lines at the top.
+
+        Returns
+        -------
+        str
+            The TOML text, its ``name`` the start config's with ``-fitted``.
+        """
         doc = self._doc_at(x)
         doc["name"] = f"{self.config.name}-fitted"
         return toml_dumps(doc, header="\n".join("# " + line for line in note.splitlines()))
@@ -252,6 +299,16 @@ class FitProblem:
 
         Walked, or re-weighted from the walk at its lattice point (:meth:`lattice`), whichever the module
         docstring's rule says; memoised.
+
+        Parameters
+        ----------
+        config : SimulationConfig
+            The config (its scattering parameters select the walk).
+
+        Returns
+        -------
+        AbsorptionTable
+            The table: the volume term at any host absorption.
         """
         if self.structured:
             return self._structured_table(config)
@@ -290,6 +347,16 @@ class FitProblem:
         the lattice points are all that is walked (each in the disk cache: a refit walks nothing). The
         objective is then continuous across lattice cells (the jumps between the walks at 10 % target,
         docs/physics.md 6.5, become a linear blend).
+
+        Parameters
+        ----------
+        walk : tuple
+            The walked parameters' values, in the order of the free parameters.
+
+        Returns
+        -------
+        list of (tuple, float)
+            Each lattice point around ``walk`` and its weight (the weights sum to 1).
         """
         starts = [p.start for p in self.free if p.kind == "walk"]
         axes: list[list[tuple[float, float]]] = []
@@ -374,6 +441,16 @@ class FitProblem:
         of the parameters (not of the order in which the search visited them: a resumed fit sees the same
         values). A depth (a dye's or the scatterers') is kept: a walk is re-weighted to other scattering, not to
         another dyed region or another placement of its scatterers (:mod:`simulate.fiber.absorption`).
+
+        Parameters
+        ----------
+        walk : tuple
+            The walked parameters' values, in the order of the free parameters.
+
+        Returns
+        -------
+        tuple
+            The lattice point.
         """
         walked = [p for p in self.free if p.kind == "walk"]
         out: list[float] = []
@@ -472,6 +549,18 @@ class FitProblem:
 
         ``mc_noise`` (``[P, L]`` standard normal draws) shifts the volume term by that many
         standard errors (the uncertainty propagation of the Monte Carlo error).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            One value per free parameter, in its physical units.
+        mc_noise : numpy.ndarray, optional
+            Standard normal draws, one per value of the absorption table; None: no shift.
+
+        Returns
+        -------
+        beta, u_beta : numpy.ndarray
+            The radiance coefficients and their standard uncertainties (geometries x wavelengths).
         """
         return mixed_model(self.config_at(x), self.wavelengths_nm, self.model_at_host, mc_noise)
 
@@ -481,6 +570,20 @@ class FitProblem:
 
         The host absorption stands in place of the dye; the values are read from the absorption table
         (no walk once the table exists).
+
+        Parameters
+        ----------
+        config : SimulationConfig
+            The config of one fiber (one population).
+        mu_host : numpy.ndarray
+            The host absorption coefficient at each wavelength (1/um).
+        mc_noise : numpy.ndarray, optional
+            Standard normal draws, one per value of the absorption table; None: no shift.
+
+        Returns
+        -------
+        beta, u_beta : numpy.ndarray
+            The radiance coefficients and their standard uncertainties (geometries x wavelengths).
         """
         table = self.table(config)
         R, u = table(mu_host)
@@ -513,6 +616,16 @@ class FitProblem:
         rms_slope`` between the two around it (:data:`SURFACE_LATTICE_STEP`); each lattice point computed once
         per structure (memoised). A positive RMS slope on the lattice (the start's, a fit that does not free it)
         is the exact term.
+
+        Parameters
+        ----------
+        config : SimulationConfig
+            The config (its ``rms_slope``).
+
+        Returns
+        -------
+        numpy.ndarray
+            The surface term's radiance coefficient at each of the ``N`` model geometries.
         """
         r, r0 = float(config.rms_slope), float(self.config.rms_slope)
         if r <= 0.0 or r0 <= 0.0:
@@ -558,6 +671,22 @@ class FitProblem:
         """The model values as a ``"simulated"`` dataset at the model geometries.
 
         The dataset is labelled ``method``: the spec's model unless given.
+
+        Parameters
+        ----------
+        beta, u_beta : numpy.ndarray
+            The model's radiance coefficients and their standard uncertainties (geometries x wavelengths).
+        label : str
+            What the values are (e.g. "fitted"), in the sample's and model's names.
+        extra : dict, optional
+            Further meta.json fields.
+        method : str, optional
+            The model's method (default: the spec's).
+
+        Returns
+        -------
+        Dataset
+            The dataset, in memory (not written).
         """
         method = method or self.method
         g = self.geometries
@@ -576,12 +705,37 @@ class FitProblem:
     # -- the objective ----------------------------------------------------------------------
 
     def compare(self, sim: Dataset, measured: Dataset | None = None):
-        """:func:`compare.comparison.compare_datasets` of the measurement and ``sim``."""
+        """:func:`compare.comparison.compare_datasets` of the measurement and ``sim``.
+
+        Parameters
+        ----------
+        sim : Dataset
+            The model's dataset (:meth:`dataset`).
+        measured : Dataset, optional
+            The measurement (default: the fit's).
+
+        Returns
+        -------
+        Comparison
+            The comparison.
+        """
         logging.getLogger("compare").setLevel(logging.ERROR)  # per-evaluation chatter
         return compare_datasets(self.measured if measured is None else measured, [sim])
 
     def residuals_of(self, comparison) -> np.ndarray:
-        """The residual vector of the module docstring from a comparison of one simulation."""
+        """The residual vector of the module docstring from a comparison of one simulation.
+
+        Parameters
+        ----------
+        comparison : Comparison
+            A comparison of one simulation (:meth:`compare`).
+
+        Returns
+        -------
+        numpy.ndarray
+            The curve residuals over ``mean(beta_meas) sqrt(n)``, then the weighted hue and saturation
+            differences when the measurement has a colour.
+        """
         name = next(iter(comparison.frames))
         frame = comparison.frames[name]
         meas = frame["beta_meas"].to_numpy(float)
@@ -597,6 +751,21 @@ class FitProblem:
 
         Of the measurement or of a noise draw of it with the same rows; per evaluation only the model
         side is computed.
+
+        Parameters
+        ----------
+        measured : Dataset, optional
+            A noise draw of the measurement with its rows (default: the measurement itself).
+
+        Returns
+        -------
+        ModelResidual
+            The prepared residual.
+
+        Raises
+        ------
+        CompareError
+            When ``measured`` has other rows than the measurement.
         """
         if self._residual is None:
             self._residual = ModelResidual(self.measured, self.geometries, self.wavelengths_nm,
@@ -611,6 +780,20 @@ class FitProblem:
 
         ``compare``'s figures through :meth:`residual_model` (equal to :meth:`residuals_of` of :meth:`compare`
         to 1e-12, tested in compare).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            One value per free parameter, in its physical units.
+        measured : Dataset, optional
+            A noise draw of the measurement with its rows (default: the measurement itself).
+        mc_noise : numpy.ndarray, optional
+            Standard normal draws, one per value of the absorption table; None: no shift.
+
+        Returns
+        -------
+        numpy.ndarray
+            The residual vector (:meth:`residuals_of_model`).
         """
         beta, u = self.model(x, mc_noise)
         return self.residuals_of_model(beta, u, measured)
@@ -621,6 +804,21 @@ class FitProblem:
 
         ``colour_weight`` in place of the spec's (a surrogate fit that raises it,
         :mod:`fabric_optics.fitting.spacemapping`).
+
+        Parameters
+        ----------
+        beta, u : numpy.ndarray
+            The model's radiance coefficients and their standard uncertainties (geometries x wavelengths).
+        measured : Dataset, optional
+            A noise draw of the measurement with its rows (default: the measurement itself).
+        colour_weight : float, optional
+            The weight of the colour terms (default: the spec's).
+
+        Returns
+        -------
+        numpy.ndarray
+            :meth:`compare.residual.ResidualFigures.vector`, then the colour hold's terms when the
+            objective holds the colour.
         """
         w = self.colour_weight if colour_weight is None else colour_weight
         self.counters.evaluations += 1
@@ -634,6 +832,16 @@ class FitProblem:
         """Whether the objective holds the colour within the tolerance (:func:`colour_hold`).
 
         Asked for, the measurement has a colour and the colour terms carry weight.
+
+        Parameters
+        ----------
+        colour_weight : float, optional
+            The weight of the colour terms (default: the spec's).
+
+        Returns
+        -------
+        bool
+            Whether the colour hold's terms are in the residual vector.
         """
         w = self.colour_weight if colour_weight is None else colour_weight
         return self.hold_colour and w > 0 and bool(self.residual_model().has_colour)
@@ -669,6 +877,22 @@ def mixed_model(config: SimulationConfig, wavelengths_nm: np.ndarray, at_host: C
 
     The populations of a fitted blend share the fiber's scattering (:func:`~fabric_optics.fitting.spec.make_spec`),
     so each reads its dye from the same absorption table and one ``mc_noise`` draw shifts them all alike.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The config (one fiber, or a blend of populations).
+    wavelengths_nm : numpy.ndarray
+        The wavelengths (nm).
+    at_host : callable
+        The model of one population at a host absorption (:meth:`FitProblem.model_at_host`).
+    mc_noise : numpy.ndarray, optional
+        Standard normal draws passed to ``at_host``.
+
+    Returns
+    -------
+    beta, u_beta : numpy.ndarray
+        The radiance coefficients and their standard uncertainties (geometries x wavelengths).
     """
     wl = np.asarray(wavelengths_nm, float)
     parts = config.population_configs()

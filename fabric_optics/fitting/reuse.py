@@ -120,12 +120,38 @@ def fit_key(options: dict[str, Any], config: Any, measured: Any, out: Path) -> s
 
 
 def lookup(key: str) -> dict[str, np.ndarray] | None:
-    """The fit stored under ``key``, or None (no such fit, or the cache is off)."""
+    """The fit stored under ``key``, or None (no such fit, or the cache is off).
+
+    Parameters
+    ----------
+    key : str
+        The fit's key (:func:`fit_key`).
+
+    Returns
+    -------
+    dict of str to numpy.ndarray or None
+        The stored arrays (the folder, the printed lines and the exit status).
+    """
     return tablecache.load(key) if tablecache.enabled() else None
 
 
 def restore(found: dict[str, np.ndarray], out: Path) -> tuple[list[tuple[str, str]], int]:
-    """Restore a fit :func:`lookup` found into ``out``: the lines it printed ``(stream, text)`` and its exit status."""
+    """Restore a fit :func:`lookup` found into ``out``: the lines it printed ``(stream, text)`` and its exit status.
+
+    Parameters
+    ----------
+    found : dict of str to numpy.ndarray
+        What :func:`lookup` returned.
+    out : Path
+        The ``--out`` folder the fit's files are restored into.
+
+    Returns
+    -------
+    lines : list of (str, str)
+        The lines the fit printed: the stream's name and the text.
+    exit_status : int
+        The fit's exit status.
+    """
     with tarfile.open(fileobj=io.BytesIO(found["folder"].tobytes()), mode="r") as tar:
         tar.extractall(out, filter="data")
     lines = [(str(s), str(t)) for s, t in zip(found["streams"].tolist(), found["lines"].tolist(), strict=True)]
@@ -136,6 +162,22 @@ def keep(key: str, out: Path, lines: list[tuple[str, str]], exit_status: int) ->
     """Store the finished fit's folder ``out``, its printed ``lines`` and ``exit_status`` under ``key``.
 
     Returns False when not stored: the cache is off, the folder is too large, or the cache cannot be written.
+
+    Parameters
+    ----------
+    key : str
+        The fit's key (:func:`fit_key`).
+    out : Path
+        The finished fit's ``--out`` folder (its hidden files are left out).
+    lines : list of (str, str)
+        The lines the fit printed: the stream's name and the text.
+    exit_status : int
+        The fit's exit status.
+
+    Returns
+    -------
+    bool
+        Whether the fit was stored.
     """
     if not tablecache.enabled():
         return False

@@ -83,6 +83,35 @@ def run_fit(problem: Any, *, out: Path | None = None, resume: bool = False,
     ``max_evaluations``: the objective evaluations of the search in all (the start's, every step's
     and every Jacobian column's, over all starts); the uncertainty propagation afterwards is
     counted apart (``info["evaluations_uncertainty"]``).
+
+    Parameters
+    ----------
+    problem : FitProblem
+        The fit.
+    out : Path, optional
+        The ``--out`` folder the state is kept in (None: none kept).
+    resume : bool, default False
+        Continue the interrupted fit in ``out``.
+    max_evaluations : int, default DEFAULT_MAX_EVALUATIONS
+        The search's budget of objective evaluations.
+    starts : int, default 1
+        Starts of the search: the start point, then Latin-hypercube points.
+    progress : bool, default False
+        Show progress bars.
+    noise_draws : int, default NOISE_DRAWS
+        Noise draws of each part of the uncertainty.
+    invert_start : bool, default True
+        Start free dye knots from the measured colour inverted (:func:`fabric_optics.fitting.start.inverted_start`).
+
+    Returns
+    -------
+    FitResult
+        The fit, with the model at the start and at the result.
+
+    Raises
+    ------
+    FitError
+        For a state that cannot be resumed.
     """
     search = search_fit(problem, out=out, resume=resume, max_evaluations=max_evaluations, starts=starts,
                         progress=progress, invert_start=invert_start)
@@ -97,6 +126,37 @@ def search_fit(problem: Any, *, start: np.ndarray | None = None, bounds: tuple[n
     A caller that fits the same problem several times and keeps one (:mod:`fabric_optics.fitting.spacemapping`'s
     colour weights) finishes only the kept one. ``start`` (default the config's values) and ``bounds`` (default the
     free parameters') are this search's.
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The objective.
+    start : numpy.ndarray, optional
+        The start point, one value per free parameter.
+    bounds : tuple of numpy.ndarray, optional
+        ``(low, high)`` of the search.
+    out : Path, optional
+        The ``--out`` folder the state is kept in (None: none kept).
+    resume : bool, default False
+        Continue the interrupted fit in ``out``.
+    max_evaluations : int, default DEFAULT_MAX_EVALUATIONS
+        The search's budget of objective evaluations.
+    starts : int, default 1
+        Starts of the search: the start point, then Latin-hypercube points.
+    progress : bool, default False
+        Show progress bars.
+    invert_start : bool, default True
+        Start free dye knots from the measured colour inverted.
+
+    Returns
+    -------
+    FitSearch
+        The best point, the searches' results and why the search stopped.
+
+    Raises
+    ------
+    FitError
+        For a state that cannot be resumed.
     """
     t0 = time.perf_counter()
     problem.use_checkpoint(out)
@@ -298,6 +358,24 @@ def finish_fit(problem: Any, search: FitSearch, *, noise_draws: int = NOISE_DRAW
     The uncertainty at its best point (:func:`~fabric_optics.fitting.uncertainty.propagate`), the warnings and
     fit.json's ``info``; the final state in the search's ``out``. ``with_model``: the model at the start and at the
     result too (the outputs' datasets).
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The objective searched.
+    search : FitSearch
+        The search.
+    noise_draws : int, default NOISE_DRAWS
+        Noise draws of each part of the uncertainty.
+    method : str, optional
+        The method the result names (default: the problem's).
+    with_model : bool, default False
+        Also evaluate the model at the start and at the result.
+
+    Returns
+    -------
+    FitResult
+        The fit.
     """
     ev0 = problem.counters.evaluations
     x_best, results, stopped, start_note = search.x, search.results, search.stopped, search.start_note

@@ -107,6 +107,20 @@ def correction(s: np.ndarray, mc: np.ndarray, tiny: float = TINY) -> tuple[np.nd
     """``(c, d)`` ``[G, L]`` with ``MC = S c + d``.
 
     Multiplicative where ``S > tiny max_lambda S`` of its geometry, additive elsewhere (module docstring).
+
+    Parameters
+    ----------
+    s : numpy.ndarray
+        The summation's radiance coefficients (geometries x wavelengths).
+    mc : numpy.ndarray
+        The Monte Carlo's at the same points.
+    tiny : float, default TINY
+        Share of the geometry's spectral peak below which the correction is additive.
+
+    Returns
+    -------
+    c, d : numpy.ndarray
+        The multiplicative (1 where additive) and additive (0 where multiplicative) corrections.
     """
     s = np.asarray(s, float)
     mc = np.asarray(mc, float)
@@ -164,7 +178,20 @@ class MCFitProblem(FitProblem):
         return [j for j, p in enumerate(self.free) if p.kind == "fine" or p.name in self.mc_trend]
 
     def fine_step(self, j: int, x: np.ndarray) -> float:
-        """The finite-difference step of fine parameter ``j`` at ``x`` (module docstring)."""
+        """The finite-difference step of fine parameter ``j`` at ``x`` (module docstring).
+
+        Parameters
+        ----------
+        j : int
+            The fine parameter's index among the free parameters.
+        x : numpy.ndarray
+            The point, one value per free parameter.
+
+        Returns
+        -------
+        float
+            The step, negative where a forward step would leave the upper bound.
+        """
         p = self.free[j]
         h = max(FINE_STEP * abs(float(x[j])), FINE_STEP_SPAN * (p.high - p.low))
         return -h if x[j] + h > p.high else h
@@ -199,13 +226,44 @@ class Surrogate:
     @classmethod
     def at(cls, base: MCFitProblem, x: np.ndarray, mc_beta: np.ndarray, mc_u: np.ndarray,
            slope: dict | None = None, **kwargs: Any) -> Surrogate:
-        """The surrogate equal to ``mc_beta`` (standard error ``mc_u``) at ``x``."""
+        """The surrogate equal to ``mc_beta`` (standard error ``mc_u``) at ``x``.
+
+        Parameters
+        ----------
+        base : MCFitProblem
+            The Monte Carlo fit.
+        x : numpy.ndarray
+            The centre, one value per free parameter.
+        mc_beta, mc_u : numpy.ndarray
+            The Monte Carlo run at ``x``: radiance coefficients and standard errors (geometries x
+            wavelengths).
+        slope : dict, optional
+            The Monte Carlo's first-order term ``{j: D_j}`` (class docstring).
+        **kwargs : Any
+            ``colour_weight`` and ``bounds`` (class docstring).
+
+        Returns
+        -------
+        Surrogate
+            The surrogate.
+        """
         s, _ = base.model(x)
         c, d = correction(s, mc_beta)
         return cls(base, x, (c, d, np.asarray(mc_u, float)), slope, **kwargs)
 
     def varied(self, **kwargs: Any) -> Surrogate:
-        """The same surrogate with another ``colour_weight`` or ``bounds``."""
+        """The same surrogate with another ``colour_weight`` or ``bounds``.
+
+        Parameters
+        ----------
+        **kwargs : Any
+            ``colour_weight`` or ``bounds`` (class docstring).
+
+        Returns
+        -------
+        Surrogate
+            A new surrogate; this one is unchanged.
+        """
         args = {"colour_weight": self._colour_weight, "bounds": self._bounds, **kwargs}
         return Surrogate(self._base, self._centre, self._corr, self._slope, **args)
 
@@ -218,7 +276,18 @@ class Surrogate:
     high = property(lambda self: self._base.high if self._bounds is None else self._bounds[1])
 
     def holds_colour(self, colour_weight: float | None = None) -> bool:
-        """Whether the objective holds the colour (the summation's rule at the surrogate's colour weight)."""
+        """Whether the objective holds the colour (the summation's rule at the surrogate's colour weight).
+
+        Parameters
+        ----------
+        colour_weight : float, optional
+            The weight of the colour terms (default: the surrogate's).
+
+        Returns
+        -------
+        bool
+            Whether the colour hold's terms are in the residual vector.
+        """
         return self._base.holds_colour(self._colour_weight if colour_weight is None else colour_weight)
 
     def model_at_host(self, config: Any, mu_host: np.ndarray,
@@ -227,13 +296,41 @@ class Surrogate:
 
         The colour start (:func:`fabric_optics.fitting.start.inverted_start`) reads the model through this, so
         the Monte Carlo fit inverts the measured colour through its own surrogate.
+
+        Parameters
+        ----------
+        config : SimulationConfig
+            The config of one fiber (one population).
+        mu_host : numpy.ndarray
+            The host absorption coefficient at each wavelength (1/um).
+        mc_noise : numpy.ndarray, optional
+            Standard normal draws passed to the summation.
+
+        Returns
+        -------
+        beta, u_beta : numpy.ndarray
+            The corrected radiance coefficients and the Monte Carlo run's standard errors (geometries x
+            wavelengths).
         """
         beta, _ = self._base.model_at_host(config, mu_host, mc_noise)
         c, d, mc_u = self._corr
         return beta * c + d, mc_u
 
     def model(self, x: np.ndarray, mc_noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """``beta, u_beta`` ``[G, L]`` of the surrogate at ``x``: the summation with the correction applied."""
+        """``beta, u_beta`` ``[G, L]`` of the surrogate at ``x``: the summation with the correction applied.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            One value per free parameter, in its physical units.
+        mc_noise : numpy.ndarray, optional
+            Standard normal draws passed to the summation.
+
+        Returns
+        -------
+        beta, u_beta : numpy.ndarray
+            The radiance coefficients and the Monte Carlo run's standard errors.
+        """
         xs = np.asarray(x, float)
         if self._slope is not None:
             # the summation held at the centre in the parameters whose trend is the Monte Carlo's
@@ -248,7 +345,22 @@ class Surrogate:
         return out, mc_u
 
     def residuals(self, x: np.ndarray, measured: Any = None, mc_noise: np.ndarray | None = None) -> np.ndarray:
-        """The residual vector of the surrogate at ``x`` (the summation's residuals of its model values)."""
+        """The residual vector of the surrogate at ``x`` (the summation's residuals of its model values).
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            One value per free parameter, in its physical units.
+        measured : Dataset, optional
+            A noise draw of the measurement with its rows (default: the measurement itself).
+        mc_noise : numpy.ndarray, optional
+            Standard normal draws passed to the summation.
+
+        Returns
+        -------
+        numpy.ndarray
+            The residual vector, at the surrogate's colour weight.
+        """
         beta, u = self.model(x, mc_noise)
         return self._base.residuals_of_model(beta, u, measured, colour_weight=self._colour_weight)
 
@@ -268,6 +380,20 @@ def reweight_accepted(info: dict, target_rel_err: float, traced_rel_err: float) 
     :data:`REWEIGHT_MAX_SPREAD` times the traced run's at the same rays (an effective sample of at least a quarter
     of the rays): beyond that the weights' tails make the error's own estimate unsure. Measured over the dyes a
     fit explores: docs/notes/reweighted-mc.md.
+
+    Parameters
+    ----------
+    info : dict
+        The re-weighted run's ``info`` (``rel_err``, ``spread``).
+    target_rel_err : float
+        The runs' target relative standard error.
+    traced_rel_err : float
+        The relative standard error of the traced run it was re-weighted from.
+
+    Returns
+    -------
+    bool
+        Whether the re-weighted run is used.
     """
     spread = float(info.get("spread", math.inf))
     return (float(info["rel_err"]) <= REWEIGHT_ERROR_FACTOR * max(float(target_rel_err), float(traced_rel_err))
@@ -281,6 +407,22 @@ def run_monte_carlo(problem: MCFitProblem, x: np.ndarray, *, progress: bool = Fa
     ``reuse`` (a dict the caller keeps across runs that differ in their dyes alone, :meth:`MCFitProblem.reweights_runs`;
     default ``problem.mc_reuse``): the last traced run's ray events; the run is re-weighted from them when
     :func:`reweight_accepted`, else traced and recorded there. ``reuse["last"]`` then says how the run was made.
+
+    Parameters
+    ----------
+    problem : MCFitProblem
+        The Monte Carlo fit.
+    x : numpy.ndarray
+        One value per free parameter, in its physical units.
+    progress : bool, default False
+        Show the trace's progress bar.
+    reuse : dict, optional
+        The ray events kept across runs (see above).
+
+    Returns
+    -------
+    MCRun
+        The run's values, cost and figures against the measurement.
     """
     if reuse is None:
         reuse = getattr(problem, "mc_reuse", None)
@@ -494,6 +636,41 @@ def run_mc_fit(problem: MCFitProblem, *, out: Path | None = None, resume: bool =
 
     ``max_runs``: Monte Carlo runs in all (the start's included, >= 2). The result's ``info["iterations"]`` lists
     the runs; its model values are the Monte Carlo runs at the start and at the result.
+
+    Parameters
+    ----------
+    problem : MCFitProblem
+        The Monte Carlo fit.
+    out : Path, optional
+        The ``--out`` folder its state and runs are kept in (None: none kept).
+    resume : bool, default False
+        Continue the interrupted fit in ``out``.
+    max_runs : int, default DEFAULT_MC_RUNS
+        Monte Carlo runs in all.
+    starts : int, default 1
+        Starts of each surrogate fit (:func:`fabric_optics.fitting.search.run_fit`).
+    progress : bool, default False
+        Show progress bars.
+    noise_draws : int, default NOISE_DRAWS
+        Noise draws of each part of the uncertainty.
+    inner_evaluations : int, default INNER_EVALUATIONS
+        Summation evaluations of each surrogate fit.
+    echo : callable, optional
+        Receives one line per run (default: standard error).
+    **refused : Any
+        Any other keyword (``max_evaluations`` among them) is refused.
+
+    Returns
+    -------
+    FitResult
+        The fit.
+
+    Raises
+    ------
+    FitError
+        For fewer than 2 runs, ``resume`` without ``out``, or a state that cannot be resumed.
+    TypeError
+        For another keyword.
     """
     if refused:
         name = next(iter(refused))

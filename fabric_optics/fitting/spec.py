@@ -61,6 +61,16 @@ def colour_hold(dh: float, ds: float) -> np.ndarray:
 
     ``sqrt(COLOUR_HOLD_WEIGHT) [max(0, |dh|/tol_h - f), max(0, |ds|/tol_s - f)]`` (``f``
     :data:`COLOUR_HOLD_FROM`, ``tol`` :data:`COLOUR_TOLERANCE`).
+
+    Parameters
+    ----------
+    dh, ds : float
+        Hue (turns) and saturation differences, simulated minus measured.
+
+    Returns
+    -------
+    numpy.ndarray
+        The two entries.
     """
     tol_h, tol_s = COLOUR_TOLERANCE
     excess = np.maximum(0.0, np.abs(np.array([dh / tol_h, ds / tol_s], float)) - COLOUR_HOLD_FROM)
@@ -129,6 +139,18 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
     narrowed by :func:`parse_free` so that the free shares cannot add up beyond 1. Structure fields
     (:data:`simulate.structwalk.walk.STRUCTURE_FIELDS`): their whole valid range, 0-60 deg. The boundary's
     slopes for transmitted light (:data:`FINE_FIELDS`): ``[0, 1]``, their valid range (0 is the smooth boundary).
+
+    Parameters
+    ----------
+    path : str
+        The free parameter's field (e.g. ``fiber.radius_um``).
+    start : float
+        Its value in the config.
+
+    Returns
+    -------
+    tuple of float
+        ``(low, high)``, in the field's units.
     """
     if path in STRUCTURE_FIELDS:
         return STRUCTURE_FIELDS[path]
@@ -154,6 +176,18 @@ def default_bounds(path: str, start: float) -> tuple[float, float]:
 
 def parse_free(specs: list[str], config: SimulationConfig) -> list[FreeParameter]:
     """Free parameters from ``NAME[=LOW:HIGH]`` items (comma-separated in each string).
+
+    Parameters
+    ----------
+    specs : list of str
+        The ``--free`` items.
+    config : SimulationConfig
+        The start config.
+
+    Returns
+    -------
+    list of FreeParameter
+        The free parameters, in the order named.
 
     Raises
     ------
@@ -356,6 +390,20 @@ def shares_at(config: SimulationConfig, free: list[FreeParameter] | tuple[FreePa
     A free share is its value; the populations whose share is not free take the remainder ``1 - sum(free shares)``
     in proportion to their shares in the config (with two populations, the one free share moves both). Empty when no
     share is free.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The config, a blend of populations.
+    free : list or tuple of FreeParameter
+        The free parameters.
+    x : numpy.ndarray
+        One value per free parameter.
+
+    Returns
+    -------
+    dict of int to float
+        Population index -> share.
     """
     pops = config.populations or ()
     free_k = {int(m.group(1)): float(v) for p, v in zip(free, x, strict=True) if (m := _POP_SHARE.match(p.name))}
@@ -390,7 +438,18 @@ def _check_structure_field(path: str, config: SimulationConfig) -> None:
 
 
 def model_geometries(measured: Dataset) -> pd.DataFrame:
-    """The geometries the model is evaluated at: exactly the measured ones."""
+    """The geometries the model is evaluated at: exactly the measured ones.
+
+    Parameters
+    ----------
+    measured : Dataset
+        The measurement.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``theta_i``, ``phi_i``, ``theta_o``, ``phi_o`` (degrees), one row per geometry.
+    """
     # exactly the measured geometries: compare then estimates the model's normal/normal value from
     # the same neighbours as the measurement's, so the estimate's own bias cancels in k(lambda)
     # (the model's exact normal value against an estimated measured one biased the fit)
@@ -399,7 +458,22 @@ def model_geometries(measured: Dataset) -> pd.DataFrame:
 
 
 def dye_ceiling(config: SimulationConfig, free: list[FreeParameter], wl: np.ndarray) -> float:
-    """Largest host absorption (1/um) any dye within the bounds can reach (the table's nu_max)."""
+    """Largest host absorption (1/um) any dye within the bounds can reach (the table's nu_max).
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The start config.
+    free : list of FreeParameter
+        The free parameters (a free dye coefficient is taken at its bound).
+    wl : numpy.ndarray
+        The model wavelengths (nm).
+
+    Returns
+    -------
+    float
+        The largest host absorption (1/um).
+    """
     if not config.populations:
         return _dye_top(config.dye, "fiber.dye", free, wl)
     # a blend: the largest over the config's dye and each population's own (their free coefficients at the bounds)
@@ -431,7 +505,23 @@ def _dye_top(dye, prefix: str, free: list[FreeParameter], wl: np.ndarray) -> flo
 
 
 def checked_wavelengths(value: object) -> np.ndarray:
-    """The model wavelengths (``--wavelengths``) as a float array: finite, in the dataset range, increasing."""
+    """The model wavelengths (``--wavelengths``) as a float array: finite, in the dataset range, increasing.
+
+    Parameters
+    ----------
+    value : object
+        The wavelengths as given (nm).
+
+    Returns
+    -------
+    numpy.ndarray
+        The wavelengths (nm).
+
+    Raises
+    ------
+    FitError
+        For no wavelength, one that is not a number in the dataset range, or values not increasing.
+    """
     try:
         wl = np.asarray(value, float).reshape(-1)
     except (TypeError, ValueError):
@@ -501,6 +591,48 @@ def make_spec(config: SimulationConfig, measured: Dataset, free: list[FreeParame
 
     ``seed`` defaults to the config's; ``wavelengths_nm`` to the measurement's (spectral) or the config's (RGB).
     Rows at ``theta_i >= 89`` deg are left out with a note (the rule of ``gonio import``).
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The start config.
+    measured : Dataset
+        The measurement.
+    free : list or tuple of FreeParameter
+        The free parameters (:func:`parse_free`).
+    method : str, default "classic"
+        The model: ``"classic"`` or ``"summation"``.
+    colour_weight : float, default 1
+        Weight ``w_c`` of the colour terms of the objective.
+    hold_colour : bool, default False
+        Hold the colour within its tolerance (:func:`colour_hold`).
+    level_weight : float, default 0
+        Weight of the absolute level (``--absolute``); 0 leaves it out.
+    target_rel_err : float, default 0.03
+        Relative standard error the Monte Carlo walks aim at.
+    seed : int, optional
+        Seed of the walks.
+    threads : int, optional
+        Threads of the walks (None: the default).
+    wavelengths_nm : object, optional
+        The model wavelengths (nm).
+    nodes : int, default DEFAULT_NODES
+        Host-absorption nodes of the absorption tables.
+    reweight : bool, default True
+        Re-weight walks between lattice points rather than walk them.
+    fine_capable : bool, default False
+        Whether the method sees the fine parameters (the Monte Carlo's).
+
+    Returns
+    -------
+    FitSpec
+        The spec, its measurement without the grazing rows.
+
+    Raises
+    ------
+    FitError
+        For a method, blend, placement, free parameter, wavelength or ``level_weight`` the fit cannot
+        take.
     """
     _check_blend(config)
     _check_dye_placement(config, free, method)

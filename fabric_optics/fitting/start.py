@@ -59,6 +59,20 @@ def knots_config(config: SimulationConfig, wavelengths_nm, count: int = DEFAULT_
 
     The knots are sampled from its present dye (clipped to [1e-4, 3] /um; no dye: 1e-3 /um,
     cellulose's baseline).
+
+    Parameters
+    ----------
+    config : SimulationConfig
+        The config.
+    wavelengths_nm : array_like
+        The model wavelengths (nm); the knots span their range.
+    count : int, default DEFAULT_KNOTS
+        The knots.
+
+    Returns
+    -------
+    SimulationConfig
+        The config with knots, parsed again.
     """
     wl = np.asarray(wavelengths_nm, float)
     knots = np.linspace(float(wl.min()), float(wl.max()), count)
@@ -80,6 +94,16 @@ def knot_indices(names: list[str]) -> dict[int, int]:
     """``{free-parameter index: knot index}`` of the free dye knots among ``names``.
 
     The knots of the config's dye and of the populations' dyes.
+
+    Parameters
+    ----------
+    names : list of str
+        The free parameters' names.
+
+    Returns
+    -------
+    dict of int to int
+        Free-parameter index -> knot index.
     """
     return {i: k for i, (_, k) in knot_owners(names).items()}
 
@@ -88,6 +112,16 @@ def knot_owners(names: list[str]) -> dict[int, tuple[int | None, int]]:
     """``{free-parameter index: (population, knot index)}`` of the free dye knots among ``names``.
 
     Population None for the config's ``[fiber.dye]``, ``k`` for ``populations[k]``'s own.
+
+    Parameters
+    ----------
+    names : list of str
+        The free parameters' names.
+
+    Returns
+    -------
+    dict of int to (int or None, int)
+        Free-parameter index -> ``(population, knot index)``.
     """
     out: dict[int, tuple[int | None, int]] = {}
     for i, name in enumerate(names):
@@ -136,6 +170,20 @@ def inverted_start(problem, x: np.ndarray) -> tuple[np.ndarray, str]:
 
     Returns ``x`` unchanged (and says why in the note) when no knot is free, the measurement has no
     colour, or no three bands at the colour geometry.
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit.
+    x : numpy.ndarray
+        The start point, one value per free parameter.
+
+    Returns
+    -------
+    x : numpy.ndarray
+        The start point with the knots set (a copy; ``x`` itself when unchanged).
+    note : str
+        How the fit starts.
     """
     config = problem.config_at(x)
     if config.populations and len(config.populations) > 1:

@@ -88,7 +88,20 @@ MAX_EXPANSION = 4
 
 
 def refuse_file(path: Path, what: str) -> NoReturn:
-    """One line for a checkpoint file ``--resume`` (or a re-run in the same folder) cannot trust."""
+    """One line for a checkpoint file ``--resume`` (or a re-run in the same folder) cannot trust.
+
+    Parameters
+    ----------
+    path : Path
+        The checkpoint file.
+    what : str
+        What is wrong with it.
+
+    Raises
+    ------
+    FitError
+        Always: the refusal.
+    """
     raise FitError(f"{path}: {what}; it is not a checkpoint of this fit: delete it (or run without --resume in "
                    "another --out) to start afresh")
 
@@ -105,6 +118,25 @@ def read_npz(path: Path, arrays: dict[str, tuple[str, int | None]], *,
     :data:`MAX_EXPANSION` times its stored size or ``max_bytes`` (a deflate bomb), a member of another dtype or
     number of dimensions (read from its header, before its data), a truncated or corrupt file, a value not finite.
     Pickled objects are never loaded (``allow_pickle=False``).
+
+    Parameters
+    ----------
+    path : Path
+        The checkpoint file.
+    arrays : dict of str to (str, int or None)
+        The arrays it must hold: name -> ``(dtype kind, ndim)``.
+    max_bytes : int, default MAX_RUN_BYTES
+        Largest size of the file and of each member once expanded (bytes).
+
+    Returns
+    -------
+    dict of str to numpy.ndarray or None
+        The arrays by name, or None when there is no file.
+
+    Raises
+    ------
+    FitError
+        For a file that is not such a checkpoint (:func:`refuse_file`).
     """
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
@@ -155,7 +187,13 @@ def read_npz(path: Path, arrays: dict[str, tuple[str, int | None]], *,
 
 
 def remove_quietly(path: Path) -> None:
-    """Remove ``path`` if it is there (a temporary file after a failed write)."""
+    """Remove ``path`` if it is there (a temporary file after a failed write).
+
+    Parameters
+    ----------
+    path : Path
+        The file to remove; an error removing it is ignored.
+    """
     try:
         os.unlink(path)
     except OSError:
@@ -163,7 +201,20 @@ def remove_quietly(path: Path) -> None:
 
 
 def write_failed(path: Path, exc: OSError) -> str:
-    """One line for a state or checkpoint file that could not be written."""
+    """One line for a state or checkpoint file that could not be written.
+
+    Parameters
+    ----------
+    path : Path
+        The file.
+    exc : OSError
+        The error the write raised.
+
+    Returns
+    -------
+    str
+        The line, naming the file and what to do.
+    """
     return (f"{path}: cannot write ({exc.strerror or exc}); what the fit saved before is kept: free space (or "
             "choose another --out) and continue with --resume")
 
@@ -173,6 +224,18 @@ def write_json_atomic(path: Path, doc: dict) -> None:
 
     :func:`gonio.data.dataset.atomic_write`: a temporary file, fsynced, the output's claim checked, renamed. A
     failed write (a full disk) leaves no temporary file and raises :class:`~fabric_optics.fitting.errors.FitError`.
+
+    Parameters
+    ----------
+    path : Path
+        The file written.
+    doc : dict
+        The JSON object.
+
+    Raises
+    ------
+    FitError
+        When the file cannot be written.
     """
     try:
         atomic_write(path, json.dumps(doc, indent=1).encode("utf-8"))
@@ -181,7 +244,20 @@ def write_json_atomic(path: Path, doc: dict) -> None:
 
 
 def refuse(path: Path, what: str) -> None:
-    """Raise the ``--resume`` refusal naming ``path`` and what is wrong with it."""
+    """Raise the ``--resume`` refusal naming ``path`` and what is wrong with it.
+
+    Parameters
+    ----------
+    path : Path
+        The state file.
+    what : str
+        What is wrong with it.
+
+    Raises
+    ------
+    FitError
+        Always: the refusal.
+    """
     raise FitError(f"--resume: {path}: {what}; delete the file or run without --resume to start afresh")
 
 
@@ -202,6 +278,21 @@ def read_state_json(path: Path) -> dict | None:
     """The JSON object in the state file ``path`` (module docstring), None if there is none.
 
     Refuses anything else with :class:`~fabric_optics.fitting.problem.FitError` naming the file.
+
+    Parameters
+    ----------
+    path : Path
+        The state file.
+
+    Returns
+    -------
+    dict or None
+        The object, or None when there is no file.
+
+    Raises
+    ------
+    FitError
+        For a file that is not a regular file, too large, not JSON, not an object or nested too deeply.
     """
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
@@ -247,6 +338,31 @@ def check_number(path: Path, field: str, value: Any, *, low: float = -math.inf, 
     """``value`` as a number in ``[low, high]``, or refuse it naming ``path`` and ``field``.
 
     The number is finite unless ``allow_nan`` lets NaN through.
+
+    Parameters
+    ----------
+    path : Path
+        The state file, named in a refusal.
+    field : str
+        The field, named in a refusal.
+    value : Any
+        The field's value as read.
+    low, high : float, default -inf, inf
+        The bounds, included.
+    integer : bool, default False
+        Require an integer.
+    allow_nan : bool, default False
+        Let NaN through.
+
+    Returns
+    -------
+    float
+        The number.
+
+    Raises
+    ------
+    FitError
+        For a value that is not such a number.
     """
     kind = "an integer" if integer else "a number"
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
@@ -268,6 +384,29 @@ def check_point(path: Path, field: str, value: Any, names: list[str], low: np.nd
 
     One finite number each, inside its bounds (not clamped: a point outside is refused naming ``path``, ``field``
     and the parameter).
+
+    Parameters
+    ----------
+    path : Path
+        The state file, named in a refusal.
+    field : str
+        The field, named in a refusal.
+    value : Any
+        The field's value as read.
+    names : list of str
+        The free parameters' names.
+    low, high : numpy.ndarray
+        The free parameters' bounds.
+
+    Returns
+    -------
+    numpy.ndarray
+        The point, one value per free parameter.
+
+    Raises
+    ------
+    FitError
+        For a value that is not a list of one number per parameter inside its bounds.
     """
     if not isinstance(value, list):
         refuse(path, f"field {field!r} is {json.dumps(value)[:40]}, not a list of {len(names)} number(s)")
@@ -286,6 +425,25 @@ def check_photons(path: Path, field: str, value: Any) -> dict | None:
     A run's (key ``d:g``) is whole batches (:data:`simulate.montecarlo.accuracy.BATCH`: every round of the accuracy
     control is) below :data:`MAX_RUN_PHOTONS`; the structured walk's photons per row (``per_row``) at least 1 and
     below it, its ``exit_tables`` total at most 10^15.
+
+    Parameters
+    ----------
+    path : Path
+        The state file, named in a refusal.
+    field : str
+        The field, named in a refusal.
+    value : Any
+        The field's value as read.
+
+    Returns
+    -------
+    dict or None
+        Run key -> photons (a copy), or None.
+
+    Raises
+    ------
+    FitError
+        For a value that is not such an object.
     """
     if value is None:
         return None
@@ -321,7 +479,23 @@ class WalkCheckpoint:
         return self.dir / f"{digest}.npz"
 
     def get(self, key: str) -> tuple[np.ndarray, np.ndarray, int, float] | None:
-        """Run ``key`` from the checkpoint (:func:`read_npz`: a file that is there but not a run is refused)."""
+        """Run ``key`` from the checkpoint (:func:`read_npz`: a file that is there but not a run is refused).
+
+        Parameters
+        ----------
+        key : str
+            The run's key (module docstring).
+
+        Returns
+        -------
+        tuple or None
+            ``(value, u, photons, scatterings)`` of the run, or None when the checkpoint does not hold it.
+
+        Raises
+        ------
+        FitError
+            For a file that is not a run.
+        """
         path = self._path(key)
         z = read_npz(path, {"value": ("f", None), "u": ("f", None), "photons": ("i", 0), "scatterings": ("f", 0)})
         if z is None:
@@ -335,7 +509,24 @@ class WalkCheckpoint:
         return z["value"], z["u"], photons, float(z["scatterings"])
 
     def put(self, key: str, value: np.ndarray, u: np.ndarray, photons: int, scatterings: float) -> None:
-        """Store a walk's values under ``key`` (atomically: an interrupt leaves the old file or the new one)."""
+        """Store a walk's values under ``key`` (atomically: an interrupt leaves the old file or the new one).
+
+        Parameters
+        ----------
+        key : str
+            The run's key (module docstring).
+        value, u : numpy.ndarray
+            The run's values and their standard uncertainties.
+        photons : int
+            The photons walked.
+        scatterings : float
+            The scattering events counted.
+
+        Raises
+        ------
+        FitError
+            When the file cannot be written.
+        """
         path = self._path(key)
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
@@ -358,6 +549,24 @@ def load_state(out: Path, problem: Any) -> dict | None:
 
     The checks are this module's (:mod:`fabric_optics.fitting.state`); a state that fails one raises
     FitError naming the file and the field.
+
+    Parameters
+    ----------
+    out : Path
+        The fit's ``--out`` folder.
+    problem : FitProblem
+        The fit being resumed.
+
+    Returns
+    -------
+    dict or None
+        The state, its ``x``, ``objective``, ``photons`` and ``evaluations`` checked; None when there is
+        no state file.
+
+    Raises
+    ------
+    FitError
+        For a state of another fit, or one that fails a check.
     """
     path = out / STATE_NAME
     state = read_state_json(path)
@@ -383,7 +592,26 @@ def load_state(out: Path, problem: Any) -> dict | None:
 
 
 def save_state(out: Path, problem: Any, x: np.ndarray, objective: float, *, done: bool = False) -> None:
-    """``DIR/fit-state.json``: the last accepted point ``x`` of ``problem``'s fit (module docstring)."""
+    """``DIR/fit-state.json``: the last accepted point ``x`` of ``problem``'s fit (module docstring).
+
+    Parameters
+    ----------
+    out : Path
+        The fit's ``--out`` folder.
+    problem : FitProblem
+        The fit.
+    x : numpy.ndarray
+        The point, one value per free parameter.
+    objective : float
+        The objective at ``x``.
+    done : bool, default False
+        Mark the fit as finished.
+
+    Raises
+    ------
+    FitError
+        When the file cannot be written.
+    """
     doc = {"schema": STATE_SCHEMA, "identity": problem.identity(), "x": np.asarray(x, float).tolist(),
            "names": [p.name for p in problem.free], "objective": float(objective), "photons": problem.photons,
            "evaluations": problem.counters.evaluations}
@@ -497,6 +725,16 @@ class MCState:
         """The finished runs of ``DIR/mc-state.json``, checked field by field against ``problem``'s free parameters.
 
         A malformed or out-of-bounds state is refused, not repaired (:mod:`fabric_optics.fitting.state`).
+
+        Parameters
+        ----------
+        problem : FitProblem, optional
+            The fit being resumed; without it the runs' points are not checked.
+
+        Raises
+        ------
+        FitError
+            When there is no state, it belongs to another fit, or it fails a check.
         """
         assert self.out is not None
         path = self.out / MC_STATE
@@ -519,7 +757,20 @@ class MCState:
                                                    "iterations": self.iterations})
 
     def run(self, k: int, x: np.ndarray) -> MCRun | None:
-        """Run ``k`` from the checkpoint if it was made at ``x``."""
+        """Run ``k`` from the checkpoint if it was made at ``x``.
+
+        Parameters
+        ----------
+        k : int
+            The iteration.
+        x : numpy.ndarray
+            The point the run must have been made at.
+
+        Returns
+        -------
+        MCRun or None
+            The run, or None when there is none at ``x``.
+        """
         if self.out is None or k >= len(self.iterations):
             return None
         rec = self.iterations[k]
@@ -559,13 +810,36 @@ class MCState:
         return rec
 
     def put_run(self, k: int, run: MCRun) -> None:
-        """Record run ``k`` (dropping any later one) and save the state."""
+        """Record run ``k`` (dropping any later one) and save the state.
+
+        Parameters
+        ----------
+        k : int
+            The iteration.
+        run : MCRun
+            The run.
+        """
         del self.iterations[k:]
         self.iterations.append(self._store(f"run-{k}", run))
         self.save()
 
     def fine_run(self, k: int, j: int, x: np.ndarray) -> MCRun | None:
-        """Fine parameter ``j``'s finite-difference run about centre ``k`` from the checkpoint, if made at ``x``."""
+        """Fine parameter ``j``'s finite-difference run about centre ``k`` from the checkpoint, if made at ``x``.
+
+        Parameters
+        ----------
+        k : int
+            The iteration (the centre).
+        j : int
+            The fine parameter's index.
+        x : numpy.ndarray
+            The point the run must have been made at.
+
+        Returns
+        -------
+        MCRun or None
+            The run, or None when there is none at ``x``.
+        """
         if self.out is None or k >= len(self.iterations):
             return None
         rec = (self.iterations[k].get("fine_runs") or {}).get(str(j))
@@ -574,22 +848,62 @@ class MCState:
         return self._load(rec)
 
     def put_fine_run(self, k: int, j: int, run: MCRun) -> None:
-        """Record the trend run ``j`` of iteration ``k`` and save the state."""
+        """Record the trend run ``j`` of iteration ``k`` and save the state.
+
+        Parameters
+        ----------
+        k : int
+            The iteration (the centre).
+        j : int
+            The fine parameter's index.
+        run : MCRun
+            The run.
+        """
         self.iterations[k].setdefault("fine_runs", {})[str(j)] = self._store(f"run-{k}-d{j}", run)
         self.save()
 
     def proposal(self, k: int) -> dict | None:
-        """The proposal recorded for iteration ``k``, None when there is none."""
+        """The proposal recorded for iteration ``k``, None when there is none.
+
+        Parameters
+        ----------
+        k : int
+            The iteration.
+
+        Returns
+        -------
+        dict or None
+            The proposal.
+        """
         return self.iterations[k].get("proposal") if k < len(self.iterations) else None
 
     def put_proposal(self, k: int, proposal: dict) -> None:
-        """Record the proposal of iteration ``k`` and save the state."""
+        """Record the proposal of iteration ``k`` and save the state.
+
+        Parameters
+        ----------
+        k : int
+            The iteration.
+        proposal : dict
+            The proposal.
+        """
         self.iterations[k]["proposal"] = proposal
         self.save()
 
 
 def left_behind(out: Path) -> str:
-    """What an interrupted Monte Carlo fit left in ``out`` (only what exists)."""
+    """What an interrupted Monte Carlo fit left in ``out`` (only what exists).
+
+    Parameters
+    ----------
+    out : Path
+        The fit's ``--out`` folder.
+
+    Returns
+    -------
+    str
+        One phrase: the finished runs and proposals kept, or that nothing was saved.
+    """
     try:
         its = (read_state_json(out / MC_STATE) or {}).get("iterations") or []
     except FitError:

@@ -52,6 +52,22 @@ def jacobian(problem: Any, x: np.ndarray, r0: np.ndarray, fun: Callable) -> np.n
     Forward, :data:`WALK_STEP` of the value, for walked parameters (common random numbers reduce but do not remove
     their noise); central, :data:`CHEAP_STEP` of the bound range, for the dye and surface parameters (table reads:
     smooth).
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit (its free parameters and bounds).
+    x : numpy.ndarray
+        The point, one value per free parameter.
+    r0 : numpy.ndarray
+        The residual vector at ``x``.
+    fun : callable
+        The residual vector at a point.
+
+    Returns
+    -------
+    numpy.ndarray
+        The Jacobian (residuals x parameters).
     """
     J = np.zeros((r0.size, x.size))
     for j, p in enumerate(problem.free):
@@ -84,6 +100,32 @@ def propagate(problem: Any, x: np.ndarray, r0: np.ndarray, J: np.ndarray, residu
     method's own: the absorption table's standard errors, or the Monte Carlo run's behind a space-mapping
     correction). ``data=False``: the model's part only (``cov_data`` zero). A part whose draws were all refused
     (their normal/normal value not positive: compare cannot normalise them) is all-NaN; a part not drawn is zero.
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit (its measurement and seed).
+    x : numpy.ndarray
+        The solution, one value per free parameter.
+    r0 : numpy.ndarray
+        The residual vector at ``x``.
+    J : numpy.ndarray
+        The Jacobian at ``x`` (:func:`jacobian`).
+    residuals : callable
+        The objective against a noise draw of the measurement.
+    mc_residuals : callable
+        The objective with the model perturbed by one draw of its Monte Carlo error.
+    draws : int
+        Noise draws of each part.
+    data : bool, default True
+        Draw the measurement's part.
+
+    Returns
+    -------
+    cov_data, cov_mc : numpy.ndarray
+        The two parts of the covariance (parameters x parameters).
+    rule : dict
+        How the data part was estimated.
     """
     pinv = np.linalg.pinv(J)
     rng = np.random.default_rng(DRAW_SEED + int(problem.seed or 0))
@@ -133,6 +175,20 @@ def uncertainty_parts(cov_data: np.ndarray, cov_mc: np.ndarray) -> tuple[np.ndar
     A part whose noise draws were all refused (none could be normalised) is all-NaN: it could not be
     estimated. Its ``u_*`` is then NaN (``null`` in fit.json, "-" in the report), ``u`` holds the other
     part alone -- a lower bound -- and a note says so (printed with the fit's warnings).
+
+    Parameters
+    ----------
+    cov_data, cov_mc : numpy.ndarray
+        The parameters' covariance from the measurement's noise and from the model's.
+
+    Returns
+    -------
+    cov : numpy.ndarray
+        The covariance, the two parts added (a part not estimated counted as zero).
+    u, u_data, u_mc : numpy.ndarray
+        The standard uncertainties of the parameters in all and from each part.
+    notes : list of str
+        One note per part that could not be estimated.
     """
     notes, parts = [], []
     for name, c in (("data", cov_data), ("Monte Carlo", cov_mc)):
@@ -147,7 +203,20 @@ def uncertainty_parts(cov_data: np.ndarray, cov_mc: np.ndarray) -> tuple[np.ndar
 
 
 def at_bounds(problem: Any, x: np.ndarray) -> list[str]:
-    """A parameter within 10^-3 of its bound range from a bound: the optimum may lie beyond."""
+    """A parameter within 10^-3 of its bound range from a bound: the optimum may lie beyond.
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit (its free parameters and bounds).
+    x : numpy.ndarray
+        The solution, one value per free parameter.
+
+    Returns
+    -------
+    list of str
+        One note per parameter at a bound.
+    """
     notes = []
     for p, v in zip(problem.free, x, strict=True):
         tol = _AT_BOUND * (p.high - p.low)
@@ -163,6 +232,22 @@ def identifiability(problem: Any, J: np.ndarray, u: np.ndarray, span: np.ndarray
 
     A direction is flat when its singular value is below 10^-3 of the largest (the direction is named);
     ``span`` is by default the free parameters' bounds.
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit (its free parameters and bounds).
+    J : numpy.ndarray
+        The Jacobian at the solution (residuals x parameters).
+    u : numpy.ndarray
+        The parameters' standard uncertainties.
+    span : numpy.ndarray, optional
+        The parameters' bound ranges.
+
+    Returns
+    -------
+    list of str
+        One note per flat direction or parameter too uncertain.
     """
     if span is None:
         span = problem.high - problem.low
@@ -185,7 +270,18 @@ def identifiability(problem: Any, J: np.ndarray, u: np.ndarray, span: np.ndarray
 
 
 def measurement_has_u(measured: Dataset) -> bool:
-    """Whether the measurement states an uncertainty (some ``u_beta`` > 0; an RGL file's import has none)."""
+    """Whether the measurement states an uncertainty (some ``u_beta`` > 0; an RGL file's import has none).
+
+    Parameters
+    ----------
+    measured : Dataset
+        The measurement.
+
+    Returns
+    -------
+    bool
+        Whether any ``u_beta`` is positive.
+    """
     u = measured.table["u_beta"].to_numpy(float)
     return bool(np.any(np.isfinite(u) & (u > 0)))
 
@@ -204,6 +300,22 @@ def residual_covariance(J: np.ndarray, r: np.ndarray, unweighted: int = 0) -> tu
 
     ``n`` counts the residuals that carry weight (``unweighted``: the colour terms at ``--colour-weight 0``), ``p``
     the free parameters. No degree of freedom left (``n <= p``): the covariance is NaN (no number is printed).
+
+    Parameters
+    ----------
+    J : numpy.ndarray
+        The Jacobian at the solution (residuals x parameters).
+    r : numpy.ndarray
+        The residual vector at the solution.
+    unweighted : int, default 0
+        Residual entries that carry no weight.
+
+    Returns
+    -------
+    cov : numpy.ndarray
+        The covariance (parameters x parameters), NaN without a degree of freedom.
+    rule : dict
+        How it was estimated: ``n``, ``p``, ``dof``, ``ssr``, ``s2`` and a note.
     """
     p = J.shape[1]
     n = int(r.size) - int(unweighted)
@@ -240,6 +352,30 @@ def residual_scaled_draws(problem: Any, x: np.ndarray, r0: np.ndarray, J: np.nda
     ``s^2 (J^T J)^-1`` (:func:`residual_covariance`) treats the residuals as independent; the per-wavelength
     normalisation at the normal makes them correlated, and on synthetic data with known noise it underestimates u
     (docs/notes/fit-trust.md, "Honest uncertainties"; tests/fabric_optics/fitting/test_fit.py).
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit (its measurement).
+    x : numpy.ndarray
+        The solution, one value per free parameter.
+    r0 : numpy.ndarray
+        The residual vector at ``x``.
+    J : numpy.ndarray
+        The Jacobian at ``x``.
+    rng : numpy.random.Generator
+        The noise draws' generator.
+    draws : int
+        Noise draws.
+    residuals : callable, optional
+        The objective against a noise draw of the measurement.
+
+    Returns
+    -------
+    cov : numpy.ndarray
+        The covariance (parameters x parameters), NaN when fewer than two draws could be evaluated.
+    rule : dict
+        How it was estimated: the noise ``sigma_beta``, ``ssr``, the draws and a note.
     """
     fn = residuals or problem.residuals
     meas = problem.measured
@@ -274,7 +410,18 @@ def residual_scaled_draws(problem: Any, x: np.ndarray, r0: np.ndarray, J: np.nda
 
 
 def unweighted_rows(problem: Any) -> int:
-    """The residual entries that carry no weight: the two colour terms at ``--colour-weight 0``."""
+    """The residual entries that carry no weight: the two colour terms at ``--colour-weight 0``.
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit.
+
+    Returns
+    -------
+    int
+        2 or 0.
+    """
     return 2 if problem.colour_weight <= 0 and problem.residual_model().has_colour else 0
 
 
@@ -283,6 +430,20 @@ def u_status(problem: Any, bound_notes: list[str], ident_notes: list[str]) -> li
 
     ``""`` (its ``u`` is a number), ``"at its lower bound"``/``"at its upper bound"`` or ``"not identifiable"`` --
     reported as such, not with a number (``u`` null in fit.json).
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit (its free parameters).
+    bound_notes : list of str
+        The notes of :func:`at_bounds`.
+    ident_notes : list of str
+        The notes of :func:`identifiability`.
+
+    Returns
+    -------
+    list of str
+        One status per free parameter.
     """
     out = []
     for p in problem.free:

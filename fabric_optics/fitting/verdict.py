@@ -23,7 +23,18 @@ COLOUR_LEFT_OFF = "colour left off"
 
 
 def colour_off(dh: float, ds: float) -> float:
-    """``max(|dh|/tol_h, |ds|/tol_s)`` (:data:`COLOUR_TOLERANCE`): <= 1 within the tolerance; 0 without a colour."""
+    """``max(|dh|/tol_h, |ds|/tol_s)`` (:data:`COLOUR_TOLERANCE`): <= 1 within the tolerance; 0 without a colour.
+
+    Parameters
+    ----------
+    dh, ds : float
+        Hue (turns) and saturation differences, simulated minus measured; NaN without a colour.
+
+    Returns
+    -------
+    float
+        The larger of the two differences in units of its tolerance.
+    """
     if not (math.isfinite(dh) and math.isfinite(ds)):
         return 0.0
     return max(abs(dh) / COLOUR_TOLERANCE[0], abs(ds) / COLOUR_TOLERANCE[1])
@@ -33,6 +44,18 @@ def colour_distance(problem: Any, x: np.ndarray) -> float:
     """``max(|dh|/tol_h, |ds|/tol_s)`` of the model at ``x`` (:data:`COLOUR_TOLERANCE`).
 
     <= 1 within the tolerance; 0 for a measurement without colour.
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit.
+    x : numpy.ndarray
+        One value per free parameter, in its physical units.
+
+    Returns
+    -------
+    float
+        The larger of the two differences in units of its tolerance.
     """
     fig = problem.residual_model().evaluate(problem.model(x)[0])
     if not fig.has_colour:
@@ -46,6 +69,20 @@ def colour_left_off(problem: Any, dh: float, ds: float, method: str | None = Non
 
     The line says what helps for this fit's free parameters and method; ``""`` within the tolerance, or
     without a colour.
+
+    Parameters
+    ----------
+    problem : FitProblem
+        The fit (its config, free parameters and weights).
+    dh, ds : float
+        Hue (turns) and saturation differences, simulated minus measured; NaN without a colour.
+    method : str, optional
+        The fit's method (default: the problem's).
+
+    Returns
+    -------
+    str
+        The line, or ``""``.
     """
     if not (math.isfinite(dh) and math.isfinite(ds)):
         return ""
@@ -88,7 +125,20 @@ _SUMMATION_LIMIT = ("free more parameters (volume_fraction), or fit the Monte Ca
 
 
 def colour_left_off_at(problem: Any, x: np.ndarray) -> list[str]:
-    """The fitted colour further from the measured than :data:`COLOUR_TOLERANCE` (:func:`colour_left_off`)."""
+    """The fitted colour further from the measured than :data:`COLOUR_TOLERANCE` (:func:`colour_left_off`).
+
+    Parameters
+    ----------
+    problem : FitProblem or Surrogate
+        The fit.
+    x : numpy.ndarray
+        One value per free parameter, in its physical units.
+
+    Returns
+    -------
+    list of str
+        The line of :func:`colour_left_off`, or empty.
+    """
     fig = problem.residual_model().evaluate(problem.model(x)[0])
     if not fig.has_colour:
         return []
@@ -100,6 +150,18 @@ def uncertainty_text(u: float, status: str = "") -> str:
     """``+- u`` for a parameter whose uncertainty is a number.
 
     Its status (at a bound, not identifiable) or ``(no uncertainty)`` otherwise -- never a number for those.
+
+    Parameters
+    ----------
+    u : float
+        The parameter's standard uncertainty.
+    status : str, default ""
+        Its status (:func:`fabric_optics.fitting.uncertainty.u_status`); ``""`` when ``u`` is a number.
+
+    Returns
+    -------
+    str
+        The text.
     """
     if status:
         return f"({status}: no uncertainty)"
