@@ -1,9 +1,11 @@
 """Compiled shading of the fibre-assembly tracer: what a ray does at a yarn hit.
 
-One module for one numba kernel (:func:`shade`) and the small compiled helpers it
-inlines, which numba caches together; split across modules they would cache and invalidate apart.
+One module for one compiled kernel (:func:`shade_groups`; :func:`shade` is its one-group case) and the
+small compiled helpers it inlines: the helpers are the loop's events in their order and private to it (the
+kernel cache keys a kernel on the modules it imports, so a split would cache correctly; it would make the
+helpers public names for no other user).
 
-:func:`shade` scatters every hit ray of a wavefront once and prepares its next-event
+:func:`shade_groups` scatters every hit ray of a wavefront once and prepares its next-event
 contributions. Its inputs are packed as the Monte Carlo kernel packs its own
 (:class:`simulate.montecarlo.kernel.KernelInputs`): :class:`ShadeInputs` (the mesh, the
 material and the yarn table: fixed for a run) and :class:`ShadeOutputs` (per wavefront), both
