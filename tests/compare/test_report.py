@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from fabric_optics.cli.compare import main
 from compare.comparison import compare_datasets
 from compare.errors import CompareError
 from compare.report import FIGURE_DPI, swatch_entries, write_report
 from compare.report.curves import gapped as _gapped
 from compare.report.figures import inplane_figure as _inplane_figure
+from fabric_optics.cli.compare import main
 from gonio.data import read_dataset, write_dataset
 
 

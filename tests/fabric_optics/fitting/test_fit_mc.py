@@ -10,15 +10,15 @@ import tomllib
 import numpy as np
 import pytest
 
-from gonio.data import make_dataset, new_meta, write_dataset
 from fabric_optics.cli.simulate import main
-from simulate.config import load_config, parse_config
 from fabric_optics.fitting import spacemapping as fit_mc
 from fabric_optics.fitting import state as fit_state
-from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.spacemapping import MCFitProblem, correction, run_mc_fit
+from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.state import MC_RUNS_DIR, MC_STATE, MCRun
 from fabric_optics.paths import toml_dumps
+from gonio.data import make_dataset, new_meta, write_dataset
+from simulate.config import load_config, parse_config
 
 from .conftest import geometry_table
 

@@ -7,13 +7,13 @@ import tomllib
 import numpy as np
 import pytest
 
-from simulate.config import ConfigError, parse_config
+from fabric_optics import paths
 from fabric_optics.fitting.problem import FitProblem
 from fabric_optics.fitting.search import run_fit
 from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.start import inverted_start, knots_config
-from fabric_optics import paths
 from fabric_optics.paths import toml_dumps
+from simulate.config import ConfigError, parse_config
 
 from .conftest import WAVELENGTHS, measurement
 

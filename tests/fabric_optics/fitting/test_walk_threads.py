@@ -17,8 +17,8 @@ import pytest
 from simulate.config import load_config
 from simulate.fiber import tablecache
 from simulate.fiber.absorption import absorption_nodes
-from simulate.structwalk import walk as fit_structure
 from simulate.structwalk import threads as walk_threads
+from simulate.structwalk import walk as fit_structure
 
 WL1 = np.array([550.0])
 NODES = absorption_nodes(1.0, 3)

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gonio.data import geometry as G
 from fabric_optics.cli.gonio import main
 from gonio.acquisition.plan import PlanError, load_plan, parse_plan, preset_names
+from gonio.data import geometry as G
 
 
 def test_presets_load_by_name_and_meet_the_contract():

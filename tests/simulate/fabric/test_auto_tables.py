@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fabric_optics.bench import method_errors
 from gonio.acquisition.plan import load_plan
 from simulate import products
 from simulate.config import load_config, parse_config
 from simulate.fabric import auto
-from fabric_optics.bench import method_errors
 
 CONFIGS = Path(auto.__file__).resolve().parents[1] / "configs"
 

@@ -22,7 +22,6 @@ import pytest
 from simulate.raytrace import integrator as I
 from simulate.raytrace.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene, _segment_limits
 
-
 # ------------------------------------------------------------------------------------------------
 # escapes and hits
 
@@ -350,8 +349,8 @@ def test_shade_groups_is_one_shade_call_per_group():
     from simulate import fiber as F
     from simulate import raytrace as W
     from simulate.fabric import structure as ST
-    from simulate.media.medium import HGMedium
     from simulate.geometry.felt import felt_mesh
+    from simulate.media.medium import HGMedium
     from simulate.raytrace.shading import ShadeOutputs, new_outputs, shade, shade_groups
 
     fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), 0.3, 10.0)

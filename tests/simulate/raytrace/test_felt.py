@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
+from fabric_optics.cli.simulate import main
 from gonio.data.dataset import read_dataset
 from simulate import fabric as fab
 from simulate import fiber as F
 from simulate import raytrace as W
-from fabric_optics.cli.simulate import main
 from simulate.fabric import structure as ST
-from simulate.media.medium import HGMedium
 from simulate.geometry.felt import felt_mesh
+from simulate.media.medium import HGMedium
 
 
 def test_the_felts_fibers_follow_the_structures_distribution():
@@ -42,8 +42,8 @@ def test_the_felts_fibers_do_not_interpenetrate(monkeypatch):
     """Random points on the fibers' surfaces lie inside no other fiber (an independent check:
     point-in-cylinder, not the placement's segment distance); with the contact rule switched off
     (every fiber dropped to the floor) the same check finds them buried, so it can fail."""
-    from simulate.geometry import felt
     from fabric_optics.bench.felt import buried_fraction
+    from simulate.geometry import felt
 
     spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=20.0, layers=4)
     m = felt_mesh(spec, 10.0, seed=5)

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from simulate import fiber as F
+from simulate import raytrace as W
 from simulate.geometry import weave
 from simulate.geometry.mesh import mesh as weave_mesh
 from simulate.geometry.validation import flat_mesh, straight_yarn_mesh
-from simulate import raytrace as W
 from simulate.media.medium import HGMedium
 
 
