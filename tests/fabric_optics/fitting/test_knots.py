@@ -124,7 +124,7 @@ def test_a_dye_only_point_reads_its_config_from_the_parse_of_its_other_parameter
     assert len(parses) == 1                                   # read from x0's parse
     monkeypatch.undo()
     doc = tomllib.loads(base.config.text)
-    for p, v in zip(problem.free, x1):
+    for p, v in zip(problem.free, x1, strict=True):
         paths.set_value(doc, p.name, float(v))
     full = parse_config(toml_dumps(doc), f"{base.config.name}.toml", source=f"fit of {base.config.source}")
     assert _same(got, full) and got.dye is not None
@@ -152,7 +152,7 @@ def _same(a, b) -> bool:
     if isinstance(a, dict):
         return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
     if isinstance(a, (list, tuple)):
-        return len(a) == len(b) and all(_same(u, v) for u, v in zip(a, b))
+        return len(a) == len(b) and all(_same(u, v) for u, v in zip(a, b, strict=True))
     return bool(a == b)
 
 

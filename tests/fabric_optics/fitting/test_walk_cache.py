@@ -52,7 +52,7 @@ def _key(config, **kw):
 
 def _same(a, b):
     assert len(a.G) == len(b.G) == 2
-    for x, y in zip(a.G, b.G):
+    for x, y in zip(a.G, b.G, strict=True):
         assert x.dtype == y.dtype and x.shape == y.shape
         np.testing.assert_array_equal(x, y)
     assert a.scatterings == b.scatterings
