@@ -55,7 +55,7 @@ def _writer(barrier, result, fn):
 def _race(fns):
     barrier = _CTX.Barrier(len(fns))
     queues = [_CTX.Queue() for _ in fns]
-    procs = [_CTX.Process(target=_writer, args=(barrier, q, fn)) for q, fn in zip(queues, fns)]
+    procs = [_CTX.Process(target=_writer, args=(barrier, q, fn)) for q, fn in zip(queues, fns, strict=True)]
     for p in procs:
         p.start()
     out = [q.get(timeout=60) for q in queues]
@@ -86,7 +86,7 @@ def test_two_api_writers_with_force_never_mix_or_silently_replace(tmp_path):
     tally = {"silent": 0, "mixed": 0, "refused": 0, "one after the other": 0}
     for k in range(TRIES):
         out = tmp_path / f"x{k}"
-        results = _race([lambda d=d: fo.write_dataset(d, out, force=True) for d in data])
+        results = _race([lambda d=d, out=out: fo.write_dataset(d, out, force=True) for d in data])
         assert all(s in ("ok", "busy") for s, _, _ in results), results
         try:
             final = tuple(read_dataset(out).table["beta"].round(9))
@@ -140,7 +140,7 @@ def test_two_gonio_truth_commands_on_one_out_one_wins_the_other_is_one_line(tmp_
         errs = [tmp_path / f"err{k}-{i}" for i in range(2)]
         procs = [_CTX.Process(target=_cli_writer, args=(barrier, q, ["truth", s, "--plan", "quick", "--out", str(out)],
                                                          str(e)))
-                 for q, s, e in zip(queues, samples, errs)]
+                 for q, s, e in zip(queues, samples, errs, strict=True)]
         for p in procs:
             p.start()
         results = [q.get(timeout=60) for q in queues]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import pytest
 from hypothesis import given, settings
@@ -65,7 +66,7 @@ def test_range_property(start, span, step):
         assert "at most" in str(exc)
         return
     assert wl[0] == start and len(wl) <= MAX_WAVELENGTHS
-    assert all(b > a for a, b in zip(wl, wl[1:]))
+    assert all(b > a for a, b in pairwise(wl))
     assert wl[-1] <= stop + 1e-6 * step and stop - wl[-1] < step * (1 + 1e-9)
     assert all(LO <= w <= HI + 1e-6 for w in wl)
 

@@ -16,7 +16,7 @@ D65 = colour.SDS_ILLUMINANTS["D65"]
 
 def independent(wl, beta):
     """(h, s, v, blue/red, green/red, Y) straight from colour-science, linear sRGB."""
-    sd = colour.SpectralDistribution(dict(zip(np.asarray(wl, float), np.asarray(beta, float))))
+    sd = colour.SpectralDistribution(dict(zip(np.asarray(wl, float), np.asarray(beta, float), strict=True)))
     with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
         xyz = colour.sd_to_XYZ(sd, CMFS, D65) / 100.0
     rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"])

@@ -18,7 +18,7 @@ D65 = colour.SDS_ILLUMINANTS["D65"]
 
 
 def _hsv(wl, beta):
-    sd = colour.SpectralDistribution(dict(zip(wl, beta)))
+    sd = colour.SpectralDistribution(dict(zip(wl, beta, strict=True)))
     with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
         xyz = colour.sd_to_XYZ(sd, CMFS, D65) / 100.0
     rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"])
@@ -103,7 +103,7 @@ def test_normalisation_factors_equal_hand_computed(h, metrics):
 
 
 def test_scaled_model_has_zero_error(metrics):
-    for angle, e in metrics["curves"]["scaled model"].items():
+    for e in metrics["curves"]["scaled model"].values():
         assert e["rmse"] < 1e-9 and e["max_abs"] < 1e-9  # CSV keeps 10 significant digits
     colour_ = metrics["colour"]["scaled model"]
     assert abs(colour_["dh"]) < 1e-9 and abs(colour_["ds"]) < 1e-9 and abs(colour_["dv"]) < 1e-9

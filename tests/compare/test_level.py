@@ -9,9 +9,9 @@ import json
 
 import pytest
 
-from fabric_optics.cli.compare import main
 from compare.comparison import compare_datasets
 from compare.metrics import DEFAULT_MAX_LEVEL_RATIO
+from fabric_optics.cli.compare import main
 from gonio.data import make_dataset, new_meta, read_dataset, write_dataset
 
 

@@ -56,7 +56,7 @@ def test_ring_directions_lie_on_the_ring():
 def test_opposition_ratio_of_a_known_retro_peak():
     r = ratios.opposition_ratios(ring_table())
     assert set(r) == {27.76, 40.03}
-    for ti, ratio in r.items():
+    for ratio in r.values():
         assert ratio.n_points == (12, 12)
         for wl in WL:
             want = peak(6.0, wl) / peak(30.0, wl)

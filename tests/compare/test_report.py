@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from fabric_optics.cli.compare import main
 from compare.comparison import compare_datasets
 from compare.errors import CompareError
 from compare.report import FIGURE_DPI, swatch_entries, write_report
 from compare.report.curves import gapped as _gapped
 from compare.report.figures import inplane_figure as _inplane_figure
+from fabric_optics.cli.compare import main
 from gonio.data import read_dataset, write_dataset
 
 
@@ -213,7 +213,7 @@ def test_normalisation_uncertainty_is_explained_and_carried(h, demo_like):
     measured = read_dataset(h.FIXTURES / "measured_red")
     comparison = compare_datasets(measured, [read_dataset(h.FIXTURES / "sim_scaled")])
     norm = comparison.normalisations["scaled model"]
-    r = dict(zip(norm.wavelength_nm, norm.u_factor / norm.factor))
+    r = dict(zip(norm.wavelength_nm, norm.u_factor / norm.factor, strict=True))
     beta = measured.table["beta"].to_numpy()
     rel = np.array([r[w] for w in measured.table["wavelength_nm"]])
     expected = np.sqrt(np.mean((rel * beta) ** 2)) / np.mean(beta)
@@ -231,7 +231,7 @@ def test_hue_unit_is_stated(demo_like):
 
 
 def test_swatch_labels_describe_the_pixels_shown(demo_like):
-    for name, pixel, hsv in swatch_entries(demo_like["comparison"]):
+    for _name, pixel, hsv in swatch_entries(demo_like["comparison"]):
         assert hsv == pytest.approx(colorsys.rgb_to_hsv(*pixel), abs=1e-12)
     # the pixel is the IEC 61966-2-1 encoding of the linear colour (written out here)
     linear = np.clip(np.asarray(demo_like["comparison"].colour.measured.rgb), 0, None)
@@ -376,7 +376,7 @@ def test_colour_strips_one_per_dataset_and_incidence(demo_like):
     by_label = {**{f"{comparison.measured.name} (measured)": comparison.measured}, **comparison.simulated}
     for strip in (first, next(s for s in strips if not s["measured"])):
         ds = by_label[strip["label"]]
-        for k, s in enumerate(strip["s"]):
+        for k in range(len(strip["s"])):
             c = colour_at(ds, strip["theta_i"], strip["phi_i"],
                           *_in_plane_o({**strip, "s": strip["s"][k:]}), illuminant=comparison.illuminant)
             np.testing.assert_allclose(strip["rgb"][k], c.rgb, rtol=1e-12, atol=1e-15)

@@ -37,7 +37,7 @@ def grazing_rgb(h, fmt="rgl-bsdf"):
             if to > 90.0:
                 continue
             peak = 5.0 * max(0.0, s / 80.0) ** 4 if ti == 90.0 else 0.0
-            for c, base in zip("RGB", (0.1, 0.3, 0.1)):
+            for c, base in zip("RGB", (0.1, 0.3, 0.1), strict=True):
                 rows.append((ti, 0.0, to, po, c, base + peak, 0.0, 1))
     table = pd.DataFrame(rows, columns=GEO + ["channel", "beta", "u_beta", "n"])
     meta = new_meta("measured", {"name": "felt-like", "description": "green acrylic felt"},

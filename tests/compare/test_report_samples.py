@@ -12,11 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fabric_optics.cli.compare import main
 from compare.errors import CompareError
 from compare.report.fits import fits_section
-from compare.report.samples import (measured_sample_section, published_colour_check,
-                                    seed_sample_section)
+from compare.report.samples import measured_sample_section, published_colour_check, seed_sample_section
+from fabric_optics.cli.compare import main
 from gonio.data import write_dataset
 
 FELT_SHA = "3429e2bdbe2045dca11582479fa251866ffe056b909b47e3fbf1c3c776fcb72b"

@@ -153,10 +153,10 @@ def to_channels(spectral, channels=("R", "G", "B"), name="rgb"):
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     rows = []
     for g, part in spectral.table.groupby(GEO, sort=True):
-        sd = colour.SpectralDistribution(dict(zip(part["wavelength_nm"], part["beta"])))
+        sd = colour.SpectralDistribution(dict(zip(part["wavelength_nm"], part["beta"], strict=True)))
         with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
             xyz = np.asarray(colour.sd_to_XYZ(sd, cmfs, colour.SDS_ILLUMINANTS["D65"])) / 100.0
-        values = dict(zip("RGB", np.asarray(colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"]))))
+        values = dict(zip("RGB", np.asarray(colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"])), strict=True))
         values["Y"] = xyz[1]
         rows += [(*g, c, values[c], 0.001, 10) for c in channels]
     table = pd.DataFrame(rows, columns=GEO + ["channel", "beta", "u_beta", "n"])

@@ -26,7 +26,7 @@ GEO = ["theta_i", "phi_i", "theta_o", "phi_o"]
 
 def hand_xyz(wl, beta):
     """CIE XYZ (Y = 1 for the ideal white) of one spectrum, colour-science directly."""
-    sd = colour.SpectralDistribution(dict(zip(np.asarray(wl, float), np.asarray(beta, float))))
+    sd = colour.SpectralDistribution(dict(zip(np.asarray(wl, float), np.asarray(beta, float), strict=True)))
     with colour.utilities.suppress_warnings(colour_runtime_warnings=True):
         return np.asarray(colour.sd_to_XYZ(sd, CMFS, D65), float) / 100.0
 
@@ -58,7 +58,7 @@ def to_channels(spectral, channels=("R", "G", "B"), name="rgb", kind="measured",
     rows = []
     for g, part in spectral.table.groupby(GEO, sort=True):
         wl, beta = part["wavelength_nm"].to_numpy(), part["beta"].to_numpy()
-        values = dict(zip("RGB", hand_rgb(wl, beta)))
+        values = dict(zip("RGB", hand_rgb(wl, beta), strict=True))
         values["Y"] = hand_xyz(wl, beta)[1]
         for c in channels:
             rows.append((*g, c, values[c], 0.001, 10))
@@ -191,8 +191,8 @@ def test_rgb_simulation_in_another_colour_space_is_converted(pair):
                                  chromatic_adaptation_transform="Bradford")
     wide = sim.table.pivot_table(index=GEO, columns="channel", values="beta")[["R", "G", "B"]]
     adobe = wide.to_numpy() @ m.T
-    rows = [(*g, c, v, 0.001, 10) for g, vals in zip(wide.index, adobe)
-            for c, v in zip("RGB", vals)]
+    rows = [(*g, c, v, 0.001, 10) for g, vals in zip(wide.index, adobe, strict=True)
+            for c, v in zip("RGB", vals, strict=True)]
     adobe_ds = make_dataset(pd.DataFrame(rows, columns=GEO + ["channel", "beta", "u_beta", "n"]),
                             meta("simulated", "adobe", colour_space="linear Adobe RGB (1998)"))
     a = compare_datasets(pair["rgb"], [adobe_ds])

@@ -172,7 +172,7 @@ def test_the_note_s_command_runs_on_a_tiny_budget(tmp_path):
             np.testing.assert_allclose(np.divide(r["ring_6"], r["ring_30"]), r["ratio"], rtol=1e-9)
     # the single scattering is part of all orders: less light on every ring
     a, b = (d["variants"][0]["pooled"][o]["40.03"] for o in ("single", "all"))
-    assert all(x < y for x, y in zip(a["ring_30"], b["ring_30"]))
+    assert all(x < y for x, y in zip(a["ring_30"], b["ring_30"], strict=True))
 
 
 def test_the_seeds_are_pooled_ring_by_ring_with_both_standard_errors():
@@ -277,7 +277,7 @@ def test_the_lambertian_felt_scores_every_albedo_on_the_same_paths(tmp_path):
         one, every = lamb["pooled"]["single"][ti], lamb["pooled"]["all"][ti]
         for ring in ("ring_6", "ring_30", "normal_view"):
             np.testing.assert_allclose(np.divide(one[ring], a), one[ring][-1], rtol=1e-9)
-            assert all(x < y for x, y in zip(one[ring], every[ring]))
+            assert all(x < y for x, y in zip(one[ring], every[ring], strict=True))
             assert np.all(np.diff(lamb["multiple_share"][ti][ring]) > 0.0)
         np.testing.assert_allclose(one["ratio"], one["ratio"][0], rtol=1e-9)
         assert set(lamb["readoff"]) == {"normal_view", "ring_6", "ring_30"}

@@ -149,7 +149,7 @@ def test_variants_change_their_fields_only(tmp_path):
     assert len(paths) == len(fr.VARIANTS) + len(fr.JOINT_VARIANTS)
     changes = [(name, section, {key: value}) for name, section, key, value in fr.VARIANTS] + list(fr.JOINT_VARIANTS)
     assert any(len(fields) > 1 for _, _, fields in changes)
-    for (name, section, fields), path in zip(changes, paths):
+    for (name, section, fields), path in zip(changes, paths, strict=True):
         got = tomllib.loads(path.read_text())
         assert got["name"] == name
         for key, value in fields.items():
@@ -291,7 +291,7 @@ def test_lambert_rise_of_a_flat_lambertian_plane_is_one():
     rise = fr.lambert_rise(flat_mesh(), [0.3, 0.9], target_rel_err=0.02, rotations=2)
     assert set(rise) == {f"{k} {t:g}" for k in ("all", "single") for t in fr.RISE_INCIDENCES}
     for v in rise.values():
-        for r, e in zip(v["ratio"], v["se"]):
+        for r, e in zip(v["ratio"], v["se"], strict=True):
             assert 0.0 < e < 0.05 and abs(r - 1.0) < 4.0 * e
 
 
@@ -390,11 +390,11 @@ def test_oblique_phase_of_a_clear_fibre_and_its_lambertian_reference():
     res = fr.oblique_phase(fiber, [550.0], [0.5, 45.0], photons_per_row=400, tables=3, azimuths=24,
                            w_t_nodes=(0.0, 0.5, 0.9))
     alpha = np.linspace(0.0, 2.0 * math.pi, 181)
-    for t, got in zip((0.5, 45.0), res["lambert"]):
+    for t, got in zip((0.5, 45.0), res["lambert"], strict=True):
         hi, lo = (np.trapezoid([_lambert_cell_sum(v, a, 1000, t) for a in alpha], alpha) for v in (70.0, 30.0))
         assert got == pytest.approx(hi / lo, rel=3e-3)
     band = res["bands"]["all"]
-    assert all(r > 0.0 and e > 0.0 for r, e in zip(band["ratio"], band["se"]))
+    assert all(r > 0.0 and e > 0.0 for r, e in zip(band["ratio"], band["se"], strict=True))
     normal = fr.fibre_phase(fiber, [550.0], photons_per_row=400, tables=3, azimuths=24, sphere=(8, 16))["bands"]["all"]
     assert abs(band["ratio"][0] - normal["ratio"]) < 4.0 * math.hypot(band["se"][0], normal["se"]) + 0.01
 

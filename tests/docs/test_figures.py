@@ -120,7 +120,7 @@ def test_the_felt_demo_plan_table_is_its_json():
         ROOT / "docs" / "notes" / "felt-structure.md").read_text(encoding="utf-8"), flags=re.S).group(1)
     rows = [line for line in block.splitlines() if line.startswith("| ") and not line.startswith("| run")]
     assert len(rows) == len(runs)
-    for row, run in zip(rows, runs):
+    for row, run in zip(rows, runs, strict=True):
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[0] == run["label"] and cells[1].startswith(f"{run['nrmse']:.3f} (")
         assert [float(x) for x in cells[1].split("(")[1].rstrip(")").split(" / ")] == list(
@@ -176,11 +176,11 @@ def test_the_loose_top_bias_table_is_its_json():
     second = block.split("\n\n")[1]
     rows = _rows(second)[1:]
     assert len(rows) == len(runs)
-    for row, (run, res) in zip(rows, runs.items()):
+    for row, (run, res) in zip(rows, runs.items(), strict=True):
         assert row[0] == f"`{run.rsplit('/', 1)[-1]}`"
         assert abs(float(row[1]) - res["nrmse_best_scale"]) <= 5e-4
         biases = [float(x) for x in row[2].split(" / ")]
-        assert all(abs(b - res["by_region"][k]["bias_rel"]) <= 5e-4 for b, k in zip(biases, ("back", "near", "forward")))
+        assert all(abs(b - res["by_region"][k]["bias_rel"]) <= 5e-4 for b, k in zip(biases, ("back", "near", "forward"), strict=True))
 
 
 def test_the_fiber_phase_tables_take_the_ratios_and_the_lambertian_felt_s_factor(tmp_path, monkeypatch):

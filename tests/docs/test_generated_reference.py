@@ -4,8 +4,8 @@ generation, and the generation must follow the parsers."""
 from __future__ import annotations
 
 import argparse
-import re
 import importlib.util
+import re
 import sys
 from pathlib import Path
 

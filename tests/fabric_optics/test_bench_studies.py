@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 
-
 from fabric_optics.bench import felt as felt_study
 from fabric_optics.cli.simulate import main
 

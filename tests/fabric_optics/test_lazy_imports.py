@@ -23,7 +23,7 @@ def test_every_input_error_name_is_an_exception_class(name):
 
 
 def test_a_subclass_of_an_input_error_is_an_input_error():
-    from simulate.budget import BudgetError   # a ConfigError
+    from simulate.budget import BudgetError  # a ConfigError
 
     assert isinstance(as_toolkit_error(BudgetError("x")), InputError)
     assert not isinstance(as_toolkit_error(RuntimeError("x")), InputError)

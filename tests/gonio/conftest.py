@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gonio.acquisition.plan import load_plan
 from gonio.acquisition.session import run_session
 from gonio.instrument import RetryPolicy
-from gonio.acquisition.plan import load_plan
 from gonio.instrument.transport import ModbusTransport, SerialTransport
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)

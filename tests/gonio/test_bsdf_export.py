@@ -11,8 +11,16 @@ import pytest
 
 from fabric_optics.cli.gonio import main as gonio_main
 from gonio.data import in_plane_geometry, make_dataset, new_meta, read_dataset, write_dataset
-from gonio.data.bsdf_export import (STATED_TABULATION_ERROR, build_fields, export_bsdf, incidence_nodes,
-                                    random_pairs, tabulation_error, warp_forward, write_tensor_file)
+from gonio.data.bsdf_export import (
+    STATED_TABULATION_ERROR,
+    build_fields,
+    export_bsdf,
+    incidence_nodes,
+    random_pairs,
+    tabulation_error,
+    warp_forward,
+    write_tensor_file,
+)
 from gonio.data.formats.rgl_bsdf import RGLBSDF, _Marginal2D, read_rgl_bsdf
 from gonio.data.formats.tensor import read_tensor_file
 

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from fabric_optics.cli.gonio import main as gonio_main
+from fabric_optics.cli.simulate import main as simulate_main
 from gonio.data import read_dataset
 from gonio.data.bsdf_export import STATED_TABULATION_ERROR, export_bsdf, random_pairs, tabulation_error
 from gonio.data.colour import spectrum_to_rgb
 from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
-from fabric_optics.cli.simulate import main as simulate_main
 from simulate.config import load_config
 from simulate.export import export_model, model_brdf
 

@@ -6,10 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gonio.data import in_plane_geometry, make_dataset, new_meta
-from simulate.config import load_config
 from fabric_optics.fitting.problem import FitProblem
 from fabric_optics.fitting.spec import parse_free
+from gonio.data import in_plane_geometry, make_dataset, new_meta
+from simulate.config import load_config
 
 WAVELENGTHS = np.arange(420.0, 701.0, 20.0)  # ASTM E308 needs a 1, 5, 10 or 20 nm step
 #: the mock goniophotometer's typical relative standard uncertainty (median of the demo: 1.1 %)

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from fabric_optics.fitting.search import run_fit
-from fabric_optics.fitting.spec import COLOUR_TOLERANCE, parse_free
+from fabric_optics.fitting.spec import COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, COLOUR_TOLERANCE, colour_hold, parse_free
 from fabric_optics.fitting.verdict import colour_left_off
-from fabric_optics.fitting.spec import COLOUR_HOLD_FROM, COLOUR_HOLD_WEIGHT, colour_hold
 
 from .conftest import measurement, sibling
 

@@ -9,17 +9,17 @@ import math
 import numpy as np
 import pytest
 
-from gonio.data import read_dataset, write_dataset
-from simulate import fiber as fib
 from fabric_optics.cli.simulate import main
-from simulate.config import load_config, parse_config
-from fabric_optics.paths import toml_dumps
 from fabric_optics.fitting.errors import FitError
 from fabric_optics.fitting.problem import FitProblem
 from fabric_optics.fitting.search import run_fit
 from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.state import STATE_NAME
 from fabric_optics.fitting.uncertainty import jacobian
+from fabric_optics.paths import toml_dumps
+from gonio.data import read_dataset, write_dataset
+from simulate import fiber as fib
+from simulate.config import load_config, parse_config
 from simulate.fiber.absorption import absorption_nodes, absorption_table
 
 from .conftest import WAVELENGTHS, measurement, model_measurement, sibling
@@ -229,8 +229,8 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys, monkeypatch, base_problem):
 def test_cli_refusals_come_before_any_table(tmp_path, capsys, monkeypatch, method, state, extra, message):
     """A refused fit (another fit's state on --resume, an existing output without --force, nothing to
     resume) says so in one line, exit 2, without walking a photon or evaluating the model."""
-    from fabric_optics.fitting import spacemapping as fit_mc
     from fabric_optics.fitting import problem as fit_problem
+    from fabric_optics.fitting import spacemapping as fit_mc
     from simulate.structwalk import walk as fit_structure
 
     def no_work(*a, **k):

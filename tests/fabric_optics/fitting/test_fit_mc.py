@@ -6,19 +6,20 @@ from __future__ import annotations
 
 import json
 import tomllib
+from itertools import pairwise
 
 import numpy as np
 import pytest
 
-from gonio.data import make_dataset, new_meta, write_dataset
 from fabric_optics.cli.simulate import main
-from simulate.config import load_config, parse_config
 from fabric_optics.fitting import spacemapping as fit_mc
 from fabric_optics.fitting import state as fit_state
-from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.spacemapping import MCFitProblem, correction, run_mc_fit
+from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.state import MC_RUNS_DIR, MC_STATE, MCRun
 from fabric_optics.paths import toml_dumps
+from gonio.data import make_dataset, new_meta, write_dataset
+from simulate.config import load_config, parse_config
 
 from .conftest import geometry_table
 
@@ -327,7 +328,7 @@ def test_a_parameter_only_the_monte_carlo_sees_is_fitted_by_its_own_trend(tmp_pa
     assert all((tmp_path / "ref" / MC_RUNS_DIR / f).is_file() for f in fine_files)
     # a trust region: no step of the slope longer than FINE_TRUST of its finite-difference step
     xs = [np.array(it["x"]) for it in info["iterations"]]
-    for a, b in zip(xs, xs[1:]):
+    for a, b in pairwise(xs):
         assert abs(b[2] - a[2]) <= fit_mc.FINE_TRUST * max(fit_mc.FINE_STEP * a[2], fit_mc.FINE_STEP_SPAN) + 1e-12
     assert any("lower bound" in w and "transmission_rms_slope" in w for w in result.warnings)
 

@@ -11,8 +11,8 @@ import pytest
 from fabric_optics.fitting import spacemapping as fit_mc
 from fabric_optics.fitting.spacemapping import MCFitProblem, reweight_accepted, run_monte_carlo
 from fabric_optics.fitting.spec import parse_free
-from simulate.products import FabricEstimate
 from simulate import products
+from simulate.products import FabricEstimate
 
 from .test_fit_mc import FREE, WL6, _felt, _flat
 
@@ -88,9 +88,8 @@ def test_the_rule_is_the_target_widened_by_a_quarter_and_a_bounded_spread():
 
 
 def test_mc_retrace_is_for_the_monte_carlo_fit(tmp_path, capsys):
-    from gonio.data import write_dataset
-
     from fabric_optics.cli.simulate import main
+    from gonio.data import write_dataset
 
     write_dataset(_flat(WL6), tmp_path / "m")
     code = main(["fit", "green-felt", str(tmp_path / "m"), "--method", "summation", "--free", "dye", "--out",

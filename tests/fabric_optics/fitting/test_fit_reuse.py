@@ -11,10 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from gonio.data import write_dataset
 from fabric_optics import api
 from fabric_optics.cli.simulate import main
 from fabric_optics.fitting import reuse
+from gonio.data import write_dataset
 
 from .conftest import measurement
 

@@ -9,17 +9,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gonio.data import make_dataset, new_meta, write_dataset
 from fabric_optics.cli.simulate import main
-from simulate.config import load_config, parse_config
-from simulate.fabric import structure as st
-from simulate.fiber.absorption import absorption_nodes
-from simulate.structwalk import walk as fit_structure
 from fabric_optics.fitting.errors import FitError
 from fabric_optics.fitting.problem import FitProblem
 from fabric_optics.fitting.search import run_fit
 from fabric_optics.fitting.spec import parse_free
 from fabric_optics.paths import toml_dumps
+from gonio.data import make_dataset, new_meta, write_dataset
+from simulate.config import load_config, parse_config
+from simulate.fabric import structure as st
+from simulate.fiber.absorption import absorption_nodes
+from simulate.structwalk import walk as fit_structure
 
 from .conftest import geometry_table
 

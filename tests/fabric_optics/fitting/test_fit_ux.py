@@ -9,7 +9,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gonio.data import write_dataset
 from fabric_optics.cli.simulate import main
 from fabric_optics.fitting import problem as fit_problem
 from fabric_optics.fitting import spec as fit_spec
@@ -17,8 +16,8 @@ from fabric_optics.fitting.errors import FitError
 from fabric_optics.fitting.outputs import EXIT_COLOUR_OFF
 from fabric_optics.fitting.problem import FitProblem
 from fabric_optics.fitting.search import run_fit
-from fabric_optics.fitting.state import STATE_NAME
-from fabric_optics.fitting.state import WALKS_DIR
+from fabric_optics.fitting.state import STATE_NAME, WALKS_DIR
+from gonio.data import write_dataset
 
 from .conftest import measurement, model_measurement
 

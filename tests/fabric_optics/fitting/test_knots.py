@@ -7,13 +7,13 @@ import tomllib
 import numpy as np
 import pytest
 
-from simulate.config import ConfigError, parse_config
+from fabric_optics import paths
 from fabric_optics.fitting.problem import FitProblem
 from fabric_optics.fitting.search import run_fit
 from fabric_optics.fitting.spec import parse_free
 from fabric_optics.fitting.start import inverted_start, knots_config
-from fabric_optics import paths
 from fabric_optics.paths import toml_dumps
+from simulate.config import ConfigError, parse_config
 
 from .conftest import WAVELENGTHS, measurement
 
@@ -124,7 +124,7 @@ def test_a_dye_only_point_reads_its_config_from_the_parse_of_its_other_parameter
     assert len(parses) == 1                                   # read from x0's parse
     monkeypatch.undo()
     doc = tomllib.loads(base.config.text)
-    for p, v in zip(problem.free, x1):
+    for p, v in zip(problem.free, x1, strict=True):
         paths.set_value(doc, p.name, float(v))
     full = parse_config(toml_dumps(doc), f"{base.config.name}.toml", source=f"fit of {base.config.source}")
     assert _same(got, full) and got.dye is not None
@@ -152,7 +152,7 @@ def _same(a, b) -> bool:
     if isinstance(a, dict):
         return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
     if isinstance(a, (list, tuple)):
-        return len(a) == len(b) and all(_same(u, v) for u, v in zip(a, b))
+        return len(a) == len(b) and all(_same(u, v) for u, v in zip(a, b, strict=True))
     return bool(a == b)
 
 

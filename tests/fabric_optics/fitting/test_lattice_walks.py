@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from simulate.fiber.absorption import absorption_nodes
-from simulate.structwalk import walk as fit_structure
+from fabric_optics.fitting.problem import STRUCTURED_LATTICE_STEP as LATTICE_STEP
 from fabric_optics.fitting.problem import FitProblem
 from fabric_optics.fitting.spec import parse_free
-from fabric_optics.fitting.problem import STRUCTURED_LATTICE_STEP as LATTICE_STEP
+from simulate.fiber.absorption import absorption_nodes
+from simulate.structwalk import walk as fit_structure
 
 from .test_fit_structure import _felt, _measured
 

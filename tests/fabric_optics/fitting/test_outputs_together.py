@@ -109,10 +109,11 @@ def test_fit_json_is_put_in_place_before_fitted_toml():
 
 
 def test_simulate_fit_interrupted_while_writing_says_what_is_there(base_problem, tmp_path, monkeypatch, capsys):
+    from dataclasses import replace
+
     from fabric_optics.cli.simulate import main
     from fabric_optics.fitting import methods
     from gonio.data import write_dataset
-    from dataclasses import replace
 
     write_dataset(base_problem.measured, tmp_path / "m")
     out = tmp_path / "f"

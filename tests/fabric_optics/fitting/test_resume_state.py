@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from fabric_optics.fitting.errors import FitError
-from fabric_optics.fitting.state import STATE_NAME, STATE_SCHEMA, load_state
-from fabric_optics.fitting.state import MAX_STATE_BYTES, read_state_json
+from fabric_optics.fitting.state import MAX_STATE_BYTES, STATE_NAME, STATE_SCHEMA, load_state, read_state_json
 
 
 def _good(problem) -> dict:
@@ -99,8 +98,8 @@ def test_no_state_file_is_none_but_a_dangling_link_is_refused(tmp_path):
 
 
 def _mc_problem():
-    from fabric_optics.fitting.spec import parse_free
     from fabric_optics.fitting.spacemapping import MCFitProblem
+    from fabric_optics.fitting.spec import parse_free
 
     from .test_fit_mc import FREE, WL6, _felt, _flat
 

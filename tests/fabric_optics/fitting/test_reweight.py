@@ -11,14 +11,14 @@ import tomllib
 import numpy as np
 import pytest
 
+from fabric_optics.fitting.problem import FitProblem
+from fabric_optics.fitting.spec import parse_free
+from fabric_optics.paths import toml_dumps
 from simulate import fiber as fib
 from simulate.config import parse_config
 from simulate.fiber.absorption import absorption_nodes, absorption_table
 from simulate.fiber.spectral import phase_chi2, reweight_exponent, spectral_optics
 from simulate.montecarlo.scatter import phase_arrays
-from fabric_optics.fitting.problem import FitProblem
-from fabric_optics.fitting.spec import parse_free
-from fabric_optics.paths import toml_dumps
 
 from .conftest import WAVELENGTHS, measurement
 

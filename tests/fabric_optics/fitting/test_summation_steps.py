@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulate.structwalk import walk as fit_structure
 from simulate.fabric import structure as ST
 from simulate.fiber import farfield as FF
+from simulate.structwalk import walk as fit_structure
 
 
 def test_the_fits_in_place_symmetrisation_is_the_exit_tables():

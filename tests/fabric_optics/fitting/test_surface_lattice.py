@@ -10,10 +10,10 @@ import math
 
 import numpy as np
 
-from simulate.fabric.surfacesum import SurfaceSum
-from simulate.structwalk import walk as fit_structure
 from fabric_optics.fitting.problem import SURFACE_LATTICE_STEP, FitProblem
 from fabric_optics.fitting.spec import parse_free
+from simulate.fabric.surfacesum import SurfaceSum
+from simulate.structwalk import walk as fit_structure
 
 from .test_fit_structure import _felt, _measured
 

@@ -13,11 +13,11 @@ import dataclasses
 import numpy as np
 import pytest
 
+from fabric_optics.paths import toml_dumps
 from simulate.config import load_config, parse_config
 from simulate.fiber import tablecache
 from simulate.fiber.absorption import absorption_nodes
 from simulate.structwalk import walk as fit_structure
-from fabric_optics.paths import toml_dumps
 
 WL1 = np.array([550.0])
 NODES = absorption_nodes(1.0, 3)
@@ -52,7 +52,7 @@ def _key(config, **kw):
 
 def _same(a, b):
     assert len(a.G) == len(b.G) == 2
-    for x, y in zip(a.G, b.G):
+    for x, y in zip(a.G, b.G, strict=True):
         assert x.dtype == y.dtype and x.shape == y.shape
         np.testing.assert_array_equal(x, y)
     assert a.scatterings == b.scatterings

@@ -17,8 +17,8 @@ import pytest
 from simulate.config import load_config
 from simulate.fiber import tablecache
 from simulate.fiber.absorption import absorption_nodes
-from simulate.structwalk import walk as fit_structure
 from simulate.structwalk import threads as walk_threads
+from simulate.structwalk import walk as fit_structure
 
 WL1 = np.array([550.0])
 NODES = absorption_nodes(1.0, 3)
@@ -63,7 +63,7 @@ def test_threaded_walk_is_the_serial_walk_bit_for_bit(cache_dir):
     threaded = _walk(2, cache=True, progress=lambda p, r, n: calls.append((p, r, n)))
     assert threaded.cache == "miss" and len(tablecache.entries(cache_dir)) == 2   # each entry stored
     assert len(serial.G) == len(threaded.G) == 2
-    for a, b in zip(serial.G, threaded.G):
+    for a, b in zip(serial.G, threaded.G, strict=True):
         assert a.shape == b.shape and np.any(a != 0)
         np.testing.assert_array_equal(a, b)
     assert serial.scatterings == threaded.scatterings
@@ -76,7 +76,7 @@ def test_threaded_walk_is_the_serial_walk_bit_for_bit(cache_dir):
     assert len(calls) > 4                            # moved inside the entries, not only at their ends
     again = _walk(2, cache=True)                     # read back: the hit is the walk
     assert again.cache == "hit"
-    for a, b in zip(serial.G, again.G):
+    for a, b in zip(serial.G, again.G, strict=True):
         np.testing.assert_array_equal(a, b)
 
 

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from fabric_optics.sweep.runner import SweepSpec, parse_params
 from gonio.acquisition.plan import load_plan
 from simulate.config import load_config
-from fabric_optics.sweep.runner import SweepSpec, parse_params
 
 
 def plan_text(wavelengths: str, in_plane: str = "[-30, 0, 30, 60]") -> str:

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.data.dataset import read_dataset
-from fabric_optics.sweep import runner as sweep_mod
 from fabric_optics.cli.simulate import main
+from fabric_optics.sweep import runner as sweep_mod
 from fabric_optics.sweep.runner import SWEEP_NAME, prepare_out, run_sweep
+from gonio.data.dataset import read_dataset
 
 from .conftest import make_spec, plan_text, write_plan
 
@@ -191,10 +191,9 @@ def test_out_that_is_not_this_sweep_is_refused(tmp_path, capsys):
 
 def test_same_spec_given_explicitly_is_the_same_sweep(tmp_path):
     """Defaults resolved before hashing: --seed equal to the config's seed is the same sweep."""
-    from simulate.config import load_config
     from fabric_optics.sweep.runner import SweepSpec, parse_params
-
     from gonio.acquisition.plan import load_plan
+    from simulate.config import load_config
 
     plan = load_plan(write_plan(tmp_path))
     config = load_config("red-cotton")
@@ -239,10 +238,10 @@ def test_a_monte_carlo_sweep_runs_one_task_per_point_over_the_whole_spectrum(tmp
     """--method mc: one task per point (its run shares rays, mesh and tables across the spectrum), whose
     dataset is the whole-spectrum simulate fabric run at the task's seed, value for value (another seed differs
     by the Monte Carlo's noise, ~1e-2)."""
+    from fabric_optics.sweep.runner import SweepSpec, parse_params
     from gonio.acquisition.plan import load_plan
     from simulate.config import load_config
     from simulate.virtual import fabric_dataset
-    from fabric_optics.sweep.runner import SweepSpec, parse_params
 
     cfg = tmp_path / "grey.toml"
     cfg.write_text(GREY_WEAVE)

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from gonio.data import dataset as dataset_mod
 from fabric_optics.cli.simulate import main
 from fabric_optics.sweep import runner as sweep_mod
 from fabric_optics.sweep.runner import SweepError, finished_tasks, prepare_out, run_sweep
+from gonio.data import dataset as dataset_mod
 
 from .conftest import make_spec, write_plan
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from fabric_optics.cli.compare import main as compare_main
+from fabric_optics.sweep.runner import prepare_out, run_sweep
 from gonio.acquisition.plan import load_plan
 from gonio.data.dataset import write_dataset
 from gonio.mock.truth import truth_dataset
-from fabric_optics.sweep.runner import prepare_out, run_sweep
 
 from .conftest import make_spec, plan_text, write_plan
 

@@ -9,9 +9,9 @@ import pytest
 from scipy import stats
 
 from gonio.acquisition.calibration import load_white_standard
-from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
 from gonio.acquisition.plan import load_plan
+from gonio.data import read_dataset
 from gonio.mock import MockInstrument
 
 WAVELENGTHS = (400, 450, 500, 550, 600, 650, 700, 750)

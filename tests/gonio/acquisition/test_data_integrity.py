@@ -127,11 +127,11 @@ def test_a_second_session_on_a_locked_run_directory_is_refused(drv, tmp_path, ca
 def test_the_lock_is_held_for_the_whole_session(drv, tmp_path):
     """A second lock attempt fails at every exchange of a running session, dataset write
     included (checked from inside the session, at deterministic moments)."""
-    from gonio.data import dataset as dataset_module
-    from gonio.acquisition.session import run_session
-    from gonio.instrument import RetryPolicy
-    from gonio.acquisition.rundir import RunDirLock, RunDirLocked
     from gonio.acquisition.plan import load_plan
+    from gonio.acquisition.rundir import RunDirLock, RunDirLocked
+    from gonio.acquisition.session import run_session
+    from gonio.data import dataset as dataset_module
+    from gonio.instrument import RetryPolicy
     from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     plan = _plan(drv, tmp_path)
@@ -273,9 +273,9 @@ def test_demo_replaces_only_a_previous_demo(drv, tmp_path, capsys):
 # --- item 4: the calibration is validated, never stored or reused when invalid --------------
 
 def _session(mock, plan, out, serial_cls=None, **kw):
+    from gonio.acquisition.plan import load_plan
     from gonio.acquisition.session import run_session
     from gonio.instrument import RetryPolicy
-    from gonio.acquisition.plan import load_plan
     from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     serial_cls = serial_cls or SerialTransport

@@ -133,9 +133,9 @@ class _DyingLink:
 
 
 def test_unrecoverable_fault_stops_safely_and_resume_completes(drv, tmp_path):
+    from gonio.acquisition.plan import load_plan
     from gonio.acquisition.session import run_session
     from gonio.instrument import RetryPolicy
-    from gonio.acquisition.plan import load_plan
     from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     plan_path = _plan(drv, tmp_path)

@@ -10,10 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gonio.acquisition.calibration import (CalibrationError, load_white_standard, parse_white_standard,
-                                           radiance_factor)
-from gonio.stats import pooled_mean
+from gonio.acquisition.calibration import CalibrationError, load_white_standard, parse_white_standard, radiance_factor
 from gonio.acquisition.journal import Journal, JournalError, check_consistency, parse_journal, read_journal
+from gonio.stats import pooled_mean
 
 _START = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 1.0}
 

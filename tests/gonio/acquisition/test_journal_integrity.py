@@ -10,9 +10,8 @@ import re
 
 import pytest
 
-from gonio.acquisition.journal import (Journal, JournalIntegrityError, parse_journal,
-                                       read_journal)
 from fabric_optics.cli.gonio import main
+from gonio.acquisition.journal import Journal, JournalIntegrityError, parse_journal, read_journal
 from gonio.mock import MockInstrument
 
 _START = {"type": "start", "plan": "p", "plan_sha256": "a", "standard_sha256": "b", "time": 1.0}

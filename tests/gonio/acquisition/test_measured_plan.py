@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.acquisition.plan import RETRO_RING_DEG, PlanError, load_plan, measured_plan, retro_ring
 from fabric_optics.cli.gonio import main
+from gonio.acquisition.plan import RETRO_RING_DEG, PlanError, load_plan, measured_plan, retro_ring
 from gonio.data import geometry as G
 from gonio.data.formats.rgl_bsdf import read_rgl_bsdf
 

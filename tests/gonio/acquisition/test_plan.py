@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gonio.data import geometry as G
 from fabric_optics.cli.gonio import main
 from gonio.acquisition.plan import PlanError, load_plan, parse_plan, preset_names
+from gonio.data import geometry as G
 
 
 def test_presets_load_by_name_and_meet_the_contract():
@@ -124,7 +126,7 @@ def test_order_is_serpentine_and_estimate_grows_with_work():
     dirs = [np.sign(np.diff(v)).mean() for _, v in sorted(by_incidence.items())]
     assert dirs == [1.0, -1.0, 1.0, -1.0]
     total_detector_travel = sum(abs(a.detector_deg - b.detector_deg)
-                                for a, b in zip(chk.ordered, chk.ordered[1:]))
+                                for a, b in pairwise(chk.ordered))
     assert total_detector_travel <= 4 * 130 + 3 * 20
     quick = load_plan("quick").check()
     assert 0 < quick.estimated_s < chk.estimated_s

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from fabric_optics.cli.gonio import main
+from gonio.acquisition.record import load_transcript, reseal
 from gonio.data import read_dataset
 from gonio.mock import MockInstrument
-from gonio.acquisition.record import load_transcript, reseal
 
 ROOT = Path(__file__).resolve().parents[3]
 FIXTURES = ROOT / "fixtures" / "recorded"

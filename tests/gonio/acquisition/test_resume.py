@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
+from gonio.data import read_dataset
 from gonio.mock import MockInstrument
 
 SEED = 7
@@ -225,9 +225,9 @@ def test_resume_refuses_a_journal_of_another_plan(drv, tmp_path):
 
 
 def test_a_session_that_cannot_reach_the_head_leaves_a_resumable_journal(drv, tmp_path):
+    from gonio.acquisition.plan import load_plan
     from gonio.acquisition.session import run_session
     from gonio.instrument import RetryPolicy
-    from gonio.acquisition.plan import load_plan
     from gonio.instrument.transport import ModbusTransport, SerialTransport
 
     plan = drv.write_plan(tmp_path, "dead", incidence=(0,), in_plane=(20,), wavelengths=(500,))

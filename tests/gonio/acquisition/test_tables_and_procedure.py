@@ -10,8 +10,7 @@ import pytest
 
 from gonio.acquisition.journal import read_journal
 from gonio.acquisition.plan import PlanError, parse_plan
-from gonio.instrument import (MODBUS_MAP, DeviceError, MotionController, RetryPolicy, SampleSlot,
-                              register_blocks)
+from gonio.instrument import MODBUS_MAP, DeviceError, MotionController, RetryPolicy, SampleSlot, register_blocks
 from gonio.instrument.docs import GENERATORS, render
 from gonio.instrument.transport import ModbusTransport
 from gonio.mock import MockInstrument

@@ -13,8 +13,8 @@ import time
 import pytest
 
 from fabric_optics.cli.gonio import main
-from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
+from gonio.data import read_dataset
 
 
 def _free_port() -> int:

@@ -15,12 +15,12 @@ import sys
 import pytest
 
 from fabric_optics.cli.gonio import main
-from gonio.data import read_dataset
 from gonio.acquisition.journal import read_journal
+from gonio.acquisition.record import reseal
+from gonio.data import read_dataset
+from gonio.instrument.transport import parse_modbus_url
 from gonio.mock import MockInstrument
 from gonio.mock.cli import main as mock_main
-from gonio.acquisition.record import reseal
-from gonio.instrument.transport import parse_modbus_url
 
 FIXTURES = __import__("pathlib").Path(__file__).parents[3] / "fixtures" / "recorded"
 

@@ -69,7 +69,7 @@ def test_the_felt_measured_through_the_mock_recovers_the_file(tmp_path, capsys):
     assert len(t) == 18
     rgb = read_rgl_bsdf(FELT).beta(t["theta_i"].to_numpy(), t["phi_i"].to_numpy(),
                                    t["theta_o"].to_numpy(), t["phi_o"].to_numpy())   # R, G, B
-    truth = np.array([RGB_to_sd_Mallett2019(c[:3])[w] for c, w in zip(rgb, t["wavelength_nm"])])
+    truth = np.array([RGB_to_sd_Mallett2019(c[:3])[w] for c, w in zip(rgb, t["wavelength_nm"], strict=True)])
     z = (t["beta"].to_numpy() - truth) / t["u_beta"].to_numpy()
     assert np.all(np.abs(z) < 4), z
     b, g, r = (t["beta"].to_numpy().reshape(-1, 3)[:, k] for k in range(3))

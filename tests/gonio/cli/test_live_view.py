@@ -21,6 +21,7 @@ import sys
 import textwrap
 import threading
 import time
+from itertools import pairwise
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -195,7 +196,7 @@ def test_state_follows_the_run_and_the_page_is_guarded(drv, tmp_path):
     # points arrived one by one, the position never went back, the time left was given
     running = [s for s in seen if s["status"] == "measuring" and 0 < s["done"] < total]
     assert len({s["done"] for s in running}) >= 3, [s["done"] for s in seen]
-    assert all(a["done"] <= b["done"] for a, b in zip(seen, seen[1:]))
+    assert all(a["done"] <= b["done"] for a, b in pairwise(seen))
     assert all(s["eta_s"] is not None and s["eta_s"] >= 0 for s in running)
     mid = running[len(running) // 2]
     assert mid["current"]["index"] == mid["done"] + 1
@@ -203,9 +204,9 @@ def test_state_follows_the_run_and_the_page_is_guarded(drv, tmp_path):
     # the values shown mid-run are the dataset's (the same measurement equation), with their error bars
     final_values = _dataset_betas(out)
     for curve in mid["curves"]:
-        for geometry, betas, u_betas in zip(curve["geometry"], curve["beta"], curve["u_beta"]):
+        for geometry, betas, u_betas in zip(curve["geometry"], curve["beta"], curve["u_beta"], strict=True):
             key = tuple(geometry)
-            for wl, b, u in zip(mid["wavelengths_nm"], betas, u_betas):
+            for wl, b, u in zip(mid["wavelengths_nm"], betas, u_betas, strict=True):
                 want = final_values[key + (wl,)]
                 assert b == pytest.approx(want[0], rel=1e-8) and u == pytest.approx(want[1], rel=1e-8)
     # the fault: counted where the driver retried it, and in the retry totals
@@ -219,7 +220,7 @@ def test_state_follows_the_run_and_the_page_is_guarded(drv, tmp_path):
     assert end["current"] is None and end["eta_s"] == 0
     shown = {}
     for curve in end["curves"]:
-        for geometry, betas in zip(curve["geometry"], curve["beta"]):
+        for geometry, betas in zip(curve["geometry"], curve["beta"], strict=True):
             shown[tuple(geometry)] = betas
     assert len(shown) == total
     assert sorted(b for betas in shown.values() for b in betas) == sorted(v[0] for v in final_values.values())

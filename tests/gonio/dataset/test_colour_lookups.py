@@ -27,7 +27,7 @@ UNKNOWN = "unknown illuminant 'nope'; use a key of colour.SDS_ILLUMINANTS such a
 
 def _looked_up_every_time(wl, beta, illuminant, space="sRGB"):
     """XYZ, linear RGB in ``space`` and HSV of sRGB, every name looked up in colour-science's mappings."""
-    sd = colour.SpectralDistribution(dict(zip(wl.tolist(), beta.tolist())), name="beta")
+    sd = colour.SpectralDistribution(dict(zip(wl.tolist(), beta.tolist(), strict=True)), name="beta")
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
         xyz = colour.sd_to_XYZ(sd, colour.MSDS_CMFS[OBSERVER], colour.SDS_ILLUMINANTS[illuminant]) / 100.0

@@ -11,9 +11,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from gonio.data import (
+    COLUMNS,
+    DatasetError,
+    in_plane_geometry,
+    make_dataset,
+    new_meta,
+    read_dataset,
+    signed_angle,
+    write_dataset,
+)
 from gonio.data import dataset as dsm
-from gonio.data import (COLUMNS, DatasetError, in_plane_geometry, make_dataset, new_meta,
-                           read_dataset, signed_angle, write_dataset)
 
 WL = np.arange(390.0, 711.0, 10.0)
 

@@ -45,7 +45,7 @@ def test_felt_matches_mitsuba_measured_plugin(felt):
     ours = felt.eval_cos(wi, wo)
     ctx = mi.BSDFContext()
     ref = np.empty_like(ours)
-    for k, (a, b) in enumerate(zip(wi, wo)):
+    for k, (a, b) in enumerate(zip(wi, wo, strict=True)):
         si = mi.SurfaceInteraction3f()
         si.wi = mi.Vector3f(*a)
         ref[k] = list(bsdf.eval(ctx, si, mi.Vector3f(*b)))

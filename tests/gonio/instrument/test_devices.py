@@ -9,8 +9,8 @@ import pytest
 
 from gonio import instrument as P
 from gonio.instrument import AxisFaultError, DeviceError, MotionController, PhotometerHead, RetryPolicy
-from gonio.mock import MockInstrument
 from gonio.instrument.transport import LinkLost, ModbusTransport, SerialTransport, parse_modbus_url
+from gonio.mock import MockInstrument
 
 
 @pytest.fixture

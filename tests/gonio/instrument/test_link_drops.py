@@ -15,9 +15,9 @@ import pytest
 
 from gonio import instrument as P
 from gonio.instrument import AxisFaultError, MotionController, RetryPolicy
+from gonio.instrument.transport import LinkLost, ModbusTransport
 from gonio.mock import MockInstrument
 from gonio.mock.motion import AxisState as MockAxis
-from gonio.instrument.transport import LinkLost, ModbusTransport
 
 SEED = 21
 

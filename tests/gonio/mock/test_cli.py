@@ -10,7 +10,6 @@ import pytest
 
 from gonio.mock.cli import main
 
-
 #: how long the mock may take to exit after the signal: its own shutdown is bounded by 12 s (the servers' stop
 #: 5 s, the event loop's thread 5 s, the serial bridge's thread 2 s), which a loaded machine can use up; a mock
 #: that does not exit at all still fails

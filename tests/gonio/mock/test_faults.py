@@ -5,12 +5,12 @@ import socket
 
 import numpy as np
 import pytest
-from umodbus.client import tcp as umb
 import serial
 from umodbus import exceptions as ux
+from umodbus.client import tcp as umb
 
 from gonio import instrument as P
-from gonio.mock import MockInstrument, parse_faults, FaultSpecError
+from gonio.mock import FaultSpecError, MockInstrument, parse_faults
 from gonio.mock.faults import FaultInjector
 
 

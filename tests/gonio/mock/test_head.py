@@ -1,7 +1,8 @@
 """The mock photometer head over a pseudo-terminal and over a loopback socket."""
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gonio import instrument as P
 from gonio.mock import MockInstrument
@@ -90,8 +91,8 @@ def test_long_line_and_binary_are_101(both):
 @given(st.binary(max_size=120).filter(lambda b: b"\n" not in b))
 def test_any_line_gets_exactly_one_parseable_reply(line):
     """Without faults, every line (terminator stripped) gets one reply the driver's parser accepts."""
-    from gonio.mock.motion import MotionController
     from gonio.mock.head import PhotometerHead
+    from gonio.mock.motion import MotionController
     from gonio.mock.samples import LambertSample
 
     head = PhotometerHead(MotionController(), LambertSample(0.5), integration_scale=0.0)

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from gonio import instrument as P
-from gonio.mock import MockInstrument, reference_beta
-from gonio.mock import physics
-from gonio.mock.samples import RedCottonSample, make_sample, SampleError
+from gonio.mock import MockInstrument, physics, reference_beta
+from gonio.mock.samples import RedCottonSample, SampleError, make_sample
 
 
 def expected_mean_and_sd(wavelength_nm, itime_ms, gain_step, f, theta_o_deg, shutter=True):

@@ -4,11 +4,11 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gonio import instrument as P
 from gonio.data import geometry as G
-
 
 # --- Modbus data -----------------------------------------------------------------------------
 

@@ -53,7 +53,7 @@ def test_rgb_dataset_sample_answers_with_the_decomposition(tmp_path):
 
     rows = [{"theta_i": 0.0, "phi_i": 0.0, "theta_o": to, "phi_o": 0.0, "channel": c, "beta": v,
              "u_beta": 0.001, "n": 1} for to in (10.0, 20.0, 30.0)
-            for c, v in zip("RGB", (0.2, 0.5, 0.1))]
+            for c, v in zip("RGB", (0.2, 0.5, 0.1), strict=True)]
     ds = make_dataset(pd.DataFrame(rows), new_meta("measured", {"name": "rgb"}, colour_space="linear sRGB"))
     write_dataset(ds, tmp_path / "rgb")
     sample = make_sample(str(tmp_path / "rgb"))

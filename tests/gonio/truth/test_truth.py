@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from fabric_optics.cli.gonio import main
+from gonio.acquisition.plan import load_plan
 from gonio.data import read_dataset
 from gonio.mock.samples import RedCottonSample
-from gonio.acquisition.plan import load_plan
 
 
 def test_lambert_truth_is_flat_on_the_plan_geometries(tmp_path, capsys):

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from fabric_optics.cli.simulate import main
 from gonio.data import dataset as dataset_mod
 from gonio.data.dataset import read_dataset
-from fabric_optics.cli.simulate import main
 from simulate.outdir import recover, side_folders
 
 GOOD_CONFIG = """

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fabric_optics.bench import method_errors
 from gonio.acquisition.plan import load_plan
 from simulate import products
 from simulate.config import load_config, parse_config
 from simulate.fabric import auto
-from fabric_optics.bench import method_errors
 
 CONFIGS = Path(auto.__file__).resolve().parents[1] / "configs"
 
@@ -180,7 +180,7 @@ def test_the_shipped_table_is_its_commands(study):
     # one row per geometry of the study's plan, each with both models' departures
     g = load_plan(st["plan"]).geometries()
     plan_keys = {(round(a, 6), round(b, 6), round((c - e) % 360.0, 6))
-                 for a, b, c, e in zip(g["theta_i"], g["theta_o"], g["phi_o"], g["phi_i"])}
+                 for a, b, c, e in zip(g["theta_i"], g["theta_o"], g["phi_o"], g["phi_i"], strict=True)}
     rows = d["geometries"]
     assert {(round(r["theta_i"], 6), round(r["theta_o"], 6), round(r["rel_phi_o"], 6)) for r in rows} == plan_keys
     assert len(rows) == len(plan_keys)
@@ -269,7 +269,7 @@ def test_against_measures_a_tables_departures_from_another(tmp_path, capsys):
     assert s["se_of_mean"] == pytest.approx(0.05 * math.sqrt(2) / 2) and s["mean_z"] == pytest.approx(0.6)
     assert s["beyond_3_se"] == 0 and c["classic"]["mean_difference"] == pytest.approx(0.0)
     paths = [tmp_path / "t.json", tmp_path / "b.json"]
-    for p, t in zip(paths, (table, base)):
+    for p, t in zip(paths, (table, base), strict=True):
         p.write_text(json.dumps(t))
     method_errors.main(["--compare", str(paths[0]), str(paths[1]), "--json", str(tmp_path / "c.json")])
     assert "summation: departure +0.030 on average" in capsys.readouterr().out

@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from gonio.data.dataset import read_dataset
 from fabric_optics.cli.simulate import main
+from gonio.data.dataset import read_dataset
 from simulate.fiber.tables import JSON_NAME, NPZ_NAME, read_fiber_table
 
 from .conftest import fake_R

@@ -15,8 +15,8 @@ import pytest
 from gonio.data.colour import hue_difference, spectrum_colour
 from simulate import fabric as fab
 from simulate import fiber as fiber_mod
-from simulate.optics import microfacet
 from simulate.config import load_config
+from simulate.optics import microfacet
 from simulate.optics.fresnel import OpticsDomainWarning
 
 WL = np.arange(390.0, 710.0 + 1e-9, 10.0)
@@ -125,8 +125,8 @@ def test_classic_albedo_at_most_one_up_to_grazing(red_cotton, rho_quick):
 
 
 def test_real_summation_dataset_small_plan(red_cotton, tmp_path):
-    from gonio.data.dataset import read_dataset, write_dataset
     from gonio.acquisition.plan import parse_plan
+    from gonio.data.dataset import read_dataset, write_dataset
     from simulate.virtual import fabric_dataset
 
     cfg, _ = red_cotton
@@ -152,9 +152,9 @@ def test_red_cotton_fabric_colour_in_the_published_range(tmp_path):
     carpet of top cells (the same config without [structure]) is not (pink)."""
     import re
 
+    from fabric_optics.cli.simulate import main as simulate_main
     from gonio.data import read_dataset
     from gonio.data.colour import spectrum_colour
-    from fabric_optics.cli.simulate import main as simulate_main
     from simulate.config import resolve_config_path
 
     plan = tmp_path / "colour.toml"

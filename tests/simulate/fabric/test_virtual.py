@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gonio.data.dataset import read_dataset, write_dataset
 from gonio.acquisition.plan import load_plan, parse_plan
+from gonio.data.dataset import read_dataset, write_dataset
 from simulate import fabric as fab
 from simulate.config import load_config
 from simulate.virtual import GENERATOR, fabric_dataset

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from simulate.fiber import Fiber, normal_albedo, range_outputs, surface_brdf, volume_brdf
-from simulate.optics.fresnel import OpticsDomainWarning
 from simulate.media.medium import HGMedium, MieMedium
 from simulate.montecarlo import ParameterError
+from simulate.optics.fresnel import OpticsDomainWarning
 
 
 def _finite_bounded(est, albedo_bound=True):

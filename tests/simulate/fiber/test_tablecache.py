@@ -166,7 +166,7 @@ def test_concurrent_writers_leave_one_valid_entry(cache):
         time.sleep(0.01)
     gate.touch()
     outs = [p.communicate(timeout=900) for p in procs]
-    for p, (out, err) in zip(procs, outs):
+    for p, (out, err) in zip(procs, outs, strict=True):
         assert p.returncode == 0, err
         assert out.strip() == "ok"
     files = sorted(os.listdir(cache))

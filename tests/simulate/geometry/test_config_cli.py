@@ -8,8 +8,7 @@ from pathlib import Path
 import pytest
 
 from fabric_optics.cli.simulate import main
-from simulate.config import ConfigError, load_config, parse_config
-from simulate.config import weave_from_config
+from simulate.config import ConfigError, load_config, parse_config, weave_from_config
 from simulate.geometry.weave import DEFAULT_HEIGHT_UM, DEFAULT_SPACING_UM, DEFAULT_WIDTH_UM, PRESETS
 
 DATA = Path(__file__).parent / "data"

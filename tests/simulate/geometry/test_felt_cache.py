@@ -137,7 +137,7 @@ def _free_height_numpy(p1, d1, p2, d2, span, zj, z, contact, iters):
         inside = gap(mid, rows) < contact
         bot_out, bot_in = np.where(inside, bot_out, mid), np.where(inside, mid, bot_in)
     lo, hi = zj + bot_out, zj + top_out
-    for s0, e0 in zip(*(v[np.argsort(lo)] for v in (lo, hi))):
+    for s0, e0 in zip(*(v[np.argsort(lo)] for v in (lo, hi)), strict=True):
         if s0 >= z:
             break
         z = max(z, float(e0))

@@ -10,10 +10,10 @@ import pytest
 
 from simulate.config import ConfigError, parse_config
 from simulate.fabric import structure as ST
-from simulate.montecarlo import ParameterError
 from simulate.geometry import felt
 from simulate.geometry.felt import felt_mesh, fiber_pieces
 from simulate.geometry.mesh import FabricMesh
+from simulate.montecarlo import ParameterError
 
 R = 10.0
 

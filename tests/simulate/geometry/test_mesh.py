@@ -62,7 +62,7 @@ def test_grid_layout_contract(case):
         i_s, i_phi = np.divmod(np.arange((n_s + 1) * ring), ring)
         np.testing.assert_allclose(m.vertex_s[block], i_s * L / n_s, rtol=0, atol=1e-9)
         np.testing.assert_allclose(m.vertex_phi[block], 2 * np.pi * i_phi / w.sides, rtol=0, atol=1e-12)
-        v = lambda a, b: base + a * ring + b  # noqa: E731 - the contract's formula
+        v = lambda a, b, base=base: base + a * ring + b  # noqa: E731 - the contract's formula
         for a in range(n_s):
             for b in range(w.sides):
                 k = m.face_base[y] + 2 * (a * w.sides + b)

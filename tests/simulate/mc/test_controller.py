@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from simulate import fiber as F
+from simulate.fiber import routes
 from simulate.media.medium import HGMedium
 from simulate.montecarlo import accuracy as A
-from simulate.fiber import routes
 
 TARGET = 0.01
 OVERSHOOT = 0.06

@@ -10,7 +10,6 @@ from simulate.montecarlo import run_cylinder, run_slab
 from simulate.montecarlo.rng import stream_uniforms
 
 
-
 @pytest.fixture(autouse=True)
 def _two_threads():
     assert numba.config.NUMBA_NUM_THREADS >= 2        # the root conftest guarantees a pool of 2

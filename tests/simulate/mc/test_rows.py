@@ -37,7 +37,7 @@ def _inputs(fib, wl=(500.0, 600.0)):
 
 
 def _one_by_one(inp, sources, seeds, photons, threads, batch):
-    out = [TR.execute(inp._replace(source=src), photons, int(s), threads, batch) for src, s in zip(sources, seeds)]
+    out = [TR.execute(inp._replace(source=src), photons, int(s), threads, batch) for src, s in zip(sources, seeds, strict=True)]
     return np.array([o[0] for o in out]), np.array([o[1] for o in out])
 
 

@@ -14,7 +14,14 @@ from simulate.montecarlo import geometry as G
 from simulate.montecarlo import kernel as K
 from simulate.montecarlo import run_cylinder
 from simulate.montecarlo import tallies as T
-from simulate.montecarlo.transport import ParameterError, SpectralTargets, execute, make_control, make_inputs, medium_row
+from simulate.montecarlo.transport import (
+    ParameterError,
+    SpectralTargets,
+    execute,
+    make_control,
+    make_inputs,
+    medium_row,
+)
 
 
 def _hg_turn(u: np.ndarray, g: float, rng: np.random.Generator) -> np.ndarray:

@@ -68,7 +68,7 @@ def test_njit_scalar_equals_vectorised(n1, n2):
     cosines = np.concatenate(([0.0, 1.0, 1e-12, 1 - 1e-12], np.linspace(0, 1, 101)))
     vec = fresnel.reflectance_from_cos(cosines, n1, n2)
     via_angles = fresnel.reflectance(np.arccos(cosines), n1, n2)
-    for c, v, a in zip(cosines, vec, via_angles):
+    for c, v, a in zip(cosines, vec, via_angles, strict=True):
         s = fresnel_unpolarized(c, n1, n2)
         assert s == pytest.approx(v, abs=1e-14)
         assert s == pytest.approx(a, abs=1e-12)
@@ -80,7 +80,7 @@ def test_snell_law(n1, n2):
     th = np.linspace(0.0, theta_c * (1 - 1e-9), 100)
     tt = fresnel.snell(th, n1, n2)
     np.testing.assert_allclose(n1 * np.sin(th), n2 * np.sin(tt), atol=1e-12)
-    for a, b in zip(th, tt):
+    for a, b in zip(th, tt, strict=True):
         assert refracted_cos(np.cos(a), n1, n2) == pytest.approx(np.cos(b), abs=1e-10)
 
 

@@ -5,8 +5,8 @@ import warnings
 import numpy as np
 import pytest
 
-from simulate.optics.fresnel import OpticsDomainWarning
 from simulate.media.medium import HGMedium, LogNormalSize, MieMedium, Spectrum
+from simulate.optics.fresnel import OpticsDomainWarning
 
 BH_X = 5.21282
 BH_QSCA = 3.10543

@@ -1,6 +1,7 @@
 """Cook-Torrance validation (docs/quality.md section A): normalisation, reciprocity, albedo, mirror limit."""
 
 import warnings
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -95,7 +96,7 @@ def test_smooth_limit_approaches_mirror_fresnel():
     theta = np.radians([0.0, 20.0, 45.0, 60.0, 75.0, 80.0])
     mirror = reflectance(theta, 1.0, N_HOST)
     gaps = [np.max(np.abs(mf.directional_albedo(theta, m, N_HOST) - mirror)) for m in (0.1, 0.03, 0.01, 0.001)]
-    assert all(a > b for a, b in zip(gaps, gaps[1:]))  # converges monotonically
+    assert all(a > b for a, b in pairwise(gaps))  # converges monotonically
     assert gaps[-1] < 1e-4
 
 
@@ -136,6 +137,6 @@ def test_the_compiled_cook_torrance_is_the_numpy_one():
     w_out = mf.direction(rng.uniform(0, 1.45, 200), rng.uniform(-np.pi, np.pi, 200))
     for m, n_host in ((0.1, 1.5), (0.35, 1.557), (0.5, 1.33)):
         expected = mf.cook_torrance(w_in, w_out, m, n_host) * w_out[:, 2]
-        got = np.array([mf.cook_torrance_cos_local(*a, *b, m, n_host) for a, b in zip(w_in, w_out)])
+        got = np.array([mf.cook_torrance_cos_local(*a, *b, m, n_host) for a, b in zip(w_in, w_out, strict=True)])
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-300)
     assert mf.cook_torrance_cos_local(0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.3, 1.5) == 0.0  # light from below

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from simulate.optics import mie
 from simulate.montecarlo.scatter import azimuth, evaluate_pdf, phase_arrays, sample_directions
+from simulate.optics import mie
 from simulate.optics.phase import PhaseTable
 
 

@@ -5,11 +5,10 @@ import warnings
 import numpy as np
 import pytest
 
-from simulate.optics import fresnel
-from simulate.optics import mie
+from simulate.media.medium import MieMedium
+from simulate.optics import fresnel, mie
 from simulate.optics import microfacet as mf
 from simulate.optics.fresnel import OpticsDomainWarning, fresnel_unpolarized, refracted_cos
-from simulate.media.medium import MieMedium
 from simulate.optics.phase import PhaseTable
 
 GRAZING_DEG = [80.0, 89.0, 89.99, 90.0]

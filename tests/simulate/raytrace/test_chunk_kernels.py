@@ -22,7 +22,6 @@ import pytest
 from simulate.raytrace import integrator as I
 from simulate.raytrace.scene import ESCAPED_DOWN, ESCAPED_UP, LOST, PeriodicScene, _segment_limits
 
-
 # ------------------------------------------------------------------------------------------------
 # escapes and hits
 
@@ -65,12 +64,12 @@ def test_escapes_and_hits_match_numpy(seed):
     m, lost2, cont2, selfh2 = I._tally_escapes(prim, ray, last, dirs, np.arctan2(dirs[:, 1], dirs[:, 0]), weight,
                                                n, n_mu, n_phi, *new, hit_ray, hit_idx)
     assert (lost2, cont2, selfh2) == (lost, cont, selfh)
-    for a, b in zip(ref, new):
+    for a, b in zip(ref, new, strict=True):
         assert np.array_equal(a, b)
     assert m == np.count_nonzero(h) and np.array_equal(hit_ray[:m], ray[h])
     out = [np.empty(N, np.int64), np.empty(N), np.empty(N), np.empty((N, 3)), np.empty((N, 3)), np.empty((N, L))]
     I._gather_hits(hit_idx, m, prim, u, v, pos, dirs, weight, *out)
-    for a, b in zip(out, (prim[h], u[h], v[h], pos[h], dirs[h], weight[h])):
+    for a, b in zip(out, (prim[h], u[h], v[h], pos[h], dirs[h], weight[h]), strict=True):
         assert np.array_equal(a[:m], b)
 
 
@@ -252,7 +251,7 @@ def test_path_roulette_and_compaction_match_numpy(seed, wrap):
     nxt = (np.empty((M, 3)), np.empty((M, 3)), np.empty((M, L)), np.empty(M, np.int64), np.empty(M, np.int64))
     a = I._survivors(o, d, wn, left, hit_ray, low, draws, I.ROULETTE_SURVIVE, wrap, lx, ly, *nxt)
     assert a == np.count_nonzero(alive)
-    for x, y in zip(nxt, ref):
+    for x, y in zip(nxt, ref, strict=True):
         assert np.array_equal(x[:a], y)
     assert np.array_equal(wn, wr)
 
@@ -335,7 +334,7 @@ def test_periodic_walk_matches_numpy():
         stats: dict = {}
         got = scene._loop(origins, dirs, occlusion, stats)
         ref = _ref_loop(scene, origins, dirs, occlusion)
-        for a, b in zip(got, ref[:5]):
+        for a, b in zip(got, ref[:5], strict=True):
             assert np.array_equal(a, b)
         assert stats["queries"] == ref[5] > 2 * N       # the walk wrapped
         codes = set(np.unique(got[0]).tolist())
@@ -350,8 +349,8 @@ def test_shade_groups_is_one_shade_call_per_group():
     from simulate import fiber as F
     from simulate import raytrace as W
     from simulate.fabric import structure as ST
-    from simulate.media.medium import HGMedium
     from simulate.geometry.felt import felt_mesh
+    from simulate.media.medium import HGMedium
     from simulate.raytrace.shading import ShadeOutputs, new_outputs, shade, shade_groups
 
     fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), 0.3, 10.0)
@@ -381,6 +380,6 @@ def test_shade_groups_is_one_shade_call_per_group():
         a, b = cuts[g], cuts[g + 1]
         shade(int(seeds[g]), prim[a:b], u[a:b], v[a:b], pos[a:b], d[a:b], w[a:b],
               setup.inputs._replace(detectors=det[g]), ShadeOutputs(*(x[a:b] for x in ref)))
-    for x, y in zip(got, ref):
+    for x, y in zip(got, ref, strict=True):
         assert np.array_equal(x, y)
     assert np.any(got.nee_need) and np.any(got.out_w > 0)

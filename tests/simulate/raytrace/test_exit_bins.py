@@ -6,13 +6,12 @@ import logging
 
 import numpy as np
 
+from fabric_optics.cli.simulate import main
 from gonio.data.dataset import read_dataset
 from simulate import fiber as F
-from fabric_optics.cli.simulate import main
 from simulate.media.medium import HGMedium
 from simulate.raytrace import estimate as E
 from simulate.raytrace.yarn import yarn_table
-
 from tests.simulate.raytrace.test_felt import FELT, PLAN
 
 

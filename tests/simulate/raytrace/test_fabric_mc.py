@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gonio.data.dataset import read_dataset
 from fabric_optics.cli.simulate import main
+from gonio.data.dataset import read_dataset
 
 CONFIG = """
 seed = 4
@@ -102,9 +102,9 @@ def test_the_tables_own_noise_is_in_u_beta():
     """Runs with different seeds build different BSSRDF tables: they must agree within the
     reported errors, which therefore have to include the table's noise (not only the rays')."""
     from simulate import fiber as F
+    from simulate import raytrace as W
     from simulate.geometry import weave
     from simulate.geometry.mesh import mesh as weave_mesh
-    from simulate import raytrace as W
     from simulate.media.medium import HGMedium
 
     fib = F.Fiber(10.0, 1.5, HGMedium(mu_s=0.8, mu_a=0.01, g=0.5), 0.35, 10.0)

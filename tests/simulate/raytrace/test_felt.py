@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
+from fabric_optics.cli.simulate import main
 from gonio.data.dataset import read_dataset
 from simulate import fabric as fab
 from simulate import fiber as F
 from simulate import raytrace as W
-from fabric_optics.cli.simulate import main
 from simulate.fabric import structure as ST
-from simulate.media.medium import HGMedium
 from simulate.geometry.felt import felt_mesh
+from simulate.media.medium import HGMedium
 
 
 def test_the_felts_fibers_follow_the_structures_distribution():
@@ -42,8 +42,8 @@ def test_the_felts_fibers_do_not_interpenetrate(monkeypatch):
     """Random points on the fibers' surfaces lie inside no other fiber (an independent check:
     point-in-cylinder, not the placement's segment distance); with the contact rule switched off
     (every fiber dropped to the floor) the same check finds them buried, so it can fail."""
-    from simulate.geometry import felt
     from fabric_optics.bench.felt import buried_fraction
+    from simulate.geometry import felt
 
     spec = ST.StructureSpec(kind="nonwoven", felt_spread_deg=20.0, layers=4)
     m = felt_mesh(spec, 10.0, seed=5)
@@ -234,7 +234,7 @@ def test_four_realisations_report_the_batch_means_error():
     beta, u, info = W.fabric_beta(meshes, fib, w_i, w_o, wl2, target_rel_err=0.2, seed=0, threads=1, tables=tables,
                                   structure=spec, record=record)
     assert info["realisations"] == 4
-    for inc, res in zip(record["incidences"], _per_realisation(record, tables)):
+    for inc, res in zip(record["incidences"], _per_realisation(record, tables), strict=True):
         x = np.array([r.beta for r in res])                         # [K, D, L]
         a, b = x[[0, 2]].mean(axis=0), x[[1, 3]].mean(axis=0)
         s2 = (np.sum((x[[0, 2]] - a) ** 2, axis=0) + np.sum((x[[1, 3]] - b) ** 2, axis=0)) / 2.0
@@ -256,7 +256,7 @@ def test_two_realisations_keep_the_halves_estimator():
     record: dict = {}
     beta, u, _ = W.fabric_beta(meshes, fib, w_i[:2], w_o[:2], wl2, target_rel_err=0.2, seed=0, threads=1,
                                tables=tables, structure=spec, record=record)
-    for inc, (ra, rb) in zip(record["incidences"], _per_realisation(record, tables)):
+    for inc, (ra, rb) in zip(record["incidences"], _per_realisation(record, tables), strict=True):
         u_table2 = np.mean(((ra.beta - rb.beta) / 2.0) ** 2, axis=1, keepdims=True)
         expect_u = np.sqrt((ra.u_beta ** 2 + rb.u_beta ** 2) / 4.0 + u_table2)
         rows, det_inv = inc["rows"], inc["det_inv"]

@@ -11,8 +11,8 @@ from simulate import fabric as fab
 from simulate import fiber as F
 from simulate import raytrace as W
 from simulate.fabric import structure as ST
-from simulate.media.medium import HGMedium
 from simulate.geometry.felt import felt_mesh
+from simulate.media.medium import HGMedium
 from simulate.raytrace import reweight as RW
 
 

@@ -66,7 +66,7 @@ def test_a_joint_trace_does_not_depend_on_the_threads(case):
     kw = dict(target_rel_err=0.03, seed=9, chunk=256)
     a = trace_rotations(mesh, mat, W_IN, DET, ANGLES, threads=1, **kw)
     b = trace_rotations(mesh, mat, W_IN, DET, ANGLES, threads=2, **kw)
-    for ra, rb in zip(a, b):
+    for ra, rb in zip(a, b, strict=True):
         np.testing.assert_array_equal(ra.beta, rb.beta)
         np.testing.assert_array_equal(ra.u_beta, rb.u_beta)
         assert ra.rays == rb.rays

@@ -25,8 +25,8 @@ import pytest
 from simulate import fiber as F
 from simulate import raytrace as W
 from simulate.fabric import structure as ST
-from simulate.media.medium import HGMedium
 from simulate.geometry.felt import felt_mesh
+from simulate.media.medium import HGMedium
 from simulate.raytrace import integrator
 
 

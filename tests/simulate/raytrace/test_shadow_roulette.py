@@ -18,9 +18,9 @@ from simulate import fiber as F
 from simulate import raytrace as W
 from simulate.fabric import structure as ST
 from simulate.geometry import weave
+from simulate.geometry.felt import felt_mesh
 from simulate.geometry.mesh import mesh as weave_mesh
 from simulate.media.medium import HGMedium
-from simulate.geometry.felt import felt_mesh
 from simulate.raytrace import integrator
 
 

@@ -15,9 +15,9 @@ import pytest
 
 from simulate import fabric as fab
 from simulate import fiber as F
+from simulate import raytrace as W
 from simulate.geometry import weave
 from simulate.geometry.mesh import mesh as weave_mesh
-from simulate import raytrace as W
 from simulate.media.medium import HGMedium
 from simulate.optics.microfacet import OpticsDomainWarning
 

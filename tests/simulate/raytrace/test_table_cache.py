@@ -205,7 +205,7 @@ def test_halves_read_side_by_side_and_a_felt_run_on_two_threads_are_the_serial_o
     side = W.table_halves(fib, [500.0, 600.0], seed=5, threads=2, **kw)
     assert [t.cache for t in computed] == ["miss", "miss"] and [t.cache for t in side] == ["hit", "hit"]
     assert len(loads) == 4 and loads[:2] == loads[2:] and loads[0] != loads[1]
-    for a, b, c in zip(computed, serial, side):
+    for a, b, c in zip(computed, serial, side, strict=True):
         for name, x in _fields(a).items():
             assert x.tobytes() == getattr(b, name).tobytes() == getattr(c, name).tobytes(), name
     # a felt pair at two incidences: the first half's setup built first, the second's by integrator.prepare on

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from simulate import fiber as F
+from simulate import raytrace as W
 from simulate.geometry import weave
 from simulate.geometry.mesh import mesh as weave_mesh
 from simulate.geometry.validation import flat_mesh, straight_yarn_mesh
-from simulate import raytrace as W
 from simulate.media.medium import HGMedium
 
 
@@ -199,7 +199,7 @@ def test_straight_yarn_reproduces_the_fiber_brdf():
                        seed=9, threads=2)
     beta = np.zeros(len(det))
     u2 = np.zeros(len(det))
-    for k, (f, d) in enumerate(zip(fac, which)):
+    for k, (f, d) in enumerate(zip(fac, which, strict=True)):
         beta[d] += est.R[k, 0] * f
         u2[d] += (est.u_R[k, 0] * f) ** 2
     scale = math.pi * r * dpsi / (ly * math.cos(math.radians(30)) * det[:, 2])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+
 from fabric_optics.cli.simulate import main
 from gonio.data.dataset import read_dataset
 from simulate import fiber as F

@@ -13,10 +13,10 @@ import warnings
 import numpy as np
 import pytest
 
-from simulate.fiber import farfield as FF
 from simulate.fiber import Fiber, volume_brdf
-from simulate.optics.fresnel import OpticsDomainWarning
+from simulate.fiber import farfield as FF
 from simulate.media.medium import HGMedium
+from simulate.optics.fresnel import OpticsDomainWarning
 
 R_UM, N_HOST, MU_S, MU_A, G = 10.0, 1.5, 0.4, 0.02, 0.5
 W_T = 0.3

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from simulate.fiber import farfield as FF
 from simulate.fabric import fiberlayer as FL
 from simulate.fiber import Fiber
+from simulate.fiber import farfield as FF
 from simulate.media.medium import HGMedium
 
 R_UM, N_HOST, MU_S, MU_A, G = 10.0, 1.5, 0.4, 0.02, 0.5

@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from simulate.fiber import farfield as FF
 from simulate.fabric import fiberlayer as FL
-from simulate.fabric import structure as ST
 from simulate.fabric import structtable as STT
-from simulate.geometry import weave as WV
+from simulate.fabric import structure as ST
 from simulate.fiber import Fiber
+from simulate.fiber import farfield as FF
+from simulate.geometry import weave as WV
 from simulate.media.medium import HGMedium
 
 

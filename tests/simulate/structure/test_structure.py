@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from gonio.acquisition.plan import parse_plan
-from simulate.fiber import farfield as FF
+from simulate.config import ConfigError, parse_config
 from simulate.fabric import interior as IN
 from simulate.fabric import structure as ST
-from simulate.geometry import weave as WV
-from simulate.config import ConfigError, parse_config
 from simulate.fiber import Fiber
+from simulate.fiber import farfield as FF
+from simulate.geometry import weave as WV
 from simulate.media.medium import HGMedium
 
 HG_CONFIG = """
