@@ -3,7 +3,7 @@
 A run's first use of a numba kernel compiles it (:mod:`simulate.kernelcache` keeps it for every later
 run). The felt Monte Carlo compiles its ray tracer's shading after it has built its exit tables and
 felts, so its process holds LLVM's compilation memory on top of them: a first ``simulate fabric
-green-felt-mc --method mc`` peaks about 0.4 GB higher than the same run with its kernels cached.
+green-felt-mc --method mc`` peaks higher than the same run with its kernels cached (``make demo``'s peak).
 :func:`compile_kernels` compiles them in a run of its own that holds next to nothing: the config's
 model at one geometry, three of the wavelengths, a few photons, one thread, the table cache off (it
 writes nothing but the kernel cache). A kernel already cached is only loaded.
