@@ -104,18 +104,19 @@ $(STAMP): $(BASE_STAMP)
 # does"). Each step replaces the previous demo's output (--force).
 # The acquisition leaves a core idle: beside it and red cotton, DEMO_MC_PREPARE makes what the Monte
 # Carlo fit would make before and between its runs and needs no measurement: the ray tracer's compilation
-# (numba's cache), the start's two exit-table halves and felts (a Monte Carlo run of the start config with a
-# few rays per incidence) and the structured walk of its surrogate (a summation fit of the start config with
-# one evaluation, to that run's output: the walk depends on the wavelengths, not on the values), into the
-# table cache; one thread each (the walk then holds one exit table at a time); their outputs and messages
-# removed (shown when a step fails: exit status other than 0, or 3 for the fit's colour verdict). The fit
-# finds them under the keys it looks up (a miss would only cost the time this saves), so neither its
-# critical path nor its memory holds the compilation or the walk (its two entries at once, on an idle core,
-# held ~1.4 GB of exit tables).
+# (numba's cache, by `simulate compile` in a process of its own: compiled inside the run, LLVM's memory came
+# on top of the felt and its tables, the demo's peak), the start's two exit-table halves and felts (a Monte
+# Carlo run of the start config with a few rays per incidence) and the structured walk of its surrogate (a
+# summation fit of the start config with one evaluation, to that run's output: the walk depends on the
+# wavelengths, not on the values), into the table cache; one thread each (the walk then holds one exit table
+# at a time); their outputs and messages removed (shown when a step fails: exit status other than 0, or 3 for
+# the fit's colour verdict). The fit finds them under the keys it looks up (a miss would only cost the time
+# this saves), so neither its critical path nor its memory holds the compilation or the walk (its two entries
+# at once, on an idle core, held ~1.4 GB of exit tables).
 DEMO_COTTON = $(VENV)/bin/simulate fabric red-cotton --method summation --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/red-cotton --force
 DEMO_FIT_CLASSIC = $(VENV)/bin/simulate fit $(DEMO_CLASSIC_START) $(DEMO_OUT)/measured --method classic $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --target-rel-err $(DEMO_FIT_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-classic --force $(FIT_VERDICT)
 DEMO_FIT_SUMMATION = $(VENV)/bin/simulate fit $(DEMO_START) $(DEMO_OUT)/measured --method summation $(DEMO_DYE) --free $(DEMO_FREE) --max-evaluations $(DEMO_FIT_EVALS) --target-rel-err $(DEMO_FIT_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-summation --force $(FIT_VERDICT)
-DEMO_MC_PREPARE = mkdir -p $(DEMO_OUT) && ( $(VENV)/bin/simulate fabric $(DEMO_MC_START) --method mc --plan $(DEMO_MC_PREPARE_PLAN) --target-rel-err $(DEMO_REL_ERR) --max-photons 64 --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare --force && ( $(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/mc-prepare --method summation --free $(DEMO_MC_FREE) --max-evaluations 1 --target-rel-err $(DEMO_REL_ERR) --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare-walk --force $(FIT_VERDICT) ) ) >$(DEMO_OUT)/mc-prepare.log 2>&1 || ( cat $(DEMO_OUT)/mc-prepare.log >&2; false ); s=$$?; rm -rf $(DEMO_OUT)/mc-prepare $(DEMO_OUT)/mc-prepare-walk $(DEMO_OUT)/mc-prepare.log; [ $$s -eq 0 ]
+DEMO_MC_PREPARE = mkdir -p $(DEMO_OUT) && ( $(VENV)/bin/simulate compile $(DEMO_MC_START) --method mc --plan $(DEMO_MC_PREPARE_PLAN) && $(VENV)/bin/simulate fabric $(DEMO_MC_START) --method mc --plan $(DEMO_MC_PREPARE_PLAN) --target-rel-err $(DEMO_REL_ERR) --max-photons 64 --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare --force && ( $(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/mc-prepare --method summation --free $(DEMO_MC_FREE) --max-evaluations 1 --target-rel-err $(DEMO_REL_ERR) --threads 1 --no-progress --out $(DEMO_OUT)/mc-prepare-walk --force $(FIT_VERDICT) ) ) >$(DEMO_OUT)/mc-prepare.log 2>&1 || ( cat $(DEMO_OUT)/mc-prepare.log >&2; false ); s=$$?; rm -rf $(DEMO_OUT)/mc-prepare $(DEMO_OUT)/mc-prepare-walk $(DEMO_OUT)/mc-prepare.log; [ $$s -eq 0 ]
 DEMO_FIT_MC = $(VENV)/bin/simulate fit $(DEMO_MC_START) $(DEMO_OUT)/measured --method mc --free $(DEMO_MC_FREE) --max-runs $(DEMO_MC_RUNS) --target-rel-err $(DEMO_REL_ERR) --no-progress --out $(DEMO_OUT)/fit-mc --force $(FIT_VERDICT)
 demo: $(BASE_STAMP)
 	( $(DEMO_MC_PREPARE) ) & prepare=$$!; $(DEMO_COTTON) & beside=$$!; $(VENV)/bin/gonio demo --sample $(DEMO_SAMPLE) --plan $(DEMO_PLAN) --out $(DEMO_OUT)/measured --no-progress --force; s=$$?; wait $$beside && wait $$prepare && [ $$s -eq 0 ]

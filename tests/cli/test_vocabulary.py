@@ -23,7 +23,7 @@ def _visible(p: argparse.ArgumentParser) -> dict[str, argparse.Action]:
 
 def test_every_program_and_subcommand_is_listed():
     assert {c.split()[0] for c in COMMANDS} == {"gonio", "simulate", "compare"}
-    assert len(COMMANDS) == 20
+    assert len(COMMANDS) == 21
     assert {"gonio mock", "gonio bench-driver", "simulate fit", "compare render"} <= set(COMMANDS)
 
 
@@ -132,7 +132,7 @@ def test_renders_without_a_simulation_or_missing_are_refused(tmp_path, capsys):
 def test_inventory_script_prints_the_counts(capsys):
     assert inventory.main([]) == 0
     out = capsys.readouterr().out
-    assert "subcommands: 20" in out and "plan: 1 spelling: --plan" in out
+    assert "subcommands: 21" in out and "plan: 1 spelling: --plan" in out
 
 
 def test_gonio_exposes_its_three_parsers():

@@ -3,7 +3,7 @@
 Subcommands are registered in :data:`PROGRAM` (:mod:`fabric_optics.cli.registry`): each is a
 :class:`~fabric_optics.cli.registry.Command` of two functions, ``add_arguments(parser)`` and
 ``run(args) -> int``, those of its module in this package (``slab``, ``bench``, ``fabric``, ``fiber``,
-``fit``, ``weave``, ``sweep``, ``export``; what they share is in ``options``); a new subcommand is one
+``fit``, ``weave``, ``sweep``, ``export``, ``kernels`` for ``compile``; what they share is in ``options``); a new subcommand is one
 more module and one more entry. Exit codes: 0 success, 1 failed check, 2 usage or input error
 (one line on stderr naming the flag, no traceback), 3 ``simulate fit`` whose fitted colour is left off
 (``fabric_optics.fitting.outputs.EXIT_COLOUR_OFF``: outputs written, fit.json ``verdict.passed`` false).
@@ -29,6 +29,10 @@ more module and one more entry. Exit codes: 0 success, 1 failed check, 2 usage o
 ``simulate sweep CONFIG [MEASURED] --param NAME=v1,v2,... --out DIR [--scheduler tls://HOST:PORT [--tls-ca-file F --tls-cert F --tls-key F]] [--workers N]``
     a parameter study on dask.distributed (:mod:`fabric_optics.sweep.runner`): one dataset per point, summary.csv;
     exit 1 when a task still fails after its retries (the others are kept).
+``simulate compile CONFIG --method classic|summation|mc|auto [--plan PLAN]``
+    compiles the numba kernels a ``simulate fabric`` run of CONFIG by that method needs into the kernel
+    cache (:mod:`simulate.precompile`, :mod:`simulate.kernelcache`) and writes nothing else: the run that
+    follows compiles nothing.
 
 The names, syntax and defaults of the options are those of :mod:`fabric_optics.cli.common`;
 the work is done by :mod:`fabric_optics.api` where it has the function (fabric, fit, export).
@@ -44,7 +48,7 @@ from collections.abc import Callable, Sequence
 from typing import Literal
 
 from fabric_optics.cli import registry
-from fabric_optics.cli.simulate import bench, export, fabric, fiber, fit, slab, sweep, weave
+from fabric_optics.cli.simulate import bench, export, fabric, fiber, fit, kernels, slab, sweep, weave
 from simulate.montecarlo import ParameterError
 
 __all__ = ["PROGRAM", "main", "build_parser"]
@@ -106,6 +110,8 @@ PROGRAM = registry.Program(
                  sweep.add_arguments, sweep.run),
         _command("export", "export a fabric model as an RGL .bsdf file (Mitsuba 3 / pbrt-v4 `measured`)",
                  export.add_arguments, export.run, out="file"),
+        _command("compile", "compile the kernels a fabric run needs into the kernel cache, ahead of the run",
+                 kernels.add_arguments, kernels.run, out=None),
     ),
     user_errors=(ParameterError,),
     setup_logging=_setup_logging,
