@@ -143,13 +143,17 @@ class Program:
         object.__setattr__(self, "by_name", {c.name: c for c in self.commands})
 
 
-def build_parser(program: Program) -> argparse.ArgumentParser:
+def build_parser(program: Program, only: str | None = None) -> argparse.ArgumentParser:
     """The program's parser, one subparser per registered command.
 
     Parameters
     ----------
     program : Program
         The console script.
+    only : str, optional
+        Give only this command's subparser its arguments, the others their name and help alone (a run parses
+        one command's arguments, and building a command's arguments may import what only that command needs);
+        ``""`` none of them (the program's own help); None every one (the reference pages).
 
     Returns
     -------
@@ -162,7 +166,8 @@ def build_parser(program: Program) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar=program.metavar, parser_class=Parser)
     sub.required = program.required
     for command in program.commands:
-        if command.parser is not None or command.delegate is not None:   # parses its own arguments
+        if (command.parser is not None or command.delegate is not None   # parses its own arguments
+                or (only is not None and command.name != only)):
             sub.add_parser(command.name, help=command.help, add_help=False)
             continue
         sp = sub.add_parser(command.name, help=command.help,
@@ -188,7 +193,9 @@ def _parse(program: Program, argv: list[str]) -> tuple[Command | None, argparse.
     collecting = gc.isenabled()
     gc.disable()
     try:
-        parser = own.parser() if own is not None and own.parser is not None else build_parser(program)
+        # the command is the first word that names one (the program's own options come before it)
+        named = next((a for a in argv if a in program.by_name), "")
+        parser = own.parser() if own is not None and own.parser is not None else build_parser(program, named)
         args = parser.parse_args(argv[1:] if own is not None else argv)
     except SystemExit as exc:      # --help, --version (0) or a usage error (2)
         return None, exc.code if isinstance(exc.code, int) else EXIT_USAGE

@@ -129,6 +129,30 @@ def test_usage_verbose_and_the_command_status(capsys):
     assert "do it" in capsys.readouterr().out
 
 
+def test_a_run_builds_only_its_own_commands_arguments(capsys):
+    """Building a command's arguments may import what only that command needs (simulate fit's method registry
+    imports the fit's modules): a run builds its own command's, the program's help none, the reference every one."""
+    built = []
+
+    def arguments(name):
+        def add(p):
+            built.append(name)
+            p.add_argument("--n", type=int, default=0)
+        return add
+
+    commands = tuple(registry.Command(name, f"do {name}", arguments(name), lambda args: args.n) for name in ("a", "b"))
+    program = registry.Program("prog", "A test program.", commands)
+    assert registry.main(program, ["b", "--n", "3"]) == 3 and built == ["b"]
+    assert registry.main(program, ["-v", "a"]) == 0 and built == ["b", "a"]       # -v before the command
+    built.clear()
+    assert registry.main(program, ["--help"]) == 0 and built == []
+    assert "do a" in capsys.readouterr().out
+    assert registry.main(program, ["c"]) == 2 and built == []                   # no such command: one line
+    assert "invalid choice: 'c'" in capsys.readouterr().err
+    registry.build_parser(program)
+    assert built == ["a", "b"]
+
+
 def test_the_out_of_a_writing_command_is_claimed_for_its_run(tmp_path, capsys):
     from gonio.data.claim import claim_output
 
