@@ -1,7 +1,7 @@
 """simulate fit frees a ring dye's depth (``fiber.dye_depth_um``): the depth of a synthetic measurement made at a
 known depth comes back within 3 of its reported uncertainties from another start depth (the classic model, the
-structured summation and the felt Monte Carlo's fit, in the slow suite), and a bad depth or a model that cannot take
-one is refused in one line.
+structured summation, in the slow suite; the felt Monte Carlo's fit: tests/docs/test_dye_depth_check.py), and a bad
+depth or a model that cannot take one is refused in one line.
 Likewise the depth of a skin of scatterers (``fiber.scatterer_depth_um``): its default bounds inside the fiber, the
 free value reaching the fiber that is walked, and the refusals."""
 
@@ -91,49 +91,6 @@ def test_a_structured_summation_fit_recovers_a_ring_dyes_depth():
     assert result.objective < result.objective_start
     assert result.info["u_status"] == [""] and result.u[0] > 0, result.u
     assert abs(result.x[0] - truth) < 3 * result.u[0], (result.x, result.u)
-
-
-def _felt_ring(depth: float):
-    """The green-felt preset with its dye in a ring ``depth`` um deep (radius 10 um)."""
-    doc = tomllib.loads(load_config("green-felt").text)
-    doc["fiber"].update(dye_profile="ring", dye_depth_um=depth)
-    return parse_config(toml_dumps(doc), "felt-ring.toml")
-
-
-def _mc_measured(beta: np.ndarray, u: np.ndarray, geometries):
-    rep = geometries.loc[geometries.index.repeat(WL6.size)].reset_index(drop=True)
-    table = dict(theta_i=rep["theta_i"], phi_i=rep["phi_i"], theta_o=rep["theta_o"], phi_o=rep["phi_o"],
-                 wavelength_nm=np.tile(WL6, len(geometries)), beta=np.ravel(beta), u_beta=np.ravel(u),
-                 n=np.ones(np.size(beta), dtype=int))
-    return make_dataset(table, new_meta("measured", {"name": "synthetic ring-dyed felt"}))
-
-
-@pytest.mark.slow
-def test_a_monte_carlo_fit_recovers_a_ring_dyes_depth():
-    """The felt Monte Carlo fit (output space mapping; a depth is traced again at every run, not re-weighted): a
-    measurement made by the felt Monte Carlo with the dye in a ring 3 um deep (+1 % noise; its u_beta the Monte
-    Carlo's and the noise's), fitted from 1.2 um, comes back within 3 of its reported uncertainties, and the start
-    lies beyond that."""
-    from fabric_optics.fitting import spacemapping as fit_mc
-    from fabric_optics.fitting.spacemapping import MCFitProblem, run_mc_fit
-
-    free = "fiber.dye_depth_um=0.3:6"
-    geometries = _geometries()
-    truth = _felt_ring(3.0)
-    flat = _mc_measured(np.full((len(geometries), WL6.size), 0.3), np.full((len(geometries), WL6.size), 0.003),
-                        geometries)
-    probe = MCFitProblem(truth, flat, parse_free([free], truth), target_rel_err=0.2, seed=4, wavelengths_nm=WL6)
-    ref = fit_mc.run_monte_carlo(probe, np.array([3.0]))
-    noise = np.random.default_rng(3).standard_normal(ref.beta.shape)
-    measured = _mc_measured(ref.beta * (1.0 + 0.01 * noise), np.sqrt(ref.u_beta ** 2 + (0.01 * ref.beta) ** 2) + 1e-5,
-                            probe.geometries)
-    start = _felt_ring(1.2)
-    problem = MCFitProblem(start, measured, parse_free([free], start), target_rel_err=0.2, seed=4, wavelengths_nm=WL6)
-    result = run_mc_fit(problem, max_runs=4, noise_draws=16)
-    assert result.objective < result.objective_start
-    assert np.all(result.u > 0) and np.all(np.isfinite(result.u)), result.u
-    assert abs(result.x[0] - 3.0) < 3 * result.u[0], (result.x, result.u)
-    assert abs(1.2 - 3.0) > 3 * result.u[0], result.u
 
 
 @pytest.mark.parametrize("config, free, method, message", [
